@@ -1,0 +1,37 @@
+# insitu-soil: two commands do all the set-up on a fresh machine.
+#   make demo   creates .venv (if missing), installs everything pinned, runs the main job
+#   make test   same set-up, then the test suite
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+PKGS := src/soil_msgs_py src/anti_stall_controller src/soil_sim_node src/pinn_estimator
+STAMP := $(VENV)/.installed
+
+# DDS never leaves loopback; every make target gets its own domain id unless the caller chose one.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export ROS_DOMAIN_ID ?= 42
+export MPLBACKEND := Agg
+
+.PHONY: venv demo test bench clean-venv dataset
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -r requirements.txt
+	$(BIN)/python -m pip install --quiet --no-deps $(foreach p,$(PKGS),-e $(p))
+	@touch $(STAMP)
+
+demo: venv
+	$(BIN)/python -m soil_sim_node.demo
+
+test: venv
+	$(BIN)/python -m pytest -q tests
+
+bench: venv
+	$(BIN)/python benchmarks/bench_sim.py
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,1 @@
+"""Shared vocabulary of insitu-soil: soil parameter vector (paper Table 1), the FEE (one implementation for NumPy and torch), soil catalogue, topic names, QoS, message layouts and rosbag2 MCAP bag I/O."""
