@@ -1,0 +1,283 @@
+"""Gain-scheduled anti-stall blade controller of Wagner et al. §2.1.3 (Eq. 11-12), ROS-free.
+
+The paper's controller, for a desired forward velocity v̄_x and target absolute cut depth d̄_z:
+
+    Δd̄^k = K_Δp (e_vx^k − e_vmin) + Δd̄^{k−1},  clipped to [0, d̄_z + Δd̄_max]      (Eq. 11)
+    u_zr  = −(d̄_z − Δd̄^k)                                                          (Eq. 12)
+
+with e_vx = v̄_x − v_x^c (measured chassis forward velocity), the velocity dependent threshold
+e_vmin = v̄_x c_vx and the scheduled gain K_Δp = K_v / v̄_x. When the machine slows down
+(stalling soil) the velocity error exceeds the threshold and the depth offset Δd̄ grows: the
+blade rises, at most to Δd̄_max above the surface. When the machine runs faster than
+v̄_x (1 − c_vx) the offset integrates back down to 0 and the blade returns to the target depth.
+
+Interpretation choices of this implementation (the paper leaves these open):
+
+1. Sample-rate independence (Eq. 11). The paper's update is per time step, so its gain
+   depends on the 60 Hz step. Here the integrator is written in continuous time and
+   discretised with the step ``dt``:
+
+       Δd̄^k = Δd̄^{k−1} + (K_v / v̄_x) (e_vx^k − e_vmin) · dt
+
+   with K_v in m/s: for a velocity error one v̄_x above the threshold (relative error 1)
+   the blade rises at K_v m/s. The paper's per-step gain is therefore
+   K_Δp,paper = K_v · dt / v̄_x (dimensionless per-step gain on the error in m/s, giving m);
+   at dt = 1/60 s and K_v = 0.5 m/s, K_Δp,paper = 0.00833 / v̄_x.
+
+2. Absolute depth (Eq. 12). Eq. 12 is a depth relative to the level original ground
+   surface z = 0, so the absolute edge-height target is
+
+       u_za = −(d̄_z − Δd̄^k)
+
+   and the blade-lift joint command, relative to the chassis ground reference p_z^c, is
+
+       u_zr = clip(u_za − p_z^c, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m).
+
+   The paper writes Eq. 12 for the *relative* command u_zr. Taken literally, with the
+   chassis riding on its own cut floor (the simulated suspension follows the soil height
+   under the chassis), the blade would be commanded d̄ below the floor the chassis already
+   stands on, so the cut would deepen by d̄ every chassis length. The paper also logs an
+   absolute command u_za (§2.1.2), which fits this reading: the depth target is absolute,
+   the joint command is derived from it.
+
+3. Chassis velocity command u_x = v̄_x (the paper's motorized velocity constraint tracks it).
+
+Batches: every target and state is a float64 array of shape (B,), one entry per episode
+(scalars broadcast). All arithmetic is element-wise IEEE +, −, ×, ÷ and clipping in a fixed
+order, so row i of a batch is bit-identical to running that row alone with B = 1.
+
+Measurements that are not finite (NaN/±inf v_x^c or p_z^c) never enter the integrator:
+for those episodes the previous depth offset is held, and u_zr is computed from the last
+finite p_z^c (0.0, the level surface, before any finite one was seen), so commands stay
+finite.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from soil_msgs_py.params import MACHINE, SAMPLE_RATE_HZ
+
+__all__ = ["AntiStallGains", "ControlCommand", "AntiStallController"]
+
+
+def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str) -> float:
+    """Return ``value`` as a float, or raise ValueError naming the field, value and range."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}") from None
+    if not math.isfinite(x) or x < lo or (lo_open and x == lo):
+        raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}")
+    return x
+
+
+@dataclass(frozen=True)
+class AntiStallGains:
+    """Controller parameters (SI). Validated on construction.
+
+    k_v_m_s:        K_v, depth-offset integral gain [m/s]: blade rise rate per unit relative
+                    velocity error (e_vx − e_vmin)/v̄_x. K_Δp = K_v / v̄_x (Eq. 11). >= 0;
+                    0 disables the anti-stall action (fixed target depth).
+    c_vx:           velocity-error threshold as a fraction of v̄_x: e_vmin = v̄_x c_vx. >= 0.
+    delta_d_max_m:  Δd̄_max, how far above the surface the blade may be raised [m]: the
+                    offset is clipped to [0, d̄_z + Δd̄_max] (Eq. 11). >= 0.
+    dt_s:           integration step [s], default one 60 Hz tick. > 0.
+    """
+
+    k_v_m_s: float = 0.5
+    c_vx: float = 0.2
+    delta_d_max_m: float = 0.05
+    dt_s: float = 1.0 / SAMPLE_RATE_HZ
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("k_v_m_s", 0.0, False, "[0, inf)"),
+            ("c_vx", 0.0, False, "[0, inf)"),
+            ("delta_d_max_m", 0.0, False, "[0, inf)"),
+            ("dt_s", 0.0, True, "(0, inf)"),
+        )
+        for name, lo, lo_open, allowed in checks:
+            value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed)
+            object.__setattr__(self, name, value)
+
+    def paper_step_gain(self, target_speed_m_s):
+        """The paper's per-step gain K_Δp,paper = K_v · dt / v̄_x (Eq. 11 as printed)."""
+        return self.k_v_m_s * self.dt_s / np.asarray(target_speed_m_s, dtype=np.float64)
+
+
+class ControlCommand(NamedTuple):
+    """Commands of one tick, each a float64 array of shape (B,); order = params.COMMAND_FIELDS."""
+
+    u_zr: np.ndarray  # blade edge height relative to the chassis ground reference [m] (joint)
+    u_za: np.ndarray  # absolute blade edge height target, surface at z = 0 [m]
+    u_x: np.ndarray  # chassis forward velocity command [m/s]
+
+
+def _as_batch(name: str, value, batch_size: Optional[int]) -> np.ndarray:
+    """float64 array of shape (B,), a fresh copy; scalars and (1,) broadcast."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim > 1:
+        raise ValueError(f"{name} must be a scalar or a 1-D array of shape (B,); got shape {arr.shape}")
+    arr = np.atleast_1d(arr)
+    if batch_size is not None and arr.shape[0] != batch_size:
+        if arr.shape[0] != 1:
+            raise ValueError(
+                f"{name} has shape {arr.shape}, which does not match the batch size B={batch_size}"
+            )
+        arr = np.broadcast_to(arr, (batch_size,))
+    return np.array(arr, dtype=np.float64, copy=True)
+
+
+def _check_targets(speed: np.ndarray, depth: np.ndarray) -> None:
+    bad = ~np.isfinite(speed) | (speed <= 0.0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"target_speed_m_s must be finite and in (0, inf) m/s; got {float(speed[i])!r} at index {i}"
+        )
+    bad = ~np.isfinite(depth) | (depth < 0.0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"target_depth_m must be finite and in [0, inf) m; got {float(depth[i])!r} at index {i}"
+        )
+
+
+class AntiStallController:
+    """Eq. 11-12 for a batch of B episodes. See the module docstring for the interpretation.
+
+    ``AntiStallController(gains, target_speed_m_s, target_depth_m, batch_size=None)``:
+    targets are scalars or arrays of shape (B,); B is taken from them (or ``batch_size``,
+    to which scalar targets broadcast). Call ``step(v_x_c, p_z_c)`` once per tick.
+    """
+
+    def __init__(
+        self,
+        gains: Optional[AntiStallGains] = None,
+        target_speed_m_s=0.5,
+        target_depth_m=0.1,
+        batch_size: Optional[int] = None,
+    ) -> None:
+        if gains is None:
+            gains = AntiStallGains()
+        if not isinstance(gains, AntiStallGains):
+            raise ValueError(f"gains must be an AntiStallGains; got {type(gains).__name__}")
+        if batch_size is not None and (int(batch_size) != batch_size or batch_size < 1):
+            raise ValueError(f"batch_size must be an integer >= 1; got {batch_size!r}")
+        speed = np.atleast_1d(np.asarray(target_speed_m_s, dtype=np.float64))
+        depth = np.atleast_1d(np.asarray(target_depth_m, dtype=np.float64))
+        if batch_size is None:
+            try:
+                batch_size = int(np.broadcast_shapes(speed.shape, depth.shape)[0])
+            except ValueError:
+                raise ValueError(
+                    f"target_speed_m_s shape {speed.shape} and target_depth_m shape "
+                    f"{depth.shape} do not broadcast to one batch (B,)"
+                ) from None
+        self._batch_size = int(batch_size)
+        speed = _as_batch("target_speed_m_s", speed, self._batch_size)
+        depth = _as_batch("target_depth_m", depth, self._batch_size)
+        _check_targets(speed, depth)
+        self._gains = gains
+        self._speed = speed
+        self._depth = depth
+        self._offset = np.zeros(self._batch_size)
+        self._last_p_z_c = np.zeros(self._batch_size)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def batch_size(self) -> int:
+        return self._batch_size
+
+    @property
+    def gains(self) -> AntiStallGains:
+        return self._gains
+
+    @property
+    def target_speed_m_s(self) -> np.ndarray:
+        return self._speed.copy()
+
+    @property
+    def target_depth_m(self) -> np.ndarray:
+        return self._depth.copy()
+
+    @property
+    def depth_offset_m(self) -> np.ndarray:
+        """Δd̄^k of Eq. 11 (>= 0; positive raises the blade), shape (B,). A copy."""
+        return self._offset.copy()
+
+    def offset_upper_bound_m(self) -> np.ndarray:
+        """Upper clip of Eq. 11: d̄_z + Δd̄_max (blade Δd̄_max above the surface)."""
+        return self._depth + self._gains.delta_d_max_m
+
+    # ------------------------------------------------------------------ configuration
+    def reset(self, depth_offset_m=0.0) -> None:
+        """Start new episodes: offset (default 0, blade at target depth), clipped to range."""
+        offset = _as_batch("depth_offset_m", depth_offset_m, self._batch_size)
+        if not np.all(np.isfinite(offset)):
+            raise ValueError(f"depth_offset_m must be finite; got {offset!r}")
+        self._offset = np.clip(offset, 0.0, self.offset_upper_bound_m())
+        self._last_p_z_c = np.zeros(self._batch_size)
+
+    def set_targets(self, target_speed_m_s=None, target_depth_m=None) -> None:
+        """Change v̄_x and/or d̄_z at run time (None keeps the current value).
+
+        The integrator state is kept, clipped to the new range [0, d̄_z + Δd̄_max].
+        Validation happens before anything changes: on ValueError the controller is intact.
+        """
+        speed = self._speed if target_speed_m_s is None else _as_batch(
+            "target_speed_m_s", target_speed_m_s, self._batch_size)
+        depth = self._depth if target_depth_m is None else _as_batch(
+            "target_depth_m", target_depth_m, self._batch_size)
+        _check_targets(speed, depth)
+        self._speed = speed.copy()
+        self._depth = depth.copy()
+        self._offset = np.clip(self._offset, 0.0, self.offset_upper_bound_m())
+
+    def set_gains(self, gains: Optional[AntiStallGains] = None, **changes) -> None:
+        """Replace the gains (an AntiStallGains) and/or change fields by keyword, e.g.
+        ``set_gains(k_v_m_s=0.3)``. Validated; the offset is clipped to the new range."""
+        base = self._gains if gains is None else gains
+        if not isinstance(base, AntiStallGains):
+            raise ValueError(f"gains must be an AntiStallGains; got {type(base).__name__}")
+        if changes:
+            known = {f.name for f in dataclasses.fields(AntiStallGains)}
+            unknown = sorted(set(changes) - known)
+            if unknown:
+                raise ValueError(f"unknown gain field(s) {unknown}; allowed: {sorted(known)}")
+            base = dataclasses.replace(base, **changes)  # __post_init__ validates
+        self._gains = base
+        self._offset = np.clip(self._offset, 0.0, self.offset_upper_bound_m())
+
+    # ------------------------------------------------------------------ control
+    def step(self, v_x_c, p_z_c) -> ControlCommand:
+        """One tick: measured chassis forward velocity v_x^c [m/s] and chassis ground
+        reference height p_z^c [m] (scalars or shape (B,)) -> ControlCommand."""
+        v = _as_batch("v_x_c", v_x_c, self._batch_size)
+        pz = _as_batch("p_z_c", p_z_c, self._batch_size)
+        g = self._gains
+        speed = self._speed
+
+        # Eq. 11, continuous-time form discretised with dt (see module docstring, item 1).
+        e_vx = speed - v  # velocity tracking error
+        e_vmin = speed * g.c_vx  # velocity dependent threshold
+        k_dp = g.k_v_m_s / speed  # gain schedule K_Δp = K_v / v̄_x  [1/s · m/s / (m/s)]
+        candidate = self._offset + (k_dp * (e_vx - e_vmin)) * g.dt_s
+        candidate = np.clip(candidate, 0.0, self.offset_upper_bound_m())
+
+        # Non-finite measurements: hold the previous offset (integrator not corrupted).
+        ok = np.isfinite(v) & np.isfinite(pz)
+        self._offset = np.where(ok, candidate, self._offset)
+        pz_finite = np.isfinite(pz)
+        self._last_p_z_c = np.where(pz_finite, pz, self._last_p_z_c)
+
+        # Eq. 12 as an absolute target (item 2), then the joint command relative to p_z^c.
+        u_za = -(self._depth - self._offset)
+        u_zr = np.clip(u_za - self._last_p_z_c, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m)
+        u_x = speed.copy()  # item 3
+        return ControlCommand(u_zr=u_zr, u_za=u_za, u_x=u_x)

@@ -1,0 +1,129 @@
+"""One recorded episode as arrays, and its metadata.
+
+This is the in-memory form of a bag: the batch generator produces it, the bag writer
+writes it, the bag reader returns it, the trainer consumes it. Rows are 60 Hz ticks.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
+
+WORLD_MODES = ("fee", "default")
+EPISODE_SCHEMA_VERSION = 1
+
+# Per-tick extras that are not part of o_t but that users and plots want.
+EXTRA_FIELDS: tuple[str, ...] = ("p_x_c", "v_x_b")
+
+
+@dataclass
+class EpisodeMeta:
+    """What a user needs to know about how an episode was made (stored in the bag)."""
+
+    soil: str
+    relative_density_pct: float
+    world_mode: str
+    seed: int
+    target_speed_m_s: float
+    target_depth_m: float
+    duration_s: float
+    effects: list[str] = field(default_factory=list)
+    plugins: list[str] = field(default_factory=list)
+    source: str = "soil_sim_batch"
+    schema_version: int = EPISODE_SCHEMA_VERSION
+
+    def validate(self) -> None:
+        """Raise ValueError naming the field and value if the metadata is not usable."""
+        if self.world_mode not in WORLD_MODES:
+            raise ValueError(f"world_mode={self.world_mode!r} is not one of {WORLD_MODES}")
+        for name in ("relative_density_pct", "target_speed_m_s", "target_depth_m", "duration_s"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"{name}={value!r} must be a finite number")
+        if not 0.0 <= self.relative_density_pct <= 100.0:
+            raise ValueError(f"relative_density_pct={self.relative_density_pct} outside [0, 100] %")
+        if self.target_depth_m < 0.0:
+            raise ValueError(f"target_depth_m={self.target_depth_m} must be >= 0 m")
+        if self.target_speed_m_s <= 0.0:
+            raise ValueError(f"target_speed_m_s={self.target_speed_m_s} must be > 0 m/s")
+        if self.duration_s <= 0.0:
+            raise ValueError(f"duration_s={self.duration_s} must be > 0 s")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "EpisodeMeta":
+        data = json.loads(text)
+        known = {f for f in cls.__dataclass_fields__}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"episode metadata has unknown keys {sorted(unknown)}")
+        return cls(**data)
+
+    @property
+    def name(self) -> str:
+        """A stable, human-readable episode name (also the bag directory name)."""
+        return (
+            f"{self.world_mode}_{self.soil.lower()}_id{self.relative_density_pct:03.0f}"
+            f"_v{self.target_speed_m_s:.2f}_d{self.target_depth_m:.3f}_s{self.seed}"
+        )
+
+
+@dataclass
+class Episode:
+    """Arrays of one episode, one row per 60 Hz tick.
+
+    stamps_ns    (N,)   int64, simulation time of the tick [ns]
+    observations (N, 9) OBSERVATION_FIELDS  o_t = [p, v, u]      [m, m/s]
+    forces       (N, 2) FORCE_FIELDS        measured blade force [N], blade-on-soil, x fwd, z up
+    known        (N, 9) KNOWN_PARAMS        Θ_k                  [SI]
+    truth        (N,13) GROUND_TRUTH_PARAMS pseudo-ground-truth Θ [SI]
+    extras       (N, 2) EXTRA_FIELDS        chassis x [m], blade x velocity [m/s]
+    """
+
+    meta: EpisodeMeta
+    stamps_ns: np.ndarray
+    observations: np.ndarray
+    forces: np.ndarray
+    known: np.ndarray
+    truth: np.ndarray
+    extras: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.stamps_ns)
+        expected = {
+            "observations": len(OBSERVATION_FIELDS),
+            "forces": len(FORCE_FIELDS),
+            "known": len(KNOWN_PARAMS),
+            "truth": len(GROUND_TRUTH_PARAMS),
+            "extras": len(EXTRA_FIELDS),
+        }
+        for name, width in expected.items():
+            arr = getattr(self, name)
+            if arr.shape != (n, width):
+                raise ValueError(f"Episode.{name} has shape {arr.shape}, expected ({n}, {width})")
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def column(self, name: str) -> np.ndarray:
+        """Any named per-tick column, e.g. ``ep.column('p_z_b')`` or ``ep.column('q')``."""
+        for fields, arr in (
+            (OBSERVATION_FIELDS, self.observations),
+            (FORCE_FIELDS, self.forces),
+            (EXTRA_FIELDS, self.extras),
+            (KNOWN_PARAMS, self.known),
+            (GROUND_TRUTH_PARAMS, self.truth),
+        ):
+            if name in fields:
+                return arr[:, fields.index(name)]
+        raise KeyError(f"no column named {name!r}")
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return (self.stamps_ns - self.stamps_ns[0]) * 1e-9

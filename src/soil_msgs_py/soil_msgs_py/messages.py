@@ -1,0 +1,284 @@
+"""Episode rows <-> ROS 2 messages for every topic of ``topics.EPISODE_TOPICS``.
+
+The ONE place that knows which Episode column goes into which message field, so the bag
+writer, the bag reader and (later) the rclpy nodes cannot disagree. Builders take a
+"class namespace": a rosbags ``Typestore``, a mapping ``msgtype -> class`` (e.g.
+``ros_message_classes()``) or a callable. Both rosbags and rclpy message classes accept
+all fields as keyword arguments and expose the same attribute names, so the mapping is
+shared. rclpy is never imported here; ROS message packages only inside
+``ros_message_classes()``.
+"""
+from __future__ import annotations
+
+import functools
+import importlib
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from operator import attrgetter
+from typing import Any
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from . import topics as T
+from .episode import EXTRA_FIELDS, Episode, EpisodeMeta
+from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
+
+NS_PER_S = 1_000_000_000
+LABEL_SEP = "|"
+# Jazzy definitions: what the nodes publish and what the bags embed.
+TYPESTORE: Typestore = get_typestore(Stores.ROS2_JAZZY)
+
+# Episode array attribute -> its column names (Episode.column() is ambiguous for Θ names
+# that are both known and ground truth, e.g. "c_a", so columns are (array, field) pairs).
+ARRAY_FIELDS: dict[str, tuple[str, ...]] = {
+    "observations": OBSERVATION_FIELDS,
+    "forces": FORCE_FIELDS,
+    "known": KNOWN_PARAMS,
+    "truth": GROUND_TRUTH_PARAMS,
+    "extras": EXTRA_FIELDS,
+}
+
+Classes = Callable[[str], Any]
+
+
+def classes_from(ns: Typestore | Mapping[str, Any] | Classes) -> Classes:
+    """Normalise a typestore / mapping / callable into ``msgtype -> message class``."""
+    if isinstance(ns, Typestore):
+        return ns.types.__getitem__
+    if isinstance(ns, Mapping):
+        return ns.__getitem__
+    if callable(ns):
+        return ns
+    raise TypeError(f"cannot get message classes from {type(ns).__name__}")
+
+
+def ros_message_classes() -> dict[str, Any]:
+    """``msgtype -> class`` from the installed ROS 2 Python message packages (for rclpy nodes)."""
+    out: dict[str, Any] = {}
+    needed = {t.msgtype for t in T.EPISODE_TOPICS} | {
+        "builtin_interfaces/msg/Time", "std_msgs/msg/Header", "std_msgs/msg/MultiArrayLayout",
+        "std_msgs/msg/MultiArrayDimension", "geometry_msgs/msg/Point",
+        "geometry_msgs/msg/Vector3", "geometry_msgs/msg/Twist", "geometry_msgs/msg/Wrench",
+    }
+    for msgtype in sorted(needed):
+        pkg, _, name = msgtype.split("/")
+        out[msgtype] = getattr(importlib.import_module(f"{pkg}.msg"), name)
+    return out
+
+
+# --- stamps -------------------------------------------------------------------------
+
+def split_ns(stamp_ns: int) -> tuple[int, int]:
+    """ns -> (sec, nanosec), integers, nanosec in [0, 1e9)."""
+    return divmod(int(stamp_ns), NS_PER_S)
+
+
+def stamp_ns(t: Any) -> int:
+    """builtin_interfaces/Time -> ns."""
+    return t.sec * NS_PER_S + t.nanosec
+
+
+def _time(C: Classes, ns: int) -> Any:
+    sec, nanosec = split_ns(ns)
+    return C("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
+
+
+def _header(C: Classes, ns: int) -> Any:
+    return C("std_msgs/msg/Header")(stamp=_time(C, ns), frame_id=T.WORLD_FRAME)
+
+
+def _vec3(C: Classes, x: float, z: float) -> Any:
+    return C("geometry_msgs/msg/Vector3")(x=float(x), y=0.0, z=float(z))
+
+
+# --- labelled Float64MultiArray -------------------------------------------------------
+
+@functools.lru_cache(maxsize=64)
+def _label(labels: tuple[str, ...]) -> str:
+    return LABEL_SEP.join(T.STAMP_FIELDS + tuple(labels))
+
+
+def make_labelled(ns: Any, stamp_ns: int, labels: Sequence[str], values: Sequence[float]) -> Any:
+    """Float64MultiArray with data = [stamp_sec, stamp_nanosec, *values], self-describing label."""
+    if len(values) != len(labels):
+        raise ValueError(f"{len(values)} values for {len(labels)} labels {tuple(labels)}")
+    C = classes_from(ns)
+    sec, nanosec = split_ns(stamp_ns)
+    data = np.empty(len(labels) + 2, dtype=np.float64)
+    data[0], data[1], data[2:] = sec, nanosec, values
+    n = len(data)
+    dim = C("std_msgs/msg/MultiArrayDimension")(label=_label(tuple(labels)), size=n, stride=n)
+    layout = C("std_msgs/msg/MultiArrayLayout")(dim=[dim], data_offset=0)
+    return C("std_msgs/msg/Float64MultiArray")(layout=layout, data=data)
+
+
+def parse_labelled(msg: Any, expected_labels: Sequence[str], topic: str = "") -> tuple[int, np.ndarray]:
+    """Inverse of make_labelled; ValueError (naming ``topic``) if the layout is not the expected one."""
+    where = f"{topic}: " if topic else ""
+    want = _label(tuple(expected_labels))
+    dims = msg.layout.dim
+    if len(dims) != 1:
+        raise ValueError(f"{where}labelled array needs exactly 1 layout dim, got {len(dims)}")
+    if dims[0].label != want:
+        raise ValueError(f"{where}label mismatch: got {dims[0].label!r}, expected {want!r}")
+    data = np.asarray(msg.data, dtype=np.float64)
+    n = len(want.split(LABEL_SEP))
+    if len(data) != n or dims[0].size != n or dims[0].stride != n or msg.layout.data_offset != 0:
+        raise ValueError(
+            f"{where}labelled array has len(data)={len(data)}, size={dims[0].size}, "
+            f"stride={dims[0].stride}, data_offset={msg.layout.data_offset}; expected {n}, {n}, {n}, 0"
+        )
+    sec, nanosec = data[0], data[1]
+    ok = np.isfinite(sec) and np.isfinite(nanosec)
+    if not (ok and sec == int(sec) and nanosec == int(nanosec) and 0 <= nanosec < NS_PER_S):
+        raise ValueError(f"{where}invalid stamp sec={sec!r} nanosec={nanosec!r}")
+    return int(sec) * NS_PER_S + int(nanosec), data[2:].copy()
+
+
+# --- per-topic mapping ---------------------------------------------------------------
+
+@dataclass(frozen=True)
+class TopicFields:
+    """Which Episode columns a topic carries, and where they sit in the message."""
+
+    topic: T.Topic
+    columns: tuple[tuple[str, str], ...]  # (Episode array, field name), in message order
+    paths: tuple[str, ...] = ()  # attribute paths for geometry types; () for labelled/Clock
+    stamp_path: str = "header.stamp"
+
+    @property
+    def width(self) -> int:
+        return len(self.columns)
+
+
+def _cols(array: str, names: Iterable[str]) -> tuple[tuple[str, str], ...]:
+    return tuple((array, n) for n in names)
+
+
+def _obs(*names: str) -> tuple[tuple[str, str], ...]:
+    return _cols("observations", names)
+
+
+FIELDS: dict[str, TopicFields] = {
+    f.topic.name: f
+    for f in (
+        TopicFields(T.CLOCK, (), stamp_path="clock"),
+        TopicFields(T.BLADE_POSE, _obs("p_x_b", "p_z_b"), ("point.x", "point.z")),
+        TopicFields(T.BLADE_TWIST, (("extras", "v_x_b"),) + _obs("v_z_b"),
+                    ("twist.linear.x", "twist.linear.z")),
+        TopicFields(T.CHASSIS_POSE, (("extras", "p_x_c"),) + _obs("p_z_c"), ("point.x", "point.z")),
+        TopicFields(T.CHASSIS_TWIST, _obs("v_x_c", "v_z_c"), ("twist.linear.x", "twist.linear.z")),
+        TopicFields(T.BLADE_FORCE, _cols("forces", FORCE_FIELDS), ("wrench.force.x", "wrench.force.z")),
+        TopicFields(T.KNOWN, _cols("known", KNOWN_PARAMS)),
+        TopicFields(T.GROUND_TRUTH, _cols("truth", GROUND_TRUTH_PARAMS)),
+        TopicFields(T.CMD_VEL, _obs("u_x"), ("twist.linear.x",)),
+        TopicFields(T.BLADE_CMD, _obs("u_zr", "u_za")),
+    )
+}
+assert tuple(FIELDS) == tuple(t.name for t in T.EPISODE_TOPICS), "mapping out of sync with topics.py"
+_ALL = sorted(c for f in FIELDS.values() for c in f.columns)
+assert _ALL == sorted((a, n) for a, names in ARRAY_FIELDS.items() for n in names), (
+    "every Episode column must be carried by exactly one topic"
+)
+
+
+def build_message(ns: Any, topic: str, stamp: int, values: Sequence[float] = ()) -> Any:
+    """One message of ``topic`` for a tick; ``values`` in ``FIELDS[topic].columns`` order."""
+    f = FIELDS[topic]
+    C = classes_from(ns)
+    if len(values) != f.width:
+        raise ValueError(f"{topic}: {len(values)} values, expected {f.width} {f.columns}")
+    mt = f.topic.msgtype
+    if f.topic.labels:
+        return make_labelled(C, stamp, f.topic.labels, values)
+    if mt == "rosgraph_msgs/msg/Clock":
+        return C(mt)(clock=_time(C, stamp))
+    if mt == "geometry_msgs/msg/PointStamped":
+        x, z = values
+        point = C("geometry_msgs/msg/Point")(x=float(x), y=0.0, z=float(z))
+        return C(mt)(header=_header(C, stamp), point=point)
+    if mt == "geometry_msgs/msg/TwistStamped":
+        x, z = (values[0], 0.0) if len(values) == 1 else values
+        twist = C("geometry_msgs/msg/Twist")(linear=_vec3(C, x, z), angular=_vec3(C, 0.0, 0.0))
+        return C(mt)(header=_header(C, stamp), twist=twist)
+    if mt == "geometry_msgs/msg/WrenchStamped":
+        x, z = values
+        wrench = C("geometry_msgs/msg/Wrench")(force=_vec3(C, x, z), torque=_vec3(C, 0.0, 0.0))
+        return C(mt)(header=_header(C, stamp), wrench=wrench)
+    raise AssertionError(f"no builder for {mt}")
+
+
+@functools.lru_cache(maxsize=None)
+def _getters(topic: str) -> tuple[Callable[[Any], Any], Callable[[Any], Any] | None]:
+    f = FIELDS[topic]
+    values = attrgetter(*f.paths) if f.paths else None
+    return attrgetter(f.stamp_path), values
+
+
+def parse_message(topic: str, msg: Any) -> tuple[int, np.ndarray]:
+    """Inverse of build_message: (stamp ns, values in ``FIELDS[topic].columns`` order)."""
+    f = FIELDS[topic]
+    if f.topic.labels:
+        return parse_labelled(msg, f.topic.labels, topic)
+    get_stamp, get_values = _getters(topic)
+    if get_values is None:
+        return stamp_ns(get_stamp(msg)), np.empty(0)
+    vals = get_values(msg)
+    return stamp_ns(get_stamp(msg)), np.array(vals if isinstance(vals, tuple) else (vals,), dtype=np.float64)
+
+
+# --- whole episodes --------------------------------------------------------------------
+
+def topic_rows(ep: Episode, topic: str) -> np.ndarray:
+    """(N, width) float64 matrix of the Episode columns that ``topic`` carries."""
+    cols = [getattr(ep, a)[:, ARRAY_FIELDS[a].index(n)] for a, n in FIELDS[topic].columns]
+    return np.stack(cols, axis=1) if cols else np.empty((len(ep), 0))
+
+
+def serialize_episode(ep: Episode, typestore: Typestore = TYPESTORE) -> Iterator[tuple[str, int, memoryview]]:
+    """(topic, log time ns, CDR bytes) per tick, topics in EPISODE_TOPICS order within a tick."""
+    rows = {name: topic_rows(ep, name).tolist() for name in FIELDS}
+    for i, stamp in enumerate(ep.stamps_ns.tolist()):
+        for name, f in FIELDS.items():
+            msg = build_message(typestore, name, stamp, rows[name][i])
+            yield name, stamp, typestore.serialize_cdr(msg, f.topic.msgtype)
+
+
+def decode_topic(
+    topic: str, raws: Iterable[bytes | memoryview], typestore: Typestore = TYPESTORE
+) -> tuple[np.ndarray, np.ndarray]:
+    """CDR messages of one topic -> (stamps int64 (n,), values float64 (n, width))."""
+    f = FIELDS[topic]
+    deser, mt = typestore.deserialize_cdr, f.topic.msgtype
+    stamps: list[int] = []
+    rows: list[np.ndarray] = []
+    for raw in raws:
+        s, v = parse_message(topic, deser(raw, mt))
+        stamps.append(s)
+        rows.append(v)
+    values = np.stack(rows) if rows else np.empty((0, f.width))
+    return np.asarray(stamps, dtype=np.int64), values.reshape(len(stamps), f.width)
+
+
+def assemble_episode(meta: EpisodeMeta, decoded: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> Episode:
+    """Per-topic (stamps, values) -> Episode; ValueError naming the topic and stamp of any gap."""
+    for name in FIELDS:
+        if name not in decoded:
+            raise ValueError(f"topic {name} missing")
+    all_stamps = np.unique(np.concatenate([decoded[n][0] for n in FIELDS]))
+    n = len(all_stamps)
+    arrays = {a: np.empty((n, len(names))) for a, names in ARRAY_FIELDS.items()}
+    for name, f in FIELDS.items():
+        stamps, values = decoded[name]
+        order = np.argsort(stamps, kind="stable")
+        stamps, values = stamps[order], values[order]
+        if len(stamps) > 1 and (dup := np.flatnonzero(np.diff(stamps) == 0)).size:
+            raise ValueError(f"topic {name} has two messages with stamp {stamps[dup[0]]} ns")
+        if len(stamps) != n:  # stamps is a sorted unique subset of all_stamps
+            missing = np.setdiff1d(all_stamps, stamps)[0]
+            raise ValueError(f"topic {name} has no message for tick stamp {missing} ns")
+        for j, (a, col) in enumerate(f.columns):
+            arrays[a][:, ARRAY_FIELDS[a].index(col)] = values[:, j]
+    return Episode(meta=meta, stamps_ns=all_stamps.astype(np.int64), **arrays)

@@ -1,0 +1,121 @@
+"""The FEE parameter vector Θ, its units, paper Table 1 ranges and limits, and machine constants.
+
+One source of truth: every other module (simulator, controller, PINN, bags) takes names,
+ranges and constants from here. SI inside (m, s, N, Pa, N/m^3, rad); degrees appear only
+in the ``*_deg`` helpers and in human-facing tables.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+DEG = math.pi / 180.0
+GRAVITY_M_S2 = 9.81
+INF = math.inf
+
+
+def deg(x_deg: float) -> float:
+    """Degrees -> radians (edges only)."""
+    return x_deg * DEG
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One entry of paper Table 1, converted to SI.
+
+    ``norm`` is the min-max normalisation range; ``limits`` the physical/plausibility
+    limits the PINN clips to and the ReLU loss (Eq. 16) enforces. ``math.inf`` marks an
+    open bound ("-" in the table).
+    """
+
+    name: str
+    unit: str
+    norm: tuple[float, float]
+    limits: tuple[float, float]
+    description: str
+
+    def normalise(self, x):
+        lo, hi = self.norm
+        span = hi - lo if hi != lo else 1.0
+        return (x - lo) / span
+
+    def denormalise(self, x):
+        lo, hi = self.norm
+        span = hi - lo if hi != lo else 1.0
+        return x * span + lo
+
+
+def _a(lo_deg: float, hi_deg: float) -> tuple[float, float]:
+    return (lo_deg * DEG, hi_deg * DEG)
+
+
+# Paper Table 1. alpha's normalisation range is printed as [10, 10] deg, which is a
+# degenerate (zero-width) range; we keep it and guard the division in ParamSpec.
+TABLE1: dict[str, ParamSpec] = {
+    p.name: p
+    for p in (
+        ParamSpec("phi", "rad", _a(17, 45), _a(0, 90), "soil internal friction angle"),
+        ParamSpec("c", "Pa", (0.0, 10e3), (0.0, INF), "soil cohesion"),
+        ParamSpec("delta", "rad", _a(11, 35), _a(0, 90), "soil-tool friction angle"),
+        ParamSpec("c_a", "Pa", (0.0, 10e3), (0.0, INF), "soil-tool adhesion"),
+        ParamSpec("gamma", "N/m^3", (14e3, 22e3), (0.0, INF), "soil moist unit weight"),
+        ParamSpec("rho", "rad", _a(2, 178), _a(2, 178), "blade (soil-tool) angle to the surface"),
+        ParamSpec("alpha", "rad", _a(10, 10), _a(-30, 30), "soil surface inclination"),
+        ParamSpec("w", "m", (0.0, 3.164), (0.0, 3.164), "tool width"),
+        ParamSpec("d", "m", (0.0, 0.3), (0.0, 0.660), "depth of cut d' = d + delta_d"),
+        ParamSpec("delta_d", "m", (-5e-2, 5e-2), (-5e-2, 5e-2), "residual depth of cut"),
+        ParamSpec("q", "N", (0.0, 10e3), (0.0, INF), "surcharge force"),
+        ParamSpec("v_x", "m/s", (0.0, 1.0), (-2.0, 2.0), "blade velocity, x"),
+        ParamSpec("v_z", "m/s", (-1.0, 1.0), (-2.0, 2.0), "blade velocity, z"),
+        ParamSpec("beta", "rad", _a(11.5, 34.5), _a(11.5, 34.5), "soil failure angle"),
+        ParamSpec("dn_gamma_dbeta", "1", (-10.0, 10.0), (-INF, INF), "dN_gamma/dbeta"),
+        ParamSpec("eta", "rad", _a(2, 178), _a(2, 178), "eta = delta + rho + phi + beta"),
+        ParamSpec("zeta", "rad", _a(11, 35), (0.0, INF), "zeta = phi - delta"),
+    )
+}
+
+# Θ_u: what the PINN estimates (§2.2). Θ_k: what it is told (§2.2, Table 1).
+UNKNOWN_PARAMS: tuple[str, ...] = ("phi", "c", "delta", "beta", "delta_d")
+KNOWN_PARAMS: tuple[str, ...] = ("c_a", "gamma", "rho", "alpha", "w", "d", "q", "v_x", "v_z")
+# Pseudo-ground truth published by the simulator (§2.1.2). beta is argmin N_gamma of the
+# true parameters (Eq. 7); Vortex could not provide it, our simulator can.
+GROUND_TRUTH_PARAMS: tuple[str, ...] = (
+    "phi", "c", "delta", "c_a", "gamma", "rho", "alpha", "w", "d", "q", "v_x", "v_z", "beta",
+)
+
+# Observation vector o_t = [p, v, u] (§2.1.2) and measured force F.
+POSITION_FIELDS: tuple[str, ...] = ("p_x_b", "p_z_b", "p_z_c")
+VELOCITY_FIELDS: tuple[str, ...] = ("v_z_b", "v_x_c", "v_z_c")
+COMMAND_FIELDS: tuple[str, ...] = ("u_zr", "u_za", "u_x")
+OBSERVATION_FIELDS: tuple[str, ...] = POSITION_FIELDS + VELOCITY_FIELDS + COMMAND_FIELDS
+FORCE_FIELDS: tuple[str, ...] = ("f_x_b", "f_z_b")
+
+SAMPLE_RATE_HZ = 60
+WINDOW_SAMPLES = 60  # T = 60 samples = 1 s (§2.2.1)
+VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
+
+
+@dataclass(frozen=True)
+class Machine:
+    """The simple bladed vehicle of §2.1.2 (SI)."""
+
+    chassis_mass_kg: float = 5000.0
+    chassis_length_m: float = 3.0
+    chassis_width_m: float = 2.0
+    chassis_height_m: float = 2.0
+    blade_mass_kg: float = 400.0
+    blade_width_m: float = 3.164
+    blade_height_m: float = 0.660
+    blade_angle_rad: float = 80.0 * DEG  # rho, fixed for all experiments (§3.1)
+    horizontal_force_limit_n: float = 20e3  # chassis velocity motor (tractive limit)
+    vertical_force_limit_n: float = 30e3  # blade lift joint (penetrative limit)
+    blade_min_rel_m: float = -0.3  # edge reach below the surface, chassis on level ground
+    blade_max_rel_m: float = 1.0  # edge reach above the surface
+
+
+MACHINE = Machine()
+
+# Soil-tool constants of §3.1.
+ADHESION_PA = 200.0  # c_a, all soils
+SOIL_TOOL_FRICTION_DEFAULT_RAD = 10.0 * DEG  # delta in the default world
+SOIL_TOOL_FRICTION_FEE_RAD = 15.0 * DEG  # delta overridden in the fee world (§3.1)

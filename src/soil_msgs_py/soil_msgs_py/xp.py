@@ -1,0 +1,49 @@
+"""Tiny array-namespace shim so the FEE is written once for NumPy and torch.
+
+NumPy and torch agree on most elementwise names (sin, cos, tanh, arcsin, arctan2, sqrt,
+where, remainder, ...); the few that differ are wrapped here. torch is imported lazily and
+only if a torch tensor is actually passed in, so the simulator never pays for it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def namespace(*arrays):
+    """Return ``torch`` if any argument is a torch tensor, else ``numpy``."""
+    for a in arrays:
+        if type(a).__module__.startswith("torch"):
+            import torch
+
+            return torch
+    return np
+
+
+def is_torch(xp) -> bool:
+    return xp is not np
+
+
+def clip_min(xp, x, lo: float):
+    return xp.clamp(x, min=lo) if is_torch(xp) else np.maximum(x, lo)
+
+
+def clip(xp, x, lo, hi):
+    """Elementwise clip; lo/hi may be floats or arrays."""
+    if is_torch(xp):
+        return xp.clamp(x, min=lo, max=hi)
+    return np.clip(x, lo, hi)
+
+
+def full_like(xp, x, value: float):
+    return xp.full_like(x, value) if is_torch(xp) else np.full_like(np.asarray(x, dtype=float), value)
+
+
+def as_float_array(xp, x, like=None):
+    """Scalars and lists -> arrays of the namespace (and dtype/device of ``like``)."""
+    if is_torch(xp):
+        if isinstance(x, xp.Tensor):
+            return x
+        if like is not None:
+            return xp.as_tensor(x, dtype=like.dtype, device=like.device)
+        return xp.as_tensor(x, dtype=xp.get_default_dtype())
+    return np.asarray(x, dtype=float)

@@ -1,0 +1,397 @@
+"""Planar soil + bladed-vehicle simulator (paper §2.1), vectorised over a batch of episodes.
+
+No ROS here: ``soil_sim_node.node`` is a thin adapter. One ``SoilSimulator`` advances B
+episodes in lock-step with NumPy arrays of shape (B,); a row of a batch is bit-identical to
+the same episode run alone (elementwise NumPy only; per-episode RNG streams).
+
+Model (SI; x forward, z up; the original surface is level at z = 0)
+------------------------------------------------------------------
+* Chassis (5000 kg) + blade (400 kg) move together in x. A velocity motor ("motorized
+  constraint") pushes with k_m (u_x - v_x), saturating at the 20 kN tractive limit.
+* The chassis ground reference p_z^c follows the mean soil height under four probe points
+  (a planar vehicle: two front, two rear) through a critically damped spring-damper, the
+  paper's "simple vehicle suspension". The blade's cut floor is what the chassis later
+  drives over.
+* The blade hangs on a "locked" lift joint: a spring-damper on the edge height relative to
+  the chassis reference, tracking u_zr inside the reach [-0.3, +1.0] m, its force
+  saturating at the 30 kN penetrative limit.
+* Soil-tool force: the FEE failure force (Eq. 2-10, velocity-corrected, beta = beta*)
+  along the Eq. 8 direction, reached through a stiff elastic contact: pushing the blade
+  compresses the soil elastically (k_soil) until the FEE failure force is reached; then the
+  soil shears and the force stays at the failure force (perfect plasticity). When the
+  machine cannot supply the failure force it stalls against the elastic soil.
+* The blade cuts the heightfield: cells the edge passes are lowered to the edge height.
+* `default` world: the named effects of ``effects.Effects`` add to this; `fee` world has
+  none (Q = 0).
+* Measured force = lift-joint constraint force on the blade minus the blade's static weight
+  (a tared load cell), averaged over the tick: blade-on-soil force + m_b * a_blade.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from soil_msgs_py import fee
+from soil_msgs_py.params import (
+    ADHESION_PA,
+    GRAVITY_M_S2,
+    GROUND_TRUTH_PARAMS,
+    KNOWN_PARAMS,
+    MACHINE,
+    SAMPLE_RATE_HZ,
+    SOIL_TOOL_FRICTION_DEFAULT_RAD,
+    SOIL_TOOL_FRICTION_FEE_RAD,
+    VELOCITY_AVERAGE_SAMPLES,
+    Machine,
+)
+from soil_msgs_py.soils import SoilType, get_soil
+
+from .effects import (
+    FORCE_TERMS,
+    EffectState,
+    Effects,
+    ForcePlugin,
+    check_effect_params,
+    effects_for_mode,
+    load_plugins,
+)
+
+MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
+MAX_TARGET_SPEED_M_S = 2.0
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode: soil, initial relative density, targets, seed, length."""
+
+    soil: str | SoilType
+    relative_density_pct: float
+    target_speed_m_s: float
+    target_depth_m: float
+    seed: int
+    duration_s: float = 10.0
+
+    def resolve(self, custom_soils: dict | None = None) -> tuple["EpisodeSpec", SoilType]:
+        """Validate every field; return (self, SoilType). Errors name the field and value."""
+        soil = self.soil if isinstance(self.soil, SoilType) else get_soil(self.soil, custom_soils)
+        checks = (
+            ("relative_density_pct", self.relative_density_pct, 0.0, 100.0, "%"),
+            ("target_speed_m_s", self.target_speed_m_s, 1e-3, MAX_TARGET_SPEED_M_S, "m/s"),
+            ("target_depth_m", self.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
+            ("duration_s", self.duration_s, 1.0 / SAMPLE_RATE_HZ, 3600.0, "s"),
+        )
+        for name, value, lo, hi, unit in checks:
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or not lo <= value <= hi:
+                raise ValueError(f"{name}={value!r} outside [{lo}, {hi}] {unit}")
+        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"seed={self.seed!r} must be a non-negative integer")
+        return self, soil
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """Constraint and contact constants (tuned for a stable 600 Hz explicit integration)."""
+
+    substeps: int = 10  # physics steps per 60 Hz tick
+    motor_gain_n_s_m: float = 5e5  # 1/loss of the velocity motor: 20 kN at 0.04 m/s error
+    joint_stiffness_n_m: float = 2e6
+    joint_damping_n_s_m: float = 4e4
+    chassis_height_omega_rad_s: float = 12.0
+    soil_stiffness_n_m: float = 2e6  # pre-failure contact stiffness
+    soil_damping_n_s_m: float = 2e4
+    blade_offset_m: float = 2.0  # cutting edge ahead of the chassis centre
+    probe_offsets_m: tuple[float, ...] = (-1.2, -1.2, 1.2, 1.2)  # four points under the chassis
+    terrain_cell_m: float = 0.01
+    blade_edge_width_m: float = 0.02
+    fee_velocity_gain_s_m: float = fee.FEE_VELOCITY_GAIN_S_M
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    world_mode: str = "default"
+    effects: Effects | None = None  # None: the mode's defaults
+    plugins: tuple = ()
+    dynamics: Dynamics = field(default_factory=Dynamics)
+    machine: Machine = MACHINE
+
+    def resolved_effects(self) -> Effects:
+        mode_effects = effects_for_mode(self.world_mode)
+        return mode_effects if self.effects is None else self.effects
+
+
+@dataclass
+class TickOutput:
+    """What the simulator reports after a tick (arrays of shape (B,) or (B, k))."""
+
+    stamp_ns: int
+    positions: np.ndarray  # (B,3) p_x_b, p_z_b, p_z_c
+    velocities: np.ndarray  # (B,3) v_z_b, v_x_c, v_z_c
+    forces: np.ndarray  # (B,2) measured f_x_b, f_z_b
+    known: np.ndarray  # (B,9) Θ_k
+    truth: np.ndarray  # (B,13) pseudo-ground truth Θ
+    extras: np.ndarray  # (B,2) p_x_c, v_x_b
+    applied_u_zr: np.ndarray  # (B,) lift-joint target actually used (after reach clipping)
+
+
+def stamp_ns(tick: int) -> int:
+    """Simulation time of tick k in integer ns (exact 60 Hz grid, no float drift)."""
+    return (tick * 1_000_000_000) // SAMPLE_RATE_HZ
+
+
+class SoilSimulator:
+    """B planar earthmoving episodes advanced together at 60 Hz (``substeps`` physics steps per tick)."""
+
+    def __init__(self, config: SimConfig, specs: list[EpisodeSpec], custom_soils: dict | None = None):
+        if not specs:
+            raise ValueError("specs is empty: give at least one EpisodeSpec")
+        self.config = config
+        self.effects = config.resolved_effects()
+        check_effect_params(self.effects)
+        if config.world_mode == "fee" and self.effects.enabled():
+            # fee world is defined as FEE-only (§3.1); allow it but make it visible in metadata.
+            pass
+        self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
+        resolved = [s.resolve(custom_soils) for s in specs]
+        self.specs = [r[0] for r in resolved]
+        self.soils = [r[1] for r in resolved]
+        self.batch = len(specs)
+        self.dyn = config.dynamics
+        if self.dyn.substeps < 1:
+            raise ValueError(f"dynamics.substeps={self.dyn.substeps} must be >= 1")
+        self.dt = 1.0 / (SAMPLE_RATE_HZ * self.dyn.substeps)
+        m = config.machine
+        self.m = m
+        b = self.batch
+        arr = lambda vals: np.array(vals, dtype=float)  # noqa: E731
+        self.i_d0 = arr([s.relative_density_pct for s in self.specs])
+        self.soil_loose = np.array([[s.loose.phi, s.loose.c, s.loose.gamma] for s in self.soils])
+        self.soil_dense = np.array([[s.dense.phi, s.dense.c, s.dense.gamma] for s in self.soils])
+        self.delta = np.full(b, SOIL_TOOL_FRICTION_FEE_RAD if config.world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD)
+        self.c_a = np.full(b, ADHESION_PA)
+        self.rho = m.blade_angle_rad
+        self.alpha = 0.0
+        self.w = m.blade_width_m
+        duration = max(s.duration_s for s in self.specs)
+        speed = max(s.target_speed_m_s for s in self.specs)
+        self.x_min = -3.0
+        x_max = self.dyn.blade_offset_m + 1.5 * speed * duration + 3.0
+        self.n_cells = int(math.ceil((x_max - self.x_min) / self.dyn.terrain_cell_m)) + 2
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> TickOutput:
+        """Start every episode: vehicle at rest at x = 0, blade edge on the level surface."""
+        b = self.batch
+        z = lambda: np.zeros(b)  # noqa: E731
+        self.tick = 0
+        self.x_c, self.vx_c = z(), z()
+        self.z_c, self.vz_c = z(), z()
+        self.z_rel, self.vz_rel = z(), z()
+        self.u_e = z()  # elastic pre-failure compression of the soil [m]
+        self.grip = np.ones(b)  # particle-conversion contact (1 = full contact)
+        self.grip_tau = np.full(b, 0.05)
+        self.pile_m3 = z()
+        self.distance_in_soil = z()
+        self.terrain = np.zeros((b, self.n_cells))
+        self.v_hist = np.zeros((VELOCITY_AVERAGE_SAMPLES, b, 2))
+        self.v_hist_count = 0
+        self.rngs = [np.random.default_rng(int(s.seed)) for s in self.specs]
+        self.last_applied_u_zr = z()
+        self._forces_out = np.zeros((b, 2))
+        self._push_velocity_history()
+        return self._output(np.zeros((b, 2)))
+
+    # ------------------------------------------------------------------ helpers
+    def _cell(self, x):
+        i = np.floor((x - self.x_min) / self.dyn.terrain_cell_m).astype(np.int64)
+        return np.clip(i, 0, self.n_cells - 2)
+
+    def _height_at(self, x):
+        return self.terrain[np.arange(self.batch), self._cell(x)]
+
+    def soil_in_effect(self):
+        """(phi, c, gamma, I_d) now: the catalogue at the compacted relative density."""
+        i_d = self.i_d0
+        if self.effects.compaction:
+            e = self.effects
+            i_d = i_d + (100.0 - i_d) * e.compaction_gain * (1.0 - np.exp(-self.distance_in_soil / e.compaction_length_m))
+        s = (i_d / 100.0)[:, None]
+        props = self.soil_loose + (self.soil_dense - self.soil_loose) * s
+        return props[:, 0], props[:, 1], props[:, 2], i_d
+
+    def _initial_soil(self):
+        s = (self.i_d0 / 100.0)[:, None]
+        props = self.soil_loose + (self.soil_dense - self.soil_loose) * s
+        return props[:, 0], props[:, 1], props[:, 2]
+
+    def surcharge_n(self):
+        _, _, gamma0 = self._initial_soil()
+        return gamma0 * self.pile_m3 if self.effects.surcharge else np.zeros(self.batch)
+
+    def depth(self):
+        x_b = self.x_c + self.dyn.blade_offset_m
+        surface_ahead = self.terrain[np.arange(self.batch), self._cell(x_b) + 1]
+        return surface_ahead - (self.z_c + self.z_rel)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, u_zr, u_za, u_x) -> TickOutput:
+        """Advance one 60 Hz tick under commands (arrays (B,) or scalars).
+
+        u_zr: lift-joint target, edge height relative to the chassis reference [m] (clipped
+        to the reach); u_za: the absolute target it came from (recorded only); u_x: chassis
+        velocity command [m/s]. Non-finite commands raise ValueError (the ROS node sanitises
+        its inputs before they get here).
+        """
+        b = self.batch
+        cmds = {}
+        for name, value in (("u_zr", u_zr), ("u_za", u_za), ("u_x", u_x)):
+            a = np.broadcast_to(np.asarray(value, dtype=float), (b,))
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"command {name}={a[~np.isfinite(a)][0]} is not finite")
+            cmds[name] = a
+        u_zr = np.clip(cmds["u_zr"], self.m.blade_min_rel_m, self.m.blade_max_rel_m)
+        u_x = np.clip(cmds["u_x"], -MAX_TARGET_SPEED_M_S, MAX_TARGET_SPEED_M_S)
+        self.last_applied_u_zr = u_zr
+        force_sum = np.zeros((b, 2))
+        draws = [rng.random((self.dyn.substeps, 3)) for rng in self.rngs]
+        uniforms = np.stack(draws, axis=1)  # (substeps, B, 3)
+        for k in range(self.dyn.substeps):
+            force_sum += self._substep(u_zr, u_x, uniforms[k])
+        self.tick += 1
+        forces = force_sum / self.dyn.substeps
+        if self.effects.noise:
+            std = np.asarray(self.effects.noise_force_std_n)
+            forces = forces + np.stack([rng.standard_normal(2) for rng in self.rngs]) * std
+        self._push_velocity_history()
+        return self._output(forces)
+
+    def _substep(self, u_zr, u_x, uniform) -> np.ndarray:
+        dyn, m, e, dt = self.dyn, self.m, self.effects, self.dt
+        b = self.batch
+        t = self.tick / SAMPLE_RATE_HZ
+        x_b = self.x_c + dyn.blade_offset_m
+        z_b = self.z_c + self.z_rel
+        vz_b = self.vz_c + self.vz_rel
+        vx = self.vx_c
+        d = self.depth()
+        in_soil = d > 0
+        phi, c, gamma, i_d = self.soil_in_effect()
+        q = self.surcharge_n()
+
+        # --- FEE failure force (Eq. 2-10) and its direction (Eq. 8)
+        delta_p, c_a_p = fee.velocity_corrected(self.delta, self.c_a, self.rho, self.alpha, vx, vz_b, dyn.fee_velocity_gain_s_m)
+        beta = fee.beta_star(phi, delta_p, self.rho, self.alpha)
+        q_fee = q * e.surcharge_fee_factor
+        f_fail = fee.failure_force(phi, c, delta_p, c_a_p, gamma, self.rho, self.alpha, self.w, d, q_fee, beta)
+        f_fail = np.where(np.isfinite(f_fail), np.maximum(f_fail, 0.0), 0.0)
+        if e.force_scaling:
+            area = self.w * np.maximum(d, 0.0) / math.sin(self.rho)
+            f_fail = np.minimum(f_fail * e.force_scale, e.area_pressure_limit_pa * area)
+        angle = 0.5 * math.pi - self.rho - delta_p + self.alpha
+        ex, ez = np.cos(angle), np.sin(angle)
+
+        # --- elastic-perfectly-plastic soil contact along the failure-force direction
+        v_n = vx * ex + vz_b * ez
+        self.u_e = np.clip(self.u_e + v_n * dt, 0.0, f_fail / dyn.soil_stiffness_n_m)
+        self.u_e = np.where(in_soil, self.u_e, 0.0)
+        f_mag = np.clip(dyn.soil_stiffness_n_m * self.u_e + dyn.soil_damping_n_s_m * v_n, 0.0, f_fail)
+
+        # --- particle conversion: failure events drop the grip, which recovers (default world)
+        if e.particles:
+            rate = np.maximum(vx, 0.0) / e.particle_chunk_m * in_soil
+            event = uniform[:, 0] < rate * dt
+            loss = e.particle_loss_max * uniform[:, 1] * np.clip(d / 0.1, 0.0, 1.0)
+            lo, hi = e.particle_loss_time_s
+            self.grip = np.where(event, np.minimum(self.grip, 1.0 - loss), self.grip)
+            self.grip_tau = np.where(event, lo + (hi - lo) * uniform[:, 2], self.grip_tau)
+            self.grip = self.grip + (1.0 - self.grip) * np.minimum(dt / self.grip_tau, 1.0)
+            f_mag = f_mag * self.grip
+        fx, fz = f_mag * ex, f_mag * ez
+
+        # --- other named effects and user plugins (force the blade exerts on the soil)
+        state = EffectState(
+            t=np.full(b, t), dt=dt, x_b=x_b, z_b=z_b, v_x=vx, v_z=vz_b, d=d, q=q, phi=phi, c=c,
+            gamma=gamma, delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
+            blade_thickness=dyn.blade_edge_width_m, f_fee_x=fx, f_fee_z=fz,
+            distance_in_soil=self.distance_in_soil, relative_density_pct=self.i_d0,
+        )
+        for name, term in FORCE_TERMS.items():
+            if getattr(e, name):
+                kwargs = {"edge_width_m": dyn.blade_edge_width_m} if name == "penetration" else {}
+                tx, tz = term(state, **kwargs)
+                fx, fz = fx + tx, fz + tz
+        for plugin in self.plugins:
+            tx, tz = plugin(state, b)
+            fx, fz = fx + tx, fz + tz
+
+        # --- rigid-body dynamics (semi-implicit Euler)
+        f_motor = np.clip(dyn.motor_gain_n_s_m * (u_x - vx), -m.horizontal_force_limit_n, m.horizontal_force_limit_n)
+        a_x = (f_motor - fx) / (m.chassis_mass_kg + m.blade_mass_kg)
+        probes = np.mean([self._height_at(self.x_c + o) for o in dyn.probe_offsets_m], axis=0)
+        w_c = dyn.chassis_height_omega_rad_s
+        a_zc = w_c * w_c * (probes - self.z_c) - 2.0 * w_c * self.vz_c
+        f_joint = np.clip(
+            dyn.joint_stiffness_n_m * (u_zr - self.z_rel) - dyn.joint_damping_n_s_m * self.vz_rel,
+            -m.vertical_force_limit_n,
+            m.vertical_force_limit_n,
+        )
+        weight = m.blade_mass_kg * GRAVITY_M_S2
+        a_zb = (f_joint - weight - fz) / m.blade_mass_kg
+        self.vx_c = self.vx_c + a_x * dt
+        self.x_c = self.x_c + self.vx_c * dt
+        self.vz_c = self.vz_c + a_zc * dt
+        self.z_c = self.z_c + self.vz_c * dt
+        self.vz_rel = self.vz_rel + (a_zb - a_zc) * dt
+        self.z_rel = self.z_rel + self.vz_rel * dt
+
+        # --- the edge cuts the heightfield; bookkeeping of pile and distance in soil
+        new_x_b = self.x_c + dyn.blade_offset_m
+        idx = (np.arange(b), self._cell(new_x_b))
+        self.terrain[idx] = np.minimum(self.terrain[idx], self.z_c + self.z_rel)
+        advance = np.maximum(self.vx_c, 0.0) * dt
+        self.distance_in_soil = self.distance_in_soil + advance * in_soil
+        if e.surcharge:
+            inflow = self.w * np.maximum(d, 0.0) * advance
+            self.pile_m3 = np.clip(self.pile_m3 + inflow - self.pile_m3 * dt / e.surcharge_shed_time_s, 0.0, e.surcharge_capacity_m3)
+
+        # measured: lift/push constraint forces on the blade, static weight tared
+        return np.stack([m.blade_mass_kg * a_x + fx, f_joint - weight], axis=1)
+
+    # ------------------------------------------------------------------ outputs
+    def _push_velocity_history(self):
+        vz_b = self.vz_c + self.vz_rel
+        self.v_hist = np.roll(self.v_hist, 1, axis=0)
+        self.v_hist[0] = np.stack([self.vx_c, vz_b], axis=1)
+        self.v_hist_count = min(self.v_hist_count + 1, VELOCITY_AVERAGE_SAMPLES)
+
+    def averaged_velocity(self):
+        """§3.1: v_t = avg([v_x^c, v_z^b]) over the last 10 samples (fewer at the start)."""
+        v = self.v_hist[: self.v_hist_count].mean(axis=0)
+        return v[:, 0], v[:, 1]
+
+    def _output(self, forces: np.ndarray) -> TickOutput:
+        b = self.batch
+        x_b = self.x_c + self.dyn.blade_offset_m
+        z_b = self.z_c + self.z_rel
+        vz_b = self.vz_c + self.vz_rel
+        d = self.depth()
+        q = self.surcharge_n()
+        v_x, v_z = self.averaged_velocity()
+        phi0, c0, gamma0 = self._initial_soil()
+        full = lambda v: np.full(b, float(v))  # noqa: E731
+        known = dict(c_a=self.c_a, gamma=gamma0, rho=full(self.rho), alpha=full(self.alpha), w=full(self.w), d=d, q=q, v_x=v_x, v_z=v_z)
+        truth = dict(known, phi=phi0, c=c0, delta=self.delta)
+        delta_p, _ = fee.velocity_corrected(self.delta, self.c_a, self.rho, self.alpha, v_x, v_z, self.dyn.fee_velocity_gain_s_m)
+        truth["beta"] = fee.beta_star(phi0, delta_p, self.rho, self.alpha)
+        return TickOutput(
+            stamp_ns=stamp_ns(self.tick),
+            positions=np.stack([x_b, z_b, self.z_c], axis=1),
+            velocities=np.stack([vz_b, self.vx_c, self.vz_c], axis=1),
+            forces=forces,
+            known=np.stack([known[k] for k in KNOWN_PARAMS], axis=1),
+            truth=np.stack([truth[k] for k in GROUND_TRUTH_PARAMS], axis=1),
+            extras=np.stack([self.x_c, self.vx_c], axis=1),
+            applied_u_zr=self.last_applied_u_zr.copy(),
+        )
