@@ -34,6 +34,10 @@ from . import xp as _xp
 # iota_b . v = -0.05 m/s) and reverses smoothly within ~2 cm/s of the blade sliding
 # upward past the wedge.
 FEE_VELOCITY_GAIN_S_M = 50.0
+# |sin(eta)| is kept at least this far from 0: eta = 180 deg is the FEE's singularity
+# (paper §2.2.2, the reason lambda_eta = 10). Inside Table 1's limits this keeps every
+# output finite, so masked samples cannot poison gradients with inf * 0 = NaN.
+SIN_ETA_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
@@ -45,11 +49,16 @@ class FeeCoefficients:
     eta: object
 
 
+def _safe_sin_eta(xp, eta):
+    s = xp.sin(eta)
+    return xp.where(xp.abs(s) < SIN_ETA_FLOOR, xp.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR) + 0.0 * s, s)
+
+
 def coefficients(phi, delta, rho, alpha, beta) -> FeeCoefficients:
     """N_gamma, N_c, N_Q, N_a and eta of Eq. 3-6 (Holz et al. 2013 form)."""
-    xp = _xp.namespace(phi, delta, rho, alpha, beta)
+    xp, phi, delta, rho, alpha, beta = _xp.coerce(phi, delta, rho, alpha, beta)
     eta = delta + rho + phi + beta
-    sin_eta = xp.sin(eta)
+    sin_eta = _safe_sin_eta(xp, eta)
     s_wedge = xp.sin(alpha + phi + beta)
     n_gamma = (1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)) * s_wedge / (2.0 * sin_eta)
     n_c = xp.cos(phi) / (xp.sin(beta) * sin_eta)
@@ -60,11 +69,11 @@ def coefficients(phi, delta, rho, alpha, beta) -> FeeCoefficients:
 
 def dn_gamma_dbeta(phi, delta, rho, alpha, beta):
     """Analytic dN_gamma/dbeta (used by the beta-consistency loss and by tests)."""
-    xp = _xp.namespace(phi, delta, rho, alpha, beta)
+    xp, phi, delta, rho, alpha, beta = _xp.coerce(phi, delta, rho, alpha, beta)
     eta = delta + rho + phi + beta
     cot_sum = 1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)
     a = alpha + phi + beta
-    sin_eta = xp.sin(eta)
+    sin_eta = _safe_sin_eta(xp, eta)
     d_num = -xp.sin(a) / xp.sin(beta) ** 2 + cot_sum * xp.cos(a)
     return d_num / (2.0 * sin_eta) - cot_sum * xp.sin(a) * xp.cos(eta) / (2.0 * sin_eta**2)
 
@@ -80,7 +89,7 @@ def beta_star(phi, delta, rho, alpha):
     the smaller N_gamma is returned. NaN where no stationary point lies in the interval
     (physically meaningless inputs, e.g. eta >= 180 deg for every beta).
     """
-    xp = _xp.namespace(phi, delta, rho, alpha)
+    xp, phi, delta, rho, alpha = _xp.coerce(phi, delta, rho, alpha)
     a_ = alpha + phi
     b_ = delta + rho + phi
     a = xp.cos(rho - a_)
@@ -118,7 +127,7 @@ def velocity_corrected(delta, c_a, rho, alpha, v_x, v_z, c1: float = FEE_VELOCIT
     A blade advancing into the soil gives iota_b . v < 0 and full friction; a blade sliding
     up past the wedge reverses the soil-tool friction and adhesion.
     """
-    xp = _xp.namespace(delta, c_a, rho, alpha, v_x, v_z)
+    xp, delta, c_a, rho, alpha, v_x, v_z = _xp.coerce(delta, c_a, rho, alpha, v_x, v_z)
     iota_dot_v = -xp.cos(rho - alpha) * v_x + xp.sin(rho - alpha) * v_z
     scale = xp.tanh(-c1 * iota_dot_v)
     return scale * delta, scale * c_a
@@ -130,7 +139,7 @@ def failure_force(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta):
     F [N] is 0 where d <= 0 (no wedge, the blade is out of the soil); Q only acts through a
     wedge. Pass delta', c_a' from ``velocity_corrected`` for the Eq. 9-10 behaviour.
     """
-    xp = _xp.namespace(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta)
+    xp, phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta = _xp.coerce(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta)
     k = coefficients(phi, delta, rho, alpha, beta)
     d_pos = _xp.clip_min(xp, d, 0.0)
     force = gamma * d_pos**2 * w * k.n_gamma + c * d_pos * w * k.n_c + c_a * d_pos * w * k.n_a
@@ -139,7 +148,7 @@ def failure_force(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta):
 
 def force_xz(force, rho, delta, alpha):
     """Eq. 8: F along the direction 90 deg - rho - delta + alpha from the x axis."""
-    xp = _xp.namespace(force, rho, delta, alpha)
+    xp, force, rho, delta, alpha = _xp.coerce(force, rho, delta, alpha)
     angle = 0.5 * math.pi - rho - delta + alpha
     return force * xp.cos(angle), force * xp.sin(angle)
 

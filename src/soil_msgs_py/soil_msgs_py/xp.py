@@ -47,3 +47,13 @@ def as_float_array(xp, x, like=None):
             return xp.as_tensor(x, dtype=like.dtype, device=like.device)
         return xp.as_tensor(x, dtype=xp.get_default_dtype())
     return np.asarray(x, dtype=float)
+
+
+def coerce(*arrays):
+    """(xp, *arrays) with every argument an array of xp; with torch, python scalars and NumPy
+    arrays become tensors of the first tensor's dtype and device (so float32 stays float32)."""
+    xp = namespace(*arrays)
+    if not is_torch(xp):
+        return (xp, *arrays)
+    like = next(a for a in arrays if isinstance(a, xp.Tensor))
+    return (xp, *(a if isinstance(a, xp.Tensor) else xp.as_tensor(a, dtype=like.dtype, device=like.device) for a in arrays))
