@@ -1,0 +1,85 @@
+"""`soil_plot_episode`: a paper-Fig.-3-style PNG of one episode, read from its bag.
+
+Measured forces x/z (with the FEE force of the pseudo-ground truth for reference), cut depth
+with its target, and surcharge, against time.
+
+    soil_plot_episode bags/samples/default_loam_id060_v0.53_d0.175_s7 -o fig3.png
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from soil_msgs_py import fee  # noqa: E402
+from soil_msgs_py.bag_io import read_episode  # noqa: E402
+from soil_msgs_py.episode import Episode  # noqa: E402
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, MACHINE  # noqa: E402
+
+
+def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
+    """FEE force (x, z) of the episode's pseudo-ground-truth Θ, tick by tick [N]."""
+    theta = {k: ep.truth[:, i] for i, k in enumerate(GROUND_TRUTH_PARAMS)}
+    fx, fz, _ = fee.fee_xz(theta, beta=theta["beta"])
+    return fx, fz
+
+
+def plot_episode(ep: Episode, out: Path) -> Path:
+    """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG)."""
+    t = ep.time_s
+    fx_fee, fz_fee = truth_fee_force(ep)
+    m = ep.meta
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
+    ax = axes[0]
+    ax.plot(t, ep.column("f_x_b") / 1e3, lw=0.9, label="$f_x^b$ measured")
+    ax.plot(t, ep.column("f_z_b") / 1e3, lw=0.9, label="$f_z^b$ measured")
+    ax.plot(t, fx_fee / 1e3, "k--", lw=0.8, label="FEE($\\Theta$) x")
+    ax.plot(t, fz_fee / 1e3, "k:", lw=0.8, label="FEE($\\Theta$) z")
+    for lim in (MACHINE.horizontal_force_limit_n, -MACHINE.horizontal_force_limit_n):
+        ax.axhline(lim / 1e3, color="grey", lw=0.5)
+    ax.set_ylabel("force [kN]")
+    ax.legend(ncol=4, fontsize=8, loc="lower right")
+    ax.set_title(
+        f"{m.soil}, $I_d$ = {m.relative_density_pct:.0f} %, {m.world_mode} world, "
+        f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, $\\bar d_z$ = {m.target_depth_m:.3f} m, seed {m.seed}"
+    )
+    ax = axes[1]
+    ax.plot(t, ep.column("d"), label="cut depth $d$")
+    ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
+    ax.plot(t, -ep.column("u_za"), lw=0.8, label="commanded depth $-u_{z_a}$")
+    ax.set_ylabel("depth [m]")
+    ax.legend(fontsize=8, loc="lower right")
+    ax = axes[2]
+    ax.plot(t, ep.column("q") / 1e3, color="tab:brown")
+    ax.set_ylabel("surcharge Q [kN]")
+    ax.set_xlabel("time [s]")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="soil_plot_episode", description=__doc__.split("\n\n")[0])
+    p.add_argument("bag", type=Path, help="episode bag directory")
+    p.add_argument("-o", "--out", type=Path, help="PNG path (default: <bag>.png beside the bag)")
+    args = p.parse_args(argv)
+    try:
+        ep = read_episode(args.bag)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"soil_plot_episode: error: {exc}", file=sys.stderr)
+        return 2
+    out = plot_episode(ep, args.out or args.bag.with_suffix(".png"))
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
