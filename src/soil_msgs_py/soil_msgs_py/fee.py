@@ -29,7 +29,7 @@ from typing import Mapping
 
 from . import xp as _xp
 
-# C_1 of Eq. 9-10 [s/m]. The paper gives no value. At 50 s/m the correction is > 0.99 of
+# C_1 of Eq. 9-10 [s/m]. The paper gives no value. At 50 s/m the correction is 0.989 of
 # the full friction for a blade advancing at the dataset's slowest target (0.3 m/s,
 # iota_b . v = -0.05 m/s) and reverses smoothly within ~2 cm/s of the blade sliding
 # upward past the wedge.

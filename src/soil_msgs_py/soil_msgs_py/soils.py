@@ -30,6 +30,7 @@ A user can add a soil from YAML (``load_soil_yaml``)::
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,10 +98,14 @@ COHESIVE_SOILS = ("Clay", "Loam")
 def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
     """Look a soil up by name (case-insensitive) in the catalogue and in ``custom``."""
     pool = {**CATALOGUE, **(custom or {})}
-    for key, soil in pool.items():
+    # a user's soil wins over a catalogue soil of the same (case-insensitive) name
+    for key, soil in [*(custom or {}).items(), *CATALOGUE.items()]:
         if key.lower() == str(name).lower():
             return soil
     raise ValueError(f"soil={name!r} is unknown; known soils: {sorted(pool)}")
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
 def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float, float]:
@@ -111,7 +116,9 @@ def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float,
         raise ValueError(f"{key}={value!r} must be a [loose, dense] pair in {unit}")
     out = []
     for v in value:
-        if not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        if isinstance(v, str) and _EXPONENT_FLOAT.match(v):  # YAML 1.1 reads 16e3 as a string
+            v = float(v)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
             raise ValueError(f"{key}={value!r}: each value must be a number in [{lo}, {hi}] {unit}")
         out.append(float(v))
     return out[0], out[1]
@@ -143,5 +150,10 @@ def load_soil_yaml(path: str | Path) -> dict[str, SoilType]:
     except yaml.YAMLError as exc:
         raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
     items = data if isinstance(data, list) else [data]
-    soils = [soil_from_dict(item) for item in items]
+    soils = []
+    for index, item in enumerate(items):
+        try:
+            soils.append(soil_from_dict(item))
+        except ValueError as exc:
+            raise ValueError(f"soil file {str(path)!r}, entry {index}: {exc}") from exc
     return {s.name: s for s in soils}
