@@ -62,22 +62,25 @@ class EffectState:
 # Force terms (pure functions with the plugin signature; also usable by the discrepancy
 # workflow as candidate effects).
 # ---------------------------------------------------------------------------------------
-def penetration_force(state: EffectState, edge_width_m: float = 0.02, v_ref_m_s: float = 0.05):
-    """Blade-tip penetration resistance [N] (Vortex "penetration forces").
+def penetration_capacity(state: EffectState, edge_width_m: float = 0.02):
+    """Largest vertical resistance [N] intact soil offers the cutting edge (Vortex "penetration forces").
 
-    While the edge moves down into intact soil it bears on an area w * t_edge with a
-    Terzaghi strip bearing pressure q_b = c N_c + gamma d N_q, N_q = e^(pi tan phi)
-    tan^2(45 deg + phi/2), N_c = (N_q - 1) cot phi (Terzaghi 1943). The resistance is
-    gated smoothly by the downward speed (full at v_z <= -v_ref) and pushes the soil down.
+    Bearing capacity of a strip of width t_edge (the effective edge) at depth d (Terzaghi
+    1943 form with Vesic's N_gamma): q_b = c N_c + gamma d N_q + 0.5 gamma t_edge N_gamma,
+    N_q = e^(pi tan phi) tan^2(45 deg + phi/2), N_c = (N_q - 1) cot phi,
+    N_gamma = 2 (N_q + 1) tan phi; capacity = q_b w t_edge. The simulator applies it as a
+    one-sided rigid-plastic constraint: an edge moving down into the soil is stopped by up
+    to this force (so dense soils resist penetration, paper §2.1.2 footnote 2); an edge at
+    rest or rising feels nothing. (A force proportional to the sinking speed would be a
+    stiff damper that explicit integration cannot carry.)
     """
     tan_phi = np.tan(state.phi)
     n_q = np.exp(np.pi * tan_phi) * np.tan(np.pi / 4 + state.phi / 2) ** 2
     n_c = (n_q - 1.0) / np.maximum(tan_phi, 1e-6)
+    n_gamma = 2.0 * (n_q + 1.0) * tan_phi
     depth = np.maximum(state.d, 0.0)
-    q_b = state.c * n_c + state.gamma * depth * n_q
-    gate = np.clip(-state.v_z / v_ref_m_s, 0.0, 1.0) * (state.d > 0)
-    fz = -q_b * state.w * edge_width_m * gate
-    return np.zeros_like(fz), fz
+    q_b = state.c * n_c + state.gamma * depth * n_q + 0.5 * state.gamma * edge_width_m * n_gamma
+    return q_b * state.w * edge_width_m * (state.d > 0)
 
 
 def contact_damping_force(state: EffectState, damping_pa_s_m: float = 6e3):
@@ -93,23 +96,20 @@ def contact_damping_force(state: EffectState, damping_pa_s_m: float = 6e3):
     return f_n * n_x, f_n * n_z
 
 
-def base_friction_force(state: EffectState, mu: float | None = None, v_ref_m_s: float = 0.02):
+def base_friction_force(state: EffectState, normal_down_n=None, mu: float | None = None, v_ref_m_s: float = 0.02):
     """Coulomb friction of the blade base on the cut floor [N] (Vortex contact friction).
 
-    Whatever the blade pushes down onto the floor (a negative z force from the other soil
-    terms) is carried by the floor and resists forward sliding with mu = tan(delta).
+    What the blade pushes down onto the floor (``normal_down_n`` >= 0; the simulator passes
+    the penetration reaction plus any downward FEE component) resists forward sliding with
+    mu = tan(delta).
     """
     mu_v = np.tan(state.delta) if mu is None else mu
-    normal = np.maximum(-state.f_fee_z, 0.0) * (state.d > 0)
-    fx = mu_v * normal * np.tanh(state.v_x / v_ref_m_s)
+    normal = np.maximum(-state.f_fee_z, 0.0) if normal_down_n is None else np.maximum(normal_down_n, 0.0)
+    fx = mu_v * normal * (state.d > 0) * np.tanh(state.v_x / v_ref_m_s)
     return fx, np.zeros_like(fx)
 
 
-FORCE_TERMS = {
-    "penetration": penetration_force,
-    "contact_damping": contact_damping_force,
-    "base_friction": base_friction_force,
-}
+FORCE_TERMS = {"contact_damping": contact_damping_force}
 
 
 @dataclass(frozen=True)
@@ -122,11 +122,12 @@ class Effects:
                      (2020) Vortex modification cited in paper §2.1.1 ("reduces the
                      contribution of the surcharge by a factor of 10 in equation 2"), so a
                      model that uses the full Q N_Q over-predicts: a real model gap. The
-                     pile fills at the cut rate w d v_x and sheds over the blade ends with
-                     time constant ``surcharge_shed_time_s``, capped at the blade's capacity.
-    penetration      ``penetration_force``.
+                     pile fills at the cut rate w d v_x, less what spills over the top as it
+                     fills (inflow * V / capacity), and sheds over the blade ends with time
+                     constant ``surcharge_shed_time_s``.
+    penetration      ``penetration_capacity`` (a one-sided constraint on the edge).
     contact_damping  ``contact_damping_force``.
-    base_friction    ``base_friction_force``.
+    base_friction    ``base_friction_force`` on the penetration reaction.
     force_scaling    the FEE force is multiplied by ``force_scale`` and limited to
                      ``area_pressure_limit_pa`` times the submerged face area.
     particles        heightfield-to-particle conversion: failure events at a rate
@@ -227,9 +228,10 @@ class ForcePlugin:
             raise PluginError(f"plugin={self.target!r} raised {type(exc).__name__}: {exc}") from exc
         result = []
         for name, value in (("f_x", fx), ("f_z", fz)):
-            arr = np.broadcast_to(np.asarray(value, dtype=float), (batch,)) if np.ndim(value) <= 1 else None
-            if arr is None or (np.ndim(value) == 1 and len(value) not in (1, batch)):
-                raise PluginError(f"plugin={self.target!r} returned {name} of shape {np.shape(value)}, expected ({batch},)")
+            shape = np.shape(value)
+            if len(shape) > 1 or (len(shape) == 1 and shape[0] not in (1, batch)):
+                raise PluginError(f"plugin={self.target!r} returned {name} of shape {shape}, expected ({batch},)")
+            arr = np.broadcast_to(np.asarray(value, dtype=float), (batch,))
             if not np.all(np.isfinite(arr)):
                 bad = arr[~np.isfinite(arr)][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")

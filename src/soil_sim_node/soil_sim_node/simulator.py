@@ -51,6 +51,8 @@ from soil_msgs_py.soils import SoilType, get_soil
 from .effects import (
     FORCE_TERMS,
     EffectState,
+    base_friction_force,
+    penetration_capacity,
     Effects,
     ForcePlugin,
     check_effect_params,
@@ -319,26 +321,38 @@ class SoilSimulator:
         )
         for name, term in FORCE_TERMS.items():
             if getattr(e, name):
-                kwargs = {"edge_width_m": dyn.blade_edge_width_m} if name == "penetration" else {}
-                tx, tz = term(state, **kwargs)
+                tx, tz = term(state)
                 fx, fz = fx + tx, fz + tz
         for plugin in self.plugins:
             tx, tz = plugin(state, b)
             fx, fz = fx + tx, fz + tz
 
-        # --- rigid-body dynamics (semi-implicit Euler)
-        f_motor = np.clip(dyn.motor_gain_n_s_m * (u_x - vx), -m.horizontal_force_limit_n, m.horizontal_force_limit_n)
-        a_x = (f_motor - fx) / (m.chassis_mass_kg + m.blade_mass_kg)
-        probes = np.mean([self._height_at(self.x_c + o) for o in dyn.probe_offsets_m], axis=0)
-        w_c = dyn.chassis_height_omega_rad_s
-        a_zc = w_c * w_c * (probes - self.z_c) - 2.0 * w_c * self.vz_c
+        # --- blade vertical: lift joint, then penetration as a one-sided rigid-plastic constraint
         f_joint = np.clip(
             dyn.joint_stiffness_n_m * (u_zr - self.z_rel) - dyn.joint_damping_n_s_m * self.vz_rel,
             -m.vertical_force_limit_n,
             m.vertical_force_limit_n,
         )
         weight = m.blade_mass_kg * GRAVITY_M_S2
+        probes = np.mean([self._height_at(self.x_c + o) for o in dyn.probe_offsets_m], axis=0)
+        w_c = dyn.chassis_height_omega_rad_s
+        a_zc = w_c * w_c * (probes - self.z_c) - 2.0 * w_c * self.vz_c
+        if e.penetration:
+            sinking = vz_b + (f_joint - weight - fz) / m.blade_mass_kg * dt  # edge velocity without the soil's support
+            need = np.maximum(-sinking, 0.0) * m.blade_mass_kg / dt
+            reaction = np.minimum(need, penetration_capacity(state, dyn.blade_edge_width_m))
+            fz = fz - reaction  # the edge pushes the soil down by what the soil holds up
+            if e.base_friction:
+                tx, _ = base_friction_force(state, normal_down_n=reaction + np.maximum(-state.f_fee_z, 0.0))
+                fx = fx + tx
+        elif e.base_friction:
+            tx, _ = base_friction_force(state)
+            fx = fx + tx
         a_zb = (f_joint - weight - fz) / m.blade_mass_kg
+
+        # --- chassis + blade in x (semi-implicit Euler)
+        f_motor = np.clip(dyn.motor_gain_n_s_m * (u_x - vx), -m.horizontal_force_limit_n, m.horizontal_force_limit_n)
+        a_x = (f_motor - fx) / (m.chassis_mass_kg + m.blade_mass_kg)
         self.vx_c = self.vx_c + a_x * dt
         self.x_c = self.x_c + self.vx_c * dt
         self.vz_c = self.vz_c + a_zc * dt
@@ -353,7 +367,7 @@ class SoilSimulator:
         advance = np.maximum(self.vx_c, 0.0) * dt
         self.distance_in_soil = self.distance_in_soil + advance * in_soil
         if e.surcharge:
-            inflow = self.w * np.maximum(d, 0.0) * advance
+            inflow = self.w * np.maximum(d, 0.0) * advance * (1.0 - self.pile_m3 / e.surcharge_capacity_m3)
             self.pile_m3 = np.clip(self.pile_m3 + inflow - self.pile_m3 * dt / e.surcharge_shed_time_s, 0.0, e.surcharge_capacity_m3)
 
         # measured: lift/push constraint forces on the blade, static weight tared

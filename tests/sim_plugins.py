@@ -1,0 +1,28 @@
+"""Force plugins used by tests/test_simulator.py (loaded as ``sim_plugins:<name>``).
+
+tests/test_simulator.py puts this directory on sys.path, so the simulator's plugin loader
+(importlib.import_module) finds this module under every pytest import mode.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def constant_force(state, f_x: float = 1000.0, f_z: float = 0.0):
+    """A constant extra resistance [N] (blade on soil), whether or not the blade is in the soil."""
+    return np.full_like(state.d, float(f_x)), np.full_like(state.d, float(f_z))
+
+
+def nan_force(state):
+    """Returns NaN in x: the simulator must refuse it, naming the plugin and the field."""
+    return np.full_like(state.d, np.nan), np.zeros_like(state.d)
+
+
+def matrix_force(state):
+    """Returns a (B, 2) array for f_x: wrong shape."""
+    return np.zeros((len(state.d), 2)), 0.0
+
+
+def too_long_force(state):
+    """Returns a 1-D f_x of length B + 2: wrong shape."""
+    return np.zeros(len(state.d) + 2), 0.0
