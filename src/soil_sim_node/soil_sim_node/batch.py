@@ -83,13 +83,12 @@ def _chunks(specs: list[EpisodeSpec], workers: int, max_chunk: int) -> list[list
 
 def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True) -> dict:
     """Generate the dataset of ``plan``; returns a summary (also written as dataset.json)."""
-    for spec in plan.specs:  # fail fast, before forking or writing anything
+    effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
+    for spec in plan.specs:
         spec.resolve(plan.custom_soils)
-    SimConfig(world_mode=plan.mode)  # validates mode via effects_for_mode below
-    effects_for_mode(plan.mode)
-    names = [f"{s.soil}-{s.seed}" for s in plan.specs]
-    if len(set(names)) != len(names):
-        raise ValueError("two episodes share soil and seed; give each episode its own seed")
+    keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed) for s in plan.specs]
+    if len(set(keys)) != len(keys):
+        raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
     workers = workers or os.cpu_count() or 1
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,

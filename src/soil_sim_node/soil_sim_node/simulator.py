@@ -151,9 +151,6 @@ class SoilSimulator:
         self.config = config
         self.effects = config.resolved_effects()
         check_effect_params(self.effects)
-        if config.world_mode == "fee" and self.effects.enabled():
-            # fee world is defined as FEE-only (§3.1); allow it but make it visible in metadata.
-            pass
         self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
         resolved = [s.resolve(custom_soils) for s in specs]
         self.specs = [r[0] for r in resolved]
@@ -213,20 +210,21 @@ class SoilSimulator:
     def _height_at(self, x):
         return self.terrain[np.arange(self.batch), self._cell(x)]
 
+    def _soil_at(self, i_d):
+        """(phi, c, gamma) per episode at relative density i_d [%], linear as in SoilType.at."""
+        props = self.soil_loose + (self.soil_dense - self.soil_loose) * (i_d / 100.0)[:, None]
+        return props[:, 0], props[:, 1], props[:, 2]
+
     def soil_in_effect(self):
         """(phi, c, gamma, I_d) now: the catalogue at the compacted relative density."""
         i_d = self.i_d0
         if self.effects.compaction:
             e = self.effects
             i_d = i_d + (100.0 - i_d) * e.compaction_gain * (1.0 - np.exp(-self.distance_in_soil / e.compaction_length_m))
-        s = (i_d / 100.0)[:, None]
-        props = self.soil_loose + (self.soil_dense - self.soil_loose) * s
-        return props[:, 0], props[:, 1], props[:, 2], i_d
+        return (*self._soil_at(i_d), i_d)
 
     def _initial_soil(self):
-        s = (self.i_d0 / 100.0)[:, None]
-        props = self.soil_loose + (self.soil_dense - self.soil_loose) * s
-        return props[:, 0], props[:, 1], props[:, 2]
+        return self._soil_at(self.i_d0)
 
     def surcharge_n(self):
         _, _, gamma0 = self._initial_soil()
