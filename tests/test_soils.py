@@ -178,6 +178,11 @@ def test_bad_name_names_it(tmp_path, name_line):
         load_soil_yaml(write(tmp_path, text))
 
 
+def with_field(field: str, value: str) -> str:
+    """VALID_ONE with the line of ``field`` replaced by ``field: value``."""
+    return "\n".join(f"{field}: {value}" if line.startswith(field) else line for line in VALID_ONE.splitlines())
+
+
 @pytest.mark.parametrize(
     "field,value",
     [
@@ -190,7 +195,7 @@ def test_bad_name_names_it(tmp_path, name_line):
     ],
 )
 def test_wrong_type_names_field(tmp_path, field, value):
-    text = "\n".join(f"{field}: {value}" if line.startswith(field) else line for line in VALID_ONE.splitlines())
+    text = with_field(field, value)
     with pytest.raises(ValueError, match=field):
         load_soil_yaml(write(tmp_path, text))
 
@@ -207,7 +212,7 @@ def test_wrong_type_names_field(tmp_path, field, value):
     ],
 )
 def test_out_of_range_names_field(tmp_path, field, value):
-    text = "\n".join(f"{field}: {value}" if line.startswith(field) else line for line in VALID_ONE.splitlines())
+    text = with_field(field, value)
     with pytest.raises(ValueError, match=field):
         load_soil_yaml(write(tmp_path, text))
 

@@ -153,6 +153,15 @@ def force_xz(force, rho, delta, alpha):
     return force * xp.cos(angle), force * xp.sin(angle)
 
 
+def fee_xz_of_truth(truth_rows):
+    """FEE (F_x, F_z) of pseudo-ground-truth rows (..., len(GROUND_TRUTH_PARAMS)), with their beta."""
+    from .params import GROUND_TRUTH_PARAMS
+
+    theta = {name: truth_rows[..., j] for j, name in enumerate(GROUND_TRUTH_PARAMS)}
+    fx, fz, _ = fee_xz(theta, beta=theta["beta"])
+    return fx, fz
+
+
 def fee_xz(theta: Mapping[str, object], beta=None, correct_velocity: bool = True, c1: float = FEE_VELOCITY_GAIN_S_M):
     """Full FEE layer: Θ (dict of arrays keyed by params.GROUND_TRUTH_PARAMS names) -> (F_x, F_z, F).
 

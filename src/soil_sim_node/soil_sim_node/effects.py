@@ -166,7 +166,7 @@ class Effects:
 
     @classmethod
     def fee(cls) -> "Effects":
-        return cls(**{f.name: False for f in fields(cls) if f.type in ("bool", bool)})
+        return cls(**{name: False for name in cls.names()})
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

@@ -294,8 +294,7 @@ def surcharge_vs_depth(settings: Settings | None = None, soil: str = "Loam", rel
 # --------------------------------------------------------------------------- c. fee == FEE
 def fee_of_truth(ep_truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """FEE (F_x, F_z) of ground-truth rows (N, 13), with the published (truth) beta."""
-    theta = {name: ep_truth[..., j] for j, name in enumerate(GROUND_TRUTH_PARAMS)}
-    fx, fz, _ = fee.fee_xz(theta, beta=theta["beta"])
+    fx, fz = fee.fee_xz_of_truth(ep_truth)
     return np.asarray(fx), np.asarray(fz)
 
 

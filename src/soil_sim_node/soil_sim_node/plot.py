@@ -20,14 +20,12 @@ import numpy as np  # noqa: E402
 from soil_msgs_py import fee  # noqa: E402
 from soil_msgs_py.bag_io import read_episode  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
-from soil_msgs_py.params import GROUND_TRUTH_PARAMS, MACHINE  # noqa: E402
+from soil_msgs_py.params import MACHINE  # noqa: E402
 
 
 def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
     """FEE force (x, z) of the episode's pseudo-ground-truth Θ, tick by tick [N]."""
-    theta = {k: ep.truth[:, i] for i, k in enumerate(GROUND_TRUTH_PARAMS)}
-    fx, fz, _ = fee.fee_xz(theta, beta=theta["beta"])
-    return fx, fz
+    return fee.fee_xz_of_truth(ep.truth)
 
 
 def plot_episode(ep: Episode, out: Path) -> Path:

@@ -56,7 +56,7 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
         stamps[k] = out.stamp_ns
         obs[k, :, 0:3] = out.positions
         obs[k, :, 3:6] = out.velocities
-        obs[k, :, 6] = np.clip(cmd.u_zr, sim.m.blade_min_rel_m, sim.m.blade_max_rel_m)
+        obs[k, :, 6] = cmd.u_zr  # already clipped to the lift-joint reach by the controller
         obs[k, :, 7] = cmd.u_za
         obs[k, :, 8] = cmd.u_x
         forces[k], known[k], truth[k], extras[k] = out.forces, out.known, out.truth, out.extras

@@ -167,6 +167,8 @@ class SoilSimulator:
         self.i_d0 = arr([s.relative_density_pct for s in self.specs])
         self.soil_loose = np.array([[s.loose.phi, s.loose.c, s.loose.gamma] for s in self.soils])
         self.soil_dense = np.array([[s.dense.phi, s.dense.c, s.dense.gamma] for s in self.soils])
+        # pseudo-ground truth (§3.1): the soil at the initial I_d, fixed for the episode
+        self.phi0, self.c0, self.gamma0 = self._soil_at(self.i_d0)
         self.delta = np.full(b, SOIL_TOOL_FRICTION_FEE_RAD if config.world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD)
         self.c_a = np.full(b, ADHESION_PA)
         self.rho = m.blade_angle_rad
@@ -223,12 +225,9 @@ class SoilSimulator:
             i_d = i_d + (100.0 - i_d) * e.compaction_gain * (1.0 - np.exp(-self.distance_in_soil / e.compaction_length_m))
         return (*self._soil_at(i_d), i_d)
 
-    def _initial_soil(self):
-        return self._soil_at(self.i_d0)
 
     def surcharge_n(self):
-        _, _, gamma0 = self._initial_soil()
-        return gamma0 * self.pile_m3 if self.effects.surcharge else np.zeros(self.batch)
+        return self.gamma0 * self.pile_m3 if self.effects.surcharge else np.zeros(self.batch)
 
     def depth(self):
         x_b = self.x_c + self.dyn.blade_offset_m
@@ -391,7 +390,7 @@ class SoilSimulator:
         d = self.depth()
         q = self.surcharge_n()
         v_x, v_z = self.averaged_velocity()
-        phi0, c0, gamma0 = self._initial_soil()
+        phi0, c0, gamma0 = self.phi0, self.c0, self.gamma0
         full = lambda v: np.full(b, float(v))  # noqa: E731
         known = dict(c_a=self.c_a, gamma=gamma0, rho=full(self.rho), alpha=full(self.alpha), w=full(self.w), d=d, q=q, v_x=v_x, v_z=v_z)
         truth = dict(known, phi=phi0, c=c0, delta=self.delta)
