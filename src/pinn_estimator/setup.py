@@ -24,7 +24,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+            "pinn_train = pinn_estimator.train:main",
+            "pinn_eval = pinn_estimator.evaluate:main",
         ],
     },
 )

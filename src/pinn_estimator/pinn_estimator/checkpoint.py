@@ -1,0 +1,96 @@
+"""Checkpoints: weights + normalisation + config + dataset fingerprint + split + metrics.
+
+Everything is plain Python containers and tensors so ``torch.load(..., weights_only=True)``
+can read it: loading a checkpoint never executes code from the file. Table 1 ranges the
+model was trained with are stored too: a model whose output units no longer match the code's
+Table 1 is refused rather than silently mis-scaled.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
+
+from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
+
+FORMAT = "insitu-soil-estimator"
+FORMAT_VERSION = 1
+PACKAGE_DATA = Path(__file__).resolve().parent / "data"
+DEFAULT_CHECKPOINT = PACKAGE_DATA / "pinn_default.pt"
+
+
+def interface() -> dict:
+    """What a checkpoint's inputs and outputs mean; must match the code to be loadable."""
+    return {
+        "observation_fields": list(OBSERVATION_FIELDS),
+        "known_params": list(KNOWN_PARAMS),
+        "unknown_params": list(UNKNOWN_PARAMS),
+        "force_scale_n": list(FORCE_SCALE_N),
+        "table1_norm": {n: list(TABLE1[n].norm) for n in (*KNOWN_PARAMS, *UNKNOWN_PARAMS)},
+    }
+
+
+def save_checkpoint(path, model: EstimatorNet, *, train_config: dict, dataset: dict, split: dict, metrics: dict, history: dict) -> Path:
+    """Write atomically (``.tmp`` then rename) so a killed trainer never leaves half a model."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "model_config": model.cfg.to_dict(),
+        "interface": interface(),
+        "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+        "train_config": train_config,
+        "dataset": dataset,
+        "split": split,
+        "metrics": metrics,
+        "history": history,
+        "torch_version": str(torch.__version__),
+    }
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def read_checkpoint(path) -> dict:
+    """The checkpoint's dict, validated; ValueError names what is wrong."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - torch raises many types for a foreign/corrupt file
+        raise ValueError(f"checkpoint {path} is not a readable torch checkpoint: {type(err).__name__}: {str(err)[:200]}") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise ValueError(f"checkpoint {path} is not an insitu-soil estimator checkpoint (format {FORMAT!r} missing)")
+    if ckpt.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"checkpoint {path} has format_version={ckpt.get('format_version')!r}; this code reads {FORMAT_VERSION}")
+    if ckpt.get("interface") != interface():
+        theirs, ours = ckpt.get("interface") or {}, interface()
+        diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
+        raise ValueError(f"checkpoint {path} was trained with different inputs/outputs ({', '.join(diff)} differ); retrain it")
+    return ckpt
+
+
+def load_model(path) -> tuple[EstimatorNet, dict]:
+    """(model in eval mode, checkpoint dict). Refuses another architecture with a clear message."""
+    ckpt = read_checkpoint(path)
+    try:
+        cfg = ModelConfig.from_dict(ckpt["model_config"])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"checkpoint {path}: {err}") from None
+    state = ckpt.get("state_dict")
+    if not isinstance(state, dict) or "backbone.obs_mean" not in state or "backbone.obs_std" not in state:
+        raise ValueError(f"checkpoint {path} has no observation normalisation (backbone.obs_mean/obs_std) in its weights")
+    model = EstimatorNet(cfg, state["backbone.obs_mean"], state["backbone.obs_std"])
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as err:
+        first = str(err).splitlines()[0:3]
+        raise ValueError(f"checkpoint {path} does not fit model config {cfg}: {' '.join(first)}") from None
+    model.eval()
+    return model, ckpt

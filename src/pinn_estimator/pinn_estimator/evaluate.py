@@ -1,0 +1,336 @@
+"""`pinn_eval`: the paper §3.2 report on a checkpoint's test split, with the baselines beside it.
+
+On the same test windows (episodes the model never saw in training or validation):
+* the PINN: F̂ = F_FEE + F_r, its FEE part alone, and Θ̂_u;
+* a physics-free network of the same size predicting F directly (``--physics-free``);
+* the classical estimator (after Tan et al. 2005): a least-squares fit of φ, c, δ (β = β*) of
+  the FEE to each window's measured forces, with the same known parameters.
+Reports mean |F - F̂| [N] / % of measured / % of machine limits (x, z, magnitude); parameter
+errors against the pseudo-ground truth; per soil x I_d mean ± std of φ̂, ĉ, δ̂, β̂ (Figs. 5-6
+analogs); the failure force at d = 0.1 m, Q = 0 from mean estimated vs true parameters; the
+issue's targets, met or not. JSON + Markdown + PNG. Ground truth is used only to score.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from soil_msgs_py import fee
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
+from soil_msgs_py.soils import COHESIVE_SOILS
+
+from .checkpoint import load_model
+from .data import Dataset, describe, load_dataset
+from .inference import WindowTensors, force_errors, predict
+
+PARAMS = ("phi", "c", "delta", "beta")
+UNITS = {"phi": ("deg", 1 / DEG), "c": ("kPa", 1e-3), "delta": ("deg", 1 / DEG), "beta": ("deg", 1 / DEG)}
+TRUTH_COL = {p: GROUND_TRUTH_PARAMS.index(p) for p in PARAMS}
+FAILURE_DEPTH_M = 0.1  # §3.2: hypothetical failure force at d = 0.1 m, Q = 0
+FAILURE_SPEED_M_S = 0.5  # forward, blade level: full soil-tool friction (Eq. 10 scale ~ 1)
+ID_LIMIT_PCT = 60.0  # parameter targets hold for I_d <= 60 % (soil failure assumption, §3.2)
+
+
+def _windows(ds: Dataset, ends: np.ndarray, arr: np.ndarray) -> np.ndarray:
+    return arr[ends[:, None] + np.arange(-(WINDOW_SAMPLES - 1), 1)]
+
+
+def parameter_errors(est: dict[str, np.ndarray], truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """Mean absolute error of each estimated parameter, in report units (deg, kPa)."""
+    out = {}
+    for p in PARAMS:
+        if p not in est:
+            continue
+        unit, k = UNITS[p]
+        err = np.abs(est[p][mask] - truth[mask, TRUTH_COL[p]]) * k
+        out[f"{p}_mae_{unit}"] = float(np.nanmean(err)) if np.isfinite(err).any() else float("nan")
+    return out
+
+
+def failure_force(phi, c, delta, beta, known_mean: dict) -> float:
+    """|F| [N] of the FEE at d = 0.1 m, Q = 0, v = 0.5 m/s forward, for one parameter set."""
+    theta = dict(known_mean, phi=phi, c=c, delta=delta, d=FAILURE_DEPTH_M, q=0.0, v_x=FAILURE_SPEED_M_S, v_z=0.0)
+    _, _, force = fee.fee_xz(theta, beta=None if beta is None else beta)
+    return float(force)
+
+
+def _group_table(ds, ends, truth, estimates: dict[str, dict[str, np.ndarray]]):
+    """Per soil x I_d: truth and each estimator's mean ± std, and failure forces."""
+    episode = ds.episode_of_rows(ends)
+    soil = np.array([ds.metas[e].soil for e in episode])
+    i_d = np.array([float(ds.metas[e].relative_density_pct) for e in episode])
+    rows = []
+    for s in sorted(set(soil)):
+        for level in sorted(set(i_d[soil == s])):
+            m = (soil == s) & (i_d == level)
+            known_mean = {name: float(ds.known[ends[m], j].mean()) for j, name in enumerate(KNOWN_PARAMS)}
+            t = {p: float(np.nanmean(truth[m, TRUTH_COL[p]])) for p in PARAMS}
+            row = {"soil": s, "relative_density_pct": level, "windows": int(m.sum()), "truth": t,
+                   "mean_depth_m": float(known_mean["d"]),
+                   "failure_force_n": {"truth": failure_force(t["phi"], t["c"], truth[m, TRUTH_COL["delta"]].mean(), None, known_mean)}}
+            for name, est in estimates.items():
+                row[name] = {p: {"mean": float(np.nanmean(est[p][m])), "std": float(np.nanstd(est[p][m]))} for p in PARAMS if p in est}
+                beta = row[name]["beta"]["mean"] if name == "pinn" else None  # the classical fit uses β* by construction
+                row["failure_force_n"][name] = failure_force(*(row[name][p]["mean"] for p in ("phi", "c", "delta")), beta, known_mean)
+            rows.append(row)
+    return rows
+
+
+def _trends(rows, estimator="pinn") -> dict:
+    """Slope of φ̂ and ĉ against I_d per cohesive soil (paper Fig. 6: both rise with I_d)."""
+    out = {}
+    for s in sorted({r["soil"] for r in rows} & set(COHESIVE_SOILS)):
+        mine = [r for r in rows if r["soil"] == s and estimator in r]
+        if len(mine) < 2:
+            continue
+        x = np.array([r["relative_density_pct"] for r in mine])
+        res = {}
+        for p, unit, k in (("phi", "deg", 1 / DEG), ("c", "kPa", 1e-3)):
+            y = np.array([r[estimator][p]["mean"] for r in mine]) * k
+            slope = float(np.polyfit(x, y, 1)[0]) * 100
+            rank = float(np.corrcoef(np.argsort(np.argsort(x)), np.argsort(np.argsort(y)))[0, 1])
+            res[p] = {f"slope_{unit}_per_100pct": slope, "spearman": rank, "rises": bool(slope > 0 and rank > 0.5)}
+        out[s] = res
+    return out
+
+
+def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False, log=print) -> dict:
+    """Build the report dict (see module docstring)."""
+    model, ckpt = load_model(checkpoint)
+    if model.cfg.kind != "pinn":
+        raise ValueError(f"checkpoint {checkpoint} is a {model.cfg.kind!r} model; pinn_eval needs the PINN first (baseline via --physics-free)")
+    ds = load_dataset(data or ckpt["dataset"]["root"], workers=workers, progress=progress)
+    if ds.fingerprint != ckpt["dataset"]["fingerprint"]:
+        log(f"warning: the bags at {ds.root} differ from those the model was trained on; using its test split by episode name")
+    test_names = ckpt["split"]["test"]
+    if not test_names:
+        raise ValueError(f"checkpoint {checkpoint} has an empty test split")
+    ends = ds.window_ends(ds.index(test_names), stride)
+    tensors = WindowTensors(ds)
+    measured = ds.forces[ends]
+    truth = ds.truth[ends]
+    t0 = time.monotonic()
+    out = predict(model, tensors, ends)
+    timing = {"pinn_s": time.monotonic() - t0}
+    pinn_est = dict(zip(("phi", "c", "delta", "beta"), out["theta"][:, :4].T))
+    forces = {"pinn": force_errors(measured, out["force"]), "pinn_fee_part": force_errors(measured, out["force_fee"])}
+    estimates = {"pinn": pinn_est}
+    if physics_free:
+        free, free_ckpt = load_model(physics_free)
+        if free.cfg.kind != "physics_free":
+            raise ValueError(f"--physics-free {physics_free} is a {free.cfg.kind!r} model")
+        if free_ckpt["split"]["test"] != test_names:
+            raise ValueError(f"--physics-free {physics_free} was trained on another split; train it with --split-from {checkpoint}")
+        t0 = time.monotonic()
+        forces["physics_free"] = force_errors(measured, predict(free, tensors, ends)["force"])
+        timing["physics_free_s"] = time.monotonic() - t0
+    if classical:
+        from .classical import fit_windows
+
+        t0 = time.monotonic()
+        fit = fit_windows(_windows(ds, ends, ds.known), _windows(ds, ends, ds.forces), workers=workers, progress=progress)
+        timing["classical_s"] = time.monotonic() - t0
+        estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta, "beta": fit.beta}
+        forces["classical"] = force_errors(measured, np.nan_to_num(fit.f_fee))
+        forces["classical"]["fit_success_pct"] = float(100 * fit.success.mean())
+    i_d = np.array([float(ds.metas[e].relative_density_pct) for e in ds.episode_of_rows(ends)])
+    masks = {"all": np.ones(len(ends), bool), f"id_le_{ID_LIMIT_PCT:.0f}": i_d <= ID_LIMIT_PCT}
+    params = {name: {k: parameter_errors(est, truth, m) for k, m in masks.items()} for name, est in estimates.items()}
+    rows = _group_table(ds, ends, truth, estimates)
+    report = {
+        "checkpoint": str(checkpoint),
+        "physics_free_checkpoint": str(physics_free) if physics_free else None,
+        "dataset": describe(ds),
+        "world_modes": sorted({ds.metas[e].world_mode for e in ds.index(test_names)}),
+        "test_episodes": len(test_names),
+        "windows": int(len(ends)),
+        "window_stride": stride,
+        "force": forces,
+        "params": params,
+        "per_soil_id": rows,
+        "trends": {name: _trends(rows, name) for name in estimates},
+        "training": {"pinn": ckpt["metrics"]},
+        "timing_s": timing,
+    }
+    if physics_free:
+        report["training"]["physics_free"] = free_ckpt["metrics"]
+    report["targets"] = targets(report)
+    return report
+
+
+def targets(report: dict) -> list[dict]:
+    """The issue's targets for this dataset, each with the value reached and whether it is met."""
+    out = []
+
+    def add(name, value, limit, op="<="):
+        met = bool(np.isfinite(value) and (value <= limit if op == "<=" else value >= limit))
+        out.append({"target": name, "value": value, "limit": limit, "op": op, "met": met})
+
+    f = report["force"]
+    fee_world = report["world_modes"] == ["fee"]
+    add("PINN force error, % of measured |F|", f["pinn"]["mae_mag_pct_measured"], 5.0 if fee_world else 10.0)
+    p = report["params"]["pinn"][f"id_le_{ID_LIMIT_PCT:.0f}"]
+    if fee_world:
+        add("PINN φ MAE (I_d <= 60 %) [deg]", p["phi_mae_deg"], 2.0)
+        add("PINN δ MAE (I_d <= 60 %) [deg]", p["delta_mae_deg"], 1.0)
+        add("PINN c MAE (I_d <= 60 %) [kPa]", p["c_mae_kPa"], 1.0)
+    else:
+        for soil, t in report["trends"]["pinn"].items():
+            for q in ("phi", "c"):
+                add(f"{soil}: {q}̂ rises with I_d (Spearman ρ)", t[q]["spearman"], 0.5, ">=")
+    if "classical" in report["params"]:
+        c = report["params"]["classical"][f"id_le_{ID_LIMIT_PCT:.0f}"]
+        for key in ("phi_mae_deg", "c_mae_kPa", "delta_mae_deg"):
+            add(f"PINN {key} / classical fit's (I_d <= 60 %)", p[key] / max(c[key], 1e-12), 1.0)
+    if "physics_free" in f:
+        add("PINN force error / physics-free network's", f["pinn"]["mae_mag_n"] / f["physics_free"]["mae_mag_n"], 1.2)
+    train_s = sum(t.get("train_seconds", 0.0) for t in report["training"].values())
+    add("training time, all networks [min]", train_s / 60, 15.0)
+    return out
+
+
+# ---------------------------------------------------------------------------------- output
+def _fmt(x, nd=1):
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{nd}f}"
+
+
+def markdown(report: dict) -> str:
+    lines = [
+        f"# PINN evaluation: {', '.join(report['world_modes'])} world",
+        "",
+        f"Checkpoint `{Path(report['checkpoint']).name}`; dataset fingerprint `{report['dataset']['fingerprint'][:16]}` "
+        f"({report['dataset']['episodes']} episodes); test split: {report['test_episodes']} episodes, "
+        f"{report['windows']} windows (one every {report['window_stride']} samples). Generated by `pinn_eval`.",
+        "",
+        "## Force error on the test split (mean |F - F̂|)",
+        "",
+        "| estimator | x [N] | z [N] | magnitude [N] | % of measured (x / z / mag) | % of machine limits (x / z / mag) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, f in report["force"].items():
+        lines.append(
+            f"| {name} | {f['mae_x_n']:.0f} | {f['mae_z_n']:.0f} | {f['mae_mag_n']:.0f} | "
+            f"{f['mae_x_pct_measured']:.1f} / {f['mae_z_pct_measured']:.1f} / {f['mae_mag_pct_measured']:.1f} | "
+            f"{f['mae_x_pct_limit']:.1f} / {f['mae_z_pct_limit']:.1f} / {f['mae_mag_pct_limit']:.1f} |"
+        )
+    lines += ["", "`pinn_fee_part` is F_FEE alone (F̂ without the residual F_r); `classical` is the FEE of the fitted parameters.", ""]
+    lines += ["## Parameter error against the pseudo-ground truth (mean absolute)", "",
+              "| estimator | windows | φ [deg] | c [kPa] | δ [deg] | β [deg] |", "|---|---|---|---|---|---|"]
+    for name, per in report["params"].items():
+        for subset, e in per.items():
+            lines.append(f"| {name} | {subset} | {_fmt(e.get('phi_mae_deg'))} | {_fmt(e.get('c_mae_kPa'), 2)} | "
+                         f"{_fmt(e.get('delta_mae_deg'))} | {_fmt(e.get('beta_mae_deg'))} |")
+    lines += ["", "## Per soil and relative density (mean ± std over test windows; truth in brackets)", "",
+              "| soil | I_d [%] | mean d [m] | φ̂ [deg] | ĉ [kPa] | δ̂ [deg] | β̂ [deg] | classical φ / c / δ | |F| at d = 0.1 m [kN]: truth / PINN / classical |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in report["per_soil_id"]:
+        p, t = r["pinn"], r["truth"]
+        cells = []
+        for q in PARAMS:
+            k = UNITS[q][1]
+            cells.append(f"{p[q]['mean'] * k:.{2 if q == 'c' else 1}f} ± {p[q]['std'] * k:.{2 if q == 'c' else 1}f} ({t[q] * k:.{2 if q == 'c' else 1}f})")
+        cl = r.get("classical")
+        cls = f"{cl['phi']['mean'] / DEG:.1f} / {cl['c']['mean'] / 1e3:.2f} / {cl['delta']['mean'] / DEG:.1f}" if cl else "n/a"
+        ff = r["failure_force_n"]
+        ffs = " / ".join(_fmt(ff.get(k, float("nan")) / 1e3, 1) for k in ("truth", "pinn", "classical"))
+        lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | {r['mean_depth_m']:.3f} | " + " | ".join(cells) + f" | {cls} | {ffs} |")
+    if report["trends"].get("pinn"):
+        lines += ["", "## Trend with relative density, cohesive soils (paper Fig. 6)", "",
+                  "| soil | φ̂ slope [deg / 100 % I_d] | φ̂ Spearman | ĉ slope [kPa / 100 % I_d] | ĉ Spearman |", "|---|---|---|---|---|"]
+        for s, t in report["trends"]["pinn"].items():
+            lines.append(f"| {s} | {t['phi']['slope_deg_per_100pct']:.2f} | {t['phi']['spearman']:.2f} | {t['c']['slope_kPa_per_100pct']:.2f} | {t['c']['spearman']:.2f} |")
+    lines += ["", "## Targets (issue 3)", "", "| target | value | limit | met |", "|---|---|---|---|"]
+    for t in report["targets"]:
+        lines.append(f"| {t['target']} | {_fmt(t['value'], 2)} | {t['op']} {t['limit']} | {'yes' if t['met'] else '**no**'} |")
+    tr = report["training"]
+    lines += ["", "## Training", ""]
+    for name, m in tr.items():
+        lines.append(f"- {name}: {m.get('parameters')} parameters, best epoch {m.get('best_epoch')} of {m.get('epochs_run')} "
+                     f"({m.get('stop_reason')}), {m.get('train_seconds', 0) / 60:.1f} min")
+    lines.append(f"- evaluation time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report["timing_s"].items()))
+    return "\n".join(lines) + "\n"
+
+
+def plot(report: dict, path: Path) -> Path:
+    """Figs. 5-6 analog: φ̂, ĉ, δ̂, β̂ and the d = 0.1 m failure force against I_d, per soil."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    soils = sorted({r["soil"] for r in report["per_soil_id"]})
+    fig, axes = plt.subplots(5, len(soils), figsize=(3.2 * len(soils), 11), sharex=True, squeeze=False)
+    styles = {"pinn": ("C0", "PINN"), "classical": ("C1", "classical fit")}
+    for j, s in enumerate(soils):
+        rows = [r for r in report["per_soil_id"] if r["soil"] == s]
+        x = np.array([r["relative_density_pct"] for r in rows])
+        for i, q in enumerate(PARAMS):
+            ax = axes[i, j]
+            unit, k = UNITS[q]
+            ax.plot(x, [r["truth"][q] * k for r in rows], "s-", color="C2", label="ground truth")
+            for name, (color, label) in styles.items():
+                if name in rows[0]:
+                    m = np.array([r[name][q]["mean"] for r in rows]) * k
+                    sd = np.array([r[name][q]["std"] for r in rows]) * k
+                    ax.errorbar(x + (1.5 if name == "classical" else 0), m, yerr=sd, fmt="o-", color=color, capsize=2, label=label, alpha=0.9)
+            ax.set_ylabel(f"{q} [{unit}]")
+            if i == 0:
+                ax.set_title(s)
+        ax = axes[4, j]
+        for key, color, label in (("truth", "C2", "ground truth"), ("pinn", "C0", "PINN"), ("classical", "C1", "classical fit")):
+            vals = [r["failure_force_n"].get(key) for r in rows]
+            if all(v is not None for v in vals):
+                ax.plot(x, np.array(vals) / 1e3, "o-", color=color, label=label)
+        ax.set_ylabel("|F| at d=0.1 m [kN]")
+        ax.set_xlabel("I_d [%]")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"{', '.join(report['world_modes'])} world, test split: estimates vs ground truth (mean ± std)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
+    paths["json"].write_text(json.dumps(report, indent=1, default=float) + "\n")
+    paths["markdown"].write_text(markdown(report))
+    plot(report, paths["png"])
+    return paths
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="pinn_eval", description=__doc__.splitlines()[0])
+    p.add_argument("--checkpoint", required=True, help="PINN checkpoint (.pt)")
+    p.add_argument("--physics-free", help="physics-free baseline checkpoint trained on the same split")
+    p.add_argument("--data", help="bag directory (default: the one the checkpoint was trained on)")
+    p.add_argument("--out", default="out/eval", help="report directory (default: out/eval)")
+    p.add_argument("--name", help="report file stem (default: <checkpoint stem>_report)")
+    p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
+    p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
+    p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")
+    p.add_argument("--quiet", action="store_true")
+    args = p.parse_args(argv)
+    try:
+        if args.stride < 1:
+            raise ValueError(f"--stride={args.stride} must be >= 1")
+        report = evaluate(args.checkpoint, args.data, physics_free=args.physics_free, stride=args.stride,
+                          classical=not args.no_classical, workers=args.workers, progress=not args.quiet)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"pinn_eval: error: {err}", file=sys.stderr)
+        return 2
+    paths = write_report(report, Path(args.out), args.name or f"{Path(args.checkpoint).stem}_report")
+    print(markdown(report))
+    print(json.dumps({k: str(v) for k, v in paths.items()}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

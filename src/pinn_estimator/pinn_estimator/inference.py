@@ -1,0 +1,63 @@
+"""Running a model on windows of a dataset, and the force-error figures of paper §3.2.
+
+Shared by the trainer (validation), the evaluation report and the tests, so every number
+is computed one way.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from soil_msgs_py.params import MACHINE, WINDOW_SAMPLES
+
+from .data import Dataset
+from .model import EstimatorNet
+
+FORCE_LIMITS_N = np.array([MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n])
+# §3.2 normalises the magnitude error by the machine limits: 730 N ~ 2 % -> |(20, 30) kN| = 36 kN.
+FORCE_LIMIT_MAGNITUDE_N = float(math.hypot(*FORCE_LIMITS_N))
+WINDOW_OFFSETS = torch.arange(-(WINDOW_SAMPLES - 1), 1)
+
+
+class WindowTensors:
+    """The dataset's rows as float32 tensors, gathered into (B, T, 9) windows by end row."""
+
+    def __init__(self, ds: Dataset):
+        self.obs = torch.as_tensor(ds.observations, dtype=torch.float32)
+        self.known = torch.as_tensor(ds.known, dtype=torch.float32)
+        self.force = torch.as_tensor(ds.forces, dtype=torch.float32)
+
+    def batch(self, ends: torch.Tensor):
+        return self.obs[ends[:, None] + WINDOW_OFFSETS], self.known[ends], self.force[ends]
+
+
+@torch.no_grad()
+def predict(model: EstimatorNet, tensors: WindowTensors, ends: np.ndarray, batch_size: int = 2048) -> dict[str, np.ndarray]:
+    """Model outputs (SI, float64 NumPy) for the windows ending at global rows ``ends``."""
+    model.eval()
+    parts: dict[str, list] = {}
+    ends_t = torch.as_tensor(ends, dtype=torch.int64)
+    for i in range(0, len(ends_t), batch_size):
+        obs, known, _ = tensors.batch(ends_t[i : i + batch_size])
+        for key, value in model(obs, known).items():
+            parts.setdefault(key, []).append(value.double().numpy())
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def force_errors(measured: np.ndarray, predicted: np.ndarray) -> dict[str, float]:
+    """§3.2 figures: mean |F - F̂| [N] per axis and of the vector magnitude, as % of the mean
+    measured |F| (ratio of means: robust where F passes through 0) and as % of machine limits."""
+    err = np.abs(predicted - measured)
+    mag_err = np.hypot(*(predicted - measured).T)
+    mag = np.hypot(*measured.T)
+    out = {"windows": int(len(measured))}
+    for j, axis in enumerate(("x", "z")):
+        out[f"mae_{axis}_n"] = float(err[:, j].mean())
+        out[f"mae_{axis}_pct_measured"] = float(100 * err[:, j].mean() / max(np.abs(measured[:, j]).mean(), 1e-9))
+        out[f"mae_{axis}_pct_limit"] = float(100 * err[:, j].mean() / FORCE_LIMITS_N[j])
+    out["mae_mag_n"] = float(mag_err.mean())
+    out["mae_mag_pct_measured"] = float(100 * mag_err.mean() / max(mag.mean(), 1e-9))
+    out["mae_mag_pct_limit"] = float(100 * mag_err.mean() / FORCE_LIMIT_MAGNITUDE_N)
+    return out

@@ -1,0 +1,241 @@
+"""`pinn_train`: train the PINN (or its physics-free twin) from a directory of episode bags.
+
+Reads bags with ``rosbags`` (cached by content fingerprint), splits by episode, normalises
+observations with training-set statistics (stored in the model), Adam with plateau LR decay,
+early stopping on the validation loss, a wall-clock budget, seeded. Writes the checkpoint and
+a training-curve PNG beside it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .checkpoint import save_checkpoint
+from .data import Dataset, describe, load_dataset, split_episodes
+from .inference import WindowTensors, force_errors, predict
+from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
+from .model import EstimatorNet, ModelConfig, parameter_count
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings; every field is a ``pinn_train`` option of the same name."""
+
+    seed: int = 0
+    epochs: int = 40
+    batch_size: int = 512
+    lr: float = 2e-3
+    stride: int = 2  # samples between the ends of consecutive training windows
+    eval_stride: int = 10  # same, for validation
+    patience: int = 8  # epochs without validation improvement before stopping
+    max_minutes: float = 14.0  # wall-clock budget; the best model so far is kept
+    val_fraction: float = 0.15
+    test_fraction: float = 0.15
+    threads: int = 2
+    consistency: float = 0.0  # weight of the same-episode agreement term (ours; 0 = paper's Eq. 13 only)
+
+    def __post_init__(self):
+        for name in ("epochs", "batch_size", "stride", "eval_stride", "patience", "threads"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name}={v!r} must be a positive integer")
+        if not (isinstance(self.consistency, (int, float)) and np.isfinite(self.consistency) and self.consistency >= 0):
+            raise ValueError(f"consistency={self.consistency!r} must be a number >= 0")
+        for name in ("lr", "max_minutes"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r} must be a positive number")
+
+
+def observation_statistics(ds: Dataset, episodes) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std of o over the training episodes' rows (§2.2.2); constant features get std 1."""
+    rows = np.concatenate([np.arange(ds.offsets[e], ds.offsets[e + 1]) for e in episodes])
+    obs = ds.observations[rows]
+    std = obs.std(0)
+    return obs.mean(0), np.where(std > 1e-9, std, 1.0)
+
+
+def _loss(model, out, force, known, weights):
+    if model.cfg.kind == "pinn":
+        return pinn_loss(out, force, known, weights)
+    return force_loss(out, force, weights)
+
+
+@torch.no_grad()
+def _evaluate_loss(model, tensors, ends, weights, batch_size=4096) -> float:
+    model.eval()
+    total, n = 0.0, 0
+    for i in range(0, len(ends), batch_size):
+        obs, known, force = tensors.batch(ends[i : i + batch_size])
+        loss, _ = _loss(model, model(obs, known), force, known, weights)
+        total += float(loss) * len(obs)
+        n += len(obs)
+    return total / max(n, 1)
+
+
+def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(), progress: bool = True, log=print):
+    """Train on ``ds``; returns (best model, split, history, metrics)."""
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    split = split or split_episodes(ds, seed=cfg.seed, val_fraction=cfg.val_fraction, test_fraction=cfg.test_fraction)
+    idx = {s: ds.index(split[s]) for s in split}
+    if not idx["val"]:
+        raise ValueError("the validation split is empty: early stopping needs validation episodes (use more episodes or val_fraction > 0)")
+    mean, std = observation_statistics(ds, idx["train"])
+    model = EstimatorNet(model_cfg, mean, std)
+    tensors = WindowTensors(ds)
+    train_ends = torch.as_tensor(ds.window_ends(idx["train"], cfg.stride))
+    # first and last possible window end of each training window's episode (partner draws)
+    episode = torch.as_tensor(ds.episode_of_rows(train_ends.numpy()))
+    first_end = torch.as_tensor(ds.offsets)[episode] + (model_cfg.window - 1)
+    n_ends = torch.as_tensor(ds.offsets)[episode + 1] - first_end
+    pairs = cfg.consistency > 0 and model_cfg.kind == "pinn"
+    val_ends = torch.as_tensor(ds.window_ends(idx["val"], cfg.eval_stride))
+    log(f"{model_cfg.kind}: {parameter_count(model)} parameters; {len(train_ends)} training windows "
+        f"({len(idx['train'])} episodes), {len(val_ends)} validation windows ({len(idx['val'])} episodes)")
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
+    gen = torch.Generator().manual_seed(cfg.seed)
+    history = {"epoch": [], "train_loss": [], "val_loss": [], "val_force_mae_n": [], "lr": [], "seconds": []}
+    best = (float("inf"), None, 0)
+    start = time.monotonic()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.epochs, desc=f"training {model_cfg.kind}", unit="epoch")
+    stop_reason = "epochs"
+    for epoch in range(1, cfg.epochs + 1):
+        model.train()
+        perm = torch.randperm(len(train_ends), generator=gen)
+        running, count = 0.0, 0
+        step = cfg.batch_size // 2 if pairs else cfg.batch_size
+        for i in range(0, len(perm), step):
+            pick = perm[i : i + step]
+            ends = train_ends[pick]
+            if pairs:  # a partner window from the same episode for each window
+                partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
+                ends = torch.cat([ends, partner])
+            obs, known, force = tensors.batch(ends)
+            out = model(obs, known)
+            loss, _ = _loss(model, out, force, known, weights)
+            if pairs:
+                loss = loss + cfg.consistency * consistency_loss(out["theta"][: len(pick)], out["theta"][len(pick) :])
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            opt.step()
+            running += float(loss.detach()) * len(obs)
+            count += len(obs)
+        val_loss = _evaluate_loss(model, tensors, val_ends, weights)
+        val_pred = predict(model, tensors, val_ends.numpy())
+        val_mae = force_errors(ds.forces[val_ends.numpy()], val_pred["force"])["mae_mag_n"]
+        sched.step(val_loss)
+        elapsed = time.monotonic() - start
+        for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
+            history[key].append(value)
+        if val_loss < best[0]:
+            best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch)
+        if bar is not None:
+            bar.set_postfix(train=f"{running / count:.4f}", val=f"{val_loss:.4f}", val_mae=f"{val_mae:.0f}N")
+            bar.update(1)
+        if epoch - best[2] >= cfg.patience:
+            stop_reason = f"early stop: no validation improvement for {cfg.patience} epochs"
+            break
+        if elapsed > 60 * cfg.max_minutes:
+            stop_reason = f"time budget of {cfg.max_minutes} min reached"
+            break
+    if bar is not None:
+        bar.close()
+    model.load_state_dict(best[1])
+    model.eval()
+    val_pred = predict(model, tensors, val_ends.numpy())
+    metrics = {
+        "best_epoch": best[2],
+        "epochs_run": len(history["epoch"]),
+        "stop_reason": stop_reason,
+        "train_seconds": history["seconds"][-1] if history["seconds"] else 0.0,
+        "val_loss": best[0],
+        "val_force": force_errors(ds.forces[val_ends.numpy()], val_pred["force"]),
+        "parameters": parameter_count(model),
+    }
+    log(f"{model_cfg.kind}: {stop_reason}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
+        f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
+    return model, split, history, metrics
+
+
+def plot_curve(history: dict, path: Path, title: str) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
+    a.plot(history["epoch"], history["train_loss"], label="train")
+    a.plot(history["epoch"], history["val_loss"], label="validation")
+    a.set_yscale("log")
+    a.set_xlabel("epoch")
+    a.set_ylabel("loss (Eq. 13, normalised)")
+    a.legend()
+    b.plot(history["epoch"], history["val_force_mae_n"], color="C2")
+    b.set_xlabel("epoch")
+    b.set_ylabel("validation mean |F - F̂| [N]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pinn_train", description=__doc__.splitlines()[0])
+    p.add_argument("--data", required=True, help="directory of episode bags (searched recursively)")
+    p.add_argument("--out", required=True, help="checkpoint path to write (.pt); the curve PNG goes beside it")
+    p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
+    p.add_argument("--split-from", help="reuse the train/val/test split of this checkpoint (same bags)")
+    p.add_argument("--workers", type=int, default=2, help="processes reading bags on the first run")
+    p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    for f in fields(TrainConfig):
+        p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
+    for f in fields(ModelConfig):
+        if f.name in ("kind", "window", "n_obs", "n_known"):
+            continue
+        p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"model (default: {f.default})")
+    return p
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
+        model_cfg = ModelConfig(kind=args.kind, **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in ("kind", "window", "n_obs", "n_known")})
+        ds = load_dataset(args.data, cache=not args.no_cache, workers=args.workers, progress=not args.quiet)
+        split = None
+        if args.split_from:
+            from .checkpoint import read_checkpoint
+
+            split = read_checkpoint(args.split_from)["split"]
+        model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet)
+    except (ValueError, FileNotFoundError, FloatingPointError) as err:
+        print(f"pinn_train: error: {err}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    save_checkpoint(out, model, train_config=asdict(cfg), dataset=describe(ds), split=split, metrics=metrics, history=history)
+    curve = plot_curve(history, out.with_name(out.stem + "_curve.png"), f"{args.kind} on {Path(args.data).name}")
+    print(json.dumps({"checkpoint": str(out), "curve": str(curve), **{k: metrics[k] for k in ("best_epoch", "epochs_run", "stop_reason", "train_seconds")}, "val_force": metrics["val_force"]}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
