@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test bench clean-venv dataset
+.PHONY: venv demo test bench clean-venv dataset models
 
 venv: $(STAMP)
 
@@ -32,6 +32,11 @@ test: venv
 
 bench: venv
 	$(BIN)/python benchmarks/bench_sim.py
+	$(BIN)/python benchmarks/bench_train.py
+
+# Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
+models: venv
+	BIN=$(BIN) scripts/train_models.sh
 
 clean-venv:
 	rm -rf $(VENV)

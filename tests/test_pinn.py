@@ -17,7 +17,7 @@ from pinn_estimator import checkpoint as ck
 from pinn_estimator.data import load_dataset, split_episodes
 from pinn_estimator.evaluate import main as eval_main
 from pinn_estimator.inference import WindowTensors, predict
-from pinn_estimator.loss import LIMITED, LossWeights, consistency_loss, dn_gamma_dbeta_beta_only, pinn_loss, relu_limit
+from pinn_estimator.loss import LIMITED, consistency_loss, dn_gamma_dbeta_beta_only, pinn_loss, relu_limit
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.train import TrainConfig, main as train_main, train
 from soil_msgs_py import fee
@@ -293,3 +293,24 @@ def test_train_function_keeps_best_validation_model(tiny_ds):
     model, split, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)
     assert metrics["val_loss"] == min(history["val_loss"])
     assert metrics["best_epoch"] == 1 + int(np.argmin(history["val_loss"]))
+
+
+# ------------------------------------------------------------------------------ shipped models
+@pytest.mark.parametrize("world", ["default", "fee"])
+def test_shipped_model_loads_and_estimates_on_a_sample_bag(world):
+    path = ck.PACKAGE_DATA / f"pinn_{world}.pt"
+    assert path.stat().st_size < 1_000_000  # small enough for the package
+    model, meta = ck.load_model(path)
+    assert model.cfg.kind == "pinn" and meta["dataset"]["world_modes"] == [world]
+    assert meta["dataset"]["episodes"] == {"default": 576, "fee": 432}[world]  # the paper's dataset sizes
+    report = json.loads((ck.PACKAGE_DATA / f"pinn_{world}_report.json").read_text())
+    assert report["dataset"]["fingerprint"] == meta["dataset"]["fingerprint"]
+    assert {"pinn", "physics_free", "classical"} <= set(report["force"])
+    ds = load_dataset(Path(__file__).resolve().parents[1] / "bags" / "samples", cache=False)
+    ends = ds.window_ends(range(len(ds)), 30)
+    out = predict(model, WindowTensors(ds), ends)
+    assert all(np.isfinite(v).all() for v in out.values())
+    lo = np.array([TABLE1[n].limits[0] for n in UNKNOWN_PARAMS])
+    hi = np.array([TABLE1[n].limits[1] for n in UNKNOWN_PARAMS])
+    assert np.all(out["theta"] >= lo - 1e-6) and np.all(out["theta"] <= hi + 1e-6)
+    assert ck.DEFAULT_CHECKPOINT.name == "pinn_default.pt"

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from soil_msgs_py import fee
-from soil_msgs_py.params import DEG, FORCE_FIELDS, KNOWN_PARAMS, MACHINE, TABLE1
+from soil_msgs_py.params import DEG, FORCE_FIELDS, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 
 FIT_PARAMS: tuple[str, ...] = ("phi", "c", "delta")
 
@@ -62,7 +62,7 @@ ETA_MARGIN_RAD = 2.0 * DEG
 # where beta* does not exist for the trial parameters (e.g. a rising blade, delta' < 0,
 # with phi < |delta'|). Large and finite, so the optimiser backs out instead of seeing NaN.
 UNDEFINED_RESIDUAL = 10.0
-FORCE_SCALE_N = np.array([MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n])
+FORCE_SCALE_N = np.array(FORCE_LIMITS_N)
 # Start points in normalised units (phi, c, delta): the centre of the Table 1 ranges first;
 # only if that fit fails, a frictional/weakly cohesive and then a cohesive/low-friction soil.
 STARTS: tuple[tuple[float, float, float], ...] = ((0.5, 0.5, 0.5), (0.75, 0.05, 0.3), (0.2, 1.5, 0.7))

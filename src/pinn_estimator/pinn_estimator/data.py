@@ -11,7 +11,6 @@ estimator has when it publishes an estimate stamped with sample t.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from collections import defaultdict
 from dataclasses import dataclass
@@ -23,7 +22,6 @@ from soil_msgs_py.bag_io import find_episode_bags, read_episode
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.params import (
     FORCE_FIELDS,
-    GROUND_TRUTH_PARAMS,
     KNOWN_PARAMS,
     OBSERVATION_FIELDS,
     WINDOW_SAMPLES,
@@ -102,7 +100,7 @@ def _read(bag: Path):
     return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth
 
 
-def _check_finite(name: str, arr: np.ndarray, fields, bag: str, offset: int) -> None:
+def _check_finite(name: str, arr: np.ndarray, fields, bag: str) -> None:
     bad = ~np.isfinite(arr)
     if bad.any():
         row, col = np.argwhere(bad)[0]
@@ -131,9 +129,9 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     for name, meta_json, obs, forces, known, truth in rows:
         if len(obs) < WINDOW_SAMPLES:
             raise ValueError(f"bag {name} has {len(obs)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
-        _check_finite("observation", obs, OBSERVATION_FIELDS, name, 0)
-        _check_finite("force", forces, FORCE_FIELDS, name, 0)
-        _check_finite("known parameter", known, KNOWN_PARAMS, name, 0)
+        _check_finite("observation", obs, OBSERVATION_FIELDS, name)
+        _check_finite("force", forces, FORCE_FIELDS, name)
+        _check_finite("known parameter", known, KNOWN_PARAMS, name)
         names.append(name)
         metas.append(EpisodeMeta.from_json(meta_json))
         for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth)):
@@ -244,7 +242,3 @@ def describe(ds: Dataset) -> dict:
         "world_modes": modes,
         "soils": soils,
     }
-
-
-def summary_json(ds: Dataset) -> str:
-    return json.dumps(describe(ds), sort_keys=True)

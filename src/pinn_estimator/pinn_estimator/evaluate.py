@@ -26,7 +26,7 @@ from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_S
 from soil_msgs_py.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
-from .data import Dataset, describe, load_dataset
+from .data import describe, load_dataset
 from .inference import WindowTensors, force_errors, predict
 
 PARAMS = ("phi", "c", "delta", "beta")
@@ -37,7 +37,8 @@ FAILURE_SPEED_M_S = 0.5  # forward, blade level: full soil-tool friction (Eq. 10
 ID_LIMIT_PCT = 60.0  # parameter targets hold for I_d <= 60 % (soil failure assumption, §3.2)
 
 
-def _windows(ds: Dataset, ends: np.ndarray, arr: np.ndarray) -> np.ndarray:
+def _windows(ends: np.ndarray, arr: np.ndarray) -> np.ndarray:
+    """(W, T, k) windows of per-row ``arr`` ending at global rows ``ends``."""
     return arr[ends[:, None] + np.arange(-(WINDOW_SAMPLES - 1), 1)]
 
 
@@ -56,7 +57,7 @@ def parameter_errors(est: dict[str, np.ndarray], truth: np.ndarray, mask: np.nda
 def failure_force(phi, c, delta, beta, known_mean: dict) -> float:
     """|F| [N] of the FEE at d = 0.1 m, Q = 0, v = 0.5 m/s forward, for one parameter set."""
     theta = dict(known_mean, phi=phi, c=c, delta=delta, d=FAILURE_DEPTH_M, q=0.0, v_x=FAILURE_SPEED_M_S, v_z=0.0)
-    _, _, force = fee.fee_xz(theta, beta=None if beta is None else beta)
+    _, _, force = fee.fee_xz(theta, beta=beta)
     return float(force)
 
 
@@ -134,7 +135,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
         from .classical import fit_windows
 
         t0 = time.monotonic()
-        fit = fit_windows(_windows(ds, ends, ds.known), _windows(ds, ends, ds.forces), workers=workers, progress=progress)
+        fit = fit_windows(_windows(ends, ds.known), _windows(ends, ds.forces), workers=workers, progress=progress)
         timing["classical_s"] = time.monotonic() - t0
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta, "beta": fit.beta}
         forces["classical"] = force_errors(measured, np.nan_to_num(fit.f_fee))

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import torch
 
-from soil_msgs_py.params import MACHINE, WINDOW_SAMPLES
+from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
 
 from .data import Dataset
 from .model import EstimatorNet
 
-FORCE_LIMITS_N = np.array([MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n])
+FORCE_LIMITS_N = np.array(FORCE_LIMITS)
 # §3.2 normalises the magnitude error by the machine limits: 730 N ~ 2 % -> |(20, 30) kN| = 36 kN.
 FORCE_LIMIT_MAGNITUDE_N = float(math.hypot(*FORCE_LIMITS_N))
 WINDOW_OFFSETS = torch.arange(-(WINDOW_SAMPLES - 1), 1)

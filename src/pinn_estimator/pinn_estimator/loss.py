@@ -108,7 +108,7 @@ def pinn_loss(out: dict[str, torch.Tensor], force: torch.Tensor, known: torch.Te
 
 
 # Θ_u entries a soil is expected to hold steady along one cut (Δd and β follow depth and speed).
-CONSISTENT_PARAMS = ("phi", "c", "delta")
+CONSISTENT_PARAMS = ("phi", "c", "delta", "delta_d")
 
 
 def consistency_loss(theta_a: torch.Tensor, theta_b: torch.Tensor) -> torch.Tensor:

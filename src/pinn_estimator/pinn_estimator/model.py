@@ -18,12 +18,12 @@ import torch
 from torch import nn
 
 from soil_msgs_py import fee
-from soil_msgs_py.params import KNOWN_PARAMS, MACHINE, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS, WINDOW_SAMPLES
+from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS, WINDOW_SAMPLES
 
 MODEL_KINDS = ("pinn", "physics_free")
 # Forces are normalised by the machine's limits (20 kN tractive, 30 kN lift): fixed, physical,
 # independent of the dataset, so a model's normalised error reads as "% of machine limit".
-FORCE_SCALE_N = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
+FORCE_SCALE_N = FORCE_LIMITS_N
 # §2.2.2: "Values for the residual force are normalized F_r to 10% of the value of F".
 RESIDUAL_FORCE_FRACTION = 0.1
 

@@ -114,6 +114,8 @@ class Machine:
 
 
 MACHINE = Machine()
+# (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
+FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
 
 # Soil-tool constants of §3.1.
 ADHESION_PA = 200.0  # c_a, all soils
