@@ -107,19 +107,21 @@ def pinn_loss(out: dict[str, torch.Tensor], force: torch.Tensor, known: torch.Te
     return sum(terms.values()), terms
 
 
-# Θ_u entries a soil is expected to hold steady along one cut (Δd and β follow depth and speed).
+# Θ_u entries expected to hold steady along one cut (β follows δ' and so the blade velocity).
 CONSISTENT_PARAMS = ("phi", "c", "delta", "delta_d")
 
 
 def consistency_loss(theta_a: torch.Tensor, theta_b: torch.Tensor) -> torch.Tensor:
-    """Ours, not in the paper: mean |Θ̂_a - Θ̂_b| (normalised) of φ, c, δ over pairs of windows
-    from the same episode.
+    """Ours, not in the paper: mean |Θ̂_a - Θ̂_b| (normalised) of φ, c, δ, Δd over pairs of
+    windows from the same episode.
 
     Why: per window the FEE gives one force magnitude and one direction; the direction pins δ
     but φ and c trade off freely (a sand fitted as a cohesive soil fits as well). Soil does not
     change along one cut, and one cut spans several depths, so asking the estimates of one
     episode to agree makes φ and c identifiable from the depth dependence of the force
-    (γ d² N_γ vs c d N_c). It needs no ground truth, only which windows share a cut.
+    (γ d² N_γ vs c d N_c); Δd is included so a per-window depth offset cannot absorb that
+    dependence. It needs no ground truth, only which windows share a cut. Off by default: on
+    the validation split it lowered φ error but collapsed φ to a constant (README, issue 3 note).
     """
     from soil_msgs_py.params import UNKNOWN_PARAMS
 
