@@ -151,6 +151,8 @@ class EstimatorNet(nn.Module):
                 self.head.bias[: len(UNKNOWN_PARAMS)] = 0.5
 
     def forward(self, obs: torch.Tensor, known: torch.Tensor) -> dict[str, torch.Tensor]:
+        # float64 callers (NumPy-born tensors) get the model's float32, not a dtype error
+        obs, known = obs.to(self.force_scale.dtype), known.to(self.force_scale.dtype)
         out = self.head(self.backbone(obs, known))
         if self.cfg.kind == "physics_free":
             return {"force": out * self.force_scale}
