@@ -150,22 +150,19 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
 
 
 def _read_all(bags, workers, progress):
-    it = bags
+    def shown(it):
+        if not progress:
+            return it
+        from tqdm import tqdm
+
+        return tqdm(it, total=len(bags), desc="reading bags", unit="bag")
+
     if workers > 1 and len(bags) > 1:
         import multiprocessing as mp
 
         with mp.get_context("fork").Pool(min(workers, len(bags))) as pool:
-            it = pool.imap(_read, bags, chunksize=4)
-            if progress:
-                from tqdm import tqdm
-
-                it = tqdm(it, total=len(bags), desc="reading bags", unit="bag")
-            return list(it)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(bags, desc="reading bags", unit="bag")
-    return [_read(b) for b in it]
+            return list(shown(pool.imap(_read, bags, chunksize=4)))
+    return [_read(b) for b in shown(bags)]
 
 
 def _to_npz(ds: Dataset, path: Path) -> None:

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import spearmanr
 
 from soil_msgs_py import fee
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
@@ -95,7 +96,7 @@ def _trends(rows, estimator="pinn") -> dict:
         for p, unit, k in (("phi", "deg", 1 / DEG), ("c", "kPa", 1e-3)):
             y = np.array([r[estimator][p]["mean"] for r in mine]) * k
             slope = float(np.polyfit(x, y, 1)[0]) * 100
-            rank = float(np.corrcoef(np.argsort(np.argsort(x)), np.argsort(np.argsort(y)))[0, 1])
+            rank = float(spearmanr(x, y).statistic)
             res[p] = {f"slope_{unit}_per_100pct": slope, "spearman": rank, "rises": bool(slope > 0 and rank > 0.5)}
         out[s] = res
     return out
@@ -112,7 +113,8 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     test_names = ckpt["split"]["test"]
     if not test_names:
         raise ValueError(f"checkpoint {checkpoint} has an empty test split")
-    ends = ds.window_ends(ds.index(test_names), stride)
+    test_idx = ds.index(test_names)
+    ends = ds.window_ends(test_idx, stride)
     tensors = WindowTensors(ds)
     measured = ds.forces[ends]
     truth = ds.truth[ends]
@@ -148,7 +150,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
         "checkpoint": str(checkpoint),
         "physics_free_checkpoint": str(physics_free) if physics_free else None,
         "dataset": describe(ds),
-        "world_modes": sorted({ds.metas[e].world_mode for e in ds.index(test_names)}),
+        "world_modes": sorted({ds.metas[e].world_mode for e in test_idx}),
         "test_episodes": len(test_names),
         "windows": int(len(ends)),
         "window_stride": stride,

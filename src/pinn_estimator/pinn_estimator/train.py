@@ -19,7 +19,7 @@ import torch
 
 from .checkpoint import save_checkpoint
 from .data import Dataset, describe, load_dataset, split_episodes
-from .inference import WindowTensors, force_errors, predict
+from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
 
@@ -69,15 +69,17 @@ def _loss(model, out, force, known, weights):
 
 
 @torch.no_grad()
-def _evaluate_loss(model, tensors, ends, weights, batch_size=4096) -> float:
+def _validate(model, tensors, ends, weights, batch_size=4096) -> tuple[float, np.ndarray]:
+    """Mean validation loss and the predicted forces [N], from one pass over the windows."""
     model.eval()
-    total, n = 0.0, 0
+    total, forces = 0.0, []
     for i in range(0, len(ends), batch_size):
         obs, known, force = tensors.batch(ends[i : i + batch_size])
-        loss, _ = _loss(model, model(obs, known), force, known, weights)
+        out = model(obs, known)
+        loss, _ = _loss(model, out, force, known, weights)
         total += float(loss) * len(obs)
-        n += len(obs)
-    return total / max(n, 1)
+        forces.append(out["force"].double().numpy())
+    return total / max(len(ends), 1), np.concatenate(forces)
 
 
 def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(), progress: bool = True, log=print):
@@ -137,9 +139,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             opt.step()
             running += float(loss.detach()) * len(obs)
             count += len(obs)
-        val_loss = _evaluate_loss(model, tensors, val_ends, weights)
-        val_pred = predict(model, tensors, val_ends.numpy())
-        val_mae = force_errors(ds.forces[val_ends.numpy()], val_pred["force"])["mae_mag_n"]
+        val_loss, val_force = _validate(model, tensors, val_ends, weights)
+        val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
         sched.step(val_loss)
         elapsed = time.monotonic() - start
         for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
@@ -159,14 +160,14 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar.close()
     model.load_state_dict(best[1])
     model.eval()
-    val_pred = predict(model, tensors, val_ends.numpy())
+    _, val_force = _validate(model, tensors, val_ends, weights)
     metrics = {
         "best_epoch": best[2],
         "epochs_run": len(history["epoch"]),
         "stop_reason": stop_reason,
         "train_seconds": history["seconds"][-1] if history["seconds"] else 0.0,
         "val_loss": best[0],
-        "val_force": force_errors(ds.forces[val_ends.numpy()], val_pred["force"]),
+        "val_force": force_errors(ds.forces[val_ends.numpy()], val_force),
         "parameters": parameter_count(model),
     }
     log(f"{model_cfg.kind}: {stop_reason}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
