@@ -24,7 +24,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+            "anti_stall_controller = anti_stall_controller.node:main",
         ],
     },
 )

@@ -24,7 +24,9 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+            "soil_bag_record = soil_msgs_py.record_node:main",
+            "soil_bag_play = soil_msgs_py.play_node:main",
+            "soil_bag_repair = soil_msgs_py.repair:main",
         ],
     },
 )

@@ -26,7 +26,9 @@ setup(
         "console_scripts": [
             "soil_sim_batch = soil_sim_node.batch:main",
             "soil_plot_episode = soil_sim_node.plot:main",
-            "soil_sim_report = soil_sim_node.report:main"
+            "soil_sim_report = soil_sim_node.report:main",
+            "soil_sim_node = soil_sim_node.node:main",
+            "soil_launch = soil_sim_node.launch:main",
         ],
     },
 )

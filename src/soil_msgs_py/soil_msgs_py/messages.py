@@ -282,3 +282,15 @@ def assemble_episode(meta: EpisodeMeta, decoded: Mapping[str, tuple[np.ndarray, 
         for j, (a, col) in enumerate(f.columns):
             arrays[a][:, ARRAY_FIELDS[a].index(col)] = values[:, j]
     return Episode(meta=meta, stamps_ns=all_stamps.astype(np.int64), **arrays)
+
+
+@functools.lru_cache(maxsize=None)
+def _row_index(topic: str) -> tuple[tuple[str, int], ...]:
+    return tuple((a, ARRAY_FIELDS[a].index(n)) for a, n in FIELDS[topic].columns)
+
+
+def tick_values(topic: str, rows: Mapping[str, Sequence[float]]) -> list[float]:
+    """Values of ``topic`` for one tick from per-array rows, e.g. ``{"forces": (fx, fz), ...}``
+    (keys as in ARRAY_FIELDS; only the arrays the topic carries are needed). What a live
+    node publishes for a tick, in the same column order ``build_message`` expects."""
+    return [float(rows[a][i]) for a, i in _row_index(topic)]

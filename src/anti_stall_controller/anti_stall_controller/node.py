@@ -1,0 +1,147 @@
+"""`anti_stall_controller`: the Eq. 11-12 controller core as a ROS 2 node (thin adapter).
+
+Subscribes to /chassis/twist (v_x^c) and /chassis/pose (p_z^c), pairs them by stamp, and
+answers every state tick with /chassis/cmd_vel (u_x) and /blade/cmd (u_zr, u_za) stamped
+with that tick, which is what the simulator's lockstep pacing waits for. Targets and
+gains are parameters, validated and applied at run time (``ros2 param set``). On each
+``episode_start`` on /sim/status the integrator resets and, with
+``follow_episode_targets``, the targets become the episode's (and the parameters say so).
+"""
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.ros_adapter import message_class, spin_node, topic_qos
+
+from .controller import AntiStallController, AntiStallGains
+
+_GAINS = AntiStallGains()
+PARAMETERS: dict[str, tuple] = {
+    "target_speed_m_s": (0.5, "desired forward speed v̄_x [m/s], > 0"),
+    "target_depth_m": (0.2, "target cut depth d̄_z below the original surface [m], >= 0"),
+    "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
+    "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
+    "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
+    "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
+}
+GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m")
+TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
+STATE_TOPICS = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
+MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
+
+
+class ControllerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("anti_stall_controller")
+        for name, (default, description) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        gains = AntiStallGains(**{k: get(k) for k in GAIN_FIELDS})  # ValueError names the field
+        self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))
+        self.follow = bool(get("follow_episode_targets"))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.classes = M.ros_message_classes()
+        self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), T.CMD_VEL.name, topic_qos(T.CMD_VEL.name))
+        self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, topic_qos(T.BLADE_CMD.name))
+        for name in STATE_TOPICS:
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                     lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
+        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        self.pending: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
+        self.last_stamp = -1
+        self._warn_counts: collections.Counter = collections.Counter()
+        self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
+
+    def _warn(self, key: str, text: str) -> None:
+        self._warn_counts[key] += 1
+        n = self._warn_counts[key]
+        if n == 1 or np.log10(n).is_integer():
+            self.get_logger().warning(text + (f" ({n} so far)" if n > 1 else ""))
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Validate everything first, then apply atomically (a rejected change alters nothing)."""
+        changes = {p.name: p.value for p in params}
+        try:
+            gains = {k: changes[k] for k in GAIN_FIELDS if k in changes}
+            new_gains = AntiStallGains(**{**{k: getattr(self.core.gains, k) for k in GAIN_FIELDS}, **gains})
+            speed = changes.get("target_speed_m_s", self.core.target_speed_m_s[0])
+            depth = changes.get("target_depth_m", self.core.target_depth_m[0])
+            AntiStallController(new_gains, speed, depth)  # validates targets
+        except (ValueError, TypeError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        if gains:
+            self.core.set_gains(new_gains)
+        if any(k in changes for k in TARGET_FIELDS):
+            self.core.set_targets(speed, depth)
+        if "follow_episode_targets" in changes:
+            self.follow = bool(changes["follow_episode_targets"])
+        return SetParametersResult(successful=True)
+
+    def _on_status(self, msg: String) -> None:
+        try:
+            event = G.EpisodeEvent.from_json(msg.data)
+        except ValueError as err:
+            self._warn("status", f"{G.SIM_STATUS_TOPIC}: {err}; ignored")
+            return
+        if event.event != G.EVENT_EPISODE_START:
+            return
+        if self.follow:
+            result = self.set_parameters([
+                Parameter("target_speed_m_s", value=float(event.meta.target_speed_m_s)),
+                Parameter("target_depth_m", value=float(event.meta.target_depth_m)),
+            ])
+            if not all(r.successful for r in result):
+                self._warn("targets", f"episode {event.name}: targets refused: {[r.reason for r in result]}")
+        self.core.reset()
+        self.pending.clear()
+        self.last_stamp = event.first_stamp_ns - 1
+        self.get_logger().info(f"episode {event.name}: reset, targets v={self.core.target_speed_m_s[0]} m/s "
+                               f"d={self.core.target_depth_m[0]} m")
+
+    # ------------------------------------------------------------------ control
+    def _on_state(self, topic: str, msg) -> None:
+        try:
+            stamp, values = M.parse_message(topic, msg)
+        except ValueError as err:
+            self._warn(f"{topic}:layout", f"{err}; ignored")
+            return
+        if stamp <= self.last_stamp:
+            self._warn(f"{topic}:stale", f"{topic}: stamp {stamp} ns is not newer than the last answered tick "
+                                         f"{self.last_stamp} ns; ignored")
+            return
+        # /chassis/twist carries (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c)
+        field = ("v_x_c", values[0]) if topic == T.CHASSIS_TWIST.name else ("p_z_c", values[1])
+        self.pending.setdefault(stamp, {})[field[0]] = float(field[1])
+        sample = self.pending[stamp]
+        if len(sample) < 2:
+            while len(self.pending) > MAX_PENDING_STAMPS:
+                dropped, _ = self.pending.popitem(last=False)
+                self._warn("unpaired", f"state at stamp {dropped} ns never got both twist and pose; dropped")
+            return
+        for older in [s for s in self.pending if s < stamp]:
+            del self.pending[older]
+            self._warn("unpaired", f"state at stamp {older} ns never got both twist and pose; skipped")
+        del self.pending[stamp]
+        self.last_stamp = stamp
+        cmd = self.core.step(sample["v_x_c"], sample["p_z_c"])  # non-finite inputs: core holds its state
+        self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
+        self.blade_pub.publish(M.build_message(self.classes, T.BLADE_CMD.name, stamp, [cmd.u_zr[0], cmd.u_za[0]]))
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_node(ControllerNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,188 @@
+"""The live graph's contract: QoS per topic, the episode control/status topics and their JSON.
+
+rclpy-free (``ros_adapter.py`` turns these into rclpy objects), so the simulator node, the
+controller node, the recorder, the player, the launcher and tests share one definition.
+
+Episodes in a row (the "documented topic-based mechanism")
+----------------------------------------------------------
+* ``/sim/command`` (std_msgs/String, JSON object) asks the simulator to act:
+  ``{"action": "start", <optional EpisodeSpec overrides>}`` queues an episode (fields not
+  given come from the node's parameters: soil, relative_density_pct, target_speed_m_s,
+  target_depth_m, seed, duration_s); ``{"action": "reset"}`` aborts the running episode and
+  clears the queue; ``{"action": "shutdown"}`` ends the node after the running episode.
+* ``/sim/status`` (std_msgs/String, JSON object) is what happened, one message per event:
+  ``episode_start`` (before the episode's first tick is published; carries the episode
+  metadata, the stamp of its first tick and the planned number of ticks) and
+  ``episode_end`` (after the episode's last tick and the commands answering it; carries
+  the last stamp, the ticks published, the reason and timing statistics). The player
+  publishes the same events when it replays episode bags, so a recorder splits a replay
+  into the same bags and an estimator resets its buffer at the same instants.
+
+Simulation time (``/clock`` and every stamp) is continuous across the episodes of one run:
+episode k+1 starts one tick after episode k ended, so ROS-time consumers never see time
+jump back. A bag's stamps are therefore offset from the batch generator's by the episode's
+first stamp; ``Episode.time_s`` is relative and equal.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from . import topics as T
+from .episode import EpisodeMeta
+
+SIM_COMMAND_TOPIC = "/sim/command"
+SIM_STATUS_TOPIC = "/sim/status"
+STRING_MSGTYPE = "std_msgs/msg/String"
+
+EVENT_EPISODE_START = "episode_start"
+EVENT_EPISODE_END = "episode_end"
+EVENTS = (EVENT_EPISODE_START, EVENT_EPISODE_END)
+END_REASONS = ("completed", "reset", "shutdown", "error", "end_of_bag")
+
+ACTION_START = "start"
+ACTION_RESET = "reset"
+ACTION_SHUTDOWN = "shutdown"
+ACTIONS = (ACTION_START, ACTION_RESET, ACTION_SHUTDOWN)
+START_FIELDS = ("soil", "relative_density_pct", "target_speed_m_s", "target_depth_m", "seed", "duration_s")
+
+
+@dataclass(frozen=True)
+class QosSpec:
+    """A ROS 2 QoS profile as plain data (reliability, durability, history depth)."""
+
+    reliability: str  # "reliable" | "best_effort"
+    durability: str  # "volatile" | "transient_local"
+    depth: int  # KEEP_LAST depth
+
+    def describe(self) -> str:
+        return f"{self.reliability.upper()}, {self.durability.upper()}, KEEP_LAST {self.depth}"
+
+
+# Per-tick data: RELIABLE so a recorder loses nothing; 120 messages = 2 s of ticks queued.
+DATA_QOS = QosSpec("reliable", "volatile", 120)
+# What a recorder subscribes with: deeper, so a busy writer never makes DDS drop a sample.
+RECORDER_QOS = QosSpec("reliable", "volatile", 2000)
+# Episode control/status: rare, must not be lost.
+CONTROL_QOS = QosSpec("reliable", "volatile", 50)
+
+TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.EPISODE_TOPICS}
+TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
+TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
+
+# Topics the simulator publishes each tick (state, force, Θ_k, Θ, /clock) and the commands it reads.
+SIM_STATE_TOPICS: tuple[str, ...] = (
+    T.CLOCK.name, T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name,
+    T.CHASSIS_TWIST.name, T.BLADE_FORCE.name, T.KNOWN.name, T.GROUND_TRUTH.name,
+)
+COMMAND_TOPICS: tuple[str, ...] = (T.CMD_VEL.name, T.BLADE_CMD.name)
+assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE_TOPICS}
+
+
+def _json_object(text: str, what: str) -> dict[str, Any]:
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{what}: not JSON ({err.msg} at char {err.pos}): {text[:80]!r}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{what}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+# --- /sim/status ------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class EpisodeEvent:
+    """One ``/sim/status`` message.
+
+    episode_start: ``first_stamp_ns`` (stamp of tick 0), ``planned_ticks``, ``meta``.
+    episode_end:   ``first_stamp_ns``, ``last_stamp_ns`` (last tick published), ``ticks``
+                   published, ``reason`` (END_REASONS), ``stats`` (timing figures, free form).
+    """
+
+    event: str
+    episode: int  # 0-based index within the publishing process's run
+    name: str  # bag directory name (EpisodeMeta.name)
+    meta: EpisodeMeta
+    first_stamp_ns: int
+    planned_ticks: int = 0
+    last_stamp_ns: int = -1
+    ticks: int = 0
+    reason: str = ""
+    stats: dict | None = None
+
+    def to_json(self) -> str:
+        data = {
+            "event": self.event, "episode": self.episode, "name": self.name,
+            "meta": json.loads(self.meta.to_json()), "first_stamp_ns": self.first_stamp_ns,
+            "planned_ticks": self.planned_ticks,
+        }
+        if self.event == EVENT_EPISODE_END:
+            data.update(last_stamp_ns=self.last_stamp_ns, ticks=self.ticks, reason=self.reason,
+                        stats=self.stats or {})
+        return json.dumps(data, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "EpisodeEvent":
+        """Parse and validate; ValueError naming the field and value."""
+        d = _json_object(text, SIM_STATUS_TOPIC)
+        event = d.get("event")
+        if event not in EVENTS:
+            raise ValueError(f"{SIM_STATUS_TOPIC}: event={event!r} is not one of {EVENTS}")
+        for key in ("episode", "first_stamp_ns", "planned_ticks") + (
+            ("last_stamp_ns", "ticks") if event == EVENT_EPISODE_END else ()
+        ):
+            v = d.get(key)
+            if not isinstance(v, int) or isinstance(v, bool) or (v < 0 and key != "last_stamp_ns"):
+                raise ValueError(f"{SIM_STATUS_TOPIC}: {key}={v!r} must be a non-negative integer")
+        if not isinstance(d.get("meta"), dict):
+            raise ValueError(f"{SIM_STATUS_TOPIC}: meta={d.get('meta')!r} must be an object")
+        meta = EpisodeMeta.from_json(json.dumps(d["meta"]))
+        meta.validate()
+        reason = d.get("reason", "")
+        if event == EVENT_EPISODE_END and reason not in END_REASONS:
+            raise ValueError(f"{SIM_STATUS_TOPIC}: reason={reason!r} is not one of {END_REASONS}")
+        name = d.get("name")
+        if not isinstance(name, str) or not name or "/" in name:
+            raise ValueError(f"{SIM_STATUS_TOPIC}: name={name!r} must be a non-empty name without '/'")
+        return cls(event=event, episode=d["episode"], name=name, meta=meta,
+                   first_stamp_ns=d["first_stamp_ns"], planned_ticks=d["planned_ticks"],
+                   last_stamp_ns=d.get("last_stamp_ns", -1), ticks=d.get("ticks", 0),
+                   reason=reason, stats=d.get("stats"))
+
+
+# --- /sim/command -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SimCommand:
+    """One ``/sim/command`` message: an action and, for ``start``, EpisodeSpec overrides."""
+
+    action: str
+    overrides: dict
+
+    def to_json(self) -> str:
+        return json.dumps({"action": self.action, **self.overrides}, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "SimCommand":
+        d = _json_object(text, SIM_COMMAND_TOPIC)
+        action = d.pop("action", None)
+        if action not in ACTIONS:
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: action={action!r} is not one of {ACTIONS}")
+        if action != ACTION_START and d:
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: action {action!r} takes no fields, got {sorted(d)}")
+        unknown = sorted(set(d) - set(START_FIELDS))
+        if unknown:
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: unknown field(s) {unknown}; allowed {START_FIELDS}")
+        if "soil" in d and not isinstance(d["soil"], str):
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: soil={d['soil']!r} must be a string")
+        for key in START_FIELDS[1:]:
+            if key in d:
+                v = d[key]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={v!r} must be a finite number")
+        if "seed" in d and (not float(d["seed"]).is_integer() or d["seed"] < 0):
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: seed={d['seed']!r} must be a non-negative integer")
+        return cls(action=action, overrides=d)

@@ -1,0 +1,96 @@
+"""rclpy glue shared by every node of the graph (the only soil_msgs_py module importing rclpy).
+
+* ``qos_profile(spec)`` / ``topic_qos(name)``: graph.QosSpec -> rclpy QoSProfile.
+* ``message_class(msgtype)``: "pkg/msg/Name" -> the installed Python message class.
+* ``spin_node(factory, args)``: the Jazzy entry-point pattern (init, spin, clean shutdown
+  on Ctrl-C / SIGTERM / external shutdown) so every node's ``main`` is two lines.
+"""
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+from collections.abc import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from .graph import DATA_QOS, TOPIC_QOS, QosSpec
+
+_RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+def qos_profile(spec: QosSpec) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=spec.depth,
+        reliability=_RELIABILITY[spec.reliability],
+        durability=_DURABILITY[spec.durability],
+    )
+
+
+def topic_qos(topic: str) -> QoSProfile:
+    """The graph's QoS for ``topic`` (DATA_QOS for topics outside the table)."""
+    return qos_profile(TOPIC_QOS.get(topic, DATA_QOS))
+
+
+def message_class(msgtype: str):
+    """Python class of a ROS 2 interface name like ``geometry_msgs/msg/WrenchStamped``."""
+    parts = msgtype.split("/")
+    if len(parts) != 3 or parts[1] != "msg":
+        raise ValueError(f"message type {msgtype!r} is not of the form 'package/msg/Name'")
+    pkg, _, name = parts
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"message type {msgtype!r} is not installed (no Python module {pkg}.msg.{name})") from None
+
+
+def _raise_interrupt(signum, frame):  # noqa: ARG001
+    raise KeyboardInterrupt
+
+
+EXIT_BAD_CONFIG = 2
+
+
+def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Run one node until Ctrl-C, SIGTERM, ``rclpy.shutdown`` or ``node.finished``.
+
+    SIGINT and SIGTERM both become KeyboardInterrupt (rclpy's own handlers are off), so the
+    context is still valid in ``node.close()``: a node can publish its last status or finish
+    a bag on the way out. A factory that raises ValueError (a bad parameter) logs the
+    message and exits with code 2. Otherwise the exit code is ``node.exit_code`` (default 0).
+    """
+    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _raise_interrupt)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    node = None
+    code = 0
+    try:
+        node = factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not getattr(node, "finished", False):
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as err:
+        if node is not None:
+            raise
+        rclpy.logging.get_logger("spin_node").error(f"cannot start: {err}")
+        code = EXIT_BAD_CONFIG
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                try:
+                    close()
+                except KeyboardInterrupt:
+                    pass
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code or int(getattr(node, "exit_code", 0) or 0)

@@ -1,0 +1,370 @@
+"""`soil_sim_node`: the simulator core as a ROS 2 node (thin adapter; physics in simulator.py).
+
+Each 60 Hz tick of simulation time it publishes /clock, the blade and chassis state, the
+measured blade force, Θ_k and the pseudo-ground truth (topics.py), all stamped with the
+tick's simulation time, and reads /chassis/cmd_vel and /blade/cmd stamped with the tick
+they answer. Two pacings:
+
+* ``realtime``: a wall-clock timer at 60 Hz × ``rate``; each tick applies the commands that
+  answered the previous tick (held from before if they were late, counted as late).
+* ``lockstep``: tick k+1 is computed only after both commands for tick k arrived, so a
+  run is reproducible to the bit (and equal to ``soil_sim_batch`` for the same seed).
+
+Episodes: ``episodes`` repeats of the plan (soil × relative density, from the
+``sequence_*`` lists or the single ``soil``/``relative_density_pct``) start by themselves;
+more are started and reset over ``/sim/command``, and every start/end is announced on
+``/sim/status`` (graph.py documents both). ``wait_for`` holds each start until the listed
+endpoints have matched, so a recorder or controller started alongside loses nothing.
+
+Bad commands never stop the node and never reach the core: see live.CommandGate.
+"""
+from __future__ import annotations
+
+import collections
+import time
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.params import SAMPLE_RATE_HZ
+from soil_msgs_py.ros_adapter import message_class, spin_node, topic_qos
+
+from .effects import effects_for_mode
+from .live import CommandGate, TickTiming, episode_plan
+from .rollout import episode_meta
+from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
+
+PACINGS = ("realtime", "lockstep")
+NS_PER_TICK_EXACT = 1e9 / SAMPLE_RATE_HZ
+# Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
+# declared by type and read through _value() (unset reads as []).
+_STR_ARRAY = Parameter.Type.STRING_ARRAY
+_DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
+
+# name -> (default, description[, array type]); the YAML in config/ mirrors these.
+PARAMETERS: dict[str, tuple] = {
+    "world_mode": ("default", "world: 'fee' (pure FEE, like D_FEE) or 'default' (extra effects, like D_default)"),
+    "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel)"),
+    "relative_density_pct": (60.0, "initial relative density I_d [%], 0..100"),
+    "target_speed_m_s": (0.5, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
+    "target_depth_m": (0.2, "target cut depth below the original surface [m]"),
+    "seed": (0, "seed of the first episode; episode k of the plan uses seed + k"),
+    "duration_s": (10.0, "episode length [s] of simulation time"),
+    "sequence_soils": ([], "plan: soils to run in a row (empty: just 'soil')", _STR_ARRAY),
+    "sequence_relative_densities_pct": ([], "plan: I_d values [%] per soil (empty: just relative_density_pct)", _DBL_ARRAY),
+    "episodes": (1, "repeats of the plan started at launch; 0: start episodes only via /sim/command"),
+    "exit_when_done": (False, "exit (code 0) when the plan and all requested episodes are done"),
+    "pacing": ("realtime", "'realtime' (wall clock 60 Hz x rate) or 'lockstep' (wait for each tick's commands)"),
+    "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
+    "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
+                     "subscriptions; command topics: matched publishers)", _STR_ARRAY),
+    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway (0: wait forever)"),
+    "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too"),
+    "plugins": ([], "extra force terms 'package.module:function' (simulator effect plugins)", _STR_ARRAY),
+    "effects_off": ([], "default-world effects to switch off by name", _STR_ARRAY),
+}
+
+
+
+
+class SimNode(Node):
+    def __init__(self) -> None:
+        super().__init__("soil_sim_node")
+        for name, (default, description, *array_type) in PARAMETERS.items():
+            self.declare_parameter(name, array_type[0] if array_type else default,
+                                   ParameterDescriptor(description=description))
+        self.finished = False
+        self.exit_code = 0
+        p = {name: self._value(name) for name in PARAMETERS}
+        self._validate_static(p)
+        self.pacing = p["pacing"]
+        self.rate = float(p["rate"])
+        self.exit_when_done = bool(p["exit_when_done"])
+        self.wait_for = self._parse_wait_for(p["wait_for"])
+        self.wait_timeout_s = float(p["wait_timeout_s"])
+        self.settle_s = float(p["settle_s"])
+        effects = effects_for_mode(p["world_mode"])
+        if p["effects_off"]:
+            effects = effects.with_switches(**{name: False for name in p["effects_off"]})
+        self.config = SimConfig(world_mode=p["world_mode"], effects=effects, plugins=tuple(p["plugins"]))
+        self.queue: collections.deque[EpisodeSpec] = collections.deque()
+        base = self._spec_from_params({})
+        self._enqueue(episode_plan(base, list(p["sequence_soils"]),
+                                   list(p["sequence_relative_densities_pct"]), int(p["episodes"])))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.classes = M.ros_message_classes()
+        self.pubs = {name: self.create_publisher(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                                 topic_qos(name)) for name in G.SIM_STATE_TOPICS}
+        self.status_pub = self.create_publisher(String, G.SIM_STATUS_TOPIC, topic_qos(G.SIM_STATUS_TOPIC))
+        self.cmd_subs = [
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                     lambda msg, n=name: self._on_command(n, msg), topic_qos(name))
+            for name in G.COMMAND_TOPICS
+        ]
+        self.create_subscription(String, G.SIM_COMMAND_TOPIC, self._on_sim_command, topic_qos(G.SIM_COMMAND_TOPIC))
+
+        # episode state
+        self.sim: SoilSimulator | None = None
+        self.gate = CommandGate()
+        self.episode_index = -1
+        self.meta = None
+        self.tick = 0
+        self.planned_ticks = 0
+        self.first_stamp_ns = 0
+        self.next_first_stamp_ns = 0
+        self.timing: TickTiming | None = None
+        self.wait_started: float | None = None
+        self.matched_at: float | None = None
+        self.shutdown_requested = False
+        self._warn_counts: collections.Counter = collections.Counter()
+
+        self.timer = self.create_timer(self._period(), self._on_timer)
+        self.get_logger().info(
+            f"{p['world_mode']} world, pacing={self.pacing}"
+            + (f" x{self.rate}" if self.pacing == "realtime" else "")
+            + f", {len(self.queue)} episode(s) queued; commands on /sim/command"
+        )
+
+    # ------------------------------------------------------------------ parameters
+    def _value(self, name: str):
+        try:
+            return self.get_parameter(name).value
+        except ParameterUninitializedException:
+            return []
+
+    def _period(self) -> float:
+        if self.pacing == "lockstep" or self.sim is None:
+            return 0.01  # idle/lockstep housekeeping: start checks and the stall watchdog
+        return 1.0 / (SAMPLE_RATE_HZ * self.rate)
+
+    @staticmethod
+    def _validate_static(p: dict) -> None:
+        if p["pacing"] not in PACINGS:
+            raise ValueError(f"parameter pacing={p['pacing']!r} is not one of {PACINGS}")
+        if not 0.01 <= float(p["rate"]) <= 1000.0:
+            raise ValueError(f"parameter rate={p['rate']!r} outside [0.01, 1000]")
+        effects_for_mode(p["world_mode"])
+        if int(p["episodes"]) < 0:
+            raise ValueError(f"parameter episodes={p['episodes']} must be >= 0")
+        for name in ("wait_timeout_s", "settle_s"):
+            if float(p[name]) < 0:
+                raise ValueError(f"parameter {name}={p[name]} must be >= 0")
+
+    def _parse_wait_for(self, entries) -> list[tuple[str, int]]:
+        known = set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS) | {G.SIM_STATUS_TOPIC}
+        out = []
+        for entry in entries:
+            topic, _, count = entry.rpartition(":")
+            if topic not in known or not count.isdigit():
+                raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic:count' with a topic of "
+                                 f"{sorted(known)} and a count >= 0")
+            out.append((topic, int(count)))
+        return out
+
+    def _spec_from_params(self, overrides: dict) -> EpisodeSpec:
+        get = lambda name: overrides.get(name, self._value(name))  # noqa: E731
+        spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
+                           float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")))
+        spec.resolve()  # ValueError naming the field and value
+        return spec
+
+    def _enqueue(self, specs: list[EpisodeSpec]) -> None:
+        for spec in specs:
+            spec.resolve()
+            self.queue.append(spec)
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Episode parameters apply to episodes started later; rate applies at once."""
+        changes = {p.name: p.value for p in params}
+        fixed = {"world_mode", "pacing", "plugins", "effects_off", "wait_for", "sequence_soils",
+                 "sequence_relative_densities_pct", "episodes"} & set(changes)
+        if fixed:
+            return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")
+        try:
+            spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS}
+            if spec_fields:
+                self._spec_from_params(spec_fields)
+            if "rate" in changes:
+                self._validate_static({"pacing": self.pacing, "rate": changes["rate"],
+                                       "world_mode": self.config.world_mode, "episodes": 0,
+                                       "wait_timeout_s": 0, "settle_s": 0})
+        except (ValueError, TypeError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        if "rate" in changes:
+            self.rate = float(changes["rate"])
+            self._reset_timer()
+        for name in ("exit_when_done", "wait_timeout_s", "settle_s"):
+            if name in changes:
+                setattr(self, name, type(getattr(self, name))(changes[name]))
+        return SetParametersResult(successful=True)
+
+    def _reset_timer(self) -> None:
+        self.timer.cancel()
+        self.destroy_timer(self.timer)
+        self.timer = self.create_timer(self._period(), self._on_timer)
+
+    # ------------------------------------------------------------------ logging
+    def _warn(self, key: str, text: str) -> None:
+        """Warn on the 1st, 10th, 100th ... occurrence of a kind of problem (never floods the log)."""
+        self._warn_counts[key] += 1
+        n = self._warn_counts[key]
+        if n == 1 or np.log10(n).is_integer():
+            self.get_logger().warning(text + (f" ({n} so far)" if n > 1 else ""))
+
+    # ------------------------------------------------------------------ episode control
+    def _on_sim_command(self, msg: String) -> None:
+        try:
+            cmd = G.SimCommand.from_json(msg.data)
+            if cmd.action == G.ACTION_START:
+                spec = self._spec_from_params(cmd.overrides)
+                self.queue.append(spec)
+                self.get_logger().info(f"episode queued: {spec.soil} I_d={spec.relative_density_pct} seed={spec.seed}")
+            elif cmd.action == G.ACTION_RESET:
+                self.queue.clear()
+                if self.sim is not None:
+                    self._end_episode("reset")
+            elif cmd.action == G.ACTION_SHUTDOWN:
+                self.queue.clear()
+                self.shutdown_requested = True
+        except (ValueError, TypeError) as err:
+            self._warn("sim_command", f"{G.SIM_COMMAND_TOPIC}: {err}; ignored")
+
+    def _endpoints_ready(self) -> tuple[bool, list[str]]:
+        missing = []
+        subs = dict(zip(G.COMMAND_TOPICS, self.cmd_subs))
+        for topic, count in self.wait_for:
+            if topic in subs:
+                have = subs[topic].get_publisher_count()
+            elif topic == G.SIM_STATUS_TOPIC:
+                have = self.status_pub.get_subscription_count()
+            else:
+                have = self.pubs[topic].get_subscription_count()
+            if have < count:
+                missing.append(f"{topic} {have}/{count}")
+        return not missing, missing
+
+    def _try_start(self) -> None:
+        now = time.monotonic()
+        if self.wait_started is None:
+            self.wait_started = now
+        ready, missing = self._endpoints_ready()
+        if not ready:
+            if self.wait_timeout_s and now - self.wait_started > self.wait_timeout_s:
+                self.get_logger().warning(f"starting without {missing} after {self.wait_timeout_s} s")
+            else:
+                return
+        if self.matched_at is None:
+            self.matched_at = now
+        if now - self.matched_at < self.settle_s:
+            return
+        self.wait_started = self.matched_at = None
+        self._start_episode(self.queue.popleft())
+
+    def _start_episode(self, spec: EpisodeSpec) -> None:
+        self.sim = SoilSimulator(self.config, [spec])
+        self.episode_index += 1
+        self.meta = episode_meta(self.config, spec, self.sim.soils[0].name, self.sim.effects.enabled())
+        self.meta.source = "soil_sim_node"
+        self.tick = 0
+        self.planned_ticks = int(round(spec.duration_s * SAMPLE_RATE_HZ))
+        self.first_stamp_ns = self.next_first_stamp_ns
+        self.timing = TickTiming(1.0 / (SAMPLE_RATE_HZ * self.rate) if self.pacing == "realtime" else 0.0)
+        self.gate = CommandGate()
+        event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
+                               self.first_stamp_ns, planned_ticks=self.planned_ticks)
+        self.status_pub.publish(String(data=event.to_json()))
+        self.get_logger().info(f"episode {self.episode_index} start: {self.meta.name} ({self.planned_ticks} ticks)")
+        self._reset_timer()
+        self._publish_tick(self.sim.reset())
+
+    def _end_episode(self, reason: str) -> None:
+        last = self.first_stamp_ns + stamp_ns(self.tick) if self.tick >= 0 else self.first_stamp_ns
+        stats = self.timing.summary() if self.timing else {}
+        stats.update(commands_rejected=self.gate.rejected, commands_sanitised=self.gate.sanitised)
+        event = G.EpisodeEvent(G.EVENT_EPISODE_END, self.episode_index, self.meta.name, self.meta,
+                               self.first_stamp_ns, planned_ticks=self.planned_ticks, last_stamp_ns=last,
+                               ticks=self.tick + 1, reason=reason, stats=stats)
+        self.status_pub.publish(String(data=event.to_json()))
+        self.get_logger().info(f"episode {self.episode_index} end ({reason}): {self.tick + 1} ticks; timing {stats}")
+        self.next_first_stamp_ns = last + int(round(NS_PER_TICK_EXACT))
+        self.sim = None
+        self.gate.idle()
+        self._reset_timer()
+
+    # ------------------------------------------------------------------ ticks
+    def _publish_tick(self, out) -> None:
+        """Publish the state of the current tick (or end the episode if it is not finite)."""
+        rows = {"observations": np.concatenate([out.positions[0], out.velocities[0], np.zeros(3)]),
+                "forces": out.forces[0], "known": out.known[0], "truth": out.truth[0], "extras": out.extras[0]}
+        stamp = self.first_stamp_ns + out.stamp_ns
+        values = {name: M.tick_values(name, rows) for name in G.SIM_STATE_TOPICS}
+        bad = [(name, v) for name, vals in values.items() for v in vals if not np.isfinite(v)]
+        if bad:
+            self.get_logger().error(f"simulator state is not finite at stamp {stamp} ns ({bad[0][0]}={bad[0][1]}); "
+                                    "ending the episode instead of publishing it")
+            self.tick -= 1
+            self._end_episode("error")
+            return
+        self.gate.expect(stamp)
+        for name in G.SIM_STATE_TOPICS:
+            self.pubs[name].publish(M.build_message(self.classes, name, stamp, values[name]))
+        self.timing.published(time.perf_counter())
+
+    def _advance(self) -> None:
+        """Apply this tick's commands, step the core, publish the next tick or end the episode."""
+        u_zr, u_za, u_x = self.gate.take()
+        if self.tick + 1 >= self.planned_ticks:
+            self._end_episode("completed")
+            return
+        out = self.sim.step(u_zr, u_za, u_x)
+        self.tick += 1
+        self._publish_tick(out)
+
+    def _on_command(self, topic: str, msg) -> None:
+        try:
+            stamp, values = M.parse_message(topic, msg)
+        except ValueError as err:
+            self._warn(f"{topic}:layout", f"{err}; ignored")
+            return
+        for kind, text in self.gate.offer(topic, stamp, values):
+            self._warn(kind, text)
+        if self.sim is not None and self.gate.complete and self.timing is not None:
+            if len(self.timing.loop_latencies) < len(self.timing.publish_times):
+                self.timing.answered(time.perf_counter())
+            if self.pacing == "lockstep":
+                self._advance()
+
+    def _on_timer(self) -> None:
+        if self.sim is None:
+            if self.queue and not self.shutdown_requested:
+                self._try_start()
+            elif self.shutdown_requested or (self.exit_when_done and not self.queue):
+                self.finished = True
+            return
+        if self.pacing == "realtime":
+            if not self.gate.complete:
+                self.timing.late_commands += 1
+            self._advance()
+        elif self.timing.publish_times and time.perf_counter() - self.timing.publish_times[-1] > 5.0:
+            self._warn("lockstep_stall", f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after 5 s "
+                                         f"(have {sorted(self.gate.arrived)}); is the controller running?")
+
+    def close(self) -> None:
+        if self.sim is not None:
+            self._end_episode("shutdown")
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_node(SimNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
