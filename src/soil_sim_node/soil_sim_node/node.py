@@ -234,8 +234,9 @@ class SimNode(Node):
             elif cmd.action == G.ACTION_SHUTDOWN:
                 self.queue.clear()
                 self.shutdown_requested = True
-        except (ValueError, TypeError) as err:
-            self._warn("sim_command", f"{G.SIM_COMMAND_TOPIC}: {err}; ignored")
+        except (ValueError, TypeError) as err:  # rare and deliberate: always logged
+            where = "" if str(err).startswith(G.SIM_COMMAND_TOPIC) else f"{G.SIM_COMMAND_TOPIC}: "
+            self.get_logger().warning(f"{where}{err}; ignored")
 
     def _endpoints_ready(self) -> tuple[bool, list[str]]:
         missing = []

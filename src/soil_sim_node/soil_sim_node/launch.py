@@ -1,0 +1,263 @@
+"""`soil_launch`: start the graph (sim + controller [+ recorder]) as separate processes.
+
+There is no ``ros2 launch`` on these machines, so this is ours. It
+
+* starts every node as its own process (its console script, ``--ros-args`` as usual) with
+  loopback-only DDS (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on one ROS_DOMAIN_ID;
+* tells the simulator which endpoints to wait for (the controller's, the recorder's) so no
+  tick is published before its consumers have matched;
+* prefixes each process's output with its name, like ``ros2 launch``;
+* forwards Ctrl-C / SIGTERM, stops the nodes in data-flow order (simulator first, recorder
+  last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
+* exits 0 when the simulator finished its episodes and everyone stopped cleanly, and
+  non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit.
+
+    soil_launch --pacing lockstep --record bags/run1 --sim-param soil:=Clay
+    soil_launch --rate 2 --sim-param episodes:=3 --sim-params-file my_sim.yaml
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from soil_msgs_py import graph as G
+from soil_msgs_py import topics as T
+
+EXIT_NODE_DIED = 1
+EXIT_TIMEOUT = 3
+EXIT_BAD_ARGS = 2
+
+# What each node subscribes to / publishes, for the simulator's 'wait_for' (topic -> count).
+CONTROLLER_ENDPOINTS = {T.CHASSIS_TWIST.name: 1, T.CHASSIS_POSE.name: 1, G.SIM_STATUS_TOPIC: 1,
+                        T.CMD_VEL.name: 1, T.BLADE_CMD.name: 1}
+RECORDER_ENDPOINTS = {**{name: 1 for name in G.SIM_STATE_TOPICS}, G.SIM_STATUS_TOPIC: 1}
+
+
+def executable(name: str) -> str:
+    """A console script next to this interpreter (the venv) or on PATH (a colcon install)."""
+    here = Path(sys.executable).parent / name
+    if here.exists():
+        return str(here)
+    found = shutil.which(name)
+    if found is None:
+        raise FileNotFoundError(f"executable {name!r} not found next to {sys.executable} or on PATH")
+    return found
+
+
+def loopback_env(domain_id: int) -> dict[str, str]:
+    """This environment with DDS confined to loopback on ``domain_id``."""
+    env = dict(os.environ)
+    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated; it would override the variable below
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+@dataclass
+class NodeProcess:
+    """One node of the launch: its name (output prefix), command line and role."""
+
+    name: str
+    argv: list[str]
+    stop_order: int  # lower stops first
+    required: bool = True  # its death (any exit before shutdown) fails the launch
+    ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
+    proc: subprocess.Popen | None = None
+    pump: threading.Thread | None = None
+    returncode: int | None = field(default=None)
+
+
+def _pump(prefix: str, stream, out) -> None:
+    for line in iter(stream.readline, ""):
+        out.write(f"[{prefix}] {line}" if line.endswith("\n") else f"[{prefix}] {line}\n")
+        out.flush()
+    stream.close()
+
+
+class Launch:
+    """Starts, watches and stops a group of node processes."""
+
+    def __init__(self, nodes: list[NodeProcess], env: dict[str, str], *, timeout_s: float = 0.0,
+                 stop_timeout_s: float = 10.0, drain_s: float = 1.5, out=sys.stdout):
+        self.nodes = nodes
+        self.env = env
+        self.timeout_s = timeout_s
+        self.stop_timeout_s = stop_timeout_s
+        self.drain_s = drain_s
+        self.out = out
+        self.interrupted = False
+
+    def log(self, text: str) -> None:
+        self.out.write(f"[launch] {text}\n")
+        self.out.flush()
+
+    def start(self) -> None:
+        for node in self.nodes:
+            node.proc = subprocess.Popen(
+                node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                start_new_session=True,  # the terminal's Ctrl-C reaches us only; we forward it
+            )
+            node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
+            node.pump.start()
+            self.log(f"started {node.name} (pid {node.proc.pid}): {' '.join(node.argv)}")
+
+    def _on_signal(self, signum, frame) -> None:  # noqa: ARG002
+        self.interrupted = True
+
+    def run(self) -> int:
+        """Start everything, wait for the end, stop everyone; returns the exit code."""
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.start()
+            code = self._watch()
+        finally:
+            self.stop()
+            for s, handler in old.items():
+                signal.signal(s, handler)
+        failed = [n for n in self.nodes if n.returncode not in (0, None)]
+        for n in failed:
+            self.log(f"{n.name} exited with code {n.returncode}")
+        if code == 0 and failed:
+            code = EXIT_NODE_DIED
+        self.log(f"done, exit code {code}")
+        return code
+
+    def _watch(self) -> int:
+        t0 = time.monotonic()
+        while True:
+            if self.interrupted:
+                self.log("interrupted; stopping all nodes")
+                return 0
+            for node in self.nodes:
+                rc = node.proc.poll()
+                if rc is None:
+                    continue
+                node.returncode = rc
+                if node.ends_launch and rc == 0:
+                    self.log(f"{node.name} finished; stopping the others")
+                    return 0
+                if node.required:
+                    self.log(f"{node.name} died (exit code {rc}); stopping the others")
+                    return EXIT_NODE_DIED
+            if self.timeout_s and time.monotonic() - t0 > self.timeout_s:
+                self.log(f"timeout after {self.timeout_s} s; stopping all nodes")
+                return EXIT_TIMEOUT
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        """SIGINT each running node in stop order, waiting for each; escalate if one hangs."""
+        first = True
+        for node in sorted(self.nodes, key=lambda n: n.stop_order):
+            if node.proc is None:
+                continue
+            if node.proc.poll() is None:
+                if not first and node.stop_order >= max(n.stop_order for n in self.nodes):
+                    time.sleep(self.drain_s)  # the last stage (recorder) gets the in-flight data
+                first = False
+                node.returncode = self._stop_one(node)
+            elif node.returncode is None:
+                node.returncode = node.proc.returncode
+            if node.pump is not None:
+                node.pump.join(timeout=2.0)
+
+    def _stop_one(self, node: NodeProcess) -> int:
+        for sig, wait in ((signal.SIGINT, self.stop_timeout_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+            try:
+                node.proc.send_signal(sig)
+            except ProcessLookupError:
+                break
+            try:
+                rc = node.proc.wait(timeout=wait)
+                if sig != signal.SIGINT:
+                    self.log(f"{node.name} needed {signal.Signals(sig).name}")
+                return rc
+            except subprocess.TimeoutExpired:
+                continue
+        return node.proc.wait(timeout=5.0)
+
+
+def _params(pairs: list[str]) -> list[str]:
+    out = []
+    for pair in pairs:
+        if ":=" not in pair:
+            raise ValueError(f"parameter {pair!r} is not of the form name:=value")
+        out += ["-p", pair]
+    return out
+
+
+def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
+    """The graph for these arguments, with the simulator told whom to wait for."""
+    wait: dict[str, int] = {}
+    nodes: list[NodeProcess] = []
+    if args.record:
+        nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
+                                              *args.recorder_arg], stop_order=2))
+        for topic, n in RECORDER_ENDPOINTS.items():
+            wait[topic] = wait.get(topic, 0) + n
+    if not args.no_controller:
+        ctl = [executable("anti_stall_controller"), "--ros-args"]
+        if args.controller_params_file:
+            ctl += ["--params-file", str(args.controller_params_file)]
+        nodes.append(NodeProcess("controller", ctl + _params(args.controller_param), stop_order=1))
+        for topic, n in CONTROLLER_ENDPOINTS.items():
+            wait[topic] = wait.get(topic, 0) + n
+    sim = [executable("soil_sim_node"), "--ros-args"]
+    if args.sim_params_file:
+        sim += ["--params-file", str(args.sim_params_file)]
+    sim += ["-p", f"pacing:={args.pacing}", "-p", f"rate:={float(args.rate)}",
+            "-p", f"exit_when_done:={'false' if args.keep_running else 'true'}"]
+    if wait:
+        sim += ["-p", "wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]"]
+    sim += _params(args.sim_param)
+    nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))
+    return nodes
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="soil_launch", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--pacing", choices=("realtime", "lockstep"), default="realtime")
+    p.add_argument("--rate", type=float, default=1.0, help="real-time factor (pacing realtime)")
+    p.add_argument("--record", type=Path, help="record every episode as a bag under this directory")
+    p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
+                   help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
+    p.add_argument("--sim-params-file", type=Path, help="YAML parameters for soil_sim_node")
+    p.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--controller-params-file", type=Path, help="YAML parameters for anti_stall_controller")
+    p.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--recorder-arg", action="append", default=[], help="extra argument for soil_bag_record")
+    p.add_argument("--no-controller", action="store_true", help="do not start the controller")
+    p.add_argument("--keep-running", action="store_true",
+                   help="keep the simulator up after its episodes (end with Ctrl-C); default: end with them")
+    p.add_argument("--timeout", type=float, default=0.0, help="stop everything after this many seconds (0: never)")
+    p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before SIGTERM")
+    args = p.parse_args(argv)
+    if not 0 <= args.domain_id <= 232:
+        p.error(f"--domain-id {args.domain_id} outside [0, 232]")
+    if not args.rate > 0:
+        p.error(f"--rate {args.rate} must be > 0")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        nodes = build_nodes(args)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"soil_launch: {err}", file=sys.stderr)
+        return EXIT_BAD_ARGS
+    return Launch(nodes, loopback_env(args.domain_id), timeout_s=args.timeout,
+                  stop_timeout_s=args.stop_timeout).run()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,134 @@
+"""Test-side ROS 2 helpers: start real node processes and watch them from a probe node.
+
+``RosProbe`` is an rclpy node in its own context and domain, spun by a background thread,
+that subscribes/publishes like any other participant. ``NodeProc`` starts a console
+script as a separate process on the same loopback domain and keeps its output. Every
+wait is bounded.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from soil_msgs_py.ros_adapter import message_class, topic_qos
+
+BIN = Path(sys.executable).parent
+# Domain ids 141..230 for these tests (test_bag_tools uses 100..140); one per probe/test.
+_IDS = itertools.count(141 + (os.getpid() % 30))
+
+
+def next_domain_id() -> int:
+    return 141 + (next(_IDS) - 141) % 90
+
+
+def loopback_env(domain_id: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
+    return env
+
+
+def wait_until(predicate, timeout: float, what: str, poll: float = 0.05):
+    """Poll ``predicate()`` until truthy and return it; AssertionError naming ``what`` on timeout."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        result = predicate()
+        if result:
+            return result
+        time.sleep(poll)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+class NodeProc:
+    """A console script in its own process; output collected in a file."""
+
+    def __init__(self, script: str, args: list[str], domain_id: int, log_dir: Path):
+        self.log_path = log_dir / f"{script}_{time.monotonic_ns()}.log"
+        self._log = self.log_path.open("w")
+        self.proc = subprocess.Popen([str(BIN / script), *args], env=loopback_env(domain_id),
+                                     stdout=self._log, stderr=subprocess.STDOUT, text=True)
+
+    @property
+    def output(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+    def wait(self, timeout: float) -> int:
+        return self.proc.wait(timeout=timeout)
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 15.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+        self._log.close()
+        return self.proc.returncode
+
+
+class RosProbe:
+    """An in-process participant: records what arrives (with perf_counter receive times)."""
+
+    def __init__(self, domain_id: int, name: str = "probe"):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.received: dict[str, list[tuple[float, object]]] = defaultdict(list)
+        self.lock = threading.Lock()
+        self.pubs: dict[str, object] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def subscribe(self, topic: str, msgtype: str, qos=None) -> None:
+        def cb(msg, topic=topic):
+            t = time.perf_counter()
+            with self.lock:
+                self.received[topic].append((t, msg))
+        self.node.create_subscription(message_class(msgtype), topic, cb, qos or topic_qos(topic))
+
+    def publisher(self, topic: str, msgtype: str, qos=None):
+        if topic not in self.pubs:
+            self.pubs[topic] = self.node.create_publisher(message_class(msgtype), topic, qos or topic_qos(topic))
+        return self.pubs[topic]
+
+    def messages(self, topic: str) -> list:
+        with self.lock:
+            return [m for _, m in self.received[topic]]
+
+    def wait_for(self, predicate, timeout: float, what: str, poll: float = 0.05):
+        return wait_until(predicate, timeout, what, poll)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.executor.shutdown(timeout_sec=1)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> "RosProbe":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
