@@ -53,10 +53,12 @@ class ControllerNode(Node):
         self.classes = M.ros_message_classes()
         self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), T.CMD_VEL.name, topic_qos(T.CMD_VEL.name))
         self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, topic_qos(T.BLADE_CMD.name))
+        # /sim/status first: the executor serves ready subscriptions in creation order, so an
+        # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
+        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         for name in STATE_TOPICS:
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
-        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         self.pending: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
         self.last_stamp = -1
         self._warn_counts: collections.Counter = collections.Counter()

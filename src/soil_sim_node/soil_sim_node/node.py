@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.duration import Duration
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -282,6 +283,10 @@ class SimNode(Node):
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks)
         self.status_pub.publish(String(data=event.to_json()))
+        # Topics are not ordered with each other: make sure every subscriber's DDS reader
+        # holds the start before tick 0 goes out (the controller resets on it).
+        if not self.status_pub.wait_for_all_acked(Duration(seconds=2.0)):
+            self.get_logger().warning("episode_start not acknowledged by every /sim/status subscriber within 2 s")
         self.get_logger().info(f"episode {self.episode_index} start: {self.meta.name} ({self.planned_ticks} ticks)")
         self._reset_timer()
         self._publish_tick(self.sim.reset())

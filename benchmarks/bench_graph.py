@@ -1,0 +1,157 @@
+"""Node-graph benchmarks (issue: ROS node graph). Prints figures; asserts nothing.
+
+    .venv/bin/python benchmarks/bench_graph.py
+    .venv/bin/python benchmarks/bench_graph.py --rates 1 2 4 --duration 10 --cpu-seconds 20
+
+1. Highest real-time factor at which the graph (sim + controller + recorder, launched by
+   soil_launch) still drops nothing: for each rate, one episode of ``--duration`` simulated
+   seconds is recorded; "drops nothing" = the bag has every tick on every topic AND the
+   simulator never had to hold a late command. Jitter and loop latency are printed per rate.
+2. CPU per node at 60 Hz (rate 1): user+system CPU time of each node process over a
+   steady window, as % of one core.
+
+Loopback DDS only, on its own ROS_DOMAIN_ID (default 199); every run is bounded by a timeout.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+BIN = Path(sys.executable).parent
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.pop("ROS_LOCALHOST_ONLY", None)
+
+import rclpy  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from soil_msgs_py import graph as G  # noqa: E402
+from soil_msgs_py.bag_io import find_episode_bags, read_episode  # noqa: E402
+from soil_msgs_py.ros_adapter import topic_qos  # noqa: E402
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+class StatusListener:
+    """Collects /sim/status events in a background executor (its own context)."""
+
+    def __init__(self, domain_id: int):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("bench_graph_status", context=self.context)
+        self.events: list[G.EpisodeEvent] = []
+        self.node.create_subscription(String, G.SIM_STATUS_TOPIC,
+                                      lambda m: self.events.append(G.EpisodeEvent.from_json(m.data)),
+                                      topic_qos(G.SIM_STATUS_TOPIC))
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while not self.stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def launch(args: list[str], domain: int) -> subprocess.Popen:
+    return subprocess.Popen([str(BIN / "soil_launch"), "--domain-id", str(domain), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def children(pid: int) -> dict[str, int]:
+    """name -> pid of the launcher's node processes."""
+    out = {}
+    res = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
+    for child in res.stdout.split():
+        cmd = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
+        script = next((Path(c.decode()).name for c in cmd if b"soil_" in c or b"anti_stall" in c or b"pinn" in c), "?")
+        out[script] = int(child)
+    return out
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
+
+
+def run_rate(rate: float, duration_s: float, domain: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        listener = StatusListener(domain)
+        try:
+            proc = launch(["--rate", str(rate), "--record", tmp, "--sim-param", f"duration_s:={duration_s}",
+                           "--timeout", str(duration_s / rate + 60)], domain)
+            rc = proc.wait(timeout=duration_s / rate + 90)
+            end = next((e for e in listener.events if e.event == G.EVENT_EPISODE_END), None)
+        finally:
+            listener.close()
+        bags = find_episode_bags(tmp)
+        ticks = len(read_episode(bags[0])) if bags else 0
+    planned = int(round(duration_s * 60))
+    stats = end.stats if end else {}
+    return {"rate": rate, "rc": rc, "planned": planned, "recorded": ticks,
+            "late": stats.get("late_commands"), "jitter": stats.get("jitter", {}), "loop": stats.get("loop_latency", {}),
+            "clean": rc == 0 and ticks == planned and stats.get("late_commands") == 0}
+
+
+def cpu_per_node(seconds: float, domain: int) -> dict[str, float]:
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = launch(["--record", tmp, "--sim-param", f"duration_s:={seconds + 20}", "--timeout", str(seconds + 60)],
+                      domain)
+        try:
+            time.sleep(8.0)  # start-up, discovery, first ticks
+            pids = children(proc.pid)
+            before = {n: cpu_seconds(p) for n, p in pids.items()}
+            t0 = time.monotonic()
+            time.sleep(seconds)
+            after = {n: cpu_seconds(p) for n, p in pids.items()}
+            wall = time.monotonic() - t0
+        finally:
+            proc.send_signal(2)
+            proc.wait(timeout=60)
+    return {n: 100.0 * (after[n] - before[n]) / wall for n in pids}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--rates", type=float, nargs="+", default=[1, 2, 3, 4, 6, 8])
+    p.add_argument("--duration", type=float, default=10.0, help="simulated seconds per rate")
+    p.add_argument("--cpu-seconds", type=float, default=20.0)
+    p.add_argument("--domain-id", type=int, default=199)
+    args = p.parse_args()
+
+    print(f"== real-time factor sweep ({args.duration} s episodes, sim + controller + recorder)")
+    best = None
+    for rate in args.rates:
+        r = run_rate(rate, args.duration, args.domain_id)
+        j, lo = r["jitter"], r["loop"]
+        print(f"rate {rate:5.1f}: recorded {r['recorded']}/{r['planned']} ticks, late commands {r['late']}, "
+              f"jitter p50/p99/max {j.get('p50_ms')}/{j.get('p99_ms')}/{j.get('max_ms')} ms, "
+              f"loop latency p50/p99/max {lo.get('p50_ms')}/{lo.get('p99_ms')}/{lo.get('max_ms')} ms, "
+              f"{'clean' if r['clean'] else 'DROPS'}")
+        if r["clean"]:
+            best = rate
+        else:
+            break
+    print(f"highest rate factor with no drops: {best}")
+
+    print(f"== CPU per node at 60 Hz (rate 1), over {args.cpu_seconds} s")
+    for name, pct in sorted(cpu_per_node(args.cpu_seconds, args.domain_id).items()):
+        print(f"{name:24s} {pct:6.1f} % of one core")
+
+
+if __name__ == "__main__":
+    main()
