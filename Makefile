@@ -33,6 +33,7 @@ test: venv
 bench: venv
 	$(BIN)/python benchmarks/bench_sim.py
 	$(BIN)/python benchmarks/bench_train.py
+	$(BIN)/python benchmarks/bench_graph.py
 
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv

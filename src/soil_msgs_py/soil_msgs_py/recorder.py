@@ -301,7 +301,7 @@ class Recorder:
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:
-            info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks)
+            info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks, stats=s.end_event.stats or {})
         try:
             result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
                                     info_key=RECORDER_INFO_KEY, info=info)

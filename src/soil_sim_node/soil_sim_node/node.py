@@ -43,6 +43,7 @@ from .rollout import episode_meta
 from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
 PACINGS = ("realtime", "lockstep")
+COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
 NS_PER_TICK_EXACT = 1e9 / SAMPLE_RATE_HZ
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through _value() (unset reads as []).
@@ -128,6 +129,13 @@ class SimNode(Node):
         self._warn_counts: collections.Counter = collections.Counter()
 
         self.timer = self.create_timer(self._period(), self._on_timer)
+        # Real time: a tick whose commands are not in yet when the timer fires waits up to
+        # COMMAND_GRACE of a period for them (rclpy serves ready timers before ready
+        # subscriptions, so a command that arrived with the timer would otherwise count as
+        # late); after that the previous command is held and the tick counted as late.
+        self._due = False
+        self.grace_timer = self.create_timer(1.0, self._on_grace)
+        self.grace_timer.cancel()
         self.get_logger().info(
             f"{p['world_mode']} world, pacing={self.pacing}"
             + (f" x{self.rate}" if self.pacing == "realtime" else "")
@@ -211,6 +219,12 @@ class SimNode(Node):
         self.timer.cancel()
         self.destroy_timer(self.timer)
         self.timer = self.create_timer(self._period(), self._on_timer)
+        if getattr(self, "grace_timer", None) is not None:
+            self.grace_timer.cancel()
+            self.destroy_timer(self.grace_timer)
+            self.grace_timer = self.create_timer(COMMAND_GRACE * self._period(), self._on_grace)
+            self.grace_timer.cancel()
+            self._due = False
 
     # ------------------------------------------------------------------ logging
     def _warn(self, key: str, text: str) -> None:
@@ -347,6 +361,10 @@ class SimNode(Node):
                 self.timing.answered(time.perf_counter())
             if self.pacing == "lockstep":
                 self._advance()
+            elif self._due:
+                self._due = False
+                self.grace_timer.cancel()
+                self._advance()
 
     def _on_timer(self) -> None:
         if self.sim is None:
@@ -356,12 +374,21 @@ class SimNode(Node):
                 self.finished = True
             return
         if self.pacing == "realtime":
-            if not self.gate.complete:
-                self.timing.late_commands += 1
-            self._advance()
+            if self.gate.complete:
+                self._advance()
+            elif not self._due:
+                self._due = True
+                self.grace_timer.reset()
         elif self.timing.publish_times and time.perf_counter() - self.timing.publish_times[-1] > 5.0:
             self._warn("lockstep_stall", f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after 5 s "
                                          f"(have {sorted(self.gate.arrived)}); is the controller running?")
+
+    def _on_grace(self) -> None:
+        self.grace_timer.cancel()
+        if self._due and self.sim is not None:
+            self._due = False
+            self.timing.late_commands += 1
+            self._advance()
 
     def close(self) -> None:
         if self.sim is not None:
