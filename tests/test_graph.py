@@ -75,7 +75,7 @@ def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain
         print(f"\nrealtime 2 s: period {stats['period']}, jitter {stats['jitter']}, loop {stats['loop_latency']}, "
               f"late {stats['late_commands']}")
         assert 14.0 < stats["period"]["p50_ms"] < 19.0
-        assert stats["loop_latency"]["n"] == 120
+        assert stats["loop_latency"]["n"] + stats["late_commands"] == 120
 
 
 def _bad_command_burst(probe: RosProbe, stamp: int, k: int) -> None:
@@ -164,7 +164,10 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
             time.sleep(0.5)
             cmd.publish(String(data=json.dumps({"action": "reset"})))
             second = probe.wait_for(_ended(probe, 2), 10, "reset episode end")[0]
-            cmd.publish(String(data=json.dumps({"action": "shutdown"})))
+            cmd.publish(String(data=json.dumps({"action": "start", "duration_s": 30.0})))
+            probe.wait_for(lambda: [e for e in _events(probe) if e.event == "episode_start"][2:], 10, "third start")
+            cmd.publish(String(data=json.dumps({"action": "shutdown"})))  # ends the running episode too
+            third = probe.wait_for(_ended(probe, 3), 10, "shutdown episode end")[0]
             assert sim.wait(timeout=10) == 0
         finally:
             sim.stop()
@@ -172,6 +175,7 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
     assert starts[0].meta.soil == "Gravel"
     assert second.reason == "reset" and 0 < second.ticks < 1800
     assert second.first_stamp_ns == first.last_stamp_ns + 16_666_667  # simulation time continues
+    assert third.reason == "shutdown" and third.ticks < 1800
     out = sim.output
     assert "/sim/command: not JSON" in out and "relative_density_pct=250" in out
 
@@ -214,8 +218,9 @@ def test_controller_parameters_files_overrides_and_runtime_changes(tmp_path, dom
             stamp = 5 * 10**9
             twist.publish(M.build_message(CLASSES, T.CHASSIS_TWIST.name, stamp, [0.9, 0.0]))
             pose.publish(M.build_message(CLASSES, T.CHASSIS_POSE.name, stamp, [1.0, -0.05]))
-            pose.publish(M.build_message(CLASSES, T.CHASSIS_POSE.name, stamp - 10**7, [1.0, -0.05]))  # stale
             probe.wait_for(lambda: probe.messages(T.BLADE_CMD.name), 10, "the controller's answer")
+            pose.publish(M.build_message(CLASSES, T.CHASSIS_POSE.name, stamp - 10**7, [1.0, -0.05]))  # stale
+            wait_until(lambda: "is not newer than the last answered tick" in ctl.output, 10, "the stale warning")
         finally:
             ctl.stop()
     (vel,) = probe.messages(T.CMD_VEL.name)
@@ -247,9 +252,10 @@ def test_launch_runs_episodes_in_a_row_and_exits_zero(tmp_path, domain):
         proc = _launch(["--pacing", "lockstep", "--sim-param", "duration_s:=1.0", "--sim-param", "episodes:=2",
                         "--sim-param", "sequence_soils:=['Clay','Sand']"], domain, tmp_path)
         assert proc.wait(timeout=60) == 0
-        ends = probe.wait_for(_ended(probe, 4), 5, "four episode ends")
-    names = [e.name for e in _events(probe) if e.event == G.EVENT_EPISODE_END]
-    assert [e.reason for e in ends] == ["completed"] and len(names) == 4
+        probe.wait_for(_ended(probe, 4), 5, "four episode ends")
+    ends = [e for e in _events(probe) if e.event == G.EVENT_EPISODE_END]
+    names = [e.name for e in ends]
+    assert [e.reason for e in ends] == ["completed"] * 4 and [e.ticks for e in ends] == [60] * 4
     assert [n.split("_")[1] for n in names] == ["clay", "clay", "sand", "sand"]
     assert [int(n.rsplit("_s", 1)[1]) for n in names] == [0, 1, 2, 3]
 
@@ -277,7 +283,8 @@ def test_launch_exits_nonzero_when_a_node_dies_and_stops_the_rest(tmp_path, doma
 def test_launch_forwards_ctrl_c_and_exits_cleanly(tmp_path, domain):
     proc = _launch(["--sim-param", "duration_s:=60.0", "--timeout", "60"], domain, tmp_path)
     try:
-        time.sleep(4.0)
+        wait_until(lambda: "episode 0 start" in proc.log_path.read_text(), 30, "the episode to start")
+        time.sleep(1.0)
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(timeout=30)
     finally:
@@ -335,3 +342,32 @@ def test_realtime_60s_at_60hz_loses_no_tick(tmp_path, domain):
     print(f"\nrealtime 60 s @ 60 Hz: publish period {s['period']}, jitter {s['jitter']}, "
           f"sim->controller->sim loop latency {s['loop_latency']}, late commands {s['late_commands']}")
     assert s["late_commands"] <= 36, s  # <1 % of ticks held a late command on this shared machine
+
+
+def test_lockstep_without_a_controller_ends_the_episode_instead_of_hanging(tmp_path, domain):
+    with RosProbe(domain) as probe:
+        probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        sim = NodeProc("soil_sim_node", _sim_args("pacing:=lockstep", "lockstep_timeout_s:=1.5", "exit_when_done:=true",
+                                                  wait_for=("/sim/status:1",)), domain, tmp_path)
+        try:
+            assert sim.wait(timeout=30) == 0, sim.output
+            end = probe.wait_for(_ended(probe), 5, "episode_end")[0]
+        finally:
+            sim.stop()
+    assert end.reason == "error" and end.ticks == 1
+    assert "no complete command for stamp 0 ns after 1.5 s" in sim.output
+
+
+@pytest.mark.parametrize("param, needle", [
+    ("duration_s:=5", "duration_s"),  # an integer for a double parameter
+    ("soil:=Mud", "Mud"),
+    ("pacing:=sometimes", "pacing='sometimes'"),
+    ("wait_for:=['/nowhere:1']", "wait_for entry '/nowhere:1'"),
+])
+def test_bad_simulator_parameters_exit_2_with_the_name(tmp_path, domain, param, needle):
+    sim = NodeProc("soil_sim_node", ["--ros-args", "-p", param], domain, tmp_path)
+    try:
+        assert sim.wait(timeout=30) == 2, sim.output
+    finally:
+        sim.stop()
+    assert "cannot start" in sim.output and needle in sim.output and "Traceback" not in sim.output

@@ -30,11 +30,14 @@ def test_episode_events_round_trip():
     ({"reason": "bored"}, "reason='bored'"),
     ({"name": "a/b"}, "name='a/b'"),
     ({"meta": {**json.loads(META.to_json()), "world_mode": "moon"}}, "world_mode='moon'"),
+    ({"meta": {k: v for k, v in json.loads(META.to_json()).items() if k != "seed"}}, "bad meta: .*seed"),
+    ({"meta": {**json.loads(META.to_json()), "relative_density_pct": "dense"}}, "relative_density_pct='dense'"),
+    ({"stats": [1, 2]}, "stats=[1, 2]"),
 ])
 def test_bad_status_events_are_named(change, needle):
     end = G.EpisodeEvent(G.EVENT_EPISODE_END, 0, META.name, META, 0, 120, 1, 120, "completed")
     data = {**json.loads(end.to_json()), **change}
-    with pytest.raises(ValueError, match=needle.replace("[", r"\[").replace(".", r"\.")):
+    with pytest.raises(ValueError, match=needle.replace("[", r"\[").replace("]", r"\]")):
         G.EpisodeEvent.from_json(json.dumps(data))
 
 
@@ -104,3 +107,19 @@ def test_launcher_tells_the_simulator_whom_to_wait_for(tmp_path):
     assert "'/chassis/cmd_vel:1'" in wait and "pacing:=lockstep" in sim and "soil:=Sand" in sim
     with pytest.raises(SystemExit):
         parse_args(["--domain-id", "999"])
+
+
+@pytest.mark.parametrize("pkg, node_module", [("soil_sim_node", "soil_sim_node.node"),
+                                               ("anti_stall_controller", "anti_stall_controller.node")])
+def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_module):
+    """config/<node>.yaml is the documented default set: same names, same values as the node."""
+    import importlib
+    from pathlib import Path
+
+    import yaml
+
+    params = importlib.import_module(node_module).PARAMETERS
+    path = Path(__file__).resolve().parents[1] / "src" / pkg / "config" / f"{pkg}.yaml"
+    data = yaml.safe_load(path.read_text())[pkg]["ros__parameters"]
+    assert list(data) == list(params)
+    assert {k: v for k, v in data.items()} == {k: spec[0] for k, spec in params.items()}

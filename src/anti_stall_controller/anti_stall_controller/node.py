@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import collections
 
-import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -20,7 +19,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
 
 from .controller import AntiStallController, AntiStallGains
 
@@ -35,7 +34,6 @@ PARAMETERS: dict[str, tuple] = {
 }
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
-STATE_TOPICS = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
 MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
 
 
@@ -56,19 +54,16 @@ class ControllerNode(Node):
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        for name in STATE_TOPICS:
+        for name in G.CONTROLLER_STATE_TOPICS:
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
         self.pending: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
         self.last_stamp = -1
-        self._warn_counts: collections.Counter = collections.Counter()
+        # Between an episode_end and the next episode_start, state is held (not answered), so
+        # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
+        self.held: list[tuple[str, object]] | None = None
+        self._warn = WarnLimiter(self.get_logger())
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
-
-    def _warn(self, key: str, text: str) -> None:
-        self._warn_counts[key] += 1
-        n = self._warn_counts[key]
-        if n == 1 or np.log10(n).is_integer():
-            self.get_logger().warning(text + (f" ({n} so far)" if n > 1 else ""))
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -96,7 +91,8 @@ class ControllerNode(Node):
         except ValueError as err:
             self._warn("status", f"{G.SIM_STATUS_TOPIC}: {err}; ignored")
             return
-        if event.event != G.EVENT_EPISODE_START:
+        if event.event == G.EVENT_EPISODE_END:
+            self.held = []
             return
         if self.follow:
             result = self.set_parameters([
@@ -110,9 +106,19 @@ class ControllerNode(Node):
         self.last_stamp = event.first_stamp_ns - 1
         self.get_logger().info(f"episode {event.name}: reset, targets v={self.core.target_speed_m_s[0]} m/s "
                                f"d={self.core.target_depth_m[0]} m")
+        held, self.held = self.held or [], None
+        for topic, msg in held:  # state of this episode that arrived before its start
+            self._on_state(topic, msg)
 
     # ------------------------------------------------------------------ control
     def _on_state(self, topic: str, msg) -> None:
+        if self.held is not None:
+            if len(self.held) < 2 * MAX_PENDING_STAMPS:
+                self.held.append((topic, msg))
+            else:
+                self._warn("held", f"{topic}: state between episodes beyond {2 * MAX_PENDING_STAMPS} held "
+                                   "messages dropped (no episode_start came)")
+            return
         try:
             stamp, values = M.parse_message(topic, msg)
         except ValueError as err:

@@ -79,6 +79,11 @@ SIM_STATE_TOPICS: tuple[str, ...] = (
 )
 COMMAND_TOPICS: tuple[str, ...] = (T.CMD_VEL.name, T.BLADE_CMD.name)
 assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE_TOPICS}
+# What the controller node reads (it answers on COMMAND_TOPICS) and what a recorder reads:
+# the launcher tells the simulator to wait for these endpoints before an episode starts.
+CONTROLLER_STATE_TOPICS: tuple[str, ...] = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
+CONTROLLER_INPUTS: tuple[str, ...] = CONTROLLER_STATE_TOPICS + (SIM_STATUS_TOPIC,)
+RECORDER_INPUTS: tuple[str, ...] = SIM_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
 
 
 def _json_object(text: str, what: str) -> dict[str, Any]:
@@ -139,8 +144,13 @@ class EpisodeEvent:
                 raise ValueError(f"{SIM_STATUS_TOPIC}: {key}={v!r} must be a non-negative integer")
         if not isinstance(d.get("meta"), dict):
             raise ValueError(f"{SIM_STATUS_TOPIC}: meta={d.get('meta')!r} must be an object")
-        meta = EpisodeMeta.from_json(json.dumps(d["meta"]))
+        try:
+            meta = EpisodeMeta.from_json(json.dumps(d["meta"]))
+        except TypeError as err:  # a missing or mistyped metadata field
+            raise ValueError(f"{SIM_STATUS_TOPIC}: bad meta: {err}") from None
         meta.validate()
+        if d.get("stats") is not None and not isinstance(d["stats"], dict):
+            raise ValueError(f"{SIM_STATUS_TOPIC}: stats={d['stats']!r} must be an object")
         reason = d.get("reason", "")
         if event == EVENT_EPISODE_END and reason not in END_REASONS:
             raise ValueError(f"{SIM_STATUS_TOPIC}: reason={reason!r} is not one of {END_REASONS}")

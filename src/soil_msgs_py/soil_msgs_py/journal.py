@@ -22,6 +22,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import messages as M
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
@@ -260,7 +261,10 @@ def journal_to_bag(
     meta_json = scan.metadata.get(META_KEY)
     cutoff = None
     if trim_partial_ticks and meta_json is not None:
-        cutoff = whole_tick_cutoff(scan.stamps)
+        # Whole ticks are judged on the episode topics; extra topics (--topics) keep what is
+        # stamped up to the last whole tick.
+        tick_topics = {t: v for t, v in scan.stamps.items() if t in M.FIELDS} or scan.stamps
+        cutoff = whole_tick_cutoff(tick_topics)
         if cutoff is None:
             raise NothingRecoverable(
                 f"{jpath}: {scan.messages} messages recovered but no tick has a message on every topic "

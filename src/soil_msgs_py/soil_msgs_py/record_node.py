@@ -47,7 +47,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--no-split", action="store_true",
                    help="one bag record_<UTC time> until Ctrl-C, ignoring /sim/status")
     p.add_argument("--flush-period", type=float, default=0.25, metavar="S",
-                   help="journal flush period [s]: the most a SIGKILL can lose (default 0.25)")
+                   help="journal flush period [s] of wall-clock and of simulation time: the most a SIGKILL can lose (default 0.25)")
     p.add_argument("--end-grace", type=float, default=1.0, metavar="S",
                    help="after episode_end, wait at most this long for late messages [s] (default 1.0)")
     opts = p.parse_args(argv)
@@ -69,7 +69,7 @@ class RecordNode(Node):
         known = {t: TOPICS_BY_NAME[t].msgtype for t in wanted if t in TOPICS_BY_NAME}
         self._pending = [t for t in wanted if t not in known]
         self.recorder = Recorder(
-            opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace,
+            opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
             qos_for=lambda t: [rosbags_qos(TOPIC_QOS.get(t, DATA_QOS))], log=self.get_logger(),
         )
         # Created first: when status and data are ready in the same wait, status is taken first.

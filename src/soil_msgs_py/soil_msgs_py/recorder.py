@@ -89,6 +89,7 @@ class Session:
     topic_max: dict[str, int] = field(default_factory=dict)
     seen: set[tuple[str, int]] = field(default_factory=set)
     duplicates: int = 0
+    flushed_stamp_ns: int = 0  # stamp at the last flush triggered by simulation time
 
     @property
     def total(self) -> int:
@@ -110,7 +111,7 @@ class Recorder:
 
     def __init__(
         self, out_dir: str | Path, topics: Mapping[str, str], *, split: bool = True,
-        end_grace_s: float = 1.0, hold_s: float = 1.0, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
+        end_grace_s: float = 1.0, hold_s: float = 1.0, flush_sim_s: float = 0.25, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
         log: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic,
     ):
         if end_grace_s < 0:
@@ -121,6 +122,9 @@ class Recorder:
         self.split = split
         self.end_grace_s = end_grace_s
         self.hold_s = hold_s
+        # Flush also every flush_sim_s of simulation time: in lockstep the simulation runs
+        # several times faster than the wall-clock flush timer, and the loss bound is in data.
+        self.flush_sim_ns = int(flush_sim_s * 1e9)
         self.qos_for = qos_for
         self.log = log or logging.getLogger("soil_bag_record")
         self.clock = clock
@@ -235,7 +239,7 @@ class Recorder:
                 self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
                                  f"at its last stamp {s.last_stamp_ns} ns")
         s = self._open(ev.name, ev.meta.to_json())
-        s.event, s.first_stamp_ns = ev, ev.first_stamp_ns
+        s.event, s.first_stamp_ns, s.flushed_stamp_ns = ev, ev.first_stamp_ns, ev.first_stamp_ns
         self.sessions.append(s)
         held, self.held = self.held, deque()
         for item in held:  # messages that arrived before their episode_start
@@ -273,12 +277,17 @@ class Recorder:
                 return
             s.seen.add(key)
         s.journal.write(topic, stamp, raw, recv_ns)
+        if stamp - s.flushed_stamp_ns >= self.flush_sim_ns and s.meta_json is not None:
+            s.journal.flush()
+            s.flushed_stamp_ns = stamp
         s.counts[topic] = s.counts.get(topic, 0) + 1
         if stamp > s.topic_max.get(topic, -1):
             s.topic_max[topic] = stamp
 
     def _complete(self, s: Session) -> bool:
-        return all(s.topic_done(t) for t in self.topics)
+        """Every episode topic reached the last stamp (extra --topics may run at other rates)."""
+        tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
+        return all(s.topic_done(t) for t in tick_topics)
 
     def _finish(self, s: Session, how: str) -> BagResult | None:
         """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""

@@ -7,12 +7,15 @@
 """
 from __future__ import annotations
 
+import collections
 import importlib
+import math
 import signal
 import sys
 from collections.abc import Callable
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -50,6 +53,23 @@ def message_class(msgtype: str):
         raise ValueError(f"message type {msgtype!r} is not installed (no Python module {pkg}.msg.{name})") from None
 
 
+class WarnLimiter:
+    """Warn on the 1st, 10th, 100th ... occurrence of each kind of problem.
+
+    A node that keeps running on bad input must not flood its log at 60 Hz, yet every
+    kind of problem is reported at least once, with its running count."""
+
+    def __init__(self, logger) -> None:
+        self.logger = logger
+        self.counts: collections.Counter = collections.Counter()
+
+    def __call__(self, kind: str, text: str) -> None:
+        self.counts[kind] += 1
+        n = self.counts[kind]
+        if n == 1 or math.log10(n).is_integer():
+            self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
+
+
 def _raise_interrupt(signum, frame):  # noqa: ARG001
     raise KeyboardInterrupt
 
@@ -78,7 +98,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as err:
+    except (ValueError, ParameterException) as err:  # a bad parameter value or type
         if node is not None:
             raise
         rclpy.logging.get_logger("spin_node").error(f"cannot start: {err}")

@@ -29,16 +29,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from soil_msgs_py import graph as G
-from soil_msgs_py import topics as T
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
 EXIT_BAD_ARGS = 2
 
-# What each node subscribes to / publishes, for the simulator's 'wait_for' (topic -> count).
-CONTROLLER_ENDPOINTS = {T.CHASSIS_TWIST.name: 1, T.CHASSIS_POSE.name: 1, G.SIM_STATUS_TOPIC: 1,
-                        T.CMD_VEL.name: 1, T.BLADE_CMD.name: 1}
-RECORDER_ENDPOINTS = {**{name: 1 for name in G.SIM_STATE_TOPICS}, G.SIM_STATUS_TOPIC: 1}
+# The simulator's side of each node's endpoints, for its 'wait_for' (topic -> count): the
+# topics it publishes that the node reads, and the command topics the node publishes. (The
+# recorder's command subscriptions match the controller, not the simulator: 'settle_s'.)
+CONTROLLER_ENDPOINTS = {name: 1 for name in G.CONTROLLER_INPUTS + G.COMMAND_TOPICS}
+RECORDER_ENDPOINTS = {name: 1 for name in G.RECORDER_INPUTS if name not in G.COMMAND_TOPICS}
 
 
 def executable(name: str) -> str:
@@ -77,9 +77,14 @@ class NodeProcess:
 
 
 def _pump(prefix: str, stream, out) -> None:
+    """Copy a child's output line by line with its name; never dies on a closed terminal
+    (a dead pump would leave the child blocked on a full pipe)."""
     for line in iter(stream.readline, ""):
-        out.write(f"[{prefix}] {line}" if line.endswith("\n") else f"[{prefix}] {line}\n")
-        out.flush()
+        try:
+            out.write(f"[{prefix}] {line}" if line.endswith("\n") else f"[{prefix}] {line}\n")
+            out.flush()
+        except (OSError, ValueError):
+            pass
     stream.close()
 
 
@@ -103,7 +108,7 @@ class Launch:
     def start(self) -> None:
         for node in self.nodes:
             node.proc = subprocess.Popen(
-                node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
                 start_new_session=True,  # the terminal's Ctrl-C reaches us only; we forward it
             )
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
@@ -213,8 +218,10 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     sim = [executable("soil_sim_node"), "--ros-args"]
     if args.sim_params_file:
         sim += ["--params-file", str(args.sim_params_file)]
-    sim += ["-p", f"pacing:={args.pacing}", "-p", f"rate:={float(args.rate)}",
-            "-p", f"exit_when_done:={'false' if args.keep_running else 'true'}"]
+    # Only what was given on the command line overrides the params file (later -p wins).
+    sim += [a for name in ("pacing", "rate") if getattr(args, name) is not None
+            for a in ("-p", f"{name}:={getattr(args, name)}")]
+    sim += ["-p", f"exit_when_done:={'false' if args.keep_running else 'true'}"]
     if wait:
         sim += ["-p", "wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]"]
     sim += _params(args.sim_param)
@@ -225,8 +232,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_launch", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--pacing", choices=("realtime", "lockstep"), default="realtime")
-    p.add_argument("--rate", type=float, default=1.0, help="real-time factor (pacing realtime)")
+    p.add_argument("--pacing", choices=("realtime", "lockstep"),
+                   help="simulator pacing (default: the params file's, else realtime)")
+    p.add_argument("--rate", type=float, help="real-time factor for pacing realtime (default: params file's, else 1)")
     p.add_argument("--record", type=Path, help="record every episode as a bag under this directory")
     p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
                    help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
@@ -243,7 +251,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if not 0 <= args.domain_id <= 232:
         p.error(f"--domain-id {args.domain_id} outside [0, 232]")
-    if not args.rate > 0:
+    if args.rate is not None and not args.rate > 0:
         p.error(f"--rate {args.rate} must be > 0")
     return args
 

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
 from soil_msgs_py.params import MACHINE
 
 from .simulator import MAX_TARGET_SPEED_M_S, EpisodeSpec
@@ -22,9 +24,8 @@ COMMAND_LIMITS: dict[str, tuple[float, float]] = {
     "u_x": (-MAX_TARGET_SPEED_M_S, MAX_TARGET_SPEED_M_S),
 }
 COMMAND_TOPIC_FIELDS: dict[str, tuple[str, ...]] = {
-    "/chassis/cmd_vel": ("u_x",),
-    "/blade/cmd": ("u_zr", "u_za"),
-}
+    topic: tuple(name for _, name in M.FIELDS[topic].columns) for topic in G.COMMAND_TOPICS
+}  # {"/chassis/cmd_vel": ("u_x",), "/blade/cmd": ("u_zr", "u_za")}
 # Before the controller has said anything: blade on the chassis reference, machine at rest.
 INITIAL_COMMAND = {"u_zr": 0.0, "u_za": 0.0, "u_x": 0.0}
 

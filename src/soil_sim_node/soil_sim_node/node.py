@@ -35,7 +35,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import SAMPLE_RATE_HZ
-from soil_msgs_py.ros_adapter import message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
 
 from .effects import effects_for_mode
 from .live import CommandGate, TickTiming, episode_plan
@@ -69,6 +69,7 @@ PARAMETERS: dict[str, tuple] = {
                      "subscriptions; command topics: matched publishers)", _STR_ARRAY),
     "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway (0: wait forever)"),
     "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too"),
+    "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within this"),
     "plugins": ([], "extra force terms 'package.module:function' (simulator effect plugins)", _STR_ARRAY),
     "effects_off": ([], "default-world effects to switch off by name", _STR_ARRAY),
 }
@@ -90,8 +91,12 @@ class SimNode(Node):
         self.rate = float(p["rate"])
         self.exit_when_done = bool(p["exit_when_done"])
         self.wait_for = self._parse_wait_for(p["wait_for"])
+        if self.pacing == "lockstep" and not self.wait_for:
+            # Lockstep cannot run without a controller: wait for one unless told otherwise.
+            self.wait_for = [(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
         self.wait_timeout_s = float(p["wait_timeout_s"])
         self.settle_s = float(p["settle_s"])
+        self.lockstep_timeout_s = float(p["lockstep_timeout_s"])
         effects = effects_for_mode(p["world_mode"])
         if p["effects_off"]:
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
@@ -126,7 +131,8 @@ class SimNode(Node):
         self.wait_started: float | None = None
         self.matched_at: float | None = None
         self.shutdown_requested = False
-        self._warn_counts: collections.Counter = collections.Counter()
+        self._warn = WarnLimiter(self.get_logger())
+        self._timeout_logged = False
 
         self.timer = self.create_timer(self._period(), self._on_timer)
         # Real time: a tick whose commands are not in yet when the timer fires waits up to
@@ -149,10 +155,13 @@ class SimNode(Node):
         except ParameterUninitializedException:
             return []
 
+    def _realtime_period(self) -> float:
+        return 1.0 / (SAMPLE_RATE_HZ * self.rate)
+
     def _period(self) -> float:
         if self.pacing == "lockstep" or self.sim is None:
             return 0.01  # idle/lockstep housekeeping: start checks and the stall watchdog
-        return 1.0 / (SAMPLE_RATE_HZ * self.rate)
+        return self._realtime_period()
 
     @staticmethod
     def _validate_static(p: dict) -> None:
@@ -163,8 +172,8 @@ class SimNode(Node):
         effects_for_mode(p["world_mode"])
         if int(p["episodes"]) < 0:
             raise ValueError(f"parameter episodes={p['episodes']} must be >= 0")
-        for name in ("wait_timeout_s", "settle_s"):
-            if float(p[name]) < 0:
+        for name in ("wait_timeout_s", "settle_s", "lockstep_timeout_s"):
+            if name in p and float(p[name]) < 0:
                 raise ValueError(f"parameter {name}={p[name]} must be >= 0")
 
     def _parse_wait_for(self, entries) -> list[tuple[str, int]]:
@@ -201,16 +210,18 @@ class SimNode(Node):
             spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS}
             if spec_fields:
                 self._spec_from_params(spec_fields)
-            if "rate" in changes:
-                self._validate_static({"pacing": self.pacing, "rate": changes["rate"],
-                                       "world_mode": self.config.world_mode, "episodes": 0,
-                                       "wait_timeout_s": 0, "settle_s": 0})
+            self._validate_static({"pacing": self.pacing, "rate": changes.get("rate", self.rate),
+                                   "world_mode": self.config.world_mode, "episodes": 0,
+                                   **{k: v for k, v in changes.items()
+                                      if k in ("wait_timeout_s", "settle_s", "lockstep_timeout_s")}})
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         if "rate" in changes:
             self.rate = float(changes["rate"])
+            if self.timing is not None and self.pacing == "realtime":
+                self.timing.nominal_period_s = self._realtime_period()  # jitter from here on is against the new rate
             self._reset_timer()
-        for name in ("exit_when_done", "wait_timeout_s", "settle_s"):
+        for name in ("exit_when_done", "wait_timeout_s", "settle_s", "lockstep_timeout_s"):
             if name in changes:
                 setattr(self, name, type(getattr(self, name))(changes[name]))
         return SetParametersResult(successful=True)
@@ -227,12 +238,6 @@ class SimNode(Node):
             self._due = False
 
     # ------------------------------------------------------------------ logging
-    def _warn(self, key: str, text: str) -> None:
-        """Warn on the 1st, 10th, 100th ... occurrence of a kind of problem (never floods the log)."""
-        self._warn_counts[key] += 1
-        n = self._warn_counts[key]
-        if n == 1 or np.log10(n).is_integer():
-            self.get_logger().warning(text + (f" ({n} so far)" if n > 1 else ""))
 
     # ------------------------------------------------------------------ episode control
     def _on_sim_command(self, msg: String) -> None:
@@ -249,6 +254,8 @@ class SimNode(Node):
             elif cmd.action == G.ACTION_SHUTDOWN:
                 self.queue.clear()
                 self.shutdown_requested = True
+                if self.sim is not None:
+                    self._end_episode("shutdown")
         except (ValueError, TypeError) as err:  # rare and deliberate: always logged
             where = "" if str(err).startswith(G.SIM_COMMAND_TOPIC) else f"{G.SIM_COMMAND_TOPIC}: "
             self.get_logger().warning(f"{where}{err}; ignored")
@@ -273,15 +280,17 @@ class SimNode(Node):
             self.wait_started = now
         ready, missing = self._endpoints_ready()
         if not ready:
-            if self.wait_timeout_s and now - self.wait_started > self.wait_timeout_s:
-                self.get_logger().warning(f"starting without {missing} after {self.wait_timeout_s} s")
-            else:
+            if not (self.wait_timeout_s and now - self.wait_started > self.wait_timeout_s):
                 return
+            if not self._timeout_logged:
+                self._timeout_logged = True
+                self.get_logger().warning(f"starting without {missing} after {self.wait_timeout_s} s")
         if self.matched_at is None:
             self.matched_at = now
         if now - self.matched_at < self.settle_s:
             return
         self.wait_started = self.matched_at = None
+        self._timeout_logged = False
         self._start_episode(self.queue.popleft())
 
     def _start_episode(self, spec: EpisodeSpec) -> None:
@@ -292,7 +301,7 @@ class SimNode(Node):
         self.tick = 0
         self.planned_ticks = int(round(spec.duration_s * SAMPLE_RATE_HZ))
         self.first_stamp_ns = self.next_first_stamp_ns
-        self.timing = TickTiming(1.0 / (SAMPLE_RATE_HZ * self.rate) if self.pacing == "realtime" else 0.0)
+        self.timing = TickTiming(self._realtime_period() if self.pacing == "realtime" else 0.0)
         self.gate = CommandGate()
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks)
@@ -313,6 +322,8 @@ class SimNode(Node):
                                self.first_stamp_ns, planned_ticks=self.planned_ticks, last_stamp_ns=last,
                                ticks=self.tick + 1, reason=reason, stats=stats)
         self.status_pub.publish(String(data=event.to_json()))
+        if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
+            self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
         self.get_logger().info(f"episode {self.episode_index} end ({reason}): {self.tick + 1} ticks; timing {stats}")
         self.next_first_stamp_ns = last + int(round(NS_PER_TICK_EXACT))
         self.sim = None
@@ -379,9 +390,16 @@ class SimNode(Node):
             elif not self._due:
                 self._due = True
                 self.grace_timer.reset()
-        elif self.timing.publish_times and time.perf_counter() - self.timing.publish_times[-1] > 5.0:
-            self._warn("lockstep_stall", f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after 5 s "
-                                         f"(have {sorted(self.gate.arrived)}); is the controller running?")
+        elif self.timing.publish_times:
+            waited = time.perf_counter() - self.timing.publish_times[-1]
+            if waited > self.lockstep_timeout_s:
+                self.get_logger().error(
+                    f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after {self.lockstep_timeout_s} s "
+                    f"(have {sorted(self.gate.arrived)}); ending the episode")
+                self._end_episode("error")
+            elif waited > 1.0:
+                self._warn("lockstep_stall", f"lockstep: waiting for the commands for stamp {self.gate.stamp_ns} ns "
+                                             f"(have {sorted(self.gate.arrived)}); is the controller running?")
 
     def _on_grace(self) -> None:
         self.grace_timer.cancel()
