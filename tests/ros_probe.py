@@ -23,6 +23,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from soil_msgs_py.ros_adapter import message_class, topic_qos
+from soil_sim_node.launch import loopback_env  # noqa: F401 - re-exported for the tests
 
 BIN = Path(sys.executable).parent
 # Domain ids 141..230 for these tests (test_bag_tools uses 100..140); one per probe/test.
@@ -31,13 +32,6 @@ _IDS = itertools.count(141 + (os.getpid() % 30))
 
 def next_domain_id() -> int:
     return 141 + (next(_IDS) - 141) % 90
-
-
-def loopback_env(domain_id: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
-    return env
 
 
 def wait_until(predicate, timeout: float, what: str, poll: float = 0.05):

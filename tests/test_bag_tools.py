@@ -23,6 +23,7 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
+from soil_sim_node.launch import loopback_env
 from soil_msgs_py import bag_io, graph, journal, playback, recorder
 from soil_msgs_py.topics import EPISODE_TOPICS
 
@@ -216,10 +217,7 @@ def test_with_clock_replaces_bag_clock():
 # --- processes on the loopback DDS ---------------------------------------------------------
 
 def ros_env(domain: int) -> dict[str, str]:
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
-               PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
+    return loopback_env(domain)
 
 
 def start(tool: str, *args, domain: int) -> subprocess.Popen:
@@ -425,7 +423,7 @@ def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
         assert reader.message_count % 10 == 0 and reader.message_count > 0
     got = bag_io.read_episode(bag)  # trimmed to whole ticks
     assert_same_episode(got, want, len(got))
-    assert len(got) >= seen - 6, (len(got), seen)
+    assert len(got) >= seen - 30, (len(got), seen)  # the recorder may be a few ticks behind the listener
     assert "finished (stopped)" in log
 
     assert rec_kill.returncode == -signal.SIGKILL
