@@ -237,8 +237,6 @@ class SimNode(Node):
             self.grace_timer.cancel()
             self._due = False
 
-    # ------------------------------------------------------------------ logging
-
     # ------------------------------------------------------------------ episode control
     def _on_sim_command(self, msg: String) -> None:
         try:
