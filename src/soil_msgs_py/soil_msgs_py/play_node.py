@@ -15,7 +15,6 @@ Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 
@@ -23,7 +22,6 @@ import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from .graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
@@ -31,7 +29,7 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
     string_cdr, with_clock,
 )
-from .ros_adapter import message_class, topic_qos
+from .ros_adapter import init_rclpy, message_class, raise_interrupt, topic_qos
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -171,10 +169,6 @@ class Player:
             self.log.debug(f"not acknowledged within {DRAIN_S} s: {unacked}")
 
 
-def _interrupt(signum, frame):  # noqa: ARG001
-    raise KeyboardInterrupt
-
-
 def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     opts = parse_args(remove_ros_args(argv)[1:])
@@ -185,9 +179,7 @@ def main(args: list[str] | None = None) -> int:
         return 2
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    init_rclpy(argv, raise_interrupt)
     node = Node("soil_bag_play")
     code = 0
     player = None

@@ -13,22 +13,18 @@ whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from std_msgs.msg import String
 
 from . import messages as M
 from .graph import CONTROL_QOS, DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS
 from .recorder import Recorder, rosbags_qos
-from .ros_adapter import message_class, qos_profile
+from .ros_adapter import message_class, qos_profile, spin_node
 from .topics import EPISODE_TOPICS, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
@@ -119,25 +115,7 @@ class RecordNode(Node):
 def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     opts = parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, frame: stop.append(signum))
-    node = None
-    try:
-        node = RecordNode(opts)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not stop:
-            executor.spin_once(timeout_sec=0.1)
-    except ExternalShutdownException:
-        pass
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(lambda: RecordNode(opts), argv)
 
 
 if __name__ == "__main__":

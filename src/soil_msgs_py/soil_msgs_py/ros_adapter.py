@@ -70,8 +70,20 @@ class WarnLimiter:
             self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
 
 
-def _raise_interrupt(signum, frame):  # noqa: ARG001
+def raise_interrupt(signum, frame):  # noqa: ARG001
+    """Signal handler for blocking loops (the player): SIGINT/SIGTERM -> KeyboardInterrupt."""
     raise KeyboardInterrupt
+
+
+def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
+    """``rclpy.init`` without rclpy's signal handlers; SIGINT and SIGTERM call ``on_signal``.
+
+    Why: rclpy's handlers shut the context down at once, after which a node can no longer
+    publish its last ``/sim/status`` event or finish a bag on the way out.
+    """
+    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
 
 
 EXIT_BAD_CONFIG = 2
@@ -80,23 +92,24 @@ EXIT_BAD_CONFIG = 2
 def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Run one node until Ctrl-C, SIGTERM, ``rclpy.shutdown`` or ``node.finished``.
 
-    SIGINT and SIGTERM both become KeyboardInterrupt (rclpy's own handlers are off), so the
-    context is still valid in ``node.close()``: a node can publish its last status or finish
-    a bag on the way out. A factory that raises ValueError (a bad parameter) logs the
-    message and exits with code 2. Otherwise the exit code is ``node.exit_code`` (default 0).
+    SIGINT and SIGTERM only set a flag that the spin loop checks (within 0.1 s), so a signal
+    never lands in the middle of a callback (a journal write, a publish) and the context is
+    still valid in ``node.close()``: a node can publish its last status or finish a bag on
+    the way out. A factory that raises ValueError or a ParameterException (a bad parameter)
+    logs the message and exits with code 2. Otherwise the exit code is ``node.exit_code``
+    (default 0).
     """
-    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _raise_interrupt)
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    stop: list[int] = []
+    init_rclpy(args, lambda signum, frame: stop.append(signum))
     node = None
     code = 0
     try:
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok() and not getattr(node, "finished", False):
+        while rclpy.ok() and not stop and not getattr(node, "finished", False):
             executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     except (ValueError, ParameterException) as err:  # a bad parameter value or type
         if node is not None:
@@ -107,10 +120,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
         if node is not None:
             close = getattr(node, "close", None)
             if close is not None:
-                try:
-                    close()
-                except KeyboardInterrupt:
-                    pass
+                close()
             node.destroy_node()
         rclpy.try_shutdown()
     return code or int(getattr(node, "exit_code", 0) or 0)
