@@ -110,7 +110,8 @@ def test_launcher_tells_the_simulator_whom_to_wait_for(tmp_path):
 
 
 @pytest.mark.parametrize("pkg, node_module", [("soil_sim_node", "soil_sim_node.node"),
-                                               ("anti_stall_controller", "anti_stall_controller.node")])
+                                               ("anti_stall_controller", "anti_stall_controller.node"),
+                                               ("pinn_estimator", "pinn_estimator.node")])
 def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_module):
     """config/<node>.yaml is the documented default set: same names, same values as the node."""
     import importlib

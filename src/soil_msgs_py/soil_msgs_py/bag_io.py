@@ -174,3 +174,22 @@ def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Epi
 
         bags = tqdm(bags, desc="reading bags", unit="bag")
     return [read_episode(b) for b in bags]
+
+
+def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps int64 (n,), values float64 (n, len(labels))) of a labelled-array topic in a bag,
+    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode).
+
+    ValueError if the bag lacks the topic or a message has another layout."""
+    path = Path(bag_dir)
+    stamps, rows = [], []
+    with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            raise ValueError(f"bag {path} has no topic {topic}")
+        for conn, _, raw in reader.messages(connections=conns):
+            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
+            stamps.append(stamp)
+            rows.append(values)
+    values = np.stack(rows) if rows else np.empty((0, len(labels)))
+    return np.asarray(stamps, dtype=np.int64), values

@@ -68,7 +68,7 @@ RECORDER_QOS = QosSpec("reliable", "volatile", 2000)
 # Episode control/status: rare, must not be lost.
 CONTROL_QOS = QosSpec("reliable", "volatile", 50)
 
-TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.EPISODE_TOPICS}
+TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.GRAPH_TOPICS_BY_NAME.values()}
 TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
 
@@ -84,6 +84,13 @@ assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE
 CONTROLLER_STATE_TOPICS: tuple[str, ...] = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
 CONTROLLER_INPUTS: tuple[str, ...] = CONTROLLER_STATE_TOPICS + (SIM_STATUS_TOPIC,)
 RECORDER_INPUTS: tuple[str, ...] = SIM_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
+# The online estimator reads the state, Θ_k and commands of each tick (and the status, to
+# reset its window) and publishes its estimate; a recorder started with it records both.
+ESTIMATOR_STATE_TOPICS: tuple[str, ...] = (
+    T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name, T.CHASSIS_TWIST.name, T.KNOWN.name,
+)
+ESTIMATOR_INPUTS: tuple[str, ...] = ESTIMATOR_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
+ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name)
 
 
 def _json_object(text: str, what: str) -> dict[str, Any]:

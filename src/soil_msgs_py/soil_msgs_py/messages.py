@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from operator import attrgetter
@@ -135,6 +136,20 @@ def parse_labelled(msg: Any, expected_labels: Sequence[str], topic: str = "") ->
     if not (ok and sec == int(sec) and nanosec == int(nanosec) and 0 <= nanosec < NS_PER_S):
         raise ValueError(f"{where}invalid stamp sec={sec!r} nanosec={nanosec!r}")
     return int(sec) * NS_PER_S + int(nanosec), data[2:].copy()
+
+
+def labelled_stamp(msg: Any) -> int | None:
+    """Stamp [ns] of any labelled array (its label starts with the stamp fields), else None.
+
+    For topics outside ``FIELDS`` (``/soil/estimate``, the planner's output): a recorder can
+    file them by simulation time without knowing their payload."""
+    dims = getattr(getattr(msg, "layout", None), "dim", None)
+    if not dims or not dims[0].label.startswith(_label(()) + LABEL_SEP) or len(msg.data) < 2:
+        return None
+    sec, nanosec = float(msg.data[0]), float(msg.data[1])
+    if not (math.isfinite(sec) and math.isfinite(nanosec) and sec == int(sec) and nanosec == int(nanosec) and 0 <= nanosec < NS_PER_S):
+        return None
+    return int(sec) * NS_PER_S + int(nanosec)
 
 
 # --- per-topic mapping ---------------------------------------------------------------

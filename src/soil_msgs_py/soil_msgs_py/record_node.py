@@ -25,7 +25,7 @@ from . import messages as M
 from .graph import CONTROL_QOS, DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS
 from .recorder import Recorder, rosbags_qos
 from .ros_adapter import message_class, qos_profile, spin_node
-from .topics import EPISODE_TOPICS, TOPICS_BY_NAME
+from .topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
 
@@ -62,7 +62,7 @@ class RecordNode(Node):
         wanted = list(dict.fromkeys(opts.topics))
         if opts.all_episode_topics or not wanted:
             wanted = [t.name for t in EPISODE_TOPICS] + [t for t in wanted if t not in TOPICS_BY_NAME]
-        known = {t: TOPICS_BY_NAME[t].msgtype for t in wanted if t in TOPICS_BY_NAME}
+        known = {t: GRAPH_TOPICS_BY_NAME[t].msgtype for t in wanted if t in GRAPH_TOPICS_BY_NAME}
         self._pending = [t for t in wanted if t not in known]
         self.recorder = Recorder(
             opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,

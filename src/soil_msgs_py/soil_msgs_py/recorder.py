@@ -39,6 +39,7 @@ from .journal import (
 )
 
 _MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
+EXTRA_TOPIC_GRACE_S = 0.3  # wait for non-episode topics once the episode topics are complete
 _WARN_LIMIT = 5  # per session and kind; the rest are only counted
 
 
@@ -62,6 +63,8 @@ def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | Non
         f = M.FIELDS.get(topic)
         if f is not None and f.topic.msgtype == msgtype:
             return M.parse_message(topic, msg)[0]
+        if (stamp := M.labelled_stamp(msg)) is not None:
+            return stamp
         for path in ("header.stamp", "clock", "stamp"):
             obj = msg
             for part in path.split("."):
@@ -84,6 +87,7 @@ class Session:
     first_stamp_ns: int = 0
     last_stamp_ns: int | None = None  # set by episode_end; None while running
     closing_since: float | None = None
+    ticks_done_since: float | None = None  # when every episode topic reached the last stamp
     end_event: EpisodeEvent | None = None
     counts: dict[str, int] = field(default_factory=dict)
     topic_max: dict[str, int] = field(default_factory=dict)
@@ -285,9 +289,18 @@ class Recorder:
             s.topic_max[topic] = stamp
 
     def _complete(self, s: Session) -> bool:
-        """Every episode topic reached the last stamp (extra --topics may run at other rates)."""
+        """Every episode topic reached the last stamp, and so did every extra ``--topics`` one or
+        ``EXTRA_TOPIC_GRACE_S`` passed since (extras such as /soil/estimate follow the ticks but
+        may run at other rates or skip the last stamp)."""
         tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
-        return all(s.topic_done(t) for t in tick_topics)
+        if not all(s.topic_done(t) for t in tick_topics):
+            return False
+        if all(s.topic_done(t) for t in self.topics):
+            return True
+        now = self.clock()
+        if s.ticks_done_since is None:
+            s.ticks_done_since = now
+        return now - s.ticks_done_since >= EXTRA_TOPIC_GRACE_S
 
     def _finish(self, s: Session, how: str) -> BagResult | None:
         """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""

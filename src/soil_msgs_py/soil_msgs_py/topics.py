@@ -69,3 +69,35 @@ EPISODE_TOPICS: tuple[Topic, ...] = (
     KNOWN, GROUND_TRUTH, CMD_VEL, BLADE_CMD,
 )
 TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in EPISODE_TOPICS}
+
+# --- what the online estimator publishes (not episode data: a recorder adds them on request) ---
+# /soil/estimate payload after the stamp: Θ̂_u (SI: rad, Pa, rad, rad, m), the forces [N] of
+# paper §2.2.2 (F̂ = F_FEE + F_r) and the validity flag (1.0: a fresh estimate from a full
+# window of consecutive samples; 0.0: no estimate, every other field is 0.0, never NaN).
+# window_samples = consecutive samples in the window (0..60): why an estimate is not valid yet.
+ESTIMATE_FIELDS: tuple[str, ...] = (
+    "phi", "c", "delta", "beta", "delta_d",
+    "f_x_hat", "f_z_hat", "f_x_fee", "f_z_fee", "f_x_r", "f_z_r",
+    "valid", "window_samples",
+)
+ESTIMATE = Topic(
+    "/soil/estimate", "std_msgs/msg/Float64MultiArray",
+    "PINN estimate from the window ending at the stamped sample: φ [rad], c [Pa], δ [rad], "
+    "β [rad], Δd [m], F̂ = F_FEE + F_r [N] (x, z each), validity flag, window fill",
+    ESTIMATE_FIELDS,
+)
+ESTIMATED_FORCE = Topic(
+    "/soil/estimate/force", "geometry_msgs/msg/WrenchStamped",
+    "predicted cutting force F̂ (valid estimates only): force.x, force.z [N], stamp = newest sample used",
+)
+# What the planner example publishes (pinn_estimator.planner_node).
+PLAN_FIELDS: tuple[str, ...] = ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid")
+PLAN = Topic(
+    "/planner/max_cut_depth", "std_msgs/msg/Float64MultiArray",
+    "deepest cut within the force limits from the latest valid estimate: depth [m], FEE force there [N], "
+    "which limit binds (1/0), validity flag",
+    PLAN_FIELDS,
+)
+
+# Every topic this project defines, episode data or not (e.g. what a recorder can type without discovery).
+GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, PLAN)}

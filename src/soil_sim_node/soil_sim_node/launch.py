@@ -1,11 +1,11 @@
-"""`soil_launch`: start the graph (sim + controller [+ recorder]) as separate processes.
+"""`soil_launch`: start the graph (sim + controller [+ estimator] [+ recorder]) as separate processes.
 
 There is no ``ros2 launch`` on these machines, so this is ours. It
 
 * starts every node as its own process (its console script, ``--ros-args`` as usual) with
   loopback-only DDS (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on one ROS_DOMAIN_ID;
-* tells the simulator which endpoints to wait for (the controller's, the recorder's) so no
-  tick is published before its consumers have matched;
+* tells the simulator which endpoints to wait for (the controller's, the estimator's, the
+  recorder's) so no tick is published before its consumers have matched;
 * prefixes each process's output with its name, like ``ros2 launch``;
 * forwards Ctrl-C / SIGTERM, stops the nodes in data-flow order (simulator first, recorder
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
@@ -13,6 +13,7 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
   non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit.
 
     soil_launch --pacing lockstep --record bags/run1 --sim-param soil:=Clay
+    soil_launch --estimator --record bags/run2 --estimator-param checkpoint:=my_model.pt
     soil_launch --rate 2 --sim-param episodes:=3 --sim-params-file my_sim.yaml
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ EXIT_BAD_ARGS = 2
 # recorder's command subscriptions match the controller, not the simulator: 'settle_s'.)
 CONTROLLER_ENDPOINTS = {name: 1 for name in G.CONTROLLER_INPUTS + G.COMMAND_TOPICS}
 RECORDER_ENDPOINTS = {name: 1 for name in G.RECORDER_INPUTS if name not in G.COMMAND_TOPICS}
+ESTIMATOR_ENDPOINTS = {name: 1 for name in G.ESTIMATOR_INPUTS if name not in G.COMMAND_TOPICS}
 
 
 def executable(name: str) -> str:
@@ -204,9 +206,18 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     wait: dict[str, int] = {}
     nodes: list[NodeProcess] = []
     if args.record:
+        # With the estimator, its outputs go into the episode bags too (compare live vs replay).
+        extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
-                                              *args.recorder_arg], stop_order=2))
+                                              *extra, *args.recorder_arg], stop_order=3))
         for topic, n in RECORDER_ENDPOINTS.items():
+            wait[topic] = wait.get(topic, 0) + n
+    if args.estimator:
+        est = [executable("pinn_estimator"), "--ros-args"]
+        if args.estimator_params_file:
+            est += ["--params-file", str(args.estimator_params_file)]
+        nodes.append(NodeProcess("estimator", est + _params(args.estimator_param), stop_order=2))
+        for topic, n in ESTIMATOR_ENDPOINTS.items():
             wait[topic] = wait.get(topic, 0) + n
     if not args.no_controller:
         ctl = [executable("anti_stall_controller"), "--ros-args"]
@@ -242,6 +253,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE")
     p.add_argument("--controller-params-file", type=Path, help="YAML parameters for anti_stall_controller")
     p.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--estimator", action="store_true", help="also run the online PINN estimator (pinn_estimator)")
+    p.add_argument("--estimator-params-file", type=Path, help="YAML parameters for pinn_estimator")
+    p.add_argument("--estimator-param", action="append", default=[], metavar="NAME:=VALUE")
     p.add_argument("--recorder-arg", action="append", default=[], help="extra argument for soil_bag_record")
     p.add_argument("--no-controller", action="store_true", help="do not start the controller")
     p.add_argument("--keep-running", action="store_true",

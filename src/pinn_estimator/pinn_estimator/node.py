@@ -1,0 +1,135 @@
+"""`pinn_estimator`: the online estimator as a ROS 2 node (thin adapter over ``online.py``).
+
+Subscribes to the state, command and Θ_k topics (``online.INPUT_TOPICS``) and to
+``/sim/status``; publishes ``/soil/estimate`` (labelled Float64MultiArray, fields
+``topics.ESTIMATE_FIELDS``) and ``/soil/estimate/force`` (WrenchStamped, valid estimates only),
+each stamped with the newest sample of the window. Each ``episode_start`` empties the window.
+
+Parameters (also in ``config/pinn_estimator.yaml``) are validated; ``checkpoint`` and
+``stride`` can be changed at run time (``ros2 param set``): a checkpoint that does not load
+is refused with the reason and the running model stays.
+"""
+from __future__ import annotations
+
+import torch
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, qos_profile, spin_node, topic_qos
+
+from .checkpoint import DEFAULT_CHECKPOINT, load_model
+from .online import INPUT_TOPICS, Estimate, OnlineEstimator
+
+PARAMETERS: dict[str, tuple] = {
+    "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
+    "stride": (1, "estimate every n-th tick once the window is full (1: every tick, 60 Hz)"),
+    "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
+    "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
+}
+
+
+def load_estimator_model(path: str):
+    """(model, checkpoint dict, resolved path); ValueError with the reason if it cannot be used."""
+    resolved = str(path) if path else str(DEFAULT_CHECKPOINT)
+    try:
+        model, ckpt = load_model(resolved)
+    except FileNotFoundError as err:
+        raise ValueError(f"parameter checkpoint: {err}") from None
+    except ValueError as err:
+        raise ValueError(f"parameter checkpoint refused: {err}") from None
+    if model.cfg.kind != "pinn":
+        raise ValueError(f"parameter checkpoint refused: {resolved} is a {model.cfg.kind!r} model; "
+                         "the estimator needs a 'pinn' checkpoint (it estimates soil parameters)")
+    return model, ckpt, resolved
+
+
+class EstimatorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("pinn_estimator")
+        for name, (default, description) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        threads = get("threads")
+        if not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"parameter threads={threads!r} must be an integer >= 1")
+        torch.set_num_threads(threads)
+        model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
+        self._warn = WarnLimiter(self.get_logger())
+        self.core = OnlineEstimator(model, self._publish, stride=get("stride"),
+                                    reorder_ticks=get("reorder_ticks"), warn=self._warn)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.classes = M.ros_message_classes()
+        self.estimate_pub = self.create_publisher(
+            message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, topic_qos(T.ESTIMATE.name))
+        self.force_pub = self.create_publisher(
+            message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, topic_qos(T.ESTIMATED_FORCE.name))
+        # /sim/status first: the executor serves ready subscriptions in creation order, so an
+        # episode_start that arrived with tick 0 empties the window before tick 0 is added.
+        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        # Deep input queues (like a recorder's): a model step that runs late must not make DDS
+        # drop a sample, which would cost a whole window.
+        deep = qos_profile(G.RECORDER_QOS)
+        for name in INPUT_TOPICS:
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                     lambda msg, n=name: self.core.add(n, msg), deep)
+        self.get_logger().info(
+            f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
+            f"stride {self.core.stride}, {threads} thread(s); publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}")
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params}
+        try:
+            model = load_estimator_model(changes["checkpoint"]) if "checkpoint" in changes else None
+            if "stride" in changes:
+                OnlineEstimator._check_stride(changes["stride"])
+            if "reorder_ticks" in changes or "threads" in changes:
+                raise ValueError("reorder_ticks and threads are fixed at start; restart the node to change them")
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        if model is not None:
+            self.core.set_model(model[0])
+            self.checkpoint_path = model[2]
+            self.get_logger().info(f"model now {self.checkpoint_path}")
+        if "stride" in changes:
+            self.core.set_stride(changes["stride"])
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_status(self, msg: String) -> None:
+        try:
+            event = G.EpisodeEvent.from_json(msg.data)
+        except ValueError as err:
+            self._warn("status", f"{G.SIM_STATUS_TOPIC}: {err}; ignored")
+            return
+        if event.event == G.EVENT_EPISODE_START:
+            self.core.start_episode(event.first_stamp_ns)
+            self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
+        elif event.last_stamp_ns >= 0:
+            self.core.end_episode(event.last_stamp_ns)
+
+    def _publish(self, est: Estimate) -> None:
+        self.estimate_pub.publish(M.make_labelled(self.classes, est.stamp_ns, T.ESTIMATE_FIELDS, est.values))
+        if est.valid:
+            self.force_pub.publish(M.build_message(self.classes, T.BLADE_FORCE.name, est.stamp_ns,
+                                                   [est["f_x_hat"], est["f_z_hat"]]))
+
+    def close(self) -> None:
+        c = self.core.counters
+        self.get_logger().info(
+            f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
+            f"{c.out_of_order} out of order, {c.non_finite} non-finite, {c.malformed} malformed, "
+            f"{c.restarts} restarts")
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_node(EstimatorNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,378 @@
+"""Online estimation core (no rclpy): per-topic messages -> samples -> 60-sample window -> estimate.
+
+The node (``node.py``) hands every message it receives to ``SampleAssembler.add`` and every
+``episode_start`` to ``OnlineEstimator.reset``; whatever comes out is published. Kept free
+of ROS so the same code is unit-tested directly and used by the replay comparison.
+
+Synchronisation by stamp
+    One sample (paper §2.1.2: o_t and Θ_k at t) needs a message of every input topic with
+    the same stamp: the simulator's state and Θ_k for tick t, and the controller's commands
+    answering tick t (stamped t). Messages of different topics arrive in no fixed order, so
+    samples are assembled per stamp and *released in stamp order*: the oldest pending
+    sample is released as soon as it is complete. If it is still incomplete while a sample
+    ``reorder_ticks`` ticks newer is already complete, it is declared missing.
+
+Validity (never estimate across a gap, never publish NaN)
+    The window is the last ``WINDOW_SAMPLES`` released samples *if they are consecutive
+    ticks*. A missing tick, a message older than the last released sample (out of order), a
+    non-finite field or a message that does not parse resets the window: the next estimate
+    comes only after 60 new consecutive samples. The model's output is checked too; a
+    non-finite output is reported and published as invalid.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, UNKNOWN_PARAMS, WINDOW_SAMPLES
+
+from .model import EstimatorNet
+
+PERIOD_NS = 1_000_000_000 / SAMPLE_RATE_HZ  # one tick [ns] (stamps are integer ns, floor of k/60 s)
+MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
+# Input topics and, per topic, (field name, destination, column): destination "obs" -> o_t,
+# "known" -> Θ_k. Fields a topic carries that the model does not use (v_x^b, p_x^c) are
+# still checked for NaN/inf: a sample with a broken message is not trusted.
+INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
+assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
+_DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS)}
+
+
+def _routes(topic: str) -> tuple[tuple[str, str, int], ...]:
+    out = []
+    for array, name in M.FIELDS[topic].columns:
+        dest, names = _DEST.get(array, ("", ()))
+        out.append((name, dest, names.index(name) if dest else -1))
+    return tuple(out)
+
+
+ROUTES: dict[str, tuple[tuple[str, str, int], ...]] = {t: _routes(t) for t in INPUT_TOPICS}
+_COVERED = sorted((d, c) for r in ROUTES.values() for _, d, c in r if d)
+assert _COVERED == sorted([("obs", i) for i in range(len(OBSERVATION_FIELDS))]
+                          + [("known", i) for i in range(len(KNOWN_PARAMS))]), "inputs must cover o_t and Θ_k once"
+
+
+@dataclass
+class Counters:
+    """What happened to the input so far (reported by the node, checked by tests)."""
+
+    samples: int = 0  # released complete samples
+    estimates: int = 0  # valid estimates
+    invalid: int = 0  # invalid estimate messages
+    gaps: int = 0  # missing ticks (window reset)
+    out_of_order: int = 0  # messages older than the last released sample (window reset)
+    non_finite: int = 0  # messages with a NaN/inf field (window reset)
+    malformed: int = 0  # messages that did not parse (wrong layout/shape)
+    restarts: int = 0  # time went back by more than the reorder horizon: a new stream
+    model_non_finite: int = 0  # model outputs that were not finite (published invalid)
+
+
+@dataclass
+class Sample:
+    """One tick's o_t and Θ_k as they arrive; ``bad`` names the first broken field, if any."""
+
+    obs: np.ndarray = field(default_factory=lambda: np.full(len(OBSERVATION_FIELDS), np.nan))
+    known: np.ndarray = field(default_factory=lambda: np.full(len(KNOWN_PARAMS), np.nan))
+    topics: set = field(default_factory=set)
+    bad: str = ""
+
+
+Warn = Callable[[str, str], None]  # (kind, text): the node rate-limits by kind
+
+
+def _no_warn(kind: str, text: str) -> None:  # noqa: ARG001
+    pass
+
+
+class SampleAssembler:
+    """Per-topic messages -> complete samples, released in stamp order (see module doc)."""
+
+    def __init__(self, on_sample: Callable[[int, Sample | None], None], *, reorder_ticks: int = 3, warn: Warn = _no_warn,
+                 counters: Counters | None = None):
+        if not isinstance(reorder_ticks, int) or reorder_ticks < 1:
+            raise ValueError(f"reorder_ticks={reorder_ticks!r} must be an integer >= 1")
+        self.on_sample = on_sample  # (stamp, sample) for each released tick; sample None = missing/broken
+        self.reorder_ticks = reorder_ticks
+        self.warn = warn
+        self.counters = counters or Counters()
+        self.pending: dict[int, Sample] = {}
+        self.last_released = -1  # stamp [ns] of the newest released sample; -1: none yet
+
+    def reset(self, first_stamp_ns: int | None = None) -> None:
+        """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
+        self.pending.clear()
+        self.last_released = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
+
+    def restart_at(self, first_stamp_ns: int) -> None:
+        """A new episode from ``first_stamp_ns``: what is pending from before it is dropped, what
+        already arrived of it is kept (status and data travel on different topics, so an
+        episode's first ticks may come before its ``episode_start``). If time went back, the
+        pending ticks belong to the old stream and are dropped too."""
+        first = int(first_stamp_ns)
+        if first <= self.last_released:
+            self.pending.clear()
+        else:
+            self.pending = {s: x for s, x in self.pending.items() if s >= first}
+        self.last_released = first - 1
+
+    def end_at(self, last_stamp_ns: int) -> None:
+        """The episode ended at ``last_stamp_ns``: its incomplete ticks will not be completed."""
+        last = int(last_stamp_ns)
+        self.pending = {s: x for s, x in self.pending.items() if s > last}
+        self.last_released = max(self.last_released, last)
+
+    def add(self, topic: str, msg) -> None:
+        """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
+        try:
+            stamp, values = M.parse_message(topic, msg)
+        except (ValueError, AttributeError, TypeError) as err:
+            self.counters.malformed += 1
+            self.warn(f"{topic}:malformed", f"{topic}: {err}; message ignored (its tick will be missing)")
+            return
+        self.add_values(topic, stamp, values)
+
+    def add_values(self, topic: str, stamp: int, values: np.ndarray) -> None:
+        routes = ROUTES[topic]
+        if len(values) != len(routes):
+            self.counters.malformed += 1
+            self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
+            return
+        if stamp <= self.last_released:
+            if self.last_released - stamp > self.reorder_ticks * PERIOD_NS + PERIOD_NS / 2:
+                # Far back: the source restarted (a bag replayed again, a simulator reset)
+                # without an episode_start. Start a new stream rather than wait for time to catch up.
+                self.counters.restarts += 1
+                self.warn("restart", f"{topic}: stamp {stamp} ns is {(self.last_released - stamp) / 1e9:.3f} s before "
+                                     f"the last sample; time went back, starting a new window")
+                self._drop_window()
+                self.reset(stamp)
+            else:
+                self.counters.out_of_order += 1
+                self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
+                                                   f"{self.last_released} ns (out of order); window reset")
+                self._drop_window()
+                return
+        sample = self.pending.get(stamp)
+        if sample is None:
+            sample = self.pending[stamp] = Sample()
+        if topic in sample.topics:
+            sample.bad = sample.bad or f"{topic} twice"
+            self.warn(f"{topic}:duplicate", f"{topic}: two messages with stamp {stamp} ns; that tick is dropped")
+        sample.topics.add(topic)
+        for (name, dest, col), v in zip(routes, values):
+            if not math.isfinite(v):
+                if not sample.bad:
+                    self.counters.non_finite += 1
+                    self.warn(f"{topic}:non_finite", f"{topic}: field {name}={v} at stamp {stamp} ns is not finite; "
+                                                     "that tick is dropped and the window reset")
+                sample.bad = sample.bad or f"{topic} {name}={v}"
+            elif dest:
+                getattr(sample, dest)[col] = v
+        while len(self.pending) > MAX_PENDING_TICKS:  # a topic that never comes must not grow memory
+            oldest = min(self.pending)
+            missing = sorted(set(INPUT_TOPICS) - self.pending.pop(oldest).topics)
+            self.warn("incomplete", f"tick {oldest} ns never got {missing} within {MAX_PENDING_TICKS} ticks; dropped")
+        self._release()
+
+    def _drop_window(self) -> None:
+        self.on_sample(self.last_released, None)
+
+    def _release(self) -> None:
+        """Release complete samples oldest first; declare a stuck oldest one missing."""
+        while self.pending:
+            oldest = min(self.pending)
+            sample = self.pending[oldest]
+            if len(sample.topics) < len(INPUT_TOPICS):
+                newest_complete = max((s for s, x in self.pending.items() if len(x.topics) == len(INPUT_TOPICS)),
+                                      default=None)
+                if newest_complete is None or newest_complete - oldest < self.reorder_ticks * PERIOD_NS - PERIOD_NS / 2:
+                    return
+                missing = sorted(set(INPUT_TOPICS) - sample.topics)
+                self.warn("incomplete", f"tick {oldest} ns never got {missing}; window reset")
+                sample.bad = sample.bad or f"missing {missing}"
+            del self.pending[oldest]
+            step = oldest - self.last_released
+            if self.last_released >= 0 and step > 1.5 * PERIOD_NS:
+                self.counters.gaps += 1
+                self.warn("gap", f"{round(step / PERIOD_NS) - 1} tick(s) missing before stamp {oldest} ns; window reset")
+                self.on_sample(self.last_released, None)
+            self.last_released = oldest
+            if sample.bad:
+                self.on_sample(oldest, None)
+            else:
+                self.counters.samples += 1
+                self.on_sample(oldest, sample)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What one ``/soil/estimate`` message carries (SI), ``values`` in ``T.ESTIMATE_FIELDS`` order."""
+
+    stamp_ns: int
+    values: np.ndarray
+
+    @property
+    def valid(self) -> bool:
+        return bool(self.values[T.ESTIMATE_FIELDS.index("valid")] == 1.0)
+
+    def __getitem__(self, name: str) -> float:
+        return float(self.values[T.ESTIMATE_FIELDS.index(name)])
+
+
+def invalid_estimate(stamp_ns: int, window_samples: int) -> Estimate:
+    values = np.zeros(len(T.ESTIMATE_FIELDS))
+    values[T.ESTIMATE_FIELDS.index("window_samples")] = window_samples
+    return Estimate(int(stamp_ns), values)
+
+
+class WindowBuffer:
+    """Ring buffer of the last ``window`` consecutive samples (o_t float64 rows) and the newest Θ_k."""
+
+    def __init__(self, window: int = WINDOW_SAMPLES):
+        self.window = window
+        self.obs = np.zeros((2 * window, len(OBSERVATION_FIELDS)))  # doubled: a window is always one slice
+        self.known = np.zeros(len(KNOWN_PARAMS))
+        self.count = 0  # consecutive samples held (saturates at window)
+        self._head = 0  # next write position in [0, window)
+
+    def clear(self) -> None:
+        self.count = 0
+
+    def push(self, obs: np.ndarray, known: np.ndarray) -> None:
+        self.obs[self._head] = obs
+        self.obs[self._head + self.window] = obs
+        self.known[:] = known
+        self._head = (self._head + 1) % self.window
+        self.count = min(self.count + 1, self.window)
+
+    @property
+    def full(self) -> bool:
+        return self.count == self.window
+
+    def window_obs(self) -> np.ndarray:
+        """(window, 9) oldest first; only meaningful when ``full``."""
+        return self.obs[self._head : self._head + self.window]
+
+
+class OnlineEstimator:
+    """Samples -> window -> model -> ``Estimate`` per released tick (every ``stride``-th full window).
+
+    ``publish(estimate)`` is called with a valid estimate at every ``stride``-th tick whose
+    window is full, and with an invalid one (zeros, ``window_samples`` < 60) at the same
+    stride while the window is filling, so a subscriber always knows the estimator is alive.
+    """
+
+    def __init__(self, model: EstimatorNet, publish: Callable[[Estimate], None], *, stride: int = 1,
+                 reorder_ticks: int = 3, warn: Warn = _no_warn):
+        if model.cfg.kind != "pinn":
+            raise ValueError(f"model kind={model.cfg.kind!r}: the online estimator needs a 'pinn' checkpoint "
+                             "(a physics-free model estimates no soil parameters)")
+        if model.cfg.window != WINDOW_SAMPLES:
+            raise ValueError(f"model window={model.cfg.window} samples; the online estimator feeds {WINDOW_SAMPLES}")
+        self.model = model.eval()
+        self.publish = publish
+        self.stride = self._check_stride(stride)
+        self.warn = warn
+        self.counters = Counters()
+        self.buffer = WindowBuffer(WINDOW_SAMPLES)
+        self.assembler = SampleAssembler(self._on_sample, reorder_ticks=reorder_ticks, warn=warn, counters=self.counters)
+        self._tick = 0  # released ticks since the last reset (stride phase)
+        self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
+        self._after_end = True  # no episode is running: what arrives belongs to the next one
+
+    @staticmethod
+    def _check_stride(stride) -> int:
+        if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
+            raise ValueError(f"stride={stride!r} must be an integer >= 1 tick")
+        return stride
+
+    def set_stride(self, stride: int) -> None:
+        self.stride = self._check_stride(stride)
+
+    def set_model(self, model: EstimatorNet) -> None:
+        """Swap the model (a retrained checkpoint); the window is kept: inputs mean the same."""
+        if model.cfg.kind != "pinn" or model.cfg.window != WINDOW_SAMPLES:
+            raise ValueError(f"model kind={model.cfg.kind!r} window={model.cfg.window}: need a 'pinn' model "
+                             f"with a {WINDOW_SAMPLES}-sample window")
+        self.model = model.eval()
+
+    def reset(self, first_stamp_ns: int | None = None) -> None:
+        """Forget everything: empty window; stamps from ``first_stamp_ns`` on are expected."""
+        self.buffer.clear()
+        self.assembler.reset(first_stamp_ns)
+        self._tick = 0
+
+    def start_episode(self, first_stamp_ns: int) -> None:
+        """``episode_start``: the window holds only samples from ``first_stamp_ns`` on. Ticks of
+        this episode that came before its start event are kept (the window is not emptied
+        twice), anything older is dropped: no window ever spans two episodes."""
+        after_end, self._after_end = self._after_end, False
+        if after_end and self.buffer.count and self.window_first_stamp >= first_stamp_ns:
+            return
+        self.buffer.clear()
+        self._tick = 0
+        self.assembler.restart_at(first_stamp_ns)
+
+    def end_episode(self, last_stamp_ns: int) -> None:
+        """``episode_end``: empty the window, so the next episode's ticks (whose stamps follow
+        on) never extend this one's window, even if they overtake the next ``episode_start``."""
+        self.buffer.clear()
+        self._tick = 0
+        self._after_end = True
+        self.assembler.end_at(last_stamp_ns)
+
+    def add(self, topic: str, msg) -> None:
+        self.assembler.add(topic, msg)
+
+    def _on_sample(self, stamp: int, sample: Sample | None) -> None:
+        if sample is None:  # missing, broken or out of order: nothing estimated across it
+            self.buffer.clear()
+            return
+        if self.buffer.count == 0:
+            self.window_first_stamp = stamp
+        self.buffer.push(sample.obs, sample.known)
+        tick, self._tick = self._tick, self._tick + 1
+        if tick % self.stride:
+            return
+        if not self.buffer.full:
+            self.counters.invalid += 1
+            self.publish(invalid_estimate(stamp, self.buffer.count))
+            return
+        est = self.estimate(stamp)
+        if est.valid:
+            self.counters.estimates += 1
+        else:
+            self.counters.invalid += 1
+        self.publish(est)
+
+    @torch.inference_mode()
+    def estimate(self, stamp: int) -> Estimate:
+        """Run the model on the current (full) window; invalid if any output is not finite."""
+        obs = torch.as_tensor(self.buffer.window_obs(), dtype=torch.float32).unsqueeze(0)
+        known = torch.as_tensor(self.buffer.known, dtype=torch.float32).unsqueeze(0)
+        values = estimate_values(self.model(obs, known))[0]
+        values[T.ESTIMATE_FIELDS.index("window_samples")] = self.buffer.count
+        if not np.isfinite(values).all():
+            self.counters.model_non_finite += 1
+            bad = T.ESTIMATE_FIELDS[int(np.flatnonzero(~np.isfinite(values))[0])]
+            self.warn("model_non_finite", f"model output {bad} is not finite at stamp {stamp} ns; published as invalid")
+            return invalid_estimate(stamp, self.buffer.count)
+        return Estimate(int(stamp), values)
+
+
+def estimate_values(out: dict) -> np.ndarray:
+    """(B, len(ESTIMATE_FIELDS)) ``/soil/estimate`` values of a PINN output dict, valid = 1.
+
+    The one mapping from model outputs to the message, used online and offline (so the
+    replay and offline comparisons compare like with like)."""
+    parts = [out["theta"][:, : len(UNKNOWN_PARAMS)], out["force"], out["force_fee"], out["force_residual"]]
+    values = torch.cat([p.double() for p in parts], dim=1).numpy()
+    flags = np.tile([[1.0, WINDOW_SAMPLES]], (len(values), 1))
+    return np.concatenate([values, flags], axis=1)
