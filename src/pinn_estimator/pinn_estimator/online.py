@@ -66,7 +66,7 @@ class Counters:
     samples: int = 0  # released complete samples
     estimates: int = 0  # valid estimates
     invalid: int = 0  # invalid estimate messages
-    gaps: int = 0  # missing ticks (window reset)
+    gaps: int = 0  # missing ticks, wholly or some of their messages (window reset)
     out_of_order: int = 0  # messages older than the last released sample (window reset)
     non_finite: int = 0  # messages with a NaN/inf field (window reset)
     malformed: int = 0  # messages that did not parse (wrong layout/shape)
@@ -95,10 +95,11 @@ class SampleAssembler:
     """Per-topic messages -> complete samples, released in stamp order (see module doc)."""
 
     def __init__(self, on_sample: Callable[[int, Sample | None], None], *, reorder_ticks: int = 3, warn: Warn = _no_warn,
-                 counters: Counters | None = None):
+                 counters: Counters | None = None, on_restart: Callable[[], None] = lambda: None):
         if not isinstance(reorder_ticks, int) or reorder_ticks < 1:
             raise ValueError(f"reorder_ticks={reorder_ticks!r} must be an integer >= 1")
         self.on_sample = on_sample  # (stamp, sample) for each released tick; sample None = missing/broken
+        self.on_restart = on_restart  # time went back without an episode_start: a new stream
         self.reorder_ticks = reorder_ticks
         self.warn = warn
         self.counters = counters or Counters()
@@ -109,24 +110,6 @@ class SampleAssembler:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
         self.pending.clear()
         self.last_released = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
-
-    def restart_at(self, first_stamp_ns: int) -> None:
-        """A new episode from ``first_stamp_ns``: what is pending from before it is dropped, what
-        already arrived of it is kept (status and data travel on different topics, so an
-        episode's first ticks may come before its ``episode_start``). If time went back, the
-        pending ticks belong to the old stream and are dropped too."""
-        first = int(first_stamp_ns)
-        if first <= self.last_released:
-            self.pending.clear()
-        else:
-            self.pending = {s: x for s, x in self.pending.items() if s >= first}
-        self.last_released = first - 1
-
-    def end_at(self, last_stamp_ns: int) -> None:
-        """The episode ended at ``last_stamp_ns``: its incomplete ticks will not be completed."""
-        last = int(last_stamp_ns)
-        self.pending = {s: x for s, x in self.pending.items() if s > last}
-        self.last_released = max(self.last_released, last)
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -153,6 +136,7 @@ class SampleAssembler:
                                      f"the last sample; time went back, starting a new window")
                 self._drop_window()
                 self.reset(stamp)
+                self.on_restart()
             else:
                 self.counters.out_of_order += 1
                 self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
@@ -195,6 +179,7 @@ class SampleAssembler:
                 if newest_complete is None or newest_complete - oldest < self.reorder_ticks * PERIOD_NS - PERIOD_NS / 2:
                     return
                 missing = sorted(set(INPUT_TOPICS) - sample.topics)
+                self.counters.gaps += 1
                 self.warn("incomplete", f"tick {oldest} ns never got {missing}; window reset")
                 sample.bad = sample.bad or f"missing {missing}"
             del self.pending[oldest]
@@ -282,10 +267,11 @@ class OnlineEstimator:
         self.warn = warn
         self.counters = Counters()
         self.buffer = WindowBuffer(WINDOW_SAMPLES)
-        self.assembler = SampleAssembler(self._on_sample, reorder_ticks=reorder_ticks, warn=warn, counters=self.counters)
+        self.assembler = SampleAssembler(self._on_sample, reorder_ticks=reorder_ticks, warn=warn, counters=self.counters,
+                                         on_restart=self._on_restart)
         self._tick = 0  # released ticks since the last reset (stride phase)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
-        self._after_end = True  # no episode is running: what arrives belongs to the next one
+        self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
 
     @staticmethod
     def _check_stride(stride) -> int:
@@ -308,33 +294,44 @@ class OnlineEstimator:
         self.buffer.clear()
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
-
-    def start_episode(self, first_stamp_ns: int) -> None:
-        """``episode_start``: the window holds only samples from ``first_stamp_ns`` on. Ticks of
-        this episode that came before its start event are kept (the window is not emptied
-        twice), anything older is dropped: no window ever spans two episodes."""
-        after_end, self._after_end = self._after_end, False
-        if after_end and self.buffer.count and self.window_first_stamp >= first_stamp_ns:
-            return
-        self.buffer.clear()
-        self._tick = 0
-        self.assembler.restart_at(first_stamp_ns)
+        self._boundary = None
 
     def end_episode(self, last_stamp_ns: int) -> None:
-        """``episode_end``: empty the window, so the next episode's ticks (whose stamps follow
-        on) never extend this one's window, even if they overtake the next ``episode_start``."""
-        self.buffer.clear()
-        self._tick = 0
-        self._after_end = True
-        self.assembler.end_at(last_stamp_ns)
+        """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
+        that are still queued complete this episode's windows normally (the executor serves
+        /sim/status first, so the event can overtake the episode's last ticks)."""
+        self._boundary = int(last_stamp_ns)
+
+    def start_episode(self, first_stamp_ns: int) -> None:
+        """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
+
+        Ticks of this episode that overtook the event (status and data are separate topics)
+        are kept; older ticks still queued finish the previous episode's windows; if time
+        went back (a replay starting over), everything restarts at ``first_stamp_ns``."""
+        first = int(first_stamp_ns)
+        if self.assembler.last_released < first:  # nothing of this episode released yet
+            self._boundary = first - 1
+            return
+        if self._boundary is not None and self._boundary < first <= self.window_first_stamp:
+            return  # the window already started after the previous episode, at or after this one's start
+        self.reset(first)
+        self._boundary = first - 1
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
+
+    def _on_restart(self) -> None:
+        self._boundary = None
+        self._tick = 0
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
             self.buffer.clear()
             return
+        if self._boundary is not None and stamp > self._boundary and self.buffer.count \
+                and self.window_first_stamp <= self._boundary:
+            self.buffer.clear()  # the first sample of a new episode: no window spans two
+            self._tick = 0
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)

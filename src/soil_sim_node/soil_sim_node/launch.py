@@ -226,6 +226,11 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("controller", ctl + _params(args.controller_param), stop_order=1))
         for topic, n in CONTROLLER_ENDPOINTS.items():
             wait[topic] = wait.get(topic, 0) + n
+    for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
+        topic, _, count = entry.rpartition(":")
+        if not topic.startswith("/") or not count.isdigit():
+            raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
+        wait[topic] = wait.get(topic, 0) + int(count)
     sim = [executable("soil_sim_node"), "--ros-args"]
     if args.sim_params_file:
         sim += ["--params-file", str(args.sim_params_file)]
@@ -257,6 +262,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--estimator-params-file", type=Path, help="YAML parameters for pinn_estimator")
     p.add_argument("--estimator-param", action="append", default=[], metavar="NAME:=VALUE")
     p.add_argument("--recorder-arg", action="append", default=[], help="extra argument for soil_bag_record")
+    p.add_argument("--wait-for", action="append", default=[], metavar="/TOPIC:N",
+                   help="also wait for N more matched subscribers of a topic the simulator publishes (or "
+                        "publishers of a command topic) before the first tick: nodes started outside the launch")
     p.add_argument("--no-controller", action="store_true", help="do not start the controller")
     p.add_argument("--keep-running", action="store_true",
                    help="keep the simulator up after its episodes (end with Ctrl-C); default: end with them")
