@@ -109,18 +109,21 @@ def test_launcher_tells_the_simulator_whom_to_wait_for(tmp_path):
         parse_args(["--domain-id", "999"])
 
 
-@pytest.mark.parametrize("pkg, node_module", [("soil_sim_node", "soil_sim_node.node"),
-                                               ("anti_stall_controller", "anti_stall_controller.node"),
-                                               ("pinn_estimator", "pinn_estimator.node")])
-def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_module):
-    """config/<node>.yaml is the documented default set: same names, same values as the node."""
+@pytest.mark.parametrize("pkg, node_module, node_name", [("soil_sim_node", "soil_sim_node.node", "soil_sim_node"),
+                                                          ("anti_stall_controller", "anti_stall_controller.node",
+                                                           "anti_stall_controller"),
+                                                          ("pinn_estimator", "pinn_estimator.node", "pinn_estimator"),
+                                                          ("pinn_estimator", "pinn_estimator.planner_node",
+                                                           "soil_planner")])
+def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_module, node_name):
+    """src/<pkg>/config/<node>.yaml is the documented default set: same names, same values as the node."""
     import importlib
     from pathlib import Path
 
     import yaml
 
     params = importlib.import_module(node_module).PARAMETERS
-    path = Path(__file__).resolve().parents[1] / "src" / pkg / "config" / f"{pkg}.yaml"
-    data = yaml.safe_load(path.read_text())[pkg]["ros__parameters"]
+    path = Path(__file__).resolve().parents[1] / "src" / pkg / "config" / f"{node_name}.yaml"
+    data = yaml.safe_load(path.read_text())[node_name]["ros__parameters"]
     assert list(data) == list(params)
     assert {k: v for k, v in data.items()} == {k: spec[0] for k, spec in params.items()}

@@ -27,6 +27,7 @@ setup(
             "pinn_train = pinn_estimator.train:main",
             "pinn_eval = pinn_estimator.evaluate:main",
             "pinn_estimator = pinn_estimator.node:main",
+            "soil_planner = pinn_estimator.planner_node:main",
         ],
     },
 )

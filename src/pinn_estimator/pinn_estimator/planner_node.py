@@ -1,0 +1,163 @@
+"""`soil_planner`: the deepest-cut planner (``planner.py``) as a ROS 2 node (thin adapter).
+
+Subscribes to /soil/estimate and /soil/known_params, pairs them by stamp (the estimate of
+tick t is planned with Θ_k of tick t, whichever arrives first) and publishes
+/planner/max_cut_depth stamped with the estimate's stamp. An invalid estimate (valid = 0)
+gives a valid = 0 plan (all zeros), so a consumer sees that there is no plan for that tick.
+A message that cannot be trusted (wrong layout, NaN, out of Table 1 limits) is reported via
+WarnLimiter and nothing is published for it; the node never publishes NaN and never dies
+on input. A log line at most once per ``log_period_s`` of simulation time says what the
+plan is and why.
+
+Parameters (also in ``config/soil_planner.yaml``) are validated at start (a bad one exits
+with code 2) and can be changed at run time (``ros2 param set``).
+"""
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.params import KNOWN_PARAMS
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
+
+from .planner import DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe, fields, max_cut_depth
+
+PARAMETERS: dict[str, tuple] = {
+    "margin": (DEFAULT_MARGIN, "fraction of the force limits (20 kN tractive x, 30 kN lift z) a cut may use, (0, 1]"),
+    "d_max_m": (DEFAULT_D_MAX_M, "deepest depth considered [m], (0, 0.66]; default: the blade's reach (0.3 m)"),
+    "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
+    "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
+}
+MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
+NS_PER_S = 1_000_000_000
+
+
+def check_log_period(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0.0 or value == float("inf"):
+        raise ValueError(f"log_period_s={value!r} must be a finite number >= 0 s")
+    return float(value)
+
+
+class PlannerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("soil_planner")
+        for name, (default, description) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        self.margin, self.d_max_m = check_settings(get("margin"), get("d_max_m"))
+        self.include_residual = self._check_bool("include_residual", get("include_residual"))
+        self.log_period_ns = int(check_log_period(get("log_period_s")) * NS_PER_S)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.classes = M.ros_message_classes()
+        self._warn = WarnLimiter(self.get_logger())
+        # stamp -> payload dict; bounded, oldest dropped first
+        self.known: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
+        self.estimates: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
+        self.last_log_ns: int | None = None
+        self.published = 0
+        self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, topic_qos(T.PLAN.name))
+        self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
+        self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
+                                 topic_qos(T.ESTIMATE.name))
+        self.get_logger().info(
+            f"margin {self.margin}, d_max {self.d_max_m} m, residual {'on' if self.include_residual else 'off'}; "
+            f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}")
+
+    @staticmethod
+    def _check_bool(name: str, value) -> bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{name}={value!r} must be true or false")
+        return value
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Validate everything first, then apply together (a rejected change alters nothing)."""
+        changes = {p.name: p.value for p in params}
+        try:
+            margin, d_max = check_settings(changes.get("margin", self.margin), changes.get("d_max_m", self.d_max_m))
+            residual = self._check_bool("include_residual", changes.get("include_residual", self.include_residual))
+            period = check_log_period(changes.get("log_period_s", self.log_period_ns / NS_PER_S))
+        except ValueError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        self.margin, self.d_max_m, self.include_residual = margin, d_max, residual
+        self.log_period_ns = int(period * NS_PER_S)
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_known(self, msg) -> None:
+        try:
+            stamp, values = M.parse_labelled(msg, KNOWN_PARAMS, T.KNOWN.name)
+        except ValueError as err:
+            self._warn("known:layout", f"{err}; ignored")
+            return
+        self._remember(self.known, stamp, fields(values, KNOWN_PARAMS))
+        if stamp in self.estimates:
+            self._plan(stamp, self.estimates.pop(stamp), self.known[stamp])
+
+    def _on_estimate(self, msg) -> None:
+        try:
+            stamp, values = M.parse_labelled(msg, T.ESTIMATE_FIELDS, T.ESTIMATE.name)
+        except ValueError as err:
+            self._warn("estimate:layout", f"{err}; ignored")
+            return
+        est = fields(values, T.ESTIMATE_FIELDS)
+        if est["valid"] == 0.0:  # no estimate yet: say so for this tick, no Θ_k needed
+            self._publish(stamp, NO_PLAN_VALUES)
+            return
+        if stamp in self.known:
+            self._plan(stamp, est, self.known[stamp])
+        else:
+            dropped = self._remember(self.estimates, stamp, est)
+            if dropped is not None:
+                self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {dropped} ns never got its {T.KNOWN.name}; dropped")
+
+    def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
+        for older in [s for s in self.known if s < stamp]:  # Θ_k arrives in stamp order: no later estimate needs them
+            del self.known[older]
+        try:
+            plan = max_cut_depth(est, known, margin=self.margin, d_max_m=self.d_max_m,
+                                 include_residual=self.include_residual)
+        except ValueError as err:
+            self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
+            return
+        if plan is None:  # valid flag 0 was handled on arrival; kept for safety
+            self._publish(stamp, NO_PLAN_VALUES)
+            return
+        self._publish(stamp, plan.values())
+        if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
+            self.last_log_ns = stamp
+            self.get_logger().info(describe(plan, est, known))
+
+    def _publish(self, stamp: int, values) -> None:
+        values = np.asarray(values, dtype=np.float64)
+        if not np.isfinite(values).all():  # cannot happen (the core checks its forces); never let NaN out
+            self._warn("non_finite_plan", f"plan at stamp {stamp} ns is not finite; not published")
+            return
+        self.plan_pub.publish(M.make_labelled(self.classes, stamp, T.PLAN_FIELDS, values))
+        self.published += 1
+
+    @staticmethod
+    def _remember(store: collections.OrderedDict, stamp: int, payload: dict) -> int | None:
+        """Store ``payload`` under ``stamp``; returns the stamp dropped to keep the store bounded."""
+        store[stamp] = payload
+        store.move_to_end(stamp)
+        if len(store) > MAX_PENDING_STAMPS:
+            return store.popitem(last=False)[0]
+        return None
+
+    def close(self) -> None:
+        self.get_logger().info(f"{self.published} plans published, {len(self.estimates)} estimates unpaired")
+
+
+def main(args: list[str] | None = None) -> int:
+    return spin_node(PlannerNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
