@@ -25,7 +25,7 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 	@touch $(STAMP)
 
 demo: venv
-	$(BIN)/python -m soil_sim_node.demo
+	$(BIN)/python -m pinn_estimator.demo
 
 test: venv
 	$(BIN)/python -m pytest -q tests
@@ -34,6 +34,7 @@ bench: venv
 	$(BIN)/python benchmarks/bench_sim.py
 	$(BIN)/python benchmarks/bench_train.py
 	$(BIN)/python benchmarks/bench_graph.py
+	$(BIN)/python benchmarks/bench_estimator.py
 
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv

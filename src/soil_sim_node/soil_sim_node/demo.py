@@ -1,4 +1,4 @@
-"""`make demo` (until the online estimation demo exists): a small dataset and its plots.
+"""`python -m soil_sim_node.demo`: a small simulator dataset and its plots (not `make demo`).
 
 Generates Loam at I_d = 60 % (the paper's Fig. 3 episode), dense Clay and loose Sand in both
 worlds, writes the bags under bags/demo/<mode>/, a Fig.-3-style PNG per episode under
