@@ -16,7 +16,10 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.bag_io import find_episode_bags, read_episode, read_labelled_topic
 from soil_msgs_py.params import WINDOW_SAMPLES
-from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
+from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
+from pinn_estimator.data import load_dataset
+from pinn_estimator.inference import WindowTensors, predict
+from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, estimate_values
 
 from ros_probe import BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
@@ -32,13 +35,14 @@ def estimates(probe: RosProbe) -> list[tuple[float, int, np.ndarray]]:
     return [(t, *M.parse_labelled(m, T.ESTIMATE_FIELDS, T.ESTIMATE.name)) for t, m in got]
 
 
-def offline_values(ep, model) -> dict[int, np.ndarray]:
-    obs = torch.as_tensor(ep.observations, dtype=torch.float32)
-    known = torch.as_tensor(ep.known, dtype=torch.float32)
-    ends = np.arange(WINDOW_SAMPLES - 1, len(ep))
-    with torch.no_grad():
-        out = model(obs[ends[:, None] + np.arange(-(WINDOW_SAMPLES - 1), 1)], known[ends])
-    return {int(ep.stamps_ns[e]): v for e, v in zip(ends, estimate_values(out))}
+def offline_values(bag, ep, model) -> dict[int, np.ndarray]:
+    """The offline pipeline (load_dataset -> predict, batched) on the recorded episode."""
+    ds = load_dataset(bag.parent, cache=False)
+    (e,) = ds.index([bag.name])
+    ends = ds.window_ends([e])
+    out = predict(model, WindowTensors(ds), ends)
+    values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
+    return {int(ep.stamps_ns[end - ds.offsets[e]]): v for end, v in zip(ends, values)}
 
 
 def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
@@ -67,14 +71,15 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     good = [(t, s, v) for t, s, v in live if v[VALID] == 1.0]
     assert [s for _, s, _ in good] == ep.stamps_ns[WINDOW_SAMPLES - 1 :].tolist()
     assert all(np.isfinite(v).all() for _, _, v in live)
-    arrivals = np.array([t for t, _, _ in good])
-    rate_hz = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
-    assert 50.0 < rate_hz < 70.0, f"estimates at {rate_hz:.1f} Hz"
+    # at the simulator's 60 Hz: the typical spacing of arrivals is one tick (a stall then
+    # catch-up on a loaded machine moves single intervals, not the median)
+    spacing_ms = 1e3 * np.median(np.diff([t for t, _, _ in good]))
+    assert 14.0 < spacing_ms < 19.5, f"median spacing of estimates {spacing_ms:.2f} ms, not ~16.7 ms"
     # the bag recorded exactly what the probe received
     assert rec_stamps.tolist() == [s for _, s, _ in live]
     np.testing.assert_array_equal(rec_values, np.stack([v for _, _, v in live]))
     # online == offline model on the same windows (float32 rounding of batch 1 vs batched)
-    offline = offline_values(ep, load_model(DEFAULT_CHECKPOINT)[0])
+    offline = offline_values(bag, ep, load_model(DEFAULT_CHECKPOINT)[0])
     for _, s, v in good:
         np.testing.assert_array_less(np.abs(v - offline[s]) / SCALE, 1e-5)
 
@@ -173,9 +178,9 @@ def test_bad_input_is_logged_never_published_as_nan_and_the_node_survives(tmp_pa
         assert np.isfinite(v).all()
     assert len(forces) == n_valid
     log = node.output
-    for needle in ("field d=nan", "tick(s) missing", "out of order", "label mismatch"):
+    for needle in ("field d=nan", "tick(s) missing", "(out of order); window reset", "label mismatch"):
         assert needle in log, f"no warning with {needle!r} in\n{log}"
-    assert "1 non-finite, 1 malformed" in log
+    assert "1 out of order, 1 non-finite, 1 malformed, 0 duplicates, 0 evicted, 0 restarts" in log
 
 
 def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
@@ -203,6 +208,10 @@ def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
 
             refused = set_param("checkpoint", str(corrupt))
             assert not refused.successful and "not a readable torch checkpoint" in refused.reason
+            short = save_checkpoint(tmp_path / "w30.pt", EstimatorNet(ModelConfig(window=30), torch.zeros(9), torch.ones(9)),
+                                    train_config={}, dataset={}, split={}, metrics={}, history={})
+            refused = set_param("checkpoint", str(short))  # loads, but cannot run on 60-sample windows
+            assert not refused.successful and "window=30" in refused.reason
             assert not set_param("stride", 0).successful
             fee_model = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
             assert set_param("checkpoint", str(fee_model)).successful

@@ -18,6 +18,8 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
+from pinn_estimator.data import load_dataset
+from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.node import load_estimator_model
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
@@ -41,13 +43,14 @@ def model():
 
 @pytest.fixture(scope="module")
 def offline(episode, model):
-    """The offline model's /soil/estimate values for the window ending at every tick >= 59."""
-    obs = torch.as_tensor(episode.observations, dtype=torch.float32)
-    known = torch.as_tensor(episode.known, dtype=torch.float32)
-    ends = np.arange(WINDOW_SAMPLES - 1, len(episode))
-    with torch.no_grad():
-        out = model(obs[ends[:, None] + np.arange(-(WINDOW_SAMPLES - 1), 1)], known[ends])
-    return {int(episode.stamps_ns[e]): v for e, v in zip(ends, estimate_values(out))}
+    """The offline pipeline's (data.load_dataset -> inference.predict, batched) /soil/estimate
+    values for the window ending at every tick >= 59 of the sample episode."""
+    ds = load_dataset(SAMPLE.parent, cache=False)
+    (e,) = ds.index([SAMPLE.name])
+    ends = ds.window_ends([e])
+    out = predict(model, WindowTensors(ds), ends)
+    values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
+    return {int(episode.stamps_ns[end - ds.offsets[e]]): v for end, v in zip(ends, values)}
 
 
 def tick_messages(ep, i: int, stamp: int | None = None) -> list[tuple[str, object]]:
@@ -187,6 +190,43 @@ def test_out_of_order_stamp_invalidates_the_window(episode, model, offline):
     assert_matches_offline(valid(out), offline)
 
 
+def test_a_few_ticks_stale_is_out_of_order_not_a_restart(episode, model):
+    for back in (4, 10, 59):
+        msgs = in_order(episode, range(0, 101)) + tick_messages(episode, 100 - back)[:1] + in_order(episode, range(101, N_TICKS))
+        est, out = run(model, msgs)
+        assert (est.counters.out_of_order, est.counters.restarts) == (1, 0), back
+        assert [e.stamp_ns for e in valid(out)][-1] == episode.stamps_ns[N_TICKS - 1]
+
+
+def test_bogus_future_stamps_do_not_stall_estimation(episode, model):
+    """A publisher with wrong (e.g. wall-clock) stamps on one topic fills the pending ticks
+    with entries that never complete; they age out and real ticks keep being estimated."""
+    msgs = []
+    for i in range(N_TICKS):
+        msgs += tick_messages(episode, i)
+        bogus = M.build_message(M.TYPESTORE, T.CMD_VEL.name, 10**18 + i * 10**9, [0.5])
+        msgs.append((T.CMD_VEL.name, bogus))
+    est, out = run(model, msgs)
+    assert [e.stamp_ns for e in valid(out)] == episode.stamps_ns[59:N_TICKS].tolist()
+    assert est.counters.evicted == N_TICKS - 2 * 60 and len(est.assembler.pending) <= 2 * 60
+
+
+def test_stride_phase_restarts_with_each_episode(episode, model):
+    """With stride > 1 the estimated ticks of an episode do not depend on how the previous one
+    ended: live and replay (which starts fresh) estimate the same ticks."""
+    out = []
+    est = OnlineEstimator(model, out.append, stride=3)
+    for t, m in in_order(episode, range(101)):  # 101 ticks: phase ends mid-stride
+        est.add(t, m)
+    est.end_episode(int(episode.stamps_ns[100]))
+    base = int(episode.stamps_ns[100]) + int(episode.stamps_ns[1])
+    for i in range(100):
+        for t, m in tick_messages(episode, i, base + int(episode.stamps_ns[i])):
+            est.add(t, m)
+    second = [e.stamp_ns - base for e in out if e.stamp_ns >= base]
+    assert second == episode.stamps_ns[:100:3].tolist()
+
+
 def test_wrong_shape_array_is_malformed_and_its_tick_missing(episode, model):
     msgs = in_order(episode, range(N_TICKS))
     stamp = int(episode.stamps_ns[80])
@@ -268,8 +308,10 @@ def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
     torch.save({"weights": torch.zeros(3)}, foreign)
     free = EstimatorNet(ModelConfig(kind="physics_free"), torch.zeros(9), torch.ones(9))
     baseline = save_checkpoint(tmp_path / "free.pt", free, train_config={}, dataset={}, split={}, metrics={}, history={})
+    short_window = save_checkpoint(tmp_path / "w30.pt", EstimatorNet(ModelConfig(window=30), torch.zeros(9), torch.ones(9)),
+                                   train_config={}, dataset={}, split={}, metrics={}, history={})
     for path, needle in ((corrupt, "not a readable torch checkpoint"), (foreign, "not an insitu-soil estimator"),
-                         (baseline, "'physics_free' model"), (tmp_path / "missing.pt", "does not exist")):
+                         (baseline, "kind='physics_free'"), (short_window, "window=30 samples"), (tmp_path / "missing.pt", "does not exist")):
         with pytest.raises(ValueError, match=needle) as err:
             load_estimator_model(str(path))
         assert "checkpoint" in str(err.value)

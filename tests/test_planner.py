@@ -13,7 +13,7 @@ from ros_probe import NodeProc, RosProbe, next_domain_id, wait_until
 from soil_msgs_py import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from pinn_estimator.planner import MIN_ANCHOR_DEPTH_M, TOLERANCE_M, describe, max_cut_depth
 
 LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
@@ -25,15 +25,21 @@ def _known(**over) -> dict[str, float]:
 
 
 def _fee_xz(est: dict, known: dict, d) -> tuple[np.ndarray, np.ndarray]:
-    """FEE force at commanded depth(s) d with the estimate's soil and the critical β."""
-    theta = {**known, "phi": est["phi"], "c": est["c"], "delta": est["delta"],
-             "d": np.asarray(d, dtype=float) + est["delta_d"]}
+    """FEE force at depth(s) d below the surface with the estimate's soil and the critical β, at
+    ``known``'s velocity; d' = d + Δd clamped to Table 1's [0, 0.66] m as the PINN does (model.py)."""
+    d_prime = np.clip(np.asarray(d, dtype=float) + est["delta_d"], *TABLE1["d"].limits)
+    theta = {**known, "phi": est["phi"], "c": est["c"], "delta": est["delta"], "d": d_prime}
     fx, fz, _ = fee.fee_xz(theta)
     return np.asarray(fx), np.asarray(fz)
 
 
+def _steady(known: dict, speed: float = 0.5) -> dict[str, float]:
+    """Θ_k at the planner's operating point: a level cut at ``speed`` (the default 0.5 m/s)."""
+    return {**known, "v_x": speed, "v_z": 0.0}
+
+
 def _estimate(known: dict, residual=(0.0, 0.0), **over) -> dict[str, float]:
-    """A valid estimate whose F̂ is the FEE at Θ_k's depth plus ``residual`` [N]."""
+    """A valid estimate whose F̂ is the FEE at Θ_k's depth and velocity plus ``residual`` [N]."""
     est = dict(phi=30 * DEG, c=0.0, delta=15 * DEG, beta=25 * DEG, delta_d=0.0, valid=1.0, window_samples=60.0)
     est.update(over)
     fx, fz = _fee_xz(est, known, known["d"])
@@ -148,6 +154,102 @@ def test_non_monotonic_force_plans_up_to_the_first_crossing():
     assert plan.limited_by_x and plan.max_depth_m == pytest.approx(first_bad, abs=0.66 / 2000)
 
 
+# ---------------------------------------------------------------------------- operating point
+
+# Blade transients the anti-stall controller causes near the limit: lifting, stalled, lowering.
+TRANSIENTS = [(0.5, 0.15), (0.02, 0.0), (0.0, 0.3), (0.3, -0.2)]
+
+
+@pytest.mark.parametrize("v_x, v_z", TRANSIENTS)
+def test_plan_is_for_a_steady_level_cut_whatever_the_current_velocity(v_x, v_z):
+    """Θ_k's v is a transient (e.g. the blade lifted at +0.15 m/s, which reverses the Eq. 9-10
+    friction and pushes β* to ~70°): the FEE plan does not follow it, and β* stays in Table 1."""
+    level = _known(d=0.2, q=6e3, gamma=18.7e3)
+    moving = {**level, "v_x": v_x, "v_z": v_z}
+    est = _estimate(level, phi=35 * DEG, c=1e3, delta=25 * DEG)
+    plan = max_cut_depth(est, moving, include_residual=False)
+    assert plan == max_cut_depth(est, level, include_residual=False)
+    lo, hi = TABLE1["beta"].limits
+    assert lo <= plan.beta_rad <= hi and plan.cut_speed_m_s == 0.5
+    if v_z > 0.1:  # the old behaviour, at Θ_k's velocity: β* far outside Table 1
+        delta_now, _ = fee.velocity_corrected(est["delta"], moving["c_a"], moving["rho"], 0.0, v_x, v_z)
+        assert not lo <= float(fee.beta_star(est["phi"], delta_now, moving["rho"], 0.0)) <= hi
+    fx, fz = _fee_xz(est, _steady(level), [plan.max_depth_m, plan.max_depth_m + 2 * TOLERANCE_M])
+    assert plan.f_x_n == pytest.approx(fx[0]) and not _admissible(fx[1], fz[1])
+
+
+@pytest.mark.parametrize("v_x, v_z", TRANSIENTS)
+def test_residual_is_taken_at_the_estimates_velocity_and_carried_to_the_steady_cut(v_x, v_z):
+    """F̂ was predicted at Θ_k's velocity: r_now = F̂ − F_FEE(that velocity), so the same soil and
+    the same network residual give the same plan in a transient as in a steady cut."""
+    level = _known(d=0.15, q=2e3)
+    moving = {**level, "v_x": v_x, "v_z": v_z}
+    soil = dict(phi=32 * DEG, c=2e3, delta=20 * DEG, delta_d=-0.01)
+    r = (1500.0, -4000.0)
+    est_moving, est_level = _estimate(moving, residual=r, **soil), _estimate(level, residual=r, **soil)
+    plan = max_cut_depth(est_moving, moving)
+    delta_now, _ = fee.velocity_corrected(soil["delta"], moving["c_a"], moving["rho"], moving["alpha"], v_x, v_z)
+    lo, hi = TABLE1["beta"].limits
+    if not lo <= float(fee.beta_star(soil["phi"], delta_now, moving["rho"], moving["alpha"])) <= hi:
+        # a strong transient: the FEE at that velocity is outside the model's range, no anchor
+        assert not plan.residual_used and plan == max_cut_depth(est_moving, moving, include_residual=False)
+        return
+    assert plan.residual_used
+    assert (plan.residual_x_n, plan.residual_z_n) == (pytest.approx(r[0], abs=1e-6), pytest.approx(r[1], abs=1e-6))
+    steady = max_cut_depth(est_level, level)
+    assert plan.max_depth_m == pytest.approx(steady.max_depth_m, abs=1e-12)
+    assert plan.f_x_n == pytest.approx(steady.f_x_n) and plan.f_z_n == pytest.approx(steady.f_z_n)
+    at_now = max_cut_depth(est_moving, moving, d_max_m=0.15)  # the current depth: steady FEE + r_now
+    fx, fz = _fee_xz(est_moving, _steady(level), 0.15)
+    assert at_now.f_x_n == pytest.approx(fx + r[0]) and at_now.f_z_n == pytest.approx(fz + r[1])
+
+
+def test_cut_speed_sets_the_operating_point():
+    known = _known(v_x=0.05)  # nearly stalled now
+    est = _estimate(_known(), c=3e3)
+    slow = max_cut_depth(est, known, cut_speed_m_s=0.02, include_residual=False, d_max_m=0.66)
+    fast = max_cut_depth(est, known, cut_speed_m_s=1.0, include_residual=False, d_max_m=0.66)
+    # slower: less of the soil-tool friction mobilised (Eq. 9-10), a different force and depth
+    assert slow.cut_speed_m_s == 0.02 and fast.cut_speed_m_s == 1.0
+    assert slow.max_depth_m != pytest.approx(fast.max_depth_m, abs=1e-3)
+    fx, _ = _fee_xz(est, _steady(known, 0.02), slow.max_depth_m)
+    assert slow.f_x_n == pytest.approx(fx)
+    assert "at v_x=1.00 m/s level" in describe(fast, est, known)
+
+
+def test_no_wedge_at_the_current_velocity_leaves_a_fee_only_plan():
+    """δ̂ > φ̂ with the friction reversed by a lift: no β* at Θ_k's velocity, so F_FEE(d'_now) and
+    the anchor do not exist; the steady cut still has its wedge and is planned FEE only."""
+    level = _known(d=0.15)
+    lifting = {**level, "v_z": 0.15}
+    est = _estimate(level, residual=(3e3, 0.0), phi=17 * DEG, delta=20 * DEG)
+    delta_now, _ = fee.velocity_corrected(est["delta"], 200.0, level["rho"], 0.0, 0.5, 0.15)
+    assert math.isnan(float(fee.beta_star(est["phi"], delta_now, level["rho"], 0.0)))
+    plan = max_cut_depth(est, lifting)
+    assert not plan.residual_used and plan == max_cut_depth(est, level, include_residual=False)
+
+
+# ---------------------------------------------------------------------------- depth clamp
+
+def test_d_prime_is_clamped_to_table1_like_the_pinn():
+    """d' = d + Δd̂ is clamped to [0, 0.66] m (model.py): at d = 0.61..0.66 m with Δd̂ = +5 cm the
+    FEE and the residual's depth in soil are those of d' = 0.66 m, so the force there is F̂."""
+    known = _known(d=0.64, w=0.4, c_a=0.0)  # narrow blade: the full 0.66 m stays within the limits
+    r = (600.0, -900.0)
+    est = _estimate(known, residual=r, phi=25 * DEG, delta=15 * DEG, delta_d=0.05)
+    plan = max_cut_depth(est, known, d_max_m=0.66, margin=1.0)
+    assert plan.binding == "reach" and plan.residual_used
+    assert plan.f_x_n == pytest.approx(est["f_x_hat"]) and plan.f_z_n == pytest.approx(est["f_z_hat"])
+    shallower = max_cut_depth(est, known, d_max_m=0.62, margin=1.0)  # d' = 0.67 -> 0.66 m
+    assert (shallower.f_x_n, shallower.f_z_n) == (pytest.approx(plan.f_x_n), pytest.approx(plan.f_z_n))
+    half = max_cut_depth(est, known, d_max_m=0.28, margin=1.0)  # d' = 0.33 m = d'_now / 2
+    fx, fz = _fee_xz(est, known, 0.28)
+    assert half.f_x_n == pytest.approx(fx + r[0] / 2) and half.f_z_n == pytest.approx(fz + r[1] / 2)
+    # unclamped, d' = 0.71 m would give a larger force at the reach than F̂
+    theta = {**known, "phi": est["phi"], "c": 0.0, "delta": est["delta"], "d": 0.71}
+    assert fee.fee_xz(theta)[0] + r[0] * 0.71 / 0.69 > est["f_x_hat"] + 100.0
+
+
 def test_invalid_estimate_gives_no_plan():
     zeros = {name: 0.0 for name in T.ESTIMATE_FIELDS}  # what the estimator publishes while filling
     assert max_cut_depth(zeros, _known()) is None
@@ -189,11 +291,14 @@ def test_missing_fields_and_bad_settings_are_named():
     with pytest.raises(ValueError, match="known has no field 'q'"):
         max_cut_depth(est, {k: v for k, v in known.items() if k != "q"})
     for kwargs, needle in [({"margin": 0.0}, "margin=0.0"), ({"margin": 1.5}, "margin=1.5"),
-                           ({"d_max_m": 0.7}, "d_max_m=0.7"), ({"d_max_m": math.nan}, "d_max_m=nan")]:
+                           ({"d_max_m": 0.7}, "d_max_m=0.7"), ({"d_max_m": math.nan}, "d_max_m=nan"),
+                           *(({"cut_speed_m_s": v}, f"cut_speed_m_s={v}") for v in (0.0, -0.5, 2.5, math.inf))]:
         with pytest.raises(ValueError, match=needle):
             max_cut_depth(est, known, **kwargs)
-    # Θ_k's d is the blade's state, not an FEE input: above the surface (d < 0) is fine
+    # Θ_k's d is the blade's state, not an FEE input: above the surface (d < 0) or buried is fine
     assert max_cut_depth(est, _known(d=-0.2)).max_depth_m > 0
+    assert max_cut_depth(est, _known(d=0.9)).max_depth_m > 0
+    assert max_cut_depth(est, known, cut_speed_m_s=2.0).cut_speed_m_s == 2.0
 
 
 # ---------------------------------------------------------------------------- the node over DDS
@@ -216,7 +321,7 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
     good = _estimate(known, residual=(800.0, -1200.0), phi=27 * DEG, c=9e3, delta=14 * DEG, delta_d=0.01)
     expected = max_cut_depth(good, known)  # the node's defaults: margin 0.8, d_max 0.3 m, residual on
     assert 0.0 < expected.max_depth_m < 0.3 and expected.limited_by_x
-    wide = max_cut_depth(good, known, margin=1.0, d_max_m=0.66)  # after the run-time change below
+    wide = max_cut_depth(good, known, margin=1.0, d_max_m=0.66, cut_speed_m_s=0.3)  # after the run-time change below
     assert wide.max_depth_m > expected.max_depth_m
     s = [(k + 1) * 10**9 // 60 for k in range(7)]
     with RosProbe(domain) as probe:
@@ -259,7 +364,10 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
             assert client.wait_for_services(timeout_sec=20)
             bad = _call(client.set_parameters([Parameter("margin", value=1.5)]))
             assert not bad.results[0].successful and "margin=1.5" in bad.results[0].reason
-            ok = _call(client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66)]))
+            bad = _call(client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))
+            assert not bad.results[0].successful and "cut_speed_m_s=0.0" in bad.results[0].reason
+            ok = _call(client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66),
+                                              Parameter("cut_speed_m_s", value=0.3)]))
             assert all(r.successful for r in ok.results)
             send_known(s[6])
             send_estimate(s[6], good)
@@ -278,10 +386,11 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
 
 
 @pytest.mark.timeout(30)
-def test_soil_planner_refuses_a_bad_margin_with_exit_2(tmp_path):
-    node = NodeProc("soil_planner", ["--ros-args", "-p", "margin:=1.5"], next_domain_id(), tmp_path)
+@pytest.mark.parametrize("arg", ["margin:=1.5", "cut_speed_m_s:=2.5"])
+def test_soil_planner_refuses_a_bad_setting_with_exit_2(tmp_path, arg):
+    node = NodeProc("soil_planner", ["--ros-args", "-p", arg], next_domain_id(), tmp_path)
     try:
         assert node.wait(timeout=20) == 2
     finally:
         node.stop()
-    assert "margin=1.5" in node.output
+    assert arg.replace(":", "") in node.output

@@ -22,7 +22,7 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.ros_adapter import WarnLimiter, message_class, qos_profile, spin_node, topic_qos
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .online import INPUT_TOPICS, Estimate, OnlineEstimator
+from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
@@ -41,9 +41,10 @@ def load_estimator_model(path: str):
         raise ValueError(f"parameter checkpoint: {err}") from None
     except ValueError as err:
         raise ValueError(f"parameter checkpoint refused: {err}") from None
-    if model.cfg.kind != "pinn":
-        raise ValueError(f"parameter checkpoint refused: {resolved} is a {model.cfg.kind!r} model; "
-                         "the estimator needs a 'pinn' checkpoint (it estimates soil parameters)")
+    try:
+        check_compatible(model)
+    except ValueError as err:
+        raise ValueError(f"parameter checkpoint refused: {resolved}: {err}") from None
     return model, ckpt, resolved
 
 
@@ -124,7 +125,7 @@ class EstimatorNode(Node):
         self.get_logger().info(
             f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
             f"{c.out_of_order} out of order, {c.non_finite} non-finite, {c.malformed} malformed, "
-            f"{c.restarts} restarts")
+            f"{c.duplicates} duplicates, {c.evicted} evicted, {c.restarts} restarts")
 
 
 def main(args: list[str] | None = None) -> int:

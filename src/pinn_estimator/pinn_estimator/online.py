@@ -37,6 +37,9 @@ from .model import EstimatorNet
 
 PERIOD_NS = 1_000_000_000 / SAMPLE_RATE_HZ  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
+# A stamp more than a window behind the last sample is not a late message but a source that
+# started over (a bag replayed again, a simulator reset) without an episode_start.
+RESTART_BACK_TICKS = WINDOW_SAMPLES
 # Input topics and, per topic, (field name, destination, column): destination "obs" -> o_t,
 # "known" -> Θ_k. Fields a topic carries that the model does not use (v_x^b, p_x^c) are
 # still checked for NaN/inf: a sample with a broken message is not trusted.
@@ -70,6 +73,8 @@ class Counters:
     out_of_order: int = 0  # messages older than the last released sample (window reset)
     non_finite: int = 0  # messages with a NaN/inf field (window reset)
     malformed: int = 0  # messages that did not parse (wrong layout/shape)
+    duplicates: int = 0  # a second message of a topic for the same tick (tick dropped)
+    evicted: int = 0  # incomplete ticks dropped to bound memory (a topic stopped, or bogus stamps)
     restarts: int = 0  # time went back by more than the reorder horizon: a new stream
     model_non_finite: int = 0  # model outputs that were not finite (published invalid)
 
@@ -128,7 +133,7 @@ class SampleAssembler:
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
         if stamp <= self.last_released:
-            if self.last_released - stamp > self.reorder_ticks * PERIOD_NS + PERIOD_NS / 2:
+            if self.last_released - stamp > RESTART_BACK_TICKS * PERIOD_NS:
                 # Far back: the source restarted (a bag replayed again, a simulator reset)
                 # without an episode_start. Start a new stream rather than wait for time to catch up.
                 self.counters.restarts += 1
@@ -147,6 +152,7 @@ class SampleAssembler:
         if sample is None:
             sample = self.pending[stamp] = Sample()
         if topic in sample.topics:
+            self.counters.duplicates += 1
             sample.bad = sample.bad or f"{topic} twice"
             self.warn(f"{topic}:duplicate", f"{topic}: two messages with stamp {stamp} ns; that tick is dropped")
         sample.topics.add(topic)
@@ -160,9 +166,12 @@ class SampleAssembler:
             elif dest:
                 getattr(sample, dest)[col] = v
         while len(self.pending) > MAX_PENDING_TICKS:  # a topic that never comes must not grow memory
-            oldest = min(self.pending)
-            missing = sorted(set(INPUT_TOPICS) - self.pending.pop(oldest).topics)
-            self.warn("incomplete", f"tick {oldest} ns never got {missing} within {MAX_PENDING_TICKS} ticks; dropped")
+            # Evict the tick that has waited longest (insertion order), not the lowest stamp: a
+            # burst of bogus future stamps then ages out instead of pushing out every real tick.
+            waited = next(iter(self.pending))
+            missing = sorted(set(INPUT_TOPICS) - self.pending.pop(waited).topics)
+            self.counters.evicted += 1
+            self.warn("evicted", f"tick {waited} ns never got {missing} within {MAX_PENDING_TICKS} ticks; dropped")
         self._release()
 
     def _drop_window(self) -> None:
@@ -194,6 +203,16 @@ class SampleAssembler:
             else:
                 self.counters.samples += 1
                 self.on_sample(oldest, sample)
+
+
+def check_compatible(model: EstimatorNet) -> None:
+    """ValueError unless the model can run online: a PINN (it estimates soil parameters) on
+    ``WINDOW_SAMPLES``-sample windows (what the ring buffer holds)."""
+    if model.cfg.kind != "pinn":
+        raise ValueError(f"model kind={model.cfg.kind!r}: the online estimator needs a 'pinn' model "
+                         "(a physics-free model estimates no soil parameters)")
+    if model.cfg.window != WINDOW_SAMPLES:
+        raise ValueError(f"model window={model.cfg.window} samples; the online estimator feeds {WINDOW_SAMPLES}")
 
 
 @dataclass(frozen=True)
@@ -256,11 +275,7 @@ class OnlineEstimator:
 
     def __init__(self, model: EstimatorNet, publish: Callable[[Estimate], None], *, stride: int = 1,
                  reorder_ticks: int = 3, warn: Warn = _no_warn):
-        if model.cfg.kind != "pinn":
-            raise ValueError(f"model kind={model.cfg.kind!r}: the online estimator needs a 'pinn' checkpoint "
-                             "(a physics-free model estimates no soil parameters)")
-        if model.cfg.window != WINDOW_SAMPLES:
-            raise ValueError(f"model window={model.cfg.window} samples; the online estimator feeds {WINDOW_SAMPLES}")
+        check_compatible(model)
         self.model = model.eval()
         self.publish = publish
         self.stride = self._check_stride(stride)
@@ -272,6 +287,7 @@ class OnlineEstimator:
         self._tick = 0  # released ticks since the last reset (stride phase)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
+        self._crossed = False  # a sample after _boundary was released (the new window has begun)
 
     @staticmethod
     def _check_stride(stride) -> int:
@@ -284,9 +300,7 @@ class OnlineEstimator:
 
     def set_model(self, model: EstimatorNet) -> None:
         """Swap the model (a retrained checkpoint); the window is kept: inputs mean the same."""
-        if model.cfg.kind != "pinn" or model.cfg.window != WINDOW_SAMPLES:
-            raise ValueError(f"model kind={model.cfg.kind!r} window={model.cfg.window}: need a 'pinn' model "
-                             f"with a {WINDOW_SAMPLES}-sample window")
+        check_compatible(model)
         self.model = model.eval()
 
     def reset(self, first_stamp_ns: int | None = None) -> None:
@@ -300,7 +314,7 @@ class OnlineEstimator:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
         that are still queued complete this episode's windows normally (the executor serves
         /sim/status first, so the event can overtake the episode's last ticks)."""
-        self._boundary = int(last_stamp_ns)
+        self._boundary, self._crossed = int(last_stamp_ns), False
 
     def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
@@ -310,12 +324,12 @@ class OnlineEstimator:
         went back (a replay starting over), everything restarts at ``first_stamp_ns``."""
         first = int(first_stamp_ns)
         if self.assembler.last_released < first:  # nothing of this episode released yet
-            self._boundary = first - 1
+            self._boundary, self._crossed = first - 1, False
             return
         if self._boundary is not None and self._boundary < first <= self.window_first_stamp:
             return  # the window already started after the previous episode, at or after this one's start
         self.reset(first)
-        self._boundary = first - 1
+        self._boundary, self._crossed = first - 1, False
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
@@ -328,10 +342,11 @@ class OnlineEstimator:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
             self.buffer.clear()
             return
-        if self._boundary is not None and stamp > self._boundary and self.buffer.count \
-                and self.window_first_stamp <= self._boundary:
-            self.buffer.clear()  # the first sample of a new episode: no window spans two
-            self._tick = 0
+        if self._boundary is not None and stamp > self._boundary and not self._crossed:
+            self._crossed = True  # the first sample of a new episode: no window spans two,
+            if self.buffer.count and self.window_first_stamp <= self._boundary:
+                self.buffer.clear()
+            self._tick = 0  # and the stride phase starts with the episode (live == replay)
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)

@@ -2,7 +2,9 @@
 
 Subscribes to /soil/estimate and /soil/known_params, pairs them by stamp (the estimate of
 tick t is planned with Θ_k of tick t, whichever arrives first) and publishes
-/planner/max_cut_depth stamped with the estimate's stamp. An invalid estimate (valid = 0)
+/planner/max_cut_depth stamped with the estimate's stamp: the deepest cut depth below the soil
+surface (Θ_k's d; what to give the anti-stall controller as ``target_depth_m``, see
+``planner.py``) for a steady, level cut at ``cut_speed_m_s``. An invalid estimate (valid = 0)
 gives a valid = 0 plan (all zeros), so a consumer sees that there is no plan for that tick.
 A message that cannot be trusted (wrong layout, NaN, out of Table 1 limits) is reported via
 WarnLimiter and nothing is published for it; the node never publishes NaN and never dies
@@ -25,11 +27,15 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
 
-from .planner import DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe, fields, max_cut_depth
+from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe,
+                      fields, max_cut_depth)
 
 PARAMETERS: dict[str, tuple] = {
     "margin": (DEFAULT_MARGIN, "fraction of the force limits (20 kN tractive x, 30 kN lift z) a cut may use, (0, 1]"),
-    "d_max_m": (DEFAULT_D_MAX_M, "deepest depth considered [m], (0, 0.66]; default: the blade's reach (0.3 m)"),
+    "d_max_m": (DEFAULT_D_MAX_M, "deepest cut depth below the soil surface considered [m], (0, 0.66]; default: "
+                                 "the blade's reach with the chassis on level, uncut ground (0.3 m)"),
+    "cut_speed_m_s": (DEFAULT_CUT_SPEED_M_S, "blade speed v_x of the planned steady, level cut (v_z = 0) [m/s], "
+                                             "(0, 2]; default: the anti-stall controller's default target speed"),
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
 }
@@ -49,7 +55,8 @@ class PlannerNode(Node):
         for name, (default, description) in PARAMETERS.items():
             self.declare_parameter(name, default, ParameterDescriptor(description=description))
         get = lambda name: self.get_parameter(name).value  # noqa: E731
-        self.margin, self.d_max_m = check_settings(get("margin"), get("d_max_m"))
+        self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(get("margin"), get("d_max_m"),
+                                                                       get("cut_speed_m_s"))
         self.include_residual = self._check_bool("include_residual", get("include_residual"))
         self.log_period_ns = int(check_log_period(get("log_period_s")) * NS_PER_S)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -66,7 +73,8 @@ class PlannerNode(Node):
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
         self.get_logger().info(
-            f"margin {self.margin}, d_max {self.d_max_m} m, residual {'on' if self.include_residual else 'off'}; "
+            f"margin {self.margin}, d_max {self.d_max_m} m, cut speed {self.cut_speed_m_s} m/s, "
+            f"residual {'on' if self.include_residual else 'off'}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}")
 
     @staticmethod
@@ -80,12 +88,14 @@ class PlannerNode(Node):
         """Validate everything first, then apply together (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
         try:
-            margin, d_max = check_settings(changes.get("margin", self.margin), changes.get("d_max_m", self.d_max_m))
+            margin, d_max, speed = check_settings(changes.get("margin", self.margin),
+                                                  changes.get("d_max_m", self.d_max_m),
+                                                  changes.get("cut_speed_m_s", self.cut_speed_m_s))
             residual = self._check_bool("include_residual", changes.get("include_residual", self.include_residual))
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / NS_PER_S))
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        self.margin, self.d_max_m, self.include_residual = margin, d_max, residual
+        self.margin, self.d_max_m, self.cut_speed_m_s, self.include_residual = margin, d_max, speed, residual
         self.log_period_ns = int(period * NS_PER_S)
         return SetParametersResult(successful=True)
 
@@ -122,7 +132,7 @@ class PlannerNode(Node):
             del self.known[older]
         try:
             plan = max_cut_depth(est, known, margin=self.margin, d_max_m=self.d_max_m,
-                                 include_residual=self.include_residual)
+                                 cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual)
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             return

@@ -91,16 +91,20 @@ ESTIMATED_FORCE = Topic(
     "predicted cutting force F̂ (valid estimates only): force.x, force.z [N], stamp = newest sample used",
 )
 # What the planner example publishes (pinn_estimator.planner_node), one message per
-# /soil/estimate with a Θ_k of the same stamp, stamped like it. max_depth_m: deepest commanded
-# depth d [m] with every depth in [0, d] inside margin x the force limits; f_x_n, f_z_n: the
-# predicted force there [N] (FEE at d + Δd with β*, anchored to F̂ at the current depth);
-# limited_by_x/z: that limit is exceeded just deeper (1/0; both 0: the d_max reach was hit);
-# valid 0.0: the estimate was invalid, every other field is 0.0, never NaN.
+# /soil/estimate with a Θ_k of the same stamp, stamped like it. max_depth_m: deepest cut depth
+# d [m] below the soil surface (Θ_k's d, the blade edge below the surface ahead of the blade;
+# ~ the anti-stall controller's target_depth_m, equal on level uncut ground) with every depth
+# in [0, d] inside margin x the force limits for a steady, level cut at cut_speed_m_s; f_x_n,
+# f_z_n: the predicted force there [N] (FEE at d' = clamp(d + Δd, 0, 0.66 m) with β*, plus the
+# residual of F̂ at the current depth scaled with d'); limited_by_x/z: that limit is exceeded
+# just deeper (1/0; both 0: d_max_m was reached); valid 0.0: the estimate was invalid, every
+# other field is 0.0, never NaN.
 PLAN_FIELDS: tuple[str, ...] = ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid")
 PLAN = Topic(
     "/planner/max_cut_depth", "std_msgs/msg/Float64MultiArray",
-    "deepest cut within the force limits from the estimate of the stamped tick: depth [m], predicted "
-    "force there [N] (x, z), which limit binds (1/0 each; both 0: d_max reached), validity flag",
+    "deepest cut within the force limits from the estimate of the stamped tick: depth below the soil "
+    "surface [m], predicted force there [N] (x, z), which limit binds (1/0 each; both 0: d_max reached), "
+    "validity flag",
     PLAN_FIELDS,
 )
 
