@@ -31,11 +31,13 @@ import torch
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, UNKNOWN_PARAMS, WINDOW_SAMPLES
+from soil_msgs_py.params import (
+    KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
+)
 
 from .model import EstimatorNet
 
-PERIOD_NS = 1_000_000_000 / SAMPLE_RATE_HZ  # one tick [ns] (stamps are integer ns, floor of k/60 s)
+PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
 # A stamp more than a window behind the last sample is not a late message but a source that
 # started over (a bag replayed again, a simulator reset) without an episode_start.

@@ -40,7 +40,6 @@ PARAMETERS: dict[str, tuple] = {
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
 }
 MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
-NS_PER_S = 1_000_000_000
 
 
 def check_log_period(value) -> float:
@@ -58,7 +57,7 @@ class PlannerNode(Node):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(get("margin"), get("d_max_m"),
                                                                        get("cut_speed_m_s"))
         self.include_residual = self._check_bool("include_residual", get("include_residual"))
-        self.log_period_ns = int(check_log_period(get("log_period_s")) * NS_PER_S)
+        self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -92,11 +91,11 @@ class PlannerNode(Node):
                                                   changes.get("d_max_m", self.d_max_m),
                                                   changes.get("cut_speed_m_s", self.cut_speed_m_s))
             residual = self._check_bool("include_residual", changes.get("include_residual", self.include_residual))
-            period = check_log_period(changes.get("log_period_s", self.log_period_ns / NS_PER_S))
+            period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.margin, self.d_max_m, self.cut_speed_m_s, self.include_residual = margin, d_max, speed, residual
-        self.log_period_ns = int(period * NS_PER_S)
+        self.log_period_ns = int(period * M.NS_PER_S)
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks

@@ -131,11 +131,19 @@ def parse_labelled(msg: Any, expected_labels: Sequence[str], topic: str = "") ->
             f"{where}labelled array has len(data)={len(data)}, size={dims[0].size}, "
             f"stride={dims[0].stride}, data_offset={msg.layout.data_offset}; expected {n}, {n}, {n}, 0"
         )
-    sec, nanosec = data[0], data[1]
-    ok = np.isfinite(sec) and np.isfinite(nanosec)
-    if not (ok and sec == int(sec) and nanosec == int(nanosec) and 0 <= nanosec < NS_PER_S):
-        raise ValueError(f"{where}invalid stamp sec={sec!r} nanosec={nanosec!r}")
-    return int(sec) * NS_PER_S + int(nanosec), data[2:].copy()
+    stamp = _array_stamp(data[0], data[1])
+    if stamp is None:
+        raise ValueError(f"{where}invalid stamp sec={data[0]!r} nanosec={data[1]!r}")
+    return stamp, data[2:].copy()
+
+
+def _array_stamp(sec: float, nanosec: float) -> int | None:
+    """ns from a labelled array's (stamp_sec, stamp_nanosec) floats; None unless both are whole
+    finite numbers with nanosec in [0, 1e9)."""
+    if not (math.isfinite(sec) and math.isfinite(nanosec) and sec == int(sec) and nanosec == int(nanosec)
+            and 0 <= nanosec < NS_PER_S):
+        return None
+    return int(sec) * NS_PER_S + int(nanosec)
 
 
 def labelled_stamp(msg: Any) -> int | None:
@@ -146,10 +154,7 @@ def labelled_stamp(msg: Any) -> int | None:
     dims = getattr(getattr(msg, "layout", None), "dim", None)
     if not dims or not dims[0].label.startswith(_label(()) + LABEL_SEP) or len(msg.data) < 2:
         return None
-    sec, nanosec = float(msg.data[0]), float(msg.data[1])
-    if not (math.isfinite(sec) and math.isfinite(nanosec) and sec == int(sec) and nanosec == int(nanosec) and 0 <= nanosec < NS_PER_S):
-        return None
-    return int(sec) * NS_PER_S + int(nanosec)
+    return _array_stamp(float(msg.data[0]), float(msg.data[1]))
 
 
 # --- per-topic mapping ---------------------------------------------------------------

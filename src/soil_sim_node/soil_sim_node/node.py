@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import SAMPLE_RATE_HZ
+from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
 
 from .effects import effects_for_mode
@@ -44,7 +44,6 @@ from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
 PACINGS = ("realtime", "lockstep")
 COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
-NS_PER_TICK_EXACT = 1e9 / SAMPLE_RATE_HZ
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through _value() (unset reads as []).
 _STR_ARRAY = Parameter.Type.STRING_ARRAY
@@ -323,7 +322,7 @@ class SimNode(Node):
         if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
             self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
         self.get_logger().info(f"episode {self.episode_index} end ({reason}): {self.tick + 1} ticks; timing {stats}")
-        self.next_first_stamp_ns = last + int(round(NS_PER_TICK_EXACT))
+        self.next_first_stamp_ns = last + int(round(TICK_PERIOD_NS))
         self.sim = None
         self.gate.idle()
         self._reset_timer()
