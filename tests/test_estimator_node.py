@@ -17,10 +17,9 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.bag_io import find_episode_bags, read_episode, read_labelled_topic
 from soil_msgs_py.params import WINDOW_SAMPLES
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
-from pinn_estimator.data import load_dataset
-from pinn_estimator.inference import WindowTensors, predict
+from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
-from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, estimate_values
+from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator
 
 from ros_probe import BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
 from test_online import SAMPLE, SCALE
@@ -33,16 +32,6 @@ def estimates(probe: RosProbe) -> list[tuple[float, int, np.ndarray]]:
     with probe.lock:
         got = list(probe.received[T.ESTIMATE.name])
     return [(t, *M.parse_labelled(m, T.ESTIMATE_FIELDS, T.ESTIMATE.name)) for t, m in got]
-
-
-def offline_values(bag, ep, model) -> dict[int, np.ndarray]:
-    """The offline pipeline (load_dataset -> predict, batched) on the recorded episode."""
-    ds = load_dataset(bag.parent, cache=False)
-    (e,) = ds.index([bag.name])
-    ends = ds.window_ends([e])
-    out = predict(model, WindowTensors(ds), ends)
-    values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
-    return {int(ep.stamps_ns[end - ds.offsets[e]]): v for end, v in zip(ends, values)}
 
 
 def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
@@ -79,7 +68,7 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     assert rec_stamps.tolist() == [s for _, s, _ in live]
     np.testing.assert_array_equal(rec_values, np.stack([v for _, _, v in live]))
     # online == offline model on the same windows (float32 rounding of batch 1 vs batched)
-    offline = offline_values(bag, ep, load_model(DEFAULT_CHECKPOINT)[0])
+    offline = dict(zip(*episode_estimates(load_model(DEFAULT_CHECKPOINT)[0], bag)))
     for _, s, v in good:
         np.testing.assert_array_less(np.abs(v - offline[s]) / SCALE, 1e-5)
 

@@ -18,8 +18,7 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
-from pinn_estimator.data import load_dataset
-from pinn_estimator.inference import WindowTensors, predict
+from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.node import load_estimator_model
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
@@ -42,15 +41,10 @@ def model():
 
 
 @pytest.fixture(scope="module")
-def offline(episode, model):
-    """The offline pipeline's (data.load_dataset -> inference.predict, batched) /soil/estimate
-    values for the window ending at every tick >= 59 of the sample episode."""
-    ds = load_dataset(SAMPLE.parent, cache=False)
-    (e,) = ds.index([SAMPLE.name])
-    ends = ds.window_ends([e])
-    out = predict(model, WindowTensors(ds), ends)
-    values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
-    return {int(episode.stamps_ns[end - ds.offsets[e]]): v for end, v in zip(ends, values)}
+def offline(model):
+    """The offline pipeline's (load_dataset -> predict, batched) /soil/estimate values for the
+    window ending at every tick >= 59 of the sample episode."""
+    return dict(zip(*episode_estimates(model, SAMPLE)))
 
 
 def tick_messages(ep, i: int, stamp: int | None = None) -> list[tuple[str, object]]:

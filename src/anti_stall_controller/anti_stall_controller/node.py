@@ -19,7 +19,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, status_event, spin_node, topic_qos
 
 from .controller import AntiStallController, AntiStallGains
 
@@ -86,10 +86,8 @@ class ControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_status(self, msg: String) -> None:
-        try:
-            event = G.EpisodeEvent.from_json(msg.data)
-        except ValueError as err:
-            self._warn("status", f"{G.SIM_STATUS_TOPIC}: {err}; ignored")
+        event = status_event(msg.data, self._warn)
+        if event is None:
             return
         if event.event == G.EVENT_EPISODE_END:
             self.held = []

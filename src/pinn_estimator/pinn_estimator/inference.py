@@ -6,14 +6,17 @@ is computed one way.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from soil_msgs_py.bag_io import read_episode
 from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
 
-from .data import Dataset
+from .data import Dataset, load_dataset
 from .model import EstimatorNet
+from .online import estimate_values
 
 FORCE_LIMITS_N = np.array(FORCE_LIMITS)
 # §3.2 normalises the magnitude error by the machine limits: 730 N ~ 2 % -> |(20, 30) kN| = 36 kN.
@@ -61,3 +64,17 @@ def force_errors(measured: np.ndarray, predicted: np.ndarray) -> dict[str, float
     out["mae_mag_pct_measured"] = float(100 * mag_err.mean() / max(mag.mean(), 1e-9))
     out["mae_mag_pct_limit"] = float(100 * mag_err.mean() / FORCE_LIMIT_MAGNITUDE_N)
     return out
+
+
+def episode_estimates(model: EstimatorNet, bag) -> tuple[np.ndarray, np.ndarray]:
+    """The offline pipeline on one recorded episode bag: (stamps of the newest sample of every
+    full window, ``/soil/estimate`` values of each, batched). What the online estimator must
+    publish for the same episode (up to float32 rounding of batch 1 vs batched)."""
+    bag = Path(bag)
+    ds = load_dataset(bag.parent, cache=False)
+    (e,) = ds.index([bag.name])
+    ends = ds.window_ends([e])
+    out = predict(model, WindowTensors(ds), ends)
+    values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
+    stamps = read_episode(bag).stamps_ns[ends - ds.offsets[e]]
+    return stamps, values

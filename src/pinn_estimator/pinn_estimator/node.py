@@ -19,7 +19,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, qos_profile, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, message_class, status_event, qos_profile, spin_node, topic_qos
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
@@ -103,10 +103,8 @@ class EstimatorNode(Node):
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg: String) -> None:
-        try:
-            event = G.EpisodeEvent.from_json(msg.data)
-        except ValueError as err:
-            self._warn("status", f"{G.SIM_STATUS_TOPIC}: {err}; ignored")
+        event = status_event(msg.data, self._warn)
+        if event is None:
             return
         if event.event == G.EVENT_EPISODE_START:
             self.core.start_episode(event.first_stamp_ns)

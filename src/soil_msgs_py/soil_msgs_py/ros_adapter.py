@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .graph import DATA_QOS, TOPIC_QOS, QosSpec
+from .graph import DATA_QOS, SIM_STATUS_TOPIC, TOPIC_QOS, EpisodeEvent, QosSpec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -68,6 +68,16 @@ class WarnLimiter:
         n = self.counts[kind]
         if n == 1 or math.log10(n).is_integer():
             self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
+
+
+def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
+    """A ``/sim/status`` message's event, or None (warned, naming the problem) if malformed:
+    a bad status message never stops a node."""
+    try:
+        return EpisodeEvent.from_json(text)
+    except ValueError as err:
+        warn("status", f"{SIM_STATUS_TOPIC}: {err}; ignored")
+        return None
 
 
 def raise_interrupt(signum, frame):  # noqa: ARG001
