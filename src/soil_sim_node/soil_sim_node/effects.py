@@ -204,6 +204,8 @@ class ForcePlugin:
     def load(cls, spec) -> "ForcePlugin":
         if isinstance(spec, dict):
             target, params = spec.get("target"), dict(spec.get("params") or {})
+        elif isinstance(spec, str) and " " in spec.strip():
+            target, params = _parse_spec(spec)
         else:
             target, params = spec, {}
         if not isinstance(target, str) or target.count(":") != 1:
@@ -237,6 +239,22 @@ class ForcePlugin:
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
             result.append(arr)
         return result[0], result[1]
+
+
+def _parse_spec(spec: str) -> tuple[str, dict]:
+    """'package.module:function key=value ...' (what fits in a ROS string parameter or a CLI
+    flag) -> (target, params); numbers become floats."""
+    target, *pairs = spec.split()
+    params: dict = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.isidentifier():
+            raise PluginError(f"plugin={spec!r}: parameter {pair!r} must look like key=value")
+        try:
+            params[key] = float(value)
+        except ValueError:
+            params[key] = value
+    return target, params
 
 
 def load_plugins(specs) -> list[ForcePlugin]:
