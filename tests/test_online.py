@@ -311,3 +311,25 @@ def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
         assert "checkpoint" in str(err.value)
     model, ckpt, resolved = load_estimator_model("")
     assert resolved == str(DEFAULT_CHECKPOINT) and model.cfg.kind == "pinn"
+
+
+def test_a_model_with_a_distance_term_gets_the_travel_since_the_episode_start(episode, model):
+    """A PINN with compaction_hardening (issue 6) needs the blade's travel in soil since the
+    episode began: online it is summed tick by tick from episode_start and equals the offline
+    pipeline's; without an episode_start the node cannot know it and publishes invalid."""
+    cfg = ModelConfig(**{**model.cfg.to_dict(), "extra_terms": [["compaction_hardening", 0.05]]})
+    augmented = EstimatorNet(cfg, model.backbone.obs_mean, model.backbone.obs_std)
+    augmented.load_state_dict(model.state_dict())
+    augmented.eval()
+    offline = dict(zip(*episode_estimates(augmented, SAMPLE)))
+    out = []
+    est = OnlineEstimator(augmented, out.append)
+    est.start_episode(int(episode.stamps_ns[0]))
+    for t, m in in_order(episode, range(N_TICKS)):
+        est.add(t, m)
+    assert len(valid(out)) == N_TICKS - 59
+    assert_matches_offline(valid(out), offline)
+    plain = {e.stamp_ns: e.values for e in valid(run(model, in_order(episode, range(N_TICKS)))[1])}
+    assert any(abs(e["f_x_hat"] - plain[e.stamp_ns][5]) > 10.0 for e in valid(out)), "the term adds force"
+    _, blind = run(augmented, in_order(episode, range(N_TICKS)))
+    assert blind and not valid(blind)

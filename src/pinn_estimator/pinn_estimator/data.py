@@ -24,6 +24,7 @@ from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
     OBSERVATION_FIELDS,
+    SAMPLE_RATE_HZ,
     WINDOW_SAMPLES,
 )
 
@@ -69,6 +70,17 @@ class Dataset:
     def episode_of_rows(self, rows: np.ndarray) -> np.ndarray:
         return np.searchsorted(self.offsets, rows, side="right") - 1
 
+    def distance_in_soil(self) -> np.ndarray:
+        """(N,) blade travel in soil [m] at every row, restarting at each episode's first tick
+        (``distance_in_soil`` per episode, from Θ_k's v_x and d). Computed, not cached: it is a
+        pure function of ``known``, so a cached dataset can never disagree with it."""
+        out = np.zeros(len(self.known))
+        vx, d = self.known[:, KNOWN_PARAMS.index("v_x")], self.known[:, KNOWN_PARAMS.index("d")]
+        for e in range(len(self)):
+            rows = self.episode_rows(e)
+            out[rows] = distance_in_soil(vx[rows], d[rows])
+        return out
+
     def index(self, names) -> list[int]:
         """Episode indices of bag names; raises naming the first name that is not here."""
         where = {n: i for i, n in enumerate(self.names)}
@@ -79,6 +91,36 @@ class Dataset:
                 f"e.g. {missing[0]!r}: evaluate on the directory the model was trained from"
             )
         return [where[n] for n in names]
+
+
+# ---------------------------------------------------------------------------------- distance in soil
+TICK_S = 1.0 / SAMPLE_RATE_HZ
+
+
+def soil_advance(v_x, d, dt: float = TICK_S):
+    """Blade travel in soil during one tick [m]: max(v_x, 0)·dt where d > 0, else 0.
+
+    The one increment of ``distance_in_soil``. An online estimator keeps a running sum
+    (``distance = 0`` at episode_start; for every tick, oldest first, *including* ticks that
+    do not complete a window: ``distance += soil_advance(v_x, d)``, then the tick's value is
+    ``distance``) and gets the offline pipeline's values.
+    """
+    return np.maximum(np.asarray(v_x, dtype=float), 0.0) * dt * (np.asarray(d, dtype=float) > 0)
+
+
+def distance_in_soil(v_x, d, dt: float = TICK_S) -> np.ndarray:
+    """Blade travel with d > 0 since the episode started [m], at every tick of one episode.
+
+    ``v_x`` [m/s], ``d`` [m]: Θ_k's columns over the whole episode, oldest first (1-D). The
+    value at tick t is Σ_{j<=t} max(v_x_j, 0)·dt·[d_j > 0], cumulative up to and including t.
+    A window's value is the one at its newest sample: it needs the episode from its start,
+    not only the 60-sample window. (Against the simulator's own ``distance_in_soil`` it runs
+    ~3 cm short after 2 m of cut: Θ_k's v_x is a 10-sample average, which lags at start-up.)
+    """
+    adv = soil_advance(v_x, d, dt)
+    if adv.ndim != 1:
+        raise ValueError(f"distance_in_soil wants 1-D per-tick arrays of one episode, got shape {adv.shape}")
+    return np.cumsum(adv)
 
 
 # ---------------------------------------------------------------------------------- loading

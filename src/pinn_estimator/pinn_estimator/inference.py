@@ -31,6 +31,7 @@ class WindowTensors:
         self.obs = torch.as_tensor(ds.observations, dtype=torch.float32)
         self.known = torch.as_tensor(ds.known, dtype=torch.float32)
         self.force = torch.as_tensor(ds.forces, dtype=torch.float32)
+        self.distance = torch.as_tensor(ds.distance_in_soil(), dtype=torch.float32)  # for distance terms
 
     def batch(self, ends: torch.Tensor):
         return self.obs[ends[:, None] + WINDOW_OFFSETS], self.known[ends], self.force[ends]
@@ -43,8 +44,9 @@ def predict(model: EstimatorNet, tensors: WindowTensors, ends: np.ndarray, batch
     parts: dict[str, list] = {}
     ends_t = torch.as_tensor(ends, dtype=torch.int64)
     for i in range(0, len(ends_t), batch_size):
-        obs, known, _ = tensors.batch(ends_t[i : i + batch_size])
-        for key, value in model(obs, known).items():
+        part = ends_t[i : i + batch_size]
+        obs, known, _ = tensors.batch(part)
+        for key, value in model(obs, known, tensors.distance[part]).items():
             parts.setdefault(key, []).append(value.double().numpy())
     return {k: np.concatenate(v) for k, v in parts.items()}
 

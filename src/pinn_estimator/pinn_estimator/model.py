@@ -6,6 +6,15 @@
     Θ = [Θ_k, Θ_u] clipped to Table 1 limits, d' = d + Δd --FEE (soil_msgs_py.fee)--> F_FEE
     F̂ = F_FEE + F_r
 
+Augmented physics (issue 6): ``ModelConfig.extra_terms`` = ((name, k), ...) of catalogue terms
+(``soil_msgs_py.extra_terms``), each ΔF = k·B evaluated on the same Θ, d' and F_FEE, so
+
+    F_phys = F_FEE + Σ k·B        F̂ = F_phys + F_r
+
+with k fixed (not trained). ``force_fee`` stays the pure FEE part, ``force_extra`` is Σ k·B.
+A term that looks at the blade's travel in soil (``DISTANCE_TERMS``) needs the ``distance``
+input: ``data.distance_in_soil`` over the episode, at the window's newest sample.
+
 The physics-free twin has the same backbone and size but its head predicts F directly: it is
 the baseline that tells whether the physics costs force accuracy.
 """
@@ -17,6 +26,7 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import nn
 
+from soil_msgs_py import extra_terms as X
 from soil_msgs_py import fee
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS, WINDOW_SAMPLES
 
@@ -26,6 +36,9 @@ MODEL_KINDS = ("pinn", "physics_free")
 FORCE_SCALE_N = FORCE_LIMITS_N
 # §2.2.2: "Values for the residual force are normalized F_r to 10% of the value of F".
 RESIDUAL_FORCE_FRACTION = 0.1
+# Catalogue terms whose basis depends on TermInputs.distance_in_soil: a model using one needs
+# the ``distance`` input (tests check no other catalogue term looks at it).
+DISTANCE_TERMS = frozenset({"compaction_hardening"})
 
 
 @dataclass(frozen=True)
@@ -44,13 +57,26 @@ class ModelConfig:
     ff_dim: int = 64
     dropout: float = 0.1
     hidden: int = 20
+    # Catalogue terms added to the FEE force with a fixed k: ((name, k), ...), e.g.
+    # (("soil_inertia", 2.0),). Empty = the paper's PINN.
+    extra_terms: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self):
         if self.kind not in MODEL_KINDS:
             raise ValueError(f"model kind={self.kind!r} is not one of {MODEL_KINDS}")
+        if isinstance(self.extra_terms, (str, bytes)):
+            raise ValueError(f"model extra_terms={self.extra_terms!r} must be a sequence of 'name=k' or (name, k), not one string")
+        terms = X.parse_terms(self.extra_terms)  # ValueError naming the bad term
+        names = [n for n, _ in terms]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"model extra_terms: effect term {twice[0]} is given more than once")
+        if terms and self.kind != "pinn":
+            raise ValueError(f"model extra_terms={list(names)} need kind='pinn' (the {self.kind} model has no physics to add them to)")
+        object.__setattr__(self, "extra_terms", terms)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name not in ("kind", "dropout") and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
+            if f.name not in ("kind", "dropout", "extra_terms") and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
                 raise ValueError(f"model {f.name}={v!r} must be a positive integer")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"model dropout={self.dropout!r} must be in [0, 1)")
@@ -63,6 +89,11 @@ class ModelConfig:
     def n_tokens(self) -> int:  # l
         return (self.window - self.conv_kernel) // self.conv_stride + 1
 
+    @property
+    def needs_distance(self) -> bool:
+        """True if a configured extra term needs the ``distance`` (travel in soil) input."""
+        return any(name in DISTANCE_TERMS for name, _ in self.extra_terms)
+
     @classmethod
     def from_dict(cls, data: dict) -> "ModelConfig":
         names = {f.name for f in fields(cls)}
@@ -72,7 +103,10 @@ class ModelConfig:
         return cls(**data)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Plain containers (checkpoints load with weights_only=True); extra_terms as [[name, k], ...]."""
+        out = asdict(self)
+        out["extra_terms"] = [[name, float(k)] for name, k in self.extra_terms]
+        return out
 
 
 def _spans(names):
@@ -127,8 +161,10 @@ class EstimatorNet(nn.Module):
 
     ``forward`` returns a dict of SI tensors: ``force`` (B, 2) = F̂ [N] always; for the PINN
     also ``theta_raw`` (B, 5) Θ_u before clipping (what the ReLU limits act on), ``theta``
-    (B, 5) clipped, ``d_prime``, ``force_fee``, ``force_residual`` (B, 2) [N], ``delta_eff``
-    (velocity-corrected clipped δ, Eq. 10) and ``eta`` (δ' + ρ + φ + β of the unclipped outputs).
+    (B, 5) clipped, ``d_prime``, ``force_fee`` (the pure FEE part), ``force_extra`` (Σ k·B of
+    ``cfg.extra_terms``, zeros without), ``force_residual`` (B, 2) [N], so that
+    force = force_fee + force_extra + force_residual; ``delta_eff`` (velocity-corrected
+    clipped δ, Eq. 10) and ``eta`` (δ' + ρ + φ + β of the unclipped outputs).
     """
 
     def __init__(self, cfg: ModelConfig, obs_mean, obs_std):
@@ -150,7 +186,14 @@ class EstimatorNet(nn.Module):
             if cfg.kind == "pinn":
                 self.head.bias[: len(UNKNOWN_PARAMS)] = 0.5
 
-    def forward(self, obs: torch.Tensor, known: torch.Tensor) -> dict[str, torch.Tensor]:
+    @property
+    def needs_distance(self) -> bool:
+        return self.cfg.needs_distance
+
+    def forward(self, obs: torch.Tensor, known: torch.Tensor, distance: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """obs (B, T, 9), known (B, 9) SI at the newest sample; ``distance`` (B,) [m] the blade's
+        travel in soil since the episode start at the newest sample (``data.distance_in_soil``),
+        required only if ``needs_distance`` (ValueError otherwise), ignored else."""
         # float64 callers (NumPy-born tensors) get the model's float32, not a dtype error
         obs, known = obs.to(self.force_scale.dtype), known.to(self.force_scale.dtype)
         out = self.head(self.backbone(obs, known))
@@ -169,9 +212,16 @@ class EstimatorNet(nn.Module):
         raw = theta_raw.unbind(1)  # eta of the unclipped outputs: the ReLU limit must see the excursion
         delta_eff_raw, _ = fee.velocity_corrected(raw[2], k["c_a"], k["rho"], k["alpha"], k["v_x"], k["v_z"])
         force_fee = torch.stack([fx, fz], dim=1)
+        if self.cfg.extra_terms:
+            force_extra = self._extra_force(k, theta, d_prime, fx, fz, distance)
+            force_phys = force_fee + force_extra
+        else:  # the paper's PINN: exactly the original arithmetic (shipped checkpoints unchanged)
+            force_extra = torch.zeros_like(force_fee)
+            force_phys = force_fee
         return {
-            "force": force_fee + residual,
+            "force": force_phys + residual,
             "force_fee": force_fee,
+            "force_extra": force_extra,
             "force_residual": residual,
             "theta_raw": theta_raw,
             "theta": theta,
@@ -179,6 +229,55 @@ class EstimatorNet(nn.Module):
             "delta_eff": delta_eff,
             "eta": delta_eff_raw + k["rho"] + raw[0] + raw[3],
         }
+
+    def _extra_force(self, k, theta, d_prime, fx, fz, distance) -> torch.Tensor:
+        """Σ k·B of the configured terms on the model's own Θ (clipped), d' and F_FEE -> (B, 2) [N]."""
+        n = len(fx)
+        if distance is None:
+            if self.cfg.needs_distance:
+                used = sorted(name for name, _ in self.cfg.extra_terms if name in DISTANCE_TERMS)
+                raise ValueError(
+                    f"extra term(s) {used} need the blade's travel in soil: call model(obs, known, distance=...) "
+                    f"with data.distance_in_soil of the episode at each window's newest sample"
+                )
+            distance = torch.zeros_like(fx)
+        else:
+            distance = torch.as_tensor(distance).to(fx.dtype).reshape(-1)
+            if len(distance) != n:
+                raise ValueError(f"distance has {len(distance)} values for a batch of {n} windows")
+        g = _FiniteGrad.apply  # the estimated inputs: a term's singularity must not poison Θ_u's gradient
+        inputs = X.TermInputs(
+            d=g(d_prime), q=k["q"], v_x=k["v_x"], v_z=k["v_z"], gamma=k["gamma"], w=k["w"], rho=k["rho"],
+            alpha=k["alpha"], phi=g(theta[:, 0]), c=g(theta[:, 1]), delta=g(theta[:, 2]), distance_in_soil=distance,
+            f_fee_x=g(fx), f_fee_z=g(fz),
+        )
+        ex = ez = torch.zeros_like(fx)
+        for name, coef in self.cfg.extra_terms:  # X.apply, with a non-finite basis value counted as 0
+            bx, bz = X.get_term(name).basis(inputs)
+            ex = ex + coef * torch.where(torch.isfinite(bx), bx, 0.0)
+            ez = ez + coef * torch.where(torch.isfinite(bz), bz, 0.0)
+        return torch.stack([ex, ez], dim=1)
+
+
+class _FiniteGrad(torch.autograd.Function):
+    """Identity whose backward zeroes non-finite gradient elements.
+
+    Some catalogue formulas are singular at the edges of Θ's limits or off their domain:
+    tip_penetration's N_c = (N_q − 1)/tan φ is 0/0 at φ = 0 (clipped), its e^{π tan φ}
+    overflows float32 above φ ≈ 87°, and side_wall_shear masks an invalid β* with ``where``,
+    whose backward still multiplies 0 by the masked branch's inf/NaN derivative. There the term
+    counts as 0 (forward) and that sample's estimates get no gradient from the extra terms,
+    instead of turning the loss (and, through clip_grad_norm_, every weight) into NaN.
+    Finite elements pass exactly.
+    """
+
+    @staticmethod
+    def forward(ctx, x):
+        return x.view_as(x)
+
+    @staticmethod
+    def backward(ctx, grad):
+        return torch.where(torch.isfinite(grad), grad, torch.zeros_like(grad))
 
 
 def parameter_count(model: nn.Module) -> int:

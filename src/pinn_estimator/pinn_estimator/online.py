@@ -35,6 +35,7 @@ from soil_msgs_py.params import (
     KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
+from .data import soil_advance
 from .model import EstimatorNet
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
@@ -47,6 +48,7 @@ RESTART_BACK_TICKS = WINDOW_SAMPLES
 # still checked for NaN/inf: a sample with a broken message is not trusted.
 INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
+_V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
 _DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS)}
 
 
@@ -290,6 +292,10 @@ class OnlineEstimator:
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
+        # Blade travel in soil since the episode's first tick [m], for models with distance terms
+        # (extra_terms compaction_hardening); known only for an episode seen from its start.
+        self.distance_m = 0.0
+        self._distance_known = False
 
     @staticmethod
     def _check_stride(stride) -> int:
@@ -311,6 +317,7 @@ class OnlineEstimator:
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
         self._boundary = None
+        self.distance_m, self._distance_known = 0.0, False
 
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
@@ -332,6 +339,7 @@ class OnlineEstimator:
             return  # the window already started after the previous episode, at or after this one's start
         self.reset(first)
         self._boundary, self._crossed = first - 1, False
+        self._distance_known = True
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
@@ -339,6 +347,7 @@ class OnlineEstimator:
     def _on_restart(self) -> None:
         self._boundary = None
         self._tick = 0
+        self.distance_m, self._distance_known = 0.0, False
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
@@ -349,13 +358,16 @@ class OnlineEstimator:
             if self.buffer.count and self.window_first_stamp <= self._boundary:
                 self.buffer.clear()
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
+            self.distance_m, self._distance_known = 0.0, True
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)
+        self.distance_m += float(soil_advance(sample.known[_V_X], sample.known[_D]))
         tick, self._tick = self._tick, self._tick + 1
         if tick % self.stride:
             return
-        if not self.buffer.full:
+        if not self.buffer.full or (self.model.needs_distance and not self._distance_known):
+            # (a model with a distance term needs the episode from its start: invalid until one begins)
             self.counters.invalid += 1
             self.publish(invalid_estimate(stamp, self.buffer.count))
             return
@@ -371,7 +383,8 @@ class OnlineEstimator:
         """Run the model on the current (full) window; invalid if any output is not finite."""
         obs = torch.as_tensor(self.buffer.window_obs(), dtype=torch.float32).unsqueeze(0)
         known = torch.as_tensor(self.buffer.known, dtype=torch.float32).unsqueeze(0)
-        values = estimate_values(self.model(obs, known))[0]
+        distance = torch.tensor([self.distance_m], dtype=torch.float32)
+        values = estimate_values(self.model(obs, known, distance))[0]
         values[T.ESTIMATE_FIELDS.index("window_samples")] = self.buffer.count
         if not np.isfinite(values).all():
             self.counters.model_non_finite += 1

@@ -4,6 +4,10 @@ Reads bags with ``rosbags`` (cached by content fingerprint), splits by episode, 
 observations with training-set statistics (stored in the model), Adam with plateau LR decay,
 early stopping on the validation loss, a wall-clock budget, seeded. Writes the checkpoint and
 a training-curve PNG beside it.
+
+``--extra-term NAME=K`` (repeatable) trains the PINN with catalogue effects added to its
+physics (issue 6: F_phys = F_FEE + Σ k·B, ``soil_msgs_py.extra_terms``); the checkpoint's
+model config records them, so every loader runs the same physics.
 """
 from __future__ import annotations
 
@@ -17,11 +21,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from soil_msgs_py.extra_terms import CATALOGUE, parse_terms
+
 from .checkpoint import save_checkpoint
 from .data import Dataset, describe, load_dataset, split_episodes
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
+
+# ModelConfig fields that are not a plain ``--name`` option (fixed by the data, or --kind/--extra-term)
+MODEL_FIELDS_NOT_OPTIONS = ("kind", "window", "n_obs", "n_known", "extra_terms")
 
 
 @dataclass
@@ -69,13 +78,16 @@ def _loss(model, out, force, known, weights):
 
 
 @torch.no_grad()
-def _validate(model, tensors, ends, weights, batch_size=4096) -> tuple[float, np.ndarray]:
-    """Mean validation loss and the predicted forces [N], from one pass over the windows."""
+def _validate(model, tensors, ends, weights, distance, batch_size=4096) -> tuple[float, np.ndarray]:
+    """Mean validation loss and the predicted forces [N], from one pass over the windows.
+
+    ``distance``: (N,) travel in soil of every dataset row (``Dataset.distance_in_soil``)."""
     model.eval()
     total, forces = 0.0, []
     for i in range(0, len(ends), batch_size):
-        obs, known, force = tensors.batch(ends[i : i + batch_size])
-        out = model(obs, known)
+        part = ends[i : i + batch_size]
+        obs, known, force = tensors.batch(part)
+        out = model(obs, known, distance[part])
         loss, _ = _loss(model, out, force, known, weights)
         total += float(loss) * len(obs)
         forces.append(out["force"].double().numpy())
@@ -94,6 +106,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     mean, std = observation_statistics(ds, idx["train"])
     model = EstimatorNet(model_cfg, mean, std)
     tensors = WindowTensors(ds)
+    # travel in soil since the episode start at every row (a window takes its newest row's):
+    # only extra terms such as compaction_hardening look at it
+    distance = torch.as_tensor(ds.distance_in_soil(), dtype=torch.float32)
     train_ends = torch.as_tensor(ds.window_ends(idx["train"], cfg.stride))
     # first and last possible window end of each training window's episode (partner draws)
     episode = torch.as_tensor(ds.episode_of_rows(train_ends.numpy()))
@@ -101,8 +116,10 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     n_ends = torch.as_tensor(ds.offsets)[episode + 1] - first_end
     pairs = cfg.consistency > 0 and model_cfg.kind == "pinn"
     val_ends = torch.as_tensor(ds.window_ends(idx["val"], cfg.eval_stride))
-    log(f"{model_cfg.kind}: {parameter_count(model)} parameters; {len(train_ends)} training windows "
-        f"({len(idx['train'])} episodes), {len(val_ends)} validation windows ({len(idx['val'])} episodes)")
+    physics = "".join(f" + {k:g}·{name}" for name, k in model_cfg.extra_terms)
+    log(f"{model_cfg.kind}{' (F_FEE' + physics + ')' if physics else ''}: {parameter_count(model)} parameters; "
+        f"{len(train_ends)} training windows ({len(idx['train'])} episodes), {len(val_ends)} validation windows "
+        f"({len(idx['val'])} episodes)")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -127,7 +144,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                 partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
                 ends = torch.cat([ends, partner])
             obs, known, force = tensors.batch(ends)
-            out = model(obs, known)
+            out = model(obs, known, distance[ends])
             loss, _ = _loss(model, out, force, known, weights)
             if pairs:
                 loss = loss + cfg.consistency * consistency_loss(out["theta"][: len(pick)], out["theta"][len(pick) :])
@@ -139,7 +156,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             opt.step()
             running += float(loss.detach()) * len(obs)
             count += len(obs)
-        val_loss, val_force = _validate(model, tensors, val_ends, weights)
+        val_loss, val_force = _validate(model, tensors, val_ends, weights, distance)
         val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
         sched.step(val_loss)
         elapsed = time.monotonic() - start
@@ -160,7 +177,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar.close()
     model.load_state_dict(best[1])
     model.eval()
-    _, val_force = _validate(model, tensors, val_ends, weights)
+    _, val_force = _validate(model, tensors, val_ends, weights, distance)
     metrics = {
         "best_epoch": best[2],
         "epochs_run": len(history["epoch"]),
@@ -209,8 +226,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     for f in fields(TrainConfig):
         p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
+    p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
+                   help="add the catalogue effect NAME with coefficient K to the PINN's physics "
+                        "(F_FEE + Σ K·B_NAME; repeatable), one of: " + ", ".join(sorted(CATALOGUE)))
     for f in fields(ModelConfig):
-        if f.name in ("kind", "window", "n_obs", "n_known"):
+        if f.name in MODEL_FIELDS_NOT_OPTIONS:
             continue
         p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"model (default: {f.default})")
     return p
@@ -220,7 +240,8 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
-        model_cfg = ModelConfig(kind=args.kind, **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in ("kind", "window", "n_obs", "n_known")})
+        model_cfg = ModelConfig(kind=args.kind, extra_terms=parse_terms(args.extra_term),
+                                **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in MODEL_FIELDS_NOT_OPTIONS})
         ds = load_dataset(args.data, cache=not args.no_cache, workers=args.workers, progress=not args.quiet)
         split = None
         if args.split_from:
