@@ -105,8 +105,9 @@ def _side_walls(s: TermInputs, xp):
 
 
 def _tip_bearing(s: TermInputs, xp):
-    n_q = xp.exp(math.pi * xp.tan(s.phi)) * xp.tan(math.pi / 4 + s.phi / 2) ** 2
-    n_c = (n_q - 1.0) / xp.tan(s.phi)
+    phi = _xp.clip_min(xp, s.phi, 1e-6)  # N_c -> π + 2 as φ -> 0 (no 0/0 at φ = 0)
+    n_q = xp.exp(math.pi * xp.tan(phi)) * xp.tan(math.pi / 4 + phi / 2) ** 2
+    n_c = (n_q - 1.0) / xp.tan(phi)
     in_soil = (s.d > 0) * 1.0
     bearing = s.w * EDGE_WIDTH_M * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * in_soil
     return _zeros(xp, s.d), -bearing  # the edge presses down on the floor
