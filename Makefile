@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test bench clean-venv dataset models
+.PHONY: venv demo test bench clean-venv dataset models discrepancy
 
 venv: $(STAMP)
 
@@ -39,6 +39,10 @@ bench: venv
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv
 	BIN=$(BIN) scripts/train_models.sh
+
+# Full-size discrepancy workflow run on hidden-effect and control data; report under docs/discrepancy/.
+discrepancy: venv
+	BIN=$(BIN) scripts/discrepancy_full.sh
 
 clean-venv:
 	rm -rf $(VENV)

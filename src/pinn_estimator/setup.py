@@ -28,6 +28,7 @@ setup(
             "pinn_eval = pinn_estimator.evaluate:main",
             "pinn_estimator = pinn_estimator.node:main",
             "soil_planner = pinn_estimator.planner_node:main",
+            "soil_discrepancy = pinn_estimator.discrepancy.cli:main",
         ],
     },
 )

@@ -1,0 +1,94 @@
+"""Step 5: show the gap shrink on held-out episodes — and the hook for other models (the PINN).
+
+``compare_predictions(frame, before, after)`` is model-agnostic: it takes the force predictions
+of any model at the held-out ticks (``frame.rows`` are their rows in the ``Dataset``; every row
+has a full 60-tick window before it) without and with the named terms, and reports MAE/RMSE in x
+and z, the RMS force-error magnitude, a paired test over episodes and the same per regime bin.
+``fee_gap`` does it for the FEE model (θ refitted per held-out group, before with the baseline
+terms, after with the accepted ones). A PINN comparison passes its own predictions, e.g. through
+``run_discrepancy(..., predictors={"PINN": fn})`` with ``fn(test_frame, model_before, model_after,
+context) -> (F_before (N, 2), F_after (N, 2))`` (or a finished result dict); ``context`` names the
+selection episodes (train on these only) and the held-out test episodes.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .baseline import AugmentedFEE, Frame, ThetaFit, fit_fixed, residuals
+from .candidates import paired_test
+from .regimes import AXES, bin_edges, regime_bins
+
+
+def error_metrics(resid: np.ndarray) -> dict:
+    """MAE/RMSE per axis and the RMS of the force-error magnitude, rmse = sqrt(mean(r_x² + r_z²)) [N]."""
+    r = np.asarray(resid, float)
+    ok = np.isfinite(r).all(1)
+    r = r[ok]
+    if len(r) == 0:
+        return {"n_ticks": 0, "mae_x": None, "mae_z": None, "rmse_x": None, "rmse_z": None, "mae": None, "rmse": None,
+                "undefined_ticks": int((~ok).sum())}
+    return {
+        "n_ticks": int(len(r)),
+        "mae_x": float(np.abs(r[:, 0]).mean()), "mae_z": float(np.abs(r[:, 1]).mean()),
+        "rmse_x": float(np.sqrt((r[:, 0] ** 2).mean())), "rmse_z": float(np.sqrt((r[:, 1] ** 2).mean())),
+        "mae": float(np.hypot(r[:, 0], r[:, 1]).mean()), "rmse": float(np.sqrt((r**2).sum(1).mean())),
+        "undefined_ticks": int((~ok).sum()),
+    }
+
+
+def compare_predictions(frame: Frame, before: np.ndarray, after: np.ndarray, *, label: str = "model",
+                        edges: dict | None = None) -> dict:
+    """Held-out force error of one model before/after the named terms (predictions (N, 2) [N] at ``frame``'s ticks)."""
+    before, after = np.asarray(before, float), np.asarray(after, float)
+    if before.shape != frame.forces.shape or after.shape != frame.forces.shape:
+        raise ValueError(f"{label}: predictions must have shape {frame.forces.shape} (the held-out ticks x (F_x, F_z)), "
+                         f"got {before.shape} and {after.shape}")
+    rb, ra = frame.forces - before, frame.forces - after
+    mb, ma = error_metrics(rb), error_metrics(ra)
+    per_ep_b, per_ep_a, names = [], [], []
+    for e in frame.episodes:
+        m = frame.episode == e
+        sb, sa = (rb[m] ** 2).sum(1), (ra[m] ** 2).sum(1)
+        per_ep_b.append(float(np.nanmean(sb)) if np.isfinite(sb).any() else math.inf)
+        per_ep_a.append(float(np.nanmean(sa)) if np.isfinite(sa).any() else math.inf)
+        names.append(frame.names[int(e)])
+    per_ep_b, per_ep_a = np.array(per_ep_b), np.array(per_ep_a)
+    out = {
+        "label": label, "n_episodes": len(names), "episodes": names, "before": mb, "after": ma,
+        "rmse_ratio": (ma["rmse"] / mb["rmse"]) if mb["rmse"] and ma["rmse"] is not None else None,
+        "sse_reduction": (1.0 - float(np.sum(per_ep_a) / np.sum(per_ep_b))) if np.isfinite(per_ep_a).all() and np.sum(per_ep_b) > 0 else None,
+        "p_paired": paired_test(per_ep_b, per_ep_a),
+        "improved_episodes": int((per_ep_a < per_ep_b).sum()),
+        "by_regime": [],
+    }
+    edges = bin_edges(frame) if edges is None else edges
+    for key, lab, mask, _, _ in regime_bins(frame, edges):
+        if not mask.any():
+            continue
+        b, a = error_metrics(rb[mask]), error_metrics(ra[mask])
+        out["by_regime"].append({"variable": key, "bin": str(lab), "n_ticks": int(mask.sum()),
+                                 "n_episodes": int(len(np.unique(frame.episode[mask]))),
+                                 **{f"{m}_before": b[m] for m in ("rmse_x", "rmse_z", "rmse", "mae")},
+                                 **{f"{m}_after": a[m] for m in ("rmse_x", "rmse_z", "rmse", "mae")}})
+    return out
+
+
+def fee_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: ThetaFit | None = None, *,
+            edges: dict | None = None) -> tuple[dict, dict]:
+    """The FEE model's held-out comparison; θ refitted per held-out group for each model.
+
+    Returns (comparison dict, {'before': (resid, fit), 'after': (resid, fit)}) for plots.
+    """
+    fit_b = fit_fixed(frame, before, start)
+    fit_a = fit_b if after == before else fit_fixed(frame, after, start if start is not None else fit_b)
+    rb, fb = residuals(frame, before, fit_b)
+    ra, fa = residuals(frame, after, fit_a)
+    out = compare_predictions(frame, fb, fa, label="FEE", edges=edges)
+    out["model_before"] = [list(t) for t in before.terms]
+    out["model_after"] = [list(t) for t in after.terms]
+    return out, {"before": (rb, fit_b), "after": (ra, fit_a)}
+
+
+__all__ = ["AXES", "compare_predictions", "error_metrics", "fee_gap"]

@@ -1,0 +1,262 @@
+"""Step 2: where do the model and the measurement disagree? Residuals by regime, tested honestly.
+
+Ticks of one episode are strongly autocorrelated (60 Hz, a force that changes over seconds), so
+a tick-level test would call everything significant. Every test here has the **episode** as its
+unit: per regime bin, each episode's mean residual (episodes with at least ``min_ticks`` ticks in
+the bin), tested across episodes with a one-sample t-test (H0: mean 0); per variable, a trend
+test within episodes (each episode's Spearman ρ of residual vs the variable, Fisher-z, t-test
+across episodes) and between episodes (Spearman ρ of episode-mean residual vs episode-mean
+variable). All p-values of one analysis (bins × axes and trends × axes) are Holm-corrected
+together.
+
+A finding is *flagged* only if it is significant (Holm p < alpha, 0.01) **and** large enough to
+matter: the bin's mean residual (or the trend's change across the variable's 10-90 % range) is
+at least ``min_effect`` (2 %) of the mean measured force magnitude |F| of those ticks. With a
+few hundred thousand ticks a 0.5 % bias of contact transients is "significant" but is not a
+missing effect of the model.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from .baseline import Frame
+
+# (key, label, unit) of the per-tick variables analysed.
+CONTINUOUS: tuple[tuple[str, str, str], ...] = (
+    ("d", "cut depth d", "m"),
+    ("v_x", "forward speed v_x", "m/s"),
+    ("v_z", "blade vertical velocity v_z", "m/s"),
+    ("q", "surcharge Q", "N"),
+    ("t", "time in episode", "s"),
+    ("distance", "distance cut in soil", "m"),
+)
+CATEGORICAL: tuple[tuple[str, str], ...] = (("soil", "soil (metadata)"), ("i_d", "relative density I_d (metadata)"))
+AXES = ("x", "z")
+N_BINS = 4
+MIN_TICKS = 5  # ticks of an episode in a bin for its mean to count
+MIN_EPISODES = 3  # episodes with ticks in a bin for a test
+ALPHA = 0.01
+MIN_EFFECT = 0.02
+
+
+def holm(pvalues) -> np.ndarray:
+    """Holm-Bonferroni adjusted p-values (NaN stays NaN and is not counted)."""
+    p = np.asarray(pvalues, float)
+    out = np.full_like(p, np.nan)
+    ok = np.isfinite(p)
+    m = int(ok.sum())
+    if m == 0:
+        return out
+    idx = np.nonzero(ok)[0]
+    order = idx[np.argsort(p[idx], kind="stable")]
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+def variable_labels() -> dict[str, str]:
+    return {**{k: lab for k, lab, _ in CONTINUOUS}, **dict(CATEGORICAL)}
+
+
+def bin_edges(frame: Frame, n_bins: int = N_BINS) -> dict[str, list[float] | None]:
+    """Quantile bin edges per continuous variable over the frame's ticks (None: constant)."""
+    out: dict[str, list[float] | None] = {}
+    for key, _, _ in CONTINUOUS:
+        x = frame.column(key)
+        lo, hi = float(np.min(x)), float(np.max(x))
+        spread = hi - lo
+        if not np.isfinite(spread) or spread <= 1e-9 * max(1.0, abs(hi)):
+            out[key] = None
+            continue
+        edges = np.quantile(x, np.linspace(0, 1, n_bins + 1))
+        edges = np.where(np.abs(edges) < 1e-3 * spread, 0.0, edges)  # v_z ~ ±1e-5 m/s is 0: readable bins
+        edges = np.unique(edges)
+        if len(edges) < 2:
+            out[key] = None
+            continue
+        edges[0], edges[-1] = -np.inf, np.inf
+        out[key] = [float(e) for e in edges]
+    return out
+
+
+def regime_bins(frame: Frame, edges: dict) -> list[tuple[str, str, np.ndarray, float, float]]:
+    """(variable, bin label, tick mask, lo, hi) of every regime bin: continuous then categorical."""
+    out = []
+    for key, _, unit in CONTINUOUS:
+        e = edges.get(key)
+        if not e:
+            continue
+        x = frame.column(key)
+        idx = np.digitize(x, e[1:-1])
+        for b in range(len(e) - 1):
+            lo, hi = e[b], e[b + 1]
+            lab = _range_label(lo, hi, unit, x)
+            out.append((key, lab, idx == b, lo, hi))
+    if frame.has_metadata():
+        soils = np.array(frame.soils)[frame.episode]
+        cats = sorted(set(soils))
+        if len(cats) > 1:
+            for s in cats:
+                out.append(("soil", str(s), soils == s, math.nan, math.nan))
+        dens = np.array(frame.densities)[frame.episode]
+        vals = sorted(set(float(v) for v in dens if math.isfinite(v)))
+        if len(vals) > 1:
+            for v in vals:
+                out.append(("i_d", f"{v:g} %", dens == v, v, v))
+    return out
+
+
+def _range_label(lo, hi, unit, x) -> str:
+    lo_s = f"{np.min(x):.3g}" if not np.isfinite(lo) else f"{lo:.3g}"
+    hi_s = f"{np.max(x):.3g}" if not np.isfinite(hi) else f"{hi:.3g}"
+    return f"[{lo_s}, {hi_s}] {unit}"
+
+
+def episode_means(frame: Frame, values: np.ndarray, mask: np.ndarray, min_ticks: int = MIN_TICKS):
+    """(episodes, mean of ``values`` per episode over ``mask`` ticks, tick counts) for episodes with enough ticks."""
+    ep = frame.episode[mask]
+    v = values[mask]
+    good = np.isfinite(v)
+    ep, v = ep[good], v[good]
+    if len(ep) == 0:
+        return np.zeros(0, int), np.zeros(0), np.zeros(0, int)
+    uniq, inv, counts = np.unique(ep, return_inverse=True, return_counts=True)
+    sums = np.bincount(inv, weights=v)
+    keep = counts >= min_ticks
+    return uniq[keep], (sums / np.maximum(counts, 1))[keep], counts[keep]
+
+
+def _ttest(means: np.ndarray) -> float:
+    if len(means) < MIN_EPISODES or np.allclose(means, means[0], rtol=0, atol=1e-12):
+        return math.nan
+    return float(stats.ttest_1samp(means, 0.0).pvalue)
+
+
+def _ci95(means: np.ndarray) -> tuple[float, float]:
+    n = len(means)
+    if n < 2:
+        return (math.nan, math.nan)
+    half = float(stats.t.ppf(0.975, n - 1) * means.std(ddof=1) / math.sqrt(n))
+    m = float(means.mean())
+    return (m - half, m + half)
+
+
+def regime_analysis(frame: Frame, resid: np.ndarray, *, edges: dict | None = None, alpha: float = ALPHA,
+                    min_effect: float = MIN_EFFECT, n_bins: int = N_BINS, min_ticks: int = MIN_TICKS) -> dict:
+    """Residual (N, 2) [N] by regime, bins and trends, episode-level tests, Holm over everything.
+
+    Returns a JSON-ready dict: ``bins`` and ``trends`` (rows with p, p_holm, effect, flagged),
+    ``flagged_variables`` (variables with at least one flagged row), ``significant``.
+    """
+    edges = bin_edges(frame, n_bins) if edges is None else edges
+    fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1])
+    rows = []
+    for key, label, mask, lo, hi in regime_bins(frame, edges):
+        for a, axis in enumerate(AXES):
+            eps, means, counts = episode_means(frame, resid[:, a], mask, min_ticks)
+            scale = float(np.mean(fmag[mask])) if mask.any() else math.nan
+            m = float(means.mean()) if len(means) else math.nan
+            rows.append({
+                "variable": key, "bin": label, "lo": _f(lo), "hi": _f(hi), "axis": axis,
+                "n_episodes": int(len(eps)), "n_ticks": int(mask.sum()), "mean_n": _f(m), "ci95_n": list(map(_f, _ci95(means))),
+                "mean_abs_force_n": _f(scale), "effect": _f(abs(m) / scale) if scale and math.isfinite(m) else None,
+                "p": _f(_ttest(means)),
+            })
+    trends = trend_tests(frame, resid, fmag)
+    p_all = np.array([r["p"] if r["p"] is not None else np.nan for r in rows + trends], float)
+    p_adj = holm(p_all)
+    for r, p in zip(rows + trends, p_adj):
+        r["p_holm"] = _f(p)
+        r["flagged"] = bool(np.isfinite(p) and p < alpha and r["effect"] is not None and r["effect"] >= min_effect)
+    flagged = []
+    for r in rows + trends:
+        if r["flagged"] and r["variable"] not in flagged:
+            flagged.append(r["variable"])
+    return {
+        "alpha": alpha, "min_effect": min_effect, "n_tests": int(np.isfinite(p_all).sum()),
+        "edges": {k: v for k, v in edges.items()}, "bins": rows, "trends": trends,
+        "flagged_variables": flagged, "significant": bool(flagged),
+        "rms_n": {axis: _f(float(np.sqrt(np.nanmean(resid[:, a] ** 2)))) for a, axis in enumerate(AXES)},
+    }
+
+
+def trend_tests(frame: Frame, resid: np.ndarray, fmag: np.ndarray | None = None) -> list[dict]:
+    """Within- and between-episode trend of the residual vs every continuous variable, per axis."""
+    fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1]) if fmag is None else fmag
+    scale = float(np.mean(fmag))
+    out = []
+    eps = frame.episodes
+    for key, _, _ in CONTINUOUS:
+        x = frame.column(key)
+        spread = float(np.ptp(x)) if len(x) else 0.0
+        if spread <= 1e-9 * max(1.0, float(np.max(np.abs(x))) if len(x) else 1.0):
+            continue
+        for a, axis in enumerate(AXES):
+            r = resid[:, a]
+            zs, effects = [], []
+            xm, rm = [], []
+            for e in eps:
+                sel = (frame.episode == e) & np.isfinite(r)
+                xe, re = x[sel], r[sel]
+                if len(xe) == 0:
+                    continue
+                xm.append(xe.mean())
+                rm.append(re.mean())
+                if len(xe) < 10 or np.ptp(xe) <= 1e-3 * spread or len(np.unique(xe)) < 5 or np.ptp(re) == 0:
+                    continue
+                rho = stats.spearmanr(xe, re).statistic
+                if not np.isfinite(rho):
+                    continue
+                zs.append(np.arctanh(np.clip(rho, -0.999, 0.999)))
+                lo, hi = np.quantile(xe, [0.1, 0.9])
+                slope = np.polyfit(xe, re, 1)[0]
+                effects.append(slope * (hi - lo))
+            if len(zs) >= MIN_EPISODES:
+                zs = np.asarray(zs)
+                p = _ttest(zs)
+                eff = abs(float(np.mean(effects)))
+                out.append({"variable": key, "axis": axis, "kind": "within", "n_episodes": len(zs),
+                            "stat": _f(float(np.tanh(zs.mean()))), "effect_n": _f(eff), "effect": _f(eff / scale),
+                            "p": _f(p)})
+            xm, rm = np.asarray(xm), np.asarray(rm)
+            if len(xm) >= 5 and np.ptp(xm) > 1e-3 * spread and np.ptp(rm) > 0:
+                res = stats.spearmanr(xm, rm)
+                lo, hi = np.quantile(xm, [0.1, 0.9])
+                eff = abs(float(np.polyfit(xm, rm, 1)[0] * (hi - lo)))
+                out.append({"variable": key, "axis": axis, "kind": "between", "n_episodes": int(len(xm)),
+                            "stat": _f(float(res.statistic)), "effect_n": _f(eff), "effect": _f(eff / scale),
+                            "p": _f(float(res.pvalue))})
+    return out
+
+
+def binned_curve(frame: Frame, values: np.ndarray, key: str, edges: dict, min_ticks: int = MIN_TICKS):
+    """For plots: per bin (x centre, mean of episode means, CI low, CI high) of ``values`` vs ``key``."""
+    e = edges.get(key)
+    if not e:
+        return None
+    x = frame.column(key)
+    idx = np.digitize(x, e[1:-1])
+    out = []
+    for b in range(len(e) - 1):
+        mask = idx == b
+        if not mask.any():
+            continue
+        _, means, _ = episode_means(frame, values, mask, min_ticks)
+        if len(means) == 0:
+            continue
+        lo, hi = _ci95(means)
+        out.append((float(np.median(x[mask])), float(means.mean()), lo, hi))
+    return np.array(out) if out else None
+
+
+def _f(x):
+    """A JSON-ready float (None for NaN/inf/None)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None

@@ -1,0 +1,292 @@
+"""Report files of the discrepancy workflow: discrepancy.json, discrepancy.md and PNG figures.
+
+* ``residuals_by_regime.png`` — baseline residual vs every regime variable (x and z rows):
+  ticks (grey), episode-level bin means with 95 % CIs (blue) and, if terms were accepted, the
+  augmented model's (orange);
+* ``heldout_gap.png`` — held-out test episodes: RMS force error per regime bin before/after;
+* ``candidates.png`` — cross-validated held-out gain of every candidate term per round.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .regimes import AXES, CONTINUOUS, binned_curve
+
+
+def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Path]:
+    """Write discrepancy.json, discrepancy.md and (with ``arrays``) the PNGs; returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    if arrays is not None:
+        paths += _plots(report, out, arrays)
+    report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
+    paths.insert(0, _atomic(out / "discrepancy.json", json.dumps(report, indent=1, default=_json_default)))
+    paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
+    return paths
+
+
+def _atomic(path: Path, text: str) -> Path:
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+# ------------------------------------------------------------------------------------ markdown
+def _n(x, fmt=".0f") -> str:
+    return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+
+def _p(x) -> str:
+    return "–" if x is None else (f"{x:.1e}" if x < 1e-3 else f"{x:.3f}")
+
+
+def markdown(report: dict, figures=()) -> str:
+    s = report["settings"]
+    d = report["data"]
+    labels = report.get("variable_labels", {})
+    lines = [
+        "# Discrepancy report: simulation model vs measured episodes",
+        "",
+        f"**Verdict: {report['verdict']}** — {report['summary']}",
+        "",
+        f"Data: `{report['source']}` — {d['episodes']} episodes, {d['ticks']} analysed ticks (blade deeper than "
+        f"{s['min_depth_m'] * 100:g} cm, after the first {s['skip_s']:g} s, stride {s['stride']}); θ = (φ, c, δ) fitted per "
+        f"{d['theta_per']} ({d['theta_groups']} groups). Selection part: {len(d['selection_episodes'])} episodes / "
+        f"{len(d['selection_groups'])} groups; held-out test part: {len(d['test_episodes'])} episodes / "
+        f"{len(d['test_groups'])} groups ({', '.join(d['test_groups']) or 'none'}). alpha = {s['alpha']:g} (Holm), "
+        f"min gain {100 * s['min_gain']:.0f} %, min regime effect {100 * s['min_effect']:.0f} % of |F|, "
+        f"{s['folds']} folds, seed {s['seed']}. Run time {report.get('run_time_s', 0):.1f} s.",
+        "",
+    ]
+    model = report["model"]
+    if report["selection"]["accepted"]:
+        lines += ["## The missing effect", "",
+                  "| term | k ± SE | k per fold | held-out gain | p (Holm) | improved episodes |",
+                  "|---|---|---|---|---|---|"]
+        for a in report["selection"]["accepted"]:
+            lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} {_unit(a['k_unit'])} "
+                         f"| {', '.join(_n(k, '.4g') for k in a['k_folds'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} "
+                         f"| {a['improved_episodes']}/{a['n_heldout_episodes']} |")
+        lines += ["", "Re-simulate with the effect switched on:", "", "```"]
+        lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
+        lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
+                  "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
+    test = report.get("test")
+    if test:
+        lines += ["## Held-out test episodes: force error before/after", "",
+                  f"Model before: {_terms(test['model_before'])}; after: {_terms(test['model_after'])}; θ refitted per held-out group "
+                  f"for each model. Paired Wilcoxon over {test['n_episodes']} episodes (after < before): p = {_p(test['p_paired'])}, "
+                  f"{test['improved_episodes']}/{test['n_episodes']} episodes improved, SSE reduction "
+                  f"{_n(None if test['sse_reduction'] is None else 100 * test['sse_reduction'], '.1f')} %.", "",
+                  "| | MAE x [N] | MAE z [N] | RMSE x [N] | RMSE z [N] | RMSE \\|F err\\| [N] |", "|---|---|---|---|---|---|"]
+        for key in ("before", "after"):
+            m = test[key]
+            lines.append(f"| {key} | {_n(m['mae_x'])} | {_n(m['mae_z'])} | {_n(m['rmse_x'])} | {_n(m['rmse_z'])} | {_n(m['rmse'])} |")
+        lines += ["", "<details><summary>per regime bin</summary>", "",
+                  "| variable | bin | episodes | RMSE x before → after | RMSE z before → after | RMSE before → after |",
+                  "|---|---|---|---|---|---|"]
+        for r in test["by_regime"]:
+            lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['n_episodes']} | "
+                         f"{_n(r['rmse_x_before'])} → {_n(r['rmse_x_after'])} | {_n(r['rmse_z_before'])} → {_n(r['rmse_z_after'])} | "
+                         f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
+        lines += ["", "</details>", ""]
+        for label, comp in (test.get("predictors") or {}).items():
+            if isinstance(comp.get("before"), dict) and "physics" in comp["before"]:  # pinn_check.pinn_gap
+                lines += [f"### {label} retrained with the named effect ({comp['epochs']} epochs, same seed and episodes)", "",
+                          "Mean |F − F̂| [N] on the held-out episodes' windows; physics = F̂ − F_r (FEE + added terms).", "",
+                          "| PINN | F̂ x | F̂ z | F̂ magnitude | physics x | physics z | physics magnitude |",
+                          "|---|---|---|---|---|---|---|"]
+                for key, name in (("before", "paper physics (F_FEE + F_r)"), ("after", "with the named effect")):
+                    f, ph = comp[key]["force"], comp[key]["physics"]
+                    lines.append(f"| {name} | {_n(f['mae_x_n'])} | {_n(f['mae_z_n'])} | {_n(f['mae_mag_n'])} | "
+                                 f"{_n(ph['mae_x_n'])} | {_n(ph['mae_z_n'])} | {_n(ph['mae_mag_n'])} |")
+                lines.append("")
+            elif isinstance(comp.get("before"), dict) and "rmse" in comp["before"] and "p_paired" in comp:
+                lines += [f"### {label}", "", f"RMSE {_n(comp['before']['rmse'])} N → {_n(comp['after']['rmse'])} N, "
+                          f"paired p = {_p(comp['p_paired'])}, {comp['improved_episodes']}/{comp['n_episodes']} episodes improved.", ""]
+            else:
+                lines += [f"### {label}", "", "```json", json.dumps(comp, indent=1, default=_json_default)[:4000], "```", ""]
+    lines += ["## Candidate terms (cross-validated across θ-groups, selection part only)", ""]
+    for i, rnd in enumerate(report["selection"]["rounds"], 1):
+        lines += [f"Round {i} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
+                  + (f"; runner-up `{rnd['runner_up']['name']}` (winner better on {rnd['runner_up']['winner_better_episodes']}/"
+                     f"{rnd['runner_up']['n_episodes']} episodes, p = {_p(rnd['runner_up']['p_winner_vs_runner_up'])})"
+                     if rnd.get("runner_up") else ""), "",
+                  "| term | held-out gain | p (Holm) | improved | k (fold mean ± jackknife SE) |", "|---|---|---|---|---|"]
+        for sc in rnd["scores"]:
+            kf = [k for k in sc["k_folds"] if k is not None]
+            kbar = f"{np.mean(kf):.4g} ± {_n(sc['k_se'], '.2g')} {_unit(sc['k_unit'])}" if kf else "–"
+            gain = "–" if sc["gain"] is None else f"{100 * sc['gain']:.1f} %"
+            if sc.get("note"):
+                lines.append(f"| `{sc['name']}` | {sc['note']} | | | |")
+                continue
+            lines.append(f"| `{sc['name']}` | {gain} | {_p(sc['p_holm'])} | {sc['improved_episodes']}/{sc['n_heldout_episodes']} | {kbar} |")
+        lines.append("")
+    lines += _regime_md(report["regimes"], "Where the baseline model and the data disagree", labels)
+    if report.get("regimes_after"):
+        lines += _regime_md(report["regimes_after"], "Remaining structure with the accepted terms (all episodes)", labels)
+    lines += ["## Baseline θ per group", "", "| group | φ [°] | c [Pa] | δ [°] | fit ok |", "|---|---|---|---|---|"]
+    for t in report["baseline"]["theta"]:
+        lines.append(f"| {t['group']} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |")
+    lines += ["", "## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    if figures:
+        lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    return "\n".join(lines)
+
+
+def _unit(u: str) -> str:
+    return "" if u in ("1", "") else u
+
+
+def _terms(terms) -> str:
+    return "FEE" + "".join(f" + {n} (k={k:.4g})" for n, k in terms) if terms is not None else "FEE"
+
+
+def _regime_md(reg: dict, title: str, labels: dict) -> list[str]:
+    lines = [f"## {title}", "",
+             f"Residual RMS: x {_n(reg['rms_n']['x'])} N, z {_n(reg['rms_n']['z'])} N. {reg['n_tests']} episode-level tests, "
+             f"flagged (Holm p < {reg['alpha']:g} and |effect| ≥ {100 * reg['min_effect']:.0f} % of |F|): "
+             f"**{', '.join(labels.get(v, v) for v in reg['flagged_variables']) or 'none'}**.", "",
+             "| variable | bin / trend | axis | episodes | mean residual [N] (95 % CI) | effect / \\|F\\| | p (Holm) | flagged |",
+             "|---|---|---|---|---|---|---|---|"]
+    rows = [r for r in reg["bins"]]
+    for r in rows:
+        ci = r["ci95_n"]
+        lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['axis']} | {r['n_episodes']} | "
+                     f"{_n(r['mean_n'])} ({_n(ci[0])}, {_n(ci[1])}) | {_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | "
+                     f"{_p(r['p_holm'])} | {'**yes**' if r['flagged'] else ''} |")
+    for r in reg["trends"]:
+        lines.append(f"| {labels.get(r['variable'], r['variable'])} | trend {r['kind']} episodes (ρ = {_n(r['stat'], '.2f')}) | "
+                     f"{r['axis']} | {r['n_episodes']} | {_n(r['effect_n'])} over 10-90 % range | "
+                     f"{_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | {_p(r['p_holm'])} | "
+                     f"{'**yes**' if r['flagged'] else ''} |")
+    return lines + [""]
+
+
+# ------------------------------------------------------------------------------------ figures
+def _plots(report: dict, out: Path, arrays: dict) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    paths = []
+    frame, edges = arrays["frame"], arrays["edges"]
+    keys = [k for k, _, _ in CONTINUOUS if edges.get(k)]
+    units = {k: u for k, _, u in CONTINUOUS}
+    labels = report.get("variable_labels", {})
+    if keys:
+        fig, axs = plt.subplots(2, len(keys), figsize=(3.2 * len(keys), 6.0), squeeze=False)
+        rng = np.random.default_rng(0)
+        show = rng.choice(len(frame), size=min(len(frame), 4000), replace=False)
+        for j, key in enumerate(keys):
+            x = frame.column(key)
+            for a, axis in enumerate(AXES):
+                ax = axs[a, j]
+                ax.scatter(x[show], arrays["r0"][show, a], s=2, c="0.75", alpha=0.5, rasterized=True)
+                for resid, colour, lab in ((arrays["r0"], "tab:blue", "baseline"), (arrays.get("r1"), "tab:orange", "with terms")):
+                    if resid is None:
+                        continue
+                    cur = binned_curve(frame, resid[:, a], key, edges)
+                    if cur is not None:
+                        ax.errorbar(cur[:, 0], cur[:, 1], yerr=[cur[:, 1] - cur[:, 2], cur[:, 3] - cur[:, 1]], fmt="o-",
+                                    color=colour, capsize=3, label=lab, ms=4)
+                ax.axhline(0, color="k", lw=0.6)
+                ax.set_xlabel(f"{labels.get(key, key)} [{units[key]}]", fontsize=8)
+                if j == 0:
+                    ax.set_ylabel(f"residual F_{axis} [N]")
+                _zoom(ax, arrays["r0"], arrays.get("r1"), a)
+        axs[0, 0].legend(fontsize=7)
+        fig.suptitle(f"Residual F_meas − F_model by regime (episode-level bin means, 95 % CI) — {report['verdict']}", fontsize=10)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "residuals_by_regime.png"))
+        plt.close(fig)
+    test = report.get("test")
+    if test and test["by_regime"]:
+        vars_ = list(dict.fromkeys(r["variable"] for r in test["by_regime"]))
+        ncol = min(4, len(vars_) + 1)
+        nrow = int(math.ceil((len(vars_) + 1) / ncol))
+        fig, axs = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 3.3 * nrow), squeeze=False)
+        axs = axs.reshape(1, -1)
+        for ax in axs[0, len(vars_) + 1:]:
+            ax.set_visible(False)
+        ax = axs[0, 0]
+        b, a = test["before"], test["after"]
+        cats = ["RMSE x", "RMSE z", "RMSE |F|"]
+        vb = [b["rmse_x"] or 0, b["rmse_z"] or 0, b["rmse"] or 0]
+        va = [a["rmse_x"] or 0, a["rmse_z"] or 0, a["rmse"] or 0]
+        xs = np.arange(3)
+        ax.bar(xs - 0.2, vb, 0.4, label="before", color="tab:blue")
+        ax.bar(xs + 0.2, va, 0.4, label="after", color="tab:orange")
+        ax.set_xticks(xs, cats, fontsize=7)
+        ax.set_ylabel("held-out force error [N]")
+        ax.set_title("all held-out ticks", fontsize=8)
+        ax.legend(fontsize=7)
+        for j, v in enumerate(vars_, 1):
+            rows = [r for r in test["by_regime"] if r["variable"] == v]
+            ax = axs[0, j]
+            xs = np.arange(len(rows))
+            ax.bar(xs - 0.2, [r["rmse_before"] or 0 for r in rows], 0.4, color="tab:blue")
+            ax.bar(xs + 0.2, [r["rmse_after"] or 0 for r in rows], 0.4, color="tab:orange")
+            ax.set_xticks(xs, [r["bin"] for r in rows], rotation=35, ha="right", fontsize=6)
+            ax.set_title(labels.get(v, v), fontsize=8)
+        fig.suptitle(f"Held-out test episodes ({test['n_episodes']}): RMS force error before/after", fontsize=10)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "heldout_gap.png"))
+        plt.close(fig)
+    rounds = report["selection"]["rounds"]
+    if rounds:
+        fig, axs = plt.subplots(1, len(rounds), figsize=(5.0 * len(rounds), 3.4), squeeze=False)
+        for i, rnd in enumerate(rounds):
+            ax = axs[0, i]
+            sc = rnd["scores"]
+            names = [s["name"] for s in sc]
+            gains = [100 * (s["gain"] if s["gain"] is not None else 0.0) for s in sc]
+            colours = ["tab:green" if s["accepted"] else ("tab:gray" if (s["p_holm"] or 1) >= report["settings"]["alpha"] else "tab:olive")
+                       for s in sc]
+            ax.barh(names, gains, color=colours)
+            ax.axvline(100 * report["settings"]["min_gain"], color="k", ls="--", lw=0.8)
+            ax.set_xlabel("held-out error removed [%]")
+            ax.set_title(f"round {i + 1}: winner {rnd['winner'] or 'none'}", fontsize=9)
+            ax.invert_yaxis()
+            ax.set_xlim(min(-5, min(gains) - 5) if gains else -5, 105)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "candidates.png"))
+        plt.close(fig)
+    return paths
+
+
+def _zoom(ax, r0, r1, a):
+    vals = r0[:, a] if r1 is None else np.concatenate([r0[:, a], r1[:, a]])
+    vals = vals[np.isfinite(vals)]
+    if len(vals):
+        lo, hi = np.quantile(vals, [0.005, 0.995])
+        pad = 0.1 * max(hi - lo, 1.0)
+        ax.set_ylim(lo - pad, hi + pad)
+
+
+def _save(fig, path: Path) -> Path:
+    tmp = path.with_name(path.stem + f".{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    os.replace(tmp, path)
+    return path
+
+
+__all__ = ["markdown", "write_outputs"]
