@@ -37,6 +37,7 @@ from soil_msgs_py import extra_terms
 from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
 
 from .. import classical as _cl
+from ..data import distance_in_soil as _distance
 
 FORCE_SCALE_N = _cl.FORCE_SCALE_N  # (20e3, 30e3): per-axis normalisation of force residuals
 FIT_PARAMS = _cl.FIT_PARAMS  # ("phi", "c", "delta")
@@ -156,14 +157,10 @@ def _known_array(known) -> np.ndarray:
 
 
 def distance_in_soil(known: np.ndarray, dt: float = 1.0 / SAMPLE_RATE_HZ) -> np.ndarray:
-    """Blade travel in soil before each tick of ONE episode [m]: Σ_{j<i} max(v_x,j, 0) dt [d_j > 0].
-
-    Θ_k's v_x and d (no ground truth). Exclusive sum, like the simulator, whose effects see the
-    distance accumulated before the current step.
-    """
+    """Blade travel in soil since the start of ONE episode [m], per tick, from Θ_k's v_x and d
+    (no ground truth): the PINN's and the online estimator's definition (``data.distance_in_soil``)."""
     k = np.asarray(known, float)
-    step = np.maximum(k[:, _KI["v_x"]], 0.0) * dt * (k[:, _KI["d"]] > 0)
-    return np.concatenate([[0.0], np.cumsum(step)[:-1]]) if len(step) else step
+    return _distance(k[:, _KI["v_x"]], k[:, _KI["d"]], dt) if len(k) else np.zeros(0)
 
 
 # ------------------------------------------------------------------------------------ frame
