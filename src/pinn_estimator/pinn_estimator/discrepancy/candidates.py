@@ -15,11 +15,15 @@ per-episode MSE before vs after. p-values are Holm-corrected over the candidates
 k ± SE: k from the joint fit on every selection group; SE the grouped (delete-a-fold)
 jackknife over the K fold estimates, sqrt((K−1)/K Σ (k_i − k̄)²).
 
-Greedy forward selection: accept the best term whose Holm p < alpha and gain ≥ min_gain, fix
+Greedy forward selection: accept the best term whose Holm p < alpha, gain ≥ min_gain and whose
+coefficient is determined (the fold estimates agree: |mean k| > K_SIGMA · SE; a term that helps
+with wildly different k per fold is absorbing something else, it is not that effect), fix
 its k, refit the baseline θ_g with it and repeat for the remaining terms; stop when none
 qualifies. Nothing is accepted on a term's training fit alone.
 """
 from __future__ import annotations
+
+K_SIGMA = 3.0  # a named effect's k must exceed its jackknife SE this many times
 
 import math
 import multiprocessing as mp
@@ -269,7 +273,7 @@ def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=N
                 f"on {len(frame.groups)} θ-groups / {len(frame.episodes)} episodes")
         scores = score_terms(frame, current, cur_fit, candidates, folds=folds, seed=seed, workers=workers,
                              allow_negative_k=allow_negative_k, log=log)
-        ok = [s for s in scores if math.isfinite(s.gain) and s.p_holm < alpha and s.gain >= min_gain]
+        ok = [s for s in scores if math.isfinite(s.gain) and s.p_holm < alpha and s.gain >= min_gain and _determined(s)]
         winner = max(ok, key=lambda s: s.gain) if ok else None
         if winner is not None:
             joint = fit_joint(frame, current, winner.name, cur_fit, allow_negative_k=allow_negative_k)
@@ -303,3 +307,9 @@ def _f(x):
         return None
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def _determined(score) -> bool:
+    """The cross-validated k is consistent across folds: |mean k| > K_SIGMA · SE."""
+    ks = [k for k in score.k_folds if k is not None and math.isfinite(k)]
+    return bool(ks) and math.isfinite(score.k_se) and abs(sum(ks) / len(ks)) > K_SIGMA * score.k_se
