@@ -91,17 +91,31 @@ def _inertia(s: TermInputs, xp):
     return s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * _pos(xp, s.v_x) ** 2, _zeros(xp, s.d)
 
 
-def _side_walls(s: TermInputs, xp):
-    depth = _pos(xp, s.d)
-    beta = beta_star(s.phi, s.delta, s.rho, s.alpha)
-    ok = xp.isfinite(beta) & (s.d > 0)
+def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float = 2.0):
+    """(f_x, f_z) [N] of the side-wall shear of a finite-width blade's wedge (McKyes 1985).
+
+    A_side = d²(cot ρ + cot β*)/2 per wall, τ = c + K0 γ (d/3) tan φ (K0 = 1 − sin φ, Jaky, if
+    ``k0`` is None), transmitted to the blade like the FEE's failure-plane cohesion,
+    F = walls · A_side τ cos φ / sin η, along the FEE force direction (90° − ρ − δ + α from x).
+    Zero out of the soil. NumPy or torch; the one implementation (the catalogue term and the
+    example plugin ``soil_sim_node.plugins_example`` use it).
+    """
+    xp, phi, c, gamma, delta, rho, alpha, d = _xp.coerce(phi, c, gamma, delta, rho, alpha, d)
+    depth = _pos(xp, d)
+    beta = beta_star(phi, delta, rho, alpha)
+    ok = xp.isfinite(beta) & (d > 0)
     beta = xp.where(ok, beta, 0.5 + 0.0 * beta)
-    area = depth**2 * (1.0 / xp.tan(s.rho) + 1.0 / xp.tan(beta)) / 2.0
-    tau = s.c + (1.0 - xp.sin(s.phi)) * s.gamma * depth / 3.0 * xp.tan(s.phi)
-    eta = s.delta + s.rho + s.phi + beta
-    force = xp.where(ok, 2.0 * area * tau * xp.cos(s.phi) / xp.sin(eta), 0.0 * depth)
-    angle = 0.5 * math.pi - s.rho - s.delta + s.alpha
+    area = depth**2 * (1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)) / 2.0
+    k = 1.0 - xp.sin(phi) if k0 is None else k0
+    tau = c + k * gamma * depth / 3.0 * xp.tan(phi)
+    eta = delta + rho + phi + beta
+    force = xp.where(ok, walls * area * tau * xp.cos(phi) / xp.sin(eta), 0.0 * depth)
+    angle = 0.5 * math.pi - rho - delta + alpha
     return force * xp.cos(angle), force * xp.sin(angle)
+
+
+def _side_walls(s: TermInputs, xp):  # noqa: ARG001 - side_wall_force picks its own namespace
+    return side_wall_force(s.phi, s.c, s.gamma, s.delta, s.rho, s.alpha, s.d)
 
 
 def _tip_bearing(s: TermInputs, xp):

@@ -201,6 +201,19 @@ def _params(pairs: list[str]) -> list[str]:
     return out
 
 
+def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
+    """argv of a node's console script with its --params-file and -p overrides."""
+    argv = [executable(script), "--ros-args"]
+    if params_file:
+        argv += ["--params-file", str(params_file)]
+    return argv + _params(params)
+
+
+def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
+    for topic, n in endpoints.items():
+        wait[topic] = wait.get(topic, 0) + n
+
+
 def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     """The graph for these arguments, with the simulator told whom to wait for."""
     wait: dict[str, int] = {}
@@ -210,27 +223,20 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               *extra, *args.recorder_arg], stop_order=3))
-        for topic, n in RECORDER_ENDPOINTS.items():
-            wait[topic] = wait.get(topic, 0) + n
+        _count(wait, RECORDER_ENDPOINTS)
     if args.estimator:
-        est = [executable("pinn_estimator"), "--ros-args"]
-        if args.estimator_params_file:
-            est += ["--params-file", str(args.estimator_params_file)]
-        nodes.append(NodeProcess("estimator", est + _params(args.estimator_param), stop_order=2))
-        for topic, n in ESTIMATOR_ENDPOINTS.items():
-            wait[topic] = wait.get(topic, 0) + n
+        nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
+                                                        args.estimator_param), stop_order=2))
+        _count(wait, ESTIMATOR_ENDPOINTS)
     if not args.no_controller:
-        ctl = [executable("anti_stall_controller"), "--ros-args"]
-        if args.controller_params_file:
-            ctl += ["--params-file", str(args.controller_params_file)]
-        nodes.append(NodeProcess("controller", ctl + _params(args.controller_param), stop_order=1))
-        for topic, n in CONTROLLER_ENDPOINTS.items():
-            wait[topic] = wait.get(topic, 0) + n
+        nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
+                                                         args.controller_param), stop_order=1))
+        _count(wait, CONTROLLER_ENDPOINTS)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not count.isdigit():
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
-        wait[topic] = wait.get(topic, 0) + int(count)
+        _count(wait, {topic: int(count)})
     sim = [executable("soil_sim_node"), "--ros-args"]
     if args.sim_params_file:
         sim += ["--params-file", str(args.sim_params_file)]

@@ -50,27 +50,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from soil_msgs_py import fee
-
-
-def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float = 2.0):
-    """(f_x, f_z) [N] of the side-wall shear for arrays of the state (see module docstring).
-
-    phi, delta, rho, alpha [rad]; c [Pa]; gamma [N/m^3]; d [m]; k0 [-] (None: 1 - sin phi);
-    walls: number of side walls that shear (2 for a blade cutting in the open).
-    """
-    phi, c, gamma, delta, d = (np.asarray(v, dtype=float) for v in (phi, c, gamma, delta, d))
-    beta = fee.beta_star(phi, delta, rho, alpha)
-    ok = np.isfinite(beta) & (d > 0)
-    beta = np.where(ok, beta, 0.5)  # any valid angle; masked below
-    depth = np.where(ok, d, 0.0)
-    area = depth**2 * (1.0 / np.tan(rho) + 1.0 / np.tan(beta)) / 2.0
-    k = 1.0 - np.sin(phi) if k0 is None else np.asarray(k0, dtype=float)
-    tau = c + k * gamma * depth / 3.0 * np.tan(phi)
-    eta = delta + rho + phi + beta
-    force = np.where(ok, walls * area * tau * np.cos(phi) / np.sin(eta), 0.0)
-    angle = 0.5 * np.pi - rho - delta + alpha
-    return force * np.cos(angle), force * np.sin(angle)
+# The formula lives in the catalogue of candidate effects (one implementation, NumPy and torch).
+from soil_msgs_py.extra_terms import side_wall_force  # noqa: F401 - re-exported
 
 
 def side_wall_shear(state, k0: float | None = None, walls: float = 2.0):
