@@ -282,6 +282,8 @@ def test_bad_training_options_are_named(tiny_ds):
         TrainConfig(stride=0)
     with pytest.raises(ValueError, match="lr=-1"):
         TrainConfig(lr=-1.0)
+    with pytest.raises(ValueError, match="lr_schedule='step'"):
+        TrainConfig(lr_schedule="step")
     with pytest.raises(ValueError, match="d_model=30 must be divisible by n_heads=4"):
         ModelConfig(d_model=30)
     with pytest.raises(ValueError, match="kind='bert'"):
@@ -293,6 +295,14 @@ def test_train_function_keeps_best_validation_model(tiny_ds):
     model, split, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)
     assert metrics["val_loss"] == min(history["val_loss"])
     assert metrics["best_epoch"] == 1 + int(np.argmin(history["val_loss"]))
+
+
+def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):
+    cfg = TrainConfig(epochs=4, stride=6, eval_stride=6, threads=1, lr=2e-3, lr_schedule="cosine", patience=4)
+    _, _, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)
+    lr = history["lr"]  # after each epoch's step: cos annealing from 2e-3 to 1e-5 at epoch 4
+    assert metrics["epochs_run"] == 4 and lr == sorted(lr, reverse=True)
+    assert lr[-1] == pytest.approx(cfg.lr / 200) and lr[1] == pytest.approx(1e-5 + (2e-3 - 1e-5) / 2)
 
 
 # ------------------------------------------------------------------------------ shipped models

@@ -33,6 +33,9 @@ from .model import EstimatorNet, ModelConfig, parameter_count
 MODEL_FIELDS_NOT_OPTIONS = ("kind", "window", "n_obs", "n_known", "extra_terms")
 
 
+LR_SCHEDULES = ("plateau", "cosine")
+
+
 @dataclass
 class TrainConfig:
     """Optimisation settings; every field is a ``pinn_train`` option of the same name."""
@@ -49,6 +52,10 @@ class TrainConfig:
     test_fraction: float = 0.15
     threads: int = 2
     consistency: float = 0.0  # weight of the same-episode agreement term (ours; 0 = paper's Eq. 13 only)
+    # "plateau": halve lr when validation stalls; "cosine": anneal lr to lr/200 over ``epochs``
+    # (a fixed budget ends on a converged model: validation loss at lr 2e-3 jumps ±30 % epoch to
+    # epoch, so comparing two models' best epochs under "plateau" compares their luck)
+    lr_schedule: str = "plateau"
 
     def __post_init__(self):
         for name in ("epochs", "batch_size", "stride", "eval_stride", "patience", "threads"):
@@ -57,6 +64,8 @@ class TrainConfig:
                 raise ValueError(f"{name}={v!r} must be a positive integer")
         if not (isinstance(self.consistency, (int, float)) and np.isfinite(self.consistency) and self.consistency >= 0):
             raise ValueError(f"consistency={self.consistency!r} must be a number >= 0")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule={self.lr_schedule!r} must be one of {LR_SCHEDULES}")
         for name in ("lr", "max_minutes"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -121,7 +130,10 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         f"{len(train_ends)} training windows ({len(idx['train'])} episodes), {len(val_ends)} validation windows "
         f"({len(idx['val'])} episodes)")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
+    if cfg.lr_schedule == "cosine":
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs, eta_min=cfg.lr / 200)
+    else:
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
     history = {"epoch": [], "train_loss": [], "val_loss": [], "val_force_mae_n": [], "lr": [], "seconds": []}
     best = (float("inf"), None, 0)
@@ -158,7 +170,10 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             count += len(obs)
         val_loss, val_force = _validate(model, tensors, val_ends, weights, distance)
         val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
-        sched.step(val_loss)
+        if cfg.lr_schedule == "cosine":
+            sched.step()
+        else:
+            sched.step(val_loss)
         elapsed = time.monotonic() - start
         for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
             history[key].append(value)

@@ -84,12 +84,13 @@ def _pinn_predictor(epochs: int, log):
     """The workflow's predictor hook: retrain the PINN without/with the named terms (pinn_check)."""
     from .pinn_check import pinn_gap
 
-    def run(test_frame, model_before, model_after, context):  # noqa: ARG001
-        new = [t for t in model_after.terms if t not in model_before.terms]
-        if not new:
+    def run(test_frame, model_before, model_after, context):
+        if model_after == model_before:
             return {"skipped": "no effect was named, so there is nothing to retrain the PINN with"}
-        return pinn_gap(context["dataset"], context["selection_episodes"], context["test_episodes"],
-                        tuple(model_after.terms), epochs=epochs, seed=context["seed"], log=log or (lambda *_: None))
+        if context.get("dataset") is None:
+            raise ValueError("the PINN comparison needs the episodes' Dataset (run on a bag directory or pass dataset=)")
+        return pinn_gap(context["dataset"], test_frame, context["selection_episodes"], model_before, model_after,
+                        epochs=epochs, seed=context["seed"], edges=context.get("edges"), log=log)
 
     return run
 

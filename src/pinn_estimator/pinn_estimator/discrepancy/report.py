@@ -108,16 +108,8 @@ def markdown(report: dict, figures=()) -> str:
                          f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
         lines += ["", "</details>", ""]
         for label, comp in (test.get("predictors") or {}).items():
-            if isinstance(comp.get("before"), dict) and "physics" in comp["before"]:  # pinn_check.pinn_gap
-                lines += [f"### {label} retrained with the named effect ({comp['epochs']} epochs, same seed and episodes)", "",
-                          "Mean |F − F̂| [N] on the held-out episodes' windows; physics = F̂ − F_r (FEE + added terms).", "",
-                          "| PINN | F̂ x | F̂ z | F̂ magnitude | physics x | physics z | physics magnitude |",
-                          "|---|---|---|---|---|---|---|"]
-                for key, name in (("before", "paper physics (F_FEE + F_r)"), ("after", "with the named effect")):
-                    f, ph = comp[key]["force"], comp[key]["physics"]
-                    lines.append(f"| {name} | {_n(f['mae_x_n'])} | {_n(f['mae_z_n'])} | {_n(f['mae_mag_n'])} | "
-                                 f"{_n(ph['mae_x_n'])} | {_n(ph['mae_z_n'])} | {_n(ph['mae_mag_n'])} |")
-                lines.append("")
+            if "comparisons" in comp:  # pinn_check.pinn_gap
+                lines += _pinn_md(label, comp, labels)
             elif isinstance(comp.get("before"), dict) and "rmse" in comp["before"] and "p_paired" in comp:
                 lines += [f"### {label}", "", f"RMSE {_n(comp['before']['rmse'])} N → {_n(comp['after']['rmse'])} N, "
                           f"paired p = {_p(comp['p_paired'])}, {comp['improved_episodes']}/{comp['n_episodes']} episodes improved.", ""]
@@ -149,6 +141,47 @@ def markdown(report: dict, figures=()) -> str:
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     return "\n".join(lines)
+
+
+PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs them
+    ("FEE", "FEE model, θ fitted per group (reference)"),
+    ("force", "PINN F̂ (network output)"),
+    ("physics", "PINN physics F̂ − F_r (per-window θ̂)"),
+    ("soil", "**PINN soil estimates** (θ̂ pooled per group) through the model"),
+)
+
+
+def _pinn_md(label: str, comp: dict, labels: dict) -> list[str]:
+    """Step 5's PINN part: the before/after table of pinn_check.pinn_gap, pooled θ̂ and per regime."""
+    split, rows = comp["split"], comp["comparisons"]
+    lines = [f"### {label} retrained with the named effect ({comp['epochs']} epochs each, same seed and episodes)", "",
+             f"Trained on {len(split['train'])} episodes (the selection part, less {len(split['val'])} for validation, "
+             f"plus a calibration half of each held-out group: {len(split['calibration'])} episodes), scored on the other "
+             f"{len(split['test'])} held-out episodes, which neither PINN nor the fit of k has seen. "
+             "RMSE of |F_meas − F_model| [N] over x and z; paired Wilcoxon over episodes (after < before). "
+             "The soil row is the one that tests the physics: one θ̂ per soil group must explain the force at every "
+             "depth and speed (pinn_check docstring).", "",
+             "| model | RMSE before [N] | RMSE after [N] | after/before | improved episodes | p |", "|---|---|---|---|---|---|"]
+    for key, name in PINN_ROWS:
+        c = rows.get(key)
+        if c is None:
+            continue
+        ratio = "–" if c["rmse_ratio"] is None else f"{c['rmse_ratio']:.2f}"
+        lines.append(f"| {name} | {_n(c['before']['rmse'])} | {_n(c['after']['rmse'])} | {ratio} | "
+                     f"{c['improved_episodes']}/{c['n_episodes']} | {_p(c['p_paired'])} |")
+    lines += ["", "Pooled soil estimates (median of the scored windows) per held-out group:", "",
+              "| group | φ̂ [°] before → after | ĉ [Pa] before → after | δ̂ [°] before → after |", "|---|---|---|---|"]
+    for b, a in zip(comp["theta"]["before"], comp["theta"]["after"]):
+        lines.append(f"| {b['group']} | {_n(b['phi_deg'], '.1f')} → {_n(a['phi_deg'], '.1f')} | {_n(b['c_pa'])} → "
+                     f"{_n(a['c_pa'])} | {_n(b['delta_deg'], '.1f')} → {_n(a['delta_deg'], '.1f')} |")
+    soil = rows["soil"]
+    lines += ["", "<details><summary>PINN soil estimates: per regime bin</summary>", "",
+              "| variable | bin | episodes | RMSE before → after [N] |", "|---|---|---|---|"]
+    for r in soil["by_regime"]:
+        lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['n_episodes']} | "
+                     f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
+    lines += ["", "</details>", ""]
+    return lines
 
 
 def _unit(u: str) -> str:

@@ -52,10 +52,11 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     metadata share θ) or 'episode'; allow_negative_k: let k take the sign opposite to the
     term's physics (default: k >= 0); predictors: the hook for other models' before/after
     (e.g. the PINN): {label: fn(test_frame, model_before, model_after, context)} where context
-    = {'dataset', 'selection_episodes', 'test_episodes', 'seed'} (episode names; train only on
-    the selection episodes) and fn returns either (F_before, F_after), predictions (N, 2) [N] at
-    ``test_frame``'s ticks (``test_frame.rows`` index the Dataset; scored by
-    ``gap.compare_predictions``), or a finished result dict that is stored as it is.
+    = {'dataset', 'selection_episodes', 'test_episodes', 'seed', 'edges'} (episode names; the
+    named terms' k was fitted on the selection episodes only; 'edges': the regime bins) and fn
+    returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
+    (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
+    that is stored as it is.
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -116,7 +117,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         arrays.update(test_frame=ftest, test=test_arrays)
         if predictors:
             context = {"dataset": dataset, "selection_episodes": _data_summary(frame, sel_groups, [])["selection_episodes"],
-                       "test_episodes": _data_summary(frame, [], test_groups)["test_episodes"], "seed": seed}
+                       "test_episodes": _data_summary(frame, [], test_groups)["test_episodes"], "seed": seed,
+                       "edges": edges}
             test["predictors"] = {}
             for label, fn in dict(predictors).items():
                 say(f"held-out comparison for {label} ...")
