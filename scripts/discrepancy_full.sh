@@ -14,6 +14,7 @@ BIN=${BIN:-.venv/bin}
 DATA=${DATA:-bags/disc_full}
 OUT=${OUT:-docs/discrepancy}
 PINN_EPOCHS=${PINN_EPOCHS:-30}
+PINN_SEEDS=${PINN_SEEDS:-3}
 GRID=(--relative-densities 0,40,80 --speeds 0.3,0.65,1.0 --depths 0.1,0.175,0.25 --seeds 1 --seed-base 100 --quiet)
 hidden() {  # case -> "term k" hidden in the simulator ("" for the control)
     case "$1" in
@@ -35,7 +36,7 @@ for case in ${*:-control soil_inertia compaction rate_strength default_world}; d
         [ -n "${term:-}" ] && plugin=(--plugin "soil_msgs_py.extra_terms:plugin term=$term k=$k")
         "$BIN/soil_sim_batch" "${GRID[@]}" --mode "$mode" --out "$DATA/$case" "${plugin[@]}"
     fi
-    "$BIN/soil_discrepancy" "$DATA/$case" --out "$OUT/$case" --pinn-epochs "$PINN_EPOCHS" --quiet "${check[@]}"
+    "$BIN/soil_discrepancy" "$DATA/$case" --out "$OUT/$case" --pinn-epochs "$PINN_EPOCHS" --pinn-seeds "$PINN_SEEDS" --quiet "${check[@]}"
 done
 "$BIN/python" -m pinn_estimator.discrepancy.index "$OUT"
 echo "reports: $OUT/README.md and $OUT/<case>/discrepancy.md"

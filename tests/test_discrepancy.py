@@ -146,6 +146,8 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     assert "not a directory" in capsys.readouterr().err
     assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "o"), "--terms", "magic"]) == 2
     assert "magic" in capsys.readouterr().err
+    assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "o"), "--pinn-epochs", "2", "--pinn-seeds", "0"]) == 2
+    assert "--pinn-seeds 0 must be >= 1" in capsys.readouterr().err
     # a bag without the force topic
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -283,7 +285,7 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
 
 def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_path):
     """Step 5 for the PINN, at the size of the committed report (``make discrepancy``'s soil-inertia
-    case: 108 episodes, 30 epochs): retrained with the named effect, the PINN's soil estimates,
+    case: 108 episodes, an ensemble of 3 PINNs per physics, 30 epochs): retrained with the named effect, the PINN's soil estimates,
     pooled per soil group, explain the held-out force at every depth and speed better than the
     paper's PINN, whose estimates absorb the missing effect (pinn_check docstring)."""
     from pinn_estimator.discrepancy.pinn_check import pinn_gap
@@ -297,10 +299,12 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     sel, held = split_holdout(frame, 0.3, 0)
     selection = sorted({frame.names[e] for e in frame.select(groups=sel).episodes})
     got = pinn_gap(ds, frame.select(groups=held), selection, AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]),
-                   epochs=30, seed=0, max_minutes=12.0, log=None)
+                   epochs=30, seed=0, seeds=3, max_minutes=12.0, log=None)
     rows = got["comparisons"]
     soil, fee_rows = rows["soil"], rows["FEE"]
-    assert soil["after"]["rmse"] <= 0.8 * soil["before"]["rmse"], (soil["before"], soil["after"])
+    # the committed report: 0.63 (members alone 0.68, 0.65, 0.83); other splits 0.82, 0.94
+    assert soil["after"]["rmse"] <= 0.9 * soil["before"]["rmse"], (soil["before"], soil["after"], got["per_seed"])
     assert soil["improved_episodes"] > soil["n_episodes"] / 2
     assert fee_rows["after"]["rmse"] <= 0.6 * fee_rows["before"]["rmse"]
-    assert got["train"]["after"]["epochs_run"] == got["train"]["before"]["epochs_run"] == 30
+    assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [30] * 6
+    assert len(got["per_seed"]["soil_rmse_after"]) == 3

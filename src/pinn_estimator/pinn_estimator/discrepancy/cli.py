@@ -39,6 +39,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--pinn-epochs", type=int, default=0,
                    help="also retrain the PINN without and with the named effect for this many epochs on the "
                         "selection episodes and compare them on the held-out ones (default 0: skip)")
+    p.add_argument("--pinn-seeds", type=int, default=1,
+                   help="PINNs per physics for that comparison, scored as an ensemble (default 1)")
     p.add_argument("--hidden", default=None, metavar="NAME=K|none",
                    help="for test data only: the effect hidden in the simulator; the report says whether the "
                         "workflow named it (the analysis never sees this)")
@@ -53,10 +55,11 @@ def main(argv=None) -> int:
     from .workflow import run_discrepancy
 
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
-    if args.pinn_epochs < 0:
-        print(f"soil_discrepancy: error: --pinn-epochs {args.pinn_epochs} must be >= 0", file=sys.stderr)
+    if args.pinn_epochs < 0 or args.pinn_seeds < 1:
+        bad = f"--pinn-epochs {args.pinn_epochs} must be >= 0" if args.pinn_epochs < 0 else f"--pinn-seeds {args.pinn_seeds} must be >= 1"
+        print(f"soil_discrepancy: error: {bad}", file=sys.stderr)
         return 2
-    predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log)} if args.pinn_epochs else None
+    predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
@@ -80,7 +83,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def _pinn_predictor(epochs: int, log):
+def _pinn_predictor(epochs: int, log, seeds: int = 1):
     """The workflow's predictor hook: retrain the PINN without/with the named terms (pinn_check)."""
     from .pinn_check import pinn_gap
 
@@ -90,7 +93,7 @@ def _pinn_predictor(epochs: int, log):
         if context.get("dataset") is None:
             raise ValueError("the PINN comparison needs the episodes' Dataset (run on a bag directory or pass dataset=)")
         return pinn_gap(context["dataset"], test_frame, context["selection_episodes"], model_before, model_after,
-                        epochs=epochs, seed=context["seed"], edges=context.get("edges"), log=log)
+                        epochs=epochs, seed=context["seed"], seeds=seeds, edges=context.get("edges"), log=log)
 
     return run
 

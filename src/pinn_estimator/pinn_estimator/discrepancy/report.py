@@ -154,13 +154,18 @@ PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs 
 def _pinn_md(label: str, comp: dict, labels: dict) -> list[str]:
     """Step 5's PINN part: the before/after table of pinn_check.pinn_gap, pooled θ̂ and per regime."""
     split, rows = comp["split"], comp["comparisons"]
-    lines = [f"### {label} retrained with the named effect ({comp['epochs']} epochs each, same seed and episodes)", "",
+    seeds = comp.get("seeds", 1)
+    ensemble = f"an ensemble of {seeds} PINNs (seeds {comp.get('seed', 0)}…) per physics" if seeds > 1 else "one PINN per physics"
+    lines = [f"### {label} retrained with the named effect ({ensemble}, {comp['epochs']} epochs each, same seeds and episodes)", "",
              f"Trained on {len(split['train'])} episodes (the selection part, less {len(split['val'])} for validation, "
              f"plus a calibration half of each held-out group: {len(split['calibration'])} episodes), scored on the other "
              f"{len(split['test'])} held-out episodes, which neither PINN nor the fit of k has seen. "
              "RMSE of |F_meas − F_model| [N] over x and z; paired Wilcoxon over episodes (after < before). "
              "The soil row is the one that tests the physics: one θ̂ per soil group must explain the force at every "
-             "depth and speed (pinn_check docstring).", "",
+             "depth and speed (pinn_check docstring)."
+             + (" Each member alone (soil row): before " + ", ".join(_n(x) for x in comp["per_seed"]["soil_rmse_before"])
+                + " N; after " + ", ".join(_n(x) for x in comp["per_seed"]["soil_rmse_after"]) + " N."
+                if comp.get("per_seed") else ""), "",
              "| model | RMSE before [N] | RMSE after [N] | after/before | improved episodes | p |", "|---|---|---|---|---|---|"]
     for key, name in PINN_ROWS:
         c = rows.get(key)
