@@ -297,7 +297,7 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     ds = blind(tmp_path / "inertia")
     frame = build_frame(ds, stride=2)
     sel, held = split_holdout(frame, 0.3, 0)
-    selection = sorted({frame.names[e] for e in frame.select(groups=sel).episodes})
+    selection = frame.episode_names(sel)
     got = pinn_gap(ds, frame.select(groups=held), selection, AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]),
                    epochs=30, seed=0, seeds=3, max_minutes=12.0, log=None)
     rows = got["comparisons"]

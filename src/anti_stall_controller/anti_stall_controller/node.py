@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import collections
 
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
@@ -19,7 +19,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, status_event, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, status_event, topic_qos
 
 from .controller import AntiStallController, AntiStallGains
 
@@ -40,9 +40,7 @@ MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
 class ControllerNode(Node):
     def __init__(self) -> None:
         super().__init__("anti_stall_controller")
-        for name, (default, description) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
-        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        get = declare_parameters(self, PARAMETERS)
         gains = AntiStallGains(**{k: get(k) for k in GAIN_FIELDS})  # ValueError names the field
         self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))
         self.follow = bool(get("follow_episode_targets"))

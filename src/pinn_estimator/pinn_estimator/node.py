@@ -12,14 +12,14 @@ is refused with the reason and the running model stays.
 from __future__ import annotations
 
 import torch
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import String
 
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, status_event, qos_profile, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, qos_profile, spin_node, status_event, topic_qos
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
@@ -51,9 +51,7 @@ def load_estimator_model(path: str):
 class EstimatorNode(Node):
     def __init__(self) -> None:
         super().__init__("pinn_estimator")
-        for name, (default, description) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
-        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        get = declare_parameters(self, PARAMETERS)
         threads = get("threads")
         if not isinstance(threads, int) or threads < 1:
             raise ValueError(f"parameter threads={threads!r} must be an integer >= 1")

@@ -19,13 +19,13 @@ from __future__ import annotations
 import collections
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
 
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe,
                       fields, max_cut_depth)
@@ -51,9 +51,7 @@ def check_log_period(value) -> float:
 class PlannerNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_planner")
-        for name, (default, description) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
-        get = lambda name: self.get_parameter(name).value  # noqa: E731
+        get = declare_parameters(self, PARAMETERS)
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(get("margin"), get("d_max_m"),
                                                                        get("cut_speed_m_s"))
         self.include_residual = self._check_bool("include_residual", get("include_residual"))

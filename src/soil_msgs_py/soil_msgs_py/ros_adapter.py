@@ -2,6 +2,7 @@
 
 * ``qos_profile(spec)`` / ``topic_qos(name)``: graph.QosSpec -> rclpy QoSProfile.
 * ``message_class(msgtype)``: "pkg/msg/Name" -> the installed Python message class.
+* ``declare_parameters(node, table)``: a node's parameter table declared, with descriptions.
 * ``spin_node(factory, args)``: the Jazzy entry-point pattern (init, spin, clean shutdown
   on Ctrl-C / SIGTERM / external shutdown) so every node's ``main`` is two lines.
 """
@@ -15,6 +16,7 @@ import sys
 from collections.abc import Callable
 
 import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -25,6 +27,17 @@ from .graph import DATA_QOS, SIM_STATUS_TOPIC, TOPIC_QOS, EpisodeEvent, QosSpec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
+    """Declare ``{name: (default, description[, typed_default])}`` on ``node``; returns ``get(name)``.
+
+    ``typed_default`` (e.g. ``Parameter.Type.STRING_ARRAY``) is declared instead of ``default``
+    where the default alone cannot give the type (an empty list). ``get`` reads the current value.
+    """
+    for name, (default, description, *typed) in table.items():
+        node.declare_parameter(name, typed[0] if typed else default, ParameterDescriptor(description=description))
+    return lambda name: node.get_parameter(name).value
 
 
 def qos_profile(spec: QosSpec) -> QoSProfile:

@@ -24,7 +24,7 @@ import collections
 import time
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
@@ -35,7 +35,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
-from soil_msgs_py.ros_adapter import WarnLimiter, message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
 
 from .effects import effects_for_mode
 from .live import CommandGate, TickTiming, episode_plan
@@ -79,9 +79,7 @@ PARAMETERS: dict[str, tuple] = {
 class SimNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_sim_node")
-        for name, (default, description, *array_type) in PARAMETERS.items():
-            self.declare_parameter(name, array_type[0] if array_type else default,
-                                   ParameterDescriptor(description=description))
+        declare_parameters(self, PARAMETERS)
         self.finished = False
         self.exit_code = 0
         p = {name: self._value(name) for name in PARAMETERS}

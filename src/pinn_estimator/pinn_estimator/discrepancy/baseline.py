@@ -205,6 +205,11 @@ class Frame:
     def groups(self) -> np.ndarray:
         return np.unique(self.group)
 
+    def episode_names(self, groups=None) -> list[str]:
+        """Names of the episodes present (in episode order), only those of ``groups`` if given."""
+        keep = None if groups is None else {int(g) for g in groups}
+        return [self.names[int(e)] for e in self.episodes if keep is None or int(self.group_of[e]) in keep]
+
     def select(self, *, episodes=None, groups=None) -> "Frame":
         """The ticks of some episodes or θ-groups (global indices kept)."""
         mask = np.ones(len(self), bool)

@@ -56,7 +56,7 @@ def pinn_split(test_frame: Frame, selection: list[str], seed: int, val_fraction:
     n_val = max(1, int(round(val_fraction * len(names))))
     calibration, scored = [], []
     for g in test_frame.groups:
-        eps = sorted({test_frame.names[int(e)] for e in test_frame.episodes if int(test_frame.group_of[e]) == int(g)})
+        eps = sorted(test_frame.episode_names([g]))
         rng.shuffle(eps)
         half = len(eps) // 2
         calibration += eps[:half]

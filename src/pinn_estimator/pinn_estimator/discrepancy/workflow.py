@@ -116,9 +116,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
         arrays.update(test_frame=ftest, test=test_arrays)
         if predictors:
-            context = {"dataset": dataset, "selection_episodes": _data_summary(frame, sel_groups, [])["selection_episodes"],
-                       "test_episodes": _data_summary(frame, [], test_groups)["test_episodes"], "seed": seed,
-                       "edges": edges}
+            context = {"dataset": dataset, "selection_episodes": frame.episode_names(sel_groups),
+                       "test_episodes": frame.episode_names(test_groups), "seed": seed, "edges": edges}
             test["predictors"] = {}
             for label, fn in dict(predictors).items():
                 say(f"held-out comparison for {label} ...")
@@ -188,16 +187,13 @@ def _shared(frame: Frame) -> bool:
 
 
 def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
-    def eps(groups):
-        return [frame.names[int(e)] for e in frame.episodes if int(frame.group_of[e]) in set(groups)]
-
     return {
         "episodes": int(len(frame.episodes)), "ticks": int(len(frame)), "theta_groups": int(len(frame.groups)),
         "theta_per": "soil group (metadata soil + I_d)" if _shared(frame) else "episode",
         "metadata_soils": frame.has_metadata(),
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
-        "selection_episodes": eps(sel_groups), "test_episodes": eps(test_groups),
+        "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
     }
 
 
