@@ -5,7 +5,7 @@ SHELL := /bin/bash
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
-PKGS := src/soil_msgs_py src/anti_stall_controller src/soil_sim_node src/pinn_estimator
+PKGS := $(addprefix src/,soil_msgs_py soil_physics anti_stall_controller soil_sim_node soil_bag_tools pinn_estimator soil_planner soil_discrepancy soil_bringup)
 STAMP := $(VENV)/.installed
 
 # DDS never leaves loopback; every make target gets its own domain id unless the caller chose one.
@@ -25,7 +25,7 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 	@touch $(STAMP)
 
 demo: venv
-	$(BIN)/python -m pinn_estimator.demo
+	$(BIN)/python -m soil_bringup.demo
 
 test: venv
 	$(BIN)/python -m pytest -q tests

@@ -68,9 +68,9 @@ from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator  # noqa: E402
 from soil_msgs_py import graph as G  # noqa: E402
 from soil_msgs_py import messages as M  # noqa: E402
 from soil_msgs_py import topics as T  # noqa: E402
-from soil_msgs_py.bag_io import read_episode  # noqa: E402
+from soil_bag_tools.bag_io import read_episode  # noqa: E402
 from soil_msgs_py.params import WINDOW_SAMPLES  # noqa: E402
-from soil_sim_node.launch import loopback_env  # noqa: E402
+from soil_bringup.launch import loopback_env  # noqa: E402
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parent.parent

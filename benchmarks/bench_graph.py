@@ -33,7 +33,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from soil_msgs_py import graph as G  # noqa: E402
-from soil_msgs_py.bag_io import find_episode_bags, read_episode  # noqa: E402
+from soil_bag_tools.bag_io import find_episode_bags, read_episode  # noqa: E402
 from soil_msgs_py.ros_adapter import topic_qos  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import torch
 
-from pinn_estimator.checkpoint import PACKAGE_DATA, read_checkpoint
+from pinn_estimator.checkpoint import SHIPPED_MODELS_DIR, read_checkpoint
 from pinn_estimator.loss import force_loss, pinn_loss
 from pinn_estimator.model import EstimatorNet, ModelConfig, parameter_count
 from soil_msgs_py.params import KNOWN_PARAMS
@@ -73,7 +73,7 @@ def main() -> None:
     torch.set_num_threads(1)
     p50, p99 = latency()
     print(f"model step latency, batch 1, 1 thread: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
-    for path in sorted(PACKAGE_DATA.glob("*.pt")):
+    for path in sorted(SHIPPED_MODELS_DIR.glob("*.pt")):
         m = read_checkpoint(path)["metrics"]
         print(f"shipped {path.name}: trained in {m['train_seconds'] / 60:.1f} min ({m['epochs_run']} epochs, {m['stop_reason']}); budget 15 min")
 

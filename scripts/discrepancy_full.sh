@@ -33,10 +33,10 @@ for case in ${*:-control soil_inertia compaction rate_strength default_world}; d
     [ "$case" = default_world ] && mode=default check=()
     if [ ! -f "$DATA/$case/dataset.json" ]; then
         plugin=()
-        [ -n "${term:-}" ] && plugin=(--plugin "soil_msgs_py.extra_terms:plugin term=$term k=$k")
+        [ -n "${term:-}" ] && plugin=(--plugin "soil_physics.force_terms:plugin term=$term k=$k")
         "$BIN/soil_sim_batch" "${GRID[@]}" --mode "$mode" --out "$DATA/$case" "${plugin[@]}"
     fi
     "$BIN/soil_discrepancy" "$DATA/$case" --out "$OUT/$case" --pinn-epochs "$PINN_EPOCHS" --pinn-seeds "$PINN_SEEDS" --quiet "${check[@]}"
 done
-"$BIN/python" -m pinn_estimator.discrepancy.index "$OUT"
+"$BIN/python" -m soil_discrepancy.index "$OUT"
 echo "reports: $OUT/README.md and $OUT/<case>/discrepancy.md"

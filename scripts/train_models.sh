@@ -4,19 +4,19 @@
 # For each world: generate the §3.1-sized dataset (seeded, skipped if present), train the PINN
 # and the physics-free baseline side by side (one thread each, same seed -> same by-episode
 # split), then evaluate both with the classical fit on the test split. The PINN checkpoint,
-# its report (.md/.json) and figure are copied into the package (pinn_estimator/data/).
+# its report (.md/.json) and figure are copied into the package (pinn_estimator/models/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-.venv/bin}
 OUT=${OUT:-out/models}
-SHIP=src/pinn_estimator/pinn_estimator/data
+SHIP=src/pinn_estimator/pinn_estimator/models
 SEED=${SEED:-0}
 TRAIN_ARGS=${TRAIN_ARGS:---epochs 80 --stride 4 --patience 10 --max-minutes 7}
 mkdir -p "$OUT" "$SHIP"
 for w in ${*:-fee default}; do
     data=bags/d_$w
     [ -f "$data/dataset.json" ] || "$BIN/soil_sim_batch" --mode "$w" --out "$data" --quiet
-    "$BIN/python" -c "from pinn_estimator.data import load_dataset; load_dataset('$data', workers=2)"  # fill the cache once
+    "$BIN/python" -c "from pinn_estimator.dataset import load_dataset; load_dataset('$data', workers=2)"  # fill the cache once
     "$BIN/pinn_train" --data "$data" --out "$OUT/pinn_$w.pt" --kind pinn --seed "$SEED" --threads 1 --quiet $TRAIN_ARGS > "$OUT/pinn_$w.log" 2>&1 &
     p1=$!
     "$BIN/pinn_train" --data "$data" --out "$OUT/physics_free_$w.pt" --kind physics_free --seed "$SEED" --threads 1 --quiet $TRAIN_ARGS > "$OUT/physics_free_$w.log" 2>&1 &

@@ -1,5 +1,10 @@
 """Shared pytest configuration for the insitu-soil test suite.
 
+Tests live in one folder per package (``tests/<package>/``), the cross-package graph tests in
+``tests/graph/`` and the workspace checks in ``tests/workspace/``. Helpers shared by several
+folders sit here (``tests.ros_probe``, ``tests.bag_fixtures``, ``tests.sim_plugins``); every
+folder is a package, so a test folder never shadows the project package it is named after.
+
 DDS stays on loopback for every test: the test process itself (which hosts probe nodes)
 and every node it starts get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; the deprecated
 ROS_LOCALHOST_ONLY, which would override it, is removed.

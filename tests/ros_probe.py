@@ -23,7 +23,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from soil_msgs_py.ros_adapter import message_class, topic_qos
-from soil_sim_node.launch import loopback_env  # noqa: F401 - re-exported for the tests
+from soil_bringup.launch import loopback_env  # noqa: F401 - re-exported for the tests
 
 BIN = Path(sys.executable).parent
 # Domain ids 141..230 for these tests (test_bag_tools uses 100..140); one per probe/test.

@@ -1,4 +1,4 @@
-"""Force plugins used by tests/test_simulator.py (loaded as ``sim_plugins:<name>``).
+"""Force plugins used by tests/soil_sim_node/test_simulator.py (loaded as ``tests.sim_plugins:<name>``).
 
 tests/test_simulator.py puts this directory on sys.path, so the simulator's plugin loader
 (importlib.import_module) finds this module under every pytest import mode.

@@ -14,21 +14,19 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
-    package_data={package_name: ["*.yaml", "data/*"]},
+    package_data={package_name: ["*.yaml", "models/*"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="insitu-soil maintainers",
     maintainer_email="maintainers@insitu-soil.invalid",
-    description="Physics-infused neural network soil-property estimator: model, offline trainer, evaluation and online node.",
+    description="Physics-infused neural network soil-property estimator: model, loss, dataset, offline trainer, evaluation with its baselines, shipped models, online core and node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "pinn_train = pinn_estimator.train:main",
             "pinn_eval = pinn_estimator.evaluate:main",
             "pinn_estimator = pinn_estimator.node:main",
-            "soil_planner = pinn_estimator.planner_node:main",
-            "soil_discrepancy = pinn_estimator.discrepancy.cli:main",
         ],
     },
 )

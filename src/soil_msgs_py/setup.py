@@ -14,19 +14,16 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
-    package_data={package_name: ["*.yaml", "data/*"]},
+    package_data={package_name: ["*.yaml"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="insitu-soil maintainers",
     maintainer_email="maintainers@insitu-soil.invalid",
-    description="Shared vocabulary of insitu-soil: soil parameter vector (paper Table 1), the FEE (one implementation for NumPy and torch), soil catalogue, topic names, QoS, message layouts and rosbag2 MCAP bag I/O.",
+    description="The graph contract of insitu-soil: the soil parameter vector and Table 1 bounds, topic names, QoS and /sim/status events, labelled message layouts, episode metadata, rclpy glue and the one stamp joiner every node uses.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "soil_bag_record = soil_msgs_py.record_node:main",
-            "soil_bag_play = soil_msgs_py.play_node:main",
-            "soil_bag_repair = soil_msgs_py.repair:main",
         ],
     },
 )

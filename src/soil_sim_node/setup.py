@@ -14,13 +14,13 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
-    package_data={package_name: ["*.yaml", "data/*"]},
+    package_data={package_name: ["*.yaml"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="insitu-soil maintainers",
     maintainer_email="maintainers@insitu-soil.invalid",
-    description="Planar soil and bladed-vehicle simulator (ROS-free core, thin rclpy node), batch dataset generator and episode plots.",
+    description="Planar soil and bladed-vehicle simulator (ROS-free core, thin rclpy node with its own pacing module), closed-loop rollout, batch dataset generator, episode plots and the phenomena report.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
@@ -28,7 +28,6 @@ setup(
             "soil_plot_episode = soil_sim_node.plot:main",
             "soil_sim_report = soil_sim_node.report:main",
             "soil_sim_node = soil_sim_node.node:main",
-            "soil_launch = soil_sim_node.launch:main",
         ],
     },
 )

@@ -18,8 +18,8 @@ from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
 
 FORMAT = "insitu-soil-estimator"
 FORMAT_VERSION = 1
-PACKAGE_DATA = Path(__file__).resolve().parent / "data"
-DEFAULT_CHECKPOINT = PACKAGE_DATA / "pinn_default.pt"
+SHIPPED_MODELS_DIR = Path(__file__).resolve().parent / "models"
+DEFAULT_CHECKPOINT = SHIPPED_MODELS_DIR / "pinn_default.pt"
 
 
 def interface() -> dict:

@@ -5,7 +5,7 @@ estimation scheme based on Newton-Raphson method for autonomous excavation"): ta
 of T ticks, assume the soil (phi, c, delta) is constant over it, take every other FEE input
 from the same known parameters Θ_k the PINN gets (c_a, gamma, rho, alpha, w, d, Q, v), put
 the soil failure angle at beta* = argmin N_gamma per tick (paper Eq. 7, closed form in
-``soil_msgs_py.fee.beta_star``) and solve
+``soil_physics.fee.beta_star``) and solve
 
     min_{phi, c, delta}  sum_t sum_{x,z} ((F_fee,t - F_meas,t) / F_limit)^2
 
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from soil_msgs_py import fee
+from soil_physics import fee
 from soil_msgs_py.params import DEG, FORCE_FIELDS, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 
 FIT_PARAMS: tuple[str, ...] = ("phi", "c", "delta")

@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from soil_msgs_py import fee
+from soil_physics import fee
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
-from soil_msgs_py.soils import COHESIVE_SOILS
+from soil_physics.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
-from .data import describe, load_dataset
+from .dataset import describe, load_dataset
 from .inference import WindowTensors, force_errors, predict
 
 PARAMS = ("phi", "c", "delta", "beta")

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from soil_msgs_py.bag_io import read_episode
+from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
 
-from .data import Dataset, load_dataset
+from .dataset import Dataset, load_dataset
 from .model import EstimatorNet
 from .online import estimate_values
 

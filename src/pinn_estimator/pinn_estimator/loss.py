@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from soil_msgs_py import fee
+from soil_physics import fee
 from soil_msgs_py.params import KNOWN_PARAMS, TABLE1
 
 from .model import FORCE_SCALE_N, RESIDUAL_FORCE_FRACTION

@@ -3,11 +3,11 @@
     o_[t-59..t] (60 x 9, normalised) --Conv1d--> l x N --transformer encoder--> l x N
         --flatten ++ Θ_k (min-max, Table 1)--> integration net (2 x 20) --linear-->
         [Θ_u = φ, c, δ, β, Δd (Table 1 min-max units) | F_r (units of 10 % of the force scale)]
-    Θ = [Θ_k, Θ_u] clipped to Table 1 limits, d' = d + Δd --FEE (soil_msgs_py.fee)--> F_FEE
+    Θ = [Θ_k, Θ_u] clipped to Table 1 limits, d' = d + Δd --FEE (soil_physics.fee)--> F_FEE
     F̂ = F_FEE + F_r
 
 Augmented physics (issue 6): ``ModelConfig.extra_terms`` = ((name, k), ...) of catalogue terms
-(``soil_msgs_py.extra_terms``), each ΔF = k·B evaluated on the same Θ, d' and F_FEE, so
+(``soil_physics.force_terms``), each ΔF = k·B evaluated on the same Θ, d' and F_FEE, so
 
     F_phys = F_FEE + Σ k·B        F̂ = F_phys + F_r
 
@@ -26,8 +26,8 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import nn
 
-from soil_msgs_py import extra_terms as X
-from soil_msgs_py import fee
+from soil_physics import force_terms as X
+from soil_physics import fee
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS, WINDOW_SAMPLES
 
 MODEL_KINDS = ("pinn", "physics_free")

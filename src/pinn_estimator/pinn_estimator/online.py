@@ -35,7 +35,7 @@ from soil_msgs_py.params import (
     KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
-from .data import soil_advance
+from .dataset import soil_advance
 from .model import EstimatorNet
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)

@@ -6,7 +6,7 @@ early stopping on the validation loss, a wall-clock budget, seeded. Writes the c
 a training-curve PNG beside it.
 
 ``--extra-term NAME=K`` (repeatable) trains the PINN with catalogue effects added to its
-physics (issue 6: F_phys = F_FEE + Σ k·B, ``soil_msgs_py.extra_terms``); the checkpoint's
+physics (issue 6: F_phys = F_FEE + Σ k·B, ``soil_physics.force_terms``); the checkpoint's
 model config records them, so every loader runs the same physics.
 """
 from __future__ import annotations
@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from soil_msgs_py.extra_terms import CATALOGUE, parse_terms
+from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from .checkpoint import save_checkpoint
-from .data import Dataset, describe, load_dataset, split_episodes
+from .dataset import Dataset, describe, load_dataset, split_episodes
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count

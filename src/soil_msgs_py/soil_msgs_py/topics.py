@@ -90,7 +90,7 @@ ESTIMATED_FORCE = Topic(
     "/soil/estimate/force", "geometry_msgs/msg/WrenchStamped",
     "predicted cutting force F̂ (valid estimates only): force.x, force.z [N], stamp = newest sample used",
 )
-# What the planner example publishes (pinn_estimator.planner_node), one message per
+# What the planner example publishes (soil_planner.node), one message per
 # /soil/estimate with a Θ_k of the same stamp, stamped like it. max_depth_m: deepest cut depth
 # d [m] below the soil surface (Θ_k's d, the blade edge below the surface ahead of the blade;
 # ~ the anti-stall controller's target_depth_m, equal on level uncut ground) with every depth

@@ -24,8 +24,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from soil_msgs_py.bag_io import write_episode
-from soil_msgs_py.soils import CATALOGUE, load_soil_yaml
+from soil_bag_tools.bag_io import write_episode
+from soil_physics.soils import CATALOGUE, load_soil_yaml
 
 from .effects import Effects, effects_for_mode
 from .rollout import run_episodes

@@ -29,10 +29,10 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from soil_msgs_py import fee
+from soil_physics import fee
 from soil_msgs_py.episode import Episode
 from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
-from soil_msgs_py.soils import COHESIVE_SOILS
+from soil_physics.soils import COHESIVE_SOILS
 
 from .rollout import run_episodes
 from .simulator import EpisodeSpec, SimConfig, SoilSimulator

@@ -17,8 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from soil_msgs_py import fee  # noqa: E402
-from soil_msgs_py.bag_io import read_episode  # noqa: E402
+from soil_physics import fee  # noqa: E402
+from soil_bag_tools.bag_io import read_episode  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
 

@@ -51,7 +51,7 @@ from __future__ import annotations
 import numpy as np
 
 # The formula lives in the catalogue of candidate effects (one implementation, NumPy and torch).
-from soil_msgs_py.extra_terms import side_wall_force  # noqa: F401 - re-exported
+from soil_physics.force_terms import side_wall_force  # noqa: F401 - re-exported
 
 
 def side_wall_shear(state, k0: float | None = None, walls: float = 2.0):

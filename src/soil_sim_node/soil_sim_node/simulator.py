@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from soil_msgs_py import fee
+from soil_physics import fee
 from soil_msgs_py.params import (
     ADHESION_PA,
     GRAVITY_M_S2,
@@ -46,7 +46,7 @@ from soil_msgs_py.params import (
     VELOCITY_AVERAGE_SAMPLES,
     Machine,
 )
-from soil_msgs_py.soils import SoilType, get_soil
+from soil_physics.soils import SoilType, get_soil
 
 from .effects import (
     FORCE_TERMS,

@@ -1,0 +1,283 @@
+"""Training data from a directory of episode bags: arrays, 60-sample windows, split by episode.
+
+The bags stay the source of truth (read with ``rosbags`` through ``soil_bag_tools.bag_io``);
+the arrays are cached in an ``.npz`` keyed by a content fingerprint of the bags, so a second
+run reads in a fraction of a second and a changed bag can never be served stale.
+
+A window is the T = 60 samples o_[t-59 .. t] (paper §2.2.1); its target is the force measured
+at t and its known parameters Θ_k are those at t, the newest sample, which is what the online
+estimator has when it publishes an estimate stamped with sample t.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from soil_bag_tools.bag_io import find_episode_bags, read_episode
+from soil_msgs_py.episode import EpisodeMeta
+from soil_msgs_py.params import (
+    FORCE_FIELDS,
+    KNOWN_PARAMS,
+    OBSERVATION_FIELDS,
+    SAMPLE_RATE_HZ,
+    WINDOW_SAMPLES,
+)
+
+CACHE_VERSION = 1
+CACHE_DIR_NAME = ".insitu_cache"
+SPLITS = ("train", "val", "test")
+
+
+@dataclass
+class Dataset:
+    """All episodes of a bag directory, concatenated row-wise (one row per 60 Hz tick).
+
+    ``offsets[e]:offsets[e+1]`` are the rows of episode ``e``; ``names[e]`` its bag name.
+    """
+
+    names: list[str]
+    metas: list[EpisodeMeta]
+    offsets: np.ndarray  # (E+1,) int64
+    observations: np.ndarray  # (N, 9) float64, OBSERVATION_FIELDS
+    forces: np.ndarray  # (N, 2) float64, FORCE_FIELDS [N]
+    known: np.ndarray  # (N, 9) float64, KNOWN_PARAMS [SI]
+    truth: np.ndarray  # (N, 13) float64, GROUND_TRUTH_PARAMS [SI]; never an input to the model
+    fingerprint: str
+    root: str
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def episode_rows(self, e: int) -> slice:
+        return slice(int(self.offsets[e]), int(self.offsets[e + 1]))
+
+    def window_ends(self, episodes, stride: int = 1, window: int = WINDOW_SAMPLES) -> np.ndarray:
+        """Global row index of the newest sample of every full window of the given episodes.
+
+        Windows never cross an episode boundary; the first full window ends at row
+        ``window - 1`` of its episode; then one every ``stride`` rows.
+        """
+        if stride < 1:
+            raise ValueError(f"stride={stride} must be >= 1 sample")
+        ends = [np.arange(self.offsets[e] + window - 1, self.offsets[e + 1], stride) for e in episodes]
+        return np.concatenate(ends).astype(np.int64) if ends else np.zeros(0, np.int64)
+
+    def episode_of_rows(self, rows: np.ndarray) -> np.ndarray:
+        return np.searchsorted(self.offsets, rows, side="right") - 1
+
+    def distance_in_soil(self) -> np.ndarray:
+        """(N,) blade travel in soil [m] at every row, restarting at each episode's first tick
+        (``distance_in_soil`` per episode, from Θ_k's v_x and d). Computed, not cached: it is a
+        pure function of ``known``, so a cached dataset can never disagree with it."""
+        out = np.zeros(len(self.known))
+        vx, d = self.known[:, KNOWN_PARAMS.index("v_x")], self.known[:, KNOWN_PARAMS.index("d")]
+        for e in range(len(self)):
+            rows = self.episode_rows(e)
+            out[rows] = distance_in_soil(vx[rows], d[rows])
+        return out
+
+    def index(self, names) -> list[int]:
+        """Episode indices of bag names; raises naming the first name that is not here."""
+        where = {n: i for i, n in enumerate(self.names)}
+        missing = [n for n in names if n not in where]
+        if missing:
+            raise ValueError(
+                f"{len(missing)} episode(s) of the split are not in the dataset at {self.root}, "
+                f"e.g. {missing[0]!r}: evaluate on the directory the model was trained from"
+            )
+        return [where[n] for n in names]
+
+
+# ---------------------------------------------------------------------------------- distance in soil
+TICK_S = 1.0 / SAMPLE_RATE_HZ
+
+
+def soil_advance(v_x, d, dt: float = TICK_S):
+    """Blade travel in soil during one tick [m]: max(v_x, 0)·dt where d > 0, else 0.
+
+    The one increment of ``distance_in_soil``. An online estimator keeps a running sum
+    (``distance = 0`` at episode_start; for every tick, oldest first, *including* ticks that
+    do not complete a window: ``distance += soil_advance(v_x, d)``, then the tick's value is
+    ``distance``) and gets the offline pipeline's values.
+    """
+    return np.maximum(np.asarray(v_x, dtype=float), 0.0) * dt * (np.asarray(d, dtype=float) > 0)
+
+
+def distance_in_soil(v_x, d, dt: float = TICK_S) -> np.ndarray:
+    """Blade travel with d > 0 since the episode started [m], at every tick of one episode.
+
+    ``v_x`` [m/s], ``d`` [m]: Θ_k's columns over the whole episode, oldest first (1-D). The
+    value at tick t is Σ_{j<=t} max(v_x_j, 0)·dt·[d_j > 0], cumulative up to and including t.
+    A window's value is the one at its newest sample: it needs the episode from its start,
+    not only the 60-sample window. (Against the simulator's own ``distance_in_soil`` it runs
+    ~3 cm short after 2 m of cut: Θ_k's v_x is a 10-sample average, which lags at start-up.)
+    """
+    adv = soil_advance(v_x, d, dt)
+    if adv.ndim != 1:
+        raise ValueError(f"distance_in_soil wants 1-D per-tick arrays of one episode, got shape {adv.shape}")
+    return np.cumsum(adv)
+
+
+# ---------------------------------------------------------------------------------- loading
+def fingerprint_bags(bags: list[Path], root: Path) -> str:
+    """sha256 over every bag's relative path and the bytes of each of its files."""
+    h = hashlib.sha256(f"insitu-soil-dataset-v{CACHE_VERSION}".encode())
+    for bag in bags:
+        h.update(str(bag.relative_to(root) if bag != root else bag.name).encode())
+        for f in sorted(p for p in bag.iterdir() if p.is_file()):
+            h.update(f.name.encode())
+            with f.open("rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(chunk)
+    return h.hexdigest()
+
+
+def _read(bag: Path):
+    ep = read_episode(bag)
+    return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth
+
+
+def _check_finite(name: str, arr: np.ndarray, fields, bag: str) -> None:
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise ValueError(
+            f"bag {bag}: {name} field {fields[col]!r} is {arr[row, col]} at tick {int(row)}; "
+            f"windows with NaN/inf cannot be trained on (re-record or drop the bag)"
+        )
+
+
+def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False) -> Dataset:
+    """Read every episode bag under ``root`` (cached by content fingerprint).
+
+    Raises ValueError naming the problem for an empty directory, a bag missing a topic
+    (from ``read_episode``), a NaN/inf input or force, or episodes shorter than a window.
+    """
+    root = Path(root)
+    bags = find_episode_bags(root)
+    if not bags:
+        raise ValueError(f"no episode bags under {root} (expected rosbag2 directories with metadata.yaml)")
+    fingerprint = fingerprint_bags(bags, root)
+    cache_path = Path(cache_dir or root / CACHE_DIR_NAME) / f"dataset_{fingerprint[:24]}.npz"
+    if cache and cache_path.is_file():
+        return _from_npz(cache_path, fingerprint, root)
+    rows = _read_all(bags, workers, progress)
+    names, metas, parts = [], [], defaultdict(list)
+    for name, meta_json, obs, forces, known, truth in rows:
+        if len(obs) < WINDOW_SAMPLES:
+            raise ValueError(f"bag {name} has {len(obs)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
+        _check_finite("observation", obs, OBSERVATION_FIELDS, name)
+        _check_finite("force", forces, FORCE_FIELDS, name)
+        _check_finite("known parameter", known, KNOWN_PARAMS, name)
+        names.append(name)
+        metas.append(EpisodeMeta.from_json(meta_json))
+        for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth)):
+            parts[key].append(arr)
+    if len(set(names)) != len(names):
+        dup = sorted(n for n in set(names) if names.count(n) > 1)[0]
+        raise ValueError(f"two bags under {root} are named {dup!r}; splits are by bag name, so names must be unique")
+    offsets = np.concatenate([[0], np.cumsum([len(a) for a in parts["observations"]])]).astype(np.int64)
+    ds = Dataset(
+        names, metas, offsets, *(np.concatenate(parts[k]) for k in ("observations", "forces", "known", "truth")),
+        fingerprint=fingerprint, root=str(root),
+    )
+    if cache:
+        _to_npz(ds, cache_path)
+    return ds
+
+
+def _read_all(bags, workers, progress):
+    def shown(it):
+        if not progress:
+            return it
+        from tqdm import tqdm
+
+        return tqdm(it, total=len(bags), desc="reading bags", unit="bag")
+
+    if workers > 1 and len(bags) > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("fork").Pool(min(workers, len(bags))) as pool:
+            return list(shown(pool.imap(_read, bags, chunksize=4)))
+    return [_read(b) for b in shown(bags)]
+
+
+def _to_npz(ds: Dataset, path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + f".{os.getpid()}.tmp.npz")
+        np.savez(
+            tmp, version=CACHE_VERSION, fingerprint=ds.fingerprint, names=np.array(ds.names),
+            metas=np.array([m.to_json() for m in ds.metas]), offsets=ds.offsets,
+            observations=ds.observations, forces=ds.forces, known=ds.known, truth=ds.truth,
+        )
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only dataset directory just means no cache
+
+
+def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset:
+    with np.load(path, allow_pickle=False) as z:
+        if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint:
+            raise ValueError(f"cache {path} does not match its bags; delete it")
+        return Dataset(
+            [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
+            z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),
+        )
+
+
+# ---------------------------------------------------------------------------------- split
+def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_fraction: float = 0.15) -> dict[str, list[str]]:
+    """Split bag names into train/val/test **by episode**, stratified by (world, soil, I_d).
+
+    Every window of an episode lands in one split, so the test score measures episodes the
+    model has never seen. Stratifying keeps every soil and density in every split when the
+    grid has at least three episodes per cell.
+    """
+    for name, f in (("val_fraction", val_fraction), ("test_fraction", test_fraction)):
+        if not 0.0 <= f < 1.0:
+            raise ValueError(f"{name}={f} must be in [0, 1)")
+    if val_fraction + test_fraction >= 1.0:
+        raise ValueError(f"val_fraction + test_fraction = {val_fraction + test_fraction} leaves no training episodes")
+    groups: dict[tuple, list[str]] = defaultdict(list)
+    for name, meta in zip(ds.names, ds.metas):
+        groups[(meta.world_mode, meta.soil, float(meta.relative_density_pct))].append(name)
+    rng = np.random.default_rng(seed)
+    out = {s: [] for s in SPLITS}
+    for key in sorted(groups):
+        members = sorted(groups[key])
+        rng.shuffle(members)
+        n = len(members)
+        n_test = int(round(test_fraction * n))
+        n_val = int(round(val_fraction * n))
+        if n >= 3:
+            n_test, n_val = max(n_test, 1 if test_fraction > 0 else 0), max(n_val, 1 if val_fraction > 0 else 0)
+        n_test = min(n_test, max(n - 1, 0))
+        n_val = min(n_val, max(n - 1 - n_test, 0))
+        out["test"] += members[:n_test]
+        out["val"] += members[n_test : n_test + n_val]
+        out["train"] += members[n_test + n_val :]
+    for s in SPLITS:
+        out[s].sort()
+    if not out["train"]:
+        raise ValueError(f"dataset at {ds.root} has too few episodes ({len(ds)}) for a train split")
+    return out
+
+
+def describe(ds: Dataset) -> dict:
+    """Small JSON-able summary stored in checkpoints and reports."""
+    modes = sorted({m.world_mode for m in ds.metas})
+    soils = sorted({m.soil for m in ds.metas})
+    return {
+        "root": ds.root,
+        "fingerprint": ds.fingerprint,
+        "episodes": len(ds),
+        "ticks": int(ds.offsets[-1]),
+        "world_modes": modes,
+        "soils": soils,
+    }

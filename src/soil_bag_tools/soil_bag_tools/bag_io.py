@@ -1,0 +1,195 @@
+"""Episodes as rosbag2 (version 9, MCAP, CDR, Jazzy types) bags, without a ROS install.
+
+Bags are the dataset format: ``ros2 bag info/play`` can open them, and the trainer reads
+them back bit-identically. Writes are atomic (staged in ``<bag>.partial``, renamed into
+place after a clean close) so a crashed batch never leaves a bag that looks complete.
+The episode metadata travels in metadata.yaml ``custom_data`` (and the MCAP metadata
+record rosbags writes alongside it).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import yaml
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from soil_msgs_py import messages as M
+from soil_msgs_py.episode import Episode, EpisodeMeta
+from soil_msgs_py.topics import EPISODE_TOPICS
+
+META_KEY = "insitu_soil.episode"
+PARTIAL_SUFFIX = ".partial"
+_INT32_MAX_S = 2**31 - 1
+
+
+def _check_arrays(ep: Episode) -> None:
+    """Refuse what cannot round-trip: non-finite values, bad or unordered stamps."""
+    for name, fields in M.ARRAY_FIELDS.items():
+        arr = getattr(ep, name)
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(
+                f"Episode.{name} column {fields[col]!r} is {arr[row, col]} at row {row} "
+                f"(first non-finite value); bags must be finite"
+            )
+    s = ep.stamps_ns
+    if len(s) == 0:
+        raise ValueError("episode has no ticks")
+    if not np.issubdtype(s.dtype, np.integer):
+        raise ValueError(f"Episode.stamps_ns must be integer ns, got dtype {s.dtype}")
+    if s[0] < 0 or s[-1] // M.NS_PER_S > _INT32_MAX_S:
+        raise ValueError(f"Episode.stamps_ns out of range [0, 2^31 s): {s[0]}..{s[-1]}")
+    if len(s) > 1 and (back := np.flatnonzero(np.diff(s) <= 0)).size:
+        i = int(back[0]) + 1
+        raise ValueError(f"Episode.stamps_ns not strictly increasing at row {i}: {s[i - 1]} -> {s[i]}")
+
+
+def is_bag(path: Path) -> bool:
+    """A finished rosbag2 directory (the writer renames metadata.yaml in last)."""
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
+def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bool = False) -> Path:
+    """Write ``episode`` as the bag directory ``bag_dir``; returns its path."""
+    bag_dir = Path(bag_dir)
+    episode.meta.validate()
+    _check_arrays(episode)
+    if bag_dir.name.endswith(PARTIAL_SUFFIX):
+        raise ValueError(f"bag name {bag_dir.name!r} must not end in {PARTIAL_SUFFIX}")
+    if bag_dir.exists() or bag_dir.is_symlink():
+        if is_bag(bag_dir):
+            if not overwrite:
+                raise FileExistsError(f"bag {bag_dir} exists; pass overwrite=True to replace it")
+        elif not bag_dir.is_dir() or any(bag_dir.iterdir()):
+            raise FileExistsError(f"{bag_dir} exists and is not a rosbag2 bag; not touching it")
+
+    staging = bag_dir.with_name(bag_dir.name + PARTIAL_SUFFIX)
+    shutil.rmtree(staging, ignore_errors=True)  # left by a killed writer: never valid
+    staging.mkdir(parents=True)
+    tmp_bag = staging / bag_dir.name  # mcap file is named after its directory
+    try:
+        with Writer(tmp_bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            writer.set_custom_data(META_KEY, episode.meta.to_json())
+            conns = {
+                t.name: writer.add_connection(t.name, t.msgtype, typestore=M.TYPESTORE)
+                for t in EPISODE_TOPICS
+            }
+            for topic, stamp, raw in M.serialize_episode(episode, M.TYPESTORE):
+                writer.write(conns[topic], stamp, raw)
+        if not is_bag(tmp_bag):
+            raise RuntimeError(f"rosbags wrote no metadata.yaml in {tmp_bag}")
+        if bag_dir.exists():  # an old bag (overwrite) or an empty dir: park it in staging
+            os.replace(bag_dir, staging / "replaced")
+        os.replace(tmp_bag, bag_dir)
+    except BaseException:
+        if not bag_dir.exists() and (staging / "replaced").exists():
+            os.replace(staging / "replaced", bag_dir)  # put the old bag back
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    shutil.rmtree(staging, ignore_errors=True)
+    return bag_dir
+
+
+def _read_meta(path: Path) -> EpisodeMeta:
+    """Episode metadata from metadata.yaml custom_data (rosbags' Reader has no public getter)."""
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    except (yaml.YAMLError, KeyError, TypeError) as err:
+        raise ValueError(f"bag {path}: unreadable metadata.yaml: {err!r}") from None
+    custom = info.get("custom_data") or {}
+    if META_KEY not in custom:
+        raise ValueError(f"bag {path} has no episode metadata (custom_data key {META_KEY!r})")
+    try:
+        return EpisodeMeta.from_json(custom[META_KEY])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"bag {path}: bad episode metadata {META_KEY!r}: {err}") from None
+
+
+def read_episode(bag_dir: str | os.PathLike) -> Episode:
+    """Read a bag written by ``write_episode`` back into an Episode (bit-identical arrays)."""
+    path = Path(bag_dir)
+    if not path.exists():
+        raise FileNotFoundError(f"bag {path} does not exist")
+    if path.name.endswith(PARTIAL_SUFFIX):
+        raise ValueError(f"{path} is an unfinished bag (a write was interrupted)")
+    if not is_bag(path):
+        raise ValueError(f"{path} is not a rosbag2 directory (no metadata.yaml)")
+    meta = _read_meta(path)
+    try:
+        with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
+            conns, stores = [], {}
+            for t in EPISODE_TOPICS:
+                mine = [c for c in reader.connections if c.topic == t.name]
+                if not mine:
+                    raise ValueError(f"bag {path} has no topic {t.name} ({t.msgtype})")
+                if wrong := {c.msgtype for c in mine} - {t.msgtype}:
+                    raise ValueError(f"bag {path}: topic {t.name} has type {wrong}, expected {t.msgtype}")
+                conns += mine
+                # Jazzy typestore if the embedded definition is Jazzy's (compiled once per process).
+                same = all(c.digest == M.TYPESTORE.hash_rihs01(t.msgtype) for c in mine)
+                stores[t.name] = M.TYPESTORE if same else reader.typestore
+            raws: dict[str, list[bytes]] = defaultdict(list)
+            for conn, _, raw in reader.messages(connections=conns):
+                raws[conn.topic].append(raw)
+            try:
+                decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS}
+                return M.assemble_episode(meta, decoded)
+            except ValueError as err:
+                raise ValueError(f"bag {path}: {err}") from None
+    except AnyReaderError as err:
+        raise ValueError(f"cannot read bag {path}: {err}") from None
+
+
+def find_episode_bags(root: str | os.PathLike) -> list[Path]:
+    """Sorted bag directories under ``root`` (or ``root`` itself); skips ``*.partial``."""
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"dataset root {root} is not a directory")
+    found: list[Path] = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        d = Path(dirpath)
+        if d.name.endswith(PARTIAL_SUFFIX):
+            dirnames.clear()
+        elif "metadata.yaml" in filenames:
+            found.append(d)
+            dirnames.clear()  # a bag holds no bags
+        else:
+            dirnames[:] = [n for n in dirnames if not n.endswith(PARTIAL_SUFFIX)]
+    return sorted(found)
+
+
+def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Episode]:
+    """Every episode bag under ``root``, in path order."""
+    bags = find_episode_bags(root)
+    if not bags:
+        raise ValueError(f"no bags found under {root}")
+    if progress:
+        from tqdm import tqdm
+
+        bags = tqdm(bags, desc="reading bags", unit="bag")
+    return [read_episode(b) for b in bags]
+
+
+def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps int64 (n,), values float64 (n, len(labels))) of a labelled-array topic in a bag,
+    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode).
+
+    ValueError if the bag lacks the topic or a message has another layout."""
+    path = Path(bag_dir)
+    stamps, rows = [], []
+    with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            raise ValueError(f"bag {path} has no topic {topic}")
+        for conn, _, raw in reader.messages(connections=conns):
+            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
+            stamps.append(stamp)
+            rows.append(values)
+    values = np.stack(rows) if rows else np.empty((0, len(labels)))
+    return np.asarray(stamps, dtype=np.int64), values

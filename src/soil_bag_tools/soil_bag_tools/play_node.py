@@ -1,0 +1,207 @@
+"""``soil_bag_play``: replay bags onto the live graph with their original timing.
+
+Thin rclpy adapter around ``playback.py``: one publisher per topic with the graph's QoS
+(``ros_adapter.topic_qos``), the raw CDR bytes of each message published as they are (no
+deserialisation), timed by ``playback.Pacer`` on absolute deadlines. Episode bags are
+framed by ``/sim/status`` ``episode_start``/``episode_end`` events (as the simulator does),
+so ``soil_bag_record`` splits a replay into the same bags and estimators reset in step.
+
+    soil_bag_play BAG [BAG ...] [--rate R] [--loop] [--topics T ...] [--exclude T ...]
+                  [--clock HZ] [--wait-for-subscribers N] [--wait-timeout S] [--no-status]
+                  [--ros-args ...]
+
+Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.utilities import remove_ros_args
+
+from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
+from .playback import (
+    CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
+    string_cdr, with_clock,
+)
+from soil_msgs_py.ros_adapter import init_rclpy, message_class, raise_interrupt, topic_qos
+
+STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
+SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
+DRAIN_S = 1.0  # at most this long waiting for reliable subscribers to acknowledge
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="soil_bag_play", description="Replay rosbag2 bags with their original timing.")
+    p.add_argument("bags", nargs="+", metavar="BAG",
+                   help="bag directory, or a directory of bags (played in path order)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
+    p.add_argument("--loop", action="store_true", help="start over after the last bag, until Ctrl-C")
+    p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
+    p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
+    p.add_argument("--clock", type=float, metavar="HZ",
+                   help="publish /clock at HZ from bag time (and not the bag's own /clock)")
+    p.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
+                   help="before playing, wait until every publisher has N matched subscriptions (default 0)")
+    p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
+                   help="give up waiting for subscribers after S s and play anyway (default 10)")
+    p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events")
+    opts = p.parse_args(argv)
+    if not opts.rate > 0:
+        p.error(f"--rate {opts.rate} must be > 0")
+    if opts.clock is not None and not opts.clock > 0:
+        p.error(f"--clock {opts.clock} Hz must be > 0")
+    if opts.wait_for_subscribers < 0:
+        p.error(f"--wait-for-subscribers {opts.wait_for_subscribers} must be >= 0")
+    return opts
+
+
+class Player:
+    """Publishers plus the play loop; the node is only used to create publishers and log."""
+
+    def __init__(self, node: Node, opts: argparse.Namespace):
+        self.node, self.opts, self.log = node, opts, node.get_logger()
+        self.pubs: dict[str, object] = {}
+        self.types: dict[str, str] = {}
+        self.status = None if opts.no_status else self._publisher(SIM_STATUS_TOPIC, STRING_MSGTYPE)
+        if opts.clock:
+            self._publisher(CLOCK_TOPIC, CLOCK_MSGTYPE)
+        self.pacer = Pacer(opts.rate)
+        self.episode = 0
+        self.published = 0
+
+    def _publisher(self, topic: str, msgtype: str):
+        if topic in self.pubs:
+            if self.types[topic] != msgtype:
+                raise BagPathError(f"topic {topic} has type {msgtype} here but {self.types[topic]} in an earlier bag")
+            return self.pubs[topic]
+        self.types[topic] = msgtype
+        self.pubs[topic] = self.node.create_publisher(message_class(msgtype), topic, topic_qos(topic))
+        return self.pubs[topic]
+
+    def _load(self, path) -> LoadedBag:
+        exclude = list(self.opts.exclude) + ([CLOCK_TOPIC] if self.opts.clock else [])
+        bag = load_bag(path, topics=self.opts.topics, exclude=exclude, log=self.log.warning)
+        for topic, msgtype in bag.topics.items():
+            self._publisher(topic, msgtype)
+        return bag
+
+    def wait_for_subscribers(self) -> None:
+        n, timeout = self.opts.wait_for_subscribers, self.opts.wait_timeout
+        end = time.monotonic() + timeout
+        while True:
+            counts = {t: p.get_subscription_count() for t, p in self.pubs.items() if t != SIM_STATUS_TOPIC}
+            # /sim/status: every status subscriber the graph knows of must be matched too.
+            status_ok = self.status is None or (
+                self.status.get_subscription_count() >= self.node.count_subscribers(SIM_STATUS_TOPIC))
+            if all(c >= n for c in counts.values()) and status_ok:
+                break
+            if time.monotonic() > end:
+                short = {t: c for t, c in counts.items() if c < n}
+                self.log.warning(f"--wait-timeout {timeout} s: topics with fewer than {n} subscribers {short}; "
+                                 "playing anyway")
+                break
+            time.sleep(0.02)
+        time.sleep(SETTLE_S)
+
+    def play_bag(self, bag: LoadedBag) -> None:
+        messages = list(with_clock(bag.messages, self.opts.clock)) if self.opts.clock else bag.messages
+        if not messages:
+            self.log.warning(f"{bag.path}: no message to play")
+            return
+        events = None if self.status is None else episode_events(bag, self.episode)
+        if events:
+            self.status.publish(string_cdr(events[0].to_json()))
+        self.pacer.begin(messages[0][0], time.perf_counter() + (STATUS_LEAD_S if events else 0.0))
+        late = np.empty(len(messages))
+        last_stamp, ticks = -1, 0
+        try:
+            for i, (t, topic, raw) in enumerate(messages):
+                late[i] = self.pacer.wait(t)
+                self.pubs[topic].publish(raw)
+                self.published += 1
+                if t != last_stamp and not (self.opts.clock and topic == CLOCK_TOPIC):  # synthetic clock
+                    last_stamp, ticks = t, ticks + 1
+        except KeyboardInterrupt:
+            if events:  # tell recorders/estimators the episode stopped here
+                ev = events[1]
+                end = EpisodeEvent(event=EVENT_EPISODE_END, episode=ev.episode, name=ev.name, meta=ev.meta,
+                                   first_stamp_ns=ev.first_stamp_ns, planned_ticks=ev.planned_ticks,
+                                   last_stamp_ns=last_stamp, ticks=ticks, reason="shutdown", stats=ev.stats)
+                self.status.publish(string_cdr(end.to_json()))
+            raise
+        if events:
+            self.status.publish(string_cdr(events[1].to_json()))
+        self.episode += 1
+        ms = late * 1e3
+        self.log.info(f"played {bag.path}: {len(messages)} messages, {bag.ticks} ticks, "
+                      f"{(messages[-1][0] - messages[0][0]) * 1e-9:.2f} s bag time at rate {self.opts.rate}; "
+                      f"lateness p50 {np.percentile(ms, 50):.3f} ms, p99 {np.percentile(ms, 99):.3f} ms, "
+                      f"max {ms.max():.3f} ms")
+
+    def run(self, paths) -> None:
+        cache: dict = {}
+        first = True
+        while True:
+            for path in paths:
+                bag = cache.get(path) or self._load(path)
+                if len(paths) == 1:
+                    cache[path] = bag  # --loop over one bag: read it once
+                if first:
+                    first = False
+                    if self.opts.wait_for_subscribers > 0:
+                        self.wait_for_subscribers()
+                self.play_bag(bag)
+            if not self.opts.loop:
+                return
+
+    def drain(self) -> None:
+        """Wait (bounded) until reliable subscribers acknowledged everything published."""
+        end = time.monotonic() + DRAIN_S
+        unacked = [t for t, p in self.pubs.items()
+                   if not p.wait_for_all_acked(Duration(nanoseconds=int(max(0.0, end - time.monotonic()) * 1e9)))]
+        if unacked:  # acknowledgements ride on DDS heartbeats; delivery itself is normally done
+            self.log.debug(f"not acknowledged within {DRAIN_S} s: {unacked}")
+
+
+def main(args: list[str] | None = None) -> int:
+    argv = list(sys.argv if args is None else args)
+    opts = parse_args(remove_ros_args(argv)[1:])
+    try:
+        paths = expand_bag_args(opts.bags)
+    except BagPathError as err:
+        print(f"soil_bag_play: {err}", file=sys.stderr)
+        return 2
+    # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
+    # still publish the episode_end of an interrupted bag.
+    init_rclpy(argv, raise_interrupt)
+    node = Node("soil_bag_play")
+    code = 0
+    player = None
+    try:
+        player = Player(node, opts)
+        player.run(paths)
+        player.drain()
+    except KeyboardInterrupt:
+        if player is not None:
+            try:
+                player.drain()
+            except KeyboardInterrupt:
+                pass
+    except ValueError as err:  # BagPathError (unreadable bag), unknown message type
+        node.get_logger().error(str(err))
+        code = 2
+    finally:
+        node.get_logger().info(f"published {player.published if player else 0} messages")
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""Player core (no rclpy): which bags, which raw messages, when to publish each one.
+
+``play_node.py`` only creates publishers and calls ``publish(raw)``; everything a test can
+check without DDS lives here: expanding BAG arguments, loading a bag's raw CDR messages in
+log-time order (stable: a tick's messages in stored order), the ``/sim/status`` events of
+an episode bag, synthetic ``/clock`` messages, and the :class:`Pacer` that turns bag time
+into absolute wall-clock deadlines (``start + (t - t0) / rate`` on ``time.perf_counter``:
+sleep until ~0.5 ms before, then spin), so lateness never accumulates.
+"""
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from rosbags.highlevel import AnyReader, AnyReaderError
+
+from soil_msgs_py import messages as M
+from .bag_io import META_KEY, find_episode_bags, is_bag
+from soil_msgs_py.episode import EpisodeMeta
+from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
+
+CLOCK_TOPIC = "/clock"
+CLOCK_MSGTYPE = "rosgraph_msgs/msg/Clock"
+
+
+class BagPathError(ValueError):
+    """A BAG argument that is not a bag nor a directory of bags."""
+
+
+def expand_bag_args(paths: Sequence[str | os.PathLike]) -> list[Path]:
+    """Bag directories in play order: each argument is a bag, or a directory of bags (path order)."""
+    bags: list[Path] = []
+    for arg in paths:
+        path = Path(arg)
+        if is_bag(path):
+            bags.append(path)
+        elif path.is_dir():
+            found = find_episode_bags(path)
+            if not found:
+                raise BagPathError(f"{path}: not a rosbag2 bag (no metadata.yaml) and contains no bags")
+            bags += found
+        elif path.exists():
+            raise BagPathError(f"{path}: not a rosbag2 bag directory")
+        else:
+            raise BagPathError(f"{path}: no such bag or directory")
+    return bags
+
+
+def bag_custom_data(bag: Path) -> dict[str, str]:
+    """metadata.yaml ``custom_data`` (rosbags' reader has no public getter); {} if none."""
+    try:
+        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
+        raise BagPathError(f"{bag}: unreadable metadata.yaml: {err!r}") from None
+    return dict(info.get("custom_data") or {})
+
+
+@dataclass
+class LoadedBag:
+    path: Path
+    topics: dict[str, str]  # topic -> msgtype, of the messages kept
+    messages: list[tuple[int, str, bytes]]  # (log time ns, topic, CDR), publish order
+    meta: EpisodeMeta | None  # episode metadata if the bag has some
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def ticks(self) -> int:
+        return len({t for t, _, _ in self.messages})
+
+
+def load_bag(
+    bag: Path, *, topics: Iterable[str] | None = None, exclude: Iterable[str] = (),
+    log: Callable[[str], None] = lambda s: None,
+) -> LoadedBag:
+    """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude``, in log-time order."""
+    include = None if topics is None else set(topics)
+    skip = set(exclude)
+    meta = None
+    custom = bag_custom_data(bag)
+    if META_KEY in custom:
+        try:
+            meta = EpisodeMeta.from_json(custom[META_KEY])
+            meta.validate()
+        except (TypeError, ValueError) as err:
+            log(f"{bag}: bad episode metadata ({err}); playing without /sim/status events")
+            meta = None
+    try:
+        with AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
+            conns = [c for c in reader.connections
+                     if (include is None or c.topic in include) and c.topic not in skip]
+            found = {c.topic: c.msgtype for c in conns}
+            messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
+    except AnyReaderError as err:
+        raise BagPathError(f"cannot read bag {bag}: {err}") from None
+    if include is not None and (missing := sorted(include - found.keys())):
+        log(f"{bag}: no topic(s) {missing}")
+    return LoadedBag(path=bag, topics=found, messages=messages, meta=meta)
+
+
+def string_cdr(text: str) -> bytes:
+    return bytes(M.TYPESTORE.serialize_cdr(M.TYPESTORE.types[STRING_MSGTYPE](data=text), STRING_MSGTYPE))
+
+
+def clock_cdr(stamp_ns: int) -> bytes:
+    msg = M.build_message(M.TYPESTORE, CLOCK_TOPIC, stamp_ns)
+    return bytes(M.TYPESTORE.serialize_cdr(msg, CLOCK_MSGTYPE))
+
+
+def episode_events(bag: LoadedBag, episode: int) -> tuple[EpisodeEvent, EpisodeEvent] | None:
+    """The ``episode_start``/``episode_end`` pair a replay of an episode bag publishes, else None."""
+    if bag.meta is None or not bag.messages:
+        return None
+    first, last, ticks = bag.messages[0][0], bag.messages[-1][0], bag.ticks
+    start = EpisodeEvent(event=EVENT_EPISODE_START, episode=episode, name=bag.name, meta=bag.meta,
+                         first_stamp_ns=first, planned_ticks=ticks)
+    end = EpisodeEvent(event=EVENT_EPISODE_END, episode=episode, name=bag.name, meta=bag.meta,
+                       first_stamp_ns=first, planned_ticks=ticks, last_stamp_ns=last, ticks=ticks,
+                       reason="end_of_bag", stats={"source": "soil_bag_play"})
+    return start, end
+
+
+def with_clock(messages: Sequence[tuple[int, str, bytes]], hz: float) -> Iterator[tuple[int, str, bytes]]:
+    """``messages`` without their own /clock, merged with /clock at ``hz`` from the first to the last stamp.
+
+    A clock tick at the same time as a message goes first (time advances, then data at it).
+    """
+    if not hz > 0:
+        raise ValueError(f"clock rate {hz} Hz must be > 0")
+    data = [m for m in messages if m[1] != CLOCK_TOPIC]
+    if not data:
+        return
+    t0 = data[0][0]
+    k = 0
+    next_clock = t0
+    for m in data:
+        while next_clock <= m[0]:
+            yield next_clock, CLOCK_TOPIC, clock_cdr(next_clock)
+            k += 1
+            next_clock = t0 + round(k * 1e9 / hz)
+        yield m
+
+
+class Pacer:
+    """Absolute-deadline timing: message at bag time t is due at ``start + (t - t0) / rate``."""
+
+    def __init__(self, rate: float, *, spin_s: float = 0.0005,
+                 now: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep):
+        if not rate > 0:
+            raise ValueError(f"rate {rate} must be > 0")
+        self.rate, self.spin_s, self.now, self.sleep = rate, spin_s, now, sleep
+        self.start = 0.0
+        self.t0 = 0
+
+    def begin(self, t0_ns: int, start: float | None = None) -> None:
+        """Bag time ``t0_ns`` happens at wall time ``start`` (default: now)."""
+        self.t0, self.start = t0_ns, self.now() if start is None else start
+
+    def deadline(self, t_ns: int) -> float:
+        return self.start + (t_ns - self.t0) * 1e-9 / self.rate
+
+    def wait(self, t_ns: int) -> float:
+        """Block until bag time ``t_ns`` is due; returns how late we are [s] (>= 0)."""
+        due = self.deadline(t_ns)
+        while True:
+            remaining = due - self.now()
+            if remaining <= 0:
+                return -remaining
+            if remaining > self.spin_s:
+                self.sleep(remaining - self.spin_s)

@@ -1,0 +1,122 @@
+"""``soil_bag_record``: record the episode topics, one rosbag2 bag per ``/sim/status`` episode.
+
+Thin rclpy adapter around ``recorder.Recorder`` (routing, journals, bag conversion): raw
+(CDR bytes) subscriptions with ``graph.RECORDER_QOS`` for the data, ``/sim/status`` with
+``CONTROL_QOS``, a timer that flushes the journals every ``--flush-period`` and finishes
+episodes. SIGINT/SIGTERM only set a flag that the spin loop checks, so a signal never lands
+in the middle of a journal write; the open bags are then finished cleanly (truncated to
+whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``.
+
+    soil_bag_record --out DIR [--topics T ...] [--all-episode-topics] [--no-split]
+                    [--flush-period S] [--end-grace S] [--ros-args ...]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from rclpy.node import Node
+from rclpy.qos import ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
+from std_msgs.msg import String
+
+from soil_msgs_py import messages as M
+from soil_msgs_py.graph import CONTROL_QOS, DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS
+from .recorder import Recorder, rosbags_qos
+from soil_msgs_py.ros_adapter import message_class, qos_profile, spin_node
+from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
+
+_DISCOVERY_PERIOD_S = 0.5
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="soil_bag_record",
+        description="Record the episode topics into one rosbag2 (MCAP) bag per /sim/status episode.",
+    )
+    p.add_argument("--out", required=True, help="directory that receives the bags")
+    p.add_argument("--topics", nargs="+", default=[], metavar="T",
+                   help="record these topics (types of non-episode topics are discovered on the graph)")
+    p.add_argument("--all-episode-topics", action="store_true",
+                   help="also record every episode topic (the default when --topics is not given)")
+    p.add_argument("--no-split", action="store_true",
+                   help="one bag record_<UTC time> until Ctrl-C, ignoring /sim/status")
+    p.add_argument("--flush-period", type=float, default=0.25, metavar="S",
+                   help="journal flush period [s] of wall-clock and of simulation time: the most a SIGKILL can lose (default 0.25)")
+    p.add_argument("--end-grace", type=float, default=1.0, metavar="S",
+                   help="after episode_end, wait at most this long for late messages [s] (default 1.0)")
+    opts = p.parse_args(argv)
+    if not opts.flush_period > 0:
+        p.error(f"--flush-period {opts.flush_period} must be > 0 s")
+    if not opts.end_grace >= 0:
+        p.error(f"--end-grace {opts.end_grace} must be >= 0 s")
+    if bad := [t for t in opts.topics if not t.startswith("/")]:
+        p.error(f"--topics {bad}: topic names must be absolute (start with '/')")
+    return opts
+
+
+class RecordNode(Node):
+    def __init__(self, opts: argparse.Namespace):
+        super().__init__("soil_bag_record")
+        wanted = list(dict.fromkeys(opts.topics))
+        if opts.all_episode_topics or not wanted:
+            wanted = [t.name for t in EPISODE_TOPICS] + [t for t in wanted if t not in TOPICS_BY_NAME]
+        known = {t: GRAPH_TOPICS_BY_NAME[t].msgtype for t in wanted if t in GRAPH_TOPICS_BY_NAME}
+        self._pending = [t for t in wanted if t not in known]
+        self.recorder = Recorder(
+            opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
+            qos_for=lambda t: [rosbags_qos(TOPIC_QOS.get(t, DATA_QOS))], log=self.get_logger(),
+        )
+        # Created first: when status and data are ready in the same wait, status is taken first.
+        self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))
+        for topic, msgtype in known.items():
+            self._subscribe(topic, msgtype, best_effort=False)
+        self.create_timer(opts.flush_period, self.recorder.poll)
+        if self._pending:
+            self.get_logger().info(f"waiting for publishers of {self._pending} to learn their types")
+            self._discovery = self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
+        mode = "one bag" if opts.no_split else "one bag per /sim/status episode"
+        self.get_logger().info(f"recording {len(known) + len(self._pending)} topics to {opts.out} ({mode})")
+
+    def _on_status(self, msg: String) -> None:
+        self.recorder.on_status(msg.data)
+
+    def _subscribe(self, topic: str, msgtype: str, *, best_effort: bool) -> None:
+        qos = qos_profile(RECORDER_QOS)
+        if best_effort:  # a RELIABLE reader would never match a BEST_EFFORT writer
+            qos.reliability = ReliabilityPolicy.BEST_EFFORT
+
+        def callback(raw: bytes, topic: str = topic) -> None:
+            self.recorder.on_message(topic, raw, time.time_ns())
+
+        self.create_subscription(message_class(msgtype), topic, callback, qos, raw=True)
+
+    def _discover(self) -> None:
+        types = dict(self.get_topic_names_and_types())
+        for topic in [t for t in self._pending if types.get(t)]:
+            self._pending.remove(topic)
+            msgtype = types[topic][0]
+            if msgtype not in M.TYPESTORE.types:
+                self.get_logger().warning(f"{topic}: type {msgtype} unknown to the Jazzy typestore; not recorded")
+                continue
+            infos = self.get_publishers_info_by_topic(topic)
+            best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+            self.recorder.add_topic(topic, msgtype)
+            self._subscribe(topic, msgtype, best_effort=best_effort)
+            self.get_logger().info(f"recording {topic} ({msgtype})")
+        if not self._pending:
+            self._discovery.cancel()
+
+    def close(self) -> None:
+        self.recorder.close()
+
+
+def main(args: list[str] | None = None) -> int:
+    argv = list(sys.argv if args is None else args)
+    opts = parse_args(remove_ros_args(argv)[1:])
+    return spin_node(lambda: RecordNode(opts), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,336 @@
+"""Recorder core (no rclpy): routes raw messages into one journal per episode, finishes bags.
+
+``record_node.py`` feeds it what DDS delivers: ``on_status`` with each ``/sim/status`` text,
+``on_message`` with each raw CDR message, ``poll`` from a timer, ``close`` at the end.
+
+Routing is by stamp, not by arrival: an ``episode_start`` event opens a session covering
+``[first_stamp_ns, ...)``; ``episode_end`` closes its range at ``last_stamp_ns``. A message
+goes to the oldest open session whose range covers its stamp and that still expects this
+topic; DDS keeps each topic's messages in publication order, so when a replay restarts
+stamps at 0 (ranges overlap), a closing episode's backlog still goes to it and the next
+episode's messages to the next one. A message no session covers is held for ``hold_s``
+(its ``episode_start`` may still be on the way: status and data are separate DDS topics,
+delivered in no particular order) and then dropped and counted. A closing session is
+finished once every recorded topic reached ``last_stamp_ns``, or after ``end_grace_s``.
+
+Finishing closes the journal and converts it with ``journal.journal_to_bag``; episode bags
+are trimmed to whole ticks, so a bag stopped early (SIGINT, lost tail) still reads with
+``bag_io.read_episode``.
+"""
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+from soil_msgs_py import messages as M
+from .bag_io import META_KEY
+from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent, QosSpec
+from .journal import (
+    RECORDER_INFO_KEY, BagResult, JournalWriter, NothingRecoverable, claim_name, journal_path,
+    journal_to_bag, partial_dir,
+)
+
+_MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
+EXTRA_TOPIC_GRACE_S = 0.3  # wait for non-episode topics once the episode topics are complete
+_WARN_LIMIT = 5  # per session and kind; the rest are only counted
+
+
+def rosbags_qos(spec: QosSpec) -> Qos:
+    """graph.QosSpec as the rosbags Qos a bag stores in ``offered_qos_profiles``."""
+    zero = QosTime(0, 0)
+    return Qos(
+        QosHistory.KEEP_LAST, spec.depth, QosReliability[spec.reliability.upper()],
+        QosDurability[spec.durability.upper()], zero, zero, QosLiveliness.AUTOMATIC, zero, False,
+    )
+
+
+def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | None:
+    """Simulation stamp [ns] of a raw CDR message, or None if it has none / does not decode.
+
+    Episode topics use ``messages.parse_message`` (header stamp, Clock, or the labelled
+    array's stamp fields); other types fall back to ``header.stamp`` or ``clock``.
+    """
+    try:
+        msg = M.TYPESTORE.deserialize_cdr(raw, msgtype)
+        f = M.FIELDS.get(topic)
+        if f is not None and f.topic.msgtype == msgtype:
+            return M.parse_message(topic, msg)[0]
+        if (stamp := M.labelled_stamp(msg)) is not None:
+            return stamp
+        for path in ("header.stamp", "clock", "stamp"):
+            obj = msg
+            for part in path.split("."):
+                obj = getattr(obj, part, None)
+            if obj is not None and hasattr(obj, "nanosec"):
+                return M.stamp_ns(obj)
+    except Exception:  # noqa: BLE001 - any undecodable message is counted, never fatal
+        return None
+    return None
+
+
+@dataclass
+class Session:
+    """One bag being recorded: its journal, its stamp range and what arrived so far."""
+
+    name: str  # bag directory name (may carry a _2 suffix)
+    journal: JournalWriter
+    meta_json: str | None  # episode metadata; None for a --no-split recording
+    event: EpisodeEvent | None = None  # the episode_start that opened it
+    first_stamp_ns: int = 0
+    last_stamp_ns: int | None = None  # set by episode_end; None while running
+    closing_since: float | None = None
+    ticks_done_since: float | None = None  # when every episode topic reached the last stamp
+    end_event: EpisodeEvent | None = None
+    counts: dict[str, int] = field(default_factory=dict)
+    topic_max: dict[str, int] = field(default_factory=dict)
+    seen: set[tuple[str, int]] = field(default_factory=set)
+    duplicates: int = 0
+    flushed_stamp_ns: int = 0  # stamp at the last flush triggered by simulation time
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def covers(self, stamp: int) -> bool:
+        return stamp >= self.first_stamp_ns and (self.last_stamp_ns is None or stamp <= self.last_stamp_ns)
+
+    def topic_done(self, topic: str) -> bool:
+        return self.last_stamp_ns is not None and self.topic_max.get(topic, -1) >= self.last_stamp_ns
+
+    def same_episode(self, ev: EpisodeEvent) -> bool:
+        s = self.event
+        return s is not None and (s.name, s.episode, s.first_stamp_ns) == (ev.name, ev.episode, ev.first_stamp_ns)
+
+
+class Recorder:
+    """Episode-splitting (or single-bag) recorder over journals; see the module docstring."""
+
+    def __init__(
+        self, out_dir: str | Path, topics: Mapping[str, str], *, split: bool = True,
+        end_grace_s: float = 1.0, hold_s: float = 1.0, flush_sim_s: float = 0.25, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
+        log: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic,
+    ):
+        if end_grace_s < 0:
+            raise ValueError(f"end_grace_s={end_grace_s} must be >= 0 s")
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.topics: dict[str, str] = dict(topics)
+        self.split = split
+        self.end_grace_s = end_grace_s
+        self.hold_s = hold_s
+        # Flush also every flush_sim_s of simulation time: in lockstep the simulation runs
+        # several times faster than the wall-clock flush timer, and the loss bound is in data.
+        self.flush_sim_ns = int(flush_sim_s * 1e9)
+        self.qos_for = qos_for
+        self.log = log or logging.getLogger("soil_bag_record")
+        self.clock = clock
+        self.sessions: list[Session] = []  # oldest first
+        self.held: deque[tuple[float, str, int, bytes, int]] = deque()
+        self.finished: list[BagResult] = []
+        self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
+        self._undecodable_warned: set[str] = set()
+        if not split:
+            name = "record_" + datetime.now(timezone.utc).strftime("%Y%m%d_%H%M%S")
+            self.sessions.append(self._open(name, None, {"insitu_soil.mode": "no_split"}))
+
+    # --- inputs ---------------------------------------------------------------------------
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """A topic whose type became known after start (discovered on the graph)."""
+        self.topics[topic] = msgtype
+        for s in self.sessions:
+            s.journal.add_channel(topic, msgtype, self.qos_for(topic))
+
+    def on_status(self, text: str) -> None:
+        """One ``/sim/status`` message; a bad one is logged and ignored."""
+        if not self.split:
+            return
+        try:
+            ev = EpisodeEvent.from_json(text)
+        except Exception as err:  # noqa: BLE001 - a bad message is logged, never fatal (DESIGN §5)
+            self.log.warning(f"ignoring bad /sim/status message: {err}")
+            return
+        if ev.event == EVENT_EPISODE_START:
+            self._start(ev)
+        else:
+            self._end(ev)
+
+    def on_message(self, topic: str, raw: bytes, recv_ns: int) -> None:
+        msgtype = self.topics.get(topic)
+        if msgtype is None:
+            return
+        stamp = decode_stamp(topic, msgtype, raw)
+        if not self.split:
+            s = self.sessions[0]
+            self._write(s, topic, recv_ns if stamp is None else stamp, raw, recv_ns, dedupe=False)
+            return
+        if stamp is None:
+            self.dropped["undecodable"] += 1
+            if topic not in self._undecodable_warned:
+                self._undecodable_warned.add(topic)
+                self.log.warning(f"{topic}: message without a decodable stamp dropped (further ones only counted)")
+            return
+        s = self._route(topic, stamp)
+        if s is None:
+            self.held.append((self.clock(), topic, stamp, raw, recv_ns))
+            if len(self.held) > _MAX_HELD:
+                self.held.popleft()
+                self.dropped["outside_episode"] += 1
+            return
+        self._write(s, topic, stamp, raw, recv_ns)
+        if s.closing_since is not None and self._complete(s):
+            self._finish(s, "completed")
+
+    def poll(self) -> list[BagResult]:
+        """Timer work: flush journals, finish sessions whose grace expired, expire held messages."""
+        now = self.clock()
+        done: list[BagResult] = []
+        for s in list(self.sessions):
+            if s.closing_since is not None and (self._complete(s) or now - s.closing_since >= self.end_grace_s):
+                r = self._finish(s, "completed" if self._complete(s) else "grace_timeout")
+                done += [r] if r else []
+            else:
+                s.journal.flush()
+        expired = 0
+        while self.held and now - self.held[0][0] > self.hold_s:
+            self.held.popleft()
+            expired += 1
+        if expired:
+            self.dropped["outside_episode"] += expired
+            self.log.debug(f"dropped {expired} message(s) outside any episode "
+                           f"({self.dropped['outside_episode']} so far)")
+        return done
+
+    def close(self) -> list[BagResult]:
+        """Stop: every open session is finished with what arrived (episode bags: whole ticks)."""
+        self.dropped["outside_episode"] += len(self.held)
+        self.held.clear()
+        done = [r for s in list(self.sessions) if (r := self._finish(s, "stopped"))]
+        if any(self.dropped.values()):
+            self.log.info(f"messages not recorded: {self.dropped}")
+        return done
+
+    # --- sessions -------------------------------------------------------------------------
+
+    def _open(self, wanted: str, meta_json: str | None, extra: Mapping[str, str] | None = None) -> Session:
+        name = claim_name(self.out_dir, wanted)
+        if name != wanted:
+            self.log.warning(f"bag {self.out_dir / wanted} exists; recording to {self.out_dir / name}")
+        metadata = dict(extra or {})
+        if meta_json is not None:
+            metadata[META_KEY] = meta_json
+        journal = JournalWriter(journal_path(partial_dir(self.out_dir, name)), metadata)
+        for topic, msgtype in self.topics.items():
+            journal.add_channel(topic, msgtype, self.qos_for(topic))
+        self.log.info(f"recording {self.out_dir / name} (journal {journal.path})")
+        return Session(name=name, journal=journal, meta_json=meta_json)
+
+    def _start(self, ev: EpisodeEvent) -> None:
+        if any(s.same_episode(ev) for s in self.sessions):
+            return  # the same event twice
+        for s in self.sessions:
+            if s.last_stamp_ns is None:  # its episode_end never came
+                s.last_stamp_ns = max(s.topic_max.values(), default=s.first_stamp_ns)
+                s.closing_since = self.clock()
+                self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
+                                 f"at its last stamp {s.last_stamp_ns} ns")
+        s = self._open(ev.name, ev.meta.to_json())
+        s.event, s.first_stamp_ns, s.flushed_stamp_ns = ev, ev.first_stamp_ns, ev.first_stamp_ns
+        self.sessions.append(s)
+        held, self.held = self.held, deque()
+        for item in held:  # messages that arrived before their episode_start
+            _, topic, stamp, raw, recv_ns = item
+            target = self._route(topic, stamp)
+            if target is None:
+                self.held.append(item)
+            else:
+                self._write(target, topic, stamp, raw, recv_ns)
+
+    def _end(self, ev: EpisodeEvent) -> None:
+        s = next((s for s in self.sessions if s.same_episode(ev)), None)
+        if s is None:
+            self.log.warning(f"episode_end of {ev.name} (episode {ev.episode}) without its episode_start: ignored")
+            return
+        if s.end_event is not None:
+            return
+        s.end_event, s.last_stamp_ns, s.closing_since = ev, ev.last_stamp_ns, self.clock()
+        if self._complete(s) or ev.last_stamp_ns < s.first_stamp_ns:
+            self._finish(s, "completed")
+
+    def _route(self, topic: str, stamp: int) -> Session | None:
+        for s in self.sessions:
+            if s.covers(stamp) and not s.topic_done(topic):
+                return s
+        return None
+
+    def _write(self, s: Session, topic: str, stamp: int, raw: bytes, recv_ns: int, *, dedupe: bool = True) -> None:
+        if dedupe:
+            key = (topic, stamp)
+            if key in s.seen:
+                s.duplicates += 1
+                if s.duplicates <= _WARN_LIMIT:
+                    self.log.warning(f"{s.name}: duplicate {topic} message with stamp {stamp} ns dropped")
+                return
+            s.seen.add(key)
+        s.journal.write(topic, stamp, raw, recv_ns)
+        if stamp - s.flushed_stamp_ns >= self.flush_sim_ns and s.meta_json is not None:
+            s.journal.flush()
+            s.flushed_stamp_ns = stamp
+        s.counts[topic] = s.counts.get(topic, 0) + 1
+        if stamp > s.topic_max.get(topic, -1):
+            s.topic_max[topic] = stamp
+
+    def _complete(self, s: Session) -> bool:
+        """Every episode topic reached the last stamp, and so did every extra ``--topics`` one or
+        ``EXTRA_TOPIC_GRACE_S`` passed since (extras such as /soil/estimate follow the ticks but
+        may run at other rates or skip the last stamp)."""
+        tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
+        if not all(s.topic_done(t) for t in tick_topics):
+            return False
+        if all(s.topic_done(t) for t in self.topics):
+            return True
+        now = self.clock()
+        if s.ticks_done_since is None:
+            s.ticks_done_since = now
+        return now - s.ticks_done_since >= EXTRA_TOPIC_GRACE_S
+
+    def _finish(self, s: Session, how: str) -> BagResult | None:
+        """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""
+        self.sessions.remove(s)
+        partial = partial_dir(self.out_dir, s.name)
+        try:
+            s.journal.close()
+        except Exception as err:  # noqa: BLE001 - the flushed chunks are still repairable
+            self.log.error(f"{s.name}: closing the journal failed ({err!r}); run soil_bag_repair {partial}")
+            return None
+        if how == "grace_timeout":
+            short = {t: s.topic_max.get(t) for t in self.topics if not s.topic_done(t)}
+            self.log.warning(f"{s.name}: end grace {self.end_grace_s} s expired; short topics "
+                             f"(last stamp received, want {s.last_stamp_ns}): {short}")
+        if s.total == 0:
+            shutil.rmtree(partial, ignore_errors=True)
+            self.log.warning(f"{s.name}: no message recorded; no bag written")
+            return None
+        info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates}
+        if s.event is not None:
+            info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
+        if s.end_event is not None:
+            info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks, stats=s.end_event.stats or {})
+        try:
+            result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
+                                    info_key=RECORDER_INFO_KEY, info=info)
+        except (NothingRecoverable, OSError, ValueError) as err:
+            self.log.error(f"{s.name}: no bag written: {err}")
+            return None
+        extra = f", {s.duplicates} duplicates" if s.duplicates else ""
+        self.log.info(f"finished ({how}) {result.summary()}{extra}")
+        self.finished.append(result)
+        return result

@@ -1,0 +1,133 @@
+"""``soil_discrepancy BAG_DIR --out DIR``: where do the simulation model and measured episodes disagree?
+
+Fits the FEE (plus any --accepted terms) to every episode's measured force, tests the residuals
+by regime at the episode level, cross-validates each named candidate effect of
+``soil_physics.force_terms`` across soil groups, adds the winner(s) to the model and shows the
+force error before/after on held-out episodes. Writes discrepancy.md, discrepancy.json and PNGs;
+prints the verdict. Exit 0 on success, 2 on bad input (the message names the problem).
+
+    soil_discrepancy bags/disc/soil_inertia --out out/disc/soil_inertia
+    soil_discrepancy bags/real --out out/disc/real --group-by episode --terms soil_inertia,rate_strength
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("bag_dir", type=Path, help="directory of episode bags (rosbag2), simulated or measured")
+    p.add_argument("--out", type=Path, required=True, help="output directory for discrepancy.md/.json and PNGs")
+    p.add_argument("--terms", default=None, help="candidate terms, comma-separated (default: the whole catalogue)")
+    p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")
+    p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test (default 0.3)")
+    p.add_argument("--folds", type=int, default=5, help="cross-validation folds over soil groups (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the held-out split and folds (default 0)")
+    p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil (default 2)")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
+    p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
+    p.add_argument("--group-by", choices=("auto", "episode"), default="auto",
+                   help="θ shared by episodes of the same metadata soil + I_d (auto) or one θ per episode")
+    p.add_argument("--allow-negative-k", action="store_true",
+                   help="let a term's k take the sign opposite to its physics (default: k >= 0)")
+    p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation (default: all cores)")
+    p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--pinn-epochs", type=int, default=0,
+                   help="also retrain the PINN without and with the named effect for this many epochs on the "
+                        "selection episodes and compare them on the held-out ones (default 0: skip)")
+    p.add_argument("--pinn-seeds", type=int, default=1,
+                   help="PINNs per physics for that comparison, scored as an ensemble (default 1)")
+    p.add_argument("--hidden", default=None, metavar="NAME=K|none",
+                   help="for test data only: the effect hidden in the simulator; the report says whether the "
+                        "workflow named it (the analysis never sees this)")
+    p.add_argument("--quiet", action="store_true", help="print only the verdict")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    from soil_physics.force_terms import parse_terms
+
+    from .workflow import run_discrepancy
+
+    log = None if args.quiet else (lambda msg: print(msg, flush=True))
+    if args.pinn_epochs < 0 or args.pinn_seeds < 1:
+        bad = f"--pinn-epochs {args.pinn_epochs} must be >= 0" if args.pinn_epochs < 0 else f"--pinn-seeds {args.pinn_seeds} must be >= 1"
+        print(f"soil_discrepancy: error: {bad}", file=sys.stderr)
+        return 2
+    predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
+    try:
+        accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
+        hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
+        report = run_discrepancy(
+            args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
+            seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
+            allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache, plots=not args.no_plots, log=log,
+        )
+    except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
+        print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"verdict: {report['summary']}")
+    if args.hidden is not None:
+        check = hidden_check(report, hidden)
+        print(f"hidden effect: {check['text']}")
+        _append_check(args.out, check)
+    for spec in report["model"]["plugin_specs"]:
+        print(f"re-simulate with: --plugin \"{spec}\"")
+    if not args.quiet:
+        print(f"({report['run_time_s']:.1f} s; report in {args.out / 'discrepancy.md'})")
+    return 0
+
+
+def _pinn_predictor(epochs: int, log, seeds: int = 1):
+    """The workflow's predictor hook: retrain the PINN without/with the named terms (pinn_check)."""
+    from .pinn_check import pinn_gap
+
+    def run(test_frame, model_before, model_after, context):
+        if model_after == model_before:
+            return {"skipped": "no effect was named, so there is nothing to retrain the PINN with"}
+        if context.get("dataset") is None:
+            raise ValueError("the PINN comparison needs the episodes' Dataset (run on a bag directory or pass dataset=)")
+        return pinn_gap(context["dataset"], test_frame, context["selection_episodes"], model_before, model_after,
+                        epochs=epochs, seed=context["seed"], seeds=seeds, edges=context.get("edges"), log=log)
+
+    return run
+
+
+def hidden_check(report: dict, hidden) -> dict:
+    """Did the workflow name the effect hidden in the test data (or none, for a control)?"""
+    named = [a["name"] for a in report["selection"]["accepted"]]
+    k = {a["name"]: a.get("k") for a in report["selection"]["accepted"]}
+    if hidden is None:
+        ok = not named
+        text = "none hidden; " + ("none named: correct" if ok else f"named {named}: WRONG")
+    else:
+        ok = named[:1] == [hidden[0]]
+        text = (f"{hidden[0]} (k = {hidden[1]:g}) hidden; named {named or 'none'}"
+                + (f" with k = {k[hidden[0]]:.4g}" if hidden[0] in k else "") + (": correct" if ok else ": WRONG"))
+    test = report.get("test") or {}
+    before, after = (test.get("before") or {}).get("rmse"), (test.get("after") or {}).get("rmse")
+    ratio = after / before if before and after is not None else None
+    return {"hidden": None if hidden is None else list(hidden), "named": named, "correct": ok,
+            "heldout_rmse_before_n": before, "heldout_rmse_after_n": after,
+            "heldout_error_ratio": ratio, "text": text + (f"; held-out RMSE × {ratio:.2f}" if ratio else "")}
+
+
+def _append_check(out: Path, check: dict) -> None:
+    import json
+
+    md, js = out / "discrepancy.md", out / "discrepancy.json"
+    if md.exists():
+        md.write_text(md.read_text() + "\n## Check against the hidden effect (test data only)\n\n" + check["text"] + "\n")
+    if js.exists():
+        data = json.loads(js.read_text())
+        data["hidden_check"] = check
+        js.write_text(json.dumps(data, indent=1))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

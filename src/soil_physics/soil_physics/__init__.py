@@ -1,0 +1,1 @@
+"""soil_physics: Soil-tool physics without ROS: the fundamental earthmoving equation (one implementation for NumPy and torch), the soil catalogue, the one vocabulary of force terms the FEE lacks (shared by the simulator's effects and the discrepancy catalogue), the augmented FEE and the blade's travel in soil."""

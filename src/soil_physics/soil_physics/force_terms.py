@@ -1,0 +1,233 @@
+"""Named candidate effects the FEE lacks: one catalogue for the simulator, the model and the PINN.
+
+The discrepancy workflow (issue 6) looks for the physics a model of earthmoving is missing.
+Each candidate here is a documented force term, linear in one coefficient k:
+
+    ΔF = k · B(inputs)        B = (B_x, B_z) [N per unit of k], force of the blade ON the soil,
+                                x forward, z up (the sign convention of /blade/force)
+
+so it can be fitted to force residuals by least squares (with an uncertainty), added to the
+FEE model with its fitted k (``apply``), switched on in the simulator as an effect plugin
+(``plugin``: ``soil_physics.force_terms:plugin term=<name> k=<value>``) and given to the
+PINN as an extra physics term. ``basis`` works on NumPy arrays and torch tensors alike (like
+``fee``), so this is the one implementation of each term.
+
+``TermInputs`` is what every term may look at. All of it is available from a measured
+episode without ground truth: Θ_k (d, Q, v, γ, w, ρ, α), the soil parameters φ, c, δ of the
+model being corrected (fitted per episode, or the PINN's estimates), the model's own FEE
+force, and the blade's travel in soil integrated from v_x and d.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Callable
+
+import numpy as np
+
+from . import xp as _xp
+from .fee import beta_star
+from soil_msgs_py.params import GRAVITY_M_S2
+
+EDGE_WIDTH_M = 0.02  # effective width of the cutting edge (the simulator's blade_edge_width_m)
+
+
+@dataclass
+class TermInputs:
+    """Per-sample quantities (arrays of one shape, SI) a candidate term may use."""
+
+    d: Any  # depth of cut [m] (<= 0: blade out of the soil)
+    q: Any  # surcharge force [N]
+    v_x: Any  # blade velocity x [m/s]
+    v_z: Any  # blade velocity z [m/s]
+    gamma: Any  # unit weight [N/m^3]
+    w: Any  # blade width [m]
+    rho: Any  # blade angle [rad]
+    alpha: Any  # surface inclination [rad]
+    phi: Any  # soil friction angle of the model [rad]
+    c: Any  # cohesion of the model [Pa]
+    delta: Any  # soil-tool friction angle of the model [rad]
+    distance_in_soil: Any  # blade travel with d > 0 since the episode started [m]
+    f_fee_x: Any  # the model's FEE force, x [N]
+    f_fee_z: Any  # the model's FEE force, z [N]
+
+    @classmethod
+    def from_mapping(cls, data) -> "TermInputs":
+        missing = [f.name for f in fields(cls) if f.name not in data]
+        if missing:
+            raise ValueError(f"term inputs lack {missing}")
+        return cls(**{f.name: data[f.name] for f in fields(cls)})
+
+
+@dataclass(frozen=True)
+class Term:
+    """One candidate effect: ΔF = k · B(inputs)."""
+
+    name: str
+    title: str
+    formula: str  # human-readable, with units
+    k_unit: str  # unit of the coefficient k
+    k_nominal: float  # a physically typical k (scale for reports and tests)
+    physics: str  # why the FEE misses it
+    basis_fn: Callable[[TermInputs, Any], tuple[Any, Any]]
+
+    def basis(self, inputs: TermInputs) -> tuple[Any, Any]:
+        """(B_x, B_z) [N per unit k], NumPy or torch like the inputs (scalars broadcast)."""
+        names = [f.name for f in fields(TermInputs)]
+        xp, *values = _xp.coerce(*(getattr(inputs, n) for n in names))
+        return self.basis_fn(TermInputs(**dict(zip(names, values))), xp)
+
+
+def _pos(xp, x):
+    return _xp.clip_min(xp, x, 0.0)
+
+
+def _zeros(xp, like):
+    return 0.0 * like
+
+
+def _inertia(s: TermInputs, xp):
+    # momentum given to the cut soil per second: (γ/g) w d v_x · v_x
+    return s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * _pos(xp, s.v_x) ** 2, _zeros(xp, s.d)
+
+
+def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float = 2.0):
+    """(f_x, f_z) [N] of the side-wall shear of a finite-width blade's wedge (McKyes 1985).
+
+    A_side = d²(cot ρ + cot β*)/2 per wall, τ = c + K0 γ (d/3) tan φ (K0 = 1 − sin φ, Jaky, if
+    ``k0`` is None), transmitted to the blade like the FEE's failure-plane cohesion,
+    F = walls · A_side τ cos φ / sin η, along the FEE force direction (90° − ρ − δ + α from x).
+    Zero out of the soil. NumPy or torch; the one implementation (the catalogue term and the
+    example plugin ``soil_sim_node.plugins_example`` use it).
+    """
+    xp, phi, c, gamma, delta, rho, alpha, d = _xp.coerce(phi, c, gamma, delta, rho, alpha, d)
+    depth = _pos(xp, d)
+    beta = beta_star(phi, delta, rho, alpha)
+    ok = xp.isfinite(beta) & (d > 0)
+    beta = xp.where(ok, beta, 0.5 + 0.0 * beta)
+    area = depth**2 * (1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)) / 2.0
+    k = 1.0 - xp.sin(phi) if k0 is None else k0
+    tau = c + k * gamma * depth / 3.0 * xp.tan(phi)
+    eta = delta + rho + phi + beta
+    force = xp.where(ok, walls * area * tau * xp.cos(phi) / xp.sin(eta), 0.0 * depth)
+    angle = 0.5 * math.pi - rho - delta + alpha
+    return force * xp.cos(angle), force * xp.sin(angle)
+
+
+def _side_walls(s: TermInputs, xp):  # noqa: ARG001 - side_wall_force picks its own namespace
+    return side_wall_force(s.phi, s.c, s.gamma, s.delta, s.rho, s.alpha, s.d)
+
+
+def _tip_bearing(s: TermInputs, xp):
+    phi = _xp.clip_min(xp, s.phi, 1e-6)  # N_c -> π + 2 as φ -> 0 (no 0/0 at φ = 0)
+    n_q = xp.exp(math.pi * xp.tan(phi)) * xp.tan(math.pi / 4 + phi / 2) ** 2
+    n_c = (n_q - 1.0) / xp.tan(phi)
+    in_soil = (s.d > 0) * 1.0
+    bearing = s.w * EDGE_WIDTH_M * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * in_soil
+    return _zeros(xp, s.d), -bearing  # the edge presses down on the floor
+
+
+def _surcharge_drag(s: TermInputs, xp):
+    return s.q * (s.d > 0), _zeros(xp, s.d)
+
+
+def _rate_strength(s: TermInputs, xp):
+    return s.w * _pos(xp, s.d) * _pos(xp, s.v_x), _zeros(xp, s.d)
+
+
+def _compaction(s: TermInputs, xp):
+    return s.distance_in_soil * s.f_fee_x, s.distance_in_soil * s.f_fee_z
+
+
+def _base_friction(s: TermInputs, xp):
+    return _pos(xp, -s.f_fee_z) * (s.d > 0), _zeros(xp, s.d)
+
+
+CATALOGUE: dict[str, Term] = {
+    t.name: t
+    for t in (
+        Term("soil_inertia", "inertial acceleration of the cut soil",
+             "F_x = k (γ/g) w d v_x²  [N]", "1", 1.0,
+             "the FEE is quasi-static: the soil entering the wedge is accelerated to blade speed, "
+             "a momentum flux that grows with v_x²", _inertia),
+        Term("side_wall_shear", "side-wall shear of a finite-width blade",
+             "F = k · 2 A_side τ cos φ / sin η along the FEE force, A_side = d²(cot ρ + cot β*)/2, "
+             "τ = c + (1 − sin φ) γ d/3 tan φ  [N]", "1", 1.0,
+             "the FEE is plane strain; a blade of finite width also shears the two side faces of the "
+             "wedge (McKyes 1985)", _side_walls),
+        Term("tip_penetration", "blade-tip penetration (bearing) resistance",
+             "F_z = −k w t_e (c N_c + γ d N_q), N_q = e^{π tan φ} tan²(45° + φ/2), N_c = (N_q − 1) cot φ, "
+             "t_e = 0.02 m  [N]", "1", 1.0,
+             "the FEE's blade has no thickness; a real edge bears on the floor it cuts", _tip_bearing),
+        Term("surcharge_drag", "surcharge contribution beyond the FEE's Q N_Q",
+             "F_x = k Q  [N]", "1", 0.3,
+             "the pile in front of the blade is pushed along the ground, not only lifted with the wedge",
+             _surcharge_drag),
+        Term("rate_strength", "rate-dependent (viscous) strength",
+             "F_x = k w d v_x  [N]", "Pa·s/m", 5e3,
+             "soil shear strength rises with the shear rate; the FEE's strength is rate-free",
+             _rate_strength),
+        Term("compaction_hardening", "compaction hardening with distance travelled",
+             "F = k s F_FEE, s = blade travel in soil since the start  [N]", "1/m", 0.05,
+             "the soil ahead is compacted by the pass, so its strength grows with distance cut",
+             _compaction),
+        Term("base_friction", "friction under the blade base",
+             "F_x = k max(−F_z^FEE, 0)  [N]", "1", 0.3,
+             "the downward push of the blade is carried by the cut floor under its base, which "
+             "slides with Coulomb friction μ = k", _base_friction),
+    )
+}
+
+
+def get_term(name: str) -> Term:
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise ValueError(f"effect term={name!r} is not one of {sorted(CATALOGUE)}") from None
+
+
+def parse_terms(specs) -> tuple[tuple[str, float], ...]:
+    """'name=k' strings (or (name, k) pairs) -> ((name, k), ...); ValueError naming the bad one."""
+    out = []
+    for spec in specs or ():
+        if isinstance(spec, str):
+            name, sep, value = spec.partition("=")
+            if not sep:
+                raise ValueError(f"effect term {spec!r} must look like 'name=k', e.g. 'soil_inertia=2.0'")
+        else:
+            name, value = spec
+        get_term(name.strip())
+        try:
+            k = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"effect term {name}: k={value!r} is not a number") from None
+        if not math.isfinite(k):
+            raise ValueError(f"effect term {name}: k={k} must be finite")
+        out.append((name.strip(), k))
+    return tuple(out)
+
+
+def apply(terms, inputs: TermInputs) -> tuple[Any, Any]:
+    """Σ k · B over ``terms`` ((name, k) pairs): the force to add to the model's FEE force [N]."""
+    fx = fz = 0.0 * inputs.d
+    for name, k in terms:
+        bx, bz = get_term(name).basis(inputs)
+        fx, fz = fx + k * bx, fz + k * bz
+    return fx, fz
+
+
+def plugin(state, term: str, k: float):
+    """Simulator effect plugin: the catalogue term ``term`` with coefficient ``k`` [N].
+
+    ``SimConfig(plugins=["soil_physics.force_terms:plugin term=soil_inertia k=2.0"])`` switches
+    on in the simulator exactly the term the discrepancy workflow fits and the model adds.
+    ``state`` is the simulator's ``EffectState`` (its own soil and FEE force).
+    """
+    (name, k), = parse_terms([(term, k)])
+    inputs = TermInputs(
+        d=state.d, q=state.q, v_x=state.v_x, v_z=state.v_z, gamma=state.gamma, w=state.w, rho=state.rho,
+        alpha=state.alpha, phi=state.phi, c=state.c, delta=state.delta, distance_in_soil=state.distance_in_soil,
+        f_fee_x=state.f_fee_x, f_fee_z=state.f_fee_z,
+    )
+    bx, bz = get_term(name).basis(inputs)
+    return k * np.asarray(bx, dtype=float), k * np.asarray(bz, dtype=float)

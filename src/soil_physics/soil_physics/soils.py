@@ -1,0 +1,159 @@
+"""Soil catalogue: Clay, Loam, Sand, Gravel and relative density I_d -> phi, c, gamma.
+
+Vortex (paper §2.1.1) raises phi and c with relative density I_d (stronger interlocking)
+and gamma with compaction (Holz 2009). Its tables are not public, so we interpolate linearly
+in I_d between a loose (I_d = 0 %) and a dense (I_d = 100 %) state whose values lie inside
+published typical ranges:
+
+* Friction angle, granular soils: Meyerhof (1956), phi = 28 + 0.15 D_r [deg] for sand
+  (D_r = I_d in %); gravels 3-5 deg higher (Geotechdata.info, "Angle of friction": GW/GP
+  33-45 deg). Cohesive soils: Geotechdata.info typical ranges, lean clay (CL) 17-31 deg,
+  silt/loam (ML) 25-35 deg, with phi for clays kept at the low end as is usual for
+  total-stress parameters.
+* Cohesion: Geotechdata.info "Cohesion": clays 5-20 kPa, silts/loams 0-10 kPa, clean sands
+  and gravels 0. The dense ends are kept inside paper Table 1's normalisation range
+  (c <= 10 kPa) so the PINN's output range covers every catalogued soil.
+* Unit weight: MATHalino "Unit weights and densities of soil" and Das, Principles of
+  Geotechnical Engineering, Table 3.x: moist loose sand ~15-16, dense sand ~20, gravel
+  17-22, clay and silt 16-20 kN/m^3; all inside Table 1 (14-22 kN/m^3).
+
+delta and c_a are not soil-catalogue properties here: §3.1 fixes them for every soil
+(delta = 10 deg, 15 deg in the fee world; c_a = 200 Pa), see ``params``.
+
+A user can add a soil from YAML (``load_soil_yaml``)::
+
+    name: SiltyClay
+    phi_deg: [20, 30]           # loose, dense
+    cohesion_pa: [3000, 9000]
+    unit_weight_n_m3: [16000, 20000]
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from soil_msgs_py.params import DEG, TABLE1
+
+
+@dataclass(frozen=True)
+class SoilProperties:
+    """Soil parameters at one relative density (SI)."""
+
+    phi: float  # rad
+    c: float  # Pa
+    gamma: float  # N/m^3
+
+
+@dataclass(frozen=True)
+class SoilType:
+    """A soil: its properties at I_d = 0 % (loose) and I_d = 100 % (dense)."""
+
+    name: str
+    loose: SoilProperties
+    dense: SoilProperties
+    source: str = ""
+
+    def at(self, relative_density_pct):
+        """Properties at I_d [%] (scalar or array), linear in I_d. Raises on I_d outside [0, 100]."""
+        i_d = np.asarray(relative_density_pct, dtype=float)
+        if not np.all(np.isfinite(i_d)) or np.any((i_d < 0.0) | (i_d > 100.0)):
+            raise ValueError(f"relative_density_pct={relative_density_pct!r} outside [0, 100] %")
+        s = i_d / 100.0
+        lerp = lambda a, b: a + (b - a) * s  # noqa: E731
+        out = SoilProperties(
+            lerp(self.loose.phi, self.dense.phi),
+            lerp(self.loose.c, self.dense.c),
+            lerp(self.loose.gamma, self.dense.gamma),
+        )
+        if i_d.ndim == 0:
+            return SoilProperties(float(out.phi), float(out.c), float(out.gamma))
+        return out
+
+
+def _soil(name, phi_deg, c_pa, gamma, source) -> SoilType:
+    return SoilType(
+        name,
+        SoilProperties(phi_deg[0] * DEG, float(c_pa[0]), float(gamma[0])),
+        SoilProperties(phi_deg[1] * DEG, float(c_pa[1]), float(gamma[1])),
+        source,
+    )
+
+
+CATALOGUE: dict[str, SoilType] = {
+    s.name: s
+    for s in (
+        _soil("Clay", (17.0, 27.0), (2e3, 10e3), (16.0e3, 20.0e3), "Geotechdata.info CL; Das"),
+        _soil("Loam", (24.0, 36.0), (1e3, 6e3), (16.0e3, 20.5e3), "Geotechdata.info ML; Das"),
+        _soil("Sand", (28.0, 43.0), (0.0, 0.0), (15.5e3, 20.5e3), "Meyerhof 1956; MATHalino"),
+        _soil("Gravel", (32.0, 45.0), (0.0, 0.0), (17.0e3, 22.0e3), "Geotechdata.info GW/GP; MATHalino"),
+    )
+}
+COHESIVE_SOILS = ("Clay", "Loam")
+
+
+def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
+    """Look a soil up by name (case-insensitive) in the catalogue and in ``custom``."""
+    pool = {**CATALOGUE, **(custom or {})}
+    # a user's soil wins over a catalogue soil of the same (case-insensitive) name
+    for key, soil in [*(custom or {}).items(), *CATALOGUE.items()]:
+        if key.lower() == str(name).lower():
+            return soil
+    raise ValueError(f"soil={name!r} is unknown; known soils: {sorted(pool)}")
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
+def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float, float]:
+    if key not in data:
+        raise ValueError(f"soil YAML is missing {key!r} ([loose, dense] in {unit})")
+    value = data[key]
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ValueError(f"{key}={value!r} must be a [loose, dense] pair in {unit}")
+    out = []
+    for v in value:
+        if isinstance(v, str) and _EXPONENT_FLOAT.match(v):  # YAML 1.1 reads 16e3 as a string
+            v = float(v)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise ValueError(f"{key}={value!r}: each value must be a number in [{lo}, {hi}] {unit}")
+        out.append(float(v))
+    return out[0], out[1]
+
+
+def soil_from_dict(data: dict) -> SoilType:
+    """Build and validate a custom soil (see module docstring for the format)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"soil definition must be a mapping, got {type(data).__name__}")
+    name = data.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"soil YAML name={name!r} must be a non-empty string")
+    phi_lim = TABLE1["phi"].limits
+    phi = _pair(data, "phi_deg", phi_lim[0] / DEG, phi_lim[1] / DEG - 1e-9, "deg")
+    c = _pair(data, "cohesion_pa", 0.0, 1e6, "Pa")
+    gamma = _pair(data, "unit_weight_n_m3", 1.0, 40e3, "N/m^3")
+    return _soil(name.strip(), phi, c, gamma, str(data.get("source", "user YAML")))
+
+
+def load_soil_yaml(path: str | Path) -> dict[str, SoilType]:
+    """Load one soil (a mapping) or several (a list of mappings) from a YAML file."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"soil file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
+    items = data if isinstance(data, list) else [data]
+    soils = []
+    for index, item in enumerate(items):
+        try:
+            soils.append(soil_from_dict(item))
+        except ValueError as exc:
+            raise ValueError(f"soil file {str(path)!r}, entry {index}: {exc}") from exc
+    return {s.name: s for s in soils}

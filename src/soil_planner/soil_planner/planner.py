@@ -1,0 +1,359 @@
+"""Deepest cut within the machine's force limits from one /soil/estimate (no rclpy).
+
+What an autonomy stack does with the estimator's output: given the estimated soil
+(φ̂, ĉ, δ̂, Δd̂ and the force F̂ at the current depth) and the known parameters Θ_k of the
+same tick, predict the cutting force F(d) of a steady cut for candidate depths d with the
+FEE (``soil_physics.fee``, paper Eq. 2-10) and return the deepest d in [0, d_max] for which
+
+    |F_x(d)| <= margin * 20 kN (tractive limit)  and  |F_z(d)| <= margin * 30 kN (lift limit).
+
+Design choices (why)
+--------------------
+Depth: d is Θ_k's d, the measured depth of the blade edge below the soil surface just
+ahead of the blade (``soil_sim_node.simulator``: surface height ahead − edge height; Table 1's
+d), not a command. The answer ``max_depth_m`` is such a cut depth below the soil surface; it
+is the quantity to give the anti-stall controller as ``target_depth_m``, approximately: that
+target is a depth below the *original* surface z = 0, and the two coincide on level, uncut
+ground ahead (the normal case while cutting a pass), but differ by the height of the surface
+ahead over a slope or previously cut ground. The FEE is evaluated at d' = d + Δd̂ clamped to
+Table 1's d' limits [0, 0.66 m] exactly as the PINN does (``model.py``; 0.66 m is the blade
+height); Δd̂ is a depth-independent offset of the effective soil surface, so it carries over
+to every d. d' = 0 means no wedge and no force.
+
+Reach (``d_max_m``): the default 0.3 m is −MACHINE.blade_min_rel_m, how far the lift joint
+can put the edge below the chassis ground reference p_z^c (the mean soil height under the
+chassis). In d the machine reaches 0.3 m + (surface ahead − p_z^c): exactly 0.3 m with the
+chassis standing on level, uncut ground (the start of a pass), more once the chassis rides on
+its own cut floor (≈ 0.4 m at tick 200 of the loam sample below, 0.5 m once the whole chassis
+stands on its 0.2 m floor), less where the ground ahead falls away. So the default is the
+reach at the start of a pass on level ground, a conservative cap and not a bound of d; any
+value up to the blade height 0.66 m can be set.
+
+Operating point: the plan is for a steady, level cut: every candidate depth is evaluated at
+blade velocity v_x = ``cut_speed_m_s`` (default 0.5 m/s, the anti-stall controller's default
+target speed) and v_z = 0. Θ_k's v_x, v_z (the 10-sample average of the current motion) are
+a transient near the limit: the anti-stall controller lifting the blade (v_z > 0) or a stall
+(v ≈ 0). Through the Eq. 9-10 correction tanh(−C1 ι_b·v) they reverse or remove the soil-tool
+friction and adhesion, push β* out of Table 1's range and make the plan optimistic exactly
+when the machine is near its limit (loam sample default_loam_id060_v0.50_d0.200_s7, tick
+200: 0.25 m with x binding at the recorded velocity, but 0.30 m "reach" with v_z = +0.15 m/s
+if the current velocity were used). The residual r_now (below) is nevertheless computed at
+Θ_k's *actual* velocity, because that is where F̂ was predicted. Θ_k's γ, ρ, α, w, c_a and
+surcharge Q are used as they are at the estimate's tick (the plan is for cutting with that
+pile in front of the blade); re-plan with every estimate.
+
+Failure angle β: the critical angle β* of Eq. 7 (``fee.fee_xz(beta=None)``), not the
+estimated β̂. β* = argmin N_γ is the model the simulator cuts with and the point the PINN's
+∂N_γ/∂β loss pulls β̂ towards; β̂ is a soft fit at the *current* depth (and velocity) that
+may trade accuracy there for consistency elsewhere (paper §2.2.2), so carrying it to other
+depths extrapolates a local fit. β* of Eq. 7 depends on neither d nor Q (N_γ contains
+neither) and on the velocity only through δ' (Eq. 9-10), so at the fixed operating point one
+β* holds for every candidate depth and does not follow the transient. A d-dependent angle
+would come from minimising the *total* force over β instead; with a surcharge that drives β
+below Table 1's 11.5° (e.g. 16° at 0.3 m, 5° at 0.05 m in loose sand with a 5 kN pile) and
+under-predicts the force by up to half, i.e. an optimistic plan, so it is not used.
+
+Residual force: the plan is anchored to the PINN's force prediction at the current depth.
+r_now = F̂ − F_FEE(d'_now; actual v, β*) (the network's residual F_r plus the β̂-vs-β*
+difference, small in a steady cut) is what the FEE misses there. It is carried to other depths in
+proportion to the (clamped) depth in soil, r(d') = r_now · d'/d'_now for d' > 0 (0 out of the
+soil), and added to the steady-cut FEE: the prediction at the current depth is F̂ with the
+FEE part moved to the steady operating point (exactly F̂ while the machine cuts level at
+``cut_speed_m_s``), and the missing force vanishes with the cut. Why proportional: what the
+FEE leaves out acts on the submerged blade (edge bearing/penetration resistance ~ γ d N_q,
+contact damping ~ wetted area w d / sin ρ, lost grip ~ force), i.e. to first order a force
+per metre of cut. It matters: in a dense-gravel run the lift joint saturates and
+F_r,z ≈ −27 kN (FEE alone: −6 kN); the FEE-only plan (0.20 m, x binds) ignores that the z
+force at 0.165 m is already beyond 0.8 × 30 kN, while a *constant* residual would put all
+27 kN on a blade that just touches the soil and answer −Δd̂ = 0.04 m; proportional gives
+0.13 m, z binding. It is not used (the plan is FEE only) when the blade was (almost) out of
+the soil at the estimate, d'_now < MIN_ANCHOR_DEPTH_M (F̂ = F_r is unregularised at d' <= 0,
+paper §2.2.2, and dividing by a tiny d'_now amplifies noise), when the FEE has no failure
+wedge at the actual velocity (no β*: soil-tool friction reversed by a fast lift in soil with
+δ̂ > φ̂, where F_FEE(d'_now) does not exist) or β* there is outside Table 1 (a strong transient:
+the difference to the PINN's own FEE, whose β̂ is clipped to Table 1, would pass for a
+residual), and with ``include_residual=False`` (pure FEE plan). Far from the current depth the extrapolation is less certain: re-plan with every
+estimate.
+
+Search: a dense grid on [0, d_max] (one vectorised FEE call), then bisection between the
+last admissible grid depth and the first inadmissible one. The answer is the largest d
+such that *every* depth in [0, d] is admissible: the blade reaches d through all shallower
+depths, so a deeper admissible band behind an inadmissible one (force can be
+non-monotonic, e.g. a residual of opposite sign) is not a plan. The surcharge term makes
+F jump at d' = 0+; bisection does not need continuity. If d = 0 is already inadmissible
+(Δd̂ > 0 and a large force), the depth is 0; the flags say which limit binds.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from soil_physics import fee
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, TABLE1
+from soil_msgs_py.topics import ESTIMATE_FIELDS, PLAN_FIELDS
+
+# The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
+# on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
+DEFAULT_D_MAX_M = -MACHINE.blade_min_rel_m
+# Table 1's d' limits, [0, 0.66] m, as the PINN clamps d' = d + Δd (0.66 m: the blade height,
+# where the FEE geometry ends; deeper, the blade is buried).
+D_PRIME_LIMITS_M: tuple[float, float] = TABLE1["d"].limits
+D_MAX_LIMIT_M = D_PRIME_LIMITS_M[1]
+# Blade speed of the planned steady cut: the anti-stall controller's default target speed.
+DEFAULT_CUT_SPEED_M_S = 0.5
+CUT_SPEED_LIMIT_M_S = TABLE1["v_x"].limits[1]
+DEFAULT_MARGIN = 0.8
+GRID_POINTS = 257
+TOLERANCE_M = 1e-5
+# The residual is carried to other depths only from an estimate with the blade this deep in soil.
+MIN_ANCHOR_DEPTH_M = 0.02
+# The PINN clips its outputs to Table 1 in float32; the float64 value published can sit a
+# hair outside the float64 limit. Within this relative tolerance a value counts as inside.
+LIMIT_RTOL = 1e-6
+# Estimate fields the plan reads (all are checked: a broken estimate is not trusted at all).
+ESTIMATE_LIMITS: dict[str, tuple[float, float]] = {
+    name: TABLE1[name].limits for name in ("phi", "c", "delta", "beta", "delta_d")
+}
+# Θ_k as published can lie outside Table 1 where the table is about the FEE's inputs, not the
+# state: d < 0 is the blade above the surface, d > 0.66 m a buried blade (only d + Δd enters
+# the FEE, clamped to [0, 0.66] m).
+KNOWN_LIMITS: dict[str, tuple[float, float]] = {
+    name: ((-math.inf, math.inf) if name == "d" else TABLE1[name].limits) for name in KNOWN_PARAMS
+}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The deepest admissible cut and the predicted force there (SI).
+
+    ``limited_by_x``/``limited_by_z``: that limit is exceeded just deeper than
+    ``max_depth_m`` (both False: ``d_max_m`` was reached within the limits).
+    """
+
+    max_depth_m: float
+    f_x_n: float  # predicted force at max_depth_m (blade on soil, world frame) [N]
+    f_z_n: float
+    limited_by_x: bool
+    limited_by_z: bool
+    limit_x_n: float  # margin * tractive limit [N]
+    limit_z_n: float  # margin * lift limit [N]
+    d_max_m: float
+    cut_speed_m_s: float  # operating point of every candidate depth: v_x = this, v_z = 0
+    beta_rad: float  # β* used at every depth (at the operating point)
+    residual_x_n: float  # r_now: what the FEE misses at the estimate's depth and velocity [N] (0 if not used)
+    residual_z_n: float
+    residual_used: bool  # r(d') = r_now d'/d'_now was added (see module docstring)
+
+    def values(self) -> list[float]:
+        """Payload of /planner/max_cut_depth in ``topics.PLAN_FIELDS`` order (valid = 1)."""
+        return [self.max_depth_m, self.f_x_n, self.f_z_n, float(self.limited_by_x),
+                float(self.limited_by_z), 1.0]
+
+    @property
+    def binding(self) -> str:
+        """'x', 'z', 'x+z' or 'reach' (d_max)."""
+        axes = "+".join(a for a, hit in (("x", self.limited_by_x), ("z", self.limited_by_z)) if hit)
+        return axes or "reach"
+
+
+NO_PLAN_VALUES: tuple[float, ...] = (0.0,) * len(PLAN_FIELDS)  # valid = 0: every field 0.0, never NaN
+assert PLAN_FIELDS == ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid"), "Plan.values"
+
+
+def check_settings(margin: float, d_max_m: float, cut_speed_m_s: float) -> tuple[float, float, float]:
+    """(margin, d_max_m, cut_speed_m_s) as floats; ValueError naming the setting and value if out of range."""
+    m, d = _number("margin", margin), _number("d_max_m", d_max_m)
+    v = _number("cut_speed_m_s", cut_speed_m_s)
+    if not 0.0 < m <= 1.0:
+        raise ValueError(f"margin={margin!r} must be in (0, 1] (fraction of the force limits)")
+    if not 0.0 < d <= D_MAX_LIMIT_M:
+        raise ValueError(f"d_max_m={d_max_m!r} must be in (0, {D_MAX_LIMIT_M}] m (blade height)")
+    if not 0.0 < v <= CUT_SPEED_LIMIT_M_S:
+        raise ValueError(f"cut_speed_m_s={cut_speed_m_s!r} must be in (0, {CUT_SPEED_LIMIT_M_S}] m/s "
+                         "(forward, within Table 1's v_x limit)")
+    return m, d, v
+
+
+def fields(values: Sequence[float], names: Sequence[str]) -> dict[str, float]:
+    """Payload values in ``names`` order -> {name: float}; ValueError on a length mismatch."""
+    if len(values) != len(names):
+        raise ValueError(f"{len(values)} values for {len(names)} fields {tuple(names)}")
+    return {n: float(v) for n, v in zip(names, values)}
+
+
+def max_cut_depth(
+    estimate: Mapping[str, float],
+    known: Mapping[str, float],
+    *,
+    margin: float = DEFAULT_MARGIN,
+    d_max_m: float = DEFAULT_D_MAX_M,
+    cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S,
+    include_residual: bool = True,
+    grid_points: int = GRID_POINTS,
+    tol_m: float = TOLERANCE_M,
+) -> Plan | None:
+    """Deepest admissible cut for ``estimate`` (ESTIMATE_FIELDS) with Θ_k ``known`` (KNOWN_PARAMS).
+
+    None for an invalid estimate (valid = 0: there is nothing to plan from). ValueError,
+    naming the field and value, for a missing, non-finite or out-of-limits field, a bad
+    setting, or parameters for which the FEE has no failure wedge at the planned steady cut
+    (v_x = ``cut_speed_m_s``, v_z = 0; non-finite force). See the module docstring for the
+    depth, the operating point, β, the residual and the search.
+    """
+    margin, d_max_m, cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
+    if int(grid_points) != grid_points or grid_points < 2:
+        raise ValueError(f"grid_points={grid_points!r} must be an integer >= 2")
+    if not 0.0 < tol_m:
+        raise ValueError(f"tol_m={tol_m!r} must be > 0 m")
+    valid = _number("estimate valid", _get(estimate, "valid", "estimate"))
+    if valid not in (0.0, 1.0):
+        raise ValueError(f"estimate valid={valid!r} must be 1.0 or 0.0")
+    if valid == 0.0:
+        return None
+    est = _checked(estimate, ESTIMATE_FIELDS, ESTIMATE_LIMITS, "estimate")
+    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    limits = np.array([margin * FORCE_LIMITS_N[0], margin * FORCE_LIMITS_N[1]])
+    model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
+
+    grid = np.linspace(0.0, d_max_m, int(grid_points))
+    fx, fz = model(grid)
+    ok = (np.abs(fx) <= limits[0]) & (np.abs(fz) <= limits[1])
+    if ok.all():
+        depth, hit_x, hit_z = d_max_m, False, False
+    elif not ok[0]:
+        depth, hit_x, hit_z = 0.0, bool(abs(fx[0]) > limits[0]), bool(abs(fz[0]) > limits[1])
+    else:
+        k = int(np.argmin(ok))  # first inadmissible grid depth
+        lo, hi = float(grid[k - 1]), float(grid[k])
+        while hi - lo > tol_m:
+            mid = 0.5 * (lo + hi)
+            mx, mz = model(np.array([mid]))
+            if abs(mx[0]) <= limits[0] and abs(mz[0]) <= limits[1]:
+                lo = mid
+            else:
+                hi = mid
+        hx, hz = model(np.array([hi]))
+        depth, hit_x, hit_z = lo, bool(abs(hx[0]) > limits[0]), bool(abs(hz[0]) > limits[1])
+    f_x, f_z = model(np.array([depth]))
+    return Plan(
+        max_depth_m=float(depth), f_x_n=float(f_x[0]), f_z_n=float(f_z[0]),
+        limited_by_x=hit_x, limited_by_z=hit_z, limit_x_n=float(limits[0]), limit_z_n=float(limits[1]),
+        d_max_m=d_max_m, cut_speed_m_s=cut_speed_m_s, beta_rad=model.beta_rad,
+        residual_x_n=float(model.residual[0]), residual_z_n=float(model.residual[1]),
+        residual_used=model.residual_used,
+    )
+
+
+class _ForceModel:
+    """F(d) = F_FEE(d'; v_plan, β*) + r_now d'/d'_now for arrays of depths d [m].
+
+    d' = clamp(d + Δd̂, 0, 0.66 m); v_plan = (cut_speed_m_s, 0), the steady, level cut;
+    r_now = F̂ − F_FEE(d'_now; Θ_k's v, β*) (0 if not used).
+    """
+
+    def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float,
+                 include_residual: bool):
+        soil = {"phi": est["phi"], "c": est["c"], "delta": est["delta"]}
+        self.theta = {**known, **soil, "v_x": cut_speed_m_s, "v_z": 0.0}  # the planned steady cut
+        self.delta_d = est["delta_d"]
+        # β* as fee_xz(beta=None) computes it, here only to report it and to fail clearly
+        delta_v, _ = fee.velocity_corrected(est["delta"], known["c_a"], known["rho"], known["alpha"],
+                                            cut_speed_m_s, 0.0)
+        self.beta_rad = float(fee.beta_star(est["phi"], delta_v, known["rho"], known["alpha"]))
+        if not math.isfinite(self.beta_rad):
+            raise ValueError(
+                f"no FEE failure wedge (no critical β) for phi={est['phi'] / DEG:.2f}°, "
+                f"delta={est['delta'] / DEG:.2f}°, "
+                f"rho={known['rho'] / DEG:.2f}°, alpha={known['alpha'] / DEG:.2f}° "
+                f"at the planned v_x={cut_speed_m_s} m/s, v_z=0")
+        d_now = float(self.d_prime(np.array([known["d"]]))[0])  # d'_now, clamped like the PINN's
+        self.residual = np.zeros(2)
+        self.residual_per_m = np.zeros(2)
+        self.residual_used = False
+        # F̂ was predicted at Θ_k's actual velocity: the FEE it is compared with must be too. In a
+        # strong transient (a fast lift) β* there leaves Table 1's range and the difference to the
+        # PINN's own FEE (β̂, clipped to Table 1) would pass for a residual: no anchor, FEE only.
+        delta_now, _ = fee.velocity_corrected(est["delta"], known["c_a"], known["rho"], known["alpha"],
+                                              known["v_x"], known["v_z"])
+        beta_now = float(fee.beta_star(est["phi"], delta_now, known["rho"], known["alpha"]))
+        beta_lo, beta_hi = TABLE1["beta"].limits
+        if include_residual and d_now >= MIN_ANCHOR_DEPTH_M and beta_lo <= beta_now <= beta_hi:
+            fx_now, fz_now, _ = fee.fee_xz({**known, **soil, "d": np.array([d_now])})
+            if np.isfinite(fx_now[0]) and np.isfinite(fz_now[0]):  # else no wedge now: no anchor, FEE only
+                self.residual = np.array([est["f_x_hat"] - fx_now[0], est["f_z_hat"] - fz_now[0]])
+                self.residual_per_m = self.residual / d_now
+                self.residual_used = True
+
+    def d_prime(self, d: np.ndarray) -> np.ndarray:
+        """d' = d + Δd̂ clamped to Table 1's [0, 0.66] m, as the PINN does (model.py)."""
+        return np.clip(d + self.delta_d, *D_PRIME_LIMITS_M)
+
+    def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d_prime = self.d_prime(d)  # 0: no soil, no force and no residual
+        fx, fz, _ = fee.fee_xz({**self.theta, "d": d_prime})
+        fx = fx + self.residual_per_m[0] * d_prime
+        fz = fz + self.residual_per_m[1] * d_prime
+        if not (np.isfinite(fx).all() and np.isfinite(fz).all()):
+            bad = float(d[~(np.isfinite(fx) & np.isfinite(fz))][0])
+            raise ValueError(f"FEE force is not finite at depth d={bad:.4f} m "
+                             f"(phi={self.theta['phi'] / DEG:.2f}°, delta={self.theta['delta'] / DEG:.2f}°)")
+        return fx, fz
+
+
+def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, float]) -> str:
+    """One human log line: the depth, what binds, the operating point, the soil and the state now."""
+    if plan.binding == "reach":
+        why = f"reach d_max={plan.d_max_m:.2f} m binds; F_x {plan.f_x_n / 1e3:.1f} of {plan.limit_x_n / 1e3:.1f} kN"
+    else:
+        lim = {"x": plan.limit_x_n, "z": plan.limit_z_n}
+        why = ", ".join(f"{a} limit binds: {lim[a] / 1e3:.1f} kN" for a in plan.binding.split("+"))
+    residual = (f"F_r now ({plan.residual_x_n / 1e3:+.1f}, {plan.residual_z_n / 1e3:+.1f}) kN"
+                if plan.residual_used else "FEE only")
+    return (
+        f"deepest cut {plan.max_depth_m:.2f} m below the surface ({why}) "
+        f"at v_x={plan.cut_speed_m_s:.2f} m/s level, from φ={estimate['phi'] / DEG:.1f}°, "
+        f"c={estimate['c'] / 1e3:.1f} kPa, δ={estimate['delta'] / DEG:.1f}°, "
+        f"Δd={estimate['delta_d'] * 100:+.1f} cm, "
+        f"β*={plan.beta_rad / DEG:.1f}°, {residual}; "
+        f"now d={known['d']:.2f} m, Q={known['q'] / 1e3:.1f} kN, "
+        f"v=({known['v_x']:+.2f}, {known['v_z']:+.2f}) m/s"
+    )
+
+
+# --- validation ----------------------------------------------------------------------------
+
+def _number(name: str, value) -> float:
+    if isinstance(value, bool):
+        raise ValueError(f"{name}={value!r} must be a number")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={value!r} must be a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name}={value!r} must be finite")
+    return x
+
+
+def _get(data: Mapping[str, float], name: str, what: str):
+    try:
+        return data[name]
+    except KeyError:
+        raise ValueError(f"{what} has no field {name!r}") from None
+
+
+def _checked(data: Mapping[str, float], names: Sequence[str], limits: Mapping[str, tuple[float, float]],
+             what: str) -> dict[str, float]:
+    """Every field finite and inside its limits (snapped in within LIMIT_RTOL)."""
+    out = {}
+    for name in names:
+        x = _number(f"{what} {name}", _get(data, name, what))
+        lo, hi = limits.get(name, (-math.inf, math.inf))
+        slack = lambda b: LIMIT_RTOL * max(1.0, abs(b)) if math.isfinite(b) else 0.0  # noqa: E731
+        if x < lo - slack(lo) or x > hi + slack(hi):
+            unit = f" [{TABLE1[name].unit}]" if name in TABLE1 else ""
+            raise ValueError(f"{what} {name}={x!r} is outside the limits [{lo!r}, {hi!r}]{unit}")
+        out[name] = min(max(x, lo), hi)
+    return out

@@ -1,0 +1,1 @@
+"""insitu-soil tests: one package per project package, plus graph/ and workspace/."""

@@ -1,0 +1,335 @@
+"""Online estimation core (pinn_estimator.online): real model, real messages, no DDS.
+
+Every test feeds the messages a live estimator would receive (built with the same
+``messages.build_message`` the nodes use, from a recorded sample bag) and checks what it
+would publish: stamps, validity, values against the offline model on the same windows.
+"""
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_bag_tools.bag_io import read_episode
+from soil_msgs_py.params import WINDOW_SAMPLES
+from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
+from pinn_estimator.inference import episode_estimates
+from pinn_estimator.model import EstimatorNet, ModelConfig
+from pinn_estimator.node import load_estimator_model
+from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
+N_TICKS = 200
+VALID = T.ESTIMATE_FIELDS.index("valid")
+FILL = T.ESTIMATE_FIELDS.index("window_samples")
+
+
+@pytest.fixture(scope="module")
+def episode():
+    return read_episode(SAMPLE)
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.set_num_threads(1)
+    return load_model(DEFAULT_CHECKPOINT)[0]
+
+
+@pytest.fixture(scope="module")
+def offline(model):
+    """The offline pipeline's (load_dataset -> predict, batched) /soil/estimate values for the
+    window ending at every tick >= 59 of the sample episode."""
+    return dict(zip(*episode_estimates(model, SAMPLE)))
+
+
+def tick_messages(ep, i: int, stamp: int | None = None) -> list[tuple[str, object]]:
+    """The 7 input messages of tick ``i`` (optionally re-stamped)."""
+    s = int(ep.stamps_ns[i]) if stamp is None else stamp
+    return [(t, M.build_message(M.TYPESTORE, t, s, M.topic_rows(ep, t)[i])) for t in INPUT_TOPICS]
+
+
+def run(model, messages, **kw):
+    out = []
+    est = OnlineEstimator(model, out.append, **kw)
+    for topic, msg in messages:
+        est.add(topic, msg)
+    return est, out
+
+
+def in_order(ep, ticks):
+    return [m for i in ticks for m in tick_messages(ep, i)]
+
+
+# Typical size of each field (rad, Pa, rad, rad, m, 6 forces N, flag, count): float32 rounding
+# differs between batch sizes by ~1e-7 of the network's output scale, not of the value.
+SCALE = np.array([1.0, 1e4, 1.0, 1.0, 0.1] + [2e4] * 6 + [1.0, 60.0])
+
+
+def assert_matches_offline(estimates, offline, rel=1e-5):
+    """Online (batch 1) equals the offline model (batched) up to float32 rounding."""
+    assert estimates, "no valid estimate"
+    for e in estimates:
+        np.testing.assert_array_less(np.abs(e.values - offline[e.stamp_ns]) / SCALE, rel)
+
+
+def valid(out):
+    return [e for e in out if e.valid]
+
+
+def assert_never_nan(out):
+    assert all(np.isfinite(e.values).all() for e in out)
+    for e in out:
+        if not e.valid:
+            assert not e.values[:VALID].any(), "an invalid estimate carries no numbers"
+
+
+# ---------------------------------------------------------------------------------------- normal
+
+def test_every_full_window_is_estimated_stamped_with_its_newest_sample(episode, model, offline):
+    est, out = run(model, in_order(episode, range(N_TICKS)))
+    assert [e.stamp_ns for e in out] == episode.stamps_ns[:N_TICKS].tolist(), "one message per tick"
+    good = valid(out)
+    assert [e.stamp_ns for e in good] == episode.stamps_ns[WINDOW_SAMPLES - 1 : N_TICKS].tolist()
+    assert [e.values[FILL] for e in out[:WINDOW_SAMPLES]] == list(range(1, WINDOW_SAMPLES + 1))
+    assert_matches_offline(good, offline)
+    assert_never_nan(out)
+    c = est.counters
+    assert (c.samples, c.estimates, c.invalid, c.gaps) == (N_TICKS, N_TICKS - 59, 59, 0)
+
+
+def test_arrival_order_within_the_reorder_horizon_does_not_matter(episode, model):
+    """DDS orders each topic, not topics against each other: shuffling across two ticks
+    gives exactly the same estimates as in-order arrival."""
+    msgs = in_order(episode, range(120))
+    rng = random.Random(3)
+    shuffled = []
+    for k in range(0, len(msgs), 14):  # two ticks at a time, topics mixed, per-topic order kept
+        chunk = msgs[k : k + 14]
+        rng.shuffle(chunk)
+        per_topic = {}
+        for t, m in chunk:
+            per_topic.setdefault(t, []).append(m)
+        for t in per_topic:
+            per_topic[t].sort(key=lambda m: M.parse_message(t, m)[0])
+        shuffled += [(t, per_topic[t].pop(0)) for t, _ in chunk]
+    _, a = run(model, msgs)
+    _, b = run(model, shuffled)
+    assert [(e.stamp_ns, e.values.tolist()) for e in valid(a)] == [(e.stamp_ns, e.values.tolist()) for e in valid(b)]
+
+
+def test_stride_estimates_every_nth_tick(episode, model):
+    _, out = run(model, in_order(episode, range(N_TICKS)), stride=4)
+    stamps = episode.stamps_ns[:N_TICKS]
+    assert [e.stamp_ns for e in out] == stamps[::4].tolist()
+    assert [e.stamp_ns for e in valid(out)] == [s for s in stamps[::4].tolist() if s >= stamps[59]]
+    with pytest.raises(ValueError, match="stride=0"):
+        OnlineEstimator(model, print, stride=0)
+
+
+# ---------------------------------------------------------------------------------------- bad input
+
+def test_a_dropped_tick_resets_the_window_and_nothing_is_estimated_across_it(episode, model, offline):
+    est, out = run(model, in_order(episode, [i for i in range(N_TICKS) if i != 100]))
+    stamps = [e.stamp_ns for e in valid(out)]
+    s = episode.stamps_ns
+    assert stamps == s[59:100].tolist() + s[160:N_TICKS].tolist(), "first estimate after the gap needs 60 new samples"
+    assert est.counters.gaps == 1
+    assert [e.values[FILL] for e in out if e.stamp_ns == s[101]] == [1.0]
+    assert_matches_offline(valid(out), offline)  # windows ending at >= 160 hold only ticks 101..
+    assert_never_nan(out)
+
+
+def test_one_missing_message_makes_its_tick_missing(episode, model):
+    msgs = [(t, m) for t, m in in_order(episode, range(N_TICKS))
+            if not (t == T.BLADE_CMD.name and M.parse_message(t, m)[0] == episode.stamps_ns[100])]
+    est, out = run(model, msgs, reorder_ticks=3)
+    s = episode.stamps_ns
+    assert [e.stamp_ns for e in valid(out)] == s[59:100].tolist() + s[160:N_TICKS].tolist()
+    assert est.counters.gaps == 1
+    assert_never_nan(out)
+
+
+def test_nan_or_inf_field_drops_the_tick_and_is_never_published(episode, model):
+    msgs = in_order(episode, range(N_TICKS))
+    rows = M.topic_rows(episode, T.KNOWN.name)[100].copy()
+    rows[T.KNOWN.labels.index("q")] = np.nan
+    bad_known = M.build_message(M.TYPESTORE, T.KNOWN.name, int(episode.stamps_ns[100]), rows)
+    twist = M.topic_rows(episode, T.BLADE_TWIST.name)[150].copy()
+    twist[0] = np.inf  # v_x^b: not a model input, still a broken message
+    bad_twist = M.build_message(M.TYPESTORE, T.BLADE_TWIST.name, int(episode.stamps_ns[150]), twist)
+    msgs = [(t, bad_known if (t == T.KNOWN.name and M.parse_message(t, m)[0] == episode.stamps_ns[100]) else
+             bad_twist if (t == T.BLADE_TWIST.name and M.parse_message(t, m)[0] == episode.stamps_ns[150]) else m)
+            for t, m in msgs]
+    warnings = []
+    est, out = run(model, msgs, warn=lambda kind, text: warnings.append(text))
+    assert est.counters.non_finite == 2
+    assert any("field q=nan" in w for w in warnings) and any("field v_x_b=inf" in w for w in warnings)
+    s = episode.stamps_ns
+    assert [e.stamp_ns for e in valid(out)] == s[59:100].tolist(), "each bad tick costs a full window"
+    assert_never_nan(out)
+
+
+def test_out_of_order_stamp_invalidates_the_window(episode, model, offline):
+    msgs = in_order(episode, range(0, 101)) + tick_messages(episode, 97)[:1] + in_order(episode, range(101, N_TICKS))
+    warnings = []
+    est, out = run(model, msgs, warn=lambda kind, text: warnings.append(text))
+    assert est.counters.out_of_order == 1 and any("out of order" in w for w in warnings)
+    s = episode.stamps_ns
+    assert [e.stamp_ns for e in valid(out)] == s[59:101].tolist() + s[160:N_TICKS].tolist()
+    assert_matches_offline(valid(out), offline)
+
+
+def test_a_few_ticks_stale_is_out_of_order_not_a_restart(episode, model):
+    for back in (4, 10, 59):
+        msgs = in_order(episode, range(0, 101)) + tick_messages(episode, 100 - back)[:1] + in_order(episode, range(101, N_TICKS))
+        est, out = run(model, msgs)
+        assert (est.counters.out_of_order, est.counters.restarts) == (1, 0), back
+        assert [e.stamp_ns for e in valid(out)][-1] == episode.stamps_ns[N_TICKS - 1]
+
+
+def test_bogus_future_stamps_do_not_stall_estimation(episode, model):
+    """A publisher with wrong (e.g. wall-clock) stamps on one topic fills the pending ticks
+    with entries that never complete; they age out and real ticks keep being estimated."""
+    msgs = []
+    for i in range(N_TICKS):
+        msgs += tick_messages(episode, i)
+        bogus = M.build_message(M.TYPESTORE, T.CMD_VEL.name, 10**18 + i * 10**9, [0.5])
+        msgs.append((T.CMD_VEL.name, bogus))
+    est, out = run(model, msgs)
+    assert [e.stamp_ns for e in valid(out)] == episode.stamps_ns[59:N_TICKS].tolist()
+    assert est.counters.evicted == N_TICKS - 2 * 60 and len(est.assembler.pending) <= 2 * 60
+
+
+def test_stride_phase_restarts_with_each_episode(episode, model):
+    """With stride > 1 the estimated ticks of an episode do not depend on how the previous one
+    ended: live and replay (which starts fresh) estimate the same ticks."""
+    out = []
+    est = OnlineEstimator(model, out.append, stride=3)
+    for t, m in in_order(episode, range(101)):  # 101 ticks: phase ends mid-stride
+        est.add(t, m)
+    est.end_episode(int(episode.stamps_ns[100]))
+    base = int(episode.stamps_ns[100]) + int(episode.stamps_ns[1])
+    for i in range(100):
+        for t, m in tick_messages(episode, i, base + int(episode.stamps_ns[i])):
+            est.add(t, m)
+    second = [e.stamp_ns - base for e in out if e.stamp_ns >= base]
+    assert second == episode.stamps_ns[:100:3].tolist()
+
+
+def test_wrong_shape_array_is_malformed_and_its_tick_missing(episode, model):
+    msgs = in_order(episode, range(N_TICKS))
+    stamp = int(episode.stamps_ns[80])
+    short = M.make_labelled(M.TYPESTORE, stamp, ("u_zr",), [0.1])  # one value, other label
+    wrong_len = M.build_message(M.TYPESTORE, T.BLADE_CMD.name, stamp, [0.1, 0.2])
+    wrong_len.data = wrong_len.data[:3]  # label says 4 entries, data has 3
+    msgs = [(t, short if (t == T.BLADE_CMD.name and M.parse_message(t, m)[0] == stamp) else m) for t, m in msgs]
+    msgs.insert(5, (T.BLADE_CMD.name, wrong_len))
+    est, out = run(model, msgs)
+    assert est.counters.malformed == 2
+    s = episode.stamps_ns
+    assert [e.stamp_ns for e in valid(out)] == s[59:80].tolist() + s[140:N_TICKS].tolist()
+    assert_never_nan(out)
+
+
+def test_a_topic_that_never_comes_holds_bounded_memory(episode, model):
+    msgs = [(t, m) for t, m in in_order(episode, range(400)) if t != T.CMD_VEL.name]
+    est, out = run(model, msgs)
+    assert out == [] and len(est.assembler.pending) <= 2 * 60
+
+
+def test_non_finite_model_output_is_published_invalid(episode, model):
+    broken, _ = load_model(DEFAULT_CHECKPOINT)
+    with torch.no_grad():
+        broken.head.bias[5] = float("nan")  # the F_r output
+    est, out = run(broken, in_order(episode, range(70)))
+    assert len(out) == 70 and not valid(out) and est.counters.model_non_finite == 11
+    assert_never_nan(out)
+
+
+# ---------------------------------------------------------------------------------------- episodes
+
+def test_no_window_spans_two_episodes_even_if_data_overtakes_episode_start(episode, model):
+    """Episode k+1's stamps continue episode k's. Its first ticks may arrive before its
+    episode_start; they must not extend episode k's window, and must not be lost either."""
+    out = []
+    est = OnlineEstimator(model, out.append)
+    for t, m in in_order(episode, range(98)):
+        est.add(t, m)
+    est.end_episode(int(episode.stamps_ns[99]))  # the event overtakes the episode's last two ticks
+    for t, m in in_order(episode, range(98, 100)):
+        est.add(t, m)
+    assert [e.stamp_ns for e in valid(out)] == episode.stamps_ns[59:100].tolist()
+    # "episode 2" = the same rows again, stamped right after episode 1
+    base = int(episode.stamps_ns[99]) + int(episode.stamps_ns[1])
+    stamps2 = [base + int(s) for s in episode.stamps_ns[:100]]
+    for i in range(5):  # five ticks before its start event
+        for t, m in tick_messages(episode, i, stamps2[i]):
+            est.add(t, m)
+    est.start_episode(stamps2[0])
+    for i in range(5, 100):
+        for t, m in tick_messages(episode, i, stamps2[i]):
+            est.add(t, m)
+    second = [e for e in valid(out) if e.stamp_ns >= stamps2[0]]
+    assert [e.stamp_ns for e in second] == stamps2[59:], "window restarts at the episode's tick 0, keeping it"
+    first = {e.stamp_ns - int(episode.stamps_ns[0]): e.values for e in valid(out) if e.stamp_ns < stamps2[0]}
+    for e in second:  # same rows, same window -> the same estimate as in episode 1
+        np.testing.assert_array_equal(e.values, first[e.stamp_ns - stamps2[0]])
+
+
+def test_time_going_far_back_starts_a_new_stream(episode, model):
+    """A replay looped without /sim/status: stamps restart at 0; estimation restarts too."""
+    est, out = run(model, in_order(episode, range(100)) + in_order(episode, range(100)))
+    assert est.counters.restarts == 1
+    assert len(valid(out)) == 2 * 41
+
+
+def test_assembler_rejects_bad_reorder_horizon():
+    with pytest.raises(ValueError, match="reorder_ticks=0"):
+        SampleAssembler(print, reorder_ticks=0)
+
+
+# ---------------------------------------------------------------------------------------- checkpoints
+
+def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(DEFAULT_CHECKPOINT.read_bytes()[:5000])
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    free = EstimatorNet(ModelConfig(kind="physics_free"), torch.zeros(9), torch.ones(9))
+    baseline = save_checkpoint(tmp_path / "free.pt", free, train_config={}, dataset={}, split={}, metrics={}, history={})
+    short_window = save_checkpoint(tmp_path / "w30.pt", EstimatorNet(ModelConfig(window=30), torch.zeros(9), torch.ones(9)),
+                                   train_config={}, dataset={}, split={}, metrics={}, history={})
+    for path, needle in ((corrupt, "not a readable torch checkpoint"), (foreign, "not an insitu-soil estimator"),
+                         (baseline, "kind='physics_free'"), (short_window, "window=30 samples"), (tmp_path / "missing.pt", "does not exist")):
+        with pytest.raises(ValueError, match=needle) as err:
+            load_estimator_model(str(path))
+        assert "checkpoint" in str(err.value)
+    model, ckpt, resolved = load_estimator_model("")
+    assert resolved == str(DEFAULT_CHECKPOINT) and model.cfg.kind == "pinn"
+
+
+def test_a_model_with_a_distance_term_gets_the_travel_since_the_episode_start(episode, model):
+    """A PINN with compaction_hardening (issue 6) needs the blade's travel in soil since the
+    episode began: online it is summed tick by tick from episode_start and equals the offline
+    pipeline's; without an episode_start the node cannot know it and publishes invalid."""
+    cfg = ModelConfig(**{**model.cfg.to_dict(), "extra_terms": [["compaction_hardening", 0.05]]})
+    augmented = EstimatorNet(cfg, model.backbone.obs_mean, model.backbone.obs_std)
+    augmented.load_state_dict(model.state_dict())
+    augmented.eval()
+    offline = dict(zip(*episode_estimates(augmented, SAMPLE)))
+    out = []
+    est = OnlineEstimator(augmented, out.append)
+    est.start_episode(int(episode.stamps_ns[0]))
+    for t, m in in_order(episode, range(N_TICKS)):
+        est.add(t, m)
+    assert len(valid(out)) == N_TICKS - 59
+    assert_matches_offline(valid(out), offline)
+    plain = {e.stamp_ns: e.values for e in valid(run(model, in_order(episode, range(N_TICKS)))[1])}
+    assert any(abs(e["f_x_hat"] - plain[e.stamp_ns][5]) > 10.0 for e in valid(out)), "the term adds force"
+    _, blind = run(augmented, in_order(episode, range(N_TICKS)))
+    assert blind and not valid(blind)

@@ -1,0 +1,326 @@
+"""The PINN (paper §2.2): model, Eq. 13-16 loss, training from real bags, checkpoints, evaluation.
+
+A tiny dataset is simulated and written as real rosbag2 MCAP bags once per session; the
+trainer reads it back with rosbags like any user dataset.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pinn_estimator import checkpoint as ck
+from pinn_estimator.dataset import load_dataset, split_episodes
+from pinn_estimator.evaluate import main as eval_main
+from pinn_estimator.inference import WindowTensors, predict
+from pinn_estimator.loss import LIMITED, consistency_loss, dn_gamma_dbeta_beta_only, pinn_loss, relu_limit
+from pinn_estimator.model import EstimatorNet, ModelConfig
+from pinn_estimator.train import TrainConfig, main as train_main, train
+from soil_physics import fee
+from soil_bag_tools.bag_io import find_episode_bags, write_episode
+from soil_msgs_py.params import DEG, KNOWN_PARAMS, TABLE1, UNKNOWN_PARAMS
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig
+from tests.bag_fixtures import write_raw
+
+SMALL = dict(d_model=16, n_heads=2, n_layers=1, ff_dim=32)
+
+
+@pytest.fixture(scope="session")
+def tiny_bags(tmp_path_factory) -> Path:
+    """6 fee-world episodes of 2 s (2 soils x 3 seeds), one bag each."""
+    root = tmp_path_factory.mktemp("tiny_bags")
+    specs = [EpisodeSpec(soil, 40.0, 0.6, 0.2, seed=s, duration_s=2.0) for soil in ("Loam", "Sand") for s in range(3)]
+    for ep in run_episodes(SimConfig(world_mode="fee"), specs):
+        write_episode(root / ep.meta.name, ep)
+    return root
+
+
+@pytest.fixture(scope="session")
+def tiny_ds(tiny_bags):
+    return load_dataset(tiny_bags, cache=False)
+
+
+def _model(ds, kind="pinn"):
+    torch.manual_seed(0)
+    return EstimatorNet(ModelConfig(kind=kind, **SMALL), ds.observations.mean(0), ds.observations.std(0) + 1e-9)
+
+
+def _batch(ds, n=64):
+    ends = torch.as_tensor(ds.window_ends(range(len(ds)), 1)[:n])
+    return WindowTensors(ds).batch(ends)
+
+
+# ------------------------------------------------------------------------------ data
+def test_windows_never_cross_episodes_and_split_is_by_episode(tiny_ds):
+    ends = tiny_ds.window_ends(range(len(tiny_ds)), stride=1)
+    ep = tiny_ds.episode_of_rows(ends)
+    start = ends - 59
+    assert np.all(tiny_ds.episode_of_rows(start) == ep)
+    assert len(ends) == len(tiny_ds) * (120 - 59)
+    split = split_episodes(tiny_ds, seed=3)
+    names = [set(split[s]) for s in ("train", "val", "test")]
+    assert sum(map(len, names)) == len(tiny_ds) and not (names[0] & names[1] or names[0] & names[2] or names[1] & names[2])
+    assert {tiny_ds.metas[i].soil for i in tiny_ds.index(split["test"])} == {"Loam", "Sand"}  # stratified
+    assert split == split_episodes(tiny_ds, seed=3)
+
+
+def test_cache_is_used_and_keyed_by_content(tiny_bags, tmp_path):
+    cache = tmp_path / "cache"
+    a = load_dataset(tiny_bags, cache_dir=cache)
+    assert len(list(cache.glob("*.npz"))) == 1
+    b = load_dataset(tiny_bags, cache_dir=cache)
+    assert a.fingerprint == b.fingerprint and np.array_equal(a.forces, b.forces) and a.names == b.names
+
+
+# ------------------------------------------------------------------------------ model + loss
+def test_model_shapes_clipping_and_fee_layer(tiny_ds):
+    model = _model(tiny_ds)
+    obs, known, force = _batch(tiny_ds)
+    with torch.no_grad():
+        model.head.bias[0] = 5.0  # φ far above its 90° limit before clipping
+        out = model(obs, known)
+    assert out["force"].shape == (64, 2) and out["theta"].shape == (64, len(UNKNOWN_PARAMS))
+    assert torch.all(out["theta_raw"][:, 0] > 90 * DEG) and torch.allclose(out["theta"][:, 0], torch.tensor(90 * DEG))
+    assert torch.all(out["theta"][:, 3] >= TABLE1["beta"].limits[0] - 1e-6)
+    assert torch.all(out["theta"][:, 3] <= TABLE1["beta"].limits[1] + 1e-6)
+    # F̂ = F_FEE + F_r with F_FEE the shared FEE of the clipped parameters at d' = d + Δd
+    k = {n: known[:, j].double() for j, n in enumerate(KNOWN_PARAMS)}
+    th = out["theta"].double()
+    theta = {**k, "phi": th[:, 0], "c": th[:, 1], "delta": th[:, 2], "d": (k["d"] + th[:, 4]).clamp(0, 0.66)}
+    fx, fz, _ = fee.fee_xz(theta, beta=th[:, 3])
+    assert torch.allclose(out["force_fee"].double(), torch.stack([fx, fz], 1), rtol=1e-4, atol=1e-2)
+    assert torch.allclose(out["force"], out["force_fee"] + out["force_residual"])
+
+
+def test_relu_limits_eq16():
+    x = torch.tensor([-10 * DEG, 20 * DEG, 100 * DEG])
+    got = relu_limit(x, "phi")
+    span = 28 * DEG
+    assert torch.allclose(got, torch.tensor([10 * DEG / span, 0.0, 10 * DEG / span]))
+    assert torch.all(relu_limit(torch.tensor([1e6, 0.0]), "c") == 0)  # open upper bound
+    assert set(LIMITED) == {"phi", "c", "delta", "beta", "eta", "zeta", "delta_d", "d"}
+
+
+def test_dn_gamma_dbeta_gradient_reaches_beta_only(tiny_ds):
+    """§2.2.2: only β receives gradient from L_MAE^{∂N_γ/∂β}; φ, c, δ, Δd, F_r get none."""
+    model = _model(tiny_ds)
+    obs, known, _ = _batch(tiny_ds)
+    captured = {}
+    model.head.register_forward_hook(lambda m, i, o: captured.setdefault("head", o))
+    out = model(obs, known)
+    term = dn_gamma_dbeta_beta_only(out, known).abs().mean()
+    (grad,) = torch.autograd.grad(term, captured["head"])
+    beta = UNKNOWN_PARAMS.index("beta")
+    assert grad[:, beta].abs().sum() > 0
+    others = [j for j in range(grad.shape[1]) if j != beta]
+    assert torch.all(grad[:, others] == 0)
+    # and the term is the analytic derivative of N_γ (matches autograd of N_γ in β)
+    b = out["theta"][:, 3].detach().double().requires_grad_(True)
+    rho = known[:, KNOWN_PARAMS.index("rho")].double()
+    n = fee.coefficients(out["theta"][:, 0].detach().double(), out["delta_eff"].detach().double(), rho, 0.0 * rho, b).n_gamma
+    (auto,) = torch.autograd.grad(n.sum(), b)
+    assert torch.allclose(dn_gamma_dbeta_beta_only(out, known).double(), auto, rtol=1e-3, atol=1e-4)
+
+
+def test_loss_masks_and_terms(tiny_ds):
+    model = _model(tiny_ds)
+    obs, known, force = _batch(tiny_ds)
+    out = model(obs, known)
+    total, terms = pinn_loss(out, force, known)
+    assert set(terms) == {"force", "residual", "limits", "delta_d", "dn_gamma_dbeta"}
+    assert torch.isclose(total, sum(terms.values()))
+    # a sample whose β leaves its limit is dropped from the force term (mask), not from the ReLU term
+    bad = {k: v.clone() for k, v in out.items()}
+    bad["theta_raw"][0, 3] = 60 * DEG
+    bad["force"][0] += 1e6
+    _, t2 = pinn_loss(bad, force, known)
+    assert torch.isclose(t2["force"], terms["force"] * 63 / 64 + 0 * t2["force"], rtol=0.2)
+    assert t2["limits"] > terms["limits"]
+    # residual force is only penalised where d' > 0
+    bad2 = {k: v.clone() for k, v in out.items()}
+    bad2["d_prime"] = torch.full_like(bad2["d_prime"], -0.01)
+    _, t3 = pinn_loss(bad2, force, known)
+    assert t3["residual"] == 0
+    # consistency (ours) is zero for identical estimates and positive otherwise
+    th = out["theta"].detach()
+    assert consistency_loss(th, th) == 0 and consistency_loss(th, th + 0.01) > 0
+
+
+# ------------------------------------------------------------------------------ training
+def test_training_steps_reduce_the_loss(tiny_ds):
+    model = _model(tiny_ds)
+    obs, known, force = _batch(tiny_ds, 128)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(40):
+        loss, _ = pinn_loss(model(obs, known), force, known)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert losses[-1] < 0.5 * losses[0], losses[::10]
+
+
+def test_train_cli_writes_checkpoint_that_round_trips(tiny_bags, tmp_path):
+    out = tmp_path / "m.pt"
+    args = ["--data", str(tiny_bags), "--out", str(out), "--epochs", "3", "--stride", "6", "--quiet", "--no-cache",
+            "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1", "--consistency", "0.5"]
+    assert train_main(args) == 0
+    assert out.is_file() and out.with_name("m_curve.png").stat().st_size > 5000
+    raw = torch.load(out, weights_only=True)  # no code execution needed to read it
+    assert raw["dataset"]["fingerprint"] and set(raw["split"]) == {"train", "val", "test"}
+    assert raw["metrics"]["epochs_run"] == 3 and len(raw["history"]["train_loss"]) == 3
+    assert raw["history"]["train_loss"][-1] < raw["history"]["train_loss"][0]
+    model, meta = ck.load_model(out)
+    ds = load_dataset(tiny_bags, cache=False)
+    ends = ds.window_ends(range(len(ds)), 7)
+    a = predict(model, WindowTensors(ds), ends)
+    again, _ = ck.load_model(out)
+    b = predict(again, WindowTensors(ds), ends)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    # the observation normalisation is the training split's
+    train_idx = ds.index(meta["split"]["train"])
+    rows = np.concatenate([np.arange(ds.offsets[e], ds.offsets[e + 1]) for e in train_idx])
+    assert np.allclose(model.backbone.obs_mean.numpy(), ds.observations[rows].mean(0), rtol=1e-5, atol=1e-6)
+    # same seed, same result
+    out2 = tmp_path / "m2.pt"
+    assert train_main([*args[:3], str(out2), *args[4:]]) == 0
+    assert torch.equal(torch.load(out2, weights_only=True)["state_dict"]["head.weight"], raw["state_dict"]["head.weight"])
+
+
+def test_eval_reports_pinn_and_both_baselines_on_the_same_windows(tiny_bags, tmp_path):
+    pinn, free = tmp_path / "p.pt", tmp_path / "f.pt"
+    small = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--quiet", "--no-cache", "--epochs", "2", "--stride", "8"]
+    assert train_main(["--data", str(tiny_bags), "--out", str(pinn), *small]) == 0
+    assert train_main(["--data", str(tiny_bags), "--out", str(free), "--kind", "physics_free", "--split-from", str(pinn), *small]) == 0
+    out = tmp_path / "eval"
+    assert eval_main(["--checkpoint", str(pinn), "--physics-free", str(free), "--data", str(tiny_bags), "--out", str(out),
+                      "--name", "r", "--stride", "20", "--workers", "1", "--quiet"]) == 0
+    report = json.loads((out / "r.json").read_text())
+    assert set(report["force"]) == {"pinn", "pinn_fee_part", "physics_free", "classical"}
+    n = report["windows"]
+    assert n > 0 and all(f["windows"] == n for f in report["force"].values())
+    assert set(report["params"]) == {"pinn", "classical"}
+    assert {r["soil"] for r in report["per_soil_id"]} == {"Loam", "Sand"}
+    assert all(math.isfinite(r["failure_force_n"]["truth"]) for r in report["per_soil_id"])
+    assert any(t["target"].startswith("PINN force error / physics-free") for t in report["targets"])
+    md = (out / "r.md").read_text()
+    assert "classical" in md and "physics_free" in md and "Targets" in md
+    assert (out / "r_params.png").stat().st_size > 10000
+    # a baseline trained on another split is refused, naming the fix
+    other = tmp_path / "o.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(other), "--kind", "physics_free", "--seed", "9", *small]) == 0
+    with pytest.raises(ValueError, match="--split-from"):
+        from pinn_estimator.evaluate import evaluate
+
+        evaluate(pinn, tiny_bags, physics_free=other, classical=False, log=lambda *_: None)
+
+
+# ------------------------------------------------------------------------------ bad input
+def test_empty_bag_directory_is_named(tmp_path, capsys):
+    with pytest.raises(ValueError, match="no episode bags under"):
+        load_dataset(tmp_path)
+    assert train_main(["--data", str(tmp_path), "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    assert "no episode bags" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_bag_missing_a_topic_is_named(tiny_bags, tmp_path):
+    from soil_bag_tools.bag_io import read_episode
+
+    ep = read_episode(find_episode_bags(tiny_bags)[0])
+    write_raw(tmp_path / "broken", ep, skip=lambda topic, i: topic == "/blade/force")
+    with pytest.raises(ValueError, match="/blade/force"):
+        load_dataset(tmp_path, cache=False)
+
+
+def test_windows_with_nan_are_named(tiny_bags, tmp_path):
+    from soil_bag_tools.bag_io import read_episode
+
+    ep = read_episode(find_episode_bags(tiny_bags)[0])
+    ep.observations[70, 4] = np.nan
+    write_raw(tmp_path / "nan_bag", ep)  # write_episode refuses NaN; a foreign recorder may not
+    with pytest.raises(ValueError, match=r"nan_bag.*'v_x_c'.*nan at tick 70"):
+        load_dataset(tmp_path, cache=False)
+
+
+def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, tmp_path):
+    model = _model(tiny_ds)
+    path = ck.save_checkpoint(tmp_path / "a.pt", model, train_config={}, dataset={}, split={}, metrics={}, history={})
+    raw = torch.load(path, weights_only=True)
+    raw["model_config"]["d_model"] = 32
+    raw["model_config"]["n_heads"] = 4
+    torch.save(raw, tmp_path / "other_arch.pt")
+    with pytest.raises(ValueError, match="does not fit model config"):
+        ck.load_model(tmp_path / "other_arch.pt")
+    raw["model_config"]["n_experts"] = 3
+    torch.save(raw, tmp_path / "unknown_key.pt")
+    with pytest.raises(ValueError, match="unknown keys.*n_experts"):
+        ck.load_model(tmp_path / "unknown_key.pt")
+    raw = torch.load(path, weights_only=True)
+    raw["interface"]["unknown_params"] = ["phi", "c"]
+    torch.save(raw, tmp_path / "iface.pt")
+    with pytest.raises(ValueError, match="different inputs/outputs.*unknown_params"):
+        ck.load_model(tmp_path / "iface.pt")
+    torch.save({"weights": torch.zeros(3)}, tmp_path / "foreign.pt")
+    with pytest.raises(ValueError, match="not an insitu-soil estimator checkpoint"):
+        ck.load_model(tmp_path / "foreign.pt")
+    (tmp_path / "corrupt.pt").write_bytes(b"\x80\x02garbage" * 10)
+    with pytest.raises(ValueError, match="not a readable torch checkpoint"):
+        ck.load_model(tmp_path / "corrupt.pt")
+    with pytest.raises(FileNotFoundError):
+        ck.load_model(tmp_path / "missing.pt")
+
+
+def test_bad_training_options_are_named(tiny_ds):
+    with pytest.raises(ValueError, match="stride=0"):
+        TrainConfig(stride=0)
+    with pytest.raises(ValueError, match="lr=-1"):
+        TrainConfig(lr=-1.0)
+    with pytest.raises(ValueError, match="lr_schedule='step'"):
+        TrainConfig(lr_schedule="step")
+    with pytest.raises(ValueError, match="d_model=30 must be divisible by n_heads=4"):
+        ModelConfig(d_model=30)
+    with pytest.raises(ValueError, match="kind='bert'"):
+        ModelConfig(kind="bert")
+
+
+def test_train_function_keeps_best_validation_model(tiny_ds):
+    cfg = TrainConfig(epochs=3, stride=6, eval_stride=6, threads=1)
+    model, split, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)
+    assert metrics["val_loss"] == min(history["val_loss"])
+    assert metrics["best_epoch"] == 1 + int(np.argmin(history["val_loss"]))
+
+
+def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):
+    cfg = TrainConfig(epochs=4, stride=6, eval_stride=6, threads=1, lr=2e-3, lr_schedule="cosine", patience=4)
+    _, _, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)
+    lr = history["lr"]  # after each epoch's step: cos annealing from 2e-3 to 1e-5 at epoch 4
+    assert metrics["epochs_run"] == 4 and lr == sorted(lr, reverse=True)
+    assert lr[-1] == pytest.approx(cfg.lr / 200) and lr[1] == pytest.approx(1e-5 + (2e-3 - 1e-5) / 2)
+
+
+# ------------------------------------------------------------------------------ shipped models
+@pytest.mark.parametrize("world", ["default", "fee"])
+def test_shipped_model_loads_and_estimates_on_a_sample_bag(world):
+    path = ck.SHIPPED_MODELS_DIR / f"pinn_{world}.pt"
+    assert path.stat().st_size < 1_000_000  # small enough for the package
+    model, meta = ck.load_model(path)
+    assert model.cfg.kind == "pinn" and meta["dataset"]["world_modes"] == [world]
+    assert meta["dataset"]["episodes"] == {"default": 576, "fee": 432}[world]  # the paper's dataset sizes
+    report = json.loads((ck.SHIPPED_MODELS_DIR / f"pinn_{world}_report.json").read_text())
+    assert report["dataset"]["fingerprint"] == meta["dataset"]["fingerprint"]
+    assert {"pinn", "physics_free", "classical"} <= set(report["force"])
+    ds = load_dataset(Path(__file__).resolve().parents[2] / "bags" / "samples", cache=False)
+    ends = ds.window_ends(range(len(ds)), 30)
+    out = predict(model, WindowTensors(ds), ends)
+    assert all(np.isfinite(v).all() for v in out.values())
+    lo = np.array([TABLE1[n].limits[0] for n in UNKNOWN_PARAMS])
+    hi = np.array([TABLE1[n].limits[1] for n in UNKNOWN_PARAMS])
+    assert np.all(out["theta"] >= lo - 1e-6) and np.all(out["theta"] <= hi + 1e-6)
+    assert ck.DEFAULT_CHECKPOINT.name == "pinn_default.pt"

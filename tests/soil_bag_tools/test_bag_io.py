@@ -1,0 +1,351 @@
+"""rosbag2 MCAP episode bags: round trip, on-disk format, atomic writes and read errors.
+
+Bags are the dataset format shared by the simulator, the trainer and ``ros2 bag``, so the
+tests check the files with independent readers (pyyaml, the ``mcap`` library) as well as
+with our own reader.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from soil_bag_tools import bag_io
+
+from soil_msgs_py import messages
+from soil_bag_tools.bag_io import META_KEY, find_episode_bags, read_dataset, read_episode, write_episode
+from soil_msgs_py.episode import Episode, EpisodeMeta
+from soil_msgs_py.messages import ARRAY_FIELDS, TYPESTORE, make_labelled, parse_labelled
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS
+from soil_msgs_py.topics import EPISODE_TOPICS, STAMP_FIELDS
+from tests.bag_fixtures import write_raw
+
+N = 120
+ARRAYS = tuple(ARRAY_FIELDS)
+
+
+def make_episode(n: int = N, seed: int = 0) -> Episode:
+    """Random finite arrays with awkward float64 values (tiny, huge, negative zero)."""
+    rng = np.random.default_rng(seed)
+    meta = EpisodeMeta(
+        soil="Loam", relative_density_pct=42.0, world_mode="fee", seed=seed,
+        target_speed_m_s=0.4, target_depth_m=0.12, duration_s=n / 60,
+        effects=["surcharge"], plugins=["vortex_like"],
+    )
+    arrays = {a: rng.standard_normal((n, len(f))) * 10.0 ** rng.integers(-9, 9, (n, len(f)))
+              for a, f in ARRAY_FIELDS.items()}
+    arrays["forces"][0, 0] = -0.0
+    arrays["truth"][1, 2] = np.nextafter(1.0, 2.0)
+    stamps = np.round(np.arange(n) * 1e9 / 60).astype(np.int64) + 5 * 10**9
+    return Episode(meta=meta, stamps_ns=stamps, **arrays)
+
+
+def assert_same(a: Episode, b: Episode) -> None:
+    assert a.meta == b.meta
+    assert b.stamps_ns.dtype == np.int64 and np.array_equal(a.stamps_ns, b.stamps_ns)
+    for name in ARRAYS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert y.dtype == np.float64, name
+        assert x.tobytes() == y.tobytes(), f"{name} not bit-identical"
+
+
+@pytest.fixture
+def ep() -> Episode:
+    return make_episode()
+
+
+@pytest.fixture
+def bag(tmp_path: Path, ep: Episode) -> Path:
+    return write_episode(tmp_path / "ep", ep)
+
+
+def test_round_trip_is_bit_identical(bag: Path, ep: Episode) -> None:
+    assert bag.name == "ep" and sorted(p.name for p in bag.iterdir()) == ["ep.mcap", "metadata.yaml"]
+    back = read_episode(bag)
+    assert_same(ep, back)
+    assert np.signbit(back.forces[0, 0])  # -0.0 survives
+    assert not (bag.parent / "ep.partial").exists()
+
+
+def test_metadata_yaml(bag: Path, ep: Episode) -> None:
+    doc = yaml.safe_load((bag / "metadata.yaml").read_text())
+    info = doc["rosbag2_bagfile_information"]
+    assert info["version"] == 9
+    assert info["storage_identifier"] == "mcap"
+    assert info["message_count"] == N * len(EPISODE_TOPICS)
+    assert info["starting_time"]["nanoseconds_since_epoch"] == ep.stamps_ns[0]
+    counts = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], t["message_count"],
+                                            t["topic_metadata"]["serialization_format"])
+              for t in info["topics_with_message_count"]}
+    assert counts == {t.name: (t.msgtype, N, "cdr") for t in EPISODE_TOPICS}
+    stored = json.loads(info["custom_data"][META_KEY])
+    assert EpisodeMeta(**stored) == ep.meta
+
+
+def test_mcap_file_with_independent_reader(bag: Path, ep: Episode) -> None:
+    with open(bag / "ep.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = summary.channels.values()
+        assert {c.topic for c in channels} == {t.name for t in EPISODE_TOPICS}
+        types = {t.name: t.msgtype for t in EPISODE_TOPICS}
+        for c in channels:
+            schema = summary.schemas[c.schema_id]
+            assert c.message_encoding == "cdr"
+            assert schema.encoding == "ros2msg"
+            assert schema.name == types[c.topic]
+            assert schema.data.strip(), c.topic
+            assert summary.statistics.channel_message_counts[c.id] == N
+        log_times = [m.log_time for _, _, m in reader.iter_messages(topics=["/clock"])]
+    assert log_times == ep.stamps_ns.tolist()
+
+
+def _raw_messages(bag: Path, topic: str) -> list:
+    with AnyReader([bag]) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        return [r.deserialize(raw, c.msgtype) for c, _, raw in r.messages(connections=conns)]
+
+
+def test_field_mapping_on_the_wire(bag: Path, ep: Episode) -> None:
+    """The documented topic <-> Episode column mapping, checked field by field."""
+    col = ep.column
+    i = 7
+    sec, nsec = divmod(int(ep.stamps_ns[i]), 10**9)
+
+    def stamped(topic: str):
+        msg = _raw_messages(bag, topic)[i]
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (sec, nsec)
+        assert msg.header.frame_id == "world"
+        return msg
+
+    clock = _raw_messages(bag, "/clock")[i].clock
+    assert (clock.sec, clock.nanosec) == (sec, nsec)
+    p = stamped("/blade/pose").point
+    assert (p.x, p.y, p.z) == (col("p_x_b")[i], 0.0, col("p_z_b")[i])
+    p = stamped("/chassis/pose").point
+    assert (p.x, p.y, p.z) == (col("p_x_c")[i], 0.0, col("p_z_c")[i])
+    t = stamped("/blade/twist").twist
+    assert (t.linear.x, t.linear.y, t.linear.z) == (col("v_x_b")[i], 0.0, col("v_z_b")[i])
+    assert (t.angular.x, t.angular.y, t.angular.z) == (0.0, 0.0, 0.0)
+    t = stamped("/chassis/twist").twist
+    assert (t.linear.x, t.linear.z) == (col("v_x_c")[i], col("v_z_c")[i])
+    t = stamped("/chassis/cmd_vel").twist
+    assert (t.linear.x, t.linear.z) == (col("u_x")[i], 0.0)
+    w = stamped("/blade/force").wrench
+    assert (w.force.x, w.force.y, w.force.z) == (col("f_x_b")[i], 0.0, col("f_z_b")[i])
+    assert (w.torque.x, w.torque.y, w.torque.z) == (0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    "topic, labels, expected",
+    [
+        ("/soil/known_params", KNOWN_PARAMS, lambda ep, i: ep.known[i]),
+        ("/soil/ground_truth", GROUND_TRUTH_PARAMS, lambda ep, i: ep.truth[i]),
+        ("/blade/cmd", ("u_zr", "u_za"), lambda ep, i: [ep.column("u_zr")[i], ep.column("u_za")[i]]),
+    ],
+)
+def test_labelled_array_layout(bag: Path, ep: Episode, topic, labels, expected) -> None:
+    msgs = _raw_messages(bag, topic)
+    assert len(msgs) == N
+    for i in (0, N - 1):
+        msg = msgs[i]
+        n = len(labels) + 2
+        assert len(msg.layout.dim) == 1
+        dim = msg.layout.dim[0]
+        assert dim.label == "|".join(STAMP_FIELDS + tuple(labels))
+        assert dim.label.startswith("stamp_sec|stamp_nanosec|")
+        assert (dim.size, dim.stride, msg.layout.data_offset, len(msg.data)) == (n, n, 0, n)
+        assert (msg.data[0], msg.data[1]) == divmod(int(ep.stamps_ns[i]), 10**9)
+        assert np.array_equal(msg.data[2:], expected(ep, i))
+
+
+def test_make_and_parse_labelled() -> None:
+    msg = make_labelled(TYPESTORE, 3 * 10**9 + 17, ("a", "b"), [1.5, -2.0])
+    assert parse_labelled(msg, ("a", "b"))[0] == 3 * 10**9 + 17
+    assert np.array_equal(parse_labelled(msg, ("a", "b"))[1], [1.5, -2.0])
+    with pytest.raises(ValueError, match=r"/x/y: label mismatch.*a\|b"):
+        parse_labelled(msg, ("a", "c"), topic="/x/y")
+    msg.data = msg.data[:-1]
+    with pytest.raises(ValueError, match="len"):
+        parse_labelled(msg, ("a", "b"))
+    with pytest.raises(ValueError, match="2 labels"):
+        make_labelled(TYPESTORE, 0, ("a", "b"), [1.0])
+
+
+@pytest.mark.parametrize(
+    "array, col, bad",
+    [("forces", 1, np.nan), ("truth", 12, np.inf), ("observations", 0, -np.inf), ("extras", 0, np.nan)],
+)
+def test_non_finite_rejected_naming_column(tmp_path: Path, ep: Episode, array, col, bad) -> None:
+    getattr(ep, array)[17, col] = bad
+    getattr(ep, array)[90, col] = bad
+    name = ARRAY_FIELDS[array][col]
+    with pytest.raises(ValueError, match=rf"{array} column '{name}' is .* at row 17 "):
+        write_episode(tmp_path / "ep", ep)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_stamps_and_meta_rejected(tmp_path: Path, ep: Episode) -> None:
+    ep.stamps_ns[5] = ep.stamps_ns[4]
+    with pytest.raises(ValueError, match="strictly increasing at row 5"):
+        write_episode(tmp_path / "a", ep)
+    ep2 = make_episode()
+    ep2.meta.world_mode = "moon"
+    with pytest.raises(ValueError, match="world_mode"):
+        write_episode(tmp_path / "b", ep2)
+    assert list(tmp_path.iterdir()) == []
+
+
+def _fail_after(monkeypatch, calls: int) -> None:
+    real = TYPESTORE.serialize_cdr
+    count = {"n": 0}
+
+    def flaky(*args, **kwargs):
+        count["n"] += 1
+        if count["n"] > calls:
+            raise RuntimeError("injected serializer failure")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(TYPESTORE, "serialize_cdr", flaky)
+
+
+def test_failed_write_leaves_nothing(tmp_path: Path, ep: Episode, monkeypatch) -> None:
+    _fail_after(monkeypatch, 55 * len(EPISODE_TOPICS) + 3)
+    with pytest.raises(RuntimeError, match="injected"):
+        write_episode(tmp_path / "ep", ep)
+    assert list(tmp_path.iterdir()) == []
+    assert find_episode_bags(tmp_path) == []
+
+
+def test_overwrite(tmp_path: Path, ep: Episode, monkeypatch) -> None:
+    bag = write_episode(tmp_path / "ep", ep)
+    other = make_episode(seed=1)
+    with pytest.raises(FileExistsError, match="overwrite"):
+        write_episode(bag, other)
+    _fail_after(monkeypatch, 10)
+    with pytest.raises(RuntimeError, match="injected"):
+        write_episode(bag, other, overwrite=True)
+    monkeypatch.undo()
+    assert_same(ep, read_episode(bag))  # failed overwrite kept the old bag
+    write_episode(bag, other, overwrite=True)
+    assert_same(other, read_episode(bag))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ep"]
+    (tmp_path / "notabag").mkdir()
+    (tmp_path / "notabag" / "precious.txt").write_text("x")
+    with pytest.raises(FileExistsError, match="not a rosbag2 bag"):
+        write_episode(tmp_path / "notabag", ep, overwrite=True)
+
+
+def test_failed_final_rename_restores_old_bag(tmp_path: Path, ep: Episode, monkeypatch) -> None:
+    bag = write_episode(tmp_path / "ep", ep)
+    real = bag_io.os.replace
+
+    def failing(src, dst):
+        if Path(src) == tmp_path / "ep.partial" / "ep":
+            raise OSError("injected rename failure")
+        return real(src, dst)
+
+    monkeypatch.setattr(bag_io.os, "replace", failing)
+    with pytest.raises(OSError, match="injected"):
+        write_episode(bag, make_episode(seed=3), overwrite=True)
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ep"]
+    assert_same(ep, read_episode(bag))
+
+
+def test_stale_partial_is_ignored_and_replaced(tmp_path: Path, ep: Episode) -> None:
+    stale = write_raw(tmp_path / "ep.partial" / "ep", ep)  # looks like a bag, inside staging
+    assert find_episode_bags(tmp_path) == []
+    with pytest.raises(ValueError, match="unfinished"):
+        read_episode(tmp_path / "ep.partial")
+    write_episode(tmp_path / "ep", ep)
+    assert not stale.exists() and find_episode_bags(tmp_path) == [tmp_path / "ep"]
+
+
+def test_missing_topic_named(tmp_path: Path, ep: Episode) -> None:
+    bag = write_raw(tmp_path / "nof", ep, skip=lambda topic, i: topic == "/blade/force")
+    with pytest.raises(ValueError, match="/blade/force"):
+        read_episode(bag)
+
+
+def test_missing_tick_named(tmp_path: Path, ep: Episode) -> None:
+    bag = write_raw(tmp_path / "gap", ep, skip=lambda topic, i: topic == "/blade/twist" and i == 7)
+    with pytest.raises(ValueError, match=rf"/blade/twist has no message for tick stamp {ep.stamps_ns[7]} ns"):
+        read_episode(bag)
+
+
+def test_label_mismatch_in_bag_named(tmp_path: Path, ep: Episode) -> None:
+    wrong = make_labelled(TYPESTORE, int(ep.stamps_ns[3]), ("u_za", "u_zr"), [0.0, 0.0])
+    bag = write_raw(tmp_path / "lab", ep, replace=(("/blade/cmd", 3), wrong))
+    with pytest.raises(ValueError, match=r"/blade/cmd: label mismatch"):
+        read_episode(bag)
+
+
+def test_missing_episode_metadata(tmp_path: Path, ep: Episode) -> None:
+    bag = write_raw(tmp_path / "nometa", ep, meta=False)
+    with pytest.raises(ValueError, match="no episode metadata"):
+        read_episode(bag)
+
+
+def test_read_errors(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        read_episode(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="not a rosbag2 directory"):
+        read_episode(tmp_path / "empty")
+    with pytest.raises(ValueError, match=f"no bags found under {tmp_path / 'empty'}"):
+        read_dataset(tmp_path / "empty")
+    with pytest.raises(FileNotFoundError):
+        read_dataset(tmp_path / "nope")
+
+
+def test_read_dataset_finds_nested_bags(tmp_path: Path) -> None:
+    eps = [make_episode(n=30 + 10 * k, seed=k) for k in range(3)]
+    paths = [tmp_path / "b" / "x", tmp_path / "a", tmp_path / "b" / "c" / "y"]
+    for p, e in zip(paths, eps):
+        write_episode(p, e)
+    (tmp_path / "b" / "notes").mkdir()
+    assert find_episode_bags(tmp_path) == sorted(paths)
+    assert find_episode_bags(paths[1]) == [paths[1]]
+    got = read_dataset(tmp_path, progress=True)
+    by_seed = {e.meta.seed: e for e in got}
+    assert [e.meta.seed for e in got] == [1, 2, 0]  # sorted path order: a, b/c/y, b/x
+    for e in eps:
+        assert_same(e, by_seed[e.meta.seed])
+
+
+def test_600_ticks_read_fast(tmp_path: Path) -> None:
+    ep = make_episode(n=600)
+    bag = write_episode(tmp_path / "long", ep)
+    t0 = time.perf_counter()
+    back = read_episode(bag)
+    assert time.perf_counter() - t0 < 1.0
+    assert_same(ep, back)
+
+
+def test_mapping_works_with_ros_message_classes(ep: Episode) -> None:
+    """Same builders/parsers on the real ROS 2 Python message classes (what rclpy nodes publish)."""
+    pytest.importorskip("geometry_msgs.msg")
+    ros = messages.ros_message_classes()
+    i = 4
+    for name, f in messages.FIELDS.items():
+        values = messages.topic_rows(ep, name)[i].tolist()
+        msg = messages.build_message(ros, name, int(ep.stamps_ns[i]), values)
+        assert type(msg) is ros[f.topic.msgtype]
+        stamp, back = messages.parse_message(name, msg)
+        assert stamp == ep.stamps_ns[i] and back.tolist() == values, name
+
+
+def test_no_rclpy_import() -> None:
+    code = "import sys, soil_bag_tools.bag_io; sys.exit('rclpy' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

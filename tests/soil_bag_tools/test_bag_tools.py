@@ -1,0 +1,484 @@
+"""soil_bag_play / soil_bag_record / soil_bag_repair: real processes, real DDS, real MCAP files.
+
+The tools run as the venv's console scripts; this process hosts its own rclpy node (own
+context) to listen and to publish ``/sim/status``. DDS stays on loopback
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) with one ROS_DOMAIN_ID per test. The unit tests
+at the top need no DDS: stamp routing, whole-tick trimming, journal -> bag conversion and
+repair of truncated journals.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rosbags.highlevel import AnyReader
+
+from soil_bringup.launch import loopback_env
+from soil_bag_tools import bag_io, journal, playback, recorder
+from soil_msgs_py import graph
+from soil_msgs_py.topics import EPISODE_TOPICS
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLES = ROOT / "bags" / "samples"
+SAMPLE = SAMPLES / "default_loam_id060_v0.50_d0.200_s7"
+BIN = Path(sys.executable).parent
+TOPICS = [t.name for t in EPISODE_TOPICS]
+TICK_NS = 1_000_000_000 // 60
+ARRAYS = ("stamps_ns", "observations", "forces", "known", "truth", "extras")
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def sample_messages(bag: Path = SAMPLE) -> list[tuple[int, str, bytes]]:
+    return playback.load_bag(bag).messages
+
+
+def assert_same_episode(got: bag_io.Episode, want: bag_io.Episode, n: int | None = None) -> None:
+    n = len(want) if n is None else n
+    assert len(got) == n
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name)[:n], err_msg=name)
+    assert got.meta == want.meta
+
+
+# --- unit tests (no DDS) ------------------------------------------------------------------
+
+class ListLog:
+    def __init__(self):
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level):
+        return lambda msg: self.lines.append((level, msg))
+
+
+def _events(bag: Path, episode: int = 0):
+    loaded = playback.load_bag(bag)
+    start, end = playback.episode_events(loaded, episode)
+    return loaded, start, end
+
+
+def test_recorder_routes_by_stamp_across_overlapping_replays(tmp_path):
+    """Two replays of one bag (stamps restart at 0): the first episode's late backlog still goes
+    to it, the second's messages to the second; duplicates and strays are dropped."""
+    loaded, start, end = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 30]  # 30 ticks
+    end = replace(end, last_stamp_ns=msgs[-1][0], ticks=30)
+    start2 = replace(start, episode=1)
+    end2 = replace(end, episode=1)
+    now = [0.0]
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, {t: loaded.topics[t] for t in TOPICS}, end_grace_s=1.0, log=log,
+                            clock=lambda: now[0])
+    rec.on_message("/clock", msgs[0][2], 0)  # before its episode_start: held, then routed
+    rec.on_status(start.to_json())
+    late = [m for m in msgs[1:] if m[1] == "/blade/cmd"]  # this topic lags behind
+    for t, topic, raw in msgs[1:]:
+        if topic != "/blade/cmd":
+            rec.on_message(topic, raw, 0)
+    rec.on_status(end.to_json())
+    rec.on_status(start2.to_json())
+    rec.on_message("/clock", msgs[0][2], 0)  # episode 2 starts at stamp 0 again
+    for t, topic, raw in late:
+        rec.on_message(topic, raw, 0)
+    assert [r.path.name for r in rec.finished] == [SAMPLE.name]  # episode 1 complete
+    rec.on_message("/clock", msgs[0][2], 0)  # duplicate in episode 2
+    for t, topic, raw in msgs[1:]:
+        rec.on_message(topic, raw, 0)
+    rec.on_status(end2.to_json())
+    assert [r.path.name for r in rec.finished] == [SAMPLE.name, SAMPLE.name + "_2"]
+    want = bag_io.read_episode(SAMPLE)
+    for r in rec.finished:
+        assert_same_episode(bag_io.read_episode(r.path), want, 30)
+    assert any("duplicate /clock" in m for lvl, m in log.lines if lvl == "warning")
+    assert any("exists; recording to" in m for lvl, m in log.lines)
+    info = json.loads(yaml.safe_load((rec.finished[1].path / "metadata.yaml").read_text())
+                      ["rosbag2_bagfile_information"]["custom_data"][journal.RECORDER_INFO_KEY])
+    assert info["duplicates"] == 1 and info["end"] == "completed" and info["written_messages"] == 300
+    rec.on_status("{not json")  # a bad status is logged, not fatal
+    assert any("not JSON" in m for lvl, m in log.lines if lvl == "warning")
+    rec.on_message("/clock", msgs[0][2], 0)  # outside any episode: held, then expired
+    now[0] = 5.0
+    rec.poll()
+    assert rec.dropped["outside_episode"] == 1
+    assert rec.close() == [] and not list(tmp_path.glob("*.partial"))
+
+
+def test_recorder_grace_timeout_trims_to_whole_ticks(tmp_path):
+    loaded, start, end = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 20]
+    end = replace(end, last_stamp_ns=msgs[-1][0], ticks=20)
+    now = [0.0]
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: now[0])
+    rec.on_status(start.to_json())
+    for t, topic, raw in msgs[:-3]:  # the last tick lacks 3 topics
+        rec.on_message(topic, raw, 0)
+    rec.on_status(end.to_json())
+    assert rec.poll() == []
+    now[0] = 0.6
+    (r,) = rec.poll()
+    assert r.ticks == 19 and r.dropped == 7
+    assert any("short topics" in m for lvl, m in log.lines if lvl == "warning")
+    assert_same_episode(bag_io.read_episode(r.path), bag_io.read_episode(SAMPLE), 19)
+
+
+def test_whole_tick_cutoff():
+    assert journal.whole_tick_cutoff({"a": [1, 2, 3], "b": [1, 2]}) == 2
+    assert journal.whole_tick_cutoff({"a": [1, 2, 3], "b": [1, 3], "c": []}) == 3  # middle gap kept
+    assert journal.whole_tick_cutoff({"a": [2], "b": [1]}) is None
+    assert journal.whole_tick_cutoff({"a": []}) is None
+
+
+def _journal_from_sample(tmp_path: Path, n_msgs: int, flush_every: int):
+    """A journal holding the sample's first ``n_msgs`` messages, flushed every ``flush_every``."""
+    loaded = playback.load_bag(SAMPLE)
+    partial = journal.partial_dir(tmp_path, journal.claim_name(tmp_path, SAMPLE.name))
+    w = journal.JournalWriter(journal.journal_path(partial), {bag_io.META_KEY: loaded.meta.to_json()})
+    for topic, msgtype in loaded.topics.items():
+        w.add_channel(topic, msgtype, [recorder.rosbags_qos(graph.DATA_QOS)])
+    for i, (t, topic, raw) in enumerate(loaded.messages[:n_msgs]):
+        w.write(topic, t, raw)
+        if (i + 1) % flush_every == 0:
+            w.flush()
+    return partial, w
+
+
+def test_truncated_journal_repairs_to_last_flushed_chunk(tmp_path):
+    partial, w = _journal_from_sample(tmp_path, n_msgs=900, flush_every=150)  # 6 chunks, 90 ticks
+    jpath = journal.journal_path(partial)
+    flushed = jpath.stat().st_size
+    for t, topic, raw in sample_messages()[900:1005]:
+        w.write(topic, t, raw)
+    w.flush()  # a 7th chunk; then the writer "dies" (no close) while the chunk is half on disk
+    with open(jpath, "r+b") as f:
+        f.truncate((flushed + jpath.stat().st_size) // 2)
+    r = journal.journal_to_bag(partial, info_key=journal.REPAIR_INFO_KEY)
+    assert r.recovered == 900 and r.ticks == 90 and r.dropped == 0 and not r.journal_complete
+    assert "EndOfFile" in r.stop
+    assert_same_episode(bag_io.read_episode(r.path), bag_io.read_episode(SAMPLE), 90)
+    assert not partial.exists()
+    info = json.loads(yaml.safe_load((r.path / "metadata.yaml").read_text())
+                      ["rosbag2_bagfile_information"]["custom_data"][journal.REPAIR_INFO_KEY])
+    assert info["recovered_messages"] == 900 and info["last_stamp_ns"] == sample_messages()[899][0]
+
+
+def test_repair_cli_keep_partial_ticks_and_nothing_recoverable(tmp_path):
+    partial, w = _journal_from_sample(tmp_path, n_msgs=205, flush_every=205)
+    out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path), "--keep-partial-ticks"],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "repaired" in out.stdout and "205 messages" in out.stdout
+    with AnyReader([tmp_path / SAMPLE.name]) as reader:
+        assert reader.message_count == 205
+    empty = tmp_path / "empty.partial"
+    empty.mkdir()
+    (empty / "empty.mcap").write_bytes(b"\x89MCAP0\r\n\x01")  # killed right after the magic
+    out = subprocess.run([BIN / "soil_bag_repair", str(empty), str(tmp_path / "nope")],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode != 0
+    assert "nothing recoverable" in out.stderr and "no complete chunk" in out.stderr
+    assert "nope does not exist" in out.stderr
+    assert empty.exists()  # kept for a later attempt
+
+
+def test_pacer_deadlines_do_not_drift():
+    """Fake clock: sleep overshoots by 0.1 ms, each clock read costs 1 us; no error accumulates."""
+    clock = [0.0]
+
+    def now():
+        clock[0] += 1e-6
+        return clock[0]
+
+    pacer = playback.Pacer(2.0, now=now, sleep=lambda s: clock.__setitem__(0, clock[0] + s + 1e-4))
+    pacer.begin(1_000_000_000, start=10.0)
+    for k in range(1, 100):
+        assert pacer.wait(1_000_000_000 + k * TICK_NS) < 1e-5
+        assert clock[0] == pytest.approx(10.0 + k * TICK_NS * 1e-9 / 2, abs=1e-5)
+
+
+def test_with_clock_replaces_bag_clock():
+    msgs = sample_messages()[:60]  # 6 ticks
+    out = list(playback.with_clock(msgs, 120.0))
+    clocks = [t for t, topic, _ in out if topic == "/clock"]
+    assert clocks == [round(k * 1e9 / 120) for k in range(len(clocks))] and len(clocks) == 11
+    assert [m for m in out if m[1] != "/clock"] == [m for m in msgs if m[1] != "/clock"]
+    assert all(a[0] <= b[0] for a, b in zip(out, out[1:]))
+
+
+# --- processes on the loopback DDS ---------------------------------------------------------
+
+def ros_env(domain: int) -> dict[str, str]:
+    return loopback_env(domain)
+
+
+def start(tool: str, *args, domain: int) -> subprocess.Popen:
+    return subprocess.Popen([str(BIN / tool), *map(str, args)], env=ros_env(domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def finish(proc: subprocess.Popen, timeout: float = 30) -> str:
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate(timeout=5)
+        raise AssertionError(f"{proc.args[0]} did not end within {timeout} s:\n{out}") from None
+    return out
+
+
+def reap(*procs: subprocess.Popen | None) -> None:
+    """Kill whatever a failed test left running."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=5)
+
+
+class Listener:
+    """An rclpy node in this process (own context): raw subscriber to every episode topic."""
+
+    def __init__(self, domain: int, topics=TOPICS, status_sub: bool = True):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import String
+
+        from soil_msgs_py.ros_adapter import message_class, qos_profile
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("test_listener", context=self.context)
+        self.received: list[tuple[int, str, bytes]] = []  # (perf_counter_ns, topic, raw)
+        self.status: list[dict] = []
+        qos = qos_profile(graph.RECORDER_QOS)
+        for topic in topics:
+            mt = next(t.msgtype for t in EPISODE_TOPICS if t.name == topic)
+            self.node.create_subscription(
+                message_class(mt), topic,
+                lambda raw, topic=topic: self.received.append((time.perf_counter_ns(), topic, raw)), qos, raw=True)
+        if status_sub:
+            self.node.create_subscription(String, graph.SIM_STATUS_TOPIC,
+                                          lambda m: self.status.append(json.loads(m.data)),
+                                          qos_profile(graph.CONTROL_QOS))
+        self.status_pub = self.node.create_publisher(String, graph.SIM_STATUS_TOPIC, qos_profile(graph.CONTROL_QOS))
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - context shut down under us
+                return
+
+    def count(self, topic: str) -> int:
+        return sum(1 for _, t, _ in list(self.received) if t == topic)
+
+    def publish_status(self, text: str) -> None:
+        from std_msgs.msg import String
+
+        self.status_pub.publish(String(data=text))
+
+    def wait_for(self, cond, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if cond():
+                return True
+            time.sleep(0.02)
+        return cond()
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=1.0)
+        self.rclpy.shutdown(context=self.context)
+        self.thread.join(timeout=2)
+        self.node.destroy_node()
+
+
+@pytest.fixture
+def listener(monkeypatch):
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # read when the participant is made
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    made = []
+
+    def make(domain: int, **kw) -> Listener:
+        made.append(Listener(domain, **kw))
+        return made[-1]
+
+    yield make
+    for lst in made:
+        lst.close()
+
+
+def timing_errors_ms(received, bag_msgs, rate: float) -> np.ndarray:
+    """error_i = (recv_i - recv_0) - (t_i - t_0) / rate, pairing each topic's k-th message."""
+    by_topic: dict[str, list[int]] = {}
+    for recv, topic, _ in received:
+        by_topic.setdefault(topic, []).append(recv)
+    k: dict[str, int] = {}
+    pairs = []
+    for t, topic, _ in bag_msgs:
+        i = k.get(topic, 0)
+        k[topic] = i + 1
+        pairs.append((t, by_topic[topic][i]))
+    t0, r0 = pairs[0]
+    return np.array([((r - r0) - (t - t0) / rate) * 1e-6 for t, r in pairs])
+
+
+def test_replay_delivers_every_message_in_order_on_time(listener):
+    lst = listener(101)
+    bag_msgs = sample_messages()
+    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=101)
+    out = finish(player)
+    assert player.returncode == 0, out
+    assert lst.wait_for(lambda: len(lst.received) >= len(bag_msgs), 5), f"{len(lst.received)} received\n{out}"
+    for topic in TOPICS:  # every message, byte for byte, in order
+        assert [bytes(r) for _, t, r in lst.received if t == topic] == [r for _, t, r in bag_msgs if t == topic]
+    err = timing_errors_ms(lst.received, bag_msgs, 1.0)
+    p50, p99, mx = np.percentile(np.abs(err), 50), np.percentile(np.abs(err), 99), np.abs(err).max()
+    print(f"\nreplay timing error at rate 1: p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {mx:.3f} ms")
+    assert p99 < 2.0, out
+    assert [s["event"] for s in lst.status] == ["episode_start", "episode_end"]
+    assert lst.status[0]["name"] == SAMPLE.name and lst.status[1]["reason"] == "end_of_bag"
+    assert lst.status[1]["last_stamp_ns"] == bag_msgs[-1][0] and lst.status[1]["ticks"] == 600
+
+
+def test_replay_rate_2_topic_selection(listener):
+    lst = listener(102)
+    bag_msgs = [m for m in sample_messages() if m[1] in ("/blade/force", "/clock")]
+    player = start("soil_bag_play", SAMPLE, "--rate", 2, "--topics", "/blade/force", "/clock",
+                   "--wait-for-subscribers", 1, domain=102)
+    t0 = time.monotonic()
+    out = finish(player)
+    assert player.returncode == 0, out
+    assert lst.wait_for(lambda: len(lst.received) >= len(bag_msgs), 5), out
+    assert sorted({t for _, t, _ in lst.received}) == ["/blade/force", "/clock"]
+    assert len(lst.received) == len(bag_msgs) == 1200
+    err = timing_errors_ms(lst.received, bag_msgs, 2.0)
+    print(f"\nreplay timing error at rate 2: p50 {np.percentile(np.abs(err), 50):.3f} ms, "
+          f"p99 {np.percentile(np.abs(err), 99):.3f} ms, max {np.abs(err).max():.3f} ms")
+    assert np.percentile(np.abs(err), 99) < 2.0
+    assert time.monotonic() - t0 < 9.0  # 10 s of bag at rate 2 (+ start-up)
+    assert [s["event"] for s in lst.status] == ["episode_start", "episode_end"]
+
+
+def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp_path):
+    lst = listener(103, topics=(), status_sub=False)  # only publishes /sim/status
+    rec = start("soil_bag_record", "--out", tmp_path, domain=103)
+    player = None
+    try:
+        assert lst.wait_for(lambda: lst.status_pub.get_subscription_count() >= 1, 10), "recorder never subscribed"
+        lst.publish_status("{this is not json")
+        lst.publish_status(json.dumps({"event": "episode_start"}))
+        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=103)
+        out = finish(player)
+        assert player.returncode == 0, out
+        bag = tmp_path / SAMPLE.name
+        assert lst.wait_for(lambda: bag_io.is_bag(bag), 5)
+        rec.send_signal(signal.SIGINT)
+        log = finish(rec)
+    finally:
+        reap(rec, player)
+    assert rec.returncode == 0, log
+    assert "ignoring bad /sim/status message: /sim/status: not JSON" in log
+    assert "ignoring bad /sim/status message: /sim/status: episode=None must be a non-negative integer" in log
+    assert f"finished (completed) {bag}: 600 ticks, 6000 messages (600 on each of 10 topics), 0 dropped" in log
+    assert_same_episode(bag_io.read_episode(bag), bag_io.read_episode(SAMPLE))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [SAMPLE.name]  # no journal left
+
+
+def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
+    """Two recorders on one replay: SIGINT -> a trimmed, valid bag; SIGKILL -> .partial -> repair."""
+    lst = listener(104, topics=("/blade/cmd",))  # the last topic of each tick
+    a, b = tmp_path / "sigint", tmp_path / "sigkill"
+    rec_int = start("soil_bag_record", "--out", a, domain=104)
+    rec_kill = start("soil_bag_record", "--out", b, domain=104)
+    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 2, domain=104)
+    try:
+        assert lst.wait_for(lambda: lst.count("/blade/cmd") >= 240, 15), "replay did not reach 4 s"
+        rec_kill.send_signal(signal.SIGKILL)
+        rec_int.send_signal(signal.SIGINT)
+        seen = lst.count("/blade/cmd")  # whole ticks this process had received by then
+        log = finish(rec_int)  # the player is still playing: the recorder stops mid-episode
+        player.send_signal(signal.SIGINT)
+        play_log = finish(player)
+    finally:
+        reap(rec_kill, rec_int, player)
+    assert player.returncode == 0, play_log
+    assert rec_int.returncode == 0, log
+    want = bag_io.read_episode(SAMPLE)
+
+    (bag,) = bag_io.find_episode_bags(a)
+    with AnyReader([bag]) as reader:  # a complete, valid rosbag2 bag
+        assert reader.message_count % 10 == 0 and reader.message_count > 0
+    got = bag_io.read_episode(bag)  # trimmed to whole ticks
+    assert_same_episode(got, want, len(got))
+    assert len(got) >= seen - 30, (len(got), seen)  # the recorder may be a few ticks behind the listener
+    assert "finished (stopped)" in log
+
+    assert rec_kill.returncode == -signal.SIGKILL
+    assert not bag_io.find_episode_bags(b) and [p.name for p in b.iterdir()] == [SAMPLE.name + ".partial"]
+    out = subprocess.run([BIN / "soil_bag_repair", b], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    repaired = bag_io.read_episode(b / SAMPLE.name)
+    assert_same_episode(repaired, want, len(repaired))
+    loss = seen - len(repaired)
+    print(f"\nSIGKILL at {seen} ticks: {len(repaired)} recovered, loss {loss} ticks; SIGINT bag {len(got)} ticks")
+    assert loss < 60, out.stdout
+
+
+def test_bad_inputs(tmp_path):
+    out = subprocess.run([BIN / "soil_bag_play", tmp_path / "missing"], env=ros_env(105),
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "no such bag or directory" in out.stderr
+    (tmp_path / "file.txt").write_text("x")
+    out = subprocess.run([BIN / "soil_bag_play", tmp_path / "file.txt"], env=ros_env(105),
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "not a rosbag2 bag directory" in out.stderr
+    out = subprocess.run([BIN / "soil_bag_play", tmp_path], env=ros_env(105),
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "contains no bags" in out.stderr
+    out = subprocess.run([BIN / "soil_bag_repair", tmp_path], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 1 and "no *.partial journal directory inside" in out.stderr
+
+
+def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
+    """Three bags whose stamps all start at 0, played back to back at rate 5: the episode
+    recorder writes the same three bags; a --no-split recorder writes one bag of everything."""
+    lst = listener(106, topics=(), status_sub=False)
+    split, whole = tmp_path / "split", tmp_path / "whole"
+    rec = start("soil_bag_record", "--out", split, domain=106)
+    rec_all = start("soil_bag_record", "--out", whole, "--no-split", domain=106)
+    player = None
+    try:
+        player = start("soil_bag_play", SAMPLES, "--rate", 5, "--wait-for-subscribers", 2, domain=106)
+        play_log = finish(player)
+        assert player.returncode == 0, play_log
+        assert lst.wait_for(lambda: len(bag_io.find_episode_bags(split)) == 3, 5), play_log
+        for proc in (rec, rec_all):
+            proc.send_signal(signal.SIGINT)
+        log, log_all = finish(rec), finish(rec_all)
+    finally:
+        reap(rec, rec_all, player)
+    assert rec.returncode == 0 and rec_all.returncode == 0, log + log_all
+    samples = bag_io.find_episode_bags(SAMPLES)
+    assert [b.name for b in bag_io.find_episode_bags(split)] == [b.name for b in samples]
+    for bag in samples:
+        assert_same_episode(bag_io.read_episode(split / bag.name), bag_io.read_episode(bag))
+    (bag,) = bag_io.find_episode_bags(whole)
+    assert bag.name.startswith("record_")
+    with AnyReader([bag]) as reader:
+        assert reader.message_count == 3 * 6000
+    assert bag_io.META_KEY not in yaml.safe_load((bag / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]["custom_data"]

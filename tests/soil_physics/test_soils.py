@@ -1,0 +1,294 @@
+"""Soil catalogue (Clay, Loam, Sand, Gravel; relative density I_d) and custom YAML soils.
+
+Reference numbers are the paper's Table 1 normalisation ranges, typed in here from the paper
+(not read from ``params``), and the published correlations cited by ``soils``.
+"""
+from __future__ import annotations
+
+import math
+import textwrap
+
+import numpy as np
+import pytest
+
+from soil_physics import soils
+from soil_msgs_py.params import TABLE1
+from soil_physics.soils import CATALOGUE, SoilType, get_soil, load_soil_yaml, soil_from_dict
+
+# Paper Table 1 normalisation ranges (phi in deg, c in Pa, gamma in N/m^3).
+PHI_NORM_DEG = (17.0, 45.0)
+C_NORM_PA = (0.0, 10e3)
+GAMMA_NORM = (14e3, 22e3)
+NAMES = ("Clay", "Loam", "Sand", "Gravel")
+
+
+def test_table1_ranges_used_by_params_match_the_paper():
+    assert np.allclose(np.degrees(TABLE1["phi"].norm), PHI_NORM_DEG)
+    assert TABLE1["c"].norm == C_NORM_PA
+    assert TABLE1["gamma"].norm == GAMMA_NORM
+
+
+def test_catalogue_has_the_four_default_soils():
+    assert set(NAMES) <= set(CATALOGUE)
+    for name in NAMES:
+        s = CATALOGUE[name]
+        assert isinstance(s, SoilType) and s.name == name
+    assert set(soils.COHESIVE_SOILS) == {"Clay", "Loam"}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_properties_non_decreasing_in_relative_density(name):
+    i_d = np.linspace(0.0, 100.0, 201)
+    p = CATALOGUE[name].at(i_d)
+    for field in ("phi", "c", "gamma"):
+        arr = np.asarray(getattr(p, field))
+        assert arr.shape == i_d.shape
+        assert np.all(np.diff(arr) >= 0), (name, field)
+    # stronger interlocking when dense: friction angle and unit weight strictly higher
+    assert p.phi[-1] > p.phi[0] and p.gamma[-1] > p.gamma[0]
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("i_d", [0.0, 100.0, 37.5])
+def test_values_inside_table1_normalisation_ranges_in_si(name, i_d):
+    p = CATALOGUE[name].at(i_d)
+    assert isinstance(p.phi, float) and isinstance(p.c, float) and isinstance(p.gamma, float)
+    phi_deg = p.phi * 180.0 / math.pi  # SI: radians inside
+    assert PHI_NORM_DEG[0] <= phi_deg <= PHI_NORM_DEG[1]
+    assert C_NORM_PA[0] <= p.c <= C_NORM_PA[1]
+    assert GAMMA_NORM[0] <= p.gamma <= GAMMA_NORM[1]
+
+
+@pytest.mark.parametrize("name", ["Sand", "Gravel"])
+def test_cohesionless_soils(name):
+    p = CATALOGUE[name].at(np.linspace(0, 100, 11))
+    assert np.all(np.asarray(p.c) == 0.0)
+
+
+@pytest.mark.parametrize("name", ["Clay", "Loam"])
+def test_cohesive_soils_have_cohesion(name):
+    assert CATALOGUE[name].at(0.0).c > 0 and CATALOGUE[name].at(100.0).c > CATALOGUE[name].at(0.0).c
+
+
+def test_sand_follows_meyerhof():
+    """Meyerhof (1956), cited in soils.py: phi = 28 + 0.15 D_r [deg] for sand."""
+    for d_r in (0.0, 25.0, 50.0, 100.0):
+        assert CATALOGUE["Sand"].at(d_r).phi == pytest.approx(math.radians(28.0 + 0.15 * d_r), abs=1e-12)
+
+
+def test_linear_interpolation_and_array_input():
+    s = CATALOGUE["Clay"]
+    lo, hi, mid = s.at(0), s.at(100), s.at(50)
+    for f in ("phi", "c", "gamma"):
+        assert getattr(mid, f) == pytest.approx(0.5 * (getattr(lo, f) + getattr(hi, f)), rel=1e-12)
+    arr = s.at([0, 25, 100])
+    np.testing.assert_allclose(arr.c, [lo.c, 0.75 * lo.c + 0.25 * hi.c, hi.c], rtol=1e-12)
+    grid = s.at(np.full((2, 3), 50.0))
+    assert np.shape(grid.gamma) == (2, 3) and np.allclose(grid.gamma, mid.gamma)
+
+
+@pytest.mark.parametrize("name", ["clay", "CLAY", "cLaY", "Clay", "gravel", "SAND", "loam"])
+def test_get_soil_case_insensitive(name):
+    s = get_soil(name)
+    assert s.name.lower() == name.lower() and s is CATALOGUE[s.name]
+
+
+def test_unknown_soil_names_it_and_lists_known():
+    with pytest.raises(ValueError) as exc:
+        get_soil("Peat")
+    msg = str(exc.value)
+    assert "Peat" in msg
+    for name in NAMES:
+        assert name in msg
+
+
+@pytest.mark.parametrize("bad", [-1.0, 100.5, float("nan"), float("inf"), -1e-9, [0.0, 50.0, 101.0], [np.nan, 5.0]])
+def test_relative_density_out_of_range(bad):
+    with pytest.raises(ValueError, match="relative_density_pct"):
+        CATALOGUE["Loam"].at(bad)
+
+
+def test_relative_density_edges_accepted():
+    for i_d in (0, 100, 0.0, 100.0, np.float32(100.0)):
+        CATALOGUE["Loam"].at(i_d)
+
+
+# ----------------------------------------------------------------------------------------
+# Custom YAML soils.
+# ----------------------------------------------------------------------------------------
+def write(tmp_path, text, name="soil.yaml"):
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+VALID_ONE = """\
+name: SiltyClay
+phi_deg: [20, 30]           # loose, dense
+cohesion_pa: [3000, 9000]
+unit_weight_n_m3: [16000, 20000]
+"""
+
+
+def test_load_single_soil(tmp_path):
+    out = load_soil_yaml(write(tmp_path, VALID_ONE))
+    assert list(out) == ["SiltyClay"]
+    s = out["SiltyClay"]
+    assert s.loose.phi == pytest.approx(math.radians(20)) and s.dense.phi == pytest.approx(math.radians(30))
+    assert (s.loose.c, s.dense.c) == (3000.0, 9000.0)
+    assert (s.loose.gamma, s.dense.gamma) == (16000.0, 20000.0)
+    assert s.at(50).phi == pytest.approx(math.radians(25))
+    # usable through get_soil, case-insensitively, next to the catalogue
+    assert get_soil("siltyclay", out) is s
+    assert get_soil("Clay", out) is CATALOGUE["Clay"]
+    with pytest.raises(ValueError, match="SiltyClay"):  # listed among the known soils
+        get_soil("Peat", out)
+
+
+def test_load_string_path_and_list_of_soils(tmp_path):
+    p = write(tmp_path, """\
+        - name: Silt
+          phi_deg: [26, 34]
+          cohesion_pa: [0, 2000]
+          unit_weight_n_m3: [16000, 19000]
+          source: my lab
+        - name: "  Peat  "
+          phi_deg: [5.5, 12.0]
+          cohesion_pa: [500.0, 1500]
+          unit_weight_n_m3: [10000, 12000]
+        """)
+    out = load_soil_yaml(str(p))
+    assert set(out) == {"Silt", "Peat"}  # name stripped
+    assert out["Silt"].source == "my lab"
+    assert out["Peat"].loose.phi == pytest.approx(math.radians(5.5))
+    assert out["Peat"].dense.c == 1500.0
+
+
+@pytest.mark.parametrize("missing", ["phi_deg", "cohesion_pa", "unit_weight_n_m3"])
+def test_missing_key_names_it(tmp_path, missing):
+    lines = [line for line in VALID_ONE.splitlines() if not line.startswith(missing)]
+    with pytest.raises(ValueError, match=missing):
+        load_soil_yaml(write(tmp_path, "\n".join(lines)))
+
+
+@pytest.mark.parametrize("name_line", ["", "name: 5", "name: ''", "name: [a, b]", "name:   "])
+def test_bad_name_names_it(tmp_path, name_line):
+    text = VALID_ONE.replace("name: SiltyClay", name_line)
+    with pytest.raises(ValueError, match="name"):
+        load_soil_yaml(write(tmp_path, text))
+
+
+def with_field(field: str, value: str) -> str:
+    """VALID_ONE with the line of ``field`` replaced by ``field: value``."""
+    return "\n".join(f"{field}: {value}" if line.startswith(field) else line for line in VALID_ONE.splitlines())
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("phi_deg", "[twenty, 30]"),
+        ("phi_deg", "['20', 30]"),
+        ("cohesion_pa", "[null, 1000]"),
+        ("unit_weight_n_m3", "[{a: 1}, 20000]"),
+        ("phi_deg", "[.nan, 30]"),
+        ("cohesion_pa", "[0, .inf]"),
+    ],
+)
+def test_wrong_type_names_field(tmp_path, field, value):
+    text = with_field(field, value)
+    with pytest.raises(ValueError, match=field):
+        load_soil_yaml(write(tmp_path, text))
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("phi_deg", "[20, 95]"),
+        ("phi_deg", "[-1, 30]"),
+        ("phi_deg", "[20, 90]"),  # tan(90 deg) is singular: the limit is open
+        ("cohesion_pa", "[-10, 1000]"),
+        ("unit_weight_n_m3", "[0, 20000]"),
+        ("unit_weight_n_m3", "[16000, 1.0e9]"),
+    ],
+)
+def test_out_of_range_names_field(tmp_path, field, value):
+    text = with_field(field, value)
+    with pytest.raises(ValueError, match=field):
+        load_soil_yaml(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("value", ["30", "[30]", "[20, 25, 30]", "{loose: 20, dense: 30}", "'20, 30'"])
+def test_non_pair_names_field(tmp_path, value):
+    text = VALID_ONE.replace("phi_deg: [20, 30]", f"phi_deg: {value}")
+    with pytest.raises(ValueError, match="phi_deg"):
+        load_soil_yaml(write(tmp_path, text))
+
+
+def test_invalid_yaml_names_path(tmp_path):
+    p = write(tmp_path, "name: [unclosed\nphi_deg: {a: \n", name="broken.yaml")
+    with pytest.raises(ValueError) as exc:
+        load_soil_yaml(p)
+    assert str(p) in str(exc.value)
+
+
+def test_missing_file_names_path(tmp_path):
+    p = tmp_path / "nope" / "soil.yaml"
+    with pytest.raises(FileNotFoundError) as exc:
+        load_soil_yaml(p)
+    assert str(p) in str(exc.value)
+    with pytest.raises(FileNotFoundError):  # a directory is not a soil file
+        load_soil_yaml(tmp_path)
+
+
+@pytest.mark.parametrize("text", ["", "just a string\n", "- 1\n- 2\n", "[]\n"])
+def test_non_mapping_documents_rejected_cleanly(tmp_path, text):
+    """Empty file, scalar, list of scalars: a ValueError (not TypeError/AttributeError)."""
+    p = write(tmp_path, text)
+    if text == "[]\n":  # an empty list is "no soils", which is acceptable
+        assert load_soil_yaml(p) == {}
+        return
+    with pytest.raises(ValueError, match="mapping"):
+        load_soil_yaml(p)
+
+
+def test_soil_from_dict_rejects_non_mapping():
+    with pytest.raises(ValueError, match="mapping"):
+        soil_from_dict(["name", "x"])
+
+
+# ----------------------------------------------------------------------------------------
+# Regression tests for defects found in soils.py (now fixed).
+# ----------------------------------------------------------------------------------------
+def test_regression_boolean_accepted_as_number(tmp_path):
+    """Regression (soils._pair): ``isinstance(v, (int, float))`` is True for bool, so
+    ``phi_deg: [true, 30]`` (or YAML 1.1 ``yes``/``on``) silently loads phi_loose = 1 deg
+    instead of raising. Fixed: ValueError naming phi_deg."""
+    text = VALID_ONE.replace("phi_deg: [20, 30]", "phi_deg: [true, 30]")
+    with pytest.raises(ValueError, match="phi_deg"):
+        load_soil_yaml(write(tmp_path, text))
+
+
+def test_regression_custom_soil_shadowed_by_catalogue_case_variant():
+    """Regression (soils.get_soil): lookup is case-insensitive but the pool is keyed by exact
+    name, and the catalogue is searched first. A custom soil named ``sand`` is silently
+    ignored by ``get_soil('sand', custom)`` (the catalogue's Sand is returned), whereas one
+    named ``Sand`` overrides the catalogue. Fixed: the custom soil wins (as for the exact
+    name) or a ValueError reports the ambiguous name - never a silent choice by spelling."""
+    custom = soil_from_dict(dict(name="sand", phi_deg=[20, 30], cohesion_pa=[0, 0], unit_weight_n_m3=[15e3, 18e3]))
+    assert get_soil("Sand", {"Sand": custom}) is custom  # exact-case override works today
+    try:
+        got = get_soil("sand", {"sand": custom})
+    except ValueError:
+        return
+    assert got is custom
+
+
+def test_regression_exponent_notation_rejected(tmp_path):
+    """Regression (usability, soils.load_soil_yaml): PyYAML's YAML 1.1 resolver reads ``16e3``
+    and ``10e3`` (the paper's own notation, Table 1) as *strings*, so a natural soil file
+    ``unit_weight_n_m3: [16e3, 20e3]`` is rejected with "each value must be a number".
+    Fixed: exponent floats accepted (e.g. convert numeric strings, or a YAML 1.2 float
+    resolver)."""
+    text = VALID_ONE.replace("unit_weight_n_m3: [16000, 20000]", "unit_weight_n_m3: [16e3, 20e3]")
+    s = load_soil_yaml(write(tmp_path, text))["SiltyClay"]
+    assert (s.loose.gamma, s.dense.gamma) == (16e3, 20e3)

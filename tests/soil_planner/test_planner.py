@@ -1,0 +1,396 @@
+"""The deepest-cut planner: its core against hand-checked FEE physics, and the soil_planner node over DDS."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+
+from tests.ros_probe import NodeProc, RosProbe, next_domain_id, wait_until
+from soil_physics import fee
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
+from soil_planner.planner import MIN_ANCHOR_DEPTH_M, TOLERANCE_M, describe, max_cut_depth
+
+LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
+
+
+def _known(**over) -> dict[str, float]:
+    base = dict(c_a=200.0, gamma=17e3, rho=80 * DEG, alpha=0.0, w=3.164, d=0.1, q=0.0, v_x=0.5, v_z=0.0)
+    return {**base, **over}
+
+
+def _fee_xz(est: dict, known: dict, d) -> tuple[np.ndarray, np.ndarray]:
+    """FEE force at depth(s) d below the surface with the estimate's soil and the critical β, at
+    ``known``'s velocity; d' = d + Δd clamped to Table 1's [0, 0.66] m as the PINN does (model.py)."""
+    d_prime = np.clip(np.asarray(d, dtype=float) + est["delta_d"], *TABLE1["d"].limits)
+    theta = {**known, "phi": est["phi"], "c": est["c"], "delta": est["delta"], "d": d_prime}
+    fx, fz, _ = fee.fee_xz(theta)
+    return np.asarray(fx), np.asarray(fz)
+
+
+def _steady(known: dict, speed: float = 0.5) -> dict[str, float]:
+    """Θ_k at the planner's operating point: a level cut at ``speed`` (the default 0.5 m/s)."""
+    return {**known, "v_x": speed, "v_z": 0.0}
+
+
+def _estimate(known: dict, residual=(0.0, 0.0), **over) -> dict[str, float]:
+    """A valid estimate whose F̂ is the FEE at Θ_k's depth and velocity plus ``residual`` [N]."""
+    est = dict(phi=30 * DEG, c=0.0, delta=15 * DEG, beta=25 * DEG, delta_d=0.0, valid=1.0, window_samples=60.0)
+    est.update(over)
+    fx, fz = _fee_xz(est, known, known["d"])
+    est.update(f_x_fee=float(fx), f_z_fee=float(fz), f_x_r=residual[0], f_z_r=residual[1],
+               f_x_hat=float(fx) + residual[0], f_z_hat=float(fz) + residual[1])
+    return est
+
+
+def _admissible(fx, fz, lx=LX, lz=LZ) -> bool:
+    return bool(abs(fx) <= lx and abs(fz) <= lz)
+
+
+# ---------------------------------------------------------------------------- core physics
+
+def test_depth_sits_on_the_x_limit_and_matches_the_closed_form():
+    """c = c_a = Q = 0: F = γ d² w N_γ along Eq. 8, so d = sqrt(L_x / (γ w N_γ cos a)) by hand."""
+    known = _known(c_a=0.0)
+    est = _estimate(known)
+    plan = max_cut_depth(est, known, d_max_m=0.66)
+    delta_v = math.tanh(50.0 * math.cos(80 * DEG) * 0.5) * est["delta"]  # Eq. 9-10, ι_b·v = −cos ρ v_x
+    beta = float(fee.beta_star(est["phi"], delta_v, known["rho"], 0.0))
+    eta = delta_v + known["rho"] + est["phi"] + beta
+    n_gamma = (1 / math.tan(known["rho"]) + 1 / math.tan(beta)) * math.sin(est["phi"] + beta) / (2 * math.sin(eta))
+    cos_a = math.cos(math.pi / 2 - known["rho"] - delta_v)
+    expected = math.sqrt(LX / (known["gamma"] * known["w"] * n_gamma * cos_a))
+    assert plan.max_depth_m == pytest.approx(expected, abs=2 * TOLERANCE_M)
+    assert plan.limited_by_x and not plan.limited_by_z and plan.binding == "x"
+    assert plan.beta_rad == pytest.approx(beta) and plan.residual_x_n == pytest.approx(0.0, abs=1e-6)
+    fx, fz = _fee_xz(est, known, [plan.max_depth_m, plan.max_depth_m + 2 * TOLERANCE_M])
+    assert _admissible(fx[0], fz[0]) and not _admissible(fx[1], fz[1])
+    assert plan.f_x_n == pytest.approx(fx[0]) and plan.f_z_n == pytest.approx(fz[0])
+    assert plan.values() == [plan.max_depth_m, plan.f_x_n, plan.f_z_n, 1.0, 0.0, 1.0]
+
+
+def test_cohesive_soil_with_surcharge_is_within_the_limit_and_just_deeper_is_not():
+    known = _known(q=2e3, d=0.12)
+    est = _estimate(known, phi=25 * DEG, c=6e3, delta=12 * DEG)
+    plan = max_cut_depth(est, known)
+    assert 0.02 < plan.max_depth_m < 0.3
+    fx, fz = _fee_xz(est, known, [plan.max_depth_m, plan.max_depth_m + 2 * TOLERANCE_M])
+    assert _admissible(fx[0], fz[0]) and not _admissible(fx[1], fz[1])
+
+
+@pytest.mark.parametrize("field, weak, strong", [("phi", 25 * DEG, 40 * DEG), ("c", 1e3, 8e3)])
+def test_stronger_soil_gives_a_shallower_cut(field, weak, strong):
+    known = _known()
+    depth = {v: max_cut_depth(_estimate(known, **{field: v}), known, d_max_m=0.66).max_depth_m for v in (weak, strong)}
+    assert depth[strong] < depth[weak]
+
+
+def test_larger_margin_gives_a_deeper_cut_and_a_short_reach_binds():
+    known = _known()
+    est = _estimate(known, c=3e3)
+    depths = [max_cut_depth(est, known, margin=m, d_max_m=0.66).max_depth_m for m in (0.5, 0.8, 1.0)]
+    assert depths[0] < depths[1] < depths[2]
+    short = max_cut_depth(est, known, d_max_m=0.05)
+    assert short.max_depth_m == 0.05 and short.binding == "reach" and not (short.limited_by_x or short.limited_by_z)
+    assert "reach d_max=0.05 m binds" in describe(short, est, known)
+
+
+def test_a_surcharge_beyond_the_limit_allows_no_cut():
+    """Q N_Q alone exceeds the x limit: the force jumps over it as soon as the blade enters."""
+    known = _known(q=30e3, d=0.0)
+    plan = max_cut_depth(_estimate(known), known)
+    assert plan.max_depth_m == 0.0 and plan.limited_by_x and not plan.limited_by_z
+    assert plan.f_x_n == 0.0  # at d = 0 (and Δd = 0) the blade is not in the soil
+
+
+def test_over_the_z_limit_already_at_the_surface():
+    """Δd̂ > 0 puts the edge 5 cm into the model's soil at d = 0, where the residual z force is too big."""
+    known = _known(d=0.15)
+    est = _estimate(known, residual=(0.0, -120e3), delta_d=0.05)
+    plan = max_cut_depth(est, known)
+    assert plan.max_depth_m == 0.0 and plan.limited_by_z and not plan.limited_by_x and plan.binding == "z"
+    assert abs(plan.f_z_n) > LZ  # the force at the surface, honestly over the limit
+    assert "z limit binds: 24.0 kN" in describe(plan, est, known)
+
+
+def test_residual_anchors_the_prediction_to_the_estimated_force_and_scales_with_depth():
+    known = _known(d=0.15)
+    est = _estimate(known, residual=(1500.0, -4000.0), delta_d=-0.01, c=2e3)
+    plan = max_cut_depth(est, known, d_max_m=0.15)  # reach = the current depth: F there is F̂
+    assert plan.residual_used and plan.binding == "reach"
+    assert plan.f_x_n == pytest.approx(est["f_x_hat"]) and plan.f_z_n == pytest.approx(est["f_z_hat"])
+    half = max_cut_depth(est, known, d_max_m=0.08)  # d' = 0.07 m = d'_now / 2: half the residual
+    fx, fz = _fee_xz(est, known, 0.08)
+    assert half.f_x_n == pytest.approx(fx + 750.0) and half.f_z_n == pytest.approx(fz - 2000.0)
+    # a positive x residual makes the planned cut shallower than the FEE alone
+    assert max_cut_depth(est, known).max_depth_m < max_cut_depth(est, known, include_residual=False).max_depth_m
+
+
+def test_residual_is_not_used_from_a_blade_barely_in_the_soil():
+    known = _known(d=MIN_ANCHOR_DEPTH_M / 2)
+    est = _estimate(known, residual=(9e3, 0.0))
+    with_r = max_cut_depth(est, known)
+    assert not with_r.residual_used and with_r == max_cut_depth(est, known, include_residual=False)
+    assert "FEE only" in describe(with_r, est, known)
+
+
+def test_non_monotonic_force_plans_up_to_the_first_crossing():
+    """A large negative x residual makes F_x(d) = a d² + k d dip below −L_x and come back:
+    admissible depths are [0, d1] ∪ [d2, d3]. The blade passes d1..d2 on its way down, so d1."""
+    known = _known(gamma=22e3, d=0.2)
+    est = _estimate(known, residual=(-30e3, 0.0), phi=45 * DEG)
+    plan = max_cut_depth(est, known, d_max_m=0.66)
+    grid = np.linspace(0.0, 0.66, 2001)
+    fx, fz = _fee_xz(est, known, grid)
+    fx = fx + (-30e3) * grid / 0.2  # the residual in proportion to the depth in soil (Δd = 0)
+    ok = (np.abs(fx) <= LX) & (np.abs(fz) <= LZ)
+    first_bad = grid[np.argmin(ok)]
+    assert ok[grid > 0.5].any(), "the test case must have a deeper admissible band"
+    assert plan.limited_by_x and plan.max_depth_m == pytest.approx(first_bad, abs=0.66 / 2000)
+
+
+# ---------------------------------------------------------------------------- operating point
+
+# Blade transients the anti-stall controller causes near the limit: lifting, stalled, lowering.
+TRANSIENTS = [(0.5, 0.15), (0.02, 0.0), (0.0, 0.3), (0.3, -0.2)]
+
+
+@pytest.mark.parametrize("v_x, v_z", TRANSIENTS)
+def test_plan_is_for_a_steady_level_cut_whatever_the_current_velocity(v_x, v_z):
+    """Θ_k's v is a transient (e.g. the blade lifted at +0.15 m/s, which reverses the Eq. 9-10
+    friction and pushes β* to ~70°): the FEE plan does not follow it, and β* stays in Table 1."""
+    level = _known(d=0.2, q=6e3, gamma=18.7e3)
+    moving = {**level, "v_x": v_x, "v_z": v_z}
+    est = _estimate(level, phi=35 * DEG, c=1e3, delta=25 * DEG)
+    plan = max_cut_depth(est, moving, include_residual=False)
+    assert plan == max_cut_depth(est, level, include_residual=False)
+    lo, hi = TABLE1["beta"].limits
+    assert lo <= plan.beta_rad <= hi and plan.cut_speed_m_s == 0.5
+    if v_z > 0.1:  # the old behaviour, at Θ_k's velocity: β* far outside Table 1
+        delta_now, _ = fee.velocity_corrected(est["delta"], moving["c_a"], moving["rho"], 0.0, v_x, v_z)
+        assert not lo <= float(fee.beta_star(est["phi"], delta_now, moving["rho"], 0.0)) <= hi
+    fx, fz = _fee_xz(est, _steady(level), [plan.max_depth_m, plan.max_depth_m + 2 * TOLERANCE_M])
+    assert plan.f_x_n == pytest.approx(fx[0]) and not _admissible(fx[1], fz[1])
+
+
+@pytest.mark.parametrize("v_x, v_z", TRANSIENTS)
+def test_residual_is_taken_at_the_estimates_velocity_and_carried_to_the_steady_cut(v_x, v_z):
+    """F̂ was predicted at Θ_k's velocity: r_now = F̂ − F_FEE(that velocity), so the same soil and
+    the same network residual give the same plan in a transient as in a steady cut."""
+    level = _known(d=0.15, q=2e3)
+    moving = {**level, "v_x": v_x, "v_z": v_z}
+    soil = dict(phi=32 * DEG, c=2e3, delta=20 * DEG, delta_d=-0.01)
+    r = (1500.0, -4000.0)
+    est_moving, est_level = _estimate(moving, residual=r, **soil), _estimate(level, residual=r, **soil)
+    plan = max_cut_depth(est_moving, moving)
+    delta_now, _ = fee.velocity_corrected(soil["delta"], moving["c_a"], moving["rho"], moving["alpha"], v_x, v_z)
+    lo, hi = TABLE1["beta"].limits
+    if not lo <= float(fee.beta_star(soil["phi"], delta_now, moving["rho"], moving["alpha"])) <= hi:
+        # a strong transient: the FEE at that velocity is outside the model's range, no anchor
+        assert not plan.residual_used and plan == max_cut_depth(est_moving, moving, include_residual=False)
+        return
+    assert plan.residual_used
+    assert (plan.residual_x_n, plan.residual_z_n) == (pytest.approx(r[0], abs=1e-6), pytest.approx(r[1], abs=1e-6))
+    steady = max_cut_depth(est_level, level)
+    assert plan.max_depth_m == pytest.approx(steady.max_depth_m, abs=1e-12)
+    assert plan.f_x_n == pytest.approx(steady.f_x_n) and plan.f_z_n == pytest.approx(steady.f_z_n)
+    at_now = max_cut_depth(est_moving, moving, d_max_m=0.15)  # the current depth: steady FEE + r_now
+    fx, fz = _fee_xz(est_moving, _steady(level), 0.15)
+    assert at_now.f_x_n == pytest.approx(fx + r[0]) and at_now.f_z_n == pytest.approx(fz + r[1])
+
+
+def test_cut_speed_sets_the_operating_point():
+    known = _known(v_x=0.05)  # nearly stalled now
+    est = _estimate(_known(), c=3e3)
+    slow = max_cut_depth(est, known, cut_speed_m_s=0.02, include_residual=False, d_max_m=0.66)
+    fast = max_cut_depth(est, known, cut_speed_m_s=1.0, include_residual=False, d_max_m=0.66)
+    # slower: less of the soil-tool friction mobilised (Eq. 9-10), a different force and depth
+    assert slow.cut_speed_m_s == 0.02 and fast.cut_speed_m_s == 1.0
+    assert slow.max_depth_m != pytest.approx(fast.max_depth_m, abs=1e-3)
+    fx, _ = _fee_xz(est, _steady(known, 0.02), slow.max_depth_m)
+    assert slow.f_x_n == pytest.approx(fx)
+    assert "at v_x=1.00 m/s level" in describe(fast, est, known)
+
+
+def test_no_wedge_at_the_current_velocity_leaves_a_fee_only_plan():
+    """δ̂ > φ̂ with the friction reversed by a lift: no β* at Θ_k's velocity, so F_FEE(d'_now) and
+    the anchor do not exist; the steady cut still has its wedge and is planned FEE only."""
+    level = _known(d=0.15)
+    lifting = {**level, "v_z": 0.15}
+    est = _estimate(level, residual=(3e3, 0.0), phi=17 * DEG, delta=20 * DEG)
+    delta_now, _ = fee.velocity_corrected(est["delta"], 200.0, level["rho"], 0.0, 0.5, 0.15)
+    assert math.isnan(float(fee.beta_star(est["phi"], delta_now, level["rho"], 0.0)))
+    plan = max_cut_depth(est, lifting)
+    assert not plan.residual_used and plan == max_cut_depth(est, level, include_residual=False)
+
+
+# ---------------------------------------------------------------------------- depth clamp
+
+def test_d_prime_is_clamped_to_table1_like_the_pinn():
+    """d' = d + Δd̂ is clamped to [0, 0.66] m (model.py): at d = 0.61..0.66 m with Δd̂ = +5 cm the
+    FEE and the residual's depth in soil are those of d' = 0.66 m, so the force there is F̂."""
+    known = _known(d=0.64, w=0.4, c_a=0.0)  # narrow blade: the full 0.66 m stays within the limits
+    r = (600.0, -900.0)
+    est = _estimate(known, residual=r, phi=25 * DEG, delta=15 * DEG, delta_d=0.05)
+    plan = max_cut_depth(est, known, d_max_m=0.66, margin=1.0)
+    assert plan.binding == "reach" and plan.residual_used
+    assert plan.f_x_n == pytest.approx(est["f_x_hat"]) and plan.f_z_n == pytest.approx(est["f_z_hat"])
+    shallower = max_cut_depth(est, known, d_max_m=0.62, margin=1.0)  # d' = 0.67 -> 0.66 m
+    assert (shallower.f_x_n, shallower.f_z_n) == (pytest.approx(plan.f_x_n), pytest.approx(plan.f_z_n))
+    half = max_cut_depth(est, known, d_max_m=0.28, margin=1.0)  # d' = 0.33 m = d'_now / 2
+    fx, fz = _fee_xz(est, known, 0.28)
+    assert half.f_x_n == pytest.approx(fx + r[0] / 2) and half.f_z_n == pytest.approx(fz + r[1] / 2)
+    # unclamped, d' = 0.71 m would give a larger force at the reach than F̂
+    theta = {**known, "phi": est["phi"], "c": 0.0, "delta": est["delta"], "d": 0.71}
+    assert fee.fee_xz(theta)[0] + r[0] * 0.71 / 0.69 > est["f_x_hat"] + 100.0
+
+
+def test_invalid_estimate_gives_no_plan():
+    zeros = {name: 0.0 for name in T.ESTIMATE_FIELDS}  # what the estimator publishes while filling
+    assert max_cut_depth(zeros, _known()) is None
+
+
+def test_float32_clipped_fields_a_hair_outside_the_limits_are_accepted():
+    known = _known()
+    edge = float(np.float32(11.5 * DEG))
+    assert edge < 11.5 * DEG  # what the PINN's float32 clip publishes
+    assert max_cut_depth(_estimate(known, beta=edge), known) is not None
+
+
+@pytest.mark.parametrize("where, field, value, needle", [
+    ("estimate", "phi", math.nan, "estimate phi=nan"),
+    ("estimate", "c", -5.0, "estimate c=-5.0 is outside"),
+    ("estimate", "beta", 50 * DEG, "estimate beta=0.87"),
+    ("estimate", "delta_d", 0.2, "estimate delta_d=0.2 is outside"),
+    ("estimate", "f_x_hat", math.inf, "estimate f_x_hat=inf"),
+    ("estimate", "valid", 0.5, "valid=0.5"),
+    ("estimate", "valid", math.nan, "valid=nan"),
+    ("known", "gamma", math.inf, "known gamma=inf"),
+    ("known", "rho", 1 * DEG, "known rho=0.017"),
+    ("known", "v_x", 3.0, "known v_x=3.0 is outside"),
+    ("known", "d", math.nan, "known d=nan"),
+])
+def test_bad_fields_are_named(where, field, value, needle):
+    known = _known()
+    est = _estimate(known)
+    (est if where == "estimate" else known)[field] = value
+    with pytest.raises(ValueError, match=needle.replace(".", r"\.")):
+        max_cut_depth(est, known)
+
+
+def test_missing_fields_and_bad_settings_are_named():
+    known = _known()
+    est = _estimate(known)
+    with pytest.raises(ValueError, match="estimate has no field 'delta_d'"):
+        max_cut_depth({k: v for k, v in est.items() if k != "delta_d"}, known)
+    with pytest.raises(ValueError, match="known has no field 'q'"):
+        max_cut_depth(est, {k: v for k, v in known.items() if k != "q"})
+    for kwargs, needle in [({"margin": 0.0}, "margin=0.0"), ({"margin": 1.5}, "margin=1.5"),
+                           ({"d_max_m": 0.7}, "d_max_m=0.7"), ({"d_max_m": math.nan}, "d_max_m=nan"),
+                           *(({"cut_speed_m_s": v}, f"cut_speed_m_s={v}") for v in (0.0, -0.5, 2.5, math.inf))]:
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(est, known, **kwargs)
+    # Θ_k's d is the blade's state, not an FEE input: above the surface (d < 0) or buried is fine
+    assert max_cut_depth(est, _known(d=-0.2)).max_depth_m > 0
+    assert max_cut_depth(est, _known(d=0.9)).max_depth_m > 0
+    assert max_cut_depth(est, known, cut_speed_m_s=2.0).cut_speed_m_s == 2.0
+
+
+# ---------------------------------------------------------------------------- the node over DDS
+
+CLASSES = M.ros_message_classes()
+
+
+def _payload(values: dict, names) -> list[float]:
+    return [values[n] for n in names]
+
+
+def _call(future, timeout: float = 10.0):
+    return wait_until(lambda: future.done() and (future.result(),), timeout, "a parameter service call")[0]
+
+
+@pytest.mark.timeout(60)
+def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
+    domain = next_domain_id()
+    known = _known(d=0.15, q=1500.0, gamma=19e3)
+    good = _estimate(known, residual=(800.0, -1200.0), phi=27 * DEG, c=9e3, delta=14 * DEG, delta_d=0.01)
+    expected = max_cut_depth(good, known)  # the node's defaults: margin 0.8, d_max 0.3 m, residual on
+    assert 0.0 < expected.max_depth_m < 0.3 and expected.limited_by_x
+    wide = max_cut_depth(good, known, margin=1.0, d_max_m=0.66, cut_speed_m_s=0.3)  # after the run-time change below
+    assert wide.max_depth_m > expected.max_depth_m
+    s = [(k + 1) * 10**9 // 60 for k in range(7)]
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.PLAN.name, T.PLAN.msgtype)
+        est_pub = probe.publisher(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        known_pub = probe.publisher(T.KNOWN.name, T.KNOWN.msgtype)
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "log_period_s:=0.0"], domain, tmp_path)
+
+        def send_known(stamp, values=known):
+            known_pub.publish(M.make_labelled(CLASSES, stamp, KNOWN_PARAMS, _payload(values, KNOWN_PARAMS)))
+
+        def send_estimate(stamp, values):
+            est_pub.publish(M.make_labelled(CLASSES, stamp, T.ESTIMATE_FIELDS, _payload(values, T.ESTIMATE_FIELDS)))
+
+        def plans():
+            return dict(M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name) for m in probe.messages(T.PLAN.name))
+
+        def plan_of(stamp):
+            return probe.wait_for(lambda: (lambda p: p if stamp in p else None)(plans()), 15, f"the plan of {stamp} ns")
+
+        try:
+            probe.wait_for(lambda: est_pub.get_subscription_count() and known_pub.get_subscription_count()
+                           and probe.node.count_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)  # let both ends of every match settle (volatile QoS: an early message is lost)
+            send_known(s[0])
+            send_estimate(s[0], good)  # Θ_k first ...
+            send_estimate(s[1], good)
+            send_known(s[1])  # ... or the estimate first: paired by stamp either way
+            send_estimate(s[2], {n: 0.0 for n in T.ESTIMATE_FIELDS})  # invalid: a valid = 0 plan
+            send_known(s[3])
+            send_estimate(s[3], {**good, "phi": math.nan})  # NaN: nothing
+            send_known(s[4])
+            est_pub.publish(M.make_labelled(CLASSES, s[4], KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))  # wrong layout
+            send_known(s[5])
+            send_estimate(s[5], good)  # still alive and planning
+            got = plan_of(s[5])
+            assert node.proc.poll() is None, node.output
+
+            client = AsyncParameterClient(probe.node, "soil_planner")
+            assert client.wait_for_services(timeout_sec=20)
+            bad = _call(client.set_parameters([Parameter("margin", value=1.5)]))
+            assert not bad.results[0].successful and "margin=1.5" in bad.results[0].reason
+            bad = _call(client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))
+            assert not bad.results[0].successful and "cut_speed_m_s=0.0" in bad.results[0].reason
+            ok = _call(client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66),
+                                              Parameter("cut_speed_m_s", value=0.3)]))
+            assert all(r.successful for r in ok.results)
+            send_known(s[6])
+            send_estimate(s[6], good)
+            changed = plan_of(s[6])[s[6]]
+        finally:
+            node.stop()
+        assert sorted(got) == s[:3] + [s[5]]  # nothing for the NaN and the malformed estimate
+        for st in (s[0], s[1], s[5]):
+            assert got[st].tolist() == pytest.approx(expected.values(), rel=1e-12, abs=1e-9)
+        assert got[s[2]].tolist() == [0.0] * len(T.PLAN_FIELDS)
+        assert all(np.isfinite(v).all() for v in got.values())
+        assert changed.tolist() == pytest.approx(wide.values(), rel=1e-12, abs=1e-9)
+        out = node.output
+        assert "deepest cut" in out and "x limit binds: 16.0 kN" in out
+        assert "estimate phi=nan" in out and "label mismatch" in out
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("arg", ["margin:=1.5", "cut_speed_m_s:=2.5"])
+def test_soil_planner_refuses_a_bad_setting_with_exit_2(tmp_path, arg):
+    node = NodeProc("soil_planner", ["--ros-args", "-p", arg], next_domain_id(), tmp_path)
+    try:
+        assert node.wait(timeout=20) == 2
+    finally:
+        node.stop()
+    assert arg.replace(":", "") in node.output

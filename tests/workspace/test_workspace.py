@@ -1,0 +1,181 @@
+"""The colcon workspace: every package under src/ is a valid ament_python package, its
+console scripts resolve, and `colcon build` installs them where `ros2 run` looks.
+
+The build test is marked ``slow`` (deselect with ``-m "not slow"``). It builds into a
+temporary directory (build/, install/, log/ all outside the repository).
+"""
+from __future__ import annotations
+
+import configparser
+import importlib
+import json
+import os
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SRC = REPO / "src"
+PACKAGES = ("soil_msgs_py", "soil_physics", "anti_stall_controller", "soil_sim_node", "soil_bag_tools",
+            "pinn_estimator", "soil_planner", "soil_discrepancy", "soil_bringup")
+COLCON = Path(sys.executable).parent / "colcon"
+BUILD_TIMEOUT_S = 300
+
+# Runs setup.py with setuptools.setup replaced, in the package directory (setup.py globs
+# relative paths), and prints the keyword arguments it would have passed as JSON.
+_READ_SETUP = r"""
+import json, runpy, sys, setuptools
+captured = {}
+def fake_setup(**kw):
+    captured.update(kw)
+setuptools.setup = fake_setup
+runpy.run_path("setup.py", run_name="__main__")
+print(json.dumps({k: captured.get(k) for k in ("name", "entry_points", "data_files", "packages")}))
+"""
+
+
+def _read_setup(pkg: str) -> dict:
+    res = subprocess.run(
+        [sys.executable, "-c", _READ_SETUP], cwd=SRC / pkg, capture_output=True, text=True,
+        timeout=60,
+    )
+    assert res.returncode == 0, f"{pkg}/setup.py failed to run:\n{res.stderr}"
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def _console_scripts(pkg: str) -> list[tuple[str, str, str]]:
+    """[(script name, module, function)] declared in ``src/<pkg>/setup.py``."""
+    eps = (_read_setup(pkg).get("entry_points") or {}).get("console_scripts") or []
+    out = []
+    for spec in eps:
+        name, _, target = (s.strip() for s in spec.partition("="))
+        module, _, func = (s.strip() for s in target.partition(":"))
+        out.append((name, module, func))
+    return out
+
+
+CONSOLE_SCRIPTS = {pkg: _console_scripts(pkg) for pkg in PACKAGES}
+ALL_SCRIPTS = [(pkg, *s) for pkg, scripts in CONSOLE_SCRIPTS.items() for s in scripts]
+
+
+def test_package_set_under_src():
+    found = sorted(p.parent.name for p in SRC.glob("*/package.xml"))
+    assert found == sorted(PACKAGES)
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_package_is_ament_python(pkg):
+    d = SRC / pkg
+    root = ET.parse(d / "package.xml").getroot()
+    assert root.tag == "package" and root.get("format") == "3"
+    assert root.findtext("name") == pkg
+    assert root.findtext("export/build_type") == "ament_python"
+
+    cfg = configparser.RawConfigParser()
+    assert cfg.read(d / "setup.cfg")
+    assert cfg.get("develop", "script_dir") == f"$base/lib/{pkg}"
+    assert cfg.get("install", "install_scripts") == f"$base/lib/{pkg}"
+
+    assert (d / "resource" / pkg).is_file()
+    assert (d / pkg / "__init__.py").is_file()
+
+    setup = _read_setup(pkg)
+    assert setup["name"] == pkg
+    assert pkg in setup["packages"]
+    data = {dest: files for dest, files in setup["data_files"]}
+    assert data["share/ament_index/resource_index/packages"] == [f"resource/{pkg}"]
+    assert "package.xml" in data[f"share/{pkg}"]
+
+
+@pytest.mark.parametrize(
+    "pkg, script, module, func", ALL_SCRIPTS, ids=[f"{p}:{s}" for p, s, _, _ in ALL_SCRIPTS]
+)
+def test_console_script_target_is_importable_callable(pkg, script, module, func):
+    assert module.split(".")[0] == pkg, f"{script} = {module}:{func} is outside package {pkg}"
+    mod = importlib.import_module(module)
+    assert callable(getattr(mod, func)), f"{module}.{func} is not callable"
+
+
+@pytest.fixture(scope="module")
+def colcon_build(tmp_path_factory):
+    """Run `colcon build` of the workspace once, entirely under a temporary directory."""
+    assert COLCON.is_file(), f"colcon not found next to {sys.executable}"
+    tmp = tmp_path_factory.mktemp("colcon")
+    repo_outputs = [REPO / n for n in ("build", "install", "log")]
+    pre_existing = {p for p in repo_outputs if p.exists()}
+    cmd = [
+        str(COLCON), "--log-base", str(tmp / "log"),
+        "build",
+        "--base-paths", str(SRC),
+        "--build-base", str(tmp / "build"),
+        "--install-base", str(tmp / "install"),
+    ]
+    if (REPO / "colcon.meta").is_file():  # what `cd <repo> && colcon build` would pick up
+        cmd += ["--metas", str(REPO / "colcon.meta")]
+    env = dict(os.environ, COLCON_HOME=str(tmp / "colcon_home"))  # no user defaults/mixins
+    t0 = time.monotonic()
+    res = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+    wall = time.monotonic() - t0
+    print(f"colcon build: rc={res.returncode} in {wall:.1f} s")
+    created_in_repo = [str(p) for p in repo_outputs if p.exists() and p not in pre_existing]
+    return res, tmp / "install", wall, created_in_repo
+
+
+def _tail(res, n=4000):
+    return f"--- stdout ---\n{res.stdout[-n:]}\n--- stderr ---\n{res.stderr[-n:]}"
+
+
+@pytest.mark.slow
+def test_colcon_build_installs_console_scripts(colcon_build):
+    res, install, wall, created_in_repo = colcon_build
+    assert res.returncode == 0, _tail(res)
+    assert not created_in_repo, f"colcon wrote into the repository: {created_in_repo}"
+    for pkg in PACKAGES:
+        prefix = install / pkg
+        assert (prefix / "share/ament_index/resource_index/packages" / pkg).is_file()
+        assert (prefix / "share" / pkg / "package.xml").is_file()
+        site = list(prefix.glob("lib/python3*/site-packages"))
+        assert len(site) == 1 and (site[0] / pkg / "__init__.py").is_file(), site
+        for script, _module, _func in CONSOLE_SCRIPTS[pkg]:
+            exe = prefix / "lib" / pkg / script  # where `ros2 run <pkg> <script>` looks
+            assert exe.is_file(), f"{exe} missing; {prefix / 'lib' / pkg} has " + str(
+                sorted(p.name for p in (prefix / "lib" / pkg).glob("*")))
+            assert os.access(exe, os.X_OK), f"{exe} is not executable"
+
+
+@pytest.mark.slow
+def test_installed_console_scripts_import_from_install_space(colcon_build):
+    """The targets resolve from the *installed* copies (as `ros2 run` would import them),
+    not only from the source tree: catches files missing from the installed packages."""
+    res, install, _wall, _ = colcon_build
+    assert res.returncode == 0, _tail(res)
+    if not ALL_SCRIPTS:
+        pytest.skip("no console_scripts declared")
+    sites = [str(p) for pkg in PACKAGES for p in (install / pkg).glob("lib/python3*/site-packages")]
+    targets = [(m, f) for _p, _s, m, f in ALL_SCRIPTS]
+    probe = (
+        "import importlib, json, sys\n"
+        "out = {}\n"
+        "for m, f in json.loads(sys.argv[1]):\n"
+        "    try:\n"
+        "        mod = importlib.import_module(m)\n"
+        "        out[m + ':' + f] = [callable(getattr(mod, f, None)), mod.__file__]\n"
+        "    except Exception as e:\n"
+        "        out[m + ':' + f] = [False, repr(e)]\n"
+        "print(json.dumps(out))\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sites + [os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run(
+        [sys.executable, "-c", probe, json.dumps(targets)], cwd=install, env=env,
+        capture_output=True, text=True, timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    found = json.loads(r.stdout.strip().splitlines()[-1])
+    bad = {k: v for k, v in found.items() if not v[0]}
+    assert not bad, f"console_scripts targets not importable from the install space: {bad}"
+    outside = {k: v[1] for k, v in found.items() if not str(v[1]).startswith(str(install))}
+    assert not outside, f"imported from outside the install space: {outside}"
