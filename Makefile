@@ -5,7 +5,7 @@ SHELL := /bin/bash
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
-PKGS := $(addprefix src/,soil_msgs_py soil_physics anti_stall_controller soil_sim_node soil_bag_tools pinn_estimator soil_planner soil_discrepancy soil_bringup)
+PKGS := $(addprefix src/,soil_msgs_py soil_physics soil_bag_tools anti_stall_controller soil_sim_node pinn_estimator soil_planner soil_discrepancy soil_bringup)
 STAMP := $(VENV)/.installed
 
 # DDS never leaves loopback; every make target gets its own domain id unless the caller chose one.
@@ -33,6 +33,7 @@ test: venv
 bench: venv
 	$(BIN)/python benchmarks/bench_sim.py
 	$(BIN)/python benchmarks/bench_train.py
+	$(BIN)/python benchmarks/bench_bag_tools.py
 	$(BIN)/python benchmarks/bench_graph.py
 	$(BIN)/python benchmarks/bench_estimator.py
 

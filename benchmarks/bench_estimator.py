@@ -17,6 +17,9 @@
    Latency = perf_counter at publishing the LAST input message of a tick -> perf_counter
    at receiving the ``/soil/estimate`` with that stamp. The first ``--warmup`` seconds of the
    stream are excluded; figures are over valid estimates of the rest.
+   Arrival spacing = wall time between the estimates of two consecutive ticks (both valid,
+   measured): how evenly the 60 Hz estimates come out (the node test checks one estimate
+   per tick, stamps on the 60 Hz grid).
 3. CPU of the node over the measured part of the same stream (utime + stime from
    /proc/<pid>/stat, % of one core) and its RSS (VmRSS, VmHWM from /proc/<pid>/status).
 
@@ -384,6 +387,9 @@ def bench_dds(ep, seconds: float, warmup_s: float, domain_id: int) -> dict:
     lat = recv_t - pub_t
     valid_m = meas & got & valid
     wall = wall1 - wall0
+    measured_ticks = np.flatnonzero(valid_m)
+    next_tick = np.diff(measured_ticks) == 1
+    spacing = np.diff(recv_t[measured_ticks])[next_tick]
     counters = next((line.strip() for line in reversed(node_log.splitlines()) if "estimates," in line), "")
     return {
         "node_ready_s": round(t_ready - t_launch, 2),
@@ -399,6 +405,7 @@ def bench_dds(ep, seconds: float, warmup_s: float, domain_id: int) -> dict:
                      "estimates_per_s": round(float((meas & got).sum()) / wall, 2)},
         "latency_valid": stats_ms(lat[valid_m]),
         "latency_invalid": stats_ms(lat[meas & got & ~valid]),  # no model run: DDS + rclpy + core bookkeeping
+        "arrival_spacing": stats_ms(spacing),
         "publisher_late": stats_ms(late[meas]),
         "cpu_pct": round(100.0 * (cpu1 - cpu0) / wall, 1),
         # noise: what else kept the machine's cores busy meanwhile (% of one core)
@@ -453,6 +460,7 @@ def main() -> None:
         print(f"{'latency, valid estimates':28s} {fmt(d['latency_valid'])}")
         print(f"{'latency, invalid (no model)':28s} {fmt(d['latency_invalid'])}")
         print(f"{'probe publish lateness':28s} {fmt(d['publisher_late'])}")
+        print(f"{'arrival spacing (16.667 nom.)':28s} {fmt(d['arrival_spacing'])}")
         print(f"== estimator node resources at {RATE_HZ} Hz, over the measured {ms['wall_s']} s")
         print(f"CPU {d['cpu_pct']:.1f} % of one core; RSS {d['rss_mb']} MB (idle before stream {d['rss_idle_mb']} MB, "
               f"peak {d['hwm_mb']} MB)")

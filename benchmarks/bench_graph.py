@@ -6,8 +6,12 @@
 1. Highest real-time factor at which the graph (sim + controller + recorder, launched by
    soil_launch) still drops nothing: for each rate, one episode of ``--duration`` simulated
    seconds is recorded; "drops nothing" = the bag has every tick on every topic AND the
-   simulator never had to hold a late command. Jitter and loop latency are printed per rate.
-2. CPU per node at 60 Hz (rate 1): user+system CPU time of each node process over a
+   simulator never had to hold a late command. Period, jitter and loop latency are printed per rate.
+2. One long real-time run (rate 1, ``--long-seconds``, default 60 s at 60 Hz): late commands,
+   publish period, jitter and loop latency of the episode (the graph tests check that no
+   tick is missing and every tick is answered in time or counted late; these are the
+   figures for how often late and how steady).
+3. CPU per node at 60 Hz (rate 1): user+system CPU time of each node process over a
    steady window, as % of one core.
 
 Loopback DDS only, on its own ROS_DOMAIN_ID (default 199); every run is bounded by a timeout.
@@ -103,7 +107,8 @@ def run_rate(rate: float, duration_s: float, domain: int) -> dict:
     planned = int(round(duration_s * 60))
     stats = end.stats if end else {}
     return {"rate": rate, "rc": rc, "planned": planned, "recorded": ticks,
-            "late": stats.get("late_commands"), "jitter": stats.get("jitter", {}), "loop": stats.get("loop_latency", {}),
+            "late": stats.get("late_commands"), "period": stats.get("period", {}), "jitter": stats.get("jitter", {}),
+            "loop": stats.get("loop_latency", {}),
             "clean": rc == 0 and ticks == planned and stats.get("late_commands") == 0}
 
 
@@ -125,10 +130,22 @@ def cpu_per_node(seconds: float, domain: int) -> dict[str, float]:
     return {n: 100.0 * (after[n] - before[n]) / wall for n in pids}
 
 
+def figures(s: dict) -> str:
+    """p50/p99/max of one timing entry of the episode_end stats."""
+    return f"{s.get('p50_ms')}/{s.get('p99_ms')}/{s.get('max_ms')} ms"
+
+
+def run_line(r: dict) -> str:
+    return (f"recorded {r['recorded']}/{r['planned']} ticks, late commands {r['late']}, "
+            f"period p50/p99/max {figures(r['period'])}, jitter p50/p99/max {figures(r['jitter'])}, "
+            f"loop latency p50/p99/max {figures(r['loop'])}, {'clean' if r['clean'] else 'DROPS'}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--rates", type=float, nargs="+", default=[1, 2, 3, 4, 6, 8])
     p.add_argument("--duration", type=float, default=10.0, help="simulated seconds per rate")
+    p.add_argument("--long-seconds", type=float, default=60.0, help="simulated seconds of the real-time run (0: skip)")
     p.add_argument("--cpu-seconds", type=float, default=20.0)
     p.add_argument("--domain-id", type=int, default=199)
     args = p.parse_args()
@@ -137,17 +154,19 @@ def main() -> None:
     best = prev = None
     for rate in args.rates:
         r = run_rate(rate, args.duration, args.domain_id)
-        j, lo = r["jitter"], r["loop"]
-        print(f"rate {rate:5.1f}: recorded {r['recorded']}/{r['planned']} ticks, late commands {r['late']}, "
-              f"jitter p50/p99/max {j.get('p50_ms')}/{j.get('p99_ms')}/{j.get('max_ms')} ms, "
-              f"loop latency p50/p99/max {lo.get('p50_ms')}/{lo.get('p99_ms')}/{lo.get('max_ms')} ms, "
-              f"{'clean' if r['clean'] else 'DROPS'}")
+        print(f"rate {rate:5.1f}: {run_line(r)}")
         if r["clean"] and (best is None or best == prev):
             best = rate
         prev = rate
         if r["recorded"] < r["planned"] or (r["late"] or 0) > 0.1 * r["planned"]:
             break  # far past the limit: higher rates only take longer to say so
     print(f"highest rate factor with no drops: {best}")
+
+    if args.long_seconds > 0:
+        print(f"== real time at 60 Hz for {args.long_seconds:g} s (rate 1, sim + controller + recorder)")
+        r = run_rate(1.0, args.long_seconds, args.domain_id)
+        share = 100.0 * (r["late"] or 0) / max(r["planned"], 1)
+        print(f"{run_line(r)}; late commands {share:.2f} % of ticks; load average {os.getloadavg()[0]:.2f}")
 
     print(f"== CPU per node at 60 Hz (rate 1), over {args.cpu_seconds} s")
     for name, pct in sorted(cpu_per_node(args.cpu_seconds, args.domain_id).items()):

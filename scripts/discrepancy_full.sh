@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Full-size run of the discrepancy workflow (issue 6), reproducible from documented seeds:
+# Full-size run of the discrepancy workflow, reproducible from documented seeds:
 #   make discrepancy        (or: scripts/discrepancy_full.sh [control soil_inertia ...])
 # For each case: generate a fee-world dataset (4 soils x I_d {0,40,80} x 3 speeds x 3 depths,
 # 108 ten-second episodes; skipped if present) with one effect hidden in the simulator (or none:

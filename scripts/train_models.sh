@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Reproduce the shipped models and their evaluation reports (issue 3) from documented seeds.
+# Reproduce the shipped models and their evaluation reports from documented seeds.
 #   make models            (or: scripts/train_models.sh [fee|default ...])
 # For each world: generate the §3.1-sized dataset (seeded, skipped if present), train the PINN
 # and the physics-free baseline side by side (one thread each, same seed -> same by-episode

@@ -15,10 +15,10 @@ from pinn_estimator.classical import (
     C_BOUNDS_PA,
     PHI_BOUNDS_RAD,
     ClassicalFit,
-    fee_forces,
     fit_windows,
 )
 from soil_physics import fee
+from soil_physics.augmented_fee import fee_forces
 from soil_msgs_py.params import ADHESION_PA, DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE
 
 REPO = Path(__file__).resolve().parents[2]

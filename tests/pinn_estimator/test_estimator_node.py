@@ -60,10 +60,9 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     good = [(t, s, v) for t, s, v in live if v[VALID] == 1.0]
     assert [s for _, s, _ in good] == ep.stamps_ns[WINDOW_SAMPLES - 1 :].tolist()
     assert all(np.isfinite(v).all() for _, _, v in live)
-    # at the simulator's 60 Hz: the typical spacing of arrivals is one tick (a stall then
-    # catch-up on a loaded machine moves single intervals, not the median)
-    spacing_ms = 1e3 * np.median(np.diff([t for t, _, _ in good]))
-    assert 14.0 < spacing_ms < 19.5, f"median spacing of estimates {spacing_ms:.2f} ms, not ~16.7 ms"
+    # one estimate per tick of the simulator's 60 Hz grid, none skipped (how evenly they
+    # arrive in wall time is a benchmark figure: benchmarks/bench_estimator.py)
+    assert set(np.diff([s for _, s, _ in live]).tolist()) <= {16_666_666, 16_666_667}
     # the bag recorded exactly what the probe received
     assert rec_stamps.tolist() == [s for _, s, _ in live]
     np.testing.assert_array_equal(rec_values, np.stack([v for _, _, v in live]))

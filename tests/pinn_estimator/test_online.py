@@ -202,7 +202,7 @@ def test_bogus_future_stamps_do_not_stall_estimation(episode, model):
         msgs.append((T.CMD_VEL.name, bogus))
     est, out = run(model, msgs)
     assert [e.stamp_ns for e in valid(out)] == episode.stamps_ns[59:N_TICKS].tolist()
-    assert est.counters.evicted == N_TICKS - 2 * 60 and len(est.assembler.pending) <= 2 * 60
+    assert est.counters.evicted == N_TICKS - 2 * 60 and len(est.assembler.joiner) <= 2 * 60
 
 
 def test_stride_phase_restarts_with_each_episode(episode, model):
@@ -239,7 +239,7 @@ def test_wrong_shape_array_is_malformed_and_its_tick_missing(episode, model):
 def test_a_topic_that_never_comes_holds_bounded_memory(episode, model):
     msgs = [(t, m) for t, m in in_order(episode, range(400)) if t != T.CMD_VEL.name]
     est, out = run(model, msgs)
-    assert out == [] and len(est.assembler.pending) <= 2 * 60
+    assert out == [] and len(est.assembler.joiner) <= 2 * 60
 
 
 def test_non_finite_model_output_is_published_invalid(episode, model):

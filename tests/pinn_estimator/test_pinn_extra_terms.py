@@ -1,4 +1,4 @@
-"""The PINN retrained with augmented physics (issue 6 step 4): F̂ = F_FEE + Σ k·B + F_r.
+"""The PINN retrained with augmented physics: F̂ = F_FEE + Σ k·B + F_r.
 
 Catalogue terms (``soil_physics.force_terms``) with fixed k are part of the model config, so
 a checkpoint carries them; without terms the model is the paper's PINN, bit for bit.
@@ -13,12 +13,14 @@ import pytest
 import torch
 
 from pinn_estimator import checkpoint as ck
-from pinn_estimator.dataset import distance_in_soil, load_dataset, soil_advance
+from pinn_estimator.dataset import load_dataset
+from soil_physics.travel import distance_in_soil, soil_advance
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.loss import pinn_loss
 from pinn_estimator.model import DISTANCE_TERMS, RESIDUAL_FORCE_FRACTION, EstimatorNet, ModelConfig
 from pinn_estimator.train import TrainConfig, main as train_main, train
 from soil_physics import force_terms as X
+from soil_physics.force_inputs import ForceInputs
 from soil_physics import fee
 from soil_msgs_py.params import KNOWN_PARAMS, TABLE1, UNKNOWN_PARAMS
 
@@ -44,13 +46,13 @@ def _model(ds, terms=(), seed=0):
     return EstimatorNet(ModelConfig(**SMALL, extra_terms=terms), ds.observations.mean(0), ds.observations.std(0) + 1e-9)
 
 
-def _term_inputs(out, known, distance) -> X.TermInputs:
-    """The TermInputs the brief prescribes, rebuilt from a model output: Θ_k, the clipped Θ_u,
+def _term_inputs(out, known, distance) -> ForceInputs:
+    """The ForceInputs the model must use, rebuilt from a model output: Θ_k, the clipped Θ_u,
     d' = d + Δd clipped like the FEE call, the travel in soil and the model's own F_FEE."""
     k = {n: known[:, j] for j, n in enumerate(KNOWN_PARAMS)}
     th = out["theta"]
     d_prime = torch.clamp(k["d"] + th[:, 4], *TABLE1["d"].limits)
-    return X.TermInputs(
+    return ForceInputs(
         d=d_prime, q=k["q"], v_x=k["v_x"], v_z=k["v_z"], gamma=k["gamma"], w=k["w"], rho=k["rho"], alpha=k["alpha"],
         phi=th[:, 0], c=th[:, 1], delta=th[:, 2], distance_in_soil=distance,
         f_fee_x=out["force_fee"][:, 0], f_fee_z=out["force_fee"][:, 1],
@@ -107,7 +109,7 @@ def test_shipped_model_is_unchanged_without_terms(samples):
     with torch.no_grad():
         out = model(obs, known)
         again = model(obs, known, dist)
-        # the paper's PINN, rebuilt from the model's parts (model.py before issue 6)
+        # the paper's PINN, rebuilt from the model's parts (model.py without extra terms)
         head = model.head(model.backbone(obs, known))
         n = len(UNKNOWN_PARAMS)
         theta = torch.maximum(torch.minimum(head[:, :n] * model.theta_span + model.theta_lo, model.limit_hi), model.limit_lo)
@@ -180,8 +182,8 @@ def test_distance_is_required_by_the_terms_that_use_it_only(samples):
     base = dict(d=np.array([0.1, 0.2, -0.01]), q=2e3, v_x=0.5, v_z=-0.05, gamma=17e3, w=3.0, rho=1.0, alpha=0.0,
                 phi=0.6, c=2e3, delta=0.3, f_fee_x=9e3, f_fee_z=-4e3)
     for name, term in X.CATALOGUE.items():
-        a = term.basis(X.TermInputs(**base, distance_in_soil=np.zeros(3)))
-        b = term.basis(X.TermInputs(**base, distance_in_soil=np.full(3, 7.0)))
+        a = term.basis(ForceInputs(**base, distance_in_soil=np.zeros(3)))
+        b = term.basis(ForceInputs(**base, distance_in_soil=np.full(3, 7.0)))
         assert (name in DISTANCE_TERMS) == (not np.allclose(a, b)), name
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -324,13 +323,11 @@ def test_read_dataset_finds_nested_bags(tmp_path: Path) -> None:
         assert_same(e, by_seed[e.meta.seed])
 
 
-def test_600_ticks_read_fast(tmp_path: Path) -> None:
+def test_600_ticks_read_back_whole(tmp_path: Path) -> None:
+    """A 10 s episode reads back tick for tick (how fast: benchmarks/bench_bag_tools.py)."""
     ep = make_episode(n=600)
     bag = write_episode(tmp_path / "long", ep)
-    t0 = time.perf_counter()
-    back = read_episode(bag)
-    assert time.perf_counter() - t0 < 1.0
-    assert_same(ep, back)
+    assert_same(ep, read_episode(bag))
 
 
 def test_mapping_works_with_ros_message_classes(ep: Episode) -> None:

@@ -1,4 +1,4 @@
-"""The discrepancy workflow (issue 6): hidden effects are found, named, fitted and shown to help
+"""The discrepancy workflow: hidden effects are found, named, fitted and shown to help
 on held-out episodes; the control data give none; nothing reads ground truth.
 
 Three small fee-world datasets are generated into a temporary directory (4 soils x I_d {20, 80}
@@ -18,7 +18,6 @@ import pytest
 
 from pinn_estimator.dataset import load_dataset
 from soil_discrepancy import (
-    AugmentedFEE,
     build_frame,
     compare_predictions,
     group_folds,
@@ -28,7 +27,9 @@ from soil_discrepancy import (
     split_holdout,
 )
 from soil_discrepancy.cli import main as cli_main
-from soil_physics import force_terms as extra_terms, fee
+from soil_physics import force_terms, fee
+from soil_physics.augmented_fee import AugmentedFEE
+from soil_physics.force_inputs import ForceInputs
 from soil_msgs_py.params import KNOWN_PARAMS
 from soil_physics.soils import CATALOGUE as SOILS
 from soil_sim_node.batch import DatasetPlan, generate, grid_specs
@@ -181,9 +182,9 @@ def test_augmented_fee_is_the_fee_plus_the_catalogue_terms(bag_dirs):
     f0 = {n: known[:, i] for i, n in enumerate(KNOWN_PARAMS)}
     f0.update(phi=theta[0], c=theta[1], delta=theta[2])
     gx, gz, _ = fee.fee_xz(f0)
-    inputs = extra_terms.TermInputs(**{n: f0[n] for n in ("d", "q", "v_x", "v_z", "gamma", "w", "rho", "alpha", "phi", "c", "delta")},
-                                    distance_in_soil=dist, f_fee_x=gx, f_fee_z=gz)
-    dx, dz = extra_terms.apply(model.terms, inputs)
+    inputs = ForceInputs(**{n: f0[n] for n in ("d", "q", "v_x", "v_z", "gamma", "w", "rho", "alpha", "phi", "c", "delta")},
+                         distance_in_soil=dist, f_fee_x=gx, f_fee_z=gz)
+    dx, dz = force_terms.apply(model.terms, inputs)
     np.testing.assert_allclose(fx, gx + dx, rtol=1e-12)
     np.testing.assert_allclose(fz, gz + dz, rtol=1e-12)
     assert model.with_term("soil_inertia", 3.0).terms == (("compaction_hardening", 0.05), ("soil_inertia", 3.0))

@@ -9,7 +9,8 @@ import pytest
 from soil_msgs_py import graph as G
 from soil_msgs_py.episode import EpisodeMeta
 from soil_bringup.launch import build_nodes, parse_args
-from soil_sim_node.live import COMMAND_LIMITS, CommandGate, TickTiming, episode_plan
+from soil_sim_node.live import COMMAND_LIMITS, CommandGate, episode_plan
+from soil_sim_node.pacing import TickTiming
 from soil_sim_node.simulator import EpisodeSpec
 
 META = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="soil_sim_node")
@@ -113,8 +114,7 @@ def test_launcher_tells_the_simulator_whom_to_wait_for(tmp_path):
                                                           ("anti_stall_controller", "anti_stall_controller.node",
                                                            "anti_stall_controller"),
                                                           ("pinn_estimator", "pinn_estimator.node", "pinn_estimator"),
-                                                          ("pinn_estimator", "soil_planner.node",
-                                                           "soil_planner")])
+                                                          ("soil_planner", "soil_planner.node", "soil_planner")])
 def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_module, node_name):
     """src/<pkg>/config/<node>.yaml is the documented default set: same names, same values as the node."""
     import importlib

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from soil_physics import force_terms as X
+from soil_physics.force_inputs import ForceInputs
 from soil_msgs_py.params import DEG, GRAVITY_M_S2
 from soil_sim_node.effects import PluginError, load_plugins
 from soil_sim_node.rollout import run_episodes
@@ -21,7 +22,7 @@ def inputs(**over):
                 v_z=np.array([0.0, -0.1, 0.0]), gamma=18e3, w=3.164, rho=80 * DEG, alpha=0.0, phi=30 * DEG,
                 c=2e3, delta=15 * DEG, distance_in_soil=np.array([2.0, 0.5, 0.0]),
                 f_fee_x=np.array([1e4, 5e3, 0.0]), f_fee_z=np.array([-2e3, 1e3, 0.0]))
-    return X.TermInputs(**{**base, **over})
+    return ForceInputs(**{**base, **over})
 
 
 @pytest.mark.parametrize("name", sorted(X.CATALOGUE))
@@ -33,7 +34,7 @@ def test_every_term_is_documented_zero_out_of_soil_and_same_in_torch(name):
     assert bx[2] == 0.0 and bz[2] == 0.0, "no soil, no force"
     assert abs(bx[0]) + abs(bz[0]) > 0, "a blade 0.2 m deep feels every effect"
     t = {k: (torch.tensor(v, dtype=torch.float64) if isinstance(v, np.ndarray) else v) for k, v in inputs().__dict__.items()}
-    tx, tz = term.basis(X.TermInputs(**t))
+    tx, tz = term.basis(ForceInputs(**t))
     np.testing.assert_allclose(tx.numpy(), bx, rtol=1e-12)
     np.testing.assert_allclose(tz.numpy(), bz, rtol=1e-12)
 

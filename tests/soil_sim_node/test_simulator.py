@@ -247,7 +247,7 @@ def test_e_dense_default_soils_oscillate_like_the_paper(oscillation_rows):
 
 
 def test_penetration_is_a_stable_constraint_that_dense_soil_resists():
-    """Penetration is a one-sided rigid-plastic constraint (effects.penetration_capacity): dense
+    """Penetration is a one-sided rigid-plastic constraint (soil_physics.bearing.penetration_capacity): dense
     gravel holds a deep-commanded edge above its target while the lift joint pushes down, the
     reaction never exceeds what the joint and the blade's weight can push, and the edge does not
     chatter (the old speed-gated damper alternated v_z sign every substep)."""

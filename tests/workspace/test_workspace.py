@@ -1,11 +1,14 @@
 """The colcon workspace: every package under src/ is a valid ament_python package, its
-console scripts resolve, and `colcon build` installs them where `ros2 run` looks.
+console scripts resolve, and `colcon build` installs them where `ros2 run` looks. The
+layout holds: packages import only packages before them in PACKAGES and declare what they
+import, and only nodes and ROS glue modules import ROS.
 
 The build test is marked ``slow`` (deselect with ``-m "not slow"``). It builds into a
 temporary directory (build/, install/, log/ all outside the repository).
 """
 from __future__ import annotations
 
+import ast
 import configparser
 import importlib
 import json
@@ -14,13 +17,16 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
+from functools import cache
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SRC = REPO / "src"
-PACKAGES = ("soil_msgs_py", "soil_physics", "anti_stall_controller", "soil_sim_node", "soil_bag_tools",
+# In the order the data flows: a package may import only packages before it. The bag format
+# comes right after the physics: the batch generator writes the same bags the recorder does.
+PACKAGES = ("soil_msgs_py", "soil_physics", "soil_bag_tools", "anti_stall_controller", "soil_sim_node",
             "pinn_estimator", "soil_planner", "soil_discrepancy", "soil_bringup")
 COLCON = Path(sys.executable).parent / "colcon"
 BUILD_TIMEOUT_S = 300
@@ -98,6 +104,75 @@ def test_console_script_target_is_importable_callable(pkg, script, module, func)
     assert module.split(".")[0] == pkg, f"{script} = {module}:{func} is outside package {pkg}"
     mod = importlib.import_module(module)
     assert callable(getattr(mod, func)), f"{module}.{func} is not callable"
+
+
+# --- the layout: who imports whom ---------------------------------------------------------
+
+def _imported_top_names(path: Path) -> set[str]:
+    """Top-level names of every absolute import in a module, inside functions too: a lazy
+    import is still a dependency once that code path runs."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+@cache
+def _module_imports(pkg: str) -> dict[Path, set[str]]:
+    """{module path in the repository: top-level names it imports} for ``src/<pkg>/<pkg>/**``."""
+    return {path.relative_to(REPO): _imported_top_names(path) for path in sorted((SRC / pkg / pkg).rglob("*.py"))}
+
+
+@cache
+def _exec_depends(pkg: str) -> frozenset[str]:
+    return frozenset(e.text.strip() for e in ET.parse(SRC / pkg / "package.xml").getroot().iter("exec_depend"))
+
+
+def _ros_packages() -> frozenset[str]:
+    """ROS packages the workspace runs on: whatever a package.xml declares that is neither a
+    project package nor a python3-* system package (rclpy, std_msgs, rcl_interfaces, ...)."""
+    return frozenset(d for pkg in PACKAGES for d in _exec_depends(pkg)
+                     if d not in PACKAGES and not d.startswith("python3-"))
+
+
+def _is_ros_glue(module: Path) -> bool:
+    """Nodes (node.py, *_node.py), the message adapter (ros_adapter.py) and, in soil_bringup,
+    the launcher and the live monitor: the only modules that may import ROS, so every core
+    stays importable and testable without a ROS graph."""
+    stem, pkg = module.stem, module.parts[1]  # src/<pkg>/<pkg>/...
+    return (stem == "node" or stem.endswith("_node") or stem == "ros_adapter"
+            or (pkg == "soil_bringup" and stem in ("launch", "monitor")))
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_imported_project_packages_are_declared_exec_depends(pkg):
+    declared = _exec_depends(pkg)
+    undeclared = sorted(f"{module} imports {other}" for module, names in _module_imports(pkg).items()
+                        for other in sorted(names & set(PACKAGES) - {pkg} - declared))
+    assert not undeclared, f"not an <exec_depend> in src/{pkg}/package.xml:\n" + "\n".join(undeclared)
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_imports_follow_the_package_order(pkg):
+    later = set(PACKAGES[PACKAGES.index(pkg) + 1:])
+    backwards = sorted(f"{module} imports {other}" for module, names in _module_imports(pkg).items()
+                       for other in sorted(names & later))
+    backwards += sorted(f"src/{pkg}/package.xml declares <exec_depend>{other}" for other in _exec_depends(pkg) & later)
+    assert not backwards, (f"{pkg} may import only {PACKAGES[:PACKAGES.index(pkg)]}; "
+                           "it depends on packages after it:\n" + "\n".join(backwards))
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_only_nodes_and_ros_glue_import_ros(pkg):
+    ros = _ros_packages()
+    assert "rclpy" in ros
+    core = sorted(f"{module} imports {', '.join(sorted(names & ros))}" for module, names in _module_imports(pkg).items()
+                  if names & ros and not _is_ros_glue(module))
+    assert not core, ("ROS imported outside a node (node.py, *_node.py), ros_adapter.py or soil_bringup's "
+                      "launch/monitor:\n" + "\n".join(core))
 
 
 @pytest.fixture(scope="module")

@@ -38,9 +38,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from soil_physics import fee
+from soil_physics.augmented_fee import THETA_PARAMS, fee_forces
 from soil_msgs_py.params import DEG, FORCE_FIELDS, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 
-FIT_PARAMS: tuple[str, ...] = ("phi", "c", "delta")
+FIT_PARAMS: tuple[str, ...] = THETA_PARAMS  # the soil the fit estimates: phi, c, delta
 
 # Search box [SI]. Table 1's normalisation ranges (phi 17-45°, c 0-10 kPa, delta 11-35°)
 # widened so that a soil just outside them is still found rather than pinned to a bound:
@@ -131,8 +132,9 @@ def _check_inputs(known, forces) -> tuple[np.ndarray, np.ndarray]:
 # ------------------------------------------------------------------------------ the model
 
 
-def _norm_bounds(rho_max: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Normalised (lb, ub) for one window, narrowed so beta* exists for every tick's rho."""
+def normalised_bounds(rho_max: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Normalised (lb, ub) of the search box for ticks whose largest blade angle is ``rho_max``
+    [rad], narrowed so beta* exists for every tick's rho; None if no useful soil fits."""
     phi_lo, phi_hi = PHI_BOUNDS_RAD
     d_lo, d_hi = DELTA_BOUNDS_RAD
     room = math.pi - rho_max - ETA_MARGIN_RAD
@@ -146,28 +148,32 @@ def _norm_bounds(rho_max: float) -> tuple[np.ndarray, np.ndarray] | None:
     return lo, hi
 
 
-def _denorm(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Normalised (..., 3) -> SI (phi, c, delta)."""
+def denormalise_theta(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The solver's normalised (..., 3) -> SI (phi, c, delta)."""
     return tuple(TABLE1[n].denormalise(x[..., i]) for i, n in enumerate(FIT_PARAMS))
 
 
-def fee_forces(phi, c, delta, known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """FEE (F_x, F_z) [N] per tick and whether it is defined.
+def normalise_theta(theta_si) -> np.ndarray:
+    """SI (phi, c, delta) -> the solver's normalised (3,), e.g. to start a fit from a known soil."""
+    return np.array([TABLE1[n].normalise(v) for n, v in zip(FIT_PARAMS, theta_si)], float)
 
-    phi, c, delta broadcast against known[..., 0] (e.g. (K, 1) against (T,)). beta = beta*
-    per tick with the Eq. 9-10 velocity correction, as the PINN's FEE layer does. Out of the
-    soil (d <= 0) the force is exactly 0 whatever beta* is (the library's FEE would give
-    0 * NaN there); ``defined`` is False only where d > 0 and beta* does not exist.
-    """
-    theta = {n: known[..., i] for i, n in enumerate(KNOWN_PARAMS)}
-    theta.update(phi=phi, c=c, delta=delta)
-    with np.errstate(all="ignore"):  # invalid beta* candidates are masked inside beta_star
-        fx, fz, _ = fee.fee_xz(theta)
-    in_soil = theta["d"] > 0
-    fx = np.where(in_soil, fx, 0.0)
-    fz = np.where(in_soil, fz, 0.0)
-    defined = np.isfinite(fx) & np.isfinite(fz)
-    return fx, fz, defined
+
+def normalised_residuals(fx, fz, defined, target: np.ndarray) -> np.ndarray:
+    """(..., 2) residual F / F_limit − target per tick; UNDEFINED_RESIDUAL where the FEE is not defined."""
+    r = np.stack((fx, fz), axis=-1) / FORCE_SCALE_N - target
+    return np.where(defined[..., None], r, UNDEFINED_RESIDUAL)
+
+
+def forward_steps(x: np.ndarray, ub: np.ndarray) -> np.ndarray:
+    """Forward-difference steps that stay inside the box: +FD_STEP, or −FD_STEP at the upper bound."""
+    return np.where(x + FD_STEP <= ub, FD_STEP, -FD_STEP)
+
+
+def forward_jacobian(residuals_at, x: np.ndarray, r0: np.ndarray, ub: np.ndarray) -> np.ndarray:
+    """(M, 3) Jacobian at x (3,) from one call ``residuals_at(points (3, 3)) -> (3, M)``, r0 (M,) at x."""
+    h = forward_steps(x, ub)
+    r = residuals_at(x[None, :] + np.diag(h))
+    return ((r - r0[None, :]) / h[:, None]).T
 
 
 class _Window:
@@ -182,10 +188,9 @@ class _Window:
 
     def _residuals(self, xs: np.ndarray, with_defined: bool = False):
         """xs (K, 3) normalised -> (K, 2T) residuals, NaN-free."""
-        phi, c, delta = _denorm(xs[:, None, :])
+        phi, c, delta = denormalise_theta(xs[:, None, :])
         fx, fz, defined = fee_forces(phi, c, delta, self.known)
-        r = np.stack((fx, fz), axis=-1) / FORCE_SCALE_N - self.target
-        r = np.where(defined[..., None], r, UNDEFINED_RESIDUAL).reshape(len(xs), -1)
+        r = normalised_residuals(fx, fz, defined, self.target).reshape(len(xs), -1)
         return (r, defined) if with_defined else r
 
     def fun(self, x: np.ndarray) -> np.ndarray:
@@ -198,9 +203,7 @@ class _Window:
             r0 = self._last_r
         else:
             r0 = self.fun(x)
-        h = np.where(x + FD_STEP <= self.ub, FD_STEP, -FD_STEP)  # stay inside the box
-        r = self._residuals(x[None, :] + np.diag(h))  # (3, 2T)
-        return ((r - r0[None, :]) / h[:, None]).T
+        return forward_jacobian(self._residuals, x, r0, self.ub)
 
     def fit(self) -> tuple[np.ndarray, float, bool]:
         """Best of the starts: (x normalised, RMS residual, success)."""
@@ -236,7 +239,7 @@ def _fit_chunk(args) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rho_i = KNOWN_PARAMS.index("rho")
     d_i = KNOWN_PARAMS.index("d")
     for i in range(n):
-        bounds = _norm_bounds(float(known[i, :, rho_i].max()))
+        bounds = normalised_bounds(float(known[i, :, rho_i].max()))
         if bounds is None or not np.any(known[i, :, d_i] > 0):
             continue  # no blade in the soil: the FEE is 0 whatever the soil, nothing to fit
         xs[i], rms[i], ok[i] = _Window(known[i], forces[i], *bounds).fit()
@@ -286,7 +289,7 @@ def fit_windows(known: np.ndarray, forces: np.ndarray, *, workers: int = 1, prog
         ok = np.concatenate([r[2] for r in results])
     else:
         xs, rms, ok = np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=bool)
-    phi, c, delta = _denorm(xs)
+    phi, c, delta = denormalise_theta(xs)
     return _finish(phi, c, delta, k, rms, ok)
 
 

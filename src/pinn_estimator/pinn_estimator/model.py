@@ -6,14 +6,14 @@
     Θ = [Θ_k, Θ_u] clipped to Table 1 limits, d' = d + Δd --FEE (soil_physics.fee)--> F_FEE
     F̂ = F_FEE + F_r
 
-Augmented physics (issue 6): ``ModelConfig.extra_terms`` = ((name, k), ...) of catalogue terms
+Augmented physics: ``ModelConfig.extra_terms`` = ((name, k), ...) of catalogue terms
 (``soil_physics.force_terms``), each ΔF = k·B evaluated on the same Θ, d' and F_FEE, so
 
     F_phys = F_FEE + Σ k·B        F̂ = F_phys + F_r
 
 with k fixed (not trained). ``force_fee`` stays the pure FEE part, ``force_extra`` is Σ k·B.
 A term that looks at the blade's travel in soil (``DISTANCE_TERMS``) needs the ``distance``
-input: ``data.distance_in_soil`` over the episode, at the window's newest sample.
+input: ``soil_physics.travel.distance_in_soil`` over the episode, at the window's newest sample.
 
 The physics-free twin has the same backbone and size but its head predicts F directly: it is
 the baseline that tells whether the physics costs force accuracy.
@@ -28,6 +28,7 @@ from torch import nn
 
 from soil_physics import force_terms as X
 from soil_physics import fee
+from soil_physics.force_inputs import ForceInputs
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS, WINDOW_SAMPLES
 
 MODEL_KINDS = ("pinn", "physics_free")
@@ -36,7 +37,7 @@ MODEL_KINDS = ("pinn", "physics_free")
 FORCE_SCALE_N = FORCE_LIMITS_N
 # §2.2.2: "Values for the residual force are normalized F_r to 10% of the value of F".
 RESIDUAL_FORCE_FRACTION = 0.1
-# Catalogue terms whose basis depends on TermInputs.distance_in_soil: a model using one needs
+# Catalogue terms whose basis depends on ForceInputs.distance_in_soil: a model using one needs
 # the ``distance`` input (tests check no other catalogue term looks at it).
 DISTANCE_TERMS = frozenset({"compaction_hardening"})
 
@@ -192,7 +193,7 @@ class EstimatorNet(nn.Module):
 
     def forward(self, obs: torch.Tensor, known: torch.Tensor, distance: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """obs (B, T, 9), known (B, 9) SI at the newest sample; ``distance`` (B,) [m] the blade's
-        travel in soil since the episode start at the newest sample (``data.distance_in_soil``),
+        travel in soil since the episode start at the newest sample (``Dataset.distance_in_soil``),
         required only if ``needs_distance`` (ValueError otherwise), ignored else."""
         # float64 callers (NumPy-born tensors) get the model's float32, not a dtype error
         obs, known = obs.to(self.force_scale.dtype), known.to(self.force_scale.dtype)
@@ -238,7 +239,7 @@ class EstimatorNet(nn.Module):
                 used = sorted(name for name, _ in self.cfg.extra_terms if name in DISTANCE_TERMS)
                 raise ValueError(
                     f"extra term(s) {used} need the blade's travel in soil: call model(obs, known, distance=...) "
-                    f"with data.distance_in_soil of the episode at each window's newest sample"
+                    f"with Dataset.distance_in_soil of the episode at each window's newest sample"
                 )
             distance = torch.zeros_like(fx)
         else:
@@ -246,10 +247,9 @@ class EstimatorNet(nn.Module):
             if len(distance) != n:
                 raise ValueError(f"distance has {len(distance)} values for a batch of {n} windows")
         g = _FiniteGrad.apply  # the estimated inputs: a term's singularity must not poison Θ_u's gradient
-        inputs = X.TermInputs(
-            d=g(d_prime), q=k["q"], v_x=k["v_x"], v_z=k["v_z"], gamma=k["gamma"], w=k["w"], rho=k["rho"],
-            alpha=k["alpha"], phi=g(theta[:, 0]), c=g(theta[:, 1]), delta=g(theta[:, 2]), distance_in_soil=distance,
-            f_fee_x=g(fx), f_fee_z=g(fz),
+        inputs = ForceInputs.from_known(
+            k, phi=g(theta[:, 0]), c=g(theta[:, 1]), delta=g(theta[:, 2]), distance_in_soil=distance,
+            f_fee_x=g(fx), f_fee_z=g(fz), d=g(d_prime),
         )
         ex = ez = torch.zeros_like(fx)
         for name, coef in self.cfg.extra_terms:  # X.apply, with a non-finite basis value counted as 0

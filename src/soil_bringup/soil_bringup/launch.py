@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +43,10 @@ EXIT_BAD_ARGS = 2
 CONTROLLER_ENDPOINTS = {name: 1 for name in G.CONTROLLER_INPUTS + G.COMMAND_TOPICS}
 RECORDER_ENDPOINTS = {name: 1 for name in G.RECORDER_INPUTS if name not in G.COMMAND_TOPICS}
 ESTIMATOR_ENDPOINTS = {name: 1 for name in G.ESTIMATOR_INPUTS if name not in G.COMMAND_TOPICS}
+
+# The line the launch logs per node it starts; ``started_nodes`` reads it back from a log.
+STARTED_LINE = "started {name} (pid {pid}): {command}"
+_STARTED_RE = re.compile(r"^\[launch\] started (\S+) \(pid (\d+)\): (.*)$", re.M)
 
 
 def executable(name: str) -> str:
@@ -91,16 +97,21 @@ def _pump(prefix: str, stream, out) -> None:
 
 
 class Launch:
-    """Starts, watches and stops a group of node processes."""
+    """Starts, watches and stops a group of node processes.
+
+    ``on_interrupt`` is called once, from the signal handler, at the first Ctrl-C / SIGTERM
+    (an embedding program can say at once that it is stopping)."""
 
     def __init__(self, nodes: list[NodeProcess], env: dict[str, str], *, timeout_s: float = 0.0,
-                 stop_timeout_s: float = 10.0, drain_s: float = 1.5, out=sys.stdout):
+                 stop_timeout_s: float = 10.0, drain_s: float = 1.5, out=sys.stdout,
+                 on_interrupt: Callable[[], None] | None = None):
         self.nodes = nodes
         self.env = env
         self.timeout_s = timeout_s
         self.stop_timeout_s = stop_timeout_s
         self.drain_s = drain_s
         self.out = out
+        self.on_interrupt = on_interrupt
         self.interrupted = False
 
     def log(self, text: str) -> None:
@@ -115,10 +126,13 @@ class Launch:
             )
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
             node.pump.start()
-            self.log(f"started {node.name} (pid {node.proc.pid}): {' '.join(node.argv)}")
+            self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
 
     def _on_signal(self, signum, frame) -> None:  # noqa: ARG002
+        first = not self.interrupted
         self.interrupted = True
+        if first and self.on_interrupt is not None:
+            self.on_interrupt()
 
     def run(self) -> int:
         """Start everything, wait for the end, stop everyone; returns the exit code."""
@@ -190,6 +204,35 @@ class Launch:
             except subprocess.TimeoutExpired:
                 continue
         return node.proc.wait(timeout=5.0)
+
+
+def started_nodes(log_path: Path) -> dict[int, tuple[str, str]]:
+    """pid -> (name, command line) of the nodes a launch's log says it started ({} if unreadable)."""
+    try:
+        text = Path(log_path).read_text(errors="replace")
+    except OSError:
+        return {}
+    return {int(pid): (name, cmd) for name, pid, cmd in _STARTED_RE.findall(text)}
+
+
+def stop_logged_nodes(log_path: Path) -> list[str]:
+    """SIGKILL the nodes a launch's log says it started that are still running: those of a
+    launch that could not stop them (it was killed itself; its nodes run in their own sessions
+    and outlive it). Only a process whose command line is still the logged one is touched: a
+    recycled pid is left alone. Returns 'name (pid)' of each node killed."""
+    killed = []
+    for pid, (name, cmd) in started_nodes(log_path).items():
+        try:
+            cmdline = " ".join(Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")).strip()
+        except OSError:
+            continue
+        if cmdline.endswith(cmd.strip()):
+            try:
+                os.kill(pid, signal.SIGKILL)
+                killed.append(f"{name} ({pid})")
+            except ProcessLookupError:
+                pass
+    return killed
 
 
 def _params(pairs: list[str]) -> list[str]:
@@ -284,15 +327,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def launch_for(args: argparse.Namespace, out=sys.stdout, on_interrupt: Callable[[], None] | None = None) -> Launch:
+    """The launch ``soil_launch`` runs for these (parsed) arguments, its output to ``out``.
+
+    ValueError / FileNotFoundError if the graph cannot be built (bad parameter, missing node)."""
+    return Launch(build_nodes(args), loopback_env(args.domain_id), timeout_s=args.timeout,
+                  stop_timeout_s=args.stop_timeout, out=out, on_interrupt=on_interrupt)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        nodes = build_nodes(args)
+        launch = launch_for(args)
     except (ValueError, FileNotFoundError) as err:
         print(f"soil_launch: {err}", file=sys.stderr)
         return EXIT_BAD_ARGS
-    return Launch(nodes, loopback_env(args.domain_id), timeout_s=args.timeout,
-                  stop_timeout_s=args.stop_timeout).run()
+    return launch.run()
 
 
 if __name__ == "__main__":

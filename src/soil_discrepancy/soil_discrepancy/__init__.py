@@ -1,30 +1,23 @@
-"""Discrepancy workflow (issue 6): find where the simulation model and measured data disagree,
+"""Discrepancy workflow: find where the simulation model and measured data disagree,
 name the missing effect from the catalogue ``soil_physics.force_terms``, add it to the model and
 show the gap shrink on held-out episodes. Never reads ground truth.
 
-    from . import run_discrepancy
+    from soil_discrepancy import run_discrepancy
     report = run_discrepancy("bags/disc/soil_inertia", "out/disc/soil_inertia")
     report["verdict"], report["model"]["plugin_specs"]
 
-Modules: ``baseline`` (AugmentedFEE, the analysis Frame, θ fits, residuals), ``regimes``
-(episode-level tests by regime), ``candidates`` (cross-validated term scores, greedy
-selection), ``gap`` (held-out before/after, the hook for other models' predictions),
-``report`` (Markdown/JSON/PNG), ``workflow`` (run_discrepancy), ``cli`` (soil_discrepancy).
+Modules: ``frame`` (the analysed ticks and their θ-groups), ``fee_fit`` (θ per group, with or
+without one term's k, and residuals), ``regimes`` (episode-level tests by regime), ``candidates``
+(cross-validated term scores, greedy selection), ``gap`` (held-out before/after, the hook for
+other models' predictions), ``report`` (Markdown/JSON/PNG), ``workflow`` (run_discrepancy),
+``cli`` (soil_discrepancy). The model itself, the FEE plus named terms, is physics:
+``soil_physics.augmented_fee.AugmentedFEE``.
 """
-from .baseline import (
-    AugmentedFEE,
-    Frame,
-    ThetaFit,
-    build_frame,
-    distance_in_soil,
-    fit_fixed,
-    fit_joint,
-    linear_k,
-    plugin_spec,
-    residuals,
-    term_inputs,
-)
+from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
+
 from .candidates import TermScore, group_folds, score_terms, select_terms, split_holdout
+from .fee_fit import ThetaFit, fit_fixed, fit_joint, linear_k, residuals, term_inputs
+from .frame import Frame, build_frame
 from .gap import compare_predictions, error_metrics, fee_gap
 from .regimes import bin_edges, holm, regime_analysis, trend_tests
 from .report import markdown, write_outputs
@@ -32,7 +25,7 @@ from .workflow import VERDICTS, load_frame, run_discrepancy
 
 __all__ = [
     "AugmentedFEE", "Frame", "TermScore", "ThetaFit", "VERDICTS", "bin_edges", "build_frame", "compare_predictions",
-    "distance_in_soil", "error_metrics", "fee_gap", "fit_fixed", "fit_joint", "group_folds", "holm", "linear_k",
+    "error_metrics", "fee_gap", "fit_fixed", "fit_joint", "group_folds", "holm", "linear_k",
     "load_frame", "markdown", "plugin_spec", "regime_analysis", "residuals", "run_discrepancy", "score_terms",
     "select_terms", "split_holdout", "term_inputs", "trend_tests", "write_outputs",
 ]

@@ -4,12 +4,12 @@ For each candidate term, K-fold cross-validation over θ-groups (GroupKFold: the
 share a soil stay together, so no held-out soil is seen in training):
 
 * training groups: k fitted **jointly** with their θ_g (one least-squares problem, see
-  ``baseline.fit_joint``; the brief's alternation converges to the same point, slower);
+  ``fee_fit.fit_joint``; the brief's alternation converges to the same point, slower);
 * held-out groups: θ_g refitted with that k fixed — how the augmented model would be used on a
-  new soil — and the force error per held-out episode compared with the baseline model's
-  (θ_g refitted without the term, i.e. the baseline fit of that group).
+  new soil — and the force error per held-out episode compared with the model without the
+  term's (θ_g refitted without it, i.e. the initial fit of that group).
 
-Score: the share of the held-out baseline error the term removes, gain = 1 − SSE_after/SSE_before
+Score: the share of the held-out error without the term that it removes, gain = 1 − SSE_after/SSE_before
 (normalised x and z), and a one-sided Wilcoxon signed-rank test over held-out episodes of the
 per-episode MSE before vs after. p-values are Holm-corrected over the candidates of a round.
 k ± SE: k from the joint fit on every selection group; SE the grouped (delete-a-fold)
@@ -18,7 +18,7 @@ jackknife over the K fold estimates, sqrt((K−1)/K Σ (k_i − k̄)²).
 Greedy forward selection: accept the best term whose Holm p < alpha, gain ≥ min_gain and whose
 coefficient is determined (the fold estimates agree: |mean k| > K_SIGMA · SE; a term that helps
 with wildly different k per fold is absorbing something else, it is not that effect), fix
-its k, refit the baseline θ_g with it and repeat for the remaining terms; stop when none
+its k, refit every θ_g with it and repeat for the remaining terms; stop when none
 qualifies. Nothing is accepted on a term's training fit alone.
 """
 from __future__ import annotations
@@ -32,9 +32,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from soil_physics import force_terms as extra_terms
+from soil_physics import force_terms
+from soil_physics.augmented_fee import AugmentedFEE
 
-from .baseline import FORCE_SCALE_N, AugmentedFEE, Frame, ThetaFit, fit_fixed, fit_joint, residuals
+from pinn_estimator.classical import FORCE_SCALE_N, UNDEFINED_RESIDUAL
+from .fee_fit import ThetaFit, fit_fixed, fit_joint, residuals
+from .frame import Frame
 from .regimes import holm
 
 MAX_TERMS = 3
@@ -127,7 +130,7 @@ def group_folds(groups, folds: int, seed: int) -> list[tuple[list[int], list[int
 def episode_sse(frame: Frame, resid: np.ndarray) -> dict[int, tuple[float, int]]:
     """{episode: (Σ normalised squared residual over ticks and both axes, ticks)}; NaN ticks count as the penalty."""
     r = resid / FORCE_SCALE_N
-    r = np.where(np.isfinite(r), r, 10.0)
+    r = np.where(np.isfinite(r), r, UNDEFINED_RESIDUAL)
     sq = (r**2).sum(1)
     out = {}
     for e in frame.episodes:
@@ -165,7 +168,7 @@ class TermScore:
     note: str = ""
 
     def to_dict(self) -> dict:
-        term = extra_terms.get_term(self.name)
+        term = force_terms.get_term(self.name)
         return {
             "name": self.name, "title": term.title, "formula": term.formula, "k_unit": term.k_unit,
             "k": _f(self.k), "k_se": _f(self.k_se), "k_folds": [_f(v) for v in self.k_folds],
@@ -262,9 +265,9 @@ def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=N
                  seed: int = 0, alpha: float = 0.01, min_gain: float = 0.05, max_terms: int = MAX_TERMS,
                  workers: int = 1, allow_negative_k: bool = False, log=None) -> dict:
     """Greedy forward selection on the selection part. Returns {'model', 'fit', 'rounds', 'accepted'}."""
-    candidates = [n for n in (candidates or list(extra_terms.CATALOGUE)) if n not in model.names]
+    candidates = [n for n in (candidates or list(force_terms.CATALOGUE)) if n not in model.names]
     for n in candidates:
-        extra_terms.get_term(n)
+        force_terms.get_term(n)
     rounds, accepted = [], []
     current, cur_fit = model, base
     while candidates and len(accepted) < max_terms:

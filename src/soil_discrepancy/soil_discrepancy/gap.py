@@ -4,7 +4,7 @@
 of any model at the held-out ticks (``frame.rows`` are their rows in the ``Dataset``; every row
 has a full 60-tick window before it) without and with the named terms, and reports MAE/RMSE in x
 and z, the RMS force-error magnitude, a paired test over episodes and the same per regime bin.
-``fee_gap`` does it for the FEE model (θ refitted per held-out group, before with the baseline
+``fee_gap`` does it for the FEE model (θ refitted per held-out group, before with the initial
 terms, after with the accepted ones). A PINN comparison passes its own predictions, e.g. through
 ``run_discrepancy(..., predictors={"PINN": fn})`` with ``fn(test_frame, model_before, model_after,
 context) -> (F_before (N, 2), F_after (N, 2))`` (or a finished result dict); ``context`` names the
@@ -16,8 +16,11 @@ import math
 
 import numpy as np
 
-from .baseline import AugmentedFEE, Frame, ThetaFit, fit_fixed, residuals
+from soil_physics.augmented_fee import AugmentedFEE
+
 from .candidates import paired_test
+from .fee_fit import ThetaFit, fit_fixed, residuals
+from .frame import Frame
 from .regimes import AXES, bin_edges, regime_bins
 
 

@@ -33,12 +33,14 @@ from __future__ import annotations
 import numpy as np
 
 from soil_msgs_py.params import WINDOW_SAMPLES
+from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.model import ModelConfig
 from pinn_estimator.train import TrainConfig, train
-from .baseline import AugmentedFEE, Frame, ThetaFit
+from .fee_fit import ThetaFit
+from .frame import Frame
 from .gap import compare_predictions, error_metrics, fee_gap
 
 PREDICTIONS = ("force", "physics", "soil")

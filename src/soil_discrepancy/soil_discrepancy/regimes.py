@@ -22,7 +22,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from .baseline import Frame
+from .frame import Frame
 
 # (key, label, unit) of the per-tick variables analysed.
 CONTINUOUS: tuple[tuple[str, str, str], ...] = (

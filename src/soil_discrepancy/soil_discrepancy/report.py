@@ -1,6 +1,6 @@
 """Report files of the discrepancy workflow: discrepancy.json, discrepancy.md and PNG figures.
 
-* ``residuals_by_regime.png`` — baseline residual vs every regime variable (x and z rows):
+* ``residuals_by_regime.png`` — the initial model's residual vs every regime variable (x and z rows):
   ticks (grey), episode-level bin means with 95 % CIs (blue) and, if terms were accepted, the
   augmented model's (orange);
 * ``heldout_gap.png`` — held-out test episodes: RMS force error per regime bin before/after;

@@ -1,4 +1,4 @@
-"""Topic names, message types and field mapping of the insitu-soil graph (DESIGN.md §5).
+"""Topic names, message types and field mapping of the insitu-soil graph.
 
 Every per-tick message carries the tick's simulation time: in ``header.stamp`` for stamped
 geometry_msgs types, and in the first two labelled fields ``stamp_sec``/``stamp_nanosec``

@@ -1,6 +1,6 @@
 """Named candidate effects the FEE lacks: one catalogue for the simulator, the model and the PINN.
 
-The discrepancy workflow (issue 6) looks for the physics a model of earthmoving is missing.
+The discrepancy workflow (``soil_discrepancy``) looks for the physics a model of earthmoving is missing.
 Each candidate here is a documented force term, linear in one coefficient k:
 
     ΔF = k · B(inputs)        B = (B_x, B_z) [N per unit of k], force of the blade ON the soil,
@@ -12,51 +12,25 @@ FEE model with its fitted k (``apply``), switched on in the simulator as an effe
 PINN as an extra physics term. ``basis`` works on NumPy arrays and torch tensors alike (like
 ``fee``), so this is the one implementation of each term.
 
-``TermInputs`` is what every term may look at. All of it is available from a measured
-episode without ground truth: Θ_k (d, Q, v, γ, w, ρ, α), the soil parameters φ, c, δ of the
+Every term looks at a ``ForceInputs`` (``force_inputs``), the simulator's vocabulary too. All
+a term uses is available from a measured episode without ground truth
+(``ForceInputs.from_known``): Θ_k (d, Q, v, γ, w, ρ, α), the soil parameters φ, c, δ of the
 model being corrected (fitted per episode, or the PINN's estimates), the model's own FEE
-force, and the blade's travel in soil integrated from v_x and d.
+force, and the blade's travel in soil integrated from v_x and d (``travel``).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
 from . import xp as _xp
+from .bearing import EDGE_WIDTH_M, bearing_factors
 from .fee import beta_star
+from .force_inputs import ForceInputs
 from soil_msgs_py.params import GRAVITY_M_S2
-
-EDGE_WIDTH_M = 0.02  # effective width of the cutting edge (the simulator's blade_edge_width_m)
-
-
-@dataclass
-class TermInputs:
-    """Per-sample quantities (arrays of one shape, SI) a candidate term may use."""
-
-    d: Any  # depth of cut [m] (<= 0: blade out of the soil)
-    q: Any  # surcharge force [N]
-    v_x: Any  # blade velocity x [m/s]
-    v_z: Any  # blade velocity z [m/s]
-    gamma: Any  # unit weight [N/m^3]
-    w: Any  # blade width [m]
-    rho: Any  # blade angle [rad]
-    alpha: Any  # surface inclination [rad]
-    phi: Any  # soil friction angle of the model [rad]
-    c: Any  # cohesion of the model [Pa]
-    delta: Any  # soil-tool friction angle of the model [rad]
-    distance_in_soil: Any  # blade travel with d > 0 since the episode started [m]
-    f_fee_x: Any  # the model's FEE force, x [N]
-    f_fee_z: Any  # the model's FEE force, z [N]
-
-    @classmethod
-    def from_mapping(cls, data) -> "TermInputs":
-        missing = [f.name for f in fields(cls) if f.name not in data]
-        if missing:
-            raise ValueError(f"term inputs lack {missing}")
-        return cls(**{f.name: data[f.name] for f in fields(cls)})
 
 
 @dataclass(frozen=True)
@@ -69,13 +43,12 @@ class Term:
     k_unit: str  # unit of the coefficient k
     k_nominal: float  # a physically typical k (scale for reports and tests)
     physics: str  # why the FEE misses it
-    basis_fn: Callable[[TermInputs, Any], tuple[Any, Any]]
+    basis_fn: Callable[[ForceInputs, Any], tuple[Any, Any]]
 
-    def basis(self, inputs: TermInputs) -> tuple[Any, Any]:
+    def basis(self, inputs: ForceInputs) -> tuple[Any, Any]:
         """(B_x, B_z) [N per unit k], NumPy or torch like the inputs (scalars broadcast)."""
-        names = [f.name for f in fields(TermInputs)]
-        xp, *values = _xp.coerce(*(getattr(inputs, n) for n in names))
-        return self.basis_fn(TermInputs(**dict(zip(names, values))), xp)
+        xp, inputs = inputs.coerced()
+        return self.basis_fn(inputs, xp)
 
 
 def _pos(xp, x):
@@ -86,7 +59,7 @@ def _zeros(xp, like):
     return 0.0 * like
 
 
-def _inertia(s: TermInputs, xp):
+def _inertia(s: ForceInputs, xp):
     # momentum given to the cut soil per second: (γ/g) w d v_x · v_x
     return s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * _pos(xp, s.v_x) ** 2, _zeros(xp, s.d)
 
@@ -114,32 +87,30 @@ def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float =
     return force * xp.cos(angle), force * xp.sin(angle)
 
 
-def _side_walls(s: TermInputs, xp):  # noqa: ARG001 - side_wall_force picks its own namespace
+def _side_walls(s: ForceInputs, xp):  # noqa: ARG001 - side_wall_force picks its own namespace
     return side_wall_force(s.phi, s.c, s.gamma, s.delta, s.rho, s.alpha, s.d)
 
 
-def _tip_bearing(s: TermInputs, xp):
-    phi = _xp.clip_min(xp, s.phi, 1e-6)  # N_c -> π + 2 as φ -> 0 (no 0/0 at φ = 0)
-    n_q = xp.exp(math.pi * xp.tan(phi)) * xp.tan(math.pi / 4 + phi / 2) ** 2
-    n_c = (n_q - 1.0) / xp.tan(phi)
+def _tip_bearing(s: ForceInputs, xp):
+    n_q, n_c, _ = bearing_factors(s.phi)
     in_soil = (s.d > 0) * 1.0
-    bearing = s.w * EDGE_WIDTH_M * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * in_soil
+    bearing = s.w * s.blade_thickness * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * in_soil
     return _zeros(xp, s.d), -bearing  # the edge presses down on the floor
 
 
-def _surcharge_drag(s: TermInputs, xp):
+def _surcharge_drag(s: ForceInputs, xp):
     return s.q * (s.d > 0), _zeros(xp, s.d)
 
 
-def _rate_strength(s: TermInputs, xp):
+def _rate_strength(s: ForceInputs, xp):
     return s.w * _pos(xp, s.d) * _pos(xp, s.v_x), _zeros(xp, s.d)
 
 
-def _compaction(s: TermInputs, xp):
+def _compaction(s: ForceInputs, xp):
     return s.distance_in_soil * s.f_fee_x, s.distance_in_soil * s.f_fee_z
 
 
-def _base_friction(s: TermInputs, xp):
+def _base_friction(s: ForceInputs, xp):
     return _pos(xp, -s.f_fee_z) * (s.d > 0), _zeros(xp, s.d)
 
 
@@ -157,7 +128,7 @@ CATALOGUE: dict[str, Term] = {
              "wedge (McKyes 1985)", _side_walls),
         Term("tip_penetration", "blade-tip penetration (bearing) resistance",
              "F_z = −k w t_e (c N_c + γ d N_q), N_q = e^{π tan φ} tan²(45° + φ/2), N_c = (N_q − 1) cot φ, "
-             "t_e = 0.02 m  [N]", "1", 1.0,
+             f"t_e = {EDGE_WIDTH_M:g} m  [N]", "1", 1.0,
              "the FEE's blade has no thickness; a real edge bears on the floor it cuts", _tip_bearing),
         Term("surcharge_drag", "surcharge contribution beyond the FEE's Q N_Q",
              "F_x = k Q  [N]", "1", 0.3,
@@ -207,7 +178,7 @@ def parse_terms(specs) -> tuple[tuple[str, float], ...]:
     return tuple(out)
 
 
-def apply(terms, inputs: TermInputs) -> tuple[Any, Any]:
+def apply(terms, inputs: ForceInputs) -> tuple[Any, Any]:
     """Σ k · B over ``terms`` ((name, k) pairs): the force to add to the model's FEE force [N]."""
     fx = fz = 0.0 * inputs.d
     for name, k in terms:
@@ -221,13 +192,8 @@ def plugin(state, term: str, k: float):
 
     ``SimConfig(plugins=["soil_physics.force_terms:plugin term=soil_inertia k=2.0"])`` switches
     on in the simulator exactly the term the discrepancy workflow fits and the model adds.
-    ``state`` is the simulator's ``EffectState`` (its own soil and FEE force).
+    ``state`` is the simulator's ``ForceInputs`` (its own soil and FEE force).
     """
     (name, k), = parse_terms([(term, k)])
-    inputs = TermInputs(
-        d=state.d, q=state.q, v_x=state.v_x, v_z=state.v_z, gamma=state.gamma, w=state.w, rho=state.rho,
-        alpha=state.alpha, phi=state.phi, c=state.c, delta=state.delta, distance_in_soil=state.distance_in_soil,
-        f_fee_x=state.f_fee_x, f_fee_z=state.f_fee_z,
-    )
-    bx, bz = get_term(name).basis(inputs)
+    bx, bz = get_term(name).basis(state)
     return k * np.asarray(bx, dtype=float), k * np.asarray(bz, dtype=float)

@@ -16,8 +16,6 @@ with code 2) and can be changed at run time (``ros2 param set``).
 """
 from __future__ import annotations
 
-import collections
-
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -26,6 +24,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
+from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe,
                       fields, max_cut_depth)
@@ -60,9 +59,9 @@ class PlannerNode(Node):
 
         self.classes = M.ros_message_classes()
         self._warn = WarnLimiter(self.get_logger())
-        # stamp -> payload dict; bounded, oldest dropped first
-        self.known: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
-        self.estimates: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
+        # Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order,
+        # so older ticks still waiting are given up. A stamp that goes back is a new stream.
+        self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
         self.last_log_ns: int | None = None
         self.published = 0
         self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, topic_qos(T.PLAN.name))
@@ -103,9 +102,7 @@ class PlannerNode(Node):
         except ValueError as err:
             self._warn("known:layout", f"{err}; ignored")
             return
-        self._remember(self.known, stamp, fields(values, KNOWN_PARAMS))
-        if stamp in self.estimates:
-            self._plan(stamp, self.estimates.pop(stamp), self.known[stamp])
+        self._join(T.KNOWN.name, stamp, fields(values, KNOWN_PARAMS))
 
     def _on_estimate(self, msg) -> None:
         try:
@@ -117,16 +114,20 @@ class PlannerNode(Node):
         if est["valid"] == 0.0:  # no estimate yet: say so for this tick, no Θ_k needed
             self._publish(stamp, NO_PLAN_VALUES)
             return
-        if stamp in self.known:
-            self._plan(stamp, est, self.known[stamp])
-        else:
-            dropped = self._remember(self.estimates, stamp, est)
-            if dropped is not None:
-                self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {dropped} ns never got its {T.KNOWN.name}; dropped")
+        self._join(T.ESTIMATE.name, stamp, est)
+
+    def _join(self, topic: str, stamp: int, payload: dict[str, float]) -> None:
+        verdict, out = self.joiner.offer(topic, stamp, payload)
+        if verdict is Verdict.STALE and topic == T.ESTIMATE.name:
+            self._warn("unpaired", f"{topic} at stamp {stamp} ns came again after its plan; dropped")
+        for joined in out:
+            if joined.complete:
+                self._plan(joined.stamp_ns, joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
+            elif T.ESTIMATE.name in joined.parts:  # (Θ_k alone: no estimate or an invalid one, answered at once)
+                self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {joined.stamp_ns} ns never got its "
+                                       f"{T.KNOWN.name}; dropped")
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
-        for older in [s for s in self.known if s < stamp]:  # Θ_k arrives in stamp order: no later estimate needs them
-            del self.known[older]
         try:
             plan = max_cut_depth(est, known, margin=self.margin, d_max_m=self.d_max_m,
                                  cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual)
@@ -149,17 +150,9 @@ class PlannerNode(Node):
         self.plan_pub.publish(M.make_labelled(self.classes, stamp, T.PLAN_FIELDS, values))
         self.published += 1
 
-    @staticmethod
-    def _remember(store: collections.OrderedDict, stamp: int, payload: dict) -> int | None:
-        """Store ``payload`` under ``stamp``; returns the stamp dropped to keep the store bounded."""
-        store[stamp] = payload
-        store.move_to_end(stamp)
-        if len(store) > MAX_PENDING_STAMPS:
-            return store.popitem(last=False)[0]
-        return None
-
     def close(self) -> None:
-        self.get_logger().info(f"{self.published} plans published, {len(self.estimates)} estimates unpaired")
+        unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
+        self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired")
 
 
 def main(args: list[str] | None = None) -> int:

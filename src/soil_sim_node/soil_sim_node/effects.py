@@ -13,8 +13,9 @@ User plugins (no simulator edit needed)
 ---------------------------------------
 ``SimConfig(plugins=["my_pkg.my_mod:my_force"])`` or, with parameters,
 ``plugins=[{"target": "my_pkg.my_mod:my_force", "params": {"k": 1200.0}}]``.
-The function is called once per physics substep as ``fn(state, **params)`` with an
-``EffectState`` (below; arrays of shape (B,) for a batch of B episodes, SI units) and
+The function is called once per physics substep as ``fn(state, **params)`` with a
+``soil_physics.force_inputs.ForceInputs`` (arrays of shape (B,) for a batch of B episodes,
+SI units; the simulator fills every field, its own soil in effect and FEE force) and
 must return ``(f_x, f_z)``: arrays (or floats) broadcastable to (B,), the extra force the
 blade exerts on the soil [N]. A plugin that does not import, is not callable, returns the
 wrong shape or a non-finite value stops the simulation with a ``PluginError`` naming the
@@ -28,87 +29,14 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from soil_physics.contact import contact_damping_force
+from soil_physics.force_inputs import ForceInputs
+
 WORLD_MODES = ("fee", "default")
 
 
-@dataclass(frozen=True)
-class EffectState:
-    """What a force term may look at, per episode, at one physics substep (SI)."""
-
-    t: np.ndarray  # simulation time [s]
-    dt: float  # substep [s]
-    x_b: np.ndarray  # blade edge x [m]
-    z_b: np.ndarray  # blade edge z [m]
-    v_x: np.ndarray  # blade velocity x [m/s]
-    v_z: np.ndarray  # blade velocity z [m/s]
-    d: np.ndarray  # depth of cut, surface minus edge [m] (<= 0: out of the soil)
-    q: np.ndarray  # surcharge weight on the blade [N]
-    phi: np.ndarray  # friction angle in effect now [rad]
-    c: np.ndarray  # cohesion in effect now [Pa]
-    gamma: np.ndarray  # unit weight in effect now [N/m^3]
-    delta: np.ndarray  # soil-tool friction angle (nominal) [rad]
-    c_a: np.ndarray  # adhesion (nominal) [Pa]
-    rho: float  # blade angle [rad]
-    alpha: float  # surface inclination [rad]
-    w: float  # blade width [m]
-    blade_thickness: float  # effective cutting-edge width [m]
-    f_fee_x: np.ndarray  # FEE soil force this substep, x [N]
-    f_fee_z: np.ndarray  # FEE soil force this substep, z [N]
-    distance_in_soil: np.ndarray  # blade travel with d > 0 since reset [m]
-    relative_density_pct: np.ndarray  # initial I_d [%]
-
-
-# ---------------------------------------------------------------------------------------
-# Force terms (pure functions with the plugin signature; also usable by the discrepancy
-# workflow as candidate effects).
-# ---------------------------------------------------------------------------------------
-def penetration_capacity(state: EffectState, edge_width_m: float = 0.02):
-    """Largest vertical resistance [N] intact soil offers the cutting edge (Vortex "penetration forces").
-
-    Bearing capacity of a strip of width t_edge (the effective edge) at depth d (Terzaghi
-    1943 form with Vesic's N_gamma): q_b = c N_c + gamma d N_q + 0.5 gamma t_edge N_gamma,
-    N_q = e^(pi tan phi) tan^2(45 deg + phi/2), N_c = (N_q - 1) cot phi,
-    N_gamma = 2 (N_q + 1) tan phi; capacity = q_b w t_edge. The simulator applies it as a
-    one-sided rigid-plastic constraint: an edge moving down into the soil is stopped by up
-    to this force (so dense soils resist penetration, paper §2.1.2 footnote 2); an edge at
-    rest or rising feels nothing. (A force proportional to the sinking speed would be a
-    stiff damper that explicit integration cannot carry.)
-    """
-    tan_phi = np.tan(state.phi)
-    n_q = np.exp(np.pi * tan_phi) * np.tan(np.pi / 4 + state.phi / 2) ** 2
-    n_c = (n_q - 1.0) / np.maximum(tan_phi, 1e-6)
-    n_gamma = 2.0 * (n_q + 1.0) * tan_phi
-    depth = np.maximum(state.d, 0.0)
-    q_b = state.c * n_c + state.gamma * depth * n_q + 0.5 * state.gamma * edge_width_m * n_gamma
-    return q_b * state.w * edge_width_m * (state.d > 0)
-
-
-def contact_damping_force(state: EffectState, damping_pa_s_m: float = 6e3):
-    """Viscous contact damping on the submerged blade face [N] (Vortex contact damping).
-
-    Pressure c_v * v_n on the submerged area w d / sin(rho), along the blade normal,
-    opposing the blade's normal velocity v_n (rate-dependent resistance).
-    """
-    area = state.w * np.maximum(state.d, 0.0) / np.sin(state.rho)
-    n_x, n_z = np.sin(state.rho - state.alpha), np.cos(state.rho - state.alpha)
-    v_n = state.v_x * n_x + state.v_z * n_z
-    f_n = damping_pa_s_m * area * v_n
-    return f_n * n_x, f_n * n_z
-
-
-def base_friction_force(state: EffectState, normal_down_n=None, mu: float | None = None, v_ref_m_s: float = 0.02):
-    """Coulomb friction of the blade base on the cut floor [N] (Vortex contact friction).
-
-    What the blade pushes down onto the floor (``normal_down_n`` >= 0; the simulator passes
-    the penetration reaction plus any downward FEE component) resists forward sliding with
-    mu = tan(delta).
-    """
-    mu_v = np.tan(state.delta) if mu is None else mu
-    normal = np.maximum(-state.f_fee_z, 0.0) if normal_down_n is None else np.maximum(normal_down_n, 0.0)
-    fx = mu_v * normal * (state.d > 0) * np.tanh(state.v_x / v_ref_m_s)
-    return fx, np.zeros_like(fx)
-
-
+# Named effects that are one force term on ``ForceInputs`` (the physics lives in soil_physics;
+# the simulator applies penetration and base friction itself, they interact with the edge).
 FORCE_TERMS = {"contact_damping": contact_damping_force}
 
 
@@ -125,9 +53,10 @@ class Effects:
                      pile fills at the cut rate w d v_x, less what spills over the top as it
                      fills (inflow * V / capacity), and sheds over the blade ends with time
                      constant ``surcharge_shed_time_s``.
-    penetration      ``penetration_capacity`` (a one-sided constraint on the edge).
-    contact_damping  ``contact_damping_force``.
-    base_friction    ``base_friction_force`` on the penetration reaction.
+    penetration      ``soil_physics.bearing.penetration_capacity`` (a one-sided constraint on
+                     the edge).
+    contact_damping  ``soil_physics.contact.contact_damping_force``.
+    base_friction    ``soil_physics.contact.base_friction_force`` on the penetration reaction.
     force_scaling    the FEE force is multiplied by ``force_scale`` and limited to
                      ``area_pressure_limit_pa`` times the submerged face area.
     particles        heightfield-to-particle conversion: failure events at a rate
@@ -220,7 +149,7 @@ class ForcePlugin:
             raise PluginError(f"plugin={target!r}: {module_name!r} has no callable {func_name!r}")
         return cls(target, params, fn)
 
-    def __call__(self, state: EffectState, batch: int) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, state: ForceInputs, batch: int) -> tuple[np.ndarray, np.ndarray]:
         try:
             out = self.fn(state, **self.params)
             fx, fz = out

@@ -7,7 +7,7 @@ Use it without editing the simulator::
                         "params": {"k0": 0.5, "walls": 2}}])
 
 Plugin contract (``soil_sim_node.effects``): called once per physics substep as
-``fn(state, **params)`` with an ``EffectState`` (arrays of shape (B,), SI units); returns
+``fn(state, **params)`` with a ``ForceInputs`` (arrays of shape (B,), SI units); returns
 ``(f_x, f_z)``, the extra force the blade exerts ON the soil [N], x forward, z up.
 
 Physics

@@ -1,9 +1,10 @@
 """`python -m soil_sim_node.sample_episodes`: a small simulator dataset and its plots (not `make demo`).
 
 Generates Loam at I_d = 60 % (the paper's Fig. 3 episode), dense Clay and loose Sand in both
-worlds, writes the bags under bags/demo/<mode>/, a Fig.-3-style PNG per episode under
-out/demo/, and prints one line per episode (mean cut depth, force mean/std, final surcharge,
-fee-mode error against the FEE of the pseudo-ground truth).
+worlds, writes the bags under bags/sim_samples/<mode>/, a Fig.-3-style PNG per episode under
+out/sim_samples/ (folders of its own: out/demo/ and bags/demo_online/ belong to `make demo`),
+and prints one line per episode (mean cut depth, force mean/std, final surcharge, fee-mode
+error against the FEE of the pseudo-ground truth).
 """
 from __future__ import annotations
 
@@ -18,15 +19,15 @@ from .batch import DatasetPlan, generate, grid_specs
 from .effects import effects_for_mode
 from .plot import plot_episode, truth_fee_force
 
-DEMO_EPISODES = (("Loam", 60.0), ("Clay", 100.0), ("Sand", 0.0))
+SAMPLE_EPISODES = (("Loam", 60.0), ("Clay", 100.0), ("Sand", 0.0))
 
 
 def main(argv=None) -> int:
-    root, figs = Path("bags/demo"), Path("out/demo")
+    root, figs = Path("bags/sim_samples"), Path("out/sim_samples")
     print(f"{'episode':44s} {'depth m':>8s} {'Fx kN':>12s} {'Fz kN':>12s} {'Q kN':>6s} {'|F-FEE| kN':>10s}")
     for mode in ("fee", "default"):
         specs = []
-        for k, (soil, i_d) in enumerate(DEMO_EPISODES):
+        for k, (soil, i_d) in enumerate(SAMPLE_EPISODES):
             specs += grid_specs([soil], [i_d], [0.5], [0.2], 1, seed_base=7 + k, duration_s=10.0)
         plan = DatasetPlan(mode, root / mode, specs, effects_for_mode(mode), overwrite=True)
         summary = generate(plan, workers=2, progress=False)

@@ -46,13 +46,14 @@ from soil_msgs_py.params import (
     VELOCITY_AVERAGE_SAMPLES,
     Machine,
 )
+from soil_physics.bearing import EDGE_WIDTH_M, penetration_capacity
+from soil_physics.contact import base_friction_force
+from soil_physics.force_inputs import ForceInputs
 from soil_physics.soils import SoilType, get_soil
+from soil_physics.travel import soil_advance
 
 from .effects import (
     FORCE_TERMS,
-    EffectState,
-    base_friction_force,
-    penetration_capacity,
     Effects,
     ForcePlugin,
     check_effect_params,
@@ -106,7 +107,7 @@ class Dynamics:
     blade_offset_m: float = 2.0  # cutting edge ahead of the chassis centre
     probe_offsets_m: tuple[float, ...] = (-1.2, -1.2, 1.2, 1.2)  # four points under the chassis
     terrain_cell_m: float = 0.01
-    blade_edge_width_m: float = 0.02
+    blade_edge_width_m: float = EDGE_WIDTH_M
     fee_velocity_gain_s_m: float = fee.FEE_VELOCITY_GAIN_S_M
 
 
@@ -310,7 +311,7 @@ class SoilSimulator:
         fx, fz = f_mag * ex, f_mag * ez
 
         # --- other named effects and user plugins (force the blade exerts on the soil)
-        state = EffectState(
+        state = ForceInputs(
             t=np.full(b, t), dt=dt, x_b=x_b, z_b=z_b, v_x=vx, v_z=vz_b, d=d, q=q, phi=phi, c=c,
             gamma=gamma, delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
             blade_thickness=dyn.blade_edge_width_m, f_fee_x=fx, f_fee_z=fz,
@@ -361,8 +362,10 @@ class SoilSimulator:
         new_x_b = self.x_c + dyn.blade_offset_m
         idx = (np.arange(b), self._cell(new_x_b))
         self.terrain[idx] = np.minimum(self.terrain[idx], self.z_c + self.z_rel)
-        advance = np.maximum(self.vx_c, 0.0) * dt
-        self.distance_in_soil = self.distance_in_soil + advance * in_soil
+        # ground-truth travel: the estimator's increment per substep at the chassis' own speed
+        # (``soil_physics.travel`` says why the two sums exist)
+        advance = soil_advance(self.vx_c, d, dt)
+        self.distance_in_soil = self.distance_in_soil + advance
         if e.surcharge:
             inflow = self.w * np.maximum(d, 0.0) * advance * (1.0 - self.pile_m3 / e.surcharge_capacity_m3)
             self.pile_m3 = np.clip(self.pile_m3 + inflow - self.pile_m3 * dt / e.surcharge_shed_time_s, 0.0, e.surcharge_capacity_m3)

@@ -1,0 +1,158 @@
+"""The analysed ticks of a measured dataset: blade in soil, after the start transient, per θ-group.
+
+A θ-group is the episodes that dug the same soil (same soil name and relative density in the
+bag metadata), or every episode on its own when the metadata does not say (``group_by=
+"episode"``, or a real machine's bags with soil 'unknown'): one soil θ = (φ, c, δ) is fitted per
+group (``fee_fit``). Nothing here reads the simulator's ground truth (``Dataset.truth``) or the
+bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
+time and the soil name / relative density used as a grouping label. SI units.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_physics.travel import distance_in_soil_of_known
+
+MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
+SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
+UNKNOWN_SOILS = ("", "unknown", "none", "?")
+_KI = {n: i for i, n in enumerate(KNOWN_PARAMS)}
+
+
+@dataclass
+class Frame:
+    """The analysed ticks (blade in soil, after the start transient, every ``stride``-th).
+
+    Episode-level arrays have length E (all episodes of the dataset, global indices); tick
+    arrays length N. ``rows`` are the ticks' global row indices in the ``Dataset`` (for a PINN
+    to predict at exactly these ticks; with ``skip_s`` >= 59/60 s each has a full 60-tick window).
+    """
+
+    names: list[str]
+    soils: list[str]  # metadata soil name per episode ('unknown' if the bag does not say)
+    densities: list[float]  # metadata relative density [%] per episode (NaN if unknown)
+    group_of: np.ndarray  # (E,) θ-group index per episode
+    group_names: list[str]
+    episode: np.ndarray  # (N,) episode index per tick
+    rows: np.ndarray  # (N,) row in the Dataset
+    t: np.ndarray  # (N,) time since the episode started [s]
+    known: np.ndarray  # (N, 9) Θ_k [SI]
+    forces: np.ndarray  # (N, 2) measured force [N]
+    distance: np.ndarray  # (N,) blade travel in soil since the start [m]
+    stride: int = 1
+    group_by: str = "auto"
+    source: str = ""
+
+    def __len__(self) -> int:
+        return len(self.episode)
+
+    @property
+    def group(self) -> np.ndarray:
+        """(N,) θ-group index per tick."""
+        return self.group_of[self.episode]
+
+    @property
+    def episodes(self) -> np.ndarray:
+        """Episode indices present (sorted)."""
+        return np.unique(self.episode)
+
+    @property
+    def groups(self) -> np.ndarray:
+        return np.unique(self.group)
+
+    def episode_names(self, groups=None) -> list[str]:
+        """Names of the episodes present (in episode order), only those of ``groups`` if given."""
+        keep = None if groups is None else {int(g) for g in groups}
+        return [self.names[int(e)] for e in self.episodes if keep is None or int(self.group_of[e]) in keep]
+
+    def select(self, *, episodes=None, groups=None) -> "Frame":
+        """The ticks of some episodes or θ-groups (global indices kept)."""
+        mask = np.ones(len(self), bool)
+        if episodes is not None:
+            mask &= np.isin(self.episode, np.asarray(list(episodes), int))
+        if groups is not None:
+            mask &= np.isin(self.group, np.asarray(list(groups), int))
+        return replace(self, episode=self.episode[mask], rows=self.rows[mask], t=self.t[mask],
+                       known=self.known[mask], forces=self.forces[mask], distance=self.distance[mask])
+
+    def column(self, name: str) -> np.ndarray:
+        """A per-tick variable: a Θ_k name, 't' or 'distance'."""
+        if name == "t":
+            return self.t
+        if name == "distance":
+            return self.distance
+        return self.known[:, _KI[name]]
+
+    def has_metadata(self) -> bool:
+        return any(s != "unknown" for s in self.soils)
+
+
+def _soil_label(meta) -> str:
+    soil = str(getattr(meta, "soil", "") or "").strip()
+    return "unknown" if soil.lower() in UNKNOWN_SOILS else soil
+
+
+def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
+                group_by: str = "auto") -> Frame:
+    """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
+
+    group_by: 'auto' — episodes with the same metadata soil name and relative density share θ
+    (an episode whose soil is unknown is its own group); 'episode' — one θ per episode.
+    """
+    if stride < 1:
+        raise ValueError(f"stride={stride} must be >= 1 tick")
+    if group_by not in ("auto", "episode"):
+        raise ValueError(f"group_by={group_by!r} must be 'auto' or 'episode'")
+    n_ep = len(ds.names)
+    if n_ep == 0:
+        raise ValueError("the dataset has no episodes")
+    dt = 1.0 / SAMPLE_RATE_HZ
+    soils = [_soil_label(m) for m in ds.metas]
+    dens = []
+    for m in ds.metas:
+        try:
+            v = float(m.relative_density_pct)
+        except (TypeError, ValueError, AttributeError):
+            v = math.nan
+        dens.append(v if math.isfinite(v) else math.nan)
+    keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
+    for e in range(n_ep):
+        if group_by == "auto" and soils[e] != "unknown":
+            key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
+        else:
+            key = ds.names[e]
+        if key not in keys:
+            keys[key] = len(group_names)
+            group_names.append(key)
+        group_of[e] = keys[key]
+    parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance")}
+    for e in range(n_ep):
+        r = ds.episode_rows(e)
+        known = np.asarray(ds.known[r], float)
+        forces = np.asarray(ds.forces[r], float)
+        n = len(known)
+        t = np.arange(n) * dt
+        dist = distance_in_soil_of_known(known, dt)
+        keep = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0][::stride]
+        parts["episode"].append(np.full(len(keep), e))
+        parts["rows"].append(r.start + keep)
+        parts["t"].append(t[keep])
+        parts["known"].append(known[keep])
+        parts["forces"].append(forces[keep])
+        parts["distance"].append(dist[keep])
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    if len(cat["episode"]) == 0:
+        raise ValueError(
+            f"no tick of the {n_ep} episode(s) has the blade in the soil (d > {min_depth_m} m) after the "
+            f"first {skip_s:g} s: nothing to compare the model with"
+        )
+    return Frame(
+        names=list(ds.names), soils=soils, densities=dens, group_of=group_of, group_names=group_names,
+        episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],
+        known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2),
+        distance=cat["distance"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
+    )

@@ -1,0 +1,72 @@
+"""``ForceInputs``: what every force term the FEE lacks may look at — one vocabulary.
+
+The simulator's effects and user plugins see it once per physics substep (its soil in effect
+now, its own FEE force, its ground-truth travel in soil); the catalogue of candidate effects
+(``force_terms``) sees it per sample in the FEE model, the discrepancy workflow and the PINN
+(the model's θ and FEE force, Θ_k, the estimator's travel in soil). Fields are arrays of one
+shape (NumPy or torch; scalars broadcast), SI units. The fields after ``f_fee_z`` are
+optional: the simulator fills them, a model built from Θ_k has t, dt, x_b, z_b and
+relative_density_pct as None. Force convention: the force the blade exerts ON the soil [N],
+x forward, z up (paper Eq. 8).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Any, Mapping
+
+from soil_msgs_py.params import KNOWN_PARAMS
+
+from . import xp as _xp
+from .bearing import EDGE_WIDTH_M
+
+
+@dataclass(frozen=True)
+class ForceInputs:
+    """Per-sample (or per-substep, per-episode) quantities a force term may use (SI)."""
+
+    d: Any  # depth of cut, surface minus edge [m] (<= 0: blade out of the soil)
+    q: Any  # surcharge weight on the blade [N]
+    v_x: Any  # blade velocity x [m/s]
+    v_z: Any  # blade velocity z [m/s]
+    gamma: Any  # unit weight [N/m^3]
+    w: Any  # blade width [m]
+    rho: Any  # blade angle [rad]
+    alpha: Any  # surface inclination [rad]
+    phi: Any  # soil friction angle [rad] (the simulator's in effect now; a model's θ)
+    c: Any  # cohesion [Pa] (the simulator's in effect now; a model's θ)
+    delta: Any  # soil-tool friction angle [rad] (nominal; a model's θ)
+    distance_in_soil: Any  # blade travel with d > 0 since the episode started [m] (``travel``)
+    f_fee_x: Any  # the FEE soil force, x [N]
+    f_fee_z: Any  # the FEE soil force, z [N]
+    c_a: Any = None  # adhesion [Pa] (Θ_k)
+    blade_thickness: Any = EDGE_WIDTH_M  # effective cutting-edge width t_e [m]
+    t: Any = None  # simulation time [s] (simulator only)
+    dt: Any = None  # physics substep [s] (simulator only)
+    x_b: Any = None  # blade edge x [m] (simulator only)
+    z_b: Any = None  # blade edge z [m] (simulator only)
+    relative_density_pct: Any = None  # initial relative density I_d [%] (simulator only)
+
+    @classmethod
+    def from_known(cls, known, *, phi, c, delta, distance_in_soil, f_fee_x, f_fee_z, d=None) -> "ForceInputs":
+        """The inputs of a model from measured quantities: Θ_k, its θ = (φ, c, δ) and its FEE force.
+
+        ``known``: Θ_k as (..., 9) columns in ``KNOWN_PARAMS`` order (NumPy or torch) or a
+        mapping of those names; ``phi`` [rad], ``c`` [Pa], ``delta`` [rad]: the model's soil;
+        ``distance_in_soil`` [m]: ``travel.distance_in_soil``; ``f_fee_x``, ``f_fee_z`` [N]:
+        the model's FEE force; ``d`` [m]: a depth of cut to use instead of Θ_k's (the PINN's
+        d' = d + Δd).
+        """
+        if isinstance(known, Mapping):
+            col = {n: known[n] for n in KNOWN_PARAMS}
+        else:
+            col = {n: known[..., i] for i, n in enumerate(KNOWN_PARAMS)}
+        if d is not None:
+            col["d"] = d
+        return cls(**col, phi=phi, c=c, delta=delta, distance_in_soil=distance_in_soil, f_fee_x=f_fee_x, f_fee_z=f_fee_z)
+
+    def coerced(self) -> tuple[Any, "ForceInputs"]:
+        """(xp, inputs with every given field an array of xp): with torch, scalars and NumPy
+        arrays become tensors of the first tensor's dtype and device (absent fields stay None)."""
+        given = [f.name for f in fields(self) if getattr(self, f.name) is not None]
+        xp, *values = _xp.coerce(*(getattr(self, n) for n in given))
+        return xp, replace(self, **dict(zip(given, values)))

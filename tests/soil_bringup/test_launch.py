@@ -1,0 +1,48 @@
+"""soil_bringup.launch as a library: stopping a previous launch's nodes, the interrupt hook."""
+from __future__ import annotations
+
+import signal
+import subprocess
+
+from soil_bringup import launch as L
+
+
+def test_only_nodes_still_running_their_logged_command_are_killed(tmp_path):
+    mine = subprocess.Popen(["sleep", "60"])
+    other = subprocess.Popen(["sleep", "61"])
+    try:
+        log = tmp_path / "launch.log"
+        log.write_text(f"[launch] started sim (pid {mine.pid}): sleep 60\n"
+                       f"[launch] started recorder (pid {other.pid}): sleep 99\n"  # not what runs under that pid
+                       f"[launch] started controller (pid 999999999): sleep 60\n")
+        assert L.stop_logged_nodes(log) == [f"sim ({mine.pid})"]
+        assert mine.wait(timeout=5) == -9 and other.poll() is None
+    finally:
+        for p in (mine, other):
+            p.kill()
+            p.wait(timeout=5)
+
+
+def test_the_first_interrupt_is_announced_once_and_the_launch_builds_from_its_arguments(tmp_path):
+    said = []
+    launch = L.launch_for(L.parse_args(["--record", str(tmp_path / "bags"), "--estimator", "--timeout", "7"]),
+                          on_interrupt=lambda: said.append("stopping"))
+    assert [n.name for n in launch.nodes] == ["recorder", "estimator", "controller", "sim"]
+    assert launch.timeout_s == 7.0 and launch.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    launch._on_signal(signal.SIGINT, None)
+    launch._on_signal(signal.SIGTERM, None)
+    assert launch.interrupted and said == ["stopping"]
+
+
+def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tmp_path):
+    log = tmp_path / "launch.log"
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("sleeper", ["sleep", "60"], stop_order=0)], L.loopback_env(0), out=out)
+        launch.start()
+    try:
+        pid = launch.nodes[0].proc.pid
+        assert L.started_nodes(log) == {pid: ("sleeper", "sleep 60")}
+        assert L.stop_logged_nodes(log) == [f"sleeper ({pid})"]
+        assert launch.nodes[0].proc.wait(timeout=5) == -9
+    finally:
+        launch.stop()

@@ -1,0 +1,61 @@
+"""Scoring a recorded episode bag (soil_bringup.scoring) against a bag with known errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from soil_bag_tools.bag_io import write_episode
+from soil_msgs_py.params import DEG
+
+from soil_bringup import scoring as S
+from soil_bringup.estimate_columns import TRUTH_COLUMN as TRUTH
+from soil_bringup.summary import table_text
+from tests.soil_bringup.estimate_bags import estimate, write_bag_with_estimates
+
+
+def test_summarise_matches_valid_estimates_to_ticks_and_scores_them(tmp_path, episode):
+    ep = episode
+    stamps = ep.stamps_ns
+    estimates = [(int(stamps[k]), estimate(ep, k, False, k + 1)) for k in range(59)]  # window filling
+    valid_rows = [k for k in range(59, len(ep)) if not 80 <= k < 90]  # 10 ticks without an estimate
+    estimates += [(int(stamps[k]), estimate(ep, k, True, 60)) for k in valid_rows]
+    wild = estimate(ep, 100, True, 60, offsets=(40 * DEG, 9e3, 40 * DEG, 40 * DEG), f_off=(9e3, 9e3))
+    estimates.append((int(stamps[100]), wild))  # a second estimate for tick 100: the first one counts
+    estimates.append((int(stamps[100]) + 1, wild))  # not on a tick: ignored
+    bag = write_bag_with_estimates(tmp_path / ep.meta.name, ep, estimates)
+
+    s = S.summarise(bag)
+    assert s["ticks"] == len(ep) == 120 and s["estimates"] == len(estimates)
+    assert s["valid_estimates"] == len(valid_rows) == 51
+    assert s["duplicate_valid"] == 1 and s["valid_off_tick"] == 1
+    assert s["pct_ticks_valid"] == pytest.approx(100 * 51 / 120)
+    assert s["pct_full_window_ticks_valid"] == pytest.approx(100 * 51 / 61)
+    assert s["first_valid_s"] == pytest.approx(59 / 60, abs=1e-6)
+    assert s["soil"] == "Clay" and s["relative_density_pct"] == 20.0
+    p, f = s["params"], s["force"]
+    assert p["phi_mae_deg"] == pytest.approx(2.0) and p["c_mae_kPa"] == pytest.approx(0.5)
+    assert p["delta_mae_deg"] == pytest.approx(1.0) and p["beta_mae_deg"] == pytest.approx(3.0)
+    assert f["mae_x_n"] == pytest.approx(100.0) and f["mae_z_n"] == pytest.approx(200.0)
+    assert f["windows"] == 51
+    rows = np.array(valid_rows)
+    assert f["mae_x_pct_measured"] == pytest.approx(100 * 100.0 / np.abs(ep.forces[rows, 0]).mean())
+    assert s["truth_mean"]["phi_deg"] == pytest.approx(ep.truth[rows, TRUTH["phi"]].mean() / DEG)
+    assert s["estimate_mean"]["phi_deg"] == pytest.approx(s["truth_mean"]["phi_deg"] + 2.0)
+
+    score = S.score_episode(bag)
+    total = S.overall([score, score])
+    assert total["valid_estimates"] == 102 and total["ticks"] == 240
+    assert total["params"]["phi_mae_deg"] == pytest.approx(2.0) and total["force"]["mae_z_n"] == pytest.approx(200.0)
+    table = table_text([s], total)
+    assert "Clay" in table and "overall" in table and "2.0" in table
+    assert max(len(line) for line in table.splitlines()) <= 120
+
+
+def test_summarise_names_the_bag_without_estimates(tmp_path, episode):
+    bag = write_episode(tmp_path / "no_estimator", episode)
+    with pytest.raises(ValueError, match=r"no topic /soil/estimate.*estimator"):
+        S.summarise(bag)
+    only_invalid = [(int(s), estimate(episode, k, False, min(k + 1, 59))) for k, s in enumerate(episode.stamps_ns)]
+    bag = write_bag_with_estimates(tmp_path / "never_valid", episode, only_invalid)
+    with pytest.raises(ValueError, match=r"no valid estimate.*59/60"):
+        S.summarise(bag)
