@@ -6,10 +6,10 @@ with that tick, which is what the simulator's lockstep pacing waits for. Targets
 gains are parameters, validated and applied at run time (``ros2 param set``). On each
 ``episode_start`` on /sim/status the integrator resets and, with
 ``follow_episode_targets``, the targets become the episode's (and the parameters say so).
+State with a stamp the graph cannot mean, or one implausibly far past the last answered
+tick, is refused with a warning and changes nothing (``state_joiner``).
 """
 from __future__ import annotations
-
-import collections
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -19,7 +19,9 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
+from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, status_event, topic_qos
+from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import AntiStallController, AntiStallGains
 
@@ -35,6 +37,24 @@ PARAMETERS: dict[str, tuple] = {
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
 MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
+# How far past the last answered tick a state stamp is still plausible (ticks lost on the way),
+# and how many refused messages in a row (twist and pose of this many ticks) mean the
+# simulation time really jumped rather than one stray pair arrived.
+MAX_AHEAD_TICKS = SAMPLE_RATE_HZ
+RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
+
+
+def state_joiner() -> StampJoiner:
+    """One tick's twist and pose, answered as soon as both are in; an older tick still missing
+    one of them is skipped (the controller answers the newest state). A stamp more than
+    ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one pair stamped in the far
+    future (another node's, a corrupt one) must not become the last answered tick, after
+    which every real tick would look stale. State refused for ``RESTART_AFTER_REFUSED_TICKS``
+    ticks in a row is followed from there on (time really jumped, or the pair answered before
+    was the stray one): one pair silences the controller for at most that long."""
+    return StampJoiner(G.CONTROLLER_STATE_TOPICS, max_pending=MAX_PENDING_STAMPS,
+                       max_ahead_ns=MAX_AHEAD_TICKS * TICK_PERIOD_NS,
+                       restart_after_refused=len(G.CONTROLLER_STATE_TOPICS) * RESTART_AFTER_REFUSED_TICKS)
 
 
 class ControllerNode(Node):
@@ -55,8 +75,7 @@ class ControllerNode(Node):
         for name in G.CONTROLLER_STATE_TOPICS:
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
-        self.pending: collections.OrderedDict[int, dict[str, float]] = collections.OrderedDict()
-        self.last_stamp = -1
+        self.joiner = state_joiner()
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
@@ -98,8 +117,7 @@ class ControllerNode(Node):
             if not all(r.successful for r in result):
                 self._warn("targets", f"episode {event.name}: targets refused: {[r.reason for r in result]}")
         self.core.reset()
-        self.pending.clear()
-        self.last_stamp = event.first_stamp_ns - 1
+        self.joiner.reset(event.first_stamp_ns)
         self.get_logger().info(f"episode {event.name}: reset, targets v={self.core.target_speed_m_s[0]} m/s "
                                f"d={self.core.target_depth_m[0]} m")
         held, self.held = self.held or [], None
@@ -120,25 +138,30 @@ class ControllerNode(Node):
         except ValueError as err:
             self._warn(f"{topic}:layout", f"{err}; ignored")
             return
-        if stamp <= self.last_stamp:
-            self._warn(f"{topic}:stale", f"{topic}: stamp {stamp} ns is not newer than the last answered tick "
-                                         f"{self.last_stamp} ns; ignored")
-            return
         # /chassis/twist carries (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c)
-        field = ("v_x_c", values[0]) if topic == T.CHASSIS_TWIST.name else ("p_z_c", values[1])
-        self.pending.setdefault(stamp, {})[field[0]] = float(field[1])
-        sample = self.pending[stamp]
-        if len(sample) < 2:
-            while len(self.pending) > MAX_PENDING_STAMPS:
-                dropped, _ = self.pending.popitem(last=False)
-                self._warn("unpaired", f"state at stamp {dropped} ns never got both twist and pose; dropped")
+        value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
+        last = self.joiner.last_ns
+        verdict, out = self.joiner.offer(topic, stamp, value)
+        if verdict is Verdict.STALE:
+            self._warn(f"{topic}:stale", f"{topic}: stamp {stamp} ns is not newer than the last answered tick "
+                                         f"{last} ns; ignored")
             return
-        for older in [s for s in self.pending if s < stamp]:
-            del self.pending[older]
-            self._warn("unpaired", f"state at stamp {older} ns never got both twist and pose; skipped")
-        del self.pending[stamp]
-        self.last_stamp = stamp
-        cmd = self.core.step(sample["v_x_c"], sample["p_z_c"])  # non-finite inputs: core holds its state
+        if verdict is Verdict.FUTURE:
+            self._warn(f"{topic}:future", f"{topic}: stamp {stamp} ns is more than {MAX_AHEAD_TICKS} ticks in the "
+                                          f"future of the last answered tick {last} ns; ignored")
+            return
+        if verdict is Verdict.RESTART:
+            self._warn("restart", f"{topic}: state stamps stayed away from the last answered tick {last} ns; "
+                                  f"following the stream from stamp {stamp} ns")
+        for joined in out:
+            if joined.complete:
+                self._answer(joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name])
+            else:
+                fate = "dropped" if joined.why is Why.EVICTED else "skipped"
+                self._warn("unpaired", f"state at stamp {joined.stamp_ns} ns never got both twist and pose; {fate}")
+
+    def _answer(self, stamp: int, v_x_c: float, p_z_c: float) -> None:
+        cmd = self.core.step(v_x_c, p_z_c)  # non-finite inputs: core holds its state
         self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
         self.blade_pub.publish(M.build_message(self.classes, T.BLADE_CMD.name, stamp, [cmd.u_zr[0], cmd.u_za[0]]))
 

@@ -2,7 +2,10 @@
 
 The bags stay the source of truth (read with ``rosbags`` through ``soil_bag_tools.bag_io``);
 the arrays are cached in an ``.npz`` keyed by a content fingerprint of the bags, so a second
-run reads in a fraction of a second and a changed bag can never be served stale.
+run reads in a fraction of a second and a changed bag can never be served stale. A bag that
+cannot be read or trained on (``BagReadError``: truncated, corrupt, NaN, too short) stops the
+load naming it, or is skipped and reported when the user asks (``skip_bad_bags``); a dataset
+with a skipped bag is never cached, so the cache always stands for every bag of its directory.
 
 A window is the T = 60 samples o_[t-59 .. t] (paper §2.2.1); its target is the force measured
 at t and its known parameters Θ_k are those at t, the newest sample, which is what the online
@@ -12,25 +15,29 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
+import zipfile
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from soil_bag_tools.bag_io import find_episode_bags, read_episode
+from soil_bag_tools.bag_io import BagReadError, find_episode_bags, read_episode
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
     OBSERVATION_FIELDS,
-    SAMPLE_RATE_HZ,
     WINDOW_SAMPLES,
 )
+from soil_physics.travel import distance_in_soil_of_known
 
 CACHE_VERSION = 1
 CACHE_DIR_NAME = ".insitu_cache"
 SPLITS = ("train", "val", "test")
+SKIP_BAD_BAGS_HELP = ("skip bags that cannot be read (truncated, corrupt, NaN, shorter than a window) and "
+                      "list them; by default such a bag stops the run, named")
 
 
 @dataclass
@@ -49,6 +56,7 @@ class Dataset:
     truth: np.ndarray  # (N, 13) float64, GROUND_TRUTH_PARAMS [SI]; never an input to the model
     fingerprint: str
     root: str
+    skipped: list[dict] = field(default_factory=list)  # {"bag": path, "problem": why} per skipped bag
 
     def __len__(self) -> int:
         return len(self.names)
@@ -72,13 +80,13 @@ class Dataset:
 
     def distance_in_soil(self) -> np.ndarray:
         """(N,) blade travel in soil [m] at every row, restarting at each episode's first tick
-        (``distance_in_soil`` per episode, from Θ_k's v_x and d). Computed, not cached: it is a
-        pure function of ``known``, so a cached dataset can never disagree with it."""
+        (``soil_physics.travel.distance_in_soil`` per episode, from Θ_k's v_x and d). Computed,
+        not cached: it is a pure function of ``known``, so a cached dataset can never disagree
+        with it."""
         out = np.zeros(len(self.known))
-        vx, d = self.known[:, KNOWN_PARAMS.index("v_x")], self.known[:, KNOWN_PARAMS.index("d")]
         for e in range(len(self)):
             rows = self.episode_rows(e)
-            out[rows] = distance_in_soil(vx[rows], d[rows])
+            out[rows] = distance_in_soil_of_known(self.known[rows])
         return out
 
     def index(self, names) -> list[int]:
@@ -91,36 +99,6 @@ class Dataset:
                 f"e.g. {missing[0]!r}: evaluate on the directory the model was trained from"
             )
         return [where[n] for n in names]
-
-
-# ---------------------------------------------------------------------------------- distance in soil
-TICK_S = 1.0 / SAMPLE_RATE_HZ
-
-
-def soil_advance(v_x, d, dt: float = TICK_S):
-    """Blade travel in soil during one tick [m]: max(v_x, 0)·dt where d > 0, else 0.
-
-    The one increment of ``distance_in_soil``. An online estimator keeps a running sum
-    (``distance = 0`` at episode_start; for every tick, oldest first, *including* ticks that
-    do not complete a window: ``distance += soil_advance(v_x, d)``, then the tick's value is
-    ``distance``) and gets the offline pipeline's values.
-    """
-    return np.maximum(np.asarray(v_x, dtype=float), 0.0) * dt * (np.asarray(d, dtype=float) > 0)
-
-
-def distance_in_soil(v_x, d, dt: float = TICK_S) -> np.ndarray:
-    """Blade travel with d > 0 since the episode started [m], at every tick of one episode.
-
-    ``v_x`` [m/s], ``d`` [m]: Θ_k's columns over the whole episode, oldest first (1-D). The
-    value at tick t is Σ_{j<=t} max(v_x_j, 0)·dt·[d_j > 0], cumulative up to and including t.
-    A window's value is the one at its newest sample: it needs the episode from its start,
-    not only the 60-sample window. (Against the simulator's own ``distance_in_soil`` it runs
-    ~3 cm short after 2 m of cut: Θ_k's v_x is a 10-sample average, which lags at start-up.)
-    """
-    adv = soil_advance(v_x, d, dt)
-    if adv.ndim != 1:
-        raise ValueError(f"distance_in_soil wants 1-D per-tick arrays of one episode, got shape {adv.shape}")
-    return np.cumsum(adv)
 
 
 # ---------------------------------------------------------------------------------- loading
@@ -138,25 +116,48 @@ def fingerprint_bags(bags: list[Path], root: Path) -> str:
 
 
 def _read(bag: Path):
-    ep = read_episode(bag)
+    """Worker: one bag's arrays, or its BagReadError *returned* (picklable), so a pool reading
+    many bags keeps going and the parent decides whether to skip the bag or stop."""
+    try:
+        ep = read_episode(bag)
+        if len(ep.observations) < WINDOW_SAMPLES:
+            raise BagReadError(bag, f"has {len(ep.observations)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
+        _check_finite("observation", ep.observations, OBSERVATION_FIELDS, bag)
+        _check_finite("force", ep.forces, FORCE_FIELDS, bag)
+        _check_finite("known parameter", ep.known, KNOWN_PARAMS, bag)
+    except BagReadError as err:
+        return err
     return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth
 
 
-def _check_finite(name: str, arr: np.ndarray, fields, bag: str) -> None:
+def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
     bad = ~np.isfinite(arr)
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise ValueError(
-            f"bag {bag}: {name} field {fields[col]!r} is {arr[row, col]} at tick {int(row)}; "
+        raise BagReadError(
+            bag, f"{name} field {fields[col]!r} is {arr[row, col]} at tick {int(row)}; "
             f"windows with NaN/inf cannot be trained on (re-record or drop the bag)"
         )
 
 
-def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False) -> Dataset:
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def add_skip_bad_bags_option(parser) -> None:
+    """``--skip-bad-bags`` for every CLI that loads a bag directory (one wording everywhere)."""
+    parser.add_argument("--skip-bad-bags", action="store_true", help=SKIP_BAD_BAGS_HELP)
+
+
+def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False,
+                 skip_bad_bags: bool = False, log=_warn) -> Dataset:
     """Read every episode bag under ``root`` (cached by content fingerprint).
 
-    Raises ValueError naming the problem for an empty directory, a bag missing a topic
-    (from ``read_episode``), a NaN/inf input or force, or episodes shorter than a window.
+    Raises ValueError naming the problem for an empty directory and BagReadError naming the
+    first bad bag (truncated, corrupt, missing a topic, a NaN/inf input or force, shorter than
+    a window). With ``skip_bad_bags`` the bad bags are left out instead, listed in
+    ``Dataset.skipped`` and reported through ``log`` (default: stderr); the fingerprint is
+    then that of the bags kept, and the result is not cached.
     """
     root = Path(root)
     bags = find_episode_bags(root)
@@ -165,15 +166,24 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     fingerprint = fingerprint_bags(bags, root)
     cache_path = Path(cache_dir or root / CACHE_DIR_NAME) / f"dataset_{fingerprint[:24]}.npz"
     if cache and cache_path.is_file():
-        return _from_npz(cache_path, fingerprint, root)
+        cached = _from_npz(cache_path, fingerprint, root)
+        if cached is not None:
+            return cached
     rows = _read_all(bags, workers, progress)
+    bad = [r for r in rows if isinstance(r, BagReadError)]
+    if bad and not skip_bad_bags:
+        first = bad[0]
+        raise BagReadError(first.bag, f"{first.problem} ({len(bad)} of {len(bags)} bags under {root} cannot be "
+                                      f"read; --skip-bad-bags leaves them out)")
+    if bad:
+        log(f"skipped {len(bad)} of {len(bags)} bags under {root} that cannot be read:\n"
+            + "\n".join(f"  {err}" for err in bad))
+        if len(bad) == len(bags):
+            raise ValueError(f"every bag under {root} is unreadable; nothing left to load")
+        bags = [b for b, r in zip(bags, rows) if not isinstance(r, BagReadError)]
+        fingerprint = fingerprint_bags(bags, root)
     names, metas, parts = [], [], defaultdict(list)
-    for name, meta_json, obs, forces, known, truth in rows:
-        if len(obs) < WINDOW_SAMPLES:
-            raise ValueError(f"bag {name} has {len(obs)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
-        _check_finite("observation", obs, OBSERVATION_FIELDS, name)
-        _check_finite("force", forces, FORCE_FIELDS, name)
-        _check_finite("known parameter", known, KNOWN_PARAMS, name)
+    for name, meta_json, obs, forces, known, truth in (r for r in rows if not isinstance(r, BagReadError)):
         names.append(name)
         metas.append(EpisodeMeta.from_json(meta_json))
         for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth)):
@@ -184,9 +194,9 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     offsets = np.concatenate([[0], np.cumsum([len(a) for a in parts["observations"]])]).astype(np.int64)
     ds = Dataset(
         names, metas, offsets, *(np.concatenate(parts[k]) for k in ("observations", "forces", "known", "truth")),
-        fingerprint=fingerprint, root=str(root),
+        fingerprint=fingerprint, root=str(root), skipped=[{"bag": e.bag, "problem": e.problem} for e in bad],
     )
-    if cache:
+    if cache and not bad:
         _to_npz(ds, cache_path)
     return ds
 
@@ -221,14 +231,18 @@ def _to_npz(ds: Dataset, path: Path) -> None:
         pass  # a read-only dataset directory just means no cache
 
 
-def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset:
-    with np.load(path, allow_pickle=False) as z:
-        if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint:
-            raise ValueError(f"cache {path} does not match its bags; delete it")
-        return Dataset(
-            [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
-            z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),
-        )
+def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
+    """The cached dataset, or None (read the bags again) if the cache file is damaged or stale."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint:
+                return None
+            return Dataset(
+                [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
+                z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),
+            )
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
 
 
 # ---------------------------------------------------------------------------------- split
@@ -280,4 +294,5 @@ def describe(ds: Dataset) -> dict:
         "ticks": int(ds.offsets[-1]),
         "world_modes": modes,
         "soils": soils,
+        "skipped_bags": [s["bag"] for s in ds.skipped],
     }

@@ -27,7 +27,7 @@ from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_S
 from soil_physics.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
-from .dataset import describe, load_dataset
+from .dataset import add_skip_bad_bags_option, describe, load_dataset
 from .inference import WindowTensors, force_errors, predict
 
 PARAMS = ("phi", "c", "delta", "beta")
@@ -102,12 +102,13 @@ def _trends(rows, estimator="pinn") -> dict:
     return out
 
 
-def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False, log=print) -> dict:
+def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,
+             skip_bad_bags: bool = False, log=print) -> dict:
     """Build the report dict (see module docstring)."""
     model, ckpt = load_model(checkpoint)
     if model.cfg.kind != "pinn":
         raise ValueError(f"checkpoint {checkpoint} is a {model.cfg.kind!r} model; pinn_eval needs the PINN first (baseline via --physics-free)")
-    ds = load_dataset(data or ckpt["dataset"]["root"], workers=workers, progress=progress)
+    ds = load_dataset(data or ckpt["dataset"]["root"], workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
     if ds.fingerprint != ckpt["dataset"]["fingerprint"]:
         log(f"warning: the bags at {ds.root} differ from those the model was trained on; using its test split by episode name")
     test_names = ckpt["split"]["test"]
@@ -248,7 +249,7 @@ def markdown(report: dict) -> str:
                   "| soil | φ̂ slope [deg / 100 % I_d] | φ̂ Spearman | ĉ slope [kPa / 100 % I_d] | ĉ Spearman |", "|---|---|---|---|---|"]
         for s, t in report["trends"]["pinn"].items():
             lines.append(f"| {s} | {t['phi']['slope_deg_per_100pct']:.2f} | {t['phi']['spearman']:.2f} | {t['c']['slope_kPa_per_100pct']:.2f} | {t['c']['spearman']:.2f} |")
-    lines += ["", "## Targets (issue 3)", "", "| target | value | limit | met |", "|---|---|---|---|"]
+    lines += ["", "## Targets", "", "| target | value | limit | met |", "|---|---|---|---|"]
     for t in report["targets"]:
         lines.append(f"| {t['target']} | {_fmt(t['value'], 2)} | {t['op']} {t['limit']} | {'yes' if t['met'] else '**no**'} |")
     tr = report["training"]
@@ -320,12 +321,14 @@ def main(argv=None) -> int:
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")
     p.add_argument("--quiet", action="store_true")
+    add_skip_bad_bags_option(p)
     args = p.parse_args(argv)
     try:
         if args.stride < 1:
             raise ValueError(f"--stride={args.stride} must be >= 1")
         report = evaluate(args.checkpoint, args.data, physics_free=args.physics_free, stride=args.stride,
-                          classical=not args.no_classical, workers=args.workers, progress=not args.quiet)
+                          classical=not args.no_classical, workers=args.workers, progress=not args.quiet,
+                          skip_bad_bags=args.skip_bad_bags)
     except (ValueError, FileNotFoundError) as err:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 2

@@ -7,10 +7,10 @@ of ROS so the same code is unit-tested directly and used by the replay compariso
 Synchronisation by stamp
     One sample (paper §2.1.2: o_t and Θ_k at t) needs a message of every input topic with
     the same stamp: the simulator's state and Θ_k for tick t, and the controller's commands
-    answering tick t (stamped t). Messages of different topics arrive in no fixed order, so
-    samples are assembled per stamp and *released in stamp order*: the oldest pending
-    sample is released as soon as it is complete. If it is still incomplete while a sample
-    ``reorder_ticks`` ticks newer is already complete, it is declared missing.
+    answering tick t (stamped t). The stamp joiner (``soil_msgs_py.stamp_join``) assembles
+    them and *releases them in stamp order*: the oldest pending sample as soon as it is
+    complete; if it is still incomplete while a sample ``reorder_ticks`` ticks newer is
+    already complete, it is declared missing. A topic twice for one tick spoils that tick.
 
 Validity (never estimate across a gap, never publish NaN)
     The window is the last ``WINDOW_SAMPLES`` released samples *if they are consecutive
@@ -21,7 +21,6 @@ Validity (never estimate across a gap, never publish NaN)
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -31,11 +30,12 @@ import torch
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
+from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 from soil_msgs_py.params import (
     KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
-from .dataset import soil_advance
+from soil_physics.travel import soil_advance
 from .model import EstimatorNet
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
@@ -85,12 +85,20 @@ class Counters:
 
 @dataclass
 class Sample:
-    """One tick's o_t and Θ_k as they arrive; ``bad`` names the first broken field, if any."""
+    """One tick's o_t and Θ_k."""
 
     obs: np.ndarray = field(default_factory=lambda: np.full(len(OBSERVATION_FIELDS), np.nan))
     known: np.ndarray = field(default_factory=lambda: np.full(len(KNOWN_PARAMS), np.nan))
-    topics: set = field(default_factory=set)
-    bad: str = ""
+
+    @classmethod
+    def from_parts(cls, parts: dict[str, np.ndarray]) -> "Sample":
+        """The sample of one joined tick (topic -> values in ``ROUTES`` order)."""
+        sample = cls()
+        for topic, values in parts.items():
+            for (_, dest, col), v in zip(ROUTES[topic], values):
+                if dest:
+                    getattr(sample, dest)[col] = v
+        return sample
 
 
 Warn = Callable[[str, str], None]  # (kind, text): the node rate-limits by kind
@@ -112,13 +120,20 @@ class SampleAssembler:
         self.reorder_ticks = reorder_ticks
         self.warn = warn
         self.counters = counters or Counters()
-        self.pending: dict[int, Sample] = {}
-        self.last_released = -1  # stamp [ns] of the newest released sample; -1: none yet
+        # Far back (more than a window): the source restarted (a bag replayed again, a simulator
+        # reset) without an episode_start: start a new stream rather than wait for time to catch up.
+        self.joiner = StampJoiner(INPUT_TOPICS, max_pending=MAX_PENDING_TICKS, duplicates="spoil",
+                                  reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
+                                  restart_back_ns=RESTART_BACK_TICKS * PERIOD_NS)
+
+    @property
+    def last_released(self) -> int:
+        """Stamp [ns] of the newest released sample; -1: none yet."""
+        return self.joiner.last_ns
 
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
-        self.pending.clear()
-        self.last_released = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
+        self.joiner.reset(first_stamp_ns)
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -136,77 +151,59 @@ class SampleAssembler:
             self.counters.malformed += 1
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
-        if stamp <= self.last_released:
-            if self.last_released - stamp > RESTART_BACK_TICKS * PERIOD_NS:
-                # Far back: the source restarted (a bag replayed again, a simulator reset)
-                # without an episode_start. Start a new stream rather than wait for time to catch up.
-                self.counters.restarts += 1
-                self.warn("restart", f"{topic}: stamp {stamp} ns is {(self.last_released - stamp) / 1e9:.3f} s before "
-                                     f"the last sample; time went back, starting a new window")
-                self._drop_window()
-                self.reset(stamp)
-                self.on_restart()
-            else:
-                self.counters.out_of_order += 1
-                self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
-                                                   f"{self.last_released} ns (out of order); window reset")
-                self._drop_window()
-                return
-        sample = self.pending.get(stamp)
-        if sample is None:
-            sample = self.pending[stamp] = Sample()
-        if topic in sample.topics:
+        broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not np.isfinite(v)), None)
+        was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
+        verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
+        if verdict is Verdict.STALE:
+            self.counters.out_of_order += 1
+            self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
+                                               f"{last} ns (out of order); window reset")
+            self.on_sample(last, None)
+            return
+        if verdict is Verdict.RESTART:
+            self.counters.restarts += 1
+            self.warn("restart", f"{topic}: stamp {stamp} ns is {_seconds(last - stamp)} s before "
+                                 f"the last sample; time went back, starting a new window")
+            self.on_sample(last, None)
+            self.on_restart()
+        if verdict is Verdict.DUPLICATE:
             self.counters.duplicates += 1
-            sample.bad = sample.bad or f"{topic} twice"
             self.warn(f"{topic}:duplicate", f"{topic}: two messages with stamp {stamp} ns; that tick is dropped")
-        sample.topics.add(topic)
-        for (name, dest, col), v in zip(routes, values):
-            if not math.isfinite(v):
-                if not sample.bad:
-                    self.counters.non_finite += 1
-                    self.warn(f"{topic}:non_finite", f"{topic}: field {name}={v} at stamp {stamp} ns is not finite; "
-                                                     "that tick is dropped and the window reset")
-                sample.bad = sample.bad or f"{topic} {name}={v}"
-            elif dest:
-                getattr(sample, dest)[col] = v
-        while len(self.pending) > MAX_PENDING_TICKS:  # a topic that never comes must not grow memory
-            # Evict the tick that has waited longest (insertion order), not the lowest stamp: a
-            # burst of bogus future stamps then ages out instead of pushing out every real tick.
-            waited = next(iter(self.pending))
-            missing = sorted(set(INPUT_TOPICS) - self.pending.pop(waited).topics)
+        elif broken and not was_bad:
+            self.counters.non_finite += 1
+            self.warn(f"{topic}:non_finite", f"{topic}: field {broken[0]}={broken[1]} at stamp {stamp} ns is not "
+                                             "finite; that tick is dropped and the window reset")
+        for joined in out:
+            self._released(joined)
+
+    def _released(self, joined) -> None:
+        """One tick out of the joiner: a sample, a missing tick or a tick dropped to bound memory."""
+        stamp = joined.stamp_ns
+        if joined.why is Why.EVICTED:  # a topic that never comes must not grow memory
             self.counters.evicted += 1
-            self.warn("evicted", f"tick {waited} ns never got {missing} within {MAX_PENDING_TICKS} ticks; dropped")
-        self._release()
+            self.warn("evicted", f"tick {stamp} ns never got {sorted(joined.missing)} within {MAX_PENDING_TICKS} "
+                                 "ticks; dropped")
+            return
+        if joined.why is Why.OVERTAKEN:
+            self.counters.gaps += 1
+            self.warn("incomplete", f"tick {stamp} ns never got {sorted(joined.missing)}; window reset")
+        step = stamp - joined.previous_ns
+        if joined.previous_ns >= 0 and step > 1.5 * PERIOD_NS:
+            self.counters.gaps += 1
+            self.warn("gap", f"{round(step / PERIOD_NS) - 1} tick(s) missing before stamp {stamp} ns; window reset")
+            self.on_sample(joined.previous_ns, None)
+        if joined.usable:
+            self.counters.samples += 1
+            self.on_sample(stamp, Sample.from_parts(joined.parts))
+        else:
+            self.on_sample(stamp, None)
 
-    def _drop_window(self) -> None:
-        self.on_sample(self.last_released, None)
 
-    def _release(self) -> None:
-        """Release complete samples oldest first; declare a stuck oldest one missing."""
-        while self.pending:
-            oldest = min(self.pending)
-            sample = self.pending[oldest]
-            if len(sample.topics) < len(INPUT_TOPICS):
-                newest_complete = max((s for s, x in self.pending.items() if len(x.topics) == len(INPUT_TOPICS)),
-                                      default=None)
-                if newest_complete is None or newest_complete - oldest < self.reorder_ticks * PERIOD_NS - PERIOD_NS / 2:
-                    return
-                missing = sorted(set(INPUT_TOPICS) - sample.topics)
-                self.counters.gaps += 1
-                self.warn("incomplete", f"tick {oldest} ns never got {missing}; window reset")
-                sample.bad = sample.bad or f"missing {missing}"
-            del self.pending[oldest]
-            step = oldest - self.last_released
-            if self.last_released >= 0 and step > 1.5 * PERIOD_NS:
-                self.counters.gaps += 1
-                self.warn("gap", f"{round(step / PERIOD_NS) - 1} tick(s) missing before stamp {oldest} ns; window reset")
-                self.on_sample(self.last_released, None)
-            self.last_released = oldest
-            if sample.bad:
-                self.on_sample(oldest, None)
-            else:
-                self.counters.samples += 1
-                self.on_sample(oldest, sample)
+def _seconds(ns: int) -> str:
+    """Whole ns as seconds with 3 decimals, in integer arithmetic: a log line formats any
+    distance between two stamps (a float conversion overflows beyond 1e308)."""
+    sign, ns = ("-" if ns < 0 else ""), abs(int(ns))
+    return f"{sign}{ns // M.NS_PER_S}.{ns % M.NS_PER_S // 1_000_000:03d}"
 
 
 def check_compatible(model: EstimatorNet) -> None:

@@ -6,7 +6,7 @@ early stopping on the validation loss, a wall-clock budget, seeded. Writes the c
 a training-curve PNG beside it.
 
 ``--extra-term NAME=K`` (repeatable) trains the PINN with catalogue effects added to its
-physics (issue 6: F_phys = F_FEE + Σ k·B, ``soil_physics.force_terms``); the checkpoint's
+physics (F_phys = F_FEE + Σ k·B, ``soil_physics.force_terms``); the checkpoint's
 model config records them, so every loader runs the same physics.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import torch
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from .checkpoint import save_checkpoint
-from .dataset import Dataset, describe, load_dataset, split_episodes
+from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
@@ -239,6 +239,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=2, help="processes reading bags on the first run")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_skip_bad_bags_option(p)
     for f in fields(TrainConfig):
         p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
     p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
@@ -257,7 +258,8 @@ def main(argv=None) -> int:
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
         model_cfg = ModelConfig(kind=args.kind, extra_terms=parse_terms(args.extra_term),
                                 **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in MODEL_FIELDS_NOT_OPTIONS})
-        ds = load_dataset(args.data, cache=not args.no_cache, workers=args.workers, progress=not args.quiet)
+        ds = load_dataset(args.data, cache=not args.no_cache, workers=args.workers, progress=not args.quiet,
+                          skip_bad_bags=args.skip_bad_bags)
         split = None
         if args.split_from:
             from .checkpoint import read_checkpoint

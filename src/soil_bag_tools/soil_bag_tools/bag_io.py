@@ -4,19 +4,24 @@ Bags are the dataset format: ``ros2 bag info/play`` can open them, and the train
 them back bit-identically. Writes are atomic (staged in ``<bag>.partial``, renamed into
 place after a clean close) so a crashed batch never leaves a bag that looks complete.
 The episode metadata travels in metadata.yaml ``custom_data`` (and the MCAP metadata
-record rosbags writes alongside it).
+record rosbags writes alongside it). Whatever a damaged bag makes the reader trip over
+surfaces as one :class:`BagReadError` naming the bag.
 """
 from __future__ import annotations
 
 import os
 import shutil
+import struct
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer
+from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta
@@ -25,6 +30,41 @@ from soil_msgs_py.topics import EPISODE_TOPICS
 META_KEY = "insitu_soil.episode"
 PARTIAL_SUFFIX = ".partial"
 _INT32_MAX_S = 2**31 - 1
+
+# What reading a damaged bag raises: rosbags checks few lengths and no checksum (its writer
+# stores none), so flipped bytes surface as whatever its MCAP reader, struct, the CDR decoder
+# or our own checks trip over first.
+DAMAGE_ERRORS = (AnyReaderError, ReaderError, SerdeError, struct.error, OverflowError, ValueError,
+                 IndexError, KeyError, EOFError, OSError)
+
+
+class BagReadError(ValueError):
+    """A bag that cannot be read as an episode: unfinished, truncated, corrupt or incomplete.
+
+    One type for every cause, so offline tools name the bag and exit 2 (it is a ValueError,
+    which they already treat as bad input) and a dataset loader can skip it by choice.
+    Picklable with its fields: worker processes raise or return it to their parent.
+    """
+
+    def __init__(self, bag: str | os.PathLike, problem: str):
+        self.bag, self.problem = str(bag), str(problem)
+        super().__init__(f"bag {self.bag}: {self.problem}")
+
+    def __reduce__(self):
+        return type(self), (self.bag, self.problem)
+
+
+@contextmanager
+def reading(bag: str | os.PathLike) -> Iterator[None]:
+    """Turn any error of reading ``bag`` into a BagReadError that names it."""
+    try:
+        yield
+    except BagReadError:
+        raise
+    except DAMAGE_ERRORS as err:
+        # our own ValueErrors are worded for the user; rosbags' need their type to make sense
+        problem = str(err) if type(err) is ValueError else f"corrupt or truncated ({type(err).__name__}: {err})"
+        raise BagReadError(bag, problem) from err
 
 
 def _check_arrays(ep: Episode) -> None:
@@ -96,40 +136,47 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
     return bag_dir
 
 
-def _read_meta(path: Path) -> EpisodeMeta:
-    """Episode metadata from metadata.yaml custom_data (rosbags' Reader has no public getter)."""
+def bag_custom_data(bag: Path) -> dict[str, str]:
+    """metadata.yaml ``custom_data`` (rosbags' reader has no public getter); {} if none."""
     try:
-        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    except (yaml.YAMLError, KeyError, TypeError) as err:
-        raise ValueError(f"bag {path}: unreadable metadata.yaml: {err!r}") from None
-    custom = info.get("custom_data") or {}
+        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return dict(info.get("custom_data") or {})
+    except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
+        raise BagReadError(bag, f"unreadable metadata.yaml: {err!r}") from None
+
+
+def _read_meta(path: Path) -> EpisodeMeta:
+    """Episode metadata from metadata.yaml custom_data."""
+    custom = bag_custom_data(path)
     if META_KEY not in custom:
-        raise ValueError(f"bag {path} has no episode metadata (custom_data key {META_KEY!r})")
+        raise BagReadError(path, f"has no episode metadata (custom_data key {META_KEY!r})")
     try:
         return EpisodeMeta.from_json(custom[META_KEY])
     except (TypeError, ValueError) as err:
-        raise ValueError(f"bag {path}: bad episode metadata {META_KEY!r}: {err}") from None
+        raise BagReadError(path, f"bad episode metadata {META_KEY!r}: {err}") from None
 
 
 def read_episode(bag_dir: str | os.PathLike) -> Episode:
-    """Read a bag written by ``write_episode`` back into an Episode (bit-identical arrays)."""
+    """Read a bag written by ``write_episode`` back into an Episode (bit-identical arrays).
+
+    FileNotFoundError if ``bag_dir`` does not exist; BagReadError for anything wrong with the bag."""
     path = Path(bag_dir)
     if not path.exists():
         raise FileNotFoundError(f"bag {path} does not exist")
     if path.name.endswith(PARTIAL_SUFFIX):
-        raise ValueError(f"{path} is an unfinished bag (a write was interrupted)")
+        raise BagReadError(path, "is an unfinished bag (a write was interrupted)")
     if not is_bag(path):
-        raise ValueError(f"{path} is not a rosbag2 directory (no metadata.yaml)")
+        raise BagReadError(path, "is not a rosbag2 directory (no metadata.yaml)")
     meta = _read_meta(path)
-    try:
+    with reading(path):
         with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
             conns, stores = [], {}
             for t in EPISODE_TOPICS:
                 mine = [c for c in reader.connections if c.topic == t.name]
                 if not mine:
-                    raise ValueError(f"bag {path} has no topic {t.name} ({t.msgtype})")
+                    raise BagReadError(path, f"has no topic {t.name} ({t.msgtype})")
                 if wrong := {c.msgtype for c in mine} - {t.msgtype}:
-                    raise ValueError(f"bag {path}: topic {t.name} has type {wrong}, expected {t.msgtype}")
+                    raise BagReadError(path, f"topic {t.name} has type {wrong}, expected {t.msgtype}")
                 conns += mine
                 # Jazzy typestore if the embedded definition is Jazzy's (compiled once per process).
                 same = all(c.digest == M.TYPESTORE.hash_rihs01(t.msgtype) for c in mine)
@@ -137,13 +184,8 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
             raws: dict[str, list[bytes]] = defaultdict(list)
             for conn, _, raw in reader.messages(connections=conns):
                 raws[conn.topic].append(raw)
-            try:
-                decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS}
-                return M.assemble_episode(meta, decoded)
-            except ValueError as err:
-                raise ValueError(f"bag {path}: {err}") from None
-    except AnyReaderError as err:
-        raise ValueError(f"cannot read bag {path}: {err}") from None
+            decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS}
+            return M.assemble_episode(meta, decoded)
 
 
 def find_episode_bags(root: str | os.PathLike) -> list[Path]:
@@ -180,13 +222,13 @@ def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[st
     """(stamps int64 (n,), values float64 (n, len(labels))) of a labelled-array topic in a bag,
     in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode).
 
-    ValueError if the bag lacks the topic or a message has another layout."""
+    BagReadError if the bag lacks the topic, a message has another layout or the bag is damaged."""
     path = Path(bag_dir)
     stamps, rows = [], []
-    with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
+    with reading(path), AnyReader([path], default_typestore=M.TYPESTORE) as reader:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
-            raise ValueError(f"bag {path} has no topic {topic}")
+            raise BagReadError(path, f"has no topic {topic}")
         for conn, _, raw in reader.messages(connections=conns):
             stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
             stamps.append(stamp)

@@ -11,18 +11,28 @@ into the rosbag2 bag ``<out>/<name>/`` with :func:`journal_to_bag`, the same for
 ``bag_io.write_episode`` (version 9, MCAP, custom_data ``bag_io.META_KEY``).
 
 Reading tolerates truncation: the MCAP stream reader yields every record of every complete
-chunk and then stops at the torn one (DESIGN.md §7), which is all a killed writer leaves.
+chunk and then stops at the torn one, which is all a killed writer leaves.
+
+Claims: an episode journal may hold messages of one topic from several writers (a second
+publisher, a redelivery). Each message's MCAP ``sequence`` is the DDS publication sequence
+number of its writer (0: unknown), so the conversion can tell the writers apart
+(:func:`refused_claims`, with ``soil_msgs_py.writer_identity``): on a topic of the graph's
+tick grid the bag keeps only the writer that sent the most ticks, i.e. the publisher that
+has been recording every tick, whether another writer's stamp is also claimed or not; of
+messages still claiming one (topic, stamp) it keeps the one with finite values, then the
+first to arrive. The others are counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
+from collections import defaultdict
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from soil_msgs_py import messages as M
+import numpy as np
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
@@ -33,11 +43,14 @@ from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 import yaml
 
 from soil_msgs_py import messages as M
+from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, tick_index
 from .bag_io import META_KEY, PARTIAL_SUFFIX
 
 JOURNAL_METADATA_NAME = "insitu_soil"  # name of the MCAP Metadata record written first
 RECORDER_INFO_KEY = "insitu_soil.recorder"
 REPAIR_INFO_KEY = "insitu_soil.repair"
+FIRST_STAMP_KEY = "insitu_soil.first_stamp_ns"  # journal metadata: the episode's tick 0
 _CHUNK_SIZE = 1 << 20  # chunks close at 1 MiB or at the next flush(), whichever comes first
 
 
@@ -107,8 +120,10 @@ class JournalWriter:
             {"offered_qos_profiles": _qos_yaml(qos), "topic_type_hash": M.TYPESTORE.hash_rihs01(msgtype)},
         )
 
-    def write(self, topic: str, log_time_ns: int, raw: bytes, publish_time_ns: int = 0) -> None:
-        self._mcap.add_message(self._channels[topic], log_time_ns, raw, publish_time_ns or log_time_ns)
+    def write(self, topic: str, log_time_ns: int, raw: bytes, publish_time_ns: int = 0, sequence: int = 0) -> None:
+        """``sequence``: the writer's DDS publication sequence number (0: unknown)."""
+        self._mcap.add_message(self._channels[topic], log_time_ns, raw, publish_time_ns or log_time_ns,
+                               sequence & SEQUENCE_MASK)
 
     def flush(self) -> None:
         """Close the chunk in progress and push it to the OS: it now survives a SIGKILL."""
@@ -145,6 +160,7 @@ class JournalScan:
     metadata: dict[str, str] = field(default_factory=dict)
     channels: dict[int, JournalChannel] = field(default_factory=dict)
     stamps: dict[str, list[int]] = field(default_factory=dict)  # log times per topic, file order
+    sequences: dict[str, list[int]] = field(default_factory=dict)  # writer sequence numbers, same order
     complete: bool = False  # the footer was reached: the writer closed the journal
     stop: str = ""  # why reading stopped before the footer ("" if complete)
 
@@ -186,9 +202,83 @@ def scan_journal(path: Path) -> JournalScan:
                 qos=parse_qos(record.metadata.get("offered_qos_profiles", "")),
             )
             scan.stamps.setdefault(record.topic, [])
+            scan.sequences.setdefault(record.topic, [])
         elif isinstance(record, Message):
-            scan.stamps[scan.channels[record.channel_id].topic].append(record.log_time)
+            topic = scan.channels[record.channel_id].topic
+            scan.stamps[topic].append(record.log_time)
+            scan.sequences[topic].append(record.sequence)
     return scan
+
+
+def labelled_values(topic: str, msgtype: str, raw: bytes | memoryview):
+    """(stamp, values) of a message of a graph topic (episode or labelled extra), None for
+    another topic; ValueError/TypeError etc. if it does not parse as its topic's layout."""
+    f = M.FIELDS.get(topic)
+    msg = M.TYPESTORE.deserialize_cdr(raw, msgtype)
+    if f is not None and f.topic.msgtype == msgtype:
+        return M.parse_message(topic, msg)
+    t = GRAPH_TOPICS_BY_NAME.get(topic)
+    if t is not None and t.labels and t.msgtype == msgtype:
+        return M.parse_labelled(msg, t.labels, topic)
+    return None
+
+
+def _all_finite(topic: str, msgtype: str, raw: bytes) -> bool:
+    try:
+        parsed = labelled_values(topic, msgtype, raw)
+    except Exception:  # noqa: BLE001 - an undecodable claim is as bad as a non-finite one
+        return False
+    return parsed is None or bool(np.isfinite(parsed[1]).all())  # other topics: not ours to judge
+
+
+def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
+    """Per topic, indices (file order) of messages the bag does not keep.
+
+    On the tick grid a message's writer is told by sequence continuity
+    (``writer_identity.WriterTracks``): every message of a writer other than the one that
+    sent the most ticks is refused. Of the rest, messages claiming one stamp keep the one
+    with finite values, then the first to arrive (writers unknown: no sequence numbers, or
+    writers that sent equally many ticks).
+    """
+    if not any(scan.stamps.values()):
+        return {}
+    first = int(scan.metadata.get(FIRST_STAMP_KEY) or min(min(v) for v in scan.stamps.values() if v))
+    refused: dict[str, set[int]] = {}
+    contested: dict[str, list[list[int]]] = {}
+    for topic, stamps in scan.stamps.items():
+        # In stamp order (arrival order within a stamp): a writer's counter grows with its
+        # stamps, and an intruder's far-ahead stamp cannot pass for the next one of a writer.
+        ticks = [tick_index(t, first) for t in stamps]
+        writers = WriterTracks()
+        idents: list[int | None] = [None] * len(stamps)
+        for i in sorted((i for i, k in enumerate(ticks) if k is not None), key=lambda i: (ticks[i], i)):
+            idents[i] = writers.observe(scan.sequences[topic][i], ticks[i])
+        leader = writers.leader()
+        foreign = {i for i, w in enumerate(idents) if None not in (w, leader) and w != leader}
+        by_stamp: dict[int, list[int]] = defaultdict(list)
+        for i, stamp in enumerate(stamps):
+            if i not in foreign:
+                by_stamp[stamp].append(i)
+        if foreign:
+            refused[topic] = foreign
+        if groups := [g for g in by_stamp.values() if len(g) > 1]:
+            contested[topic] = groups
+    if not contested:
+        return refused
+    wanted = {t: {i for g in groups for i in g} for t, groups in contested.items()}
+    finite: dict[tuple[str, int], bool] = {}
+    index: dict[str, int] = defaultdict(int)
+    for record in _records(scan.path, JournalScan(scan.path)):
+        if isinstance(record, Message) and (ch := scan.channels.get(record.channel_id)) is not None:
+            i = index[ch.topic]
+            index[ch.topic] += 1
+            if i in wanted.get(ch.topic, ()):
+                finite[(ch.topic, i)] = _all_finite(ch.topic, ch.msgtype, record.data)
+    for topic, groups in contested.items():
+        for g in groups:
+            keep = min(g, key=lambda i: (not finite.get((topic, i), False), i))
+            refused.setdefault(topic, set()).update(i for i in g if i != keep)
+    return refused
 
 
 def whole_tick_cutoff(stamps: Mapping[str, Sequence[int]]) -> int | None:
@@ -224,6 +314,7 @@ class BagResult:
     last_stamp_ns: int
     journal_complete: bool
     stop: str
+    conflicts: dict[str, int] = field(default_factory=dict)  # refused claims on a stamp, per topic
 
     def summary(self) -> str:
         counts = set(self.messages.values())
@@ -231,8 +322,10 @@ class BagResult:
             f"{counts.pop()} on each of {len(self.messages)} topics" if len(counts) == 1
             else " ".join(f"{t}={n}" for t, n in self.messages.items())
         )
+        refused = (f", {sum(self.conflicts.values())} refused claims on stamps of "
+                   f"{', '.join(sorted(self.conflicts))}" if self.conflicts else "")
         return (f"{self.path}: {self.ticks} ticks, {sum(self.messages.values())} messages "
-                f"({per_topic}), {self.dropped} dropped")
+                f"({per_topic}), {self.dropped} dropped{refused}")
 
 
 def journal_to_bag(
@@ -259,25 +352,33 @@ def journal_to_bag(
         why = f" ({scan.stop})" if scan.stop else ""
         raise NothingRecoverable(f"{jpath}: no complete chunk with a message{why}")
     meta_json = scan.metadata.get(META_KEY)
+    refused = refused_claims(scan) if meta_json is not None else {}
     cutoff = None
     if trim_partial_ticks and meta_json is not None:
-        # Whole ticks are judged on the episode topics; extra topics (--topics) keep what is
-        # stamped up to the last whole tick.
-        tick_topics = {t: v for t, v in scan.stamps.items() if t in M.FIELDS} or scan.stamps
+        # Whole ticks are judged on the episode topics' kept messages; extra topics
+        # (--topics) keep what is stamped up to the last whole tick.
+        kept_stamps = {t: [s for i, s in enumerate(v) if i not in refused.get(t, ())]
+                       for t, v in scan.stamps.items()}
+        tick_topics = {t: v for t, v in kept_stamps.items() if t in M.FIELDS} or kept_stamps
         cutoff = whole_tick_cutoff(tick_topics)
         if cutoff is None:
             raise NothingRecoverable(
                 f"{jpath}: {scan.messages} messages recovered but no tick has a message on every topic "
                 f"(use --keep-partial-ticks to keep them)"
             )
-    keep = (lambda t: True) if cutoff is None else (lambda t: t <= cutoff)
-    written = {ch.topic: sum(1 for t in scan.stamps[ch.topic] if keep(t)) for ch in scan.channels.values()}
-    kept = [t for v in scan.stamps.values() for t in v if keep(t)]
+    in_range = (lambda t: True) if cutoff is None else (lambda t: t <= cutoff)
+
+    def keep(topic: str, i: int) -> bool:
+        return in_range(scan.stamps[topic][i]) and i not in refused.get(topic, ())
+
+    kept_by_topic = {t: [s for i, s in enumerate(v) if keep(t, i)] for t, v in scan.stamps.items()}
+    kept = [s for v in kept_by_topic.values() for s in v]
     result = BagResult(
         path=partial.parent / partial.name[: -len(PARTIAL_SUFFIX)], ticks=len(set(kept)),
-        messages={t: n for t, n in written.items()}, recovered=scan.messages,
-        dropped=scan.messages - len(kept), last_stamp_ns=max(kept), journal_complete=scan.complete,
-        stop=scan.stop,
+        messages={ch.topic: len(kept_by_topic[ch.topic]) for ch in scan.channels.values()},
+        recovered=scan.messages, dropped=scan.messages - len(kept), last_stamp_ns=max(kept),
+        journal_complete=scan.complete, stop=scan.stop,
+        conflicts={t: n for t, idx in sorted(refused.items()) if (n := sum(1 for i in idx if in_range(scan.stamps[t][i])))},
     )
     base = result.path.name
     k = 1
@@ -290,7 +391,7 @@ def journal_to_bag(
     details = dict(info or {})
     details.update(recovered_messages=result.recovered, written_messages=len(kept),
                    dropped_messages=result.dropped, ticks=result.ticks, last_stamp_ns=result.last_stamp_ns,
-                   messages=result.messages, journal_complete=scan.complete)
+                   messages=result.messages, journal_complete=scan.complete, conflicts=result.conflicts)
     if scan.stop:
         details["journal_stop"] = scan.stop
     with Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -302,9 +403,14 @@ def journal_to_bag(
                                        offered_qos_profiles=ch.qos)
             for cid, ch in scan.channels.items()
         }
+        index: dict[str, int] = defaultdict(int)  # per topic, as in scan.stamps
         for record in _records(jpath, JournalScan(jpath)):
-            if isinstance(record, Message) and keep(record.log_time):
-                writer.write(conns[record.channel_id], record.log_time, record.data)
+            if isinstance(record, Message):
+                topic = scan.channels[record.channel_id].topic
+                i = index[topic]
+                index[topic] += 1
+                if keep(topic, i):
+                    writer.write(conns[record.channel_id], record.log_time, record.data)
     os.replace(staging, result.path)
     shutil.rmtree(partial)
     return result

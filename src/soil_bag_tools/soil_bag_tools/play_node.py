@@ -10,7 +10,8 @@ so ``soil_bag_record`` splits a replay into the same bags and estimators reset i
                   [--clock HZ] [--wait-for-subscribers N] [--wait-timeout S] [--no-status]
                   [--ros-args ...]
 
-Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument.
+Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument or a truncated or
+corrupt bag (named; the bags before it have been played).
 """
 from __future__ import annotations
 
@@ -193,7 +194,7 @@ def main(args: list[str] | None = None) -> int:
                 player.drain()
             except KeyboardInterrupt:
                 pass
-    except ValueError as err:  # BagPathError (unreadable bag), unknown message type
+    except ValueError as err:  # BagReadError (damaged bag), BagPathError, unknown message type
         node.get_logger().error(str(err))
         code = 2
     finally:

@@ -15,11 +15,10 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.highlevel import AnyReader
 
 from soil_msgs_py import messages as M
-from .bag_io import META_KEY, find_episode_bags, is_bag
+from .bag_io import META_KEY, bag_custom_data, find_episode_bags, is_bag, reading
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
 
@@ -50,15 +49,6 @@ def expand_bag_args(paths: Sequence[str | os.PathLike]) -> list[Path]:
     return bags
 
 
-def bag_custom_data(bag: Path) -> dict[str, str]:
-    """metadata.yaml ``custom_data`` (rosbags' reader has no public getter); {} if none."""
-    try:
-        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as err:
-        raise BagPathError(f"{bag}: unreadable metadata.yaml: {err!r}") from None
-    return dict(info.get("custom_data") or {})
-
-
 @dataclass
 class LoadedBag:
     path: Path
@@ -79,7 +69,9 @@ def load_bag(
     bag: Path, *, topics: Iterable[str] | None = None, exclude: Iterable[str] = (),
     log: Callable[[str], None] = lambda s: None,
 ) -> LoadedBag:
-    """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude``, in log-time order."""
+    """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude``, in log-time order.
+
+    BagReadError (naming the bag) if it is truncated or corrupt."""
     include = None if topics is None else set(topics)
     skip = set(exclude)
     meta = None
@@ -91,14 +83,11 @@ def load_bag(
         except (TypeError, ValueError) as err:
             log(f"{bag}: bad episode metadata ({err}); playing without /sim/status events")
             meta = None
-    try:
-        with AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
-            conns = [c for c in reader.connections
-                     if (include is None or c.topic in include) and c.topic not in skip]
-            found = {c.topic: c.msgtype for c in conns}
-            messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
-    except AnyReaderError as err:
-        raise BagPathError(f"cannot read bag {bag}: {err}") from None
+    with reading(bag), AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
+        conns = [c for c in reader.connections
+                 if (include is None or c.topic in include) and c.topic not in skip]
+        found = {c.topic: c.msgtype for c in conns}
+        messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
     if include is not None and (missing := sorted(include - found.keys())):
         log(f"{bag}: no topic(s) {missing}")
     return LoadedBag(path=bag, topics=found, messages=messages, meta=meta)

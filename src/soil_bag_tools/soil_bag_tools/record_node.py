@@ -3,7 +3,9 @@
 Thin rclpy adapter around ``recorder.Recorder`` (routing, journals, bag conversion): raw
 (CDR bytes) subscriptions with ``graph.RECORDER_QOS`` for the data, ``/sim/status`` with
 ``CONTROL_QOS``, a timer that flushes the journals every ``--flush-period`` and finishes
-episodes. SIGINT/SIGTERM only set a flag that the spin loop checks, so a signal never lands
+episodes. Each message goes to the recorder with its writer's publication sequence number
+from the message info, so another publisher's messages on a recorded topic (episode topic
+or labelled extra) are refused (see ``recorder``). SIGINT/SIGTERM only set a flag that the spin loop checks, so a signal never lands
 in the middle of a journal write; the open bags are then finished cleanly (truncated to
 whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``.
 
@@ -87,10 +89,14 @@ class RecordNode(Node):
         if best_effort:  # a RELIABLE reader would never match a BEST_EFFORT writer
             qos.reliability = ReliabilityPolicy.BEST_EFFORT
 
-        def callback(raw: bytes, topic: str = topic) -> None:
-            self.recorder.on_message(topic, raw, time.time_ns())
+        self.create_subscription(message_class(msgtype), topic, self._callback(topic), qos, raw=True)
 
-        self.create_subscription(message_class(msgtype), topic, callback, qos, raw=True)
+    def _callback(self, topic: str):
+        """Raw message plus its message info: the writer's publication sequence number is what
+        tells two publishers of one topic apart (rclpy's info carries no publisher gid)."""
+        def callback(raw: bytes, info) -> None:
+            self.recorder.on_message(topic, raw, time.time_ns(), info.get("publication_sequence_number"))
+        return callback
 
     def _discover(self) -> None:
         types = dict(self.get_topic_names_and_types())

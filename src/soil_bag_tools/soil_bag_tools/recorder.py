@@ -16,6 +16,17 @@ finished once every recorded topic reached ``last_stamp_ns``, or after ``end_gra
 Finishing closes the journal and converts it with ``journal.journal_to_bag``; episode bags
 are trimmed to whole ticks, so a bag stopped early (SIGINT, lost tail) still reads with
 ``bag_io.read_episode``.
+
+What never enters an episode bag, on every topic of the graph (episode topics and labelled
+extras such as ``/soil/estimate`` alike): a message whose stamp is off the episode's 60 Hz
+tick grid (``first_stamp_ns + floor(k * 1e9 / 60)``), dropped here and counted per topic
+(``off_grid``); a labelled message whose layout is not its topic's, dropped as
+undecodable (a bag must stay readable). Every message is journaled with its writer's
+publication sequence number, and a second claim on a stamp is warned about; the conversion
+keeps only the writer that has been recording every tick (``journal.refused_claims``, with
+``soil_msgs_py.writer_identity``) and counts the refused messages per topic
+(``conflicts``), so a publisher that sends first, or alone at some stamp, never gets its
+data into the bag.
 """
 from __future__ import annotations
 
@@ -33,14 +44,17 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent, QosSpec
+from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
+from soil_msgs_py.writer_identity import WriterTracks, tick_index
 from .journal import (
     RECORDER_INFO_KEY, BagResult, JournalWriter, NothingRecoverable, claim_name, journal_path,
-    journal_to_bag, partial_dir,
+    journal_to_bag, labelled_values, partial_dir, FIRST_STAMP_KEY,
 )
 
 _MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
 EXTRA_TOPIC_GRACE_S = 0.3  # wait for non-episode topics once the episode topics are complete
-_WARN_LIMIT = 5  # per session and kind; the rest are only counted
+_WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
+_MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
 
 
 def rosbags_qos(spec: QosSpec) -> Qos:
@@ -55,14 +69,14 @@ def rosbags_qos(spec: QosSpec) -> Qos:
 def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | None:
     """Simulation stamp [ns] of a raw CDR message, or None if it has none / does not decode.
 
-    Episode topics use ``messages.parse_message`` (header stamp, Clock, or the labelled
-    array's stamp fields); other types fall back to ``header.stamp`` or ``clock``.
+    Graph topics must parse as their topic's layout (``journal.labelled_values``: episode
+    topics, labelled extras); other types fall back to a labelled array's stamp fields,
+    ``header.stamp`` or ``clock``.
     """
     try:
+        if (parsed := labelled_values(topic, msgtype, raw)) is not None:
+            return parsed[0]
         msg = M.TYPESTORE.deserialize_cdr(raw, msgtype)
-        f = M.FIELDS.get(topic)
-        if f is not None and f.topic.msgtype == msgtype:
-            return M.parse_message(topic, msg)[0]
         if (stamp := M.labelled_stamp(msg)) is not None:
             return stamp
         for path in ("header.stamp", "clock", "stamp"):
@@ -91,8 +105,11 @@ class Session:
     end_event: EpisodeEvent | None = None
     counts: dict[str, int] = field(default_factory=dict)
     topic_max: dict[str, int] = field(default_factory=dict)
-    seen: set[tuple[str, int]] = field(default_factory=set)
-    duplicates: int = 0
+    claims: dict[tuple[str, int], int] = field(default_factory=dict)  # messages per (topic, stamp)
+    duplicates: int = 0  # messages claiming a stamp already claimed on their topic
+    off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
+    warned: dict[tuple[str, str], int] = field(default_factory=dict)  # (kind, topic) -> warnings
+    writers: dict[str, WriterTracks] = field(default_factory=dict)  # who publishes each topic
     flushed_stamp_ns: int = 0  # stamp at the last flush triggered by simulation time
 
     @property
@@ -133,7 +150,7 @@ class Recorder:
         self.log = log or logging.getLogger("soil_bag_record")
         self.clock = clock
         self.sessions: list[Session] = []  # oldest first
-        self.held: deque[tuple[float, str, int, bytes, int]] = deque()
+        self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
         self._undecodable_warned: set[str] = set()
@@ -163,14 +180,17 @@ class Recorder:
         else:
             self._end(ev)
 
-    def on_message(self, topic: str, raw: bytes, recv_ns: int) -> None:
+    def on_message(self, topic: str, raw: bytes, recv_ns: int, publication_seq: int | None = None) -> None:
+        """``publication_seq``: the writer's DDS sequence number (message info), None if unknown;
+        it tells two publishers of one topic apart when they claim the same stamp."""
+        seq = publication_seq or 0
         msgtype = self.topics.get(topic)
         if msgtype is None:
             return
         stamp = decode_stamp(topic, msgtype, raw)
         if not self.split:
             s = self.sessions[0]
-            self._write(s, topic, recv_ns if stamp is None else stamp, raw, recv_ns, dedupe=False)
+            self._write(s, topic, recv_ns if stamp is None else stamp, raw, recv_ns, seq, episode=False)
             return
         if stamp is None:
             self.dropped["undecodable"] += 1
@@ -180,12 +200,12 @@ class Recorder:
             return
         s = self._route(topic, stamp)
         if s is None:
-            self.held.append((self.clock(), topic, stamp, raw, recv_ns))
+            self.held.append((self.clock(), topic, stamp, raw, recv_ns, seq))
             if len(self.held) > _MAX_HELD:
                 self.held.popleft()
                 self.dropped["outside_episode"] += 1
             return
-        self._write(s, topic, stamp, raw, recv_ns)
+        self._write(s, topic, stamp, raw, recv_ns, seq)
         if s.closing_since is not None and self._complete(s):
             self._finish(s, "completed")
 
@@ -242,17 +262,17 @@ class Recorder:
                 s.closing_since = self.clock()
                 self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
                                  f"at its last stamp {s.last_stamp_ns} ns")
-        s = self._open(ev.name, ev.meta.to_json())
+        s = self._open(ev.name, ev.meta.to_json(), {FIRST_STAMP_KEY: str(ev.first_stamp_ns)})
         s.event, s.first_stamp_ns, s.flushed_stamp_ns = ev, ev.first_stamp_ns, ev.first_stamp_ns
         self.sessions.append(s)
         held, self.held = self.held, deque()
         for item in held:  # messages that arrived before their episode_start
-            _, topic, stamp, raw, recv_ns = item
+            _, topic, stamp, raw, recv_ns, seq = item
             target = self._route(topic, stamp)
             if target is None:
                 self.held.append(item)
             else:
-                self._write(target, topic, stamp, raw, recv_ns)
+                self._write(target, topic, stamp, raw, recv_ns, seq)
 
     def _end(self, ev: EpisodeEvent) -> None:
         s = next((s for s in self.sessions if s.same_episode(ev)), None)
@@ -271,22 +291,46 @@ class Recorder:
                 return s
         return None
 
-    def _write(self, s: Session, topic: str, stamp: int, raw: bytes, recv_ns: int, *, dedupe: bool = True) -> None:
-        if dedupe:
-            key = (topic, stamp)
-            if key in s.seen:
-                s.duplicates += 1
-                if s.duplicates <= _WARN_LIMIT:
-                    self.log.warning(f"{s.name}: duplicate {topic} message with stamp {stamp} ns dropped")
+    def _warn(self, s: Session, kind: str, topic: str, text: str) -> None:
+        n = s.warned[(kind, topic)] = s.warned.get((kind, topic), 0) + 1
+        if n <= _WARN_LIMIT:
+            self.log.warning(f"{s.name}: {text}" + (" (further ones only counted)" if n == _WARN_LIMIT else ""))
+
+    def _write(self, s: Session, topic: str, stamp: int, raw: bytes, recv_ns: int, seq: int,
+               *, episode: bool = True) -> None:
+        if episode:
+            if topic in GRAPH_TOPICS_BY_NAME and tick_index(stamp, s.first_stamp_ns) is None:
+                s.off_grid[topic] = s.off_grid.get(topic, 0) + 1
+                self._warn(s, "off_grid", topic, f"{topic} message with stamp {stamp} ns is off the 60 Hz grid "
+                           f"of the episode (first stamp {s.first_stamp_ns} ns); dropped")
                 return
-            s.seen.add(key)
-        s.journal.write(topic, stamp, raw, recv_ns)
+            key = (topic, stamp)
+            claims = s.claims[key] = s.claims.get(key, 0) + 1
+            if claims > 1:
+                s.duplicates += 1
+                self._warn(s, "duplicate", topic, f"duplicate {topic} stamp {stamp} ns (a second publisher or a "
+                           "redelivery); the bag keeps the recorded publisher's message")
+                if claims > _MAX_CLAIMS:
+                    return
+        s.journal.write(topic, stamp, raw, recv_ns, seq)
         if stamp - s.flushed_stamp_ns >= self.flush_sim_ns and s.meta_json is not None:
             s.journal.flush()
             s.flushed_stamp_ns = stamp
         s.counts[topic] = s.counts.get(topic, 0) + 1
-        if stamp > s.topic_max.get(topic, -1):
+        recorded_writer = not episode or self._from_recorded_writer(s, topic, stamp, seq)
+        if stamp > s.topic_max.get(topic, -1) and recorded_writer:
             s.topic_max[topic] = stamp
+
+    @staticmethod
+    def _from_recorded_writer(s: Session, topic: str, stamp: int, seq: int) -> bool:
+        """Whether the message's writer leads the topic so far (or is unknown): only those
+        advance ``topic_max``, so a publisher sending a stamp early cannot make the episode
+        look complete before the recorded publisher's message for it arrived."""
+        k = tick_index(stamp, s.first_stamp_ns)
+        if k is None:
+            return True
+        writers = s.writers.setdefault(topic, WriterTracks())
+        return writers.leads(writers.observe(seq, k))
 
     def _complete(self, s: Session) -> bool:
         """Every episode topic reached the last stamp, and so did every extra ``--topics`` one or
@@ -319,7 +363,7 @@ class Recorder:
             shutil.rmtree(partial, ignore_errors=True)
             self.log.warning(f"{s.name}: no message recorded; no bag written")
             return None
-        info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates}
+        info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:
@@ -332,5 +376,9 @@ class Recorder:
             return None
         extra = f", {s.duplicates} duplicates" if s.duplicates else ""
         self.log.info(f"finished ({how}) {result.summary()}{extra}")
+        if result.conflicts or s.off_grid:
+            self.log.warning(
+                f"{s.name}: other publishers claimed stamps of the recorded data; refused per topic: "
+                f"{result.conflicts or {}} (same stamp, kept the recorded publisher's), {s.off_grid} (off the tick grid)")
         self.finished.append(result)
         return result

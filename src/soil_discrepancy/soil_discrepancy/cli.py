@@ -17,6 +17,8 @@ from pathlib import Path
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    from pinn_estimator.dataset import add_skip_bad_bags_option
+
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("bag_dir", type=Path, help="directory of episode bags (rosbag2), simulated or measured")
@@ -35,6 +37,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")
     p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation (default: all cores)")
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
+    add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--pinn-epochs", type=int, default=0,
                    help="also retrain the PINN without and with the named effect for this many epochs on the "
@@ -66,7 +69,8 @@ def main(argv=None) -> int:
         report = run_discrepancy(
             args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
             seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
-            allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache, plots=not args.no_plots, log=log,
+            allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
+            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, log=log,
         )
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)

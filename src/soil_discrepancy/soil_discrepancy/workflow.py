@@ -1,13 +1,14 @@
 """``run_discrepancy``: measured episodes in, a verdict on the model's missing physics out.
 
-1. baseline   θ per θ-group fitted to the measured force; residual r = F_meas − F_model
+1. fit        θ per θ-group fitted to the measured force; residual r = F_meas − F_model
 2. regimes    residuals by depth, speed, v_z, Q, time, distance, soil, I_d; episode-level tests
 3. candidates every catalogue term cross-validated across groups; greedy forward selection
 4. model      the accepted terms with their k: ``AugmentedFEE`` and the simulator plugin specs
 5. gap        held-out test groups (never used in 3): force error before/after
 
 The held-out test part is split off first (by θ-group, stratified by soil, seeded); step 3
-sees only the selection part. Step 2 describes every episode with the baseline model.
+sees only the selection part. Step 2 describes every episode with the initial model
+(the report's "baseline": the FEE plus any accepted terms, before the workflow adds one).
 """
 from __future__ import annotations
 
@@ -15,11 +16,13 @@ import math
 import time
 from pathlib import Path
 
-from soil_physics import force_terms as extra_terms
+from soil_physics import force_terms
+from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
-from .baseline import MIN_DEPTH_M, SKIP_S, AugmentedFEE, Frame, build_frame, fit_fixed, plugin_spec, residuals
 from .candidates import select_terms, split_holdout
+from .fee_fit import fit_fixed, residuals
+from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
 from .gap import compare_predictions, fee_gap
 from .regimes import MIN_EFFECT, bin_edges, regime_analysis, variable_labels
 
@@ -27,11 +30,12 @@ REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
 
 
-def load_frame(bag_dir, *, stride: int = 2, group_by: str = "auto", cache: bool = True, workers: int = 1) -> Frame:
+def load_frame(bag_dir, *, stride: int = 2, group_by: str = "auto", cache: bool = True, workers: int = 1,
+               skip_bad_bags: bool = False) -> Frame:
     """Read a directory of episode bags (``load_dataset``) into the analysis frame."""
     from pinn_estimator.dataset import load_dataset
 
-    ds = load_dataset(bag_dir, cache=cache, workers=workers)
+    ds = load_dataset(bag_dir, cache=cache, workers=workers, skip_bad_bags=skip_bad_bags)
     return build_frame(ds, stride=stride, group_by=group_by)
 
 
@@ -39,7 +43,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     accepted=(), holdout: float = 0.3, folds: int = 5, seed: int = 0, stride: int = 2,
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
-                    predictors=None, cache: bool = True,
+                    predictors=None, cache: bool = True, skip_bad_bags: bool = False,
                     plots: bool = True, log=print) -> dict:
     """The whole workflow on a bag directory (or a ``Dataset``/``Frame``); returns the report dict.
 
@@ -56,7 +60,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     named terms' k was fitted on the selection episodes only; 'edges': the regime bins) and fn
     returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
     (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
-    that is stored as it is.
+    that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
+    stopping at the first, naming it (``load_dataset``).
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -77,7 +82,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             say(f"reading {bag_dir} ...")
             from pinn_estimator.dataset import load_dataset
 
-            dataset = load_dataset(bag_dir, cache=cache, workers=workers)
+            dataset = load_dataset(bag_dir, cache=cache, workers=workers, skip_bad_bags=skip_bad_bags)
         frame = build_frame(dataset, stride=stride, group_by=group_by)
         source = str(bag_dir if bag_dir is not None else getattr(dataset, "root", ""))
     else:
@@ -86,7 +91,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({'soil + I_d' if _shared(frame) else 'one per episode'}), "
         f"{len(frame)} ticks (stride {frame.stride})")
 
-    # 1. baseline on every group (per-group fits are independent of each other)
+    # 1. the initial model's θ on every group (per-group fits are independent of each other)
     base = fit_fixed(frame, initial)
     r0, _ = residuals(frame, initial, base)
     failed = [frame.group_names[g] for g, ok in base.success.items() if not ok]
@@ -139,7 +144,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
                      "allow_negative_k": allow_negative_k, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
                      "workers": workers},
-        "data": _data_summary(frame, sel_groups, test_groups),
+        "data": {**_data_summary(frame, sel_groups, test_groups),
+                 "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []]},
         "baseline": {"model": [list(t) for t in initial.terms], "theta": base.table(frame),
                      "failed_groups": failed, "rms_n": reg0["rms_n"]},
         "regimes": reg0,
@@ -164,7 +170,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
 
 def _candidates(terms, model: AugmentedFEE) -> list[str]:
     if terms is None:
-        names = list(extra_terms.CATALOGUE)
+        names = list(force_terms.CATALOGUE)
     else:
         if isinstance(terms, str):
             terms = [t for t in terms.split(",")]
@@ -175,7 +181,7 @@ def _candidates(terms, model: AugmentedFEE) -> list[str]:
         if "=" in n:
             raise ValueError(f"terms: {n!r} — candidate terms are names only (their k is fitted); give terms "
                              f"already in the model with a fixed k as accepted ('--accepted name=k')")
-        extra_terms.get_term(n)
+        force_terms.get_term(n)
     out = [n for n in dict.fromkeys(names) if n not in model.names]
     if not out:
         raise ValueError("every candidate term is already in the model (accepted)")
@@ -220,7 +226,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: di
     if new_terms:
         parts = []
         for s in new_terms:
-            unit = extra_terms.get_term(s.name).k_unit
+            unit = force_terms.get_term(s.name).k_unit
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
             parts.append(f"{s.name} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")

@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
 from . import topics as T
 from .episode import EpisodeMeta
+from .messages import MAX_STAMP_NS
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
@@ -93,11 +95,40 @@ ESTIMATOR_INPUTS: tuple[str, ...] = ESTIMATOR_STATE_TOPICS + COMMAND_TOPICS + (S
 ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name)
 
 
+# Bounds on /sim/command and /sim/status text, checked before decoding: a status event with
+# its timing stats is about 2 kB and 3 levels deep, so these only ever refuse abuse (a deeply
+# nested array would otherwise exhaust the decoder's recursion).
+MAX_JSON_CHARS = 65_536
+MAX_JSON_DEPTH = 8
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
+def _nesting_depth(text: str) -> int:
+    """How deep arrays and objects nest in JSON ``text`` (brackets inside strings do not count)."""
+    depth = deepest = 0
+    for ch in _JSON_STRING.sub("", text):
+        if ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
 def _json_object(text: str, what: str) -> dict[str, Any]:
+    """The JSON object in ``text``; every way it can fail is a ValueError naming ``what`` (the topic)."""
+    if not isinstance(text, str):
+        raise ValueError(f"{what}: expected JSON text, got {type(text).__name__}")
+    if len(text) > MAX_JSON_CHARS:
+        raise ValueError(f"{what}: {len(text)} characters, more than {MAX_JSON_CHARS}; not decoded")
+    if (depth := _nesting_depth(text)) > MAX_JSON_DEPTH:
+        raise ValueError(f"{what}: nested {depth} deep, more than {MAX_JSON_DEPTH}; not decoded")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as err:
         raise ValueError(f"{what}: not JSON ({err.msg} at char {err.pos}): {text[:80]!r}") from None
+    except (ValueError, RecursionError) as err:  # e.g. an integer of more digits than Python converts
+        raise ValueError(f"{what}: not decodable ({type(err).__name__}: {err}): {text[:80]!r}") from None
     if not isinstance(data, dict):
         raise ValueError(f"{what}: expected a JSON object, got {type(data).__name__}")
     return data
@@ -149,13 +180,16 @@ class EpisodeEvent:
             v = d.get(key)
             if not isinstance(v, int) or isinstance(v, bool) or (v < 0 and key != "last_stamp_ns"):
                 raise ValueError(f"{SIM_STATUS_TOPIC}: {key}={v!r} must be a non-negative integer")
+            if key.endswith("stamp_ns") and v > MAX_STAMP_NS:
+                raise ValueError(f"{SIM_STATUS_TOPIC}: {key}={v!r} is beyond the last stamp a message can "
+                                 f"carry ({MAX_STAMP_NS} ns)")
         if not isinstance(d.get("meta"), dict):
             raise ValueError(f"{SIM_STATUS_TOPIC}: meta={d.get('meta')!r} must be an object")
         try:
             meta = EpisodeMeta.from_json(json.dumps(d["meta"]))
-        except TypeError as err:  # a missing or mistyped metadata field
+            meta.validate()
+        except (TypeError, ValueError) as err:  # a missing, unknown, mistyped or out-of-range field
             raise ValueError(f"{SIM_STATUS_TOPIC}: bad meta: {err}") from None
-        meta.validate()
         if d.get("stats") is not None and not isinstance(d["stats"], dict):
             raise ValueError(f"{SIM_STATUS_TOPIC}: stats={d['stats']!r} must be an object")
         reason = d.get("reason", "")

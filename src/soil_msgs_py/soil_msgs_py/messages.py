@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from operator import attrgetter
@@ -71,14 +70,44 @@ def ros_message_classes() -> dict[str, Any]:
 
 # --- stamps -------------------------------------------------------------------------
 
+# The stamps the graph can mean: a builtin_interfaces/Time (int32 sec) not before the epoch,
+# with nanosec below one second.
+MAX_STAMP_SEC = 2**31 - 1
+MAX_STAMP_NS = MAX_STAMP_SEC * NS_PER_S + NS_PER_S - 1
+
+
 def split_ns(stamp_ns: int) -> tuple[int, int]:
     """ns -> (sec, nanosec), integers, nanosec in [0, 1e9)."""
     return divmod(int(stamp_ns), NS_PER_S)
 
 
-def stamp_ns(t: Any) -> int:
-    """builtin_interfaces/Time -> ns."""
-    return t.sec * NS_PER_S + t.nanosec
+def checked_stamp(sec: Any, nanosec: Any, topic: str = "", prefix: str = "stamp.") -> int:
+    """ns of a (sec, nanosec) pair, or ValueError naming topic, field (``prefix`` + sec/nanosec) and value.
+
+    The one stamp check of the graph: every parser goes through it, so a consumer only ever
+    sees ns in [0, MAX_STAMP_NS]. Why: a labelled array's float seconds can say 1e308 and a
+    header's nanosec can be 4e9; passed on, such a stamp crashes a bag writer (a log time
+    beyond 64 bits), overflows a log line, or pins a node's "last tick" in the future."""
+    where = f"{topic}: " if topic else ""
+    for name, value, hi in ((prefix + "sec", sec, MAX_STAMP_SEC), (prefix + "nanosec", nanosec, NS_PER_S - 1)):
+        if not _whole_in(value, hi):
+            raise ValueError(f"{where}{name}={value!r} must be a whole number in [0, {hi}]")
+    return int(sec) * NS_PER_S + int(nanosec)
+
+
+def _whole_in(value: Any, hi: int) -> bool:
+    """``value`` is a whole number in [0, hi] (NaN, inf, bools and non-numbers are not)."""
+    if isinstance(value, bool):
+        return False
+    try:
+        return bool(0 <= value <= hi and value == int(value))
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def stamp_ns(t: Any, topic: str = "", prefix: str = "stamp.") -> int:
+    """builtin_interfaces/Time -> ns; ValueError (see ``checked_stamp``) if the graph cannot mean it."""
+    return checked_stamp(t.sec, t.nanosec, topic, prefix)
 
 
 def _time(C: Classes, ns: int) -> Any:
@@ -131,19 +160,12 @@ def parse_labelled(msg: Any, expected_labels: Sequence[str], topic: str = "") ->
             f"{where}labelled array has len(data)={len(data)}, size={dims[0].size}, "
             f"stride={dims[0].stride}, data_offset={msg.layout.data_offset}; expected {n}, {n}, {n}, 0"
         )
-    stamp = _array_stamp(data[0], data[1])
-    if stamp is None:
-        raise ValueError(f"{where}invalid stamp sec={data[0]!r} nanosec={data[1]!r}")
-    return stamp, data[2:].copy()
+    return _array_stamp(data, topic), data[2:].copy()
 
 
-def _array_stamp(sec: float, nanosec: float) -> int | None:
-    """ns from a labelled array's (stamp_sec, stamp_nanosec) floats; None unless both are whole
-    finite numbers with nanosec in [0, 1e9)."""
-    if not (math.isfinite(sec) and math.isfinite(nanosec) and sec == int(sec) and nanosec == int(nanosec)
-            and 0 <= nanosec < NS_PER_S):
-        return None
-    return int(sec) * NS_PER_S + int(nanosec)
+def _array_stamp(data: Any, topic: str = "") -> int:
+    """ns from a labelled array's leading (stamp_sec, stamp_nanosec) floats (``checked_stamp``)."""
+    return checked_stamp(float(data[0]), float(data[1]), topic, "stamp_")
 
 
 def labelled_stamp(msg: Any) -> int | None:
@@ -154,7 +176,10 @@ def labelled_stamp(msg: Any) -> int | None:
     dims = getattr(getattr(msg, "layout", None), "dim", None)
     if not dims or not dims[0].label.startswith(_label(()) + LABEL_SEP) or len(msg.data) < 2:
         return None
-    return _array_stamp(float(msg.data[0]), float(msg.data[1]))
+    try:
+        return _array_stamp(msg.data)
+    except ValueError:
+        return None
 
 
 # --- per-topic mapping ---------------------------------------------------------------
@@ -238,15 +263,17 @@ def _getters(topic: str) -> tuple[Callable[[Any], Any], Callable[[Any], Any] | N
 
 
 def parse_message(topic: str, msg: Any) -> tuple[int, np.ndarray]:
-    """Inverse of build_message: (stamp ns, values in ``FIELDS[topic].columns`` order)."""
+    """Inverse of build_message: (stamp ns, values in ``FIELDS[topic].columns`` order); ValueError
+    naming topic, field and value for a stamp the graph cannot mean (``checked_stamp``)."""
     f = FIELDS[topic]
     if f.topic.labels:
         return parse_labelled(msg, f.topic.labels, topic)
     get_stamp, get_values = _getters(topic)
+    stamp = stamp_ns(get_stamp(msg), topic, f.stamp_path + ".")
     if get_values is None:
-        return stamp_ns(get_stamp(msg)), np.empty(0)
+        return stamp, np.empty(0)
     vals = get_values(msg)
-    return stamp_ns(get_stamp(msg)), np.array(vals if isinstance(vals, tuple) else (vals,), dtype=np.float64)
+    return stamp, np.array(vals if isinstance(vals, tuple) else (vals,), dtype=np.float64)
 
 
 # --- whole episodes --------------------------------------------------------------------

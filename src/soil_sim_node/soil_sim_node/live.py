@@ -1,4 +1,5 @@
-"""ROS-free parts of the live simulator node: episode plans, the command gate, timing stats.
+"""ROS-free parts of the live simulator node: episode plans and the command gate (pacing and
+timing stats: ``pacing.py``).
 
 Kept out of ``node.py`` so they are testable without DDS and the node stays an adapter.
 """
@@ -6,13 +7,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
-
-import numpy as np
 
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py.params import MACHINE
+from soil_msgs_py.stamp_join import StampJoiner, Verdict
+from soil_msgs_py.writer_identity import WriterTracks, tick_number
 
 from .simulator import MAX_TARGET_SPEED_M_S, EpisodeSpec
 
@@ -28,6 +28,16 @@ COMMAND_TOPIC_FIELDS: dict[str, tuple[str, ...]] = {
 }  # {"/chassis/cmd_vel": ("u_x",), "/blade/cmd": ("u_zr", "u_za")}
 # Before the controller has said anything: blade on the chassis reference, machine at rest.
 INITIAL_COMMAND = {"u_zr": 0.0, "u_za": 0.0, "u_x": 0.0}
+# A command writer silent this many ticks is forgotten: a restarted controller (a new
+# sequence counter) is followed once its predecessor has gone quiet for 2 s.
+FORGET_WRITER_AFTER_TICKS = 120
+
+
+def command_writers() -> dict[str, WriterTracks]:
+    """The command writers per topic; kept across episodes (the controller's counter runs on
+    and consecutive episodes continue one tick grid), so only the node's very first tick has
+    no writer to follow yet."""
+    return {topic: WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS) for topic in G.COMMAND_TOPICS}
 
 
 def episode_plan(base: EpisodeSpec, soils: list[str], densities_pct: list[float], repeats: int) -> list[EpisodeSpec]:
@@ -47,50 +57,74 @@ class CommandGate:
 
     Why: the simulator core refuses non-finite commands (it raises) and a robot stack's
     simulator must keep running whatever a client publishes. A command is accepted only
-    if it is stamped with the tick it answers; stale, repeated and future stamps are
-    ignored. Non-finite fields hold the last applied value; out-of-range fields are
-    clamped to COMMAND_LIMITS. Every decision returns a warning naming field and value.
+    if it is stamped with the tick it answers (a stamp joiner that expects exactly that
+    stamp); stale, repeated and future stamps are ignored. Of commands for that stamp only
+    the followed writer's counts (``writer_identity``: the writer that has answered the most
+    ticks, told apart by publication sequence numbers), so another publisher's command sent
+    first neither steers the simulator nor pushes out the controller's; without sequence
+    numbers the first command of a tick counts. Non-finite fields hold the last applied
+    value; out-of-range fields are clamped to COMMAND_LIMITS. Every decision returns a
+    warning naming field and value.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, writers: dict[str, WriterTracks] | None = None) -> None:
         self.last = dict(INITIAL_COMMAND)
         self.pending: dict[str, float] = {}
         self.arrived: set[str] = set()
         self.stamp_ns: int | None = None
+        self.complete = False  # both commands for ``stamp_ns`` arrived
+        self.joiner = StampJoiner(G.COMMAND_TOPICS, max_pending=1, duplicates="keep_first", max_ahead_ns=0)
+        self.writers = writers if writers is not None else command_writers()
         self.rejected = 0
         self.sanitised = 0
 
     def expect(self, stamp_ns: int) -> None:
         """A new tick was published: from now on only commands stamped ``stamp_ns`` count."""
         self.stamp_ns = stamp_ns
-        self.pending = {}
-        self.arrived = set()
+        self.pending, self.arrived, self.complete = {}, set(), False
+        self.joiner.reset(stamp_ns)
 
     def idle(self) -> None:
         """No episode running: every command is ignored until the next ``expect``."""
         self.stamp_ns = None
-        self.pending = {}
-        self.arrived = set()
+        self.pending, self.arrived, self.complete = {}, set(), False
+        self.joiner.reset()
 
-    def offer(self, topic: str, stamp_ns: int, values) -> list[tuple[str, str]]:
+    def offer(self, topic: str, stamp_ns: int, values, sequence: int | None = None) -> list[tuple[str, str]]:
         """Offer one command message; returns (kind, warning) pairs (empty when taken as is).
 
-        ``kind`` ("<topic>:<field or stamp>:<problem>") lets the node rate-limit by kind."""
-        names = COMMAND_TOPIC_FIELDS[topic]
+        ``sequence``: its writer's publication sequence number (None or 0: unknown).
+        ``kind`` ("<topic>:<field, stamp or writer>:<problem>") lets the node rate-limit by kind."""
         if self.stamp_ns is None:
             self.rejected += 1
             return [(f"{topic}:stamp:idle",
                      f"{topic}: command stamped {stamp_ns} ns arrived while no episode is running; ignored")]
-        if stamp_ns != self.stamp_ns:
+        if stamp_ns == self.stamp_ns:
+            writers = self.writers[topic]
+            if not writers.leads(writers.observe(sequence, tick_number(stamp_ns))):
+                self.rejected += 1
+                return [(f"{topic}:writer:not_followed",
+                         f"{topic}: command for stamp {stamp_ns} ns from a writer other than the one answering "
+                         f"every tick (publication sequence number {sequence}); ignored")]
+        fields, warnings = self._sanitise(topic, values)
+        verdict, out = self.joiner.offer(topic, stamp_ns)
+        if verdict is not Verdict.TAKEN:
             self.rejected += 1
-            kind = "stale" if stamp_ns < self.stamp_ns else "future"
+            if verdict is Verdict.DUPLICATE or stamp_ns == self.stamp_ns:  # (after both came: stale to the joiner)
+                return [(f"{topic}:stamp:repeated", f"{topic}: second command for stamp {stamp_ns} ns; ignored")]
+            kind = verdict.value  # "stale" or "future"
             return [(f"{topic}:stamp:{kind}", f"{topic}: {kind} stamp {stamp_ns} ns (expected {self.stamp_ns} ns, "
                                                f"the tick being answered); ignored")]
-        if topic in self.arrived:
-            self.rejected += 1
-            return [(f"{topic}:stamp:repeated", f"{topic}: second command for stamp {stamp_ns} ns; ignored")]
-        warnings = []
-        for name, raw in zip(names, values):
+        self.pending.update(fields)
+        self.sanitised += bool(warnings)
+        self.arrived.add(topic)
+        self.complete = bool(out)
+        return warnings
+
+    def _sanitise(self, topic: str, values) -> tuple[dict[str, float], list[tuple[str, str]]]:
+        """(field -> value to apply, warnings): non-finite held, out of range clamped."""
+        fields, warnings = {}, []
+        for name, raw in zip(COMMAND_TOPIC_FIELDS[topic], values):
             value = float(raw)
             lo, hi = COMMAND_LIMITS[name]
             if not math.isfinite(value):
@@ -102,50 +136,10 @@ class CommandGate:
                 warnings.append((f"{topic}:{name}:out_of_range",
                                  f"{topic}: field {name}={value} outside [{lo}, {hi}]; clamped to {clamped}"))
                 value = clamped
-            self.pending[name] = value
-        self.sanitised += bool(warnings)
-        self.arrived.add(topic)
-        return warnings
-
-    @property
-    def complete(self) -> bool:
-        return len(self.arrived) == len(COMMAND_TOPIC_FIELDS)
+            fields[name] = value
+        return fields, warnings
 
     def take(self) -> tuple[float, float, float]:
         """(u_zr, u_za, u_x) to apply now: what arrived for this tick, else the last applied."""
         self.last.update(self.pending)
         return self.last["u_zr"], self.last["u_za"], self.last["u_x"]
-
-
-def _percentiles_ms(values_s: list[float]) -> dict[str, float]:
-    if not values_s:
-        return {"n": 0}
-    a = np.asarray(values_s) * 1e3
-    return {"n": int(a.size), "p50_ms": round(float(np.percentile(a, 50)), 4),
-            "p99_ms": round(float(np.percentile(a, 99)), 4), "max_ms": round(float(a.max()), 4)}
-
-
-@dataclass
-class TickTiming:
-    """Wall-clock figures of one episode: publish periods, loop latency, late commands."""
-
-    nominal_period_s: float
-    publish_times: list[float] = field(default_factory=list)
-    loop_latencies: list[float] = field(default_factory=list)
-    late_commands: int = 0
-
-    def published(self, t: float) -> None:
-        self.publish_times.append(t)
-
-    def answered(self, t: float) -> None:
-        """Both commands for the last published tick arrived at wall time ``t``."""
-        if self.publish_times:
-            self.loop_latencies.append(t - self.publish_times[-1])
-
-    def summary(self) -> dict:
-        periods = np.diff(self.publish_times).tolist() if len(self.publish_times) > 1 else []
-        out = {"nominal_period_ms": round(self.nominal_period_s * 1e3, 4), "period": _percentiles_ms(periods)}
-        if self.nominal_period_s > 0:  # lockstep has no nominal period, hence no jitter
-            out["jitter"] = _percentiles_ms([abs(p - self.nominal_period_s) for p in periods])
-        out.update(loop_latency=_percentiles_ms(self.loop_latencies), late_commands=self.late_commands)
-        return out

@@ -3,7 +3,8 @@
 Each 60 Hz tick of simulation time it publishes /clock, the blade and chassis state, the
 measured blade force, Θ_k and the pseudo-ground truth (topics.py), all stamped with the
 tick's simulation time, and reads /chassis/cmd_vel and /blade/cmd stamped with the tick
-they answer. Two pacings:
+they answer. Two pacings (``pacing.py`` decides when a tick is stepped; this node owns
+the timers):
 
 * ``realtime``: a wall-clock timer at 60 Hz × ``rate``; each tick applies the commands that
   answered the previous tick (held from before if they were late, counted as late).
@@ -21,7 +22,6 @@ Bad commands never stop the node and never reach the core: see live.CommandGate.
 from __future__ import annotations
 
 import collections
-import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -38,12 +38,11 @@ from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
 
 from .effects import effects_for_mode
-from .live import CommandGate, TickTiming, episode_plan
+from .live import CommandGate, command_writers, episode_plan
+from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
 from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
-PACINGS = ("realtime", "lockstep")
-COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through _value() (unset reads as []).
 _STR_ARRAY = Parameter.Type.STRING_ARRAY
@@ -84,16 +83,13 @@ class SimNode(Node):
         self.exit_code = 0
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
-        self.pacing = p["pacing"]
-        self.rate = float(p["rate"])
+        self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
+        self.start_wait = StartWait(p["wait_timeout_s"], p["settle_s"])
         self.exit_when_done = bool(p["exit_when_done"])
         self.wait_for = self._parse_wait_for(p["wait_for"])
-        if self.pacing == "lockstep" and not self.wait_for:
+        if self.pacer.lockstep and not self.wait_for:
             # Lockstep cannot run without a controller: wait for one unless told otherwise.
             self.wait_for = [(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
-        self.wait_timeout_s = float(p["wait_timeout_s"])
-        self.settle_s = float(p["settle_s"])
-        self.lockstep_timeout_s = float(p["lockstep_timeout_s"])
         effects = effects_for_mode(p["world_mode"])
         if p["effects_off"]:
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
@@ -110,38 +106,31 @@ class SimNode(Node):
         self.status_pub = self.create_publisher(String, G.SIM_STATUS_TOPIC, topic_qos(G.SIM_STATUS_TOPIC))
         self.cmd_subs = [
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                     lambda msg, n=name: self._on_command(n, msg), topic_qos(name))
+                                     self._command_callback(name), topic_qos(name))
             for name in G.COMMAND_TOPICS
         ]
         self.create_subscription(String, G.SIM_COMMAND_TOPIC, self._on_sim_command, topic_qos(G.SIM_COMMAND_TOPIC))
 
         # episode state
         self.sim: SoilSimulator | None = None
-        self.gate = CommandGate()
+        self.command_writers = command_writers()  # who answers the ticks, across episodes
+        self.gate = CommandGate(self.command_writers)
         self.episode_index = -1
         self.meta = None
         self.tick = 0
         self.planned_ticks = 0
         self.first_stamp_ns = 0
         self.next_first_stamp_ns = 0
-        self.timing: TickTiming | None = None
-        self.wait_started: float | None = None
-        self.matched_at: float | None = None
         self.shutdown_requested = False
         self._warn = WarnLimiter(self.get_logger())
-        self._timeout_logged = False
 
-        self.timer = self.create_timer(self._period(), self._on_timer)
-        # Real time: a tick whose commands are not in yet when the timer fires waits up to
-        # COMMAND_GRACE of a period for them (rclpy serves ready timers before ready
-        # subscriptions, so a command that arrived with the timer would otherwise count as
-        # late); after that the previous command is held and the tick counted as late.
-        self._due = False
+        self.timer = self.create_timer(self.pacer.period_s, self._on_timer)
+        # Real time: how long a tick waits for late commands (pacing.COMMAND_GRACE).
         self.grace_timer = self.create_timer(1.0, self._on_grace)
         self.grace_timer.cancel()
         self.get_logger().info(
-            f"{p['world_mode']} world, pacing={self.pacing}"
-            + (f" x{self.rate}" if self.pacing == "realtime" else "")
+            f"{p['world_mode']} world, pacing={self.pacer.pacing}"
+            + (f" x{self.pacer.rate}" if not self.pacer.lockstep else "")
             + f", {len(self.queue)} episode(s) queued; commands on /sim/command"
         )
 
@@ -152,20 +141,9 @@ class SimNode(Node):
         except ParameterUninitializedException:
             return []
 
-    def _realtime_period(self) -> float:
-        return 1.0 / (SAMPLE_RATE_HZ * self.rate)
-
-    def _period(self) -> float:
-        if self.pacing == "lockstep" or self.sim is None:
-            return 0.01  # idle/lockstep housekeeping: start checks and the stall watchdog
-        return self._realtime_period()
-
     @staticmethod
     def _validate_static(p: dict) -> None:
-        if p["pacing"] not in PACINGS:
-            raise ValueError(f"parameter pacing={p['pacing']!r} is not one of {PACINGS}")
-        if not 0.01 <= float(p["rate"]) <= 1000.0:
-            raise ValueError(f"parameter rate={p['rate']!r} outside [0.01, 1000]")
+        check_pacing(p["pacing"], p["rate"])
         effects_for_mode(p["world_mode"])
         if int(p["episodes"]) < 0:
             raise ValueError(f"parameter episodes={p['episodes']} must be >= 0")
@@ -207,32 +185,31 @@ class SimNode(Node):
             spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS}
             if spec_fields:
                 self._spec_from_params(spec_fields)
-            self._validate_static({"pacing": self.pacing, "rate": changes.get("rate", self.rate),
+            self._validate_static({"pacing": self.pacer.pacing, "rate": changes.get("rate", self.pacer.rate),
                                    "world_mode": self.config.world_mode, "episodes": 0,
                                    **{k: v for k, v in changes.items()
                                       if k in ("wait_timeout_s", "settle_s", "lockstep_timeout_s")}})
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         if "rate" in changes:
-            self.rate = float(changes["rate"])
-            if self.timing is not None and self.pacing == "realtime":
-                self.timing.nominal_period_s = self._realtime_period()  # jitter from here on is against the new rate
+            self.pacer.set_rate(changes["rate"])
             self._reset_timer()
-        for name in ("exit_when_done", "wait_timeout_s", "settle_s", "lockstep_timeout_s"):
+        for owner, name in ((self, "exit_when_done"), (self.start_wait, "wait_timeout_s"),
+                            (self.start_wait, "settle_s"), (self.pacer, "lockstep_timeout_s")):
             if name in changes:
-                setattr(self, name, type(getattr(self, name))(changes[name]))
+                setattr(owner, name, type(getattr(owner, name))(changes[name]))
         return SetParametersResult(successful=True)
 
     def _reset_timer(self) -> None:
         self.timer.cancel()
         self.destroy_timer(self.timer)
-        self.timer = self.create_timer(self._period(), self._on_timer)
+        self.timer = self.create_timer(self.pacer.period_s, self._on_timer)
         if getattr(self, "grace_timer", None) is not None:
             self.grace_timer.cancel()
             self.destroy_timer(self.grace_timer)
-            self.grace_timer = self.create_timer(COMMAND_GRACE * self._period(), self._on_grace)
+            self.grace_timer = self.create_timer(self.pacer.grace_s, self._on_grace)
             self.grace_timer.cancel()
-            self._due = False
+            self.pacer.timers_restarted()
 
     # ------------------------------------------------------------------ episode control
     def _on_sim_command(self, msg: String) -> None:
@@ -270,23 +247,12 @@ class SimNode(Node):
         return not missing, missing
 
     def _try_start(self) -> None:
-        now = time.monotonic()
-        if self.wait_started is None:
-            self.wait_started = now
         ready, missing = self._endpoints_ready()
-        if not ready:
-            if not (self.wait_timeout_s and now - self.wait_started > self.wait_timeout_s):
-                return
-            if not self._timeout_logged:
-                self._timeout_logged = True
-                self.get_logger().warning(f"starting without {missing} after {self.wait_timeout_s} s")
-        if self.matched_at is None:
-            self.matched_at = now
-        if now - self.matched_at < self.settle_s:
-            return
-        self.wait_started = self.matched_at = None
-        self._timeout_logged = False
-        self._start_episode(self.queue.popleft())
+        poll = self.start_wait.poll(ready)
+        if poll.gave_up:
+            self.get_logger().warning(f"starting without {missing} after {self.start_wait.wait_timeout_s} s")
+        if poll.go:
+            self._start_episode(self.queue.popleft())
 
     def _start_episode(self, spec: EpisodeSpec) -> None:
         self.sim = SoilSimulator(self.config, [spec])
@@ -296,8 +262,8 @@ class SimNode(Node):
         self.tick = 0
         self.planned_ticks = int(round(spec.duration_s * SAMPLE_RATE_HZ))
         self.first_stamp_ns = self.next_first_stamp_ns
-        self.timing = TickTiming(self._realtime_period() if self.pacing == "realtime" else 0.0)
-        self.gate = CommandGate()
+        self.pacer.start_episode()
+        self.gate = CommandGate(self.command_writers)
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks)
         self.status_pub.publish(String(data=event.to_json()))
@@ -311,7 +277,7 @@ class SimNode(Node):
 
     def _end_episode(self, reason: str) -> None:
         last = self.first_stamp_ns + stamp_ns(self.tick) if self.tick >= 0 else self.first_stamp_ns
-        stats = self.timing.summary() if self.timing else {}
+        stats = self.pacer.end_episode()
         stats.update(commands_rejected=self.gate.rejected, commands_sanitised=self.gate.sanitised)
         event = G.EpisodeEvent(G.EVENT_EPISODE_END, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks, last_stamp_ns=last,
@@ -342,7 +308,7 @@ class SimNode(Node):
         self.gate.expect(stamp)
         for name in G.SIM_STATE_TOPICS:
             self.pubs[name].publish(M.build_message(self.classes, name, stamp, values[name]))
-        self.timing.published(time.perf_counter())
+        self.pacer.published()
 
     def _advance(self) -> None:
         """Apply this tick's commands, step the core, publish the next tick or end the episode."""
@@ -354,23 +320,22 @@ class SimNode(Node):
         self.tick += 1
         self._publish_tick(out)
 
-    def _on_command(self, topic: str, msg) -> None:
+    def _command_callback(self, topic: str):
+        """Message plus message info (two parameters, so rclpy passes the info): the writer's
+        publication sequence number tells the controller from another publisher."""
+        def callback(msg, info) -> None:
+            self._on_command(topic, msg, info.get("publication_sequence_number"))
+        return callback
+
+    def _on_command(self, topic: str, msg, sequence: int | None = None) -> None:
         try:
             stamp, values = M.parse_message(topic, msg)
         except ValueError as err:
             self._warn(f"{topic}:layout", f"{err}; ignored")
             return
-        for kind, text in self.gate.offer(topic, stamp, values):
+        for kind, text in self.gate.offer(topic, stamp, values, sequence):
             self._warn(kind, text)
-        if self.sim is not None and self.gate.complete and self.timing is not None:
-            if len(self.timing.loop_latencies) < len(self.timing.publish_times):
-                self.timing.answered(time.perf_counter())
-            if self.pacing == "lockstep":
-                self._advance()
-            elif self._due:
-                self._due = False
-                self.grace_timer.cancel()
-                self._advance()
+        self._do(self.pacer.on_commands(self.gate.complete))
 
     def _on_timer(self) -> None:
         if self.sim is None:
@@ -379,29 +344,27 @@ class SimNode(Node):
             elif self.shutdown_requested or (self.exit_when_done and not self.queue):
                 self.finished = True
             return
-        if self.pacing == "realtime":
-            if self.gate.complete:
-                self._advance()
-            elif not self._due:
-                self._due = True
-                self.grace_timer.reset()
-        elif self.timing.publish_times:
-            waited = time.perf_counter() - self.timing.publish_times[-1]
-            if waited > self.lockstep_timeout_s:
-                self.get_logger().error(
-                    f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after {self.lockstep_timeout_s} s "
-                    f"(have {sorted(self.gate.arrived)}); ending the episode")
-                self._end_episode("error")
-            elif waited > 1.0:
-                self._warn("lockstep_stall", f"lockstep: waiting for the commands for stamp {self.gate.stamp_ns} ns "
-                                             f"(have {sorted(self.gate.arrived)}); is the controller running?")
+        self._do(self.pacer.on_timer(self.gate.complete))
 
     def _on_grace(self) -> None:
         self.grace_timer.cancel()
-        if self._due and self.sim is not None:
-            self._due = False
-            self.timing.late_commands += 1
+        self._do(self.pacer.on_grace())
+
+    def _do(self, what: Do) -> None:
+        """Carry out the pacing core's decision."""
+        if what is Do.STEP:
+            self.grace_timer.cancel()
             self._advance()
+        elif what is Do.WAIT_GRACE:
+            self.grace_timer.reset()
+        elif what is Do.TIMED_OUT:
+            self.get_logger().error(
+                f"lockstep: no complete command for stamp {self.gate.stamp_ns} ns after {self.pacer.lockstep_timeout_s} s "
+                f"(have {sorted(self.gate.arrived)}); ending the episode")
+            self._end_episode("error")
+        elif what is Do.STALLED:
+            self._warn("lockstep_stall", f"lockstep: waiting for the commands for stamp {self.gate.stamp_ns} ns "
+                                         f"(have {sorted(self.gate.arrived)}); is the controller running?")
 
     def close(self) -> None:
         if self.sim is not None:

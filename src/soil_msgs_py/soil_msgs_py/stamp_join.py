@@ -1,0 +1,218 @@
+"""Join messages of several topics that carry the same header stamp (no ROS; cf. ROS
+``message_filters`` ExactTime synchronizer).
+
+Every per-tick message carries its tick's simulation time, and DDS orders each topic but not
+topics against each other, so every consumer pairs by stamp. ``StampJoiner`` is the one place
+that does it; where consumers genuinely differ (what a repeated message means, how far back
+a stamp may go, how long an incomplete tick may wait) they say so in constructor arguments.
+
+Policy (stamps are integer ns):
+
+* A *set* is the messages of one stamp, at most one per topic; it is complete once every
+  topic has one.
+* Sets leave in stamp order (``Joined`` items, returned by ``offer``). The oldest pending set
+  leaves as soon as it is complete; while incomplete it blocks newer sets until a complete set
+  at least ``reorder_ns`` newer exists, then it leaves incomplete (``OVERTAKEN``).
+  ``reorder_ns=0``: give up an incomplete set as soon as any newer set is complete.
+* A stamp not newer than the last set that left (or before ``reset``'s first stamp) is
+  ``STALE`` and refused; one more than ``restart_back_ns`` behind it means the source started
+  over (a bag replayed again): everything pending is forgotten and the stamp starts a new
+  stream (``RESTART``, taken).
+* A stamp more than ``max_ahead_ns`` past the next expected stamp is ``FUTURE`` and refused
+  (``0``: only the stamp given to ``reset``).
+* After ``restart_after_refused`` refusals in a row (STALE or FUTURE, nothing taken between)
+  the source is taken to have moved on for good: the stamp refused last starts a new stream
+  (``RESTART``, taken). One stray message (a far-future pair from another node) is refused
+  and changes nothing; a stream that really jumped is followed after a short while rather
+  than ignored for ever. ``0``: never.
+* A second message of a topic for a pending stamp is ``DUPLICATE``; ``duplicates`` says what
+  happens to it: ``"replace"`` (the newest counts), ``"keep_first"`` (it is dropped) or
+  ``"spoil"`` (the set is marked bad: the tick is not to be trusted).
+* At most ``max_pending`` sets wait; beyond that the one that has waited longest leaves
+  (``EVICTED``, out of stamp order and without moving the order on). Longest waiting, not
+  lowest stamp, so a burst of bogus future stamps ages out instead of pushing out real ticks.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+DUPLICATE_POLICIES = ("replace", "keep_first", "spoil")
+
+
+class Verdict(enum.Enum):
+    """What ``offer`` did with one message."""
+
+    TAKEN = "taken"
+    DUPLICATE = "duplicate"  # its topic already has a message for this stamp (see ``duplicates``)
+    STALE = "stale"  # not newer than the last set that left: refused
+    FUTURE = "future"  # beyond ``max_ahead_ns``: refused
+    RESTART = "restart"  # far back (or refused ``restart_after_refused`` times in a row): a new stream, taken
+
+
+class Why(enum.Enum):
+    """Why a set left the joiner."""
+
+    COMPLETE = "complete"
+    OVERTAKEN = "overtaken"  # a complete set ``reorder_ns`` newer exists: given up
+    EVICTED = "evicted"  # ``max_pending`` sets were waiting: the longest waiting was dropped
+    DRAINED = "drained"  # ``drain`` gave up every pending set
+
+
+@dataclass
+class Joined:
+    """One stamp's messages as they left the joiner."""
+
+    stamp_ns: int
+    parts: dict[str, Any] = field(default_factory=dict)  # topic -> payload, in arrival order
+    missing: tuple[str, ...] = ()  # topics that never came (empty when complete)
+    bad: str = ""  # why the set must not be used ('' when it may): the first reason given
+    why: Why = Why.COMPLETE
+    previous_ns: int = -1  # the stamp that left in order before this one (-1: none since reset)
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing
+
+    @property
+    def usable(self) -> bool:
+        """Complete and not marked bad."""
+        return not self.missing and not self.bad
+
+
+class Offer(NamedTuple):
+    verdict: Verdict
+    out: list[Joined]  # sets that left because of this offer, in the order they left
+
+
+def _check_count(name: str, value: Any, lo: int, unit: str) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < lo:
+        raise ValueError(f"{name}={value!r} must be an integer >= {lo} {unit}")
+
+
+class StampJoiner:
+    """Messages of ``topics`` -> one ``Joined`` per stamp, in stamp order (see module doc)."""
+
+    def __init__(self, topics, *, max_pending: int, reorder_ns: float = 0, duplicates: str = "replace",
+                 restart_back_ns: float | None = None, max_ahead_ns: float | None = None,
+                 restart_after_refused: int = 0):
+        self.topics = tuple(topics)
+        if not self.topics or len(set(self.topics)) != len(self.topics):
+            raise ValueError(f"topics={self.topics!r} must be distinct and at least one")
+        _check_count("max_pending", max_pending, 1, "set")
+        _check_count("restart_after_refused", restart_after_refused, 0, "messages")
+        if duplicates not in DUPLICATE_POLICIES:
+            raise ValueError(f"duplicates={duplicates!r} is not one of {DUPLICATE_POLICIES}")
+        for name, value in (("reorder_ns", reorder_ns), ("restart_back_ns", restart_back_ns),
+                            ("max_ahead_ns", max_ahead_ns)):
+            if value is not None and not value >= 0:
+                raise ValueError(f"{name}={value!r} must be >= 0 ns")
+        self.max_pending = max_pending
+        self.reorder_ns = reorder_ns
+        self.duplicates = duplicates
+        self.restart_back_ns = restart_back_ns
+        self.max_ahead_ns = max_ahead_ns
+        self.restart_after_refused = restart_after_refused
+        self._refused = 0  # refusals in a row (nothing taken since)
+        self._pending: dict[int, Joined] = {}  # insertion order = how long a set has waited
+        self.last_ns = -1  # the newest stamp that left in order (or reset's first stamp - 1)
+        self._expecting = False  # a next stamp is defined (reset with a first stamp, or a set left)
+
+    def __len__(self) -> int:
+        """Sets waiting."""
+        return len(self._pending)
+
+    def reset(self, first_stamp_ns: int | None = None) -> None:
+        """Forget every pending set; stamps from ``first_stamp_ns`` on are expected (None: any)."""
+        self._pending.clear()
+        self._refused = 0
+        self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
+        self._expecting = first_stamp_ns is not None
+
+    def bad(self, stamp_ns: int) -> str:
+        """Why the pending set of ``stamp_ns`` is marked bad ('' if it is not, or none is pending)."""
+        pending = self._pending.get(stamp_ns)
+        return pending.bad if pending is not None else ""
+
+    def offer(self, topic: str, stamp_ns: int, payload: Any = None, *, bad: str = "") -> Offer:
+        """One message; ``bad`` (non-empty) marks its stamp's set as not to be used, with the reason.
+
+        Returns the verdict on the message and the sets that left because of it."""
+        if topic not in self.topics:
+            raise ValueError(f"topic {topic!r} is not one of {self.topics}")
+        stamp_ns = int(stamp_ns)
+        verdict = Verdict.TAKEN
+        refused = None
+        if stamp_ns <= self.last_ns:
+            if self.restart_back_ns is None or self.last_ns - stamp_ns <= self.restart_back_ns:
+                refused = Verdict.STALE
+            else:
+                self.reset(stamp_ns)
+                verdict = Verdict.RESTART
+        elif self.max_ahead_ns is not None and self._expecting and stamp_ns - (self.last_ns + 1) > self.max_ahead_ns:
+            refused = Verdict.FUTURE
+        if refused is not None:
+            self._refused += 1
+            if not self.restart_after_refused or self._refused < self.restart_after_refused:
+                return Offer(refused, [])
+            self.reset(stamp_ns)
+            verdict = Verdict.RESTART
+        self._refused = 0
+        joined = self._pending.get(stamp_ns)
+        if joined is None:
+            joined = self._pending[stamp_ns] = Joined(stamp_ns)
+        if topic in joined.parts:
+            verdict = Verdict.DUPLICATE
+            if self.duplicates == "spoil":
+                joined.bad = joined.bad or f"{topic} twice"
+            if self.duplicates != "keep_first":
+                joined.parts[topic] = payload
+        else:
+            joined.parts[topic] = payload
+        joined.bad = joined.bad or bad
+        out = self._evict()
+        out += self._release()
+        return Offer(verdict, out)
+
+    def drain(self) -> list[Joined]:
+        """Give up every pending set, oldest stamp first (the end of a stream)."""
+        out = []
+        for stamp in sorted(self._pending):
+            out.append(self._leave(stamp, Why.DRAINED))
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def _complete(self, joined: Joined) -> bool:
+        return len(joined.parts) == len(self.topics)
+
+    def _evict(self) -> list[Joined]:
+        out = []
+        while len(self._pending) > self.max_pending:
+            waited = next(iter(self._pending))
+            gone = self._pending.pop(waited)
+            gone.missing, gone.why, gone.previous_ns = self._missing(gone), Why.EVICTED, self.last_ns
+            out.append(gone)
+        return out
+
+    def _release(self) -> list[Joined]:
+        out = []
+        while self._pending:
+            oldest = min(self._pending)
+            if not self._complete(self._pending[oldest]):
+                newest_complete = max((s for s, j in self._pending.items() if self._complete(j)), default=None)
+                if newest_complete is None or newest_complete - oldest < self.reorder_ns:
+                    break
+                out.append(self._leave(oldest, Why.OVERTAKEN))
+            else:
+                out.append(self._leave(oldest, Why.COMPLETE))
+        return out
+
+    def _leave(self, stamp: int, why: Why) -> Joined:
+        gone = self._pending.pop(stamp)
+        gone.missing, gone.why, gone.previous_ns = self._missing(gone), why, self.last_ns
+        self.last_ns, self._expecting = stamp, True
+        return gone
+
+    def _missing(self, joined: Joined) -> tuple[str, ...]:
+        return tuple(t for t in self.topics if t not in joined.parts)

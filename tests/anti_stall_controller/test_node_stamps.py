@@ -1,0 +1,115 @@
+"""The controller node and stamps it cannot trust: one twist + pose pair stamped far in the
+future (or with an invalid nanosec) is refused with a warning, and the real ticks after it
+are still answered. The pairing policy is tested directly; the node once over real DDS."""
+from __future__ import annotations
+
+import pytest
+from std_msgs.msg import String
+
+from anti_stall_controller.node import MAX_AHEAD_TICKS, RESTART_AFTER_REFUSED_TICKS, state_joiner
+from soil_msgs_py import graph as G
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.episode import EpisodeMeta
+from soil_msgs_py.params import TICK_PERIOD_NS
+from soil_msgs_py.stamp_join import Verdict
+from tests.ros_probe import NodeProc, RosProbe, next_domain_id
+
+TWIST, POSE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name
+FIRST = 100 * M.NS_PER_S  # the episode's first tick
+LAST_SECOND = M.MAX_STAMP_NS  # the furthest stamp a message can carry
+
+
+def _tick(k: int) -> int:
+    return FIRST + int(k * TICK_PERIOD_NS)
+
+
+def _pair(joiner, stamp):
+    out = joiner.offer(TWIST, stamp, 0.5).out + joiner.offer(POSE, stamp, -0.1).out
+    return [j.stamp_ns for j in out if j.complete]
+
+
+def test_a_far_future_pair_is_refused_and_the_next_real_tick_answered():
+    joiner = state_joiner()
+    joiner.reset(FIRST)
+    answered = [s for k in range(3) for s in _pair(joiner, _tick(k))]
+    assert joiner.offer(TWIST, LAST_SECOND, 0.5).verdict is Verdict.FUTURE
+    assert joiner.offer(POSE, LAST_SECOND, 0.5).verdict is Verdict.FUTURE
+    answered += [s for k in range(3, 6) for s in _pair(joiner, _tick(k))]
+    assert answered == [_tick(k) for k in range(6)]
+
+
+def test_a_pair_a_little_ahead_within_the_bound_is_answered():
+    """Plausible: ticks lost on the way (the controller answers the newest state)."""
+    joiner = state_joiner()
+    joiner.reset(FIRST)
+    assert _pair(joiner, _tick(MAX_AHEAD_TICKS - 1)) == [_tick(MAX_AHEAD_TICKS - 1)]
+
+
+@pytest.mark.parametrize("hostile", [LAST_SECOND, _tick(MAX_AHEAD_TICKS - 1)], ids=["far", "within_bound"])
+@pytest.mark.parametrize("episode_start_seen", [True, False])
+def test_one_hostile_pair_silences_at_most_a_bounded_number_of_ticks(hostile, episode_start_seen):
+    """Without an episode_start nothing says which stamps are plausible, and a pair within the
+    bound is plausible: such a pair is answered, the real ticks then look stale, and after
+    ``RESTART_AFTER_REFUSED_TICKS`` of them the controller follows the real stream again."""
+    joiner = state_joiner()
+    if episode_start_seen:
+        joiner.reset(FIRST)
+    _pair(joiner, hostile)
+    answered = [s for k in range(1, 3 * RESTART_AFTER_REFUSED_TICKS) for s in _pair(joiner, _tick(k))]
+    assert answered and answered == [_tick(k) for k in range(3 * RESTART_AFTER_REFUSED_TICKS - len(answered),
+                                                              3 * RESTART_AFTER_REFUSED_TICKS)]
+    assert len(answered) >= 3 * RESTART_AFTER_REFUSED_TICKS - 1 - RESTART_AFTER_REFUSED_TICKS
+
+
+def test_a_source_that_really_jumped_ahead_is_followed_after_a_while():
+    """Time that jumps for good (not one stray pair) must not silence the controller forever."""
+    joiner = state_joiner()
+    joiner.reset(FIRST)
+    _pair(joiner, _tick(0))
+    jumped = [s for k in range(10_000, 10_000 + 4 * MAX_AHEAD_TICKS) for s in _pair(joiner, _tick(k))]
+    assert jumped and jumped[-1] == _tick(10_000 + 4 * MAX_AHEAD_TICKS - 1)
+
+
+@pytest.mark.timeout(90)
+def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
+    domain = next_domain_id()
+    classes = M.ros_message_classes()
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.CMD_VEL.name, T.CMD_VEL.msgtype)
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        twist = probe.publisher(TWIST, T.CHASSIS_TWIST.msgtype)
+        pose = probe.publisher(POSE, T.CHASSIS_POSE.msgtype)
+        ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose))
+                           and probe.node.count_publishers(T.CMD_VEL.name) >= 1, 30, "controller endpoints")
+            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
+                                                      planned_ticks=600).to_json()))
+
+            def send(stamp, nanosec=None):
+                t = M.build_message(classes, TWIST, stamp, [0.5, 0.0])
+                p = M.build_message(classes, POSE, stamp, [0.0, -0.1])
+                if nanosec is not None:
+                    t.header.stamp.nanosec = p.header.stamp.nanosec = nanosec
+                twist.publish(t)
+                pose.publish(p)
+
+            def answered():
+                return {M.parse_message(T.CMD_VEL.name, m)[0] for m in probe.messages(T.CMD_VEL.name)}
+
+            for k in range(3):
+                send(_tick(k))
+            probe.wait_for(lambda: _tick(2) in answered(), 20, "answers to the first real ticks")
+            send(LAST_SECOND)  # far in the future
+            send(_tick(3), nanosec=1_500_000_000)  # nanosec of more than a second: invalid
+            for k in range(4, 8):
+                send(_tick(k))
+            probe.wait_for(lambda: {_tick(k) for k in range(4, 8)} <= answered(), 20,
+                           f"answers to the real ticks after the hostile pairs (got {sorted(answered())})")
+        finally:
+            ctl.stop()
+        out = ctl.output
+    assert LAST_SECOND not in answered()
+    assert "future" in out and "nanosec=1500000000" in out, out

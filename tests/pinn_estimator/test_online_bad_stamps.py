@@ -1,0 +1,73 @@
+"""The online sample assembler and stamps nobody can mean: refused as malformed with a warning,
+never an exception (log formatting included), and the following real ticks are still used."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from soil_msgs_py import messages as M
+from soil_msgs_py import topics as T
+from soil_msgs_py.params import TICK_PERIOD_NS
+from pinn_estimator.online import INPUT_TOPICS, ROUTES, SampleAssembler
+
+
+def _tick(stamp: int) -> list[tuple[str, object]]:
+    return [(t, M.build_message(M.TYPESTORE, t, stamp, [0.1] * len(ROUTES[t]))) for t in INPUT_TOPICS]
+
+
+def _stamp(k: int) -> int:
+    return int(k * TICK_PERIOD_NS)
+
+
+class Collect:
+    def __init__(self):
+        self.samples, self.warnings = [], []
+
+    def on_sample(self, stamp, sample):
+        self.samples.append((stamp, sample is not None))
+
+    def warn(self, kind, text):
+        self.warnings.append((kind, text))
+
+
+@pytest.mark.parametrize("sec", (1e308, -1e308, 2.0**63, -(2.0**63)))
+def test_a_labelled_stamp_beyond_the_graphs_range_is_malformed_not_a_crash(sec):
+    got = Collect()
+    asm = SampleAssembler(got.on_sample, warn=got.warn)
+    for k in range(5):
+        for topic, msg in _tick(_stamp(k)):
+            asm.add(topic, msg)
+    bogus = M.build_message(M.TYPESTORE, T.KNOWN.name, 0, [0.1] * len(ROUTES[T.KNOWN.name]))
+    bogus.data[0] = sec
+    asm.add(T.KNOWN.name, bogus)
+    assert asm.counters.malformed == 1 and asm.counters.restarts == 0
+    assert any("stamp_sec" in text for _, text in got.warnings)
+    for k in range(5, 10):
+        for topic, msg in _tick(_stamp(k)):
+            asm.add(topic, msg)
+    released = [s for s, ok in got.samples if ok]
+    assert released[-5:] == [_stamp(k) for k in range(5, 10)]  # the ticks after the bogus message are samples
+
+
+def test_a_whole_tick_stamped_far_in_the_future_does_not_break_the_restart_warning():
+    """All inputs of one tick stamped at the graph's last second, then real ticks again: a
+    restart (time went back), reported in a log line that must format."""
+    got = Collect()
+    asm = SampleAssembler(got.on_sample, warn=got.warn)
+    far = M.MAX_STAMP_NS
+    for topic, msg in _tick(far):
+        asm.add(topic, msg)
+    for topic, msg in _tick(_stamp(1)):
+        asm.add(topic, msg)
+    assert asm.counters.restarts == 1
+    assert any(kind == "restart" for kind, _ in got.warnings)
+
+
+def test_the_restart_warning_formats_any_integer_distance():
+    got = Collect()
+    asm = SampleAssembler(got.on_sample, warn=got.warn)
+    values = np.full(len(ROUTES[T.KNOWN.name]), 0.1)
+    asm.reset(10**400)  # stamps the assembler was handed directly, beyond any float
+    asm.add_values(T.KNOWN.name, 0, values)
+    (text,) = [text for kind, text in got.warnings if kind == "restart"]
+    assert "s before the last sample" in text

@@ -1,0 +1,226 @@
+"""A second publisher claiming the recorded publisher's stamps never changes what a bag says.
+
+Core tests feed ``recorder.Recorder`` the sample bag's messages, each tagged like DDS tags
+it (the writer's publication sequence number), with an intruder's messages of the same
+stamps and NaN/inf/1e308 values delivered *before* the real ones, and off-grid stamps
+in between. The live test does the same over DDS: a probe node reacts to each ``/clock``
+of a replay by publishing the next ticks' ``/blade/force`` before the player does.
+"""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import signal
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import yaml
+
+from soil_bag_tools import bag_io, journal, recorder
+from soil_msgs_py import messages as M
+from tests.soil_bag_tools.test_bag_tools import (  # noqa: F401 - listener is a fixture
+    SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, reap, start,
+)
+
+pytestmark = pytest.mark.timeout(180)
+
+BAD_VALUES = (math.nan, math.inf, 1e308, -math.inf)
+SPOOFED = ("/blade/force", "/soil/known_params", "/chassis/twist")
+
+
+def spoof(topic: str, stamp: int, k: int) -> bytes:
+    """A message of ``topic`` claiming ``stamp`` with hostile values."""
+    width = M.FIELDS[topic].width
+    values = [BAD_VALUES[(k + i) % len(BAD_VALUES)] for i in range(width)]
+    msg = M.build_message(M.TYPESTORE, topic, stamp, values)
+    return bytes(M.TYPESTORE.serialize_cdr(msg, M.FIELDS[topic].topic.msgtype))
+
+
+def recorder_info(bag) -> dict:
+    custom = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["custom_data"]
+    return json.loads(custom[journal.RECORDER_INFO_KEY])
+
+
+class Feed:
+    """Hands messages to a Recorder the way record_node does: one sequence counter per writer
+    and topic (the intruder's has published before, as any writer's counter may have)."""
+
+    FIRST_SEQ = {"sim": 1, "estimator": 1, "intruder": 1000}
+
+    def __init__(self, rec: recorder.Recorder, with_sequence: bool = True):
+        self.rec, self.with_sequence, self.seq = rec, with_sequence, {}
+
+    def send(self, writer: str, topic: str, raw: bytes) -> None:
+        n = self.seq[(writer, topic)] = self.seq.get((writer, topic), self.FIRST_SEQ[writer] - 1) + 1
+        self.rec.on_message(topic, raw, 0, publication_seq=n if self.with_sequence else None)
+
+
+def record_with_intruder(tmp_path, *, with_sequence: bool, n_ticks: int = 60, every: int = 3):
+    """The sample's first ``n_ticks`` with an intruder claiming every ``every``-th tick first."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * n_ticks]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n_ticks)
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=log, clock=lambda: 0.0)
+    feed = Feed(rec, with_sequence)
+    rec.on_status(start_ev.to_json())
+    spoofs = 0
+    for t, topic, raw in msgs:
+        tick = (t - msgs[0][0]) // TICK_NS
+        if topic in SPOOFED and tick % every == 0:
+            feed.send("intruder", topic, spoof(topic, t, tick))  # same stamp, before the real one
+            spoofs += 1
+        if topic == "/clock" and tick % 7 == 1:
+            off = t + TICK_NS // 2  # inside the episode's range, between two ticks
+            feed.send("intruder", "/blade/force", spoof("/blade/force", off, tick))
+            feed.send("intruder", "/clock", bytes(M.TYPESTORE.serialize_cdr(
+                M.build_message(M.TYPESTORE, "/clock", t + 3), loaded.topics["/clock"])))
+        feed.send("sim", topic, raw)
+    rec.on_status(end_ev.to_json())
+    (result,) = rec.finished
+    return rec, result, log, spoofs, n_ticks
+
+
+def test_intruder_claiming_real_stamps_first_is_not_recorded(tmp_path):
+    rec, result, log, spoofs, n = record_with_intruder(tmp_path, with_sequence=True)
+    assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
+    info = recorder_info(result.path)
+    assert sum(info["conflicts"].values()) == spoofs
+    assert set(info["conflicts"]) == set(SPOOFED)
+    assert info["off_grid"] == {"/blade/force": 9, "/clock": 9}
+    warnings = [m for lvl, m in log.lines if lvl == "warning"]
+    assert any(all(t in m for t in SPOOFED) for m in warnings), warnings  # one warning names every topic
+    assert any("off the 60 Hz grid" in m and "/clock" in m for m in warnings), warnings
+
+
+def test_without_sequence_numbers_the_finite_claim_wins(tmp_path):
+    """An rmw that gives no publication sequence number: nothing tells the writers apart, so
+    the claim with finite values is kept (the intruder's 1e308 cannot be told from data)."""
+    rec, result, log, spoofs, n = record_with_intruder(tmp_path, with_sequence=False, every=4)
+    got, want = bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE)
+    assert len(got) == n and np.array_equal(got.stamps_ns, want.stamps_ns[:n])
+    for name in ("observations", "known", "truth"):
+        assert np.isfinite(getattr(got, name)).all(), name
+    assert sum(recorder_info(result.path)["conflicts"].values()) == spoofs
+
+
+def test_a_killed_recorder_journal_is_repaired_without_the_intruder(tmp_path):
+    """The choice is made when the journal becomes a bag, so soil_bag_repair makes it too."""
+    loaded, start_ev, _ = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 30]
+    rec = recorder.Recorder(tmp_path / "rec", loaded.topics, log=ListLog(), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        if topic == "/blade/force":
+            feed.send("intruder", topic, spoof(topic, t, 1))
+        feed.send("sim", topic, raw)
+    (session,) = rec.sessions
+    session.journal.flush()  # what a SIGKILL leaves: flushed chunks, no footer
+    partial = tmp_path / "killed" / (SAMPLE.name + bag_io.PARTIAL_SUFFIX)
+    shutil.copytree(journal.partial_dir(tmp_path / "rec", session.name), partial)
+    result = journal.journal_to_bag(partial)
+    assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), 30)
+    assert result.conflicts == {"/blade/force": 30}
+    rec.close()
+
+
+def test_recorded_replay_holds_only_the_players_data_with_an_intruder(listener, tmp_path):
+    """Over DDS: for each /clock of a replay a probe publishes /blade/force for the next two
+    ticks (before the player does) with hostile values, plus an off-grid one. The bag equals
+    the sample and says how many claims it refused. (A probe whose counter matched the
+    player's at a tick would be told apart there only by its non-finite values.)"""
+    from rosgraph_msgs.msg import Clock
+
+    from soil_msgs_py.ros_adapter import message_class, topic_qos
+
+    lst = listener(107, topics=(), status_sub=False)
+    pub = lst.node.create_publisher(message_class("geometry_msgs/msg/WrenchStamped"), "/blade/force",
+                                    topic_qos("/blade/force"))
+    sent: set[int] = set()
+    stamps = [int(s) for s in bag_io.read_episode(SAMPLE).stamps_ns]
+    tick_of = {s: k for k, s in enumerate(stamps)}
+
+    def on_clock(msg) -> None:
+        k = tick_of.get(M.stamp_ns(msg.clock))
+        if k is None or k + 2 >= len(stamps):
+            return
+        for stamp in (stamps[k + 1], stamps[k + 2], stamps[k] + TICK_NS // 2):  # two real ticks ahead, one off-grid
+            if stamp not in sent:
+                sent.add(stamp)
+                k = len(sent)
+                pub.publish(M.build_message(M.ros_message_classes(), "/blade/force", int(stamp),
+                                            [BAD_VALUES[k % 4], BAD_VALUES[(k + 1) % 4]]))
+
+    lst.node.create_subscription(Clock, "/clock", on_clock, topic_qos("/clock"))
+    rec = start("soil_bag_record", "--out", tmp_path, domain=107)
+    player = None
+    try:
+        assert lst.wait_for(lambda: lst.status_pub.get_subscription_count() >= 1
+                            and pub.get_subscription_count() >= 1, 20), "recorder never subscribed"
+        for _ in range(50):  # the probe's writer has published before, as any writer may have
+            pub.publish(M.build_message(M.ros_message_classes(), "/blade/force", 1, [0.0, 0.0]))
+        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=107)
+        out = finish(player, timeout=60)
+        assert player.returncode == 0, out
+        bag = tmp_path / SAMPLE.name
+        assert lst.wait_for(lambda: bag_io.is_bag(bag), 10), out
+        rec.send_signal(signal.SIGINT)
+        log = finish(rec)
+    finally:
+        reap(rec, player)
+    assert rec.returncode == 0, log
+    assert_same_episode(bag_io.read_episode(bag), bag_io.read_episode(SAMPLE))
+    info = recorder_info(bag)
+    assert info["conflicts"].get("/blade/force", 0) > 0, info
+    assert info["off_grid"].get("/blade/force", 0) > 0, info
+    assert "/blade/force" in log
+
+
+def _estimate(stamp: int, value: float, *, broken: bool = False) -> bytes:
+    from soil_msgs_py import topics as T
+
+    msg = M.make_labelled(M.TYPESTORE, stamp, T.ESTIMATE_FIELDS, [value] * len(T.ESTIMATE_FIELDS))
+    if broken:  # a layout no reader can index
+        msg.layout.dim[0].size, msg.layout.dim[0].stride, msg.layout.data_offset = 4294967295, 0, 3
+    return bytes(M.TYPESTORE.serialize_cdr(msg, "std_msgs/msg/Float64MultiArray"))
+
+
+def test_labelled_extras_hold_only_the_estimators_messages(tmp_path):
+    """/soil/estimate, filed by stamp: an intruder's estimates at stamps the estimator also
+    sends, at stamps it skipped, off the grid and with a broken layout never enter the bag."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 40
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    topics = {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}
+    rec = recorder.Recorder(tmp_path, topics, log=ListLog(), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    published = {}
+    for t, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+        if topic != "/clock":
+            continue
+        tick = (t - msgs[0][0]) // TICK_NS
+        if tick % 5 == 2:  # ahead of the estimator, or at a tick it skips
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 1e308))
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t + TICK_NS // 2, 7.0))
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 3.0, broken=True))
+        if tick % 10 != 7:
+            published[t] = float(tick)
+            feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(tick)))
+    rec.on_status(end_ev.to_json())
+    rec.poll()
+    (result,) = rec.finished
+    stamps, values = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert dict(zip(stamps.tolist(), values[:, 0].tolist())) == published
+    assert len(stamps) == len(published)
+    info = recorder_info(result.path)
+    assert info["off_grid"].get(T.ESTIMATE.name) == n // 5
+    assert info["conflicts"].get(T.ESTIMATE.name) == n // 5
+

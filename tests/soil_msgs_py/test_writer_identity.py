@@ -1,0 +1,50 @@
+"""Writers told apart by publication sequence continuity (no ROS)."""
+from __future__ import annotations
+
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, tick_index, tick_number
+
+
+def test_tick_index_is_the_grid_and_tick_number_counts_across_episodes():
+    assert [tick_index(10**9 * k // 60 + 5, 5) for k in range(4)] == [0, 1, 2, 3]
+    assert tick_index(5 + 10**9 // 120, 5) is None and tick_index(4, 5) is None
+    last = 239 * 10**9 // 60
+    assert tick_number(last) == 239 and tick_number(last + 16_666_667) == 240
+
+
+def test_every_tick_writer_leads_and_a_sporadic_intruder_has_its_own_writer():
+    w = WriterTracks()
+    ids = [w.observe(1 + k, k) for k in range(10)]
+    assert len(set(ids)) == 1
+    hostile = [w.observe(500 + j, 3 * j) for j in range(3)]  # its own counter, every third tick
+    assert len(set(hostile)) == 1 and hostile[0] != ids[0]
+    assert w.leader() == ids[0] and w.leads(ids[0]) and not w.leads(hostile[0])
+
+
+def test_a_skipped_tick_continues_the_writer_and_a_repeat_does_not():
+    w = WriterTracks()
+    a = w.observe(7, 0)
+    assert w.observe(8, 2) == a  # tick 1 skipped: the counter still continues
+    assert w.observe(9, 2) != a  # a second message for one tick is not the same writer's
+    assert w.observe(9, 3) == a
+
+
+def test_unknown_sequences_are_not_judged_and_ties_have_no_leader():
+    w = WriterTracks()
+    assert w.observe(None, 0) is None and w.observe(0, 1) is None and w.leads(None)
+    assert w.leader() is None
+    w.observe(1, 0)
+    w.observe(50, 0)
+    assert w.leader() is None
+
+
+def test_sequence_numbers_wrap_like_mcaps_uint32():
+    w = WriterTracks()
+    a = w.observe(SEQUENCE_MASK, 0)
+    assert w.observe(SEQUENCE_MASK + 1, 1) == a  # 2^32: stored as 0 in MCAP
+
+
+def test_a_silent_writer_is_forgotten_so_a_restarted_one_is_followed():
+    w = WriterTracks(forget_after_ticks=5)
+    old = [w.observe(100 + k, k) for k in range(20)][0]
+    new = w.observe(1, 30)
+    assert new != old and w.leads(new)

@@ -1,0 +1,85 @@
+"""The command gate follows the controller's writer: a spoofed command for the tick being
+answered that arrives first, from another writer, neither steers the simulator nor pushes
+out the controller's command (no ROS: sequence numbers given as DDS's message info does)."""
+from __future__ import annotations
+
+from soil_msgs_py.graph import COMMAND_TOPICS
+from soil_sim_node.live import CommandGate
+
+TICK_NS = 10**9 // 60
+BLADE, CHASSIS = "/blade/cmd", "/chassis/cmd_vel"
+assert set(COMMAND_TOPICS) == {BLADE, CHASSIS}
+
+
+def stamp(k: int) -> int:
+    return k * 10**9 // 60
+
+
+def answer(gate: CommandGate, k: int, seq: int, u_zr: float = 0.05, u_x: float = 0.5):
+    return (gate.offer(BLADE, stamp(k), (u_zr, 0.0), seq) + gate.offer(CHASSIS, stamp(k), (u_x,), seq))
+
+
+def run_controller(gate: CommandGate, ticks: int, seq0: int = 1) -> int:
+    """The controller answers ``ticks`` ticks; returns its next sequence number."""
+    for k in range(ticks):
+        gate.expect(stamp(k))
+        assert answer(gate, k, seq0 + k) == []
+        gate.take()
+    return seq0 + ticks
+
+
+def test_a_spoofed_command_arriving_first_does_not_steer_and_the_controllers_is_applied():
+    gate = CommandGate()
+    seq = run_controller(gate, 10)
+    gate.expect(stamp(10))
+    warnings = gate.offer(BLADE, stamp(10), (1e308, 0.0), 500)  # another writer's counter, first
+    assert any("/blade/cmd" in text and str(stamp(10)) in text for _, text in warnings), warnings
+    assert not gate.complete
+    assert answer(gate, 10, seq, u_zr=0.07, u_x=0.4) == []  # the controller's, second
+    assert gate.complete
+    assert gate.take() == (0.07, 0.0, 0.4)
+
+
+def test_an_intruder_taken_on_the_very_first_tick_is_not_followed_afterwards():
+    gate = CommandGate()
+    gate.expect(stamp(0))
+    gate.offer(BLADE, stamp(0), (0.3, 0.0), 900)  # tick 0: nobody is known yet; taken
+    answer(gate, 0, 1, u_zr=0.05)
+    assert gate.take()[0] == 0.3  # nothing tells the writers apart on the very first tick
+    for k in range(1, 4):
+        gate.expect(stamp(k))
+        assert answer(gate, k, 1 + k, u_zr=0.05) == []
+        gate.take()
+    gate.expect(stamp(4))
+    assert gate.offer(BLADE, stamp(4), (0.3, 0.0), 901) != []
+    assert answer(gate, 4, 5, u_zr=0.06) == []
+    assert gate.take() == (0.06, 0.0, 0.5)
+
+
+def test_a_controller_that_skipped_a_tick_is_still_followed():
+    gate = CommandGate()
+    seq = run_controller(gate, 5)
+    gate.expect(stamp(5))
+    gate.take()  # the controller never answered tick 5 (real time: held)
+    gate.expect(stamp(6))
+    assert gate.offer(BLADE, stamp(6), (1e308, 0.0), 77) != []  # an intruder first
+    assert answer(gate, 6, seq, u_zr=0.08) == []
+    assert gate.take()[0] == 0.08
+
+
+def test_a_repeated_command_of_the_followed_writer_is_refused():
+    gate = CommandGate()
+    seq = run_controller(gate, 3)
+    gate.expect(stamp(3))
+    assert answer(gate, 3, seq) == []
+    assert gate.offer(BLADE, stamp(3), (0.2, 0.0), seq + 1) != []
+    assert gate.take()[0] == 0.05
+
+
+def test_without_sequence_numbers_the_first_command_of_a_tick_is_kept():
+    gate = CommandGate()
+    gate.expect(stamp(0))
+    assert gate.offer(BLADE, stamp(0), (0.3, 0.0), None) == []
+    assert gate.offer(BLADE, stamp(0), (0.05, 0.0), 0) != []
+    assert gate.offer(CHASSIS, stamp(0), (0.5,)) == []
+    assert gate.take() == (0.3, 0.0, 0.5)
