@@ -1,7 +1,8 @@
 """Force plugins used by tests/soil_sim_node/test_simulator.py (loaded as ``tests.sim_plugins:<name>``).
 
-tests/test_simulator.py puts this directory on sys.path, so the simulator's plugin loader
-(importlib.import_module) finds this module under every pytest import mode.
+tests/ is a package and pytest puts the repository root on sys.path, so the simulator's plugin
+loader (importlib.import_module) finds this module by that name; tests/ itself must never be on
+sys.path, where its package-named folders would shadow the project's packages.
 """
 from __future__ import annotations
 

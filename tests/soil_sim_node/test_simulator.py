@@ -15,17 +15,11 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-TESTS_DIR = Path(__file__).resolve().parents[1]
-if str(TESTS_DIR) not in sys.path:  # plugins in tests/sim_plugins.py, loaded as "tests.sim_plugins:<fn>"
-    sys.path.insert(0, str(TESTS_DIR))
-
-from soil_msgs_py.params import (  # noqa: E402
+from soil_msgs_py.params import (
     DEG,
     GROUND_TRUTH_PARAMS,
     MACHINE,
@@ -33,12 +27,12 @@ from soil_msgs_py.params import (  # noqa: E402
     SOIL_TOOL_FRICTION_DEFAULT_RAD,
     SOIL_TOOL_FRICTION_FEE_RAD,
 )
-from soil_physics.soils import COHESIVE_SOILS  # noqa: E402
-from soil_sim_node import phenomena as ph  # noqa: E402
-from soil_sim_node.effects import Effects, PluginError  # noqa: E402
-from soil_sim_node.plugins_example import side_wall_force  # noqa: E402
-from soil_sim_node.rollout import run_episodes  # noqa: E402
-from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator  # noqa: E402
+from soil_physics.soils import COHESIVE_SOILS
+from soil_sim_node import phenomena as ph
+from soil_sim_node.effects import Effects, PluginError
+from soil_sim_node.plugins_example import side_wall_force
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 SETTINGS = ph.Settings(duration_s=10.0, seed=0)
 LIMIT = MACHINE.horizontal_force_limit_n
