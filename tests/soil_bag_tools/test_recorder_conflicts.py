@@ -95,6 +95,27 @@ def test_intruder_claiming_real_stamps_first_is_not_recorded(tmp_path):
     assert any("off the 60 Hz grid" in m and "/clock" in m for m in warnings), warnings
 
 
+def test_an_intruder_whose_counter_meets_the_players_is_refused_by_its_values(tmp_path):
+    """At one tick the intruder's message carries the very sequence number the simulator's
+    carries there and arrives first: by sequence either could continue the simulator's
+    counter, so the values decide and the bag keeps the simulator's message."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 30
+    msgs = loaded.messages[: 10 * n]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=ListLog(), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        tick = (t - msgs[0][0]) // TICK_NS
+        if topic == "/blade/force" and tick == 12:
+            rec.on_message(topic, spoof(topic, t, tick), 0, publication_seq=feed.seq[("sim", topic)] + 1)
+        feed.send("sim", topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n).to_json())
+    (result,) = rec.finished
+    assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
+    assert recorder_info(result.path)["conflicts"] == {"/blade/force": 1}
+
+
 def test_without_sequence_numbers_the_finite_claim_wins(tmp_path):
     """An rmw that gives no publication sequence number: nothing tells the writers apart, so
     the claim with finite values is kept (the intruder's 1e308 cannot be told from data)."""

@@ -238,7 +238,10 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     (``writer_identity.WriterTracks``): every message of a writer other than the one that
     sent the most ticks is refused. Of the rest, messages claiming one stamp keep the one
     with finite values, then the first to arrive (writers unknown: no sequence numbers, or
-    writers that sent equally many ticks).
+    writers that sent equally many ticks). A message with the very stamp and sequence number
+    of one the leading writer sent is not refused by sequence: two counters that meet at a
+    tick cannot be told apart there (the first to arrive would take the leader's place), so
+    the values decide, like for unknown writers.
     """
     if not any(scan.stamps.values()):
         return {}
@@ -254,7 +257,10 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
         for i in sorted((i for i, k in enumerate(ticks) if k is not None), key=lambda i: (ticks[i], i)):
             idents[i] = writers.observe(scan.sequences[topic][i], ticks[i])
         leader = writers.leader()
-        foreign = {i for i, w in enumerate(idents) if None not in (w, leader) and w != leader}
+        sequences = scan.sequences[topic]
+        leader_claims = {(stamps[i], sequences[i]) for i, w in enumerate(idents) if w is not None and w == leader}
+        foreign = {i for i, w in enumerate(idents) if None not in (w, leader) and w != leader
+                   and (stamps[i], sequences[i]) not in leader_claims}
         by_stamp: dict[int, list[int]] = defaultdict(list)
         for i, stamp in enumerate(stamps):
             if i not in foreign:
