@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+CONTACT_DAMPING_PA_S_M = 6e3  # contact damping pressure per unit normal speed [Pa·s/m]
+BASE_FRICTION_V_REF_M_S = 0.02  # base friction reaches tanh(1) of its Coulomb value at this speed [m/s]
 
-def contact_damping_force(state, damping_pa_s_m: float = 6e3):
+
+def contact_damping_force(state, damping_pa_s_m: float = CONTACT_DAMPING_PA_S_M):
     """Viscous contact damping on the submerged blade face [N] (Vortex contact damping).
 
     Pressure c_v · v_n [Pa] on the submerged area w d / sin ρ, along the blade normal,
@@ -22,7 +25,7 @@ def contact_damping_force(state, damping_pa_s_m: float = 6e3):
     return f_n * n_x, f_n * n_z
 
 
-def base_friction_force(state, normal_down_n=None, mu: float | None = None, v_ref_m_s: float = 0.02):
+def base_friction_force(state, normal_down_n=None, mu: float | None = None, v_ref_m_s: float = BASE_FRICTION_V_REF_M_S):
     """Coulomb friction of the blade base on the cut floor [N] (Vortex contact friction).
 
     What the blade pushes down onto the floor (``normal_down_n`` [N] >= 0; the simulator

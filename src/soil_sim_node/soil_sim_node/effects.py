@@ -87,6 +87,7 @@ class Effects:
     particle_chunk_m: float = 0.04  # blade travel per failure event at full depth [m]
     particle_loss_max: float = 0.9  # largest fraction of grip lost in an event
     particle_loss_time_s: tuple[float, float] = (0.01, 0.08)
+    particle_full_depth_m: float = 0.1  # an event's grip loss grows with d up to this depth [m]
     compaction: bool = True
     compaction_gain: float = 0.3
     compaction_length_m: float = 6.0
@@ -197,7 +198,7 @@ def plugin_name(spec) -> str:
 def check_effect_params(effects: Effects) -> None:
     """Raise ValueError naming any effect parameter outside its meaningful range."""
     positive = ("surcharge_shed_time_s", "surcharge_capacity_m3", "force_scale", "area_pressure_limit_pa",
-                "particle_chunk_m", "compaction_length_m")
+                "particle_chunk_m", "particle_full_depth_m", "compaction_length_m")
     for name in positive:
         value = getattr(effects, name)
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):

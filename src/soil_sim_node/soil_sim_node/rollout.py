@@ -10,10 +10,11 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from soil_msgs_py.episode import Episode, EpisodeMeta
-from soil_msgs_py.params import SAMPLE_RATE_HZ
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, VELOCITY_AVERAGE_SAMPLES
 
 from .effects import plugin_name
-from .simulator import EpisodeSpec, SimConfig, SoilSimulator
+from . import kernel
+from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
 
 def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: list[str]) -> EpisodeMeta:
@@ -38,9 +39,12 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
     if len(durations) != 1:
         raise ValueError(f"duration_s differs across the batch ({sorted(durations)}); batch equal durations")
     n_ticks = int(round(specs[0].duration_s * SAMPLE_RATE_HZ))
+    gains = gains or AntiStallGains()
+    if sim.engine == "compiled" and not sim.plugins:  # plugins are Python: the loop below steps them
+        return [_compiled_episode(sim, i, gains, n_ticks) for i in range(sim.batch)]
     b = sim.batch
     controller = AntiStallController(
-        gains or AntiStallGains(),
+        gains,
         target_speed_m_s=np.array([s.target_speed_m_s for s in sim.specs]),
         target_depth_m=np.array([s.target_depth_m for s in sim.specs]),
     )
@@ -74,3 +78,23 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
         )
         for i, (spec, soil) in enumerate(zip(sim.specs, sim.soils))
     ]
+
+
+def _compiled_episode(sim: SoilSimulator, i: int, gains: AntiStallGains, n_ticks: int) -> Episode:
+    """Episode ``i`` of ``sim`` (just reset) in closed loop, whole, in the compiled kernel:
+    the same rows as the reference loop above, each episode on its own."""
+    spec = sim.specs[i]
+    controller = AntiStallController(gains, spec.target_speed_m_s, spec.target_depth_m)  # validates the targets
+    g = controller.gains
+    gain_row = np.zeros(kernel.N_GAINS)
+    gain_row[[kernel.C_K_V, kernel.C_C_VX, kernel.C_DELTA_D_MAX, kernel.C_DT]] = (g.k_v_m_s, g.c_vx, g.delta_d_max_m, g.dt_s)
+    obs = np.zeros((n_ticks, len(OBSERVATION_FIELDS)))
+    forces, extras = np.zeros((n_ticks, 2)), np.zeros((n_ticks, 2))
+    known, truth = np.zeros((n_ticks, len(KNOWN_PARAMS))), np.zeros((n_ticks, len(GROUND_TRUTH_PARAMS)))
+    kernel.run_episode(*sim.kernel_arguments(i), gain_row, float(controller.target_speed_m_s[0]),
+                       float(controller.target_depth_m[0]), VELOCITY_AVERAGE_SAMPLES, obs, forces, known, truth, extras)
+    return Episode(
+        meta=episode_meta(sim.config, spec, sim.soils[i].name, sim.effects.enabled()),
+        stamps_ns=np.array([stamp_ns(k) for k in range(n_ticks)], dtype=np.int64),
+        observations=obs, forces=forces, known=known, truth=truth, extras=extras,
+    )

@@ -25,6 +25,16 @@ Model (SI; x forward, z up; the original surface is level at z = 0)
   none (Q = 0).
 * Measured force = lift-joint constraint force on the blade minus the blade's static weight
   (a tared load cell), averaged over the tick: blade-on-soil force + m_b * a_blade.
+
+Engines
+-------
+This module, on NumPy, is the readable reference of the physics (``engine="reference"``).
+By default (``engine="compiled"``) each episode's ticks run in ``kernel``, a Numba-compiled
+second form of the same equations (outputs equal to the reference to 1e-9 relative, tested
+in ``tests/soil_sim_node/test_kernel.py``), about a thousand times faster. User plugins are
+plain Python: with plugins, each substep runs the kernel's soil half for the whole batch,
+then the plugins on NumPy arrays (B,), then the kernel's machine half; slower than without
+plugins (the interpreter is back in every substep) but still much faster than the reference.
 """
 from __future__ import annotations
 
@@ -47,11 +57,12 @@ from soil_msgs_py.params import (
     Machine,
 )
 from soil_physics.bearing import EDGE_WIDTH_M, penetration_capacity
-from soil_physics.contact import base_friction_force
+from soil_physics.contact import BASE_FRICTION_V_REF_M_S, CONTACT_DAMPING_PA_S_M, base_friction_force
 from soil_physics.force_inputs import ForceInputs
 from soil_physics.soils import SoilType, get_soil
 from soil_physics.travel import soil_advance
 
+from . import kernel
 from .effects import (
     FORCE_TERMS,
     Effects,
@@ -63,6 +74,7 @@ from .effects import (
 
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 MAX_TARGET_SPEED_M_S = 2.0
+ENGINES = ("compiled", "reference")
 
 
 @dataclass(frozen=True)
@@ -118,6 +130,7 @@ class SimConfig:
     plugins: tuple = ()
     dynamics: Dynamics = field(default_factory=Dynamics)
     machine: Machine = MACHINE
+    engine: str = "compiled"  # one of ENGINES
 
     def resolved_effects(self) -> Effects:
         mode_effects = effects_for_mode(self.world_mode)
@@ -152,7 +165,10 @@ class SoilSimulator:
         self.config = config
         self.effects = config.resolved_effects()
         check_effect_params(self.effects)
+        if config.engine not in ENGINES:
+            raise ValueError(f"engine={config.engine!r} is not one of {ENGINES}")
         self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
+        self.engine = config.engine
         resolved = [s.resolve(custom_soils) for s in specs]
         self.specs = [r[0] for r in resolved]
         self.soils = [r[1] for r in resolved]
@@ -180,7 +196,55 @@ class SoilSimulator:
         self.x_min = -3.0
         x_max = self.dyn.blade_offset_m + 1.5 * speed * duration + 3.0
         self.n_cells = int(math.ceil((x_max - self.x_min) / self.dyn.terrain_cell_m)) + 2
+        self._params, self._probes = self._kernel_params()
+        self._episode = np.zeros((b, kernel.N_EPISODE))
+        columns = {
+            kernel.E_I_D0: self.i_d0, kernel.E_PHI0: self.phi0, kernel.E_C0: self.c0, kernel.E_GAMMA0: self.gamma0,
+            kernel.E_DELTA: self.delta, kernel.E_C_A: self.c_a,
+        }
+        for j, col in enumerate((kernel.E_PHI_LOOSE, kernel.E_C_LOOSE, kernel.E_GAMMA_LOOSE)):
+            columns[col] = self.soil_loose[:, j]
+        for j, col in enumerate((kernel.E_PHI_DENSE, kernel.E_C_DENSE, kernel.E_GAMMA_DENSE)):
+            columns[col] = self.soil_dense[:, j]
+        for col, values in columns.items():
+            self._episode[:, col] = values
         self.reset()
+
+    def _kernel_params(self) -> tuple[np.ndarray, np.ndarray]:
+        """The shared constants the compiled kernel reads (``kernel.P_*`` layout) and the probe offsets."""
+        dyn, m, e, k = self.dyn, self.m, self.effects, kernel
+        p = np.zeros(k.N_PARAMS)
+        values = {
+            k.P_DT: self.dt, k.P_SUBSTEPS: dyn.substeps, k.P_MOTOR_GAIN: dyn.motor_gain_n_s_m,
+            k.P_JOINT_K: dyn.joint_stiffness_n_m, k.P_JOINT_C: dyn.joint_damping_n_s_m,
+            k.P_CHASSIS_OMEGA: dyn.chassis_height_omega_rad_s, k.P_SOIL_K: dyn.soil_stiffness_n_m,
+            k.P_SOIL_C: dyn.soil_damping_n_s_m, k.P_BLADE_OFFSET: dyn.blade_offset_m, k.P_CELL_M: dyn.terrain_cell_m,
+            k.P_X_MIN: self.x_min, k.P_N_CELLS: self.n_cells, k.P_EDGE_W: dyn.blade_edge_width_m,
+            k.P_FEE_GAIN: dyn.fee_velocity_gain_s_m, k.P_RHO: self.rho, k.P_ALPHA: self.alpha, k.P_W: self.w,
+            k.P_M_BLADE: m.blade_mass_kg, k.P_M_CHASSIS: m.chassis_mass_kg, k.P_LIMIT_X: m.horizontal_force_limit_n,
+            k.P_LIMIT_Z: m.vertical_force_limit_n, k.P_MIN_REL: m.blade_min_rel_m, k.P_MAX_REL: m.blade_max_rel_m,
+            k.P_MAX_SPEED: MAX_TARGET_SPEED_M_S, k.P_GRAVITY: GRAVITY_M_S2,
+            k.P_SURCHARGE: e.surcharge, k.P_PENETRATION: e.penetration, k.P_CONTACT_DAMPING: e.contact_damping,
+            k.P_BASE_FRICTION: e.base_friction, k.P_FORCE_SCALING: e.force_scaling, k.P_PARTICLES: e.particles,
+            k.P_COMPACTION: e.compaction, k.P_NOISE: e.noise,
+            k.P_SHED_TIME: e.surcharge_shed_time_s, k.P_PILE_CAPACITY: e.surcharge_capacity_m3,
+            k.P_SURCHARGE_FEE_FACTOR: e.surcharge_fee_factor, k.P_FORCE_SCALE: e.force_scale,
+            k.P_AREA_LIMIT: e.area_pressure_limit_pa, k.P_CHUNK: e.particle_chunk_m, k.P_LOSS_MAX: e.particle_loss_max,
+            k.P_LOSS_TIME_LO: e.particle_loss_time_s[0], k.P_LOSS_TIME_HI: e.particle_loss_time_s[1],
+            k.P_FULL_DEPTH: e.particle_full_depth_m, k.P_COMPACTION_GAIN: e.compaction_gain,
+            k.P_COMPACTION_LENGTH: e.compaction_length_m, k.P_NOISE_X: e.noise_force_std_n[0],
+            k.P_NOISE_Z: e.noise_force_std_n[1], k.P_DAMPING_PA_S_M: CONTACT_DAMPING_PA_S_M,
+            k.P_FRICTION_V_REF: BASE_FRICTION_V_REF_M_S,
+        }
+        assert len(values) == k.N_PARAMS, "every kernel parameter is set"
+        for index, value in values.items():
+            p[index] = float(value)
+        return p, np.array(dyn.probe_offsets_m, dtype=float)
+
+    def kernel_arguments(self, i: int) -> tuple:
+        """(state, episode, terrain, params, probes, rng) of episode ``i`` for ``kernel`` (views: the
+        kernel advances this simulator)."""
+        return self._state[i], self._episode[i], self.terrain[i], self._params, self._probes, self.rngs[i]
 
     # ------------------------------------------------------------------ state
     def reset(self) -> TickOutput:
@@ -188,24 +252,39 @@ class SoilSimulator:
         b = self.batch
         z = lambda: np.zeros(b)  # noqa: E731
         self.tick = 0
-        self.x_c, self.vx_c = z(), z()
-        self.z_c, self.vz_c = z(), z()
-        self.z_rel, self.vz_rel = z(), z()
-        self.u_e = z()  # elastic pre-failure compression of the soil [m]
-        self.grip = np.ones(b)  # particle-conversion contact (1 = full contact)
+        # every state variable is a column of one (B, N_STATE) array, the kernel's layout;
+        # ``u_e`` is the elastic pre-failure compression of the soil [m], ``grip`` the
+        # particle-conversion contact (1 = full contact)
+        self._state = np.zeros((b, kernel.N_STATE))
+        self.grip = np.ones(b)
         self.grip_tau = np.full(b, 0.05)
-        self.pile_m3 = z()
-        self.distance_in_soil = z()
         self.terrain = np.zeros((b, self.n_cells))
-        self.v_hist = np.zeros((VELOCITY_AVERAGE_SAMPLES, b, 2))
+        self.v_hist = np.zeros((VELOCITY_AVERAGE_SAMPLES, b, 2))  # newest first
         self.v_hist_count = 0
+        self._v_hist_rows = np.zeros((b, VELOCITY_AVERAGE_SAMPLES, 2))  # the kernel's layout, newest first
         self.rngs = [np.random.default_rng(int(s.seed)) for s in self.specs]
         self.last_applied_u_zr = z()
         self._forces_out = np.zeros((b, 2))
         self._push_velocity_history()
-        return self._output(np.zeros((b, 2)))
+        return self._compiled_output(np.zeros((b, 2))) if self.engine == "compiled" else self._output(np.zeros((b, 2)))
 
     # ------------------------------------------------------------------ helpers
+    def _state_column(j: int):  # noqa: N805 - a property factory used in the class body
+        def get(self):
+            return self._state[:, j].copy()
+
+        def set_(self, value):
+            self._state[:, j] = value
+
+        return property(get, set_)
+
+    x_c, vx_c = _state_column(kernel.S_X_C), _state_column(kernel.S_VX_C)
+    z_c, vz_c = _state_column(kernel.S_Z_C), _state_column(kernel.S_VZ_C)
+    z_rel, vz_rel = _state_column(kernel.S_Z_REL), _state_column(kernel.S_VZ_REL)
+    u_e, grip, grip_tau = _state_column(kernel.S_U_E), _state_column(kernel.S_GRIP), _state_column(kernel.S_GRIP_TAU)
+    pile_m3, distance_in_soil = _state_column(kernel.S_PILE), _state_column(kernel.S_DIST)
+    del _state_column
+
     def _cell(self, x):
         i = np.floor((x - self.x_min) / self.dyn.terrain_cell_m).astype(np.int64)
         return np.clip(i, 0, self.n_cells - 2)
@@ -254,18 +333,49 @@ class SoilSimulator:
         u_zr = np.clip(cmds["u_zr"], self.m.blade_min_rel_m, self.m.blade_max_rel_m)
         u_x = np.clip(cmds["u_x"], -MAX_TARGET_SPEED_M_S, MAX_TARGET_SPEED_M_S)
         self.last_applied_u_zr = u_zr
+        if self.engine == "compiled" and not self.plugins:
+            forces = np.zeros((b, 2))
+            for i in range(b):
+                kernel.tick(*self.kernel_arguments(i), u_zr[i], u_x[i], forces[i])
+            self.tick += 1
+            self._push_velocity_history()
+            return self._compiled_output(forces)
+        substep = self._compiled_substep_with_plugins if self.engine == "compiled" else self._substep
         force_sum = np.zeros((b, 2))
         draws = [rng.random((self.dyn.substeps, 3)) for rng in self.rngs]
         uniforms = np.stack(draws, axis=1)  # (substeps, B, 3)
         for k in range(self.dyn.substeps):
-            force_sum += self._substep(u_zr, u_x, uniforms[k])
+            force_sum += substep(u_zr, u_x, uniforms[k])
         self.tick += 1
         forces = force_sum / self.dyn.substeps
         if self.effects.noise:
             std = np.asarray(self.effects.noise_force_std_n)
             forces = forces + np.stack([rng.standard_normal(2) for rng in self.rngs]) * std
         self._push_velocity_history()
-        return self._output(forces)
+        return self._compiled_output(forces) if self.engine == "compiled" else self._output(forces)
+
+    def _compiled_substep_with_plugins(self, u_zr, u_x, uniform) -> np.ndarray:
+        """A substep in the kernel's two halves with the user plugins' forces added between them,
+        where ``_substep`` adds them."""
+        k, b = kernel, self.batch
+        f = np.empty((b, k.N_FORCE_INPUTS))
+        k.substep_soil_batch(self._state, self._episode, self.terrain, self._params, np.ascontiguousarray(uniform), f)
+        state = ForceInputs(
+            t=np.full(b, self.tick / SAMPLE_RATE_HZ), dt=self.dt, x_b=f[:, k.F_X_B], z_b=f[:, k.F_Z_B],
+            v_x=f[:, k.F_V_X], v_z=f[:, k.F_V_Z], d=f[:, k.F_D], q=f[:, k.F_Q], phi=f[:, k.F_PHI], c=f[:, k.F_C],
+            gamma=f[:, k.F_GAMMA], delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
+            blade_thickness=self.dyn.blade_edge_width_m, f_fee_x=f[:, k.F_FEE_X], f_fee_z=f[:, k.F_FEE_Z],
+            distance_in_soil=self.distance_in_soil, relative_density_pct=self.i_d0,
+        )
+        fx, fz = f[:, k.F_X].copy(), f[:, k.F_Z].copy()
+        for plugin in self.plugins:
+            tx, tz = plugin(state, b)
+            fx, fz = fx + tx, fz + tz
+        f[:, k.F_X], f[:, k.F_Z] = fx, fz
+        measured = np.empty((b, 2))
+        k.substep_machine_batch(self._state, self._episode, self.terrain, self._params, self._probes, u_zr, u_x, f,
+                                measured)
+        return measured
 
     def _substep(self, u_zr, u_x, uniform) -> np.ndarray:
         dyn, m, e, dt = self.dyn, self.m, self.effects, self.dt
@@ -302,7 +412,7 @@ class SoilSimulator:
         if e.particles:
             rate = np.maximum(vx, 0.0) / e.particle_chunk_m * in_soil
             event = uniform[:, 0] < rate * dt
-            loss = e.particle_loss_max * uniform[:, 1] * np.clip(d / 0.1, 0.0, 1.0)
+            loss = e.particle_loss_max * uniform[:, 1] * np.clip(d / e.particle_full_depth_m, 0.0, 1.0)
             lo, hi = e.particle_loss_time_s
             self.grip = np.where(event, np.minimum(self.grip, 1.0 - loss), self.grip)
             self.grip_tau = np.where(event, lo + (hi - lo) * uniform[:, 2], self.grip_tau)
@@ -375,6 +485,12 @@ class SoilSimulator:
 
     # ------------------------------------------------------------------ outputs
     def _push_velocity_history(self):
+        if self.engine == "compiled":
+            count = self.v_hist_count
+            for i in range(self.batch):
+                count = kernel.push_velocity(self._state[i], self._v_hist_rows[i], self.v_hist_count)
+            self.v_hist_count = count
+            return
         vz_b = self.vz_c + self.vz_rel
         self.v_hist = np.roll(self.v_hist, 1, axis=0)
         self.v_hist[0] = np.stack([self.vx_c, vz_b], axis=1)
@@ -382,8 +498,22 @@ class SoilSimulator:
 
     def averaged_velocity(self):
         """§3.1: v_t = avg([v_x^c, v_z^b]) over the last 10 samples (fewer at the start)."""
-        v = self.v_hist[: self.v_hist_count].mean(axis=0)
+        if self.engine == "compiled":
+            v = self._v_hist_rows[:, : self.v_hist_count].mean(axis=1)
+        else:
+            v = self.v_hist[: self.v_hist_count].mean(axis=0)
         return v[:, 0], v[:, 1]
+
+    def _compiled_output(self, forces: np.ndarray) -> TickOutput:
+        """``_output`` computed by ``kernel.output_row``, row by row."""
+        b = self.batch
+        positions, velocities, extras = np.zeros((b, 3)), np.zeros((b, 3)), np.zeros((b, 2))
+        known, truth = np.zeros((b, len(KNOWN_PARAMS))), np.zeros((b, len(GROUND_TRUTH_PARAMS)))
+        for i in range(b):
+            kernel.output_row(self._state[i], self._episode[i], self.terrain[i], self._params, self._v_hist_rows[i],
+                              self.v_hist_count, positions[i], velocities[i], known[i], truth[i], extras[i])
+        return TickOutput(stamp_ns=stamp_ns(self.tick), positions=positions, velocities=velocities, forces=forces,
+                          known=known, truth=truth, extras=extras, applied_u_zr=self.last_applied_u_zr.copy())
 
     def _output(self, forces: np.ndarray) -> TickOutput:
         b = self.batch

@@ -1,0 +1,172 @@
+"""The compiled kernel is the same simulator as the NumPy reference (``soil_sim_node.kernel``).
+
+Tolerance: every output of the compiled engine equals the reference's to 1e-9 of that
+column's largest magnitude over the run (measured: ~5e-15 over 10 s closed-loop episodes;
+the two differ only where NumPy's vectorised tanh and libm's round the last bit differently).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from soil_msgs_py.params import MACHINE
+from soil_physics import fee
+from soil_physics.bearing import penetration_capacity
+from soil_physics.force_inputs import ForceInputs
+from soil_sim_node import kernel
+from soil_sim_node import phenomena as ph
+from soil_sim_node.effects import Effects
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
+
+RTOL = 1e-9
+EPISODE_FIELDS = ("observations", "forces", "known", "truth", "extras")
+SPECS = [
+    EpisodeSpec("Clay", 90.0, 0.4, 0.3, 3, 4.0),  # dense and deep: stalls, the controller backs off
+    EpisodeSpec("Sand", 10.0, 1.0, 0.1, 4, 4.0),
+    EpisodeSpec("Gravel", 60.0, 0.7, 0.2, 5, 4.0),
+]
+
+
+def assert_close(got: np.ndarray, want: np.ndarray, what: str) -> None:
+    """|got - want| <= RTOL * (largest |want| of the column) everywhere."""
+    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
+    assert got.shape == want.shape, what
+    scale = np.abs(want).reshape(-1, want.shape[-1]).max(axis=0) if want.ndim > 1 else np.abs(want).max()
+    err = np.abs(got - want) / np.maximum(scale, 1e-300)
+    assert np.all(err <= RTOL), f"{what}: worst relative difference {err.max():.3g}"
+
+
+def assert_same_episodes(got, want) -> None:
+    for a, b in zip(got, want, strict=True):
+        assert a.meta == b.meta
+        np.testing.assert_array_equal(a.stamps_ns, b.stamps_ns)
+        for name in EPISODE_FIELDS:
+            assert_close(getattr(a, name), getattr(b, name), f"{a.meta.soil} {name}")
+
+
+@pytest.mark.parametrize("world", ["fee", "default"])
+def test_closed_loop_episodes_match_the_reference(world):
+    compiled = run_episodes(SimConfig(world_mode=world), SPECS)
+    reference = run_episodes(SimConfig(world_mode=world, engine="reference"), SPECS)
+    assert_same_episodes(compiled, reference)
+    assert max(abs(ep.forces[:, 0]).max() for ep in compiled) > 5e3  # the episodes do cut
+
+
+@pytest.mark.parametrize("name", Effects.names())
+def test_each_effect_switched_off_matches_the_reference(name):
+    config = SimConfig(world_mode="default", effects=Effects().with_switches(**{name: False}))
+    spec = [EpisodeSpec("Loam", 70.0, 0.6, 0.25, 11, 2.0)]
+    assert_same_episodes(run_episodes(config, spec),
+                         run_episodes(SimConfig(world_mode="default", effects=config.effects, engine="reference"), spec))
+
+
+@pytest.mark.parametrize("name", Effects.names())
+def test_each_effect_alone_matches_the_reference(name):
+    effects = Effects.fee().with_switches(**{name: True})
+    spec = [EpisodeSpec("Clay", 40.0, 0.5, 0.2, 12, 2.0)]
+    assert_same_episodes(run_episodes(SimConfig(world_mode="default", effects=effects), spec),
+                         run_episodes(SimConfig(world_mode="default", effects=effects, engine="reference"), spec))
+
+
+def test_a_batch_row_is_the_episode_run_alone():
+    together = run_episodes(SimConfig(), SPECS)
+    for spec, row in zip(SPECS, together):
+        (alone,) = run_episodes(SimConfig(), [spec])
+        for name in ("stamps_ns", *EPISODE_FIELDS):
+            np.testing.assert_array_equal(getattr(row, name), getattr(alone, name), err_msg=name)
+
+
+def test_tick_by_tick_stepping_matches_the_reference_open_loop():
+    """The live node's path (``SoilSimulator.step``): replaying an episode's commands."""
+    (ep,) = run_episodes(SimConfig(), SPECS[:1])
+    got = ph.replay_commands(SimConfig(), SPECS[0], ep)
+    want = ph.replay_commands(SimConfig(engine="reference"), SPECS[0], ep)
+    for key in ("positions", "velocities", "forces", "known", "truth", "extras", "applied_u_zr"):
+        assert_close(got[key], want[key], key)
+    assert_close(got["forces"], ep.forces, "replayed forces against the closed loop")
+
+
+def _random_states(n: int, seed: int) -> tuple[list[EpisodeSpec], dict, np.ndarray, np.ndarray]:
+    """n episodes in random states: in and out of the soil, sinking and rising, stalled and
+    fast, fresh and compacted, on a random terrain; and random commands."""
+    rng = np.random.default_rng(seed)
+    soils = ("Clay", "Loam", "Sand", "Gravel")
+    specs = [EpisodeSpec(soils[i % 4], float(rng.uniform(0, 100)), 0.5, 0.2, int(seed * 1000 + i), 2.0) for i in range(n)]
+    state = {
+        "x_c": rng.uniform(0.0, 2.0, n), "vx_c": rng.uniform(-0.3, 1.5, n), "z_c": rng.uniform(-0.1, 0.05, n),
+        "vz_c": rng.uniform(-0.2, 0.2, n), "z_rel": rng.uniform(-0.35, 0.1, n), "vz_rel": rng.uniform(-0.5, 0.5, n),
+        "u_e": rng.uniform(0.0, 5e-3, n), "grip": rng.uniform(0.1, 1.0, n), "grip_tau": rng.uniform(0.01, 0.08, n),
+        "pile_m3": rng.uniform(0.0, 0.45, n), "distance_in_soil": rng.uniform(0.0, 8.0, n),
+    }
+    u = np.stack([rng.uniform(MACHINE.blade_min_rel_m - 0.1, 0.2, n), np.zeros(n), rng.uniform(-0.5, 2.5, n)], axis=1)
+    return specs, state, rng.uniform(-0.2, 0.02, (n, 1)), u
+
+
+@pytest.mark.parametrize("world", ["fee", "default"])
+def test_one_tick_from_random_states_matches_the_reference(world):
+    specs, state, heights, u = _random_states(300, seed=1 if world == "fee" else 2)
+    sims = {engine: SoilSimulator(SimConfig(world_mode=world, engine=engine), specs) for engine in ("compiled", "reference")}
+    for sim in sims.values():
+        for name, values in state.items():
+            setattr(sim, name, values)
+        cells = np.arange(sim.n_cells) * sim.dyn.terrain_cell_m + sim.x_min
+        sim.terrain[:] = np.minimum(heights + 0.02 * np.sin(3.0 * cells), 0.0)  # an uneven, cut surface
+    outs = {engine: [sim.step(*u.T) for _ in range(3)] for engine, sim in sims.items()}
+    for k, (got, want) in enumerate(zip(outs["compiled"], outs["reference"])):
+        for key in ("positions", "velocities", "forces", "known", "truth", "extras"):
+            assert_close(getattr(got, key), getattr(want, key), f"tick {k} {key}")
+    for name in state:
+        assert_close(getattr(sims["compiled"], name)[:, None], getattr(sims["reference"], name)[:, None], name)
+    assert_close(sims["compiled"].terrain, sims["reference"].terrain, "terrain")
+    forces = outs["reference"][0].forces
+    assert (forces[:, 0] > 1e3).sum() > 30 and (forces[:, 0] < 1.0).sum() > 10  # cutting and idle rows both
+
+
+def test_scalar_fee_matches_soil_physics_over_random_inputs():
+    rng = np.random.default_rng(3)
+    n = 2000
+    phi, delta = rng.uniform(0.1, 0.8, n), rng.uniform(-0.6, 0.6, n)
+    rho, alpha = rng.uniform(0.6, 1.5, n), rng.uniform(-0.3, 0.3, n)
+    c, c_a, gamma = rng.uniform(0, 30e3, n), rng.uniform(0, 5e3, n), rng.uniform(12e3, 22e3, n)
+    w, d, q = rng.uniform(1, 4, n), rng.uniform(-0.1, 0.6, n), rng.uniform(0, 1e4, n)
+    beta = fee.beta_star(phi, delta, rho, alpha)
+    got = np.array([kernel.fee_beta_star(*a) for a in zip(phi, delta, rho, alpha)])
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(beta))
+    ok = np.isfinite(beta)
+    assert ok.mean() > 0.7  # the rest: no wedge for these angles (NaN in both)
+    assert_close(got[ok], beta[ok], "beta*")
+    force = fee.failure_force(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta)
+    got = np.array([kernel.fee_failure_force(*a) for a in zip(phi, c, delta, c_a, gamma, rho, alpha, w, d, q, beta)])
+    assert_close(got[ok], force[ok], "failure force")
+    v_x, v_z = rng.uniform(-1, 2, n), rng.uniform(-0.5, 0.5, n)
+    delta_p, _ = fee.velocity_corrected(delta, c_a, rho, alpha, v_x, v_z)
+    got = np.array([kernel.fee_velocity_scale(*a, fee.FEE_VELOCITY_GAIN_S_M) for a in zip(rho, alpha, v_x, v_z)]) * delta
+    np.testing.assert_allclose(got, delta_p, rtol=1e-14, atol=1e-15)
+    state = ForceInputs(d=d, q=q, v_x=v_x, v_z=v_z, gamma=gamma, w=w, rho=rho, alpha=alpha, phi=phi, c=c,
+                        delta=delta, distance_in_soil=0.0 * d, f_fee_x=0.0 * d, f_fee_z=0.0 * d)
+    want = penetration_capacity(state, 0.02)
+    got = np.array([kernel.penetration_capacity(*a, 0.02) for a in zip(phi, c, gamma, d, w)])
+    assert_close(got, want, "penetration capacity")
+
+
+PLUGINS = (
+    ("tests.sim_plugins:constant_force",),
+    ({"target": "soil_sim_node.plugins_example:side_wall_shear", "params": {"walls": 2.0}},),
+    ("soil_physics.force_terms:plugin term=soil_inertia k=4", "soil_physics.force_terms:plugin term=compaction_hardening k=0.06"),
+)
+
+
+@pytest.mark.parametrize("world", ["fee", "default"])
+@pytest.mark.parametrize("plugins", PLUGINS, ids=["constant", "side_walls", "two_catalogue_terms"])
+def test_user_plugins_between_the_kernel_halves_match_the_reference(world, plugins):
+    specs = [EpisodeSpec("Clay", 70.0, 0.5, 0.25, 21, 2.0), EpisodeSpec("Sand", 30.0, 0.9, 0.15, 22, 2.0)]
+    compiled = run_episodes(SimConfig(world_mode=world, plugins=plugins), specs)
+    assert_same_episodes(compiled, run_episodes(SimConfig(world_mode=world, plugins=plugins, engine="reference"), specs))
+    plain = run_episodes(SimConfig(world_mode=world), specs)
+    assert not np.allclose(compiled[0].forces, plain[0].forces)  # the plugin does act
+
+
+def test_the_engine_is_checked():
+    with pytest.raises(ValueError, match=r"engine='numpy'"):
+        SoilSimulator(SimConfig(engine="numpy"), SPECS[:1])
