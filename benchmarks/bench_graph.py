@@ -2,6 +2,8 @@
 
     .venv/bin/python benchmarks/bench_graph.py
     .venv/bin/python benchmarks/bench_graph.py --rates 1 2 4 --duration 10 --cpu-seconds 20
+    .venv/bin/python benchmarks/bench_graph.py --sim-engine reference
+    .venv/bin/python benchmarks/bench_graph.py --compare-engines --load 2   # before/after, loaded machine
 
 1. Highest real-time factor at which the graph (sim + controller + recorder, launched by
    soil_launch) still drops nothing: for each rate, one episode of ``--duration`` simulated
@@ -14,22 +16,24 @@
 3. CPU per node at 60 Hz (rate 1): user+system CPU time of each node process over a
    steady window, as % of one core.
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 199); every run is bounded by a timeout.
+``--sim-engine`` picks the simulator's engine (soil_sim_node parameter ``engine``: 'compiled',
+the default, or 'reference', the NumPy path it replaced). ``--compare-engines`` runs sections 2
+and 3 once per engine, one after the other (reference first: before, then compiled: after), and prints them side by side (section 1 runs with
+``--sim-engine``). ``--load N`` keeps N busy-looping processes running during every run (a
+loaded machine; on 2 cores, 2 takes every core from the graph's share).
+
+Loopback DDS only, on its own ROS_DOMAIN_ID (default 199); every run is bounded by a timeout
+and every process it starts is stopped at the end (graph_procs.py).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
-import subprocess
-import sys
 import tempfile
 import threading
-import time
-from pathlib import Path
 
-BIN = Path(sys.executable).parent
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.pop("ROS_LOCALHOST_ONLY", None)
+from graph_procs import Graph, Load, cpu_per_node  # sets loopback-only DDS
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402
@@ -40,7 +44,7 @@ from soil_msgs_py import graph as G  # noqa: E402
 from soil_bag_tools.bag_io import find_episode_bags, read_episode  # noqa: E402
 from soil_msgs_py.ros_adapter import topic_qos  # noqa: E402
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
+from soil_sim_node.simulator import ENGINES  # noqa: E402
 
 
 class StatusListener:
@@ -71,34 +75,17 @@ class StatusListener:
         rclpy.try_shutdown(context=self.context)
 
 
-def launch(args: list[str], domain: int) -> subprocess.Popen:
-    return subprocess.Popen([str(BIN / "soil_launch"), "--domain-id", str(domain), *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def engine_args(engine: str) -> list[str]:
+    return ["--sim-param", f"engine:={engine}"]
 
 
-def children(pid: int) -> dict[str, int]:
-    """name -> pid of the launcher's node processes."""
-    out = {}
-    res = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
-    for child in res.stdout.split():
-        cmd = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
-        script = next((Path(c.decode()).name for c in cmd if b"soil_" in c or b"anti_stall" in c or b"pinn" in c), "?")
-        out[script] = int(child)
-    return out
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
-
-
-def run_rate(rate: float, duration_s: float, domain: int) -> dict:
+def run_rate(rate: float, duration_s: float, domain: int, engine: str = "compiled") -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         listener = StatusListener(domain)
         try:
-            proc = launch(["--rate", str(rate), "--record", tmp, "--sim-param", f"duration_s:={duration_s}",
-                           "--timeout", str(duration_s / rate + 60)], domain)
-            rc = proc.wait(timeout=duration_s / rate + 90)
+            with Graph(["--rate", str(rate), "--record", tmp, "--sim-param", f"duration_s:={duration_s}",
+                        *engine_args(engine), "--timeout", str(duration_s / rate + 60)], domain) as graph:
+                rc = graph.wait(timeout=duration_s / rate + 90)
             end = next((e for e in listener.events if e.event == G.EVENT_EPISODE_END), None)
         finally:
             listener.close()
@@ -112,24 +99,6 @@ def run_rate(rate: float, duration_s: float, domain: int) -> dict:
             "clean": rc == 0 and ticks == planned and stats.get("late_commands") == 0}
 
 
-def cpu_per_node(seconds: float, domain: int) -> dict[str, float]:
-    with tempfile.TemporaryDirectory() as tmp:
-        proc = launch(["--record", tmp, "--sim-param", f"duration_s:={seconds + 20}", "--timeout", str(seconds + 60)],
-                      domain)
-        try:
-            time.sleep(8.0)  # start-up, discovery, first ticks
-            pids = children(proc.pid)
-            before = {n: cpu_seconds(p) for n, p in pids.items()}
-            t0 = time.monotonic()
-            time.sleep(seconds)
-            after = {n: cpu_seconds(p) for n, p in pids.items()}
-            wall = time.monotonic() - t0
-        finally:
-            proc.send_signal(2)
-            proc.wait(timeout=60)
-    return {n: 100.0 * (after[n] - before[n]) / wall for n in pids}
-
-
 def figures(s: dict) -> str:
     """p50/p99/max of one timing entry of the episode_end stats."""
     return f"{s.get('p50_ms')}/{s.get('p99_ms')}/{s.get('max_ms')} ms"
@@ -141,36 +110,91 @@ def run_line(r: dict) -> str:
             f"loop latency p50/p99/max {figures(r['loop'])}, {'clean' if r['clean'] else 'DROPS'}")
 
 
+def long_line(r: dict) -> str:
+    share = 100.0 * (r["late"] or 0) / max(r["planned"], 1)
+    return f"{run_line(r)}; late commands {share:.2f} % of ticks; load average {os.getloadavg()[0]:.2f}"
+
+
+def side_by_side(rows: list[tuple[str, str, str]], engines: tuple[str, ...]) -> None:
+    """rows of (figure, value for engines[0], value for engines[1])."""
+    w = max(len(r[0]) for r in rows)
+    v = max(12, *(len(x) for r in rows for x in r[1:]))
+    labels = [f"{e} ({'old' if e == 'reference' else 'new'})" for e in engines]
+    print(f"{'':{w}s}  {labels[0]:>{v}s}  {labels[1]:>{v}s}")
+    for name, a, b in rows:
+        print(f"{name:{w}s}  {a:>{v}s}  {b:>{v}s}")
+
+
+def compare_long(runs: dict[str, dict]) -> None:
+    engines = tuple(runs)
+    rows = [("recorded ticks", *(f"{runs[e]['recorded']}/{runs[e]['planned']}" for e in engines)),
+            ("late commands", *(f"{runs[e]['late']} ({100.0 * (runs[e]['late'] or 0) / max(runs[e]['planned'], 1):.2f} %)"
+                                for e in engines))]
+    for key, label in (("period", "period"), ("jitter", "jitter"), ("loop", "loop latency")):
+        rows.append((f"{label} p50/p99/max", *(figures(runs[e][key]) for e in engines)))
+    rows.append(("clean (every tick, none late)", *("yes" if runs[e]["clean"] else "no" for e in engines)))
+    side_by_side(rows, engines)
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
-    p.add_argument("--rates", type=float, nargs="+", default=[1, 2, 3, 4, 6, 8])
+    p.add_argument("--rates", type=float, nargs="*", default=[1, 2, 3, 4, 6, 8], help="(none: skip the sweep)")
     p.add_argument("--duration", type=float, default=10.0, help="simulated seconds per rate")
     p.add_argument("--long-seconds", type=float, default=60.0, help="simulated seconds of the real-time run (0: skip)")
-    p.add_argument("--cpu-seconds", type=float, default=20.0)
+    p.add_argument("--cpu-seconds", type=float, default=20.0, help="CPU window (0: skip)")
     p.add_argument("--domain-id", type=int, default=199)
+    p.add_argument("--sim-engine", choices=ENGINES, default="compiled", help="simulator engine (default: compiled)")
+    p.add_argument("--compare-engines", action="store_true",
+                   help="run the real-time run and the CPU figures for both engines, side by side")
+    p.add_argument("--load", type=int, default=0, help="busy-looping processes running alongside (a loaded machine)")
     args = p.parse_args()
+    # before (the NumPy reference) then after (the compiled kernel)
+    engines = ("reference", "compiled") if args.compare_engines else (args.sim_engine,)
+    budget = (len(args.rates) * (args.duration + 100) + len(engines) * (args.long_seconds + args.cpu_seconds + 200))
+    load = Load(args.load, budget) if args.load else contextlib.nullcontext()
+    print(f"cores: {os.cpu_count()}, busy-loop load processes: {args.load}, engine(s): {', '.join(engines)}")
+    with load:
+        sections(args, engines)
 
-    print(f"== real-time factor sweep ({args.duration} s episodes, sim + controller + recorder)")
-    best = prev = None
-    for rate in args.rates:
-        r = run_rate(rate, args.duration, args.domain_id)
-        print(f"rate {rate:5.1f}: {run_line(r)}")
-        if r["clean"] and (best is None or best == prev):
-            best = rate
-        prev = rate
-        if r["recorded"] < r["planned"] or (r["late"] or 0) > 0.1 * r["planned"]:
-            break  # far past the limit: higher rates only take longer to say so
-    print(f"highest rate factor with no drops: {best}")
+
+def sections(args: argparse.Namespace, engines: tuple[str, ...]) -> None:
+    if args.rates:
+        print(f"== real-time factor sweep ({args.duration} s episodes, sim + controller + recorder, "
+              f"engine {args.sim_engine})")
+        best = prev = None
+        for rate in args.rates:
+            r = run_rate(rate, args.duration, args.domain_id, args.sim_engine)
+            print(f"rate {rate:5.1f}: {run_line(r)}", flush=True)
+            if r["clean"] and (best is None or best == prev):
+                best = rate
+            prev = rate
+            if r["recorded"] < r["planned"] or (r["late"] or 0) > 0.1 * r["planned"]:
+                break  # far past the limit: higher rates only take longer to say so
+        print(f"highest rate factor with no drops: {best}")
 
     if args.long_seconds > 0:
-        print(f"== real time at 60 Hz for {args.long_seconds:g} s (rate 1, sim + controller + recorder)")
-        r = run_rate(1.0, args.long_seconds, args.domain_id)
-        share = 100.0 * (r["late"] or 0) / max(r["planned"], 1)
-        print(f"{run_line(r)}; late commands {share:.2f} % of ticks; load average {os.getloadavg()[0]:.2f}")
+        runs = {}
+        for engine in engines:
+            print(f"== real time at 60 Hz for {args.long_seconds:g} s (rate 1, sim + controller + recorder, "
+                  f"engine {engine})")
+            runs[engine] = run_rate(1.0, args.long_seconds, args.domain_id, engine)
+            print(long_line(runs[engine]), flush=True)
+        if len(engines) > 1:
+            print(f"== real time at 60 Hz for {args.long_seconds:g} s, side by side "
+                  f"(timing figures from the simulator's episode_end stats)")
+            compare_long(runs)
 
-    print(f"== CPU per node at 60 Hz (rate 1), over {args.cpu_seconds} s")
-    for name, pct in sorted(cpu_per_node(args.cpu_seconds, args.domain_id).items()):
-        print(f"{name:24s} {pct:6.1f} % of one core")
+    if args.cpu_seconds > 0:
+        cpu = {}
+        for engine in engines:
+            print(f"== CPU per node at 60 Hz (rate 1), over {args.cpu_seconds:g} s, engine {engine}")
+            cpu[engine] = cpu_per_node(args.cpu_seconds, args.domain_id, engine_args(engine))
+            for name, pct in sorted(cpu[engine].items()):
+                print(f"{name:24s} {pct:6.1f} % of one core", flush=True)
+        if len(engines) > 1:
+            print(f"== CPU per node at 60 Hz, side by side (% of one core over {args.cpu_seconds:g} s)")
+            names = sorted(set().union(*(c.keys() for c in cpu.values())))
+            side_by_side([(n, *(f"{cpu[e].get(n, float('nan')):.1f} %" for e in engines)) for n in names], engines)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from soil_physics.soils import CATALOGUE, load_soil_yaml
 
 from .effects import Effects, effects_for_mode
 from .rollout import run_episodes
-from .simulator import EpisodeSpec, SimConfig
+from .simulator import ENGINES, EpisodeSpec, SimConfig
 
 # Paper §3.1 grids. 4 soils x 6 I_d x speeds x depths x 2 seeds = 576 (default) / 432 (fee).
 DEFAULT_RELATIVE_DENSITIES = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
@@ -49,9 +49,10 @@ class DatasetPlan:
     plugins: tuple = ()
     custom_soils: dict = field(default_factory=dict)
     overwrite: bool = False
+    engine: str = "compiled"  # one of simulator.ENGINES
 
     def config(self) -> SimConfig:
-        return SimConfig(world_mode=self.mode, effects=self.effects, plugins=self.plugins)
+        return SimConfig(world_mode=self.mode, effects=self.effects, plugins=self.plugins, engine=self.engine)
 
 
 def grid_specs(soils, relative_densities, speeds, depths, n_seeds, seed_base, duration_s) -> list[EpisodeSpec]:
@@ -84,6 +85,8 @@ def _chunks(specs: list[EpisodeSpec], workers: int, max_chunk: int) -> list[list
 def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True) -> dict:
     """Generate the dataset of ``plan``; returns a summary (also written as dataset.json)."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
+    if plan.engine not in ENGINES:
+        raise ValueError(f"engine={plan.engine!r} is not one of {ENGINES}")
     for spec in plan.specs:
         spec.resolve(plan.custom_soils)
     keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed) for s in plan.specs]
@@ -92,7 +95,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     workers = workers or os.cpu_count() or 1
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
-                custom_soils=plan.custom_soils, overwrite=plan.overwrite)
+                custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
     chunks = _chunks(plan.specs, workers, max_chunk)
     start = time.perf_counter()
     results: list[tuple[str, int]] = []
@@ -117,6 +120,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         "bytes_total": int(sum(b for _, b in results)),
         "bytes_per_episode": int(sum(b for _, b in results) / max(1, len(results))),
         "simulated_s_per_wall_s": round(sum(s.duration_s for s in plan.specs) / wall, 1),
+        "engine": plan.engine,
         "effects": plan.effects.enabled(),
         "plugins": [str(p) for p in plan.plugins],
         "episode_names": sorted(n for n, _ in results),
@@ -148,6 +152,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seed-base", type=int, default=0, help="first episode seed")
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s]")
     p.add_argument("--workers", type=int, default=0, help="processes (default: all cores)")
+    p.add_argument("--engine", choices=ENGINES, default=ENGINES[0],
+                   help="simulator engine: compiled (default) or reference (the NumPy reference of the physics)")
     p.add_argument("--plugin", action="append", default=[], help="extra force term package.module:function (repeatable)")
     p.add_argument("--effects-off", default="", help="default-world effects to switch off, comma-separated")
     p.add_argument("--overwrite", action="store_true", help="replace existing bags of the same name")
@@ -174,7 +180,7 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
         args.duration,
     )
     out = args.out or Path("bags") / f"d_{args.mode}"
-    return DatasetPlan(args.mode, out, specs, effects, tuple(args.plugin), custom, args.overwrite)
+    return DatasetPlan(args.mode, out, specs, effects, tuple(args.plugin), custom, args.overwrite, args.engine)
 
 
 def main(argv=None) -> int:

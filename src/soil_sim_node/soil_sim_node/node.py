@@ -41,7 +41,7 @@ from .effects import effects_for_mode
 from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
-from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
+from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through _value() (unset reads as []).
@@ -51,6 +51,8 @@ _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 # name -> (default, description[, array type]); the YAML in config/ mirrors these.
 PARAMETERS: dict[str, tuple] = {
     "world_mode": ("default", "world: 'fee' (pure FEE, like D_FEE) or 'default' (extra effects, like D_default)"),
+    "engine": ("compiled", "simulator engine: 'compiled' (Numba kernel, default) or 'reference' (the NumPy "
+                           "reference of the physics, ~1000x slower)"),
     "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel)"),
     "relative_density_pct": (60.0, "initial relative density I_d [%], 0..100"),
     "target_speed_m_s": (0.5, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
@@ -75,6 +77,12 @@ PARAMETERS: dict[str, tuple] = {
 
 
 
+def check_engine(engine) -> None:
+    """ValueError naming the parameter unless ``engine`` is one of simulator.ENGINES."""
+    if engine not in ENGINES:
+        raise ValueError(f"parameter engine={engine!r} is not one of {ENGINES}")
+
+
 class SimNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_sim_node")
@@ -93,7 +101,8 @@ class SimNode(Node):
         effects = effects_for_mode(p["world_mode"])
         if p["effects_off"]:
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
-        self.config = SimConfig(world_mode=p["world_mode"], effects=effects, plugins=tuple(p["plugins"]))
+        self.config = SimConfig(world_mode=p["world_mode"], effects=effects, plugins=tuple(p["plugins"]),
+                                engine=p["engine"])
         self.queue: collections.deque[EpisodeSpec] = collections.deque()
         base = self._spec_from_params({})
         self._enqueue(episode_plan(base, list(p["sequence_soils"]),
@@ -129,7 +138,7 @@ class SimNode(Node):
         self.grace_timer = self.create_timer(1.0, self._on_grace)
         self.grace_timer.cancel()
         self.get_logger().info(
-            f"{p['world_mode']} world, pacing={self.pacer.pacing}"
+            f"{p['world_mode']} world, engine={p['engine']}, pacing={self.pacer.pacing}"
             + (f" x{self.pacer.rate}" if not self.pacer.lockstep else "")
             + f", {len(self.queue)} episode(s) queued; commands on /sim/command"
         )
@@ -145,6 +154,7 @@ class SimNode(Node):
     def _validate_static(p: dict) -> None:
         check_pacing(p["pacing"], p["rate"])
         effects_for_mode(p["world_mode"])
+        check_engine(p.get("engine", ENGINES[0]))
         if int(p["episodes"]) < 0:
             raise ValueError(f"parameter episodes={p['episodes']} must be >= 0")
         for name in ("wait_timeout_s", "settle_s", "lockstep_timeout_s"):
@@ -177,7 +187,7 @@ class SimNode(Node):
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Episode parameters apply to episodes started later; rate applies at once."""
         changes = {p.name: p.value for p in params}
-        fixed = {"world_mode", "pacing", "plugins", "effects_off", "wait_for", "sequence_soils",
+        fixed = {"world_mode", "engine", "pacing", "plugins", "effects_off", "wait_for", "sequence_soils",
                  "sequence_relative_densities_pct", "episodes"} & set(changes)
         if fixed:
             return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")

@@ -1,0 +1,27 @@
+"""soil_sim_batch's engine choice (DatasetPlan.engine, --engine): passed into the SimConfig,
+refused before any file is written when unknown. Fast: no episode is simulated."""
+from __future__ import annotations
+
+import pytest
+
+from soil_sim_node.batch import DatasetPlan, generate, parse_args, plan_from_args
+from soil_sim_node.effects import effects_for_mode
+from soil_sim_node.simulator import ENGINES, EpisodeSpec
+
+
+def test_batch_plan_engine_defaults_to_compiled_and_reaches_the_sim_config(tmp_path):
+    spec = EpisodeSpec("Loam", 60.0, 0.5, 0.2, seed=0, duration_s=1.0)
+    assert DatasetPlan("fee", tmp_path, [spec], effects_for_mode("fee")).config().engine == "compiled"
+    for engine in ENGINES:
+        assert DatasetPlan("fee", tmp_path, [spec], effects_for_mode("fee"), engine=engine).config().engine == engine
+    assert plan_from_args(parse_args(["--engine", "reference", "--out", str(tmp_path)])).engine == "reference"
+    with pytest.raises(SystemExit):
+        parse_args(["--engine", "turbo"])
+
+
+def test_batch_unknown_engine_is_refused_before_anything_is_written(tmp_path):
+    spec = EpisodeSpec("Loam", 60.0, 0.5, 0.2, seed=0, duration_s=1.0)
+    out = tmp_path / "never"
+    with pytest.raises(ValueError, match="engine='turbo'"):
+        generate(DatasetPlan("fee", out, [spec], effects_for_mode("fee"), engine="turbo"), workers=1, progress=False)
+    assert not out.exists()
