@@ -22,6 +22,7 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.txt
 	$(BIN)/python -m pip install --quiet --no-deps $(foreach p,$(PKGS),-e $(p))
+	$(BIN)/python -m soil_sim_node.warm_up
 	@touch $(STAMP)
 
 demo: venv

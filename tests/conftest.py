@@ -17,3 +17,11 @@ os.environ.pop("ROS_LOCALHOST_ONLY", None)
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: long-running test (deselect with -m 'not slow')")
+
+
+def pytest_sessionstart(session):
+    """The simulator's compiled kernel in Numba's cache before any test starts a node: a node
+    compiling it at its first tick (~10 s on a fresh clone) would miss its first deadlines."""
+    from soil_sim_node.warm_up import warm_up
+
+    warm_up()

@@ -35,13 +35,14 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
 from .effects import effects_for_mode
 from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
 from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
+from .warm_up import warm_up
 
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through _value() (unset reads as []).
@@ -91,6 +92,8 @@ class SimNode(Node):
         self.exit_code = 0
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
+        if p["engine"] == "compiled":  # compile or load the kernel now, not at the first tick
+            self.get_logger().info(f"simulator kernel ready in {warm_up():.1f} s")
         self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
         self.start_wait = StartWait(p["wait_timeout_s"], p["settle_s"])
         self.exit_when_done = bool(p["exit_when_done"])
@@ -111,7 +114,7 @@ class SimNode(Node):
 
         self.classes = M.ros_message_classes()
         self.pubs = {name: self.create_publisher(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                                 topic_qos(name)) for name in G.SIM_STATE_TOPICS}
+                                                 publisher_qos(name)) for name in G.SIM_STATE_TOPICS}
         self.status_pub = self.create_publisher(String, G.SIM_STATUS_TOPIC, topic_qos(G.SIM_STATUS_TOPIC))
         self.cmd_subs = [
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
