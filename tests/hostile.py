@@ -25,6 +25,7 @@ import math
 import random
 import struct
 import threading
+import time
 
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
@@ -32,7 +33,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import message_class, topic_qos
+from soil_msgs_py.ros_adapter import message_class, qos_profile, topic_qos
 
 from tests.ros_probe import RosProbe
 
@@ -335,18 +336,39 @@ class HostileNode(RosProbe):
 
 
 class GraphObserver(RosProbe):
-    """A clean participant that records every message on the given topics as CDR bytes."""
+    """A clean participant that records every message on the given topics as CDR bytes.
+
+    It subscribes as deep as the recorder does: a lockstep graph runs as fast as its slowest
+    node, far above 60 Hz, and a reader that fell 120 samples behind (the graph's depth)
+    would lose messages the graph did publish."""
+
+    QOS = qos_profile(G.RECORDER_QOS)
 
     def __init__(self, domain_id: int, topics):
         super().__init__(domain_id, name="observer")
         self.raw: dict[str, list[bytes]] = collections.defaultdict(list)
         for topic in topics:
             self.node.create_subscription(message_class(MSGTYPES[topic]), topic,
-                                          lambda raw, t=topic: self._keep(t, raw), topic_qos(topic), raw=True)
+                                          lambda raw, t=topic: self._keep(t, raw), self.QOS, raw=True)
 
     def _keep(self, topic: str, raw: bytes) -> None:
         with self.lock:
             self.raw[topic].append(raw)
+
+    def settle(self, quiet_s: float = 1.0, limit_s: float = 20.0) -> None:
+        """Wait until no message arrived for ``quiet_s`` (at most ``limit_s``): on a loaded machine
+        the observer, sharing its process with the hostile node, may still be taking messages
+        a fast lockstep graph published."""
+        deadline = time.monotonic() + limit_s
+        seen, since = -1, time.monotonic()
+        while time.monotonic() < deadline:
+            with self.lock:
+                n = sum(len(v) for v in self.raw.values())
+            if n != seen:
+                seen, since = n, time.monotonic()
+            elif time.monotonic() - since >= quiet_s:
+                return
+            time.sleep(0.1)
 
     def graph_messages(self, topic: str, hostile: HostileNode) -> list[object]:
         """What the graph's own nodes published on ``topic``: every observed message minus one

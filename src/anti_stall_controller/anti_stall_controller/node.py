@@ -20,7 +20,9 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, status_event, topic_qos
+from soil_msgs_py.ros_adapter import (
+    WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
+)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import AntiStallController, AntiStallGains
@@ -67,8 +69,8 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
-        self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), T.CMD_VEL.name, topic_qos(T.CMD_VEL.name))
-        self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, topic_qos(T.BLADE_CMD.name))
+        self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), T.CMD_VEL.name, publisher_qos(T.CMD_VEL.name))
+        self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, publisher_qos(T.BLADE_CMD.name))
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))

@@ -19,7 +19,9 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, qos_profile, spin_node, status_event, topic_qos
+from soil_msgs_py.ros_adapter import (
+    WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_event, topic_qos,
+)
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
@@ -64,9 +66,9 @@ class EstimatorNode(Node):
 
         self.classes = M.ros_message_classes()
         self.estimate_pub = self.create_publisher(
-            message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, topic_qos(T.ESTIMATE.name))
+            message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, publisher_qos(T.ESTIMATE.name))
         self.force_pub = self.create_publisher(
-            message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, topic_qos(T.ESTIMATED_FORCE.name))
+            message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, publisher_qos(T.ESTIMATED_FORCE.name))
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with tick 0 empties the window before tick 0 is added.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))

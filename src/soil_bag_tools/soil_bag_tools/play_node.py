@@ -1,7 +1,7 @@
 """``soil_bag_play``: replay bags onto the live graph with their original timing.
 
-Thin rclpy adapter around ``playback.py``: one publisher per topic with the graph's QoS
-(``ros_adapter.topic_qos``), the raw CDR bytes of each message published as they are (no
+Thin rclpy adapter around ``playback.py``: one publisher per topic with the graph's
+publisher QoS (``ros_adapter.publisher_qos``), the raw CDR bytes of each message published as they are (no
 deserialisation), timed by ``playback.Pacer`` on absolute deadlines. Episode bags are
 framed by ``/sim/status`` ``episode_start``/``episode_end`` events (as the simulator does),
 so ``soil_bag_record`` splits a replay into the same bags and estimators reset in step.
@@ -30,7 +30,7 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
     string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import init_rclpy, message_class, raise_interrupt, topic_qos
+from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -82,7 +82,7 @@ class Player:
                 raise BagPathError(f"topic {topic} has type {msgtype} here but {self.types[topic]} in an earlier bag")
             return self.pubs[topic]
         self.types[topic] = msgtype
-        self.pubs[topic] = self.node.create_publisher(message_class(msgtype), topic, topic_qos(topic))
+        self.pubs[topic] = self.node.create_publisher(message_class(msgtype), topic, publisher_qos(topic))
         return self.pubs[topic]
 
     def _load(self, path) -> LoadedBag:

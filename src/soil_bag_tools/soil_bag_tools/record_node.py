@@ -25,7 +25,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.graph import CONTROL_QOS, DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS
-from .recorder import Recorder, rosbags_qos
+from .recorder import END_GRACE_S, Recorder, rosbags_qos
 from soil_msgs_py.ros_adapter import message_class, qos_profile, spin_node
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
@@ -46,8 +46,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="one bag record_<UTC time> until Ctrl-C, ignoring /sim/status")
     p.add_argument("--flush-period", type=float, default=0.25, metavar="S",
                    help="journal flush period [s] of wall-clock and of simulation time: the most a SIGKILL can lose (default 0.25)")
-    p.add_argument("--end-grace", type=float, default=1.0, metavar="S",
-                   help="after episode_end, wait at most this long for late messages [s] (default 1.0)")
+    p.add_argument("--end-grace", type=float, default=END_GRACE_S, metavar="S",
+                   help="after episode_end, finish an incomplete episode once no message came for this long [s] "
+                        f"(default {END_GRACE_S:g}: more than Fast DDS's 3 s heartbeat, after which lost samples are re-sent)")
     opts = p.parse_args(argv)
     if not opts.flush_period > 0:
         p.error(f"--flush-period {opts.flush_period} must be > 0 s")
@@ -113,6 +114,11 @@ class RecordNode(Node):
             self.get_logger().info(f"recording {topic} ({msgtype})")
         if not self._pending:
             self._discovery.cancel()
+
+    def draining(self) -> bool:
+        """Asked to stop (``spin_node``): an episode that has ended but whose data is still
+        arriving is let in first (``Recorder.draining``; bounded by the end grace)."""
+        return self.recorder.draining()
 
     def close(self) -> None:
         self.recorder.close()

@@ -11,7 +11,10 @@ stamps at 0 (ranges overlap), a closing episode's backlog still goes to it and t
 episode's messages to the next one. A message no session covers is held for ``hold_s``
 (its ``episode_start`` may still be on the way: status and data are separate DDS topics,
 delivered in no particular order) and then dropped and counted. A closing session is
-finished once every recorded topic reached ``last_stamp_ns``, or after ``end_grace_s``.
+finished once every recorded topic reached ``last_stamp_ns``, or once ``end_grace_s`` passed
+with no new message for it since the episode_end (a recorder that is merely behind a fast
+lockstep graph is still receiving the episode: it is not cut short). ``draining`` says
+whether a session waits for such messages, so a node asked to stop can let them in first.
 
 Finishing closes the journal and converts it with ``journal.journal_to_bag``; episode bags
 are trimmed to whole ticks, so a bag stopped early (SIGINT, lost tail) still reads with
@@ -55,6 +58,11 @@ _MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
 EXTRA_TOPIC_GRACE_S = 0.3  # wait for non-episode topics once the episode topics are complete
 _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
+# How long an ended episode waits for more of its data after the last message arrived. Longer
+# than Fast DDS's default reliable heartbeat period (3 s): a sample a reader's transport
+# dropped while the reader was busy is re-sent after the next heartbeat, not before.
+END_GRACE_S = 4.0
+ONLINE_HORIZON_TICKS = 600  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
 
 def rosbags_qos(spec: QosSpec) -> Qos:
@@ -101,6 +109,9 @@ class Session:
     first_stamp_ns: int = 0
     last_stamp_ns: int | None = None  # set by episode_end; None while running
     closing_since: float | None = None
+    last_write: float | None = None  # clock() of the last message written into it
+    silent_polls: int = 0  # polls in a row that found no new message for it
+    polled_write: float | None = None  # ``last_write`` the last poll saw
     ticks_done_since: float | None = None  # when every episode topic reached the last stamp
     end_event: EpisodeEvent | None = None
     counts: dict[str, int] = field(default_factory=dict)
@@ -132,7 +143,7 @@ class Recorder:
 
     def __init__(
         self, out_dir: str | Path, topics: Mapping[str, str], *, split: bool = True,
-        end_grace_s: float = 1.0, hold_s: float = 1.0, flush_sim_s: float = 0.25, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
+        end_grace_s: float = END_GRACE_S, hold_s: float = 1.0, flush_sim_s: float = 0.25, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
         log: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic,
     ):
         if end_grace_s < 0:
@@ -214,7 +225,10 @@ class Recorder:
         now = self.clock()
         done: list[BagResult] = []
         for s in list(self.sessions):
-            if s.closing_since is not None and (self._complete(s) or now - s.closing_since >= self.end_grace_s):
+            if s.closing_since is not None:
+                s.silent_polls = s.silent_polls + 1 if s.last_write == s.polled_write else 0
+                s.polled_write = s.last_write
+            if s.closing_since is not None and (self._complete(s) or self._stalled(s, now)):
                 r = self._finish(s, "completed" if self._complete(s) else "grace_timeout")
                 done += [r] if r else []
             else:
@@ -228,6 +242,16 @@ class Recorder:
             self.log.debug(f"dropped {expired} message(s) outside any episode "
                            f"({self.dropped['outside_episode']} so far)")
         return done
+
+    def _stalled(self, s: Session, now: float) -> bool:
+        """The end grace expired: nothing arrived for ``s`` for ``end_grace_s`` since its episode_end,
+        and two polls in a row found nothing new (a recorder starved of CPU for a while has its
+        messages waiting behind the timer, not lost: the poll after them must see them first)."""
+        return s.silent_polls >= 2 and now - max(s.closing_since, s.last_write or s.closing_since) >= self.end_grace_s
+
+    def draining(self) -> bool:
+        """Whether an ended episode still waits for messages in flight (finished by ``poll``)."""
+        return any(s.closing_since is not None for s in self.sessions)
 
     def close(self) -> list[BagResult]:
         """Stop: every open session is finished with what arrived (episode bags: whole ticks)."""
@@ -259,7 +283,7 @@ class Recorder:
         for s in self.sessions:
             if s.last_stamp_ns is None:  # its episode_end never came
                 s.last_stamp_ns = max(s.topic_max.values(), default=s.first_stamp_ns)
-                s.closing_since = self.clock()
+                s.closing_since, s.polled_write = self.clock(), s.last_write
                 self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
                                  f"at its last stamp {s.last_stamp_ns} ns")
         s = self._open(ev.name, ev.meta.to_json(), {FIRST_STAMP_KEY: str(ev.first_stamp_ns)})
@@ -282,6 +306,7 @@ class Recorder:
         if s.end_event is not None:
             return
         s.end_event, s.last_stamp_ns, s.closing_since = ev, ev.last_stamp_ns, self.clock()
+        s.polled_write = s.last_write
         if self._complete(s) or ev.last_stamp_ns < s.first_stamp_ns:
             self._finish(s, "completed")
 
@@ -313,6 +338,7 @@ class Recorder:
                 if claims > _MAX_CLAIMS:
                     return
         s.journal.write(topic, stamp, raw, recv_ns, seq)
+        s.last_write = self.clock()
         if stamp - s.flushed_stamp_ns >= self.flush_sim_ns and s.meta_json is not None:
             s.journal.flush()
             s.flushed_stamp_ns = stamp
@@ -325,10 +351,16 @@ class Recorder:
     def _from_recorded_writer(s: Session, topic: str, stamp: int, seq: int) -> bool:
         """Whether the message's writer leads the topic so far (or is unknown): only those
         advance ``topic_max``, so a publisher sending a stamp early cannot make the episode
-        look complete before the recorded publisher's message for it arrived."""
+        look complete before the recorded publisher's message for it arrived. A stamp more
+        than ``ONLINE_HORIZON_TICKS`` past the topic's newest cannot be judged in arrival
+        order (any higher counter "continues" a writer across that many ticks): it is
+        journaled and judged when the bag is made, and never advances ``topic_max``."""
         k = tick_index(stamp, s.first_stamp_ns)
         if k is None:
             return True
+        newest = s.topic_max.get(topic)
+        if k > (0 if newest is None else tick_index(newest, s.first_stamp_ns) or 0) + ONLINE_HORIZON_TICKS:
+            return False
         writers = s.writers.setdefault(topic, WriterTracks())
         return writers.leads(writers.observe(seq, k))
 

@@ -75,23 +75,25 @@ class LiveEpisode:
 
 class LiveMonitor:
     """An rclpy participant in its own context, spun by a background thread, printing one
-    line per simulated second. Best-effort data subscriptions: it can fall behind or miss a
-    sample, never slow the graph. Import and construct only after ROS_AUTOMATIC_DISCOVERY_RANGE
-    is set."""
+    line per simulated second. Its data subscriptions are the recorder's (reliable, 2000 deep):
+    a lockstep graph runs far above 60 Hz and a best-effort reader this far behind lost the
+    samples a second's line needs; a reliable reader never slows the graph either (the nodes'
+    KEEP_LAST writers do not wait for it). Import and construct only after
+    ROS_AUTOMATIC_DISCOVERY_RANGE is set."""
 
-    DATA_QUEUE = 200
     HISTORY = 1200  # ticks waiting for their estimate (the estimator may lag the simulator, lockstep)
+    END_WAIT_S = 3.0  # after an episode_end, wait this long at most for the estimator's last estimates
 
     def __init__(self, domain_id: int, planned_episodes: int, out=None):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
         from std_msgs.msg import String
 
-        from soil_msgs_py.ros_adapter import message_class, topic_qos
+        from soil_msgs_py.graph import RECORDER_QOS
+        from soil_msgs_py.ros_adapter import message_class, qos_profile, topic_qos
 
         self.out = out or sys.stdout
         self.planned = planned_episodes
@@ -106,13 +108,14 @@ class LiveMonitor:
         self.last_truth: np.ndarray | None = None  # of the newest tick that left with one
         self.last_force: tuple[int, np.ndarray] | None = None  # (stamp, values) as received
         self.problems: collections.Counter = collections.Counter()
+        self.pending_end: tuple[G.EpisodeEvent, float] | None = None  # an episode_end and when it came
+        self.last_estimate_ns = -1  # newest estimate stamp of the current episode
         self._rclpy = rclpy
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
         try:
             self.node = Node("demo_monitor", context=self.context)
-            data_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.DATA_QUEUE,
-                                  reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+            data_qos = qos_profile(RECORDER_QOS)
             # Creation order is the order the executor serves ready subscriptions: status first
             # (episode boundaries), the estimate last (its tick's truth and force are then in).
             self.node.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
@@ -133,6 +136,7 @@ class LiveMonitor:
         while not self._stop.is_set() and self.context.ok():
             try:
                 self.executor.spin_once(timeout_sec=0.05)
+                self._maybe_end()
             except Exception as err:  # noqa: BLE001 - a display must never take the run down
                 self.problems[f"monitor error: {err!r}"] += 1
 
@@ -146,6 +150,7 @@ class LiveMonitor:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
+        self._maybe_end(force=True)
         self._finish_ticks()
         try:
             self.executor.shutdown(timeout_sec=1.0)
@@ -192,6 +197,8 @@ class LiveMonitor:
             return
         now = time.monotonic()
         if event.event == G.EVENT_EPISODE_START:
+            self._maybe_end(force=True)
+            self.last_estimate_ns = -1
             ep = LiveEpisode(len(self.episodes), event.name, event.meta.soil, float(event.meta.relative_density_pct),
                              event.first_stamp_ns, event.planned_ticks, now)
             self.episodes.append(ep)
@@ -204,11 +211,26 @@ class LiveMonitor:
             for line in header_lines():
                 self.print(line)
         else:
-            self._finish_ticks()
-            ep = self.current if self.current is not None and self.current.name == event.name else None
-            if ep is None:
-                self.print(f"--- end of {event.name} ({event.reason}) [its start was not seen]")
-                return
+            # The estimator may lag the simulator (a lockstep one runs far above 60 Hz): the
+            # episode's lines end once its last estimate is in, or END_WAIT_S later.
+            self._maybe_end(force=True)
+            self.pending_end = (event, now)
+            self._maybe_end()
+
+    def _maybe_end(self, force: bool = False) -> None:
+        """End the episode whose episode_end came, once its last tick's estimate arrived, after
+        END_WAIT_S, or now (``force``)."""
+        if self.pending_end is None:
+            return
+        event, now = self.pending_end
+        if not (force or self.last_estimate_ns >= event.last_stamp_ns or time.monotonic() - now >= self.END_WAIT_S):
+            return
+        self.pending_end = None
+        self._finish_ticks()
+        ep = self.current if self.current is not None and self.current.name == event.name else None
+        if ep is None:
+            self.print(f"--- end of {event.name} ({event.reason}) [its start was not seen]")
+        else:
             ep.wall_end, ep.reason, ep.ticks = now, event.reason, event.ticks
             latency = (f"; estimate latency p50 {ep.latency_ms(50):.1f} ms, p99 {ep.latency_ms(99):.1f} ms"
                        if ep.latencies_s else "")
@@ -254,6 +276,7 @@ class LiveMonitor:
         ep = self.current
         if ep is None or stamp < ep.first_stamp_ns:
             return
+        self.last_estimate_ns = max(self.last_estimate_ns, stamp)
         ep.estimates += 1
         ep.last_estimate_wall = now
         if is_valid(values):

@@ -9,10 +9,12 @@
 from __future__ import annotations
 
 import collections
+import dataclasses
 import importlib
 import math
 import signal
 import sys
+import time
 from collections.abc import Callable
 
 import rclpy
@@ -23,7 +25,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .graph import DATA_QOS, SIM_STATUS_TOPIC, TOPIC_QOS, EpisodeEvent, QosSpec
+from .graph import DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS, EpisodeEvent, QosSpec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -52,6 +54,16 @@ def qos_profile(spec: QosSpec) -> QoSProfile:
 def topic_qos(topic: str) -> QoSProfile:
     """The graph's QoS for ``topic`` (DATA_QOS for topics outside the table)."""
     return qos_profile(TOPIC_QOS.get(topic, DATA_QOS))
+
+
+def publisher_qos(topic: str) -> QoSProfile:
+    """What a node publishes ``topic`` with: the graph's QoS (``topic_qos``) with a writer
+    history as deep as a recorder's reader (``RECORDER_QOS``). A KEEP_LAST writer overwrites
+    samples a reliable reader has not acknowledged yet, so with the graph's depth a reader
+    starved of CPU for a moment while a lockstep graph runs far above 60 Hz would lose them;
+    with this depth they are re-sent. Subscribers keep ``topic_qos``."""
+    spec = TOPIC_QOS.get(topic, DATA_QOS)
+    return qos_profile(dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth)))
 
 
 def message_class(msgtype: str):
@@ -110,6 +122,7 @@ def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
 
 
 EXIT_BAD_CONFIG = 2
+DRAIN_LIMIT_S = 10.0  # most a stopping node may spend letting in what is in flight
 
 
 def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
@@ -132,6 +145,11 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
         executor.add_node(node)
         while rclpy.ok() and not stop and not getattr(node, "finished", False):
             executor.spin_once(timeout_sec=0.1)
+        # A node with data in flight that it must not lose (the recorder) says so through
+        # ``draining()``; it gets up to DRAIN_LIMIT_S more spinning before ``close``.
+        draining, deadline = getattr(node, "draining", None), time.monotonic() + DRAIN_LIMIT_S
+        while draining is not None and rclpy.ok() and draining() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:
         pass
     except (ValueError, ParameterException) as err:  # a bad parameter value or type

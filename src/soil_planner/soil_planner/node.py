@@ -23,7 +23,7 @@ from rclpy.node import Node
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe,
@@ -64,7 +64,7 @@ class PlannerNode(Node):
         self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
         self.last_log_ns: int | None = None
         self.published = 0
-        self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, topic_qos(T.PLAN.name))
+        self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, publisher_qos(T.PLAN.name))
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
