@@ -21,7 +21,6 @@ import time
 
 import numpy as np
 import rclpy
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
@@ -30,7 +29,7 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
     string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt
+from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt, wait_for_acks
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -163,11 +162,8 @@ class Player:
 
     def drain(self) -> None:
         """Wait (bounded) until reliable subscribers acknowledged everything published."""
-        end = time.monotonic() + DRAIN_S
-        unacked = [t for t, p in self.pubs.items()
-                   if not p.wait_for_all_acked(Duration(nanoseconds=int(max(0.0, end - time.monotonic()) * 1e9)))]
-        if unacked:  # acknowledgements ride on DDS heartbeats; delivery itself is normally done
-            self.log.debug(f"not acknowledged within {DRAIN_S} s: {unacked}")
+        if not wait_for_acks(self.node, DRAIN_S):  # acknowledgements ride on DDS heartbeats; delivery is normally done
+            self.log.debug(f"not everything acknowledged within {DRAIN_S} s")
 
 
 def main(args: list[str] | None = None) -> int:

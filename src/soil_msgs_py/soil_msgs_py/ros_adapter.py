@@ -123,6 +123,25 @@ def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
 
 EXIT_BAD_CONFIG = 2
 DRAIN_LIMIT_S = 10.0  # most a stopping node may spend letting in what is in flight
+ACK_LIMIT_S = 5.0  # most a stopping node may wait for its reliable readers to acknowledge its samples
+
+
+def wait_for_acks(node: Node, limit_s: float = ACK_LIMIT_S) -> bool:
+    """Before a node's publishers go: wait (at most ``limit_s`` in all) until every reliable
+    reader acknowledged every sample. A writer's history dies with its process, so a reader
+    that fell behind (a recorder behind a lockstep graph) would otherwise never get the
+    samples its transport dropped. True if all were acknowledged in time."""
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + limit_s
+    acked = True
+    for publisher in list(node.publishers):
+        left = deadline - time.monotonic()
+        try:
+            acked &= left > 0 and publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        except Exception:  # noqa: BLE001 - best effort on the way out (a destroyed or best-effort writer)
+            continue
+    return acked
 
 
 def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
@@ -162,6 +181,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+            wait_for_acks(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return code or int(getattr(node, "exit_code", 0) or 0)
