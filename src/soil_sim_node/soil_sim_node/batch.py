@@ -29,7 +29,7 @@ from soil_physics.soils import CATALOGUE, load_soil_yaml
 
 from .effects import Effects, effects_for_mode
 from .rollout import run_episodes
-from .simulator import ENGINES, EpisodeSpec, SimConfig
+from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine
 
 # Paper §3.1 grids. 4 soils x 6 I_d x speeds x depths x 2 seeds = 576 (default) / 432 (fee).
 DEFAULT_RELATIVE_DENSITIES = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
@@ -85,8 +85,7 @@ def _chunks(specs: list[EpisodeSpec], workers: int, max_chunk: int) -> list[list
 def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True) -> dict:
     """Generate the dataset of ``plan``; returns a summary (also written as dataset.json)."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
-    if plan.engine not in ENGINES:
-        raise ValueError(f"engine={plan.engine!r} is not one of {ENGINES}")
+    check_engine(plan.engine)
     for spec in plan.specs:
         spec.resolve(plan.custom_soils)
     keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed) for s in plan.specs]

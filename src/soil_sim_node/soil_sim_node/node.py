@@ -42,6 +42,7 @@ from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
 from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
+from .simulator import check_engine as check_sim_engine
 from .warm_up import warm_up
 
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
@@ -79,9 +80,11 @@ PARAMETERS: dict[str, tuple] = {
 
 
 def check_engine(engine) -> None:
-    """ValueError naming the parameter unless ``engine`` is one of simulator.ENGINES."""
-    if engine not in ENGINES:
-        raise ValueError(f"parameter engine={engine!r} is not one of {ENGINES}")
+    """``simulator.check_engine``, its error naming the node parameter."""
+    try:
+        check_sim_engine(engine)
+    except ValueError as err:
+        raise ValueError(f"parameter {err}") from None
 
 
 class SimNode(Node):

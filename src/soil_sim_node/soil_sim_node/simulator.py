@@ -77,6 +77,12 @@ MAX_TARGET_SPEED_M_S = 2.0
 ENGINES = ("compiled", "reference")
 
 
+def check_engine(engine) -> None:
+    """ValueError naming the value unless ``engine`` is one of ENGINES."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine={engine!r} is not one of {ENGINES}")
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """One episode: soil, initial relative density, targets, seed, length."""
@@ -165,8 +171,7 @@ class SoilSimulator:
         self.config = config
         self.effects = config.resolved_effects()
         check_effect_params(self.effects)
-        if config.engine not in ENGINES:
-            raise ValueError(f"engine={config.engine!r} is not one of {ENGINES}")
+        check_engine(config.engine)
         self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
         self.engine = config.engine
         resolved = [s.resolve(custom_soils) for s in specs]
