@@ -3,13 +3,26 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import time
+from pathlib import Path
 
 from soil_bringup import launch as L
 
 
+def started(proc: subprocess.Popen, limit_s: float = 10.0) -> subprocess.Popen:
+    """Wait until the kernel shows the child's own command line. Popen returns once the exec's
+    close-on-exec step ran, but the new argument area is set up after it: a loaded machine can
+    show an empty /proc/<pid>/cmdline for a while, which is what a node that is no longer the
+    logged command looks like."""
+    deadline = time.monotonic() + limit_s
+    while not Path(f"/proc/{proc.pid}/cmdline").read_bytes() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return proc
+
+
 def test_only_nodes_still_running_their_logged_command_are_killed(tmp_path):
-    mine = subprocess.Popen(["sleep", "60"])
-    other = subprocess.Popen(["sleep", "61"])
+    mine = started(subprocess.Popen(["sleep", "60"]))
+    other = started(subprocess.Popen(["sleep", "61"]))
     try:
         log = tmp_path / "launch.log"
         log.write_text(f"[launch] started sim (pid {mine.pid}): sleep 60\n"
@@ -40,7 +53,7 @@ def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tm
         launch = L.Launch([L.NodeProcess("sleeper", ["sleep", "60"], stop_order=0)], L.loopback_env(0), out=out)
         launch.start()
     try:
-        pid = launch.nodes[0].proc.pid
+        pid = started(launch.nodes[0].proc).pid
         assert L.started_nodes(log) == {pid: ("sleeper", "sleep 60")}
         assert L.stop_logged_nodes(log) == [f"sleeper ({pid})"]
         assert launch.nodes[0].proc.wait(timeout=5) == -9
