@@ -61,6 +61,17 @@ class Dataset:
     def __len__(self) -> int:
         return len(self.names)
 
+    @classmethod
+    def from_episodes(cls, episodes, root: str = "(in memory)") -> "Dataset":
+        """Episodes simulated in this process (``soil_sim_node.rollout.run_episodes``) as a Dataset,
+        no bags involved (the forecast evaluation's own held-out episodes)."""
+        if not episodes:
+            raise ValueError("no episodes to make a dataset of")
+        names = [ep.meta.name for ep in episodes]
+        offsets = np.concatenate([[0], np.cumsum([len(ep.stamps_ns) for ep in episodes])]).astype(np.int64)
+        arrays = (np.concatenate([getattr(ep, k) for ep in episodes]) for k in ("observations", "forces", "known", "truth"))
+        return cls(names, [ep.meta for ep in episodes], offsets, *arrays, fingerprint="", root=root)
+
     def episode_rows(self, e: int) -> slice:
         return slice(int(self.offsets[e]), int(self.offsets[e + 1]))
 

@@ -8,7 +8,10 @@ On the same test windows (episodes the model never saw in training or validation
 Reports mean |F - F̂| [N] / % of measured / % of machine limits (x, z, magnitude); parameter
 errors against the pseudo-ground truth; per soil x I_d mean ± std of φ̂, ĉ, δ̂, β̂ (Figs. 5-6
 analogs); the failure force at d = 0.1 m, Q = 0 from mean estimated vs true parameters; the
-issue's targets, met or not. JSON + Markdown + PNG. Ground truth is used only to score.
+issue's targets, met or not; and the planner's question (``forecast``): from the estimates
+made at one depth, the force at another depth of the same soil, on held-out episodes the
+simulator runs at densities and depths off the training grid. JSON + Markdown + PNG.
+Ground truth is used only to score.
 """
 from __future__ import annotations
 
@@ -27,7 +30,8 @@ from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_S
 from soil_physics.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
-from .dataset import add_skip_bad_bags_option, describe, load_dataset
+from . import forecast as fc
+from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset
 from .inference import WindowTensors, force_errors, predict
 
 PARAMS = ("phi", "c", "delta", "beta")
@@ -102,8 +106,40 @@ def _trends(rows, estimator="pinn") -> dict:
     return out
 
 
+def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0) -> Dataset:
+    """Held-out episodes for the forecast: every soil at ``fc.FORECAST_DENSITIES_PCT`` x
+    ``fc.FORECAST_DEPTHS_M`` at ``fc.FORECAST_SPEED_M_S`` (all off the training grid), simulated here."""
+    import itertools
+
+    from soil_physics.soils import CATALOGUE
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    combos = itertools.product(sorted(CATALOGUE), fc.FORECAST_DENSITIES_PCT, fc.FORECAST_DEPTHS_M)
+    specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
+             for k, (soil, i_d, d) in enumerate(combos)]
+    return Dataset.from_episodes(run_episodes(SimConfig(world_mode=world), specs), root=f"(simulated, {world} world)")
+
+
+FORECAST_STRIDE = 30  # samples between the steady windows a forecast averages (0.5 s)
+
+
+def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bool = True, workers: int = 2,
+             progress: bool = False) -> dict:
+    """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares fit's θ̂."""
+    ends = fc.steady_window_ends(ds, stride)
+    out = predict(model, WindowTensors(ds), ends)
+    estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
+    if classical:
+        from .classical import fit_windows
+
+        fit = fit_windows(_windows(ends, ds.known), _windows(ends, ds.forces), workers=workers, progress=progress)
+        estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta}
+    return fc.evaluate_forecast(ds, ends, estimates)
+
+
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,
-             skip_bad_bags: bool = False, log=print) -> dict:
+             skip_bad_bags: bool = False, forecast_world: str | None = "auto", log=print) -> dict:
     """Build the report dict (see module docstring)."""
     model, ckpt = load_model(checkpoint)
     if model.cfg.kind != "pinn":
@@ -164,6 +200,13 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     }
     if physics_free:
         report["training"]["physics_free"] = free_ckpt["metrics"]
+    if forecast_world == "auto":
+        forecast_world = report["world_modes"][0] if len(report["world_modes"]) == 1 else None
+    if forecast_world:
+        t0 = time.monotonic()
+        report["forecast"] = forecast(model, forecast_dataset(forecast_world), classical=classical, workers=workers,
+                                      progress=progress)
+        timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
     return report
 
@@ -249,6 +292,9 @@ def markdown(report: dict) -> str:
                   "| soil | φ̂ slope [deg / 100 % I_d] | φ̂ Spearman | ĉ slope [kPa / 100 % I_d] | ĉ Spearman |", "|---|---|---|---|---|"]
         for s, t in report["trends"]["pinn"].items():
             lines.append(f"| {s} | {t['phi']['slope_deg_per_100pct']:.2f} | {t['phi']['spearman']:.2f} | {t['c']['slope_kPa_per_100pct']:.2f} | {t['c']['spearman']:.2f} |")
+    if report.get("forecast"):
+        lines += ["", "## Forecast: the force at another depth (the planner's question)", ""]
+        lines += fc.markdown(report["forecast"])
     lines += ["", "## Targets", "", "| target | value | limit | met |", "|---|---|---|---|"]
     for t in report["targets"]:
         lines.append(f"| {t['target']} | {_fmt(t['value'], 2)} | {t['op']} {t['limit']} | {'yes' if t['met'] else '**no**'} |")
@@ -320,6 +366,8 @@ def main(argv=None) -> int:
     p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")
+    p.add_argument("--forecast-world", default="auto", choices=("auto", "fee", "default", "none"),
+                   help="world of the held-out forecast episodes (default: the test split's; none: skip)")
     p.add_argument("--quiet", action="store_true")
     add_skip_bad_bags_option(p)
     args = p.parse_args(argv)
@@ -328,7 +376,8 @@ def main(argv=None) -> int:
             raise ValueError(f"--stride={args.stride} must be >= 1")
         report = evaluate(args.checkpoint, args.data, physics_free=args.physics_free, stride=args.stride,
                           classical=not args.no_classical, workers=args.workers, progress=not args.quiet,
-                          skip_bad_bags=args.skip_bad_bags)
+                          skip_bad_bags=args.skip_bad_bags,
+                          forecast_world=None if args.forecast_world == "none" else args.forecast_world)
     except (ValueError, FileNotFoundError) as err:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 2

@@ -1,0 +1,174 @@
+"""The planner's question as an evaluation: from estimates made while cutting at one depth,
+what force will the blade meet at another depth in the same soil?
+
+For every pair of episodes (A, B) of one soil and relative density cut at different depths:
+each estimator's soil parameters θ̂_A = (φ, c, δ), averaged over A's steady part, go through
+the FEE (β = β* of θ̂_A, Eq. 7; velocity-corrected, Eq. 9-10) at B's conditions (Θ_k
+averaged over B's steady part: d, v, Q, γ, ...), and the forecast is compared with the force
+measured over B's steady part. Reported per estimator and axis: mean |error| as % of the
+measured force, and the signed bias (forecast − measured, %), over all pairs and split into
+shallower→deeper and deeper→shallower. Two references frame the numbers: the FEE with B's
+true parameters (0 where the FEE is the world, the model gap elsewhere) and "naive: the
+force measured at A" (what knowing nothing about the soil gives).
+
+Works on any ``Dataset``: bags of a real machine cutting one soil at several depths too.
+No ROS, no torch here; the estimates are computed by the caller (``evaluate``).
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS
+from soil_physics import fee
+
+# Off the training grid (densities 0..100 step 20; depths 0.05, 0.175, 0.3 m; speeds
+# 0.3..1.0): the held-out episodes the forecast is judged on.
+FORECAST_DENSITIES_PCT = (30.0, 50.0, 70.0)
+FORECAST_DEPTHS_M = (0.1, 0.15, 0.225)
+FORECAST_SPEED_M_S = 0.6
+STEADY_FROM = 0.5  # an episode's steady part: its second half (the controller has settled)
+MIN_DEPTH_RATIO = 1.2  # pairs whose steady depths differ by less than this are not "another depth"
+REFERENCES = ("true_fee", "naive_same_force")
+_D = KNOWN_PARAMS.index("d")
+
+
+@dataclass(frozen=True)
+class Steady:
+    """One episode's steady part: mean Θ_k, measured force and (for scoring) true θ."""
+
+    soil: str
+    relative_density_pct: float
+    known: dict[str, float]
+    force: np.ndarray  # (2,) [N]
+    truth: dict[str, float]
+
+
+def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
+    """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half)."""
+    out = []
+    for e in range(len(ds)):
+        rows = np.arange(ds.offsets[e], ds.offsets[e + 1])
+        rows = rows[int(steady_from * len(rows)):]
+        rows = rows[ds.known[rows, _D] > 0]
+        if len(rows) == 0:
+            out.append(None)
+            continue
+        known = {n: float(ds.known[rows, j].mean()) for j, n in enumerate(KNOWN_PARAMS)}
+        truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
+        meta = ds.metas[e]
+        out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth))
+    return out
+
+
+def _in_steady_part(ds, ends: np.ndarray, steady_from: float) -> np.ndarray:
+    episode = ds.episode_of_rows(ends)
+    start = ds.offsets[episode] + steady_from * (ds.offsets[episode + 1] - ds.offsets[episode])
+    return (ends >= start) & (ds.known[ends, _D] > 0)
+
+
+def steady_window_ends(ds, stride: int, steady_from: float = STEADY_FROM) -> np.ndarray:
+    """End rows of the windows (one every ``stride`` samples) that end in an episode's steady part:
+    the only ones a forecast uses, so the only ones worth estimating on."""
+    ends = ds.window_ends(range(len(ds)), stride)
+    return ends[_in_steady_part(ds, ends, steady_from)]
+
+
+def steady_estimates(ds, ends: np.ndarray, estimates: dict[str, np.ndarray], steady_from: float = STEADY_FROM):
+    """Per episode, the mean of each estimate (arrays aligned with window ``ends``) over the
+    windows that end in its steady part (NaN where none)."""
+    episode = ds.episode_of_rows(ends)
+    steady = _in_steady_part(ds, ends, steady_from)
+    out = []
+    for e in range(len(ds)):
+        m = steady & (episode == e)
+        out.append({p: float(np.nanmean(v[m])) if m.any() else float("nan") for p, v in estimates.items()})
+    return out
+
+
+def fee_force_at(theta: dict[str, float], at: dict[str, float]) -> np.ndarray:
+    """(F_x, F_z) [N] of the FEE with soil θ = (φ, c, δ) at the conditions ``at`` (Θ_k means), β = β*."""
+    params = dict(at, phi=theta["phi"], c=theta["c"], delta=theta["delta"])
+    fx, fz, _ = fee.fee_xz({k: np.asarray(v, dtype=float) for k, v in params.items()})
+    return np.array([float(fx), float(fz)])
+
+
+def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]]) -> list[dict]:
+    """Every ordered pair (A → B) of one soil and density at another depth: each estimator's
+    forecast of B's force from A's θ̂, the references', and B's measured force."""
+    groups = defaultdict(list)
+    for e, part in enumerate(parts):
+        if part is not None:
+            groups[(part.soil, part.relative_density_pct)].append(e)
+    pairs = []
+    for (soil, i_d), members in sorted(groups.items()):
+        for a in members:
+            for b in members:
+                da, db = parts[a].known["d"], parts[b].known["d"]
+                if a == b or max(da, db) < MIN_DEPTH_RATIO * min(da, db):
+                    continue
+                forecast = {name: fee_force_at(theta[a], parts[b].known) for name, theta in thetas.items()}
+                forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)
+                forecast["naive_same_force"] = parts[a].force
+                pairs.append({"soil": soil, "relative_density_pct": i_d, "from_depth_m": da, "to_depth_m": db,
+                              "measured": parts[b].force, "forecast": forecast})
+    return pairs
+
+
+def _errors(pairs: list[dict], name: str, axis: int) -> dict[str, float]:
+    measured = np.array([p["measured"][axis] for p in pairs])
+    forecast = np.array([p["forecast"][name][axis] for p in pairs])
+    ok = np.isfinite(forecast) & (np.abs(measured) > 1.0)
+    rel = 100.0 * (forecast[ok] - measured[ok]) / np.abs(measured[ok])
+    if not len(rel):
+        return {"pairs": 0, "mean_abs_pct": float("nan"), "bias_pct": float("nan"), "low_pct_of_pairs": float("nan")}
+    return {"pairs": int(len(rel)), "mean_abs_pct": float(np.abs(rel).mean()), "bias_pct": float(rel.mean()),
+            "low_pct_of_pairs": float(100.0 * (rel < 0).mean())}
+
+
+def summarise(pairs: list[dict], names) -> dict:
+    """Per estimator and axis: all pairs, shallower→deeper and deeper→shallower."""
+    deeper = [p for p in pairs if p["to_depth_m"] > p["from_depth_m"]]
+    shallower = [p for p in pairs if p["to_depth_m"] < p["from_depth_m"]]
+    out = {}
+    for name in (*names, *REFERENCES):
+        out[name] = {
+            axis_name: {"all": _errors(pairs, name, axis), "deeper": _errors(deeper, name, axis),
+                        "shallower": _errors(shallower, name, axis)}
+            for axis, axis_name in enumerate(("x", "z"))
+        }
+    return out
+
+
+def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.ndarray]]) -> dict:
+    """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``."""
+    parts = steady_parts(ds)
+    thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
+    pairs = forecast_pairs(parts, thetas)
+    return {
+        "episodes": len(ds),
+        "worlds": sorted({m.world_mode for m in ds.metas}),
+        "pairs": len(pairs),
+        "steady_from": STEADY_FROM,
+        "forecast": summarise(pairs, list(estimates)),
+    }
+
+
+LABELS = {"pinn": "PINN estimates (FEE part, β*)", "classical": "classical least-squares fit (Tan 2005)",
+          "true_fee": "FEE with the true parameters", "naive_same_force": "naive: the force measured at the other depth"}
+
+
+def markdown(report: dict) -> list[str]:
+    """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and shallower."""
+    lines = [f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
+             f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
+             "training grid). Mean |error| and signed bias, % of the measured force.", "",
+             "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper |",
+             "|---|---|---|---|---|---|"]
+    for name, axes in report["forecast"].items():
+        x, z = axes["x"], axes["z"]
+        lines.append(f"| {LABELS.get(name, name)} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
+                     f"{x['shallower']['bias_pct']:+.1f} % | {z['all']['mean_abs_pct']:.1f} % | {z['deeper']['bias_pct']:+.1f} % |")
+    return lines
