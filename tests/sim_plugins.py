@@ -27,3 +27,13 @@ def matrix_force(state):
 def too_long_force(state):
     """Returns a 1-D f_x of length B + 2: wrong shape."""
     return np.zeros(len(state.d) + 2), 0.0
+
+
+SEEN_DENSITY: list[tuple[np.ndarray, np.ndarray]] = []
+
+
+def record_density(state):
+    """No force; appends (x_b, relative_density_pct) of every substep to SEEN_DENSITY, so a test
+    sees what the simulator hands its plugins."""
+    SEEN_DENSITY.append((np.array(state.x_b, dtype=float), np.array(state.relative_density_pct, dtype=float)))
+    return 0.0, 0.0

@@ -292,3 +292,41 @@ def test_regression_exponent_notation_rejected(tmp_path):
     text = VALID_ONE.replace("unit_weight_n_m3: [16000, 20000]", "unit_weight_n_m3: [16e3, 20e3]")
     s = load_soil_yaml(write(tmp_path, text))["SiltyClay"]
     assert (s.loose.gamma, s.dense.gamma) == (16e3, 20e3)
+
+
+# ------------------------------------------------------------------ named paths (soil patches along x)
+SECTIONED = """\
+soils:
+  - name: SiltyClay
+    phi_deg: [20, 30]
+    cohesion_pa: [3000, 9000]
+    unit_weight_n_m3: [16000, 20000]
+paths:
+  sand_then_clay: ["0.0:Sand:20", "5.0:SiltyClay:90"]
+  as_mappings:
+    - {x_start_m: -2, soil: gravel, relative_density_pct: 40}
+"""
+
+
+def test_sectioned_file_has_soils_and_named_paths(tmp_path):
+    from soil_msgs_py.patches import SoilPatch
+
+    loaded = soils.load_soil_file(write(tmp_path, SECTIONED))
+    assert list(loaded.soils) == ["SiltyClay"] and load_soil_yaml(write(tmp_path, SECTIONED)) == loaded.soils
+    assert loaded.paths == {"sand_then_clay": (SoilPatch(0.0, "Sand", 20.0), SoilPatch(5.0, "SiltyClay", 90.0)),
+                            "as_mappings": (SoilPatch(-2.0, "gravel", 40.0),)}
+    only_paths = soils.load_soil_file(write(tmp_path, 'paths: {a: ["0:Clay:10"]}'))
+    assert only_paths.soils == {} and list(only_paths.paths) == ["a"]
+
+
+@pytest.mark.parametrize("text, needle", [
+    (SECTIONED.replace("5.0:SiltyClay", "5.0:Peat"), r"paths\.sand_then_clay\[1\]: soil='Peat' is unknown"),
+    (SECTIONED.replace('"0.0:Sand:20"', '"6.0:Sand:20"'), r"paths\.sand_then_clay\[1\]\.x_start_m=5\.0 must be greater"),
+    (SECTIONED.replace("Sand:20", "Sand:200"), r"paths\.sand_then_clay\[0\]\.relative_density_pct=200\.0 outside"),
+    ("paths: {a: []}", r"paths\.a=\[\] must be a non-empty list"),
+    ("paths: [a]", r"paths=\['a'\] must map a path name"),
+    ("soils: []\nroads: {}", r"unknown section\(s\) \['roads'\]"),
+])
+def test_bad_paths_name_the_file_path_and_value(tmp_path, text, needle):
+    with pytest.raises(ValueError, match=rf"soil file '.*': {needle}"):
+        soils.load_soil_file(write(tmp_path, text))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from soil_msgs_py.params import MACHINE
 from soil_physics import fee
 from soil_physics.bearing import penetration_capacity
@@ -18,6 +19,7 @@ from soil_sim_node import phenomena as ph
 from soil_sim_node.effects import Effects
 from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
+from tests import sim_plugins
 
 RTOL = 1e-9
 EPISODE_FIELDS = ("observations", "forces", "known", "truth", "extras")
@@ -69,9 +71,27 @@ def test_each_effect_alone_matches_the_reference(name):
                          run_episodes(SimConfig(world_mode="default", effects=effects, engine="reference"), spec))
 
 
-def test_a_batch_row_is_the_episode_run_alone():
-    together = run_episodes(SimConfig(), SPECS)
-    for spec, row in zip(SPECS, together):
+# Soil changing along x: the blade starts at x = 2 m and crosses every boundary below in 3 s
+# (the first patch's x_start_m is before the start; patched and plain rows share a batch).
+PATCHED_SPECS = [
+    EpisodeSpec("Loam", 50.0, 0.9, 0.2, 31, 3.0, patches=("0.0:Sand:20", "2.6:Clay:90", "3.5:Gravel:60")),
+    EpisodeSpec("Loam", 50.0, 0.7, 0.25, 32, 3.0, patches=((-5.0, "Clay", 30.0), (2.9, "Loam", 100.0))),
+    EpisodeSpec("Sand", 70.0, 0.8, 0.15, 33, 3.0),
+]
+
+
+@pytest.mark.parametrize("world", ["fee", "default"])
+def test_episodes_through_soil_patches_match_the_reference(world):
+    compiled = run_episodes(SimConfig(world_mode=world), PATCHED_SPECS)
+    assert_same_episodes(compiled, run_episodes(SimConfig(world_mode=world, engine="reference"), PATCHED_SPECS))
+    for ep, spec in zip(compiled, PATCHED_SPECS):  # every boundary was crossed: one φ per patch
+        assert len(np.unique(ep.column("phi"))) == max(1, len(spec.patches))
+
+
+@pytest.mark.parametrize("specs", [SPECS, PATCHED_SPECS], ids=["one_soil", "patches"])
+def test_a_batch_row_is_the_episode_run_alone(specs):
+    together = run_episodes(SimConfig(), specs)
+    for spec, row in zip(specs, together):
         (alone,) = run_episodes(SimConfig(), [spec])
         for name in ("stamps_ns", *EPISODE_FIELDS):
             np.testing.assert_array_equal(getattr(row, name), getattr(alone, name), err_msg=name)
@@ -89,15 +109,24 @@ def test_tick_by_tick_stepping_matches_the_reference_open_loop():
 
 def _random_states(n: int, seed: int) -> tuple[list[EpisodeSpec], dict, np.ndarray, np.ndarray]:
     """n episodes in random states: in and out of the soil, sinking and rising, stalled and
-    fast, fresh and compacted, on a random terrain; and random commands."""
+    fast, fresh and compacted, on a random terrain, every other one on a random path of soil
+    patches (at or next to a boundary, with a pile of another soil); and random commands."""
     rng = np.random.default_rng(seed)
     soils = ("Clay", "Loam", "Sand", "Gravel")
-    specs = [EpisodeSpec(soils[i % 4], float(rng.uniform(0, 100)), 0.5, 0.2, int(seed * 1000 + i), 2.0) for i in range(n)]
+
+    def path(i):
+        starts = np.sort(rng.uniform(1.5, 4.5, 2))
+        return [(0.0, soils[(i + 1) % 4], float(rng.uniform(0, 100)))] + [
+            (float(x), soils[(i + k) % 4], float(rng.uniform(0, 100))) for k, x in enumerate(starts, 2)]
+
+    specs = [EpisodeSpec(soils[i % 4], float(rng.uniform(0, 100)), 0.5, 0.2, int(seed * 1000 + i), 2.0,
+                         patches=path(i) if i % 2 else ()) for i in range(n)]
     state = {
         "x_c": rng.uniform(0.0, 2.0, n), "vx_c": rng.uniform(-0.3, 1.5, n), "z_c": rng.uniform(-0.1, 0.05, n),
         "vz_c": rng.uniform(-0.2, 0.2, n), "z_rel": rng.uniform(-0.35, 0.1, n), "vz_rel": rng.uniform(-0.5, 0.5, n),
         "u_e": rng.uniform(0.0, 5e-3, n), "grip": rng.uniform(0.1, 1.0, n), "grip_tau": rng.uniform(0.01, 0.08, n),
         "pile_m3": rng.uniform(0.0, 0.45, n), "distance_in_soil": rng.uniform(0.0, 8.0, n),
+        "pile_gamma": rng.uniform(15e3, 21e3, n), "dist_entry": rng.uniform(0.0, 1.0, n),
     }
     u = np.stack([rng.uniform(MACHINE.blade_min_rel_m - 0.1, 0.2, n), np.zeros(n), rng.uniform(-0.5, 2.5, n)], axis=1)
     return specs, state, rng.uniform(-0.2, 0.02, (n, 1)), u
@@ -165,6 +194,53 @@ def test_user_plugins_between_the_kernel_halves_match_the_reference(world, plugi
     assert_same_episodes(compiled, run_episodes(SimConfig(world_mode=world, plugins=plugins, engine="reference"), specs))
     plain = run_episodes(SimConfig(world_mode=world), specs)
     assert not np.allclose(compiled[0].forces, plain[0].forces)  # the plugin does act
+
+
+@pytest.mark.parametrize("engine", ["compiled", "reference"])
+def test_plugins_see_the_soil_patch_under_the_edge(engine):
+    """``ForceInputs.relative_density_pct`` is the I_d of the patch under the edge."""
+    sim_plugins.SEEN_DENSITY.clear()
+    run_episodes(SimConfig(world_mode="fee", engine=engine, plugins=("tests.sim_plugins:record_density",)),
+                 [EpisodeSpec("Loam", 50.0, 0.9, 0.2, 31, 1.5, patches=("0.0:Sand:20", "2.4:Clay:90", "2.8:Gravel:60"))])
+    x, i_d = (np.concatenate(v) for v in zip(*sim_plugins.SEEN_DENSITY))
+    want = np.where(x < 2.4, 20.0, np.where(x < 2.8, 90.0, 60.0))
+    np.testing.assert_array_equal(i_d, want)
+    assert x.max() > 2.9
+
+
+DITHER = AntiStallGains(dither_amplitude_m=0.05, dither_period_s=2.0)
+
+
+def test_controller_step_is_the_controller_core_with_the_depth_dither():
+    rng = np.random.default_rng(7)
+    n = 400
+    v, pz = rng.uniform(-0.2, 1.0, n), rng.uniform(-0.4, 0.1, n)
+    v[::37], pz[::53] = np.nan, np.inf  # held state
+    core = AntiStallController(DITHER, 0.6, 0.15)
+    row = np.array([DITHER.k_v_m_s, DITHER.c_vx, DITHER.delta_d_max_m, DITHER.dt_s, DITHER.dither_amplitude_m,
+                    DITHER.dither_period_s])
+    assert (kernel.C_DITHER_A, kernel.C_DITHER_T, kernel.N_GAINS) == (4, 5, 6)
+    ctl, command = np.zeros(3), np.array([0.0, 0.0, 0.0, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m])
+    for k in range(n):
+        want = core.step(v[k], pz[k])
+        kernel.controller_step(row, 0.6, 0.15, ctl, v[k], pz[k], command)
+        assert tuple(command[:3]) == (want.u_zr[0], want.u_za[0], want.u_x[0]), k
+
+
+@pytest.mark.parametrize("world", ["fee", "default"])
+def test_depth_dither_sweeps_the_cut_depth_in_both_engines(world):
+    """Dither on: the achieved depth swings by about ±A around the target; off: it holds."""
+    spec = [EpisodeSpec("Loam", 20.0, 0.5, 0.2, 3, 4.0)]  # soft soil: no anti-stall offset
+    compiled = run_episodes(SimConfig(world_mode=world), spec, gains=DITHER)
+    assert_same_episodes(compiled, run_episodes(SimConfig(world_mode=world, engine="reference"), spec, gains=DITHER))
+    (off,) = run_episodes(SimConfig(world_mode=world), spec)
+
+    def half_swing(ep):  # over the last 2 s: one dither period
+        d = ep.column("d")[120:]
+        return (np.percentile(d, 97.5) - np.percentile(d, 2.5)) / 2
+
+    assert abs(half_swing(compiled[0]) - DITHER.dither_amplitude_m) < 0.2 * DITHER.dither_amplitude_m
+    assert half_swing(off) < 0.1 * DITHER.dither_amplitude_m
 
 
 def test_the_engine_is_checked():

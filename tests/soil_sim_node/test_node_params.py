@@ -30,3 +30,11 @@ def test_unknown_engine_is_refused_naming_the_parameter_and_value(bad):
 def test_engine_can_only_be_set_at_start_up():
     result = SimNode._on_set_parameters(None, [Parameter("engine", value="reference")])
     assert not result.successful and "engine" in result.reason and "start-up" in result.reason
+
+
+def test_patches_parameter_defaults_to_none_and_is_refused_with_a_sequence_plan():
+    assert PARAMETERS["patches"][0] == []
+    SimNode._validate_static({**defaults(), "patches": ["0:Sand:20", "5:Clay:90"]})
+    for plan in ("sequence_soils", "sequence_relative_densities_pct"):
+        with pytest.raises(ValueError, match=rf"parameter patches=\['0:Sand:20'\] cannot be combined with {plan}"):
+            SimNode._validate_static({**defaults(), "patches": ["0:Sand:20"], plan: ["Clay"]})

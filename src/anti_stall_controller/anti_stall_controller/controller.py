@@ -42,6 +42,16 @@ Interpretation choices of this implementation (the paper leaves these open):
 
 3. Chassis velocity command u_x = v̄_x (the paper's motorized velocity constraint tracks it).
 
+4. Depth dither (ours, off by default). The depth target of Eq. 12 may carry a sinusoid,
+
+       d̄_z(t_k) = d̄_z + A sin(2π t_k / T),   t_k = k · dt,
+
+   k the steps since ``reset`` (an episode's ticks), A = ``dither_amplitude_m``, T =
+   ``dither_period_s``: the cut depth then sweeps ±A around the target, so one episode shows
+   the soil's force over a range of depths (richer data for estimating the soil), not at one
+   depth only. Eq. 11's offset and its clip are unchanged; with A = 0 the commands are Eq. 12's
+   to the bit.
+
 Batches: every target and state is a float64 array of shape (B,), one entry per episode
 (scalars broadcast). All arithmetic is element-wise IEEE +, −, ×, ÷ and clipping in a fixed
 order, so row i of a batch is bit-identical to running that row alone with B = 1.
@@ -87,12 +97,17 @@ class AntiStallGains:
     delta_d_max_m:  Δd̄_max, how far above the surface the blade may be raised [m]: the
                     offset is clipped to [0, d̄_z + Δd̄_max] (Eq. 11). >= 0.
     dt_s:           integration step [s], default one 60 Hz tick. > 0.
+    dither_amplitude_m: A, amplitude of the depth dither [m] (module docstring, item 4);
+                    0 (default) switches it off, a few cm when on. >= 0.
+    dither_period_s: T, period of the depth dither [s]. > 0.
     """
 
     k_v_m_s: float = 0.5
     c_vx: float = 0.2
     delta_d_max_m: float = 0.05
     dt_s: float = 1.0 / SAMPLE_RATE_HZ
+    dither_amplitude_m: float = 0.0
+    dither_period_s: float = 2.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -100,6 +115,8 @@ class AntiStallGains:
             ("c_vx", 0.0, False, "[0, inf)"),
             ("delta_d_max_m", 0.0, False, "[0, inf)"),
             ("dt_s", 0.0, True, "(0, inf)"),
+            ("dither_amplitude_m", 0.0, False, "[0, inf)"),
+            ("dither_period_s", 0.0, True, "(0, inf)"),
         )
         for name, lo, lo_open, allowed in checks:
             value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed)
@@ -108,6 +125,10 @@ class AntiStallGains:
     def paper_step_gain(self, target_speed_m_s):
         """The paper's per-step gain K_Δp,paper = K_v · dt / v̄_x (Eq. 11 as printed)."""
         return self.k_v_m_s * self.dt_s / np.asarray(target_speed_m_s, dtype=np.float64)
+
+    def dither_m(self, steps: int) -> float:
+        """The depth dither A sin(2π k dt / T) at step k since reset [m] (item 4)."""
+        return self.dither_amplitude_m * math.sin(2.0 * math.pi * (steps * self.dt_s) / self.dither_period_s)
 
 
 class ControlCommand(NamedTuple):
@@ -188,6 +209,7 @@ class AntiStallController:
         self._depth = depth
         self._offset = np.zeros(self._batch_size)
         self._last_p_z_c = np.zeros(self._batch_size)
+        self._steps = 0  # since reset: the dither's clock
 
     # ------------------------------------------------------------------ properties
     @property
@@ -223,6 +245,7 @@ class AntiStallController:
             raise ValueError(f"depth_offset_m must be finite; got {offset!r}")
         self._offset = np.clip(offset, 0.0, self.offset_upper_bound_m())
         self._last_p_z_c = np.zeros(self._batch_size)
+        self._steps = 0
 
     def set_targets(self, target_speed_m_s=None, target_depth_m=None) -> None:
         """Change v̄_x and/or d̄_z at run time (None keeps the current value).
@@ -276,8 +299,10 @@ class AntiStallController:
         pz_finite = np.isfinite(pz)
         self._last_p_z_c = np.where(pz_finite, pz, self._last_p_z_c)
 
-        # Eq. 12 as an absolute target (item 2), then the joint command relative to p_z^c.
-        u_za = -(self._depth - self._offset)
+        # Eq. 12 as an absolute target (item 2) with the dithered depth target (item 4), then
+        # the joint command relative to p_z^c.
+        u_za = -((self._depth + g.dither_m(self._steps)) - self._offset)
+        self._steps += 1
         u_zr = np.clip(u_za - self._last_p_z_c, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m)
         u_x = speed.copy()  # item 3
         return ControlCommand(u_zr=u_zr, u_za=u_za, u_x=u_x)

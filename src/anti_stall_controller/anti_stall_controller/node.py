@@ -34,9 +34,12 @@ PARAMETERS: dict[str, tuple] = {
     "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
     "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
     "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
+    "dither_amplitude_m": (_GAINS.dither_amplitude_m, "depth dither: amplitude A of a sinusoid added to the target "
+                                                      "depth [m], >= 0; 0 = off, a few cm when on"),
+    "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], > 0"),
     "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
 }
-GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m")
+GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
 MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
 # How far past the last answered tick a state stamp is still plausible (ticks lost on the way),

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
+from .patches import SoilPatch, check_patches, patches_tag
 
 WORLD_MODES = ("fee", "default")
 EPISODE_SCHEMA_VERSION = 1
@@ -22,7 +23,12 @@ EXTRA_FIELDS: tuple[str, ...] = ("p_x_c", "v_x_b")
 
 @dataclass
 class EpisodeMeta:
-    """What a user needs to know about how an episode was made (stored in the bag)."""
+    """What a user needs to know about how an episode was made (stored in the bag).
+
+    ``patches``: the soil along the path (``patches.py``), as ``SoilPatch.as_dict()`` mappings;
+    empty (and then absent from the JSON, as in bags made before patches existed) when the
+    episode has one soil. With patches, ``soil`` and ``relative_density_pct`` are the first patch's.
+    """
 
     soil: str
     relative_density_pct: float
@@ -35,6 +41,11 @@ class EpisodeMeta:
     plugins: list[str] = field(default_factory=list)
     source: str = "soil_sim_batch"
     schema_version: int = EPISODE_SCHEMA_VERSION
+    patches: list[dict] = field(default_factory=list)
+
+    def soil_patches(self) -> tuple[SoilPatch, ...]:
+        """The path as SoilPatch values (validated); () for a one-soil episode."""
+        return check_patches(self.patches)
 
     def validate(self) -> None:
         """Raise ValueError naming the field and value if the metadata is not usable."""
@@ -52,9 +63,17 @@ class EpisodeMeta:
             raise ValueError(f"target_speed_m_s={self.target_speed_m_s} must be > 0 m/s")
         if self.duration_s <= 0.0:
             raise ValueError(f"duration_s={self.duration_s} must be > 0 s")
+        if not isinstance(self.patches, (list, tuple)):
+            raise ValueError(f"patches={self.patches!r} must be a list of patches")
+        self.soil_patches()
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True)
+        data = asdict(self)
+        if not self.patches:  # a one-soil episode's metadata stays what it was before patches
+            del data["patches"]
+        else:
+            data["patches"] = [p.as_dict() for p in self.soil_patches()]
+        return json.dumps(data, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> "EpisodeMeta":
@@ -71,6 +90,7 @@ class EpisodeMeta:
         return (
             f"{self.world_mode}_{self.soil.lower()}_id{self.relative_density_pct:03.0f}"
             f"_v{self.target_speed_m_s:.2f}_d{self.target_depth_m:.3f}_s{self.seed}"
+            + (f"_{patches_tag(self.patches)}" if self.patches else "")
         )
 
 

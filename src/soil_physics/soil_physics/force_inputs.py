@@ -44,7 +44,7 @@ class ForceInputs:
     dt: Any = None  # physics substep [s] (simulator only)
     x_b: Any = None  # blade edge x [m] (simulator only)
     z_b: Any = None  # blade edge z [m] (simulator only)
-    relative_density_pct: Any = None  # initial relative density I_d [%] (simulator only)
+    relative_density_pct: Any = None  # nominal I_d [%] of the soil (patch) under the edge (simulator only)
 
     @classmethod
     def from_known(cls, known, *, phi, c, delta, distance_in_soil, f_fee_x, f_fee_z, d=None) -> "ForceInputs":

@@ -26,6 +26,14 @@ A user can add a soil from YAML (``load_soil_yaml``)::
     phi_deg: [20, 30]           # loose, dense
     cohesion_pa: [3000, 9000]
     unit_weight_n_m3: [16000, 20000]
+
+(or a list of such mappings), and name paths whose soil changes along x (``load_soil_file``;
+``soil_msgs_py.patches``) with two sections::
+
+    soils:                      # optional: the custom soils, as above (one mapping or a list)
+      - {name: SiltyClay, phi_deg: [20, 30], cohesion_pa: [3000, 9000], unit_weight_n_m3: [16000, 20000]}
+    paths:                      # name -> patches 'x_start_m:soil:relative_density_pct', ordered by x
+      sand_then_clay: ["0.0:Sand:20", "5.0:SiltyClay:90"]
 """
 from __future__ import annotations
 
@@ -37,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG, TABLE1
+from soil_msgs_py.patches import SoilPatch, check_patches
 
 
 @dataclass(frozen=True)
@@ -138,8 +147,21 @@ def soil_from_dict(data: dict) -> SoilType:
     return _soil(name.strip(), phi, c, gamma, str(data.get("source", "user YAML")))
 
 
-def load_soil_yaml(path: str | Path) -> dict[str, SoilType]:
-    """Load one soil (a mapping) or several (a list of mappings) from a YAML file."""
+@dataclass(frozen=True)
+class SoilFile:
+    """What a soils YAML holds: custom soils by name and named paths (patches along x)."""
+
+    soils: dict[str, SoilType]
+    paths: dict[str, tuple[SoilPatch, ...]]
+
+
+SECTIONS = ("soils", "paths")
+
+
+def load_soil_file(path: str | Path) -> SoilFile:
+    """Load a soils YAML: one soil (a mapping), several (a list), or the sectioned form with
+    ``soils:`` and/or ``paths:`` (module docstring). Every path's soils must be catalogue soils
+    or soils of the file; errors name the file, the entry and the value."""
     import yaml
 
     path = Path(path)
@@ -149,11 +171,41 @@ def load_soil_yaml(path: str | Path) -> dict[str, SoilType]:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
-    items = data if isinstance(data, list) else [data]
+    sectioned = isinstance(data, dict) and "name" not in data and bool(set(data) & set(SECTIONS))
+    if sectioned:
+        unknown = sorted(set(data) - set(SECTIONS))
+        if unknown:
+            raise ValueError(f"soil file {str(path)!r}: unknown section(s) {unknown}; known: {list(SECTIONS)}")
+        items, raw_paths = data.get("soils") or [], data.get("paths") or {}
+    else:
+        items, raw_paths = data, {}
     soils = []
-    for index, item in enumerate(items):
+    for index, item in enumerate(items if isinstance(items, list) else [items]):
         try:
             soils.append(soil_from_dict(item))
         except ValueError as exc:
             raise ValueError(f"soil file {str(path)!r}, entry {index}: {exc}") from exc
-    return {s.name: s for s in soils}
+    custom = {s.name: s for s in soils}
+    if not isinstance(raw_paths, dict):
+        raise ValueError(f"soil file {str(path)!r}: paths={raw_paths!r} must map a path name to its patches")
+    paths = {}
+    for name, entries in raw_paths.items():
+        where = f"paths.{name}"
+        try:
+            if not isinstance(entries, list) or not entries:
+                raise ValueError(f"{where}={entries!r} must be a non-empty list of patches")
+            patches = check_patches(entries, where)
+            for i, p in enumerate(patches):
+                try:
+                    get_soil(p.soil, custom)
+                except ValueError as exc:
+                    raise ValueError(f"{where}[{i}]: {exc}") from None
+        except ValueError as exc:
+            raise ValueError(f"soil file {str(path)!r}: {exc}") from None
+        paths[str(name)] = patches
+    return SoilFile(custom, paths)
+
+
+def load_soil_yaml(path: str | Path) -> dict[str, SoilType]:
+    """The custom soils of a soils YAML (``load_soil_file``) by name."""
+    return load_soil_file(path).soils

@@ -8,6 +8,7 @@ The defaults reproduce the paper's sizes: 576 episodes in `default` (D_default),
 
     soil_sim_batch --mode default --out bags/d_default
     soil_sim_batch --mode fee --out bags/d_fee --workers 2
+    soil_sim_batch --patch 0:Sand:20 --patch 5:Clay:90 --out bags/sand_clay   # soil changing along x
 """
 from __future__ import annotations
 
@@ -25,7 +26,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import write_episode
-from soil_physics.soils import CATALOGUE, load_soil_yaml
+from soil_msgs_py.patches import check_patches
+from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
 from .effects import Effects, effects_for_mode
 from .rollout import run_episodes
@@ -55,11 +57,12 @@ class DatasetPlan:
         return SimConfig(world_mode=self.mode, effects=self.effects, plugins=self.plugins, engine=self.engine)
 
 
-def grid_specs(soils, relative_densities, speeds, depths, n_seeds, seed_base, duration_s) -> list[EpisodeSpec]:
-    """Full factorial grid; every episode gets its own seed (seed_base + index)."""
+def grid_specs(soils, relative_densities, speeds, depths, n_seeds, seed_base, duration_s, patches=()) -> list[EpisodeSpec]:
+    """Full factorial grid; every episode gets its own seed (seed_base + index) and ``patches``
+    (with patches, give the first patch's soil and I_d as the only soil and density)."""
     combos = itertools.product(soils, relative_densities, speeds, depths, range(n_seeds))
     return [
-        EpisodeSpec(soil, float(i_d), float(v), float(d), seed=seed_base + k, duration_s=duration_s)
+        EpisodeSpec(soil, float(i_d), float(v), float(d), seed=seed_base + k, duration_s=duration_s, patches=patches)
         for k, (soil, i_d, v, d, _) in enumerate(combos)
     ]
 
@@ -86,9 +89,9 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     """Generate the dataset of ``plan``; returns a summary (also written as dataset.json)."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
     check_engine(plan.engine)
-    for spec in plan.specs:
-        spec.resolve(plan.custom_soils)
-    keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed) for s in plan.specs]
+    resolved = [spec.resolve(plan.custom_soils)[0] for spec in plan.specs]
+    keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed, s.patches)
+            for s in resolved]
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
     workers = workers or os.cpu_count() or 1
@@ -112,6 +115,11 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
                 bar.update(len(done))
     bar.close()
     wall = time.perf_counter() - start
+    paths = []  # the distinct soil paths (patches) of the episodes
+    for spec in resolved:
+        path = [patch.as_dict() for patch in spec.patches]
+        if path and path not in paths:
+            paths.append(path)
     summary = {
         "mode": plan.mode,
         "episodes": len(results),
@@ -122,6 +130,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         "engine": plan.engine,
         "effects": plan.effects.enabled(),
         "plugins": [str(p) for p in plan.plugins],
+        **({"soil_paths": paths} if paths else {}),
         "episode_names": sorted(n for n, _ in results),
     }
     tmp = plan.out / "dataset.json.partial"
@@ -142,9 +151,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--mode", choices=("fee", "default"), default="default", help="world mode (default: default)")
     p.add_argument("--out", type=Path, help="output directory (default: bags/d_<mode>)")
-    p.add_argument("--soils", default=",".join(CATALOGUE), help="comma-separated soil names")
-    p.add_argument("--soil-file", type=Path, help="YAML with custom soil(s), usable in --soils")
-    p.add_argument("--relative-densities", default=",".join(f"{x:g}" for x in DEFAULT_RELATIVE_DENSITIES), help="I_d grid [%%]")
+    p.add_argument("--soils", help=f"comma-separated soil names (default: {','.join(CATALOGUE)})")
+    p.add_argument("--soil-file", type=Path, help="YAML with custom soil(s), usable in --soils, and named paths (--path)")
+    p.add_argument("--relative-densities",
+                   help=f"I_d grid [%%] (default: {','.join(f'{x:g}' for x in DEFAULT_RELATIVE_DENSITIES)})")
+    p.add_argument("--patch", action="append", default=[], metavar="X:SOIL:ID",
+                   help="a soil patch along the path, from blade edge x = X [m] on: SOIL at I_d = ID [%%]; repeat in "
+                        "order of x (the first also covers everything before the second). Every episode cuts through "
+                        "them; replaces --soils and --relative-densities")
+    p.add_argument("--path", metavar="NAME", help="the patches of the path NAME in --soil-file's 'paths:' section (like --patch)")
     p.add_argument("--speeds", help="target speeds [m/s] (default: 4 values in 0.3-1.0 for default, 3 for fee)")
     p.add_argument("--depths", default=",".join(f"{x:g}" for x in GRID_DEPTHS), help="target depths [m]")
     p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="repetitions of each grid point")
@@ -160,8 +175,39 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _patches_from_args(args: argparse.Namespace, paths: dict, custom: dict) -> tuple:
+    """The soil patches every episode cuts through (``--patch`` or ``--path``), () if none."""
+    if args.patch and args.path:
+        raise ValueError(f"--patch {args.patch} and --path={args.path!r} both give the patches: use one")
+    if args.path:
+        if args.path not in paths:
+            where = f"--soil-file {str(args.soil_file)!r}" if args.soil_file else "no --soil-file"
+            raise ValueError(f"--path={args.path!r} is not a path of {where}; its paths: {sorted(paths)}")
+        patches = paths[args.path]
+    else:
+        patches = check_patches(args.patch, "--patch")
+        for i, patch in enumerate(patches):
+            try:
+                get_soil(patch.soil, custom)
+            except ValueError as err:
+                raise ValueError(f"--patch[{i}]={args.patch[i]!r}: {err}") from None
+    grid = [f"--{name}" for name in ("soils", "relative_densities") if getattr(args, name) is not None]
+    if patches and grid:
+        raise ValueError(f"{' and '.join(g.replace('_', '-') for g in grid)} cannot be combined with --patch or "
+                         "--path: the patches set the soil along the path")
+    return patches
+
+
 def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
-    custom = load_soil_yaml(args.soil_file) if args.soil_file else {}
+    soil_file = load_soil_file(args.soil_file) if args.soil_file else None
+    custom = soil_file.soils if soil_file else {}
+    patches = _patches_from_args(args, soil_file.paths if soil_file else {}, custom)
+    if patches:
+        soils, relative_densities = [patches[0].soil], [patches[0].relative_density_pct]
+    else:
+        soils = [s.strip() for s in (args.soils or ",".join(CATALOGUE)).split(",") if s.strip()]
+        relative_densities = (_floats(args.relative_densities, "relative-densities") if args.relative_densities
+                              else DEFAULT_RELATIVE_DENSITIES)
     effects = effects_for_mode(args.mode)
     off = [x.strip() for x in args.effects_off.split(",") if x.strip()]
     if off:
@@ -169,15 +215,8 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     speeds = _floats(args.speeds, "speeds") if args.speeds else GRID_SPEEDS[args.mode]
     if args.seeds < 1:
         raise ValueError(f"seeds={args.seeds} must be >= 1")
-    specs = grid_specs(
-        [s.strip() for s in args.soils.split(",") if s.strip()],
-        _floats(args.relative_densities, "relative-densities"),
-        speeds,
-        _floats(args.depths, "depths"),
-        args.seeds,
-        args.seed_base,
-        args.duration,
-    )
+    specs = grid_specs(soils, relative_densities, speeds, _floats(args.depths, "depths"), args.seeds, args.seed_base,
+                       args.duration, patches)
     out = args.out or Path("bags") / f"d_{args.mode}"
     return DatasetPlan(args.mode, out, specs, effects, tuple(args.plugin), custom, args.overwrite, args.engine)
 

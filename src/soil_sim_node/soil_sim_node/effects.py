@@ -65,9 +65,10 @@ class Effects:
                      disturbances that make the force oscillate (paper §2.1.2, Fig. 3).
     compaction       the soil ahead is densified as the blade pushes: the relative density
                      in effect rises towards 100 % with distance in soil,
-                     I_d' = I_d + (100 - I_d) k (1 - exp(-s / s_c)); phi, c, gamma follow
-                     the catalogue. The published pseudo-ground truth keeps the initial
-                     values, like Vortex (§3.1).
+                     I_d' = I_d + (100 - I_d) k (1 - exp(-s / s_c)), s the travel in soil
+                     since the edge entered its soil patch (the whole episode without
+                     patches); phi, c, gamma follow the catalogue. The published
+                     pseudo-ground truth keeps the nominal I_d's values, like Vortex (§3.1).
     noise            white Gaussian noise on the measured force (x, z) [N].
     """
 

@@ -19,7 +19,9 @@ reference's order (per tick: ``substeps x 3`` uniforms, then two standard normal
 noise); Numba draws the same stream from the same bit generator and advances its state.
 
 Layouts (float64 arrays): ``state`` per episode (``S_*`` indices), ``episode`` constants per
-episode (``E_*``), ``params`` shared by the batch (``P_*``), built by ``SoilSimulator``.
+episode (``E_*``, then ``E_N_PATCHES`` soil patches of ``N_PATCH`` columns each, ``K_*``
+within a patch; an episode without patches has one), ``params`` shared by the batch (``P_*``),
+built by ``SoilSimulator``.
 """
 from __future__ import annotations
 
@@ -31,14 +33,19 @@ import numpy as np
 from soil_physics.bearing import PHI_MIN_RAD
 from soil_physics.fee import SIN_ETA_FLOOR
 
-# --- per-episode state
-S_X_C, S_VX_C, S_Z_C, S_VZ_C, S_Z_REL, S_VZ_REL, S_U_E, S_GRIP, S_GRIP_TAU, S_PILE, S_DIST = range(11)
-N_STATE = 11
+# --- per-episode state (S_PATCH: the patch the soil half uses; S_DIST_ENTRY: S_DIST when the
+# edge entered it; S_PILE_GAMMA: the surcharge pile's mean unit weight [N/m^3])
+(S_X_C, S_VX_C, S_Z_C, S_VZ_C, S_Z_REL, S_VZ_REL, S_U_E, S_GRIP, S_GRIP_TAU, S_PILE, S_DIST,
+ S_PATCH, S_DIST_ENTRY, S_PILE_GAMMA) = range(14)
+N_STATE = 14
 
-# --- per-episode constants
-(E_I_D0, E_PHI_LOOSE, E_C_LOOSE, E_GAMMA_LOOSE, E_PHI_DENSE, E_C_DENSE, E_GAMMA_DENSE,
- E_PHI0, E_C0, E_GAMMA0, E_DELTA, E_C_A) = range(12)
-N_EPISODE = 12
+# --- per-episode constants (the world's, not the soil's), then the soil patches
+E_DELTA, E_C_A, E_N_PATCHES = range(3)
+N_EPISODE = 3
+# --- one soil patch: where it starts (edge x [m]), its I_d [%], catalogue ends, nominal phi, c, gamma
+(K_X_START, K_I_D, K_PHI_LOOSE, K_C_LOOSE, K_GAMMA_LOOSE, K_PHI_DENSE, K_C_DENSE, K_GAMMA_DENSE,
+ K_PHI0, K_C0, K_GAMMA0) = range(11)
+N_PATCH = 11
 
 # --- shared parameters (dynamics, machine, effects; switches as 0.0 / 1.0)
 (P_DT, P_SUBSTEPS, P_MOTOR_GAIN, P_JOINT_K, P_JOINT_C, P_CHASSIS_OMEGA, P_SOIL_K, P_SOIL_C,
@@ -52,12 +59,12 @@ N_EPISODE = 12
 N_PARAMS = 49
 
 # --- what a substep hands to user plugins between its soil and machine halves (``ForceInputs``)
-(F_X_B, F_Z_B, F_V_X, F_V_Z, F_D, F_Q, F_PHI, F_C, F_GAMMA, F_FEE_X, F_FEE_Z, F_X, F_Z) = range(13)
-N_FORCE_INPUTS = 13
+(F_X_B, F_Z_B, F_V_X, F_V_Z, F_D, F_Q, F_PHI, F_C, F_GAMMA, F_FEE_X, F_FEE_Z, F_X, F_Z, F_I_D) = range(14)
+N_FORCE_INPUTS = 14
 
 # --- controller (Eq. 11-12): gains and per-episode targets
-C_K_V, C_C_VX, C_DELTA_D_MAX, C_DT = range(4)
-N_GAINS = 4
+C_K_V, C_C_VX, C_DELTA_D_MAX, C_DT, C_DITHER_A, C_DITHER_T = range(6)
+N_GAINS = 6
 
 # --- velocity history (paper §3.1: v averaged over this many samples)
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
@@ -166,21 +173,46 @@ def depth(s, terrain, p):
 
 
 @numba.njit(**_JIT)
-def soil_in_effect(s, e, p):
-    """(phi, c, gamma) at the compacted relative density (``SoilSimulator.soil_in_effect``)."""
-    i_d = e[E_I_D0]
+def patch_at(e, x):
+    """Index of the soil patch at edge x [m] (``SoilSimulator.patch_at``): the last whose start
+    is <= x; the first patch also holds before the second's start."""
+    j = 0
+    for k in range(1, int(e[E_N_PATCHES])):
+        if x >= e[N_EPISODE + k * N_PATCH + K_X_START]:
+            j = k
+    return j
+
+
+@numba.njit(**_JIT)
+def enter_patch(s, e, p):
+    """The column offset of the patch under the edge now (``SoilSimulator._enter_patch``);
+    when the edge has crossed into another patch, its compaction starts from its own I_d."""
+    j = patch_at(e, s[S_X_C] + p[P_BLADE_OFFSET])
+    if j != int(s[S_PATCH]):
+        s[S_PATCH] = j
+        s[S_DIST_ENTRY] = s[S_DIST]
+    return N_EPISODE + j * N_PATCH
+
+
+@numba.njit(**_JIT)
+def soil_in_effect(s, e, p, o):
+    """(phi, c, gamma) of patch ``o`` (column offset) at the compacted relative density
+    (``SoilSimulator.soil_in_effect``)."""
+    i_d = e[o + K_I_D]
     if p[P_COMPACTION] != 0.0:
-        i_d = i_d + (100.0 - i_d) * p[P_COMPACTION_GAIN] * (1.0 - math.exp(-s[S_DIST] / p[P_COMPACTION_LENGTH]))
+        i_d = i_d + (100.0 - i_d) * p[P_COMPACTION_GAIN] * (
+            1.0 - math.exp(-(s[S_DIST] - s[S_DIST_ENTRY]) / p[P_COMPACTION_LENGTH]))
     frac = i_d / 100.0
-    phi = e[E_PHI_LOOSE] + (e[E_PHI_DENSE] - e[E_PHI_LOOSE]) * frac
-    c = e[E_C_LOOSE] + (e[E_C_DENSE] - e[E_C_LOOSE]) * frac
-    gamma = e[E_GAMMA_LOOSE] + (e[E_GAMMA_DENSE] - e[E_GAMMA_LOOSE]) * frac
+    phi = e[o + K_PHI_LOOSE] + (e[o + K_PHI_DENSE] - e[o + K_PHI_LOOSE]) * frac
+    c = e[o + K_C_LOOSE] + (e[o + K_C_DENSE] - e[o + K_C_LOOSE]) * frac
+    gamma = e[o + K_GAMMA_LOOSE] + (e[o + K_GAMMA_DENSE] - e[o + K_GAMMA_LOOSE]) * frac
     return phi, c, gamma
 
 
 @numba.njit(**_JIT)
-def surcharge_n(s, e, p):
-    return e[E_GAMMA0] * s[S_PILE] if p[P_SURCHARGE] != 0.0 else 0.0
+def surcharge_n(s, p):
+    """Weight of the surcharge pile Q [N]: its volume times its mean unit weight."""
+    return s[S_PILE_GAMMA] * s[S_PILE] if p[P_SURCHARGE] != 0.0 else 0.0
 
 
 @numba.njit(**_JIT)
@@ -203,8 +235,9 @@ def substep_soil(s, e, terrain, p, u0, u1, u2, f):
     vx = s[S_VX_C]
     d = depth(s, terrain, p)
     in_soil = d > 0
-    phi, c, gamma = soil_in_effect(s, e, p)
-    q = surcharge_n(s, e, p)
+    o = enter_patch(s, e, p)
+    phi, c, gamma = soil_in_effect(s, e, p, o)
+    q = surcharge_n(s, p)
 
     # FEE failure force (Eq. 2-10) and its direction (Eq. 8)
     scale = fee_velocity_scale(rho, alpha, vx, vz_b, p[P_FEE_GAIN])
@@ -248,7 +281,7 @@ def substep_soil(s, e, terrain, p, u0, u1, u2, f):
         fx, fz = fx + f_n * n_x, fz + f_n * n_z
     f[F_X_B], f[F_Z_B] = s[S_X_C] + p[P_BLADE_OFFSET], s[S_Z_C] + s[S_Z_REL]
     f[F_V_X], f[F_V_Z], f[F_D], f[F_Q] = vx, vz_b, d, q
-    f[F_PHI], f[F_C], f[F_GAMMA] = phi, c, gamma
+    f[F_PHI], f[F_C], f[F_GAMMA], f[F_I_D] = phi, c, gamma, e[o + K_I_D]
     f[F_X], f[F_Z] = fx, fz
 
 
@@ -306,7 +339,11 @@ def substep_machine(s, e, terrain, p, probes, u_zr, u_x, f):
     if p[P_SURCHARGE] != 0.0:
         cap = p[P_PILE_CAPACITY]
         inflow = w * max(d, 0.0) * advance * (1.0 - s[S_PILE] / cap)
-        s[S_PILE] = _clip(s[S_PILE] + inflow - s[S_PILE] * dt / p[P_SHED_TIME], 0.0, cap)
+        kept = s[S_PILE] + inflow - s[S_PILE] * dt / p[P_SHED_TIME]
+        if inflow > 0.0 and kept > 0.0:  # the cut soil mixes into the pile (``SoilSimulator._substep``)
+            gamma_cut = e[N_EPISODE + int(s[S_PATCH]) * N_PATCH + K_GAMMA0]
+            s[S_PILE_GAMMA] = s[S_PILE_GAMMA] + (gamma_cut - s[S_PILE_GAMMA]) * (inflow / kept)
+        s[S_PILE] = _clip(kept, 0.0, cap)
     return m_b * a_x + fx, f_joint - weight
 
 
@@ -361,7 +398,8 @@ def output_row(s, e, terrain, p, v_hist, count, positions, velocities, known, tr
     z_b = s[S_Z_C] + s[S_Z_REL]
     vz_b = s[S_VZ_C] + s[S_VZ_REL]
     d = depth(s, terrain, p)
-    q = surcharge_n(s, e, p)
+    q = surcharge_n(s, p)
+    o = N_EPISODE + patch_at(e, x_b) * N_PATCH  # the ground truth is the soil under the edge
     v_x, v_z = 0.0, 0.0
     for j in range(count):
         v_x, v_z = v_x + v_hist[j, 0], v_z + v_hist[j, 1]
@@ -370,21 +408,21 @@ def output_row(s, e, terrain, p, v_hist, count, positions, velocities, known, tr
     positions[0], positions[1], positions[2] = x_b, z_b, s[S_Z_C]
     velocities[0], velocities[1], velocities[2] = vz_b, s[S_VX_C], s[S_VZ_C]
     # KNOWN_PARAMS: c_a, gamma, rho, alpha, w, d, q, v_x, v_z
-    known[0], known[1], known[2], known[3], known[4] = e[E_C_A], e[E_GAMMA0], rho, alpha, w
+    known[0], known[1], known[2], known[3], known[4] = e[E_C_A], e[o + K_GAMMA0], rho, alpha, w
     known[5], known[6], known[7], known[8] = d, q, v_x, v_z
     # GROUND_TRUTH_PARAMS: phi, c, delta, c_a, gamma, rho, alpha, w, d, q, v_x, v_z, beta
-    truth[0], truth[1], truth[2] = e[E_PHI0], e[E_C0], e[E_DELTA]
+    truth[0], truth[1], truth[2] = e[o + K_PHI0], e[o + K_C0], e[E_DELTA]
     for j in range(9):
         truth[3 + j] = known[j]
     delta_p = fee_velocity_scale(rho, alpha, v_x, v_z, p[P_FEE_GAIN]) * e[E_DELTA]
-    truth[12] = fee_beta_star(e[E_PHI0], delta_p, rho, alpha)
+    truth[12] = fee_beta_star(e[o + K_PHI0], delta_p, rho, alpha)
     extras[0], extras[1] = s[S_X_C], s[S_VX_C]
 
 
 @numba.njit(**_JIT)
 def controller_step(gains, speed, target_depth, ctl, v, pz, command):
-    """``AntiStallController.step`` (Eq. 11-12) for one episode. ``ctl`` = (offset, last p_z^c)
-    is updated in place; ``command`` gets (u_zr, u_za, u_x)."""
+    """``AntiStallController.step`` (Eq. 11-12 with the depth dither) for one episode. ``ctl``
+    = (offset, last p_z^c, steps since reset) is updated in place; ``command`` gets (u_zr, u_za, u_x)."""
     e_vx = speed - v
     e_vmin = speed * gains[C_C_VX]
     k_dp = gains[C_K_V] / speed
@@ -394,7 +432,9 @@ def controller_step(gains, speed, target_depth, ctl, v, pz, command):
         ctl[0] = candidate
     if math.isfinite(pz):
         ctl[1] = pz
-    u_za = -(target_depth - ctl[0])
+    dither = gains[C_DITHER_A] * math.sin(2.0 * math.pi * (ctl[2] * gains[C_DT]) / gains[C_DITHER_T])
+    u_za = -((target_depth + dither) - ctl[0])
+    ctl[2] = ctl[2] + 1.0
     command[0] = _clip(u_za - ctl[1], command[3], command[4])
     command[1] = u_za
     command[2] = speed
@@ -409,7 +449,7 @@ def run_episode(s, e, terrain, p, probes, rng, gains, speed, target_depth, v_his
     n_ticks = obs.shape[0]
     v_hist = np.zeros((v_hist_len, 2))
     count = push_velocity(s, v_hist, 0)
-    ctl = np.zeros(2)
+    ctl = np.zeros(3)
     command = np.array([0.0, 0.0, 0.0, p[P_MIN_REL], p[P_MAX_REL]])
     tick_forces = np.zeros(2)
     positions, velocities = np.zeros(3), np.zeros(3)

@@ -41,13 +41,14 @@ def command_writers() -> dict[str, WriterTracks]:
 
 
 def episode_plan(base: EpisodeSpec, soils: list[str], densities_pct: list[float], repeats: int) -> list[EpisodeSpec]:
-    """soils x densities x repeats, seeds base.seed, base.seed+1, ... (empty lists: the base's)."""
+    """soils x densities x repeats, seeds base.seed, base.seed+1, ... (empty lists: the base's);
+    every episode keeps the base's soil patches."""
     soils = soils or [str(base.soil)]
     densities_pct = densities_pct or [base.relative_density_pct]
     combos = itertools.product(soils, densities_pct, range(max(0, repeats)))
     return [
         EpisodeSpec(soil, float(i_d), base.target_speed_m_s, base.target_depth_m,
-                    seed=base.seed + k, duration_s=base.duration_s)
+                    seed=base.seed + k, duration_s=base.duration_s, patches=base.patches)
         for k, (soil, i_d, _) in enumerate(combos)
     ]
 

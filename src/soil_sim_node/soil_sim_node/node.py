@@ -12,7 +12,8 @@ the timers):
   run is reproducible to the bit (and equal to ``soil_sim_batch`` for the same seed).
 
 Episodes: ``episodes`` repeats of the plan (soil × relative density, from the
-``sequence_*`` lists or the single ``soil``/``relative_density_pct``) start by themselves;
+``sequence_*`` lists or the single ``soil``/``relative_density_pct``, or the soil along the
+path ``patches``) start by themselves;
 more are started and reset over ``/sim/command``, and every start/end is announced on
 ``/sim/status`` (graph.py documents both). ``wait_for`` holds each start until the listed
 endpoints have matched, so a recorder or controller started alongside loses nothing.
@@ -57,6 +58,10 @@ PARAMETERS: dict[str, tuple] = {
                            "reference of the physics, ~1000x slower)"),
     "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel)"),
     "relative_density_pct": (60.0, "initial relative density I_d [%], 0..100"),
+    "patches": ([], "soil along the path, 'x_start_m:soil:relative_density_pct' entries ordered by x, e.g. "
+                    "['0.0:Sand:20', '5.0:Clay:90'] (x: the blade's cutting edge in the world frame [m]; the first "
+                    "also covers everything before the second; empty: 'soil' everywhere; set: 'soil' and "
+                    "'relative_density_pct' are unused, the first patch's are the episode's)", _STR_ARRAY),
     "target_speed_m_s": (0.5, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
     "target_depth_m": (0.2, "target cut depth below the original surface [m]"),
     "seed": (0, "seed of the first episode; episode k of the plan uses seed + k"),
@@ -163,6 +168,10 @@ class SimNode(Node):
         check_engine(p.get("engine", ENGINES[0]))
         if int(p["episodes"]) < 0:
             raise ValueError(f"parameter episodes={p['episodes']} must be >= 0")
+        plan = [name for name in ("sequence_soils", "sequence_relative_densities_pct") if p.get(name)]
+        if p.get("patches") and plan:
+            raise ValueError(f"parameter patches={list(p['patches'])} cannot be combined with {' and '.join(plan)}: "
+                             "the patches set the soil along the path")
         for name in ("wait_timeout_s", "settle_s", "lockstep_timeout_s"):
             if name in p and float(p[name]) < 0:
                 raise ValueError(f"parameter {name}={p[name]} must be >= 0")
@@ -180,10 +189,15 @@ class SimNode(Node):
 
     def _spec_from_params(self, overrides: dict) -> EpisodeSpec:
         get = lambda name: overrides.get(name, self._value(name))  # noqa: E731
+        patches = list(get("patches") or [])
+        unused = sorted({"soil", "relative_density_pct"} & set(overrides))
+        if patches and unused:
+            raise ValueError(f"{' and '.join(unused)} unused while parameter patches={patches} is set (the patches "
+                             "set the soil along the path; clear patches first)")
         spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
-                           float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")))
-        spec.resolve()  # ValueError naming the field and value
-        return spec
+                           float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
+                           patches=patches)
+        return spec.resolve()[0]  # ValueError naming the field and value; with patches, the first one's soil
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:
@@ -198,7 +212,7 @@ class SimNode(Node):
         if fixed:
             return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")
         try:
-            spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS}
+            spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS or k == "patches"}
             if spec_fields:
                 self._spec_from_params(spec_fields)
             self._validate_static({"pacing": self.pacer.pacing, "rate": changes.get("rate", self.pacer.rate),
@@ -273,7 +287,7 @@ class SimNode(Node):
     def _start_episode(self, spec: EpisodeSpec) -> None:
         self.sim = SoilSimulator(self.config, [spec])
         self.episode_index += 1
-        self.meta = episode_meta(self.config, spec, self.sim.soils[0].name, self.sim.effects.enabled())
+        self.meta = episode_meta(self.config, self.sim.specs[0], self.sim.soils[0].name, self.sim.effects.enabled())
         self.meta.source = "soil_sim_node"
         self.tick = 0
         self.planned_ticks = int(round(spec.duration_s * SAMPLE_RATE_HZ))

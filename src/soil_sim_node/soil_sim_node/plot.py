@@ -43,10 +43,19 @@ def plot_episode(ep: Episode, out: Path) -> Path:
         ax.axhline(lim / 1e3, color="grey", lw=0.5)
     ax.set_ylabel("force [kN]")
     ax.legend(ncol=4, fontsize=8, loc="lower right")
+    patches = m.soil_patches()
+    soil = (" → ".join(f"{p.soil} {p.relative_density_pct:.0f} %" + (f" (x ≥ {p.x_start_m:g} m)" if i else "")
+                       for i, p in enumerate(patches)) + "\n") if patches else \
+        f"{m.soil}, $I_d$ = {m.relative_density_pct:.0f} %, "
     ax.set_title(
-        f"{m.soil}, $I_d$ = {m.relative_density_pct:.0f} %, {m.world_mode} world, "
+        f"{soil}{m.world_mode} world, "
         f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, $\\bar d_z$ = {m.target_depth_m:.3f} m, seed {m.seed}"
     )
+    x_b = ep.column("p_x_b")
+    for patch in patches[1:]:  # where the edge entered each further patch
+        crossed = np.flatnonzero(x_b >= patch.x_start_m)
+        for axis in axes if crossed.size else ():
+            axis.axvline(t[crossed[0]], color="tab:purple", lw=0.8, ls="-.")
     ax = axes[1]
     ax.plot(t, ep.column("d"), label="cut depth $d$")
     ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")

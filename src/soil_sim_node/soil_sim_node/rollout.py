@@ -18,6 +18,8 @@ from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
 
 
 def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: list[str]) -> EpisodeMeta:
+    """The metadata of ``spec`` as ``SoilSimulator`` resolved it (``sim.specs[i]``: with
+    patches, the first patch's soil and I_d and the patches with catalogue names)."""
     return EpisodeMeta(
         soil=soil_name,
         relative_density_pct=float(spec.relative_density_pct),
@@ -28,6 +30,7 @@ def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: 
         duration_s=float(spec.duration_s),
         effects=effects,
         plugins=[plugin_name(p) for p in config.plugins],
+        patches=[patch.as_dict() for patch in spec.patches],
     )
 
 
@@ -87,7 +90,8 @@ def _compiled_episode(sim: SoilSimulator, i: int, gains: AntiStallGains, n_ticks
     controller = AntiStallController(gains, spec.target_speed_m_s, spec.target_depth_m)  # validates the targets
     g = controller.gains
     gain_row = np.zeros(kernel.N_GAINS)
-    gain_row[[kernel.C_K_V, kernel.C_C_VX, kernel.C_DELTA_D_MAX, kernel.C_DT]] = (g.k_v_m_s, g.c_vx, g.delta_d_max_m, g.dt_s)
+    gain_row[[kernel.C_K_V, kernel.C_C_VX, kernel.C_DELTA_D_MAX, kernel.C_DT, kernel.C_DITHER_A, kernel.C_DITHER_T]] = (
+        g.k_v_m_s, g.c_vx, g.delta_d_max_m, g.dt_s, g.dither_amplitude_m, g.dither_period_s)
     obs = np.zeros((n_ticks, len(OBSERVATION_FIELDS)))
     forces, extras = np.zeros((n_ticks, 2)), np.zeros((n_ticks, 2))
     known, truth = np.zeros((n_ticks, len(KNOWN_PARAMS))), np.zeros((n_ticks, len(GROUND_TRUTH_PARAMS)))

@@ -21,6 +21,15 @@ Model (SI; x forward, z up; the original surface is level at z = 0)
   soil shears and the force stays at the failure force (perfect plasticity). When the
   machine cannot supply the failure force it stalls against the elastic soil.
 * The blade cuts the heightfield: cells the edge passes are lowered to the edge height.
+* Soil along the path (optional ``EpisodeSpec.patches``): the soil in effect is the patch
+  under the cutting edge (p_x^b at the start of each substep); every soil property switches
+  when the edge crosses a boundary: phi, c, gamma, the penetration capacity, compaction
+  (restarting from the new patch's I_d) and the published Θ_k / ground truth. delta and c_a
+  are the world's, the same in every patch. What the blade already holds stays: the
+  surcharge pile keeps its volume and weight, and the soil cut from then on mixes into it
+  with the new soil's unit weight (a well-mixed pile: Q = V * mean gamma); the elastic
+  pre-failure compression and the particles' grip are the contact's, not the soil's, and the
+  new failure force bounds them at once; the heightfield is geometry.
 * `default` world: the named effects of ``effects.Effects`` add to this; `fee` world has
   none (Q = 0).
 * Measured force = lift-joint constraint force on the blade minus the blade's static weight
@@ -39,11 +48,12 @@ plugins (the interpreter is back in every substep) but still much faster than th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from soil_physics import fee
+from soil_msgs_py.patches import SoilPatch, check_patches
 from soil_msgs_py.params import (
     ADHESION_PA,
     GRAVITY_M_S2,
@@ -85,7 +95,14 @@ def check_engine(engine) -> None:
 
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One episode: soil, initial relative density, targets, seed, length."""
+    """One episode: soil, initial relative density, targets, seed, length, and optionally the
+    soil along the path.
+
+    ``patches``: ``soil_msgs_py.patches`` entries ordered by x (SoilPatch, ``'X:SOIL:ID'``
+    strings or (x_start_m, soil, I_d) triples). With patches the soil under the cutting edge
+    is the patch's, and ``soil`` / ``relative_density_pct`` are not used: ``resolve`` sets them
+    to the first patch's (what the metadata and the bag name show).
+    """
 
     soil: str | SoilType
     relative_density_pct: float
@@ -93,22 +110,48 @@ class EpisodeSpec:
     target_depth_m: float
     seed: int
     duration_s: float = 10.0
+    patches: tuple = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "patches", tuple(self.patches or ()))
+
+    def soil_path(self, custom_soils: dict | None = None) -> tuple[tuple[float, SoilType, float], ...]:
+        """The soil along x: ((x_start_m, SoilType, I_d [%]), ...) ordered by x; one entry
+        (x_start_m = -inf) without patches. Errors name the patch, field and value."""
+        if not self.patches:
+            soil = self.soil if isinstance(self.soil, SoilType) else get_soil(self.soil, custom_soils)
+            return ((-math.inf, soil, self.relative_density_pct),)
+        path = []
+        for i, patch in enumerate(check_patches(self.patches)):
+            try:
+                soil = get_soil(patch.soil, custom_soils)
+            except ValueError as err:
+                raise ValueError(f"patches[{i}]: {err}") from None
+            path.append((patch.x_start_m, soil, patch.relative_density_pct))
+        return tuple(path)
 
     def resolve(self, custom_soils: dict | None = None) -> tuple["EpisodeSpec", SoilType]:
-        """Validate every field; return (self, SoilType). Errors name the field and value."""
-        soil = self.soil if isinstance(self.soil, SoilType) else get_soil(self.soil, custom_soils)
+        """Validate every field; return (the spec, the SoilType it starts in). Errors name the
+        field and value. With patches the returned spec has the first patch's soil and I_d
+        and the patches as SoilPatch with the soils' catalogue names."""
+        spec = self
+        if self.patches:
+            path = self.soil_path(custom_soils)
+            patches = tuple(SoilPatch(x, soil.name, i_d) for x, soil, i_d in path)
+            spec = replace(self, soil=path[0][1].name, relative_density_pct=path[0][2], patches=patches)
+        soil = spec.soil if isinstance(spec.soil, SoilType) else get_soil(spec.soil, custom_soils)
         checks = (
-            ("relative_density_pct", self.relative_density_pct, 0.0, 100.0, "%"),
-            ("target_speed_m_s", self.target_speed_m_s, 1e-3, MAX_TARGET_SPEED_M_S, "m/s"),
-            ("target_depth_m", self.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
-            ("duration_s", self.duration_s, 1.0 / SAMPLE_RATE_HZ, 3600.0, "s"),
+            ("relative_density_pct", spec.relative_density_pct, 0.0, 100.0, "%"),
+            ("target_speed_m_s", spec.target_speed_m_s, 1e-3, MAX_TARGET_SPEED_M_S, "m/s"),
+            ("target_depth_m", spec.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
+            ("duration_s", spec.duration_s, 1.0 / SAMPLE_RATE_HZ, 3600.0, "s"),
         )
         for name, value, lo, hi, unit in checks:
             if not isinstance(value, (int, float)) or not math.isfinite(value) or not lo <= value <= hi:
                 raise ValueError(f"{name}={value!r} outside [{lo}, {hi}] {unit}")
-        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"seed={self.seed!r} must be a non-negative integer")
-        return self, soil
+        if not isinstance(spec.seed, (int, np.integer)) or spec.seed < 0:
+            raise ValueError(f"seed={spec.seed!r} must be a non-negative integer")
+        return spec, soil
 
 
 @dataclass(frozen=True)
@@ -185,12 +228,7 @@ class SoilSimulator:
         m = config.machine
         self.m = m
         b = self.batch
-        arr = lambda vals: np.array(vals, dtype=float)  # noqa: E731
-        self.i_d0 = arr([s.relative_density_pct for s in self.specs])
-        self.soil_loose = np.array([[s.loose.phi, s.loose.c, s.loose.gamma] for s in self.soils])
-        self.soil_dense = np.array([[s.dense.phi, s.dense.c, s.dense.gamma] for s in self.soils])
-        # pseudo-ground truth (§3.1): the soil at the initial I_d, fixed for the episode
-        self.phi0, self.c0, self.gamma0 = self._soil_at(self.i_d0)
+        self._set_soil_paths([s.soil_path(custom_soils) for s in self.specs])
         self.delta = np.full(b, SOIL_TOOL_FRICTION_FEE_RAD if config.world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD)
         self.c_a = np.full(b, ADHESION_PA)
         self.rho = m.blade_angle_rad
@@ -202,18 +240,42 @@ class SoilSimulator:
         x_max = self.dyn.blade_offset_m + 1.5 * speed * duration + 3.0
         self.n_cells = int(math.ceil((x_max - self.x_min) / self.dyn.terrain_cell_m)) + 2
         self._params, self._probes = self._kernel_params()
-        self._episode = np.zeros((b, kernel.N_EPISODE))
-        columns = {
-            kernel.E_I_D0: self.i_d0, kernel.E_PHI0: self.phi0, kernel.E_C0: self.c0, kernel.E_GAMMA0: self.gamma0,
-            kernel.E_DELTA: self.delta, kernel.E_C_A: self.c_a,
-        }
-        for j, col in enumerate((kernel.E_PHI_LOOSE, kernel.E_C_LOOSE, kernel.E_GAMMA_LOOSE)):
-            columns[col] = self.soil_loose[:, j]
-        for j, col in enumerate((kernel.E_PHI_DENSE, kernel.E_C_DENSE, kernel.E_GAMMA_DENSE)):
-            columns[col] = self.soil_dense[:, j]
-        for col, values in columns.items():
-            self._episode[:, col] = values
+        self._episode = self._kernel_episodes()
         self.reset()
+
+    def _set_soil_paths(self, paths: list[tuple]) -> None:
+        """Per episode and patch (B, P) arrays of the soil along x (``EpisodeSpec.soil_path``);
+        an episode with fewer patches than the batch's most is padded with patches that start
+        at +inf (never reached)."""
+        b, n = self.batch, max(len(path) for path in paths)
+        self.n_patches = np.array([len(path) for path in paths])
+        self.patch_x = np.full((b, n), math.inf)  # start of each patch (edge x) [m]
+        self.patch_i_d = np.zeros((b, n))  # relative density [%]
+        self.patch_loose, self.patch_dense = np.zeros((b, n, 3)), np.zeros((b, n, 3))  # (phi, c, gamma) at 0 / 100 %
+        for i, path in enumerate(paths):
+            for j, (x, soil, i_d) in enumerate(path):
+                self.patch_x[i, j], self.patch_i_d[i, j] = x, i_d
+                self.patch_loose[i, j] = (soil.loose.phi, soil.loose.c, soil.loose.gamma)
+                self.patch_dense[i, j] = (soil.dense.phi, soil.dense.c, soil.dense.gamma)
+        # pseudo-ground truth (§3.1): each patch's soil at its own I_d, uncompacted
+        self.patch_nominal = self._soil_at(self.patch_loose, self.patch_dense, self.patch_i_d)
+
+    def _kernel_episodes(self) -> np.ndarray:
+        """The per-episode constants the compiled kernel reads (``kernel.E_*``, then the
+        ``kernel.K_*`` columns of each patch)."""
+        k, n = kernel, self.patch_x.shape[1]
+        episodes = np.zeros((self.batch, k.N_EPISODE + n * k.N_PATCH))
+        episodes[:, k.E_DELTA], episodes[:, k.E_C_A], episodes[:, k.E_N_PATCHES] = self.delta, self.c_a, self.n_patches
+        for j in range(n):
+            o = k.N_EPISODE + j * k.N_PATCH
+            episodes[:, o + k.K_X_START], episodes[:, o + k.K_I_D] = self.patch_x[:, j], self.patch_i_d[:, j]
+            for q, (loose, dense, nominal) in enumerate(((k.K_PHI_LOOSE, k.K_PHI_DENSE, k.K_PHI0),
+                                                         (k.K_C_LOOSE, k.K_C_DENSE, k.K_C0),
+                                                         (k.K_GAMMA_LOOSE, k.K_GAMMA_DENSE, k.K_GAMMA0))):
+                episodes[:, o + loose] = self.patch_loose[:, j, q]
+                episodes[:, o + dense] = self.patch_dense[:, j, q]
+                episodes[:, o + nominal] = self.patch_nominal[:, j, q]
+        return episodes
 
     def _kernel_params(self) -> tuple[np.ndarray, np.ndarray]:
         """The shared constants the compiled kernel reads (``kernel.P_*`` layout) and the probe offsets."""
@@ -270,6 +332,9 @@ class SoilSimulator:
         self.rngs = [np.random.default_rng(int(s.seed)) for s in self.specs]
         self.last_applied_u_zr = z()
         self._forces_out = np.zeros((b, 2))
+        # the blade starts in the patch under its edge, with an empty pile of that soil
+        self.patch_index = self.patch_at(self.x_c + self.dyn.blade_offset_m)
+        self.pile_gamma = self.patch_nominal[np.arange(b), self.patch_index.astype(np.int64), 2]
         self._push_velocity_history()
         return self._compiled_output(np.zeros((b, 2))) if self.engine == "compiled" else self._output(np.zeros((b, 2)))
 
@@ -288,6 +353,10 @@ class SoilSimulator:
     z_rel, vz_rel = _state_column(kernel.S_Z_REL), _state_column(kernel.S_VZ_REL)
     u_e, grip, grip_tau = _state_column(kernel.S_U_E), _state_column(kernel.S_GRIP), _state_column(kernel.S_GRIP_TAU)
     pile_m3, distance_in_soil = _state_column(kernel.S_PILE), _state_column(kernel.S_DIST)
+    # the patch the soil half last used, travel in soil when the edge entered it [m], the
+    # pile's mean unit weight [N/m^3]
+    patch_index, dist_entry = _state_column(kernel.S_PATCH), _state_column(kernel.S_DIST_ENTRY)
+    pile_gamma = _state_column(kernel.S_PILE_GAMMA)
     del _state_column
 
     def _cell(self, x):
@@ -297,22 +366,40 @@ class SoilSimulator:
     def _height_at(self, x):
         return self.terrain[np.arange(self.batch), self._cell(x)]
 
-    def _soil_at(self, i_d):
-        """(phi, c, gamma) per episode at relative density i_d [%], linear as in SoilType.at."""
-        props = self.soil_loose + (self.soil_dense - self.soil_loose) * (i_d / 100.0)[:, None]
-        return props[:, 0], props[:, 1], props[:, 2]
+    @staticmethod
+    def _soil_at(loose, dense, i_d):
+        """(..., 3) phi, c, gamma at relative density i_d [%] (...), linear as in SoilType.at."""
+        return loose + (dense - loose) * (i_d / 100.0)[..., None]
 
-    def soil_in_effect(self):
-        """(phi, c, gamma, I_d) now: the catalogue at the compacted relative density."""
-        i_d = self.i_d0
+    def patch_at(self, x):
+        """Index (B,) of each episode's soil patch at edge x [m] (B,): the last whose start is
+        <= x; the first patch also holds before the second's start."""
+        return np.sum(np.asarray(x)[:, None] >= self.patch_x[:, 1:], axis=1)
+
+    def _enter_patch(self, x_b):
+        """The patch (B,) under the edge now; where the edge has crossed into another patch,
+        its compaction starts from its own I_d (travel counted from here)."""
+        j = self.patch_at(x_b)
+        self.dist_entry = np.where(j != self.patch_index, self.distance_in_soil, self.dist_entry)
+        self.patch_index = j
+        return j
+
+    def soil_in_effect(self, j=None):
+        """(phi, c, gamma, I_d) now in patch ``j`` (B,) (default: the one the soil half last
+        used): the catalogue at the patch's relative density compacted by the travel in it."""
+        rows = np.arange(self.batch)
+        j = self.patch_index.astype(np.int64) if j is None else j
+        i_d = self.patch_i_d[rows, j]
         if self.effects.compaction:
             e = self.effects
-            i_d = i_d + (100.0 - i_d) * e.compaction_gain * (1.0 - np.exp(-self.distance_in_soil / e.compaction_length_m))
-        return (*self._soil_at(i_d), i_d)
-
+            travel = self.distance_in_soil - self.dist_entry
+            i_d = i_d + (100.0 - i_d) * e.compaction_gain * (1.0 - np.exp(-travel / e.compaction_length_m))
+        props = self._soil_at(self.patch_loose[rows, j], self.patch_dense[rows, j], i_d)
+        return props[:, 0], props[:, 1], props[:, 2], i_d
 
     def surcharge_n(self):
-        return self.gamma0 * self.pile_m3 if self.effects.surcharge else np.zeros(self.batch)
+        """Weight of the surcharge pile Q [N]: its volume times its mean unit weight."""
+        return self.pile_gamma * self.pile_m3 if self.effects.surcharge else np.zeros(self.batch)
 
     def depth(self):
         x_b = self.x_c + self.dyn.blade_offset_m
@@ -370,7 +457,7 @@ class SoilSimulator:
             v_x=f[:, k.F_V_X], v_z=f[:, k.F_V_Z], d=f[:, k.F_D], q=f[:, k.F_Q], phi=f[:, k.F_PHI], c=f[:, k.F_C],
             gamma=f[:, k.F_GAMMA], delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
             blade_thickness=self.dyn.blade_edge_width_m, f_fee_x=f[:, k.F_FEE_X], f_fee_z=f[:, k.F_FEE_Z],
-            distance_in_soil=self.distance_in_soil, relative_density_pct=self.i_d0,
+            distance_in_soil=self.distance_in_soil, relative_density_pct=f[:, k.F_I_D],
         )
         fx, fz = f[:, k.F_X].copy(), f[:, k.F_Z].copy()
         for plugin in self.plugins:
@@ -392,7 +479,8 @@ class SoilSimulator:
         vx = self.vx_c
         d = self.depth()
         in_soil = d > 0
-        phi, c, gamma, i_d = self.soil_in_effect()
+        j = self._enter_patch(x_b)
+        phi, c, gamma, i_d = self.soil_in_effect(j)
         q = self.surcharge_n()
 
         # --- FEE failure force (Eq. 2-10) and its direction (Eq. 8)
@@ -430,7 +518,7 @@ class SoilSimulator:
             t=np.full(b, t), dt=dt, x_b=x_b, z_b=z_b, v_x=vx, v_z=vz_b, d=d, q=q, phi=phi, c=c,
             gamma=gamma, delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
             blade_thickness=dyn.blade_edge_width_m, f_fee_x=fx, f_fee_z=fz,
-            distance_in_soil=self.distance_in_soil, relative_density_pct=self.i_d0,
+            distance_in_soil=self.distance_in_soil, relative_density_pct=self.patch_i_d[np.arange(b), j],
         )
         for name, term in FORCE_TERMS.items():
             if getattr(e, name):
@@ -483,7 +571,14 @@ class SoilSimulator:
         self.distance_in_soil = self.distance_in_soil + advance
         if e.surcharge:
             inflow = self.w * np.maximum(d, 0.0) * advance * (1.0 - self.pile_m3 / e.surcharge_capacity_m3)
-            self.pile_m3 = np.clip(self.pile_m3 + inflow - self.pile_m3 * dt / e.surcharge_shed_time_s, 0.0, e.surcharge_capacity_m3)
+            kept = self.pile_m3 + inflow - self.pile_m3 * dt / e.surcharge_shed_time_s
+            # the cut soil (this patch's, at its nominal gamma) mixes into the pile: the pile
+            # keeps what it holds across a boundary and its weight changes only as it refills
+            mixing = (inflow > 0.0) & (kept > 0.0)
+            gamma_cut = self.patch_nominal[np.arange(b), j, 2]
+            share = inflow / np.where(mixing, kept, 1.0)
+            self.pile_gamma = np.where(mixing, self.pile_gamma + (gamma_cut - self.pile_gamma) * share, self.pile_gamma)
+            self.pile_m3 = np.clip(kept, 0.0, e.surcharge_capacity_m3)
 
         # measured: lift/push constraint forces on the blade, static weight tared
         return np.stack([m.blade_mass_kg * a_x + fx, f_joint - weight], axis=1)
@@ -528,7 +623,8 @@ class SoilSimulator:
         d = self.depth()
         q = self.surcharge_n()
         v_x, v_z = self.averaged_velocity()
-        phi0, c0, gamma0 = self.phi0, self.c0, self.gamma0
+        nominal = self.patch_nominal[np.arange(b), self.patch_at(x_b)]  # the ground truth is the soil under the edge
+        phi0, c0, gamma0 = nominal[:, 0], nominal[:, 1], nominal[:, 2]
         full = lambda v: np.full(b, float(v))  # noqa: E731
         known = dict(c_a=self.c_a, gamma=gamma0, rho=full(self.rho), alpha=full(self.alpha), w=full(self.w), d=d, q=q, v_x=v_x, v_z=v_z)
         truth = dict(known, phi=phi0, c=c0, delta=self.delta)

@@ -1,0 +1,64 @@
+"""Soil patches in the episode metadata (``EpisodeMeta.patches``): recorded, read back, and old
+metadata without them still reads."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from soil_bag_tools.bag_io import META_KEY, bag_custom_data, read_episode
+from soil_msgs_py import graph as G
+from soil_msgs_py.episode import EpisodeMeta
+from soil_msgs_py.patches import SoilPatch, check_patches, parse_patch
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
+PATH = [SoilPatch(0.0, "Sand", 20.0).as_dict(), SoilPatch(5.0, "Clay", 90.0).as_dict()]
+
+
+def meta(**kw) -> EpisodeMeta:
+    return EpisodeMeta("Sand", 20.0, "fee", 3, 0.5, 0.1, 2.0, source="test", **kw)
+
+
+def test_patches_round_trip_through_json_and_the_status_event():
+    m = meta(patches=PATH)
+    m.validate()
+    back = EpisodeMeta.from_json(m.to_json())
+    assert back == m and back.soil_patches() == (SoilPatch(0.0, "Sand", 20.0), SoilPatch(5.0, "Clay", 90.0))
+    event = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, m.name, m, 0, planned_ticks=120)
+    assert G.EpisodeEvent.from_json(event.to_json()).meta == m
+
+
+def test_a_one_soil_episode_has_no_patches_key_and_old_metadata_reads():
+    m = meta()
+    assert "patches" not in json.loads(m.to_json()) and m.name == "fee_sand_id020_v0.50_d0.100_s3"
+    assert EpisodeMeta.from_json(m.to_json()) == m
+    stored = json.loads(bag_custom_data(SAMPLE)[META_KEY])
+    assert "patches" not in stored  # a bag from before patches existed
+    ep = read_episode(SAMPLE)
+    assert ep.meta.patches == [] and ep.meta.soil_patches() == ()
+
+
+def test_episode_name_tells_paths_apart():
+    a, b = meta(patches=PATH), meta(patches=[PATH[0], {**PATH[1], "x_start_m": 6.0}])
+    assert a.name.startswith("fee_sand_id020_v0.50_d0.100_s3_p2-") and a.name != b.name
+    assert a.name == meta(patches=list(PATH)).name  # stable
+
+
+@pytest.mark.parametrize("patches, needle", [
+    ([PATH[1], PATH[0]], r"patches\[1\]\.x_start_m=0\.0 must be greater than patches\[0\]\.x_start_m=5\.0"),
+    ([{**PATH[0], "relative_density_pct": 101.0}], r"patches\[0\]\.relative_density_pct=101\.0 outside"),
+    ([{**PATH[0], "extra": 1}], r"patches\[0\]=.* must have exactly the keys"),
+    ("0:Sand:20", r"patches=.* must be a list"),
+])
+def test_bad_patches_in_metadata_are_named(patches, needle):
+    with pytest.raises(ValueError, match=needle):
+        meta(patches=patches).validate()
+
+
+def test_entry_forms_are_one_patch():
+    want = SoilPatch(5.0, "Clay", 90.0)
+    assert parse_patch(" 5 : Clay :90") == want
+    for form in ("5:Clay:90", (5.0, "Clay", 90), {"x_start_m": 5, "soil": "Clay", "relative_density_pct": 90}, want):
+        assert check_patches([form]) == (want,)
+    assert check_patches(None) == () == check_patches([])
