@@ -23,6 +23,7 @@ for w in ${*:-fee default}; do
     p2=$!
     wait $p1 || { cat "$OUT/pinn_$w.log"; exit 1; }
     wait $p2 || { cat "$OUT/physics_free_$w.log"; exit 1; }
+    "$BIN/pinn_fusion_calibrate" --world "$w" > "$OUT/fusion_$w.log"  # models/fusion_<world>.json, used by pinn_eval's forecast
     "$BIN/pinn_eval" --checkpoint "$OUT/pinn_$w.pt" --physics-free "$OUT/physics_free_$w.pt" --data "$data" \
       --out "$OUT" --name "pinn_${w}_report" --quiet > /dev/null
     cp "$OUT/pinn_$w.pt" "$OUT/pinn_${w}_report.md" "$OUT/pinn_${w}_report.json" "$OUT/pinn_${w}_report_params.png" \

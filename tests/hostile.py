@@ -27,6 +27,8 @@ import struct
 import threading
 import time
 
+import numpy as np
+
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import String
 
@@ -64,6 +66,8 @@ def tick_index(first_ns: int, stamp_ns: int) -> int:
 def _width(topic: str) -> int:
     if topic == T.ESTIMATE.name:
         return len(T.ESTIMATE_FIELDS)
+    if topic == T.SOIL_MAP.name:
+        return len(T.MAP_FIELDS)  # one point
     if topic == T.ESTIMATED_FORCE.name:
         return 2
     return M.FIELDS[topic].width
@@ -73,6 +77,8 @@ def build(topic: str, stamp_ns: int, values) -> object:
     """A well-typed message of ``topic`` (any stamp, any values): the shape a spoof wears."""
     if topic == T.ESTIMATE.name:
         return M.make_labelled(CLASSES, stamp_ns, T.ESTIMATE_FIELDS, values)
+    if topic == T.SOIL_MAP.name:
+        return M.make_point_cloud(CLASSES, stamp_ns, T.MAP_FIELDS, [values])
     if topic == T.ESTIMATED_FORCE.name:
         return M.build_message(CLASSES, T.BLADE_FORCE.name, stamp_ns, values)
     return M.build_message(CLASSES, topic, stamp_ns, values)
@@ -403,6 +409,13 @@ def non_finite_fields(msg) -> list[str]:
     stamp = getattr(getattr(msg, "header", None), "stamp", None) or getattr(msg, "clock", None)
     if stamp is not None and not (0 <= stamp.nanosec < NS and stamp.sec >= 0):
         bad.append(f"stamp=({stamp.sec}, {stamp.nanosec})")
+    if hasattr(msg, "point_step"):  # a point cloud (/soil/map): every float32 field of every point
+        try:
+            _, rows = M.parse_point_cloud(msg, T.MAP_FIELDS)
+        except ValueError as err:
+            return bad + [str(err)]
+        bad += [f"point {i} {T.MAP_FIELDS[j]}={rows[i, j]}" for i, j in zip(*np.nonzero(~np.isfinite(rows)))]
+        return bad
     if hasattr(msg, "data") and hasattr(msg, "layout"):
         bad += [f"data[{i}]={v}" for i, v in enumerate(msg.data) if not math.isfinite(v)]
         if M.labelled_stamp(msg) is None:

@@ -26,6 +26,7 @@ setup(
         "console_scripts": [
             "pinn_train = pinn_estimator.train:main",
             "pinn_eval = pinn_estimator.evaluate:main",
+            "pinn_fusion_calibrate = pinn_estimator.fusion_calibration:main",
             "pinn_estimator = pinn_estimator.node:main",
         ],
     },

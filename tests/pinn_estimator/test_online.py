@@ -21,7 +21,7 @@ from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_check
 from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.node import load_estimator_model
-from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
+from pinn_estimator.online import FUSED, INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
 N_TICKS = 200
@@ -48,7 +48,7 @@ def offline(model):
 
 
 def tick_messages(ep, i: int, stamp: int | None = None) -> list[tuple[str, object]]:
-    """The 7 input messages of tick ``i`` (optionally re-stamped)."""
+    """The input messages of tick ``i`` (one per ``INPUT_TOPICS``, optionally re-stamped)."""
     s = int(ep.stamps_ns[i]) if stamp is None else stamp
     return [(t, M.build_message(M.TYPESTORE, t, s, M.topic_rows(ep, t)[i])) for t in INPUT_TOPICS]
 
@@ -65,16 +65,33 @@ def in_order(ep, ticks):
     return [m for i in ticks for m in tick_messages(ep, i)]
 
 
-# Typical size of each field (rad, Pa, rad, rad, m, 6 forces N, flag, count): float32 rounding
-# differs between batch sizes by ~1e-7 of the network's output scale, not of the value.
-SCALE = np.array([1.0, 1e4, 1.0, 1.0, 0.1] + [2e4] * 6 + [1.0, 60.0])
+# Typical size of each field (rad, Pa, rad, rad, m, 6 forces N, flag, count; then the fused
+# means and stds (rad, Pa, rad, rad), 3 correlations, model error (N, N, 1, 1), flag, count):
+# float32 rounding differs between batch sizes by ~1e-7 of the network's output scale, not of
+# the value (the fused fields are float64 and the same ops online and offline: equal).
+SCALE = np.array([1.0, 1e4, 1.0, 1.0, 0.1] + [2e4] * 6 + [1.0, 60.0]
+                 + [1.0, 1e4, 1.0, 1.0] * 2 + [1.0] * 3 + [1e3, 1e3, 1.0, 1.0, 1.0, 100.0])
+assert len(SCALE) == len(T.ESTIMATE_FIELDS)
 
 
-def assert_matches_offline(estimates, offline, rel=1e-5):
-    """Online (batch 1) equals the offline model (batched) up to float32 rounding."""
+def assert_matches_offline(estimates, offline, rel=1e-5, fields=slice(None)):
+    """Online (batch 1) equals the offline model (batched) up to float32 rounding (``fields``:
+    which; after a gap only the PINN's: the fused posterior's stretches are the gap-free
+    track's no more)."""
     assert estimates, "no valid estimate"
     for e in estimates:
-        np.testing.assert_array_less(np.abs(e.values - offline[e.stamp_ns]) / SCALE, rel)
+        np.testing.assert_array_less(np.abs(e.values - offline[e.stamp_ns])[fields] / SCALE[fields], rel)
+
+
+PINN_FIELDS = slice(0, FUSED.start)
+STRETCHES = T.ESTIMATE_FIELDS.index("fused_stretches")
+
+
+def assert_gap_keeps_the_posterior(out, gap_stamp):
+    """A gap drops the stretch in progress, not what the posterior learnt."""
+    before = [e.values[STRETCHES] for e in out if e.stamp_ns < gap_stamp]
+    after = [e.values[STRETCHES] for e in out if e.stamp_ns > gap_stamp]
+    assert before[-1] >= 2 and after[0] == before[-1] and after[-1] > before[-1]
 
 
 def valid(out):
@@ -108,8 +125,9 @@ def test_arrival_order_within_the_reorder_horizon_does_not_matter(episode, model
     msgs = in_order(episode, range(120))
     rng = random.Random(3)
     shuffled = []
-    for k in range(0, len(msgs), 14):  # two ticks at a time, topics mixed, per-topic order kept
-        chunk = msgs[k : k + 14]
+    two = 2 * len(INPUT_TOPICS)
+    for k in range(0, len(msgs), two):  # two ticks at a time, topics mixed, per-topic order kept
+        chunk = msgs[k : k + two]
         rng.shuffle(chunk)
         per_topic = {}
         for t, m in chunk:
@@ -140,7 +158,8 @@ def test_a_dropped_tick_resets_the_window_and_nothing_is_estimated_across_it(epi
     assert stamps == s[59:100].tolist() + s[160:N_TICKS].tolist(), "first estimate after the gap needs 60 new samples"
     assert est.counters.gaps == 1
     assert [e.values[FILL] for e in out if e.stamp_ns == s[101]] == [1.0]
-    assert_matches_offline(valid(out), offline)  # windows ending at >= 160 hold only ticks 101..
+    assert_matches_offline(valid(out), offline, fields=PINN_FIELDS)  # windows ending at >= 160 hold only ticks 101..
+    assert_gap_keeps_the_posterior(out, s[100])
     assert_never_nan(out)
 
 
@@ -181,7 +200,8 @@ def test_out_of_order_stamp_invalidates_the_window(episode, model, offline):
     assert est.counters.out_of_order == 1 and any("out of order" in w for w in warnings)
     s = episode.stamps_ns
     assert [e.stamp_ns for e in valid(out)] == s[59:101].tolist() + s[160:N_TICKS].tolist()
-    assert_matches_offline(valid(out), offline)
+    assert_matches_offline(valid(out), offline, fields=PINN_FIELDS)
+    assert_gap_keeps_the_posterior(out, s[100])
 
 
 def test_a_few_ticks_stale_is_out_of_order_not_a_restart(episode, model):
@@ -333,3 +353,48 @@ def test_a_model_with_a_distance_term_gets_the_travel_since_the_episode_start(ep
     assert any(abs(e["f_x_hat"] - plain[e.stamp_ns][5]) > 10.0 for e in valid(out)), "the term adds force"
     _, blind = run(augmented, in_order(episode, range(N_TICKS)))
     assert blind and not valid(blind)
+
+
+# ---------------------------------------------------------------------------------- fused soil
+
+def test_the_fused_soil_rides_on_every_estimate_and_the_map_grows_along_the_path(episode, model, offline):
+    maps = []
+    est = OnlineEstimator(model, lambda e: None, publish_map=lambda stamp, rows: maps.append((stamp, rows)))
+    out = []
+    est.publish = out.append
+    for topic, msg in in_order(episode, range(N_TICKS)):
+        est.add(topic, msg)
+    fused_valid = T.ESTIMATE_FIELDS.index("fused_valid")
+    # nothing learnt before the first stretch, then every estimate (valid PINN window or not) carries it
+    first = est.posterior.cfg.update_ticks
+    assert all(e.values[fused_valid] == 0.0 for e in out[: first - 1])
+    assert all(e.values[fused_valid] == 1.0 for e in out[first - 1 :])
+    assert [e.values[STRETCHES] for e in out][-1] == len(maps) == est.posterior.updates
+    # one map per stretch, stamped with the stretch's last sample; cells sorted by x, inside the path walked
+    assert [s for s, _ in maps] == [int(episode.stamps_ns[k]) for k in range(first - 1, N_TICKS, first)]
+    x = maps[-1][1][:, T.MAP_FIELDS.index("x")]
+    assert np.all(np.diff(x) > 0) and x.min() >= episode.observations[0, 0] - 0.5
+    assert np.isfinite(maps[-1][1]).all() and maps[-1][1].shape[1] == len(T.MAP_FIELDS)
+    # and equals the offline track on the same episode
+    assert_matches_offline(valid(out), offline)
+
+
+def test_a_new_episode_restarts_the_soil_posterior(episode, model):
+    est, out = run(model, in_order(episode, range(120)))
+    assert est.posterior.updates == 4
+    start = int(episode.stamps_ns[-1]) + 10**9
+    est.start_episode(start)
+    assert est.posterior.updates == 4  # until the new episode's first sample comes
+    for topic, msg in tick_messages(episode, 0, stamp=start):
+        est.add(topic, msg)
+    assert est.posterior.updates == 0 and not est.soil_map.cells
+    assert est._fused[T.FUSED_FIELDS.index("fused_valid")] == 0.0
+
+
+def test_a_model_with_other_physics_restarts_the_posterior_and_the_same_keeps_it(episode, model):
+    est, _ = run(model, in_order(episode, range(120)))
+    est.set_model(model)
+    assert est.posterior.updates == 4
+    other = EstimatorNet(ModelConfig(extra_terms=(("soil_inertia", 4.0),)), torch.zeros(9), torch.ones(9))
+    est.set_model(other)
+    assert est.posterior.updates == 0 and est.posterior.cfg.terms == (("soil_inertia", 4.0),)

@@ -200,7 +200,7 @@ def test_eval_reports_pinn_and_both_baselines_on_the_same_windows(tiny_bags, tmp
     assert train_main(["--data", str(tiny_bags), "--out", str(free), "--kind", "physics_free", "--split-from", str(pinn), *small]) == 0
     out = tmp_path / "eval"
     assert eval_main(["--checkpoint", str(pinn), "--physics-free", str(free), "--data", str(tiny_bags), "--out", str(out),
-                      "--name", "r", "--stride", "20", "--workers", "1", "--quiet"]) == 0
+                      "--name", "r", "--stride", "20", "--workers", "1", "--quiet", "--forecast-world", "none"]) == 0
     report = json.loads((out / "r.json").read_text())
     assert set(report["force"]) == {"pinn", "pinn_fee_part", "physics_free", "classical"}
     n = report["windows"]

@@ -127,3 +127,20 @@ def test_shipped_params_yaml_lists_every_parameter_with_its_default(pkg, node_mo
     data = yaml.safe_load(path.read_text())[node_name]["ros__parameters"]
     assert list(data) == list(params)
     assert {k: v for k, v in data.items()} == {k: spec[0] for k, spec in params.items()}
+
+
+def test_a_point_cloud_round_trips_and_a_foreign_layout_is_refused():
+    from soil_msgs_py import messages as M
+    from soil_msgs_py import topics as T
+    import numpy as np
+    import pytest
+
+    rows = np.arange(3 * len(T.MAP_FIELDS), dtype=float).reshape(3, -1) / 7
+    msg = M.make_point_cloud(M.TYPESTORE, 1_500_000_000, T.MAP_FIELDS, rows)
+    stamp, back = M.parse_point_cloud(msg, T.MAP_FIELDS, T.SOIL_MAP.name)
+    assert stamp == 1_500_000_000 and msg.header.frame_id == T.WORLD_FRAME and msg.width == 3
+    np.testing.assert_allclose(back, rows, rtol=1e-6)
+    raw = M.TYPESTORE.serialize_cdr(msg, T.SOIL_MAP.msgtype)  # what a bag holds
+    assert M.parse_point_cloud(M.TYPESTORE.deserialize_cdr(raw, T.SOIL_MAP.msgtype), T.MAP_FIELDS)[0] == stamp
+    with pytest.raises(ValueError, match="/soil/map: point cloud layout"):
+        M.parse_point_cloud(msg, T.MAP_FIELDS[:-1], T.SOIL_MAP.name)

@@ -41,6 +41,7 @@ def _steady(known: dict, speed: float = 0.5) -> dict[str, float]:
 def _estimate(known: dict, residual=(0.0, 0.0), **over) -> dict[str, float]:
     """A valid estimate whose F̂ is the FEE at Θ_k's depth and velocity plus ``residual`` [N]."""
     est = dict(phi=30 * DEG, c=0.0, delta=15 * DEG, beta=25 * DEG, delta_d=0.0, valid=1.0, window_samples=60.0)
+    est.update({name: 0.0 for name in T.FUSED_FIELDS})  # no fused posterior: the point plan
     est.update(over)
     fx, fz = _fee_xz(est, known, known["d"])
     est.update(f_x_fee=float(fx), f_z_fee=float(fz), f_x_r=residual[0], f_z_r=residual[1],
@@ -71,7 +72,7 @@ def test_depth_sits_on_the_x_limit_and_matches_the_closed_form():
     fx, fz = _fee_xz(est, known, [plan.max_depth_m, plan.max_depth_m + 2 * TOLERANCE_M])
     assert _admissible(fx[0], fz[0]) and not _admissible(fx[1], fz[1])
     assert plan.f_x_n == pytest.approx(fx[0]) and plan.f_z_n == pytest.approx(fz[0])
-    assert plan.values() == [plan.max_depth_m, plan.f_x_n, plan.f_z_n, 1.0, 0.0, 1.0]
+    assert plan.values() == [plan.max_depth_m, plan.f_x_n, plan.f_z_n, 1.0, 0.0, 1.0, 0.0]
 
 
 def test_cohesive_soil_with_surcharge_is_within_the_limit_and_just_deeper_is_not():
@@ -299,6 +300,61 @@ def test_missing_fields_and_bad_settings_are_named():
     assert max_cut_depth(est, _known(d=-0.2)).max_depth_m > 0
     assert max_cut_depth(est, _known(d=0.9)).max_depth_m > 0
     assert max_cut_depth(est, known, cut_speed_m_s=2.0).cut_speed_m_s == 2.0
+
+
+# ---------------------------------------------------------------------------- the fused posterior
+
+def _fused(est: dict, phi, c, delta, std=(0.0, 0.0, 0.0), corr=(0.0, 0.0, 0.0), rel=(0.0, 0.0), abs_n=(1.0, 1.0)) -> dict:
+    """``est`` with a valid fused posterior of these moments and error law."""
+    out = dict(est, phi_fused=phi, c_fused=c, delta_fused=delta, beta_fused=25 * DEG, beta_std=0.0,
+               phi_std=std[0], c_std=std[1], delta_std=std[2], corr_phi_c=corr[0], corr_phi_delta=corr[1],
+               corr_c_delta=corr[2], model_std_rel_x=rel[0], model_std_rel_z=rel[1], model_std_abs_x=abs_n[0],
+               model_std_abs_z=abs_n[1], fused_valid=1.0, fused_stretches=4.0)
+    return out
+
+
+def test_a_sharp_fused_posterior_plans_like_the_fee_of_its_mean():
+    known = _known(d=0.12, q=1000.0)
+    point = _estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG)  # no residual: F̂ is the FEE
+    sharp = _fused(point, 32 * DEG, 2e3, 15 * DEG)
+    fee_only = max_cut_depth(point, known, include_residual=False, force_quantile=None)
+    plan = max_cut_depth(sharp, known)
+    assert plan.force_quantile == 0.95 and fee_only.force_quantile == 0.0
+    assert plan.max_depth_m == pytest.approx(fee_only.max_depth_m, abs=1e-3)
+    # force_quantile None (0 at the node): the point plan even with a posterior
+    assert max_cut_depth(sharp, known, include_residual=False, force_quantile=None) == fee_only
+
+
+def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper():
+    known = _known(d=0.12, q=1000.0)
+    point = _estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG)
+    depths = {}
+    for name, std, q in (("sharp", (0.0, 0.0, 0.0), 0.95), ("wide", (4 * DEG, 800.0, 0.5 * DEG), 0.95),
+                         ("wide_q99", (4 * DEG, 800.0, 0.5 * DEG), 0.99), ("wide_q50", (4 * DEG, 800.0, 0.5 * DEG), 0.5)):
+        depths[name] = max_cut_depth(_fused(point, 32 * DEG, 2e3, 15 * DEG, std=std, corr=(-0.9, 0.0, 0.0)), known,
+                                     force_quantile=q).max_depth_m
+    assert depths["wide_q99"] < depths["wide"] < depths["wide_q50"]
+    assert depths["wide"] < depths["sharp"]
+    # a model error law widens it too
+    err = max_cut_depth(_fused(point, 32 * DEG, 2e3, 15 * DEG, rel=(0.2, 0.2)), known).max_depth_m
+    assert err < depths["sharp"]
+
+
+def test_the_fused_posterior_plans_while_the_pinn_window_is_not_full_and_bad_fused_fields_are_named():
+    known = _known(d=0.12)
+    est = _fused(_estimate(known), 30 * DEG, 1e3, 15 * DEG, std=(1 * DEG, 100.0, 0.1 * DEG))
+    est["valid"] = 0.0
+    assert max_cut_depth(est, known).max_depth_m > 0
+    assert max_cut_depth(dict(est, fused_valid=0.0), known) is None
+    for field, value, needle in (("phi_std", -0.1, "estimate phi_std=-0.1 is outside"),
+                                 ("corr_phi_c", 1.5, "estimate corr_phi_c=1.5 is outside"),
+                                 ("c_fused", math.nan, "estimate c_fused=nan"),
+                                 ("fused_valid", 0.5, "estimate fused_valid=0.5 must be 1.0 or 0.0")):
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(dict(est, **{field: value}), known)
+    for q in (0.4, 1.0, math.nan, "high"):
+        with pytest.raises(ValueError, match="force_quantile"):
+            max_cut_depth(est, known, force_quantile=q)
 
 
 # ---------------------------------------------------------------------------- the node over DDS

@@ -16,6 +16,7 @@ Ground truth is used only to score.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -32,6 +33,7 @@ from soil_physics.soils import COHESIVE_SOILS
 from .checkpoint import load_model
 from . import forecast as fc
 from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset
+from .fusion import FusionConfig, SoilPosterior, fuse_episode
 from .inference import WindowTensors, force_errors, predict
 
 PARAMS = ("phi", "c", "delta", "beta")
@@ -106,16 +108,17 @@ def _trends(rows, estimator="pinn") -> dict:
     return out
 
 
-def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0) -> Dataset:
-    """Held-out episodes for the forecast: every soil at ``fc.FORECAST_DENSITIES_PCT`` x
-    ``fc.FORECAST_DEPTHS_M`` at ``fc.FORECAST_SPEED_M_S`` (all off the training grid), simulated here."""
+def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, densities_pct=fc.FORECAST_DENSITIES_PCT,
+                     depths_m=fc.FORECAST_DEPTHS_M) -> Dataset:
+    """Held-out episodes for the forecast: every soil at ``densities_pct`` x ``depths_m`` at
+    ``fc.FORECAST_SPEED_M_S`` (by default all off the training grid), simulated here."""
     import itertools
 
     from soil_physics.soils import CATALOGUE
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
-    combos = itertools.product(sorted(CATALOGUE), fc.FORECAST_DENSITIES_PCT, fc.FORECAST_DEPTHS_M)
+    combos = itertools.product(sorted(CATALOGUE), densities_pct, depths_m)
     specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
              for k, (soil, i_d, d) in enumerate(combos)]
     return Dataset.from_episodes(run_episodes(SimConfig(world_mode=world), specs), root=f"(simulated, {world} world)")
@@ -124,9 +127,20 @@ def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0) -> 
 FORECAST_STRIDE = 30  # samples between the steady windows a forecast averages (0.5 s)
 
 
+def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:
+    """Per episode of ``ds``, the fused posterior after all its samples (what the online
+    estimator holds at the episode's end)."""
+    out = []
+    for e in range(len(ds)):
+        rows = ds.episode_rows(e)
+        out.append(fuse_episode(SoilPosterior(cfg), ds.forces[rows], ds.known[rows]))
+    return out
+
+
 def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bool = True, workers: int = 2,
-             progress: bool = False) -> dict:
-    """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares fit's θ̂."""
+             progress: bool = False, fusion: FusionConfig | None = None) -> dict:
+    """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares
+    fit's θ̂, and the fused posterior (``fusion``: its config; the model's catalogue terms are added)."""
     ends = fc.steady_window_ends(ds, stride)
     out = predict(model, WindowTensors(ds), ends)
     estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
@@ -135,7 +149,8 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
 
         fit = fit_windows(_windows(ends, ds.known), _windows(ends, ds.forces), workers=workers, progress=progress)
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta}
-    return fc.evaluate_forecast(ds, ends, estimates)
+    cfg = dataclasses.replace(fusion or FusionConfig(), terms=model.cfg.extra_terms)
+    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, cfg)})
 
 
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,
@@ -204,8 +219,10 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
         forecast_world = report["world_modes"][0] if len(report["world_modes"]) == 1 else None
     if forecast_world:
         t0 = time.monotonic()
+        from .fusion_calibration import load_calibrated
+
         report["forecast"] = forecast(model, forecast_dataset(forecast_world), classical=classical, workers=workers,
-                                      progress=progress)
+                                      progress=progress, fusion=load_calibrated(forecast_world))
         timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
     return report

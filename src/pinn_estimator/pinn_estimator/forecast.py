@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS
 from soil_physics import fee
 
 # Off the training grid (densities 0..100 step 20; depths 0.05, 0.175, 0.3 m; speeds
@@ -95,9 +95,16 @@ def fee_force_at(theta: dict[str, float], at: dict[str, float]) -> np.ndarray:
     return np.array([float(fx), float(fz)])
 
 
-def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]]) -> list[dict]:
+INTERVALS = ((0.05, 0.95), (0.25, 0.75))  # the 90 % and 50 % central intervals scored for coverage
+
+
+def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], posteriors: dict[str, list] | None = None) -> list[dict]:
     """Every ordered pair (A → B) of one soil and density at another depth: each estimator's
-    forecast of B's force from A's θ̂, the references', and B's measured force."""
+    forecast of B's force from A's θ̂ (or, for ``posteriors``, the median of A's fused posterior
+    predictive at B's conditions, with its 90 % and 50 % intervals), the references', and B's
+    measured force."""
+    posteriors = posteriors or {}
+    quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
     groups = defaultdict(list)
     for e, part in enumerate(parts):
         if part is not None:
@@ -110,10 +117,16 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]]) ->
                 if a == b or max(da, db) < MIN_DEPTH_RATIO * min(da, db):
                     continue
                 forecast = {name: fee_force_at(theta[a], parts[b].known) for name, theta in thetas.items()}
+                intervals = {}
+                for name, posts in posteriors.items():
+                    known_b = np.array([parts[b].known[n] for n in KNOWN_PARAMS])
+                    out = posts[a].forecast(known_b, quantiles=quantiles)
+                    forecast[name] = out["quantiles"][0.5]
+                    intervals[name] = {(lo, hi): (out["quantiles"][lo], out["quantiles"][hi]) for lo, hi in INTERVALS}
                 forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)
                 forecast["naive_same_force"] = parts[a].force
                 pairs.append({"soil": soil, "relative_density_pct": i_d, "from_depth_m": da, "to_depth_m": db,
-                              "measured": parts[b].force, "forecast": forecast})
+                              "measured": parts[b].force, "forecast": forecast, "intervals": intervals})
     return pairs
 
 
@@ -124,8 +137,14 @@ def _errors(pairs: list[dict], name: str, axis: int) -> dict[str, float]:
     rel = 100.0 * (forecast[ok] - measured[ok]) / np.abs(measured[ok])
     if not len(rel):
         return {"pairs": 0, "mean_abs_pct": float("nan"), "bias_pct": float("nan"), "low_pct_of_pairs": float("nan")}
-    return {"pairs": int(len(rel)), "mean_abs_pct": float(np.abs(rel).mean()), "bias_pct": float(rel.mean()),
-            "low_pct_of_pairs": float(100.0 * (rel < 0).mean())}
+    out = {"pairs": int(len(rel)), "mean_abs_pct": float(np.abs(rel).mean()), "bias_pct": float(rel.mean()),
+           "low_pct_of_pairs": float(100.0 * (rel < 0).mean())}
+    for lo, hi in INTERVALS:
+        if all(name in p["intervals"] for p in pairs):
+            inside = [p["intervals"][name][(lo, hi)][0][axis] <= p["measured"][axis] <= p["intervals"][name][(lo, hi)][1][axis]
+                      for p in pairs]
+            out[f"coverage_{round(100 * (hi - lo))}"] = float(np.mean(inside))
+    return out
 
 
 def summarise(pairs: list[dict], names) -> dict:
@@ -142,21 +161,45 @@ def summarise(pairs: list[dict], names) -> dict:
     return out
 
 
-def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.ndarray]]) -> dict:
-    """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``."""
+def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
+    """Fused posterior at each episode's end against its true θ: mean |error| and how often
+    the Gaussian 90 % / 50 % intervals hold the truth (meaningful where the model is the world)."""
+    from scipy.stats import norm
+
+    out = {}
+    for name in ("phi", "c", "delta"):
+        err, z = [], []
+        for part, post in zip(parts, posteriors):
+            if part is None or not post.updates:
+                continue
+            s = post.summary()
+            err.append(s.mean[name] - part.truth[name])
+            z.append(abs(err[-1]) / max(s.std[name], 1e-12))
+        z = np.array(z)
+        out[name] = {"episodes": len(z), "mae": float(np.mean(np.abs(err))) if err else float("nan"),
+                     "coverage_90": float(np.mean(z <= norm.ppf(0.95))), "coverage_50": float(np.mean(z <= norm.ppf(0.75)))}
+    return out
+
+
+def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.ndarray]],
+                      posteriors: dict[str, list] | None = None) -> dict:
+    """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``;
+    ``posteriors[name]`` one fused posterior per episode (at its end)."""
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
-    pairs = forecast_pairs(parts, thetas)
+    posteriors = posteriors or {}
+    pairs = forecast_pairs(parts, thetas, posteriors)
     return {
         "episodes": len(ds),
         "worlds": sorted({m.world_mode for m in ds.metas}),
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
-        "forecast": summarise(pairs, list(estimates)),
+        "forecast": summarise(pairs, [*estimates, *posteriors]),
+        "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
 
 
-LABELS = {"pinn": "PINN estimates (FEE part, β*)", "classical": "classical least-squares fit (Tan 2005)",
+LABELS = {"fused": "fused posterior along the path (median, FEE)", "pinn": "PINN estimates (FEE part, β*)", "classical": "classical least-squares fit (Tan 2005)",
           "true_fee": "FEE with the true parameters", "naive_same_force": "naive: the force measured at the other depth"}
 
 
@@ -165,10 +208,18 @@ def markdown(report: dict) -> list[str]:
     lines = [f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
              f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
              "training grid). Mean |error| and signed bias, % of the measured force.", "",
-             "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper |",
-             "|---|---|---|---|---|---|"]
+             "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
+             "90 % / 50 % intervals hold F_x | hold F_z |",
+             "|---|---|---|---|---|---|---|---|"]
     for name, axes in report["forecast"].items():
         x, z = axes["x"], axes["z"]
+        cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
+                 for a in (x, z)]
         lines.append(f"| {LABELS.get(name, name)} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
-                     f"{x['shallower']['bias_pct']:+.1f} % | {z['all']['mean_abs_pct']:.1f} % | {z['deeper']['bias_pct']:+.1f} % |")
+                     f"{x['shallower']['bias_pct']:+.1f} % | {z['all']['mean_abs_pct']:.1f} % | {z['deeper']['bias_pct']:+.1f} % | "
+                     f"{cover[0]} | {cover[1]} |")
+    for name, params in report.get("parameters", {}).items():
+        cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
+                          f"(intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%})" for p, v in params.items())
+        lines += ["", f"{LABELS.get(name, name)}, soil at each episode's end vs the truth: {cells}."]
     return lines

@@ -16,7 +16,8 @@ from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
 
 from .dataset import Dataset, load_dataset
 from .model import EstimatorNet
-from .online import estimate_values
+from .fusion import FusionConfig, fused_track
+from .online import FUSED, estimate_values
 
 FORCE_LIMITS_N = np.array(FORCE_LIMITS)
 # §3.2 normalises the magnitude error by the machine limits: 730 N ~ 2 % -> |(20, 30) kN| = 36 kN.
@@ -68,15 +69,24 @@ def force_errors(measured: np.ndarray, predicted: np.ndarray) -> dict[str, float
     return out
 
 
-def episode_estimates(model: EstimatorNet, bag) -> tuple[np.ndarray, np.ndarray]:
+def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The offline pipeline on one recorded episode bag: (stamps of the newest sample of every
-    full window, ``/soil/estimate`` values of each, batched). What the online estimator must
-    publish for the same episode (up to float32 rounding of batch 1 vs batched)."""
+    full window, ``/soil/estimate`` values of each, batched, with the fused fields of the
+    episode's posterior at each; ``fusion`` None: the node's default config). What the online
+    estimator must publish for the same episode (up to float32 rounding of batch 1 vs batched)."""
+    import dataclasses
+
+    from .fusion_calibration import DEFAULT_WORLD, load_calibrated
+
     bag = Path(bag)
     ds = load_dataset(bag.parent, cache=False)
     (e,) = ds.index([bag.name])
     ends = ds.window_ends([e])
     out = predict(model, WindowTensors(ds), ends)
     values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
+    cfg = dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+    rows = ds.episode_rows(e)
+    track = fused_track(cfg, ds.forces[rows], ds.known[rows], ds.distance_in_soil()[rows])
+    values[:, FUSED] = track[ends - ds.offsets[e]]
     stamps = read_episode(bag).stamps_ns[ends - ds.offsets[e]]
     return stamps, values

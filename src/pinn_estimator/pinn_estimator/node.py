@@ -1,9 +1,11 @@
 """`pinn_estimator`: the online estimator as a ROS 2 node (thin adapter over ``online.py``).
 
-Subscribes to the state, command and Θ_k topics (``online.INPUT_TOPICS``) and to
+Subscribes to the state, force, command and Θ_k topics (``online.INPUT_TOPICS``) and to
 ``/sim/status``; publishes ``/soil/estimate`` (labelled Float64MultiArray, fields
-``topics.ESTIMATE_FIELDS``) and ``/soil/estimate/force`` (WrenchStamped, valid estimates only),
-each stamped with the newest sample of the window. Each ``episode_start`` empties the window.
+``topics.ESTIMATE_FIELDS``: the PINN's window estimate and the soil fused along the path) and
+``/soil/estimate/force`` (WrenchStamped, valid estimates only), each stamped with the newest
+sample of the window, and ``/soil/map`` (PointCloud2, after each stretch of evidence). Each
+``episode_start`` empties the window and restarts the soil posterior.
 
 Parameters (also in ``config/pinn_estimator.yaml``) are validated; ``checkpoint`` and
 ``stride`` can be changed at run time (``ros2 param set``): a checkpoint that does not load
@@ -24,6 +26,8 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
+from .fusion import FusionConfig
+from .fusion_calibration import DEFAULT_WORLD, load_calibrated
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
@@ -31,7 +35,16 @@ PARAMETERS: dict[str, tuple] = {
     "stride": (1, "estimate every n-th tick once the window is full (1: every tick, 60 Hz)"),
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
+    "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_default.json"),
 }
+
+
+def load_fusion_config(path: str) -> FusionConfig:
+    """The fused posterior's config; ValueError naming the parameter if it cannot be used."""
+    try:
+        return FusionConfig.load(path) if path else load_calibrated(DEFAULT_WORLD)
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
 
 
 def load_estimator_model(path: str):
@@ -60,8 +73,9 @@ class EstimatorNode(Node):
         torch.set_num_threads(threads)
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
-        self.core = OnlineEstimator(model, self._publish, stride=get("stride"),
-                                    reorder_ticks=get("reorder_ticks"), warn=self._warn)
+        self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
+                                    warn=self._warn, fusion=load_fusion_config(get("fusion_config")),
+                                    publish_map=self._publish_map)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -69,6 +83,8 @@ class EstimatorNode(Node):
             message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, publisher_qos(T.ESTIMATE.name))
         self.force_pub = self.create_publisher(
             message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, publisher_qos(T.ESTIMATED_FORCE.name))
+        self.map_pub = self.create_publisher(
+            message_class(T.SOIL_MAP.msgtype), T.SOIL_MAP.name, publisher_qos(T.SOIL_MAP.name))
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with tick 0 empties the window before tick 0 is added.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
@@ -80,7 +96,8 @@ class EstimatorNode(Node):
                                      lambda msg, n=name: self.core.add(n, msg), deep)
         self.get_logger().info(
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
-            f"stride {self.core.stride}, {threads} thread(s); publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}")
+            f"stride {self.core.stride}, {threads} thread(s), soil posterior model error rel "
+            f"{self.core.posterior.cfg.rel_std}; publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}")
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -89,8 +106,8 @@ class EstimatorNode(Node):
             model = load_estimator_model(changes["checkpoint"]) if "checkpoint" in changes else None
             if "stride" in changes:
                 OnlineEstimator._check_stride(changes["stride"])
-            if "reorder_ticks" in changes or "threads" in changes:
-                raise ValueError("reorder_ticks and threads are fixed at start; restart the node to change them")
+            if {"reorder_ticks", "threads", "fusion_config"} & set(changes):
+                raise ValueError("reorder_ticks, threads and fusion_config are fixed at start; restart the node to change them")
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         if model is not None:
@@ -117,6 +134,9 @@ class EstimatorNode(Node):
         if est.valid:
             self.force_pub.publish(M.build_message(self.classes, T.BLADE_FORCE.name, est.stamp_ns,
                                                    [est["f_x_hat"], est["f_z_hat"]]))
+
+    def _publish_map(self, stamp_ns: int, rows) -> None:
+        self.map_pub.publish(M.make_point_cloud(self.classes, stamp_ns, T.MAP_FIELDS, rows))
 
     def close(self) -> None:
         c = self.core.counters

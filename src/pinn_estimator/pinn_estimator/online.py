@@ -32,11 +32,13 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 from soil_msgs_py.params import (
-    KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
+    FORCE_FIELDS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
 from soil_physics.travel import soil_advance
+from .fusion import FusionConfig, SoilPosterior, StretchAccumulator, fused_values
 from .model import EstimatorNet
+from .soil_map import SoilMap
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
@@ -49,7 +51,9 @@ RESTART_BACK_TICKS = WINDOW_SAMPLES
 INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
-_DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS)}
+_P_X, _P_Z = OBSERVATION_FIELDS.index("p_x_b"), OBSERVATION_FIELDS.index("p_z_b")
+_DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS), "forces": ("force", FORCE_FIELDS)}
+FUSED = slice(T.ESTIMATE_FIELDS.index(T.FUSED_FIELDS[0]), len(T.ESTIMATE_FIELDS))
 
 
 def _routes(topic: str) -> tuple[tuple[str, str, int], ...]:
@@ -63,7 +67,8 @@ def _routes(topic: str) -> tuple[tuple[str, str, int], ...]:
 ROUTES: dict[str, tuple[tuple[str, str, int], ...]] = {t: _routes(t) for t in INPUT_TOPICS}
 _COVERED = sorted((d, c) for r in ROUTES.values() for _, d, c in r if d)
 assert _COVERED == sorted([("obs", i) for i in range(len(OBSERVATION_FIELDS))]
-                          + [("known", i) for i in range(len(KNOWN_PARAMS))]), "inputs must cover o_t and Θ_k once"
+                          + [("known", i) for i in range(len(KNOWN_PARAMS))]
+                          + [("force", i) for i in range(len(FORCE_FIELDS))]), "inputs must cover o_t, Θ_k and F once"
 
 
 @dataclass
@@ -85,10 +90,11 @@ class Counters:
 
 @dataclass
 class Sample:
-    """One tick's o_t and Θ_k."""
+    """One tick's o_t, Θ_k and measured force F (the fused posterior's evidence)."""
 
     obs: np.ndarray = field(default_factory=lambda: np.full(len(OBSERVATION_FIELDS), np.nan))
     known: np.ndarray = field(default_factory=lambda: np.full(len(KNOWN_PARAMS), np.nan))
+    force: np.ndarray = field(default_factory=lambda: np.full(len(FORCE_FIELDS), np.nan))
 
     @classmethod
     def from_parts(cls, parts: dict[str, np.ndarray]) -> "Sample":
@@ -272,10 +278,17 @@ class OnlineEstimator:
     ``publish(estimate)`` is called with a valid estimate at every ``stride``-th tick whose
     window is full, and with an invalid one (zeros, ``window_samples`` < 60) at the same
     stride while the window is filling, so a subscriber always knows the estimator is alive.
+
+    Beside the window, every ``fusion.update_ticks`` consecutive samples are one stretch of
+    evidence for the soil posterior (``fusion.py``); it spans the whole episode (a gap drops
+    only the stretch in progress) and starts over with each episode. Every estimate carries
+    its newest state (``topics.FUSED_FIELDS``, ``fused_valid`` 0 until a stretch was learnt
+    from), and ``publish_map(stamp, rows)`` gets the map along the path after each stretch.
     """
 
     def __init__(self, model: EstimatorNet, publish: Callable[[Estimate], None], *, stride: int = 1,
-                 reorder_ticks: int = 3, warn: Warn = _no_warn):
+                 reorder_ticks: int = 3, warn: Warn = _no_warn, fusion: FusionConfig | None = None,
+                 publish_map: Callable[[int, np.ndarray], None] | None = None):
         check_compatible(model)
         self.model = model.eval()
         self.publish = publish
@@ -293,6 +306,28 @@ class OnlineEstimator:
         # (extra_terms compaction_hardening); known only for an episode seen from its start.
         self.distance_m = 0.0
         self._distance_known = False
+        self.posterior = SoilPosterior(self._fusion_config(fusion, model))
+        self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
+        self.soil_map = SoilMap()
+        self.publish_map = publish_map
+        self._fused = fused_values(None, self.posterior.cfg)
+
+    @staticmethod
+    def _fusion_config(fusion: FusionConfig | None, model: EstimatorNet) -> FusionConfig:
+        """``fusion`` (None: the shipped calibration of the default world) with the model's
+        physics: its catalogue terms are added to the FEE."""
+        import dataclasses
+
+        from .fusion_calibration import DEFAULT_WORLD, load_calibrated
+
+        return dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+
+    def _reset_fusion(self) -> None:
+        """A new path: the posterior back to the prior, no stretch in progress, an empty map."""
+        self.posterior.reset()
+        self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
+        self.soil_map.clear()
+        self._fused = fused_values(None, self.posterior.cfg)
 
     @staticmethod
     def _check_stride(stride) -> int:
@@ -304,9 +339,15 @@ class OnlineEstimator:
         self.stride = self._check_stride(stride)
 
     def set_model(self, model: EstimatorNet) -> None:
-        """Swap the model (a retrained checkpoint); the window is kept: inputs mean the same."""
+        """Swap the model (a retrained checkpoint); the window is kept: inputs mean the same.
+        The posterior keeps what it learnt unless the new model's physics (its catalogue terms)
+        is another, which makes that evidence mean something else: then it starts over."""
         check_compatible(model)
         self.model = model.eval()
+        cfg = self._fusion_config(self.posterior.cfg, model)
+        if cfg != self.posterior.cfg:
+            self.posterior = SoilPosterior(cfg)
+            self._reset_fusion()
 
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything: empty window; stamps from ``first_stamp_ns`` on are expected."""
@@ -315,6 +356,7 @@ class OnlineEstimator:
         self._tick = 0
         self._boundary = None
         self.distance_m, self._distance_known = 0.0, False
+        self._reset_fusion()
 
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
@@ -345,10 +387,12 @@ class OnlineEstimator:
         self._boundary = None
         self._tick = 0
         self.distance_m, self._distance_known = 0.0, False
+        self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
             self.buffer.clear()
+            self.stretch.clear()  # nor fused: the stretch in progress is dropped, the posterior kept
             return
         if self._boundary is not None and stamp > self._boundary and not self._crossed:
             self._crossed = True  # the first sample of a new episode: no window spans two,
@@ -356,24 +400,44 @@ class OnlineEstimator:
                 self.buffer.clear()
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
             self.distance_m, self._distance_known = 0.0, True
+            self._reset_fusion()
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)
         self.distance_m += float(soil_advance(sample.known[_V_X], sample.known[_D]))
+        self._fuse(stamp, sample)
         tick, self._tick = self._tick, self._tick + 1
         if tick % self.stride:
             return
         if not self.buffer.full or (self.model.needs_distance and not self._distance_known):
             # (a model with a distance term needs the episode from its start: invalid until one begins)
             self.counters.invalid += 1
-            self.publish(invalid_estimate(stamp, self.buffer.count))
+            self.publish(self._with_fused(invalid_estimate(stamp, self.buffer.count)))
             return
         est = self.estimate(stamp)
         if est.valid:
             self.counters.estimates += 1
         else:
             self.counters.invalid += 1
-        self.publish(est)
+        self.publish(self._with_fused(est))
+
+    def _fuse(self, stamp: int, sample: Sample) -> None:
+        """One sample into the stretch; a complete stretch into the posterior and the map."""
+        stretch = self.stretch.add(sample.force, sample.known)
+        if stretch is None:
+            return
+        self.posterior.forget(self.stretch.travel_m)
+        self.stretch.travel_m = 0.0
+        if not self.posterior.update(*stretch, distance_m=self.distance_m):
+            return
+        summary = self.posterior.summary()
+        self._fused = fused_values(summary, self.posterior.cfg)
+        if self.soil_map.add(float(sample.obs[_P_X]), float(sample.obs[_P_Z]), summary) and self.publish_map:
+            self.publish_map(stamp, self.soil_map.rows())
+
+    def _with_fused(self, est: Estimate) -> Estimate:
+        est.values[FUSED] = self._fused
+        return est
 
     @torch.inference_mode()
     def estimate(self, stamp: int) -> Estimate:
@@ -392,11 +456,13 @@ class OnlineEstimator:
 
 
 def estimate_values(out: dict) -> np.ndarray:
-    """(B, len(ESTIMATE_FIELDS)) ``/soil/estimate`` values of a PINN output dict, valid = 1.
+    """(B, len(ESTIMATE_FIELDS)) ``/soil/estimate`` values of a PINN output dict, valid = 1, the
+    fused fields 0 (``fused_valid`` 0).
 
     The one mapping from model outputs to the message, used online and offline (so the
     replay and offline comparisons compare like with like)."""
     parts = [out["theta"][:, : len(UNKNOWN_PARAMS)], out["force"], out["force_fee"], out["force_residual"]]
     values = torch.cat([p.double() for p in parts], dim=1).numpy()
     flags = np.tile([[1.0, WINDOW_SAMPLES]], (len(values), 1))
-    return np.concatenate([values, flags], axis=1)
+    fused = np.zeros((len(values), len(T.FUSED_FIELDS)))  # filled by the caller that fuses (OnlineEstimator)
+    return np.concatenate([values, flags, fused], axis=1)

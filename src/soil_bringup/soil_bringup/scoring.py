@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import norm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, find_episode_bags, read_episode, read_labelled_topic
 from soil_msgs_py import topics as T
@@ -72,7 +73,33 @@ def score_episode(bag_dir: str | os.PathLike) -> EpisodeScore:
     summary["truth_mean"] = {f"{p}_{UNITS[p][0]}": float(ep.truth[rows, TRUTH_COL[p]].mean() * UNITS[p][1]) for p in PARAMS}
     summary["estimate_mean"] = {f"{p}_{UNITS[p][0]}": float(est[:, ESTIMATE_COLUMN[p]].mean() * UNITS[p][1])
                                 for p in PARAMS}
+    summary["fused_end"] = fused_at_end(ep, stamps[on_tick], values[on_tick])
     return EpisodeScore(bag, ep, rows, est, summary)
+
+
+Z90 = float(norm.ppf(0.95))  # mean ± Z90·std is a Gaussian's central 90 % interval
+
+
+def fused_at_end(ep, stamps: np.ndarray, values: np.ndarray) -> dict | None:
+    """The soil fused along the episode, as its last estimate carried it, against the truth of
+    that tick: mean ± std of φ, c, δ [deg, kPa], the error, and whether the 90 % interval
+    (mean ± 1.645 std) holds the truth. None if no estimate carried a fused soil."""
+    from pinn_estimator.evaluate import TRUTH_COL, UNITS
+
+    fused = np.flatnonzero(values[:, ESTIMATE_COLUMN["fused_valid"]] == 1.0)
+    if not len(fused):
+        return None
+    last = fused[-1]
+    row = int(np.searchsorted(ep.stamps_ns, stamps[last]))
+    out = {"at_s": float((stamps[last] - ep.stamps_ns[0]) * 1e-9),
+           "stretches": int(values[last, ESTIMATE_COLUMN["fused_stretches"]])}
+    for p in ("phi", "c", "delta"):
+        unit, scale = UNITS[p]
+        mean, std = values[last, ESTIMATE_COLUMN[f"{p}_fused"]], values[last, ESTIMATE_COLUMN[f"{p}_std"]]
+        truth = ep.truth[row, TRUTH_COL[p]]
+        out[p] = {f"mean_{unit}": float(mean * scale), f"std_{unit}": float(std * scale), f"truth_{unit}": float(truth * scale),
+                  f"error_{unit}": float((mean - truth) * scale), "in_90": bool(abs(mean - truth) <= Z90 * std)}
+    return out
 
 
 def _errors(measured: np.ndarray, est: np.ndarray, truth: np.ndarray) -> dict:

@@ -61,6 +61,19 @@ def markdown(report: dict) -> str:
         e, t = r["estimate_mean"], r["truth_mean"]
         lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | " + " | ".join(
             f"{e[k]:.{2 if k.startswith('c_') else 1}f} ({t[k]:.{2 if k.startswith('c_') else 1}f})" for k in e) + " |")
+    fused = [r for r in rows if r.get("fused_end")]
+    if fused:
+        lines += ["", "The soil fused along each episode (the posterior its last estimate carried: mean ± std, truth in "
+                  "brackets; ✓: the 90 % interval holds the truth):", "",
+                  "| episode | I_d [%] | stretches | φ [deg] | c [kPa] | δ [deg] |", "|---|---|---|---|---|---|"]
+        for r in fused:
+            f = r["fused_end"]
+            cells = []
+            for p, unit, digits in (("phi", "deg", 1), ("c", "kPa", 2), ("delta", "deg", 1)):
+                v = f[p]
+                cells.append(f"{v[f'mean_{unit}']:.{digits}f} ± {v[f'std_{unit}']:.{digits}f} ({v[f'truth_{unit}']:.{digits}f})"
+                             + (" ✓" if v["in_90"] else ""))
+            lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | {f['stretches']} | " + " | ".join(cells) + " |")
     lines += ["", f"Throughput: {throughput_text(run)}; {total['pct_ticks_valid']:.1f} % of ticks have a valid estimate "
               f"({total['pct_full_window_ticks_valid']:.1f} % of the ticks that end a full {WINDOW_SAMPLES}-sample window).",
               "", f"![online estimates]({FIGURE_NAME})", ""]

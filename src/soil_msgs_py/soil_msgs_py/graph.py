@@ -86,13 +86,14 @@ assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE
 CONTROLLER_STATE_TOPICS: tuple[str, ...] = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
 CONTROLLER_INPUTS: tuple[str, ...] = CONTROLLER_STATE_TOPICS + (SIM_STATUS_TOPIC,)
 RECORDER_INPUTS: tuple[str, ...] = SIM_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
-# The online estimator reads the state, Θ_k and commands of each tick (and the status, to
-# reset its window) and publishes its estimate; a recorder started with it records both.
+# The online estimator reads the state, the measured force (the evidence its fused posterior
+# learns from), Θ_k and commands of each tick (and the status, to reset its window) and
+# publishes its estimate and map; a recorder started with it records them.
 ESTIMATOR_STATE_TOPICS: tuple[str, ...] = (
-    T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name, T.CHASSIS_TWIST.name, T.KNOWN.name,
+    T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name, T.CHASSIS_TWIST.name, T.BLADE_FORCE.name, T.KNOWN.name,
 )
 ESTIMATOR_INPUTS: tuple[str, ...] = ESTIMATOR_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
-ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name)
+ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name, T.SOIL_MAP.name)
 
 
 # Bounds on /sim/command and /sim/status text, checked before decoding: a status event with

@@ -61,6 +61,7 @@ def ros_message_classes() -> dict[str, Any]:
         "builtin_interfaces/msg/Time", "std_msgs/msg/Header", "std_msgs/msg/MultiArrayLayout",
         "std_msgs/msg/MultiArrayDimension", "geometry_msgs/msg/Point",
         "geometry_msgs/msg/Vector3", "geometry_msgs/msg/Twist", "geometry_msgs/msg/Wrench",
+        T.SOIL_MAP.msgtype, "sensor_msgs/msg/PointField",
     }
     for msgtype in sorted(needed):
         pkg, _, name = msgtype.split("/")
@@ -121,6 +122,40 @@ def _header(C: Classes, ns: int) -> Any:
 
 def _vec3(C: Classes, x: float, z: float) -> Any:
     return C("geometry_msgs/msg/Vector3")(x=float(x), y=0.0, z=float(z))
+
+
+# --- point clouds (/soil/map) ---------------------------------------------------------
+
+POINT_FIELD_FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
+
+
+def make_point_cloud(ns: Any, stamp_ns: int, names: Sequence[str], rows: np.ndarray) -> Any:
+    """PointCloud2 (frame world, little endian, dense, one row of float32 ``names`` per point)."""
+    C = classes_from(ns)
+    rows = np.ascontiguousarray(np.asarray(rows, dtype="<f4").reshape(-1, len(names)))
+    fields = [C("sensor_msgs/msg/PointField")(name=n, offset=4 * i, datatype=POINT_FIELD_FLOAT32, count=1)
+              for i, n in enumerate(names)]
+    step = 4 * len(names)
+    # rosbags' message classes take a uint8 array, rclpy's the bytes
+    data = np.frombuffer(rows.tobytes(), np.uint8) if isinstance(ns, Typestore) else rows.tobytes()
+    return C("sensor_msgs/msg/PointCloud2")(
+        header=_header(C, stamp_ns), height=1, width=len(rows), fields=fields, is_bigendian=False,
+        point_step=step, row_step=step * len(rows), data=data, is_dense=True)
+
+
+def parse_point_cloud(msg: Any, names: Sequence[str], topic: str = "") -> tuple[int, np.ndarray]:
+    """(stamp [ns], (n, len(names)) float64 rows) of a PointCloud2 made by ``make_point_cloud``;
+    ValueError (naming ``topic``) if its layout is another."""
+    where = f"{topic}: " if topic else ""
+    got = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields]
+    want = [(n, 4 * i, POINT_FIELD_FLOAT32, 1) for i, n in enumerate(names)]
+    if got != want or msg.point_step != 4 * len(names) or msg.is_bigendian or msg.height not in (0, 1):
+        raise ValueError(f"{where}point cloud layout {got} (step {msg.point_step}) is not the expected float32 {list(names)}")
+    data = np.asarray(msg.data, dtype=np.uint8).tobytes() if not isinstance(msg.data, (bytes, bytearray)) else bytes(msg.data)
+    if len(data) != msg.width * msg.point_step:
+        raise ValueError(f"{where}point cloud holds {len(data)} bytes for {msg.width} points of {msg.point_step}")
+    rows = np.frombuffer(data, dtype="<f4").reshape(msg.width, len(names)).astype(float)
+    return stamp_ns(msg.header.stamp, topic, "header.stamp."), rows
 
 
 # --- labelled Float64MultiArray -------------------------------------------------------

@@ -75,16 +75,39 @@ TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in EPISODE_TOPICS}
 # paper §2.2.2 (F̂ = F_FEE + F_r) and the validity flag (1.0: a fresh estimate from a full
 # window of consecutive samples; 0.0: no estimate, every other field is 0.0, never NaN).
 # window_samples = consecutive samples in the window (0..60): why an estimate is not valid yet.
+# Then the soil fused along the path (pinn_estimator.fusion): the posterior over θ = (φ, c, δ)
+# from every stretch of cutting since the episode began: means [rad, Pa, rad], β* over the
+# posterior [rad], standard deviations and correlations (a Gaussian with these moments is what
+# a planner can sample; the posterior itself is a Gaussian sum), the calibrated forecast error
+# law σ_j = abs_j + rel_j·|F_j| [N, 1] (what a forecast adds to the spread of θ's force),
+# fused_valid (1.0 once a stretch was learnt from; independent of ``valid``, which is the PINN
+# window's) and the stretches learnt from.
+FUSED_FIELDS: tuple[str, ...] = (
+    "phi_fused", "c_fused", "delta_fused", "beta_fused",
+    "phi_std", "c_std", "delta_std", "beta_std",
+    "corr_phi_c", "corr_phi_delta", "corr_c_delta",
+    "model_std_abs_x", "model_std_abs_z", "model_std_rel_x", "model_std_rel_z",
+    "fused_valid", "fused_stretches",
+)
 ESTIMATE_FIELDS: tuple[str, ...] = (
     "phi", "c", "delta", "beta", "delta_d",
     "f_x_hat", "f_z_hat", "f_x_fee", "f_z_fee", "f_x_r", "f_z_r",
     "valid", "window_samples",
-)
+) + FUSED_FIELDS
 ESTIMATE = Topic(
     "/soil/estimate", "std_msgs/msg/Float64MultiArray",
     "PINN estimate from the window ending at the stamped sample: φ [rad], c [Pa], δ [rad], "
-    "β [rad], Δd [m], F̂ = F_FEE + F_r [N] (x, z each), validity flag, window fill",
+    "β [rad], Δd [m], F̂ = F_FEE + F_r [N] (x, z each), validity flag, window fill; then the soil "
+    "fused along the path: means, standard deviations and correlations of φ, c, δ (β*), the "
+    "model-error law [N, 1], its validity flag and stretch count",
     ESTIMATE_FIELDS,
+)
+# The fused soil along the path, one point per cell of blade travel (``pinn_estimator.soil_map``).
+MAP_FIELDS: tuple[str, ...] = ("x", "y", "z", "phi", "c", "delta", "phi_std", "c_std", "delta_std")
+SOIL_MAP = Topic(
+    "/soil/map", "sensor_msgs/msg/PointCloud2",
+    "soil-property map along the path (frame world): per cell of blade travel x, y = 0, z = cut "
+    "floor height [m], fused φ [rad], c [Pa], δ [rad] and their standard deviations (float32 fields)",
 )
 ESTIMATED_FORCE = Topic(
     "/soil/estimate/force", "geometry_msgs/msg/WrenchStamped",
@@ -95,18 +118,20 @@ ESTIMATED_FORCE = Topic(
 # d [m] below the soil surface (Θ_k's d, the blade edge below the surface ahead of the blade;
 # ~ the anti-stall controller's target_depth_m, equal on level uncut ground) with every depth
 # in [0, d] inside margin x the force limits for a steady, level cut at cut_speed_m_s; f_x_n,
-# f_z_n: the predicted force there [N] (FEE at d' = clamp(d + Δd, 0, 0.66 m) with β*, plus the
-# residual of F̂ at the current depth scaled with d'); limited_by_x/z: that limit is exceeded
-# just deeper (1/0; both 0: d_max_m was reached); valid 0.0: the estimate was invalid, every
-# other field is 0.0, never NaN.
-PLAN_FIELDS: tuple[str, ...] = ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid")
+# f_z_n: the predicted force there [N]: with a fused posterior (fused_valid 1) the
+# force_quantile upper bound of |F| over it, else the PINN's point estimate (FEE at
+# d' = clamp(d + Δd, 0, 0.66 m) with β*, plus the residual of F̂ at the current depth scaled
+# with d'; force_quantile 0.0); limited_by_x/z: that limit is exceeded just deeper (1/0; both
+# 0: d_max_m was reached); valid 0.0: nothing to plan from, every other field is 0.0, never NaN.
+PLAN_FIELDS: tuple[str, ...] = ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid",
+                                 "force_quantile")
 PLAN = Topic(
     "/planner/max_cut_depth", "std_msgs/msg/Float64MultiArray",
     "deepest cut within the force limits from the estimate of the stamped tick: depth below the soil "
     "surface [m], predicted force there [N] (x, z), which limit binds (1/0 each; both 0: d_max reached), "
-    "validity flag",
+    "validity flag, the force quantile planned with (0: the PINN's point estimate)",
     PLAN_FIELDS,
 )
 
 # Every topic this project defines, episode data or not (e.g. what a recorder can type without discovery).
-GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, PLAN)}
+GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, SOIL_MAP, PLAN)}

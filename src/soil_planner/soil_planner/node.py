@@ -26,7 +26,8 @@ from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
-from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_MARGIN, NO_PLAN_VALUES, check_settings, describe,
+from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
+                      check_quantile, check_settings, describe,
                       fields, max_cut_depth)
 
 PARAMETERS: dict[str, tuple] = {
@@ -36,6 +37,8 @@ PARAMETERS: dict[str, tuple] = {
     "cut_speed_m_s": (DEFAULT_CUT_SPEED_M_S, "blade speed v_x of the planned steady, level cut (v_z = 0) [m/s], "
                                              "(0, 2]; default: the anti-stall controller's default target speed"),
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
+    "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
+                                               "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
 }
 MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
@@ -54,6 +57,10 @@ class PlannerNode(Node):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(get("margin"), get("d_max_m"),
                                                                        get("cut_speed_m_s"))
         self.include_residual = self._check_bool("include_residual", get("include_residual"))
+        self.force_quantile = self._check_quantile(get("force_quantile"))
+        # A plan from the fused posterior changes only with a new stretch of evidence (2 Hz):
+        # it is made once per stretch (with that tick's Θ_k) and repeated for the ticks between.
+        self._fused_plan: tuple[tuple, object] | None = None
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -74,6 +81,12 @@ class PlannerNode(Node):
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}")
 
     @staticmethod
+    def _check_quantile(value) -> float | None:
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == 0:
+            return None
+        return check_quantile(value)
+
+    @staticmethod
     def _check_bool(name: str, value) -> bool:
         if not isinstance(value, bool):
             raise ValueError(f"{name}={value!r} must be true or false")
@@ -88,10 +101,13 @@ class PlannerNode(Node):
                                                   changes.get("d_max_m", self.d_max_m),
                                                   changes.get("cut_speed_m_s", self.cut_speed_m_s))
             residual = self._check_bool("include_residual", changes.get("include_residual", self.include_residual))
+            quantile = (self._check_quantile(changes["force_quantile"]) if "force_quantile" in changes
+                        else self.force_quantile)
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.margin, self.d_max_m, self.cut_speed_m_s, self.include_residual = margin, d_max, speed, residual
+        self.force_quantile = quantile
         self.log_period_ns = int(period * M.NS_PER_S)
         return SetParametersResult(successful=True)
 
@@ -111,7 +127,8 @@ class PlannerNode(Node):
             self._warn("estimate:layout", f"{err}; ignored")
             return
         est = fields(values, T.ESTIMATE_FIELDS)
-        if est["valid"] == 0.0:  # no estimate yet: say so for this tick, no Θ_k needed
+        fused = self.force_quantile is not None and est["fused_valid"] == 1.0
+        if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
             self._publish(stamp, NO_PLAN_VALUES)
             return
         self._join(T.ESTIMATE.name, stamp, est)
@@ -128,15 +145,22 @@ class PlannerNode(Node):
                                        f"{T.KNOWN.name}; dropped")
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
+        fused = self.force_quantile is not None and est.get("fused_valid") == 1.0
+        key = (est.get("fused_stretches"), self.margin, self.d_max_m, self.cut_speed_m_s, self.force_quantile)
+        if fused and self._fused_plan is not None and self._fused_plan[0] == key:
+            self._publish(stamp, self._fused_plan[1].values())
+            return
         try:
             plan = max_cut_depth(est, known, margin=self.margin, d_max_m=self.d_max_m,
-                                 cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual)
+                                 cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual,
+                                 force_quantile=self.force_quantile)
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             return
         if plan is None:  # valid flag 0 was handled on arrival; kept for safety
             self._publish(stamp, NO_PLAN_VALUES)
             return
+        self._fused_plan = (key, plan) if fused else None
         self._publish(stamp, plan.values())
         if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
             self.last_log_ns = stamp

@@ -93,7 +93,8 @@ import numpy as np
 
 from soil_physics import fee
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, TABLE1
-from soil_msgs_py.topics import ESTIMATE_FIELDS, PLAN_FIELDS
+from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
+from soil_physics.predictive import model_error_std, upper_magnitude
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
@@ -113,6 +114,20 @@ MIN_ANCHOR_DEPTH_M = 0.02
 # The PINN clips its outputs to Table 1 in float32; the float64 value published can sit a
 # hair outside the float64 limit. Within this relative tolerance a value counts as inside.
 LIMIT_RTOL = 1e-6
+# The plan from the fused posterior (fused_valid = 1): the deepest cut whose force_quantile
+# upper bound of |F| stays within the limits. The posterior is taken as the Gaussian of the
+# published moments, sampled with fixed draws (the same estimate always gives the same plan),
+# each sample through the FEE at the planned steady cut plus the published error law.
+DEFAULT_FORCE_QUANTILE = 0.95
+FUSED_SAMPLES = 256
+FUSED_GRID_POINTS = 33  # a coarser grid than the point plan's: each depth is a whole mixture
+_DRAWS = np.random.default_rng(0).standard_normal((FUSED_SAMPLES, 3))
+FUSED_LIMITS: dict[str, tuple[float, float]] = {
+    **{f"{n}_fused": TABLE1[n].limits for n in ("phi", "c", "delta")},
+    **{f"{n}_std": (0.0, math.inf) for n in ("phi", "c", "delta")},
+    **{f"corr_{k}": (-1.0, 1.0) for k in ("phi_c", "phi_delta", "c_delta")},
+    **{f"model_std_{k}": (0.0, math.inf) for k in ("abs_x", "abs_z", "rel_x", "rel_z")},
+}
 # Estimate fields the plan reads (all are checked: a broken estimate is not trusted at all).
 ESTIMATE_LIMITS: dict[str, tuple[float, float]] = {
     name: TABLE1[name].limits for name in ("phi", "c", "delta", "beta", "delta_d")
@@ -146,11 +161,12 @@ class Plan:
     residual_x_n: float  # r_now: what the FEE misses at the estimate's depth and velocity [N] (0 if not used)
     residual_z_n: float
     residual_used: bool  # r(d') = r_now d'/d'_now was added (see module docstring)
+    force_quantile: float = 0.0  # > 0: planned from the fused posterior, f_x_n/f_z_n are this upper quantile of |F|
 
     def values(self) -> list[float]:
         """Payload of /planner/max_cut_depth in ``topics.PLAN_FIELDS`` order (valid = 1)."""
         return [self.max_depth_m, self.f_x_n, self.f_z_n, float(self.limited_by_x),
-                float(self.limited_by_z), 1.0]
+                float(self.limited_by_z), 1.0, self.force_quantile]
 
     @property
     def binding(self) -> str:
@@ -160,7 +176,7 @@ class Plan:
 
 
 NO_PLAN_VALUES: tuple[float, ...] = (0.0,) * len(PLAN_FIELDS)  # valid = 0: every field 0.0, never NaN
-assert PLAN_FIELDS == ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid"), "Plan.values"
+assert PLAN_FIELDS == ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited_by_z", "valid", "force_quantile"), "Plan.values"
 
 
 def check_settings(margin: float, d_max_m: float, cut_speed_m_s: float) -> tuple[float, float, float]:
@@ -192,31 +208,42 @@ def max_cut_depth(
     d_max_m: float = DEFAULT_D_MAX_M,
     cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S,
     include_residual: bool = True,
-    grid_points: int = GRID_POINTS,
+    force_quantile: float | None = DEFAULT_FORCE_QUANTILE,
+    grid_points: int | None = None,
     tol_m: float = TOLERANCE_M,
 ) -> Plan | None:
     """Deepest admissible cut for ``estimate`` (ESTIMATE_FIELDS) with Θ_k ``known`` (KNOWN_PARAMS).
 
-    None for an invalid estimate (valid = 0: there is nothing to plan from). ValueError,
-    naming the field and value, for a missing, non-finite or out-of-limits field, a bad
-    setting, or parameters for which the FEE has no failure wedge at the planned steady cut
-    (v_x = ``cut_speed_m_s``, v_z = 0; non-finite force). See the module docstring for the
-    depth, the operating point, β, the residual and the search.
+    With a fused posterior (``fused_valid`` = 1) and ``force_quantile`` q set: every depth's
+    force is the q upper bound of |F| over the posterior (module constants FUSED_*), so the
+    plan keeps a 1 − q chance of meeting more than the limits; otherwise the PINN's point
+    estimate with the residual (module docstring). None when neither is valid (nothing to plan
+    from). ValueError, naming the field and value, for a missing, non-finite or out-of-limits
+    field, a bad setting, or parameters for which the FEE has no failure wedge at the planned
+    steady cut (v_x = ``cut_speed_m_s``, v_z = 0; non-finite force).
     """
     margin, d_max_m, cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
+    if force_quantile is not None:
+        force_quantile = check_quantile(force_quantile)
+    valid = _flag(estimate, "valid")
+    # (an estimate without the fused fields, e.g. from an estimator without them: the point plan)
+    fused = force_quantile is not None and "fused_valid" in estimate and _flag(estimate, "fused_valid") == 1.0
+    if grid_points is None:
+        grid_points = FUSED_GRID_POINTS if fused else GRID_POINTS
     if int(grid_points) != grid_points or grid_points < 2:
         raise ValueError(f"grid_points={grid_points!r} must be an integer >= 2")
     if not 0.0 < tol_m:
         raise ValueError(f"tol_m={tol_m!r} must be > 0 m")
-    valid = _number("estimate valid", _get(estimate, "valid", "estimate"))
-    if valid not in (0.0, 1.0):
-        raise ValueError(f"estimate valid={valid!r} must be 1.0 or 0.0")
-    if valid == 0.0:
+    if valid == 0.0 and not fused:
         return None
-    est = _checked(estimate, ESTIMATE_FIELDS, ESTIMATE_LIMITS, "estimate")
     kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
     limits = np.array([margin * FORCE_LIMITS_N[0], margin * FORCE_LIMITS_N[1]])
-    model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
+    if fused:
+        est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
+        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile)
+    else:
+        est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
+        model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
 
     grid = np.linspace(0.0, d_max_m, int(grid_points))
     fx, fz = model(grid)
@@ -243,8 +270,74 @@ def max_cut_depth(
         limited_by_x=hit_x, limited_by_z=hit_z, limit_x_n=float(limits[0]), limit_z_n=float(limits[1]),
         d_max_m=d_max_m, cut_speed_m_s=cut_speed_m_s, beta_rad=model.beta_rad,
         residual_x_n=float(model.residual[0]), residual_z_n=float(model.residual[1]),
-        residual_used=model.residual_used,
+        residual_used=model.residual_used, force_quantile=float(force_quantile) if fused else 0.0,
     )
+
+
+def check_quantile(q) -> float:
+    """The force quantile as a float; ValueError naming it unless 0.5 <= q < 1."""
+    x = _number("force_quantile", q)
+    if not 0.5 <= x < 1.0:
+        raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force)")
+    return x
+
+
+def _flag(estimate: Mapping[str, float], name: str) -> float:
+    value = _number(f"estimate {name}", _get(estimate, name, "estimate"))
+    if value not in (0.0, 1.0):
+        raise ValueError(f"estimate {name}={value!r} must be 1.0 or 0.0")
+    return value
+
+
+class _FusedForceModel:
+    """|F|(d) at the force_quantile over the fused posterior, for arrays of depths d [m].
+
+    θ samples: the Gaussian of the published means, standard deviations and correlations
+    (covariance made positive semi-definite), fixed draws, φ and δ kept inside Table 1's
+    limits and c >= 0; each through the FEE at d (no Δd: the posterior's stretches were fitted
+    at Θ_k's d), the planned steady cut (v_x = cut speed, v_z = 0) and β* per sample; the
+    published error law σ = abs + rel·|F| around each. Samples without a failure wedge there
+    are left out; none left is a ValueError.
+    """
+
+    residual = np.zeros(2)
+    residual_used = False
+
+    def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float):
+        names = ("phi", "c", "delta")
+        mean = np.array([est[f"{n}_fused"] for n in names])
+        std = np.array([est[f"{n}_std"] for n in names])
+        corr = np.eye(3)
+        for (i, a), (j, b) in (((0, "phi"), (1, "c")), ((0, "phi"), (2, "delta")), ((1, "c"), (2, "delta"))):
+            corr[i, j] = corr[j, i] = est[f"corr_{a}_{b}"]
+        vals, vecs = np.linalg.eigh(corr * np.outer(std, std))
+        root = vecs * np.sqrt(np.clip(vals, 0.0, None))
+        x = mean + _DRAWS @ root.T
+        lo = np.array([TABLE1["phi"].limits[0] + 1e-6, 0.0, 0.0])
+        hi = np.array([TABLE1["phi"].limits[1] - 1e-6, math.inf, TABLE1["delta"].limits[1]])
+        x = np.clip(x, lo, hi)
+        self.theta = {**known, "phi": x[:, 0], "c": x[:, 1], "delta": x[:, 2], "v_x": cut_speed_m_s, "v_z": 0.0}
+        self.quantile = quantile
+        self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
+        delta_v, _ = fee.velocity_corrected(est["delta_fused"], known["c_a"], known["rho"], known["alpha"], cut_speed_m_s, 0.0)
+        self.beta_rad = float(fee.beta_star(est["phi_fused"], delta_v, known["rho"], known["alpha"]))
+        if not math.isfinite(self.beta_rad):
+            self.beta_rad = 0.0  # the mean has no wedge; the samples decide (reported only)
+
+    def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = np.clip(np.asarray(d, float), *D_PRIME_LIMITS_M)[:, None]  # (D, 1) against (S,) samples
+        with np.errstate(all="ignore"):
+            fx, fz, _ = fee.fee_xz({**self.theta, "d": d})
+        fx, fz = np.broadcast_to(fx, (len(d), FUSED_SAMPLES)), np.broadcast_to(fz, (len(d), FUSED_SAMPLES))
+        ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0)  # a sample with a wedge at every depth
+        if not ok.any():
+            raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
+        w = ok.astype(float)
+        out = []
+        for f, (a, r) in ((fx, self.law[0]), (fz, self.law[1])):
+            f = np.where(ok, f, 0.0)
+            out.append(upper_magnitude(w, f, model_error_std(f, a, r) + 1e-9, self.quantile))
+        return out[0], out[1]
 
 
 class _ForceModel:
@@ -310,14 +403,19 @@ def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, floa
     else:
         lim = {"x": plan.limit_x_n, "z": plan.limit_z_n}
         why = ", ".join(f"{a} limit binds: {lim[a] / 1e3:.1f} kN" for a in plan.binding.split("+"))
-    residual = (f"F_r now ({plan.residual_x_n / 1e3:+.1f}, {plan.residual_z_n / 1e3:+.1f}) kN"
-                if plan.residual_used else "FEE only")
+    if plan.force_quantile:
+        soil = (f"the fused soil φ={estimate['phi_fused'] / DEG:.1f}±{estimate['phi_std'] / DEG:.1f}°, "
+                f"c={estimate['c_fused'] / 1e3:.1f}±{estimate['c_std'] / 1e3:.1f} kPa, "
+                f"δ={estimate['delta_fused'] / DEG:.1f}±{estimate['delta_std'] / DEG:.1f}°, "
+                f"{plan.force_quantile:.0%} upper force quantile")
+    else:
+        residual = (f"F_r now ({plan.residual_x_n / 1e3:+.1f}, {plan.residual_z_n / 1e3:+.1f}) kN"
+                    if plan.residual_used else "FEE only")
+        soil = (f"φ={estimate['phi'] / DEG:.1f}°, c={estimate['c'] / 1e3:.1f} kPa, δ={estimate['delta'] / DEG:.1f}°, "
+                f"Δd={estimate['delta_d'] * 100:+.1f} cm, β*={plan.beta_rad / DEG:.1f}°, {residual}")
     return (
         f"deepest cut {plan.max_depth_m:.2f} m below the surface ({why}) "
-        f"at v_x={plan.cut_speed_m_s:.2f} m/s level, from φ={estimate['phi'] / DEG:.1f}°, "
-        f"c={estimate['c'] / 1e3:.1f} kPa, δ={estimate['delta'] / DEG:.1f}°, "
-        f"Δd={estimate['delta_d'] * 100:+.1f} cm, "
-        f"β*={plan.beta_rad / DEG:.1f}°, {residual}; "
+        f"at v_x={plan.cut_speed_m_s:.2f} m/s level, from {soil}; "
         f"now d={known['d']:.2f} m, Q={known['q'] / 1e3:.1f} kN, "
         f"v=({known['v_x']:+.2f}, {known['v_z']:+.2f}) m/s"
     )

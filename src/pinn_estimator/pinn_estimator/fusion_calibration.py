@@ -1,0 +1,178 @@
+"""Calibrating the fused posterior's error laws on episodes the evaluation never scores.
+
+Per axis (``fusion.FusionConfig``): ``rel_std``, how far the physics model may be from a
+stretch's measured force (how hard each stretch teaches), and the forecast law
+``forecast_abs_std_n`` + ``forecast_rel_std``·|F|, the model error a forecast adds to the
+posterior's spread. Calibration episodes: the training
+grid's depths 0.05 / 0.175 / 0.3 m, densities 20-80 %, other seeds, disjoint from the
+evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1: ``rel_std`` on a log grid, the
+value whose median forecasts at another depth are closest to the measured force (mean |error|
+of x and z as a share of the machine's limits). Stage 2, with the posteriors of stage 1 kept:
+the forecast law per axis (share and floor on grids) whose 90 % intervals hold the measured
+force closest to 90 % of the time.
+``pinn_fusion_calibrate --world fee`` writes the config the estimator and ``pinn_eval`` load
+(``models/fusion_<world>.json``) and the calibration curve (PNG).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from soil_msgs_py.params import FORCE_LIMITS_N
+
+from . import forecast as fc
+from .fusion import FusionConfig
+
+CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
+CAL_DEPTHS_M = (0.05, 0.175, 0.3)
+CAL_SEED = 9000
+REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
+FORECAST_GRID = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8)
+FLOOR_GRID = (20.0, 300.0, 1000.0, 3000.0)  # forecast error floor [N]: F_z of the default world is ~0 in the FEE
+NOMINAL = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # central interval levels of the calibration curve
+MODELS_DIR = Path(__file__).resolve().parent / "models"
+
+
+def config_path(world: str) -> Path:
+    """Where the calibrated fusion config of a world lives (next to the shipped checkpoints)."""
+    return MODELS_DIR / f"fusion_{world}.json"
+
+
+def load_calibrated(world: str) -> FusionConfig:
+    """The calibrated config of ``world``; the defaults if none was written."""
+    path = config_path(world)
+    return FusionConfig.load(path) if path.exists() else FusionConfig()
+
+
+DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): the node's and replay's config
+
+
+def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[dict]:
+    """Per forecast pair of ``ds`` (same soil and density, other depth): the measured force and
+    the fused posterior's forecast from the first episode (median and central intervals).
+    ``posts``: the episodes' posteriors when already fused (their forecast law set from ``cfg``)."""
+    from .evaluate import fused_posteriors
+
+    if posts is None:
+        posts = fused_posteriors(ds, cfg)
+    for post in posts:
+        post.cfg = dataclasses.replace(post.cfg, forecast_rel_std=cfg.forecast_rel_std, forecast_abs_std_n=cfg.forecast_abs_std_n)
+    parts = fc.steady_parts(ds)
+    quantiles = tuple(sorted({0.5 - lv / 2 for lv in levels} | {0.5 + lv / 2 for lv in levels} | {0.5}))
+    rows = []
+    for a, b in _pairs(parts):
+        known_b = np.array([parts[b].known[n] for n in fc.KNOWN_PARAMS])
+        rows.append({"measured": parts[b].force, "forecast": posts[a].forecast(known_b, quantiles=quantiles)["quantiles"]})
+    return rows
+
+
+def median_error_pct(table: list[dict]) -> float:
+    """Mean |median forecast − measured| of x and z, % of the machine's force limits (20 / 30 kN:
+    robust where a force passes through 0, as F_z does in the default world)."""
+    errs = [abs(r["forecast"][0.5][j] - r["measured"][j]) / FORCE_LIMITS_N[j] for r in table for j in range(2)]
+    return 100.0 * float(np.mean(errs)) if errs else float("nan")
+
+
+def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> dict:
+    """Share of forecast pairs whose central interval of each level holds the measured force, per axis."""
+    table = forecast_table(ds, cfg, levels, posts)
+    hits = {axis: [float(np.mean([r["forecast"][0.5 - lv / 2][j] <= r["measured"][j] <= r["forecast"][0.5 + lv / 2][j]
+                                  for r in table])) if table else float("nan") for lv in levels]
+            for j, axis in enumerate("xz")}
+    return hits | {"pairs": len(table)}
+
+
+def _pairs(parts):
+    for a, pa in enumerate(parts):
+        for b, pb in enumerate(parts):
+            if a == b or pa is None or pb is None or (pa.soil, pa.relative_density_pct) != (pb.soil, pb.relative_density_pct):
+                continue
+            da, db = pa.known["d"], pb.known["d"]
+            if max(da, db) >= fc.MIN_DEPTH_RATIO * min(da, db):
+                yield a, b
+
+
+def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
+              log=print) -> tuple[FusionConfig, list[dict]]:
+    """Stage 1 (``rel_std`` by median forecast error) and stage 2 (the forecast law, share and
+    floor, per axis by 90 % coverage); returns the config and every stage-2 candidate's curve."""
+    scored = []
+    for rel in rel_grid:
+        err = median_error_pct(forecast_table(ds, dataclasses.replace(base, rel_std=(rel, rel))))
+        scored.append((err, rel))
+        log(f"rel_std {rel:g}: median forecasts at another depth off by {err:.2f} % of the force limits (x and z)")
+    rel = min(scored)[1]
+    cfg = dataclasses.replace(base, rel_std=(rel, rel))
+    from .evaluate import fused_posteriors
+
+    posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
+    rows = []
+    level = NOMINAL.index(0.9)
+    for floor in floor_grid:
+        for frel in forecast_grid:
+            law = dataclasses.replace(cfg, forecast_rel_std=(frel, frel), forecast_abs_std_n=(floor, floor))
+            curve = coverage_curve(ds, law, posts=posts)
+            rows.append({"forecast_rel_std": frel, "forecast_abs_std_n": floor, "coverage_90_x": curve["x"][level],
+                         "coverage_90_z": curve["z"][level], "curve": curve})
+            log(f"  forecast_rel_std {frel:g}, floor {floor:g} N: 90 % intervals hold F_x {curve['x'][level]:.0%}, "
+                f"F_z {curve['z'][level]:.0%} of {curve['pairs']} pairs")
+    # per axis the law closest to 90 %; of equals, the narrowest (smallest floor, then share)
+    best = [min(rows, key=lambda r, a=axis: (round(abs(r[f"coverage_90_{a}"] - 0.9), 6), r["forecast_abs_std_n"],
+                                             r["forecast_rel_std"])) for axis in "xz"]
+    return dataclasses.replace(cfg, forecast_rel_std=(best[0]["forecast_rel_std"], best[1]["forecast_rel_std"]),
+                               forecast_abs_std_n=(best[0]["forecast_abs_std_n"], best[1]["forecast_abs_std_n"])), rows
+
+
+def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
+    """Calibration curve: nominal central interval vs the share of forecasts it holds, the sweep
+    dotted, the chosen config solid (x) and dashed (z)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 4))
+    ax.plot([0, 1], [0, 1], "k:", lw=1, label="perfect calibration")
+    for r in rows:
+        ax.plot(NOMINAL, r["curve"]["x"], color="0.8", lw=0.8)
+    ax.plot(NOMINAL, final["curve"]["x"], "-o", ms=3, label=f"F_x (forecast rel {final['forecast_rel_std'][0]:g})")
+    ax.plot(NOMINAL, final["curve"]["z"], "--s", ms=3, label=f"F_z (forecast rel {final['forecast_rel_std'][1]:g})")
+    ax.set_xlabel("nominal central interval")
+    ax.set_ylabel("share of forecasts holding the measured force")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="pinn_fusion_calibrate", description=__doc__.split("\n\n")[0])
+    p.add_argument("--world", choices=("fee", "default"), required=True)
+    p.add_argument("--out", type=Path, default=None, help="config JSON (default: models/fusion_<world>.json)")
+    p.add_argument("--duration", type=float, default=10.0, help="calibration episode length [s]")
+    args = p.parse_args(argv)
+    from .evaluate import forecast_dataset
+
+    out = args.out or config_path(args.world)
+    ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
+                          depths_m=CAL_DEPTHS_M)
+    cfg, rows = calibrate(ds, FusionConfig())
+    cfg.save(out)
+    final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg)}
+    final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
+    plot_curve(rows, final, out.with_suffix(".png"),
+               f"fused forecast at another depth, {args.world} world: calibration episodes")
+    level = NOMINAL.index(0.9)
+    print(f"wrote {out} (rel_std {cfg.rel_std[0]:g}, forecast law x {cfg.forecast_abs_std_n[0]:g} N + "
+          f"{cfg.forecast_rel_std[0]:g}|F|, z {cfg.forecast_abs_std_n[1]:g} N + {cfg.forecast_rel_std[1]:g}|F|: 90 % intervals hold F_x "
+          f"{final['curve']['x'][level]:.0%}, F_z {final['curve']['z'][level]:.0%}) and {out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

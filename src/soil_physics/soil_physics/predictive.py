@@ -1,0 +1,49 @@
+"""The force a soil posterior predicts: quantiles of a Gaussian mixture, vectorised.
+
+Shared by the estimator's fused posterior (``pinn_estimator.fusion``: its forecasts and
+calibration) and the planner (``soil_planner.planner``: the deepest cut whose upper force
+quantile stays within the limits), so a quantile means the same number in both. No ROS.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import ndtr
+
+BISECTIONS = 50  # halvings of the search interval: 16 sigma / 2^50, far below a newton
+TAIL = 1e-9  # components lighter than this share of the heaviest are left out
+
+
+def mixture_quantiles(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantiles) -> np.ndarray:
+    """Quantiles of Σ_i w_i N(mu_i, sd_i²) by bisection on the mixture's CDF.
+
+    w: (S,) weights (any positive scale); mu, sd: (S,) or (D, S) for D mixtures with the same
+    weights (e.g. one per candidate depth). Returns (len(quantiles),) or (len(quantiles), D)."""
+    w = np.asarray(w, float)
+    keep = w > TAIL * w.max()
+    w = w[keep] / w[keep].sum()
+    mu, sd = np.asarray(mu, float)[..., keep], np.asarray(sd, float)[..., keep]
+    batched = mu.ndim == 2
+    mu2, sd2 = (mu, sd) if batched else (mu[None], sd[None])
+    lo0, hi0 = (mu2 - 8 * sd2).min(axis=1), (mu2 + 8 * sd2).max(axis=1)
+    out = []
+    for q in quantiles:
+        lo, hi = lo0.copy(), hi0.copy()
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            below = ndtr((mid[:, None] - mu2) / sd2) @ w < q
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        out.append(0.5 * (lo + hi))
+    out = np.array(out)
+    return out if batched else out[:, 0]
+
+
+def upper_magnitude(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantile: float) -> np.ndarray:
+    """A force magnitude the mixture exceeds with probability at most about 1 − ``quantile``:
+    max(|Q_q|, |Q_{1−q}|) per mixture (D,), whichever sign the force has."""
+    lo, hi = mixture_quantiles(w, mu, sd, (1.0 - quantile, quantile))
+    return np.maximum(np.abs(lo), np.abs(hi))
+
+
+def model_error_std(force_n: np.ndarray, abs_std_n: float, rel_std: float) -> np.ndarray:
+    """σ = abs + rel·|F| [N]: the error law of the physics model a posterior assumes."""
+    return abs_std_n + rel_std * np.abs(force_n)
