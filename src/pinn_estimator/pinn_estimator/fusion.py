@@ -8,14 +8,15 @@ the physics model itself, F = F_FEE(θ, Θ_k) (+ the checkpoint's catalogue term
 speeds and surcharges multiply into one posterior that pins φ and c down jointly. F_x/F_z
 fixes δ (Eq. 8: the force's direction depends on ρ, δ, α only).
 
-Representation: a Gaussian over θ scaled to the prior box (Table 1's normalisation ranges,
-widened to hold every catalogue soil in both worlds), updated per stretch by an iterated
-extended Kalman step (Gauss-Newton to the stretch's MAP). Why Gaussian and not particles: in
-the fee world the model is exact, the likelihood of one stretch is a ridge a few tenths of a
-percent wide, and a particle cloud (tried: fixed Sobol support and resample-move, 4k-65k
-particles) never has points on it, so its estimates were worse than the prior's (φ error
-7-11° where this gives ~1°). A Gaussian is also what ``/soil/estimate`` can carry whole
-(means, standard deviations, correlations), so a planner gets the posterior, not a summary.
+Representation: a sum of ``components`` Gaussians side by side along φ's prior box (Table 1's
+normalisation ranges, widened to hold every catalogue soil in both worlds; c through a
+softplus, see ``SoilPosterior``), each updated per stretch by an iterated extended Kalman step
+(Gauss-Newton to the stretch's MAP) and weighted by its predictive likelihood. Why not
+particles: in the fee world the model is exact, the likelihood of one stretch is a ridge a few
+tenths of a percent wide, and a particle cloud (tried: fixed Sobol support and resample-move,
+4k-65k particles) never has points on it (φ error 7-11° where two depths give ~1-4° here).
+Why a sum: one depth leaves a curved φ-c ridge that one Gaussian cannot follow (its forecasts
+missed in 13 of 24 sand and gravel pairs). ``/soil/estimate`` carries the sum's moments.
 
 Likelihood of a stretch's mean force F̄ given θ: independent Gaussians per axis with standard
 deviation σ_j = abs_j + rel_j·|F_model,j|, widened by the force's spread within the stretch
@@ -26,12 +27,12 @@ are calibrated on episodes other than the ones the evaluation scores.
 
 Soil that changes: between stretches the covariance grows with the blade's travel (a random
 walk of the soil along the path, ``drift_per_sqrt_m``), and a stretch the current soil cannot
-explain (normalised innovation beyond ``change_nis``) restarts from the prior's covariance:
-a new soil takes over within a stretch or two of cutting in it.
+explain (normalised innovation beyond ``change_nis`` for every component) restarts from the
+prior: a new soil takes over within a stretch or two of cutting in it, when its force differs.
 
 Forecast: the force at other conditions (another depth) is the model's force over fixed
-samples of the posterior plus the model-error Gaussian; its mean and quantiles are exact for
-that mixture (``mixture_quantiles``).
+samples of the posterior plus the forecast error law (``forecast_*``); its mean and quantiles
+are exact for that mixture (``soil_physics.predictive.mixture_quantiles``).
 """
 from __future__ import annotations
 
@@ -98,7 +99,10 @@ class FusionConfig:
         if self.update_ticks % self.model_points:
             raise ValueError(f"fusion model_points={self.model_points} must divide update_ticks={self.update_ticks}")
         for name in ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n"):
-            v = tuple(float(x) for x in getattr(self, name))
+            try:
+                v = tuple(float(x) for x in getattr(self, name))
+            except (TypeError, ValueError):
+                raise ValueError(f"fusion {name}={getattr(self, name)!r} must be two numbers (x, z)") from None
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v) or (name.endswith("abs_std_n") and min(v) <= 0):
                 raise ValueError(f"fusion {name}={getattr(self, name)!r} must be two finite values >= 0 (abs > 0) for x, z")
             object.__setattr__(self, name, v)
