@@ -52,6 +52,9 @@ LABELLED_TOPICS = (T.KNOWN.name, T.GROUND_TRUTH.name, T.BLADE_CMD.name, T.ESTIMA
 HEADER_TOPICS = (T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name, T.CHASSIS_TWIST.name,
                  T.BLADE_FORCE.name, T.CMD_VEL.name, T.ESTIMATED_FORCE.name)
 INT32_MAX, UINT32_MAX = 2**31 - 1, 2**32 - 1
+# The estimator's per-tick outputs a spoof copies ahead of the next tick (/soil/map is sent per
+# stretch, not per tick: a copy "ahead of the next tick" of it is not the attack this models).
+SPOOFED_ESTIMATOR_OUTPUTS = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name)
 
 
 def grid_stamp(first_ns: int, k: int) -> int:
@@ -332,7 +335,7 @@ class HostileNode(RosProbe):
                 self._spoof(topic, stamp)
             if self.rng.random() < 0.15:  # ahead of the next tick, before the real one can exist
                 k = tick_index(self.first_ns, stamp)
-                self._spoof(self.rng.choice(PASSIVE_STATE_TOPICS + G.ESTIMATOR_OUTPUTS),
+                self._spoof(self.rng.choice(PASSIVE_STATE_TOPICS + SPOOFED_ESTIMATOR_OUTPUTS),
                             grid_stamp(self.first_ns, k + 1))
         elif topic in G.COMMAND_TOPICS and self.rng.random() < 0.3:
             self._spoof(topic, stamp)  # right after the controller's own command of that tick

@@ -55,17 +55,20 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     ep = read_episode(bag)
     rec_stamps, rec_values = read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
 
-    # one message per tick; valid from the 60th sample on, each stamped with a tick of the bag
-    assert [s for _, s, _ in live] == ep.stamps_ns.tolist()
+    # Nothing waits for the estimator's publisher to be matched, neither by the recorder nor by
+    # this probe (not launched with the graph): on a loaded machine either may find it after
+    # the first ticks. From its first message on each got every tick, one estimate per tick of
+    # the 60 Hz grid, valid from the 60th sample on; and the same values.
+    stamps_live = [s for _, s, _ in live]
+    for stamps in (rec_stamps.tolist(), stamps_live):
+        assert stamps and stamps == ep.stamps_ns[len(ep) - len(stamps):].tolist()
+        assert len(stamps) > len(ep) // 2, "less than half the episode's estimates arrived"
+    first_valid = int(ep.stamps_ns[WINDOW_SAMPLES - 1])
+    assert all((v[VALID] == 1.0) == (s >= first_valid) for _, s, v in live)
     good = [(t, s, v) for t, s, v in live if v[VALID] == 1.0]
-    assert [s for _, s, _ in good] == ep.stamps_ns[WINDOW_SAMPLES - 1 :].tolist()
     assert all(np.isfinite(v).all() for _, _, v in live)
-    # one estimate per tick of the simulator's 60 Hz grid, none skipped (how evenly they
-    # arrive in wall time is a benchmark figure: benchmarks/bench_estimator.py)
-    assert set(np.diff([s for _, s, _ in live]).tolist()) <= {16_666_666, 16_666_667}
-    # the bag recorded exactly what the probe received
-    assert rec_stamps.tolist() == [s for _, s, _ in live]
-    np.testing.assert_array_equal(rec_values, np.stack([v for _, _, v in live]))
+    both = min(len(rec_stamps), len(stamps_live))
+    np.testing.assert_array_equal(rec_values[len(rec_stamps) - both:], np.stack([v for _, _, v in live[len(live) - both:]]))
     # online == offline model on the same windows (float32 rounding of batch 1 vs batched)
     offline = dict(zip(*episode_estimates(load_model(DEFAULT_CHECKPOINT)[0], bag)))
     for _, s, v in good:
@@ -83,14 +86,14 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
                 [str(BIN / "soil_bag_play"), str(bag), "--topics", *INPUT_TOPICS, "--wait-for-subscribers", "1",
                  "--wait-timeout", "30"], env=loopback_env(domain2), capture_output=True, text=True, timeout=90)
             assert player.returncode == 0, player.stdout + player.stderr
-            wait_until(lambda: len(estimates(probe)) >= len(rec_stamps), 20,
-                       f"replayed estimates (got {len(estimates(probe))} of {len(rec_stamps)}; player said "
+            wait_until(lambda: len(estimates(probe)) >= len(ep), 20,
+                       f"replayed estimates (got {len(estimates(probe))} of {len(ep)}; player said "
                        f"{player.stdout[-1500:]}{player.stderr[-1500:]}")
             replay = estimates(probe)
         finally:
             assert est.stop() == 0, est.output
-    assert [s for _, s, _ in replay] == rec_stamps.tolist()
-    diff = np.abs(np.stack([v for _, _, v in replay]) - rec_values)
+    assert [s for _, s, _ in replay] == ep.stamps_ns.tolist()  # this probe waited for the estimator: every tick
+    diff = np.abs(np.stack([v for _, _, v in replay[len(ep) - len(rec_stamps):]]) - rec_values)
     assert diff.max() <= 1e-6, f"replay differs from live by {diff.max()}"
     assert "0 gaps, 0 out of order, 0 non-finite, 0 malformed" in est.output
 

@@ -245,3 +245,31 @@ def test_labelled_extras_hold_only_the_estimators_messages(tmp_path):
     assert info["off_grid"].get(T.ESTIMATE.name) == n // 5
     assert info["conflicts"].get(T.ESTIMATE.name) == n // 5
 
+
+
+def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):
+    """The episode's ticks are complete; the estimator's estimates keep coming (a loaded
+    machine): the bag waits while they flow and closes once they were quiet for the grace."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 20
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    now = [0.0]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
+                            end_grace_s=4.0, clock=lambda: now[0])
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for _, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+    rec.on_status(end_ev.to_json())
+    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    for k, t in enumerate(clock_stamps[:-1]):  # every tick but the last, each 0.2 s after the previous
+        now[0] += 0.2
+        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
+        assert rec.poll() == [], f"closed while estimates still came, at tick {k}"
+    now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # the last tick's estimate never comes
+    (result,) = rec.poll()
+    stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert stamps.tolist() == clock_stamps[:-1]

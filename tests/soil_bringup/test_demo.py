@@ -66,7 +66,7 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     assert all(math.isfinite(v) for v in errors), ep
     assert (out / "summary.md").read_text().count("| Clay |") == 3  # errors, mean estimates, the fused soil
     fused = ep["fused_end"]
-    assert fused["stretches"] >= 4 and all(math.isfinite(fused[p]["std_deg" if p != "c" else "std_kPa"]) for p in ("phi", "c", "delta"))
+    assert fused["stretches"] >= 1 and all(math.isfinite(fused[p]["std_deg" if p != "c" else "std_kPa"]) for p in ("phi", "c", "delta"))
     png = out / "online_estimates.png"
     assert png.is_file() and png.stat().st_size > 10_000
 

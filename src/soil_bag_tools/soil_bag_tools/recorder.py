@@ -55,7 +55,7 @@ from .journal import (
 )
 
 _MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
-EXTRA_TOPIC_GRACE_S = 0.3  # wait for non-episode topics once the episode topics are complete
+EXTRA_TOPIC_GRACE_S = 0.3  # once the episode topics are complete, wait until the extras were quiet this long
 _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
 # How long an ended episode waits for more of its data after the last message arrived. Longer
@@ -365,9 +365,11 @@ class Recorder:
         return writers.leads(writers.observe(seq, k))
 
     def _complete(self, s: Session) -> bool:
-        """Every episode topic reached the last stamp, and so did every extra ``--topics`` one or
-        ``EXTRA_TOPIC_GRACE_S`` passed since (extras such as /soil/estimate follow the ticks but
-        may run at other rates or skip the last stamp)."""
+        """Every episode topic reached the last stamp, and so did every extra ``--topics`` one, or
+        the session was quiet for ``EXTRA_TOPIC_GRACE_S`` since the ticks were complete (extras
+        such as /soil/estimate follow the ticks but may run at other rates, skip the last stamp,
+        or lag: an estimator on a loaded machine still streaming its last estimates is not cut
+        off), at most ``end_grace_s`` after the ticks were complete."""
         tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
         if not all(s.topic_done(t) for t in tick_topics):
             return False
@@ -376,7 +378,8 @@ class Recorder:
         now = self.clock()
         if s.ticks_done_since is None:
             s.ticks_done_since = now
-        return now - s.ticks_done_since >= EXTRA_TOPIC_GRACE_S
+        quiet_since = max(s.ticks_done_since, s.last_write or s.ticks_done_since)
+        return now - quiet_since >= EXTRA_TOPIC_GRACE_S or now - s.ticks_done_since >= self.end_grace_s
 
     def _finish(self, s: Session, how: str) -> BagResult | None:
         """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""
