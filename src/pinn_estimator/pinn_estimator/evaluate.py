@@ -16,7 +16,6 @@ Ground truth is used only to score.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
@@ -129,18 +128,20 @@ FORECAST_STRIDE = 30  # samples between the steady windows a forecast averages (
 
 def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:
     """Per episode of ``ds``, the fused posterior after all its samples (what the online
-    estimator holds at the episode's end)."""
+    estimator holds at the episode's end; blade travel in soil for models with distance terms)."""
+    distance = ds.distance_in_soil()
     out = []
     for e in range(len(ds)):
         rows = ds.episode_rows(e)
-        out.append(fuse_episode(SoilPosterior(cfg), ds.forces[rows], ds.known[rows]))
+        out.append(fuse_episode(SoilPosterior(cfg), ds.forces[rows], ds.known[rows], distance[rows]))
     return out
 
 
 def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bool = True, workers: int = 2,
              progress: bool = False, fusion: FusionConfig | None = None) -> dict:
     """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares
-    fit's θ̂, and the fused posterior (``fusion``: its config; the model's catalogue terms are added)."""
+    fit's θ̂, and the fused posterior (``fusion``: its config, None: the default world's calibration;
+    the model's catalogue terms are added)."""
     ends = fc.steady_window_ends(ds, stride)
     out = predict(model, WindowTensors(ds), ends)
     estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
@@ -149,8 +150,9 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
 
         fit = fit_windows(_windows(ends, ds.known), _windows(ends, ds.forces), workers=workers, progress=progress)
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta}
-    cfg = dataclasses.replace(fusion or FusionConfig(), terms=model.cfg.extra_terms)
-    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, cfg)})
+    from .fusion_calibration import config_for_model
+
+    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, config_for_model(fusion, model))})
 
 
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,

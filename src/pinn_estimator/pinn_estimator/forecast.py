@@ -45,6 +45,10 @@ class Steady:
     force: np.ndarray  # (2,) [N]
     truth: dict[str, float]
 
+    def known_row(self) -> np.ndarray:
+        """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
+        return np.array([self.known[n] for n in KNOWN_PARAMS])
+
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half)."""
@@ -105,29 +109,35 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
     measured force."""
     posteriors = posteriors or {}
     quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
+    pairs = []
+    for a, b in pair_indices(parts):
+        forecast = {name: fee_force_at(theta[a], parts[b].known) for name, theta in thetas.items()}
+        intervals = {}
+        for name, posts in posteriors.items():
+            out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles)
+            forecast[name] = out["quantiles"][0.5]
+            intervals[name] = {(lo, hi): (out["quantiles"][lo], out["quantiles"][hi]) for lo, hi in INTERVALS}
+        forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)
+        forecast["naive_same_force"] = parts[a].force
+        pairs.append({"soil": parts[a].soil, "relative_density_pct": parts[a].relative_density_pct,
+                      "from_depth_m": parts[a].known["d"], "to_depth_m": parts[b].known["d"],
+                      "measured": parts[b].force, "forecast": forecast, "intervals": intervals})
+    return pairs
+
+
+def pair_indices(parts: list[Steady | None]):
+    """(a, b) of every ordered pair of episodes of one soil and density at another depth (steady
+    depths at least MIN_DEPTH_RATIO apart), grouped by soil and density in sorted order."""
     groups = defaultdict(list)
     for e, part in enumerate(parts):
         if part is not None:
             groups[(part.soil, part.relative_density_pct)].append(e)
-    pairs = []
-    for (soil, i_d), members in sorted(groups.items()):
+    for _, members in sorted(groups.items()):
         for a in members:
             for b in members:
                 da, db = parts[a].known["d"], parts[b].known["d"]
-                if a == b or max(da, db) < MIN_DEPTH_RATIO * min(da, db):
-                    continue
-                forecast = {name: fee_force_at(theta[a], parts[b].known) for name, theta in thetas.items()}
-                intervals = {}
-                for name, posts in posteriors.items():
-                    known_b = np.array([parts[b].known[n] for n in KNOWN_PARAMS])
-                    out = posts[a].forecast(known_b, quantiles=quantiles)
-                    forecast[name] = out["quantiles"][0.5]
-                    intervals[name] = {(lo, hi): (out["quantiles"][lo], out["quantiles"][hi]) for lo, hi in INTERVALS}
-                forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)
-                forecast["naive_same_force"] = parts[a].force
-                pairs.append({"soil": soil, "relative_density_pct": i_d, "from_depth_m": da, "to_depth_m": db,
-                              "measured": parts[b].force, "forecast": forecast, "intervals": intervals})
-    return pairs
+                if a != b and max(da, db) >= MIN_DEPTH_RATIO * min(da, db):
+                    yield a, b
 
 
 def _errors(pairs: list[dict], name: str, axis: int) -> dict[str, float]:

@@ -178,7 +178,6 @@ class SoilPosterior:
     def __init__(self, cfg: FusionConfig | None = None):
         self.cfg = cfg or FusionConfig()
         self.model = AugmentedFEE(self.cfg.terms)
-        self.state = THETA
         draws = np.random.default_rng(self.cfg.seed).standard_normal((self.cfg.forecast_samples, len(THETA)))
         self._draws = draws  # fixed: the same posterior always gives the same forecast
         self.reset()
@@ -452,6 +451,33 @@ class StretchAccumulator:
         return out
 
 
+class PathFusion:
+    """Samples in order -> stretches -> the posterior: the one loop the online estimator and the
+    offline tools (``fuse_episode``, ``fused_track``) run, so both learn the same."""
+
+    def __init__(self, posterior: SoilPosterior):
+        self.posterior = posterior
+        self.stretch = StretchAccumulator(posterior.cfg.update_ticks, posterior.cfg.model_points)
+
+    def reset(self) -> None:
+        """A new path: the prior, no stretch in progress, no travel counted."""
+        self.posterior.reset()
+        self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
+
+    def gap(self) -> None:
+        """A missing or broken sample: the stretch in progress is dropped, the posterior kept."""
+        self.stretch.clear()
+
+    def add(self, force_n: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> bool:
+        """One sample; True when it completed a stretch the posterior learnt from."""
+        stretch = self.stretch.add(force_n, known)
+        if stretch is None:
+            return False
+        self.posterior.forget(self.stretch.travel_m)
+        self.stretch.travel_m = 0.0
+        return self.posterior.update(*stretch, distance_m=distance_m)
+
+
 def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None) -> np.ndarray:
     """(n, len(FUSED_FIELDS)): the fused fields in effect after each of one episode's n samples,
     as the online estimator publishes them (offline, for comparing the two)."""
@@ -461,7 +487,7 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
     current = fused_values(None, cfg)
     learnt: dict[int, np.ndarray] = {}
     fuse_episode(SoilPosterior(cfg), forces, known, distance_m,
-                 on_update=lambda row, post: learnt.__setitem__(row, fused_values(post.summary(), cfg)) if post.updates else None)
+                 on_update=lambda row, post: learnt.__setitem__(row, fused_values(post.summary(), cfg)))
     for row in range(len(forces)):
         current = learnt.get(row, current)
         out[row] = current
@@ -472,14 +498,9 @@ def fuse_episode(posterior: SoilPosterior, forces: np.ndarray, known: np.ndarray
                  on_update=None) -> SoilPosterior:
     """Run the posterior over one episode's samples in order (offline: the same as online).
     ``on_update(row, posterior)`` after every stretch learnt from (row = its last sample)."""
-    acc = StretchAccumulator(posterior.cfg.update_ticks, posterior.cfg.model_points)
+    fusion = PathFusion(posterior)
     for row in range(len(forces)):
-        stretch = acc.add(forces[row], known[row])
-        if stretch is None:
-            continue
-        posterior.forget(acc.travel_m)
-        acc.travel_m = 0.0
-        learnt = posterior.update(*stretch, distance_m=float(distance_m[row]) if distance_m is not None else 0.0)
+        learnt = fusion.add(forces[row], known[row], float(distance_m[row]) if distance_m is not None else 0.0)
         if learnt and on_update is not None:
             on_update(row, posterior)
     return posterior

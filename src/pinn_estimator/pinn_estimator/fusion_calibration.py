@@ -51,6 +51,12 @@ def load_calibrated(world: str) -> FusionConfig:
 DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): the node's and replay's config
 
 
+def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
+    """``fusion`` (None: the shipped calibration of the default world) with the physics of
+    ``model`` (an ``EstimatorNet``): its catalogue terms are added to the FEE, as in its own physics part."""
+    return dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+
+
 def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[dict]:
     """Per forecast pair of ``ds`` (same soil and density, other depth): the measured force and
     the fused posterior's forecast from the first episode (median and central intervals).
@@ -64,9 +70,8 @@ def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[di
     parts = fc.steady_parts(ds)
     quantiles = tuple(sorted({0.5 - lv / 2 for lv in levels} | {0.5 + lv / 2 for lv in levels} | {0.5}))
     rows = []
-    for a, b in _pairs(parts):
-        known_b = np.array([parts[b].known[n] for n in fc.KNOWN_PARAMS])
-        rows.append({"measured": parts[b].force, "forecast": posts[a].forecast(known_b, quantiles=quantiles)["quantiles"]})
+    for a, b in fc.pair_indices(parts):
+        rows.append({"measured": parts[b].force, "forecast": posts[a].forecast(parts[b].known_row(), quantiles=quantiles)["quantiles"]})
     return rows
 
 
@@ -84,16 +89,6 @@ def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> dict:
                                   for r in table])) if table else float("nan") for lv in levels]
             for j, axis in enumerate("xz")}
     return hits | {"pairs": len(table)}
-
-
-def _pairs(parts):
-    for a, pa in enumerate(parts):
-        for b, pb in enumerate(parts):
-            if a == b or pa is None or pb is None or (pa.soil, pa.relative_density_pct) != (pb.soil, pb.relative_density_pct):
-                continue
-            da, db = pa.known["d"], pb.known["d"]
-            if max(da, db) >= fc.MIN_DEPTH_RATIO * min(da, db):
-                yield a, b
 
 
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,

@@ -74,9 +74,7 @@ def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = No
     full window, ``/soil/estimate`` values of each, batched, with the fused fields of the
     episode's posterior at each; ``fusion`` None: the node's default config). What the online
     estimator must publish for the same episode (up to float32 rounding of batch 1 vs batched)."""
-    import dataclasses
-
-    from .fusion_calibration import DEFAULT_WORLD, load_calibrated
+    from .fusion_calibration import config_for_model
 
     bag = Path(bag)
     ds = load_dataset(bag.parent, cache=False)
@@ -84,7 +82,7 @@ def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = No
     ends = ds.window_ends([e])
     out = predict(model, WindowTensors(ds), ends)
     values = estimate_values({k: torch.as_tensor(v) for k, v in out.items()})
-    cfg = dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+    cfg = config_for_model(fusion, model)
     rows = ds.episode_rows(e)
     track = fused_track(cfg, ds.forces[rows], ds.known[rows], ds.distance_in_soil()[rows])
     values[:, FUSED] = track[ends - ds.offsets[e]]

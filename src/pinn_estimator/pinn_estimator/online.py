@@ -36,7 +36,8 @@ from soil_msgs_py.params import (
 )
 
 from soil_physics.travel import soil_advance
-from .fusion import FusionConfig, SoilPosterior, StretchAccumulator, fused_values
+from .fusion import FusionConfig, PathFusion, SoilPosterior, fused_values
+from .fusion_calibration import config_for_model
 from .model import EstimatorNet
 from .soil_map import SoilMap
 
@@ -306,26 +307,18 @@ class OnlineEstimator:
         # (extra_terms compaction_hardening); known only for an episode seen from its start.
         self.distance_m = 0.0
         self._distance_known = False
-        self.posterior = SoilPosterior(self._fusion_config(fusion, model))
-        self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
+        self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
         self.soil_map = SoilMap()
         self.publish_map = publish_map
         self._fused = fused_values(None, self.posterior.cfg)
 
-    @staticmethod
-    def _fusion_config(fusion: FusionConfig | None, model: EstimatorNet) -> FusionConfig:
-        """``fusion`` (None: the shipped calibration of the default world) with the model's
-        physics: its catalogue terms are added to the FEE."""
-        import dataclasses
-
-        from .fusion_calibration import DEFAULT_WORLD, load_calibrated
-
-        return dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+    @property
+    def posterior(self) -> SoilPosterior:
+        return self.fusion.posterior
 
     def _reset_fusion(self) -> None:
         """A new path: the posterior back to the prior, no stretch in progress, an empty map."""
-        self.posterior.reset()
-        self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
+        self.fusion.reset()
         self.soil_map.clear()
         self._fused = fused_values(None, self.posterior.cfg)
 
@@ -344,9 +337,9 @@ class OnlineEstimator:
         is another, which makes that evidence mean something else: then it starts over."""
         check_compatible(model)
         self.model = model.eval()
-        cfg = self._fusion_config(self.posterior.cfg, model)
+        cfg = config_for_model(self.posterior.cfg, model)
         if cfg != self.posterior.cfg:
-            self.posterior = SoilPosterior(cfg)
+            self.fusion = PathFusion(SoilPosterior(cfg))
             self._reset_fusion()
 
     def reset(self, first_stamp_ns: int | None = None) -> None:
@@ -392,7 +385,7 @@ class OnlineEstimator:
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
             self.buffer.clear()
-            self.stretch.clear()  # nor fused: the stretch in progress is dropped, the posterior kept
+            self.fusion.gap()  # nor fused: the stretch in progress is dropped, the posterior kept
             return
         if self._boundary is not None and stamp > self._boundary and not self._crossed:
             self._crossed = True  # the first sample of a new episode: no window spans two,
@@ -423,12 +416,7 @@ class OnlineEstimator:
 
     def _fuse(self, stamp: int, sample: Sample) -> None:
         """One sample into the stretch; a complete stretch into the posterior and the map."""
-        stretch = self.stretch.add(sample.force, sample.known)
-        if stretch is None:
-            return
-        self.posterior.forget(self.stretch.travel_m)
-        self.stretch.travel_m = 0.0
-        if not self.posterior.update(*stretch, distance_m=self.distance_m):
+        if not self.fusion.add(sample.force, sample.known, self.distance_m):
             return
         summary = self.posterior.summary()
         self._fused = fused_values(summary, self.posterior.cfg)
