@@ -82,6 +82,7 @@ class LiveMonitor:
     ROS_AUTOMATIC_DISCOVERY_RANGE is set."""
 
     HISTORY = 1200  # ticks waiting for their estimate (the estimator may lag the simulator, lockstep)
+    ESTIMATOR_WAIT_S = 30.0  # longest wait for the estimator's writer before following episodes
     END_WAIT_S = 3.0  # after an episode_end, wait this long at most for the estimator's last estimates
 
     def __init__(self, domain_id: int, planned_episodes: int, out=None):
@@ -90,7 +91,6 @@ class LiveMonitor:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
-        from std_msgs.msg import String
 
         from soil_msgs_py.graph import RECORDER_QOS
         from soil_msgs_py.ros_adapter import message_class, qos_profile, topic_qos
@@ -116,12 +116,17 @@ class LiveMonitor:
         try:
             self.node = Node("demo_monitor", context=self.context)
             data_qos = qos_profile(RECORDER_QOS)
-            # Creation order is the order the executor serves ready subscriptions: status first
-            # (episode boundaries), the estimate last (its tick's truth and force are then in).
-            self.node.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
             self.node.create_subscription(message_class(T.GROUND_TRUTH.msgtype), T.GROUND_TRUTH.name, self._on_truth, data_qos)
             self.node.create_subscription(message_class(T.BLADE_FORCE.msgtype), T.BLADE_FORCE.name, self._on_force, data_qos)
-            self.node.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate, data_qos)
+            self.estimate_sub = self.node.create_subscription(
+                message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate, data_qos)
+            # /sim/status comes later (_subscribe_status): the simulator holds tick 0 until every
+            # status reader it waits for has matched, and the monitor's must not count before
+            # its /soil/estimate reader has matched the estimator's writer; a volatile reader
+            # matched late never sees the first second's estimates (no line before 1.2 s, under load).
+            self._status_qos = topic_qos(G.SIM_STATUS_TOPIC)
+            self._status_sub = None
+            self._estimator_wait_start = time.monotonic()
             self.executor = SingleThreadedExecutor(context=self.context)
             self.executor.add_node(self.node)
         except BaseException:
@@ -132,9 +137,22 @@ class LiveMonitor:
         self._thread.start()
 
     # ------------------------------------------------------------------ plumbing
+    def _subscribe_status(self) -> None:
+        """Join /sim/status once the estimator's /soil/estimate writer has matched (or after
+        ESTIMATOR_WAIT_S: without an estimator the run goes on, its lines saying so)."""
+        if self._status_sub is not None:
+            return
+        if (self.estimate_sub.get_publisher_count() < 1
+                and time.monotonic() - self._estimator_wait_start < self.ESTIMATOR_WAIT_S):
+            return
+        from std_msgs.msg import String
+
+        self._status_sub = self.node.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, self._status_qos)
+
     def _spin(self) -> None:
         while not self._stop.is_set() and self.context.ok():
             try:
+                self._subscribe_status()
                 self.executor.spin_once(timeout_sec=0.05)
                 self._maybe_end()
             except Exception as err:  # noqa: BLE001 - a display must never take the run down
