@@ -450,3 +450,23 @@ def test_soil_planner_refuses_a_bad_setting_with_exit_2(tmp_path, arg):
     finally:
         node.stop()
     assert arg.replace(":", "") in node.output
+
+
+def test_the_fused_plan_is_anchored_to_the_force_the_pinn_sees_now():
+    """A posterior that has not caught up with a stronger soil (F̂ above its FEE at the current
+    depth) must plan shallower than it alone would, a weaker one deeper; an anchor equal to
+    the posterior's own force never makes the plan shallower (it adds knowledge, not doubt)."""
+    known = _known(d=0.12, q=1000.0)
+    point = _estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG)
+    fused = _fused(point, 32 * DEG, 2e3, 15 * DEG, std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    alone = max_cut_depth(fused, known, include_residual=False)
+    assert not alone.residual_used
+    same = max_cut_depth(fused, known)
+    assert same.residual_used and same.max_depth_m >= alone.max_depth_m - TOLERANCE_M
+    for factor, shallower in ((1.6, True), (0.6, False)):
+        seen = dict(fused, f_x_hat=fused["f_x_hat"] * factor, f_z_hat=fused["f_z_hat"] * factor)
+        plan = max_cut_depth(seen, known)
+        assert (plan.max_depth_m < same.max_depth_m) is shallower, (factor, plan.max_depth_m, same.max_depth_m)
+    # not from a blade barely in the soil, nor without a valid PINN estimate
+    assert not max_cut_depth(fused, _known(d=0.03, q=1000.0)).residual_used
+    assert not max_cut_depth(dict(fused, valid=0.0), known).residual_used

@@ -37,6 +37,20 @@ def mixture_quantiles(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantiles) 
     return out if batched else out[:, 0]
 
 
+def mixture_cdf(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """P(F <= x) under Σ_i w_i N(mu_i, sd_i²); mu, sd (D, S) against x (D,) -> (D,)."""
+    w = np.asarray(w, float)
+    return ndtr((np.asarray(x, float)[:, None] - mu) / sd) @ (w / w.sum())
+
+
+def within_magnitude(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, limit: float, quantile: float) -> np.ndarray:
+    """Whether ``upper_magnitude(w, mu, sd, quantile) <= limit`` per mixture (D,), from two CDF
+    values instead of two quantile searches: Q_q <= L and Q_{1−q} >= −L."""
+    d = np.asarray(mu).shape[0]
+    at = np.full(d, float(limit))
+    return (mixture_cdf(w, mu, sd, at) >= quantile) & (mixture_cdf(w, mu, sd, -at) <= 1.0 - quantile)
+
+
 def upper_magnitude(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantile: float) -> np.ndarray:
     """A force magnitude the mixture exceeds with probability at most about 1 − ``quantile``:
     max(|Q_q|, |Q_{1−q}|) per mixture (D,), whichever sign the force has."""

@@ -94,7 +94,7 @@ import numpy as np
 from soil_physics import fee
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, TABLE1
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
-from soil_physics.predictive import model_error_std, upper_magnitude
+from soil_physics.predictive import model_error_std, upper_magnitude, within_magnitude
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
@@ -111,6 +111,12 @@ GRID_POINTS = 257
 TOLERANCE_M = 1e-5
 # The residual is carried to other depths only from an estimate with the blade this deep in soil.
 MIN_ANCHOR_DEPTH_M = 0.02
+# The fused plan's anchor (``_FusedForceModel``) only from this deep: carried in proportion to
+# depth, a residual seen at 2 cm is multiplied tenfold at 20 cm, and a plan made from a blade
+# just lifted out of a stall would stay shallow (the posterior's own forecast is better there).
+MIN_FUSED_ANCHOR_DEPTH_M = 0.05
+SCALE_FLOOR_N = 1e3
+SCALE_LIMITS = (0.25, 4.0)
 # The PINN clips its outputs to Table 1 in float32; the float64 value published can sit a
 # hair outside the float64 limit. Within this relative tolerance a value counts as inside.
 LIMIT_RTOL = 1e-6
@@ -240,30 +246,33 @@ def max_cut_depth(
     limits = np.array([margin * FORCE_LIMITS_N[0], margin * FORCE_LIMITS_N[1]])
     if fused:
         est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
-        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile)
+        anchor = None
+        if include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
+            anchor = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
+        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, anchor)
     else:
         est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
         model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
 
     grid = np.linspace(0.0, d_max_m, int(grid_points))
-    fx, fz = model(grid)
-    ok = (np.abs(fx) <= limits[0]) & (np.abs(fz) <= limits[1])
+    in_x, in_z = model.within(grid, limits)
+    ok = in_x & in_z
     if ok.all():
         depth, hit_x, hit_z = d_max_m, False, False
     elif not ok[0]:
-        depth, hit_x, hit_z = 0.0, bool(abs(fx[0]) > limits[0]), bool(abs(fz[0]) > limits[1])
+        depth, hit_x, hit_z = 0.0, not bool(in_x[0]), not bool(in_z[0])
     else:
         k = int(np.argmin(ok))  # first inadmissible grid depth
         lo, hi = float(grid[k - 1]), float(grid[k])
         while hi - lo > tol_m:
             mid = 0.5 * (lo + hi)
-            mx, mz = model(np.array([mid]))
-            if abs(mx[0]) <= limits[0] and abs(mz[0]) <= limits[1]:
+            mx, mz = model.within(np.array([mid]), limits)
+            if mx[0] and mz[0]:
                 lo = mid
             else:
                 hi = mid
-        hx, hz = model(np.array([hi]))
-        depth, hit_x, hit_z = lo, bool(abs(hx[0]) > limits[0]), bool(abs(hz[0]) > limits[1])
+        hx, hz = model.within(np.array([hi]), limits)
+        depth, hit_x, hit_z = lo, not bool(hx[0]), not bool(hz[0])
     f_x, f_z = model(np.array([depth]))
     return Plan(
         max_depth_m=float(depth), f_x_n=float(f_x[0]), f_z_n=float(f_z[0]),
@@ -272,6 +281,39 @@ def max_cut_depth(
         residual_x_n=float(model.residual[0]), residual_z_n=float(model.residual[1]),
         residual_used=model.residual_used, force_quantile=float(force_quantile) if fused else 0.0,
     )
+
+
+class StretchPlanner:
+    """``max_cut_depth`` with fixed settings, as the planner node and the cut trial both run it.
+
+    A plan from the fused posterior changes only with a new stretch of evidence (2 Hz): it is
+    made once per stretch (with that tick's Θ_k) and repeated for the ticks between; a plan from
+    the PINN's point estimate is made every tick. ``plan`` raises ValueError like
+    ``max_cut_depth`` (the caller decides what a refused estimate means)."""
+
+    def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
+                 cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S, include_residual: bool = True,
+                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE):
+        self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
+        self.include_residual = bool(include_residual)
+        self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
+        self._fused: tuple[tuple, Plan] | None = None
+
+    def settings(self) -> dict:
+        return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
+                "include_residual": self.include_residual, "force_quantile": self.force_quantile}
+
+    def plan(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> tuple[Plan | None, bool]:
+        """(the plan or None, whether it was newly made rather than repeated for this stretch)."""
+        fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
+        key = (estimate.get("fused_stretches"), self.margin, self.d_max_m, self.cut_speed_m_s, self.force_quantile)
+        if fused and self._fused is not None and self._fused[0] == key:
+            return self._fused[1], False
+        plan = max_cut_depth(estimate, known, margin=self.margin, d_max_m=self.d_max_m,
+                             cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual,
+                             force_quantile=self.force_quantile)
+        self._fused = (key, plan) if fused and plan is not None else None
+        return plan, True
 
 
 def check_quantile(q) -> float:
@@ -298,12 +340,21 @@ class _FusedForceModel:
     at Θ_k's d), the planned steady cut (v_x = cut speed, v_z = 0) and β* per sample; the
     published error law σ = abs + rel·|F| around each. Samples without a failure wedge there
     are left out; none left is a ValueError.
+
+    Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N]): each sample's FEE misses
+    r_s = F̂ − F_FEE,s(d_now; Θ_k's velocity) at the current depth; as in the point plan
+    (module docstring, "Residual force") it is carried to other depths in proportion to the
+    depth, F_s(d) = F_FEE,s(d) + r_s d / d_now. The level then follows the force measured now
+    (a new, stronger soil is seen within the PINN's window, not after the posterior has
+    moved), the posterior gives the shape and its spread. Not anchored below
+    MIN_FUSED_ANCHOR_DEPTH_M, and a sample without a wedge at the current velocity keeps r_s = 0.
+    The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
+    relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_s(d)|): the anchor
+    makes the forecast near the current depth sharper, never less certain than without it.
     """
 
-    residual = np.zeros(2)
-    residual_used = False
-
-    def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float):
+    def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
+                 anchor: tuple[float, float] | None = None):
         names = ("phi", "c", "delta")
         mean = np.array([est[f"{n}_fused"] for n in names])
         std = np.array([est[f"{n}_std"] for n in names])
@@ -323,21 +374,59 @@ class _FusedForceModel:
         self.beta_rad = float(fee.beta_star(est["phi_fused"], delta_v, known["rho"], known["alpha"]))
         if not math.isfinite(self.beta_rad):
             self.beta_rad = 0.0  # the mean has no wedge; the samples decide (reported only)
+        self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
+        self.residual, self.residual_used = np.zeros(2), False
+        self.anchor = (0.0, 0.0)  # the force the error law's relative part is counted from
+        self.scale_x = np.ones(FUSED_SAMPLES)
+        d_now = float(np.clip(known["d"], *D_PRIME_LIMITS_M))
+        if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
+            with np.errstate(all="ignore"):
+                fx_now, fz_now, _ = fee.fee_xz({**self.theta, "v_x": known["v_x"], "v_z": known["v_z"],
+                                                "d": np.array([d_now])})
+            r = np.array(anchor)[:, None] - np.stack([np.broadcast_to(fx_now, (FUSED_SAMPLES,)),
+                                                      np.broadcast_to(fz_now, (FUSED_SAMPLES,))])
+            r = np.where(np.isfinite(r), r, 0.0)
+            self.residual_per_m = r / d_now
+            self.residual, self.residual_used = r.mean(axis=1), True
+            self.anchor = anchor
+            # x: the sample's FEE scaled to the force now (its depth-independent surcharge part
+            # scales too); a ratio only where both forces are clearly positive
+            fx_now = np.broadcast_to(fx_now, (FUSED_SAMPLES,))
+            with np.errstate(all="ignore"):
+                scale = anchor[0] / fx_now
+            usable = np.isfinite(scale) & (fx_now > SCALE_FLOOR_N) & (anchor[0] > SCALE_FLOOR_N)
+            self.scale_x = np.where(usable, np.clip(scale, *SCALE_LIMITS), 1.0)
+            self.residual_per_m[0] = np.where(usable, 0.0, self.residual_per_m[0])
 
-    def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _mixtures(self, d: np.ndarray):
+        """Per axis (x, z): (weights (S,), means (D, S), standard deviations (D, S)) at depths d."""
         d = np.clip(np.asarray(d, float), *D_PRIME_LIMITS_M)[:, None]  # (D, 1) against (S,) samples
         with np.errstate(all="ignore"):
             fx, fz, _ = fee.fee_xz({**self.theta, "d": d})
+            fx = fx * self.scale_x + self.residual_per_m[0] * d
+            fz = fz + self.residual_per_m[1] * d
         fx, fz = np.broadcast_to(fx, (len(d), FUSED_SAMPLES)), np.broadcast_to(fz, (len(d), FUSED_SAMPLES))
         ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0)  # a sample with a wedge at every depth
         if not ok.any():
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
         w = ok.astype(float)
         out = []
-        for f, (a, r) in ((fx, self.law[0]), (fz, self.law[1])):
+        for f, (a, r), now in ((fx, self.law[0], self.anchor[0]), (fz, self.law[1], self.anchor[1])):
             f = np.where(ok, f, 0.0)
-            out.append(upper_magnitude(w, f, model_error_std(f, a, r) + 1e-9, self.quantile))
-        return out[0], out[1]
+            # anchored: the relative error applies to what is extrapolated from the force now, and
+            # never exceeds the calibrated forecast's (an anchor adds knowledge, never doubt)
+            out.append((w, f, model_error_std(np.minimum(np.abs(f - now), np.abs(f)), a, r) + 1e-9))
+        return out
+
+    def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        (wx, mx, sx), (wz, mz, sz) = self._mixtures(d)
+        return upper_magnitude(wx, mx, sx, self.quantile), upper_magnitude(wz, mz, sz, self.quantile)
+
+    def within(self, d: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whether each depth's upper |F| quantile is within the limits (x, z): two CDF values each."""
+        (wx, mx, sx), (wz, mz, sz) = self._mixtures(d)
+        return (within_magnitude(wx, mx, sx, limits[0], self.quantile),
+                within_magnitude(wz, mz, sz, limits[1], self.quantile))
 
 
 class _ForceModel:
@@ -379,6 +468,10 @@ class _ForceModel:
                 self.residual = np.array([est["f_x_hat"] - fx_now[0], est["f_z_hat"] - fz_now[0]])
                 self.residual_per_m = self.residual / d_now
                 self.residual_used = True
+
+    def within(self, d: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        fx, fz = self(d)
+        return np.abs(fx) <= limits[0], np.abs(fz) <= limits[1]
 
     def d_prime(self, d: np.ndarray) -> np.ndarray:
         """d' = d + Δd̂ clamped to Table 1's [0, 0.66] m, as the PINN does (model.py)."""

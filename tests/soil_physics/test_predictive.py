@@ -1,0 +1,28 @@
+"""The planner's admissibility test from two CDF values agrees with the quantile it stands for."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from soil_physics.predictive import mixture_cdf, mixture_quantiles, upper_magnitude, within_magnitude
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_within_magnitude_is_upper_magnitude_below_the_limit(seed):
+    rng = np.random.default_rng(seed)
+    w = rng.random(64)
+    mu = rng.normal(0.0, 8e3, (40, 64)) + rng.normal(0.0, 5e3, (40, 1))
+    sd = rng.uniform(50.0, 4e3, (40, 64))
+    for q in (0.5, 0.9, 0.95):
+        upper = upper_magnitude(w, mu, sd, q)
+        for limit in np.quantile(upper, [0.1, 0.5, 0.9]):
+            clear = np.abs(upper - limit) > 1e-6 * limit  # (a quantile found by bisection ties at the limit)
+            np.testing.assert_array_equal(within_magnitude(w, mu, sd, limit, q)[clear], (upper <= limit)[clear])
+
+
+def test_mixture_cdf_inverts_the_quantiles():
+    rng = np.random.default_rng(7)
+    w, mu, sd = rng.random(16), rng.normal(0, 1e3, (3, 16)), rng.uniform(10, 500, (3, 16))
+    q = mixture_quantiles(w, mu, sd, (0.05, 0.5, 0.95))
+    for i, level in enumerate((0.05, 0.5, 0.95)):
+        np.testing.assert_allclose(mixture_cdf(w, mu, sd, q[i]), level, atol=1e-9)
