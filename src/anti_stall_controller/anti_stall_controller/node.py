@@ -8,6 +8,14 @@ gains are parameters, validated and applied at run time (``ros2 param set``). On
 ``follow_episode_targets``, the targets become the episode's (and the parameters say so).
 State with a stamp the graph cannot mean, or one implausibly far past the last answered
 tick, is refused with a warning and changes nothing (``state_joiner``).
+
+With ``depth_source`` ``planner`` the target depth d̄_z comes from /planner/target_depth (the
+soil-aware planner's schedule) instead of the ``target_depth_m`` parameter: each answered tick
+uses the newest planner target whose stamp is within ``planner_timeout_s`` of the tick (either
+side); without one (none yet this episode, the planner silent or its stamps far off) the
+parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall lift acts on
+top of whichever target is in effect: the planner chooses the depth, the controller still
+saves the machine from a stall.
 """
 from __future__ import annotations
 
@@ -19,7 +27,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.params import MACHINE, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import (
     WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
@@ -38,7 +46,11 @@ PARAMETERS: dict[str, tuple] = {
                                                       "depth [m], >= 0; 0 = off, a few cm when on"),
     "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], > 0"),
     "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
+    "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
+                                  "(/planner/target_depth; target_depth_m the fallback)"),
+    "planner_timeout_s": (1.0, "a planner target counts for ticks within this much simulation time of its stamp [s], > 0"),
 }
+DEPTH_SOURCES = ("parameter", "planner")
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
 MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
@@ -47,6 +59,7 @@ MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
 # simulation time really jumped rather than one stray pair arrived.
 MAX_AHEAD_TICKS = SAMPLE_RATE_HZ
 RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
+MAX_PLANNER_DEPTH_M = MACHINE.blade_height_m  # a planner target deeper than the blade is not a cut
 
 
 def state_joiner() -> StampJoiner:
@@ -69,6 +82,10 @@ class ControllerNode(Node):
         gains = AntiStallGains(**{k: get(k) for k in GAIN_FIELDS})  # ValueError names the field
         self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))
         self.follow = bool(get("follow_episode_targets"))
+        self.depth_source, self.planner_timeout_ns = self._check_planner(get("depth_source"), get("planner_timeout_s"))
+        self.param_depth_m = float(get("target_depth_m"))  # the parameter's d̄_z (the planner's fallback)
+        self.planner_target: tuple[int, float] | None = None  # (stamp, depth) of the newest planner target
+        self.following_planner = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -80,6 +97,8 @@ class ControllerNode(Node):
         for name in G.CONTROLLER_STATE_TOPICS:
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
+        self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name, self._on_planner_target,
+                                 topic_qos(T.TARGET_DEPTH.name))
         self.joiner = state_joiner()
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
@@ -87,11 +106,22 @@ class ControllerNode(Node):
         self._warn = WarnLimiter(self.get_logger())
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
 
+    @staticmethod
+    def _check_planner(source, timeout_s) -> tuple[str, int]:
+        if source not in DEPTH_SOURCES:
+            raise ValueError(f"depth_source={source!r} must be one of {DEPTH_SOURCES}")
+        if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not 0.0 < timeout_s < 3600.0:
+            raise ValueError(f"planner_timeout_s={timeout_s!r} must be a number of seconds in (0, 3600)")
+        return source, int(timeout_s * 1e9)
+
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply atomically (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
         try:
+            source, timeout_ns = self._check_planner(
+                changes.get("depth_source", self.depth_source),
+                changes.get("planner_timeout_s", self.planner_timeout_ns / 1e9))
             gains = {k: changes[k] for k in GAIN_FIELDS if k in changes}
             new_gains = AntiStallGains(**{**{k: getattr(self.core.gains, k) for k in GAIN_FIELDS}, **gains})
             speed = changes.get("target_speed_m_s", self.core.target_speed_m_s[0])
@@ -103,6 +133,8 @@ class ControllerNode(Node):
             self.core.set_gains(new_gains)
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
+            self.param_depth_m = float(depth)
+        self.depth_source, self.planner_timeout_ns = source, timeout_ns
         if "follow_episode_targets" in changes:
             self.follow = bool(changes["follow_episode_targets"])
         return SetParametersResult(successful=True)
@@ -122,6 +154,9 @@ class ControllerNode(Node):
             if not all(r.successful for r in result):
                 self._warn("targets", f"episode {event.name}: targets refused: {[r.reason for r in result]}")
         self.core.reset()
+        self.planner_target, self.following_planner = None, False  # the previous cut's plan does not carry over
+        if self.depth_source == "planner":
+            self.core.set_targets(target_depth_m=self.param_depth_m)
         self.joiner.reset(event.first_stamp_ns)
         self.get_logger().info(f"episode {event.name}: reset, targets v={self.core.target_speed_m_s[0]} m/s "
                                f"d={self.core.target_depth_m[0]} m")
@@ -165,7 +200,39 @@ class ControllerNode(Node):
                 fate = "dropped" if joined.why is Why.EVICTED else "skipped"
                 self._warn("unpaired", f"state at stamp {joined.stamp_ns} ns never got both twist and pose; {fate}")
 
+    def _on_planner_target(self, msg) -> None:
+        try:
+            stamp, values = M.parse_labelled(msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name)
+        except ValueError as err:
+            self._warn("planner:layout", f"{err}; ignored")
+            return
+        depth = float(values[0])
+        if not 0.0 <= depth <= MAX_PLANNER_DEPTH_M:  # (NaN fails too)
+            self._warn("planner:value", f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
+                                        f"[0, {MAX_PLANNER_DEPTH_M}] m; ignored")
+            return
+        if self.planner_target is None or stamp >= self.planner_target[0]:
+            self.planner_target = (stamp, depth)
+
+    def _depth_for(self, stamp: int) -> float:
+        """d̄_z for the tick at ``stamp``: the planner's target if it is recent enough, else the parameter's."""
+        if self.depth_source != "planner":
+            return self.param_depth_m
+        target = self.planner_target
+        fresh = target is not None and abs(stamp - target[0]) <= self.planner_timeout_ns
+        if fresh != self.following_planner:
+            self.following_planner = fresh
+            self.get_logger().info(f"tick {stamp} ns: " + (
+                "following the planner's target depth" if fresh else
+                f"no planner target within {self.planner_timeout_ns / 1e9:g} s; target_depth_m "
+                f"{self.param_depth_m} m until one comes"))
+        return target[1] if fresh else self.param_depth_m
+
     def _answer(self, stamp: int, v_x_c: float, p_z_c: float) -> None:
+        if self.depth_source == "planner":
+            depth = self._depth_for(stamp)
+            if depth != self.core.target_depth_m[0]:
+                self.core.set_targets(target_depth_m=depth)
         cmd = self.core.step(v_x_c, p_z_c)  # non-finite inputs: core holds its state
         self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
         self.blade_pub.publish(M.build_message(self.classes, T.BLADE_CMD.name, stamp, [cmd.u_zr[0], cmd.u_za[0]]))

@@ -132,6 +132,19 @@ PLAN = Topic(
     "validity flag, the force quantile planned with (0: the PINN's point estimate)",
     PLAN_FIELDS,
 )
+# The cut depth the planner asks the anti-stall controller for (soil_planner.node, one message
+# per plan, stamped like it): target_depth_m, the controller's d̄_z [m] below the original
+# surface: the plan's max_depth_m passed through the planner's rate limits and fallbacks
+# (soil_planner.depth_schedule); max_depth_m the plan it followed [m] (0.0 without one);
+# plan_valid 1/0: a valid plan was in effect (0: the start depth or the last plan held).
+TARGET_DEPTH_FIELDS: tuple[str, ...] = ("target_depth_m", "max_depth_m", "plan_valid")
+TARGET_DEPTH = Topic(
+    "/planner/target_depth", "std_msgs/msg/Float64MultiArray",
+    "cut depth for the anti-stall controller (d̄_z below the original surface [m]) after the planner's rate "
+    "limits, the plan's deepest cut [m], whether a valid plan was in effect (1/0)",
+    TARGET_DEPTH_FIELDS,
+)
 
 # Every topic this project defines, episode data or not (e.g. what a recorder can type without discovery).
-GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, SOIL_MAP, PLAN)}
+GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, SOIL_MAP, PLAN,
+                                                                  TARGET_DEPTH)}

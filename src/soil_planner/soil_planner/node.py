@@ -11,6 +11,15 @@ WarnLimiter and nothing is published for it; the node never publishes NaN and ne
 on input. A log line at most once per ``log_period_s`` of simulation time says what the
 plan is and why.
 
+Every plan also moves the cut depth the anti-stall controller follows when its
+``depth_source`` is ``planner``: /planner/target_depth (stamped like the plan; sent when the
+target moved by a millimetre, and at least 5 times a second), the plan's
+deepest cut through the depth schedule's rate limits, start depth and hold
+(``depth_schedule.py``; parameters ``start_depth_m``, ``deepen_rate_m_s``, ``shallow_rate_m_s``,
+``hold_s``, ``min_target_m``, ``max_target_m``). A tick whose plan was refused, or an invalid
+estimate, moves the schedule without a plan (it holds, then backs off). Each new cut (a
+stamp that goes back, or a gap of more than a second) starts from the start depth.
+
 Parameters (also in ``config/soil_planner.yaml``) are validated at start (a bad one exits
 with code 2) and can be changed at run time (``ros2 param set``).
 """
@@ -26,9 +35,20 @@ from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
+from .depth_schedule import DepthSchedule, ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
-                      check_quantile, check_settings, describe,
-                      fields, max_cut_depth)
+                      StretchPlanner, check_quantile, check_settings, describe, fields)
+
+_SCHEDULE = ScheduleSettings()
+# Node parameter -> ScheduleSettings field
+SCHEDULE_PARAMETERS = {"start_depth_m": "start_depth_m", "deepen_rate_m_s": "deepen_rate_m_s",
+                       "shallow_rate_m_s": "shallow_rate_m_s", "hold_s": "hold_s",
+                       "min_target_m": "min_depth_m", "max_target_m": "max_depth_m"}
+NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
+# /planner/target_depth goes out when the target moved by TARGET_STEP_M, its validity changed,
+# or TARGET_HEARTBEAT_NS passed (well inside the controller's planner_timeout_s).
+TARGET_STEP_M = 1e-3
+TARGET_HEARTBEAT_NS = M.NS_PER_S // 5
 
 PARAMETERS: dict[str, tuple] = {
     "margin": (DEFAULT_MARGIN, "fraction of the force limits (20 kN tractive x, 30 kN lift z) a cut may use, (0, 1]"),
@@ -40,6 +60,12 @@ PARAMETERS: dict[str, tuple] = {
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
+    "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
+    "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
+    "shallow_rate_m_s": (_SCHEDULE.shallow_rate_m_s, "the target rises by at most this per second [m/s]"),
+    "hold_s": (_SCHEDULE.hold_s, "without a valid plan the last target is held this long [s], then backs off to start_depth_m"),
+    "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
+    "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
 MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
 
@@ -58,9 +84,9 @@ class PlannerNode(Node):
                                                                        get("cut_speed_m_s"))
         self.include_residual = self._check_bool("include_residual", get("include_residual"))
         self.force_quantile = self._check_quantile(get("force_quantile"))
-        # A plan from the fused posterior changes only with a new stretch of evidence (2 Hz):
-        # it is made once per stretch (with that tick's Θ_k) and repeated for the ticks between.
-        self._fused_plan: tuple[tuple, object] | None = None
+        self.planner = self._stretch_planner()
+        self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
+        self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -72,13 +98,19 @@ class PlannerNode(Node):
         self.last_log_ns: int | None = None
         self.published = 0
         self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, publisher_qos(T.PLAN.name))
+        self.target_pub = self.create_publisher(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
+                                                publisher_qos(T.TARGET_DEPTH.name))
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
         self.get_logger().info(
             f"margin {self.margin}, d_max {self.d_max_m} m, cut speed {self.cut_speed_m_s} m/s, "
-            f"residual {'on' if self.include_residual else 'off'}; "
-            f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}")
+            f"residual {'on' if self.include_residual else 'off'}, depth schedule {self.schedule.settings}; "
+            f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
+
+    def _stretch_planner(self) -> StretchPlanner:
+        return StretchPlanner(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
+                              include_residual=self.include_residual, force_quantile=self.force_quantile)
 
     @staticmethod
     def _check_quantile(value) -> float | None:
@@ -104,10 +136,14 @@ class PlannerNode(Node):
             quantile = (self._check_quantile(changes["force_quantile"]) if "force_quantile" in changes
                         else self.force_quantile)
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
+            current = self.schedule.settings.to_dict()
+            schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.margin, self.d_max_m, self.cut_speed_m_s, self.include_residual = margin, d_max, speed, residual
         self.force_quantile = quantile
+        self.planner = self._stretch_planner()
+        self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
         return SetParametersResult(successful=True)
 
@@ -130,6 +166,7 @@ class PlannerNode(Node):
         fused = self.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
             self._publish(stamp, NO_PLAN_VALUES)
+            self._target(stamp, None)
             return
         self._join(T.ESTIMATE.name, stamp, est)
 
@@ -145,23 +182,20 @@ class PlannerNode(Node):
                                        f"{T.KNOWN.name}; dropped")
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
-        fused = self.force_quantile is not None and est.get("fused_valid") == 1.0
-        key = (est.get("fused_stretches"), self.margin, self.d_max_m, self.cut_speed_m_s, self.force_quantile)
-        if fused and self._fused_plan is not None and self._fused_plan[0] == key:
-            self._publish(stamp, self._fused_plan[1].values())
-            return
         try:
-            plan = max_cut_depth(est, known, margin=self.margin, d_max_m=self.d_max_m,
-                                 cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual,
-                                 force_quantile=self.force_quantile)
+            plan, new = self.planner.plan(est, known)
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
+            self._target(stamp, None)
             return
         if plan is None:  # valid flag 0 was handled on arrival; kept for safety
             self._publish(stamp, NO_PLAN_VALUES)
+            self._target(stamp, None)
             return
-        self._fused_plan = (key, plan) if fused else None
         self._publish(stamp, plan.values())
+        self._target(stamp, plan.max_depth_m)
+        if not new:
+            return
         if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
             self.last_log_ns = stamp
             self.get_logger().info(describe(plan, est, known))
@@ -173,6 +207,20 @@ class PlannerNode(Node):
             return
         self.plan_pub.publish(M.make_labelled(self.classes, stamp, T.PLAN_FIELDS, values))
         self.published += 1
+
+    def _target(self, stamp: int, plan_depth_m: float | None) -> None:
+        """The controller's target for this tick through the depth schedule (a new cut restarts it)."""
+        last = self.schedule.last_stamp_ns
+        if last is not None and (stamp < last or stamp - last > NEW_CUT_GAP_NS):
+            self.schedule.reset()
+        target = self.schedule.update(stamp, plan_depth_m)
+        values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
+        sent = self._target_sent
+        if (sent is not None and stamp >= sent[0] and stamp - sent[0] < TARGET_HEARTBEAT_NS
+                and abs(target - sent[1]) < TARGET_STEP_M and values[2] == sent[2]):
+            return  # the controller's target has not moved: fewer messages on the 60 Hz loop's machine
+        self._target_sent = (stamp, target, values[2])
+        self.target_pub.publish(M.make_labelled(self.classes, stamp, T.TARGET_DEPTH_FIELDS, values))
 
     def close(self) -> None:
         unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())

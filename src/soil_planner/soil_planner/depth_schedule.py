@@ -1,0 +1,110 @@
+"""From plans to the cut depth the anti-stall controller follows: rate limits and fallbacks (no rclpy).
+
+``planner.max_cut_depth`` answers, per estimate, the deepest cut whose upper force quantile
+stays within margin x the 20 kN / 30 kN limits. Handing that answer to the controller as it
+comes would move the blade in steps: a plan can jump by centimetres from one stretch of
+evidence to the next, and a step deeper plunges the edge into the soil, where the
+penetration reaction and the bearing load act while it sinks (the default world's largest
+forces). The schedule turns plans into a target d̄_z(t):
+
+* **Deeper slowly, shallower fast.** Per second of simulation time the target may deepen by
+  at most ``deepen_rate_m_s`` (default 0.1 m/s: a 1:5 ramp at the 0.5 m/s cut speed) and rise
+  by at most ``shallow_rate_m_s`` (default 1.0 m/s, faster than the controller's own
+  anti-stall lift of K_v = 0.5 m/s: a plan that says "shallower" is a safety request).
+* **Start shallow.** Before the first valid plan of a cut the target is ``start_depth_m``
+  (default 0.10 m): the soil is unknown, and the estimator needs half a second of cutting
+  before its posterior says anything.
+* **Hold, then back off.** Without a valid plan (the estimator restarting its posterior after
+  the soil changed, a planner with nothing to plan from) the last target is held for
+  ``hold_s`` (default 1.0 s), then moves back towards ``start_depth_m`` at the shallow rate.
+* **Clamp.** The target stays in [``min_depth_m``, ``max_depth_m``] (default [0.02, 0.30] m:
+  the edge kept in the soil, and the lift joint's reach on level ground).
+
+Time is the plans' stamps (simulation time), so a replayed bag or a lockstep graph gets the
+same targets as real time. A stamp that goes back is a new cut (``reset``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+from soil_msgs_py.params import MACHINE
+
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class ScheduleSettings:
+    """Rate limits and fallbacks of the depth schedule (SI; module docstring)."""
+
+    start_depth_m: float = 0.10
+    deepen_rate_m_s: float = 0.10
+    shallow_rate_m_s: float = 1.0
+    hold_s: float = 1.0
+    min_depth_m: float = 0.02
+    max_depth_m: float = -MACHINE.blade_min_rel_m
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"{f.name}={value!r} must be a finite number")
+            object.__setattr__(self, f.name, float(value))
+        for name in ("deepen_rate_m_s", "shallow_rate_m_s"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name}={getattr(self, name)!r} must be > 0 m/s")
+        if self.hold_s < 0.0:
+            raise ValueError(f"hold_s={self.hold_s!r} must be >= 0 s")
+        if not 0.0 <= self.min_depth_m <= self.max_depth_m <= MACHINE.blade_height_m:
+            raise ValueError(f"min_depth_m={self.min_depth_m!r} and max_depth_m={self.max_depth_m!r} must satisfy "
+                             f"0 <= min_depth_m <= max_depth_m <= {MACHINE.blade_height_m} m (blade height)")
+        if not self.min_depth_m <= self.start_depth_m <= self.max_depth_m:
+            raise ValueError(f"start_depth_m={self.start_depth_m!r} must be in [min_depth_m, max_depth_m] = "
+                             f"[{self.min_depth_m}, {self.max_depth_m}] m")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class DepthSchedule:
+    """Plans (stamp, deepest admissible depth or None) -> the controller's target depth [m]."""
+
+    def __init__(self, settings: ScheduleSettings | None = None):
+        self.settings = settings or ScheduleSettings()
+        self.reset()
+
+    def reset(self) -> None:
+        """A new cut: back to the start depth, no plan seen."""
+        self.target_m = self.settings.start_depth_m
+        self.last_stamp_ns: int | None = None
+        self.last_plan_ns: int | None = None  # stamp of the newest valid plan
+        self.plan_m: float | None = None  # that plan's depth
+
+    def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
+        """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
+        s = self.settings
+        stamp_ns = int(stamp_ns)
+        if self.last_stamp_ns is not None and stamp_ns < self.last_stamp_ns:
+            self.reset()
+        dt = 0.0 if self.last_stamp_ns is None else (stamp_ns - self.last_stamp_ns) / NS_PER_S
+        self.last_stamp_ns = stamp_ns
+        if plan_depth_m is not None and math.isfinite(plan_depth_m):
+            self.last_plan_ns, self.plan_m = stamp_ns, float(plan_depth_m)
+            goal = float(plan_depth_m)
+        elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
+            goal = self.target_m  # hold
+        else:
+            goal = s.start_depth_m if self.last_plan_ns is None else min(self.target_m, s.start_depth_m)
+        goal = min(max(goal, s.min_depth_m), s.max_depth_m)
+        if self.last_plan_ns is None and plan_depth_m is None:
+            self.target_m = goal  # nothing planned yet: the start depth as it is
+            return self.target_m
+        step = goal - self.target_m
+        step = min(step, s.deepen_rate_m_s * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
+        self.target_m = min(max(self.target_m + step, s.min_depth_m), s.max_depth_m)
+        return self.target_m
+
+    @property
+    def plan_valid(self) -> bool:
+        """A valid plan is in effect (the newest update had one)."""
+        return self.last_plan_ns is not None and self.last_plan_ns == self.last_stamp_ns
