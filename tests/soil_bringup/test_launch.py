@@ -59,3 +59,16 @@ def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tm
         assert launch.nodes[0].proc.wait(timeout=5) == -9
     finally:
         launch.stop()
+
+
+def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_nodes(tmp_path):
+    nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"),
+                                                             "--controller-param", "k_v_m_s:=0.4"]))}
+    assert set(nodes) == {"recorder", "estimator", "planner", "controller", "sim"}  # the planner needs the estimator
+    ctl = nodes["controller"].argv
+    assert ctl.index("depth_source:=planner") < ctl.index("k_v_m_s:=0.4")  # the user's -p come later and win
+    assert nodes["planner"].niceness > 0 and nodes["controller"].niceness == nodes["sim"].niceness == 0
+    rec = nodes["recorder"].argv
+    assert "/planner/target_depth" in rec and "/planner/max_cut_depth" in rec
+    sim = " ".join(nodes["sim"].argv)
+    assert "'/soil/known_params:3'" in sim  # recorder, estimator and planner before tick 0

@@ -1,4 +1,4 @@
-"""`soil_launch`: start the graph (sim + controller [+ estimator] [+ recorder]) as separate processes.
+"""`soil_launch`: start the graph (sim + controller [+ estimator [+ planner]] [+ recorder]) as separate processes.
 
 There is no ``ros2 launch`` on these machines, so this is ours. It
 
@@ -15,6 +15,10 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
     soil_launch --pacing lockstep --record bags/run1 --sim-param soil:=Clay
     soil_launch --estimator --record bags/run2 --estimator-param checkpoint:=my_model.pt
     soil_launch --rate 2 --sim-param episodes:=3 --sim-params-file my_sim.yaml
+    soil_launch --planner --record bags/run3 --sim-param "patches:=['0:Sand:20','10:Clay:80']"
+
+``--planner`` starts the soil-aware planner too (and the estimator it plans from) and sets the
+controller's ``depth_source:=planner``: the loop is closed, the cut depth follows the soil.
 """
 from __future__ import annotations
 
@@ -43,6 +47,8 @@ EXIT_BAD_ARGS = 2
 CONTROLLER_ENDPOINTS = {name: 1 for name in G.CONTROLLER_INPUTS + G.COMMAND_TOPICS}
 RECORDER_ENDPOINTS = {name: 1 for name in G.RECORDER_INPUTS if name not in G.COMMAND_TOPICS}
 ESTIMATOR_ENDPOINTS = {name: 1 for name in G.ESTIMATOR_INPUTS if name not in G.COMMAND_TOPICS}
+PLANNER_ENDPOINTS = {name: 1 for name in G.PLANNER_STATE_TOPICS}
+PLANNER_NICENESS = 10  # the planner's plan may come a tick late; the controller's command may not
 
 # The line the launch logs per node it starts; ``started_nodes`` reads it back from a log.
 STARTED_LINE = "started {name} (pid {pid}): {command}"
@@ -79,6 +85,10 @@ class NodeProcess:
     stop_order: int  # lower stops first
     required: bool = True  # its death (any exit before shutdown) fails the launch
     ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
+    # Scheduling niceness added at start (os.nice): the nodes that close the 60 Hz loop (the
+    # simulator and the controller) keep 0; a node whose answer may come a tick later (the
+    # planner) yields the CPU to them on a busy machine.
+    niceness: int = 0
     proc: subprocess.Popen | None = None
     pump: threading.Thread | None = None
     returncode: int | None = field(default=None)
@@ -123,6 +133,7 @@ class Launch:
             node.proc = subprocess.Popen(
                 node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
                 start_new_session=True,  # the terminal's Ctrl-C reaches us only; we forward it
+                preexec_fn=(lambda n=node.niceness: os.nice(n)) if node.niceness else None,
             )
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
             node.pump.start()
@@ -264,6 +275,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if args.record:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
+        extra += list(G.PLANNER_OUTPUTS) if args.planner else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               *extra, *args.recorder_arg], stop_order=3))
         _count(wait, RECORDER_ENDPOINTS)
@@ -271,9 +283,15 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
                                                         args.estimator_param), stop_order=2))
         _count(wait, ESTIMATOR_ENDPOINTS)
+    if args.planner:
+        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param),
+                                 stop_order=2, niceness=PLANNER_NICENESS))
+        _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
+        # (later -p wins: the planner's loop unless the user set depth_source explicitly)
+        closed = ["depth_source:=planner"] if args.planner else []
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
-                                                         args.controller_param), stop_order=1))
+                                                         closed + args.controller_param), stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
@@ -310,6 +328,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--estimator", action="store_true", help="also run the online PINN estimator (pinn_estimator)")
     p.add_argument("--estimator-params-file", type=Path, help="YAML parameters for pinn_estimator")
     p.add_argument("--estimator-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--planner", action="store_true",
+                   help="also run the soil-aware planner (implies --estimator) and let the controller follow it")
+    p.add_argument("--planner-params-file", type=Path, help="YAML parameters for soil_planner")
+    p.add_argument("--planner-param", action="append", default=[], metavar="NAME:=VALUE")
     p.add_argument("--recorder-arg", action="append", default=[], help="extra argument for soil_bag_record")
     p.add_argument("--wait-for", action="append", default=[], metavar="/TOPIC:N",
                    help="also wait for N more matched subscribers of a topic the simulator publishes (or "
@@ -324,6 +346,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error(f"--domain-id {args.domain_id} outside [0, 232]")
     if args.rate is not None and not args.rate > 0:
         p.error(f"--rate {args.rate} must be > 0")
+    if args.planner:
+        args.estimator = True
     return args
 
 
