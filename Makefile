@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test bench clean-venv dataset models discrepancy
+.PHONY: venv demo test bench clean-venv dataset models discrepancy planner
 
 venv: $(STAMP)
 
@@ -28,6 +28,10 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 demo: venv
 	$(BIN)/python -m soil_bringup.demo
 
+# The planner in the loop: three depth policies on one long cut across changing soil, both worlds.
+planner: venv
+	$(BIN)/python -m soil_bringup.cut_report --out out/planner
+
 test: venv
 	$(BIN)/python -m pytest -q tests
 
@@ -37,6 +41,7 @@ bench: venv
 	$(BIN)/python benchmarks/bench_bag_tools.py
 	$(BIN)/python benchmarks/bench_graph.py
 	$(BIN)/python benchmarks/bench_estimator.py
+	$(BIN)/python benchmarks/bench_planner_loop.py
 
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv

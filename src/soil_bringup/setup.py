@@ -26,6 +26,7 @@ setup(
         "console_scripts": [
             "soil_launch = soil_bringup.launch:main",
             "soil_demo = soil_bringup.demo:main",
+            "soil_cut_report = soil_bringup.cut_report:main",
         ],
     },
 )

@@ -342,11 +342,16 @@ class _FusedForceModel:
     are left out; none left is a ValueError.
 
     Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N]): each sample's FEE misses
-    r_s = F̂ − F_FEE,s(d_now; Θ_k's velocity) at the current depth; as in the point plan
-    (module docstring, "Residual force") it is carried to other depths in proportion to the
-    depth, F_s(d) = F_FEE,s(d) + r_s d / d_now. The level then follows the force measured now
-    (a new, stronger soil is seen within the PINN's window, not after the posterior has
-    moved), the posterior gives the shape and its spread. Not anchored below
+    F̂ − F_FEE,s(d_now; Θ_k's velocity) at the current depth. In x (positive while cutting)
+    the sample's force is scaled to the force now, F_x,s(d) = F_FEE,x,s(d) · F̂_x / F_FEE,x,s(d_now)
+    (ratio within SCALE_LIMITS, used where both exceed SCALE_FLOOR_N): the FEE's surcharge
+    part, Q·N_q, does not vanish with depth, and a posterior whose Q·N_q is too large (the
+    default world) would forbid every depth if only a depth-proportional residual corrected
+    it. In z (either sign, often near 0) the residual r_s is carried in proportion to the
+    depth as in the point plan (module docstring, "Residual force"), F_z,s(d) = F_FEE,z,s(d)
+    + r_s d / d_now, and so is x where no ratio is used. The level then follows the force
+    measured now (a new, stronger soil is seen within the PINN's window, not after the
+    posterior has moved), the posterior gives the shape and its spread. Not anchored below
     MIN_FUSED_ANCHOR_DEPTH_M, and a sample without a wedge at the current velocity keeps r_s = 0.
     The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
     relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_s(d)|): the anchor
