@@ -1,0 +1,120 @@
+"""What a cut achieved (pure NumPy over a ``cut_trial.Cut``): soil moved, stalls, force use.
+
+* **Volume cut** [m³]: the heightfield below the original level surface z = 0 after the cut,
+  times the blade width, over the cells the edge crossed (the simulator lowers a cell to the
+  edge height when the edge passes it). Per metre: over the edge's travel; per second: over
+  the cut's duration.
+* **Stall time** [s]: ticks with the chassis speed below the anti-stall controller's
+  threshold v̄_x (1 − c_vx) (where its Eq. 11 lift starts acting), counted from the first
+  tick the machine reached that speed (the start from rest is not a stall).
+* **Ticks at a force limit**: measured |F_x| or |F_z| at or above ``AT_LIMIT`` of the
+  20 kN tractive / 30 kN lift limit (the motor and the lift joint saturate there).
+* **Back-off events**: the controller's anti-stall offset Δd̄ leaving zero (it starts lifting).
+* **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
+* **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
+  hindsight is the deepest of a sweep of fixed depths with no stall in that patch
+  (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
+  came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ
+
+AT_LIMIT = 0.98
+BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
+SETTLE_TOLERANCE = 0.20  # relative to the patch's best fixed depth
+SETTLE_HOLD_S = 1.0
+
+
+def stall_mask(cut) -> np.ndarray:
+    """Ticks below the controller's threshold speed, from the first tick at that speed on."""
+    threshold = cut.target_speed_m_s * (1.0 - cut.gains.c_vx)
+    slow = cut.v_x < threshold
+    reached = np.flatnonzero(~slow)
+    if len(reached) == 0:
+        return slow
+    slow[: reached[0]] = False
+    return slow
+
+
+def volume_m3(cut) -> float:
+    """Soil cut below z = 0 [m³]: Σ max(0, −z_cell) · cell · w over the cells the edge crossed."""
+    x = cut.x_min_m + cut.cell_m * (np.arange(len(cut.terrain)) + 0.5)
+    crossed = (x >= np.nanmin(cut.x_b)) & (x <= np.nanmax(cut.x_b))
+    return float(np.clip(-cut.terrain[crossed], 0.0, None).sum() * cut.cell_m * cut.width_m)
+
+
+def backoff_events(cut) -> int:
+    lifting = cut.offset > BACKOFF_ON_M
+    return int(np.count_nonzero(lifting[1:] & ~lifting[:-1]) + int(lifting[0]))
+
+
+def summary(cut) -> dict:
+    """The policy's figures over the whole cut (SI; module docstring)."""
+    dt = 1.0 / SAMPLE_RATE_HZ
+    travel = float(cut.x_b[-1] - cut.x_b[0])
+    volume = volume_m3(cut)
+    share = np.abs(cut.force) / np.asarray(FORCE_LIMITS_N)
+    cutting = cut.depth > 0.0
+    use = share[cutting] if cutting.any() else np.zeros((1, 2))
+    return {
+        "policy": cut.policy.name, "fixed_depth_m": cut.policy.fixed_depth_m,
+        "duration_s": cut.ticks * dt, "travel_m": travel, "volume_m3": volume,
+        "volume_per_m_m3": volume / travel if travel > 0 else 0.0, "volume_per_s_m3": volume / (cut.ticks * dt),
+        "stall_s": float(stall_mask(cut).sum() * dt), "ticks_at_limit": int(np.count_nonzero((share >= AT_LIMIT).any(axis=1))),
+        "backoff_events": backoff_events(cut),
+        "force_x_mean_share": float(use[:, 0].mean()), "force_x_p95_share": float(np.percentile(use[:, 0], 95)),
+        "force_z_mean_share": float(use[:, 1].mean()), "force_z_p95_share": float(np.percentile(use[:, 1], 95)),
+        "mean_depth_m": float(cut.depth[cutting].mean()) if cutting.any() else 0.0,
+    }
+
+
+def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
+    """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) with no stall while the
+    edge was in that patch and the edge reaching it; None if every depth stalled there."""
+    best: list[float | None] = [None] * n_patches
+    for cut in sorted(sweep, key=lambda c: c.policy.fixed_depth_m):
+        stalled = stall_mask(cut)
+        for j in range(n_patches):
+            inside = cut.patch == j
+            if inside.any() and not stalled[inside].any():
+                best[j] = cut.policy.fixed_depth_m
+    return best
+
+
+def settle_s(cut, j: int, best_m: float | None) -> float | None:
+    """Seconds from entering patch ``j`` until the target stayed within SETTLE_TOLERANCE of
+    ``best_m`` for SETTLE_HOLD_S (or to the patch's end); None if it never did."""
+    inside = np.flatnonzero(cut.patch == j)
+    if best_m is None or len(inside) == 0:
+        return None
+    target = cut.target[inside]
+    ok = np.abs(target - best_m) <= SETTLE_TOLERANCE * best_m
+    hold = int(round(SETTLE_HOLD_S * SAMPLE_RATE_HZ))
+    for i in range(len(ok)):
+        window = ok[i: i + hold]
+        if window.all() and (len(window) == hold or i + len(window) == len(ok)):
+            return i / SAMPLE_RATE_HZ
+    return None
+
+
+def per_patch(cut, best: list[float | None]) -> list[dict]:
+    """Per patch of the path: time, mean target and cut depth, stall time, hindsight best, settle time."""
+    dt = 1.0 / SAMPLE_RATE_HZ
+    stalled = stall_mask(cut)
+    rows = []
+    for j, patch in enumerate(cut.spec.patches or (None,)):
+        inside = cut.patch == j
+        rows.append({
+            "patch": j, "soil": patch.soil if patch else cut.spec.soil,
+            "relative_density_pct": patch.relative_density_pct if patch else cut.spec.relative_density_pct,
+            "time_s": float(inside.sum() * dt),
+            "mean_target_m": float(cut.target[inside].mean()) if inside.any() else None,
+            "mean_depth_m": float(cut.depth[inside].mean()) if inside.any() else None,
+            "stall_s": float((stalled & inside).sum() * dt),
+            "best_fixed_depth_m": best[j] if j < len(best) else None,
+            "settle_s": settle_s(cut, j, best[j] if j < len(best) else None),
+        })
+    return rows

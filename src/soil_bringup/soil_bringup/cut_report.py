@@ -1,0 +1,256 @@
+"""`soil_cut_report`: does estimating the soil pay off? Three depth policies on one long cut.
+
+For each world, one path of changing soil (patches along x), one seed, one run:
+
+* a sweep of fixed target depths finds each patch's **best fixed depth in hindsight** (the
+  deepest with no stall while the edge was in that patch);
+* **conservative**: the deepest fixed depth that never stalls in the path's strongest soil
+  (the smallest of those bests), what a machine that must never stall would cut;
+* **aggressive**: the best fixed depth of the path's weakest soil (the largest of them), what a
+  planner that ignores the soil would keep after cutting where it is easy;
+* **soil-aware**: the estimator, the planner and its depth schedule in the loop (``cut_trial``).
+
+Printed and written to ``--out`` (``cut_report.md``, ``cut_report.json``, ``cut_<world>.png``):
+volume cut per metre and per second, stall time, ticks at a force limit, the controller's
+back-off events, force use, and per patch the planner's depth against the hindsight best
+and how soon after entering it the target settled there. The issue's targets are printed
+with the measured values; they are figures, never asserted.
+
+    soil_cut_report                          # both worlds, the default path, 45 s
+    soil_cut_report --worlds default --patch 0:Sand:20 --patch 12:Clay:80 --duration 40
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from soil_msgs_py.params import DEG
+from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
+from soil_sim_node.simulator import EpisodeSpec
+
+from . import cut_metrics as CM
+from .cut_trial import Cut, Policy, SoilAwareSetup, run_cut, sweep_fixed_depths
+
+DEFAULT_PATCHES = ("0:Sand:20", "10:Clay:80", "16:Loam:50")
+DEFAULT_DURATION_S = 45.0
+DEFAULT_SEED = 3
+SWEEP_DEPTHS_M = tuple(np.round(np.arange(0.05, 0.3001, 0.025), 4))
+SPEED_M_S = 0.5
+# The issue's targets (figures, not tests)
+TARGET_VOLUME_RATIO = 1.5  # soil-aware / conservative volume per metre
+TARGET_STALL_RATIO = 5.0  # aggressive / soil-aware stall time
+TARGET_SETTLE_S = 2.0  # within 20 % of the patch's best fixed depth this soon after entering
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="soil_cut_report", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--worlds", nargs="+", default=["default", "fee"], choices=("default", "fee"))
+    p.add_argument("--patch", action="append", default=None, metavar="X:SOIL:ID",
+                   help=f"a soil patch along the path, {PATCH_SYNTAX}; repeat (default: {' '.join(DEFAULT_PATCHES)})")
+    p.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="seconds of cut (30-60 s is the use case)")
+    p.add_argument("--seed", type=int, default=DEFAULT_SEED)
+    p.add_argument("--out", type=Path, default=Path("out/planner"))
+    args = p.parse_args(argv)
+    try:
+        args.patches = check_patches([parse_patch(t, f"--patch {t!r}") for t in (args.patch or DEFAULT_PATCHES)])
+    except ValueError as err:
+        p.error(str(err))
+    if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
+        p.error(f"--duration {args.duration} must be in [2, 600] s")
+    if args.seed < 0:
+        p.error(f"--seed {args.seed} must be >= 0")
+    first = args.patches[0]
+    try:
+        args.spec = EpisodeSpec(first.soil, first.relative_density_pct, SPEED_M_S, 0.1, seed=args.seed,
+                                duration_s=args.duration, patches=args.patches)
+        args.spec.resolve()  # every patch's soil known, every field in range
+    except ValueError as err:
+        p.error(str(err))
+    return args
+
+
+def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None) -> dict:
+    """The sweep, the three policies and their figures for one world (``cuts`` kept for the figure)."""
+    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M)
+    best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
+    known = [b for b in best if b is not None]
+    conservative = min(known) if known else min(SWEEP_DEPTHS_M)
+    aggressive = max(known) if known else max(SWEEP_DEPTHS_M)
+    by_depth = {c.policy.fixed_depth_m: c for c in sweep}
+    cuts = [_renamed(by_depth[conservative], f"conservative {conservative:.3f} m"),
+            _renamed(by_depth[aggressive], f"aggressive {aggressive:.3f} m"),
+            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world))]
+    rows = [CM.summary(c) for c in cuts]
+    cons, agg, aware = rows
+    return {
+        "world": world, "best_fixed_depth_m": best, "policies": rows, "cuts": cuts,
+        "patches": CM.per_patch(cuts[2], best),
+        "ratios": {
+            "volume_per_m_aware_over_conservative": _ratio(aware["volume_per_m_m3"], cons["volume_per_m_m3"]),
+            "stall_aggressive_over_aware": _ratio(agg["stall_s"], aware["stall_s"]),
+            "stall_aware_minus_conservative_s": aware["stall_s"] - cons["stall_s"],
+        },
+        "estimator": cuts[2].estimator_counters,
+    }
+
+
+def _renamed(cut: Cut, name: str) -> Cut:
+    cut.policy = Policy(name, cut.policy.fixed_depth_m)
+    return cut
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return a / b if b > 0 else (math.inf if a > 0 else None)
+
+
+def _fmt(x, spec=".2f") -> str:
+    if x is None:
+        return "--"
+    return "inf" if x == math.inf else format(x, spec)
+
+
+def markdown(report: dict) -> str:
+    """The report's tables (one section per world) and the targets with what was measured."""
+    lines = [f"# Depth policies on one long cut: {report['path']}", "",
+             f"{report['duration_s']:g} s at {SPEED_M_S} m/s, seed {report['seed']}; best fixed depths from a sweep of "
+             f"{SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m. Command: `{report['command']}`", ""]
+    for w in report["worlds"]:
+        r = w["ratios"]
+        lines += [f"## {w['world']} world", "",
+                  "| policy | volume / m [m³/m] | volume / s [m³/s] | stall [s] | ticks at a limit | back-offs "
+                  "| F_x mean / p95 [% of 20 kN] | F_z mean / p95 [% of 30 kN] | mean depth [m] |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for p in w["policies"]:
+            lines.append(f"| {p['policy']} | {p['volume_per_m_m3']:.3f} | {p['volume_per_s_m3']:.3f} | {p['stall_s']:.2f} "
+                         f"| {p['ticks_at_limit']} | {p['backoff_events']} "
+                         f"| {100 * p['force_x_mean_share']:.0f} / {100 * p['force_x_p95_share']:.0f} "
+                         f"| {100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f} "
+                         f"| {p['mean_depth_m']:.3f} |")
+        lines += ["", "| patch | time [s] | best fixed depth [m] | planner's mean target [m] | mean cut depth [m] "
+                      "| stall [s] | settled within 20 % after [s] |", "|---|---|---|---|---|---|---|"]
+        for p in w["patches"]:
+            lines.append(f"| {p['soil']} {p['relative_density_pct']:.0f} % | {p['time_s']:.1f} | {_fmt(p['best_fixed_depth_m'], '.3f')} "
+                         f"| {_fmt(p['mean_target_m'], '.3f')} | {_fmt(p['mean_depth_m'], '.3f')} | {p['stall_s']:.2f} "
+                         f"| {_fmt(p['settle_s'], '.1f')} |")
+        settle = [p["settle_s"] for p in w["patches"][1:]]  # the first patch is the start, not a change
+        lines += ["", "Targets (soil-aware against the fixed depths, this world):", "",
+                  f"- volume per metre ≥ {TARGET_VOLUME_RATIO}× conservative: **{_fmt(r['volume_per_m_aware_over_conservative'])}×**",
+                  f"- stall time no more than conservative: **{w['policies'][2]['stall_s']:.2f} s** against "
+                  f"{w['policies'][0]['stall_s']:.2f} s",
+                  f"- ≥ {TARGET_STALL_RATIO:g}× less stall than aggressive: **{_fmt(r['stall_aggressive_over_aware'], '.1f')}×**",
+                  f"- within 20 % of each new patch's best fixed depth within {TARGET_SETTLE_S:g} s: **"
+                  + ", ".join(f"{_fmt(s, '.1f')} s" for s in settle) + "**", "",
+                  f"![{w['world']}]({w['figure']})", ""]
+    return "\n".join(lines)
+
+
+def plot(world: dict, path: Path) -> None:
+    """Along the path: patches, each policy's cut depth, the planner's plan and target, stalls,
+    and the fused soil (φ, c) with ±2σ against the truth."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cuts = world["cuts"]
+    aware = cuts[2]
+    fig, axes = plt.subplots(3, 1, figsize=(11, 9), sharex=True, gridspec_kw={"height_ratios": [2.2, 1, 1]})
+    ax = axes[0]
+    starts = [p.x_start_m for p in aware.spec.patches] or [aware.x_b[0]]
+    edges = [max(s, aware.x_b[0]) for s in starts] + [aware.x_b[-1]]
+    for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        for axis in axes:
+            axis.axvspan(a, b, color=f"C{j}", alpha=0.08, lw=0)
+        name = aware.spec.patches[j] if aware.spec.patches else None
+        label = f"{name.soil} {name.relative_density_pct:.0f} %" if name else aware.spec.soil
+        best = world["best_fixed_depth_m"][j]
+        ax.text(0.5 * (a + b), 0.005, label, ha="center", va="bottom", fontsize=9)
+        if best is not None:
+            ax.hlines(best, a, b, colors="k", linestyles=":", lw=1.2, label="best fixed depth (hindsight)" if j == 0 else None)
+    for cut, color in zip(cuts, ("C2", "C3", "C0")):
+        ax.plot(cut.x_b, cut.depth, color=color, lw=1.2, label=f"{cut.policy.name}: cut depth")
+        stall = CM.stall_mask(cut)
+        ax.plot(cut.x_b[stall], cut.depth[stall], "x", color=color, ms=3, alpha=0.6)
+    ax.plot(aware.x_b, aware.target, color="C0", lw=1, ls="--", label="soil-aware: target (schedule)")
+    ax.plot(aware.x_b, aware.plan, color="C0", lw=0.8, ls=":", alpha=0.8, label="soil-aware: plan (deepest admissible)")
+    ax.invert_yaxis()
+    ax.set_ylabel("depth below surface [m]")
+    ax.set_title(f"{world['world']} world: cut depth along the path (x: stall ticks)")
+    ax.legend(fontsize=7, loc="lower right", ncol=2)
+    for axis, (col, std, truth_col, k, unit, name) in zip(axes[1:], ((0, 1, 0, 1 / DEG, "deg", "φ"),
+                                                                     (2, 3, 1, 1e-3, "kPa", "c"))):
+        mean, sd = aware.fused[:, col] * k, aware.fused[:, std] * k
+        valid = aware.fused[:, 4] == 1.0
+        axis.plot(aware.x_b, np.where(valid, mean, np.nan), color="C0", lw=1, label=f"fused {name}")
+        axis.fill_between(aware.x_b, np.where(valid, mean - 2 * sd, np.nan), np.where(valid, mean + 2 * sd, np.nan),
+                          color="C0", alpha=0.2, lw=0, label="±2σ")
+        axis.plot(aware.x_b, aware.truth[:, truth_col] * k, color="k", lw=1, label=f"true {name}")
+        axis.set_ylabel(f"{name} [{unit}]")
+        axis.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("blade edge x [m]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def console(report: dict) -> str:
+    out = []
+    for w in report["worlds"]:
+        r = w["ratios"]
+        out.append(f"{w['world']} world ({report['path']}, {report['duration_s']:g} s, seed {report['seed']}):")
+        out.append(f"  {'policy':<22} {'m3/m':>6} {'m3/s':>6} {'stall s':>8} {'@limit':>7} {'backoff':>8} "
+                   f"{'Fx mean/p95':>12} {'Fz mean/p95':>12}")
+        for p in w["policies"]:
+            out.append(f"  {p['policy']:<22} {p['volume_per_m_m3']:6.3f} {p['volume_per_s_m3']:6.3f} {p['stall_s']:8.2f} "
+                       f"{p['ticks_at_limit']:7d} {p['backoff_events']:8d} "
+                       f"{100 * p['force_x_mean_share']:5.0f}/{100 * p['force_x_p95_share']:<5.0f} "
+                       f"{100 * p['force_z_mean_share']:5.0f}/{100 * p['force_z_p95_share']:<5.0f}")
+        out.append(f"  soil-aware: {_fmt(r['volume_per_m_aware_over_conservative'])}x conservative's volume per metre "
+                   f"(target >= {TARGET_VOLUME_RATIO}), stall {w['policies'][2]['stall_s']:.2f} s vs conservative "
+                   f"{w['policies'][0]['stall_s']:.2f} s, {_fmt(r['stall_aggressive_over_aware'], '.1f')}x less stall than "
+                   f"aggressive (target >= {TARGET_STALL_RATIO:g})")
+        for p in w["patches"]:
+            out.append(f"    {p['soil']:<7}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
+                       f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    spec = args.spec
+    path = " → ".join(f"{p.soil} {p.relative_density_pct:g} % from {p.x_start_m:g} m" for p in args.patches)
+    report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
+              "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:])}
+    for world in args.worlds:
+        print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
+              flush=True)
+        w = world_trial(world, spec)
+        w["figure"] = f"cut_{world}.png"
+        plot(w, args.out / w["figure"])
+        report["worlds"].append(w)
+    report["wall_s"] = time.monotonic() - t0
+    print(console(report))
+    (args.out / "cut_report.md").write_text(markdown(report) + "\n")
+    serial = {**report, "worlds": [{k: v for k, v in w.items() if k != "cuts"} for w in report["worlds"]]}
+    (args.out / "cut_report.json").write_text(json.dumps(serial, indent=1, default=_json_default) + "\n")
+    print(f"soil_cut_report: {report['wall_s']:.0f} s; table {args.out / 'cut_report.md'}, figures "
+          + ", ".join(str(args.out / w["figure"]) for w in report["worlds"]))
+    return 0
+
+
+def _json_default(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

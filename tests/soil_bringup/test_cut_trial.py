@@ -1,0 +1,110 @@
+"""The planner in the loop without ROS: real simulator, controller, estimator and planner cores
+on a path whose soil changes; the cut metrics on hand-made cuts; the report's files."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from anti_stall_controller.controller import AntiStallGains
+from soil_bringup import cut_metrics as CM
+from soil_bringup import cut_report
+from soil_bringup.cut_trial import Cut, Policy, SoilAwareSetup, run_cut
+from soil_planner.depth_schedule import ScheduleSettings
+from soil_sim_node.simulator import EpisodeSpec
+
+PATH = ("0:Sand:20", "4.5:Clay:80")  # the edge starts at x = 2 m: 5 s of sand at 0.5 m/s, then clay
+
+
+@pytest.fixture(scope="module")
+def aware_cut() -> Cut:
+    spec = EpisodeSpec("Sand", 20, 0.5, 0.1, seed=1, duration_s=10.0, patches=PATH)
+    return run_cut("fee", spec, Policy("soil-aware"), SoilAwareSetup("fee"))
+
+
+def test_the_soil_aware_loop_cuts_deep_in_loose_sand_and_shallower_in_dense_clay(aware_cut):
+    cut, settings = aware_cut, ScheduleSettings()
+    assert cut.estimator_counters["samples"] == cut.ticks and cut.estimator_counters["gaps"] == 0
+    assert cut.target[0] == settings.start_depth_m  # nothing known yet: start shallow
+    planned = np.isfinite(cut.plan)
+    assert planned[: 25].sum() == 0 and planned[60:].all()  # plans from the first fused stretch (0.5 s) on
+    steps = np.diff(cut.target)
+    assert steps.max() <= settings.deepen_rate_m_s / 60 * (1 + 1e-6)  # (a tick is a whole number of ns)  # deeper only as fast as the schedule allows
+    sand, clay = cut.patch == 0, cut.patch == 1
+    assert sand.any() and clay.sum() > 120
+    end_of_sand = cut.depth[np.flatnonzero(sand)[-60:]].mean()
+    end_of_clay = cut.depth[np.flatnonzero(clay)[-60:]].mean()
+    assert end_of_sand > 0.2 and end_of_clay < 0.8 * end_of_sand, (end_of_sand, end_of_clay)
+    # the fused soil follows the change: its φ, c near the clay's at the end, not the sand's
+    phi_sand, c_sand = cut.truth[np.flatnonzero(sand)[-1]]
+    phi_clay, c_clay = cut.truth[-1]
+    assert abs(cut.fused[-1, 2] - c_clay) < abs(cut.fused[-1, 2] - c_sand)
+
+
+def test_the_controller_follows_the_schedule_a_plan_delay_later(aware_cut):
+    """With the schedule's targets known (recomputed from the recorded plans), the controller's
+    target at tick k is the one made at tick k - plan_delay."""
+    from soil_planner.depth_schedule import DepthSchedule
+
+    cut, delay = aware_cut, SoilAwareSetup("fee").plan_delay_ticks
+    schedule = DepthSchedule(ScheduleSettings())
+    made = [schedule.update(int(k * 1e9) // 60, None if np.isnan(p) else float(p)) for k, p in enumerate(cut.plan)]
+    np.testing.assert_allclose(cut.target[delay:], made[: cut.ticks - delay])
+
+
+def _cut(v_x, depth, offset=None, patch=None, terrain=None, fixed=0.1) -> Cut:
+    n = len(v_x)
+    return Cut(policy=Policy("fixed", fixed), world="fee",
+               spec=EpisodeSpec("Sand", 20, 0.5, fixed, seed=0, duration_s=n / 60, patches=PATH), x_b=np.linspace(2.0, 3.0, n),
+               v_x=np.asarray(v_x, float), depth=np.asarray(depth, float), target=np.full(n, fixed),
+               offset=np.zeros(n) if offset is None else np.asarray(offset, float), force=np.zeros((n, 2)),
+               patch=np.zeros(n, int) if patch is None else np.asarray(patch), truth=np.zeros((n, 2)),
+               plan=np.full(n, np.nan), fused=np.full((n, 5), np.nan),
+               terrain=np.zeros(600) if terrain is None else terrain, x_min_m=-3.0, cell_m=0.01, width_m=3.0,
+               target_speed_m_s=0.5, gains=AntiStallGains())
+
+
+def test_stall_counts_slow_ticks_after_the_start_only_and_back_offs_count_lift_onsets():
+    v = [0.0] * 10 + [0.5] * 20 + [0.3] * 6 + [0.5] * 10 + [0.1] * 4
+    cut = _cut(v, [0.1] * len(v), offset=[0.0] * 30 + [0.01] * 6 + [0.0] * 10 + [0.02] * 4)
+    assert CM.stall_mask(cut).sum() == 10  # 6 + 4; the first 10 (starting from rest) are not a stall
+    assert CM.backoff_events(cut) == 2
+
+
+def test_volume_is_the_heightfield_cut_below_the_surface_over_the_crossed_cells():
+    terrain = np.zeros(600)
+    x = -3.0 + 0.01 * (np.arange(600) + 0.5)
+    terrain[(x >= 2.0) & (x <= 3.0)] = -0.2  # 1 m cut 0.2 m deep by a 3 m blade: 0.6 m³
+    terrain[x > 4.0] = -0.5  # not crossed by the edge: not counted
+    cut = _cut([0.5] * 61, [0.2] * 61, terrain=terrain)
+    assert CM.volume_m3(cut) == pytest.approx(0.6, rel=0.02)
+    s = CM.summary(cut)
+    assert s["volume_per_m_m3"] == pytest.approx(0.6, rel=0.02) and s["stall_s"] == 0.0
+
+
+def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_settle_time():
+    patch = [0] * 30 + [1] * 30
+    ok = [0.5] * 60
+    stalls_in_clay = [0.5] * 40 + [0.1] * 20
+    sweep = [_cut(ok, [0.1] * 60, patch=patch, fixed=0.1), _cut(stalls_in_clay, [0.2] * 60, patch=patch, fixed=0.2)]
+    assert CM.best_fixed_depths(sweep, 2) == [0.2, 0.1]
+    planner = _cut(ok, [0.1] * 60, patch=patch)
+    planner.target = np.array([0.1] * 30 + [0.3] * 6 + [0.11] * 24)
+    assert CM.settle_s(planner, 1, 0.1) == pytest.approx(0.1)  # 6 ticks after entering clay
+    assert CM.settle_s(planner, 0, 0.3) is None  # never within 20 % of 0.3 m in the sand
+
+
+def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp_path, capsys):
+    out = tmp_path / "planner"
+    assert cut_report.main(["--worlds", "fee", "--duration", "4", "--patch", "0:Sand:20", "--patch", "3:Clay:80",
+                            "--out", str(out)]) == 0
+    report = json.loads((out / "cut_report.json").read_text())
+    (world,) = report["worlds"]
+    assert [p["policy"].split()[0] for p in world["policies"]] == ["conservative", "aggressive", "soil-aware"]
+    assert len(world["patches"]) == 2 and "volume_per_m_aware_over_conservative" in world["ratios"]
+    assert "| soil-aware |" in (out / "cut_report.md").read_text()
+    assert (out / "cut_fee.png").stat().st_size > 10_000
+    with pytest.raises(SystemExit) as exit_:
+        cut_report.main(["--patch", "0:Peat:20", "--out", str(out)])
+    assert exit_.value.code == 2 and "Peat" in capsys.readouterr().err
