@@ -27,8 +27,9 @@ def test_deepening_is_rate_limited_and_rising_is_fast():
     assert deeper[0] == pytest.approx(0.1)  # the first plan: no time has passed yet
     assert deeper[60] == pytest.approx(0.1 + 0.06)  # one second later: 6 cm deeper, not 20
     assert all(b - a <= 0.06 / 60 + 1e-12 for a, b in zip(deeper, deeper[1:]))
-    rising = run(s, [0.02] * 30, first_tick=61)
-    assert rising[-1] == pytest.approx(0.02)  # 14 cm up within half a second (0.6 m/s)
+    rising = run(s, [0.05] * 30, first_tick=61)
+    assert rising[-1] == pytest.approx(0.05)  # 11 cm up within half a second (0.6 m/s)
+    assert rising[1] - rising[0] == pytest.approx(-0.01)  # a tick's worth of 0.6 m/s
     assert s.plan_valid
 
 

@@ -17,8 +17,11 @@ forces). The schedule turns plans into a target d̄_z(t):
 * **Hold, then back off.** Without a valid plan (the estimator restarting its posterior after
   the soil changed, a planner with nothing to plan from) the last target is held for
   ``hold_s`` (default 1.0 s), then moves back towards ``start_depth_m`` at the shallow rate.
-* **Clamp.** The target stays in [``min_depth_m``, ``max_depth_m``] (default [0.02, 0.30] m:
-  the edge kept in the soil, and the lift joint's reach on level ground).
+* **Clamp.** The target stays in [``min_depth_m``, ``max_depth_m``] (default [0.05, 0.30] m).
+  The deep end is the lift joint's reach on level ground. The shallow end is a cut deep
+  enough to learn from: at 2 cm the forces are too small to tell a weak soil from a strong
+  one, so a plan made from a strong soil behind would keep the blade there for good (the
+  controller's anti-stall lift still acts when a soil cannot take even 5 cm).
 
 Time is the plans' stamps (simulation time), so a replayed bag or a lockstep graph gets the
 same targets as real time. A stamp that goes back is a new cut (``reset``).
@@ -41,7 +44,7 @@ class ScheduleSettings:
     deepen_rate_m_s: float = 0.10
     shallow_rate_m_s: float = 1.0
     hold_s: float = 1.0
-    min_depth_m: float = 0.02
+    min_depth_m: float = 0.05
     max_depth_m: float = -MACHINE.blade_min_rel_m
 
     def __post_init__(self) -> None:

@@ -112,9 +112,12 @@ TOLERANCE_M = 1e-5
 # The residual is carried to other depths only from an estimate with the blade this deep in soil.
 MIN_ANCHOR_DEPTH_M = 0.02
 # The fused plan's anchor (``_FusedForceModel``) only from this deep: carried in proportion to
-# depth, a residual seen at 2 cm is multiplied tenfold at 20 cm, and a plan made from a blade
-# just lifted out of a stall would stay shallow (the posterior's own forecast is better there).
-MIN_FUSED_ANCHOR_DEPTH_M = 0.05
+# depth, a residual seen at 2 cm would be multiplied tenfold at 20 cm, and a plan made from a
+# blade just lifted out of a stall would stay shallow (the posterior's own forecast is better
+# there). Just below the depth schedule's shallowest target (5 cm), so a cut held there is anchored.
+MIN_FUSED_ANCHOR_DEPTH_M = 0.04
+# x is scaled to F̂_x only where both forces exceed this [N] (a ratio of small forces is noise),
+# by a factor within these limits (a posterior that far off is left to its own spread).
 SCALE_FLOOR_N = 1e3
 SCALE_LIMITS = (0.25, 4.0)
 # The PINN clips its outputs to Table 1 in float32; the float64 value published can sit a
@@ -349,10 +352,11 @@ class _FusedForceModel:
     default world) would forbid every depth if only a depth-proportional residual corrected
     it. In z (either sign, often near 0) the residual r_s is carried in proportion to the
     depth as in the point plan (module docstring, "Residual force"), F_z,s(d) = F_FEE,z,s(d)
-    + r_s d / d_now, and so is x where no ratio is used. The level then follows the force
+    + r_s d / d_now, and so is x where no ratio is used. Only from at least
+    MIN_FUSED_ANCHOR_DEPTH_M deep. The level then follows the force
     measured now (a new, stronger soil is seen within the PINN's window, not after the
-    posterior has moved), the posterior gives the shape and its spread. Not anchored below
-    MIN_FUSED_ANCHOR_DEPTH_M, and a sample without a wedge at the current velocity keeps r_s = 0.
+    posterior has moved), the posterior gives the shape and its spread. A sample without a
+    wedge at the current velocity keeps r_s = 0.
     The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
     relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_s(d)|): the anchor
     makes the forecast near the current depth sharper, never less certain than without it.
