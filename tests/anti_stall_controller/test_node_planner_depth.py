@@ -4,6 +4,8 @@ stale or absent, and ignores a target that is no depth."""
 from __future__ import annotations
 
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
 from soil_msgs_py import graph as G
@@ -11,11 +13,15 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.params import TICK_PERIOD_NS
-from tests.ros_probe import NodeProc, RosProbe, next_domain_id
+from tests.ros_probe import NodeProc, RosProbe, next_domain_id, wait_until
 
 TWIST, POSE, BLADE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name, T.BLADE_CMD.name
 FIRST = 100 * M.NS_PER_S
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
+
+
+def _call(future, timeout: float = 10.0):
+    return wait_until(lambda: future.done() and (future.result(),), timeout, "a parameter service call")[0]
 
 
 def _tick(k: int) -> int:
@@ -71,9 +77,20 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             # 0.5 s of ticks (30) after the plan's stamp it is stale: back to the parameter
             assert tick(k + 31) == pytest.approx(-PARAM_DEPTH)
             plan(k + 32, 0.25)
-            until(0.25, k + 32)
+            k = until(0.25, k + 32)
+            # switched back to its parameter at run time: the next tick cuts to 0.2 m again, and
+            # a changed target speed does not make the planner's depth the parameter's
+            client = AsyncParameterClient(probe.node, "anti_stall_controller")
+            assert client.wait_for_services(timeout_sec=20)
+            bad = _call(client.set_parameters([Parameter("depth_source", value="map")]))
+            assert not bad.results[0].successful and "depth_source='map'" in bad.results[0].reason
+            ok = _call(client.set_parameters([Parameter("depth_source", value="parameter"),
+                                              Parameter("target_speed_m_s", value=0.5)]))
+            assert all(r.successful for r in ok.results)
+            plan(k + 1, 0.11)
+            assert tick(k + 2) == pytest.approx(-PARAM_DEPTH)
         finally:
             ctl.stop()
         out = ctl.output
     assert "following the planner's target depth" in out and "no planner target within 0.5 s" in out, out
-    assert "target_depth_m=nan" in out, out
+    assert "target_depth_m=nan" in out and "target_depth_m=0.9" in out, out

@@ -470,3 +470,66 @@ def test_the_fused_plan_is_anchored_to_the_force_the_pinn_sees_now():
     # not from a blade barely in the soil, nor without a valid PINN estimate
     assert not max_cut_depth(fused, _known(d=0.03, q=1000.0)).residual_used
     assert not max_cut_depth(dict(fused, valid=0.0), known).residual_used
+
+
+@pytest.mark.timeout(60)
+def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the_start_depth(tmp_path):
+    """/planner/target_depth: the start depth before a plan, deeper by the rate limit after one,
+    a tick older than the last one scheduled ignored, and back to the start depth at the next
+    episode_start, whose first tick follows the last one's (no time gap tells a new cut)."""
+    from std_msgs.msg import String
+
+    from soil_msgs_py import graph as G
+    from soil_msgs_py.episode import EpisodeMeta
+
+    domain = next_domain_id()
+    known = _known(d=0.1, q=0.0, gamma=15e3)
+    weak = _estimate(known, phi=35 * DEG, c=0.0, delta=15 * DEG)  # loose sand: the reach (0.3 m) is admissible
+    assert max_cut_depth(weak, known).max_depth_m == pytest.approx(0.3)
+    tick = lambda k: 10**9 + k * 10**9 // 60  # noqa: E731
+    meta = EpisodeMeta("Sand", 20.0, "fee", 1, 0.5, 0.2, 2.0, source="test")
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.TARGET_DEPTH.name, T.TARGET_DEPTH.msgtype)
+        est_pub = probe.publisher(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        known_pub = probe.publisher(T.KNOWN.name, T.KNOWN.msgtype)
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "start_depth_m:=0.1", "-p", "deepen_rate_m_s:=0.6"],
+                        domain, tmp_path)
+
+        def targets() -> dict[int, np.ndarray]:
+            return dict(M.parse_labelled(m, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name)
+                        for m in probe.messages(T.TARGET_DEPTH.name))
+
+        def send(k: int, est: dict) -> np.ndarray:
+            known_pub.publish(M.make_labelled(CLASSES, tick(k), KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+            est_pub.publish(M.make_labelled(CLASSES, tick(k), T.ESTIMATE_FIELDS, _payload(est, T.ESTIMATE_FIELDS)))
+            return probe.wait_for(lambda: (lambda v: None if v is None else (v,))(targets().get(tick(k))), 15,
+                                  f"the target of tick {k}")[0]
+
+        def start(episode: int, first: int) -> None:
+            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, episode, meta.name, meta, tick(first),
+                                                      planned_ticks=60).to_json()))
+
+        invalid = {n: 0.0 for n in T.ESTIMATE_FIELDS}
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() for p in (est_pub, known_pub, status))
+                           and probe.node.count_publishers(T.TARGET_DEPTH.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)
+            start(0, 0)
+            time.sleep(0.2)
+            assert send(0, invalid)[0] == pytest.approx(0.1) and send(0, invalid)[2] == 0.0  # nothing planned yet
+            assert send(1, weak)[0] == pytest.approx(0.1 + 0.6 / 60)  # one tick at the deepening rate
+            for k in range(2, 12):
+                got = send(k, weak)
+            assert got[0] == pytest.approx(0.1 + 0.6 * 11 / 60) and got[1] == pytest.approx(0.3) and got[2] == 1.0
+            before = len(probe.messages(T.TARGET_DEPTH.name))
+            late = M.make_labelled(CLASSES, tick(5), T.ESTIMATE_FIELDS, _payload(invalid, T.ESTIMATE_FIELDS))
+            est_pub.publish(late)  # older than the last tick scheduled: no new target
+            assert send(12, invalid)[0] == pytest.approx(got[0])  # (held: within hold_s of the last plan)
+            assert len(probe.messages(T.TARGET_DEPTH.name)) == before + 1  # tick 12's only, not tick 5's again
+            start(1, 13)
+            time.sleep(0.3)
+            assert send(13, invalid)[0] == pytest.approx(0.1)  # the next episode starts from the start depth
+        finally:
+            node.stop()
+    assert node.proc.returncode in (0, -2), node.output

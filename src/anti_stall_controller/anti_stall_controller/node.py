@@ -125,7 +125,7 @@ class ControllerNode(Node):
             gains = {k: changes[k] for k in GAIN_FIELDS if k in changes}
             new_gains = AntiStallGains(**{**{k: getattr(self.core.gains, k) for k in GAIN_FIELDS}, **gains})
             speed = changes.get("target_speed_m_s", self.core.target_speed_m_s[0])
-            depth = changes.get("target_depth_m", self.core.target_depth_m[0])
+            depth = changes.get("target_depth_m", self.param_depth_m)  # (the core's may be the planner's)
             AntiStallController(new_gains, speed, depth)  # validates targets
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
@@ -134,6 +134,9 @@ class ControllerNode(Node):
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
+        if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
+            self.core.set_targets(target_depth_m=self.param_depth_m)
+            self.planner_target, self.following_planner = None, False
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
         if "follow_episode_targets" in changes:
             self.follow = bool(changes["follow_episode_targets"])
@@ -208,7 +211,8 @@ class ControllerNode(Node):
             return
         depth = float(values[0])
         if not 0.0 <= depth <= MAX_PLANNER_DEPTH_M:  # (NaN fails too)
-            self._warn("planner:value", f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
+            self._warn(f"planner:value:{'nan' if depth != depth else 'range'}",
+                       f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
                                         f"[0, {MAX_PLANNER_DEPTH_M}] m; ignored")
             return
         if self.planner_target is None or stamp >= self.planner_target[0]:

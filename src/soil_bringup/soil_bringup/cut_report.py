@@ -22,6 +22,7 @@ with the measured values; they are figures, never asserted.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -112,8 +113,8 @@ def _hindsight(cut: Cut, best: list, conservative: float) -> float | None:
 
 
 def _renamed(cut: Cut, name: str) -> Cut:
-    cut.policy = Policy(name, cut.policy.fixed_depth_m)
-    return cut
+    """The sweep's cut under a policy's name (a copy: conservative and aggressive may be one depth)."""
+    return dataclasses.replace(cut, policy=Policy(name, cut.policy.fixed_depth_m))
 
 
 def _ratio(a: float, b: float) -> float | None:
@@ -253,16 +254,11 @@ def main(argv=None) -> int:
     print(console(report))
     (args.out / "cut_report.md").write_text(markdown(report) + "\n")
     serial = {**report, "worlds": [{k: v for k, v in w.items() if k != "cuts"} for w in report["worlds"]]}
-    (args.out / "cut_report.json").write_text(json.dumps(serial, indent=1, default=_json_default) + "\n")
+    (args.out / "cut_report.json").write_text(json.dumps(serial, indent=1, default=float) + "\n")
     print(f"soil_cut_report: {report['wall_s']:.0f} s; table {args.out / 'cut_report.md'}, figures "
           + ", ".join(str(args.out / w["figure"]) for w in report["worlds"]))
     return 0
 
-
-def _json_default(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
 
 
 if __name__ == "__main__":

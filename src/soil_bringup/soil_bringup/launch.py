@@ -47,7 +47,7 @@ EXIT_BAD_ARGS = 2
 CONTROLLER_ENDPOINTS = {name: 1 for name in G.CONTROLLER_INPUTS + G.COMMAND_TOPICS}
 RECORDER_ENDPOINTS = {name: 1 for name in G.RECORDER_INPUTS if name not in G.COMMAND_TOPICS}
 ESTIMATOR_ENDPOINTS = {name: 1 for name in G.ESTIMATOR_INPUTS if name not in G.COMMAND_TOPICS}
-PLANNER_ENDPOINTS = {name: 1 for name in G.PLANNER_STATE_TOPICS}
+PLANNER_ENDPOINTS = {name: 1 for name in (*G.PLANNER_STATE_TOPICS, G.SIM_STATUS_TOPIC)}
 PLANNER_NICENESS = 10  # the planner's plan may come a tick late; the controller's command may not
 
 # The line the launch logs per node it starts; ``started_nodes`` reads it back from a log.
@@ -85,7 +85,7 @@ class NodeProcess:
     stop_order: int  # lower stops first
     required: bool = True  # its death (any exit before shutdown) fails the launch
     ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
-    # Scheduling niceness added at start (os.nice): the nodes that close the 60 Hz loop (the
+    # Scheduling niceness set at start (setpriority): the nodes that close the 60 Hz loop (the
     # simulator and the controller) keep 0; a node whose answer may come a tick later (the
     # planner) yields the CPU to them on a busy machine.
     niceness: int = 0
@@ -133,8 +133,12 @@ class Launch:
             node.proc = subprocess.Popen(
                 node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
                 start_new_session=True,  # the terminal's Ctrl-C reaches us only; we forward it
-                preexec_fn=(lambda n=node.niceness: os.nice(n)) if node.niceness else None,
             )
+            if node.niceness:  # (after the fork: a preexec_fn is unsafe while the pump threads run)
+                try:
+                    os.setpriority(os.PRIO_PROCESS, node.proc.pid, node.niceness)
+                except OSError as err:
+                    self.log(f"{node.name}: niceness {node.niceness} not set ({err}); it runs at normal priority")
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
             node.pump.start()
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))

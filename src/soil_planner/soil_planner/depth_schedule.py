@@ -31,9 +31,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import MACHINE
-
-NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)

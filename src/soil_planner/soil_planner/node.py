@@ -17,8 +17,10 @@ target moved by a millimetre, and at least 5 times a second), the plan's
 deepest cut through the depth schedule's rate limits, start depth and hold
 (``depth_schedule.py``; parameters ``start_depth_m``, ``deepen_rate_m_s``, ``shallow_rate_m_s``,
 ``hold_s``, ``min_target_m``, ``max_target_m``). A tick whose plan was refused, or an invalid
-estimate, moves the schedule without a plan (it holds, then backs off). Each new cut (a
-stamp that goes back, or a gap of more than a second) starts from the start depth.
+estimate, moves the schedule without a plan (it holds, then backs off). Each new cut (an
+episode_start on /sim/status, or plan stamps more than a second apart either way) starts from
+the start depth with no plan carried over; a tick older than the last one planned is not
+scheduled again.
 
 Parameters (also in ``config/soil_planner.yaml``) are validated at start (a bad one exits
 with code 2) and can be changed at run time (``ros2 param set``).
@@ -28,11 +30,14 @@ from __future__ import annotations
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
+from soil_msgs_py import graph as G
+from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node,
+                                      status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
 from .depth_schedule import DepthSchedule, ScheduleSettings
@@ -100,6 +105,8 @@ class PlannerNode(Node):
         self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, publisher_qos(T.PLAN.name))
         self.target_pub = self.create_publisher(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
                                                 publisher_qos(T.TARGET_DEPTH.name))
+        # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
+        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
@@ -148,6 +155,17 @@ class PlannerNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
+    def _on_status(self, msg) -> None:
+        event = status_event(msg.data, self._warn)
+        if event is not None and event.event == G.EVENT_EPISODE_START:
+            self._new_cut()
+
+    def _new_cut(self) -> None:
+        """A new cut: the schedule back to its start depth, no plan carried over."""
+        self.schedule.reset()
+        self.planner = self._stretch_planner()
+        self._target_sent = None
+
     def _on_known(self, msg) -> None:
         try:
             stamp, values = M.parse_labelled(msg, KNOWN_PARAMS, T.KNOWN.name)
@@ -211,8 +229,10 @@ class PlannerNode(Node):
     def _target(self, stamp: int, plan_depth_m: float | None) -> None:
         """The controller's target for this tick through the depth schedule (a new cut restarts it)."""
         last = self.schedule.last_stamp_ns
-        if last is not None and (stamp < last or stamp - last > NEW_CUT_GAP_NS):
-            self.schedule.reset()
+        if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
+            self._new_cut()  # time jumped (a replay started over, a restarted simulator): a new cut
+        elif last is not None and stamp <= last:
+            return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
         target = self.schedule.update(stamp, plan_depth_m)
         values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
         sent = self._target_sent

@@ -358,8 +358,9 @@ class _FusedForceModel:
     posterior has moved), the posterior gives the shape and its spread. A sample without a
     wedge at the current velocity keeps r_s = 0.
     The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
-    relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_s(d)|): the anchor
-    makes the forecast near the current depth sharper, never less certain than without it.
+    relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_FEE,s(d)|): the
+    anchor makes the forecast near the current depth sharper, never less certain than the
+    unanchored forecast.
     """
 
     def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
@@ -410,21 +411,22 @@ class _FusedForceModel:
     def _mixtures(self, d: np.ndarray):
         """Per axis (x, z): (weights (S,), means (D, S), standard deviations (D, S)) at depths d."""
         d = np.clip(np.asarray(d, float), *D_PRIME_LIMITS_M)[:, None]  # (D, 1) against (S,) samples
+        shape = (len(d), FUSED_SAMPLES)
         with np.errstate(all="ignore"):
-            fx, fz, _ = fee.fee_xz({**self.theta, "d": d})
-            fx = fx * self.scale_x + self.residual_per_m[0] * d
-            fz = fz + self.residual_per_m[1] * d
-        fx, fz = np.broadcast_to(fx, (len(d), FUSED_SAMPLES)), np.broadcast_to(fz, (len(d), FUSED_SAMPLES))
+            raw_x, raw_z, _ = fee.fee_xz({**self.theta, "d": d})
+            raw_x, raw_z = np.broadcast_to(raw_x, shape), np.broadcast_to(raw_z, shape)
+            fx = raw_x * self.scale_x + self.residual_per_m[0] * d
+            fz = raw_z + self.residual_per_m[1] * d
         ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0)  # a sample with a wedge at every depth
         if not ok.any():
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
         w = ok.astype(float)
         out = []
-        for f, (a, r), now in ((fx, self.law[0], self.anchor[0]), (fz, self.law[1], self.anchor[1])):
-            f = np.where(ok, f, 0.0)
+        for f, raw, (a, r), now in ((fx, raw_x, self.law[0], self.anchor[0]), (fz, raw_z, self.law[1], self.anchor[1])):
+            f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
             # anchored: the relative error applies to what is extrapolated from the force now, and
-            # never exceeds the calibrated forecast's (an anchor adds knowledge, never doubt)
-            out.append((w, f, model_error_std(np.minimum(np.abs(f - now), np.abs(f)), a, r) + 1e-9))
+            # never exceeds the unanchored forecast's (an anchor adds knowledge, never doubt)
+            out.append((w, f, model_error_std(np.minimum(np.abs(f - now), np.abs(raw)), a, r) + 1e-9))
         return out
 
     def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
