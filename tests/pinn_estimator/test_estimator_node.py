@@ -209,3 +209,33 @@ def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
             wait_until(lambda: f"model now {fee_model}" in node.output, 10, "model swap logged")
         finally:
             assert node.stop() == 0, node.output
+
+
+def test_the_estimator_joins_sim_status_only_once_every_input_has_a_publisher(tmp_path):
+    """A simulator holds tick 0 until its /sim/status readers have matched: the estimator's
+    must not count before the estimator can hear the whole tick (the controller's commands
+    included), and not wait for ever for an input nobody publishes."""
+    from soil_msgs_py import graph as G
+
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        waiting = NodeProc("pinn_estimator", ["--ros-args", "-p", "inputs_wait_s:=600.0"], domain, tmp_path)
+        try:
+            pubs = [probe.publisher(t, T.TOPICS_BY_NAME[t].msgtype) for t in INPUT_TOPICS[:-1]]
+            wait_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs), 60, "the estimator's inputs")
+            time.sleep(1.0)
+            assert status.get_subscription_count() == 0  # one input still has no publisher
+            pubs.append(probe.publisher(INPUT_TOPICS[-1], T.TOPICS_BY_NAME[INPUT_TOPICS[-1]].msgtype))
+            wait_until(lambda: status.get_subscription_count() >= 1, 30, "the estimator's /sim/status reader")
+        finally:
+            assert waiting.stop() == 0, waiting.output
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        alone = NodeProc("pinn_estimator", ["--ros-args", "-p", "inputs_wait_s:=1.0"], domain, tmp_path)
+        try:
+            wait_until(lambda: status.get_subscription_count() >= 1, 60, "the /sim/status reader after inputs_wait_s")
+        finally:
+            alone.stop()
+        assert "without a publisher of" in alone.output and T.BLADE_CMD.name in alone.output, alone.output

@@ -5,7 +5,9 @@ Subscribes to the state, force, command and Θ_k topics (``online.INPUT_TOPICS``
 ``topics.ESTIMATE_FIELDS``: the PINN's window estimate and the soil fused along the path) and
 ``/soil/estimate/force`` (WrenchStamped, valid estimates only), each stamped with the newest
 sample of the window, and ``/soil/map`` (PointCloud2, after each stretch of evidence). Each
-``episode_start`` empties the window and restarts the soil posterior.
+``episode_start`` empties the window and restarts the soil posterior. It joins /sim/status
+only once every input topic has a publisher (at most ``inputs_wait_s``), so a simulator that
+waits for its status readers starts no episode before this node hears the whole tick.
 
 Parameters (also in ``config/pinn_estimator.yaml``) are validated; ``checkpoint`` and
 ``stride`` can be changed at run time (``ros2 param set``): a checkpoint that does not load
@@ -36,6 +38,7 @@ PARAMETERS: dict[str, tuple] = {
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_default.json"),
+    "inputs_wait_s": (5.0, "join /sim/status once every input topic has a publisher, or after this long [s] (0: at once)"),
 }
 
 
@@ -85,15 +88,24 @@ class EstimatorNode(Node):
             message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, publisher_qos(T.ESTIMATED_FORCE.name))
         self.map_pub = self.create_publisher(
             message_class(T.SOIL_MAP.msgtype), T.SOIL_MAP.name, publisher_qos(T.SOIL_MAP.name))
-        # /sim/status first: the executor serves ready subscriptions in creation order, so an
-        # episode_start that arrived with tick 0 empties the window before tick 0 is added.
-        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
-        for name in INPUT_TOPICS:
-            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                     lambda msg, n=name: self.core.add(n, msg), deep)
+        self.input_subs = [self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                                    lambda msg, n=name: self.core.add(n, msg), deep)
+                           for name in INPUT_TOPICS]
+        # /sim/status last, once every input has a publisher (at most inputs_wait_s): a simulator
+        # holds tick 0 until its /sim/status readers have matched, and nothing else waits for
+        # this node's readers of the controller's commands; matched late on a loaded machine,
+        # the first second's ticks lacked their commands and no estimate came for them. (A tick
+        # that overtakes its episode_start is kept: ``OnlineEstimator.start_episode``.)
+        wait_s = get("inputs_wait_s")
+        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= 3600.0:
+            raise ValueError(f"parameter inputs_wait_s={wait_s!r} must be a number of seconds in [0, 3600]")
+        self._status_sub = None
+        self._inputs_deadline = self.get_clock().now().nanoseconds + int(wait_s * 1e9)
+        self._status_timer = self.create_timer(0.02, self._join_status)
+        self._join_status()
         self.get_logger().info(
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
             f"stride {self.core.stride}, {threads} thread(s), soil posterior model error rel "
@@ -117,6 +129,20 @@ class EstimatorNode(Node):
         if "stride" in changes:
             self.core.set_stride(changes["stride"])
         return SetParametersResult(successful=True)
+
+    def _join_status(self) -> None:
+        """Subscribe to /sim/status once every input has a publisher, or at the deadline."""
+        if self._status_sub is not None:
+            return
+        missing = [n for n, sub in zip(INPUT_TOPICS, self.input_subs) if sub.get_publisher_count() < 1]
+        late = self.get_clock().now().nanoseconds >= self._inputs_deadline
+        if missing and not late:
+            return
+        if missing:
+            self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet")
+        self._status_sub = self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status,
+                                                    topic_qos(G.SIM_STATUS_TOPIC))
+        self._status_timer.cancel()
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg: String) -> None:
