@@ -7,9 +7,10 @@ soil posterior fused along the path), the planner (``StretchPlanner``: the deepe
 upper force quantile stays within margin x the limits) and its ``DepthSchedule`` (rate
 limits, start depth, hold). Tick k: the simulator reports state k, the controller answers it
 with the target depth in effect, the estimator takes the complete row k and the plan made
-from it reaches the controller ``plan_delay_ticks`` later (what the live graph's estimator
-and planner take; 2 ticks by default, the live figure in the README). The fixed policies run
-the same path, seed and controller with a constant target depth.
+from it reaches the controller ``plan_delay_ticks`` later (default 2: the tick the live
+controller answers before the plan exists, and one for the estimator and planner; under load
+the live graph is later, and the controller's fallback covers a planner that falls silent).
+The fixed policies run the same path, seed and controller with a constant target depth.
 
 Everything is deterministic for a seed (the estimator on one thread), so the policies meet
 the same soil, the same noise and the same start.
