@@ -24,7 +24,8 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.ros_adapter import (
-    WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_event, topic_qos,
+    StatusAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node,
+    status_event,
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
@@ -91,21 +92,15 @@ class EstimatorNode(Node):
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
-        self.input_subs = [self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                                    lambda msg, n=name: self.core.add(n, msg), deep)
-                           for name in INPUT_TOPICS]
-        # /sim/status last, once every input has a publisher (at most inputs_wait_s): a simulator
-        # holds tick 0 until its /sim/status readers have matched, and nothing else waits for
-        # this node's readers of the controller's commands; matched late on a loaded machine,
-        # the first second's ticks lacked their commands and no estimate came for them. (A tick
-        # that overtakes its episode_start is kept: ``OnlineEstimator.start_episode``.)
-        wait_s = get("inputs_wait_s")
-        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= 3600.0:
-            raise ValueError(f"parameter inputs_wait_s={wait_s!r} must be a number of seconds in [0, 3600]")
-        self._status_sub = None
-        self._inputs_deadline = self.get_clock().now().nanoseconds + int(wait_s * 1e9)
-        self._status_timer = self.create_timer(0.02, self._join_status)
-        self._join_status()
+        inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                                 lambda msg, n=name: self.core.add(n, msg), deep)
+                  for name in INPUT_TOPICS}
+        # /sim/status last, once every input has a publisher (at most inputs_wait_s): matched late
+        # under load, the first second's ticks lacked the controller's commands. (A tick that
+        # overtakes its episode_start is kept: ``OnlineEstimator.start_episode``.)
+        self.status = StatusAfterInputs(
+            self, inputs, self._on_status, get("inputs_wait_s"),
+            lambda missing: self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet"))
         self.get_logger().info(
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
             f"stride {self.core.stride}, {threads} thread(s), soil posterior model error rel "
@@ -129,20 +124,6 @@ class EstimatorNode(Node):
         if "stride" in changes:
             self.core.set_stride(changes["stride"])
         return SetParametersResult(successful=True)
-
-    def _join_status(self) -> None:
-        """Subscribe to /sim/status once every input has a publisher, or at the deadline."""
-        if self._status_sub is not None:
-            return
-        missing = [n for n, sub in zip(INPUT_TOPICS, self.input_subs) if sub.get_publisher_count() < 1]
-        late = self.get_clock().now().nanoseconds >= self._inputs_deadline
-        if missing and not late:
-            return
-        if missing:
-            self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet")
-        self._status_sub = self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status,
-                                                    topic_qos(G.SIM_STATUS_TOPIC))
-        self._status_timer.cancel()
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg: String) -> None:

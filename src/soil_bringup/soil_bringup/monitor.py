@@ -93,7 +93,7 @@ class LiveMonitor:
         from rclpy.signals import SignalHandlerOptions
 
         from soil_msgs_py.graph import RECORDER_QOS
-        from soil_msgs_py.ros_adapter import message_class, qos_profile, topic_qos
+        from soil_msgs_py.ros_adapter import StatusAfterInputs, message_class, qos_profile
 
         self.out = out or sys.stdout
         self.planned = planned_episodes
@@ -118,15 +118,13 @@ class LiveMonitor:
             data_qos = qos_profile(RECORDER_QOS)
             self.node.create_subscription(message_class(T.GROUND_TRUTH.msgtype), T.GROUND_TRUTH.name, self._on_truth, data_qos)
             self.node.create_subscription(message_class(T.BLADE_FORCE.msgtype), T.BLADE_FORCE.name, self._on_force, data_qos)
-            self.estimate_sub = self.node.create_subscription(
+            estimate_sub = self.node.create_subscription(
                 message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate, data_qos)
-            # /sim/status comes later (_subscribe_status): the simulator holds tick 0 until every
-            # status reader it waits for has matched, and the monitor's must not count before
-            # its /soil/estimate reader has matched the estimator's writer; a volatile reader
-            # matched late never sees the first second's estimates (no line before 1.2 s, under load).
-            self._status_qos = topic_qos(G.SIM_STATUS_TOPIC)
-            self._status_sub = None
-            self._estimator_wait_start = time.monotonic()
+            # /sim/status once the estimator's writer has matched (at most ESTIMATOR_WAIT_S: without
+            # an estimator the run goes on, its lines saying so): matched late under load, the
+            # monitor saw no estimate before 1.2 s.
+            self.status = StatusAfterInputs(self.node, {T.ESTIMATE.name: estimate_sub}, self._on_status,
+                                            self.ESTIMATOR_WAIT_S)
             self.executor = SingleThreadedExecutor(context=self.context)
             self.executor.add_node(self.node)
         except BaseException:
@@ -137,22 +135,9 @@ class LiveMonitor:
         self._thread.start()
 
     # ------------------------------------------------------------------ plumbing
-    def _subscribe_status(self) -> None:
-        """Join /sim/status once the estimator's /soil/estimate writer has matched (or after
-        ESTIMATOR_WAIT_S: without an estimator the run goes on, its lines saying so)."""
-        if self._status_sub is not None:
-            return
-        if (self.estimate_sub.get_publisher_count() < 1
-                and time.monotonic() - self._estimator_wait_start < self.ESTIMATOR_WAIT_S):
-            return
-        from std_msgs.msg import String
-
-        self._status_sub = self.node.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, self._status_qos)
-
     def _spin(self) -> None:
         while not self._stop.is_set() and self.context.ok():
             try:
-                self._subscribe_status()
                 self.executor.spin_once(timeout_sec=0.05)
                 self._maybe_end()
             except Exception as err:  # noqa: BLE001 - a display must never take the run down

@@ -25,7 +25,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .graph import DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS, EpisodeEvent, QosSpec
+from .graph import DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -103,6 +103,43 @@ def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
     except ValueError as err:
         warn("status", f"{SIM_STATUS_TOPIC}: {err}; ignored")
         return None
+
+
+class StatusAfterInputs:
+    """A node's /sim/status subscription, created only once every reader in ``inputs`` (topic ->
+    subscription) has a matched publisher, or ``wait_s`` after construction (then
+    ``on_missing(topics)`` is told which had none).
+
+    Why: a simulator holds tick 0 until its /sim/status readers have matched, but nothing
+    waits for a node's readers of other nodes' topics (the controller's commands, the
+    estimator's estimates); matched late on a loaded machine, a volatile reader never sees the
+    first ticks. Joining /sim/status last makes the simulator wait for them too. Polled by a
+    node timer (``POLL_S``), cancelled once subscribed.
+    """
+
+    POLL_S = 0.02
+
+    def __init__(self, node: Node, inputs: dict, callback: Callable, wait_s: float,
+                 on_missing: Callable[[list[str]], None] | None = None):
+        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= 3600.0:
+            raise ValueError(f"inputs_wait_s={wait_s!r} must be a number of seconds in [0, 3600]")
+        self.node, self.inputs, self.callback, self.on_missing = node, dict(inputs), callback, on_missing
+        self.subscription = None
+        self._deadline = time.monotonic() + float(wait_s)
+        self._timer = node.create_timer(self.POLL_S, self.poll)
+        self.poll()
+
+    def poll(self) -> None:
+        if self.subscription is not None:
+            return
+        missing = [topic for topic, sub in self.inputs.items() if sub.get_publisher_count() < 1]
+        if missing and time.monotonic() < self._deadline:
+            return
+        if missing and self.on_missing is not None:
+            self.on_missing(missing)
+        self.subscription = self.node.create_subscription(
+            message_class(STRING_MSGTYPE), SIM_STATUS_TOPIC, self.callback, topic_qos(SIM_STATUS_TOPIC))
+        self._timer.cancel()
 
 
 def raise_interrupt(signum, frame):  # noqa: ARG001
