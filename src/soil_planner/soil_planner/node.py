@@ -42,7 +42,7 @@ from soil_msgs_py.stamp_join import StampJoiner, Verdict
 
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
-                      StretchPlanner, check_quantile, check_settings, describe, fields)
+                      StretchPlanner, describe, fields)
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -73,6 +73,17 @@ PARAMETERS: dict[str, tuple] = {
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
 MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
+PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile")  # StretchPlanner's
+
+
+def stretch_planner(settings: dict) -> StretchPlanner:
+    """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
+    PINN's point plan); ValueError naming a bad one."""
+    if not isinstance(settings["include_residual"], bool):
+        raise ValueError(f"include_residual={settings['include_residual']!r} must be true or false")
+    q = settings["force_quantile"]
+    off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
+    return StretchPlanner(**{**settings, "force_quantile": None if off else q})
 
 
 def check_log_period(value) -> float:
@@ -85,11 +96,7 @@ class PlannerNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_planner")
         get = declare_parameters(self, PARAMETERS)
-        self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(get("margin"), get("d_max_m"),
-                                                                       get("cut_speed_m_s"))
-        self.include_residual = self._check_bool("include_residual", get("include_residual"))
-        self.force_quantile = self._check_quantile(get("force_quantile"))
-        self.planner = self._stretch_planner()
+        self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
         self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
@@ -110,46 +117,25 @@ class PlannerNode(Node):
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
+        p = self.planner
         self.get_logger().info(
-            f"margin {self.margin}, d_max {self.d_max_m} m, cut speed {self.cut_speed_m_s} m/s, "
-            f"residual {'on' if self.include_residual else 'off'}, depth schedule {self.schedule.settings}; "
+            f"margin {p.margin}, d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
+            f"residual {'on' if p.include_residual else 'off'}, depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
-
-    def _stretch_planner(self) -> StretchPlanner:
-        return StretchPlanner(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
-                              include_residual=self.include_residual, force_quantile=self.force_quantile)
-
-    @staticmethod
-    def _check_quantile(value) -> float | None:
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == 0:
-            return None
-        return check_quantile(value)
-
-    @staticmethod
-    def _check_bool(name: str, value) -> bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"{name}={value!r} must be true or false")
-        return value
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply together (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
         try:
-            margin, d_max, speed = check_settings(changes.get("margin", self.margin),
-                                                  changes.get("d_max_m", self.d_max_m),
-                                                  changes.get("cut_speed_m_s", self.cut_speed_m_s))
-            residual = self._check_bool("include_residual", changes.get("include_residual", self.include_residual))
-            quantile = (self._check_quantile(changes["force_quantile"]) if "force_quantile" in changes
-                        else self.force_quantile)
+            planner = stretch_planner({**self.planner.settings(),
+                                       **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
             current = self.schedule.settings.to_dict()
             schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        self.margin, self.d_max_m, self.cut_speed_m_s, self.include_residual = margin, d_max, speed, residual
-        self.force_quantile = quantile
-        self.planner = self._stretch_planner()
+        self.planner = planner
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
         return SetParametersResult(successful=True)
@@ -163,7 +149,7 @@ class PlannerNode(Node):
     def _new_cut(self) -> None:
         """A new cut: the schedule back to its start depth, no plan carried over."""
         self.schedule.reset()
-        self.planner = self._stretch_planner()
+        self.planner.forget()
         self._target_sent = None
 
     def _on_known(self, msg) -> None:
@@ -181,7 +167,7 @@ class PlannerNode(Node):
             self._warn("estimate:layout", f"{err}; ignored")
             return
         est = fields(values, T.ESTIMATE_FIELDS)
-        fused = self.force_quantile is not None and est["fused_valid"] == 1.0
+        fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
             self._publish(stamp, NO_PLAN_VALUES)
             self._target(stamp, None)

@@ -302,6 +302,10 @@ class StretchPlanner:
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan] | None = None
 
+    def forget(self) -> None:
+        """A new cut: the next fused plan is made afresh."""
+        self._fused = None
+
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
                 "include_residual": self.include_residual, "force_quantile": self.force_quantile}
