@@ -80,7 +80,6 @@ class DepthSchedule:
         self.target_m = self.settings.start_depth_m
         self.last_stamp_ns: int | None = None
         self.last_plan_ns: int | None = None  # stamp of the newest valid plan
-        self.plan_m: float | None = None  # that plan's depth
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -91,7 +90,7 @@ class DepthSchedule:
         dt = 0.0 if self.last_stamp_ns is None else (stamp_ns - self.last_stamp_ns) / NS_PER_S
         self.last_stamp_ns = stamp_ns
         if plan_depth_m is not None and math.isfinite(plan_depth_m):
-            self.last_plan_ns, self.plan_m = stamp_ns, float(plan_depth_m)
+            self.last_plan_ns = stamp_ns
             goal = float(plan_depth_m)
         elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
             goal = self.target_m  # hold
