@@ -128,8 +128,8 @@ class CommandGate:
         for name, raw in zip(COMMAND_TOPIC_FIELDS[topic], values):
             value = float(raw)
             lo, hi = COMMAND_LIMITS[name]
-            if not math.isfinite(value):
-                warnings.append((f"{topic}:{name}:non_finite",
+            if not math.isfinite(value):  # (NaN and ±inf are different faults: each is reported)
+                warnings.append((f"{topic}:{name}:{'nan' if value != value else 'inf'}",
                                  f"{topic}: field {name}={value} is not finite; holding {self.last[name]}"))
                 value = self.last[name]
             elif not lo <= value <= hi:
