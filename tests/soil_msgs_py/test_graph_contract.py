@@ -70,11 +70,11 @@ def test_command_gate_accepts_only_the_answered_tick_and_sanitises():
     assert gate.offer("/chassis/cmd_vel", 100, [0.4]) == [] and not gate.complete
     assert gate.offer("/chassis/cmd_vel", 100, [0.3])[0][0].endswith("stamp:repeated")
     (kind, text), = gate.offer("/blade/cmd", 100, [math.nan, -0.1])
-    assert kind == "/blade/cmd:u_zr:non_finite" and "holding 0.0" in text and gate.complete
+    assert kind == "/blade/cmd:u_zr:nan" and "holding 0.0" in text and gate.complete
     assert gate.take() == (0.0, -0.1, 0.4)
     gate.expect(200)
     kinds = [k for k, _ in gate.offer("/blade/cmd", 200, [7.0, math.inf])]
-    assert kinds == ["/blade/cmd:u_zr:out_of_range", "/blade/cmd:u_za:non_finite"]
+    assert kinds == ["/blade/cmd:u_zr:out_of_range", "/blade/cmd:u_za:inf"]
     assert gate.take() == (COMMAND_LIMITS["u_zr"][1], -0.1, 0.4)  # u_x held: its command did not come
     assert gate.rejected == 4 and gate.sanitised == 2
 
