@@ -24,7 +24,7 @@ import yaml
 from rosbags.highlevel import AnyReader
 
 from soil_bringup.launch import loopback_env
-from soil_bag_tools import bag_io, journal, playback, recorder
+from soil_bag_tools import bag_io, bag_writer, journal, playback, recorder
 from soil_msgs_py import graph
 from soil_msgs_py.topics import EPISODE_TOPICS
 
@@ -145,7 +145,7 @@ def _journal_from_sample(tmp_path: Path, n_msgs: int, flush_every: int):
     partial = journal.partial_dir(tmp_path, journal.claim_name(tmp_path, SAMPLE.name))
     w = journal.JournalWriter(journal.journal_path(partial), {bag_io.META_KEY: loaded.meta.to_json()})
     for topic, msgtype in loaded.topics.items():
-        w.add_channel(topic, msgtype, [recorder.rosbags_qos(graph.DATA_QOS)])
+        w.add_channel(topic, msgtype, [bag_writer.rosbags_qos(graph.DATA_QOS)])
     for i, (t, topic, raw) in enumerate(loaded.messages[:n_msgs]):
         w.write(topic, t, raw)
         if (i + 1) % flush_every == 0:

@@ -4,11 +4,16 @@ Bags are the dataset format: ``ros2 bag info/play`` can open them, and the train
 them back bit-identically. Writes are atomic (staged in ``<bag>.partial``, renamed into
 place after a clean close) so a crashed batch never leaves a bag that looks complete.
 The episode metadata travels in metadata.yaml ``custom_data`` (and the MCAP metadata
-record rosbags writes alongside it). Whatever a damaged bag makes the reader trip over
-surfaces as one :class:`BagReadError` naming the bag.
+record written alongside it). Every bag is written by ``bag_writer.BagWriter``: MCAP chunk,
+data-section and summary CRCs, each topic's offered QoS and type hash. Reading checks those
+CRCs first (``integrity.py``), so a damaged chunk is named (index, byte offset, log time
+range, stored and computed CRC) instead of being decoded; bags from before CRCs were
+written still read, with a one-line warning. Whatever else a damaged bag makes the reader
+trip over surfaces as one :class:`BagReadError` naming the bag.
 """
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import struct
@@ -20,20 +25,22 @@ from pathlib import Path
 import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag2 import ReaderError, StoragePlugin, Writer
+from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta
 from soil_msgs_py.topics import EPISODE_TOPICS
+from .bag_writer import BagWriter, offered_qos
+from .integrity import scan_file
 
 META_KEY = "insitu_soil.episode"
 PARTIAL_SUFFIX = ".partial"
 _INT32_MAX_S = 2**31 - 1
+log = logging.getLogger(__name__)
 
-# What reading a damaged bag raises: rosbags checks few lengths and no checksum (its writer
-# stores none), so flipped bytes surface as whatever its MCAP reader, struct, the CDR decoder
-# or our own checks trip over first.
+# What reading a damaged bag raises where no CRC caught it (bags without CRCs, damage outside
+# the chunks): whatever rosbags' MCAP reader, struct, the CDR decoder or our checks trip over.
 DAMAGE_ERRORS = (AnyReaderError, ReaderError, SerdeError, struct.error, OverflowError, ValueError,
                  IndexError, KeyError, EOFError, OSError)
 
@@ -56,8 +63,10 @@ class BagReadError(ValueError):
 
 @contextmanager
 def reading(bag: str | os.PathLike) -> Iterator[None]:
-    """Turn any error of reading ``bag`` into a BagReadError that names it."""
+    """Check ``bag``'s CRCs (:func:`check_integrity`), then turn any error of reading it into
+    a BagReadError that names it."""
     try:
+        check_integrity(Path(bag))
         yield
     except BagReadError:
         raise
@@ -114,10 +123,11 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
     staging.mkdir(parents=True)
     tmp_bag = staging / bag_dir.name  # mcap file is named after its directory
     try:
-        with Writer(tmp_bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        with BagWriter(tmp_bag) as writer:
             writer.set_custom_data(META_KEY, episode.meta.to_json())
             conns = {
-                t.name: writer.add_connection(t.name, t.msgtype, typestore=M.TYPESTORE)
+                t.name: writer.add_connection(t.name, t.msgtype, typestore=M.TYPESTORE,
+                                              offered_qos_profiles=offered_qos(t.name))
                 for t in EPISODE_TOPICS
             }
             for topic, stamp, raw in M.serialize_episode(episode, M.TYPESTORE):
@@ -136,13 +146,60 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
     return bag_dir
 
 
-def bag_custom_data(bag: Path) -> dict[str, str]:
-    """metadata.yaml ``custom_data`` (rosbags' reader has no public getter); {} if none."""
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def bag_info(bag: Path) -> dict:
+    """metadata.yaml's ``rosbag2_bagfile_information``."""
     try:
-        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-        return dict(info.get("custom_data") or {})
+        info = yaml.load((bag / "metadata.yaml").read_text(), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
+        return dict(info)
     except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
         raise BagReadError(bag, f"unreadable metadata.yaml: {err!r}") from None
+
+
+def bag_custom_data(bag: Path) -> dict[str, str]:
+    """metadata.yaml ``custom_data`` (rosbags' reader has no public getter); {} if none."""
+    info = bag_info(bag)
+    try:
+        return dict(info.get("custom_data") or {})
+    except (ValueError, TypeError) as err:
+        raise BagReadError(bag, f"unreadable metadata.yaml custom_data: {err!r}") from None
+
+
+_warned_unchecked: set[str] = set()
+
+
+def check_integrity(bag: Path) -> None:
+    """Every chunk CRC (and the data-section and summary CRCs) of ``bag``'s MCAP files.
+
+    BagReadError naming the first bad chunk (index, byte offset, log time range, what it held,
+    stored vs computed CRC), a truncated file, or damage outside the chunks. A bag written
+    before CRCs were (all 0: "not computed") passes with a one-line warning, once per process."""
+    if not is_bag(bag):
+        return  # callers say what is wrong with it
+    files = bag_info(bag).get("relative_file_paths") or []
+    for name in files:
+        mcap = bag / str(name)
+        if mcap.suffix != ".mcap":
+            continue  # not a storage this project writes; rosbags reports what it cannot read
+        if not mcap.is_file():
+            raise BagReadError(bag, f"metadata.yaml lists {name}, which does not exist")
+        scan = scan_file(mcap)
+        if bad := scan.bad:
+            others = f" (also chunk(s) {', '.join(str(c.index) for c in bad[1:])})" if len(bad) > 1 else ""
+            raise BagReadError(bag, f"{name}: {bad[0].describe(scan.topics)}{others}; {len(bad)} of "
+                                    f"{len(scan.chunks)} chunks are damaged, `soil_bag_repair {bag} "
+                                    f"--out NEW_BAG` copies the others")
+        if scan.stop:
+            raise BagReadError(bag, f"{name} is truncated or unreadable ({scan.stop})")
+        if scan.data_problem:
+            raise BagReadError(bag, f"{name}: {scan.data_problem} (every chunk passes its CRC: "
+                                    f"the damage is outside the chunks)")
+        if not scan.has_crcs and scan.chunks and str(bag) not in _warned_unchecked:
+            _warned_unchecked.add(str(bag))
+            log.warning("bag %s: written without chunk CRCs (before they were computed); "
+                        "damage inside a chunk cannot be detected", bag)
 
 
 def _read_meta(path: Path) -> EpisodeMeta:

@@ -10,8 +10,11 @@ product: the recorder (clean finish) and ``soil_bag_repair`` (after a crash) bot
 into the rosbag2 bag ``<out>/<name>/`` with :func:`journal_to_bag`, the same format as
 ``bag_io.write_episode`` (version 9, MCAP, custom_data ``bag_io.META_KEY``).
 
-Reading tolerates truncation: the MCAP stream reader yields every record of every complete
-chunk and then stops at the torn one, which is all a killed writer leaves.
+Reading tolerates truncation and damage (``integrity.read_records``): every record of every
+complete chunk that passes its CRC; a chunk failing it is skipped and reported (index, byte
+offset, log time range, messages per topic from its message index) and reading goes on; the
+torn tail a killed writer leaves ends the reading. Messages whose channel was defined in a
+skipped chunk cannot be attributed and are dropped and counted too.
 
 Claims: an episode journal may hold messages of one topic from several writers (a second
 publisher, a redelivery). Each message's MCAP ``sequence`` is the DDS publication sequence
@@ -33,12 +36,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from mcap.records import Channel, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, DataEnd, Message, Metadata, Schema
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.interfaces import Qos
-from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 import yaml
 
@@ -46,6 +47,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, tick_index
 from .bag_io import META_KEY, PARTIAL_SUFFIX
+from .bag_writer import BagWriter
+from .integrity import ChunkInfo, McapScan, read_records
 
 JOURNAL_METADATA_NAME = "insitu_soil"  # name of the MCAP Metadata record written first
 RECORDER_INFO_KEY = "insitu_soil.recorder"
@@ -161,39 +164,50 @@ class JournalScan:
     channels: dict[int, JournalChannel] = field(default_factory=dict)
     stamps: dict[str, list[int]] = field(default_factory=dict)  # log times per topic, file order
     sequences: dict[str, list[int]] = field(default_factory=dict)  # writer sequence numbers, same order
-    complete: bool = False  # the footer was reached: the writer closed the journal
-    stop: str = ""  # why reading stopped before the footer ("" if complete)
+    orphans: int = 0  # messages in good chunks whose channel was defined in a skipped chunk
+    mcap: McapScan | None = None  # chunks read and skipped, where reading stopped
 
     @property
     def messages(self) -> int:
         return sum(len(v) for v in self.stamps.values())
 
+    @property
+    def complete(self) -> bool:
+        """The footer was reached: the writer closed the journal."""
+        return self.mcap is not None and self.mcap.complete
+
+    @property
+    def stop(self) -> str:
+        """Why reading stopped before the footer ("" if complete)."""
+        return "" if self.mcap is None else self.mcap.stop
+
+    @property
+    def bad_chunks(self) -> list[ChunkInfo]:
+        return [] if self.mcap is None else self.mcap.bad
+
 
 def _records(path: Path, scan: JournalScan) -> Iterator[object]:
-    """Every readable record; on a torn/corrupt tail, note where and why in ``scan.stop``."""
-    with open(path, "rb") as f:
-        reader = StreamReader(f, skip_magic=False, validate_crcs=True)
-        try:
-            for record in reader.records:
-                if isinstance(record, Footer):
-                    scan.complete = True
-                yield record
-        except Exception as err:  # noqa: BLE001 - a torn tail is expected, whatever the parser says
-            # EndOfFile (an McapError) is the normal end of a killed writer's journal; a corrupt
-            # chunk (CRC, zstd) also ends the readable part.
-            scan.stop = f"stopped at byte {f.tell()} of {path.stat().st_size}: {type(err).__name__} {err}".strip()
+    """Every readable record, chunks failing their CRC skipped (noted in ``scan.mcap``)."""
+    scan.mcap = McapScan(path)
+    yield from read_records(path, scan.mcap)
 
 
 def scan_journal(path: Path) -> JournalScan:
     scan = JournalScan(Path(path))
     schemas: dict[int, Schema] = {}
+    summary = False  # past DataEnd: the summary's repeated schemas/channels come after their
+    # messages, so a channel lost with a skipped chunk stays lost (every pass agrees on orphans)
     for record in _records(scan.path, scan):
         if isinstance(record, Metadata):
             scan.metadata.update(record.metadata)
-        elif isinstance(record, Schema):
+        elif isinstance(record, DataEnd):
+            summary = True
+        elif isinstance(record, Schema) and not summary:
             schemas[record.id] = record
-        elif isinstance(record, Channel) and record.id not in scan.channels:
+        elif isinstance(record, Channel) and record.id not in scan.channels and not summary:
             schema = schemas.get(record.schema_id)
+            if schema is None and scan.bad_chunks:
+                continue  # its schema was in a skipped chunk: its messages are orphans
             if schema is None:
                 raise ValueError(f"{path}: channel {record.topic!r} refers to missing schema id {record.schema_id}")
             scan.channels[record.id] = JournalChannel(
@@ -204,6 +218,9 @@ def scan_journal(path: Path) -> JournalScan:
             scan.stamps.setdefault(record.topic, [])
             scan.sequences.setdefault(record.topic, [])
         elif isinstance(record, Message):
+            if record.channel_id not in scan.channels:
+                scan.orphans += 1
+                continue
             topic = scan.channels[record.channel_id].topic
             scan.stamps[topic].append(record.log_time)
             scan.sequences[topic].append(record.sequence)
@@ -306,6 +323,13 @@ def whole_tick_cutoff(stamps: Mapping[str, Sequence[int]]) -> int | None:
 
 # --- conversion --------------------------------------------------------------------------
 
+def chunk_details(chunks: Sequence[ChunkInfo], topics: Mapping[int, str]) -> list[dict]:
+    """Skipped chunks as the JSON a bag's custom_data records (what was dropped, and why)."""
+    return [{"chunk": c.index, "byte_offset": c.offset, "log_time_ns": [c.start_ns, c.end_ns],
+             "messages": {topics.get(k, f"channel {k}"): n for k, n in sorted(c.messages.items())},
+             "problem": c.problem} for c in chunks]
+
+
 class NothingRecoverable(ValueError):
     """The journal has no message that can go into a bag."""
 
@@ -321,6 +345,8 @@ class BagResult:
     journal_complete: bool
     stop: str
     conflicts: dict[str, int] = field(default_factory=dict)  # refused claims on a stamp, per topic
+    dropped_chunks: list[str] = field(default_factory=list)  # chunks skipped (failed CRC), one line each
+    orphans: int = 0  # messages dropped because their channel was defined in a skipped chunk
 
     def summary(self) -> str:
         counts = set(self.messages.values())
@@ -330,8 +356,10 @@ class BagResult:
         )
         refused = (f", {sum(self.conflicts.values())} refused claims on stamps of "
                    f"{', '.join(sorted(self.conflicts))}" if self.conflicts else "")
+        skipped = (f", {len(self.dropped_chunks)} corrupt chunk(s) skipped" if self.dropped_chunks else "")
+        orphans = f", {self.orphans} messages of channels defined in them" if self.orphans else ""
         return (f"{self.path}: {self.ticks} ticks, {sum(self.messages.values())} messages "
-                f"({per_topic}), {self.dropped} dropped{refused}")
+                f"({per_topic}), {self.dropped} dropped{refused}{skipped}{orphans}")
 
 
 def journal_to_bag(
@@ -355,8 +383,8 @@ def journal_to_bag(
         raise NothingRecoverable(f"{partial}: no journal file {jpath.name} (not left by soil_bag_record?)")
     scan = scan_journal(jpath)
     if scan.messages == 0:
-        why = f" ({scan.stop})" if scan.stop else ""
-        raise NothingRecoverable(f"{jpath}: no complete chunk with a message{why}")
+        why = "; ".join([c.describe(scan.mcap.topics) for c in scan.bad_chunks] + ([scan.stop] if scan.stop else []))
+        raise NothingRecoverable(f"{jpath}: no complete chunk with a message" + (f" ({why})" if why else ""))
     meta_json = scan.metadata.get(META_KEY)
     refused = refused_claims(scan) if meta_json is not None else {}
     cutoff = None
@@ -385,6 +413,7 @@ def journal_to_bag(
         recovered=scan.messages, dropped=scan.messages - len(kept), last_stamp_ns=max(kept),
         journal_complete=scan.complete, stop=scan.stop,
         conflicts={t: n for t, idx in sorted(refused.items()) if (n := sum(1 for i in idx if in_range(scan.stamps[t][i])))},
+        dropped_chunks=[c.describe(scan.mcap.topics) for c in scan.bad_chunks], orphans=scan.orphans,
     )
     base = result.path.name
     k = 1
@@ -400,7 +429,10 @@ def journal_to_bag(
                    messages=result.messages, journal_complete=scan.complete, conflicts=result.conflicts)
     if scan.stop:
         details["journal_stop"] = scan.stop
-    with Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    if scan.bad_chunks:
+        details["dropped_chunks"] = chunk_details(scan.bad_chunks, scan.mcap.topics)
+        details["orphaned_messages"] = scan.orphans
+    with BagWriter(staging) as writer:
         if meta_json is not None:
             writer.set_custom_data(META_KEY, meta_json)
         writer.set_custom_data(info_key, json.dumps(details, sort_keys=True))
@@ -411,7 +443,7 @@ def journal_to_bag(
         }
         index: dict[str, int] = defaultdict(int)  # per topic, as in scan.stamps
         for record in _records(jpath, JournalScan(jpath)):
-            if isinstance(record, Message):
+            if isinstance(record, Message) and record.channel_id in scan.channels:
                 topic = scan.channels[record.channel_id].topic
                 i = index[topic]
                 index[topic] += 1

@@ -24,8 +24,9 @@ from rclpy.utilities import remove_ros_args
 from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
-from soil_msgs_py.graph import CONTROL_QOS, DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, TOPIC_QOS
-from .recorder import END_GRACE_S, Recorder, rosbags_qos
+from soil_msgs_py.graph import CONTROL_QOS, RECORDER_QOS, SIM_STATUS_TOPIC
+from .bag_writer import offered_qos
+from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import message_class, qos_profile, spin_node
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
@@ -69,7 +70,7 @@ class RecordNode(Node):
         self._pending = [t for t in wanted if t not in known]
         self.recorder = Recorder(
             opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
-            qos_for=lambda t: [rosbags_qos(TOPIC_QOS.get(t, DATA_QOS))], log=self.get_logger(),
+            qos_for=offered_qos, log=self.get_logger(),
         )
         # Created first: when status and data are ready in the same wait, status is taken first.
         self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))

@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.interfaces import Qos
 
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
-from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent, QosSpec
+from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import WriterTracks, tick_index
 from .journal import (
@@ -63,15 +63,6 @@ _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a
 # dropped while the reader was busy is re-sent after the next heartbeat, not before.
 END_GRACE_S = 4.0
 ONLINE_HORIZON_TICKS = 600  # 10 s: how far past a topic's newest stamp a message is judged on arrival
-
-
-def rosbags_qos(spec: QosSpec) -> Qos:
-    """graph.QosSpec as the rosbags Qos a bag stores in ``offered_qos_profiles``."""
-    zero = QosTime(0, 0)
-    return Qos(
-        QosHistory.KEEP_LAST, spec.depth, QosReliability[spec.reliability.upper()],
-        QosDurability[spec.durability.upper()], zero, zero, QosLiveliness.AUTOMATIC, zero, False,
-    )
 
 
 def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | None:

@@ -1,4 +1,5 @@
-"""``soil_bag_repair``: turn the journal a killed recorder left behind into a valid bag.
+"""``soil_bag_repair``: turn the journal a killed recorder left behind into a valid bag, or
+copy the good chunks of a damaged finished bag into a new one.
 
 ``soil_bag_record`` writes each bag first as a journal ``<out>/<name>.partial/<name>.mcap``
 (see ``journal.py``) and flushes it every ``--flush-period`` (0.25 s). After a SIGKILL,
@@ -10,11 +11,22 @@ Worst-case loss: the messages received after the last flush, i.e. at most
 ``--flush-period`` of data, plus one tick when episode bags are trimmed to whole ticks
 (the default, so ``bag_io.read_episode`` can read the result; ``--keep-partial-ticks``
 keeps every recovered message). Not covered: a power cut (journals are not fsync'ed).
+A journal chunk that fails its CRC (flipped bytes) is skipped, not the rest of the journal;
+each skipped chunk is printed (index, byte offset, log time range, messages per topic) and
+recorded in the bag's custom_data ``insitu_soil.repair`` (``dropped_chunks``).
 
-    soil_bag_repair PATH [PATH ...] [--keep-partial-ticks]
+A finished bag whose chunks fail their CRC (``bag_io.read_episode`` refuses it, naming the
+chunk) is repaired into a copy (``bag_salvage.py``): the chunks that pass are copied, the
+others dropped and listed the same way, episode bags trimmed to ticks present on every
+topic. The original is never touched; the copy goes to ``--out`` or, by default, beside it
+as ``<bag>_repaired``.
 
-PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, or a directory that
-is searched for ``*.partial`` directories. Exit code 1 if some path had nothing to recover.
+    soil_bag_repair PATH [PATH ...] [--keep-partial-ticks] [--out NEW_BAG]
+
+PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, a finished bag
+directory, or a directory that is searched for ``*.partial`` directories. ``--out`` names
+the repaired copy of a finished bag (one PATH only). Exit code 1 if some path had nothing
+to recover (an undamaged bag, a bag without CRCs, an empty journal), 2 for bad arguments.
 """
 from __future__ import annotations
 
@@ -22,7 +34,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .bag_io import PARTIAL_SUFFIX
+from .bag_io import PARTIAL_SUFFIX, is_bag
+from .bag_salvage import salvage_bag
 from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, journal_to_bag
 
 
@@ -49,15 +62,48 @@ def repair(partial: Path, *, keep_partial_ticks: bool = False) -> BagResult:
                           info={"keep_partial_ticks": keep_partial_ticks})
 
 
+def free_name(bag: Path) -> Path:
+    """``<bag>_repaired``, or ``_repaired_2``... : the first name not taken beside ``bag``."""
+    k = 1
+    while (cand := bag.with_name(f"{bag.name}_repaired" + (f"_{k}" if k > 1 else ""))).exists() or \
+            cand.with_name(cand.name + PARTIAL_SUFFIX).exists():
+        k += 1
+    return cand
+
+
+def report(r: BagResult, state: str) -> None:
+    print(f"repaired {r.summary()}; recovered {r.recovered} messages from the {state}, "
+          f"last stamp {r.last_stamp_ns} ns")
+    for line in r.dropped_chunks:
+        print(f"  dropped {line}")
+
+
 def main(args: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="soil_bag_repair", description=__doc__.split("\n\n")[0])
     p.add_argument("paths", nargs="+", type=Path, metavar="PATH",
-                   help="*.partial directory, its journal .mcap, or a directory to search")
+                   help="*.partial directory, its journal .mcap, a finished bag, or a directory to search")
     p.add_argument("--keep-partial-ticks", action="store_true",
-                   help="keep trailing ticks that lack some topics (the bag may then not read as an episode)")
+                   help="keep ticks that lack some topics (the bag may then not read as an episode)")
+    p.add_argument("--out", type=Path, metavar="NEW_BAG",
+                   help="where the repaired copy of a finished bag goes (default: <bag>_repaired beside it)")
     opts = p.parse_args(sys.argv[1:] if args is None else args)
+    bags = [path for path in opts.paths if is_bag(path) and not path.name.endswith(PARTIAL_SUFFIX)]
+    if opts.out is not None and (len(opts.paths) != 1 or not bags):
+        p.error(f"--out {opts.out}: give exactly one finished bag PATH with it (got {len(opts.paths)} "
+                f"path(s), {len(bags)} finished bag(s))")
+    if opts.out is not None and (opts.out.exists() or opts.out.is_symlink()):
+        p.error(f"--out {opts.out} exists; the repaired copy never replaces anything")
     failed = 0
     for path in opts.paths:
+        if path in bags:
+            try:
+                r = salvage_bag(path, opts.out or free_name(path), keep_partial_ticks=opts.keep_partial_ticks)
+            except (ValueError, OSError) as err:  # NothingRecoverable, BagReadError, --out taken
+                print(f"soil_bag_repair: nothing repaired: {err}", file=sys.stderr)
+                failed += 1
+                continue
+            report(r, f"chunks of {path} that pass their CRC")
+            continue
         try:
             partials = find_partials(path)
         except NothingRecoverable as err:
@@ -71,9 +117,7 @@ def main(args: list[str] | None = None) -> int:
                 print(f"soil_bag_repair: nothing recoverable from {partial}: {err}", file=sys.stderr)
                 failed += 1
                 continue
-            state = "complete journal" if r.journal_complete else f"truncated journal ({r.stop})"
-            print(f"repaired {r.summary()}; recovered {r.recovered} messages from the {state}, "
-                  f"last stamp {r.last_stamp_ns} ns")
+            report(r, "complete journal" if r.journal_complete else f"truncated journal ({r.stop})")
     return 1 if failed else 0
 
 

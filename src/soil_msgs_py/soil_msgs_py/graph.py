@@ -25,6 +25,7 @@ first stamp; ``Episode.time_s`` is relative and equal.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -73,6 +74,17 @@ CONTROL_QOS = QosSpec("reliable", "volatile", 50)
 TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.GRAPH_TOPICS_BY_NAME.values()}
 TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
+
+
+def publisher_qos_spec(topic: str) -> QosSpec:
+    """What a node publishes ``topic`` with (and so what a bag records as offered): the
+    graph's QoS with a writer history as deep as a recorder's reader (``RECORDER_QOS``). A
+    KEEP_LAST writer overwrites samples a reliable reader has not acknowledged yet, so with
+    the graph's depth a reader starved of CPU for a moment while a lockstep graph runs far
+    above 60 Hz would lose them; with this depth they are re-sent."""
+    spec = TOPIC_QOS.get(topic, DATA_QOS)
+    return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
+
 
 # Topics the simulator publishes each tick (state, force, Θ_k, Θ, /clock) and the commands it reads.
 SIM_STATE_TOPICS: tuple[str, ...] = (

@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import collections
-import dataclasses
 import importlib
 import math
 import signal
@@ -25,7 +24,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .graph import DATA_QOS, RECORDER_QOS, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec
+from .graph import DATA_QOS, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -57,13 +56,9 @@ def topic_qos(topic: str) -> QoSProfile:
 
 
 def publisher_qos(topic: str) -> QoSProfile:
-    """What a node publishes ``topic`` with: the graph's QoS (``topic_qos``) with a writer
-    history as deep as a recorder's reader (``RECORDER_QOS``). A KEEP_LAST writer overwrites
-    samples a reliable reader has not acknowledged yet, so with the graph's depth a reader
-    starved of CPU for a moment while a lockstep graph runs far above 60 Hz would lose them;
-    with this depth they are re-sent. Subscribers keep ``topic_qos``."""
-    spec = TOPIC_QOS.get(topic, DATA_QOS)
-    return qos_profile(dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth)))
+    """What a node publishes ``topic`` with (``graph.publisher_qos_spec``); subscribers keep
+    ``topic_qos``."""
+    return qos_profile(publisher_qos_spec(topic))
 
 
 def message_class(msgtype: str):

@@ -1,0 +1,122 @@
+"""A repaired copy of a finished bag whose chunks fail their CRC (``soil_bag_repair BAG``).
+
+Every chunk that passes its CRC is copied into a new bag (``bag_writer.BagWriter``, same
+topics, types, offered QoS, type hashes and custom_data); the chunks that fail are dropped
+and reported (``integrity.ChunkInfo.describe``). Schemas and channels come from the chunks
+that pass and from the file's summary, which repeats them, so a bad first chunk does not
+orphan the rest. Episode bags keep only ticks present on every episode topic (a tick split
+across a dropped chunk's boundary is incomplete), so ``bag_io.read_episode`` can read the
+copy; the episode then has a gap in its stamps where the dropped chunks were. The original
+is never touched.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections import defaultdict
+from pathlib import Path
+
+from mcap.records import Channel, Message, Schema
+from rosbags.rosbag2.metadata import parse_qos
+
+from soil_msgs_py import messages as M
+from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_info, is_bag
+from .bag_writer import BagWriter
+from .integrity import McapScan, read_records
+from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_details
+
+
+def _complete_ticks(stamps: dict[str, list[int]]) -> set[int]:
+    """Stamps at which every episode topic that has messages has one."""
+    sets = [set(v) for t, v in stamps.items() if t in M.FIELDS and v]
+    return set.intersection(*sets) if sets else set()
+
+
+def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> BagResult:
+    """Write the chunks of ``bag`` that pass their CRC as the new bag ``out``.
+
+    NothingRecoverable if ``bag`` is not a bag, carries no CRCs (damage cannot be located),
+    is undamaged, or no message survives; FileExistsError if ``out`` exists."""
+    bag, out = Path(bag), Path(out)
+    if not is_bag(bag) or bag.name.endswith(PARTIAL_SUFFIX):
+        raise NothingRecoverable(f"{bag} is not a finished rosbag2 bag (no metadata.yaml)")
+    if out.exists():
+        raise FileExistsError(f"--out {out} exists; the repaired copy never replaces anything")
+    info = bag_info(bag)
+    files = [str(f) for f in info.get("relative_file_paths") or []]
+    if len(files) != 1 or not files[0].endswith(".mcap"):
+        raise NothingRecoverable(f"{bag}: expected one .mcap file in metadata.yaml, found {files}")
+    mcap = bag / files[0]
+    scan = McapScan(mcap)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    messages: list[Message] = []
+    for record in read_records(mcap, scan):
+        if isinstance(record, Schema):
+            schemas.setdefault(record.id, record)
+        elif isinstance(record, Channel):
+            channels.setdefault(record.id, record)
+        elif isinstance(record, Message):
+            messages.append(record)
+    if not scan.chunks or not scan.has_crcs:
+        raise NothingRecoverable(f"{bag}: carries no chunk CRCs, so damaged chunks cannot be told from good ones")
+    if not (scan.bad or scan.stop or scan.data_problem):
+        raise NothingRecoverable(f"{bag}: all {len(scan.chunks)} chunks pass their CRC; nothing to repair")
+
+    usable = {cid: ch for cid, ch in channels.items() if ch.schema_id in schemas}
+    kept_msgs = [m for m in messages if m.channel_id in usable]
+    orphans = len(messages) - len(kept_msgs)
+    custom = dict(info.get("custom_data") or {})
+    if META_KEY in custom and not keep_partial_ticks:
+        stamps: dict[str, list[int]] = defaultdict(list)
+        for m in kept_msgs:
+            stamps[usable[m.channel_id].topic].append(m.log_time)
+        ticks = _complete_ticks(stamps)
+        kept_msgs = [m for m in kept_msgs if usable[m.channel_id].topic not in M.FIELDS or m.log_time in ticks]
+    if not kept_msgs:
+        lines = "; ".join(c.describe(scan.topics) for c in scan.bad) or scan.stop or scan.data_problem
+        raise NothingRecoverable(f"{bag}: no message survives ({lines})")
+
+    counts: dict[str, int] = defaultdict(int)
+    for m in kept_msgs:
+        counts[usable[m.channel_id].topic] += 1
+    result = BagResult(
+        path=out, ticks=len({m.log_time for m in kept_msgs}), messages=dict(counts),
+        recovered=len(messages), dropped=len(messages) - len(kept_msgs) - orphans,
+        last_stamp_ns=max(m.log_time for m in kept_msgs), journal_complete=scan.complete, stop=scan.stop,
+        dropped_chunks=[c.describe(scan.topics) for c in scan.bad], orphans=orphans,
+    )
+    details = {"source_bag": str(bag), "keep_partial_ticks": keep_partial_ticks,
+               "dropped_chunks": chunk_details(scan.bad, scan.topics), "orphaned_messages": orphans,
+               "recovered_messages": result.recovered, "written_messages": len(kept_msgs),
+               "dropped_messages": result.dropped, "ticks": result.ticks, "messages": result.messages}
+    for key, text in (("stop", scan.stop), ("data_problem", scan.data_problem)):
+        if text:
+            details[key] = text
+    custom[REPAIR_INFO_KEY] = json.dumps(details, sort_keys=True)
+
+    # Topic entries of metadata.yaml: the offered QoS and type hash rosbag2 recorded.
+    topic_meta = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in info.get("topics_with_message_count") or []}
+    staging = out.with_name(out.name + PARTIAL_SUFFIX)
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    try:
+        with BagWriter(staging / out.name) as writer:
+            for key, value in custom.items():
+                writer.set_custom_data(key, value)
+            conns = {}
+            for cid, ch in sorted(usable.items()):
+                schema, meta = schemas[ch.schema_id], topic_meta.get(ch.topic, {})
+                conns[cid] = writer.add_connection(
+                    ch.topic, schema.name, msgdef=schema.data.decode(), serialization_format=ch.message_encoding,
+                    rihs01=ch.metadata.get("topic_type_hash") or meta.get("type_description_hash")
+                    or M.TYPESTORE.hash_rihs01(schema.name),
+                    offered_qos_profiles=parse_qos(meta.get("offered_qos_profiles") or ch.metadata.get("offered_qos_profiles", "")),
+                )
+            for m in kept_msgs:
+                writer.write(conns[m.channel_id], m.log_time, m.data)
+        os.replace(staging / out.name, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return result

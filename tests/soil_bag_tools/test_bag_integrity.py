@@ -1,0 +1,262 @@
+"""Bags carry their integrity: CRCs, offered QoS and type hashes; damage is named, repaired, never trained on.
+
+The files are checked with independent readers (the ``mcap`` library with CRC validation,
+pyyaml, rosbags); damage is bytes flipped inside one chunk's records, located through the
+file's own chunk index; the CLIs run as real subprocesses (helpers from test_corrupt_bags).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap.records import Chunk, DataEnd, Footer, MessageIndex
+from mcap.stream_reader import StreamReader
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
+
+from soil_bag_tools import bag_io, bag_writer, journal, playback
+from soil_msgs_py.graph import publisher_qos_spec
+from soil_msgs_py.messages import TYPESTORE
+from soil_msgs_py.topics import BLADE_CMD, EPISODE_TOPICS
+from tests.soil_bag_tools.test_bag_tools import _journal_from_sample, assert_same_episode
+from tests.soil_bag_tools.test_corrupt_bags import (
+    CLAY, LOAM, SAMPLES, TINY_MODEL, assert_refused, copy_bag, mcap_of, run,
+)
+
+pytestmark = pytest.mark.timeout(300)
+TICKS = 600  # the sample episodes
+CHUNK_RECORDS_AT = 9 + 8 + 8 + 8 + 4 + 4  # opcode, length, start/end time, size, crc, compression length
+
+
+def flip_chunk(mcap: Path, k: int, n: int = 16):
+    """Invert ``n`` bytes in the middle of chunk ``k``'s records; returns its ChunkIndex."""
+    with open(mcap, "rb") as f:
+        idx = make_reader(f).get_summary().chunk_indexes[k]
+    data = bytearray(mcap.read_bytes())
+    mid = idx.chunk_start_offset + CHUNK_RECORDS_AT + len(idx.compression) + 8 + idx.compressed_size // 2
+    data[mid:mid + n] = bytes(b ^ 0xFF for b in data[mid:mid + n])
+    mcap.write_bytes(bytes(data))
+    return idx
+
+
+def indexed_messages(mcap: Path, k: int) -> int:
+    """Messages chunk ``k`` holds, per the message index records that follow it."""
+    n, chunk = 0, -1
+    with open(mcap, "rb") as f:
+        for r in StreamReader(f, emit_chunks=True).records:
+            chunk += isinstance(r, Chunk)
+            n += len(r.records) if isinstance(r, MessageIndex) and chunk == k else 0
+    return n
+
+
+@pytest.fixture(scope="module")
+def episode():
+    return bag_io.read_episode(LOAM)
+
+
+@pytest.fixture
+def fresh(tmp_path, episode) -> Path:
+    return bag_io.write_episode(tmp_path / LOAM.name, episode)
+
+
+# ------------------------------------------------------------------------------ writing
+def test_fresh_bag_has_crcs_that_validate_and_is_deterministic(fresh, episode, tmp_path):
+    mcap = mcap_of(fresh)
+    with open(mcap, "rb") as f:
+        records = list(StreamReader(f, emit_chunks=True, validate_crcs=True).records)  # raises on a bad data CRC
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    assert len(chunks) > 5  # small chunks: damage costs a second of an episode, not all of it
+    for c in chunks:
+        assert c.uncompressed_crc != 0 and c.uncompressed_crc == zlib.crc32(c.data)
+    (data_end,) = [r for r in records if isinstance(r, DataEnd)]
+    (footer,) = [r for r in records if isinstance(r, Footer)]
+    assert data_end.data_section_crc != 0 and footer.summary_crc != 0
+    with open(mcap, "rb") as f:
+        assert sum(1 for _ in make_reader(f, validate_crcs=True).iter_messages()) == TICKS * len(EPISODE_TOPICS)
+    again = bag_io.write_episode(tmp_path / "again" / LOAM.name, episode)
+    for name in (mcap.name, "metadata.yaml"):
+        assert (again / name).read_bytes() == (fresh / name).read_bytes(), name
+    assert_same_episode(bag_io.read_episode(fresh), episode)
+
+
+def test_qos_and_type_hash_per_topic_in_metadata_and_channels(fresh):
+    info = yaml.safe_load((fresh / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["version"] == 9
+    entries = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in info["topics_with_message_count"]}
+    assert set(entries) == {t.name for t in EPISODE_TOPICS}
+    for t in EPISODE_TOPICS:
+        spec = publisher_qos_spec(t.name)
+        (qos,) = entries[t.name]["offered_qos_profiles"]  # v9: a list of profiles, not a YAML string
+        assert (qos["history"], qos["depth"], qos["reliability"], qos["durability"]) == \
+            ("keep_last", spec.depth, spec.reliability, spec.durability)
+        assert entries[t.name]["type_description_hash"] == TYPESTORE.hash_rihs01(t.msgtype)
+    with AnyReader([fresh]) as reader:
+        for c in reader.connections:
+            assert c.ext.offered_qos_profiles == bag_writer.offered_qos(c.topic), c.topic
+            assert c.digest == TYPESTORE.hash_rihs01(c.msgtype)
+    with open(mcap_of(fresh), "rb") as f:
+        channels = make_reader(f).get_summary().channels.values()
+    for ch in channels:
+        assert ch.metadata["topic_type_hash"] == entries[ch.topic]["type_description_hash"]
+        assert parse_qos(ch.metadata["offered_qos_profiles"]) == bag_writer.offered_qos(ch.topic)
+
+
+# ------------------------------------------------------------------------------ reading
+def test_flipped_chunk_bytes_are_named_by_every_reader(fresh):
+    idx = flip_chunk(mcap_of(fresh), 3)
+    for read in (bag_io.read_episode, playback.load_bag,
+                 lambda b: bag_io.read_labelled_topic(b, BLADE_CMD.name, ("u_zr", "u_za"))):
+        with pytest.raises(bag_io.BagReadError) as err:
+            read(fresh)
+        text = str(err.value)
+        assert err.value.bag == str(fresh)
+        assert f"chunk 3 at byte {idx.chunk_start_offset}" in text, text
+        assert f"log time {idx.message_start_time}..{idx.message_end_time} ns" in text, text
+        assert "CRC mismatch: stored 0x" in text and "computed 0x" in text, text
+
+
+def test_damage_outside_the_chunks_is_caught_by_the_data_section_crc(fresh):
+    """A message index (between chunks, not covered by a chunk CRC) with a flipped byte."""
+    mcap = mcap_of(fresh)
+    with open(mcap, "rb") as f:
+        idx = make_reader(f).get_summary().chunk_indexes[1]
+    where = min(idx.message_index_offsets.values()) + 9 + 2 + 4 + 3  # inside its first entry's time
+    data = bytearray(mcap.read_bytes())
+    data[where] ^= 0x01
+    mcap.write_bytes(bytes(data))
+    with open(mcap, "rb") as f:  # the message index still parses: only the CRC can tell
+        assert any(isinstance(r, MessageIndex) for r in StreamReader(f, emit_chunks=True).records)
+    with pytest.raises(bag_io.BagReadError, match="data section CRC mismatch.*outside the chunks"):
+        bag_io.read_episode(fresh)
+
+
+@pytest.fixture
+def old(tmp_path, episode, monkeypatch) -> Path:
+    """The episode as bags were written before bag_writer.py: rosbags' own Writer, every CRC 0."""
+    monkeypatch.setattr(bag_io, "BagWriter",
+                        lambda path: Writer(path, version=9, storage_plugin=StoragePlugin.MCAP))
+    bag = bag_io.write_episode(tmp_path / "old", episode)
+    monkeypatch.undo()
+    return bag
+
+
+def test_bag_without_crcs_reads_and_says_so(old, caplog, episode):
+    with caplog.at_level(logging.WARNING, logger="soil_bag_tools.bag_io"):
+        assert_same_episode(bag_io.read_episode(old), episode)
+        bag_io.read_episode(old)
+    said = [r.getMessage() for r in caplog.records if "without chunk CRCs" in r.getMessage()]
+    assert len(said) == 1 and str(old) in said[0]  # once per bag and process
+
+
+# ------------------------------------------------------------------------------ training
+@pytest.fixture(scope="module")
+def crc_dirs(tmp_path_factory):
+    """The three samples rewritten with CRCs plus two loam copies (every split non-empty),
+    and the same with a clay copy whose chunk 5 has flipped bytes."""
+    base = tmp_path_factory.mktemp("crc_bags")
+    good = base / "good"
+    for src in sorted(SAMPLES.iterdir()):
+        bag_io.write_episode(good / src.name, bag_io.read_episode(src))
+    for i in (1, 2):
+        copy_bag(good / LOAM.name, good / f"{LOAM.name}_copy{i}")
+    with_bad = base / "with_bad"
+    copy_bag(good, with_bad)
+    bad = copy_bag(good / CLAY.name, with_bad / f"{CLAY.name}_flipped")
+    flip_chunk(mcap_of(bad), 5)
+    return {"with_bad": with_bad, "bad": bad, "base": base}
+
+
+def test_pinn_train_refuses_a_bag_failing_its_crc_and_skips_it_on_request(crc_dirs, tmp_path):
+    common = ["--data", crc_dirs["with_bad"], "--quiet", "--no-cache", "--workers", "2", *TINY_MODEL]
+    out = run("pinn_train", *common, "--out", tmp_path / "a.pt")
+    assert_refused(out, crc_dirs["bad"])
+    assert "chunk 5 at byte" in out.stderr and "CRC mismatch" in out.stderr, out.stderr
+    assert not (tmp_path / "a.pt").exists()
+    out = run("pinn_train", *common, "--out", tmp_path / "b.pt", "--skip-bad-bags")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "skipped 1 " in out.stderr and str(crc_dirs["bad"]) in out.stderr
+    assert (tmp_path / "b.pt").is_file()
+
+
+# ------------------------------------------------------------------------------ repair
+@pytest.mark.parametrize("k", [0, 4])  # chunk 0 also holds the schemas and channels
+def test_repair_copies_the_good_chunks_of_a_damaged_bag(fresh, episode, k):
+    idx = flip_chunk(mcap_of(fresh), k)
+    damaged = mcap_of(fresh).read_bytes()
+    out = run("soil_bag_repair", fresh, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    copy = fresh.with_name(fresh.name + "_repaired")
+    assert f"dropped chunk {k} at byte {idx.chunk_start_offset}" in out.stdout, out.stdout
+    assert f"log time {idx.message_start_time}..{idx.message_end_time} ns" in out.stdout
+    assert "/blade/force" in out.stdout and "CRC mismatch" in out.stdout
+    assert mcap_of(fresh).read_bytes() == damaged  # the original is never touched
+    got = bag_io.read_episode(copy)  # whole ticks only, CRCs of its own
+    s = episode.stamps_ns
+    inside = (s > idx.message_start_time) & (s < idx.message_end_time)
+    edges = (s >= idx.message_start_time) & (s <= idx.message_end_time)  # edge ticks may be split
+    assert inside.sum() <= TICKS - len(got) <= edges.sum()
+    keep = np.isin(s, got.stamps_ns)
+    assert not keep[inside].any()
+    np.testing.assert_array_equal(got.forces, episode.forces[keep])
+    info = json.loads(bag_io.bag_custom_data(copy)[journal.REPAIR_INFO_KEY])
+    (dropped,) = info["dropped_chunks"]
+    assert dropped["chunk"] == k and dropped["byte_offset"] == idx.chunk_start_offset
+    assert sum(dropped["messages"].values()) == indexed_messages(mcap_of(fresh), k)
+    assert info["source_bag"] == str(fresh)
+
+
+def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_path):
+    out = run("soil_bag_repair", fresh, timeout=60)
+    assert out.returncode == 1 and "all " in out.stderr and "nothing to repair" in out.stderr, out.stderr
+    out = run("soil_bag_repair", old, timeout=60)
+    assert out.returncode == 1 and "no chunk CRCs" in out.stderr, out.stderr
+    flip_chunk(mcap_of(fresh), 2)
+    out = run("soil_bag_repair", fresh, "--out", old, timeout=60)  # exists: never replaced
+    assert out.returncode == 2 and "exists" in out.stderr and "Traceback" not in out.stderr
+    out = run("soil_bag_repair", fresh, old, "--out", tmp_path / "new", timeout=60)
+    assert out.returncode == 2 and "exactly one" in out.stderr
+    out = run("soil_bag_repair", fresh, "--out", tmp_path / "new", timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "dropped chunk 2 at byte" in out.stdout
+    assert len(bag_io.read_episode(tmp_path / "new")) < TICKS
+
+
+def test_repair_skips_a_corrupt_journal_chunk_and_converts_the_rest(tmp_path):
+    partial, w = _journal_from_sample(tmp_path, n_msgs=900, flush_every=150)  # 6 chunks of 15 ticks
+    w.close()
+    jpath = journal.journal_path(partial)
+    idx = flip_chunk(jpath, 2)  # zstd-compressed records: a CRC or decoding failure, either is named
+    out = run("soil_bag_repair", partial, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert f"dropped chunk 2 at byte {idx.chunk_start_offset}" in out.stdout, out.stdout
+    assert f"log time {idx.message_start_time}..{idx.message_end_time} ns, 150 messages on" in out.stdout
+    assert "1 corrupt chunk(s) skipped" in out.stdout
+    bag = tmp_path / LOAM.name
+    got = bag_io.read_episode(bag)
+    want = bag_io.read_episode(LOAM)
+    assert len(got) == 75  # 90 ticks journaled, the 15 of chunk 2 dropped, the rest kept
+    assert not np.isin(got.stamps_ns, want.stamps_ns[30:45]).any()
+    np.testing.assert_array_equal(got.forces, np.delete(want.forces[:90], np.s_[30:45], axis=0))
+    info = json.loads(bag_io.bag_custom_data(bag)[journal.REPAIR_INFO_KEY])
+    (dropped,) = info["dropped_chunks"]
+    assert dropped["chunk"] == 2 and sum(dropped["messages"].values()) == 150
+    assert set(dropped["messages"]) == {t.name for t in EPISODE_TOPICS}
+
+
+def test_repair_names_a_journal_chunk_that_took_the_channel_table_with_it(tmp_path):
+    """Chunk 0 of a journal also holds its schemas and channels: without them no later message
+    can be attributed to a topic, so nothing is recoverable, and the journal is kept."""
+    partial, w = _journal_from_sample(tmp_path, n_msgs=300, flush_every=150)
+    w.close()
+    idx = flip_chunk(journal.journal_path(partial), 0)
+    out = run("soil_bag_repair", partial, timeout=60)
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
+    assert f"chunk 0 at byte {idx.chunk_start_offset}" in out.stderr, out.stderr
+    assert partial.exists() and not (tmp_path / LOAM.name).exists()
