@@ -42,6 +42,7 @@ bench: venv
 	$(BIN)/python benchmarks/bench_graph.py
 	$(BIN)/python benchmarks/bench_estimator.py
 	$(BIN)/python benchmarks/bench_planner_loop.py
+	$(BIN)/python benchmarks/bench_fleet.py
 
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv

@@ -21,11 +21,10 @@ from pinn_estimator.loss import LIMITED, consistency_loss, dn_gamma_dbeta_beta_o
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.train import TrainConfig, main as train_main, train
 from soil_physics import fee
-from soil_bag_tools.bag_io import find_episode_bags, write_episode
+from soil_bag_tools.bag_io import find_episode_bags
 from soil_msgs_py.params import DEG, KNOWN_PARAMS, TABLE1, UNKNOWN_PARAMS
-from soil_sim_node.rollout import run_episodes
-from soil_sim_node.simulator import EpisodeSpec, SimConfig
 from tests.bag_fixtures import write_raw
+from tests.tiny_data import write_tiny_bags
 
 SMALL = dict(d_model=16, n_heads=2, n_layers=1, ff_dim=32)
 
@@ -33,11 +32,7 @@ SMALL = dict(d_model=16, n_heads=2, n_layers=1, ff_dim=32)
 @pytest.fixture(scope="session")
 def tiny_bags(tmp_path_factory) -> Path:
     """6 fee-world episodes of 2 s (2 soils x 3 seeds), one bag each."""
-    root = tmp_path_factory.mktemp("tiny_bags")
-    specs = [EpisodeSpec(soil, 40.0, 0.6, 0.2, seed=s, duration_s=2.0) for soil in ("Loam", "Sand") for s in range(3)]
-    for ep in run_episodes(SimConfig(world_mode="fee"), specs):
-        write_episode(root / ep.meta.name, ep)
-    return root
+    return write_tiny_bags(tmp_path_factory.mktemp("tiny_bags"))
 
 
 @pytest.fixture(scope="session")

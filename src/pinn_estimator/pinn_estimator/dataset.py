@@ -161,7 +161,7 @@ def add_skip_bad_bags_option(parser) -> None:
 
 
 def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False,
-                 skip_bad_bags: bool = False, log=_warn) -> Dataset:
+                 skip_bad_bags: bool = False, log=_warn, ray_address: str | None = None) -> Dataset:
     """Read every episode bag under ``root`` (cached by content fingerprint).
 
     Raises ValueError naming the problem for an empty directory and BagReadError naming the
@@ -169,6 +169,10 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     a window). With ``skip_bad_bags`` the bad bags are left out instead, listed in
     ``Dataset.skipped`` and reported through ``log`` (default: stderr); the fingerprint is
     then that of the bags kept, and the result is not cached.
+
+    ``ray_address``: read the bags as Ray tasks (``soil_sim_node.ray_cluster``: ``LOCAL`` for a
+    local instance of ``workers`` CPUs, or a cluster's address, whose nodes must see ``root`` at
+    the same path); the arrays are the same as the local reader's.
     """
     root = Path(root)
     bags = find_episode_bags(root)
@@ -180,7 +184,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
         cached = _from_npz(cache_path, fingerprint, root)
         if cached is not None:
             return cached
-    rows = _read_all(bags, workers, progress)
+    rows = _read_on_ray(bags, workers, progress, ray_address) if ray_address else _read_all(bags, workers, progress)
     bad = [r for r in rows if isinstance(r, BagReadError)]
     if bad and not skip_bad_bags:
         first = bad[0]
@@ -226,6 +230,35 @@ def _read_all(bags, workers, progress):
         with mp.get_context("fork").Pool(min(workers, len(bags))) as pool:
             return list(shown(pool.imap(_read, bags, chunksize=4)))
     return [_read(b) for b in shown(bags)]
+
+
+RAY_BAGS_PER_TASK = 16  # bags one Ray task reads: amortises the task overhead, keeps tasks short
+
+
+def _read_bags(bags: list[Path]) -> list:
+    """Ray task: ``_read`` of each bag."""
+    return [_read(b) for b in bags]
+
+
+def _read_on_ray(bags, workers, progress, ray_address) -> list:
+    """``_read`` of every bag, in bag order, as Ray tasks of ``RAY_BAGS_PER_TASK`` bags."""
+    from soil_sim_node.ray_cluster import ray_session, run_tasks
+
+    groups = [bags[i : i + RAY_BAGS_PER_TASK] for i in range(0, len(bags), RAY_BAGS_PER_TASK)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(bags), desc="reading bags (Ray)", unit="bag")
+    with ray_session(ray_address, num_cpus=max(1, workers)):
+        done = run_tasks(_read_bags, groups, on_done=lambda r: bar and bar.update(0 if isinstance(r, Exception) else len(r)))
+    if bar is not None:
+        bar.close()
+    for group, result in zip(groups, done):
+        if isinstance(result, Exception):
+            raise RuntimeError(f"the Ray task reading {len(group)} bags from {group[0]} on failed: "
+                               f"{type(result).__name__}: {result}")
+    return [row for result in done for row in result]
 
 
 def _to_npz(ds: Dataset, path: Path) -> None:

@@ -8,6 +8,12 @@ a training-curve PNG beside it.
 ``--extra-term NAME=K`` (repeatable) trains the PINN with catalogue effects added to its
 physics (F_phys = F_FEE + Σ k·B, ``soil_physics.force_terms``); the checkpoint's
 model config records them, so every loader runs the same physics.
+
+Under ``torchrun`` (``pinn_estimator.distributed``) every process trains on its share of each
+global batch (--batch-size) with DistributedDataParallel; validation is shared out and its loss
+agreed on, so every rank takes the same LR and stopping decisions; rank 0 reads the bags (and
+writes the cache) before the others, and alone writes the checkpoint, curve and JSON.
+``--ray [ADDRESS]`` reads the bags as Ray tasks.
 """
 from __future__ import annotations
 
@@ -23,8 +29,11 @@ import torch
 
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
+from soil_sim_node.ray_cluster import add_ray_option
+
 from .checkpoint import save_checkpoint
 from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
+from .distributed import Ranks, gather, process_group, ranks_from_env, share
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
@@ -100,20 +109,30 @@ def _validate(model, tensors, ends, weights, distance, batch_size=4096) -> tuple
         loss, _ = _loss(model, out, force, known, weights)
         total += float(loss) * len(obs)
         forces.append(out["force"].double().numpy())
-    return total / max(len(ends), 1), np.concatenate(forces)
+    return total / max(len(ends), 1), (np.concatenate(forces) if forces else np.zeros((0, 2)))
 
 
-def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(), progress: bool = True, log=print):
-    """Train on ``ds``; returns (best model, split, history, metrics)."""
+def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(),
+          progress: bool = True, log=print, ranks: Ranks = Ranks()):
+    """Train on ``ds``; returns (best model, split, history, metrics).
+
+    ``ranks``: this process's place in a torchrun job (inside ``distributed.process_group``);
+    every rank returns the same model. Each rank trains on its share of every global batch, its
+    loss weighted by its share of the windows, so DDP's averaged gradient is the batch mean's
+    (exactly for the plain means; the masked means of the force and residual terms are weighted
+    by windows, not by masked windows)."""
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
-    torch.set_num_threads(cfg.threads)
+    torch.set_num_threads(max(1, cfg.threads // ranks.local_world))  # the machine's --threads, shared
     split = split or split_episodes(ds, seed=cfg.seed, val_fraction=cfg.val_fraction, test_fraction=cfg.test_fraction)
     idx = {s: ds.index(split[s]) for s in split}
     if not idx["val"]:
         raise ValueError("the validation split is empty: early stopping needs validation episodes (use more episodes or val_fraction > 0)")
     mean, std = observation_statistics(ds, idx["train"])
     model = EstimatorNet(model_cfg, mean, std)
+    net = model
+    if ranks.active:
+        net = torch.nn.parallel.DistributedDataParallel(model, forward_sync_buffers=False)
     tensors = WindowTensors(ds)
     # travel in soil since the episode start at every row (a window takes its newest row's):
     # only extra terms such as compaction_hardening look at it
@@ -145,36 +164,43 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar = tqdm(total=cfg.epochs, desc=f"training {model_cfg.kind}", unit="epoch")
     stop_reason = "epochs"
     for epoch in range(1, cfg.epochs + 1):
-        model.train()
+        net.train()
         perm = torch.randperm(len(train_ends), generator=gen)
         running, count = 0.0, 0
         step = cfg.batch_size // 2 if pairs else cfg.batch_size
         for i in range(0, len(perm), step):
             pick = perm[i : i + step]
-            ends = train_ends[pick]
-            if pairs:  # a partner window from the same episode for each window
+            if pairs:  # a partner window from the same episode for each window (drawn for the global batch)
                 partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
-                ends = torch.cat([ends, partner])
+            mine = share(len(pick), ranks)
+            weight = (mine.stop - mine.start) * ranks.world / len(pick)
+            if weight == 0:  # fewer windows than ranks: join the gradient all-reduce with weight 0
+                mine = slice(0, 1)
+            ends = train_ends[pick[mine]]
+            if pairs:
+                ends = torch.cat([ends, partner[mine]])
+            n_pick = len(pick[mine])
             obs, known, force = tensors.batch(ends)
-            out = model(obs, known, distance[ends])
+            out = net(obs, known, distance[ends])
             loss, _ = _loss(model, out, force, known, weights)
             if pairs:
-                loss = loss + cfg.consistency * consistency_loss(out["theta"][: len(pick)], out["theta"][len(pick) :])
+                loss = loss + cfg.consistency * consistency_loss(out["theta"][:n_pick], out["theta"][n_pick:])
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr")
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            (loss * weight).backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             opt.step()
-            running += float(loss.detach()) * len(obs)
-            count += len(obs)
-        val_loss, val_force = _validate(model, tensors, val_ends, weights, distance)
+            if weight:
+                running += float(loss.detach()) * len(obs)
+                count += len(obs)
+        val_loss, val_force, running, count, elapsed = _agree(model, tensors, val_ends, weights, distance, ranks,
+                                                              running, count, start)
         val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
         if cfg.lr_schedule == "cosine":
             sched.step()
         else:
             sched.step(val_loss)
-        elapsed = time.monotonic() - start
         for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
             history[key].append(value)
         if val_loss < best[0]:
@@ -194,6 +220,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     model.eval()
     _, val_force = _validate(model, tensors, val_ends, weights, distance)
     metrics = {
+        "processes": ranks.world,
+        "train_windows_per_epoch": count,  # summed over the processes, partner windows included
         "best_epoch": best[2],
         "epochs_run": len(history["epoch"]),
         "stop_reason": stop_reason,
@@ -205,6 +233,22 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     log(f"{model_cfg.kind}: {stop_reason}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
         f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
     return model, split, history, metrics
+
+
+def _agree(model, tensors, val_ends, weights, distance, ranks: Ranks, running: float, count: int, start: float):
+    """(validation loss, predicted validation forces, training loss sum, its window count,
+    elapsed s) of the epoch, the same on every rank: each validates its share of the windows and
+    every rank combines all shares in rank order; the clock is rank 0's, so the time budget
+    stops every rank at the same epoch."""
+    if not ranks.active:
+        val_loss, val_force = _validate(model, tensors, val_ends, weights, distance)
+        return val_loss, val_force, running, count, time.monotonic() - start
+    mine = val_ends[share(len(val_ends), ranks)]
+    loss, force = _validate(model, tensors, mine, weights, distance)
+    elapsed = time.monotonic() - start
+    parts = gather((loss * len(mine), len(mine), force, running, count, elapsed), ranks)
+    return (sum(p[0] for p in parts) / max(1, sum(p[1] for p in parts)), np.concatenate([p[2] for p in parts]),
+            sum(p[3] for p in parts), sum(p[4] for p in parts), parts[0][5])
 
 
 def plot_curve(history: dict, path: Path, title: str) -> Path:
@@ -236,10 +280,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="checkpoint path to write (.pt); the curve PNG goes beside it")
     p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
     p.add_argument("--split-from", help="reuse the train/val/test split of this checkpoint (same bags)")
-    p.add_argument("--workers", type=int, default=2, help="processes reading bags on the first run")
+    p.add_argument("--workers", type=int, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_skip_bad_bags_option(p)
+    add_ray_option(p, "read the bags as Ray tasks (rank 0 only under torchrun)")
     for f in fields(TrainConfig):
         p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
     p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
@@ -255,25 +300,64 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
+        ranks = ranks_from_env()
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
         model_cfg = ModelConfig(kind=args.kind, extra_terms=parse_terms(args.extra_term),
                                 **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in MODEL_FIELDS_NOT_OPTIONS})
-        ds = load_dataset(args.data, cache=not args.no_cache, workers=args.workers, progress=not args.quiet,
-                          skip_bad_bags=args.skip_bad_bags)
+    except ValueError as err:
+        print(f"pinn_train: error: {err}", file=sys.stderr)
+        return 2
+    with process_group(ranks):
+        return _run(args, cfg, model_cfg, ranks)
+
+
+def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
+    """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
+    try:
+        ds = _load(args, ranks)
         split = None
         if args.split_from:
             from .checkpoint import read_checkpoint
 
             split = read_checkpoint(args.split_from)["split"]
-        model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet)
-    except (ValueError, FileNotFoundError, FloatingPointError) as err:
-        print(f"pinn_train: error: {err}", file=sys.stderr)
-        return 2
+        model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet and ranks.main,
+                                               log=print if ranks.main else _silent, ranks=ranks)
+    except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
+        if ranks.main:
+            print(f"pinn_train: error: {err}", file=sys.stderr)
+        return 1 if type(err) is RuntimeError else 2
+    if not ranks.main:
+        return 0
     out = Path(args.out)
     save_checkpoint(out, model, train_config=asdict(cfg), dataset=describe(ds), split=split, metrics=metrics, history=history)
     curve = plot_curve(history, out.with_name(out.stem + "_curve.png"), f"{args.kind} on {Path(args.data).name}")
     print(json.dumps({"checkpoint": str(out), "curve": str(curve), **{k: metrics[k] for k in ("best_epoch", "epochs_run", "stop_reason", "train_seconds")}, "val_force": metrics["val_force"]}, indent=1))
     return 0
+
+
+def _silent(*_args, **_kwargs) -> None:
+    """``log`` of the ranks other than 0: rank 0 speaks for the job."""
+
+
+def _load(args, ranks: Ranks) -> Dataset:
+    """The dataset. Rank 0 reads the bags first (over Ray with --ray) and writes the cache;
+    then the other ranks read that cache (or the bags, where there is none: --no-cache, skipped
+    bad bags, a read-only directory), so no two processes write the cache at once."""
+    options = dict(cache=not args.no_cache, workers=args.workers, skip_bad_bags=args.skip_bad_bags)
+    ds, problem = None, None
+    if ranks.main:
+        try:
+            ds = load_dataset(args.data, progress=not args.quiet, ray_address=args.ray, **options)
+        except (ValueError, FileNotFoundError, RuntimeError) as err:
+            problem = err
+    first = gather(None if problem is None else f"{type(problem).__name__}: {problem}", ranks)[0]
+    if problem is not None:
+        raise problem
+    if first is not None:  # rank 0 failed and says why
+        raise ValueError(first)
+    if not ranks.main:
+        ds = load_dataset(args.data, log=_silent, **options)
+    return ds
 
 
 if __name__ == "__main__":

@@ -9,6 +9,12 @@ The defaults reproduce the paper's sizes: 576 episodes in `default` (D_default),
     soil_sim_batch --mode default --out bags/d_default
     soil_sim_batch --mode fee --out bags/d_fee --workers 2
     soil_sim_batch --patch 0:Sand:20 --patch 5:Clay:90 --out bags/sand_clay   # soil changing along x
+    soil_sim_batch --ray 10.0.0.5:6379 --out /shared/bags/d_default            # chunks as tasks on a Ray cluster
+
+With ``--ray`` the same chunks run as Ray tasks instead of pool processes and write the same
+bags, byte for byte, and the same dataset.json (its timing fields aside) for the same --workers
+and seeds. A chunk that fails is named with its episodes after every other chunk has finished;
+the bags written are kept (never a partial one) and dataset.json is not written.
 """
 from __future__ import annotations
 
@@ -30,7 +36,8 @@ from soil_msgs_py.patches import check_patches
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
 from .effects import Effects, effects_for_mode
-from .rollout import run_episodes
+from .ray_cluster import add_ray_option, cluster_cpus, ray_session, run_tasks
+from .rollout import episode_meta, run_episodes
 from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine
 
 # Paper §3.1 grids. 4 soils x 6 I_d x speeds x depths x 2 seeds = 576 (default) / 432 (fee).
@@ -85,8 +92,20 @@ def _chunks(specs: list[EpisodeSpec], workers: int, max_chunk: int) -> list[list
     return [specs[i : i + n] for i in range(0, len(specs), n)]
 
 
-def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True) -> dict:
-    """Generate the dataset of ``plan``; returns a summary (also written as dataset.json)."""
+class ChunksFailed(RuntimeError):
+    """Some chunks of a Ray run failed; the message names their episodes and the causes."""
+
+    def __init__(self, message: str, bad_input: bool):
+        super().__init__(message)
+        self.bad_input = bad_input  # every cause was a refusal of the input (CLI exit code 2)
+
+
+def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True,
+             ray_address: str | None = None) -> dict:
+    """Generate the dataset of ``plan``; returns a summary (also written as dataset.json).
+
+    ``ray_address``: run the chunks as Ray tasks (``ray_cluster.LOCAL`` or a cluster's address;
+    ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
     check_engine(plan.engine)
     resolved = [spec.resolve(plan.custom_soils)[0] for spec in plan.specs]
@@ -94,26 +113,22 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             for s in resolved]
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
-    workers = workers or os.cpu_count() or 1
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
-    chunks = _chunks(plan.specs, workers, max_chunk)
     start = time.perf_counter()
-    results: list[tuple[str, int]] = []
     bar = tqdm(total=len(plan.specs), unit="ep", desc=f"{plan.mode} episodes", disable=not progress)
-    jobs = [(base, c) for c in chunks]
-    if workers == 1:
-        for job in jobs:
-            done = _run_chunk(job)
-            results += done
-            bar.update(len(done))
+    if ray_address:
+        with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
+            chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
+            done = run_tasks(_run_chunk, [(base, c) for c in chunks],
+                             on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)))
+        bar.close()
+        _raise_failed(plan, chunks, done)
+        results = [r for chunk_result in done for r in chunk_result]
     else:
-        with mp.get_context("fork").Pool(workers) as pool:
-            for done in pool.imap_unordered(_run_chunk, jobs):
-                results += done
-                bar.update(len(done))
-    bar.close()
+        workers = workers or os.cpu_count() or 1
+        results = _run_in_pool([(base, c) for c in _chunks(plan.specs, workers, max_chunk)], workers, bar)
     wall = time.perf_counter() - start
     paths = []  # the distinct soil paths (patches) of the episodes
     for spec in resolved:
@@ -137,6 +152,41 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     tmp.write_text(json.dumps(summary, indent=1))
     os.replace(tmp, plan.out / "dataset.json")
     return summary
+
+
+def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
+    """The chunks in a local fork pool (in this process for one worker); (name, bytes) per bag."""
+    results: list[tuple[str, int]] = []
+    if workers == 1:
+        for job in jobs:
+            done = _run_chunk(job)
+            results += done
+            bar.update(len(done))
+    else:
+        with mp.get_context("fork").Pool(workers) as pool:
+            for done in pool.imap_unordered(_run_chunk, jobs):
+                results += done
+                bar.update(len(done))
+    bar.close()
+    return results
+
+
+def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
+    """ChunksFailed naming the episodes of every chunk whose task failed, if any did."""
+    failed = [(c, r) for c, r in zip(chunks, done) if isinstance(r, Exception)]
+    if not failed:
+        return
+    config = plan.config()
+    lines = []
+    for chunk, err in failed:
+        names = [episode_meta(config, s, soil.name, []).name for s, soil in (x.resolve(plan.custom_soils) for x in chunk)]
+        lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
+    kept = sum(len(r) for r in done if not isinstance(r, Exception))
+    raise ChunksFailed(
+        f"{len(failed)} of {len(chunks)} Ray tasks failed; the bags of the other {kept} episodes are written under "
+        f"{plan.out} (plus any of the failed tasks' episodes finished before the failure, never a partial bag); "
+        "dataset.json is not written:\n" + "\n".join(lines),
+        bad_input=all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed))
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
@@ -165,7 +215,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="repetitions of each grid point")
     p.add_argument("--seed-base", type=int, default=0, help="first episode seed")
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s]")
-    p.add_argument("--workers", type=int, default=0, help="processes (default: all cores)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes (default: all cores; with --ray ADDRESS: all CPUs of the cluster); it also sets "
+                        "the chunk size, so compare runs of the same --workers")
+    add_ray_option(p, "simulate the chunks as Ray tasks, --out on shared storage")
     p.add_argument("--engine", choices=ENGINES, default=ENGINES[0],
                    help="simulator engine: compiled (default) or reference (the NumPy reference of the physics)")
     p.add_argument("--plugin", action="append", default=[], help="extra force term package.module:function (repeatable)")
@@ -225,10 +278,15 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         plan = plan_from_args(args)
-        summary = generate(plan, workers=args.workers, progress=not args.quiet)
+        if args.workers < 0:
+            raise ValueError(f"--workers={args.workers} must be >= 0 (0: all cores)")
+        summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2
+    except (ChunksFailed, RuntimeError) as exc:
+        print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
+        return 2 if getattr(exc, "bad_input", False) else 1
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
         f"({summary['simulated_s_per_wall_s']:.0f} simulated s per wall s, "

@@ -1,0 +1,127 @@
+"""soil_sim_batch --ray on a local Ray instance of 2 CPUs (bound to 127.0.0.1, usage statistics
+off): the local pool's bags byte for byte for the same seeds and --workers, the same
+dataset.json but for its timing fields, a failing task named with its episodes while the other
+bags are kept, and no Ray process left behind. --ray ADDRESS on a cluster started with
+`ray start` (on loopback, token authentication on): the same bags, and the cluster still runs.
+Pool and Ray write in the same test, so the bags are compared with each other, never with
+stored files."""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from soil_bag_tools.bag_io import find_episode_bags
+from soil_sim_node import batch
+from tests.ray_probe import is_loopback, listening_addresses, ray_processes, wait_gone
+
+SMALL = ["--mode", "fee", "--soils", "Clay,Sand", "--relative-densities", "20,80", "--speeds", "0.5", "--depths", "0.1",
+         "--seeds", "1", "--duration", "2.0", "--workers", "2", "--quiet"]
+TIMING_FIELDS = ("wall_time_s", "simulated_s_per_wall_s")  # how long a run took differs by nature
+
+
+@pytest.fixture(autouse=True)
+def no_ray_usage_stats(monkeypatch):
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.timeout(300)
+def test_ray_tasks_write_the_pools_bags_byte_for_byte_and_leave_no_ray_process(tmp_path):
+    before = ray_processes()
+    assert batch.main([*SMALL, "--out", str(tmp_path / "pool")]) == 0
+    assert batch.main([*SMALL, "--out", str(tmp_path / "ray"), "--ray"]) == 0
+    assert not wait_gone(ray_processes() - before), "the local Ray instance left processes running"
+    pool, ray = _files(tmp_path / "pool"), _files(tmp_path / "ray")
+    assert len(find_episode_bags(tmp_path / "ray")) == 4
+    assert sorted(pool) == sorted(ray)
+    for name in pool:
+        if name != "dataset.json":
+            assert pool[name] == ray[name], name
+    summary_pool, summary_ray = (json.loads(files.pop("dataset.json")) for files in (pool, ray))
+    for key in TIMING_FIELDS:
+        summary_pool.pop(key), summary_ray.pop(key)
+    assert summary_pool == summary_ray and summary_ray["episodes"] == 4
+
+
+@pytest.mark.timeout(300)
+def test_a_failing_ray_task_is_named_with_its_episodes_and_the_other_bags_are_kept(tmp_path, capsys):
+    out = tmp_path / "ds"
+    blocked = out / "fee_sand_id080_v0.50_d0.100_s3"  # the 4th episode of the grid: a directory that is not a bag
+    blocked.mkdir(parents=True)
+    (blocked / "notes.txt").write_text("not a bag")
+    before = ray_processes()
+    assert batch.main([*SMALL, "--out", str(out), "--ray"]) == 2  # an existing file: the input's fault
+    err = capsys.readouterr().err
+    assert "1 of 4 Ray tasks failed" in err and f"episodes {blocked.name}: FileExistsError" in err, err
+    assert sorted(b.name for b in find_episode_bags(out)) == [
+        "fee_clay_id020_v0.50_d0.100_s0", "fee_clay_id080_v0.50_d0.100_s1", "fee_sand_id020_v0.50_d0.100_s2"]
+    assert (blocked / "notes.txt").read_text() == "not a bag"
+    assert not (out / "dataset.json").exists()
+    assert not [p for p in out.iterdir() if p.name.endswith(".partial")]
+    assert not wait_gone(ray_processes() - before)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(pids: set[int]) -> None:
+    """Stop the processes `ray start` launched for this test, by their ids (never `ray stop`:
+    it stops every Ray instance on the machine)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
+        pids = wait_gone(pids, 20.0)
+
+
+@pytest.mark.timeout(300)
+def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running(tmp_path):
+    port = _free_port()
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+           "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}  # the user's cluster, on loopback
+    before = ray_processes()
+    started = subprocess.run([str(Path(sys.executable).with_name("ray")), "start", "--head", "--node-ip-address",
+                              "127.0.0.1", "--port", str(port), "--num-cpus", "2", "--include-dashboard", "false",
+                              "--disable-usage-stats"], env=env, capture_output=True, text=True, timeout=180)
+    cluster = ray_processes() - before
+    try:
+        assert started.returncode == 0, started.stderr[-2000:]
+        listening = listening_addresses(cluster)
+        assert listening and all(is_loopback(ip) for _, ip in listening), listening
+        run = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "ray"),
+                              "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=240)
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert batch.main([*SMALL, "--out", str(tmp_path / "pool")]) == 0
+        pool, ray = _files(tmp_path / "pool"), _files(tmp_path / "ray")
+        assert sorted(pool) == sorted(ray) and all(pool[n] == ray[n] for n in pool if n != "dataset.json")
+        servers = {pid for pid in cluster if _name(pid) in ("gcs_server", "raylet")}
+        assert len(servers) == 2 and servers <= ray_processes(), "the user's cluster was stopped"
+    finally:
+        _stop(cluster)
+
+
+def _name(pid: int) -> str:
+    return Path(f"/proc/{pid}/comm").read_text().strip()
+
+
+def test_an_unreachable_ray_address_is_refused_at_once(tmp_path, capsys):
+    address = f"127.0.0.1:{_free_port()}"  # nothing listens there
+    assert batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", address]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot reach the Ray cluster at --ray={address!r}" in err, err
+    assert not find_episode_bags(tmp_path / "ds")
