@@ -22,6 +22,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import parse_qos
 
 from soil_bag_tools import bag_io, bag_writer, journal, playback
+from soil_bag_tools.bag_salvage import salvage_bag
 from soil_msgs_py.graph import publisher_qos_spec
 from soil_msgs_py.messages import TYPESTORE
 from soil_msgs_py.topics import BLADE_CMD, EPISODE_TOPICS
@@ -260,3 +261,21 @@ def test_repair_names_a_journal_chunk_that_took_the_channel_table_with_it(tmp_pa
     assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
     assert f"chunk 0 at byte {idx.chunk_start_offset}" in out.stderr, out.stderr
     assert partial.exists() and not (tmp_path / LOAM.name).exists()
+
+
+def test_no_training_window_spans_the_gap_a_repair_leaves(fresh, tmp_path):
+    """Dropping a chunk leaves a gap in the stamps; the dataset never builds a window across it
+    (the online estimator empties its window at a missing tick), and a cached dataset agrees."""
+    from pinn_estimator.dataset import WINDOW_SAMPLES, load_dataset
+
+    flip_chunk(mcap_of(fresh), 4)
+    salvage_bag(fresh, tmp_path / "repaired" / fresh.name)
+    stamps = bag_io.read_episode(tmp_path / "repaired" / fresh.name).stamps_ns
+    gap = int(np.flatnonzero(np.diff(stamps) > 1.5 * 1e9 / 60)[0]) + 1  # first row after the gap
+    for _ in range(2):  # the second load reads the cache the first wrote
+        ds = load_dataset(tmp_path / "repaired")
+        ends = ds.window_ends([0])
+        assert len(ends) and not np.any((ends >= gap) & (ends - WINDOW_SAMPLES + 1 < gap))
+        before = np.arange(WINDOW_SAMPLES - 1, gap)
+        after = np.arange(gap + WINDOW_SAMPLES - 1, len(stamps))
+        assert np.array_equal(ends, np.concatenate([before, after]))

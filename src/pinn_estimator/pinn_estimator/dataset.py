@@ -29,11 +29,12 @@ from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
     OBSERVATION_FIELDS,
+    TICK_PERIOD_NS,
     WINDOW_SAMPLES,
 )
 from soil_physics.travel import distance_in_soil_of_known
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: per-row stamp gaps (``Dataset.gap_before``)
 CACHE_DIR_NAME = ".insitu_cache"
 SPLITS = ("train", "val", "test")
 SKIP_BAD_BAGS_HELP = ("skip bags that cannot be read (truncated, corrupt, NaN, shorter than a window) and "
@@ -57,6 +58,13 @@ class Dataset:
     fingerprint: str
     root: str
     skipped: list[dict] = field(default_factory=list)  # {"bag": path, "problem": why} per skipped bag
+    # (N,) bool: the row's stamp is more than one tick after the previous row of its episode (a
+    # bag repaired by dropping damaged chunks); None: no gaps
+    gap_before: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.gap_before is None:
+            self.gap_before = np.zeros(len(self.observations), bool)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -70,7 +78,8 @@ class Dataset:
         names = [ep.meta.name for ep in episodes]
         offsets = np.concatenate([[0], np.cumsum([len(ep.stamps_ns) for ep in episodes])]).astype(np.int64)
         arrays = (np.concatenate([getattr(ep, k) for ep in episodes]) for k in ("observations", "forces", "known", "truth"))
-        return cls(names, [ep.meta for ep in episodes], offsets, *arrays, fingerprint="", root=root)
+        return cls(names, [ep.meta for ep in episodes], offsets, *arrays, fingerprint="", root=root,
+                   gap_before=np.concatenate([stamp_gaps(ep.stamps_ns) for ep in episodes]))
 
     def episode_rows(self, e: int) -> slice:
         return slice(int(self.offsets[e]), int(self.offsets[e + 1]))
@@ -79,12 +88,18 @@ class Dataset:
         """Global row index of the newest sample of every full window of the given episodes.
 
         Windows never cross an episode boundary; the first full window ends at row
-        ``window - 1`` of its episode; then one every ``stride`` rows.
+        ``window - 1`` of its episode; then one every ``stride`` rows. A window that would
+        span a gap in the stamps is left out, as the online estimator empties its window at a
+        missing tick: its samples would not be one second of motion.
         """
         if stride < 1:
             raise ValueError(f"stride={stride} must be >= 1 sample")
         ends = [np.arange(self.offsets[e] + window - 1, self.offsets[e + 1], stride) for e in episodes]
-        return np.concatenate(ends).astype(np.int64) if ends else np.zeros(0, np.int64)
+        ends = np.concatenate(ends).astype(np.int64) if ends else np.zeros(0, np.int64)
+        if self.gap_before.any() and len(ends):
+            gaps = np.concatenate([[0], np.cumsum(self.gap_before)])  # gaps[i]: gaps before row i
+            ends = ends[gaps[ends + 1] == gaps[ends - window + 2]]  # none after the window's first row
+        return ends
 
     def episode_of_rows(self, rows: np.ndarray) -> np.ndarray:
         return np.searchsorted(self.offsets, rows, side="right") - 1
@@ -126,6 +141,11 @@ def fingerprint_bags(bags: list[Path], root: Path) -> str:
     return h.hexdigest()
 
 
+def stamp_gaps(stamps_ns: np.ndarray) -> np.ndarray:
+    """(N,) bool: each stamp is more than 1.5 tick periods after the one before it."""
+    return np.concatenate([[False], np.diff(np.asarray(stamps_ns, np.int64)) > 1.5 * TICK_PERIOD_NS])
+
+
 def _read(bag: Path):
     """Worker: one bag's arrays, or its BagReadError *returned* (picklable), so a pool reading
     many bags keeps going and the parent decides whether to skip the bag or stop."""
@@ -138,7 +158,7 @@ def _read(bag: Path):
         _check_finite("known parameter", ep.known, KNOWN_PARAMS, bag)
     except BagReadError as err:
         return err
-    return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth
+    return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth, stamp_gaps(ep.stamps_ns)
 
 
 def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
@@ -198,10 +218,11 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
         bags = [b for b, r in zip(bags, rows) if not isinstance(r, BagReadError)]
         fingerprint = fingerprint_bags(bags, root)
     names, metas, parts = [], [], defaultdict(list)
-    for name, meta_json, obs, forces, known, truth in (r for r in rows if not isinstance(r, BagReadError)):
+    for name, meta_json, obs, forces, known, truth, gaps in (r for r in rows if not isinstance(r, BagReadError)):
         names.append(name)
         metas.append(EpisodeMeta.from_json(meta_json))
-        for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth)):
+        for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth),
+                         ("gap_before", gaps)):
             parts[key].append(arr)
     if len(set(names)) != len(names):
         dup = sorted(n for n in set(names) if names.count(n) > 1)[0]
@@ -210,6 +231,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     ds = Dataset(
         names, metas, offsets, *(np.concatenate(parts[k]) for k in ("observations", "forces", "known", "truth")),
         fingerprint=fingerprint, root=str(root), skipped=[{"bag": e.bag, "problem": e.problem} for e in bad],
+        gap_before=np.concatenate(parts["gap_before"]),
     )
     if cache and not bad:
         _to_npz(ds, cache_path)
@@ -268,7 +290,7 @@ def _to_npz(ds: Dataset, path: Path) -> None:
         np.savez(
             tmp, version=CACHE_VERSION, fingerprint=ds.fingerprint, names=np.array(ds.names),
             metas=np.array([m.to_json() for m in ds.metas]), offsets=ds.offsets,
-            observations=ds.observations, forces=ds.forces, known=ds.known, truth=ds.truth,
+            observations=ds.observations, forces=ds.forces, known=ds.known, truth=ds.truth, gap_before=ds.gap_before,
         )
         os.replace(tmp, path)
     except OSError:
@@ -284,6 +306,7 @@ def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
             return Dataset(
                 [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
                 z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),
+                gap_before=z["gap_before"],
             )
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
