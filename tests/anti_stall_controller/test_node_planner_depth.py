@@ -51,10 +51,18 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
                 return {s: v[1] for s, v in (M.parse_message(BLADE, m) for m in probe.messages(BLADE))}
 
             def tick(k: int) -> float:
-                """One state tick at the target speed (no anti-stall offset); the answer's u_za."""
-                twist.publish(M.build_message(classes, TWIST, _tick(k), [0.5, 0.0]))
-                pose.publish(M.build_message(classes, POSE, _tick(k), [0.0, 0.0]))
-                probe.wait_for(lambda: _tick(k) in u_za(), 20, f"the answer to tick {k}")
+                """One state tick at the target speed (no anti-stall offset); the answer's u_za.
+                Sent again every 2 s until answered: topics are not ordered with each other, so
+                on a loaded machine the first tick can reach the node before its episode_start."""
+                for _ in range(10):
+                    twist.publish(M.build_message(classes, TWIST, _tick(k), [0.5, 0.0]))
+                    pose.publish(M.build_message(classes, POSE, _tick(k), [0.0, 0.0]))
+                    try:
+                        probe.wait_for(lambda: _tick(k) in u_za(), 2, f"the answer to tick {k}")
+                        break
+                    except AssertionError:
+                        continue
+                probe.wait_for(lambda: _tick(k) in u_za(), 1, f"the answer to tick {k} (sent 10 times)")
                 return u_za()[_tick(k)]
 
             def plan(k: int, depth: float) -> None:
