@@ -209,17 +209,17 @@ def _estimate(stamp: int, value: float, *, broken: bool = False) -> bytes:
     return bytes(M.TYPESTORE.serialize_cdr(msg, "std_msgs/msg/Float64MultiArray"))
 
 
-def test_labelled_extras_hold_only_the_estimators_messages(tmp_path):
-    """/soil/estimate, filed by stamp: an intruder's estimates at stamps the estimator also
-    sends, at stamps it skipped, off the grid and with a broken layout never enter the bag."""
+def _record_estimates(tmp_path, n: int, intrude):
+    """The sample's first ``n`` ticks with the estimator's estimates (value: the tick) after each
+    tick's /clock; ``intrude(feed, stamp, tick)`` acts first and returns True where the estimator
+    skips the tick. Returns (bag, {stamp: value} the estimator published)."""
     from soil_msgs_py import topics as T
 
     loaded, start_ev, end_ev = _events(SAMPLE)
-    n = 40
     msgs = loaded.messages[: 10 * n]
     end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    topics = {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}
-    rec = recorder.Recorder(tmp_path, topics, log=ListLog(), clock=lambda: 0.0)
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype},
+                            log=ListLog(), clock=lambda: 0.0)
     feed = Feed(rec)
     rec.on_status(start_ev.to_json())
     published = {}
@@ -228,23 +228,62 @@ def test_labelled_extras_hold_only_the_estimators_messages(tmp_path):
         if topic != "/clock":
             continue
         tick = (t - msgs[0][0]) // TICK_NS
-        if tick % 5 == 2:  # ahead of the estimator, or at a tick it skips
-            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 1e308))
-            feed.send("intruder", T.ESTIMATE.name, _estimate(t + TICK_NS // 2, 7.0))
-            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 3.0, broken=True))
-        if tick % 10 != 7:
+        if not intrude(feed, t, tick):
             published[t] = float(tick)
             feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(tick)))
     rec.on_status(end_ev.to_json())
     rec.poll()
     (result,) = rec.finished
-    stamps, values = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    return result.path, published
+
+
+def test_labelled_extras_hold_only_the_estimators_messages(tmp_path):
+    """/soil/estimate, filed by stamp: an intruder's estimates at stamps the estimator also
+    sends, at stamps it skipped, off the grid and with a broken layout never enter the bag."""
+    from soil_msgs_py import topics as T
+
+    def intrude(feed, t, tick) -> bool:
+        if tick % 5 == 2:  # ahead of the estimator, or at a tick it skips
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 1e308))
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t + TICK_NS // 2, 7.0))
+            feed.send("intruder", T.ESTIMATE.name, _estimate(t, 3.0, broken=True))
+        return tick % 10 == 7
+
+    n = 40
+    bag, published = _record_estimates(tmp_path, n, intrude)
+    stamps, values = bag_io.read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
     assert dict(zip(stamps.tolist(), values[:, 0].tolist())) == published
     assert len(stamps) == len(published)
-    info = recorder_info(result.path)
+    info = recorder_info(bag)
     assert info["off_grid"].get(T.ESTIMATE.name) == n // 5
     assert info["conflicts"].get(T.ESTIMATE.name) == n // 5
 
+
+def test_an_intruder_filling_a_skipped_tick_with_a_fitting_counter_is_refused(tmp_path):
+    """The estimator skips ticks (a loaded machine); at each skipped tick an intruder's garbage
+    estimate arrives carrying the very sequence number the estimator's next message will carry.
+    By sequence alone it continues the estimator's counter (one number across two ticks), and
+    judged in arrival order it would take the estimator's place and push the estimator's next
+    message out as a stranger's. Judged as a whole, a writer's counter grows by exactly one per
+    message, so the intruder's claim displaces the estimator's next one: the chain keeping the
+    estimator's finite messages wins, and the bag holds every estimate the estimator sent (the
+    last tick too, where nothing follows the intruder's claim: its values give it away)."""
+    from soil_msgs_py import topics as T
+
+    intrusions = []
+
+    def intrude(feed, t, tick) -> bool:
+        if tick % 6 != 3:
+            return False
+        fitting = feed.seq.get(("estimator", T.ESTIMATE.name), 0) + 1
+        feed.rec.on_message(T.ESTIMATE.name, _estimate(t, BAD_VALUES[tick % 4]), 0, publication_seq=fitting)
+        intrusions.append(t)
+        return True
+
+    bag, published = _record_estimates(tmp_path, 40, intrude)
+    stamps, values = bag_io.read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert dict(zip(stamps.tolist(), values[:, 0].tolist())) == published
+    assert recorder_info(bag)["conflicts"].get(T.ESTIMATE.name) == len(intrusions)
 
 
 def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):

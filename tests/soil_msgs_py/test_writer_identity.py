@@ -1,7 +1,7 @@
 """Writers told apart by publication sequence continuity (no ROS)."""
 from __future__ import annotations
 
-from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, tick_index, tick_number
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, leading_chain, tick_index, tick_number
 
 
 def test_tick_index_is_the_grid_and_tick_number_counts_across_episodes():
@@ -48,3 +48,32 @@ def test_a_silent_writer_is_forgotten_so_a_restarted_one_is_followed():
     old = [w.observe(100 + k, k) for k in range(20)][0]
     new = w.observe(1, 30)
     assert new != old and w.leads(new)
+
+
+def test_the_whole_recording_keeps_the_writer_whose_claim_an_intruder_filled_in_a_gap():
+    """Writer: ticks 0..9 with sequence 1..9, tick 4 skipped. An intruder claims tick 4 with
+    sequence 5 (what the writer sends next, at tick 5). Chains: the writer's 9 messages, or the
+    intruder's message in place of the writer's tick 5: equally long, so the weights decide."""
+    ticks = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+    seqs = [1, 2, 3, 4, 5, 5, 6, 7, 8, 9]  # index 4 is the intruder's
+    writer = {0, 1, 2, 3, 5, 6, 7, 8, 9}
+    assert leading_chain(ticks, seqs, [1 if i == 4 else 2 for i in range(10)]) == writer
+    # Arrival order alone would take the intruder for the writer and the writer's tick 5 for a stranger.
+    w = WriterTracks()
+    ids = [w.observe(s, k) for k, s in zip(ticks, seqs)]
+    assert ids[4] == ids[0] and ids[5] != ids[0]
+
+
+def test_a_chain_rises_by_at_most_the_ticks_between_and_ties_have_no_leader():
+    assert leading_chain([0, 1, 2, 3], [1, 2, 9, 10]) is None  # two chains of two: a tie
+    assert leading_chain([0, 1, 2, 3, 4], [1, 2, 9, 10, 3]) == {0, 1, 4}  # tick 2, 3 skipped
+    assert leading_chain([0, 0, 1, 1], [1, 1, 2, 2]) is None  # two writers meeting every tick
+    assert leading_chain([], []) is None
+
+
+def test_a_restarted_writer_is_led_by_its_longer_stretch_and_the_counter_may_wrap():
+    ticks = list(range(12))
+    assert leading_chain(ticks, [100, 101, 102, 103, 1, 2, 3, 4, 5, 6, 7, 8]) == set(range(4, 12))
+    top = SEQUENCE_MASK - 2
+    wrapped = [(top + k) & SEQUENCE_MASK for k in range(6)]  # ..., 2^32 - 1, 0, 1, 2
+    assert leading_chain(list(range(6)), wrapped) == set(range(6))

@@ -19,11 +19,12 @@ skipped chunk cannot be attributed and are dropped and counted too.
 Claims: an episode journal may hold messages of one topic from several writers (a second
 publisher, a redelivery). Each message's MCAP ``sequence`` is the DDS publication sequence
 number of its writer (0: unknown), so the conversion can tell the writers apart
-(:func:`refused_claims`, with ``soil_msgs_py.writer_identity``): on a topic of the graph's
-tick grid the bag keeps only the writer that sent the most ticks, i.e. the publisher that
-has been recording every tick, whether another writer's stamp is also claimed or not; of
-messages still claiming one (topic, stamp) it keeps the one with finite values, then the
-first to arrive. The others are counted per topic in the bag's recorder info (``conflicts``).
+(:func:`refused_claims`, with ``soil_msgs_py.writer_identity.leading_chain``): on a topic of
+the graph's tick grid the bag keeps only the writer that sent the most ticks, i.e. the
+publisher that has been recording every tick, whether another writer's stamp is also
+claimed or not, judged over the whole journal; of messages still claiming one (topic,
+stamp) it keeps the one with finite values, then the first to arrive. The others are
+counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ import yaml
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
-from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, tick_index
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, leading_chain, tick_index
 from .bag_io import META_KEY, PARTIAL_SUFFIX
 from .bag_writer import BagWriter
 from .integrity import ChunkInfo, McapScan, read_records
@@ -251,33 +252,44 @@ def _all_finite(topic: str, msgtype: str, raw: bytes) -> bool:
 def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     """Per topic, indices (file order) of messages the bag does not keep.
 
-    On the tick grid a message's writer is told by sequence continuity
-    (``writer_identity.WriterTracks``): every message of a writer other than the one that
-    sent the most ticks is refused. Of the rest, messages claiming one stamp keep the one
-    with finite values, then the first to arrive (writers unknown: no sequence numbers, or
-    writers that sent equally many ticks). A message with the very stamp and sequence number
-    of one the leading writer sent is not refused by sequence: two counters that meet at a
-    tick cannot be told apart there (the first to arrive would take the leader's place), so
-    the values decide, like for unknown writers.
+    On the tick grid a message's writer is told by sequence continuity, judged over the whole
+    journal (``writer_identity.leading_chain``): every message off the leading writer's chain
+    is refused. Where several writers' messages could be that chain (an intruder's counter
+    that fits a tick the writer skipped, or meets it at a tick), the chain with the most
+    messages with finite values wins, and once another writer showed up on the topic a
+    non-finite message is never taken for the chain's (graph nodes publish finite values). Of the messages left, those claiming one stamp keep the
+    one with finite values, then the first to arrive (writers unknown: no sequence numbers,
+    or writers that sent equally many ticks). A message with the very stamp and sequence
+    number of one on the chain is not refused by sequence: two counters that meet at a tick
+    cannot be told apart there, so the values decide, like for unknown writers.
     """
     if not any(scan.stamps.values()):
         return {}
     first = int(scan.metadata.get(FIRST_STAMP_KEY) or min(min(v) for v in scan.stamps.values() if v))
+    judged: dict[str, list[int]] = {}  # per topic, messages on the grid with a sequence number
+    chains: dict[str, set[int] | None] = {}
+    for topic, stamps in scan.stamps.items():
+        ticks = [tick_index(t, first) for t in stamps]
+        judged[topic] = [i for i, k in enumerate(ticks) if k is not None and scan.sequences[topic][i]]
+        chains[topic] = _chain(scan, topic, judged[topic], first)
+    # One writer per topic is the rule: values are read only where another writer showed up.
+    finite = _finite_values(scan, {t: set(judged[t]) for t, c in chains.items()
+                                   if c is not None and len(c) < len(judged[t])})
     refused: dict[str, set[int]] = {}
     contested: dict[str, list[list[int]]] = {}
     for topic, stamps in scan.stamps.items():
-        # In stamp order (arrival order within a stamp): a writer's counter grows with its
-        # stamps, and an intruder's far-ahead stamp cannot pass for the next one of a writer.
-        ticks = [tick_index(t, first) for t in stamps]
-        writers = WriterTracks()
-        idents: list[int | None] = [None] * len(stamps)
-        for i in sorted((i for i, k in enumerate(ticks) if k is not None), key=lambda i: (ticks[i], i)):
-            idents[i] = writers.observe(scan.sequences[topic][i], ticks[i])
-        leader = writers.leader()
-        sequences = scan.sequences[topic]
-        leader_claims = {(stamps[i], sequences[i]) for i, w in enumerate(idents) if w is not None and w == leader}
-        foreign = {i for i, w in enumerate(idents) if None not in (w, leader) and w != leader
-                   and (stamps[i], sequences[i]) not in leader_claims}
+        sequences, chain = scan.sequences[topic], chains[topic]
+        if chain is not None and len(chain) < len(judged[topic]):
+            weights = [2 if finite.get((topic, i), True) else 1 for i in judged[topic]]
+            chain = _chain(scan, topic, judged[topic], first, weights)
+            # Graph nodes never publish non-finite values; with another writer about, such a
+            # claim on the chain is an intruder's whose counter fitted a tick the writer left
+            # free with nothing after it to displace (a skipped last tick, a lost message).
+            chain = None if chain is None else {i for i in chain if finite.get((topic, i), True)}
+        foreign: set[int] = set()
+        if chain is not None:
+            claims = {(stamps[i], sequences[i]) for i in chain}
+            foreign = {i for i in judged[topic] if i not in chain and (stamps[i], sequences[i]) not in claims}
         by_stamp: dict[int, list[int]] = defaultdict(list)
         for i, stamp in enumerate(stamps):
             if i not in foreign:
@@ -289,19 +301,35 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     if not contested:
         return refused
     wanted = {t: {i for g in groups for i in g} for t, groups in contested.items()}
-    finite: dict[tuple[str, int], bool] = {}
+    finite.update(_finite_values(scan, {t: {i for i in v if (t, i) not in finite} for t, v in wanted.items()}))
+    for topic, groups in contested.items():
+        for g in groups:
+            keep = min(g, key=lambda i: (not finite.get((topic, i), False), i))
+            refused.setdefault(topic, set()).update(i for i in g if i != keep)
+    return refused
+
+
+def _chain(scan: JournalScan, topic: str, judged: Sequence[int], first: int,
+           weights: Sequence[int] | None = None) -> set[int] | None:
+    """The leading writer's messages among ``judged`` (file-order indices), as file indices."""
+    stamps, sequences = scan.stamps[topic], scan.sequences[topic]
+    chain = leading_chain([tick_index(stamps[i], first) for i in judged], [sequences[i] for i in judged], weights)
+    return None if chain is None else {judged[j] for j in chain}
+
+
+def _finite_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict[tuple[str, int], bool]:
+    """Whether each wanted message (topic, file index) has finite values (one pass over the file)."""
+    out: dict[tuple[str, int], bool] = {}
+    if not any(wanted.values()):
+        return out
     index: dict[str, int] = defaultdict(int)
     for record in _records(scan.path, JournalScan(scan.path)):
         if isinstance(record, Message) and (ch := scan.channels.get(record.channel_id)) is not None:
             i = index[ch.topic]
             index[ch.topic] += 1
             if i in wanted.get(ch.topic, ()):
-                finite[(ch.topic, i)] = _all_finite(ch.topic, ch.msgtype, record.data)
-    for topic, groups in contested.items():
-        for g in groups:
-            keep = min(g, key=lambda i: (not finite.get((topic, i), False), i))
-            refused.setdefault(topic, set()).update(i for i in g if i != keep)
-    return refused
+                out[(ch.topic, i)] = _all_finite(ch.topic, ch.msgtype, record.data)
+    return out
 
 
 def whole_tick_cutoff(stamps: Mapping[str, Sequence[int]]) -> int | None:

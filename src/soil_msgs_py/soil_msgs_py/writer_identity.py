@@ -15,6 +15,7 @@ the recorder both decide with :class:`WriterTracks`.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .messages import NS_PER_S
@@ -99,3 +100,88 @@ class WriterTracks:
         if not ranked or (len(ranked) > 1 and ranked[1].ticks == ranked[0].ticks):
             return None
         return ranked[0].ident
+
+
+def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
+                  weights: Sequence[int] | None = None) -> set[int] | None:
+    """Indices of the messages the leading writer sent, judged over a whole recording; None if
+    nothing can be judged or two writers tie.
+
+    A writer's messages form a *chain*: in tick order its counter grows by at least 1 and by
+    at most the ticks between them (module doc), i.e. the sequence number rises strictly
+    while ``sequence - tick`` never rises. The leader is the heaviest chain (``weights``,
+    default 1 per message). Judged message by message in arrival order (``WriterTracks``) an
+    intruder's counter that lands in a gap the writer left (a skipped tick) continues the
+    writer and pushes the writer's next message out as a stranger's; judged as a whole, the
+    writer's counter grows by exactly one per message, so the intruder's message can only
+    take the place of one or more of the writer's, and weights (e.g. finite values) decide
+    that exchange. O(n log n): a Fenwick tree of the best chain over ``sequence - tick``.
+
+    Ties: if the heaviest chain among the remaining messages weighs as much, the writers
+    cannot be told apart by their counters (None).
+    """
+    n = len(ticks)
+    if n == 0:
+        return None
+    w = [1] * n if weights is None else [int(x) for x in weights]
+    seq = _unwrapped([int(s) & SEQUENCE_MASK for s in sequences])
+    best = _heaviest_chain([int(t) for t in ticks], seq, w, range(n))
+    if best is None:
+        return None
+    chain, weight = best
+    rest = [i for i in range(n) if i not in chain]
+    runner_up = _heaviest_chain([int(t) for t in ticks], seq, w, rest) if rest else None
+    if runner_up is not None and runner_up[1] == weight:
+        return None
+    return chain
+
+
+def _unwrapped(seq: list[int]) -> list[int]:
+    """Sequence numbers stored as uint32 (MCAP) that straddle 2^32: the small ones continue."""
+    quarter = (SEQUENCE_MASK + 1) // 4
+    if any(s < quarter for s in seq) and any(s >= 3 * quarter for s in seq):
+        return [s + SEQUENCE_MASK + 1 if s < quarter else s for s in seq]
+    return seq
+
+
+def _heaviest_chain(ticks: list[int], seq: list[int], weights: list[int],
+                    members) -> tuple[set[int], int] | None:
+    """(indices, weight) of the heaviest chain among ``members`` (ties: the earliest message
+    ends it), None if ``members`` is empty. Points are taken in sequence order (all of one
+    sequence number queried before any is inserted: a chain's numbers rise strictly) and a
+    point may follow any inserted point whose offset ``sequence - tick`` is at least its own."""
+    members = list(members)
+    if not members:
+        return None
+    offsets = sorted({seq[i] - ticks[i] for i in members}, reverse=True)
+    rank = {o: r + 1 for r, o in enumerate(offsets)}  # 1 = highest offset: prefix = offsets >= o
+    size = len(offsets)
+    tree: list[tuple[int, int]] = [(0, 1)] * (size + 1)  # (weight, -index) of the best chain end
+    best_to: dict[int, int] = {}
+    before: dict[int, int | None] = {}
+    order = sorted(members, key=lambda i: (seq[i], i))
+    start = 0
+    while start < len(order):
+        stop = start
+        while stop < len(order) and seq[order[stop]] == seq[order[start]]:
+            stop += 1
+        group = order[start:stop]
+        for i in group:
+            r, found = rank[seq[i] - ticks[i]], (0, 1)
+            while r > 0:
+                found = max(found, tree[r])
+                r -= r & -r
+            before[i] = -found[1] if found[1] <= 0 else None
+            best_to[i] = found[0] + weights[i]
+        for i in group:
+            r = rank[seq[i] - ticks[i]]
+            while r <= size:
+                tree[r] = max(tree[r], (best_to[i], -i))
+                r += r & -r
+        start = stop
+    end = max(members, key=lambda i: (best_to[i], -i))
+    chain, i = set(), end
+    while i is not None:
+        chain.add(i)
+        i = before[i]
+    return chain, best_to[end]
