@@ -285,8 +285,10 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
 
 
 def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_path):
-    """Step 5 for the PINN, at the size of the committed report (``make discrepancy``'s soil-inertia
-    case: 108 episodes, an ensemble of 3 PINNs per physics, 30 epochs): retrained with the named effect, the PINN's soil estimates,
+    """Step 5 for the PINN, at the data size of the committed report (``make discrepancy``'s
+    soil-inertia case: 108 episodes, 30 epochs; one PINN per physics where the report trains an
+    ensemble of 3, whose members alone give 0.68, 0.65 and 0.83 of the error): retrained with
+    the named effect, the PINN's soil estimates,
     pooled per soil group, explain the held-out force at every depth and speed better than the
     paper's PINN, whose estimates absorb the missing effect (pinn_check docstring)."""
     from soil_discrepancy.pinn_check import pinn_gap
@@ -300,13 +302,15 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     sel, held = split_holdout(frame, 0.3, 0)
     selection = frame.episode_names(sel)
     got = pinn_gap(ds, frame.select(groups=held), selection, AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]),
-                   epochs=30, seed=0, seeds=3, max_minutes=12.0, log=None,
+                   epochs=30, seed=0, seeds=1, max_minutes=12.0, log=None,
                    threads=1)  # two torch threads beside a busy core wait on each other (~6x slower)
     rows = got["comparisons"]
     soil, fee_rows = rows["soil"], rows["FEE"]
-    # the committed report: 0.63 (members alone 0.68, 0.65, 0.83); other splits 0.82, 0.94
+    print(f"\nsoil-estimate RMSE {soil['before']['rmse']:.0f} -> {soil['after']['rmse']:.0f} N, "
+          f"improved {soil['improved_episodes']}/{soil['n_episodes']}")
+    # seed 0 here: 0.61 (15/20 episodes better); the report's ensemble 0.63, other splits 0.82, 0.94
     assert soil["after"]["rmse"] <= 0.9 * soil["before"]["rmse"], (soil["before"], soil["after"], got["per_seed"])
     assert soil["improved_episodes"] > soil["n_episodes"] / 2
     assert fee_rows["after"]["rmse"] <= 0.6 * fee_rows["before"]["rmse"]
-    assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [30] * 6
-    assert len(got["per_seed"]["soil_rmse_after"]) == 3
+    assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [30] * 2
+    assert len(got["per_seed"]["soil_rmse_after"]) == 1
