@@ -3,6 +3,8 @@
 1. fit        θ per θ-group fitted to the measured force; residual r = F_meas − F_model
 2. regimes    residuals by depth, speed, v_z, Q, time, distance, soil, I_d; episode-level tests
 3. candidates every catalogue term cross-validated across groups; greedy forward selection
+3b. forms     if the residual still has structure: sparse regression over a library of forms
+              (``forms``); its few candidates face the same held-out test, beside the catalogue
 4. model      the accepted terms with their k: ``AugmentedFEE`` and the simulator plugin specs
 5. gap        held-out test groups (never used in 3): force error before/after
 
@@ -17,10 +19,12 @@ import time
 from pathlib import Path
 
 from soil_physics import force_terms
+from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
-from .candidates import select_terms, split_holdout
+from .candidates import MAX_TERMS, select_terms, split_holdout
+from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
 from .gap import compare_predictions, fee_gap
@@ -44,7 +48,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
                     predictors=None, cache: bool = True, skip_bad_bags: bool = False,
-                    plots: bool = True, log=print) -> dict:
+                    plots: bool = True, forms: bool = True, log=print) -> dict:
     """The whole workflow on a bag directory (or a ``Dataset``/``Frame``); returns the report dict.
 
     terms: candidate term names (default: the whole catalogue); accepted: terms already in the
@@ -61,7 +65,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
     (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
-    stopping at the first, naming it (``load_dataset``).
+    stopping at the first, naming it (``load_dataset``). forms: when the residual still has regime
+    structure after the catalogue step, search the library of forms (``forms.search_forms``) and
+    test its candidates on held-out groups beside the remaining catalogue terms.
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -107,6 +113,31 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                        workers=workers, allow_negative_k=allow_negative_k, log=say)
     final: AugmentedFEE = sel["model"]
     new_terms = [s for s in sel["accepted"]]
+    for rnd in sel["rounds"]:
+        rnd["stage"] = "catalogue"
+    # 3b. no catalogue term (or not all of it): the form of what is left
+    form_report = None
+    if forms and len(new_terms) < MAX_TERMS:
+        left = reg0  # nothing named: the baseline's structure is what is left
+        if new_terms:  # what the named terms leave on the selection part
+            left = regime_analysis(fsel, residuals(fsel, final, sel["fit"])[0], edges=edges, alpha=alpha,
+                                   min_effect=min_effect)
+        form_report = {"searched": bool(left["significant"]), "residual_structure": left["flagged_variables"]}
+        if left["significant"]:
+            found = search_forms(fsel, final, sel["fit"], folds=folds, seed=seed, log=say)
+            form_report["search"] = found
+            if found["candidates"]:
+                rest = [n for n in candidates if n not in final.names]
+                sel2 = select_terms(fsel, final, sel["fit"], found["candidates"] + rest, folds=folds, seed=seed,
+                                    alpha=alpha, min_gain=min_gain, max_terms=MAX_TERMS - len(new_terms),
+                                    workers=workers, allow_negative_k=allow_negative_k, log=say)
+                for rnd in sel2["rounds"]:
+                    rnd["stage"] = "forms"
+                sel["rounds"] += sel2["rounds"]
+                new_terms += sel2["accepted"]
+                final, sel["fit"] = sel2["model"], sel2["fit"]
+                form_report["discovered"] = [describe_form(fsel, sel["fit"], s.to_dict()) for s in sel2["accepted"]
+                                             if s.name.startswith(FORM_PREFIX)]
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
@@ -142,7 +173,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         "settings": {"holdout": holdout, "folds": folds, "seed": seed, "stride": frame.stride, "alpha": alpha,
                      "min_gain": min_gain, "min_effect": min_effect, "group_by": frame.group_by,
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
-                     "allow_negative_k": allow_negative_k, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
+                     "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
                      "workers": workers},
         "data": {**_data_summary(frame, sel_groups, test_groups),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []]},
@@ -153,6 +184,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                       "accepted": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in new_terms]},
         "model": {"terms": [list(t) for t in final.terms], "plugin_specs": final.plugin_specs(),
                   "extra_term_args": final.extra_term_args()},
+        "forms": form_report,
         "regimes_after": reg1,
         "test": test,
         "notes": _notes(frame),
@@ -229,7 +261,10 @@ def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: di
             unit = force_terms.get_term(s.name).k_unit
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
-            parts.append(f"{s.name} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
+            label = s.name
+            if s.name.startswith(FORM_PREFIX):
+                label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
+            parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
         text = "missing effect: " + "; ".join(parts)
         if test is not None and test["before"]["rmse"] is not None and test["after"]["rmse"] is not None:
             b, a = test["before"]["rmse"], test["after"]["rmse"]
@@ -243,7 +278,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: di
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         return "unexplained", (f"unexplained: the model and the data disagree systematically (residual structure vs "
-                               f"{names}), but no catalogue term explains it on held-out episodes")
+                               f"{names}), but neither a catalogue term nor a form of the library explains it on held-out episodes")
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error")
