@@ -88,6 +88,7 @@ def markdown(report: dict, figures=()) -> str:
         lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
         lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
                   "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
+    lines += _forms_md(report.get("forms"), report.get("test"), labels)
     test = report.get("test")
     if test:
         lines += ["## Held-out test episodes: force error before/after", "",
@@ -117,7 +118,7 @@ def markdown(report: dict, figures=()) -> str:
                 lines += [f"### {label}", "", "```json", json.dumps(comp, indent=1, default=_json_default)[:4000], "```", ""]
     lines += ["## Candidate terms (cross-validated across θ-groups, selection part only)", ""]
     for i, rnd in enumerate(report["selection"]["rounds"], 1):
-        lines += [f"Round {i} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
+        lines += [f"Round {i}{' (*forms*)' if rnd.get('stage') == 'forms' else ''} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
                   + (f"; runner-up `{rnd['runner_up']['name']}` (winner better on {rnd['runner_up']['winner_better_episodes']}/"
                      f"{rnd['runner_up']['n_episodes']} episodes, p = {_p(rnd['runner_up']['p_winner_vs_runner_up'])})"
                      if rnd.get("runner_up") else ""), "",
@@ -141,6 +142,42 @@ def markdown(report: dict, figures=()) -> str:
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     return "\n".join(lines)
+
+
+def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
+    """Step 3b: the library search and each discovered form (formula, k ± SE, where it acts, closest catalogue term)."""
+    if not forms:
+        return []
+    if not forms.get("searched"):
+        return ["## Form search", "", "Not run: what the catalogue step leaves has no significant regime structure.", ""]
+    found = forms.get("search") or {}
+    lines = ["## Form search (library of candidate forms, sparse regression)", "",
+             f"Residual structure left after the catalogue step: {', '.join(labels.get(v, v) for v in forms['residual_structure']) or 'none'}. "
+             f"{found.get('library_size', 0)} forms, {found.get('identifiable', 0)} identifiable beside θ "
+             f"({found.get('dropped_absorbed', 0)} absorbed by θ); orthogonal matching pursuit, its length chosen by "
+             f"cross-validation over θ-groups: {found.get('n_terms_cv', 0)} term(s), held-out-group R² of the "
+             f"θ-projected residual {_n(found.get('cv_r2'), '.2f')}.", "",
+             "| candidate (linear refit, θ profiled out) | k ± cluster-robust SE | t |", "|---|---|---|"]
+    for o in found.get("ols", []):
+        lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
+    lines += ["", "Each candidate then faced the held-out test beside the remaining catalogue terms "
+              "(rounds marked *forms* below); a form is accepted only if it beats them there.", ""]
+    for f in forms.get("discovered") or []:
+        reg = f["regime"]
+        where = "; ".join(f"{labels.get(v, v)} {lo:.3g}…{hi:.3g}" for v, (lo, hi) in reg["ranges"].items())
+        close = f["closest_catalogue"]
+        lines += [f"### Discovered: {f['proposed_name']}", "",
+                  f"- Expression: {f['formula']} (`{f['name']}`), k = {f['k']:.4g} ± {_n(f['k_se'], '.2g')} "
+                  f"(jackknife over folds); in words: {f['words']}.",
+                  f"- Acts on {100 * reg['share_of_ticks']:.0f} % of the analysed ticks (mean |ΔF| {reg['mean_abs_force_n']:.0f} N, "
+                  f"max {reg['max_abs_force_n']:.0f} N), there: {where}.",
+                  f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
+                  + ("the same mechanism)" if close["same_mechanism"] else "not the same: a new mechanism)"),
+                  f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
+        if test and test["before"]["rmse"] is not None:
+            lines.append(f"- Held-out test RMSE (all named terms) {_n(test['before']['rmse'])} N → {_n(test['after']['rmse'])} N.")
+        lines.append("")
+    return lines
 
 
 PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs them
