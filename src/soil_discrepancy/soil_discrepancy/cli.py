@@ -39,6 +39,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
     add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-forms", action="store_true",
+                   help="do not search the library of forms when no catalogue term explains the residual")
     p.add_argument("--pinn-epochs", type=int, default=0,
                    help="also retrain the PINN without and with the named effect for this many epochs on the "
                         "selection episodes and compare them on the held-out ones (default 0: skip)")
@@ -70,7 +72,7 @@ def main(argv=None) -> int:
             args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
             seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
             allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
-            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, log=log,
+            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, log=log,
         )
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)

@@ -166,7 +166,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
         reg = f["regime"]
         where = "; ".join(f"{labels.get(v, v)} {lo:.3g}…{hi:.3g}" for v, (lo, hi) in reg["ranges"].items())
         close = f["closest_catalogue"]
-        lines += [f"### Discovered: {f['proposed_name']}", "",
+        status = "Discovered" if f.get("confirmed", True) else "Tentative, NOT confirmed on the held-out test (not named)"
+        lines += [f"### {status}: {f['proposed_name']}", "",
                   f"- Expression: {f['formula']} (`{f['name']}`), k = {f['k']:.4g} ± {_n(f['k_se'], '.2g')} "
                   f"(jackknife over folds); in words: {f['words']}.",
                   f"- Acts on {100 * reg['share_of_ticks']:.0f} % of the analysed ticks (mean |ΔF| {reg['mean_abs_force_n']:.0f} N, "
@@ -174,7 +175,11 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
                   + ("the same mechanism)" if close["same_mechanism"] else "not the same: a new mechanism)"),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
-        if test and test["before"]["rmse"] is not None:
+        nc = forms.get("not_confirmed")
+        if nc:
+            lines.append(f"- Held-out test RMSE with the tentative form(s) {_n(nc['test_rmse_before'])} N → "
+                         f"{_n(nc['test_rmse_after'])} N: below the least gain, so the model keeps none of them.")
+        elif test and test["before"]["rmse"] is not None:
             lines.append(f"- Held-out test RMSE (all named terms) {_n(test['before']['rmse'])} N → {_n(test['after']['rmse'])} N.")
         lines.append("")
     return lines
