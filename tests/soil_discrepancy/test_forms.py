@@ -44,7 +44,7 @@ def form_reports(tmp_path_factory) -> dict[str, dict]:
         generate(DatasetPlan("fee", root / name, specs, effects_for_mode("fee"), plugins=plugins), workers=2,
                  progress=False)
         out[name] = run_discrepancy(dataset=blind(root / name), out_dir=root / f"{name}_report",
-                                    plots=name == "entry", **RUN)
+                                    plots=name == "entry", **{**RUN, "stride": 4})
     return out
 
 

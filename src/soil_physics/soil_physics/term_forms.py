@@ -42,7 +42,7 @@ class Piece:
     words: str  # what it is, in words
     formula: str  # with units
     fn: Callable[[Any, Any], Any]  # (inputs, xp) -> array (scale: a force [N]; factor: dimensionless)
-    axis: str = ""  # scales only: 'x', 'z' or 'fee' (along the FEE force)
+    axis: str = ""  # scales only: 'x', 'z', 'fee' (F_FEE times fn) or 'vec' (fn gives (F_x, F_z))
 
 
 def _pos(xp, x):
@@ -51,6 +51,18 @@ def _pos(xp, x):
 
 def _in(s):
     return (s.d > 0) * 1.0
+
+
+def _surcharge_part(s, xp):
+    """(F_x, F_z) [N] of the FEE's surcharge term Q N_Q: the FEE at Q minus the FEE at Q = 0."""
+    from .fee import fee_xz  # the one FEE (NumPy or torch)
+
+    theta = {n: getattr(s, n) for n in ("phi", "c", "delta", "gamma", "rho", "alpha", "w", "d", "q", "v_x", "v_z")}
+    theta["c_a"] = s.c_a if s.c_a is not None else 0.0 * s.d
+    fx1, fz1, _ = fee_xz(theta)
+    fx0, fz0, _ = fee_xz({**theta, "q": 0.0 * s.q})
+    keep = _in(s) * (s.q > 0)
+    return xp.where(keep > 0, fx1 - fx0, 0.0 * s.d), xp.where(keep > 0, fz1 - fz0, 0.0 * s.d)
 
 
 def _bearing(s, xp):
@@ -75,6 +87,8 @@ SCALES: dict[str, Piece] = {p.name: p for p in (
           lambda s, xp: s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * s.v_x ** 2, "x"),
     Piece("q_x", "surcharge weight Q, x", "Q", lambda s, xp: s.q * _in(s), "x"),
     Piece("q_z", "surcharge weight Q, pressing down", "−Q", lambda s, xp: -s.q * _in(s), "z"),
+    Piece("qnq", "the FEE's surcharge part Q N_Q (along the FEE force)", "(F_FEE(Q) − F_FEE(Q = 0))",
+          _surcharge_part, "vec"),
     Piece("bear_z", "bearing capacity of the cutting edge, pressing down",
           "−w t_e (c N_c + γ d N_q)", lambda s, xp: -_bearing(s, xp), "z"),
     Piece("bear_x", "bearing capacity of the cutting edge, x (friction on it)",
@@ -136,6 +150,10 @@ def negated(name: str) -> str:
 def basis(name: str, s, xp) -> tuple[Any, Any]:
     """(B_x, B_z) [N per unit k] of a form on ``ForceInputs`` ``s`` (coerced, namespace ``xp``)."""
     sign, a, b = parse(name)
+    if a.axis == "vec":
+        vx, vz = a.fn(s, xp)
+        f = sign * b.fn(s, xp)
+        return f * vx, f * vz
     mag = sign * a.fn(s, xp) * b.fn(s, xp) + 0.0 * s.d
     zero = 0.0 * s.d
     if a.axis == "x":
@@ -149,7 +167,7 @@ def describe(name: str) -> dict:
     """Title, formula and words of a form (for ``force_terms.Term`` and the report)."""
     sign, a, b = parse(name)
     sgn = "−" if sign < 0 else ""
-    axis = {"x": "F_x", "z": "F_z", "fee": "F"}[a.axis]
+    axis = {"x": "F_x", "z": "F_z", "fee": "F", "vec": "F"}[a.axis]
     factor = "" if b.name == "1" else f" · {b.formula}"
     words = f"{'minus ' if sign < 0 else ''}{a.words}, {b.words}"
     return {"title": words, "formula": f"{axis} = {sgn}k · {a.formula}{factor}  [N]",
