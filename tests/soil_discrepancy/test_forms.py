@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from soil_discrepancy import run_discrepancy
+from soil_discrepancy.forms import load_catalogue
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -75,6 +76,13 @@ def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_re
     assert "## Form search" in md and "### Discovered:" in md and "exp(−s /" in md
     saved = json.loads((out / "discrepancy.json").read_text())
     assert saved["forms"]["discovered"][0]["name"] == first["name"]
+    # saved as the user's own catalogue, which the next run reads (a bad one is refused by name)
+    (row,) = load_catalogue(out / "discovered_terms.yaml")
+    assert row["term"] == first["name"] and row["k"] == pytest.approx(first["k"])
+    bad = out / "bad.yaml"
+    bad.write_text("terms:\n- term: form:gd2w_x*nope\n")
+    with pytest.raises(ValueError, match=r"terms\[0\].*nope"):
+        load_catalogue(bad)
     # a discovered form is a term like a catalogue term: the model and the simulator plugin take it
     spec = rep["model"]["plugin_specs"][0]
     assert load_plugins([spec])[0].params["term"] == first["name"]

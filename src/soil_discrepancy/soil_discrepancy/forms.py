@@ -243,3 +243,51 @@ def describe_form(frame: Frame, fit: ThetaFit, score: dict) -> dict:
             "k": score["k"], "k_se": score["k_se"], "gain": score["gain"], "p_holm": score["p_holm"],
             "regime": acts, "closest_catalogue": close,
             "proposed_name": close["name"] if close["same_mechanism"] else term_forms.proposed_name(name)}
+
+
+# ------------------------------------------------------------------------------------ a user's catalogue
+CATALOGUE_FILE = "discovered_terms.yaml"
+
+
+def catalogue_yaml(discovered) -> str | None:
+    """The confirmed discovered forms as a YAML catalogue the next run reads (``--catalogue``); None if none."""
+    import yaml
+
+    rows = [{"term": d["name"], "name": d["proposed_name"], "k": d["k"], "k_se": d["k_se"], "formula": d["formula"],
+             "plugin": f"soil_physics.force_terms:plugin term={d['name']} k={d['k']:.6g}"}
+            for d in discovered or () if d.get("confirmed", True)]
+    if not rows:
+        return None
+    head = ("# Forms found by soil_discrepancy (confirmed on held-out episodes). Rename 'name' as you like;\n"
+            "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n")
+    return head + yaml.safe_dump({"terms": rows}, sort_keys=False, allow_unicode=True)
+
+
+def load_catalogue(path) -> list[dict]:
+    """A user's catalogue of terms (YAML: terms: [{term, name?, k?}, ...]); each term a catalogue name or a
+    'form:…'. Returns [{'term', 'name', 'k'}]; ValueError naming the file and the bad entry."""
+    import yaml
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"catalogue {p}: cannot read it: {exc}") from None
+    rows = (data or {}).get("terms") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or not rows:
+        raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'")
+    out = []
+    for i, row in enumerate(rows):
+        term = row.get("term") if isinstance(row, dict) else None
+        if not isinstance(term, str):
+            raise ValueError(f"catalogue {p}: terms[{i}] has no 'term' (a catalogue name or 'form:<scale>*<factor>')")
+        try:
+            force_terms.get_term(term)
+        except ValueError as exc:
+            raise ValueError(f"catalogue {p}: terms[{i}]: {exc}") from None
+        k = row.get("k")
+        if k is not None and not (isinstance(k, (int, float)) and math.isfinite(k)):
+            raise ValueError(f"catalogue {p}: terms[{i}].k={k!r} is not a finite number")
+        out.append({"term": term, "name": str(row.get("name") or term), "k": None if k is None else float(k)})
+    return out

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .forms import CATALOGUE_FILE, catalogue_yaml
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -28,6 +29,9 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
     paths.insert(0, _atomic(out / "discrepancy.json", json.dumps(report, indent=1, default=_json_default)))
     paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
+    found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
+    if found is not None:
+        paths.append(_atomic(out / CATALOGUE_FILE, found))
     return paths
 
 
@@ -162,6 +166,9 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
         lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
     lines += ["", "Each candidate then faced the held-out test beside the remaining catalogue terms "
               "(rounds marked *forms* below); a form is accepted only if it beats them there.", ""]
+    if any(f.get("confirmed", True) for f in forms.get("discovered") or []):
+        lines += [f"The confirmed forms are saved to `{CATALOGUE_FILE}` (rename them there); the next run tests them "
+                  f"beside the catalogue: `soil_discrepancy BAGS --out DIR --catalogue {CATALOGUE_FILE}`.", ""]
     for f in forms.get("discovered") or []:
         reg = f["regime"]
         where = "; ".join(f"{labels.get(v, v)} {lo:.3g}…{hi:.3g}" for v, (lo, hi) in reg["ranges"].items())

@@ -48,7 +48,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
                     predictors=None, cache: bool = True, skip_bad_bags: bool = False,
-                    plots: bool = True, forms: bool = True, log=print) -> dict:
+                    plots: bool = True, forms: bool = True, user_terms=(), log=print) -> dict:
     """The whole workflow on a bag directory (or a ``Dataset``/``Frame``); returns the report dict.
 
     terms: candidate term names (default: the whole catalogue); accepted: terms already in the
@@ -67,7 +67,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
     stopping at the first, naming it (``load_dataset``). forms: when the residual still has regime
     structure after the catalogue step, search the library of forms (``forms.search_forms``) and
-    test its candidates on held-out groups beside the remaining catalogue terms.
+    test its candidates on held-out groups beside the remaining catalogue terms. user_terms: more
+    candidate term names (e.g. forms from an earlier run's ``discovered_terms.yaml``, ``forms.load_catalogue``),
+    tested like catalogue terms.
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -81,6 +83,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         raise ValueError(f"min_gain={min_gain} must be in [0, 1)")
     initial = AugmentedFEE(accepted)
     candidates = _candidates(terms, initial)
+    candidates += [n for n in dict.fromkeys(user_terms or ()) if n not in candidates and n not in initial.names]
     if frame is None:
         if dataset is None:
             if bag_dir is None:
