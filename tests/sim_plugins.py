@@ -57,3 +57,11 @@ def entry_resistance(state, k: float = 2.0, s0: float = 1.0):
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     fade = np.exp(-np.asarray(state.distance_in_soil, dtype=float) / float(s0))
     return float(k) * state.gamma * state.w * d**2 * fade, np.zeros_like(d)
+
+
+def saturating_drag(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
+    """Hidden effect whose form is not in the catalogue: a drag that grows with speed and saturates,
+    F_x = k w d p · tanh(v_x / v0) [N] (the catalogue's rate-dependent strength is linear in v_x)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return float(k) * state.w * d * float(p_pa) * np.tanh(v / float(v0)), np.zeros_like(d)

@@ -1,15 +1,19 @@
 """Missing physics whose form is not in the catalogue: found by the library search, or left unexplained.
 
-Two hidden effects, written as simulator plugins (tests/sim_plugins.py) in forms the library does
-not hold exactly, on the 32-episode fee-world grid of test_discrepancy.py:
+Hidden effects written as simulator plugins (tests/sim_plugins.py), on the 32-episode fee-world
+grid of test_discrepancy.py (stride 4):
 
 * entry_resistance: F_x = 2 γ w d² exp(−s / 1 m), extra drag of undisturbed soil fading with the
-  blade's travel (the library's decay lengths are 0.5 m and 2 m);
+  blade's travel (not a library form: its decay lengths are 0.5 m and 2 m);
+* saturating_drag: F_x = w d · 10 kPa · tanh(v_x / 0.3 m/s), where the catalogue offers only a drag
+  linear in v_x (rate_strength), which also shrinks the error: the form must beat it;
 * sinking_resistance: F_z = −3 γ w d² · min(max(−v_z, 0)/0.01 m/s, 1), only while the edge sinks
-  (the library's gate is a hard one at 5 mm/s).
+  (the library's gate is a hard one at 5 mm/s). The resisting force slows the sinking it depends
+  on, so the measured force follows the gate loosely: only the search is tested here (the whole
+  workflow names the gated z form, held-out RMSE −6 %; see the README).
 
 The workflow never sees the plugins (``blind``). Expected: the right scale, axis and factor or gate,
-a held-out error that shrinks, no catalogue name for either.
+a held-out error that shrinks, no catalogue name.
 """
 from __future__ import annotations
 
@@ -19,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from soil_discrepancy import run_discrepancy
-from soil_discrepancy.forms import load_catalogue
+from soil_discrepancy import build_frame, run_discrepancy, split_holdout
+from soil_discrepancy.fee_fit import fit_fixed
+from soil_discrepancy.forms import load_catalogue, search_forms
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -32,25 +37,27 @@ from .test_discrepancy import RUN, blind
 
 HIDDEN = {
     "entry": ("tests.sim_plugins:entry_resistance k=2 s0=1",),
+    "saturating": ("tests.sim_plugins:saturating_drag k=1 v0=0.3",),
     "sinking": ("tests.sim_plugins:sinking_resistance k=3",),
 }
+STRIDE = 4
 
 
 @pytest.fixture(scope="module")
-def form_reports(tmp_path_factory) -> dict[str, dict]:
+def form_data(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("forms")
-    out = {}
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
     for name, plugins in HIDDEN.items():
-        specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
         generate(DatasetPlan("fee", root / name, specs, effects_for_mode("fee"), plugins=plugins), workers=2,
                  progress=False)
-        out[name] = run_discrepancy(dataset=blind(root / name), out_dir=root / f"{name}_report",
-                                    plots=name == "entry", **{**RUN, "stride": 4})
-    return out
+    return {name: root / name for name in HIDDEN}
 
 
-def _forms(rep):
-    return [a for a in rep["selection"]["accepted"] if a["name"].startswith(term_forms.PREFIX)]
+@pytest.fixture(scope="module")
+def form_reports(form_data, tmp_path_factory) -> dict[str, dict]:
+    return {name: run_discrepancy(dataset=blind(form_data[name]), out_dir=tmp_path_factory.mktemp(name), plots=False,
+                                  **{**RUN, "stride": STRIDE})
+            for name in ("entry", "saturating")}
 
 
 def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_reports):
@@ -71,7 +78,7 @@ def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_re
     assert disc["name"] == first["name"] and disc["axis"] == "x"
     assert not disc["closest_catalogue"]["same_mechanism"]
     assert 0.9 < disc["regime"]["share_of_ticks"] <= 1.0 and disc["regime"]["ranges"]["distance"][0] < 1.0
-    out = Path(rep["outputs"][0]).parent
+    out = Path(rep["outputs"][0]).parent  # discrepancy.json
     md = (out / "discrepancy.md").read_text()
     assert "## Form search" in md and "### Discovered:" in md and "exp(−s /" in md
     saved = json.loads((out / "discrepancy.json").read_text())
@@ -89,19 +96,30 @@ def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_re
     AugmentedFEE(rep["model"]["extra_term_args"])
 
 
-def test_sinking_only_force_gets_its_gate_or_stays_unexplained(form_reports):
-    rep = form_reports["sinking"]
-    search = rep["forms"]["search"]
-    top = term_forms.describe(search["candidates"][0])
-    assert top["axis"] == "z" and top["factor"] in ("sink", "sinkv") and top["sign"] > 0, search["candidates"]
-    assert not [a for a in rep["selection"]["accepted"] if a["name"] in force_terms.CATALOGUE]
-    if rep["verdict"] == "explained":  # seed 0 on this grid: F_z with the sinking gate, held-out RMSE −6 %
-        form = _forms(rep)[0]
-        info = term_forms.describe(form["name"])
-        assert info["axis"] == "z" and info["factor"] in ("sink", "sinkv")
-        assert rep["test"]["after"]["rmse_z"] < rep["test"]["before"]["rmse_z"]
-    else:
-        assert rep["verdict"] == "unexplained" and "v_z" in rep["regimes"]["flagged_variables"]
+def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form_reports):
+    rep = form_reports["saturating"]
+    assert rep["verdict"] == "explained", rep["summary"]
+    (acc,) = rep["selection"]["accepted"]
+    info = term_forms.describe(acc["name"])
+    assert info["axis"] == "x" and info["factor"].startswith("tanhvx") and info["sign"] > 0, acc["name"]
+    assert info["scale"] in ("wd_x", "gd2w_x", "bear_x"), acc["name"]
+    # the catalogue's linear drag was in the same round and lost on held-out groups
+    first = rep["selection"]["rounds"][0]
+    gains = {s["name"]: s["gain"] for s in first["scores"]}
+    assert first["winner"] == acc["name"] and gains["rate_strength"] < gains[acc["name"]]
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_sinking_only_force_gets_its_gate(form_data):
+    frame = build_frame(blind(form_data["sinking"]), stride=STRIDE)
+    sel, _ = split_holdout(frame, 0.3, seed=0)
+    fsel = frame.select(groups=sel)
+    found = search_forms(fsel, AugmentedFEE(), fit_fixed(fsel, AugmentedFEE()), catalogue=list(force_terms.CATALOGUE))
+    top = term_forms.describe(found["candidates"][0])
+    # z, pressing down (k > 0 on a downward scale), gated by the edge sinking
+    assert top["axis"] == "z" and top["factor"] in ("sink", "sinkv") and top["sign"] > 0, found["candidates"]
+    assert found["ols"][0]["t"] > 3
 
 
 def test_form_names_parse_and_act_like_catalogue_terms():

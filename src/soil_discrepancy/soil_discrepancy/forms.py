@@ -44,11 +44,12 @@ from pinn_estimator.classical import FORCE_SCALE_N
 from .fee_fit import ThetaFit
 from .frame import Frame
 
-MAX_CANDIDATES = 4  # forms passed on to the held-out test
+MAX_CANDIDATES = 3  # forms passed on to the held-out test
 MAX_PATH = 8  # longest greedy path the cross-validation considers
 MAX_TICKS = 20_000  # the regression reads at most this many ticks (evenly thinned): 2 x 247 columns of them
 MIN_IDENTIFIABLE = 0.05  # a form's projected norm below this share of its norm: θ absorbs it
 DUPLICATE_COS = 0.999  # projected columns this parallel are one column (the first is kept)
+CATALOGUE_COS = 0.99  # a form this parallel to a catalogue candidate (projected) is that term: not searched
 CLOSE_COS = 0.9  # a form this parallel to a catalogue term (after projection) is that mechanism
 _THETA_STEPS = (1e-3, None, 1e-3)  # φ [rad], c [Pa: 1e-3 c + 10 Pa], δ [rad]
 
@@ -99,7 +100,7 @@ def _project(frame: Frame, J: np.ndarray, *arrays: np.ndarray) -> list[np.ndarra
 
 
 def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, seed: int = 0,
-                 names=None, max_candidates: int = MAX_CANDIDATES, log=None) -> dict:
+                 names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
     """Sparse regression of ``model``'s residual (θ per group ``fit``) on the library of forms.
 
     Returns {'candidates': [signed form names, in the order they entered the greedy path],
@@ -129,9 +130,20 @@ def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int
     absorbed = [names[i] for i in range(len(names)) if norm0[i] > 0 and i not in set(keep)]
     Xn = X[:, keep] / norm[keep]
     keep, Xn = _dedupe(keep, Xn)
+    same = []  # forms that are a catalogue candidate's column: the catalogue's name is kept for it
+    catalogue = [c for c in catalogue if not str(c).startswith(term_forms.PREFIX)]
+    if catalogue and len(keep):
+        (C,) = _project(frame, J, form_bases(frame, fit, catalogue))
+        C = C.reshape(-1, len(catalogue))
+        cn = np.sqrt((C**2).sum(0))
+        C = C[:, cn > 0] / cn[cn > 0]
+        dup = (np.abs(Xn.T @ C) > CATALOGUE_COS).any(1) if C.shape[1] else np.zeros(len(keep), bool)
+        same = [names[i] for i in keep[dup]]
+        keep, Xn = keep[~dup], Xn[:, ~dup]
     rows_group = np.repeat(frame.group, 2)
     n_groups = len(np.unique(rows_group))
     result = {"library_size": len(names), "identifiable": int(len(keep)), "dropped_absorbed": len(absorbed),
+              "same_as_catalogue": same,
               "candidates": [], "ols": [], "n_terms_cv": 0, "cv_r2": None}
     if len(keep) == 0 or n_groups < 2:
         return result

@@ -122,7 +122,7 @@ def markdown(report: dict, figures=()) -> str:
                 lines += [f"### {label}", "", "```json", json.dumps(comp, indent=1, default=_json_default)[:4000], "```", ""]
     lines += ["## Candidate terms (cross-validated across θ-groups, selection part only)", ""]
     for i, rnd in enumerate(report["selection"]["rounds"], 1):
-        lines += [f"Round {i}{' (*forms*)' if rnd.get('stage') == 'forms' else ''} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
+        lines += [f"Round {i}{' (*' + rnd['stage'] + '*)' if rnd.get('stage') else ''} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
                   + (f"; runner-up `{rnd['runner_up']['name']}` (winner better on {rnd['runner_up']['winner_better_episodes']}/"
                      f"{rnd['runner_up']['n_episodes']} episodes, p = {_p(rnd['runner_up']['p_winner_vs_runner_up'])})"
                      if rnd.get("runner_up") else ""), "",
@@ -152,20 +152,25 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
     """Step 3b: the library search and each discovered form (formula, k ± SE, where it acts, closest catalogue term)."""
     if not forms:
         return []
-    if not forms.get("searched"):
-        return ["## Form search", "", "Not run: what the catalogue step leaves has no significant regime structure.", ""]
-    found = forms.get("search") or {}
-    lines = ["## Form search (library of candidate forms, sparse regression)", "",
-             f"Residual structure left after the catalogue step: {', '.join(labels.get(v, v) for v in forms['residual_structure']) or 'none'}. "
-             f"{found.get('library_size', 0)} forms, {found.get('identifiable', 0)} identifiable beside θ "
-             f"({found.get('dropped_absorbed', 0)} absorbed by θ); orthogonal matching pursuit, its length chosen by "
-             f"cross-validation over θ-groups: {found.get('n_terms_cv', 0)} term(s), held-out-group R² of the "
-             f"θ-projected residual {_n(found.get('cv_r2'), '.2f')}.", "",
-             "| candidate (linear refit, θ profiled out) | k ± cluster-robust SE | t |", "|---|---|---|"]
-    for o in found.get("ols", []):
-        lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
-    lines += ["", "Each candidate then faced the held-out test beside the remaining catalogue terms "
-              "(rounds marked *forms* below); a form is accepted only if it beats them there.", ""]
+    lines = ["## Form search (library of candidate forms, sparse regression)", ""]
+    for key, struct, when in (("search", "residual_structure", "the baseline's residual (its candidates join the "
+                               "catalogue's from the first round)"),
+                              ("search_after", "residual_structure_after", "what the named terms leave")):
+        found = forms.get(key)
+        if not found:
+            continue
+        lines += [f"On {when}, structure vs {', '.join(labels.get(v, v) for v in forms.get(struct) or []) or 'none'}: "
+                  f"{found.get('library_size', 0)} forms, {found.get('identifiable', 0)} identifiable beside θ "
+                  f"({found.get('dropped_absorbed', 0)} absorbed by θ, {len(found.get('same_as_catalogue') or [])} the same "
+                  f"column as a catalogue term); orthogonal matching pursuit, its length chosen by cross-validation over "
+                  f"θ-groups: {found.get('n_terms_cv', 0)} term(s), held-out-group R² of the θ-projected residual "
+                  f"{_n(found.get('cv_r2'), '.2f')}.", "",
+                  "| candidate (linear refit, θ profiled out) | k ± cluster-robust SE | t |", "|---|---|---|"]
+        for o in found.get("ols", []):
+            lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
+        lines.append("")
+    lines += ["Each candidate then faced the held-out test beside the catalogue terms (rounds below); a form is "
+              "accepted only if it beats them there, and named only if the held-out test episodes confirm it.", ""]
     if any(f.get("confirmed", True) for f in forms.get("discovered") or []):
         lines += [f"The confirmed forms are saved to `{CATALOGUE_FILE}` (rename them there); the next run tests them "
                   f"beside the catalogue: `soil_discrepancy BAGS --out DIR --catalogue {CATALOGUE_FILE}`.", ""]

@@ -112,26 +112,33 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # 3. name the missing effect, on the selection part only
     sel_groups, test_groups = split_holdout(frame, holdout, seed)
     fsel = frame.select(groups=sel_groups)
-    sel = select_terms(fsel, initial, base, candidates, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
+    # the baseline's residual has structure: library forms join the catalogue from the first round, so a
+    # catalogue term is named only if no form beats it on held-out groups
+    form_report = None
+    pool = list(candidates)
+    if forms and reg0["significant"]:
+        first = search_forms(fsel, initial, base, folds=folds, seed=seed, catalogue=candidates, log=say)
+        form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "search": first}
+        pool += [n for n in first["candidates"] if n not in pool]
+    sel = select_terms(fsel, initial, base, pool, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
                        workers=workers, allow_negative_k=allow_negative_k, log=say)
     final: AugmentedFEE = sel["model"]
     new_terms = [s for s in sel["accepted"]]
     for rnd in sel["rounds"]:
-        rnd["stage"] = "catalogue"
-    # 3b. no catalogue term (or not all of it): the form of what is left
-    form_report = None
-    if forms and len(new_terms) < MAX_TERMS:
-        left = reg0  # nothing named: the baseline's structure is what is left
-        if new_terms:  # what the named terms leave on the selection part
-            left = regime_analysis(fsel, residuals(fsel, final, sel["fit"])[0], edges=edges, alpha=alpha,
-                                   min_effect=min_effect)
-        form_report = {"searched": bool(left["significant"]), "residual_structure": left["flagged_variables"]}
+        rnd["stage"] = "catalogue + forms" if form_report else "catalogue"
+    # 3b. what the named terms leave: its form, searched again on the augmented model's residual
+    if forms and new_terms and len(new_terms) < MAX_TERMS:
+        left = regime_analysis(fsel, residuals(fsel, final, sel["fit"])[0], edges=edges, alpha=alpha,
+                               min_effect=min_effect)
+        form_report = {**(form_report or {}), "searched_after": bool(left["significant"]),
+                       "residual_structure_after": left["flagged_variables"]}
         if left["significant"]:
-            found = search_forms(fsel, final, sel["fit"], folds=folds, seed=seed, log=say)
-            form_report["search"] = found
-            if found["candidates"]:
-                rest = [n for n in candidates if n not in final.names]
-                sel2 = select_terms(fsel, final, sel["fit"], found["candidates"] + rest, folds=folds, seed=seed,
+            found = search_forms(fsel, final, sel["fit"], folds=folds, seed=seed,
+                                 catalogue=[n for n in candidates if n not in final.names], log=say)
+            form_report["search_after"] = found
+            fresh = [n for n in found["candidates"] if n not in final.names]
+            if fresh:  # the catalogue's remaining terms were scored against this model in the last round above
+                sel2 = select_terms(fsel, final, sel["fit"], fresh, folds=folds, seed=seed,
                                     alpha=alpha, min_gain=min_gain, max_terms=MAX_TERMS - len(new_terms),
                                     workers=workers, allow_negative_k=allow_negative_k, log=say)
                 for rnd in sel2["rounds"]:
@@ -139,8 +146,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 sel["rounds"] += sel2["rounds"]
                 new_terms += sel2["accepted"]
                 final, sel["fit"] = sel2["model"], sel2["fit"]
-                form_report["discovered"] = [describe_form(fsel, sel["fit"], s.to_dict()) for s in sel2["accepted"]
-                                             if s.name.startswith(FORM_PREFIX)]
+    if form_report is not None:
+        form_report["discovered"] = [describe_form(fsel, sel["fit"], s.to_dict()) for s in new_terms
+                                     if s.name.startswith(FORM_PREFIX)]
     # 5a. the gap on the held-out test groups (never used above)
     test = test_arrays = ftest = None
     if test_groups:
