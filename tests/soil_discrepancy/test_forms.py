@@ -9,8 +9,8 @@ grid of test_discrepancy.py (stride 4):
   linear in v_x (rate_strength), which also shrinks the error: the form must beat it;
 * sinking_resistance: F_z = −3 γ w d² · min(max(−v_z, 0)/0.01 m/s, 1), only while the edge sinks
   (the library's gate is a hard one at 5 mm/s). The resisting force slows the sinking it depends
-  on, so the measured force follows the gate loosely: only the search is tested here (the whole
-  workflow names the gated z form, held-out RMSE −6 %; see the README).
+  on, so the measured force follows the gate loosely and the held-out gain is small: with a
+  higher least gain the form stays tentative and the verdict "unexplained".
 
 The workflow never sees the plugins (``blind``). Expected: the right scale, axis and factor or gate,
 a held-out error that shrinks, no catalogue name.
@@ -23,9 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from soil_discrepancy import build_frame, run_discrepancy, split_holdout
-from soil_discrepancy.fee_fit import fit_fixed
-from soil_discrepancy.forms import load_catalogue, search_forms
+from soil_discrepancy import run_discrepancy
+from soil_discrepancy.forms import load_catalogue
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -111,15 +110,25 @@ def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
 
 
-def test_sinking_only_force_gets_its_gate(form_data):
-    frame = build_frame(blind(form_data["sinking"]), stride=STRIDE)
-    sel, _ = split_holdout(frame, 0.3, seed=0)
-    fsel = frame.select(groups=sel)
-    found = search_forms(fsel, AugmentedFEE(), fit_fixed(fsel, AugmentedFEE()), catalogue=list(force_terms.CATALOGUE))
-    top = term_forms.describe(found["candidates"][0])
+def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confirms_it(form_data, tmp_path):
+    """min_gain 0.2: the gated form removes ~1/3 of the cross-validated error but only ~11 % of the held-out
+    test episodes' (seed 0): a tentative form, not a name; the verdict stays 'unexplained' with its regimes."""
+    rep = run_discrepancy(dataset=blind(form_data["sinking"]), out_dir=tmp_path, plots=False,
+                          **{**RUN, "stride": STRIDE, "min_gain": 0.2})
+    top = term_forms.describe(rep["forms"]["search"]["candidates"][0])
     # z, pressing down (k > 0 on a downward scale), gated by the edge sinking
-    assert top["axis"] == "z" and top["factor"] in ("sink", "sinkv") and top["sign"] > 0, found["candidates"]
-    assert found["ols"][0]["t"] > 3
+    assert top["axis"] == "z" and top["factor"] in ("sink", "sinkv") and top["sign"] > 0, rep["forms"]["search"]
+    assert rep["forms"]["search"]["ols"][0]["t"] > 3
+    assert not [a for a in rep["selection"]["accepted"] if a["name"] in force_terms.CATALOGUE]
+    tentative = rep["forms"]["not_confirmed"]
+    if tentative is None:  # the held-out episodes confirmed it: then it is the gated z form
+        (acc,) = rep["selection"]["accepted"]
+        assert term_forms.describe(acc["name"])["factor"] in ("sink", "sinkv")
+        return
+    assert rep["verdict"] == "unexplained" and rep["model"]["terms"] == [] and "v_z" in rep["regimes"]["flagged_variables"]
+    assert tentative["forms"] == [d["name"] for d in rep["forms"]["discovered"]] and "tentative" in rep["summary"]
+    assert "NOT confirmed" in (tmp_path / "discrepancy.md").read_text()
+    assert not (tmp_path / "discovered_terms.yaml").exists()
 
 
 def test_form_names_parse_and_act_like_catalogue_terms():

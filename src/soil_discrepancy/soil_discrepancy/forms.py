@@ -254,7 +254,8 @@ def describe_form(frame: Frame, fit: ThetaFit, score: dict) -> dict:
             "scale": info["scale"], "factor": info["factor"], "gate": info["gate"],
             "k": score["k"], "k_se": score["k_se"], "gain": score["gain"], "p_holm": score["p_holm"],
             "regime": acts, "closest_catalogue": close,
-            "proposed_name": close["name"] if close["same_mechanism"] else term_forms.proposed_name(name)}
+            "proposed_name": (f"{close['name']} in another form ({info['words']})" if close["same_mechanism"]
+                              else term_forms.proposed_name(name))}
 
 
 # ------------------------------------------------------------------------------------ a user's catalogue
