@@ -2,9 +2,11 @@
 
 1. fit        θ per θ-group fitted to the measured force; residual r = F_meas − F_model
 2. regimes    residuals by depth, speed, v_z, Q, time, distance, soil, I_d; episode-level tests
-3. candidates every catalogue term cross-validated across groups; greedy forward selection
-3b. forms     if the residual still has structure: sparse regression over a library of forms
-              (``forms``); its few candidates face the same held-out test, beside the catalogue
+3. candidates every catalogue term cross-validated across groups; greedy forward selection.
+              If the baseline residual has structure, the few candidates of a sparse regression
+              over a library of forms (``forms``) join the catalogue's in the same held-out test;
+              what the named terms leave is searched again (3b). A form is named only if the
+              held-out test groups (5) confirm it; else it is reported as tentative.
 4. model      the accepted terms with their k: ``AugmentedFEE`` and the simulator plugin specs
 5. gap        held-out test groups (never used in 3): force error before/after
 
@@ -65,9 +67,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
     (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
-    stopping at the first, naming it (``load_dataset``). forms: when the residual still has regime
-    structure after the catalogue step, search the library of forms (``forms.search_forms``) and
-    test its candidates on held-out groups beside the remaining catalogue terms. user_terms: more
+    stopping at the first, naming it (``load_dataset``). forms: when the residual has regime structure,
+    search the library of forms (``forms.search_forms``) and test its candidates beside the catalogue
+    terms (named only if the held-out test groups confirm them). user_terms: more
     candidate term names (e.g. forms from an earlier run's ``discovered_terms.yaml``, ``forms.load_catalogue``),
     tested like catalogue terms.
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
