@@ -149,3 +149,22 @@ def test_form_names_parse_and_act_like_catalogue_terms():
     for bad in ("form:gd2w_z", "form:nope*sink", "form:gd2w_z*nope", "gd2w_z*sink"):
         with pytest.raises(ValueError):
             force_terms.get_term(bad)
+
+
+def test_a_form_is_a_pinn_extra_term_with_gradients_and_asks_for_the_travel_it_uses():
+    import torch
+
+    from pinn_estimator.model import ModelConfig
+
+    assert ModelConfig(kind="pinn", extra_terms=("form:gd2w_x*enter2=1.4",)).needs_distance
+    assert not ModelConfig(kind="pinn", extra_terms=("form:bear_z*sink=0.4",)).needs_distance
+    assert term_forms.DISTANCE_FACTORS == {"s", "enter0.5", "enter2", "sat2", "sat6"}
+    n = 3
+    t = lambda v: torch.full((n,), float(v), dtype=torch.float64)  # noqa: E731
+    phi = t(0.6).requires_grad_()
+    s = ForceInputs(d=t(0.2), q=t(2e3), v_x=t(0.5), v_z=torch.tensor([-0.1, 0.0, 0.01], dtype=torch.float64),
+                    gamma=t(18e3), w=t(3.0), rho=t(1.4), alpha=t(0.0), phi=phi, c=t(2e3), delta=t(0.3),
+                    distance_in_soil=t(1.0), f_fee_x=t(1e4), f_fee_z=t(-5e3), c_a=t(0.0))
+    total = sum(sum(force_terms.get_term(name).basis(s)) for name in ("form:bear_z*sink", "form:-qnq*1"))
+    total.sum().backward()
+    assert torch.isfinite(phi.grad).all() and (phi.grad != 0).all()

@@ -175,6 +175,17 @@ def _form_basis(name: str, s: ForceInputs, xp):
     return term_forms.basis(name, s, xp)
 
 
+DISTANCE_TERMS = frozenset({"compaction_hardening"})  # catalogue terms that look at the travel in soil
+
+
+def uses_distance(name: str) -> bool:
+    """True if term ``name`` (catalogue or form) looks at the blade's travel in soil (``distance_in_soil``)."""
+    get_term(name)
+    if name.startswith(term_forms.PREFIX):
+        return term_forms.uses_distance(name)
+    return name in DISTANCE_TERMS
+
+
 def parse_terms(specs) -> tuple[tuple[str, float], ...]:
     """'name=k' strings (or (name, k) pairs) -> ((name, k), ...); ValueError naming the bad one."""
     out = []

@@ -125,6 +125,14 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
 )}
 
 
+DISTANCE_FACTORS = frozenset(n for n in FACTORS if n == "s" or n.startswith(("enter", "sat")))  # look at travel s
+
+
+def uses_distance(name: str) -> bool:
+    """True if the form looks at the blade's travel in soil (a model must be given it)."""
+    return parse(name)[2].name in DISTANCE_FACTORS
+
+
 def form_names(scales=None, factors=None) -> list[str]:
     """Every 'form:<scale>*<factor>' of the library (both signs are the same column; '+' only)."""
     return [f"{PREFIX}{a}*{b}" for a in (scales or SCALES) for b in (factors or FACTORS)]
@@ -181,4 +189,4 @@ def proposed_name(name: str) -> str:
     return f"{b.words} × {a.words}" + (" (relief)" if sign < 0 else "")
 
 
-__all__ = ["PREFIX", "SCALES", "FACTORS", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]
+__all__ = ["PREFIX", "SCALES", "FACTORS", "DISTANCE_FACTORS", "uses_distance", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]
