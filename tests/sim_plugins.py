@@ -37,3 +37,31 @@ def record_density(state):
     sees what the simulator hands its plugins."""
     SEEN_DENSITY.append((np.array(state.x_b, dtype=float), np.array(state.relative_density_pct, dtype=float)))
     return 0.0, 0.0
+
+
+def sinking_resistance(state, k: float = 3.0, v0: float = 0.01, axis: str = "z"):
+    """Hidden effect whose form is not in the catalogue: while the edge sinks, the soil resists,
+    k γ w d² · min(max(−v_z, 0)/v0, 1) [N], pressing down (axis 'z') or dragging (axis 'x');
+    nothing while the edge holds its depth or rises. The gate ramps on over the first ``v0``
+    [m/s] of sinking speed (not the form library's hard gate)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    gate = np.clip(-np.asarray(state.v_z, dtype=float) / float(v0), 0.0, 1.0)
+    force = float(k) * state.gamma * state.w * d**2 * gate
+    return (force, np.zeros_like(d)) if axis == "x" else (np.zeros_like(d), -force)
+
+
+def entry_resistance(state, k: float = 2.0, s0: float = 1.0):
+    """Hidden effect whose form is not in the catalogue: undisturbed soil at the start of a cut
+    resists more, and the extra drag fades as the blade travels, F_x = k γ w d² · exp(−s/s0) [N]
+    (s the blade's travel in soil, ``s0`` [m] between the form library's decay lengths)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    fade = np.exp(-np.asarray(state.distance_in_soil, dtype=float) / float(s0))
+    return float(k) * state.gamma * state.w * d**2 * fade, np.zeros_like(d)
+
+
+def saturating_drag(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
+    """Hidden effect whose form is not in the catalogue: a drag that grows with speed and saturates,
+    F_x = k w d p · tanh(v_x / v0) [N] (the catalogue's rate-dependent strength is linear in v_x)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return float(k) * state.w * d * float(p_pa) * np.tanh(v / float(v0)), np.zeros_like(d)

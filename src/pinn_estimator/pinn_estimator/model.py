@@ -39,7 +39,7 @@ FORCE_SCALE_N = FORCE_LIMITS_N
 RESIDUAL_FORCE_FRACTION = 0.1
 # Catalogue terms whose basis depends on ForceInputs.distance_in_soil: a model using one needs
 # the ``distance`` input (tests check no other catalogue term looks at it).
-DISTANCE_TERMS = frozenset({"compaction_hardening"})
+DISTANCE_TERMS = X.DISTANCE_TERMS  # catalogue terms; forms on the travel s too (X.uses_distance)
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ class ModelConfig:
     @property
     def needs_distance(self) -> bool:
         """True if a configured extra term needs the ``distance`` (travel in soil) input."""
-        return any(name in DISTANCE_TERMS for name, _ in self.extra_terms)
+        return any(X.uses_distance(name) for name, _ in self.extra_terms)
 
     @classmethod
     def from_dict(cls, data: dict) -> "ModelConfig":
@@ -236,7 +236,7 @@ class EstimatorNet(nn.Module):
         n = len(fx)
         if distance is None:
             if self.cfg.needs_distance:
-                used = sorted(name for name, _ in self.cfg.extra_terms if name in DISTANCE_TERMS)
+                used = sorted(name for name, _ in self.cfg.extra_terms if X.uses_distance(name))
                 raise ValueError(
                     f"extra term(s) {used} need the blade's travel in soil: call model(obs, known, distance=...) "
                     f"with Dataset.distance_in_soil of the episode at each window's newest sample"

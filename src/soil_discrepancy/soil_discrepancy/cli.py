@@ -39,6 +39,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
     add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--catalogue", type=Path, default=None, metavar="YAML",
+                   help="your own catalogue of terms, tested beside the built-in one (e.g. an earlier run's "
+                        "discovered_terms.yaml: terms: [{term: form:<scale>*<factor>, name: ..., k: ...}])")
+    p.add_argument("--no-forms", action="store_true",
+                   help="do not search the library of forms when no catalogue term explains the residual")
     p.add_argument("--pinn-epochs", type=int, default=0,
                    help="also retrain the PINN without and with the named effect for this many epochs on the "
                         "selection episodes and compare them on the held-out ones (default 0: skip)")
@@ -55,6 +60,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
+    from .forms import load_catalogue
     from .workflow import run_discrepancy
 
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
@@ -66,11 +72,12 @@ def main(argv=None) -> int:
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
+        user_terms = [t["term"] for t in load_catalogue(args.catalogue)] if args.catalogue else ()
         report = run_discrepancy(
             args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
             seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
             allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
-            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, log=log,
+            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms, log=log,
         )
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .forms import CATALOGUE_FILE, catalogue_yaml
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -28,6 +29,9 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
     paths.insert(0, _atomic(out / "discrepancy.json", json.dumps(report, indent=1, default=_json_default)))
     paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
+    found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
+    if found is not None:
+        paths.append(_atomic(out / CATALOGUE_FILE, found))
     return paths
 
 
@@ -88,6 +92,7 @@ def markdown(report: dict, figures=()) -> str:
         lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
         lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
                   "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
+    lines += _forms_md(report.get("forms"), report.get("test"), labels)
     test = report.get("test")
     if test:
         lines += ["## Held-out test episodes: force error before/after", "",
@@ -117,7 +122,7 @@ def markdown(report: dict, figures=()) -> str:
                 lines += [f"### {label}", "", "```json", json.dumps(comp, indent=1, default=_json_default)[:4000], "```", ""]
     lines += ["## Candidate terms (cross-validated across θ-groups, selection part only)", ""]
     for i, rnd in enumerate(report["selection"]["rounds"], 1):
-        lines += [f"Round {i} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
+        lines += [f"Round {i}{' (*' + rnd['stage'] + '*)' if rnd.get('stage') else ''} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"
                   + (f"; runner-up `{rnd['runner_up']['name']}` (winner better on {rnd['runner_up']['winner_better_episodes']}/"
                      f"{rnd['runner_up']['n_episodes']} episodes, p = {_p(rnd['runner_up']['p_winner_vs_runner_up'])})"
                      if rnd.get("runner_up") else ""), "",
@@ -141,6 +146,55 @@ def markdown(report: dict, figures=()) -> str:
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     return "\n".join(lines)
+
+
+def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
+    """Step 3b: the library search and each discovered form (formula, k ± SE, where it acts, closest catalogue term)."""
+    if not forms:
+        return []
+    lines = ["## Form search (library of candidate forms, sparse regression)", ""]
+    for key, struct, when in (("search", "residual_structure", "the baseline's residual (its candidates join the "
+                               "catalogue's from the first round)"),
+                              ("search_after", "residual_structure_after", "what the named terms leave")):
+        found = forms.get(key)
+        if not found:
+            continue
+        lines += [f"On {when}, structure vs {', '.join(labels.get(v, v) for v in forms.get(struct) or []) or 'none'}: "
+                  f"{found.get('library_size', 0)} forms, {found.get('identifiable', 0)} identifiable beside θ "
+                  f"({found.get('dropped_absorbed', 0)} absorbed by θ, {len(found.get('same_as_catalogue') or [])} the same "
+                  f"column as a catalogue term); orthogonal matching pursuit, its length chosen by cross-validation over "
+                  f"θ-groups: {found.get('n_terms_cv', 0)} term(s), held-out-group R² of the θ-projected residual "
+                  f"{_n(found.get('cv_r2'), '.2f')}.", "",
+                  "| candidate (linear refit, θ profiled out) | k ± cluster-robust SE | t |", "|---|---|---|"]
+        for o in found.get("ols", []):
+            lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
+        lines.append("")
+    lines += ["Each candidate then faced the held-out test beside the catalogue terms (rounds below); a form is "
+              "accepted only if it beats them there, and named only if the held-out test episodes confirm it.", ""]
+    if any(f.get("confirmed", True) for f in forms.get("discovered") or []):
+        lines += [f"The confirmed forms are saved to `{CATALOGUE_FILE}` (rename them there); the next run tests them "
+                  f"beside the catalogue: `soil_discrepancy BAGS --out DIR --catalogue {CATALOGUE_FILE}`.", ""]
+    for f in forms.get("discovered") or []:
+        reg = f["regime"]
+        where = "; ".join(f"{labels.get(v, v)} {lo:.3g}…{hi:.3g}" for v, (lo, hi) in reg["ranges"].items())
+        close = f["closest_catalogue"]
+        status = "Discovered" if f.get("confirmed", True) else "Tentative, NOT confirmed on the held-out test (not named)"
+        lines += [f"### {status}: {f['proposed_name']}", "",
+                  f"- Expression: {f['formula']} (`{f['name']}`), k = {f['k']:.4g} ± {_n(f['k_se'], '.2g')} "
+                  f"(jackknife over folds); in words: {f['words']}.",
+                  f"- Acts on {100 * reg['share_of_ticks']:.0f} % of the analysed ticks (mean |ΔF| {reg['mean_abs_force_n']:.0f} N, "
+                  f"max {reg['max_abs_force_n']:.0f} N), there: {where}.",
+                  f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
+                  + ("the same mechanism)" if close["same_mechanism"] else "not the same: a new mechanism)"),
+                  f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
+        nc = forms.get("not_confirmed")
+        if nc:
+            lines.append(f"- Held-out test RMSE with the tentative form(s) {_n(nc['test_rmse_before'])} N → "
+                         f"{_n(nc['test_rmse_after'])} N: below the least gain, so the model keeps none of them.")
+        elif test and test["before"]["rmse"] is not None:
+            lines.append(f"- Held-out test RMSE (all named terms) {_n(test['before']['rmse'])} N → {_n(test['after']['rmse'])} N.")
+        lines.append("")
+    return lines
 
 
 PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs them

@@ -2,7 +2,11 @@
 
 1. fit        θ per θ-group fitted to the measured force; residual r = F_meas − F_model
 2. regimes    residuals by depth, speed, v_z, Q, time, distance, soil, I_d; episode-level tests
-3. candidates every catalogue term cross-validated across groups; greedy forward selection
+3. candidates every catalogue term cross-validated across groups; greedy forward selection.
+              If the baseline residual has structure, the few candidates of a sparse regression
+              over a library of forms (``forms``) join the catalogue's in the same held-out test;
+              what the named terms leave is searched again (3b). A form is named only if the
+              held-out test groups (5) confirm it; else it is reported as tentative.
 4. model      the accepted terms with their k: ``AugmentedFEE`` and the simulator plugin specs
 5. gap        held-out test groups (never used in 3): force error before/after
 
@@ -17,10 +21,12 @@ import time
 from pathlib import Path
 
 from soil_physics import force_terms
+from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
-from .candidates import select_terms, split_holdout
+from .candidates import MAX_TERMS, select_terms, split_holdout
+from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
 from .gap import compare_predictions, fee_gap
@@ -44,7 +50,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
                     predictors=None, cache: bool = True, skip_bad_bags: bool = False,
-                    plots: bool = True, log=print) -> dict:
+                    plots: bool = True, forms: bool = True, user_terms=(), log=print) -> dict:
     """The whole workflow on a bag directory (or a ``Dataset``/``Frame``); returns the report dict.
 
     terms: candidate term names (default: the whole catalogue); accepted: terms already in the
@@ -61,7 +67,11 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
     (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
-    stopping at the first, naming it (``load_dataset``).
+    stopping at the first, naming it (``load_dataset``). forms: when the residual has regime structure,
+    search the library of forms (``forms.search_forms``) and test its candidates beside the catalogue
+    terms (named only if the held-out test groups confirm them). user_terms: more
+    candidate term names (e.g. forms from an earlier run's ``discovered_terms.yaml``, ``forms.load_catalogue``),
+    tested like catalogue terms.
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -75,6 +85,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         raise ValueError(f"min_gain={min_gain} must be in [0, 1)")
     initial = AugmentedFEE(accepted)
     candidates = _candidates(terms, initial)
+    candidates += [n for n in dict.fromkeys(user_terms or ()) if n not in candidates and n not in initial.names]
     if frame is None:
         if dataset is None:
             if bag_dir is None:
@@ -103,22 +114,73 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # 3. name the missing effect, on the selection part only
     sel_groups, test_groups = split_holdout(frame, holdout, seed)
     fsel = frame.select(groups=sel_groups)
-    sel = select_terms(fsel, initial, base, candidates, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
+    # the baseline's residual has structure: library forms join the catalogue from the first round, so a
+    # catalogue term is named only if no form beats it on held-out groups
+    form_report = None
+    pool = list(candidates)
+    if forms and reg0["significant"]:
+        first = search_forms(fsel, initial, base, folds=folds, seed=seed, catalogue=candidates, log=say)
+        form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "search": first}
+        pool += [n for n in first["candidates"] if n not in pool]
+    sel = select_terms(fsel, initial, base, pool, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
                        workers=workers, allow_negative_k=allow_negative_k, log=say)
     final: AugmentedFEE = sel["model"]
     new_terms = [s for s in sel["accepted"]]
+    for rnd in sel["rounds"]:
+        rnd["stage"] = "catalogue + forms" if form_report else "catalogue"
+    # 3b. what the named terms leave: its form, searched again on the augmented model's residual
+    if forms and new_terms and len(new_terms) < MAX_TERMS:
+        left = regime_analysis(fsel, residuals(fsel, final, sel["fit"])[0], edges=edges, alpha=alpha,
+                               min_effect=min_effect)
+        form_report = {**(form_report or {}), "searched_after": bool(left["significant"]),
+                       "residual_structure_after": left["flagged_variables"]}
+        if left["significant"]:
+            found = search_forms(fsel, final, sel["fit"], folds=folds, seed=seed,
+                                 catalogue=[n for n in candidates if n not in final.names], log=say)
+            form_report["search_after"] = found
+            fresh = [n for n in found["candidates"] if n not in final.names]
+            if fresh:  # the catalogue's remaining terms were scored against this model in the last round above
+                sel2 = select_terms(fsel, final, sel["fit"], fresh, folds=folds, seed=seed,
+                                    alpha=alpha, min_gain=min_gain, max_terms=MAX_TERMS - len(new_terms),
+                                    workers=workers, allow_negative_k=allow_negative_k, log=say)
+                for rnd in sel2["rounds"]:
+                    rnd["stage"] = "forms"
+                sel["rounds"] += sel2["rounds"]
+                new_terms += sel2["accepted"]
+                final, sel["fit"] = sel2["model"], sel2["fit"]
+    if form_report is not None:
+        form_report["discovered"] = [describe_form(fsel, sel["fit"], s.to_dict()) for s in new_terms
+                                     if s.name.startswith(FORM_PREFIX)]
+    # 5a. the gap on the held-out test groups (never used above)
+    test = test_arrays = ftest = None
+    if test_groups:
+        ftest = frame.select(groups=test_groups)
+        test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
+        forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
+        if forms_in and (test["sse_reduction"] is None or test["sse_reduction"] < min_gain):
+            # a form from a library of hundreds is a claim only if the test episodes confirm it
+            say(f"not confirmed on the held-out test episodes (RMSE {test['before']['rmse']:.0f} -> "
+                f"{test['after']['rmse']:.0f} N): the form(s) {', '.join(s.name for s in forms_in)} are not named")
+            form_report["not_confirmed"] = {"forms": [s.name for s in forms_in], "test_rmse_before": test["before"]["rmse"],
+                                            "test_rmse_after": test["after"]["rmse"],
+                                            "sse_reduction": test["sse_reduction"]}
+            for d in form_report.get("discovered") or []:
+                d["confirmed"] = False
+            new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)]
+            final = AugmentedFEE([t for t in final.terms if not t[0].startswith(FORM_PREFIX)])
+            test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
+        else:
+            for d in (form_report or {}).get("discovered") or []:
+                d["confirmed"] = True
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
         fit1 = fit_fixed(frame, final, base.merged(sel["fit"]))
         r1, _ = residuals(frame, final, fit1)
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
-    # 5. the gap on the held-out test groups
-    test = None
+    # 5b. other models' before/after on the held-out test groups
     arrays = {"frame": frame, "edges": edges, "r0": r0, "r1": r1}
     if test_groups:
-        ftest = frame.select(groups=test_groups)
-        test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
         arrays.update(test_frame=ftest, test=test_arrays)
         if predictors:
             context = {"dataset": dataset, "selection_episodes": frame.episode_names(sel_groups),
@@ -132,7 +194,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 else:
                     pb, pa = got
                     test["predictors"][str(label)] = compare_predictions(ftest, pb, pa, label=str(label), edges=edges)
-    verdict, summary = _verdict(new_terms, reg0, test, min_gain, reg1)
+    verdict, summary = _verdict(new_terms, reg0, test, min_gain, reg1, form_report)
     say(summary)
     report = {
         "version": REPORT_VERSION,
@@ -142,7 +204,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         "settings": {"holdout": holdout, "folds": folds, "seed": seed, "stride": frame.stride, "alpha": alpha,
                      "min_gain": min_gain, "min_effect": min_effect, "group_by": frame.group_by,
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
-                     "allow_negative_k": allow_negative_k, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
+                     "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
                      "workers": workers},
         "data": {**_data_summary(frame, sel_groups, test_groups),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []]},
@@ -153,6 +215,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                       "accepted": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in new_terms]},
         "model": {"terms": [list(t) for t in final.terms], "plugin_specs": final.plugin_specs(),
                   "extra_term_args": final.extra_term_args()},
+        "forms": form_report,
         "regimes_after": reg1,
         "test": test,
         "notes": _notes(frame),
@@ -221,7 +284,8 @@ def _notes(frame: Frame) -> list[str]:
     return notes
 
 
-def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: dict | None = None) -> tuple[str, str]:
+def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: dict | None = None,
+             forms: dict | None = None) -> tuple[str, str]:
     labels = variable_labels()
     if new_terms:
         parts = []
@@ -229,7 +293,10 @@ def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: di
             unit = force_terms.get_term(s.name).k_unit
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
-            parts.append(f"{s.name} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
+            label = s.name
+            if s.name.startswith(FORM_PREFIX):
+                label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
+            parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
         text = "missing effect: " + "; ".join(parts)
         if test is not None and test["before"]["rmse"] is not None and test["after"]["rmse"] is not None:
             b, a = test["before"]["rmse"], test["after"]["rmse"]
@@ -242,8 +309,15 @@ def _verdict(new_terms, reg0: dict, test: dict | None, min_gain: float, reg1: di
         return "explained", text
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
-        return "unexplained", (f"unexplained: the model and the data disagree systematically (residual structure vs "
-                               f"{names}), but no catalogue term explains it on held-out episodes")
+        what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
+        text = (f"unexplained: the model and the data disagree systematically (residual structure vs {names}), but "
+                f"{what} it on held-out episodes")
+        tentative = (forms or {}).get("not_confirmed")
+        if tentative:
+            text += (f" (tentative forms {', '.join(tentative['forms'])} passed cross-validation on the selection part "
+                     f"but not the held-out test: RMSE {tentative['test_rmse_before']:.0f} -> "
+                     f"{tentative['test_rmse_after']:.0f} N)")
+        return "unexplained", text
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error")

@@ -20,12 +20,14 @@ force, and the blade's travel in soil integrated from v_x and d (``travel``).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
+from . import term_forms
 from . import xp as _xp
 from .bearing import EDGE_WIDTH_M, bearing_factors
 from .fee import beta_star
@@ -151,10 +153,37 @@ CATALOGUE: dict[str, Term] = {
 
 
 def get_term(name: str) -> Term:
+    """A catalogue term by name, or a library form 'form:<scale>*<factor>' (``term_forms``)."""
+    if isinstance(name, str) and name.startswith(term_forms.PREFIX):
+        return _form_term(name)
     try:
         return CATALOGUE[name]
     except KeyError:
-        raise ValueError(f"effect term={name!r} is not one of {sorted(CATALOGUE)}") from None
+        raise ValueError(f"effect term={name!r} is not one of {sorted(CATALOGUE)} "
+                         f"nor a form '{term_forms.PREFIX}<scale>*<factor>'") from None
+
+
+@functools.lru_cache(maxsize=1024)
+def _form_term(name: str) -> Term:
+    info = term_forms.describe(name)  # ValueError naming the bad scale/factor
+    return Term(name, info["title"], info["formula"], "1", 1.0,
+                "a form found by sparse regression over the library of candidate forms (soil_discrepancy.forms)",
+                functools.partial(_form_basis, name))
+
+
+def _form_basis(name: str, s: ForceInputs, xp):
+    return term_forms.basis(name, s, xp)
+
+
+DISTANCE_TERMS = frozenset({"compaction_hardening"})  # catalogue terms that look at the travel in soil
+
+
+def uses_distance(name: str) -> bool:
+    """True if term ``name`` (catalogue or form) looks at the blade's travel in soil (``distance_in_soil``)."""
+    get_term(name)
+    if name.startswith(term_forms.PREFIX):
+        return term_forms.uses_distance(name)
+    return name in DISTANCE_TERMS
 
 
 def parse_terms(specs) -> tuple[tuple[str, float], ...]:

@@ -1,0 +1,306 @@
+"""Step 3b: when no catalogue term explains the residual, find its *form* by sparse regression.
+
+The library (``soil_physics.term_forms``) holds a few hundred candidate forms, each a force [N] up
+to a dimensionless coefficient: a scale (the FEE force, γ d² w, w d P_ref, (γ/g) w d v_x², Q, the
+edge's bearing capacity, the model's downward push) times a factor or gate (v_x, v_x², d, travel
+s, saturating tanh(v_x/v0), entering exp(−s/s0), growing 1 − exp(−s/s0), and the gates "edge
+sinking", "edge rising", "holding depth", "at a force limit").
+
+1. Linearise the current model around its fitted θ per θ-group: r ≈ J_g Δθ_g + Σ_j k_j B_j.
+   θ is refitted whenever a term is added, so what a form can explain is only the part of its
+   basis that θ cannot absorb. Both the residual and every form's basis are projected, group by
+   group, onto the orthogonal complement of that group's three θ-columns J_g (finite
+   differences of the model force in φ, c, δ): the profile likelihood of k with θ free, to
+   first order. A form that θ absorbs entirely (|projected| < ``MIN_IDENTIFIABLE`` of its
+   norm) is not identifiable and is dropped.
+2. Orthogonal matching pursuit (scikit-learn ``OrthogonalMatchingPursuitCV``: greedy forward
+   selection with a least-squares refit at every step) on the projected, unit-norm columns, the
+   number of terms chosen by cross-validation with ``GroupKFold`` over θ-groups (a soil is never
+   in its own fold's training part). Rows are the ticks' normalised x and z residuals (the
+   machine force limits 20 kN, 30 kN, as in every fit here). The lasso was tried first: with
+   hundreds of strongly correlated columns it spreads the weight over dozens of them and its
+   largest coefficients were not the hidden form; the greedy path's first entries were.
+3. The first forms on that path (``MAX_CANDIDATES``), each signed so that k > 0, are refitted
+   together by ordinary least squares on the projected columns, with cluster-robust (by
+   episode: ticks of one episode are autocorrelated) standard errors.
+
+The forms so found are only *candidates*: the workflow passes them, with the remaining catalogue
+terms, to the same held-out test every catalogue term faces (``candidates.select_terms``: k and θ
+refitted jointly on the training groups, θ refitted on the held-out groups, a Wilcoxon test over
+held-out episodes, Holm, a least gain, a determined k). A form is accepted only if it beats every
+catalogue term there; nothing passes on the regression alone.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from soil_physics import force_terms, term_forms
+from soil_physics.augmented_fee import AugmentedFEE
+
+from pinn_estimator.classical import FORCE_SCALE_N
+from .fee_fit import ThetaFit
+from .frame import Frame
+
+MAX_CANDIDATES = 3  # forms passed on to the held-out test
+MAX_PATH = 8  # longest greedy path the cross-validation considers
+MAX_TICKS = 20_000  # the regression reads at most this many ticks (evenly thinned): 2 x 247 columns of them
+MIN_IDENTIFIABLE = 0.05  # a form's projected norm below this share of its norm: θ absorbs it
+DUPLICATE_COS = 0.999  # projected columns this parallel are one column (the first is kept)
+CATALOGUE_COS = 0.99  # a form this parallel to a catalogue candidate (projected) is that term: not searched
+CLOSE_COS = 0.9  # a form this parallel to a catalogue term (after projection) is that mechanism
+_THETA_STEPS = (1e-3, None, 1e-3)  # φ [rad], c [Pa: 1e-3 c + 10 Pa], δ [rad]
+
+
+def _c_step(c):
+    return 1e-3 * np.abs(c) + 10.0
+
+
+def theta_jacobian(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> np.ndarray:
+    """(N, 2, 3) ∂F_model/∂(φ, c, δ) per tick, normalised by the force scales (forward differences)."""
+    theta = [np.asarray(a, float) for a in fit.per_tick(frame)]
+    f0 = np.stack(model.force(theta, frame.known, frame.distance), -1)
+    cols = []
+    for j in range(3):
+        th = [a.copy() for a in theta]
+        h = _c_step(th[1]) if j == 1 else np.full(len(frame), _THETA_STEPS[j])
+        th[j] = th[j] + h
+        f1 = np.stack(model.force(th, frame.known, frame.distance), -1)
+        cols.append((f1 - f0) / h[:, None] / FORCE_SCALE_N)
+    J = np.stack(cols, -1)
+    return np.where(np.isfinite(J), J, 0.0)
+
+
+def form_bases(frame: Frame, fit: ThetaFit, names) -> np.ndarray:
+    """(N, 2, P) basis of each named term (form or catalogue) at the fitted θ, normalised by the force scales."""
+    theta = fit.per_tick(frame)
+    model = AugmentedFEE()
+    out = np.zeros((len(frame), 2, len(names)))
+    for i, n in enumerate(names):
+        bx, bz = model.basis(n, theta, frame.known, frame.distance)
+        out[:, 0, i], out[:, 1, i] = bx, bz
+    return out / FORCE_SCALE_N[None, :, None]
+
+
+def _project(frame: Frame, J: np.ndarray, *arrays: np.ndarray) -> list[np.ndarray]:
+    """Per θ-group, remove from each (N, 2, ...) array its least-squares fit by the group's θ-columns J."""
+    out = [a.reshape(len(frame), 2, -1).copy() for a in arrays]
+    group = frame.group
+    for g in np.unique(group):
+        m = group == g
+        Jg = J[m].reshape(-1, 3)
+        u, s, _ = np.linalg.svd(Jg, full_matrices=False)
+        u = u[:, s > 1e-9 * max(float(s.max()), 1e-300)]
+        for a in out:
+            block = a[m].reshape(-1, a.shape[-1])
+            a[m] = (block - u @ (u.T @ block)).reshape(-1, 2, a.shape[-1])
+    return out
+
+
+def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, seed: int = 0,
+                 names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
+    """Sparse regression of ``model``'s residual (θ per group ``fit``) on the library of forms.
+
+    Returns {'candidates': [signed form names, in the order they entered the greedy path],
+    'library_size', 'identifiable', 'n_terms_cv' (the path length cross-validation chose),
+    'cv_r2' (held-out-group share of the θ-projected residual that path explains),
+    'ols': [{'name', 'k', 'k_se', 't'}], 'dropped_absorbed'}. ``names``: the library (default all forms).
+    """
+    from sklearn.linear_model import LinearRegression, OrthogonalMatchingPursuitCV, orthogonal_mp
+    from sklearn.model_selection import GroupKFold
+
+    names = list(names or term_forms.form_names())
+    theta = fit.per_tick(frame)
+    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True)
+    resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N
+    ok = ok & np.isfinite(resid).all(-1)
+    if len(ok) > MAX_TICKS:  # thin evenly (ticks of an episode are autocorrelated: little is lost)
+        ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
+    if not ok.all():
+        frame, resid = _subset(frame, ok), resid[ok]
+    J = theta_jacobian(frame, model, fit)
+    B = form_bases(frame, fit, names)
+    norm0 = np.sqrt((B**2).sum((0, 1)))
+    y, X = _project(frame, J, resid[..., None], B)
+    y, X = y.reshape(-1), X.reshape(-1, len(names))
+    norm = np.sqrt((X**2).sum(0))
+    keep = np.nonzero((norm0 > 0) & (norm > MIN_IDENTIFIABLE * np.maximum(norm0, 1e-300)))[0]
+    absorbed = [names[i] for i in range(len(names)) if norm0[i] > 0 and i not in set(keep)]
+    Xn = X[:, keep] / norm[keep]
+    keep, Xn = _dedupe(keep, Xn)
+    same = []  # forms that are a catalogue candidate's column: the catalogue's name is kept for it
+    catalogue = [c for c in catalogue if not str(c).startswith(term_forms.PREFIX)]
+    if catalogue and len(keep):
+        (C,) = _project(frame, J, form_bases(frame, fit, catalogue))
+        C = C.reshape(-1, len(catalogue))
+        cn = np.sqrt((C**2).sum(0))
+        C = C[:, cn > 0] / cn[cn > 0]
+        dup = (np.abs(Xn.T @ C) > CATALOGUE_COS).any(1) if C.shape[1] else np.zeros(len(keep), bool)
+        same = [names[i] for i in keep[dup]]
+        keep, Xn = keep[~dup], Xn[:, ~dup]
+    rows_group = np.repeat(frame.group, 2)
+    n_groups = len(np.unique(rows_group))
+    result = {"library_size": len(names), "identifiable": int(len(keep)), "dropped_absorbed": len(absorbed),
+              "same_as_catalogue": same,
+              "candidates": [], "ols": [], "n_terms_cv": 0, "cv_r2": None}
+    if len(keep) == 0 or n_groups < 2:
+        return result
+    cv = list(GroupKFold(n_splits=min(folds, n_groups)).split(Xn, y, rows_group))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # near-collinear columns
+        omp = OrthogonalMatchingPursuitCV(fit_intercept=False, cv=cv, max_iter=MAX_PATH).fit(Xn, y)
+        path = orthogonal_mp(Xn, y, n_nonzero_coefs=max(omp.n_nonzero_coefs_, 1), return_path=True)
+    path = np.asarray(path).reshape(Xn.shape[1], -1)
+    entered = []  # columns in the order they entered the greedy path
+    for step in range(path.shape[1]):
+        entered += [int(i) for i in np.nonzero(path[:, step])[0] if int(i) not in entered]
+    coef = omp.coef_
+    order = [i for i in entered if coef[i] != 0][:max_candidates]
+    chosen = [names[keep[i]] if coef[i] > 0 else term_forms.negated(names[keep[i]]) for i in order]
+    # held-out-group share of the θ-projected residual explained at the chosen number of terms
+    held_mse, null_mse = [], []
+    for tr, te in cv:
+        sub = orthogonal_mp(Xn[tr], y[tr], n_nonzero_coefs=max(omp.n_nonzero_coefs_, 1))
+        held_mse.append(float(np.mean((y[te] - Xn[te] @ sub) ** 2)))
+        null_mse.append(float(np.mean(y[te] ** 2)))
+    result.update(n_terms_cv=int(omp.n_nonzero_coefs_), candidates=chosen,
+                  cv_r2=1.0 - float(np.sum(held_mse)) / max(float(np.sum(null_mse)), 1e-300))
+    if order:
+        cols = X[:, [keep[i] for i in order]] * np.sign(coef[order])
+        ols = LinearRegression(fit_intercept=False).fit(cols, y)
+        se = _cluster_se(cols, y - ols.predict(cols), np.repeat(frame.episode, 2))
+        result["ols"] = [{"name": n, "k": float(k), "k_se": float(s), "t": float(k / s) if s > 0 else math.inf}
+                         for n, k, s in zip(chosen, ols.coef_, se)]
+    if log:
+        log(f"form search: {len(names)} forms, {len(keep)} identifiable beside θ ({len(absorbed)} absorbed by θ); "
+            f"orthogonal matching pursuit (GroupKFold over {n_groups} θ-groups) chose {result['n_terms_cv']} term(s), "
+            f"cross-validated R² {result['cv_r2']:.2f}; candidates: {', '.join(chosen) or 'none'}")
+    return result
+
+
+def _subset(frame: Frame, mask: np.ndarray) -> Frame:
+    from dataclasses import replace
+
+    return replace(frame, episode=frame.episode[mask], rows=frame.rows[mask], t=frame.t[mask],
+                   known=frame.known[mask], forces=frame.forces[mask], distance=frame.distance[mask])
+
+
+def _dedupe(keep: np.ndarray, Xn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop columns (unit norm) parallel to an earlier one."""
+    gram = np.abs(Xn.T @ Xn)
+    drop = set()
+    for i in range(len(keep)):
+        if i in drop:
+            continue
+        for j in np.nonzero(gram[i, i + 1:] > DUPLICATE_COS)[0] + i + 1:
+            drop.add(int(j))
+    idx = [i for i in range(len(keep)) if i not in drop]
+    return keep[idx], Xn[:, idx]
+
+
+def _cluster_se(X: np.ndarray, e: np.ndarray, cluster: np.ndarray) -> np.ndarray:
+    """Cluster-robust (sandwich, CR1) standard errors of an OLS fit."""
+    xtx_inv = np.linalg.pinv(X.T @ X)
+    meat = np.zeros((X.shape[1], X.shape[1]))
+    ids = np.unique(cluster)
+    for c in ids:
+        m = cluster == c
+        s = X[m].T @ e[m]
+        meat += np.outer(s, s)
+    G, n, p = len(ids), len(e), X.shape[1]
+    factor = G / max(G - 1, 1) * (n - 1) / max(n - p, 1)
+    return np.sqrt(np.maximum(np.diag(xtx_inv @ meat @ xtx_inv) * factor, 0.0))
+
+
+# ------------------------------------------------------------------------------------ describing
+def closest_catalogue(frame: Frame, fit: ThetaFit, name: str, model: AugmentedFEE | None = None) -> dict:
+    """The catalogue term whose basis (θ-projected) is most parallel to the form's: {'name', 'cos'}."""
+    model = model or AugmentedFEE()
+    cat = list(force_terms.CATALOGUE)
+    B = form_bases(frame, fit, [name] + cat)
+    J = theta_jacobian(frame, model, fit)
+    (P,) = _project(frame, J, B)
+    P = P.reshape(-1, len(cat) + 1)
+    n = np.sqrt((P**2).sum(0))
+    cos = np.where(n[1:] > 0, (P[:, 1:] * P[:, :1]).sum(0) / np.maximum(n[1:] * n[0], 1e-300), 0.0)
+    i = int(np.argmax(np.abs(cos)))
+    return {"name": cat[i], "cos": float(cos[i]), "same_mechanism": bool(abs(cos[i]) >= CLOSE_COS)}
+
+
+def where_it_acts(frame: Frame, fit: ThetaFit, name: str, k: float) -> dict:
+    """Where the form is non-zero: share of ticks, and the 5-95 % range of d, v_x, v_z, s there."""
+    B = form_bases(frame, fit, [name])[..., 0] * FORCE_SCALE_N * k
+    mag = np.hypot(B[:, 0], B[:, 1])
+    on = mag > 1e-3 * max(float(mag.max()), 1e-300)
+    out = {"share_of_ticks": float(on.mean()), "mean_abs_force_n": float(mag[on].mean()) if on.any() else 0.0,
+           "max_abs_force_n": float(mag.max()) if len(mag) else 0.0, "ranges": {}}
+    for v in ("d", "v_x", "v_z", "distance"):
+        x = frame.column(v)[on]
+        if len(x):
+            lo, hi = np.percentile(x, [5, 95])
+            out["ranges"][v] = [float(lo), float(hi)]
+    return out
+
+
+def describe_form(frame: Frame, fit: ThetaFit, score: dict) -> dict:
+    """The report's entry for an accepted form: formula, words, k ± SE, regimes, closest catalogue term, name."""
+    name = score["name"]
+    info = term_forms.describe(name)
+    close = closest_catalogue(frame, fit, name)
+    acts = where_it_acts(frame, fit, name, score["k"] or 0.0)
+    return {"name": name, "formula": info["formula"], "words": info["words"], "axis": info["axis"],
+            "scale": info["scale"], "factor": info["factor"], "gate": info["gate"],
+            "k": score["k"], "k_se": score["k_se"], "gain": score["gain"], "p_holm": score["p_holm"],
+            "regime": acts, "closest_catalogue": close,
+            "proposed_name": (f"{close['name']} in another form ({info['words']})" if close["same_mechanism"]
+                              else term_forms.proposed_name(name))}
+
+
+# ------------------------------------------------------------------------------------ a user's catalogue
+CATALOGUE_FILE = "discovered_terms.yaml"
+
+
+def catalogue_yaml(discovered) -> str | None:
+    """The confirmed discovered forms as a YAML catalogue the next run reads (``--catalogue``); None if none."""
+    import yaml
+
+    rows = [{"term": d["name"], "name": d["proposed_name"], "k": d["k"], "k_se": d["k_se"], "formula": d["formula"],
+             "plugin": f"soil_physics.force_terms:plugin term={d['name']} k={d['k']:.6g}"}
+            for d in discovered or () if d.get("confirmed", True)]
+    if not rows:
+        return None
+    head = ("# Forms found by soil_discrepancy (confirmed on held-out episodes). Rename 'name' as you like;\n"
+            "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n")
+    return head + yaml.safe_dump({"terms": rows}, sort_keys=False, allow_unicode=True)
+
+
+def load_catalogue(path) -> list[dict]:
+    """A user's catalogue of terms (YAML: terms: [{term, name?, k?}, ...]); each term a catalogue name or a
+    'form:…'. Returns [{'term', 'name', 'k'}]; ValueError naming the file and the bad entry."""
+    import yaml
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"catalogue {p}: cannot read it: {exc}") from None
+    rows = (data or {}).get("terms") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or not rows:
+        raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'")
+    out = []
+    for i, row in enumerate(rows):
+        term = row.get("term") if isinstance(row, dict) else None
+        if not isinstance(term, str):
+            raise ValueError(f"catalogue {p}: terms[{i}] has no 'term' (a catalogue name or 'form:<scale>*<factor>')")
+        try:
+            force_terms.get_term(term)
+        except ValueError as exc:
+            raise ValueError(f"catalogue {p}: terms[{i}]: {exc}") from None
+        k = row.get("k")
+        if k is not None and not (isinstance(k, (int, float)) and math.isfinite(k)):
+            raise ValueError(f"catalogue {p}: terms[{i}].k={k!r} is not a finite number")
+        out.append({"term": term, "name": str(row.get("name") or term), "k": None if k is None else float(k)})
+    return out

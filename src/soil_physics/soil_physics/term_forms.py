@@ -1,0 +1,192 @@
+"""Candidate *forms* of a missing force: a scale (a force in N) times a dimensionless factor or gate.
+
+The catalogue (``force_terms.CATALOGUE``) holds named mechanisms, each one fixed form. When none of
+them explains a residual, the discrepancy workflow (``soil_discrepancy.forms``) searches this
+library of forms for the few that do. A form is named
+
+    form:<scale>*<factor>        e.g.  form:gd2w_z*sink   ΔF_z = k · (−γ d² w) · [v_z < 0]
+    form:-<scale>*<factor>       the same with the opposite sign (so that k >= 0)
+
+and is a force term like any catalogue term: ``force_terms.get_term('form:…')`` gives its
+``Term`` (basis, formula, units), so ``AugmentedFEE``, the simulator plugin
+(``soil_physics.force_terms:plugin term=form:… k=…``) and the PINN's extra term take it as they
+take a catalogue term. Every scale is a force [N] with a direction (x, z or along the FEE force);
+every factor is dimensionless (reference values below), so k is dimensionless throughout.
+
+Only what a model built from Θ_k sees is used (``ForceInputs.from_known``): d, Q, v_x, v_z, γ, w,
+ρ, the model's θ and FEE force, the blade's travel in soil s. Time is not a ``ForceInputs`` field
+of a model, so time in soil enters through s (the blade moves whenever it cuts). SI units.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from . import xp as _xp
+from .bearing import bearing_factors
+from soil_msgs_py.params import GRAVITY_M_S2
+
+PREFIX = "form:"
+P_REF_PA = 10e3  # reference pressure of the c-free geometric scale w d · P_REF [Pa]
+V_REF_M_S = 1.0  # reference forward speed [m/s]
+VZ_REF_M_S = 0.05  # reference vertical speed [m/s] (the blade's lift/sink speeds are a few cm/s)
+D_REF_M = 0.1  # reference depth [m]
+VZ_GATE_M_S = 0.005  # |v_z| below this is "not moving vertically" (measurement jitter)
+FX_LIMIT_N, FZ_LIMIT_N = 20e3, 30e3  # the machine's horizontal / vertical force limits [N]
+LIMIT_SHARE = 0.9  # "at a force limit": the model's force above this share of the limit
+
+
+@dataclass(frozen=True)
+class Piece:
+    name: str
+    words: str  # what it is, in words
+    formula: str  # with units
+    fn: Callable[[Any, Any], Any]  # (inputs, xp) -> array (scale: a force [N]; factor: dimensionless)
+    axis: str = ""  # scales only: 'x', 'z', 'fee' (F_FEE times fn) or 'vec' (fn gives (F_x, F_z))
+
+
+def _pos(xp, x):
+    return _xp.clip_min(xp, x, 0.0)
+
+
+def _in(s):
+    return (s.d > 0) * 1.0
+
+
+def _surcharge_part(s, xp):
+    """(F_x, F_z) [N] of the FEE's surcharge term Q N_Q: the FEE at Q minus the FEE at Q = 0."""
+    from .fee import fee_xz  # the one FEE (NumPy or torch)
+
+    theta = {n: getattr(s, n) for n in ("phi", "c", "delta", "gamma", "rho", "alpha", "w", "d", "q", "v_x", "v_z")}
+    theta["c_a"] = s.c_a if s.c_a is not None else 0.0 * s.d
+    fx1, fz1, _ = fee_xz(theta)
+    fx0, fz0, _ = fee_xz({**theta, "q": 0.0 * s.q})
+    keep = _in(s) * (s.q > 0)
+    return xp.where(keep > 0, fx1 - fx0, 0.0 * s.d), xp.where(keep > 0, fz1 - fz0, 0.0 * s.d)
+
+
+def _bearing(s, xp):
+    n_q, n_c, _ = bearing_factors(s.phi)
+    return s.w * s.blade_thickness * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * _in(s)
+
+
+# Scales: (name, words, formula, fn, axis). z scales point down (blade pressing on the floor) where
+# that is their physics; the sign of k decides the rest through the '-' prefix.
+SCALES: dict[str, Piece] = {p.name: p for p in (
+    Piece("fee", "the model's FEE force", "F_FEE (both axes)", lambda s, xp: 1.0, "fee"),
+    Piece("feex", "the model's FEE force, x", "F_FEE,x", lambda s, xp: s.f_fee_x, "x"),
+    Piece("feez", "the model's FEE force, z", "F_FEE,z", lambda s, xp: s.f_fee_z, "z"),
+    Piece("gd2w_x", "soil weight scale γ d² w, x", "γ d² w", lambda s, xp: s.gamma * _pos(xp, s.d) ** 2 * s.w, "x"),
+    Piece("gd2w_z", "soil weight scale γ d² w, pressing down", "−γ d² w",
+          lambda s, xp: -s.gamma * _pos(xp, s.d) ** 2 * s.w, "z"),
+    Piece("wd_x", "c-free area scale w d P_ref, x", f"w d · {P_REF_PA:g} Pa",
+          lambda s, xp: s.w * _pos(xp, s.d) * P_REF_PA, "x"),
+    Piece("wd_z", "c-free area scale w d P_ref, pressing down", f"−w d · {P_REF_PA:g} Pa",
+          lambda s, xp: -s.w * _pos(xp, s.d) * P_REF_PA, "z"),
+    Piece("mom_x", "momentum flux of the cut soil (γ/g) w d v_x², x", "(γ/g) w d v_x²",
+          lambda s, xp: s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * s.v_x ** 2, "x"),
+    Piece("q_x", "surcharge weight Q, x", "Q", lambda s, xp: s.q * _in(s), "x"),
+    Piece("q_z", "surcharge weight Q, pressing down", "−Q", lambda s, xp: -s.q * _in(s), "z"),
+    Piece("qnq", "the FEE's surcharge part Q N_Q (along the FEE force)", "(F_FEE(Q) − F_FEE(Q = 0))",
+          _surcharge_part, "vec"),
+    Piece("bear_z", "bearing capacity of the cutting edge, pressing down",
+          "−w t_e (c N_c + γ d N_q)", lambda s, xp: -_bearing(s, xp), "z"),
+    Piece("bear_x", "bearing capacity of the cutting edge, x (friction on it)",
+          "w t_e (c N_c + γ d N_q)", lambda s, xp: _bearing(s, xp), "x"),
+    Piece("down_x", "the model's downward push max(−F_FEE,z, 0), x (friction on it)",
+          "max(−F_FEE,z, 0)", lambda s, xp: _pos(xp, -s.f_fee_z) * _in(s), "x"),
+)}
+
+# Factors and gates: dimensionless. Gates are 0/1.
+FACTORS: dict[str, Piece] = {p.name: p for p in (
+    [Piece("1", "always (while in soil)", "1", lambda s, xp: _in(s)),
+     Piece("vx", "forward speed", f"v_x / {V_REF_M_S:g} m/s", lambda s, xp: _pos(xp, s.v_x) / V_REF_M_S),
+     Piece("vx2", "forward speed squared", f"(v_x / {V_REF_M_S:g} m/s)²", lambda s, xp: (s.v_x / V_REF_M_S) ** 2),
+     Piece("d", "depth", f"d / {D_REF_M:g} m", lambda s, xp: _pos(xp, s.d) / D_REF_M),
+     Piece("s", "travel in soil", "s / 1 m", lambda s, xp: s.distance_in_soil),
+     Piece("sink", "only while the edge sinks", f"[v_z < −{VZ_GATE_M_S:g} m/s]",
+           lambda s, xp: (s.v_z < -VZ_GATE_M_S) * 1.0),
+     Piece("rise", "only while the edge rises", f"[v_z > {VZ_GATE_M_S:g} m/s]",
+           lambda s, xp: (s.v_z > VZ_GATE_M_S) * 1.0),
+     Piece("still", "only while the edge holds its depth", f"[|v_z| ≤ {VZ_GATE_M_S:g} m/s]",
+           lambda s, xp: (xp.abs(s.v_z) <= VZ_GATE_M_S) * 1.0),
+     Piece("sinkv", "sinking speed", f"max(−v_z, 0) / {VZ_REF_M_S:g} m/s", lambda s, xp: _pos(xp, -s.v_z) / VZ_REF_M_S),
+     Piece("risev", "lifting speed", f"max(v_z, 0) / {VZ_REF_M_S:g} m/s", lambda s, xp: _pos(xp, s.v_z) / VZ_REF_M_S),
+     Piece("xlim", "at the horizontal force limit", f"[F_FEE,x > {LIMIT_SHARE:g}·{FX_LIMIT_N:g} N]",
+           lambda s, xp: (s.f_fee_x > LIMIT_SHARE * FX_LIMIT_N) * 1.0),
+     Piece("zlim", "at the vertical force limit", f"[|F_FEE,z| > {LIMIT_SHARE:g}·{FZ_LIMIT_N:g} N]",
+           lambda s, xp: (xp.abs(s.f_fee_z) > LIMIT_SHARE * FZ_LIMIT_N) * 1.0)]
+    + [Piece(f"tanhvx{v0:g}", f"forward speed, saturating above {v0:g} m/s", f"tanh(v_x / {v0:g} m/s)",
+             (lambda v0: lambda s, xp: xp.tanh(_pos(xp, s.v_x) / v0))(v0)) for v0 in (0.1, 0.3, 1.0)]
+    + [Piece(f"enter{s0:g}", f"while the blade enters the soil (first ~{s0:g} m)", f"exp(−s / {s0:g} m)",
+             (lambda s0: lambda s, xp: xp.exp(-s.distance_in_soil / s0) * _in(s))(s0)) for s0 in (0.5, 2.0)]
+    + [Piece(f"sat{s0:g}", f"growing with travel, saturating over {s0:g} m", f"1 − exp(−s / {s0:g} m)",
+             (lambda s0: lambda s, xp: (1.0 - xp.exp(-s.distance_in_soil / s0)) * _in(s))(s0)) for s0 in (2.0, 6.0)]
+)}
+
+
+DISTANCE_FACTORS = frozenset(n for n in FACTORS if n == "s" or n.startswith(("enter", "sat")))  # look at travel s
+
+
+def uses_distance(name: str) -> bool:
+    """True if the form looks at the blade's travel in soil (a model must be given it)."""
+    return parse(name)[2].name in DISTANCE_FACTORS
+
+
+def form_names(scales=None, factors=None) -> list[str]:
+    """Every 'form:<scale>*<factor>' of the library (both signs are the same column; '+' only)."""
+    return [f"{PREFIX}{a}*{b}" for a in (scales or SCALES) for b in (factors or FACTORS)]
+
+
+def parse(name: str) -> tuple[float, Piece, Piece]:
+    """'form:[-]<scale>*<factor>' -> (sign, scale, factor); ValueError naming what is wrong."""
+    if not isinstance(name, str) or not name.startswith(PREFIX):
+        raise ValueError(f"form {name!r} must look like '{PREFIX}<scale>*<factor>'")
+    body = name[len(PREFIX):]
+    sign = -1.0 if body.startswith("-") else 1.0
+    a, sep, b = body.lstrip("-").partition("*")
+    if not sep or a not in SCALES or b not in FACTORS:
+        raise ValueError(f"form {name!r}: scale must be one of {sorted(SCALES)} and factor one of {sorted(FACTORS)}")
+    return sign, SCALES[a], FACTORS[b]
+
+
+def negated(name: str) -> str:
+    sign, a, b = parse(name)
+    return f"{PREFIX}{'' if sign < 0 else '-'}{a.name}*{b.name}"
+
+
+def basis(name: str, s, xp) -> tuple[Any, Any]:
+    """(B_x, B_z) [N per unit k] of a form on ``ForceInputs`` ``s`` (coerced, namespace ``xp``)."""
+    sign, a, b = parse(name)
+    if a.axis == "vec":
+        vx, vz = a.fn(s, xp)
+        f = sign * b.fn(s, xp)
+        return f * vx, f * vz
+    mag = sign * a.fn(s, xp) * b.fn(s, xp) + 0.0 * s.d
+    zero = 0.0 * s.d
+    if a.axis == "x":
+        return mag, zero
+    if a.axis == "z":
+        return zero, mag
+    return mag * s.f_fee_x, mag * s.f_fee_z
+
+
+def describe(name: str) -> dict:
+    """Title, formula and words of a form (for ``force_terms.Term`` and the report)."""
+    sign, a, b = parse(name)
+    sgn = "−" if sign < 0 else ""
+    axis = {"x": "F_x", "z": "F_z", "fee": "F", "vec": "F"}[a.axis]
+    factor = "" if b.name == "1" else f" · {b.formula}"
+    words = f"{'minus ' if sign < 0 else ''}{a.words}, {b.words}"
+    return {"title": words, "formula": f"{axis} = {sgn}k · {a.formula}{factor}  [N]",
+            "words": words, "axis": a.axis, "scale": a.name, "factor": b.name, "sign": sign,
+            "gate": b.name in ("sink", "rise", "still", "xlim", "zlim")}
+
+
+def proposed_name(name: str) -> str:
+    """A readable default name for a discovered form the user can change."""
+    sign, a, b = parse(name)
+    return f"{b.words} × {a.words}" + (" (relief)" if sign < 0 else "")
+
+
+__all__ = ["PREFIX", "SCALES", "FACTORS", "DISTANCE_FACTORS", "uses_distance", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]

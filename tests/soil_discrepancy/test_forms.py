@@ -1,0 +1,170 @@
+"""Missing physics whose form is not in the catalogue: found by the library search, or left unexplained.
+
+Hidden effects written as simulator plugins (tests/sim_plugins.py), on the 32-episode fee-world
+grid of test_discrepancy.py (stride 4):
+
+* entry_resistance: F_x = 2 γ w d² exp(−s / 1 m), extra drag of undisturbed soil fading with the
+  blade's travel (not a library form: its decay lengths are 0.5 m and 2 m);
+* saturating_drag: F_x = w d · 10 kPa · tanh(v_x / 0.3 m/s), where the catalogue offers only a drag
+  linear in v_x (rate_strength), which also shrinks the error: the form must beat it;
+* sinking_resistance: F_z = −3 γ w d² · min(max(−v_z, 0)/0.01 m/s, 1), only while the edge sinks
+  (the library's gate is a hard one at 5 mm/s). The resisting force slows the sinking it depends
+  on, so the measured force follows the gate loosely and the held-out gain is small: with a
+  higher least gain the form stays tentative and the verdict "unexplained".
+
+The workflow never sees the plugins (``blind``). Expected: the right scale, axis and factor or gate,
+a held-out error that shrinks, no catalogue name.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from soil_discrepancy import run_discrepancy
+from soil_discrepancy.forms import load_catalogue
+from soil_physics import force_terms, term_forms
+from soil_physics.augmented_fee import AugmentedFEE
+from soil_physics.force_inputs import ForceInputs
+from soil_physics.soils import CATALOGUE as SOILS
+from soil_sim_node.batch import DatasetPlan, generate, grid_specs
+from soil_sim_node.effects import effects_for_mode, load_plugins
+
+from .test_discrepancy import RUN, blind
+
+HIDDEN = {
+    "entry": ("tests.sim_plugins:entry_resistance k=2 s0=1",),
+    "saturating": ("tests.sim_plugins:saturating_drag k=1 v0=0.3",),
+    "sinking": ("tests.sim_plugins:sinking_resistance k=3",),
+}
+STRIDE = 4
+
+
+@pytest.fixture(scope="module")
+def form_data(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("forms")
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+    for name, plugins in HIDDEN.items():
+        generate(DatasetPlan("fee", root / name, specs, effects_for_mode("fee"), plugins=plugins), workers=2,
+                 progress=False)
+    return {name: root / name for name in HIDDEN}
+
+
+@pytest.fixture(scope="module")
+def form_reports(form_data, tmp_path_factory) -> dict[str, dict]:
+    return {name: run_discrepancy(dataset=blind(form_data[name]), out_dir=tmp_path_factory.mktemp(name), plots=False,
+                                  **{**RUN, "stride": STRIDE})
+            for name in ("entry", "saturating")}
+
+
+def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_reports):
+    rep = form_reports["entry"]
+    assert rep["verdict"] == "explained", rep["summary"]
+    accepted = rep["selection"]["accepted"]
+    assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], "no catalogue name for a form it lacks"
+    first = accepted[0]
+    sign, scale, factor = term_forms.parse(first["name"])
+    # the right scale and axis (γ d² w in x, a resistance) and the right factor (fading with travel)
+    assert (sign, scale.name) == (1.0, "gd2w_x") and factor.name.startswith("enter"), first["name"]
+    assert first["k"] > 0 and first["k_se"] < 0.2 * first["k"] and first["p_holm"] < 0.01
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+    assert test["after"]["rmse_x"] < test["before"]["rmse_x"]
+    # the report: formula, regimes where it acts, closest catalogue term (not the same mechanism)
+    disc = rep["forms"]["discovered"][0]
+    assert disc["name"] == first["name"] and disc["axis"] == "x"
+    assert not disc["closest_catalogue"]["same_mechanism"]
+    assert 0.9 < disc["regime"]["share_of_ticks"] <= 1.0 and disc["regime"]["ranges"]["distance"][0] < 1.0
+    out = Path(rep["outputs"][0]).parent  # discrepancy.json
+    md = (out / "discrepancy.md").read_text()
+    assert "## Form search" in md and "### Discovered:" in md and "exp(−s /" in md
+    saved = json.loads((out / "discrepancy.json").read_text())
+    assert saved["forms"]["discovered"][0]["name"] == first["name"]
+    # saved as the user's own catalogue, which the next run reads (a bad one is refused by name)
+    (row,) = load_catalogue(out / "discovered_terms.yaml")
+    assert row["term"] == first["name"] and row["k"] == pytest.approx(first["k"])
+    bad = out / "bad.yaml"
+    bad.write_text("terms:\n- term: form:gd2w_x*nope\n")
+    with pytest.raises(ValueError, match=r"terms\[0\].*nope"):
+        load_catalogue(bad)
+    # a discovered form is a term like a catalogue term: the model and the simulator plugin take it
+    spec = rep["model"]["plugin_specs"][0]
+    assert load_plugins([spec])[0].params["term"] == first["name"]
+    AugmentedFEE(rep["model"]["extra_term_args"])
+
+
+def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form_reports):
+    rep = form_reports["saturating"]
+    assert rep["verdict"] == "explained", rep["summary"]
+    (acc,) = rep["selection"]["accepted"]
+    info = term_forms.describe(acc["name"])
+    assert info["axis"] == "x" and info["factor"].startswith("tanhvx") and info["sign"] > 0, acc["name"]
+    assert info["scale"] in ("wd_x", "gd2w_x", "bear_x"), acc["name"]
+    # the catalogue's linear drag was in the same round and lost on held-out groups
+    first = rep["selection"]["rounds"][0]
+    gains = {s["name"]: s["gain"] for s in first["scores"]}
+    assert first["winner"] == acc["name"] and gains["rate_strength"] < gains[acc["name"]]
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confirms_it(form_data, tmp_path):
+    """min_gain 0.2: the gated form removes ~1/3 of the cross-validated error but only ~11 % of the held-out
+    test episodes' (seed 0): a tentative form, not a name; the verdict stays 'unexplained' with its regimes."""
+    rep = run_discrepancy(dataset=blind(form_data["sinking"]), out_dir=tmp_path, plots=False,
+                          **{**RUN, "stride": STRIDE, "min_gain": 0.2})
+    top = term_forms.describe(rep["forms"]["search"]["candidates"][0])
+    # z, pressing down (k > 0 on a downward scale), gated by the edge sinking
+    assert top["axis"] == "z" and top["factor"] in ("sink", "sinkv") and top["sign"] > 0, rep["forms"]["search"]
+    assert rep["forms"]["search"]["ols"][0]["t"] > 3
+    assert not [a for a in rep["selection"]["accepted"] if a["name"] in force_terms.CATALOGUE]
+    tentative = rep["forms"]["not_confirmed"]
+    if tentative is None:  # the held-out episodes confirmed it: then it is the gated z form
+        (acc,) = rep["selection"]["accepted"]
+        assert term_forms.describe(acc["name"])["factor"] in ("sink", "sinkv")
+        return
+    assert rep["verdict"] == "unexplained" and rep["model"]["terms"] == [] and "v_z" in rep["regimes"]["flagged_variables"]
+    assert tentative["forms"] == [d["name"] for d in rep["forms"]["discovered"]] and "tentative" in rep["summary"]
+    assert "NOT confirmed" in (tmp_path / "discrepancy.md").read_text()
+    assert not (tmp_path / "discovered_terms.yaml").exists()
+
+
+def test_form_names_parse_and_act_like_catalogue_terms():
+    names = term_forms.form_names()
+    assert 100 < len(names) <= 300 and len(set(names)) == len(names)
+    t = force_terms.get_term("form:-gd2w_z*sink")
+    assert term_forms.negated("form:-gd2w_z*sink") == "form:gd2w_z*sink" and "[v_z < " in t.formula
+    n = 5
+    s = ForceInputs(d=np.full(n, 0.2), q=np.zeros(n), v_x=np.full(n, 0.5), v_z=np.array([-0.1, -0.001, 0.0, 0.01, -0.02]),
+                    gamma=np.full(n, 18e3), w=np.full(n, 3.0), rho=np.full(n, 1.4), alpha=np.zeros(n),
+                    phi=np.full(n, 0.6), c=np.full(n, 2e3), delta=np.full(n, 0.3), distance_in_soil=np.zeros(n),
+                    f_fee_x=np.full(n, 1e4), f_fee_z=np.full(n, -5e3))
+    bx, bz = force_terms.plugin(s, "form:gd2w_z*sink", 2.0)
+    np.testing.assert_allclose(bx, 0.0)
+    np.testing.assert_allclose(bz, -2.0 * 18e3 * 0.04 * 3.0 * np.array([1, 0, 0, 0, 1]))
+    fx, fz = force_terms.get_term("form:fee*vx").basis(s)
+    np.testing.assert_allclose(fx, 1e4 * 0.5) and np.testing.assert_allclose(fz, -5e3 * 0.5)
+    for bad in ("form:gd2w_z", "form:nope*sink", "form:gd2w_z*nope", "gd2w_z*sink"):
+        with pytest.raises(ValueError):
+            force_terms.get_term(bad)
+
+
+def test_a_form_is_a_pinn_extra_term_with_gradients_and_asks_for_the_travel_it_uses():
+    import torch
+
+    from pinn_estimator.model import ModelConfig
+
+    assert ModelConfig(kind="pinn", extra_terms=("form:gd2w_x*enter2=1.4",)).needs_distance
+    assert not ModelConfig(kind="pinn", extra_terms=("form:bear_z*sink=0.4",)).needs_distance
+    assert term_forms.DISTANCE_FACTORS == {"s", "enter0.5", "enter2", "sat2", "sat6"}
+    n = 3
+    t = lambda v: torch.full((n,), float(v), dtype=torch.float64)  # noqa: E731
+    phi = t(0.6).requires_grad_()
+    s = ForceInputs(d=t(0.2), q=t(2e3), v_x=t(0.5), v_z=torch.tensor([-0.1, 0.0, 0.01], dtype=torch.float64),
+                    gamma=t(18e3), w=t(3.0), rho=t(1.4), alpha=t(0.0), phi=phi, c=t(2e3), delta=t(0.3),
+                    distance_in_soil=t(1.0), f_fee_x=t(1e4), f_fee_z=t(-5e3), c_a=t(0.0))
+    total = sum(sum(force_terms.get_term(name).basis(s)) for name in ("form:bear_z*sink", "form:-qnq*1"))
+    total.sum().backward()
+    assert torch.isfinite(phi.grad).all() and (phi.grad != 0).all()
