@@ -11,7 +11,8 @@ skips a tick shifts its offset for good but still continues its own counter.
 
 The writer a consumer follows on a topic is the one that has sent the most ticks: the
 publisher that is there every tick, whoever sent first. The simulator's command gate and
-the recorder both decide with :class:`WriterTracks`.
+the recorder while recording decide in arrival order with :class:`WriterTracks`; a journal
+becoming a bag is judged as a whole with :func:`leading_chain`.
 """
 from __future__ import annotations
 
