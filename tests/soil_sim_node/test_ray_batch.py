@@ -106,7 +106,9 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running(tmp_pa
         run = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "ray"),
                               "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stderr[-2000:]
-        assert batch.main([*SMALL, "--out", str(tmp_path / "pool")]) == 0
+        local = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "pool")],
+                               env=env, capture_output=True, text=True, timeout=240)
+        assert local.returncode == 0, local.stderr[-2000:]
         pool, ray = _files(tmp_path / "pool"), _files(tmp_path / "ray")
         assert sorted(pool) == sorted(ray) and all(pool[n] == ray[n] for n in pool if n != "dataset.json")
         servers = {pid for pid in cluster if _name(pid) in ("gcs_server", "raylet")}
