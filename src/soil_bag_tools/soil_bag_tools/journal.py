@@ -257,9 +257,10 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     is refused. Where several writers' messages could be that chain (an intruder's counter
     that fits a tick the writer skipped, or meets it at a tick), the chain with the most
     messages with finite values wins, and once another writer showed up on the topic a
-    non-finite message is never taken for the chain's (graph nodes publish finite values). Of the messages left, those claiming one stamp keep the
-    one with finite values, then the first to arrive (writers unknown: no sequence numbers,
-    or writers that sent equally many ticks). A message with the very stamp and sequence
+    non-finite message is never taken for the chain's (graph nodes publish finite values).
+    Of the messages left, those claiming one stamp keep the one with finite values, then the
+    first to arrive (writers unknown: no sequence numbers, or writers that sent equally many
+    ticks). A message with the very stamp and sequence
     number of one on the chain is not refused by sequence: two counters that meet at a tick
     cannot be told apart there, so the values decide, like for unknown writers.
     """

@@ -126,12 +126,13 @@ def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
         return None
     w = [1] * n if weights is None else [int(x) for x in weights]
     seq = _unwrapped([int(s) & SEQUENCE_MASK for s in sequences])
-    best = _heaviest_chain([int(t) for t in ticks], seq, w, range(n))
+    ticks = [int(t) for t in ticks]
+    best = _heaviest_chain(ticks, seq, w, range(n))
     if best is None:
         return None
     chain, weight = best
     rest = [i for i in range(n) if i not in chain]
-    runner_up = _heaviest_chain([int(t) for t in ticks], seq, w, rest) if rest else None
+    runner_up = _heaviest_chain(ticks, seq, w, rest) if rest else None
     if runner_up is not None and runner_up[1] == weight:
         return None
     return chain
