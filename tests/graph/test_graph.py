@@ -250,8 +250,11 @@ def _children_gone(pid: int) -> bool:
 def test_launch_runs_episodes_in_a_row_and_exits_zero(tmp_path, domain):
     with RosProbe(domain) as probe:
         probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        # The probe is outside the launch: the simulator must see its subscription before the first
+        # (1 s, lockstep) episode starts, or a slow discovery loses that episode's events.
         proc = _launch(["--pacing", "lockstep", "--sim-param", "duration_s:=1.0", "--sim-param", "episodes:=2",
-                        "--sim-param", "sequence_soils:=['Clay','Sand']"], domain, tmp_path)
+                        "--sim-param", "sequence_soils:=['Clay','Sand']", "--wait-for", f"{G.SIM_STATUS_TOPIC}:1"],
+                       domain, tmp_path)
         assert proc.wait(timeout=60) == 0
         probe.wait_for(_ended(probe, 4), 5, "four episode ends")
     ends = [e for e in _events(probe) if e.event == G.EVENT_EPISODE_END]
@@ -337,7 +340,7 @@ def test_realtime_30s_at_60hz_loses_no_tick(tmp_path, domain):
     with RosProbe(domain) as probe:
         probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
         proc = _launch(["--record", str(tmp_path / "bags"), "--timeout", "200", "--sim-param", "duration_s:=30.0",
-                        "--sim-param", "soil:=Gravel"], domain, tmp_path)
+                        "--sim-param", "soil:=Gravel", "--wait-for", f"{G.SIM_STATUS_TOPIC}:1"], domain, tmp_path)
         try:
             assert proc.wait(timeout=230) == 0, proc.log_path.read_text()
         finally:
