@@ -14,7 +14,8 @@ from soil_physics import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
-from soil_planner.planner import MIN_ANCHOR_DEPTH_M, TOLERANCE_M, describe, max_cut_depth
+from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, MIN_ANCHOR_DEPTH_M,
+                                  TOLERANCE_M, StretchPlanner, describe, max_cut_depth)
 
 LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
 
@@ -368,6 +369,81 @@ def _payload(values: dict, names) -> list[float]:
 
 def _call(future, timeout: float = 10.0):
     return wait_until(lambda: future.done() and (future.result(),), timeout, "a parameter service call")[0]
+
+
+def _planner_run(planner: StretchPlanner, fused: dict, known: dict, forces_x) -> list[float]:
+    """Feed one estimate per tick whose F̂ is the fused estimate's times each of ``forces_x``
+    (a new stretch every tick, so each tick is planned); the plans' depths."""
+    out = []
+    for i, factor in enumerate(forces_x):
+        est = dict(fused, f_x_hat=fused["f_x_hat"] * factor, f_z_hat=fused["f_z_hat"] * factor, fused_stretches=float(i))
+        out.append(planner.plan(est, known)[0].max_depth_m)
+    return out
+
+
+def test_the_fused_plan_is_anchored_to_the_steady_cuts_mean_force_not_one_ticks():
+    """A cut whose force fluctuates by ±25 % from tick to tick: the stretch planner's plan is the
+    plan of the mean force, steady however the fluctuation falls; ticks while the edge sinks
+    (the penetration reaction, a transient) do not move it; a new cut starts afresh."""
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    mean_plan = max_cut_depth(fused, known).max_depth_m
+    planner = StretchPlanner()
+    wobble = [1.25 if i % 2 else 0.75 for i in range(ANCHOR_WINDOW_TICKS)]
+    depths = _planner_run(planner, fused, known, wobble)
+    one_tick = [max_cut_depth(dict(fused, f_x_hat=fused["f_x_hat"] * f, f_z_hat=fused["f_z_hat"] * f), known).max_depth_m
+                for f in (0.75, 1.25)]
+    assert one_tick[1] < mean_plan - 0.01 < one_tick[0] - 0.02  # one tick's force would swing the plan
+    assert depths[-1] == pytest.approx(mean_plan, abs=1e-3)
+    assert max(depths[-10:]) - min(depths[-10:]) < 2e-3
+    sinking = _known(d=0.12, q=1000.0, v_z=-0.08)
+    heavy = dict(fused, f_x_hat=3 * fused["f_x_hat"], f_z_hat=3 * fused["f_z_hat"], fused_stretches=1e3)
+    assert planner.plan(heavy, sinking)[0].max_depth_m == pytest.approx(mean_plan, abs=1e-3)
+    # rising (the controller's anti-stall lift): this tick's F̂ can make the plan shallower, not deeper
+    rising = _known(d=0.12, q=1000.0, v_z=0.08)
+    light = dict(fused, f_x_hat=0.3 * fused["f_x_hat"], f_z_hat=0.3 * fused["f_z_hat"], fused_stretches=1e3 + 1)
+    assert planner.plan(light, rising)[0].max_depth_m == pytest.approx(max_cut_depth(
+        fused, known, anchor=planner.anchor.anchor()).max_depth_m, abs=1e-6)
+    heavy_rising = dict(heavy, fused_stretches=1e3 + 2)
+    shallower = max_cut_depth(heavy, rising).max_depth_m
+    assert shallower < mean_plan - 0.02
+    assert planner.plan(heavy_rising, rising)[0].max_depth_m == pytest.approx(shallower, abs=1e-6)
+    planner.forget()  # a new cut: this tick's F̂ alone, as max_cut_depth plans it
+    assert planner.plan(heavy, sinking)[0].max_depth_m == pytest.approx(max_cut_depth(heavy, sinking).max_depth_m, abs=1e-6)
+
+
+def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_its_window_fills():
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    wobble = [1.1 if i % 2 else 0.9 for i in range(ANCHOR_WINDOW_TICKS)]
+    at = {f: max_cut_depth(dict(fused, f_x_hat=fused["f_x_hat"] * f, f_z_hat=fused["f_z_hat"] * f), known).max_depth_m
+          for f in (0.5, 1.0, 2.0)}
+    stronger = _planner_run(StretchPlanner(), fused, known, wobble + [2.0] * ANCHOR_RECENT_TICKS)
+    assert stronger[-1] == pytest.approx(at[2.0], abs=1e-3)  # the window restarted from the stronger soil
+    weaker = _planner_run(StretchPlanner(), fused, known, wobble + [0.5] * ANCHOR_WINDOW_TICKS)
+    middle = weaker[len(wobble) + ANCHOR_WINDOW_TICKS // 2]
+    assert at[1.0] + 0.005 < middle < at[0.5] - 0.005  # half way: the mean of both soils
+    assert weaker[-1] == pytest.approx(at[0.5], abs=1e-3)
+    # no steady tick for longer than ANCHOR_MAX_AGE_TICKS: this tick's F̂ again
+    planner = StretchPlanner()
+    _planner_run(planner, fused, known, wobble)
+    sinking = _known(d=0.12, q=1000.0, v_z=-0.08)
+    for i in range(ANCHOR_MAX_AGE_TICKS + 1):
+        plan, _ = planner.plan(dict(fused, f_x_hat=2 * fused["f_x_hat"], fused_stretches=1e3 + i), sinking)
+    assert plan.max_depth_m == pytest.approx(max_cut_depth(dict(fused, f_x_hat=2 * fused["f_x_hat"]), sinking).max_depth_m, abs=1e-6)
+
+
+def test_an_explicit_anchor_is_checked_and_named():
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG, std=(2 * DEG, 300.0, 0.5 * DEG))
+    same = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], fused["f_z_hat"]), known))
+    assert same == max_cut_depth(fused, known)
+    with pytest.raises(ValueError, match="anchor force x=nan"):
+        max_cut_depth(fused, known, anchor=((math.nan, 0.0), known))
+    with pytest.raises(ValueError, match="anchor known has no field 'q'"):
+        max_cut_depth(fused, known, anchor=((1e3, 0.0), {k: v for k, v in known.items() if k != "q"}))
 
 
 @pytest.mark.timeout(60)

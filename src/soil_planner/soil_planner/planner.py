@@ -85,6 +85,7 @@ F jump at d' = 0+; bisection does not need continuity. If d = 0 is already inadm
 """
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -116,6 +117,25 @@ MIN_ANCHOR_DEPTH_M = 0.02
 # blade just lifted out of a stall would stay shallow (the posterior's own forecast is better
 # there). Just below the depth schedule's shallowest target (5 cm), so a cut held there is anchored.
 MIN_FUSED_ANCHOR_DEPTH_M = 0.04
+# The fused plan's anchor is F̂ averaged over the recent *steady* cut, not one tick's F̂: the
+# force of a cut fluctuates by ±20 % from half a second to the next (the default world's
+# particle events drop the grip for a moment), and while the edge sinks it carries the
+# penetration reaction, a transient the planned level cut never meets. Anchored to one tick,
+# the plan followed that noise (in the clay of soil_cut_report's path it swung between 0.08 and
+# 0.15 m every few seconds, a limit cycle with the deepening ramp). Steady: |v_z| at most
+# ANCHOR_MAX_ABS_V_Z_M_S (a 1:25 slope at the cut speed); the ticks averaged are the last
+# ANCHOR_WINDOW_TICKS steady ones within ANCHOR_DEPTH_BAND_M of the newest one's depth, none
+# older than ANCHOR_MAX_AGE_TICKS; without any, this tick's F̂ as before. Shallower fast: when the
+# mean F̂_x of the last ANCHOR_RECENT_TICKS steady ticks exceeds the window's mean by more than
+# ANCHOR_CHANGE_SIGMAS of its per-tick spread (a stronger soil, not the cut's own fluctuation),
+# the window restarts from the first of them beyond that band and the plan follows at once; a weaker soil is followed
+# as the window fills (deeper slowly).
+ANCHOR_WINDOW_TICKS = 60
+ANCHOR_RECENT_TICKS = 12
+ANCHOR_CHANGE_SIGMAS = 2.0
+ANCHOR_MAX_ABS_V_Z_M_S = 0.02
+ANCHOR_DEPTH_BAND_M = 0.01
+ANCHOR_MAX_AGE_TICKS = 180
 # x is scaled to F̂_x only where both forces exceed this [N] (a ratio of small forces is noise),
 # by a factor within these limits (a posterior that far off is left to its own spread).
 SCALE_FLOOR_N = 1e3
@@ -218,6 +238,7 @@ def max_cut_depth(
     cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S,
     include_residual: bool = True,
     force_quantile: float | None = DEFAULT_FORCE_QUANTILE,
+    anchor: tuple[tuple[float, float], Mapping[str, float]] | None = None,
     grid_points: int | None = None,
     tol_m: float = TOLERANCE_M,
 ) -> Plan | None:
@@ -226,7 +247,9 @@ def max_cut_depth(
     With a fused posterior (``fused_valid`` = 1) and ``force_quantile`` q set: every depth's
     force is the q upper bound of |F| over the posterior (module constants FUSED_*), so the
     plan keeps a 1 − q chance of meeting more than the limits; otherwise the PINN's point
-    estimate with the residual (module docstring). None when neither is valid (nothing to plan
+    estimate with the residual (module docstring). ``anchor``: the force (x, z) [N] the fused
+    plan is anchored to and the Θ_k it was predicted at (``SteadyAnchor``); None: this
+    estimate's F̂ at ``known``. None when neither is valid (nothing to plan
     from). ValueError, naming the field and value, for a missing, non-finite or out-of-limits
     field, a bad setting, or parameters for which the FEE has no failure wedge at the planned
     steady cut (v_x = ``cut_speed_m_s``, v_z = 0; non-finite force).
@@ -249,10 +272,13 @@ def max_cut_depth(
     limits = np.array([margin * FORCE_LIMITS_N[0], margin * FORCE_LIMITS_N[1]])
     if fused:
         est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
-        anchor = None
-        if include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
-            anchor = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
-        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, anchor)
+        force_now, known_now = None, kn
+        if include_residual and anchor is not None:
+            force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
+            known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
+        elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
+            force_now = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
+        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now)
     else:
         est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
         model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
@@ -286,6 +312,58 @@ def max_cut_depth(
     )
 
 
+class SteadyAnchor:
+    """The force the fused plan is anchored to: F̂ averaged over the recent steady cut (see
+    ANCHOR_WINDOW_TICKS). Fed every tick's estimate; ticks are counted, not stamped, so a
+    replay or a lockstep graph anchors as real time does."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.tick = 0
+        self.entries: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
+
+    def add(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> None:
+        """One tick: kept if the PINN's estimate is valid and finite and the edge holds its depth
+        (|v_z| <= ANCHOR_MAX_ABS_V_Z_M_S) at least MIN_FUSED_ANCHOR_DEPTH_M deep."""
+        self.tick += 1
+        try:
+            fx, fz = float(estimate["f_x_hat"]), float(estimate["f_z_hat"])
+            row = np.array([float(known[n]) for n in KNOWN_PARAMS])
+        except (KeyError, TypeError, ValueError):
+            return
+        if estimate.get("valid") != 1.0 or not (math.isfinite(fx) and math.isfinite(fz) and np.isfinite(row).all()):
+            return
+        k = dict(zip(KNOWN_PARAMS, row))
+        if abs(k["v_z"]) <= ANCHOR_MAX_ABS_V_Z_M_S and k["d"] >= MIN_FUSED_ANCHOR_DEPTH_M:
+            self.entries.append((self.tick, fx, fz, row))
+            self._restart_on_a_stronger_soil()
+
+    def _restart_on_a_stronger_soil(self) -> None:
+        n = len(self.entries)
+        if n < 2 * ANCHOR_RECENT_TICKS:
+            return
+        fx = np.array([e[1] for e in self.entries])
+        old, recent = fx[: n - ANCHOR_RECENT_TICKS], fx[n - ANCHOR_RECENT_TICKS:]
+        level = old.mean() + ANCHOR_CHANGE_SIGMAS * max(old.std(), SCALE_FLOOR_N / 10)
+        if recent.mean() > level:  # restart from the first recent tick beyond the old soil's band
+            for _ in range(n - ANCHOR_RECENT_TICKS + int(np.argmax(recent > level))):
+                self.entries.popleft()
+
+    def anchor(self) -> tuple[tuple[float, float], dict[str, float]] | None:
+        """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth; None
+        when no steady tick is recent enough."""
+        while self.entries and self.tick - self.entries[0][0] > ANCHOR_MAX_AGE_TICKS:
+            self.entries.popleft()
+        if not self.entries:
+            return None
+        d_last = self.entries[-1][3][KNOWN_PARAMS.index("d")]
+        near = [e for e in self.entries if abs(e[3][KNOWN_PARAMS.index("d")] - d_last) <= ANCHOR_DEPTH_BAND_M]
+        force = (float(np.mean([e[1] for e in near])), float(np.mean([e[2] for e in near])))
+        return force, dict(zip(KNOWN_PARAMS, np.mean([e[3] for e in near], axis=0).tolist()))
+
+
 class StretchPlanner:
     """``max_cut_depth`` with fixed settings, as the planner node and the cut trial both run it.
 
@@ -301,10 +379,12 @@ class StretchPlanner:
         self.include_residual = bool(include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan] | None = None
+        self.anchor = SteadyAnchor()
 
     def forget(self) -> None:
-        """A new cut: the next fused plan is made afresh."""
+        """A new cut: the next fused plan is made afresh, from a fresh anchor."""
         self._fused = None
+        self.anchor.reset()
 
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
@@ -313,12 +393,20 @@ class StretchPlanner:
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch)."""
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
+        self.anchor.add(estimate, known)
         key = (estimate.get("fused_stretches"), self.margin, self.d_max_m, self.cut_speed_m_s, self.force_quantile)
         if fused and self._fused is not None and self._fused[0] == key:
             return self._fused[1], False
-        plan = max_cut_depth(estimate, known, margin=self.margin, d_max_m=self.d_max_m,
-                             cut_speed_m_s=self.cut_speed_m_s, include_residual=self.include_residual,
-                             force_quantile=self.force_quantile)
+        settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
+                        include_residual=self.include_residual, force_quantile=self.force_quantile)
+        steady = self.anchor.anchor() if fused else None
+        plan = max_cut_depth(estimate, known, anchor=steady, **settings)
+        if steady is not None and plan is not None and float(known["v_z"]) > ANCHOR_MAX_ABS_V_Z_M_S:
+            # rising (the controller's anti-stall lift): the steady anchor may be from the weaker
+            # soil before it, so this tick's F̂ may only make the plan shallower, never deeper
+            now = max_cut_depth(estimate, known, **settings)
+            if now is not None and now.max_depth_m < plan.max_depth_m:
+                plan = now
         self._fused = (key, plan) if fused and plan is not None else None
         return plan, True
 
@@ -348,8 +436,9 @@ class _FusedForceModel:
     published error law σ = abs + rel·|F| around each. Samples without a failure wedge there
     are left out; none left is a ValueError.
 
-    Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N]): each sample's FEE misses
-    F̂ − F_FEE,s(d_now; Θ_k's velocity) at the current depth. In x (positive while cutting)
+    Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N], or its average over the recent
+    steady cut, predicted at ``anchor_known``, default ``known``): each sample's FEE misses
+    F̂ − F_FEE,s(d_now; Θ_k's velocity) at the anchor's depth. In x (positive while cutting)
     the sample's force is scaled to the force now, F_x,s(d) = F_FEE,x,s(d) · F̂_x / F_FEE,x,s(d_now)
     (ratio within SCALE_LIMITS, used where both exceed SCALE_FLOOR_N): the FEE's surcharge
     part, Q·N_q, does not vanish with depth, and a posterior whose Q·N_q is too large (the
@@ -368,7 +457,7 @@ class _FusedForceModel:
     """
 
     def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
-                 anchor: tuple[float, float] | None = None):
+                 anchor: tuple[float, float] | None = None, anchor_known: dict[str, float] | None = None):
         names = ("phi", "c", "delta")
         mean = np.array([est[f"{n}_fused"] for n in names])
         std = np.array([est[f"{n}_std"] for n in names])
@@ -392,11 +481,12 @@ class _FusedForceModel:
         self.residual, self.residual_used = np.zeros(2), False
         self.anchor = (0.0, 0.0)  # the force the error law's relative part is counted from
         self.scale_x = np.ones(FUSED_SAMPLES)
-        d_now = float(np.clip(known["d"], *D_PRIME_LIMITS_M))
+        at = known if anchor_known is None else anchor_known  # Θ_k where the anchor force was predicted
+        d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
         if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
             with np.errstate(all="ignore"):
-                fx_now, fz_now, _ = fee.fee_xz({**self.theta, "v_x": known["v_x"], "v_z": known["v_z"],
-                                                "d": np.array([d_now])})
+                fx_now, fz_now, _ = fee.fee_xz({**self.theta, **at, "phi": self.theta["phi"], "c": self.theta["c"],
+                                                "delta": self.theta["delta"], "d": np.array([d_now])})
             r = np.array(anchor)[:, None] - np.stack([np.broadcast_to(fx_now, (FUSED_SAMPLES,)),
                                                       np.broadcast_to(fz_now, (FUSED_SAMPLES,))])
             r = np.where(np.isfinite(r), r, 0.0)
