@@ -84,6 +84,26 @@ def test_a_new_soil_along_the_path_is_taken_over_within_two_seconds_of_cutting_i
     assert abs(s.mean["c"] - true["c"]) < abs(truth(sand)["c"] - true["c"]) / 2
 
 
+def test_a_sinking_stretch_the_soil_cannot_explain_is_left_out_not_taken_for_a_new_soil():
+    """The default world's penetration reaction while the edge sinks is a transient the FEE
+    lacks: a sinking stretch no component explains must neither restart the posterior nor
+    move it; the same stretch with the edge holding its depth is a new soil."""
+    (sand,) = episodes("fee", [("Sand", 20.0, 0.15)])
+    post = fuse(SoilPosterior(CFG), sand)
+    before = post.summary()
+    known = sand.known[-30:].mean(axis=0)
+    reaction = sand.forces[-30:].mean(axis=0) * np.array([1.0, 4.0]) + np.array([0.0, -8e3])  # a large push in z
+    vz = KNOWN_PARAMS.index("v_z")
+    sinking = known.copy()
+    sinking[vz] = -0.06
+    assert not post.update(reaction, sinking)
+    assert post.changes == 0 and post.rejected == 1
+    assert post.summary().mean == before.mean and post.updates == before.updates
+    steady = known.copy()
+    steady[vz] = 0.0
+    assert post.update(reaction, steady) and post.changes == 1
+
+
 def test_stretches_out_of_the_soil_or_not_finite_teach_nothing():
     post = SoilPosterior(CFG)
     known = np.array([200.0, 17e3, 80 * DEG, 0.0, 3.164, 0.0, 0.0, 0.5, 0.0])  # d = 0: blade above the soil

@@ -15,7 +15,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, MIN_ANCHOR_DEPTH_M,
-                                  TOLERANCE_M, StretchPlanner, describe, max_cut_depth)
+                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, max_cut_depth)
 
 LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
 
@@ -426,6 +426,13 @@ def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_i
     middle = weaker[len(wobble) + ANCHOR_WINDOW_TICKS // 2]
     assert at[1.0] + 0.005 < middle < at[0.5] - 0.005  # half way: the mean of both soils
     assert weaker[-1] == pytest.approx(at[0.5], abs=1e-3)
+    # a deeper cut is not a stronger soil: more force at another depth restarts nothing
+    planner = StretchPlanner()
+    _planner_run(planner, fused, known, wobble)
+    deeper = _known(d=0.2, q=1000.0)
+    for i in range(ANCHOR_WINDOW_TICKS):
+        planner.plan(dict(fused, f_x_hat=2 * fused["f_x_hat"], fused_stretches=1e3 + i), deeper)
+    assert planner.anchor.restarts == 0 and planner.anchor.anchor()[1]["d"] == pytest.approx(0.2)
     # no steady tick for longer than ANCHOR_MAX_AGE_TICKS: this tick's F̂ again
     planner = StretchPlanner()
     _planner_run(planner, fused, known, wobble)
@@ -433,6 +440,26 @@ def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_i
     for i in range(ANCHOR_MAX_AGE_TICKS + 1):
         plan, _ = planner.plan(dict(fused, f_x_hat=2 * fused["f_x_hat"], fused_stretches=1e3 + i), sinking)
     assert plan.max_depth_m == pytest.approx(max_cut_depth(dict(fused, f_x_hat=2 * fused["f_x_hat"]), sinking).max_depth_m, abs=1e-6)
+
+
+def test_between_stretches_the_plan_is_remade_when_the_anchor_restarts_and_every_replan_period():
+    """One stretch of evidence (the posterior unchanged) while the force moves: a stronger soil
+    is planned for as soon as the anchor restarts; otherwise the plan is repeated for at most
+    REPLAN_TICKS ticks."""
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    planner = StretchPlanner()
+    made = []
+    for i in range(ANCHOR_WINDOW_TICKS + 2 * REPLAN_TICKS):
+        f = (1.1 if i % 2 else 0.9) if i < ANCHOR_WINDOW_TICKS else 2.0
+        plan, new = planner.plan(dict(fused, f_x_hat=fused["f_x_hat"] * f, f_z_hat=fused["f_z_hat"] * f), known)
+        made.append((i, new, plan.max_depth_m, planner.anchor.restarts))
+    news = [i for i, new, _, _ in made if new]
+    assert news[0] == 0 and all(b - a <= REPLAN_TICKS for a, b in zip(news, news[1:]))
+    restart = next(i for i, _, _, restarts in made if restarts)
+    assert ANCHOR_WINDOW_TICKS <= restart < ANCHOR_WINDOW_TICKS + ANCHOR_RECENT_TICKS and made[restart][1]
+    assert made[restart][2] < made[ANCHOR_WINDOW_TICKS - 1][2] - 0.01  # the stronger soil planned for at once
 
 
 def test_an_explicit_anchor_is_checked_and_named():

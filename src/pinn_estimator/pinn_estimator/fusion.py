@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_msgs_py.params import DEG, KNOWN_PARAMS, TABLE1
+from soil_msgs_py.params import DEG, KNOWN_PARAMS, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.predictive import mixture_quantiles, model_error_std
@@ -61,7 +61,7 @@ PRIOR_BOX: dict[str, tuple[float, float]] = {
 # c ≈ 7 Pa (cohesionless), u = 0.5 c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more).
 C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
-_D, _VX = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x")
+_D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = 0.01  # a stretch with the blade (almost) out of the soil carries no evidence
 
 
@@ -201,6 +201,7 @@ class SoilPosterior:
         self.u, self.p, self.log_w = self._prior()
         self.updates = 0
         self.changes = 0
+        self.rejected = 0  # sinking stretches no component could explain (left out, see update)
         self.last_known: np.ndarray | None = None
 
     @property
@@ -250,9 +251,12 @@ class SoilPosterior:
         Per component an iterated extended Kalman update (Gauss-Newton to the stretch's MAP;
         Jacobians by forward differences), and its weight times its predictive likelihood. A
         stretch that not even the best component can explain (normalised innovation beyond
-        ``change_nis``) means a new soil: the posterior restarts from the prior for it. False
-        (nothing learnt) when the blade was not in the soil, a value is not finite or no
-        component's model has a failure wedge here."""
+        ``change_nis``) means a new soil: the posterior restarts from the prior for it, unless
+        the edge was sinking (mean v_z below −``params.STEADY_CUT_MAX_ABS_V_Z_M_S``): then it is
+        a transient the quasi-static model lacks (the penetration reaction while the edge
+        sinks), not a new soil, and the stretch is left out. False (nothing learnt) for such a
+        stretch, when the blade was not in the soil, a value is not finite or no component's
+        model has a failure wedge here."""
         force_n, known, spread_n = np.asarray(force_n, float), np.asarray(known, float), np.asarray(spread_n, float)
         finite = np.isfinite(force_n).all() and np.isfinite(known).all() and np.isfinite(spread_n).all()
         if not finite or np.atleast_2d(known)[:, _D].mean() < MIN_STRETCH_DEPTH_M:
@@ -261,6 +265,9 @@ class SoilPosterior:
         if step is None:
             return False
         if self.updates and step[3] > self.cfg.change_nis:
+            if np.atleast_2d(known)[:, _VZ].mean() < -STEADY_CUT_MAX_ABS_V_Z_M_S:
+                self.rejected += 1
+                return False
             again = self._update_components(*self._prior(), force_n, known, spread_n, distance_m)
             if again is not None:
                 step = again

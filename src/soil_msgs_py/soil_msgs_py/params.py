@@ -117,6 +117,9 @@ class Machine:
 MACHINE = Machine()
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
+# A steady cut: the edge moves vertically slower than this [m/s] (a 1:25 slope at 0.5 m/s). Faster,
+# the force carries transients a quasi-static model lacks (sinking: the penetration reaction).
+STEADY_CUT_MAX_ABS_V_Z_M_S = 0.02
 
 # Soil-tool constants of §3.1.
 ADHESION_PA = 200.0  # c_a, all soils

@@ -93,7 +93,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from soil_physics import fee
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, TABLE1
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_physics.predictive import model_error_std, upper_magnitude, within_magnitude
 
@@ -123,7 +123,7 @@ MIN_FUSED_ANCHOR_DEPTH_M = 0.04
 # penetration reaction, a transient the planned level cut never meets. Anchored to one tick,
 # the plan followed that noise (in the clay of soil_cut_report's path it swung between 0.08 and
 # 0.15 m every few seconds, a limit cycle with the deepening ramp). Steady: |v_z| at most
-# ANCHOR_MAX_ABS_V_Z_M_S (a 1:25 slope at the cut speed); the ticks averaged are the last
+# ANCHOR_MAX_ABS_V_Z_M_S (params.STEADY_CUT_MAX_ABS_V_Z_M_S); the ticks averaged are the last
 # ANCHOR_WINDOW_TICKS steady ones within ANCHOR_DEPTH_BAND_M of the newest one's depth, none
 # older than ANCHOR_MAX_AGE_TICKS; without any, this tick's F̂ as before. Shallower fast: when the
 # mean F̂_x of the last ANCHOR_RECENT_TICKS steady ticks exceeds the window's mean by more than
@@ -133,9 +133,11 @@ MIN_FUSED_ANCHOR_DEPTH_M = 0.04
 ANCHOR_WINDOW_TICKS = 60
 ANCHOR_RECENT_TICKS = 12
 ANCHOR_CHANGE_SIGMAS = 2.0
-ANCHOR_MAX_ABS_V_Z_M_S = 0.02
+ANCHOR_MAX_ABS_V_Z_M_S = STEADY_CUT_MAX_ABS_V_Z_M_S
 ANCHOR_DEPTH_BAND_M = 0.01
 ANCHOR_MAX_AGE_TICKS = 180
+# A fused plan is re-made at least this often [ticks] (StretchPlanner): 4 Hz at ~7 ms a plan.
+REPLAN_TICKS = 15
 # x is scaled to F̂_x only where both forces exceed this [N] (a ratio of small forces is noise),
 # by a factor within these limits (a posterior that far off is left to its own spread).
 SCALE_FLOOR_N = 1e3
@@ -322,6 +324,7 @@ class SteadyAnchor:
 
     def reset(self) -> None:
         self.tick = 0
+        self.restarts = 0  # times a stronger soil restarted the window
         self.entries: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
 
     def add(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> None:
@@ -341,15 +344,21 @@ class SteadyAnchor:
             self._restart_on_a_stronger_soil()
 
     def _restart_on_a_stronger_soil(self) -> None:
-        n = len(self.entries)
+        """At the newest depth (a deeper cut is not a stronger soil): restart the window from the
+        first of the last ANCHOR_RECENT_TICKS whose F̂_x leaves the older ticks' band."""
+        d_last = self.entries[-1][3][_KD]
+        same = [i for i, e in enumerate(self.entries) if abs(e[3][_KD] - d_last) <= ANCHOR_DEPTH_BAND_M]
+        n = len(same)
         if n < 2 * ANCHOR_RECENT_TICKS:
             return
-        fx = np.array([e[1] for e in self.entries])
+        fx = np.array([self.entries[i][1] for i in same])
         old, recent = fx[: n - ANCHOR_RECENT_TICKS], fx[n - ANCHOR_RECENT_TICKS:]
         level = old.mean() + ANCHOR_CHANGE_SIGMAS * max(old.std(), SCALE_FLOOR_N / 10)
-        if recent.mean() > level:  # restart from the first recent tick beyond the old soil's band
-            for _ in range(n - ANCHOR_RECENT_TICKS + int(np.argmax(recent > level))):
+        if recent.mean() > level:
+            first = same[n - ANCHOR_RECENT_TICKS + int(np.argmax(recent > level))]
+            for _ in range(first):
                 self.entries.popleft()
+            self.restarts += 1
 
     def anchor(self) -> tuple[tuple[float, float], dict[str, float]] | None:
         """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth; None
@@ -358,18 +367,22 @@ class SteadyAnchor:
             self.entries.popleft()
         if not self.entries:
             return None
-        d_last = self.entries[-1][3][KNOWN_PARAMS.index("d")]
-        near = [e for e in self.entries if abs(e[3][KNOWN_PARAMS.index("d")] - d_last) <= ANCHOR_DEPTH_BAND_M]
+        d_last = self.entries[-1][3][_KD]
+        near = [e for e in self.entries if abs(e[3][_KD] - d_last) <= ANCHOR_DEPTH_BAND_M]
         force = (float(np.mean([e[1] for e in near])), float(np.mean([e[2] for e in near])))
         return force, dict(zip(KNOWN_PARAMS, np.mean([e[3] for e in near], axis=0).tolist()))
+
+
+_KD = KNOWN_PARAMS.index("d")
 
 
 class StretchPlanner:
     """``max_cut_depth`` with fixed settings, as the planner node and the cut trial both run it.
 
-    A plan from the fused posterior changes only with a new stretch of evidence (2 Hz): it is
-    made once per stretch (with that tick's Θ_k) and repeated for the ticks between; a plan from
-    the PINN's point estimate is made every tick. ``plan`` raises ValueError like
+    A plan from the fused posterior is made with each new stretch of evidence (2 Hz), when the
+    steady anchor restarts (a stronger soil) and at least every REPLAN_TICKS (the anchor moves
+    with every tick, the lift rule needs this tick's F̂), with that tick's Θ_k, and repeated for
+    the ticks between; a plan from the PINN's point estimate is made every tick. ``plan`` raises ValueError like
     ``max_cut_depth`` (the caller decides what a refused estimate means)."""
 
     def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
@@ -378,7 +391,7 @@ class StretchPlanner:
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
         self.include_residual = bool(include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
-        self._fused: tuple[tuple, Plan] | None = None
+        self._fused: tuple[tuple, Plan, int] | None = None
         self.anchor = SteadyAnchor()
 
     def forget(self) -> None:
@@ -394,8 +407,9 @@ class StretchPlanner:
         """(the plan or None, whether it was newly made rather than repeated for this stretch)."""
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
         self.anchor.add(estimate, known)
-        key = (estimate.get("fused_stretches"), self.margin, self.d_max_m, self.cut_speed_m_s, self.force_quantile)
-        if fused and self._fused is not None and self._fused[0] == key:
+        key = (estimate.get("fused_stretches"), self.anchor.restarts, self.margin, self.d_max_m, self.cut_speed_m_s,
+               self.force_quantile)
+        if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
             return self._fused[1], False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
                         include_residual=self.include_residual, force_quantile=self.force_quantile)
@@ -407,7 +421,7 @@ class StretchPlanner:
             now = max_cut_depth(estimate, known, **settings)
             if now is not None and now.max_depth_m < plan.max_depth_m:
                 plan = now
-        self._fused = (key, plan) if fused and plan is not None else None
+        self._fused = (key, plan, self.anchor.tick) if fused and plan is not None else None
         return plan, True
 
 
