@@ -182,19 +182,20 @@ def grid(densities, depth: float, seeds: int, duration_s: float = 10.0, offset: 
 def section_forecast(args, models) -> dict:
     print("## 1. Forecast at another depth (held-out episodes, shipped models, calibrated fusion)\n")
     out = {}
-    for world in WORLDS:
+    for world in args.worlds:
         model, path = models[world]
         cfg_path = config_path(world)
         t0 = time.perf_counter()
         ds = forecast_dataset(world)
         sim_s = time.perf_counter() - t0
-        fusion = load_calibrated(world)
+        fusion = dataclasses.replace(load_calibrated(world), terms=tuple(args.fusion_terms))
         t0 = time.perf_counter()
         report = forecast(model, ds, classical=args.classical, workers=args.workers, fusion=fusion)
         eval_s = time.perf_counter() - t0
         print(f"### {world} world: model `{path.name}`, fusion `{cfg_path.name if cfg_path.exists() else 'defaults'}` "
               f"(rel_std {'/'.join(f'{v:g}' for v in fusion.rel_std)}, forecast_rel_std "
-              f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})\n")
+              f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})"
+              + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in fusion.terms)}" if fusion.terms else "") + "\n")
         print("\n".join(fc.markdown(report)))
         print(f"\nWall time: {sim_s:.1f} s simulating {len(ds)} episodes, {eval_s:.1f} s forecasting "
               f"({'with' if args.classical else 'without'} the classical fit, {args.workers} workers).\n", flush=True)
@@ -532,6 +533,16 @@ def parse_change(text: str) -> tuple[tuple[str, float], tuple[str, float]]:
         raise argparse.ArgumentTypeError(f"{text!r}: expected SOIL:ID>SOIL:ID, e.g. Sand:20>Clay:80") from None
 
 
+def parse_term(text: str) -> tuple[str, float]:
+    """NAME=K of ``--fusion-term`` (``force_terms.parse_terms``: catalogue names and forms)."""
+    from soil_physics.force_terms import parse_terms
+
+    try:
+        return parse_terms([text])[0]
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"--fusion-term {text!r}: {err}") from None
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="smoke run: no classical fit, one density, fewer soil changes")
@@ -549,6 +560,11 @@ def main() -> None:
     p.add_argument("--change", dest="changes", type=parse_change, action="append", default=None,
                    help="section 4: soil before and after the boundary, SOIL:ID>SOIL:ID (repeatable)")
     p.add_argument("--change-duration", type=float, default=20.0, help="section 4: episode length [s]")
+    p.add_argument("--worlds", nargs="+", choices=WORLDS, default=list(WORLDS), help="section 1: the worlds (default: both)")
+    p.add_argument("--fusion-term", dest="fusion_terms", type=parse_term, action="append", default=[], metavar="NAME=K",
+                   help="section 1: a force term (catalogue name or form:..., e.g. one soil_discrepancy named) added to "
+                        "the fused posterior's physics, with the calibrated error laws unchanged (repeatable): the "
+                        "forecast before and after adding what was found")
     args = p.parse_args()
     sections = {int(s) for s in args.sections.split(",") if s.strip()}
     if args.changes is None:

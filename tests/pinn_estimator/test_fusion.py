@@ -147,6 +147,22 @@ def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):
         FusionConfig.load(tmp_path / "junk.json")
 
 
+def test_the_posteriors_physics_is_the_checkpoints_plus_the_terms_its_config_adds():
+    """A term the discrepancy workflow named can go into the fusion config before the PINN is
+    retrained with it; a term the checkpoint has keeps the checkpoint's k."""
+    from pinn_estimator.fusion_calibration import config_for_model
+    from pinn_estimator.model import EstimatorNet, ModelConfig
+
+    small = dict(d_model=16, n_heads=2, n_layers=1, ff_dim=32)
+    mean, std = np.zeros(9), np.ones(9)
+    plain = EstimatorNet(ModelConfig(**small), mean, std)
+    with_inertia = EstimatorNet(ModelConfig(**small, extra_terms=(("soil_inertia", 2.0),)), mean, std)
+    cfg = FusionConfig(terms=(("form:-qnq*tanhvx0.1", 0.75), ("soil_inertia", 9.0)))
+    assert config_for_model(cfg, plain).terms == cfg.terms
+    assert config_for_model(cfg, with_inertia).terms == (("soil_inertia", 2.0), ("form:-qnq*tanhvx0.1", 0.75))
+    assert config_for_model(FusionConfig(), with_inertia).terms == (("soil_inertia", 2.0),)
+
+
 def test_the_shipped_calibrations_load():
     for world in ("fee", "default"):
         assert (MODELS_DIR / f"fusion_{world}.json").exists()

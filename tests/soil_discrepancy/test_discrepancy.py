@@ -27,6 +27,7 @@ from soil_discrepancy import (
     split_holdout,
 )
 from soil_discrepancy.cli import main as cli_main
+from soil_discrepancy.gap import depth_forecast_gap
 from soil_physics import force_terms, fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -241,6 +242,35 @@ def test_prediction_hook_compares_any_models_predictions(bag_dirs):
     assert comp["improved_episodes"] == comp["n_episodes"] == 8 and comp["by_regime"]
     with pytest.raises(ValueError, match="shape"):
         compare_predictions(test, before[:-1], after)
+
+
+def test_the_force_at_another_depth_from_one_depth_shows_a_missing_term_and_not_a_wrong_one(bag_dirs):
+    """depth_forecast_gap: θ fitted on one episode, the force of another episode of the group at
+    another depth. With soil inertia hidden, adding it shrinks that error; on the control, adding
+    it makes the error grow (the confirmation then fails)."""
+    for name, better in (("soil_inertia", True), ("control", False)):
+        frame = build_frame(load_dataset(bag_dirs[name]), stride=4)
+        test = frame.select(groups=frame.groups[:4])
+        fc = depth_forecast_gap(test, AugmentedFEE(()), AugmentedFEE((("soil_inertia", 4.0),)))
+        assert fc["pairs"] == 4 * 2 * 2 * 2, "per group: 2 speeds x 2 depths, each episode to the two at the other depth"
+        if better:
+            assert fc["reduction"] > 0.2 and fc["p_paired"] < 0.05, fc
+        else:
+            assert fc["reduction"] < 0.0 and fc["p_paired"] > 0.5, fc
+        assert fc["before"]["x_bias_deeper_pct"] is not None and fc["after"]["vector_pct"] >= 0.0
+
+
+def test_a_form_is_confirmed_by_the_force_error_or_without_worsening_it_by_the_forecast():
+    from soil_discrepancy.workflow import _confirmed
+
+    def held_out(sse, red, p):
+        return {"sse_reduction": sse, "depth_forecast": {"reduction": red, "p_paired": p}}
+    assert _confirmed(held_out(0.06, None, 1.0), 0.05, 0.01)
+    assert _confirmed(held_out(0.02, 0.17, 1e-6), 0.05, 0.01)  # the default world's surcharge relief
+    assert not _confirmed(held_out(-0.03, 0.18, 1e-7), 0.05, 0.01)  # a better forecast bought with a worse force
+    assert not _confirmed(held_out(0.02, 0.17, 0.2), 0.05, 0.01)
+    assert not _confirmed(held_out(0.02, 0.03, 1e-6), 0.05, 0.01)
+    assert not _confirmed(held_out(None, None, 1.0), 0.05, 0.01)
 
 
 def test_prediction_hook_is_called_on_the_heldout_episodes(reports):

@@ -53,8 +53,12 @@ DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): th
 
 def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
     """``fusion`` (None: the shipped calibration of the default world) with the physics of
-    ``model`` (an ``EstimatorNet``): its catalogue terms are added to the FEE, as in its own physics part."""
-    return dataclasses.replace(fusion or load_calibrated(DEFAULT_WORLD), terms=model.cfg.extra_terms)
+    ``model`` (an ``EstimatorNet``): its catalogue terms are added to the FEE, as in its own physics
+    part, then any term the config itself adds that the model does not have (e.g. one the
+    discrepancy workflow named, before the PINN is retrained with it)."""
+    fusion = fusion or load_calibrated(DEFAULT_WORLD)
+    own = {n for n, _ in model.cfg.extra_terms}
+    return dataclasses.replace(fusion, terms=(*model.cfg.extra_terms, *(t for t in fusion.terms if t[0] not in own)))
 
 
 def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[dict]:
@@ -150,13 +154,23 @@ def main(argv=None) -> int:
     p.add_argument("--world", choices=("fee", "default"), required=True)
     p.add_argument("--out", type=Path, default=None, help="config JSON (default: models/fusion_<world>.json)")
     p.add_argument("--duration", type=float, default=10.0, help="calibration episode length [s]")
+    p.add_argument("--term", action="append", default=[], metavar="NAME=K",
+                   help="a force term in the posterior's physics beside the FEE (repeatable; a catalogue name or a "
+                        "form soil_discrepancy named, e.g. form:-qnq*tanhvx0.1=0.756); saved in the config, so the "
+                        "estimator's posterior uses it with any checkpoint (besides the checkpoint's own terms)")
     args = p.parse_args(argv)
+    from soil_physics.force_terms import parse_terms
+
     from .evaluate import forecast_dataset
 
+    try:
+        terms = parse_terms(args.term)
+    except ValueError as err:
+        p.error(f"--term: {err}")
     out = args.out or config_path(args.world)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M)
-    cfg, rows = calibrate(ds, FusionConfig())
+    cfg, rows = calibrate(ds, FusionConfig(terms=terms))
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n

@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from soil_msgs_py.params import KNOWN_PARAMS
 from soil_physics.augmented_fee import AugmentedFEE
 
 from .candidates import paired_test
@@ -95,3 +96,55 @@ def fee_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: Thet
 
 
 __all__ = ["AXES", "compare_predictions", "error_metrics", "fee_gap"]
+
+
+# Two episodes of one θ-group are "another depth" for the forecast when their steady depths
+# differ by at least this [m]; steady = the second half of each episode's analysed ticks.
+FORECAST_MIN_DEPTH_GAP_M = 0.02
+
+
+def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: ThetaFit | None = None) -> dict:
+    """The planner's question on held-out groups, before/after the named terms: θ fitted on one
+    episode alone (one depth, as an estimator cutting sees it), the model's mean force over the
+    steady half of another episode of the same group at another depth, against the measured
+    mean there. Per ordered pair (A, B): |error| of F_x, F_z and of the force vector, % of the
+    measured |F|; the mean over pairs, the signed bias going deeper and shallower, and a paired
+    Wilcoxon over pairs (after < before). Why: a joint fit over every depth of a group hides a
+    wrong depth profile (θ bends to it), a fit at one depth does not."""
+    steady, depth = {}, {}
+    for e in frame.episodes:
+        idx = np.flatnonzero(frame.episode == e)
+        half = idx[len(idx) // 2:]
+        steady[int(e)] = half
+        depth[int(e)] = float(np.median(frame.known[half, KNOWN_PARAMS.index("d")]))
+    pairs = [(int(a), int(b)) for a in frame.episodes for b in frame.episodes
+             if a != b and frame.group_of[a] == frame.group_of[b] and abs(depth[int(a)] - depth[int(b)]) >= FORECAST_MIN_DEPTH_GAP_M]
+    out = {"pairs": len(pairs), "min_depth_gap_m": FORECAST_MIN_DEPTH_GAP_M}
+    if not pairs:
+        return {**out, "before": None, "after": None, "reduction": None, "p_paired": 1.0}
+    errors = {}
+    for label, model in (("before", before), ("after", after)):
+        fits = {}
+        for a in {p[0] for p in pairs}:
+            fits[a] = fit_fixed(frame.select(episodes=[a]), model, start)
+        rows = []
+        for a, b in pairs:
+            fb = frame.select(episodes=[b])
+            _, pred = residuals(fb, model, fits[a])
+            m = np.arange(len(fb)) >= len(fb) - len(steady[b])  # b's steady half (ticks in order)
+            measured, predicted = fb.forces[m].mean(0), np.nanmean(pred[m], 0) if np.isfinite(pred[m]).any() else np.full(2, np.nan)
+            scale = max(float(np.hypot(*measured)), 1.0)
+            rows.append([*(100 * (predicted - measured) / np.maximum(np.abs(measured), 1.0)),
+                         100 * float(np.hypot(*(predicted - measured))) / scale, depth[b] > depth[a]])
+        errors[label] = np.array(rows, float)
+    summary = {}
+    for label, r in errors.items():
+        deeper = r[:, 3] == 1.0
+        summary[label] = {"x_pct": float(np.nanmean(np.abs(r[:, 0]))), "z_pct": float(np.nanmean(np.abs(r[:, 1]))),
+                          "vector_pct": float(np.nanmean(r[:, 2])),
+                          "x_bias_deeper_pct": float(np.nanmean(r[deeper, 0])) if deeper.any() else None,
+                          "x_bias_shallower_pct": float(np.nanmean(r[~deeper, 0])) if (~deeper).any() else None}
+    b, a = errors["before"][:, 2], errors["after"][:, 2]
+    reduction = 1.0 - summary["after"]["vector_pct"] / summary["before"]["vector_pct"] if summary["before"]["vector_pct"] > 0 else None
+    return {**out, **summary, "reduction": reduction, "p_paired": paired_test(np.where(np.isfinite(b), b, np.inf), a),
+            "improved_pairs": int((a < b).sum())}
