@@ -18,6 +18,7 @@ from soil_msgs_py import topics as T
 from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
+from pinn_estimator.fusion_calibration import DEFAULT_WORLD, load_calibrated
 from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.node import load_estimator_model
@@ -397,4 +398,7 @@ def test_a_model_with_other_physics_restarts_the_posterior_and_the_same_keeps_it
     assert est.posterior.updates == 4
     other = EstimatorNet(ModelConfig(extra_terms=(("soil_inertia", 4.0),)), torch.zeros(9), torch.ones(9))
     est.set_model(other)
-    assert est.posterior.updates == 0 and est.posterior.cfg.terms == (("soil_inertia", 4.0),)
+    shipped = load_calibrated(DEFAULT_WORLD).terms  # the terms the calibrated config adds itself
+    assert est.posterior.updates == 0 and est.posterior.cfg.terms == (("soil_inertia", 4.0), *shipped)
+    est.set_model(model)  # back: the new model's terms do not stay behind
+    assert est.posterior.cfg.terms == shipped

@@ -307,6 +307,7 @@ class OnlineEstimator:
         # (extra_terms compaction_hardening); known only for an episode seen from its start.
         self.distance_m = 0.0
         self._distance_known = False
+        self._fusion_config = fusion  # as given: a new model's physics is merged into it (set_model)
         self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
         self.soil_map = SoilMap()
         self.publish_map = publish_map
@@ -337,7 +338,7 @@ class OnlineEstimator:
         is another, which makes that evidence mean something else: then it starts over."""
         check_compatible(model)
         self.model = model.eval()
-        cfg = config_for_model(self.posterior.cfg, model)
+        cfg = config_for_model(self._fusion_config, model)
         if cfg != self.posterior.cfg:
             self.fusion = PathFusion(SoilPosterior(cfg))
             self._reset_fusion()
