@@ -121,15 +121,15 @@ MIN_FUSED_ANCHOR_DEPTH_M = 0.04
 # force of a cut fluctuates by ±20 % from half a second to the next (the default world's
 # particle events drop the grip for a moment), and while the edge sinks it carries the
 # penetration reaction, a transient the planned level cut never meets. Anchored to one tick,
-# the plan followed that noise (in the clay of soil_cut_report's path it swung between 0.08 and
-# 0.15 m every few seconds, a limit cycle with the deepening ramp). Steady: |v_z| at most
-# ANCHOR_MAX_ABS_V_Z_M_S (params.STEADY_CUT_MAX_ABS_V_Z_M_S); the ticks averaged are the last
-# ANCHOR_WINDOW_TICKS steady ones within ANCHOR_DEPTH_BAND_M of the newest one's depth, none
-# older than ANCHOR_MAX_AGE_TICKS; without any, this tick's F̂ as before. Shallower fast: when the
-# mean F̂_x of the last ANCHOR_RECENT_TICKS steady ticks exceeds the window's mean by more than
-# ANCHOR_CHANGE_SIGMAS of its per-tick spread (a stronger soil, not the cut's own fluctuation),
-# the window restarts from the first of them beyond that band and the plan follows at once; a weaker soil is followed
-# as the window fills (deeper slowly).
+# the plan followed that noise (on soil_cut_report's default-world path it retreated from 0.30
+# to 0.10 m in sand that takes 0.30 m). Steady: |v_z| at most ANCHOR_MAX_ABS_V_Z_M_S
+# (params.STEADY_CUT_MAX_ABS_V_Z_M_S); the ticks averaged are the last ANCHOR_WINDOW_TICKS
+# steady ones within ANCHOR_DEPTH_BAND_M of the newest one's depth, none older than
+# ANCHOR_MAX_AGE_TICKS; without any, this tick's F̂ as before. Shallower fast: when, at the
+# newest depth, the mean F̂_x of the last ANCHOR_RECENT_TICKS steady ticks exceeds the older
+# ticks' mean by more than ANCHOR_CHANGE_SIGMAS of their per-tick spread (a stronger soil, not
+# the cut's own fluctuation), the window restarts from the first of them beyond that band and
+# the plan follows at once; a weaker soil is followed as the window fills (deeper slowly).
 ANCHOR_WINDOW_TICKS = 60
 ANCHOR_RECENT_TICKS = 12
 ANCHOR_CHANGE_SIGMAS = 2.0
@@ -382,8 +382,8 @@ class StretchPlanner:
     A plan from the fused posterior is made with each new stretch of evidence (2 Hz), when the
     steady anchor restarts (a stronger soil) and at least every REPLAN_TICKS (the anchor moves
     with every tick, the lift rule needs this tick's F̂), with that tick's Θ_k, and repeated for
-    the ticks between; a plan from the PINN's point estimate is made every tick. ``plan`` raises ValueError like
-    ``max_cut_depth`` (the caller decides what a refused estimate means)."""
+    the ticks between; a plan from the PINN's point estimate is made every tick. ``plan``
+    raises ValueError like ``max_cut_depth`` (the caller decides what a refused estimate means)."""
 
     def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
                  cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S, include_residual: bool = True,
@@ -499,8 +499,7 @@ class _FusedForceModel:
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
         if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
             with np.errstate(all="ignore"):
-                fx_now, fz_now, _ = fee.fee_xz({**self.theta, **at, "phi": self.theta["phi"], "c": self.theta["c"],
-                                                "delta": self.theta["delta"], "d": np.array([d_now])})
+                fx_now, fz_now, _ = fee.fee_xz({**self.theta, **at, "d": np.array([d_now])})  # (Θ_k has no φ, c, δ)
             r = np.array(anchor)[:, None] - np.stack([np.broadcast_to(fx_now, (FUSED_SAMPLES,)),
                                                       np.broadcast_to(fz_now, (FUSED_SAMPLES,))])
             r = np.where(np.isfinite(r), r, 0.0)
