@@ -231,6 +231,23 @@ def test_splits_are_by_group_stratified_and_folds_partition(bag_dirs):
     assert len(per_episode.groups) == len(per_episode.names) == 32
 
 
+def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag_dirs):
+    """group_by='gamma': the soil label is never read; episodes of one γ (a known parameter) share
+    θ. On the fixture's 4 soils x 2 densities that is the labelled grouping, up to the names."""
+    ds = load_dataset(bag_dirs["control"])
+    labelled = build_frame(ds, stride=4)
+    metas = [dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) for m in ds.metas]
+    by_gamma = build_frame(dataclasses.replace(ds, metas=metas), stride=4, group_by="gamma")
+    assert set(by_gamma.soils) == {"unknown"} and all(n.startswith("γ≈") for n in by_gamma.group_names)
+    same = {}
+    for e in labelled.episodes:
+        same.setdefault(int(labelled.group_of[e]), set()).add(int(by_gamma.group_of[e]))
+    assert all(len(v) == 1 for v in same.values()) and len(set().union(*same.values())) == len(labelled.groups) == 8
+    assert build_frame(ds, stride=4, group_by="gamma").group_names == by_gamma.group_names  # labels ignored
+    with pytest.raises(ValueError, match="group_by='soil' must be one of"):
+        build_frame(ds, stride=4, group_by="soil")
+
+
 def test_prediction_hook_compares_any_models_predictions(bag_dirs):
     frame = build_frame(load_dataset(bag_dirs["control"]), stride=6)
     test = frame.select(groups=[0, 1])

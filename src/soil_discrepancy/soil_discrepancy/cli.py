@@ -19,6 +19,8 @@ from pathlib import Path
 def parse_args(argv=None) -> argparse.Namespace:
     from pinn_estimator.dataset import add_skip_bad_bags_option
 
+    from .frame import GROUP_BY
+
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("bag_dir", type=Path, help="directory of episode bags (rosbag2), simulated or measured")
@@ -31,8 +33,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil (default 2)")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
     p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
-    p.add_argument("--group-by", choices=("auto", "episode"), default="auto",
-                   help="θ shared by episodes of the same metadata soil + I_d (auto) or one θ per episode")
+    p.add_argument("--group-by", choices=GROUP_BY, default="auto",
+                   help="θ shared by episodes of the same metadata soil + I_d (auto), one θ per episode, or shared by "
+                        "episodes of the same measured unit weight γ (gamma: bags without a soil label; no label read)")
     p.add_argument("--allow-negative-k", action="store_true",
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")
     p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation (default: all cores)")

@@ -2,8 +2,9 @@
 
 A θ-group is the episodes that dug the same soil (same soil name and relative density in the
 bag metadata), or every episode on its own when the metadata does not say (``group_by=
-"episode"``, or a real machine's bags with soil 'unknown'): one soil θ = (φ, c, δ) is fitted per
-group (``fee_fit``). Nothing here reads the simulator's ground truth (``Dataset.truth``) or the
+"episode"``, or a real machine's bags with soil 'unknown'), or the episodes whose measured soil
+unit weight γ (a known parameter Θ_k carries) is the same (``group_by="gamma"``: bags without
+a soil label): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads the simulator's ground truth (``Dataset.truth``) or the
 bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
 time and the soil name / relative density used as a grouping label. SI units.
 """
@@ -20,6 +21,11 @@ from soil_physics.travel import distance_in_soil_of_known
 MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
 SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
 UNKNOWN_SOILS = ("", "unknown", "none", "?")
+# group_by="gamma": episodes whose median γ differs from the previous (sorted) one by less than
+# this share are one group. The catalogue's soils and densities differ by >= 0.5 % in γ where
+# they differ at all (15.5-21 kN/m³); a machine's γ is a configured or weighed number.
+GAMMA_GROUP_RTOL = 0.002
+GROUP_BY = ("auto", "episode", "gamma")
 _KI = {n: i for i, n in enumerate(KNOWN_PARAMS)}
 
 
@@ -96,17 +102,37 @@ def _soil_label(meta) -> str:
     return "unknown" if soil.lower() in UNKNOWN_SOILS else soil
 
 
+def _gamma_groups(ds) -> list[str]:
+    """Per episode, the name of its γ-group (GAMMA_GROUP_RTOL): chains of sorted median γ."""
+    gamma = np.array([float(np.median(np.asarray(ds.known[ds.episode_rows(e)], float)[:, _KI["gamma"]]))
+                      for e in range(len(ds.names))])
+    if not np.isfinite(gamma).all():
+        bad = ds.names[int(np.flatnonzero(~np.isfinite(gamma))[0])]
+        raise ValueError(f"episode {bad}: gamma is not finite; cannot group by it")
+    order = np.argsort(gamma, kind="stable")
+    label, names, start = np.zeros(len(gamma), int), [], gamma[order[0]]
+    for j, e in enumerate(order):
+        if j and gamma[e] > gamma[order[j - 1]] * (1 + GAMMA_GROUP_RTOL):
+            start = gamma[e]
+        if not names or names[-1] != start:
+            names.append(start)
+        label[e] = len(names) - 1
+    return [f"γ≈{names[label[e]] / 1e3:.2f} kN/m³" for e in range(len(gamma))]
+
+
 def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
                 group_by: str = "auto") -> Frame:
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
 
     group_by: 'auto' — episodes with the same metadata soil name and relative density share θ
-    (an episode whose soil is unknown is its own group); 'episode' — one θ per episode.
+    (an episode whose soil is unknown is its own group); 'episode' — one θ per episode;
+    'gamma' — episodes with the same measured unit weight γ share θ (no label read; two soils
+    of one γ share a θ, which the report's regimes then show as a misfit).
     """
     if stride < 1:
         raise ValueError(f"stride={stride} must be >= 1 tick")
-    if group_by not in ("auto", "episode"):
-        raise ValueError(f"group_by={group_by!r} must be 'auto' or 'episode'")
+    if group_by not in GROUP_BY:
+        raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
     n_ep = len(ds.names)
     if n_ep == 0:
         raise ValueError("the dataset has no episodes")
@@ -119,9 +145,14 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         except (TypeError, ValueError, AttributeError):
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
+    if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
+        soils, dens = ["unknown"] * n_ep, [math.nan] * n_ep
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
+    gamma_keys = _gamma_groups(ds) if group_by == "gamma" else None
     for e in range(n_ep):
-        if group_by == "auto" and soils[e] != "unknown":
+        if gamma_keys is not None:
+            key = gamma_keys[e]
+        elif group_by == "auto" and soils[e] != "unknown":
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
         else:
             key = ds.names[e]

@@ -100,7 +100,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     else:
         source = frame.source
     n_ep = len(frame.episodes)
-    say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({'soil + I_d' if _shared(frame) else 'one per episode'}), "
+    say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")
 
     # 1. the initial model's θ on every group (per-group fits are independent of each other)
@@ -286,10 +286,17 @@ def _shared(frame: Frame) -> bool:
     return len(frame.groups) < len(frame.episodes)
 
 
+def _grouping(frame: Frame) -> str:
+    """What a θ-group is in this frame, for the report."""
+    if frame.group_by == "gamma":
+        return "soil group (episodes of the same measured unit weight γ; no soil label read)"
+    return "soil group (metadata soil + I_d)" if _shared(frame) else "episode"
+
+
 def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
     return {
         "episodes": int(len(frame.episodes)), "ticks": int(len(frame)), "theta_groups": int(len(frame.groups)),
-        "theta_per": "soil group (metadata soil + I_d)" if _shared(frame) else "episode",
+        "theta_per": _grouping(frame),
         "metadata_soils": frame.has_metadata(),
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
