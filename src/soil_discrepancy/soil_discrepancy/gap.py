@@ -95,7 +95,7 @@ def fee_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: Thet
     return out, {"before": (rb, fit_b), "after": (ra, fit_a)}
 
 
-__all__ = ["AXES", "compare_predictions", "error_metrics", "fee_gap"]
+__all__ = ["AXES", "compare_predictions", "depth_forecast_gap", "error_metrics", "fee_gap"]
 
 
 # Two episodes of one θ-group are "another depth" for the forecast when their steady depths
@@ -103,14 +103,16 @@ __all__ = ["AXES", "compare_predictions", "error_metrics", "fee_gap"]
 FORECAST_MIN_DEPTH_GAP_M = 0.02
 
 
-def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: ThetaFit | None = None) -> dict:
+def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE) -> dict:
     """The planner's question on held-out groups, before/after the named terms: θ fitted on one
-    episode alone (one depth, as an estimator cutting sees it), the model's mean force over the
-    steady half of another episode of the same group at another depth, against the measured
-    mean there. Per ordered pair (A, B): |error| of F_x, F_z and of the force vector, % of the
-    measured |F|; the mean over pairs, the signed bias going deeper and shallower, and a paired
-    Wilcoxon over pairs (after < before). Why: a joint fit over every depth of a group hides a
-    wrong depth profile (θ bends to it), a fit at one depth does not."""
+    episode alone (one depth, as an estimator cutting sees it; from the coarse grid, nothing of
+    the other episodes), the model's mean force over the steady half of another episode of the
+    same group at another depth, against the measured mean there. Per ordered pair (A, B):
+    |error| of F_x, F_z and of the force vector, % of the measured |F|; the mean over pairs,
+    the signed bias going deeper and shallower, and a paired Wilcoxon over the source episodes A
+    (each A's pairs averaged: pairs from one fit are not independent), after < before. Why: a
+    joint fit over every depth of a group hides a wrong depth profile (θ bends to it), a fit at
+    one depth does not."""
     steady, depth = {}, {}
     for e in frame.episodes:
         idx = np.flatnonzero(frame.episode == e)
@@ -126,7 +128,7 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, 
     for label, model in (("before", before), ("after", after)):
         fits = {}
         for a in {p[0] for p in pairs}:
-            fits[a] = fit_fixed(frame.select(episodes=[a]), model, start)
+            fits[a] = fit_fixed(frame.select(episodes=[a]), model)
         rows = []
         for a, b in pairs:
             fb = frame.select(episodes=[b])
@@ -135,7 +137,7 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, 
             measured, predicted = fb.forces[m].mean(0), np.nanmean(pred[m], 0) if np.isfinite(pred[m]).any() else np.full(2, np.nan)
             scale = max(float(np.hypot(*measured)), 1.0)
             rows.append([*(100 * (predicted - measured) / np.maximum(np.abs(measured), 1.0)),
-                         100 * float(np.hypot(*(predicted - measured))) / scale, depth[b] > depth[a]])
+                         100 * float(np.hypot(*(predicted - measured))) / scale, depth[b] > depth[a], a])
         errors[label] = np.array(rows, float)
     summary = {}
     for label, r in errors.items():
@@ -146,5 +148,7 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, 
                           "x_bias_shallower_pct": float(np.nanmean(r[~deeper, 0])) if (~deeper).any() else None}
     b, a = errors["before"][:, 2], errors["after"][:, 2]
     reduction = 1.0 - summary["after"]["vector_pct"] / summary["before"]["vector_pct"] if summary["before"]["vector_pct"] > 0 else None
-    return {**out, **summary, "reduction": reduction, "p_paired": paired_test(np.where(np.isfinite(b), b, np.inf), a),
-            "improved_pairs": int((a < b).sum())}
+    sources = errors["before"][:, 4]
+    per_a = [(np.nanmean(b[sources == s]), np.nanmean(a[sources == s])) for s in np.unique(sources)]
+    return {**out, **summary, "reduction": reduction, "p_paired": paired_test(*np.array(per_a).T),
+            "source_episodes": len(per_a), "improved_pairs": int((a < b).sum())}

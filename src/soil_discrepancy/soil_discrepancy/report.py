@@ -32,6 +32,8 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
     if found is not None:
         paths.append(_atomic(out / CATALOGUE_FILE, found))
+    elif (out / CATALOGUE_FILE).exists():  # an earlier run's in this directory: this report confirms none
+        (out / CATALOGUE_FILE).unlink()
     return paths
 
 
@@ -109,7 +111,8 @@ def markdown(report: dict, figures=()) -> str:
             lines += ["", f"**The force at another depth** (the planner's question): θ fitted on one held-out episode alone, "
                       f"the model's mean force over the steady half of another episode of the same group at least "
                       f"{100 * fc['min_depth_gap_m']:g} cm deeper or shallower, against the measured one; {fc['pairs']} ordered "
-                      f"pairs; paired Wilcoxon over pairs (after < before): p = {_p(fc['p_paired'])}, {fc['improved_pairs']}/"
+                      f"pairs from {fc.get('source_episodes', '–')} fits; paired Wilcoxon over those episodes (each one's "
+                      f"pairs averaged; after < before): p = {_p(fc['p_paired'])}, {fc['improved_pairs']}/"
                       f"{fc['pairs']} pairs improved.", "",
                       "| | \\|F\\| error [% of \\|F\\|] | F_x error | F_x bias deeper | F_x bias shallower | F_z error |",
                       "|---|---|---|---|---|---|"]
@@ -209,7 +212,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
         if alone:
             lines.append(f"- On its own (held-out test episodes): force RMSE {_n(alone['test_rmse_before'])} N → "
                          f"{_n(alone['test_rmse_after'])} N, force at another depth {_n(alone['forecast_pct_before'], '.1f')} → "
-                         f"{_n(alone['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(alone['forecast_p'])}): "
+                         f"{_n(alone['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(alone['forecast_p'])}, Holm "
+                         f"over the forms judged alone: the held-out episodes chose among them): "
                          + ("confirmed." if alone["confirmed"] else "not confirmed."))
         if nc:
             lines.append(f"- Held-out test RMSE with all the accepted form(s) {_n(nc['test_rmse_before'])} N → "

@@ -31,7 +31,7 @@ from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
 from .gap import compare_predictions, depth_forecast_gap, fee_gap
-from .regimes import MIN_EFFECT, bin_edges, regime_analysis, variable_labels
+from .regimes import MIN_EFFECT, bin_edges, holm, regime_analysis, variable_labels
 
 REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
@@ -158,7 +158,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     if test_groups:
         ftest = frame.select(groups=test_groups)
         test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
-        test["depth_forecast"] = depth_forecast_gap(ftest, initial, final, base)
+        test["depth_forecast"] = depth_forecast_gap(ftest, initial, final)
         forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
         if forms_in and not _confirmed(test, min_gain, alpha):
             # a form from a library of hundreds is a claim only if the test episodes confirm it: the
@@ -169,26 +169,33 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             for s in forms_in:
                 alone = AugmentedFEE([*catalogue_model.terms, (s.name, k_of[s.name])])
                 t1, _ = fee_gap(ftest, catalogue_model, alone, base, edges=edges)
-                t1["depth_forecast"] = depth_forecast_gap(ftest, catalogue_model, alone, base)
-                marginal[s.name] = {"confirmed": _confirmed(t1, min_gain, alpha), **_confirmation(t1)}
+                t1["depth_forecast"] = depth_forecast_gap(ftest, catalogue_model, alone)
+                marginal[s.name] = t1
+            # the held-out episodes now choose among forms: their forecast p-values are Holm-corrected
+            p_fc = holm([(t["depth_forecast"] or {}).get("p_paired", 1.0) for t in marginal.values()])
+            for (name, t1), p_h in zip(list(marginal.items()), p_fc):
+                t1["depth_forecast"] = {**t1["depth_forecast"], "p_paired": float(p_h)}
+                marginal[name] = {"confirmed": _confirmed(t1, min_gain, alpha), **_confirmation(t1)}
             kept = [s for s in forms_in if marginal[s.name]["confirmed"]]
             if kept:  # the forms confirmed on their own, their k refitted without the others (selection part)
                 trial, start = catalogue_model, sel["fit"]
                 for s in kept:
                     fit_k = fit_joint(fsel, trial, s.name, start, allow_negative_k=allow_negative_k)
                     trial, start = AugmentedFEE([*trial.terms, (s.name, float(fit_k.k))]), fit_k
-                t2, arr2 = fee_gap(ftest, initial, trial, base, edges=edges)
-                t2["depth_forecast"] = depth_forecast_gap(ftest, initial, trial, base)
+                # the refitted forms together, against the catalogue terms alone (not the initial model:
+                # the catalogue's own gain must not carry them)
+                t2, _ = fee_gap(ftest, catalogue_model, trial, base, edges=edges)
+                t2["depth_forecast"] = depth_forecast_gap(ftest, catalogue_model, trial)
                 if _confirmed(t2, min_gain, alpha):
                     k_new = dict(trial.terms)
                     kept = [dataclasses.replace(s, k=k_new[s.name]) for s in kept]
                 else:
                     kept = []
             dropped = [s for s in forms_in if s.name not in {k.name for k in kept}]
-            say(f"not confirmed on the held-out test episodes (RMSE {test['before']['rmse']:.0f} -> "
-                f"{test['after']['rmse']:.0f} N, force at another depth {_fc_text(test)}): the form(s) "
-                f"{', '.join(s.name for s in dropped)} are not named"
-                + (f"; confirmed on their own: {', '.join(s.name for s in kept)}" if kept else ""))
+            say(f"the accepted form(s) together are not confirmed on the held-out test episodes (RMSE "
+                f"{test['before']['rmse']:.0f} -> {test['after']['rmse']:.0f} N, force at another depth {_fc_text(test)})"
+                + (f"; not named: {', '.join(s.name for s in dropped)}" if dropped else "")
+                + (f"; confirmed on their own and refitted: {', '.join(s.name for s in kept)}" if kept else ""))
             form_report["not_confirmed"] = {"forms": [s.name for s in dropped], "test_rmse_before": test["before"]["rmse"],
                                             "test_rmse_after": test["after"]["rmse"],
                                             "sse_reduction": test["sse_reduction"], "each_form": marginal}
@@ -199,7 +206,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
             final = AugmentedFEE([t for t in final.terms if not t[0].startswith(FORM_PREFIX)] + [(s.name, s.k) for s in kept])
             test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
-            test["depth_forecast"] = depth_forecast_gap(ftest, initial, final, base)
+            test["depth_forecast"] = depth_forecast_gap(ftest, initial, final)
         else:
             for d in (form_report or {}).get("discovered") or []:
                 d["confirmed"] = True
@@ -289,7 +296,8 @@ def _shared(frame: Frame) -> bool:
 def _grouping(frame: Frame) -> str:
     """What a θ-group is in this frame, for the report."""
     if frame.group_by == "gamma":
-        return "soil group (episodes of the same measured unit weight γ; no soil label read)"
+        return ("soil group (episodes of the same measured unit weight γ; no soil label read)" if _shared(frame)
+                else "episode (every episode has its own γ; no soil label read)")
     return "soil group (metadata soil + I_d)" if _shared(frame) else "episode"
 
 
@@ -305,10 +313,11 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
 
 
 def _notes(frame: Frame) -> list[str]:
+    label = ("no soil label (episodes grouped by their measured γ)" if frame.group_by == "gamma"
+             else "the metadata soil name/I_d (a grouping label only)")
     notes = [
         "Ground truth (/soil/ground_truth, Dataset.truth) and the bag metadata's record of simulator "
-        "effects/plugins are never read; inputs are Θ_k, the measured force, time and the metadata soil name/I_d "
-        "(a grouping label only).",
+        f"effects/plugins are never read; inputs are Θ_k, the measured force, time and {label}.",
         "Statistics are at the episode level (ticks within an episode are autocorrelated); p-values are "
         "Holm-corrected; k ± SE is the grouped jackknife over the cross-validation folds (statistical only, "
         "no model-form error).",

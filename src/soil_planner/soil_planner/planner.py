@@ -276,6 +276,8 @@ def max_cut_depth(
         est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
         force_now, known_now = None, kn
         if include_residual and anchor is not None:
+            if len(anchor) != 2 or len(anchor[0]) != 2:
+                raise ValueError(f"anchor={anchor!r} must be ((F_x, F_z) [N], Θ_k)")
             force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
             known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
         elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
@@ -331,14 +333,14 @@ class SteadyAnchor:
         """One tick: kept if the PINN's estimate is valid and finite and the edge holds its depth
         (|v_z| <= ANCHOR_MAX_ABS_V_Z_M_S) at least MIN_FUSED_ANCHOR_DEPTH_M deep."""
         self.tick += 1
-        try:
-            fx, fz = float(estimate["f_x_hat"]), float(estimate["f_z_hat"])
-            row = np.array([float(known[n]) for n in KNOWN_PARAMS])
-        except (KeyError, TypeError, ValueError):
+        try:  # a tick the plan would refuse never enters the average
+            fx, fz = (_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
+            k = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+        except ValueError:
             return
-        if estimate.get("valid") != 1.0 or not (math.isfinite(fx) and math.isfinite(fz) and np.isfinite(row).all()):
+        if estimate.get("valid") != 1.0:
             return
-        k = dict(zip(KNOWN_PARAMS, row))
+        row = np.array([k[n] for n in KNOWN_PARAMS])
         if abs(k["v_z"]) <= ANCHOR_MAX_ABS_V_Z_M_S and k["d"] >= MIN_FUSED_ANCHOR_DEPTH_M:
             self.entries.append((self.tick, fx, fz, row))
             self._restart_on_a_stronger_soil()
