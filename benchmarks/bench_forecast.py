@@ -51,7 +51,7 @@ from pinn_estimator import forecast as fc  # noqa: E402
 from pinn_estimator.checkpoint import load_model  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset  # noqa: E402
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # noqa: E402
-from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated  # noqa: E402
+from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.soils import CATALOGUE  # noqa: E402
@@ -189,15 +189,15 @@ def section_forecast(args, models) -> dict:
         ds = forecast_dataset(world)
         sim_s = time.perf_counter() - t0
         fusion = load_calibrated(world)
-        fusion = dataclasses.replace(fusion, terms=(*fusion.terms, *(t for t in args.fusion_terms if t[0] not in dict(fusion.terms))))
+        fusion = dataclasses.replace(fusion, terms=merged_terms(fusion.terms, args.fusion_terms))
+        physics = config_for_model(fusion, model).terms
         t0 = time.perf_counter()
         report = forecast(model, ds, classical=args.classical, workers=args.workers, fusion=fusion)
         eval_s = time.perf_counter() - t0
         print(f"### {world} world: model `{path.name}`, fusion `{cfg_path.name if cfg_path.exists() else 'defaults'}` "
               f"(rel_std {'/'.join(f'{v:g}' for v in fusion.rel_std)}, forecast_rel_std "
               f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})"
-              + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in config_for_model(fusion, model).terms)}"
-                 if config_for_model(fusion, model).terms else "") + "\n")
+              + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in physics)}" if physics else "") + "\n")
         print("\n".join(fc.markdown(report)))
         print(f"\nWall time: {sim_s:.1f} s simulating {len(ds)} episodes, {eval_s:.1f} s forecasting "
               f"({'with' if args.classical else 'without'} the classical fit, {args.workers} workers).\n", flush=True)

@@ -57,8 +57,13 @@ def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
     part, then any term the config itself adds that the model does not have (e.g. one the
     discrepancy workflow named, before the PINN is retrained with it)."""
     fusion = fusion or load_calibrated(DEFAULT_WORLD)
-    own = {n for n, _ in model.cfg.extra_terms}
-    return dataclasses.replace(fusion, terms=(*model.cfg.extra_terms, *(t for t in fusion.terms if t[0] not in own)))
+    return dataclasses.replace(fusion, terms=merged_terms(model.cfg.extra_terms, fusion.terms))
+
+
+def merged_terms(first, then) -> tuple[tuple[str, float], ...]:
+    """``first``'s (name, k) terms, then those of ``then`` whose name ``first`` lacks (its k wins)."""
+    have = {n for n, _ in first}
+    return (*first, *(t for t in then if t[0] not in have))
 
 
 def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[dict]:

@@ -4,8 +4,8 @@ A θ-group is the episodes that dug the same soil (same soil name and relative d
 bag metadata), or every episode on its own when the metadata does not say (``group_by=
 "episode"``, or a real machine's bags with soil 'unknown'), or the episodes whose measured soil
 unit weight γ (a known parameter Θ_k carries) is the same (``group_by="gamma"``: bags without
-a soil label): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads the simulator's ground truth (``Dataset.truth``) or the
-bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
+a soil label): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads
+the simulator's ground truth (``Dataset.truth``) or the bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
 time and the soil name / relative density used as a grouping label. SI units.
 """
 from __future__ import annotations

@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 
-from soil_msgs_py.params import KNOWN_PARAMS
 from soil_physics.augmented_fee import AugmentedFEE
 
 from .candidates import paired_test
@@ -113,12 +112,11 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE) 
     (each A's pairs averaged: pairs from one fit are not independent), after < before. Why: a
     joint fit over every depth of a group hides a wrong depth profile (θ bends to it), a fit at
     one depth does not."""
-    steady, depth = {}, {}
+    alone, steady, depth = {}, {}, {}  # per episode: its ticks, a mask of their steady half, its depth there
     for e in frame.episodes:
-        idx = np.flatnonzero(frame.episode == e)
-        half = idx[len(idx) // 2:]
-        steady[int(e)] = half
-        depth[int(e)] = float(np.median(frame.known[half, KNOWN_PARAMS.index("d")]))
+        alone[int(e)] = sub = frame.select(episodes=[e])
+        steady[int(e)] = np.arange(len(sub)) >= len(sub) // 2
+        depth[int(e)] = float(np.median(sub.column("d")[steady[int(e)]]))
     pairs = [(int(a), int(b)) for a in frame.episodes for b in frame.episodes
              if a != b and frame.group_of[a] == frame.group_of[b] and abs(depth[int(a)] - depth[int(b)]) >= FORECAST_MIN_DEPTH_GAP_M]
     out = {"pairs": len(pairs), "min_depth_gap_m": FORECAST_MIN_DEPTH_GAP_M}
@@ -128,12 +126,11 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE) 
     for label, model in (("before", before), ("after", after)):
         fits = {}
         for a in {p[0] for p in pairs}:
-            fits[a] = fit_fixed(frame.select(episodes=[a]), model)
+            fits[a] = fit_fixed(alone[a], model)
         rows = []
         for a, b in pairs:
-            fb = frame.select(episodes=[b])
+            fb, m = alone[b], steady[b]
             _, pred = residuals(fb, model, fits[a])
-            m = np.arange(len(fb)) >= len(fb) - len(steady[b])  # b's steady half (ticks in order)
             measured, predicted = fb.forces[m].mean(0), np.nanmean(pred[m], 0) if np.isfinite(pred[m]).any() else np.full(2, np.nan)
             scale = max(float(np.hypot(*measured)), 1.0)
             rows.append([*(100 * (predicted - measured) / np.maximum(np.abs(measured), 1.0)),

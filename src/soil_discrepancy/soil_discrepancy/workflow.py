@@ -157,8 +157,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     test = test_arrays = ftest = None
     if test_groups:
         ftest = frame.select(groups=test_groups)
-        test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
-        test["depth_forecast"] = depth_forecast_gap(ftest, initial, final)
+        test, test_arrays = _held_out(ftest, initial, final, base, edges)
         forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
         if forms_in and not _confirmed(test, min_gain, alpha):
             # a form from a library of hundreds is a claim only if the test episodes confirm it: the
@@ -167,10 +166,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             k_of = dict(final.terms)
             marginal = {}
             for s in forms_in:
-                alone = AugmentedFEE([*catalogue_model.terms, (s.name, k_of[s.name])])
-                t1, _ = fee_gap(ftest, catalogue_model, alone, base, edges=edges)
-                t1["depth_forecast"] = depth_forecast_gap(ftest, catalogue_model, alone)
-                marginal[s.name] = t1
+                marginal[s.name] = _held_out(ftest, catalogue_model, catalogue_model.with_term(s.name, k_of[s.name]), base, edges)[0]
             # the held-out episodes now choose among forms: their forecast p-values are Holm-corrected
             p_fc = holm([(t["depth_forecast"] or {}).get("p_paired", 1.0) for t in marginal.values()])
             for (name, t1), p_h in zip(list(marginal.items()), p_fc):
@@ -181,12 +177,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 trial, start = catalogue_model, sel["fit"]
                 for s in kept:
                     fit_k = fit_joint(fsel, trial, s.name, start, allow_negative_k=allow_negative_k)
-                    trial, start = AugmentedFEE([*trial.terms, (s.name, float(fit_k.k))]), fit_k
+                    trial, start = trial.with_term(s.name, float(fit_k.k)), fit_k
                 # the refitted forms together, against the catalogue terms alone (not the initial model:
                 # the catalogue's own gain must not carry them)
-                t2, _ = fee_gap(ftest, catalogue_model, trial, base, edges=edges)
-                t2["depth_forecast"] = depth_forecast_gap(ftest, catalogue_model, trial)
-                if _confirmed(t2, min_gain, alpha):
+                if _confirmed(_held_out(ftest, catalogue_model, trial, base, edges)[0], min_gain, alpha):
                     k_new = dict(trial.terms)
                     kept = [dataclasses.replace(s, k=k_new[s.name]) for s in kept]
                 else:
@@ -204,9 +198,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 if d["confirmed"]:
                     d["k"] = next(s.k for s in kept if s.name == d["name"])
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
-            final = AugmentedFEE([t for t in final.terms if not t[0].startswith(FORM_PREFIX)] + [(s.name, s.k) for s in kept])
-            test, test_arrays = fee_gap(ftest, initial, final, base, edges=edges)
-            test["depth_forecast"] = depth_forecast_gap(ftest, initial, final)
+            final = trial if kept else catalogue_model  # (trial: the catalogue terms and the kept forms, refitted)
+            test, test_arrays = _held_out(ftest, initial, final, base, edges)
         else:
             for d in (form_report or {}).get("discovered") or []:
                 d["confirmed"] = True
@@ -329,6 +322,14 @@ def _notes(frame: Frame) -> list[str]:
             "only effects that vary within an episode (e.g. with time or distance) can."
         )
     return notes
+
+
+def _held_out(ftest: Frame, before: AugmentedFEE, after: AugmentedFEE, base, edges) -> tuple[dict, dict]:
+    """``gap.fee_gap`` on the held-out groups with the force at another depth
+    (``gap.depth_forecast_gap``) under "depth_forecast": what a confirmation is judged on."""
+    test, arrays = fee_gap(ftest, before, after, base, edges=edges)
+    test["depth_forecast"] = depth_forecast_gap(ftest, before, after)
+    return test, arrays
 
 
 def _confirmation(test: dict) -> dict:

@@ -133,6 +133,7 @@ MIN_FUSED_ANCHOR_DEPTH_M = 0.04
 ANCHOR_WINDOW_TICKS = 60
 ANCHOR_RECENT_TICKS = 12
 ANCHOR_CHANGE_SIGMAS = 2.0
+ANCHOR_MIN_SPREAD_N = 100.0  # floor of that spread [N]: a perfectly steady force still has sensor noise
 ANCHOR_MAX_ABS_V_Z_M_S = STEADY_CUT_MAX_ABS_V_Z_M_S
 ANCHOR_DEPTH_BAND_M = 0.01
 ANCHOR_MAX_AGE_TICKS = 180
@@ -348,14 +349,13 @@ class SteadyAnchor:
     def _restart_on_a_stronger_soil(self) -> None:
         """At the newest depth (a deeper cut is not a stronger soil): restart the window from the
         first of the last ANCHOR_RECENT_TICKS whose F̂_x leaves the older ticks' band."""
-        d_last = self.entries[-1][3][_KD]
-        same = [i for i, e in enumerate(self.entries) if abs(e[3][_KD] - d_last) <= ANCHOR_DEPTH_BAND_M]
+        same = self._at_newest_depth()
         n = len(same)
         if n < 2 * ANCHOR_RECENT_TICKS:
             return
         fx = np.array([self.entries[i][1] for i in same])
         old, recent = fx[: n - ANCHOR_RECENT_TICKS], fx[n - ANCHOR_RECENT_TICKS:]
-        level = old.mean() + ANCHOR_CHANGE_SIGMAS * max(old.std(), SCALE_FLOOR_N / 10)
+        level = old.mean() + ANCHOR_CHANGE_SIGMAS * max(old.std(), ANCHOR_MIN_SPREAD_N)
         if recent.mean() > level:
             first = same[n - ANCHOR_RECENT_TICKS + int(np.argmax(recent > level))]
             for _ in range(first):
@@ -369,10 +369,14 @@ class SteadyAnchor:
             self.entries.popleft()
         if not self.entries:
             return None
-        d_last = self.entries[-1][3][_KD]
-        near = [e for e in self.entries if abs(e[3][_KD] - d_last) <= ANCHOR_DEPTH_BAND_M]
+        near = [self.entries[i] for i in self._at_newest_depth()]
         force = (float(np.mean([e[1] for e in near])), float(np.mean([e[2] for e in near])))
         return force, dict(zip(KNOWN_PARAMS, np.mean([e[3] for e in near], axis=0).tolist()))
+
+    def _at_newest_depth(self) -> list[int]:
+        """Indices of the entries within ANCHOR_DEPTH_BAND_M of the newest one's depth."""
+        d_last = self.entries[-1][3][_KD]
+        return [i for i, e in enumerate(self.entries) if abs(e[3][_KD] - d_last) <= ANCHOR_DEPTH_BAND_M]
 
 
 _KD = KNOWN_PARAMS.index("d")
