@@ -15,7 +15,8 @@ from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
-from pinn_estimator.fusion_calibration import MODELS_DIR, calibrate, load_calibrated
+from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
+                                              median_error_pct)
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS
 from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
@@ -71,6 +72,24 @@ def test_the_forecast_at_another_depth_carries_an_interval_that_holds_the_measur
         assert q[0.05][j] < q[0.5][j] < q[0.95][j] and out["std"][j] > 0
     # deeper means more force, and the forecast knows it (not the force it already sees)
     assert q[0.5][0] > 1.3 * a.forces[len(a.forces) // 2:, 0].mean()
+
+
+def test_the_forecast_law_widens_with_what_a_forecast_extrapolates_not_at_the_evidence():
+    """Where the newest stretch was measured the law adds its floor only; at another depth its
+    relative part grows with the force change, so a nearer forecast is the sharper one."""
+    a, b, c = episodes("fee", [("Clay", 35.0, 0.1), ("Clay", 35.0, 0.13), ("Clay", 35.0, 0.25)])
+    tight = fuse(SoilPosterior(CFG), a)
+    wide = SoilPosterior(FusionConfig(rel_std=CFG.rel_std, forecast_rel_std=(0.5, 0.5)))
+    wide.u, wide.p, wide.log_w, wide.last_known = tight.u, tight.p, tight.log_w, tight.last_known
+    here = [p.forecast(tight.last_known)["std"] for p in (tight, wide)]
+    np.testing.assert_allclose(here[1], here[0], rtol=1e-9)  # nothing extrapolated: the floor only
+    added = []
+    for ep in (b, c):
+        known = ep.known[len(ep.known) // 2:].mean(axis=0)
+        s0, s1 = tight.forecast(known)["std"], wide.forecast(known)["std"]
+        assert s1[0] > s0[0]
+        added.append(np.sqrt(s1[0] ** 2 - s0[0] ** 2))
+    assert added[1] > 2.0 * added[0]  # 0.25 m reaches further from 0.1 m than 0.13 m does
 
 
 def test_a_new_soil_along_the_path_is_taken_over_within_two_seconds_of_cutting_in_it():
@@ -192,5 +211,23 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     assert [r["forecast_rel_std"] for r in rows] == [0.0, 1.0] and cfg.forecast_abs_std_n == (20.0, 20.0)
     assert rows[1]["coverage_90_x"] >= rows[0]["coverage_90_x"] and rows[1]["coverage_90_x"] == 1.0
     for axis, j in (("x", 0), ("z", 1)):
-        best = min(rows, key=lambda r: (abs(r[f"coverage_90_{axis}"] - 0.9), r["forecast_rel_std"]))
-        assert cfg.forecast_rel_std[j] == best["forecast_rel_std"]
+        assert rows[0][f"miscalibration_{axis}"] == pytest.approx(
+            np.mean([abs(c - lv) for c, lv in zip(rows[0]["curve"][axis], NOMINAL)]))
+        least = min(r[f"miscalibration_{axis}"] for r in rows)
+        calibrated = [r for r in rows if r[f"miscalibration_{axis}"] <= least + coverage_tolerance(r["curve"]["pairs"])]
+        sharpest = min(calibrated, key=lambda r: r["curve"][f"width_{axis}"])  # sharpness subject to calibration
+        assert cfg.forecast_rel_std[j] == sharpest["forecast_rel_std"]
+    assert rows[1]["curve"]["width_x"] > rows[0]["curve"]["width_x"] > 0  # a wider law, wider intervals
+
+
+def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_evidence_law():
+    def row(model, measured, now):
+        return {"forecast": {0.5: np.array(model)}, "measured": np.array(measured), "now": np.array(now)}
+
+    # x forecast within 1 kN; z off by 9 kN where "the force now" is off by 3 kN
+    good_x = [row([11e3, 9e3], [10e3, 0.0], [6e3, 3e3])]
+    worse_z = [row([11e3, -12e3], [10e3, 0.0], [6e3, 3e3])]
+    np.testing.assert_allclose(median_error_pct(good_x), [100 * 1e3 / 10e3, 100 * 3e3 / 30e3])  # x of |F_x|, z of 30 kN
+    np.testing.assert_array_equal(median_error_pct(worse_z), median_error_pct(good_x))  # z scored as the naive forecast
+    better_x = [row([10.5e3, -12e3], [10e3, 0.0], [6e3, 3e3])]
+    assert median_error_pct(better_x)[0] < median_error_pct(worse_z)[0]

@@ -1,10 +1,11 @@
-"""The planner's admissibility test from two CDF values agrees with the quantile it stands for."""
+"""The planner's admissibility test from two CDF values agrees with the quantile it stands for;
+the forecast error law's relative part applies to what a forecast extrapolates."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from soil_physics.predictive import mixture_cdf, mixture_quantiles, upper_magnitude, within_magnitude
+from soil_physics.predictive import extrapolated_part, mixture_cdf, mixture_quantiles, upper_magnitude, within_magnitude
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -26,3 +27,10 @@ def test_mixture_cdf_inverts_the_quantiles():
     q = mixture_quantiles(w, mu, sd, (0.05, 0.5, 0.95))
     for i, level in enumerate((0.05, 0.5, 0.95)):
         np.testing.assert_allclose(mixture_cdf(w, mu, sd, q[i]), level, atol=1e-9)
+
+
+def test_the_extrapolated_part_is_the_change_from_the_evidence_capped_by_the_force_itself():
+    force = np.array([10e3, 10e3, -4e3, 6e3, 5e3])
+    ref = np.array([10e3, 4e3, 2e3, np.nan, -20e3])  # at the evidence; NaN: no evidence there
+    cap = np.array([10e3, 10e3, -4e3, 6e3, 3e3])
+    np.testing.assert_allclose(extrapolated_part(force, ref, cap), [0.0, 6e3, 4e3, 6e3, 3e3])

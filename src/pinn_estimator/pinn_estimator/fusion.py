@@ -46,7 +46,7 @@ import numpy as np
 from soil_msgs_py.params import DEG, KNOWN_PARAMS, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
-from soil_physics.predictive import mixture_quantiles, model_error_std
+from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std
 from soil_physics.travel import soil_advance
 
 THETA = ("phi", "c", "delta")
@@ -236,8 +236,9 @@ class SoilPosterior:
         return fx.mean(axis=1), fz.mean(axis=1)
 
     def sigma(self, fx, fz, spread_n=(0.0, 0.0), forecast: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Model error (x, z) [N]: floor + share of the force (the evidence's, or with ``forecast``
-        the forecast's law), widened by a stretch's unsteadiness."""
+        """Model error (x, z) [N]: floor + share of the force (the evidence's; with ``forecast``
+        the forecast's law, given the extrapolated part of the force), widened by a stretch's
+        unsteadiness."""
         rel, floor = (self.cfg.forecast_rel_std, self.cfg.forecast_abs_std_n) if forecast else (self.cfg.rel_std, self.cfg.abs_std_n)
         (ax, az), (rx, rz), g = floor, rel, self.cfg.unsteady_gain
         return (np.hypot(model_error_std(fx, ax, rx), g * spread_n[0]), np.hypot(model_error_std(fz, az, rz), g * spread_n[1]))
@@ -377,10 +378,20 @@ class SoilPosterior:
 
     def forecast(self, known: np.ndarray, quantiles=(0.05, 0.25, 0.5, 0.75, 0.95), distance_m: float = 0.0) -> dict:
         """The force at conditions ``known`` (Θ_k, e.g. another depth): mean, std and quantiles
-        per axis [N] of the posterior predictive (θ samples through the model + model error)."""
+        per axis [N] of the posterior predictive (θ samples through the model + model error).
+
+        The forecast law's relative part applies to what each sample extrapolates from the
+        newest stretch's conditions (``predictive.extrapolated_part``: |F_s(known) − F_s(newest
+        stretch)|, at most |F_s(known)|): the model is fitted where the evidence is and misses
+        more the further a forecast reaches in depth, speed or surcharge. Before any stretch,
+        all of |F_s|."""
         u, w = self.samples()
         fx, fz = self.model_force(u, known, distance_m)
-        sx, sz = self.sigma(fx, fz, forecast=True)
+        if self.last_known is not None:
+            fx0, fz0 = self.model_force(u, self.last_known, distance_m)
+        else:
+            fx0 = fz0 = np.full(len(fx), np.nan)
+        sx, sz = self.sigma(extrapolated_part(fx, fx0, fx), extrapolated_part(fz, fz0, fz), forecast=True)
         ok = np.isfinite(fx) & np.isfinite(fz)
         out = {"mean": np.full(2, np.nan), "std": np.full(2, np.nan), "quantiles": {q: np.full(2, np.nan) for q in quantiles}}
         if not ok.any():

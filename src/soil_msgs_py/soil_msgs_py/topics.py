@@ -79,7 +79,8 @@ TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in EPISODE_TOPICS}
 # from every stretch of cutting since the episode began: means [rad, Pa, rad], β* over the
 # posterior [rad], standard deviations and correlations (a Gaussian with these moments is what
 # a planner can sample; the posterior itself is a Gaussian sum), the calibrated forecast error
-# law σ_j = abs_j + rel_j·|F_j| [N, 1] (what a forecast adds to the spread of θ's force),
+# law σ_j = abs_j + rel_j·|ΔF_j| [N, 1] (what a forecast adds to the spread of θ's force; ΔF the
+# part of the force extrapolated from where the evidence was measured, ``predictive.extrapolated_part``),
 # fused_valid (1.0 once a stretch was learnt from; independent of ``valid``, which is the PINN
 # window's) and the stretches learnt from.
 FUSED_FIELDS: tuple[str, ...] = (

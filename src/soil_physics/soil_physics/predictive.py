@@ -61,3 +61,16 @@ def upper_magnitude(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantile: flo
 def model_error_std(force_n: np.ndarray, abs_std_n: float, rel_std: float) -> np.ndarray:
     """σ = abs + rel·|F| [N]: the error law of the physics model a posterior assumes."""
     return abs_std_n + rel_std * np.abs(force_n)
+
+
+def extrapolated_part(force_n: np.ndarray, reference_n, cap_n: np.ndarray) -> np.ndarray:
+    """min(|F − F_ref|, |cap|) [N]: how much of a forecast is extrapolated from a force known at
+    the conditions the evidence came from, the force a forecast error law's relative part
+    applies to. A model that is off by a share of what it extrapolates is off by nothing at the
+    depth it was fitted at and by more the further it reaches (a fixed share of |F| would make
+    intervals too wide near the evidence and too narrow far from it); never more than |cap|
+    (the unanchored forecast's own force). A non-finite reference (no evidence) gives |cap|."""
+    cap = np.abs(np.asarray(cap_n, float))
+    with np.errstate(invalid="ignore"):
+        part = np.abs(np.asarray(force_n, float) - np.asarray(reference_n, float))
+    return np.where(np.isfinite(part), np.minimum(part, cap), cap)

@@ -95,7 +95,7 @@ import numpy as np
 from soil_physics import fee
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
-from soil_physics.predictive import model_error_std, upper_magnitude, within_magnitude
+from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
@@ -539,7 +539,7 @@ class _FusedForceModel:
             f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
             # anchored: the relative error applies to what is extrapolated from the force now, and
             # never exceeds the unanchored forecast's (an anchor adds knowledge, never doubt)
-            out.append((w, f, model_error_std(np.minimum(np.abs(f - now), np.abs(raw)), a, r) + 1e-9))
+            out.append((w, f, model_error_std(extrapolated_part(f, now, raw), a, r) + 1e-9))
         return out
 
     def __call__(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
