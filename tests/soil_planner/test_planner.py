@@ -358,6 +358,20 @@ def test_the_fused_posterior_plans_while_the_pinn_window_is_not_full_and_bad_fus
             max_cut_depth(est, known, force_quantile=q)
 
 
+def test_unanchored_the_error_law_counts_from_each_samples_own_force_at_the_current_depth():
+    """Without an anchor the law's relative part applies to what a sample extrapolates from the
+    depth being cut (as the posterior's own forecasts count from its newest stretch): planning
+    from the depth the sharp plan reaches costs nothing, planning from far above it does."""
+    est = _estimate(_known(d=0.12, q=1000.0), phi=32 * DEG, c=2e3, delta=15 * DEG)
+    sharp = max_cut_depth(_fused(est, 32 * DEG, 2e3, 15 * DEG), _known(d=0.12, q=1000.0), include_residual=False)
+    wide = _fused(est, 32 * DEG, 2e3, 15 * DEG, rel=(0.5, 0.5))
+    here = max_cut_depth(wide, _known(d=sharp.max_depth_m, q=1000.0), include_residual=False)
+    far = max_cut_depth(wide, _known(d=0.05, q=1000.0), include_residual=False)
+    assert not here.residual_used and not far.residual_used
+    assert here.max_depth_m == pytest.approx(sharp.max_depth_m, abs=2 * TOLERANCE_M)
+    assert far.max_depth_m < sharp.max_depth_m - 0.01
+
+
 # ---------------------------------------------------------------------------- the node over DDS
 
 CLASSES = M.ros_message_classes()

@@ -78,7 +78,8 @@ class FusionConfig:
     model_points: int = 5  # sub-means of Θ_k per stretch the model is averaged over (divides update_ticks)
     abs_std_n: tuple[float, float] = (20.0, 20.0)  # model-error floor (x, z) [N]: the force sensor's noise
     rel_std: tuple[float, float] = (0.02, 0.02)  # model error per unit of model force (x, z): how hard each stretch teaches
-    # Model error a forecast adds to the posterior's spread (x, z), per unit of force. Separate
+    # Model error a forecast adds to the posterior's spread (x, z), per unit of the force it
+    # extrapolates from the newest stretch (``forecast``). Separate
     # from rel_std: the posterior is an approximation (a Gaussian sum on a curved φ-c ridge) and
     # the model may miss physics, so what makes intervals hold is calibrated on forecasts
     # themselves, while rel_std stays what lets stretches at two depths pin φ and c down.

@@ -99,14 +99,15 @@ def median_error_pct(table: list[dict]) -> np.ndarray:
     large one), of F_z as % of its 30 kN limit (F_z passes through 0, in the default world
     often). An axis whose forecasts are worse than the naive one (the force measured now) is
     scored as the naive one: nothing there tells one evidence law from another."""
-    if not table:
-        return np.full(2, np.nan)
-    out = np.zeros(2)
+    out = np.full(2, np.inf)  # no forecast at all: the worst score, never a NaN that wins a comparison
     for j in range(2):
         scale = [abs(r["measured"][0]) if j == 0 else FORCE_LIMITS_N[1] for r in table]
-        model = np.mean([abs(r["forecast"][0.5][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
-        naive = np.mean([abs(r["now"][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
-        out[j] = 100.0 * min(model, naive)
+        model = np.array([abs(r["forecast"][0.5][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
+        naive = np.array([abs(r["now"][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
+        ok = np.isfinite(naive)  # a pair the model gives no forecast for (no wedge) scores as the naive one
+        if ok.any():
+            model = np.where(np.isfinite(model), model, naive)
+            out[j] = 100.0 * min(float(model[ok].mean()), float(naive[ok].mean()))
     return out
 
 
@@ -117,14 +118,18 @@ def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> dict:
                                   for r in table])) if table else float("nan") for lv in levels]
             for j, axis in enumerate("xz")}
     top = max(levels)  # the widest interval's mean width per axis [N]: the sharpness of the forecasts
-    width = {f"width_{axis}": float(np.mean([r["forecast"][0.5 + top / 2][j] - r["forecast"][0.5 - top / 2][j] for r in table]))
-             if table else float("nan") for j, axis in enumerate("xz")}
+    width = {}
+    for j, axis in enumerate("xz"):
+        w = np.array([r["forecast"][0.5 + top / 2][j] - r["forecast"][0.5 - top / 2][j] for r in table], float)
+        width[f"width_{axis}"] = float(w[np.isfinite(w)].mean()) if np.isfinite(w).any() else math.inf
     return hits | width | {"pairs": len(table)}
 
 
 def coverage_tolerance(pairs: int, levels=NOMINAL) -> float:
     """Mean binomial standard error of a coverage over ``pairs`` forecasts at the curve's levels:
-    laws whose miscalibration differs by less are equally calibrated on this many pairs."""
+    laws whose miscalibration differs by less are equally calibrated on this many pairs. (Pairs
+    that share a source or target episode are not independent, so the true error is larger: a
+    tight tolerance, i.e. calibration first, sharpness second.)"""
     return float(np.mean([math.sqrt(lv * (1.0 - lv) / max(pairs, 1)) for lv in levels]))
 
 

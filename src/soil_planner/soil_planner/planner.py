@@ -453,7 +453,7 @@ class _FusedForceModel:
     (covariance made positive semi-definite), fixed draws, φ and δ kept inside Table 1's
     limits and c >= 0; each through the FEE at d (no Δd: the posterior's stretches were fitted
     at Θ_k's d), the planned steady cut (v_x = cut speed, v_z = 0) and β* per sample; the
-    published error law σ = abs + rel·|F| around each. Samples without a failure wedge there
+    published error law σ = abs + rel·|ΔF| around each (ΔF below). Samples without a failure wedge there
     are left out; none left is a ValueError.
 
     Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N], or its average over the recent
@@ -471,9 +471,10 @@ class _FusedForceModel:
     posterior has moved), the posterior gives the shape and its spread. A sample without a
     wedge at the current velocity keeps r_s = 0.
     The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
-    relative part applied to what is extrapolated, min(|F_s(d) − F̂|, |F_FEE,s(d)|): the
-    anchor makes the forecast near the current depth sharper, never less certain than the
-    unanchored forecast.
+    relative part applied to what is extrapolated, ΔF = min(|F_s(d) − F̂|, |F_FEE,s(d)|)
+    (``predictive.extrapolated_part``); unanchored, from each sample's own FEE force at the
+    current depth instead of F̂, as the posterior counts from its newest stretch. Either way a
+    forecast at the depth being cut adds the law's floor only.
     """
 
     def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
@@ -499,7 +500,7 @@ class _FusedForceModel:
             self.beta_rad = 0.0  # the mean has no wedge; the samples decide (reported only)
         self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
         self.residual, self.residual_used = np.zeros(2), False
-        self.anchor = (0.0, 0.0)  # the force the error law's relative part is counted from
+        self.anchor = (0.0, 0.0)  # F̂ (x, z) [N] the plan is anchored to, (0, 0) if none
         self.scale_x = np.ones(FUSED_SAMPLES)
         at = known if anchor_known is None else anchor_known  # Θ_k where the anchor force was predicted
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
@@ -520,6 +521,14 @@ class _FusedForceModel:
             usable = np.isfinite(scale) & (fx_now > SCALE_FLOOR_N) & (anchor[0] > SCALE_FLOOR_N)
             self.scale_x = np.where(usable, np.clip(scale, *SCALE_LIMITS), 1.0)
             self.residual_per_m[0] = np.where(usable, 0.0, self.residual_per_m[0])
+        # what the error law's relative part counts from, per axis: the force now when anchored,
+        # else each sample's own force at the current depth (where the posterior's evidence is,
+        # as ``SoilPosterior.forecast`` counts from its newest stretch)
+        self.reference = [np.full(FUSED_SAMPLES, float(a)) for a in self.anchor]
+        if not self.residual_used:
+            with np.errstate(all="ignore"):
+                ref_x, ref_z, _ = fee.fee_xz({**self.theta, "d": np.array([d_now])})
+            self.reference = [np.broadcast_to(ref_x, (FUSED_SAMPLES,)), np.broadcast_to(ref_z, (FUSED_SAMPLES,))]
 
     def _mixtures(self, d: np.ndarray):
         """Per axis (x, z): (weights (S,), means (D, S), standard deviations (D, S)) at depths d."""
@@ -535,10 +544,10 @@ class _FusedForceModel:
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
         w = ok.astype(float)
         out = []
-        for f, raw, (a, r), now in ((fx, raw_x, self.law[0], self.anchor[0]), (fz, raw_z, self.law[1], self.anchor[1])):
+        for f, raw, (a, r), now in ((fx, raw_x, self.law[0], self.reference[0]), (fz, raw_z, self.law[1], self.reference[1])):
             f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
-            # anchored: the relative error applies to what is extrapolated from the force now, and
-            # never exceeds the unanchored forecast's (an anchor adds knowledge, never doubt)
+            # the relative error applies to what is extrapolated from the reference, and never
+            # exceeds the sample's own force's share (an anchor adds knowledge, never doubt)
             out.append((w, f, model_error_std(extrapolated_part(f, now, raw), a, r) + 1e-9))
         return out
 
