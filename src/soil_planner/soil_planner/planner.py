@@ -500,7 +500,6 @@ class _FusedForceModel:
             self.beta_rad = 0.0  # the mean has no wedge; the samples decide (reported only)
         self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
         self.residual, self.residual_used = np.zeros(2), False
-        self.anchor = (0.0, 0.0)  # F̂ (x, z) [N] the plan is anchored to, (0, 0) if none
         self.scale_x = np.ones(FUSED_SAMPLES)
         at = known if anchor_known is None else anchor_known  # Θ_k where the anchor force was predicted
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
@@ -512,7 +511,6 @@ class _FusedForceModel:
             r = np.where(np.isfinite(r), r, 0.0)
             self.residual_per_m = r / d_now
             self.residual, self.residual_used = r.mean(axis=1), True
-            self.anchor = anchor
             # x: the sample's FEE scaled to the force now (its depth-independent surcharge part
             # scales too); a ratio only where both forces are clearly positive
             fx_now = np.broadcast_to(fx_now, (FUSED_SAMPLES,))
@@ -521,11 +519,12 @@ class _FusedForceModel:
             usable = np.isfinite(scale) & (fx_now > SCALE_FLOOR_N) & (anchor[0] > SCALE_FLOOR_N)
             self.scale_x = np.where(usable, np.clip(scale, *SCALE_LIMITS), 1.0)
             self.residual_per_m[0] = np.where(usable, 0.0, self.residual_per_m[0])
-        # what the error law's relative part counts from, per axis: the force now when anchored,
+        # what the error law's relative part counts from, per axis (S,): the force now when anchored,
         # else each sample's own force at the current depth (where the posterior's evidence is,
         # as ``SoilPosterior.forecast`` counts from its newest stretch)
-        self.reference = [np.full(FUSED_SAMPLES, float(a)) for a in self.anchor]
-        if not self.residual_used:
+        if self.residual_used:
+            self.reference = [np.full(FUSED_SAMPLES, float(a)) for a in anchor]
+        else:
             with np.errstate(all="ignore"):
                 ref_x, ref_z, _ = fee.fee_xz({**self.theta, "d": np.array([d_now])})
             self.reference = [np.broadcast_to(ref_x, (FUSED_SAMPLES,)), np.broadcast_to(ref_z, (FUSED_SAMPLES,))]
