@@ -231,6 +231,25 @@ def test_splits_are_by_group_stratified_and_folds_partition(bag_dirs):
     assert len(per_episode.groups) == len(per_episode.names) == 32
 
 
+def test_without_a_soil_label_the_test_part_spans_the_unit_weights(bag_dirs):
+    """No soil to stratify by: the held-out groups come one from each band of measured γ, so the
+    test part covers the soils' range for every seed (a plain shuffle puts both test groups in
+    one half of the 8 in 43 % of seeds)."""
+    ds = load_dataset(bag_dirs["control"])
+    metas = [dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) for m in ds.metas]
+    frame = build_frame(dataclasses.replace(ds, metas=metas), stride=4, group_by="gamma")
+    assert not frame.has_metadata() and len(frame.groups) == 8
+    gamma = frame.column("gamma")
+    rank = {g: r for r, g in enumerate(sorted(frame.groups, key=lambda g: np.median(gamma[frame.group == g])))}
+    tests = set()
+    for seed in range(8):
+        sel, test = split_holdout(frame, 0.3, seed=seed)
+        assert len(test) == 2 and sorted(sel + test) == sorted(int(g) for g in frame.groups)
+        assert sorted(rank[g] // 4 for g in test) == [0, 1], f"seed {seed}: test groups {test} in one half of γ"
+        tests.add(tuple(test))
+    assert len(tests) > 2, "the split is still seeded, not fixed"
+
+
 def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag_dirs):
     """group_by='gamma': the soil label is never read; episodes of one γ (a known parameter) share
     θ. On the fixture's 4 soils x 2 densities that is the labelled grouping, up to the names."""

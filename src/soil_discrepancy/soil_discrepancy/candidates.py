@@ -77,9 +77,12 @@ def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], l
     """(selection groups, test groups): ~``holdout`` of the θ-groups held out, by group.
 
     Stratified by soil name when the metadata has it: groups are shuffled within each soil
-    (seeded), then taken round-robin across soils, so the test part spans soils. At least two
-    groups stay in the selection part (cross-validation needs them) and, if holdout > 0, at
-    least one goes to the test part.
+    (seeded), then taken round-robin across soils, so the test part spans soils. Without a soil
+    label (bags of a real machine, ``group_by='gamma'``) the strata are as many contiguous bands
+    of the groups' measured unit weight γ as there are test groups, so the test part still spans
+    the soils' range instead of landing where chance puts it. At least two groups stay in the
+    selection part (cross-validation needs them) and, if holdout > 0, at least one goes to the
+    test part.
     """
     if not 0.0 <= holdout < 1.0:
         raise ValueError(f"holdout={holdout} must be in [0, 1)")
@@ -98,9 +101,16 @@ def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], l
         )
     rng = np.random.default_rng(seed)
     strata: dict[str, list[int]] = {}
-    for g in groups:
-        ep = int(np.nonzero(frame.group_of == g)[0][0])
-        strata.setdefault(frame.soils[ep], []).append(g)
+    if frame.has_metadata():
+        for g in groups:
+            ep = int(np.nonzero(frame.group_of == g)[0][0])
+            strata.setdefault(frame.soils[ep], []).append(g)
+    else:
+        gamma = frame.column("gamma")
+        by_gamma = sorted(groups, key=lambda g: (float(np.median(gamma[frame.group == g])), g))
+        bands = max(n_test, 1)
+        for rank, g in enumerate(by_gamma):
+            strata.setdefault(f"γ band {rank * bands // n}", []).append(g)
     keys = sorted(strata)
     for k in keys:
         rng.shuffle(strata[k])

@@ -315,6 +315,9 @@ def _notes(frame: Frame) -> list[str]:
         "Holm-corrected; k ± SE is the grouped jackknife over the cross-validation folds (statistical only, "
         "no model-form error).",
     ]
+    if not frame.has_metadata():
+        notes.append("No soil label: the held-out test groups are drawn one from each band of measured γ "
+                     "(as many bands as test groups), so the test part spans the soils' range.")
     if not _shared(frame):
         notes.append(
             "θ is fitted per episode (no shared soil label): an effect that is constant within an episode "
