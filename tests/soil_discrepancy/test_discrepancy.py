@@ -263,6 +263,13 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
         same.setdefault(int(labelled.group_of[e]), set()).add(int(by_gamma.group_of[e]))
     assert all(len(v) == 1 for v in same.values()) and len(set().union(*same.values())) == len(labelled.groups) == 8
     assert build_frame(ds, stride=4, group_by="gamma").group_names == by_gamma.group_names  # labels ignored
+    unlabelled = dataclasses.replace(ds, metas=metas)
+    auto = build_frame(unlabelled, stride=4)  # the default on bags without any label: γ groups
+    assert auto.group_by == "gamma" and auto.group_names == by_gamma.group_names
+    known = np.array(ds.known, float, copy=True)
+    known[:, KNOWN_PARAMS.index("gamma")] = 18e3  # a machine that records one configured γ for every soil
+    one_gamma = build_frame(dataclasses.replace(unlabelled, known=known), stride=4)
+    assert one_gamma.group_by == "episode" and len(one_gamma.groups) == len(ds.names)
     with pytest.raises(ValueError, match="group_by='soil' must be one of"):
         build_frame(ds, stride=4, group_by="soil")
 

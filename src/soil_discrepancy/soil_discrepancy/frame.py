@@ -1,10 +1,10 @@
 """The analysed ticks of a measured dataset: blade in soil, after the start transient, per θ-group.
 
 A θ-group is the episodes that dug the same soil (same soil name and relative density in the
-bag metadata), or every episode on its own when the metadata does not say (``group_by=
-"episode"``, or a real machine's bags with soil 'unknown'), or the episodes whose measured soil
-unit weight γ (a known parameter Θ_k carries) is the same (``group_by="gamma"``: bags without
-a soil label): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads
+bag metadata), or every episode on its own (``group_by="episode"``), or the episodes whose
+measured soil unit weight γ (a known parameter Θ_k carries) is the same (``group_by="gamma"``;
+also the default for bags without any soil label, such as a real machine's, when γ makes at
+least three groups): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads
 the simulator's ground truth (``Dataset.truth``) or the bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
 time and the soil name / relative density used as a grouping label. SI units.
 """
@@ -26,6 +26,9 @@ UNKNOWN_SOILS = ("", "unknown", "none", "?")
 # they differ at all (15.5-21 kN/m³); a machine's γ is a configured or weighed number.
 GAMMA_GROUP_RTOL = 0.002
 GROUP_BY = ("auto", "episode", "gamma")
+# group_by="auto" on bags without any soil label groups by γ only if that gives at least this many
+# groups: the workflow holds out groups and cross-validates over the rest (``split_holdout``).
+MIN_GAMMA_GROUPS = 3
 _KI = {n: i for i, n in enumerate(KNOWN_PARAMS)}
 
 
@@ -125,7 +128,10 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
 
     group_by: 'auto' — episodes with the same metadata soil name and relative density share θ
-    (an episode whose soil is unknown is its own group); 'episode' — one θ per episode;
+    (an episode whose soil is unknown is its own group); when no episode has a soil label, as
+    'gamma' if measured γ makes at least ``MIN_GAMMA_GROUPS`` groups, fewer than the episodes
+    (one θ per episode would hide every effect that is constant within an episode), else as
+    'episode'; the frame's ``group_by`` says which was used. 'episode' — one θ per episode;
     'gamma' — episodes with the same measured unit weight γ share θ (no label read; two soils
     of one γ share a θ, which the report's regimes then show as a misfit).
     """
@@ -145,12 +151,16 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         except (TypeError, ValueError, AttributeError):
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
+    gamma_keys = None
+    if group_by == "gamma" or (group_by == "auto" and all(s == "unknown" for s in soils)):
+        gamma_keys = _gamma_groups(ds)
+        if group_by == "auto":
+            group_by = "gamma" if MIN_GAMMA_GROUPS <= len(set(gamma_keys)) < n_ep else "episode"
     if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
         soils, dens = ["unknown"] * n_ep, [math.nan] * n_ep
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
-    gamma_keys = _gamma_groups(ds) if group_by == "gamma" else None
     for e in range(n_ep):
-        if gamma_keys is not None:
+        if group_by == "gamma":
             key = gamma_keys[e]
         elif group_by == "auto" and soils[e] != "unknown":
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]

@@ -60,7 +60,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     stride: every stride-th analysed tick; alpha: significance level (Holm-corrected);
     min_gain: least share of held-out error a term must remove; min_effect: least |bias| as a
     share of |F| for a regime to be flagged; group_by: 'auto' (soil name + I_d of the
-    metadata share θ) or 'episode'; allow_negative_k: let k take the sign opposite to the
+    metadata share θ; bags without any soil label: as 'gamma', see ``build_frame``), 'episode'
+    or 'gamma' (the same measured γ shares θ); allow_negative_k: let k take the sign opposite to the
     term's physics (default: k >= 0); predictors: the hook for other models' before/after
     (e.g. the PINN): {label: fn(test_frame, model_before, model_after, context)} where context
     = {'dataset', 'selection_episodes', 'test_episodes', 'seed', 'edges'} (episode names; the
