@@ -31,7 +31,8 @@ hidden() {  # case -> "term k" hidden in the simulator ("" for the control)
 }
 for case in ${*:-control soil_inertia compaction rate_strength default_world default_world_unlabelled}; do
     term="" k=""
-    read -r term k <<< "$(hidden "$case")" || true
+    spec=$(hidden "$case")  # an unknown case stops the run here (set -e)
+    read -r term k <<< "$spec" || true
     mode=fee check=(--hidden "${term:-none}${k:+=$k}") data=$case grouping=() epochs=$PINN_EPOCHS
     case "$case" in default_world*) mode=default check=() data=default_world ;; esac
     case "$case" in *_unlabelled) grouping=(--group-by gamma) epochs=0 ;; esac

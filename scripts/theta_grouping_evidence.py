@@ -23,8 +23,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from pinn_estimator.classical import FORCE_SCALE_N
 from pinn_estimator.dataset import load_dataset
+from soil_discrepancy.candidates import episode_sse
 from soil_discrepancy.fee_fit import fit_fixed, residuals
 from soil_discrepancy.frame import build_frame
 from soil_physics.augmented_fee import AugmentedFEE
@@ -32,12 +32,13 @@ from soil_physics.augmented_fee import AugmentedFEE
 FEE = AugmentedFEE(())
 
 
-def _sse(frame, episodes) -> tuple[float, int]:
-    """(Σ normalised squared residual, ticks) of one θ fitted to ``episodes`` together."""
+def _sse(frame, episodes) -> float:
+    """Σ normalised squared residual of one θ fitted to ``episodes`` together (a tick where the
+    FEE is undefined counts as the fitter's penalty, as in the fit itself)."""
     part = frame.select(episodes=episodes)
     part = dataclasses.replace(part, group_of=np.zeros(len(part.names), int), group_names=["pair"])
     r, _ = residuals(part, FEE, fit_fixed(part, FEE))
-    return float(np.nansum((r / FORCE_SCALE_N) ** 2)), len(part)
+    return sum(sse for sse, _ in episode_sse(part, r).values())
 
 
 def pair_ratios(bag_dir, stride: int) -> dict[str, list[float]]:
@@ -55,8 +56,8 @@ def pair_ratios(bag_dir, stride: int) -> dict[str, list[float]]:
     out = {"same soil": [], "two soils": []}
     for eps in members.values():
         for a, b in itertools.combinations(eps, 2):
-            joint, n = _sse(per_episode, [a, b])
-            apart = alone[a][0] + alone[b][0]
+            joint = _sse(per_episode, [a, b])
+            apart = alone[a] + alone[b]
             kind = "same soil" if labelled.group_of[a] == labelled.group_of[b] else "two soils"
             out[kind].append(math.sqrt(joint / max(apart, 1e-30)))
     return out

@@ -270,6 +270,12 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
     known[:, KNOWN_PARAMS.index("gamma")] = 18e3  # a machine that records one configured γ for every soil
     one_gamma = build_frame(dataclasses.replace(unlabelled, known=known), stride=4)
     assert one_gamma.group_by == "episode" and len(one_gamma.groups) == len(ds.names)
+    known[: ds.episode_rows(len(ds.names) // 2).start, KNOWN_PARAMS.index("gamma")] = 17e3
+    two_gammas = build_frame(dataclasses.replace(unlabelled, known=known), stride=4)
+    assert two_gammas.group_by == "episode", "two γ groups cannot be held out and cross-validated"
+    known[: ds.episode_rows(len(ds.names) // 4).start, KNOWN_PARAMS.index("gamma")] = 16e3
+    three_gammas = build_frame(dataclasses.replace(unlabelled, known=known), stride=4)
+    assert three_gammas.group_by == "gamma" and len(three_gammas.groups) == 3
     with pytest.raises(ValueError, match="group_by='soil' must be one of"):
         build_frame(ds, stride=4, group_by="soil")
 

@@ -97,7 +97,7 @@ def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], l
             f"{n} θ-group(s) ({frame.group_by} grouping): need at least {3 if holdout > 0 else 2} "
             f"(two to cross-validate the candidate terms{', one held out for the test' if holdout > 0 else ''}); "
             f"record more episodes or soils"
-            + (", or fit θ per episode (--group-by episode)" if frame.group_by == "auto" and n < len(frame.episodes) else "")
+            + (", or fit θ per episode (--group-by episode)" if frame.group_by in ("auto", "gamma") and n < len(frame.episodes) else "")
         )
     rng = np.random.default_rng(seed)
     strata: dict[str, list[int]] = {}

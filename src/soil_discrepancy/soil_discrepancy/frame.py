@@ -151,25 +151,6 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         except (TypeError, ValueError, AttributeError):
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
-    gamma_keys = None
-    if group_by == "gamma" or (group_by == "auto" and all(s == "unknown" for s in soils)):
-        gamma_keys = _gamma_groups(ds)
-        if group_by == "auto":
-            group_by = "gamma" if MIN_GAMMA_GROUPS <= len(set(gamma_keys)) < n_ep else "episode"
-    if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
-        soils, dens = ["unknown"] * n_ep, [math.nan] * n_ep
-    keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
-    for e in range(n_ep):
-        if group_by == "gamma":
-            key = gamma_keys[e]
-        elif group_by == "auto" and soils[e] != "unknown":
-            key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
-        else:
-            key = ds.names[e]
-        if key not in keys:
-            keys[key] = len(group_names)
-            group_names.append(key)
-        group_of[e] = keys[key]
     parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance")}
     for e in range(n_ep):
         r = ds.episode_rows(e)
@@ -191,6 +172,33 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
             f"no tick of the {n_ep} episode(s) has the blade in the soil (d > {min_depth_m} m) after the "
             f"first {skip_s:g} s: nothing to compare the model with"
         )
+    analysed = set(int(e) for e in np.unique(cat["episode"]))
+    gamma_keys = None
+    if group_by == "gamma":
+        gamma_keys = _gamma_groups(ds)
+    elif group_by == "auto" and all(s == "unknown" for s in soils):
+        # γ groups only where they can be held out and cross-validated: counted over the episodes
+        # with analysed ticks; a non-finite γ (no grouping by it) falls back to one θ per episode
+        try:
+            gamma_keys = _gamma_groups(ds)
+        except ValueError:
+            gamma_keys = None
+        n_gamma = len({gamma_keys[e] for e in analysed}) if gamma_keys is not None else 0
+        group_by = "gamma" if MIN_GAMMA_GROUPS <= n_gamma < len(analysed) else "episode"
+    if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
+        soils, dens = ["unknown"] * n_ep, [math.nan] * n_ep
+    keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
+    for e in range(n_ep):
+        if group_by == "gamma":
+            key = gamma_keys[e]
+        elif group_by == "auto" and soils[e] != "unknown":
+            key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
+        else:
+            key = ds.names[e]
+        if key not in keys:
+            keys[key] = len(group_names)
+            group_names.append(key)
+        group_of[e] = keys[key]
     return Frame(
         names=list(ds.names), soils=soils, densities=dens, group_of=group_of, group_names=group_names,
         episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],

@@ -250,7 +250,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         "forms": form_report,
         "regimes_after": reg1,
         "test": test,
-        "notes": _notes(frame),
+        "notes": _notes(frame, len(test_groups)),
         "variable_labels": variable_labels(),
     }
     report["run_time_s"] = round(time.perf_counter() - t0, 2)
@@ -306,7 +306,7 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
     }
 
 
-def _notes(frame: Frame) -> list[str]:
+def _notes(frame: Frame, n_test_groups: int) -> list[str]:
     label = ("no soil label (episodes grouped by their measured γ)" if frame.group_by == "gamma"
              else "the metadata soil name/I_d (a grouping label only)")
     notes = [
@@ -316,7 +316,7 @@ def _notes(frame: Frame) -> list[str]:
         "Holm-corrected; k ± SE is the grouped jackknife over the cross-validation folds (statistical only, "
         "no model-form error).",
     ]
-    if not frame.has_metadata():
+    if not frame.has_metadata() and n_test_groups >= 2:
         notes.append("No soil label: the held-out test groups are drawn one from each band of measured γ "
                      "(as many bands as test groups), so the test part spans the soils' range.")
     if not _shared(frame):
