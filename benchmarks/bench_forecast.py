@@ -545,6 +545,16 @@ def parse_term(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--fusion-term {text!r}: {err}") from None
 
 
+def parse_checkpoint(text: str) -> tuple[str, Path]:
+    """WORLD=PATH of ``--checkpoint``."""
+    world, _, path = text.partition("=")
+    if world not in WORLDS or not path:
+        raise argparse.ArgumentTypeError(f"--checkpoint {text!r}: expected WORLD=PATH with WORLD one of {WORLDS}")
+    if not Path(path).is_file():
+        raise argparse.ArgumentTypeError(f"--checkpoint {text!r}: no file {path}")
+    return world, Path(path)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="smoke run: no classical fit, one density, fewer soil changes")
@@ -567,7 +577,11 @@ def main() -> None:
                    help="section 1: a force term (catalogue name or form:..., e.g. one soil_discrepancy named) added to "
                         "the fused posterior's physics, with the calibrated error laws unchanged (repeatable): the "
                         "forecast before and after adding what was found")
+    p.add_argument("--checkpoint", dest="checkpoints", type=parse_checkpoint, action="append", default=[],
+                   metavar="WORLD=PATH", help="a PINN checkpoint instead of the world's shipped one (repeatable), e.g. "
+                   "one retrained with a term the discrepancy workflow named: its forecast goes through its own physics")
     args = p.parse_args()
+    args.checkpoints = dict(args.checkpoints)
     sections = {int(s) for s in args.sections.split(",") if s.strip()}
     if args.changes is None:
         args.changes = [(("Sand", 20.0), ("Clay", 80.0)), (("Clay", 80.0), ("Sand", 20.0)),
@@ -581,7 +595,7 @@ def main() -> None:
           + (" (--quick: no classical fit, fewer episodes: not the reference figures)" if args.quick else "") + "\n", flush=True)
     models = {}
     for world in WORLDS:
-        path = MODELS_DIR / f"pinn_{world}.pt"
+        path = Path(args.checkpoints.get(world, MODELS_DIR / f"pinn_{world}.pt"))
         models[world] = (load_model(path)[0], path)
     t_start = time.perf_counter()
     results: dict = {"quick": args.quick, "cores": os.cpu_count(), "load_average_start": load0,

@@ -14,6 +14,7 @@ from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode
+from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
                                               median_error_pct)
@@ -203,6 +204,24 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     assert fused["mean_abs_pct"] < report["forecast"]["naive_same_force"]["x"]["all"]["mean_abs_pct"]
     assert report["parameters"]["fused"]["delta"]["episodes"] == 4
     assert "90 % / 50 % intervals" in "\n".join(fc.markdown(report))
+
+
+def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics():
+    """A PINN trained with an extra term (a discovered effect) estimates θ for the FEE plus that
+    term, so its forecast at another depth must add the term too; other estimators stay FEE."""
+    eps = episodes("fee", [("Loam", 45.0, 0.08), ("Loam", 45.0, 0.16)])
+    parts = fc.steady_parts(Dataset.from_episodes(eps))
+    theta = [dict(p.truth) for p in parts]
+    term = (("soil_inertia", 4.0),)
+    pairs = fc.forecast_pairs(parts, {"plain": theta, "augmented": theta}, terms={"augmented": term})
+    assert len(pairs) == 2
+    for pair in pairs:
+        b = parts[1] if pair["to_depth_m"] == parts[1].known["d"] else parts[0]
+        t = b.truth
+        expect = AugmentedFEE(term).force((t["phi"], t["c"], t["delta"]), b.known_row(), 0.0)
+        np.testing.assert_allclose(pair["forecast"]["augmented"], np.ravel(expect), rtol=1e-9)
+        np.testing.assert_allclose(pair["forecast"]["plain"], pair["forecast"]["true_fee"], rtol=1e-9)
+        assert pair["forecast"]["augmented"][0] > pair["forecast"]["plain"][0] + 10.0  # inertia ∝ d v² pushes back
 
 
 def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_until_they_hold():

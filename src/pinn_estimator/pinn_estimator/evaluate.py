@@ -141,7 +141,8 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
              progress: bool = False, fusion: FusionConfig | None = None) -> dict:
     """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares
     fit's θ̂, and the fused posterior (``fusion``: its config, None: the default world's calibration;
-    the model's catalogue terms are added)."""
+    the model's catalogue terms are added). The PINN's θ̂ forecasts through its own physics (the
+    FEE plus the terms it was trained with); the least-squares fit's through the FEE."""
     ends = fc.steady_window_ends(ds, stride)
     out = predict(model, WindowTensors(ds), ends)
     estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
@@ -152,7 +153,8 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta}
     from .fusion_calibration import config_for_model
 
-    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, config_for_model(fusion, model))})
+    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, config_for_model(fusion, model))},
+                                terms={"pinn": model.cfg.extra_terms})
 
 
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,

@@ -23,6 +23,7 @@ import numpy as np
 
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS
 from soil_physics import fee
+from soil_physics.augmented_fee import AugmentedFEE
 
 # Off the training grid (densities 0..100 step 20; depths 0.05, 0.175, 0.3 m; speeds
 # 0.3..1.0): the held-out episodes the forecast is judged on.
@@ -92,8 +93,16 @@ def steady_estimates(ds, ends: np.ndarray, estimates: dict[str, np.ndarray], ste
     return out
 
 
-def fee_force_at(theta: dict[str, float], at: dict[str, float]) -> np.ndarray:
-    """(F_x, F_z) [N] of the FEE with soil θ = (φ, c, δ) at the conditions ``at`` (Θ_k means), β = β*."""
+def fee_force_at(theta: dict[str, float], at: dict[str, float], terms=()) -> np.ndarray:
+    """(F_x, F_z) [N] of the FEE with soil θ = (φ, c, δ) at the conditions ``at`` (Θ_k means), β = β*.
+
+    ``terms``: (name, k) force terms beside the FEE (an augmented model's own physics, e.g. a PINN
+    trained with them), at distance in soil 0 as the fused posterior's forecast.
+    """
+    if terms:
+        known = np.array([at[n] for n in KNOWN_PARAMS])
+        fx, fz = AugmentedFEE(terms).force((theta["phi"], theta["c"], theta["delta"]), known, 0.0)
+        return np.array([float(fx), float(fz)])
     params = dict(at, phi=theta["phi"], c=theta["c"], delta=theta["delta"])
     fx, fz, _ = fee.fee_xz({k: np.asarray(v, dtype=float) for k, v in params.items()})
     return np.array([float(fx), float(fz)])
@@ -102,16 +111,17 @@ def fee_force_at(theta: dict[str, float], at: dict[str, float]) -> np.ndarray:
 INTERVALS = ((0.05, 0.95), (0.25, 0.75))  # the 90 % and 50 % central intervals scored for coverage
 
 
-def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], posteriors: dict[str, list] | None = None) -> list[dict]:
+def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], posteriors: dict[str, list] | None = None,
+                   terms: dict[str, tuple] | None = None) -> list[dict]:
     """Every ordered pair (A → B) of one soil and density at another depth: each estimator's
-    forecast of B's force from A's θ̂ (or, for ``posteriors``, the median of A's fused posterior
-    predictive at B's conditions, with its 90 % and 50 % intervals), the references', and B's
-    measured force."""
-    posteriors = posteriors or {}
+    forecast of B's force from A's θ̂ through the FEE plus ``terms[name]`` if given (or, for
+    ``posteriors``, the median of A's fused posterior predictive at B's conditions, with its 90 %
+    and 50 % intervals), the references', and B's measured force."""
+    posteriors, terms = posteriors or {}, terms or {}
     quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
     pairs = []
     for a, b in pair_indices(parts):
-        forecast = {name: fee_force_at(theta[a], parts[b].known) for name, theta in thetas.items()}
+        forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ())) for name, theta in thetas.items()}
         intervals = {}
         for name, posts in posteriors.items():
             out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles)
@@ -192,19 +202,21 @@ def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
 
 
 def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.ndarray]],
-                      posteriors: dict[str, list] | None = None) -> dict:
-    """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``;
+                      posteriors: dict[str, list] | None = None, terms: dict[str, tuple] | None = None) -> dict:
+    """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``
+    (forecast through the FEE plus ``terms[name]``, the estimator's own physics, if given);
     ``posteriors[name]`` one fused posterior per episode (at its end)."""
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
     posteriors = posteriors or {}
-    pairs = forecast_pairs(parts, thetas, posteriors)
+    pairs = forecast_pairs(parts, thetas, posteriors, terms)
     return {
         "episodes": len(ds),
         "worlds": sorted({m.world_mode for m in ds.metas}),
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, [*estimates, *posteriors]),
+        "physics": {name: [[n, float(k)] for n, k in t] for name, t in (terms or {}).items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
 
@@ -221,11 +233,15 @@ def markdown(report: dict) -> list[str]:
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
              "|---|---|---|---|---|---|---|---|"]
+    physics = report.get("physics", {})
     for name, axes in report["forecast"].items():
         x, z = axes["x"], axes["z"]
+        label = LABELS.get(name, name)
+        if physics.get(name):  # an estimator whose physics has terms beside the FEE names them
+            label = label.replace("FEE part", "FEE + " + ", ".join(f"{n} (k = {k:g})" for n, k in physics[name]))
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
-        lines.append(f"| {LABELS.get(name, name)} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
+        lines.append(f"| {label} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
                      f"{x['shallower']['bias_pct']:+.1f} % | {z['all']['mean_abs_pct']:.1f} % | {z['deeper']['bias_pct']:+.1f} % | "
                      f"{cover[0]} | {cover[1]} |")
     for name, params in report.get("parameters", {}).items():
