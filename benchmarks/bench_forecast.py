@@ -180,7 +180,8 @@ def grid(densities, depth: float, seeds: int, duration_s: float = 10.0, offset: 
 
 # ---------------------------------------------------------------- 1. forecast at another depth
 def section_forecast(args, models) -> dict:
-    print("## 1. Forecast at another depth (held-out episodes, shipped models, calibrated fusion)\n")
+    models_of = "shipped models" if not args.checkpoints else "models: " + ", ".join(f"{w} {p}" for w, p in args.checkpoints.items())
+    print(f"## 1. Forecast at another depth (held-out episodes, {models_of}, calibrated fusion)\n")
     out = {}
     for world in args.worlds:
         model, path = models[world]

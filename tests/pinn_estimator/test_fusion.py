@@ -3,6 +3,7 @@ where the FEE is the world and the truth is known): what depth diversity pins do
 intervals where it does not, a soil change taken over, the forecast evaluation, bad configs."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -14,7 +15,6 @@ from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode
-from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
                                               median_error_pct)
@@ -199,6 +199,9 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     model, _ = load_model(MODELS_DIR / "pinn_fee.pt")
     report = forecast(model, ds, classical=False, fusion=CFG)
     assert report["pairs"] == 4 and set(report["forecast"]) == {"pinn", "fused", *fc.REFERENCES}
+    assert report["physics"] == {}, "the shipped PINN has no terms beside the FEE"
+    model.cfg = dataclasses.replace(model.cfg, extra_terms=(("soil_inertia", 4.0),))  # as if trained with it
+    assert forecast(model, ds, classical=False, fusion=CFG)["physics"] == {"pinn": [["soil_inertia", 4.0]]}
     fused = report["forecast"]["fused"]["x"]["all"]
     assert 0.0 <= fused["coverage_50"] <= fused["coverage_90"] <= 1.0
     assert fused["mean_abs_pct"] < report["forecast"]["naive_same_force"]["x"]["all"]["mean_abs_pct"]
@@ -208,20 +211,33 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
 
 def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics():
     """A PINN trained with an extra term (a discovered effect) estimates θ for the FEE plus that
-    term, so its forecast at another depth must add the term too; other estimators stay FEE."""
+    term, so its forecast at another depth must add the term, at the target episode's conditions
+    and travel in soil; other estimators stay FEE, and the report names the terms."""
     eps = episodes("fee", [("Loam", 45.0, 0.08), ("Loam", 45.0, 0.16)])
-    parts = fc.steady_parts(Dataset.from_episodes(eps))
+    ds = Dataset.from_episodes(eps)
+    parts = fc.steady_parts(ds)
+    assert all(p.distance_m > 1.0 for p in parts), "the steady half lies metres into the cut"
     theta = [dict(p.truth) for p in parts]
-    term = (("soil_inertia", 4.0),)
-    pairs = fc.forecast_pairs(parts, {"plain": theta, "augmented": theta}, terms={"augmented": term})
+    k_inertia, k_compaction = 4.0, 0.05
+    pairs = fc.forecast_pairs(parts, {"plain": theta, "inertia": theta, "compaction": theta},
+                              terms={"inertia": (("soil_inertia", k_inertia),),
+                                     "compaction": ["compaction_hardening=0.05"]})
     assert len(pairs) == 2
     for pair in pairs:
         b = parts[1] if pair["to_depth_m"] == parts[1].known["d"] else parts[0]
-        t = b.truth
-        expect = AugmentedFEE(term).force((t["phi"], t["c"], t["delta"]), b.known_row(), 0.0)
-        np.testing.assert_allclose(pair["forecast"]["augmented"], np.ravel(expect), rtol=1e-9)
-        np.testing.assert_allclose(pair["forecast"]["plain"], pair["forecast"]["true_fee"], rtol=1e-9)
-        assert pair["forecast"]["augmented"][0] > pair["forecast"]["plain"][0] + 10.0  # inertia ∝ d v² pushes back
+        plain, at = np.asarray(pair["forecast"]["plain"]), b.known
+        np.testing.assert_allclose(plain, pair["forecast"]["true_fee"], rtol=1e-9)  # same soil: A's θ is B's
+        inertia = k_inertia * at["gamma"] / 9.81 * at["w"] * at["d"] * at["v_x"] ** 2  # k (γ/g) w d v_x²
+        np.testing.assert_allclose(pair["forecast"]["inertia"], plain + [inertia, 0.0], rtol=1e-9)
+        np.testing.assert_allclose(pair["forecast"]["compaction"], plain * (1 + k_compaction * b.distance_m), rtol=1e-9)
+    ends = fc.steady_window_ends(ds, 30)
+    est = {"phi": np.full(len(ends), theta[0]["phi"]), "c": np.full(len(ends), theta[0]["c"]),
+           "delta": np.full(len(ends), theta[0]["delta"])}
+    report = fc.evaluate_forecast(ds, ends, {"pinn": est, "classical": est}, terms={"pinn": (("soil_inertia", 4.0),)})
+    assert report["physics"] == {"pinn": [["soil_inertia", 4.0]]} and json.loads(json.dumps(report))
+    table = "\n".join(fc.markdown(report))
+    assert "PINN estimates (FEE + soil_inertia (k = 4), β*)" in table and "FEE part" not in table
+    assert report["forecast"]["pinn"]["x"]["all"]["bias_pct"] > report["forecast"]["classical"]["x"]["all"]["bias_pct"] + 1.0
 
 
 def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_until_they_hold():

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS
-from soil_physics import fee
+from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 
 # Off the training grid (densities 0..100 step 20; depths 0.05, 0.175, 0.3 m; speeds
@@ -45,6 +45,7 @@ class Steady:
     known: dict[str, float]
     force: np.ndarray  # (2,) [N]
     truth: dict[str, float]
+    distance_m: float = 0.0  # mean blade travel in soil over the steady rows (for terms that grow with it)
 
     def known_row(self) -> np.ndarray:
         """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
@@ -54,6 +55,7 @@ class Steady:
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half)."""
     out = []
+    travel = ds.distance_in_soil()
     for e in range(len(ds)):
         rows = np.arange(ds.offsets[e], ds.offsets[e + 1])
         rows = rows[int(steady_from * len(rows)):]
@@ -64,7 +66,8 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         known = {n: float(ds.known[rows, j].mean()) for j, n in enumerate(KNOWN_PARAMS)}
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
         meta = ds.metas[e]
-        out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth))
+        out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
+                          float(travel[rows].mean())))
     return out
 
 
@@ -93,15 +96,16 @@ def steady_estimates(ds, ends: np.ndarray, estimates: dict[str, np.ndarray], ste
     return out
 
 
-def fee_force_at(theta: dict[str, float], at: dict[str, float], terms=()) -> np.ndarray:
+def fee_force_at(theta: dict[str, float], at: dict[str, float], terms=(), distance_m: float = 0.0) -> np.ndarray:
     """(F_x, F_z) [N] of the FEE with soil θ = (φ, c, δ) at the conditions ``at`` (Θ_k means), β = β*.
 
     ``terms``: (name, k) force terms beside the FEE (an augmented model's own physics, e.g. a PINN
-    trained with them), at distance in soil 0 as the fused posterior's forecast.
+    trained with them), at blade travel in soil ``distance_m`` (the target episode's steady mean:
+    exact for terms linear in it, such as compaction hardening).
     """
     if terms:
         known = np.array([at[n] for n in KNOWN_PARAMS])
-        fx, fz = AugmentedFEE(terms).force((theta["phi"], theta["c"], theta["delta"]), known, 0.0)
+        fx, fz = AugmentedFEE(terms).force((theta["phi"], theta["c"], theta["delta"]), known, distance_m)
         return np.array([float(fx), float(fz)])
     params = dict(at, phi=theta["phi"], c=theta["c"], delta=theta["delta"])
     fx, fz, _ = fee.fee_xz({k: np.asarray(v, dtype=float) for k, v in params.items()})
@@ -117,14 +121,16 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
     forecast of B's force from A's θ̂ through the FEE plus ``terms[name]`` if given (or, for
     ``posteriors``, the median of A's fused posterior predictive at B's conditions, with its 90 %
     and 50 % intervals), the references', and B's measured force."""
-    posteriors, terms = posteriors or {}, terms or {}
+    posteriors = posteriors or {}
+    terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
     pairs = []
     for a, b in pair_indices(parts):
-        forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ())) for name, theta in thetas.items()}
+        forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ()), parts[b].distance_m)
+                    for name, theta in thetas.items()}
         intervals = {}
         for name, posts in posteriors.items():
-            out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles)
+            out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles, distance_m=parts[b].distance_m)
             forecast[name] = out["quantiles"][0.5]
             intervals[name] = {(lo, hi): (out["quantiles"][lo], out["quantiles"][hi]) for lo, hi in INTERVALS}
         forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)
@@ -216,7 +222,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, [*estimates, *posteriors]),
-        "physics": {name: [[n, float(k)] for n, k in t] for name, t in (terms or {}).items() if t},
+        "physics": {name: [[n, float(k)] for n, k in force_terms.parse_terms(t)] for name, t in (terms or {}).items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
 

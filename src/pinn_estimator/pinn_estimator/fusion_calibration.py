@@ -89,7 +89,8 @@ def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[di
     rows = []
     for a, b in fc.pair_indices(parts):
         rows.append({"measured": parts[b].force, "now": parts[a].force,
-                     "forecast": posts[a].forecast(parts[b].known_row(), quantiles=quantiles)["quantiles"]})
+                     "forecast": posts[a].forecast(parts[b].known_row(), quantiles=quantiles,
+                                                   distance_m=parts[b].distance_m)["quantiles"]})
     return rows
 
 
