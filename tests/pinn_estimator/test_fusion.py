@@ -201,7 +201,9 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     assert report["pairs"] == 4 and set(report["forecast"]) == {"pinn", "fused", *fc.REFERENCES}
     assert report["physics"] == {}, "the shipped PINN has no terms beside the FEE"
     model.cfg = dataclasses.replace(model.cfg, extra_terms=(("soil_inertia", 4.0),))  # as if trained with it
-    assert forecast(model, ds, classical=False, fusion=CFG)["physics"] == {"pinn": [["soil_inertia", 4.0]]}
+    with_term = forecast(model, ds, classical=False, fusion=CFG)
+    assert with_term["physics"] == {"pinn": [["soil_inertia", 4.0]], "fused": [["soil_inertia", 4.0]]}
+    assert "fused posterior along the path (median, FEE + soil_inertia (k = 4))" in "\n".join(fc.markdown(with_term))
     fused = report["forecast"]["fused"]["x"]["all"]
     assert 0.0 <= fused["coverage_50"] <= fused["coverage_90"] <= 1.0
     assert fused["mean_abs_pct"] < report["forecast"]["naive_same_force"]["x"]["all"]["mean_abs_pct"]
@@ -236,7 +238,7 @@ def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics(
     report = fc.evaluate_forecast(ds, ends, {"pinn": est, "classical": est}, terms={"pinn": (("soil_inertia", 4.0),)})
     assert report["physics"] == {"pinn": [["soil_inertia", 4.0]]} and json.loads(json.dumps(report))
     table = "\n".join(fc.markdown(report))
-    assert "PINN estimates (FEE + soil_inertia (k = 4), β*)" in table and "FEE part" not in table
+    assert "PINN estimates (FEE + soil_inertia (k = 4) part, β*)" in table and "FEE part" not in table
     assert report["forecast"]["pinn"]["x"]["all"]["bias_pct"] > report["forecast"]["classical"]["x"]["all"]["bias_pct"] + 1.0
 
 

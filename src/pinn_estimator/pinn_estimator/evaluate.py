@@ -153,8 +153,10 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta}
     from .fusion_calibration import config_for_model
 
-    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, config_for_model(fusion, model))},
-                                terms={"pinn": model.cfg.extra_terms})
+    fused = config_for_model(fusion, model)
+    # the fused posterior forecasts through its own physics; its terms are passed only to be named
+    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, fused)},
+                                terms={"pinn": model.cfg.extra_terms, "fused": fused.terms})
 
 
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,

@@ -211,7 +211,8 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
                       posteriors: dict[str, list] | None = None, terms: dict[str, tuple] | None = None) -> dict:
     """The forecast report of ``ds``: ``estimates[name]`` holds φ, c, δ [SI] per window ``ends``
     (forecast through the FEE plus ``terms[name]``, the estimator's own physics, if given);
-    ``posteriors[name]`` one fused posterior per episode (at its end)."""
+    ``posteriors[name]`` one fused posterior per episode (at its end; it forecasts through its own
+    physics, and ``terms[name]`` only names that physics in the report)."""
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
     posteriors = posteriors or {}
@@ -227,8 +228,16 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     }
 
 
-LABELS = {"fused": "fused posterior along the path (median, FEE)", "pinn": "PINN estimates (FEE part, β*)", "classical": "classical least-squares fit (Tan 2005)",
+LABELS = {"fused": "fused posterior along the path (median, {physics})", "pinn": "PINN estimates ({physics} part, β*)",
+          "classical": "classical least-squares fit (Tan 2005)",
           "true_fee": "FEE with the true parameters", "naive_same_force": "naive: the force measured at the other depth"}
+
+
+def label_of(report: dict, name: str) -> str:
+    """An estimator's label, naming the terms its physics has beside the FEE (``report['physics']``)."""
+    terms = report.get("physics", {}).get(name)
+    physics = "FEE" + "".join(f" + {n} (k = {k:g})" for n, k in terms or ())
+    return LABELS.get(name, name).replace("{physics}", physics)
 
 
 def markdown(report: dict) -> list[str]:
@@ -239,12 +248,9 @@ def markdown(report: dict) -> list[str]:
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
              "|---|---|---|---|---|---|---|---|"]
-    physics = report.get("physics", {})
     for name, axes in report["forecast"].items():
         x, z = axes["x"], axes["z"]
-        label = LABELS.get(name, name)
-        if physics.get(name):  # an estimator whose physics has terms beside the FEE names them
-            label = label.replace("FEE part", "FEE + " + ", ".join(f"{n} (k = {k:g})" for n, k in physics[name]))
+        label = label_of(report, name)
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
         lines.append(f"| {label} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
@@ -253,5 +259,5 @@ def markdown(report: dict) -> list[str]:
     for name, params in report.get("parameters", {}).items():
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
                           f"(intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%})" for p, v in params.items())
-        lines += ["", f"{LABELS.get(name, name)}, soil at each episode's end vs the truth: {cells}."]
+        lines += ["", f"{label_of(report, name)}, soil at each episode's end vs the truth: {cells}."]
     return lines
