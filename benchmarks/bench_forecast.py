@@ -596,7 +596,7 @@ def main() -> None:
           + (" (--quick: no classical fit, fewer episodes: not the reference figures)" if args.quick else "") + "\n", flush=True)
     models = {}
     for world in WORLDS:
-        path = Path(args.checkpoints.get(world, MODELS_DIR / f"pinn_{world}.pt"))
+        path = args.checkpoints.get(world, MODELS_DIR / f"pinn_{world}.pt")
         models[world] = (load_model(path)[0], path)
     t_start = time.perf_counter()
     results: dict = {"quick": args.quick, "cores": os.cpu_count(), "load_average_start": load0,

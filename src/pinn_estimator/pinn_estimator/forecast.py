@@ -216,6 +216,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
     posteriors = posteriors or {}
+    terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     pairs = forecast_pairs(parts, thetas, posteriors, terms)
     return {
         "episodes": len(ds),
@@ -223,7 +224,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, [*estimates, *posteriors]),
-        "physics": {name: [[n, float(k)] for n, k in force_terms.parse_terms(t)] for name, t in (terms or {}).items() if t},
+        "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
 

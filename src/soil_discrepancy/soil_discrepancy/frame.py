@@ -182,7 +182,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         try:
             gamma_keys = _gamma_groups(ds)
         except ValueError:
-            gamma_keys = None
+            pass
         n_gamma = len({gamma_keys[e] for e in analysed}) if gamma_keys is not None else 0
         group_by = "gamma" if MIN_GAMMA_GROUPS <= n_gamma < len(analysed) else "episode"
     if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
