@@ -7,8 +7,6 @@ wait is bounded.
 """
 from __future__ import annotations
 
-import itertools
-import os
 import signal
 import subprocess
 import sys
@@ -25,13 +23,9 @@ from rclpy.node import Node
 from soil_msgs_py.ros_adapter import message_class, topic_qos
 from soil_bringup.launch import loopback_env  # noqa: F401 - re-exported for the tests
 
+from tests.ros_domains import next_domain_id  # noqa: F401 - re-exported for the tests
+
 BIN = Path(sys.executable).parent
-# Domain ids 141..230 for these tests (test_bag_tools uses 100..140); one per probe/test.
-_IDS = itertools.count(141 + (os.getpid() % 30))
-
-
-def next_domain_id() -> int:
-    return 141 + (next(_IDS) - 141) % 90
 
 
 def wait_until(predicate, timeout: float, what: str, poll: float = 0.05):

@@ -28,6 +28,8 @@ from soil_bag_tools import bag_io, bag_writer, journal, playback, recorder
 from soil_msgs_py import graph
 from soil_msgs_py.topics import EPISODE_TOPICS
 
+from tests.ros_domains import next_domain_id
+
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "bags" / "samples"
 SAMPLE = SAMPLES / "default_loam_id060_v0.50_d0.200_s7"
@@ -332,9 +334,10 @@ def assert_paced(received, bag_msgs, rate: float) -> None:
 
 
 def test_replay_delivers_every_message_in_order_paced(listener):
-    lst = listener(101)
+    domain = next_domain_id()
+    lst = listener(domain)
     bag_msgs = sample_messages()
-    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=101)
+    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=domain)
     out = finish(player)
     assert player.returncode == 0, out
     assert lst.wait_for(lambda: len(lst.received) >= len(bag_msgs), 5), f"{len(lst.received)} received\n{out}"
@@ -348,10 +351,11 @@ def test_replay_delivers_every_message_in_order_paced(listener):
 
 
 def test_replay_rate_2_topic_selection(listener):
-    lst = listener(102)
+    domain = next_domain_id()
+    lst = listener(domain)
     bag_msgs = [m for m in sample_messages() if m[1] in ("/blade/force", "/clock")]
     player = start("soil_bag_play", SAMPLE, "--rate", 2, "--topics", "/blade/force", "/clock",
-                   "--wait-for-subscribers", 1, domain=102)
+                   "--wait-for-subscribers", 1, domain=domain)
     out = finish(player)
     assert player.returncode == 0, out
     assert lst.wait_for(lambda: len(lst.received) >= len(bag_msgs), 5), out
@@ -364,14 +368,15 @@ def test_replay_rate_2_topic_selection(listener):
 
 
 def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp_path):
-    lst = listener(103, topics=(), status_sub=False)  # only publishes /sim/status
-    rec = start("soil_bag_record", "--out", tmp_path, domain=103)
+    domain = next_domain_id()
+    lst = listener(domain, topics=(), status_sub=False)  # only publishes /sim/status
+    rec = start("soil_bag_record", "--out", tmp_path, domain=domain)
     player = None
     try:
         assert lst.wait_for(lambda: lst.status_pub.get_subscription_count() >= 1, 10), "recorder never subscribed"
         lst.publish_status("{this is not json")
         lst.publish_status(json.dumps({"event": "episode_start"}))
-        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=103)
+        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=domain)
         out = finish(player)
         assert player.returncode == 0, out
         bag = tmp_path / SAMPLE.name
@@ -390,11 +395,12 @@ def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp
 
 def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
     """Two recorders on one replay: SIGINT -> a trimmed, valid bag; SIGKILL -> .partial -> repair."""
-    lst = listener(104, topics=("/blade/cmd",))  # the last topic of each tick
+    domain = next_domain_id()
+    lst = listener(domain, topics=("/blade/cmd",))  # the last topic of each tick
     a, b = tmp_path / "sigint", tmp_path / "sigkill"
-    rec_int = start("soil_bag_record", "--out", a, domain=104)
-    rec_kill = start("soil_bag_record", "--out", b, domain=104)
-    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 2, domain=104)
+    rec_int = start("soil_bag_record", "--out", a, domain=domain)
+    rec_kill = start("soil_bag_record", "--out", b, domain=domain)
+    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 2, domain=domain)
     try:
         assert lst.wait_for(lambda: lst.count("/blade/cmd") >= 240, 60), "replay did not reach 4 s"
         rec_kill.send_signal(signal.SIGKILL)
@@ -447,13 +453,14 @@ def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
     recorder writes the same three bags; a --no-split recorder writes one bag of everything.
     (Rate 2, not faster: two recorders and a listener share the machine with the player, and
     what is checked is the split, not how fast a recorder keeps up; bench_bag_tools times replays.)"""
-    lst = listener(106, topics=(), status_sub=False)
+    domain = next_domain_id()
+    lst = listener(domain, topics=(), status_sub=False)
     split, whole = tmp_path / "split", tmp_path / "whole"
-    rec = start("soil_bag_record", "--out", split, domain=106)
-    rec_all = start("soil_bag_record", "--out", whole, "--no-split", domain=106)
+    rec = start("soil_bag_record", "--out", split, domain=domain)
+    rec_all = start("soil_bag_record", "--out", whole, "--no-split", domain=domain)
     player = None
     try:
-        player = start("soil_bag_play", SAMPLES, "--rate", 2, "--wait-for-subscribers", 2, domain=106)
+        player = start("soil_bag_play", SAMPLES, "--rate", 2, "--wait-for-subscribers", 2, domain=domain)
         play_log = finish(player)
         assert player.returncode == 0, play_log
         assert lst.wait_for(lambda: len(bag_io.find_episode_bags(split)) == 3, 5), play_log

@@ -21,7 +21,7 @@ import yaml
 from soil_bag_tools import bag_io, journal, recorder
 from soil_msgs_py import messages as M
 from tests.soil_bag_tools.test_bag_tools import (  # noqa: F401 - listener is a fixture
-    SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, reap, start,
+    SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, next_domain_id, reap, start,
 )
 
 pytestmark = pytest.mark.timeout(180)
@@ -157,7 +157,8 @@ def test_recorded_replay_holds_only_the_players_data_with_an_intruder(listener, 
 
     from soil_msgs_py.ros_adapter import message_class, topic_qos
 
-    lst = listener(107, topics=(), status_sub=False)
+    domain = next_domain_id()
+    lst = listener(domain, topics=(), status_sub=False)
     pub = lst.node.create_publisher(message_class("geometry_msgs/msg/WrenchStamped"), "/blade/force",
                                     topic_qos("/blade/force"))
     sent: set[int] = set()
@@ -176,14 +177,14 @@ def test_recorded_replay_holds_only_the_players_data_with_an_intruder(listener, 
                                             [BAD_VALUES[k % 4], BAD_VALUES[(k + 1) % 4]]))
 
     lst.node.create_subscription(Clock, "/clock", on_clock, topic_qos("/clock"))
-    rec = start("soil_bag_record", "--out", tmp_path, domain=107)
+    rec = start("soil_bag_record", "--out", tmp_path, domain=domain)
     player = None
     try:
         assert lst.wait_for(lambda: lst.status_pub.get_subscription_count() >= 1
                             and pub.get_subscription_count() >= 1, 20), "recorder never subscribed"
         for _ in range(50):  # the probe's writer has published before, as any writer may have
             pub.publish(M.build_message(M.ros_message_classes(), "/blade/force", 1, [0.0, 0.0]))
-        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=107)
+        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=domain)
         out = finish(player, timeout=60)
         assert player.returncode == 0, out
         bag = tmp_path / SAMPLE.name
