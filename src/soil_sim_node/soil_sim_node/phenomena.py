@@ -30,6 +30,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from soil_physics import fee
+from soil_physics.blade_inertia import inertia_force_rows
 from soil_msgs_py.episode import Episode
 from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_physics.soils import COHESIVE_SOILS
@@ -299,15 +300,13 @@ def fee_of_truth(ep_truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def blade_inertia(v_x: np.ndarray, v_z_b: np.ndarray, blade_mass_kg: float = MACHINE.blade_mass_kg):
-    """m_b dv/dt per row from recorded velocities (row 0: 0).
+    """m_b dv/dt per row from recorded velocities (row 0: 0); ``soil_physics.blade_inertia``.
 
     Exact for this simulator: the measured force is a tick average, and the tick average of
     the blade acceleration is (v_k - v_{k-1}) * 60 Hz (semi-implicit Euler). The blade moves
     with the chassis in x (v_x^c) and at v_z^b in z.
     """
-    ax = np.concatenate([[0.0], np.diff(v_x)]) * SAMPLE_RATE_HZ
-    az = np.concatenate([[0.0], np.diff(v_z_b)]) * SAMPLE_RATE_HZ
-    return blade_mass_kg * ax, blade_mass_kg * az
+    return inertia_force_rows(v_x, v_z_b, blade_mass_kg)
 
 
 @dataclass
