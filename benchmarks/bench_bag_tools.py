@@ -11,7 +11,7 @@
    arrives, in order; these are the figures for how close to the bag's clock). The player's
    own publish lateness (from its log) separates pacing from DDS delivery.
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 197); every run is bounded by a timeout.
+Loopback DDS only, on its own ROS_DOMAIN_ID (default 63); every run is bounded by a timeout.
 """
 from __future__ import annotations
 
@@ -108,7 +108,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--rates", type=float, nargs="+", default=[1, 2])
     p.add_argument("--reads", type=int, default=10)
-    p.add_argument("--domain-id", type=int, default=197)
+    p.add_argument("--domain-id", type=int, default=63)
     args = p.parse_args()
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; sample bag {SAMPLE.name}")
 

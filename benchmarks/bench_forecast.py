@@ -54,7 +54,7 @@ from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # n
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
-from soil_physics.blade_inertia import blade_velocity, inertia_force_rows  # noqa: E402
+from soil_physics.blade_inertia import blade_velocity, soil_force_rows  # noqa: E402
 from soil_physics.soils import CATALOGUE  # noqa: E402
 from soil_physics.travel import distance_in_soil_of_known  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
@@ -326,8 +326,7 @@ def model_residual(eps, terms, ticks: int) -> dict:
         theta = {n: ep.truth[rows, GROUND_TRUTH_PARAMS.index(n)][None, :] for n in ("phi", "c", "delta")}
         fx, fz = model.force(theta, ep.known[rows][None], distance_in_soil_of_known(ep.known)[rows])
         f_model = np.stack([np.ravel(fx), np.ravel(fz)], axis=1).reshape(-1, ticks, 2).mean(axis=1)
-        soil = ep.forces - np.stack(inertia_force_rows(*blade_velocity(ep.observations).T), axis=1)
-        f_meas = soil[rows].reshape(-1, ticks, 2).mean(axis=1)
+        f_meas = soil_force_rows(ep.forces, ep.observations)[rows].reshape(-1, ticks, 2).mean(axis=1)
         err.append(np.abs(f_model - f_meas) / np.maximum(np.abs(f_meas), 1.0))
     err = 100 * np.concatenate(err)
     return {"x_pct": float(np.nanmean(err[:, 0])), "z_pct": float(np.nanmean(err[:, 1]))}

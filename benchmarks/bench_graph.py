@@ -22,7 +22,7 @@ and 3 once per engine, one after the other (reference first: before, then compil
 ``--sim-engine``). ``--load N`` keeps N busy-looping processes running during every run (a
 loaded machine; on 2 cores, 2 takes every core from the graph's share).
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 199); every run is bounded by a timeout
+Loopback DDS only, on its own ROS_DOMAIN_ID (default 65); every run is bounded by a timeout
 and every process it starts is stopped at the end (graph_procs.py).
 """
 from __future__ import annotations
@@ -142,7 +142,7 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=10.0, help="simulated seconds per rate")
     p.add_argument("--long-seconds", type=float, default=60.0, help="simulated seconds of the real-time run (0: skip)")
     p.add_argument("--cpu-seconds", type=float, default=20.0, help="CPU window (0: skip)")
-    p.add_argument("--domain-id", type=int, default=199)
+    p.add_argument("--domain-id", type=int, default=65)
     p.add_argument("--sim-engine", choices=ENGINES, default="compiled", help="simulator engine (default: compiled)")
     p.add_argument("--compare-engines", action="store_true",
                    help="run the real-time run and the CPU figures for both engines, side by side")

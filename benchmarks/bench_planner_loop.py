@@ -10,7 +10,7 @@ times each, and prints side by side the simulator's timing figures of each episo
 commands, publish period and jitter, loop latency) and the CPU of every node over the
 episode. ``--load N`` keeps N busy-looping processes running throughout (a loaded machine).
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 197); every launch is bounded by a
+Loopback DDS only, on its own ROS_DOMAIN_ID (default 66); every launch is bounded by a
 timeout and cleaned up (graph_procs.py).
 """
 from __future__ import annotations
@@ -71,7 +71,7 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=30.0, help="simulated seconds per episode (real time)")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--load", type=int, default=0, help="busy-looping processes during the runs")
-    p.add_argument("--domain-id", type=int, default=197)
+    p.add_argument("--domain-id", type=int, default=66)
     args = p.parse_args()
     print(f"bench_planner_loop: {args.repeats} x {args.duration:g} s real-time episodes each, default world, path "
           f"{PATCHES}, load {args.load}, {os.cpu_count()} cores")

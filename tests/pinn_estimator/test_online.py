@@ -17,7 +17,10 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
+from soil_physics.blade_inertia import blade_velocity
+from soil_physics.travel import distance_in_soil_of_known
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
+from pinn_estimator.fusion import fused_track
 from pinn_estimator.fusion_calibration import DEFAULT_WORLD, load_calibrated
 from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
@@ -378,6 +381,24 @@ def test_the_fused_soil_rides_on_every_estimate_and_the_map_grows_along_the_path
     assert np.isfinite(maps[-1][1]).all() and maps[-1][1].shape[1] == len(T.MAP_FIELDS)
     # and equals the offline track on the same episode
     assert_matches_offline(valid(out), offline)
+
+
+def test_a_dropped_tick_fuses_the_same_online_and_offline(episode, model):
+    """A tick missing mid-cut: online the stretch in progress is dropped and no blade
+    acceleration spans the gap; the offline track of the same rows with ``gap_before`` there
+    (a repaired bag) learns the same, stretch for stretch."""
+    keep = [i for i in range(N_TICKS) if i != 75]
+    est, out = run(model, in_order(episode, keep))
+    gap_before = np.array([i == 76 for i in keep])
+    track = fused_track(est.posterior.cfg, episode.forces[keep], episode.known[keep],
+                        distance_in_soil_of_known(episode.known[keep]), blade_velocity(episode.observations[keep]),
+                        gap_before)
+    online = np.stack([e.values[FUSED] for e in out])
+    assert [e.stamp_ns for e in out] == [int(episode.stamps_ns[i]) for i in keep]
+    np.testing.assert_allclose(online, track, rtol=1e-9, atol=1e-9)
+    # the stretch 60..74 is dropped; the next ones count from the tick after the gap
+    learnt_at = [keep[k] for k in range(1, len(out)) if out[k].values[STRETCHES] > out[k - 1].values[STRETCHES]]
+    assert learnt_at == [29, 59, 105, 135, 165, 195]
 
 
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):

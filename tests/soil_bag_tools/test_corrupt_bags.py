@@ -22,6 +22,8 @@ from soil_bag_tools import bag_io, playback
 from soil_bringup.launch import loopback_env
 from soil_msgs_py import topics as T
 
+from tests.ros_domains import next_domain_id
+
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "bags" / "samples"
 LOAM = SAMPLES / "default_loam_id060_v0.50_d0.200_s7"
@@ -200,7 +202,7 @@ def test_soil_discrepancy_refuses_a_corrupt_bag_read_in_workers(dirs, tmp_path):
 
 
 def test_soil_bag_play_refuses_a_corrupt_bag(dirs):
-    out = run("soil_bag_play", dirs["bad"], env=loopback_env(117), timeout=60)
+    out = run("soil_bag_play", dirs["bad"], env=loopback_env(next_domain_id()), timeout=60)
     assert_refused(out, dirs["bad"])
 
 

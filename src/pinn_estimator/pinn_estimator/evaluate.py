@@ -135,7 +135,7 @@ def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:
     for e in range(len(ds)):
         rows = ds.episode_rows(e)
         out.append(fuse_episode(SoilPosterior(cfg), ds.forces[rows], ds.known[rows], distance[rows],
-                                blade_velocity(ds.observations[rows])))
+                                blade_velocity(ds.observations[rows]), ds.gap_before[rows]))
     return out
 
 

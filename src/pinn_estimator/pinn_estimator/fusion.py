@@ -504,11 +504,10 @@ class PathFusion:
         """One sample (measured force, Θ_k, travel in soil, blade velocity (x, z) [m/s] or None:
         no inertia removed); True when it completed a stretch the posterior learnt from."""
         force_n = np.asarray(force_n, float)
-        if blade_velocity_m_s is not None:
-            velocity = np.asarray(blade_velocity_m_s, float)
-            if self._velocity is not None:
-                force_n = force_n - inertia_force_n(velocity, self._velocity)
-            self._velocity = velocity
+        velocity = None if blade_velocity_m_s is None else np.asarray(blade_velocity_m_s, float)
+        if velocity is not None and self._velocity is not None:
+            force_n = force_n - inertia_force_n(velocity, self._velocity)
+        self._velocity = velocity
         stretch = self.stretch.add(force_n, known)
         if stretch is None:
             return False
@@ -518,7 +517,7 @@ class PathFusion:
 
 
 def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
-                blade_velocity_m_s: np.ndarray | None = None) -> np.ndarray:
+                blade_velocity_m_s: np.ndarray | None = None, gap_before: np.ndarray | None = None) -> np.ndarray:
     """(n, len(FUSED_FIELDS)): the fused fields in effect after each of one episode's n samples,
     as the online estimator publishes them (offline, for comparing the two)."""
     from soil_msgs_py.topics import FUSED_FIELDS
@@ -526,7 +525,7 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
     out = np.zeros((len(forces), len(FUSED_FIELDS)))
     current = fused_values(None, cfg)
     learnt: dict[int, np.ndarray] = {}
-    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, blade_velocity_m_s,
+    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, blade_velocity_m_s, gap_before,
                  on_update=lambda row, post: learnt.__setitem__(row, fused_values(post.summary(), cfg)))
     for row in range(len(forces)):
         current = learnt.get(row, current)
@@ -535,13 +534,18 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
 
 
 def fuse_episode(posterior: SoilPosterior, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
-                 blade_velocity_m_s: np.ndarray | None = None, on_update=None) -> SoilPosterior:
+                 blade_velocity_m_s: np.ndarray | None = None, gap_before: np.ndarray | None = None,
+                 on_update=None) -> SoilPosterior:
     """Run the posterior over one episode's samples in order (offline: the same as online).
     ``blade_velocity_m_s`` (n, 2): ``soil_physics.blade_inertia.blade_velocity`` of the
-    episode's observations (None: the measured force is taken as the soil's).
+    episode's observations (None: the measured force is taken as the soil's). ``gap_before``
+    (n,) bool: ticks missing before the row (a repaired bag, ``Dataset.gap_before``): as
+    online, the stretch in progress is dropped and no acceleration spans the gap.
     ``on_update(row, posterior)`` after every stretch learnt from (row = its last sample)."""
     fusion = PathFusion(posterior)
     for row in range(len(forces)):
+        if gap_before is not None and gap_before[row]:
+            fusion.gap()
         learnt = fusion.add(forces[row], known[row], float(distance_m[row]) if distance_m is not None else 0.0,
                             None if blade_velocity_m_s is None else blade_velocity_m_s[row])
         if learnt and on_update is not None:

@@ -86,7 +86,7 @@ def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = No
     cfg = config_for_model(fusion, model)
     rows = ds.episode_rows(e)
     track = fused_track(cfg, ds.forces[rows], ds.known[rows], ds.distance_in_soil()[rows],
-                        blade_velocity(ds.observations[rows]))
+                        blade_velocity(ds.observations[rows]), ds.gap_before[rows])
     values[:, FUSED] = track[ends - ds.offsets[e]]
     stamps = read_episode(bag).stamps_ns[ends - ds.offsets[e]]
     return stamps, values

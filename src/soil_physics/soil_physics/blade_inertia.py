@@ -36,3 +36,10 @@ def inertia_force_rows(v_x: np.ndarray, v_z_b: np.ndarray, blade_mass_kg: float 
     f = np.zeros_like(v)
     f[1:] = inertia_force_n(v[1:], v[:-1], blade_mass_kg)
     return f[:, 0], f[:, 1]
+
+
+def soil_force_rows(forces_n: np.ndarray, observations: np.ndarray,
+                    blade_mass_kg: float = MACHINE.blade_mass_kg) -> np.ndarray:
+    """(N, 2) the soil's force (x, z) [N] of one episode's measured forces: minus m_b a per row."""
+    v = blade_velocity(observations)
+    return np.asarray(forces_n, float) - np.stack(inertia_force_rows(v[:, 0], v[:, 1], blade_mass_kg), axis=1)
