@@ -480,8 +480,8 @@ class PathFusion:
     (``soil_physics.blade_inertia``), from the blade velocity of consecutive samples. Without
     it the blade's m_b·a in the measured F_z (22 % of it under a 3 cm depth dither, about all
     of it while the edge enters the soil) reads as soil, and the posterior settles off the
-    truth (fee world, 3 cm dither: φ 13° off at 10 s; without the inertia, 3°). The first sample after a reset or a gap has no
-    predecessor: its acceleration is taken as zero."""
+    truth (fee world, 3 cm dither: φ 13° off at 10 s; without the inertia, 3°). The first
+    sample after a reset or a gap has no predecessor: its acceleration is taken as zero."""
 
     def __init__(self, posterior: SoilPosterior):
         self.posterior = posterior
