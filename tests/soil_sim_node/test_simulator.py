@@ -27,6 +27,7 @@ from soil_msgs_py.params import (
     SOIL_TOOL_FRICTION_DEFAULT_RAD,
     SOIL_TOOL_FRICTION_FEE_RAD,
 )
+from soil_physics.blade_inertia import inertia_force_rows
 from soil_physics.soils import COHESIVE_SOILS
 from soil_sim_node import phenomena as ph
 from soil_sim_node.effects import Effects, PluginError
@@ -185,7 +186,7 @@ def test_c_inertia_term_is_exact_for_a_free_blade():
     cmds = np.column_stack([np.linspace(0.1, 0.3, n), np.linspace(0.1, 0.3, n), np.full(n, 0.5)])
     out = ph.replay_commands(SimConfig(world_mode="fee"), spec, cmds)
     assert np.all(out["truth"][1:, GROUND_TRUTH_PARAMS.index("d")] <= 0.0)
-    ix, iz = ph.blade_inertia(out["velocities"][:, 1], out["velocities"][:, 0])
+    ix, iz = inertia_force_rows(out["velocities"][:, 1], out["velocities"][:, 0])
     np.testing.assert_allclose(out["forces"][:, 0], ix, atol=1e-6)
     np.testing.assert_allclose(out["forces"][:, 1], iz, atol=1e-6)
 
@@ -430,7 +431,7 @@ def test_default_world_with_all_effects_off_is_the_fee_world_except_delta():
         assert not np.array_equal(x.forces, f.forces)
         # ... and it obeys the same FEE physics: F - m_b dv/dt == FEE(truth) on typical ticks
         fx_fee, fz_fee = ph.fee_of_truth(x.truth)
-        ix, iz = ph.blade_inertia(x.column("v_x_c"), x.column("v_z_b"))
+        ix, iz = inertia_force_rows(x.column("v_x_c"), x.column("v_z_b"))
         mag = np.hypot(x.forces[1:, 0], x.forces[1:, 1]).mean()
         ex = np.abs(x.forces[1:, 0] - ix[1:] - fx_fee[1:])
         ez = np.abs(x.forces[1:, 1] - iz[1:] - fz_fee[1:])

@@ -299,16 +299,6 @@ def fee_of_truth(ep_truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(fx), np.asarray(fz)
 
 
-def blade_inertia(v_x: np.ndarray, v_z_b: np.ndarray, blade_mass_kg: float = MACHINE.blade_mass_kg):
-    """m_b dv/dt per row from recorded velocities (row 0: 0); ``soil_physics.blade_inertia``.
-
-    Exact for this simulator: the measured force is a tick average, and the tick average of
-    the blade acceleration is (v_k - v_{k-1}) * 60 Hz (semi-implicit Euler). The blade moves
-    with the chassis in x (v_x^c) and at v_z^b in z.
-    """
-    return inertia_force_rows(v_x, v_z_b, blade_mass_kg)
-
-
 @dataclass
 class FeeMatchRow:
     soil: str
@@ -336,7 +326,7 @@ def fee_force_match(settings: Settings | None = None, episodes=None) -> list[Fee
     for (soil, i_d), ep in _grid("fee", settings, episodes).items():
         fx_fee, fz_fee = fee_of_truth(ep.truth)
         fx, fz = ep.column("f_x_b"), ep.column("f_z_b")
-        ix, iz = blade_inertia(ep.column("v_x_c"), ep.column("v_z_b"))
+        ix, iz = inertia_force_rows(ep.column("v_x_c"), ep.column("v_z_b"))
         s = slice(1, None)
         mag = float(np.hypot(fx, fz)[s].mean())
         ex, ez = np.abs(fx - fx_fee), np.abs(fz - fz_fee)
@@ -796,7 +786,7 @@ def format_report(report: PhenomenaReport) -> str:
 __all__ = [
     "Settings", "run_grid", "grid_specs", "replay_commands", "replay_commands_batch",
     "DepthRow", "depth_vs_density", "depth_trend", "SurchargeRow", "surcharge_row", "surcharge_growth",
-    "surcharge_vs_depth", "FeeMatchRow", "fee_force_match", "fee_of_truth", "blade_inertia", "OpenLoopRow",
+    "surcharge_vs_depth", "FeeMatchRow", "fee_force_match", "fee_of_truth", "OpenLoopRow",
     "open_loop_comparison", "ForceLevelRow", "closed_loop_force_levels", "OscillationRow", "force_oscillations",
     "detrend", "OscillationGroup", "oscillation_groups", "PhenomenaReport", "run_all", "summarize", "format_report",
 ]
