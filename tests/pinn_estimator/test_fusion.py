@@ -18,7 +18,7 @@ from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
-                                              median_error_pct)
+                                              median_error_pct, choose_evidence_law)
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_sim_node.rollout import run_episodes
@@ -129,6 +129,43 @@ def test_a_new_soil_along_the_path_is_taken_over_within_two_seconds_of_cutting_i
     assert abs(s.mean["c"] - true["c"]) < abs(truth(sand)["c"] - true["c"]) / 2
 
 
+def patch_episode(first: tuple[str, float], then: tuple[str, float], duration_s: float = 10.0):
+    """One fee-world cut at 0.15 m whose soil changes 3 m after the blade's start (about 5 s in)."""
+    boundary_m = 5.0
+    (ep,) = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec(
+        first[0], first[1], 0.6, 0.15, seed=5, duration_s=duration_s,
+        patches=[f"0:{first[0]}:{first[1]:g}", f"{boundary_m:g}:{then[0]}:{then[1]:g}"])])
+    assert ep.meta.patches[1]["soil"] == then[0]
+    return ep
+
+
+def test_a_new_soil_whose_force_differs_little_is_taken_up_by_the_change_point_hypothesis():
+    """Loam 30 % -> Gravel 70 %: at 0.15 m the gravel's force is one the loam posterior explains
+    within a few σ per stretch, so nothing restarts it. Kept beside the current soil, the
+    hypothesis "a new soil since the last stretch" gathers that evidence over a few stretches
+    and the interval holds the gravel by the end; without it (patch_length_m = 0) the
+    posterior stays confidently on the loam's φ."""
+    ep = patch_episode(("Loam", 30.0), ("Gravel", 70.0))
+    true = truth(ep)
+    jumps, drifts = (fuse(SoilPosterior(dataclasses.replace(CFG, patch_length_m=length)), ep) for length in (5.0, 0.0))
+    assert jumps.changes == drifts.changes == 0  # no stretch was beyond explaining: no restart did it
+    held, missed = jumps.summary(), drifts.summary()
+    assert inside(held, true, "phi") and inside(held, true, "c"), (held.mean, held.std, true)
+    assert not inside(missed, true, "phi")
+    assert abs(held.mean["phi"] - true["phi"]) < abs(missed.mean["phi"] - true["phi"]) - 5 * DEG
+
+
+def test_in_one_soil_the_change_point_hypothesis_stays_light():
+    """Where the soil does not change, a fresh soil predicts each stretch worse than the one
+    learnt so far (it is as wide as the prior), so the posterior is the one without it."""
+    ep = patch_episode(("Loam", 50.0), ("Loam", 50.0))
+    jumps, drifts = (fuse(SoilPosterior(dataclasses.replace(CFG, patch_length_m=length)), ep).summary()
+                     for length in (5.0, 0.0))
+    for name in ("phi", "c", "delta"):
+        assert jumps.mean[name] == pytest.approx(drifts.mean[name], rel=0.02)
+        assert jumps.std[name] == pytest.approx(drifts.std[name], rel=0.05)
+
+
 def test_a_sinking_stretch_the_soil_cannot_explain_is_left_out_not_taken_for_a_new_soil():
     """The default world's penetration reaction while the edge sinks is a transient the FEE
     lacks: a sinking stretch no component explains must neither restart the posterior nor
@@ -172,7 +209,7 @@ def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
     assert upper_magnitude(np.array([1.0]), np.array([[-10.0]]), np.array([[1.0]]), 0.95)[0] > 11.0
 
 
-@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0),
+@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0),
                                           ("update_ticks", 0), ("model_points", 7), ("prior_std", float("nan")),
                                           ("terms", ("no_such_term=1",))])
 def test_a_bad_fusion_config_is_refused_naming_the_field(field, value):
@@ -296,3 +333,15 @@ def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_
     # a pair without a forecast (no failure wedge: NaN) scores as the naive one, never as NaN
     no_wedge = [row([np.nan, np.nan], [10e3, 0.0], [6e3, 3e3]), *good_x]
     np.testing.assert_allclose(median_error_pct(no_wedge), [100 * (4e3 + 1e3) / 2 / 10e3, 100 * 3e3 / 30e3])
+
+
+def test_the_evidence_law_is_the_sharpest_within_the_noise_of_the_most_accurate():
+    """Stage 1 of the calibration: a wider evidence law only where it forecasts measurably
+    better; an axis no law forecasts better than the force now gets the widest."""
+    def scores(x, sem_x, z, naive_z=10.0):
+        return {"error": np.array([x, z]), "sem": np.array([sem_x, 0.5]), "naive": np.array([90.0, naive_z])}
+
+    tie = [(0.005, scores(20.9, 1.5, 10.0)), (0.02, scores(29.6, 2.0, 10.0)), (0.2, scores(20.6, 1.4, 10.0))]
+    assert choose_evidence_law(tie) == (0.005, 0.2)  # x: 20.9 is within 1.4 of 20.6; z: nothing beats the naive
+    clear = [(0.005, scores(25.0, 1.0, 6.0)), (0.05, scores(21.0, 1.0, 8.0)), (0.2, scores(20.6, 1.0, 9.0))]
+    assert choose_evidence_law(clear) == (0.05, 0.005)  # x: 25 is measurably worse; z: the most accurate

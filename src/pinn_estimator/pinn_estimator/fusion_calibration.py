@@ -7,11 +7,13 @@ posterior's spread, ΔF the part of the force it extrapolates from the newest ev
 (``SoilPosterior.forecast``). Calibration episodes: depths 0.05 / 0.125 / 0.175 / 0.25 / 0.3 m
 (near and far forecasts, as a planner asks them), densities 20-80 %, other seeds, disjoint
 from the evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1: ``rel_std`` on a log
-grid, per axis the value whose median forecasts of that axis at another depth are closest to
-the measured force (mean |error|: of F_x as a share of |F_x|; of F_z, which passes through 0,
-as a share of its limit). An axis the model forecasts worse than "the force now" is scored as
-that naive forecast, and then the largest value wins: what the model cannot forecast should
-teach least (the default world's F_z, far from the FEE: the penetration reaction). Stage 2,
+grid, per axis by how close its median forecasts of that axis at another depth are to the
+measured force (mean |error|: of F_x as a share of |F_x|; of F_z, which passes through 0, as a
+share of its limit): the smallest value (the evidence that teaches most) within one standard
+error of the most accurate (``choose_evidence_law``). An axis the model forecasts worse than
+"the force now" is scored as that naive forecast, and then the largest value wins: what the
+model cannot forecast should teach least (the default world's F_z, far from the FEE: the
+penetration reaction). Stage 2,
 with the posteriors of stage 1 kept: the forecast law per axis (share and floor on grids)
 whose calibration curve is closest to the diagonal (mean |coverage − nominal| over the
 central intervals 10-90 %; a law fitted to the 90 % level alone over-covers the 50 % one
@@ -94,22 +96,50 @@ def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> list[di
     return rows
 
 
-def median_error_pct(table: list[dict]) -> np.ndarray:
-    """Per axis: mean |median forecast − measured| of F_x as % of the measured |F_x| (the force a
-    cut is limited by, positive while cutting: a small force forecast badly counts as much as a
-    large one), of F_z as % of its 30 kN limit (F_z passes through 0, in the default world
-    often). An axis whose forecasts are worse than the naive one (the force measured now) is
-    scored as the naive one: nothing there tells one evidence law from another."""
-    out = np.full(2, np.inf)  # no forecast at all: the worst score, never a NaN that wins a comparison
+def forecast_scores(table: list[dict]) -> dict[str, np.ndarray]:
+    """Per axis: ``error``, the mean |median forecast − measured| of F_x as % of the measured
+    |F_x| (the force a cut is limited by, positive while cutting: a small force forecast badly
+    counts as much as a large one), of F_z as % of its 30 kN limit (F_z passes through 0, in the
+    default world often); ``sem``, its standard error over the pairs; ``naive``, the same for the
+    force measured now. An axis whose forecasts are worse than the naive one is scored as the
+    naive one: nothing there tells one evidence law from another."""
+    out = {k: np.full(2, np.inf) for k in ("error", "sem", "naive")}  # no forecast at all: the worst score, never a NaN that wins
     for j in range(2):
         scale = [abs(r["measured"][0]) if j == 0 else FORCE_LIMITS_N[1] for r in table]
         model = np.array([abs(r["forecast"][0.5][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
         naive = np.array([abs(r["now"][j] - r["measured"][j]) / sc for r, sc in zip(table, scale)])
         ok = np.isfinite(naive)  # a pair the model gives no forecast for (no wedge) scores as the naive one
-        if ok.any():
-            model = np.where(np.isfinite(model), model, naive)
-            out[j] = 100.0 * min(float(model[ok].mean()), float(naive[ok].mean()))
+        if not ok.any():
+            continue
+        model = np.where(np.isfinite(model), model, naive)[ok]
+        out["naive"][j] = 100.0 * float(naive[ok].mean())
+        scored = model if model.mean() < naive[ok].mean() else naive[ok]
+        out["error"][j] = 100.0 * float(scored.mean())
+        out["sem"][j] = 100.0 * float(scored.std(ddof=1) / math.sqrt(len(scored))) if len(scored) > 1 else 0.0
     return out
+
+
+def median_error_pct(table: list[dict]) -> np.ndarray:
+    """``forecast_scores(table)["error"]``."""
+    return forecast_scores(table)["error"]
+
+
+def choose_evidence_law(scored: list[tuple[float, dict]]) -> tuple[float, float]:
+    """``rel_std`` per axis from stage 1's (rel, ``forecast_scores``) rows. An axis the model
+    forecasts: the smallest rel (the evidence that teaches most) whose error is within one
+    standard error of the most accurate one's; a wider law only where it forecasts measurably
+    better (the errors over a few hundred correlated pairs move by tenths of a percent from
+    one law to the next without a trend). An axis no law forecasts better than the force now
+    (its errors are the naive one's): the largest, so that what cannot be forecast teaches least."""
+    rels = []
+    for j in range(2):
+        best = min(scored, key=lambda e: e[1]["error"][j])[1]
+        if not best["error"][j] < best["naive"][j]:
+            rels.append(max(rel for rel, _ in scored))
+            continue
+        tolerance = best["error"][j] + best["sem"][j]
+        rels.append(min(rel for rel, sc in scored if sc["error"][j] <= tolerance))
+    return rels[0], rels[1]
 
 
 def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None) -> dict:
@@ -145,14 +175,12 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
     floor, per axis by the calibration curve); returns the config and every stage-2 candidate's curve."""
     scored = []
     for rel in rel_grid:
-        err = median_error_pct(forecast_table(ds, dataclasses.replace(base, rel_std=(rel, rel))))
-        scored.append((err, rel))
-        log(f"rel_std {rel:g}: median forecasts at another depth off by {err[0]:.2f} % of |F_x| (x) / "
-            f"{err[1]:.2f} % of the 30 kN limit (z)")
-    # per axis the most accurate; of equals (an axis no law forecasts better than the force now)
-    # the largest: that axis's evidence then teaches least
-    rel = tuple(min(scored, key=lambda e, j=j: (round(float(e[0][j]), 6), -e[1]))[1] for j in range(2))
-    cfg = dataclasses.replace(base, rel_std=rel)
+        sc = forecast_scores(forecast_table(ds, dataclasses.replace(base, rel_std=(rel, rel))))
+        scored.append((rel, sc))
+        (ex, ez), (sx, sz) = sc["error"], sc["sem"]
+        log(f"rel_std {rel:g}: median forecasts at another depth off by {ex:.2f} ± {sx:.2f} % of |F_x| (x) / "
+            f"{ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
+    cfg = dataclasses.replace(base, rel_std=choose_evidence_law(scored))
     from .evaluate import fused_posteriors
 
     posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
