@@ -14,7 +14,7 @@ from pinn_estimator import forecast as fc
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
-from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode
+from pinn_estimator.fusion import FusionConfig, SoilPosterior, StretchAccumulator, fuse_episode
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
@@ -164,6 +164,27 @@ def test_in_one_soil_the_change_point_hypothesis_stays_light():
     for name in ("phi", "c", "delta"):
         assert jumps.mean[name] == pytest.approx(drifts.mean[name], rel=0.02)
         assert jumps.std[name] == pytest.approx(drifts.std[name], rel=0.05)
+
+
+def test_each_component_is_weighted_by_the_stretchs_evidence_under_it():
+    """A component's weight takes p(stretch | component) = ∫ N(F; F_model(θ), σ²) N(θ; m, P) dθ.
+    Linearised at the component's mean (the EKF's predictive likelihood) that was up to 2.5
+    nats off for the prior's high-φ components, which drifted the posterior to low φ; the
+    Laplace approximation at the updated mean must match a Monte Carlo integral."""
+    (ep,) = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Loam", 45.0, 0.6, 0.15, seed=5, duration_s=4.0)])
+    stretches = StretchAccumulator(CFG.update_ticks, CFG.model_points)
+    last = [s for s in map(stretches.add, soil_force_rows(ep.forces, ep.observations), ep.known) if s is not None][-1]
+    post = SoilPosterior(CFG)
+    u0, p0, log_w0 = post._prior()
+    *_, log_joint, _ = post._update_components(u0, p0, log_w0, *last, 0.0)
+    evidence = log_joint - log_w0
+    rng = np.random.default_rng(0)
+    for k in range(len(log_w0)):
+        fx, fz = post.model_force(rng.multivariate_normal(u0[k], p0[k], 100_000), last[1])
+        sx, sz = post.sigma(fx, fz, last[2])
+        log_lik = -0.5 * (((last[0][0] - fx) / sx) ** 2 + ((last[0][1] - fz) / sz) ** 2) - np.log(2 * np.pi * sx * sz)
+        monte_carlo = np.logaddexp.reduce(np.where(np.isfinite(log_lik), log_lik, -np.inf)) - np.log(len(log_lik))
+        assert evidence[k] == pytest.approx(monte_carlo, abs=0.6), k
 
 
 def test_a_sinking_stretch_the_soil_cannot_explain_is_left_out_not_taken_for_a_new_soil():
