@@ -155,6 +155,16 @@ def test_a_new_soil_whose_force_differs_little_is_taken_up_by_the_change_point_h
     assert abs(held.mean["phi"] - true["phi"]) < abs(missed.mean["phi"] - true["phi"]) - 5 * DEG
 
 
+def test_a_jump_that_is_all_but_certain_is_weighed_without_error():
+    """Patches far shorter than a stretch: every stretch is almost surely a new soil; the
+    posterior stays a finite, valid sum (the probabilities are kept in logs)."""
+    ep = patch_episode(("Loam", 30.0), ("Gravel", 70.0), duration_s=6.0)
+    post = fuse(SoilPosterior(dataclasses.replace(CFG, patch_length_m=1e-4)), ep)
+    s = post.summary()
+    assert post.updates > 5 and np.isfinite(post.log_w).any() and np.isclose(post.weights.sum(), 1.0)
+    assert all(np.isfinite(s.mean[n]) and np.isfinite(s.std[n]) for n in ("phi", "c", "delta"))
+
+
 def test_in_one_soil_the_change_point_hypothesis_stays_light():
     """Where the soil does not change, a fresh soil predicts each stretch worse than the one
     learnt so far (it is as wide as the prior), so the posterior is the one without it."""
@@ -366,3 +376,6 @@ def test_the_evidence_law_is_the_sharpest_within_the_noise_of_the_most_accurate(
     assert choose_evidence_law(tie) == (0.005, 0.2)  # x: 20.9 is within 1.4 of 20.6; z: nothing beats the naive
     clear = [(0.005, scores(25.0, 1.0, 6.0)), (0.05, scores(21.0, 1.0, 8.0)), (0.2, scores(20.6, 1.0, 9.0))]
     assert choose_evidence_law(clear) == (0.05, 0.005)  # x: 25 is measurably worse; z: the most accurate
+    # a law no better than the force now is never the choice, however close the best one is to it
+    near_naive = [(0.005, scores(20.0, 1.0, 10.0, naive_z=10.0)), (0.05, scores(20.0, 1.0, 9.8, naive_z=10.0))]
+    assert choose_evidence_law(near_naive)[1] == 0.05

@@ -228,7 +228,7 @@ class SoilPosterior:
         self.changes = 0
         self.rejected = 0  # sinking stretches no component could explain (left out, see update)
         self.last_known: np.ndarray | None = None
-        self.jump_probability = 0.0  # that the soil changed since the last stretch (``forget``)
+        self.log_no_jump = 0.0  # log of the probability that the soil is the same since the last stretch weighed it (``forget``)
 
     @property
     def weights(self) -> np.ndarray:
@@ -244,8 +244,7 @@ class SoilPosterior:
         if travel_m > 0:
             self.p = self.p + np.eye(len(THETA)) * self.cfg.drift_per_sqrt_m ** 2 * travel_m
             if self.cfg.patch_length_m > 0:
-                jump = -math.expm1(-travel_m / self.cfg.patch_length_m)
-                self.jump_probability = 1.0 - (1.0 - self.jump_probability) * (1.0 - jump)
+                self.log_no_jump -= travel_m / self.cfg.patch_length_m  # summed in logs: never rounds to certainty
 
     # -- the physics model
     @staticmethod
@@ -296,28 +295,35 @@ class SoilPosterior:
             return False
         sinking = np.atleast_2d(known)[:, _VZ].mean() < -STEADY_CUT_MAX_ABS_V_Z_M_S
         # a new soil (restart or change point) is never weighed before the first stretch nor on a
-        # sinking one; otherwise the prior's components are updated with the current ones, in one batch
+        # sinking one; a change point's prior components are updated with the current ones, in one batch
+        new_soil_possible = self.updates > 0 and not sinking
+        weigh_jump = new_soil_possible and self.log_no_jump < 0
         k = len(self.log_w)
-        if self.updates and not sinking:
-            u0, p0, log_w0 = self._prior()
-            u0, p0, log_w0 = np.concatenate([self.u, u0]), np.concatenate([self.p, p0]), np.concatenate([self.log_w, log_w0])
-        else:
-            u0, p0, log_w0 = self.u, self.p, self.log_w
+        u0, p0, log_w0 = self.u, self.p, self.log_w
+        if weigh_jump:
+            pu, pp, pw = self._prior()
+            u0, p0, log_w0 = np.concatenate([u0, pu]), np.concatenate([p0, pp]), np.concatenate([log_w0, pw])
         step = self._update_components(u0, p0, log_w0, force_n, known, spread_n, distance_m)
         current = _normalised(*(part[:k] for part in step))
-        fresh = _normalised(*(part[k:] for part in step)) if len(log_w0) > k else None
-        if current is None:
-            return False
-        if self.updates and current[3] > self.cfg.change_nis:
+        fresh = _normalised(*(part[k:] for part in step)) if weigh_jump else None
+        # nothing the current soil can explain (no component defined here counts as that too)
+        if self.updates and (current is None or current[3] > self.cfg.change_nis):
             if sinking:
                 self.rejected += 1
                 return False
+            if fresh is None:
+                fresh = _normalised(*self._update_components(*self._prior(), force_n, known, spread_n, distance_m))
             if fresh is not None:
                 current = fresh
                 self.changes += 1
-        elif fresh is not None and self.jump_probability > 0:
+                self.log_no_jump = 0.0
+        elif fresh is not None:
             current = self._weigh_jump(current, fresh)
-        self.jump_probability = 0.0
+            self.log_no_jump = 0.0
+        if current is None:
+            return False
+        if not self.updates:
+            self.log_no_jump = 0.0
         self.u, self.p, self.log_w = current[:3]
         self.updates += 1
         self.last_known = np.atleast_2d(known).mean(axis=0)
@@ -326,20 +332,23 @@ class SoilPosterior:
     def _weigh_jump(self, kept, fresh):
         """The soil kept or a new one since the last stretch: both hypotheses updated by the
         stretch (the current components; the prior's), weighted by their prior probability
-        (1 − h, h = ``jump_probability``) times the stretch's predictive likelihood under each
-        (the Bayes factor of a change point), and the heaviest ``components`` kept.
+        (1 − h, h the jump probability since the last weighing, ``forget``) times the stretch's
+        predictive likelihood under each (the Bayes factor of a change point), and the heaviest
+        ``components`` kept (with ``components`` = 1 the new soil must win within one stretch).
 
         Why, beside the restart on a stretch nothing explains: a new soil whose force differs
         from the old one's by less than that (a few σ per stretch) used to be absorbed only by
-        the slow drift (fee world, Gravel 70 % → Loam 30 %: 11 s); here its evidence adds up
-        over a few stretches. In a steady soil the fresh hypothesis, as wide as the prior
-        along the φ-c ridge, predicts worse than the current one and stays light."""
-        h = self.jump_probability
-        log_w = np.concatenate([kept[2] + kept[4] + math.log1p(-h), fresh[2] + fresh[4] + math.log(h)])
+        the slow drift (fee world, Loam 30 % → Gravel 70 %: never, the posterior stayed on the
+        loam's φ); here its evidence adds up over a few stretches. In a steady soil the fresh
+        hypothesis, as wide as the prior along the φ-c ridge, predicts worse than the current
+        one and stays light. A sinking stretch weighs nothing, and the jump probability carries
+        over to the next stretch that does."""
+        log_stay, log_jump = self.log_no_jump, math.log(-math.expm1(self.log_no_jump))
+        log_w = np.concatenate([kept[2] + kept[4] + log_stay, fresh[2] + fresh[4] + log_jump])
         keep = np.argsort(-log_w, kind="stable")[: self.cfg.components]
         u, p = np.concatenate([kept[0], fresh[0]])[keep], np.concatenate([kept[1], fresh[1]])[keep]
         log_w = log_w[keep]
-        return u, p, log_w - np.logaddexp.reduce(log_w), kept[3], 0.0
+        return u, p, log_w - np.logaddexp.reduce(log_w)
 
     def _update_components(self, u0, p0, log_w0, y, known, spread, distance_m, iterations: int = 6, eps: float = 1e-4):
         """(means, covariances, log prior weight + log predictive likelihood, NIS) per component
@@ -359,6 +368,7 @@ class SoilPosterior:
         nis, log_lik = np.full(k_n, np.inf), np.full(k_n, -np.inf)
         gain, jac, r = np.zeros((k_n, n, 2)), np.zeros((k_n, 2, n)), np.zeros((k_n, 2, 2))
         steps = np.concatenate([np.zeros((1, n)), np.eye(n) * eps])  # (n + 1, n)
+        previous = u.copy()  # each component's last iterate its model was defined at
         for it in range(iterations):
             pts = (u[:, None, :] + steps[None]).reshape(-1, n)
             fx, fz = self.model_force(pts, known, distance_m)
@@ -366,7 +376,9 @@ class SoilPosterior:
             ok = np.isfinite(f).all(axis=(1, 2)) & active
             if it == 0:
                 defined = ok.copy()
-            active &= ok  # undefined here: keep the last good iterate
+            lost = active & ~ok  # undefined here: back to the last good iterate
+            u[lost] = previous[lost]
+            active &= ok
             if not active.any():
                 break
             a = np.flatnonzero(active)
@@ -385,6 +397,7 @@ class SoilPosterior:
                 log_lik[a] = self.cfg.evidence_weight * -0.5 * (nis[a] + np.log(np.linalg.det(2 * math.pi * s_mat)))
             u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), -0.25, 1.25)  # far outside the box is not physical
             moved = np.abs(u_next - u[a]).max(axis=1)
+            previous[a] = u[a]
             u[a] = u_next
             active[a[moved < 1e-7]] = False
             if not active.any():
@@ -395,15 +408,16 @@ class SoilPosterior:
         # log N(y; h(u*), R) + log N(u*; m, P0) + ½ log det 2πP. Linearised at the prior mean
         # instead (the EKF's predictive likelihood) it misjudged components far from the φ-c
         # ridge by up to 2.5 nats per stretch, always against high φ (against a Monte Carlo
-        # integral over the component: Laplace within 0.4), and the posterior drifted to low φ.
+        # integral over the component: Laplace within 0.3), and the posterior drifted to low φ.
         fx, fz = self.model_force(u, known, distance_m)
         sx, sz = self.sigma(fx, fz, spread)
         rx, rz = sx ** 2 / self.cfg.evidence_weight, sz ** 2 / self.cfg.evidence_weight
         res_x, res_z = y[0] - fx, y[1] - fz
-        data = self.cfg.evidence_weight * -0.5 * (res_x ** 2 / rx + res_z ** 2 / rz + np.log(4 * math.pi ** 2 * rx * rz))
+        # the tempered likelihood κ·log N(y; h, σ²) = −½ res²/(σ²/κ) − κ·½ log det 2πσ²
+        data = -0.5 * (res_x ** 2 / rx + res_z ** 2 / rz) - 0.5 * self.cfg.evidence_weight * np.log(4 * math.pi ** 2 * sx ** 2 * sz ** 2)
         d = u - m
-        prior = -0.5 * (np.einsum("ki,kij,kj->k", d, np.linalg.inv(p0), d) + np.log(np.linalg.det(2 * math.pi * p0)))
-        laplace = data + prior + 0.5 * np.log(np.linalg.det(2 * math.pi * p))
+        prior = -0.5 * (np.einsum("ki,ki->k", d, np.linalg.solve(p0, d[..., None])[..., 0]) + np.linalg.slogdet(2 * math.pi * p0)[1])
+        laplace = data + prior + 0.5 * np.linalg.slogdet(2 * math.pi * p)[1]
         log_lik = np.where(np.isfinite(laplace), laplace, log_lik)  # undefined at u*: the linearised one
         u_out = np.where(defined[:, None], u, u0)
         p_out = np.where(defined[:, None, None], p, p0)

@@ -137,8 +137,8 @@ def choose_evidence_law(scored: list[tuple[float, dict]]) -> tuple[float, float]
         if not best["error"][j] < best["naive"][j]:
             rels.append(max(rel for rel, _ in scored))
             continue
-        tolerance = best["error"][j] + best["sem"][j]
-        rels.append(min(rel for rel, sc in scored if sc["error"][j] <= tolerance))
+        tolerance = best["error"][j] + best["sem"][j]  # (pairs share episodes: the true noise is larger)
+        rels.append(min(rel for rel, sc in scored if sc["error"][j] <= tolerance and sc["error"][j] < sc["naive"][j]))
     return rels[0], rels[1]
 
 
