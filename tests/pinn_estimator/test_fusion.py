@@ -18,7 +18,7 @@ from pinn_estimator.fusion import FusionConfig, SoilPosterior, StretchAccumulato
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, calibrate, coverage_tolerance, load_calibrated,
-                                              median_error_pct, choose_evidence_law)
+                                              forecast_scores, choose_evidence_law)
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_sim_node.rollout import run_episodes
@@ -357,13 +357,13 @@ def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_
     # x forecast within 1 kN; z off by 9 kN where "the force now" is off by 3 kN
     good_x = [row([11e3, 9e3], [10e3, 0.0], [6e3, 3e3])]
     worse_z = [row([11e3, -12e3], [10e3, 0.0], [6e3, 3e3])]
-    np.testing.assert_allclose(median_error_pct(good_x), [100 * 1e3 / 10e3, 100 * 3e3 / 30e3])  # x of |F_x|, z of 30 kN
-    np.testing.assert_array_equal(median_error_pct(worse_z), median_error_pct(good_x))  # z scored as the naive forecast
+    np.testing.assert_allclose(forecast_scores(good_x)["error"], [100 * 1e3 / 10e3, 100 * 3e3 / 30e3])  # x of |F_x|, z of 30 kN
+    np.testing.assert_array_equal(forecast_scores(worse_z)["error"], forecast_scores(good_x)["error"])  # z scored as the naive forecast
     better_x = [row([10.5e3, -12e3], [10e3, 0.0], [6e3, 3e3])]
-    assert median_error_pct(better_x)[0] < median_error_pct(worse_z)[0]
+    assert forecast_scores(better_x)["error"][0] < forecast_scores(worse_z)["error"][0]
     # a pair without a forecast (no failure wedge: NaN) scores as the naive one, never as NaN
     no_wedge = [row([np.nan, np.nan], [10e3, 0.0], [6e3, 3e3]), *good_x]
-    np.testing.assert_allclose(median_error_pct(no_wedge), [100 * (4e3 + 1e3) / 2 / 10e3, 100 * 3e3 / 30e3])
+    np.testing.assert_allclose(forecast_scores(no_wedge)["error"], [100 * (4e3 + 1e3) / 2 / 10e3, 100 * 3e3 / 30e3])
 
 
 def test_the_evidence_law_is_the_sharpest_within_the_noise_of_the_most_accurate():

@@ -296,8 +296,7 @@ class SoilPosterior:
         sinking = np.atleast_2d(known)[:, _VZ].mean() < -STEADY_CUT_MAX_ABS_V_Z_M_S
         # a new soil (restart or change point) is never weighed before the first stretch nor on a
         # sinking one; a change point's prior components are updated with the current ones, in one batch
-        new_soil_possible = self.updates > 0 and not sinking
-        weigh_jump = new_soil_possible and self.log_no_jump < 0
+        weigh_jump = self.updates > 0 and not sinking and self.log_no_jump < 0
         k = len(self.log_w)
         u0, p0, log_w0 = self.u, self.p, self.log_w
         if weigh_jump:

@@ -119,11 +119,6 @@ def forecast_scores(table: list[dict]) -> dict[str, np.ndarray]:
     return out
 
 
-def median_error_pct(table: list[dict]) -> np.ndarray:
-    """``forecast_scores(table)["error"]``."""
-    return forecast_scores(table)["error"]
-
-
 def choose_evidence_law(scored: list[tuple[float, dict]]) -> tuple[float, float]:
     """``rel_std`` per axis from stage 1's (rel, ``forecast_scores``) rows. An axis the model
     forecasts: the smallest rel (the evidence that teaches most) whose error is within one
