@@ -56,15 +56,20 @@ def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain
         probe.subscribe(T.BLADE_FORCE.name, T.BLADE_FORCE.msgtype)
         probe.subscribe(T.CMD_VEL.name, T.CMD_VEL.msgtype)
         ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
-        sim = NodeProc("soil_sim_node", _sim_args(
-            "duration_s:=2.0", "exit_when_done:=true", "soil:=Clay",
-            wait_for=("/chassis/cmd_vel:1", "/blade/cmd:1", "/chassis/twist:1", "/sim/status:2",
-                      "/blade/force:1")), domain, tmp_path)
+        sim = None
         try:
+            # the simulator waits until it sees the controller; the probe must see it too before
+            # the first tick, or on a busy machine its discovery lags and the first commands pass it by
+            probe.wait_for(lambda: probe.node.count_publishers(T.CMD_VEL.name) >= 1, 30, "the controller's commands")
+            sim = NodeProc("soil_sim_node", _sim_args(
+                "duration_s:=2.0", "exit_when_done:=true", "soil:=Clay",
+                wait_for=("/chassis/cmd_vel:1", "/blade/cmd:1", "/chassis/twist:1", "/sim/status:2",
+                          "/blade/force:1")), domain, tmp_path)
             assert sim.wait(timeout=30) == 0, sim.output
             end = probe.wait_for(_ended(probe), 5, "episode_end")[0]
         finally:
-            sim.stop()
+            if sim is not None:
+                sim.stop()
             ctl.stop()
         assert end.reason == "completed" and end.ticks == 120 and end.meta.soil == "Clay"
         stamps = [M.parse_message(T.BLADE_FORCE.name, m)[0] for m in probe.messages(T.BLADE_FORCE.name)]
