@@ -65,3 +65,10 @@ def saturating_drag(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
     return float(k) * state.w * d * float(p_pa) * np.tanh(v / float(v0)), np.zeros_like(d)
+
+
+def deep_drag(state, k: float = 3.0, d0: float = 0.2):
+    """Hidden effect in neither the catalogue nor the form library: extra drag only below a depth,
+    F_x = k γ w d² · [d > ``d0``] [N] (a harder layer the blade reaches only in deep cuts)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**2 * (d > float(d0)), np.zeros_like(d)

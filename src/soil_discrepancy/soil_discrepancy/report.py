@@ -94,6 +94,19 @@ def markdown(report: dict, figures=()) -> str:
         lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
         lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
                   "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
+    tentative = report["selection"].get("not_confirmed")
+    if tentative:
+        lines += ["## Tentative: NOT confirmed on the held-out test episodes (not named)", "",
+                  "Cross-validation on the selection part chose these terms; with them the held-out test episodes' force "
+                  f"RMSE goes {_n(tentative['test_rmse_before'])} N → {_n(tentative['test_rmse_after'])} N and the force at "
+                  f"another depth {_n(tentative['forecast_pct_before'], '.1f')} → {_n(tentative['forecast_pct_after'], '.1f')} % "
+                  f"of |F| (paired p {_p(tentative['forecast_p'])}), short of what confirms a name. The verdict does not rest on "
+                  "them; try them where it matters (`--accepted NAME=K`) and check on data of your own.", "",
+                  "| term | k ± SE | held-out (cross-validated) gain | p (Holm) | plugin |", "|---|---|---|---|---|"]
+        for a in tentative["terms"]:
+            lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} "
+                         f"{_unit(a['k_unit'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} | `{a['plugin']}` |")
+        lines.append("")
     lines += _forms_md(report.get("forms"), report.get("test"), labels)
     test = report.get("test")
     if test:
