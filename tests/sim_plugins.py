@@ -1,4 +1,5 @@
-"""Force plugins used by tests/soil_sim_node/test_simulator.py (loaded as ``tests.sim_plugins:<name>``).
+"""Force plugins used by the tests and the README's hidden-effect tables (loaded as ``tests.sim_plugins:<name>``,
+e.g. ``soil_sim_batch ... --plugin "tests.sim_plugins:clay_entry_drag k=2"`` from the repository root).
 
 tests/ is a package and pytest puts the repository root on sys.path, so the simulator's plugin
 loader (importlib.import_module) finds this module by that name; tests/ itself must never be on
@@ -72,3 +73,41 @@ def deep_drag(state, k: float = 3.0, d0: float = 0.2):
     F_x = k γ w d² · [d > ``d0``] [N] (a harder layer the blade reaches only in deep cuts)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     return float(k) * state.gamma * state.w * d**2 * (d > float(d0)), np.zeros_like(d)
+
+
+def clay_entry_drag(state, k: float = 2.0, s0: float = 1.0, phi_max_rad: float = 0.45):
+    """Hidden effect in one soil only: ``entry_resistance`` where φ < ``phi_max_rad`` (of the
+    catalogue's soils at I_d 0-100 %, only clay)."""
+    fx, fz = entry_resistance(state, k, s0)
+    return fx * (np.asarray(state.phi, dtype=float) < float(phi_max_rad)), fz
+
+
+def cohesive_speed_drag(state, k: float = 1.0, v0: float = 1.0, c_min_pa: float = 500.0):
+    """Hidden effect in cohesive soils only: ``saturating_drag`` with ``v0`` where c > ``c_min_pa``."""
+    fx, fz = saturating_drag(state, k, v0)
+    return fx * (np.asarray(state.c, dtype=float) > float(c_min_pa)), fz
+
+
+def speed_suction(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
+    """Hidden effect: the ``saturating_drag`` form pulling the blade down, F_z = −k w d p tanh(v_x / v0) [N]."""
+    fx, _ = saturating_drag(state, k, v0, p_pa)
+    return np.zeros_like(fx), -fx
+
+
+def rising_press(state, k: float = 2.0, v0: float = 0.01):
+    """Hidden effect: while the edge rises the soil presses it down, F_z = −k γ w d² min(max(v_z, 0)/v0, 1) [N]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    gate = np.clip(np.asarray(state.v_z, dtype=float) / float(v0), 0.0, 1.0)
+    return np.zeros_like(d), -float(k) * state.gamma * state.w * d**2 * gate
+
+
+def in_soil_constant_drag(state, f_x: float = 1500.0):
+    """Hidden effect: a constant drag [N] while the edge is in the soil (no form of the library is a constant)."""
+    d = np.asarray(state.d, dtype=float)
+    return float(f_x) * (d > 0), np.zeros_like(d)
+
+
+def speed_squared_drag(state, k: float = 1.0, p_pa: float = 10e3):
+    """Hidden effect: F_x = k w d p v_x² [N] (soil inertia's column without its γ)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.w * d * float(p_pa) * np.asarray(state.v_x, dtype=float) ** 2, np.zeros_like(d)
