@@ -188,6 +188,7 @@ def test_a_catalogue_term_the_heldout_episodes_refute_is_tentative_and_never_the
     # the held-out episodes did not confirm it: the force error did not shrink by the least gain
     assert tentative["sse_reduction"] < 0.05 and tentative["test_rmse_after"] > 0.95 * tentative["test_rmse_before"]
     assert rep["verdict"] == "unexplained" and "d" in rep["regimes"]["flagged_variables"], rep["summary"]
+    assert all(t["name"] in force_terms.CATALOGUE for t in tentative["terms"]), tentative["terms"]  # side-wall shear here
     assert rep["selection"]["accepted"] == [] and rep["model"]["terms"] == [] and rep["model"]["plugin_specs"] == []
     assert all(t["name"] in rep["summary"] for t in tentative["terms"]) and "NOT confirmed" in rep["summary"]
     assert rep["test"]["after"]["rmse"] == rep["test"]["before"]["rmse"]  # nothing named, nothing changed

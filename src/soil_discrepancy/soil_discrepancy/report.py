@@ -97,7 +97,7 @@ def markdown(report: dict, figures=()) -> str:
     tentative = report["selection"].get("not_confirmed")
     if tentative:
         lines += ["## Tentative: NOT confirmed on the held-out test episodes (not named)", "",
-                  "Cross-validation on the selection part chose these terms; with them the held-out test episodes' force "
+                  "Cross-validation on the selection part chose these terms; with every term it named, the held-out test episodes' force "
                   f"RMSE goes {_n(tentative['test_rmse_before'])} N → {_n(tentative['test_rmse_after'])} N and the force at "
                   f"another depth {_n(tentative['forecast_pct_before'], '.1f')} → {_n(tentative['forecast_pct_after'], '.1f')} % "
                   f"of |F| (paired p {_p(tentative['forecast_p'])}), short of what confirms a name. The verdict does not rest on "

@@ -188,7 +188,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     kept = []
             dropped = [s for s in forms_in if s.name not in {k.name for k in kept}]
             say(f"the accepted form(s) together are not confirmed on the held-out test episodes (RMSE "
-                f"{test['before']['rmse']:.0f} -> {test['after']['rmse']:.0f} N, force at another depth {_fc_text(test)})"
+                f"{_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth {_fc_text(test)})"
                 + (f"; not named: {', '.join(s.name for s in dropped)}" if dropped else "")
                 + (f"; confirmed on their own and refitted: {', '.join(s.name for s in kept)}" if kept else ""))
             form_report["not_confirmed"] = {"forms": [s.name for s in dropped], "test_rmse_before": test["before"]["rmse"],
@@ -206,16 +206,31 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 d["confirmed"] = True
     # 5a'. a catalogue name faces the test a form does: named terms the held-out test episodes do
     # not confirm (cross-validation on the selection part chose them, the held-out part disagrees)
-    # are reported as tentative and named nowhere; a verdict never rests on them
+    # are reported as tentative and named nowhere; a verdict never rests on them. Forms that the
+    # held-out episodes confirm without the catalogue terms (refitted alone) stay named.
     tentative = None
     if test is not None and new_terms and not _confirmed(test, min_gain, alpha):
-        tentative = {"terms": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in new_terms], **_confirmation(test)}
-        say(f"the named term(s) {', '.join(s.name for s in new_terms)} are not confirmed on the held-out test episodes "
-            f"(RMSE {test['before']['rmse']:.0f} -> {test['after']['rmse']:.0f} N, force at another depth {_fc_text(test)}): "
-            "tentative, not named")
+        forms_named = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
+        kept_forms, alone = [], initial
+        if forms_named and len(forms_named) < len(new_terms):
+            start = sel["fit"]
+            for s in forms_named:
+                fit_k = fit_joint(fsel, alone, s.name, start, allow_negative_k=allow_negative_k)
+                alone, start = alone.with_term(s.name, float(fit_k.k)), fit_k
+            if _confirmed(_held_out(ftest, initial, alone, base, edges)[0], min_gain, alpha):
+                k_alone = dict(alone.terms)
+                kept_forms = [dataclasses.replace(s, k=k_alone[s.name]) for s in forms_named]
+        demoted = [s for s in new_terms if s.name not in {f.name for f in kept_forms}]
+        tentative = {"terms": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in demoted], **_confirmation(test)}
+        say(f"the named term(s) {', '.join(s.name for s in demoted)} are not confirmed on the held-out test episodes "
+            f"(RMSE {_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth "
+            f"{_fc_text(test)}): tentative, not named"
+            + (f"; confirmed without them: {', '.join(s.name for s in kept_forms)}" if kept_forms else ""))
         for d in (form_report or {}).get("discovered") or []:
-            d["confirmed"] = False
-        new_terms, final = [], initial
+            d["confirmed"] = any(f.name == d["name"] for f in kept_forms)
+            if d["confirmed"]:
+                d["k"] = next(f.k for f in kept_forms if f.name == d["name"])
+        new_terms, final = kept_forms, (alone if kept_forms else initial)
         test, test_arrays = _held_out(ftest, initial, final, base, edges)
     # 4. the augmented model on every episode
     reg1, r1 = None, None
@@ -374,6 +389,11 @@ def _confirmed(test: dict, min_gain: float, alpha: float) -> bool:
             and fc.get("p_paired", 1.0) < alpha)
 
 
+def _fmt_n(x) -> str:
+    """A force [N] for a message; '–' where a model was undefined on every tick (None)."""
+    return "–" if x is None else f"{x:.0f}"
+
+
 def _fc_text(test: dict) -> str:
     fc = test.get("depth_forecast") or {}
     if not fc.get("before"):
@@ -390,7 +410,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
     if tentative:
         not_named = (f" (tentative, NOT confirmed on the held-out test episodes: "
                      f"{', '.join(t['name'] for t in tentative['terms'])} passed cross-validation on the selection part, "
-                     f"held-out RMSE {tentative['test_rmse_before']:.0f} -> {tentative['test_rmse_after']:.0f} N"
+                     f"held-out RMSE with all named terms {_fmt_n(tentative['test_rmse_before'])} -> "
+                     f"{_fmt_n(tentative['test_rmse_after'])} N"
                      + (f", force at another depth {tentative['forecast_pct_before']:.1f} -> "
                         f"{tentative['forecast_pct_after']:.1f} % of |F|" if tentative.get("forecast_pct_before") is not None else "")
                      + ")")
@@ -422,8 +443,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         forms_tentative = (forms or {}).get("not_confirmed")
         if forms_tentative and forms_tentative["forms"]:
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
-                     f"but not the held-out test: RMSE {forms_tentative['test_rmse_before']:.0f} -> "
-                     f"{forms_tentative['test_rmse_after']:.0f} N)")
+                     f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
+                     f"{_fmt_n(forms_tentative['test_rmse_after'])} N)")
         return "unexplained", text + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
