@@ -174,18 +174,12 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 t1["depth_forecast"] = {**t1["depth_forecast"], "p_paired": float(p_h)}
                 marginal[name] = {"confirmed": _confirmed(t1, min_gain, alpha), **_confirmation(t1)}
             kept = [s for s in forms_in if marginal[s.name]["confirmed"]]
-            if kept:  # the forms confirmed on their own, their k refitted without the others (selection part)
-                trial, start = catalogue_model, sel["fit"]
-                for s in kept:
-                    fit_k = fit_joint(fsel, trial, s.name, start, allow_negative_k=allow_negative_k)
-                    trial, start = trial.with_term(s.name, float(fit_k.k)), fit_k
-                # the refitted forms together, against the catalogue terms alone (not the initial model:
-                # the catalogue's own gain must not carry them)
-                if _confirmed(_held_out(ftest, catalogue_model, trial, base, edges)[0], min_gain, alpha):
-                    k_new = dict(trial.terms)
-                    kept = [dataclasses.replace(s, k=k_new[s.name]) for s in kept]
-                else:
-                    kept = []
+            trial = catalogue_model
+            if kept:  # the forms confirmed on their own, their k refitted without the others (selection part),
+                # judged together against the catalogue terms alone (not the initial model: the
+                # catalogue's own gain must not carry them)
+                trial, kept = _refitted_if_confirmed(fsel, ftest, catalogue_model, kept, sel["fit"], base, edges,
+                                                     min_gain, alpha, allow_negative_k)
             dropped = [s for s in forms_in if s.name not in {k.name for k in kept}]
             say(f"the accepted form(s) together are not confirmed on the held-out test episodes (RMSE "
                 f"{_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth {_fc_text(test)})"
@@ -199,7 +193,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 if d["confirmed"]:
                     d["k"] = next(s.k for s in kept if s.name == d["name"])
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
-            final = trial if kept else catalogue_model  # (trial: the catalogue terms and the kept forms, refitted)
+            final = trial  # the catalogue terms and the kept forms, refitted
             test, test_arrays = _held_out(ftest, initial, final, base, edges)
         else:
             for d in (form_report or {}).get("discovered") or []:
@@ -211,15 +205,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     tentative = None
     if test is not None and new_terms and not _confirmed(test, min_gain, alpha):
         forms_named = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
-        kept_forms, alone = [], initial
+        alone, kept_forms = initial, []
         if forms_named and len(forms_named) < len(new_terms):
-            start = sel["fit"]
-            for s in forms_named:
-                fit_k = fit_joint(fsel, alone, s.name, start, allow_negative_k=allow_negative_k)
-                alone, start = alone.with_term(s.name, float(fit_k.k)), fit_k
-            if _confirmed(_held_out(ftest, initial, alone, base, edges)[0], min_gain, alpha):
-                k_alone = dict(alone.terms)
-                kept_forms = [dataclasses.replace(s, k=k_alone[s.name]) for s in forms_named]
+            alone, kept_forms = _refitted_if_confirmed(fsel, ftest, initial, forms_named, sel["fit"], base, edges,
+                                                       min_gain, alpha, allow_negative_k)
         demoted = [s for s in new_terms if s.name not in {f.name for f in kept_forms}]
         tentative = {"terms": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in demoted], **_confirmation(test)}
         say(f"the named term(s) {', '.join(s.name for s in demoted)} are not confirmed on the held-out test episodes "
@@ -387,6 +376,21 @@ def _confirmed(test: dict, min_gain: float, alpha: float) -> bool:
     red = fc.get("reduction")
     return (sse is not None and sse >= 0.0 and red is not None and red >= min_gain
             and fc.get("p_paired", 1.0) < alpha)
+
+
+def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, terms, start, base, edges,
+                           min_gain: float, alpha: float, allow_negative_k: bool):
+    """``terms`` added to ``reference`` one after another, each k fitted jointly with θ on the
+    selection part, then judged together against ``reference`` on the held-out test episodes:
+    (the model with them, the terms with their refitted k) if confirmed, else (reference, [])."""
+    model = reference
+    for s in terms:
+        fit_k = fit_joint(fsel, model, s.name, start, allow_negative_k=allow_negative_k)
+        model, start = model.with_term(s.name, float(fit_k.k)), fit_k
+    if not _confirmed(_held_out(ftest, reference, model, base, edges)[0], min_gain, alpha):
+        return reference, []
+    k_new = dict(model.terms)
+    return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms]
 
 
 def _fmt_n(x) -> str:
