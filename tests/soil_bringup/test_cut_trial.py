@@ -98,8 +98,9 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
 def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp_path, capsys):
     out = tmp_path / "planner"
     assert cut_report.main(["--worlds", "fee", "--duration", "4", "--patch", "0:Sand:20", "--patch", "3:Clay:80",
-                            "--out", str(out)]) == 0
+                            "--margin", "0.9", "--out", str(out)]) == 0
     report = json.loads((out / "cut_report.json").read_text())
+    assert report["planner"] == {"margin": 0.9, "force_quantile": 0.95} and "--margin 0.9" in report["command"]
     (world,) = report["worlds"]
     assert [p["policy"].split()[0] for p in world["policies"]] == ["conservative", "aggressive", "soil-aware"]
     assert len(world["patches"]) == 2 and "volume_per_m_aware_over_conservative" in world["ratios"]
@@ -108,3 +109,7 @@ def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp
     with pytest.raises(SystemExit) as exit_:
         cut_report.main(["--patch", "0:Peat:20", "--out", str(out)])
     assert exit_.value.code == 2 and "Peat" in capsys.readouterr().err
+    for flag, value in (("--margin", "1.5"), ("--force-quantile", "0.2")):
+        with pytest.raises(SystemExit) as exit_:
+            cut_report.main([flag, value, "--out", str(out)])
+        assert exit_.value.code == 2 and flag.strip("-").replace("-", "_") in capsys.readouterr().err

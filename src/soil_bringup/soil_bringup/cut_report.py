@@ -33,6 +33,7 @@ import numpy as np
 
 from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
+from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec
 
 from . import cut_metrics as CM
@@ -58,7 +59,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="seconds of cut (30-60 s is the use case)")
     p.add_argument("--seed", type=int, default=DEFAULT_SEED)
     p.add_argument("--out", type=Path, default=Path("out/planner"))
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
+                   help=f"the soil-aware planner's share of the force limits a cut may use, (0, 1] (default {DEFAULT_MARGIN})")
+    p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
+                   help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
+                        "benchmarks/bench_planner_margin.py compares settings over several paths)")
     args = p.parse_args(argv)
+    args.planner = {"margin": args.margin, "force_quantile": args.force_quantile}
+    try:
+        StretchPlanner(**args.planner)
+    except ValueError as err:
+        p.error(str(err))
     try:
         args.patches = check_patches([parse_patch(t, f"--patch {t!r}") for t in (args.patch or DEFAULT_PATCHES)])
     except ValueError as err:
@@ -242,11 +253,11 @@ def main(argv=None) -> int:
     spec = args.spec
     path = " → ".join(f"{p.soil} {p.relative_density_pct:g} % from {p.x_start_m:g} m" for p in args.patches)
     report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
-              "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:])}
+              "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner}
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
-        w = world_trial(world, spec)
+        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner))
         w["figure"] = f"cut_{world}.png"
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)
