@@ -64,17 +64,13 @@ def run_path(job: tuple[str, list[tuple[float, float]]]) -> list[dict]:
 
     from soil_bringup import cut_metrics as CM
     from soil_bringup import cut_report as CR
-    from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut, sweep_fixed_depths
+    from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut
 
     torch.set_num_threads(1)
     name, settings = job
     world, patches, seed = PATHS[name]
     spec = CR.parse_args([a for p in patches for a in ("--patch", p)] + ["--seed", str(seed), "--duration", str(DURATION_S)]).spec
-    sweep = sweep_fixed_depths(world, spec, CR.SWEEP_DEPTHS_M)
-    best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
-    known = [b for b in best if b is not None]
-    conservative = min(known) if known else min(CR.SWEEP_DEPTHS_M)
-    aggressive = max(known) if known else max(CR.SWEEP_DEPTHS_M)
+    sweep, best, conservative, aggressive = CR.fixed_policies(world, spec)
     fixed = {c.policy.fixed_depth_m: CM.summary(c) for c in sweep}
     rows = []
     for margin, quantile in settings:
@@ -83,7 +79,7 @@ def run_path(job: tuple[str, list[tuple[float, float]]]) -> list[dict]:
         aware = CM.summary(cut)
         rows.append({"path": name, "world": world, "margin": margin, "quantile": quantile,
                      "volume_ratio": aware["volume_per_m_m3"] / fixed[conservative]["volume_per_m_m3"],
-                     "ceiling": CR._hindsight(cut, best, conservative), "stall_s": aware["stall_s"],
+                     "ceiling": CR.hindsight_ratio(cut, best, conservative), "stall_s": aware["stall_s"],
                      "conservative_stall_s": fixed[conservative]["stall_s"], "aggressive_stall_s": fixed[aggressive]["stall_s"]})
     return rows
 

@@ -88,13 +88,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None) -> dict:
-    """The sweep, the three policies and their figures for one world (``cuts`` kept for the figure)."""
+def fixed_policies(world: str, spec: EpisodeSpec) -> tuple[list[Cut], list, float, float]:
+    """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
+    without a stall), the conservative depth (the shallowest of those) and the aggressive one
+    (the deepest) [m]."""
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M)
     best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
     known = [b for b in best if b is not None]
-    conservative = min(known) if known else min(SWEEP_DEPTHS_M)
-    aggressive = max(known) if known else max(SWEEP_DEPTHS_M)
+    return sweep, best, min(known or SWEEP_DEPTHS_M), max(known or SWEEP_DEPTHS_M)
+
+
+def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None) -> dict:
+    """The sweep, the three policies and their figures for one world (``cuts`` kept for the figure)."""
+    sweep, best, conservative, aggressive = fixed_policies(world, spec)
     by_depth = {c.policy.fixed_depth_m: c for c in sweep}
     cuts = [_renamed(by_depth[conservative], f"conservative {conservative:.3f} m"),
             _renamed(by_depth[aggressive], f"aggressive {aggressive:.3f} m"),
@@ -108,13 +114,13 @@ def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = No
             "volume_per_m_aware_over_conservative": _ratio(aware["volume_per_m_m3"], cons["volume_per_m_m3"]),
             "stall_aggressive_over_aware": _ratio(agg["stall_s"], aware["stall_s"]),
             "stall_aware_minus_conservative_s": aware["stall_s"] - cons["stall_s"],
-            "hindsight_depth_over_conservative": _hindsight(cuts[2], best, conservative),
+            "hindsight_depth_over_conservative": hindsight_ratio(cuts[2], best, conservative),
         },
         "estimator": cuts[2].estimator_counters,
     }
 
 
-def _hindsight(cut: Cut, best: list, conservative: float) -> float | None:
+def hindsight_ratio(cut: Cut, best: list, conservative: float) -> float | None:
     """Mean depth of cutting each patch at its own best fixed depth over the edge's travel in
     it, over the conservative depth: about the volume ratio a perfect, instant planner reaches."""
     travel = [np.ptp(cut.x_b[cut.patch == j]) if (cut.patch == j).any() else 0.0 for j in range(len(best))]

@@ -188,10 +188,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             form_report["not_confirmed"] = {"forms": [s.name for s in dropped], "test_rmse_before": test["before"]["rmse"],
                                             "test_rmse_after": test["after"]["rmse"],
                                             "sse_reduction": test["sse_reduction"], "each_form": marginal}
-            for d in form_report.get("discovered") or []:
-                d["confirmed"] = d["name"] in {s.name for s in kept}
-                if d["confirmed"]:
-                    d["k"] = next(s.k for s in kept if s.name == d["name"])
+            _mark_confirmed(form_report, kept)
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
             final = trial  # the catalogue terms and the kept forms, refitted
             test, test_arrays = _held_out(ftest, initial, final, base, edges)
@@ -215,11 +212,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             f"(RMSE {_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth "
             f"{_fc_text(test)}): tentative, not named"
             + (f"; confirmed without them: {', '.join(s.name for s in kept_forms)}" if kept_forms else ""))
-        for d in (form_report or {}).get("discovered") or []:
-            d["confirmed"] = any(f.name == d["name"] for f in kept_forms)
-            if d["confirmed"]:
-                d["k"] = next(f.k for f in kept_forms if f.name == d["name"])
-        new_terms, final = kept_forms, (alone if kept_forms else initial)
+        _mark_confirmed(form_report, kept_forms)
+        new_terms, final = kept_forms, alone  # alone: the initial model unless forms were kept
         test, test_arrays = _held_out(ftest, initial, final, base, edges)
     # 4. the augmented model on every episode
     reg1, r1 = None, None
@@ -391,6 +385,15 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
         return reference, []
     k_new = dict(model.terms)
     return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms]
+
+
+def _mark_confirmed(form_report: dict | None, kept) -> None:
+    """Each discovered form of the report is confirmed iff it is among ``kept`` (then with its k)."""
+    k_of = {s.name: s.k for s in kept}
+    for d in (form_report or {}).get("discovered") or []:
+        d["confirmed"] = d["name"] in k_of
+        if d["confirmed"]:
+            d["k"] = k_of[d["name"]]
 
 
 def _fmt_n(x) -> str:
