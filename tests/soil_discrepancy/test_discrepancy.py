@@ -363,6 +363,25 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
     assert ctl["hidden_check"]["correct"] and "skipped" in ctl["test"]["predictors"]["PINN"]
 
 
+def test_pinns_trained_in_parallel_processes_give_what_they_give_one_after_another(bag_dirs):
+    """pinn_gap's workers: the same PINNs (seeds, split, one torch thread each) trained two at a
+    time in spawned processes give the same comparison to the last digit; a bad count is named."""
+    from soil_discrepancy.pinn_check import pinn_gap
+
+    ds = blind(bag_dirs["soil_inertia"])
+    frame = build_frame(ds, stride=6)
+    sel, held = split_holdout(frame, 0.3, 0)
+    args = (ds, frame.select(groups=held), frame.episode_names(sel), AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]))
+    kw = dict(epochs=1, seed=0, seeds=2, stride=8, eval_stride=20, log=None)
+    one = pinn_gap(*args, threads=1, workers=1, **kw)
+    two = pinn_gap(*args, threads=2, workers=2, **kw)
+    assert one["per_seed"] == two["per_seed"] and len(two["per_seed"]["soil_rmse_after"]) == 2
+    assert one["comparisons"] == two["comparisons"] and one["theta"] == two["theta"]
+    assert [t["epochs_run"] for t in two["train"]["before"] + two["train"]["after"]] == [1] * 4
+    with pytest.raises(ValueError, match="workers=0"):
+        pinn_gap(*args, workers=0, **kw)
+
+
 def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_path):
     """Step 5 for the PINN, at the data size of the committed report (``make discrepancy``'s
     soil-inertia case: 108 episodes, 30 epochs; one PINN per physics where the report trains an
@@ -382,7 +401,7 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     selection = frame.episode_names(sel)
     got = pinn_gap(ds, frame.select(groups=held), selection, AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]),
                    epochs=30, seed=0, seeds=1, max_minutes=12.0, log=None,
-                   threads=1)  # two torch threads beside a busy core wait on each other (~6x slower)
+                   threads=2, workers=2)  # one process and torch thread per PINN: two threads of one wait on each other beside a busy core
     rows = got["comparisons"]
     soil, fee_rows = rows["soil"], rows["FEE"]
     print(f"\nsoil-estimate RMSE {soil['before']['rmse']:.0f} -> {soil['after']['rmse']:.0f} N, "

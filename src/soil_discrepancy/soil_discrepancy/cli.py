@@ -39,7 +39,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "episodes of the same measured unit weight γ (gamma: no label read)")
     p.add_argument("--allow-negative-k", action="store_true",
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")
-    p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation (default: all cores)")
+    p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation and the PINN retraining (default: all cores)")
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
     add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -108,7 +108,8 @@ def _pinn_predictor(epochs: int, log, seeds: int = 1):
         if context.get("dataset") is None:
             raise ValueError("the PINN comparison needs the episodes' Dataset (run on a bag directory or pass dataset=)")
         return pinn_gap(context["dataset"], test_frame, context["selection_episodes"], model_before, model_after,
-                        epochs=epochs, seed=context["seed"], seeds=seeds, edges=context.get("edges"), log=log)
+                        epochs=epochs, seed=context["seed"], seeds=seeds, edges=context.get("edges"),
+                        workers=context.get("workers", 1), log=log)
 
     return run
 

@@ -64,8 +64,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     or 'gamma' (the same measured γ shares θ); allow_negative_k: let k take the sign opposite to the
     term's physics (default: k >= 0); predictors: the hook for other models' before/after
     (e.g. the PINN): {label: fn(test_frame, model_before, model_after, context)} where context
-    = {'dataset', 'selection_episodes', 'test_episodes', 'seed', 'edges'} (episode names; the
-    named terms' k was fitted on the selection episodes only; 'edges': the regime bins) and fn
+    = {'dataset', 'selection_episodes', 'test_episodes', 'seed', 'edges', 'workers'} (episode
+    names; the named terms' k was fitted on the selection episodes only; 'edges': the regime
+    bins; 'workers': the processes this run may use) and fn
     returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
     (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
@@ -227,7 +228,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         arrays.update(test_frame=ftest, test=test_arrays)
         if predictors:
             context = {"dataset": dataset, "selection_episodes": frame.episode_names(sel_groups),
-                       "test_episodes": frame.episode_names(test_groups), "seed": seed, "edges": edges}
+                       "test_episodes": frame.episode_names(test_groups), "seed": seed, "edges": edges,
+                       "workers": workers}
             test["predictors"] = {}
             for label, fn in dict(predictors).items():
                 say(f"held-out comparison for {label} ...")
