@@ -10,7 +10,7 @@
 # nothing is known to be hidden, the report says what the workflow makes of it.
 # Case default_world_unlabelled: the same bags as default_world read as a real machine's, without
 # a soil label (--group-by gamma: episodes of one measured unit weight share θ); FEE only, no PINN
-# retrain (it would add 5 min to a run that must stay under 15).
+# retrain (it would add ~2 min to a run that must stay under 15).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-.venv/bin}
