@@ -70,7 +70,7 @@ class _Forbidden:
 
 def blind(bag_dir: Path):
     """The dataset as a real machine would give it: no ground truth, no record of the simulator's effects."""
-    ds = load_dataset(bag_dir, cache=False)
+    ds = load_dataset(bag_dir, cache=False, workers=2)
     metas = [dataclasses.replace(m, plugins=[], effects=[]) for m in ds.metas]
     return dataclasses.replace(ds, truth=_Forbidden(), metas=metas)
 
