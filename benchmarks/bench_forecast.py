@@ -6,6 +6,7 @@ asserts nothing.
     .venv/bin/python benchmarks/bench_forecast.py                 # everything (~1.5 min on 2 cores)
     .venv/bin/python benchmarks/bench_forecast.py --quick         # smoke run (~25 s): no classical fit, fewer episodes
     .venv/bin/python benchmarks/bench_forecast.py --sections 2,3 --out /tmp/bench_forecast.json
+    .venv/bin/python benchmarks/bench_forecast.py --sections 1,2 --fusion drift_per_sqrt_m=0   # another posterior config
 
 Sections (all on episodes simulated here, closed loop with the anti-stall controller, at
 0.6 m/s; densities and depths off the training grid; ground truth used only to score):
@@ -25,7 +26,8 @@ Sections (all on episodes simulated here, closed loop with the anti-stall contro
 4. Soil change along the path (patches, boundary at x = 5 m, 3 m after the blade's start,
    20 s at 0.15 m), fee and default worlds: time after the blade edge crosses the boundary
    until the fused 90 % intervals first hold the new soil's true φ and c, and until they hold
-   it for good [target <= 2 s].
+   it for good [target <= 2 s]; the same times for the new soil as the estimator learns it in
+   an episode of that soil alone (where the model misses physics, its θ is an effective one).
 5. Cost of the posterior: one ``SoilPosterior.update`` (one 30-sample stretch) and one
    ``summary()``, p50 / p99 over all stretches of section 2's specs in each world; the node
    runs both once every 30 samples (0.5 s at 60 Hz).
@@ -97,10 +99,16 @@ def table(head: list[str], rows: list[list]) -> None:
     print(flush=True)
 
 
-def fusion_config(world: str, model) -> FusionConfig:
-    """The world's calibrated config with the model's catalogue terms, as ``evaluate.forecast``
-    and the online estimator build it."""
-    return config_for_model(load_calibrated(world), model)
+def calibrated(world: str, overrides: dict | None = None) -> FusionConfig:
+    """The world's calibrated config, with ``--fusion FIELD=VALUE`` overrides (validated by FusionConfig)."""
+    cfg = load_calibrated(world)
+    return FusionConfig.from_dict({**cfg.to_dict(), **overrides}) if overrides else cfg
+
+
+def fusion_config(world: str, model, overrides: dict | None = None) -> FusionConfig:
+    """The world's calibrated config (and overrides) with the model's catalogue terms, as
+    ``evaluate.forecast`` and the online estimator build it."""
+    return config_for_model(calibrated(world, overrides), model)
 
 
 @dataclasses.dataclass
@@ -190,7 +198,7 @@ def section_forecast(args, models) -> dict:
         t0 = time.perf_counter()
         ds = forecast_dataset(world)
         sim_s = time.perf_counter() - t0
-        fusion = load_calibrated(world)
+        fusion = calibrated(world, args.fusion_set)
         fusion = dataclasses.replace(fusion, terms=merged_terms(fusion.terms, args.fusion_terms))
         physics = config_for_model(fusion, model).terms
         t0 = time.perf_counter()
@@ -261,7 +269,7 @@ def section_early(args, models, cache) -> dict:
     depth = 0.15
     print(f"## 2. Fused estimates after {args.at_s:g} s of cutting (fee world, {depth} m, I_d "
           f"{'/'.join(f'{d:g}' for d in args.densities)} %, {args.seeds} seed(s) each, 10 s episodes)\n")
-    cfg = fusion_config("fee", models["fee"][0])
+    cfg = fusion_config("fee", models["fee"][0], args.fusion_set)
     t0 = time.perf_counter()
     eps = cached(cache, ("fee", depth, 0.0), lambda: simulate("fee", grid(args.densities, depth, args.seeds)))
     scores = [episode_scores(ep, fuse(ep, cfg), args.at_s) for ep in eps]
@@ -335,7 +343,7 @@ def model_residual(eps, terms, ticks: int) -> dict:
 def section_dither(args, models, cache) -> dict:
     a, period = args.dither_amplitude, args.dither_period
     print(f"## 3. Depth dither A = {a:g} m, T = {period:g} s (fee world), on vs off on the same specs and seeds\n")
-    cfg = fusion_config("fee", models["fee"][0])
+    cfg = fusion_config("fee", models["fee"][0], args.fusion_set)
     on_gains = AntiStallGains(dither_amplitude_m=a, dither_period_s=period)
     t0 = time.perf_counter()
     eps = {}
@@ -403,9 +411,22 @@ def section_dither(args, models, cache) -> dict:
 
 
 # ---------------------------------------------------------------- 4. soil change along the path
-def change_response(ep, track: Track, boundary_x: float) -> dict:
+def hold_times(dt: np.ndarray, held: np.ndarray) -> tuple[float | None, float | None]:
+    """(first, for good): the time [s after the crossing] of the first stretch that holds, and of
+    the stretch after the last miss (every one from there holds; None: never / the last misses)."""
+    first = float(dt[np.argmax(held)]) if held.any() else None
+    misses = np.flatnonzero(~held)
+    start = misses[-1] + 1 if len(misses) else 0
+    return first, (float(dt[start]) if start < len(held) else None)
+
+
+def change_response(ep, track: Track, boundary_x: float, own: dict | None = None) -> dict:
     """When the fused 90 % intervals first hold the new soil's φ and c after the edge crosses
-    ``boundary_x``, and from when on they keep holding them (s after the crossing)."""
+    ``boundary_x``, and from when on they keep holding them (s after the crossing). ``own``
+    ({"phi" [rad], "c" [Pa]}): the new soil as the estimator learns it in a cut of that soil
+    alone; the same times for holding it (``own_*``). Why both: where the model misses physics
+    (the default world) the posterior's θ is an effective one, which the true φ and c need not
+    be, so "holds the truth" mixes how fast the estimator adapts with how wrong its model is."""
     x = ep.observations[:, _PX]
     crossed = np.flatnonzero(x >= boundary_x)
     out = {"soils": [p["soil"] for p in ep.meta.patches], "crossed": bool(len(crossed))}
@@ -416,11 +437,7 @@ def change_response(ep, track: Track, boundary_x: float) -> dict:
     after = np.flatnonzero(track.rows >= k)
     held = np.array([all(holds(track, i, ep.truth[track.rows[i]]).values()) for i in after], bool)
     dt = track.t_s[after] - t_cross
-    first = float(dt[np.argmax(held)]) if held.any() else None
-    # from the stretch after the last miss on, every stretch holds (None: the last one misses)
-    misses = np.flatnonzero(~held)
-    start = misses[-1] + 1 if len(misses) else 0
-    settled = float(dt[start]) if start < len(held) else None
+    first, settled = hold_times(dt, held)
     before = np.flatnonzero(track.rows < k)
     out.update(cross_s=t_cross, stretches_after=int(len(after)), first_hold_s=first, settled_s=settled,
                restarts=int(track.changes[-1] - (track.changes[before[-1]] if len(before) else 0)) if len(track.changes) else 0,
@@ -429,6 +446,11 @@ def change_response(ep, track: Track, boundary_x: float) -> dict:
                truth_after={"phi_deg": float(ep.truth[-1, _PHI] / DEG), "c_kpa": float(ep.truth[-1, _C] / 1e3)},
                end={"phi_deg": float(track.mean["phi"][-1] / DEG), "phi_std_deg": float(track.std["phi"][-1] / DEG),
                     "c_kpa": float(track.mean["c"][-1] / 1e3), "c_std_kpa": float(track.std["c"][-1] / 1e3)})
+    if own is not None:
+        held_own = np.array([all(abs(track.mean[n][i] - own[n]) <= Z90 * track.std[n][i] for n in ("phi", "c"))
+                             for i in after], bool)
+        out["own_first_hold_s"], out["own_settled_s"] = hold_times(dt, held_own)
+        out["own"] = {"phi_deg": float(own["phi"] / DEG), "c_kpa": float(own["c"] / 1e3)}
     return out
 
 
@@ -439,30 +461,43 @@ def section_change(args, models) -> dict:
     out = {}
     rows = []
     for world in WORLDS:
-        cfg = fusion_config(world, models[world][0])
+        cfg = fusion_config(world, models[world][0], args.fusion_set)
         specs = [EpisodeSpec(a[0], float(a[1]), SPEED_M_S, 0.15, seed=SEED + 5000 + i, duration_s=args.change_duration,
                              patches=[f"0:{a[0]}:{a[1]:g}", f"{boundary:g}:{b[0]}:{b[1]:g}"])
                  for i, (a, b) in enumerate(args.changes)]
+        # the new soil alone (same depth, speed, seed and length): what the estimator makes of it from scratch
+        alone = [dataclasses.replace(spec, soil=b[0], relative_density_pct=float(b[1]), patches=[])
+                 for spec, (_, b) in zip(specs, args.changes)]
         res = []
-        for ep in simulate(world, specs):
-            r = change_response(ep, fuse(ep, cfg), boundary)
+        for ep, ep_alone in zip(simulate(world, specs), simulate(world, alone)):
+            own = fuse(ep_alone, cfg)
+            r = change_response(ep, fuse(ep, cfg), boundary,
+                                own={n: own.mean[n][-1] for n in ("phi", "c")} if len(own.rows) else None)
             res.append(r)
             label = " → ".join(f"{p['soil']} {p['relative_density_pct']:g} %" for p in ep.meta.patches)
             if not r["crossed"]:
-                rows.append([world, label, "not crossed", "–", "–", "–", "–", "–"])
+                rows.append([world, label, "not crossed", "–", "–", "–", "–", "–", "–"])
                 continue
             e, t = r["end"], r["truth_after"]
+            good = (lambda v: (fmt(v, 2) + f" ({met(v, TARGETS['change_s'])})") if v is not None else "never (**not met**)")
+            own_cell = (f"{fmt(r['own_first_hold_s'], 2) if r['own_first_hold_s'] is not None else 'never'} / "
+                        f"{good(r['own_settled_s'])}") if "own" in r else "–"
             rows.append([world, label, f"{r['cross_s']:.2f}", fmt(r["first_hold_s"], 2) if r["first_hold_s"] is not None else "never",
-                         (fmt(r["settled_s"], 2) if r["settled_s"] is not None else "never")
-                         + (f" ({met(r['settled_s'], TARGETS['change_s'])})" if r["settled_s"] is not None else " (**not met**)"),
+                         good(r["settled_s"]), own_cell,
                          f"{r['restarts']}", pct(r["held_share_after"]),
-                         f"{e['phi_deg']:.1f} ± {e['phi_std_deg']:.1f} ({t['phi_deg']:.1f}) / "
-                         f"{e['c_kpa']:.2f} ± {e['c_std_kpa']:.2f} ({t['c_kpa']:.2f})"])
+                         f"{e['phi_deg']:.1f} ± {e['phi_std_deg']:.1f} ({t['phi_deg']:.1f}"
+                         + (f"; alone {r['own']['phi_deg']:.1f}" if "own" in r else "") + ") / "
+                         f"{e['c_kpa']:.2f} ± {e['c_std_kpa']:.2f} ({t['c_kpa']:.2f}"
+                         + (f"; alone {r['own']['c_kpa']:.2f}" if "own" in r else "") + ")"])
         out[world] = res
     table(["world", "soil along the path", "crossing [s]", "first holds [s after]", "holds for good [s after] (≤ 2 s)",
-           "restarts", "stretches holding after", "end: φ [°] / c [kPa] (truth)"], rows)
+           "holds the new soil as learnt alone: first / for good [s after]",
+           "restarts", "stretches holding after", "end: φ [°] / c [kPa] (truth; learnt alone)"], rows)
     print("\"Holds\": both the φ and the c 90 % Gaussian intervals (mean ± 1.645 std) of the posterior after a stretch "
           "contain the true values of the stretch's last row; times are those of the stretch's last sample. "
+          "\"Learnt alone\": the posterior's mean at the end of an episode of the new soil alone (same depth, speed, seed "
+          "and length): where the model misses physics its θ is an effective one, so holding it says how fast the "
+          "estimator adapts, apart from how far its model is from the truth. "
           "\"Restarts\": stretches after the crossing the posterior could not explain (back to the prior).\n", flush=True)
     return out
 
@@ -493,7 +528,7 @@ def section_cost(args, models, cache) -> dict:
     print("## 5. Cost of the fused posterior (this process, one core)\n")
     out, rows = {}, []
     for world in WORLDS:
-        cfg = fusion_config(world, models[world][0])
+        cfg = fusion_config(world, models[world][0], args.fusion_set)
         eps = cached(cache, (world, 0.15, 0.0), lambda: simulate(world, grid(args.densities, 0.15, args.seeds)))
         fuse(eps[0], cfg)  # warm-up
         upd, upd_cpu, summ, summ_cpu, fcs, fcs_cpu = [], [], [], [], [], []
@@ -548,6 +583,18 @@ def parse_term(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--fusion-term {text!r}: {err}") from None
 
 
+def parse_fusion_field(text: str) -> tuple[str, object]:
+    """FIELD=VALUE of ``--fusion`` (VALUE as JSON, e.g. drift_per_sqrt_m=0 or rel_std=[0.01,0.02])."""
+    field, sep, value = text.partition("=")
+    known = {f.name for f in dataclasses.fields(FusionConfig)}
+    if not sep or field not in known:
+        raise argparse.ArgumentTypeError(f"--fusion {text!r}: expected FIELD=VALUE with FIELD one of {sorted(known)}")
+    try:
+        return field, json.loads(value)
+    except json.JSONDecodeError:
+        raise argparse.ArgumentTypeError(f"--fusion {text!r}: VALUE {value!r} is not JSON (a number or [x, z])") from None
+
+
 def parse_checkpoint(text: str) -> tuple[str, Path]:
     """WORLD=PATH of ``--checkpoint``."""
     world, _, path = text.partition("=")
@@ -576,6 +623,9 @@ def main() -> None:
                    help="section 4: soil before and after the boundary, SOIL:ID>SOIL:ID (repeatable)")
     p.add_argument("--change-duration", type=float, default=20.0, help="section 4: episode length [s]")
     p.add_argument("--worlds", nargs="+", choices=WORLDS, default=list(WORLDS), help="section 1: the worlds (default: both)")
+    p.add_argument("--fusion", dest="fusion_set", type=parse_fusion_field, action="append", default=[],
+                   metavar="FIELD=VALUE", help="every section: a FusionConfig field set over the calibrated config "
+                                               "(VALUE as JSON, e.g. drift_per_sqrt_m=0; repeatable; not the reference figures)")
     p.add_argument("--fusion-term", dest="fusion_terms", type=parse_term, action="append", default=[], metavar="NAME=K",
                    help="section 1: a force term (catalogue name or form:..., e.g. one soil_discrepancy named) added to "
                         "the fused posterior's physics, with the calibrated error laws unchanged (repeatable): the "
@@ -585,6 +635,12 @@ def main() -> None:
                    "one retrained with a term the discrepancy workflow named: its forecast goes through its own physics")
     args = p.parse_args()
     args.checkpoints = dict(args.checkpoints)
+    args.fusion_set = dict(args.fusion_set)
+    try:
+        for world in WORLDS:
+            calibrated(world, args.fusion_set)
+    except ValueError as err:
+        p.error(f"--fusion: {err}")
     sections = {int(s) for s in args.sections.split(",") if s.strip()}
     if args.changes is None:
         args.changes = [(("Sand", 20.0), ("Clay", 80.0)), (("Clay", 80.0), ("Sand", 20.0)),
@@ -595,7 +651,9 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     print(f"# bench_forecast: estimates a planner can trust\n\ncores: {os.cpu_count()}, load average {load0:.2f}, "
           f"python {sys.version.split()[0]}, numpy {np.__version__}"
-          + (" (--quick: no classical fit, fewer episodes: not the reference figures)" if args.quick else "") + "\n", flush=True)
+          + (" (--quick: no classical fit, fewer episodes: not the reference figures)" if args.quick else "")
+          + (f" (fusion config overrides {args.fusion_set}: not the reference figures)" if args.fusion_set else "") + "\n",
+          flush=True)
     models = {}
     for world in WORLDS:
         path = args.checkpoints.get(world, MODELS_DIR / f"pinn_{world}.pt")
