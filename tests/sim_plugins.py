@@ -111,3 +111,11 @@ def speed_squared_drag(state, k: float = 1.0, p_pa: float = 10e3):
     """Hidden effect: F_x = k w d p v_x² [N] (soil inertia's column without its γ)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     return float(k) * state.w * d * float(p_pa) * np.asarray(state.v_x, dtype=float) ** 2, np.zeros_like(d)
+
+
+def time_drag(state, k: float = 1.0, t0: float = 10.0, p_pa: float = 10e3):
+    """Hidden effect on a variable no model input carries: F_x = k w d p · min(t / t0, 1) [N], a
+    drag that grows with time in the episode (t the simulation time [s]), not with travel."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    ramp = np.minimum(np.asarray(state.t, dtype=float) * np.ones_like(d) / float(t0), 1.0)
+    return float(k) * state.w * d * float(p_pa) * ramp, np.zeros_like(d)
