@@ -146,10 +146,12 @@ def fuse(ep, cfg: FusionConfig, posterior: SoilPosterior | None = None, on_updat
                  np.array(changes, int), post)
 
 
-def holds(track: Track, i: int, truth_row: np.ndarray) -> dict[str, bool]:
-    """Whether stretch ``i``'s 90 % Gaussian intervals of φ and c hold the true values of ``truth_row``."""
-    return {n: bool(abs(track.mean[n][i] - truth_row[col]) <= Z90 * track.std[n][i])
-            for n, col in (("phi", _PHI), ("c", _C))}
+def holds(track: Track, i: int, truth_row: np.ndarray | None = None, values: dict | None = None) -> dict[str, bool]:
+    """Whether stretch ``i``'s 90 % Gaussian intervals of φ and c hold the true values of
+    ``truth_row`` (or ``values``: {"phi" [rad], "c" [Pa]})."""
+    if values is None:
+        values = {"phi": truth_row[_PHI], "c": truth_row[_C]}
+    return {n: bool(abs(track.mean[n][i] - values[n]) <= Z90 * track.std[n][i]) for n in ("phi", "c")}
 
 
 def contact_time_s(ep) -> float:
@@ -447,8 +449,7 @@ def change_response(ep, track: Track, boundary_x: float, own: dict | None = None
                end={"phi_deg": float(track.mean["phi"][-1] / DEG), "phi_std_deg": float(track.std["phi"][-1] / DEG),
                     "c_kpa": float(track.mean["c"][-1] / 1e3), "c_std_kpa": float(track.std["c"][-1] / 1e3)})
     if own is not None:
-        held_own = np.array([all(abs(track.mean[n][i] - own[n]) <= Z90 * track.std[n][i] for n in ("phi", "c"))
-                             for i in after], bool)
+        held_own = np.array([all(holds(track, i, values=own).values()) for i in after], bool)
         out["own_first_hold_s"], out["own_settled_s"] = hold_times(dt, held_own)
         out["own"] = {"phi_deg": float(own["phi"] / DEG), "c_kpa": float(own["c"] / 1e3)}
     return out
@@ -636,11 +637,11 @@ def main() -> None:
     args = p.parse_args()
     args.checkpoints = dict(args.checkpoints)
     args.fusion_set = dict(args.fusion_set)
-    try:
-        for world in WORLDS:
-            calibrated(world, args.fusion_set)
-    except ValueError as err:
-        p.error(f"--fusion: {err}")
+    if args.fusion_set:
+        try:
+            FusionConfig.from_dict({**FusionConfig().to_dict(), **args.fusion_set})
+        except (TypeError, ValueError) as err:
+            p.error(f"--fusion {args.fusion_set}: {err}")
     sections = {int(s) for s in args.sections.split(",") if s.strip()}
     if args.changes is None:
         args.changes = [(("Sand", 20.0), ("Clay", 80.0)), (("Clay", 80.0), ("Sand", 20.0)),

@@ -116,6 +116,8 @@ def speed_squared_drag(state, k: float = 1.0, p_pa: float = 10e3):
 def time_drag(state, k: float = 1.0, t0: float = 10.0, p_pa: float = 10e3):
     """Hidden effect on a variable no model input carries: F_x = k w d p · min(t / t0, 1) [N], a
     drag that grows with time in the episode (t the simulation time [s]), not with travel."""
+    if not float(t0) > 0:
+        raise ValueError(f"time_drag t0={t0!r} must be > 0 [s]")
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     ramp = np.minimum(np.asarray(state.t, dtype=float) * np.ones_like(d) / float(t0), 1.0)
     return float(k) * state.w * d * float(p_pa) * ramp, np.zeros_like(d)

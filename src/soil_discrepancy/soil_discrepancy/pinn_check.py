@@ -43,6 +43,7 @@ from pinn_estimator.dataset import Dataset
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.model import ModelConfig
 from pinn_estimator.train import TrainConfig, train
+from .candidates import limit_blas_threads
 from .fee_fit import ThetaFit
 from .frame import Frame
 from .gap import compare_predictions, error_metrics, fee_gap
@@ -88,7 +89,7 @@ def pooled_theta(frame: Frame, thetas) -> ThetaFit:
 
 def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before: AugmentedFEE,
              model_after: AugmentedFEE, *, epochs: int = 12, seed: int = 0, seeds: int = 1, stride: int = 4,
-             eval_stride: int = 5, threads: int = 2, max_minutes: float = 5.0, edges: dict | None = None,
+             eval_stride: int = 5, threads: int = 1, max_minutes: float = 5.0, edges: dict | None = None,
              workers: int = 1, log=print) -> dict:
     """Held-out comparison of the PINN trained with ``model_before``'s terms and with ``model_after``'s.
 
@@ -99,10 +100,11 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
     seed. Returns {"split", "terms", "epochs", "seeds", "train": {before, after} (per seed),
     "theta": {before, after} (pooled per group), "comparisons": {force, physics, soil, FEE},
     "per_seed": {"soil_rmse_before": [...], "soil_rmse_after": [...]} (each member alone)}.
-    ``workers`` > 1: the 2 × ``seeds`` PINNs train in that many processes at once, ``threads``
-    shared among them (one small network per core trains ~2x faster than one network on two
-    torch threads; each PINN's result is the one it gives in a process of its own with those
-    threads). ``log``: a print-like function, or None for silence."""
+    ``threads``: torch threads of each PINN; a PINN's figures depend on it (float sums in another
+    order), not on ``workers``. ``workers`` > 1: the 2 × ``seeds`` PINNs train in that many
+    spawned processes at once (one small network per core trains ~2x faster than one network on
+    two torch threads), each giving what it gives alone; their per-epoch log lines stay in the
+    children. ``log``: a print-like function, or None for silence."""
     log = log or (lambda *_: None)
     if len(selection) < 2:
         raise ValueError(f"{len(selection)} selection episode(s): the PINN needs at least 2 (train + validation)")
@@ -110,35 +112,37 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         raise ValueError("no held-out episodes to compare the PINNs on")
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds={seeds!r} must be a positive integer (PINNs per physics)")
-    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
-        raise ValueError(f"workers={workers!r} must be a positive integer (processes training PINNs)")
+    for name, value in (("workers", workers), ("threads", threads)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"{name}={value!r} must be a positive integer (processes training PINNs / torch threads each)")
     split = pinn_split(test_frame, selection, seed)
     index = {name: i for i, name in enumerate(test_frame.names)}
     scored = test_frame.select(episodes=[index[n] for n in split["test"]])
     out: dict = {"split": split, "terms": [list(t) for t in model_after.terms],
                  "terms_before": [list(t) for t in model_before.terms], "epochs": epochs, "seed": seed, "seeds": seeds,
-                 "window_samples": WINDOW_SAMPLES, "ticks": int(len(scored)), "train": {}, "theta": {}, "per_seed": {}}
+                 "window_samples": WINDOW_SAMPLES, "ticks": int(len(scored)), "threads_per_pinn": threads,
+                 "train": {}, "theta": {}, "per_seed": {}}
     models = {"before": model_before, "after": model_after}
     jobs = [(label, member) for label in models for member in range(seeds)]
     workers = min(workers, len(jobs))
-    per_job_threads = max(1, threads // workers)
     for label, fee_model in models.items():
         physics = "F_FEE" + "".join(f" + {k:g}·{n}" for n, k in fee_model.terms)
         log(f"PINN {label}: {seeds} trained with {physics} + F_r ({workers} at a time)")
     # the same fixed budget for both, annealed to convergence (no early stop): validation
     # loss jumps epoch to epoch at a constant lr, and comparing best epochs compares luck
     tasks = [(ds, TrainConfig(seed=seed + member, epochs=epochs, stride=stride, eval_stride=eval_stride, patience=epochs,
-                              threads=per_job_threads, max_minutes=max_minutes, lr_schedule="cosine"),
+                              threads=threads, max_minutes=max_minutes, lr_schedule="cosine"),
               models[label].terms, split, scored.rows) for label, member in jobs]
     if workers > 1:
         # spawn, not fork: a forked child of a process whose torch threads already ran can hang;
-        # the ground truth stays behind (training never reads it, and a blind dataset has none)
+        # the dataset goes once to each worker, without the ground truth (training never reads
+        # it, and a blind dataset has none)
         payload = dataclasses.replace(ds, truth=np.zeros((len(ds.observations), 0)))
-        tasks = [(payload, *task[1:]) for task in tasks]
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-            results = list(pool.map(_train_member, tasks))
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
+                                 initargs=(payload,)) as pool:
+            results = list(pool.map(_train_member, [task[1:] for task in tasks]))
     else:
-        results = [_train_member(task, log) for task in tasks]
+        results = [_train_member(task[1:], log, ds) for task in tasks]
     preds: dict[str, dict[str, np.ndarray]] = {}
     for label, fee_model in models.items():
         members = [pred for (lab, _), (pred, _) in zip(jobs, results) if lab == label]
@@ -158,10 +162,21 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
     return out
 
 
-def _train_member(task, log=None) -> tuple[dict[str, np.ndarray], dict]:
-    """One PINN of ``pinn_gap`` (a process-pool task when ``workers`` > 1): train it on the
-    split, then its outputs on the scored rows and its training figures."""
-    ds, cfg, terms, split, rows = task
+_WORKER_DATASET: Dataset | None = None  # a pinn_gap worker's dataset (``_worker_start``)
+
+
+def _worker_start(ds: Dataset) -> None:
+    """A spawned pinn_gap worker: the dataset, once; one BLAS thread (torch's are set per PINN)."""
+    global _WORKER_DATASET
+    _WORKER_DATASET = ds
+    limit_blas_threads()
+
+
+def _train_member(task, log=None, ds: Dataset | None = None) -> tuple[dict[str, np.ndarray], dict]:
+    """One PINN of ``pinn_gap`` (a process-pool task when ``workers`` > 1, on the worker's
+    dataset): train it on the split, then its outputs on the scored rows and its training figures."""
+    cfg, terms, split, rows = task
+    ds = _WORKER_DATASET if ds is None else ds
     model, _, _, metrics = train(ds, cfg, ModelConfig(extra_terms=terms), split=split, progress=False,
                                   log=log or (lambda *_: None))
     return predict(model, WindowTensors(ds), rows), {k: metrics[k] for k in ("train_seconds", "best_epoch", "epochs_run",
