@@ -240,12 +240,44 @@ def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
     assert upper_magnitude(np.array([1.0]), np.array([[-10.0]]), np.array([[1.0]]), 0.95)[0] > 11.0
 
 
-@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0),
+@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0), ("weight_memory_m", float("inf")),
                                           ("update_ticks", 0), ("model_points", 7), ("prior_std", float("nan")),
                                           ("terms", ("no_such_term=1",))])
 def test_a_bad_fusion_config_is_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field if field != "terms" else "no_such_term"):
         FusionConfig(**{field: value})
+
+
+def test_forgotten_component_weights_flatten_with_travel_and_keep_their_order():
+    """weight_memory_m: between stretches w ∝ w^exp(−travel/memory), renormalised; 0 keeps them."""
+    kept, flat = SoilPosterior(FusionConfig()), SoilPosterior(FusionConfig(weight_memory_m=2.0))
+    log_w = np.log(np.array([0.7, 0.2, 0.05, 0.05] + [0.0] * (len(kept.log_w) - 4)) + 1e-300)
+    for post in (kept, flat):
+        post.log_w = log_w - np.logaddexp.reduce(log_w)
+        post.forget(2.0)
+    np.testing.assert_allclose(kept.weights, np.exp(log_w - np.logaddexp.reduce(log_w)))
+    expected = np.exp(log_w * np.exp(-1.0))
+    np.testing.assert_allclose(flat.weights, expected / expected.sum())
+    assert flat.weights.sum() == pytest.approx(1.0) and flat.weights[0] < kept.weights[0]
+    assert list(np.argsort(-flat.weights[:4])) == list(np.argsort(-kept.weights[:4]))
+    before = flat.weights.copy()
+    flat.forget(0.0)  # no travel, nothing forgotten
+    np.testing.assert_allclose(flat.weights, before)
+
+
+def test_a_long_cut_at_one_depth_stays_on_the_soil_when_the_weights_forget():
+    """20 s of fee-world loam at one depth: with the drift alone the Gaussian sum's weights
+    compound a small evidence factor per stretch and walk the posterior along the φ-c ridge,
+    confidently off the soil (φ ~48° for 27.6° at the end); forgetting the weights as the drift
+    forgets the components keeps it within its interval of the truth."""
+    (ep,) = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Loam", 30.0, 0.6, 0.15, seed=1, duration_s=20.0)])
+    true = truth(ep)
+    cfg = load_calibrated("fee")
+    wandered = fuse(SoilPosterior(cfg), ep).summary()
+    kept = fuse(SoilPosterior(dataclasses.replace(cfg, weight_memory_m=2.0)), ep).summary()
+    assert not inside(wandered, true, "phi") and wandered.mean["phi"] > true["phi"] + 10 * DEG
+    assert inside(kept, true, "phi") and inside(kept, true, "c")
+    assert abs(kept.mean["phi"] - true["phi"]) < 0.5 * abs(wandered.mean["phi"] - true["phi"])
 
 
 def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):
