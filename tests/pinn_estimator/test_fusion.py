@@ -280,6 +280,25 @@ def test_a_long_cut_at_one_depth_stays_on_the_soil_when_the_weights_forget():
     assert abs(kept.mean["phi"] - true["phi"]) < 0.5 * abs(wandered.mean["phi"] - true["phi"])
 
 
+def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys):
+    from pinn_estimator.fusion_calibration import main as calibrate_main
+
+    assert FusionConfig.parse_field("weight_memory_m=2") == ("weight_memory_m", 2)
+    assert FusionConfig().with_fields({"rel_std": [0.01, 0.02]}).rel_std == (0.01, 0.02)
+    for text, needle in (("colour=1", "colour"), ("weight_memory_m", "FIELD=VALUE"), ("prior_std=x", "not JSON")):
+        with pytest.raises(ValueError, match=needle):
+            FusionConfig.parse_field(text)
+    for fields, needle in (({"rel_std": 5}, "rel_std"), ({"weight_memory_m": -1}, "weight_memory_m")):
+        with pytest.raises(ValueError, match=needle):
+            FusionConfig().with_fields(fields)
+    # the calibration refuses what it chooses itself, before any episode is simulated
+    for arg, needle in (("forecast_rel_std=[0.1,0.1]", "forecast_rel_std is chosen by the calibration"),
+                        ("terms=[]", "terms is set by --term"), ("colour=1", "colour")):
+        with pytest.raises(SystemExit) as exit_:
+            calibrate_main(["--world", "fee", "--set", arg])
+        assert exit_.value.code == 2 and needle in capsys.readouterr().err
+
+
 def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):
     cfg = FusionConfig(rel_std=(0.02, 0.03), terms=(("soil_inertia", 4.0),))
     cfg.save(tmp_path / "f.json")

@@ -158,6 +158,26 @@ class FusionConfig:
             data["terms"] = tuple(tuple(t) for t in data["terms"])
         return cls(**data)
 
+    def with_fields(self, overrides: dict) -> "FusionConfig":
+        """This config with some fields set (validated as a whole; errors name the field and value)."""
+        try:
+            return FusionConfig.from_dict({**self.to_dict(), **overrides})
+        except TypeError as err:  # a value of the wrong type, e.g. a number where (x, z) is expected
+            raise ValueError(f"fusion config {overrides}: {err}") from None
+
+    @staticmethod
+    def parse_field(text: str) -> tuple[str, object]:
+        """FIELD=VALUE (VALUE as JSON, e.g. ``weight_memory_m=2`` or ``rel_std=[0.01,0.02]``) of a
+        command line that sets a field; ValueError naming what is wrong."""
+        field, sep, value = text.partition("=")
+        known = sorted(f.name for f in fields(FusionConfig))
+        if not sep or field not in known:
+            raise ValueError(f"{text!r}: expected FIELD=VALUE with FIELD one of {known}")
+        try:
+            return field, json.loads(value)
+        except json.JSONDecodeError:
+            raise ValueError(f"{text!r}: VALUE {value!r} is not JSON (a number or [x, z])") from None
+
     def save(self, path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 

@@ -164,6 +164,9 @@ def miscalibration(curve: dict, axis: str, levels=NOMINAL) -> float:
     return float(np.mean([abs(c - lv) for c, lv in zip(curve[axis], levels)]))
 
 
+CALIBRATED_FIELDS = ("rel_std", "forecast_rel_std", "forecast_abs_std_n")  # what ``calibrate`` chooses
+
+
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
               log=print) -> tuple[FusionConfig, list[dict]]:
     """Stage 1 (``rel_std`` by median forecast error) and stage 2 (the forecast law, share and
@@ -233,6 +236,9 @@ def main(argv=None) -> int:
                    help="a force term in the posterior's physics beside the FEE (repeatable; a catalogue name or a "
                         "form soil_discrepancy named, e.g. form:-qnq*tanhvx0.1=0.756); saved in the config, so the "
                         "estimator's posterior uses it with any checkpoint (besides the checkpoint's own terms)")
+    p.add_argument("--set", dest="fields", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a posterior config field the calibration does not choose, set before it (repeatable; VALUE "
+                        "as JSON, e.g. weight_memory_m=2); saved in the config")
     args = p.parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
@@ -242,10 +248,18 @@ def main(argv=None) -> int:
         terms = parse_terms(args.term)
     except ValueError as err:
         p.error(f"--term: {err}")
+    try:
+        fields = dict(FusionConfig.parse_field(text) for text in args.fields)
+        chosen = sorted(set(fields) & set(CALIBRATED_FIELDS))
+        if chosen or "terms" in fields:
+            raise ValueError(f"{(chosen or ['terms'])[0]} is {'chosen by the calibration' if chosen else 'set by --term'}")
+        base = FusionConfig(terms=terms).with_fields(fields)
+    except ValueError as err:
+        p.error(f"--set: {err}")
     out = args.out or config_path(args.world)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M)
-    cfg, rows = calibrate(ds, FusionConfig(terms=terms))
+    cfg, rows = calibrate(ds, base)
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
