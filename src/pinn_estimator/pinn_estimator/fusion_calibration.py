@@ -251,8 +251,10 @@ def main(argv=None) -> int:
     try:
         fields = dict(FusionConfig.parse_field(text) for text in args.fields)
         chosen = sorted(set(fields) & set(CALIBRATED_FIELDS))
-        if chosen or "terms" in fields:
-            raise ValueError(f"{(chosen or ['terms'])[0]} is {'chosen by the calibration' if chosen else 'set by --term'}")
+        if chosen:
+            raise ValueError(f"{chosen[0]} is chosen by the calibration")
+        if "terms" in fields:
+            raise ValueError("terms is set by --term")
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")

@@ -112,9 +112,8 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         raise ValueError("no held-out episodes to compare the PINNs on")
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds={seeds!r} must be a positive integer (PINNs per physics)")
-    for name, value in (("workers", workers), ("threads", threads)):
-        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            raise ValueError(f"{name}={value!r} must be a positive integer (processes training PINNs / torch threads each)")
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers={workers!r} must be a positive integer (processes training PINNs)")
     split = pinn_split(test_frame, selection, seed)
     index = {name: i for i, name in enumerate(test_frame.names)}
     scored = test_frame.select(episodes=[index[n] for n in split["test"]])
@@ -130,8 +129,9 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         log(f"PINN {label}: {seeds} trained with {physics} + F_r ({workers} at a time)")
     # the same fixed budget for both, annealed to convergence (no early stop): validation
     # loss jumps epoch to epoch at a constant lr, and comparing best epochs compares luck
-    tasks = [(ds, TrainConfig(seed=seed + member, epochs=epochs, stride=stride, eval_stride=eval_stride, patience=epochs,
-                              threads=threads, max_minutes=max_minutes, lr_schedule="cosine"),
+    # (TrainConfig validates threads and the other training settings)
+    tasks = [(TrainConfig(seed=seed + member, epochs=epochs, stride=stride, eval_stride=eval_stride, patience=epochs,
+                          threads=threads, max_minutes=max_minutes, lr_schedule="cosine"),
               models[label].terms, split, scored.rows) for label, member in jobs]
     if workers > 1:
         # spawn, not fork: a forked child of a process whose torch threads already ran can hang;
@@ -140,9 +140,9 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         payload = dataclasses.replace(ds, truth=np.zeros((len(ds.observations), 0)))
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
                                  initargs=(payload,)) as pool:
-            results = list(pool.map(_train_member, [task[1:] for task in tasks]))
+            results = list(pool.map(_train_member, tasks))
     else:
-        results = [_train_member(task[1:], log, ds) for task in tasks]
+        results = [_train_member(task, log, ds) for task in tasks]
     preds: dict[str, dict[str, np.ndarray]] = {}
     for label, fee_model in models.items():
         members = [pred for (lab, _), (pred, _) in zip(jobs, results) if lab == label]
