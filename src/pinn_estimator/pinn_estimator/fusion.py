@@ -19,13 +19,21 @@ tenths of a percent wide, and a particle cloud (tried: fixed Sobol support and r
 Why a sum: one depth leaves a curved φ-c ridge that one Gaussian cannot follow (its forecasts
 missed in 13 of 24 sand and gravel pairs). ``/soil/estimate`` carries the sum's moments.
 
-Evidence is the soil's force: the measured force minus the blade's inertia m_b·a
-(``PathFusion``, ``soil_physics.blade_inertia``). Likelihood of a stretch's mean force F̄ given θ: independent Gaussians per axis with standard
-deviation σ_j = abs_j + rel_j·|F_model,j|, widened by the force's spread within the stretch
-(a transient is not a steady cut), and the model averaged over the stretch's Θ_k sub-means.
-Residuals of successive stretches are correlated (the same missing physics), so each
-stretch's evidence can be tempered by ``evidence_weight`` κ ≤ 1. The error model's numbers
-are calibrated on episodes other than the ones the evaluation scores.
+Evidence is the soil's force: the measured force minus the blade's inertia m_b·a, against the
+model at the conditions of the tick the force is the mean of (``PathFusion``,
+``soil_physics.blade_inertia``). Likelihood of a stretch's mean force F̄ given θ: independent
+Gaussians per axis with standard deviation σ_j = abs_j + rel_j·|F_model,j|, widened by the
+force's spread within the stretch (a transient is not a steady cut), and the model averaged over
+the stretch's Θ_k sub-means. With ``shape_evidence`` the stretch is its sub-means, which share
+that error and each add their own in how they depart from the others (``_Evidence``): the
+force's change along a ramp in depth is what tells φ from c at one target depth. Only ticks the
+quasi-static FEE describes count there (``quasi_static``), and a sub-mean the prediction says is
+an outlier is down-weighted. Residuals of successive stretches are correlated (the same missing
+physics), so each stretch's evidence can be tempered by ``evidence_weight`` κ ≤ 1. The error
+model's numbers are calibrated on episodes other than the ones the evaluation scores.
+
+Prior: broad over Table 1's ranges, plus (``cohesionless_prior``) a row of components at c ≈ 0,
+the clean sands' and gravels' own state, which the softplus coordinate of c only reaches at its end.
 
 Soil that changes: between stretches the covariance grows with the blade's travel (a random
 walk of the soil along the path, ``drift_per_sqrt_m``), and the soil may have jumped to a new
@@ -46,10 +54,11 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.params import DEG, KNOWN_PARAMS, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import inertia_force_n
@@ -68,8 +77,15 @@ PRIOR_BOX: dict[str, tuple[float, float]] = {
 # c ≈ 7 Pa (cohesionless), u = 0.5 c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more).
 C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
+# A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
+# times the machine's largest force limit, far beyond any soil it can cut.
+PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
+COHESIONLESS_STD_U = 0.05  # a cohesionless prior component's c: u 0 ± 0.05, c 7 Pa within a factor e
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = 0.01  # a stretch with the blade (almost) out of the soil carries no evidence
+
+
+PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_abs_std_n", "shape_rel_std")  # (x, z) each
 
 
 @dataclass(frozen=True)
@@ -82,7 +98,7 @@ class FusionConfig:
     seed: int = 0  # of the fixed normal draws the forecast pushes through the model
     forecast_samples: int = 128  # posterior samples per component, forecast and summary
     update_ticks: int = 30  # samples averaged into one stretch of evidence (0.5 s at 60 Hz)
-    model_points: int = 5  # sub-means of Θ_k per stretch the model is averaged over (divides update_ticks)
+    model_points: int = 10  # sub-means of Θ_k (and, with shape_evidence, of the force) per stretch (divides update_ticks)
     abs_std_n: tuple[float, float] = (20.0, 20.0)  # model-error floor (x, z) [N]: the force sensor's noise
     rel_std: tuple[float, float] = (0.02, 0.02)  # model error per unit of model force (x, z): how hard each stretch teaches
     # Model error a forecast adds to the posterior's spread (x, z), per unit of the force it
@@ -99,14 +115,26 @@ class FusionConfig:
     # stretches the soil is a new one with probability 1 − exp(−travel / patch_length_m): the
     # posterior keeps that hypothesis beside the current one (``SoilPosterior.update``).
     patch_length_m: float = 5.0
-    # Memory of the components' weights [m of travel] (0: never forgotten). Between stretches
-    # the log-weights are scaled by exp(−travel / weight_memory_m) (``forget``): the weights'
-    # counterpart of the drift. Why: at one depth every component fits the force, but the
-    # Laplace evidence still moves weight between them by a small factor per stretch, and with
-    # the drift re-widening them before every stretch that factor compounds: 20 s at one depth
-    # sent fee-world loam from 28° to 48° with a 4° std. Off by default until calibrated.
-    weight_memory_m: float = 0.0
     change_nis: float = 30.0  # normalised innovation (χ², 2 dof) beyond which a stretch is a new soil
+    # Shape evidence: each stretch is observed as its ``model_points`` sub-means of force, not its
+    # mean alone. The sub-means share the stretch's model error (the σ law above: their mean
+    # teaches what the stretch mean did) and each carries its own error in how it departs from the
+    # others, σ_dev = abs + rel·|the model's departure|, widened by ``shape_noise_gain`` × the
+    # force's tick noise over the sub-mean (``tick_noise_n``). Why: the force's change along the
+    # entry ramp or a slow lift is what tells φ from c at one target depth (γd²wN_γ against
+    # c·d·w·N_c), and a stretch mean, widened by that very change as if it were noise, threw it
+    # away (fee world: φ after 5 s 4.2° off). Only quasi-static sub-means count (``quasi_static``).
+    shape_evidence: bool = False
+    shape_abs_std_n: tuple[float, float] = (20.0, 20.0)  # floor of a sub-mean's departure error (x, z) [N]
+    shape_rel_std: tuple[float, float] = (0.05, 0.05)  # per unit of the model's departure (x, z)
+    shape_noise_gain: float = 1.0  # per unit of the sub-mean's noise
+    # Prior probability that the soil is cohesionless (clean sands and gravels: c = 0, a state of
+    # its own, not the edge of a range): the prior holds a second row of components at c ≈ 7 Pa
+    # beside the broad one (``SoilPosterior._prior``). Why: c = 0 is at the end of the softplus
+    # coordinate, where the broad prior has little mass and the data no say (a few tens of Pa
+    # of c trade against a fraction of a degree of φ), so a sand's posterior sat at c ≈ 0.1-0.2
+    # kPa and φ 1-2° low, 2-6 % off at another depth.
+    cohesionless_prior: float = 0.5
     terms: tuple[tuple[str, float], ...] = ()  # catalogue terms of the physics model (AugmentedFEE)
 
     def __post_init__(self):
@@ -117,7 +145,7 @@ class FusionConfig:
                 raise ValueError(f"fusion {name}={v!r} must be an integer >= {lo}")
         if self.update_ticks % self.model_points:
             raise ValueError(f"fusion model_points={self.model_points} must divide update_ticks={self.update_ticks}")
-        for name in ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n"):
+        for name in PAIR_FIELDS:
             try:
                 v = tuple(float(x) for x in getattr(self, name))
             except (TypeError, ValueError):
@@ -125,14 +153,20 @@ class FusionConfig:
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v) or (name.endswith("abs_std_n") and min(v) <= 0):
                 raise ValueError(f"fusion {name}={getattr(self, name)!r} must be two finite values >= 0 (abs > 0) for x, z")
             object.__setattr__(self, name, v)
-        if not (math.isfinite(self.unsteady_gain) and self.unsteady_gain >= 0):
-            raise ValueError(f"fusion unsteady_gain={self.unsteady_gain!r} must be finite and >= 0")
-        if not (math.isfinite(self.evidence_weight) and 0 < self.evidence_weight <= 1):
-            raise ValueError(f"fusion evidence_weight={self.evidence_weight!r} must be in (0, 1]")
-        for name in ("drift_per_sqrt_m", "patch_length_m", "weight_memory_m"):
+        for name in ("unsteady_gain", "shape_noise_gain"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"fusion {name}={v!r} must be finite and >= 0")
+        if not isinstance(self.shape_evidence, bool):
+            raise ValueError(f"fusion shape_evidence={self.shape_evidence!r} must be true or false")
+        if not (math.isfinite(self.evidence_weight) and 0 < self.evidence_weight <= 1):
+            raise ValueError(f"fusion evidence_weight={self.evidence_weight!r} must be in (0, 1]")
+        for name in ("drift_per_sqrt_m", "patch_length_m", "cohesionless_prior"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"fusion {name}={v!r} must be finite and >= 0")
+        if self.cohesionless_prior > 1:
+            raise ValueError(f"fusion cohesionless_prior={self.cohesionless_prior!r} must be a probability in [0, 1]")
         for name in ("prior_std", "change_nis"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -151,7 +185,7 @@ class FusionConfig:
         if unknown:
             raise ValueError(f"fusion config: unknown field {unknown[0]!r}")
         data = dict(data)
-        for name in ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n"):
+        for name in PAIR_FIELDS:
             if name in data:
                 data[name] = tuple(data[name])
         if "terms" in data:
@@ -167,7 +201,7 @@ class FusionConfig:
 
     @staticmethod
     def parse_field(text: str) -> tuple[str, object]:
-        """FIELD=VALUE (VALUE as JSON, e.g. ``weight_memory_m=2`` or ``rel_std=[0.01,0.02]``) of a
+        """FIELD=VALUE (VALUE as JSON, e.g. ``drift_per_sqrt_m=0.005`` or ``rel_std=[0.01,0.02]``) of a
         command line that sets a field; ValueError naming what is wrong."""
         field, sep, value = text.partition("=")
         known = sorted(f.name for f in fields(FusionConfig))
@@ -205,6 +239,21 @@ class Summary:
 
 
 
+def _inverses(mats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inverses, invertible) of a stack of matrices (A, n, n): one at a time where the batch
+    holds a singular one (whose inverse is left NaN)."""
+    try:
+        return np.linalg.inv(mats), np.ones(len(mats), bool)
+    except np.linalg.LinAlgError:
+        out, ok = np.full_like(mats, np.nan), np.ones(len(mats), bool)
+        for i, m in enumerate(mats):
+            try:
+                out[i] = np.linalg.inv(m)
+            except np.linalg.LinAlgError:
+                ok[i] = False
+        return out, ok
+
+
 def _normalised(u, p, log_joint, nis):
     """A Gaussian sum from ``SoilPosterior._update_components``'s per-component results:
     (means, covariances, normalised log-weights, smallest NIS, log predictive likelihood of the
@@ -214,6 +263,103 @@ def _normalised(u, p, log_joint, nis):
         return None
     log_z = float(np.logaddexp.reduce(log_joint[defined]))
     return u, p, log_joint - log_z, float(nis[defined].min()), log_z
+
+
+# Sub-means whose departure from the stretch's other sub-means the component's prediction
+# misses by this many standard deviations are down-weighted (``_Evidence.robust_inflation``).
+ROBUST_SIGMAS = 3.0
+
+
+class _Evidence:
+    """One stretch as the observation of a Kalman update: y, the model's h(θ) in the same
+    layout, and the covariance R(h) of their difference.
+
+    Without shape evidence: y = the stretch's mean force (x, z), R = diag(σ_x², σ_z²) of the
+    model error law (``SoilPosterior.sigma``). With it (``FusionConfig.shape_evidence``):
+    y = the G sub-means of force, x then z, and per axis R = σ²·11ᵀ + diag(σ_dev,g²): the
+    sub-means share the stretch's model error σ (so their mean teaches exactly what the stretch
+    mean did) and each has its own error σ_dev,g in how it departs from the others
+    (``FusionConfig.shape_*``), which is what lets the force's change along a ramp in depth tell
+    φ from c. Sub-means in which the blade was not quasi-static (``quasi_static``) are left out;
+    in a stretch where it never was, nothing is learnt."""
+
+    def __init__(self, post: "SoilPosterior", force_n, known, spread_n, point_force_n=None, point_noise_n=None,
+                 point_unsteady=None):
+        self.post, self.spread = post, spread_n
+        self.known = np.atleast_2d(known)
+        points = len(self.known)
+        self.shape = bool(post.cfg.shape_evidence and point_force_n is not None and points > 1)
+        if self.shape:
+            point_force_n, point_noise_n = np.asarray(point_force_n, float), np.asarray(point_noise_n, float)
+            keep = np.ones(points, bool) if point_unsteady is None else ~np.asarray(point_unsteady, bool)
+            if point_force_n.shape != (points, 2) or point_noise_n.shape != (points, 2) or keep.shape != (points,):
+                raise ValueError(f"stretch sub-means of shape {point_force_n.shape} / {point_noise_n.shape} / {keep.shape}, "
+                                 f"expected ({points}, 2) / ({points}, 2) / ({points},) for {points} Θ_k sub-means")
+            self.known = self.known[keep]
+            self.y = point_force_n[keep].T.reshape(-1)  # x sub-means, then z
+            self.noise = point_noise_n[keep].T  # (2, G kept)
+        else:
+            self.y = np.asarray(force_n, float)
+        self.points = len(self.known)
+
+    def observe(self, fx: np.ndarray, fz: np.ndarray) -> np.ndarray:
+        """The model's forces at the sub-means (K, G) each -> h (K, dim)."""
+        if self.shape:
+            return np.concatenate([fx, fz], axis=1)
+        return np.stack([fx.mean(axis=1), fz.mean(axis=1)], axis=1)
+
+    def covariance(self, h: np.ndarray, inflation: np.ndarray | None = None) -> np.ndarray:
+        """R (K, dim, dim) at model observations h (K, dim), untempered; ``inflation`` (K, dim)
+        multiplies each sub-mean's σ_dev (``robust_inflation``)."""
+        k = len(h)
+        if not self.shape:
+            sx, sz = self.post.sigma(h[:, 0], h[:, 1], self.spread)
+            r = np.zeros((k, 2, 2))
+            r[:, 0, 0], r[:, 1, 1] = sx ** 2, sz ** 2
+            return r
+        g, cfg = self.points, self.post.cfg
+        hx, hz = h[:, :g], h[:, g:]
+        shared = self.post.sigma(hx.mean(axis=1), hz.mean(axis=1), self.spread)
+        r = np.zeros((k, 2 * g, 2 * g))
+        for j, hj in enumerate((hx, hz)):
+            block = slice(j * g, (j + 1) * g)
+            departure = np.abs(hj - hj.mean(axis=1, keepdims=True))
+            dev = np.hypot(cfg.shape_abs_std_n[j] + cfg.shape_rel_std[j] * departure, cfg.shape_noise_gain * self.noise[j])
+            if inflation is not None:
+                dev = dev * inflation[:, block]
+            r[:, block, block] = shared[j][:, None, None] ** 2 + dev[:, :, None] * np.eye(g) * dev[:, None, :]
+        return r
+
+    def robust_inflation(self, innovation: np.ndarray, s_mat: np.ndarray) -> np.ndarray:
+        """(K, dim) factors on σ_dev from each component's prediction of the stretch (innovation
+        y − h at its prior mean, its covariance S): √(1 + (z/k)²), z how far a sub-mean's departure
+        from the others' mean lies from the predicted one, in the predicted standard deviations of
+        that departure, k = ``ROBUST_SIGMAS`` (the weights of a Cauchy error: a gross outlier's
+        influence falls off). Why: a transient the quasi-static model lacks and the quasi-static
+        test misses (the lift joint's motion within a tick reversing some of the soil-tool
+        friction while the samples say the blade holds its depth) departs from the others by
+        10-20 of their σ_dev and decays over a few sub-means as the depth does; with full weight
+        the posterior took it for the φ-c trade that explains a change with depth (fee-world clay
+        moved 3° in one stretch). Judged against the prediction, not the updated fit, which has
+        already bent θ towards it. All 1 without shape evidence."""
+        if not self.shape:
+            return np.ones_like(innovation)
+        g = self.points
+        centre = np.eye(g) - 1.0 / g
+        out = np.ones_like(innovation)
+        for j in range(2):
+            block = slice(j * g, (j + 1) * g)
+            departure = innovation[:, block] @ centre.T
+            var = np.einsum("ij,ajk,ik->ai", centre, s_mat[:, block, block], centre)
+            out[:, block] = np.sqrt(1.0 + (departure / np.sqrt(np.maximum(var, 1e-12)) / ROBUST_SIGMAS) ** 2)
+        return out
+
+    def mean_nis(self, innovation: np.ndarray, s_mat: np.ndarray) -> np.ndarray:
+        """Normalised innovation of the stretch's mean force (2 dof, what ``change_nis`` is for)."""
+        if self.shape:
+            mean = np.kron(np.eye(2), np.full((1, self.points), 1.0 / self.points))  # (2, dim)
+            innovation, s_mat = innovation @ mean.T, mean @ s_mat @ mean.T
+        return np.einsum("ai,aij,aj->a", innovation, np.linalg.inv(s_mat), innovation)
 
 
 class SoilPosterior:
@@ -235,9 +381,10 @@ class SoilPosterior:
         self.reset()
 
     def _prior(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(means (K, 3), covariances (K, 3, 3), log-weights (K,)) of the prior as a Gaussian sum:
-        K components side by side along φ's box, each as wide as their spacing, weighted by the broad
-        Gaussian prior (centre of the box, ``prior_std``) at their centre."""
+        """(means, covariances (·, 3, 3), log-weights) of the prior as a Gaussian sum: K components
+        side by side along φ's box, each as wide as their spacing, weighted by the broad Gaussian
+        prior (centre of the box, ``prior_std``) at their centre; with ``cohesionless_prior`` > 0
+        the same K again at c ≈ 7 Pa (u_c 0 ± ``COHESIONLESS_STD_U``), that share of the weight."""
         k, sd = self.cfg.components, self.cfg.prior_std
         centres = np.linspace(0.0, 1.0, k) if k > 1 else np.array([0.5])  # the φ box, 10-50°
         u = np.tile(np.full(len(THETA), 0.5), (k, 1))
@@ -246,7 +393,16 @@ class SoilPosterior:
         p = np.tile(np.diag([sd ** 2] * len(THETA)), (k, 1, 1))
         p[:, THETA.index("phi"), THETA.index("phi")] = width ** 2
         log_w = -0.5 * ((centres - 0.5) / sd) ** 2
-        return u, p, log_w - np.logaddexp.reduce(log_w)
+        log_w = log_w - np.logaddexp.reduce(log_w)
+        share = self.cfg.cohesionless_prior
+        if share > 0:
+            u0, p0 = u.copy(), p.copy()
+            u0[:, THETA.index("c")] = 0.0
+            p0[:, THETA.index("c"), THETA.index("c")] = COHESIONLESS_STD_U ** 2
+            u, p = np.concatenate([u, u0]), np.concatenate([p, p0])
+            with np.errstate(divide="ignore"):  # a share of 1: the broad row has no weight
+                log_w = np.concatenate([log_w + np.log1p(-share), log_w + math.log(share)])
+        return u, p, log_w
 
     def reset(self) -> None:
         """Back to the prior."""
@@ -267,13 +423,9 @@ class SoilPosterior:
         """Soil that varies along the path: every component's covariance grows by
         ``drift_per_sqrt_m``² per metre of blade travel (a random walk of θ, internal units),
         and the soil may have jumped to a new one (a patch boundary) with probability
-        1 − exp(−travel / ``patch_length_m``), which the next ``update`` weighs. With
-        ``weight_memory_m`` the component weights flatten too (w ∝ w^exp(−travel/memory))."""
+        1 − exp(−travel / ``patch_length_m``), which the next ``update`` weighs."""
         if travel_m > 0:
             self.p = self.p + np.eye(len(THETA)) * self.cfg.drift_per_sqrt_m ** 2 * travel_m
-            if self.cfg.weight_memory_m > 0:
-                log_w = self.log_w * math.exp(-travel_m / self.cfg.weight_memory_m)
-                self.log_w = log_w - np.logaddexp.reduce(log_w)
             if self.cfg.patch_length_m > 0:
                 self.log_no_jump -= travel_m / self.cfg.patch_length_m  # summed in logs: never rounds to certainty
 
@@ -291,10 +443,21 @@ class SoilPosterior:
         the rows of (G, 9) (a stretch's sub-means: the model averaged over the stretch, not the
         force at its mean Θ_k, which the tanh of the Eq. 9-10 velocity correction makes a
         different number whenever v_z moves). NaN where the model is undefined."""
+        fx, fz = self.model_point_forces(u, known, distance_m)
+        return fx.mean(axis=1), fz.mean(axis=1)
+
+    def model_point_forces(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(F_x, F_z) [N], each (K, G): the model at scaled points u (K, 3) for each row of Θ_k
+        (G, 9) (or (9,), G = 1). NaN where the model is undefined: no failure wedge, or a force
+        beyond ``PLAUSIBLE_FORCE_N``, which is the FEE's singularity (η → 180°, paper §2.2.2)
+        rather than a soil, and whose derivatives (~1e15 N per unit of u) make a component's
+        predictive covariance singular."""
         known = np.atleast_2d(np.asarray(known, float))
         theta = {n: v[:, None] for n, v in self.theta_of(np.atleast_2d(u)).items()}
         fx, fz = self.model.force(theta, known[None, :, :], np.full(known.shape[0], distance_m))
-        return fx.mean(axis=1), fz.mean(axis=1)
+        with np.errstate(invalid="ignore"):
+            wild = (np.abs(fx) > PLAUSIBLE_FORCE_N) | (np.abs(fz) > PLAUSIBLE_FORCE_N)
+        return np.where(wild, np.nan, fx), np.where(wild, np.nan, fz)
 
     def sigma(self, fx, fz, spread_n=(0.0, 0.0), forecast: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Model error (x, z) [N]: floor + share of the force (the evidence's; with ``forecast``
@@ -305,10 +468,14 @@ class SoilPosterior:
         return (np.hypot(model_error_std(fx, ax, rx), g * spread_n[0]), np.hypot(model_error_std(fz, az, rz), g * spread_n[1]))
 
     # -- evidence
-    def update(self, force_n: np.ndarray, known: np.ndarray, spread_n=(0.0, 0.0), distance_m: float = 0.0) -> bool:
+    def update(self, force_n: np.ndarray, known: np.ndarray, spread_n=(0.0, 0.0), distance_m: float = 0.0, *,
+               point_force_n: np.ndarray | None = None, point_noise_n: np.ndarray | None = None,
+               point_unsteady: np.ndarray | None = None) -> bool:
         """One stretch of evidence: its mean measured force (F_x, F_z) [N], Θ_k (its sub-means)
         and the force's standard deviation within it [N] (a stretch whose force moves, the blade
-        entering or the controller acting, is widened by ``unsteady_gain`` × that spread).
+        entering or the controller acting, is widened by ``unsteady_gain`` × that spread); with
+        ``shape_evidence`` also the force's sub-means (G, 2) [N], their noise (G, 2) [N] and
+        whether the blade was quasi-static in each (G,) (``Stretch``; ``_Evidence``).
 
         Per component an iterated extended Kalman update (Gauss-Newton to the stretch's MAP;
         Jacobians by forward differences), and its weight times its predictive likelihood
@@ -324,6 +491,9 @@ class SoilPosterior:
         finite = np.isfinite(force_n).all() and np.isfinite(known).all() and np.isfinite(spread_n).all()
         if not finite or np.atleast_2d(known)[:, _D].mean() < MIN_STRETCH_DEPTH_M:
             return False
+        evidence = _Evidence(self, force_n, known, spread_n, point_force_n, point_noise_n, point_unsteady)
+        if not len(evidence.y):
+            return False
         sinking = np.atleast_2d(known)[:, _VZ].mean() < -STEADY_CUT_MAX_ABS_V_Z_M_S
         # a new soil (restart or change point) is never weighed before the first stretch nor on a
         # sinking one; a change point's prior components are updated with the current ones, in one batch
@@ -333,7 +503,7 @@ class SoilPosterior:
         if weigh_jump:
             pu, pp, pw = self._prior()
             u0, p0, log_w0 = np.concatenate([u0, pu]), np.concatenate([p0, pp]), np.concatenate([log_w0, pw])
-        step = self._update_components(u0, p0, log_w0, force_n, known, spread_n, distance_m)
+        step = self._update_components(u0, p0, log_w0, evidence, distance_m)
         current = _normalised(*(part[:k] for part in step))
         fresh = _normalised(*(part[k:] for part in step)) if weigh_jump else None
         # nothing the current soil can explain (no component defined here counts as that too)
@@ -342,7 +512,7 @@ class SoilPosterior:
                 self.rejected += 1
                 return False
             if fresh is None:
-                fresh = _normalised(*self._update_components(*self._prior(), force_n, known, spread_n, distance_m))
+                fresh = _normalised(*self._update_components(*self._prior(), evidence, distance_m))
             if fresh is not None:
                 current = fresh
                 self.changes += 1
@@ -380,7 +550,7 @@ class SoilPosterior:
         log_w = log_w[keep]
         return u, p, log_w - np.logaddexp.reduce(log_w)
 
-    def _update_components(self, u0, p0, log_w0, y, known, spread, distance_m, iterations: int = 6, eps: float = 1e-4):
+    def _update_components(self, u0, p0, log_w0, evidence: "_Evidence", distance_m, iterations: int = 6, eps: float = 1e-4):
         """(means, covariances, log prior weight + log predictive likelihood, NIS) per component
         after one stretch; a component whose model is undefined here keeps its mean and
         covariance with log weight −inf and NIS inf (``_normalised`` makes a sum of them).
@@ -388,21 +558,22 @@ class SoilPosterior:
         Every component's iterated extended Kalman update at once (one model call per
         Gauss-Newton iteration for all components and their forward differences): for
         component k from (m_k, P_k), u ← m + K(y − h(u) − J(m − u)) with J and the error law at
-        the current iterate. Its NIS (the test for a new soil) is the one at the prior mean; the
-        likelihood its weight takes is the Laplace approximation of the stretch's evidence at
-        the updated mean (one more model call)."""
-        k_n, n = len(log_w0), len(THETA)
+        the current iterate. Its NIS (the test for a new soil, on the stretch's mean force) is
+        the one at the prior mean; the likelihood its weight takes is the Laplace approximation
+        of the stretch's evidence at the updated mean (one more model call)."""
+        k_n, n, dim, kappa = len(log_w0), len(THETA), len(evidence.y), self.cfg.evidence_weight
+        y = evidence.y
         m, u = u0, u0.copy()
         active = np.ones(k_n, bool)  # still iterating
         defined = np.zeros(k_n, bool)  # its model was defined at its prior mean
         nis, log_lik = np.full(k_n, np.inf), np.full(k_n, -np.inf)
-        gain, jac, r = np.zeros((k_n, n, 2)), np.zeros((k_n, 2, n)), np.zeros((k_n, 2, 2))
+        gain, jac, r = np.zeros((k_n, n, dim)), np.zeros((k_n, dim, n)), np.zeros((k_n, dim, dim))
+        inflation = np.ones((k_n, dim))  # on σ_dev per sub-mean, from the prediction (``_Evidence.robust_inflation``)
         steps = np.concatenate([np.zeros((1, n)), np.eye(n) * eps])  # (n + 1, n)
         previous = u.copy()  # each component's last iterate its model was defined at
         for it in range(iterations):
             pts = (u[:, None, :] + steps[None]).reshape(-1, n)
-            fx, fz = self.model_force(pts, known, distance_m)
-            f = np.stack([fx, fz], axis=1).reshape(k_n, n + 1, 2)
+            f = evidence.observe(*self.model_point_forces(pts, evidence.known, distance_m)).reshape(k_n, n + 1, dim)
             ok = np.isfinite(f).all(axis=(1, 2)) & active
             if it == 0:
                 defined = ok.copy()
@@ -412,19 +583,30 @@ class SoilPosterior:
             if not active.any():
                 break
             a = np.flatnonzero(active)
-            h = f[a, 0]  # (A, 2)
-            jac[a] = np.transpose(f[a, 1:] - f[a, :1], (0, 2, 1)) / eps  # (A, 2, n)
-            sx, sz = self.sigma(h[:, 0], h[:, 1], spread)
-            r[a] = 0.0
-            r[a, 0, 0], r[a, 1, 1] = sx ** 2 / self.cfg.evidence_weight, sz ** 2 / self.cfg.evidence_weight
-            pj = p0[a] @ np.transpose(jac[a], (0, 2, 1))  # (A, n, 2)
-            s_mat = jac[a] @ pj + r[a]  # (A, 2, 2)
-            s_inv = np.linalg.inv(s_mat)
+            h = f[a, 0]  # (A, dim)
+            j_a = np.transpose(f[a, 1:] - f[a, :1], (0, 2, 1)) / eps  # (A, dim, n)
+            pj = p0[a] @ np.transpose(j_a, (0, 2, 1))  # (A, n, dim)
+            innovation = y - h - np.einsum("aij,aj->ai", j_a, m[a] - u[a])
+            if it == 0:  # at the prior mean: which sub-means the prediction says are outliers
+                inflation[a] = evidence.robust_inflation(innovation, j_a @ pj + evidence.covariance(h) / kappa)
+            r_a = evidence.covariance(h, inflation[a]) / kappa
+            s_mat = j_a @ pj + r_a  # (A, dim, dim)
+            s_inv, invertible = _inverses(s_mat)
+            if not invertible.all():  # numerically singular: undefined here, like a model without a wedge
+                bad = a[~invertible]
+                u[bad], active[bad] = previous[bad], False
+                if it == 0:
+                    defined[bad] = False
+                a, h, j_a, r_a, pj, innovation, s_mat, s_inv = (
+                    v[invertible] for v in (a, h, j_a, r_a, pj, innovation, s_mat, s_inv))
+                if not len(a):
+                    break
+            jac[a], r[a] = j_a, r_a
             gain[a] = pj @ s_inv
-            innovation = y - h - np.einsum("aij,aj->ai", jac[a], m[a] - u[a])
             if it == 0:  # at the prior mean: how well each component predicted the stretch
-                nis[a] = np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
-                log_lik[a] = self.cfg.evidence_weight * -0.5 * (nis[a] + np.log(np.linalg.det(2 * math.pi * s_mat)))
+                nis[a] = evidence.mean_nis(innovation, s_mat)
+                whole = np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
+                log_lik[a] = kappa * -0.5 * (whole + np.linalg.slogdet(2 * math.pi * s_mat)[1])
             u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), -0.25, 1.25)  # far outside the box is not physical
             moved = np.abs(u_next - u[a]).max(axis=1)
             previous[a] = u[a]
@@ -439,12 +621,15 @@ class SoilPosterior:
         # instead (the EKF's predictive likelihood) it misjudged components far from the φ-c
         # ridge by up to 2.5 nats per stretch, always against high φ (against a Monte Carlo
         # integral over the component: Laplace within 0.3), and the posterior drifted to low φ.
-        fx, fz = self.model_force(u, known, distance_m)
-        sx, sz = self.sigma(fx, fz, spread)
-        rx, rz = sx ** 2 / self.cfg.evidence_weight, sz ** 2 / self.cfg.evidence_weight
-        res_x, res_z = y[0] - fx, y[1] - fz
-        # the tempered likelihood κ·log N(y; h, σ²) = −½ res²/(σ²/κ) − κ·½ log det 2πσ²
-        data = -0.5 * (res_x ** 2 / rx + res_z ** 2 / rz) - 0.5 * self.cfg.evidence_weight * np.log(4 * math.pi ** 2 * sx ** 2 * sz ** 2)
+        h = evidence.observe(*self.model_point_forces(u, evidence.known, distance_m))
+        data = np.full(k_n, np.nan)
+        fine = np.isfinite(h).all(axis=1)
+        if fine.any():
+            res = y - h[fine]
+            cov = evidence.covariance(h[fine], inflation[fine])
+            # the tempered likelihood κ·log N(y; h, R) = −½ resᵀ(R/κ)⁻¹res − κ·½ log det 2πR
+            data[fine] = (-0.5 * kappa * np.einsum("ki,ki->k", res, np.linalg.solve(cov, res[..., None])[..., 0])
+                          - 0.5 * kappa * np.linalg.slogdet(2 * math.pi * cov)[1])
         d = u - m
         prior = -0.5 * (np.einsum("ki,ki->k", d, np.linalg.solve(p0, d[..., None])[..., 0]) + np.linalg.slogdet(2 * math.pi * p0)[1])
         laplace = data + prior + 0.5 * np.linalg.slogdet(2 * math.pi * p)[1]
@@ -557,10 +742,51 @@ def _level_cut() -> np.ndarray:
     return np.array([values[n] for n in KNOWN_PARAMS])
 
 
+# A tick is quasi-static (``quasi_static``) while the blade rises no faster than this [m/s] (a
+# steady cut's vertical velocity jitters by ±3 mm/s) and its vertical velocity changes by no more
+# than that between two samples [m/s] (1.8 m/s² at 60 Hz; a steady ramp in depth changes it by ~1 mm/s).
+QUASI_STATIC_MAX_RISE_M_S = 0.005
+QUASI_STATIC_MAX_DV_Z_M_S = 0.03
+
+
+def quasi_static(velocity_m_s: np.ndarray, previous_m_s: np.ndarray | None) -> bool:
+    """Whether the tick between two samples of the blade's velocity (x, z) [m/s] was one the FEE
+    describes. The FEE is a quasi-static equilibrium (paper §1.1.2: neither the soil nor the blade
+    accelerates), and through Eq. 9-10 the force depends on the blade's vertical velocity: its
+    soil-tool friction reverses where v_z passes v_x·cot ρ, a few cm/s above a level cut. A blade
+    that rises or whose vertical velocity changes quickly (the edge plunging in, the chassis
+    dropping into its own cut, the anti-stall lift; ``QUASI_STATIC_MAX_*``) moves within the tick
+    in ways two samples do not show, and may cross that reversal between them: fee world, the true
+    soil's FEE 20-50 % off the force for a few ticks, and still 3 % off F_z while the samples said
+    the blade rose at 1.3 cm/s. A steady ramp down in depth is quasi-static."""
+    rise = velocity_m_s[1] if previous_m_s is None else max(velocity_m_s[1], previous_m_s[1])
+    change = 0.0 if previous_m_s is None else abs(velocity_m_s[1] - previous_m_s[1])
+    return rise <= QUASI_STATIC_MAX_RISE_M_S and change <= QUASI_STATIC_MAX_DV_Z_M_S
+
+
+class Stretch(NamedTuple):
+    """One stretch of evidence: ``update_ticks`` consecutive samples in ``model_points`` sub-means."""
+
+    force: np.ndarray  # (2,) mean soil force (x, z) [N]
+    known: np.ndarray  # (G, 9) Θ_k sub-means
+    spread: np.ndarray  # (2,) the force's standard deviation over the stretch [N]
+    point_force: np.ndarray  # (G, 2) the force's sub-means [N]
+    point_noise: np.ndarray  # (G, 2) noise of each sub-mean [N]: the tick noise (``tick_noise_n``) / √(ticks per sub-mean)
+    point_unsteady: np.ndarray  # (G,) bool: the blade was not quasi-static within the sub-mean (no shape evidence)
+
+
+def tick_noise_n(second_differences_sq: np.ndarray, count: int) -> np.ndarray:
+    """(2,) the force's tick-to-tick noise [N] from the sum of its squared second differences
+    F_{t+1} − 2F_t + F_{t−1} over ``count`` triples: white noise of σ gives 6σ² each, while a
+    force that changes linearly with time (a ramp in depth) gives none, so a steady change is not
+    taken for noise."""
+    return np.sqrt(second_differences_sq / (6.0 * count)) if count else np.zeros(2)
+
+
 class StretchAccumulator:
-    """Samples -> stretches: the mean force and its spread over ``update_ticks`` consecutive
-    samples, Θ_k as ``model_points`` sub-means (G, 9), and the blade's travel in soil since the
-    last stretch (for ``SoilPosterior.forget``)."""
+    """Samples -> stretches (``Stretch``): the mean force and its spread over ``update_ticks``
+    consecutive samples, the force and Θ_k as ``model_points`` sub-means, the force's tick noise,
+    and the blade's travel in soil since the last stretch (for ``SoilPosterior.forget``)."""
 
     def __init__(self, update_ticks: int, model_points: int = 1):
         self.update_ticks = update_ticks
@@ -571,22 +797,36 @@ class StretchAccumulator:
 
     def clear(self) -> None:
         self.count = 0
-        self.force = np.zeros(2)
+        g = self.model_points
+        self.known = np.zeros((g, len(KNOWN_PARAMS)))
+        self.force = np.zeros((g, 2))
         self.force_sq = np.zeros(2)
-        self.known = np.zeros((self.model_points, len(KNOWN_PARAMS)))
+        self.unsteady = np.zeros(g, bool)
+        self.last = []  # the stretch's last two forces (for its second differences)
+        self.curvature_sq = np.zeros(2)
 
-    def add(self, force_n: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """One sample; the stretch's (mean force, Θ_k sub-means, force spread) when complete, else None."""
-        self.force += force_n
+    def add(self, force_n: np.ndarray, known: np.ndarray, unsteady: bool = False) -> Stretch | None:
+        """One sample (``unsteady``: the blade was not quasi-static during its tick); the ``Stretch``
+        when complete, else None."""
+        force_n = np.asarray(force_n, float)
+        g = min(self.count // self.per_point, self.model_points - 1)
+        self.unsteady[g] |= bool(unsteady)
+        self.force[g] += force_n
         self.force_sq += np.square(force_n)
-        self.known[min(self.count // self.per_point, self.model_points - 1)] += known
+        if len(self.last) == 2:
+            self.curvature_sq += np.square(force_n - 2.0 * self.last[1] + self.last[0])
+        self.last = [*self.last[-1:], force_n]
+        self.known[g] += known
         self.count += 1
         self.travel_m += float(soil_advance(known[_VX], known[_D]))
         if self.count < self.update_ticks:
             return None
-        mean = self.force / self.count
-        spread = np.sqrt(np.maximum(self.force_sq / self.count - mean ** 2, 0.0))
-        out = mean, self.known / self.per_point, spread
+        point = self.force / self.per_point
+        mean = point.mean(axis=0)
+        spread = np.sqrt(np.maximum(self.force_sq / self.update_ticks - mean ** 2, 0.0))
+        noise = tick_noise_n(self.curvature_sq, self.update_ticks - 2) / math.sqrt(self.per_point)
+        out = Stretch(mean, self.known / self.per_point, spread, point, np.tile(noise, (self.model_points, 1)),
+                      self.unsteady.copy())
         self.clear()
         return out
 
@@ -600,23 +840,30 @@ class PathFusion:
     it the blade's m_b·a in the measured F_z (22 % of it under a 3 cm depth dither, about all
     of it while the edge enters the soil) reads as soil, and the posterior settles off the
     truth (fee world, 3 cm dither: φ 13° off at 10 s; without the inertia, 3°). The first
-    sample after a reset or a gap has no predecessor: its acceleration is taken as zero."""
+    sample after a reset or a gap has no predecessor: its acceleration is taken as zero.
+
+    The model is evaluated at the conditions of the tick whose mean force a sample carries:
+    Θ_k with the blade's sampled velocity (not Θ_k's 10-sample mean of paper §3.1, which lags
+    a reversal of the blade by ~5 ticks and with it the Eq. 9-10 friction), averaged with the
+    previous sample's (the force is the tick's mean, depth and velocity are sampled at its end:
+    on a depth ramp Θ_k's d runs half a tick ahead of the force, 0.6 % of F_x at 7 cm/s)."""
 
     def __init__(self, posterior: SoilPosterior):
         self.posterior = posterior
         self.stretch = StretchAccumulator(posterior.cfg.update_ticks, posterior.cfg.model_points)
         self._velocity: np.ndarray | None = None  # blade velocity (x, z) of the previous sample
+        self._known: np.ndarray | None = None  # the previous sample's Θ_k with its sampled blade velocity
 
     def reset(self) -> None:
         """A new path: the prior, no stretch in progress, no travel counted."""
         self.posterior.reset()
         self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
-        self._velocity = None
+        self._velocity = self._known = None
 
     def gap(self) -> None:
         """A missing or broken sample: the stretch in progress is dropped, the posterior kept."""
         self.stretch.clear()
-        self._velocity = None
+        self._velocity = self._known = None
 
     def add(self, force_n: np.ndarray, known: np.ndarray, distance_m: float = 0.0,
             blade_velocity_m_s: np.ndarray | None = None) -> bool:
@@ -626,13 +873,23 @@ class PathFusion:
         velocity = None if blade_velocity_m_s is None else np.asarray(blade_velocity_m_s, float)
         if velocity is not None and self._velocity is not None:
             force_n = force_n - inertia_force_n(velocity, self._velocity)
+        known = np.array(known, float)
+        if velocity is not None:  # the conditions over the tick the force is the mean of
+            known[[_VX, _VZ]] = velocity
+            here = known
+            if self._known is not None:
+                known = 0.5 * (known + self._known)
+            self._known = here
+        unsteady = velocity is not None and not quasi_static(velocity, self._velocity)
         self._velocity = velocity
-        stretch = self.stretch.add(force_n, known)
+        stretch = self.stretch.add(force_n, known, unsteady)
         if stretch is None:
             return False
         self.posterior.forget(self.stretch.travel_m)
         self.stretch.travel_m = 0.0
-        return self.posterior.update(*stretch, distance_m=distance_m)
+        return self.posterior.update(stretch.force, stretch.known, stretch.spread, distance_m=distance_m,
+                                     point_force_n=stretch.point_force, point_noise_n=stretch.point_noise,
+                                     point_unsteady=stretch.point_unsteady)
 
 
 def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
