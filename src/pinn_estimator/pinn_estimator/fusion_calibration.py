@@ -41,8 +41,14 @@ CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
 CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
 CAL_SEED = 9000
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
+# Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
+# a stretch's sub-means depart from each other, from loose to sharp.
+SHAPE_GRID = (None, (50.0, 0.05), (10.0, 0.01), (2.0, 0.002))
+# The soil's drift along the path (``FusionConfig.drift_per_sqrt_m``), chosen where the world's
+# parameters are the truth (the fee world) by how often the posterior's intervals hold them.
+DRIFT_GRID = (0.0, 0.0025, 0.005, 0.01, 0.02)
 FORECAST_GRID = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)  # share of the extrapolated force
-FLOOR_GRID = (20.0, 300.0, 1000.0, 3000.0)  # forecast error floor [N]: F_z of the default world is ~0 in the FEE
+FLOOR_GRID = (5.0, 20.0, 300.0, 1000.0, 3000.0)  # forecast error floor [N]: F_z of the default world is ~0 in the FEE
 NOMINAL = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # central interval levels of the calibration curve
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 
@@ -164,24 +170,109 @@ def miscalibration(curve: dict, axis: str, levels=NOMINAL) -> float:
     return float(np.mean([abs(c - lv) for c, lv in zip(curve[axis], levels)]))
 
 
-CALIBRATED_FIELDS = ("rel_std", "forecast_rel_std", "forecast_abs_std_n")  # what ``calibrate`` chooses
+CALIBRATED_FIELDS = ("rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_evidence", "shape_abs_std_n",
+                     "shape_rel_std")  # what ``calibrate`` chooses; in the fee world also DRIFT_FIELD
+DRIFT_FIELD = "drift_per_sqrt_m"
+
+
+def with_shape(cfg: FusionConfig, shape) -> FusionConfig:
+    """``cfg`` with the shape evidence of a ``SHAPE_GRID`` entry: None (off) or (floor [N], share)."""
+    if shape is None:
+        return dataclasses.replace(cfg, shape_evidence=False)
+    floor, share = shape
+    return dataclasses.replace(cfg, shape_evidence=True, shape_abs_std_n=(floor, floor), shape_rel_std=(share, share))
+
+
+def forecast_skill(sc: dict) -> tuple[float, float]:
+    """(skill, its standard error) of ``forecast_scores``: the median forecast's error as a share of
+    the naive forecast's, averaged over the axes (an axis no law forecasts counts as 1 for all)."""
+    ratio = np.asarray(sc["error"]) / np.asarray(sc["naive"])
+    sem = np.asarray(sc["sem"]) / np.asarray(sc["naive"])
+    return float(ratio.mean()), float(sem.mean())
+
+
+def acceptable_shape_laws(rows: list[tuple]) -> list[tuple]:
+    """Stage 1's (shape, skill, sem, ...) rows whose skill is within one standard error of the
+    best one's, in grid order (off, then loose to sharp): the laws that forecast as well as any.
+    Without the truth to judge the parameters by, the first (the simplest) is taken, as for
+    ``rel_std``: a law that teaches more only where it forecasts measurably better."""
+    best = min(rows, key=lambda r: r[1])
+    return [r for r in rows if r[1] <= best[1] + best[2]]
+
+
+def parameter_miscalibration(ds, posts) -> tuple[float, dict]:
+    """(mean |coverage − nominal| of the posteriors' 50 % and 90 % intervals of φ and c against
+    the episodes' true θ at their ends, ``forecast.parameter_coverage``): meaningful only where
+    the model is the world (fee)."""
+    cover = fc.parameter_coverage(fc.steady_parts(ds), posts)
+    mis = [abs(cover[n][f"coverage_{lv}"] - lv / 100) for n in ("phi", "c") for lv in (50, 90)]
+    return float(np.mean(mis)), cover
+
+
+def shape_text(shape) -> str:
+    return "off" if shape is None else f"{shape[0]:g} N + {shape[1]:g}|ΔF|"
+
+
+def cover_text(cover: dict) -> str:
+    return (f"50 % / 90 % intervals hold φ {cover['phi']['coverage_50']:.0%} / {cover['phi']['coverage_90']:.0%}, c "
+            f"{cover['c']['coverage_50']:.0%} / {cover['c']['coverage_90']:.0%} of the episodes' true soils")
 
 
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
-              log=print) -> tuple[FusionConfig, list[dict]]:
-    """Stage 1 (``rel_std`` by median forecast error) and stage 2 (the forecast law, share and
-    floor, per axis by the calibration curve); returns the config and every stage-2 candidate's curve."""
-    scored = []
-    for rel in rel_grid:
-        sc = forecast_scores(forecast_table(ds, dataclasses.replace(base, rel_std=(rel, rel))))
-        scored.append((rel, sc))
-        (ex, ez), (sx, sz) = sc["error"], sc["sem"]
-        log(f"rel_std {rel:g}: median forecasts at another depth off by {ex:.2f} ± {sx:.2f} % of |F_x| (x) / "
-            f"{ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
-    cfg = dataclasses.replace(base, rel_std=choose_evidence_law(scored))
+              shape_grid=SHAPE_GRID, drift_grid=(), truth: bool = False, log=print) -> tuple[FusionConfig, list[dict]]:
+    """Stage 1: the evidence law. Each shape law of ``shape_grid`` with each ``rel_std`` of
+    ``rel_grid`` is fused and scored by its median forecasts at another depth. Without the truth:
+    ``rel_std`` per axis by accuracy (``choose_evidence_law``), then the simplest shape law as
+    skilful as any (``acceptable_shape_laws``). With it (``truth``: the episodes' θ is the soil,
+    i.e. the FEE is the world): of the laws as skilful as any, the one whose intervals of φ and c
+    hold the true soils closest to their nominal 50 % and 90 % (``parameter_miscalibration``), and
+    then the soil's drift along the path of ``drift_grid`` the same way. Why: forecasts at another
+    depth tell the laws near the sharp end apart by less than their noise, while how wide the
+    posterior is (its evidence law, and the drift that re-widens it before every stretch) is what
+    the parameters' intervals measure. Stage 2: the forecast law, share and floor, per axis by the
+    calibration curve. Returns the config and every stage-2 candidate's curve."""
     from .evaluate import fused_posteriors
 
-    posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
+    shapes, candidates = [], []
+    for shape in shape_grid:
+        scored = []
+        for rel in rel_grid:
+            trial = dataclasses.replace(with_shape(base, shape), rel_std=(rel, rel))
+            posts = fused_posteriors(ds, trial)
+            sc = forecast_scores(forecast_table(ds, trial, posts=posts))
+            scored.append((rel, sc))
+            (ex, ez), (sx, sz) = sc["error"], sc["sem"]
+            line = (f"shape {shape_text(shape)}, rel_std {rel:g}: median forecasts at another depth off by {ex:.2f} ± "
+                    f"{sx:.2f} % of |F_x| (x) / {ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
+            if truth:
+                mis, cover = parameter_miscalibration(ds, posts)
+                candidates.append((*forecast_skill(sc), mis, trial, posts))
+                line += f"; {cover_text(cover)}"
+            log(line)
+        rels = choose_evidence_law(scored)
+        chosen = {k: np.array([dict(scored)[rels[j]][k][j] for j in range(2)]) for k in ("error", "sem", "naive")}
+        skill, sem = forecast_skill(chosen)
+        log(f"  rel_std {rels[0]:g} / {rels[1]:g}: skill {skill:.3f} ± {sem:.3f} of the naive forecast's error")
+        shapes.append((shape, skill, sem, rels))
+    if truth:
+        best_skill, best_sem = min(c[:2] for c in candidates)
+        acceptable = [c for c in candidates if c[0] <= best_skill + best_sem]
+        tolerance = coverage_tolerance(sum(p.updates > 0 for p in acceptable[0][4]), (0.5, 0.9))
+        least = min(c[2] for c in acceptable)
+        _, _, _, cfg, posts = min((c for c in acceptable if c[2] <= least + tolerance), key=lambda c: c[0])
+        drifts = []
+        for drift in drift_grid:
+            trial = dataclasses.replace(cfg, drift_per_sqrt_m=drift)
+            trial_posts = posts if drift == cfg.drift_per_sqrt_m else fused_posteriors(ds, trial)
+            mis, cover = parameter_miscalibration(ds, trial_posts)
+            drifts.append((mis, trial, trial_posts))
+            log(f"drift {drift:g} per √m: {cover_text(cover)}")
+        if drifts:
+            _, cfg, posts = min(drifts, key=lambda d: d[0])
+    else:
+        shape, rels = acceptable_shape_laws(shapes)[0][0], acceptable_shape_laws(shapes)[0][3]
+        cfg = dataclasses.replace(with_shape(base, shape), rel_std=rels)
+        posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
     rows = []
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     for floor in floor_grid:
@@ -238,7 +329,7 @@ def main(argv=None) -> int:
                         "estimator's posterior uses it with any checkpoint (besides the checkpoint's own terms)")
     p.add_argument("--set", dest="fields", action="append", default=[], metavar="FIELD=VALUE",
                    help="a posterior config field the calibration does not choose, set before it (repeatable; VALUE "
-                        "as JSON, e.g. weight_memory_m=2); saved in the config")
+                        "as JSON, e.g. drift_per_sqrt_m=0.005); saved in the config")
     args = p.parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
@@ -250,7 +341,7 @@ def main(argv=None) -> int:
         p.error(f"--term: {err}")
     try:
         fields = dict(FusionConfig.parse_field(text) for text in args.fields)
-        chosen = sorted(set(fields) & set(CALIBRATED_FIELDS))
+        chosen = sorted(set(fields) & {*CALIBRATED_FIELDS, *((DRIFT_FIELD,) if args.world == "fee" else ())})
         if chosen:
             raise ValueError(f"{chosen[0]} is chosen by the calibration")
         if "terms" in fields:
@@ -261,7 +352,9 @@ def main(argv=None) -> int:
     out = args.out or config_path(args.world)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M)
-    cfg, rows = calibrate(ds, base)
+    # the drift is chosen where the episodes' θ is the truth, i.e. the FEE is the world
+    truth = args.world == "fee"
+    cfg, rows = calibrate(ds, base, drift_grid=DRIFT_GRID if truth else (), truth=truth)
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
@@ -269,7 +362,9 @@ def main(argv=None) -> int:
                f"fused forecast at another depth, {args.world} world: calibration episodes")
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     cx, cz = final["curve"]["x"], final["curve"]["z"]
-    print(f"wrote {out} (rel_std x {cfg.rel_std[0]:g} / z {cfg.rel_std[1]:g}, forecast law x {cfg.forecast_abs_std_n[0]:g} N + "
+    shape = (f"shape evidence {cfg.shape_abs_std_n[0]:g} N + {cfg.shape_rel_std[0]:g}|ΔF|" if cfg.shape_evidence
+             else "no shape evidence")
+    print(f"wrote {out} ({shape}, rel_std x {cfg.rel_std[0]:g} / z {cfg.rel_std[1]:g}, forecast law x {cfg.forecast_abs_std_n[0]:g} N + "
           f"{cfg.forecast_rel_std[0]:g}|ΔF|, z {cfg.forecast_abs_std_n[1]:g} N + {cfg.forecast_rel_std[1]:g}|ΔF|: 90 % / 50 % "
           f"intervals hold F_x {cx[i90]:.0%} / {cx[i50]:.0%}, F_z {cz[i90]:.0%} / {cz[i50]:.0%}) and {out.with_suffix('.png')}")
     return 0
