@@ -589,6 +589,28 @@ def test_the_fused_plan_is_anchored_to_the_force_the_pinn_sees_now():
     assert not max_cut_depth(dict(fused, valid=0.0), known).residual_used
 
 
+def test_posterior_samples_the_force_now_rules_out_do_not_forbid_every_depth():
+    """A wide posterior (the default world's clay, cohesive and cohesionless soils both still in
+    it; values from soil_cut_report's main path) sampled as a Gaussian reaches φ + δ near the FEE's
+    singularity, where a sample's force at the depth being cut is many times the force measured
+    there. Scaled down by the anchor's ratio limit and carrying its z residual in proportion to
+    depth, such samples forbade every depth (plan 0 m, the schedule retreating to 5 cm and back:
+    a saw-tooth along the whole clay). Left out, the plan is the x limit's depth near the cut."""
+    estimate = {'phi_fused': 0.659985, 'c_fused': 2116.054661, 'delta_fused': 0.605236, 'beta_fused': 0.218328,
+                'phi_std': 0.096851, 'c_std': 2123.63348, 'delta_std': 0.118275, 'beta_std': 0.074076,
+                'corr_phi_c': -0.678454, 'corr_phi_delta': 0.327828, 'corr_c_delta': -0.83562,
+                'model_std_abs_x': 1000.0, 'model_std_abs_z': 1000.0, 'model_std_rel_x': 0.01,
+                'model_std_rel_z': 0.8, 'fused_valid': 1.0, 'fused_stretches': 37.0, 'valid': 1.0,
+                'f_x_hat': 16442.154297, 'f_z_hat': -10159.532227}
+    known = {'c_a': 200.0, 'gamma': 19200.0, 'rho': 1.396263, 'alpha': 0.0, 'w': 3.164, 'd': 0.105778,
+             'q': 5780.893017, 'v_x': 0.471351, 'v_z': -0.024062}
+    anchor = ((13253.72, -4077.85), {'c_a': 200.0, 'gamma': 19200.0, 'rho': 1.396263, 'alpha': 0.0, 'w': 3.164, 'd': 0.101633,
+              'q': 5830.153148, 'v_x': 0.474676, 'v_z': -0.001317})
+    plan = max_cut_depth(estimate, known, anchor=anchor)
+    assert 0.08 < plan.max_depth_m < 0.15 and plan.limited_by_x and not plan.limited_by_z
+    assert plan.f_x_n == pytest.approx(0.8 * FORCE_LIMITS_N[0], rel=1e-3)
+
+
 @pytest.mark.timeout(60)
 def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the_start_depth(tmp_path):
     """/planner/target_depth: the start depth before a plan, deeper by the rate limit after one,

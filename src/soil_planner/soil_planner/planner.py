@@ -460,7 +460,8 @@ class _FusedForceModel:
     steady cut, predicted at ``anchor_known``, default ``known``): each sample's FEE misses
     F̂ − F_FEE,s(d_now; Θ_k's velocity) at the anchor's depth. In x (positive while cutting)
     the sample's force is scaled to the force now, F_x,s(d) = F_FEE,x,s(d) · F̂_x / F_FEE,x,s(d_now)
-    (ratio within SCALE_LIMITS, used where both exceed SCALE_FLOOR_N): the FEE's surcharge
+    (used where both exceed SCALE_FLOOR_N; a sample whose ratio lies beyond SCALE_LIMITS is no soil
+    the force now allows and is left out, unless all are): the FEE's surcharge
     part, Q·N_q, does not vanish with depth, and a posterior whose Q·N_q is too large (the
     default world) would forbid every depth if only a depth-proportional residual corrected
     it. In z (either sign, often near 0) the residual r_s is carried in proportion to the
@@ -501,6 +502,7 @@ class _FusedForceModel:
         self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
         self.residual, self.residual_used = np.zeros(2), False
         self.scale_x = np.ones(FUSED_SAMPLES)
+        self.weight = np.ones(FUSED_SAMPLES)  # of each sample in the mixtures
         at = known if anchor_known is None else anchor_known  # Θ_k where the anchor force was predicted
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
         if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
@@ -519,6 +521,11 @@ class _FusedForceModel:
             usable = np.isfinite(scale) & (fx_now > SCALE_FLOOR_N) & (anchor[0] > SCALE_FLOOR_N)
             self.scale_x = np.where(usable, np.clip(scale, *SCALE_LIMITS), 1.0)
             self.residual_per_m[0] = np.where(usable, 0.0, self.residual_per_m[0])
+            # a sample whose FEE at the depth being cut is beyond SCALE_LIMITS of the force measured
+            # there is no soil that force allows: left out (all of them: kept, as a clipped ratio)
+            consistent = ~usable | ((scale >= SCALE_LIMITS[0]) & (scale <= SCALE_LIMITS[1]))
+            if consistent.any():
+                self.weight = consistent.astype(float)
         # what the error law's relative part counts from, per axis (S,): the force now when anchored,
         # else each sample's own force at the current depth (where the posterior's evidence is,
         # as ``SoilPosterior.forecast`` counts from its newest stretch)
@@ -538,10 +545,10 @@ class _FusedForceModel:
             raw_x, raw_z = np.broadcast_to(raw_x, shape), np.broadcast_to(raw_z, shape)
             fx = raw_x * self.scale_x + self.residual_per_m[0] * d
             fz = raw_z + self.residual_per_m[1] * d
-        ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0)  # a sample with a wedge at every depth
+        ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0) & (self.weight > 0)  # a sample with a wedge at every depth
         if not ok.any():
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
-        w = ok.astype(float)
+        w = ok * self.weight
         out = []
         for f, raw, (a, r), now in ((fx, raw_x, self.law[0], self.reference[0]), (fz, raw_z, self.law[1], self.reference[1])):
             f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
