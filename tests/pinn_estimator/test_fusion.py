@@ -105,7 +105,7 @@ def test_a_tick_is_quasi_static_unless_the_blade_rises_or_its_vertical_velocity_
 
 
 def test_the_tick_noise_of_a_stretch_is_its_noise_not_its_ramp():
-    from pinn_estimator.fusion import StretchAccumulator
+    from pinn_estimator.fusion import SAMPLE_TIMING_TICKS, StretchAccumulator
 
     rng = np.random.default_rng(3)
     known = np.array([200.0, 17e3, 80 * DEG, 0.0, 3.164, 0.1, 0.0, 0.5, 0.0])
@@ -117,7 +117,9 @@ def test_the_tick_noise_of_a_stretch_is_its_noise_not_its_ramp():
             b = ramp.add(np.array([5000.0 + 70.0 * t, -500.0 - 6.0 * t]), known)
         estimates.append(a.point_noise[0] * np.sqrt(3))  # per sub-mean of 3 ticks: σ/√3
     np.testing.assert_allclose(np.mean(estimates, axis=0), [300.0, 500.0], rtol=0.1)
-    np.testing.assert_allclose(b.point_noise, 0.0, atol=1e-6)  # a steady change is no noise
+    # a steady change is no noise; a sub-mean is uncertain only by how far the force moves in the
+    # SAMPLE_TIMING_TICKS its conditions may be off
+    np.testing.assert_allclose(b.point_noise, np.tile(SAMPLE_TIMING_TICKS * np.array([70.0, 6.0]), (10, 1)), rtol=1e-9)
     np.testing.assert_allclose(b.point_force[:, 0], 5000.0 + 70.0 * (3 * np.arange(10) + 1))
     assert not b.point_unsteady.any()
 

@@ -764,6 +764,16 @@ def quasi_static(velocity_m_s: np.ndarray, previous_m_s: np.ndarray | None) -> b
     return rise <= QUASI_STATIC_MAX_RISE_M_S and change <= QUASI_STATIC_MAX_DV_Z_M_S
 
 
+# How well a sample's force and its conditions are known to belong to the same instant [ticks]:
+# a sub-mean's force is uncertain by its rate of change times this. Why: on a ramp in depth the
+# force changes by ~100 N a tick, and a few hundredths of a tick between when the simulator
+# integrates the force and when it samples the depth (its substeps) left a bias of 5 N, which
+# the fee world's sharp shape law (2 N + 0.2 %) took for soil, stretch after stretch under a
+# depth dither (φ 1-1.5° off with a 0.4° std); a real machine's force and position sensors are
+# no closer in time.
+SAMPLE_TIMING_TICKS = 0.1
+
+
 class Stretch(NamedTuple):
     """One stretch of evidence: ``update_ticks`` consecutive samples in ``model_points`` sub-means."""
 
@@ -771,7 +781,8 @@ class Stretch(NamedTuple):
     known: np.ndarray  # (G, 9) Θ_k sub-means
     spread: np.ndarray  # (2,) the force's standard deviation over the stretch [N]
     point_force: np.ndarray  # (G, 2) the force's sub-means [N]
-    point_noise: np.ndarray  # (G, 2) noise of each sub-mean [N]: the tick noise (``tick_noise_n``) / √(ticks per sub-mean)
+    point_noise: np.ndarray  # (G, 2) noise of each sub-mean [N]: the tick noise (``tick_noise_n``) / √(ticks per sub-mean),
+    # and its rate of change times SAMPLE_TIMING_TICKS
     point_unsteady: np.ndarray  # (G,) bool: the blade was not quasi-static within the sub-mean (no shape evidence)
 
 
@@ -825,8 +836,10 @@ class StretchAccumulator:
         mean = point.mean(axis=0)
         spread = np.sqrt(np.maximum(self.force_sq / self.update_ticks - mean ** 2, 0.0))
         noise = tick_noise_n(self.curvature_sq, self.update_ticks - 2) / math.sqrt(self.per_point)
-        out = Stretch(mean, self.known / self.per_point, spread, point, np.tile(noise, (self.model_points, 1)),
-                      self.unsteady.copy())
+        # the force's rate of change per tick at each sub-mean, from its neighbours (one-sided at the ends)
+        rate = np.gradient(point, axis=0) / self.per_point if self.model_points > 1 else np.zeros_like(point)
+        point_noise = np.hypot(noise, SAMPLE_TIMING_TICKS * np.abs(rate))
+        out = Stretch(mean, self.known / self.per_point, spread, point, point_noise, self.unsteady.copy())
         self.clear()
         return out
 
