@@ -6,7 +6,10 @@ stretch's measured force (how hard each stretch teaches), and the forecast law
 posterior's spread, ΔF the part of the force it extrapolates from the newest evidence
 (``SoilPosterior.forecast``). Calibration episodes: depths 0.05 / 0.125 / 0.175 / 0.25 / 0.3 m
 (near and far forecasts, as a planner asks them), densities 20-80 %, other seeds, disjoint
-from the evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1: ``rel_std`` on a log
+from the evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1, for each law of the
+stretches' shape evidence (``SHAPE_GRID``; the simplest as skilful as any, or where the
+episodes' θ is the truth the one and the drift whose parameter intervals are best calibrated,
+``calibrate``): ``rel_std`` on a log
 grid, per axis by how close its median forecasts of that axis at another depth are to the
 measured force (mean |error|: of F_x as a share of |F_x|; of F_z, which passes through 0, as a
 share of its limit): the smallest value (the evidence that teaches most) within one standard
@@ -270,8 +273,8 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
         if drifts:
             _, cfg, posts = min(drifts, key=lambda d: d[0])
     else:
-        shape, rels = acceptable_shape_laws(shapes)[0][0], acceptable_shape_laws(shapes)[0][3]
-        cfg = dataclasses.replace(with_shape(base, shape), rel_std=rels)
+        simplest = acceptable_shape_laws(shapes)[0]
+        cfg = dataclasses.replace(with_shape(base, simplest[0]), rel_std=simplest[3])
         posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
     rows = []
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
@@ -329,7 +332,7 @@ def main(argv=None) -> int:
                         "estimator's posterior uses it with any checkpoint (besides the checkpoint's own terms)")
     p.add_argument("--set", dest="fields", action="append", default=[], metavar="FIELD=VALUE",
                    help="a posterior config field the calibration does not choose, set before it (repeatable; VALUE "
-                        "as JSON, e.g. drift_per_sqrt_m=0.005); saved in the config")
+                        "as JSON, e.g. cohesionless_prior=0); saved in the config")
     args = p.parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
