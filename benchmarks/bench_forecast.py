@@ -56,7 +56,7 @@ from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # n
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
-from soil_physics.blade_inertia import blade_velocity, soil_force_rows  # noqa: E402
+from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
 from soil_physics.soils import CATALOGUE  # noqa: E402
 from soil_physics.travel import distance_in_soil_of_known  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
@@ -139,7 +139,7 @@ def fuse(ep, cfg: FusionConfig, posterior: SoilPosterior | None = None, on_updat
             on_update(row, post)
 
     post = fuse_episode(posterior or SoilPosterior(cfg), ep.forces, ep.known, distance_in_soil_of_known(ep.known),
-                        blade_velocity(ep.observations), on_update=record)
+                        ep.observations, on_update=record)
     rows = np.array(rows, int)
     return Track(rows, ep.stamps_ns[rows] * 1e-9 if len(rows) else np.zeros(0),
                  {n: np.array(v) for n, v in mean.items()}, {n: np.array(v) for n, v in std.items()},
@@ -535,7 +535,7 @@ def section_cost(args, models, cache) -> dict:
         upd, upd_cpu, summ, summ_cpu, fcs, fcs_cpu = [], [], [], [], [], []
         for ep in eps:
             post = TimedPosterior(cfg)
-            fuse_episode(post, ep.forces, ep.known, distance_in_soil_of_known(ep.known), blade_velocity(ep.observations),
+            fuse_episode(post, ep.forces, ep.known, distance_in_soil_of_known(ep.known), ep.observations,
                          on_update=lambda row, p: timed(p.summary, summ, summ_cpu))
             upd += post.update_s
             upd_cpu += post.update_cpu_s

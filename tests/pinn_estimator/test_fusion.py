@@ -41,7 +41,7 @@ def truth(ep) -> dict[str, float]:
 
 def fuse(posterior, ep, until_s: float | None = None):
     n = len(ep.forces) if until_s is None else int(until_s * 60)
-    return fuse_episode(posterior, ep.forces[:n], ep.known[:n], None, blade_velocity(ep.observations[:n]))
+    return fuse_episode(posterior, ep.forces[:n], ep.known[:n], None, ep.observations[:n])
 
 
 def inside(summary, true, name, z=Z90) -> bool:
@@ -99,6 +99,11 @@ def test_a_tick_is_quasi_static_unless_the_blade_rises_or_its_vertical_velocity_
     v = lambda vz: np.array([0.6, vz])  # noqa: E731
     assert quasi_static(v(0.0), v(0.0)) and quasi_static(v(-0.076), v(-0.077))  # holding depth; a ramp down
     assert quasi_static(v(0.0), None)
+    # the tick's mean velocity from the positions: rising within the tick, or moving within it so far
+    # from its sampled ends that it may reach a rise; a ramp down whose ends miss a bit is still one
+    assert not quasi_static(v(0.0), v(0.0), mean_m_s=v(0.02))
+    assert not quasi_static(v(-0.002), v(-0.002), mean_m_s=v(0.002))
+    assert quasi_static(v(-0.076), v(-0.076), mean_m_s=v(-0.087))
     assert not quasi_static(v(QUASI_STATIC_MAX_RISE_M_S + 0.002), v(0.0))  # rising, now or at the tick's start
     assert not quasi_static(v(0.0), v(QUASI_STATIC_MAX_RISE_M_S + 0.002))
     assert not quasi_static(v(-0.1), v(-0.1 + QUASI_STATIC_MAX_DV_Z_M_S + 0.01))  # the edge plunging in
@@ -127,20 +132,34 @@ def test_the_tick_noise_of_a_stretch_is_its_noise_not_its_ramp():
 def test_the_model_sees_the_conditions_of_the_tick_the_force_is_the_mean_of():
     """The force is a tick's mean; Θ_k's depth is sampled at its end and its velocity is a
     10-sample mean that lags a reversal: the posterior evaluates each sample at the mean of the
-    tick's two ends, with the sampled blade velocity."""
+    tick's two ends, with the blade's mean velocity over the tick from its edge positions (which
+    also tell a tick whose samples miss the lift joint's motion within it)."""
     from pinn_estimator.fusion import PathFusion
+    from soil_msgs_py.params import OBSERVATION_FIELDS, SAMPLE_RATE_HZ
+
+    def observation(x, z, v_x, v_z):
+        o = np.zeros(len(OBSERVATION_FIELDS))
+        for name, value in (("p_x_b", x), ("p_z_b", z), ("v_x_c", v_x), ("v_z_b", v_z)):
+            o[OBSERVATION_FIELDS.index(name)] = value
+        return o
 
     fusion = PathFusion(SoilPosterior(FusionConfig(update_ticks=30, model_points=30)))
     k = np.array([200.0, 17e3, 80 * DEG, 0.0, 3.164, 0.10, 0.0, 0.5, -0.3])  # Θ_k's lagging mean says sinking
     d, vx, vz = (KNOWN_PARAMS.index(n) for n in ("d", "v_x", "v_z"))
-    fusion.add(np.zeros(2), k, blade_velocity_m_s=np.array([0.6, -0.06]))
-    later = k.copy()
-    later[d] = 0.11
-    fusion.add(np.zeros(2), later, blade_velocity_m_s=np.array([0.6, 0.02]))
+    dt = 1.0 / SAMPLE_RATE_HZ
+    fusion.add(np.zeros(2), k, observation=observation(2.0, -0.10, 0.6, -0.06))
+    ramp = dict(k=k.copy())
+    ramp["k"][d] = 0.101
+    fusion.add(np.zeros(2), ramp["k"], observation=observation(2.0 + 0.6 * dt, -0.101, 0.6, -0.06))
+    kicked = k.copy()
+    kicked[d] = 0.1007  # the edge rose 0.3 mm while both samples say it sinks
+    fusion.add(np.zeros(2), kicked, observation=observation(2.0 + 1.2 * dt, -0.1007, 0.6, -0.06))
     seen = fusion.stretch.known
     assert seen[0][d] == 0.10 and seen[0][vz] == -0.06  # the first: nothing before it
-    assert seen[1][d] == pytest.approx(0.105) and seen[1][vz] == pytest.approx(-0.02) and seen[1][vx] == pytest.approx(0.6)
-    assert fusion.stretch.unsteady[1]  # it rose at its end: not quasi-static
+    assert seen[1][d] == pytest.approx(0.1005) and seen[1][vz] == pytest.approx(-0.06)  # from the positions
+    assert seen[1][vx] == pytest.approx(0.6)
+    assert seen[2][vz] == pytest.approx(0.0003 * SAMPLE_RATE_HZ)
+    assert list(fusion.stretch.unsteady[:3]) == [False, False, True]  # the kicked tick is not quasi-static
 
 
 def test_a_transient_in_one_sub_mean_does_not_move_the_soil():
@@ -154,8 +173,8 @@ def test_a_transient_in_one_sub_mean_does_not_move_the_soil():
     stretches = []
     fusion = PathFusion(SoilPosterior(SHAPE))
     fusion.posterior.update = lambda *a, **kw: stretches.append((a, kw)) or False
-    for f, kn, v in zip(ep.forces, ep.known, blade_velocity(ep.observations)):
-        fusion.add(f, kn, 0.0, v)
+    for f, kn, o in zip(ep.forces, ep.known, ep.observations):
+        fusion.add(f, kn, 0.0, o)
     (force, known, spread), kw = stretches[6]  # the next stretch, steady
     hit = dict(kw, point_force_n=kw["point_force_n"].copy())
     transient = np.array([[-300.0, 200.0], [-150.0, 100.0], [-60.0, 40.0]])  # friction partly reversed, decaying
@@ -381,7 +400,7 @@ def test_a_long_cut_at_one_depth_stays_on_the_soil():
         true = truth(ep)
         s = fuse(SoilPosterior(SHAPE), ep).summary()
         assert inside(s, true, "phi") and inside(s, true, "c"), (soil, s.mean, s.std, true)
-        assert abs(s.mean["phi"] - true["phi"]) < 2 * DEG and s.std["phi"] < 3 * DEG
+        assert abs(s.mean["phi"] - true["phi"]) < 2 * DEG and s.std["phi"] < 4 * DEG
 
 
 def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys):

@@ -17,7 +17,6 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
-from soil_physics.blade_inertia import blade_velocity
 from soil_physics.travel import distance_in_soil_of_known
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model, save_checkpoint
 from pinn_estimator.fusion import fused_track
@@ -391,7 +390,7 @@ def test_a_dropped_tick_fuses_the_same_online_and_offline(episode, model):
     est, out = run(model, in_order(episode, keep))
     gap_before = np.array([i == 76 for i in keep])
     track = fused_track(est.posterior.cfg, episode.forces[keep], episode.known[keep],
-                        distance_in_soil_of_known(episode.known[keep]), blade_velocity(episode.observations[keep]),
+                        distance_in_soil_of_known(episode.known[keep]), episode.observations[keep],
                         gap_before)
     online = np.stack([e.values[FUSED] for e in out])
     assert [e.stamp_ns for e in out] == [int(episode.stamps_ns[i]) for i in keep]

@@ -26,7 +26,6 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from soil_physics import fee
-from soil_physics.blade_inertia import blade_velocity
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -135,7 +134,7 @@ def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:
     for e in range(len(ds)):
         rows = ds.episode_rows(e)
         out.append(fuse_episode(SoilPosterior(cfg), ds.forces[rows], ds.known[rows], distance[rows],
-                                blade_velocity(ds.observations[rows]), ds.gap_before[rows]))
+                                ds.observations[rows], ds.gap_before[rows]))
     return out
 
 

@@ -58,10 +58,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
-from soil_physics.blade_inertia import inertia_force_n
+from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
 from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std
 from soil_physics.travel import soil_advance
 
@@ -743,24 +743,36 @@ def _level_cut() -> np.ndarray:
 
 
 # A tick is quasi-static (``quasi_static``) while the blade rises no faster than this [m/s] (a
-# steady cut's vertical velocity jitters by ±3 mm/s) and its vertical velocity changes by no more
-# than that between two samples [m/s] (1.8 m/s² at 60 Hz; a steady ramp in depth changes it by ~1 mm/s).
+# steady cut's vertical velocity jitters by ±3 mm/s) and its sampled vertical velocity changes by
+# no more than QUASI_STATIC_MAX_DV_Z_M_S between two samples (1.8 m/s² at 60 Hz; a steady ramp in
+# depth changes it by ~1 mm/s). Within the tick the blade may reach WITHIN_TICK_REACH times as far
+# beyond its mean velocity (from the positions) as that mean lies from the mean of its two
+# sampled ends (the lift joint's motion between two samples, which they miss).
 QUASI_STATIC_MAX_RISE_M_S = 0.005
 QUASI_STATIC_MAX_DV_Z_M_S = 0.03
+WITHIN_TICK_REACH = 2.0
 
 
-def quasi_static(velocity_m_s: np.ndarray, previous_m_s: np.ndarray | None) -> bool:
+def quasi_static(velocity_m_s: np.ndarray, previous_m_s: np.ndarray | None, mean_m_s: np.ndarray | None = None) -> bool:
     """Whether the tick between two samples of the blade's velocity (x, z) [m/s] was one the FEE
-    describes. The FEE is a quasi-static equilibrium (paper §1.1.2: neither the soil nor the blade
+    describes; ``mean_m_s``: the tick's mean velocity from the blade's positions (None: unknown).
+    The FEE is a quasi-static equilibrium (paper §1.1.2: neither the soil nor the blade
     accelerates), and through Eq. 9-10 the force depends on the blade's vertical velocity: its
     soil-tool friction reverses where v_z passes v_x·cot ρ, a few cm/s above a level cut. A blade
     that rises or whose vertical velocity changes quickly (the edge plunging in, the chassis
     dropping into its own cut, the anti-stall lift; ``QUASI_STATIC_MAX_*``) moves within the tick
     in ways two samples do not show, and may cross that reversal between them: fee world, the true
     soil's FEE 20-50 % off the force for a few ticks, and still 3 % off F_z while the samples said
-    the blade rose at 1.3 cm/s. A steady ramp down in depth is quasi-static."""
+    the blade rose at 1.3 cm/s. The positions tell where the samples miss it: after the chassis
+    settled into its cut the lift joint kicked the blade up within each tick, 2 cm/s by the edge's
+    positions where its sampled velocity said 0-4 mm/s, and the posterior took the friction it
+    lost for a soil 9° off. A steady ramp down in depth is quasi-static (its ticks' mean velocity
+    is ~1 cm/s from their sampled ends, still far below the reversal)."""
     rise = velocity_m_s[1] if previous_m_s is None else max(velocity_m_s[1], previous_m_s[1])
     change = 0.0 if previous_m_s is None else abs(velocity_m_s[1] - previous_m_s[1])
+    if mean_m_s is not None:
+        ends = velocity_m_s[1] if previous_m_s is None else 0.5 * (velocity_m_s[1] + previous_m_s[1])
+        rise = max(rise, mean_m_s[1] + WITHIN_TICK_REACH * abs(mean_m_s[1] - ends))
     return rise <= QUASI_STATIC_MAX_RISE_M_S and change <= QUASI_STATIC_MAX_DV_Z_M_S
 
 
@@ -856,45 +868,55 @@ class PathFusion:
     sample after a reset or a gap has no predecessor: its acceleration is taken as zero.
 
     The model is evaluated at the conditions of the tick whose mean force a sample carries:
-    Θ_k with the blade's sampled velocity (not Θ_k's 10-sample mean of paper §3.1, which lags
-    a reversal of the blade by ~5 ticks and with it the Eq. 9-10 friction), averaged with the
-    previous sample's (the force is the tick's mean, depth and velocity are sampled at its end:
-    on a depth ramp Θ_k's d runs half a tick ahead of the force, 0.6 % of F_x at 7 cm/s)."""
+    Θ_k averaged with the previous sample's (the force is the tick's mean, depth is sampled at
+    its end: on a depth ramp Θ_k's d runs half a tick ahead of the force, 0.6 % of F_x at
+    7 cm/s), with the blade's mean velocity over the tick from its edge positions (not Θ_k's
+    10-sample mean of paper §3.1, which lags a reversal of the blade by ~5 ticks and with it the
+    Eq. 9-10 friction; nor the sampled velocity, which misses the lift joint's motion within a tick)."""
 
     def __init__(self, posterior: SoilPosterior):
         self.posterior = posterior
         self.stretch = StretchAccumulator(posterior.cfg.update_ticks, posterior.cfg.model_points)
         self._velocity: np.ndarray | None = None  # blade velocity (x, z) of the previous sample
-        self._known: np.ndarray | None = None  # the previous sample's Θ_k with its sampled blade velocity
+        self._position: np.ndarray | None = None  # blade edge position (x, z) of the previous sample
+        self._known: np.ndarray | None = None  # the previous sample's Θ_k with its blade velocity
 
     def reset(self) -> None:
         """A new path: the prior, no stretch in progress, no travel counted."""
         self.posterior.reset()
         self.stretch = StretchAccumulator(self.posterior.cfg.update_ticks, self.posterior.cfg.model_points)
-        self._velocity = self._known = None
+        self._velocity = self._position = self._known = None
 
     def gap(self) -> None:
         """A missing or broken sample: the stretch in progress is dropped, the posterior kept."""
         self.stretch.clear()
-        self._velocity = self._known = None
+        self._velocity = self._position = self._known = None
 
     def add(self, force_n: np.ndarray, known: np.ndarray, distance_m: float = 0.0,
-            blade_velocity_m_s: np.ndarray | None = None) -> bool:
-        """One sample (measured force, Θ_k, travel in soil, blade velocity (x, z) [m/s] or None:
-        no inertia removed); True when it completed a stretch the posterior learnt from."""
+            observation: np.ndarray | None = None) -> bool:
+        """One sample (measured force, Θ_k, travel in soil, its observation row, paper §2.1.2's
+        o_t in ``params.OBSERVATION_FIELDS`` order, or None: no inertia removed, Θ_k as it is);
+        True when it completed a stretch the posterior learnt from."""
         force_n = np.asarray(force_n, float)
-        velocity = None if blade_velocity_m_s is None else np.asarray(blade_velocity_m_s, float)
+        velocity = position = mean = None
+        if observation is not None:
+            velocity, position = blade_velocity(observation), blade_position(observation)
+            if self._position is not None:  # the tick's mean velocity, whatever happened within it
+                mean = (position - self._position) * SAMPLE_RATE_HZ
         if velocity is not None and self._velocity is not None:
             force_n = force_n - inertia_force_n(velocity, self._velocity)
         known = np.array(known, float)
         if velocity is not None:  # the conditions over the tick the force is the mean of
-            known[[_VX, _VZ]] = velocity
-            here = known
+            here = known.copy()
+            here[[_VX, _VZ]] = velocity
             if self._known is not None:
-                known = 0.5 * (known + self._known)
+                known = 0.5 * (here + self._known)
+                known[[_VX, _VZ]] = mean
+            else:
+                known = here
             self._known = here
-        unsteady = velocity is not None and not quasi_static(velocity, self._velocity)
-        self._velocity = velocity
+        unsteady = velocity is not None and not quasi_static(velocity, self._velocity, mean)
+        self._velocity, self._position = velocity, position
         stretch = self.stretch.add(force_n, known, unsteady)
         if stretch is None:
             return False
@@ -906,7 +928,7 @@ class PathFusion:
 
 
 def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
-                blade_velocity_m_s: np.ndarray | None = None, gap_before: np.ndarray | None = None) -> np.ndarray:
+                observations: np.ndarray | None = None, gap_before: np.ndarray | None = None) -> np.ndarray:
     """(n, len(FUSED_FIELDS)): the fused fields in effect after each of one episode's n samples,
     as the online estimator publishes them (offline, for comparing the two)."""
     from soil_msgs_py.topics import FUSED_FIELDS
@@ -914,7 +936,7 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
     out = np.zeros((len(forces), len(FUSED_FIELDS)))
     current = fused_values(None, cfg)
     learnt: dict[int, np.ndarray] = {}
-    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, blade_velocity_m_s, gap_before,
+    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, observations, gap_before,
                  on_update=lambda row, post: learnt.__setitem__(row, fused_values(post.summary(), cfg)))
     for row in range(len(forces)):
         current = learnt.get(row, current)
@@ -923,11 +945,12 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
 
 
 def fuse_episode(posterior: SoilPosterior, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
-                 blade_velocity_m_s: np.ndarray | None = None, gap_before: np.ndarray | None = None,
+                 observations: np.ndarray | None = None, gap_before: np.ndarray | None = None,
                  on_update=None) -> SoilPosterior:
     """Run the posterior over one episode's samples in order (offline: the same as online).
-    ``blade_velocity_m_s`` (n, 2): ``soil_physics.blade_inertia.blade_velocity`` of the
-    episode's observations (None: the measured force is taken as the soil's). ``gap_before``
+    ``observations`` (n, len(OBSERVATION_FIELDS)): the episode's observation rows, whose blade
+    velocities and positions ``PathFusion.add`` reads (None: the measured force is taken as the
+    soil's, at Θ_k as it is). ``gap_before``
     (n,) bool: ticks missing before the row (a repaired bag, ``Dataset.gap_before``): as
     online, the stretch in progress is dropped and no acceleration spans the gap.
     ``on_update(row, posterior)`` after every stretch learnt from (row = its last sample)."""
@@ -936,7 +959,7 @@ def fuse_episode(posterior: SoilPosterior, forces: np.ndarray, known: np.ndarray
         if gap_before is not None and gap_before[row]:
             fusion.gap()
         learnt = fusion.add(forces[row], known[row], float(distance_m[row]) if distance_m is not None else 0.0,
-                            None if blade_velocity_m_s is None else blade_velocity_m_s[row])
+                            None if observations is None else observations[row])
         if learnt and on_update is not None:
             on_update(row, posterior)
     return posterior

@@ -13,7 +13,6 @@ import torch
 
 from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
-from soil_physics.blade_inertia import blade_velocity
 
 from .dataset import Dataset, load_dataset
 from .model import EstimatorNet
@@ -86,7 +85,7 @@ def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = No
     cfg = config_for_model(fusion, model)
     rows = ds.episode_rows(e)
     track = fused_track(cfg, ds.forces[rows], ds.known[rows], ds.distance_in_soil()[rows],
-                        blade_velocity(ds.observations[rows]), ds.gap_before[rows])
+                        ds.observations[rows], ds.gap_before[rows])
     values[:, FUSED] = track[ends - ds.offsets[e]]
     stamps = read_episode(bag).stamps_ns[ends - ds.offsets[e]]
     return stamps, values

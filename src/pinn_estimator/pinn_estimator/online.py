@@ -35,7 +35,6 @@ from soil_msgs_py.params import (
     FORCE_FIELDS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
-from soil_physics.blade_inertia import blade_velocity
 from soil_physics.travel import soil_advance
 from .fusion import FusionConfig, PathFusion, SoilPosterior, fused_values
 from .fusion_calibration import config_for_model
@@ -418,7 +417,7 @@ class OnlineEstimator:
 
     def _fuse(self, stamp: int, sample: Sample) -> None:
         """One sample into the stretch; a complete stretch into the posterior and the map."""
-        if not self.fusion.add(sample.force, sample.known, self.distance_m, blade_velocity(sample.obs)):
+        if not self.fusion.add(sample.force, sample.known, self.distance_m, sample.obs):
             return
         summary = self.posterior.summary()
         self._fused = fused_values(summary, self.posterior.cfg)

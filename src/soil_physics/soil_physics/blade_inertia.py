@@ -25,6 +25,16 @@ def blade_velocity(observations: np.ndarray) -> np.ndarray:
     return np.asarray(observations, float)[..., _COLUMNS]
 
 
+# The observation fields of the blade's cutting-edge position (x, z) [m].
+BLADE_POSITION_FIELDS: tuple[str, str] = ("p_x_b", "p_z_b")
+_POSITION_COLUMNS = [OBSERVATION_FIELDS.index(n) for n in BLADE_POSITION_FIELDS]
+
+
+def blade_position(observations: np.ndarray) -> np.ndarray:
+    """(..., 2) blade cutting-edge position (x, z) [m] of observation rows (..., len(OBSERVATION_FIELDS))."""
+    return np.asarray(observations, float)[..., _POSITION_COLUMNS]
+
+
 def inertia_force_n(v_now: np.ndarray, v_prev: np.ndarray, blade_mass_kg: float = MACHINE.blade_mass_kg) -> np.ndarray:
     """m_b × the tick-mean acceleration (x, z) [N] between two consecutive samples' blade velocities."""
     return blade_mass_kg * (np.asarray(v_now, float) - np.asarray(v_prev, float)) * SAMPLE_RATE_HZ
