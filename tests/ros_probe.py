@@ -120,3 +120,26 @@ class RosProbe:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def call_service(send, what: str = "a service call", timeout: float = 60.0, resend_after_s: float = 10.0):
+    """Call ``send()`` (which sends one request and returns its future) and return the answer.
+
+    A request sent just after a service was discovered can be dropped by DDS while the
+    server's reply writer is not yet matched to this client's reader, so an unanswered
+    request is sent again every ``resend_after_s``; only use it for idempotent requests
+    (getting or setting parameters). The first answer wins. ``timeout`` is a hang guard
+    only, never a speed check.
+    """
+    futures = [send()]
+    t_end = time.monotonic() + timeout
+    next_send = time.monotonic() + resend_after_s
+    while time.monotonic() < t_end:
+        for future in futures:
+            if future.done():
+                return future.result()
+        if time.monotonic() >= next_send:
+            futures.append(send())
+            next_send = time.monotonic() + resend_after_s
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what} ({len(futures)} requests sent)")

@@ -13,15 +13,11 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.params import TICK_PERIOD_NS
-from tests.ros_probe import NodeProc, RosProbe, next_domain_id, wait_until
+from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, wait_until
 
 TWIST, POSE, BLADE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name, T.BLADE_CMD.name
 FIRST = 100 * M.NS_PER_S
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
-
-
-def _call(future, timeout: float = 10.0):
-    return wait_until(lambda: future.done() and (future.result(),), timeout, "a parameter service call")[0]
 
 
 def _tick(k: int) -> int:
@@ -90,9 +86,9 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             # a changed target speed does not make the planner's depth the parameter's
             client = AsyncParameterClient(probe.node, "anti_stall_controller")
             assert client.wait_for_services(timeout_sec=20)
-            bad = _call(client.set_parameters([Parameter("depth_source", value="map")]))
+            bad = call_service(lambda: client.set_parameters([Parameter("depth_source", value="map")]))
             assert not bad.results[0].successful and "depth_source='map'" in bad.results[0].reason
-            ok = _call(client.set_parameters([Parameter("depth_source", value="parameter"),
+            ok = call_service(lambda: client.set_parameters([Parameter("depth_source", value="parameter"),
                                               Parameter("target_speed_m_s", value=0.5)]))
             assert all(r.successful for r in ok.results)
             plan(k + 1, 0.11)

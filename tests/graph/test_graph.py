@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
-from tests.ros_probe import BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
+from tests.ros_probe import call_service, BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -186,14 +186,6 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
     assert "/sim/command: not JSON" in out and "relative_density_pct=250" in out
 
 
-def _call(future, timeout=10.0):
-    t_end = time.monotonic() + timeout
-    while not future.done():
-        assert time.monotonic() < t_end, "parameter service call timed out"
-        time.sleep(0.02)
-    return future.result()
-
-
 def test_controller_parameters_files_overrides_and_runtime_changes(tmp_path, domain):
     params = tmp_path / "ctl.yaml"
     params.write_text("anti_stall_controller:\n  ros__parameters:\n    target_speed_m_s: 0.7\n    c_vx: 0.1\n")
@@ -205,15 +197,15 @@ def test_controller_parameters_files_overrides_and_runtime_changes(tmp_path, dom
         try:
             client = AsyncParameterClient(probe.node, "anti_stall_controller")
             assert client.wait_for_services(timeout_sec=20)
-            got = _call(client.get_parameters(["target_speed_m_s", "c_vx", "target_depth_m"]))
+            got = call_service(lambda: client.get_parameters(["target_speed_m_s", "c_vx", "target_depth_m"]))
             assert [v.double_value for v in got.values] == [0.7, 0.3, 0.2]  # file, then -p override
 
-            ok = _call(client.set_parameters([Parameter("target_speed_m_s", value=0.9),
+            ok = call_service(lambda: client.set_parameters([Parameter("target_speed_m_s", value=0.9),
                                               Parameter("target_depth_m", value=0.1)]))
             assert all(r.successful for r in ok.results)
-            bad = _call(client.set_parameters([Parameter("target_speed_m_s", value=-1.0)]))
+            bad = call_service(lambda: client.set_parameters([Parameter("target_speed_m_s", value=-1.0)]))
             assert not bad.results[0].successful and "target_speed_m_s" in bad.results[0].reason
-            bad = _call(client.set_parameters([Parameter("k_v_m_s", value=math.nan)]))
+            bad = call_service(lambda: client.set_parameters([Parameter("k_v_m_s", value=math.nan)]))
             assert not bad.results[0].successful and "k_v_m_s" in bad.results[0].reason
 
             twist = probe.publisher(T.CHASSIS_TWIST.name, T.CHASSIS_TWIST.msgtype)

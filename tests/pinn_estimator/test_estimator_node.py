@@ -21,7 +21,7 @@ from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator
 
-from tests.ros_probe import BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
+from tests.ros_probe import call_service, BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
 from .test_online import SAMPLE, SCALE
 
 VALID = T.ESTIMATE_FIELDS.index("valid")
@@ -203,10 +203,10 @@ def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
             assert client.wait_for_services(timeout_sec=30.0)
 
             def set_param(name, value):
-                future = client.set_parameters([Parameter(name, value=value)])
-                # a hang guard only: a node still loading torch beside a busy core answered in > 10 s
-                wait_until(future.done, 60, f"set {name}")
-                return future.result().results[0]
+                # the guard is for hangs only: a node still loading torch beside a busy core answered in > 10 s
+                answer = call_service(lambda: client.set_parameters([Parameter(name, value=value)]), f"set {name}",
+                                      timeout=90.0, resend_after_s=15.0)
+                return answer.results[0]
 
             refused = set_param("checkpoint", str(corrupt))
             assert not refused.successful and "not a readable torch checkpoint" in refused.reason

@@ -9,7 +9,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from tests.ros_probe import NodeProc, RosProbe, next_domain_id, wait_until
+from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, wait_until
 from soil_physics import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -381,10 +381,6 @@ def _payload(values: dict, names) -> list[float]:
     return [values[n] for n in names]
 
 
-def _call(future, timeout: float = 10.0):
-    return wait_until(lambda: future.done() and (future.result(),), timeout, "a parameter service call")[0]
-
-
 def _planner_run(planner: StretchPlanner, fused: dict, known: dict, forces_x) -> list[float]:
     """Feed one estimate per tick whose F̂ is the fused estimate's times each of ``forces_x``
     (a new stretch every tick, so each tick is planned); the plans' depths."""
@@ -535,11 +531,11 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
 
             client = AsyncParameterClient(probe.node, "soil_planner")
             assert client.wait_for_services(timeout_sec=20)
-            bad = _call(client.set_parameters([Parameter("margin", value=1.5)]))
+            bad = call_service(lambda: client.set_parameters([Parameter("margin", value=1.5)]))
             assert not bad.results[0].successful and "margin=1.5" in bad.results[0].reason
-            bad = _call(client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))
+            bad = call_service(lambda: client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))
             assert not bad.results[0].successful and "cut_speed_m_s=0.0" in bad.results[0].reason
-            ok = _call(client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66),
+            ok = call_service(lambda: client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66),
                                               Parameter("cut_speed_m_s", value=0.3)]))
             assert all(r.successful for r in ok.results)
             send_known(s[6])
