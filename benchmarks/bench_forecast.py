@@ -31,6 +31,9 @@ Sections (all on episodes simulated here, closed loop with the anti-stall contro
 5. Cost of the posterior: one ``SoilPosterior.update`` (one 30-sample stretch) and one
    ``summary()``, p50 / p99 over all stretches of section 2's specs in each world; the node
    runs both once every 30 samples (0.5 s at 60 Hz).
+6. Soils outside the catalogue (three custom soils, two densities, depths 0.06 / 0.12 / 0.25 m,
+   0.45 m/s; both worlds): the fused posterior's forecast at another depth and, in the fee world,
+   its parameters against the truth, as in section 1.
 """
 from __future__ import annotations
 
@@ -51,13 +54,14 @@ import numpy as np  # noqa: E402
 from anti_stall_controller.controller import AntiStallGains  # noqa: E402
 from pinn_estimator import forecast as fc  # noqa: E402
 from pinn_estimator.checkpoint import load_model  # noqa: E402
-from pinn_estimator.evaluate import forecast, forecast_dataset  # noqa: E402
+from pinn_estimator.dataset import Dataset  # noqa: E402
+from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # noqa: E402
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
-from soil_physics.soils import CATALOGUE  # noqa: E402
+from soil_physics.soils import CATALOGUE, SoilProperties, SoilType  # noqa: E402
 from soil_physics.travel import distance_in_soil_of_known  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
 from soil_sim_node.simulator import EpisodeSpec, SimConfig  # noqa: E402
@@ -525,6 +529,42 @@ class TimedPosterior(SoilPosterior):
         return timed(lambda: super(TimedPosterior, self).update(*a, **kw), self.update_s, self.update_cpu_s)
 
 
+# ---------------------------------------------------------------- 6. soils outside the catalogue
+# Soils no calibration or training episode had (loose / dense: φ [°], c [Pa], γ [N/m³]), cut at a
+# speed and at depths none of them used: how the fused posterior's forecast carries over.
+CUSTOM_SOILS = {
+    name: SoilType(name, SoilProperties(phi[0] * DEG, c[0], g[0]), SoilProperties(phi[1] * DEG, c[1], g[1]),
+                   "bench_forecast: outside the catalogue")
+    for name, phi, c, g in (("Silt", (30.0, 40.0), (0.0, 2e3), (16e3, 20e3)),
+                            ("StiffClay", (15.0, 22.0), (8e3, 14e3), (17e3, 21e3)),
+                            ("SandyLoam", (26.0, 34.0), (300.0, 1500.0), (15e3, 19e3)))
+}
+CUSTOM_DENSITIES_PCT = (25.0, 65.0)
+CUSTOM_DEPTHS_M = (0.06, 0.12, 0.25)
+CUSTOM_SPEED_M_S = 0.45
+
+
+def section_custom(args, models) -> dict:
+    print(f"## 6. Soils outside the catalogue ({', '.join(CUSTOM_SOILS)}; I_d "
+          f"{'/'.join(f'{d:g}' for d in CUSTOM_DENSITIES_PCT)} %, depths {'/'.join(f'{d:g}' for d in CUSTOM_DEPTHS_M)} m, "
+          f"{CUSTOM_SPEED_M_S:g} m/s, 10 s)\n")
+    out = {}
+    for world in args.worlds:
+        specs = [EpisodeSpec(soil, i_d, CUSTOM_SPEED_M_S, depth, seed=SEED + 9000 + k, duration_s=10.0)
+                 for k, (soil, i_d, depth) in enumerate((s, i, d) for s in CUSTOM_SOILS for i in CUSTOM_DENSITIES_PCT
+                                                        for d in CUSTOM_DEPTHS_M)]
+        t0 = time.perf_counter()
+        ds = Dataset.from_episodes(run_episodes(SimConfig(world_mode=world), specs, custom_soils=CUSTOM_SOILS),
+                                   root=f"(simulated, {world} world, soils outside the catalogue)")
+        cfg = fusion_config(world, models[world][0], args.fusion_set)
+        report = fc.evaluate_forecast(ds, np.zeros(0, int), {}, {"fused": fused_posteriors(ds, cfg)}, terms={"fused": cfg.terms})
+        print(f"### {world} world\n")
+        print("\n".join(fc.markdown(report)))
+        print(f"\n({time.perf_counter() - t0:.1f} s)\n", flush=True)
+        out[world] = report
+    return out
+
+
 def section_cost(args, models, cache) -> dict:
     print("## 5. Cost of the fused posterior (this process, one core)\n")
     out, rows = {}, []
@@ -606,7 +646,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="smoke run: no classical fit, one density, fewer soil changes")
     p.add_argument("--out", type=Path, default=None, help="also write the figures to this JSON file")
-    p.add_argument("--sections", default="1,2,3,4,5", help="comma-separated sections to run (default: all)")
+    p.add_argument("--sections", default="1,2,3,4,5,6", help="comma-separated sections to run (default: all)")
     p.add_argument("--no-classical", dest="classical", action="store_false", help="section 1 without the classical fit")
     p.add_argument("--workers", type=int, default=2, help="processes of the classical fit (section 1)")
     p.add_argument("--densities", type=float, nargs="+", default=[30.0, 50.0, 70.0], help="I_d [%%] of sections 2, 3, 5")
@@ -619,7 +659,7 @@ def main() -> None:
     p.add_argument("--change", dest="changes", type=parse_change, action="append", default=None,
                    help="section 4: soil before and after the boundary, SOIL:ID>SOIL:ID (repeatable)")
     p.add_argument("--change-duration", type=float, default=20.0, help="section 4: episode length [s]")
-    p.add_argument("--worlds", nargs="+", choices=WORLDS, default=list(WORLDS), help="section 1: the worlds (default: both)")
+    p.add_argument("--worlds", nargs="+", choices=WORLDS, default=list(WORLDS), help="sections 1 and 6: the worlds (default: both)")
     p.add_argument("--fusion", dest="fusion_set", type=parse_fusion_field, action="append", default=[],
                    metavar="FIELD=VALUE", help="every section: a FusionConfig field set over the calibrated config "
                                                "(VALUE as JSON, e.g. drift_per_sqrt_m=0; repeatable; not the reference figures)")
@@ -669,6 +709,8 @@ def main() -> None:
         results["soil_change"] = section_change(args, models)
     if 5 in sections:
         results["cost"] = section_cost(args, models, cache)
+    if 6 in sections:
+        results["soils_outside_the_catalogue"] = section_custom(args, models)
     results["wall_s"] = time.perf_counter() - t_start
     results["load_average_end"] = os.getloadavg()[0]
     print(f"Total {results['wall_s']:.0f} s; load average at the end {results['load_average_end']:.2f}.")

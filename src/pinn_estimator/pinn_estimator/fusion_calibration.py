@@ -46,7 +46,7 @@ CAL_SEED = 9000
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.
-SHAPE_GRID = (None, (50.0, 0.05), (10.0, 0.01), (2.0, 0.002))
+SHAPE_GRID = (None, (50.0, 0.05), (10.0, 0.01), (2.0, 0.002), (0.5, 0.0005))
 # The soil's drift along the path (``FusionConfig.drift_per_sqrt_m``), chosen where the world's
 # parameters are the truth (the fee world) by how often the posterior's intervals hold them.
 DRIFT_GRID = (0.0, 0.0025, 0.005, 0.01, 0.02)
