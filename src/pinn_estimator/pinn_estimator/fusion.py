@@ -354,12 +354,14 @@ class _Evidence:
             out[:, block] = np.sqrt(1.0 + (departure / np.sqrt(np.maximum(var, 1e-12)) / ROBUST_SIGMAS) ** 2)
         return out
 
-    def mean_nis(self, innovation: np.ndarray, s_mat: np.ndarray) -> np.ndarray:
-        """Normalised innovation of the stretch's mean force (2 dof, what ``change_nis`` is for)."""
+    def mean_nis(self, innovation: np.ndarray, s_mat: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
+        """Normalised innovation of the stretch's mean force (2 dof, what ``change_nis`` is for);
+        ``s_inv`` is ``s_mat``'s inverse, which without shape evidence is already the answer's."""
         if self.shape:
             mean = np.kron(np.eye(2), np.full((1, self.points), 1.0 / self.points))  # (2, dim)
             innovation, s_mat = innovation @ mean.T, mean @ s_mat @ mean.T
-        return np.einsum("ai,aij,aj->a", innovation, np.linalg.inv(s_mat), innovation)
+            s_inv = np.linalg.inv(s_mat)
+        return np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
 
 
 class SoilPosterior:
@@ -604,7 +606,7 @@ class SoilPosterior:
             jac[a], r[a] = j_a, r_a
             gain[a] = pj @ s_inv
             if it == 0:  # at the prior mean: how well each component predicted the stretch
-                nis[a] = evidence.mean_nis(innovation, s_mat)
+                nis[a] = evidence.mean_nis(innovation, s_mat, s_inv)
                 whole = np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
                 log_lik[a] = kappa * -0.5 * (whole + np.linalg.slogdet(2 * math.pi * s_mat)[1])
             u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), -0.25, 1.25)  # far outside the box is not physical

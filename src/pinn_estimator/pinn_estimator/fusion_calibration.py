@@ -365,7 +365,7 @@ def main(argv=None) -> int:
                f"fused forecast at another depth, {args.world} world: calibration episodes")
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     cx, cz = final["curve"]["x"], final["curve"]["z"]
-    shape = (f"shape evidence {cfg.shape_abs_std_n[0]:g} N + {cfg.shape_rel_std[0]:g}|ΔF|" if cfg.shape_evidence
+    shape = (f"shape evidence {shape_text((cfg.shape_abs_std_n[0], cfg.shape_rel_std[0]))}" if cfg.shape_evidence
              else "no shape evidence")
     print(f"wrote {out} ({shape}, rel_std x {cfg.rel_std[0]:g} / z {cfg.rel_std[1]:g}, forecast law x {cfg.forecast_abs_std_n[0]:g} N + "
           f"{cfg.forecast_rel_std[0]:g}|ΔF|, z {cfg.forecast_abs_std_n[1]:g} N + {cfg.forecast_rel_std[1]:g}|ΔF|: 90 % / 50 % "

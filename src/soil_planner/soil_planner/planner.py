@@ -502,7 +502,7 @@ class _FusedForceModel:
         self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
         self.residual, self.residual_used = np.zeros(2), False
         self.scale_x = np.ones(FUSED_SAMPLES)
-        self.weight = np.ones(FUSED_SAMPLES)  # of each sample in the mixtures
+        self.allowed = np.ones(FUSED_SAMPLES, bool)  # samples the force now does not rule out
         at = known if anchor_known is None else anchor_known  # Θ_k where the anchor force was predicted
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
         if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
@@ -525,7 +525,7 @@ class _FusedForceModel:
             # there is no soil that force allows: left out (all of them: kept, as a clipped ratio)
             consistent = ~usable | ((scale >= SCALE_LIMITS[0]) & (scale <= SCALE_LIMITS[1]))
             if consistent.any():
-                self.weight = consistent.astype(float)
+                self.allowed = consistent
         # what the error law's relative part counts from, per axis (S,): the force now when anchored,
         # else each sample's own force at the current depth (where the posterior's evidence is,
         # as ``SoilPosterior.forecast`` counts from its newest stretch)
@@ -545,10 +545,10 @@ class _FusedForceModel:
             raw_x, raw_z = np.broadcast_to(raw_x, shape), np.broadcast_to(raw_z, shape)
             fx = raw_x * self.scale_x + self.residual_per_m[0] * d
             fz = raw_z + self.residual_per_m[1] * d
-        ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0) & (self.weight > 0)  # a sample with a wedge at every depth
+        ok = (np.isfinite(fx) & np.isfinite(fz)).all(axis=0) & self.allowed  # a sample with a wedge at every depth
         if not ok.any():
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
-        w = ok * self.weight
+        w = ok.astype(float)
         out = []
         for f, raw, (a, r), now in ((fx, raw_x, self.law[0], self.reference[0]), (fz, raw_z, self.law[1], self.reference[1])):
             f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
