@@ -54,7 +54,8 @@ class Effects:
                      fills (inflow * V / capacity), and sheds over the blade ends with time
                      constant ``surcharge_shed_time_s``.
     penetration      ``soil_physics.bearing.penetration_capacity`` (a one-sided constraint on
-                     the edge).
+                     the edge: it holds an edge pressed onto the floor as well as a sinking
+                     one, so the floor carries the lift's push, up to the capacity).
     contact_damping  ``soil_physics.contact.contact_damping_force``.
     base_friction    ``soil_physics.contact.base_friction_force`` on the penetration reaction.
     force_scaling    the FEE force is multiplied by ``force_scale`` and limited to
