@@ -414,3 +414,31 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     assert fee_rows["after"]["rmse"] <= 0.6 * fee_rows["before"]["rmse"]
     assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [30] * 2
     assert len(got["per_seed"]["soil_rmse_after"]) == 1
+
+
+def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
+    """θ per group absorbs a group's bias, not a form it cannot follow: the residual's spread locates
+    an effect that acts in one soil. Real frame, residuals made up: every episode's residual is
+    noise of 3 % of its |F|, the clay episodes' 9 %; a second frame with no such soil flags none."""
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import group_misfit
+    from soil_discrepancy.workflow import _misfit_text
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=4)
+    rng = np.random.default_rng(0)
+    fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1])[:, None]
+    clay = (np.array(frame.soils)[frame.episode] == "Clay")[:, None]
+    resid = rng.normal(size=frame.forces.shape) * fmag * np.where(clay, 0.09, 0.03)
+    table = [{"group": n, "phi_deg": 5.0 if n.startswith("Clay") else 30.0, "c_pa": 0.0, "delta_deg": 15.0}
+             for n in frame.group_names]
+    mis = group_misfit(frame, resid, theta_table=table)
+    assert mis["soils"] == ["Clay"], mis["rows"]
+    row = next(r for r in mis["rows"] if r["kind"] == "soil" and r["name"] == "Clay")
+    assert 2.5 < row["ratio"] < 3.5 and row["p_holm"] < 0.01
+    clay_groups = [r for r in mis["rows"] if r["kind"] == "group" and r["name"].startswith("Clay")]
+    assert clay_groups and all(r["theta_at_bound"] == ["φ at its lower bound"] for r in clay_groups)
+    assert not [r for r in mis["rows"] if r["kind"] == "group" and not r["name"].startswith("Clay") and r["theta_at_bound"]]
+    text = _misfit_text({"misfit": mis})
+    assert "soil Clay" in text and "φ at its lower bound" in text
+    even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
+    assert even["soils"] == [] and even["groups"] == [] and _misfit_text({"misfit": even}) == ""

@@ -185,6 +185,78 @@ def regime_analysis(frame: Frame, resid: np.ndarray, *, edges: dict | None = Non
     }
 
 
+# A θ-group (or a soil) "fits worse": its episodes' relative misfit is at least this many times the
+# other episodes' median, and larger by a one-sided Mann-Whitney test (Holm, ``alpha``). Why a
+# ratio of spreads: θ is fitted per group, so an effect that acts in one soil only is absorbed in
+# that soil's mean residual (no bin is biased), but the model cannot bend to its form there.
+MISFIT_RATIO = 2.0
+
+
+def episode_misfit(frame: Frame, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(episodes, relative misfit per episode): RMS of the residual magnitude over the mean measured |F| (1)."""
+    eps = frame.episodes
+    fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1])
+    mag2 = (np.asarray(resid, float) ** 2).sum(1)
+    out = np.full(len(eps), np.nan)
+    for i, e in enumerate(eps):
+        m = (frame.episode == e) & np.isfinite(mag2)
+        if m.any():
+            out[i] = math.sqrt(float(mag2[m].mean())) / max(float(fmag[m].mean()), 1.0)
+    return eps, out
+
+
+def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio: float = MISFIT_RATIO,
+                 theta_table=None) -> dict:
+    """Where the model fits worse: per θ-group and per soil label, the episodes' relative misfit
+    against every other episode's (one-sided Mann-Whitney, Holm over all groups and soils).
+
+    ``theta_table``: ``ThetaFit.table`` rows; a group whose fitted θ sits on the fit's box
+    (``pinn_estimator.classical`` bounds) is marked: the model needed a soil outside the
+    physical range there, another sign of a missing effect. Returns {'rows': [...], 'groups':
+    flagged group names, 'soils': flagged soil labels, 'ratio', 'alpha'}.
+    """
+    eps, mis = episode_misfit(frame, resid)
+    group_of_ep = frame.group_of[eps]
+    units = [("group", frame.group_names[g], group_of_ep == g) for g in np.unique(group_of_ep)]
+    if frame.has_metadata():
+        soil_of_ep = np.array(frame.soils)[eps]
+        labels = sorted(set(soil_of_ep))
+        if len(labels) > 1:
+            units += [("soil", s, soil_of_ep == s) for s in labels]
+    bound = {t["group"]: _theta_at_bound(t) for t in (theta_table or [])}
+    rows = []
+    for kind, name, inside in units:
+        a, b = mis[inside & np.isfinite(mis)], mis[~inside & np.isfinite(mis)]
+        p = math.nan
+        if len(a) >= 1 and len(b) >= MIN_EPISODES and len(a) + len(b) >= 2 * MIN_EPISODES:
+            p = float(stats.mannwhitneyu(a, b, alternative="greater").pvalue)
+        rel = float(np.median(a) / np.median(b)) if len(a) and len(b) and np.median(b) > 0 else math.nan
+        rows.append({"kind": kind, "name": str(name), "n_episodes": int(len(a)), "misfit": _f(np.median(a) if len(a) else None),
+                     "misfit_others": _f(np.median(b) if len(b) else None), "ratio": _f(rel), "p": _f(p),
+                     "theta_at_bound": bound.get(name, []) if kind == "group" else []})
+    for r, p in zip(rows, holm([np.nan if r["p"] is None else r["p"] for r in rows])):
+        r["p_holm"] = _f(p)
+        r["flagged"] = bool(np.isfinite(p) and p < alpha and r["ratio"] is not None and r["ratio"] >= ratio)
+    return {"ratio": ratio, "alpha": alpha, "rows": rows,
+            "groups": [r["name"] for r in rows if r["kind"] == "group" and r["flagged"]],
+            "soils": [r["name"] for r in rows if r["kind"] == "soil" and r["flagged"]]}
+
+
+def _theta_at_bound(row: dict) -> list[str]:
+    """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range)."""
+    from pinn_estimator.classical import C_BOUNDS_PA, DELTA_BOUNDS_RAD, PHI_BOUNDS_RAD
+
+    out = []
+    for name, value, (lo, hi) in (("φ", math.radians(row["phi_deg"]), PHI_BOUNDS_RAD), ("c", row["c_pa"], C_BOUNDS_PA),
+                                  ("δ", math.radians(row["delta_deg"]), DELTA_BOUNDS_RAD)):
+        tol = 1e-3 * (hi - lo)
+        if value <= lo + tol and not (name == "c" and lo == 0.0):  # c = 0: a cohesionless soil, not a bound hit
+            out.append(f"{name} at its lower bound")
+        elif value >= hi - tol:
+            out.append(f"{name} at its upper bound")
+    return out
+
+
 def trend_tests(frame: Frame, resid: np.ndarray, fmag: np.ndarray | None = None) -> list[dict]:
     """Within- and between-episode trend of the residual vs every continuous variable, per axis."""
     fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1]) if fmag is None else fmag

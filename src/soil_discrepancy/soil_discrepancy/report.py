@@ -310,6 +310,25 @@ def _regime_md(reg: dict, title: str, labels: dict) -> list[str]:
                      f"{r['axis']} | {r['n_episodes']} | {_n(r['effect_n'])} over 10-90 % range | "
                      f"{_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | {_p(r['p_holm'])} | "
                      f"{'**yes**' if r['flagged'] else ''} |")
+    return lines + [""] + _misfit_md(reg.get("misfit"))
+
+
+def _misfit_md(mis: dict | None) -> list[str]:
+    """Per θ-group and soil: the episodes' relative misfit against the others' (``regimes.group_misfit``)."""
+    if not mis or not mis["rows"]:
+        return []
+    lines = ["Where the model fits worse: each episode's relative misfit (RMS of |F_meas − F_model| over its mean "
+             "|F|; θ per group absorbs a group's bias, not a form it cannot follow), a group's or soil's episodes "
+             f"against all others (one-sided Mann-Whitney, Holm); flagged at p < {mis['alpha']:g} and at least "
+             f"{mis['ratio']:g}× the others' median. Flagged: **{', '.join(mis['soils'] + mis['groups']) or 'none'}**.", "",
+             "| group / soil | episodes | relative misfit | others | ratio | p (Holm) | θ on the fit box | flagged |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in mis["rows"]:
+        name = f"soil {r['name']}" if r["kind"] == "soil" else r["name"]
+        lines.append(f"| {name} | {r['n_episodes']} | {_n(None if r['misfit'] is None else 100 * r['misfit'], '.1f')} % | "
+                     f"{_n(None if r['misfit_others'] is None else 100 * r['misfit_others'], '.1f')} % | "
+                     f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {', '.join(r['theta_at_bound']) or ''} | "
+                     f"{'**yes**' if r['flagged'] else ''} |")
     return lines + [""]
 
 

@@ -31,7 +31,7 @@ from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
 from .gap import compare_predictions, depth_forecast_gap, fee_gap
-from .regimes import MIN_EFFECT, bin_edges, holm, regime_analysis, variable_labels
+from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
 
 REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
@@ -112,8 +112,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     edges = bin_edges(frame)
     # 2. where they disagree
     reg0 = regime_analysis(frame, r0, edges=edges, alpha=alpha, min_effect=min_effect)
+    reg0["misfit"] = group_misfit(frame, r0, alpha=alpha, theta_table=base.table(frame))
     say(f"baseline residual RMS x {reg0['rms_n']['x']:.0f} N, z {reg0['rms_n']['z']:.0f} N; "
-        f"flagged regimes: {', '.join(reg0['flagged_variables']) or 'none'}")
+        f"flagged regimes: {', '.join(reg0['flagged_variables']) or 'none'}; fits worse in: "
+        f"{', '.join(reg0['misfit']['soils'] + reg0['misfit']['groups']) or 'no group'}")
     # 3. name the missing effect, on the selection part only
     sel_groups, test_groups = split_holdout(frame, holdout, seed)
     fsel = frame.select(groups=sel_groups)
@@ -222,6 +224,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         fit1 = fit_fixed(frame, final, base.merged(sel["fit"]))
         r1, _ = residuals(frame, final, fit1)
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
+        reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=fit1.table(frame))
     # 5b. other models' before/after on the held-out test groups
     arrays = {"frame": frame, "edges": edges, "r0": r0, "r1": r1}
     if test_groups:
@@ -443,7 +446,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         if reg1 is not None and reg1["significant"]:
             text += ("; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
                      + " (the named terms explain part of the discrepancy)")
-        return "explained", text
+        return "explained", text + _misfit_text(reg1)
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
@@ -454,8 +457,38 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
                      f"{_fmt_n(forms_tentative['test_rmse_after'])} N)")
-        return "unexplained", text + not_named
+        return "unexplained", text + _misfit_text(reg0) + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
-                                          "(Holm), and no catalogue term reduces the held-out error" + not_named)
+                                          "(Holm), and no catalogue term reduces the held-out error"
+                                          + _misfit_text(reg0, quiet=True) + not_named)
+
+
+def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
+    """Where the model fits worse (``regimes.group_misfit``) and where θ sits on its box, for the verdict.
+
+    A group that fits worse is not a regime bias (θ per group absorbs a bias); with no flagged
+    regime (``quiet``) it is said as a caution, never as a verdict: two soils of one γ sharing a θ
+    (bags without a soil label) fit worse for no missing effect."""
+    mis = (reg or {}).get("misfit")
+    if not mis:
+        return ""
+    rows = {(r["kind"], r["name"]): r for r in mis["rows"]}
+    parts = []
+    for kind, names in (("soil", mis["soils"]), ("group", mis["groups"])):
+        for n in names:
+            r = rows[(kind, n)]
+            parts.append(f"{'soil ' if kind == 'soil' else ''}{n} ({r['ratio']:.1f}× the other episodes' relative misfit)")
+    bound = [r for r in mis["rows"] if r["kind"] == "group" and r["theta_at_bound"]]
+    n_groups = sum(1 for r in mis["rows"] if r["kind"] == "group")
+    text = ""
+    if parts:
+        text += ("; " if not quiet else "; but ") + "the model fits worse in " + ", ".join(parts)
+        text += " (an effect that acts there, or a form θ cannot follow there)" if not quiet else ""
+    if bound:
+        which = sorted({b for r in bound for b in r["theta_at_bound"]})
+        text += (f"; θ on its fit box in {len(bound)}/{n_groups} groups ({', '.join(which)}: "
+                 f"{', '.join(r['name'] for r in bound[:4])}{', …' if len(bound) > 4 else ''}), "
+                 "the model needs a soil outside the physical range there")
+    return text
 
