@@ -121,3 +121,10 @@ def time_drag(state, k: float = 1.0, t0: float = 10.0, p_pa: float = 10e3):
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     ramp = np.minimum(np.asarray(state.t, dtype=float) * np.ones_like(d) / float(t0), 1.0)
     return float(k) * state.w * d * float(p_pa) * ramp, np.zeros_like(d)
+
+
+def layer_drag(state, k: float = 3.0, d0: float = 0.15, p_pa: float = 10e3):
+    """Hidden effect: a harder layer below ``d0`` [m], F_x = k w (d − d0)+ p [N] (the face area in
+    the layer times a pressure; the library's ``wd_x*below…`` form, not a catalogue term)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.w * np.maximum(d - float(d0), 0.0) * float(p_pa), np.zeros_like(d)

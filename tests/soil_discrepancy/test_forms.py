@@ -133,7 +133,7 @@ def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confi
 
 def test_form_names_parse_and_act_like_catalogue_terms():
     names = term_forms.form_names()
-    assert 100 < len(names) <= 300 and len(set(names)) == len(names)
+    assert 100 < len(names) <= 400 and len(set(names)) == len(names)
     t = force_terms.get_term("form:-gd2w_z*sink")
     assert term_forms.negated("form:-gd2w_z*sink") == "form:gd2w_z*sink" and "[v_z < " in t.formula
     n = 5
@@ -194,3 +194,32 @@ def test_a_catalogue_term_the_heldout_episodes_refute_is_tentative_and_never_the
     assert rep["test"]["after"]["rmse"] == rep["test"]["before"]["rmse"]  # nothing named, nothing changed
     md = (tmp_path / "out" / "discrepancy.md").read_text()
     assert "## Tentative: NOT confirmed" in md and "## The missing effect" not in md
+
+
+def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
+    """A harder layer below 0.15 m (tests/sim_plugins.layer_drag: F_x = 3 w (d − 0.15 m)+ 10 kPa), on
+    48 episodes at three depths (0.1 m stays above it): the search finds a 'share of the cut below
+    a layer's top' factor on an x scale, and the held-out error shrinks."""
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
+    generate(DatasetPlan("fee", tmp_path / "layer", specs, effects_for_mode("fee"),
+                         plugins=("tests.sim_plugins:layer_drag k=3 d0=0.15",)), workers=2, progress=False)
+    rep = run_discrepancy(dataset=blind(tmp_path / "layer"), out_dir=tmp_path / "out", plots=False,
+                          **{**RUN, "stride": STRIDE})
+    assert rep["verdict"] == "explained", rep["summary"]
+    accepted = rep["selection"]["accepted"]
+    assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
+    info = term_forms.describe(accepted[0]["name"])
+    assert info["axis"] == "x" and info["sign"] > 0 and info["factor"].startswith("below"), accepted[0]["name"]
+    assert float(info["factor"][len("below"):]) in (0.1, 0.15), info["factor"]  # 0.2 would miss the 0.175 m cuts
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_the_layer_factor_is_the_face_area_in_the_layer():
+    d = np.array([0.05, 0.15, 0.2, 0.3])
+    s = ForceInputs(d=d, q=0 * d, v_x=0 * d + 0.5, v_z=0 * d, gamma=0 * d + 18e3, w=0 * d + 2.0, rho=0 * d + 1.4,
+                    alpha=0 * d, phi=0 * d + 0.5, c=0 * d, delta=0 * d + 0.2, distance_in_soil=0 * d + 1.0,
+                    f_fee_x=0 * d + 1e3, f_fee_z=0 * d)
+    bx, bz = term_forms.basis("form:wd_x*below0.15", s, np)
+    assert np.allclose(bx, 2.0 * np.maximum(d - 0.15, 0.0) * term_forms.P_REF_PA) and not bz.any()
+    assert "(d − 0.15 m)+ / d" in term_forms.describe("form:wd_x*below0.15")["formula"]

@@ -3,8 +3,9 @@
 The library (``soil_physics.term_forms``) holds a few hundred candidate forms, each a force [N] up
 to a dimensionless coefficient: a scale (the FEE force, γ d² w, w d P_ref, (γ/g) w d v_x², Q, the
 edge's bearing capacity, the model's downward push) times a factor or gate (v_x, v_x², d, travel
-s, saturating tanh(v_x/v0), entering exp(−s/s0), growing 1 − exp(−s/s0), and the gates "edge
-sinking", "edge rising", "holding depth", "at a force limit").
+s, saturating tanh(v_x/v0), entering exp(−s/s0), growing 1 − exp(−s/s0), the share of the cut
+below a layer's top (d − d0)+/d, and the gates "edge sinking", "edge rising", "holding depth", "at a
+force limit").
 
 1. Linearise the current model around its fitted θ per θ-group: r ≈ J_g Δθ_g + Σ_j k_j B_j.
    θ is refitted whenever a term is added, so what a form can explain is only the part of its
@@ -46,7 +47,7 @@ from .frame import Frame
 
 MAX_CANDIDATES = 3  # forms passed on to the held-out test
 MAX_PATH = 8  # longest greedy path the cross-validation considers
-MAX_TICKS = 20_000  # the regression reads at most this many ticks (evenly thinned): 2 x 247 columns of them
+MAX_TICKS = 20_000  # the regression reads at most this many ticks (evenly thinned): 2 rows per tick, one column per form
 MIN_IDENTIFIABLE = 0.05  # a form's projected norm below this share of its norm: θ absorbs it
 DUPLICATE_COS = 0.999  # projected columns this parallel are one column (the first is kept)
 CATALOGUE_COS = 0.99  # a form this parallel to a catalogue candidate (projected) is that term: not searched

@@ -34,6 +34,7 @@ D_REF_M = 0.1  # reference depth [m]
 VZ_GATE_M_S = 0.005  # |v_z| below this is "not moving vertically" (measurement jitter)
 FX_LIMIT_N, FZ_LIMIT_N = 20e3, 30e3  # the machine's horizontal / vertical force limits [N]
 LIMIT_SHARE = 0.9  # "at a force limit": the model's force above this share of the limit
+LAYER_DEPTHS_M = (0.1, 0.15, 0.2)  # tops of the layers the library tries [m] (a cut reaches 0.3 m)
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,11 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
              (lambda s0: lambda s, xp: xp.exp(-s.distance_in_soil / s0) * _in(s))(s0)) for s0 in (0.5, 2.0)]
     + [Piece(f"sat{s0:g}", f"growing with travel, saturating over {s0:g} m", f"1 − exp(−s / {s0:g} m)",
              (lambda s0: lambda s, xp: (1.0 - xp.exp(-s.distance_in_soil / s0)) * _in(s))(s0)) for s0 in (2.0, 6.0)]
+    # a layer: the share of the cut face deeper than d0 (a hard pan, a wetter or denser stratum);
+    # w d P_ref times it is w (d − d0)+ P_ref, the face area in the layer times a pressure
+    + [Piece(f"below{d0:g}", f"the share of the cut deeper than {d0:g} m (a layer there)", f"(d − {d0:g} m)+ / d",
+             (lambda d0: lambda s, xp: _pos(xp, s.d - d0) / _xp.clip_min(xp, s.d, 1e-6) * _in(s))(d0))
+       for d0 in LAYER_DEPTHS_M]
 )}
 
 
