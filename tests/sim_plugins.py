@@ -128,3 +128,11 @@ def layer_drag(state, k: float = 3.0, d0: float = 0.15, p_pa: float = 10e3):
     the layer times a pressure; the library's ``wd_x*below…`` form, not a catalogue term)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     return float(k) * state.w * np.maximum(d - float(d0), 0.0) * float(p_pa), np.zeros_like(d)
+
+
+def clay_viscous_drag(state, k: float = 1.0, p_pa: float = 20e3, c_min_pa: float = 1.5e3, phi_max_rad: float = 0.48):
+    """Hidden effect in clay only (of the catalogue's soils, c > ``c_min_pa`` and φ < ``phi_max_rad``
+    hold for clay at every I_d and nothing else): a viscous drag F_x = k w d p (v_x / 1 m/s) [N]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    clay = (np.asarray(state.c, dtype=float) > float(c_min_pa)) & (np.asarray(state.phi, dtype=float) < float(phi_max_rad))
+    return float(k) * state.w * d * float(p_pa) * np.maximum(np.asarray(state.v_x, dtype=float), 0.0) * clay, np.zeros_like(d)

@@ -442,3 +442,16 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert "soil Clay" in text and "φ at its lower bound" in text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
     assert even["soils"] == [] and even["groups"] == [] and _misfit_text({"misfit": even}) == ""
+
+
+def test_the_fast_part_of_a_residual_is_its_noise_floor(bag_dirs):
+    """White noise of 400 N (x) and 100 N (z) on a slow 3 kN swing: the fast part reads the noise, not the swing."""
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import fast_part
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=2)
+    rng = np.random.default_rng(1)
+    slow = np.repeat(3000.0 * np.sin(2 * np.pi * frame.t / 10.0)[:, None], 2, axis=1)
+    fast = fast_part(frame, slow + rng.normal(size=frame.forces.shape) * [400.0, 100.0])
+    assert fast["x"] == pytest.approx(400.0, rel=0.05) and fast["z"] == pytest.approx(100.0, rel=0.1)
+    assert fast_part(frame, slow)["x"] < 30.0

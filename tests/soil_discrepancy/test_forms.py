@@ -197,20 +197,20 @@ def test_a_catalogue_term_the_heldout_episodes_refute_is_tentative_and_never_the
 
 
 def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
-    """A harder layer below 0.15 m (tests/sim_plugins.layer_drag: F_x = 3 w (d − 0.15 m)+ 10 kPa), on
-    48 episodes at three depths (0.1 m stays above it): the search finds a 'share of the cut below
-    a layer's top' factor on an x scale, and the held-out error shrinks."""
-    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
+    """A harder layer below 0.15 m (tests/sim_plugins.layer_drag: F_x = 6 w (d − 0.15 m)+ 10 kPa), on
+    24 episodes at three depths (0.1 m stays above it): the search finds the form itself, w d · 10 kPa
+    times the share of the cut below 0.15 m, with its k, and the held-out error shrinks."""
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.65], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
     generate(DatasetPlan("fee", tmp_path / "layer", specs, effects_for_mode("fee"),
-                         plugins=("tests.sim_plugins:layer_drag k=3 d0=0.15",)), workers=2, progress=False)
+                         plugins=("tests.sim_plugins:layer_drag k=6 d0=0.15",)), workers=2, progress=False)
     rep = run_discrepancy(dataset=blind(tmp_path / "layer"), out_dir=tmp_path / "out", plots=False,
                           **{**RUN, "stride": STRIDE})
     assert rep["verdict"] == "explained", rep["summary"]
     accepted = rep["selection"]["accepted"]
     assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
     info = term_forms.describe(accepted[0]["name"])
-    assert info["axis"] == "x" and info["sign"] > 0 and info["factor"].startswith("below"), accepted[0]["name"]
-    assert float(info["factor"][len("below"):]) in (0.1, 0.15), info["factor"]  # 0.2 would miss the 0.175 m cuts
+    assert (info["scale"], info["factor"], info["sign"]) == ("wd_x", "below0.15", 1.0), accepted[0]["name"]
+    assert 0.85 * 6 < accepted[0]["k"] < 1.15 * 6, accepted[0]
     test = rep["test"]
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
 

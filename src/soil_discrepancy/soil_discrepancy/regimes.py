@@ -177,12 +177,31 @@ def regime_analysis(frame: Frame, resid: np.ndarray, *, edges: dict | None = Non
     for r in rows + trends:
         if r["flagged"] and r["variable"] not in flagged:
             flagged.append(r["variable"])
+    fast = fast_part(frame, resid)
     return {
+        "fast_rms_n": fast,
         "alpha": alpha, "min_effect": min_effect, "n_tests": int(np.isfinite(p_all).sum()),
         "edges": {k: v for k, v in edges.items()}, "bins": rows, "trends": trends,
         "flagged_variables": flagged, "significant": bool(flagged),
         "rms_n": {axis: _f(float(np.sqrt(np.nanmean(resid[:, a] ** 2)))) for a, axis in enumerate(AXES)},
     }
+
+
+def fast_part(frame: Frame, resid: np.ndarray) -> dict:
+    """Per axis, the RMS [N] of the residual's fast part: what changes from one analysed tick to the
+    next (``frame.stride`` ticks apart), as white noise of that RMS would, sqrt(mean(Δr²) / 2).
+
+    What is left of a residual is structure only beyond this: measurement noise and events
+    shorter than a tick pair (a grip lost for a few ms) are the floor no quasi-static term can
+    remove. Slow changes add a little to Δr, so this is an upper bound of the noise floor.
+    """
+    r = np.asarray(resid, float)
+    same = (np.diff(frame.episode) == 0) & (np.diff(frame.rows) == frame.stride)
+    d = np.diff(r, axis=0)[same]
+    d = d[np.isfinite(d).all(1)]
+    if len(d) == 0:
+        return {axis: None for axis in AXES}
+    return {axis: _f(math.sqrt(float(np.mean(d[:, a] ** 2)) / 2.0)) for a, axis in enumerate(AXES)}
 
 
 # A θ-group (or a soil) "fits worse": its episodes' relative misfit is at least this many times the

@@ -294,7 +294,8 @@ def _terms(terms) -> str:
 
 def _regime_md(reg: dict, title: str, labels: dict) -> list[str]:
     lines = [f"## {title}", "",
-             f"Residual RMS: x {_n(reg['rms_n']['x'])} N, z {_n(reg['rms_n']['z'])} N. {reg['n_tests']} episode-level tests, "
+             f"Residual RMS: x {_n(reg['rms_n']['x'])} N, z {_n(reg['rms_n']['z'])} N{_fast_text(reg)}. "
+             f"{reg['n_tests']} episode-level tests, "
              f"flagged (Holm p < {reg['alpha']:g} and |effect| ≥ {100 * reg['min_effect']:.0f} % of |F|): "
              f"**{', '.join(labels.get(v, v) for v in reg['flagged_variables']) or 'none'}**.", "",
              "| variable | bin / trend | axis | episodes | mean residual [N] (95 % CI) | effect / \\|F\\| | p (Holm) | flagged |",
@@ -311,6 +312,14 @@ def _regime_md(reg: dict, title: str, labels: dict) -> list[str]:
                      f"{_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | {_p(r['p_holm'])} | "
                      f"{'**yes**' if r['flagged'] else ''} |")
     return lines + [""] + _misfit_md(reg.get("misfit"))
+
+
+def _fast_text(reg: dict) -> str:
+    fast = reg.get("fast_rms_n") or {}
+    if fast.get("x") is None or fast.get("z") is None:
+        return ""
+    return (f"; its fast part (tick to tick, as white noise would: measurement noise and events shorter than "
+            f"a tick pair, the floor no term removes) x {_n(fast['x'])} N, z {_n(fast['z'])} N")
 
 
 def _misfit_md(mis: dict | None) -> list[str]:

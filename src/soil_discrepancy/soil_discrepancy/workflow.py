@@ -446,7 +446,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         if reg1 is not None and reg1["significant"]:
             text += ("; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
                      + " (the named terms explain part of the discrepancy)")
-        return "explained", text + _misfit_text(reg1)
+        return "explained", text + _misfit_text(reg1) + _left_text(reg1)
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
@@ -457,11 +457,21 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
                      f"{_fmt_n(forms_tentative['test_rmse_after'])} N)")
-        return "unexplained", text + _misfit_text(reg0) + not_named
+        return "unexplained", text + _misfit_text(reg0) + _left_text(reg0) + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
                                           + _misfit_text(reg0, quiet=True) + not_named)
+
+
+def _left_text(reg: dict | None) -> str:
+    """What is left: the residual's RMS per axis and how much of it is its fast, noise-like part."""
+    if not reg or not reg.get("fast_rms_n") or reg["fast_rms_n"].get("x") is None:
+        return ""
+    rms, fast = reg["rms_n"], reg["fast_rms_n"]
+    slow = {a: math.sqrt(max(rms[a] ** 2 - fast[a] ** 2, 0.0)) for a in ("x", "z")}
+    return (f"; left: residual RMS x {rms['x']:.0f} N, z {rms['z']:.0f} N, of which tick-to-tick noise-like "
+            f"x {fast['x']:.0f} N, z {fast['z']:.0f} N (slow structure x {slow['x']:.0f} N, z {slow['z']:.0f} N)")
 
 
 def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
