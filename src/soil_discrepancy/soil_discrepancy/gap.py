@@ -147,5 +147,7 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE) 
     reduction = 1.0 - summary["after"]["vector_pct"] / summary["before"]["vector_pct"] if summary["before"]["vector_pct"] > 0 else None
     sources = errors["before"][:, 4]
     per_a = [(np.nanmean(b[sources == s]), np.nanmean(a[sources == s])) for s in np.unique(sources)]
-    return {**out, **summary, "reduction": reduction, "p_paired": paired_test(*np.array(per_a).T),
-            "source_episodes": len(per_a), "improved_pairs": int((a < b).sum())}
+    before_a, after_a = np.array(per_a).T
+    return {**out, **summary, "reduction": reduction, "p_paired": paired_test(before_a, after_a),
+            "p_worse": paired_test(after_a, before_a), "source_episodes": len(per_a),
+            "improved_pairs": int((a < b).sum())}

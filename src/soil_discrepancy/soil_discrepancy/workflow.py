@@ -365,14 +365,19 @@ def _confirmation(test: dict) -> dict:
 def _confirmed(test: dict, min_gain: float, alpha: float) -> bool:
     """Held-out test episodes confirm the named terms: they remove >= ``min_gain`` of the force
     error, or, without making it worse, of the error of the force at another depth from a fit at
-    one depth (``gap.depth_forecast_gap``, paired p < ``alpha``). Why both: a wrong depth profile
-    (a force term that does not scale with depth like the FEE) costs a joint fit over every
-    depth of a group little, because θ bends to it, but it is what a planner's forecast misses."""
+    one depth (``gap.depth_forecast_gap``, paired p < ``alpha``); and in neither case do they make
+    that forecast worse by more than ``min_gain``. Why both: a wrong depth profile (a force term
+    that does not scale with depth like the FEE) costs a joint fit over every depth of a group
+    little, because θ bends to it, but it is what a planner's forecast misses (a constant 1.5 kN
+    drag, which no form holds, was named as a relief below 0.1 m: the held-out force error −4 %,
+    the forecast at another depth 8.3 → 10.3 %)."""
+    fc = test.get("depth_forecast") or {}
+    red = fc.get("reduction")
+    if red is not None and red < -min_gain:
+        return False
     sse = test["sse_reduction"]
     if sse is not None and sse >= min_gain:
         return True
-    fc = test.get("depth_forecast") or {}
-    red = fc.get("reduction")
     return (sse is not None and sse >= 0.0 and red is not None and red >= min_gain
             and fc.get("p_paired", 1.0) < alpha)
 
