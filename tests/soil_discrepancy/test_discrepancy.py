@@ -470,3 +470,19 @@ def test_a_term_that_makes_the_forecast_at_another_depth_worse_is_not_confirmed(
     assert _confirmed(test(0.07, -0.016), 0.05, 0.01) and _confirmed(test(0.07, None), 0.05, 0.01)
     assert _confirmed(test(0.01, 0.2, p=0.001), 0.05, 0.01) and not _confirmed(test(0.01, 0.2, p=0.2), 0.05, 0.01)
     assert not _confirmed(test(-0.01, 0.2, p=0.001), 0.05, 0.01)
+
+
+def test_a_named_term_earns_its_place_only_where_the_effect_is(bag_dirs):
+    """Term by term on held-out groups: soil inertia beside side-wall shear earns its place in the soil-inertia
+    data (removing it makes the held-out force error worse) and not in the control's."""
+    from soil_discrepancy.fee_fit import fit_fixed
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.workflow import _earns_place
+
+    model = AugmentedFEE((("soil_inertia", 4.0), ("side_wall_shear", 30.0)))
+    for name, where in (("soil_inertia", True), ("control", False)):
+        frame = build_frame(blind(bag_dirs[name]), stride=8)
+        _, test_groups = split_holdout(frame, 0.3, seed=0)
+        ftest = frame.select(groups=test_groups)
+        base = fit_fixed(ftest, AugmentedFEE())
+        assert _earns_place(ftest, model, "soil_inertia", base, None) is where, name

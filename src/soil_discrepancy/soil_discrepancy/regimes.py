@@ -193,7 +193,8 @@ def fast_part(frame: Frame, resid: np.ndarray) -> dict:
 
     What is left of a residual is structure only beyond this: measurement noise and events
     shorter than a tick pair (a grip lost for a few ms) are the floor no quasi-static term can
-    remove. Slow changes add a little to Δr, so this is an upper bound of the noise floor.
+    remove. Slow changes add a little to Δr, so this is an upper bound of the noise floor; a
+    residual that alternates from tick to tick (a flickering gate) reads above its own RMS.
     """
     r = np.asarray(resid, float)
     same = (np.diff(frame.episode) == 0) & (np.diff(frame.rows) == frame.stride)

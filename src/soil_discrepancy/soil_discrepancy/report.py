@@ -96,11 +96,15 @@ def markdown(report: dict, figures=()) -> str:
                   "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
     tentative = report["selection"].get("not_confirmed")
     if tentative:
+        why = (f"with every term it named, the held-out test episodes' force RMSE goes {_n(tentative['test_rmse_before'])} N → "
+               f"{_n(tentative['test_rmse_after'])} N and the force at another depth {_n(tentative['forecast_pct_before'], '.1f')} → "
+               f"{_n(tentative['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(tentative['forecast_p'])}), short of what "
+               "confirms a name")
+        if tentative.get("reason") == "term by term":
+            why = ("the held-out test episodes confirmed the set it named, but removing each of these from it leaves their "
+                   "force error no worse: beside the others they earn no place there")
         lines += ["## Tentative: NOT confirmed on the held-out test episodes (not named)", "",
-                  "Cross-validation on the selection part chose these terms; with every term it named, the held-out test episodes' force "
-                  f"RMSE goes {_n(tentative['test_rmse_before'])} N → {_n(tentative['test_rmse_after'])} N and the force at "
-                  f"another depth {_n(tentative['forecast_pct_before'], '.1f')} → {_n(tentative['forecast_pct_after'], '.1f')} % "
-                  f"of |F| (paired p {_p(tentative['forecast_p'])}), short of what confirms a name. The verdict does not rest on "
+                  f"Cross-validation on the selection part chose these terms; {why}. The verdict does not rest on "
                   "them; try them where it matters (`--accepted NAME=K`) and check on data of your own.", "",
                   "| term | k ± SE | held-out (cross-validated) gain | p (Holm) | plugin |", "|---|---|---|---|---|"]
         for a in tentative["terms"]:

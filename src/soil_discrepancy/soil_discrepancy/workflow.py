@@ -218,6 +218,30 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         _mark_confirmed(form_report, kept_forms)
         new_terms, final = kept_forms, alone  # alone: the initial model unless forms were kept
         test, test_arrays = _held_out(ftest, initial, final, base, edges)
+    # 5a''. each of several named terms must earn its place on the held-out test episodes: a set they
+    # confirm can carry a term that does nothing there, or harm, beside the others (a catalogue term
+    # that mimics part of another effect's depth profile). A term whose removal leaves the held-out
+    # force error no worse is tentative; the rest are refitted without it and judged again as a set.
+    if test is not None and len(new_terms) >= 2:
+        idle = [s for s in new_terms if not _earns_place(ftest, final, s.name, base, edges)]
+        if len(idle) == len(new_terms):  # each is redundant beside the others: keep the first chosen
+            idle = idle[1:]
+        if idle:
+            rest = [s for s in new_terms if s not in idle]
+            trial, kept = _refitted_if_confirmed(fsel, ftest, initial, rest, sel["fit"], base, edges,
+                                                 min_gain, alpha, allow_negative_k)
+            demoted = [s for s in new_terms if s.name not in {k.name for k in kept}]
+            say(f"held-out test, term by term: {', '.join(s.name for s in idle)} leave(s) the force error no worse when "
+                f"removed: tentative" + (f"; confirmed without: {', '.join(s.name for s in kept)}" if kept else ""))
+            test_before = test
+            new_terms, final = kept, trial
+            test, test_arrays = _held_out(ftest, initial, final, base, edges)
+            rows = [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in demoted]
+            if tentative:
+                tentative["terms"] += rows
+            else:
+                tentative = {"terms": rows, **_confirmation(test_before), "reason": "term by term"}
+            _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
@@ -382,6 +406,14 @@ def _confirmed(test: dict, min_gain: float, alpha: float) -> bool:
             and fc.get("p_paired", 1.0) < alpha)
 
 
+def _earns_place(ftest: Frame, model: AugmentedFEE, name: str, base, edges) -> bool:
+    """True if removing term ``name`` from ``model`` (the others' k as they are, θ refitted per held-out
+    group) makes the held-out test episodes' force error worse."""
+    without = AugmentedFEE([t for t in model.terms if t[0] != name])
+    gain = fee_gap(ftest, without, model, base, edges=edges)[0]["sse_reduction"]
+    return gain is not None and gain > 0.0
+
+
 def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, terms, start, base, edges,
                            min_gain: float, alpha: float, allow_negative_k: bool):
     """``terms`` added to ``reference`` one after another, each k fitted jointly with θ on the
@@ -424,7 +456,11 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
     terms the held-out test did not confirm, mentioned as such."""
     labels = variable_labels()
     not_named = ""
-    if tentative:
+    if tentative and tentative.get("reason") == "term by term":
+        not_named = (f" (tentative, NOT confirmed term by term on the held-out test episodes: "
+                     f"{', '.join(t['name'] for t in tentative['terms'])} passed cross-validation on the selection part, "
+                     "but removing it leaves the held-out force error no worse)")
+    elif tentative:
         not_named = (f" (tentative, NOT confirmed on the held-out test episodes: "
                      f"{', '.join(t['name'] for t in tentative['terms'])} passed cross-validation on the selection part, "
                      f"held-out RMSE with all named terms {_fmt_n(tentative['test_rmse_before'])} -> "
@@ -451,7 +487,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         if reg1 is not None and reg1["significant"]:
             text += ("; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
                      + " (the named terms explain part of the discrepancy)")
-        return "explained", text + _misfit_text(reg1) + _left_text(reg1)
+        return "explained", text + _misfit_text(reg1) + _left_text(reg1) + not_named
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
@@ -474,9 +510,15 @@ def _left_text(reg: dict | None) -> str:
     if not reg or not reg.get("fast_rms_n") or reg["fast_rms_n"].get("x") is None:
         return ""
     rms, fast = reg["rms_n"], reg["fast_rms_n"]
-    slow = {a: math.sqrt(max(rms[a] ** 2 - fast[a] ** 2, 0.0)) for a in ("x", "z")}
-    return (f"; left: residual RMS x {rms['x']:.0f} N, z {rms['z']:.0f} N, of which tick-to-tick noise-like "
-            f"x {fast['x']:.0f} N, z {fast['z']:.0f} N (slow structure x {slow['x']:.0f} N, z {slow['z']:.0f} N)")
+    parts = []
+    for a in ("x", "z"):
+        if fast[a] > rms[a]:  # successive ticks anti-correlated: an oscillation at the tick rate, not white noise
+            parts.append(f"{a} {rms[a]:.0f} N, alternating from tick to tick ({fast[a]:.0f} N as white noise would: "
+                         "an oscillation, e.g. a gate that flickers)")
+        else:
+            parts.append(f"{a} {rms[a]:.0f} N, of which tick-to-tick noise-like {fast[a]:.0f} N (slow structure "
+                         f"{math.sqrt(rms[a] ** 2 - fast[a] ** 2):.0f} N)")
+    return "; left: residual RMS " + "; ".join(parts)
 
 
 def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
