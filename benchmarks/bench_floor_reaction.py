@@ -61,10 +61,10 @@ def main(argv=None) -> None:
     T = {n: i for i, n in enumerate(GROUND_TRUTH_PARAMS)}
     O = {n: i for i, n in enumerate(OBSERVATION_FIELDS)}
     kn, ob, f, tr = ds.known, ds.observations, ds.forces, ds.truth
-    _, fee_z, _ = fee_forces(tr[:, T["phi"]], tr[:, T["c"]], tr[:, T["delta"]], kn)
+    _, fee_z, defined = fee_forces(tr[:, T["phi"]], tr[:, T["c"]], tr[:, T["delta"]], kn)
     d, vx, vz = kn[:, K["d"]], kn[:, K["v_x"]], kn[:, K["v_z"]]
     t = np.concatenate([np.arange(ds.offsets[e + 1] - ds.offsets[e]) / SAMPLE_RATE_HZ for e in range(len(ds.names))])
-    m = (d > 0.01) & (t >= 1.0)
+    m = (d > 0.01) & (t >= 1.0) & defined & np.isfinite(fee_z)
     rz = (f[:, 1] - fee_z)[m]
     lift_error = (ob[:, O["u_zr"]] - (ob[:, O["p_z_b"]] - ob[:, O["p_z_c"]]))[m]
     lift_rate = (ob[:, O["v_z_b"]] - ob[:, O["v_z_c"]])[m]

@@ -474,10 +474,11 @@ def test_a_term_that_makes_the_forecast_at_another_depth_worse_is_not_confirmed(
 
 def test_a_named_term_earns_its_place_only_where_the_effect_is(bag_dirs):
     """Term by term on held-out groups: soil inertia beside side-wall shear earns its place in the soil-inertia
-    data (removing it makes the held-out force error worse) and not in the control's."""
+    data (removing it makes the held-out force error worse) and not in the control's; both are judged
+    there (their force on the held-out ticks is not negligible)."""
     from soil_discrepancy.fee_fit import fit_fixed
     from soil_discrepancy.frame import build_frame
-    from soil_discrepancy.workflow import _earns_place
+    from soil_discrepancy.workflow import _place
 
     model = AugmentedFEE((("soil_inertia", 4.0), ("side_wall_shear", 30.0)))
     for name, where in (("soil_inertia", True), ("control", False)):
@@ -485,4 +486,5 @@ def test_a_named_term_earns_its_place_only_where_the_effect_is(bag_dirs):
         _, test_groups = split_holdout(frame, 0.3, seed=0)
         ftest = frame.select(groups=test_groups)
         base = fit_fixed(ftest, AugmentedFEE())
-        assert _earns_place(ftest, model, "soil_inertia", base, None) is where, name
+        place = _place(ftest, model, "soil_inertia", base, None, 0.05)
+        assert place["judged"] and place["earns"] is where and (place["gain"] > 0) is where, (name, place)

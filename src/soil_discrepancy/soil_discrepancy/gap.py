@@ -121,7 +121,7 @@ def depth_forecast_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE) 
              if a != b and frame.group_of[a] == frame.group_of[b] and abs(depth[int(a)] - depth[int(b)]) >= FORECAST_MIN_DEPTH_GAP_M]
     out = {"pairs": len(pairs), "min_depth_gap_m": FORECAST_MIN_DEPTH_GAP_M}
     if not pairs:
-        return {**out, "before": None, "after": None, "reduction": None, "p_paired": 1.0}
+        return {**out, "before": None, "after": None, "reduction": None, "p_paired": 1.0, "p_worse": 1.0}
     errors = {}
     for label, model in (("before", before), ("after", after)):
         fits = {}

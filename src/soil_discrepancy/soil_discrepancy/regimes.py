@@ -22,6 +22,8 @@ import math
 import numpy as np
 from scipy import stats
 
+from soil_msgs_py.params import KNOWN_PARAMS
+
 from .frame import Frame
 
 # (key, label, unit) of the per-tick variables analysed.
@@ -241,9 +243,13 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
     if frame.has_metadata():
         soil_of_ep = np.array(frame.soils)[eps]
         labels = sorted(set(soil_of_ep))
-        if len(labels) > 1:
-            units += [("soil", s, soil_of_ep == s) for s in labels]
-    bound = {t["group"]: _theta_at_bound(t) for t in (theta_table or [])}
+        if len(labels) > 1:  # a soil that is one group already is that group's row
+            units += [("soil", s, soil_of_ep == s) for s in labels
+                      if not any(np.array_equal(soil_of_ep == s, m) for _, _, m in units)]
+    rho = frame.known[:, KNOWN_PARAMS.index("rho")]
+    rho_max = {frame.group_names[g]: float(rho[frame.group == g].max()) for g in frame.groups}
+    bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]]) for t in (theta_table or [])
+             if t["group"] in rho_max and t.get("success", True)}
     rows = []
     for kind, name, inside in units:
         a, b = mis[inside & np.isfinite(mis)], mis[~inside & np.isfinite(mis)]
@@ -262,15 +268,21 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
             "soils": [r["name"] for r in rows if r["kind"] == "soil" and r["flagged"]]}
 
 
-def _theta_at_bound(row: dict) -> list[str]:
-    """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range)."""
-    from pinn_estimator.classical import C_BOUNDS_PA, DELTA_BOUNDS_RAD, PHI_BOUNDS_RAD
+def _theta_at_bound(row: dict, rho_max_rad: float) -> list[str]:
+    """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range): the box
+    ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists)."""
+    from pinn_estimator.classical import denormalise_theta, normalised_bounds
 
+    box = normalised_bounds(rho_max_rad)
+    if box is None:
+        return []
+    lo_si, hi_si = (denormalise_theta(np.asarray(b, float)) for b in box)
     out = []
-    for name, value, (lo, hi) in (("φ", math.radians(row["phi_deg"]), PHI_BOUNDS_RAD), ("c", row["c_pa"], C_BOUNDS_PA),
-                                  ("δ", math.radians(row["delta_deg"]), DELTA_BOUNDS_RAD)):
+    for i, (name, value) in enumerate((("φ", math.radians(row["phi_deg"])), ("c", row["c_pa"]),
+                                       ("δ", math.radians(row["delta_deg"])))):
+        lo, hi = float(lo_si[i]), float(hi_si[i])
         tol = 1e-3 * (hi - lo)
-        if value <= lo + tol and not (name == "c" and lo == 0.0):  # c = 0: a cohesionless soil, not a bound hit
+        if value <= lo + tol and not (name == "c" and lo <= 1e-6):  # c = 0: a cohesionless soil, not a bound hit
             out.append(f"{name} at its lower bound")
         elif value >= hi - tol:
             out.append(f"{name} at its upper bound")

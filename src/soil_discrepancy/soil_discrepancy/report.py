@@ -100,9 +100,13 @@ def markdown(report: dict, figures=()) -> str:
                f"{_n(tentative['test_rmse_after'])} N and the force at another depth {_n(tentative['forecast_pct_before'], '.1f')} → "
                f"{_n(tentative['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(tentative['forecast_p'])}), short of what "
                "confirms a name")
-        if tentative.get("reason") == "term by term":
+        idle = [a["name"] for a in tentative["terms"] if a.get("why") == "idle"]
+        if len(idle) == len(tentative["terms"]):
             why = ("the held-out test episodes confirmed the set it named, but removing each of these from it leaves their "
-                   "force error no worse: beside the others they earn no place there")
+                   "force error and the forecast at another depth no worse: beside the others they earn no place there")
+        elif idle:
+            why += (f"; and term by term, removing {', '.join(f'`{n}`' for n in idle)} from the named set left the held-out "
+                    "force error and the forecast at another depth no worse")
         lines += ["## Tentative: NOT confirmed on the held-out test episodes (not named)", "",
                   f"Cross-validation on the selection part chose these terms; {why}. The verdict does not rest on "
                   "them; try them where it matters (`--accepted NAME=K`) and check on data of your own.", "",
