@@ -22,6 +22,7 @@ import math
 import numpy as np
 from scipy import stats
 
+from pinn_estimator.classical import denormalise_theta, normalised_bounds
 from soil_msgs_py.params import KNOWN_PARAMS
 
 from .frame import Frame
@@ -271,8 +272,6 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
 def _theta_at_bound(row: dict, rho_max_rad: float) -> list[str]:
     """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range): the box
     ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists)."""
-    from pinn_estimator.classical import denormalise_theta, normalised_bounds
-
     box = normalised_bounds(rho_max_rad)
     if box is None:
         return []

@@ -183,8 +183,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             if kept:  # the forms confirmed on their own, their k refitted without the others (selection part),
                 # judged together against the catalogue terms alone (not the initial model: the
                 # catalogue's own gain must not carry them)
-                trial, kept = _refitted_if_confirmed(fsel, ftest, catalogue_model, kept, sel["fit"], base, edges,
-                                                     min_gain, alpha, allow_negative_k)
+                trial, kept, _ = _refitted_if_confirmed(fsel, ftest, catalogue_model, kept, sel["fit"], base, edges,
+                                                        min_gain, alpha, allow_negative_k)
             dropped = [s for s in forms_in if s.name not in {k.name for k in kept}]
             say(f"the accepted form(s) together are not confirmed on the held-out test episodes (RMSE "
                 f"{_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth {_fc_text(test)})"
@@ -207,19 +207,19 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     tentative = None
     if test is not None and new_terms and not _confirmed(test, min_gain, alpha):
         forms_named = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
-        alone, kept_forms = initial, []
+        alone, kept_forms, judged = initial, [], None
         if forms_named and len(forms_named) < len(new_terms):
-            alone, kept_forms = _refitted_if_confirmed(fsel, ftest, initial, forms_named, sel["fit"], base, edges,
-                                                       min_gain, alpha, allow_negative_k)
+            alone, kept_forms, judged = _refitted_if_confirmed(fsel, ftest, initial, forms_named, sel["fit"], base,
+                                                               edges, min_gain, alpha, allow_negative_k)
         demoted = [s for s in new_terms if s.name not in {f.name for f in kept_forms}]
-        tentative = {"terms": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in demoted], **_confirmation(test)}
+        tentative = {"terms": [_term_row(s) for s in demoted], **_confirmation(test)}
         say(f"the named term(s) {', '.join(s.name for s in demoted)} are not confirmed on the held-out test episodes "
             f"(RMSE {_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth "
             f"{_fc_text(test)}): tentative, not named"
             + (f"; confirmed without them: {', '.join(s.name for s in kept_forms)}" if kept_forms else ""))
         _mark_confirmed(form_report, kept_forms)
         new_terms, final = kept_forms, alone  # alone: the initial model unless forms were kept
-        test, test_arrays = _held_out(ftest, initial, final, base, edges)
+        test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
     # 5a''. each of several named terms must earn its place on the held-out test episodes: a set they
     # confirm can carry a term that does nothing there, or harm, beside the others (a catalogue term
     # that mimics part of another effect's depth profile). Backward elimination: the term whose
@@ -232,21 +232,20 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         idle = [s for s in new_terms if places[s.name]["judged"] and not places[s.name]["earns"]]
         if not idle:
             break
-        worst = max(idle, key=lambda s: -places[s.name]["gain"])
+        worst = min(idle, key=lambda s: places[s.name]["gain"])
         rest = [s for s in new_terms if s.name != worst.name]
-        trial, kept = _refitted_if_confirmed(fsel, ftest, initial, rest, sel["fit"], base, edges,
-                                             min_gain, alpha, allow_negative_k)
+        trial, kept, judged = _refitted_if_confirmed(fsel, ftest, initial, rest, sel["fit"], base, edges,
+                                                     min_gain, alpha, allow_negative_k)
         failed = [s for s in rest if s.name not in {k.name for k in kept}]
         say(f"held-out test, term by term: removing {worst.name} leaves the force error and the forecast at another "
             f"depth no worse: tentative" + (f"; the rest, refitted without it, not confirmed: {', '.join(s.name for s in failed)}"
                                            if failed else ""))
-        rows = [{**worst.to_dict(), "plugin": plugin_spec(worst.name, worst.k), "why": "idle"}]
-        rows += [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k), "why": "set"} for s in failed]
+        rows = [_term_row(worst, why="idle")] + [_term_row(s, why="set") for s in failed]
         if tentative is None:
             tentative = {"terms": [], **_confirmation(test)}
         tentative["terms"] += rows
         new_terms, final = kept, trial
-        test, test_arrays = _held_out(ftest, initial, final, base, edges)
+        test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
     # 4. the augmented model on every episode
     reg1, r1 = None, None
@@ -290,7 +289,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "failed_groups": failed, "rms_n": reg0["rms_n"]},
         "regimes": reg0,
         "selection": {"rounds": sel["rounds"],
-                      "accepted": [{**s.to_dict(), "plugin": plugin_spec(s.name, s.k)} for s in new_terms],
+                      "accepted": [_term_row(s) for s in new_terms],
                       "not_confirmed": tentative},
         "model": {"terms": [list(t) for t in final.terms], "plugin_specs": final.plugin_specs(),
                   "extra_term_args": final.extra_term_args()},
@@ -442,15 +441,22 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
                            min_gain: float, alpha: float, allow_negative_k: bool):
     """``terms`` added to ``reference`` one after another, each k fitted jointly with θ on the
     selection part, then judged together against ``reference`` on the held-out test episodes:
-    (the model with them, the terms with their refitted k) if confirmed, else (reference, [])."""
+    (the model with them, the terms with their refitted k, ``_held_out`` of reference vs that model)
+    if confirmed, else (reference, [], None)."""
     model = reference
     for s in terms:
         fit_k = fit_joint(fsel, model, s.name, start, allow_negative_k=allow_negative_k)
         model, start = model.with_term(s.name, float(fit_k.k)), fit_k
-    if not _confirmed(_held_out(ftest, reference, model, base, edges)[0], min_gain, alpha):
-        return reference, []
+    judged = _held_out(ftest, reference, model, base, edges)
+    if not _confirmed(judged[0], min_gain, alpha):
+        return reference, [], None
     k_new = dict(model.terms)
-    return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms]
+    return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms], judged
+
+
+def _term_row(s, **extra) -> dict:
+    """A named or tentative term for the report: its score, the simulator plugin that switches it on, ``extra``."""
+    return {**s.to_dict(), "plugin": plugin_spec(s.name, s.k), **extra}
 
 
 def _mark_confirmed(form_report: dict | None, kept) -> None:
