@@ -20,6 +20,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from soil_msgs_py.dds_profile import use_graph_profile
 from soil_msgs_py.ros_adapter import message_class, topic_qos
 from soil_bringup.launch import loopback_env  # noqa: F401 - re-exported for the tests
 
@@ -74,6 +75,7 @@ class RosProbe:
 
     def __init__(self, domain_id: int, name: str = "probe"):
         self.context = Context()
+        use_graph_profile()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)

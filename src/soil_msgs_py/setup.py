@@ -14,7 +14,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
-    package_data={package_name: ["*.yaml"]},
+    package_data={package_name: ["*.yaml", "*.xml"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=True,

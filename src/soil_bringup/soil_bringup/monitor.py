@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from soil_msgs_py.dds_profile import use_graph_profile
 from soil_msgs_py import graph as G
 from soil_msgs_py import topics as T
 from soil_msgs_py.messages import parse_labelled, parse_message
@@ -112,6 +113,7 @@ class LiveMonitor:
         self.last_estimate_ns = -1  # newest estimate stamp of the current episode
         self._rclpy = rclpy
         self.context = Context()
+        use_graph_profile()
         rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
         try:
             self.node = Node("demo_monitor", context=self.context)

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from .dds_profile import use_graph_profile
 from .graph import DATA_QOS, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
@@ -148,6 +149,7 @@ def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
     Why: rclpy's handlers shut the context down at once, after which a node can no longer
     publish its last ``/sim/status`` event or finish a bag on the way out.
     """
+    use_graph_profile()
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)

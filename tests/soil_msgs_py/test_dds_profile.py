@@ -1,0 +1,83 @@
+"""The graph's Fast DDS profile: every node process loads it unless its user chose their own,
+and it is a profile Fast DDS reads (a reliable writer's acknowledgements come back)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, use_graph_profile
+from tests.ros_domains import next_domain_id
+from tests.ros_probe import loopback_env
+
+NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+
+
+def test_the_profile_sets_only_a_default_writers_heartbeat_of_a_tenth_of_a_second():
+    root = ET.parse(PROFILE_FILE).getroot()
+    (writer,) = root.findall("f:data_writer", NS)
+    assert writer.get("is_default_profile") == "true" and len(root) == 1 and len(writer) == 1
+    period = writer.find("f:times/f:heartbeatPeriod", NS)
+    assert int(period.find("f:sec", NS).text) + int(period.find("f:nanosec", NS).text) * 1e-9 == 0.1
+
+
+def test_use_graph_profile_sets_both_names_and_leaves_a_users_own_profiles_alone():
+    env = {}
+    assert use_graph_profile(env) and env == {name: str(PROFILE_FILE) for name in PROFILE_ENV_VARS}
+    for name in PROFILE_ENV_VARS:
+        mine = {name: "/etc/my_profiles.xml"}
+        assert not use_graph_profile(mine) and mine == {name: "/etc/my_profiles.xml"}
+    blank = {PROFILE_ENV_VARS[0]: ""}  # set but empty: not a choice
+    assert use_graph_profile(blank) and blank[PROFILE_ENV_VARS[0]] == str(PROFILE_FILE)
+
+
+CHILD = r"""
+import sys, time, rclpy
+from rclpy.duration import Duration
+from std_msgs.msg import String
+from soil_msgs_py import graph as G
+from soil_msgs_py.ros_adapter import init_rclpy, topic_qos
+from soil_msgs_py.dds_profile import PROFILE_ENV_VARS
+import os
+init_rclpy([], lambda *a: None)  # what every node's entry point calls
+print("profile", os.environ[PROFILE_ENV_VARS[0]], flush=True)
+node = rclpy.create_node("ack_" + sys.argv[1])
+if sys.argv[1] == "sub":
+    got = []
+    def on_msg(m):
+        got.append(m.data)
+        print("got", m.data, flush=True)
+    node.create_subscription(String, "/ack_test", on_msg, topic_qos(G.SIM_STATUS_TOPIC))
+    end = time.monotonic() + 60  # only a hang ends here
+    while len(got) < 3 and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    time.sleep(1.0)  # (still acknowledging) while the publisher waits for the last acknowledgement
+else:
+    pub = node.create_publisher(String, "/ack_test", topic_qos(G.SIM_STATUS_TOPIC))
+    end = time.monotonic() + 30
+    while pub.get_subscription_count() < 1 and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    for i in range(3):
+        pub.publish(String(data=str(i)))
+        print("acked", pub.wait_for_all_acked(Duration(seconds=10.0)), flush=True)
+"""
+
+
+def test_a_node_process_loads_the_profile_and_its_writer_is_acknowledged(tmp_path):
+    """Two processes as nodes start (``init_rclpy``), nothing set by the caller: both run with the
+    graph's profile, and each of the publisher's samples is acknowledged by the subscriber. (How
+    fast: benchmarks/bench_acks.py; 3 s with Fast DDS's own timing, 0.1 s with the profile.)"""
+    domain = next_domain_id()
+    env = {k: v for k, v in loopback_env(domain).items() if k not in PROFILE_ENV_VARS}
+    sub = subprocess.Popen([sys.executable, "-c", CHILD, "sub"], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        pub = subprocess.run([sys.executable, "-c", CHILD, "pub"], env=env, capture_output=True, text=True, timeout=90)
+        out, _ = sub.communicate(timeout=90)
+    finally:
+        sub.kill()
+        sub.wait()
+    assert pub.returncode == 0, pub.stderr[-2000:]
+    lines = pub.stdout.splitlines()
+    assert f"profile {PROFILE_FILE}" in lines and f"profile {PROFILE_FILE}" in out.splitlines()
+    assert [line for line in lines if line.startswith("acked")] == ["acked True"] * 3, pub.stdout
+    assert [line for line in out.splitlines() if line.startswith("got")] == ["got 0", "got 1", "got 2"], out
