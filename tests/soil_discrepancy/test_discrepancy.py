@@ -386,8 +386,8 @@ def test_pinns_trained_in_parallel_processes_give_what_they_give_one_after_anoth
 
 def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_path):
     """Step 5 for the PINN, at the data size of the committed report (``make discrepancy``'s
-    soil-inertia case: 108 episodes, 30 epochs; one PINN per physics where the report trains an
-    ensemble of 3, whose members alone give 0.68, 0.65 and 0.83 of the error): retrained with
+    soil-inertia case: 108 episodes; 20 epochs where the report trains 30, and one PINN per physics
+    where it trains an ensemble of 3, whose members alone give 0.68, 0.65 and 0.83 of the error): retrained with
     the named effect, the PINN's soil estimates,
     pooled per soil group, explain the held-out force at every depth and speed better than the
     paper's PINN, whose estimates absorb the missing effect (pinn_check docstring)."""
@@ -402,17 +402,18 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     sel, held = split_holdout(frame, 0.3, 0)
     selection = frame.episode_names(sel)
     got = pinn_gap(ds, frame.select(groups=held), selection, AugmentedFEE(), AugmentedFEE([("soil_inertia", 4.0)]),
-                   epochs=30, seed=0, seeds=1, max_minutes=12.0, log=None,
+                   epochs=20, seed=0, seeds=1, max_minutes=12.0, log=None,
                    threads=1, workers=2)  # one process and torch thread per PINN: two threads of one wait on each other beside a busy core
     rows = got["comparisons"]
     soil, fee_rows = rows["soil"], rows["FEE"]
     print(f"\nsoil-estimate RMSE {soil['before']['rmse']:.0f} -> {soil['after']['rmse']:.0f} N, "
           f"improved {soil['improved_episodes']}/{soil['n_episodes']}")
-    # seed 0 here: 0.61 (15/20 episodes better); the report's ensemble 0.63, other splits 0.82, 0.94
+    # seed 0 here: 0.51 (17/20 episodes better; 0.61, 14/20 after 30 epochs); the report's ensemble 0.63,
+    # other splits 0.82, 0.94
     assert soil["after"]["rmse"] <= 0.9 * soil["before"]["rmse"], (soil["before"], soil["after"], got["per_seed"])
     assert soil["improved_episodes"] > soil["n_episodes"] / 2
     assert fee_rows["after"]["rmse"] <= 0.6 * fee_rows["before"]["rmse"]
-    assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [30] * 2
+    assert [t["epochs_run"] for t in got["train"]["before"] + got["train"]["after"]] == [20] * 2
     assert len(got["per_seed"]["soil_rmse_after"]) == 1
 
 
