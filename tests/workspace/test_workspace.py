@@ -254,3 +254,13 @@ def test_installed_console_scripts_import_from_install_space(colcon_build):
     assert not bad, f"console_scripts targets not importable from the install space: {bad}"
     outside = {k: v[1] for k, v in found.items() if not str(v[1]).startswith(str(install))}
     assert not outside, f"imported from outside the install space: {outside}"
+
+
+def test_the_installed_contract_package_carries_its_dds_profile(colcon_build):
+    """Every node loads soil_msgs_py's Fast DDS profile from beside the module: the install space
+    (what `ros2 run` imports) must hold it, or each node would print an XML error and run with
+    Fast DDS's 3 s acknowledgements."""
+    res, install, _wall, _ = colcon_build
+    assert res.returncode == 0, _tail(res)
+    (profile,) = (install / "soil_msgs_py").glob("lib/python3*/site-packages/soil_msgs_py/fastdds_profile.xml")
+    assert profile.read_bytes() == (SRC / "soil_msgs_py" / "soil_msgs_py" / "fastdds_profile.xml").read_bytes()
