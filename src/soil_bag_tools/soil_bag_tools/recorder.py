@@ -60,7 +60,11 @@ _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
 # How long an ended episode waits for more of its data after the last message arrived. Longer
 # than Fast DDS's default reliable heartbeat period (3 s): a sample a reader's transport
-# dropped while the reader was busy is re-sent after the next heartbeat, not before.
+# dropped while the reader was busy is re-sent after the next heartbeat, not before. The
+# graph's own writers heartbeat every 0.1 s (soil_msgs_py.dds_profile); a writer outside it
+# (another tool, a profile of the user's own) may keep Fast DDS's 3 s. Only an incomplete
+# episode waits this long: a complete one is finished once its ticks are in and its extra
+# topics were quiet for EXTRA_TOPIC_GRACE_S.
 END_GRACE_S = 4.0
 ONLINE_HORIZON_TICKS = 600  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
