@@ -14,7 +14,6 @@ side by side in one run, and what that makes of a short launch. Prints figures; 
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import subprocess
 import sys
@@ -24,9 +23,10 @@ from pathlib import Path
 
 from graph_procs import BIN  # sets loopback-only DDS
 
+from soil_bringup.launch import loopback_env
+
 from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE
 
-DOMAIN_ID = 67
 EMPTY_PROFILE = Path(tempfile.gettempdir()) / "bench_acks_empty_profile.xml"
 CHILD = r"""
 import sys, time, rclpy
@@ -61,9 +61,8 @@ else:
 """
 
 
-def env_for(profile: bool) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in PROFILE_ENV_VARS}
-    env.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+def env_for(profile: bool, domain: int) -> dict[str, str]:
+    env = {k: v for k, v in loopback_env(domain).items() if k not in PROFILE_ENV_VARS}
     if profile:
         env.update({name: str(PROFILE_FILE) for name in PROFILE_ENV_VARS})
     else:  # a profile file that sets nothing: Fast DDS's defaults (and use_graph_profile leaves it alone)
@@ -71,41 +70,49 @@ def env_for(profile: bool) -> dict[str, str]:
     return env
 
 
-def ack_waits(profile: bool, samples: int) -> list[tuple[float, bool]]:
-    env = env_for(profile)
+def ack_waits(profile: bool, samples: int, domain: int) -> list[tuple[float, bool]]:
+    env = env_for(profile, domain)
     sub = subprocess.Popen([sys.executable, "-c", CHILD, "sub", str(samples * 6 + 25)], env=env)
     try:
         out = subprocess.run([sys.executable, "-c", CHILD, "pub", str(samples)], env=env, capture_output=True,
                              text=True, timeout=samples * 6 + 30)
     finally:
         sub.terminate()
-        sub.wait(timeout=10)
+        try:
+            sub.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            sub.kill()
+            sub.wait()
     rows = [line.split() for line in out.stdout.splitlines()]
     return [(float(r[0]), r[1] == "1") for r in rows if len(r) == 2 and r[1] in ("0", "1")]
 
 
-def launch_seconds(profile: bool) -> float:
+def launch_seconds(profile: bool, domain: int) -> float:
+    """Wall time of a short lockstep launch; soil_launch's own --timeout stops its nodes on a hang."""
     t = time.perf_counter()
-    subprocess.run([str(BIN / "soil_launch"), "--domain-id", str(DOMAIN_ID), "--pacing", "lockstep",
-                    "--sim-param", "duration_s:=1.0", "--sim-param", "episodes:=2",
-                    "--sim-param", "sequence_soils:=['Clay','Sand']", "--timeout", "60"],
-                   env=env_for(profile), capture_output=True, timeout=90, check=True)
+    res = subprocess.run([str(BIN / "soil_launch"), "--domain-id", str(domain), "--pacing", "lockstep",
+                          "--sim-param", "duration_s:=1.0", "--sim-param", "episodes:=2",
+                          "--sim-param", "sequence_soils:=['Clay','Sand']", "--timeout", "60"],
+                         env=env_for(profile, domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    if res.returncode != 0:
+        raise SystemExit(f"soil_launch exited {res.returncode}:\n{res.stdout[-3000:]}")
     return time.perf_counter() - t
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--samples", type=int, default=6)
+    p.add_argument("--domain-id", type=int, default=67)
     args = p.parse_args()
     EMPTY_PROFILE.write_text('<?xml version="1.0" encoding="UTF-8"?>\n'
                              '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"/>\n')
     rows = []
     for profile in (False, True):
-        waits = ack_waits(profile, args.samples)
+        waits = ack_waits(profile, args.samples, args.domain_id)
         secs = [w for w, _ in waits]
         rows.append(("the graph's profile (heartbeat 0.1 s)" if profile else "Fast DDS defaults (heartbeat 3 s)",
                      statistics.median(secs) if secs else float("nan"), max(secs, default=float("nan")),
-                     sum(ok for _, ok in waits), len(waits), launch_seconds(profile)))
+                     sum(ok for _, ok in waits), len(waits), launch_seconds(profile, args.domain_id)))
     print("| writer timing | wait_for_all_acked p50 [s] | max [s] | acknowledged | 4 lockstep episodes of 1 s [s] |")
     print("|---|---|---|---|---|")
     for name, p50, top, ok, n, launch in rows:

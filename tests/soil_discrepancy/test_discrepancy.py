@@ -408,7 +408,7 @@ def test_pinn_with_the_named_effect_has_better_soil_estimates_at_full_size(tmp_p
     soil, fee_rows = rows["soil"], rows["FEE"]
     print(f"\nsoil-estimate RMSE {soil['before']['rmse']:.0f} -> {soil['after']['rmse']:.0f} N, "
           f"improved {soil['improved_episodes']}/{soil['n_episodes']}")
-    # seed 0 here: 0.51 (17/20 episodes better; 0.61, 14/20 after 30 epochs); the report's ensemble 0.63,
+    # seed 0 here: 0.51 (17/20 episodes better; 0.61 after 30 epochs); the report's ensemble 0.63,
     # other splits 0.82, 0.94
     assert soil["after"]["rmse"] <= 0.9 * soil["before"]["rmse"], (soil["before"], soil["after"], got["per_seed"])
     assert soil["improved_episodes"] > soil["n_episodes"] / 2

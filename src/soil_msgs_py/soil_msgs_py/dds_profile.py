@@ -6,8 +6,8 @@ none: ``Publisher.wait_for_all_acked`` then waits up to 3 s for a sample every r
 once. The graph waits for acknowledgements where order matters (an episode's start before its
 first tick, every sample before a node exits): the simulator's ``episode_start`` waited its
 whole 2 s bound before every episode, its ``episode_end`` 1 s. Newer Fast DDS releases send a
-heartbeat from ``wait_for_all_acked`` itself; the 2.14 of the Jazzy wheels does not. So every
-process of the graph loads ``fastdds_profile.xml`` (a heartbeat every 0.1 s; nothing else
+heartbeat from ``wait_for_all_acked`` itself; the 2.14.5 of the Jazzy wheels does not. So
+every process of the graph loads ``fastdds_profile.xml`` (a heartbeat every 0.1 s; nothing else
 changed) unless its user chose profiles of their own. Other RMWs never read the file.
 """
 from __future__ import annotations
@@ -17,17 +17,19 @@ from collections.abc import MutableMapping
 from pathlib import Path
 
 PROFILE_FILE = Path(__file__).with_name("fastdds_profile.xml")
-# Fast DDS 2.x reads the first, 3.x the second: a user who set either keeps their own profiles.
+# Fast DDS 2.x (Jazzy's 2.14) reads only the first, 3.x the second.
 PROFILE_ENV_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
 def use_graph_profile(env: MutableMapping[str, str] | None = None) -> bool:
     """Point Fast DDS at the graph's profile in ``env`` (default: this process's environment,
-    which its child processes inherit) unless a profile file is already set there. Call before
-    the process's first ``rclpy.init``: Fast DDS reads the profiles once. True if it set them."""
+    which its child processes inherit) unless a profile file is already set there; a file the
+    user set under one name is set under the other too, so that either Fast DDS reads theirs.
+    Call before the process's first ``rclpy.init``: Fast DDS reads the profiles once, when the
+    first participant is created. True if it set the graph's profile."""
     env = os.environ if env is None else env
-    if any(env.get(name) for name in PROFILE_ENV_VARS):
-        return False
+    mine = next((env[name] for name in PROFILE_ENV_VARS if env.get(name)), None)
     for name in PROFILE_ENV_VARS:
-        env[name] = str(PROFILE_FILE)
-    return True
+        if not env.get(name):
+            env[name] = mine or str(PROFILE_FILE)
+    return mine is None
