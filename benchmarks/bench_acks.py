@@ -25,7 +25,7 @@ from graph_procs import BIN  # sets loopback-only DDS
 
 from soil_bringup.launch import loopback_env
 
-from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE
+from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, PROFILES_NAMESPACE
 
 EMPTY_PROFILE = Path(tempfile.gettempdir()) / "bench_acks_empty_profile.xml"
 CHILD = r"""
@@ -104,8 +104,7 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=6)
     p.add_argument("--domain-id", type=int, default=67)
     args = p.parse_args()
-    EMPTY_PROFILE.write_text('<?xml version="1.0" encoding="UTF-8"?>\n'
-                             '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"/>\n')
+    EMPTY_PROFILE.write_text(f'<?xml version="1.0" encoding="UTF-8"?>\n<profiles xmlns="{PROFILES_NAMESPACE}"/>\n')
     rows = []
     for profile in (False, True):
         waits = ack_waits(profile, args.samples, args.domain_id)

@@ -6,11 +6,11 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, use_graph_profile
+from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, PROFILES_NAMESPACE, use_graph_profile
 from tests.ros_domains import next_domain_id
 from tests.ros_probe import loopback_env
 
-NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+NS = {"f": PROFILES_NAMESPACE}
 
 
 def test_the_profile_sets_only_a_default_writers_heartbeat_of_a_tenth_of_a_second():

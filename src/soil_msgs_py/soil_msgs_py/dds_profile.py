@@ -17,6 +17,7 @@ from collections.abc import MutableMapping
 from pathlib import Path
 
 PROFILE_FILE = Path(__file__).with_name("fastdds_profile.xml")
+PROFILES_NAMESPACE = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"  # of a Fast DDS profiles file
 # Fast DDS 2.x (Jazzy's 2.14) reads only the first, 3.x the second.
 PROFILE_ENV_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
