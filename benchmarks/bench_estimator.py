@@ -68,7 +68,6 @@ import torch  # noqa: E402
 
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model  # noqa: E402
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator  # noqa: E402
-from soil_msgs_py.dds_profile import use_graph_profile  # noqa: E402
 from soil_msgs_py import graph as G  # noqa: E402
 from soil_msgs_py import messages as M  # noqa: E402
 from soil_msgs_py import topics as T  # noqa: E402
@@ -234,17 +233,14 @@ class Probe:
 
     def __init__(self, domain_id: int):
         import rclpy
-        from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import String
 
-        from soil_msgs_py.ros_adapter import message_class, topic_qos
+        from soil_msgs_py.ros_adapter import init_context, message_class, topic_qos
 
         self.rclpy = rclpy
         self.String = String
-        self.context = Context()
-        use_graph_profile()
-        rclpy.init(context=self.context, domain_id=domain_id)
+        self.context = init_context(domain_id)
         self.node = rclpy.create_node("bench_estimator_probe", context=self.context)
         self.pubs = [self.node.create_publisher(message_class(T.TOPICS_BY_NAME[t].msgtype), t, topic_qos(t))
                      for t in INPUT_TOPICS]

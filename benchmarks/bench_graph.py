@@ -36,14 +36,12 @@ import threading
 from graph_procs import Graph, Load, cpu_per_node  # sets loopback-only DDS
 
 import rclpy  # noqa: E402
-from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from soil_msgs_py.dds_profile import use_graph_profile  # noqa: E402
 from soil_msgs_py import graph as G  # noqa: E402
 from soil_bag_tools.bag_io import find_episode_bags, read_episode  # noqa: E402
-from soil_msgs_py.ros_adapter import topic_qos  # noqa: E402
+from soil_msgs_py.ros_adapter import init_context, topic_qos  # noqa: E402
 
 from soil_sim_node.simulator import ENGINES  # noqa: E402
 
@@ -52,9 +50,7 @@ class StatusListener:
     """Collects /sim/status events in a background executor (its own context)."""
 
     def __init__(self, domain_id: int):
-        self.context = Context()
-        use_graph_profile()
-        rclpy.init(context=self.context, domain_id=domain_id)
+        self.context = init_context(domain_id)
         self.node = rclpy.create_node("bench_graph_status", context=self.context)
         self.events: list[G.EpisodeEvent] = []
         self.node.create_subscription(String, G.SIM_STATUS_TOPIC,

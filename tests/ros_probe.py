@@ -16,12 +16,10 @@ from collections import defaultdict
 from pathlib import Path
 
 import rclpy
-from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from soil_msgs_py.dds_profile import use_graph_profile
-from soil_msgs_py.ros_adapter import message_class, topic_qos
+from soil_msgs_py.ros_adapter import init_context, message_class, topic_qos
 from soil_bringup.launch import loopback_env  # noqa: F401 - re-exported for the tests
 
 from tests.ros_domains import next_domain_id  # noqa: F401 - re-exported for the tests
@@ -74,9 +72,7 @@ class RosProbe:
     """An in-process participant: records what arrives (with perf_counter receive times)."""
 
     def __init__(self, domain_id: int, name: str = "probe"):
-        self.context = Context()
-        use_graph_profile()
-        rclpy.init(context=self.context, domain_id=domain_id)
+        self.context = init_context(domain_id)
         self.node = Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -25,7 +25,6 @@ from rosbags.highlevel import AnyReader
 
 from soil_bringup.launch import loopback_env
 from soil_bag_tools import bag_io, bag_writer, journal, playback, recorder
-from soil_msgs_py.dds_profile import use_graph_profile
 from soil_msgs_py import graph
 from soil_msgs_py.topics import EPISODE_TOPICS
 
@@ -255,12 +254,10 @@ class Listener:
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import String
 
-        from soil_msgs_py.ros_adapter import message_class, qos_profile
+        from soil_msgs_py.ros_adapter import init_context, message_class, qos_profile
 
         self.rclpy = rclpy
-        self.context = rclpy.Context()
-        use_graph_profile()
-        rclpy.init(context=self.context, domain_id=domain)
+        self.context = init_context(domain)
         self.node = rclpy.create_node("test_listener", context=self.context)
         self.received: list[tuple[int, str, bytes]] = []  # (perf_counter_ns, topic, raw)
         self.status: list[dict] = []

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from soil_msgs_py.dds_profile import use_graph_profile
 from soil_msgs_py import graph as G
 from soil_msgs_py import topics as T
 from soil_msgs_py.messages import parse_labelled, parse_message
@@ -88,13 +87,12 @@ class LiveMonitor:
 
     def __init__(self, domain_id: int, planned_episodes: int, out=None):
         import rclpy
-        from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
 
         from soil_msgs_py.graph import RECORDER_QOS
-        from soil_msgs_py.ros_adapter import StatusAfterInputs, message_class, qos_profile
+        from soil_msgs_py.ros_adapter import StatusAfterInputs, init_context, message_class, qos_profile
 
         self.out = out or sys.stdout
         self.planned = planned_episodes
@@ -112,9 +110,7 @@ class LiveMonitor:
         self.pending_end: tuple[G.EpisodeEvent, float] | None = None  # an episode_end and when it came
         self.last_estimate_ns = -1  # newest estimate stamp of the current episode
         self._rclpy = rclpy
-        self.context = Context()
-        use_graph_profile()
-        rclpy.init(context=self.context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        self.context = init_context(domain_id, signal_handler_options=SignalHandlerOptions.NO)
         try:
             self.node = Node("demo_monitor", context=self.context)
             data_qos = qos_profile(RECORDER_QOS)

@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -141,6 +142,16 @@ class StatusAfterInputs:
 def raise_interrupt(signum, frame):  # noqa: ARG001
     """Signal handler for blocking loops (the player): SIGINT/SIGTERM -> KeyboardInterrupt."""
     raise KeyboardInterrupt
+
+
+def init_context(domain_id: int, **init_kwargs) -> Context:
+    """A fresh rclpy context on ``domain_id`` for an in-process participant beside the graph (a
+    monitor, a probe), initialised as the graph's nodes are: with the graph's Fast DDS profile
+    (``dds_profile``), loaded before the first participant of the process exists."""
+    use_graph_profile()
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id, **init_kwargs)
+    return context
 
 
 def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
