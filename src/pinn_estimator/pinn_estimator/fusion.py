@@ -73,14 +73,21 @@ PRIOR_BOX: dict[str, tuple[float, float]] = {
     "phi": (TABLE1["phi"].norm[0] - 7 * DEG, TABLE1["phi"].norm[1] + 5 * DEG),
     "delta": (TABLE1["delta"].norm[0] - 6 * DEG, TABLE1["delta"].norm[1]),
 }
-# Internal coordinate of c (see SoilPosterior): c = C_SCALE_PA·softplus(V_LO + u·V_SPAN); u = 0 is
-# c ≈ 7 Pa (cohesionless), u = 0.5 c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more).
+# Internal coordinates u are kept within U_BOUNDS by every update: far outside the prior box is
+# not physical.
+U_BOUNDS = (-0.25, 1.25)
+# Internal coordinate of c (see SoilPosterior): c = C_SCALE_PA·(softplus(V_LO + u·V_SPAN) −
+# softplus(V_ZERO)), 0 at and below u = U_BOUNDS[0] (V_ZERO); u = 0 is c ≈ 7 Pa, u = 0.5
+# c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more).
 C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
+V_ZERO = V_LO + U_BOUNDS[0] * V_SPAN
 # A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
 # times the machine's largest force limit, far beyond any soil it can cut.
 PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
-COHESIONLESS_STD_U = 0.05  # a cohesionless prior component's c: u 0 ± 0.05, c 7 Pa within a factor e
+# A cohesionless prior component's c: u = U_BOUNDS[0] ± 0.05, where c is 0 (below) or at most
+# ~0.1 Pa (above): c = 0 in effect, with the same Gaussian algebra as every other component.
+COHESIONLESS_U, COHESIONLESS_STD_U = U_BOUNDS[0], 0.05
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = 0.01  # a stretch with the blade (almost) out of the soil carries no evidence
 
@@ -129,11 +136,12 @@ class FusionConfig:
     shape_rel_std: tuple[float, float] = (0.05, 0.05)  # per unit of the model's departure (x, z)
     shape_noise_gain: float = 1.0  # per unit of the sub-mean's noise
     # Prior probability that the soil is cohesionless (clean sands and gravels: c = 0, a state of
-    # its own, not the edge of a range): the prior holds a second row of components at c ≈ 7 Pa
+    # its own, not the edge of a range): the prior holds a second row of components at c = 0
     # beside the broad one (``SoilPosterior._prior``). Why: c = 0 is at the end of the softplus
     # coordinate, where the broad prior has little mass and the data no say (a few tens of Pa
     # of c trade against a fraction of a degree of φ), so a sand's posterior sat at c ≈ 0.1-0.2
-    # kPa and φ 1-2° low, 2-6 % off at another depth.
+    # kPa and φ 1-2° low, 2-6 % off at another depth. At c ≈ 7 Pa instead of 0 the row still
+    # biased every sand's φ by −0.6 to −0.8 of its standard deviation (c 13 ± 18 Pa).
     cohesionless_prior: float = 0.5
     terms: tuple[tuple[str, float], ...] = ()  # catalogue terms of the physics model (AugmentedFEE)
 
@@ -368,12 +376,12 @@ class SoilPosterior:
     """The Gaussian posterior over θ = (φ, c, δ) of the soil being cut (see module docstring).
 
     Inside, the state u is θ scaled so the three are comparable: φ and δ linearly onto their
-    prior box (u = (θ − lo)/(hi − lo)), and c through a softplus, c = C_SCALE_PA·softplus(v),
-    v = V_LO + u·V_SPAN. Why: c ≥ 0, and a cohesionless soil (c = 0) sits at the end of the
-    φ-c ridge one depth leaves; linear and clipped at c = 0 the Gaussian broke the ridge there
-    and its forecasts missed in 13 of 24 sand and gravel pairs; through the softplus the ridge
-    runs on to v → −∞ (c → 0) with φ where it belongs. What the posterior says in SI
-    (``summary``) is from samples."""
+    prior box (u = (θ − lo)/(hi − lo)), and c through a softplus, c = C_SCALE_PA·(softplus(v) −
+    softplus(V_ZERO)), v = V_LO + u·V_SPAN, 0 at and below u = U_BOUNDS[0]. Why: c ≥ 0, and a
+    cohesionless soil (c = 0) sits at the end of the φ-c ridge one depth leaves; linear and
+    clipped at c = 0 the Gaussian broke the ridge there and its forecasts missed in 13 of 24 sand
+    and gravel pairs; through the softplus the ridge runs on to c = 0 with φ where it belongs.
+    What the posterior says in SI is from samples (``summary``) or exact (``quantiles``)."""
 
     def __init__(self, cfg: FusionConfig | None = None):
         self.cfg = cfg or FusionConfig()
@@ -386,7 +394,7 @@ class SoilPosterior:
         """(means, covariances (·, 3, 3), log-weights) of the prior as a Gaussian sum: K components
         side by side along φ's box, each as wide as their spacing, weighted by the broad Gaussian
         prior (centre of the box, ``prior_std``) at their centre; with ``cohesionless_prior`` > 0
-        the same K again at c ≈ 7 Pa (u_c 0 ± ``COHESIONLESS_STD_U``), that share of the weight."""
+        the same K again at c = 0 (u_c ``COHESIONLESS_U`` ± ``COHESIONLESS_STD_U``), that share of the weight."""
         k, sd = self.cfg.components, self.cfg.prior_std
         centres = np.linspace(0.0, 1.0, k) if k > 1 else np.array([0.5])  # the φ box, 10-50°
         u = np.tile(np.full(len(THETA), 0.5), (k, 1))
@@ -399,7 +407,7 @@ class SoilPosterior:
         share = self.cfg.cohesionless_prior
         if share > 0:
             u0, p0 = u.copy(), p.copy()
-            u0[:, THETA.index("c")] = 0.0
+            u0[:, THETA.index("c")] = COHESIONLESS_U
             p0[:, THETA.index("c"), THETA.index("c")] = COHESIONLESS_STD_U ** 2
             u, p = np.concatenate([u, u0]), np.concatenate([p, p0])
             with np.errstate(divide="ignore"):  # a share of 1: the broad row has no weight
@@ -437,7 +445,8 @@ class SoilPosterior:
         """SI θ of internal points u (..., 3)."""
         u = np.asarray(u, float)
         out = {n: PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]) for j, n in enumerate(THETA) if n in PRIOR_BOX}
-        out["c"] = C_SCALE_PA * np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
+        softplus = np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
+        out["c"] = C_SCALE_PA * np.maximum(softplus - np.logaddexp(0.0, V_ZERO), 0.0)
         return {n: out[n] for n in THETA}
 
     def model_force(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -609,7 +618,7 @@ class SoilPosterior:
                 nis[a] = evidence.mean_nis(innovation, s_mat, s_inv)
                 whole = np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
                 log_lik[a] = kappa * -0.5 * (whole + np.linalg.slogdet(2 * math.pi * s_mat)[1])
-            u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), -0.25, 1.25)  # far outside the box is not physical
+            u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), *U_BOUNDS)
             moved = np.abs(u_next - u[a]).max(axis=1)
             previous[a] = u[a]
             u[a] = u_next
@@ -674,6 +683,17 @@ class SoilPosterior:
         else:
             mean["beta"] = std["beta"] = float("nan")
         return Summary(mean, std, corr, self.updates, self.changes)
+
+    def quantiles(self, levels) -> dict[str, np.ndarray]:
+        """Quantiles of φ, c, δ [SI] at ``levels`` (probabilities), exact for the Gaussian sum:
+        each is a monotone map of one internal coordinate, so its quantile is the map of that
+        coordinate's mixture quantile. Why not mean ± z·std: the sum is skewed and c is bounded
+        at 0 (a sand's posterior is mostly the cohesionless row's point at c = 0)."""
+        u = np.zeros((len(levels), len(THETA)))
+        for j in range(len(THETA)):
+            sd = np.sqrt(np.maximum(self.p[:, j, j], 1e-30))
+            u[:, j] = mixture_quantiles(self.weights, self.u[:, j], sd, levels)
+        return self.theta_of(u)
 
     def beta_star(self, u: np.ndarray) -> np.ndarray:
         """β* (Eq. 7, with the velocity-corrected δ of Eq. 9-10) at scaled points u, at the last
