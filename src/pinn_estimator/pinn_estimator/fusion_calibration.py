@@ -8,8 +8,8 @@ posterior's spread, ΔF the part of the force it extrapolates from the newest ev
 (near and far forecasts, as a planner asks them), densities 20-80 %, other seeds, disjoint
 from the evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1, for each law of the
 stretches' shape evidence (``SHAPE_GRID``; the simplest as skilful as any, or where the
-episodes' θ is the truth the one and the drift whose parameter intervals are best calibrated,
-``calibrate``): ``rel_std`` on a log
+episodes' θ is the truth the one, then the sub-means' noise weight and the drift, whose
+parameter intervals are best calibrated, ``calibrate``): ``rel_std`` on a log
 grid, per axis by how close its median forecasts of that axis at another depth are to the
 measured force (mean |error|: of F_x as a share of |F_x|; of F_z, which passes through 0, as a
 share of its limit): the smallest value (the evidence that teaches most) within one standard
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import math
 import sys
 from pathlib import Path
@@ -47,9 +48,17 @@ REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.
 SHAPE_GRID = (None, (50.0, 0.05), (10.0, 0.01), (2.0, 0.002), (0.5, 0.0005))
-# The soil's drift along the path (``FusionConfig.drift_per_sqrt_m``), chosen where the world's
-# parameters are the truth (the fee world) by how often the posterior's intervals hold them.
-DRIFT_GRID = (0.0, 0.0025, 0.005, 0.01, 0.02)
+# Chosen together where the world's parameters are the truth (the fee world) by how often the
+# posterior's intervals hold them (``calibrate``'s ``truth_grids``): the weight of a stretch's
+# sub-means' own noise (``FusionConfig.shape_noise_gain``; with shape evidence it sets how wide the
+# posterior is: in the noise-free fee world the estimated tick noise is the controller's force
+# ripple, and at gain 1 the intervals of φ and c held the truth in 98-100 % of the calibration
+# episodes at both 50 % and 90 %; below 0.2 the posterior grows overconfident and biased) and
+# the soil's drift along the path (``drift_per_sqrt_m``).
+NOISE_GAIN_GRID = (1.0, 0.5, 0.3, 0.2)
+DRIFT_GRID = (0.0, 0.0025, 0.005, 0.01)
+NOISE_GAIN_FIELD, DRIFT_FIELD = "shape_noise_gain", "drift_per_sqrt_m"
+TRUTH_GRIDS = ((NOISE_GAIN_FIELD, NOISE_GAIN_GRID), (DRIFT_FIELD, DRIFT_GRID))
 FORECAST_GRID = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)  # share of the extrapolated force
 FLOOR_GRID = (5.0, 20.0, 300.0, 1000.0, 3000.0)  # forecast error floor [N]: F_z of the default world is ~0 in the FEE
 NOMINAL = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # central interval levels of the calibration curve
@@ -174,8 +183,7 @@ def miscalibration(curve: dict, axis: str, levels=NOMINAL) -> float:
 
 
 CALIBRATED_FIELDS = ("rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_evidence", "shape_abs_std_n",
-                     "shape_rel_std")  # what ``calibrate`` chooses; in the fee world also DRIFT_FIELD
-DRIFT_FIELD = "drift_per_sqrt_m"
+                     "shape_rel_std")  # what ``calibrate`` chooses; in the fee world also those of TRUTH_GRIDS
 
 
 def with_shape(cfg: FusionConfig, shape) -> FusionConfig:
@@ -221,20 +229,42 @@ def cover_text(cover: dict) -> str:
             f"{cover['c']['coverage_50']:.0%} / {cover['c']['coverage_90']:.0%} of the episodes' true soils")
 
 
+def most_calibrated(candidates: list[tuple]) -> tuple:
+    """Of (skill, sem, miscalibration, ...) candidates: those as skilful as any (skill within one
+    standard error of the best), of them those whose parameters' intervals are as close to
+    nominal as the closest within the coverages' sampling error, and of those the most skilful.
+    Calibration of the parameters first among the laws that forecast equally well."""
+    best_skill, best_sem = min(c[:2] for c in candidates)
+    acceptable = [c for c in candidates if c[0] <= best_skill + best_sem]
+    tolerance = coverage_tolerance(sum(p.updates > 0 for p in acceptable[0][4]), (0.5, 0.9))
+    least = min(c[2] for c in acceptable)
+    return min((c for c in acceptable if c[2] <= least + tolerance), key=lambda c: c[0])
+
+
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
-              shape_grid=SHAPE_GRID, drift_grid=(), truth: bool = False, log=print) -> tuple[FusionConfig, list[dict]]:
+              shape_grid=SHAPE_GRID, truth_grids=(), truth: bool = False, log=print) -> tuple[FusionConfig, list[dict]]:
     """Stage 1: the evidence law. Each shape law of ``shape_grid`` with each ``rel_std`` of
     ``rel_grid`` is fused and scored by its median forecasts at another depth. Without the truth:
     ``rel_std`` per axis by accuracy (``choose_evidence_law``), then the simplest shape law as
     skilful as any (``acceptable_shape_laws``). With it (``truth``: the episodes' θ is the soil,
     i.e. the FEE is the world): of the laws as skilful as any, the one whose intervals of φ and c
-    hold the true soils closest to their nominal 50 % and 90 % (``parameter_miscalibration``), and
-    then the soil's drift along the path of ``drift_grid`` the same way. Why: forecasts at another
-    depth tell the laws near the sharp end apart by less than their noise, while how wide the
-    posterior is (its evidence law, and the drift that re-widens it before every stretch) is what
-    the parameters' intervals measure. Stage 2: the forecast law, share and floor, per axis by the
-    calibration curve. Returns the config and every stage-2 candidate's curve."""
+    hold the true soils closest to their nominal 50 % and 90 % (``most_calibrated``), and then
+    the values of the (field, grid) pairs of ``truth_grids``, every combination, the same way
+    (``TRUTH_GRIDS``: the weight of the sub-means' noise and the soil's drift, which both set how
+    wide the posterior is, so one is not chosen for the other's value). Why: forecasts at
+    another depth tell the laws near the sharp end apart by less than their noise, while how wide
+    the posterior is (its evidence law, and the drift that re-widens it before every stretch) is
+    what the parameters' intervals measure. Stage 2: the forecast law, share and floor, per axis
+    by the calibration curve. Returns the config and every stage-2 candidate's curve."""
     from .evaluate import fused_posteriors
+
+    def judged(trial, posts, line):
+        """(skill, sem, miscalibration, trial, posts) of a trial, logged after ``line``."""
+        sc = forecast_scores(forecast_table(ds, trial, posts=posts))
+        mis, cover = parameter_miscalibration(ds, posts)
+        skill, sem = forecast_skill(sc)
+        log(f"{line}: skill {skill:.3f} ± {sem:.3f}; {cover_text(cover)}")
+        return skill, sem, mis, trial, posts
 
     shapes, candidates = [], []
     for shape in shape_grid:
@@ -258,20 +288,18 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
         log(f"  rel_std {rels[0]:g} / {rels[1]:g}: skill {skill:.3f} ± {sem:.3f} of the naive forecast's error")
         shapes.append((shape, skill, sem, rels))
     if truth:
-        best_skill, best_sem = min(c[:2] for c in candidates)
-        acceptable = [c for c in candidates if c[0] <= best_skill + best_sem]
-        tolerance = coverage_tolerance(sum(p.updates > 0 for p in acceptable[0][4]), (0.5, 0.9))
-        least = min(c[2] for c in acceptable)
-        _, _, _, cfg, posts = min((c for c in acceptable if c[2] <= least + tolerance), key=lambda c: c[0])
-        drifts = []
-        for drift in drift_grid:
-            trial = dataclasses.replace(cfg, drift_per_sqrt_m=drift)
-            trial_posts = posts if drift == cfg.drift_per_sqrt_m else fused_posteriors(ds, trial)
-            mis, cover = parameter_miscalibration(ds, trial_posts)
-            drifts.append((mis, trial, trial_posts))
-            log(f"drift {drift:g} per √m: {cover_text(cover)}")
-        if drifts:
-            _, cfg, posts = min(drifts, key=lambda d: d[0])
+        chosen = most_calibrated(candidates)
+        if truth_grids:
+            names, trials = [n for n, _ in truth_grids], [chosen]
+            for values in itertools.product(*(grid for _, grid in truth_grids)):
+                setting = dict(zip(names, values))
+                if all(getattr(chosen[3], n) == v for n, v in setting.items()):
+                    continue
+                trial = dataclasses.replace(chosen[3], **setting)
+                trials.append(judged(trial, fused_posteriors(ds, trial), ", ".join(f"{n} {v:g}" for n, v in setting.items())))
+            chosen = most_calibrated(trials)
+            log("  " + ", ".join(f"{n} {getattr(chosen[3], n):g}" for n in names))
+        cfg, posts = chosen[3], chosen[4]
     else:
         simplest = acceptable_shape_laws(shapes)[0]
         cfg = dataclasses.replace(with_shape(base, simplest[0]), rel_std=simplest[3])
@@ -344,7 +372,7 @@ def main(argv=None) -> int:
         p.error(f"--term: {err}")
     try:
         fields = dict(FusionConfig.parse_field(text) for text in args.fields)
-        chosen = sorted(set(fields) & {*CALIBRATED_FIELDS, *((DRIFT_FIELD,) if args.world == "fee" else ())})
+        chosen = sorted(set(fields) & {*CALIBRATED_FIELDS, *((f for f, _ in TRUTH_GRIDS) if args.world == "fee" else ())})
         if chosen:
             raise ValueError(f"{chosen[0]} is chosen by the calibration")
         if "terms" in fields:
@@ -355,9 +383,9 @@ def main(argv=None) -> int:
     out = args.out or config_path(args.world)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M)
-    # the drift is chosen where the episodes' θ is the truth, i.e. the FEE is the world
+    # the noise weight and the drift are chosen where the episodes' θ is the truth, i.e. the FEE is the world
     truth = args.world == "fee"
-    cfg, rows = calibrate(ds, base, drift_grid=DRIFT_GRID if truth else (), truth=truth)
+    cfg, rows = calibrate(ds, base, truth_grids=TRUTH_GRIDS if truth else (), truth=truth)
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
