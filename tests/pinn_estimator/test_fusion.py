@@ -540,12 +540,12 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
                           truth_grids=(("drift_per_sqrt_m", (0.0, 0.02)),), truth=True, forecast_grid=(0.0, 1.0),
                           floor_grid=(20.0,), log=said.append)
     # stage 1: each shape law with each evidence law (with the truth: the parameters' coverage),
-    # then its skill; each drift other than the chosen law's (the default 0.01) and the drift
-    # chosen; stage 2: each forecast law
-    assert len(said) == 2 * (2 + 1) + 3 + 2 and sum("rel_std" in line and "skill" in line for line in said) == 2
-    assert sum("intervals hold φ" in line for line in said) == 2 * 2 + 2
-    assert [line.split(":")[0] for line in said[6:8]] == ["drift_per_sqrt_m 0", "drift_per_sqrt_m 0.02"]
-    assert said[8] == f"  drift_per_sqrt_m {cfg.drift_per_sqrt_m:g}" and cfg.drift_per_sqrt_m in (0.0, 0.01, 0.02)
+    # then its skill; the chosen law's own drift (the default 0.01) and each of the grid's, and the
+    # drift chosen; stage 2: each forecast law
+    assert len(said) == 2 * (2 + 1) + 4 + 2 and sum("rel_std" in line and "skill" in line for line in said) == 2
+    assert sum("intervals hold φ" in line for line in said) == 2 * 2 + 3
+    assert [line.split(":")[0] for line in said[6:9]] == [f"drift_per_sqrt_m {d}" for d in ("0.01", "0", "0.02")]
+    assert said[9] == f"  drift_per_sqrt_m {cfg.drift_per_sqrt_m:g}" and cfg.drift_per_sqrt_m in (0.0, 0.01, 0.02)
     assert cfg.rel_std in ((0.01, 0.01), (0.5, 0.5)) and cfg.shape_evidence in (False, True)
     assert not cfg.shape_evidence or cfg.shape_rel_std == (0.002, 0.002)
     assert [r["forecast_rel_std"] for r in rows] == [0.0, 1.0] and cfg.forecast_abs_std_n == (20.0, 20.0)
