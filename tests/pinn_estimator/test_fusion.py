@@ -560,6 +560,23 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     assert rows[1]["curve"]["width_x"] > rows[0]["curve"]["width_x"] > 0  # a wider law, wider intervals
 
 
+def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():
+    from types import SimpleNamespace
+
+    from pinn_estimator.fusion_calibration import most_calibrated
+
+    posts = [SimpleNamespace(updates=1)] * 80  # 80 episodes: the coverages' sampling error ~0.045
+
+    def law(name, skill, mis, width):
+        return (skill, 0.002, mis, name, posts, width)
+
+    wide, sharp = law("wide", 0.0180, 0.29, 0.02), law("sharp", 0.0185, 0.30, 0.01)
+    assert most_calibrated([wide, sharp])[3] == "sharp"  # as skilful, as calibrated: the sharper
+    assert most_calibrated([wide, law("sharper, miscalibrated", 0.018, 0.40, 0.005)])[3] == "wide"
+    assert most_calibrated([wide, law("sharper, unskilful", 0.025, 0.29, 0.005)])[3] == "wide"
+    assert most_calibrated([wide, law("as sharp, more skilful", 0.0179, 0.29, 0.02)])[3] == "as sharp, more skilful"
+
+
 def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_evidence_law():
     def row(model, measured, now):
         return {"forecast": {0.5: np.array(model)}, "measured": np.array(measured), "now": np.array(now)}

@@ -188,9 +188,9 @@ def summarise(pairs: list[dict], names) -> dict:
 
 
 def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
-    """Fused posterior at each episode's end against its true θ: mean |error| and how often
-    the posterior's central 90 % / 50 % intervals (its exact quantiles) hold the truth
-    (meaningful where the model is the world)."""
+    """Fused posterior at each episode's end against its true θ: mean |error|, how often the
+    posterior's central 90 % / 50 % intervals (its exact quantiles) hold the truth (meaningful
+    where the model is the world) and the 90 % intervals' mean width [SI] (their sharpness)."""
     levels = (0.05, 0.25, 0.75, 0.95)
     scored = [(part, post) for part, post in zip(parts, posteriors) if part is not None and post.updates]
     summaries = [post.summary() for _, post in scored]
@@ -201,7 +201,8 @@ def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
         held = {lv: [q[name][i] <= part.truth[name] <= q[name][-1 - i] for q, (part, _) in zip(bounds, scored)]
                 for i, lv in enumerate((90, 50))}
         out[name] = {"episodes": len(scored), "mae": float(np.mean(np.abs(err))) if err else float("nan"),
-                     **{f"coverage_{lv}": float(np.mean(h)) if h else float("nan") for lv, h in held.items()}}
+                     **{f"coverage_{lv}": float(np.mean(h)) if h else float("nan") for lv, h in held.items()},
+                     "width_90": float(np.mean([q[name][-1] - q[name][0] for q in bounds])) if bounds else float("nan")}
     return out
 
 
