@@ -85,8 +85,9 @@ V_ZERO = V_LO + U_BOUNDS[0] * V_SPAN
 # A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
 # times the machine's largest force limit, far beyond any soil it can cut.
 PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
-# A cohesionless prior component's c: u = U_BOUNDS[0] ± 0.05, where c is 0 (below) or at most
-# ~0.1 Pa (above): c = 0 in effect, with the same Gaussian algebra as every other component.
+# A cohesionless prior component's c: u = U_BOUNDS[0] ± 0.05, where c is 0 (below) or under
+# 0.3 Pa (within two standard deviations above): c = 0 in effect, with the same Gaussian algebra
+# as every other component.
 COHESIONLESS_U, COHESIONLESS_STD_U = U_BOUNDS[0], 0.05
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = 0.01  # a stretch with the blade (almost) out of the soil carries no evidence
