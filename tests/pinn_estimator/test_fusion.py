@@ -14,7 +14,7 @@ from pinn_estimator import forecast as fc
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
-from pinn_estimator.fusion import FusionConfig, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
+from pinn_estimator.fusion import THETA, FusionConfig, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, acceptable_shape_laws, calibrate, choose_evidence_law,
@@ -333,8 +333,8 @@ def test_each_component_is_weighted_by_the_stretchs_evidence_under_it():
         log_lik = -0.5 * (((last.force[0] - fx) / sx) ** 2 + ((last.force[1] - fz) / sz) ** 2) - np.log(2 * np.pi * sx * sz)
         monte_carlo.append(np.logaddexp.reduce(np.where(np.isfinite(log_lik), log_lik, -np.inf)) - np.log(len(log_lik)))
     monte_carlo = np.array(monte_carlo)
-    # every component with a say in the sum matches (the cohesionless row, where the softplus of c
-    # is most curved, within 1 nat); one far in the tail is negligible by both
+    # every component with a say in the sum matches (the cohesionless row, at the end of c's
+    # coordinate, within 1 nat); one far in the tail is negligible by both
     broad = np.arange(len(log_w0)) < post.cfg.components
     matters = monte_carlo > monte_carlo.max() - 10.0
     assert matters[broad].all() and matters[~broad].any()
@@ -379,7 +379,7 @@ def test_the_parameters_quantiles_are_the_posteriors_own():
     beside the cohesive ones)."""
     (ep,) = episodes("fee", [("Loam", 30.0, 0.15)])
     post = fuse(SoilPosterior(dataclasses.replace(CFG, forecast_samples=20000)), ep, until_s=2.0)
-    assert post.weights[post.u[:, 1] < 0].sum() > 0.01  # the c = 0 row has a say
+    assert post.weights[post.u[:, THETA.index("c")] < 0].sum() > 0.01  # the c = 0 row has a say
     levels = (0.05, 0.25, 0.5, 0.75, 0.95)
     exact = post.quantiles(levels)
     u, w = post.samples()
@@ -563,18 +563,47 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
 def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():
     from types import SimpleNamespace
 
-    from pinn_estimator.fusion_calibration import most_calibrated
+    from pinn_estimator.fusion_calibration import Candidate, most_calibrated
 
     posts = [SimpleNamespace(updates=1)] * 80  # 80 episodes: the coverages' sampling error ~0.045
 
     def law(name, skill, mis, width):
-        return (skill, 0.002, mis, name, posts, width)
+        return Candidate(skill, 0.002, mis, name, posts, width)
 
     wide, sharp = law("wide", 0.0180, 0.29, 0.02), law("sharp", 0.0185, 0.30, 0.01)
-    assert most_calibrated([wide, sharp])[3] == "sharp"  # as skilful, as calibrated: the sharper
-    assert most_calibrated([wide, law("sharper, miscalibrated", 0.018, 0.40, 0.005)])[3] == "wide"
-    assert most_calibrated([wide, law("sharper, unskilful", 0.025, 0.29, 0.005)])[3] == "wide"
-    assert most_calibrated([wide, law("as sharp, more skilful", 0.0179, 0.29, 0.02)])[3] == "as sharp, more skilful"
+    assert most_calibrated([wide, sharp]).config == "sharp"  # as skilful, as calibrated: the sharper
+    assert most_calibrated([wide, law("sharper, miscalibrated", 0.018, 0.40, 0.005)]).config == "wide"
+    assert most_calibrated([wide, law("sharper, unskilful", 0.025, 0.29, 0.005)]).config == "wide"
+    assert most_calibrated([wide, law("as sharp, more skilful", 0.0179, 0.29, 0.02)]).config == "as sharp, more skilful"
+
+
+def test_the_parameters_coverage_counts_central_intervals_and_c_on_cohesive_soils_only():
+    """``parameter_coverage`` on posteriors whose quantiles are known: the 90 % and 50 % central
+    intervals, their width, and c judged only where the true c > 0 (an interval of c from the
+    cohesionless row holds a true 0 at any level, however sharp)."""
+    from types import SimpleNamespace
+
+    def post(phi_q, c_q):  # quantiles at 0.05, 0.25, 0.75, 0.95
+        q = {"phi": np.array(phi_q, float), "c": np.array(c_q, float), "delta": np.full(4, 0.2)}
+        summary = SimpleNamespace(mean={"phi": float(np.mean(phi_q)), "c": float(np.mean(c_q)), "delta": 0.2})
+        return SimpleNamespace(updates=3, quantiles=lambda levels: q, summary=lambda: summary)
+
+    def part(phi, c):
+        return SimpleNamespace(truth={"phi": phi, "c": c, "delta": 0.2})
+
+    parts = [part(0.50, 1000.0), part(0.50, 1000.0), part(0.50, 0.0), None]
+    posts = [post([0.40, 0.45, 0.55, 0.60], [800, 950, 1050, 1200]),  # both inside the 50 % interval
+             post([0.40, 0.48, 0.49, 0.60], [900, 1100, 1200, 1300]),  # φ in the 90 % only, c in the 90 % only
+             post([0.51, 0.52, 0.53, 0.54], [0, 0, 0, 0.3]),  # φ outside both; c = 0 held, but not scored
+             post([0.0, 0.0, 1.0, 1.0], [0, 0, 0, 0])]  # no steady part: not scored at all
+    cover = fc.parameter_coverage(parts, posts)
+    assert cover["phi"]["episodes"] == 3 and cover["phi"]["interval_episodes"] == 3
+    assert cover["phi"]["coverage_90"] == pytest.approx(2 / 3) and cover["phi"]["coverage_50"] == pytest.approx(1 / 3)
+    assert cover["phi"]["width_90"] == pytest.approx(np.mean([0.2, 0.2, 0.03]))
+    assert cover["c"]["interval_episodes"] == 2 and cover["c"]["episodes"] == 3
+    assert cover["c"]["coverage_90"] == 1.0 and cover["c"]["coverage_50"] == 0.5
+    assert cover["c"]["width_90"] == pytest.approx(400.0)
+    assert cover["c"]["mae"] == pytest.approx(np.mean([0.0, 125.0, 0.075]))
 
 
 def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_evidence_law():

@@ -32,8 +32,8 @@ an outlier is down-weighted. Residuals of successive stretches are correlated (t
 physics), so each stretch's evidence can be tempered by ``evidence_weight`` κ ≤ 1. The error
 model's numbers are calibrated on episodes other than the ones the evaluation scores.
 
-Prior: broad over Table 1's ranges, plus (``cohesionless_prior``) a row of components at c ≈ 0,
-the clean sands' and gravels' own state, which the softplus coordinate of c only reaches at its end.
+Prior: broad over Table 1's ranges, plus (``cohesionless_prior``) a row of components at c = 0,
+the clean sands' and gravels' own state, at the end of c's coordinate (``SoilPosterior``).
 
 Soil that changes: between stretches the covariance grows with the blade's travel (a random
 walk of the soil along the path, ``drift_per_sqrt_m``), and the soil may have jumped to a new

@@ -8,8 +8,8 @@ posterior's spread, ΔF the part of the force it extrapolates from the newest ev
 (near and far forecasts, as a planner asks them), densities 20-80 %, other seeds, disjoint
 from the evaluation's 0.1 / 0.15 / 0.225 m and 30 / 50 / 70 %. Stage 1, for each law of the
 stretches' shape evidence (``SHAPE_GRID``; the simplest as skilful as any, or where the
-episodes' θ is the truth the one and the drift whose parameter intervals are best calibrated,
-``calibrate``): ``rel_std`` on a log
+episodes' θ is the truth, of those as skilful as any, the one and the drift whose parameter
+intervals are best calibrated and, of the equally calibrated, the sharpest, ``calibrate``): ``rel_std`` on a log
 grid, per axis by how close its median forecasts of that axis at another depth are to the
 measured force (mean |error|: of F_x as a share of |F_x|; of F_z, which passes through 0, as a
 share of its limit): the smallest value (the evidence that teaches most) within one standard
@@ -33,6 +33,7 @@ import itertools
 import math
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -214,12 +215,15 @@ def acceptable_shape_laws(rows: list[tuple]) -> list[tuple]:
     return [r for r in rows if r[1] <= best[1] + best[2]]
 
 
+PARAMETER_LEVELS = (0.5, 0.9)  # the central intervals of φ and c the truth stage judges
+
+
 def parameter_miscalibration(ds, posts) -> tuple[float, dict]:
     """(mean |coverage − nominal| of the posteriors' 50 % and 90 % intervals of φ and c against
     the episodes' true θ at their ends, ``forecast.parameter_coverage``): meaningful only where
     the model is the world (fee)."""
     cover = fc.parameter_coverage(fc.steady_parts(ds), posts)
-    mis = [abs(cover[n][f"coverage_{lv}"] - lv / 100) for n in ("phi", "c") for lv in (50, 90)]
+    mis = [abs(cover[n][f"coverage_{round(100 * lv)}"] - lv) for n in ("phi", "c") for lv in PARAMETER_LEVELS]
     return float(np.mean(mis)), cover
 
 
@@ -229,24 +233,40 @@ def shape_text(shape) -> str:
 
 def cover_text(cover: dict) -> str:
     return (f"50 % / 90 % intervals hold φ {cover['phi']['coverage_50']:.0%} / {cover['phi']['coverage_90']:.0%}, c "
-            f"{cover['c']['coverage_50']:.0%} / {cover['c']['coverage_90']:.0%} of the episodes' true soils "
+            f"{cover['c']['coverage_50']:.0%} / {cover['c']['coverage_90']:.0%} (cohesive soils) of the episodes' true soils "
             f"(φ's 90 % interval {math.degrees(cover['phi']['width_90']):.2f}° wide)")
 
 
-def most_calibrated(candidates: list[tuple]) -> tuple:
-    """Of (skill, sem, miscalibration, config, posteriors, width) candidates: those as skilful as
-    any (skill within one standard error of the best), of them those whose parameters' intervals
-    are as close to nominal as the closest within the coverages' sampling error, and of those the
-    sharpest (narrowest 90 % intervals of φ): calibration of the parameters first among the laws
-    that forecast equally well, then sharpness, as for the forecast law (stage 2). Why not the
-    most skilful last: with the cohesionless row at c = 0 every law's intervals held the fee
-    world's truth in 99-100 % of the episodes, and a skill a tenth of its standard error better
-    took a posterior twice as wide as it had to be (forecasts' 50 % intervals holding 99 %)."""
-    best_skill, best_sem = min(c[:2] for c in candidates)
-    acceptable = [c for c in candidates if c[0] <= best_skill + best_sem]
-    tolerance = coverage_tolerance(sum(p.updates > 0 for p in acceptable[0][4]), (0.5, 0.9))
-    least = min(c[2] for c in acceptable)
-    return min((c for c in acceptable if c[2] <= least + tolerance), key=lambda c: (c[5], c[0]))
+class Candidate(NamedTuple):
+    """An evidence law judged where the truth is known (``calibrate``'s truth stage)."""
+
+    skill: float  # median forecasts' error over the naive forecast's (``forecast_skill``)
+    sem: float  # its standard error
+    miscalibration: float  # of the parameters' intervals (``parameter_miscalibration``)
+    config: FusionConfig
+    posteriors: list
+    width: float  # φ's 90 % interval, mean over the episodes [rad]: the law's sharpness
+
+
+def candidate(sc: dict, mis: float, cover: dict, trial: FusionConfig, posts: list) -> Candidate:
+    width = cover["phi"]["width_90"]
+    return Candidate(*forecast_skill(sc), mis, trial, posts, width if math.isfinite(width) else math.inf)
+
+
+def most_calibrated(candidates: list[Candidate]) -> Candidate:
+    """Of the candidates: those as skilful as any (skill within one standard error of the best),
+    of them those whose parameters' intervals are as close to nominal as the closest within the
+    coverages' sampling error, and of those the sharpest (narrowest 90 % intervals of φ):
+    calibration of the parameters first among the laws that forecast equally well, then
+    sharpness, as for the forecast law (stage 2). Why not the most skilful last: with the
+    cohesionless row at c = 0 every law's intervals held the fee world's truth in 99-100 % of the
+    episodes, and a skill a tenth of its standard error better took a posterior twice as wide as
+    it had to be (forecasts' 50 % intervals holding 99 %)."""
+    best = min(candidates, key=lambda c: c.skill)
+    acceptable = [c for c in candidates if c.skill <= best.skill + best.sem]
+    tolerance = coverage_tolerance(sum(p.updates > 0 for p in acceptable[0].posteriors), PARAMETER_LEVELS)
+    least = min(c.miscalibration for c in acceptable)
+    return min((c for c in acceptable if c.miscalibration <= least + tolerance), key=lambda c: (c.width, c.skill))
 
 
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
@@ -266,13 +286,13 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
     by the calibration curve. Returns the config and every stage-2 candidate's curve."""
     from .evaluate import fused_posteriors
 
-    def judged(trial, posts, line):
-        """(skill, sem, miscalibration, trial, posts, width) of a trial, logged after ``line``."""
+    def judged(trial, posts, line) -> Candidate:
+        """A trial as a ``Candidate``, logged after ``line``."""
         sc = forecast_scores(forecast_table(ds, trial, posts=posts))
         mis, cover = parameter_miscalibration(ds, posts)
-        skill, sem = forecast_skill(sc)
-        log(f"{line}: skill {skill:.3f} ± {sem:.3f}; {cover_text(cover)}")
-        return skill, sem, mis, trial, posts, cover["phi"]["width_90"]
+        out = candidate(sc, mis, cover, trial, posts)
+        log(f"{line}: skill {out.skill:.3f} ± {out.sem:.3f}; {cover_text(cover)}")
+        return out
 
     shapes, candidates = [], []
     for shape in shape_grid:
@@ -287,7 +307,7 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
                     f"{sx:.2f} % of |F_x| (x) / {ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
             if truth:
                 mis, cover = parameter_miscalibration(ds, posts)
-                candidates.append((*forecast_skill(sc), mis, trial, posts, cover["phi"]["width_90"]))
+                candidates.append(candidate(sc, mis, cover, trial, posts))
                 line += f"; {cover_text(cover)}"
             log(line)
         rels = choose_evidence_law(scored)
@@ -299,16 +319,16 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
         chosen = most_calibrated(candidates)
         if truth_grids:  # every combination, and stage 1's own values among them
             names = [n for n, _ in truth_grids]
-            here = tuple(getattr(chosen[3], n) for n in names)
+            here = tuple(getattr(chosen.config, n) for n in names)
             combos = list(itertools.product(*(grid for _, grid in truth_grids)))
             trials = []
             for values in combos if here in combos else [here, *combos]:
                 text = ", ".join(f"{n} {v:g}" for n, v in zip(names, values))
-                trial = dataclasses.replace(chosen[3], **dict(zip(names, values)))
-                trials.append(judged(trial, chosen[4] if values == here else fused_posteriors(ds, trial), text))
+                trial = dataclasses.replace(chosen.config, **dict(zip(names, values)))
+                trials.append(judged(trial, chosen.posteriors if values == here else fused_posteriors(ds, trial), text))
             chosen = most_calibrated(trials)
-            log("  " + ", ".join(f"{n} {getattr(chosen[3], n):g}" for n in names))
-        cfg, posts = chosen[3], chosen[4]
+            log("  " + ", ".join(f"{n} {getattr(chosen.config, n):g}" for n in names))
+        cfg, posts = chosen.config, chosen.posteriors
     else:
         simplest = acceptable_shape_laws(shapes)[0]
         cfg = dataclasses.replace(with_shape(base, simplest[0]), rel_std=simplest[3])
