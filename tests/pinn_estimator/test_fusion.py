@@ -568,7 +568,7 @@ def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful
     posts = [SimpleNamespace(updates=1)] * 80  # 80 episodes: the coverages' sampling error ~0.045
 
     def law(name, skill, mis, width):
-        return Candidate(skill, 0.002, mis, name, posts, width)
+        return Candidate(skill, 0.002, mis, name, posts, width, {})
 
     wide, sharp = law("wide", 0.0180, 0.29, 0.02), law("sharp", 0.0185, 0.30, 0.01)
     assert most_calibrated([wide, sharp]).config == "sharp"  # as skilful, as calibrated: the sharper

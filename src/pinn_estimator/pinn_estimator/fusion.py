@@ -82,6 +82,7 @@ U_BOUNDS = (-0.25, 1.25)
 C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
 V_ZERO = V_LO + U_BOUNDS[0] * V_SPAN
+SOFTPLUS_AT_ZERO = math.log1p(math.exp(V_ZERO))  # softplus(V_ZERO), what c's map subtracts
 # A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
 # times the machine's largest force limit, far beyond any soil it can cut.
 PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
@@ -447,7 +448,7 @@ class SoilPosterior:
         u = np.asarray(u, float)
         out = {n: PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]) for j, n in enumerate(THETA) if n in PRIOR_BOX}
         softplus = np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
-        out["c"] = C_SCALE_PA * np.maximum(softplus - np.logaddexp(0.0, V_ZERO), 0.0)
+        out["c"] = C_SCALE_PA * np.maximum(softplus - SOFTPLUS_AT_ZERO, 0.0)
         return {n: out[n] for n in THETA}
 
     def model_force(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

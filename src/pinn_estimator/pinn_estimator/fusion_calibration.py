@@ -246,11 +246,14 @@ class Candidate(NamedTuple):
     config: FusionConfig
     posteriors: list
     width: float  # φ's 90 % interval, mean over the episodes [rad]: the law's sharpness
+    cover: dict  # ``forecast.parameter_coverage`` of the posteriors
 
 
-def candidate(sc: dict, mis: float, cover: dict, trial: FusionConfig, posts: list) -> Candidate:
+def judge(ds, sc: dict, trial: FusionConfig, posts: list) -> Candidate:
+    """The law ``trial`` with its posteriors of ``ds`` and ``forecast_scores`` ``sc`` as a ``Candidate``."""
+    mis, cover = parameter_miscalibration(ds, posts)
     width = cover["phi"]["width_90"]
-    return Candidate(*forecast_skill(sc), mis, trial, posts, width if math.isfinite(width) else math.inf)
+    return Candidate(*forecast_skill(sc), mis, trial, posts, width if math.isfinite(width) else math.inf, cover)
 
 
 def most_calibrated(candidates: list[Candidate]) -> Candidate:
@@ -286,13 +289,9 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
     by the calibration curve. Returns the config and every stage-2 candidate's curve."""
     from .evaluate import fused_posteriors
 
-    def judged(trial, posts, line) -> Candidate:
-        """A trial as a ``Candidate``, logged after ``line``."""
-        sc = forecast_scores(forecast_table(ds, trial, posts=posts))
-        mis, cover = parameter_miscalibration(ds, posts)
-        out = candidate(sc, mis, cover, trial, posts)
-        log(f"{line}: skill {out.skill:.3f} ± {out.sem:.3f}; {cover_text(cover)}")
-        return out
+    def logged(judged: Candidate, line: str) -> Candidate:
+        log(f"{line}: skill {judged.skill:.3f} ± {judged.sem:.3f}; {cover_text(judged.cover)}")
+        return judged
 
     shapes, candidates = [], []
     for shape in shape_grid:
@@ -306,9 +305,8 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
             line = (f"shape {shape_text(shape)}, rel_std {rel:g}: median forecasts at another depth off by {ex:.2f} ± "
                     f"{sx:.2f} % of |F_x| (x) / {ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
             if truth:
-                mis, cover = parameter_miscalibration(ds, posts)
-                candidates.append(candidate(sc, mis, cover, trial, posts))
-                line += f"; {cover_text(cover)}"
+                candidates.append(judge(ds, sc, trial, posts))
+                line += f"; {cover_text(candidates[-1].cover)}"
             log(line)
         rels = choose_evidence_law(scored)
         chosen = {k: np.array([dict(scored)[rels[j]][k][j] for j in range(2)]) for k in ("error", "sem", "naive")}
@@ -317,15 +315,19 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
         shapes.append((shape, skill, sem, rels))
     if truth:
         chosen = most_calibrated(candidates)
-        if truth_grids:  # every combination, and stage 1's own values among them
+        if truth_grids:  # every combination, and stage 1's own values among them (already judged)
             names = [n for n, _ in truth_grids]
             here = tuple(getattr(chosen.config, n) for n in names)
             combos = list(itertools.product(*(grid for _, grid in truth_grids)))
             trials = []
             for values in combos if here in combos else [here, *combos]:
                 text = ", ".join(f"{n} {v:g}" for n, v in zip(names, values))
+                if values == here:
+                    trials.append(logged(chosen, text))
+                    continue
                 trial = dataclasses.replace(chosen.config, **dict(zip(names, values)))
-                trials.append(judged(trial, chosen.posteriors if values == here else fused_posteriors(ds, trial), text))
+                posts = fused_posteriors(ds, trial)
+                trials.append(logged(judge(ds, forecast_scores(forecast_table(ds, trial, posts=posts)), trial, posts), text))
             chosen = most_calibrated(trials)
             log("  " + ", ".join(f"{n} {getattr(chosen.config, n):g}" for n in names))
         cfg, posts = chosen.config, chosen.posteriors
