@@ -557,7 +557,25 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
         calibrated = [r for r in rows if r[f"miscalibration_{axis}"] <= least + coverage_tolerance(r["curve"]["pairs"])]
         sharpest = min(calibrated, key=lambda r: r["curve"][f"width_{axis}"])  # sharpness subject to calibration
         assert cfg.forecast_rel_std[j] == sharpest["forecast_rel_std"]
-    assert rows[1]["curve"]["width_x"] > rows[0]["curve"]["width_x"] > 0  # a wider law, wider intervals
+    # stage 2 alone on the chosen config's posteriors (``--forecast-law-only``) chooses the same law;
+    # its coverages, from each pair's predictive CDF at the measured force, are those of the intervals
+    from pinn_estimator.evaluate import fused_posteriors
+    from pinn_estimator.fusion_calibration import choose_forecast_law, coverage_curve, forecast_table, pair_forecasts
+
+    posts = fused_posteriors(ds, cfg)
+    again, _ = choose_forecast_law(ds, dataclasses.replace(cfg, forecast_rel_std=(0.3, 0.3)), posts, forecast_grid=(0.0, 1.0),
+                                   floor_grid=(20.0,), log=said.append)
+    assert again == cfg
+    pairs = pair_forecasts(ds, posts)
+    for law in (cfg, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0))):
+        curve, table = coverage_curve(ds, law, pairs=pairs), forecast_table(ds, law, pairs=pairs)
+        for j, axis in enumerate("xz"):
+            held = [np.mean([r["forecast"][0.5 - lv / 2][j] <= r["measured"][j] <= r["forecast"][0.5 + lv / 2][j] for r in table])
+                    for lv in NOMINAL]
+            np.testing.assert_allclose(curve[axis], held)
+    wide = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0)), pairs=pairs)
+    narrow = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(0.0, 0.0)), pairs=pairs)
+    assert wide["width_x"] > narrow["width_x"] > 0  # a wider law, wider intervals
 
 
 def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():

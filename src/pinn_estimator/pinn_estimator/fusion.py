@@ -472,12 +472,10 @@ class SoilPosterior:
             wild = (np.abs(fx) > PLAUSIBLE_FORCE_N) | (np.abs(fz) > PLAUSIBLE_FORCE_N)
         return np.where(wild, np.nan, fx), np.where(wild, np.nan, fz)
 
-    def sigma(self, fx, fz, spread_n=(0.0, 0.0), forecast: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Model error (x, z) [N]: floor + share of the force (the evidence's; with ``forecast``
-        the forecast's law, given the extrapolated part of the force), widened by a stretch's
-        unsteadiness."""
-        rel, floor = (self.cfg.forecast_rel_std, self.cfg.forecast_abs_std_n) if forecast else (self.cfg.rel_std, self.cfg.abs_std_n)
-        (ax, az), (rx, rz), g = floor, rel, self.cfg.unsteady_gain
+    def sigma(self, fx, fz, spread_n=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """The evidence's model error (x, z) [N]: floor + share of the force, widened by a
+        stretch's unsteadiness (the forecast's law: ``forecast_from``)."""
+        (ax, az), (rx, rz), g = self.cfg.abs_std_n, self.cfg.rel_std, self.cfg.unsteady_gain
         return (np.hypot(model_error_std(fx, ax, rx), g * spread_n[0]), np.hypot(model_error_std(fz, az, rz), g * spread_n[1]))
 
     # -- evidence
@@ -716,25 +714,45 @@ class SoilPosterior:
         stretch)|, at most |F_s(known)|): the model is fitted where the evidence is and misses
         more the further a forecast reaches in depth, speed or surcharge. Before any stretch,
         all of |F_s|."""
+        return self.forecast_from(self.predictive(known, distance_m), quantiles)
+
+    def predictive(self, known: np.ndarray, distance_m: float = 0.0) -> "Predictive":
+        """The posterior's samples through the model at ``known``, before any forecast law."""
         u, w = self.samples()
         fx, fz = self.model_force(u, known, distance_m)
         if self.last_known is not None:
             fx0, fz0 = self.model_force(u, self.last_known, distance_m)
         else:
             fx0 = fz0 = np.full(len(fx), np.nan)
-        sx, sz = self.sigma(extrapolated_part(fx, fx0, fx), extrapolated_part(fz, fz0, fz), forecast=True)
         ok = np.isfinite(fx) & np.isfinite(fz)
+        return Predictive(w[ok] / w[ok].sum() if ok.any() else w[ok], np.stack([fx[ok], fz[ok]]),
+                          np.stack([extrapolated_part(fx, fx0, fx)[ok], extrapolated_part(fz, fz0, fz)[ok]]))
+
+    def forecast_from(self, pred: "Predictive", quantiles, cfg: "FusionConfig | None" = None) -> dict:
+        """``forecast``'s answer from a ``predictive`` under the forecast law of ``cfg`` (default:
+        the posterior's own): a calibration tries many laws on the same samples."""
+        cfg = cfg or self.cfg
         out = {"mean": np.full(2, np.nan), "std": np.full(2, np.nan), "quantiles": {q: np.full(2, np.nan) for q in quantiles}}
-        if not ok.any():
+        if not len(pred.weights):
             return out
-        w = w[ok] / w[ok].sum()
-        for j, (f, sd) in enumerate(((fx[ok], sx[ok]), (fz[ok], sz[ok]))):
+        w = pred.weights
+        for j in range(2):
+            f = pred.force_n[j]
+            sd = model_error_std(pred.extrapolated_n[j], cfg.forecast_abs_std_n[j], cfg.forecast_rel_std[j])
             m = float(w @ f)
             out["mean"][j] = m
             out["std"][j] = math.sqrt(float(w @ ((f - m) ** 2 + sd ** 2)))
             for q, v in zip(quantiles, mixture_quantiles(w, f, sd, quantiles)):
                 out["quantiles"][q][j] = v
         return out
+
+
+class Predictive(NamedTuple):
+    """A posterior's samples through the model at one forecast's conditions (``SoilPosterior.predictive``)."""
+
+    weights: np.ndarray  # (S,) of the samples with a force, summing to 1
+    force_n: np.ndarray  # (2, S) the model's force (x, z) [N]
+    extrapolated_n: np.ndarray  # (2, S) what each extrapolates from the newest stretch [N] (``extrapolated_part``)
 
 
 def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:
