@@ -23,6 +23,10 @@ from .fee_fit import ThetaFit, fit_fixed, residuals
 from .frame import Frame
 from .regimes import AXES, bin_edges, regime_bins
 
+# What a named term that earns no place leaves when it is removed (the term-by-term held-out
+# test, ``workflow``): one wording for the log, the verdict and the report.
+NO_WORSE_WITHOUT = "the held-out force error and the forecast at another depth no worse"
+
 
 def error_metrics(resid: np.ndarray) -> dict:
     """MAE/RMSE per axis and the RMS of the force-error magnitude, rmse = sqrt(mean(r_x² + r_z²)) [N]."""

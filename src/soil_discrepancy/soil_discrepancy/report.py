@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .forms import CATALOGUE_FILE, catalogue_yaml
+from .gap import NO_WORSE_WITHOUT
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -102,11 +103,11 @@ def markdown(report: dict, figures=()) -> str:
                "confirms a name")
         idle = [a["name"] for a in tentative["terms"] if a.get("why") == "idle"]
         if len(idle) == len(tentative["terms"]):
-            why = ("the held-out test episodes confirmed the set it named, but removing each of these from it leaves their "
-                   "force error and the forecast at another depth no worse: beside the others they earn no place there")
+            why = ("the held-out test episodes confirmed the set it named, but removing each of these from it leaves "
+                   f"{NO_WORSE_WITHOUT}: beside the others they earn no place there")
         elif idle:
-            why += (f"; and term by term, removing {', '.join(f'`{n}`' for n in idle)} from the named set left the held-out "
-                    "force error and the forecast at another depth no worse")
+            why += (f"; and term by term, removing {', '.join(f'`{n}`' for n in idle)} from the named set leaves "
+                    f"{NO_WORSE_WITHOUT}")
         lines += ["## Tentative: NOT confirmed on the held-out test episodes (not named)", "",
                   f"Cross-validation on the selection part chose these terms; {why}. The verdict does not rest on "
                   "them; try them where it matters (`--accepted NAME=K`) and check on data of your own.", "",

@@ -32,7 +32,7 @@ from .candidates import MAX_TERMS, select_terms, split_holdout
 from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame
-from .gap import compare_predictions, depth_forecast_gap, fee_gap
+from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
 
 REPORT_VERSION = 1
@@ -237,9 +237,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         trial, kept, judged = _refitted_if_confirmed(fsel, ftest, initial, rest, sel["fit"], base, edges,
                                                      min_gain, alpha, allow_negative_k)
         failed = [s for s in rest if s.name not in {k.name for k in kept}]
-        say(f"held-out test, term by term: removing {worst.name} leaves the force error and the forecast at another "
-            f"depth no worse: tentative" + (f"; the rest, refitted without it, not confirmed: {', '.join(s.name for s in failed)}"
-                                           if failed else ""))
+        say(f"held-out test, term by term: removing {worst.name} leaves {NO_WORSE_WITHOUT}: tentative"
+            + (f"; the rest, refitted without it, not confirmed: {', '.join(s.name for s in failed)}" if failed else ""))
         rows = [_term_row(worst, why="idle")] + [_term_row(s, why="set") for s in failed]
         if tentative is None:
             tentative = {"terms": [], **_confirmation(test)}
@@ -489,8 +488,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
     idle = [t["name"] for t in (tentative or {}).get("terms", []) if t.get("why") == "idle"]
     if tentative and len(idle) == len(tentative["terms"]):
         not_named = (f" (tentative, NOT confirmed term by term on the held-out test episodes: "
-                     f"{', '.join(idle)} passed cross-validation on the selection part, but removing it leaves the "
-                     "held-out force error and the forecast at another depth no worse)")
+                     f"{', '.join(idle)} passed cross-validation on the selection part, but removing it leaves "
+                     f"{NO_WORSE_WITHOUT})")
     elif tentative:
         not_named = (f" (tentative, NOT confirmed on the held-out test episodes: "
                      f"{', '.join(t['name'] for t in tentative['terms'] if t.get('why') != 'idle')} passed cross-validation on the selection part, "
@@ -498,8 +497,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                      f"{_fmt_n(tentative['test_rmse_after'])} N"
                      + (f", force at another depth {tentative['forecast_pct_before']:.1f} -> "
                         f"{tentative['forecast_pct_after']:.1f} % of |F|" if tentative.get("forecast_pct_before") is not None else "")
-                     + (f"; term by term, removing {', '.join(idle)} leaves the held-out force error and the forecast "
-                        "at another depth no worse" if idle else "")
+                     + (f"; term by term, removing {', '.join(idle)} leaves {NO_WORSE_WITHOUT}" if idle else "")
                      + ")")
     if new_terms:
         parts = []
