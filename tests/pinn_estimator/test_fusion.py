@@ -428,7 +428,7 @@ def test_a_long_cut_at_one_depth_stays_on_the_soil():
         assert abs(s.mean["phi"] - true["phi"]) < 2 * DEG and s.std["phi"] < 4 * DEG
 
 
-def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys):
+def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys, tmp_path):
     from pinn_estimator.fusion_calibration import main as calibrate_main
 
     assert FusionConfig.parse_field("drift_per_sqrt_m=0.005") == ("drift_per_sqrt_m", 0.005)
@@ -436,7 +436,9 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     for text, needle in (("colour=1", "colour"), ("drift_per_sqrt_m", "FIELD=VALUE"), ("prior_std=x", "not JSON")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig.parse_field(text)
-    for fields, needle in (({"rel_std": 5}, "rel_std"), ({"cohesionless_prior": -1}, "cohesionless_prior")):
+    for fields, needle in (({"rel_std": 5}, "rel_std"), ({"cohesionless_prior": -1}, "cohesionless_prior"),
+                           ({"prior_std": "x"}, "prior_std"), ({"terms": 5}, "terms"),
+                           ({"terms": [["soil_inertia"]]}, "terms"), ({"forecast_abs_std_n": "ab"}, "forecast_abs_std_n")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig().with_fields(fields)
     # the calibration refuses what it chooses itself, before any episode is simulated
@@ -446,6 +448,14 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
                         ("terms=[]", "terms is set by --term"), ("colour=1", "colour")):
         with pytest.raises(SystemExit) as exit_:
             calibrate_main(["--world", "fee", "--set", arg])
+        assert exit_.value.code == 2 and needle in capsys.readouterr().err
+    # stage 2 alone keeps a config's posterior: nothing that changes it, and a config that is there and sound
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"rel_std": 3}')
+    for args, needle in ((["--term", "soil_inertia=4"], "--term and --set change it"),
+                         (["--out", str(tmp_path / "none.json")], "no config at"), (["--out", str(bad)], "rel_std=3")):
+        with pytest.raises(SystemExit) as exit_:
+            calibrate_main(["--world", "fee", "--forecast-law-only", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err
 
 

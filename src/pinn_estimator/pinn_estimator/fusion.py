@@ -197,17 +197,22 @@ class FusionConfig:
         data = dict(data)
         for name in PAIR_FIELDS:
             if name in data:
+                if not isinstance(data[name], (list, tuple)):
+                    raise ValueError(f"fusion {name}={data[name]!r} must be two numbers (x, z)")
                 data[name] = tuple(data[name])
         if "terms" in data:
-            data["terms"] = tuple(tuple(t) for t in data["terms"])
-        return cls(**data)
+            terms = data["terms"]
+            if not isinstance(terms, (list, tuple)) or not all(isinstance(t, (list, tuple)) and len(t) == 2 for t in terms):
+                raise ValueError(f"fusion terms={terms!r} must be a list of [name, k] pairs")
+            data["terms"] = tuple(tuple(t) for t in terms)
+        try:
+            return cls(**data)
+        except TypeError as err:  # a value of the wrong type, e.g. text where a number is expected
+            raise ValueError(f"fusion config: {err}") from None
 
     def with_fields(self, overrides: dict) -> "FusionConfig":
         """This config with some fields set (validated as a whole; errors name the field and value)."""
-        try:
-            return FusionConfig.from_dict({**self.to_dict(), **overrides})
-        except TypeError as err:  # a value of the wrong type, e.g. a number where (x, z) is expected
-            raise ValueError(f"fusion config {overrides}: {err}") from None
+        return FusionConfig.from_dict({**self.to_dict(), **overrides})
 
     @staticmethod
     def parse_field(text: str) -> tuple[str, object]:
