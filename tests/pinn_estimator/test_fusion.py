@@ -570,13 +570,23 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     # stage 2 alone on the chosen config's posteriors (``--forecast-law-only``) chooses the same law;
     # its coverages, from each pair's predictive CDF at the measured force, are those of the intervals
     from pinn_estimator.evaluate import fused_posteriors
-    from pinn_estimator.fusion_calibration import choose_forecast_law, coverage_curve, forecast_table, pair_forecasts
+    from pinn_estimator.fusion_calibration import (choose_forecast_law, coverage_curve, coverages, forecast_table,
+                                                   interval_level, pair_forecasts, predictive_cdf, reach_strata)
 
     posts = fused_posteriors(ds, cfg)
     again, _ = choose_forecast_law(ds, dataclasses.replace(cfg, forecast_rel_std=(0.3, 0.3)), posts, forecast_grid=(0.0, 1.0),
                                    floor_grid=(20.0,), log=said.append)
     assert again == cfg
     pairs = pair_forecasts(ds, posts)
+    # each law's coverage is also logged in the pairs that reach less far in depth than the median
+    # pair and in the rest
+    reach = np.array([p.reach_m for p in pairs])
+    strata = reach_strata(reach)
+    assert len(strata) == 2 and reach[strata[0]].max() < reach[strata[1]].min() and (strata[0] ^ strata[1]).all()
+    first = interval_level(predictive_cdf(pairs, rows[0]["law"]))
+    near, far = (" / ".join(f"{c:.0%}" for c in coverages(first[m, 0], (0.9, 0.5))) for m in strata)
+    assert f"(reaching less far: F_x {near}; reaching farther: F_x {far})" in said[-2]
+    assert rows[0]["curve"]["x"] == coverages(first[:, 0])
     for law in (cfg, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0))):
         curve, table = coverage_curve(ds, law, pairs=pairs), forecast_table(ds, law, pairs=pairs)
         for j, axis in enumerate("xz"):
