@@ -437,10 +437,16 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
         with pytest.raises(ValueError, match=needle):
             FusionConfig.parse_field(text)
     for fields, needle in (({"rel_std": 5}, "rel_std"), ({"cohesionless_prior": -1}, "cohesionless_prior"),
-                           ({"prior_std": "x"}, "prior_std"), ({"terms": 5}, "terms"),
+                           ({"prior_std": "x"}, "prior_std"), ({"terms": 5}, "terms"), ({"evidence_weight": "x"}, "evidence_weight"),
                            ({"terms": [["soil_inertia"]]}, "terms"), ({"forecast_abs_std_n": "ab"}, "forecast_abs_std_n")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig().with_fields(fields)
+        with pytest.raises(ValueError, match=needle):  # a config file: the same checks
+            FusionConfig.from_dict(fields)
+    # what to_dict writes and JSON gives back loads, terms as [name, k] lists or 'name=k' texts
+    cfg = FusionConfig(terms=(("soil_inertia", 4.0),), rel_std=(0.01, 0.02))
+    assert FusionConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    assert FusionConfig.from_dict({"terms": ["soil_inertia=4"]}).terms == (("soil_inertia", 4.0),)
     # the calibration refuses what it chooses itself, before any episode is simulated
     for arg, needle in (("forecast_rel_std=[0.1,0.1]", "forecast_rel_std is chosen by the calibration"),
                         ("shape_evidence=true", "shape_evidence is chosen by the calibration"),
@@ -453,7 +459,8 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     bad = tmp_path / "bad.json"
     bad.write_text('{"rel_std": 3}')
     for args, needle in ((["--term", "soil_inertia=4"], "--term and --set change it"),
-                         (["--out", str(tmp_path / "none.json")], "no config at"), (["--out", str(bad)], "rel_std=3")):
+                         (["--out", str(tmp_path / "none.json")], "no config file at"), (["--out", str(tmp_path)], "no config file at"),
+                         (["--out", str(bad)], f"{bad}: fusion rel_std=3")):
         with pytest.raises(SystemExit) as exit_:
             calibrate_main(["--world", "fee", "--forecast-law-only", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err
@@ -586,8 +593,7 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     first = interval_level(predictive_cdf(pairs, rows[0]["law"]))
     near, far = (" / ".join(f"{c:.0%}" for c in coverages(first[m, 0], (0.9, 0.5))) for m in strata)
     assert f"(reaching less far: F_x {near}; reaching farther: F_x {far})" in said[-2]
-    assert rows[0]["curve"]["x"] == coverages(first[:, 0])
-    for law in (cfg, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0))):
+    for law in (cfg, dataclasses.replace(cfg, forecast_rel_std=(0.0, 0.0)), dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0))):
         curve, table = coverage_curve(ds, law, pairs=pairs), forecast_table(ds, law, pairs=pairs)
         for j, axis in enumerate("xz"):
             held = [np.mean([r["forecast"][0.5 - lv / 2][j] <= r["measured"][j] <= r["forecast"][0.5 + lv / 2][j] for r in table])
@@ -596,6 +602,35 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     wide = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0)), pairs=pairs)
     narrow = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(0.0, 0.0)), pairs=pairs)
     assert wide["width_x"] > narrow["width_x"] > 0  # a wider law, wider intervals
+
+
+def test_a_forecast_law_is_judged_by_the_predictive_cdf_at_the_measured_force():
+    """``predictive_cdf`` on predictives built by hand: a measured force at a known quantile of the
+    mixture gives that probability, so a central interval of level ℓ holds it exactly when
+    |2·CDF − 1| <= ℓ; a posterior without a forecast gives NaN, held by no interval."""
+    from pinn_estimator.fusion import Predictive
+    from pinn_estimator.fusion_calibration import (PairForecast, coverages, curve_of, interval_level, predictive_cdf,
+                                                   reach_strata)
+
+    law = FusionConfig(forecast_abs_std_n=(100.0, 50.0), forecast_rel_std=(0.1, 0.0))
+    pred = Predictive(np.array([0.25, 0.75]), np.array([[1000.0, 2000.0], [0.0, 0.0]]), np.array([[0.0, 1000.0], [0.0, 0.0]]))
+    # x: 0.25 N(1000, 100²) + 0.75 N(2000, 200²) (floor + 0.1 of what each extrapolates); z: N(0, 50²)
+    at = {0.05: None, 0.5: None, 0.95: None}
+    x = mixture_quantiles(pred.weights, pred.force_n[0], np.array([100.0, 200.0]), tuple(at))
+    pairs = [PairForecast(np.array([xq, norm.ppf(q) * 50.0]), np.zeros(2), None, pred, 0.1) for q, xq in zip(at, x)]
+    pairs.append(PairForecast(np.array([1500.0, 0.0]), np.zeros(2), None, Predictive(np.zeros(0), np.zeros((2, 0)),
+                                                                                     np.zeros((2, 0))), 0.2))
+    cdf = predictive_cdf(pairs, law)
+    np.testing.assert_allclose(cdf[:3], np.array([[0.05, 0.05], [0.5, 0.5], [0.95, 0.95]]), atol=1e-9)
+    assert np.isnan(cdf[3]).all()
+    held = interval_level(cdf)
+    assert coverages(held[:, 0], (0.01, 0.89, 0.91, 1.0)) == [0.25, 0.25, 0.75, 0.75]  # the NaN pair counts, held by none
+    assert curve_of(held, (0.5,)) == {"x": [0.25], "z": [0.25], "pairs": 4}
+    # the pairs' halves by reach: less far than the median pair, and the rest
+    assert [m.tolist() for m in reach_strata([0.1, 0.3, 0.2, 0.4])] == [[True, False, True, False], [False, True, False, True]]
+    assert [m.tolist() for m in reach_strata([0.1, 0.1, 0.1])] == [[True, True, True]]
+    assert [m.tolist() for m in reach_strata([0.1, 0.1, 0.1, 0.2])] == [[True, True, True, False], [False, False, False, True]]
+    assert [m.tolist() for m in reach_strata([])] == [[]]
 
 
 def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():

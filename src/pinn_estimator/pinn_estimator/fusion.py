@@ -169,7 +169,8 @@ class FusionConfig:
                 raise ValueError(f"fusion {name}={v!r} must be finite and >= 0")
         if not isinstance(self.shape_evidence, bool):
             raise ValueError(f"fusion shape_evidence={self.shape_evidence!r} must be true or false")
-        if not (math.isfinite(self.evidence_weight) and 0 < self.evidence_weight <= 1):
+        if not (isinstance(self.evidence_weight, (int, float)) and math.isfinite(self.evidence_weight)
+                and 0 < self.evidence_weight <= 1):
             raise ValueError(f"fusion evidence_weight={self.evidence_weight!r} must be in (0, 1]")
         for name in ("drift_per_sqrt_m", "patch_length_m", "cohesionless_prior"):
             v = getattr(self, name)
@@ -197,14 +198,18 @@ class FusionConfig:
         data = dict(data)
         for name in PAIR_FIELDS:
             if name in data:
-                if not isinstance(data[name], (list, tuple)):
+                if isinstance(data[name], (str, bytes, dict)):
                     raise ValueError(f"fusion {name}={data[name]!r} must be two numbers (x, z)")
-                data[name] = tuple(data[name])
+                try:
+                    data[name] = tuple(data[name])
+                except TypeError:
+                    raise ValueError(f"fusion {name}={data[name]!r} must be two numbers (x, z)") from None
         if "terms" in data:
             terms = data["terms"]
-            if not isinstance(terms, (list, tuple)) or not all(isinstance(t, (list, tuple)) and len(t) == 2 for t in terms):
-                raise ValueError(f"fusion terms={terms!r} must be a list of [name, k] pairs")
-            data["terms"] = tuple(tuple(t) for t in terms)
+            if isinstance(terms, (str, bytes, dict)) or not isinstance(terms, (list, tuple)) or not all(
+                    isinstance(t, str) or (isinstance(t, (list, tuple)) and len(t) == 2) for t in terms):
+                raise ValueError(f"fusion terms={terms!r} must be a list of [name, k] pairs (or 'name=k' texts)")
+            data["terms"] = tuple(t if isinstance(t, str) else tuple(t) for t in terms)
         try:
             return cls(**data)
         except TypeError as err:  # a value of the wrong type, e.g. text where a number is expected
@@ -742,8 +747,7 @@ class SoilPosterior:
             return out
         w = pred.weights
         for j in range(2):
-            f = pred.force_n[j]
-            sd = model_error_std(pred.extrapolated_n[j], cfg.forecast_abs_std_n[j], cfg.forecast_rel_std[j])
+            f, sd = pred.force_n[j], forecast_error_std(pred, cfg, j)
             m = float(w @ f)
             out["mean"][j] = m
             out["std"][j] = math.sqrt(float(w @ ((f - m) ** 2 + sd ** 2)))
@@ -758,6 +762,12 @@ class Predictive(NamedTuple):
     weights: np.ndarray  # (S,) of the samples with a force, summing to 1
     force_n: np.ndarray  # (2, S) the model's force (x, z) [N]
     extrapolated_n: np.ndarray  # (2, S) what each extrapolates from the newest stretch [N] (``extrapolated_part``)
+
+
+def forecast_error_std(pred: Predictive, cfg: FusionConfig, axis: int) -> np.ndarray:
+    """(S,) the forecast law's model error [N] around each sample's force on ``axis`` (0 x, 1 z):
+    ``cfg``'s floor + share of what the sample extrapolates."""
+    return model_error_std(pred.extrapolated_n[axis], cfg.forecast_abs_std_n[axis], cfg.forecast_rel_std[axis])
 
 
 def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:

@@ -39,10 +39,10 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.params import FORCE_LIMITS_N
-from soil_physics.predictive import mixture_cdf, model_error_std
+from soil_physics.predictive import mixture_cdf
 
 from . import forecast as fc
-from .fusion import FusionConfig
+from .fusion import FusionConfig, forecast_error_std
 
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
 CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
@@ -125,8 +125,9 @@ def pair_forecasts(ds, posts) -> list[PairForecast]:
 
 
 def reach_strata(reach_m) -> list[np.ndarray]:
-    """Masks of the pairs that reach less far in depth than the median pair and of the rest (one
-    mask of all if every pair reaches as far). Stage 2 logs each law's coverage in both: a law
+    """Masks of the pairs that reach less far in depth than the median pair and of the rest (where
+    none reaches less far, those at the median and the rest; one mask of all if every pair reaches
+    as far). Stage 2 logs each law's coverage in both: a law
     calibrated over all pairs can be too wide near and too narrow far (the default world's
     1000 N law: 88 / 70 % and 73 / 38 % at 90 / 50 %). Judging the laws by the two halves'
     mean miscalibration instead chose 1000 N + 0.01|ΔF| there, no better on held-out pairs, since
@@ -162,7 +163,7 @@ def predictive_cdf(pairs: list[PairForecast], law: FusionConfig) -> np.ndarray:
         if not len(w):
             continue
         for j in range(2):
-            sd = model_error_std(p.predictive.extrapolated_n[j], law.forecast_abs_std_n[j], law.forecast_rel_std[j])
+            sd = forecast_error_std(p.predictive, law, j)
             out[i, j] = mixture_cdf(w, p.predictive.force_n[j][None], sd[None], np.array([p.measured[j]]))[0]
     return out
 
@@ -215,11 +216,13 @@ def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None, pairs=None
 
     if pairs is None:
         pairs = pair_forecasts(ds, fused_posteriors(ds, cfg) if posts is None else posts)
-    held = interval_level(predictive_cdf(pairs, cfg))
-    curve = {axis: coverages(held[:, j], levels) for j, axis in enumerate("xz")}
-    if width:
-        curve |= interval_widths(pairs, cfg, max(levels))
-    return curve | {"pairs": len(pairs)}
+    curve = curve_of(interval_level(predictive_cdf(pairs, cfg)), levels)
+    return curve | interval_widths(pairs, cfg, max(levels)) if width else curve
+
+
+def curve_of(held: np.ndarray, levels=NOMINAL) -> dict:
+    """The calibration curve per axis (``coverages``) of the pairs' ``interval_level``s (pairs, 2), and their number."""
+    return {axis: coverages(held[:, j], levels) for j, axis in enumerate("xz")} | {"pairs": len(held)}
 
 
 def interval_level(cdf: np.ndarray) -> np.ndarray:
@@ -412,20 +415,22 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
 
 
 def choose_forecast_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
-                        log=print) -> tuple[FusionConfig, list[dict]]:
+                        log=print, pairs=None) -> tuple[FusionConfig, list[dict]]:
     """Stage 2 (``calibrate``): ``cfg`` with the forecast law per axis, share and floor, by
     the calibration curve of the forecasts at another depth from ``posts`` (``cfg``'s posteriors
     of ``ds``); every law tried with its curve. The law changes no posterior, so this alone
-    recalibrates the forecasts of a config whose evidence law is kept (``--forecast-law-only``)."""
+    recalibrates the forecasts of a config whose evidence law is kept (``--forecast-law-only``).
+    ``pairs``: ``pair_forecasts(ds, posts)`` when already made."""
     rows = []
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
-    pairs = pair_forecasts(ds, posts)  # the model's forces once; each law only changes the error around them
+    if pairs is None:  # the model's forces once; each law only changes the error around them
+        pairs = pair_forecasts(ds, posts)
     strata = reach_strata([p.reach_m for p in pairs])
     for floor in floor_grid:
         for frel in forecast_grid:
             law = dataclasses.replace(cfg, forecast_rel_std=(frel, frel), forecast_abs_std_n=(floor, floor))
             held = interval_level(predictive_cdf(pairs, law))
-            curve = {a: coverages(held[:, j]) for j, a in enumerate("xz")} | {"pairs": len(pairs)}
+            curve = curve_of(held)
             rows.append({"forecast_rel_std": frel, "forecast_abs_std_n": floor, "law": law, "curve": curve,
                          **{f"coverage_{lv}_{a}": curve[a][i] for a in "xz" for lv, i in ((90, i90), (50, i50))},
                          **{f"miscalibration_{a}": miscalibration(curve[a]) for a in "xz"}})
@@ -487,7 +492,7 @@ def main(argv=None) -> int:
                         "as JSON, e.g. cohesionless_prior=0); saved in the config")
     p.add_argument("--forecast-law-only", action="store_true",
                    help="keep the evidence law of the config at --out (default: the shipped one) and choose only the "
-                        "forecast law (stage 2: about a minute, where the whole calibration takes 5-8)")
+                        "forecast law (stage 2: about a minute, where the whole calibration takes 5-8 min)")
     args = p.parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
@@ -511,24 +516,24 @@ def main(argv=None) -> int:
     if args.forecast_law_only:
         if args.term or args.fields:
             p.error("--forecast-law-only keeps the config's posterior: --term and --set change it (run the whole calibration)")
-        if not out.exists():
-            p.error(f"--forecast-law-only: no config at {out} to keep the evidence law of")
+        if not out.is_file():
+            p.error(f"--forecast-law-only: no config file at {out} to keep the evidence law of")
         try:
             base = FusionConfig.load(out)
-        except ValueError as err:
-            p.error(str(err))
+        except (OSError, ValueError) as err:
+            p.error(f"--forecast-law-only: {out}: {err}")
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M)
+    pairs = None
     if args.forecast_law_only:
-        posts = fused_posteriors(ds, base)
-        cfg, rows = choose_forecast_law(ds, base, posts)
+        pairs = pair_forecasts(ds, fused_posteriors(ds, base))
+        cfg, rows = choose_forecast_law(ds, base, None, pairs=pairs)
     else:
         # the drift is chosen where the episodes' θ is the truth, i.e. the FEE is the world
         truth = args.world == "fee"
         cfg, rows = calibrate(ds, base, truth_grids=TRUTH_GRIDS if truth else (), truth=truth)
-        posts = None
     cfg.save(out)
-    final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg, posts=posts)}
+    final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg, pairs=pairs, width=False)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
     plot_curve(rows, final, out.with_suffix(".png"),
                f"fused forecast at another depth, {args.world} world: calibration episodes")
