@@ -206,7 +206,7 @@ class FusionConfig:
                     raise ValueError(f"fusion {name}={data[name]!r} must be two numbers (x, z)") from None
         if "terms" in data:
             terms = data["terms"]
-            if isinstance(terms, (str, bytes, dict)) or not isinstance(terms, (list, tuple)) or not all(
+            if not isinstance(terms, (list, tuple)) or not all(
                     isinstance(t, str) or (isinstance(t, (list, tuple)) and len(t) == 2) for t in terms):
                 raise ValueError(f"fusion terms={terms!r} must be a list of [name, k] pairs (or 'name=k' texts)")
             data["terms"] = tuple(t if isinstance(t, str) else tuple(t) for t in terms)

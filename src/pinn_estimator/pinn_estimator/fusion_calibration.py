@@ -124,6 +124,15 @@ def pair_forecasts(ds, posts) -> list[PairForecast]:
             for a, b in fc.pair_indices(parts)]
 
 
+def pairs_of(ds, cfg: FusionConfig, posts=None, pairs=None) -> list[PairForecast]:
+    """``pairs`` if given, else the ``pair_forecasts`` of ``posts`` (None: ``ds`` fused under ``cfg``)."""
+    if pairs is not None:
+        return pairs
+    from .evaluate import fused_posteriors
+
+    return pair_forecasts(ds, fused_posteriors(ds, cfg) if posts is None else posts)
+
+
 def reach_strata(reach_m) -> list[np.ndarray]:
     """Masks of the pairs that reach less far in depth than the median pair and of the rest (where
     none reaches less far, those at the median and the rest; one mask of all if every pair reaches
@@ -133,20 +142,19 @@ def reach_strata(reach_m) -> list[np.ndarray]:
     mean miscalibration instead chose 1000 N + 0.01|ΔF| there, no better on held-out pairs, since
     the sharpest of the calibrated laws is still a floor law (a share of |ΔF| is widest far)."""
     reach = np.asarray(reach_m, float)
-    near = reach < np.median(reach) if len(reach) else reach.astype(bool)
+    if not len(reach):
+        return [np.ones(0, bool)]
+    near = reach < np.median(reach)
     if not near.any():
-        near = reach <= np.median(reach) if len(reach) else near
-    return [near, ~near] if near.any() and not near.all() else [np.ones(len(reach), bool)]
+        near = reach <= np.median(reach)
+    return [np.ones(len(reach), bool)] if near.all() else [near, ~near]
 
 
 def forecast_table(ds, cfg: FusionConfig, levels=NOMINAL, posts=None, pairs=None) -> list[dict]:
     """Per forecast pair of ``ds``: the measured force and the fused posterior's forecast from
     the first episode under ``cfg``'s forecast law (median and central intervals of ``levels``).
     ``posts``: the episodes' posteriors when already fused; ``pairs``: their ``pair_forecasts``."""
-    from .evaluate import fused_posteriors
-
-    if pairs is None:
-        pairs = pair_forecasts(ds, fused_posteriors(ds, cfg) if posts is None else posts)
+    pairs = pairs_of(ds, cfg, posts, pairs)
     quantiles = tuple(sorted({0.5 - lv / 2 for lv in levels} | {0.5 + lv / 2 for lv in levels} | {0.5}))
     return [{"measured": p.measured, "now": p.now,
              "forecast": p.posterior.forecast_from(p.predictive, quantiles, cfg)["quantiles"]} for p in pairs]
@@ -212,10 +220,7 @@ def choose_evidence_law(scored: list[tuple[float, dict]]) -> tuple[float, float]
 def coverage_curve(ds, cfg: FusionConfig, levels=NOMINAL, posts=None, pairs=None, width: bool = True) -> dict:
     """Share of forecast pairs whose central interval of each level holds the measured force, per
     axis, and (``width``) the widest level's mean width per axis [N]: the forecasts' sharpness."""
-    from .evaluate import fused_posteriors
-
-    if pairs is None:
-        pairs = pair_forecasts(ds, fused_posteriors(ds, cfg) if posts is None else posts)
+    pairs = pairs_of(ds, cfg, posts, pairs)
     curve = curve_of(interval_level(predictive_cdf(pairs, cfg)), levels)
     return curve | interval_widths(pairs, cfg, max(levels)) if width else curve
 
@@ -423,8 +428,7 @@ def choose_forecast_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRI
     ``pairs``: ``pair_forecasts(ds, posts)`` when already made."""
     rows = []
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
-    if pairs is None:  # the model's forces once; each law only changes the error around them
-        pairs = pair_forecasts(ds, posts)
+    pairs = pairs_of(ds, cfg, posts, pairs)  # the model's forces once; each law only changes the error around them
     strata = reach_strata([p.reach_m for p in pairs])
     for floor in floor_grid:
         for frel in forecast_grid:
