@@ -115,7 +115,7 @@ def test_a_tick_is_quasi_static_unless_the_blade_rises_or_its_vertical_velocity_
 
 
 def test_the_tick_noise_of_a_stretch_is_its_noise_not_its_ramp():
-    from pinn_estimator.fusion import SAMPLE_TIMING_TICKS, StretchAccumulator
+    from pinn_estimator.fusion import StretchAccumulator
 
     rng = np.random.default_rng(3)
     known = np.array([200.0, 17e3, 80 * DEG, 0.0, 3.164, 0.1, 0.0, 0.5, 0.0])
@@ -127,9 +127,10 @@ def test_the_tick_noise_of_a_stretch_is_its_noise_not_its_ramp():
             b = ramp.add(np.array([5000.0 + 70.0 * t, -500.0 - 6.0 * t]), known)
         estimates.append(a.point_noise[0] * np.sqrt(3))  # per sub-mean of 3 ticks: σ/√3
     np.testing.assert_allclose(np.mean(estimates, axis=0), [300.0, 500.0], rtol=0.1)
-    # a steady change is no noise; a sub-mean is uncertain only by how far the force moves in the
-    # SAMPLE_TIMING_TICKS its conditions may be off
-    np.testing.assert_allclose(b.point_noise, np.tile(SAMPLE_TIMING_TICKS * np.array([70.0, 6.0]), (10, 1)), rtol=1e-9)
+    # a steady change is no noise: it is the force's rate [N per tick], whose timing error
+    # (SAMPLE_TIMING_TICKS) the evidence takes as one for the whole stretch
+    np.testing.assert_allclose(b.point_noise, 0.0, atol=1e-9)
+    np.testing.assert_allclose(b.point_rate, np.tile([70.0, -6.0], (10, 1)), rtol=1e-9)
     np.testing.assert_allclose(b.point_force[:, 0], 5000.0 + 70.0 * (3 * np.arange(10) + 1))
     assert not b.point_unsteady.any()
 
@@ -219,6 +220,44 @@ def test_the_blade_inertia_is_taken_out_of_the_evidence_so_a_depth_dither_teache
     np.testing.assert_allclose(soil_force_rows(ep.forces, ep.observations), ep.forces - np.stack([ix, iz], axis=1))
     assert np.abs(iz).max() > 0.1 * np.abs(ep.forces[:, 1]).mean()
 
+
+
+def test_the_timing_of_force_and_conditions_is_one_error_for_the_whole_stretch():
+    """The sub-means' covariance gets vvᵀ, v = τ × the force's rate at each kept sub-mean (x then
+    z): a latency between the force and position sensors shifts every sub-mean of a stretch at
+    once, by its own rate."""
+    import pinn_estimator.fusion as fusion
+
+    post = SoilPosterior(SHAPE)
+    known = np.tile(np.array([200.0, 17e3, 80 * DEG, 0.0, 3.164, 0.1, 0.0, 0.5, 0.0]), (4, 1))
+    force, noise = np.full((4, 2), 1000.0), np.full((4, 2), 3.0)
+    rate, unsteady = np.array([[50.0, -5.0], [80.0, -8.0], [20.0, 1.0], [60.0, -2.0]]), np.array([False, False, True, False])
+    with_rate = _Evidence(post, force.mean(0), known, np.zeros(2), force, noise, unsteady, rate)
+    without = _Evidence(post, force.mean(0), known, np.zeros(2), force, noise, unsteady, np.zeros((4, 2)))
+    h = np.full((1, 6), 990.0)
+    v = fusion.SAMPLE_TIMING_TICKS * np.array([50.0, 80.0, 60.0, -5.0, -8.0, -2.0])  # the unsteady sub-mean left out
+    np.testing.assert_allclose(with_rate.covariance(h)[0] - without.covariance(h)[0], np.outer(v, v), rtol=1e-12)
+    with pytest.raises(ValueError, match="rate"):
+        _Evidence(post, force.mean(0), known, np.zeros(2), force, noise, unsteady, rate[:3])
+
+
+def test_a_sharp_law_under_a_depth_dither_does_not_take_the_sensors_timing_for_soil(monkeypatch):
+    """Under a 3 cm dither the fee world's force lags its sampled conditions by a few hundredths
+    of a tick (the simulator's substeps), on every sub-mean alike. With a sharp evidence law and
+    that timing error taken as common to each stretch, the posterior holds the true clay; with no
+    timing error it is confidently off (φ ~10 of its standard deviations)."""
+    import pinn_estimator.fusion as fusion
+
+    sharp = dataclasses.replace(SHAPE, abs_std_n=(2.0, 2.0), rel_std=(5e-4, 5e-4), shape_abs_std_n=(0.02, 0.02),
+                                shape_rel_std=(2e-5, 2e-5), drift_per_sqrt_m=0.0)
+    (ep,) = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Clay", 50.0, 0.6, 0.15, seed=5, duration_s=8.0)],
+                         gains=AntiStallGains(dither_amplitude_m=0.03, dither_period_s=2.0))
+    true = truth(ep)
+    common = fuse(SoilPosterior(sharp), ep).summary()
+    assert inside(common, true, "phi") and inside(common, true, "c")
+    monkeypatch.setattr(fusion, "SAMPLE_TIMING_TICKS", 0.0)
+    untimed = fuse(SoilPosterior(sharp), ep).summary()
+    assert not inside(untimed, true, "phi", z=3.0) and not inside(untimed, true, "c", z=3.0)
 
 def test_the_forecast_at_another_depth_carries_an_interval_that_holds_the_measured_force():
     a, b = episodes("fee", [("Clay", 35.0, 0.1), ("Clay", 35.0, 0.2)])
