@@ -319,7 +319,7 @@ class _Evidence:
                     or rate.shape != (points, 2)):
                 raise ValueError(f"stretch sub-means of shape {point_force_n.shape} / {point_noise_n.shape} / {keep.shape} / "
                                  f"{rate.shape} (force / noise / unsteady / rate), "
-                                 f"expected ({points}, 2) / ({points}, 2) / ({points},) for {points} Θ_k sub-means")
+                                 f"expected ({points}, 2) / ({points}, 2) / ({points},) / ({points}, 2) for {points} Θ_k sub-means")
             self.known = self.known[keep]
             self.y = point_force_n[keep].T.reshape(-1)  # x sub-means, then z
             self.noise = point_noise_n[keep].T  # (2, G kept)
@@ -502,8 +502,9 @@ class SoilPosterior:
         """One stretch of evidence: its mean measured force (F_x, F_z) [N], Θ_k (its sub-means)
         and the force's standard deviation within it [N] (a stretch whose force moves, the blade
         entering or the controller acting, is widened by ``unsteady_gain`` × that spread); with
-        ``shape_evidence`` also the force's sub-means (G, 2) [N], their noise (G, 2) [N] and
-        whether the blade was quasi-static in each (G,) (``Stretch``; ``_Evidence``).
+        ``shape_evidence`` also the force's sub-means (G, 2) [N], their noise (G, 2) [N],
+        whether the blade was quasi-static in each (G,) and the force's rate of change at each
+        (G, 2) [N per tick; None: 0] (``Stretch``; ``_Evidence``).
 
         Per component an iterated extended Kalman update (Gauss-Newton to the stretch's MAP;
         Jacobians by forward differences), and its weight times its predictive likelihood
