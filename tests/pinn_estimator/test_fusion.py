@@ -221,7 +221,6 @@ def test_the_blade_inertia_is_taken_out_of_the_evidence_so_a_depth_dither_teache
     assert np.abs(iz).max() > 0.1 * np.abs(ep.forces[:, 1]).mean()
 
 
-
 def test_the_timing_of_force_and_conditions_is_one_error_for_the_whole_stretch():
     """The sub-means' covariance gets vvᵀ, v = τ × the force's rate at each kept sub-mean (x then
     z): a latency between the force and position sensors shifts every sub-mean of a stretch at
@@ -258,6 +257,7 @@ def test_a_sharp_law_under_a_depth_dither_does_not_take_the_sensors_timing_for_s
     monkeypatch.setattr(fusion, "SAMPLE_TIMING_TICKS", 0.0)
     untimed = fuse(SoilPosterior(sharp), ep).summary()
     assert not inside(untimed, true, "phi", z=3.0) and not inside(untimed, true, "c", z=3.0)
+
 
 def test_the_forecast_at_another_depth_carries_an_interval_that_holds_the_measured_force():
     a, b = episodes("fee", [("Clay", 35.0, 0.1), ("Clay", 35.0, 0.2)])
