@@ -236,6 +236,10 @@ def test_the_timing_of_force_and_conditions_is_one_error_for_the_whole_stretch()
     h = np.full((1, 6), 990.0)
     v = fusion.SAMPLE_TIMING_TICKS * np.array([50.0, 80.0, 60.0, -5.0, -8.0, -2.0])  # the unsteady sub-mean left out
     np.testing.assert_allclose(with_rate.covariance(h)[0] - without.covariance(h)[0], np.outer(v, v), rtol=1e-12)
+    # weighted like the sub-means' noise by shape_noise_gain
+    half = SoilPosterior(dataclasses.replace(SHAPE, shape_noise_gain=0.5))
+    halved = [_Evidence(half, force.mean(0), known, np.zeros(2), force, noise, unsteady, r) for r in (rate, np.zeros((4, 2)))]
+    np.testing.assert_allclose(halved[0].covariance(h)[0] - halved[1].covariance(h)[0], np.outer(v, v) / 4, rtol=1e-12)
     with pytest.raises(ValueError, match="rate"):
         _Evidence(post, force.mean(0), known, np.zeros(2), force, noise, unsteady, rate[:3])
 

@@ -300,8 +300,8 @@ class _Evidence:
     sub-means share the stretch's model error σ (so their mean teaches exactly what the stretch
     mean did) and each has its own error σ_dev,g in how it departs from the others
     (``FusionConfig.shape_*``), which is what lets the force's change along a ramp in depth tell
-    φ from c; plus, over both axes, vvᵀ with v = τ·(the force's rate of change at each sub-mean),
-    τ = ``SAMPLE_TIMING_TICKS``: one error in when force and conditions were sampled, common to
+    φ from c; plus, over both axes, vvᵀ with v = g·τ·(the force's rate of change at each sub-mean),
+    g = ``shape_noise_gain``, τ = ``SAMPLE_TIMING_TICKS``: one error in when force and conditions were sampled, common to
     the stretch (see there). Sub-means in which the blade was not quasi-static (``quasi_static``)
     are left out; in a stretch where it never was, nothing is learnt."""
 
@@ -879,7 +879,7 @@ def tick_noise_n(second_differences_sq: np.ndarray, count: int) -> np.ndarray:
 class StretchAccumulator:
     """Samples -> stretches (``Stretch``): the mean force and its spread over ``update_ticks``
     consecutive samples, the force and Θ_k as ``model_points`` sub-means, the force's tick noise,
-    and the blade's travel in soil since the last stretch (for ``SoilPosterior.forget``)."""
+    its rate of change at each sub-mean, and the blade's travel in soil since the last stretch (for ``SoilPosterior.forget``)."""
 
     def __init__(self, update_ticks: int, model_points: int = 1):
         self.update_ticks = update_ticks
