@@ -301,8 +301,8 @@ class _Evidence:
     mean did) and each has its own error σ_dev,g in how it departs from the others
     (``FusionConfig.shape_*``), which is what lets the force's change along a ramp in depth tell
     φ from c; plus, over both axes, vvᵀ with v = g·τ·(the force's rate of change at each sub-mean),
-    g = ``shape_noise_gain``, τ = ``SAMPLE_TIMING_TICKS``: one error in when force and conditions were sampled, common to
-    the stretch (see there). Sub-means in which the blade was not quasi-static (``quasi_static``)
+    g = ``shape_noise_gain``, τ = ``SAMPLE_TIMING_TICKS``: one error in when force and conditions
+    were sampled, common to the stretch (see there). Sub-means in which the blade was not quasi-static (``quasi_static``)
     are left out; in a stretch where it never was, nothing is learnt."""
 
     def __init__(self, post: "SoilPosterior", force_n, known, spread_n, point_force_n=None, point_noise_n=None,
@@ -323,8 +323,10 @@ class _Evidence:
             self.known = self.known[keep]
             self.y = point_force_n[keep].T.reshape(-1)  # x sub-means, then z
             self.noise = point_noise_n[keep].T  # (2, G kept)
-            # what a common error in the timing of force and conditions does to the sub-means (x then z)
-            self.timing = post.cfg.shape_noise_gain * SAMPLE_TIMING_TICKS * rate[keep].T.reshape(-1)
+            # what a common error in the timing of force and conditions does to the sub-means (x then
+            # z), the same at every iterate: its covariance once
+            timing = post.cfg.shape_noise_gain * SAMPLE_TIMING_TICKS * rate[keep].T.reshape(-1)
+            self.timing_cov = np.outer(timing, timing)
         else:
             self.y = np.asarray(force_n, float)
         self.points = len(self.known)
@@ -355,7 +357,7 @@ class _Evidence:
             if inflation is not None:
                 dev = dev * inflation[:, block]
             r[:, block, block] = shared[j][:, None, None] ** 2 + dev[:, :, None] * np.eye(g) * dev[:, None, :]
-        return r + np.outer(self.timing, self.timing)[None]
+        return r + self.timing_cov[None]
 
     def robust_inflation(self, innovation: np.ndarray, s_mat: np.ndarray) -> np.ndarray:
         """(K, dim) factors on σ_dev from each component's prediction of the stretch (innovation
@@ -879,7 +881,8 @@ def tick_noise_n(second_differences_sq: np.ndarray, count: int) -> np.ndarray:
 class StretchAccumulator:
     """Samples -> stretches (``Stretch``): the mean force and its spread over ``update_ticks``
     consecutive samples, the force and Θ_k as ``model_points`` sub-means, the force's tick noise,
-    its rate of change at each sub-mean, and the blade's travel in soil since the last stretch (for ``SoilPosterior.forget``)."""
+    its rate of change at each sub-mean, and the blade's travel in soil since the last stretch
+    (for ``SoilPosterior.forget``)."""
 
     def __init__(self, update_ticks: int, model_points: int = 1):
         self.update_ticks = update_ticks
