@@ -230,13 +230,17 @@ def test_deterministic():
         (dict(delta_d_max_m=float("nan")), "delta_d_max_m", "nan"),
         (dict(dt_s=0.0), "dt_s", "0.0"),
         (dict(dt_s=float("-inf")), "dt_s", "-inf"),
+        (dict(force_lift_m_s=-1.0), "force_lift_m_s", "-1.0"),
+        (dict(force_lift_m_s=float("nan")), "force_lift_m_s", "nan"),
+        (dict(force_lift_share=0.0), "force_lift_share", "0.0"),
+        (dict(force_lift_share=float("inf")), "force_lift_share", "inf"),
     ],
 )
 def test_bad_gains_name_field_value_and_range(kwargs, field, value):
     with pytest.raises(ValueError) as exc:
         AntiStallGains(**kwargs)
     msg = str(exc.value)
-    allowed = "(0, inf)" if field == "dt_s" else "[0, inf)"
+    allowed = "(0, inf)" if field in ("dt_s", "force_lift_share") else "[0, inf)"
     assert field in msg and value in msg and allowed in msg, msg
     # set_gains validates the same way and leaves the old gains in place.
     c = AntiStallController(AntiStallGains(), 0.5, 0.1)
@@ -307,3 +311,41 @@ def test_nan_measurement_holds_offset_and_commands_stay_finite():
     c2 = AntiStallController(g, 0.5, 0.1)
     cmd = c2.step(0.5, math.nan)
     assert cmd.u_zr[0] == -0.1 and c2.depth_offset_m[0] == 0.0
+
+
+def test_force_lift_raises_the_offset_by_the_force_beyond_the_limits():
+    """Item 5: with g > 0 the offset rises by g · max(s − θ, 0) · dt, s the larger share of the
+    force limits (20 kN in x, 30 kN in z) of the tick's force, on top of Eq. 11; a force within
+    θ or not finite adds nothing; rows of a batch each take their own force."""
+    g = AntiStallGains(force_lift_m_s=2.0, force_lift_share=0.9)
+    plain = AntiStallController(AntiStallGains(), 0.5, 0.2, batch_size=5)
+    lift = AntiStallController(g, 0.5, 0.2, batch_size=5)
+    force = np.array([[30e3, 0.0],  # x at 1.5 of its limit
+                      [-10e3, 33e3],  # z at 1.1
+                      [17e3, 26e3],  # 0.85 and 0.87: within θ
+                      [np.nan, 45e3],  # not finite: nothing
+                      [25e3, np.inf]])
+    v = np.full(5, 0.3)  # slowing down: Eq. 11 raises the offset of both alike
+    for _ in range(3):
+        plain.step(v, 0.0)
+        lift.step(v, 0.0, force)
+    extra = lift.depth_offset_m - plain.depth_offset_m
+    np.testing.assert_allclose(extra, 3 * DT * 2.0 * np.array([1.5 - 0.9, 1.1 - 0.9, 0.0, 0.0, 0.0]), rtol=1e-12, atol=1e-15)
+    # the clip of Eq. 11 holds: at most Δd̄_max above the surface
+    for _ in range(600):
+        lift.step(v, 0.0, force)
+    assert lift.depth_offset_m.max() == pytest.approx(0.2 + g.delta_d_max_m)
+
+
+def test_without_the_force_lift_the_force_changes_nothing_and_with_it_is_required():
+    rng = np.random.default_rng(3)
+    a, b = AntiStallController(AntiStallGains(), 0.5, 0.15), AntiStallController(AntiStallGains(), 0.5, 0.15)
+    for _ in range(200):
+        v, pz = rng.uniform(0.0, 0.6), rng.uniform(-0.3, 0.0)
+        assert np.stack(a.step(v, pz)).tobytes() == np.stack(b.step(v, pz, rng.uniform(-50e3, 50e3, 2))).tobytes()
+    c = AntiStallController(AntiStallGains(force_lift_m_s=1.0), 0.5, 0.15, batch_size=2)
+    with pytest.raises(ValueError, match="force_n .* is needed with force_lift_m_s > 0"):
+        c.step(0.5, 0.0)
+    with pytest.raises(ValueError, match=r"force_n must have shape \(2,\) or \(B, 2\) = \(2, 2\); got \(3,\)"):
+        c.step(0.5, 0.0, np.zeros(3))
+    assert c.depth_offset_m.tolist() == [0.0, 0.0]  # a refused tick changes nothing

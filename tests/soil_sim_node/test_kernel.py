@@ -6,18 +6,20 @@ the two differ only where NumPy's vectorised tanh and libm's round the last bit 
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
-from soil_msgs_py.params import MACHINE
+from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE
 from soil_physics import fee
 from soil_physics.bearing import penetration_capacity
 from soil_physics.force_inputs import ForceInputs
 from soil_sim_node import kernel
 from soil_sim_node import phenomena as ph
 from soil_sim_node.effects import Effects
-from soil_sim_node.rollout import run_episodes
+from soil_sim_node.rollout import kernel_gains, run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
 from tests import sim_plugins
 
@@ -211,20 +213,48 @@ def test_plugins_see_the_soil_patch_under_the_edge(engine):
 DITHER = AntiStallGains(dither_amplitude_m=0.05, dither_period_s=2.0)
 
 
-def test_controller_step_is_the_controller_core_with_the_depth_dither():
+FORCE_LIFT = dataclasses.replace(DITHER, force_lift_m_s=1.5, force_lift_share=0.9)
+
+
+@pytest.mark.parametrize("gains", [DITHER, FORCE_LIFT], ids=["dither", "dither and force lift"])
+def test_controller_step_is_the_controller_core_with_the_depth_dither_and_the_force_lift(gains):
     rng = np.random.default_rng(7)
     n = 400
     v, pz = rng.uniform(-0.2, 1.0, n), rng.uniform(-0.4, 0.1, n)
     v[::37], pz[::53] = np.nan, np.inf  # held state
-    core = AntiStallController(DITHER, 0.6, 0.15)
-    row = np.array([DITHER.k_v_m_s, DITHER.c_vx, DITHER.delta_d_max_m, DITHER.dt_s, DITHER.dither_amplitude_m,
-                    DITHER.dither_period_s])
-    assert (kernel.C_DITHER_A, kernel.C_DITHER_T, kernel.N_GAINS) == (4, 5, 6)
+    force = rng.uniform(-40e3, 40e3, (n, 2))
+    force[::41, 0], force[::43, 1] = np.nan, -np.inf  # no force term
+    core = AntiStallController(gains, 0.6, 0.15)
+    row = kernel_gains(gains)
+    np.testing.assert_array_equal(row, [gains.k_v_m_s, gains.c_vx, gains.delta_d_max_m, gains.dt_s,
+                                        gains.dither_amplitude_m, gains.dither_period_s, gains.force_lift_m_s,
+                                        gains.force_lift_share, *FORCE_LIMITS_N])
     ctl, command = np.zeros(3), np.array([0.0, 0.0, 0.0, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m])
     for k in range(n):
-        want = core.step(v[k], pz[k])
-        kernel.controller_step(row, 0.6, 0.15, ctl, v[k], pz[k], command)
+        want = core.step(v[k], pz[k], force[k])
+        kernel.controller_step(row, 0.6, 0.15, ctl, v[k], pz[k], force[k], command)
         assert tuple(command[:3]) == (want.u_zr[0], want.u_za[0], want.u_x[0]), k
+        assert ctl[0] == core.depth_offset_m[0], k
+
+
+def test_the_force_lift_takes_the_blade_out_of_a_stall_sooner_in_both_engines():
+    """Dense clay at 0.3 m stalls the machine (20 kN tractive limit); lifting with the force
+    beyond the limits as well as with the speed error (Eq. 11) shortens the stall, and both
+    engines give the same episodes."""
+    spec = [EpisodeSpec("Clay", 80.0, 0.5, 0.3, 3, 6.0)]
+    lift = AntiStallGains(force_lift_m_s=2.0, force_lift_share=1.0)
+    compiled = run_episodes(SimConfig(world_mode="fee"), spec, gains=lift)
+    assert_same_episodes(compiled, run_episodes(SimConfig(world_mode="fee", engine="reference"), spec, gains=lift))
+    (plain,) = run_episodes(SimConfig(world_mode="fee"), spec)
+
+    def stall_ticks(ep):  # below Eq. 11's threshold v̄_x (1 − c_vx) once moving
+        v = ep.column("v_x_c")
+        moving = np.flatnonzero(v >= 0.5 * (1 - lift.c_vx))
+        return int((v[moving[0]:] < 0.5 * (1 - lift.c_vx)).sum()) if len(moving) else len(v)
+
+    assert stall_ticks(plain) > 60  # a second (measured 191 ticks; 0 with the lift)
+    assert stall_ticks(compiled[0]) < 0.5 * stall_ticks(plain)
+    assert np.max(np.abs(compiled[0].forces[:, 0])) <= np.max(np.abs(plain.forces[:, 0])) + 1e-9
 
 
 @pytest.mark.parametrize("world", ["fee", "default"])

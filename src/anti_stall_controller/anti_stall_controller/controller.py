@@ -52,6 +52,18 @@ Interpretation choices of this implementation (the paper leaves these open):
    depth only. Eq. 11's offset and its clip are unchanged; with A = 0 the commands are Eq. 12's
    to the bit.
 
+5. Force lift (ours, off by default). Eq. 11 reacts to a stall's symptom, the chassis slowing
+   down, which starts only once the blade force exceeds what the machine can push (its 20 kN
+   tractive limit in x) and then takes the lift's time to undo. With a gain g > 0 the offset
+   also rises with the cause, the measured blade force F of the tick being answered:
+
+       Δd̄^k += g · max(s^k − θ, 0) · dt,   s^k = max(|F_x| / F_x,lim, |F_z| / F_z,lim)
+
+   (g = ``force_lift_m_s``, θ = ``force_lift_share``; clipped with Eq. 11's offset). With θ = 1
+   the blade rises only while a force beyond the machine's limits is slowing it down, at g m/s
+   per unit of the excess. A non-finite force adds nothing. With g = 0 the commands are Eq.
+   11's to the bit.
+
 Batches: every target and state is a float64 array of shape (B,), one entry per episode
 (scalars broadcast). All arithmetic is element-wise IEEE +, −, ×, ÷ and clipping in a fixed
 order, so row i of a batch is bit-identical to running that row alone with B = 1.
@@ -70,7 +82,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from soil_msgs_py.params import MACHINE, SAMPLE_RATE_HZ
+from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ
 
 __all__ = ["AntiStallGains", "ControlCommand", "AntiStallController"]
 
@@ -100,6 +112,9 @@ class AntiStallGains:
     dither_amplitude_m: A, amplitude of the depth dither [m] (module docstring, item 4);
                     0 (default) switches it off, a few cm when on. >= 0.
     dither_period_s: T, period of the depth dither [s]. > 0.
+    force_lift_m_s: g, blade rise rate per unit of force share above ``force_lift_share`` [m/s]
+                    (module docstring, item 5); 0 (default) switches it off. >= 0.
+    force_lift_share: θ, the share of the machine's force limits above which the force lifts. > 0.
     """
 
     k_v_m_s: float = 0.5
@@ -108,6 +123,8 @@ class AntiStallGains:
     dt_s: float = 1.0 / SAMPLE_RATE_HZ
     dither_amplitude_m: float = 0.0
     dither_period_s: float = 2.0
+    force_lift_m_s: float = 0.0
+    force_lift_share: float = 1.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -117,6 +134,8 @@ class AntiStallGains:
             ("dt_s", 0.0, True, "(0, inf)"),
             ("dither_amplitude_m", 0.0, False, "[0, inf)"),
             ("dither_period_s", 0.0, True, "(0, inf)"),
+            ("force_lift_m_s", 0.0, False, "[0, inf)"),
+            ("force_lift_share", 0.0, True, "(0, inf)"),
         )
         for name, lo, lo_open, allowed in checks:
             value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed)
@@ -125,6 +144,14 @@ class AntiStallGains:
     def paper_step_gain(self, target_speed_m_s):
         """The paper's per-step gain K_Δp,paper = K_v · dt / v̄_x (Eq. 11 as printed)."""
         return self.k_v_m_s * self.dt_s / np.asarray(target_speed_m_s, dtype=np.float64)
+
+    def force_lift_rate_m_s(self, force_n: np.ndarray) -> np.ndarray:
+        """g · max(s − θ, 0) [m/s] per row of ``force_n`` (B, 2) [N] (item 5); 0 where a force is not finite."""
+        f = np.asarray(force_n, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            share = np.maximum(np.abs(f[:, 0]) / FORCE_LIMITS_N[0], np.abs(f[:, 1]) / FORCE_LIMITS_N[1])
+            over = np.maximum(share - self.force_lift_share, 0.0)
+        return np.where(np.isfinite(f).all(axis=1), self.force_lift_m_s * over, 0.0)
 
     def dither_m(self, steps: int) -> float:
         """The depth dither A sin(2π k dt / T) at step k since reset [m] (item 4)."""
@@ -278,19 +305,31 @@ class AntiStallController:
         self._offset = np.clip(self._offset, 0.0, self.offset_upper_bound_m())
 
     # ------------------------------------------------------------------ control
-    def step(self, v_x_c, p_z_c) -> ControlCommand:
+    def step(self, v_x_c, p_z_c, force_n=None) -> ControlCommand:
         """One tick: measured chassis forward velocity v_x^c [m/s] and chassis ground
-        reference height p_z^c [m] (scalars or shape (B,)) -> ControlCommand."""
+        reference height p_z^c [m] (scalars or shape (B,)) -> ControlCommand. ``force_n``: the
+        blade force (F_x, F_z) [N] of the same tick, shape (2,) or (B, 2); needed only with
+        the force lift on (item 5), ValueError without it then."""
         v = _as_batch("v_x_c", v_x_c, self._batch_size)
         pz = _as_batch("p_z_c", p_z_c, self._batch_size)
         g = self._gains
         speed = self._speed
+        lift = None
+        if g.force_lift_m_s > 0.0:
+            if force_n is None:
+                raise ValueError("force_n (F_x, F_z) [N] is needed with force_lift_m_s > 0")
+            f = np.asarray(force_n, dtype=np.float64)
+            if f.shape not in ((2,), (self._batch_size, 2)):
+                raise ValueError(f"force_n must have shape (2,) or (B, 2) = ({self._batch_size}, 2); got {f.shape}")
+            lift = g.force_lift_rate_m_s(np.broadcast_to(f, (self._batch_size, 2)))
 
         # Eq. 11, continuous-time form discretised with dt (see module docstring, item 1).
         e_vx = speed - v  # velocity tracking error
         e_vmin = speed * g.c_vx  # velocity dependent threshold
         k_dp = g.k_v_m_s / speed  # gain schedule K_Δp = K_v / v̄_x  [1/s · m/s / (m/s)]
         candidate = self._offset + (k_dp * (e_vx - e_vmin)) * g.dt_s
+        if lift is not None:  # item 5
+            candidate = candidate + lift * g.dt_s
         candidate = np.clip(candidate, 0.0, self.offset_upper_bound_m())
 
         # Non-finite measurements: hold the previous offset (integrator not corrupted).

@@ -63,8 +63,8 @@ N_PARAMS = 49
 N_FORCE_INPUTS = 14
 
 # --- controller (Eq. 11-12): gains and per-episode targets
-C_K_V, C_C_VX, C_DELTA_D_MAX, C_DT, C_DITHER_A, C_DITHER_T = range(6)
-N_GAINS = 6
+C_K_V, C_C_VX, C_DELTA_D_MAX, C_DT, C_DITHER_A, C_DITHER_T, C_FORCE_LIFT, C_FORCE_SHARE, C_LIMIT_X, C_LIMIT_Z = range(10)
+N_GAINS = 10
 
 # --- velocity history (paper §3.1: v averaged over this many samples)
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
@@ -420,13 +420,17 @@ def output_row(s, e, terrain, p, v_hist, count, positions, velocities, known, tr
 
 
 @numba.njit(**_JIT)
-def controller_step(gains, speed, target_depth, ctl, v, pz, command):
-    """``AntiStallController.step`` (Eq. 11-12 with the depth dither) for one episode. ``ctl``
-    = (offset, last p_z^c, steps since reset) is updated in place; ``command`` gets (u_zr, u_za, u_x)."""
+def controller_step(gains, speed, target_depth, ctl, v, pz, force, command):
+    """``AntiStallController.step`` (Eq. 11-12 with the depth dither and the force lift) for one
+    episode, ``force`` the blade force (F_x, F_z) of the tick. ``ctl`` = (offset, last p_z^c,
+    steps since reset) is updated in place; ``command`` gets (u_zr, u_za, u_x)."""
     e_vx = speed - v
     e_vmin = speed * gains[C_C_VX]
     k_dp = gains[C_K_V] / speed
     candidate = ctl[0] + (k_dp * (e_vx - e_vmin)) * gains[C_DT]
+    if gains[C_FORCE_LIFT] > 0.0 and math.isfinite(force[0]) and math.isfinite(force[1]):
+        share = max(abs(force[0]) / gains[C_LIMIT_X], abs(force[1]) / gains[C_LIMIT_Z])
+        candidate = candidate + (gains[C_FORCE_LIFT] * max(share - gains[C_FORCE_SHARE], 0.0)) * gains[C_DT]
     candidate = _clip(candidate, 0.0, target_depth + gains[C_DELTA_D_MAX])
     if math.isfinite(v) and math.isfinite(pz):
         ctl[0] = candidate
@@ -455,7 +459,7 @@ def run_episode(s, e, terrain, p, probes, rng, gains, speed, target_depth, v_his
     positions, velocities = np.zeros(3), np.zeros(3)
     for k in range(n_ticks):
         output_row(s, e, terrain, p, v_hist, count, positions, velocities, known[k], truth[k], extras[k])
-        controller_step(gains, speed, target_depth, ctl, velocities[1], positions[2], command)
+        controller_step(gains, speed, target_depth, ctl, velocities[1], positions[2], tick_forces, command)
         for j in range(3):
             obs[k, j], obs[k, 3 + j], obs[k, 6 + j] = positions[j], velocities[j], command[j]
         forces[k, 0], forces[k, 1] = tick_forces[0], tick_forces[1]

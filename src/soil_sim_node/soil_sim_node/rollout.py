@@ -10,7 +10,8 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from soil_msgs_py.episode import Episode, EpisodeMeta
-from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, VELOCITY_AVERAGE_SAMPLES
+from soil_msgs_py.params import (FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ,
+                                 VELOCITY_AVERAGE_SAMPLES)
 
 from .effects import plugin_name
 from . import kernel
@@ -59,7 +60,7 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
     extras = np.zeros((n_ticks, b, 2))
     out = sim.reset()
     for k in range(n_ticks):
-        cmd = controller.step(out.velocities[:, 1], out.positions[:, 2])
+        cmd = controller.step(out.velocities[:, 1], out.positions[:, 2], out.forces)
         stamps[k] = out.stamp_ns
         obs[k, :, 0:3] = out.positions
         obs[k, :, 3:6] = out.velocities
@@ -83,15 +84,22 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
     ]
 
 
+def kernel_gains(g: AntiStallGains) -> np.ndarray:
+    """The controller's gains as the compiled kernel's row (``kernel.C_*``), the machine's force limits with them."""
+    row = np.zeros(kernel.N_GAINS)
+    row[[kernel.C_K_V, kernel.C_C_VX, kernel.C_DELTA_D_MAX, kernel.C_DT, kernel.C_DITHER_A, kernel.C_DITHER_T,
+         kernel.C_FORCE_LIFT, kernel.C_FORCE_SHARE, kernel.C_LIMIT_X, kernel.C_LIMIT_Z]] = (
+        g.k_v_m_s, g.c_vx, g.delta_d_max_m, g.dt_s, g.dither_amplitude_m, g.dither_period_s,
+        g.force_lift_m_s, g.force_lift_share, *FORCE_LIMITS_N)
+    return row
+
+
 def _compiled_episode(sim: SoilSimulator, i: int, gains: AntiStallGains, n_ticks: int) -> Episode:
     """Episode ``i`` of ``sim`` (just reset) in closed loop, whole, in the compiled kernel:
     the same rows as the reference loop above, each episode on its own."""
     spec = sim.specs[i]
     controller = AntiStallController(gains, spec.target_speed_m_s, spec.target_depth_m)  # validates the targets
-    g = controller.gains
-    gain_row = np.zeros(kernel.N_GAINS)
-    gain_row[[kernel.C_K_V, kernel.C_C_VX, kernel.C_DELTA_D_MAX, kernel.C_DT, kernel.C_DITHER_A, kernel.C_DITHER_T]] = (
-        g.k_v_m_s, g.c_vx, g.delta_d_max_m, g.dt_s, g.dither_amplitude_m, g.dither_period_s)
+    gain_row = kernel_gains(controller.gains)
     obs = np.zeros((n_ticks, len(OBSERVATION_FIELDS)))
     forces, extras = np.zeros((n_ticks, 2)), np.zeros((n_ticks, 2))
     known, truth = np.zeros((n_ticks, len(KNOWN_PARAMS))), np.zeros((n_ticks, len(GROUND_TRUTH_PARAMS)))
