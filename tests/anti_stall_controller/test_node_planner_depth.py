@@ -12,16 +12,11 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import EpisodeMeta
-from soil_msgs_py.params import TICK_PERIOD_NS
+from tests.anti_stall_controller.controller_probe import FIRST, send_until_answered, tick_stamp as _tick
 from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, wait_until
 
 TWIST, POSE, BLADE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name, T.BLADE_CMD.name
-FIRST = 100 * M.NS_PER_S
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
-
-
-def _tick(k: int) -> int:
-    return FIRST + int(k * TICK_PERIOD_NS)
 
 
 @pytest.mark.timeout(120)
@@ -47,18 +42,12 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
                 return {s: v[1] for s, v in (M.parse_message(BLADE, m) for m in probe.messages(BLADE))}
 
             def tick(k: int) -> float:
-                """One state tick at the target speed (no anti-stall offset); the answer's u_za.
-                Sent again every 2 s until answered: topics are not ordered with each other, so
-                on a loaded machine the first tick can reach the node before its episode_start."""
-                for _ in range(10):
+                """One state tick at the target speed (no anti-stall offset); the answer's u_za."""
+                def send() -> None:
                     twist.publish(M.build_message(classes, TWIST, _tick(k), [0.5, 0.0]))
                     pose.publish(M.build_message(classes, POSE, _tick(k), [0.0, 0.0]))
-                    try:
-                        probe.wait_for(lambda: _tick(k) in u_za(), 2, f"the answer to tick {k}")
-                        break
-                    except AssertionError:
-                        continue
-                probe.wait_for(lambda: _tick(k) in u_za(), 1, f"the answer to tick {k} (sent 10 times)")
+
+                send_until_answered(probe, send, lambda: _tick(k) in u_za(), f"the answer to tick {k}")
                 return u_za()[_tick(k)]
 
             def plan(k: int, depth: float) -> None:

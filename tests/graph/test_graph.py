@@ -328,6 +328,28 @@ def test_lockstep_run_records_the_batch_generators_episode_bit_for_bit(tmp_path,
     assert recorded[1].stamps_ns[0] == recorded[0].stamps_ns[-1] + 16_666_667
 
 
+def test_lockstep_with_the_force_lift_records_the_batch_generators_episode_bit_for_bit(tmp_path, domain):
+    """The controller joining /blade/force by stamp (``force_lift_m_s`` > 0) over DDS gives the
+    compiled rollout's episode with the same gains, and the lift acted (dense clay at 0.25 m)."""
+    from anti_stall_controller.controller import AntiStallGains
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    proc = _launch(["--pacing", "lockstep", "--record", str(tmp_path / "bags"), "--timeout", "90",
+                    "--sim-param", "world_mode:=default", "--sim-param", "soil:=Clay",
+                    "--sim-param", "relative_density_pct:=80.0", "--sim-param", "target_depth_m:=0.25",
+                    "--sim-param", "seed:=5", "--sim-param", "duration_s:=4.0",
+                    "--controller-param", "force_lift_m_s:=1.0"], domain, tmp_path)
+    assert proc.wait(timeout=120) == 0, proc.log_path.read_text()
+    (live,) = _recorded_episodes(tmp_path / "bags")
+    spec = [EpisodeSpec("Clay", 80.0, 0.5, 0.25, seed=5, duration_s=4.0)]
+    (ref,) = run_episodes(SimConfig(world_mode="default"), spec, gains=AntiStallGains(force_lift_m_s=1.0))
+    for name in ("observations", "forces", "known", "truth", "extras"):
+        np.testing.assert_array_equal(getattr(live, name), getattr(ref, name), err_msg=name)
+    (plain,) = run_episodes(SimConfig(world_mode="default"), spec)
+    assert np.max(np.abs(live.column("u_za") - plain.column("u_za"))) > 0.01
+
+
 @pytest.mark.timeout(300)
 def test_realtime_15s_at_60hz_loses_no_tick(tmp_path, domain):
     """A quarter of a minute of real time (900 ticks): the bag has every tick and the simulator

@@ -16,6 +16,10 @@ side); without one (none yet this episode, the planner silent or its stamps far 
 parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall lift acts on
 top of whichever target is in effect: the planner chooses the depth, the controller still
 saves the machine from a stall.
+
+With ``force_lift_m_s`` > 0 (the core's force lift, off by default) the controller also reads
+/blade/force and answers a tick once its twist, pose and force are all in: the blade rises with
+the force beyond the machine's limits as well as with the speed error.
 """
 from __future__ import annotations
 
@@ -49,9 +53,15 @@ PARAMETERS: dict[str, tuple] = {
     "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
                                   "(/planner/target_depth; target_depth_m the fallback)"),
     "planner_timeout_s": (1.0, "a planner target counts for ticks within this much simulation time of its stamp [s], > 0"),
+    "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
+                                              "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
+                                              "/blade/force is joined with the state by stamp"),
+    "force_lift_share": (_GAINS.force_lift_share, "force lift: the share of the machine's force limits "
+                                                  "(20 kN x, 30 kN z) above which the blade rises, > 0"),
 }
 DEPTH_SOURCES = ("parameter", "planner")
-GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s")
+GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s", "force_lift_m_s",
+               "force_lift_share")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
 MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
 # How far past the last answered tick a state stamp is still plausible (ticks lost on the way),
@@ -62,17 +72,22 @@ RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
 MAX_PLANNER_DEPTH_M = MACHINE.blade_height_m  # a planner target deeper than the blade is not a cut
 
 
-def state_joiner() -> StampJoiner:
-    """One tick's twist and pose, answered as soon as both are in; an older tick still missing
-    one of them is skipped (the controller answers the newest state). A stamp more than
+def state_topics(force_lift: bool) -> tuple[str, ...]:
+    """What one tick's answer waits for: twist and pose, and the blade force with the force lift on."""
+    return G.CONTROLLER_STATE_TOPICS + ((T.BLADE_FORCE.name,) if force_lift else ())
+
+
+def state_joiner(force_lift: bool = False) -> StampJoiner:
+    """One tick's twist and pose (and force, ``state_topics``), answered as soon as all are in;
+    an older tick still missing one of them is skipped (the controller answers the newest state). A stamp more than
     ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one pair stamped in the far
     future (another node's, a corrupt one) must not become the last answered tick, after
     which every real tick would look stale. State refused for ``RESTART_AFTER_REFUSED_TICKS``
     ticks in a row is followed from there on (time really jumped, or the pair answered before
     was the stray one): one pair silences the controller for at most that long."""
-    return StampJoiner(G.CONTROLLER_STATE_TOPICS, max_pending=MAX_PENDING_STAMPS,
-                       max_ahead_ns=MAX_AHEAD_TICKS * TICK_PERIOD_NS,
-                       restart_after_refused=len(G.CONTROLLER_STATE_TOPICS) * RESTART_AFTER_REFUSED_TICKS)
+    topics = state_topics(force_lift)
+    return StampJoiner(topics, max_pending=MAX_PENDING_STAMPS, max_ahead_ns=MAX_AHEAD_TICKS * TICK_PERIOD_NS,
+                       restart_after_refused=len(topics) * RESTART_AFTER_REFUSED_TICKS)
 
 
 class ControllerNode(Node):
@@ -94,12 +109,12 @@ class ControllerNode(Node):
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        for name in G.CONTROLLER_STATE_TOPICS:
+        for name in state_topics(True):  # the force is offered to the join only with the force lift on
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
         self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name, self._on_planner_target,
                                  topic_qos(T.TARGET_DEPTH.name))
-        self.joiner = state_joiner()
+        self.joiner = state_joiner(self._force_lift)
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
@@ -131,6 +146,10 @@ class ControllerNode(Node):
             return SetParametersResult(successful=False, reason=str(err))
         if gains:
             self.core.set_gains(new_gains)
+            if self._force_lift != (self.joiner.topics != G.CONTROLLER_STATE_TOPICS):
+                self.joiner = state_joiner(self._force_lift)
+                self.get_logger().info(f"force lift {'on' if self._force_lift else 'off'}: answering each tick "
+                                       f"once {', '.join(self.joiner.topics)} are in")
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
@@ -141,6 +160,10 @@ class ControllerNode(Node):
         if "follow_episode_targets" in changes:
             self.follow = bool(changes["follow_episode_targets"])
         return SetParametersResult(successful=True)
+
+    @property
+    def _force_lift(self) -> bool:
+        return self.core.gains.force_lift_m_s > 0.0
 
     def _on_status(self, msg: String) -> None:
         event = status_event(msg.data, self._warn)
@@ -169,11 +192,14 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ control
     def _on_state(self, topic: str, msg) -> None:
+        if topic not in self.joiner.topics:  # the force, with the force lift off
+            return
         if self.held is not None:
-            if len(self.held) < 2 * MAX_PENDING_STAMPS:
+            most = len(self.joiner.topics) * MAX_PENDING_STAMPS
+            if len(self.held) < most:
                 self.held.append((topic, msg))
             else:
-                self._warn("held", f"{topic}: state between episodes beyond {2 * MAX_PENDING_STAMPS} held "
+                self._warn("held", f"{topic}: state between episodes beyond {most} held "
                                    "messages dropped (no episode_start came)")
             return
         try:
@@ -181,8 +207,11 @@ class ControllerNode(Node):
         except ValueError as err:
             self._warn(f"{topic}:layout", f"{err}; ignored")
             return
-        # /chassis/twist carries (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c)
-        value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
+        # /chassis/twist carries (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c), /blade/force (F_x, F_z)
+        if topic == T.BLADE_FORCE.name:
+            value = (float(values[0]), float(values[1]))
+        else:
+            value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
         last = self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, value)
         if verdict is Verdict.STALE:
@@ -198,10 +227,12 @@ class ControllerNode(Node):
                                   f"following the stream from stamp {stamp} ns")
         for joined in out:
             if joined.complete:
-                self._answer(joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name])
+                self._answer(joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name],
+                             joined.parts.get(T.BLADE_FORCE.name))
             else:
                 fate = "dropped" if joined.why is Why.EVICTED else "skipped"
-                self._warn("unpaired", f"state at stamp {joined.stamp_ns} ns never got both twist and pose; {fate}")
+                self._warn("unpaired", f"state at stamp {joined.stamp_ns} ns never got all of "
+                                       f"{', '.join(self.joiner.topics)}; {fate}")
 
     def _on_planner_target(self, msg) -> None:
         try:
@@ -232,12 +263,12 @@ class ControllerNode(Node):
                 f"{self.param_depth_m} m until one comes"))
         return target[1] if fresh else self.param_depth_m
 
-    def _answer(self, stamp: int, v_x_c: float, p_z_c: float) -> None:
+    def _answer(self, stamp: int, v_x_c: float, p_z_c: float, force_n=None) -> None:
         if self.depth_source == "planner":
             depth = self._depth_for(stamp)
             if depth != self.core.target_depth_m[0]:
                 self.core.set_targets(target_depth_m=depth)
-        cmd = self.core.step(v_x_c, p_z_c)  # non-finite inputs: core holds its state
+        cmd = self.core.step(v_x_c, p_z_c, force_n)  # non-finite inputs: core holds its state
         self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
         self.blade_pub.publish(M.build_message(self.classes, T.BLADE_CMD.name, stamp, [cmd.u_zr[0], cmd.u_za[0]]))
 
