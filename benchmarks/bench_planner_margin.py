@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_planner_margin.py
     .venv/bin/python benchmarks/bench_planner_margin.py --settings 0.8,0.95 0.9,0.95 --paths main_default
+    .venv/bin/python benchmarks/bench_planner_margin.py --force-lift 1.0   # every policy's controller lifts with the force too
 
 The soil-aware planner cuts to the deepest depth whose ``force_quantile`` upper quantile of
 force stays within ``margin`` × the 20 kN / 30 kN limits. Both trade volume for stall, and the
@@ -46,7 +47,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="planner settings to compare, e.g. 0.8,0.95")
     ap.add_argument("--paths", nargs="+", default=list(PATHS), choices=list(PATHS))
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
+                    help="the controller's force lift in every policy (soil_cut_report --force-lift); default off")
     args = ap.parse_args(argv)
+    from soil_bringup.cut_report import force_lift_gains
+
+    try:
+        args.gains = force_lift_gains(args.force_lift)
+    except ValueError as err:
+        ap.error(f"--force-lift {args.force_lift!r}: {err}")
     settings = []
     for text in args.settings:
         try:
@@ -58,7 +67,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def run_path(job: tuple[str, list[tuple[float, float]]]) -> list[dict]:
+def run_path(job: tuple) -> list[dict]:
     """One path: its fixed-depth sweep once, then the soil-aware loop under every setting."""
     import torch
 
@@ -67,15 +76,15 @@ def run_path(job: tuple[str, list[tuple[float, float]]]) -> list[dict]:
     from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut
 
     torch.set_num_threads(1)
-    name, settings = job
+    name, settings, gains = job
     world, patches, seed = PATHS[name]
     spec = CR.parse_args([a for p in patches for a in ("--patch", p)] + ["--seed", str(seed), "--duration", str(DURATION_S)]).spec
-    sweep, best, conservative, aggressive = CR.fixed_policies(world, spec)
+    sweep, best, conservative, aggressive = CR.fixed_policies(world, spec, gains)
     fixed = {c.policy.fixed_depth_m: CM.summary(c) for c in sweep}
     rows = []
     for margin, quantile in settings:
         setup = SoilAwareSetup(world, planner={"margin": margin, "force_quantile": quantile})
-        cut = run_cut(world, spec, Policy("soil-aware"), setup)
+        cut = run_cut(world, spec, Policy("soil-aware"), setup, gains)
         aware = CM.summary(cut)
         rows.append({"path": name, "world": world, "margin": margin, "quantile": quantile,
                      "volume_ratio": aware["volume_per_m_m3"] / fixed[conservative]["volume_per_m_m3"],
@@ -88,8 +97,9 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     t0 = time.monotonic()
     with ProcessPoolExecutor(args.workers) as pool:
-        rows = [r for rs in pool.map(run_path, [(p, args.settings) for p in args.paths]) for r in rs]
-    print(f"## Planner margin × force quantile over {len(args.paths)} paths ({DURATION_S:g} s cuts)\n")
+        rows = [r for rs in pool.map(run_path, [(p, args.settings, args.gains) for p in args.paths]) for r in rs]
+    lift = f", force lift {args.force_lift}" if args.force_lift else ""
+    print(f"## Planner margin × force quantile over {len(args.paths)} paths ({DURATION_S:g} s cuts{lift})\n")
     print("| path | margin | quantile | volume / m vs conservative | ceiling | stall [s] | conservative / aggressive stall [s] |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:

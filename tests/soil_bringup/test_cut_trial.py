@@ -113,3 +113,26 @@ def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp
         with pytest.raises(SystemExit) as exit_:
             cut_report.main([flag, value, "--out", str(out)])
         assert exit_.value.code == 2 and flag.strip("-").replace("-", "_") in capsys.readouterr().err
+    for value, says in (("-1", "force_lift_m_s"), ("1,0", "force_lift_share"), ("fast", "numbers"), ("1,1,1", "G,SHARE")):
+        with pytest.raises(SystemExit) as exit_:
+            cut_report.main(["--force-lift", value, "--out", str(out)])
+        assert exit_.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_with_the_force_lift_every_policy_lifts_with_the_force_and_the_report_says_so(tmp_path):
+    """``--force-lift``: the sweep and the fixed policies run the controller with the force lift
+    (dense clay, which stalls every depth beyond 0.15 m under Eq. 11 alone, is cut stall-free at
+    0.3 m when the force lifts the blade at 2 m/s per unit beyond the limits), and the report
+    names the controller."""
+    runs = {}
+    for name, extra in (("plain", []), ("lift", ["--force-lift", "2.0"])):
+        out = tmp_path / name
+        assert cut_report.main(["--worlds", "fee", "--duration", "6", "--patch", "0:Sand:20", "--patch", "1.5:Clay:80",
+                                "--out", str(out), *extra]) == 0
+        runs[name] = json.loads((out / "cut_report.json").read_text())
+    assert runs["plain"]["controller"]["force_lift_m_s"] == 0.0 and runs["lift"]["controller"]["force_lift_m_s"] == 2.0
+    best = {k: r["worlds"][0]["best_fixed_depth_m"][1] for k, r in runs.items()}  # the clay's
+    assert best == {"plain": 0.15, "lift": 0.3}
+    assert all(p["stall_s"] == 0.0 for p in runs["lift"]["worlds"][0]["policies"])
+    assert "controller: Eq. 11 + force lift 2 m/s per unit of force share above 1" in (tmp_path / "lift" / "cut_report.md").read_text()
+    assert "controller: Eq. 11." in (tmp_path / "plain" / "cut_report.md").read_text()

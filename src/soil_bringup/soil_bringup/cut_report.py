@@ -18,6 +18,8 @@ with the measured values; they are figures, never asserted.
 
     soil_cut_report                          # both worlds, the default path, 45 s
     soil_cut_report --worlds default --patch 0:Sand:20 --patch 12:Clay:80 --duration 40
+    soil_cut_report --force-lift 1.0         # every policy's controller also lifts with the force (item 5 of
+                                             # anti_stall_controller.controller), not with Eq. 11 alone
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
@@ -61,11 +64,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("out/planner"))
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
                    help=f"the soil-aware planner's share of the force limits a cut may use, (0, 1] (default {DEFAULT_MARGIN})")
+    p.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
+                   help="every policy's controller also raises the blade at G m/s per unit of force share above SHARE "
+                        "(default 1: the machine's limits); default off, Eq. 11 alone")
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
     args = p.parse_args(argv)
     args.planner = {"margin": args.margin, "force_quantile": args.force_quantile}
+    try:
+        args.gains = force_lift_gains(args.force_lift)
+    except ValueError as err:
+        p.error(f"--force-lift {args.force_lift!r}: {err}")
     try:
         StretchPlanner(**args.planner)
     except ValueError as err:
@@ -88,23 +98,39 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def fixed_policies(world: str, spec: EpisodeSpec) -> tuple[list[Cut], list, float, float]:
+def force_lift_gains(text: str | None) -> AntiStallGains:
+    """The controller's gains for ``--force-lift G[,SHARE]`` (None: the defaults, no force lift)."""
+    if text is None:
+        return AntiStallGains()
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise ValueError("expected G or G,SHARE")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        raise ValueError("expected numbers, G or G,SHARE") from None
+    return AntiStallGains(force_lift_m_s=values[0], **({"force_lift_share": values[1]} if len(values) == 2 else {}))
+
+
+def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
     without a stall), the conservative depth (the shallowest of those) and the aggressive one
-    (the deepest) [m]."""
-    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M)
+    (the deepest) [m]; ``gains``: the controller's (default: its defaults)."""
+    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains)
     best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
     known = [b for b in best if b is not None]
     return sweep, best, min(known or SWEEP_DEPTHS_M), max(known or SWEEP_DEPTHS_M)
 
 
-def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None) -> dict:
-    """The sweep, the three policies and their figures for one world (``cuts`` kept for the figure)."""
-    sweep, best, conservative, aggressive = fixed_policies(world, spec)
+def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None,
+                gains: AntiStallGains | None = None) -> dict:
+    """The sweep, the three policies and their figures for one world (``cuts`` kept for the
+    figure), every policy under the controller ``gains`` (default: its defaults)."""
+    sweep, best, conservative, aggressive = fixed_policies(world, spec, gains)
     by_depth = {c.policy.fixed_depth_m: c for c in sweep}
     cuts = [_renamed(by_depth[conservative], f"conservative {conservative:.3f} m"),
             _renamed(by_depth[aggressive], f"aggressive {aggressive:.3f} m"),
-            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world))]
+            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains)]
     rows = [CM.summary(c) for c in cuts]
     cons, agg, aware = rows
     return {
@@ -144,11 +170,20 @@ def _fmt(x, spec=".2f") -> str:
     return "inf" if x == math.inf else format(x, spec)
 
 
+def controller_text(gains: dict) -> str:
+    """What lifts the blade in every policy: Eq. 11 alone, or with the force lift."""
+    if gains["force_lift_m_s"] > 0:
+        return (f"Eq. 11 + force lift {gains['force_lift_m_s']:g} m/s per unit of force share above "
+                f"{gains['force_lift_share']:g}")
+    return "Eq. 11"
+
+
 def markdown(report: dict) -> str:
     """The report's tables (one section per world) and the targets with what was measured."""
     lines = [f"# Depth policies on one long cut: {report['path']}", "",
              f"{report['duration_s']:g} s at {SPEED_M_S} m/s, seed {report['seed']}; best fixed depths from a sweep of "
-             f"{SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m. Command: `{report['command']}`", ""]
+             f"{SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m; controller: {controller_text(report['controller'])}. "
+             f"Command: `{report['command']}`", ""]
     for w in report["worlds"]:
         r = w["ratios"]
         lines += [f"## {w['world']} world", "",
@@ -233,7 +268,8 @@ def console(report: dict) -> str:
     out = []
     for w in report["worlds"]:
         r = w["ratios"]
-        out.append(f"{w['world']} world ({report['path']}, {report['duration_s']:g} s, seed {report['seed']}):")
+        out.append(f"{w['world']} world ({report['path']}, {report['duration_s']:g} s, seed {report['seed']}; "
+                   f"controller: {controller_text(report['controller'])}):")
         out.append(f"  {'policy':<22} {'m3/m':>6} {'m3/s':>6} {'stall s':>8} {'@limit':>7} {'backoff':>8} "
                    f"{'Fx mean/p95':>12} {'Fz mean/p95':>12}")
         for p in w["policies"]:
@@ -259,11 +295,12 @@ def main(argv=None) -> int:
     spec = args.spec
     path = " → ".join(f"{p.soil} {p.relative_density_pct:g} % from {p.x_start_m:g} m" for p in args.patches)
     report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
-              "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner}
+              "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner,
+              "controller": dataclasses.asdict(args.gains)}
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
-        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner))
+        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains)
         w["figure"] = f"cut_{world}.png"
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)

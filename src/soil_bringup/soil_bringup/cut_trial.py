@@ -134,7 +134,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
         if schedule is not None and len(queue) >= setup.plan_delay_ticks:
             controller.set_targets(target_depth_m=queue.popleft())
         rec["target"][k] = controller.target_depth_m[0]
-        cmd = controller.step(out.velocities[:, 1], out.positions[:, 2])
+        cmd = controller.step(out.velocities[:, 1], out.positions[:, 2], out.forces)
         rec["x_b"][k], rec["v_x"][k] = out.positions[0, 0], out.velocities[0, 1]
         rec["depth"][k], rec["offset"][k] = out.known[0, _D], controller.depth_offset_m[0]
         rec["patch"][k] = sim.patch_at(out.positions[:, 0])[0]
