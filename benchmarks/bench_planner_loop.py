@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_planner_loop.py
     .venv/bin/python benchmarks/bench_planner_loop.py --duration 60 --repeats 3 --load 1
+    .venv/bin/python benchmarks/bench_planner_loop.py --force-lift 1.0   # the controller also joins /blade/force
 
 Runs the same real-time episode (rate 1, a path of changing soil, the default world) through
 ``soil_launch`` alternately without the planner (simulator, controller, estimator, recorder)
@@ -29,11 +30,11 @@ PATCHES = "['0:Sand:20','10:Clay:80','16:Loam:50']"
 _TIMING = re.compile(r"episode \d+ end \(\w+\): \d+ ticks; timing (\{.*\})")
 
 
-def run(planner: bool, duration_s: float, domain: int) -> dict:
+def run(planner: bool, duration_s: float, domain: int, controller_args: tuple[str, ...] = ()) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         args = ["--planner" if planner else "--estimator", "--rate", "1", "--record", tmp,
                 "--sim-param", f"patches:={PATCHES}", "--sim-param", f"duration_s:={duration_s}",
-                "--timeout", str(duration_s + 90)]
+                "--timeout", str(duration_s + 90), *controller_args]
         with Graph(args, domain) as graph:
             pids, cpu0, t0 = {}, {}, None
             deadline = time.monotonic() + duration_s + 120
@@ -72,14 +73,18 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--load", type=int, default=0, help="busy-looping processes during the runs")
     p.add_argument("--domain-id", type=int, default=66)
+    p.add_argument("--force-lift", type=float, default=0.0, metavar="G",
+                   help="the controller's force_lift_m_s in every run (0: off, Eq. 11 alone)")
     args = p.parse_args()
+    controller_args = ("--controller-param", f"force_lift_m_s:={args.force_lift}") if args.force_lift else ()
     print(f"bench_planner_loop: {args.repeats} x {args.duration:g} s real-time episodes each, default world, path "
-          f"{PATCHES}, load {args.load}, {os.cpu_count()} cores")
+          f"{PATCHES}, load {args.load}, {os.cpu_count()} cores"
+          + (f", controller force lift {args.force_lift:g} m/s" if args.force_lift else ""))
     late = {False: [], True: []}
     with Load(args.load, max_s=args.repeats * 2 * (args.duration + 120)):
         for i in range(args.repeats):
             for planner in (False, True):
-                r = run(planner, args.duration, args.domain_id)
+                r = run(planner, args.duration, args.domain_id, controller_args)
                 late[planner].append(r["stats"].get("late_commands"))
                 print(line(("with planner" if planner else "without") + f" #{i + 1}", r), flush=True)
     total = {k: sum(v for v in vs if v is not None) for k, vs in late.items()}
