@@ -1,6 +1,6 @@
 """The controller node with the force lift on (``force_lift_m_s`` > 0), over real DDS: a tick is
 answered only once its twist, pose and /blade/force are all in, the blade command is the core's
-for that force, and switching the lift off at run time answers ticks without a force again."""
+for that force, its gain changes at run time, and switching it off at run time is refused."""
 from __future__ import annotations
 
 import numpy as np
@@ -66,18 +66,19 @@ def test_the_force_lift_joins_the_force_by_stamp_and_lifts_like_the_core(tmp_pat
             send(k, (FORCE,), (0.0, 0.0))
             probe.wait_for(lambda: _tick(k) in answers(), 10, "the answer once the force is in")
             assert answers()[_tick(k)] == core.step(SPEED * 0.9, 0.0, np.zeros(2)).u_za[0]
-            # the lift switched off at run time: twist and pose answer a tick again
+            # at run time the gain changes, but the lift is not switched off (a tick would wait for
+            # a force no longer joined, or the other way round); a bad share is refused
             client = AsyncParameterClient(probe.node, "anti_stall_controller")
             assert client.wait_for_services(timeout_sec=20)
-            bad = call_service(lambda: client.set_parameters([Parameter("force_lift_share", value=0.0)]))
-            assert not bad.results[0].successful and "force_lift_share" in bad.results[0].reason
-            ok = call_service(lambda: client.set_parameters([Parameter("force_lift_m_s", value=0.0)]))
+            for name, value, says in (("force_lift_share", 0.0, "force_lift_share"),
+                                      ("force_lift_m_s", 0.0, "would switch the force lift off")):
+                bad = call_service(lambda: client.set_parameters([Parameter(name, value=value)]))
+                assert not bad.results[0].successful and says in bad.results[0].reason, bad.results[0].reason
+            ok = call_service(lambda: client.set_parameters([Parameter("force_lift_m_s", value=3.0)]))
             assert all(r.successful for r in ok.results)
-            send(k + 1, (TWIST, POSE))
-            probe.wait_for(lambda: _tick(k + 1) in answers(), 10, "an answer without the force, lift off")
-            core.set_gains(force_lift_m_s=0.0)
-            assert answers()[_tick(k + 1)] == core.step(SPEED * 0.9, 0.0).u_za[0]
+            core.set_gains(force_lift_m_s=3.0)
+            assert answered(k + 1, (36e3, 0.0)) == core.step(SPEED * 0.9, 0.0, np.array([36e3, 0.0])).u_za[0]
         finally:
             ctl.stop()
         out = ctl.output
-    assert "force lift off: answering each tick once /chassis/twist, /chassis/pose are in" in out, out
+    assert "force lift on: each tick is answered once /chassis/twist, /chassis/pose, /blade/force are in" in out, out

@@ -17,9 +17,12 @@ parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall
 top of whichever target is in effect: the planner chooses the depth, the controller still
 saves the machine from a stall.
 
-With ``force_lift_m_s`` > 0 (the core's force lift, off by default) the controller also reads
-/blade/force and answers a tick once its twist, pose and force are all in: the blade rises with
-the force beyond the machine's limits as well as with the speed error.
+With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller also
+reads /blade/force and answers a tick once its twist, pose and force are all in: the blade rises
+with the force beyond the machine's limits as well as with the speed error. Its gain and share
+change at run time like the others; switching it on or off takes a restart (it changes what a
+tick waits for: a switch between a tick's state and its force would leave that tick unanswered,
+and a lockstep simulator waiting).
 """
 from __future__ import annotations
 
@@ -109,7 +112,7 @@ class ControllerNode(Node):
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        for name in state_topics(True):  # the force is offered to the join only with the force lift on
+        for name in state_topics(self._force_lift):
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
         self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name, self._on_planner_target,
@@ -120,6 +123,8 @@ class ControllerNode(Node):
         self.held: list[tuple[str, object]] | None = None
         self._warn = WarnLimiter(self.get_logger())
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
+        if self._force_lift:
+            self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
 
     @staticmethod
     def _check_planner(source, timeout_s) -> tuple[str, int]:
@@ -142,14 +147,16 @@ class ControllerNode(Node):
             speed = changes.get("target_speed_m_s", self.core.target_speed_m_s[0])
             depth = changes.get("target_depth_m", self.param_depth_m)  # (the core's may be the planner's)
             AntiStallController(new_gains, speed, depth)  # validates targets
+            if (new_gains.force_lift_m_s > 0.0) != self._force_lift:
+                raise ValueError(
+                    f"force_lift_m_s={new_gains.force_lift_m_s!r} would switch the force lift "
+                    f"{'on' if new_gains.force_lift_m_s > 0.0 else 'off'}, which changes what a tick waits for: "
+                    "restart the node with it (--ros-args -p force_lift_m_s:=G); while running, "
+                    f"{'a value > 0' if self._force_lift else 'only 0'} is accepted")
         except (ValueError, TypeError) as err:
             return SetParametersResult(successful=False, reason=str(err))
         if gains:
             self.core.set_gains(new_gains)
-            if self._force_lift != (self.joiner.topics != G.CONTROLLER_STATE_TOPICS):
-                self.joiner = state_joiner(self._force_lift)
-                self.get_logger().info(f"force lift {'on' if self._force_lift else 'off'}: answering each tick "
-                                       f"once {', '.join(self.joiner.topics)} are in")
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
@@ -192,8 +199,6 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ control
     def _on_state(self, topic: str, msg) -> None:
-        if topic not in self.joiner.topics:  # the force, with the force lift off
-            return
         if self.held is not None:
             most = len(self.joiner.topics) * MAX_PENDING_STAMPS
             if len(self.held) < most:
