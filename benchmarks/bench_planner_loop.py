@@ -73,13 +73,21 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--load", type=int, default=0, help="busy-looping processes during the runs")
     p.add_argument("--domain-id", type=int, default=66)
-    p.add_argument("--force-lift", type=float, default=0.0, metavar="G",
-                   help="the controller's force_lift_m_s in every run (0: off, Eq. 11 alone)")
+    p.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
+                   help="the controller's force lift in every run (soil_cut_report --force-lift); default off, Eq. 11 alone")
     args = p.parse_args()
-    controller_args = ("--controller-param", f"force_lift_m_s:={args.force_lift}") if args.force_lift else ()
+    from soil_bringup.cut_report import force_lift_gains
+
+    try:
+        gains = force_lift_gains(args.force_lift)
+    except ValueError as err:
+        p.error(f"--force-lift {args.force_lift!r}: {err}")
+    controller_args = () if args.force_lift is None else (
+        "--controller-param", f"force_lift_m_s:={gains.force_lift_m_s}",
+        "--controller-param", f"force_lift_share:={gains.force_lift_share}")
     print(f"bench_planner_loop: {args.repeats} x {args.duration:g} s real-time episodes each, default world, path "
           f"{PATCHES}, load {args.load}, {os.cpu_count()} cores"
-          + (f", controller force lift {args.force_lift:g} m/s" if args.force_lift else ""))
+          + (f", controller force lift {args.force_lift}" if args.force_lift else ""))
     late = {False: [], True: []}
     with Load(args.load, max_s=args.repeats * 2 * (args.duration + 120)):
         for i in range(args.repeats):

@@ -63,9 +63,11 @@ def test_the_force_lift_joins_the_force_by_stamp_and_lifts_like_the_core(tmp_pat
             send(k, (TWIST, POSE))
             with pytest.raises(AssertionError):
                 probe.wait_for(lambda: _tick(k) in answers(), 1.5, "no answer without the force")
-            send(k, (FORCE,), (0.0, 0.0))
+            send(k, (FORCE,), (34e3, 0.0))
             probe.wait_for(lambda: _tick(k) in answers(), 10, "the answer once the force is in")
-            assert answers()[_tick(k)] == core.step(SPEED * 0.9, 0.0, np.zeros(2)).u_za[0]
+            lifted = core.step(SPEED * 0.9, 0.0, np.array([34e3, 0.0])).u_za[0]
+            assert answers()[_tick(k)] == lifted  # that force's lift, not an answer without it
+            assert lifted > AntiStallController(gains, SPEED, DEPTH).step(SPEED * 0.9, 0.0, np.zeros(2)).u_za[0]
             # at run time the gain changes, but the lift is not switched off (a tick would wait for
             # a force no longer joined, or the other way round); a bad share is refused
             client = AsyncParameterClient(probe.node, "anti_stall_controller")

@@ -11,17 +11,12 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import EpisodeMeta
-from soil_msgs_py.params import TICK_PERIOD_NS
 from soil_msgs_py.stamp_join import Verdict
+from tests.anti_stall_controller.controller_probe import FIRST, tick_stamp as _tick
 from tests.ros_probe import NodeProc, RosProbe, next_domain_id
 
 TWIST, POSE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name
-FIRST = 100 * M.NS_PER_S  # the episode's first tick
 LAST_SECOND = M.MAX_STAMP_NS  # the furthest stamp a message can carry
-
-
-def _tick(k: int) -> int:
-    return FIRST + int(k * TICK_PERIOD_NS)
 
 
 def _pair(joiner, stamp):

@@ -104,7 +104,8 @@ def test_launcher_tells_the_simulator_whom_to_wait_for(tmp_path):
     assert [n.name for n in nodes] == ["recorder", "controller", "sim"]
     sim = nodes[-1].argv
     wait = next(a for a in sim if a.startswith("wait_for:="))
-    assert "'/chassis/twist:2'" in wait and "'/blade/force:1'" in wait and "'/sim/status:2'" in wait
+    # /blade/force: the recorder's reader and the controller's (which joins it with its force lift on)
+    assert "'/chassis/twist:2'" in wait and "'/blade/force:2'" in wait and "'/sim/status:2'" in wait
     assert "'/chassis/cmd_vel:1'" in wait and "pacing:=lockstep" in sim and "soil:=Sand" in sim
     with pytest.raises(SystemExit):
         parse_args(["--domain-id", "999"])

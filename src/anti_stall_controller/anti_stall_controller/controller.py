@@ -84,7 +84,13 @@ import numpy as np
 
 from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ
 
-__all__ = ["AntiStallGains", "ControlCommand", "AntiStallController"]
+__all__ = ["AntiStallGains", "ControlCommand", "AntiStallController", "limit_shares"]
+
+
+def limit_shares(force_n) -> np.ndarray:
+    """|F| / the machine's force limit per axis, (..., 2) for forces (F_x, F_z) (..., 2) [N]: the
+    share of its 20 kN tractive and 30 kN penetrative limits a force uses."""
+    return np.abs(np.asarray(force_n, dtype=np.float64)) / np.asarray(FORCE_LIMITS_N)
 
 
 def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str) -> float:
@@ -149,7 +155,7 @@ class AntiStallGains:
         """g · max(s − θ, 0) [m/s] per row of ``force_n`` (B, 2) [N] (item 5); 0 where a force is not finite."""
         f = np.asarray(force_n, dtype=np.float64)
         with np.errstate(invalid="ignore"):
-            share = np.maximum(np.abs(f[:, 0]) / FORCE_LIMITS_N[0], np.abs(f[:, 1]) / FORCE_LIMITS_N[1])
+            share = limit_shares(f).max(axis=1)
             over = np.maximum(share - self.force_lift_share, 0.0)
         return np.where(np.isfinite(f).all(axis=1), self.force_lift_m_s * over, 0.0)
 

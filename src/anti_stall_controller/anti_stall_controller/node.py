@@ -17,9 +17,10 @@ parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall
 top of whichever target is in effect: the planner chooses the depth, the controller still
 saves the machine from a stall.
 
-With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller also
-reads /blade/force and answers a tick once its twist, pose and force are all in: the blade rises
-with the force beyond the machine's limits as well as with the speed error. Its gain and share
+With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller
+answers a tick once its twist, pose and /blade/force are all in: the blade rises with the force
+beyond the machine's limits as well as with the speed error. (It subscribes to /blade/force
+either way, so that a lockstep simulator waits for that reader too: ``graph.CONTROLLER_INPUTS``.) Its gain and share
 change at run time like the others; switching it on or off takes a restart (it changes what a
 tick waits for: a switch between a tick's state and its force would leave that tick unanswered,
 and a lockstep simulator waiting).
@@ -34,7 +35,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import MACHINE, SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import (
     WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
@@ -60,7 +61,8 @@ PARAMETERS: dict[str, tuple] = {
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),
     "force_lift_share": (_GAINS.force_lift_share, "force lift: the share of the machine's force limits "
-                                                  "(20 kN x, 30 kN z) above which the blade rises, > 0"),
+                                                  f"({FORCE_LIMITS_N[0] / 1e3:g} kN x, {FORCE_LIMITS_N[1] / 1e3:g} kN z) "
+                                                  "above which the blade rises, > 0"),
 }
 DEPTH_SOURCES = ("parameter", "planner")
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s", "force_lift_m_s",
@@ -112,7 +114,7 @@ class ControllerNode(Node):
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        for name in state_topics(self._force_lift):
+        for name in state_topics(True):  # the force reaches the join only with the force lift on
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
         self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name, self._on_planner_target,
@@ -199,6 +201,8 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ control
     def _on_state(self, topic: str, msg) -> None:
+        if topic not in self.joiner.topics:  # the force, with the force lift off
+            return
         if self.held is not None:
             most = len(self.joiner.topics) * MAX_PENDING_STAMPS
             if len(self.held) < most:

@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ
+from anti_stall_controller.controller import limit_shares
+from soil_msgs_py.params import SAMPLE_RATE_HZ
 
 AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
@@ -56,7 +57,7 @@ def summary(cut) -> dict:
     dt = 1.0 / SAMPLE_RATE_HZ
     travel = float(cut.x_b[-1] - cut.x_b[0])
     volume = volume_m3(cut)
-    share = np.abs(cut.force) / np.asarray(FORCE_LIMITS_N)
+    share = limit_shares(cut.force)
     cutting = cut.depth > 0.0
     use = share[cutting] if cutting.any() else np.zeros((1, 2))
     return {

@@ -95,8 +95,10 @@ COMMAND_TOPICS: tuple[str, ...] = (T.CMD_VEL.name, T.BLADE_CMD.name)
 assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE_TOPICS}
 # What the controller node reads (it answers on COMMAND_TOPICS) and what a recorder reads:
 # the launcher tells the simulator to wait for these endpoints before an episode starts.
+# The controller always reads /blade/force, though only its force lift joins it to a tick's state:
+# a reader the simulator does not wait for could miss a lockstep episode's first tick for good.
 CONTROLLER_STATE_TOPICS: tuple[str, ...] = (T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name)
-CONTROLLER_INPUTS: tuple[str, ...] = CONTROLLER_STATE_TOPICS + (SIM_STATUS_TOPIC,)
+CONTROLLER_INPUTS: tuple[str, ...] = CONTROLLER_STATE_TOPICS + (T.BLADE_FORCE.name, SIM_STATUS_TOPIC)
 RECORDER_INPUTS: tuple[str, ...] = SIM_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
 # The online estimator reads the state, the measured force (the evidence its fused posterior
 # learns from), Θ_k and commands of each tick (and the status, to reset its window) and
