@@ -19,11 +19,11 @@ saves the machine from a stall.
 
 With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller
 answers a tick once its twist, pose and /blade/force are all in: the blade rises with the force
-beyond the machine's limits as well as with the speed error. (It subscribes to /blade/force
-either way, so that a lockstep simulator waits for that reader too: ``graph.CONTROLLER_INPUTS``.) Its gain and share
-change at run time like the others; switching it on or off takes a restart (it changes what a
-tick waits for: a switch between a tick's state and its force would leave that tick unanswered,
-and a lockstep simulator waiting).
+beyond the machine's limits as well as with the speed error. It subscribes to /blade/force either
+way, so that a lockstep simulator waits for that reader too (``graph.CONTROLLER_INPUTS``). Its
+gain and share change at run time like the others; switching it on or off takes a restart (it
+changes what a tick waits for: a switch between a tick's state and its force would leave that
+tick unanswered, and a lockstep simulator waiting).
 """
 from __future__ import annotations
 
@@ -84,8 +84,8 @@ def state_topics(force_lift: bool) -> tuple[str, ...]:
 
 def state_joiner(force_lift: bool = False) -> StampJoiner:
     """One tick's twist and pose (and force, ``state_topics``), answered as soon as all are in;
-    an older tick still missing one of them is skipped (the controller answers the newest state). A stamp more than
-    ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one pair stamped in the far
+    an older tick still missing one of them is skipped (the controller answers the newest
+    state). A stamp more than ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one pair stamped in the far
     future (another node's, a corrupt one) must not become the last answered tick, after
     which every real tick would look stale. State refused for ``RESTART_AFTER_REFUSED_TICKS``
     ticks in a row is followed from there on (time really jumped, or the pair answered before
