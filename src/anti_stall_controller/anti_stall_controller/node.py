@@ -85,11 +85,12 @@ def state_topics(force_lift: bool) -> tuple[str, ...]:
 def state_joiner(force_lift: bool = False) -> StampJoiner:
     """One tick's twist and pose (and force, ``state_topics``), answered as soon as all are in;
     an older tick still missing one of them is skipped (the controller answers the newest
-    state). A stamp more than ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one pair stamped in the far
-    future (another node's, a corrupt one) must not become the last answered tick, after
-    which every real tick would look stale. State refused for ``RESTART_AFTER_REFUSED_TICKS``
-    ticks in a row is followed from there on (time really jumped, or the pair answered before
-    was the stray one): one pair silences the controller for at most that long."""
+    state). A stamp more than ``MAX_AHEAD_TICKS`` past the last answered tick is refused: one
+    pair stamped in the far future (another node's, a corrupt one) must not become the last
+    answered tick, after which every real tick would look stale. State refused for
+    ``RESTART_AFTER_REFUSED_TICKS`` ticks in a row is followed from there on (time really
+    jumped, or the pair answered before was the stray one): one pair silences the controller
+    for at most that long."""
     topics = state_topics(force_lift)
     return StampJoiner(topics, max_pending=MAX_PENDING_STAMPS, max_ahead_ns=MAX_AHEAD_TICKS * TICK_PERIOD_NS,
                        restart_after_refused=len(topics) * RESTART_AFTER_REFUSED_TICKS)
