@@ -68,26 +68,23 @@ def line(name: str, r: dict) -> str:
 
 
 def main() -> None:
+    from soil_bringup.cut_report import add_force_lift_option
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=30.0, help="simulated seconds per episode (real time)")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--load", type=int, default=0, help="busy-looping processes during the runs")
     p.add_argument("--domain-id", type=int, default=66)
-    p.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
-                   help="the controller's force lift in every run (soil_cut_report --force-lift); default off, Eq. 11 alone")
+    add_force_lift_option(p, "the controller's force lift in every run (soil_cut_report --force-lift); default off, "
+                             "Eq. 11 alone")
     args = p.parse_args()
-    from soil_bringup.cut_report import force_lift_gains
-
-    try:
-        gains = force_lift_gains(args.force_lift)
-    except ValueError as err:
-        p.error(f"--force-lift {args.force_lift!r}: {err}")
-    controller_args = () if args.force_lift is None else (
+    gains = args.gains
+    controller_args = () if gains.force_lift_m_s == 0.0 else (
         "--controller-param", f"force_lift_m_s:={gains.force_lift_m_s}",
         "--controller-param", f"force_lift_share:={gains.force_lift_share}")
     print(f"bench_planner_loop: {args.repeats} x {args.duration:g} s real-time episodes each, default world, path "
           f"{PATCHES}, load {args.load}, {os.cpu_count()} cores"
-          + (f", controller force lift {args.force_lift}" if args.force_lift else ""))
+          + (f", controller force lift {gains.force_lift_m_s:g} m/s above {gains.force_lift_share:g}" if controller_args else ""))
     late = {False: [], True: []}
     with Load(args.load, max_s=args.repeats * 2 * (args.duration + 120)):
         for i in range(args.repeats):

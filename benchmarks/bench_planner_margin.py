@@ -24,6 +24,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_DOMAIN_ID", "67")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
@@ -42,20 +43,15 @@ DURATION_S = 45.0
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    from soil_bringup.cut_report import add_force_lift_option
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--settings", nargs="+", default=list(DEFAULT_SETTINGS), metavar="MARGIN,QUANTILE",
                     help="planner settings to compare, e.g. 0.8,0.95")
     ap.add_argument("--paths", nargs="+", default=list(PATHS), choices=list(PATHS))
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
-                    help="the controller's force lift in every policy (soil_cut_report --force-lift); default off")
+    add_force_lift_option(ap, "the controller's force lift in every policy (soil_cut_report --force-lift); default off")
     args = ap.parse_args(argv)
-    from soil_bringup.cut_report import force_lift_gains
-
-    try:
-        args.gains = force_lift_gains(args.force_lift)
-    except ValueError as err:
-        ap.error(f"--force-lift {args.force_lift!r}: {err}")
     settings = []
     for text in args.settings:
         try:
@@ -94,11 +90,13 @@ def run_path(job: tuple) -> list[dict]:
 
 
 def main(argv=None) -> int:
+    from soil_bringup.cut_report import controller_text
+
     args = parse_args(argv)
     t0 = time.monotonic()
     with ProcessPoolExecutor(args.workers) as pool:
         rows = [r for rs in pool.map(run_path, [(p, args.settings, args.gains) for p in args.paths]) for r in rs]
-    lift = f", force lift {args.force_lift}" if args.force_lift else ""
+    lift = f", {controller_text(dataclasses.asdict(args.gains))}" if args.gains.force_lift_m_s > 0 else ""
     print(f"## Planner margin × force quantile over {len(args.paths)} paths ({DURATION_S:g} s cuts{lift})\n")
     print("| path | margin | quantile | volume / m vs conservative | ceiling | stall [s] | conservative / aggressive stall [s] |")
     print("|---|---|---|---|---|---|---|")

@@ -64,18 +64,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("out/planner"))
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
                    help=f"the soil-aware planner's share of the force limits a cut may use, (0, 1] (default {DEFAULT_MARGIN})")
-    p.add_argument("--force-lift", default=None, metavar="G[,SHARE]",
-                   help="every policy's controller also raises the blade at G m/s per unit of force share above SHARE "
-                        "(default 1: the machine's limits); default off, Eq. 11 alone")
+    add_force_lift_option(p, "every policy's controller also raises the blade at G m/s per unit of force share above "
+                             "SHARE (default 1: the machine's limits); default off, Eq. 11 alone")
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
     args = p.parse_args(argv)
     args.planner = {"margin": args.margin, "force_quantile": args.force_quantile}
-    try:
-        args.gains = force_lift_gains(args.force_lift)
-    except ValueError as err:
-        p.error(f"--force-lift {args.force_lift!r}: {err}")
     try:
         StretchPlanner(**args.planner)
     except ValueError as err:
@@ -98,18 +93,26 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def force_lift_gains(text: str | None) -> AntiStallGains:
-    """The controller's gains for ``--force-lift G[,SHARE]`` (None: the defaults, no force lift)."""
-    if text is None:
-        return AntiStallGains()
+def force_lift_gains(text: str) -> AntiStallGains:
+    """The controller's gains for ``--force-lift G[,SHARE]``; argparse.ArgumentTypeError naming
+    what is wrong (argparse then exits 2 with it)."""
     parts = text.split(",")
     if len(parts) > 2:
-        raise ValueError("expected G or G,SHARE")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected G or G,SHARE")
     try:
         values = [float(v) for v in parts]
     except ValueError:
-        raise ValueError("expected numbers, G or G,SHARE") from None
-    return AntiStallGains(force_lift_m_s=values[0], **({"force_lift_share": values[1]} if len(values) == 2 else {}))
+        raise argparse.ArgumentTypeError(f"{text!r}: expected numbers, G or G,SHARE") from None
+    try:
+        return AntiStallGains(force_lift_m_s=values[0], **({"force_lift_share": values[1]} if len(values) == 2 else {}))
+    except ValueError as err:  # names the field, its value and range
+        raise argparse.ArgumentTypeError(f"{text!r}: {err}") from None
+
+
+def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--force-lift G[,SHARE]`` -> ``args.gains`` (the controller's; default: its defaults, no force lift)."""
+    parser.add_argument("--force-lift", dest="gains", type=force_lift_gains, default=AntiStallGains(),
+                        metavar="G[,SHARE]", help=help_text)
 
 
 def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None) -> tuple[list[Cut], list, float, float]:
