@@ -54,13 +54,18 @@ def _safe_sin_eta(xp, eta):
     return xp.where(xp.abs(s) < SIN_ETA_FLOOR, xp.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR) + 0.0 * s, s)
 
 
+def _n_gamma(xp, rho, beta, s_wedge, sin_eta):
+    """N_gamma of Eq. 3 from the wedge's sin(alpha + phi + beta) and the safe sin(eta)."""
+    return (1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)) * s_wedge / (2.0 * sin_eta)
+
+
 def coefficients(phi, delta, rho, alpha, beta) -> FeeCoefficients:
     """N_gamma, N_c, N_Q, N_a and eta of Eq. 3-6 (Holz et al. 2013 form)."""
     xp, phi, delta, rho, alpha, beta = _xp.coerce(phi, delta, rho, alpha, beta)
     eta = delta + rho + phi + beta
     sin_eta = _safe_sin_eta(xp, eta)
     s_wedge = xp.sin(alpha + phi + beta)
-    n_gamma = (1.0 / xp.tan(rho) + 1.0 / xp.tan(beta)) * s_wedge / (2.0 * sin_eta)
+    n_gamma = _n_gamma(xp, rho, beta, s_wedge, sin_eta)
     n_c = xp.cos(phi) / (xp.sin(beta) * sin_eta)
     n_q = s_wedge / sin_eta
     n_a = -xp.cos(rho + phi + beta) / (xp.sin(rho) * sin_eta)
@@ -108,7 +113,10 @@ def beta_star(phi, delta, rho, alpha):
     for theta in (root - psi, math.pi - root - psi):
         beta = xp.remainder(theta / 2.0, math.pi)
         valid = (beta > 1e-6) & (beta < upper - 1e-6)
-        n = coefficients(phi, delta, rho, alpha, beta).n_gamma
+        # N_gamma alone (the other coefficients are not needed to compare the roots), with the
+        # arithmetic of ``coefficients``, so beta* is the same to the bit
+        sin_eta = _safe_sin_eta(xp, delta + rho + phi + beta)
+        n = _n_gamma(xp, rho, beta, xp.sin(alpha + phi + beta), sin_eta)
         n = xp.where(valid & (n > 0), n, math.inf)
         if best is None:
             best, best_n = beta, n
