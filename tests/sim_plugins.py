@@ -40,6 +40,15 @@ def record_density(state):
     return 0.0, 0.0
 
 
+SEEN_TIME: list = []
+
+
+def record_time_in_soil(state):
+    """No force; appends (d, time_in_soil, dt) of every substep to SEEN_TIME."""
+    SEEN_TIME.append((np.array(state.d, dtype=float), np.array(state.time_in_soil, dtype=float), float(state.dt)))
+    return 0.0, 0.0
+
+
 def sinking_resistance(state, k: float = 3.0, v0: float = 0.01, axis: str = "z"):
     """Hidden effect whose form is not in the catalogue: while the edge sinks, the soil resists,
     k γ w d² · min(max(−v_z, 0)/v0, 1) [N], pressing down (axis 'z') or dragging (axis 'x');

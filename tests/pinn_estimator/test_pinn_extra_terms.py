@@ -14,7 +14,7 @@ import torch
 
 from pinn_estimator import checkpoint as ck
 from pinn_estimator.dataset import load_dataset
-from soil_physics.travel import distance_in_soil, soil_advance
+from soil_physics.travel import distance_in_soil, soil_advance, soil_time_step, time_in_soil
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.loss import pinn_loss
 from pinn_estimator.model import DISTANCE_TERMS, RESIDUAL_FORCE_FRACTION, EstimatorNet, ModelConfig
@@ -211,6 +211,39 @@ def test_distance_in_soil_counts_forward_travel_with_the_blade_in_soil(samples):
         assert 3.0 < dist[rows][-1] < 6.0  # 10 s at ~0.45 m/s, nearly all of it in soil
 
 
+def test_time_in_soil_counts_the_ticks_with_the_blade_in_soil(samples):
+    d = np.array([0.0, 0.1, 0.1, 0.0, 0.2])
+    assert np.allclose(time_in_soil(d), np.array([0, 1, 2, 2, 3]) / 60)
+    assert np.allclose(time_in_soil(d, dt=0.5), [0.0, 0.5, 1.0, 1.0, 1.5])
+    with pytest.raises(ValueError, match="1-D"):
+        time_in_soil(np.zeros((3, 2)))
+    assert np.allclose(np.cumsum([float(soil_time_step(d_t)) for d_t in d]), time_in_soil(d))  # the running sum
+    t, d_col = samples.time_in_soil(), KNOWN_PARAMS.index("d")
+    for e in range(len(samples)):
+        rows = samples.episode_rows(e)
+        assert np.array_equal(t[rows], time_in_soil(samples.known[rows, d_col]))
+        assert 9.0 < t[rows][-1] <= 10.0  # a 10 s episode, nearly all of it in soil
+
+
+def test_time_in_soil_is_required_by_the_forms_that_use_it_only(samples):
+    """A discovered form on time in soil (``form:feex*tau``: k F_FEE,x τ / 10 s) is a PINN extra
+    term like a catalogue one: the model asks for each window's time in soil, by name."""
+    ends = [300, 1000, 1750]
+    obs, known, _, dist = _windows(samples, ends)
+    t = torch.as_tensor(samples.time_in_soil(), dtype=torch.float32)[ends]
+    model = _model(samples, (("form:feex*tau", 0.3),)).eval()
+    assert model.needs_time and not model.needs_distance
+    with pytest.raises(ValueError, match=r"\['form:feex\*tau'\] need the blade's time in soil"):
+        model(obs, known, dist)
+    with pytest.raises(ValueError, match="time_in_soil has 2 values for a batch of 3"):
+        model(obs, known, dist, t[:2])
+    with torch.inference_mode():
+        out = model(obs, known, None, t)  # no distance term: the travel is not asked for
+    assert torch.allclose(out["force_extra"][:, 0], 0.3 * out["force_fee"][:, 0] * t / 10.0, rtol=1e-5, atol=1e-3)
+    assert torch.equal(out["force_extra"][:, 1], torch.zeros(3))
+    assert not _model(samples, (("compaction_hardening", 0.05),)).needs_time
+
+
 # ------------------------------------------------------------------------------ training
 @pytest.fixture(scope="module")
 def samples_split(samples, tmp_path_factory) -> Path:
@@ -245,6 +278,18 @@ def test_training_passes_distance_in_soil_for_compaction_hardening(samples, samp
     model, _, history, _ = train(samples, cfg, ModelConfig(**SMALL, extra_terms=(("compaction_hardening", 0.05),)),
                                  split=split, progress=False, log=lambda *_: None)
     assert model.cfg.needs_distance and np.isfinite(history["val_loss"]).all()
+
+
+def test_training_passes_time_in_soil_for_a_form_on_time(samples, samples_split):
+    """Training, validation and prediction carry each window's time in soil for a form that looks
+    at it (the model raises without it)."""
+    split = ck.read_checkpoint(samples_split)["split"]
+    cfg = TrainConfig(epochs=1, stride=30, eval_stride=30, threads=1)
+    model, _, history, _ = train(samples, cfg, ModelConfig(**SMALL, extra_terms=(("form:feex*tau", 0.3),)),
+                                 split=split, progress=False, log=lambda *_: None)
+    assert model.cfg.needs_time and np.isfinite(history["val_loss"]).all()
+    got = predict(model, WindowTensors(samples), samples.window_ends(range(len(samples)), 200))
+    assert np.isfinite(got["force"]).all() and (got["force_extra"][:, 0] != 0).any()
 
 
 @pytest.mark.parametrize("spec, named", [

@@ -11,6 +11,8 @@ grid of test_discrepancy.py (stride 4):
   (the library's gate is a hard one at 5 mm/s). The resisting force slows the sinking it depends
   on, so the measured force follows the gate loosely and the held-out gain is small: with a
   higher least gain the form stays tentative and the verdict "unexplained".
+* time_drag: F_x = w d · 10 kPa · min(t / 10 s, 1), a drag that grows with time, not with travel:
+  on time in soil, which the library has beside travel (two speeds tell them apart).
 
 The workflow never sees the plugins (``blind``). Expected: the right scale, axis and factor or gate,
 a held-out error that shrinks, no catalogue name.
@@ -38,6 +40,7 @@ HIDDEN = {
     "entry": ("tests.sim_plugins:entry_resistance k=2 s0=1",),
     "saturating": ("tests.sim_plugins:saturating_drag k=1 v0=0.3",),
     "sinking": ("tests.sim_plugins:sinking_resistance k=3",),
+    "time": ("tests.sim_plugins:time_drag k=1",),
 }
 STRIDE = 4
 
@@ -56,7 +59,7 @@ def form_data(tmp_path_factory) -> dict[str, Path]:
 def form_reports(form_data, tmp_path_factory) -> dict[str, dict]:
     return {name: run_discrepancy(dataset=blind(form_data[name]), out_dir=tmp_path_factory.mktemp(name), plots=False,
                                   **{**RUN, "stride": STRIDE})
-            for name in ("entry", "saturating")}
+            for name in ("entry", "saturating", "time")}
 
 
 def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_reports):
@@ -108,6 +111,27 @@ def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form
     assert first["winner"] == acc["name"] and gains["rate_strength"] < gains[acc["name"]]
     test = rep["test"]
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_reports):
+    """Time in soil and travel differ by the speed (s = ∫ v_x dt): with two speeds the search takes
+    time, and nothing on travel (a form or the catalogue's compaction hardening) is named for it."""
+    rep = form_reports["time"]
+    assert rep["verdict"] == "explained", rep["summary"]
+    (acc,) = rep["selection"]["accepted"]
+    info = term_forms.describe(acc["name"])
+    assert info["axis"] == "x" and info["sign"] > 0 and info["factor"] in term_forms.TIME_FACTORS, acc["name"]
+    assert info["scale"] == "wd_x" and acc["k"] == pytest.approx(1.0, rel=0.1)  # w d · 10 kPa · τ / 10 s: the hidden one
+    assert not force_terms.uses_distance(acc["name"]) and force_terms.uses_time(acc["name"])
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.5 * test["before"]["rmse"], (test["before"], test["after"])
+    # a first-class term: the model asks for the time in soil, the simulator plugin and the PINN take it
+    model = AugmentedFEE(rep["model"]["extra_term_args"])
+    assert model.needs_time
+    with pytest.raises(ValueError, match="time in soil"):
+        model.force((0.5, 1e3, 0.3), np.array([[0, 17e3, 1.0, 0, 3.0, 0.2, 0, 0.5, 0]]), [1.0])
+    assert load_plugins(rep["model"]["plugin_specs"])[0].params["term"] == acc["name"]
+    assert "τ / 10 s" in rep["forms"]["discovered"][0]["formula"]
 
 
 def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confirms_it(form_data, tmp_path):

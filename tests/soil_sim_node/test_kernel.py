@@ -16,6 +16,7 @@ from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE
 from soil_physics import fee
 from soil_physics.bearing import penetration_capacity
 from soil_physics.force_inputs import ForceInputs
+from soil_physics.travel import time_in_soil_of_known
 from soil_sim_node import kernel
 from soil_sim_node import phenomena as ph
 from soil_sim_node.effects import Effects
@@ -185,11 +186,12 @@ PLUGINS = (
     ("tests.sim_plugins:constant_force",),
     ({"target": "soil_sim_node.plugins_example:side_wall_shear", "params": {"walls": 2.0}},),
     ("soil_physics.force_terms:plugin term=soil_inertia k=4", "soil_physics.force_terms:plugin term=compaction_hardening k=0.06"),
+    ("soil_physics.force_terms:plugin term=form:wd_x*tsat3 k=2",),
 )
 
 
 @pytest.mark.parametrize("world", ["fee", "default"])
-@pytest.mark.parametrize("plugins", PLUGINS, ids=["constant", "side_walls", "two_catalogue_terms"])
+@pytest.mark.parametrize("plugins", PLUGINS, ids=["constant", "side_walls", "two_catalogue_terms", "a_form_on_time"])
 def test_user_plugins_between_the_kernel_halves_match_the_reference(world, plugins):
     specs = [EpisodeSpec("Clay", 70.0, 0.5, 0.25, 21, 2.0), EpisodeSpec("Sand", 30.0, 0.9, 0.15, 22, 2.0)]
     compiled = run_episodes(SimConfig(world_mode=world, plugins=plugins), specs)
@@ -208,6 +210,20 @@ def test_plugins_see_the_soil_patch_under_the_edge(engine):
     want = np.where(x < 2.4, 20.0, np.where(x < 2.8, 90.0, 60.0))
     np.testing.assert_array_equal(i_d, want)
     assert x.max() > 2.9
+
+
+@pytest.mark.parametrize("engine", ["compiled", "reference"])
+def test_plugins_see_the_time_in_soil_summed_per_substep(engine):
+    """``ForceInputs.time_in_soil`` is the time the edge has been in the soil before the substep
+    (dt per substep with d > 0), close to what a model integrates from Θ_k per tick."""
+    sim_plugins.SEEN_TIME.clear()
+    ep, = run_episodes(SimConfig(world_mode="fee", engine=engine, plugins=("tests.sim_plugins:record_time_in_soil",)),
+                       [EpisodeSpec("Loam", 50.0, 0.6, 0.15, 32, 2.0)])
+    d, seen, dt = (np.concatenate([np.atleast_1d(v[i]) for v in sim_plugins.SEEN_TIME]) for i in range(3))
+    assert seen[0] == 0.0 and d[-1] > 0.1
+    np.testing.assert_allclose(np.diff(seen), dt[:-1] * (d[:-1] > 0), atol=1e-12)
+    from_known = time_in_soil_of_known(ep.known)
+    assert abs(from_known[-1] - seen[-1]) < 3.0 / 60  # the model's per-tick sum of Θ_k's d: within a few ticks
 
 
 DITHER = AntiStallGains(dither_amplitude_m=0.05, dither_period_s=2.0)

@@ -32,7 +32,7 @@ from soil_msgs_py.params import (
     TICK_PERIOD_NS,
     WINDOW_SAMPLES,
 )
-from soil_physics.travel import distance_in_soil_of_known
+from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 CACHE_VERSION = 2  # 2: per-row stamp gaps (``Dataset.gap_before``)
 CACHE_DIR_NAME = ".insitu_cache"
@@ -109,10 +109,19 @@ class Dataset:
         (``soil_physics.travel.distance_in_soil`` per episode, from Θ_k's v_x and d). Computed,
         not cached: it is a pure function of ``known``, so a cached dataset can never disagree
         with it."""
+        return self._per_episode(distance_in_soil_of_known)
+
+    def time_in_soil(self) -> np.ndarray:
+        """(N,) time with the blade in the soil [s] at every row, restarting at each episode's
+        first tick (``soil_physics.travel.time_in_soil`` per episode, from Θ_k's d); computed
+        like ``distance_in_soil``."""
+        return self._per_episode(time_in_soil_of_known)
+
+    def _per_episode(self, of_known) -> np.ndarray:
         out = np.zeros(len(self.known))
         for e in range(len(self)):
             rows = self.episode_rows(e)
-            out[rows] = distance_in_soil_of_known(self.known[rows])
+            out[rows] = of_known(self.known[rows])
         return out
 
     def index(self, names) -> list[int]:

@@ -46,6 +46,7 @@ class Steady:
     force: np.ndarray  # (2,) [N]
     truth: dict[str, float]
     distance_m: float = 0.0  # mean blade travel in soil over the steady rows (for terms that grow with it)
+    time_s: float = 0.0  # mean time in soil over the steady rows [s] (likewise)
 
     def known_row(self) -> np.ndarray:
         """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
@@ -55,7 +56,7 @@ class Steady:
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half)."""
     out = []
-    travel = ds.distance_in_soil()
+    travel, in_soil_s = ds.distance_in_soil(), ds.time_in_soil()
     for e in range(len(ds)):
         rows = np.arange(ds.offsets[e], ds.offsets[e + 1])
         rows = rows[int(steady_from * len(rows)):]
@@ -67,7 +68,7 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
         meta = ds.metas[e]
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
-                          float(travel[rows].mean())))
+                          float(travel[rows].mean()), float(in_soil_s[rows].mean())))
     return out
 
 
@@ -96,16 +97,18 @@ def steady_estimates(ds, ends: np.ndarray, estimates: dict[str, np.ndarray], ste
     return out
 
 
-def fee_force_at(theta: dict[str, float], at: dict[str, float], terms=(), distance_m: float = 0.0) -> np.ndarray:
+def fee_force_at(theta: dict[str, float], at: dict[str, float], terms=(), distance_m: float = 0.0,
+                 time_s: float = 0.0) -> np.ndarray:
     """(F_x, F_z) [N] of the FEE with soil θ = (φ, c, δ) at the conditions ``at`` (Θ_k means), β = β*.
 
     ``terms``: (name, k) force terms beside the FEE (an augmented model's own physics, e.g. a PINN
-    trained with them), at blade travel in soil ``distance_m`` (the target episode's steady mean:
-    exact for terms linear in it, such as compaction hardening).
+    trained with them), at blade travel ``distance_m`` [m] and time ``time_s`` [s] in soil (the
+    target episode's steady means: exact for terms linear in them, such as compaction hardening).
     """
     if terms:
         known = np.array([at[n] for n in KNOWN_PARAMS])
-        fx, fz = AugmentedFEE(terms).force((theta["phi"], theta["c"], theta["delta"]), known, distance_m)
+        fx, fz = AugmentedFEE(terms).force((theta["phi"], theta["c"], theta["delta"]), known, distance_m,
+                                           time_in_soil=time_s)
         return np.array([float(fx), float(fz)])
     params = dict(at, phi=theta["phi"], c=theta["c"], delta=theta["delta"])
     fx, fz, _ = fee.fee_xz({k: np.asarray(v, dtype=float) for k, v in params.items()})
@@ -126,11 +129,12 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
     quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
     pairs = []
     for a, b in pair_indices(parts):
-        forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ()), parts[b].distance_m)
+        forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ()), parts[b].distance_m, parts[b].time_s)
                     for name, theta in thetas.items()}
         intervals = {}
         for name, posts in posteriors.items():
-            out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles, distance_m=parts[b].distance_m)
+            out = posts[a].forecast(parts[b].known_row(), quantiles=quantiles, distance_m=parts[b].distance_m,
+                                    time_s=parts[b].time_s)
             forecast[name] = out["quantiles"][0.5]
             intervals[name] = {(lo, hi): (out["quantiles"][lo], out["quantiles"][hi]) for lo, hi in INTERVALS}
         forecast["true_fee"] = fee_force_at(parts[b].truth, parts[b].known)

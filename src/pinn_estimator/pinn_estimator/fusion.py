@@ -63,7 +63,7 @@ from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
 from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std
-from soil_physics.travel import soil_advance
+from soil_physics.travel import soil_advance, time_in_soil_of_known
 
 THETA = ("phi", "c", "delta")
 # Prior box of φ and δ [rad]: Table 1's normalisation ranges (17-45°, 11-35°) widened so that
@@ -470,23 +470,27 @@ class SoilPosterior:
         out["c"] = C_SCALE_PA * np.maximum(softplus - SOFTPLUS_AT_ZERO, 0.0)
         return {n: out[n] for n in THETA}
 
-    def model_force(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def model_force(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0,
+                    time_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(F_x, F_z) [N] of the model at scaled points u (K, 3) for Θ_k (9,) or the mean over
         the rows of (G, 9) (a stretch's sub-means: the model averaged over the stretch, not the
         force at its mean Θ_k, which the tanh of the Eq. 9-10 velocity correction makes a
         different number whenever v_z moves). NaN where the model is undefined."""
-        fx, fz = self.model_point_forces(u, known, distance_m)
+        fx, fz = self.model_point_forces(u, known, distance_m, time_s)
         return fx.mean(axis=1), fz.mean(axis=1)
 
-    def model_point_forces(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def model_point_forces(self, u: np.ndarray, known: np.ndarray, distance_m: float = 0.0,
+                           time_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(F_x, F_z) [N], each (K, G): the model at scaled points u (K, 3) for each row of Θ_k
-        (G, 9) (or (9,), G = 1). NaN where the model is undefined: no failure wedge, or a force
+        (G, 9) (or (9,), G = 1), at travel ``distance_m`` [m] and time ``time_s`` [s] in soil (for
+        terms that look at them). NaN where the model is undefined: no failure wedge, or a force
         beyond ``PLAUSIBLE_FORCE_N``, which is the FEE's singularity (η → 180°, paper §2.2.2)
         rather than a soil, and whose derivatives (~1e15 N per unit of u) make a component's
         predictive covariance singular."""
         known = np.atleast_2d(np.asarray(known, float))
         theta = {n: v[:, None] for n, v in self.theta_of(np.atleast_2d(u)).items()}
-        fx, fz = self.model.force(theta, known[None, :, :], np.full(known.shape[0], distance_m))
+        fx, fz = self.model.force(theta, known[None, :, :], np.full(known.shape[0], distance_m),
+                                  time_in_soil=np.full(known.shape[0], time_s))
         with np.errstate(invalid="ignore"):
             wild = (np.abs(fx) > PLAUSIBLE_FORCE_N) | (np.abs(fz) > PLAUSIBLE_FORCE_N)
         return np.where(wild, np.nan, fx), np.where(wild, np.nan, fz)
@@ -499,6 +503,7 @@ class SoilPosterior:
 
     # -- evidence
     def update(self, force_n: np.ndarray, known: np.ndarray, spread_n=(0.0, 0.0), distance_m: float = 0.0, *,
+               time_s: float = 0.0,
                point_force_n: np.ndarray | None = None, point_noise_n: np.ndarray | None = None,
                point_unsteady: np.ndarray | None = None, point_rate_n: np.ndarray | None = None) -> bool:
         """One stretch of evidence: its mean measured force (F_x, F_z) [N], Θ_k (its sub-means)
@@ -534,7 +539,7 @@ class SoilPosterior:
         if weigh_jump:
             pu, pp, pw = self._prior()
             u0, p0, log_w0 = np.concatenate([u0, pu]), np.concatenate([p0, pp]), np.concatenate([log_w0, pw])
-        step = self._update_components(u0, p0, log_w0, evidence, distance_m)
+        step = self._update_components(u0, p0, log_w0, evidence, distance_m, time_s)
         current = _normalised(*(part[:k] for part in step))
         fresh = _normalised(*(part[k:] for part in step)) if weigh_jump else None
         # nothing the current soil can explain (no component defined here counts as that too)
@@ -543,7 +548,7 @@ class SoilPosterior:
                 self.rejected += 1
                 return False
             if fresh is None:
-                fresh = _normalised(*self._update_components(*self._prior(), evidence, distance_m))
+                fresh = _normalised(*self._update_components(*self._prior(), evidence, distance_m, time_s))
             if fresh is not None:
                 current = fresh
                 self.changes += 1
@@ -581,7 +586,8 @@ class SoilPosterior:
         log_w = log_w[keep]
         return u, p, log_w - np.logaddexp.reduce(log_w)
 
-    def _update_components(self, u0, p0, log_w0, evidence: "_Evidence", distance_m, iterations: int = 6, eps: float = 1e-4):
+    def _update_components(self, u0, p0, log_w0, evidence: "_Evidence", distance_m: float = 0.0, time_s: float = 0.0,
+                           iterations: int = 6, eps: float = 1e-4):
         """(means, covariances, log prior weight + log predictive likelihood, NIS) per component
         after one stretch; a component whose model is undefined here keeps its mean and
         covariance with log weight −inf and NIS inf (``_normalised`` makes a sum of them).
@@ -604,7 +610,7 @@ class SoilPosterior:
         previous = u.copy()  # each component's last iterate its model was defined at
         for it in range(iterations):
             pts = (u[:, None, :] + steps[None]).reshape(-1, n)
-            f = evidence.observe(*self.model_point_forces(pts, evidence.known, distance_m)).reshape(k_n, n + 1, dim)
+            f = evidence.observe(*self.model_point_forces(pts, evidence.known, distance_m, time_s)).reshape(k_n, n + 1, dim)
             ok = np.isfinite(f).all(axis=(1, 2)) & active
             if it == 0:
                 defined = ok.copy()
@@ -652,7 +658,7 @@ class SoilPosterior:
         # instead (the EKF's predictive likelihood) it misjudged components far from the φ-c
         # ridge by up to 2.5 nats per stretch, always against high φ (against a Monte Carlo
         # integral over the component: Laplace within 0.3), and the posterior drifted to low φ.
-        h = evidence.observe(*self.model_point_forces(u, evidence.known, distance_m))
+        h = evidence.observe(*self.model_point_forces(u, evidence.known, distance_m, time_s))
         data = np.full(k_n, np.nan)
         fine = np.isfinite(h).all(axis=1)
         if fine.any():
@@ -725,7 +731,8 @@ class SoilPosterior:
         with np.errstate(all="ignore"):
             return fee.beta_star(theta["phi"], delta, k["rho"], k["alpha"])
 
-    def forecast(self, known: np.ndarray, quantiles=(0.05, 0.25, 0.5, 0.75, 0.95), distance_m: float = 0.0) -> dict:
+    def forecast(self, known: np.ndarray, quantiles=(0.05, 0.25, 0.5, 0.75, 0.95), distance_m: float = 0.0,
+                 time_s: float = 0.0) -> dict:
         """The force at conditions ``known`` (Θ_k, e.g. another depth): mean, std and quantiles
         per axis [N] of the posterior predictive (θ samples through the model + model error).
 
@@ -734,14 +741,14 @@ class SoilPosterior:
         stretch)|, at most |F_s(known)|): the model is fitted where the evidence is and misses
         more the further a forecast reaches in depth, speed or surcharge. Before any stretch,
         all of |F_s|."""
-        return self.forecast_from(self.predictive(known, distance_m), quantiles)
+        return self.forecast_from(self.predictive(known, distance_m, time_s), quantiles)
 
-    def predictive(self, known: np.ndarray, distance_m: float = 0.0) -> "Predictive":
+    def predictive(self, known: np.ndarray, distance_m: float = 0.0, time_s: float = 0.0) -> "Predictive":
         """The posterior's samples through the model at ``known``, before any forecast law."""
         u, w = self.samples()
-        fx, fz = self.model_force(u, known, distance_m)
+        fx, fz = self.model_force(u, known, distance_m, time_s)
         if self.last_known is not None:
-            fx0, fz0 = self.model_force(u, self.last_known, distance_m)
+            fx0, fz0 = self.model_force(u, self.last_known, distance_m, time_s)
         else:
             fx0 = fz0 = np.full(len(fx), np.nan)
         ok = np.isfinite(fx) & np.isfinite(fz)
@@ -966,10 +973,10 @@ class PathFusion:
         self._velocity = self._position = self._known = None
 
     def add(self, force_n: np.ndarray, known: np.ndarray, distance_m: float = 0.0,
-            observation: np.ndarray | None = None) -> bool:
+            observation: np.ndarray | None = None, time_s: float = 0.0) -> bool:
         """One sample (measured force, Θ_k, travel in soil, its observation row, paper §2.1.2's
-        o_t in ``params.OBSERVATION_FIELDS`` order, or None: no inertia removed, Θ_k as it is);
-        True when it completed a stretch the posterior learnt from."""
+        o_t in ``params.OBSERVATION_FIELDS`` order, or None: no inertia removed, Θ_k as it is;
+        time in soil [s]); True when it completed a stretch the posterior learnt from."""
         force_n = np.asarray(force_n, float)
         velocity = position = mean = None
         if observation is not None:
@@ -995,13 +1002,14 @@ class PathFusion:
             return False
         self.posterior.forget(self.stretch.travel_m)
         self.stretch.travel_m = 0.0
-        return self.posterior.update(stretch.force, stretch.known, stretch.spread, distance_m=distance_m,
+        return self.posterior.update(stretch.force, stretch.known, stretch.spread, distance_m=distance_m, time_s=time_s,
                                      point_force_n=stretch.point_force, point_noise_n=stretch.point_noise,
                                      point_unsteady=stretch.point_unsteady, point_rate_n=stretch.point_rate)
 
 
 def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
-                observations: np.ndarray | None = None, gap_before: np.ndarray | None = None) -> np.ndarray:
+                observations: np.ndarray | None = None, gap_before: np.ndarray | None = None,
+                time_s: np.ndarray | None = None) -> np.ndarray:
     """(n, len(FUSED_FIELDS)): the fused fields in effect after each of one episode's n samples,
     as the online estimator publishes them (offline, for comparing the two)."""
     from soil_msgs_py.topics import FUSED_FIELDS
@@ -1009,7 +1017,7 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
     out = np.zeros((len(forces), len(FUSED_FIELDS)))
     current = fused_values(None, cfg)
     learnt: dict[int, np.ndarray] = {}
-    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, observations, gap_before,
+    fuse_episode(SoilPosterior(cfg), forces, known, distance_m, observations, gap_before, time_s=time_s,
                  on_update=lambda row, post: learnt.__setitem__(row, fused_values(post.summary(), cfg)))
     for row in range(len(forces)):
         current = learnt.get(row, current)
@@ -1019,20 +1027,24 @@ def fused_track(cfg: FusionConfig, forces: np.ndarray, known: np.ndarray, distan
 
 def fuse_episode(posterior: SoilPosterior, forces: np.ndarray, known: np.ndarray, distance_m: np.ndarray | None = None,
                  observations: np.ndarray | None = None, gap_before: np.ndarray | None = None,
-                 on_update=None) -> SoilPosterior:
+                 on_update=None, time_s: np.ndarray | None = None) -> SoilPosterior:
     """Run the posterior over one episode's samples in order (offline: the same as online).
     ``observations`` (n, len(OBSERVATION_FIELDS)): the episode's observation rows, whose blade
     velocities and positions ``PathFusion.add`` reads (None: the measured force is taken as the
     soil's, at Θ_k as it is). ``gap_before``
     (n,) bool: ticks missing before the row (a repaired bag, ``Dataset.gap_before``): as
-    online, the stretch in progress is dropped and no acceleration spans the gap.
+    online, the stretch in progress is dropped and no acceleration spans the gap. ``distance_m``,
+    ``time_s`` (n,): the blade's travel [m] and time [s] in soil (``soil_physics.travel``; None:
+    the time from Θ_k's depth, the travel 0).
     ``on_update(row, posterior)`` after every stretch learnt from (row = its last sample)."""
     fusion = PathFusion(posterior)
+    if time_s is None and len(known):
+        time_s = time_in_soil_of_known(known)
     for row in range(len(forces)):
         if gap_before is not None and gap_before[row]:
             fusion.gap()
         learnt = fusion.add(forces[row], known[row], float(distance_m[row]) if distance_m is not None else 0.0,
-                            None if observations is None else observations[row])
+                            None if observations is None else observations[row], float(time_s[row]))
         if learnt and on_update is not None:
             on_update(row, posterior)
     return posterior

@@ -123,7 +123,7 @@ def pair_forecasts(ds, posts) -> list[PairForecast]:
     forces are computed once, whatever forecast laws are then tried on them."""
     parts = fc.steady_parts(ds)
     return [PairForecast(parts[b].force, parts[a].force, posts[a],
-                         posts[a].predictive(parts[b].known_row(), parts[b].distance_m),
+                         posts[a].predictive(parts[b].known_row(), parts[b].distance_m, parts[b].time_s),
                          abs(parts[b].known["d"] - parts[a].known["d"]))
             for a, b in fc.pair_indices(parts)]
 

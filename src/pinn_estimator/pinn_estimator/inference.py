@@ -33,6 +33,7 @@ class WindowTensors:
         self.known = torch.as_tensor(ds.known, dtype=torch.float32)
         self.force = torch.as_tensor(ds.forces, dtype=torch.float32)
         self.distance = torch.as_tensor(ds.distance_in_soil(), dtype=torch.float32)  # for distance terms
+        self.time_in_soil = torch.as_tensor(ds.time_in_soil(), dtype=torch.float32)  # for time terms
 
     def batch(self, ends: torch.Tensor):
         return self.obs[ends[:, None] + WINDOW_OFFSETS], self.known[ends], self.force[ends]
@@ -47,7 +48,7 @@ def predict(model: EstimatorNet, tensors: WindowTensors, ends: np.ndarray, batch
     for i in range(0, len(ends_t), batch_size):
         part = ends_t[i : i + batch_size]
         obs, known, _ = tensors.batch(part)
-        for key, value in model(obs, known, tensors.distance[part]).items():
+        for key, value in model(obs, known, tensors.distance[part], tensors.time_in_soil[part]).items():
             parts.setdefault(key, []).append(value.double().numpy())
     return {k: np.concatenate(v) for k, v in parts.items()}
 

@@ -13,7 +13,9 @@ Augmented physics: ``ModelConfig.extra_terms`` = ((name, k), ...) of catalogue t
 
 with k fixed (not trained). ``force_fee`` stays the pure FEE part, ``force_extra`` is Σ k·B.
 A term that looks at the blade's travel in soil (``DISTANCE_TERMS``) needs the ``distance``
-input: ``soil_physics.travel.distance_in_soil`` over the episode, at the window's newest sample.
+input: ``soil_physics.travel.distance_in_soil`` over the episode, at the window's newest sample;
+one that looks at its time in soil (a discovered form) the ``time_in_soil`` input likewise
+(``soil_physics.travel.time_in_soil``).
 
 The physics-free twin has the same backbone and size but its head predicts F directly: it is
 the baseline that tells whether the physics costs force accuracy.
@@ -94,6 +96,11 @@ class ModelConfig:
     def needs_distance(self) -> bool:
         """True if a configured extra term needs the ``distance`` (travel in soil) input."""
         return any(X.uses_distance(name) for name, _ in self.extra_terms)
+
+    @property
+    def needs_time(self) -> bool:
+        """True if a configured extra term needs the ``time_in_soil`` input."""
+        return any(X.uses_time(name) for name, _ in self.extra_terms)
 
     @classmethod
     def from_dict(cls, data: dict) -> "ModelConfig":
@@ -191,10 +198,16 @@ class EstimatorNet(nn.Module):
     def needs_distance(self) -> bool:
         return self.cfg.needs_distance
 
-    def forward(self, obs: torch.Tensor, known: torch.Tensor, distance: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    @property
+    def needs_time(self) -> bool:
+        return self.cfg.needs_time
+
+    def forward(self, obs: torch.Tensor, known: torch.Tensor, distance: torch.Tensor | None = None,
+                time_in_soil: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """obs (B, T, 9), known (B, 9) SI at the newest sample; ``distance`` (B,) [m] the blade's
         travel in soil since the episode start at the newest sample (``Dataset.distance_in_soil``),
-        required only if ``needs_distance`` (ValueError otherwise), ignored else."""
+        required only if ``needs_distance`` (ValueError otherwise), ignored else; ``time_in_soil``
+        (B,) [s] likewise (``Dataset.time_in_soil``, required if ``needs_time``)."""
         # float64 callers (NumPy-born tensors) get the model's float32, not a dtype error
         obs, known = obs.to(self.force_scale.dtype), known.to(self.force_scale.dtype)
         out = self.head(self.backbone(obs, known))
@@ -214,7 +227,7 @@ class EstimatorNet(nn.Module):
         delta_eff_raw, _ = fee.velocity_corrected(raw[2], k["c_a"], k["rho"], k["alpha"], k["v_x"], k["v_z"])
         force_fee = torch.stack([fx, fz], dim=1)
         if self.cfg.extra_terms:
-            force_extra = self._extra_force(k, theta, d_prime, fx, fz, distance)
+            force_extra = self._extra_force(k, theta, d_prime, fx, fz, distance, time_in_soil)
             force_phys = force_fee + force_extra
         else:  # the paper's PINN: exactly the original arithmetic (shipped checkpoints unchanged)
             force_extra = torch.zeros_like(force_fee)
@@ -231,25 +244,32 @@ class EstimatorNet(nn.Module):
             "eta": delta_eff_raw + k["rho"] + raw[0] + raw[3],
         }
 
-    def _extra_force(self, k, theta, d_prime, fx, fz, distance) -> torch.Tensor:
-        """Σ k·B of the configured terms on the model's own Θ (clipped), d' and F_FEE -> (B, 2) [N]."""
-        n = len(fx)
-        if distance is None:
-            if self.cfg.needs_distance:
-                used = sorted(name for name, _ in self.cfg.extra_terms if X.uses_distance(name))
+    def _path_input(self, value, name: str, uses, what: str, source: str, like: torch.Tensor):
+        """The per-window ``value`` (B,) of a path input (travel or time in soil) as ``like``'s
+        dtype; zeros when absent and no term uses it; ValueError naming the terms otherwise."""
+        if value is None:
+            used = sorted(term for term, _ in self.cfg.extra_terms if uses(term))
+            if used:
                 raise ValueError(
-                    f"extra term(s) {used} need the blade's travel in soil: call model(obs, known, distance=...) "
-                    f"with Dataset.distance_in_soil of the episode at each window's newest sample"
+                    f"extra term(s) {used} need the blade's {what}: call model(obs, known, {name}=...) "
+                    f"with {source} of the episode at each window's newest sample"
                 )
-            distance = torch.zeros_like(fx)
-        else:
-            distance = torch.as_tensor(distance).to(fx.dtype).reshape(-1)
-            if len(distance) != n:
-                raise ValueError(f"distance has {len(distance)} values for a batch of {n} windows")
+            return torch.zeros_like(like)
+        value = torch.as_tensor(value).to(like.dtype).reshape(-1)
+        if len(value) != len(like):
+            raise ValueError(f"{name} has {len(value)} values for a batch of {len(like)} windows")
+        return value
+
+    def _extra_force(self, k, theta, d_prime, fx, fz, distance, time_in_soil=None) -> torch.Tensor:
+        """Σ k·B of the configured terms on the model's own Θ (clipped), d' and F_FEE -> (B, 2) [N]."""
+        distance = self._path_input(distance, "distance", X.uses_distance, "travel in soil",
+                                    "Dataset.distance_in_soil", fx)
+        time_in_soil = self._path_input(time_in_soil, "time_in_soil", X.uses_time, "time in soil",
+                                        "Dataset.time_in_soil", fx)
         g = _FiniteGrad.apply  # the estimated inputs: a term's singularity must not poison Θ_u's gradient
         inputs = ForceInputs.from_known(
             k, phi=g(theta[:, 0]), c=g(theta[:, 1]), delta=g(theta[:, 2]), distance_in_soil=distance,
-            f_fee_x=g(fx), f_fee_z=g(fz), d=g(d_prime),
+            f_fee_x=g(fx), f_fee_z=g(fz), d=g(d_prime), time_in_soil=time_in_soil,
         )
         ex = ez = torch.zeros_like(fx)
         for name, coef in self.cfg.extra_terms:  # X.apply, with a non-finite basis value counted as 0

@@ -35,7 +35,7 @@ from soil_msgs_py.params import (
     FORCE_FIELDS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
-from soil_physics.travel import soil_advance
+from soil_physics.travel import soil_advance, soil_time_step
 from .fusion import FusionConfig, PathFusion, SoilPosterior, fused_values
 from .fusion_calibration import config_for_model
 from .model import EstimatorNet
@@ -303,9 +303,10 @@ class OnlineEstimator:
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
-        # Blade travel in soil since the episode's first tick [m], for models with distance terms
-        # (extra_terms compaction_hardening); known only for an episode seen from its start.
-        self.distance_m = 0.0
+        # Blade travel [m] and time [s] in soil since the episode's first tick, for models with
+        # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
+        # for an episode seen from its start.
+        self.distance_m = self.time_in_soil_s = 0.0
         self._distance_known = False
         self._fusion_config = fusion  # as given: a new model's physics is merged into it (set_model)
         self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
@@ -349,8 +350,13 @@ class OnlineEstimator:
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
         self._boundary = None
-        self.distance_m, self._distance_known = 0.0, False
+        self._forget_path(known=False)
         self._reset_fusion()
+
+    def _forget_path(self, known: bool) -> None:
+        """Travel and time in soil back to 0; ``known``: counted from an episode's start."""
+        self.distance_m = self.time_in_soil_s = 0.0
+        self._distance_known = known
 
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
@@ -380,7 +386,7 @@ class OnlineEstimator:
     def _on_restart(self) -> None:
         self._boundary = None
         self._tick = 0
-        self.distance_m, self._distance_known = 0.0, False
+        self._forget_path(known=False)
         self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
@@ -393,18 +399,19 @@ class OnlineEstimator:
             if self.buffer.count and self.window_first_stamp <= self._boundary:
                 self.buffer.clear()
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
-            self.distance_m, self._distance_known = 0.0, True
+            self._forget_path(known=True)
             self._reset_fusion()
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)
         self.distance_m += float(soil_advance(sample.known[_V_X], sample.known[_D]))
+        self.time_in_soil_s += float(soil_time_step(sample.known[_D]))
         self._fuse(stamp, sample)
         tick, self._tick = self._tick, self._tick + 1
         if tick % self.stride:
             return
-        if not self.buffer.full or (self.model.needs_distance and not self._distance_known):
-            # (a model with a distance term needs the episode from its start: invalid until one begins)
+        if not self.buffer.full or ((self.model.needs_distance or self.model.needs_time) and not self._distance_known):
+            # (a model with a distance or time term needs the episode from its start: invalid until one begins)
             self.counters.invalid += 1
             self.publish(self._with_fused(invalid_estimate(stamp, self.buffer.count)))
             return
@@ -417,7 +424,7 @@ class OnlineEstimator:
 
     def _fuse(self, stamp: int, sample: Sample) -> None:
         """One sample into the stretch; a complete stretch into the posterior and the map."""
-        if not self.fusion.add(sample.force, sample.known, self.distance_m, sample.obs):
+        if not self.fusion.add(sample.force, sample.known, self.distance_m, sample.obs, self.time_in_soil_s):
             return
         summary = self.posterior.summary()
         self._fused = fused_values(summary, self.posterior.cfg)
@@ -434,7 +441,8 @@ class OnlineEstimator:
         obs = torch.as_tensor(self.buffer.window_obs(), dtype=torch.float32).unsqueeze(0)
         known = torch.as_tensor(self.buffer.known, dtype=torch.float32).unsqueeze(0)
         distance = torch.tensor([self.distance_m], dtype=torch.float32)
-        values = estimate_values(self.model(obs, known, distance))[0]
+        time_in_soil = torch.tensor([self.time_in_soil_s], dtype=torch.float32)
+        values = estimate_values(self.model(obs, known, distance, time_in_soil))[0]
         values[T.ESTIMATE_FIELDS.index("window_samples")] = self.buffer.count
         if not np.isfinite(values).all():
             self.counters.model_non_finite += 1

@@ -96,16 +96,15 @@ def _loss(model, out, force, known, weights):
 
 
 @torch.no_grad()
-def _validate(model, tensors, ends, weights, distance, batch_size=4096) -> tuple[float, np.ndarray]:
-    """Mean validation loss and the predicted forces [N], from one pass over the windows.
-
-    ``distance``: (N,) travel in soil of every dataset row (``Dataset.distance_in_soil``)."""
+def _validate(model, tensors, ends, weights, batch_size=4096) -> tuple[float, np.ndarray]:
+    """Mean validation loss and the predicted forces [N], from one pass over the windows (each
+    with its newest row's travel and time in soil, ``WindowTensors``)."""
     model.eval()
     total, forces = 0.0, []
     for i in range(0, len(ends), batch_size):
         part = ends[i : i + batch_size]
         obs, known, force = tensors.batch(part)
-        out = model(obs, known, distance[part])
+        out = model(obs, known, tensors.distance[part], tensors.time_in_soil[part])
         loss, _ = _loss(model, out, force, known, weights)
         total += float(loss) * len(obs)
         forces.append(out["force"].double().numpy())
@@ -133,10 +132,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     net = model
     if ranks.active:
         net = torch.nn.parallel.DistributedDataParallel(model, forward_sync_buffers=False)
+    # with the travel and time in soil since the episode start at every row (a window takes its
+    # newest row's): only extra terms such as compaction_hardening look at them
     tensors = WindowTensors(ds)
-    # travel in soil since the episode start at every row (a window takes its newest row's):
-    # only extra terms such as compaction_hardening look at it
-    distance = torch.as_tensor(ds.distance_in_soil(), dtype=torch.float32)
     train_ends = torch.as_tensor(ds.window_ends(idx["train"], cfg.stride))
     # first and last possible window end of each training window's episode (partner draws)
     episode = torch.as_tensor(ds.episode_of_rows(train_ends.numpy()))
@@ -181,7 +179,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                 ends = torch.cat([ends, partner[mine]])
             n_pick = len(pick[mine])
             obs, known, force = tensors.batch(ends)
-            out = net(obs, known, distance[ends])
+            out = net(obs, known, tensors.distance[ends], tensors.time_in_soil[ends])
             loss, _ = _loss(model, out, force, known, weights)
             if pairs:
                 loss = loss + cfg.consistency * consistency_loss(out["theta"][:n_pick], out["theta"][n_pick:])
@@ -194,7 +192,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             if weight:
                 running += float(loss.detach()) * len(obs)
                 count += len(obs)
-        val_loss, val_force, running, count, elapsed = _agree(model, tensors, val_ends, weights, distance, ranks,
+        val_loss, val_force, running, count, elapsed = _agree(model, tensors, val_ends, weights, ranks,
                                                               running, count, start)
         val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
         if cfg.lr_schedule == "cosine":
@@ -218,7 +216,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar.close()
     model.load_state_dict(best[1])
     model.eval()
-    _, val_force = _validate(model, tensors, val_ends, weights, distance)
+    _, val_force = _validate(model, tensors, val_ends, weights)
     metrics = {
         "processes": ranks.world,
         "train_windows_per_epoch": count,  # summed over the processes, partner windows included
@@ -235,16 +233,16 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     return model, split, history, metrics
 
 
-def _agree(model, tensors, val_ends, weights, distance, ranks: Ranks, running: float, count: int, start: float):
+def _agree(model, tensors, val_ends, weights, ranks: Ranks, running: float, count: int, start: float):
     """(validation loss, predicted validation forces, training loss sum, its window count,
     elapsed s) of the epoch, the same on every rank: each validates its share of the windows and
     every rank combines all shares in rank order; the clock is rank 0's, so the time budget
     stops every rank at the same epoch."""
     if not ranks.active:
-        val_loss, val_force = _validate(model, tensors, val_ends, weights, distance)
+        val_loss, val_force = _validate(model, tensors, val_ends, weights)
         return val_loss, val_force, running, count, time.monotonic() - start
     mine = val_ends[share(len(val_ends), ranks)]
-    loss, force = _validate(model, tensors, mine, weights, distance)
+    loss, force = _validate(model, tensors, mine, weights)
     elapsed = time.monotonic() - start
     parts = gather((loss * len(mine), len(mine), force, running, count, elapsed), ranks)
     return (sum(p[0] for p in parts) / max(1, sum(p[1] for p in parts)), np.concatenate([p[2] for p in parts]),

@@ -109,16 +109,17 @@ class _Problem:
             ubs.append(ub)
         self.lb, self.ub = np.array(lbs), np.array(ubs)  # (G, 3)
 
-    def residuals(self, x: np.ndarray, k: float = 0.0, known=None, distance=None, target=None):
+    def residuals(self, x: np.ndarray, k: float = 0.0, known=None, distance=None, target=None, time_in_soil=None):
         """x (..., N_or_1, 3) normalised θ per tick (broadcast) -> r (..., N, 2), defined (..., N), basis."""
         known = self.frame.known if known is None else known
         distance = self.frame.distance if distance is None else distance
+        time_in_soil = self.frame.time_in_soil if time_in_soil is None else time_in_soil
         target = self.target if target is None else target
         theta = denormalise_theta(x)
         fx, fz, ok = AugmentedFEE.fee(theta, known)
         bx = bz = None
         if self.model.terms or self.free is not None:
-            inputs = AugmentedFEE.inputs(theta, known, distance, fx, fz)
+            inputs = AugmentedFEE.inputs(theta, known, distance, fx, fz, time_in_soil)
             with np.errstate(all="ignore"):
                 if self.model.terms:
                     dx, dz = force_terms.apply(self.model.terms, inputs)
@@ -170,7 +171,8 @@ def fit_fixed(frame: Frame, model: AugmentedFEE, start: ThetaFit | None = None, 
     out = ThetaFit()
     for j, gi in enumerate(prob.groups):
         sel = prob.local == j
-        known, dist, target = frame.known[sel], frame.distance[sel], prob.target[sel]
+        known, target = frame.known[sel], prob.target[sel]
+        path = (frame.distance[sel], frame.time_in_soil[sel])  # travel [m], time in soil [s]
         lb, ub = prob.lb[j], prob.ub[j]
         starts = []
         if start is not None and int(gi) in start.theta:
@@ -186,7 +188,7 @@ def fit_fixed(frame: Frame, model: AugmentedFEE, start: ThetaFit | None = None, 
                 else:
                     break
             x0 = np.minimum(np.maximum(starts[attempt], lb + 1e-9), ub - 1e-9)
-            res = _fit_one(prob, x0, lb, ub, known, dist, target, max_nfev)
+            res = _fit_one(prob, x0, lb, ub, known, path, target, max_nfev)
             if best is None or (res[2], -res[1]) > (best[2], -best[1]):
                 best = res
             if res[2]:
@@ -196,17 +198,17 @@ def fit_fixed(frame: Frame, model: AugmentedFEE, start: ThetaFit | None = None, 
     return out
 
 
-def _fit_one(prob: _Problem, x0, lb, ub, known, dist, target, max_nfev):
+def _fit_one(prob: _Problem, x0, lb, ub, known, path, target, max_nfev):
     cache = {}
 
     def fun(x):
-        r, _, _ = prob.residuals(x[None, :], known=known, distance=dist, target=target)
+        r, _, _ = prob.residuals(x[None, :], known=known, distance=path[0], time_in_soil=path[1], target=target)
         r = r.reshape(-1)
         cache["x"], cache["r"] = x.copy(), r
         return r
 
     def at_points(xs):  # (3, 3) -> (3, 2 n_ticks)
-        r, _, _ = prob.residuals(xs[:, None, :], known=known, distance=dist, target=target)
+        r, _, _ = prob.residuals(xs[:, None, :], known=known, distance=path[0], time_in_soil=path[1], target=target)
         return r.reshape(3, -1)
 
     def jac(x):
@@ -216,7 +218,7 @@ def _fit_one(prob: _Problem, x0, lb, ub, known, dist, target, max_nfev):
     with np.errstate(all="ignore"):
         res = least_squares(fun, x0, jac=jac, bounds=(lb, ub), method="trf", max_nfev=max_nfev,
                             ftol=1e-10, xtol=1e-10, gtol=1e-10)
-        _, ok, _ = prob.residuals(res.x[None, :], known=known, distance=dist, target=target)
+        _, ok, _ = prob.residuals(res.x[None, :], known=known, distance=path[0], time_in_soil=path[1], target=target)
     rms = math.sqrt(2.0 * res.cost / max(res.fun.size, 1))
     success = bool(res.status > 0 and np.isfinite(res.x).all() and ok.all())
     return res.x, rms, success
@@ -225,8 +227,8 @@ def _fit_one(prob: _Problem, x0, lb, ub, known, dist, target, max_nfev):
 def linear_k(frame: Frame, model: AugmentedFEE, thetas: ThetaFit, name: str) -> float:
     """k of one term by least squares on the residuals of ``model`` with θ fixed (normalised axes)."""
     phi, c, delta = thetas.per_tick(frame)
-    fx, fz, ok = model.force((phi, c, delta), frame.known, frame.distance, with_defined=True)
-    bx, bz = model.basis(name, (phi, c, delta), frame.known, frame.distance)
+    fx, fz, ok = model.force((phi, c, delta), frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
+    bx, bz = model.basis(name, (phi, c, delta), frame.known, frame.distance, frame.time_in_soil)
     r = np.stack((frame.forces[:, 0] - fx, frame.forces[:, 1] - fz), -1) / FORCE_SCALE_N
     b = np.stack((bx, bz), -1) / FORCE_SCALE_N
     ok = ok & np.isfinite(r).all(-1)
@@ -253,7 +255,7 @@ def fit_joint(frame: Frame, model: AugmentedFEE, name: str, start: ThetaFit | No
     prob = _Problem(frame, model, free=name)
     G, N = prob.G, len(frame)
     k0 = linear_k(frame, model, start, name)
-    b = np.stack(model.basis(name, start.per_tick(frame), frame.known, frame.distance), -1) / FORCE_SCALE_N
+    b = np.stack(model.basis(name, start.per_tick(frame), frame.known, frame.distance, frame.time_in_soil), -1) / FORCE_SCALE_N
     scale_k = 1.0 / max(math.sqrt(float((b**2).mean())), 1e-12) * math.sqrt(float((prob.target**2).mean()) + 1e-12)
     x0 = np.array([normalise_theta(start.theta[int(g)]) for g in prob.groups])
     x0 = np.minimum(np.maximum(x0, prob.lb + 1e-9), prob.ub - 1e-9)
@@ -316,7 +318,7 @@ def fit_joint(frame: Frame, model: AugmentedFEE, name: str, start: ThetaFit | No
 
 def residuals(frame: Frame, model: AugmentedFEE, thetas: ThetaFit) -> tuple[np.ndarray, np.ndarray]:
     """(r (N, 2) = F_meas − F_model [N], F_model (N, 2)); NaN where the model is undefined."""
-    fx, fz = model.force(thetas.per_tick(frame), frame.known, frame.distance)
+    fx, fz = model.force(thetas.per_tick(frame), frame.known, frame.distance, time_in_soil=frame.time_in_soil)
     f_model = np.stack((fx, fz), -1)
     return frame.forces - f_model, f_model
 
@@ -325,4 +327,4 @@ def term_inputs(frame: Frame, thetas: ThetaFit) -> ForceInputs:
     """The catalogue's ForceInputs of the analysed ticks (θ of the fit, the model's FEE force)."""
     theta = thetas.per_tick(frame)
     fx, fz, _ = AugmentedFEE.fee(theta, frame.known)
-    return AugmentedFEE.inputs(theta, frame.known, frame.distance, fx, fz)
+    return AugmentedFEE.inputs(theta, frame.known, frame.distance, fx, fz, frame.time_in_soil)

@@ -62,13 +62,13 @@ def _c_step(c):
 def theta_jacobian(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> np.ndarray:
     """(N, 2, 3) ∂F_model/∂(φ, c, δ) per tick, normalised by the force scales (forward differences)."""
     theta = [np.asarray(a, float) for a in fit.per_tick(frame)]
-    f0 = np.stack(model.force(theta, frame.known, frame.distance), -1)
+    f0 = np.stack(model.force(theta, frame.known, frame.distance, time_in_soil=frame.time_in_soil), -1)
     cols = []
     for j in range(3):
         th = [a.copy() for a in theta]
         h = _c_step(th[1]) if j == 1 else np.full(len(frame), _THETA_STEPS[j])
         th[j] = th[j] + h
-        f1 = np.stack(model.force(th, frame.known, frame.distance), -1)
+        f1 = np.stack(model.force(th, frame.known, frame.distance, time_in_soil=frame.time_in_soil), -1)
         cols.append((f1 - f0) / h[:, None] / FORCE_SCALE_N)
     J = np.stack(cols, -1)
     return np.where(np.isfinite(J), J, 0.0)
@@ -80,7 +80,7 @@ def form_bases(frame: Frame, fit: ThetaFit, names) -> np.ndarray:
     model = AugmentedFEE()
     out = np.zeros((len(frame), 2, len(names)))
     for i, n in enumerate(names):
-        bx, bz = model.basis(n, theta, frame.known, frame.distance)
+        bx, bz = model.basis(n, theta, frame.known, frame.distance, frame.time_in_soil)
         out[:, 0, i], out[:, 1, i] = bx, bz
     return out / FORCE_SCALE_N[None, :, None]
 
@@ -114,13 +114,13 @@ def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int
 
     names = list(names or term_forms.form_names())
     theta = fit.per_tick(frame)
-    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True)
+    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
     resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N
     ok = ok & np.isfinite(resid).all(-1)
     if len(ok) > MAX_TICKS:  # thin evenly (ticks of an episode are autocorrelated: little is lost)
         ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
     if not ok.all():
-        frame, resid = _subset(frame, ok), resid[ok]
+        frame, resid = frame.subset(ok), resid[ok]
     J = theta_jacobian(frame, model, fit)
     B = form_bases(frame, fit, names)
     norm0 = np.sqrt((B**2).sum((0, 1)))
@@ -181,13 +181,6 @@ def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int
     return result
 
 
-def _subset(frame: Frame, mask: np.ndarray) -> Frame:
-    from dataclasses import replace
-
-    return replace(frame, episode=frame.episode[mask], rows=frame.rows[mask], t=frame.t[mask],
-                   known=frame.known[mask], forces=frame.forces[mask], distance=frame.distance[mask])
-
-
 def _dedupe(keep: np.ndarray, Xn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Drop columns (unit norm) parallel to an earlier one."""
     gram = np.abs(Xn.T @ Xn)
@@ -237,7 +230,7 @@ def where_it_acts(frame: Frame, fit: ThetaFit, name: str, k: float) -> dict:
     on = mag > 1e-3 * max(float(mag.max()), 1e-300)
     out = {"share_of_ticks": float(on.mean()), "mean_abs_force_n": float(mag[on].mean()) if on.any() else 0.0,
            "max_abs_force_n": float(mag.max()) if len(mag) else 0.0, "ranges": {}}
-    for v in ("d", "v_x", "v_z", "distance"):
+    for v in ("d", "v_x", "v_z", "distance", "time_in_soil"):
         x = frame.column(v)[on]
         if len(x):
             lo, hi = np.percentile(x, [5, 95])

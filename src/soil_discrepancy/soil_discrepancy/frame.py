@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
-from soil_physics.travel import distance_in_soil_of_known
+from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
 SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
@@ -52,6 +52,7 @@ class Frame:
     known: np.ndarray  # (N, 9) Θ_k [SI]
     forces: np.ndarray  # (N, 2) measured force [N]
     distance: np.ndarray  # (N,) blade travel in soil since the start [m]
+    time_in_soil: np.ndarray  # (N,) time with the blade in the soil since the start [s]
     stride: int = 1
     group_by: str = "auto"
     source: str = ""
@@ -85,15 +86,22 @@ class Frame:
             mask &= np.isin(self.episode, np.asarray(list(episodes), int))
         if groups is not None:
             mask &= np.isin(self.group, np.asarray(list(groups), int))
+        return self.subset(mask)
+
+    def subset(self, mask: np.ndarray) -> "Frame":
+        """The ticks where ``mask`` (N,) is True (episode-level arrays and global indices kept)."""
         return replace(self, episode=self.episode[mask], rows=self.rows[mask], t=self.t[mask],
-                       known=self.known[mask], forces=self.forces[mask], distance=self.distance[mask])
+                       known=self.known[mask], forces=self.forces[mask], distance=self.distance[mask],
+                       time_in_soil=self.time_in_soil[mask])
 
     def column(self, name: str) -> np.ndarray:
-        """A per-tick variable: a Θ_k name, 't' or 'distance'."""
+        """A per-tick variable: a Θ_k name, 't', 'distance' or 'time_in_soil'."""
         if name == "t":
             return self.t
         if name == "distance":
             return self.distance
+        if name == "time_in_soil":
+            return self.time_in_soil
         return self.known[:, _KI[name]]
 
     def has_metadata(self) -> bool:
@@ -151,7 +159,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         except (TypeError, ValueError, AttributeError):
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
-    parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance")}
+    parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil")}
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
@@ -159,6 +167,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         n = len(known)
         t = np.arange(n) * dt
         dist = distance_in_soil_of_known(known, dt)
+        in_soil_s = time_in_soil_of_known(known, dt)
         keep = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0][::stride]
         parts["episode"].append(np.full(len(keep), e))
         parts["rows"].append(r.start + keep)
@@ -166,6 +175,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         parts["known"].append(known[keep])
         parts["forces"].append(forces[keep])
         parts["distance"].append(dist[keep])
+        parts["time_in_soil"].append(in_soil_s[keep])
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     if len(cat["episode"]) == 0:
         raise ValueError(
@@ -203,5 +213,5 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         names=list(ds.names), soils=soils, densities=dens, group_of=group_of, group_names=group_names,
         episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2),
-        distance=cat["distance"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
+        distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
     )

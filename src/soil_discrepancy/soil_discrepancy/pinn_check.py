@@ -185,5 +185,5 @@ def _train_member(task, log=None, ds: Dataset | None = None) -> tuple[dict[str, 
 
 def _soil_force(frame: Frame, fee_model: AugmentedFEE, theta: ThetaFit) -> np.ndarray:
     """(N, 2) [N]: the model's force along ``frame``'s measured trajectory with θ per group."""
-    fx, fz = fee_model.force(theta.per_tick(frame), frame.known, frame.distance)
+    fx, fz = fee_model.force(theta.per_tick(frame), frame.known, frame.distance, time_in_soil=frame.time_in_soil)
     return np.stack((fx, fz), -1)

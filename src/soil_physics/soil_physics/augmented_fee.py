@@ -88,35 +88,43 @@ class AugmentedFEE:
         phi, c, delta = _theta_tuple(theta)
         return fee_forces(phi, c, delta, _known_array(known))
 
+    @property
+    def needs_time(self) -> bool:
+        """True if a term looks at the time in soil (``force``'s ``time_in_soil`` is then required)."""
+        return any(force_terms.uses_time(n) for n in self.names)
+
     @staticmethod
-    def inputs(theta, known, distance, f_fee_x, f_fee_z) -> ForceInputs:
-        """What every catalogue term may look at, per tick (θ, Θ_k, travel in soil [m], F_FEE [N])."""
+    def inputs(theta, known, distance, f_fee_x, f_fee_z, time_in_soil=None) -> ForceInputs:
+        """What every catalogue term may look at, per tick (θ, Θ_k, travel in soil [m], F_FEE [N],
+        time in soil [s] if given)."""
         phi, c, delta = _theta_tuple(theta)
         return ForceInputs.from_known(
             _known_array(known), phi=phi, c=c, delta=delta,
             distance_in_soil=np.asarray(distance, dtype=float), f_fee_x=f_fee_x, f_fee_z=f_fee_z,
+            time_in_soil=None if time_in_soil is None else np.asarray(time_in_soil, dtype=float),
         )
 
-    def basis(self, name: str, theta, known, distance) -> tuple[np.ndarray, np.ndarray]:
+    def basis(self, name: str, theta, known, distance, time_in_soil=None) -> tuple[np.ndarray, np.ndarray]:
         """(B_x, B_z) [N per unit k] of one catalogue term for this θ (0 where the FEE is undefined)."""
         fx, fz, ok = self.fee(theta, known)
         with np.errstate(all="ignore"):
-            bx, bz = force_terms.get_term(name).basis(self.inputs(theta, known, distance, fx, fz))
+            bx, bz = force_terms.get_term(name).basis(self.inputs(theta, known, distance, fx, fz, time_in_soil))
         bx, bz = np.broadcast_arrays(np.asarray(bx, float), np.asarray(bz, float))
         good = ok & np.isfinite(bx) & np.isfinite(bz)
         return np.where(good, bx, 0.0), np.where(good, bz, 0.0)
 
-    def force(self, theta, known, distance, with_defined: bool = False):
+    def force(self, theta, known, distance, with_defined: bool = False, time_in_soil=None):
         """Model force (F_x, F_z) [N, blade on soil] per tick; NaN where the FEE is undefined.
 
         theta: mapping with phi, c, delta (rad, Pa, rad) or a (phi, c, delta) tuple, arrays that
         broadcast against the ticks; known: (..., 9) Θ_k in KNOWN_PARAMS order or a mapping of
-        those names; distance: blade travel in soil [m] per tick (``travel.distance_in_soil``).
+        those names; distance: blade travel in soil [m] per tick (``travel.distance_in_soil``);
+        time_in_soil: [s] per tick (``travel.time_in_soil``), required if ``needs_time``.
         """
         fx, fz, ok = self.fee(theta, known)
         if self.terms:
             with np.errstate(all="ignore"):
-                dx, dz = force_terms.apply(self.terms, self.inputs(theta, known, distance, fx, fz))
+                dx, dz = force_terms.apply(self.terms, self.inputs(theta, known, distance, fx, fz, time_in_soil))
             fx, fz = fx + dx, fz + dz
             ok = ok & np.isfinite(fx) & np.isfinite(fz)
         fx = np.where(ok, fx, np.nan)

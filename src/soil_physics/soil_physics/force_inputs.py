@@ -45,16 +45,20 @@ class ForceInputs:
     x_b: Any = None  # blade edge x [m] (simulator only)
     z_b: Any = None  # blade edge z [m] (simulator only)
     relative_density_pct: Any = None  # nominal I_d [%] of the soil (patch) under the edge (simulator only)
+    # time with d > 0 since the episode started [s] (``travel.time_in_soil``): the simulator's
+    # per substep; a model's from Θ_k when one of its terms looks at it (None: not given)
+    time_in_soil: Any = None
 
     @classmethod
-    def from_known(cls, known, *, phi, c, delta, distance_in_soil, f_fee_x, f_fee_z, d=None) -> "ForceInputs":
+    def from_known(cls, known, *, phi, c, delta, distance_in_soil, f_fee_x, f_fee_z, d=None,
+                   time_in_soil=None) -> "ForceInputs":
         """The inputs of a model from measured quantities: Θ_k, its θ = (φ, c, δ) and its FEE force.
 
         ``known``: Θ_k as (..., 9) columns in ``KNOWN_PARAMS`` order (NumPy or torch) or a
         mapping of those names; ``phi`` [rad], ``c`` [Pa], ``delta`` [rad]: the model's soil;
         ``distance_in_soil`` [m]: ``travel.distance_in_soil``; ``f_fee_x``, ``f_fee_z`` [N]:
         the model's FEE force; ``d`` [m]: a depth of cut to use instead of Θ_k's (the PINN's
-        d' = d + Δd).
+        d' = d + Δd); ``time_in_soil`` [s]: ``travel.time_in_soil`` (only terms on time need it).
         """
         if isinstance(known, Mapping):
             col = {n: known[n] for n in KNOWN_PARAMS}
@@ -62,7 +66,8 @@ class ForceInputs:
             col = {n: known[..., i] for i, n in enumerate(KNOWN_PARAMS)}
         if d is not None:
             col["d"] = d
-        return cls(**col, phi=phi, c=c, delta=delta, distance_in_soil=distance_in_soil, f_fee_x=f_fee_x, f_fee_z=f_fee_z)
+        return cls(**col, phi=phi, c=c, delta=delta, distance_in_soil=distance_in_soil, f_fee_x=f_fee_x, f_fee_z=f_fee_z,
+                   time_in_soil=time_in_soil)
 
     def coerced(self) -> tuple[Any, "ForceInputs"]:
         """(xp, inputs with every given field an array of xp): with torch, scalars and NumPy

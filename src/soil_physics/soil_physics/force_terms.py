@@ -16,7 +16,7 @@ Every term looks at a ``ForceInputs`` (``force_inputs``), the simulator's vocabu
 a term uses is available from a measured episode without ground truth
 (``ForceInputs.from_known``): Θ_k (d, Q, v, γ, w, ρ, α), the soil parameters φ, c, δ of the
 model being corrected (fitted per episode, or the PINN's estimates), the model's own FEE
-force, and the blade's travel in soil integrated from v_x and d (``travel``).
+force, and the blade's travel and time in soil integrated from v_x and d (``travel``).
 """
 from __future__ import annotations
 
@@ -184,6 +184,13 @@ def uses_distance(name: str) -> bool:
     if name.startswith(term_forms.PREFIX):
         return term_forms.uses_distance(name)
     return name in DISTANCE_TERMS
+
+
+def uses_time(name: str) -> bool:
+    """True if term ``name`` looks at the blade's time in soil (``time_in_soil``): some forms do,
+    no catalogue term."""
+    get_term(name)
+    return name.startswith(term_forms.PREFIX) and term_forms.uses_time(name)
 
 
 def parse_terms(specs) -> tuple[tuple[str, float], ...]:

@@ -14,8 +14,9 @@ take a catalogue term. Every scale is a force [N] with a direction (x, z or alon
 every factor is dimensionless (reference values below), so k is dimensionless throughout.
 
 Only what a model built from Θ_k sees is used (``ForceInputs.from_known``): d, Q, v_x, v_z, γ, w,
-ρ, the model's θ and FEE force, the blade's travel in soil s. Time is not a ``ForceInputs`` field
-of a model, so time in soil enters through s (the blade moves whenever it cuts). SI units.
+ρ, the model's θ and FEE force, the blade's travel in soil s and its time in soil τ
+(``travel``: both integrated from Θ_k, tick by tick). A form on τ is told from one on s across
+speeds (s = ∫ v_x dt). SI units.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ VZ_GATE_M_S = 0.005  # |v_z| below this is "not moving vertically" (measurement 
 FX_LIMIT_N, FZ_LIMIT_N = 20e3, 30e3  # the machine's horizontal / vertical force limits [N]
 LIMIT_SHARE = 0.9  # "at a force limit": the model's force above this share of the limit
 LAYER_DEPTHS_M = (0.1, 0.15, 0.2)  # tops of the layers the library tries [m] (a cut reaches 0.3 m)
+T_REF_S = 10.0  # reference time in soil [s] (an episode of the datasets is 10 s)
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,14 @@ def _pos(xp, x):
 
 def _in(s):
     return (s.d > 0) * 1.0
+
+
+def _time(s):
+    """τ [s]: the inputs' time in soil; a clear error where a model was not given it."""
+    if s.time_in_soil is None:
+        raise ValueError("this form looks at the time in soil: give the model time_in_soil "
+                         "(soil_physics.travel.time_in_soil of the episode)")
+    return s.time_in_soil
 
 
 def _surcharge_part(s, xp):
@@ -123,6 +133,12 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
              (lambda s0: lambda s, xp: xp.exp(-s.distance_in_soil / s0) * _in(s))(s0)) for s0 in (0.5, 2.0)]
     + [Piece(f"sat{s0:g}", f"growing with travel, saturating over {s0:g} m", f"1 − exp(−s / {s0:g} m)",
              (lambda s0: lambda s, xp: (1.0 - xp.exp(-s.distance_in_soil / s0)) * _in(s))(s0)) for s0 in (2.0, 6.0)]
+    # time in soil τ: an effect that builds up or fades while the blade is loaded, whatever its speed
+    + [Piece("tau", "time in soil", f"τ / {T_REF_S:g} s", lambda s, xp: _time(s) / T_REF_S * _in(s))]
+    + [Piece(f"tenter{t0:g}", f"while the blade is new in the soil (first ~{t0:g} s)", f"exp(−τ / {t0:g} s)",
+             (lambda t0: lambda s, xp: xp.exp(-_time(s) / t0) * _in(s))(t0)) for t0 in (1.0, 3.0)]
+    + [Piece(f"tsat{t0:g}", f"growing with time in soil, saturating over {t0:g} s", f"1 − exp(−τ / {t0:g} s)",
+             (lambda t0: lambda s, xp: (1.0 - xp.exp(-_time(s) / t0)) * _in(s))(t0)) for t0 in (3.0, 10.0)]
     # a layer: the share of the cut face deeper than d0 (a hard pan, a wetter or denser stratum);
     # w d P_ref times it is w (d − d0)+ P_ref, the face area in the layer times a pressure
     + [Piece(f"below{d0:g}", f"the share of the cut deeper than {d0:g} m (a layer there)", f"(d − {d0:g} m)+ / d",
@@ -132,11 +148,17 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
 
 
 DISTANCE_FACTORS = frozenset(n for n in FACTORS if n == "s" or n.startswith(("enter", "sat")))  # look at travel s
+TIME_FACTORS = frozenset(n for n in FACTORS if n == "tau" or n.startswith(("tenter", "tsat")))  # look at time τ
 
 
 def uses_distance(name: str) -> bool:
     """True if the form looks at the blade's travel in soil (a model must be given it)."""
     return parse(name)[2].name in DISTANCE_FACTORS
+
+
+def uses_time(name: str) -> bool:
+    """True if the form looks at the blade's time in soil (a model must be given it)."""
+    return parse(name)[2].name in TIME_FACTORS
 
 
 def form_names(scales=None, factors=None) -> list[str]:
@@ -195,4 +217,4 @@ def proposed_name(name: str) -> str:
     return f"{b.words} × {a.words}" + (" (relief)" if sign < 0 else "")
 
 
-__all__ = ["PREFIX", "SCALES", "FACTORS", "DISTANCE_FACTORS", "uses_distance", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]
+__all__ = ["PREFIX", "SCALES", "FACTORS", "DISTANCE_FACTORS", "TIME_FACTORS", "uses_distance", "uses_time", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]

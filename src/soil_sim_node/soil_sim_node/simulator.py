@@ -70,7 +70,7 @@ from soil_physics.bearing import EDGE_WIDTH_M, penetration_capacity
 from soil_physics.contact import BASE_FRICTION_V_REF_M_S, CONTACT_DAMPING_PA_S_M, base_friction_force
 from soil_physics.force_inputs import ForceInputs
 from soil_physics.soils import SoilType, get_soil
-from soil_physics.travel import soil_advance
+from soil_physics.travel import soil_advance, soil_time_step
 
 from . import kernel
 from .effects import (
@@ -332,6 +332,10 @@ class SoilSimulator:
         self.rngs = [np.random.default_rng(int(s.seed)) for s in self.specs]
         self.last_applied_u_zr = z()
         self._forces_out = np.zeros((b, 2))
+        # time with the edge in the soil [s] (``travel.time_in_soil``, per substep): what force
+        # terms see as ``ForceInputs.time_in_soil``; kept where they are evaluated (the reference
+        # engine's substep, the compiled engine's with plugins)
+        self.time_in_soil = z()
         # the blade starts in the patch under its edge, with an empty pile of that soil
         self.patch_index = self.patch_at(self.x_c + self.dyn.blade_offset_m)
         self.pile_gamma = self.patch_nominal[np.arange(b), self.patch_index.astype(np.int64), 2]
@@ -457,12 +461,13 @@ class SoilSimulator:
             v_x=f[:, k.F_V_X], v_z=f[:, k.F_V_Z], d=f[:, k.F_D], q=f[:, k.F_Q], phi=f[:, k.F_PHI], c=f[:, k.F_C],
             gamma=f[:, k.F_GAMMA], delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
             blade_thickness=self.dyn.blade_edge_width_m, f_fee_x=f[:, k.F_FEE_X], f_fee_z=f[:, k.F_FEE_Z],
-            distance_in_soil=self.distance_in_soil, relative_density_pct=f[:, k.F_I_D],
+            distance_in_soil=self.distance_in_soil, relative_density_pct=f[:, k.F_I_D], time_in_soil=self.time_in_soil,
         )
         fx, fz = f[:, k.F_X].copy(), f[:, k.F_Z].copy()
         for plugin in self.plugins:
             tx, tz = plugin(state, b)
             fx, fz = fx + tx, fz + tz
+        self.time_in_soil = self.time_in_soil + soil_time_step(f[:, k.F_D], self.dt)
         f[:, k.F_X], f[:, k.F_Z] = fx, fz
         measured = np.empty((b, 2))
         k.substep_machine_batch(self._state, self._episode, self.terrain, self._params, self._probes, u_zr, u_x, f,
@@ -519,7 +524,9 @@ class SoilSimulator:
             gamma=gamma, delta=self.delta, c_a=self.c_a, rho=self.rho, alpha=self.alpha, w=self.w,
             blade_thickness=dyn.blade_edge_width_m, f_fee_x=fx, f_fee_z=fz,
             distance_in_soil=self.distance_in_soil, relative_density_pct=self.patch_i_d[np.arange(b), j],
+            time_in_soil=self.time_in_soil,
         )
+        self.time_in_soil = self.time_in_soil + soil_time_step(d, dt)
         for name, term in FORCE_TERMS.items():
             if getattr(e, name):
                 tx, tz = term(state)
