@@ -20,6 +20,7 @@ a held-out error that shrinks, no catalogue name.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -157,7 +158,7 @@ def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confi
 
 def test_form_names_parse_and_act_like_catalogue_terms():
     names = term_forms.form_names()
-    assert 100 < len(names) <= 400 and len(set(names)) == len(names)
+    assert 100 < len(names) <= 500 and len(set(names)) == len(names)
     t = force_terms.get_term("form:-gd2w_z*sink")
     assert term_forms.negated("form:-gd2w_z*sink") == "form:gd2w_z*sink" and "[v_z < " in t.formula
     n = 5
@@ -170,6 +171,14 @@ def test_form_names_parse_and_act_like_catalogue_terms():
     np.testing.assert_allclose(bz, -2.0 * 18e3 * 0.04 * 3.0 * np.array([1, 0, 0, 0, 1]))
     fx, fz = force_terms.get_term("form:fee*vx").basis(s)
     np.testing.assert_allclose(fx, 1e4 * 0.5) and np.testing.assert_allclose(fz, -5e3 * 0.5)
+    # the constant scale: 1 kN while in soil, here as Coulomb friction (saturating with v_x)
+    fx, fz = force_terms.get_term("form:one_x*tanhvx0.1").basis(replace(s, d=np.array([0.2, 0.2, -0.01, 0.2, 0.2])))
+    np.testing.assert_allclose(fx, 1e3 * np.tanh(5.0) * np.array([1, 1, 0, 1, 1])) and np.testing.assert_allclose(fz, 0.0)
+    # a form on time in soil needs it, and says so
+    with pytest.raises(ValueError, match="time in soil"):
+        force_terms.get_term("form:wd_x*tsat3").basis(s)
+    fx, _ = force_terms.get_term("form:wd_x*tsat3").basis(replace(s, time_in_soil=np.full(n, 3.0)))
+    np.testing.assert_allclose(fx, 3.0 * 0.2 * 1e4 * (1 - np.exp(-1.0)))
     for bad in ("form:gd2w_z", "form:nope*sink", "form:gd2w_z*nope", "gd2w_z*sink"):
         with pytest.raises(ValueError):
             force_terms.get_term(bad)
@@ -183,6 +192,7 @@ def test_a_form_is_a_pinn_extra_term_with_gradients_and_asks_for_the_travel_it_u
     assert ModelConfig(kind="pinn", extra_terms=("form:gd2w_x*enter2=1.4",)).needs_distance
     assert not ModelConfig(kind="pinn", extra_terms=("form:bear_z*sink=0.4",)).needs_distance
     assert term_forms.DISTANCE_FACTORS == {"s", "enter0.5", "enter2", "sat2", "sat6"}
+    assert term_forms.TIME_FACTORS == {"tau", "tenter1", "tenter3", "tsat3", "tsat10"} and not term_forms.TIME_FACTORS & term_forms.DISTANCE_FACTORS
     n = 3
     t = lambda v: torch.full((n,), float(v), dtype=torch.float64)  # noqa: E731
     phi = t(0.6).requires_grad_()

@@ -37,6 +37,7 @@ FX_LIMIT_N, FZ_LIMIT_N = 20e3, 30e3  # the machine's horizontal / vertical force
 LIMIT_SHARE = 0.9  # "at a force limit": the model's force above this share of the limit
 LAYER_DEPTHS_M = (0.1, 0.15, 0.2)  # tops of the layers the library tries [m] (a cut reaches 0.3 m)
 T_REF_S = 10.0  # reference time in soil [s] (an episode of the datasets is 10 s)
+F_REF_N = 1e3  # reference force of the constant scales [N]
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,11 @@ SCALES: dict[str, Piece] = {p.name: p for p in (
           "w t_e (c N_c + γ d N_q)", lambda s, xp: _bearing(s, xp), "x"),
     Piece("down_x", "the model's downward push max(−F_FEE,z, 0), x (friction on it)",
           "max(−F_FEE,z, 0)", lambda s, xp: _pos(xp, -s.f_fee_z) * _in(s), "x"),
+    # a force that does not scale with the soil or the cut (the sparse regression's constant
+    # term): a side plate rubbing, a drag of the machine's own, a sensor offset while cutting;
+    # times tanh(v_x/v0) it is Coulomb friction
+    Piece("one_x", "a constant force, x", f"{F_REF_N:g} N", lambda s, xp: F_REF_N * _in(s), "x"),
+    Piece("one_z", "a constant force, pressing down", f"−{F_REF_N:g} N", lambda s, xp: -F_REF_N * _in(s), "z"),
 )}
 
 # Factors and gates: dimensionless. Gates are 0/1.
