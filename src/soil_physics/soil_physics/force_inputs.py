@@ -6,8 +6,8 @@ now, its own FEE force, its ground-truth travel in soil); the catalogue of candi
 (the model's θ and FEE force, Θ_k, the estimator's travel in soil). Fields are arrays of one
 shape (NumPy or torch; scalars broadcast), SI units. The fields after ``f_fee_z`` are
 optional: the simulator fills them, a model built from Θ_k has t, dt, x_b, z_b and
-relative_density_pct as None. Force convention: the force the blade exerts ON the soil [N],
-x forward, z up (paper Eq. 8).
+relative_density_pct as None, and time_in_soil only where one of its terms looks at it.
+Force convention: the force the blade exerts ON the soil [N], x forward, z up (paper Eq. 8).
 """
 from __future__ import annotations
 
