@@ -458,6 +458,28 @@ def test_the_fast_part_of_a_residual_is_its_noise_floor(bag_dirs):
     assert fast_part(frame, slow)["x"] < 30.0
 
 
+def test_the_frame_analyses_the_soils_force_without_the_blades_inertia(bag_dirs):
+    """The soil's force is the measured one less m_b·a (a model of the soil explains no inertia);
+    across a gap of a repaired bag no acceleration is known, so nothing is taken off there."""
+    from soil_discrepancy.frame import build_frame
+    from soil_physics.blade_inertia import blade_velocity, inertia_force_rows
+
+    ds = blind(bag_dirs["soil_inertia"])
+    frame = build_frame(ds, stride=1)
+    np.testing.assert_allclose(frame.forces + frame.inertia, ds.forces[frame.rows])
+    e = int(frame.episodes[0])
+    rows = ds.episode_rows(e)
+    v = blade_velocity(ds.observations[rows])
+    want = np.stack(inertia_force_rows(v[:, 0], v[:, 1]), 1)[frame.rows[frame.episode == e] - rows.start]
+    np.testing.assert_allclose(frame.inertia[frame.episode == e], want)
+    assert np.abs(frame.inertia[:, 1]).max() > 100.0  # the blade does accelerate vertically
+    gap = ds.gap_before.copy()
+    gap[frame.rows[10]] = True
+    gapped = build_frame(dataclasses.replace(ds, gap_before=gap), stride=1)
+    assert np.all(gapped.inertia[10] == 0.0) and gapped.forces[10] == pytest.approx(ds.forces[frame.rows[10]])
+    np.testing.assert_array_equal(gapped.inertia[11:], frame.inertia[11:])
+
+
 def test_a_term_that_makes_the_forecast_at_another_depth_worse_is_not_confirmed():
     """The force error alone is not enough: a term the held-out episodes find 7 % better in force but
     25 % worse at another depth (a constant drag named as a relief below 0.1 m did that) is not named;

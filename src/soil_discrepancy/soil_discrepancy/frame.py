@@ -6,7 +6,13 @@ measured soil unit weight γ (a known parameter Θ_k carries) is the same (``gro
 also the default for bags without any soil label, such as a real machine's, when γ makes at
 least three groups): one soil θ = (φ, c, δ) is fitted per group (``fee_fit``). Nothing here reads
 the simulator's ground truth (``Dataset.truth``) or the bag metadata's record of which effects/plugins were switched on: only Θ_k, the measured force,
-time and the soil name / relative density used as a grouping label. SI units.
+the blade's velocities (observations), time and the soil name / relative density used as a grouping label. SI units.
+
+The force analysed is the soil's: the measured force minus the blade's own inertia m_b·a
+(``soil_physics.blade_inertia``, the tick-mean acceleration from consecutive velocities; none
+across a gap of a repaired bag), as the fused posterior takes it. A model of the soil explains
+no inertia: left in, it is a residual wherever the blade accelerates vertically (the fee world's
+F_z while the edge sinks), which the form search then names as if it were soil physics.
 """
 from __future__ import annotations
 
@@ -16,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_physics.blade_inertia import blade_velocity, inertia_force_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
@@ -50,9 +57,10 @@ class Frame:
     rows: np.ndarray  # (N,) row in the Dataset
     t: np.ndarray  # (N,) time since the episode started [s]
     known: np.ndarray  # (N, 9) Θ_k [SI]
-    forces: np.ndarray  # (N, 2) measured force [N]
+    forces: np.ndarray  # (N, 2) the soil's force: measured minus the blade's inertia m_b·a [N]
     distance: np.ndarray  # (N,) blade travel in soil since the start [m]
     time_in_soil: np.ndarray  # (N,) time with the blade in the soil since the start [s]
+    inertia: np.ndarray  # (N, 2) the blade's inertia m_b·a the measured force held beside ``forces`` [N]
     stride: int = 1
     group_by: str = "auto"
     source: str = ""
@@ -92,7 +100,7 @@ class Frame:
         """The ticks where ``mask`` (N,) is True (episode-level arrays and global indices kept)."""
         return replace(self, episode=self.episode[mask], rows=self.rows[mask], t=self.t[mask],
                        known=self.known[mask], forces=self.forces[mask], distance=self.distance[mask],
-                       time_in_soil=self.time_in_soil[mask])
+                       time_in_soil=self.time_in_soil[mask], inertia=self.inertia[mask])
 
     def column(self, name: str) -> np.ndarray:
         """A per-tick variable: a Θ_k name, 't', 'distance' or 'time_in_soil'."""
@@ -159,11 +167,14 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         except (TypeError, ValueError, AttributeError):
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
-    parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil")}
+    parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil", "inertia")}
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
-        forces = np.asarray(ds.forces[r], float)
+        v = blade_velocity(np.asarray(ds.observations[r], float))
+        inertia = np.stack(inertia_force_rows(v[:, 0], v[:, 1]), axis=1)
+        inertia[np.asarray(ds.gap_before[r], bool)] = 0.0  # no acceleration is known across a gap
+        forces = np.asarray(ds.forces[r], float) - inertia
         n = len(known)
         t = np.arange(n) * dt
         dist = distance_in_soil_of_known(known, dt)
@@ -174,6 +185,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         parts["t"].append(t[keep])
         parts["known"].append(known[keep])
         parts["forces"].append(forces[keep])
+        parts["inertia"].append(inertia[keep])
         parts["distance"].append(dist[keep])
         parts["time_in_soil"].append(in_soil_s[keep])
     cat = {k: np.concatenate(v) for k, v in parts.items()}
@@ -212,6 +224,6 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     return Frame(
         names=list(ds.names), soils=soils, densities=dens, group_of=group_of, group_names=group_names,
         episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],
-        known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2),
+        known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
     )

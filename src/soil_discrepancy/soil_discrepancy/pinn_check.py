@@ -150,7 +150,9 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         soil = [_soil_force(scored, fee_model, pooled_theta(scored, m["theta"])) for m in members]
         out["per_seed"][f"soil_rmse_{label}"] = [error_metrics(scored.forces - f)["rmse"] for f in soil]
         theta = pooled_theta(scored, [m["theta"] for m in members])
-        preds[label] = {"force": np.mean([m["force"] for m in members], 0),
+        # F̂ estimates the measured force (the PINN is trained on it): less the blade's inertia it
+        # is its estimate of the soil's, which the frame holds
+        preds[label] = {"force": np.mean([m["force"] for m in members], 0) - scored.inertia,
                         "physics": np.mean([m["force"] - m["force_residual"] for m in members], 0),
                         "soil": _soil_force(scored, fee_model, theta)}
         out["theta"][label] = theta.table(scored)

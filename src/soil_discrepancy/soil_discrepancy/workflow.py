@@ -69,8 +69,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     = {'dataset', 'selection_episodes', 'test_episodes', 'seed', 'edges', 'workers'} (episode
     names; the named terms' k was fitted on the selection episodes only; 'edges': the regime
     bins; 'workers': the processes this run may use) and fn
-    returns either (F_before, F_after), predictions (N, 2) [N] at ``test_frame``'s ticks
-    (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions``), or a finished result dict
+    returns either (F_before, F_after), predictions (N, 2) [N] of the soil's force at ``test_frame``'s ticks
+    (``test_frame.rows`` index the Dataset; scored by ``gap.compare_predictions`` against
+    ``test_frame.forces``, the measured force less the blade's inertia ``test_frame.inertia``: a model
+    of the measured force subtracts it), or a finished result dict
     that is stored as it is. skip_bad_bags: leave out (and report) bags that cannot be read instead of
     stopping at the first, naming it (``load_dataset``). forms: when the residual has regime structure,
     search the library of forms (``forms.search_forms``) and test its candidates beside the catalogue
