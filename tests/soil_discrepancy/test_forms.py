@@ -171,7 +171,10 @@ def test_form_names_parse_and_act_like_catalogue_terms():
     np.testing.assert_allclose(bz, -2.0 * 18e3 * 0.04 * 3.0 * np.array([1, 0, 0, 0, 1]))
     fx, fz = force_terms.get_term("form:fee*vx").basis(s)
     np.testing.assert_allclose(fx, 1e4 * 0.5) and np.testing.assert_allclose(fz, -5e3 * 0.5)
-    # the constant scale: 1 kN while in soil, here as Coulomb friction (saturating with v_x)
+    # the constant scale: 1 kN while in soil, here as Coulomb friction (saturating with v_x); in the
+    # library only as a constant, viscous or Coulomb force, not with the geometry's factors or gates
+    assert {n for n in names if "one_x" in n} == {f"form:one_x*{f}" for f in term_forms.CONSTANT_SCALE_FACTORS}
+    assert "form:one_x*below0.1" not in names and force_terms.get_term("form:one_x*below0.1")
     fx, fz = force_terms.get_term("form:one_x*tanhvx0.1").basis(replace(s, d=np.array([0.2, 0.2, -0.01, 0.2, 0.2])))
     np.testing.assert_allclose(fx, 1e3 * np.tanh(5.0) * np.array([1, 1, 0, 1, 1])) and np.testing.assert_allclose(fz, 0.0)
     # a form on time in soil needs it, and says so
