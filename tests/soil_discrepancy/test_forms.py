@@ -20,6 +20,7 @@ a held-out error that shrinks, no catalogue name.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -133,6 +134,8 @@ def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_re
         model.force((0.5, 1e3, 0.3), np.array([[0, 17e3, 1.0, 0, 3.0, 0.2, 0, 0.5, 0]]), [1.0])
     assert load_plugins(rep["model"]["plugin_specs"])[0].params["term"] == acc["name"]
     assert "τ / 10 s" in rep["forms"]["discovered"][0]["formula"]
+    md = (Path(rep["outputs"][0]).parent / "discrepancy.md").read_text()
+    assert re.search(r"time in soil τ [\d.]+…[\d.]+", md), "where it acts, by name"
 
 
 def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confirms_it(form_data, tmp_path):

@@ -62,8 +62,13 @@ def holm(pvalues) -> np.ndarray:
     return out
 
 
+# Per-tick variables a report names that are not binned here (time in soil follows time in the
+# episode within a few ticks of the blade's entry): where a discovered form acts.
+OTHER_LABELS = {"time_in_soil": "time in soil τ"}
+
+
 def variable_labels() -> dict[str, str]:
-    return {**{k: lab for k, lab, _ in CONTINUOUS}, **dict(CATEGORICAL)}
+    return {**{k: lab for k, lab, _ in CONTINUOUS}, **dict(CATEGORICAL), **OTHER_LABELS}
 
 
 def bin_edges(frame: Frame, n_bins: int = N_BINS) -> dict[str, list[float] | None]:
