@@ -307,7 +307,7 @@ class OnlineEstimator:
         # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
         # for an episode seen from its start.
         self.distance_m = self.time_in_soil_s = 0.0
-        self._distance_known = False
+        self._path_known = False
         self._fusion_config = fusion  # as given: a new model's physics is merged into it (set_model)
         self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
         self.soil_map = SoilMap()
@@ -356,7 +356,7 @@ class OnlineEstimator:
     def _forget_path(self, known: bool) -> None:
         """Travel and time in soil back to 0; ``known``: counted from an episode's start."""
         self.distance_m = self.time_in_soil_s = 0.0
-        self._distance_known = known
+        self._path_known = known
 
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
@@ -378,7 +378,7 @@ class OnlineEstimator:
             return  # the window already started after the previous episode, at or after this one's start
         self.reset(first)
         self._boundary, self._crossed = first - 1, False
-        self._distance_known = True
+        self._path_known = True
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
@@ -410,7 +410,7 @@ class OnlineEstimator:
         tick, self._tick = self._tick, self._tick + 1
         if tick % self.stride:
             return
-        if not self.buffer.full or ((self.model.needs_distance or self.model.needs_time) and not self._distance_known):
+        if not self.buffer.full or ((self.model.needs_distance or self.model.needs_time) and not self._path_known):
             # (a model with a distance or time term needs the episode from its start: invalid until one begins)
             self.counters.invalid += 1
             self.publish(self._with_fused(invalid_estimate(stamp, self.buffer.count)))
