@@ -132,8 +132,10 @@ def test_a_hostile_node_cannot_stop_the_graph_silence_the_controller_or_change_t
                 for name in ("observations", "forces", "known", "truth", "extras"):
                     diff = np.flatnonzero((getattr(live, name) != getattr(ref, name)).any(axis=1))
                     if diff.size:
+                        k = int(diff[0])
                         problems.append(f"bag {name} differs from the simulator's run at {diff.size} ticks, "
-                                        f"first tick {diff[0]}")
+                                        f"first tick {k}: {getattr(live, name)[k].tolist()} in the bag, "
+                                        f"{getattr(ref, name)[k].tolist()} simulated")
         # Estimates in the bag: only ones the estimator published.
         try:
             stamps, values = read_labelled_topic(found[0], T.ESTIMATE.name, T.ESTIMATE_FIELDS)

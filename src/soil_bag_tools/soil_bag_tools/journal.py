@@ -23,7 +23,8 @@ number of its writer (0: unknown), so the conversion can tell the writers apart
 the graph's tick grid the bag keeps only the writer that sent the most ticks, i.e. the
 publisher that has been recording every tick, whether another writer's stamp is also
 claimed or not, judged over the whole journal; of messages still claiming one (topic,
-stamp) it keeps the one with finite values, then the first to arrive. The others are
+stamp) it keeps the one with plausible values (finite, within ``messages.PLAUSIBLE_ABS_LIMIT``),
+then the first to arrive. The others are
 counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
@@ -241,12 +242,12 @@ def labelled_values(topic: str, msgtype: str, raw: bytes | memoryview):
     return None
 
 
-def _all_finite(topic: str, msgtype: str, raw: bytes) -> bool:
+def _plausible(topic: str, msgtype: str, raw: bytes) -> bool:
     try:
         parsed = labelled_values(topic, msgtype, raw)
     except Exception:  # noqa: BLE001 - an undecodable claim is as bad as a non-finite one
         return False
-    return parsed is None or bool(np.isfinite(parsed[1]).all())  # other topics: not ours to judge
+    return parsed is None or M.plausible_values(parsed[1])  # other topics: not ours to judge
 
 
 def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
@@ -256,9 +257,10 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     journal (``writer_identity.leading_chain``): every message off the leading writer's chain
     is refused. Where several writers' messages could be that chain (an intruder's counter
     that fits a tick the writer skipped, or meets it at a tick), the chain with the most
-    messages with finite values wins, and once another writer showed up on the topic a
-    non-finite message is never taken for the chain's (graph nodes publish finite values).
-    Of the messages left, those claiming one stamp keep the one with finite values, then the
+    messages with plausible values (``messages.plausible_values``: finite, no 1e30) wins, and once
+    another writer showed up on the topic an implausible message is never taken for the chain's
+    (graph nodes publish none). Of the messages left, those claiming one stamp keep the one with
+    plausible values, then the
     first to arrive (writers unknown: no sequence numbers, or writers that sent equally many
     ticks). A message with the very stamp and sequence
     number of one on the chain is not refused by sequence: two counters that meet at a tick
@@ -274,19 +276,19 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
         judged[topic] = [i for i, k in enumerate(ticks) if k is not None and scan.sequences[topic][i]]
         chains[topic] = _chain(scan, topic, judged[topic], first)
     # One writer per topic is the rule: values are read only where another writer showed up.
-    finite = _finite_values(scan, {t: set(judged[t]) for t, c in chains.items()
+    plausible = _plausible_values(scan, {t: set(judged[t]) for t, c in chains.items()
                                    if c is not None and len(c) < len(judged[t])})
     refused: dict[str, set[int]] = {}
     contested: dict[str, list[list[int]]] = {}
     for topic, stamps in scan.stamps.items():
         sequences, chain = scan.sequences[topic], chains[topic]
         if chain is not None and len(chain) < len(judged[topic]):
-            weights = [2 if finite.get((topic, i), True) else 1 for i in judged[topic]]
+            weights = [2 if plausible.get((topic, i), True) else 1 for i in judged[topic]]
             chain = _chain(scan, topic, judged[topic], first, weights)
-            # Graph nodes never publish non-finite values; with another writer about, such a
+            # Graph nodes never publish implausible values; with another writer about, such a
             # claim on the chain is an intruder's whose counter fitted a tick the writer left
             # free with nothing after it to displace (a skipped last tick, a lost message).
-            chain = None if chain is None else {i for i in chain if finite.get((topic, i), True)}
+            chain = None if chain is None else {i for i in chain if plausible.get((topic, i), True)}
         foreign: set[int] = set()
         if chain is not None:
             claims = {(stamps[i], sequences[i]) for i in chain}
@@ -302,10 +304,10 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     if not contested:
         return refused
     wanted = {t: {i for g in groups for i in g} for t, groups in contested.items()}
-    finite.update(_finite_values(scan, {t: {i for i in v if (t, i) not in finite} for t, v in wanted.items()}))
+    plausible.update(_plausible_values(scan, {t: {i for i in v if (t, i) not in plausible} for t, v in wanted.items()}))
     for topic, groups in contested.items():
         for g in groups:
-            keep = min(g, key=lambda i: (not finite.get((topic, i), False), i))
+            keep = min(g, key=lambda i: (not plausible.get((topic, i), False), i))
             refused.setdefault(topic, set()).update(i for i in g if i != keep)
     return refused
 
@@ -318,8 +320,8 @@ def _chain(scan: JournalScan, topic: str, judged: Sequence[int], first: int,
     return None if chain is None else {judged[j] for j in chain}
 
 
-def _finite_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict[tuple[str, int], bool]:
-    """Whether each wanted message (topic, file index) has finite values (one pass over the file)."""
+def _plausible_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict[tuple[str, int], bool]:
+    """Whether each wanted message (topic, file index) has plausible values (one pass over the file)."""
     out: dict[tuple[str, int], bool] = {}
     if not any(wanted.values()):
         return out
@@ -329,7 +331,7 @@ def _finite_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict[tu
             i = index[ch.topic]
             index[ch.topic] += 1
             if i in wanted.get(ch.topic, ()):
-                out[(ch.topic, i)] = _all_finite(ch.topic, ch.msgtype, record.data)
+                out[(ch.topic, i)] = _plausible(ch.topic, ch.msgtype, record.data)
     return out
 
 

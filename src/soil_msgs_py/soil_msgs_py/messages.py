@@ -311,6 +311,19 @@ def parse_message(topic: str, msg: Any) -> tuple[int, np.ndarray]:
     return stamp, np.array(vals if isinstance(vals, tuple) else (vals,), dtype=np.float64)
 
 
+# No value a graph node publishes comes near this in SI (forces ~1e5 N, cohesion ~1e5 Pa, unit
+# weight ~2e4 N/m³, positions ~1e3 m): one beyond it is a fault's or an intruder's.
+PLAUSIBLE_ABS_LIMIT = 1e9
+
+
+def plausible_values(values: Any) -> bool:
+    """Whether every value could be a graph node's: finite and within ±``PLAUSIBLE_ABS_LIMIT``.
+    What tells two claims of one tick apart when their writers cannot be (same stamp, same
+    sequence number): a finite 1e30 is as much garbage as a NaN."""
+    v = np.asarray(values, dtype=np.float64)
+    return bool((np.abs(v) <= PLAUSIBLE_ABS_LIMIT).all())  # NaN compares False
+
+
 # --- whole episodes --------------------------------------------------------------------
 
 def topic_rows(ep: Episode, topic: str) -> np.ndarray:
