@@ -115,7 +115,7 @@ def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
     intruder's counter that lands in a gap the writer left (a skipped tick) continues the
     writer and pushes the writer's next message out as a stranger's; judged as a whole, the
     writer's counter grows by exactly one per message, so the intruder's message can only
-    take the place of one or more of the writer's, and weights (e.g. finite values) decide
+    take the place of one or more of the writer's, and weights (e.g. plausible values) decide
     that exchange. O(n log n): a Fenwick tree of the best chain over ``sequence - tick``.
 
     Ties: if the heaviest chain among the remaining messages weighs as much, the writers
