@@ -277,7 +277,7 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
         chains[topic] = _chain(scan, topic, judged[topic], first)
     # One writer per topic is the rule: values are read only where another writer showed up.
     plausible = _plausible_values(scan, {t: set(judged[t]) for t, c in chains.items()
-                                   if c is not None and len(c) < len(judged[t])})
+                                         if c is not None and len(c) < len(judged[t])})
     refused: dict[str, set[int]] = {}
     contested: dict[str, list[list[int]]] = {}
     for topic, stamps in scan.stamps.items():
