@@ -72,3 +72,30 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert "/planner/target_depth" in rec and "/planner/max_cut_depth" in rec
     sim = " ".join(nodes["sim"].argv)
     assert "'/soil/known_params:3'" in sim  # recorder, estimator and planner before tick 0
+
+
+def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path):
+    """The planner reads the posterior's θ through the terms the estimator's fusion config adds:
+    the shipped default world's, or those of a config given by -p or in a params file; the user's
+    own -p terms:=... comes later and wins."""
+    from pinn_estimator.fusion import FusionConfig
+    from pinn_estimator.fusion_calibration import load_calibrated
+
+    def planner_argv(*argv):
+        nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *argv]))}
+        return nodes["planner"].argv
+
+    shipped = load_calibrated("default").terms
+    assert shipped, "the shipped default-world posterior has a term beside the FEE"
+    want = "terms:=[" + ", ".join(repr(f"{n}={k!r}") for n, k in shipped) + "]"
+    assert want in planner_argv()
+    cfg = tmp_path / "f.json"
+    FusionConfig(terms=(("soil_inertia", 2.5),)).save(cfg)
+    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-param", f"fusion_config:={cfg}")
+    params = tmp_path / "est.yaml"
+    params.write_text(f"pinn_estimator:\n  ros__parameters:\n    fusion_config: {cfg}\n")
+    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-params-file", str(params))
+    FusionConfig().save(cfg)  # no terms: the FEE alone, nothing passed
+    assert not any(a.startswith("terms:=") for a in planner_argv("--estimator-param", f"fusion_config:={cfg}"))
+    argv = planner_argv("--planner-param", "terms:=[]")
+    assert argv.index(want) < argv.index("terms:=[]")  # the user's -p comes later and wins

@@ -326,6 +326,34 @@ def test_a_sharp_fused_posterior_plans_like_the_fee_of_its_mean():
     assert max_cut_depth(sharp, known, include_residual=False, force_quantile=None) == fee_only
 
 
+def test_a_sharp_fused_posterior_plans_through_the_physics_it_was_fitted_with():
+    """A posterior fitted with a term beside the FEE (the default world's relief of the FEE's
+    surcharge part) means its θ in that physics: a sharp one plans where that model's force meets
+    the limit, deeper than the FEE alone says with so large a surcharge; terms the plan cannot
+    evaluate for a steady cut (travel or time in soil) and unknown ones are refused by name."""
+    from soil_physics.augmented_fee import AugmentedFEE
+
+    term = ("form:-qnq*tanhvx0.1", 0.756)
+    known = _known(d=0.12, q=6000.0)
+    sharp = _fused(_estimate(known, phi=33 * DEG, c=2e3, delta=12 * DEG, valid=0.0), 33 * DEG, 2e3, 12 * DEG)
+    fee_plan = max_cut_depth(sharp, known)
+    plan = max_cut_depth(sharp, known, terms=[term])
+    assert plan.max_depth_m > fee_plan.max_depth_m + 0.01 and plan.limited_by_x
+    model = AugmentedFEE([term])
+    steady = _steady(known)
+    for depth, admissible in ((plan.max_depth_m - 2e-3, True), (plan.max_depth_m + 2e-3, False)):
+        fx, fz = model.force((33 * DEG, 2e3, 12 * DEG), {**steady, "d": depth}, distance=0.0)
+        # (the posterior's 1 N error law and the 95 % quantile: within a few N of the limit)
+        assert (abs(float(fx)) <= LX - 1.0) == admissible, (depth, float(fx))
+    assert StretchPlanner(terms=["form:-qnq*tanhvx0.1=0.756"]).settings()["terms"] == ["form:-qnq*tanhvx0.1=0.756"]
+    for bad, needle in ((["compaction_hardening=0.1"], "compaction_hardening"), (["form:wd_x*tau=1"], "form:wd_x\\*tau"),
+                        (["no_such_term=1"], "no_such_term"), (["soil_inertia"], "name=k")):
+        with pytest.raises(ValueError, match=needle):
+            StretchPlanner(terms=bad)
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(sharp, known, terms=bad)
+
+
 def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper():
     known = _known(d=0.12, q=1000.0)
     point = _estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG)

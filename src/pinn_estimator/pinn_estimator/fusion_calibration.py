@@ -93,6 +93,16 @@ def load_calibrated(world: str) -> FusionConfig:
 DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): the node's and replay's config
 
 
+def load_fusion_config(path: str) -> FusionConfig:
+    """The estimator node's ``fusion_config`` parameter: the config at ``path``, or the shipped
+    default world's where it is empty; ValueError naming the parameter if it cannot be used. (No
+    torch: ``soil_launch`` reads it too, to give the planner the posterior's physics.)"""
+    try:
+        return FusionConfig.load(path) if path else load_calibrated(DEFAULT_WORLD)
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
+
+
 def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
     """``fusion`` (None: the shipped calibration of the default world) with the physics of
     ``model`` (an ``EstimatorNet``): its catalogue terms are added to the FEE, as in its own physics

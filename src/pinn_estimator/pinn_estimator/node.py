@@ -29,8 +29,7 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion import FusionConfig
-from .fusion_calibration import DEFAULT_WORLD, load_calibrated
+from .fusion_calibration import load_fusion_config
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
@@ -41,14 +40,6 @@ PARAMETERS: dict[str, tuple] = {
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_default.json"),
     "inputs_wait_s": (5.0, "join /sim/status once every input topic has a publisher, or after this long [s] (0: at once)"),
 }
-
-
-def load_fusion_config(path: str) -> FusionConfig:
-    """The fused posterior's config; ValueError naming the parameter if it cannot be used."""
-    try:
-        return FusionConfig.load(path) if path else load_calibrated(DEFAULT_WORLD)
-    except (OSError, ValueError, TypeError) as err:
-        raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
 
 
 def load_estimator_model(path: str):

@@ -119,9 +119,10 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
     if policy.soil_aware:
         setup = setup or SoilAwareSetup(world)
         schedule = DepthSchedule(setup.schedule)
-        planner = StretchPlanner(**setup.planner)
         torch.set_num_threads(1)
         estimator = setup.estimator(published.append)
+        # the plan reads the posterior's θ through the posterior's own physics
+        planner = StretchPlanner(**{"terms": estimator.posterior.cfg.terms, **setup.planner})
         estimator.start_episode(0)
         start = schedule.target_m
     controller = AntiStallController(gains, spec.target_speed_m_s, start)

@@ -35,6 +35,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+
 from soil_msgs_py import graph as G
 
 EXIT_NODE_DIED = 1
@@ -267,6 +269,33 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
     return argv + _params(params)
 
 
+def posterior_terms_param(estimator_params_file, estimator_params: list[str]) -> list[str]:
+    """``["terms:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
+    posterior, from the ``fusion_config`` it is given (the last ``-p``, else its params file, else
+    the shipped one), so the plan reads θ through the model θ was fitted with; [] without terms or
+    where the config cannot be read (the estimator then exits naming it). A checkpoint's own terms
+    are not seen here (reading it needs torch): give them with ``--planner-param terms:=[...]``."""
+    from pinn_estimator.fusion_calibration import load_fusion_config
+
+    path = ""
+    if estimator_params_file:
+        try:
+            data = yaml.safe_load(Path(estimator_params_file).read_text()) or {}
+            for node in data.values():
+                path = str(((node or {}).get("ros__parameters") or {}).get("fusion_config", path) or path)
+        except (OSError, yaml.YAMLError, AttributeError):
+            pass  # the estimator reports its own params file
+    for pair in estimator_params:
+        name, _, value = pair.partition(":=")
+        if name.strip() == "fusion_config":
+            path = value.strip().strip("'\"")
+    try:
+        terms = load_fusion_config(path).terms
+    except ValueError:
+        return []
+    return [f"terms:=[{', '.join(repr(f'{n}={k!r}') for n, k in terms)}]"] if terms else []
+
+
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
     for topic, n in endpoints.items():
         wait[topic] = wait.get(topic, 0) + n
@@ -288,7 +317,10 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                         args.estimator_param), stop_order=2))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
-        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param),
+        # the posterior's physics first, so a -p terms:=... of the user's wins
+        physics = posterior_terms_param(args.estimator_params_file, args.estimator_param)
+        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
+                                                      physics + args.planner_param),
                                  stop_order=2, niceness=PLANNER_NICENESS))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:

@@ -19,7 +19,7 @@ from collections.abc import Callable
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import ParameterException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -36,11 +36,19 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
     """Declare ``{name: (default, description[, typed_default])}`` on ``node``; returns ``get(name)``.
 
     ``typed_default`` (e.g. ``Parameter.Type.STRING_ARRAY``) is declared instead of ``default``
-    where the default alone cannot give the type (an empty list). ``get`` reads the current value.
+    where the default alone cannot give the type (an empty list). ``get`` reads the current value:
+    ``default`` where such a parameter was declared by its type and never given a value.
     """
     for name, (default, description, *typed) in table.items():
         node.declare_parameter(name, typed[0] if typed else default, ParameterDescriptor(description=description))
-    return lambda name: node.get_parameter(name).value
+
+    def get(name: str) -> object:
+        try:
+            return node.get_parameter(name).value
+        except ParameterUninitializedException:
+            return table[name][0]
+
+    return get
 
 
 def qos_profile(spec: QosSpec) -> QoSProfile:

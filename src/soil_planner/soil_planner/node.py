@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -64,6 +65,9 @@ PARAMETERS: dict[str, tuple] = {
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
+    "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
+                  "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
+                  "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
@@ -73,7 +77,7 @@ PARAMETERS: dict[str, tuple] = {
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
 MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
-PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile")  # StretchPlanner's
+PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms")  # StretchPlanner's
 
 
 def stretch_planner(settings: dict) -> StretchPlanner:
@@ -120,7 +124,8 @@ class PlannerNode(Node):
         p = self.planner
         self.get_logger().info(
             f"margin {p.margin}, d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
-            f"residual {'on' if p.include_residual else 'off'}, depth schedule {self.schedule.settings}; "
+            f"residual {'on' if p.include_residual else 'off'}, physics FEE"
+            f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
 
     # ------------------------------------------------------------------ parameters

@@ -92,7 +92,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from soil_physics import fee
+from soil_physics import fee, force_terms
+from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
@@ -244,6 +245,7 @@ def max_cut_depth(
     anchor: tuple[tuple[float, float], Mapping[str, float]] | None = None,
     grid_points: int | None = None,
     tol_m: float = TOLERANCE_M,
+    terms=(),
 ) -> Plan | None:
     """Deepest admissible cut for ``estimate`` (ESTIMATE_FIELDS) with Θ_k ``known`` (KNOWN_PARAMS).
 
@@ -252,12 +254,16 @@ def max_cut_depth(
     plan keeps a 1 − q chance of meeting more than the limits; otherwise the PINN's point
     estimate with the residual (module docstring). ``anchor``: the force (x, z) [N] the fused
     plan is anchored to and the Θ_k it was predicted at (``SteadyAnchor``); None: this
-    estimate's F̂ at ``known``. None when neither is valid (nothing to plan
+    estimate's F̂ at ``known``. ``terms``: the fused posterior's physics beside the FEE, (name, k)
+    pairs or 'name=k' texts (``planning_terms``): its θ means what it means in that physics (the
+    default world's calibrated posterior takes 76 % of the FEE's surcharge part away). None when
+    neither is valid (nothing to plan
     from). ValueError, naming the field and value, for a missing, non-finite or out-of-limits
     field, a bad setting, or parameters for which the FEE has no failure wedge at the planned
     steady cut (v_x = ``cut_speed_m_s``, v_z = 0; non-finite force).
     """
     margin, d_max_m, cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
+    terms = planning_terms(terms)
     if force_quantile is not None:
         force_quantile = check_quantile(force_quantile)
     valid = _flag(estimate, "valid")
@@ -283,7 +289,7 @@ def max_cut_depth(
             known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
         elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
             force_now = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
-        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now)
+        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now, terms)
     else:
         est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
         model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
@@ -315,6 +321,18 @@ def max_cut_depth(
         residual_x_n=float(model.residual[0]), residual_z_n=float(model.residual[1]),
         residual_used=model.residual_used, force_quantile=float(force_quantile) if fused else 0.0,
     )
+
+
+def planning_terms(terms) -> tuple[tuple[str, float], ...]:
+    """The fused posterior's terms beside the FEE as (name, k) pairs; ValueError naming a term
+    that is unknown or that looks at the blade's travel or time in soil: a plan is for a steady
+    cut at any depth, which has neither (the posterior's physics must then be planned without it)."""
+    parsed = AugmentedFEE(terms).terms
+    for name, _ in parsed:
+        if force_terms.uses_distance(name) or force_terms.uses_time(name):
+            raise ValueError(f"terms: {name!r} looks at the travel or time in soil, which a planned steady cut "
+                             "does not have")
+    return parsed
 
 
 class SteadyAnchor:
@@ -393,8 +411,9 @@ class StretchPlanner:
 
     def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
                  cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S, include_residual: bool = True,
-                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE):
+                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=()):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
+        self.terms = planning_terms(terms)  # the fused posterior's physics beside the FEE
         self.include_residual = bool(include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan, int] | None = None
@@ -407,7 +426,8 @@ class StretchPlanner:
 
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
-                "include_residual": self.include_residual, "force_quantile": self.force_quantile}
+                "include_residual": self.include_residual, "force_quantile": self.force_quantile,
+                "terms": [f"{n}={k!r}" for n, k in self.terms]}
 
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch)."""
@@ -418,7 +438,7 @@ class StretchPlanner:
         if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
             return self._fused[1], False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
-                        include_residual=self.include_residual, force_quantile=self.force_quantile)
+                        include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms)
         steady = self.anchor.anchor() if fused else None
         plan = max_cut_depth(estimate, known, anchor=steady, **settings)
         if steady is not None and plan is not None and float(known["v_z"]) > ANCHOR_MAX_ABS_V_Z_M_S:
@@ -451,8 +471,10 @@ class _FusedForceModel:
 
     θ samples: the Gaussian of the published means, standard deviations and correlations
     (covariance made positive semi-definite), fixed draws, φ and δ kept inside Table 1's
-    limits and c >= 0; each through the FEE at d (no Δd: the posterior's stretches were fitted
-    at Θ_k's d), the planned steady cut (v_x = cut speed, v_z = 0) and β* per sample; the
+    limits and c >= 0; each through the posterior's physics, the FEE plus ``terms`` (its θ means
+    what it means in the model it was fitted with; below, "FEE" is that model), at d (no Δd: the
+    posterior's stretches were fitted at Θ_k's d), the planned steady cut (v_x = cut speed,
+    v_z = 0) and β* per sample; the
     published error law σ = abs + rel·|ΔF| around each (ΔF below). Samples without a failure wedge there
     are left out; none left is a ValueError.
 
@@ -479,7 +501,9 @@ class _FusedForceModel:
     """
 
     def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
-                 anchor: tuple[float, float] | None = None, anchor_known: dict[str, float] | None = None):
+                 anchor: tuple[float, float] | None = None, anchor_known: dict[str, float] | None = None,
+                 terms: tuple[tuple[str, float], ...] = ()):
+        self.physics = AugmentedFEE(terms)
         names = ("phi", "c", "delta")
         mean = np.array([est[f"{n}_fused"] for n in names])
         std = np.array([est[f"{n}_std"] for n in names])
@@ -507,7 +531,7 @@ class _FusedForceModel:
         d_now = float(np.clip(at["d"], *D_PRIME_LIMITS_M))
         if anchor is not None and d_now >= MIN_FUSED_ANCHOR_DEPTH_M:
             with np.errstate(all="ignore"):
-                fx_now, fz_now, _ = fee.fee_xz({**self.theta, **at, "d": np.array([d_now])})  # (Θ_k has no φ, c, δ)
+                fx_now, fz_now = self._force({**self.theta, **at, "d": np.array([d_now])})  # (Θ_k has no φ, c, δ)
             r = np.array(anchor)[:, None] - np.stack([np.broadcast_to(fx_now, (FUSED_SAMPLES,)),
                                                       np.broadcast_to(fz_now, (FUSED_SAMPLES,))])
             r = np.where(np.isfinite(r), r, 0.0)
@@ -533,15 +557,23 @@ class _FusedForceModel:
             self.reference = [np.full(FUSED_SAMPLES, float(a)) for a in anchor]
         else:
             with np.errstate(all="ignore"):
-                ref_x, ref_z, _ = fee.fee_xz({**self.theta, "d": np.array([d_now])})
+                ref_x, ref_z = self._force({**self.theta, "d": np.array([d_now])})
             self.reference = [np.broadcast_to(ref_x, (FUSED_SAMPLES,)), np.broadcast_to(ref_z, (FUSED_SAMPLES,))]
+
+    def _force(self, theta: dict) -> tuple[np.ndarray, np.ndarray]:
+        """(F_x, F_z) [N] of the posterior's physics, the FEE plus its terms (NaN: no wedge), at
+        ``theta``: θ samples and Θ_k, arrays that broadcast."""
+        if not self.physics.terms:
+            fx, fz, _ = fee.fee_xz(theta)
+            return fx, fz
+        return self.physics.force((theta["phi"], theta["c"], theta["delta"]), theta, distance=0.0)
 
     def _mixtures(self, d: np.ndarray):
         """Per axis (x, z): (weights (S,), means (D, S), standard deviations (D, S)) at depths d."""
         d = np.clip(np.asarray(d, float), *D_PRIME_LIMITS_M)[:, None]  # (D, 1) against (S,) samples
         shape = (len(d), FUSED_SAMPLES)
         with np.errstate(all="ignore"):
-            raw_x, raw_z, _ = fee.fee_xz({**self.theta, "d": d})
+            raw_x, raw_z = self._force({**self.theta, "d": d})
             raw_x, raw_z = np.broadcast_to(raw_x, shape), np.broadcast_to(raw_z, shape)
             fx = raw_x * self.scale_x + self.residual_per_m[0] * d
             fz = raw_z + self.residual_per_m[1] * d
