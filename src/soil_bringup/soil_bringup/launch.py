@@ -17,8 +17,9 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
     soil_launch --rate 2 --sim-param episodes:=3 --sim-params-file my_sim.yaml
     soil_launch --planner --record bags/run3 --sim-param "patches:=['0:Sand:20','10:Clay:80']"
 
-``--planner`` starts the soil-aware planner too (and the estimator it plans from) and sets the
-controller's ``depth_source:=planner``: the loop is closed, the cut depth follows the soil.
+``--planner`` starts the soil-aware planner too (and the estimator it plans from, whose posterior
+physics it is given: ``posterior_terms_param``) and sets the controller's
+``depth_source:=planner``: the loop is closed, the cut depth follows the soil.
 """
 from __future__ import annotations
 
