@@ -22,15 +22,17 @@ THETA_PARAMS: tuple[str, ...] = UNKNOWN_PARAMS[:3]  # ("phi", "c", "delta"): the
 PLUGIN_TARGET = f"{force_terms.__name__}:{force_terms.plugin.__name__}"  # the simulator side of a term
 
 
-def fee_forces(phi, c, delta, known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fee_forces(phi, c, delta, known) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """FEE (F_x, F_z) [N] per tick and whether it is defined.
 
-    phi, c, delta broadcast against known[..., 0] (e.g. (K, 1) against (T,)). beta = beta*
-    per tick with the Eq. 9-10 velocity correction, as the PINN's FEE layer does. Out of the
-    soil (d <= 0) the force is exactly 0 whatever beta* is (the library's FEE would give
+    phi, c, delta broadcast against known[..., 0] (e.g. (K, 1) against (T,)); ``known`` may also
+    be a mapping of the KNOWN_PARAMS names, each broadcasting on its own (β* then costs what
+    φ, δ, ρ and α need: a planner's samples at many depths compute it once per sample). beta =
+    beta* per tick with the Eq. 9-10 velocity correction, as the PINN's FEE layer does. Out of
+    the soil (d <= 0) the force is exactly 0 whatever beta* is (the library's FEE would give
     0 * NaN there); ``defined`` is False only where d > 0 and beta* does not exist.
     """
-    theta = {n: known[..., i] for i, n in enumerate(KNOWN_PARAMS)}
+    theta = _known_columns(known)
     theta.update(phi=phi, c=c, delta=delta)
     with np.errstate(all="ignore"):  # invalid beta* candidates are masked inside beta_star
         fx, fz, _ = fee.fee_xz(theta)
@@ -86,7 +88,7 @@ class AugmentedFEE:
     def fee(theta, known) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pure FEE (F_x, F_z, defined): see ``fee_forces`` (0 out of the soil)."""
         phi, c, delta = _theta_tuple(theta)
-        return fee_forces(phi, c, delta, _known_array(known))
+        return fee_forces(phi, c, delta, known)
 
     @property
     def needs_time(self) -> bool:
@@ -99,7 +101,7 @@ class AugmentedFEE:
         time in soil [s] if given)."""
         phi, c, delta = _theta_tuple(theta)
         return ForceInputs.from_known(
-            _known_array(known), phi=phi, c=c, delta=delta,
+            _known_columns(known), phi=phi, c=c, delta=delta,
             distance_in_soil=np.asarray(distance, dtype=float), f_fee_x=f_fee_x, f_fee_z=f_fee_z,
             time_in_soil=None if time_in_soil is None else np.asarray(time_in_soil, dtype=float),
         )
@@ -139,7 +141,10 @@ def _theta_tuple(theta):
     return np.asarray(phi, float), np.asarray(c, float), np.asarray(delta, float)
 
 
-def _known_array(known) -> np.ndarray:
+def _known_columns(known) -> dict[str, np.ndarray]:
+    """Θ_k as name -> array: a mapping's values as given (not broadcast against each other), or
+    the columns of an (..., 9) array in KNOWN_PARAMS order."""
     if isinstance(known, Mapping):
-        return np.stack(np.broadcast_arrays(*(np.asarray(known[n], float) for n in KNOWN_PARAMS)), axis=-1)
-    return np.asarray(known, dtype=float)
+        return {n: np.asarray(known[n], dtype=float) for n in KNOWN_PARAMS}
+    known = np.asarray(known, dtype=float)
+    return {n: known[..., i] for i, n in enumerate(KNOWN_PARAMS)}

@@ -75,12 +75,13 @@ the difference to the PINN's own FEE, whose β̂ is clipped to Table 1, would pa
 residual), and with ``include_residual=False`` (pure FEE plan). Far from the current depth the extrapolation is less certain: re-plan with every
 estimate.
 
-Search: a dense grid on [0, d_max] (one vectorised FEE call), then bisection between the
-last admissible grid depth and the first inadmissible one. The answer is the largest d
+Search: a dense grid on [0, d_max] (one vectorised FEE call), then a search between the
+last admissible grid depth and the first inadmissible one, 8 depths per vectorised call (a
+bracket nine times narrower per call, where bisection halves it). The answer is the largest d
 such that *every* depth in [0, d] is admissible: the blade reaches d through all shallower
 depths, so a deeper admissible band behind an inadmissible one (force can be
 non-monotonic, e.g. a residual of opposite sign) is not a plan. The surcharge term makes
-F jump at d' = 0+; bisection does not need continuity. If d = 0 is already inadmissible
+F jump at d' = 0+; the search does not need continuity. If d = 0 is already inadmissible
 (Δd̂ > 0 and a large force), the depth is 0; the flags say which limit binds.
 """
 from __future__ import annotations
@@ -111,6 +112,7 @@ CUT_SPEED_LIMIT_M_S = TABLE1["v_x"].limits[1]
 DEFAULT_MARGIN = 0.8
 GRID_POINTS = 257
 TOLERANCE_M = 1e-5
+SEARCH_PROBES = 8  # depths per step of the search between the last admissible and first inadmissible grid depth
 # The residual is carried to other depths only from an estimate with the blade this deep in soil.
 MIN_ANCHOR_DEPTH_M = 0.02
 # The fused plan's anchor (``_FusedForceModel``) only from this deep: carried in proportion to
@@ -304,15 +306,20 @@ def max_cut_depth(
     else:
         k = int(np.argmin(ok))  # first inadmissible grid depth
         lo, hi = float(grid[k - 1]), float(grid[k])
+        hit_x, hit_z = not bool(in_x[k]), not bool(in_z[k])  # what binds just deeper than lo
         while hi - lo > tol_m:
-            mid = 0.5 * (lo + hi)
-            mx, mz = model.within(np.array([mid]), limits)
-            if mx[0] and mz[0]:
-                lo = mid
-            else:
-                hi = mid
-        hx, hz = model.within(np.array([hi]), limits)
-        depth, hit_x, hit_z = lo, not bool(hx[0]), not bool(hz[0])
+            # SEARCH_PROBES depths inside the bracket per model call: one vectorised evaluation
+            # shrinks it ninefold where a bisection step halves it (a call costs, a depth hardly)
+            probe = np.linspace(lo, hi, SEARCH_PROBES + 2)[1:-1]
+            mx, mz = model.within(probe, limits)
+            good = mx & mz
+            if good.all():
+                lo = float(probe[-1])
+                continue
+            j = int(np.argmin(good))  # the first inadmissible probe: every depth above it is admissible
+            lo, hi = (float(probe[j - 1]) if j else lo), float(probe[j])
+            hit_x, hit_z = not bool(mx[j]), not bool(mz[j])
+        depth = lo
     f_x, f_z = model(np.array([depth]))
     return Plan(
         max_depth_m=float(depth), f_x_n=float(f_x[0]), f_z_n=float(f_z[0]),
