@@ -74,7 +74,7 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert "'/soil/known_params:3'" in sim  # recorder, estimator and planner before tick 0
 
 
-def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path):
+def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, capsys):
     """The planner reads the posterior's θ through the terms the estimator's fusion config adds:
     the shipped default world's, or those of a config given by -p or in a params file; the user's
     own -p terms:=... comes later and wins."""
@@ -95,6 +95,10 @@ def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path):
     params = tmp_path / "est.yaml"
     params.write_text(f"pinn_estimator:\n  ros__parameters:\n    fusion_config: {cfg}\n")
     assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-params-file", str(params))
+    # a term on the travel in soil is left out (a planned steady cut has none), and said so
+    FusionConfig(terms=(("soil_inertia", 2.5), ("compaction_hardening", 0.1))).save(cfg)
+    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-param", f"fusion_config:={cfg}")
+    assert "without compaction_hardening" in capsys.readouterr().err
     FusionConfig().save(cfg)  # no terms: the FEE alone, nothing passed
     assert not any(a.startswith("terms:=") for a in planner_argv("--estimator-param", f"fusion_config:={cfg}"))
     argv = planner_argv("--planner-param", "terms:=[]")

@@ -15,7 +15,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, MIN_ANCHOR_DEPTH_M,
-                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, max_cut_depth)
+                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, max_cut_depth, steady_cut_terms)
 
 LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
 
@@ -346,6 +346,8 @@ def test_a_sharp_fused_posterior_plans_through_the_physics_it_was_fitted_with():
         # (the posterior's 1 N error law and the 95 % quantile: within a few N of the limit)
         assert (abs(float(fx)) <= LX - 1.0) == admissible, (depth, float(fx))
     assert StretchPlanner(terms=["form:-qnq*tanhvx0.1=0.756"]).settings()["terms"] == ["form:-qnq*tanhvx0.1=0.756"]
+    assert steady_cut_terms([term, ("compaction_hardening", 0.1), ("form:wd_x*tau", 1.0)]) == (
+        (term,), ("compaction_hardening", "form:wd_x*tau"))
     for bad, needle in ((["compaction_hardening=0.1"], "compaction_hardening"), (["form:wd_x*tau=1"], "form:wd_x\\*tau"),
                         (["no_such_term=1"], "no_such_term"), (["soil_inertia"], "name=k")):
         with pytest.raises(ValueError, match=needle):

@@ -31,7 +31,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ
 from soil_planner.depth_schedule import DepthSchedule, ScheduleSettings
-from soil_planner.planner import StretchPlanner
+from soil_planner.planner import StretchPlanner, steady_cut_terms
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 DEFAULT_PLAN_DELAY_TICKS = 2
@@ -121,8 +121,9 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
         schedule = DepthSchedule(setup.schedule)
         torch.set_num_threads(1)
         estimator = setup.estimator(published.append)
-        # the plan reads the posterior's θ through the posterior's own physics
-        planner = StretchPlanner(**{"terms": estimator.posterior.cfg.terms, **setup.planner})
+        # the plan reads the posterior's θ through the posterior's own physics (what of it a
+        # steady cut can evaluate: a term on travel or time in soil is left out)
+        planner = StretchPlanner(**{"terms": steady_cut_terms(estimator.posterior.cfg.terms)[0], **setup.planner})
         estimator.start_episode(0)
         start = schedule.target_m
     controller = AntiStallController(gains, spec.target_speed_m_s, start)

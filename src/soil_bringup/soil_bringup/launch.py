@@ -274,9 +274,12 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     """``["terms:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
     posterior, from the ``fusion_config`` it is given (the last ``-p``, else its params file, else
     the shipped one), so the plan reads θ through the model θ was fitted with; [] without terms or
-    where the config cannot be read (the estimator then exits naming it). A checkpoint's own terms
-    are not seen here (reading it needs torch): give them with ``--planner-param terms:=[...]``."""
+    where the config cannot be read (the estimator then exits naming it). A term on the travel or
+    time in soil, which a planned steady cut does not have, is left out with a line on stderr. A
+    checkpoint's own terms are not seen here (reading it needs torch): give them with
+    ``--planner-param terms:=[...]``."""
     from pinn_estimator.fusion_calibration import load_fusion_config
+    from soil_planner.planner import steady_cut_terms
 
     path = ""
     if estimator_params_file:
@@ -291,9 +294,12 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
         if name.strip() == "fusion_config":
             path = value.strip().strip("'\"")
     try:
-        terms = load_fusion_config(path).terms
+        terms, left_out = steady_cut_terms(load_fusion_config(path).terms)
     except ValueError:
         return []
+    if left_out:
+        print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
+              "planned steady cut does not have)", file=sys.stderr)
     return [f"terms:=[{', '.join(repr(f'{n}={k!r}') for n, k in terms)}]"] if terms else []
 
 

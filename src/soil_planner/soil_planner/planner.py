@@ -330,16 +330,24 @@ def max_cut_depth(
     )
 
 
+def steady_cut_terms(terms) -> tuple[tuple[tuple[str, float], ...], tuple[str, ...]]:
+    """(the terms a planned steady cut can evaluate as (name, k) pairs, the names of those it
+    cannot): a plan is for a steady cut at any depth, which has no travel or time in soil, so a
+    term that looks at either is left to the caller (e.g. a posterior fitted with compaction
+    hardening: plan without it, and say so). ValueError naming an unknown term."""
+    parsed = AugmentedFEE(terms).terms
+    path = tuple(n for n, _ in parsed if force_terms.uses_distance(n) or force_terms.uses_time(n))
+    return tuple(t for t in parsed if t[0] not in path), path
+
+
 def planning_terms(terms) -> tuple[tuple[str, float], ...]:
     """The fused posterior's terms beside the FEE as (name, k) pairs; ValueError naming a term
-    that is unknown or that looks at the blade's travel or time in soil: a plan is for a steady
-    cut at any depth, which has neither (the posterior's physics must then be planned without it)."""
-    parsed = AugmentedFEE(terms).terms
-    for name, _ in parsed:
-        if force_terms.uses_distance(name) or force_terms.uses_time(name):
-            raise ValueError(f"terms: {name!r} looks at the travel or time in soil, which a planned steady cut "
-                             "does not have")
-    return parsed
+    that is unknown or that looks at the blade's travel or time in soil (``steady_cut_terms``)."""
+    usable, path = steady_cut_terms(terms)
+    if path:
+        raise ValueError(f"terms: {path[0]!r} looks at the travel or time in soil, which a planned steady cut "
+                         "does not have")
+    return usable
 
 
 class SteadyAnchor:
