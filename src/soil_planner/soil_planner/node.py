@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.parameter import Parameter
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
