@@ -56,7 +56,7 @@ from pinn_estimator import forecast as fc  # noqa: E402
 from pinn_estimator.checkpoint import load_model  # noqa: E402
 from pinn_estimator.dataset import Dataset  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
-from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # noqa: E402
+from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode, fused_values  # noqa: E402
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
@@ -65,6 +65,8 @@ from soil_physics.soils import CATALOGUE, SoilProperties, SoilType  # noqa: E402
 from soil_physics.travel import distance_in_soil_of_known  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
 from soil_sim_node.simulator import EpisodeSpec, SimConfig  # noqa: E402
+from soil_msgs_py.topics import FUSED_FIELDS  # noqa: E402
+from soil_planner.planner import DEFAULT_FORCE_QUANTILE, fused_upper_force, steady_cut_terms  # noqa: E402
 
 WORLDS = ("fee", "default")
 SOILS = tuple(sorted(CATALOGUE))
@@ -215,11 +217,66 @@ def section_forecast(args, models) -> dict:
               f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})"
               + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in physics)}" if physics else "") + "\n")
         print("\n".join(fc.markdown(report)))
+        bound = planner_bound(ds, config_for_model(fusion, model))
+        print("\n" + bound_text(bound))
         print(f"\nWall time: {sim_s:.1f} s simulating {len(ds)} episodes, {eval_s:.1f} s forecasting "
               f"({'with' if args.classical else 'without'} the classical fit, {args.workers} workers).\n", flush=True)
         out[world] = {"report": report, "simulate_s": sim_s, "forecast_s": eval_s, "classical": args.classical,
-                      "model": path.name, "fusion_config": fusion.to_dict()}
+                      "model": path.name, "fusion_config": fusion.to_dict(), "planner_bound": bound}
     return out
+
+
+def planner_bound(ds, cfg: FusionConfig, quantile: float = DEFAULT_FORCE_QUANTILE) -> dict:
+    """How often the measured steady force at another depth exceeds the bound the planner keeps
+    within the limits: the ``quantile`` upper bound of |F| from the published moments of the
+    fused posterior at the source episode's end (``planner.fused_upper_force``, its physics the
+    posterior's, at the target's steady Θ_k and speed), anchored as the planner is, to the
+    force measured at the source's depth, and unanchored. Per axis: the share exceeded, going
+    deeper too (where exceeding it stalls a machine), and the bound's mean over the measured |F|."""
+    posts = fused_posteriors(ds, cfg)
+    parts = fc.steady_parts(ds)
+    terms = steady_cut_terms(cfg.terms)[0]
+    rows = {"anchored": [], "unanchored": []}
+    for a, b in fc.pair_indices(parts):
+        if not posts[a].updates:
+            continue
+        est = dict(zip(FUSED_FIELDS, fused_values(posts[a].summary(), cfg)))
+        src, dst = parts[a], parts[b]
+        for label, anchor in (("anchored", (tuple(src.force), src.known)), ("unanchored", None)):
+            try:
+                ux, uz = fused_upper_force(est, dst.known, [dst.known["d"]], quantile=quantile,
+                                           cut_speed_m_s=dst.known["v_x"], anchor=anchor, terms=terms)
+            except ValueError:
+                continue  # no bound (no failure wedge): a plan would refuse this estimate
+            rows[label].append((dst.known["d"] > src.known["d"], abs(dst.force[0]), abs(dst.force[1]), ux[0], uz[0]))
+    out = {"quantile": quantile, "terms": [list(t) for t in terms]}
+    for label, r in rows.items():
+        if not r:
+            out[label] = {"pairs": 0}
+            continue
+        deeper, fx, fz, ux, uz = (np.array(c, dtype=float) for c in zip(*r))
+        deeper = deeper.astype(bool)
+        out[label] = {"pairs": len(r), "deeper_pairs": int(deeper.sum()),
+                      "exceeded_x": float(np.mean(fx > ux)), "exceeded_z": float(np.mean(fz > uz)),
+                      "exceeded_x_deeper": float(np.mean(fx[deeper] > ux[deeper])) if deeper.any() else float("nan"),
+                      "bound_over_measured_x": float(np.mean(ux / np.maximum(fx, 1.0)))}
+    return out
+
+
+def bound_text(bound: dict) -> str:
+    """One paragraph of ``planner_bound``'s figures."""
+    parts = []
+    for label in ("anchored", "unanchored"):
+        b = bound[label]
+        if not b["pairs"]:
+            parts.append(f"{label}: no pairs")
+            continue
+        parts.append(f"{label} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
+                     f"({b['exceeded_x_deeper']:.0%} of the {b['deeper_pairs']} going deeper), |F_z| in "
+                     f"{b['exceeded_z']:.0%}; the bound is {b['bound_over_measured_x']:.2f}× the measured |F_x| on average")
+    return (f"The planner's bound at another depth (the {bound['quantile']:.0%} upper quantile of |F| from the published "
+            f"moments, which a plan keeps within the limits; nominally exceeded in {1 - bound['quantile']:.0%}): "
+            + "; ".join(parts) + ".")
 
 
 # ---------------------------------------------------------------- 2. fused estimates after 5 s

@@ -15,7 +15,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, MIN_ANCHOR_DEPTH_M,
-                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, max_cut_depth, steady_cut_terms)
+                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth,
+                                  steady_cut_terms)
 
 LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
 
@@ -354,6 +355,26 @@ def test_a_sharp_fused_posterior_plans_through_the_physics_it_was_fitted_with():
             StretchPlanner(terms=bad)
         with pytest.raises(ValueError, match=needle):
             max_cut_depth(sharp, known, terms=bad)
+
+
+def test_the_bound_a_fused_plan_keeps_is_the_one_it_reports_and_meets_the_limit_at_the_plan():
+    """``fused_upper_force`` is what ``max_cut_depth`` compares with the limits: at the planned
+    depth it is the plan's reported force and the limit where x binds, beyond it above the limit;
+    a higher quantile bounds higher; without a fused posterior it refuses by name."""
+    known = _known(d=0.12, q=1000.0)
+    wide = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                  std=(3 * DEG, 800.0, 0.5 * DEG), corr=(-0.8, 0.0, 0.0))
+    plan = max_cut_depth(wide, known)  # anchored to the estimate's F̂ at Θ_k
+    assert plan.limited_by_x
+    now = ((wide["f_x_hat"], wide["f_z_hat"]), known)
+    ux, uz = fused_upper_force(wide, known, [plan.max_depth_m, plan.max_depth_m + 0.01], anchor=now)
+    assert ux[0] == pytest.approx(plan.f_x_n) and uz[0] == pytest.approx(plan.f_z_n)
+    assert ux[0] <= LX < ux[1]
+    assert fused_upper_force(wide, known, [0.1], quantile=0.99)[0][0] > fused_upper_force(wide, known, [0.1])[0][0]
+    anchored = fused_upper_force(wide, known, [0.1], anchor=((wide["f_x_hat"] * 1.5, wide["f_z_hat"]), known))
+    assert anchored[0][0] > fused_upper_force(wide, known, [0.1])[0][0]  # a stronger force now bounds higher
+    with pytest.raises(ValueError, match="fused_valid"):
+        fused_upper_force(_estimate(known), known, [0.1])
 
 
 def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper():

@@ -330,6 +330,29 @@ def max_cut_depth(
     )
 
 
+def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float], depths_m, *,
+                      quantile: float = DEFAULT_FORCE_QUANTILE, cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S,
+                      anchor: tuple[tuple[float, float], Mapping[str, float]] | None = None,
+                      terms=()) -> tuple[np.ndarray, np.ndarray]:
+    """The ``quantile`` upper bound of |F_x| and |F_z| [N] the fused plan keeps within the limits, at
+    each of ``depths_m`` (a steady, level cut at ``cut_speed_m_s`` with Θ_k ``known``): what
+    ``max_cut_depth`` compares with the limits, for checking how often a measured force exceeds it.
+    ``anchor``: ((F_x, F_z) [N], Θ_k) as in ``max_cut_depth``. ValueError as there (no fused posterior
+    in ``estimate`` is one)."""
+    check_settings(DEFAULT_MARGIN, DEFAULT_D_MAX_M, cut_speed_m_s)
+    quantile = check_quantile(quantile)
+    if _flag(estimate, "fused_valid") != 1.0:
+        raise ValueError("estimate: fused_valid is not 1 (no fused posterior to bound the force with)")
+    est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
+    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    force_now = known_now = None
+    if anchor is not None:
+        force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
+        known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
+    model = _FusedForceModel(est, kn, cut_speed_m_s, quantile, force_now, known_now, planning_terms(terms))
+    return model(np.atleast_1d(np.asarray(depths_m, dtype=float)))
+
+
 def steady_cut_terms(terms) -> tuple[tuple[tuple[str, float], ...], tuple[str, ...]]:
     """(the terms a planned steady cut can evaluate as (name, k) pairs, the names of those it
     cannot): a plan is for a steady cut at any depth, which has no travel or time in soil, so a
