@@ -285,10 +285,7 @@ def max_cut_depth(
         est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
         force_now, known_now = None, kn
         if include_residual and anchor is not None:
-            if len(anchor) != 2 or len(anchor[0]) != 2:
-                raise ValueError(f"anchor={anchor!r} must be ((F_x, F_z) [N], Θ_k)")
-            force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
-            known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
+            force_now, known_now = _checked_anchor(anchor)
         elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
             force_now = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
         model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now, terms)
@@ -345,12 +342,17 @@ def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float],
         raise ValueError("estimate: fused_valid is not 1 (no fused posterior to bound the force with)")
     est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
     kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
-    force_now = known_now = None
-    if anchor is not None:
-        force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
-        known_now = _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
+    force_now, known_now = _checked_anchor(anchor) if anchor is not None else (None, None)
     model = _FusedForceModel(est, kn, cut_speed_m_s, quantile, force_now, known_now, planning_terms(terms))
     return model(np.atleast_1d(np.asarray(depths_m, dtype=float)))
+
+
+def _checked_anchor(anchor) -> tuple[tuple[float, float], dict[str, float]]:
+    """((F_x, F_z) [N], Θ_k) of a fused plan's anchor, checked; ValueError naming what is wrong."""
+    if len(anchor) != 2 or len(anchor[0]) != 2:
+        raise ValueError(f"anchor={anchor!r} must be ((F_x, F_z) [N], Θ_k)")
+    force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
+    return force_now, _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known")
 
 
 def steady_cut_terms(terms) -> tuple[tuple[tuple[str, float], ...], tuple[str, ...]]:
