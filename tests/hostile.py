@@ -353,12 +353,38 @@ class GraphObserver(RosProbe):
 
     QOS = qos_profile(G.RECORDER_QOS)
 
-    def __init__(self, domain_id: int, topics):
+    def __init__(self, domain_id: int, topics, held=(), until_matched: dict[str, int] | None = None,
+                 limit_s: float = 60.0):
+        """``held`` topics are subscribed only once the subscription of each topic in
+        ``until_matched`` has matched that many publishers (at most ``limit_s``): a simulator that
+        waits for the held topics' subscribers (``--wait-for``) then starts its episode only when
+        the observer also hears the nodes publishing the other topics. Without it a busy machine
+        let the first second of the controller's commands pass by the observer (VOLATILE: lost)."""
         super().__init__(domain_id, name="observer")
         self.raw: dict[str, list[bytes]] = collections.defaultdict(list)
+        self.subs = {}
         for topic in topics:
-            self.node.create_subscription(message_class(MSGTYPES[topic]), topic,
-                                          lambda raw, t=topic: self._keep(t, raw), self.QOS, raw=True)
+            if topic not in held:
+                self._subscribe(topic)
+        self.matched_s: float | None = None  # how long the held topics waited (None: not yet / never)
+        if held:
+            threading.Thread(target=self._hold, args=(tuple(held), dict(until_matched or {}), limit_s),
+                             daemon=True).start()
+
+    def _subscribe(self, topic: str) -> None:
+        self.subs[topic] = self.node.create_subscription(message_class(MSGTYPES[topic]), topic,
+                                                         lambda raw, t=topic: self._keep(t, raw), self.QOS, raw=True)
+
+    def _hold(self, held, until_matched, limit_s) -> None:
+        start = time.monotonic()
+        while time.monotonic() - start < limit_s and not self._stop.is_set():
+            if all(self.subs[t].get_publisher_count() >= n for t, n in until_matched.items()):
+                self.matched_s = time.monotonic() - start
+                break
+            time.sleep(0.02)
+        if not self._stop.is_set():
+            for topic in held:
+                self._subscribe(topic)
 
     def _keep(self, topic: str, raw: bytes) -> None:
         with self.lock:
