@@ -210,14 +210,15 @@ def section_forecast(args, models) -> dict:
         fusion = dataclasses.replace(fusion, terms=merged_terms(fusion.terms, args.fusion_terms))
         physics = config_for_model(fusion, model).terms
         t0 = time.perf_counter()
-        report = forecast(model, ds, classical=args.classical, workers=args.workers, fusion=fusion)
+        posts = fused_posteriors(ds, config_for_model(fusion, model))  # the forecast's and the planner bound's
+        report = forecast(model, ds, classical=args.classical, workers=args.workers, fusion=fusion, posteriors=posts)
         eval_s = time.perf_counter() - t0
         print(f"### {world} world: model `{path.name}`, fusion `{cfg_path.name if cfg_path.exists() else 'defaults'}` "
               f"(rel_std {'/'.join(f'{v:g}' for v in fusion.rel_std)}, forecast_rel_std "
               f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})"
               + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in physics)}" if physics else "") + "\n")
         print("\n".join(fc.markdown(report)))
-        bound = planner_bound(ds, config_for_model(fusion, model))
+        bound = planner_bound(ds, config_for_model(fusion, model), posts)
         print("\n" + bound_text(bound))
         print(f"\nWall time: {sim_s:.1f} s simulating {len(ds)} episodes, {eval_s:.1f} s forecasting "
               f"({'with' if args.classical else 'without'} the classical fit, {args.workers} workers).\n", flush=True)
@@ -226,14 +227,14 @@ def section_forecast(args, models) -> dict:
     return out
 
 
-def planner_bound(ds, cfg: FusionConfig, quantile: float = DEFAULT_FORCE_QUANTILE) -> dict:
+def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_FORCE_QUANTILE) -> dict:
     """How often the measured steady force at another depth exceeds the bound the planner keeps
     within the limits: the ``quantile`` upper bound of |F| from the published moments of the
     fused posterior at the source episode's end (``planner.fused_upper_force``, its physics the
     posterior's, at the target's steady Θ_k and speed), anchored as the planner is, to the
     force measured at the source's depth, and unanchored. Per axis: the share exceeded, going
-    deeper too (where exceeding it stalls a machine), and the bound's mean over the measured |F|."""
-    posts = fused_posteriors(ds, cfg)
+    deeper too (where exceeding it stalls a machine), and the bound's mean over the measured |F|.
+    ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
     parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
     rows = {"anchored": [], "unanchored": []}

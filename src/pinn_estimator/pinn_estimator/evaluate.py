@@ -139,11 +139,12 @@ def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:
 
 
 def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bool = True, workers: int = 2,
-             progress: bool = False, fusion: FusionConfig | None = None) -> dict:
+             progress: bool = False, fusion: FusionConfig | None = None, posteriors: list | None = None) -> dict:
     """``forecast.evaluate_forecast`` of ``ds`` with the PINN's and (``classical``) the least-squares
     fit's θ̂, and the fused posterior (``fusion``: its config, None: the default world's calibration;
-    the model's catalogue terms are added). The PINN's θ̂ forecasts through its own physics (the
-    FEE plus the terms it was trained with); the least-squares fit's through the FEE."""
+    the model's catalogue terms are added; ``posteriors``: the episodes' ``fused_posteriors`` under
+    that config when already made). The PINN's θ̂ forecasts through its own physics (the FEE plus
+    the terms it was trained with); the least-squares fit's through the FEE."""
     ends = fc.steady_window_ends(ds, stride)
     out = predict(model, WindowTensors(ds), ends)
     estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
@@ -156,7 +157,8 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
 
     fused = config_for_model(fusion, model)
     # the fused posterior forecasts through its own physics; its terms are passed only to be named
-    return fc.evaluate_forecast(ds, ends, estimates, {"fused": fused_posteriors(ds, fused)},
+    posts = fused_posteriors(ds, fused) if posteriors is None else posteriors
+    return fc.evaluate_forecast(ds, ends, estimates, {"fused": posts},
                                 terms={"pinn": model.cfg.extra_terms, "fused": fused.terms})
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
-from soil_physics.blade_inertia import blade_velocity, inertia_force_rows
+from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
@@ -171,9 +171,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
-        v = blade_velocity(np.asarray(ds.observations[r], float))
-        inertia = np.stack(inertia_force_rows(v[:, 0], v[:, 1]), axis=1)
-        inertia[np.asarray(ds.gap_before[r], bool)] = 0.0  # no acceleration is known across a gap
+        inertia = inertia_rows(np.asarray(ds.observations[r], float), ds.gap_before[r])
         forces = np.asarray(ds.forces[r], float) - inertia
         n = len(known)
         t = np.arange(n) * dt

@@ -48,8 +48,18 @@ def inertia_force_rows(v_x: np.ndarray, v_z_b: np.ndarray, blade_mass_kg: float 
     return f[:, 0], f[:, 1]
 
 
+def inertia_rows(observations: np.ndarray, gap_before: np.ndarray | None = None,
+                 blade_mass_kg: float = MACHINE.blade_mass_kg) -> np.ndarray:
+    """(N, 2) m_b a (x, z) [N] per row of one episode's observations; 0 on row 0 and on a row
+    after a gap (``gap_before``, a repaired bag): no acceleration is known across it."""
+    v = blade_velocity(observations)
+    f = np.stack(inertia_force_rows(v[:, 0], v[:, 1], blade_mass_kg), axis=1)
+    if gap_before is not None:
+        f[np.asarray(gap_before, bool)] = 0.0
+    return f
+
+
 def soil_force_rows(forces_n: np.ndarray, observations: np.ndarray,
                     blade_mass_kg: float = MACHINE.blade_mass_kg) -> np.ndarray:
     """(N, 2) the soil's force (x, z) [N] of one episode's measured forces: minus m_b a per row."""
-    v = blade_velocity(observations)
-    return np.asarray(forces_n, float) - np.stack(inertia_force_rows(v[:, 0], v[:, 1], blade_mass_kg), axis=1)
+    return np.asarray(forces_n, float) - inertia_rows(observations, blade_mass_kg=blade_mass_kg)

@@ -603,7 +603,7 @@ class _FusedForceModel:
     def _force(self, theta: dict) -> tuple[np.ndarray, np.ndarray]:
         """(F_x, F_z) [N] of the posterior's physics, the FEE plus its terms (NaN: no wedge), at
         ``theta``: θ samples and Θ_k, arrays that broadcast."""
-        if not self.physics.terms:
+        if not self.physics.terms:  # (the FEE as the plan has always used it, its surcharge force at d = 0 too)
             fx, fz, _ = fee.fee_xz(theta)
             return fx, fz
         return self.physics.force((theta["phi"], theta["c"], theta["delta"]), theta, distance=0.0)

@@ -27,7 +27,6 @@ import collections
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
@@ -47,7 +46,7 @@ from .simulator import check_engine as check_sim_engine
 from .warm_up import warm_up
 
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
-# declared by type and read through _value() (unset reads as []).
+# declared by type and read through declare_parameters' getter (unset reads as the default []).
 _STR_ARRAY = Parameter.Type.STRING_ARRAY
 _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 
@@ -95,7 +94,7 @@ def check_engine(engine) -> None:
 class SimNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_sim_node")
-        declare_parameters(self, PARAMETERS)
+        self._value = declare_parameters(self, PARAMETERS)  # name -> current value
         self.finished = False
         self.exit_code = 0
         p = {name: self._value(name) for name in PARAMETERS}
@@ -155,12 +154,6 @@ class SimNode(Node):
         )
 
     # ------------------------------------------------------------------ parameters
-    def _value(self, name: str):
-        try:
-            return self.get_parameter(name).value
-        except ParameterUninitializedException:
-            return []
-
     @staticmethod
     def _validate_static(p: dict) -> None:
         check_pacing(p["pacing"], p["rate"])
