@@ -135,6 +135,11 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
            lambda s, xp: (xp.abs(s.f_fee_z) > LIMIT_SHARE * FZ_LIMIT_N) * 1.0)]
     + [Piece(f"tanhvx{v0:g}", f"forward speed, saturating above {v0:g} m/s", f"tanh(v_x / {v0:g} m/s)",
              (lambda v0: lambda s, xp: xp.tanh(_pos(xp, s.v_x) / v0))(v0)) for v0 in (0.1, 0.3, 1.0)]
+    # a strength the moving blade loses, fading with speed (rate weakening, Stribeck-like static
+    # friction): a decay the saturating forms cannot take with θ absorbing their constant (between
+    # speeds it falls off faster than tanh(v_x/1 m/s) and slower than tanh(v_x/0.3 m/s))
+    + [Piece(f"fadevx{v0:g}", f"fading with forward speed (over ~{v0:g} m/s)", f"exp(−v_x / {v0:g} m/s)",
+             (lambda v0: lambda s, xp: xp.exp(-_pos(xp, s.v_x) / v0) * _in(s))(v0)) for v0 in (0.1, 0.3, 1.0)]
     + [Piece(f"enter{s0:g}", f"while the blade enters the soil (first ~{s0:g} m)", f"exp(−s / {s0:g} m)",
              (lambda s0: lambda s, xp: xp.exp(-s.distance_in_soil / s0) * _in(s))(s0)) for s0 in (0.5, 2.0)]
     + [Piece(f"sat{s0:g}", f"growing with travel, saturating over {s0:g} m", f"1 − exp(−s / {s0:g} m)",
