@@ -145,3 +145,32 @@ def clay_viscous_drag(state, k: float = 1.0, p_pa: float = 20e3, c_min_pa: float
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     clay = (np.asarray(state.c, dtype=float) > float(c_min_pa)) & (np.asarray(state.phi, dtype=float) < float(phi_max_rad))
     return float(k) * state.w * d * float(p_pa) * np.maximum(np.asarray(state.v_x, dtype=float), 0.0) * clay, np.zeros_like(d)
+
+
+def speed_weakening(state, k: float = 2.0, v0: float = 0.3):
+    """Hidden effect: a strength the moving blade loses, F_x = k γ w d² exp(−v_x / v0) [N] (rate
+    weakening: the most at rest, fading with speed; the library's ``gd2w_x*fadevx…`` forms)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**2 * np.exp(-v / float(v0)), np.zeros_like(d)
+
+
+def dense_only_drag(state, k: float = 1.0, p_pa: float = 10e3, gamma_min_n_m3: float = 19.0e3):
+    """Hidden effect in the dense soils only: F_x = k w d p where γ > ``gamma_min_n_m3`` (a drag
+    with cohesion's depth profile, which those soils' θ can absorb)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    dense = np.asarray(state.gamma, dtype=float) > float(gamma_min_n_m3)
+    return float(k) * state.w * d * float(p_pa) * dense, np.zeros_like(d)
+
+
+def sqrt_depth_drag(state, k: float = 1.0, p_pa: float = 10e3, d_ref_m: float = 0.1):
+    """Hidden effect concave in depth (no form of the library): F_x = k w p √(d d_ref) [N]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.w * float(p_pa) * np.sqrt(d * float(d_ref_m)) * (d > 0), np.zeros_like(d)
+
+
+def travel_wave(state, k: float = 1.0, wavelength_m: float = 0.7):
+    """Hidden effect with zero mean (stick-slip with travel): F_x = k · 1 kN · sin(2π s / λ) [N] in soil."""
+    d = np.asarray(state.d, dtype=float)
+    s = np.asarray(state.distance_in_soil, dtype=float)
+    return float(k) * 1e3 * np.sin(2.0 * np.pi * s / float(wavelength_m)) * (d > 0), np.zeros_like(d)

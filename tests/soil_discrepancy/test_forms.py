@@ -255,6 +255,38 @@ def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
 
 
+def test_a_strength_lost_with_speed_is_found_with_its_decay(tmp_path):
+    """Rate weakening (tests/sim_plugins.speed_weakening: F_x = 2 γ w d² exp(−v_x / 0.3 m/s)), on
+    24 episodes at three speeds and one depth: θ takes the drag's share at rest, what is left is a
+    relief growing with speed that no saturating form follows (between 0.3, 0.65 and 1 m/s it falls
+    off faster than tanh(v_x/1 m/s), slower than tanh(v_x/0.3 m/s)); the search names the decay
+    itself, with its speed scale and k, and the held-out error shrinks."""
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 0.65, 1.0], [0.15], 1, seed_base=0, duration_s=10.0)
+    generate(DatasetPlan("fee", tmp_path / "weak", specs, effects_for_mode("fee"),
+                         plugins=("tests.sim_plugins:speed_weakening k=2 v0=0.3",)), workers=2, progress=False)
+    rep = run_discrepancy(dataset=blind(tmp_path / "weak"), out_dir=tmp_path / "out", plots=False,
+                          **{**RUN, "stride": STRIDE})
+    assert rep["verdict"] == "explained", rep["summary"]
+    accepted = rep["selection"]["accepted"]
+    assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
+    info = term_forms.describe(accepted[0]["name"])
+    assert (info["scale"], info["factor"], info["sign"]) == ("gd2w_x", "fadevx0.3", 1.0), accepted[0]["name"]
+    assert 0.85 * 2 < accepted[0]["k"] < 1.15 * 2, accepted[0]
+    test = rep["test"]
+    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_the_fading_factor_is_the_decay_with_forward_speed():
+    v = np.array([0.0, 0.3, 1.0, -0.2])
+    s = ForceInputs(d=0 * v + 0.2, q=0 * v, v_x=v, v_z=0 * v, gamma=0 * v + 18e3, w=0 * v + 2.0, rho=0 * v + 1.4,
+                    alpha=0 * v, phi=0 * v + 0.5, c=0 * v, delta=0 * v + 0.2, distance_in_soil=0 * v + 1.0,
+                    f_fee_x=0 * v + 1e3, f_fee_z=0 * v)
+    bx, bz = term_forms.basis("form:gd2w_x*fadevx0.3", s, np)
+    # backing up (v_x < 0) counts as at rest, like the saturating forms' max(v_x, 0)
+    assert np.allclose(bx, 18e3 * 0.2**2 * 2.0 * np.exp(-np.maximum(v, 0.0) / 0.3)) and not bz.any()
+    assert "exp(−v_x / 0.3 m/s)" in term_forms.describe("form:gd2w_x*fadevx0.3")["formula"]
+
+
 def test_the_layer_factor_is_the_face_area_in_the_layer():
     d = np.array([0.05, 0.15, 0.2, 0.3])
     s = ForceInputs(d=d, q=0 * d, v_x=0 * d + 0.5, v_z=0 * d, gamma=0 * d + 18e3, w=0 * d + 2.0, rho=0 * d + 1.4,
