@@ -174,3 +174,25 @@ def travel_wave(state, k: float = 1.0, wavelength_m: float = 0.7):
     d = np.asarray(state.d, dtype=float)
     s = np.asarray(state.distance_in_soil, dtype=float)
     return float(k) * 1e3 * np.sin(2.0 * np.pi * s / float(wavelength_m)) * (d > 0), np.zeros_like(d)
+
+
+def speed_squared_press(state, k: float = 2.0):
+    """Hidden effect in z: F_z = −k γ w d² (v_x / 1 m/s)² [N], pressing down faster the faster the cut."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.asarray(state.v_x, dtype=float)
+    return np.zeros_like(d), -float(k) * state.gamma * state.w * d**2 * v**2
+
+
+def fading_lift(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
+    """Hidden effect in z: F_z = +k w d p exp(−v_x / v0) [N], lifting the blade most at low speed."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return np.zeros_like(d), float(k) * state.w * d * float(p_pa) * np.exp(-v / float(v0))
+
+
+def clay_press(state, k: float = 2.0, phi_max_rad: float = 0.45):
+    """Hidden effect in z in the weakest soils only: F_z = −k γ w d² where φ < ``phi_max_rad``
+    (of the catalogue's soils: clay, and loam at I_d 0 %)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    weak = np.asarray(state.phi, dtype=float) < float(phi_max_rad)
+    return np.zeros_like(d), -float(k) * state.gamma * state.w * d**2 * weak

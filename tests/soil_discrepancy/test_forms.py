@@ -236,23 +236,30 @@ def test_a_catalogue_term_the_heldout_episodes_refute_is_tentative_and_never_the
     assert "## Tentative: NOT confirmed" in md and "## The missing effect" not in md
 
 
-def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
-    """A harder layer below 0.15 m (tests/sim_plugins.layer_drag: F_x = 6 w (d − 0.15 m)+ 10 kPa), on
-    24 episodes at three depths (0.1 m stays above it): the search finds the form itself, w d · 10 kPa
-    times the share of the cut below 0.15 m, with its k, and the held-out error shrinks."""
-    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.65], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
-    generate(DatasetPlan("fee", tmp_path / "layer", specs, effects_for_mode("fee"),
-                         plugins=("tests.sim_plugins:layer_drag k=6 d0=0.15",)), workers=2, progress=False)
-    rep = run_discrepancy(dataset=blind(tmp_path / "layer"), out_dir=tmp_path / "out", plots=False,
+def _found_exactly(tmp_path, specs, plugin: str, form: tuple[str, str], k: float) -> None:
+    """A hidden form (``plugin``, a tests/sim_plugins spec) on ``specs`` is named as the library's
+    ``form`` = (scale, factor) with k within 15 % of ``k``, no catalogue term beside it, and the
+    held-out error shrinks by at least a quarter."""
+    generate(DatasetPlan("fee", tmp_path / "hidden", specs, effects_for_mode("fee"), plugins=(plugin,)), workers=2,
+             progress=False)
+    rep = run_discrepancy(dataset=blind(tmp_path / "hidden"), out_dir=tmp_path / "out", plots=False,
                           **{**RUN, "stride": STRIDE})
     assert rep["verdict"] == "explained", rep["summary"]
     accepted = rep["selection"]["accepted"]
     assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
     info = term_forms.describe(accepted[0]["name"])
-    assert (info["scale"], info["factor"], info["sign"]) == ("wd_x", "below0.15", 1.0), accepted[0]["name"]
-    assert 0.85 * 6 < accepted[0]["k"] < 1.15 * 6, accepted[0]
+    assert (info["scale"], info["factor"], info["sign"]) == (*form, 1.0), accepted[0]["name"]
+    assert 0.85 * k < accepted[0]["k"] < 1.15 * k, accepted[0]
     test = rep["test"]
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+
+
+def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
+    """A harder layer below 0.15 m (tests/sim_plugins.layer_drag: F_x = 6 w (d − 0.15 m)+ 10 kPa), on
+    24 episodes at three depths (0.1 m stays above it): the search finds the form itself, w d · 10 kPa
+    times the share of the cut below 0.15 m, with its k, and the held-out error shrinks."""
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.65], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
+    _found_exactly(tmp_path, specs, "tests.sim_plugins:layer_drag k=6 d0=0.15", ("wd_x", "below0.15"), 6.0)
 
 
 def test_a_strength_lost_with_speed_is_found_with_its_decay(tmp_path):
@@ -262,18 +269,7 @@ def test_a_strength_lost_with_speed_is_found_with_its_decay(tmp_path):
     off faster than tanh(v_x/1 m/s), slower than tanh(v_x/0.3 m/s)); the search names the decay
     itself, with its speed scale and k, and the held-out error shrinks."""
     specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 0.65, 1.0], [0.15], 1, seed_base=0, duration_s=10.0)
-    generate(DatasetPlan("fee", tmp_path / "weak", specs, effects_for_mode("fee"),
-                         plugins=("tests.sim_plugins:speed_weakening k=2 v0=0.3",)), workers=2, progress=False)
-    rep = run_discrepancy(dataset=blind(tmp_path / "weak"), out_dir=tmp_path / "out", plots=False,
-                          **{**RUN, "stride": STRIDE})
-    assert rep["verdict"] == "explained", rep["summary"]
-    accepted = rep["selection"]["accepted"]
-    assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
-    info = term_forms.describe(accepted[0]["name"])
-    assert (info["scale"], info["factor"], info["sign"]) == ("gd2w_x", "fadevx0.3", 1.0), accepted[0]["name"]
-    assert 0.85 * 2 < accepted[0]["k"] < 1.15 * 2, accepted[0]
-    test = rep["test"]
-    assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+    _found_exactly(tmp_path, specs, "tests.sim_plugins:speed_weakening k=2 v0=0.3", ("gd2w_x", "fadevx0.3"), 2.0)
 
 
 def test_the_fading_factor_is_the_decay_with_forward_speed():

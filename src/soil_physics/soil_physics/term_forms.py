@@ -109,7 +109,8 @@ SCALES: dict[str, Piece] = {p.name: p for p in (
           "max(−F_FEE,z, 0)", lambda s, xp: _pos(xp, -s.f_fee_z) * _in(s), "x"),
     # a force that does not scale with the soil or the cut (the sparse regression's constant
     # term): a side plate rubbing, a drag of the machine's own, a sensor offset while cutting;
-    # times tanh(v_x/v0) it is Coulomb friction
+    # times tanh(v_x/v0) it is Coulomb friction, times exp(−v_x/v0) the static friction a moving
+    # part loses (Stribeck)
     Piece("one_x", "a constant force, x", f"{F_REF_N:g} N", lambda s, xp: F_REF_N * _in(s), "x"),
     Piece("one_z", "a constant force, pressing down", f"−{F_REF_N:g} N", lambda s, xp: -F_REF_N * _in(s), "z"),
 )}
@@ -173,11 +174,11 @@ def uses_time(name: str) -> bool:
 
 
 # The constant scales go with the factors that make a force of the machine's own of them (a
-# constant, viscous or Coulomb friction), not with the soil's geometry or the edge's gates: a
+# constant, viscous, Coulomb or Stribeck friction), not with the soil's geometry or the edge's gates: a
 # constant times "the share of the cut below 0.1 m" is no mechanism, and with that freedom a
 # hidden deep drag was named as a catalogue term plus such a relief, confirmed by the held-out
 # force error while the forecast at another depth stayed 53 % off.
-CONSTANT_SCALE_FACTORS = ("1", "vx", "tanhvx0.1", "tanhvx0.3", "tanhvx1")
+CONSTANT_SCALE_FACTORS = ("1", "vx", "tanhvx0.1", "tanhvx0.3", "tanhvx1", "fadevx0.1", "fadevx0.3", "fadevx1")
 SCALE_FACTORS = {"one_x": CONSTANT_SCALE_FACTORS, "one_z": CONSTANT_SCALE_FACTORS}
 
 
