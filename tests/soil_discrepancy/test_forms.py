@@ -264,10 +264,11 @@ def test_a_layer_below_a_depth_is_found_with_its_top(tmp_path):
 
 def test_a_strength_lost_with_speed_is_found_with_its_decay(tmp_path):
     """Rate weakening (tests/sim_plugins.speed_weakening: F_x = 2 γ w d² exp(−v_x / 0.3 m/s)), on
-    24 episodes at three speeds and one depth: θ takes the drag's share at rest, what is left is a
-    relief growing with speed that no saturating form follows (between 0.3, 0.65 and 1 m/s it falls
-    off faster than tanh(v_x/1 m/s), slower than tanh(v_x/0.3 m/s)); the search names the decay
-    itself, with its speed scale and k, and the held-out error shrinks."""
+    24 episodes at three speeds and one depth: a drag that fades with speed, which a saturating form
+    could follow only as a relief growing with speed beside a share θ takes, and not closely
+    (between 0.3, 0.65 and 1 m/s the decay falls off faster than tanh(v_x/1 m/s), slower than
+    tanh(v_x/0.3 m/s)); the search names the decay itself, with its speed scale and k, and the
+    held-out error shrinks."""
     specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 0.65, 1.0], [0.15], 1, seed_base=0, duration_s=10.0)
     _found_exactly(tmp_path, specs, "tests.sim_plugins:speed_weakening k=2 v0=0.3", ("gd2w_x", "fadevx0.3"), 2.0)
 
