@@ -33,7 +33,7 @@ for case in ${*:-control soil_inertia compaction rate_strength default_world def
     term="" k=""
     spec=$(hidden "$case")  # an unknown case stops the run here (set -e)
     read -r term k <<< "$spec" || true
-    mode=fee check=(--hidden "${term:-none}${k:+=$k}") data=$case grouping=() epochs=$PINN_EPOCHS
+    mode=fee check=(--hidden "${term:-none}${k:+=$k}") data=$case grouping=()
     case "$case" in default_world*) mode=default check=() data=default_world ;; esac
     case "$case" in *_unlabelled) grouping=(--group-by gamma) ;; esac
     if [ ! -f "$DATA/$data/dataset.json" ]; then
@@ -41,7 +41,7 @@ for case in ${*:-control soil_inertia compaction rate_strength default_world def
         [ -n "${term:-}" ] && plugin=(--plugin "soil_physics.force_terms:plugin term=$term k=$k")
         "$BIN/soil_sim_batch" "${GRID[@]}" --mode "$mode" --out "$DATA/$data" "${plugin[@]}"
     fi
-    "$BIN/soil_discrepancy" "$DATA/$data" --out "$OUT/$case" --pinn-epochs "$epochs" --pinn-seeds "$PINN_SEEDS" \
+    "$BIN/soil_discrepancy" "$DATA/$data" --out "$OUT/$case" --pinn-epochs "$PINN_EPOCHS" --pinn-seeds "$PINN_SEEDS" \
         --quiet "${check[@]}" "${grouping[@]}"
 done
 "$BIN/python" -m soil_discrepancy.index "$OUT"

@@ -147,12 +147,16 @@ def clay_viscous_drag(state, k: float = 1.0, p_pa: float = 20e3, c_min_pa: float
     return float(k) * state.w * d * float(p_pa) * np.maximum(np.asarray(state.v_x, dtype=float), 0.0) * clay, np.zeros_like(d)
 
 
+def _fading(state, v0_m_s: float):
+    """exp(−max(v_x, 0) / v0): 1 at rest, fading with forward speed over ``v0_m_s`` [m/s]."""
+    return np.exp(-np.maximum(np.asarray(state.v_x, dtype=float), 0.0) / float(v0_m_s))
+
+
 def speed_weakening(state, k: float = 2.0, v0: float = 0.3):
-    """Hidden effect: a strength the moving blade loses, F_x = k γ w d² exp(−v_x / v0) [N] (rate
-    weakening: the most at rest, fading with speed; the library's ``gd2w_x*fadevx…`` forms)."""
+    """Hidden effect: a strength the moving blade loses, F_x = k γ w d² exp(−v_x / v0) [N], v0 [m/s]
+    (rate weakening: the most at rest, fading with speed; the library's ``gd2w_x*fadevx…`` forms)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
-    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
-    return float(k) * state.gamma * state.w * d**2 * np.exp(-v / float(v0)), np.zeros_like(d)
+    return float(k) * state.gamma * state.w * d**2 * _fading(state, v0), np.zeros_like(d)
 
 
 def dense_only_drag(state, k: float = 1.0, p_pa: float = 10e3, gamma_min_n_m3: float = 19.0e3):
@@ -169,25 +173,28 @@ def sqrt_depth_drag(state, k: float = 1.0, p_pa: float = 10e3, d_ref_m: float = 
     return float(k) * state.w * float(p_pa) * np.sqrt(d * float(d_ref_m)) * (d > 0), np.zeros_like(d)
 
 
-def travel_wave(state, k: float = 1.0, wavelength_m: float = 0.7):
-    """Hidden effect with zero mean (stick-slip with travel): F_x = k · 1 kN · sin(2π s / λ) [N] in soil."""
+def travel_wave(state, f_n: float = 1000.0, wavelength_m: float = 0.7):
+    """Hidden effect with zero mean (stick-slip with travel): F_x = f_n sin(2π s / λ) [N] in soil, a
+    force no mean over an episode shows, only its structure along the travel s."""
     d = np.asarray(state.d, dtype=float)
     s = np.asarray(state.distance_in_soil, dtype=float)
-    return float(k) * 1e3 * np.sin(2.0 * np.pi * s / float(wavelength_m)) * (d > 0), np.zeros_like(d)
+    return float(f_n) * np.sin(2.0 * np.pi * s / float(wavelength_m)) * (d > 0), np.zeros_like(d)
 
 
 def speed_squared_press(state, k: float = 2.0):
-    """Hidden effect in z: F_z = −k γ w d² (v_x / 1 m/s)² [N], pressing down faster the faster the cut."""
+    """Hidden effect in z: F_z = −k γ w d² (v_x / 1 m/s)² [N], pressing the blade down harder the
+    faster the cut (the soil's momentum turned down the blade face: a z force no catalogue term has)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     v = np.asarray(state.v_x, dtype=float)
     return np.zeros_like(d), -float(k) * state.gamma * state.w * d**2 * v**2
 
 
 def fading_lift(state, k: float = 1.0, v0: float = 0.3, p_pa: float = 10e3):
-    """Hidden effect in z: F_z = +k w d p exp(−v_x / v0) [N], lifting the blade most at low speed."""
+    """Hidden effect in z: F_z = +k w d p exp(−v_x / v0) [N], v0 [m/s] (the blade's force on the soil,
+    z up): the soil holds the blade down most when it barely moves, the sign opposite the library's
+    z scales, so the search must find it as a relief."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
-    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
-    return np.zeros_like(d), float(k) * state.w * d * float(p_pa) * np.exp(-v / float(v0))
+    return np.zeros_like(d), float(k) * state.w * d * float(p_pa) * _fading(state, v0)
 
 
 def clay_press(state, k: float = 2.0, phi_max_rad: float = 0.45):

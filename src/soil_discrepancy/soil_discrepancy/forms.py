@@ -3,7 +3,7 @@
 The library (``soil_physics.term_forms``) holds a few hundred candidate forms, each a force [N] up
 to a dimensionless coefficient: a scale (the FEE force, γ d² w, w d P_ref, (γ/g) w d v_x², Q, the
 edge's bearing capacity, the model's downward push, a constant 1 kN) times a factor or gate (v_x,
-v_x², d, travel s, saturating tanh(v_x/v0), entering exp(−s/s0), growing 1 − exp(−s/s0), time in
+v_x², d, travel s, saturating tanh(v_x/v0), fading exp(−v_x/v0), entering exp(−s/s0), growing 1 − exp(−s/s0), time in
 soil τ and the same shapes of it, the share of the cut below a layer's top (d − d0)+/d, and the
 gates "edge sinking", "edge rising", "holding depth", "at a force limit").
 

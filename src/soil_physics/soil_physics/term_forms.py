@@ -137,8 +137,11 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
     + [Piece(f"tanhvx{v0:g}", f"forward speed, saturating above {v0:g} m/s", f"tanh(v_x / {v0:g} m/s)",
              (lambda v0: lambda s, xp: xp.tanh(_pos(xp, s.v_x) / v0))(v0)) for v0 in (0.1, 0.3, 1.0)]
     # a strength the moving blade loses, fading with speed (rate weakening, Stribeck-like static
-    # friction): a decay the saturating forms cannot take with θ absorbing their constant (between
-    # speeds it falls off faster than tanh(v_x/1 m/s) and slower than tanh(v_x/0.3 m/s))
+    # friction). At 0.3 m/s a decay the saturating forms cannot take once θ absorbs their constant
+    # (over 0.3-1 m/s it falls off faster than tanh(v_x/1 m/s) and slower than tanh(v_x/0.3 m/s)).
+    # At 0.1 and 1 m/s it is, over those speeds, −tanh(v_x/v0) plus a constant (correlation 0.9997+):
+    # on a scale θ absorbs the two are nearly one column, on Q or a constant force
+    # the fading form is a saturating drag *and* a relief, which a held-out test must then confirm
     + [Piece(f"fadevx{v0:g}", f"fading with forward speed (over ~{v0:g} m/s)", f"exp(−v_x / {v0:g} m/s)",
              (lambda v0: lambda s, xp: xp.exp(-_pos(xp, s.v_x) / v0) * _in(s))(v0)) for v0 in (0.1, 0.3, 1.0)]
     + [Piece(f"enter{s0:g}", f"while the blade enters the soil (first ~{s0:g} m)", f"exp(−s / {s0:g} m)",
