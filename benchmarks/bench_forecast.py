@@ -208,9 +208,10 @@ def section_forecast(args, models) -> dict:
         sim_s = time.perf_counter() - t0
         fusion = calibrated(world, args.fusion_set)
         fusion = dataclasses.replace(fusion, terms=merged_terms(fusion.terms, args.fusion_terms))
-        physics = config_for_model(fusion, model).terms
+        posterior_cfg = config_for_model(fusion, model)  # the fused posterior's config, the model's terms added
+        physics = posterior_cfg.terms
         t0 = time.perf_counter()
-        posts = fused_posteriors(ds, config_for_model(fusion, model))  # the forecast's and the planner bound's
+        posts = fused_posteriors(ds, posterior_cfg)  # the forecast's and the planner bound's
         report = forecast(model, ds, classical=args.classical, workers=args.workers, fusion=fusion, posteriors=posts)
         eval_s = time.perf_counter() - t0
         print(f"### {world} world: model `{path.name}`, fusion `{cfg_path.name if cfg_path.exists() else 'defaults'}` "
@@ -218,7 +219,7 @@ def section_forecast(args, models) -> dict:
               f"{'/'.join(f'{v:g}' for v in fusion.forecast_rel_std)})"
               + (f", physics FEE + {', '.join(f'{n} (k = {k:g})' for n, k in physics)}" if physics else "") + "\n")
         print("\n".join(fc.markdown(report)))
-        bound = planner_bound(ds, config_for_model(fusion, model), posts)
+        bound = planner_bound(ds, posterior_cfg, posts)
         print("\n" + bound_text(bound))
         print(f"\nWall time: {sim_s:.1f} s simulating {len(ds)} episodes, {eval_s:.1f} s forecasting "
               f"({'with' if args.classical else 'without'} the classical fit, {args.workers} workers).\n", flush=True)
