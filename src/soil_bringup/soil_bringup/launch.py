@@ -279,6 +279,7 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     checkpoint's own terms are not seen here (reading it needs torch): give them with
     ``--planner-param terms:=[...]``."""
     from pinn_estimator.fusion_calibration import load_fusion_config
+    from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
     path = ""
@@ -300,7 +301,7 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     if left_out:
         print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
               "planned steady cut does not have)", file=sys.stderr)
-    return [f"terms:=[{', '.join(repr(f'{n}={k!r}') for n, k in terms)}]"] if terms else []
+    return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
 
 
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:

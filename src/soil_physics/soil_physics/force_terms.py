@@ -214,6 +214,11 @@ def parse_terms(specs) -> tuple[tuple[str, float], ...]:
     return tuple(out)
 
 
+def term_texts(terms) -> list[str]:
+    """(name, k) pairs -> 'name=k' strings that ``parse_terms`` reads back exactly (k by repr)."""
+    return [f"{name}={float(k)!r}" for name, k in terms]
+
+
 def apply(terms, inputs: ForceInputs) -> tuple[Any, Any]:
     """Σ k · B over ``terms`` ((name, k) pairs): the force to add to the model's FEE force [N]."""
     fx = fz = 0.0 * inputs.d

@@ -467,7 +467,7 @@ class StretchPlanner:
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
                 "include_residual": self.include_residual, "force_quantile": self.force_quantile,
-                "terms": [f"{n}={k!r}" for n, k in self.terms]}
+                "terms": force_terms.term_texts(self.terms)}
 
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float]) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch)."""
