@@ -65,6 +65,31 @@ def _cut(v_x, depth, offset=None, patch=None, terrain=None, fixed=0.1) -> Cut:
                target_speed_m_s=0.5, gains=AntiStallGains())
 
 
+def test_after_a_retreat_the_loop_deepens_cautiously_and_settles_in_dense_gravel_instead_of_cycling():
+    """The default world's dense gravel: each fast ramp deeper ended with the lift pressing the
+    edge onto a floor that held it, the plan met the z limit and retreated, and allowed the deeper
+    cut again from the shallower depth. With the schedule's cautious deepening after a retreat
+    the target settles (same path, seed and cores; only ``retreat_memory_s`` differs)."""
+    spec = EpisodeSpec("Gravel", 100, 0.5, 0.1, seed=4, duration_s=15.0)
+    got = {}
+    for memory_s in (0.0, ScheduleSettings().retreat_memory_s):
+        cut = run_cut("default", spec, Policy("soil-aware"),
+                      SoilAwareSetup("default", schedule=ScheduleSettings(retreat_memory_s=memory_s)))
+        late = slice(5 * 60, None)  # after the first plans and the first ramp
+        got[memory_s] = (CM.target_retreats(cut.target[late]), np.std(cut.target[late]),
+                         np.percentile(np.abs(cut.force[late, 1]), 95) / 30e3)
+    (cycling, spread0, fz0), (settled, spread1, fz1) = got.values()
+    assert cycling >= 5 and settled <= 1, got
+    assert spread1 < 0.5 * spread0, got
+    assert fz1 < 1.0 < fz0, got  # the z force's p95 within its limit only when it settles
+
+
+def test_a_retreat_is_a_fall_of_the_target_from_its_peak_since_the_last_one():
+    assert CM.target_retreats([0.1, 0.2, 0.17, 0.25, 0.22, 0.23, 0.2]) == 3
+    assert CM.target_retreats([0.1, 0.2, 0.19, 0.185, 0.2, np.nan, 0.3]) == 0  # 1.5 cm: no retreat
+    assert CM.target_retreats(np.full(10, 0.15)) == 0
+
+
 def test_stall_counts_slow_ticks_after_the_start_only_and_back_offs_count_lift_onsets():
     v = [0.0] * 10 + [0.5] * 20 + [0.3] * 6 + [0.5] * 10 + [0.1] * 4
     cut = _cut(v, [0.1] * len(v), offset=[0.0] * 30 + [0.01] * 6 + [0.0] * 10 + [0.02] * 4)

@@ -44,6 +44,34 @@ def test_without_a_plan_the_target_holds_then_backs_off_to_the_start_depth():
     assert backing[-1] == pytest.approx(0.1) and backing[5] < 0.25
 
 
+def test_after_a_retreat_the_target_deepens_at_the_cautious_rate_for_the_memory_then_at_full_rate():
+    cfg = ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.12, shallow_rate_m_s=6.0, retreat_m=0.01,
+                           retreat_memory_s=1.0, cautious_deepen_rate_m_s=0.03)
+    s = DepthSchedule(cfg)
+    first = run(s, [0.3] * 61)
+    assert first[60] == pytest.approx(0.1 + 0.12)  # a fresh cut deepens at the full rate
+    # the plan finds 0.22 m too deep: up at once, then down again at 3 cm/s, not 12
+    back = run(s, [0.15] * 2 + [0.3] * 30, first_tick=61)
+    assert back[1] == pytest.approx(0.15) and s.cautious(92 * TICK)
+    assert back[-1] == pytest.approx(0.15 + 0.03 * 30 / 60)
+    # a plan at most retreat_m shallower than the target is no retreat
+    s2 = DepthSchedule(cfg)
+    run(s2, [0.2] * 60)
+    run(s2, [s2.target_m - 0.009] * 3, first_tick=60)
+    assert not s2.cautious(63 * TICK)
+    # a second after the retreat the memory has passed: the full rate again
+    later = run(s, [0.3] * 61, first_tick=92)
+    assert not s.cautious(152 * TICK)
+    steps = [b - a for a, b in zip(later, later[1:])]
+    assert steps[-1] == pytest.approx(0.12 / 60) and steps[0] == pytest.approx(0.03 / 60)
+    # no memory: a retreat changes nothing
+    s3 = DepthSchedule(ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.12, shallow_rate_m_s=6.0,
+                                        retreat_memory_s=0.0))
+    run(s3, [0.3] * 61)
+    again = run(s3, [0.15] * 2 + [0.3] * 30, first_tick=61)
+    assert again[-1] == pytest.approx(0.15 + 0.12 * 30 / 60)
+
+
 def test_never_deeper_than_max_nor_shallower_than_min_and_non_finite_is_no_plan():
     s = DepthSchedule(ScheduleSettings(min_depth_m=0.03, max_depth_m=0.2, deepen_rate_m_s=10.0, shallow_rate_m_s=10.0))
     assert max(run(s, [0.6] * 30)) == pytest.approx(0.2)
@@ -59,7 +87,8 @@ def test_a_stamp_that_goes_back_is_a_new_cut():
 
 @pytest.mark.parametrize("field,value", [("deepen_rate_m_s", 0.0), ("shallow_rate_m_s", -1.0), ("hold_s", -0.1),
                                          ("start_depth_m", 0.5), ("max_depth_m", 0.9), ("min_depth_m", math.nan),
-                                         ("hold_s", True)])
+                                         ("hold_s", True), ("retreat_m", -0.01), ("retreat_memory_s", -1.0),
+                                         ("cautious_deepen_rate_m_s", 0.0)])
 def test_bad_settings_are_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         ScheduleSettings(**{field: value})

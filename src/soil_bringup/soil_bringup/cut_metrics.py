@@ -10,6 +10,9 @@
 * **Ticks at a force limit**: measured |F_x| or |F_z| at or above ``AT_LIMIT`` of the
   20 kN tractive / 30 kN lift limit (the motor and the lift joint saturate there).
 * **Back-off events**: the controller's anti-stall offset Δd̄ leaving zero (it starts lifting).
+* **Target retreats**: how often the controller's target depth fell by at least
+  ``RETREAT_DROP_M`` from its highest point since the last retreat (a fixed depth has none; a
+  planner that cycles between a depth and a shallower one has many).
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
   hindsight is the deepest of a sweep of fixed depths with no stall in that patch
@@ -27,6 +30,7 @@ AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
 SETTLE_TOLERANCE = 0.20  # relative to the patch's best fixed depth
 SETTLE_HOLD_S = 1.0
+RETREAT_DROP_M = 0.02  # a target falling this far from its peak is a retreat
 
 
 def stall_mask(cut) -> np.ndarray:
@@ -52,6 +56,18 @@ def backoff_events(cut) -> int:
     return int(np.count_nonzero(lifting[1:] & ~lifting[:-1]) + int(lifting[0]))
 
 
+def target_retreats(target_m: np.ndarray, drop_m: float = RETREAT_DROP_M) -> int:
+    """Times a target depth series [m] fell by at least ``drop_m`` [m] below its deepest since the last retreat."""
+    target_m = np.asarray(target_m, float)
+    n, peak = 0, -np.inf
+    for t in target_m[np.isfinite(target_m)]:
+        if t > peak:
+            peak = t
+        elif peak - t >= drop_m:
+            n, peak = n + 1, t
+    return n
+
+
 def summary(cut) -> dict:
     """The policy's figures over the whole cut (SI; module docstring)."""
     dt = 1.0 / SAMPLE_RATE_HZ
@@ -65,7 +81,7 @@ def summary(cut) -> dict:
         "duration_s": cut.ticks * dt, "travel_m": travel, "volume_m3": volume,
         "volume_per_m_m3": volume / travel if travel > 0 else 0.0, "volume_per_s_m3": volume / (cut.ticks * dt),
         "stall_s": float(stall_mask(cut).sum() * dt), "ticks_at_limit": int(np.count_nonzero((share >= AT_LIMIT).any(axis=1))),
-        "backoff_events": backoff_events(cut),
+        "backoff_events": backoff_events(cut), "target_retreats": target_retreats(cut.target),
         "force_x_mean_share": float(use[:, 0].mean()), "force_x_p95_share": float(np.percentile(use[:, 0], 95)),
         "force_z_mean_share": float(use[:, 1].mean()), "force_z_p95_share": float(np.percentile(use[:, 1], 95)),
         "mean_depth_m": float(cut.depth[cutting].mean()) if cutting.any() else 0.0,

@@ -11,6 +11,16 @@ forces). The schedule turns plans into a target d̄_z(t):
   at most ``deepen_rate_m_s`` (default 0.1 m/s: a 1:5 ramp at the 0.5 m/s cut speed) and rise
   by at most ``shallow_rate_m_s`` (default 1.0 m/s, faster than the controller's own
   anti-stall lift of K_v = 0.5 m/s: a plan that says "shallower" is a safety request).
+* **After a retreat, deepen cautiously.** A plan shallower than the target by more than
+  ``retreat_m`` (default 1 cm) found the target too deep; for ``retreat_memory_s`` (default
+  5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s) instead
+  (0: no memory). Re-deepening at full rate into a depth just found too deep is how the loop
+  cycled: in the default world's dense gravel each 0.1 m/s ramp ended with the lift pressing
+  the edge onto a floor that held it (the penetration reaction, then the push, in F_z), the
+  plan met the 30 kN z limit there and retreated ~5 cm, and at the shallower depth, with the
+  push gone, it allowed the deeper cut again: ±3 cm every ~1.5 s, F_z's p95 beyond its limit.
+  Slower, the push stays lower and the cut settles. A first deepening into a fresh soil keeps
+  the full rate (that is where the volume is).
 * **Start shallow.** Before the first valid plan of a cut the target is ``start_depth_m``
   (default 0.10 m): the soil is unknown, and the estimator needs half a second of cutting
   before its posterior says anything.
@@ -43,6 +53,9 @@ class ScheduleSettings:
     deepen_rate_m_s: float = 0.10
     shallow_rate_m_s: float = 1.0
     hold_s: float = 1.0
+    retreat_m: float = 0.01
+    retreat_memory_s: float = 5.0
+    cautious_deepen_rate_m_s: float = 0.03
     min_depth_m: float = 0.05
     max_depth_m: float = -MACHINE.blade_min_rel_m
 
@@ -55,8 +68,13 @@ class ScheduleSettings:
         for name in ("deepen_rate_m_s", "shallow_rate_m_s"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be > 0 m/s")
-        if self.hold_s < 0.0:
-            raise ValueError(f"hold_s={self.hold_s!r} must be >= 0 s")
+        if not self.cautious_deepen_rate_m_s > 0.0:
+            raise ValueError(f"cautious_deepen_rate_m_s={self.cautious_deepen_rate_m_s!r} must be > 0 m/s")
+        for name in ("hold_s", "retreat_memory_s"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0 s")
+        if self.retreat_m < 0.0:
+            raise ValueError(f"retreat_m={self.retreat_m!r} must be >= 0 m")
         if not 0.0 <= self.min_depth_m <= self.max_depth_m <= MACHINE.blade_height_m:
             raise ValueError(f"min_depth_m={self.min_depth_m!r} and max_depth_m={self.max_depth_m!r} must satisfy "
                              f"0 <= min_depth_m <= max_depth_m <= {MACHINE.blade_height_m} m (blade height)")
@@ -80,6 +98,7 @@ class DepthSchedule:
         self.target_m = self.settings.start_depth_m
         self.last_stamp_ns: int | None = None
         self.last_plan_ns: int | None = None  # stamp of the newest valid plan
+        self.last_retreat_ns: int | None = None  # stamp of the newest plan that found the target too deep
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -92,6 +111,8 @@ class DepthSchedule:
         if plan_depth_m is not None and math.isfinite(plan_depth_m):
             self.last_plan_ns = stamp_ns
             goal = float(plan_depth_m)
+            if goal < self.target_m - s.retreat_m:
+                self.last_retreat_ns = stamp_ns
         elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
             goal = self.target_m  # hold
         else:
@@ -101,9 +122,15 @@ class DepthSchedule:
             self.target_m = goal  # nothing planned yet: the start depth as it is
             return self.target_m
         step = goal - self.target_m
-        step = min(step, s.deepen_rate_m_s * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
+        deepen = min(s.deepen_rate_m_s, s.cautious_deepen_rate_m_s) if self.cautious(stamp_ns) else s.deepen_rate_m_s
+        step = min(step, deepen * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
         self.target_m = min(max(self.target_m + step, s.min_depth_m), s.max_depth_m)
         return self.target_m
+
+    def cautious(self, stamp_ns: int) -> bool:
+        """Within ``retreat_memory_s`` of the newest retreat: deepening at the cautious rate."""
+        return (self.last_retreat_ns is not None and self.settings.retreat_memory_s > 0.0
+                and (int(stamp_ns) - self.last_retreat_ns) / NS_PER_S <= self.settings.retreat_memory_s)
 
     @property
     def plan_valid(self) -> bool:

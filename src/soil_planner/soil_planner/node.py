@@ -16,7 +16,8 @@ Every plan also moves the cut depth the anti-stall controller follows when its
 target moved by a millimetre, and at least 5 times a second), the plan's
 deepest cut through the depth schedule's rate limits, start depth and hold
 (``depth_schedule.py``; parameters ``start_depth_m``, ``deepen_rate_m_s``, ``shallow_rate_m_s``,
-``hold_s``, ``min_target_m``, ``max_target_m``). A tick whose plan was refused, or an invalid
+``hold_s``, ``retreat_m``, ``retreat_memory_s``, ``cautious_deepen_rate_m_s``, ``min_target_m``,
+``max_target_m``). A tick whose plan was refused, or an invalid
 estimate, moves the schedule without a plan (it holds, then backs off). Each new cut (an
 episode_start on /sim/status, or plan stamps more than a second apart either way) starts from
 the start depth with no plan carried over; a tick older than the last one planned is not
@@ -48,7 +49,8 @@ from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUAN
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
 SCHEDULE_PARAMETERS = {"start_depth_m": "start_depth_m", "deepen_rate_m_s": "deepen_rate_m_s",
-                       "shallow_rate_m_s": "shallow_rate_m_s", "hold_s": "hold_s",
+                       "shallow_rate_m_s": "shallow_rate_m_s", "hold_s": "hold_s", "retreat_m": "retreat_m",
+                       "retreat_memory_s": "retreat_memory_s", "cautious_deepen_rate_m_s": "cautious_deepen_rate_m_s",
                        "min_target_m": "min_depth_m", "max_target_m": "max_depth_m"}
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
 # /planner/target_depth goes out when the target moved by TARGET_STEP_M, its validity changed,
@@ -73,6 +75,10 @@ PARAMETERS: dict[str, tuple] = {
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
     "shallow_rate_m_s": (_SCHEDULE.shallow_rate_m_s, "the target rises by at most this per second [m/s]"),
     "hold_s": (_SCHEDULE.hold_s, "without a valid plan the last target is held this long [s], then backs off to start_depth_m"),
+    "retreat_m": (_SCHEDULE.retreat_m, "a plan shallower than the target by more than this is a retreat [m], >= 0"),
+    "retreat_memory_s": (_SCHEDULE.retreat_memory_s, "after a retreat the target deepens at cautious_deepen_rate_m_s "
+                                                     "for this long [s], >= 0 (0: never)"),
+    "cautious_deepen_rate_m_s": (_SCHEDULE.cautious_deepen_rate_m_s, "the deepening rate after a retreat [m/s], > 0"),
     "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
