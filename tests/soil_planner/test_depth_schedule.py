@@ -64,6 +64,10 @@ def test_after_a_retreat_the_target_deepens_at_the_cautious_rate_for_the_memory_
     assert not s.cautious(152 * TICK)
     steps = [b - a for a, b in zip(later, later[1:])]
     assert steps[-1] == pytest.approx(0.12 / 60) and steps[0] == pytest.approx(0.03 / 60)
+    # the first plan of a cut replaces the start depth, which no plan chose: no retreat
+    s4 = DepthSchedule(cfg)
+    run(s4, [0.05] * 3)
+    assert not s4.cautious(3 * TICK) and s4.target_m == pytest.approx(0.05)
     # no memory: a retreat changes nothing
     s3 = DepthSchedule(ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.12, shallow_rate_m_s=6.0,
                                         retreat_memory_s=0.0))

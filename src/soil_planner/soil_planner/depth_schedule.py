@@ -14,7 +14,8 @@ forces). The schedule turns plans into a target d̄_z(t):
 * **After a retreat, deepen cautiously.** A plan shallower than the target by more than
   ``retreat_m`` (default 1 cm) found the target too deep; for ``retreat_memory_s`` (default
   5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s) instead
-  (0: no memory). Re-deepening at full rate into a depth just found too deep is how the loop
+  (0: no memory; before a plan first deepened the target the start depth is no plan's, and a
+  plan shallower than it is no retreat). Re-deepening at full rate into a depth just found too deep is how the loop
   cycled: in the default world's dense gravel each 0.1 m/s ramp ended with the lift pressing
   the edge onto a floor that held it (the penetration reaction, then the push, in F_z), the
   plan met the 30 kN z limit there and retreated ~5 cm, and at the shallower depth, with the
@@ -99,6 +100,7 @@ class DepthSchedule:
         self.last_stamp_ns: int | None = None
         self.last_plan_ns: int | None = None  # stamp of the newest valid plan
         self.last_retreat_ns: int | None = None  # stamp of the newest plan that found the target too deep
+        self.deepened = False  # a plan has deepened the target in this cut (before: the start depth, no plan's)
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -108,11 +110,12 @@ class DepthSchedule:
             self.reset()
         dt = 0.0 if self.last_stamp_ns is None else (stamp_ns - self.last_stamp_ns) / NS_PER_S
         self.last_stamp_ns = stamp_ns
-        if plan_depth_m is not None and math.isfinite(plan_depth_m):
-            self.last_plan_ns = stamp_ns
+        planned = plan_depth_m is not None and math.isfinite(plan_depth_m)
+        if planned:
             goal = float(plan_depth_m)
-            if goal < self.target_m - s.retreat_m:
+            if self.deepened and goal < self.target_m - s.retreat_m:
                 self.last_retreat_ns = stamp_ns
+            self.last_plan_ns = stamp_ns
         elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
             goal = self.target_m  # hold
         else:
@@ -124,6 +127,7 @@ class DepthSchedule:
         step = goal - self.target_m
         deepen = min(s.deepen_rate_m_s, s.cautious_deepen_rate_m_s) if self.cautious(stamp_ns) else s.deepen_rate_m_s
         step = min(step, deepen * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
+        self.deepened = self.deepened or (step > 0 and planned)
         self.target_m = min(max(self.target_m + step, s.min_depth_m), s.max_depth_m)
         return self.target_m
 
