@@ -15,13 +15,13 @@ forces). The schedule turns plans into a target d̄_z(t):
   ``retreat_m`` (default 1 cm) found the target too deep; for ``retreat_memory_s`` (default
   5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s) instead
   (0: no memory; before a plan first deepened the target the start depth is no plan's, and a
-  plan shallower than it is no retreat). Re-deepening at full rate into a depth just found too deep is how the loop
-  cycled: in the default world's dense gravel each 0.1 m/s ramp ended with the lift pressing
-  the edge onto a floor that held it (the penetration reaction, then the push, in F_z), the
-  plan met the 30 kN z limit there and retreated ~5 cm, and at the shallower depth, with the
-  push gone, it allowed the deeper cut again: ±3 cm every ~1.5 s, F_z's p95 beyond its limit.
-  Slower, the push stays lower and the cut settles. A first deepening into a fresh soil keeps
-  the full rate (that is where the volume is).
+  plan shallower than it is no retreat). Re-deepening at full rate into a depth just found too
+  deep is how the loop cycled: in the default world's dense gravel each 0.1 m/s ramp ended
+  with the lift pressing the edge onto a floor that held it (the penetration reaction, then the
+  push, in F_z), the plan met its z bound (margin x 30 kN) there and retreated ~5 cm, and at the
+  shallower depth, the push gone, allowed the deeper cut again: ±3 cm every ~1.5 s, F_z's p95 at
+  its limit. Slower, the push stays lower and the cut settles. A first deepening into a fresh
+  soil keeps the full rate (that is where the volume is).
 * **Start shallow.** Before the first valid plan of a cut the target is ``start_depth_m``
   (default 0.10 m): the soil is unknown, and the estimator needs half a second of cutting
   before its posterior says anything.
