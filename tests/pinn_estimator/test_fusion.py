@@ -576,6 +576,8 @@ def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics(
                               terms={"inertia": (("soil_inertia", k_inertia),),
                                      "compaction": ["compaction_hardening=0.05"]})
     assert len(pairs) == 2
+    only_from_first = fc.forecast_pairs(parts, {"plain": theta}, sources=[0])
+    assert [(p["from_depth_m"], p["to_depth_m"]) for p in only_from_first] == [(parts[0].known["d"], parts[1].known["d"])]
     for pair in pairs:
         b = parts[1] if pair["to_depth_m"] == parts[1].known["d"] else parts[0]
         plain, at = np.asarray(pair["forecast"]["plain"]), b.known

@@ -65,6 +65,13 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     errors = [*ep["force"].values(), *ep["params"].values()]
     assert all(math.isfinite(v) for v in errors), ep
     assert (out / "summary.md").read_text().count("| Clay |") == 3  # errors, mean estimates, the fused soil
+    # the planner's question: from the live episode to the simulator cutting the same soil at 0.1 and 0.25 m
+    forecast = summary["forecast"]
+    assert forecast["live_episodes"] == 1 and forecast["simulated_episodes"] == 2 and forecast["pairs"] >= 1, forecast
+    for name in ("fused", "pinn", "true_fee", "naive_same_force"):
+        assert math.isfinite(forecast["forecast"][name]["x"]["all"]["mean_abs_pct"]), (name, forecast)
+    assert 0.0 <= forecast["forecast"]["fused"]["x"]["all"]["coverage_50"] <= forecast["forecast"]["fused"]["x"]["all"]["coverage_90"]
+    assert "The planner's question" in (out / "summary.md").read_text() and "The planner's question" in res.stdout
     fused = ep["fused_end"]
     assert fused["stretches"] >= 1 and all(math.isfinite(fused[p]["std_deg" if p != "c" else "std_kPa"]) for p in ("phi", "c", "delta"))
     png = out / "online_estimates.png"

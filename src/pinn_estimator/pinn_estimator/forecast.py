@@ -119,16 +119,17 @@ INTERVALS = ((0.05, 0.95), (0.25, 0.75))  # the 90 % and 50 % central intervals 
 
 
 def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], posteriors: dict[str, list] | None = None,
-                   terms: dict[str, tuple] | None = None) -> list[dict]:
+                   terms: dict[str, tuple] | None = None, sources=None) -> list[dict]:
     """Every ordered pair (A → B) of one soil and density at another depth: each estimator's
     forecast of B's force from A's θ̂ through the FEE plus ``terms[name]`` if given (or, for
     ``posteriors``, the median of A's fused posterior predictive at B's conditions, with its 90 %
-    and 50 % intervals), the references', and B's measured force."""
+    and 50 % intervals), the references', and B's measured force. ``sources``: the episodes A may
+    be (default: all; the others are only forecast to)."""
     posteriors = posteriors or {}
     terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     quantiles = tuple(sorted({q for pair in INTERVALS for q in pair} | {0.5}))
     pairs = []
-    for a, b in pair_indices(parts):
+    for a, b in pair_indices(parts, sources):
         forecast = {name: fee_force_at(theta[a], parts[b].known, terms.get(name, ()), parts[b].distance_m, parts[b].time_s)
                     for name, theta in thetas.items()}
         intervals = {}
@@ -145,15 +146,19 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
     return pairs
 
 
-def pair_indices(parts: list[Steady | None]):
+def pair_indices(parts: list[Steady | None], sources=None):
     """(a, b) of every ordered pair of episodes of one soil and density at another depth (steady
-    depths at least MIN_DEPTH_RATIO apart), grouped by soil and density in sorted order."""
+    depths at least MIN_DEPTH_RATIO apart), grouped by soil and density in sorted order; a only
+    among ``sources`` if given."""
+    sources = None if sources is None else set(sources)
     groups = defaultdict(list)
     for e, part in enumerate(parts):
         if part is not None:
             groups[(part.soil, part.relative_density_pct)].append(e)
     for _, members in sorted(groups.items()):
         for a in members:
+            if sources is not None and a not in sources:
+                continue
             for b in members:
                 da, db = parts[a].known["d"], parts[b].known["d"]
                 if a != b and max(da, db) >= MIN_DEPTH_RATIO * min(da, db):

@@ -8,7 +8,9 @@ line per second of simulation time from an in-process monitor node (``monitor``)
 true φ, c, δ, β and predicted vs measured blade force. When the launch has ended cleanly it
 scores the recorded bags (``scoring``: the record of truth, every tick, every estimate) per
 episode, over valid estimates only: force MAE x/z [kN, % of measured] (paper §3.2 figures),
-φ, c, δ, β MAE against the pseudo-ground truth, and the share of ticks with a valid estimate.
+φ, c, δ, β MAE against the pseudo-ground truth, and the share of ticks with a valid estimate;
+and it answers the planner's question from them (``demo_forecast``: from the soil learnt in each
+episode, the force at other depths, against the simulator cutting the same soil there).
 It prints a table and writes ``summary.md``, ``summary.json`` (``summary``) and
 ``online_estimates.png`` (``summary_figure``) under ``--out``. This module is the command line
 and the order of things only.
@@ -39,6 +41,8 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
 
 from . import launch as L
+from .demo_forecast import OTHER_DEPTHS_M, forecast_from_live
+from .demo_forecast import markdown_lines as forecast_lines
 from .monitor import MONITOR_DATA_TOPICS, LiveMonitor
 from .scoring import missing_episodes, overall, score_bag_dir
 from .summary import FIGURE_NAME, JSON_NAME, MARKDOWN_NAME, markdown, table_text, throughput_text
@@ -74,6 +78,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     env_id = os.environ.get("ROS_DOMAIN_ID", "").strip()
     p.add_argument("--domain-id", type=int, default=int(env_id) if env_id.isdigit() else DEFAULT_DOMAIN_ID,
                    help=f"ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else {DEFAULT_DOMAIN_ID})")
+    p.add_argument("--no-forecast", action="store_true",
+                   help="skip the forecast at other depths (the simulator cutting each episode's soil at "
+                        f"{' and '.join(f'{d:g}' for d in OTHER_DEPTHS_M)} m after the run)")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="give the launch at most this many seconds (default: from the plan)")
     args = p.parse_args(argv)
@@ -294,6 +301,13 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         "errors": errors,
     }
     result = {"run": run_info, "episodes": rows, "overall": total}
+    if not args.no_forecast:
+        print("demo: the planner's question: the simulator cuts each episode's soil at "
+              f"{' and '.join(f'{d:g}' for d in OTHER_DEPTHS_M)} m ...", flush=True)
+        try:
+            result["forecast"] = forecast_from_live(scores, args.world_mode)
+        except ValueError as err:
+            result["forecast"] = {"skipped": str(err)}
     paths = {"json": args.out / JSON_NAME, "markdown": args.out / MARKDOWN_NAME, "png": args.out / FIGURE_NAME}
     plot(scores, paths["png"])
     run_info["wall_s"] = wall_s = time.monotonic() - t_start
@@ -303,6 +317,9 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     print()
     print(table_text(rows, total))
     print("MAE over valid estimates; (%) of the mean measured |F|. φ/c/δ/β against the pseudo-ground truth.")
+    if "forecast" in result:
+        print("\n" + ("\n".join(forecast_lines(result["forecast"])) if "skipped" not in result["forecast"]
+                      else f"forecast at other depths skipped: {result['forecast']['skipped']}"))
     print(f"\ndemo: wall time {wall_s:.1f} s (launch {launch_s:.1f} s for {sim_s:.0f} s of simulation time)")
     print(f"demo: {throughput_text(run_info)}")
     print(f"demo: {100 * run_info['valid_fraction']:.1f} % of ticks have a valid estimate "

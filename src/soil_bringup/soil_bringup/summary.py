@@ -35,7 +35,8 @@ def table_text(rows: list[dict], total: dict) -> str:
 
 
 def markdown(report: dict) -> str:
-    """``summary.md``: the run, the error table, mean estimates vs truth, throughput and the figure."""
+    """``summary.md``: the run, the error table, mean estimates vs truth, the soil fused along each
+    episode, the planner's question (``demo_forecast``, when the run made it), throughput and the figure."""
     run, rows, total = report["run"], report["episodes"], report["overall"]
     lines = [
         "# Online estimation demo", "",
@@ -74,6 +75,12 @@ def markdown(report: dict) -> str:
                 cells.append(f"{v[f'mean_{unit}']:.{digits}f} ± {v[f'std_{unit}']:.{digits}f} ({v[f'truth_{unit}']:.{digits}f})"
                              + (" ✓" if v["in_90"] else ""))
             lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | {f['stretches']} | " + " | ".join(cells) + " |")
+    forecast = report.get("forecast")
+    if forecast:
+        from .demo_forecast import markdown_lines
+
+        lines += ["", *(markdown_lines(forecast) if "skipped" not in forecast
+                        else [f"The forecast at other depths was skipped: {forecast['skipped']}."])]
     lines += ["", f"Throughput: {throughput_text(run)}; {total['pct_ticks_valid']:.1f} % of ticks have a valid estimate "
               f"({total['pct_full_window_ticks_valid']:.1f} % of the ticks that end a full {WINDOW_SAMPLES}-sample window).",
               "", f"![online estimates]({FIGURE_NAME})", ""]
