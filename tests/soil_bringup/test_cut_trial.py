@@ -76,18 +76,23 @@ def test_after_a_retreat_the_loop_deepens_cautiously_and_settles_in_dense_gravel
         cut = run_cut("default", spec, Policy("soil-aware"),
                       SoilAwareSetup("default", schedule=ScheduleSettings(retreat_memory_s=memory_s)))
         late = slice(5 * 60, None)  # after the first plans and the first ramp
-        got[memory_s] = (CM.target_retreats(cut.target[late]), np.std(cut.target[late]),
+        got[memory_s] = (CM.target_falls(cut.target[late]), np.std(cut.target[late]),
                          np.percentile(np.abs(cut.force[late, 1]), 95) / 30e3)
     (cycling, spread0, fz0), (settled, spread1, fz1) = got.values()
-    assert cycling >= 5 and settled <= 1, got
+    # (one seed of one soil: measured 4 falls against 0, std 2.2 against 0.3 cm, F_z p95 102 against 79 % of
+    # its limit; a change of the default world's physics may move these, not the contrast)
+    assert cycling >= 3 and settled == 0, got
     assert spread1 < 0.5 * spread0, got
     assert fz1 < 1.0 < fz0, got  # the z force's p95 within its limit only when it settles
 
 
-def test_a_retreat_is_a_fall_of_the_target_from_its_peak_since_the_last_one():
-    assert CM.target_retreats([0.1, 0.2, 0.17, 0.25, 0.22, 0.23, 0.2]) == 3
-    assert CM.target_retreats([0.1, 0.2, 0.19, 0.185, 0.2, np.nan, 0.3]) == 0  # 1.5 cm: no retreat
-    assert CM.target_retreats(np.full(10, 0.15)) == 0
+def test_a_fall_of_the_target_counts_once_and_the_next_needs_it_to_deepen_first():
+    assert CM.target_falls([0.1, 0.2, 0.17, 0.25, 0.22, 0.23, 0.2]) == 3
+    assert CM.target_falls([0.1, 0.2, 0.19, 0.185, 0.2, np.nan, 0.3]) == 0  # 1.5 cm: no fall
+    assert CM.target_falls(np.full(10, 0.15)) == 0
+    assert CM.target_falls(np.linspace(0.3, 0.1, 13)) == 1  # one back-off of 20 cm is one fall
+    assert CM.target_falls([0.25, 0.23]) == 1  # exactly 2 cm (not lost to rounding)
+    assert CM.target_falls([0.3, 0.25, 0.2, 0.21, 0.2, 0.205, 0.18]) == 2  # 3 cm below the 1 cm rise: a second fall
 
 
 def test_stall_counts_slow_ticks_after_the_start_only_and_back_offs_count_lift_onsets():

@@ -70,7 +70,7 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     assert forecast["live_episodes"] == 1 and forecast["simulated_episodes"] == 2 and forecast["pairs"] >= 1, forecast
     for name in ("fused", "pinn", "true_fee", "naive_same_force"):
         assert math.isfinite(forecast["forecast"][name]["x"]["all"]["mean_abs_pct"]), (name, forecast)
-    assert 0.0 <= forecast["forecast"]["fused"]["x"]["all"]["coverage_50"] <= forecast["forecast"]["fused"]["x"]["all"]["coverage_90"]
+    assert forecast["physics"]["fused"] == [["form:-qnq*tanhvx0.1", 0.756]], "the live estimator's posterior physics"
     assert "The planner's question" in (out / "summary.md").read_text() and "The planner's question" in res.stdout
     fused = ep["fused_end"]
     assert fused["stretches"] >= 1 and all(math.isfinite(fused[p]["std_deg" if p != "c" else "std_kPa"]) for p in ("phi", "c", "delta"))

@@ -2,6 +2,7 @@
 shallower fast, shallow before the first plan, hold then back off without one."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -64,10 +65,23 @@ def test_after_a_retreat_the_target_deepens_at_the_cautious_rate_for_the_memory_
     assert not s.cautious(152 * TICK)
     steps = [b - a for a, b in zip(later, later[1:])]
     assert steps[-1] == pytest.approx(0.12 / 60) and steps[0] == pytest.approx(0.03 / 60)
-    # the first plan of a cut replaces the start depth, which no plan chose: no retreat
+    # the start depth is no plan's: a plan below it, even after a few millimetres of the first
+    # ramp, is no retreat; nor a plan below the shallowest target, where the target cannot go
     s4 = DepthSchedule(cfg)
     run(s4, [0.05] * 3)
     assert not s4.cautious(3 * TICK) and s4.target_m == pytest.approx(0.05)
+    s5 = DepthSchedule(cfg)
+    run(s5, [None, 0.3, 0.3, 0.3, 0.085])
+    assert s5.target_m == pytest.approx(0.085) and not s5.cautious(5 * TICK)
+    s6 = DepthSchedule(dataclasses.replace(cfg, min_depth_m=0.08))
+    run(s6, [0.3] * 61)
+    run(s6, [0.08] * 30 + [0.01] * 30, first_tick=61)
+    assert s6.target_m == pytest.approx(0.08) and not s6.cautious(150 * TICK)  # the last retreat was at tick 62
+    # backing off to the start depth without plans: the target is no plan's again
+    s7 = DepthSchedule(dataclasses.replace(cfg, hold_s=0.1))
+    run(s7, [0.3] * 61)
+    run(s7, [None] * 60, first_tick=61)
+    assert s7.target_m == pytest.approx(0.1) and not s7.deepened
     # no memory: a retreat changes nothing
     s3 = DepthSchedule(ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.12, shallow_rate_m_s=6.0,
                                         retreat_memory_s=0.0))

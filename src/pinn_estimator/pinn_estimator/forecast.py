@@ -256,11 +256,21 @@ def label_of(report: dict, name: str) -> str:
     return LABELS.get(name, name).replace("{physics}", physics)
 
 
-def markdown(report: dict) -> list[str]:
-    """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and shallower."""
-    lines = [f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
-             f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
-             "training grid). Mean |error| and signed bias, % of the measured force.", "",
+def _pct(value: float, signed: bool = False) -> str:
+    """A percentage cell; "–" where there was nothing to average (no pair in that direction)."""
+    if value is None or not np.isfinite(value):
+        return "–"
+    return f"{value:+.1f} %" if signed else f"{value:.1f} %"
+
+
+def markdown(report: dict, intro: str | None = None) -> list[str]:
+    """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and
+    shallower. ``intro``: the sentence above the table (default: the held-out episodes')."""
+    if intro is None:
+        intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
+                 f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
+                 "training grid). Mean |error| and signed bias, % of the measured force.")
+    lines = [intro, "",
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
              "|---|---|---|---|---|---|---|---|"]
@@ -269,9 +279,9 @@ def markdown(report: dict) -> list[str]:
         label = label_of(report, name)
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
-        lines.append(f"| {label} | {x['all']['mean_abs_pct']:.1f} % | {x['deeper']['bias_pct']:+.1f} % | "
-                     f"{x['shallower']['bias_pct']:+.1f} % | {z['all']['mean_abs_pct']:.1f} % | {z['deeper']['bias_pct']:+.1f} % | "
-                     f"{cover[0]} | {cover[1]} |")
+        lines.append(f"| {label} | {_pct(x['all']['mean_abs_pct'])} | {_pct(x['deeper']['bias_pct'], True)} | "
+                     f"{_pct(x['shallower']['bias_pct'], True)} | {_pct(z['all']['mean_abs_pct'])} | "
+                     f"{_pct(z['deeper']['bias_pct'], True)} | {cover[0]} | {cover[1]} |")
     for name, params in report.get("parameters", {}).items():
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
                           f"(intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%}"

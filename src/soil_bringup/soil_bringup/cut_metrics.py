@@ -10,9 +10,10 @@
 * **Ticks at a force limit**: measured |F_x| or |F_z| at or above ``AT_LIMIT`` of the
   20 kN tractive / 30 kN lift limit (the motor and the lift joint saturate there).
 * **Back-off events**: the controller's anti-stall offset Δd̄ leaving zero (it starts lifting).
-* **Target retreats**: how often the controller's target depth fell by at least
-  ``RETREAT_DROP_M`` from its highest point since the last retreat (a fixed depth has none; a
-  planner that cycles between a depth and a shallower one has many).
+* **Target falls**: how often the controller's target depth fell by at least ``FALL_M`` from
+  its deepest since it last rose (a fixed depth has none; one long fall counts once; a planner
+  that cycles between a depth and a shallower one has one per cycle). The depth schedule's own
+  "retreat" (``soil_planner.depth_schedule``) is a plan below the target, which starts a fall.
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
   hindsight is the deepest of a sweep of fixed depths with no stall in that patch
@@ -30,7 +31,7 @@ AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
 SETTLE_TOLERANCE = 0.20  # relative to the patch's best fixed depth
 SETTLE_HOLD_S = 1.0
-RETREAT_DROP_M = 0.02  # a target falling this far from its peak is a retreat
+FALL_M = 0.02  # a target falling this far from its deepest since it last rose is a fall
 
 
 def stall_mask(cut) -> np.ndarray:
@@ -56,15 +57,21 @@ def backoff_events(cut) -> int:
     return int(np.count_nonzero(lifting[1:] & ~lifting[:-1]) + int(lifting[0]))
 
 
-def target_retreats(target_m: np.ndarray, drop_m: float = RETREAT_DROP_M) -> int:
-    """Times a target depth series [m] fell by at least ``drop_m`` [m] below its deepest since the last retreat."""
+def target_falls(target_m: np.ndarray, fall_m: float = FALL_M) -> int:
+    """Times a target depth series [m] fell by at least ``fall_m`` [m] below its deepest since it
+    last rose: a fall is counted once however long it goes on, and the next needs the target to
+    have deepened again (by any amount) first."""
     target_m = np.asarray(target_m, float)
-    n, peak = 0, -np.inf
+    n, peak, low, falling = 0, -np.inf, np.inf, False
     for t in target_m[np.isfinite(target_m)]:
-        if t > peak:
+        if falling:
+            if t > low:  # deepening again: a new peak
+                falling, peak = False, t
+            low = min(low, t)
+        elif t > peak:
             peak = t
-        elif peak - t >= drop_m:
-            n, peak = n + 1, t
+        elif peak - t >= fall_m - 1e-12:
+            n, falling, low = n + 1, True, t
     return n
 
 
@@ -81,7 +88,7 @@ def summary(cut) -> dict:
         "duration_s": cut.ticks * dt, "travel_m": travel, "volume_m3": volume,
         "volume_per_m_m3": volume / travel if travel > 0 else 0.0, "volume_per_s_m3": volume / (cut.ticks * dt),
         "stall_s": float(stall_mask(cut).sum() * dt), "ticks_at_limit": int(np.count_nonzero((share >= AT_LIMIT).any(axis=1))),
-        "backoff_events": backoff_events(cut), "target_retreats": target_retreats(cut.target),
+        "backoff_events": backoff_events(cut), "target_falls": target_falls(cut.target),
         "force_x_mean_share": float(use[:, 0].mean()), "force_x_p95_share": float(np.percentile(use[:, 0], 95)),
         "force_z_mean_share": float(use[:, 1].mean()), "force_z_p95_share": float(np.percentile(use[:, 1], 95)),
         "mean_depth_m": float(cut.depth[cutting].mean()) if cutting.any() else 0.0,

@@ -12,7 +12,7 @@ For each world, one path of changing soil (patches along x), one seed, one run:
 
 Printed and written to ``--out`` (``cut_report.md``, ``cut_report.json``, ``cut_<world>.png``):
 volume cut per metre and per second, stall time, ticks at a force limit, the controller's
-back-off events, the target's retreats (``cut_metrics.target_retreats``), force use, and per patch the planner's depth against the hindsight best
+back-off events, the target's falls (``cut_metrics.target_falls``), force use, and per patch the planner's depth against the hindsight best
 and how soon after entering it the target settled there. The issue's targets are printed
 with the measured values; they are figures, never asserted.
 
@@ -191,11 +191,11 @@ def markdown(report: dict) -> str:
         r = w["ratios"]
         lines += [f"## {w['world']} world", "",
                   "| policy | volume / m [m³/m] | volume / s [m³/s] | stall [s] | ticks at a limit | back-offs "
-                  "| target retreats | F_x mean / p95 [% of 20 kN] | F_z mean / p95 [% of 30 kN] | mean depth [m] |",
+                  "| target falls | F_x mean / p95 [% of 20 kN] | F_z mean / p95 [% of 30 kN] | mean depth [m] |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for p in w["policies"]:
             lines.append(f"| {p['policy']} | {p['volume_per_m_m3']:.3f} | {p['volume_per_s_m3']:.3f} | {p['stall_s']:.2f} "
-                         f"| {p['ticks_at_limit']} | {p['backoff_events']} | {p['target_retreats']} "
+                         f"| {p['ticks_at_limit']} | {p['backoff_events']} | {p['target_falls']} "
                          f"| {100 * p['force_x_mean_share']:.0f} / {100 * p['force_x_p95_share']:.0f} "
                          f"| {100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f} "
                          f"| {p['mean_depth_m']:.3f} |")
@@ -274,10 +274,10 @@ def console(report: dict) -> str:
         out.append(f"{w['world']} world ({report['path']}, {report['duration_s']:g} s, seed {report['seed']}; "
                    f"controller: {controller_text(report['controller'])}):")
         out.append(f"  {'policy':<22} {'m3/m':>6} {'m3/s':>6} {'stall s':>8} {'@limit':>7} {'backoff':>8} "
-                   f"{'retreat':>8} {'Fx mean/p95':>12} {'Fz mean/p95':>12}")
+                   f"{'falls':>8} {'Fx mean/p95':>12} {'Fz mean/p95':>12}")
         for p in w["policies"]:
             out.append(f"  {p['policy']:<22} {p['volume_per_m_m3']:6.3f} {p['volume_per_s_m3']:6.3f} {p['stall_s']:8.2f} "
-                       f"{p['ticks_at_limit']:7d} {p['backoff_events']:8d} {p['target_retreats']:8d} "
+                       f"{p['ticks_at_limit']:7d} {p['backoff_events']:8d} {p['target_falls']:8d} "
                        f"{100 * p['force_x_mean_share']:5.0f}/{100 * p['force_x_p95_share']:<5.0f} "
                        f"{100 * p['force_z_mean_share']:5.0f}/{100 * p['force_z_p95_share']:<5.0f}")
         out.append(f"  soil-aware: {_fmt(r['volume_per_m_aware_over_conservative'])}x conservative's volume per metre "

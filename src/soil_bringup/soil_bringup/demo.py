@@ -305,9 +305,9 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         print("demo: the planner's question: the simulator cuts each episode's soil at "
               f"{' and '.join(f'{d:g}' for d in OTHER_DEPTHS_M)} m ...", flush=True)
         try:
-            result["forecast"] = forecast_from_live(scores, args.world_mode)
-        except ValueError as err:
-            result["forecast"] = {"skipped": str(err)}
+            result["forecast"] = forecast_from_live(scores, args.world_mode, checkpoint=args.checkpoint)
+        except Exception as err:  # noqa: BLE001 - the run's own summary is written whatever this does
+            result["forecast"] = {"skipped": f"{type(err).__name__}: {err}"}
     paths = {"json": args.out / JSON_NAME, "markdown": args.out / MARKDOWN_NAME, "png": args.out / FIGURE_NAME}
     plot(scores, paths["png"])
     run_info["wall_s"] = wall_s = time.monotonic() - t_start

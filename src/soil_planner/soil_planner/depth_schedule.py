@@ -13,9 +13,12 @@ forces). The schedule turns plans into a target d̄_z(t):
   anti-stall lift of K_v = 0.5 m/s: a plan that says "shallower" is a safety request).
 * **After a retreat, deepen cautiously.** A plan shallower than the target by more than
   ``retreat_m`` (default 1 cm) found the target too deep; for ``retreat_memory_s`` (default
-  5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s) instead
-  (0: no memory; before a plan first deepened the target the start depth is no plan's, and a
-  plan shallower than it is no retreat). Re-deepening at full rate into a depth just found too
+  5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s; never faster
+  than ``deepen_rate_m_s``) instead
+  (0: no memory). Until plans have taken the target more than ``retreat_m`` below the start
+  depth, and again after the schedule backed off to it, the target is the start depth, no
+  plan's, and a plan shallower than it is no retreat. (``cut_metrics.target_falls`` counts what
+  the controller sees: the target falling ≥ 2 cm.) Re-deepening at full rate into a depth just found too
   deep is how the loop cycled: in the default world's dense gravel each 0.1 m/s ramp ended
   with the lift pressing the edge onto a floor that held it (the penetration reaction, then the
   push, in F_z), the plan met its z bound (margin x 30 kN) there and retreated ~5 cm, and at the
@@ -100,7 +103,7 @@ class DepthSchedule:
         self.last_stamp_ns: int | None = None
         self.last_plan_ns: int | None = None  # stamp of the newest valid plan
         self.last_retreat_ns: int | None = None  # stamp of the newest plan that found the target too deep
-        self.deepened = False  # a plan has deepened the target in this cut (before: the start depth, no plan's)
+        self.deepened = False  # plans took the target > retreat_m past the start depth (before: no plan's)
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -113,22 +116,25 @@ class DepthSchedule:
         planned = plan_depth_m is not None and math.isfinite(plan_depth_m)
         if planned:
             goal = float(plan_depth_m)
-            if self.deepened and goal < self.target_m - s.retreat_m:
-                self.last_retreat_ns = stamp_ns
             self.last_plan_ns = stamp_ns
         elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
             goal = self.target_m  # hold
         else:
             goal = s.start_depth_m if self.last_plan_ns is None else min(self.target_m, s.start_depth_m)
+            self.deepened = False  # backing off to the start depth: the target is no plan's again
         goal = min(max(goal, s.min_depth_m), s.max_depth_m)
+        if planned and self.deepened and s.retreat_memory_s > 0.0 and goal < self.target_m - s.retreat_m:
+            self.last_retreat_ns = stamp_ns
         if self.last_plan_ns is None and plan_depth_m is None:
             self.target_m = goal  # nothing planned yet: the start depth as it is
             return self.target_m
         step = goal - self.target_m
         deepen = min(s.deepen_rate_m_s, s.cautious_deepen_rate_m_s) if self.cautious(stamp_ns) else s.deepen_rate_m_s
         step = min(step, deepen * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
-        self.deepened = self.deepened or (step > 0 and planned)
         self.target_m = min(max(self.target_m + step, s.min_depth_m), s.max_depth_m)
+        # plans took the target deeper than where the cut started by more than a retreat: from now
+        # on a plan below it is one (a few millimetres of the first ramp are no plan's depth)
+        self.deepened = self.deepened or (planned and self.target_m > s.start_depth_m + s.retreat_m)
         return self.target_m
 
     def cautious(self, stamp_ns: int) -> bool:

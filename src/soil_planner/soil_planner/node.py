@@ -78,7 +78,8 @@ PARAMETERS: dict[str, tuple] = {
     "retreat_m": (_SCHEDULE.retreat_m, "a plan shallower than the target by more than this is a retreat [m], >= 0"),
     "retreat_memory_s": (_SCHEDULE.retreat_memory_s, "after a retreat the target deepens at cautious_deepen_rate_m_s "
                                                      "for this long [s], >= 0 (0: never)"),
-    "cautious_deepen_rate_m_s": (_SCHEDULE.cautious_deepen_rate_m_s, "the deepening rate after a retreat [m/s], > 0"),
+    "cautious_deepen_rate_m_s": (_SCHEDULE.cautious_deepen_rate_m_s, "the deepening rate after a retreat [m/s], "
+                                                                     "> 0 (at most deepen_rate_m_s)"),
     "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
