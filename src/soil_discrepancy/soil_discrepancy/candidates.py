@@ -73,6 +73,12 @@ def limit_blas_threads(n: int = 1) -> bool:
 
 
 # ------------------------------------------------------------------------------------ splits
+def check_holdout(holdout: float) -> None:
+    """ValueError naming ``holdout`` (the share of θ-groups held out) unless it is in [0, 1)."""
+    if not 0.0 <= holdout < 1.0:
+        raise ValueError(f"holdout={holdout} must be in [0, 1)")
+
+
 def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], list[int]]:
     """(selection groups, test groups): ~``holdout`` of the θ-groups held out, by group.
 
@@ -84,8 +90,7 @@ def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], l
     selection part (cross-validation needs them) and, if holdout > 0, at least one goes to the
     test part.
     """
-    if not 0.0 <= holdout < 1.0:
-        raise ValueError(f"holdout={holdout} must be in [0, 1)")
+    check_holdout(holdout)
     groups = [int(g) for g in frame.groups]
     n = len(groups)
     n_test = int(round(holdout * n))

@@ -139,6 +139,14 @@ def _gamma_groups(ds) -> list[str]:
     return [f"γ≈{names[label[e]] / 1e3:.2f} kN/m³" for e in range(len(gamma))]
 
 
+def check_frame_settings(stride, group_by: str) -> None:
+    """ValueError naming ``stride`` (ticks, an integer >= 1) or ``group_by`` if it cannot make a frame."""
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise ValueError(f"stride={stride!r} must be an integer >= 1 tick")
+    if group_by not in GROUP_BY:
+        raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
+
+
 def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
                 group_by: str = "auto") -> Frame:
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
@@ -151,10 +159,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     'gamma' — episodes with the same measured unit weight γ share θ (no label read; two soils
     of one γ share a θ, which the report's regimes then show as a misfit).
     """
-    if stride < 1:
-        raise ValueError(f"stride={stride} must be >= 1 tick")
-    if group_by not in GROUP_BY:
-        raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
+    check_frame_settings(stride, group_by)
     n_ep = len(ds.names)
     if n_ep == 0:
         raise ValueError("the dataset has no episodes")

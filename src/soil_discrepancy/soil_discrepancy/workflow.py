@@ -28,10 +28,10 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
-from .candidates import MAX_TERMS, select_terms, split_holdout
+from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
 from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
-from .frame import GROUP_BY, MIN_DEPTH_M, SKIP_S, Frame, build_frame
+from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
 
@@ -90,13 +90,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         raise ValueError(f"folds={folds} must be >= 2")
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(f"min_gain={min_gain} must be in [0, 1)")
-    # the bags' own checks (stride, grouping, the split) would come only after reading them
-    if not 0.0 <= holdout < 1.0:
-        raise ValueError(f"holdout={holdout} must be in [0, 1)")
-    if frame is None and int(stride) < 1:
-        raise ValueError(f"stride={stride} must be >= 1 tick")
-    if frame is None and group_by not in GROUP_BY:
-        raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
+    check_holdout(holdout)  # (the split and the frame check these too, but only after the bags are read)
+    if frame is None:
+        check_frame_settings(stride, group_by)
     initial = AugmentedFEE(accepted)
     candidates = _candidates(terms, initial)
     candidates += [n for n in dict.fromkeys(user_terms or ()) if n not in candidates and n not in initial.names]
