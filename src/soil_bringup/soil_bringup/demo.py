@@ -41,7 +41,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
 
 from . import launch as L
-from .demo_forecast import OTHER_DEPTHS_M, forecast_from_live
+from .demo_forecast import depths_text, forecast_from_live
 from .demo_forecast import markdown_lines as forecast_lines
 from .monitor import MONITOR_DATA_TOPICS, LiveMonitor
 from .scoring import missing_episodes, overall, score_bag_dir
@@ -80,7 +80,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help=f"ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else {DEFAULT_DOMAIN_ID})")
     p.add_argument("--no-forecast", action="store_true",
                    help="skip the forecast at other depths (the simulator cutting each episode's soil at "
-                        f"{' and '.join(f'{d:g}' for d in OTHER_DEPTHS_M)} m after the run)")
+                        f"{depths_text()} m after the run)")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="give the launch at most this many seconds (default: from the plan)")
     args = p.parse_args(argv)
@@ -303,7 +303,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     result = {"run": run_info, "episodes": rows, "overall": total}
     if not args.no_forecast:
         print("demo: the planner's question: the simulator cuts each episode's soil at "
-              f"{' and '.join(f'{d:g}' for d in OTHER_DEPTHS_M)} m ...", flush=True)
+              f"{depths_text()} m ...", flush=True)
         try:
             result["forecast"] = forecast_from_live(scores, args.world_mode, checkpoint=args.checkpoint)
         except Exception as err:  # noqa: BLE001 - the run's own summary is written whatever this does

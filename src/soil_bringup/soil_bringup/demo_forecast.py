@@ -20,6 +20,11 @@ OTHER_DEPTHS_M = (0.1, 0.25)  # the demo cuts at 0.2 m: one forecast shallower, 
 ESTIMATORS = ("fused", "pinn")
 
 
+def depths_text(depths_m=OTHER_DEPTHS_M) -> str:
+    """'0.1 and 0.25': the other depths as the console, the help and the summary say them [m]."""
+    return " and ".join(f"{d:g}" for d in depths_m)
+
+
 def reference_specs(metas, depths_m=OTHER_DEPTHS_M) -> list:
     """One EpisodeSpec per live episode's metadata and other depth (the same soil, density, speed,
     seed and length; a one-soil path only)."""
@@ -104,8 +109,7 @@ def markdown_lines(report: dict) -> list[str]:
     """The report as Markdown (``pinn_estimator.forecast.markdown``'s table, this run's sentence)."""
     from pinn_estimator.forecast import markdown
 
-    depths = " and ".join(f"{d:g}" for d in report["depths_m"])
     return markdown(report, intro=(
         f"The planner's question: from each live episode, the force at another depth of the same soil "
-        f"({report['pairs']} forecasts to the simulator's episodes at {depths} m, same soil, density, speed and seed; "
+        f"({report['pairs']} forecasts to the simulator's episodes at {depths_text(report['depths_m'])} m, same soil, density, speed and seed; "
         "the steady half of each). Mean |error| and signed bias, % of the measured force."))

@@ -14,8 +14,7 @@ forces). The schedule turns plans into a target d̄_z(t):
 * **After a retreat, deepen cautiously.** A plan shallower than the target by more than
   ``retreat_m`` (default 1 cm) found the target too deep; for ``retreat_memory_s`` (default
   5 s) after it the target deepens at ``cautious_deepen_rate_m_s`` (default 0.03 m/s; never faster
-  than ``deepen_rate_m_s``) instead
-  (0: no memory). Until plans have taken the target more than ``retreat_m`` below the start
+  than ``deepen_rate_m_s``) instead (0: no memory). Until plans have taken the target more than ``retreat_m`` below the start
   depth, and again after the schedule backed off to it, the target is the start depth, no
   plan's, and a plan shallower than it is no retreat. (``cut_metrics.target_falls`` counts what
   the controller sees: the target falling ≥ 2 cm.) Re-deepening at full rate into a depth just found too
