@@ -37,6 +37,15 @@ def test_unknown_sequences_are_not_judged_and_ties_have_no_leader():
     assert w.leader() is None
 
 
+def test_a_tie_on_ticks_goes_to_the_writer_heard_first():
+    w = WriterTracks()
+    first = w.observe(100, 0)
+    newcomer = w.observe(1, 1)  # its own counter, one tick like the first writer
+    assert newcomer != first and w.leads(first) and not w.leads(newcomer)
+    w.observe(2, 2)  # the newcomer's second tick: now it is ahead
+    assert w.leads(newcomer) and not w.leads(first)
+
+
 def test_sequence_numbers_wrap_like_mcaps_uint32():
     w = WriterTracks()
     a = w.observe(SEQUENCE_MASK, 0)

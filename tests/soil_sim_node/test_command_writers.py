@@ -56,6 +56,18 @@ def test_an_intruder_taken_on_the_very_first_tick_is_not_followed_afterwards():
     assert gate.take() == (0.06, 0.0, 0.5)
 
 
+def test_an_intruder_that_ties_the_controller_early_does_not_steer():
+    """Tick 1: the controller has answered one tick; an intruder's first copy of tick 1 (its own
+    fresh counter: one tick, a tie) arrives before the controller's. A tie goes to the writer
+    heard first, so the copy is refused and the controller's command is applied."""
+    gate = CommandGate()
+    seq = run_controller(gate, 1)
+    gate.expect(stamp(1))
+    assert gate.offer(BLADE, stamp(1), (0.3, 0.0), 1) != []  # the intruder's counter starts at 1
+    assert answer(gate, 1, seq, u_zr=0.06) == []
+    assert gate.take()[0] == 0.06
+
+
 def test_a_controller_that_skipped_a_tick_is_still_followed():
     gate = CommandGate()
     seq = run_controller(gate, 5)

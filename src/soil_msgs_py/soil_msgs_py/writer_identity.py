@@ -88,11 +88,16 @@ class WriterTracks:
         return writer.ident
 
     def leads(self, ident: int | None) -> bool:
-        """Whether ``ident`` has sent at least as many ticks as any other writer (an unknown
-        writer, None, is never judged: True)."""
+        """Whether ``ident`` is the writer followed now: the most ticks, and of writers tied on
+        ticks the one heard first (an unknown writer, None, is never judged: True).
+
+        Why ties go to the writer heard first: a newcomer must overtake, not merely equal, the
+        writer already followed. Early in an episode the controller has answered one or two
+        ticks; an intruder's first copy of a tick (its own fresh counter, one tick) that
+        arrives before the controller's would otherwise tie and be taken."""
         if ident is None or ident not in self._writers:
             return ident is None
-        return self._writers[ident].ticks >= max(w.ticks for w in self._writers.values())
+        return ident == max(self._writers.values(), key=lambda w: (w.ticks, -w.ident)).ident
 
     def leader(self) -> int | None:
         """The one writer with the most ticks; None if none was seen or several tie (then
