@@ -503,6 +503,34 @@ def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_i
     assert plan.max_depth_m == pytest.approx(max_cut_depth(dict(fused, f_x_hat=2 * fused["f_x_hat"]), sinking).max_depth_m, abs=1e-6)
 
 
+def test_an_edge_held_short_of_its_target_does_not_anchor_z_with_the_lifts_push():
+    """The lift presses the edge onto a floor that holds it 2 cm short of the target: F̂_z is then
+    the push (here beyond the z bound), not the steady cut's. Given the target, the held ticks'
+    F̂_z is the free ticks' per metre of depth, so the plan stays the free cut's; without it (or
+    before any free tick) the push binds z as before."""
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    pushed = dict(fused, f_z_hat=-26e3)
+    free_plan = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], fused["f_z_hat"]), known)).max_depth_m
+    pushed_plan = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], -26e3), known))
+    assert pushed_plan.limited_by_z and pushed_plan.max_depth_m < free_plan - 0.02
+    runs = {}
+    for name, target in (("told", 0.14), ("not told", None)):
+        planner = StretchPlanner()
+        for i in range(ANCHOR_WINDOW_TICKS // 2):  # free: the edge holds its target
+            planner.plan(dict(fused, fused_stretches=float(i)), known, target_m=0.12)
+        for i in range(ANCHOR_WINDOW_TICKS):  # held 2 cm short of a deeper target, the lift pushing
+            plan, _ = planner.plan(dict(pushed, fused_stretches=100.0 + i), known, target_m=target)
+        runs[name] = (plan.max_depth_m, planner.anchor.held)
+    assert runs["told"] == (pytest.approx(free_plan, abs=1e-6), ANCHOR_WINDOW_TICKS)
+    assert runs["not told"][0] == pytest.approx(pushed_plan.max_depth_m, abs=1e-6) and runs["not told"][1] == 0
+    planner = StretchPlanner()  # held from the start: no free tick to take z from, so the push is kept
+    for i in range(ANCHOR_WINDOW_TICKS):
+        plan, _ = planner.plan(dict(pushed, fused_stretches=float(i)), known, target_m=0.14)
+    assert plan.max_depth_m == pytest.approx(pushed_plan.max_depth_m, abs=1e-6) and planner.anchor.held == 0
+
+
 def test_between_stretches_the_plan_is_remade_when_the_anchor_restarts_and_every_replan_period():
     """One stretch of evidence (the posterior unchanged) while the force moves: a stronger soil
     is planned for as soon as the anchor restarts; otherwise the plan is repeated for at most

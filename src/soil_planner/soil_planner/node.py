@@ -70,6 +70,9 @@ PARAMETERS: dict[str, tuple] = {
     "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
                   "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
+    "controller_follows": (False, "the anti-stall controller cuts to this planner's /planner/target_depth (soil_launch "
+                                  "--planner sets it): a steady edge held short of that target is pressed onto a floor "
+                                  "that holds it, and its F_z (the lift's push) does not anchor the plan's z force"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
@@ -90,11 +93,16 @@ PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "f
 def stretch_planner(settings: dict) -> StretchPlanner:
     """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
     PINN's point plan); ValueError naming a bad one."""
-    if not isinstance(settings["include_residual"], bool):
-        raise ValueError(f"include_residual={settings['include_residual']!r} must be true or false")
+    check_flag("include_residual", settings["include_residual"])
     q = settings["force_quantile"]
     off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
     return StretchPlanner(**{**settings, "force_quantile": None if off else q})
+
+
+def check_flag(name: str, value) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}={value!r} must be true or false")
+    return value
 
 
 def check_log_period(value) -> float:
@@ -111,6 +119,7 @@ class PlannerNode(Node):
         self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
+        self.controller_follows = check_flag("controller_follows", get("controller_follows"))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -143,6 +152,7 @@ class PlannerNode(Node):
             planner = stretch_planner({**self.planner.settings(),
                                        **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
+            follows = check_flag("controller_follows", changes.get("controller_follows", self.controller_follows))
             current = self.schedule.settings.to_dict()
             schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
@@ -150,6 +160,7 @@ class PlannerNode(Node):
         self.planner = planner
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
+        self.controller_follows = follows
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
@@ -199,7 +210,8 @@ class PlannerNode(Node):
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         try:
-            plan, new = self.planner.plan(est, known)
+            # the target the controller cuts to, if it follows this planner (sent a tick or two ago)
+            plan, new = self.planner.plan(est, known, self.schedule.target_m if self.controller_follows else None)
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)
