@@ -63,15 +63,10 @@ def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tm
 
 def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_nodes(tmp_path):
     nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"),
-                                                             "--controller-param", "k_v_m_s:=0.4",
-                                                             "--planner-param", "margin:=0.85"]))}
+                                                             "--controller-param", "k_v_m_s:=0.4"]))}
     assert set(nodes) == {"recorder", "estimator", "planner", "controller", "sim"}  # the planner needs the estimator
     ctl = nodes["controller"].argv
     assert ctl.index("depth_source:=planner") < ctl.index("k_v_m_s:=0.4")  # the user's -p come later and win
-    plan = nodes["planner"].argv  # the planner is told the controller cuts to its target (before the user's -p)
-    assert plan.index("controller_follows:=true") < plan.index("margin:=0.85")
-    alone = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", "--no-controller"]))}
-    assert "controller_follows:=true" not in alone["planner"].argv
     assert nodes["planner"].niceness > 0 and nodes["controller"].niceness == nodes["sim"].niceness == 0
     rec = nodes["recorder"].argv
     assert "/planner/target_depth" in rec and "/planner/max_cut_depth" in rec

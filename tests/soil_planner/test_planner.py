@@ -503,11 +503,12 @@ def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_i
     assert plan.max_depth_m == pytest.approx(max_cut_depth(dict(fused, f_x_hat=2 * fused["f_x_hat"]), sinking).max_depth_m, abs=1e-6)
 
 
-def test_an_edge_held_short_of_its_target_does_not_anchor_z_with_the_lifts_push():
-    """The lift presses the edge onto a floor that holds it 2 cm short of the target: F̂_z is then
-    the push (here beyond the z bound), not the steady cut's. Given the target, the held ticks'
-    F̂_z is the free ticks' per metre of depth, so the plan stays the free cut's; without it (or
-    before any free tick) the push binds z as before."""
+def test_an_edge_held_short_of_the_commanded_depth_does_not_anchor_z_with_the_lifts_push():
+    """The lift presses the edge onto a floor that holds it 2 cm short of the commanded depth: F̂_z
+    is then the push (here beyond the z bound), not the steady cut's. Given the commanded depth, the
+    held ticks' F̂_z is the free ticks' per metre of depth, so the plan stays the free cut's (however
+    long it is held: nothing new about the cut's z force can show meanwhile); without it, before any
+    free tick of the cut, or after a stronger soil restarted the window, the push binds z."""
     known = _known(d=0.12, q=1000.0)
     fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
                    std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
@@ -516,19 +517,25 @@ def test_an_edge_held_short_of_its_target_does_not_anchor_z_with_the_lifts_push(
     pushed_plan = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], -26e3), known))
     assert pushed_plan.limited_by_z and pushed_plan.max_depth_m < free_plan - 0.02
     runs = {}
-    for name, target in (("told", 0.14), ("not told", None)):
+    def run(commanded, held_ticks=ANCHOR_WINDOW_TICKS, forget=False, stronger=1.0):
         planner = StretchPlanner()
-        for i in range(ANCHOR_WINDOW_TICKS // 2):  # free: the edge holds its target
-            planner.plan(dict(fused, fused_stretches=float(i)), known, target_m=0.12)
-        for i in range(ANCHOR_WINDOW_TICKS):  # held 2 cm short of a deeper target, the lift pushing
-            plan, _ = planner.plan(dict(pushed, fused_stretches=100.0 + i), known, target_m=target)
-        runs[name] = (plan.max_depth_m, planner.anchor.held)
-    assert runs["told"] == (pytest.approx(free_plan, abs=1e-6), ANCHOR_WINDOW_TICKS)
-    assert runs["not told"][0] == pytest.approx(pushed_plan.max_depth_m, abs=1e-6) and runs["not told"][1] == 0
-    planner = StretchPlanner()  # held from the start: no free tick to take z from, so the push is kept
-    for i in range(ANCHOR_WINDOW_TICKS):
-        plan, _ = planner.plan(dict(pushed, fused_stretches=float(i)), known, target_m=0.14)
-    assert plan.max_depth_m == pytest.approx(pushed_plan.max_depth_m, abs=1e-6) and planner.anchor.held == 0
+        for i in range(ANCHOR_WINDOW_TICKS // 2):  # free: the edge holds the commanded depth
+            planner.plan(dict(fused, fused_stretches=float(i)), known, 0.12)
+        if forget:
+            planner.forget()  # a new cut: nothing free seen in it yet
+        for i in range(held_ticks):  # held 2 cm short of a deeper command, the lift pushing
+            plan, _ = planner.plan(dict(pushed, f_x_hat=stronger * fused["f_x_hat"], fused_stretches=100.0 + i),
+                                   known, commanded)
+        return plan.max_depth_m, planner.anchor.held
+
+    assert run(0.14) == (pytest.approx(free_plan, abs=1e-6), ANCHOR_WINDOW_TICKS)
+    assert run(0.1215) == (pytest.approx(pushed_plan.max_depth_m, abs=1e-6), 0)  # 1.5 mm short: not held
+    for kept in (run(None), run(0.14, forget=True)):
+        assert kept == (pytest.approx(pushed_plan.max_depth_m, abs=1e-6), 0)
+    assert run(0.14, held_ticks=3 * ANCHOR_MAX_AGE_TICKS) == (pytest.approx(free_plan, abs=1e-6), 3 * ANCHOR_MAX_AGE_TICKS)
+    # a stronger soil restarts the window: the weaker one's z per metre says nothing of it
+    _, held = run(0.14, stronger=2.0)
+    assert 0 < held < ANCHOR_RECENT_TICKS
 
 
 def test_between_stretches_the_plan_is_remade_when_the_anchor_restarts_and_every_replan_period():

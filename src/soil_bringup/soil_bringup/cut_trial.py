@@ -63,9 +63,9 @@ class SoilAwareSetup:
     schedule: ScheduleSettings = field(default_factory=ScheduleSettings)
     plan_delay_ticks: int = DEFAULT_PLAN_DELAY_TICKS
     checkpoint: str | None = None  # None: models/pinn_<world>.pt
-    # the planner is told the target the controller cuts to, as soil_launch --planner tells the node
-    # (its controller_follows): an edge held short of it does not anchor the plan's z force
-    controller_follows: bool = True
+    # the planner sees the depth the controller commands (−u_za), as the node does on /blade/cmd: an
+    # edge held short of it does not anchor the plan's z force (False: as before it did)
+    sees_commands: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.plan_delay_ticks, bool) or not isinstance(self.plan_delay_ticks, int) or self.plan_delay_ticks < 1:
@@ -156,7 +156,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
                 fused[k] = [values[name] for name in FUSED_TRACK]
                 try:
                     plan, _ = planner.plan(values, dict(zip(KNOWN_PARAMS, out.known[0].tolist())),
-                                           float(controller.target_depth_m[0]) if setup.controller_follows else None)
+                                           -float(cmd.u_za[0]) if setup.sees_commands else None)
                 except ValueError:
                     plan = None  # a refused estimate: no plan for this tick (the node warns and skips it)
                 depth = plan.max_depth_m if plan is not None else None

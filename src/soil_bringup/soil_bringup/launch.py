@@ -327,9 +327,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if args.planner:
         # the posterior's physics first, so a -p terms:=... of the user's wins
         physics = posterior_terms_param(args.estimator_params_file, args.estimator_param)
-        follows = [] if args.no_controller else ["controller_follows:=true"]  # (the loop closed below)
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
-                                                      physics + follows + args.planner_param),
+                                                      physics + args.planner_param),
                                  stop_order=2, niceness=PLANNER_NICENESS))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:

@@ -9,7 +9,9 @@ gives a valid = 0 plan (all zeros), so a consumer sees that there is no plan for
 A message that cannot be trusted (wrong layout, NaN, out of Table 1 limits) is reported via
 WarnLimiter and nothing is published for it; the node never publishes NaN and never dies
 on input. A log line at most once per ``log_period_s`` of simulation time says what the
-plan is and why.
+plan is and why. /blade/cmd gives the depth the controller commands per tick (−u_za): a steady
+edge held short of it shows the lift's push in F_z, which does not anchor the plan's z force
+(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before.
 
 Every plan also moves the cut depth the anti-stall controller follows when its
 ``depth_source`` is ``planner``: /planner/target_depth (stamped like the plan; sent when the
@@ -27,6 +29,9 @@ Parameters (also in ``config/soil_planner.yaml``) are validated at start (a bad 
 with code 2) and can be changed at run time (``ros2 param set``).
 """
 from __future__ import annotations
+
+import collections
+import math
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -70,9 +75,6 @@ PARAMETERS: dict[str, tuple] = {
     "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
                   "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
-    "controller_follows": (False, "the anti-stall controller cuts to this planner's /planner/target_depth (soil_launch "
-                                  "--planner sets it): a steady edge held short of that target is pressed onto a floor "
-                                  "that holds it, and its F_z (the lift's push) does not anchor the plan's z force"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
@@ -93,16 +95,11 @@ PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "f
 def stretch_planner(settings: dict) -> StretchPlanner:
     """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
     PINN's point plan); ValueError naming a bad one."""
-    check_flag("include_residual", settings["include_residual"])
+    if not isinstance(settings["include_residual"], bool):
+        raise ValueError(f"include_residual={settings['include_residual']!r} must be true or false")
     q = settings["force_quantile"]
     off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
     return StretchPlanner(**{**settings, "force_quantile": None if off else q})
-
-
-def check_flag(name: str, value) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError(f"{name}={value!r} must be true or false")
-    return value
 
 
 def check_log_period(value) -> float:
@@ -119,7 +116,9 @@ class PlannerNode(Node):
         self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
-        self.controller_follows = check_flag("controller_follows", get("controller_follows"))
+        # the depth the controller commands per tick stamp (−u_za of /blade/cmd): a steady edge held
+        # short of it is pressed onto a floor, and its F_z (the lift's push) does not anchor z
+        self.commanded: collections.OrderedDict[int, float] = collections.OrderedDict()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -137,6 +136,8 @@ class PlannerNode(Node):
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
+        self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, self._on_blade_cmd,
+                                 topic_qos(T.BLADE_CMD.name))
         p = self.planner
         self.get_logger().info(
             f"margin {p.margin}, d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
@@ -152,7 +153,6 @@ class PlannerNode(Node):
             planner = stretch_planner({**self.planner.settings(),
                                        **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
-            follows = check_flag("controller_follows", changes.get("controller_follows", self.controller_follows))
             current = self.schedule.settings.to_dict()
             schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
@@ -160,7 +160,6 @@ class PlannerNode(Node):
         self.planner = planner
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
-        self.controller_follows = follows
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
@@ -174,6 +173,21 @@ class PlannerNode(Node):
         self.schedule.reset()
         self.planner.forget()
         self._target_sent = None
+        self.commanded.clear()
+
+    def _on_blade_cmd(self, msg) -> None:
+        """The depth the controller commands for a tick, −u_za (the first command of a stamp counts)."""
+        try:
+            stamp, values = M.parse_labelled(msg, T.BLADE_CMD.labels, T.BLADE_CMD.name)
+        except ValueError as err:
+            self._warn("blade_cmd:layout", f"{err}; ignored")
+            return
+        u_za = float(values[T.BLADE_CMD.labels.index("u_za")])
+        if not math.isfinite(u_za) or stamp in self.commanded:
+            return
+        self.commanded[stamp] = -u_za
+        while len(self.commanded) > MAX_PENDING_STAMPS:
+            self.commanded.popitem(last=False)
 
     def _on_known(self, msg) -> None:
         try:
@@ -210,8 +224,7 @@ class PlannerNode(Node):
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         try:
-            # the target the controller cuts to, if it follows this planner (sent a tick or two ago)
-            plan, new = self.planner.plan(est, known, self.schedule.target_m if self.controller_follows else None)
+            plan, new = self.planner.plan(est, known, self.commanded.get(stamp))
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)

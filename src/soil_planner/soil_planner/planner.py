@@ -140,8 +140,9 @@ ANCHOR_MIN_SPREAD_N = 100.0  # floor of that spread [N]: a perfectly steady forc
 ANCHOR_MAX_ABS_V_Z_M_S = STEADY_CUT_MAX_ABS_V_Z_M_S
 ANCHOR_DEPTH_BAND_M = 0.01
 ANCHOR_MAX_AGE_TICKS = 180
-# An edge this far [m] above the controller's target while it holds its depth is held there by
-# the floor: the lift presses it down and the soil's penetration reaction holds it up (the
+# An edge this far [m] above the depth the controller commands (−u_za of /blade/cmd: its target
+# less the anti-stall offset) while it holds its depth is held there by the floor: the lift
+# presses it down and the soil's penetration reaction holds it up (the
 # default world's dense gravel: F_z -20 to -28 kN at 0.17-0.21 m, 1 cm short of the target;
 # -5 kN once it held its target). That z force is the push of a deepening the edge cannot
 # follow, not what a steady cut at that depth meets (a fixed 0.225 m cut through the same
@@ -149,8 +150,11 @@ ANCHOR_MAX_AGE_TICKS = 180
 # depth being cut, the plan fell 6-8 cm, the blade rose, the push vanished and the plan came
 # back: a retreat every few seconds. So a held tick's F̂_z is not evidence of the cut's z force
 # (``SteadyAnchor.add``); its F̂_x is kept (base friction riding on the push makes it larger,
-# never smaller: the bound stays on the safe side in x).
-HELD_GAP_M = 0.005
+# never smaller: the bound stays on the safe side in x). 2 mm: the lift joint is stiff (2 MN/m in
+# the simulator), so a few millimetres of lead already push ~10 kN; at 5 mm the ticks counted
+# free carried half the push into the z force per metre the held ones took. A free edge
+# tracking its depth sits within about 2 mm of the command.
+HELD_GAP_M = 0.002
 # A fused plan is re-made at least this often [ticks] (StretchPlanner): 4 Hz at ~7 ms a plan.
 REPLAN_TICKS = 15
 # x is scaled to F̂_x only where both forces exceed this [N] (a ratio of small forces is noise),
@@ -398,16 +402,20 @@ class SteadyAnchor:
         self.tick = 0
         self.restarts = 0  # times a stronger soil restarted the window
         self.entries: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
-        self.free_z_per_m: float | None = None  # F̂_z / d of the newest steady tick whose edge was free
-        self.held = 0  # steady ticks whose edge was held short of its target (their F̂_z replaced)
+        # (tick, F̂_z / d) of the newest steady tick whose edge was free (not held: HELD_GAP_M)
+        self.free_z: tuple[int, float] | None = None
+        self.held = 0  # steady ticks whose edge was held short of the commanded depth (their F̂_z replaced)
 
-    def add(self, estimate: Mapping[str, float], known: Mapping[str, float], target_m: float | None = None) -> None:
+    def add(self, estimate: Mapping[str, float], known: Mapping[str, float],
+            commanded_depth_m: float | None = None) -> None:
         """One tick: kept if the PINN's estimate is valid and finite and the edge holds its depth
-        (|v_z| <= ANCHOR_MAX_ABS_V_Z_M_S) at least MIN_FUSED_ANCHOR_DEPTH_M deep. ``target_m``:
-        the controller's target depth [m] in effect, if known: an edge more than HELD_GAP_M short
-        of it is held by the floor, and its F̂_z is replaced by the newest free tick's F̂_z per
-        metre of depth times its depth (HELD_GAP_M; the z residual is carried in proportion to
-        depth anyway), or kept if no free tick was seen since the cut began."""
+        (|v_z| <= ANCHOR_MAX_ABS_V_Z_M_S) at least MIN_FUSED_ANCHOR_DEPTH_M deep.
+        ``commanded_depth_m``: the depth the controller commands for this tick [m], if known. An
+        edge more than HELD_GAP_M short of it is held by the floor: its F̂_z is replaced by the
+        newest free tick's F̂_z per metre of depth times its own depth (the z residual is carried
+        in proportion to depth anyway; however long it is held, nothing new about the cut's z force
+        can show meanwhile), or kept if no free tick was seen since the cut began or the window last
+        restarted for a stronger soil (the push is then the safe side)."""
         self.tick += 1
         try:  # a tick the plan would refuse never enters the average
             fx, fz = (_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
@@ -418,11 +426,12 @@ class SteadyAnchor:
             return
         row = np.array([k[n] for n in KNOWN_PARAMS])
         if abs(k["v_z"]) <= ANCHOR_MAX_ABS_V_Z_M_S and k["d"] >= MIN_FUSED_ANCHOR_DEPTH_M:
-            held = target_m is not None and math.isfinite(target_m) and target_m - k["d"] > HELD_GAP_M
+            held = (commanded_depth_m is not None and math.isfinite(commanded_depth_m)
+                    and commanded_depth_m - k["d"] > HELD_GAP_M)
             if not held:
-                self.free_z_per_m = fz / k["d"]
-            elif self.free_z_per_m is not None:
-                fz = self.free_z_per_m * k["d"]
+                self.free_z = (self.tick, fz / k["d"])
+            elif self.free_z is not None:
+                fz = self.free_z[1] * k["d"]
                 self.held += 1
             self.entries.append((self.tick, fx, fz, row))
             self._restart_on_a_stronger_soil()
@@ -442,6 +451,7 @@ class SteadyAnchor:
             for _ in range(first):
                 self.entries.popleft()
             self.restarts += 1
+            self.free_z = None  # a stronger soil: the z force per metre of the one before says nothing
 
     def anchor(self) -> tuple[tuple[float, float], dict[str, float]] | None:
         """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth; None
@@ -493,11 +503,12 @@ class StretchPlanner:
                 "terms": force_terms.term_texts(self.terms)}
 
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float],
-             target_m: float | None = None) -> tuple[Plan | None, bool]:
+             commanded_depth_m: float | None = None) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch).
-        ``target_m``: the controller's target depth [m] in effect (``SteadyAnchor.add``)."""
+        ``commanded_depth_m``: the depth the controller commands for this tick [m], −u_za of
+        /blade/cmd (``SteadyAnchor.add``)."""
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
-        self.anchor.add(estimate, known, target_m)
+        self.anchor.add(estimate, known, commanded_depth_m)
         key = (estimate.get("fused_stretches"), self.anchor.restarts, self.margin, self.d_max_m, self.cut_speed_m_s,
                self.force_quantile)
         if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
