@@ -10,9 +10,13 @@ continuity rather than a fixed "sequence minus tick" offset, because a publisher
 skips a tick shifts its offset for good but still continues its own counter.
 
 The writer a consumer follows on a topic is the one that has sent the most ticks: the
-publisher that is there every tick, whoever sent first. The simulator's command gate and
-the recorder while recording decide in arrival order with :class:`WriterTracks`; a journal
-becoming a bag is judged as a whole with :func:`leading_chain`.
+publisher that is there every tick, whichever message of a tick arrives first; of writers
+tied on ticks, the one heard first (a newcomer must overtake it). The simulator's command
+gate and the recorder while recording decide in arrival order with :class:`WriterTracks`
+(for the recorder the rule only decides when an episode looks complete: a second publisher
+heard first at the same rate would leave the episode to its grace timeout); a journal
+becoming a bag is judged as a whole with :func:`leading_chain`, where a tie means nothing
+can be judged (``leader`` says the same of the writers tracked so far).
 """
 from __future__ import annotations
 
@@ -23,6 +27,10 @@ from .messages import NS_PER_S
 from .params import SAMPLE_RATE_HZ
 
 SEQUENCE_MASK = 0xFFFF_FFFF  # MCAP stores a uint32 sequence; DDS counts in int64: compare modulo 2^32
+# A command writer silent this many ticks is forgotten by those who follow the controller's
+# commands live (the simulator's gate, the planner): a restarted controller (a new sequence
+# counter) is followed once its predecessor has gone quiet for 2 s.
+FORGET_WRITER_AFTER_TICKS = 120
 
 
 def tick_index(stamp: int, first_stamp_ns: int) -> int | None:

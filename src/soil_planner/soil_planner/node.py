@@ -46,6 +46,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node,
                                       status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
+from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
@@ -119,6 +120,7 @@ class PlannerNode(Node):
         # the depth the controller commands per tick stamp (−u_za of /blade/cmd): a steady edge held
         # short of it is pressed onto a floor, and its F_z (the lift's push) does not anchor z
         self.commanded: collections.OrderedDict[int, float] = collections.OrderedDict()
+        self.command_writer = WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS)  # the controller's
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -136,7 +138,8 @@ class PlannerNode(Node):
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
                                  topic_qos(T.ESTIMATE.name))
-        self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, self._on_blade_cmd,
+        self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
+                                 lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
                                  topic_qos(T.BLADE_CMD.name))
         p = self.planner
         self.get_logger().info(
@@ -175,16 +178,19 @@ class PlannerNode(Node):
         self._target_sent = None
         self.commanded.clear()
 
-    def _on_blade_cmd(self, msg) -> None:
-        """The depth the controller commands for a tick, −u_za (the first command of a stamp counts)."""
+    def _on_blade_cmd(self, msg, sequence: int | None = None) -> None:
+        """The depth the controller commands for a tick, −u_za: only its writer's, the one that
+        answers every tick (``writer_identity``, as the simulator's command gate follows it)."""
         try:
             stamp, values = M.parse_labelled(msg, T.BLADE_CMD.labels, T.BLADE_CMD.name)
         except ValueError as err:
             self._warn("blade_cmd:layout", f"{err}; ignored")
             return
         u_za = float(values[T.BLADE_CMD.labels.index("u_za")])
-        if not math.isfinite(u_za) or stamp in self.commanded:
+        if not self.command_writer.leads(self.command_writer.observe(sequence, tick_number(stamp))):
             return
+        if not math.isfinite(u_za) or (stamp in self.commanded and sequence is None):
+            return  # (without sequence numbers the first command of a stamp counts)
         self.commanded[stamp] = -u_za
         while len(self.commanded) > MAX_PENDING_STAMPS:
             self.commanded.popitem(last=False)

@@ -12,7 +12,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py.params import MACHINE
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
-from soil_msgs_py.writer_identity import WriterTracks, tick_number
+from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 
 from .simulator import MAX_TARGET_SPEED_M_S, EpisodeSpec
 
@@ -28,9 +28,6 @@ COMMAND_TOPIC_FIELDS: dict[str, tuple[str, ...]] = {
 }  # {"/chassis/cmd_vel": ("u_x",), "/blade/cmd": ("u_zr", "u_za")}
 # Before the controller has said anything: blade on the chassis reference, machine at rest.
 INITIAL_COMMAND = {"u_zr": 0.0, "u_za": 0.0, "u_x": 0.0}
-# A command writer silent this many ticks is forgotten: a restarted controller (a new
-# sequence counter) is followed once its predecessor has gone quiet for 2 s.
-FORGET_WRITER_AFTER_TICKS = 120
 
 
 def command_writers() -> dict[str, WriterTracks]:
