@@ -402,8 +402,7 @@ class SteadyAnchor:
         self.tick = 0
         self.restarts = 0  # times a stronger soil restarted the window
         self.entries: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
-        # (tick, F̂_z / d) of the newest steady tick whose edge was free (not held: HELD_GAP_M)
-        self.free_z: tuple[int, float] | None = None
+        self.free_z_per_m: float | None = None  # F̂_z / d [N/m] of the newest steady tick whose edge was free
         self.held = 0  # steady ticks whose edge was held short of the commanded depth (their F̂_z replaced)
 
     def add(self, estimate: Mapping[str, float], known: Mapping[str, float],
@@ -429,9 +428,9 @@ class SteadyAnchor:
             held = (commanded_depth_m is not None and math.isfinite(commanded_depth_m)
                     and commanded_depth_m - k["d"] > HELD_GAP_M)
             if not held:
-                self.free_z = (self.tick, fz / k["d"])
-            elif self.free_z is not None:
-                fz = self.free_z[1] * k["d"]
+                self.free_z_per_m = fz / k["d"]
+            elif self.free_z_per_m is not None:
+                fz = self.free_z_per_m * k["d"]
                 self.held += 1
             self.entries.append((self.tick, fx, fz, row))
             self._restart_on_a_stronger_soil()
@@ -451,7 +450,7 @@ class SteadyAnchor:
             for _ in range(first):
                 self.entries.popleft()
             self.restarts += 1
-            self.free_z = None  # a stronger soil: the z force per metre of the one before says nothing
+            self.free_z_per_m = None  # a stronger soil: the z force per metre of the one before says nothing
 
     def anchor(self) -> tuple[tuple[float, float], dict[str, float]] | None:
         """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth; None
