@@ -76,18 +76,18 @@ def test_in_dense_gravel_the_loop_settles_deeper_when_the_lifts_push_does_not_an
     settings differ)."""
     spec = EpisodeSpec("Gravel", 100, 0.5, 0.1, seed=4, duration_s=15.0)
     got = {}
-    for follows, memory_s in ((False, 0.0), (False, ScheduleSettings().retreat_memory_s), (True, 0.0)):
+    for sees, memory_s in ((False, 0.0), (False, ScheduleSettings().retreat_memory_s), (True, 0.0)):
         cut = run_cut("default", spec, Policy("soil-aware"),
                       SoilAwareSetup("default", schedule=ScheduleSettings(retreat_memory_s=memory_s),
-                                     sees_commands=follows))
+                                     sees_commands=sees))
         late = slice(5 * 60, None)  # after the first plans and the first ramp
-        got[(follows, memory_s)] = (CM.target_falls(cut.target[late]), np.std(cut.target[late]),
+        got[(sees, memory_s)] = (CM.target_falls(cut.target[late]), np.std(cut.target[late]),
                                     np.percentile(np.abs(cut.force[late, 1]), 95) / 30e3, np.mean(cut.depth[late]))
-    (cycling, spread0, fz0, _), (settled, spread1, fz1, shallow), (told, spread2, _, deep) = got.values()
+    (cycling, spread0, fz0, _), (settled, spread1, fz1, shallow), (seeing, spread2, _, deep) = got.values()
     # (one seed of one soil: measured 4 / 0 / 0 falls, std 2.2 / 0.3 / 0.4 cm, F_z p95 102 / 79 / 112 % of its
     # limit, mean depth 0.120 / 0.107 / 0.166 m; a change of the default world's physics may move these, not
     # the contrasts)
-    assert cycling >= 3 and settled == 0 and told == 0, got
+    assert cycling >= 3 and settled == 0 and seeing == 0, got
     assert spread1 < 0.5 * spread0 and spread2 < 0.5 * spread0, got
     assert fz1 < 1.0 < fz0, got  # blind: the z force's p95 within its limit only when it settles
     assert deep > shallow + 0.03, got  # seeing the commands: the push no longer drives the cut up
