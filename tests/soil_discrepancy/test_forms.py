@@ -299,3 +299,18 @@ def test_the_layer_factor_is_the_face_area_in_the_layer():
     bx, bz = term_forms.basis("form:wd_x*below0.15", s, np)
     assert np.allclose(bx, 2.0 * np.maximum(d - 0.15, 0.0) * term_forms.P_REF_PA) and not bz.any()
     assert "(d − 0.15 m)+ / d" in term_forms.describe("form:wd_x*below0.15")["formula"]
+
+
+def test_a_z_formula_folds_the_scales_sign_into_k():
+    """A z scale presses down ("−w d · P"): the formula a user reads says which way the term acts
+    once, and still equals the basis (k > 0: the relief pushes up, +z on the soil)."""
+    relief = term_forms.describe("form:-wd_z*below0.15")["formula"]
+    press = term_forms.describe("form:wd_z*below0.15")["formula"]
+    assert relief.startswith("F_z = k · w d") and "−k" not in relief and "· −" not in relief
+    assert press.startswith("F_z = −k · w d")
+    d = np.array([0.1, 0.25])
+    s = ForceInputs(d=d, q=0 * d, v_x=0 * d + 0.5, v_z=0 * d, gamma=0 * d + 18e3, w=0 * d + 2.0, rho=0 * d + 1.4,
+                    alpha=0 * d, phi=0 * d + 0.5, c=0 * d, delta=0 * d + 0.2, distance_in_soil=0 * d + 1.0,
+                    f_fee_x=0 * d + 1e3, f_fee_z=0 * d)
+    _, bz = term_forms.basis("form:-wd_z*below0.15", s, np)
+    assert np.allclose(bz, 2.0 * np.maximum(d - 0.15, 0.0) * term_forms.P_REF_PA)  # + k w (d − 0.15)+ P

@@ -228,11 +228,15 @@ def basis(name: str, s, xp) -> tuple[Any, Any]:
 def describe(name: str) -> dict:
     """Title, formula and words of a form (for ``force_terms.Term`` and the report)."""
     sign, a, b = parse(name)
-    sgn = "−" if sign < 0 else ""
+    # A z scale carries its own sign (pressing down, "−γ d² w"): folded into k's, so a relief
+    # reads "k · γ d² w", not "−k · −γ d² w".
+    scale_negative = a.formula.startswith("−")
+    scale_formula = a.formula[1:] if scale_negative else a.formula
+    sgn = "−" if (sign < 0) != scale_negative else ""
     axis = {"x": "F_x", "z": "F_z", "fee": "F", "vec": "F"}[a.axis]
     factor = "" if b.name == "1" else f" · {b.formula}"
     words = f"{'minus ' if sign < 0 else ''}{a.words}, {b.words}"
-    return {"title": words, "formula": f"{axis} = {sgn}k · {a.formula}{factor}  [N]",
+    return {"title": words, "formula": f"{axis} = {sgn}k · {scale_formula}{factor}  [N]",
             "words": words, "axis": a.axis, "scale": a.name, "factor": b.name, "sign": sign,
             "gate": b.name in ("sink", "rise", "still", "xlim", "zlim")}
 
