@@ -308,6 +308,8 @@ def test_a_z_formula_folds_the_scales_sign_into_k():
     press = term_forms.describe("form:wd_z*below0.15")["formula"]
     assert relief.startswith("F_z = k · w d") and "−k" not in relief and "· −" not in relief
     assert press.startswith("F_z = −k · w d")
+    assert term_forms.describe("form:-wd_z*below0.15")["words"].startswith("c-free area scale w d P_ref, pushing up")
+    assert "minus" in term_forms.describe("form:-gd2w_x*sink")["words"]  # an x relief keeps its "minus"
     d = np.array([0.1, 0.25])
     s = ForceInputs(d=d, q=0 * d, v_x=0 * d + 0.5, v_z=0 * d, gamma=0 * d + 18e3, w=0 * d + 2.0, rho=0 * d + 1.4,
                     alpha=0 * d, phi=0 * d + 0.5, c=0 * d, delta=0 * d + 0.2, distance_in_soil=0 * d + 1.0,

@@ -235,7 +235,10 @@ def describe(name: str) -> dict:
     sgn = "−" if (sign < 0) != scale_negative else ""
     axis = {"x": "F_x", "z": "F_z", "fee": "F", "vec": "F"}[a.axis]
     factor = "" if b.name == "1" else f" · {b.formula}"
-    words = f"{'minus ' if sign < 0 else ''}{a.words}, {b.words}"
+    if sign < 0 and a.words.endswith(", pressing down"):  # likewise in words
+        words = f"{a.words.removesuffix(', pressing down')}, pushing up, {b.words}"
+    else:
+        words = f"{'minus ' if sign < 0 else ''}{a.words}, {b.words}"
     return {"title": words, "formula": f"{axis} = {sgn}k · {scale_formula}{factor}  [N]",
             "words": words, "axis": a.axis, "scale": a.name, "factor": b.name, "sign": sign,
             "gate": b.name in ("sink", "rise", "still", "xlim", "zlim")}
