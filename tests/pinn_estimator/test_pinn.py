@@ -216,6 +216,57 @@ def test_eval_reports_pinn_and_both_baselines_on_the_same_windows(tiny_bags, tmp
         evaluate(pinn, tiny_bags, physics_free=other, classical=False, log=lambda *_: None)
 
 
+def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
+    """``--forecast-data``: a machine's own cuts of one soil at several depths are the pairs the
+    forecast at another depth is judged on (the world's calibrated posterior; a soil-changing
+    path is no source; pairs never cross worlds), and a folder with no pair is refused up front."""
+    from soil_bag_tools.bag_io import write_episode
+    from soil_msgs_py.patches import SoilPatch
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    pinn = tmp_path / "p.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(pinn), "--quiet", "--no-cache", "--epochs", "1",
+                       "--stride", "8", *[f"--{k.replace('_', '-')}={v}" for k, v in SMALL.items()]]) == 0
+    cuts = tmp_path / "cuts"
+    changing = (SoilPatch(0.0, "Loam", 45.0), SoilPatch(2.0, "Clay", 80.0))
+    specs = [EpisodeSpec("Loam", 45.0, 0.6, d, seed=30 + k, duration_s=6.0) for k, d in enumerate((0.08, 0.16))]
+    specs.append(EpisodeSpec("Loam", 45.0, 0.6, 0.24, seed=40, duration_s=6.0, patches=changing))
+    for ep in run_episodes(SimConfig(world_mode="fee"), specs):
+        write_episode(cuts / ep.meta.name, ep)
+    out = tmp_path / "eval"
+    common = ["--checkpoint", str(pinn), "--data", str(tiny_bags), "--stride", "20", "--workers", "1", "--quiet",
+              "--no-classical"]
+    assert eval_main([*common, "--out", str(out), "--name", "r", "--forecast-data", str(cuts)]) == 0
+    report = json.loads((out / "r.json").read_text())["forecast"]
+    assert report["data"] == str(cuts) and report["worlds"] == ["fee"] and report["episodes"] == 3
+    assert report["pairs"] == 2, "the two one-soil cuts, each way; the soil-changing path pairs with neither"
+    fused, naive = report["forecast"]["fused"]["x"]["all"], report["forecast"]["naive_same_force"]["x"]["all"]
+    assert fused["mean_abs_pct"] < 5.0 < naive["mean_abs_pct"], (fused, naive)  # the fee world: the FEE is exact
+    assert f"episodes of the bags at {cuts}" in (out / "r.md").read_text()
+    # one cut alone is no pair: refused, naming the folder, before the test split is evaluated
+    lone = tmp_path / "lone"
+    write_episode(lone / "one", next(iter(run_episodes(SimConfig(world_mode="fee"), specs[:1]))))
+    with pytest.raises(ValueError, match=f"--forecast-data {lone}: no two of its 1 episodes"):
+        from pinn_estimator.evaluate import evaluate
+
+        evaluate(pinn, tiny_bags, classical=False, forecast_data=lone, log=lambda *_: None)
+    assert eval_main([*common, "--out", str(out), "--forecast-data", str(lone)]) == 2
+    with pytest.raises(SystemExit):
+        eval_main([*common, "--forecast-data", str(cuts), "--forecast-world", "none"])
+    # the forecast alone, with the shipped model, whose training bags are not here
+    shipped = ck.SHIPPED_MODELS_DIR / "pinn_fee.pt"
+    alone = ["--checkpoint", str(shipped), "--forecast-only", "--no-classical", "--quiet", "--workers", "1"]
+    assert eval_main([*alone, "--forecast-data", str(cuts), "--out", str(out), "--name", "f"]) == 0
+    only = json.loads((out / "f.json").read_text())
+    assert only["forecast_only"] and only["forecast"]["pairs"] == 2 and "force" not in only
+    assert only["forecast"]["forecast"]["fused"]["x"]["all"]["mean_abs_pct"] < 5.0
+    assert "the forecast alone" in (out / "f.md").read_text() and not (out / "f_params.png").exists()
+    for bad in ([*alone], [*alone, "--forecast-data", str(cuts), "--data", str(tiny_bags)]):
+        with pytest.raises(SystemExit):
+            eval_main(bad)
+
+
 # ------------------------------------------------------------------------------ bad input
 def test_empty_bag_directory_is_named(tmp_path, capsys):
     with pytest.raises(ValueError, match="no episode bags under"):

@@ -10,7 +10,8 @@ errors against the pseudo-ground truth; per soil x I_d mean ± std of φ̂, ĉ, 
 analogs); the failure force at d = 0.1 m, Q = 0 from mean estimated vs true parameters; the
 issue's targets, met or not; and the planner's question (``forecast``): from the estimates
 made at one depth, the force at another depth of the same soil, on held-out episodes the
-simulator runs at densities and depths off the training grid. JSON + Markdown + PNG.
+simulator runs at densities and depths off the training grid, or on the user's own bags
+(``--forecast-data``). JSON + Markdown + PNG.
 Ground truth is used only to score.
 """
 from __future__ import annotations
@@ -162,12 +163,37 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
                                 terms={"pinn": model.cfg.extra_terms, "fused": fused.terms})
 
 
+def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_bad_bags: bool = False) -> Dataset:
+    """The bags at ``root`` to judge the forecast at another depth on (e.g. a machine's own cuts of
+    one soil at several depths); ValueError naming what is wrong if they hold no forecast pair or
+    several worlds (the fused posterior's calibration is a world's)."""
+    ds = load_dataset(root, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
+    worlds = sorted({m.world_mode for m in ds.metas})
+    if len(worlds) > 1:
+        raise ValueError(f"--forecast-data {root}: bags of several worlds {worlds}; the fused posterior is calibrated "
+                         "per world: give one world's bags")
+    if next(fc.pair_indices(fc.steady_parts(ds)), None) is None:
+        raise ValueError(f"--forecast-data {root}: no two of its {len(ds)} episodes are one soil at one relative density "
+                         f"(and one soil along the path) cut at steady depths at least {fc.MIN_DEPTH_RATIO:g}x apart: "
+                         "nothing to forecast")
+    return ds
+
+
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,
-             skip_bad_bags: bool = False, forecast_world: str | None = "auto", log=print) -> dict:
-    """Build the report dict (see module docstring)."""
+             skip_bad_bags: bool = False, forecast_world: str | None = "auto", forecast_data=None, forecast_only: bool = False,
+             log=print) -> dict:
+    """Build the report dict (see module docstring). ``forecast_data``: a bag directory the forecast
+    at another depth is judged on instead of the simulated held-out episodes (``forecast_world``);
+    ``forecast_only``: that forecast alone, without the test split (whose bags need not be here)."""
     model, ckpt = load_model(checkpoint)
     if model.cfg.kind != "pinn":
         raise ValueError(f"checkpoint {checkpoint} is a {model.cfg.kind!r} model; pinn_eval needs the PINN first (baseline via --physics-free)")
+    # read and checked before the test split's evaluation, so a bad directory costs nothing
+    forecast_bags = None if forecast_data is None else load_forecast_bags(
+        forecast_data, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
+    if forecast_only:
+        return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
+                               progress=progress)
     ds = load_dataset(data or ckpt["dataset"]["root"], workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
     if ds.fingerprint != ckpt["dataset"]["fingerprint"]:
         log(f"warning: the bags at {ds.root} differ from those the model was trained on; using its test split by episode name")
@@ -224,16 +250,41 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     }
     if physics_free:
         report["training"]["physics_free"] = free_ckpt["metrics"]
-    if forecast_world == "auto":
+    if forecast_bags is not None:
+        forecast_world = forecast_bags.metas[0].world_mode
+    elif forecast_world == "auto":
         forecast_world = report["world_modes"][0] if len(report["world_modes"]) == 1 else None
     if forecast_world:
         t0 = time.monotonic()
         from .fusion_calibration import load_calibrated
 
-        report["forecast"] = forecast(model, forecast_dataset(forecast_world), classical=classical, workers=workers,
+        held_out = forecast_dataset(forecast_world) if forecast_bags is None else forecast_bags
+        report["forecast"] = forecast(model, held_out, classical=classical, workers=workers,
                                       progress=progress, fusion=load_calibrated(forecast_world))
+        if forecast_bags is not None:
+            report["forecast"]["data"] = str(forecast_bags.root)
         timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
+    return report
+
+
+def forecast_report(model, checkpoint, bags: Dataset | None, world: str | None, *, classical: bool = True,
+                    workers: int = 2, progress: bool = False) -> dict:
+    """The report of the forecast at another depth alone: on ``bags`` (their world's calibrated
+    posterior), or else on the simulated held-out episodes of ``world``."""
+    from .fusion_calibration import load_calibrated
+
+    if bags is None and world not in ("fee", "default"):
+        raise ValueError(f"the forecast alone needs --forecast-data or --forecast-world fee|default (got {world!r})")
+    world = bags.metas[0].world_mode if bags is not None else world
+    t0 = time.monotonic()
+    report = {"checkpoint": str(checkpoint), "forecast_only": True, "world_modes": [world],
+              "forecast": forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical,
+                                   workers=workers, progress=progress, fusion=load_calibrated(world)),
+              "targets": []}
+    if bags is not None:
+        report["forecast"]["data"] = str(bags.root)
+    report["timing_s"] = {"forecast_s": time.monotonic() - t0}
     return report
 
 
@@ -274,6 +325,12 @@ def _fmt(x, nd=1):
 
 
 def markdown(report: dict) -> str:
+    if report.get("forecast_only"):
+        return "\n".join([
+            f"# PINN evaluation: the force at another depth, {', '.join(report['world_modes'])} world", "",
+            f"Checkpoint `{Path(report['checkpoint']).name}`; the forecast alone (no test split). Generated by `pinn_eval`.",
+            "", *fc.markdown(report["forecast"]), "",
+            "- evaluation time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report["timing_s"].items())]) + "\n"
     lines = [
         f"# PINN evaluation: {', '.join(report['world_modes'])} world",
         "",
@@ -378,7 +435,10 @@ def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     paths = {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
     paths["json"].write_text(json.dumps(report, indent=1, default=float) + "\n")
     paths["markdown"].write_text(markdown(report))
-    plot(report, paths["png"])
+    if report.get("forecast_only"):  # no test split: no per-soil figure
+        del paths["png"]
+    else:
+        plot(report, paths["png"])
     return paths
 
 
@@ -394,16 +454,30 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")
     p.add_argument("--forecast-world", default="auto", choices=("auto", "fee", "default", "none"),
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
+    p.add_argument("--forecast-data", metavar="DIR",
+                   help="judge the forecast at another depth on these bags instead (pairs of episodes of one soil and "
+                        "relative density at different depths, e.g. your machine's cuts; bags the model was trained "
+                        "on are not held out), with the calibrated posterior of their world")
+    p.add_argument("--forecast-only", action="store_true",
+                   help="only the forecast at another depth (of --forecast-data, or of --forecast-world's simulated "
+                        "episodes), without the test split: the bags the model was trained on need not be here")
     p.add_argument("--quiet", action="store_true")
     add_skip_bad_bags_option(p)
     args = p.parse_args(argv)
+    if args.forecast_data and args.forecast_world == "none":
+        p.error("--forecast-data asks for the forecast that --forecast-world none skips: give one of them")
+    if args.forecast_only and (args.physics_free or args.data):
+        p.error("--forecast-only evaluates no test split: --data and --physics-free do not apply")
+    if args.forecast_only and not args.forecast_data and args.forecast_world not in ("fee", "default"):
+        p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     try:
         if args.stride < 1:
             raise ValueError(f"--stride={args.stride} must be >= 1")
         report = evaluate(args.checkpoint, args.data, physics_free=args.physics_free, stride=args.stride,
                           classical=not args.no_classical, workers=args.workers, progress=not args.quiet,
                           skip_bad_bags=args.skip_bad_bags,
-                          forecast_world=None if args.forecast_world == "none" else args.forecast_world)
+                          forecast_world=None if args.forecast_world == "none" else args.forecast_world,
+                          forecast_data=args.forecast_data, forecast_only=args.forecast_only)
     except (ValueError, FileNotFoundError) as err:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 2

@@ -16,6 +16,7 @@ No ROS, no torch here; the estimates are computed by the caller (``evaluate``).
 """
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass
 
@@ -47,6 +48,7 @@ class Steady:
     truth: dict[str, float]
     distance_m: float = 0.0  # mean blade travel in soil over the steady rows (for terms that grow with it)
     time_s: float = 0.0  # mean time in soil over the steady rows [s] (likewise)
+    world: str = ""  # the episode's world: a pair is one world's (bags of several worlds may share a folder)
 
     def known_row(self) -> np.ndarray:
         """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
@@ -54,22 +56,29 @@ class Steady:
 
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
-    """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half)."""
+    """Per episode of ``ds`` the means over its steady rows (those with d > 0 in the second half);
+    None for an episode without such rows, or whose soil changes along its path (its metadata's
+    label is only its first patch's: it is no one soil to forecast from or to)."""
     out = []
     travel, in_soil_s = ds.distance_in_soil(), ds.time_in_soil()
     for e in range(len(ds)):
         rows = np.arange(ds.offsets[e], ds.offsets[e + 1])
         rows = rows[int(steady_from * len(rows)):]
         rows = rows[ds.known[rows, _D] > 0]
-        if len(rows) == 0:
+        meta = ds.metas[e]
+        if len(rows) == 0 or not one_soil(meta):
             out.append(None)
             continue
         known = {n: float(ds.known[rows, j].mean()) for j, n in enumerate(KNOWN_PARAMS)}
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
-        meta = ds.metas[e]
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
-                          float(travel[rows].mean()), float(in_soil_s[rows].mean())))
+                          float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode))
     return out
+
+
+def one_soil(meta) -> bool:
+    """Whether an episode's path is one soil at one density (no patches, or all alike)."""
+    return len({(p.get("soil"), float(p.get("relative_density_pct", math.nan))) for p in meta.patches}) <= 1
 
 
 def _in_steady_part(ds, ends: np.ndarray, steady_from: float) -> np.ndarray:
@@ -147,14 +156,14 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
 
 
 def pair_indices(parts: list[Steady | None], sources=None):
-    """(a, b) of every ordered pair of episodes of one soil and density at another depth (steady
-    depths at least MIN_DEPTH_RATIO apart), grouped by soil and density in sorted order; a only
+    """(a, b) of every ordered pair of episodes of one world, soil and density at another depth (steady
+    depths at least MIN_DEPTH_RATIO apart), grouped by world, soil and density in sorted order; a only
     among ``sources`` if given."""
     sources = None if sources is None else set(sources)
     groups = defaultdict(list)
     for e, part in enumerate(parts):
         if part is not None:
-            groups[(part.soil, part.relative_density_pct)].append(e)
+            groups[(part.world, part.soil, part.relative_density_pct)].append(e)
     for _, members in sorted(groups.items()):
         for a in members:
             if sources is not None and a not in sources:
@@ -266,7 +275,11 @@ def _pct(value: float, signed: bool = False) -> str:
 def markdown(report: dict, intro: str | None = None) -> list[str]:
     """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and
     shallower. ``intro``: the sentence above the table (default: the held-out episodes')."""
-    if intro is None:
+    if intro is None and report.get("data"):
+        intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
+                 f"{report['episodes']} episodes of the bags at {report['data']} ({', '.join(report['worlds'])}). "
+                 "Mean |error| and signed bias, % of the measured force.")
+    elif intro is None:
         intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
                  f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
                  "training grid). Mean |error| and signed bias, % of the measured force.")
