@@ -518,6 +518,32 @@ def change_response(ep, track: Track, boundary_x: float, own: dict | None = None
     return out
 
 
+CHANGE_FORECAST_DEPTHS_M = (0.1, 0.225)  # section 4: the other depths a planner asks about, around the 0.15 m cut
+
+
+def steady_conditions(ep) -> tuple[np.ndarray, float, np.ndarray]:
+    """(Θ_k row, travel in soil [m], force [N]) averaged over an episode's steady part."""
+    rows = second_half(ep)
+    return (ep.known[rows].mean(axis=0), float(distance_in_soil_of_known(ep.known)[rows].mean()),
+            ep.forces[rows].mean(axis=0))
+
+
+def forecast_holder(targets: list):
+    """(on_update, held): after each stretch, whether the posterior's central 90 % forecast interval of
+    F_x holds every target's measured steady F_x (``targets``: ``steady_conditions`` of the new soil cut
+    alone at the other depths): the planner's question after a soil change, judged in force."""
+    held: list[bool] = []
+
+    def on_update(_row, post):
+        ok = True
+        for known, distance, force in targets:
+            q = post.forecast(known, quantiles=(0.05, 0.95), distance_m=distance)["quantiles"]
+            ok = ok and bool(q[0.05][0] <= force[0] <= q[0.95][0])
+        held.append(ok)
+
+    return on_update, held
+
+
 def section_change(args, models) -> dict:
     boundary = BLADE_START_X_M + 3.0
     print(f"## 4. Soil change along the path (boundary at x = {boundary:g} m, {args.change_duration:g} s at 0.15 m, "
@@ -532,22 +558,33 @@ def section_change(args, models) -> dict:
         # the new soil alone (same depth, speed, seed and length): what the estimator makes of it from scratch
         alone = [dataclasses.replace(spec, soil=b[0], relative_density_pct=float(b[1]), patches=[])
                  for spec, (_, b) in zip(specs, args.changes)]
+        # and at the other depths: the force a planner's forecast from the new soil must hold
+        elsewhere = [[dataclasses.replace(spec, target_depth_m=d) for spec in alone] for d in CHANGE_FORECAST_DEPTHS_M]
+        elsewhere = list(zip(*(simulate(world, group) for group in elsewhere)))
         res = []
-        for ep, ep_alone in zip(simulate(world, specs), simulate(world, alone)):
+        for ep, ep_alone, others in zip(simulate(world, specs), simulate(world, alone), elsewhere):
             own = fuse(ep_alone, cfg)
-            r = change_response(ep, fuse(ep, cfg), boundary,
+            on_update, held_force = forecast_holder([steady_conditions(o) for o in others])
+            track = fuse(ep, cfg, on_update=on_update)
+            r = change_response(ep, track, boundary,
                                 own={n: own.mean[n][-1] for n in ("phi", "c")} if len(own.rows) else None)
+            if r["crossed"]:
+                after = np.flatnonzero(track.rows >= np.flatnonzero(ep.observations[:, _PX] >= boundary)[0])
+                r["force_first_hold_s"], r["force_settled_s"] = hold_times(track.t_s[after] - r["cross_s"],
+                                                                           np.array(held_force, bool)[after])
             res.append(r)
             label = " → ".join(f"{p['soil']} {p['relative_density_pct']:g} %" for p in ep.meta.patches)
             if not r["crossed"]:
-                rows.append([world, label, "not crossed", "–", "–", "–", "–", "–", "–"])
+                rows.append([world, label, "not crossed", "–", "–", "–", "–", "–", "–", "–"])
                 continue
             e, t = r["end"], r["truth_after"]
             good = (lambda v: (fmt(v, 2) + f" ({met(v, TARGETS['change_s'])})") if v is not None else "never (**not met**)")
             own_cell = (f"{fmt(r['own_first_hold_s'], 2) if r['own_first_hold_s'] is not None else 'never'} / "
                         f"{good(r['own_settled_s'])}") if "own" in r else "–"
+            force_cell = (f"{fmt(r['force_first_hold_s'], 2) if r['force_first_hold_s'] is not None else 'never'} / "
+                          f"{good(r['force_settled_s'])}")
             rows.append([world, label, f"{r['cross_s']:.2f}", fmt(r["first_hold_s"], 2) if r["first_hold_s"] is not None else "never",
-                         good(r["settled_s"]), own_cell,
+                         good(r["settled_s"]), own_cell, force_cell,
                          f"{r['restarts']}", pct(r["held_share_after"]),
                          f"{e['phi_deg']:.1f} ± {e['phi_std_deg']:.1f} ({t['phi_deg']:.1f}"
                          + (f"; alone {r['own']['phi_deg']:.1f}" if "own" in r else "") + ") / "
@@ -556,12 +593,16 @@ def section_change(args, models) -> dict:
         out[world] = res
     table(["world", "soil along the path", "crossing [s]", "first holds [s after]", "holds for good [s after] (≤ 2 s)",
            "holds the new soil as learnt alone: first / for good [s after]",
+           f"F_x forecast at {' and '.join(f'{d:g}' for d in CHANGE_FORECAST_DEPTHS_M)} m holds the new soil's: first / for good [s after]",
            "restarts", "stretches holding after", "end: φ [°] / c [kPa] (truth; learnt alone)"], rows)
     print("\"Holds\": both the φ and the c 90 % Gaussian intervals (mean ± 1.645 std) of the posterior after a stretch "
           "contain the true values of the stretch's last row; times are those of the stretch's last sample. "
           "\"Learnt alone\": the posterior's mean at the end of an episode of the new soil alone (same depth, speed, seed "
           "and length): where the model misses physics its θ is an effective one, so holding it says how fast the "
           "estimator adapts, apart from how far its model is from the truth. "
+          "\"F_x forecast\": the posterior's central 90 % forecast interval of F_x at each of those depths (the "
+          "planner's question) holds the steady F_x measured in a cut of the new soil alone there (same speed, seed and "
+          "length), judged in force: what a planner feels, and defined where the model's θ is an effective one. "
           "\"Restarts\": stretches after the crossing the posterior could not explain (back to the prior).\n", flush=True)
     return out
 
