@@ -250,42 +250,40 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     }
     if physics_free:
         report["training"]["physics_free"] = free_ckpt["metrics"]
-    if forecast_bags is not None:
-        forecast_world = forecast_bags.metas[0].world_mode
-    elif forecast_world == "auto":
+    if forecast_bags is None and forecast_world == "auto":
         forecast_world = report["world_modes"][0] if len(report["world_modes"]) == 1 else None
-    if forecast_world:
+    if forecast_bags is not None or forecast_world:
         t0 = time.monotonic()
-        from .fusion_calibration import load_calibrated
-
-        held_out = forecast_dataset(forecast_world) if forecast_bags is None else forecast_bags
-        report["forecast"] = forecast(model, held_out, classical=classical, workers=workers,
-                                      progress=progress, fusion=load_calibrated(forecast_world))
-        if forecast_bags is not None:
-            report["forecast"]["data"] = str(forecast_bags.root)
+        report["forecast"] = forecast_section(model, forecast_bags, forecast_world, classical=classical,
+                                              workers=workers, progress=progress)
         timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
     return report
 
 
-def forecast_report(model, checkpoint, bags: Dataset | None, world: str | None, *, classical: bool = True,
-                    workers: int = 2, progress: bool = False) -> dict:
-    """The report of the forecast at another depth alone: on ``bags`` (their world's calibrated
-    posterior), or else on the simulated held-out episodes of ``world``."""
+def forecast_section(model, bags: Dataset | None, world: str | None, *, classical: bool = True, workers: int = 2,
+                     progress: bool = False) -> dict:
+    """The forecast at another depth: on ``bags`` with their world's calibrated posterior, or else on
+    the simulated held-out episodes of ``world``."""
     from .fusion_calibration import load_calibrated
 
     if bags is None and world not in ("fee", "default"):
-        raise ValueError(f"the forecast alone needs --forecast-data or --forecast-world fee|default (got {world!r})")
+        raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
     world = bags.metas[0].world_mode if bags is not None else world
-    t0 = time.monotonic()
-    report = {"checkpoint": str(checkpoint), "forecast_only": True, "world_modes": [world],
-              "forecast": forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical,
-                                   workers=workers, progress=progress, fusion=load_calibrated(world)),
-              "targets": []}
+    out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,
+                   progress=progress, fusion=load_calibrated(world))
     if bags is not None:
-        report["forecast"]["data"] = str(bags.root)
-    report["timing_s"] = {"forecast_s": time.monotonic() - t0}
-    return report
+        out["data"] = str(bags.root)
+    return out
+
+
+def forecast_report(model, checkpoint, bags: Dataset | None, world: str | None, *, classical: bool = True,
+                    workers: int = 2, progress: bool = False) -> dict:
+    """The report of ``forecast_section`` alone (no test split)."""
+    t0 = time.monotonic()
+    section = forecast_section(model, bags, world, classical=classical, workers=workers, progress=progress)
+    return {"checkpoint": str(checkpoint), "forecast_only": True, "world_modes": section["worlds"],
+            "forecast": section, "targets": [], "timing_s": {"forecast_s": time.monotonic() - t0}}
 
 
 def targets(report: dict) -> list[dict]:
