@@ -667,3 +667,19 @@ def test_beta_star_is_global_minimum_wherever_one_exists_in_table1_limits():
         b = float(fee.beta_star(phi, delta, rho, alpha))
         assert math.isfinite(b) and 0 < b < upper
         assert wedge_n_gamma(phi, delta, rho, alpha, b) <= n.min() * (1 + 1e-9)
+
+
+def test_recorded_beta_star_is_beta_star_or_the_vanishing_wedge():
+    """Where a failure wedge resists, the recorded β is β*; where the reversed friction of a rising
+    blade exceeds φ (δ' < −φ) N_γ only falls towards 0 at β = π − ρ over wedges of non-negative
+    area, and that is what the simulator records (never NaN)."""
+    rho = 80.0 * DEG
+    phi = np.array([30.0, 12.8]) * DEG
+    delta = np.array([15.0, -14.8]) * DEG
+    star = fee.beta_star(phi, delta, rho, 0.0)
+    assert np.isfinite(star[0]) and np.isnan(star[1])
+    got = fee.recorded_beta_star(phi, delta, rho, 0.0)
+    assert got[0] == star[0] and got[1] == pytest.approx(np.pi - rho)
+    beta = np.linspace(1e-3, np.pi - rho - 1e-6, 400)  # the wedges of non-negative area
+    n = (1 / np.tan(rho) + 1 / np.tan(beta)) * np.sin(phi[1] + beta) / (2 * np.sin(delta[1] + rho + phi[1] + beta))
+    assert (np.diff(n) < 0).all() and n[-1] < 1e-4 * n[0], "no minimum inside: it falls to 0 at π − ρ"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
-from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, MACHINE
 from soil_physics import fee
 from soil_physics.bearing import penetration_capacity
 from soil_physics.force_inputs import ForceInputs
@@ -56,6 +56,29 @@ def test_closed_loop_episodes_match_the_reference(world):
     reference = run_episodes(SimConfig(world_mode=world, engine="reference"), SPECS)
     assert_same_episodes(compiled, reference)
     assert max(abs(ep.forces[:, 0]).max() for ep in compiled) > 5e3  # the episodes do cut
+
+
+def test_a_soil_weaker_than_the_reversed_blade_friction_records_a_finite_truth(tmp_path):
+    """φ below the fee world's δ = 15°: while the entering blade rises, the reversed friction
+    (δ' < −φ) leaves no failure wedge, so β* is undefined there. Both engines record the vanishing
+    wedge's β = π − ρ instead (before, NaN: the bag writer refused the episode and
+    ``soil_sim_batch`` stopped), apply no soil force on those ticks, and agree."""
+    from soil_bag_tools.bag_io import read_episode, write_episode
+    from soil_physics.soils import SoilProperties, SoilType
+
+    soil = SoilType("WeakMud", SoilProperties(12.0 * DEG, 18e3, 18e3), SoilProperties(14.0 * DEG, 22e3, 20e3), "test")
+    spec = [EpisodeSpec("WeakMud", 20.0, 0.5, 0.16, 1, 4.0)]
+    compiled = run_episodes(SimConfig(world_mode="fee"), spec, custom_soils={"WeakMud": soil})
+    assert_same_episodes(compiled, run_episodes(SimConfig(world_mode="fee", engine="reference"), spec,
+                                                custom_soils={"WeakMud": soil}))
+    ep = compiled[0]
+    beta = ep.truth[:, -1]
+    rho = ep.known[0, 2]
+    flat = np.isclose(beta, np.pi - rho)
+    assert np.isfinite(ep.truth).all() and flat.any(), "the rising entry leaves no wedge on some ticks"
+    assert (ep.truth[flat, GROUND_TRUTH_PARAMS.index("v_z")] > 0).all(), "only while the blade rises"
+    write_episode(tmp_path / "weak", ep)
+    assert np.array_equal(read_episode(tmp_path / "weak").truth, ep.truth)
 
 
 @pytest.mark.parametrize("name", Effects.names())

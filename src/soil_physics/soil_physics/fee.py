@@ -127,6 +127,19 @@ def beta_star(phi, delta, rho, alpha):
     return xp.where(best_n < math.inf, best, math.nan)
 
 
+def recorded_beta_star(phi, delta, rho, alpha):
+    """β* as the simulator records it in the ground truth: ``beta_star`` where a failure wedge
+    resists, else π − ρ, the plane along the blade where the wedge vanishes.
+
+    Why: a rising blade reverses the soil-tool friction (Eq. 9-10), and in a soil weaker than
+    that friction (δ' < −φ, e.g. φ 12° under the fee world's δ 15°) N_γ has no minimum over wedges
+    of non-negative area (cot ρ + cot β ≥ 0): it falls to 0 at β = π − ρ. The soil then resists
+    nothing (the simulator's failure force is 0 there), and a bag's truth must stay finite."""
+    xp, phi, delta, rho, alpha = _xp.coerce(phi, delta, rho, alpha)
+    beta = beta_star(phi, delta, rho, alpha)
+    return xp.where(xp.isfinite(beta), beta, math.pi - rho + xp.zeros_like(beta))
+
+
 def velocity_corrected(delta, c_a, rho, alpha, v_x, v_z, c1: float = FEE_VELOCITY_GAIN_S_M):
     """Eq. 9-10: delta' = tanh(-C1 iota_b . v) delta, c_a' = tanh(-C1 iota_b . v) c_a.
 

@@ -139,6 +139,13 @@ def fee_beta_star(phi, delta, rho, alpha):
 
 
 @numba.njit(**_JIT)
+def recorded_beta_star(phi, delta, rho, alpha):
+    """``fee.recorded_beta_star``: β*, or π − ρ where no failure wedge resists [rad]."""
+    beta = fee_beta_star(phi, delta, rho, alpha)
+    return beta if math.isfinite(beta) else math.pi - rho
+
+
+@numba.njit(**_JIT)
 def fee_velocity_scale(rho, alpha, v_x, v_z, c1):
     """tanh(-C1 iota_b . v) of ``fee.velocity_corrected`` (Eq. 9-10)."""
     iota_dot_v = -math.cos(rho - alpha) * v_x + math.sin(rho - alpha) * v_z
@@ -415,7 +422,7 @@ def output_row(s, e, terrain, p, v_hist, count, positions, velocities, known, tr
     for j in range(9):
         truth[3 + j] = known[j]
     delta_p = fee_velocity_scale(rho, alpha, v_x, v_z, p[P_FEE_GAIN]) * e[E_DELTA]
-    truth[12] = fee_beta_star(e[o + K_PHI0], delta_p, rho, alpha)
+    truth[12] = recorded_beta_star(e[o + K_PHI0], delta_p, rho, alpha)
     extras[0], extras[1] = s[S_X_C], s[S_VX_C]
 
 

@@ -636,7 +636,7 @@ class SoilSimulator:
         known = dict(c_a=self.c_a, gamma=gamma0, rho=full(self.rho), alpha=full(self.alpha), w=full(self.w), d=d, q=q, v_x=v_x, v_z=v_z)
         truth = dict(known, phi=phi0, c=c0, delta=self.delta)
         delta_p, _ = fee.velocity_corrected(self.delta, self.c_a, self.rho, self.alpha, v_x, v_z, self.dyn.fee_velocity_gain_s_m)
-        truth["beta"] = fee.beta_star(phi0, delta_p, self.rho, self.alpha)
+        truth["beta"] = fee.recorded_beta_star(phi0, delta_p, self.rho, self.alpha)
         return TickOutput(
             stamp_ns=stamp_ns(self.tick),
             positions=np.stack([x_b, z_b, self.z_c], axis=1),
