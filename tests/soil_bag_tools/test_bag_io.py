@@ -308,6 +308,20 @@ def test_read_errors(tmp_path: Path) -> None:
         read_dataset(tmp_path / "nope")
 
 
+def test_a_dataset_of_links_to_recorded_bags_is_found_once_and_a_link_loop_ends(tmp_path: Path) -> None:
+    runs, data = tmp_path / "runs", tmp_path / "data"
+    eps = [make_episode(n=30, seed=k) for k in range(2)]
+    for k, e in enumerate(eps):
+        write_episode(runs / f"r{k}", e)
+    data.mkdir()
+    (data / "first").symlink_to(runs / "r0", target_is_directory=True)  # a link to one bag
+    (data / "all").symlink_to(runs, target_is_directory=True)  # and to the folder holding both
+    (runs / "back").symlink_to(tmp_path, target_is_directory=True)  # a loop up the tree
+    found = find_episode_bags(data)
+    assert found == [data / "all" / "r0", data / "all" / "r1"], "each bag once, by the first link in name order"
+    assert sorted(e.meta.seed for e in read_dataset(data)) == [0, 1]
+
+
 def test_read_dataset_finds_nested_bags(tmp_path: Path) -> None:
     eps = [make_episode(n=30 + 10 * k, seed=k) for k in range(3)]
     paths = [tmp_path / "b" / "x", tmp_path / "a", tmp_path / "b" / "c" / "y"]

@@ -246,13 +246,22 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
 
 
 def find_episode_bags(root: str | os.PathLike) -> list[Path]:
-    """Sorted bag directories under ``root`` (or ``root`` itself); skips ``*.partial``."""
+    """Sorted bag directories under ``root`` (or ``root`` itself); skips ``*.partial``. Symbolic
+    links to directories are followed (a dataset assembled from links to recorded runs), each real
+    directory once (a link back up the tree cannot loop)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset root {root} is not a directory")
     found: list[Path] = []
-    for dirpath, dirnames, filenames in os.walk(root):
+    seen: set[str] = set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         d = Path(dirpath)
+        real = os.path.realpath(dirpath)
+        if real in seen:
+            dirnames.clear()
+            continue
+        seen.add(real)
+        dirnames.sort()  # a bag reached by two links is found by the first in name order, on any file system
         if d.name.endswith(PARTIAL_SUFFIX):
             dirnames.clear()
         elif "metadata.yaml" in filenames:
