@@ -79,6 +79,7 @@ class RosProbe:
         self.received: dict[str, list[tuple[float, object]]] = defaultdict(list)
         self.lock = threading.Lock()
         self.pubs: dict[str, object] = {}
+        self.subs: dict[str, object] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -92,7 +93,12 @@ class RosProbe:
             t = time.perf_counter()
             with self.lock:
                 self.received[topic].append((t, msg))
-        self.node.create_subscription(message_class(msgtype), topic, cb, qos or topic_qos(topic))
+        self.subs[topic] = self.node.create_subscription(message_class(msgtype), topic, cb, qos or topic_qos(topic))
+
+    def matched_publishers(self, topic: str) -> int:
+        """Publishers this probe's subscription to ``topic`` is matched with (DDS endpoint matching,
+        not merely seen in the graph): from then on what they publish reaches the probe."""
+        return self.subs[topic].get_publisher_count()
 
     def publisher(self, topic: str, msgtype: str, qos=None):
         if topic not in self.pubs:

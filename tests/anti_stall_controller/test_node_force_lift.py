@@ -35,7 +35,7 @@ def test_the_force_lift_joins_the_force_by_stamp_and_lifts_like_the_core(tmp_pat
         ctl = NodeProc("anti_stall_controller", ["--ros-args", "-p", "force_lift_m_s:=2.0"], domain, tmp_path)
         try:
             probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, *pubs.values()))
-                           and probe.node.count_publishers(BLADE) >= 1, 30, "controller endpoints")
+                           and probe.matched_publishers(BLADE) >= 1, 30, "controller endpoints")
             status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
                                                       planned_ticks=1800).to_json()))
 

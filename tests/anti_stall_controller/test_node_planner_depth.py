@@ -34,7 +34,7 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
                                                  "-p", "planner_timeout_s:=0.5"], domain, tmp_path)
         try:
             probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose, target))
-                           and probe.node.count_publishers(BLADE) >= 1, 30, "controller endpoints")
+                           and probe.matched_publishers(BLADE) >= 1, 30, "controller endpoints")
             status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
                                                       planned_ticks=1800).to_json()))
 

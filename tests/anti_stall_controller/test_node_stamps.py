@@ -79,7 +79,7 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
         ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
         try:
             probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose))
-                           and probe.node.count_publishers(T.CMD_VEL.name) >= 1, 30, "controller endpoints")
+                           and probe.matched_publishers(T.CMD_VEL.name) >= 1, 30, "controller endpoints")
             status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
                                                       planned_ticks=600).to_json()))
 

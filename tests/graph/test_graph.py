@@ -60,7 +60,7 @@ def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain
         try:
             # the simulator waits until it sees the controller; the probe must see it too before
             # the first tick, or on a busy machine its discovery lags and the first commands pass it by
-            probe.wait_for(lambda: probe.node.count_publishers(T.CMD_VEL.name) >= 1, 30, "the controller's commands")
+            probe.wait_for(lambda: probe.matched_publishers(T.CMD_VEL.name) >= 1, 30, "the controller's commands")
             sim = NodeProc("soil_sim_node", _sim_args(
                 "duration_s:=2.0", "exit_when_done:=true", "soil:=Clay",
                 wait_for=("/chassis/cmd_vel:1", "/blade/cmd:1", "/chassis/twist:1", "/sim/status:2",
@@ -158,7 +158,7 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
         cmd = probe.publisher(G.SIM_COMMAND_TOPIC, G.STRING_MSGTYPE)
         sim = NodeProc("soil_sim_node", _sim_args("episodes:=0", "rate:=4.0", "duration_s:=1.0"), domain, tmp_path)
         try:
-            probe.wait_for(lambda: cmd.get_subscription_count() > 0 and probe.node.count_publishers(G.SIM_STATUS_TOPIC),
+            probe.wait_for(lambda: cmd.get_subscription_count() > 0 and probe.matched_publishers(G.SIM_STATUS_TOPIC),
                            20, "the simulator's /sim/command subscription")
             time.sleep(0.3)
             cmd.publish(String(data="{not json"))

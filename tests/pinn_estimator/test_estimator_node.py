@@ -80,8 +80,10 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
         probe.subscribe(T.ESTIMATE.name, T.ESTIMATE.msgtype)
         est = NodeProc("pinn_estimator", [], domain2, tmp_path)
         try:
-            wait_until(lambda: probe.node.count_publishers(T.ESTIMATE.name) >= 1, 30, "the estimator's publisher")
-            time.sleep(0.5)  # let the match complete both ways before the first estimate
+            # matched, not only discovered: a publisher the graph shows may not deliver yet, and on a
+            # loaded machine the first replayed ticks' estimates were then lost
+            wait_until(lambda: probe.matched_publishers(T.ESTIMATE.name) >= 1, 30, "the estimator's publisher matched")
+            time.sleep(0.5)  # and the other way round, the estimator's writer to this reader
             player = subprocess.run(
                 [str(BIN / "soil_bag_play"), str(bag), "--topics", *INPUT_TOPICS, "--wait-for-subscribers", "1",
                  "--wait-timeout", "30"], env=loopback_env(domain2), capture_output=True, text=True, timeout=90)

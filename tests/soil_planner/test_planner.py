@@ -599,7 +599,7 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
 
         try:
             probe.wait_for(lambda: est_pub.get_subscription_count() and known_pub.get_subscription_count()
-                           and probe.node.count_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
+                           and probe.matched_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
             time.sleep(0.3)  # let both ends of every match settle (volatile QoS: an early message is lost)
             send_known(s[0])
             send_estimate(s[0], good)  # Θ_k first ...
@@ -734,7 +734,7 @@ def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the
         invalid = {n: 0.0 for n in T.ESTIMATE_FIELDS}
         try:
             probe.wait_for(lambda: all(p.get_subscription_count() for p in (est_pub, known_pub, status))
-                           and probe.node.count_publishers(T.TARGET_DEPTH.name), 20, "soil_planner's endpoints")
+                           and probe.matched_publishers(T.TARGET_DEPTH.name), 20, "soil_planner's endpoints")
             time.sleep(0.3)
             start(0, 0)
             time.sleep(0.2)
