@@ -203,3 +203,48 @@ def clay_press(state, k: float = 2.0, phi_max_rad: float = 0.45):
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     weak = np.asarray(state.phi, dtype=float) < float(phi_max_rad)
     return np.zeros_like(d), -float(k) * state.gamma * state.w * d**2 * weak
+
+
+def surface_crust(state, k: float = 1.0, p_pa: float = 20e3, crust_m: float = 0.05):
+    """Hidden effect: a crust in the top ``crust_m`` [m], F_x = k w p min(d, crust) [N] (growing
+    with depth through the crust, constant below it: at the grid's depths, a constant drag)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.w * float(p_pa) * np.minimum(d, float(crust_m)), np.zeros_like(d)
+
+
+def slow_stick(state, k: float = 2.0, v_max: float = 0.5):
+    """Hidden effect with a hard speed gate: F_x = k γ w d² while 0 < v_x < ``v_max`` [m/s] (soil
+    that sticks to a slow blade), nothing faster."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.asarray(state.v_x, dtype=float)
+    return float(k) * state.gamma * state.w * d**2 * ((v > 0) & (v < float(v_max))), np.zeros_like(d)
+
+
+def fee_tilt(state, k: float = 0.3):
+    """Hidden effect: the soil's resultant tilted down, F_z = −k F_x^FEE [N] (a z force in
+    proportion to the FEE's own drag, which δ can absorb)."""
+    fx = np.asarray(state.f_fee_x, dtype=float)
+    return np.zeros_like(fx), -float(k) * fx
+
+
+def dense_rate_drag(state, k: float = 1.0, p_pa: float = 20e3):
+    """Hidden effect: a viscous drag that grows with density, F_x = k w d p (v_x / 1 m/s)(I_d / 100) [N]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    i_d = np.asarray(state.relative_density_pct, dtype=float)
+    return float(k) * state.w * d * float(p_pa) * v * i_d / 100.0, np.zeros_like(d)
+
+
+def layer_lift(state, k: float = 3.0, d0: float = 0.15, p_pa: float = 10e3):
+    """Hidden effect in z: a hard layer below ``d0`` [m] pushing the blade up, F_z = +k w (d − d0)+ p
+    [N] (on the soil, z up)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return np.zeros_like(d), float(k) * state.w * np.maximum(d - float(d0), 0.0) * float(p_pa)
+
+
+def rising_relief(state, k: float = 2.0, v0: float = 0.01):
+    """Hidden effect: the drag drops while the edge rises, F_x = −k γ w d² min(max(v_z, 0)/v0, 1) [N]
+    (ramping on over the first ``v0`` [m/s] of rising speed)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    gate = np.clip(np.asarray(state.v_z, dtype=float) / float(v0), 0.0, 1.0)
+    return -float(k) * state.gamma * state.w * d**2 * gate, np.zeros_like(d)
