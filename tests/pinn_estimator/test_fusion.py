@@ -560,6 +560,12 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     assert fused["mean_abs_pct"] < report["forecast"]["naive_same_force"]["x"]["all"]["mean_abs_pct"]
     assert report["parameters"]["fused"]["delta"]["episodes"] == 4
     assert "90 % / 50 % intervals" in "\n".join(fc.markdown(report))
+    # soil by soil: the same pairs, split (where the forecast fails is what a user looks for)
+    per = report["per_soil"]
+    assert set(per) == {"Loam", "Sand"} and sum(r["pairs"] for r in per.values()) == report["pairs"]
+    whole = sum(r["pairs"] * r["fused"]["x"]["mean_abs_pct"] for r in per.values()) / report["pairs"]
+    assert whole == pytest.approx(fused["mean_abs_pct"])
+    assert "| Loam | 2 |" in "\n".join(fc.markdown(report))
 
 
 def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics():

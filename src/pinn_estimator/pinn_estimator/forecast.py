@@ -242,12 +242,17 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     posteriors = posteriors or {}
     terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     pairs = forecast_pairs(parts, thetas, posteriors, terms)
+    names = [*estimates, *posteriors]
     return {
         "episodes": len(ds),
         "worlds": sorted({m.world_mode for m in ds.metas}),
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
-        "forecast": summarise(pairs, [*estimates, *posteriors]),
+        "forecast": summarise(pairs, names),
+        # where the forecast fails, soil by soil (all densities): F_x and its coverage
+        "per_soil": {soil: {"pairs": len(mine), **{name: {"x": _errors(mine, name, 0), "deeper_x": _errors(
+            [p for p in mine if p["to_depth_m"] > p["from_depth_m"]], name, 0)} for name in (*names, *REFERENCES)}}
+                     for soil in sorted({p["soil"] for p in pairs}) for mine in [[p for p in pairs if p["soil"] == soil]]},
         "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
@@ -295,6 +300,16 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         lines.append(f"| {label} | {_pct(x['all']['mean_abs_pct'])} | {_pct(x['deeper']['bias_pct'], True)} | "
                      f"{_pct(x['shallower']['bias_pct'], True)} | {_pct(z['all']['mean_abs_pct'])} | "
                      f"{_pct(z['deeper']['bias_pct'], True)} | {cover[0]} | {cover[1]} |")
+    per_soil = report.get("per_soil") or {}
+    if len(per_soil) > 1:
+        names = [n for n in report["forecast"] if n not in REFERENCES]
+        lines += ["", "Per soil (all its densities), F_x at another depth: mean |error| (bias going deeper):", "",
+                  "| soil | pairs | " + " | ".join(label_of(report, n) for n in (*names, *REFERENCES)) + " |",
+                  "|---|---|" + "---|" * (len(names) + len(REFERENCES))]
+        for soil, row in per_soil.items():
+            cells = [f"{_pct(row[n]['x']['mean_abs_pct'])} ({_pct(row[n]['deeper_x']['bias_pct'], True)})"
+                     for n in (*names, *REFERENCES)]
+            lines.append(f"| {soil} | {row['pairs']} | " + " | ".join(cells) + " |")
     for name, params in report.get("parameters", {}).items():
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
                           f"(intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%}"
