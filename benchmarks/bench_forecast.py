@@ -504,7 +504,7 @@ def change_response(ep, track: Track, boundary_x: float, own: dict | None = None
     dt = track.t_s[after] - t_cross
     first, settled = hold_times(dt, held)
     before = np.flatnonzero(track.rows < k)
-    out.update(cross_s=t_cross, stretches_after=int(len(after)), first_hold_s=first, settled_s=settled,
+    out.update(cross_s=t_cross, cross_row=k, stretches_after=int(len(after)), first_hold_s=first, settled_s=settled,
                restarts=int(track.changes[-1] - (track.changes[before[-1]] if len(before) else 0)) if len(track.changes) else 0,
                held_share_after=float(held.mean()) if len(held) else None,
                old_soil_held_before=bool(all(holds(track, before[-1], ep.truth[track.rows[before[-1]]]).values())) if len(before) else None,
@@ -522,10 +522,9 @@ CHANGE_FORECAST_DEPTHS_M = (0.1, 0.225)  # section 4: the other depths a planner
 
 
 def steady_conditions(ep) -> tuple[np.ndarray, float, np.ndarray]:
-    """(Θ_k row, travel in soil [m], force [N]) averaged over an episode's steady part."""
-    rows = second_half(ep)
-    return (ep.known[rows].mean(axis=0), float(distance_in_soil_of_known(ep.known)[rows].mean()),
-            ep.forces[rows].mean(axis=0))
+    """``steady_force`` and the mean travel in soil [m] between: (Θ_k row, travel, force [N])."""
+    known, force = steady_force(ep)
+    return known, float(distance_in_soil_of_known(ep.known)[second_half(ep)].mean()), force
 
 
 def forecast_holder(targets: list):
@@ -569,7 +568,7 @@ def section_change(args, models) -> dict:
             r = change_response(ep, track, boundary,
                                 own={n: own.mean[n][-1] for n in ("phi", "c")} if len(own.rows) else None)
             if r["crossed"]:
-                after = np.flatnonzero(track.rows >= np.flatnonzero(ep.observations[:, _PX] >= boundary)[0])
+                after = np.flatnonzero(track.rows >= r["cross_row"])
                 r["force_first_hold_s"], r["force_settled_s"] = hold_times(track.t_s[after] - r["cross_s"],
                                                                            np.array(held_force, bool)[after])
             res.append(r)

@@ -205,6 +205,18 @@ def summarise(pairs: list[dict], names) -> dict:
     return out
 
 
+def per_soil(pairs: list[dict], names) -> dict:
+    """Where the forecast fails, soil by soil (all its densities): per estimator, F_x over its pairs
+    (error, bias, coverage) and going deeper."""
+    out = {}
+    for soil in sorted({p["soil"] for p in pairs}):
+        mine = [p for p in pairs if p["soil"] == soil]
+        deeper = [p for p in mine if p["to_depth_m"] > p["from_depth_m"]]
+        out[soil] = {"pairs": len(mine), **{name: {"x": _errors(mine, name, 0), "deeper_x": _errors(deeper, name, 0)}
+                                            for name in (*names, *REFERENCES)}}
+    return out
+
+
 def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
     """Fused posterior at each episode's end against its true θ: mean |error|, how often the
     posterior's central 90 % / 50 % intervals (its exact quantiles) hold the truth (meaningful
@@ -249,10 +261,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, names),
-        # where the forecast fails, soil by soil (all densities): F_x and its coverage
-        "per_soil": {soil: {"pairs": len(mine), **{name: {"x": _errors(mine, name, 0), "deeper_x": _errors(
-            [p for p in mine if p["to_depth_m"] > p["from_depth_m"]], name, 0)} for name in (*names, *REFERENCES)}}
-                     for soil in sorted({p["soil"] for p in pairs}) for mine in [[p for p in pairs if p["soil"] == soil]]},
+        "per_soil": per_soil(pairs, names),
         "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
     }
