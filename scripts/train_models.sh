@@ -24,7 +24,7 @@ for w in ${*:-fee default}; do
     wait $p1 || { cat "$OUT/pinn_$w.log"; exit 1; }
     wait $p2 || { cat "$OUT/physics_free_$w.log"; exit 1; }
     # models/fusion_<world>.json, used by pinn_eval's forecast; the default world's posterior has the
-    # surcharge relief term soil_discrepancy proposed (README, "The soil fused along the path")
+    # surcharge relief term soil_discrepancy proposed (docs/soil_posterior.md)
     terms=()
     [ "$w" = default ] && terms=(--term "form:-qnq*tanhvx0.1=0.756")
     "$BIN/pinn_fusion_calibrate" --world "$w" "${terms[@]}" > "$OUT/fusion_$w.log"

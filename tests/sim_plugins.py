@@ -1,4 +1,4 @@
-"""Force plugins used by the tests and the README's hidden-effect tables (loaded as ``tests.sim_plugins:<name>``,
+"""Force plugins used by the tests and the hidden-effect tables of docs/finding_missing_physics.md (loaded as ``tests.sim_plugins:<name>``,
 e.g. ``soil_sim_batch ... --plugin "tests.sim_plugins:clay_entry_drag k=2"`` from the repository root).
 
 tests/ is a package and pytest puts the repository root on sys.path, so the simulator's plugin

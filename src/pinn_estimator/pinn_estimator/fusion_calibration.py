@@ -66,7 +66,7 @@ SHAPE_GRID = (None, (50.0, 0.05), (10.0, 0.01), (2.0, 0.002), (0.5, 0.0005))
 # floor + 0.05 %, shape 0.02 N + 0.002 %, no drift: chosen by the parameters' coverage when
 # offered, held-out φ 94 / 67 %, c 89 / 33 %, forecasts 79 / 60 %): with the timing error one per
 # stretch they hold the dithered cuts, but a truth stage that also required dithered cuts and
-# soil changes to hold the truth for good (the README says how) still chose a law whose intervals
+# soil changes to hold the truth for good (docs/soil_posterior.md says how) still chose a law whose intervals
 # held a held-out new soil for good only 7.9 s after the crossing and a dithered source's F_z
 # forecast in 75 % of pairs, for parameters' intervals nearer nominal (φ 100 / 64 %, c 100 / 33 %)
 # and forecasts' no nearer (97 / 96 %).
