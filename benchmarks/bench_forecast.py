@@ -360,8 +360,11 @@ def section_early(args, models, cache) -> dict:
 
 # ---------------------------------------------------------------- 3. depth dither
 def steady_force(ep) -> tuple[np.ndarray, np.ndarray]:
-    """(mean Θ_k, mean measured force) over the episode's steady part."""
-    rows = second_half(ep)
+    """(mean Θ_k, mean measured force) over the episode's steady part (``forecast.steady_rows``;
+    NaN where it has none)."""
+    rows = fc.steady_rows(ep.known)
+    if rows is None:
+        return np.full(ep.known.shape[1], np.nan), np.full(2, np.nan)
     return ep.known[rows].mean(axis=0), ep.forces[rows].mean(axis=0)
 
 
@@ -370,6 +373,8 @@ def forecast_scores(pairs) -> dict:
     err, held = [], []
     for post, target in pairs:
         known, measured = steady_force(target)
+        if not np.isfinite(measured).all():
+            continue
         q = post.forecast(known, quantiles=(0.05, 0.5, 0.95))["quantiles"]
         err.append(100 * np.abs(q[0.5] - measured) / np.maximum(np.abs(measured), 1.0))
         held.append((q[0.05] <= measured) & (measured <= q[0.95]))
@@ -524,7 +529,8 @@ CHANGE_FORECAST_DEPTHS_M = (0.1, 0.225)  # section 4: the other depths a planner
 def steady_conditions(ep) -> tuple[np.ndarray, float, np.ndarray]:
     """``steady_force`` and the mean travel in soil [m] between: (Θ_k row, travel, force [N])."""
     known, force = steady_force(ep)
-    return known, float(distance_in_soil_of_known(ep.known)[second_half(ep)].mean()), force
+    rows = fc.steady_rows(ep.known)
+    return known, float(distance_in_soil_of_known(ep.known)[rows].mean()) if rows is not None else float("nan"), force
 
 
 def forecast_holder(targets: list):

@@ -568,6 +568,25 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     assert "| Loam | 2 |" in "\n".join(fc.markdown(report))
 
 
+def test_a_steady_part_leaves_out_the_transients_of_its_second_half():
+    """A slow cut's second half holds the chassis settling into its own cut (the blade plunges a
+    few cm and the lift takes it back): a mean across it is no steady cut (its v_z bends Eq. 9-10's
+    friction), so the forecast's reference, the FEE with the true θ in the fee world, missed it. The
+    steady part is the rows where the blade holds its depth, where the FEE is the world's force;
+    a cut cycling at a force limit all along is no steady cut at all, to forecast from or to."""
+    slow = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Sand", 20.0, 0.2, 0.2, seed=7, duration_s=8.0)])[0]
+    limited = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Gravel", 100.0, 1.0, 0.3, seed=7, duration_s=6.0)])[0]
+    part, no_cut = fc.steady_parts(Dataset.from_episodes([slow, limited]))
+    assert no_cut is None and fc.steady_rows(limited.known) is None
+    half = np.arange(len(slow.known))[len(slow.known) // 2:]
+    half = half[slow.known[half, KNOWN_PARAMS.index("d")] > 0]
+    assert len(fc.steady_rows(slow.known)) < len(half)
+    across = fc.fee_force_at(part.truth, dict(zip(KNOWN_PARAMS, slow.known[half].mean(axis=0))))
+    assert abs(across[0] / slow.forces[half, 0].mean() - 1.0) > 0.02, "the transient is no longer in the second half"
+    steady = np.asarray(fc.fee_force_at(part.truth, part.known))
+    assert abs(steady[0] / part.force[0] - 1.0) < 0.01 and abs(steady[1] / part.force[1] - 1.0) < 0.03
+
+
 def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics():
     """A PINN trained with an extra term (a discovered effect) estimates θ for the FEE plus that
     term, so its forecast at another depth must add the term, at the target episode's conditions

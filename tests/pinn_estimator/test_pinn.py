@@ -247,10 +247,17 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     # one cut alone is no pair: refused, naming the folder, before the test split is evaluated
     lone = tmp_path / "lone"
     write_episode(lone / "one", next(iter(run_episodes(SimConfig(world_mode="fee"), specs[:1]))))
-    with pytest.raises(ValueError, match=f"--forecast-data {lone}: no two of its 1 episodes"):
+    with pytest.raises(ValueError, match=f"--forecast-data {lone}: no two of its 1 episodes.*0 of them hold no steady cut"):
         from pinn_estimator.evaluate import evaluate
 
         evaluate(pinn, tiny_bags, classical=False, forecast_data=lone, log=lambda *_: None)
+    # a cut that cycles at the force limit all along holds no steady depth: no pair, and the refusal says why
+    limited = tmp_path / "limited"
+    for ep in run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Gravel", 100.0, 1.0, d, seed=7, duration_s=6.0)
+                                                          for d in (0.12, 0.3)]):
+        write_episode(limited / ep.meta.name, ep)
+    with pytest.raises(ValueError, match="no two of its 2 episodes.*1 of them hold no steady cut"):
+        evaluate(pinn, tiny_bags, classical=False, forecast_data=limited, log=lambda *_: None)
     assert eval_main([*common, "--out", str(out), "--forecast-data", str(lone)]) == 2
     with pytest.raises(SystemExit):
         eval_main([*common, "--forecast-data", str(cuts), "--forecast-world", "none"])

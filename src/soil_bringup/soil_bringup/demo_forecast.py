@@ -6,7 +6,7 @@ same soil, density, speed and seed at ``OTHER_DEPTHS_M``; ``pinn_estimator.forec
 forecasts from each live episode to each of those against the force measured there: the fused
 posterior the estimator held at the episode's end (rebuilt from the episode's bag with the
 estimator's config and its checkpoint's physics, ``config_for_model``, which gives the live
-values), the PINN's live estimates averaged over the episode's steady half (through its own
+values), the PINN's live estimates averaged over the episode's steady part (through its own
 physics), and the two references (the FEE with the true parameters, and "the force now"). Truth
 is read for scoring only.
 """
@@ -112,4 +112,4 @@ def markdown_lines(report: dict) -> list[str]:
     return markdown(report, intro=(
         f"The planner's question: from each live episode, the force at another depth of the same soil "
         f"({report['pairs']} forecasts to the simulator's episodes at {depths_text(report['depths_m'])} m, same soil, density, speed and seed; "
-        "the steady half of each). Mean |error| and signed bias, % of the measured force."))
+        "the steady part of each: its second half where the blade holds its depth). Mean |error| and signed bias, % of the measured force."))
