@@ -248,3 +248,18 @@ def rising_relief(state, k: float = 2.0, v0: float = 0.01):
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     gate = np.clip(np.asarray(state.v_z, dtype=float) / float(v0), 0.0, 1.0)
     return -float(k) * state.gamma * state.w * d**2 * gate, np.zeros_like(d)
+
+
+def load_cell_gain(state, k: float = 0.15):
+    """Hidden effect on the measurement, not the soil: the force sensor reads (1 + k) times the soil's
+    force, F = k F^FEE on both axes (a load cell's gain error)."""
+    return float(k) * np.asarray(state.f_fee_x, dtype=float), float(k) * np.asarray(state.f_fee_z, dtype=float)
+
+
+def hard_spot(state, k: float = 1.0, p_pa: float = 20e3, x0_m: float = 4.0, x1_m: float = 6.0):
+    """Hidden effect at one place along the path: a buried hard spot between blade edge x = ``x0_m``
+    and ``x1_m`` [m], F_x = k w d p there (a root or a boulder bed; no soil or motion variable has it)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    x = np.asarray(state.x_b, dtype=float)
+    inside = (x >= float(x0_m)) & (x <= float(x1_m))
+    return float(k) * state.w * d * float(p_pa) * inside, np.zeros_like(d)

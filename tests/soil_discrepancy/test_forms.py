@@ -316,3 +316,33 @@ def test_a_z_formula_folds_the_scales_sign_into_k():
                     f_fee_x=0 * d + 1e3, f_fee_z=0 * d)
     _, bz = term_forms.basis("form:-wd_z*below0.15", s, np)
     assert np.allclose(bz, 2.0 * np.maximum(d - 0.15, 0.0) * term_forms.P_REF_PA)  # + k w (d − 0.15)+ P
+
+
+def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_are_called_stand_ins():
+    """A hard spot at one place along the path was named as three forms (entry, time, rising speed)
+    that took 13 % off the held-out error with the residual's structure left: the verdict must not
+    read them as the effect's mechanism. Forms that take much off, a single form (found beside an
+    effect no form explains), catalogue terms and a set after which no structure remains keep the
+    plain wording."""
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.workflow import STAND_IN_MAX_GAIN, _verdict
+
+    def score(name):
+        return TermScore(name=name, k=2.3, k_se=0.14, k_folds=[2.3] * 5, gain=0.08, p=1e-6)
+
+    reg0 = {"significant": True, "flagged_variables": ["distance"]}
+    remains = {"significant": True, "flagged_variables": ["distance", "t"]}
+
+    def summary(names, after_rmse, reg1=remains):
+        verdict, text = _verdict([score(n) for n in names], reg0, {"before": {"rmse": 4380.0}, "after": {"rmse": after_rmse}}, reg1)
+        assert verdict == "explained"
+        return text
+
+    little = 4380.0 * (1 - STAND_IN_MAX_GAIN) + 100.0
+    text = summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], little)
+    assert "stand-ins" in text and "rather than its mechanism" in text and "explain part" not in text, text
+    assert "stand-ins" not in summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], 4380.0 * 0.5), "they take half off"
+    assert "stand-ins" not in summary(["form:-wd_x*enter0.5"], little), "one form found beside an effect no form explains"
+    assert "stand-ins" not in summary(["soil_inertia", "compaction_hardening"], little), "catalogue terms are mechanisms"
+    assert "stand-ins" not in summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], little,
+                                      {"significant": False, "flagged_variables": []})
