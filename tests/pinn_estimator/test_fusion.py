@@ -585,6 +585,10 @@ def test_a_steady_part_leaves_out_the_transients_of_its_second_half():
     assert abs(across[0] / slow.forces[half, 0].mean() - 1.0) > 0.02, "the transient is no longer in the second half"
     steady = np.asarray(fc.fee_force_at(part.truth, part.known))
     assert abs(steady[0] / part.force[0] - 1.0) < 0.01 and abs(steady[1] / part.force[1] - 1.0) < 0.03
+    # a blade skimming a soil it cannot enter (a tenth of a millimetre deep, level) is no cut either
+    skimming = slow.known.copy()
+    skimming[:, KNOWN_PARAMS.index("d")], skimming[:, KNOWN_PARAMS.index("v_z")] = 1e-4, 0.0
+    assert fc.steady_rows(skimming) is None
 
 
 def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics():

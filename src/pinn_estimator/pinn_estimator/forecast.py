@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 
@@ -71,7 +71,9 @@ class Steady:
 
 
 def steady_mask(known: np.ndarray) -> np.ndarray:
-    """Which rows of Θ_k (..., K) are a steady cut: the blade in the soil and holding its depth
+    """Which rows of Θ_k (..., K) are a steady cut: the blade cutting (at least
+    ``params.MIN_CUT_DEPTH_M`` deep: a blade skimming a soil it cannot enter is no cut, and two such
+    episodes a tenth of a millimetre apart were a pair "at another depth") and holding its depth
     (|v_z| ≤ ``STEADY_MAX_ABS_V_Z_M_S``).
 
     Why not every row of the second half: it can hold a transient (the chassis settling into its
@@ -81,7 +83,7 @@ def steady_mask(known: np.ndarray) -> np.ndarray:
     true parameters' FEE missed such means of slow cuts by 3 % in F_x and 26 % in F_z; the figures
     at ``STEADY_MAX_ABS_V_Z_M_S``)."""
     known = np.asarray(known)
-    return (known[..., _D] > 0) & (np.abs(known[..., _VZ]) <= STEADY_MAX_ABS_V_Z_M_S)
+    return (known[..., _D] >= MIN_CUT_DEPTH_M) & (np.abs(known[..., _VZ]) <= STEADY_MAX_ABS_V_Z_M_S)
 
 
 def steady_rows(known: np.ndarray, steady_from: float = STEADY_FROM) -> np.ndarray | None:

@@ -58,7 +58,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
@@ -91,7 +91,7 @@ PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
 # as every other component.
 COHESIONLESS_U, COHESIONLESS_STD_U = U_BOUNDS[0], 0.05
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
-MIN_STRETCH_DEPTH_M = 0.01  # a stretch with the blade (almost) out of the soil carries no evidence
+MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out of the soil carries no evidence
 
 
 PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_abs_std_n", "shape_rel_std")  # (x, z) each

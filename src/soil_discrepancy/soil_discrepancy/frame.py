@@ -21,11 +21,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
-MIN_DEPTH_M = 0.01  # ticks with the blade in the soil deeper than this are analysed
+MIN_DEPTH_M = MIN_CUT_DEPTH_M  # ticks with the blade in the soil deeper than this are analysed
 SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
 UNKNOWN_SOILS = ("", "unknown", "none", "?")
 # group_by="gamma": episodes whose median γ differs from the previous (sorted) one by less than

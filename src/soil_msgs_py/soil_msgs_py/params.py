@@ -120,6 +120,10 @@ FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE
 # A steady cut: the edge moves vertically slower than this [m/s] (a 1:25 slope at 0.5 m/s). Faster,
 # the force carries transients a quasi-static model lacks (sinking: the penetration reaction).
 STEADY_CUT_MAX_ABS_V_Z_M_S = 0.02
+# The blade cuts (rather than skims the surface) from this depth [m]: a shallower force carries no
+# evidence about the soil (the posterior's stretches, the discrepancy workflow's ticks, a forecast's
+# steady part).
+MIN_CUT_DEPTH_M = 0.01
 
 # Soil-tool constants of §3.1.
 ADHESION_PA = 200.0  # c_a, all soils
