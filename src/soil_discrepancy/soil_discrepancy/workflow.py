@@ -42,7 +42,7 @@ VERDICTS = ("explained", "unexplained", "no significant discrepancy")
 # that follows part of an effect whose own form the library does not hold. A hard spot at one
 # place along the path was named as three forms on entry, time and rising speed (−13 %, 4.0 kN of
 # slow residual left of 4.1 kN), each with a confident k; the effects found in their own form took
-# 30-74 % off. One form is left its name: beside a second effect no form explains, the one that
+# 31-76 % off. One form is left its name: beside a second effect no form explains, the one that
 # is found takes little off the whole (a suction found exactly beside a deep drag: −6 %).
 STAND_IN_MAX_GAIN = 0.25
 
