@@ -167,7 +167,8 @@ def contact_time_s(ep) -> float:
 
 
 def second_half(ep) -> np.ndarray:
-    """Rows of the episode's steady part (its second half, blade in the soil), as ``forecast.steady_parts``."""
+    """Rows of the episode's second half with the blade in the soil (its tracking and model residual;
+    a forecast's steady part is ``forecast.steady_rows``, which also leaves out its transients)."""
     rows = np.arange(len(ep.forces))[int(fc.STEADY_FROM * len(ep.forces)):]
     return rows[ep.known[rows, _D] > 0]
 

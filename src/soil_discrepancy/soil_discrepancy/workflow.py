@@ -523,14 +523,16 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
             parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
         text = "missing effect: " + "; ".join(parts)
+        gain = None  # the share of the held-out test's force RMSE the named terms take off
         if test is not None and test["before"]["rmse"] is not None and test["after"]["rmse"] is not None:
             b, a = test["before"]["rmse"], test["after"]["rmse"]
+            gain = 1.0 - a / b if b > 0 else None
             text += f"; held-out test RMSE {b:.0f} N -> {a:.0f} N ({100 * (a / b - 1):+.0f} %)"
             if (test.get("depth_forecast") or {}).get("before"):
                 text += f", force at another depth {_fc_text(test)}"
         if reg1 is not None and reg1["significant"]:
             text += "; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
-            gain, forms_named = _test_gain(test), sum(s.name.startswith(FORM_PREFIX) for s in new_terms)
+            forms_named = sum(s.name.startswith(FORM_PREFIX) for s in new_terms)
             if gain is not None and gain < STAND_IN_MAX_GAIN and forms_named >= 2:
                 text += (f" (the named terms take only {100 * gain:.0f} % off the held-out error with {forms_named} "
                          "discovered forms: they may be stand-ins that follow part of an effect whose own form the library "
@@ -553,13 +555,6 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
                                           + _misfit_text(reg0, quiet=True) + not_named)
-
-
-def _test_gain(test: dict | None) -> float | None:
-    """The share of the held-out test's force RMSE the named terms take off (None: not measured)."""
-    if test is None or test["before"]["rmse"] is None or test["after"]["rmse"] is None or test["before"]["rmse"] <= 0:
-        return None
-    return 1.0 - test["after"]["rmse"] / test["before"]["rmse"]
 
 
 def _left_text(reg: dict | None) -> str:
