@@ -95,12 +95,14 @@ def test_intruder_claiming_real_stamps_first_is_not_recorded(tmp_path):
     assert any("off the 60 Hz grid" in m and "/clock" in m for m in warnings), warnings
 
 
-@pytest.mark.parametrize("values", [None, (1e30, -1e30), (5e9, 0.0)], ids=["non-finite", "finite-absurd", "one-absurd"])
+@pytest.mark.parametrize("values", [None, (1e30, -1e30), (5e9, 0.0), (5e-324, 0.0)],
+                         ids=["non-finite", "finite-absurd", "one-absurd", "subnormal"])
 def test_an_intruder_whose_counter_meets_the_players_is_refused_by_its_values(tmp_path, values):
     """At one tick the intruder's message carries the very sequence number the simulator's
     carries there and arrives first: by sequence either could continue the simulator's
     counter, so the values decide and the bag keeps the simulator's message. Finite garbage
-    (1e30 N) is as implausible as a NaN: no graph value comes near 1e9 in SI."""
+    (1e30 N) is as implausible as a NaN: no graph value comes near 1e9 in SI, nor near a
+    subnormal (5e-324 N)."""
     loaded, start_ev, end_ev = _events(SAMPLE)
     n = 30
     msgs = loaded.messages[: 10 * n]

@@ -95,3 +95,34 @@ def test_without_sequence_numbers_the_first_command_of_a_tick_is_kept():
     assert gate.offer(BLADE, stamp(0), (0.05, 0.0), 0) != []
     assert gate.offer(CHASSIS, stamp(0), (0.5,)) == []
     assert gate.take() == (0.3, 0.0, 0.5)
+
+
+def test_an_intruder_copy_carrying_the_controllers_own_sequence_number_is_replaced_by_the_controllers():
+    """Tick 1: the intruder's copy arrives first with sequence number 2, which continues the
+    controller's counter (1 at tick 0) exactly as the controller's own command of tick 1 does.
+    Counters cannot tell the two apart; the values can: the copy's subnormal is no command, so
+    the controller's replaces it, and until then the gate says the tick is not to be trusted."""
+    gate = CommandGate()
+    seq = run_controller(gate, 1)
+    gate.expect(stamp(1))
+    assert gate.offer(CHASSIS, stamp(1), (5e-324,), seq) == []  # taken: it continues the counter
+    assert not gate.plausible
+    warnings = gate.offer(CHASSIS, stamp(1), (0.4,), seq)  # the controller's, same number
+    assert [kind for kind, _ in warnings] == [f"{CHASSIS}:writer:same_sequence"]
+    assert "replaced" in warnings[0][1] and str(seq) in warnings[0][1]
+    assert gate.plausible
+    assert gate.offer(BLADE, stamp(1), (0.06, 0.0), seq) == []
+    assert gate.complete and gate.take() == (0.06, 0.0, 0.4)
+    gate.expect(stamp(2))  # and the controller is followed on: its counter continues
+    assert answer(gate, 2, seq + 1, u_zr=0.07, u_x=0.45) == []
+    assert gate.take() == (0.07, 0.0, 0.45)
+
+
+def test_a_second_claim_of_a_taken_sequence_number_does_not_replace_a_plausible_command():
+    gate = CommandGate()
+    seq = run_controller(gate, 3)
+    gate.expect(stamp(3))
+    assert answer(gate, 3, seq, u_zr=0.05, u_x=0.4) == []
+    for values in ((1e308,), (0.9,)):  # garbage, and a plausible value second: the first stays
+        assert [k for k, _ in gate.offer(CHASSIS, stamp(3), values, seq)] == [f"{CHASSIS}:writer:same_sequence"]
+    assert gate.plausible and gate.take() == (0.05, 0.0, 0.4)

@@ -89,16 +89,23 @@ def test_restarted_timers_drop_a_pending_grace(clock):
     assert pacer.on_timer(commands_complete=False) is Do.WAIT_GRACE
 
 
-def test_lockstep_steps_on_every_complete_command_set_and_never_on_the_timer(clock):
+def test_lockstep_steps_on_every_complete_command_set_and_the_timer_only_on_one_held_back(clock):
+    """The node holds a completion back when a command in it is implausible (an intruder's copy
+    the controller's own may still replace); the housekeeping timer then steps it."""
     pacer = running("lockstep", clock)
     for k in range(3):
         clock.t += 0.5
-        assert pacer.on_timer(commands_complete=True) is Do.NOTHING
+        assert pacer.on_timer(commands_complete=False) is Do.NOTHING
         assert pacer.on_commands(complete=True) is Do.STEP
         pacer.published()
-    assert pacer.timing.loop_latencies == [pytest.approx(0.5)] * 3
+    clock.t += 0.5
+    assert pacer.on_commands(complete=False) is Do.NOTHING  # held back by the node
+    clock.t += HOUSEKEEPING_PERIOD_S
+    assert pacer.on_timer(commands_complete=True) is Do.STEP
+    pacer.published()
+    assert pacer.timing.loop_latencies == [pytest.approx(0.5)] * 3 + [pytest.approx(0.5 + HOUSEKEEPING_PERIOD_S)]
     stats = pacer.end_episode()
-    assert "jitter" not in stats and stats["period"]["n"] == 3 and stats["late_commands"] == 0
+    assert "jitter" not in stats and stats["period"]["n"] == 4 and stats["late_commands"] == 0
 
 
 def test_lockstep_watchdog_reports_a_stall_then_ends_the_episode(clock):

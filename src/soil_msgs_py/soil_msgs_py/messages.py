@@ -317,11 +317,12 @@ PLAUSIBLE_ABS_LIMIT = 1e9
 
 
 def plausible_values(values: Any) -> bool:
-    """Whether every value could be a graph node's: finite and within ±``PLAUSIBLE_ABS_LIMIT``.
-    What tells two claims of one tick apart when their writers cannot be (same stamp, same
-    sequence number): a finite 1e30 is as much garbage as a NaN."""
-    v = np.asarray(values, dtype=np.float64)
-    return bool((np.abs(v) <= PLAUSIBLE_ABS_LIMIT).all())  # NaN compares False
+    """Whether every value could be a graph node's: finite, within ±``PLAUSIBLE_ABS_LIMIT`` and
+    not subnormal. What tells two claims of one tick apart when their writers cannot be (same
+    stamp, same sequence number): a finite 1e30 is as much garbage as a NaN, and so is 5e-324:
+    no SI quantity of the graph comes within 300 orders of magnitude of a subnormal."""
+    a = np.abs(np.asarray(values, dtype=np.float64))
+    return bool(((a <= PLAUSIBLE_ABS_LIMIT) & ((a == 0.0) | (a >= np.finfo(np.float64).tiny))).all())  # NaN: False
 
 
 # --- whole episodes --------------------------------------------------------------------

@@ -358,7 +358,8 @@ class SimNode(Node):
             return
         for kind, text in self.gate.offer(topic, stamp, values, sequence):
             self._warn(kind, text)
-        self._do(self.pacer.on_commands(self.gate.complete))
+        # An implausible command in a complete tick is stepped by the timer, not now (gate.plausible).
+        self._do(self.pacer.on_commands(self.gate.complete and self.gate.plausible))
 
     def _on_timer(self) -> None:
         if self.sim is None:

@@ -8,7 +8,8 @@ complete, or the grace timer fires, and does what it says (``Do``). Two pacings:
   up to ``COMMAND_GRACE`` of a period for them (rclpy serves ready timers before ready
   subscriptions, so a command that arrived with the timer would otherwise count as late);
   after that the previous command is held and the tick is counted as late.
-* ``lockstep``: the next tick is stepped as soon as both commands for the current one arrived,
+* ``lockstep``: the next tick is stepped as soon as both commands for the current one arrived
+  (or at the next housekeeping tick when the node held the completion back),
   so a run is reproducible to the bit; a wait of over ``STALL_WARN_S`` is reported, one of
   over ``lockstep_timeout_s`` ends the episode (nothing would ever come).
 
@@ -169,6 +170,8 @@ class Pacer:
             return Do.NOTHING
         if not self.timing.publish_times:
             return Do.NOTHING
+        if commands_complete:  # a completion held back by the node (a suspect command): step now
+            return self.on_commands(True)
         waited = self.waited_s()
         if waited > self.lockstep_timeout_s:
             return Do.TIMED_OUT
