@@ -14,11 +14,11 @@ from soil_physics import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
-from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, MIN_ANCHOR_DEPTH_M,
-                                  REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth,
+from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, DEFAULT_MARGIN,
+                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth,
                                   steady_cut_terms)
 
-LX, LZ = 0.8 * FORCE_LIMITS_N[0], 0.8 * FORCE_LIMITS_N[1]  # default margin
+LX, LZ = DEFAULT_MARGIN * FORCE_LIMITS_N[0], DEFAULT_MARGIN * FORCE_LIMITS_N[1]  # default margin
 
 
 def _known(**over) -> dict[str, float]:
@@ -118,7 +118,7 @@ def test_over_the_z_limit_already_at_the_surface():
     plan = max_cut_depth(est, known)
     assert plan.max_depth_m == 0.0 and plan.limited_by_z and not plan.limited_by_x and plan.binding == "z"
     assert abs(plan.f_z_n) > LZ  # the force at the surface, honestly over the limit
-    assert "z limit binds: 24.0 kN" in describe(plan, est, known)
+    assert f"z limit binds: {LZ / 1e3:.1f} kN" in describe(plan, est, known)
 
 
 def test_residual_anchors_the_prediction_to_the_estimated_force_and_scales_with_depth():
@@ -574,7 +574,7 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
     domain = next_domain_id()
     known = _known(d=0.15, q=1500.0, gamma=19e3)
     good = _estimate(known, residual=(800.0, -1200.0), phi=27 * DEG, c=9e3, delta=14 * DEG, delta_d=0.01)
-    expected = max_cut_depth(good, known)  # the node's defaults: margin 0.8, d_max 0.3 m, residual on
+    expected = max_cut_depth(good, known)  # the node's defaults: margin DEFAULT_MARGIN, d_max 0.3 m, residual on
     assert 0.0 < expected.max_depth_m < 0.3 and expected.limited_by_x
     wide = max_cut_depth(good, known, margin=1.0, d_max_m=0.66, cut_speed_m_s=0.3)  # after the run-time change below
     assert wide.max_depth_m > expected.max_depth_m
@@ -636,7 +636,7 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
         assert all(np.isfinite(v).all() for v in got.values())
         assert changed.tolist() == pytest.approx(wide.values(), rel=1e-12, abs=1e-9)
         out = node.output
-        assert "deepest cut" in out and "x limit binds: 16.0 kN" in out
+        assert "deepest cut" in out and f"x limit binds: {LX / 1e3:.1f} kN" in out
         assert "estimate phi=nan" in out and "label mismatch" in out
 
 
@@ -690,7 +690,7 @@ def test_posterior_samples_the_force_now_rules_out_do_not_forbid_every_depth():
               'q': 5830.153148, 'v_x': 0.474676, 'v_z': -0.001317})
     plan = max_cut_depth(estimate, known, anchor=anchor)
     assert 0.08 < plan.max_depth_m < 0.15 and plan.limited_by_x and not plan.limited_by_z
-    assert plan.f_x_n == pytest.approx(0.8 * FORCE_LIMITS_N[0], rel=1e-3)
+    assert plan.f_x_n == pytest.approx(LX, rel=1e-3)
 
 
 @pytest.mark.timeout(60)
