@@ -50,7 +50,9 @@ def domain():
 
 
 def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain):
-    """sim + controller at 60 Hz: every tick of the episode arrives, stats are sane."""
+    """sim + controller at 60 Hz: every tick of the episode arrives, stats are sane; a misspelt
+    parameter is named (rclpy alone would ignore it silently) and the node exits without a
+    traceback once its episodes are done."""
     with RosProbe(domain) as probe:
         probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
         probe.subscribe(T.BLADE_FORCE.name, T.BLADE_FORCE.msgtype)
@@ -62,7 +64,7 @@ def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain
             # the first tick, or on a busy machine its discovery lags and the first commands pass it by
             probe.wait_for(lambda: probe.matched_publishers(T.CMD_VEL.name) >= 1, 30, "the controller's commands")
             sim = NodeProc("soil_sim_node", _sim_args(
-                "duration_s:=2.0", "exit_when_done:=true", "soil:=Clay",
+                "duration_s:=2.0", "exit_when_done:=true", "soil:=Clay", "seeed:=3",
                 wait_for=("/chassis/cmd_vel:1", "/blade/cmd:1", "/chassis/twist:1", "/sim/status:2",
                           "/blade/force:1")), domain, tmp_path)
             assert sim.wait(timeout=30) == 0, sim.output
@@ -72,6 +74,8 @@ def test_realtime_graph_publishes_every_tick_and_reports_timing(tmp_path, domain
                 sim.stop()
             ctl.stop()
         assert end.reason == "completed" and end.ticks == 120 and end.meta.soil == "Clay"
+        assert "parameter 'seeed' is not a parameter of this node (did you mean seed?); ignored" in sim.output
+        assert "Traceback" not in sim.output and "Exception ignored" not in sim.output, sim.output
         stamps = [M.parse_message(T.BLADE_FORCE.name, m)[0] for m in probe.messages(T.BLADE_FORCE.name)]
         assert stamps == [end.first_stamp_ns + (k * 10**9) // 60 for k in range(120)]
         answered = {M.parse_message(T.CMD_VEL.name, m)[0] for m in probe.messages(T.CMD_VEL.name)}

@@ -64,7 +64,8 @@ def read_checkpoint(path) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - torch raises many types for a foreign/corrupt file
-        raise ValueError(f"checkpoint {path} is not a readable torch checkpoint: {type(err).__name__}: {str(err)[:200]}") from None
+        raise ValueError(f"checkpoint {path} is not a readable torch checkpoint (a file pinn_train writes; damaged or "
+                         f"another format?): {type(err).__name__}: {str(err)[:200]}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise ValueError(f"checkpoint {path} is not an insitu-soil estimator checkpoint (format {FORMAT!r} missing)")
     if ckpt.get("format_version") != FORMAT_VERSION:

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from soil_physics import fee
+from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -451,7 +452,7 @@ def main(argv=None) -> int:
     p.add_argument("--checkpoint", required=True, help="PINN checkpoint (.pt)")
     p.add_argument("--physics-free", help="physics-free baseline checkpoint trained on the same split")
     p.add_argument("--data", help="bag directory (default: the one the checkpoint was trained on)")
-    p.add_argument("--out", default="out/eval", help="report directory (default: out/eval)")
+    p.add_argument("--out", type=output_dir, default="out/eval", help="report directory (default: out/eval)")
     p.add_argument("--name", help="report file stem (default: <checkpoint stem>_report)")
     p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")

@@ -114,7 +114,8 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
     if bag_dir.exists() or bag_dir.is_symlink():
         if is_bag(bag_dir):
             if not overwrite:
-                raise FileExistsError(f"bag {bag_dir} exists; pass overwrite=True to replace it")
+                raise FileExistsError(f"bag {bag_dir} exists; not replaced (soil_sim_batch --overwrite or "
+                                      f"write_episode(overwrite=True) replaces it)")
         elif not bag_dir.is_dir() or any(bag_dir.iterdir()):
             raise FileExistsError(f"{bag_dir} exists and is not a rosbag2 bag; not touching it")
 

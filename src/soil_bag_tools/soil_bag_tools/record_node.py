@@ -24,6 +24,7 @@ from rclpy.utilities import remove_ros_args
 from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
+from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.graph import CONTROL_QOS, RECORDER_QOS, SIM_STATUS_TOPIC
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
@@ -38,7 +39,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         prog="soil_bag_record",
         description="Record the episode topics into one rosbag2 (MCAP) bag per /sim/status episode.",
     )
-    p.add_argument("--out", required=True, help="directory that receives the bags")
+    p.add_argument("--out", type=output_dir, required=True, help="directory that receives the bags")
     p.add_argument("--topics", nargs="+", default=[], metavar="T",
                    help="record these topics (types of non-episode topics are discovered on the graph)")
     p.add_argument("--all-episode-topics", action="store_true",

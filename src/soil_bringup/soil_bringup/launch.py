@@ -390,6 +390,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error(f"--domain-id {args.domain_id} outside [0, 232]")
     if args.rate is not None and not args.rate > 0:
         p.error(f"--rate {args.rate} must be > 0")
+    for flag in ("sim", "controller", "estimator", "planner"):
+        path = getattr(args, f"{flag}_params_file")
+        if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
+            p.error(f"--{flag}-params-file {path}: no such file")
     if args.planner:
         args.estimator = True
     return args

@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from soil_msgs_py.cli_paths import output_dir
+
 
 def parse_args(argv=None) -> argparse.Namespace:
     from pinn_estimator.dataset import add_skip_bad_bags_option
@@ -24,7 +26,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("bag_dir", type=Path, help="directory of episode bags (rosbag2), simulated or measured")
-    p.add_argument("--out", type=Path, required=True, help="output directory for discrepancy.md/.json and PNGs")
+    p.add_argument("--out", type=output_dir, required=True, help="output directory for discrepancy.md/.json and PNGs")
     p.add_argument("--terms", default=None, help="candidate terms, comma-separated (default: the whole catalogue)")
     p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")
     p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test (default 0.3)")

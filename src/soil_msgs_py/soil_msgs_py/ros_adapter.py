@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import collections
+import difflib
 import importlib
 import math
 import signal
@@ -41,6 +42,8 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
     """
     for name, (default, description, *typed) in table.items():
         node.declare_parameter(name, typed[0] if typed else default, ParameterDescriptor(description=description))
+    for text in unknown_parameter_warnings(node):
+        node.get_logger().warning(text)
 
     def get(name: str) -> object:
         try:
@@ -49,6 +52,22 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
             return table[name][0]
 
     return get
+
+
+def unknown_parameter_warnings(node: Node) -> list[str]:
+    """One warning per parameter given to ``node`` (``-p``, a params file) that it does not declare.
+
+    Why: rclpy keeps such an override and never uses it, so a misspelt ``-p duraton_s:=2.0`` would
+    change nothing and say nothing. A warning, not an error: a params file's ``/**`` section is
+    shared by every node, each of which declares only its own."""
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy's (no public API): what -p and params files gave it
+    declared = list(node.list_parameters([], 0).names)  # depth 0: every declared name
+    out = []
+    for name in sorted(n for n in overrides if not node.has_parameter(n)):
+        close = difflib.get_close_matches(name, declared, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        out.append(f"parameter {name!r} is not a parameter of this node{hint}; ignored")
+    return out
 
 
 def qos_profile(spec: QosSpec) -> QoSProfile:
@@ -209,7 +228,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
     """
     stop: list[int] = []
     init_rclpy(args, lambda signum, frame: stop.append(signum))
-    node = None
+    node = executor = None
     code = 0
     try:
         node = factory()
@@ -236,5 +255,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
                 close()
             wait_for_acks(node)
             node.destroy_node()
+        if executor is not None:  # before the context goes: else its __del__ at exit prints a traceback
+            executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
     return code or int(getattr(node, "exit_code", 0) or 0)

@@ -8,6 +8,7 @@ error against the FEE of the pseudo-ground truth).
 """
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -23,6 +24,8 @@ SAMPLE_EPISODES = (("Loam", 60.0), ("Clay", 100.0), ("Sand", 0.0))
 
 
 def main(argv=None) -> int:
+    argparse.ArgumentParser(prog="python -m soil_sim_node.sample_episodes", description=__doc__.splitlines()[0],
+                            epilog=__doc__.split("\n\n", 1)[1]).parse_args(argv)  # only --help: the job takes no options
     root, figs = Path("bags/sim_samples"), Path("out/sim_samples")
     print(f"{'episode':44s} {'depth m':>8s} {'Fx kN':>12s} {'Fz kN':>12s} {'Q kN':>6s} {'|F-FEE| kN':>10s}")
     for mode in ("fee", "default"):
