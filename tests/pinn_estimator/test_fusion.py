@@ -502,7 +502,8 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     bad = tmp_path / "bad.json"
     bad.write_text('{"rel_std": 3}')
     for args, needle in ((["--term", "soil_inertia=4"], "--term and --set change it"),
-                         (["--out", str(tmp_path / "none.json")], "no config file at"), (["--out", str(tmp_path)], "no config file at"),
+                         (["--out", str(tmp_path / "none.json")], "no config file at"),
+                         (["--out", str(tmp_path)], "is a directory; give the file to write"),
                          (["--out", str(bad)], f"{bad}: fusion rel_std=3")):
         with pytest.raises(SystemExit) as exit_:
             calibrate_main(["--world", "fee", "--forecast-law-only", *args])

@@ -88,7 +88,7 @@ def test_in_dense_gravel_the_loop_settles_deeper_when_the_lifts_push_does_not_an
     # F_z p95 113 / 96 / 114 % of its limit, mean depth 0.126 / 0.114 / 0.161 m; at margin 0.8 4 / 0 / 0 falls,
     # 2.2 / 0.3 / 0.4 cm, 102 / 79 / 112 %, 0.120 / 0.107 / 0.166 m; a change of the default world's physics or
     # the planner's settings may move these, not the contrasts: the memory takes most of the falls away)
-    assert cycling >= 3 and settled <= cycling // 4 and seeing == 0, got
+    assert cycling >= 3 and 2 * settled < cycling and seeing == 0, got
     assert spread1 < 0.5 * spread0 and spread2 < 0.5 * spread0, got
     assert fz1 < 1.0 < fz0, got  # blind: the z force's p95 within its limit only when it settles
     assert deep > shallow + 0.03, got  # seeing the commands: the push no longer drives the cut up

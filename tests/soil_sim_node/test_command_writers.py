@@ -3,6 +3,8 @@ answered that arrives first, from another writer, neither steers the simulator n
 out the controller's command (no ROS: sequence numbers given as DDS's message info does)."""
 from __future__ import annotations
 
+import math
+
 from soil_msgs_py.graph import COMMAND_TOPICS
 from soil_sim_node.live import CommandGate
 
@@ -105,14 +107,14 @@ def test_an_intruder_copy_carrying_the_controllers_own_sequence_number_is_replac
     gate = CommandGate()
     seq = run_controller(gate, 1)
     gate.expect(stamp(1))
+    assert gate.offer(BLADE, stamp(1), (0.06, 0.0), seq) == []  # the controller's blade command first
     assert gate.offer(CHASSIS, stamp(1), (5e-324,), seq) == []  # taken: it continues the counter
-    assert not gate.plausible
+    assert gate.complete and not gate.plausible and not gate.ready  # complete, but not to be stepped yet
     warnings = gate.offer(CHASSIS, stamp(1), (0.4,), seq)  # the controller's, same number
     assert [kind for kind, _ in warnings] == [f"{CHASSIS}:writer:same_sequence"]
     assert "replaced" in warnings[0][1] and str(seq) in warnings[0][1]
-    assert gate.plausible
-    assert gate.offer(BLADE, stamp(1), (0.06, 0.0), seq) == []
-    assert gate.complete and gate.take() == (0.06, 0.0, 0.4)
+    assert gate.plausible and gate.ready
+    assert gate.take() == (0.06, 0.0, 0.4)
     gate.expect(stamp(2))  # and the controller is followed on: its counter continues
     assert answer(gate, 2, seq + 1, u_zr=0.07, u_x=0.45) == []
     assert gate.take() == (0.07, 0.0, 0.45)
@@ -125,4 +127,21 @@ def test_a_second_claim_of_a_taken_sequence_number_does_not_replace_a_plausible_
     assert answer(gate, 3, seq, u_zr=0.05, u_x=0.4) == []
     for values in ((1e308,), (0.9,)):  # garbage, and a plausible value second: the first stays
         assert [k for k, _ in gate.offer(CHASSIS, stamp(3), values, seq)] == [f"{CHASSIS}:writer:same_sequence"]
-    assert gate.plausible and gate.take() == (0.05, 0.0, 0.4)
+    assert gate.ready and gate.take() == (0.05, 0.0, 0.4)
+    assert gate.rejected == 2 and gate.sanitised == 0
+
+
+def test_a_replaced_command_is_counted_as_the_one_applied():
+    """The sanitised count follows the command applied: an out-of-range intruder copy that is
+    replaced leaves no sanitised command behind, a replacement that is clamped counts."""
+    gate = CommandGate()
+    seq = run_controller(gate, 2)
+    gate.expect(stamp(2))
+    assert [k for k, _ in gate.offer(CHASSIS, stamp(2), (1e30,), seq)] == [f"{CHASSIS}:u_x:out_of_range"]
+    assert gate.sanitised == 1
+    gate.offer(CHASSIS, stamp(2), (0.45,), seq)
+    assert gate.sanitised == 0 and gate.take()[2] == 0.45
+    gate.expect(stamp(3))
+    gate.offer(CHASSIS, stamp(3), (math.nan,), seq + 1)
+    kinds = [k for k, _ in gate.offer(CHASSIS, stamp(3), (9.0,), seq + 1)]  # plausible, out of range: clamped
+    assert kinds == [f"{CHASSIS}:writer:same_sequence", f"{CHASSIS}:u_x:out_of_range"] and gate.sanitised == 1

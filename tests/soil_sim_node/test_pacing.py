@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from soil_sim_node.pacing import COMMAND_GRACE, HOUSEKEEPING_PERIOD_S, STALL_WARN_S, Do, Pacer, StartWait
+from soil_sim_node.pacing import COMMAND_GRACE, HOLD_S, HOUSEKEEPING_PERIOD_S, STALL_WARN_S, Do, Pacer, StartWait
 
 
 class FakeClock:
@@ -99,13 +99,21 @@ def test_lockstep_steps_on_every_complete_command_set_and_the_timer_only_on_one_
         assert pacer.on_commands(complete=True) is Do.STEP
         pacer.published()
     clock.t += 0.5
-    assert pacer.on_commands(complete=False) is Do.NOTHING  # held back by the node
-    clock.t += HOUSEKEEPING_PERIOD_S
+    pacer.hold()  # the node holds the completion back
+    assert pacer.on_commands(complete=False) is Do.NOTHING
+    clock.t += 0.4 * HOLD_S  # the timer may fire at once: the hold still lasts HOLD_S
+    assert pacer.on_timer(commands_complete=True) is Do.NOTHING
+    clock.t += 0.6 * HOLD_S
     assert pacer.on_timer(commands_complete=True) is Do.STEP
     pacer.published()
-    assert pacer.timing.loop_latencies == [pytest.approx(0.5)] * 3 + [pytest.approx(0.5 + HOUSEKEEPING_PERIOD_S)]
+    assert pacer.timing.loop_latencies == [pytest.approx(0.5)] * 3 + [pytest.approx(0.5 + HOLD_S)]
+    clock.t += 0.5  # the next tick holds nothing: the timer alone never steps it
+    assert pacer.on_timer(commands_complete=False) is Do.NOTHING
+    pacer.hold()
+    assert pacer.on_commands(complete=True) is Do.STEP  # the controller's own command came: at once
+    pacer.published()
     stats = pacer.end_episode()
-    assert "jitter" not in stats and stats["period"]["n"] == 4 and stats["late_commands"] == 0
+    assert "jitter" not in stats and stats["period"]["n"] == 5 and stats["late_commands"] == 0
 
 
 def test_lockstep_watchdog_reports_a_stall_then_ends_the_episode(clock):

@@ -257,7 +257,7 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
     journal (``writer_identity.leading_chain``): every message off the leading writer's chain
     is refused. Where several writers' messages could be that chain (an intruder's counter
     that fits a tick the writer skipped, or meets it at a tick), the chain with the most
-    messages with plausible values (``messages.plausible_values``: finite, no 1e30) wins, and once
+    messages with plausible values (``messages.plausible_values``: finite, no 1e30, no subnormal) wins, and once
     another writer showed up on the topic an implausible message is never taken for the chain's
     (graph nodes publish none). Of the messages left, those claiming one stamp keep the one with
     plausible values, then the

@@ -62,7 +62,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"a soil patch along the path, {PATCH_SYNTAX}; repeat (default: {' '.join(DEFAULT_PATCHES)})")
     p.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="seconds of cut (30-60 s is the use case)")
     p.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    p.add_argument("--out", type=output_dir, default=Path("out/planner"), help="report directory (default: out/planner)")
+    p.add_argument("--out", type=output_dir, default="out/planner", help="report directory (default: out/planner)")
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
                    help=f"the soil-aware planner's share of the force limits a cut may use, (0, 1] (default {DEFAULT_MARGIN})")
     add_force_lift_option(p, "every policy's controller also raises the blade at G m/s per unit of force share above "

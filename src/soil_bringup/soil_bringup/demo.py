@@ -73,7 +73,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--world-mode", choices=("default", "fee"), default=None,
                    help="simulator world (default: the simulator's, 'default')")
     p.add_argument("--checkpoint", type=Path, help="PINN checkpoint for the estimator (default: the shipped one)")
-    p.add_argument("--out", type=output_dir, default=Path("out/demo"), help="summary, PNG and launch log (default out/demo)")
+    p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
     p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
                    help="episode bags; cleared at start (default bags/demo_online)")
     env_id = os.environ.get("ROS_DOMAIN_ID", "").strip()

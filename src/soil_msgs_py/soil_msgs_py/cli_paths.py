@@ -4,6 +4,7 @@ Why here: every tool that writes a report, a checkpoint or bags takes an ``--out
 when it writes, a path that cannot be written (an existing file where a directory is wanted, or
 a directory where a file is) ends a run of minutes with a traceback and loses its work. As an
 argparse ``type`` the tool refuses it before it starts, naming the flag and the path (exit 2).
+``~`` is expanded. Give defaults as strings: argparse passes a string default through ``type``.
 """
 from __future__ import annotations
 
@@ -11,21 +12,25 @@ import argparse
 from pathlib import Path
 
 
+def _checked(text: str, want_dir: bool) -> Path:
+    path = Path(text).expanduser()
+    try:
+        if want_dir and path.exists() and not path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} exists and is not a directory")
+        if not want_dir and path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a directory; give the file to write")
+        if any(parent.exists() and not parent.is_dir() for parent in path.parents):
+            raise argparse.ArgumentTypeError(f"{text!r}: a parent of it is a file, not a directory")
+    except OSError as err:  # e.g. a parent that cannot be searched
+        raise argparse.ArgumentTypeError(f"{text!r}: {err.strerror or err}") from None
+    return path
+
+
 def output_dir(text: str) -> Path:
     """An ``--out`` directory: may exist (as a directory) or not yet; not an existing file."""
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r} exists and is not a directory")
-    if any(parent.exists() and not parent.is_dir() for parent in path.parents):
-        raise argparse.ArgumentTypeError(f"{text!r}: a parent of it is a file, not a directory")
-    return path
+    return _checked(text, want_dir=True)
 
 
 def output_file(text: str) -> Path:
     """An ``--out`` file: may exist (as a file, to be replaced) or not yet; not a directory."""
-    path = Path(text)
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r} is a directory; give the file to write")
-    if any(parent.exists() and not parent.is_dir() for parent in path.parents):
-        raise argparse.ArgumentTypeError(f"{text!r}: a parent of it is a file, not a directory")
-    return path
+    return _checked(text, want_dir=False)

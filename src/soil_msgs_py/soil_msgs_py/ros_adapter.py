@@ -249,13 +249,15 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int
         rclpy.logging.get_logger("spin_node").error(f"cannot start: {err}")
         code = EXIT_BAD_CONFIG
     finally:
-        if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            wait_for_acks(node)
-            node.destroy_node()
-        if executor is not None:  # before the context goes: else its __del__ at exit prints a traceback
-            executor.shutdown(timeout_sec=1.0)
-        rclpy.try_shutdown()
+        try:
+            if node is not None:
+                close = getattr(node, "close", None)
+                if close is not None:
+                    close()
+                wait_for_acks(node)
+                node.destroy_node()
+        finally:
+            if executor is not None:  # before the context goes: else its __del__ at exit prints a traceback
+                executor.shutdown(timeout_sec=1.0)
+            rclpy.try_shutdown()
     return code or int(getattr(node, "exit_code", 0) or 0)

@@ -95,21 +95,6 @@ class WriterTracks:
         self._next_ident += 1
         return writer.ident
 
-    def counted(self, sequence: int | None, tick: int) -> int | None:
-        """The writer whose last counted message was exactly (``sequence``, ``tick``), else None.
-
-        A writer never sends one sequence number twice, so a second message carrying it for the
-        same tick is a second claim of a message already counted: an intruder whose counter
-        lined up with the writer's there, whichever of the two came first. Counters cannot tell
-        the claims apart; the caller decides by what they carry (``messages.plausible_values``)."""
-        if not sequence:
-            return None
-        sequence &= SEQUENCE_MASK
-        for w in self._writers.values():
-            if w.last_sequence == sequence and w.last_tick == tick:
-                return w.ident
-        return None
-
     def leads(self, ident: int | None) -> bool:
         """Whether ``ident`` is the writer followed now: the most ticks, and of writers tied on
         ticks the one heard first (an unknown writer, None, is never judged: True).

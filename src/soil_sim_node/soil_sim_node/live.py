@@ -60,19 +60,26 @@ class CommandGate:
     the followed writer's counts (``writer_identity``: the writer that has answered the most
     ticks, told apart by publication sequence numbers), so another publisher's command sent
     first neither steers the simulator nor pushes out the controller's; without sequence
-    numbers the first command of a tick counts. Two commands of one tick carrying the
-    followed writer's same sequence number (an intruder's counter that lined up with the
-    controller's there) are told apart by their values: a plausible one replaces an
-    implausible one taken first (``messages.plausible_values``), else the first stays.
-    Non-finite fields hold the last applied value; out-of-range fields are clamped to
-    COMMAND_LIMITS. Every decision returns a warning naming field and value.
+    numbers the first command of a tick counts. A second command of a tick carrying the
+    sequence number of the one taken (an intruder's counter that lined up with the
+    controller's there) cannot be told from it by counters, only by values: a plausible one
+    replaces an implausible one taken first (``messages.plausible_values``), else the first
+    stays. So an intruder's garbage never steers, and a plausible copy that arrives first
+    still does (nothing tells it apart); a controller that itself sends garbage loses such a
+    tick to a plausible copy, the value that can be applied. ``ready``: the tick may be
+    stepped now (complete, every command plausible); a complete tick that is not is worth a
+    short wait for the controller's own command (the node's timer steps it). Non-finite
+    fields hold the last applied value; out-of-range fields are clamped to COMMAND_LIMITS.
+    Every decision returns a warning naming field and value.
     """
 
     def __init__(self, writers: dict[str, WriterTracks] | None = None) -> None:
         self.last = dict(INITIAL_COMMAND)
         self.pending: dict[str, float] = {}
         self.arrived: set[str] = set()
-        self.taken_plausible: dict[str, bool] = {}  # topic -> whether the command taken for the tick was
+        # per topic, of the command taken for the tick: its sequence number, whether its values are
+        # plausible and whether it was sanitised
+        self.taken: dict[str, tuple[int | None, bool, bool]] = {}
         self.stamp_ns: int | None = None
         self.complete = False  # both commands for ``stamp_ns`` arrived
         self.joiner = StampJoiner(G.COMMAND_TOPICS, max_pending=1, duplicates="keep_first", max_ahead_ns=0)
@@ -83,13 +90,13 @@ class CommandGate:
     def expect(self, stamp_ns: int) -> None:
         """A new tick was published: from now on only commands stamped ``stamp_ns`` count."""
         self.stamp_ns = stamp_ns
-        self.pending, self.arrived, self.complete, self.taken_plausible = {}, set(), False, {}
+        self.pending, self.arrived, self.complete, self.taken = {}, set(), False, {}
         self.joiner.reset(stamp_ns)
 
     def idle(self) -> None:
         """No episode running: every command is ignored until the next ``expect``."""
         self.stamp_ns = None
-        self.pending, self.arrived, self.complete, self.taken_plausible = {}, set(), False, {}
+        self.pending, self.arrived, self.complete, self.taken = {}, set(), False, {}
         self.joiner.reset()
 
     def offer(self, topic: str, stamp_ns: int, values, sequence: int | None = None) -> list[tuple[str, str]]:
@@ -103,7 +110,7 @@ class CommandGate:
                      f"{topic}: command stamped {stamp_ns} ns arrived while no episode is running; ignored")]
         if stamp_ns == self.stamp_ns:
             writers = self.writers[topic]
-            if topic in self.arrived and writers.counted(sequence, tick_number(stamp_ns)) is not None:
+            if sequence and topic in self.taken and self.taken[topic][0] == sequence:
                 return self._second_claim(topic, stamp_ns, values, sequence)
             if not writers.leads(writers.observe(sequence, tick_number(stamp_ns))):
                 self.rejected += 1
@@ -122,27 +129,32 @@ class CommandGate:
         self.pending.update(fields)
         self.sanitised += bool(warnings)
         self.arrived.add(topic)
-        self.taken_plausible[topic] = M.plausible_values(values)
+        self.taken[topic] = (sequence or None, M.plausible_values(values), bool(warnings))
         self.complete = bool(out)
         return warnings
 
     @property
     def plausible(self) -> bool:
-        """Whether every command taken for this tick carries plausible values. A completion
-        that does not is worth a short wait: the controller's own command may still come with
-        the same sequence number an intruder's copy carried (``_second_claim``)."""
-        return all(self.taken_plausible.values())
+        """Whether every command taken for this tick carries plausible values."""
+        return all(plausible for _, plausible, _ in self.taken.values())
+
+    @property
+    def ready(self) -> bool:
+        """The tick may be stepped at once: both commands in, all plausible (class doc)."""
+        return self.complete and self.plausible
 
     def _second_claim(self, topic: str, stamp_ns: int, values, sequence: int) -> list[tuple[str, str]]:
         """A command of this tick carrying the sequence number the command taken for it carried."""
         self.rejected += 1
-        if self.taken_plausible.get(topic, True) or not M.plausible_values(values):
+        _, taken_plausible, taken_sanitised = self.taken[topic]
+        if taken_plausible or not M.plausible_values(values):
             return [(f"{topic}:writer:same_sequence",
                      f"{topic}: second command for stamp {stamp_ns} ns with the same publication sequence "
                      f"number {sequence} as the one taken; ignored")]
         fields, warnings = self._sanitise(topic, values)
         self.pending.update(fields)
-        self.taken_plausible[topic] = True
+        self.sanitised += bool(warnings) - taken_sanitised  # the command applied is this one
+        self.taken[topic] = (sequence, True, bool(warnings))
         return [(f"{topic}:writer:same_sequence",
                  f"{topic}: two commands for stamp {stamp_ns} ns carry publication sequence number {sequence}; "
                  f"the plausible one replaced the implausible one taken first")] + warnings

@@ -358,8 +358,9 @@ class SimNode(Node):
             return
         for kind, text in self.gate.offer(topic, stamp, values, sequence):
             self._warn(kind, text)
-        # An implausible command in a complete tick is stepped by the timer, not now (gate.plausible).
-        self._do(self.pacer.on_commands(self.gate.complete and self.gate.plausible))
+        if self.gate.complete and not self.gate.ready:  # an implausible command: the timer steps it (gate doc)
+            self.pacer.hold()
+        self._do(self.pacer.on_commands(self.gate.ready))
 
     def _on_timer(self) -> None:
         if self.sim is None:

@@ -9,7 +9,7 @@ complete, or the grace timer fires, and does what it says (``Do``). Two pacings:
   subscriptions, so a command that arrived with the timer would otherwise count as late);
   after that the previous command is held and the tick is counted as late.
 * ``lockstep``: the next tick is stepped as soon as both commands for the current one arrived
-  (or at the next housekeeping tick when the node held the completion back),
+  (or, when the node held the completion back, ``hold``, by the timer after ``HOLD_S``),
   so a run is reproducible to the bit; a wait of over ``STALL_WARN_S`` is reported, one of
   over ``lockstep_timeout_s`` ends the episode (nothing would ever come).
 
@@ -33,6 +33,9 @@ RATE_RANGE = (0.01, 1000.0)  # real-time factors the node accepts
 COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
 HOUSEKEEPING_PERIOD_S = 0.01  # idle or lockstep: the timer only checks starts and stalls
 STALL_WARN_S = 1.0  # lockstep: report a wait for commands longer than this [s]
+# lockstep: a completion the node holds back (a command in it implausible, ``CommandGate.ready``)
+# waits at least this long for the controller's own command before the timer steps it [s]
+HOLD_S = HOUSEKEEPING_PERIOD_S
 
 
 def check_pacing(pacing: str, rate: float) -> None:
@@ -107,6 +110,7 @@ class Pacer:
         self.running = False  # an episode is being stepped
         self.timing: TickTiming | None = None  # the current (or last) episode's figures
         self.due = False  # realtime: the timer fired before the tick's commands were complete
+        self.held_at: float | None = None  # lockstep: when the node held a completion back
 
     @property
     def lockstep(self) -> bool:
@@ -138,7 +142,7 @@ class Pacer:
         self.due = False
 
     def start_episode(self) -> None:
-        self.running = True
+        self.running, self.held_at = True, None
         self.timing = TickTiming(0.0 if self.lockstep else self.realtime_period_s)
 
     def end_episode(self) -> dict:
@@ -148,7 +152,13 @@ class Pacer:
 
     def published(self) -> None:
         """A tick went out now."""
+        self.held_at = None
         self.timing.published(self.clock())
+
+    def hold(self) -> None:
+        """The node holds this tick's completion back (lockstep: ``on_timer`` steps it after HOLD_S)."""
+        if self.held_at is None:
+            self.held_at = self.clock()
 
     def waited_s(self) -> float:
         """Wall time since the last tick went out [s] (0 before the first)."""
@@ -170,8 +180,10 @@ class Pacer:
             return Do.NOTHING
         if not self.timing.publish_times:
             return Do.NOTHING
-        if commands_complete:  # a completion held back by the node (a suspect command): step now
-            return self.on_commands(True)
+        if commands_complete:  # a completion held back by the node (a suspect command): step after HOLD_S
+            if self.held_at is None or self.clock() - self.held_at >= HOLD_S:
+                return self.on_commands(True)
+            return Do.NOTHING
         waited = self.waited_s()
         if waited > self.lockstep_timeout_s:
             return Do.TIMED_OUT
