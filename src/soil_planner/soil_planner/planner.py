@@ -110,8 +110,8 @@ D_MAX_LIMIT_M = D_PRIME_LIMITS_M[1]
 DEFAULT_CUT_SPEED_M_S = 0.5
 CUT_SPEED_LIMIT_M_S = TABLE1["v_x"].limits[1]
 # Share of the force limits a planned cut may use. Of 0.8 / 0.85 / 0.9 (force quantile 0.95) the one
-# that stalled least over 15 default-world paths, with more volume per metre than 0.8 and more
-# patches reached within 2 s (benchmarks/bench_planner_margin.py --seeds 3; docs/planner_in_the_loop.md).
+# that stalled least over the five default-world paths with three seeds each, with 5 % more volume
+# per metre than 0.8 (benchmarks/bench_planner_margin.py --seeds 3; docs/planner_in_the_loop.md).
 DEFAULT_MARGIN = 0.85
 GRID_POINTS = 257
 TOLERANCE_M = 1e-5
