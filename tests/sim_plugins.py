@@ -263,3 +263,27 @@ def hard_spot(state, k: float = 1.0, p_pa: float = 20e3, x0_m: float = 4.0, x1_m
     x = np.asarray(state.x_b, dtype=float)
     inside = (x >= float(x0_m)) & (x <= float(x1_m))
     return float(k) * state.w * d * float(p_pa) * inside, np.zeros_like(d)
+
+
+def log_rate_drag(state, k: float = 1.0, p_pa: float = 5e3, v0: float = 0.05):
+    """Hidden effect: a strength that grows with the logarithm of the shear rate (the usual
+    rate law of clays), F_x = k w d p ln(1 + v_x / v0) [N], v0 [m/s]: no form of the library."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return float(k) * state.w * d * float(p_pa) * np.log1p(v / float(v0)), np.zeros_like(d)
+
+
+def remoulding_drag(state, k: float = 1.0, p_pa: float = 20e3, tau0_s: float = 2.0):
+    """Hidden effect: a strength the soil loses as the blade remoulds it, F_x = k w d p exp(−τ / τ0)
+    [N], τ the time in soil [s] (the library's decays are 1 and 3 s)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    tau = np.asarray(state.time_in_soil, dtype=float)
+    return float(k) * state.w * d * float(p_pa) * np.exp(-tau / float(tau0_s)), np.zeros_like(d)
+
+
+def pile_lift(state, k: float = 0.5, v0: float = 0.5):
+    """Hidden effect in z: the pile in front of the blade lifts it more the faster it rolls,
+    F_z = +k Q tanh(v_x / v0) [N] (on the soil, z up; Q the surcharge weight)."""
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    q = np.asarray(state.q, dtype=float)
+    return np.zeros_like(q), float(k) * q * np.tanh(v / float(v0))

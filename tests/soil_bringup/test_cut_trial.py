@@ -174,3 +174,29 @@ def test_with_the_force_lift_every_policy_lifts_with_the_force_and_the_report_sa
     assert all(p["stall_s"] == 0.0 for p in runs["lift"]["worlds"][0]["policies"])
     assert "controller: Eq. 11 + force lift 2 m/s per unit of force share above 1" in (tmp_path / "lift" / "cut_report.md").read_text()
     assert "controller: Eq. 11." in (tmp_path / "plain" / "cut_report.md").read_text()
+
+
+def test_the_report_cuts_a_named_path_of_the_users_own_soils(tmp_path, capsys):
+    """--soil-file with --path: the three policies cut a custom soil; the truth the cut saw is that soil's."""
+    soils = tmp_path / "my_soils.yaml"
+    soils.write_text("soils:\n  - {name: Silt, phi_deg: [26, 34], cohesion_pa: [1000, 4000], "
+                     "unit_weight_n_m3: [17000, 19500]}\npaths:\n  site_a: ['0:Silt:30', '2.5:Clay:80']\n")
+    out = tmp_path / "planner"
+    assert cut_report.main(["--worlds", "fee", "--duration", "4", "--soil-file", str(soils), "--path", "site_a",
+                            "--out", str(out)]) == 0
+    report = json.loads((out / "cut_report.json").read_text())
+    assert report["path"].startswith("Silt 30 % from 0 m → Clay 80 %")
+    assert len(report["worlds"][0]["patches"]) == 2
+    from soil_physics.soils import load_soil_file
+    args = cut_report.parse_args(["--soil-file", str(soils), "--path", "site_a", "--worlds", "fee", "--duration", "2"])
+    cut = cut_report.run_cut("fee", args.spec, cut_report.Policy("fixed", 0.1), custom_soils=args.custom_soils)
+    silt = load_soil_file(soils).soils["Silt"].at(30.0)
+    assert cut.truth[0] == pytest.approx([silt.phi, silt.c])
+    for argv, says in ((["--path", "site_a"], "no --soil-file"),
+                       (["--soil-file", str(soils), "--path", "site_b"], "its paths: ['site_a']"),
+                       (["--soil-file", str(soils), "--path", "site_a", "--patch", "0:Sand:20"], "both give the patches"),
+                       (["--patch", "0:Silt:20"], "Silt"),
+                       (["--soil-file", str(tmp_path / "none.yaml")], "does not exist")):
+        with pytest.raises(SystemExit) as exit_:
+            cut_report.parse_args(argv + ["--out", str(out)])
+        assert exit_.value.code == 2 and says in capsys.readouterr().err, argv

@@ -38,3 +38,26 @@ def test_patches_parameter_defaults_to_none_and_is_refused_with_a_sequence_plan(
     for plan in ("sequence_soils", "sequence_relative_densities_pct"):
         with pytest.raises(ValueError, match=rf"parameter patches=\['0:Sand:20'\] cannot be combined with {plan}"):
             SimNode._validate_static({**defaults(), "patches": ["0:Sand:20"], plan: ["Clay"]})
+
+
+def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_files_soils(tmp_path):
+    """With parameter ``path`` the episodes cut it; a /sim/command start may clear it and name a custom soil."""
+    from types import SimpleNamespace
+
+    from soil_physics.soils import load_soil_file
+    soils = tmp_path / "site.yaml"
+    soils.write_text("soils:\n  - {name: Silt, phi_deg: [26, 34], cohesion_pa: [1000, 4000], "
+                     "unit_weight_n_m3: [17000, 19500]}\npaths:\n  site_a: ['0:Silt:30', '4:Clay:80']\n")
+    custom, named = SimNode._load_soil_file(str(soils), "site_a", [])
+    assert named == load_soil_file(soils).paths["site_a"]
+    values = {**defaults(), "soil_file": str(soils), "path": "site_a"}
+    node = SimpleNamespace(_value=values.__getitem__, custom_soils=custom, named_path=named)
+    spec = SimNode._spec_from_params(node, {})
+    assert (spec.soil, spec.relative_density_pct, len(spec.patches)) == ("Silt", 30.0, 2)
+    with pytest.raises(ValueError, match=r"soil unused while parameter path='site_a' sets the soil along the path"):
+        SimNode._spec_from_params(node, {"soil": "Clay"})
+    spec = SimNode._spec_from_params(node, {"patches": [], "soil": "Silt", "relative_density_pct": 70.0})
+    assert (spec.soil, spec.relative_density_pct, spec.patches) == ("Silt", 70.0, ())
+    for name, value in (("soil_file", ""), ("path", "site_a")):
+        result = SimNode._on_set_parameters(None, [Parameter(name, value=value)])
+        assert not result.successful and name in result.reason and "start-up" in result.reason

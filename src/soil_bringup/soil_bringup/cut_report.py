@@ -18,6 +18,7 @@ with the measured values; they are figures, never asserted.
 
     soil_cut_report                          # both worlds, the default path, 45 s
     soil_cut_report --worlds default --patch 0:Sand:20 --patch 12:Clay:80 --duration 40
+    soil_cut_report --soil-file my_soils.yaml --path site_a   # a path of your own soils
     soil_cut_report --force-lift 1.0         # every policy's controller also lifts with the force (item 5 of
                                              # anti_stall_controller.controller), not with Eq. 11 alone
 """
@@ -37,6 +38,7 @@ from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
+from soil_physics.soils import load_soil_file
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec
 
@@ -60,6 +62,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--worlds", nargs="+", default=["default", "fee"], choices=("default", "fee"))
     p.add_argument("--patch", action="append", default=None, metavar="X:SOIL:ID",
                    help=f"a soil patch along the path, {PATCH_SYNTAX}; repeat (default: {' '.join(DEFAULT_PATCHES)})")
+    p.add_argument("--soil-file", type=Path, metavar="FILE",
+                   help="YAML of custom soils and named paths (soil_sim_batch --soil-file's format): its soils may be "
+                        "named in --patch")
+    p.add_argument("--path", metavar="NAME", help="the patches of the path NAME in --soil-file's 'paths:' section "
+                                                  "(instead of --patch)")
     p.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="seconds of cut (30-60 s is the use case)")
     p.add_argument("--seed", type=int, default=DEFAULT_SEED)
     p.add_argument("--out", type=output_dir, default="out/planner", help="report directory (default: out/planner)")
@@ -77,9 +84,23 @@ def parse_args(argv=None) -> argparse.Namespace:
     except ValueError as err:
         p.error(str(err))
     try:
-        args.patches = check_patches([parse_patch(t, f"--patch {t!r}") for t in (args.patch or DEFAULT_PATCHES)])
-    except ValueError as err:
-        p.error(str(err))
+        soil_file = load_soil_file(args.soil_file.expanduser()) if args.soil_file else None
+    except (FileNotFoundError, ValueError) as err:
+        p.error(f"--soil-file: {err}")
+    args.custom_soils = soil_file.soils if soil_file else {}
+    if args.path is not None:
+        if args.patch:
+            p.error(f"--patch {args.patch} and --path {args.path!r} both give the patches: use one")
+        if soil_file is None or args.path not in soil_file.paths:
+            where = f"--soil-file {str(args.soil_file)!r}" if soil_file else "no --soil-file"
+            p.error(f"--path {args.path!r} is not a path of {where}; its paths: "
+                    f"{sorted(soil_file.paths) if soil_file else []}")
+        args.patches = soil_file.paths[args.path]
+    else:
+        try:
+            args.patches = check_patches([parse_patch(t, f"--patch {t!r}") for t in (args.patch or DEFAULT_PATCHES)])
+        except ValueError as err:
+            p.error(str(err))
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
         p.error(f"--duration {args.duration} must be in [2, 600] s")
     if args.seed < 0:
@@ -88,7 +109,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     try:
         args.spec = EpisodeSpec(first.soil, first.relative_density_pct, SPEED_M_S, 0.1, seed=args.seed,
                                 duration_s=args.duration, patches=args.patches)
-        args.spec.resolve()  # every patch's soil known, every field in range
+        args.spec.resolve(args.custom_soils)  # every patch's soil known, every field in range
     except ValueError as err:
         p.error(str(err))
     return args
@@ -116,25 +137,27 @@ def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> No
                         metavar="G[,SHARE]", help=help_text)
 
 
-def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None) -> tuple[list[Cut], list, float, float]:
+def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None,
+                   custom_soils: dict | None = None) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
     without a stall), the conservative depth (the shallowest of those) and the aggressive one
-    (the deepest) [m]; ``gains``: the controller's (default: its defaults)."""
-    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains)
+    (the deepest) [m]; ``gains``: the controller's (default: its defaults); ``custom_soils``:
+    soils by name beside the catalogue."""
+    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
     best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
     known = [b for b in best if b is not None]
     return sweep, best, min(known or SWEEP_DEPTHS_M), max(known or SWEEP_DEPTHS_M)
 
 
 def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None,
-                gains: AntiStallGains | None = None) -> dict:
+                gains: AntiStallGains | None = None, custom_soils: dict | None = None) -> dict:
     """The sweep, the three policies and their figures for one world (``cuts`` kept for the
     figure), every policy under the controller ``gains`` (default: its defaults)."""
-    sweep, best, conservative, aggressive = fixed_policies(world, spec, gains)
+    sweep, best, conservative, aggressive = fixed_policies(world, spec, gains, custom_soils)
     by_depth = {c.policy.fixed_depth_m: c for c in sweep}
     cuts = [_renamed(by_depth[conservative], f"conservative {conservative:.3f} m"),
             _renamed(by_depth[aggressive], f"aggressive {aggressive:.3f} m"),
-            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains)]
+            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains, custom_soils)]
     rows = [CM.summary(c) for c in cuts]
     cons, agg, aware = rows
     return {
@@ -304,7 +327,7 @@ def main(argv=None) -> int:
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
-        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains)
+        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains, args.custom_soils)
         w["figure"] = f"cut_{world}.png"
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)

@@ -109,11 +109,12 @@ class Cut:
 
 
 def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup | None = None,
-            gains: AntiStallGains | None = None) -> Cut:
+            gains: AntiStallGains | None = None, custom_soils: dict | None = None) -> Cut:
     """Simulate ``spec`` (its patches, seed, speed and duration; its target depth unused) under
-    ``policy``. ValueError naming the field for a bad spec or setting."""
+    ``policy``; ``custom_soils``: soils by name beside the catalogue (``load_soil_file``).
+    ValueError naming the field for a bad spec or setting."""
     gains = gains or AntiStallGains()
-    sim = SoilSimulator(SimConfig(world_mode=world), [spec])
+    sim = SoilSimulator(SimConfig(world_mode=world), [spec], custom_soils)
     spec = sim.specs[0]
     n = int(round(spec.duration_s * SAMPLE_RATE_HZ))
     start = policy.fixed_depth_m
@@ -172,6 +173,8 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
                estimator_counters=vars(estimator.counters).copy() if estimator is not None else {})
 
 
-def sweep_fixed_depths(world: str, spec: EpisodeSpec, depths_m, gains: AntiStallGains | None = None) -> list[Cut]:
+def sweep_fixed_depths(world: str, spec: EpisodeSpec, depths_m, gains: AntiStallGains | None = None,
+                       custom_soils: dict | None = None) -> list[Cut]:
     """Fixed-depth cuts of ``spec`` at each of ``depths_m`` (the hindsight sweep)."""
-    return [run_cut(world, spec, Policy(f"fixed {d:.3f} m", float(d)), gains=gains) for d in depths_m]
+    return [run_cut(world, spec, Policy(f"fixed {d:.3f} m", float(d)), gains=gains, custom_soils=custom_soils)
+            for d in depths_m]

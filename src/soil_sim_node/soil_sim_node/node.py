@@ -23,6 +23,7 @@ Bad commands never stop the node and never reach the core: see live.CommandGate.
 from __future__ import annotations
 
 import collections
+from pathlib import Path
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -36,6 +37,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
+
+from soil_physics.soils import load_soil_file
 
 from .effects import effects_for_mode
 from .live import CommandGate, command_writers, episode_plan
@@ -55,7 +58,7 @@ PARAMETERS: dict[str, tuple] = {
     "world_mode": ("default", "world: 'fee' (pure FEE, like D_FEE) or 'default' (extra effects, like D_default)"),
     "engine": ("compiled", "simulator engine: 'compiled' (Numba kernel, default) or 'reference' (the NumPy "
                            "reference of the physics, ~1000x slower)"),
-    "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel)"),
+    "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel, or a soil of soil_file)"),
     "relative_density_pct": (60.0, "initial relative density I_d [%], 0..100"),
     "patches": ([], "soil along the path, 'x_start_m:soil:relative_density_pct' entries ordered by x, e.g. "
                     "['0.0:Sand:20', '5.0:Clay:90'] (x: the blade's cutting edge in the world frame [m]; the first "
@@ -76,6 +79,9 @@ PARAMETERS: dict[str, tuple] = {
     "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway (0: wait forever)"),
     "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too"),
     "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within this"),
+    "soil_file": ("", "YAML of custom soils and named paths (soil_sim_batch --soil-file's format); its soils may be "
+                      "named in soil, patches, sequence_soils and /sim/command starts; '': the catalogue only"),
+    "path": ("", "the patches of the path of this name in soil_file's 'paths:' section (instead of patches); '': none"),
     "plugins": ([], "extra force terms 'package.module:function' (simulator effect plugins)", _STR_ARRAY),
     "effects_off": ([], "default-world effects to switch off by name", _STR_ARRAY),
 }
@@ -99,6 +105,7 @@ class SimNode(Node):
         self.exit_code = 0
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
+        self.custom_soils, self.named_path = self._load_soil_file(p["soil_file"], p["path"], p["patches"])
         if p["engine"] == "compiled":  # compile or load the kernel now, not at the first tick
             self.get_logger().info(f"simulator kernel ready in {warm_up():.1f} s")
         self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
@@ -169,6 +176,25 @@ class SimNode(Node):
             if name in p and float(p[name]) < 0:
                 raise ValueError(f"parameter {name}={p[name]} must be >= 0")
 
+    @staticmethod
+    def _load_soil_file(soil_file: str, path: str, patches) -> tuple[dict, tuple]:
+        """(custom soils by name, the patches of the named ``path`` or ()) from parameter soil_file;
+        ValueError naming the parameter, the file and the value."""
+        if path and not soil_file:
+            raise ValueError(f"parameter path={path!r} needs parameter soil_file (a YAML with a 'paths:' section)")
+        if path and patches:
+            raise ValueError(f"parameters path={path!r} and patches={list(patches)} both give the patches: use one")
+        if not soil_file:
+            return {}, ()
+        try:
+            loaded = load_soil_file(Path(soil_file).expanduser())
+        except (FileNotFoundError, ValueError) as err:
+            raise ValueError(f"parameter soil_file={soil_file!r}: {err}") from None
+        if path and path not in loaded.paths:
+            raise ValueError(f"parameter path={path!r} is not a path of soil_file={soil_file!r}; its paths: "
+                             f"{sorted(loaded.paths)}")
+        return loaded.soils, (loaded.paths[path] if path else ())
+
     def _parse_wait_for(self, entries) -> list[tuple[str, int]]:
         known = set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS) | {G.SIM_STATUS_TOPIC}
         out = []
@@ -182,26 +208,27 @@ class SimNode(Node):
 
     def _spec_from_params(self, overrides: dict) -> EpisodeSpec:
         get = lambda name: overrides.get(name, self._value(name))  # noqa: E731
-        patches = list(get("patches") or [])
+        patches = list(get("patches") or []) or list(self.named_path if "patches" not in overrides else [])
         unused = sorted({"soil", "relative_density_pct"} & set(overrides))
         if patches and unused:
-            raise ValueError(f"{' and '.join(unused)} unused while parameter patches={patches} is set (the patches "
-                             "set the soil along the path; clear patches first)")
+            source = f"parameter path={self._value('path')!r}" if not get("patches") else f"parameter patches={patches}"
+            raise ValueError(f"{' and '.join(unused)} unused while {source} sets the soil along the path (clear "
+                             "patches first: 'patches': [])")
         spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
                            float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
                            patches=patches)
-        return spec.resolve()[0]  # ValueError naming the field and value; with patches, the first one's soil
+        return spec.resolve(self.custom_soils)[0]  # ValueError naming the field and value; with patches, the first one's soil
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:
-            spec.resolve()
+            spec.resolve(self.custom_soils)
             self.queue.append(spec)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Episode parameters apply to episodes started later; rate applies at once."""
         changes = {p.name: p.value for p in params}
         fixed = {"world_mode", "engine", "pacing", "plugins", "effects_off", "wait_for", "sequence_soils",
-                 "sequence_relative_densities_pct", "episodes"} & set(changes)
+                 "sequence_relative_densities_pct", "episodes", "soil_file", "path"} & set(changes)
         if fixed:
             return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")
         try:
@@ -278,7 +305,7 @@ class SimNode(Node):
             self._start_episode(self.queue.popleft())
 
     def _start_episode(self, spec: EpisodeSpec) -> None:
-        self.sim = SoilSimulator(self.config, [spec])
+        self.sim = SoilSimulator(self.config, [spec], self.custom_soils)
         self.episode_index += 1
         self.meta = episode_meta(self.config, self.sim.specs[0], self.sim.soils[0].name, self.sim.effects.enabled())
         self.meta.source = "soil_sim_node"
