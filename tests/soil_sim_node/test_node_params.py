@@ -58,6 +58,8 @@ def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_file
         SimNode._spec_from_params(node, {"soil": "Clay"})
     spec = SimNode._spec_from_params(node, {"patches": [], "soil": "Silt", "relative_density_pct": 70.0})
     assert (spec.soil, spec.relative_density_pct, spec.patches) == ("Silt", 70.0, ())
+    with pytest.raises(ValueError, match=r"parameter path='site_a' cannot be combined with sequence_soils"):
+        SimNode._validate_static({**values, "sequence_soils": ["Clay"]})
     for name, value in (("soil_file", ""), ("path", "site_a")):
         result = SimNode._on_set_parameters(None, [Parameter(name, value=value)])
         assert not result.successful and name in result.reason and "start-up" in result.reason

@@ -280,8 +280,9 @@ def plot(world: dict, path: Path) -> None:
         mean, sd = aware.fused[:, col] * k, aware.fused[:, std] * k
         valid = aware.fused[:, 4] == 1.0
         axis.plot(aware.x_b, np.where(valid, mean, np.nan), color="C0", lw=1, label=f"fused {name}")
-        axis.fill_between(aware.x_b, np.where(valid, mean - 2 * sd, np.nan), np.where(valid, mean + 2 * sd, np.nan),
-                          color="C0", alpha=0.2, lw=0, label="±2σ")
+        low = mean - 2 * sd if name != "c" else np.maximum(mean - 2 * sd, 0.0)  # c ≥ 0: the posterior's support
+        axis.fill_between(aware.x_b, np.where(valid, low, np.nan), np.where(valid, mean + 2 * sd, np.nan),
+                          color="C0", alpha=0.2, lw=0, label="±2σ" if name != "c" else "±2σ (c ≥ 0)")
         axis.plot(aware.x_b, aware.truth[:, truth_col] * k, color="k", lw=1, label=f"true {name}")
         axis.set_ylabel(f"{name} [{unit}]")
         axis.legend(fontsize=7, loc="upper left")

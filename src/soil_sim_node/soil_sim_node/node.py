@@ -172,6 +172,9 @@ class SimNode(Node):
         if p.get("patches") and plan:
             raise ValueError(f"parameter patches={list(p['patches'])} cannot be combined with {' and '.join(plan)}: "
                              "the patches set the soil along the path")
+        if p.get("path") and plan:
+            raise ValueError(f"parameter path={p['path']!r} cannot be combined with {' and '.join(plan)}: "
+                             "the path sets the soil along it")
         for name in ("wait_timeout_s", "settle_s", "lockstep_timeout_s"):
             if name in p and float(p[name]) < 0:
                 raise ValueError(f"parameter {name}={p[name]} must be >= 0")
