@@ -18,25 +18,33 @@ pytestmark = pytest.mark.timeout(120)
 PATCHES = ["0.0:Sand:20", "2.6:Clay:90"]
 
 
-def test_lockstep_run_with_patches_records_them_and_equals_the_batch(tmp_path):
+def lockstep_episode(tmp_path, *sim_params: str):
+    """(the one episode bag, its Episode) of a lockstep ``soil_launch`` with ``sim_params``
+    ('name:=value') and 2.5 s at 0.8 m/s, seed 4, recorded under tmp_path/bags."""
     log = tmp_path / "launch.log"
     domain = next_domain_id()
-    param = "patches:=[" + ",".join(f"'{p}'" for p in PATCHES) + "]"
+    args = [a for p in (*sim_params, "duration_s:=2.5", "target_speed_m_s:=0.8", "seed:=4") for a in ("--sim-param", p)]
     with log.open("w") as out:
         proc = subprocess.run([str(BIN / "soil_launch"), "--domain-id", str(domain), "--pacing", "lockstep",
-                               "--record", str(tmp_path / "bags"), "--timeout", "90", "--sim-param", param,
-                               "--sim-param", "duration_s:=2.5", "--sim-param", "target_speed_m_s:=0.8",
-                               "--sim-param", "seed:=4"],
+                               "--record", str(tmp_path / "bags"), "--timeout", "90", *args],
                               env=loopback_env(domain), stdout=out, stderr=subprocess.STDOUT, timeout=110)
     assert proc.returncode == 0, log.read_text()
     (bag,) = find_episode_bags(tmp_path / "bags")
-    live = read_episode(bag)
+    return bag, read_episode(bag)
+
+
+def assert_same_arrays(live, ref) -> None:
+    for name in ("observations", "forces", "known", "truth", "extras"):
+        np.testing.assert_array_equal(getattr(live, name), getattr(ref, name), err_msg=name)
+
+
+def test_lockstep_run_with_patches_records_them_and_equals_the_batch(tmp_path):
+    bag, live = lockstep_episode(tmp_path, "patches:=[" + ",".join(f"'{p}'" for p in PATCHES) + "]")
     assert live.meta.soil_patches() == (SoilPatch(0.0, "Sand", 20.0), SoilPatch(2.6, "Clay", 90.0))
     assert (live.meta.soil, live.meta.relative_density_pct, live.meta.source) == ("Sand", 20.0, "soil_sim_node")
     (ref,) = run_episodes(SimConfig(), [EpisodeSpec("Loam", 60.0, 0.8, 0.2, 4, 2.5, patches=PATCHES)])
     assert live.meta.name == ref.meta.name == bag.name
-    for name in ("observations", "forces", "known", "truth", "extras"):
-        np.testing.assert_array_equal(getattr(live, name), getattr(ref, name), err_msg=name)
+    assert_same_arrays(live, ref)
     phi = set(live.column("phi"))
     assert phi == {get_soil("Sand").at(20.0).phi, get_soil("Clay").at(90.0).phi}  # the truth steps
 

@@ -2,17 +2,14 @@
 path from a soils YAML, as a user starts them (real node processes over DDS on loopback)."""
 from __future__ import annotations
 
-import subprocess
-
-import numpy as np
 import pytest
 
-from soil_bag_tools.bag_io import find_episode_bags, read_episode
 from soil_msgs_py.patches import SoilPatch
 from soil_physics.soils import load_soil_file
 from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
-from tests.ros_probe import BIN, NodeProc, loopback_env, next_domain_id
+from tests.ros_probe import NodeProc, next_domain_id
+from tests.soil_sim_node.test_node_patches import assert_same_arrays, lockstep_episode
 
 pytestmark = pytest.mark.timeout(120)
 SOILS_YAML = """\
@@ -33,24 +30,12 @@ def soil_file(tmp_path):
 def test_lockstep_run_on_a_named_path_of_a_soil_file_equals_the_batch(tmp_path, soil_file):
     """The path's custom soil is simulated (its truth in the bag) exactly as soil_sim_batch
     --soil-file --path simulates it."""
-    log = tmp_path / "launch.log"
-    domain = next_domain_id()
-    with log.open("w") as out:
-        proc = subprocess.run([str(BIN / "soil_launch"), "--domain-id", str(domain), "--pacing", "lockstep",
-                               "--record", str(tmp_path / "bags"), "--timeout", "90",
-                               "--sim-param", f"soil_file:={soil_file}", "--sim-param", "path:=silt_then_clay",
-                               "--sim-param", "duration_s:=2.5", "--sim-param", "target_speed_m_s:=0.8",
-                               "--sim-param", "seed:=4"],
-                              env=loopback_env(domain), stdout=out, stderr=subprocess.STDOUT, timeout=110)
-    assert proc.returncode == 0, log.read_text()
-    (bag,) = find_episode_bags(tmp_path / "bags")
-    live = read_episode(bag)
+    _, live = lockstep_episode(tmp_path, f"soil_file:={soil_file}", "path:=silt_then_clay")
     assert live.meta.soil_patches() == (SoilPatch(0.0, "Silt", 30.0), SoilPatch(2.6, "Clay", 90.0))
     custom = load_soil_file(soil_file).soils
     spec = EpisodeSpec("Loam", 60.0, 0.8, 0.2, 4, 2.5, patches=["0.0:Silt:30", "2.6:Clay:90"])
     (ref,) = run_episodes(SimConfig(), [spec], custom_soils=custom)
-    for name in ("observations", "forces", "known", "truth", "extras"):
-        np.testing.assert_array_equal(getattr(live, name), getattr(ref, name), err_msg=name)
+    assert_same_arrays(live, ref)
     assert custom["Silt"].at(30.0).phi in set(live.column("phi"))  # the custom soil was cut
 
 
