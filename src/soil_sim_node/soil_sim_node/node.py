@@ -13,7 +13,8 @@ the timers):
 
 Episodes: ``episodes`` repeats of the plan (soil × relative density, from the
 ``sequence_*`` lists or the single ``soil``/``relative_density_pct``, or the soil along the
-path ``patches``) start by themselves;
+path ``patches`` or ``path``; catalogue soils, or those of the soils YAML ``soil_file``) start by
+themselves;
 more are started and reset over ``/sim/command``, and every start/end is announced on
 ``/sim/status`` (graph.py documents both). ``wait_for`` holds each start until the listed
 endpoints have matched, so a recorder or controller started alongside loses nothing.
