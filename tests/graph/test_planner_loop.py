@@ -57,3 +57,38 @@ def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
     assert (u_za >= -deepest - 1e-9).all(), (u_za[u_za < -deepest - 1e-9][:5], deepest[u_za < -deepest - 1e-9][:5])
     exact = np.array([np.isclose(u, -targets[a:b, 0], atol=1e-9).any() for u, a, b in zip(u_za, lo, hi)])
     assert exact.mean() > 0.5, exact.mean()  # mostly cut to a planner target exactly (not lifting, not 0.2 m)
+
+
+@pytest.mark.timeout(240)
+def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cut_report_loop(tmp_path):
+    """In lockstep the simulator outruns the estimator and planner; the controller waits for the
+    planner's target of tick k − 2 before it answers tick k (``plan_wait``), so the live graph, five
+    processes over DDS, cuts exactly what ``soil_cut_report``'s in-process loop cuts, whatever the
+    load (the episode's target depth, the controller's fallback for the first two ticks, set to the
+    planner's start depth as the report's loop starts there)."""
+    from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut
+    from soil_msgs_py.params import KNOWN_PARAMS
+    from soil_sim_node.simulator import EpisodeSpec
+
+    domain, bags = next_domain_id(), tmp_path / "bags"
+    patches = ["0:Sand:20", "3.2:Clay:80"]
+    args = ["--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180", "--domain-id", str(domain),
+            "--sim-param", "patches:=[" + ",".join(f"'{p}'" for p in patches) + "]", "--sim-param", "duration_s:=6.0",
+            "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5"]
+    log_path = tmp_path / "launch.log"
+    with log_path.open("w") as log:
+        rc = subprocess.run([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
+                            stderr=subprocess.STDOUT, timeout=220).returncode
+    out = log_path.read_text()
+    assert rc == 0, out[-4000:]
+    assert "no planner target" not in out and "estimates unpaired" in out and " 0 estimates unpaired" in out, out[-4000:]
+    (bag,) = find_episode_bags(bags)
+    ep = read_episode(bag)
+    stamps, _ = read_labelled_topic(bag, T.TARGET_DEPTH.name, T.TARGET_DEPTH_FIELDS)
+    assert len(stamps) == len(ep) == 360  # a target for every tick
+
+    spec = EpisodeSpec("Sand", 20.0, 0.5, 0.1, seed=5, duration_s=6.0, patches=patches)
+    cut = run_cut("default", spec, Policy("soil-aware"), SoilAwareSetup("default"))
+    assert ep.meta.soil_patches() == cut.spec.patches
+    np.testing.assert_array_equal(ep.known[:, KNOWN_PARAMS.index("d")], cut.depth)
+    assert np.ptp(cut.target) > 0.05  # the plan moved the cut (deeper in the sand, shallower in the clay)

@@ -15,7 +15,11 @@ uses the newest planner target whose stamp is within ``planner_timeout_s`` of th
 side); without one (none yet this episode, the planner silent or its stamps far off) the
 parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall lift acts on
 top of whichever target is in effect: the planner chooses the depth, the controller still
-saves the machine from a stall.
+saves the machine from a stall. In a lockstep episode (the simulator's episode_start says its
+pacing) the controller keeps step with the planner (``plan_wait``): tick k is answered once the
+planner's target for tick k − ``planner_lag_ticks`` has come, and cuts to that one, so the
+closed loop does not depend on how fast the estimator and planner run (at most
+``planner_wait_s`` of wall time per tick if the planner is silent).
 
 With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller
 answers a tick once its twist, pose and /blade/force are all in: the blade rises with the force
@@ -26,6 +30,8 @@ changes what a tick waits for: a switch between a tick's state and its force wou
 tick unanswered, and a lockstep simulator waiting).
 """
 from __future__ import annotations
+
+import time
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -42,6 +48,7 @@ from soil_msgs_py.ros_adapter import (
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import AntiStallController, AntiStallGains
+from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, PlanWait
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
@@ -57,6 +64,10 @@ PARAMETERS: dict[str, tuple] = {
     "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
                                   "(/planner/target_depth; target_depth_m the fallback)"),
     "planner_timeout_s": (1.0, "a planner target counts for ticks within this much simulation time of its stamp [s], > 0"),
+    "planner_lag_ticks": (DEFAULT_LAG_TICKS, "lockstep with depth_source planner: tick k is answered once the planner's "
+                                             "target for tick k - lag came, and cuts to it (0: never wait)"),
+    "planner_wait_s": (DEFAULT_WAIT_S, "lockstep: the longest a tick waits for its planner target [s of wall time], "
+                                       "(0, 60]; then it is answered with the target there is"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),
@@ -105,7 +116,7 @@ class ControllerNode(Node):
         self.follow = bool(get("follow_episode_targets"))
         self.depth_source, self.planner_timeout_ns = self._check_planner(get("depth_source"), get("planner_timeout_s"))
         self.param_depth_m = float(get("target_depth_m"))  # the parameter's d̄_z (the planner's fallback)
-        self.planner_target: tuple[int, float] | None = None  # (stamp, depth) of the newest planner target
+        self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"))  # ValueError names the field
         self.following_planner = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -128,6 +139,7 @@ class ControllerNode(Node):
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
         if self._force_lift:
             self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
+        self.create_timer(0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
 
     @staticmethod
     def _check_planner(source, timeout_s) -> tuple[str, int]:
@@ -150,6 +162,9 @@ class ControllerNode(Node):
             speed = changes.get("target_speed_m_s", self.core.target_speed_m_s[0])
             depth = changes.get("target_depth_m", self.param_depth_m)  # (the core's may be the planner's)
             AntiStallController(new_gains, speed, depth)  # validates targets
+            lag = changes.get("planner_lag_ticks", self.plan_wait.lag_ticks)
+            wait = changes.get("planner_wait_s", self.plan_wait.wait_s)
+            PlanWait(lag, wait)  # validates them
             if (new_gains.force_lift_m_s > 0.0) != self._force_lift:
                 raise ValueError(
                     f"force_lift_m_s={new_gains.force_lift_m_s!r} would switch the force lift "
@@ -163,9 +178,11 @@ class ControllerNode(Node):
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
+        self.plan_wait.set_lag(lag, wait)
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
             self.core.set_targets(target_depth_m=self.param_depth_m)
-            self.planner_target, self.following_planner = None, False
+            self.plan_wait.targets.clear()
+            self.following_planner = False
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
         if "follow_episode_targets" in changes:
             self.follow = bool(changes["follow_episode_targets"])
@@ -180,6 +197,7 @@ class ControllerNode(Node):
         if event is None:
             return
         if event.event == G.EVENT_EPISODE_END:
+            self.plan_wait.start_episode(event.first_stamp_ns, False)  # the episode is over: nothing waits
             self.held = []
             return
         if self.follow:
@@ -190,7 +208,10 @@ class ControllerNode(Node):
             if not all(r.successful for r in result):
                 self._warn("targets", f"episode {event.name}: targets refused: {[r.reason for r in result]}")
         self.core.reset()
-        self.planner_target, self.following_planner = None, False  # the previous cut's plan does not carry over
+        # the previous cut's plan does not carry over (nor its held ticks: the reset core must not step
+        # on them); in lockstep the controller keeps step with the planner
+        self.plan_wait.start_episode(event.first_stamp_ns, event.pacing == G.PACING_LOCKSTEP)
+        self.following_planner = False
         if self.depth_source == "planner":
             self.core.set_targets(target_depth_m=self.param_depth_m)
         self.joiner.reset(event.first_stamp_ns)
@@ -237,8 +258,8 @@ class ControllerNode(Node):
                                   f"following the stream from stamp {stamp} ns")
         for joined in out:
             if joined.complete:
-                self._answer(joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name],
-                             joined.parts.get(T.BLADE_FORCE.name))
+                self._tick((joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name],
+                            joined.parts.get(T.BLADE_FORCE.name)))
             else:
                 fate = "dropped" if joined.why is Why.EVICTED else "skipped"
                 self._warn("unpaired", f"state at stamp {joined.stamp_ns} ns never got all of "
@@ -256,14 +277,33 @@ class ControllerNode(Node):
                        f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
                                         f"[0, {MAX_PLANNER_DEPTH_M}] m; ignored")
             return
-        if self.planner_target is None or stamp >= self.planner_target[0]:
-            self.planner_target = (stamp, depth)
+        self.plan_wait.note_target(stamp, depth)
+        self._answer_released(*self.plan_wait.release(time.monotonic()))
+
+    def _tick(self, item: tuple) -> None:
+        """A tick whose state is in: answered now, or (lockstep, following the planner) once its plan came."""
+        if self.depth_source != "planner":
+            self._answer(*item)
+            return
+        self._answer_released(self.plan_wait.offer(item[0], item, time.monotonic()), 0)
+
+    def _on_wait_timer(self) -> None:
+        if self.plan_wait.pending:
+            self._answer_released(*self.plan_wait.release(time.monotonic()))
+
+    def _answer_released(self, items: list, late: int) -> None:
+        if late:
+            self._warn("planner:late", f"a lockstep tick answered without its planner target after "
+                                       f"{self.plan_wait.wait_s:g} s of waiting (planner_wait_s): the planner is "
+                                       "silent, ticks do not wait for it until its next target")
+        for item in items:
+            self._answer(*item)
 
     def _depth_for(self, stamp: int) -> float:
         """d̄_z for the tick at ``stamp``: the planner's target if it is recent enough, else the parameter's."""
         if self.depth_source != "planner":
             return self.param_depth_m
-        target = self.planner_target
+        target = self.plan_wait.target_for(stamp)
         fresh = target is not None and abs(stamp - target[0]) <= self.planner_timeout_ns
         if fresh != self.following_planner:
             self.following_planner = fresh

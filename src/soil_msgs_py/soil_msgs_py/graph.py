@@ -44,6 +44,10 @@ EVENT_EPISODE_START = "episode_start"
 EVENT_EPISODE_END = "episode_end"
 EVENTS = (EVENT_EPISODE_START, EVENT_EPISODE_END)
 END_REASONS = ("completed", "reset", "shutdown", "error", "end_of_bag")
+# How the simulator paces its ticks (its ``pacing`` parameter), said in every episode_start so
+# the nodes of a closed loop can keep step: in lockstep the controller waits for the planner.
+PACING_REALTIME, PACING_LOCKSTEP = "realtime", "lockstep"
+PACINGS = (PACING_REALTIME, PACING_LOCKSTEP)
 
 ACTION_START = "start"
 ACTION_RESET = "reset"
@@ -158,7 +162,8 @@ def _json_object(text: str, what: str) -> dict[str, Any]:
 class EpisodeEvent:
     """One ``/sim/status`` message.
 
-    episode_start: ``first_stamp_ns`` (stamp of tick 0), ``planned_ticks``, ``meta``.
+    episode_start: ``first_stamp_ns`` (stamp of tick 0), ``planned_ticks``, ``meta``, ``pacing``
+                   (PACINGS; "" when not said, e.g. by a replay, which keeps recorded time).
     episode_end:   ``first_stamp_ns``, ``last_stamp_ns`` (last tick published), ``ticks``
                    published, ``reason`` (END_REASONS), ``stats`` (timing figures, free form).
     """
@@ -173,6 +178,7 @@ class EpisodeEvent:
     ticks: int = 0
     reason: str = ""
     stats: dict | None = None
+    pacing: str = ""
 
     def to_json(self) -> str:
         data = {
@@ -183,6 +189,8 @@ class EpisodeEvent:
         if self.event == EVENT_EPISODE_END:
             data.update(last_stamp_ns=self.last_stamp_ns, ticks=self.ticks, reason=self.reason,
                         stats=self.stats or {})
+        if self.pacing:
+            data["pacing"] = self.pacing
         return json.dumps(data, sort_keys=True)
 
     @classmethod
@@ -216,10 +224,13 @@ class EpisodeEvent:
         name = d.get("name")
         if not isinstance(name, str) or not name or "/" in name:
             raise ValueError(f"{SIM_STATUS_TOPIC}: name={name!r} must be a non-empty name without '/'")
+        pacing = d.get("pacing", "")
+        if pacing not in ("", *PACINGS):
+            raise ValueError(f"{SIM_STATUS_TOPIC}: pacing={pacing!r} is not one of {PACINGS}")
         return cls(event=event, episode=d["episode"], name=name, meta=meta,
                    first_stamp_ns=d["first_stamp_ns"], planned_ticks=d["planned_ticks"],
                    last_stamp_ns=d.get("last_stamp_ns", -1), ticks=d.get("ticks", 0),
-                   reason=reason, stats=d.get("stats"))
+                   reason=reason, stats=d.get("stats"), pacing=pacing)
 
 
 # --- /sim/command -----------------------------------------------------------------------

@@ -15,7 +15,8 @@ edge held short of it shows the lift's push in F_z, which does not anchor the pl
 
 Every plan also moves the cut depth the anti-stall controller follows when its
 ``depth_source`` is ``planner``: /planner/target_depth (stamped like the plan; sent when the
-target moved by a millimetre, and at least 5 times a second), the plan's
+target moved by a millimetre, and at least 5 times a second; every tick in a lockstep episode,
+for the controller keeps step with it there), the plan's
 deepest cut through the depth schedule's rate limits, start depth and hold
 (``depth_schedule.py``; parameters ``start_depth_m``, ``deepen_rate_m_s``, ``shallow_rate_m_s``,
 ``hold_s``, ``retreat_m``, ``retreat_memory_s``, ``cautious_deepen_rate_m_s``, ``min_target_m``,
@@ -116,6 +117,9 @@ class PlannerNode(Node):
         self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
         self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
+        # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
+        # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
+        self.lockstep = False
         self.log_period_ns = int(check_log_period(get("log_period_s")) * M.NS_PER_S)
         # the depth the controller commands per tick stamp (−u_za of /blade/cmd): a steady edge held
         # short of it is pressed onto a floor, and its F_z (the lift's push) does not anchor z
@@ -169,6 +173,7 @@ class PlannerNode(Node):
     def _on_status(self, msg) -> None:
         event = status_event(msg.data, self._warn)
         if event is not None and event.event == G.EVENT_EPISODE_START:
+            self.lockstep = event.pacing == G.PACING_LOCKSTEP
             self._new_cut()
 
     def _new_cut(self) -> None:
@@ -265,7 +270,7 @@ class PlannerNode(Node):
         target = self.schedule.update(stamp, plan_depth_m)
         values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
         sent = self._target_sent
-        if (sent is not None and stamp >= sent[0] and stamp - sent[0] < TARGET_HEARTBEAT_NS
+        if (not self.lockstep and sent is not None and stamp >= sent[0] and stamp - sent[0] < TARGET_HEARTBEAT_NS
                 and abs(target - sent[1]) < TARGET_STEP_M and values[2] == sent[2]):
             return  # the controller's target has not moved: fewer messages on the 60 Hz loop's machine
         self._target_sent = (stamp, target, values[2])

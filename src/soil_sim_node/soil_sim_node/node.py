@@ -319,7 +319,7 @@ class SimNode(Node):
         self.pacer.start_episode()
         self.gate = CommandGate(self.command_writers)
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
-                               self.first_stamp_ns, planned_ticks=self.planned_ticks)
+                               self.first_stamp_ns, planned_ticks=self.planned_ticks, pacing=self.pacer.pacing)
         self.status_pub.publish(String(data=event.to_json()))
         # Topics are not ordered with each other: make sure every subscriber's DDS reader
         # holds the start before tick 0 goes out (the controller resets on it).

@@ -26,9 +26,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from soil_msgs_py.graph import PACING_LOCKSTEP, PACINGS
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 
-PACINGS = ("realtime", "lockstep")
 RATE_RANGE = (0.01, 1000.0)  # real-time factors the node accepts
 COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
 HOUSEKEEPING_PERIOD_S = 0.01  # idle or lockstep: the timer only checks starts and stalls
@@ -114,7 +114,7 @@ class Pacer:
 
     @property
     def lockstep(self) -> bool:
-        return self.pacing == "lockstep"
+        return self.pacing == PACING_LOCKSTEP
 
     @property
     def realtime_period_s(self) -> float:

@@ -1,0 +1,76 @@
+"""``plan_wait``: in lockstep the controller answers tick k once the planner's target for tick
+k − lag came, in stamp order, and cuts to that target (not a newer one that raced in)."""
+from __future__ import annotations
+
+import pytest
+
+from anti_stall_controller.plan_wait import PlanWait
+from soil_msgs_py import graph as G
+from soil_sim_node.simulator import stamp_ns
+
+
+def test_a_tick_waits_for_the_target_of_its_tick_minus_lag_and_ticks_leave_in_order():
+    wait = PlanWait(lag_ticks=2, wait_s=5.0)
+    wait.start_episode(stamp_ns(0), lockstep=True)
+    assert wait.offer(stamp_ns(0), "t0", 0.0) == ["t0"]  # no plan can exist before tick 2
+    assert wait.offer(stamp_ns(1), "t1", 0.0) == ["t1"]
+    assert wait.offer(stamp_ns(2), "t2", 0.0) == []  # needs the target of tick 0
+    assert wait.offer(stamp_ns(3), "t3", 0.0) == []
+    wait.note_target(stamp_ns(0), 0.10)
+    assert wait.release(0.1) == (["t2"], 0)  # t3 needs tick 1's
+    wait.note_target(stamp_ns(1), 0.11)
+    wait.note_target(stamp_ns(2), 0.12)
+    assert wait.release(0.1) == (["t3"], 0)
+    assert wait.target_for(stamp_ns(3)) == (stamp_ns(1), 0.11)  # tick 3 cuts to tick 1's plan, not tick 2's
+    assert wait.target_for(stamp_ns(4)) == (stamp_ns(2), 0.12)
+
+
+def test_a_silent_planner_holds_one_tick_wait_s_then_none_until_it_speaks_again():
+    wait = PlanWait(lag_ticks=2, wait_s=1.0)
+    wait.start_episode(stamp_ns(100), lockstep=True)
+    answered = [item for k in range(100, 106) for item in wait.offer(stamp_ns(k), k, 10.0)]
+    assert answered == [100, 101]  # the first two need no plan
+    assert wait.release(10.5) == ([], 0)
+    assert wait.release(11.5) == ([102, 103, 104, 105], 1)  # one waited; then the planner counts as silent
+    assert wait.target_for(stamp_ns(105)) is None
+    assert wait.offer(stamp_ns(106), 106, 11.6) == [106]  # silent: no wait
+    wait.note_target(stamp_ns(105), 0.2)  # it speaks again: ticks wait again
+    assert wait.offer(stamp_ns(108), 108, 11.7) == []  # it needs tick 106's target
+
+
+def test_outside_lockstep_or_with_lag_0_nothing_waits_and_the_newest_target_counts():
+    for lockstep, lag in ((False, 2), (True, 0)):
+        wait = PlanWait(lag_ticks=lag)
+        wait.start_episode(0, lockstep=lockstep)
+        wait.note_target(stamp_ns(7), 0.2)
+        wait.note_target(stamp_ns(5), 0.1)  # an older one arriving late does not win
+        assert wait.offer(stamp_ns(9), "x", 0.0) == ["x"]
+        assert wait.target_for(stamp_ns(9)) == (stamp_ns(7), 0.2)
+
+
+def test_a_new_episode_forgets_held_ticks_and_targets():
+    wait = PlanWait()
+    wait.start_episode(0, lockstep=True)
+    wait.offer(stamp_ns(5), "old", 0.0)
+    wait.note_target(stamp_ns(1), 0.3)
+    assert wait.start_episode(stamp_ns(600), lockstep=True) == ["old"]
+    assert not wait.pending and wait.target_for(stamp_ns(700)) is None
+
+
+@pytest.mark.parametrize("lag, wait_s, needle", [(-1, 1.0, "planner_lag_ticks"), (1.5, 1.0, "planner_lag_ticks"),
+                                                 (True, 1.0, "planner_lag_ticks"), (2, 0.0, "planner_wait_s"),
+                                                 (2, float("nan"), "planner_wait_s")])
+def test_bad_settings_are_refused_naming_the_parameter(lag, wait_s, needle):
+    with pytest.raises(ValueError, match=needle):
+        PlanWait(lag, wait_s)
+
+
+def test_episode_start_says_the_simulators_pacing_and_a_bad_one_is_refused():
+    from soil_msgs_py.episode import EpisodeMeta
+    meta = EpisodeMeta(soil="Clay", relative_density_pct=50.0, world_mode="fee", seed=1, target_speed_m_s=0.5,
+                       target_depth_m=0.1, duration_s=1.0)
+    event = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, 0, planned_ticks=60, pacing=G.PACING_LOCKSTEP)
+    assert G.EpisodeEvent.from_json(event.to_json()).pacing == "lockstep"
+    with pytest.raises(ValueError, match="pacing='sometimes' is not one of"):
+        G.EpisodeEvent.from_json(event.to_json().replace('"lockstep"', '"sometimes"'))
+    assert G.EpisodeEvent.from_json(event.to_json().replace(', "pacing": "lockstep"', "")).pacing == ""  # (a replay's)
