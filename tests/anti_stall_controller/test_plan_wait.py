@@ -48,6 +48,14 @@ def test_outside_lockstep_or_with_lag_0_nothing_waits_and_the_newest_target_coun
         assert wait.target_for(stamp_ns(9)) == (stamp_ns(7), 0.2)
 
 
+def test_drain_hands_back_every_held_tick_in_order():
+    wait = PlanWait()
+    wait.start_episode(0, lockstep=True)
+    for k in (4, 5, 6):
+        wait.offer(stamp_ns(k), k, 0.0)
+    assert wait.drain() == [4, 5, 6] and not wait.pending
+
+
 def test_a_new_episode_forgets_held_ticks_and_targets():
     wait = PlanWait()
     wait.start_episode(0, lockstep=True)

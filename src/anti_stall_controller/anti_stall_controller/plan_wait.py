@@ -95,6 +95,12 @@ class PlanWait:
             return True  # no plan can exist that early in the episode (or the planner is silent)
         return bool(self.targets) and next(reversed(self.targets)) >= limit - TICK_PERIOD_NS  # k − lag, ± half a tick
 
+    def drain(self) -> list:
+        """Every held tick, in order, to answer now (the controller stopped following the planner)."""
+        out = [item for _, _, item in self.pending]
+        self.pending.clear()
+        return out
+
     def offer(self, stamp_ns: int, item, now_s: float) -> list:
         """Hold the tick ``item`` (answered in stamp order); the items that may be answered now."""
         self.pending.append((int(stamp_ns), float(now_s), item))
