@@ -34,7 +34,7 @@ from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
 from soil_physics.soils import CATALOGUE as SOILS
 from soil_sim_node.batch import DatasetPlan, generate, grid_specs
-from soil_sim_node.effects import effects_for_mode, load_plugins
+from soil_sim_node.effects import Effects, effects_for_mode, load_plugins
 
 from .test_discrepancy import RUN, blind
 
@@ -161,6 +161,31 @@ def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confi
     assert tentative["forms"] == [d["name"] for d in rep["forms"]["discovered"]] and "tentative" in rep["summary"]
     assert "NOT confirmed" in (tmp_path / "discrepancy.md").read_text()
     assert not (tmp_path / "discovered_terms.yaml").exists()
+
+
+def test_a_pile_that_pushes_less_than_the_model_says_is_a_relief_not_surcharge_drag(tmp_path):
+    """The world's FEE takes a tenth of the pile's Q N_Q (the default world's surcharge alone, every
+    other effect off), the model all of it: the residual is −0.9 (F_FEE(Q) − F_FEE(0)), less force
+    where the catalogue's ``surcharge_drag`` (+k Q in x, k >= 0) has more. Before, the search dropped
+    the −Q forms as "that term", which cannot take k < 0, and named two stand-ins (a constant
+    4.2 kN · tanh(v_x / 0.3 m/s) and Q growing with time in soil; 1672 -> 497 N held out, structure
+    left vs Q). Now the pile's weight as a relief, the catalogue term its opposite, never its name."""
+    off = {name: False for name in Effects.names() if name != "surcharge"}
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+    generate(DatasetPlan("default", tmp_path / "pile", specs, effects_for_mode("default").with_switches(**off)),
+             workers=2, progress=False)
+    rep = run_discrepancy(dataset=blind(tmp_path / "pile"), out_dir=tmp_path / "out", plots=False,
+                          **{**RUN, "stride": STRIDE})
+    assert rep["verdict"] == "explained", rep["summary"]
+    accepted = rep["selection"]["accepted"]
+    assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
+    sign, scale, factor = term_forms.parse(accepted[0]["name"])
+    assert sign < 0 and scale.name in ("q_x", "qnq") and factor.name == "1", accepted[0]["name"]  # −k Q (N_Q)
+    close = rep["forms"]["discovered"][0]["closest_catalogue"]
+    assert close["name"] == "surcharge_drag" and close["opposite"] and not close["same_mechanism"], close
+    assert rep["test"]["after"]["rmse"] <= 0.35 * rep["test"]["before"]["rmse"], rep["test"]  # 1672 -> 420 N
+    md = (tmp_path / "out" / "discrepancy.md").read_text()
+    assert "acts against that term's physics" in md and "surcharge_drag in another form" not in md
 
 
 def test_form_names_parse_and_act_like_catalogue_terms():

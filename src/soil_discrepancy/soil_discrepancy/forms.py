@@ -50,8 +50,8 @@ MAX_PATH = 8  # longest greedy path the cross-validation considers
 MAX_TICKS = 20_000  # the regression reads at most this many ticks (evenly thinned): 2 rows per tick, one column per form
 MIN_IDENTIFIABLE = 0.05  # a form's projected norm below this share of its norm: θ absorbs it
 DUPLICATE_COS = 0.999  # projected columns this parallel are one column (the first is kept)
-CATALOGUE_COS = 0.99  # a form this parallel to a catalogue candidate (projected) is that term: not searched
-CLOSE_COS = 0.9  # a form this parallel to a catalogue term (after projection) is that mechanism
+CATALOGUE_COS = 0.99  # a form this parallel to a catalogue candidate (projected) is that term: not searched where the term can take it (k >= 0)
+CLOSE_COS = 0.9  # a form this parallel to a catalogue term (after projection, same sign) is that mechanism
 _THETA_STEPS = (1e-3, None, 1e-3)  # φ [rad], c [Pa: 1e-3 c + 10 Pa], δ [rad]
 
 
@@ -138,7 +138,12 @@ def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int
         C = C.reshape(-1, len(catalogue))
         cn = np.sqrt((C**2).sum(0))
         C = C[:, cn > 0] / cn[cn > 0]
-        dup = (np.abs(Xn.T @ C) > CATALOGUE_COS).any(1) if C.shape[1] else np.zeros(len(keep), bool)
+        # a form parallel to a catalogue term is that term, but only where the term can take the
+        # residual: its k >= 0 (``fee_fit.fit_joint``), so a residual the term would need k < 0 for
+        # (e.g. less drag from the pile than the model's, against surcharge_drag's +k Q) is left to
+        # the form, which is signed (before: dropped here and refused k < 0 there, nothing took it)
+        takes = (C.T @ y > 0) if C.shape[1] else np.zeros(0, bool)  # (catalogue,) would fit with k > 0
+        dup = ((np.abs(Xn.T @ C) > CATALOGUE_COS) & takes[None, :]).any(1) if C.shape[1] else np.zeros(len(keep), bool)
         same = [names[i] for i in keep[dup]]
         keep, Xn = keep[~dup], Xn[:, ~dup]
     rows_group = np.repeat(frame.group, 2)
@@ -210,7 +215,8 @@ def _cluster_se(X: np.ndarray, e: np.ndarray, cluster: np.ndarray) -> np.ndarray
 
 # ------------------------------------------------------------------------------------ describing
 def closest_catalogue(frame: Frame, fit: ThetaFit, name: str, model: AugmentedFEE | None = None) -> dict:
-    """The catalogue term whose basis (θ-projected) is most parallel to the form's: {'name', 'cos'}."""
+    """The catalogue term whose basis (θ-projected) is most parallel or anti-parallel to the form's:
+    {'name', 'cos', 'same_mechanism' (cos >= CLOSE_COS), 'opposite' (cos <= −CLOSE_COS)}."""
     model = model or AugmentedFEE()
     cat = list(force_terms.CATALOGUE)
     B = form_bases(frame, fit, [name] + cat)
@@ -220,7 +226,10 @@ def closest_catalogue(frame: Frame, fit: ThetaFit, name: str, model: AugmentedFE
     n = np.sqrt((P**2).sum(0))
     cos = np.where(n[1:] > 0, (P[:, 1:] * P[:, :1]).sum(0) / np.maximum(n[1:] * n[0], 1e-300), 0.0)
     i = int(np.argmax(np.abs(cos)))
-    return {"name": cat[i], "cos": float(cos[i]), "same_mechanism": bool(abs(cos[i]) >= CLOSE_COS)}
+    # the form (signed, k > 0) is the term's mechanism only if it pushes the same way: every catalogue
+    # term's physics has k > 0, so an anti-parallel form is the opposite effect (less of it), not it
+    return {"name": cat[i], "cos": float(cos[i]), "same_mechanism": bool(cos[i] >= CLOSE_COS),
+            "opposite": bool(cos[i] <= -CLOSE_COS)}
 
 
 def where_it_acts(frame: Frame, fit: ThetaFit, name: str, k: float) -> dict:

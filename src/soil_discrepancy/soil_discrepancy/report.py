@@ -227,7 +227,9 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"- Acts on {100 * reg['share_of_ticks']:.0f} % of the analysed ticks (mean |ΔF| {reg['mean_abs_force_n']:.0f} N, "
                   f"max {reg['max_abs_force_n']:.0f} N), there: {where}.",
                   f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
-                  + ("the same mechanism)" if close["same_mechanism"] else "not the same: a new mechanism)"),
+                  + ("the same mechanism)" if close["same_mechanism"] else
+                     "it acts against that term's physics: not that effect but less of what the model has)"
+                     if close.get("opposite") else "not the same: a new mechanism)"),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
         nc = forms.get("not_confirmed")
         alone = ((nc or {}).get("each_form") or {}).get(f["name"])
