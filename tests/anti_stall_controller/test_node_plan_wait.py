@@ -2,16 +2,19 @@
 tick k is answered with the planner's target for tick k − 2 once it came; a planner that falls
 silent holds one tick for ``planner_wait_s`` (warned), after which ticks are answered without
 waiting, on the last target while it is fresh and then on the parameter's depth; a planner that
-speaks again is waited for again. Real node process, real DDS on loopback, the probe playing the
+speaks again is waited for again; a switch of ``depth_source`` away from the planner answers the
+tick held for it at once. Real node process, real DDS on loopback, the probe playing the
 simulator and the planner."""
 from __future__ import annotations
 
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 
 from soil_msgs_py import graph as G
 from soil_msgs_py.episode import EpisodeMeta
 from tests.anti_stall_controller.controller_probe import PlannerSide
-from tests.ros_probe import RosProbe, next_domain_id
+from tests.ros_probe import call_service, RosProbe, next_domain_id
 
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
 
@@ -57,4 +60,31 @@ def test_in_lockstep_a_tick_waits_for_its_plan_and_a_silent_planner_is_waited_fo
         finally:
             out = side.stop()
     assert "answered without its planner target" in out and "planner_wait_s" in out, out
+    assert "Traceback" not in out, out
+
+
+@pytest.mark.timeout(120)
+def test_a_switch_away_from_the_planner_answers_the_tick_held_for_it_at_once(tmp_path):
+    """In lockstep no next tick comes to release a held one: the switch itself must answer it, on
+    the parameter's depth (before, it waited out planner_wait_s, here 60 s, and was then warned
+    about as a silent planner's)."""
+    domain = next_domain_id()
+    meta = EpisodeMeta("Clay", 40.0, "default", 3, 0.5, PARAM_DEPTH, 30.0, source="test")
+    with RosProbe(domain) as probe:
+        side = PlannerSide(probe, ["-p", "planner_wait_s:=60.0", "-p", "planner_lag_ticks:=2"], domain, tmp_path)
+        try:
+            side.start(meta, pacing=G.PACING_LOCKSTEP)
+            assert [side.tick(0), side.tick(1)] == pytest.approx([-PARAM_DEPTH] * 2)
+            plan_depth = 0.12
+            side.plan(0, plan_depth)
+            assert side.tick(2) == pytest.approx(-plan_depth)
+            side.send(3)  # held: tick 1's plan never comes
+            client = AsyncParameterClient(probe.node, "anti_stall_controller")
+            assert client.wait_for_services(timeout_sec=20)
+            ok = call_service(lambda: client.set_parameters([Parameter("depth_source", value="parameter")]))
+            assert all(r.successful for r in ok.results)
+            assert side.answer(3) == pytest.approx(-PARAM_DEPTH)  # within 20 s, not after planner_wait_s
+        finally:
+            out = side.stop()
+    assert "answered without its planner target" not in out, out
     assert "Traceback" not in out, out

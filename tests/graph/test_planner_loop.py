@@ -81,6 +81,9 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
                             stderr=subprocess.STDOUT, timeout=220).returncode
     out = log_path.read_text()
     assert rc == 0, out[-4000:]
+    # (a plan that did not come within planner_wait_s on a loaded machine would make the cut differ:
+    # said here, by its cause, before the arrays below)
+    assert "answered without its planner target" not in out, out[-4000:]
     assert "no planner target" not in out and "estimates unpaired" in out and " 0 estimates unpaired" in out, out[-4000:]
     (bag,) = find_episode_bags(bags)
     ep = read_episode(bag)

@@ -11,8 +11,8 @@ tick, is refused with a warning and changes nothing (``state_joiner``).
 
 With ``depth_source`` ``planner`` the target depth d̄_z comes from /planner/target_depth (the
 soil-aware planner's schedule) instead of the ``target_depth_m`` parameter: each answered tick
-uses the newest planner target whose stamp is within ``planner_timeout_s`` of the tick (either
-side); without one (none yet this episode, the planner silent or its stamps far off) the
+uses the newest planner target stamped no later than the tick (half a tick of rounding) if it is
+within ``planner_timeout_s`` of it; without one (none yet this episode, the planner silent or its stamps far off) the
 parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall lift acts on
 top of whichever target is in effect: the planner chooses the depth, the controller still
 saves the machine from a stall. In a lockstep episode (the simulator's episode_start says its
@@ -48,7 +48,7 @@ from soil_msgs_py.ros_adapter import (
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import AntiStallController, AntiStallGains
-from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, PlanWait
+from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
@@ -65,9 +65,12 @@ PARAMETERS: dict[str, tuple] = {
                                   "(/planner/target_depth; target_depth_m the fallback)"),
     "planner_timeout_s": (1.0, "a planner target counts for ticks within this much simulation time of its stamp [s], > 0"),
     "planner_lag_ticks": (DEFAULT_LAG_TICKS, "lockstep with depth_source planner: tick k is answered once the planner's "
-                                             "target for tick k - lag came, and cuts to it (0: never wait)"),
+                                             f"target for tick k - lag came, and cuts to it, [0, {MAX_LAG_TICKS}] and "
+                                             "within planner_timeout_s (0: never wait)"),
     "planner_wait_s": (DEFAULT_WAIT_S, "lockstep: the longest a tick waits for its planner target [s of wall time], "
-                                       "(0, 60]; then it is answered with the target there is"),
+                                       "(0, 60]; then it is answered with the target there is. Keep it below the "
+                                       "simulator's lockstep_timeout_s (10 s), which ends an episode whose tick "
+                                       "is not answered"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),
@@ -116,7 +119,8 @@ class ControllerNode(Node):
         self.follow = bool(get("follow_episode_targets"))
         self.depth_source, self.planner_timeout_ns = self._check_planner(get("depth_source"), get("planner_timeout_s"))
         self.param_depth_m = float(get("target_depth_m"))  # the parameter's d̄_z (the planner's fallback)
-        self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"))  # ValueError names the field
+        self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"),
+                                  self.planner_timeout_ns / 1e9)  # ValueError names the field
         self.following_planner = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -164,7 +168,7 @@ class ControllerNode(Node):
             AntiStallController(new_gains, speed, depth)  # validates targets
             lag = changes.get("planner_lag_ticks", self.plan_wait.lag_ticks)
             wait = changes.get("planner_wait_s", self.plan_wait.wait_s)
-            PlanWait(lag, wait)  # validates them
+            PlanWait(lag, wait, timeout_ns / 1e9)  # validates them
             if (new_gains.force_lift_m_s > 0.0) != self._force_lift:
                 raise ValueError(
                     f"force_lift_m_s={new_gains.force_lift_m_s!r} would switch the force lift "
@@ -184,6 +188,9 @@ class ControllerNode(Node):
             self.plan_wait.targets.clear()
             self.following_planner = False
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
+        if source != "planner":  # ticks held for the planner are answered now: in lockstep no next tick
+            for held in self.plan_wait.drain():  # comes to release them until they are
+                self._answer(*held)
         if "follow_episode_targets" in changes:
             self.follow = bool(changes["follow_episode_targets"])
         return SetParametersResult(successful=True)
@@ -277,7 +284,10 @@ class ControllerNode(Node):
                        f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
                                         f"[0, {MAX_PLANNER_DEPTH_M}] m; ignored")
             return
-        self.plan_wait.note_target(stamp, depth)
+        if not self.plan_wait.note_target(stamp, depth):
+            self._warn("planner:stale", f"{T.TARGET_DEPTH.name}: stamp {stamp} ns is before this episode's first "
+                                        f"tick {self.plan_wait.first_stamp_ns} ns; ignored")
+            return
         self._answer_released(*self.plan_wait.release(time.monotonic()))
 
     def _tick(self, item: tuple) -> None:
@@ -286,7 +296,7 @@ class ControllerNode(Node):
             for held in self.plan_wait.drain() + [item]:  # (ticks held before a switch to the parameter first)
                 self._answer(*held)
             return
-        self._answer_released(self.plan_wait.offer(item[0], item, time.monotonic()), 0)
+        self._answer_released(*self.plan_wait.offer(item[0], item, time.monotonic()))
 
     def _on_wait_timer(self) -> None:
         if self.plan_wait.pending:

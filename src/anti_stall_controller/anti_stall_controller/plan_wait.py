@@ -22,15 +22,20 @@ from soil_msgs_py.params import TICK_PERIOD_NS
 
 DEFAULT_LAG_TICKS = 2  # soil_bringup.cut_trial.DEFAULT_PLAN_DELAY_TICKS, the in-process loop's
 DEFAULT_WAIT_S = 2.0
-MAX_TARGETS = 240  # targets kept by stamp (4 s of ticks)
+MAX_LAG_TICKS = 120  # 2 s of ticks; a plan older than that is no plan for this tick
+MAX_TARGETS = 2 * MAX_LAG_TICKS  # targets kept by stamp: the one tick k cuts to is always among them
 
 
-def check_plan_wait(lag_ticks, wait_s) -> tuple[int, float]:
-    """(lag, wait) as the node's parameters give them; ValueError naming the bad one."""
-    if isinstance(lag_ticks, bool) or not isinstance(lag_ticks, int) or not 0 <= lag_ticks <= 600:
-        raise ValueError(f"planner_lag_ticks={lag_ticks!r} must be an integer in [0, 600] (0: never wait)")
+def check_plan_wait(lag_ticks, wait_s, timeout_s: float | None = None) -> tuple[int, float]:
+    """(lag, wait) as the node's parameters give them; ValueError naming the bad one. With the
+    node's ``planner_timeout_s``: a lag longer than it would make every tick's plan too old to follow."""
+    if isinstance(lag_ticks, bool) or not isinstance(lag_ticks, int) or not 0 <= lag_ticks <= MAX_LAG_TICKS:
+        raise ValueError(f"planner_lag_ticks={lag_ticks!r} must be an integer in [0, {MAX_LAG_TICKS}] (0: never wait)")
     if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 < wait_s <= 60.0:
         raise ValueError(f"planner_wait_s={wait_s!r} must be a number of seconds in (0, 60]")
+    if timeout_s is not None and lag_ticks * TICK_PERIOD_NS > timeout_s * 1e9:
+        raise ValueError(f"planner_lag_ticks={lag_ticks!r} ({lag_ticks * TICK_PERIOD_NS / 1e9:g} s) is longer than "
+                         f"planner_timeout_s={timeout_s!r}: every tick's plan would be too old to follow")
     return int(lag_ticks), float(wait_s)
 
 
@@ -39,20 +44,24 @@ class PlanWait:
     each one cuts to (``target_for``). Inactive (``start_episode(..., lockstep=False)`` or lag 0):
     every tick passes at once and the newest target counts."""
 
-    def __init__(self, lag_ticks: int = DEFAULT_LAG_TICKS, wait_s: float = DEFAULT_WAIT_S):
-        self.lag_ticks, self.wait_s = check_plan_wait(lag_ticks, wait_s)
+    def __init__(self, lag_ticks: int = DEFAULT_LAG_TICKS, wait_s: float = DEFAULT_WAIT_S,
+                 timeout_s: float | None = None):
+        self.lag_ticks, self.wait_s = check_plan_wait(lag_ticks, wait_s, timeout_s)
         self.active = False
         self.silent = False  # the planner missed a tick's wait_s: nothing waits until it speaks again
         self.first_stamp_ns = 0
+        self.newest_tick_ns: int | None = None  # the newest tick offered: no genuine plan is newer
         self.pending: collections.deque[tuple[int, float, Any]] = collections.deque()  # (stamp, since [s], item)
         self.targets: collections.OrderedDict[int, float] = collections.OrderedDict()  # stamp -> depth [m]
 
     def start_episode(self, first_stamp_ns: int, lockstep: bool) -> list:
-        """A new episode: held ticks of the last one are returned (to answer now), targets forgotten."""
+        """A new episode: targets forgotten, and the held ticks of the last one returned (the node
+        drops them: its reset core must not step on the old episode's state)."""
         left = [item for _, _, item in self.pending]
         self.pending.clear()
         self.targets.clear()
         self.first_stamp_ns = int(first_stamp_ns)
+        self.newest_tick_ns = None
         self.active = bool(lockstep) and self.lag_ticks > 0
         self.silent = False
         return left
@@ -62,11 +71,16 @@ class PlanWait:
         self.active = self.active and lag > 0
         self.lag_ticks = lag
 
-    def _plan_stamp(self, stamp_ns: int) -> int:
-        """The latest stamp whose plan tick ``stamp_ns`` cuts to (half a tick of rounding allowed)."""
-        return stamp_ns - self.lag_ticks * TICK_PERIOD_NS + TICK_PERIOD_NS / 2
+    def _plan_stamp(self, stamp_ns: int) -> float:
+        """The latest stamp whose plan tick ``stamp_ns`` cuts to (half a tick of rounding allowed):
+        lag ticks before it in lockstep, else the tick itself (never a plan stamped after the tick)."""
+        lag = self.lag_ticks if self.active else 0
+        return stamp_ns - lag * TICK_PERIOD_NS + TICK_PERIOD_NS / 2
 
-    def note_target(self, stamp_ns: int, depth_m: float) -> None:
+    def note_target(self, stamp_ns: int, depth_m: float) -> bool:
+        """Keep a planner target; False (ignored) if it is stamped before this episode began."""
+        if stamp_ns < self.first_stamp_ns:
+            return False
         self.silent = False
         late = bool(self.targets) and stamp_ns < next(reversed(self.targets))
         self.targets[int(stamp_ns)] = float(depth_m)
@@ -74,15 +88,12 @@ class PlanWait:
             self.targets = collections.OrderedDict(sorted(self.targets.items()))
         while len(self.targets) > MAX_TARGETS:
             self.targets.popitem(last=False)
+        return True
 
     def target_for(self, stamp_ns: int) -> tuple[int, float] | None:
-        """(stamp, depth) of the target tick ``stamp_ns`` cuts to: active, the newest made at least
-        lag ticks before it; else the newest. None: none yet."""
-        if not self.targets:
-            return None
-        if not self.active:
-            stamp = next(reversed(self.targets))
-            return stamp, self.targets[stamp]
+        """(stamp, depth) of the target tick ``stamp_ns`` cuts to: the newest made at least lag ticks
+        before it (active), else the newest not after it (a stray stamped in the future never wins).
+        None: none yet."""
         limit = self._plan_stamp(stamp_ns)
         for stamp in reversed(self.targets):
             if stamp <= limit:
@@ -93,7 +104,13 @@ class PlanWait:
         limit = self._plan_stamp(stamp_ns)
         if not self.active or self.silent or limit < self.first_stamp_ns:
             return True  # no plan can exist that early in the episode (or the planner is silent)
-        return bool(self.targets) and next(reversed(self.targets)) >= limit - TICK_PERIOD_NS  # k − lag, ± half a tick
+        # a plan for tick k − lag or later (± half a tick), but none stamped after the newest tick
+        # there is: a stray from elsewhere must not release every tick without its plan
+        newest = (self.newest_tick_ns if self.newest_tick_ns is not None else stamp_ns) + TICK_PERIOD_NS / 2
+        for stamp in reversed(self.targets):  # (in stamp order)
+            if stamp <= newest:
+                return stamp >= limit - TICK_PERIOD_NS
+        return False
 
     def drain(self) -> list:
         """Every held tick, in order, to answer now (the controller stopped following the planner)."""
@@ -101,10 +118,11 @@ class PlanWait:
         self.pending.clear()
         return out
 
-    def offer(self, stamp_ns: int, item, now_s: float) -> list:
-        """Hold the tick ``item`` (answered in stamp order); the items that may be answered now."""
+    def offer(self, stamp_ns: int, item, now_s: float) -> tuple[list, int]:
+        """Hold the tick ``item`` (answered in stamp order); as ``release``."""
         self.pending.append((int(stamp_ns), float(now_s), item))
-        return self.release(now_s)[0]
+        self.newest_tick_ns = int(stamp_ns) if self.newest_tick_ns is None else max(self.newest_tick_ns, int(stamp_ns))
+        return self.release(now_s)
 
     def release(self, now_s: float) -> tuple[list, int]:
         """(items that may be answered now, in order; how many of them waited longer than wait_s
