@@ -63,3 +63,9 @@ def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_file
     for name, value in (("soil_file", ""), ("path", "site_a")):
         result = SimNode._on_set_parameters(None, [Parameter(name, value=value)])
         assert not result.successful and name in result.reason and "start-up" in result.reason
+    # while the path gives the patches, a parameter set cannot replace or clear them (later episodes
+    # would silently cut the path anyway, or another soil than start-up refused)
+    for patches in ([], ["0:Sand:20"]):
+        result = SimNode._on_set_parameters(node, [Parameter("patches", Parameter.Type.STRING_ARRAY, patches),
+                                                   Parameter("soil", value="Clay")])
+        assert not result.successful and f"patches={patches}" in result.reason and "path='site_a'" in result.reason

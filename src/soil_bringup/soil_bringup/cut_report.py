@@ -91,10 +91,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.path is not None:
         if args.patch:
             p.error(f"--patch {args.patch} and --path {args.path!r} both give the patches: use one")
-        if soil_file is None or args.path not in soil_file.paths:
-            where = f"--soil-file {str(args.soil_file)!r}" if soil_file else "no --soil-file"
-            p.error(f"--path {args.path!r} is not a path of {where}; its paths: "
-                    f"{sorted(soil_file.paths) if soil_file else []}")
+        if soil_file is None:
+            p.error(f"--path {args.path!r} needs --soil-file (a YAML with a 'paths:' section)")
+        if args.path not in soil_file.paths:
+            p.error(f"--path {args.path!r} is not a path of --soil-file {str(args.soil_file)!r}; its paths: "
+                    f"{sorted(soil_file.paths)}")
         args.patches = soil_file.paths[args.path]
     else:
         try:

@@ -216,8 +216,8 @@ class SimNode(Node):
         unused = sorted({"soil", "relative_density_pct"} & set(overrides))
         if patches and unused:
             source = f"parameter path={self._value('path')!r}" if not get("patches") else f"parameter patches={patches}"
-            raise ValueError(f"{' and '.join(unused)} unused while {source} sets the soil along the path (clear "
-                             "patches first: 'patches': [])")
+            raise ValueError(f"{' and '.join(unused)} unused while {source} sets the soil along the path (a "
+                             "/sim/command start may clear the patches: 'patches': [])")
         spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
                            float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
                            patches=patches)
@@ -236,6 +236,9 @@ class SimNode(Node):
         if fixed:
             return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")
         try:
+            if self.named_path and "patches" in changes:  # (a /sim/command start may still clear it for one episode)
+                raise ValueError(f"patches={list(changes['patches'])} cannot be set while parameter "
+                                 f"path={self._value('path')!r} gives the patches (path is fixed at start-up)")
             spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS or k == "patches"}
             if spec_fields:
                 self._spec_from_params(spec_fields)
