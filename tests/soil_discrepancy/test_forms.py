@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from soil_discrepancy import run_discrepancy
-from soil_discrepancy.forms import load_catalogue
+from soil_discrepancy.forms import CLOSE_COS, closest_index, load_catalogue
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -371,3 +371,11 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
     assert "stand-ins" not in summary(["soil_inertia", "compaction_hardening"], little), "catalogue terms are mechanisms"
     assert "stand-ins" not in summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], little,
                                       {"significant": False, "flagged_variables": []})
+
+
+def test_the_closest_catalogue_term_is_one_the_form_runs_with_before_one_it_runs_against():
+    """A form at +0.92 with one term and −0.95 with another is the first's mechanism, not the
+    second's opposite; without a term within CLOSE_COS the largest |cos| is named."""
+    assert closest_index([0.2, CLOSE_COS + 0.02, -0.95]) == 1
+    assert closest_index([0.2, 0.5, -0.95]) == 2
+    assert closest_index([0.2, -0.5, 0.3]) == 1

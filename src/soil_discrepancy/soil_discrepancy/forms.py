@@ -214,9 +214,16 @@ def _cluster_se(X: np.ndarray, e: np.ndarray, cluster: np.ndarray) -> np.ndarray
 
 
 # ------------------------------------------------------------------------------------ describing
+def closest_index(cos: np.ndarray) -> int:
+    """Index of the catalogue term to name from the form's cosines with each: a term the form runs
+    with (cos >= CLOSE_COS) before one it runs against, however close; else the largest |cos|."""
+    cos = np.asarray(cos, dtype=float)
+    return int(np.argmax(cos)) if cos.max() >= CLOSE_COS else int(np.argmax(np.abs(cos)))
+
+
 def closest_catalogue(frame: Frame, fit: ThetaFit, name: str, model: AugmentedFEE | None = None) -> dict:
-    """The catalogue term whose basis (θ-projected) is most parallel or anti-parallel to the form's:
-    {'name', 'cos', 'same_mechanism' (cos >= CLOSE_COS), 'opposite' (cos <= −CLOSE_COS)}."""
+    """The catalogue term whose basis (θ-projected) is most parallel (or, none within CLOSE_COS,
+    anti-parallel) to the form's: {'name', 'cos', 'same_mechanism' (cos >= CLOSE_COS), 'opposite' (cos <= −CLOSE_COS)}."""
     model = model or AugmentedFEE()
     cat = list(force_terms.CATALOGUE)
     B = form_bases(frame, fit, [name] + cat)
@@ -225,7 +232,7 @@ def closest_catalogue(frame: Frame, fit: ThetaFit, name: str, model: AugmentedFE
     P = P.reshape(-1, len(cat) + 1)
     n = np.sqrt((P**2).sum(0))
     cos = np.where(n[1:] > 0, (P[:, 1:] * P[:, :1]).sum(0) / np.maximum(n[1:] * n[0], 1e-300), 0.0)
-    i = int(np.argmax(np.abs(cos)))
+    i = closest_index(cos)
     # the form (signed, k > 0) is the term's mechanism only if it pushes the same way: every catalogue
     # term's physics has k > 0, so an anti-parallel form is the opposite effect (less of it), not it
     return {"name": cat[i], "cos": float(cos[i]), "same_mechanism": bool(cos[i] >= CLOSE_COS),

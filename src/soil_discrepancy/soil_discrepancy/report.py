@@ -228,7 +228,7 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"max {reg['max_abs_force_n']:.0f} N), there: {where}.",
                   f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
                   + ("the same mechanism)" if close["same_mechanism"] else
-                     "it acts against that term's physics: not that effect but less of what the model has)"
+                     "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
                      if close.get("opposite") else "not the same: a new mechanism)"),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
         nc = forms.get("not_confirmed")
