@@ -292,9 +292,8 @@ class ControllerNode(Node):
 
     def _tick(self, item: tuple) -> None:
         """A tick whose state is in: answered now, or (lockstep, following the planner) once its plan came."""
-        if self.depth_source != "planner":
-            for held in self.plan_wait.drain() + [item]:  # (ticks held before a switch to the parameter first)
-                self._answer(*held)
+        if self.depth_source != "planner":  # (nothing is held then: a switch away answers held ticks)
+            self._answer(*item)
             return
         self._answer_released(*self.plan_wait.offer(item[0], item, time.monotonic()))
 

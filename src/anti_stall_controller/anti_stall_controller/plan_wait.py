@@ -50,7 +50,6 @@ class PlanWait:
         self.active = False
         self.silent = False  # the planner missed a tick's wait_s: nothing waits until it speaks again
         self.first_stamp_ns = 0
-        self.newest_tick_ns: int | None = None  # the newest tick offered: no genuine plan is newer
         self.pending: collections.deque[tuple[int, float, Any]] = collections.deque()  # (stamp, since [s], item)
         self.targets: collections.OrderedDict[int, float] = collections.OrderedDict()  # stamp -> depth [m]
 
@@ -61,7 +60,6 @@ class PlanWait:
         self.pending.clear()
         self.targets.clear()
         self.first_stamp_ns = int(first_stamp_ns)
-        self.newest_tick_ns = None
         self.active = bool(lockstep) and self.lag_ticks > 0
         self.silent = False
         return left
@@ -105,8 +103,9 @@ class PlanWait:
         if not self.active or self.silent or limit < self.first_stamp_ns:
             return True  # no plan can exist that early in the episode (or the planner is silent)
         # a plan for tick k − lag or later (± half a tick), but none stamped after the newest tick
-        # there is: a stray from elsewhere must not release every tick without its plan
-        newest = (self.newest_tick_ns if self.newest_tick_ns is not None else stamp_ns) + TICK_PERIOD_NS / 2
+        # there is (the last one held: ticks come in stamp order): a stray from elsewhere must not
+        # release every tick without its plan
+        newest = (self.pending[-1][0] if self.pending else stamp_ns) + TICK_PERIOD_NS / 2
         for stamp in reversed(self.targets):  # (in stamp order)
             if stamp <= newest:
                 return stamp >= limit - TICK_PERIOD_NS
@@ -121,7 +120,6 @@ class PlanWait:
     def offer(self, stamp_ns: int, item, now_s: float) -> tuple[list, int]:
         """Hold the tick ``item`` (answered in stamp order); as ``release``."""
         self.pending.append((int(stamp_ns), float(now_s), item))
-        self.newest_tick_ns = int(stamp_ns) if self.newest_tick_ns is None else max(self.newest_tick_ns, int(stamp_ns))
         return self.release(now_s)
 
     def release(self, now_s: float) -> tuple[list, int]:
