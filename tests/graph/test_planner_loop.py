@@ -85,6 +85,7 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     # said here, by its cause, before the arrays below)
     assert "answered without its planner target" not in out, out[-4000:]
     assert "no planner target" not in out and "estimates unpaired" in out and " 0 estimates unpaired" in out, out[-4000:]
+    assert " 0 planned without their command" in out, out[-4000:]  # (each tick's own command read, as the report's loop)
     (bag,) = find_episode_bags(bags)
     ep = read_episode(bag)
     stamps, _ = read_labelled_topic(bag, T.TARGET_DEPTH.name, T.TARGET_DEPTH_FIELDS)

@@ -9,6 +9,7 @@ from types import SimpleNamespace
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks
+from soil_planner.command_wait import CommandWait
 from soil_planner.node import PlannerNode
 
 CLASSES = M.ros_message_classes()
@@ -22,6 +23,7 @@ def node() -> SimpleNamespace:
     warned = []
     return SimpleNamespace(commanded=collections.OrderedDict(), warned=warned,
                            command_writer=WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS),
+                           command_wait=CommandWait(), _answer=lambda ticks: None,
                            _warn=lambda kind, text: warned.append(kind))
 
 
@@ -50,3 +52,13 @@ def test_without_sequence_numbers_the_first_command_of_a_tick_counts_and_a_bad_l
     bad = M.make_labelled(CLASSES, stamp(1), ("u_zr",), [0.1])
     PlannerNode._on_blade_cmd(n, bad, 2)
     assert n.warned == ["blade_cmd:layout"] and stamp(1) not in n.commanded
+
+
+def test_an_intruders_command_releases_no_tick_waiting_for_the_controllers():
+    n = node()
+    send(n, 0, -0.10, 1)
+    n.command_wait.offer(stamp(1), "tick 1", now_s=0.0)
+    send(n, 3, -0.30, 1)  # another writer, stamped ahead
+    assert [w.item for w in n.command_wait.waiting] == ["tick 1"]
+    send(n, 1, -0.12, 2)  # the controller's own: tick 1 is answered
+    assert not n.command_wait.waiting and n.command_wait.newest_command_ns == stamp(1)

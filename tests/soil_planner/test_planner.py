@@ -640,6 +640,60 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
         assert "estimate phi=nan" in out and "label mismatch" in out
 
 
+@pytest.mark.timeout(90)
+def test_soil_planner_node_plans_a_tick_once_its_command_is_in_and_keeps_the_ticks_in_order(tmp_path):
+    """/blade/cmd of tick k comes from the controller, the estimate of tick k from the estimator,
+    and DDS does not order two writers: a tick whose command is not in yet waits for it (or for a
+    later one: a lost command), and the ticks behind it wait in order; without commands (the
+    first tick) nothing waits. ``command_wait_s`` is long here so that a slow machine cannot
+    release a tick by the wall-time bound."""
+    domain = next_domain_id()
+    known = _known(d=0.15, q=1500.0, gamma=19e3)
+    good = _estimate(known, residual=(800.0, -1200.0), phi=27 * DEG, c=9e3, delta=14 * DEG, delta_d=0.01)
+    invalid = {n: 0.0 for n in T.ESTIMATE_FIELDS}
+    s = [(k + 1) * 10**9 // 60 for k in range(4)]
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.PLAN.name, T.PLAN.msgtype)
+        est_pub = probe.publisher(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        known_pub = probe.publisher(T.KNOWN.name, T.KNOWN.msgtype)
+        cmd_pub = probe.publisher(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "log_period_s:=0.0", "-p", "command_wait_s:=10.0"],
+                        domain, tmp_path)
+
+        def send(stamp, est) -> None:
+            known_pub.publish(M.make_labelled(CLASSES, stamp, KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+            est_pub.publish(M.make_labelled(CLASSES, stamp, T.ESTIMATE_FIELDS, _payload(est, T.ESTIMATE_FIELDS)))
+
+        def command(stamp) -> None:
+            cmd_pub.publish(M.make_labelled(CLASSES, stamp, T.BLADE_CMD.labels, [0.0, -0.15]))
+
+        def planned() -> list[int]:
+            return [M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name)[0] for m in probe.messages(T.PLAN.name)]
+
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() for p in (est_pub, known_pub, cmd_pub))
+                           and probe.matched_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)
+            send(s[0], good)  # no command yet in this cut: planned at once
+            probe.wait_for(lambda: planned() == s[:1], 15, "the plan of the first tick")
+            command(s[0])
+            time.sleep(0.3)
+            send(s[1], good)  # its command is not in: it waits ...
+            send(s[2], invalid)  # ... and the tick behind it, invalid or not
+            time.sleep(1.5)
+            waited = planned()
+            command(s[2])  # tick 1's command was lost; tick 2's releases both
+            probe.wait_for(lambda: len(planned()) == 3, 15, "the plans of ticks 1 and 2")
+            command(s[3])
+            send(s[3], good)  # its command came first: at once
+            probe.wait_for(lambda: len(planned()) == 4, 15, "the plan of tick 3")
+        finally:
+            node.stop()
+        assert waited == s[:1], waited
+        assert planned() == s, planned()
+        assert "4 plans published, 0 estimates unpaired, 0 planned without their command" in node.output, node.output[-3000:]
+
+
 @pytest.mark.timeout(30)
 @pytest.mark.parametrize("arg", ["margin:=1.5", "cut_speed_m_s:=2.5"])
 def test_soil_planner_refuses_a_bad_setting_with_exit_2(tmp_path, arg):

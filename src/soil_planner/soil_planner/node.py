@@ -11,7 +11,10 @@ WarnLimiter and nothing is published for it; the node never publishes NaN and ne
 on input. A log line at most once per ``log_period_s`` of simulation time says what the
 plan is and why. /blade/cmd gives the depth the controller commands per tick (−u_za): a steady
 edge held short of it shows the lift's push in F_z, which does not anchor the plan's z force
-(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before.
+(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before. While
+commands come, a tick is planned once its own command is in (``command_wait.py``: another
+writer's message, which DDS does not order before the estimate), at most ``command_wait_s``
+of wall time after it was ready.
 
 Every plan also moves the cut depth the anti-stall controller follows when its
 ``depth_source`` is ``planner``: /planner/target_depth (stamped like the plan; sent when the
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import collections
 import math
+import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -49,6 +53,7 @@ from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, message_c
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 
+from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
                       StretchPlanner, describe, fields)
@@ -78,6 +83,9 @@ PARAMETERS: dict[str, tuple] = {
                   "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
+    "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
+                                               "command is in, waiting at most this long [s of wall time], "
+                                               f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
     "shallow_rate_m_s": (_SCHEDULE.shallow_rate_m_s, "the target rises by at most this per second [m/s]"),
@@ -125,6 +133,7 @@ class PlannerNode(Node):
         # short of it is pressed onto a floor, and its F_z (the lift's push) does not anchor z
         self.commanded: collections.OrderedDict[int, float] = collections.OrderedDict()
         self.command_writer = WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS)  # the controller's
+        self.command_wait = CommandWait(get("command_wait_s"))  # ValueError names the field
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -145,6 +154,8 @@ class PlannerNode(Node):
         self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
                                  lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
                                  topic_qos(T.BLADE_CMD.name))
+        # a tick whose command is lost, or a controller gone quiet: released after command_wait_s
+        self.create_timer(0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
         p = self.planner
         self.get_logger().info(
             f"margin {p.margin}, d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
@@ -160,6 +171,7 @@ class PlannerNode(Node):
             planner = stretch_planner({**self.planner.settings(),
                                        **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
+            wait_s = check_command_wait(changes.get("command_wait_s", self.command_wait.max_wait_s))
             current = self.schedule.settings.to_dict()
             schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
@@ -167,12 +179,14 @@ class PlannerNode(Node):
         self.planner = planner
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
+        self.command_wait.max_wait_s = wait_s
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg) -> None:
         event = status_event(msg.data, self._warn)
         if event is not None and event.event == G.EVENT_EPISODE_START:
+            self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
             self.lockstep = event.pacing == G.PACING_LOCKSTEP
             self._new_cut()
 
@@ -182,6 +196,7 @@ class PlannerNode(Node):
         self.planner.forget()
         self._target_sent = None
         self.commanded.clear()
+        self.command_wait.forget_commands()
 
     def _on_blade_cmd(self, msg, sequence: int | None = None) -> None:
         """The depth the controller commands for a tick, −u_za: only its writer's, the one that
@@ -199,6 +214,7 @@ class PlannerNode(Node):
         self.commanded[stamp] = -u_za
         while len(self.commanded) > MAX_PENDING_STAMPS:
             self.commanded.popitem(last=False)
+        self._answer(self.command_wait.command(stamp, time.monotonic()))
 
     def _on_known(self, msg) -> None:
         try:
@@ -217,8 +233,7 @@ class PlannerNode(Node):
         est = fields(values, T.ESTIMATE_FIELDS)
         fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
-            self._publish(stamp, NO_PLAN_VALUES)
-            self._target(stamp, None)
+            self._answer(self.command_wait.offer(stamp, (est, None), time.monotonic()))
             return
         self._join(T.ESTIMATE.name, stamp, est)
 
@@ -228,10 +243,22 @@ class PlannerNode(Node):
             self._warn("unpaired", f"{topic} at stamp {stamp} ns came again after its plan; dropped")
         for joined in out:
             if joined.complete:
-                self._plan(joined.stamp_ns, joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
+                item = (joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
+                self._answer(self.command_wait.offer(joined.stamp_ns, item, time.monotonic()))
             elif T.ESTIMATE.name in joined.parts:  # (Θ_k alone: no estimate or an invalid one, answered at once)
                 self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {joined.stamp_ns} ns never got its "
                                        f"{T.KNOWN.name}; dropped")
+
+    def _answer(self, ticks: list[Waiting]) -> None:
+        """Plan the ticks ``command_wait`` released, in order (Θ_k None: an invalid estimate,
+        answered without a plan)."""
+        for tick in ticks:
+            est, known = tick.item
+            if known is None:
+                self._publish(tick.stamp_ns, NO_PLAN_VALUES)
+                self._target(tick.stamp_ns, None)
+            else:
+                self._plan(tick.stamp_ns, est, known)
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         try:
@@ -278,7 +305,10 @@ class PlannerNode(Node):
 
     def close(self) -> None:
         unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
-        self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired")
+        unanswered = len(self.command_wait.drain())
+        self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
+                               f"{self.command_wait.timed_out} planned without their command"
+                               f"{f', {unanswered} still waiting for it' if unanswered else ''}")
 
 
 def main(args: list[str] | None = None) -> int:
