@@ -74,6 +74,7 @@ from soil_msgs_py import topics as T  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
 from soil_msgs_py.params import WINDOW_SAMPLES  # noqa: E402
 from soil_bringup.launch import loopback_env  # noqa: E402
+from soil_discrepancy.provenance import cpu_model  # noqa: E402
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parent.parent
@@ -104,13 +105,7 @@ def fmt(s: dict) -> str:
 
 
 def machine() -> dict:
-    cpu = "?"
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                   if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cores": os.cpu_count(), "cpu": cpu, "torch": str(torch.__version__), "python": platform.python_version(),
+    return {"cores": os.cpu_count(), "cpu": cpu_model(), "torch": str(torch.__version__), "python": platform.python_version(),
             "loadavg": os.getloadavg()}
 
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pinn_estimator.dataset import load_dataset
+from pinn_estimator.dataset import fingerprint_bags, load_dataset
+from soil_bag_tools.bag_io import find_episode_bags
 from soil_discrepancy import (
     build_frame,
     compare_predictions,
@@ -116,7 +117,7 @@ def test_hidden_effect_is_named_fitted_and_halves_the_heldout_error(reports, nam
     assert rep["regimes"]["significant"], "the baseline residual shows where the model is wrong"
 
 
-def test_report_files(reports):
+def test_report_files(reports, bag_dirs):
     rep = reports["soil_inertia"]
     out = Path(rep["outputs"][0]).parent
     for f in ("discrepancy.json", "discrepancy.md", "residuals_by_regime.png", "heldout_gap.png", "candidates.png"):
@@ -125,6 +126,11 @@ def test_report_files(reports):
     assert saved["verdict"] == "explained" and saved["model"]["terms"][0][0] == "soil_inertia"
     md = (out / "discrepancy.md").read_text()
     assert "soil_physics.force_terms:plugin term=soil_inertia" in md and "Held-out test episodes" in md
+    # what it was computed from: the bags' content fingerprint and the software that ran it
+    fingerprint = saved["data"]["fingerprint"]
+    assert fingerprint == fingerprint_bags(find_episode_bags(bag_dirs["soil_inertia"]), bag_dirs["soil_inertia"])
+    assert f"content fingerprint `{fingerprint[:16]}`" in md
+    assert saved["environment"]["numpy"] == np.__version__ and f"numpy {np.__version__}" in md
 
 
 def test_control_gives_no_effect_through_the_cli(bag_dirs, tmp_path, capsys):

@@ -82,6 +82,12 @@ def markdown(report: dict, figures=()) -> str:
         f"{s['folds']} folds, seed {s['seed']}. Run time {report.get('run_time_s', 0):.1f} s.",
         "",
     ]
+    env = report.get("environment")
+    if env:  # (reports written before it was recorded have none)
+        libs = ", ".join(f"{k} {v}" for k, v in env.items() if k not in ("python", "machine", "cpu"))
+        lines += [f"Computed from bags of content fingerprint `{d.get('fingerprint', '')[:16] or 'in memory'}` with "
+                  f"Python {env['python']}, {libs} on {env['cpu']} ({env['machine']}): the same bags, settings, "
+                  "versions and processor give this report to the bit.", ""]
     model = report["model"]
     if report["selection"]["accepted"]:
         lines += ["## The missing effect", "",

@@ -33,6 +33,7 @@ from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
+from .provenance import environment
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
 
 REPORT_VERSION = 1
@@ -296,7 +297,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
                      "workers": workers},
         "data": {**_data_summary(frame, sel_groups, test_groups),
-                 "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []]},
+                 "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []],
+                 # sha256 of the bags' bytes ('' for data given in memory): same fingerprint, same data
+                 "fingerprint": getattr(dataset, "fingerprint", "") or ""},
+        "environment": environment(),
         "baseline": {"model": [list(t) for t in initial.terms], "theta": base.table(frame),
                      "failed_groups": failed, "rms_n": reg0["rms_n"]},
         "regimes": reg0,
