@@ -26,7 +26,7 @@ def test_a_tick_waits_for_its_command_and_the_ticks_behind_it_wait_with_it():
     assert w.offer(10, "k10 invalid again", now_s=0.0) == []
     assert w.offer(8, "k8 late", now_s=0.1) == []  # commanded already, but behind k10: order is kept
     assert items(w.command(10, now_s=0.2)) == ["k10", "k10 invalid again", "k8 late"]
-    assert w.timed_out == 0
+    assert w.timed_out == 0 and w.waited == 3
 
 
 def test_a_later_command_releases_a_tick_whose_own_command_was_lost():

@@ -52,6 +52,7 @@ class CommandWait:
         self.waiting: collections.deque[Waiting] = collections.deque()
         self.newest_command_ns: int | None = None  # of this cut; None: no command seen, nothing waits
         self.timed_out = 0  # ticks released without their command (waited max_wait_s or crowded out)
+        self.waited = 0  # ticks that could not be planned when they came (their command, or one before theirs, was not in)
 
     def forget_commands(self) -> None:
         """A new cut: its commands are not in yet, so its ticks do not wait until one comes."""
@@ -67,7 +68,9 @@ class CommandWait:
         """A tick ready to plan: the ticks to plan now, in order (this one among them unless it,
         or one before it, waits for its command)."""
         self.waiting.append(Waiting(stamp_ns, item, now_s))
-        return self.expire(now_s)
+        out = self.expire(now_s)
+        self.waited += bool(self.waiting)  # (this tick is the last one: it waits if any does)
+        return out
 
     def expire(self, now_s: float) -> list[Waiting]:
         """The ticks at the front whose command came, that waited ``max_wait_s``, or beyond

@@ -307,7 +307,8 @@ class PlannerNode(Node):
         unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
         unanswered = len(self.command_wait.drain())
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
-                               f"{self.command_wait.timed_out} planned without their command"
+                               f"{self.command_wait.waited} waited for their command, "
+                               f"{self.command_wait.timed_out} planned without it"
                                f"{f', {unanswered} still waiting for it' if unanswered else ''}")
 
 
