@@ -14,7 +14,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import OBSERVATION_FIELDS
 
-from tests.ros_probe import BIN, loopback_env, next_domain_id
+from tests.ros_probe import BIN, loopback_env, next_domain_id, wait_until
 
 U_ZA = OBSERVATION_FIELDS.index("u_za")
 
@@ -99,3 +99,33 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     assert ep.meta.soil_patches() == cut.spec.patches
     np.testing.assert_array_equal(ep.known[:, KNOWN_PARAMS.index("d")], cut.depth)
     assert np.ptp(cut.target) > 0.05  # the plan moved the cut (deeper in the sand, then held in the gravel)
+
+
+@pytest.mark.timeout(180)
+def test_a_planner_that_dies_does_not_stop_the_cut(tmp_path):
+    """The planner is advice: killed mid-episode, the controller falls back to its own target
+    depth and the episode runs to its end; the launch says what died and exits 1 at the end."""
+    domain = next_domain_id()
+    args = ["--planner", "--pacing", "realtime", "--timeout", "120", "--domain-id", str(domain),
+            "--sim-param", "duration_s:=6.0", "--sim-param", "world_mode:=fee"]
+    log_path = tmp_path / "launch.log"
+    with log_path.open("w") as log:
+        proc = subprocess.Popen([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
+                                stderr=subprocess.STDOUT, text=True)
+    try:
+        wait_until(lambda: "following the planner's target depth" in log_path.read_text(), 90,
+                   "the controller following the planner")
+        planner = wait_until(lambda: subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "soil_planner"],
+                                                    capture_output=True, text=True).stdout.split(), 10, "the planner")
+        subprocess.run(["kill", "-9", planner[0]], check=True)
+        rc = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        stop_logged_nodes(log_path)
+    out = log_path.read_text()
+    assert rc == 1, out[-4000:]
+    assert "planner died (exit code -9); not required, the others go on" in out, out[-4000:]
+    assert "no planner target within" in out, out[-4000:]  # the controller fell back to its own depth
+    assert "sim finished; stopping the others" in out and "episode 0 end" in out, out[-4000:]

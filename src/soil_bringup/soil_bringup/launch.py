@@ -87,7 +87,8 @@ class NodeProcess:
     name: str
     argv: list[str]
     stop_order: int  # lower stops first
-    required: bool = True  # its death (any exit before shutdown) fails the launch
+    required: bool = True  # its death (any exit before shutdown) stops the launch (else: the exit code only)
+    without: str = ""  # what the graph does without it, said when a node that is not required dies
     ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
     # Scheduling niceness set at start (setpriority): the nodes that close the 60 Hz loop (the
     # simulator and the controller) keep 0; a node whose answer may come a tick later (the
@@ -179,8 +180,8 @@ class Launch:
                 return 0
             for node in self.nodes:
                 rc = node.proc.poll()
-                if rc is None:
-                    continue
+                if rc is None or node.returncode is not None:
+                    continue  # running, or a node that is not required died and was reported
                 node.returncode = rc
                 if node.ends_launch and rc == 0:
                     self.log(f"{node.name} finished; stopping the others")
@@ -188,6 +189,8 @@ class Launch:
                 if node.required:
                     self.log(f"{node.name} died (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED
+                self.log(f"{node.name} {'exited' if rc == 0 else 'died'} (exit code {rc}); not required, the others go on "
+                         f"({node.without})")
             if self.timeout_s and time.monotonic() - t0 > self.timeout_s:
                 self.log(f"timeout after {self.timeout_s} s; stopping all nodes")
                 return EXIT_TIMEOUT
@@ -328,9 +331,13 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if args.planner:
         # the posterior's physics first, so a -p terms:=... of the user's wins
         physics = posterior_terms_param(args.estimator_params_file, args.estimator_param)
+        # advice, not the machine: a controller whose planner goes silent cuts to its own
+        # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
+        # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
                                                       physics + args.planner_param),
-                                 stop_order=2, niceness=PLANNER_NICENESS))
+                                 stop_order=2, niceness=PLANNER_NICENESS, required=False,
+                                 without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
         # (later -p wins: the planner's loop unless the user set depth_source explicitly)
