@@ -19,6 +19,13 @@ from tests.ros_probe import BIN, loopback_env, next_domain_id, wait_until
 U_ZA = OBSERVATION_FIELDS.index("u_za")
 
 
+def start_launch(args: list[str], domain: int, log_path) -> subprocess.Popen:
+    """``soil_launch args`` on a loopback domain, its output into ``log_path``."""
+    with log_path.open("w") as log:
+        return subprocess.Popen([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
+                                stderr=subprocess.STDOUT, text=True)
+
+
 @pytest.mark.timeout(180)
 def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
     domain, bags = next_domain_id(), tmp_path / "bags"
@@ -26,9 +33,7 @@ def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
             "--sim-param", "patches:=['0:Sand:20','4.5:Clay:80']", "--sim-param", "duration_s:=8.0",
             "--sim-param", "world_mode:=fee", "--planner-param", "start_depth_m:=0.08"]
     log_path = tmp_path / "launch.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
-                                stderr=subprocess.STDOUT, text=True)
+    proc = start_launch(args, domain, log_path)
     try:
         rc = proc.wait(timeout=150)
     except subprocess.TimeoutExpired:
@@ -109,9 +114,7 @@ def test_a_planner_that_dies_does_not_stop_the_cut(tmp_path):
     args = ["--planner", "--pacing", "realtime", "--timeout", "120", "--domain-id", str(domain),
             "--sim-param", "duration_s:=6.0", "--sim-param", "world_mode:=fee"]
     log_path = tmp_path / "launch.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
-                                stderr=subprocess.STDOUT, text=True)
+    proc = start_launch(args, domain, log_path)
     try:
         wait_until(lambda: "following the planner's target depth" in log_path.read_text(), 90,
                    "the controller following the planner")
