@@ -149,11 +149,14 @@ class PlannerNode(Node):
         # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
-        self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
-                                 topic_qos(T.ESTIMATE.name))
+        # /blade/cmd before /soil/estimate: the executor serves ready subscriptions in the order they
+        # were made, so a tick's command, sent before its estimate, is mostly taken first (command_wait
+        # makes sure of it)
         self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
                                  lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
                                  topic_qos(T.BLADE_CMD.name))
+        self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
+                                 topic_qos(T.ESTIMATE.name))
         # a tick whose command is lost, or a controller gone quiet: released after command_wait_s
         self.create_timer(0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
         p = self.planner
