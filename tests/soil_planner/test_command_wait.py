@@ -34,7 +34,9 @@ def test_a_later_command_releases_a_tick_whose_own_command_was_lost():
     w.command(1, now_s=0.0)
     assert w.offer(2, "k2", now_s=0.0) == [] and w.offer(3, "k3", now_s=0.0) == [] and w.offer(4, "k4", now_s=0.0) == []
     assert items(w.command(3, now_s=0.1)) == ["k2", "k3"]
-    assert items(w.drain()) == ["k4"] and not w.waiting
+    assert items(w.drain()) == ["k4"] and not w.waiting and w.timed_out == 1  # answered without its command
+    w.offer(5, "k5", now_s=0.2)
+    assert items(w.drain(planned=False)) == ["k5"] and w.timed_out == 1  # shutdown: dropped, not planned
 
 
 def test_the_wait_is_bounded_in_wall_time_and_in_ticks():

@@ -87,8 +87,11 @@ class CommandWait:
             out.append(self.waiting.popleft())
         return out
 
-    def drain(self) -> list[Waiting]:
-        """Every waiting tick, in order (a new episode or shutdown answers them as they are)."""
+    def drain(self, planned: bool = True) -> list[Waiting]:
+        """Every waiting tick, in order: a new episode answers them as they are (``planned``: those
+        whose command is not in count in ``timed_out``); shutdown drops them (False)."""
         out = list(self.waiting)
         self.waiting.clear()
+        if planned:
+            self.timed_out += sum(self.newest_command_ns is None or w.stamp_ns > self.newest_command_ns for w in out)
         return out

@@ -308,7 +308,7 @@ class PlannerNode(Node):
 
     def close(self) -> None:
         unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
-        unanswered = len(self.command_wait.drain())
+        unanswered = len(self.command_wait.drain(planned=False))
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
                                f"{self.command_wait.waited} waited for their command, "
                                f"{self.command_wait.timed_out} planned without it"
