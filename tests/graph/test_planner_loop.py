@@ -26,6 +26,19 @@ def start_launch(args: list[str], domain: int, log_path) -> subprocess.Popen:
                                 stderr=subprocess.STDOUT, text=True)
 
 
+def run_launch(args: list[str], domain: int, log_path, timeout_s: float) -> int:
+    """``soil_launch args`` to its end: its exit code (killed after ``timeout_s``), and no node of
+    it left running whatever happened."""
+    proc = start_launch(args, domain, log_path)
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait(timeout=10)
+    finally:
+        stop_logged_nodes(log_path)
+
+
 @pytest.mark.timeout(180)
 def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
     domain, bags = next_domain_id(), tmp_path / "bags"
@@ -33,14 +46,7 @@ def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
             "--sim-param", "patches:=['0:Sand:20','4.5:Clay:80']", "--sim-param", "duration_s:=8.0",
             "--sim-param", "world_mode:=fee", "--planner-param", "start_depth_m:=0.08"]
     log_path = tmp_path / "launch.log"
-    proc = start_launch(args, domain, log_path)
-    try:
-        rc = proc.wait(timeout=150)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        rc = proc.wait(timeout=10)
-    finally:
-        stop_logged_nodes(log_path)
+    rc = run_launch(args, domain, log_path, 150)
     out = log_path.read_text()
     assert rc == 0, out[-4000:]
     assert "[planner]" in out and "depth_source:=planner" in out and "following the planner's target depth" in out, out[-4000:]
@@ -72,8 +78,8 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     load (the episode's target depth, the controller's fallback for the first two ticks, set to the
     planner's start depth as the report's loop starts there). Into dense gravel, where the lift
     holds the edge short of its commanded depth and the plan reads that command (``command_wait``):
-    beside a busy core, planned without waiting for it, 103 and 358 of the 480 ticks differed
-    from the report's loop (up to 8 cm)."""
+    on a loaded machine (two or three CPU-bound processes beside it), planned without waiting for
+    it, 103 and 358 of the 480 ticks differed from the report's loop (up to 8 cm)."""
     from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut
     from soil_msgs_py.params import KNOWN_PARAMS
     from soil_sim_node.simulator import EpisodeSpec
@@ -84,9 +90,7 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
             "--sim-param", "patches:=[" + ",".join(f"'{p}'" for p in patches) + "]", "--sim-param", "duration_s:=8.0",
             "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5"]
     log_path = tmp_path / "launch.log"
-    with log_path.open("w") as log:
-        rc = subprocess.run([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
-                            stderr=subprocess.STDOUT, timeout=220).returncode
+    rc = run_launch(args, domain, log_path, 220)
     out = log_path.read_text()
     assert rc == 0, out[-4000:]
     # (a plan that did not come within planner_wait_s on a loaded machine would make the cut differ:
