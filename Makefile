@@ -32,8 +32,10 @@ demo: venv
 planner: venv
 	$(BIN)/python -m soil_bringup.cut_report --out out/planner
 
+# Two worker processes (tests/conftest.py: the live tests one at a time in one of them); TEST_WORKERS=0: one process.
+TEST_WORKERS ?= 2
 test: venv
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests
 
 bench: venv
 	$(BIN)/python benchmarks/bench_sim.py

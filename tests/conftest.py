@@ -5,11 +5,23 @@ Tests live in one folder per package (``tests/<package>/``), the cross-package g
 folders sit here (``tests.ros_probe``, ``tests.bag_fixtures``, ``tests.sim_plugins``); every
 folder is a package, so a test folder never shadows the project package it is named after.
 
+``make test`` runs the suite in worker processes (pytest-xdist, ``-n``; the scheduler below):
+the tests of a module marked ``live`` (they start nodes over DDS, a Ray cluster or torchrun)
+run one after another in one worker, so two graphs never share the cores and two clusters
+never race for one port; every other module goes to a worker whole, so its module fixtures
+(the discrepancy datasets) are made once. A module that imports rclpy or the DDS / Ray test
+helpers, or runs torchrun, without the mark is refused at collection.
+
 DDS stays on loopback for every test: the test process itself (which hosts probe nodes)
 and every node it starts get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; the deprecated
 ROS_LOCALHOST_ONLY, which would override it, is removed.
 """
+import functools
 import os
+import re
+from pathlib import Path
+
+import pytest
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
@@ -17,6 +29,57 @@ os.environ.pop("ROS_LOCALHOST_ONLY", None)
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: long-running test (deselect with -m 'not slow')")
+    config.addinivalue_line("markers", "live: starts ROS nodes over DDS, a Ray cluster or torchrun "
+                                       "(make test runs these one at a time)")
+
+
+LIVE_SCOPE = "live"
+# What only a live module imports (at its top or in a test): rclpy, the DDS domain leases and
+# probe nodes, the Ray probe; or what it runs: a leased domain, a Ray session, torchrun.
+LIVE_HELPERS = re.compile(r"^\s*(import rclpy|from rclpy[ .]|from tests(\.| import )(ros_domains|ros_probe|ray_probe|hostile)\b)"
+                          r"|next_domain_id\(|ray_session\(|ray\.init\(|torchrun", re.MULTILINE)
+LIVE_MARK = re.compile(r"\bpytest\.mark\.live\b")
+
+
+@functools.lru_cache(maxsize=None)
+def _source(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def uses_live_helpers(path: Path) -> bool:
+    """True if the test module at ``path`` imports rclpy or a DDS / Ray helper, or runs torchrun."""
+    return LIVE_HELPERS.search(_source(path)) is not None
+
+
+def is_live_module(path: Path) -> bool:
+    """True if the test module at ``path`` is marked live (all the scheduler, which sees only test
+    ids, can tell; ``pytest_collection_modifyitems`` makes sure the mark is where it must be)."""
+    return LIVE_MARK.search(_source(path)) is not None or uses_live_helpers(path)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a module that uses the live helpers without the ``live`` mark (see above)."""
+    unmarked = sorted({item.module.__name__ for item in items
+                       if item.get_closest_marker("live") is None and uses_live_helpers(Path(item.path))})
+    if unmarked:
+        raise pytest.UsageError(f"{', '.join(unmarked)}: imports rclpy or the DDS / Ray test helpers, or runs torchrun, "
+                                "but is not marked 'live' (add pytestmark = pytest.mark.live): live tests run one at a time")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """pytest-xdist's scope scheduling with two kinds of scope: every live module is one scope
+    (``live``: its tests run one after another in one worker), every other module its own (its
+    module fixtures made once). (xdist's ``--dist loadgroup`` would say it with marks, but it renames
+    test ids through an attribute pytest 9 no longer reads: its groups are ignored.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class LiveOneAtATime(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return LIVE_SCOPE if is_live_module(config.rootpath / module) else module
+
+    return LiveOneAtATime(config, log)
 
 
 def pytest_sessionstart(session):

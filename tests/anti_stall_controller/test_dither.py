@@ -14,6 +14,8 @@ from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from anti_stall_controller.node import GAIN_FIELDS, PARAMETERS
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 
+pytestmark = pytest.mark.live
+
 DT = 1.0 / SAMPLE_RATE_HZ
 
 

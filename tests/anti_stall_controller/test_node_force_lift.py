@@ -17,6 +17,8 @@ from soil_msgs_py.episode import EpisodeMeta
 from tests.anti_stall_controller.controller_probe import FIRST, send_until_answered, tick_stamp as _tick
 from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id
 
+pytestmark = pytest.mark.live
+
 TWIST, POSE, FORCE, BLADE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name, T.BLADE_FORCE.name, T.BLADE_CMD.name
 DEPTH, SPEED = 0.2, 0.5
 

@@ -11,6 +11,8 @@ from soil_msgs_py.episode import EpisodeMeta
 from tests.anti_stall_controller.controller_probe import PlannerSide
 from tests.ros_probe import call_service, RosProbe, next_domain_id
 
+pytestmark = pytest.mark.live
+
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
 
 

@@ -15,6 +15,8 @@ from soil_msgs_py.stamp_join import Verdict
 from tests.anti_stall_controller.controller_probe import FIRST, tick_stamp as _tick
 from tests.ros_probe import NodeProc, RosProbe, next_domain_id
 
+pytestmark = pytest.mark.live
+
 TWIST, POSE = T.CHASSIS_TWIST.name, T.CHASSIS_POSE.name
 LAST_SECOND = M.MAX_STAMP_NS  # the furthest stamp a message can carry
 

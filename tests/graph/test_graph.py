@@ -23,7 +23,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
 CLASSES = M.ros_message_classes()
 
 

@@ -26,6 +26,8 @@ from soil_sim_node.simulator import EpisodeSpec, SimConfig
 from tests.hostile import GraphObserver, HostileNode, grid_stamp, non_finite_fields
 from tests.ros_probe import BIN, loopback_env, next_domain_id
 
+pytestmark = pytest.mark.live
+
 SEED = 5
 BUDGET = 600  # malformed messages at most
 SPEC = EpisodeSpec("Clay", 80.0, 0.5, 0.15, seed=21, duration_s=4.0)

@@ -16,6 +16,8 @@ from soil_msgs_py.params import OBSERVATION_FIELDS
 
 from tests.ros_probe import BIN, loopback_env, next_domain_id, wait_until
 
+pytestmark = pytest.mark.live
+
 U_ZA = OBSERVATION_FIELDS.index("u_za")
 
 
@@ -88,7 +90,11 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     patches = ["0:Sand:20", "1.5:Gravel:90"]
     args = ["--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180", "--domain-id", str(domain),
             "--sim-param", "patches:=[" + ",".join(f"'{p}'" for p in patches) + "]", "--sim-param", "duration_s:=8.0",
-            "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5"]
+            "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5",
+            # the waits' bounds are for liveness, not the loop: here generous, so that a machine
+            # loaded by other tests does not end a wait that a quiet one never reaches (the
+            # simulator waits up to its lockstep_timeout_s, 10 s, for the controller)
+            "--controller-param", "planner_wait_s:=8.0", "--planner-param", "command_wait_s:=5.0"]
     log_path = tmp_path / "launch.log"
     rc = run_launch(args, domain, log_path, 220)
     out = log_path.read_text()

@@ -11,6 +11,8 @@ import pytest
 
 from tests import ros_domains
 
+pytestmark = pytest.mark.live
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -26,6 +26,8 @@ from pinn_estimator.distributed import Ranks, ranks_from_env, share
 from pinn_estimator.train import main as train_main
 from tests.tiny_data import write_tiny_bags
 
+pytestmark = pytest.mark.live
+
 TINY = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--dropout", "0", "--epochs", "3",
         "--batch-size", "64", "--threads", "2", "--quiet"]
 

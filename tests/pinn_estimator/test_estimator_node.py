@@ -24,6 +24,8 @@ from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator
 from tests.ros_probe import call_service, BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
 from .test_online import SAMPLE, SCALE
 
+pytestmark = pytest.mark.live
+
 VALID = T.ESTIMATE_FIELDS.index("valid")
 
 

@@ -16,6 +16,8 @@ from soil_sim_node.ray_cluster import LOCAL, ray_session
 from tests.ray_probe import is_loopback, listening_addresses, ray_processes, wait_gone
 from tests.tiny_data import write_tiny_bags
 
+pytestmark = pytest.mark.live
+
 ARRAYS = ("offsets", "observations", "forces", "known", "truth")
 
 

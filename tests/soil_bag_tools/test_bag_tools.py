@@ -38,7 +38,7 @@ TOPICS = [t.name for t in EPISODE_TOPICS]
 TICK_NS = 1_000_000_000 // 60
 ARRAYS = ("stamps_ns", "observations", "forces", "known", "truth", "extras")
 
-pytestmark = pytest.mark.timeout(180)  # a hang guard: process start-up and DDS discovery crawl on a loaded machine
+pytestmark = [pytest.mark.live, pytest.mark.timeout(180)]  # a hang guard: process start-up and DDS discovery crawl on a loaded machine
 
 
 def sample_messages(bag: Path = SAMPLE) -> list[tuple[int, str, bytes]]:

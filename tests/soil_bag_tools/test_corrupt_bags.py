@@ -32,7 +32,7 @@ BIN = Path(sys.executable).parent
 TINY_MODEL = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32",
               "--epochs", "1", "--batch-size", "64", "--stride", "16", "--eval-stride", "30"]
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(300)]
 
 
 def mcap_of(bag: Path) -> Path:

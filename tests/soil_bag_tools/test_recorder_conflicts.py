@@ -24,7 +24,7 @@ from tests.soil_bag_tools.test_bag_tools import (  # noqa: F401 - listener is a 
     SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, next_domain_id, reap, start,
 )
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(180)]
 
 BAD_VALUES = (math.nan, math.inf, 1e308, -math.inf)
 SPOOFED = ("/blade/force", "/soil/known_params", "/chassis/twist")

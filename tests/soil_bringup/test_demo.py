@@ -21,7 +21,7 @@ from soil_bag_tools.bag_io import read_episode, write_episode
 from soil_bringup import demo as D
 from tests.soil_bringup.estimate_bags import estimate, write_bag_with_estimates
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(180)]
 
 
 def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 
+import pytest
+
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -11,6 +13,8 @@ from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS
 
 from soil_bringup.monitor import LiveMonitor
 from tests.soil_bringup.estimate_bags import estimate
+
+pytestmark = pytest.mark.live
 
 
 def _status(event: str, ep, **kw):

@@ -6,9 +6,13 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
+import pytest
+
 from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, PROFILES_NAMESPACE, use_graph_profile
 from tests.ros_domains import next_domain_id
 from tests.ros_probe import loopback_env
+
+pytestmark = pytest.mark.live
 
 NS = {"f": PROFILES_NAMESPACE}
 

@@ -19,6 +19,8 @@ from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANC
                                   MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth,
                                   steady_cut_terms)
 
+pytestmark = pytest.mark.live
+
 LX, LZ = DEFAULT_MARGIN * FORCE_LIMITS_N[0], DEFAULT_MARGIN * FORCE_LIMITS_N[1]  # default margin
 
 

@@ -8,6 +8,8 @@ from rclpy.parameter import Parameter
 from soil_sim_node.node import PARAMETERS, SimNode, check_engine
 from soil_sim_node.simulator import ENGINES
 
+pytestmark = pytest.mark.live
+
 
 def defaults() -> dict:
     return {name: spec[0] for name, spec in PARAMETERS.items()}

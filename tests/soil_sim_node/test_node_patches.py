@@ -14,7 +14,7 @@ from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
 from tests.ros_probe import BIN, NodeProc, loopback_env, next_domain_id
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
 PATCHES = ["0.0:Sand:20", "2.6:Clay:90"]
 
 

@@ -11,7 +11,7 @@ from soil_sim_node.simulator import EpisodeSpec, SimConfig
 from tests.ros_probe import NodeProc, next_domain_id
 from tests.soil_sim_node.test_node_patches import assert_same_arrays, lockstep_episode
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
 SOILS_YAML = """\
 soils:
   - {name: Silt, phi_deg: [26, 34], cohesion_pa: [1000, 4000], unit_weight_n_m3: [17000, 19500]}

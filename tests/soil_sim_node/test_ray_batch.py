@@ -23,6 +23,8 @@ from soil_bag_tools.bag_io import find_episode_bags
 from soil_sim_node import batch
 from tests.ray_probe import is_loopback, listening_addresses, ray_processes, wait_gone
 
+pytestmark = pytest.mark.live
+
 SMALL = ["--mode", "fee", "--soils", "Clay,Sand", "--relative-densities", "20,80", "--speeds", "0.5", "--depths", "0.1",
          "--seeds", "1", "--duration", "2.0", "--workers", "2", "--quiet"]
 TIMING_FIELDS = ("wall_time_s", "simulated_s_per_wall_s")  # how long a run took differs by nature
@@ -118,7 +120,11 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running(tmp_pa
 
 
 def _name(pid: int) -> str:
-    return Path(f"/proc/{pid}/comm").read_text().strip()
+    """The process's name; "" once it has exited (a Ray worker may end between listing and reading)."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except (FileNotFoundError, ProcessLookupError):
+        return ""
 
 
 def test_an_unreachable_ray_address_is_refused_at_once(tmp_path, capsys):
