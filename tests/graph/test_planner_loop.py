@@ -117,9 +117,11 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
 
 
 @pytest.mark.timeout(180)
-def test_a_planner_that_dies_does_not_stop_the_cut(tmp_path):
-    """The planner is advice: killed mid-episode, the controller falls back to its own target
-    depth and the episode runs to its end; the launch says what died and exits 1 at the end."""
+@pytest.mark.parametrize("role, executable", [("planner", "soil_planner"), ("estimator", "pinn_estimator")])
+def test_an_advisory_node_that_dies_does_not_stop_the_cut(tmp_path, role, executable):
+    """The planner and the estimator it plans from are advice: either killed mid-episode, the
+    planner sends no more targets, the controller falls back to its own target depth and the
+    episode runs to its end; the launch says what died and exits 1 at the end."""
     domain = next_domain_id()
     args = ["--planner", "--pacing", "realtime", "--timeout", "120", "--domain-id", str(domain),
             "--sim-param", "duration_s:=6.0", "--sim-param", "world_mode:=fee"]
@@ -128,9 +130,9 @@ def test_a_planner_that_dies_does_not_stop_the_cut(tmp_path):
     try:
         wait_until(lambda: "following the planner's target depth" in log_path.read_text(), 90,
                    "the controller following the planner")
-        planner = wait_until(lambda: subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "soil_planner"],
-                                                    capture_output=True, text=True).stdout.split(), 10, "the planner")
-        subprocess.run(["kill", "-9", planner[0]], check=True)
+        node = wait_until(lambda: subprocess.run(["pgrep", "-P", str(proc.pid), "-f", executable],
+                                                 capture_output=True, text=True).stdout.split(), 10, f"the {role}")
+        subprocess.run(["kill", "-9", node[0]], check=True)
         rc = proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
@@ -139,6 +141,21 @@ def test_a_planner_that_dies_does_not_stop_the_cut(tmp_path):
         stop_logged_nodes(log_path)
     out = log_path.read_text()
     assert rc == 1, out[-4000:]
-    assert "planner died (exit code -9); not required, the others go on" in out, out[-4000:]
+    assert f"{role} died (exit code -9); not required, the others go on" in out, out[-4000:]
     assert "no planner target within" in out, out[-4000:]  # the controller fell back to its own depth
     assert "sim finished; stopping the others" in out and "episode 0 end" in out, out[-4000:]
+
+
+@pytest.mark.timeout(120)
+def test_an_advisory_node_refusing_its_parameters_stops_the_launch(tmp_path):
+    """Not required is not optional: a planner refusing a parameter at start is the user's
+    mistake, and the launch stops everything and says so rather than cut without it."""
+    domain = next_domain_id()
+    args = ["--planner", "--pacing", "realtime", "--timeout", "90", "--domain-id", str(domain),
+            "--sim-param", "duration_s:=6.0", "--planner-param", "margin:=2.0"]
+    log_path = tmp_path / "launch.log"
+    rc = run_launch(args, domain, log_path, 110)
+    out = log_path.read_text()
+    assert rc == 1, out[-4000:]
+    assert "planner refused its parameters (exit code 2); stopping the others" in out, out[-4000:]
+    assert "margin=2.0" in out and "episode 0 end" not in out, out[-4000:]

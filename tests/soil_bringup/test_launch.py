@@ -72,6 +72,9 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert "/planner/target_depth" in rec and "/planner/max_cut_depth" in rec
     sim = " ".join(nodes["sim"].argv)
     assert "'/soil/known_params:3'" in sim  # recorder, estimator and planner before tick 0
+    # the run (simulator, controller, recorder) is required; the advice (estimator, planner) is not
+    assert {n for n, node in nodes.items() if node.required} == {"sim", "controller", "recorder"}
+    assert all(nodes[n].without for n in ("estimator", "planner"))
 
 
 def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, capsys):

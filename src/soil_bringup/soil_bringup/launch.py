@@ -10,7 +10,11 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
 * forwards Ctrl-C / SIGTERM, stops the nodes in data-flow order (simulator first, recorder
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
 * exits 0 when the simulator finished its episodes and everyone stopped cleanly, and
-  non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit.
+  non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit. The
+  simulator, controller and recorder are the run: one dying stops the others. The estimator
+  and planner are advice: one dying mid-run is reported and the others go on (the controller
+  falls back to its own target depth), and the launch exits 1 at the end. Any node refusing
+  its parameters at start (exit code 2) stops the launch.
 
     soil_launch --pacing lockstep --record bags/run1 --sim-param soil:=Clay
     soil_launch --estimator --record bags/run2 --estimator-param checkpoint:=my_model.pt
@@ -186,6 +190,9 @@ class Launch:
                 if node.ends_launch and rc == 0:
                     self.log(f"{node.name} finished; stopping the others")
                     return 0
+                if rc == G.EXIT_BAD_CONFIG:  # any node: the user's set-up is wrong, not the run
+                    self.log(f"{node.name} refused its parameters (exit code {rc}); stopping the others")
+                    return EXIT_NODE_DIED
                 if node.required:
                     self.log(f"{node.name} died (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED
@@ -325,8 +332,12 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                               *extra, *args.recorder_arg], stop_order=3))
         _count(wait, RECORDER_ENDPOINTS)
     if args.estimator:
+        # advice too: nothing in the loop waits for its estimates (the simulator steps on the
+        # controller's commands), and a planner without estimates sends no targets
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
-                                                        args.estimator_param), stop_order=2))
+                                                        args.estimator_param), stop_order=2, required=False,
+                                 without="no more estimates; a planner sends no targets and the controller cuts to "
+                                         "its own target_depth_m"))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
         # the posterior's physics first, so a -p terms:=... of the user's wins

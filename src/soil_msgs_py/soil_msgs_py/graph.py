@@ -49,6 +49,10 @@ END_REASONS = ("completed", "reset", "shutdown", "error", "end_of_bag")
 PACING_REALTIME, PACING_LOCKSTEP = "realtime", "lockstep"
 PACINGS = (PACING_REALTIME, PACING_LOCKSTEP)
 
+# A node that refuses its parameters at start exits with this code (``ros_adapter.spin_node``);
+# ``soil_launch`` stops the graph on it whatever the node's role: a mistake in the set-up, not a fault.
+EXIT_BAD_CONFIG = 2
+
 ACTION_START = "start"
 ACTION_RESET = "reset"
 ACTION_SHUTDOWN = "shutdown"

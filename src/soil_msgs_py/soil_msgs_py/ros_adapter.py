@@ -27,7 +27,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
-from .graph import DATA_QOS, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec
+from .graph import (DATA_QOS, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec,
+                    publisher_qos_spec)
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -193,7 +194,6 @@ def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
     signal.signal(signal.SIGTERM, on_signal)
 
 
-EXIT_BAD_CONFIG = 2
 DRAIN_LIMIT_S = 10.0  # most a stopping node may spend letting in what is in flight
 ACK_LIMIT_S = 5.0  # most a stopping node may wait for its reliable readers to acknowledge its samples
 
