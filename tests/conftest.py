@@ -7,10 +7,10 @@ folder is a package, so a test folder never shadows the project package it is na
 
 ``make test`` runs the suite in worker processes (pytest-xdist, ``-n``; the scheduler below):
 the tests of a module marked ``live`` (they start nodes over DDS, a Ray cluster or torchrun)
-run one after another in one worker, so two graphs never share the cores and two clusters
-never race for one port; every other module goes to a worker whole, so its module fixtures
-(the discrepancy datasets) are made once. A module that imports rclpy or the DDS / Ray test
-helpers, or runs torchrun, without the mark is refused at collection.
+run one after another in one worker, so two graphs never run at once and two clusters never
+race for one port (a graph still shares the cores with the other worker's tests); every other module goes to a worker whole, so its module fixtures
+(the discrepancy datasets) are made once. A test of a module that imports rclpy or the DDS /
+Ray test helpers, or runs torchrun, without the mark fails with that reason.
 
 DDS stays on loopback for every test: the test process itself (which hosts probe nodes)
 and every node it starts get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; the deprecated
@@ -35,9 +35,10 @@ def pytest_configure(config):
 
 LIVE_SCOPE = "live"
 # What only a live module imports (at its top or in a test): rclpy, the DDS domain leases and
-# probe nodes, the Ray probe; or what it runs: a leased domain, a Ray session, torchrun.
+# probe nodes, the Ray probe; or what it runs: a leased domain, a Ray session, torchrun
+# (python -m torch.distributed.run).
 LIVE_HELPERS = re.compile(r"^\s*(import rclpy|from rclpy[ .]|from tests(\.| import )(ros_domains|ros_probe|ray_probe|hostile)\b)"
-                          r"|next_domain_id\(|ray_session\(|ray\.init\(|torchrun", re.MULTILINE)
+                          r"|next_domain_id\(|ray_session\(|ray\.init\(|-m torch\.distributed\.run\b", re.MULTILINE)
 LIVE_MARK = re.compile(r"\bpytest\.mark\.live\b")
 
 
@@ -52,18 +53,18 @@ def uses_live_helpers(path: Path) -> bool:
 
 
 def is_live_module(path: Path) -> bool:
-    """True if the test module at ``path`` is marked live (all the scheduler, which sees only test
-    ids, can tell; ``pytest_collection_modifyitems`` makes sure the mark is where it must be)."""
+    """True if the test module at ``path`` is marked live or uses the live helpers (all the
+    scheduler, which sees only test ids, can tell; ``pytest_runtest_setup`` makes sure the mark
+    is where it must be)."""
     return LIVE_MARK.search(_source(path)) is not None or uses_live_helpers(path)
 
 
-def pytest_collection_modifyitems(config, items):
-    """Refuse a module that uses the live helpers without the ``live`` mark (see above)."""
-    unmarked = sorted({item.module.__name__ for item in items
-                       if item.get_closest_marker("live") is None and uses_live_helpers(Path(item.path))})
-    if unmarked:
-        raise pytest.UsageError(f"{', '.join(unmarked)}: imports rclpy or the DDS / Ray test helpers, or runs torchrun, "
-                                "but is not marked 'live' (add pytestmark = pytest.mark.live): live tests run one at a time")
+def pytest_runtest_setup(item):
+    """Fail a test of a module that uses the live helpers without the ``live`` mark (see above;
+    a test failure, not a collection error, so that xdist's workers report it with its reason)."""
+    if item.get_closest_marker("live") is None and uses_live_helpers(Path(item.path)):
+        pytest.fail(f"{item.module.__name__} imports rclpy or the DDS / Ray test helpers, or runs torchrun, but is not "
+                    "marked 'live' (add pytestmark = pytest.mark.live): live tests run one at a time", pytrace=False)
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -72,12 +73,20 @@ def pytest_xdist_make_scheduler(config, log):
     (``live``: its tests run one after another in one worker), every other module its own (its
     module fixtures made once). (xdist's ``--dist loadgroup`` would say it with marks, but it renames
     test ids through an attribute pytest 9 no longer reads: its groups are ignored.)"""
+    if config.getvalue("dist") != "load":  # a --dist the user chose (load: -n's default)
+        return None
     from xdist.scheduler import LoadScopeScheduling
+
+    def live(module: str) -> bool:
+        for base in (config.rootpath, config.invocation_params.dir):  # test ids are relative to one of them
+            if (base / module).is_file():
+                return is_live_module(base / module)
+        return False
 
     class LiveOneAtATime(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return LIVE_SCOPE if is_live_module(config.rootpath / module) else module
+            return LIVE_SCOPE if live(module) else module
 
     return LiveOneAtATime(config, log)
 

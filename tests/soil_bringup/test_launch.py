@@ -75,6 +75,8 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     # the run (simulator, controller, recorder) is required; the advice (estimator, planner) is not
     assert {n for n, node in nodes.items() if node.required} == {"sim", "controller", "recorder"}
     assert all(nodes[n].without for n in ("estimator", "planner"))
+    required = L.build_nodes(L.parse_args(["--planner", "--require", "estimator"]))
+    assert {n.name for n in required if n.required} == {"sim", "controller", "estimator"}  # the demo's estimator
 
 
 def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, capsys):

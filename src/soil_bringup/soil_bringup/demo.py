@@ -144,7 +144,8 @@ def launch_arguments(args: argparse.Namespace, launch_timeout_s: float) -> argpa
     def floats(xs):
         return "[" + ",".join(repr(float(x)) for x in xs) + "]"
 
-    argv = ["--estimator", "--record", str(args.bags), "--pacing", args.pacing, "--domain-id", str(args.domain_id),
+    # (the estimator is what the demo shows: required, so its death stops the run at once)
+    argv = ["--estimator", "--require", "estimator", "--record", str(args.bags), "--pacing", args.pacing, "--domain-id", str(args.domain_id),
             "--timeout", f"{launch_timeout_s:.0f}",
             "--sim-param", f"sequence_soils:=[{','.join(args.soils)}]",
             "--sim-param", f"sequence_relative_densities_pct:={floats(args.densities)}",

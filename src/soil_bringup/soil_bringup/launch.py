@@ -13,8 +13,10 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
   non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit. The
   simulator, controller and recorder are the run: one dying stops the others. The estimator
   and planner are advice: one dying mid-run is reported and the others go on (the controller
-  falls back to its own target depth), and the launch exits 1 at the end. Any node refusing
-  its parameters at start (exit code 2) stops the launch.
+  falls back to its own target depth), and the launch exits 1 at the end (``--require NODE``
+  makes one required). A later episode then starts after the simulator's ``wait_timeout_s``
+  for the dead node's endpoints. Any node refusing its parameters (exit code 2, which a node
+  gives only at start) stops the launch.
 
     soil_launch --pacing lockstep --record bags/run1 --sim-param soil:=Clay
     soil_launch --estimator --record bags/run2 --estimator-param checkpoint:=my_model.pt
@@ -46,6 +48,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 
 EXIT_NODE_DIED = 1
+ADVISORY_NODES = ("estimator", "planner")  # not required unless --require names them
 EXIT_TIMEOUT = 3
 EXIT_BAD_ARGS = 2
 
@@ -332,12 +335,13 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                               *extra, *args.recorder_arg], stop_order=3))
         _count(wait, RECORDER_ENDPOINTS)
     if args.estimator:
-        # advice too: nothing in the loop waits for its estimates (the simulator steps on the
-        # controller's commands), and a planner without estimates sends no targets
+        # advice too (unless --require estimator): nothing in the loop waits for its estimates
+        # (the simulator steps on the controller's commands), and a planner without them sends no targets
+        without = "no more estimates" + ("; the planner sends no targets and the controller cuts to its own "
+                                         "target_depth_m" if args.planner else "")
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
-                                                        args.estimator_param), stop_order=2, required=False,
-                                 without="no more estimates; a planner sends no targets and the controller cuts to "
-                                         "its own target_depth_m"))
+                                                        args.estimator_param), stop_order=2,
+                                 required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
         # the posterior's physics first, so a -p terms:=... of the user's wins
@@ -347,7 +351,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
                                                       physics + args.planner_param),
-                                 stop_order=2, niceness=PLANNER_NICENESS, required=False,
+                                 stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
@@ -395,6 +399,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="also run the soil-aware planner (implies --estimator) and let the controller follow it")
     p.add_argument("--planner-params-file", type=Path, help="YAML parameters for soil_planner")
     p.add_argument("--planner-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--require", action="append", default=[], choices=ADVISORY_NODES,
+                   help="stop the launch when this advisory node dies, as when the simulator, controller or recorder "
+                        "does (repeatable; by default the cut goes on without it and the launch exits 1 at the end)")
     p.add_argument("--recorder-arg", action="append", default=[], help="extra argument for soil_bag_record")
     p.add_argument("--wait-for", action="append", default=[], metavar="/TOPIC:N",
                    help="also wait for N more matched subscribers of a topic the simulator publishes (or "
