@@ -145,8 +145,8 @@ def launch_arguments(args: argparse.Namespace, launch_timeout_s: float) -> argpa
         return "[" + ",".join(repr(float(x)) for x in xs) + "]"
 
     # (the estimator is what the demo shows: required, so its death stops the run at once)
-    argv = ["--estimator", "--require", "estimator", "--record", str(args.bags), "--pacing", args.pacing, "--domain-id", str(args.domain_id),
-            "--timeout", f"{launch_timeout_s:.0f}",
+    argv = ["--estimator", "--require", "estimator", "--record", str(args.bags), "--pacing", args.pacing,
+            "--domain-id", str(args.domain_id), "--timeout", f"{launch_timeout_s:.0f}",
             "--sim-param", f"sequence_soils:=[{','.join(args.soils)}]",
             "--sim-param", f"sequence_relative_densities_pct:={floats(args.densities)}",
             "--sim-param", f"duration_s:={float(args.duration)!r}", "--sim-param", "episodes:=1"]

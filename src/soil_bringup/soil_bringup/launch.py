@@ -48,9 +48,9 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 
 EXIT_NODE_DIED = 1
-ADVISORY_NODES = ("estimator", "planner")  # not required unless --require names them
 EXIT_TIMEOUT = 3
 EXIT_BAD_ARGS = 2
+ADVISORY_NODES = ("estimator", "planner")  # not required unless --require names them
 
 # The simulator's side of each node's endpoints, for its 'wait_for' (topic -> count): the
 # topics it publishes that the node reads, and the command topics the node publishes. (The
