@@ -8,8 +8,8 @@ folder is a package, so a test folder never shadows the project package it is na
 ``make test`` runs the suite in worker processes (pytest-xdist, ``-n``; the scheduler below):
 the tests of a module marked ``live`` (they start nodes over DDS, a Ray cluster or torchrun)
 run one after another in one worker, so two graphs never run at once and two clusters never
-race for one port (a graph still shares the cores with the other worker's tests); every other module goes to a worker whole, so its module fixtures
-(the discrepancy datasets) are made once. A test of a module that imports rclpy or the DDS /
+race for one port (a graph still shares the cores with the other worker's tests); every other
+module goes to a worker whole, so its module fixtures (the discrepancy datasets) are made once. A test of a module that imports rclpy or the DDS /
 Ray test helpers, or runs torchrun, without the mark fails with that reason.
 
 DDS stays on loopback for every test: the test process itself (which hosts probe nodes)

@@ -7,6 +7,7 @@ wait is bounded.
 """
 from __future__ import annotations
 
+import contextlib
 import signal
 import subprocess
 import sys
@@ -20,11 +21,45 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from soil_msgs_py.ros_adapter import init_context, message_class, topic_qos
-from soil_bringup.launch import loopback_env  # noqa: F401 - re-exported for the tests
+from soil_bringup.launch import loopback_env, stop_logged_nodes
 
 from tests.ros_domains import next_domain_id  # noqa: F401 - re-exported for the tests
 
 BIN = Path(sys.executable).parent
+
+
+def start_launch(args: list[str], domain: int, log_path: Path) -> subprocess.Popen:
+    """``soil_launch --domain-id domain args`` with loopback-only DDS, its output into ``log_path``
+    (also ``proc.log_path``)."""
+    with Path(log_path).open("w") as log:
+        proc = subprocess.Popen([str(BIN / "soil_launch"), "--domain-id", str(domain), *args],
+                                env=loopback_env(domain), stdout=log, stderr=subprocess.STDOUT, text=True)
+    proc.log_path = Path(log_path)
+    return proc
+
+
+@contextlib.contextmanager
+def launched(args: list[str], domain: int, log_path: Path):
+    """``start_launch``; on leaving, the launch killed if it still runs and no node of it left
+    running (its nodes run in sessions of their own: killing the launch does not stop them)."""
+    proc = start_launch(args, domain, log_path)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        stop_logged_nodes(log_path)
+
+
+def run_launch(args: list[str], domain: int, log_path: Path, timeout_s: float) -> int:
+    """``soil_launch args`` to its end: its exit code (killed after ``timeout_s``)."""
+    with launched(args, domain, log_path) as proc:
+        try:
+            return proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            return proc.wait(timeout=10)
 
 
 def wait_until(predicate, timeout: float, what: str, poll: float = 0.05):

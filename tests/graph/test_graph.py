@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
-from tests.ros_probe import call_service, BIN, NodeProc, RosProbe, loopback_env, next_domain_id, wait_until
+from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, start_launch, wait_until
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -234,13 +234,8 @@ def test_controller_parameters_files_overrides_and_runtime_changes(tmp_path, dom
 
 
 def _launch(args: list[str], domain: int, tmp_path) -> subprocess.Popen:
-    """soil_launch as a subprocess; its output goes to ``proc.log_path``."""
-    log_path = tmp_path / f"launch_{time.monotonic_ns()}.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([str(BIN / "soil_launch"), "--domain-id", str(domain), *args],
-                                env=loopback_env(domain), stdout=log, stderr=subprocess.STDOUT, text=True)
-    proc.log_path = log_path
-    return proc
+    """soil_launch as a subprocess; its output goes to ``proc.log_path`` (one file per launch)."""
+    return start_launch(args, domain, tmp_path / f"launch_{time.monotonic_ns()}.log")
 
 
 def _children_gone(pid: int) -> bool:

@@ -10,13 +10,11 @@ however loaded the machine is.
 """
 from __future__ import annotations
 
-import subprocess
 
 import numpy as np
 import pytest
 
 from soil_bag_tools.bag_io import find_episode_bags, read_episode, read_labelled_topic
-from soil_bringup.launch import stop_logged_nodes
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -24,7 +22,7 @@ from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
 from tests.hostile import GraphObserver, HostileNode, grid_stamp, non_finite_fields
-from tests.ros_probe import BIN, loopback_env, next_domain_id
+from tests.ros_probe import next_domain_id, run_launch
 
 pytestmark = pytest.mark.live
 
@@ -53,20 +51,6 @@ def _launch_args(bags) -> list[str]:
     return args + ["--wait-for", f"{G.SIM_STATUS_TOPIC}:1"]
 
 
-def _run_launch(args: list[str], domain: int, tmp_path) -> tuple[int, str]:
-    log_path = tmp_path / "launch.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([str(BIN / "soil_launch"), "--domain-id", str(domain), *args],
-                                env=loopback_env(domain), stdout=log, stderr=subprocess.STDOUT, text=True)
-    try:
-        rc = proc.wait(timeout=120)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        rc = proc.wait(timeout=10)
-        stop_logged_nodes(log_path)  # its nodes run in their own sessions
-    return rc, log_path.read_text(errors="replace")
-
-
 def _stamps(messages, topic: str) -> list[int]:
     out = []
     for msg in messages:
@@ -84,7 +68,8 @@ def test_a_hostile_node_cannot_stop_the_graph_silence_the_controller_or_change_t
     held = {t: 2 for t in (*G.COMMAND_TOPICS, *G.ESTIMATOR_OUTPUTS)}  # the graph's publisher and the hostile one
     with GraphObserver(domain, OBSERVED, held=G.SIM_STATE_TOPICS, until_matched=held) as observer, \
             HostileNode(domain, SEED, BUDGET) as hostile:
-        rc, log = _run_launch(_launch_args(bags), domain, tmp_path)
+        rc = run_launch(_launch_args(bags), domain, tmp_path / "launch.log", 120)
+        log = (tmp_path / "launch.log").read_text(errors="replace")
         observer.settle()  # what is still in flight reaches the observer
         graph = {topic: observer.graph_messages(topic, hostile) for topic in OBSERVED}
         sent, sent_by_tick, spoofed = hostile.sent, dict(hostile.sent_by_tick), set(hostile.spoofed_stamps)

@@ -9,42 +9,21 @@ import numpy as np
 import pytest
 
 from soil_bag_tools.bag_io import find_episode_bags, read_episode, read_labelled_topic
-from soil_bringup.launch import stop_logged_nodes
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import OBSERVATION_FIELDS
 
-from tests.ros_probe import BIN, loopback_env, next_domain_id, wait_until
+from tests.ros_probe import launched, next_domain_id, run_launch, wait_until
 
 pytestmark = pytest.mark.live
 
 U_ZA = OBSERVATION_FIELDS.index("u_za")
 
 
-def start_launch(args: list[str], domain: int, log_path) -> subprocess.Popen:
-    """``soil_launch args`` on a loopback domain, its output into ``log_path``."""
-    with log_path.open("w") as log:
-        return subprocess.Popen([str(BIN / "soil_launch"), *args], env=loopback_env(domain), stdout=log,
-                                stderr=subprocess.STDOUT, text=True)
-
-
-def run_launch(args: list[str], domain: int, log_path, timeout_s: float) -> int:
-    """``soil_launch args`` to its end: its exit code (killed after ``timeout_s``), and no node of
-    it left running whatever happened."""
-    proc = start_launch(args, domain, log_path)
-    try:
-        return proc.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait(timeout=10)
-    finally:
-        stop_logged_nodes(log_path)
-
-
 @pytest.mark.timeout(180)
 def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
     domain, bags = next_domain_id(), tmp_path / "bags"
-    args = ["--planner", "--pacing", "realtime", "--record", str(bags), "--timeout", "120", "--domain-id", str(domain),
+    args = ["--planner", "--pacing", "realtime", "--record", str(bags), "--timeout", "120",
             "--sim-param", "patches:=['0:Sand:20','4.5:Clay:80']", "--sim-param", "duration_s:=8.0",
             "--sim-param", "world_mode:=fee", "--planner-param", "start_depth_m:=0.08"]
     log_path = tmp_path / "launch.log"
@@ -88,7 +67,7 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
 
     domain, bags = next_domain_id(), tmp_path / "bags"
     patches = ["0:Sand:20", "1.5:Gravel:90"]
-    args = ["--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180", "--domain-id", str(domain),
+    args = ["--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180",
             "--sim-param", "patches:=[" + ",".join(f"'{p}'" for p in patches) + "]", "--sim-param", "duration_s:=8.0",
             "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5",
             # the waits' bounds are for liveness, not the loop: here generous, so that a machine
@@ -123,22 +102,16 @@ def test_an_advisory_node_that_dies_does_not_stop_the_cut(tmp_path, role, execut
     planner sends no more targets, the controller falls back to its own target depth and the
     episode runs to its end; the launch says what died and exits 1 at the end."""
     domain = next_domain_id()
-    args = ["--planner", "--pacing", "realtime", "--timeout", "120", "--domain-id", str(domain),
+    args = ["--planner", "--pacing", "realtime", "--timeout", "120",
             "--sim-param", "duration_s:=6.0", "--sim-param", "world_mode:=fee"]
     log_path = tmp_path / "launch.log"
-    proc = start_launch(args, domain, log_path)
-    try:
+    with launched(args, domain, log_path) as proc:
         wait_until(lambda: "following the planner's target depth" in log_path.read_text(), 90,
                    "the controller following the planner")
         node = wait_until(lambda: subprocess.run(["pgrep", "-P", str(proc.pid), "-f", executable],
                                                  capture_output=True, text=True).stdout.split(), 10, f"the {role}")
         subprocess.run(["kill", "-9", node[0]], check=True)
         rc = proc.wait(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-        stop_logged_nodes(log_path)
     out = log_path.read_text()
     assert rc == 1, out[-4000:]
     assert f"{role} died (exit code -9); not required, the others go on" in out, out[-4000:]
@@ -151,7 +124,7 @@ def test_an_advisory_node_refusing_its_parameters_stops_the_launch(tmp_path):
     """Not required is not optional: a planner refusing a parameter at start is the user's
     mistake, and the launch stops everything and says so rather than cut without it."""
     domain = next_domain_id()
-    args = ["--planner", "--pacing", "realtime", "--timeout", "90", "--domain-id", str(domain),
+    args = ["--planner", "--pacing", "realtime", "--timeout", "90",
             "--sim-param", "duration_s:=6.0", "--planner-param", "margin:=2.0"]
     log_path = tmp_path / "launch.log"
     rc = run_launch(args, domain, log_path, 110)
