@@ -508,6 +508,25 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
         with pytest.raises(SystemExit) as exit_:
             calibrate_main(["--world", "fee", "--forecast-law-only", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err
+    # a calibration on a noisy sensor never replaces the shipped config of the world as it is
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--force-noise"])
+    assert exit_.value.code == 2 and "--force-noise: give --out" in capsys.readouterr().err
+
+
+def test_a_forecast_dataset_with_force_noise_is_the_same_cut_measured_by_a_noisy_sensor():
+    """``forecast_dataset(force_noise=True)``: the fee world's episodes (same soils, truth and seeds)
+    with the default world's sensor noise on the measured force only, as a machine's load cell
+    would give them: what a calibration against truth under noise needs."""
+    from pinn_estimator.evaluate import forecast_dataset
+
+    kw = dict(densities_pct=(50.0,), depths_m=(0.15,), duration_s=3.0)
+    clean, noisy = forecast_dataset("fee", **kw), forecast_dataset("fee", force_noise=True, **kw)
+    assert len(clean) == len(noisy) == 4 and "noisy force" in noisy.root and "noisy" not in clean.root
+    np.testing.assert_array_equal(clean.truth[:, :3], noisy.truth[:, :3])  # the same soils (φ, c, δ)
+    diff = noisy.forces - clean.forces
+    std = diff[len(diff) // 2:].std(axis=0)  # once the cut is steady: the noise alone (300 / 500 N)
+    assert 200.0 < std[0] < 450.0 and 350.0 < std[1] < 700.0, std
 
 
 def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):

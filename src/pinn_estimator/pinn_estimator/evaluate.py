@@ -110,19 +110,26 @@ def _trends(rows, estimator="pinn") -> dict:
 
 
 def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, densities_pct=fc.FORECAST_DENSITIES_PCT,
-                     depths_m=fc.FORECAST_DEPTHS_M) -> Dataset:
+                     depths_m=fc.FORECAST_DEPTHS_M, force_noise: bool = False) -> Dataset:
     """Held-out episodes for the forecast: every soil at ``densities_pct`` x ``depths_m`` at
-    ``fc.FORECAST_SPEED_M_S`` (by default all off the training grid), simulated here."""
+    ``fc.FORECAST_SPEED_M_S`` (by default all off the training grid), simulated here.
+    ``force_noise``: the world's effects with the measured force's noise on (the default world's
+    sensor noise in the fee world, where the FEE is exact and the truth known: calibration against
+    truth with a noisy sensor, as a machine's is)."""
     import itertools
 
     from soil_physics.soils import CATALOGUE
+    from soil_sim_node.effects import effects_for_mode
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
     combos = itertools.product(sorted(CATALOGUE), densities_pct, depths_m)
     specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
              for k, (soil, i_d, d) in enumerate(combos)]
-    return Dataset.from_episodes(run_episodes(SimConfig(world_mode=world), specs), root=f"(simulated, {world} world)")
+    effects = effects_for_mode(world).with_switches(noise=True) if force_noise else None
+    label = f"{world} world" + (", noisy force" if force_noise else "")
+    return Dataset.from_episodes(run_episodes(SimConfig(world_mode=world, effects=effects), specs),
+                                 root=f"(simulated, {label})")
 
 
 FORECAST_STRIDE = 30  # samples between the steady windows a forecast averages (0.5 s)

@@ -513,6 +513,10 @@ def main(argv=None) -> int:
     p.add_argument("--forecast-law-only", action="store_true",
                    help="keep the evidence law of the config at --out (default: the shipped one) and choose only the "
                         "forecast law (stage 2: about a minute, where the whole calibration takes 5-8 min)")
+    p.add_argument("--force-noise", action="store_true",
+                   help="calibrate on episodes with the measured force's noise on (in the fee world: the default "
+                        "world's sensor noise, the truth still known); needs --out, since the shipped fee config is "
+                        "the noise-free world's")
     args = p.parse_args(argv)
     from soil_physics.force_terms import parse_terms
 
@@ -532,6 +536,8 @@ def main(argv=None) -> int:
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")
+    if args.force_noise and args.out is None:
+        p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
         if args.term or args.fields:
@@ -543,7 +549,7 @@ def main(argv=None) -> int:
         except (OSError, ValueError) as err:
             p.error(f"--forecast-law-only: {out}: {err}")
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                          depths_m=CAL_DEPTHS_M)
+                          depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
     pairs = None
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
@@ -556,7 +562,8 @@ def main(argv=None) -> int:
     final = {"forecast_rel_std": cfg.forecast_rel_std, "curve": coverage_curve(ds, cfg, pairs=pairs, width=False)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
     plot_curve(rows, final, out.with_suffix(".png"),
-               f"fused forecast at another depth, {args.world} world: calibration episodes")
+               f"fused forecast at another depth, {args.world} world{' (noisy force)' if args.force_noise else ''}: "
+               "calibration episodes")
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     cx, cz = final["curve"]["x"], final["curve"]["z"]
     shape = (f"shape evidence {shape_text((cfg.shape_abs_std_n[0], cfg.shape_rel_std[0]))}" if cfg.shape_evidence
