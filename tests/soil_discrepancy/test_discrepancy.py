@@ -243,6 +243,24 @@ def test_splits_are_by_group_stratified_and_folds_partition(bag_dirs):
     assert len(per_episode.groups) == len(per_episode.names) == 32
 
 
+def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_dirs):
+    """One θ cannot hold across a soil change (a fit across it reads the change as missing physics):
+    episodes whose metadata lists patches of two soils are left out and named; patches of one soil
+    are one soil; a dataset of nothing else is refused with the reason."""
+    ds = load_dataset(bag_dirs["control"])
+    two = [{"x_start_m": 0.0, "soil": "Sand", "relative_density_pct": 20.0},
+           {"x_start_m": 5.0, "soil": "Clay", "relative_density_pct": 90.0}]
+    same = [dict(two[0]), {**two[0], "x_start_m": 5.0}]
+    metas = [dataclasses.replace(m, patches=two if i < 3 else same if i == 3 else m.patches) for i, m in enumerate(ds.metas)]
+    full = build_frame(ds, stride=4)
+    frame = build_frame(dataclasses.replace(ds, metas=metas), stride=4)
+    assert frame.changing_soil == tuple(ds.names[:3])
+    assert set(frame.episodes) == set(full.episodes) - {0, 1, 2} and 3 in set(frame.episodes)
+    assert not full.changing_soil
+    with pytest.raises(ValueError, match="changes soil along its path"):
+        build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=two) for m in ds.metas]), stride=4)
+
+
 def test_without_a_soil_label_the_test_part_spans_the_unit_weights(bag_dirs):
     """No soil to stratify by: the held-out groups come one from each band of measured γ, so the
     test part covers the soils' range for every seed (a plain shuffle puts both test groups in

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from pinn_estimator.forecast import one_soil
 from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
@@ -64,6 +65,7 @@ class Frame:
     stride: int = 1
     group_by: str = "auto"
     source: str = ""
+    changing_soil: tuple[str, ...] = ()  # episodes left out: their metadata says the soil changes along the path
 
     def __len__(self) -> int:
         return len(self.episode)
@@ -158,11 +160,20 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     'episode'; the frame's ``group_by`` says which was used. 'episode' — one θ per episode;
     'gamma' — episodes with the same measured unit weight γ share θ (no label read; two soils
     of one γ share a θ, which the report's regimes then show as a misfit).
+
+    Episodes whose metadata lists soil patches of more than one soil or density are left out (named
+    in ``changing_soil``): one θ cannot hold across a soil change, and a fit across it reads the
+    change as missing physics (the forecast leaves them out alike, ``forecast.one_soil``). A bag
+    that does not record its path (a machine's) is taken as one soil.
     """
     check_frame_settings(stride, group_by)
     n_ep = len(ds.names)
     if n_ep == 0:
         raise ValueError("the dataset has no episodes")
+    changing = [e for e in range(n_ep) if not one_soil(ds.metas[e])]
+    if len(changing) == n_ep:
+        raise ValueError(f"every one of the {n_ep} episode(s) changes soil along its path (soil patches in its "
+                         "metadata): one θ per soil cannot be fitted across a change; give episodes of one soil each")
     dt = 1.0 / SAMPLE_RATE_HZ
     soils = [_soil_label(m) for m in ds.metas]
     dens = []
@@ -183,6 +194,8 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         dist = distance_in_soil_of_known(known, dt)
         in_soil_s = time_in_soil_of_known(known, dt)
         keep = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0][::stride]
+        if e in changing:
+            keep = keep[:0]
         parts["episode"].append(np.full(len(keep), e))
         parts["rows"].append(r.start + keep)
         parts["t"].append(t[keep])
@@ -229,4 +242,5 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
+        changing_soil=tuple(ds.names[e] for e in changing),
     )

@@ -120,6 +120,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     n_ep = len(frame.episodes)
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")
+    if frame.changing_soil:
+        say(f"left out {len(frame.changing_soil)} episode(s) whose soil changes along the path (soil patches in "
+            f"the metadata): {', '.join(frame.changing_soil[:5])}{' …' if len(frame.changing_soil) > 5 else ''}")
 
     # 1. the initial model's θ on every group (per-group fits are independent of each other)
     base = fit_fixed(frame, initial)
@@ -362,6 +365,7 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         "episodes": int(len(frame.episodes)), "ticks": int(len(frame)), "theta_groups": int(len(frame.groups)),
         "theta_per": _grouping(frame),
         "metadata_soils": frame.has_metadata(),
+        "left_out_changing_soil": list(frame.changing_soil),
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
@@ -391,6 +395,9 @@ def _notes(frame: Frame, n_test_groups: int) -> list[str]:
             "(speed- or depth-dependent terms at constant speed/depth) is absorbed by θ and cannot be detected; "
             "only effects that vary within an episode (e.g. with time or distance) can."
         )
+    if frame.changing_soil:
+        notes.append(f"{len(frame.changing_soil)} episode(s) left out: their soil changes along the path (soil "
+                     "patches in the metadata), and one θ cannot hold across a change.")
     return notes
 
 
