@@ -114,6 +114,7 @@ def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
     raise ValueError(f"soil={name!r} is unknown; known soils: {sorted(pool)}")
 
 
+_SOIL_NAME = re.compile(r"^[^\W_][\w +.-]*$")  # \w: Unicode letters, digits and _; no path separators
 _EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
@@ -140,6 +141,9 @@ def soil_from_dict(data: dict) -> SoilType:
     name = data.get("name")
     if not isinstance(name, str) or not name.strip():
         raise ValueError(f"soil YAML name={name!r} must be a non-empty string")
+    if not _SOIL_NAME.match(name.strip()) or ".." in name:
+        raise ValueError(f"soil YAML name={name!r}: letters, digits, spaces and _ + - . only, starting with a "
+                         "letter or digit (a soil's name becomes part of its bags' file names)")
     phi_lim = TABLE1["phi"].limits
     phi = _pair(data, "phi_deg", phi_lim[0] / DEG, phi_lim[1] / DEG - 1e-9, "deg")
     c = _pair(data, "cohesion_pa", 0.0, 1e6, "Pa")
