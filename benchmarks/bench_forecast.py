@@ -250,19 +250,24 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     within the limits: the ``quantile`` upper bound of |F| from the published moments of the
     fused posterior at the source episode's end (``planner.fused_upper_force``, its physics the
     posterior's, at the target's steady Θ_k and speed), anchored as the planner is, to the
-    force measured at the source's depth, and unanchored. Per axis: the share exceeded, going
+    force measured at the source's depth; the same with that force's batch-means standard error
+    carried in the bound (``forecast.mean_standard_error``; the planner's steady anchor gives none:
+    ``planner.SteadyAnchor.anchor``), which says how much of an exceedance is the anchor's noise;
+    and unanchored. Per axis: the share exceeded, going
     deeper too (where exceeding it stalls a machine; split by reach at NEAR_REACH times the
     source's depth), and the bound's mean over the measured |F|.
     ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
     parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
-    rows = {"anchored": [], "unanchored": []}
+    rows = {"anchored": [], "anchored_with_se": [], "unanchored": []}
     for a, b in fc.pair_indices(parts):
         if not posts[a].updates:
             continue
         est = dict(zip(FUSED_FIELDS, fused_values(posts[a].summary(), cfg)))
         src, dst = parts[a], parts[b]
-        for label, anchor in (("anchored", (tuple(src.force), src.known)), ("unanchored", None)):
+        for label, anchor in (("anchored", (tuple(src.force), src.known)),
+                              ("anchored_with_se", (tuple(src.force), src.known, tuple(src.force_se))),
+                              ("unanchored", None)):
             try:
                 ux, uz = fused_upper_force(est, dst.known, [dst.known["d"]], quantile=quantile,
                                            cut_speed_m_s=dst.known["v_x"], anchor=anchor, terms=terms)
@@ -289,12 +294,13 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
 def bound_text(bound: dict) -> str:
     """One paragraph of ``planner_bound``'s figures."""
     parts = []
-    for label in ("anchored", "unanchored"):
+    for label in ("anchored", "anchored_with_se", "unanchored"):
         b = bound[label]
         if not b["pairs"]:
             parts.append(f"{label}: no pairs")
             continue
-        parts.append(f"{label} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
+        name = {"anchored": "anchored as the planner plans", "anchored_with_se": "anchored with the anchor's standard error"}.get(label, label)
+        parts.append(f"{name} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
                      f"({b['exceeded_x_deeper']:.0%} of the {b['deeper_pairs']} going deeper: "
                      f"{_share(b['exceeded_x_deeper_near'])} of the {b['deeper_near_pairs']} at most "
                      f"{bound['near_reach']:g}× as deep, {_share(b['exceeded_x_deeper_far'])} of the "

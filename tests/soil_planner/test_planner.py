@@ -570,6 +570,38 @@ def test_an_explicit_anchor_is_checked_and_named():
         max_cut_depth(fused, known, anchor=((math.nan, 0.0), known))
     with pytest.raises(ValueError, match="anchor known has no field 'q'"):
         max_cut_depth(fused, known, anchor=((1e3, 0.0), {k: v for k, v in known.items() if k != "q"}))
+    # the anchor force's standard error: none is the anchor as before; a bad one is named
+    f_now = (fused["f_x_hat"], fused["f_z_hat"])
+    assert max_cut_depth(fused, known, anchor=(f_now, known, (0.0, 0.0))) == same
+    for std, needle in (((-1.0, 0.0), "anchor force std"), ((math.inf, 0.0), "anchor force std x=inf"),
+                        ((1.0,), "must be")):
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(fused, known, anchor=(f_now, known, std))
+
+
+def test_the_anchors_standard_error_widens_the_bound_by_the_depth_ratio_it_is_carried_with():
+    """Anchored, each sample's force is the force now times its depth ratio: an error σ in the
+    force now is an error σ·F_s(d)/F̂ there, independent of the law's. A bound that left it out
+    read a noisy window's level as the soil's (in the fee world with sensor noise the 95 % bound
+    at most 1.6x as deep was exceeded in a quarter of the forecasts). At the depth being cut it
+    adds σ itself; deeper, more; and a wider error never lowers the bound or deepens the plan."""
+    known = _known(d=0.1, q=0.0)
+    fused = _fused(_estimate(known, phi=35 * DEG, c=0.0, delta=20 * DEG), 35 * DEG, 0.0, 20 * DEG,
+                   std=(0.2 * DEG, 1.0, 0.1 * DEG), rel=(0.0, 0.0), abs_n=(1.0, 1.0))
+    f_now = (fused["f_x_hat"], fused["f_z_hat"])
+    depths = [0.1, 0.2]
+    exact = fused_upper_force(fused, known, depths, anchor=(f_now, known))
+    noisy = fused_upper_force(fused, known, depths, anchor=(f_now, known, (200.0, 200.0)))
+    gain_now, gain_deep = noisy[0] - exact[0]
+    z95 = 1.6449
+    assert gain_now == pytest.approx(z95 * 200.0, rel=0.1)
+    ratio = exact[0][1] / exact[0][0]  # a sharp cohesionless posterior: one depth ratio (about 4 for d²)
+    assert 3.0 < ratio < 5.0 and gain_deep == pytest.approx(z95 * 200.0 * ratio, rel=0.15)
+    assert (noisy[1] >= exact[1] - 1e-6).all()
+    wider = fused_upper_force(fused, known, depths, anchor=(f_now, known, (400.0, 400.0)))
+    assert (wider[0] > noisy[0]).all()
+    plans = [max_cut_depth(fused, known, anchor=(f_now, known, (s, s))).max_depth_m for s in (0.0, 200.0, 400.0)]
+    assert plans[0] >= plans[1] >= plans[2] and plans[0] > plans[2]
 
 
 @pytest.mark.timeout(60)

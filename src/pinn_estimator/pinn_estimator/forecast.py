@@ -64,6 +64,7 @@ class Steady:
     distance_m: float = 0.0  # mean blade travel in soil over the steady rows (for terms that grow with it)
     time_s: float = 0.0  # mean time in soil over the steady rows [s] (likewise)
     world: str = ""  # the episode's world: a pair is one world's (bags of several worlds may share a folder)
+    force_se: np.ndarray | None = None  # (2,) standard error of ``force`` [N] (``mean_standard_error``)
 
     def known_row(self) -> np.ndarray:
         """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
@@ -94,6 +95,22 @@ def steady_rows(known: np.ndarray, steady_from: float = STEADY_FROM) -> np.ndarr
     return steady if len(steady) and len(steady) >= MIN_STEADY_S * SAMPLE_RATE_HZ else None
 
 
+SE_BLOCK_ROWS = 30  # batch means of one stretch (0.5 s): a force's errors are correlated over a few ticks
+
+
+def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.ndarray:
+    """Standard error of the mean of ``values`` (n, ...) along axis 0 by batch means (blocks of
+    ``block`` consecutive rows; a particle event or a stretch of sensor drift spans several ticks,
+    so the rows' own spread over √n would understate it); with fewer than two blocks, std / √n."""
+    values = np.asarray(values, float)
+    n = len(values)
+    k = n // block
+    if k >= 2:
+        means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
+        return means.std(axis=0, ddof=1) / np.sqrt(k)
+    return values.std(axis=0, ddof=1) / np.sqrt(n) if n > 1 else np.zeros(values.shape[1:])
+
+
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady part (``steady_rows``); None for an
     episode without one, or whose soil changes along its path (its metadata's label is only its
@@ -110,7 +127,8 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         known = {n: float(ds.known[rows, j].mean()) for j, n in enumerate(KNOWN_PARAMS)}
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
-                          float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode))
+                          float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode,
+                          mean_standard_error(ds.forces[rows])))
     return out
 
 
