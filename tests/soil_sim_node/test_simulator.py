@@ -470,3 +470,34 @@ def test_report_cli(tmp_path, capsys):
     data = json.loads(path.read_text())
     assert data["settings"]["seed"] == 5 and data["settings"]["duration_s"] == 3.0
     assert {"depth", "surcharge", "fee_match", "open_loop", "oscillations", "summary"} <= set(data)
+
+
+def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simulated_as_no_force():
+    """φ = 0 (an undrained clay) or φ + δ + ρ ≥ 180°: the FEE has no failure wedge, and the simulator's
+    force there is 0, a soil that resists nothing. Such a soil is refused, named with its φ, at
+    its own density or once compaction makes it dense; a small φ is a soil (a large force)."""
+    from soil_physics.soils import soil_from_dict
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator, check_failure_wedges
+
+    def soil(name, phi):
+        return {name: soil_from_dict({"name": name, "phi_deg": list(phi), "cohesion_pa": [30e3, 30e3],
+                                      "unit_weight_n_m3": [17e3, 17e3]})}
+
+    # the fee world's blade (ρ 80°, δ 15°) has a wedge up to φ 85°; the default world's (δ 10°) to 90°
+    steep = (("Steep", (89, 89.9), "phi=89.5°"), ("Densens", (30, 89.9), "100 %: phi=89.9°"))
+    for world, cases in (("fee", steep), ("default", ())):
+        for name, phi, needle in (("Undrained", (0, 0), "phi=0°"),) + cases:
+            custom = soil(name, phi)
+            spec = EpisodeSpec(name, 50.0, 0.5, 0.2, seed=0, duration_s=1.0)
+            with pytest.raises(ValueError, match=f"soil '{name}' at I_d .*{needle}.*no failure wedge"):
+                SoilSimulator(SimConfig(world_mode=world), [spec], custom)
+            with pytest.raises(ValueError, match="no failure wedge"):  # a patch of it too
+                check_failure_wedges(SimConfig(world_mode=world), EpisodeSpec(
+                    "Clay", 50.0, 0.5, 0.2, seed=0, patches=["0:Clay:50", f"5:{name}:50"]), custom)
+        small = soil("Small", (2, 2))
+        ep = run_episodes(SimConfig(world_mode=world), [EpisodeSpec("Small", 50.0, 0.5, 0.05, seed=0, duration_s=2.0)], custom_soils=small)[0]
+        assert np.abs(ep.forces[60:, 0]).max() > 5e3  # a nearly frictionless cohesive soil resists (hard)
+    for name in ("Clay", "Loam", "Sand", "Gravel"):  # every catalogue soil has its wedge
+        SoilSimulator(SimConfig(world_mode="default"), [EpisodeSpec(name, 0.0, 0.5, 0.2, seed=0)])
+        SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec(name, 100.0, 0.5, 0.2, seed=0)])

@@ -56,6 +56,7 @@ from soil_physics import fee
 from soil_msgs_py.patches import SoilPatch, check_patches
 from soil_msgs_py.params import (
     ADHESION_PA,
+    DEG,
     GRAVITY_M_S2,
     GROUND_TRUTH_PARAMS,
     KNOWN_PARAMS,
@@ -205,6 +206,30 @@ def stamp_ns(tick: int) -> int:
     return (tick * 1_000_000_000) // SAMPLE_RATE_HZ
 
 
+def soil_tool_friction_rad(world_mode: str) -> float:
+    """δ [rad] of the world's blade (the fee world's and the default world's differ)."""
+    return SOIL_TOOL_FRICTION_FEE_RAD if world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD
+
+
+def check_failure_wedges(config: "SimConfig", spec: "EpisodeSpec", custom_soils: dict | None = None) -> None:
+    """ValueError naming the soil if the FEE (Eq. 1-7) has no failure wedge for a soil of ``spec``'s
+    path at a steady cut with this blade, at its relative density or fully compacted (what
+    compaction can reach): its force would be 0, a soil that resists nothing, and every tick of it
+    silent garbage. φ = 0 (an undrained clay) is such a soil: N_γ and N_c have no minimum over β
+    there; so is one whose φ + δ + ρ reaches 180°, where the wedge vanishes."""
+    delta, rho = soil_tool_friction_rad(config.world_mode), config.machine.blade_angle_rad
+    for _, soil, i_d in spec.soil_path(custom_soils):
+        for label, phi in ((f"I_d {i_d:g} %", soil.at(i_d).phi), ("I_d 100 %", soil.dense.phi)):
+            with np.errstate(all="ignore"):
+                beta = float(fee.beta_star(phi, delta, rho, 0.0))
+            if not math.isfinite(beta):
+                raise ValueError(
+                    f"soil {soil.name!r} at {label}: phi={phi / DEG:.3g}° gives the FEE no failure wedge with this "
+                    f"blade (rho={rho / DEG:.3g}°, soil-tool friction delta={delta / DEG:.3g}°): the soil would resist "
+                    f"nothing. The FEE needs 0° < phi < {180.0 - (rho + delta) / DEG:.3g}° (an undrained clay's "
+                    "phi = 0 is outside it)")
+
+
 class SoilSimulator:
     """B planar earthmoving episodes advanced together at 60 Hz (``substeps`` physics steps per tick)."""
 
@@ -229,10 +254,12 @@ class SoilSimulator:
         self.m = m
         b = self.batch
         self._set_soil_paths([s.soil_path(custom_soils) for s in self.specs])
-        self.delta = np.full(b, SOIL_TOOL_FRICTION_FEE_RAD if config.world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD)
+        self.delta = np.full(b, soil_tool_friction_rad(config.world_mode))
         self.c_a = np.full(b, ADHESION_PA)
         self.rho = m.blade_angle_rad
         self.alpha = 0.0
+        for spec in self.specs:
+            check_failure_wedges(config, spec, custom_soils)
         self.w = m.blade_width_m
         duration = max(s.duration_s for s in self.specs)
         speed = max(s.target_speed_m_s for s in self.specs)
