@@ -158,7 +158,9 @@ def test_soil_sim_batch_takes_a_named_path_of_the_soil_file(tmp_path):
     (["--patch", "0:Sand:20", "--soils", "Clay"], "--soils cannot be combined with --patch or --path"),
     (["--patch", "0:Sand:20", "--relative-densities", "20"], "--relative-densities cannot be combined"),
     (["--patch", "0:Sand:101"], "--patch[0].relative_density_pct=101.0 outside [0, 100] %"),
-    (["--path", "a"], "--path='a' is not a path of no --soil-file"),
+    (["--path", "a"], "--path='a' needs --soil-file"),
+    (["--relative-densities", "abc"], "--relative-densities='abc' must be a comma-separated list of numbers"),
+    (["--depths", "0.1,x"], "--depths='0.1,x' must be a comma-separated list of numbers"),
 ])
 def test_soil_sim_batch_refuses_bad_patches_before_writing(tmp_path, capsys, argv, needle):
     out = tmp_path / "never"

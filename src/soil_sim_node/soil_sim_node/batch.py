@@ -194,7 +194,7 @@ def _floats(text: str, name: str) -> tuple[float, ...]:
     try:
         return tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
-        raise SystemExit(f"error: --{name}={text!r} must be a comma-separated list of numbers") from None
+        raise ValueError(f"--{name}={text!r} must be a comma-separated list of numbers") from None
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -234,9 +234,11 @@ def _patches_from_args(args: argparse.Namespace, paths: dict, custom: dict) -> t
     if args.patch and args.path:
         raise ValueError(f"--patch {args.patch} and --path={args.path!r} both give the patches: use one")
     if args.path:
+        if not args.soil_file:
+            raise ValueError(f"--path={args.path!r} needs --soil-file (the YAML whose 'paths:' section names it)")
         if args.path not in paths:
-            where = f"--soil-file {str(args.soil_file)!r}" if args.soil_file else "no --soil-file"
-            raise ValueError(f"--path={args.path!r} is not a path of {where}; its paths: {sorted(paths)}")
+            raise ValueError(f"--path={args.path!r} is not a path of --soil-file {str(args.soil_file)!r}; its paths: "
+                             f"{sorted(paths)}")
         patches = paths[args.path]
     else:
         patches = check_patches(args.patch, "--patch")
