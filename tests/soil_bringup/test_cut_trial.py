@@ -133,11 +133,15 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     assert CM.settle_s(planner, 0, 0.3) is None  # never within 20 % of 0.3 m in the sand
 
 
+def _refuse(constant):
+    raise ValueError(f"not strict JSON: {constant}")
+
+
 def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp_path, capsys):
     out = tmp_path / "planner"
     assert cut_report.main(["--worlds", "fee", "--duration", "4", "--patch", "0:Sand:20", "--patch", "3:Clay:80",
                             "--margin", "0.9", "--out", str(out)]) == 0
-    report = json.loads((out / "cut_report.json").read_text())
+    report = json.loads((out / "cut_report.json").read_text(), parse_constant=_refuse)  # strict JSON (no Infinity)
     assert report["planner"] == {"margin": 0.9, "force_quantile": 0.95} and "--margin 0.9" in report["command"]
     (world,) = report["worlds"]
     assert [p["policy"].split()[0] for p in world["policies"]] == ["conservative", "aggressive", "soil-aware"]

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 import time
@@ -35,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
+from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
@@ -337,7 +337,8 @@ def main(argv=None) -> int:
     print(console(report))
     (args.out / "cut_report.md").write_text(markdown(report) + "\n")
     serial = {**report, "worlds": [{k: v for k, v in w.items() if k != "cuts"} for w in report["worlds"]]}
-    (args.out / "cut_report.json").write_text(json.dumps(serial, indent=1, default=float) + "\n")
+    # strict JSON: a ratio over no stall is inf on the console and null here
+    (args.out / "cut_report.json").write_text(strict_json.dumps(serial, indent=1, default=float) + "\n")
     print(f"soil_cut_report: {report['wall_s']:.0f} s; table {args.out / 'cut_report.md'}, figures "
           + ", ".join(str(args.out / w["figure"]) for w in report["worlds"]))
     return 0

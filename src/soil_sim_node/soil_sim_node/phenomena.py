@@ -32,6 +32,7 @@ import numpy as np
 from soil_physics import fee
 from soil_physics.blade_inertia import inertia_force_rows
 from soil_msgs_py.episode import Episode
+from soil_msgs_py.strict_json import json_safe
 from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -549,22 +550,7 @@ class PhenomenaReport:
             out[name] = [asdict(r) for r in getattr(self, name)]
         out["open_loop"] = [dict(asdict(r), ratio_abs_f=r.ratio_abs_f, saturated=r.saturated) for r in self.open_loop]
         out["summary"] = [dict(claim=c, holds=ok, numbers=n) for c, ok, n in summarize(self)]
-        return _json_safe(out)
-
-
-def _json_safe(x):
-    """NaN/inf -> None, NumPy scalars -> Python numbers (strict JSON)."""
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
+        return json_safe(out)
 
 
 def run_all(settings: Settings | None = None, progress: Callable[[str], None] | None = None) -> PhenomenaReport:
