@@ -261,6 +261,27 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
         build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=two) for m in ds.metas]), stride=4)
 
 
+def test_an_episode_with_too_little_cutting_is_left_out_not_fitted(bag_dirs):
+    """A blade that barely entered (a few ticks in the soil) gives nothing to fit a soil to: an
+    episode with less than MIN_CUT_S of analysed cutting is left out and named; one with more is
+    analysed; none left is refused with the reason."""
+    from soil_discrepancy.frame import MIN_CUT_S
+
+    ds = load_dataset(bag_dirs["control"])
+    known = ds.known.copy()
+    d = KNOWN_PARAMS.index("d")
+    for e, keep_s in ((0, 0.5 * MIN_CUT_S), (1, 1.5 * MIN_CUT_S)):
+        r = ds.episode_rows(e)
+        rows = np.arange(r.start, r.stop)
+        cut = rows[(rows >= r.start + 120) & (rows < r.start + 120 + int(keep_s * 60))]
+        known[np.setdiff1d(rows, cut), d] = 0.0  # the blade above the soil but for keep_s
+    frame = build_frame(dataclasses.replace(ds, known=known), stride=4)
+    assert frame.too_short == (ds.names[0],) and 1 in set(frame.episodes) and 0 not in set(frame.episodes)
+    known[:, d] = np.where(np.arange(len(known)) % 600 < 30, known[:, d], 0.0)  # every episode: 0.5 s at most
+    with pytest.raises(ValueError, match=f"no episode of the {len(ds)} has {MIN_CUT_S:g} s of the blade in the soil"):
+        build_frame(dataclasses.replace(ds, known=known), stride=4)
+
+
 def test_without_a_soil_label_the_test_part_spans_the_unit_weights(bag_dirs):
     """No soil to stratify by: the held-out groups come one from each band of measured γ, so the
     test part covers the soils' range for every seed (a plain shuffle puts both test groups in

@@ -34,6 +34,10 @@ UNKNOWN_SOILS = ("", "unknown", "none", "?")
 # they differ at all (15.5-21 kN/m³); a machine's γ is a configured or weighed number.
 GAMMA_GROUP_RTOL = 0.002
 GROUP_BY = ("auto", "episode", "gamma")
+# An episode with less analysed cutting than this is left out: a fit of its soil to a few ticks (a
+# blade that barely entered a rock) says nothing, and a verdict drawn from such episodes would be
+# one of low power stated as "no significant discrepancy". One PINN window.
+MIN_CUT_S = 1.0
 # group_by="auto" on bags without any soil label groups by γ only if that gives at least this many
 # groups: the workflow holds out groups and cross-validates over the rest (``split_holdout``).
 MIN_GAMMA_GROUPS = 3
@@ -66,6 +70,7 @@ class Frame:
     group_by: str = "auto"
     source: str = ""
     changing_soil: tuple[str, ...] = ()  # episodes left out: their metadata says the soil changes along the path
+    too_short: tuple[str, ...] = ()  # episodes left out: less than MIN_CUT_S of analysed cutting
 
     def __len__(self) -> int:
         return len(self.episode)
@@ -161,6 +166,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     'gamma' — episodes with the same measured unit weight γ share θ (no label read; two soils
     of one γ share a θ, which the report's regimes then show as a misfit).
 
+    Episodes with less than ``MIN_CUT_S`` of analysed cutting are left out (``too_short``).
     Episodes whose metadata lists soil patches of more than one soil or density are left out (named
     in ``changing_soil``): one θ cannot hold across a soil change, and a fit across it reads the
     change as missing physics (the forecast leaves them out alike, ``forecast.one_soil``). A bag
@@ -184,6 +190,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
             v = math.nan
         dens.append(v if math.isfinite(v) else math.nan)
     parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil", "inertia")}
+    short: list[int] = []
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
@@ -193,8 +200,12 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         t = np.arange(n) * dt
         dist = distance_in_soil_of_known(known, dt)
         in_soil_s = time_in_soil_of_known(known, dt)
-        keep = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0][::stride]
+        cutting = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0]
+        keep = cutting[::stride]
         if e in changing:
+            keep = keep[:0]
+        elif len(cutting) < MIN_CUT_S * SAMPLE_RATE_HZ:
+            short.append(e)
             keep = keep[:0]
         parts["episode"].append(np.full(len(keep), e))
         parts["rows"].append(r.start + keep)
@@ -207,7 +218,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     if len(cat["episode"]) == 0:
         raise ValueError(
-            f"no tick of the {n_ep} episode(s) has the blade in the soil (d > {min_depth_m} m) after the "
+            f"no episode of the {n_ep} has {MIN_CUT_S:g} s of the blade in the soil (d > {min_depth_m} m) after the "
             f"first {skip_s:g} s: nothing to compare the model with"
         )
     analysed = set(int(e) for e in np.unique(cat["episode"]))
@@ -242,5 +253,5 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         episode=cat["episode"].astype(int), rows=cat["rows"].astype(np.int64), t=cat["t"],
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
-        changing_soil=tuple(ds.names[e] for e in changing),
+        changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
     )

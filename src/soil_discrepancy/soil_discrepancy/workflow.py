@@ -31,7 +31,7 @@ from pinn_estimator.classical import default_workers
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
 from .forms import describe_form, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
-from .frame import MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
+from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
@@ -123,6 +123,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     if frame.changing_soil:
         say(f"left out {len(frame.changing_soil)} episode(s) whose soil changes along the path (soil patches in "
             f"the metadata): {', '.join(frame.changing_soil[:5])}{' …' if len(frame.changing_soil) > 5 else ''}")
+    if frame.too_short:
+        say(f"left out {len(frame.too_short)} episode(s) with less than {MIN_CUT_S:g} s of cutting: "
+            f"{', '.join(frame.too_short[:5])}{' …' if len(frame.too_short) > 5 else ''}")
 
     # 1. the initial model's θ on every group (per-group fits are independent of each other)
     base = fit_fixed(frame, initial)
@@ -366,6 +369,7 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         "theta_per": _grouping(frame),
         "metadata_soils": frame.has_metadata(),
         "left_out_changing_soil": list(frame.changing_soil),
+        "left_out_too_short": list(frame.too_short),
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
@@ -398,6 +402,9 @@ def _notes(frame: Frame, n_test_groups: int) -> list[str]:
     if frame.changing_soil:
         notes.append(f"{len(frame.changing_soil)} episode(s) left out: their soil changes along the path (soil "
                      "patches in the metadata), and one θ cannot hold across a change.")
+    if frame.too_short:
+        notes.append(f"{len(frame.too_short)} episode(s) left out: less than {MIN_CUT_S:g} s of the blade in the soil "
+                     "after the start transient, too little to fit their soil to.")
     return notes
 
 
