@@ -771,6 +771,11 @@ def test_the_parameters_coverage_counts_central_intervals_and_c_on_cohesive_soil
     assert cover["c"]["coverage_90"] == 1.0 and cover["c"]["coverage_50"] == 0.5
     assert cover["c"]["width_90"] == pytest.approx(400.0)
     assert cover["c"]["mae"] == pytest.approx(np.mean([0.0, 125.0, 0.075]))
+    text = fc._coverage_text(cover["c"], "c")
+    assert text == "intervals hold the truth 100% / 50% of the 2 episodes of cohesive soils"
+    sands = fc.parameter_coverage([part(0.5, 0.0)], [posts[2]])  # no cohesive soil: nothing to score c on
+    assert fc._coverage_text(sands["c"], "c") == "no episode of a cohesive soil to score its intervals on"
+    assert "nan" not in fc._coverage_text(sands["phi"], "phi")
 
 
 def test_an_axis_the_model_forecasts_worse_than_the_force_now_cannot_choose_the_evidence_law():

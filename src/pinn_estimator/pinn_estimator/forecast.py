@@ -335,6 +335,15 @@ def label_of(report: dict, name: str) -> str:
     return LABELS.get(name, name).replace("{physics}", physics)
 
 
+def _coverage_text(v: dict, param: str) -> str:
+    """How often a parameter's intervals hold the truth; c's are scored on the episodes of cohesive
+    soils only, and with none there is nothing to say."""
+    if param == "c" and not v["interval_episodes"]:
+        return "no episode of a cohesive soil to score its intervals on"
+    where = f" of the {v['interval_episodes']} episodes of cohesive soils" if param == "c" else ""
+    return f"intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%}{where}"
+
+
 def _pct(value: float, signed: bool = False) -> str:
     """A percentage cell; "–" where there was nothing to average (no pair in that direction)."""
     if value is None or not np.isfinite(value):
@@ -377,8 +386,6 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
             lines.append(f"| {soil} | {row['pairs']} | " + " | ".join(cells) + " |")
     for name, params in report.get("parameters", {}).items():
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
-                          f"(intervals hold the truth {v['coverage_90']:.0%} / {v['coverage_50']:.0%}"
-                          f"{' of the ' + str(v['interval_episodes']) + ' cohesive soils' if p == 'c' else ''})"
-                          for p, v in params.items())
+                          f"({_coverage_text(v, p)})" for p, v in params.items())
         lines += ["", f"{label_of(report, name)}, soil at each episode's end vs the truth: {cells}."]
     return lines
