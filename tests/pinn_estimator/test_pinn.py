@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -251,6 +252,14 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
         from pinn_estimator.evaluate import evaluate
 
         evaluate(pinn, tiny_bags, classical=False, forecast_data=lone, log=lambda *_: None)
+    # beside a path whose soil changes, still no pair: the refusal says that episode changes soil
+    for ep in run_episodes(SimConfig(world_mode="fee"), specs[2:]):
+        write_episode(lone / ep.meta.name, ep)
+    with pytest.raises(ValueError, match="no two of its 2 episodes.*; 1 change soil along the path"):
+        evaluate(pinn, tiny_bags, classical=False, forecast_data=lone, log=lambda *_: None)
+    for child in lone.iterdir():  # the lone cut alone again
+        if child.name != "one":
+            shutil.rmtree(child)
     # a cut that cycles at the force limit all along holds no steady depth: no pair, and the refusal says why
     limited = tmp_path / "limited"
     for ep in run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Gravel", 100.0, 1.0, d, seed=7, duration_s=6.0)

@@ -183,12 +183,15 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
     parts = fc.steady_parts(ds)
     if next(fc.pair_indices(parts), None) is None:
         unsteady = sum(part is None and fc.one_soil(meta) for part, meta in zip(parts, ds.metas))
+        changing = sum(not fc.one_soil(meta) for meta in ds.metas)
         depths = sorted(f"{part.known['d']:.3f}" for part in parts if part is not None)
         shown = ", ".join(depths[:8]) + (", ..." if len(depths) > 8 else "")
         raise ValueError(f"--forecast-data {root}: no two of its {len(ds)} episodes are one soil at one relative density "
                          f"(and one soil along the path) cut at steady depths at least {fc.MIN_DEPTH_RATIO:g}x apart: "
                          f"nothing to forecast ({unsteady} of them hold no steady cut: less than {fc.MIN_STEADY_S:g} s of "
                          f"their second half in the soil with |v_z| <= {1e3 * fc.STEADY_MAX_ABS_V_Z_M_S:g} mm/s"
+                         + (f"; {changing} change soil along the path (patches in their metadata): no one soil to "
+                            "forecast from or to" if changing else "")
                          + (f"; the steady depths [m]: {shown}" if depths else "") + ")")
     return ds
 
