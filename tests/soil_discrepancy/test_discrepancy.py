@@ -259,6 +259,12 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
     assert not full.changing_soil
     with pytest.raises(ValueError, match="changes soil along its path"):
         build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=two) for m in ds.metas]), stride=4)
+    # nor across worlds: one world's bags against the model (a machine's bags, with no world, are one)
+    mixed = [dataclasses.replace(m, world_mode="default" if i == 0 else m.world_mode) for i, m in enumerate(ds.metas)]
+    with pytest.raises(ValueError, match=r"mixes worlds \['default', 'fee'\]"):
+        build_frame(dataclasses.replace(ds, metas=mixed), stride=4)
+    unknown = [dataclasses.replace(m, world_mode="" if i == 0 else m.world_mode) for i, m in enumerate(ds.metas)]
+    assert len(build_frame(dataclasses.replace(ds, metas=unknown), stride=4).episodes) == len(full.episodes)
 
 
 def test_an_episode_with_too_little_cutting_is_left_out_not_fitted(bag_dirs):

@@ -176,6 +176,10 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     n_ep = len(ds.names)
     if n_ep == 0:
         raise ValueError("the dataset has no episodes")
+    worlds = sorted({str(getattr(m, "world_mode", "") or "") for m in ds.metas} - {"", "unknown"})
+    if len(worlds) > 1:
+        raise ValueError(f"the dataset mixes worlds {worlds} (bag metadata world_mode): a discrepancy is one "
+                         "world's against the model; give one world's bags")
     changing = [e for e in range(n_ep) if not one_soil(ds.metas[e])]
     if len(changing) == n_ep:
         raise ValueError(f"every one of the {n_ep} episode(s) changes soil along its path (soil patches in its "
