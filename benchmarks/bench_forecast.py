@@ -185,9 +185,13 @@ def second_half(ep) -> np.ndarray:
 NOISY_WORLDS: set[str] = set()  # worlds simulated with the measured force's noise on (--fee-noise)
 
 
+def sim_config(world: str) -> SimConfig:
+    """The world as this benchmark simulates it (``--fee-noise``: with the measured force's noise)."""
+    return SimConfig(world_mode=world, effects=effects_for_mode(world, force_noise=world in NOISY_WORLDS))
+
+
 def simulate(world: str, specs: list[EpisodeSpec], gains: AntiStallGains | None = None) -> list:
-    effects = effects_for_mode(world).with_switches(noise=True) if world in NOISY_WORLDS else None
-    return run_episodes(SimConfig(world_mode=world, effects=effects), specs, gains=gains)
+    return run_episodes(sim_config(world), specs, gains=gains)
 
 
 def cached(cache: dict, key: tuple, make):
@@ -301,7 +305,7 @@ def bound_text(bound: dict) -> str:
             continue
         name = {"anchored": "anchored as the planner plans", "anchored_with_se": "anchored with the anchor's standard error"}.get(label, label)
         parts.append(f"{name} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
-                     f"({b['exceeded_x_deeper']:.0%} of the {b['deeper_pairs']} going deeper: "
+                     f"({_share(b['exceeded_x_deeper'])} of the {b['deeper_pairs']} going deeper: "
                      f"{_share(b['exceeded_x_deeper_near'])} of the {b['deeper_near_pairs']} at most "
                      f"{bound['near_reach']:g}× as deep, {_share(b['exceeded_x_deeper_far'])} of the "
                      f"{b['deeper_far_pairs']} farther), |F_z| in {b['exceeded_z']:.0%}; the bound is "
@@ -694,7 +698,7 @@ def section_custom(args, models) -> dict:
                  for k, (soil, i_d, depth) in enumerate((s, i, d) for s in CUSTOM_SOILS for i in CUSTOM_DENSITIES_PCT
                                                         for d in CUSTOM_DEPTHS_M)]
         t0 = time.perf_counter()
-        ds = Dataset.from_episodes(run_episodes(SimConfig(world_mode=world), specs, custom_soils=CUSTOM_SOILS),
+        ds = Dataset.from_episodes(run_episodes(sim_config(world), specs, custom_soils=CUSTOM_SOILS),
                                    root=f"(simulated, {world} world, soils outside the catalogue)")
         cfg = fusion_config(world, models[world][0], args.fusion_set)
         report = fc.evaluate_forecast(ds, np.zeros(0, int), {}, {"fused": fused_posteriors(ds, cfg)}, terms={"fused": cfg.terms})

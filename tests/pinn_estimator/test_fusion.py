@@ -525,7 +525,7 @@ def test_a_forecast_dataset_with_force_noise_is_the_same_cut_measured_by_a_noisy
     assert len(clean) == len(noisy) == 4 and "noisy force" in noisy.root and "noisy" not in clean.root
     np.testing.assert_array_equal(clean.truth[:, :3], noisy.truth[:, :3])  # the same soils (φ, c, δ)
     diff = noisy.forces - clean.forces
-    std = diff[len(diff) // 2:].std(axis=0)  # once the cut is steady: the noise alone (300 / 500 N)
+    std = diff.std(axis=0)  # the noise (300 / 500 N), and what it changes in the closed loop's force
     assert 200.0 < std[0] < 450.0 and 350.0 < std[1] < 700.0, std
 
 
@@ -828,5 +828,9 @@ def test_a_steady_means_standard_error_is_taken_by_batch_means():
     assert se == pytest.approx(300.0 / np.sqrt(3000), rel=0.3)
     slow = np.repeat(rng.normal(0.0, 300.0, size=(300, 2)), 10, axis=0)  # each error lasts 10 ticks
     assert (fc.mean_standard_error(slow) > 2.0 * slow.std(axis=0) / np.sqrt(len(slow))).all()
-    assert fc.mean_standard_error(white[:20]) == pytest.approx(white[:20].std(axis=0, ddof=1) / np.sqrt(20))
+    short = white[:90]  # 3 batches: too few to trust their spread, one independent value per batch
+    assert fc.mean_standard_error(short) == pytest.approx(short.std(axis=0, ddof=1) / np.sqrt(90 / fc.SE_BLOCK_ROWS))
+    assert fc.mean_standard_error(white[:20]) == pytest.approx(white[:20].std(axis=0, ddof=1))  # less than a batch
+    steady = np.tile([[1.0, 2.0]], (600, 1)) + np.tile(np.r_[np.zeros(29), 1.0][:, None], (20, 2))  # equal batches
+    assert (fc.mean_standard_error(steady) >= steady.std(axis=0, ddof=1) / np.sqrt(600) - 1e-12).all()
     assert (fc.mean_standard_error(white[:1]) == 0.0).all()

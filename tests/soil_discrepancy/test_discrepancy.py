@@ -265,6 +265,13 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
         build_frame(dataclasses.replace(ds, metas=mixed), stride=4)
     unknown = [dataclasses.replace(m, world_mode="" if i == 0 else m.world_mode) for i, m in enumerate(ds.metas)]
     assert len(build_frame(dataclasses.replace(ds, metas=unknown), stride=4).episodes) == len(full.episodes)
+    # bags without a soil label are grouped by γ; a left-out labelled episode does not change that
+    blind_metas = [dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) for m in ds.metas]
+    by_gamma = build_frame(dataclasses.replace(ds, metas=blind_metas), stride=4)
+    blind_metas[0] = dataclasses.replace(ds.metas[0], patches=two)  # labelled, but its soil changes: left out
+    with_one = build_frame(dataclasses.replace(ds, metas=blind_metas), stride=4)
+    assert by_gamma.group_by == with_one.group_by == "gamma" and not with_one.has_metadata()
+    assert with_one.changing_soil == (ds.names[0],) and len(with_one.groups) == len(by_gamma.groups)
 
 
 def test_an_episode_with_too_little_cutting_is_left_out_not_fitted(bag_dirs):

@@ -574,7 +574,7 @@ def test_an_explicit_anchor_is_checked_and_named():
     f_now = (fused["f_x_hat"], fused["f_z_hat"])
     assert max_cut_depth(fused, known, anchor=(f_now, known, (0.0, 0.0))) == same
     for std, needle in (((-1.0, 0.0), "anchor force std"), ((math.inf, 0.0), "anchor force std x=inf"),
-                        ((1.0,), "must be")):
+                        ((1.0,), "must be"), (None, "must be"), (5.0, "must be")):
         with pytest.raises(ValueError, match=needle):
             max_cut_depth(fused, known, anchor=(f_now, known, std))
 

@@ -472,7 +472,7 @@ def test_report_cli(tmp_path, capsys):
     assert {"depth", "surcharge", "fee_match", "open_loop", "oscillations", "summary"} <= set(data)
 
 
-def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simulated_as_no_force():
+def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simulated_as_no_force(tmp_path, capsys):
     """φ = 0 (an undrained clay) or φ + δ + ρ ≥ 180°: the FEE has no failure wedge, and the simulator's
     force there is 0, a soil that resists nothing. Such a soil is refused, named with its φ, at
     its own density or once compaction makes it dense; a small φ is a soil (a large force)."""
@@ -498,6 +498,18 @@ def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simu
         small = soil("Small", (2, 2))
         ep = run_episodes(SimConfig(world_mode=world), [EpisodeSpec("Small", 50.0, 0.5, 0.05, seed=0, duration_s=2.0)], custom_soils=small)[0]
         assert np.abs(ep.forces[60:, 0]).max() > 5e3  # a nearly frictionless cohesive soil resists (hard)
+    # the batch refuses it before writing any bag, the good soils' included
+    import yaml
+    from soil_sim_node import batch
+
+    soil_file = tmp_path / "soils.yaml"
+    soil_file.write_text(yaml.safe_dump({"soils": [{"name": "Undrained", "phi_deg": [0, 0], "cohesion_pa": [3e4, 3e4],
+                                                    "unit_weight_n_m3": [17e3, 17e3]}]}))
+    out = tmp_path / "bags"
+    assert batch.main(["--mode", "fee", "--soil-file", str(soil_file), "--soils", "Sand,Undrained", "--seeds", "2",
+                       "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2", "--duration", "1",
+                       "--workers", "2", "--quiet", "--out", str(out)]) == 2
+    assert "soil 'Undrained' at I_d 50 %" in capsys.readouterr().err and not out.exists()
     for name in ("Clay", "Loam", "Sand", "Gravel"):  # every catalogue soil has its wedge
         SoilSimulator(SimConfig(world_mode="default"), [EpisodeSpec(name, 0.0, 0.5, 0.2, seed=0)])
         SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec(name, 100.0, 0.5, 0.2, seed=0)])

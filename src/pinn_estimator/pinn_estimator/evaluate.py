@@ -126,9 +126,9 @@ def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, den
     combos = itertools.product(sorted(CATALOGUE), densities_pct, depths_m)
     specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
              for k, (soil, i_d, d) in enumerate(combos)]
-    effects = effects_for_mode(world).with_switches(noise=True) if force_noise else None
     label = f"{world} world" + (", noisy force" if force_noise else "")
-    return Dataset.from_episodes(run_episodes(SimConfig(world_mode=world, effects=effects), specs),
+    config = SimConfig(world_mode=world, effects=effects_for_mode(world, force_noise))
+    return Dataset.from_episodes(run_episodes(config, specs),
                                  root=f"(simulated, {label})")
 
 

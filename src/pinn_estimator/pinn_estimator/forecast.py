@@ -95,20 +95,28 @@ def steady_rows(known: np.ndarray, steady_from: float = STEADY_FROM) -> np.ndarr
     return steady if len(steady) and len(steady) >= MIN_STEADY_S * SAMPLE_RATE_HZ else None
 
 
-SE_BLOCK_ROWS = 30  # batch means of one stretch (0.5 s): a force's errors are correlated over a few ticks
+# Rows per batch of ``mean_standard_error``: half a second, well beyond how long a force's errors
+# persist (a particle event drops the grip for up to 0.08 s).
+SE_BLOCK_ROWS = SAMPLE_RATE_HZ // 2
+SE_MIN_BATCHES = 5  # fewer batch means estimate their spread too poorly
 
 
 def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.ndarray:
     """Standard error of the mean of ``values`` (n, ...) along axis 0 by batch means (blocks of
-    ``block`` consecutive rows; a particle event or a stretch of sensor drift spans several ticks,
-    so the rows' own spread over √n would understate it); with fewer than two blocks, std / √n."""
+    ``block`` consecutive rows: errors that persist over several ticks, which the rows' spread over
+    √n understates), never below that (a batch-means estimate from few batches can come out near 0).
+    With fewer than SE_MIN_BATCHES batches, the rows' spread over √(n / block): one independent
+    value per block, the cautious side."""
     values = np.asarray(values, float)
     n = len(values)
+    if n < 2:
+        return np.zeros(values.shape[1:])
+    white = values.std(axis=0, ddof=1) / np.sqrt(n)
     k = n // block
-    if k >= 2:
-        means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
-        return means.std(axis=0, ddof=1) / np.sqrt(k)
-    return values.std(axis=0, ddof=1) / np.sqrt(n) if n > 1 else np.zeros(values.shape[1:])
+    if k < SE_MIN_BATCHES:
+        return values.std(axis=0, ddof=1) / np.sqrt(max(n / block, 1.0))
+    means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
+    return np.maximum(means.std(axis=0, ddof=1) / np.sqrt(k), white)
 
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:

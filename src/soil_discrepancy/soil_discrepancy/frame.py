@@ -120,7 +120,8 @@ class Frame:
         return self.known[:, _KI[name]]
 
     def has_metadata(self) -> bool:
-        return any(s != "unknown" for s in self.soils)
+        """Whether an analysed episode has a soil label (a left-out one's says nothing here)."""
+        return any(self.soils[e] != "unknown" for e in self.episodes)
 
 
 def _soil_label(meta) -> str:
@@ -128,22 +129,23 @@ def _soil_label(meta) -> str:
     return "unknown" if soil.lower() in UNKNOWN_SOILS else soil
 
 
-def _gamma_groups(ds) -> list[str]:
-    """Per episode, the name of its γ-group (GAMMA_GROUP_RTOL): chains of sorted median γ."""
+def _gamma_groups(ds, episodes) -> list[str]:
+    """Per episode, the name of its γ-group (GAMMA_GROUP_RTOL): chains of sorted median γ over
+    ``episodes`` (those analysed: a left-out episode's γ must not bridge two chains); "" for the rest."""
+    episodes = sorted(int(e) for e in episodes)
     gamma = np.array([float(np.median(np.asarray(ds.known[ds.episode_rows(e)], float)[:, _KI["gamma"]]))
-                      for e in range(len(ds.names))])
+                      for e in episodes])
     if not np.isfinite(gamma).all():
-        bad = ds.names[int(np.flatnonzero(~np.isfinite(gamma))[0])]
+        bad = ds.names[episodes[int(np.flatnonzero(~np.isfinite(gamma))[0])]]
         raise ValueError(f"episode {bad}: gamma is not finite; cannot group by it")
+    out = [""] * len(ds.names)
     order = np.argsort(gamma, kind="stable")
-    label, names, start = np.zeros(len(gamma), int), [], gamma[order[0]]
-    for j, e in enumerate(order):
-        if j and gamma[e] > gamma[order[j - 1]] * (1 + GAMMA_GROUP_RTOL):
-            start = gamma[e]
-        if not names or names[-1] != start:
-            names.append(start)
-        label[e] = len(names) - 1
-    return [f"γ≈{names[label[e]] / 1e3:.2f} kN/m³" for e in range(len(gamma))]
+    start = gamma[order[0]] if len(order) else 0.0
+    for j, i in enumerate(order):
+        if j and gamma[i] > gamma[order[j - 1]] * (1 + GAMMA_GROUP_RTOL):
+            start = gamma[i]
+        out[episodes[i]] = f"γ≈{start / 1e3:.2f} kN/m³"
+    return out
 
 
 def check_frame_settings(stride, group_by: str) -> None:
@@ -228,12 +230,13 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     analysed = set(int(e) for e in np.unique(cat["episode"]))
     gamma_keys = None
     if group_by == "gamma":
-        gamma_keys = _gamma_groups(ds)
-    elif group_by == "auto" and all(s == "unknown" for s in soils):
+        gamma_keys = _gamma_groups(ds, analysed)
+    elif group_by == "auto" and all(soils[e] == "unknown" for e in analysed):
         # γ groups only where they can be held out and cross-validated: counted over the episodes
-        # with analysed ticks; a non-finite γ (no grouping by it) falls back to one θ per episode
+        # with analysed ticks (a left-out episode's label decides nothing); a non-finite γ (no
+        # grouping by it) falls back to one θ per episode
         try:
-            gamma_keys = _gamma_groups(ds)
+            gamma_keys = _gamma_groups(ds, analysed)
         except ValueError:
             pass
         n_gamma = len({gamma_keys[e] for e in analysed}) if gamma_keys is not None else 0
@@ -243,7 +246,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
     for e in range(n_ep):
         if group_by == "gamma":
-            key = gamma_keys[e]
+            key = gamma_keys[e] or ds.names[e]  # (a left-out episode: a group of its own, with no ticks)
         elif group_by == "auto" and soils[e] != "unknown":
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
         else:

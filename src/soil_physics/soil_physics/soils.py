@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,7 +115,7 @@ def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
     raise ValueError(f"soil={name!r} is unknown; known soils: {sorted(pool)}")
 
 
-_SOIL_NAME = re.compile(r"^[^\W_][\w +.-]*$")  # \w: Unicode letters, digits and _; no path separators
+_UNSAFE_NAME = re.compile(r'[/\\:*?"<>|]')  # path separators and what some file systems refuse
 _EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
@@ -141,14 +142,15 @@ def soil_from_dict(data: dict) -> SoilType:
     name = data.get("name")
     if not isinstance(name, str) or not name.strip():
         raise ValueError(f"soil YAML name={name!r} must be a non-empty string")
-    if not _SOIL_NAME.match(name.strip()) or ".." in name:
-        raise ValueError(f"soil YAML name={name!r}: letters, digits, spaces and _ + - . only, starting with a "
-                         "letter or digit (a soil's name becomes part of its bags' file names)")
+    name = unicodedata.normalize("NFC", name.strip())  # one spelling of "ö" (macOS writes it decomposed)
+    if _UNSAFE_NAME.search(name) or name.startswith(".") or ".." in name or not name.isprintable():
+        raise ValueError(f"soil YAML name={data.get('name')!r}: no path separators, '..', leading '.', control "
+                         'characters or any of : * ? " < > | (a soil\'s name becomes part of its bags\' file names)')
     phi_lim = TABLE1["phi"].limits
     phi = _pair(data, "phi_deg", phi_lim[0] / DEG, phi_lim[1] / DEG - 1e-9, "deg")
     c = _pair(data, "cohesion_pa", 0.0, 1e6, "Pa")
     gamma = _pair(data, "unit_weight_n_m3", 1.0, 40e3, "N/m^3")
-    return _soil(name.strip(), phi, c, gamma, str(data.get("source", "user YAML")))
+    return _soil(name, phi, c, gamma, str(data.get("source", "user YAML")))
 
 
 @dataclass(frozen=True)

@@ -368,7 +368,11 @@ def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float],
 def _checked_anchor(anchor) -> tuple[tuple[float, float], dict[str, float], tuple[float, float]]:
     """((F_x, F_z) [N], Θ_k, (σ_x, σ_z) [N]) of a fused plan's anchor ((F_x, F_z), Θ_k[, (σ_x, σ_z)]:
     the anchor force's own standard error, 0 if not given), checked; ValueError naming what is wrong."""
-    if len(anchor) not in (2, 3) or len(anchor[0]) != 2 or (len(anchor) == 3 and len(anchor[2]) != 2):
+    def pair(x) -> bool:
+        return isinstance(x, (tuple, list, np.ndarray)) and len(x) == 2
+
+    if not isinstance(anchor, (tuple, list)) or len(anchor) not in (2, 3) or not pair(anchor[0]) \
+            or (len(anchor) == 3 and not pair(anchor[2])):
         raise ValueError(f"anchor={anchor!r} must be ((F_x, F_z) [N], Θ_k) or ((F_x, F_z), Θ_k, (σ_x, σ_z) [N])")
     force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
     std = tuple(_number(f"anchor force std {a}", v) for a, v in zip("xz", anchor[2])) if len(anchor) == 3 else (0.0, 0.0)

@@ -114,10 +114,13 @@ class Effects:
         return replace(self, **switches)
 
 
-def effects_for_mode(mode: str) -> Effects:
+def effects_for_mode(mode: str, force_noise: bool = False) -> Effects:
+    """The world's effects; ``force_noise``: with the measured force's noise on whatever the world
+    (the fee world with a noisy sensor: the FEE exact and the truth known, the noise a machine's)."""
     if mode not in WORLD_MODES:
         raise ValueError(f"world_mode={mode!r} is not one of {WORLD_MODES}")
-    return Effects.fee() if mode == "fee" else Effects()
+    effects = Effects.fee() if mode == "fee" else Effects()
+    return effects.with_switches(noise=True) if force_noise else effects
 
 
 class PluginError(ValueError):
