@@ -47,19 +47,24 @@ def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_file
     from types import SimpleNamespace
 
     from soil_physics.soils import load_soil_file
+    from soil_sim_node.simulator import SimConfig
+
     soils = tmp_path / "site.yaml"
     soils.write_text("soils:\n  - {name: Silt, phi_deg: [26, 34], cohesion_pa: [1000, 4000], "
-                     "unit_weight_n_m3: [17000, 19500]}\npaths:\n  site_a: ['0:Silt:30', '4:Clay:80']\n")
+                     "unit_weight_n_m3: [17000, 19500]}\n  - {name: Undrained, phi_deg: [0, 0], cohesion_pa: [3e4, 3e4], "
+                     "unit_weight_n_m3: [17000, 17000]}\npaths:\n  site_a: ['0:Silt:30', '4:Clay:80']\n")
     custom, named = SimNode._load_soil_file(str(soils), "site_a", [])
     assert named == load_soil_file(soils).paths["site_a"]
     values = {**defaults(), "soil_file": str(soils), "path": "site_a"}
-    node = SimpleNamespace(_value=values.__getitem__, custom_soils=custom, named_path=named)
+    node = SimpleNamespace(_value=values.__getitem__, custom_soils=custom, named_path=named, config=SimConfig())
     spec = SimNode._spec_from_params(node, {})
     assert (spec.soil, spec.relative_density_pct, len(spec.patches)) == ("Silt", 30.0, 2)
     with pytest.raises(ValueError, match=r"soil unused while parameter path='site_a' sets the soil along the path"):
         SimNode._spec_from_params(node, {"soil": "Clay"})
     spec = SimNode._spec_from_params(node, {"patches": [], "soil": "Silt", "relative_density_pct": 70.0})
     assert (spec.soil, spec.relative_density_pct, spec.patches) == ("Silt", 70.0, ())
+    with pytest.raises(ValueError, match="soil 'Undrained' at I_d 70 %: phi=0° gives the FEE no failure wedge"):
+        SimNode._spec_from_params(node, {"patches": [], "soil": "Undrained", "relative_density_pct": 70.0})
     with pytest.raises(ValueError, match=r"parameter path='site_a' cannot be combined with sequence_soils"):
         SimNode._validate_static({**values, "sequence_soils": ["Clay"]})
     for name, value in (("soil_file", ""), ("path", "site_a")):
