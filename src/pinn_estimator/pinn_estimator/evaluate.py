@@ -27,6 +27,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from soil_physics import fee
+from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
@@ -448,7 +449,8 @@ def plot(report: dict, path: Path) -> Path:
 def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
-    paths["json"].write_text(json.dumps(report, indent=1, default=float) + "\n")
+    # strict JSON: a figure with nothing to score (NaN) is null, which JSON.parse reads
+    paths["json"].write_text(strict_json.dumps(report, indent=1, default=float) + "\n")
     paths["markdown"].write_text(markdown(report))
     if report.get("forecast_only"):  # no test split: no per-soil figure
         del paths["png"]

@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag
+from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -314,7 +315,8 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     plot(scores, paths["png"])
     run_info["wall_s"] = wall_s = time.monotonic() - t_start
     paths["markdown"].write_text(markdown(result))
-    paths["json"].write_text(json.dumps(result, indent=1, default=float) + "\n")
+    # strict JSON: a figure with nothing to score (NaN) is null, which JSON.parse reads
+    paths["json"].write_text(strict_json.dumps(result, indent=1, default=float) + "\n")
 
     print()
     print(table_text(rows, total))
