@@ -249,6 +249,10 @@ def section_forecast(args, models) -> dict:
 NEAR_REACH = 1.6  # a pair going deeper at most this many times the source's depth is a near one: the held-out grid's 1.5x pairs (their measured depths scatter by mm) against its 2.25x ones
 
 
+BOUND_LABELS = {"anchored": "anchored as the planner plans", "anchored_with_se": "anchored with the anchor's standard error",
+                "unanchored": "unanchored"}  # planner_bound's three bounds, as bound_text names them
+
+
 def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_FORCE_QUANTILE) -> dict:
     """How often the measured steady force at another depth exceeds the bound the planner keeps
     within the limits: the ``quantile`` upper bound of |F| from the published moments of the
@@ -263,7 +267,7 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
     parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
-    rows = {"anchored": [], "anchored_with_se": [], "unanchored": []}
+    rows = {label: [] for label in BOUND_LABELS}
     for a, b in fc.pair_indices(parts):
         if not posts[a].updates:
             continue
@@ -298,13 +302,12 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
 def bound_text(bound: dict) -> str:
     """One paragraph of ``planner_bound``'s figures."""
     parts = []
-    for label in ("anchored", "anchored_with_se", "unanchored"):
+    for label in BOUND_LABELS:
         b = bound[label]
         if not b["pairs"]:
             parts.append(f"{label}: no pairs")
             continue
-        name = {"anchored": "anchored as the planner plans", "anchored_with_se": "anchored with the anchor's standard error"}.get(label, label)
-        parts.append(f"{name} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
+        parts.append(f"{BOUND_LABELS[label]} ({b['pairs']} pairs): |F_x| above it in {b['exceeded_x']:.0%} "
                      f"({_share(b['exceeded_x_deeper'])} of the {b['deeper_pairs']} going deeper: "
                      f"{_share(b['exceeded_x_deeper_near'])} of the {b['deeper_near_pairs']} at most "
                      f"{bound['near_reach']:g}× as deep, {_share(b['exceeded_x_deeper_far'])} of the "

@@ -111,12 +111,12 @@ def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.nd
     n = len(values)
     if n < 2:
         return np.zeros(values.shape[1:])
-    white = values.std(axis=0, ddof=1) / np.sqrt(n)
+    spread = values.std(axis=0, ddof=1)
     k = n // block
     if k < SE_MIN_BATCHES:
-        return values.std(axis=0, ddof=1) / np.sqrt(max(n / block, 1.0))
+        return spread / np.sqrt(max(n / block, 1.0))
     means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
-    return np.maximum(means.std(axis=0, ddof=1) / np.sqrt(k), white)
+    return np.maximum(means.std(axis=0, ddof=1) / np.sqrt(k), spread / np.sqrt(n))
 
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:

@@ -120,12 +120,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     n_ep = len(frame.episodes)
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")
-    if frame.changing_soil:
-        say(f"left out {len(frame.changing_soil)} episode(s) whose soil changes along the path (soil patches in "
-            f"the metadata): {', '.join(frame.changing_soil[:5])}{' …' if len(frame.changing_soil) > 5 else ''}")
-    if frame.too_short:
-        say(f"left out {len(frame.too_short)} episode(s) with less than {MIN_CUT_S:g} s of cutting: "
-            f"{', '.join(frame.too_short[:5])}{' …' if len(frame.too_short) > 5 else ''}")
+    for names, why in _left_out(frame):
+        say(f"left out {len(names)} episode(s): {why}: {', '.join(names[:5])}{' …' if len(names) > 5 else ''}")
 
     # 1. the initial model's θ on every group (per-group fits are independent of each other)
     base = fit_fixed(frame, initial)
@@ -399,13 +395,17 @@ def _notes(frame: Frame, n_test_groups: int) -> list[str]:
             "(speed- or depth-dependent terms at constant speed/depth) is absorbed by θ and cannot be detected; "
             "only effects that vary within an episode (e.g. with time or distance) can."
         )
-    if frame.changing_soil:
-        notes.append(f"{len(frame.changing_soil)} episode(s) left out: their soil changes along the path (soil "
-                     "patches in the metadata), and one θ cannot hold across a change.")
-    if frame.too_short:
-        notes.append(f"{len(frame.too_short)} episode(s) left out: less than {MIN_CUT_S:g} s of the blade in the soil "
-                     "after the start transient, too little to fit their soil to.")
+    notes += [f"{len(names)} episode(s) left out: {why}." for names, why in _left_out(frame)]
     return notes
+
+
+def _left_out(frame: Frame) -> list[tuple[tuple[str, ...], str]]:
+    """(episode names, why) of each kind of episode the frame left out, for the log and the report."""
+    kinds = ((frame.changing_soil, "their soil changes along the path (soil patches in the metadata), and one θ "
+                                   "cannot hold across a change"),
+             (frame.too_short, f"less than {MIN_CUT_S:g} s of the blade in the soil after the start transient, too "
+                               "little to fit their soil to"))
+    return [(names, why) for names, why in kinds if names]
 
 
 def _held_out(ftest: Frame, before: AugmentedFEE, after: AugmentedFEE, base, edges) -> tuple[dict, dict]:

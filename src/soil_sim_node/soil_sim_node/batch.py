@@ -39,7 +39,7 @@ from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 from .effects import Effects, effects_for_mode
 from .ray_cluster import add_ray_option, cluster_cpus, ray_session, run_tasks
 from .rollout import episode_meta, run_episodes
-from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine, check_failure_wedges
+from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
 # Paper §3.1 grids. 4 soils x 6 I_d x speeds x depths x 2 seeds = 576 (default) / 432 (fee).
 DEFAULT_RELATIVE_DENSITIES = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
@@ -109,9 +109,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
     check_engine(plan.engine)
-    resolved = [spec.resolve(plan.custom_soils)[0] for spec in plan.specs]
-    for spec in resolved:  # a soil that resists nothing: refused before any bag is written
-        check_failure_wedges(plan.config(), spec, plan.custom_soils)
+    # every soil one the FEE can cut: refused before any bag is written
+    resolved = [resolve_checked(plan.config(), spec, plan.custom_soils)[0] for spec in plan.specs]
     keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed, s.patches)
             for s in resolved]
     if len(set(keys)) != len(keys):

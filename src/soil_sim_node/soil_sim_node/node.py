@@ -45,7 +45,7 @@ from .effects import effects_for_mode
 from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
-from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, check_failure_wedges, stamp_ns
+from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, resolve_checked, stamp_ns
 from .simulator import check_engine as check_sim_engine
 from .warm_up import warm_up
 
@@ -221,14 +221,12 @@ class SimNode(Node):
         spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
                            float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
                            patches=patches)
-        spec = spec.resolve(self.custom_soils)[0]  # ValueError naming the field and value; with patches, the first one's soil
-        check_failure_wedges(self.config, spec, self.custom_soils)  # a soil that resists nothing
-        return spec
+        # ValueError naming the field and value, or a soil that resists nothing; with patches, the first one's soil
+        return resolve_checked(self.config, spec, self.custom_soils)[0]
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:
-            spec.resolve(self.custom_soils)
-            check_failure_wedges(self.config, spec, self.custom_soils)  # a soil that resists nothing: refused here
+            resolve_checked(self.config, spec, self.custom_soils)  # refused here, not when its turn comes
             self.queue.append(spec)
 
     def _on_set_parameters(self, params) -> SetParametersResult:

@@ -206,6 +206,9 @@ def stamp_ns(tick: int) -> int:
     return (tick * 1_000_000_000) // SAMPLE_RATE_HZ
 
 
+SURFACE_INCLINATION_RAD = 0.0  # α of the simulated soil surface [rad]: level ground
+
+
 def soil_tool_friction_rad(world_mode: str) -> float:
     """δ [rad] of the world's blade (the fee world's and the default world's differ)."""
     return SOIL_TOOL_FRICTION_FEE_RAD if world_mode == "fee" else SOIL_TOOL_FRICTION_DEFAULT_RAD
@@ -221,13 +224,22 @@ def check_failure_wedges(config: "SimConfig", spec: "EpisodeSpec", custom_soils:
     for _, soil, i_d in spec.soil_path(custom_soils):
         for label, phi in ((f"I_d {i_d:g} %", soil.at(i_d).phi), ("I_d 100 %", soil.dense.phi)):
             with np.errstate(all="ignore"):
-                beta = float(fee.beta_star(phi, delta, rho, 0.0))
+                beta = float(fee.beta_star(phi, delta, rho, SURFACE_INCLINATION_RAD))
             if not math.isfinite(beta):
                 raise ValueError(
                     f"soil {soil.name!r} at {label}: phi={phi / DEG:.3g}° gives the FEE no failure wedge with this "
                     f"blade (rho={rho / DEG:.3g}°, soil-tool friction delta={delta / DEG:.3g}°): the soil would resist "
                     f"nothing. The FEE needs 0° < phi < {180.0 - (rho + delta) / DEG:.3g}° (an undrained clay's "
                     "phi = 0 is outside it)")
+
+
+def resolve_checked(config: "SimConfig", spec: "EpisodeSpec",
+                    custom_soils: dict | None = None) -> tuple["EpisodeSpec", SoilType]:
+    """``spec.resolve`` (every field in range, every soil known), then ``check_failure_wedges`` in
+    ``config``'s world: what every place that accepts an episode runs before simulating it."""
+    resolved = spec.resolve(custom_soils)
+    check_failure_wedges(config, resolved[0], custom_soils)
+    return resolved
 
 
 class SoilSimulator:
@@ -242,7 +254,7 @@ class SoilSimulator:
         check_engine(config.engine)
         self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
         self.engine = config.engine
-        resolved = [s.resolve(custom_soils) for s in specs]
+        resolved = [resolve_checked(config, s, custom_soils) for s in specs]
         self.specs = [r[0] for r in resolved]
         self.soils = [r[1] for r in resolved]
         self.batch = len(specs)
@@ -257,9 +269,7 @@ class SoilSimulator:
         self.delta = np.full(b, soil_tool_friction_rad(config.world_mode))
         self.c_a = np.full(b, ADHESION_PA)
         self.rho = m.blade_angle_rad
-        self.alpha = 0.0
-        for spec in self.specs:
-            check_failure_wedges(config, spec, custom_soils)
+        self.alpha = SURFACE_INCLINATION_RAD
         self.w = m.blade_width_m
         duration = max(s.duration_s for s in self.specs)
         speed = max(s.target_speed_m_s for s in self.specs)
