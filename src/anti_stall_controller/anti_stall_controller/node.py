@@ -19,7 +19,9 @@ saves the machine from a stall. In a lockstep episode (the simulator's episode_s
 pacing) the controller keeps step with the planner (``plan_wait``): tick k is answered once the
 planner's target for tick k − ``planner_lag_ticks`` has come, and cuts to that one, so the
 closed loop does not depend on how fast the estimator and planner run (at most
-``planner_wait_s`` of wall time per tick if the planner is silent).
+``planner_wait_s`` of wall time per tick if the planner is silent). Following the planner from
+the start, it subscribes to the state only once the planner's writer has matched (at most
+``inputs_wait_s``), so a simulator waiting for its state readers waits for that match too.
 
 With ``force_lift_m_s`` > 0 at start (the core's force lift, off by default) the controller
 answers a tick once its twist, pose and /blade/force are all in: the blade rises with the force
@@ -43,7 +45,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import (
-    WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
+    JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
@@ -71,6 +73,9 @@ PARAMETERS: dict[str, tuple] = {
                                        "(0, 60]; then it is answered with the target there is. Keep it below the "
                                        "simulator's lockstep_timeout_s (10 s), which ends an episode whose tick "
                                        "is not answered"),
+    "inputs_wait_s": (5.0, "with depth_source planner at start: subscribe to the state once the planner's target "
+                           "has a publisher, or after this long [s] (0: at once), so a simulator waiting for this "
+                           "node starts no episode before the controller can hear the planner"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),
@@ -130,20 +135,30 @@ class ControllerNode(Node):
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        for name in state_topics(True):  # the force reaches the join only with the force lift on
-            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                     lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
-        self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name, self._on_planner_target,
-                                 topic_qos(T.TARGET_DEPTH.name))
+        target_sub = self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
+                                              self._on_planner_target, topic_qos(T.TARGET_DEPTH.name))
         self.joiner = state_joiner(self._force_lift)
+        self._warn = WarnLimiter(self.get_logger())
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
-        self._warn = WarnLimiter(self.get_logger())
+        # The state readers (which a simulator waits for) once the planner's writer has matched
+        # when following it (at most inputs_wait_s): matched late under load, a lockstep tick
+        # waited planner_wait_s for the first targets, which had gone out before the match.
+        following = self.depth_source == "planner"
+        self.state_join = JoinAfterInputs(
+            self, {T.TARGET_DEPTH.name: target_sub} if following else {}, self._subscribe_state,
+            get("inputs_wait_s"), lambda missing: self.get_logger().warning(
+                f"following the state without a publisher of {missing} yet (depth_source planner)"))
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
         if self._force_lift:
             self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
         self.create_timer(0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
+
+    def _subscribe_state(self) -> None:
+        for name in state_topics(True):  # the force reaches the join only with the force lift on
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+                                     lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
 
     @staticmethod
     def _check_planner(source, timeout_s) -> tuple[str, int]:

@@ -24,7 +24,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.ros_adapter import (
-    StatusAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node,
+    WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
     status_event,
 )
 
@@ -89,7 +89,7 @@ class EstimatorNode(Node):
         # /sim/status last, once every input has a publisher (at most inputs_wait_s): matched late
         # under load, the first second's ticks lacked the controller's commands. (A tick that
         # overtakes its episode_start is kept: ``OnlineEstimator.start_episode``.)
-        self.status = StatusAfterInputs(
+        self.status = status_after_inputs(
             self, inputs, self._on_status, get("inputs_wait_s"),
             lambda missing: self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet"))
         self.get_logger().info(

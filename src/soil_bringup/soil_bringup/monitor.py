@@ -92,7 +92,7 @@ class LiveMonitor:
         from rclpy.signals import SignalHandlerOptions
 
         from soil_msgs_py.graph import RECORDER_QOS
-        from soil_msgs_py.ros_adapter import StatusAfterInputs, init_context, message_class, qos_profile
+        from soil_msgs_py.ros_adapter import init_context, message_class, qos_profile, status_after_inputs
 
         self.out = out or sys.stdout
         self.planned = planned_episodes
@@ -121,7 +121,7 @@ class LiveMonitor:
             # /sim/status once the estimator's writer has matched (at most ESTIMATOR_WAIT_S: without
             # an estimator the run goes on, its lines saying so): matched late under load, the
             # monitor saw no estimate before 1.2 s.
-            self.status = StatusAfterInputs(self.node, {T.ESTIMATE.name: estimate_sub}, self._on_status,
+            self.status = status_after_inputs(self.node, {T.ESTIMATE.name: estimate_sub}, self._on_status,
                                             self.ESTIMATOR_WAIT_S)
             self.executor = SingleThreadedExecutor(context=self.context)
             self.executor.add_node(self.node)

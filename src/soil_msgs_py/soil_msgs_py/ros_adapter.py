@@ -130,41 +130,48 @@ def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
         return None
 
 
-class StatusAfterInputs:
-    """A node's /sim/status subscription, created only once every reader in ``inputs`` (topic ->
-    subscription) has a matched publisher, or ``wait_s`` after construction (then
-    ``on_missing(topics)`` is told which had none).
+class JoinAfterInputs:
+    """Calls ``join()`` (it creates the readers a simulator waits for before tick 0) only once
+    every reader in ``inputs`` (topic -> subscription) has a matched publisher, or ``wait_s``
+    after construction (then ``on_missing(topics)`` is told which had none).
 
-    Why: a simulator holds tick 0 until its /sim/status readers have matched, but nothing
+    Why: a simulator holds tick 0 until its own writers and readers have matched, but nothing
     waits for a node's readers of other nodes' topics (the controller's commands, the
-    estimator's estimates); matched late on a loaded machine, a volatile reader never sees the
-    first ticks. Joining /sim/status last makes the simulator wait for them too. Polled by a
-    node timer (``POLL_S``), cancelled once subscribed.
+    estimator's estimates, the planner's targets); matched late on a loaded machine, a
+    volatile reader never sees the first ticks. Joining the simulator's topics last makes the
+    simulator wait for them too. Polled by a node timer (``POLL_S``), cancelled once joined.
     """
 
     POLL_S = 0.02
 
-    def __init__(self, node: Node, inputs: dict, callback: Callable, wait_s: float,
+    def __init__(self, node: Node, inputs: dict, join: Callable[[], object], wait_s: float,
                  on_missing: Callable[[list[str]], None] | None = None):
         if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= 3600.0:
             raise ValueError(f"inputs_wait_s={wait_s!r} must be a number of seconds in [0, 3600]")
-        self.node, self.inputs, self.callback, self.on_missing = node, dict(inputs), callback, on_missing
-        self.subscription = None
+        self.node, self.inputs, self.join, self.on_missing = node, dict(inputs), join, on_missing
+        self.joined = False
         self._deadline = time.monotonic() + float(wait_s)
         self._timer = node.create_timer(self.POLL_S, self.poll)
         self.poll()
 
     def poll(self) -> None:
-        if self.subscription is not None:
+        if self.joined:
             return
         missing = [topic for topic, sub in self.inputs.items() if sub.get_publisher_count() < 1]
         if missing and time.monotonic() < self._deadline:
             return
         if missing and self.on_missing is not None:
             self.on_missing(missing)
-        self.subscription = self.node.create_subscription(
-            message_class(STRING_MSGTYPE), SIM_STATUS_TOPIC, self.callback, topic_qos(SIM_STATUS_TOPIC))
+        self.joined = True
         self._timer.cancel()
+        self.join()
+
+
+def status_after_inputs(node: Node, inputs: dict, callback: Callable, wait_s: float,
+                        on_missing: Callable[[list[str]], None] | None = None) -> JoinAfterInputs:
+    """The node's /sim/status reader, created once ``inputs`` matched (``JoinAfterInputs``)."""
+    return JoinAfterInputs(node, inputs, lambda: node.create_subscription(
+        message_class(STRING_MSGTYPE), SIM_STATUS_TOPIC, callback, topic_qos(SIM_STATUS_TOPIC)), wait_s, on_missing)
 
 
 def raise_interrupt(signum, frame):  # noqa: ARG001

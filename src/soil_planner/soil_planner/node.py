@@ -14,7 +14,9 @@ edge held short of it shows the lift's push in F_z, which does not anchor the pl
 (``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before. While
 commands come, a tick is planned once its own command is in (``command_wait.py``: another
 writer's message, which DDS does not order before the estimate), at most ``command_wait_s``
-of wall time after it was ready.
+of wall time after it was ready. It subscribes to /soil/known_params only once the estimator's
+and the controller's writers have matched (at most ``inputs_wait_s``), so a simulator waiting for
+its Θ_k readers waits for those matches too.
 
 Every plan also moves the cut depth the anti-stall controller follows when its
 ``depth_source`` is ``planner``: /planner/target_depth (stamped like the plan; sent when the
@@ -48,8 +50,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py import graph as G
-from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node,
-                                      status_event, topic_qos)
+from soil_msgs_py.ros_adapter import (JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
+                                      spin_node, status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 
@@ -86,6 +88,9 @@ PARAMETERS: dict[str, tuple] = {
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
                                                f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
+    "inputs_wait_s": (5.0, "subscribe to /soil/known_params once /soil/estimate and /blade/cmd have a publisher, or "
+                           "after this long [s] (0: at once), so a simulator waiting for this node starts no episode "
+                           "before the planner can hear the estimator and the controller"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
     "shallow_rate_m_s": (_SCHEDULE.shallow_rate_m_s, "the target rises by at most this per second [m/s]"),
@@ -148,15 +153,25 @@ class PlannerNode(Node):
                                                 publisher_qos(T.TARGET_DEPTH.name))
         # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known, topic_qos(T.KNOWN.name))
         # /blade/cmd before /soil/estimate: the executor serves ready subscriptions in the order they
         # were made, so a tick's command, sent before its estimate, is mostly taken first (command_wait
         # makes sure of it)
-        self.create_subscription(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
-                                 lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
-                                 topic_qos(T.BLADE_CMD.name))
-        self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, self._on_estimate,
-                                 topic_qos(T.ESTIMATE.name))
+        inputs = {
+            T.BLADE_CMD.name: self.create_subscription(
+                message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
+                lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
+                topic_qos(T.BLADE_CMD.name)),
+            T.ESTIMATE.name: self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name,
+                                                      self._on_estimate, topic_qos(T.ESTIMATE.name)),
+        }
+        # Θ_k (which a simulator waits for) once the controller's and the estimator's writers have
+        # matched (at most inputs_wait_s): matched late under load, the first estimates or commands
+        # were lost, and a lockstep controller waited for their plans.
+        self.known_join = JoinAfterInputs(
+            self, inputs, lambda: self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known,
+                                                           topic_qos(T.KNOWN.name)),
+            get("inputs_wait_s"), lambda missing: self.get_logger().warning(
+                f"following {T.KNOWN.name} without a publisher of {missing} yet"))
         # a tick whose command is lost, or a controller gone quiet: released after command_wait_s
         self.create_timer(0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
         p = self.planner
