@@ -55,3 +55,25 @@ def test_the_controller_and_the_planner_join_the_simulators_topics_once_the_writ
         finally:
             alone.stop()
         assert "without a publisher of" in alone.output and T.TARGET_DEPTH.name in alone.output, alone.output
+
+
+@pytest.mark.timeout(180)
+def test_the_recorder_joins_the_simulators_topics_once_the_controllers_writers_matched(tmp_path):
+    """A bag must hold the first ticks' commands too: the recorder subscribes to the simulator's
+    topics only once the controller's command writers have matched (or after --inputs-wait)."""
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        twist = probe.publisher(T.CHASSIS_TWIST.name, T.CHASSIS_TWIST.msgtype)
+        recorder = NodeProc("soil_bag_record", ["--out", str(tmp_path / "bags"), "--inputs-wait", "600"],
+                            domain, tmp_path)
+        try:
+            wait_until(lambda: status.get_subscription_count() >= 1, 60, "the recorder's /sim/status reader")
+            probe.publisher(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
+            time.sleep(1.0)
+            assert twist.get_subscription_count() == 0, recorder.output  # /chassis/cmd_vel has no writer yet
+            probe.publisher(T.CMD_VEL.name, T.CMD_VEL.msgtype)
+            wait_until(lambda: twist.get_subscription_count() >= 1, 60, "the recorder's state reader")
+        finally:
+            assert recorder.stop() == 0, recorder.output
+        assert "without a publisher of" not in recorder.output, recorder.output

@@ -10,7 +10,7 @@ in the middle of a journal write; the open bags are then finished cleanly (trunc
 whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``.
 
     soil_bag_record --out DIR [--topics T ...] [--all-episode-topics] [--no-split]
-                    [--flush-period S] [--end-grace S] [--ros-args ...]
+                    [--flush-period S] [--end-grace S] [--inputs-wait S] [--ros-args ...]
 """
 from __future__ import annotations
 
@@ -25,10 +25,10 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.graph import CONTROL_QOS, RECORDER_QOS, SIM_STATUS_TOPIC
+from soil_msgs_py.graph import CONTROL_QOS, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
-from soil_msgs_py.ros_adapter import message_class, qos_profile, spin_node
+from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, qos_profile, spin_node
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
@@ -51,7 +51,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--end-grace", type=float, default=END_GRACE_S, metavar="S",
                    help="after episode_end, finish an incomplete episode once no message came for this long [s] "
                         f"(default {END_GRACE_S:g}: more than Fast DDS's 3 s heartbeat, after which lost samples are re-sent)")
+    p.add_argument("--inputs-wait", type=float, default=5.0, metavar="S",
+                   help="subscribe to the simulator's topics once the recorded topics other nodes publish (commands, "
+                        "estimates, plans) have a publisher, or after this long [s] (default 5; 0: at once), so a "
+                        "simulator waiting for this recorder starts no episode before it can hear those nodes")
     opts = p.parse_args(argv)
+    if not 0 <= opts.inputs_wait <= 3600:
+        p.error(f"--inputs-wait {opts.inputs_wait} must be a number of seconds in [0, 3600]")
     if not opts.flush_period > 0:
         p.error(f"--flush-period {opts.flush_period} must be > 0 s")
     if not opts.end_grace >= 0:
@@ -75,8 +81,16 @@ class RecordNode(Node):
         )
         # Created first: when status and data are ready in the same wait, status is taken first.
         self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))
-        for topic, msgtype in known.items():
-            self._subscribe(topic, msgtype, best_effort=False)
+        # The simulator's topics (which a simulator waits for) once the other nodes' writers of the
+        # recorded topics have matched (at most --inputs-wait): matched late under load, a bag
+        # lacked the controller's first commands. (``JoinAfterInputs``)
+        from_others = {t: m for t, m in known.items() if t not in SIM_STATE_TOPICS}
+        inputs = {topic: self._subscribe(topic, msgtype, best_effort=False) for topic, msgtype in from_others.items()}
+        self.inputs_join = JoinAfterInputs(
+            self, inputs, lambda: [self._subscribe(t, m, best_effort=False) for t, m in known.items()
+                                   if t not in from_others], opts.inputs_wait,
+            lambda missing: self.get_logger().warning(f"recording the simulator's topics without a publisher of "
+                                                      f"{missing} yet"))
         self.create_timer(opts.flush_period, self.recorder.poll)
         if self._pending:
             self.get_logger().info(f"waiting for publishers of {self._pending} to learn their types")
@@ -87,12 +101,11 @@ class RecordNode(Node):
     def _on_status(self, msg: String) -> None:
         self.recorder.on_status(msg.data)
 
-    def _subscribe(self, topic: str, msgtype: str, *, best_effort: bool) -> None:
+    def _subscribe(self, topic: str, msgtype: str, *, best_effort: bool):
         qos = qos_profile(RECORDER_QOS)
         if best_effort:  # a RELIABLE reader would never match a BEST_EFFORT writer
             qos.reliability = ReliabilityPolicy.BEST_EFFORT
-
-        self.create_subscription(message_class(msgtype), topic, self._callback(topic), qos, raw=True)
+        return self.create_subscription(message_class(msgtype), topic, self._callback(topic), qos, raw=True)
 
     def _callback(self, topic: str):
         """Raw message plus its message info: the writer's publication sequence number is what
