@@ -282,6 +282,11 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert only["forecast_only"] and only["forecast"]["pairs"] == 2 and "force" not in only
     assert only["forecast"]["forecast"]["fused"]["x"]["all"]["mean_abs_pct"] < 5.0
     assert "the forecast alone" in (out / "f.md").read_text() and not (out / "f_params.png").exists()
+    # another world's model is judged as asked, and said to be another world's
+    said = []
+    evaluate(ck.SHIPPED_MODELS_DIR / "pinn_default.pt", forecast_data=cuts, forecast_only=True, classical=False,
+             workers=1, log=said.append)
+    assert any("trained on default-world data" in line and "fee-world bags" in line for line in said), said
     for bad in ([*alone], [*alone, "--forecast-data", str(cuts), "--data", str(tiny_bags)]):
         with pytest.raises(SystemExit):
             eval_main(bad)

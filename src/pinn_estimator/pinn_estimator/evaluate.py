@@ -209,6 +209,12 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     # read and checked before the test split's evaluation, so a bad directory costs nothing
     forecast_bags = None if forecast_data is None else load_forecast_bags(
         forecast_data, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
+    trained = ckpt.get("dataset", {}).get("world_modes") or []
+    judged = forecast_bags.metas[0].world_mode if forecast_bags is not None else forecast_world
+    if trained and judged in ("fee", "default") and judged not in trained:
+        log(f"warning: {checkpoint} was trained on {', '.join(trained)}-world data; its forecast is judged on "
+            f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
+            f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
     if forecast_only:
         return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
                                progress=progress)
