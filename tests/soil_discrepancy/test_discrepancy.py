@@ -117,12 +117,16 @@ def test_hidden_effect_is_named_fitted_and_halves_the_heldout_error(reports, nam
     assert rep["regimes"]["significant"], "the baseline residual shows where the model is wrong"
 
 
+def _not_strict(constant):
+    raise ValueError(f"not strict JSON (JSON.parse refuses it): {constant}")
+
+
 def test_report_files(reports, bag_dirs):
     rep = reports["soil_inertia"]
     out = Path(rep["outputs"][0]).parent
     for f in ("discrepancy.json", "discrepancy.md", "residuals_by_regime.png", "heldout_gap.png", "candidates.png"):
         assert (out / f).stat().st_size > 0, f
-    saved = json.loads((out / "discrepancy.json").read_text())
+    saved = json.loads((out / "discrepancy.json").read_text(), parse_constant=_not_strict)  # strict JSON
     assert saved["verdict"] == "explained" and saved["model"]["terms"][0][0] == "soil_inertia"
     md = (out / "discrepancy.md").read_text()
     assert "soil_physics.force_terms:plugin term=soil_inertia" in md and "Held-out test episodes" in md
@@ -423,7 +427,7 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
     assert "named ['soil_inertia']" in capsys.readouterr().out
     assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "c"), "--stride", "3", "--quiet", "--no-plots",
                      "--no-cache", "--pinn-epochs", "4", "--hidden", "none"]) == 0
-    ctl = json.loads((tmp_path / "c" / "discrepancy.json").read_text())
+    ctl = json.loads((tmp_path / "c" / "discrepancy.json").read_text(), parse_constant=_not_strict)  # with --hidden too
     assert ctl["hidden_check"]["correct"] and "skipped" in ctl["test"]["predictors"]["PINN"]
 
 

@@ -138,13 +138,15 @@ def hidden_check(report: dict, hidden) -> dict:
 def _append_check(out: Path, check: dict) -> None:
     import json
 
+    from soil_msgs_py import strict_json
+
     md, js = out / "discrepancy.md", out / "discrepancy.json"
     if md.exists():
         md.write_text(md.read_text() + "\n## Check against the hidden effect (test data only)\n\n" + check["text"] + "\n")
     if js.exists():
         data = json.loads(js.read_text())
         data["hidden_check"] = check
-        js.write_text(json.dumps(data, indent=1))
+        js.write_text(strict_json.dumps(data, indent=1))
 
 
 if __name__ == "__main__":

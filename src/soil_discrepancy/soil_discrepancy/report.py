@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from soil_msgs_py import strict_json
+
 from .forms import CATALOGUE_FILE, catalogue_yaml
 from .gap import NO_WORSE_WITHOUT
 from .regimes import AXES, CONTINUOUS, binned_curve
@@ -28,7 +30,8 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     if arrays is not None:
         paths += _plots(report, out, arrays)
     report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
-    paths.insert(0, _atomic(out / "discrepancy.json", json.dumps(report, indent=1, default=_json_default)))
+    # strict JSON (JSON.parse refuses bare NaN / Infinity): a non-finite number, e.g. an open bin edge, is null
+    paths.insert(0, _atomic(out / "discrepancy.json", strict_json.dumps(report, indent=1, default=_json_default)))
     paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
     found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
     if found is not None:
