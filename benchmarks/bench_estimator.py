@@ -30,7 +30,6 @@ on its own ROS_DOMAIN_ID (default 61); the node process is always stopped.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import signal
@@ -69,6 +68,7 @@ import torch  # noqa: E402
 from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model  # noqa: E402
 from pinn_estimator.online import INPUT_TOPICS, OnlineEstimator  # noqa: E402
 from soil_msgs_py import graph as G  # noqa: E402
+from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py import messages as M  # noqa: E402
 from soil_msgs_py import topics as T  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
@@ -464,7 +464,7 @@ def main() -> None:
     result["wall_s"] = round(time.perf_counter() - t_all, 1)
     print(f"total {result['wall_s']} s; load average now {os.getloadavg()[0]:.2f}")
     if args.json:
-        args.json.write_text(json.dumps(result, indent=2, default=str) + "\n")
+        args.json.write_text(strict_json.dumps(result, indent=2, default=str) + "\n")
         print(f"figures written to {args.json}")
 
 

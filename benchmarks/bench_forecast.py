@@ -50,7 +50,6 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
@@ -66,6 +65,7 @@ from pinn_estimator.dataset import Dataset  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode, fused_values  # noqa: E402
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
+from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
@@ -871,7 +871,7 @@ def main() -> None:
     print(f"Total {results['wall_s']:.0f} s; load average at the end {results['load_average_end']:.2f}.")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results, indent=1, default=_json_default) + "\n")
+        args.out.write_text(strict_json.dumps(results, indent=1, default=_json_default) + "\n")
         print(f"wrote {args.out}")
 
 

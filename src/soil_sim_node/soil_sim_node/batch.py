@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import math
 import multiprocessing as mp
 import os
@@ -32,6 +31,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import write_episode
+from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.patches import check_patches
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
@@ -151,7 +151,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         "episode_names": sorted(n for n, _ in results),
     }
     tmp = plan.out / "dataset.json.partial"
-    tmp.write_text(json.dumps(summary, indent=1))
+    tmp.write_text(strict_json.dumps(summary, indent=1))
     os.replace(tmp, plan.out / "dataset.json")
     return summary
 
