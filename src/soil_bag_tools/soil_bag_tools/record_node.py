@@ -25,7 +25,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.graph import CONTROL_QOS, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
+from soil_msgs_py.graph import CONTROL_QOS, INPUTS_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, qos_profile, spin_node
@@ -51,9 +51,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--end-grace", type=float, default=END_GRACE_S, metavar="S",
                    help="after episode_end, finish an incomplete episode once no message came for this long [s] "
                         f"(default {END_GRACE_S:g}: more than Fast DDS's 3 s heartbeat, after which lost samples are re-sent)")
-    p.add_argument("--inputs-wait", type=float, default=5.0, metavar="S",
+    p.add_argument("--inputs-wait", type=float, default=INPUTS_WAIT_S, metavar="S",
                    help="subscribe to the simulator's topics once the recorded topics other nodes publish (commands, "
-                        "estimates, plans) have a publisher, or after this long [s] (default 5; 0: at once), so a "
+                        "estimates, plans) have a publisher, or after this long [s] (default %(default)g; 0: at once), so a "
                         "simulator waiting for this recorder starts no episode before it can hear those nodes")
     opts = p.parse_args(argv)
     if not 0 <= opts.inputs_wait <= 3600:

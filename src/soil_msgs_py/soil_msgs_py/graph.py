@@ -119,6 +119,10 @@ ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name, T
 # What the soil-aware planner reads from the simulator and publishes (the controller reads the target).
 PLANNER_STATE_TOPICS: tuple[str, ...] = (T.KNOWN.name,)
 PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
+# How long a node waits for the writers of other nodes' topics it reads before it joins the
+# simulator's topics anyway (``ros_adapter.JoinAfterInputs``): well inside the simulator's own
+# start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
+INPUTS_WAIT_S = 5.0
 
 
 # Bounds on /sim/command and /sim/status text, checked before decoding: a status event with
