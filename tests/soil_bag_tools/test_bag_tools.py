@@ -115,6 +115,24 @@ def test_recorder_routes_by_stamp_across_overlapping_replays(tmp_path):
     assert rec.close() == [] and not list(tmp_path.glob("*.partial"))
 
 
+def test_an_episode_whose_bag_cannot_be_made_is_not_recorded_and_the_recorder_goes_on(tmp_path):
+    """A name the file system refuses (longer than its 255 bytes) once killed the recorder, and with
+    it a whole launch: that episode is not recorded, said with the reason, and the next one is."""
+    loaded, start, end = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 5]
+    end = replace(end, last_stamp_ns=msgs[-1][0], ticks=5)
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: 0.0)
+    rec.on_status(replace(start, name="x" * 300).to_json())
+    assert any(lvl == "error" and "cannot open its bag" in m and "not recorded" in m for lvl, m in log.lines), log.lines
+    rec.on_status(replace(start, episode=1).to_json())
+    for _, topic, raw in msgs:
+        rec.on_message(topic, raw, 0)
+    rec.on_status(replace(end, episode=1).to_json())
+    assert [r.path.name for r in rec.finished] == [SAMPLE.name]
+    assert_same_episode(bag_io.read_episode(rec.finished[0].path), bag_io.read_episode(SAMPLE), 5)
+
+
 def test_recorder_grace_timeout_trims_to_whole_ticks(tmp_path):
     loaded, start, end = _events(SAMPLE)
     msgs = loaded.messages[: 10 * 20]

@@ -263,6 +263,20 @@ def test_a_soil_name_that_would_leave_the_bag_directory_is_refused():
         with pytest.raises(ValueError, match="soil YAML name=.*no path separators"):
             soil_from_dict({**ok, "name": name})
 
+    # a bag's directory name holds the soil's name, and a file name at most 255 bytes
+    assert soil_from_dict({**ok, "name": "S" * 64}).name == "S" * 64
+    for name in ("S" * 65, "ö" * 33):  # bytes in UTF-8, not characters
+        with pytest.raises(ValueError, match="bytes long in UTF-8, more than 64"):
+            soil_from_dict({**ok, "name": name})
+
+
+def test_two_soils_whose_names_differ_only_in_case_are_refused(tmp_path):
+    """A soil is looked up whatever the case of its name: 'foo' found 'Foo', the other one."""
+    entry = "- name: {}\n  phi_deg: [20, 30]\n  cohesion_pa: [0, 0]\n  unit_weight_n_m3: [16e3, 18e3]\n"
+    p = write(tmp_path, entry.format("Foo") + entry.format("foo"))
+    with pytest.raises(ValueError, match="'Foo' and 'foo' differ only in case"):
+        load_soil_yaml(p)
+
 
 def test_soil_from_dict_rejects_non_mapping():
     with pytest.raises(ValueError, match="mapping"):

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -64,7 +66,15 @@ def test_episode_spec_checks_accept_in_range_or_name_the_field(soil, density, sp
         assert any(f in str(err) for f in ("soil=", "relative_density_pct=", "target_speed_m_s=",
                                            "target_depth_m=", "duration_s=", "seed=")), str(err)
         return
-    assert math.isfinite(spec.duration_s) and spec.seed >= 0
+    assert math.isfinite(spec.duration_s) and 0 <= spec.seed <= 2**63 - 1
+
+
+def test_a_seed_beyond_64_bits_is_refused():
+    """A 230-digit seed from /sim/command once went through into a bag name the file system refused."""
+    assert EpisodeSpec("Clay", 50.0, 0.5, 0.1, seed=2**63 - 1).resolve()
+    for seed in (2**63, 10**230):
+        with pytest.raises(ValueError, match=r"seed=\d+ must be an integer in \[0, 2\*\*63 - 1\]"):
+            EpisodeSpec("Clay", 50.0, 0.5, 0.1, seed=seed).resolve()
 
 
 @FUZZ

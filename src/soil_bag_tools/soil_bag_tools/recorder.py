@@ -281,7 +281,12 @@ class Recorder:
                 s.closing_since, s.polled_write = self.clock(), s.last_write
                 self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
                                  f"at its last stamp {s.last_stamp_ns} ns")
-        s = self._open(ev.name, ev.meta.to_json(), {FIRST_STAMP_KEY: str(ev.first_stamp_ns)})
+        try:
+            s = self._open(ev.name, ev.meta.to_json(), {FIRST_STAMP_KEY: str(ev.first_stamp_ns)})
+        except OSError as err:  # the bag cannot be made (a name the file system refuses, a full or read-only disk):
+            # this episode is not recorded, the others and the bags already written are kept
+            self.log.error(f"episode {ev.name!r}: cannot open its bag under {self.out_dir}: {err}; not recorded")
+            return
         s.event, s.first_stamp_ns, s.flushed_stamp_ns = ev, ev.first_stamp_ns, ev.first_stamp_ns
         self.sessions.append(s)
         held, self.held = self.held, deque()

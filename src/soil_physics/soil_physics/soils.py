@@ -116,6 +116,7 @@ def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
 
 
 _UNSAFE_NAME = re.compile(r'[/\\:*?"<>|]')  # path separators and what some file systems refuse
+MAX_SOIL_NAME_BYTES = 64  # a bag's directory name holds it, and a file name at most 255 bytes
 _EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
@@ -146,6 +147,10 @@ def soil_from_dict(data: dict) -> SoilType:
     if _UNSAFE_NAME.search(name) or name.startswith(".") or ".." in name or not name.isprintable():
         raise ValueError(f"soil YAML name={data.get('name')!r}: no path separators, '..', leading '.', control "
                          'characters or any of : * ? " < > | (a soil\'s name becomes part of its bags\' file names)')
+    if len(name.encode("utf-8")) > MAX_SOIL_NAME_BYTES:
+        raise ValueError(f"soil YAML name={name[:40]!r}{'...' if len(name) > 40 else ''} is {len(name.encode('utf-8'))} "
+                         f"bytes long in UTF-8, more than {MAX_SOIL_NAME_BYTES} (a soil's name becomes part of its bags' "
+                         "file names, which a file system holds to 255 bytes)")
     phi_lim = TABLE1["phi"].limits
     phi = _pair(data, "phi_deg", phi_lim[0] / DEG, phi_lim[1] / DEG - 1e-9, "deg")
     c = _pair(data, "cohesion_pa", 0.0, 1e6, "Pa")
@@ -192,6 +197,12 @@ def load_soil_file(path: str | Path) -> SoilFile:
         except ValueError as exc:
             raise ValueError(f"soil file {str(path)!r}, entry {index}: {exc}") from exc
     custom = {s.name: s for s in soils}
+    seen: dict[str, str] = {}
+    for s in soils:  # names are looked up case-insensitively (``get_soil``): two that differ in case only are one
+        if s.name.lower() in seen:
+            raise ValueError(f"soil file {str(path)!r}: soils {seen[s.name.lower()]!r} and {s.name!r} differ only in "
+                             "case; a soil is looked up by its name whatever the case, so each needs its own name")
+        seen[s.name.lower()] = s.name
     if not isinstance(raw_paths, dict):
         raise ValueError(f"soil file {str(path)!r}: paths={raw_paths!r} must map a path name to its patches")
     paths = {}

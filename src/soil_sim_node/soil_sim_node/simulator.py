@@ -85,6 +85,7 @@ from .effects import (
 
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 MAX_TARGET_SPEED_M_S = 2.0
+MAX_SEED = 2**63 - 1  # a seed a signed 64-bit integer holds (the node's parameter type, numpy, bag readers)
 ENGINES = ("compiled", "reference")
 
 
@@ -150,8 +151,8 @@ class EpisodeSpec:
         for name, value, lo, hi, unit in checks:
             if not isinstance(value, (int, float)) or not math.isfinite(value) or not lo <= value <= hi:
                 raise ValueError(f"{name}={value!r} outside [{lo}, {hi}] {unit}")
-        if not isinstance(spec.seed, (int, np.integer)) or spec.seed < 0:
-            raise ValueError(f"seed={spec.seed!r} must be a non-negative integer")
+        if not isinstance(spec.seed, (int, np.integer)) or not 0 <= spec.seed <= MAX_SEED:
+            raise ValueError(f"seed={spec.seed!r} must be an integer in [0, 2**63 - 1]")
         return spec, soil
 
 
