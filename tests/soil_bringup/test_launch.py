@@ -108,3 +108,21 @@ def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, 
     assert not any(a.startswith("terms:=") for a in planner_argv("--estimator-param", f"fusion_config:={cfg}"))
     argv = planner_argv("--planner-param", "terms:=[]")
     assert argv.index(want) < argv.index("terms:=[]")  # the user's -p comes later and wins
+
+
+def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path):
+    """The simulator finishes its queue but says an episode failed (its exit code): the launch
+    stops the others and exits with that code, not 0 (a script tells that run from a good one),
+    and does not call the simulator dead."""
+    import sys
+
+    from soil_msgs_py import graph as G
+
+    log = tmp_path / "launch.log"
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("other", ["sleep", "60"], stop_order=1),
+                           L.NodeProcess("sim", [sys.executable, "-c", f"raise SystemExit({G.EXIT_EPISODE_FAILED})"],
+                                         stop_order=0, ends_launch=True)], L.loopback_env(0), out=out, stop_timeout_s=5)
+        assert launch.run() == G.EXIT_EPISODE_FAILED
+    text = log.read_text()
+    assert "an episode ended in error" in text and "died" not in text, text

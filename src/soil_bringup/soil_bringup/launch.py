@@ -9,7 +9,8 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
 * prefixes each process's output with its name, like ``ros2 launch``;
 * forwards Ctrl-C / SIGTERM, stops the nodes in data-flow order (simulator first, recorder
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
-* exits 0 when the simulator finished its episodes and everyone stopped cleanly, and
+* exits 0 when the simulator finished its episodes and everyone stopped cleanly, 4
+  (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
   non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit. The
   simulator, controller and recorder are the run: one dying stops the others. The estimator
   and planner are advice: one dying mid-run is reported and the others go on (the controller
@@ -193,6 +194,10 @@ class Launch:
                 if node.ends_launch and rc == 0:
                     self.log(f"{node.name} finished; stopping the others")
                     return 0
+                if node.ends_launch and rc == G.EXIT_EPISODE_FAILED:
+                    self.log(f"{node.name} finished, but an episode ended in error (its log says why; exit code "
+                             f"{rc}); stopping the others")
+                    return rc
                 if rc == G.EXIT_BAD_CONFIG:  # any node: the user's set-up is wrong, not the run
                     self.log(f"{node.name} refused its parameters (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED

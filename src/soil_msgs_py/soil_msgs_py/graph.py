@@ -52,6 +52,9 @@ PACINGS = (PACING_REALTIME, PACING_LOCKSTEP)
 # A node that refuses its parameters at start exits with this code (``ros_adapter.spin_node``);
 # ``soil_launch`` stops the graph on it whatever the node's role: a mistake in the set-up, not a fault.
 EXIT_BAD_CONFIG = 2
+# The simulator ran its episodes to the end, but at least one ended in error (a lockstep tick no
+# controller answered, a state that was not finite): a script can tell that run from a good one.
+EXIT_EPISODE_FAILED = 4
 
 ACTION_START = "start"
 ACTION_RESET = "reset"

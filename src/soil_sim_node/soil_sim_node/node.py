@@ -72,7 +72,8 @@ PARAMETERS: dict[str, tuple] = {
     "sequence_soils": ([], "plan: soils to run in a row (empty: just 'soil')", _STR_ARRAY),
     "sequence_relative_densities_pct": ([], "plan: I_d values [%] per soil (empty: just relative_density_pct)", _DBL_ARRAY),
     "episodes": (1, "repeats of the plan started at launch; 0: start episodes only via /sim/command"),
-    "exit_when_done": (False, "exit (code 0) when the plan and all requested episodes are done"),
+    "exit_when_done": (False, "exit when the plan and all requested episodes are done (code 0; 4 if one ended "
+                                "in error)"),
     "pacing": ("realtime", "'realtime' (wall clock 60 Hz x rate) or 'lockstep' (wait for each tick's commands)"),
     "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
@@ -344,6 +345,8 @@ class SimNode(Node):
         if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
             self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
         self.get_logger().info(f"episode {self.episode_index} end ({reason}): {self.tick + 1} ticks; timing {stats}")
+        if reason == "error":
+            self.exit_code = G.EXIT_EPISODE_FAILED  # the node goes on with its queue, and says so when it exits
         self.next_first_stamp_ns = last + int(round(TICK_PERIOD_NS))
         self.sim = None
         self.gate.idle()
