@@ -390,11 +390,32 @@ def test_lockstep_without_a_controller_ends_the_episode_instead_of_hanging(tmp_p
     assert "no complete command for stamp 0 ns after 1.5 s" in sim.output
 
 
+def test_a_force_plugin_that_fails_mid_episode_ends_it_in_error_and_the_node_goes_on(tmp_path, domain):
+    """A user's plugin that raises (here: a parameter its formula cannot use) ends its episode with
+    reason error, named in the log; the node finishes its queue and exits 4, without a traceback."""
+    plugin = "soil_sim_node.plugins_example:side_wall_shear walls=abc"
+    with RosProbe(domain) as probe:
+        probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        sim = NodeProc("soil_sim_node", _sim_args(f"plugins:=['{plugin}']", "exit_when_done:=true", "duration_s:=0.5",
+                                                  "rate:=5.0", "episodes:=2", wait_for=("/sim/status:1",)),
+                       domain, tmp_path)
+        try:
+            assert sim.wait(timeout=60) == G.EXIT_EPISODE_FAILED, sim.output
+            probe.wait_for(_ended(probe, 2), 5, "the second episode_end")
+            ends = [e for e in _events(probe) if e.event == G.EVENT_EPISODE_END]
+        finally:
+            sim.stop()
+    assert [e.reason for e in ends] == ["error", "error"]
+    assert "plugin='soil_sim_node.plugins_example:side_wall_shear' raised TypeError" in sim.output
+    assert "Traceback" not in sim.output
+
+
 @pytest.mark.parametrize("param, needle", [
     ("duration_s:=5", "duration_s"),  # an integer for a double parameter
     ("soil:=Mud", "Mud"),
     ("pacing:=sometimes", "pacing='sometimes'"),
     ("wait_for:=['/nowhere:1']", "wait_for entry '/nowhere:1'"),
+    ("plugins:=['nope.mod:fn']", "cannot import module 'nope.mod'"),  # at start, not at the first episode
 ])
 def test_bad_simulator_parameters_exit_2_with_the_name(tmp_path, domain, param, needle):
     sim = NodeProc("soil_sim_node", ["--ros-args", "-p", param], domain, tmp_path)

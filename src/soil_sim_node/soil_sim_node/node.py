@@ -41,7 +41,7 @@ from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_cl
 
 from soil_physics.soils import load_soil_file
 
-from .effects import effects_for_mode
+from .effects import PluginError, effects_for_mode, load_plugins
 from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
@@ -122,6 +122,7 @@ class SimNode(Node):
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
         self.config = SimConfig(world_mode=p["world_mode"], effects=effects, plugins=tuple(p["plugins"]),
                                 engine=p["engine"])
+        load_plugins(self.config.plugins)  # a plugin that does not load is a bad parameter (exit 2), not a crash later
         self.queue: collections.deque[EpisodeSpec] = collections.deque()
         base = self._spec_from_params({})
         self._enqueue(episode_plan(base, list(p["sequence_soils"]),
@@ -377,7 +378,12 @@ class SimNode(Node):
         if self.tick + 1 >= self.planned_ticks:
             self._end_episode("completed")
             return
-        out = self.sim.step(u_zr, u_za, u_x)
+        try:
+            out = self.sim.step(u_zr, u_za, u_x)
+        except PluginError as err:  # a user's force plugin raised or returned garbage: this episode cannot go on
+            self.get_logger().error(f"{err}; ending the episode")
+            self._end_episode("error")
+            return
         self.tick += 1
         self._publish_tick(out)
 
