@@ -63,6 +63,17 @@ def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_file
         SimNode._spec_from_params(node, {"soil": "Clay"})
     spec = SimNode._spec_from_params(node, {"patches": [], "soil": "Silt", "relative_density_pct": 70.0})
     assert (spec.soil, spec.relative_density_pct, spec.patches) == ("Silt", 70.0, ())
+    # ... as a /sim/command start says it (the refusal above tells the user to; the command once refused the field)
+    from soil_msgs_py import graph as G
+
+    cmd = G.SimCommand.from_json('{"action": "start", "patches": [], "soil": "Silt", "relative_density_pct": 70}')
+    assert SimNode._spec_from_params(node, cmd.overrides).patches == ()
+    cmd = G.SimCommand.from_json('{"action": "start", "patches": ["0:Sand:20", "3:Silt:40"]}')
+    assert [p.soil for p in SimNode._spec_from_params(node, cmd.overrides).patches] == ["Sand", "Silt"]
+    for bad, needle in (('"0:Sand:20"', "must be a list of patches"),
+                        ('["3:Sand:20", "1:Silt:40"]', r"/sim/command: patches\[1\]\.x_start_m=1\.0 must be greater")):
+        with pytest.raises(ValueError, match=needle):
+            G.SimCommand.from_json('{"action": "start", "patches": ' + bad + "}")
     with pytest.raises(ValueError, match="soil 'Undrained' at I_d 70 %: phi=0° gives the FEE no failure wedge"):
         SimNode._spec_from_params(node, {"patches": [], "soil": "Undrained", "relative_density_pct": 70.0})
     with pytest.raises(ValueError, match=r"parameter path='site_a' cannot be combined with sequence_soils"):

@@ -8,7 +8,7 @@ Episodes in a row (the "documented topic-based mechanism")
 * ``/sim/command`` (std_msgs/String, JSON object) asks the simulator to act:
   ``{"action": "start", <optional EpisodeSpec overrides>}`` queues an episode (fields not
   given come from the node's parameters: soil, relative_density_pct, target_speed_m_s,
-  target_depth_m, seed, duration_s); ``{"action": "reset"}`` aborts the running episode and
+  target_depth_m, seed, duration_s, patches); ``{"action": "reset"}`` aborts the running episode and
   clears the queue; ``{"action": "shutdown"}`` ends the node after the running episode.
 * ``/sim/status`` (std_msgs/String, JSON object) is what happened, one message per event:
   ``episode_start`` (before the episode's first tick is published; carries the episode
@@ -35,6 +35,7 @@ from typing import Any
 from . import topics as T
 from .episode import EpisodeMeta
 from .messages import MAX_STAMP_NS
+from .patches import PATCH_SYNTAX, check_patches
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
@@ -60,7 +61,10 @@ ACTION_START = "start"
 ACTION_RESET = "reset"
 ACTION_SHUTDOWN = "shutdown"
 ACTIONS = (ACTION_START, ACTION_RESET, ACTION_SHUTDOWN)
-START_FIELDS = ("soil", "relative_density_pct", "target_speed_m_s", "target_depth_m", "seed", "duration_s")
+NUMERIC_START_FIELDS = ("relative_density_pct", "target_speed_m_s", "target_depth_m", "seed", "duration_s")
+# patches: the soil along the path, as the node's parameter takes it ("x:SOIL:ID" strings, or mappings);
+# [] clears the node's patches or named path for this episode
+START_FIELDS = ("soil", *NUMERIC_START_FIELDS, "patches")
 
 
 @dataclass(frozen=True)
@@ -269,7 +273,12 @@ class SimCommand:
             raise ValueError(f"{SIM_COMMAND_TOPIC}: unknown field(s) {unknown}; allowed {START_FIELDS}")
         if "soil" in d and not isinstance(d["soil"], str):
             raise ValueError(f"{SIM_COMMAND_TOPIC}: soil={d['soil']!r} must be a string")
-        for key in START_FIELDS[1:]:
+        if "patches" in d:
+            if not isinstance(d["patches"], list):
+                raise ValueError(f"{SIM_COMMAND_TOPIC}: patches={d['patches']!r} must be a list of patches "
+                                 f"({PATCH_SYNTAX} each), [] for none")
+            check_patches(d["patches"], f"{SIM_COMMAND_TOPIC}: patches")  # ValueError naming the entry and value
+        for key in NUMERIC_START_FIELDS:
             if key in d:
                 v = d[key]
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):

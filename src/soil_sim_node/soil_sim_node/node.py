@@ -242,7 +242,7 @@ class SimNode(Node):
             if self.named_path and "patches" in changes:  # (a /sim/command start may still clear it for one episode)
                 raise ValueError(f"patches={list(changes['patches'])} cannot be set while parameter "
                                  f"path={self._value('path')!r} gives the patches (path is fixed at start-up)")
-            spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS or k == "patches"}
+            spec_fields = {k: v for k, v in changes.items() if k in G.START_FIELDS}
             if spec_fields:
                 self._spec_from_params(spec_fields)
             self._validate_static({"pacing": self.pacer.pacing, "rate": changes.get("rate", self.pacer.rate),
