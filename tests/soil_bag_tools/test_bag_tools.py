@@ -133,6 +133,30 @@ def test_an_episode_whose_bag_cannot_be_made_is_not_recorded_and_the_recorder_go
     assert_same_episode(bag_io.read_episode(rec.finished[0].path), bag_io.read_episode(SAMPLE), 5)
 
 
+def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_writer(tmp_path):
+    """A recorder that joined before a writer had matched (its --inputs-wait ran out) may miss that
+    topic's first ticks: the bag's recorder info gives every topic's first tick, and the log says
+    which topics of those start late."""
+    loaded, start, end = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 6]
+    end = replace(end, last_stamp_ns=msgs[-1][0], ticks=6)
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: 0.0)
+    rec.joined_without.update({"/blade/cmd", "/chassis/cmd_vel"})
+    rec.on_status(start.to_json())
+    first = msgs[0][0]
+    for stamp, topic, raw in msgs:
+        if topic != "/blade/cmd" or stamp >= first + 3 * 10**9 // 60:  # its first 3 ticks never came
+            rec.on_message(topic, raw, 0)
+    rec.on_status(end.to_json())
+    (r,) = rec.finished
+    info = json.loads(yaml.safe_load((r.path / "metadata.yaml").read_text())
+                      ["rosbag2_bagfile_information"]["custom_data"][journal.RECORDER_INFO_KEY])
+    assert info["first_tick"]["/blade/cmd"] == 3 and info["first_tick"]["/clock"] == 0
+    late = [m for lvl, m in log.lines if lvl == "warning" and "starts at tick" in m]
+    assert len(late) == 1 and "/blade/cmd starts at tick 3" in late[0] and "/chassis/cmd_vel" not in late[0], log.lines
+
+
 def test_recorder_grace_timeout_trims_to_whole_ticks(tmp_path):
     loaded, start, end = _events(SAMPLE)
     msgs = loaded.messages[: 10 * 20]

@@ -89,14 +89,17 @@ class RecordNode(Node):
         self.inputs_join = JoinAfterInputs(
             self, inputs, lambda: [self._subscribe(t, m, best_effort=False) for t, m in known.items()
                                    if t not in from_others], opts.inputs_wait,
-            lambda missing: self.get_logger().warning(f"recording the simulator's topics without a publisher of "
-                                                      f"{missing} yet"))
+            self._joined_without)
         self.create_timer(opts.flush_period, self.recorder.poll)
         if self._pending:
             self.get_logger().info(f"waiting for publishers of {self._pending} to learn their types")
             self._discovery = self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
         mode = "one bag" if opts.no_split else "one bag per /sim/status episode"
         self.get_logger().info(f"recording {len(known) + len(self._pending)} topics to {opts.out} ({mode})")
+
+    def _joined_without(self, missing: list[str]) -> None:
+        self.recorder.joined_without.update(missing)  # the bags then say where those topics start
+        self.get_logger().warning(f"recording the simulator's topics without a publisher of {missing} yet")
 
     def _on_status(self, msg: String) -> None:
         self.recorder.on_status(msg.data)

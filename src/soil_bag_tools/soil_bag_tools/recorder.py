@@ -111,6 +111,7 @@ class Session:
     end_event: EpisodeEvent | None = None
     counts: dict[str, int] = field(default_factory=dict)
     topic_max: dict[str, int] = field(default_factory=dict)
+    topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
     claims: dict[tuple[str, int], int] = field(default_factory=dict)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
@@ -159,6 +160,9 @@ class Recorder:
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
+        # topics whose writer had not matched when the recorder joined the simulator's topics
+        # (record_node's --inputs-wait ran out): their first messages may be missing from a bag
+        self.joined_without: set[str] = set()
         self._undecodable_warned: set[str] = set()
         if not split:
             name = "record_" + datetime.now(timezone.utc).strftime("%Y%m%d_%H%M%S")
@@ -346,6 +350,8 @@ class Recorder:
         recorded_writer = not episode or self._from_recorded_writer(s, topic, stamp, seq)
         if stamp > s.topic_max.get(topic, -1) and recorded_writer:
             s.topic_max[topic] = stamp
+        if recorded_writer and stamp < s.topic_min.get(topic, stamp + 1):
+            s.topic_min[topic] = stamp
 
     @staticmethod
     def _from_recorded_writer(s: Session, topic: str, stamp: int, seq: int) -> bool:
@@ -399,6 +405,13 @@ class Recorder:
             self.log.warning(f"{s.name}: no message recorded; no bag written")
             return None
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
+        if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
+            info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
+            late = {t: k for t, k in info["first_tick"].items() if t in self.joined_without and k}
+            if late:
+                self.log.warning(f"{s.name}: {', '.join(f'{t} starts at tick {k}' for t, k in late.items())}: "
+                                 "the recorder joined before their writers had matched (--inputs-wait), so the "
+                                 "ticks before are missing from the bag")
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:
