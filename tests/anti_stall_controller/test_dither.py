@@ -97,3 +97,13 @@ def test_bad_dither_node_parameter_is_refused_at_start(tmp_path):
     finally:
         node.stop()
     assert "cannot start" in node.output and "dither_period_s must be a finite number in (0, inf); got 0.0" in node.output
+
+
+def test_a_dither_faster_than_two_ticks_is_refused():
+    """A period below two control periods aliases at the tick rate: the blade command jumped
+    4-9 cm from tick to tick instead of sweeping (accepted before, at start and at run time)."""
+    dt = 1.0 / SAMPLE_RATE_HZ
+    assert AntiStallGains(dither_period_s=2 * dt).dither_period_s == pytest.approx(2 * dt)
+    for period in (1e-9, 1.5 * dt):
+        with pytest.raises(ValueError, match=r"dither_period_s=.* must be at least two control periods"):
+            AntiStallGains(dither_period_s=period)

@@ -126,3 +126,24 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
         assert launch.run() == G.EXIT_EPISODE_FAILED
     text = log.read_text()
     assert "an episode ended in error" in text and "died" not in text, text
+
+
+def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
+    """An option for a node the launch does not start, a negative or NaN timeout, a parameter
+    without a value: refused up front with the option named (before, some were dropped without a
+    word and a run went on without the planner the user had configured)."""
+    import pytest
+
+    for argv, needle in ((["--planner-param", "margin:=0.9"], "--planner-param given, but this launch starts no planner"),
+                         (["--require", "planner"], "--require planner given, but this launch starts no planner"),
+                         (["--estimator-param", "stride:=2"], "starts no estimator"),
+                         (["--no-controller", "--controller-param", "k_v_m_s:=1.0"], "starts no controller"),
+                         (["--timeout", "-5"], "--timeout -5.0 must be a finite number"),
+                         (["--timeout", "nan"], "--timeout nan must be a finite number"),
+                         (["--stop-timeout", "0"], "--stop-timeout 0.0 must be a finite number of seconds, > 0")):
+        with pytest.raises(SystemExit):
+            L.parse_args(argv)
+        assert needle in capsys.readouterr().err, argv
+    assert L.parse_args(["--planner", "--estimator-param", "stride:=2", "--require", "estimator"]).estimator
+    with pytest.raises(ValueError, match="parameter 'duration_s:=' is not of the form name:=value"):
+        L.build_nodes(L.parse_args(["--sim-param", "duration_s:="]))

@@ -87,3 +87,11 @@ def test_a_start_over_sim_command_uses_the_named_path_and_may_name_the_soil_file
         result = SimNode._on_set_parameters(node, [Parameter("patches", Parameter.Type.STRING_ARRAY, patches),
                                                    Parameter("soil", value="Clay")])
         assert not result.successful and f"patches={patches}" in result.reason and "path='site_a'" in result.reason
+
+
+@pytest.mark.parametrize("name, value", [("settle_s", 1e300), ("settle_s", float("nan")), ("wait_timeout_s", -1.0),
+                                         ("lockstep_timeout_s", float("inf"))])
+def test_start_and_tick_waits_are_bounded(name, value):
+    """A pause of 1e300 s was accepted and no episode ever started, without a word."""
+    with pytest.raises(ValueError, match=f"parameter {name}=.* must be a number of seconds in"):
+        SimNode._validate_static({**defaults(), name: value})

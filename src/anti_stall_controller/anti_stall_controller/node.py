@@ -61,7 +61,8 @@ PARAMETERS: dict[str, tuple] = {
     "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
     "dither_amplitude_m": (_GAINS.dither_amplitude_m, "depth dither: amplitude A of a sinusoid added to the target "
                                                       "depth [m], >= 0; 0 = off, a few cm when on"),
-    "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], > 0"),
+    "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], at least two control "
+                                                "periods (1/30 s)"),
     "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
     "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
                                   "(/planner/target_depth; target_depth_m the fallback)"),

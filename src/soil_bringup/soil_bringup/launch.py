@@ -31,6 +31,7 @@ physics it is given: ``posterior_terms_param``) and sets the controller's
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import shutil
@@ -275,7 +276,8 @@ def stop_logged_nodes(log_path: Path) -> list[str]:
 def _params(pairs: list[str]) -> list[str]:
     out = []
     for pair in pairs:
-        if ":=" not in pair:
+        name, sep, value = pair.partition(":=")
+        if not sep or not name.strip() or not value.strip():
             raise ValueError(f"parameter {pair!r} is not of the form name:=value")
         out += ["-p", pair]
     return out
@@ -425,8 +427,20 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
             p.error(f"--{flag}-params-file {path}: no such file")
+    for flag, value in (("--timeout", args.timeout), ("--stop-timeout", args.stop_timeout)):
+        if not math.isfinite(value) or value < 0 or (flag == "--stop-timeout" and value == 0):
+            p.error(f"{flag} {value} must be a finite number of seconds, {'> 0' if flag == '--stop-timeout' else '>= 0 (0: never)'}")
     if args.planner:
         args.estimator = True
+    # options of a node this launch does not start would be ignored without a word
+    runs = {"estimator": args.estimator, "planner": args.planner, "controller": not args.no_controller}
+    for node, running in runs.items():
+        given = [f"--{node}-param" for _ in getattr(args, f"{node}_param")[:1]]
+        given += [f"--{node}-params-file"] if getattr(args, f"{node}_params_file") is not None else []
+        given += [f"--require {node}"] if node in args.require else []
+        if given and not running:
+            p.error(f"{', '.join(given)} given, but this launch starts no {node} "
+                    f"({'--no-controller' if node == 'controller' else f'add --{node}'})")
     return args
 
 

@@ -178,9 +178,10 @@ class SimNode(Node):
         if p.get("path") and plan:
             raise ValueError(f"parameter path={p['path']!r} cannot be combined with {' and '.join(plan)}: "
                              "the path sets the soil along it")
-        for name in ("wait_timeout_s", "settle_s", "lockstep_timeout_s"):
-            if name in p and float(p[name]) < 0:
-                raise ValueError(f"parameter {name}={p[name]} must be >= 0")
+        # (an hour bounds what a start or a tick may be held; a pause of 1e300 s never started an episode)
+        for name, most in (("wait_timeout_s", 3600.0), ("settle_s", 60.0), ("lockstep_timeout_s", 3600.0)):
+            if name in p and not 0.0 <= float(p[name]) <= most:  # (NaN fails too)
+                raise ValueError(f"parameter {name}={p[name]} must be a number of seconds in [0, {most:g}]")
 
     @staticmethod
     def _load_soil_file(soil_file: str, path: str, patches) -> tuple[dict, tuple]:
