@@ -487,6 +487,11 @@ def test_bad_inputs(tmp_path):
     assert out.returncode == 2 and "contains no bags" in out.stderr
     out = subprocess.run([BIN / "soil_bag_repair", tmp_path], capture_output=True, text=True, timeout=30)
     assert out.returncode == 1 and "no *.partial journal directory inside" in out.stderr
+    # an --out it cannot make (under /proc): refused at start naming it, no traceback
+    out = subprocess.run([BIN / "soil_bag_record", "--out", "/proc/nope"], env=ros_env(105),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--out '/proc/nope': cannot create or use it" in out.stdout + out.stderr
+    assert "Traceback" not in out.stdout + out.stderr
 
 
 def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):

@@ -75,10 +75,13 @@ class RecordNode(Node):
             wanted = [t.name for t in EPISODE_TOPICS] + [t for t in wanted if t not in TOPICS_BY_NAME]
         known = {t: GRAPH_TOPICS_BY_NAME[t].msgtype for t in wanted if t in GRAPH_TOPICS_BY_NAME}
         self._pending = [t for t in wanted if t not in known]
-        self.recorder = Recorder(
-            opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
-            qos_for=offered_qos, log=self.get_logger(),
-        )
+        try:
+            self.recorder = Recorder(
+                opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
+                qos_for=offered_qos, log=self.get_logger(),
+            )
+        except OSError as err:  # a directory that cannot be made: refused at start (exit 2), not a traceback
+            raise ValueError(f"--out {str(opts.out)!r}: cannot create or use it: {err.strerror or err}") from None
         # Created first: when status and data are ready in the same wait, status is taken first.
         self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))
         # The simulator's topics (which a simulator waits for) once the other nodes' writers of the
