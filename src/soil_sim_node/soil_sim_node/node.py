@@ -312,6 +312,9 @@ class SimNode(Node):
         poll = self.start_wait.poll(ready)
         if poll.gave_up:
             self.get_logger().warning(f"starting without {missing} after {self.start_wait.wait_timeout_s} s")
+        elif missing and not self.start_wait.wait_timeout_s:  # waiting for ever (wait_timeout_s 0): say for what
+            self.get_logger().warning(f"waiting for {missing} before the next episode (wait_timeout_s 0: no limit)",
+                                      throttle_duration_sec=10.0)
         if poll.go:
             self._start_episode(self.queue.popleft())
 
