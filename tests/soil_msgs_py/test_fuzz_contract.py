@@ -100,7 +100,9 @@ def test_make_and_parse_labelled_round_trip(ns, values):
 
 # --- JSON commands and status --------------------------------------------------------------
 
-json_leaf = st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=8))
+# huge integers too: JSON has no bound on them, and one of 400 digits has no float (OverflowError)
+json_leaf = st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=8),
+                      st.integers(min_value=10**300, max_value=10**400), st.integers(max_value=-10**300))
 json_value = st.recursive(json_leaf, lambda inner: st.one_of(
     st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=8), inner, max_size=4)), max_leaves=20)
 command_like = st.fixed_dictionaries(
@@ -229,3 +231,21 @@ def test_bad_restart_after_refused_is_named(count):
     with pytest.raises(ValueError, match=f"restart_after_refused={count!r}"):
         StampJoiner(TOPICS, max_pending=2, max_ahead_ns=1, restart_after_refused=count)
 
+
+
+def test_a_number_too_large_for_a_float_in_a_command_is_refused_naming_the_field():
+    """A 400-digit integer has no float: checked as one it raised OverflowError, which a node does
+    not catch as a bad message (the simulator died, and the launch with it)."""
+    import pytest
+
+    huge = "9" * 400
+    for text, needle in ((f'{{"action": "start", "seed": {huge}}}', "seed=9999"),
+                         (f'{{"action": "start", "target_depth_m": {huge}}}', "target_depth_m=9999"),
+                         (f'{{"action": "start", "patches": [{{"x_start_m": {huge}, "soil": "Clay", '
+                          '"relative_density_pct": 50}]}', "patches[0].x_start_m=")):
+        with pytest.raises(ValueError, match=needle.replace("[", r"\[").replace("]", r"\]")):
+            G.SimCommand.from_json(text)
+    with pytest.raises(ValueError, match=r"seed=9223372036854775808 must be at most 2\*\*63 - 1"):
+        G.SimCommand.from_json('{"action": "start", "seed": 9223372036854775808}')
+    with pytest.raises(ValueError, match=r"seed=-1 must be an integer in \[0, 2\*\*63 - 1\]"):
+        G.SimCommand.from_json('{"action": "start", "seed": -1}')

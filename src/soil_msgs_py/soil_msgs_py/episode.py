@@ -6,19 +6,22 @@ writes it, the bag reader returns it, the trainer consumes it. Rows are 60 Hz ti
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
-from .patches import SoilPatch, check_patches, patches_tag
+from .patches import SoilPatch, check_patches, finite_number, patches_tag, short_repr
 
 WORLD_MODES = ("fee", "default")
 EPISODE_SCHEMA_VERSION = 1
 
 # Per-tick extras that are not part of o_t but that users and plots want.
 EXTRA_FIELDS: tuple[str, ...] = ("p_x_c", "v_x_b")
+
+
+# The largest seed: a signed 64-bit integer (the nodes' integer parameter type, numpy, bag readers)
+MAX_SEED = 2**63 - 1
 
 
 @dataclass
@@ -53,8 +56,10 @@ class EpisodeMeta:
             raise ValueError(f"world_mode={self.world_mode!r} is not one of {WORLD_MODES}")
         for name in ("relative_density_pct", "target_speed_m_s", "target_depth_m", "duration_s"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{name}={value!r} must be a finite number")
+            if not finite_number(value):
+                raise ValueError(f"{name}={short_repr(value)} must be a finite number")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_SEED:
+            raise ValueError(f"seed={short_repr(self.seed)} must be an integer in [0, 2**63 - 1]")
         if not 0.0 <= self.relative_density_pct <= 100.0:
             raise ValueError(f"relative_density_pct={self.relative_density_pct} outside [0, 100] %")
         if self.target_depth_m < 0.0:

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from . import topics as T
-from .episode import EpisodeMeta
+from .episode import MAX_SEED, EpisodeMeta
 from .messages import MAX_STAMP_NS
-from .patches import PATCH_SYNTAX, check_patches
+from .patches import PATCH_SYNTAX, check_patches, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
@@ -281,8 +281,11 @@ class SimCommand:
         for key in NUMERIC_START_FIELDS:
             if key in d:
                 v = d[key]
+                # (an integer of hundreds of digits has no float: math.isfinite would raise OverflowError)
+                if isinstance(v, int) and not isinstance(v, bool) and abs(v) > MAX_SEED:
+                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be at most 2**63 - 1 in magnitude")
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={v!r} must be a finite number")
-        if "seed" in d and (not float(d["seed"]).is_integer() or d["seed"] < 0):
-            raise ValueError(f"{SIM_COMMAND_TOPIC}: seed={d['seed']!r} must be a non-negative integer")
+                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be a finite number")
+        if "seed" in d and (not float(d["seed"]).is_integer() or not 0 <= d["seed"] <= MAX_SEED):
+            raise ValueError(f"{SIM_COMMAND_TOPIC}: seed={short_repr(d['seed'])} must be an integer in [0, 2**63 - 1]")
         return cls(action=action, overrides=d)

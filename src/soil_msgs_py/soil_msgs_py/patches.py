@@ -67,8 +67,22 @@ def to_patch(item, where: str = "patch") -> SoilPatch:
                      "or an (x_start_m, soil, relative_density_pct) triple")
 
 
-def _finite(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+def short_repr(value, most: int = 40) -> str:
+    """``repr(value)`` cut to ``most`` characters: a 400-digit number from a JSON message stays
+    readable in the error that names it."""
+    text = repr(value)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
+def finite_number(value) -> bool:
+    """A real number (not a bool) that is finite; False, not OverflowError, for an integer too
+    large for a float (JSON has no bound on integers)."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer too large for a float (hundreds of digits in a JSON command)
+        return False
 
 
 def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:
@@ -77,12 +91,12 @@ def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:
     for i, item in enumerate(patches or ()):
         where = f"{field}[{i}]"
         p = to_patch(item, where)
-        if not _finite(p.x_start_m):
-            raise ValueError(f"{where}.x_start_m={p.x_start_m!r} must be a finite number [m]")
+        if not finite_number(p.x_start_m):
+            raise ValueError(f"{where}.x_start_m={short_repr(p.x_start_m)} must be a finite number [m]")
         if not isinstance(p.soil, str) or not p.soil.strip():
             raise ValueError(f"{where}.soil={p.soil!r} must be a soil name")
-        if not _finite(p.relative_density_pct) or not 0.0 <= p.relative_density_pct <= 100.0:
-            raise ValueError(f"{where}.relative_density_pct={p.relative_density_pct!r} outside [0, 100] %")
+        if not finite_number(p.relative_density_pct) or not 0.0 <= p.relative_density_pct <= 100.0:
+            raise ValueError(f"{where}.relative_density_pct={short_repr(p.relative_density_pct)} outside [0, 100] %")
         out.append(SoilPatch(float(p.x_start_m), p.soil.strip(), float(p.relative_density_pct)))
     for i in range(1, len(out)):
         if not out[i].x_start_m > out[i - 1].x_start_m:

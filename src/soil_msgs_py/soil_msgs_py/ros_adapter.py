@@ -125,7 +125,7 @@ def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
     a bad status message never stops a node."""
     try:
         return EpisodeEvent.from_json(text)
-    except ValueError as err:
+    except (ValueError, ArithmeticError) as err:  # (the parser gives ValueError; a number it missed, not a crash)
         warn("status", f"{SIM_STATUS_TOPIC}: {err}; ignored")
         return None
 

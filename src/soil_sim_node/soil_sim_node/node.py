@@ -289,7 +289,7 @@ class SimNode(Node):
                 self.shutdown_requested = True
                 if self.sim is not None:
                     self._end_episode("shutdown")
-        except (ValueError, TypeError) as err:  # rare and deliberate: always logged
+        except (ValueError, TypeError, ArithmeticError) as err:  # a bad command never stops the node: logged
             where = "" if str(err).startswith(G.SIM_COMMAND_TOPIC) else f"{G.SIM_COMMAND_TOPIC}: "
             self.get_logger().warning(f"{where}{err}; ignored")
 

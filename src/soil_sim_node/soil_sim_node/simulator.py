@@ -53,6 +53,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from soil_physics import fee
+from soil_msgs_py.episode import MAX_SEED
 from soil_msgs_py.patches import SoilPatch, check_patches
 from soil_msgs_py.params import (
     ADHESION_PA,
@@ -85,7 +86,6 @@ from .effects import (
 
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 MAX_TARGET_SPEED_M_S = 2.0
-MAX_SEED = 2**63 - 1  # a seed a signed 64-bit integer holds (the node's parameter type, numpy, bag readers)
 ENGINES = ("compiled", "reference")
 
 
