@@ -99,11 +99,16 @@ def test_bad_dither_node_parameter_is_refused_at_start(tmp_path):
     assert "cannot start" in node.output and "dither_period_s must be a finite number in (0, inf); got 0.0" in node.output
 
 
-def test_a_dither_faster_than_two_ticks_is_refused():
-    """A period below two control periods aliases at the tick rate: the blade command jumped
-    4-9 cm from tick to tick instead of sweeping (accepted before, at start and at run time)."""
+def test_a_dither_of_fewer_than_ten_ticks_a_period_is_refused():
+    """Sampled at 60 Hz, a sinusoid of 2 ticks is 0 at every tick and one of 3 steps 1.7 A from tick
+    to tick: no sweep of the depth (1e-9 s was accepted, and the blade command jumped 4-9 cm)."""
+    from anti_stall_controller.controller import MIN_DITHER_TICKS
+
     dt = 1.0 / SAMPLE_RATE_HZ
-    assert AntiStallGains(dither_period_s=2 * dt).dither_period_s == pytest.approx(2 * dt)
-    for period in (1e-9, 1.5 * dt):
-        with pytest.raises(ValueError, match=r"dither_period_s=.* must be at least two control periods"):
-            AntiStallGains(dither_period_s=period)
+    period = MIN_DITHER_TICKS * dt
+    gains = AntiStallGains(dither_amplitude_m=0.03, dither_period_s=period)
+    steps = np.diff([gains.dither_amplitude_m * math.sin(2 * math.pi * k * dt / period) for k in range(3 * MIN_DITHER_TICKS)])
+    assert np.abs(steps).max() <= 2 * math.pi / MIN_DITHER_TICKS * 0.03 + 1e-12  # a sweep: at most 0.63 A a tick
+    for bad in (1e-9, 2 * dt, 3 * dt, 0.99 * period):
+        with pytest.raises(ValueError, match=rf"dither_period_s=.* must be at least {MIN_DITHER_TICKS} control periods"):
+            AntiStallGains(dither_period_s=bad)

@@ -120,9 +120,14 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
 
     log = tmp_path / "launch.log"
     with log.open("w") as out:
-        launch = L.Launch([L.NodeProcess("other", ["sleep", "60"], stop_order=1),
-                           L.NodeProcess("sim", [sys.executable, "-c", f"raise SystemExit({G.EXIT_EPISODE_FAILED})"],
-                                         stop_order=0, ends_launch=True)], L.loopback_env(0), out=out, stop_timeout_s=5)
+        ready = tmp_path / "other.ready"  # the other node stops cleanly on SIGINT once this exists
+        node = ("import pathlib, signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(0)); "
+                f"pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
+        sim = (f"import pathlib, time; t = time.monotonic()\nwhile not pathlib.Path({str(ready)!r}).exists() "
+               f"and time.monotonic() - t < 60: time.sleep(0.02)\nraise SystemExit({G.EXIT_EPISODE_FAILED})")
+        launch = L.Launch([L.NodeProcess("other", [sys.executable, "-c", node], stop_order=1),
+                           L.NodeProcess("sim", [sys.executable, "-c", sim], stop_order=0, ends_launch=True)],
+                          L.loopback_env(0), out=out, stop_timeout_s=5)
         assert launch.run() == G.EXIT_EPISODE_FAILED
     text = log.read_text()
     assert "an episode ended in error" in text and "died" not in text, text

@@ -270,11 +270,14 @@ def test_a_soil_name_that_would_leave_the_bag_directory_is_refused():
             soil_from_dict({**ok, "name": name})
 
 
-def test_two_soils_whose_names_differ_only_in_case_are_refused(tmp_path):
+def test_two_soils_of_one_name_whatever_its_case_are_refused(tmp_path):
     """A soil is looked up whatever the case of its name: 'foo' found 'Foo', the other one."""
     entry = "- name: {}\n  phi_deg: [20, 30]\n  cohesion_pa: [0, 0]\n  unit_weight_n_m3: [16e3, 18e3]\n"
     p = write(tmp_path, entry.format("Foo") + entry.format("foo"))
-    with pytest.raises(ValueError, match="'Foo' and 'foo' differ only in case"):
+    with pytest.raises(ValueError, match="'Foo' and 'foo' have the same name, ignoring case"):
+        load_soil_yaml(p)
+    p = write(tmp_path, entry.format("Foo") + entry.format("Foo"))
+    with pytest.raises(ValueError, match="'Foo' and 'Foo' have the same name"):
         load_soil_yaml(p)
 
 

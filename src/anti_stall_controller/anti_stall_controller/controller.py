@@ -104,6 +104,9 @@ def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str) -> f
     return x
 
 
+MIN_DITHER_TICKS = 10  # ticks per dither period at least: at most 2π/10 ≈ 0.63 A of depth change per tick
+
+
 @dataclass(frozen=True)
 class AntiStallGains:
     """Controller parameters (SI). Validated on construction.
@@ -117,7 +120,7 @@ class AntiStallGains:
     dt_s:           integration step [s], default one 60 Hz tick. > 0.
     dither_amplitude_m: A, amplitude of the depth dither [m] (module docstring, item 4);
                     0 (default) switches it off, a few cm when on. >= 0.
-    dither_period_s: T, period of the depth dither [s], at least 2 dt_s (shorter aliases at the tick rate).
+    dither_period_s: T, period of the depth dither [s], at least MIN_DITHER_TICKS dt_s (a sweep, not jumps).
     force_lift_m_s: g, blade rise rate per unit of force share above ``force_lift_share`` [m/s]
                     (module docstring, item 5); 0 (default) switches it off. >= 0.
     force_lift_share: θ, the share of the machine's force limits above which the force lifts. > 0.
@@ -146,9 +149,11 @@ class AntiStallGains:
         for name, lo, lo_open, allowed in checks:
             value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed)
             object.__setattr__(self, name, value)
-        if self.dither_period_s < 2.0 * self.dt_s:  # a shorter sinusoid aliases at the tick rate: jumps, no dither
-            raise ValueError(f"dither_period_s={self.dither_period_s!r} must be at least two control periods "
-                             f"(2 dt_s = {2.0 * self.dt_s:g} s)")
+        # a sinusoid sampled fewer than MIN_DITHER_TICKS times a period jumps from tick to tick (at 2 ticks
+        # it is 0 at every one, at 3 it steps 1.7 A): no sweep of the depth
+        if self.dither_period_s < MIN_DITHER_TICKS * self.dt_s:
+            raise ValueError(f"dither_period_s={self.dither_period_s!r} must be at least {MIN_DITHER_TICKS} control "
+                             f"periods ({MIN_DITHER_TICKS} dt_s = {MIN_DITHER_TICKS * self.dt_s:g} s)")
 
     def paper_step_gain(self, target_speed_m_s):
         """The paper's per-step gain K_Δp,paper = K_v · dt / v̄_x (Eq. 11 as printed)."""

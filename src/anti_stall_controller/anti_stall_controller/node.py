@@ -49,7 +49,7 @@ from soil_msgs_py.ros_adapter import (
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
-from .controller import AntiStallController, AntiStallGains
+from .controller import MIN_DITHER_TICKS, AntiStallController, AntiStallGains
 from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
 
 _GAINS = AntiStallGains()
@@ -61,8 +61,8 @@ PARAMETERS: dict[str, tuple] = {
     "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
     "dither_amplitude_m": (_GAINS.dither_amplitude_m, "depth dither: amplitude A of a sinusoid added to the target "
                                                       "depth [m], >= 0; 0 = off, a few cm when on"),
-    "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], at least two control "
-                                                "periods (1/30 s)"),
+    "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], at least "
+                                                f"{MIN_DITHER_TICKS} control periods ({MIN_DITHER_TICKS / SAMPLE_RATE_HZ:g} s)"),
     "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
     "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
                                   "(/planner/target_depth; target_depth_m the fallback)"),
@@ -75,7 +75,7 @@ PARAMETERS: dict[str, tuple] = {
                                        "simulator's lockstep_timeout_s (10 s), which ends an episode whose tick "
                                        "is not answered"),
     "inputs_wait_s": (G.INPUTS_WAIT_S, "with depth_source planner at start: subscribe to the state once the planner's target "
-                           "has a publisher, or after this long [s] (0: at once), so a simulator waiting for this "
+                           "has a publisher, or after this long [s], [0, 3600] (0: at once), so a simulator waiting for this "
                            "node starts no episode before the controller can hear the planner"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "

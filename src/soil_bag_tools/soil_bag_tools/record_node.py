@@ -25,7 +25,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.graph import CONTROL_QOS, INPUTS_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
+from soil_msgs_py.graph import CONTROL_QOS, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, qos_profile, spin_node
@@ -56,8 +56,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         "estimates, plans) have a publisher, or after this long [s] (default %(default)g; 0: at once), so a "
                         "simulator waiting for this recorder starts no episode before it can hear those nodes")
     opts = p.parse_args(argv)
-    if not 0 <= opts.inputs_wait <= 3600:
-        p.error(f"--inputs-wait {opts.inputs_wait} must be a number of seconds in [0, 3600]")
+    if not 0 <= opts.inputs_wait <= MAX_WAIT_S:
+        p.error(f"--inputs-wait {opts.inputs_wait} must be a number of seconds in [0, {MAX_WAIT_S:g}]")
     if not opts.flush_period > 0:
         p.error(f"--flush-period {opts.flush_period} must be > 0 s")
     if not opts.end_grace >= 0:

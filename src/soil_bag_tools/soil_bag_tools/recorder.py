@@ -407,11 +407,12 @@ class Recorder:
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
         if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
-            late = {t: k for t, k in info["first_tick"].items() if t in self.joined_without and k}
+            late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items() if t in self.joined_without and k}
+            late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})
             if late:
-                self.log.warning(f"{s.name}: {', '.join(f'{t} starts at tick {k}' for t, k in late.items())}: "
-                                 "the recorder joined before their writers had matched (--inputs-wait), so the "
-                                 "ticks before are missing from the bag")
+                self.log.warning(f"{s.name}: {', '.join(f'{t} {what}' for t, what in late.items())}: the recorder "
+                                 "joined before their writers had matched (--inputs-wait), so their first messages "
+                                 "may be missing from the bag")
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:

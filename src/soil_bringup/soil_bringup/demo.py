@@ -56,7 +56,8 @@ DEFAULT_DOMAIN_ID = 42
 EXIT_FAILED = 1
 EXIT_BAD_ARGS = 2
 EXIT_INTERRUPTED = 130
-LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died", L.EXIT_TIMEOUT: "timeout"}
+LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died", L.EXIT_TIMEOUT: "timeout",
+                   G.EXIT_EPISODE_FAILED: "an episode ended in error"}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

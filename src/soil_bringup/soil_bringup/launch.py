@@ -176,8 +176,12 @@ class Launch:
         failed = [n for n in self.nodes if n.returncode not in (0, None)]
         for n in failed:
             self.log(f"{n.name} exited with code {n.returncode}")
-        if code == 0 and failed:
+        # a node that died wins (1); else a simulator that says an episode failed (4) is that, not a death
+        episode_failed = [n for n in failed if n.ends_launch and n.returncode == G.EXIT_EPISODE_FAILED]
+        if code in (0, G.EXIT_EPISODE_FAILED) and len(failed) > len(episode_failed):
             code = EXIT_NODE_DIED
+        elif code == 0 and episode_failed:
+            code = G.EXIT_EPISODE_FAILED
         self.log(f"done, exit code {code}")
         return code
 
@@ -435,12 +439,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     # options of a node this launch does not start would be ignored without a word
     runs = {"estimator": args.estimator, "planner": args.planner, "controller": not args.no_controller}
     for node, running in runs.items():
-        given = [f"--{node}-param" for _ in getattr(args, f"{node}_param")[:1]]
-        given += [f"--{node}-params-file"] if getattr(args, f"{node}_params_file") is not None else []
-        given += [f"--require {node}"] if node in args.require else []
+        given = ([f"--{node}-param"] if getattr(args, f"{node}_param") else []) \
+            + ([f"--{node}-params-file"] if getattr(args, f"{node}_params_file") is not None else []) \
+            + ([f"--require {node}"] if node in args.require else [])
         if given and not running:
             p.error(f"{', '.join(given)} given, but this launch starts no {node} "
                     f"({'--no-controller' if node == 'controller' else f'add --{node}'})")
+    if args.recorder_arg and not args.record:
+        p.error("--recorder-arg given, but this launch starts no recorder (add --record DIR)")
     return args
 
 

@@ -130,6 +130,7 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # simulator's topics anyway (``ros_adapter.JoinAfterInputs``): well inside the simulator's own
 # start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
 INPUTS_WAIT_S = 5.0
+MAX_WAIT_S = 3600.0  # the longest any start-up or tick wait of the graph may be set to [s]
 
 
 # Bounds on /sim/command and /sim/status text, checked before decoding: a status event with

@@ -27,8 +27,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
-from .graph import (DATA_QOS, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec,
-                    publisher_qos_spec)
+from .graph import (DATA_QOS, EXIT_BAD_CONFIG, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent,
+                    QosSpec, publisher_qos_spec)
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -146,8 +146,8 @@ class JoinAfterInputs:
 
     def __init__(self, node: Node, inputs: dict, join: Callable[[], object], wait_s: float,
                  on_missing: Callable[[list[str]], None] | None = None):
-        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= 3600.0:
-            raise ValueError(f"inputs_wait_s={wait_s!r} must be a number of seconds in [0, 3600]")
+        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= MAX_WAIT_S:
+            raise ValueError(f"inputs_wait_s={wait_s!r} must be a number of seconds in [0, {MAX_WAIT_S:g}]")
         self.node, self.inputs, self.join, self.on_missing = node, dict(inputs), join, on_missing
         self.joined = False
         self._deadline = time.monotonic() + float(wait_s)

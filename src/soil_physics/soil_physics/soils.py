@@ -200,8 +200,9 @@ def load_soil_file(path: str | Path) -> SoilFile:
     seen: dict[str, str] = {}
     for s in soils:  # names are looked up case-insensitively (``get_soil``): two that differ in case only are one
         if s.name.lower() in seen:
-            raise ValueError(f"soil file {str(path)!r}: soils {seen[s.name.lower()]!r} and {s.name!r} differ only in "
-                             "case; a soil is looked up by its name whatever the case, so each needs its own name")
+            raise ValueError(f"soil file {str(path)!r}: soils {seen[s.name.lower()]!r} and {s.name!r} have the same "
+                             "name, ignoring case; a soil is looked up by its name whatever the case, so each needs "
+                             "its own name")
         seen[s.name.lower()] = s.name
     if not isinstance(raw_paths, dict):
         raise ValueError(f"soil file {str(path)!r}: paths={raw_paths!r} must map a path name to its patches")

@@ -89,7 +89,7 @@ PARAMETERS: dict[str, tuple] = {
                                                "command is in, waiting at most this long [s of wall time], "
                                                f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
     "inputs_wait_s": (G.INPUTS_WAIT_S, "subscribe to /soil/known_params once /soil/estimate and /blade/cmd have a publisher, or "
-                           "after this long [s] (0: at once), so a simulator waiting for this node starts no episode "
+                           "after this long [s], [0, 3600] (0: at once), so a simulator waiting for this node starts no episode "
                            "before the planner can hear the estimator and the controller"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),

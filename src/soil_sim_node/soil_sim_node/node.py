@@ -78,9 +78,11 @@ PARAMETERS: dict[str, tuple] = {
     "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
                      "subscriptions; command topics: matched publishers)", _STR_ARRAY),
-    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway (0: wait forever)"),
-    "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too"),
-    "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within this"),
+    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway [s], [0, 3600] (0: wait "
+                               "forever)"),
+    "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], [0, 60]"),
+    "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within "
+                                 "this [s], [0, 3600]"),
     "soil_file": ("", "YAML of custom soils and named paths (soil_sim_batch --soil-file's format); its soils may be "
                       "named in soil, patches, sequence_soils and /sim/command starts; '': the catalogue only"),
     "path": ("", "the patches of the path of this name in soil_file's 'paths:' section (instead of patches); '': none"),
@@ -97,6 +99,10 @@ def check_engine(engine) -> None:
         check_sim_engine(engine)
     except ValueError as err:
         raise ValueError(f"parameter {err}") from None
+
+
+UNLIMITED_WAIT_LOG_S = 10.0  # a start held without limit is named after this long, then as often
+MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
 
 
 class SimNode(Node):
@@ -179,7 +185,7 @@ class SimNode(Node):
             raise ValueError(f"parameter path={p['path']!r} cannot be combined with {' and '.join(plan)}: "
                              "the path sets the soil along it")
         # (an hour bounds what a start or a tick may be held; a pause of 1e300 s never started an episode)
-        for name, most in (("wait_timeout_s", 3600.0), ("settle_s", 60.0), ("lockstep_timeout_s", 3600.0)):
+        for name, most in (("wait_timeout_s", G.MAX_WAIT_S), ("settle_s", MAX_SETTLE_S), ("lockstep_timeout_s", G.MAX_WAIT_S)):
             if name in p and not 0.0 <= float(p[name]) <= most:  # (NaN fails too)
                 raise ValueError(f"parameter {name}={p[name]} must be a number of seconds in [0, {most:g}]")
 
@@ -312,9 +318,11 @@ class SimNode(Node):
         poll = self.start_wait.poll(ready)
         if poll.gave_up:
             self.get_logger().warning(f"starting without {missing} after {self.start_wait.wait_timeout_s} s")
-        elif missing and not self.start_wait.wait_timeout_s:  # waiting for ever (wait_timeout_s 0): say for what
-            self.get_logger().warning(f"waiting for {missing} before the next episode (wait_timeout_s 0: no limit)",
-                                      throttle_duration_sec=10.0)
+        elif missing and not self.start_wait.wait_timeout_s and self.start_wait.waited_s() >= UNLIMITED_WAIT_LOG_S:
+            # waiting for ever (wait_timeout_s 0) and for a while now: say for what, every so often
+            self.get_logger().warning(f"waiting for {missing} before the next episode for "
+                                      f"{self.start_wait.waited_s():.0f} s (wait_timeout_s 0: no limit)",
+                                      throttle_duration_sec=UNLIMITED_WAIT_LOG_S)
         if poll.go:
             self._start_episode(self.queue.popleft())
 

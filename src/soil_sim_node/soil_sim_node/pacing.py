@@ -230,6 +230,10 @@ class StartWait:
         self._matched_at: float | None = None
         self._gave_up = False
 
+    def waited_s(self) -> float:
+        """How long the current start has been waiting [s] (0 before the first poll)."""
+        return 0.0 if self._wait_started is None else self.clock() - self._wait_started
+
     def poll(self, ready: bool) -> StartPoll:
         """Called by the idle timer with whether the endpoints are matched now."""
         now = self.clock()
