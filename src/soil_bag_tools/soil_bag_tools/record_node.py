@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 
 from rclpy.node import Node
@@ -80,7 +81,8 @@ class RecordNode(Node):
                 opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
                 qos_for=offered_qos, log=self.get_logger(),
             )
-        except OSError as err:  # a directory that cannot be made: refused at start (exit 2), not a traceback
+            tempfile.TemporaryFile(dir=opts.out).close()  # writable, or no episode could be recorded there
+        except OSError as err:  # a directory that cannot be made or written: refused at start (exit 2)
             raise ValueError(f"--out {str(opts.out)!r}: cannot create or use it: {err.strerror or err}") from None
         # Created first: when status and data are ready in the same wait, status is taken first.
         self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))
