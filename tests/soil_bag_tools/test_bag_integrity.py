@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 import zlib
 from pathlib import Path
 
@@ -218,6 +219,12 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     assert out.returncode == 1 and "all " in out.stderr and "nothing to repair" in out.stderr, out.stderr
     out = run("soil_bag_repair", old, timeout=60)
     assert out.returncode == 1 and "no chunk CRCs" in out.stderr, out.stderr
+    cut = tmp_path / "cut"  # a finished bag cut inside its first chunk: truncated, not "without CRCs"
+    shutil.copytree(fresh, cut)
+    with open(mcap_of(cut), "r+b") as f:
+        f.truncate(2000)
+    out = run("soil_bag_repair", cut, timeout=60)
+    assert out.returncode == 1 and "holds no complete chunk" in out.stderr and "CRC" not in out.stderr, out.stderr
     flip_chunk(mcap_of(fresh), 2)
     out = run("soil_bag_repair", fresh, "--out", old, timeout=60)  # exists: never replaced
     assert out.returncode == 2 and "exists" in out.stderr and "Traceback" not in out.stderr

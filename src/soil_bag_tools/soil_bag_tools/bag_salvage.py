@@ -59,7 +59,10 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
             channels.setdefault(record.id, record)
         elif isinstance(record, Message):
             messages.append(record)
-    if not scan.chunks or not scan.has_crcs:
+    if not scan.chunks:  # (a file cut inside its first chunk: no CRC could be read, and no message kept)
+        raise NothingRecoverable(f"{bag}: holds no complete chunk"
+                                 + (f" ({scan.stop})" if scan.stop else "") + "; nothing to recover")
+    if not scan.has_crcs:
         raise NothingRecoverable(f"{bag}: carries no chunk CRCs, so damaged chunks cannot be told from good ones")
     if not (scan.bad or scan.stop or scan.data_problem):
         raise NothingRecoverable(f"{bag}: all {len(scan.chunks)} chunks pass their CRC; nothing to repair")
