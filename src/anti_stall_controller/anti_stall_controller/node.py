@@ -74,9 +74,10 @@ PARAMETERS: dict[str, tuple] = {
                                        "(0, 60]; then it is answered with the target there is. Keep it below the "
                                        "simulator's lockstep_timeout_s (10 s), which ends an episode whose tick "
                                        "is not answered"),
-    "inputs_wait_s": (G.INPUTS_WAIT_S, "with depth_source planner at start: subscribe to the state once the planner's target "
-                           "has a publisher, or after this long [s], [0, 3600] (0: at once), so a simulator waiting for this "
-                           "node starts no episode before the controller can hear the planner"),
+    "inputs_wait_s": (G.INPUTS_WAIT_S, "with depth_source planner at start: subscribe to the state once the "
+                                       f"planner's target has a publisher, or after this long [s], [0, {G.MAX_WAIT_S:g}] "
+                                       "(0: at once), so a simulator waiting for this node starts no episode before the "
+                                       "controller can hear the planner"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
                                               "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),

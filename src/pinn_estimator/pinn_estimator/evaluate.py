@@ -29,6 +29,7 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -211,7 +212,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
         forecast_data, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
     trained = ckpt.get("dataset", {}).get("world_modes") or []
     judged = forecast_bags.metas[0].world_mode if forecast_bags is not None else forecast_world
-    if trained and judged in ("fee", "default") and judged not in trained:
+    if trained and judged in WORLD_MODES and judged not in trained:
         log(f"warning: {checkpoint} was trained on {', '.join(trained)}-world data; its forecast is judged on "
             f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
             f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
@@ -291,7 +292,7 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     the simulated held-out episodes of ``world``."""
     from .fusion_calibration import load_calibrated
 
-    if bags is None and world not in ("fee", "default"):
+    if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
     world = bags.metas[0].world_mode if bags is not None else world
     out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,

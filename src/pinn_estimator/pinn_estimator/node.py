@@ -38,7 +38,8 @@ PARAMETERS: dict[str, tuple] = {
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_default.json"),
-    "inputs_wait_s": (G.INPUTS_WAIT_S, "join /sim/status once every input topic has a publisher, or after this long [s], [0, 3600] (0: at once)"),
+    "inputs_wait_s": (G.INPUTS_WAIT_S, "join /sim/status once every input topic has a publisher, or after this long "
+                                       f"[s], [0, {G.MAX_WAIT_S:g}] (0: at once)"),
 }
 
 

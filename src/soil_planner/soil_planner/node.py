@@ -88,9 +88,10 @@ PARAMETERS: dict[str, tuple] = {
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
                                                f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
-    "inputs_wait_s": (G.INPUTS_WAIT_S, "subscribe to /soil/known_params once /soil/estimate and /blade/cmd have a publisher, or "
-                           "after this long [s], [0, 3600] (0: at once), so a simulator waiting for this node starts no episode "
-                           "before the planner can hear the estimator and the controller"),
+    "inputs_wait_s": (G.INPUTS_WAIT_S, "subscribe to /soil/known_params once /soil/estimate and /blade/cmd have a "
+                                       f"publisher, or after this long [s], [0, {G.MAX_WAIT_S:g}] (0: at once), so a "
+                                       "simulator waiting for this node starts no episode before the planner can hear "
+                                       "the estimator and the controller"),
     "start_depth_m": (_SCHEDULE.start_depth_m, "controller target before the first valid plan of a cut [m]"),
     "deepen_rate_m_s": (_SCHEDULE.deepen_rate_m_s, "the target deepens by at most this per second of simulation time [m/s]"),
     "shallow_rate_m_s": (_SCHEDULE.shallow_rate_m_s, "the target rises by at most this per second [m/s]"),

@@ -54,6 +54,8 @@ from .warm_up import warm_up
 _STR_ARRAY = Parameter.Type.STRING_ARRAY
 _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 
+MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
+
 # name -> (default, description[, array type]); the YAML in config/ mirrors these.
 PARAMETERS: dict[str, tuple] = {
     "world_mode": ("default", "world: 'fee' (pure FEE, like D_FEE) or 'default' (extra effects, like D_default)"),
@@ -78,11 +80,12 @@ PARAMETERS: dict[str, tuple] = {
     "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
                      "subscriptions; command topics: matched publishers)", _STR_ARRAY),
-    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway [s], [0, 3600] (0: wait "
-                               "forever)"),
-    "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], [0, 60]"),
+    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway [s], "
+                             f"[0, {G.MAX_WAIT_S:g}] (0: wait forever)"),
+    "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], "
+                       f"[0, {MAX_SETTLE_S:g}]"),
     "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within "
-                                 "this [s], [0, 3600]"),
+                                 f"this [s], [0, {G.MAX_WAIT_S:g}]"),
     "soil_file": ("", "YAML of custom soils and named paths (soil_sim_batch --soil-file's format); its soils may be "
                       "named in soil, patches, sequence_soils and /sim/command starts; '': the catalogue only"),
     "path": ("", "the patches of the path of this name in soil_file's 'paths:' section (instead of patches); '': none"),
@@ -102,7 +105,6 @@ def check_engine(engine) -> None:
 
 
 UNLIMITED_WAIT_LOG_S = 10.0  # a start held without limit is named after this long, then as often
-MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
 
 
 class SimNode(Node):
