@@ -41,10 +41,13 @@ bench: venv
 	$(BIN)/python benchmarks/bench_sim.py
 	$(BIN)/python benchmarks/bench_train.py
 	$(BIN)/python benchmarks/bench_bag_tools.py
+	$(BIN)/python benchmarks/bench_bag_integrity.py
 	$(BIN)/python benchmarks/bench_graph.py
 	$(BIN)/python benchmarks/bench_acks.py
 	$(BIN)/python benchmarks/bench_estimator.py
 	$(BIN)/python benchmarks/bench_planner_loop.py
+	$(BIN)/python benchmarks/bench_forecast.py
+	$(BIN)/python benchmarks/bench_planner_margin.py
 	$(BIN)/python benchmarks/bench_fleet.py
 
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).

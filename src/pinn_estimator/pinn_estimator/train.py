@@ -287,8 +287,9 @@ def _parser() -> argparse.ArgumentParser:
     for f in fields(TrainConfig):
         p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
     p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
-                   help="add the catalogue effect NAME with coefficient K to the PINN's physics "
-                        "(F_FEE + Σ K·B_NAME; repeatable), one of: " + ", ".join(sorted(CATALOGUE)))
+                   help="add the force term NAME with coefficient K to the PINN's physics "
+                        "(F_FEE + Σ K·B_NAME; repeatable): a catalogue effect, one of: " + ", ".join(sorted(CATALOGUE))
+                        + ", or a form form:<scale>*<factor> that soil_discrepancy discovered")
     for f in fields(ModelConfig):
         if f.name in MODEL_FIELDS_NOT_OPTIONS:
             continue
