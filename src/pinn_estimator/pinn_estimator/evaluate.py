@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode import UNKNOWN_SOIL, WORLD_MODES, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -210,6 +210,10 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     # read and checked before the test split's evaluation, so a bad directory costs nothing
     forecast_bags = None if forecast_data is None else load_forecast_bags(
         forecast_data, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
+    unlabelled = 0 if forecast_bags is None else sum(soil_label(m) == UNKNOWN_SOIL for m in forecast_bags.metas)
+    if unlabelled:
+        log(f"--forecast-data: {unlabelled} of its {len(forecast_bags)} episodes carry no soil label; they are paired "
+            "by their measured unit weight γ (two soils of one γ would pair)")
     trained = ckpt.get("dataset", {}).get("world_modes") or []
     judged = forecast_bags.metas[0].world_mode if forecast_bags is not None else forecast_world
     if trained and judged in WORLD_MODES and judged not in trained:

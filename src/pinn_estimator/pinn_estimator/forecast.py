@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from soil_msgs_py.episode import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
@@ -122,7 +123,11 @@ def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.nd
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady part (``steady_rows``); None for an
     episode without one, or whose soil changes along its path (its metadata's label is only its
-    first patch's: it is no one soil to forecast from or to)."""
+    first patch's: it is no one soil to forecast from or to).
+
+    An episode without a soil label (a machine's bag) is labelled by its steady unit weight γ
+    (``episode.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
+    soil at one density has one γ, where "unknown" would pair every unlabelled soil with every other."""
     out = []
     travel, in_soil_s = ds.distance_in_soil(), ds.time_in_soil()
     for e in range(len(ds)):
@@ -137,6 +142,9 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
                           float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode,
                           mean_standard_error(ds.forces[rows])))
+    unlabelled = [e for e, part in enumerate(out) if part is not None and soil_label(part) == UNKNOWN_SOIL]
+    for e, name in zip(unlabelled, gamma_group_names([out[e].known["gamma"] for e in unlabelled])):
+        out[e] = replace(out[e], soil=name)
     return out
 
 

@@ -22,17 +22,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pinn_estimator.forecast import one_soil
+from soil_msgs_py.episode import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 MIN_DEPTH_M = MIN_CUT_DEPTH_M  # ticks with the blade in the soil deeper than this are analysed
 SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
-UNKNOWN_SOILS = ("", "unknown", "none", "?")
-# group_by="gamma": episodes whose median γ differs from the previous (sorted) one by less than
-# this share are one group. The catalogue's soils and densities differ by >= 0.5 % in γ where
-# they differ at all (15.5-21 kN/m³); a machine's γ is a configured or weighed number.
-GAMMA_GROUP_RTOL = 0.002
 GROUP_BY = ("auto", "episode", "gamma")
 # An episode with less analysed cutting than this is left out: a fit of its soil to a few ticks (a
 # blade that barely entered a rock) says nothing, and a verdict drawn from such episodes would be
@@ -121,16 +117,11 @@ class Frame:
 
     def has_metadata(self) -> bool:
         """Whether an analysed episode has a soil label (a left-out one's says nothing here)."""
-        return any(self.soils[e] != "unknown" for e in self.episodes)
-
-
-def _soil_label(meta) -> str:
-    soil = str(getattr(meta, "soil", "") or "").strip()
-    return "unknown" if soil.lower() in UNKNOWN_SOILS else soil
+        return any(self.soils[e] != UNKNOWN_SOIL for e in self.episodes)
 
 
 def _gamma_groups(ds, episodes) -> list[str]:
-    """Per episode, the name of its γ-group (GAMMA_GROUP_RTOL): chains of sorted median γ over
+    """Per episode, the name of its γ-group (``episode.gamma_group_names``) over the median γ of
     ``episodes`` (those analysed: a left-out episode's γ must not bridge two chains); "" for the rest."""
     episodes = sorted(int(e) for e in episodes)
     gamma = np.array([float(np.median(np.asarray(ds.known[ds.episode_rows(e)], float)[:, _KI["gamma"]]))
@@ -139,12 +130,8 @@ def _gamma_groups(ds, episodes) -> list[str]:
         bad = ds.names[episodes[int(np.flatnonzero(~np.isfinite(gamma))[0])]]
         raise ValueError(f"episode {bad}: gamma is not finite; cannot group by it")
     out = [""] * len(ds.names)
-    order = np.argsort(gamma, kind="stable")
-    start = gamma[order[0]] if len(order) else 0.0
-    for j, i in enumerate(order):
-        if j and gamma[i] > gamma[order[j - 1]] * (1 + GAMMA_GROUP_RTOL):
-            start = gamma[i]
-        out[episodes[i]] = f"γ≈{start / 1e3:.2f} kN/m³"
+    for e, name in zip(episodes, gamma_group_names(gamma)):
+        out[e] = name
     return out
 
 
@@ -187,7 +174,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         raise ValueError(f"every one of the {n_ep} episode(s) changes soil along its path (soil patches in its "
                          "metadata): one θ per soil cannot be fitted across a change; give episodes of one soil each")
     dt = 1.0 / SAMPLE_RATE_HZ
-    soils = [_soil_label(m) for m in ds.metas]
+    soils = [soil_label(m) for m in ds.metas]
     dens = []
     for m in ds.metas:
         try:
@@ -231,7 +218,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     gamma_keys = None
     if group_by == "gamma":
         gamma_keys = _gamma_groups(ds, analysed)
-    elif group_by == "auto" and all(soils[e] == "unknown" for e in analysed):
+    elif group_by == "auto" and all(soils[e] == UNKNOWN_SOIL for e in analysed):
         # γ groups only where they can be held out and cross-validated: counted over the episodes
         # with analysed ticks (a left-out episode's label decides nothing); a non-finite γ (no
         # grouping by it) falls back to one θ per episode
@@ -242,12 +229,12 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         n_gamma = len({gamma_keys[e] for e in analysed}) if gamma_keys is not None else 0
         group_by = "gamma" if MIN_GAMMA_GROUPS <= n_gamma < len(analysed) else "episode"
     if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
-        soils, dens = ["unknown"] * n_ep, [math.nan] * n_ep
+        soils, dens = [UNKNOWN_SOIL] * n_ep, [math.nan] * n_ep
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
     for e in range(n_ep):
         if group_by == "gamma":
             key = gamma_keys[e] or ds.names[e]  # (a left-out episode: a group of its own, with no ticks)
-        elif group_by == "auto" and soils[e] != "unknown":
+        elif group_by == "auto" and soils[e] != UNKNOWN_SOIL:
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
         else:
             key = ds.names[e]

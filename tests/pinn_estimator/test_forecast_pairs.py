@@ -1,0 +1,33 @@
+"""The forecast's pairs on a machine's bags: episodes without a soil label are paired by their
+measured unit weight γ, never across soils (``forecast.steady_parts``)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from pinn_estimator.dataset import load_dataset
+from pinn_estimator.forecast import pair_indices, steady_parts
+from soil_bag_tools.bag_io import write_episode
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+
+def test_unlabelled_episodes_pair_only_within_one_unit_weight(tmp_path):
+    specs = [EpisodeSpec(soil, 20.0, 0.6, depth, seed=k, duration_s=5.0)
+             for k, (soil, depth) in enumerate((s, d) for s in ("Sand", "Clay") for d in (0.1, 0.2))]
+    episodes = list(run_episodes(SimConfig(world_mode="fee"), specs))
+    for ep in episodes:
+        write_episode(tmp_path / "labelled" / ep.meta.name, ep)
+        ep.meta = replace(ep.meta, soil="unknown")  # a machine's bag: no soil name
+        write_episode(tmp_path / "unlabelled" / ep.meta.name.replace("unknown", ep.meta.name), ep)
+
+    def soils_of_pairs(folder):
+        parts = steady_parts(load_dataset(tmp_path / folder, cache=False))
+        return parts, [(parts[a].soil, parts[b].soil, parts[a].known["gamma"], parts[b].known["gamma"])
+                       for a, b in pair_indices(parts)]
+
+    labelled, pairs = soils_of_pairs("labelled")
+    assert len(pairs) == 4 and all(a == b for a, b, *_ in pairs)
+    parts, pairs = soils_of_pairs("unlabelled")
+    assert len(pairs) == 4, "each soil's two depths, each way; never sand with clay"
+    assert all(a == b and a.startswith("γ≈") and abs(ga / gb - 1) < 0.002 for a, b, ga, gb in pairs), pairs
+    assert len({p.soil for p in parts}) == 2
