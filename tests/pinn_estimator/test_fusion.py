@@ -512,6 +512,11 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     with pytest.raises(SystemExit) as exit_:
         calibrate_main(["--world", "fee", "--force-noise"])
     assert exit_.value.code == 2 and "--force-noise: give --out" in capsys.readouterr().err
+    # an episode length that holds no steady window, or none at all, before any episode is simulated
+    for duration in ("1", "0", "nan", "-3", "1e9"):
+        with pytest.raises(SystemExit) as exit_:
+            calibrate_main(["--world", "fee", "--out", str(tmp_path / "c.json"), "--duration", duration])
+        assert exit_.value.code == 2 and "--duration=" in capsys.readouterr().err
 
 
 def test_a_forecast_dataset_with_force_noise_is_the_same_cut_measured_by_a_noisy_sensor():

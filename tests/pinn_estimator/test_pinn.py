@@ -348,6 +348,22 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
         ck.load_model(tmp_path / "missing.pt")
 
 
+def test_eval_refuses_a_report_name_outside_out_and_names_training_bags_not_here(tiny_ds, tmp_path, capsys, monkeypatch):
+    """``--name`` is a file name inside ``--out`` (a sweep wrote '../../escape' outside it, and 'a/b'
+    failed after the whole evaluation); a checkpoint's training folder, stored as it was given,
+    is named with where it comes from when it is not here."""
+    path = ck.save_checkpoint(tmp_path / "a.pt", _model(tiny_ds), train_config={},
+                              dataset={"root": "ds", "fingerprint": ""}, split={"test": []}, metrics={}, history={})
+    for name in ("a/b", "../escape", "", ".."):
+        with pytest.raises(SystemExit) as exit_:
+            eval_main(["--checkpoint", str(path), "--out", str(tmp_path / "o"), "--name", name])
+        assert exit_.value.code == 2 and "--name" in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)
+    assert eval_main(["--checkpoint", str(path), "--no-classical", "--quiet", "--forecast-world", "none"]) == 2
+    err = capsys.readouterr().err
+    assert "trained on the bags at 'ds'" in err and "--data" in err, err
+
+
 def test_bad_training_options_are_named(tiny_ds):
     with pytest.raises(ValueError, match="stride=0"):
         TrainConfig(stride=0)

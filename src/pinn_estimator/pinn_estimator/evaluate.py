@@ -28,7 +28,7 @@ from scipy.stats import spearmanr
 
 from soil_physics import fee
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import file_stem, output_dir
 from soil_msgs_py.episode import UNKNOWN_SOIL, WORLD_MODES, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
@@ -223,6 +223,10 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     if forecast_only:
         return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
                                progress=progress)
+    if data is None and not Path(ckpt["dataset"]["root"]).is_dir():
+        raise ValueError(f"{checkpoint} was trained on the bags at {ckpt['dataset']['root']!r} (as given then, relative "
+                         f"to where it was trained), which is not a directory here: give their directory with --data "
+                         "(or --forecast-only, which needs no training bags)")
     ds = load_dataset(data or ckpt["dataset"]["root"], workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
     if ds.fingerprint != ckpt["dataset"]["fingerprint"]:
         log(f"warning: the bags at {ds.root} differ from those the model was trained on; using its test split by episode name")
@@ -476,7 +480,7 @@ def main(argv=None) -> int:
     p.add_argument("--physics-free", help="physics-free baseline checkpoint trained on the same split")
     p.add_argument("--data", help="bag directory (default: the one the checkpoint was trained on)")
     p.add_argument("--out", type=output_dir, default="out/eval", help="report directory (default: out/eval)")
-    p.add_argument("--name", help="report file stem (default: <checkpoint stem>_report)")
+    p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
     p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")

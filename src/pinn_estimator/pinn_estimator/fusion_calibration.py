@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.cli_paths import output_file
-from soil_msgs_py.params import FORCE_LIMITS_N
+from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.predictive import mixture_cdf
 
 from . import forecast as fc
@@ -48,6 +48,9 @@ from .fusion import FusionConfig, forecast_error_std
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
 CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
 CAL_SEED = 9000
+# A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
+# which must hold at least one full window of the estimator; at most the simulator's longest episode.
+CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, 3600.0)
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.
@@ -502,7 +505,8 @@ def main(argv=None) -> int:
     p.add_argument("--world", choices=("fee", "default"), required=True)
     p.add_argument("--out", type=output_file, default=None,
                    help="config JSON to write (default: the shipped models/fusion_<world>.json in this package, replaced)")
-    p.add_argument("--duration", type=float, default=10.0, help="calibration episode length [s]")
+    p.add_argument("--duration", type=float, default=10.0,
+                   help="calibration episode length [s], in [%g, %g] (default 10)" % CAL_DURATION_RANGE_S)
     p.add_argument("--term", action="append", default=[], metavar="NAME=K",
                    help="a force term in the posterior's physics beside the FEE (repeatable; a catalogue name or a "
                         "form soil_discrepancy named, e.g. form:-qnq*tanhvx0.1=0.756); saved in the config, so the "
@@ -518,6 +522,9 @@ def main(argv=None) -> int:
                         "world's sensor noise, the truth still known); needs --out, since the shipped fee config is "
                         "the noise-free world's")
     args = p.parse_args(argv)
+    lo, hi = CAL_DURATION_RANGE_S
+    if not lo <= args.duration <= hi:  # NaN too
+        p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
     from soil_physics.force_terms import parse_terms
 
     from .evaluate import forecast_dataset, fused_posteriors

@@ -34,3 +34,11 @@ def output_dir(text: str) -> Path:
 def output_file(text: str) -> Path:
     """An ``--out`` file: may exist (as a file, to be replaced) or not yet; not a directory."""
     return _checked(text, want_dir=False)
+
+
+def file_stem(text: str) -> str:
+    """A report's file name without suffix (``--name``), written inside ``--out``: one plain name,
+    so that a report lands where ``--out`` says (no separator, no '..'), checked before the run."""
+    if not text or text in (".", "..") or Path(text).name != text or "\\" in text:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a plain file name without a directory")
+    return text
