@@ -2,10 +2,15 @@
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from soil_msgs_py.cli_paths import output_dir, output_file
+
+BIN = Path(sys.executable).parent
 
 
 def test_an_output_directory_may_exist_or_not_but_is_no_file(tmp_path):
@@ -24,3 +29,30 @@ def test_an_output_file_may_exist_or_not_but_is_no_directory(tmp_path):
     assert output_file(str(tmp_path / "new.pt")) == tmp_path / "new.pt"
     with pytest.raises(argparse.ArgumentTypeError, match="is a directory; give the file to write"):
         output_file(str(tmp_path))
+
+
+def test_an_empty_output_path_is_refused(tmp_path, capsys):
+    """``--out ""`` (say an unset shell variable) meant the current directory for a directory output."""
+    for kind in (output_dir, output_file):
+        with pytest.raises(argparse.ArgumentTypeError, match="'' is empty; give a path"):
+            kind("")
+    p = argparse.ArgumentParser(prog="tool")
+    p.add_argument("--out", type=output_dir)
+    with pytest.raises(SystemExit) as exit_:
+        p.parse_args(["--out", ""])
+    assert exit_.value.code == 2
+    assert "argument --out: '' is empty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("tool, args", [
+    ("soil_sim_batch", ["--mode", "fee", "--soils", "Sand", "--relative-densities", "20", "--speeds", "0.5",
+                        "--depths", "0.1", "--seeds", "1", "--duration", "0.5", "--workers", "1", "--quiet"]),
+    ("soil_cut_report", ["--worlds", "fee", "--duration", "1"]),
+])
+def test_the_tools_refuse_an_empty_out_and_write_nothing(tmp_path, tool, args):
+    """Once an empty --out wrote the bags or the report into the current directory."""
+    out = subprocess.run([str(BIN / tool), "--out", "", *args], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert "argument --out: '' is empty" in out.stderr and "Traceback" not in out.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -13,6 +13,8 @@ from pathlib import Path
 
 
 def _checked(text: str, want_dir: bool) -> Path:
+    if not text:  # Path("") is "." : an empty --out (an unset shell variable) would write into the cwd
+        raise argparse.ArgumentTypeError("'' is empty; give a path" + (" (. for the current directory)" if want_dir else ""))
     path = Path(text).expanduser()
     try:
         if want_dir and path.exists() and not path.is_dir():
