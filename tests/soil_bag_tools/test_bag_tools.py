@@ -494,6 +494,18 @@ def test_bad_inputs(tmp_path):
     assert "Traceback" not in out.stdout + out.stderr
 
 
+@pytest.mark.parametrize("option, value", [("--wait-timeout", "nan"), ("--wait-timeout", "-5"),
+                                           ("--wait-timeout", "inf"), ("--clock", "inf")])
+def test_play_refuses_a_non_finite_or_negative_bound(option, value):
+    """--wait-timeout nan waited forever (a deadline of nan is never passed), -5 was taken for 0,
+    and --clock inf published /clock at the first stamp without end."""
+    out = subprocess.run([BIN / "soil_bag_play", SAMPLE, "--wait-for-subscribers", "1", option, value],
+                         env=ros_env(105), capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert f"error: {option} {float(value)} " in out.stderr and "must be a finite number" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
 def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
     """Three bags whose stamps all start at 0, played back to back at rate 2: the episode
     recorder writes the same three bags; a --no-split recorder writes one bag of everything.

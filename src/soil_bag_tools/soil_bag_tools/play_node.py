@@ -25,6 +25,7 @@ from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
 from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.patches import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
     string_cdr, with_clock,
@@ -54,10 +55,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     opts = p.parse_args(argv)
     if not opts.rate > 0:
         p.error(f"--rate {opts.rate} must be > 0")
-    if opts.clock is not None and not opts.clock > 0:
-        p.error(f"--clock {opts.clock} Hz must be > 0")
+    if opts.clock is not None and not (finite_number(opts.clock) and opts.clock > 0):  # inf: endless /clock at t0
+        p.error(f"--clock {opts.clock} Hz must be a finite number > 0")
     if opts.wait_for_subscribers < 0:
         p.error(f"--wait-for-subscribers {opts.wait_for_subscribers} must be >= 0")
+    if not (finite_number(opts.wait_timeout) and opts.wait_timeout >= 0):  # nan: a deadline never reached
+        p.error(f"--wait-timeout {opts.wait_timeout} s must be a finite number >= 0")
     return opts
 
 
