@@ -506,6 +506,23 @@ def test_play_refuses_a_non_finite_or_negative_bound(option, value):
     assert "Traceback" not in out.stderr
 
 
+def test_play_refuses_a_selection_that_leaves_nothing_to_play():
+    """--topics naming no topic of any bag exited 0 having published nothing, and with --loop spun
+    at 100 % CPU; so did --exclude of every topic. A requested topic some bags lack stays a warning."""
+    held = sorted(playback.load_bag(SAMPLE).held)
+    for args in (["--loop", "--topics", "/nope"], ["--loop", "--exclude", *held]):
+        out = subprocess.run([BIN / "soil_bag_play", SAMPLES, *args], env=ros_env(105),
+                             capture_output=True, text=True, timeout=30)
+        assert out.returncode == 2, out.stderr
+        assert f"{' '.join(args[1:])}: no message to play in the 3 bag(s); their topics: {', '.join(held)}" \
+            in out.stderr
+        assert "published 0 messages" in out.stderr and "Traceback" not in out.stderr
+    out = subprocess.run([BIN / "soil_bag_play", SAMPLES, "--topics", "/nope", "/soil/known_params", "--rate", "50"],
+                         env=ros_env(next_domain_id()), capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert f"{SAMPLE}: no topic(s) ['/nope']" in out.stderr and "published 1800 messages" in out.stderr
+
+
 def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
     """Three bags whose stamps all start at 0, played back to back at rate 2: the episode
     recorder writes the same three bags; a --no-split recorder writes one bag of everything.

@@ -10,8 +10,9 @@ so ``soil_bag_record`` splits a replay into the same bags and estimators reset i
                   [--clock HZ] [--wait-for-subscribers N] [--wait-timeout S] [--no-status]
                   [--ros-args ...]
 
-Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument or a truncated or
-corrupt bag (named; the bags before it have been played).
+Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument, a truncated or
+corrupt bag (named; the bags before it have been played), or a --topics/--exclude selection
+that leaves no message in any bag (a topic missing from only some bags is a warning).
 """
 from __future__ import annotations
 
@@ -114,9 +115,6 @@ class Player:
 
     def play_bag(self, bag: LoadedBag) -> None:
         messages = list(with_clock(bag.messages, self.opts.clock)) if self.opts.clock else bag.messages
-        if not messages:
-            self.log.warning(f"{bag.path}: no message to play")
-            return
         events = None if self.status is None else episode_events(bag, self.episode)
         if events:
             self.status.publish(string_cdr(events[0].to_json()))
@@ -148,20 +146,40 @@ class Player:
                       f"max {ms.max():.3f} ms")
 
     def run(self, paths) -> None:
+        """Play ``paths`` (again and again with --loop). ValueError if a pass finds nothing to play
+        in any bag: a mistyped --topics once exited 0 having played nothing, or spun with --loop."""
         cache: dict = {}
         first = True
         while True:
+            played, held = False, set()
             for path in paths:
                 bag = cache.get(path) or self._load(path)
                 if len(paths) == 1:
                     cache[path] = bag  # --loop over one bag: read it once
+                held |= bag.held
+                if not bag.messages:
+                    self.log.warning(f"{bag.path}: no message to play")
+                    continue
                 if first:
                     first = False
                     if self.opts.wait_for_subscribers > 0:
                         self.wait_for_subscribers()
                 self.play_bag(bag)
+                played = True
+            if not played:
+                raise ValueError(self._nothing_to_play(held, len(paths)))
             if not self.opts.loop:
                 return
+
+    def _nothing_to_play(self, held: set[str], n_bags: int) -> str:
+        o = self.opts
+        asked = f"--topics {' '.join(o.topics)}" if o.topics else "every topic"
+        if o.exclude:
+            asked += f" minus --exclude {' '.join(o.exclude)}"
+        if o.clock:
+            asked += f" minus {CLOCK_TOPIC} (--clock makes its own)"
+        return (f"{asked}: no message to play in the {n_bags} bag(s); their topics: "
+                f"{', '.join(sorted(held)) or 'none'}")
 
     def drain(self) -> None:
         """Wait (bounded) until reliable subscribers acknowledged everything published."""
@@ -193,7 +211,7 @@ def main(args: list[str] | None = None) -> int:
                 player.drain()
             except KeyboardInterrupt:
                 pass
-    except ValueError as err:  # BagReadError (damaged bag), BagPathError, unknown message type
+    except ValueError as err:  # BagReadError (damaged bag), BagPathError, unknown message type, nothing to play
         node.get_logger().error(str(err))
         code = 2
     finally:

@@ -55,6 +55,7 @@ class LoadedBag:
     topics: dict[str, str]  # topic -> msgtype, of the messages kept
     messages: list[tuple[int, str, bytes]]  # (log time ns, topic, CDR), publish order
     meta: EpisodeMeta | None  # episode metadata if the bag has some
+    held: frozenset[str] = frozenset()  # every topic of the bag: said when the selection keeps none
 
     @property
     def name(self) -> str:
@@ -87,10 +88,11 @@ def load_bag(
         conns = [c for c in reader.connections
                  if (include is None or c.topic in include) and c.topic not in skip]
         found = {c.topic: c.msgtype for c in conns}
+        held = frozenset(c.topic for c in reader.connections)
         messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
     if include is not None and (missing := sorted(include - found.keys())):
         log(f"{bag}: no topic(s) {missing}")
-    return LoadedBag(path=bag, topics=found, messages=messages, meta=meta)
+    return LoadedBag(path=bag, topics=found, messages=messages, meta=meta, held=held)
 
 
 def string_cdr(text: str) -> bytes:
