@@ -8,6 +8,7 @@ with its target, and surcharge, against time.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -16,9 +17,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from soil_physics import fee  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
+from soil_msgs_py.cli_paths import output_file  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
 
@@ -29,7 +32,7 @@ def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plot_episode(ep: Episode, out: Path) -> Path:
-    """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG)."""
+    """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG, or the format of its suffix)."""
     t = ep.time_s
     fx_fee, fz_fee = truth_fee_force(ep)
     m = ep.meta
@@ -73,17 +76,33 @@ def plot_episode(ep: Episode, out: Path) -> Path:
     return out
 
 
+def figure_file(text: str) -> Path:
+    """``-o``: a file matplotlib writes by its suffix (none: .png, the name savefig would write),
+    checked before the bag is read, not by savefig after it."""
+    path = output_file(text)
+    if not path.suffix:
+        path = output_file(str(path.with_name(path.name.rstrip(".") + ".png")))
+    formats = Figure().canvas.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: matplotlib cannot write {path.suffix!r} files; it writes {', '.join(sorted(formats))}")
+    return path
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="soil_plot_episode", description=__doc__.split("\n\n")[0])
     p.add_argument("bag", type=Path, help="episode bag directory")
-    p.add_argument("-o", "--out", type=Path, help="PNG path (default: <bag>.png beside the bag)")
+    p.add_argument("-o", "--out", type=figure_file,
+                   help="figure path, its format by its suffix (default: <bag>.png beside the bag)")
     args = p.parse_args(argv)
     try:
         ep = read_episode(args.bag)
     except (ValueError, FileNotFoundError) as exc:
         print(f"soil_plot_episode: error: {exc}", file=sys.stderr)
         return 2
-    out = plot_episode(ep, args.out or args.bag.with_suffix(".png"))
+    bag = Path(os.path.abspath(args.bag))  # "." or ".." have a usable name only once absolute
+    # not bag.with_suffix: "..._v0.50_d0.100_s0" and "..._v0.50_d0.200_s1" both became "..._v0.50_d0.png"
+    out = plot_episode(ep, args.out or bag.parent / (bag.name + ".png"))
     print(out)
     return 0
 

@@ -1,0 +1,57 @@
+"""soil_plot_episode as a real process: where its figure goes by default and which -o it refuses
+before reading the bag (exit 2, naming -o)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from soil_bag_tools.bag_io import write_episode
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+BIN = Path(sys.executable).parent
+
+
+def plot(*args, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "soil_plot_episode"), *map(str, args)], cwd=cwd, capture_output=True, text=True,
+                          timeout=60)
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> list[Path]:
+    """Two episodes whose names differ only after their last dot (the depth and the seed)."""
+    root = tmp_path_factory.mktemp("bags")
+    specs = [EpisodeSpec("Sand", 20.0, 0.5, depth, seed=seed, duration_s=0.5) for depth, seed in ((0.1, 0), (0.2, 1))]
+    return [write_episode(root / ep.meta.name, ep) for ep in run_episodes(SimConfig(world_mode="fee"), specs)]
+
+
+def test_the_default_figure_of_each_bag_is_its_own(bags, tmp_path):
+    """Path.with_suffix made both bags' figure fee_sand_id020_v0.50_d0.png: the second overwrote the first."""
+    assert [b.name for b in bags] == ["fee_sand_id020_v0.50_d0.100_s0", "fee_sand_id020_v0.50_d0.200_s1"]
+    for bag in bags:
+        out = plot(bag, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.strip() == str(bag.parent / (bag.name + ".png"))
+    assert sorted(p.name for p in bags[0].parent.glob("*.png")) == [b.name + ".png" for b in bags]
+
+
+def test_a_figure_path_without_suffix_is_written_as_png_and_said(bags, tmp_path):
+    out = plot(bags[0], "-o", "fig", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "fig.png" and [p.name for p in tmp_path.iterdir()] == ["fig.png"]
+
+
+@pytest.mark.parametrize("out_arg, needle", [
+    ("afile/fig.png", "'afile/fig.png': a parent of it is a file, not a directory"),
+    ("fig.xyz", "'fig.xyz': matplotlib cannot write '.xyz' files; it writes "),
+])
+def test_an_unwritable_figure_path_is_refused_before_the_bag_is_read(tmp_path, out_arg, needle):
+    """No bag is there: the -o refusal comes first (it came as a traceback, or after the bag was read)."""
+    (tmp_path / "afile").write_text("x")
+    out = plot(tmp_path / "no_such_bag", "-o", out_arg, cwd=tmp_path)
+    assert out.returncode == 2
+    assert f"argument -o/--out: {needle}" in out.stderr and "Traceback" not in out.stderr
+    assert "no_such_bag" not in out.stderr and (out_arg != "fig.xyz" or " pdf, " in out.stderr)
