@@ -346,6 +346,17 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
         ck.load_model(tmp_path / "corrupt.pt")
     with pytest.raises(FileNotFoundError):
         ck.load_model(tmp_path / "missing.pt")
+    raw = torch.load(path, weights_only=True)
+    del raw["split"]
+    torch.save(raw, tmp_path / "no_split.pt")
+    with pytest.raises(ValueError, match="lacks its section.*split"):  # was a KeyError deep in pinn_eval
+        ck.load_model(tmp_path / "no_split.pt")
+    raw = torch.load(path, weights_only=True)
+    name = next(k for k, v in raw["state_dict"].items() if v.is_floating_point() and v.numel() > 1 and "obs_" not in k)
+    raw["state_dict"][name][0] = float("nan")
+    torch.save(raw, tmp_path / "diverged.pt")
+    with pytest.raises(ValueError, match=f"weights {name} are not finite"):  # was a report of NaN, exit 0
+        ck.load_model(tmp_path / "diverged.pt")
 
 
 def test_eval_refuses_a_report_name_outside_out_and_names_training_bags_not_here(tiny_ds, tmp_path, capsys, monkeypatch):

@@ -56,6 +56,10 @@ def save_checkpoint(path, model: EstimatorNet, *, train_config: dict, dataset: d
     return path
 
 
+# The dict sections of a checkpoint (save_checkpoint) that its readers look into.
+CHECKPOINT_SECTIONS = ("model_config", "state_dict", "train_config", "dataset", "split", "metrics", "history")
+
+
 def read_checkpoint(path) -> dict:
     """The checkpoint's dict, validated; ValueError names what is wrong."""
     path = Path(path)
@@ -74,6 +78,9 @@ def read_checkpoint(path) -> dict:
         theirs, ours = ckpt.get("interface") or {}, interface()
         diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
         raise ValueError(f"checkpoint {path} was trained with different inputs/outputs ({', '.join(diff)} differ); retrain it")
+    missing = [k for k in CHECKPOINT_SECTIONS if not isinstance(ckpt.get(k), dict)]
+    if missing:
+        raise ValueError(f"checkpoint {path} lacks its section(s) {', '.join(missing)} (a file pinn_train writes has them)")
     return ckpt
 
 
@@ -93,5 +100,8 @@ def load_model(path) -> tuple[EstimatorNet, dict]:
     except RuntimeError as err:
         first = str(err).splitlines()[0:3]
         raise ValueError(f"checkpoint {path} does not fit model config {cfg}: {' '.join(first)}") from None
+    bad = next((k for k, v in state.items() if torch.is_floating_point(v) and not torch.isfinite(v).all()), None)
+    if bad is not None:  # a training that diverged: every estimate would be NaN
+        raise ValueError(f"checkpoint {path}: its weights {bad} are not finite (NaN or inf); retrain it")
     model.eval()
     return model, ckpt
