@@ -321,6 +321,14 @@ def test_plugin_returning_nan_is_named():
         _step_into_soil(sim)
 
 
+def test_plugin_returning_a_force_no_soil_makes_is_named():
+    """1e300 N is finite, and once gave a bag with the blade 1e297 m away and exit 0."""
+    sim = SoilSimulator(SimConfig(world_mode="fee", plugins=("tests.sim_plugins:in_soil_constant_drag f_x=1e300",)),
+                        DET_SPECS[:1])
+    with pytest.raises(PluginError, match=r"in_soil_constant_drag.*f_x=1e\+300 N, beyond"):
+        _step_into_soil(sim)
+
+
 def test_plugin_returning_a_matrix_is_named():
     sim = SoilSimulator(SimConfig(world_mode="fee", plugins=("tests.sim_plugins:matrix_force",)), DET_SPECS)
     with pytest.raises(PluginError, match=r"tests.sim_plugins:matrix_force.*f_x of shape \(2, 2\)"):

@@ -18,7 +18,7 @@ The function is called once per physics substep as ``fn(state, **params)`` with 
 SI units; the simulator fills every field, its own soil in effect and FEE force) and
 must return ``(f_x, f_z)``: arrays (or floats) broadcastable to (B,), the extra force the
 blade exerts on the soil [N]. A plugin that does not import, is not callable, returns the
-wrong shape or a non-finite value stops the simulation with a ``PluginError`` naming the
+wrong shape, a non-finite value or a force beyond MAX_PLUGIN_FORCE_N stops the simulation with a ``PluginError`` naming the
 plugin, the field and the value. See ``soil_sim_node/plugins_example.py``.
 """
 from __future__ import annotations
@@ -30,9 +30,14 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from soil_physics.contact import contact_damping_force
+from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.params import FORCE_LIMITS_N
 from soil_physics.force_inputs import ForceInputs
 
-WORLD_MODES = ("fee", "default")
+# The largest force a plugin may return [N]: 300 times the machine's larger force limit. Beyond
+# it no soil acts on a 5.4 t machine; it is a plugin's bug (units, a sign of an exponent), and
+# the simulation would go on with the blade flung kilometres away.
+MAX_PLUGIN_FORCE_N = 300.0 * max(FORCE_LIMITS_N)
 
 
 # Named effects that are one force term on ``ForceInputs`` (the physics lives in soil_physics;
@@ -172,6 +177,10 @@ class ForcePlugin:
             if not np.all(np.isfinite(arr)):
                 bad = arr[~np.isfinite(arr)][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
+            if np.any(np.abs(arr) > MAX_PLUGIN_FORCE_N):
+                bad = arr[np.abs(arr) > MAX_PLUGIN_FORCE_N][0]
+                raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLUGIN_FORCE_N:.3g} N "
+                                  "(300 times the machine's force limit: a plugin's unit or sign error?)")
             result.append(arr)
         return result[0], result[1]
 
