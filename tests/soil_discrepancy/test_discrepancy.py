@@ -162,7 +162,8 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     assert "--pinn-seeds 0 must be >= 1" in capsys.readouterr().err
     # the run's own settings are refused before any bag is read (a missing directory is not reached)
     for flag, value, said in (("--holdout", "1.5", "holdout=1.5 must be in [0, 1)"),
-                              ("--stride", "0", "stride=0 must be an integer >= 1 tick")):
+                              ("--stride", "0", "stride=0 must be an integer in [1, 60] ticks"),
+                              ("--stride", "100000", "stride=100000 must be an integer in [1, 60] ticks")):
         assert cli_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o"), flag, value]) == 2
         err = capsys.readouterr().err
         assert said in err and "not a directory" not in err, err

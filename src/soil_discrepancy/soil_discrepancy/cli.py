@@ -32,7 +32,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test (default 0.3)")
     p.add_argument("--folds", type=int, default=5, help="cross-validation folds over soil groups (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the held-out split and folds (default 0)")
-    p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil (default 2)")
+    p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil, 1-60 (default 2)")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
     p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
     p.add_argument("--group-by", choices=GROUP_BY, default="auto",

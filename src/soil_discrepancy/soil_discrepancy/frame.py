@@ -34,6 +34,7 @@ GROUP_BY = ("auto", "episode", "gamma")
 # blade that barely entered a rock) says nothing, and a verdict drawn from such episodes would be
 # one of low power stated as "no significant discrepancy". One PINN window.
 MIN_CUT_S = 1.0
+MAX_STRIDE = SAMPLE_RATE_HZ  # ticks between analysed ticks: at least one a second of cutting (MIN_CUT_S)
 # group_by="auto" on bags without any soil label groups by γ only if that gives at least this many
 # groups: the workflow holds out groups and cross-validates over the rest (``split_holdout``).
 MIN_GAMMA_GROUPS = 3
@@ -137,8 +138,9 @@ def _gamma_groups(ds, episodes) -> list[str]:
 
 def check_frame_settings(stride, group_by: str) -> None:
     """ValueError naming ``stride`` (ticks, an integer >= 1) or ``group_by`` if it cannot make a frame."""
-    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
-        raise ValueError(f"stride={stride!r} must be an integer >= 1 tick")
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or not 1 <= stride <= MAX_STRIDE:
+        raise ValueError(f"stride={stride!r} must be an integer in [1, {MAX_STRIDE}] ticks (at least one analysed tick "
+                         "a second of cutting: the regime and held-out tests compare ticks within episodes)")
     if group_by not in GROUP_BY:
         raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
 
