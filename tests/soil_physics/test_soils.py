@@ -231,6 +231,24 @@ def test_invalid_yaml_names_path(tmp_path):
     assert str(p) in str(exc.value)
 
 
+def test_a_huge_integer_is_refused_naming_the_field_and_a_short_value(tmp_path):
+    """YAML has no bound on integers: a 400-digit one overflowed math.isfinite (a traceback in
+    soil_sim_batch and soil_cut_report); now a ValueError naming the field, the number cut short."""
+    text = VALID_ONE.replace("[3000, 9000]", f"[3000, {10**400}]")
+    with pytest.raises(ValueError, match=r"cohesion_pa=\[3000, 1000.*\.\.\. \(\d+ characters\)") as exc:
+        load_soil_yaml(write(tmp_path, text))
+    assert len(str(exc.value)) < 300
+
+
+def test_a_binary_file_names_the_file(tmp_path):
+    """A file that is not UTF-8 text: the error says which file (it said only the codec's words)."""
+    p = tmp_path / "soil.bin"
+    p.write_bytes(b"\xff\xfe\x00\x80name: x\n")
+    with pytest.raises(ValueError, match="not UTF-8") as exc:
+        load_soil_yaml(p)
+    assert str(p) in str(exc.value)
+
+
 def test_missing_file_names_path(tmp_path):
     p = tmp_path / "nope" / "soil.yaml"
     with pytest.raises(FileNotFoundError) as exc:

@@ -37,7 +37,6 @@ A user can add a soil from YAML (``load_soil_yaml``)::
 """
 from __future__ import annotations
 
-import math
 import re
 import unicodedata
 from dataclasses import dataclass
@@ -46,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG, TABLE1
-from soil_msgs_py.patches import SoilPatch, check_patches
+from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr
 
 
 @dataclass(frozen=True)
@@ -125,13 +124,14 @@ def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float,
         raise ValueError(f"soil YAML is missing {key!r} ([loose, dense] in {unit})")
     value = data[key]
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{key}={value!r} must be a [loose, dense] pair in {unit}")
+        raise ValueError(f"{key}={short_repr(value)} must be a [loose, dense] pair in {unit}")
     out = []
     for v in value:
         if isinstance(v, str) and _EXPONENT_FLOAT.match(v):  # YAML 1.1 reads 16e3 as a string
             v = float(v)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-            raise ValueError(f"{key}={value!r}: each value must be a number in [{lo}, {hi}] {unit}")
+        # finite_number: a 400-digit integer in the YAML is refused here, not an OverflowError
+        if not finite_number(v) or not lo <= v <= hi:
+            raise ValueError(f"{key}={short_repr(value)}: each value must be a number in [{lo}, {hi}] {unit}")
         out.append(float(v))
     return out[0], out[1]
 
@@ -179,7 +179,9 @@ def load_soil_file(path: str | Path) -> SoilFile:
     if not path.is_file():
         raise FileNotFoundError(f"soil file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:  # a binary file: say which one
+        raise ValueError(f"soil file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except yaml.YAMLError as exc:
         raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
     sectioned = isinstance(data, dict) and "name" not in data and bool(set(data) & set(SECTIONS))
