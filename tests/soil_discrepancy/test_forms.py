@@ -379,3 +379,20 @@ def test_the_closest_catalogue_term_is_one_the_form_runs_with_before_one_it_runs
     assert closest_index([0.2, CLOSE_COS + 0.02, -0.95]) == 1
     assert closest_index([0.2, 0.5, -0.95]) == 2
     assert closest_index([0.2, -0.5, 0.3]) == 1
+
+
+def test_a_catalogue_with_a_huge_k_or_binary_content_is_refused_naming_it(tmp_path, capsys):
+    """YAML has no bound on integers: a 400-digit k overflowed math.isfinite (a traceback); a binary
+    file gave the codec's words without the file. Both are exit 2 naming the entry or the file."""
+    from soil_discrepancy.cli import main as cli_main
+
+    huge = tmp_path / "huge.yaml"
+    huge.write_text(f"terms:\n- term: soil_inertia\n  k: {10**400}\n")
+    with pytest.raises(ValueError, match=r"terms\[0\]\.k=1000.*\.\.\. \(\d+ characters\) is not a finite number"):
+        load_catalogue(huge)
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"\xff\xfe\x00\x80terms: []\n")
+    for path, said in ((huge, "terms[0].k="), (binary, "is not UTF-8 text")):
+        assert cli_main([str(tmp_path), "--out", str(tmp_path / "o"), "--catalogue", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert str(path) in err and said in err and len(err) < 300, err

@@ -33,11 +33,11 @@ catalogue term there; nothing passes on the regression alone.
 """
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
 
+from soil_msgs_py.patches import finite_number, short_repr
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 
@@ -294,7 +294,9 @@ def load_catalogue(path) -> list[dict]:
 
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:  # a binary file: the codec's words alone do not say which
+        raise ValueError(f"catalogue {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except (OSError, yaml.YAMLError) as exc:
         raise ValueError(f"catalogue {p}: cannot read it: {exc}") from None
     rows = (data or {}).get("terms") if isinstance(data, dict) else None
@@ -310,7 +312,7 @@ def load_catalogue(path) -> list[dict]:
         except ValueError as exc:
             raise ValueError(f"catalogue {p}: terms[{i}]: {exc}") from None
         k = row.get("k")
-        if k is not None and not (isinstance(k, (int, float)) and math.isfinite(k)):
-            raise ValueError(f"catalogue {p}: terms[{i}].k={k!r} is not a finite number")
+        if k is not None and not finite_number(k):  # a 400-digit integer too: no OverflowError
+            raise ValueError(f"catalogue {p}: terms[{i}].k={short_repr(k)} is not a finite number")
         out.append({"term": term, "name": str(row.get("name") or term), "k": None if k is None else float(k)})
     return out
