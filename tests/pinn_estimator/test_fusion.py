@@ -459,6 +459,29 @@ def test_a_bad_fusion_config_is_refused_naming_the_field(field, value):
         FusionConfig(**{field: value})
 
 
+HUGE = {"prior_std": 10**400, "evidence_weight": 10**400, "unsteady_gain": 10**400, "patch_length_m": -10**400,
+        "rel_std": (0.01, 10**400)}
+
+
+@pytest.mark.parametrize("field", HUGE)
+def test_a_huge_integer_in_a_fusion_config_is_refused_naming_the_field(field):
+    """JSON has no bound on integers: a 400-digit one overflowed math.isfinite / float (a traceback
+    from ``--set prior_std=1000…``); now the field is named with the value cut short."""
+    with pytest.raises(ValueError, match=rf"fusion {field}=.*\.\.\. \(\d+ characters\)"):
+        FusionConfig(**{field: HUGE[field]})
+
+
+def test_a_huge_integer_set_on_the_calibration_command_line_is_refused(capsys, tmp_path):
+    """Refused while the arguments are read (exit 2): no calibration starts."""
+    from pinn_estimator.fusion_calibration import main as calibrate_main
+
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--out", str(tmp_path / "x.json"), "--set", f"prior_std={10**400}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--set: fusion prior_std=1000" in err and len(err) < 400, err
+    assert not (tmp_path / "x.json").exists()
+
+
 def test_a_long_cut_at_one_depth_stays_on_the_soil():
     """20 s of fee-world soil at one depth: the shape of the entry pins φ and c down, and the
     stretches that follow neither walk the posterior along the φ-c ridge (before the quasi-static

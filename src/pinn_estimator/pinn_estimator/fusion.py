@@ -59,6 +59,7 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.patches import finite_number, short_repr
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
@@ -152,36 +153,37 @@ class FusionConfig:
         for name, lo in ints.items():
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
-                raise ValueError(f"fusion {name}={v!r} must be an integer >= {lo}")
+                raise ValueError(f"fusion {name}={short_repr(v)} must be an integer >= {lo}")
         if self.update_ticks % self.model_points:
             raise ValueError(f"fusion model_points={self.model_points} must divide update_ticks={self.update_ticks}")
         for name in PAIR_FIELDS:
             try:
                 v = tuple(float(x) for x in getattr(self, name))
             except (TypeError, ValueError):
-                raise ValueError(f"fusion {name}={getattr(self, name)!r} must be two numbers (x, z)") from None
+                raise ValueError(f"fusion {name}={short_repr(getattr(self, name))} must be two numbers (x, z)") from None
+            except OverflowError:  # an integer of hundreds of digits (JSON has no bound): not finite
+                v = (math.inf, math.inf)
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v) or (name.endswith("abs_std_n") and min(v) <= 0):
-                raise ValueError(f"fusion {name}={getattr(self, name)!r} must be two finite values >= 0 (abs > 0) for x, z")
+                raise ValueError(f"fusion {name}={short_repr(getattr(self, name))} must be two finite values >= 0 (abs > 0) for x, z")
             object.__setattr__(self, name, v)
         for name in ("unsteady_gain", "shape_noise_gain"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"fusion {name}={v!r} must be finite and >= 0")
+            if not (finite_number(v) and v >= 0):
+                raise ValueError(f"fusion {name}={short_repr(v)} must be finite and >= 0")
         if not isinstance(self.shape_evidence, bool):
             raise ValueError(f"fusion shape_evidence={self.shape_evidence!r} must be true or false")
-        if not (isinstance(self.evidence_weight, (int, float)) and math.isfinite(self.evidence_weight)
-                and 0 < self.evidence_weight <= 1):
-            raise ValueError(f"fusion evidence_weight={self.evidence_weight!r} must be in (0, 1]")
+        if not (finite_number(self.evidence_weight) and 0 < self.evidence_weight <= 1):
+            raise ValueError(f"fusion evidence_weight={short_repr(self.evidence_weight)} must be in (0, 1]")
         for name in ("drift_per_sqrt_m", "patch_length_m", "cohesionless_prior"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"fusion {name}={v!r} must be finite and >= 0")
+            if not (finite_number(v) and v >= 0):
+                raise ValueError(f"fusion {name}={short_repr(v)} must be finite and >= 0")
         if self.cohesionless_prior > 1:
             raise ValueError(f"fusion cohesionless_prior={self.cohesionless_prior!r} must be a probability in [0, 1]")
         for name in ("prior_std", "change_nis"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"fusion {name}={v!r} must be a positive number")
+            if not (finite_number(v) and v > 0):
+                raise ValueError(f"fusion {name}={short_repr(v)} must be a positive number")
         object.__setattr__(self, "terms", AugmentedFEE(self.terms).terms)
 
     def to_dict(self) -> dict:
