@@ -58,6 +58,13 @@ def test_apply_sums_k_times_basis_and_parse_names_bad_specs():
             X.parse_terms([bad])
 
 
+def test_a_huge_integer_k_is_refused_naming_the_term():
+    """A (name, k) pair from JSON or YAML may hold a 400-digit integer: float() overflowed (a
+    traceback); now it is not finite, named with the term and k cut short."""
+    with pytest.raises(ValueError, match=r"effect term soil_inertia: k=1000.*\.\.\. \(\d+ characters\) must be finite"):
+        X.parse_terms([("soil_inertia", 10**400)])
+
+
 def test_simulator_switches_the_same_term_on_as_a_plugin():
     """'soil_physics.force_terms:plugin term=... k=...' fits in a CLI flag or a ROS string parameter."""
     (plugin,) = load_plugins(["soil_physics.force_terms:plugin term=rate_strength k=8000"])

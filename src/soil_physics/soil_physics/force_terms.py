@@ -33,6 +33,7 @@ from .bearing import EDGE_WIDTH_M, bearing_factors
 from .fee import beta_star
 from .force_inputs import ForceInputs
 from soil_msgs_py.params import GRAVITY_M_S2
+from soil_msgs_py.patches import short_repr
 
 
 @dataclass(frozen=True)
@@ -206,10 +207,12 @@ def parse_terms(specs) -> tuple[tuple[str, float], ...]:
         get_term(name.strip())
         try:
             k = float(value)
+        except OverflowError:  # an integer of hundreds of digits (JSON and YAML have no bound)
+            k = math.inf
         except (TypeError, ValueError):
-            raise ValueError(f"effect term {name}: k={value!r} is not a number") from None
+            raise ValueError(f"effect term {name}: k={short_repr(value)} is not a number") from None
         if not math.isfinite(k):
-            raise ValueError(f"effect term {name}: k={k} must be finite")
+            raise ValueError(f"effect term {name}: k={short_repr(value)} must be finite")
         out.append((name.strip(), k))
     return tuple(out)
 
