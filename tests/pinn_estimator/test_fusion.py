@@ -482,6 +482,19 @@ def test_a_huge_integer_set_on_the_calibration_command_line_is_refused(capsys, t
     assert not (tmp_path / "x.json").exists()
 
 
+def test_a_term_given_twice_to_the_calibration_is_refused(capsys, tmp_path):
+    """--term soil_inertia=1 --term soil_inertia=2 summed silently to k = 3 (pinn_train refuses the
+    same); refused while the arguments are read (exit 2), before --forecast-law-only's own refusal
+    of --term (which keeps this test from starting a calibration of minutes should the check go)."""
+    from pinn_estimator.fusion_calibration import main as calibrate_main
+
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--out", str(tmp_path / "x.json"), "--forecast-law-only",
+                        "--term", "soil_inertia=1", "--term", "soil_inertia=2"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--term: effect term soil_inertia is given more than once" in err, err
+
+
 def test_a_long_cut_at_one_depth_stays_on_the_soil():
     """20 s of fee-world soil at one depth: the shape of the entry pins φ and c down, and the
     stretches that follow neither walk the posterior along the φ-c ridge (before the quasi-static

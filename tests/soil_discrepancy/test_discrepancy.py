@@ -189,6 +189,15 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     assert "/blade/force" in capsys.readouterr().err
 
 
+def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):
+    """--accepted soil_inertia=1,soil_inertia=2 summed silently to k = 3 (pinn_train refuses the
+    same); refused before any bag is read, like the run's other settings."""
+    missing = str(tmp_path / "missing")
+    assert cli_main([missing, "--out", str(tmp_path / "o"), "--accepted", "soil_inertia=1,soil_inertia=2"]) == 2
+    err = capsys.readouterr().err
+    assert "--accepted: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
+
+
 # ------------------------------------------------------------------------------ the pieces
 def test_augmented_fee_is_the_fee_plus_the_catalogue_terms(bag_dirs):
     ds = load_dataset(bag_dirs["control"])

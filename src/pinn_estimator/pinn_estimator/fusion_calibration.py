@@ -525,12 +525,13 @@ def main(argv=None) -> int:
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
         p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
-    from soil_physics.force_terms import parse_terms
+    from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .evaluate import forecast_dataset, fused_posteriors
 
     try:
         terms = parse_terms(args.term)
+        refuse_repeats(terms)
     except ValueError as err:
         p.error(f"--term: {err}")
     try:

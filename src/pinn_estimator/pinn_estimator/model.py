@@ -70,10 +70,8 @@ class ModelConfig:
         if isinstance(self.extra_terms, (str, bytes)):
             raise ValueError(f"model extra_terms={self.extra_terms!r} must be a sequence of 'name=k' or (name, k), not one string")
         terms = X.parse_terms(self.extra_terms)  # ValueError naming the bad term
+        X.refuse_repeats(terms, "model extra_terms")
         names = [n for n, _ in terms]
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise ValueError(f"model extra_terms: effect term {twice[0]} is given more than once")
         if terms and self.kind != "pinn":
             raise ValueError(f"model extra_terms={list(names)} need kind='pinn' (the {self.kind} model has no physics to add them to)")
         object.__setattr__(self, "extra_terms", terms)

@@ -64,7 +64,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from soil_physics.force_terms import parse_terms
+    from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .forms import load_catalogue
     from .workflow import run_discrepancy
@@ -77,6 +77,7 @@ def main(argv=None) -> int:
     predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
+        refuse_repeats(accepted, "--accepted")
         hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
         user_terms = [t["term"] for t in load_catalogue(args.catalogue)] if args.catalogue else ()
         report = run_discrepancy(

@@ -217,6 +217,15 @@ def parse_terms(specs) -> tuple[tuple[str, float], ...]:
     return tuple(out)
 
 
+def refuse_repeats(terms, where: str = "") -> None:
+    """ValueError naming a term given twice in ``terms`` ((name, k) pairs), after ``where: ``: a
+    model sums every entry, so 'soil_inertia=1,soil_inertia=2' would silently mean k = 3."""
+    names = [n for n, _ in terms]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"{where}: " * bool(where) + f"effect term {twice[0]} is given more than once")
+
+
 def term_texts(terms) -> list[str]:
     """(name, k) pairs -> 'name=k' strings that ``parse_terms`` reads back exactly (k by repr)."""
     return [f"{name}={float(k)!r}" for name, k in terms]
