@@ -198,6 +198,20 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
     assert "--accepted: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
 
 
+def test_an_accepted_k_that_overflows_the_model_is_refused_naming_it(tmp_path, capsys):
+    """soil_inertia=1e200 makes the baseline force overflow: the run ended in a TypeError formatting
+    the RMS (None); now exit 2 naming the term and its k, and no report is written."""
+    from tests.tiny_data import write_tiny_bags
+
+    bags = write_tiny_bags(tmp_path / "bags")
+    out = tmp_path / "o"
+    assert cli_main([str(bags), "--out", str(out), "--accepted", "soil_inertia=1e200", "--workers", "1", "--no-plots",
+                     "--no-cache", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "not a finite number with the accepted term(s) soil_inertia=1e+200" in err, err
+    assert not (out / "discrepancy.json").exists()
+
+
 # ------------------------------------------------------------------------------ the pieces
 def test_augmented_fee_is_the_fee_plus_the_catalogue_terms(bag_dirs):
     ds = load_dataset(bag_dirs["control"])

@@ -57,6 +57,19 @@ def load_frame(bag_dir, *, stride: int = 2, group_by: str = "auto", cache: bool 
     return build_frame(ds, stride=stride, group_by=group_by)
 
 
+def _refuse_non_finite(r0: np.ndarray, model: AugmentedFEE) -> None:
+    """ValueError if the baseline's residual RMS (NaN ticks, where the model is undefined, left
+    out) is not finite: an accepted term with a k far too large (soil_inertia=1e200) overflows
+    the force, and every figure after it would be garbage (the report's RMS null)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        rms = np.sqrt(np.nanmean(np.square(r0), axis=0))
+    bad = [axis for axis, v in zip(("x", "z"), rms) if not np.isfinite(v)]
+    if bad:
+        given = ", ".join(f"{name}={k:g}" for name, k in model.terms)
+        raise ValueError(f"the baseline model's residual RMS ({', '.join(bad)}) is not a finite number"
+                         + (f" with the accepted term(s) {given}: is a k far too large?" if given else ""))
+
+
 def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, dataset=None, terms=None,
                     accepted=(), holdout: float = 0.3, folds: int = 5, seed: int = 0, stride: int = 2,
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
@@ -124,8 +137,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         say(f"left out {len(names)} episode(s): {why}: {', '.join(names[:5])}{' …' if len(names) > 5 else ''}")
 
     # 1. the initial model's θ on every group (per-group fits are independent of each other)
-    base = fit_fixed(frame, initial)
+    with np.errstate(over="ignore"):  # an accepted k far too large overflows: _refuse_non_finite says so
+        base = fit_fixed(frame, initial)
     r0, _ = residuals(frame, initial, base)
+    _refuse_non_finite(r0, initial)
     failed = [frame.group_names[g] for g, ok in base.success.items() if not ok]
     edges = bin_edges(frame)
     # 2. where they disagree
