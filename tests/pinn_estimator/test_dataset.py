@@ -86,6 +86,41 @@ def test_bad_input_is_refused_naming_the_field_and_leaves_no_complete_bag(tmp_pa
     assert not out.exists() or not any(p.name.endswith(".partial") for p in out.iterdir())
 
 
+def test_an_empty_grid_axis_is_refused_and_the_dataset_record_is_kept(tmp_path, capsys):
+    """'--soils ,' (or an empty --speeds, --depths, --relative-densities) made a plan of no episode:
+    exit 0, "0 fee episodes", and the directory's dataset.json replaced by one of 0 episodes. And
+    '--soils ""' silently meant all four soils. Each is refused naming the flag, the record kept."""
+    out = tmp_path / "ds"
+    base = ["--mode", "fee", "--out", str(out), "--workers", "1", "--duration", "1.0", "--quiet",
+            "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.1", "--seeds", "1"]
+    assert batch.main(base) == 0
+    record = (out / "dataset.json").read_text()
+    capsys.readouterr()
+    for flag in ("--soils", "--speeds", "--depths", "--relative-densities"):
+        for empty in (",", ""):
+            assert batch.main([*base, flag, empty]) == 2, (flag, empty)
+            err = capsys.readouterr().err
+            assert f"{flag}={empty!r}" in err and ("no soil" in err or "no value" in err), err
+    assert (out / "dataset.json").read_text() == record
+    # generate itself refuses an empty plan before it touches the directory
+    plan = batch.plan_from_args(batch.parse_args(base))
+    plan.specs = []
+    with pytest.raises(ValueError, match="has no episode"):
+        batch.generate(plan, workers=1, progress=False)
+    assert (out / "dataset.json").read_text() == record
+
+
+def test_a_soil_file_with_a_huge_integer_is_refused_naming_the_field(tmp_path, capsys):
+    """A 400-digit integer in the soils YAML ended soil_sim_batch in an OverflowError traceback."""
+    soil_file = tmp_path / "soils.yaml"
+    soil_file.write_text(f"name: Big\nphi_deg: [30, 40]\ncohesion_pa: [1000, {10**400}]\nunit_weight_n_m3: [16000, 20000]\n")
+    out = tmp_path / "ds"
+    assert batch.main(["--mode", "fee", "--out", str(out), "--soil-file", str(soil_file), "--soils", "Big", "--seeds", "1",
+                       "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.1", "--duration", "1.0", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "cohesion_pa=[1000, 1000" in err and len(err) < 300 and not out.exists(), err
+
+
 def test_custom_soil_from_yaml(tmp_path):
     soil_file = tmp_path / "soils.yaml"
     soil_file.write_text(yaml.safe_dump({"name": "SiltyClay", "phi_deg": [20, 30], "cohesion_pa": [3000, 9000],

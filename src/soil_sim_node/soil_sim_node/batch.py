@@ -108,6 +108,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     ``ray_address``: run the chunks as Ray tasks (``ray_cluster.LOCAL`` or a cluster's address;
     ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
+    if not plan.specs:  # its dataset.json would replace the record of what the directory holds
+        raise ValueError(f"the plan for {plan.out} has no episode: nothing to generate")
     check_engine(plan.engine)
     # every soil one the FEE can cut: refused before any bag is written
     resolved = [resolve_checked(plan.config(), spec, plan.custom_soils)[0] for spec in plan.specs]
@@ -192,10 +194,14 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
+    """A grid axis; empty ('' or ',') is refused: it made a plan of no episodes."""
     try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
+        values = tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
         raise ValueError(f"--{name}={text!r} must be a comma-separated list of numbers") from None
+    if not values:
+        raise ValueError(f"--{name}={text!r} gives no value; give a comma-separated list of numbers")
+    return values
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -262,14 +268,16 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     if patches:
         soils, relative_densities = [patches[0].soil], [patches[0].relative_density_pct]
     else:
-        soils = [s.strip() for s in (args.soils or ",".join(CATALOGUE)).split(",") if s.strip()]
-        relative_densities = (_floats(args.relative_densities, "relative-densities") if args.relative_densities
-                              else DEFAULT_RELATIVE_DENSITIES)
+        soils = [s.strip() for s in (",".join(CATALOGUE) if args.soils is None else args.soils).split(",") if s.strip()]
+        if not soils:  # '--soils ""' meant all four soils, '--soils ,' none (and an empty dataset.json)
+            raise ValueError(f"--soils={args.soils!r} names no soil; give a comma-separated list, e.g. Sand,Clay")
+        relative_densities = (DEFAULT_RELATIVE_DENSITIES if args.relative_densities is None
+                              else _floats(args.relative_densities, "relative-densities"))
     effects = effects_for_mode(args.mode)
     off = [x.strip() for x in args.effects_off.split(",") if x.strip()]
     if off:
         effects = effects.with_switches(**{name: False for name in off})
-    speeds = _floats(args.speeds, "speeds") if args.speeds else GRID_SPEEDS[args.mode]
+    speeds = GRID_SPEEDS[args.mode] if args.speeds is None else _floats(args.speeds, "speeds")
     if args.seeds < 1:
         raise ValueError(f"seeds={args.seeds} must be >= 1")
     specs = grid_specs(soils, relative_densities, speeds, _floats(args.depths, "depths"), args.seeds, args.seed_base,
