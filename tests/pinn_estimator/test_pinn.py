@@ -301,6 +301,22 @@ def test_empty_bag_directory_is_named(tmp_path, capsys):
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsys):
+    """--workers -1 was taken (as one process) and pinn_train --seed -1 failed in numpy's words
+    ("Seed must be between 0 and 2**32 - 1"): both are refused as the arguments are read (exit 2)."""
+    train = ["--data", str(tmp_path), "--out", str(tmp_path / "x.pt"), "--quiet"]
+    for main, args, said in ((train_main, [*train, "--seed", "-1"], "argument --seed: '-1' must be an integer in [0, 2**32 - 1]"),
+                             (train_main, [*train, "--seed", str(2**32)], "argument --seed:"),
+                             (train_main, [*train, "--workers", "-1"], "argument --workers: '-1' must be an integer >= 1"),
+                             (eval_main, ["--checkpoint", str(tmp_path / "x.pt"), "--workers", "-1"],
+                              "argument --workers: '-1' must be an integer >= 1")):
+        with pytest.raises(SystemExit) as exit_:
+            main(args)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and said in err, err
+    assert not (tmp_path / "x.pt").exists()
+
+
 def test_bag_missing_a_topic_is_named(tiny_bags, tmp_path):
     from soil_bag_tools.bag_io import read_episode
 

@@ -191,11 +191,19 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
 
 def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):
     """--accepted soil_inertia=1,soil_inertia=2 summed silently to k = 3 (pinn_train refuses the
-    same); refused before any bag is read, like the run's other settings."""
+    same); --workers -1 was taken as 1 and --seed -1 failed in numpy's words ("expected non-negative
+    integer") after the bags were read. All refused before any bag is read, naming the option."""
     missing = str(tmp_path / "missing")
     assert cli_main([missing, "--out", str(tmp_path / "o"), "--accepted", "soil_inertia=1,soil_inertia=2"]) == 2
     err = capsys.readouterr().err
     assert "--accepted: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
+    for flag, value, said in (("--workers", "-1", "argument --workers: '-1' must be an integer >= 1"),
+                              ("--workers", "0", "argument --workers: '0' must be an integer >= 1"),
+                              ("--seed", "-1", "argument --seed: '-1' must be an integer in [0, 2**32 - 1]")):
+        with pytest.raises(SystemExit) as exit_:
+            cli_main([missing, "--out", str(tmp_path / "o"), flag, value])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and said in err, err
 
 
 def test_an_accepted_k_that_overflows_the_model_is_refused_naming_it(tmp_path, capsys):

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from soil_physics import fee
-from soil_msgs_py import strict_json
+from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import file_stem, output_dir
 from soil_msgs_py.episode import UNKNOWN_SOIL, WORLD_MODES, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
@@ -483,7 +483,7 @@ def main(argv=None) -> int:
     p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
     p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
-    p.add_argument("--workers", type=int, default=2, help="processes for the classical fit and bag reading")
+    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading")
     p.add_argument("--forecast-world", default="auto", choices=("auto", "fee", "default", "none"),
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
     p.add_argument("--forecast-data", metavar="DIR",

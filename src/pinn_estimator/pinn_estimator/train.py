@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from soil_msgs_py import cli_numbers
 from soil_msgs_py.cli_paths import output_file
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
@@ -279,13 +280,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=output_file, required=True, help="checkpoint path to write (.pt); the curve PNG goes beside it")
     p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
     p.add_argument("--split-from", help="reuse the train/val/test split of this checkpoint (same bags)")
-    p.add_argument("--workers", type=int, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
+    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_skip_bad_bags_option(p)
     add_ray_option(p, "read the bags as Ray tasks (rank 0 only under torchrun)")
     for f in fields(TrainConfig):
-        p.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default, help=f"(default: {f.default})")
+        kind = cli_numbers.seed if f.name == "seed" else type(f.default)
+        p.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=f.default, help=f"(default: {f.default})")
     p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
                    help="add the force term NAME with coefficient K to the PINN's physics "
                         "(F_FEE + Σ K·B_NAME; repeatable): a catalogue effect, one of: " + ", ".join(sorted(CATALOGUE))

@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from soil_msgs_py import cli_numbers
 from soil_msgs_py.cli_paths import output_dir
 
 
@@ -31,7 +32,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")
     p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test (default 0.3)")
     p.add_argument("--folds", type=int, default=5, help="cross-validation folds over soil groups (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the held-out split and folds (default 0)")
+    p.add_argument("--seed", type=cli_numbers.seed, default=0, help="seed of the held-out split and folds (default 0)")
     p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil, 1-60 (default 2)")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
     p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
@@ -41,7 +42,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "episodes of the same measured unit weight γ (gamma: no label read)")
     p.add_argument("--allow-negative-k", action="store_true",
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")
-    p.add_argument("--workers", type=int, default=None, help="processes for the cross-validation and the PINN retraining (default: all cores)")
+    p.add_argument("--workers", type=cli_numbers.workers, default=None, help="processes for the cross-validation and the PINN retraining (default: all cores)")
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
     add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
