@@ -484,7 +484,7 @@ def main(argv=None) -> int:
     p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading")
-    p.add_argument("--forecast-world", default="auto", choices=("auto", "fee", "default", "none"),
+    p.add_argument("--forecast-world", default="auto", choices=("auto", *WORLD_MODES, "none"),
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
     p.add_argument("--forecast-data", metavar="DIR",
                    help="judge the forecast at another depth on these bags instead (pairs of episodes of one soil and "
@@ -500,7 +500,7 @@ def main(argv=None) -> int:
         p.error("--forecast-data asks for the forecast that --forecast-world none skips: give one of them")
     if args.forecast_only and (args.physics_free or args.data):
         p.error("--forecast-only evaluates no test split: --data and --physics-free do not apply")
-    if args.forecast_only and not args.forecast_data and args.forecast_world not in ("fee", "default"):
+    if args.forecast_only and not args.forecast_data and args.forecast_world not in WORLD_MODES:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     try:
         if args.stride < 1:

@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.cli_paths import output_file
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.predictive import mixture_cdf
 
@@ -502,7 +503,7 @@ def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="pinn_fusion_calibrate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--world", choices=("fee", "default"), required=True)
+    p.add_argument("--world", choices=WORLD_MODES, required=True)
     p.add_argument("--out", type=output_file, default=None,
                    help="config JSON to write (default: the shipped models/fusion_<world>.json in this package, replaced)")
     p.add_argument("--duration", type=float, default=10.0,

@@ -36,6 +36,7 @@ import numpy as np
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
 from soil_physics.soils import load_soil_file
@@ -59,7 +60,7 @@ TARGET_SETTLE_S = 2.0  # within 20 % of the patch's best fixed depth this soon a
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_cut_report", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--worlds", nargs="+", default=["default", "fee"], choices=("default", "fee"))
+    p.add_argument("--worlds", nargs="+", default=["default", "fee"], choices=WORLD_MODES)
     p.add_argument("--patch", action="append", default=None, metavar="X:SOIL:ID",
                    help=f"a soil patch along the path, {PATCH_SYNTAX}; repeat (default: {' '.join(DEFAULT_PATCHES)})")
     p.add_argument("--soil-file", type=Path, metavar="FILE",

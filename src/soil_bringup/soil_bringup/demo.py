@@ -40,6 +40,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag
 from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
 
 from . import launch as L
@@ -72,7 +73,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="realtime: 60 Hz ticks on the wall clock x --rate (the honest online demo, default); "
                         "lockstep: each tick waits for the controller, as fast as the machine goes")
     p.add_argument("--rate", type=float, default=1.0, help="real-time factor for --pacing realtime (default 1)")
-    p.add_argument("--world-mode", choices=("default", "fee"), default=None,
+    p.add_argument("--world-mode", choices=WORLD_MODES, default=None,
                    help="simulator world (default: the simulator's, 'default')")
     p.add_argument("--checkpoint", type=Path, help="PINN checkpoint for the estimator (default: the shipped one)")
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")

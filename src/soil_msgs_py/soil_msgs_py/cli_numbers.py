@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 
 # numpy's legacy seeding (np.random.seed, which the PINN's training calls) takes [0, 2**32 - 1]
-MAX_SEED = 2**32 - 1
+# (a simulated episode's seed is wider: episode.MAX_SEED)
+MAX_NUMPY_SEED = 2**32 - 1
 
 
 def _integer(text: str) -> int:
@@ -29,8 +30,8 @@ def workers(text: str) -> int:
 
 
 def seed(text: str) -> int:
-    """``--seed``: an integer in [0, MAX_SEED]."""
+    """``--seed``: an integer in [0, MAX_NUMPY_SEED]."""
     value = _integer(text)
-    if not 0 <= value <= MAX_SEED:
+    if not 0 <= value <= MAX_NUMPY_SEED:
         raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, 2**32 - 1]")
     return value

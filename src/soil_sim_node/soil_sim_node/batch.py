@@ -33,6 +33,7 @@ from tqdm import tqdm
 from soil_bag_tools.bag_io import write_episode
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.patches import check_patches
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
@@ -207,7 +208,7 @@ def _floats(text: str, name: str) -> tuple[float, ...]:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_sim_batch", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--mode", choices=("fee", "default"), default="default", help="world mode (default: default)")
+    p.add_argument("--mode", choices=WORLD_MODES, default="default", help="world mode (default: default)")
     p.add_argument("--out", type=output_dir, help="output directory (default: bags/d_<mode>)")
     p.add_argument("--soils", help=f"comma-separated soil names (default: {','.join(CATALOGUE)})")
     p.add_argument("--soil-file", type=Path, help="YAML with custom soil(s), usable in --soils, and named paths (--path)")

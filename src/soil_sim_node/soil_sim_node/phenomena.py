@@ -31,7 +31,7 @@ import numpy as np
 
 from soil_physics import fee
 from soil_physics.blade_inertia import inertia_force_rows
-from soil_msgs_py.episode import Episode
+from soil_msgs_py.episode import WORLD_MODES, Episode
 from soil_msgs_py.strict_json import json_safe
 from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_physics.soils import COHESIVE_SOILS
@@ -41,7 +41,7 @@ from .simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 SOILS: tuple[str, ...] = ("Clay", "Loam", "Sand", "Gravel")
 DENSITIES: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
-WORLDS: tuple[str, ...] = ("fee", "default")
+WORLDS: tuple[str, ...] = WORLD_MODES
 LIMIT_FRACTION = 0.95  # |F_x| >= 0.95 * 20 kN counts as "at the tractive limit"
 PAPER_OSCILLATION_N = (5e3, 10e3)  # §2.1.2: "on the order of 5 kN and 10 kN in the x and z forces"
 
