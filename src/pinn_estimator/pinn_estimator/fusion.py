@@ -98,6 +98,13 @@ MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out o
 PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_abs_std_n", "shape_rel_std")  # (x, z) each
 
 
+# The integer fields' bounds. Above: more than an offline check of the quantiles needs (a forecast
+# runs components × forecast_samples models; a 400-digit count asked numpy for more memory than
+# exists) and a stretch longer than a minute, which could not follow a soil change along the path.
+INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
+                    "components": (1, 64)}
+
+
 @dataclass(frozen=True)
 class FusionConfig:
     """What the posterior assumes; ``rel_std`` and ``forecast_rel_std`` come from calibration
@@ -149,11 +156,10 @@ class FusionConfig:
     terms: tuple[tuple[str, float], ...] = ()  # catalogue terms of the physics model (AugmentedFEE)
 
     def __post_init__(self):
-        ints = {"forecast_samples": 16, "update_ticks": 1, "model_points": 1, "components": 1}
-        for name, lo in ints.items():
+        for name, (lo, hi) in INT_FIELD_RANGES.items():
             v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < lo:
-                raise ValueError(f"fusion {name}={short_repr(v)} must be an integer >= {lo}")
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+                raise ValueError(f"fusion {name}={short_repr(v)} must be an integer in [{lo}, {hi}]")
         if self.update_ticks % self.model_points:
             raise ValueError(f"fusion model_points={self.model_points} must divide update_ticks={self.update_ticks}")
         for name in PAIR_FIELDS:
