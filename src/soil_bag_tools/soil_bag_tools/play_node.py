@@ -38,6 +38,11 @@ SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches s
 DRAIN_S = 1.0  # at most this long waiting for reliable subscribers to acknowledge
 
 
+# The fastest /clock: far beyond the 60 Hz every node of the graph ticks at, and one /clock message
+# a millisecond of bag time is what a replay keeps in memory besides the bag.
+MAX_CLOCK_HZ = 1000.0
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_bag_play", description="Replay rosbag2 bags with their original timing.")
     p.add_argument("bags", nargs="+", metavar="BAG",
@@ -47,7 +52,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
     p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
     p.add_argument("--clock", type=float, metavar="HZ",
-                   help="publish /clock at HZ from bag time (and not the bag's own /clock)")
+                   help="publish /clock at HZ (at most 1000) from bag time (and not the bag's own /clock)")
     p.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
                    help="before playing, wait until every publisher has N matched subscriptions (default 0)")
     p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
@@ -56,8 +61,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     opts = p.parse_args(argv)
     if not opts.rate > 0:
         p.error(f"--rate {opts.rate} must be > 0")
-    if opts.clock is not None and not (finite_number(opts.clock) and opts.clock > 0):  # inf: endless /clock at t0
-        p.error(f"--clock {opts.clock} Hz must be a finite number > 0")
+    if opts.clock is not None and not (finite_number(opts.clock) and 0 < opts.clock <= MAX_CLOCK_HZ):
+        # inf: endless /clock at t0; 1e12 Hz: 10^13 /clock messages for a 10 s bag, made before the first
+        p.error(f"--clock {opts.clock} Hz must be a finite number in (0, {MAX_CLOCK_HZ:g}]")
     if opts.wait_for_subscribers < 0:
         p.error(f"--wait-for-subscribers {opts.wait_for_subscribers} must be >= 0")
     if not (finite_number(opts.wait_timeout) and opts.wait_timeout >= 0):  # nan: a deadline never reached
