@@ -287,3 +287,35 @@ def pile_lift(state, k: float = 0.5, v0: float = 0.5):
     v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
     q = np.asarray(state.q, dtype=float)
     return np.zeros_like(q), float(k) * q * np.tanh(v / float(v0))
+
+
+def adhesion_pull(state, k: float = 0.5):
+    """Hidden effect in z: adhesion pulling the blade down in proportion to the soil's cohesion,
+    F_z = −k c w d [N] (on the soil, z up), only where c > 0."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    c = np.maximum(np.asarray(state.c, dtype=float), 0.0)
+    return np.zeros_like(d), -float(k) * c * state.w * d
+
+
+def vertical_damping(state, k: float = 2.0, p_pa: float = 10e3, v0: float = 0.05):
+    """Hidden effect in z against the edge's vertical motion: on the soil F_z = +k w d p_pa
+    clip(v_z / v0, −1, 1) [N] (sinking presses the soil down harder, rising pulls it up)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    g = np.clip(np.asarray(state.v_z, dtype=float) / float(v0), -1.0, 1.0)
+    return np.zeros_like(d), float(k) * state.w * d * float(p_pa) * g
+
+
+def density_drag(state, k: float = 2.0):
+    """Hidden effect: a drag growing with relative density only, F_x = k (I_d / 100) γ w d² [N]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    i_d = np.asarray(state.relative_density_pct, dtype=float)
+    return float(k) * i_d / 100.0 * state.gamma * state.w * d**2, np.zeros_like(d)
+
+
+def pile_travel_drag(state, k: float = 1.0, s0: float = 2.0):
+    """Hidden effect: a drag in proportion to the surcharge pile that builds up with travel,
+    F_x = k Q (1 − exp(−s / s0)) [N] in soil (s the travel in soil)."""
+    q = np.asarray(state.q, dtype=float)
+    s = np.asarray(state.distance_in_soil, dtype=float)
+    d = np.asarray(state.d, dtype=float)
+    return float(k) * q * (1.0 - np.exp(-s / float(s0))) * (d > 0), np.zeros_like(q)
