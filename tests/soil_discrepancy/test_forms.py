@@ -396,3 +396,22 @@ def test_a_catalogue_with_a_huge_k_or_binary_content_is_refused_naming_it(tmp_pa
         assert cli_main([str(tmp_path), "--out", str(tmp_path / "o"), "--catalogue", str(path)]) == 2
         err = capsys.readouterr().err
         assert str(path) in err and said in err and len(err) < 300, err
+
+
+def test_a_selection_larger_than_the_search_takes_is_thinned_evenly(monkeypatch):
+    """Past MAX_TICKS analysed ticks (a full-size run at stride 1 or 2) the search thins them
+    evenly before the regression; a frame of a few hundred ticks stands in for 20 000 here."""
+    from pinn_estimator.dataset import Dataset
+    from soil_discrepancy import forms
+    from soil_discrepancy.fee_fit import fit_fixed
+    from soil_discrepancy.frame import build_frame
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    specs = [EpisodeSpec(soil, 50.0, v, d, seed=k, duration_s=3.0)
+             for k, (soil, (v, d)) in enumerate((s, c) for s in SOILS for c in ((0.3, 0.1), (1.0, 0.2)))]
+    frame = build_frame(Dataset.from_episodes(list(run_episodes(SimConfig(world_mode="fee"), specs))), stride=2)
+    monkeypatch.setattr(forms, "MAX_TICKS", len(frame) // 3)
+    model = AugmentedFEE()
+    out = forms.search_forms(frame, model, fit_fixed(frame, model), folds=2)
+    assert out["library_size"] == len(term_forms.form_names()) and out["candidates"]

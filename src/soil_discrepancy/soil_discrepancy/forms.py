@@ -33,6 +33,7 @@ catalogue term there; nothing passes on the regression alone.
 """
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
