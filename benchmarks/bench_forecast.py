@@ -66,6 +66,7 @@ from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode, fused_values  # noqa: E402
 from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402
+from soil_msgs_py.episode import WORLD_MODES  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
@@ -77,7 +78,7 @@ from soil_sim_node.simulator import EpisodeSpec, SimConfig  # noqa: E402
 from soil_msgs_py.topics import FUSED_FIELDS  # noqa: E402
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, fused_upper_force, steady_cut_terms  # noqa: E402
 
-WORLDS = ("fee", "default")
+WORLDS = WORLD_MODES
 SOILS = tuple(sorted(CATALOGUE))
 SPEED_M_S = fc.FORECAST_SPEED_M_S  # 0.6 m/s, off the training grid's speeds
 Z90 = statistics.NormalDist().inv_cdf(0.95)  # half-width of the central 90 % Gaussian interval, in std

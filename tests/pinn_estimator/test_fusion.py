@@ -519,7 +519,8 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
                            ({"prior_std": "x"}, "prior_std"), ({"terms": 5}, "terms"), ({"evidence_weight": "x"}, "evidence_weight"),
                            ({"terms": [["soil_inertia"]]}, "terms"), ({"forecast_abs_std_n": "ab"}, "forecast_abs_std_n"),
                            ({"components": 10**400}, r"components=1000.*\(401 characters\) must be an integer in \[1, 64\]"),
-                           ({"forecast_samples": 10**6}, r"forecast_samples=1000000 must be an integer in")):
+                           ({"forecast_samples": 10**6}, r"forecast_samples=1000000 must be an integer in"),
+                           ({"terms": [["soil_inertia", 1], ["soil_inertia", 2]]}, "soil_inertia is given more than once")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig().with_fields(fields)
         with pytest.raises(ValueError, match=needle):  # a config file: the same checks

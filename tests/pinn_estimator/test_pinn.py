@@ -398,6 +398,8 @@ def test_bad_training_options_are_named(tiny_ds):
         TrainConfig(lr=-1.0)
     with pytest.raises(ValueError, match="lr_schedule='step'"):
         TrainConfig(lr_schedule="step")
+    with pytest.raises(ValueError, match=r"seed=4294967296 must be an integer in \[0, 2\*\*32 - 1\]"):
+        TrainConfig(seed=2**32)  # numpy said it late, in its own words
     with pytest.raises(ValueError, match="d_model=30 must be divisible by n_heads=4"):
         ModelConfig(d_model=30)
     with pytest.raises(ValueError, match="kind='bert'"):

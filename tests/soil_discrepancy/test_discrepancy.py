@@ -204,6 +204,11 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
             cli_main([missing, "--out", str(tmp_path / "o"), flag, value])
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and said in err, err
+    # the top seed is one, but the retrained PINNs take one seed each from it: refused now, not after the analysis
+    assert cli_main([missing, "--out", str(tmp_path / "o"), "--seed", str(2**32 - 1), "--pinn-epochs", "1",
+                     "--pinn-seeds", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "--seed 4294967295 with --pinn-seeds 2 seeds PINNs beyond 2**32 - 1" in err and "not a directory" not in err, err
 
 
 def test_an_accepted_k_that_overflows_the_model_is_refused_naming_it(tmp_path, capsys):

@@ -29,7 +29,8 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import file_stem, output_dir
-from soil_msgs_py.episode import UNKNOWN_SOIL, WORLD_MODES, soil_label
+from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, UNKNOWN_SOIL, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -189,7 +190,8 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
         depths = sorted(f"{part.known['d']:.3f}" for part in parts if part is not None)
         shown = ", ".join(depths[:8]) + (", ..." if len(depths) > 8 else "")
         raise ValueError(f"--forecast-data {root}: no two of its {len(ds)} episodes are one soil at one relative density "
-                         f"(and one soil along the path) cut at steady depths at least {fc.MIN_DEPTH_RATIO:g}x apart: "
+                         f"(bags without a soil label: of one measured unit weight γ, within "
+                         f"{100 * GAMMA_GROUP_RTOL:g} %) (and one soil along the path) cut at steady depths at least {fc.MIN_DEPTH_RATIO:g}x apart: "
                          f"nothing to forecast ({unsteady} of them hold no steady cut: less than {fc.MIN_STEADY_S:g} s of "
                          f"their second half in the soil with |v_z| <= {1e3 * fc.STEADY_MAX_ABS_V_Z_M_S:g} mm/s"
                          + (f"; {changing} change soil along the path (patches in their metadata): no one soil to "
@@ -488,7 +490,8 @@ def main(argv=None) -> int:
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
     p.add_argument("--forecast-data", metavar="DIR",
                    help="judge the forecast at another depth on these bags instead (pairs of episodes of one soil and "
-                        "relative density at different depths, e.g. your machine's cuts; bags the model was trained "
+                        "relative density at different depths, or without a soil label of one measured unit weight "
+                        "gamma, e.g. your machine's cuts; bags the model was trained "
                         "on are not held out), with the calibrated posterior of their world")
     p.add_argument("--forecast-only", action="store_true",
                    help="only the forecast at another depth (of --forecast-data, or of --forecast-world's simulated "

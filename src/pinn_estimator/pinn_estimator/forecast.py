@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from soil_msgs_py.episode import UNKNOWN_SOIL, gamma_group_names, soil_label
+from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
@@ -126,7 +126,7 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     first patch's: it is no one soil to forecast from or to).
 
     An episode without a soil label (a machine's bag) is labelled by its steady unit weight γ
-    (``episode.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
+    (``soil_labels.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
     soil at one density has one γ, where "unknown" would pair every unlabelled soil with every other."""
     out = []
     travel, in_soil_s = ds.distance_in_soil(), ds.time_in_soil()

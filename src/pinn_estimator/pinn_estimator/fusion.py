@@ -60,7 +60,7 @@ import numpy as np
 
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.patches import finite_number, short_repr
-from soil_physics import fee
+from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
 from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std
@@ -190,7 +190,9 @@ class FusionConfig:
             v = getattr(self, name)
             if not (finite_number(v) and v > 0):
                 raise ValueError(f"fusion {name}={short_repr(v)} must be a positive number")
-        object.__setattr__(self, "terms", AugmentedFEE(self.terms).terms)
+        terms = AugmentedFEE(self.terms).terms
+        force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
+        object.__setattr__(self, "terms", terms)
 
     def to_dict(self) -> dict:
         out = asdict(self)

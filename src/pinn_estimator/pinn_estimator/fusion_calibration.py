@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.cli_paths import output_file
-from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.predictive import mixture_cdf
 
@@ -51,7 +51,7 @@ CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
 CAL_SEED = 9000
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
 # which must hold at least one full window of the estimator; at most the simulator's longest episode.
-CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, 3600.0)
+CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, MAX_EPISODE_S)
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.

@@ -81,6 +81,8 @@ class TrainConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"{name}={v!r} must be a positive number")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed <= cli_numbers.MAX_NUMPY_SEED:
+            raise ValueError(f"seed={self.seed!r} must be an integer in [0, 2**32 - 1] (numpy's seeding)")
 
 
 def observation_statistics(ds: Dataset, episodes) -> tuple[np.ndarray, np.ndarray]:

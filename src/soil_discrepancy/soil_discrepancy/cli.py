@@ -75,6 +75,10 @@ def main(argv=None) -> int:
         bad = f"--pinn-epochs {args.pinn_epochs} must be >= 0" if args.pinn_epochs < 0 else f"--pinn-seeds {args.pinn_seeds} must be >= 1"
         print(f"soil_discrepancy: error: {bad}", file=sys.stderr)
         return 2
+    if args.pinn_epochs and args.seed + args.pinn_seeds - 1 > cli_numbers.MAX_NUMPY_SEED:  # the PINNs' seeds, checked now
+        print(f"soil_discrepancy: error: --seed {args.seed} with --pinn-seeds {args.pinn_seeds} seeds PINNs beyond "
+              "2**32 - 1", file=sys.stderr)
+        return 2
     predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])

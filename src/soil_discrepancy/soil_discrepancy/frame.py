@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pinn_estimator.forecast import one_soil
-from soil_msgs_py.episode import UNKNOWN_SOIL, gamma_group_names, soil_label
+from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
@@ -122,7 +122,7 @@ class Frame:
 
 
 def _gamma_groups(ds, episodes) -> list[str]:
-    """Per episode, the name of its γ-group (``episode.gamma_group_names``) over the median γ of
+    """Per episode, the name of its γ-group (``soil_labels.gamma_group_names``) over the median γ of
     ``episodes`` (those analysed: a left-out episode's γ must not bridge two chains); "" for the rest."""
     episodes = sorted(int(e) for e in episodes)
     gamma = np.array([float(np.median(np.asarray(ds.known[ds.episode_rows(e)], float)[:, _KI["gamma"]]))

@@ -53,7 +53,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from soil_physics import fee
-from soil_msgs_py.episode import MAX_SEED
+from soil_msgs_py.episode import MAX_EPISODE_S, MAX_SEED
 from soil_msgs_py.patches import SoilPatch, check_patches
 from soil_msgs_py.params import (
     ADHESION_PA,
@@ -146,7 +146,7 @@ class EpisodeSpec:
             ("relative_density_pct", spec.relative_density_pct, 0.0, 100.0, "%"),
             ("target_speed_m_s", spec.target_speed_m_s, 1e-3, MAX_TARGET_SPEED_M_S, "m/s"),
             ("target_depth_m", spec.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
-            ("duration_s", spec.duration_s, 1.0 / SAMPLE_RATE_HZ, 3600.0, "s"),
+            ("duration_s", spec.duration_s, 1.0 / SAMPLE_RATE_HZ, MAX_EPISODE_S, "s"),
         )
         for name, value, lo, hi, unit in checks:
             if not isinstance(value, (int, float)) or not math.isfinite(value) or not lo <= value <= hi:
