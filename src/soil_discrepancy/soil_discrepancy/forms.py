@@ -43,6 +43,7 @@ from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.classical import FORCE_SCALE_N
+from .candidates import paired_test
 from .fee_fit import ThetaFit
 from .frame import Frame
 
@@ -87,12 +88,13 @@ def form_bases(frame: Frame, fit: ThetaFit, names) -> np.ndarray:
 
 
 def _project(frame: Frame, J: np.ndarray, *arrays: np.ndarray) -> list[np.ndarray]:
-    """Per θ-group, remove from each (N, 2, ...) array its least-squares fit by the group's θ-columns J."""
+    """Per θ-group, remove from each (N, 2, ...) array its least-squares fit by the group's columns J
+    (N, 2, m): the θ-columns, and any terms whose k is profiled out with them."""
     out = [a.reshape(len(frame), 2, -1).copy() for a in arrays]
     group = frame.group
     for g in np.unique(group):
         m = group == g
-        Jg = J[m].reshape(-1, 3)
+        Jg = J[m].reshape(-1, J.shape[-1])
         u, s, _ = np.linalg.svd(Jg, full_matrices=False)
         u = u[:, s > 1e-9 * max(float(s.max()), 1e-300)]
         for a in out:
@@ -214,6 +216,106 @@ def _cluster_se(X: np.ndarray, e: np.ndarray, cluster: np.ndarray) -> np.ndarray
     return np.sqrt(np.maximum(np.diag(xtx_inv @ meat @ xtx_inv) * factor, 0.0))
 
 
+# ------------------------------------------------------------------------------------ pinned down?
+RIVALS_SHOWN = 5  # rivals the report lists (the count is kept)
+
+
+def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, alpha: float, names=None) -> dict:
+    """Do these data pin the form ``name`` (a term of ``model``, θ ``fit``) down, or would another form do?
+
+    What the form takes is the residual of ``model`` with its k set to 0, with θ and the other
+    terms' k profiled out to first order (projected off their columns, group by group, as in
+    ``search_forms``). Each form of the library (``names``, default all) is fitted to it alone
+    and scored per episode (ticks of an episode are autocorrelated). A *rival* is a form whose
+    fit is not significantly worse than the named form's (one-sided Wilcoxon over episodes,
+    p >= ``alpha``): the data cannot tell the two apart, so naming one would be a guess. A rival
+    that fits significantly *better* makes the named form a stand-in, chosen on a path through
+    other terms. Measured on hidden effects: the right form had every rival at p < 1e-3; the
+    stand-ins (a hard spot along the path, a layer that was not there) had rivals taking 1.5-2.8×
+    as much. Returns {'share' (of what is left, the form's), 'pinned' (no rival), 'rivals':
+    [{'name' (signed: k > 0), 'k', 'share', 'p_worse', 'better'}] best first, at most ``RIVALS_SHOWN``,
+    'n_rivals', 'n_better', 'factor_pinned' / 'scale_pinned' (every rival shares the form's factor /
+    scale), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s / 0.5 m)
+    for exp(−s / 2 m)), 'runner_up' (the best other form, rival or not)}.
+    """
+    terms = dict(model.terms)
+    if name not in terms:
+        raise ValueError(f"form {name!r} is not a term of the model ({', '.join(terms) or 'none'})")
+    names = [n for n in (names or term_forms.form_names()) if _unsigned(n) != _unsigned(name)]
+    theta = fit.per_tick(frame)
+    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
+    own = form_bases(frame, fit, [name])[..., 0]
+    resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N + terms[name] * own
+    ok = ok & np.isfinite(resid).all(-1)
+    if len(ok) > MAX_TICKS:
+        ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
+    if not ok.all():
+        frame, resid, own = frame.subset(ok), resid[ok], own[ok]
+    others = [n for n in terms if n != name]
+    profiled = theta_jacobian(frame, model, fit)
+    if others:
+        profiled = np.concatenate([profiled, form_bases(frame, fit, others)], -1)
+    y, X, c0 = _project(frame, profiled, resid[..., None], form_bases(frame, fit, names), own[..., None])
+    y, X, c0 = y.reshape(-1), X.reshape(-1, len(names)), c0.reshape(-1)
+    episode = np.unique(np.repeat(frame.episode, 2), return_inverse=True)[1]
+    total = float(y @ y)
+
+    def fitted(col):
+        nn = float(col @ col)
+        k = float(col @ y) / nn if nn > 0 else 0.0
+        return k, np.bincount(episode, (y - k * col) ** 2)
+
+    def share(sse):
+        return 1.0 - float(sse.sum()) / total if total > 0 else 0.0
+
+    _, own_sse = fitted(c0)
+    rows = []
+    for j, n in enumerate(names):
+        k, sse = fitted(X[:, j])
+        if k == 0.0:
+            continue
+        rows.append({"name": n if k > 0 else term_forms.negated(n), "k": abs(k), "share": share(sse),
+                     "p_worse": paired_test(sse, own_sse), "p_better": paired_test(own_sse, sse)})
+    rows.sort(key=lambda r: -r["share"])
+    rivals = [r for r in rows if r["p_worse"] >= alpha]
+    for r in rivals:
+        r["better"] = r.pop("p_better") < alpha
+    _, scale, factor = term_forms.parse(name)
+    parts = [term_forms.parse(r["name"])[1:] for r in rivals]
+
+    def clean(r):
+        return {key: (v if key in ("name", "better") else float(v)) for key, v in r.items() if key != "p_better"}
+
+    return {"share": share(own_sse), "pinned": not rivals, "n_rivals": len(rivals),
+            "n_better": sum(r["better"] for r in rivals),
+            "factor_pinned": all(f.name == factor.name for _, f in parts),
+            "shape_pinned": all(a.name == scale.name and term_forms.factor_shape(f.name) == term_forms.factor_shape(factor.name)
+                                for a, f in parts),
+            "scale_pinned": all(a.name == scale.name for a, _ in parts),
+            "rivals": [clean(r) for r in rivals[:RIVALS_SHOWN]], "runner_up": clean(rows[0]) if rows else None}
+
+
+def _unsigned(name: str) -> str:
+    """A form's name without its sign: both signs are one column."""
+    return name.replace(f"{term_forms.PREFIX}-", term_forms.PREFIX, 1)
+
+
+def pinned_caveat(pin: dict | None) -> str:
+    """The words a summary adds to a named form its data do not pin down ('' if they do, or were not asked)."""
+    if not pin or pin.get("pinned", True):
+        return ""
+    best = next((r for r in pin["rivals"] if r.get("better")), pin["rivals"][0])
+    formula = force_terms.get_term(best["name"]).formula
+    others = (f"; {pin['n_rivals']} forms fit it not significantly worse, {pin['n_better']} significantly better"
+              if pin["n_rivals"] > 1 else "")
+    if pin["n_better"]:
+        return (f"; a STAND-IN, its form not pinned down: {formula} ({best['name']}) takes more of what it takes "
+                f"({100 * best['share']:.0f} % against its {100 * pin['share']:.0f} %){others}")
+    what = ("its shape is pinned down, not its characteristic value" if pin.get("shape_pinned") else
+            "its factor is pinned down, its scale is not" if pin["factor_pinned"] else "its form is NOT pinned down")
+    return f"; {what}: {formula} ({best['name']}) fits as well{others}"
+
+
 # ------------------------------------------------------------------------------------ describing
 def closest_index(cos: np.ndarray) -> int:
     """Index of the catalogue term to name from the form's cosines with each: a term the form runs
@@ -278,11 +380,13 @@ def catalogue_yaml(discovered) -> str | None:
     import yaml
 
     rows = [{"term": d["name"], "name": d["proposed_name"], "k": d["k"], "k_se": d["k_se"], "formula": d["formula"],
-             "plugin": f"soil_physics.force_terms:plugin term={d['name']} k={d['k']:.6g}"}
+             "plugin": f"soil_physics.force_terms:plugin term={d['name']} k={d['k']:.6g}",
+             **({"pinned": d["pin"]["pinned"], "rivals": [r["name"] for r in d["pin"]["rivals"]]} if d.get("pin") else {})}
             for d in discovered or () if d.get("confirmed", True)]
     if not rows:
         return None
     head = ("# Forms found by soil_discrepancy (confirmed on held-out episodes). Rename 'name' as you like;\n"
+            "# 'pinned: false': these data did not tell the form from its 'rivals' (the report says why);\n"
             "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n")
     return head + yaml.safe_dump({"terms": rows}, sort_keys=False, allow_unicode=True)
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py import strict_json
+from soil_physics import term_forms
 
 from .forms import CATALOGUE_FILE, catalogue_yaml
 from .gap import NO_WORSE_WITHOUT
@@ -240,6 +241,7 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                      "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
                      if close.get("opposite") else "not the same: a new mechanism)"),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
+        lines += _pinned_md(f.get("pin"))
         nc = forms.get("not_confirmed")
         alone = ((nc or {}).get("each_form") or {}).get(f["name"])
         if alone:
@@ -256,6 +258,28 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
             lines.append(f"- Held-out test RMSE (all named terms) {_n(test['before']['rmse'])} N → {_n(test['after']['rmse'])} N.")
         lines.append("")
     return lines
+
+
+def _pinned_md(pin: dict | None) -> list[str]:
+    """Whether the data pin the form down: its rivals (``forms.rival_forms``), or the best other form's p."""
+    if not pin:
+        return []
+    head = (f"- Pinned down by these data? Alone in its place (θ and the other named terms refitted), it takes "
+            f"{100 * pin['share']:.0f} % of what the model without it leaves on the selection episodes; ")
+    if pin["pinned"]:
+        r = pin.get("runner_up")
+        return [head + "every other form of the library fits that significantly worse"
+                + (f" (the best, `{r['name']}`, {100 * r['share']:.0f} %, worse at p {_p(r['p_worse'])})" if r else "")
+                + ": **yes**."]
+    what = ("its shape is, not its characteristic value" if pin.get("shape_pinned") else
+            "its factor is, its scale is not" if pin["factor_pinned"] else
+            "its scale is, its factor is not" if pin["scale_pinned"] else "neither its scale nor its factor")
+    out = [head + f"**no** ({what}): {pin['n_rivals']} form(s) fit it not significantly worse"
+           + (f", {pin['n_better']} of them significantly better: a stand-in, chosen on a path through other terms"
+              if pin["n_better"] else "") + ":"]
+    out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
+            f"{100 * r['share']:.0f} % (worse at p {_p(r['p_worse'])})" for r in pin["rivals"]]
+    return out
 
 
 PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs them

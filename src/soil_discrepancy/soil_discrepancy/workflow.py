@@ -29,7 +29,7 @@ from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
-from .forms import describe_form, search_forms
+from .forms import describe_form, pinned_caveat, rival_forms, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
@@ -277,6 +277,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         new_terms, final = kept, trial
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
+    # 5a'''. a named form is a claim about the mechanism only if these data pin its form down: every
+    # other form of the library, in its place, fits what it takes significantly worse (selection part)
+    _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha)
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
@@ -499,6 +502,21 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
     return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms], judged
 
 
+def _pin_down(fsel: Frame, model: AugmentedFEE, start, named, form_report: dict | None, alpha: float) -> None:
+    """Each named discovered form's rivals (``forms.rival_forms``) on the selection part, θ refitted
+    for the named set; an entry its data do not pin down is named as such, never as a mechanism."""
+    forms_named = {s.name for s in named if s.name.startswith(FORM_PREFIX)}
+    entries = [d for d in (form_report or {}).get("discovered") or [] if d.get("confirmed") and d["name"] in forms_named]
+    if not entries:
+        return
+    fit = fit_fixed(fsel, model, start)
+    for d in entries:
+        d["pin"] = pin = rival_forms(fsel, model, fit, d["name"], alpha=alpha)
+        if not pin["pinned"]:
+            what = ("characteristic value" if pin["shape_pinned"] else "scale" if pin["factor_pinned"] else "form")
+            d["proposed_name"] = f"{d['proposed_name']} (its {what} not pinned down by these data)"
+
+
 def _term_row(s, **extra) -> dict:
     """A named or tentative term for the report: its score, the simulator plugin that switches it on, ``extra``."""
     return {**s.to_dict(), "plugin": plugin_spec(s.name, s.k), **extra}
@@ -552,9 +570,13 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
             label = s.name
+            caveat = ""
             if s.name.startswith(FORM_PREFIX):
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
-            parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated error)")
+                caveat = pinned_caveat(next((d.get("pin") for d in (forms or {}).get("discovered") or []
+                                             if d["name"] == s.name), None))
+            parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated "
+                         f"error{caveat})")
         text = "missing effect: " + "; ".join(parts)
         gain = None  # the share of the held-out test's force RMSE the named terms take off
         if test is not None and test["before"]["rmse"] is not None and test["after"]["rmse"] is not None:

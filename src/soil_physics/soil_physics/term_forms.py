@@ -162,6 +162,18 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
 )}
 
 
+# factors that are one shape at several characteristic values (a speed, a length, a time, a depth)
+SHAPE_FAMILIES = ("tanhvx", "fadevx", "enter", "sat", "tenter", "tsat", "below")
+
+
+def factor_shape(factor: str) -> str:
+    """A factor's shape without its characteristic value: 'enter0.5' and 'enter2' are both 'enter'."""
+    for shape in SHAPE_FAMILIES:
+        if factor.startswith(shape) and factor[len(shape):].replace(".", "", 1).isdigit():
+            return shape
+    return factor
+
+
 DISTANCE_FACTORS = frozenset(n for n in FACTORS if n == "s" or n.startswith(("enter", "sat")))  # look at travel s
 TIME_FACTORS = frozenset(n for n in FACTORS if n == "tau" or n.startswith(("tenter", "tsat")))  # look at time τ
 
@@ -234,7 +246,8 @@ def describe(name: str) -> dict:
     scale_formula = a.formula[1:] if scale_negative else a.formula
     sgn = "−" if (sign < 0) != scale_negative else ""
     axis = {"x": "F_x", "z": "F_z", "fee": "F", "vec": "F"}[a.axis]
-    factor = "" if b.name == "1" else f" · {b.formula}"
+    # a factor that is a difference ("1 − exp(−s / 2 m)") is one factor of the product: bracketed
+    factor = "" if b.name == "1" else f" · ({b.formula})" if b.formula.startswith("1 − ") else f" · {b.formula}"
     if sign < 0 and a.words.endswith(", pressing down"):  # likewise in words
         words = f"{a.words.removesuffix(', pressing down')}, pushing up, {b.words}"
     else:
@@ -250,4 +263,4 @@ def proposed_name(name: str) -> str:
     return f"{b.words} × {a.words}" + (" (relief)" if sign < 0 else "")
 
 
-__all__ = ["PREFIX", "SCALES", "FACTORS", "DISTANCE_FACTORS", "TIME_FACTORS", "uses_distance", "uses_time", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]
+__all__ = ["PREFIX", "SCALES", "FACTORS", "SHAPE_FAMILIES", "factor_shape", "DISTANCE_FACTORS", "TIME_FACTORS", "uses_distance", "uses_time", "form_names", "parse", "negated", "basis", "describe", "proposed_name"]
