@@ -101,6 +101,10 @@ def markdown(report: dict, figures=()) -> str:
             lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} {_unit(a['k_unit'])} "
                          f"| {', '.join(_n(k, '.4g') for k in a['k_folds'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} "
                          f"| {a['improved_episodes']}/{a['n_heldout_episodes']} |")
+        catalogue_pins = [(a["name"], a["pin"]) for a in report["selection"]["accepted"]
+                          if a.get("pin") and not a["name"].startswith(term_forms.PREFIX)]
+        for name, pin in catalogue_pins:  # a discovered form's is in its own section below
+            lines += ["", f"`{name}` against the library's forms:"] + _pinned_md(pin)
         lines += ["", "Re-simulate with the effect switched on:", "", "```"]
         lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
         lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
@@ -264,21 +268,25 @@ def _pinned_md(pin: dict | None) -> list[str]:
     """Whether the data pin the form down: its rivals (``forms.rival_forms``), or the best other form's p."""
     if not pin:
         return []
+    same = (f" ({pin['n_same_column']} form(s) are its own column on these data, the same statement: "
+            + ", ".join(f"`{n}`" for n in pin["same_column"]) + ")") if pin.get("n_same_column") else ""
     head = (f"- Pinned down by these data? Alone in its place (θ and the other named terms refitted), it takes "
-            f"{100 * pin['share']:.0f} % of what the model without it leaves on the selection episodes; ")
+            f"{100 * pin['share']:.1f} % of what the model without it leaves on the selection episodes; ")
     if pin["pinned"]:
         r = pin.get("runner_up")
         return [head + "every other form of the library fits that significantly worse"
-                + (f" (the best, `{r['name']}`, {100 * r['share']:.0f} %, worse at p {_p(r['p_worse'])})" if r else "")
-                + ": **yes**."]
-    what = ("its shape is, not its characteristic value" if pin.get("shape_pinned") else
+                + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse at p {_p(r['p_worse'])})" if r else "")
+                + f": **yes**.{same}"]
+    what = ("its form is not" if pin["n_better"] else
+            "its shape is, not its characteristic value" if pin.get("shape_pinned") else
             "its factor is, its scale is not" if pin["factor_pinned"] else
-            "its scale is, its factor is not" if pin["scale_pinned"] else "neither its scale nor its factor")
+            "its scale is, its factor is not" if pin["scale_pinned"] else "its form is not")
     out = [head + f"**no** ({what}): {pin['n_rivals']} form(s) fit it not significantly worse"
-           + (f", {pin['n_better']} of them significantly better: a stand-in, chosen on a path through other terms"
-              if pin["n_better"] else "") + ":"]
+           + (f", {pin['n_better']} of them significantly better" if pin["n_better"] else "")
+           + (": a stand-in, chosen on a path through other terms" if pin.get("stand_in") else "") + f"{same}:"]
     out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
-            f"{100 * r['share']:.0f} % (worse at p {_p(r['p_worse'])})" for r in pin["rivals"]]
+            f"{100 * r['share']:.1f} % (worse at p {_p(r['p_worse'])}{'; significantly better' if r.get('better') else ''})"
+            for r in pin["rivals"]]
     return out
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_physics import force_terms
+from soil_physics import force_terms, term_forms
 from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
@@ -279,7 +279,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
     # 5a'''. a named form is a claim about the mechanism only if these data pin its form down: every
     # other form of the library, in its place, fits what it takes significantly worse (selection part)
-    _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha)
+    pins = _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha)
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
@@ -304,7 +304,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 else:
                     pb, pa = got
                     test["predictors"][str(label)] = compare_predictions(ftest, pb, pa, label=str(label), edges=edges)
-    verdict, summary = _verdict(new_terms, reg0, test, reg1, form_report, tentative)
+    verdict, summary = _verdict(new_terms, reg0, test, reg1, form_report, tentative, pins)
     say(summary)
     report = {
         "version": REPORT_VERSION,
@@ -325,7 +325,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "failed_groups": failed, "rms_n": reg0["rms_n"]},
         "regimes": reg0,
         "selection": {"rounds": sel["rounds"],
-                      "accepted": [_term_row(s) for s in new_terms],
+                      "accepted": [_term_row(s, pin=pins.get(s.name)) for s in new_terms],
                       "not_confirmed": tentative},
         "model": {"terms": [list(t) for t in final.terms], "plugin_specs": final.plugin_specs(),
                   "extra_term_args": final.extra_term_args()},
@@ -502,19 +502,28 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
     return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms], judged
 
 
-def _pin_down(fsel: Frame, model: AugmentedFEE, start, named, form_report: dict | None, alpha: float) -> None:
-    """Each named discovered form's rivals (``forms.rival_forms``) on the selection part, θ refitted
-    for the named set; an entry its data do not pin down is named as such, never as a mechanism."""
-    forms_named = {s.name for s in named if s.name.startswith(FORM_PREFIX)}
-    entries = [d for d in (form_report or {}).get("discovered") or [] if d.get("confirmed") and d["name"] in forms_named]
-    if not entries:
-        return
+def _pin_down(fsel: Frame, model: AugmentedFEE, start, named, form_report: dict | None, alpha: float) -> dict:
+    """Each named term's rivals among the library's forms (``forms.rival_forms``) on the selection
+    part, θ refitted for the named set: {name: pin}. A discovered form its data do not pin down is
+    named as such in its report entry, never as a mechanism."""
+    if not named:
+        return {}
     fit = fit_fixed(fsel, model, start)
-    for d in entries:
-        d["pin"] = pin = rival_forms(fsel, model, fit, d["name"], alpha=alpha)
+    pins = {s.name: rival_forms(fsel, model, fit, s.name, alpha=alpha) for s in named}
+    for d in (form_report or {}).get("discovered") or []:
+        pin = pins.get(d["name"]) if d.get("confirmed") else None
+        if pin is None:
+            continue
+        d["pin"] = pin
         if not pin["pinned"]:
-            what = ("characteristic value" if pin["shape_pinned"] else "scale" if pin["factor_pinned"] else "form")
-            d["proposed_name"] = f"{d['proposed_name']} (its {what} not pinned down by these data)"
+            better = pin["n_better"] > 0
+            what = ("form" if better else "characteristic value" if pin["shape_pinned"] else
+                    "scale" if pin["factor_pinned"] else "form")
+            # a form not pinned down is no evidence of a catalogue mechanism "in another form" either
+            plain = what == "form"
+            d["proposed_name"] = (f"{term_forms.proposed_name(d['name']) if plain else d['proposed_name']} "
+                                  f"(its {what} not pinned down by these data)")
+    return pins
 
 
 def _term_row(s, **extra) -> dict:
@@ -544,9 +553,10 @@ def _fc_text(test: dict) -> str:
 
 
 def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
-             forms: dict | None = None, tentative: dict | None = None) -> tuple[str, str]:
+             forms: dict | None = None, tentative: dict | None = None, pins: dict | None = None) -> tuple[str, str]:
     """(verdict, summary). Only confirmed terms are named (``new_terms``); ``tentative``: the
-    terms the held-out test did not confirm, mentioned as such."""
+    terms the held-out test did not confirm, mentioned as such; ``pins``: {name: ``rival_forms``},
+    whose caveat a term its data do not pin down carries."""
     labels = variable_labels()
     not_named = ""
     idle = [t["name"] for t in (tentative or {}).get("terms", []) if t.get("why") == "idle"]
@@ -570,11 +580,9 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
             label = s.name
-            caveat = ""
+            caveat = pinned_caveat((pins or {}).get(s.name))
             if s.name.startswith(FORM_PREFIX):
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
-                caveat = pinned_caveat(next((d.get("pin") for d in (forms or {}).get("discovered") or []
-                                             if d["name"] == s.name), None))
             parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated "
                          f"error{caveat})")
         text = "missing effect: " + "; ".join(parts)
