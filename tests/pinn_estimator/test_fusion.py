@@ -520,6 +520,10 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
                            ({"terms": [["soil_inertia"]]}, "terms"), ({"forecast_abs_std_n": "ab"}, "forecast_abs_std_n"),
                            ({"components": 10**400}, r"components=1000.*\(401 characters\) must be an integer in \[1, 64\]"),
                            ({"forecast_samples": 10**6}, r"forecast_samples=1000000 must be an integer in"),
+                           # finite but huge: its square overflowed (an OverflowError, or a posterior of NaN)
+                           ({"prior_std": 1e300}, r"prior_std=1e\+300 must be at most 10"),
+                           ({"abs_std_n": [20, 1e300]}, r"abs_std_n=.* must be at most 1e\+06"),
+                           ({"forecast_rel_std": [1e300, 0.1]}, r"forecast_rel_std=.* must be at most 10"),
                            ({"terms": [["soil_inertia", 1], ["soil_inertia", 2]]}, "soil_inertia is given more than once")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig().with_fields(fields)

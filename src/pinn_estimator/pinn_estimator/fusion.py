@@ -103,6 +103,11 @@ PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n",
 # exists) and a stretch longer than a minute, which could not follow a soil change along the path.
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
                     "components": (1, 64)}
+# The standard deviations' upper bounds: far beyond any calibration (shares of 0.005-0.3, floors of
+# 1-1000 N), below where their squares overflow (1e300 gave an OverflowError or an inf variance
+# and a posterior of NaN): a model error of ten times the force, a floor of a meganewton.
+STD_FIELD_MAX = {"prior_std": 10.0, "rel_std": 10.0, "forecast_rel_std": 10.0, "shape_rel_std": 10.0,
+                 "abs_std_n": 1e6, "forecast_abs_std_n": 1e6, "shape_abs_std_n": 1e6}
 
 
 @dataclass(frozen=True)
@@ -171,6 +176,8 @@ class FusionConfig:
                 v = (math.inf, math.inf)
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v) or (name.endswith("abs_std_n") and min(v) <= 0):
                 raise ValueError(f"fusion {name}={short_repr(getattr(self, name))} must be two finite values >= 0 (abs > 0) for x, z")
+            if max(v) > STD_FIELD_MAX[name]:
+                raise ValueError(f"fusion {name}={short_repr(getattr(self, name))} must be at most {STD_FIELD_MAX[name]:g} for x, z")
             object.__setattr__(self, name, v)
         for name in ("unsteady_gain", "shape_noise_gain"):
             v = getattr(self, name)
@@ -190,6 +197,9 @@ class FusionConfig:
             v = getattr(self, name)
             if not (finite_number(v) and v > 0):
                 raise ValueError(f"fusion {name}={short_repr(v)} must be a positive number")
+        if self.prior_std > STD_FIELD_MAX["prior_std"]:
+            raise ValueError(f"fusion prior_std={short_repr(self.prior_std)} must be at most {STD_FIELD_MAX['prior_std']:g} "
+                             "(a share of the prior box)")
         terms = AugmentedFEE(self.terms).terms
         force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
         object.__setattr__(self, "terms", terms)
