@@ -50,7 +50,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="your own catalogue of terms, tested beside the built-in one (e.g. an earlier run's "
                         "discovered_terms.yaml: terms: [{term: form:<scale>*<factor>, name: ..., k: ...}])")
     p.add_argument("--no-forms", action="store_true",
-                   help="do not search the library of forms when no catalogue term explains the residual")
+                   help="do not use the library of forms: no search when no catalogue term explains the residual, "
+                        "and no check of a named term against the forms in its place")
     p.add_argument("--pinn-epochs", type=int, default=0,
                    help="also retrain the PINN without and with the named effect for this many epochs on the "
                         "selection episodes and compare them on the held-out ones (default 0: skip)")

@@ -265,7 +265,7 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
 
 
 def _pinned_md(pin: dict | None) -> list[str]:
-    """Whether the data pin the form down: its rivals (``forms.rival_forms``), or the best other form's p."""
+    """Whether the data pin a named term down: its rivals (``forms.rival_forms``), or the best other form's p."""
     if not pin:
         return []
     same = (f" ({pin['n_same_column']} form(s) are its own column on these data, the same statement: "

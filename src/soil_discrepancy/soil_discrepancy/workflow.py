@@ -7,6 +7,8 @@
               over a library of forms (``forms``) join the catalogue's in the same held-out test;
               what the named terms leave is searched again (3b). A form is named only if the
               held-out test groups (5) confirm it; else it is reported as tentative.
+              Each named term then faces the library's forms in its place: one whose rivals fit
+              as well is named with them (not pinned down), one they beat is called a stand-in.
 4. model      the accepted terms with their k: ``AugmentedFEE`` and the simulator plugin specs
 5. gap        held-out test groups (never used in 3): force error before/after
 
@@ -277,9 +279,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         new_terms, final = kept, trial
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
-    # 5a'''. a named form is a claim about the mechanism only if these data pin its form down: every
+    # 5a'''. a named term is a claim about the mechanism only if these data pin its form down: every
     # other form of the library, in its place, fits what it takes significantly worse (selection part)
-    pins = _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha)
+    pins = _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha) if forms else {}
     # 4. the augmented model on every episode
     reg1, r1 = None, None
     if new_terms:
