@@ -216,16 +216,18 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
 
 def test_an_accepted_k_that_overflows_the_model_is_refused_naming_it(tmp_path, capsys):
     """soil_inertia=1e200 makes the baseline force overflow: the run ended in a TypeError formatting
-    the RMS (None); now exit 2 naming the term and its k, and no report is written."""
+    the RMS (None); at 1e150 it reported 2e152 N of residual. Now exit 2 naming the term and its k,
+    and no report is written."""
     from tests.tiny_data import write_tiny_bags
 
     bags = write_tiny_bags(tmp_path / "bags")
-    out = tmp_path / "o"
-    assert cli_main([str(bags), "--out", str(out), "--accepted", "soil_inertia=1e200", "--workers", "1", "--no-plots",
-                     "--no-cache", "--quiet"]) == 2
-    err = capsys.readouterr().err
-    assert "not a finite number with the accepted term(s) soil_inertia=1e+200" in err, err
-    assert not (out / "discrepancy.json").exists()
+    for k in ("1e200", "1e150"):
+        out = tmp_path / f"o{k}"
+        assert cli_main([str(bags), "--out", str(out), "--accepted", f"soil_inertia={k}", "--workers", "1",
+                         "--no-plots", "--no-cache", "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "is not a finite force within ±9e+06 N with the accepted term(s) soil_inertia=" in err, err
+        assert not (out / "discrepancy.json").exists()
 
 
 # ------------------------------------------------------------------------------ the pieces

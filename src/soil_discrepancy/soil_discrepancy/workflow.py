@@ -30,6 +30,7 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
+from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
 from .forms import describe_form, pinned_caveat, rival_forms, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
@@ -61,14 +62,16 @@ def load_frame(bag_dir, *, stride: int = 2, group_by: str = "auto", cache: bool 
 
 def _refuse_non_finite(r0: np.ndarray, model: AugmentedFEE) -> None:
     """ValueError if the baseline's residual RMS (NaN ticks, where the model is undefined, left
-    out) is not finite: an accepted term with a k far too large (soil_inertia=1e200) overflows
-    the force, and every figure after it would be garbage (the report's RMS null)."""
+    out) is not finite or beyond any soil's force (``MAX_PLAUSIBLE_FORCE_N``): an accepted term
+    with a k far too large (soil_inertia=1e200) overflows the force, at 1e150 it reports 2e152 N
+    of residual, and every figure after it would be garbage (the report's RMS null)."""
     with np.errstate(over="ignore", invalid="ignore"):
         rms = np.sqrt(np.nanmean(np.square(r0), axis=0))
-    bad = [axis for axis, v in zip(("x", "z"), rms) if not np.isfinite(v)]
+    bad = [f"{axis} {v:.3g} N" for axis, v in zip(("x", "z"), rms) if not (np.isfinite(v) and v <= MAX_PLAUSIBLE_FORCE_N)]
     if bad:
         given = ", ".join(f"{name}={k:g}" for name, k in model.terms)
-        raise ValueError(f"the baseline model's residual RMS ({', '.join(bad)}) is not a finite number"
+        raise ValueError(f"the baseline model's residual RMS ({', '.join(bad)}) is not a finite force within "
+                         f"±{MAX_PLAUSIBLE_FORCE_N:.3g} N"
                          + (f" with the accepted term(s) {given}: is a k far too large?" if given else ""))
 
 

@@ -117,6 +117,9 @@ class Machine:
 MACHINE = Machine()
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
+# The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil
+# acts on a 5.4 t machine; it is a bug (units, a sign of an exponent) or a coefficient far too large.
+MAX_PLAUSIBLE_FORCE_N = 300.0 * max(FORCE_LIMITS_N)
 # A steady cut: the edge moves vertically slower than this [m/s] (a 1:25 slope at 0.5 m/s). Faster,
 # the force carries transients a quasi-static model lacks (sinking: the penetration reaction).
 STEADY_CUT_MAX_ABS_V_Z_M_S = 0.02

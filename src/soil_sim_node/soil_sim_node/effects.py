@@ -31,13 +31,12 @@ import numpy as np
 
 from soil_physics.contact import contact_damping_force
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import FORCE_LIMITS_N
+from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from soil_physics.force_inputs import ForceInputs
 
-# The largest force a plugin may return [N]: 300 times the machine's larger force limit. Beyond
-# it no soil acts on a 5.4 t machine; it is a plugin's bug (units, a sign of an exponent), and
-# the simulation would go on with the blade flung kilometres away.
-MAX_PLUGIN_FORCE_N = 300.0 * max(FORCE_LIMITS_N)
+# The largest force a plugin may return [N]: beyond it the simulation would go on with the blade
+# flung kilometres away.
+MAX_PLUGIN_FORCE_N = MAX_PLAUSIBLE_FORCE_N
 
 
 # Named effects that are one force term on ``ForceInputs`` (the physics lives in soil_physics;
