@@ -179,6 +179,20 @@ def test_start_gives_up_waiting_after_the_timeout_and_says_so_once(clock):
     assert slow.poll(ready=False).go
 
 
+def test_an_endpoint_given_up_on_is_not_awaited_again_until_it_returns(clock):
+    """A dead advisory node (the estimator) cost each later episode the whole wait_timeout_s."""
+    wait = StartWait(wait_timeout_s=2.0, settle_s=0.0, clock=clock)
+    dead = {"/blade/force": (2, 3), "/chassis/cmd_vel": (1, 1)}
+    assert wait.poll_endpoints(dead) == ((False, False), ["/blade/force 2/3"])
+    clock.t += 2.01
+    assert wait.poll_endpoints(dead) == ((True, True), ["/blade/force 2/3"]), "gave up once, saying on what"
+    assert wait.poll_endpoints(dead) == ((True, False), []), "the next episode does not wait for it again"
+    assert wait.poll_endpoints({**dead, "/chassis/cmd_vel": (0, 1)}) == ((False, False), ["/chassis/cmd_vel 0/1"])
+    back = {"/blade/force": (3, 3), "/chassis/cmd_vel": (1, 1)}
+    assert wait.poll_endpoints(back)[0].go and not wait.gone, "matched again: awaited again"
+    assert wait.poll_endpoints(dead) == ((False, False), ["/blade/force 2/3"])
+
+
 def test_start_waits_forever_with_no_timeout(clock):
     wait = StartWait(wait_timeout_s=0.0, settle_s=0.0, clock=clock)
     wait.poll(ready=False)

@@ -301,8 +301,9 @@ class SimNode(Node):
             where = "" if str(err).startswith(G.SIM_COMMAND_TOPIC) else f"{G.SIM_COMMAND_TOPIC}: "
             self.get_logger().warning(f"{where}{err}; ignored")
 
-    def _endpoints_ready(self) -> tuple[bool, list[str]]:
-        missing = []
+    def _endpoint_counts(self) -> dict[str, tuple[int, int]]:
+        """{awaited topic: (matched endpoints now, how many are awaited)}."""
+        counts = {}
         subs = dict(zip(G.COMMAND_TOPICS, self.cmd_subs))
         for topic, count in self.wait_for:
             if topic in subs:
@@ -311,15 +312,14 @@ class SimNode(Node):
                 have = self.status_pub.get_subscription_count()
             else:
                 have = self.pubs[topic].get_subscription_count()
-            if have < count:
-                missing.append(f"{topic} {have}/{count}")
-        return not missing, missing
+            counts[topic] = (have, max(count, counts.get(topic, (0, 0))[1]))  # given twice: each must hold
+        return counts
 
     def _try_start(self) -> None:
-        ready, missing = self._endpoints_ready()
-        poll = self.start_wait.poll(ready)
+        poll, missing = self.start_wait.poll_endpoints(self._endpoint_counts())
         if poll.gave_up:
-            self.get_logger().warning(f"starting without {missing} after {self.start_wait.wait_timeout_s} s")
+            self.get_logger().warning(f"starting without {missing} after {self.start_wait.wait_timeout_s} s; later "
+                                      "episodes start without them too, until they match again")
         elif missing and not self.start_wait.wait_timeout_s and self.start_wait.waited_s() >= UNLIMITED_WAIT_LOG_S:
             # waiting for ever (wait_timeout_s 0) and for a while now: say for what, every so often
             self.get_logger().warning(f"waiting for {missing} before the next episode for "

@@ -229,6 +229,7 @@ class StartWait:
         self._wait_started: float | None = None
         self._matched_at: float | None = None
         self._gave_up = False
+        self.gone: set[str] = set()  # endpoints given up on: not awaited again until they match
 
     def waited_s(self) -> float:
         """How long the current start has been waiting [s] (0 before the first poll)."""
@@ -251,3 +252,16 @@ class StartWait:
         self._wait_started = self._matched_at = None
         self._gave_up = False
         return StartPoll(True, gave_up)
+
+    def poll_endpoints(self, counts: dict[str, tuple[int, int]]) -> tuple[StartPoll, list[str]]:
+        """``poll`` on the awaited endpoints' matched counts {topic: (have, need)}. One given up on
+        (its node died, or never came) is not awaited at later starts until it matches again: a
+        dead estimator cost each later episode the whole ``wait_timeout_s``. Returns the poll and
+        the endpoints still awaited and missing ('topic have/need')."""
+        missing = {t for t, (have, need) in counts.items() if have < need}
+        self.gone &= missing  # matched again: awaited again
+        awaited = sorted(missing - self.gone)
+        poll = self.poll(not awaited)
+        if poll.gave_up:
+            self.gone |= set(awaited)
+        return poll, [f"{t} {counts[t][0]}/{counts[t][1]}" for t in awaited]
