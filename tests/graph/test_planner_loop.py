@@ -108,7 +108,7 @@ def test_an_advisory_node_that_dies_does_not_stop_the_cut(tmp_path, role, execut
     matched until its DDS lease ends."""
     domain = next_domain_id()
     args = ["--planner", "--pacing", "realtime", "--timeout", "150",
-            "--sim-param", "duration_s:=6.0", "--sim-param", "world_mode:=fee",
+            "--sim-param", "duration_s:=4.0", "--sim-param", "world_mode:=fee",
             "--sim-param", "episodes:=3", "--sim-param", "wait_timeout_s:=5.0"]
     log_path = tmp_path / "launch.log"
     with launched(args, domain, log_path) as proc:
@@ -124,8 +124,10 @@ def test_an_advisory_node_that_dies_does_not_stop_the_cut(tmp_path, role, execut
     assert f"{role} {how}; not required, the others go on" in out, out[-4000:]
     assert "no planner target within" in out, out[-4000:]  # the controller fell back to its own depth
     assert "sim finished; stopping the others" in out and "episode 2 end" in out, out[-4000:]
-    waits = out.split(f"{role} {how}")[1].count("starting without")  # after it (a slow start may give up too)
-    assert waits == 1 and "until they match again" in out if signal == "-15" else waits <= 1, out[-4000:]
+    if signal == "-15":  # gone from the graph at once: episode 1 waits for it, gives up, episode 2 does not wait
+        after = out.split(f"{role} {how}")[1]
+        assert "starting without" in after.split("episode 1 start")[0] and "until they match again" in after, out[-4000:]
+        assert "starting without" not in after.split("episode 1 start")[1].split("episode 2 start")[0], out[-4000:]
 
 
 @pytest.mark.timeout(120)

@@ -329,9 +329,9 @@ def test_a_form_in_the_place_of_another_effect_is_called_a_stand_in_not_its_mech
 
     frame = build_frame(blind(form_data["entry"]), stride=STRIDE)
 
-    def pin(name):
+    def pin(name, data=frame):
         model = AugmentedFEE([(name, 1.0)])
-        return rival_forms(frame, model, fit_fixed(frame, model), name, alpha=0.01)
+        return rival_forms(data, model, fit_fixed(data, model), name, alpha=0.01)
 
     wrong = pin("form:gd2w_x*tau")
     assert not wrong["pinned"] and wrong["n_better"] >= 1, wrong
@@ -343,6 +343,9 @@ def test_a_form_in_the_place_of_another_effect_is_called_a_stand_in_not_its_mech
     right = pin("form:gd2w_x*enter2")  # the hidden 1 m lies between the library's 0.5 m and 2 m
     assert right["n_better"] == 0 and (right["pinned"] or right["shape_pinned"]), right
     assert "STAND-IN" not in pinned_caveat(right) and right["share"] > 0.5
+    # on 6 episodes no Wilcoxon over episodes reaches p < 0.01 (2^-6 = 0.016): not known, not "not pinned"
+    few = pin("form:gd2w_x*enter2", frame.select(episodes=list(frame.episodes[:6])))
+    assert few["pinned"] is None and few["n_episodes"] == 6 and "too few" in pinned_caveat(few), few
     with pytest.raises(ValueError, match="not a term of the model"):
         rival_forms(frame, AugmentedFEE(), fit_fixed(frame, AugmentedFEE()), "form:gd2w_x*enter2", alpha=0.01)
 

@@ -188,6 +188,10 @@ def test_an_endpoint_given_up_on_is_not_awaited_again_until_it_returns(clock):
     assert wait.poll_endpoints(dead) == ((True, True), ["/blade/force 2/3"]), "gave up once, saying on what"
     assert wait.poll_endpoints(dead) == ((True, False), []), "the next episode does not wait for it again"
     assert wait.poll_endpoints({**dead, "/chassis/cmd_vel": (0, 1)}) == ((False, False), ["/chassis/cmd_vel 0/1"])
+    fewer = {"/blade/force": (1, 3), "/chassis/cmd_vel": (1, 1)}  # another of its subscribers gone too
+    assert wait.poll_endpoints(fewer) == ((False, False), ["/blade/force 1/3"])
+    clock.t += 2.01
+    assert wait.poll_endpoints(fewer) == ((True, True), ["/blade/force 1/3"])
     back = {"/blade/force": (3, 3), "/chassis/cmd_vel": (1, 1)}
     assert wait.poll_endpoints(back)[0].go and not wait.gone, "matched again: awaited again"
     assert wait.poll_endpoints(dead) == ((False, False), ["/blade/force 2/3"])

@@ -103,9 +103,10 @@ PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n",
 # exists) and a stretch longer than a minute, which could not follow a soil change along the path.
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
                     "components": (1, 64)}
-# The standard deviations' upper bounds: far beyond any calibration (shares of 0.005-0.3, floors of
-# 1-1000 N), below where their squares overflow (1e300 gave an OverflowError or an inf variance
-# and a posterior of NaN): a model error of ten times the force, a floor of a meganewton.
+# The standard deviations' upper bounds: beyond what the calibration tries (shares up to 2, floors up
+# to 3 kN: fusion_calibration's grids), below where their squares overflow (1e300 gave an
+# OverflowError or an inf variance and a posterior of NaN): a model error of ten times the force,
+# a floor of a meganewton.
 STD_FIELD_MAX = {"prior_std": 10.0, "rel_std": 10.0, "forecast_rel_std": 10.0, "shape_rel_std": 10.0,
                  "abs_std_n": 1e6, "forecast_abs_std_n": 1e6, "shape_abs_std_n": 1e6}
 

@@ -45,6 +45,7 @@ from soil_physics.augmented_fee import AugmentedFEE
 from pinn_estimator.classical import FORCE_SCALE_N
 from .candidates import paired_test
 from .fee_fit import ThetaFit
+from .regimes import holm
 from .frame import Frame
 
 MAX_CANDIDATES = 3  # forms passed on to the held-out test
@@ -103,6 +104,21 @@ def _project(frame: Frame, J: np.ndarray, *arrays: np.ndarray) -> list[np.ndarra
     return out
 
 
+def _normalised_residual(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> tuple[Frame, np.ndarray]:
+    """(frame, (N, 2) residual normalised by the force scales) on the ticks where the model is
+    defined and finite, at most ``MAX_TICKS`` of them (thinned evenly: ticks of an episode are
+    autocorrelated, little is lost)."""
+    theta = fit.per_tick(frame)
+    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
+    resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N
+    ok = ok & np.isfinite(resid).all(-1)
+    if len(ok) > MAX_TICKS:
+        ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
+    if not ok.all():
+        frame, resid = frame.subset(ok), resid[ok]
+    return frame, resid
+
+
 def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, seed: int = 0,
                  names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
     """Sparse regression of ``model``'s residual (θ per group ``fit``) on the library of forms.
@@ -116,14 +132,7 @@ def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int
     from sklearn.model_selection import GroupKFold
 
     names = list(names or term_forms.form_names())
-    theta = fit.per_tick(frame)
-    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
-    resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N
-    ok = ok & np.isfinite(resid).all(-1)
-    if len(ok) > MAX_TICKS:  # thin evenly (ticks of an episode are autocorrelated: little is lost)
-        ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
-    if not ok.all():
-        frame, resid = frame.subset(ok), resid[ok]
+    frame, resid = _normalised_residual(frame, model, fit)
     J = theta_jacobian(frame, model, fit)
     B = form_bases(frame, fit, names)
     norm0 = np.sqrt((B**2).sum((0, 1)))
@@ -229,55 +238,58 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     """Do these data pin the term ``name`` (a form or a catalogue term of ``model``, θ ``fit``) down,
     or would another form do?
 
-    What the form takes is the residual of ``model`` with its k set to 0, with θ and the other
-    terms' k profiled out to first order (projected off their columns, group by group, as in
-    ``search_forms``). Each form of the library (``names``, default all) is fitted to it alone
-    and scored per episode (ticks of an episode are autocorrelated). A *rival* is a form whose
-    fit is not significantly worse than the named form's (one-sided Wilcoxon over episodes,
-    p >= ``alpha``): the data cannot tell the two apart, so naming one would be a guess. A rival
-    that fits significantly *better* makes the named form a stand-in, chosen on a path through
-    other terms. Measured on hidden effects: the right form had every rival at p < 1e-3; the
-    stand-ins (a hard spot along the path, a layer that was not there) had rivals taking 1.5-2.8×
-    as much. Returns {'share' (of what is left, the form's), 'pinned' (no rival), 'rivals':
-    [{'name' (signed: k > 0), 'k', 'share', 'p_worse', 'better'}] best first, at most ``RIVALS_SHOWN``,
-    'n_rivals', 'n_better', 'stand_in' (a rival significantly better takes ``STAND_IN_SHARE_RATIO`` times
-    the share), 'same_column' / 'n_same_column' (forms that are the term's own column on these
-    data, |cos| >= ``DUPLICATE_COS``, or ``CATALOGUE_COS`` for a catalogue term: the same statement,
-    no rival), 'factor_pinned' / 'scale_pinned' (every rival shares the form's factor /
-    scale), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s / 0.5 m)
-    for exp(−s / 2 m)), 'runner_up' (the best other form, rival or not)}.
+    What the term takes is the residual of ``model`` with its k set to 0, profiled to first order
+    over θ (per θ-group) and the other terms' k (one each, over all groups): projected off their
+    columns. Each form of the library (``names``, default all) is fitted to it alone and scored
+    per episode (ticks of an episode are autocorrelated). A *rival* is a form whose fit is not
+    significantly worse than the term's own (one-sided Wilcoxon over episodes, p >= ``alpha``):
+    the data cannot tell the two apart, so naming one would be a guess. A rival significantly
+    *better* (Holm over the library) makes the term a stand-in, chosen on a path through other
+    terms, if it also takes ``STAND_IN_SHARE_RATIO`` times the share. Measured on hidden effects:
+    the right forms had every rival at p < 1e-3; the stand-ins (a hard spot along the path, a
+    layer that was not there) had rivals taking 1.5-2.8× as much. The episodes given are the ones
+    the term was chosen on (the selection part), which favours it: "pinned" is the weaker claim.
+    Returns {'pinned': True / False / None (not testable: no form fits anything, or too few
+    episodes for a one-sided Wilcoxon to reach ``alpha``), 'why' (when None), 'n_episodes',
+    'share' (of what is left, the term's), 'rivals': [{'name' (signed: k > 0), 'k', 'share',
+    'p_worse', 'better'}] best first, at most ``RIVALS_SHOWN``, 'n_rivals', 'n_better',
+    'stand_in', 'same_column' / 'n_same_column' (forms that are the term's own column on these
+    data, |cos| >= ``DUPLICATE_COS``, or ``CATALOGUE_COS`` for a catalogue term: the same
+    statement, no rival), 'factor_pinned' / 'scale_pinned' (every rival shares the form's factor
+    / scale), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s /
+    0.5 m) for exp(−s / 2 m)), 'runner_up' (the best other form, rival or not)}; ``pin_kind``
+    reads it.
     """
     terms = dict(model.terms)
     if name not in terms:
         raise ValueError(f"form {name!r} is not a term of the model ({', '.join(terms) or 'none'})")
     names = [n for n in (names or term_forms.form_names()) if _unsigned(n) != _unsigned(name)]
-    theta = fit.per_tick(frame)
-    fx, fz, ok = model.force(theta, frame.known, frame.distance, with_defined=True, time_in_soil=frame.time_in_soil)
+    frame, resid = _normalised_residual(frame, model, fit)
     own = form_bases(frame, fit, [name])[..., 0]
-    resid = (frame.forces - np.stack((fx, fz), -1)) / FORCE_SCALE_N + terms[name] * own
-    ok = ok & np.isfinite(resid).all(-1)
-    if len(ok) > MAX_TICKS:
-        ok &= np.arange(len(ok)) % math.ceil(len(ok) / MAX_TICKS) == 0
-    if not ok.all():
-        frame, resid, own = frame.subset(ok), resid[ok], own[ok]
+    resid = resid + terms[name] * own
     others = [n for n in terms if n != name]
-    profiled = theta_jacobian(frame, model, fit)
+    arrays = [resid[..., None], form_bases(frame, fit, names), own[..., None]]
     if others:
-        profiled = np.concatenate([profiled, form_bases(frame, fit, others)], -1)
-    y, X, c0 = _project(frame, profiled, resid[..., None], form_bases(frame, fit, names), own[..., None])
-    y, X, c0 = y.reshape(-1), X.reshape(-1, len(names)), c0.reshape(-1)
+        arrays.append(form_bases(frame, fit, others))
+    projected = _project(frame, theta_jacobian(frame, model, fit), *arrays)
+    y, X, c0 = projected[0].reshape(-1), projected[1].reshape(-1, len(names)), projected[2].reshape(-1)
+    if others and len(y):  # the other terms' k: one each over all groups, their columns already off θ's
+        u, sv, _ = np.linalg.svd(projected[3].reshape(len(y), -1), full_matrices=False)
+        u = u[:, sv > 1e-9 * max(float(sv.max()), 1e-300)]
+        y, X, c0 = y - u @ (u.T @ y), X - u @ (u.T @ X), c0 - u @ (u.T @ c0)
     # a form that is the named term's own column on these data (−Q tanh(v_x / 0.1 m/s) is −Q at
     # v_x >= 0.3 m/s; (γ/g) w d v_x² is soil inertia) says the same thing: listed, no rival
     norms = np.sqrt((X**2).sum(0)) * max(float(np.sqrt(c0 @ c0)), 1e-300)
     cos = np.abs(X.T @ c0) / np.maximum(norms, 1e-300)
     same_cos = DUPLICATE_COS if name.startswith(term_forms.PREFIX) else CATALOGUE_COS
     episode = np.unique(np.repeat(frame.episode, 2), return_inverse=True)[1]
+    n_episodes = int(episode.max()) + 1 if len(episode) else 0
     total = float(y @ y)
 
     def fitted(col):
         nn = float(col @ col)
         k = float(col @ y) / nn if nn > 0 else 0.0
-        return k, np.bincount(episode, (y - k * col) ** 2)
+        return k, np.bincount(episode, (y - k * col) ** 2, minlength=n_episodes)
 
     def share(sse):
         return 1.0 - float(sse.sum()) / total if total > 0 else 0.0
@@ -288,14 +300,17 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
         k, sse = fitted(X[:, j])
         if k == 0.0:
             continue
-        rows.append({"name": n if k > 0 else term_forms.negated(n), "k": abs(k), "share": share(sse),
-                     "p_worse": paired_test(sse, own_sse), "p_better": paired_test(own_sse, sse), "cos": cos[j]})
-    rows.sort(key=lambda r: -r["share"])
-    same = [r["name"] for r in rows if r["cos"] >= same_cos]
-    rows = [r for r in rows if r["cos"] < same_cos]
+        signed = n if k > 0 else term_forms.negated(n)
+        if cos[j] >= same_cos:
+            rows.append({"name": signed, "same": True})
+            continue
+        rows.append({"name": signed, "k": abs(k), "share": share(sse), "p_worse": paired_test(sse, own_sse),
+                     "p_better": paired_test(own_sse, sse), "same": False})
+    same = [r["name"] for r in rows if r["same"]]
+    rows = sorted((r for r in rows if not r["same"]), key=lambda r: -r["share"])
+    for r, p_better in zip(rows, holm([r["p_better"] for r in rows])):
+        r["better"] = bool(p_better < alpha)  # of hundreds of forms some beat it by chance at alpha each
     rivals = [r for r in rows if r["p_worse"] >= alpha]
-    for r in rivals:
-        r["better"] = r.pop("p_better") < alpha
     parts = [term_forms.parse(r["name"])[1:] for r in rivals]
     scale = factor = None  # a catalogue term's is neither any form's
     if name.startswith(term_forms.PREFIX):
@@ -303,19 +318,52 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
 
     def clean(r):
         return {key: (v if key in ("name", "better") else float(v)) for key, v in r.items()
-                if key not in ("p_better", "cos")}
+                if key not in ("p_better", "same")}
 
     own_share = share(own_sse)
-    return {"share": own_share, "pinned": not rivals, "n_rivals": len(rivals),
-            "n_better": sum(r["better"] for r in rivals),
+    # the smallest one-sided p of a Wilcoxon over n episodes is 2^-n: below log2(1/alpha) episodes no
+    # rival can be shown worse, and "not pinned down" would say nothing about the form
+    why = ("no form of the library fits what it takes" if not rows or total <= 0 else
+           f"{n_episodes} episodes, too few for a one-sided Wilcoxon to reach p < {alpha:g}"
+           if 2.0 ** -n_episodes >= alpha else None)
+    return {"pinned": None if why else not rivals, "why": why, "n_episodes": n_episodes,
+            "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
             "stand_in": any(r["better"] and r["share"] >= STAND_IN_SHARE_RATIO * own_share for r in rivals),
             "factor_pinned": factor is not None and all(f.name == factor.name for _, f in parts),
             "shape_pinned": factor is not None and all(
                 a.name == scale.name and term_forms.factor_shape(f.name) == term_forms.factor_shape(factor.name)
                 for a, f in parts),
-            "same_column": same[:RIVALS_SHOWN], "n_same_column": len(same),
             "scale_pinned": scale is not None and all(a.name == scale.name for a, _ in parts),
+            "same_column": same[:RIVALS_SHOWN], "n_same_column": len(same),
             "rivals": [clean(r) for r in rivals[:RIVALS_SHOWN]], "runner_up": clean(rows[0]) if rows else None}
+
+
+PIN_KINDS = {  # pin_kind -> what is not pinned down, in words
+    "pinned": "", "unknown": "whether it is pinned down is not known",
+    "stand-in": "a STAND-IN, its form not pinned down", "beaten": "its form is NOT pinned down",
+    "value": "its shape is pinned down, not its characteristic value",
+    "scale": "its factor is pinned down, its scale is not", "factor": "its scale is pinned down, its factor is not",
+    "form": "its form is NOT pinned down"}
+
+
+def pin_kind(pin: dict | None) -> str | None:
+    """One word for a ``rival_forms`` result (a key of ``PIN_KINDS``; None if none was asked):
+    the summary, the report and the proposed name all read it."""
+    if not pin:
+        return None
+    if pin.get("pinned") is None:
+        return "unknown"
+    if pin["pinned"]:
+        return "pinned"
+    if pin.get("stand_in"):
+        return "stand-in"
+    if pin["n_better"]:
+        return "beaten"
+    if pin.get("shape_pinned"):
+        return "value"
+    if pin["factor_pinned"]:
+        return "scale"
+    return "factor" if pin["scale_pinned"] else "form"
 
 
 def _unsigned(name: str) -> str:
@@ -325,20 +373,18 @@ def _unsigned(name: str) -> str:
 
 def pinned_caveat(pin: dict | None) -> str:
     """The words a summary adds to a named term its data do not pin down ('' if they do, or were not asked)."""
-    if not pin or pin.get("pinned", True):
+    kind = pin_kind(pin)
+    if kind in (None, "pinned"):
         return ""
+    if kind == "unknown":
+        return f"; {PIN_KINDS[kind]}: {pin['why']}"
     best = next((r for r in pin["rivals"] if r.get("better")), pin["rivals"][0])
     formula = force_terms.get_term(best["name"]).formula
     others = (f"; {pin['n_rivals']} forms fit it not significantly worse, {pin['n_better']} significantly better"
               if pin["n_rivals"] > 1 else "")
-    shares = f"({100 * best['share']:.1f} % of what it takes against its {100 * pin['share']:.1f} %)"
-    if pin.get("stand_in"):
-        return f"; a STAND-IN, its form not pinned down: {formula} ({best['name']}) takes more {shares}{others}"
-    if pin["n_better"]:
-        return f"; its form is NOT pinned down: {formula} ({best['name']}) fits significantly better {shares}{others}"
-    what = ("its shape is pinned down, not its characteristic value" if pin.get("shape_pinned") else
-            "its factor is pinned down, its scale is not" if pin["factor_pinned"] else "its form is NOT pinned down")
-    return f"; {what}: {formula} ({best['name']}) fits as well{others}"
+    shares = f"({100 * best['share']:.1f} % of what it takes against its {100 * pin['share']:.1f} %, selection episodes)"
+    how = "takes more" if kind == "stand-in" else "fits significantly better" if kind == "beaten" else "fits as well"
+    return f"; {PIN_KINDS[kind]}: {formula} ({best['name']}) {how} {shares}{others}"
 
 
 # ------------------------------------------------------------------------------------ describing
@@ -406,12 +452,14 @@ def catalogue_yaml(discovered) -> str | None:
 
     rows = [{"term": d["name"], "name": d["proposed_name"], "k": d["k"], "k_se": d["k_se"], "formula": d["formula"],
              "plugin": f"soil_physics.force_terms:plugin term={d['name']} k={d['k']:.6g}",
-             **({"pinned": d["pin"]["pinned"], "rivals": [r["name"] for r in d["pin"]["rivals"]]} if d.get("pin") else {})}
+             **({"pinned": d["pin"]["pinned"], "stand_in": d["pin"]["stand_in"],
+                 "rivals": [r["name"] for r in d["pin"]["rivals"]]} if d.get("pin") else {})}
             for d in discovered or () if d.get("confirmed", True)]
     if not rows:
         return None
     head = ("# Forms found by soil_discrepancy (confirmed on held-out episodes). Rename 'name' as you like;\n"
-            "# 'pinned: false': these data did not tell the form from its 'rivals' (the report says why);\n"
+            "# 'pinned: false': these data did not tell the form from its 'rivals' ('stand_in: true': one fits\n"
+            "# much better, this form stands in for an effect it is not); the report says more\n"
             "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n")
     return head + yaml.safe_dump({"terms": rows}, sort_keys=False, allow_unicode=True)
 

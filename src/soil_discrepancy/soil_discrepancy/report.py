@@ -18,7 +18,7 @@ import numpy as np
 from soil_msgs_py import strict_json
 from soil_physics import term_forms
 
-from .forms import CATALOGUE_FILE, catalogue_yaml
+from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .regimes import AXES, CONTINUOUS, binned_curve
 
@@ -241,7 +241,9 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"- Acts on {100 * reg['share_of_ticks']:.0f} % of the analysed ticks (mean |ΔF| {reg['mean_abs_force_n']:.0f} N, "
                   f"max {reg['max_abs_force_n']:.0f} N), there: {where}.",
                   f"- Closest catalogue mechanism: `{close['name']}` (cosine of the θ-projected bases {close['cos']:+.2f}; "
-                  + ("the same mechanism)" if close["same_mechanism"] else
+                  + ("the same column, but the form is not pinned down (below): no evidence of that mechanism)"
+                     if close["same_mechanism"] and pin_kind(f.get("pin")) not in (None, "pinned", "unknown", "value")
+                     else "the same mechanism)" if close["same_mechanism"] else
                      "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
                      if close.get("opposite") else "not the same: a new mechanism)"),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
@@ -266,24 +268,24 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
 
 def _pinned_md(pin: dict | None) -> list[str]:
     """Whether the data pin a named term down: its rivals (``forms.rival_forms``), or the best other form's p."""
-    if not pin:
+    kind = pin_kind(pin)
+    if kind is None:
         return []
+    if kind == "unknown":
+        return [f"- Pinned down by these data? Not known: {pin['why']}."]
     same = (f" ({pin['n_same_column']} form(s) are its own column on these data, the same statement: "
             + ", ".join(f"`{n}`" for n in pin["same_column"]) + ")") if pin.get("n_same_column") else ""
-    head = (f"- Pinned down by these data? Alone in its place (θ and the other named terms refitted), it takes "
-            f"{100 * pin['share']:.1f} % of what the model without it leaves on the selection episodes; ")
-    if pin["pinned"]:
+    head = (f"- Pinned down by these data? Alone in its place (θ and the other named terms refitted, to first "
+            f"order), it takes {100 * pin['share']:.1f} % of what the model without it leaves on the "
+            f"{pin['n_episodes']} selection episodes; ")
+    if kind == "pinned":
         r = pin.get("runner_up")
         return [head + "every other form of the library fits that significantly worse"
                 + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse at p {_p(r['p_worse'])})" if r else "")
                 + f": **yes**.{same}"]
-    what = ("its form is not" if pin["n_better"] else
-            "its shape is, not its characteristic value" if pin.get("shape_pinned") else
-            "its factor is, its scale is not" if pin["factor_pinned"] else
-            "its scale is, its factor is not" if pin["scale_pinned"] else "its form is not")
-    out = [head + f"**no** ({what}): {pin['n_rivals']} form(s) fit it not significantly worse"
-           + (f", {pin['n_better']} of them significantly better" if pin["n_better"] else "")
-           + (": a stand-in, chosen on a path through other terms" if pin.get("stand_in") else "") + f"{same}:"]
+    out = [head + f"**no**, {PIN_KINDS[kind]}: {pin['n_rivals']} form(s) fit it not significantly worse"
+           + (f", {pin['n_better']} of them significantly better (Holm)" if pin["n_better"] else "")
+           + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "") + f"{same}:"]
     out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
             f"{100 * r['share']:.1f} % (worse at p {_p(r['p_worse'])}{'; significantly better' if r.get('better') else ''})"
             for r in pin["rivals"]]

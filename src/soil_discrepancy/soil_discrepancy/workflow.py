@@ -32,7 +32,7 @@ from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 from pinn_estimator.classical import default_workers
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
-from .forms import describe_form, pinned_caveat, rival_forms, search_forms
+from .forms import describe_form, pin_kind, pinned_caveat, rival_forms, search_forms
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
@@ -70,8 +70,8 @@ def _refuse_non_finite(r0: np.ndarray, model: AugmentedFEE) -> None:
     bad = [f"{axis} {v:.3g} N" for axis, v in zip(("x", "z"), rms) if not (np.isfinite(v) and v <= MAX_PLAUSIBLE_FORCE_N)]
     if bad:
         given = ", ".join(f"{name}={k:g}" for name, k in model.terms)
-        raise ValueError(f"the baseline model's residual RMS ({', '.join(bad)}) is not a finite force within "
-                         f"±{MAX_PLAUSIBLE_FORCE_N:.3g} N"
+        raise ValueError(f"the baseline model's residual RMS ({', '.join(bad)}) is not a finite force of at most "
+                         f"{MAX_PLAUSIBLE_FORCE_N:.3g} N"
                          + (f" with the accepted term(s) {given}: is a k far too large?" if given else ""))
 
 
@@ -516,18 +516,16 @@ def _pin_down(fsel: Frame, model: AugmentedFEE, start, named, form_report: dict 
     fit = fit_fixed(fsel, model, start)
     pins = {s.name: rival_forms(fsel, model, fit, s.name, alpha=alpha) for s in named}
     for d in (form_report or {}).get("discovered") or []:
-        pin = pins.get(d["name"]) if d.get("confirmed") else None
+        pin = pins.get(d["name"]) if d.get("confirmed", True) else None  # (no held-out part: never judged there)
         if pin is None:
             continue
         d["pin"] = pin
-        if not pin["pinned"]:
-            better = pin["n_better"] > 0
-            what = ("form" if better else "characteristic value" if pin["shape_pinned"] else
-                    "scale" if pin["factor_pinned"] else "form")
+        kind = pin_kind(pin)
+        if kind not in ("pinned", "unknown"):
+            what = {"value": "characteristic value", "scale": "scale", "factor": "factor"}.get(kind, "form")
             # a form not pinned down is no evidence of a catalogue mechanism "in another form" either
-            plain = what == "form"
-            d["proposed_name"] = (f"{term_forms.proposed_name(d['name']) if plain else d['proposed_name']} "
-                                  f"(its {what} not pinned down by these data)")
+            base = d["proposed_name"] if kind in ("value", "scale") else term_forms.proposed_name(d["name"])
+            d["proposed_name"] = f"{base} (its {what} not pinned down by these data)"
     return pins
 
 

@@ -229,7 +229,7 @@ class StartWait:
         self._wait_started: float | None = None
         self._matched_at: float | None = None
         self._gave_up = False
-        self.gone: set[str] = set()  # endpoints given up on: not awaited again until they match
+        self.gone: dict[str, int] = {}  # endpoints given up on -> matched count then: not awaited again until they match
 
     def waited_s(self) -> float:
         """How long the current start has been waiting [s] (0 before the first poll)."""
@@ -258,10 +258,11 @@ class StartWait:
         (its node died, or never came) is not awaited at later starts until it matches again: a
         dead estimator cost each later episode the whole ``wait_timeout_s``. Returns the poll and
         the endpoints still awaited and missing ('topic have/need')."""
-        missing = {t for t, (have, need) in counts.items() if have < need}
-        self.gone &= missing  # matched again: awaited again
-        awaited = sorted(missing - self.gone)
+        missing = {t: have for t, (have, need) in counts.items() if have < need}
+        # matched again, or fewer than when given up on (another node of it gone): awaited again
+        self.gone = {t: had for t, had in self.gone.items() if t in missing and missing[t] >= had}
+        awaited = sorted(set(missing) - set(self.gone))
         poll = self.poll(not awaited)
         if poll.gave_up:
-            self.gone |= set(awaited)
+            self.gone.update((t, missing[t]) for t in awaited)
         return poll, [f"{t} {counts[t][0]}/{counts[t][1]}" for t in awaited]
