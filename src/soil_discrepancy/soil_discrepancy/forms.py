@@ -383,7 +383,8 @@ def pinned_caveat(pin: dict | None) -> str:
     others = (f"; {pin['n_rivals']} forms fit it not significantly worse, {pin['n_better']} significantly better"
               if pin["n_rivals"] > 1 else "")
     shares = f"({100 * best['share']:.1f} % of what it takes against its {100 * pin['share']:.1f} %, selection episodes)"
-    how = "takes more" if kind == "stand-in" else "fits significantly better" if kind == "beaten" else "fits as well"
+    how = ("takes more" if kind == "stand-in" else "fits significantly better" if kind == "beaten" else
+           "fits at least as well" if best["share"] > pin["share"] else "fits as well")
     return f"; {PIN_KINDS[kind]}: {formula} ({best['name']}) {how} {shares}{others}"
 
 
