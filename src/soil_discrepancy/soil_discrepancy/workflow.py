@@ -282,16 +282,18 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         new_terms, final = kept, trial
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
-    # 5a'''. a named term is a claim about the mechanism only if these data pin its form down: every
-    # other form of the library, in its place, fits what it takes significantly worse (selection part)
-    pins = _pin_down(fsel, final, sel["fit"], new_terms, form_report, alpha) if forms else {}
     # 4. the augmented model on every episode
-    reg1, r1 = None, None
+    reg1, r1, pins = None, None, {}
     if new_terms:
         fit1 = fit_fixed(frame, final, base.merged(sel["fit"]))
         r1, _ = residuals(frame, final, fit1)
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
         reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=fit1.table(frame))
+        # 5a'''. a named term is a claim about the mechanism only if these data pin its form down: every
+        # other form of the library, in its place, fits what it takes significantly worse (selection
+        # part; θ per group is fitted group by group, so fit1 holds the selection groups' fit)
+        if forms:
+            pins = _pin_down(fsel, final, fit1, new_terms, form_report, alpha)
     # 5b. other models' before/after on the held-out test groups
     arrays = {"frame": frame, "edges": edges, "r0": r0, "r1": r1}
     if test_groups:
@@ -507,13 +509,10 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
     return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms], judged
 
 
-def _pin_down(fsel: Frame, model: AugmentedFEE, start, named, form_report: dict | None, alpha: float) -> dict:
+def _pin_down(fsel: Frame, model: AugmentedFEE, fit, named, form_report: dict | None, alpha: float) -> dict:
     """Each named term's rivals among the library's forms (``forms.rival_forms``) on the selection
-    part, θ refitted for the named set: {name: pin}. A discovered form its data do not pin down is
+    part, θ ``fit`` for the named set: {name: pin}. A discovered form its data do not pin down is
     named as such in its report entry, never as a mechanism."""
-    if not named:
-        return {}
-    fit = fit_fixed(fsel, model, start)
     pins = {s.name: rival_forms(fsel, model, fit, s.name, alpha=alpha) for s in named}
     for d in (form_report or {}).get("discovered") or []:
         pin = pins.get(d["name"]) if d.get("confirmed", True) else None  # (no held-out part: never judged there)

@@ -18,7 +18,8 @@ The function is called once per physics substep as ``fn(state, **params)`` with 
 SI units; the simulator fills every field, its own soil in effect and FEE force) and
 must return ``(f_x, f_z)``: arrays (or floats) broadcastable to (B,), the extra force the
 blade exerts on the soil [N]. A plugin that does not import, is not callable, returns the
-wrong shape, a non-finite value or a force beyond MAX_PLUGIN_FORCE_N stops the simulation with a ``PluginError`` naming the
+wrong shape, a non-finite value or a force beyond ``params.MAX_PLAUSIBLE_FORCE_N`` (the blade would
+be flung kilometres away) stops the simulation with a ``PluginError`` naming the
 plugin, the field and the value. See ``soil_sim_node/plugins_example.py``.
 """
 from __future__ import annotations
@@ -33,10 +34,6 @@ from soil_physics.contact import contact_damping_force
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from soil_physics.force_inputs import ForceInputs
-
-# The largest force a plugin may return [N]: beyond it the simulation would go on with the blade
-# flung kilometres away.
-MAX_PLUGIN_FORCE_N = MAX_PLAUSIBLE_FORCE_N
 
 
 # Named effects that are one force term on ``ForceInputs`` (the physics lives in soil_physics;
@@ -176,9 +173,9 @@ class ForcePlugin:
             if not np.all(np.isfinite(arr)):
                 bad = arr[~np.isfinite(arr)][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
-            if np.any(np.abs(arr) > MAX_PLUGIN_FORCE_N):
-                bad = arr[np.abs(arr) > MAX_PLUGIN_FORCE_N][0]
-                raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLUGIN_FORCE_N:.3g} N "
+            if np.any(np.abs(arr) > MAX_PLAUSIBLE_FORCE_N):
+                bad = arr[np.abs(arr) > MAX_PLAUSIBLE_FORCE_N][0]
+                raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLAUSIBLE_FORCE_N:.3g} N "
                                   "(300 times the machine's force limit: a plugin's unit or sign error?)")
             result.append(arr)
         return result[0], result[1]
