@@ -343,7 +343,7 @@ def test_a_form_in_the_place_of_another_effect_is_called_a_stand_in_not_its_mech
     right = pin("form:gd2w_x*enter2")  # the hidden 1 m lies between the library's 0.5 m and 2 m
     assert right["n_better"] == 0 and (right["pinned"] or right["shape_pinned"]), right
     assert "STAND-IN" not in pinned_caveat(right) and right["share"] > 0.5
-    # on 6 episodes no Wilcoxon over episodes reaches p < 0.01 (2^-6 = 0.016): not known, not "not pinned"
+    # on 6 episodes a Wilcoxon over episodes with two against it stays above 0.01: not known, not "not pinned"
     few = pin("form:gd2w_x*enter2", frame.select(episodes=list(frame.episodes[:6])))
     assert few["pinned"] is None and few["n_episodes"] == 6 and "too few" in pinned_caveat(few), few
     with pytest.raises(ValueError, match="not a term of the model"):
@@ -419,6 +419,46 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
     assert "stand-ins" not in summary(["soil_inertia", "compaction_hardening"], little), "catalogue terms are mechanisms"
     assert "stand-ins" not in summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], little,
                                       {"significant": False, "flagged_variables": []})
+
+
+def test_a_term_is_pinned_down_only_where_every_part_of_the_data_pins_it():
+    """The rival check on the selection part favours the term that won its place there, the one on
+    the held-out part has half the episodes: the workflow keeps the answer that claims least, a
+    stand-in on either part stays a stand-in, and a part too small to judge is left out (not known
+    only if no part can judge)."""
+    from soil_discrepancy.forms import pin_kind, weaker_pin
+
+    def pin(part, **kw):
+        base = {"pinned": False, "stand_in": False, "n_better": 0, "shape_pinned": False, "factor_pinned": False,
+                "scale_pinned": False, "part": part}
+        return {**base, **kw}
+
+    pinned_sel, pinned_test = pin("selection", pinned=True), pin("held-out test", pinned=True)
+    assert weaker_pin(pinned_test, pinned_sel) is pinned_test  # both pin it: the first given
+    rival = pin("held-out test", shape_pinned=True)
+    assert weaker_pin(rival, pinned_sel) is rival and weaker_pin(pinned_sel, rival) is rival
+    stand_in = pin("selection", stand_in=True, n_better=2)
+    assert pin_kind(weaker_pin(pin("held-out test"), stand_in)) == "stand-in"
+    too_small = pin("held-out test", pinned=None)
+    assert weaker_pin(too_small, pinned_sel) is pinned_sel and weaker_pin(too_small) is too_small
+    assert pin_kind(weaker_pin(pin("held-out test", n_better=1), pin("selection"))) == "beaten"
+    assert weaker_pin(None, pinned_sel) is pinned_sel and weaker_pin(None) is None
+
+
+@pytest.mark.parametrize("n", [3, 6, 8, 9, 12])
+def test_too_few_episodes_is_where_two_against_keep_the_wilcoxon_above_alpha(n):
+    """``wilcoxon_p_two_against`` is scipy's exact one-sided p for n episodes of which the two of
+    least |difference| go the other way; the rival check's 'too few' starts where that reaches α
+    (9 episodes at α = 0.01: 5 / 2^9 < 0.01 <= 5 / 2^8)."""
+    from scipy.stats import wilcoxon
+
+    from soil_discrepancy.forms import wilcoxon_p_two_against
+
+    diff = np.arange(1.0, n + 1.0)
+    diff[:2] *= -1.0
+    exact = wilcoxon(diff, alternative="greater", method="exact").pvalue
+    assert wilcoxon_p_two_against(n) == pytest.approx(exact)
+    assert (wilcoxon_p_two_against(n) < 0.01) == (n >= 9)
 
 
 def test_the_closest_catalogue_term_is_one_the_form_runs_with_before_one_it_runs_against():

@@ -247,8 +247,9 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     *better* (Holm over the library) makes the term a stand-in, chosen on a path through other
     terms, if it also takes ``STAND_IN_SHARE_RATIO`` times the share. Measured on hidden effects:
     the right forms had every rival at p < 1e-3; the stand-ins (a hard spot along the path, a
-    layer that was not there) had rivals taking 1.5-2.8× as much. The episodes given are the ones
-    the term was chosen on (the selection part), which favours it: "pinned" is the weaker claim.
+    layer that was not there) had rivals taking 1.5-2.8× as much. On the episodes the term was
+    chosen on it is favoured (it won its place against these very forms): the workflow asks both
+    its parts and keeps the ``weaker_pin``.
     Returns {'pinned': True / False / None (not testable: no form fits anything, or too few
     episodes for a one-sided Wilcoxon to reach ``alpha``), 'why' (when None), 'n_episodes',
     'share' (of what is left, the term's), 'rivals': [{'name' (signed: k > 0), 'k', 'share',
@@ -321,11 +322,11 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
                 if key not in ("p_better", "same")}
 
     own_share = share(own_sse)
-    # the smallest one-sided p of a Wilcoxon over n episodes is 2^-n: below log2(1/alpha) episodes no
-    # rival can be shown worse, and "not pinned down" would say nothing about the form
+    # too few episodes: where two episodes against it (the two of least weight) would keep a
+    # one-sided Wilcoxon from showing any rival worse, "not pinned down" says nothing about the form
     why = ("no form of the library fits what it takes" if not rows or total <= 0 else
-           f"{n_episodes} episodes, too few for a one-sided Wilcoxon to reach p < {alpha:g}"
-           if 2.0 ** -n_episodes >= alpha else None)
+           f"{n_episodes} episodes, too few for a one-sided Wilcoxon to reach p < {alpha:g} with two of them "
+           "against it" if wilcoxon_p_two_against(n_episodes) >= alpha else None)
     return {"pinned": None if why else not rivals, "why": why, "n_episodes": n_episodes,
             "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
             "stand_in": any(r["better"] and r["share"] >= STAND_IN_SHARE_RATIO * own_share for r in rivals),
@@ -336,6 +337,17 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
             "scale_pinned": scale is not None and all(a.name == scale.name for a, _ in parts),
             "same_column": same[:RIVALS_SHOWN], "n_same_column": len(same),
             "rivals": [clean(r) for r in rivals[:RIVALS_SHOWN]], "runner_up": clean(rows[0]) if rows else None}
+
+
+def wilcoxon_p_two_against(n: int) -> float:
+    """The one-sided Wilcoxon signed-rank p over ``n`` paired episodes when all but the two of least
+    |difference| favour one side: of the 2^n sign patterns, those whose ranks against it sum to at
+    most 3 ({}, {1}, {2}, {3}, {1, 2}) are as extreme. (2^-n, all episodes agreeing, is reached
+    by a form that merely wins each episode by a hair; a part this small cannot say more.)"""
+    if n < 1:
+        return 1.0
+    extreme = {1: 2, 2: 4}.get(n, 5)
+    return min(1.0, extreme / 2.0**n)
 
 
 PIN_KINDS = {  # pin_kind -> what is not pinned down, in words
@@ -366,6 +378,27 @@ def pin_kind(pin: dict | None) -> str | None:
     return "factor" if pin["scale_pinned"] else "form"
 
 
+# pin_kind, from the claim that says least about the mechanism to the one that says most
+PIN_ORDER = ("stand-in", "beaten", "form", "factor", "scale", "value", "unknown", "pinned")
+
+
+def weaker_pin(*pins: dict | None) -> dict | None:
+    """Of one term's ``rival_forms`` results on different episodes, the one that claims least
+    (``PIN_ORDER``; the first given where two claim as little): a term is pinned down only where
+    every part pins it. Why both parts: on the episodes it was chosen on, it won its place against
+    these very forms, so there it is favoured (a hard spot's drag growing with time in soil was
+    pinned there, and on the held-out part 52 forms fit as well); on the held-out part, half as many
+    episodes may not tell a right form from a rival that the selection part does tell, and what a
+    stand-in fails to take shows on either (a layer that was not there was a stand-in on the
+    selection part, merely "not pinned" on the held-out one). A part too small to judge (``pin_kind``
+    "unknown") is left out, unless none can judge."""
+    given = [p for p in pins if p]
+    if not given:
+        return None
+    judged = [p for p in given if pin_kind(p) != "unknown"] or given  # a part too small to judge says nothing
+    return min(judged, key=lambda p: PIN_ORDER.index(pin_kind(p)))
+
+
 def _unsigned(name: str) -> str:
     """A form's name without its sign: both signs are one column."""
     return name.replace(f"{term_forms.PREFIX}-", term_forms.PREFIX, 1)
@@ -382,7 +415,8 @@ def pinned_caveat(pin: dict | None) -> str:
     formula = force_terms.get_term(best["name"]).formula
     others = (f"; {pin['n_rivals']} forms fit it not significantly worse, {pin['n_better']} significantly better"
               if pin["n_rivals"] > 1 else "")
-    shares = f"({100 * best['share']:.1f} % of what it takes against its {100 * pin['share']:.1f} %, selection episodes)"
+    shares = (f"({100 * best['share']:.1f} % of what it takes against its {100 * pin['share']:.1f} %, "
+              f"{pin.get('part', 'selection')} episodes)")
     how = ("takes more" if kind == "stand-in" else "fits significantly better" if kind == "beaten" else
            "fits at least as well" if best["share"] > pin["share"] else "fits as well")
     return f"; {PIN_KINDS[kind]}: {formula} ({best['name']}) {how} {shares}{others}"

@@ -277,19 +277,28 @@ def _pinned_md(pin: dict | None) -> list[str]:
             + ", ".join(f"`{n}`" for n in pin["same_column"]) + ")") if pin.get("n_same_column") else ""
     head = (f"- Pinned down by these data? Alone in its place (θ and the other named terms refitted, to first "
             f"order), it takes {100 * pin['share']:.1f} % of what the model without it leaves on the "
-            f"{pin['n_episodes']} selection episodes; ")
+            f"{pin['n_episodes']} {pin.get('part', 'selection')} episodes; ")
     if kind == "pinned":
         r = pin.get("runner_up")
+        also = [w for w in pin.get("judged_on", []) if w != pin.get("part", "selection")]
         return [head + "every other form of the library fits that significantly worse"
                 + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse at p {_p(r['p_worse'])})" if r else "")
-                + f": **yes**.{same}"]
+                + (f", and so on the {' and '.join(also)} episodes" if also else "") + f": **yes**.{same}"
+                + _too_few(pin)]
     out = [head + f"**no**, {PIN_KINDS[kind]}: {pin['n_rivals']} form(s) fit it not significantly worse"
            + (f", {pin['n_better']} of them significantly better (Holm)" if pin["n_better"] else "")
            + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "") + f"{same}:"]
+    out[0] += _too_few(pin)
     out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
             f"{100 * r['share']:.1f} % (worse at p {_p(r['p_worse'])}{'; significantly better' if r.get('better') else ''})"
             for r in pin["rivals"]]
     return out
+
+
+def _too_few(pin: dict) -> str:
+    """Words for the parts of the data too small to judge whether a term is pinned down ('' if none)."""
+    few = pin.get("too_few") or []
+    return "".join(f" (The {f['part']} part, {f['why']}, could not judge.)" for f in few)
 
 
 PINN_ROWS = (  # pinn_check.pinn_gap's comparisons, in the order a reader needs them

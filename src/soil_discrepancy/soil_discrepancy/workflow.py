@@ -32,7 +32,7 @@ from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 from pinn_estimator.classical import default_workers
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
-from .forms import describe_form, pin_kind, pinned_caveat, rival_forms, search_forms
+from .forms import describe_form, pin_kind, pinned_caveat, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
@@ -290,10 +290,13 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
         reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=fit1.table(frame))
         # 5a'''. a named term is a claim about the mechanism only if these data pin its form down: every
-        # other form of the library, in its place, fits what it takes significantly worse (selection
-        # part; θ per group is fitted group by group, so fit1 holds the selection groups' fit)
+        # other form of the library, in its place, fits what it takes significantly worse, on the
+        # held-out test part (where the term was confirmed, and which chose nothing) and on the
+        # selection part (where it is favoured, but twice as many episodes tell forms apart):
+        # ``forms.weaker_pin``. θ per group is fitted group by group, so fit1 holds each part's fit.
         if forms:
-            pins = _pin_down(fsel, final, fit1, new_terms, form_report, alpha)
+            parts = [(ftest, "held-out test")] if ftest is not None else []
+            pins = _pin_down([*parts, (fsel, "selection")], final, fit1, new_terms, form_report, alpha)
     # 5b. other models' before/after on the held-out test groups
     arrays = {"frame": frame, "edges": edges, "r0": r0, "r1": r1}
     if test_groups:
@@ -509,11 +512,18 @@ def _refitted_if_confirmed(fsel: Frame, ftest: Frame, reference: AugmentedFEE, t
     return model, [dataclasses.replace(s, k=k_new[s.name]) for s in terms], judged
 
 
-def _pin_down(fsel: Frame, model: AugmentedFEE, fit, named, form_report: dict | None, alpha: float) -> dict:
-    """Each named term's rivals among the library's forms (``forms.rival_forms``) on the selection
-    part, θ ``fit`` for the named set: {name: pin}. A discovered form its data do not pin down is
-    named as such in its report entry, never as a mechanism."""
-    pins = {s.name: rival_forms(fsel, model, fit, s.name, alpha=alpha) for s in named}
+def _pin_down(parts: list[tuple[Frame, str]], model: AugmentedFEE, fit, named, form_report: dict | None,
+              alpha: float) -> dict:
+    """Each named term's rivals among the library's forms (``forms.rival_forms``) on each of
+    ``parts`` ((episodes, what they are)), θ ``fit`` for the named set, the one that claims least
+    (``forms.weaker_pin``): {name: pin}. A discovered form its data do not pin down is named as such
+    in its report entry, never as a mechanism."""
+    pins = {}
+    for s in named:
+        each = [{**rival_forms(part, model, fit, s.name, alpha=alpha), "part": what} for part, what in parts]
+        pins[s.name] = {**weaker_pin(*each), "judged_on": [p["part"] for p in each if pin_kind(p) != "unknown"],
+                        "too_few": [{"part": p["part"], "why": p["why"]} for p in each
+                                    if pin_kind(p) == "unknown" and len(each) > 1]}
     for d in (form_report or {}).get("discovered") or []:
         pin = pins.get(d["name"]) if d.get("confirmed", True) else None  # (no held-out part: never judged there)
         if pin is None:
