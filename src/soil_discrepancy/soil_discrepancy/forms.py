@@ -251,7 +251,8 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     chosen on it is favoured (it won its place against these very forms): the workflow asks both
     its parts and keeps the ``weaker_pin``.
     Returns {'pinned': True / False / None (not testable: no form fits anything, or too few
-    episodes for a one-sided Wilcoxon to reach ``alpha``), 'why' (when None), 'n_episodes',
+    episodes for a one-sided Wilcoxon to reach ``alpha`` with two of them against the term,
+    ``wilcoxon_p_two_against``), 'why' (when None), 'n_episodes',
     'share' (of what is left, the term's), 'rivals': [{'name' (signed: k > 0), 'k', 'share',
     'p_worse', 'better'}] best first, at most ``RIVALS_SHOWN``, 'n_rivals', 'n_better',
     'stand_in', 'same_column' / 'n_same_column' (forms that are the term's own column on these
