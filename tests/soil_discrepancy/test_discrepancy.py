@@ -109,6 +109,12 @@ def test_hidden_effect_is_named_fitted_and_halves_the_heldout_error(reports, nam
     # pinned down: no form of the library fits what it takes as well, but those that are its own
     # column here ((γ/g) w d v_x² is soil inertia), which say the same thing
     assert a["pin"]["pinned"] and "pinned down" not in rep["summary"], a["pin"]
+    # asked on both parts: the held-out one (8 episodes, where two against the term would keep a
+    # one-sided Wilcoxon above α) is too small to judge, and the report says so
+    assert a["pin"]["judged_on"] == ["selection"] and a["pin"]["part"] == "selection", a["pin"]
+    assert [f["part"] for f in a["pin"]["too_few"]] == ["held-out test"], a["pin"]
+    md = (Path(rep["outputs"][0]).parent / "discrepancy.md").read_text()
+    assert "(The held-out test part, 8 episodes, too few" in md
     test = rep["test"]
     assert test["after"]["rmse"] <= 0.5 * test["before"]["rmse"], (test["before"], test["after"])
     assert test["after"]["rmse_x"] < test["before"]["rmse_x"]
