@@ -250,6 +250,12 @@ def test_pacer_deadlines_do_not_drift():
         assert clock[0] == pytest.approx(10.0 + k * TICK_NS * 1e-9 / 2, abs=1e-5)
 
 
+@pytest.mark.parametrize("rate", [0.0, -1.0, float("inf"), float("nan"), 1e-300, 1e6])
+def test_a_pacer_refuses_a_rate_that_is_no_timing(rate):
+    with pytest.raises(ValueError, match=r"rate .* must be a finite number in \[0.001, 1000\]"):
+        playback.Pacer(rate)
+
+
 def test_with_clock_replaces_bag_clock():
     msgs = sample_messages()[:60]  # 6 ticks
     out = list(playback.with_clock(msgs, 120.0))
@@ -495,10 +501,14 @@ def test_bad_inputs(tmp_path):
 
 
 @pytest.mark.parametrize("option, value", [("--wait-timeout", "nan"), ("--wait-timeout", "-5"),
-                                           ("--wait-timeout", "inf"), ("--clock", "inf"), ("--clock", "1e12")])
+                                           ("--wait-timeout", "inf"), ("--clock", "inf"), ("--clock", "1e12"),
+                                           ("--rate", "inf"), ("--rate", "nan"), ("--rate", "1e-300"),
+                                           ("--rate", "0"), ("--rate", "1e6")])
 def test_play_refuses_a_non_finite_or_negative_bound(option, value):
     """--wait-timeout nan waited forever (a deadline of nan is never passed), -5 was taken for 0,
-    --clock inf published /clock at the first stamp without end, and 1e12 Hz made 10^13 messages."""
+    --clock inf published /clock at the first stamp without end, and 1e12 Hz made 10^13 messages;
+    --rate inf played every message at once, unpaced, and 1e-300 scheduled the second one past any
+    wait."""
     out = subprocess.run([BIN / "soil_bag_play", SAMPLE, "--wait-for-subscribers", "1", option, value],
                          env=ros_env(105), capture_output=True, text=True, timeout=30)
     assert out.returncode == 2, out.stdout + out.stderr

@@ -28,7 +28,7 @@ from rclpy.utilities import remove_ros_args
 from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.patches import finite_number
 from .playback import (
-    CLOCK_MSGTYPE, CLOCK_TOPIC, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
+    CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
     string_cdr, with_clock,
 )
 from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt, wait_for_acks
@@ -47,7 +47,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_bag_play", description="Replay rosbag2 bags with their original timing.")
     p.add_argument("bags", nargs="+", metavar="BAG",
                    help="bag directory, or a directory of bags (played in path order)")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
+    p.add_argument("--rate", type=float, default=1.0,
+                   help="playback speed factor, in [%g, %g] (default 1.0)" % RATE_LIMITS)
     p.add_argument("--loop", action="store_true", help="start over after the last bag, until Ctrl-C")
     p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
     p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
@@ -59,8 +60,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="give up waiting for subscribers after S s and play anyway (default 10)")
     p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events")
     opts = p.parse_args(argv)
-    if not opts.rate > 0:
-        p.error(f"--rate {opts.rate} must be > 0")
+    if not RATE_LIMITS[0] <= opts.rate <= RATE_LIMITS[1]:  # NaN too
+        p.error(f"--rate {opts.rate} must be a finite number in [{RATE_LIMITS[0]:g}, {RATE_LIMITS[1]:g}]")
     if opts.clock is not None and not (finite_number(opts.clock) and 0 < opts.clock <= MAX_CLOCK_HZ):
         # inf: endless /clock at t0; 1e12 Hz: 10^13 /clock messages for a 10 s bag, made before the first
         p.error(f"--clock {opts.clock} Hz must be a finite number in (0, {MAX_CLOCK_HZ:g}]")

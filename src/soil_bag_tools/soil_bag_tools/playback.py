@@ -23,6 +23,10 @@ from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
 
 CLOCK_TOPIC = "/clock"
+# Replay speed factors a player accepts: a 10 s episode takes between 10 ms and ~3 h. Beyond them a
+# rate is no timing at all: inf played every message at its first deadline (unpaced, what a
+# reliable reader's history may not hold), 1e-300 scheduled the second message past any wait.
+RATE_LIMITS = (1e-3, 1e3)
 CLOCK_MSGTYPE = "rosgraph_msgs/msg/Clock"
 
 
@@ -143,8 +147,9 @@ class Pacer:
 
     def __init__(self, rate: float, *, spin_s: float = 0.0005,
                  now: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep):
-        if not rate > 0:
-            raise ValueError(f"rate {rate} must be > 0")
+        lo, hi = RATE_LIMITS
+        if not lo <= rate <= hi:  # NaN too
+            raise ValueError(f"rate {rate} must be a finite number in [{lo:g}, {hi:g}]")
         self.rate, self.spin_s, self.now, self.sleep = rate, spin_s, now, sleep
         self.start = 0.0
         self.t0 = 0
