@@ -28,8 +28,8 @@ from rclpy.utilities import remove_ros_args
 from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.patches import finite_number
 from .playback import (
-    CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, episode_events, expand_bag_args, load_bag,
-    string_cdr, with_clock,
+    CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
+    expand_bag_args, load_bag, string_cdr, with_clock,
 )
 from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt, wait_for_acks
 
@@ -60,8 +60,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="give up waiting for subscribers after S s and play anyway (default 10)")
     p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events")
     opts = p.parse_args(argv)
-    if not RATE_LIMITS[0] <= opts.rate <= RATE_LIMITS[1]:  # NaN too
-        p.error(f"--rate {opts.rate} must be a finite number in [{RATE_LIMITS[0]:g}, {RATE_LIMITS[1]:g}]")
+    try:
+        check_rate(opts.rate)
+    except ValueError as err:
+        p.error(f"--{err}")
     if opts.clock is not None and not (finite_number(opts.clock) and 0 < opts.clock <= MAX_CLOCK_HZ):
         # inf: endless /clock at t0; 1e12 Hz: 10^13 /clock messages for a 10 s bag, made before the first
         p.error(f"--clock {opts.clock} Hz must be a finite number in (0, {MAX_CLOCK_HZ:g}]")

@@ -27,6 +27,15 @@ CLOCK_TOPIC = "/clock"
 # rate is no timing at all: inf played every message at its first deadline (unpaced, what a
 # reliable reader's history may not hold), 1e-300 scheduled the second message past any wait.
 RATE_LIMITS = (1e-3, 1e3)
+
+
+def check_rate(rate: float) -> float:
+    """``rate`` if it is a replay speed factor within ``RATE_LIMITS``; ValueError naming it if not (NaN too)."""
+    lo, hi = RATE_LIMITS
+    if not lo <= rate <= hi:
+        raise ValueError(f"rate {rate} must be a finite number in [{lo:g}, {hi:g}]")
+    return rate
+
 CLOCK_MSGTYPE = "rosgraph_msgs/msg/Clock"
 
 
@@ -147,10 +156,7 @@ class Pacer:
 
     def __init__(self, rate: float, *, spin_s: float = 0.0005,
                  now: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep):
-        lo, hi = RATE_LIMITS
-        if not lo <= rate <= hi:  # NaN too
-            raise ValueError(f"rate {rate} must be a finite number in [{lo:g}, {hi:g}]")
-        self.rate, self.spin_s, self.now, self.sleep = rate, spin_s, now, sleep
+        self.rate, self.spin_s, self.now, self.sleep = check_rate(rate), spin_s, now, sleep
         self.start = 0.0
         self.t0 = 0
 
