@@ -9,7 +9,8 @@ show the gap shrink on held-out episodes. Never reads ground truth.
 Modules: ``frame`` (the analysed ticks and their θ-groups), ``fee_fit`` (θ per group, with or
 without one term's k, and residuals), ``regimes`` (episode-level tests by regime), ``candidates``
 (cross-validated term scores, greedy selection), ``gap`` (held-out before/after, the hook for
-other models' predictions), ``report`` (Markdown/JSON/PNG), ``workflow`` (run_discrepancy),
+other models' predictions), ``soil_tests`` (φ, c, δ measured apart from the machine hold θ where
+the forces cannot), ``report`` (Markdown/JSON/PNG), ``workflow`` (run_discrepancy),
 ``cli`` (soil_discrepancy). The model itself, the FEE plus named terms, is physics:
 ``soil_physics.augmented_fee.AugmentedFEE``.
 """
@@ -21,6 +22,7 @@ from .frame import Frame, build_frame
 from .gap import compare_predictions, error_metrics, fee_gap
 from .regimes import bin_edges, holm, regime_analysis, trend_tests
 from .report import markdown, write_outputs
+from .soil_tests import SoilTest, hold_theta, load_soil_tests
 from .workflow import VERDICTS, load_frame, run_discrepancy
 
 __all__ = [
@@ -28,4 +30,5 @@ __all__ = [
     "error_metrics", "fee_gap", "fit_fixed", "fit_joint", "group_folds", "holm", "linear_k",
     "load_frame", "markdown", "plugin_spec", "regime_analysis", "residuals", "run_discrepancy", "score_terms",
     "select_terms", "split_holdout", "term_inputs", "trend_tests", "write_outputs",
+    "SoilTest", "hold_theta", "load_soil_tests",
 ]

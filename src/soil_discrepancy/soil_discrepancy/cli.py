@@ -49,6 +49,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--catalogue", type=Path, default=None, metavar="YAML",
                    help="your own catalogue of terms, tested beside the built-in one (e.g. an earlier run's "
                         "discovered_terms.yaml: terms: [{term: form:<scale>*<factor>, name: ..., k: ...}])")
+    p.add_argument("--soil-tests", type=Path, default=None, metavar="YAML",
+                   help="the soils' φ, c (and δ) measured apart from the machine (shear box, triaxial), per soil label: "
+                        "θ then moves only within each test's interval (± 2 std), so an effect θ would absorb shows "
+                        "(soil_tests: [{soil, relative_density_pct?, phi_deg, phi_std_deg, c_kpa, c_std_kpa, "
+                        "delta_deg?, delta_std_deg?}])")
     p.add_argument("--no-forms", action="store_true",
                    help="do not use the library of forms: no search when no catalogue term explains the residual, "
                         "and no check of a named term against the forms in its place")
@@ -69,6 +74,7 @@ def main(argv=None) -> int:
     from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .forms import load_catalogue
+    from .soil_tests import load_soil_tests
     from .workflow import run_discrepancy
 
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
@@ -86,11 +92,13 @@ def main(argv=None) -> int:
         refuse_repeats(accepted, "--accepted")
         hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
         user_terms = [t["term"] for t in load_catalogue(args.catalogue)] if args.catalogue else ()
+        soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()
         report = run_discrepancy(
             args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
             seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
             allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
-            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms, log=log,
+            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms,
+            soil_tests=soil_tests, log=log,
         )
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)

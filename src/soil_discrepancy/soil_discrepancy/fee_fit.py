@@ -91,6 +91,21 @@ def _bounds_for(known: np.ndarray):
     return b
 
 
+def _held_by_tests(frame: Frame, gi: int, lb: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's normalised box narrowed to a soil test's interval (``soil_tests``); ValueError naming
+    the group and parameter where the test leaves no soil the FEE can fit with this blade."""
+    lo, hi = frame.theta_boxes[gi]
+    with np.errstate(invalid="ignore"):
+        t_lo, t_hi = normalise_theta(lo), normalise_theta(hi)
+    lb2, ub2 = np.maximum(lb, np.where(np.isfinite(t_lo), t_lo, -np.inf)), np.minimum(ub, np.where(np.isfinite(t_hi), t_hi, np.inf))
+    for j, name in enumerate(("phi", "c", "delta")):
+        if not lb2[j] < ub2[j]:
+            box = denormalise_theta(np.stack([lb, ub]))
+            raise ValueError(f"the soil test of {frame.group_names[gi]} puts {name} in [{lo[j]:.4g}, {hi[j]:.4g}] (SI), "
+                             f"outside what the FEE can fit there with this blade: [{box[j][0]:.4g}, {box[j][1]:.4g}]")
+    return lb2, ub2
+
+
 class _Problem:
     """Normalised residuals of a model over some ticks, θ per group (vectorised over ticks)."""
 
@@ -105,6 +120,8 @@ class _Problem:
         lbs, ubs = [], []
         for gi in self.groups:
             lb, ub = _bounds_for(frame.known[frame.group == gi])
+            if frame.theta_boxes and int(gi) in frame.theta_boxes:
+                lb, ub = _held_by_tests(frame, int(gi), lb, ub)
             lbs.append(lb)
             ubs.append(ub)
         self.lb, self.ub = np.array(lbs), np.array(ubs)  # (G, 3)

@@ -13,7 +13,9 @@ gates "edge sinking", "edge rising", "holding depth", "at a force limit").
    group, onto the orthogonal complement of that group's three θ-columns J_g (finite
    differences of the model force in φ, c, δ): the profile likelihood of k with θ free, to
    first order. A form that θ absorbs entirely (|projected| < ``MIN_IDENTIFIABLE`` of its
-   norm) is not identifiable and is dropped.
+   norm) is not identifiable and is dropped. Where soil tests hold a parameter (``soil_tests``), θ
+   may move only within the test's interval, so that parameter's column is not projected off:
+   what the held θ cannot take is left to the forms.
 2. Orthogonal matching pursuit (scikit-learn ``OrthogonalMatchingPursuitCV``: greedy forward
    selection with a least-squares refit at every step) on the projected, unit-norm columns, the
    number of terms chosen by cross-validation with ``GroupKFold`` over θ-groups (a soil is never
@@ -47,6 +49,8 @@ from .candidates import paired_test
 from .fee_fit import ThetaFit
 from .regimes import holm
 from .frame import Frame
+from .soil_tests import held_parameters
+from .yaml_file import read_yaml
 
 MAX_CANDIDATES = 3  # forms passed on to the held-out test
 MAX_PATH = 8  # longest greedy path the cross-validation considers
@@ -74,6 +78,9 @@ def theta_jacobian(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> np.ndarr
         f1 = np.stack(model.force(th, frame.known, frame.distance, time_in_soil=frame.time_in_soil), -1)
         cols.append((f1 - f0) / h[:, None] / FORCE_SCALE_N)
     J = np.stack(cols, -1)
+    # a parameter a soil test holds (``soil_tests``) moves only within the test's interval: what it
+    # cannot take is the residual's, so its direction is not taken off the residual or the forms
+    J = np.where(held_parameters(frame)[:, None, :], 0.0, J)
     return np.where(np.isfinite(J), J, 0.0)
 
 
@@ -503,16 +510,10 @@ def catalogue_yaml(discovered) -> str | None:
 def load_catalogue(path) -> list[dict]:
     """A user's catalogue of terms (YAML: terms: [{term, name?, k?}, ...]); each term a catalogue name or a
     'form:…'. Returns [{'term', 'name', 'k'}]; ValueError naming the file and the bad entry."""
-    import yaml
     from pathlib import Path
 
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:  # a binary file: the codec's words alone do not say which
-        raise ValueError(f"catalogue {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"catalogue {p}: cannot read it: {exc}") from None
+    data = read_yaml(p, "catalogue")
     rows = (data or {}).get("terms") if isinstance(data, dict) else None
     if not isinstance(rows, list) or not rows:
         raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'")

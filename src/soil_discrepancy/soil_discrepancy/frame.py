@@ -68,6 +68,8 @@ class Frame:
     source: str = ""
     changing_soil: tuple[str, ...] = ()  # episodes left out: their metadata says the soil changes along the path
     too_short: tuple[str, ...] = ()  # episodes left out: less than MIN_CUT_S of analysed cutting
+    # θ-group -> (lo, hi) SI (φ [rad], c [Pa], δ [rad]; ±inf: free) where soil tests hold θ (``soil_tests``)
+    theta_boxes: dict | None = None
 
     def __len__(self) -> int:
         return len(self.episode)

@@ -254,7 +254,8 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
                       if not any(np.array_equal(soil_of_ep == s, m) for _, _, m in units)]
     rho = frame.known[:, KNOWN_PARAMS.index("rho")]
     rho_max = {frame.group_names[g]: float(rho[frame.group == g].max()) for g in frame.groups}
-    bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]]) for t in (theta_table or [])
+    tested = {frame.group_names[g]: box for g, box in (frame.theta_boxes or {}).items()}
+    bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]], tested.get(t["group"])) for t in (theta_table or [])
              if t["group"] in rho_max and t.get("success", True)}
     rows = []
     for kind, name, inside in units:
@@ -274,9 +275,11 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
             "soils": [r["name"] for r in rows if r["kind"] == "soil" and r["flagged"]]}
 
 
-def _theta_at_bound(row: dict, rho_max_rad: float) -> list[str]:
+def _theta_at_bound(row: dict, rho_max_rad: float, tested=None) -> list[str]:
     """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range): the box
-    ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists)."""
+    ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists),
+    within a soil test's interval where ``tested`` ((lo, hi) SI, ``Frame.theta_boxes``) holds the group:
+    there a bound hit says the forces want a soil the test rules out."""
     box = normalised_bounds(rho_max_rad)
     if box is None:
         return []
@@ -285,11 +288,15 @@ def _theta_at_bound(row: dict, rho_max_rad: float) -> list[str]:
     for i, (name, value) in enumerate((("φ", math.radians(row["phi_deg"])), ("c", row["c_pa"]),
                                        ("δ", math.radians(row["delta_deg"])))):
         lo, hi = float(lo_si[i]), float(hi_si[i])
+        t_lo, t_hi = (-math.inf, math.inf) if tested is None else (float(tested[0][i]), float(tested[1][i]))
+        whose_lo = "its soil test's lower bound" if t_lo > lo else "its lower bound"
+        whose_hi = "its soil test's upper bound" if t_hi < hi else "its upper bound"
+        lo, hi = max(lo, t_lo), min(hi, t_hi)
         tol = 1e-3 * (hi - lo)
         if value <= lo + tol and not (name == "c" and lo <= 1e-6):  # c = 0: a cohesionless soil, not a bound hit
-            out.append(f"{name} at its lower bound")
+            out.append(f"{name} at {whose_lo}")
         elif value >= hi - tol:
-            out.append(f"{name} at its upper bound")
+            out.append(f"{name} at {whose_hi}")
     return out
 
 

@@ -86,6 +86,11 @@ def markdown(report: dict, figures=()) -> str:
         f"{s['folds']} folds, seed {s['seed']}. Run time {report.get('run_time_s', 0):.1f} s.",
         "",
     ]
+    if d.get("soil_tests"):
+        lines += [f"Soil tests hold θ in {len(d['soil_tests'])} of {d['theta_groups']} groups: there θ moves only within "
+                  "each test's interval (± 2 standard deviations; the table \"Baseline θ per group\"), so an effect θ "
+                  "would take in without them is left in the residual, and the form search keeps the held "
+                  "parameters' directions.", ""]
     env = report.get("environment")
     if env:  # (reports written before it was recorded have none)
         libs = ", ".join(f"{k} {v}" for k, v in env.items() if k not in ("python", "machine", "cpu"))
@@ -191,9 +196,17 @@ def markdown(report: dict, figures=()) -> str:
     lines += _regime_md(report["regimes"], "Where the baseline model and the data disagree", labels)
     if report.get("regimes_after"):
         lines += _regime_md(report["regimes_after"], "Remaining structure with the accepted terms (all episodes)", labels)
-    lines += ["## Baseline θ per group", "", "| group | φ [°] | c [Pa] | δ [°] | fit ok |", "|---|---|---|---|---|"]
+    tests = d.get("soil_tests") or {}
+    lines += ["## Baseline θ per group", "", "| group | φ [°] | c [Pa] | δ [°] | fit ok |" + (" soil test: φ [°] / c [Pa] / δ [°] |" if tests else ""),
+              "|---|---|---|---|---|" + ("---|" if tests else "")]
     for t in report["baseline"]["theta"]:
-        lines.append(f"| {t['group']} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |")
+        box = tests.get(t["group"])
+        test_cell = ""
+        if tests:
+            test_cell = " " + (" / ".join("free" if b is None else f"{b[0]:.{1 if j != 1 else 0}f}–{b[1]:.{1 if j != 1 else 0}f}"
+                                          for j, b in enumerate(box)) if box else "none") + " |"
+        lines.append(f"| {t['group']} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |"
+                     + test_cell)
     lines += ["", "## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]

@@ -38,6 +38,7 @@ from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_fra
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
+from .soil_tests import hold_theta
 
 REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
@@ -80,7 +81,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
                     predictors=None, cache: bool = True, skip_bad_bags: bool = False,
-                    plots: bool = True, forms: bool = True, user_terms=(), log=print) -> dict:
+                    plots: bool = True, forms: bool = True, user_terms=(), soil_tests=(), log=print) -> dict:
     """The whole workflow on a bag directory (or a ``Dataset``/``Frame``); returns the report dict.
 
     terms: candidate term names (default: the whole catalogue); accepted: terms already in the
@@ -105,7 +106,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     search the library of forms (``forms.search_forms``) and test its candidates beside the catalogue
     terms (named only if the held-out test groups confirm them). user_terms: more
     candidate term names (e.g. forms from an earlier run's ``discovered_terms.yaml``, ``forms.load_catalogue``),
-    tested like catalogue terms.
+    tested like catalogue terms. soil_tests: ``soil_tests.SoilTest`` entries (``load_soil_tests``): θ of a
+    group whose soil label they match moves only within the test's interval (an effect θ would absorb is
+    then left in the residual).
     Writes discrepancy.md/.json and PNGs to ``out_dir`` when given. ValueError on bad input.
     """
     t0 = time.perf_counter()
@@ -135,6 +138,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         source = str(bag_dir if bag_dir is not None else getattr(dataset, "root", ""))
     else:
         source = frame.source
+    if soil_tests:
+        frame = hold_theta(frame, soil_tests)
+        say(f"soil tests hold θ in {len(frame.theta_boxes)} of {len(frame.groups)} θ-groups")
     n_ep = len(frame.episodes)
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")
@@ -397,7 +403,16 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
+        # soil tests holding θ: group -> [[lo, hi] per φ [°], c [Pa], δ [°]] (None: that parameter free)
+        "soil_tests": {frame.group_names[g]: _box_row(lo, hi) for g, (lo, hi) in sorted((frame.theta_boxes or {}).items())},
     }
+
+
+def _box_row(lo: np.ndarray, hi: np.ndarray) -> list:
+    """A soil test's interval per parameter in the report's units (φ, δ in °, c in Pa); None where free."""
+    units = (math.degrees(1.0), 1.0, math.degrees(1.0))
+    return [[float(a) * u, float(b) * u] if math.isfinite(a) or math.isfinite(b) else None
+            for a, b, u in zip(lo, hi, units)]
 
 
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
@@ -669,10 +684,15 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
     if parts:
         text += ("; " if not quiet else "; but ") + "the model fits worse in " + ", ".join(parts)
         text += " (an effect that acts there, or a form θ cannot follow there)" if not quiet else ""
-    if bound:
-        which = sorted({b for r in bound for b in r["theta_at_bound"]})
-        text += (f"; θ on its fit box in {len(bound)}/{n_groups} groups ({', '.join(which)}: "
-                 f"{', '.join(r['name'] for r in bound[:4])}{', …' if len(bound) > 4 else ''}), "
-                 "the model needs a soil outside the physical range there")
+    for tested, why in ((False, "the model needs a soil outside the physical range there"),
+                        (True, "the forces want a soil outside the soil tests' intervals there: an effect θ "
+                               "would take in without the tests, or a test that is off (about 1 in 20 of "
+                               "parameters tested at ± 2 std is, by chance)")):
+        rows_b = [r for r in bound if any(("soil test" in b) == tested for b in r["theta_at_bound"])]
+        if rows_b:
+            which = sorted({b for r in rows_b for b in r["theta_at_bound"] if ("soil test" in b) == tested})
+            text += (f"; θ on {'its soil test' if tested else 'its fit box'} in {len(rows_b)}/{n_groups} groups "
+                     f"({', '.join(which)}: {', '.join(r['name'] for r in rows_b[:4])}{', …' if len(rows_b) > 4 else ''}), "
+                     + why)
     return text
 

@@ -1,0 +1,18 @@
+"""Reading a user's YAML file (a catalogue of terms, soil tests) with errors that name the file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def read_yaml(path, what: str):
+    """The YAML content of ``path``; ValueError "<what> <path> ..." for a file that is missing,
+    unreadable, not UTF-8 (a binary file: the codec's words alone do not say which) or not YAML."""
+    import yaml
+
+    p = Path(path)
+    try:
+        return yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{what} {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{what} {p}: cannot read it: {exc}") from None
