@@ -629,6 +629,14 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                          "does not hold, rather than its mechanism; look where the structure is)")
             else:
                 text += " (the named terms explain part of the discrepancy)"
+        # with soil tests, a term that is the effect's mechanism releases θ from the tests' bounds (an
+        # adhesion named as −k c w d: 6 groups on a bound → 0); one that leaves as many there takes force
+        # θ could not, not what pushed θ there (a drag with density named by two forms: 8 → 10)
+        held0, held1 = _on_test_bounds(reg0), _on_test_bounds(reg1)
+        if held1 and held1 >= held0:
+            text += (f"; with the soil tests θ stays on a test's bound in {held1} groups ({held0} without the named "
+                     "terms): they do not take what pushes θ there, and may be STAND-INS for an effect whose own "
+                     "form the library does not hold")
         return "explained", text + _misfit_text(reg1) + _left_text(reg1) + not_named
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
@@ -645,6 +653,12 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
                                           + _misfit_text(reg0, quiet=True) + not_named)
+
+
+def _on_test_bounds(reg: dict | None) -> int:
+    """How many θ-groups sit on a soil test's bound (``regimes.group_misfit``'s rows; 0 without soil tests)."""
+    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
+    return sum(1 for r in rows if r["kind"] == "group" and any("soil test" in b for b in r["theta_at_bound"]))
 
 
 def _left_text(reg: dict | None) -> str:
