@@ -95,6 +95,10 @@ SCALES: dict[str, Piece] = {p.name: p for p in (
           lambda s, xp: s.w * _pos(xp, s.d) * P_REF_PA, "x"),
     Piece("wd_z", "c-free area scale w d P_ref, pressing down", f"−w d · {P_REF_PA:g} Pa",
           lambda s, xp: -s.w * _pos(xp, s.d) * P_REF_PA, "z"),
+    # the soil's cohesion over the cut face: an adhesion, a cohesion that depends on rate or
+    # remoulding (the FEE's own cohesion terms are c d w N_c-like; θ's c takes the rest of it)
+    Piece("cwd_x", "cohesion area scale c w d, x", "c w d", lambda s, xp: s.c * s.w * _pos(xp, s.d), "x"),
+    Piece("cwd_z", "cohesion area scale c w d, pressing down", "−c w d", lambda s, xp: -s.c * s.w * _pos(xp, s.d), "z"),
     Piece("mom_x", "momentum flux of the cut soil (γ/g) w d v_x², x", "(γ/g) w d v_x²",
           lambda s, xp: s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * s.v_x ** 2, "x"),
     Piece("q_x", "surcharge weight Q, x", "Q", lambda s, xp: s.q * _in(s), "x"),
