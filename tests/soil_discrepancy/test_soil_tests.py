@@ -113,6 +113,10 @@ def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adh
     assert math.degrees(lo[0]) == pytest.approx(26.0 - WIDTH_SIGMA) and lo[1] == pytest.approx(8.4e3 - WIDTH_SIGMA * 500)
     lo, hi = boxes["Clay I_d=20%"]
     assert math.degrees(hi[0]) == pytest.approx(20.0 + WIDTH_SIGMA) and np.isinf(lo[1]) and np.isinf(hi[2])  # c, δ free
+    # a test no soil the FEE can fit with this blade lies in is refused when θ is fitted, naming group and range
+    steep = hold_theta(frame, parse_soil_tests({"soil_tests": [{"soil": "Sand", "phi_deg": 85.0, "phi_std_deg": 1.0}]}))
+    with pytest.raises(ValueError, match=r"the soil test of Sand I_d=20% puts phi in \[83, 87\] °, outside what the FEE"):
+        fit_fixed(steep, AugmentedFEE())
     with pytest.raises(ValueError, match="no soil test matches a soil of the bags"):
         hold_theta(frame, parse_soil_tests({"soil_tests": [{"soil": "Peat", "phi_deg": 20.0, "phi_std_deg": 1.0}]}))
     with pytest.raises(ValueError, match="no soil test matches"):  # grouped by γ: no label is read

@@ -98,11 +98,12 @@ def _held_by_tests(frame: Frame, gi: int, lb: np.ndarray, ub: np.ndarray) -> tup
     with np.errstate(invalid="ignore"):
         t_lo, t_hi = normalise_theta(lo), normalise_theta(hi)
     lb2, ub2 = np.maximum(lb, np.where(np.isfinite(t_lo), t_lo, -np.inf)), np.minimum(ub, np.where(np.isfinite(t_hi), t_hi, np.inf))
-    for j, name in enumerate(("phi", "c", "delta")):
+    for j, (name, unit, per_si) in enumerate((("phi", "°", math.degrees(1.0)), ("c", "Pa", 1.0), ("delta", "°", math.degrees(1.0)))):
         if not lb2[j] < ub2[j]:
-            box = denormalise_theta(np.stack([lb, ub]))
-            raise ValueError(f"the soil test of {frame.group_names[gi]} puts {name} in [{lo[j]:.4g}, {hi[j]:.4g}] (SI), "
-                             f"outside what the FEE can fit there with this blade: [{box[j][0]:.4g}, {box[j][1]:.4g}]")
+            box = denormalise_theta(np.stack([lb, ub]))[j] * per_si
+            raise ValueError(f"the soil test of {frame.group_names[gi]} puts {name} in [{lo[j] * per_si:.4g}, "
+                             f"{hi[j] * per_si:.4g}] {unit}, outside what the FEE can fit there with this blade: "
+                             f"[{box[0]:.4g}, {box[1]:.4g}] {unit}")
     return lb2, ub2
 
 

@@ -20,6 +20,7 @@ from soil_physics import term_forms
 
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
+from .soil_tests import WIDTH_SIGMA
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -88,7 +89,7 @@ def markdown(report: dict, figures=()) -> str:
     ]
     if d.get("soil_tests"):
         lines += [f"Soil tests hold θ in {len(d['soil_tests'])} of {d['theta_groups']} groups: there θ moves only within "
-                  "each test's interval (± 2 standard deviations; the table \"Baseline θ per group\"), so an effect θ "
+                  f"each test's interval (± {WIDTH_SIGMA:g} standard deviations; the table \"Baseline θ per group\"), so an effect θ "
                   "would take in without them is left in the residual, and the form search keeps the held "
                   "parameters' directions.", ""]
     env = report.get("environment")

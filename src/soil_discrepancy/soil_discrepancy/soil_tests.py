@@ -37,6 +37,8 @@ from .frame import Frame
 from .yaml_file import read_yaml
 
 WIDTH_SIGMA = 2.0  # θ may move ± this many of a test's standard deviations (its ~95 % interval)
+# the share of tested parameters whose truth lies outside ± WIDTH_SIGMA std (a Gaussian test error)
+OUTSIDE_BY_CHANCE = math.erfc(WIDTH_SIGMA / math.sqrt(2.0))
 # parameter: (value key, std key, SI per unit of the file); the order is θ's (φ, c, δ)
 _FIELDS = (("phi", "phi_deg", "phi_std_deg", DEG), ("c", "c_kpa", "c_std_kpa", 1e3),
            ("delta", "delta_deg", "delta_std_deg", DEG))

@@ -38,7 +38,7 @@ from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_fra
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
-from .soil_tests import hold_theta
+from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, hold_theta
 
 REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
@@ -700,8 +700,8 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
         text += " (an effect that acts there, or a form θ cannot follow there)" if not quiet else ""
     for tested, why in ((False, "the model needs a soil outside the physical range there"),
                         (True, "the forces want a soil outside the soil tests' intervals there: an effect θ "
-                               "would take in without the tests, or a test that is off (about 1 in 20 of "
-                               "parameters tested at ± 2 std is, by chance)")):
+                               "would take in without the tests, or a test that is off (by chance "
+                               f"{100 * OUTSIDE_BY_CHANCE:.0f} % of the parameters tested at ± {WIDTH_SIGMA:g} std are)")):
         rows_b = [r for r in bound if any(("soil test" in b) == tested for b in r["theta_at_bound"])]
         if rows_b:
             which = sorted({b for r in rows_b for b in r["theta_at_bound"] if ("soil test" in b) == tested})
