@@ -16,10 +16,9 @@ import yaml
 
 from soil_discrepancy import build_frame, run_discrepancy
 from soil_discrepancy.cli import main as cli_main
-from soil_discrepancy.fee_fit import fit_fixed
+from soil_discrepancy.fee_fit import fit_fixed, residuals
 from soil_discrepancy.forms import theta_jacobian
 from soil_discrepancy.regimes import group_misfit
-from soil_discrepancy.fee_fit import residuals
 from soil_discrepancy.soil_tests import WIDTH_SIGMA, hold_theta, load_soil_tests, parse_soil_tests
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.soils import CATALOGUE as SOILS

@@ -23,6 +23,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     from pinn_estimator.dataset import add_skip_bad_bags_option
 
     from .frame import GROUP_BY
+    from .soil_tests import WIDTH_SIGMA
 
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
@@ -51,7 +52,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "discovered_terms.yaml: terms: [{term: form:<scale>*<factor>, name: ..., k: ...}])")
     p.add_argument("--soil-tests", type=Path, default=None, metavar="YAML",
                    help="the soils' φ, c (and δ) measured apart from the machine (shear box, triaxial), per soil label: "
-                        "θ then moves only within each test's interval (± 2 std), so an effect θ would absorb shows "
+                        f"θ then moves only within each test's interval (± {WIDTH_SIGMA:g} std), so an effect θ would absorb shows "
                         "(soil_tests: [{soil, relative_density_pct?, phi_deg, phi_std_deg, c_kpa, c_std_kpa, "
                         "delta_deg?, delta_std_deg?}])")
     p.add_argument("--no-forms", action="store_true",

@@ -41,6 +41,7 @@ from pinn_estimator.classical import (
     normalised_residuals,
 )
 from .frame import Frame
+from .soil_tests import DISPLAY_UNITS
 
 _RHO = KNOWN_PARAMS.index("rho")
 _DENSE_LIMIT = 0  # Jacobian entries above which the joint fit goes sparse
@@ -95,10 +96,8 @@ def _held_by_tests(frame: Frame, gi: int, lb: np.ndarray, ub: np.ndarray) -> tup
     """The fit's normalised box narrowed to a soil test's interval (``soil_tests``); ValueError naming
     the group and parameter where the test leaves no soil the FEE can fit with this blade."""
     lo, hi = frame.theta_boxes[gi]
-    with np.errstate(invalid="ignore"):
-        t_lo, t_hi = normalise_theta(lo), normalise_theta(hi)
-    lb2, ub2 = np.maximum(lb, np.where(np.isfinite(t_lo), t_lo, -np.inf)), np.minimum(ub, np.where(np.isfinite(t_hi), t_hi, np.inf))
-    for j, (name, unit, per_si) in enumerate((("phi", "°", math.degrees(1.0)), ("c", "Pa", 1.0), ("delta", "°", math.degrees(1.0)))):
+    lb2, ub2 = np.maximum(lb, normalise_theta(lo)), np.minimum(ub, normalise_theta(hi))  # ±inf (free) stays ±inf
+    for j, (name, unit, per_si) in enumerate(DISPLAY_UNITS):
         if not lb2[j] < ub2[j]:
             box = denormalise_theta(np.stack([lb, ub]))[j] * per_si
             raise ValueError(f"the soil test of {frame.group_names[gi]} puts {name} in [{lo[j] * per_si:.4g}, "

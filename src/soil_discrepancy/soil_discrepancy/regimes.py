@@ -275,6 +275,14 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
             "soils": [r["name"] for r in rows if r["kind"] == "soil" and r["flagged"]]}
 
 
+_TEST_BOUND = "its soil test's"  # how ``_theta_at_bound`` words a bound a soil test set
+
+
+def on_soil_test_bound(hit: str) -> bool:
+    """Whether one of ``_theta_at_bound``'s hits is on a soil test's bound (not the fit box's)."""
+    return _TEST_BOUND in hit
+
+
 def _theta_at_bound(row: dict, rho_max_rad: float, tested=None) -> list[str]:
     """Which of φ, c, δ of a ``ThetaFit.table`` row lie on the fit's box (0.1 % of its range): the box
     ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists),
@@ -289,8 +297,8 @@ def _theta_at_bound(row: dict, rho_max_rad: float, tested=None) -> list[str]:
                                        ("δ", math.radians(row["delta_deg"])))):
         lo, hi = float(lo_si[i]), float(hi_si[i])
         t_lo, t_hi = (-math.inf, math.inf) if tested is None else (float(tested[0][i]), float(tested[1][i]))
-        whose_lo = "its soil test's lower bound" if t_lo > lo else "its lower bound"
-        whose_hi = "its soil test's upper bound" if t_hi < hi else "its upper bound"
+        whose_lo = f"{_TEST_BOUND} lower bound" if t_lo > lo else "its lower bound"
+        whose_hi = f"{_TEST_BOUND} upper bound" if t_hi < hi else "its upper bound"
         lo, hi = max(lo, t_lo), min(hi, t_hi)
         tol = 1e-3 * (hi - lo)
         if value <= lo + tol and not (name == "c" and lo <= 1e-6):  # c = 0: a cohesionless soil, not a bound hit

@@ -43,6 +43,8 @@ OUTSIDE_BY_CHANCE = math.erfc(WIDTH_SIGMA / math.sqrt(2.0))
 _FIELDS = (("phi", "phi_deg", "phi_std_deg", DEG), ("c", "c_kpa", "c_std_kpa", 1e3),
            ("delta", "delta_deg", "delta_std_deg", DEG))
 _KEYS = {"soil", "relative_density_pct"} | {k for _, v, s, _ in _FIELDS for k in (v, s)}
+# θ as reports and errors give it: (name, unit, per SI unit), in θ's order (φ, c, δ)
+DISPLAY_UNITS = (("phi", "°", math.degrees(1.0)), ("c", "Pa", 1.0), ("delta", "°", math.degrees(1.0)))
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,12 @@ def hold_theta(frame: Frame, tests) -> Frame:
         raise ValueError(f"no soil test matches a soil of the bags (their labels: {', '.join(seen[:12])}); "
                          "soil tests need bags with a soil label in their metadata (not --group-by gamma or episode)")
     return replace(frame, theta_boxes=boxes)
+
+
+def displayed_box(lo: np.ndarray, hi: np.ndarray) -> list:
+    """A test's interval (SI) per parameter in ``DISPLAY_UNITS`` ([lo, hi]); None where it holds nothing."""
+    return [[float(a) * u, float(b) * u] if math.isfinite(a) or math.isfinite(b) else None
+            for a, b, (_, _, u) in zip(lo, hi, DISPLAY_UNITS)]
 
 
 def held_parameters(frame: Frame) -> np.ndarray:

@@ -37,8 +37,8 @@ from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
-from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
-from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, hold_theta
+from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, on_soil_test_bound, regime_analysis, variable_labels
+from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, displayed_box, hold_theta
 
 REPORT_VERSION = 1
 VERDICTS = ("explained", "unexplained", "no significant discrepancy")
@@ -404,15 +404,8 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         "test_groups": [frame.group_names[g] for g in test_groups],
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
         # soil tests holding θ: group -> [[lo, hi] per φ [°], c [Pa], δ [°]] (None: that parameter free)
-        "soil_tests": {frame.group_names[g]: _box_row(lo, hi) for g, (lo, hi) in sorted((frame.theta_boxes or {}).items())},
+        "soil_tests": {frame.group_names[g]: displayed_box(lo, hi) for g, (lo, hi) in sorted((frame.theta_boxes or {}).items())},
     }
-
-
-def _box_row(lo: np.ndarray, hi: np.ndarray) -> list:
-    """A soil test's interval per parameter in the report's units (φ, δ in °, c in Pa); None where free."""
-    units = (math.degrees(1.0), 1.0, math.degrees(1.0))
-    return [[float(a) * u, float(b) * u] if math.isfinite(a) or math.isfinite(b) else None
-            for a, b, u in zip(lo, hi, units)]
 
 
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
@@ -658,7 +651,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
 def _on_test_bounds(reg: dict | None) -> int:
     """How many θ-groups sit on a soil test's bound (``regimes.group_misfit``'s rows; 0 without soil tests)."""
     rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    return sum(1 for r in rows if r["kind"] == "group" and any("soil test" in b for b in r["theta_at_bound"]))
+    return sum(1 for r in rows if r["kind"] == "group" and any(on_soil_test_bound(b) for b in r["theta_at_bound"]))
 
 
 def _left_text(reg: dict | None) -> str:
@@ -702,9 +695,9 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
                         (True, "the forces want a soil outside the soil tests' intervals there: an effect θ "
                                "would take in without the tests, or a test that is off (by chance "
                                f"{100 * OUTSIDE_BY_CHANCE:.0f} % of the parameters tested at ± {WIDTH_SIGMA:g} std are)")):
-        rows_b = [r for r in bound if any(("soil test" in b) == tested for b in r["theta_at_bound"])]
+        rows_b = [r for r in bound if any(on_soil_test_bound(b) == tested for b in r["theta_at_bound"])]
         if rows_b:
-            which = sorted({b for r in rows_b for b in r["theta_at_bound"] if ("soil test" in b) == tested})
+            which = sorted({b for r in rows_b for b in r["theta_at_bound"] if on_soil_test_bound(b) == tested})
             text += (f"; θ on {'its soil test' if tested else 'its fit box'} in {len(rows_b)}/{n_groups} groups "
                      f"({', '.join(which)}: {', '.join(r['name'] for r in rows_b[:4])}{', …' if len(rows_b) > 4 else ''}), "
                      + why)
