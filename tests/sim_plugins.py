@@ -319,3 +319,32 @@ def pile_travel_drag(state, k: float = 1.0, s0: float = 2.0):
     s = np.asarray(state.distance_in_soil, dtype=float)
     d = np.asarray(state.d, dtype=float)
     return float(k) * q * (1.0 - np.exp(-s / float(s0))) * (d > 0), np.zeros_like(q)
+
+
+def cubic_depth_drag(state, k: float = 1.0, d_ref_m: float = 0.1):
+    """Hidden effect steeper in depth than any FEE term: F_x = k γ w d³ / d_ref [N] (a drag that
+    grows as the failure wedge's volume times its depth; the library has d² forms times d)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**3 / float(d_ref_m), np.zeros_like(d)
+
+
+def time_oscillation(state, f_n: float = 1500.0, period_s: float = 1.3):
+    """Hidden effect with zero mean in time (a machine vibration): F_x = f_n sin(2π t / T) [N] while
+    in the soil, t the time in soil; no soil property and no mean force: never a named mechanism."""
+    d = np.asarray(state.d, dtype=float)
+    t = np.asarray(state.time_in_soil, dtype=float)
+    return float(f_n) * np.sin(2.0 * np.pi * t / float(period_s)) * (d > 0), np.zeros_like(d)
+
+
+def soft_floor_lift(state, k: float = 1.0, p_pa: float = 20e3, d_s_m: float = 0.05):
+    """Hidden effect in z saturating with depth: F_z = +k w p d_s tanh(d / d_s) [N] (z up: a floor
+    that pushes the blade up by the same amount once the edge is a few cm in; no form of the library
+    saturates in depth)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return np.zeros_like(d), float(k) * state.w * float(p_pa) * float(d_s_m) * np.tanh(d / float(d_s_m))
+
+
+def speed_depth_drag(state, k: float = 1.0):
+    """Hidden effect linear in speed: F_x = k γ w d² (v_x / 1 m/s) [N] (a viscous drag on the wedge)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**2 * np.maximum(np.asarray(state.v_x, dtype=float), 0.0), np.zeros_like(d)
