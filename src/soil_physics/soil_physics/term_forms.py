@@ -134,6 +134,13 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
            lambda s, xp: (xp.abs(s.v_z) <= VZ_GATE_M_S) * 1.0),
      Piece("sinkv", "sinking speed", f"max(−v_z, 0) / {VZ_REF_M_S:g} m/s", lambda s, xp: _pos(xp, -s.v_z) / VZ_REF_M_S),
      Piece("risev", "lifting speed", f"max(v_z, 0) / {VZ_REF_M_S:g} m/s", lambda s, xp: _pos(xp, s.v_z) / VZ_REF_M_S),
+     # signed in v_z: one column for a force against (or with) the edge's vertical motion either way,
+     # a viscous damping or a friction saturating above the reference speed, where sinkv and risev
+     # would split it into two halves, each with its own k (and θ, which takes the entry's sinking in,
+     # makes those two differ)
+     Piece("vz", "vertical speed (signed, + rising)", f"v_z / {VZ_REF_M_S:g} m/s", lambda s, xp: s.v_z / VZ_REF_M_S * _in(s)),
+     Piece(f"tanhvz{VZ_REF_M_S:g}", f"vertical speed (signed, + rising), saturating above {VZ_REF_M_S:g} m/s",
+           f"tanh(v_z / {VZ_REF_M_S:g} m/s)", lambda s, xp: xp.tanh(s.v_z / VZ_REF_M_S) * _in(s)),
      Piece("xlim", "at the horizontal force limit", f"[F_FEE,x > {LIMIT_SHARE:g}·{FX_LIMIT_N:g} N]",
            lambda s, xp: (s.f_fee_x > LIMIT_SHARE * FX_LIMIT_N) * 1.0),
      Piece("zlim", "at the vertical force limit", f"[|F_FEE,z| > {LIMIT_SHARE:g}·{FZ_LIMIT_N:g} N]",
@@ -167,7 +174,7 @@ FACTORS: dict[str, Piece] = {p.name: p for p in (
 
 
 # factors that are one shape at several characteristic values (a speed, a length, a time, a depth)
-SHAPE_FAMILIES = ("tanhvx", "fadevx", "enter", "sat", "tenter", "tsat", "below")
+SHAPE_FAMILIES = ("tanhvx", "tanhvz", "fadevx", "enter", "sat", "tenter", "tsat", "below")
 
 
 def factor_shape(factor: str) -> str:
