@@ -327,8 +327,9 @@ def test_a_vertical_damping_is_found_as_one_signed_form(tmp_path):
     linear: F_z = 2 w d · 10 kPa · v_z / 5 cm/s on the soil), on 24 episodes at three depths: the
     search names one signed form on v_z, not its sinking half alone (which the library without the
     signed factor named, taking less off the held-out error, with hundreds of rivals). Its k comes
-    out below the hidden one: Θ_k's v_z is the 10-sample mean (paper §3.1), which lags the edge's
-    sinking and rising, and a regression on a lagged input attenuates its coefficient."""
+    out below the hidden one (1.55 for 2 on the 108-episode grid), most likely because Θ_k's v_z is the
+    10-sample mean (paper §3.1), which lags the edge's sinking and rising: a regression on a lagged
+    input attenuates its coefficient."""
     specs = grid_specs(list(SOILS), [20.0, 80.0], [0.65], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
     generate(DatasetPlan("fee", tmp_path / "hidden", specs, effects_for_mode("fee"),
                          plugins=("tests.sim_plugins:vertical_damping k=40 v0=1",)), workers=2, progress=False)
