@@ -54,8 +54,8 @@ from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWai
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
-    "target_speed_m_s": (0.5, "desired forward speed v̄_x [m/s], > 0"),
-    "target_depth_m": (0.2, "target cut depth d̄_z below the original surface [m], >= 0"),
+    "target_speed_m_s": (0.5, "desired forward speed v̄_x [m/s], in (0, 2]"),
+    "target_depth_m": (0.2, "target cut depth d̄_z below the original surface [m], in [0, 0.66] (the blade height)"),
     "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
     "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
     "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
@@ -351,7 +351,7 @@ class ControllerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_node(ControllerNode, args)
+    return spin_node(ControllerNode, args, PARAMETERS, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":

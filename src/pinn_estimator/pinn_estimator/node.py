@@ -20,6 +20,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import String
 
+from soil_msgs_py import cli_numbers
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -64,8 +65,9 @@ class EstimatorNode(Node):
         super().__init__("pinn_estimator")
         get = declare_parameters(self, PARAMETERS)
         threads = get("threads")
-        if not isinstance(threads, int) or threads < 1:
-            raise ValueError(f"parameter threads={threads!r} must be an integer >= 1")
+        if not isinstance(threads, int) or not 1 <= threads <= cli_numbers.local_limit():
+            raise ValueError(f"parameter threads={threads!r} must be an integer in [1, {cli_numbers.local_limit()}] "
+                             f"({cli_numbers.PER_CORE} per core of this machine at the most)")
         torch.set_num_threads(threads)
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
@@ -146,7 +148,7 @@ class EstimatorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_node(EstimatorNode, args)
+    return spin_node(EstimatorNode, args, PARAMETERS, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ import time
 import numpy as np
 import rclpy
 from rclpy.node import Node
-from rclpy.utilities import remove_ros_args
 
 from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.patches import finite_number
@@ -31,7 +30,8 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import init_rclpy, message_class, publisher_qos, raise_interrupt, wait_for_acks
+from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments, publisher_qos, raise_interrupt, rcl_error_text,
+                                      wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -198,7 +198,12 @@ class Player:
 
 def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
-    opts = parse_args(remove_ros_args(argv)[1:])
+    try:
+        own = own_arguments(argv)
+    except RuntimeError as err:  # rcl cannot parse the ROS arguments
+        print(f"soil_bag_play: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        return 2
+    opts = parse_args(own)
     try:
         paths = expand_bag_args(opts.bags)
     except BagPathError as err:
@@ -206,7 +211,11 @@ def main(args: list[str] | None = None) -> int:
         return 2
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
-    init_rclpy(argv, raise_interrupt)
+    try:
+        init_rclpy(argv, raise_interrupt)
+    except RuntimeError as err:  # rcl cannot read a --params-file
+        print(f"soil_bag_play: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        return 2
     node = Node("soil_bag_play")
     code = 0
     player = None

@@ -4,7 +4,8 @@
 * ``message_class(msgtype)``: "pkg/msg/Name" -> the installed Python message class.
 * ``declare_parameters(node, table)``: a node's parameter table declared, with descriptions.
 * ``spin_node(factory, args)``: the Jazzy entry-point pattern (init, spin, clean shutdown
-  on Ctrl-C / SIGTERM / external shutdown) so every node's ``main`` is two lines.
+  on Ctrl-C / SIGTERM / external shutdown) so every node's ``main`` is two lines; given the
+  node's parameter table it also answers ``--help`` and refuses arguments that are not ROS ones.
 """
 from __future__ import annotations
 
@@ -12,10 +13,12 @@ import collections
 import difflib
 import importlib
 import math
+import re
 import signal
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
@@ -223,22 +226,111 @@ def wait_for_acks(node: Node, limit_s: float = ACK_LIMIT_S) -> bool:
     return acked
 
 
-def spin_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+HELP_FLAGS = ("-h", "--help")
+
+
+def usage(prog: str, parameters: dict, summary: str = "") -> str:
+    """A node's ``--help``: how its settings are given and its parameter table
+    (``{name: (default, description[, typed_default])}``, as ``declare_parameters`` takes it)."""
+    lines = [f"usage: {prog} [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __node:=NAME] ...]"]
+    if summary:
+        lines += ["", summary]
+    lines += ["", "parameters (NAME (default): description):"]
+    lines += [f"  {name} ({default!r}): {description}" for name, (default, description, *_) in parameters.items()]
+    return "\n".join(lines)
+
+
+def rcl_error_text(err: Exception) -> str:
+    """rcl's message without the C source locations it appends (", at /project/src/...")."""
+    return str(err).split(", at /")[0]
+
+
+def own_arguments(argv: list[str]) -> list[str]:
+    """The arguments of ``argv`` (program name first) that are not ROS arguments. RuntimeError
+    (rcl's) where the ROS arguments do not parse (``-p soil`` without ``:=``)."""
+    from rclpy.utilities import remove_ros_args
+
+    return list(remove_ros_args(argv)[1:])
+
+
+def params_files(argv: list[str]) -> list[str]:
+    """The ``--params-file`` paths among ``argv``'s ROS arguments (between ``--ros-args`` and ``--``)."""
+    files, in_ros, it = [], False, iter(argv)
+    for arg in it:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif in_ros and arg == "--params-file":
+            files.append(next(it, ""))
+    return files
+
+
+def _section_matches(key: str, fully_qualified_name: str) -> bool:
+    """Whether a params file's top-level key applies to the node (rcl's rules: a name, a
+    namespaced name, ``/**`` any number of tokens, ``*`` one token; a leading ``/`` optional)."""
+    pattern = "".join(".*" if part == "**" else "[^/]*" if part == "*" else re.escape(part)
+                      for part in re.split(r"(\*\*|\*)", key.strip("/")))
+    return re.fullmatch(pattern, fully_qualified_name.strip("/")) is not None
+
+
+def params_file_warnings(argv: list[str], node: Node) -> list[str]:
+    """One warning per ``--params-file`` with no section for ``node``: rcl applies none of it, so a
+    misspelt node name (``soil_sim_nod:``) would change nothing and say nothing."""
+    import yaml
+
+    out = []
+    for path in params_files(argv):
+        try:
+            sections = yaml.safe_load(Path(path).read_text())
+        except (OSError, yaml.YAMLError):
+            continue  # rcl read it already (it refuses a file it cannot read or parse)
+        keys = [str(k) for k in sections] if isinstance(sections, dict) else []
+        if not any(_section_matches(k, node.get_fully_qualified_name()) for k in keys):
+            close = difflib.get_close_matches(node.get_name(), [k.strip("/") for k in keys], n=1)
+            hint = f" (is {close[0]} a misspelling of {node.get_name()}?)" if close else ""
+            out.append(f"params file {path} has no section for this node ({node.get_fully_qualified_name()}; "
+                       f"its sections: {', '.join(keys) or 'none'}){hint}: nothing in it applies")
+    return out
+
+
+def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parameters: dict | None = None,
+              summary: str = "") -> int:
     """Run one node until Ctrl-C, SIGTERM, ``rclpy.shutdown`` or ``node.finished``.
 
     SIGINT and SIGTERM only set a flag that the spin loop checks (within 0.1 s), so a signal
     never lands in the middle of a callback (a journal write, a publish) and the context is
     still valid in ``node.close()``: a node can publish its last status or finish a bag on
     the way out. A factory that raises ValueError or a ParameterException (a bad parameter)
-    logs the message and exits with code 2. Otherwise the exit code is ``node.exit_code``
+    logs the message and exits with code 2, as do ROS arguments rcl cannot parse (a params file
+    that is missing or not YAML, ``-p NAME`` without a value). Given the node's ``parameters``
+    table (a node whose command line holds nothing but ROS arguments), ``--help`` prints
+    ``usage`` (exit 0) and any other argument that is not a ROS one is refused (exit 2): the
+    node would otherwise start and ignore it. Otherwise the exit code is ``node.exit_code``
     (default 0).
     """
-    stop: list[int] = []
-    init_rclpy(args, lambda signum, frame: stop.append(signum))
+    argv = list(sys.argv if args is None else args)
+    prog = Path(argv[0]).name if argv else "node"
+    try:
+        own = own_arguments(argv)
+        if parameters is not None and any(a in HELP_FLAGS for a in own):
+            print(usage(prog, parameters, summary))
+            return 0
+        if parameters is not None and own:
+            print(f"{prog}: error: unrecognised argument(s) {' '.join(own)}: a node takes its settings as "
+                  "--ros-args -p NAME:=VALUE or --ros-args --params-file FILE (--help lists them)", file=sys.stderr)
+            return EXIT_BAD_CONFIG
+        stop: list[int] = []
+        init_rclpy(argv, lambda signum, frame: stop.append(signum))
+    except RuntimeError as err:  # rcl's RCLError / RCLInvalidROSArgsError: the ROS arguments do not parse
+        print(f"{prog}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
     try:
         node = factory()
+        for text in params_file_warnings(argv, node):
+            node.get_logger().warning(text)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok() and not stop and not getattr(node, "finished", False):

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import collections
 import math
+import re
 import time
 
 import numpy as np
@@ -66,6 +67,20 @@ SCHEDULE_PARAMETERS = {"start_depth_m": "start_depth_m", "deepen_rate_m_s": "dee
                        "shallow_rate_m_s": "shallow_rate_m_s", "hold_s": "hold_s", "retreat_m": "retreat_m",
                        "retreat_memory_s": "retreat_memory_s", "cautious_deepen_rate_m_s": "cautious_deepen_rate_m_s",
                        "min_target_m": "min_depth_m", "max_target_m": "max_depth_m"}
+
+
+def schedule_settings(by_parameter: dict) -> ScheduleSettings:
+    """``ScheduleSettings`` from the node's parameter values (``SCHEDULE_PARAMETERS``' names); a
+    ValueError names the node's parameters (``min_target_m``), not the settings' fields."""
+    try:
+        return ScheduleSettings(**{f: by_parameter[p] for p, f in SCHEDULE_PARAMETERS.items()})
+    except ValueError as err:
+        text = str(err)
+        for param, field_name in SCHEDULE_PARAMETERS.items():
+            text = re.sub(rf"\b{field_name}\b", param, text)
+        raise ValueError(text) from None
+
+
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
 # /planner/target_depth goes out when the target moved by TARGET_STEP_M, its validity changed,
 # or TARGET_HEARTBEAT_NS passed (well inside the controller's planner_timeout_s).
@@ -129,7 +144,7 @@ class PlannerNode(Node):
         super().__init__("soil_planner")
         get = declare_parameters(self, PARAMETERS)
         self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
-        self.schedule = DepthSchedule(ScheduleSettings(**{f: get(p) for p, f in SCHEDULE_PARAMETERS.items()}))
+        self.schedule = DepthSchedule(schedule_settings({p: get(p) for p in SCHEDULE_PARAMETERS}))
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
         # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
@@ -192,7 +207,7 @@ class PlannerNode(Node):
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
             wait_s = check_command_wait(changes.get("command_wait_s", self.command_wait.max_wait_s))
             current = self.schedule.settings.to_dict()
-            schedule = ScheduleSettings(**{f: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
+            schedule = schedule_settings({p: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.planner = planner
@@ -332,7 +347,7 @@ class PlannerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_node(PlannerNode, args)
+    return spin_node(PlannerNode, args, PARAMETERS, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":

@@ -455,7 +455,7 @@ class SimNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return spin_node(SimNode, args)
+    return spin_node(SimNode, args, PARAMETERS, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":

@@ -1,0 +1,70 @@
+"""What a node's command line does with what is not a well-formed ROS argument: ``--help`` answers
+with the parameters, an argument a node does not take and ROS arguments rcl cannot parse stop it
+with exit 2 and one line naming them (no traceback, no node left running), and a params file with
+no section for the node says so. Each node is its own process, as ``ros2 run`` starts it."""
+from __future__ import annotations
+
+import pytest
+
+from tests.ros_probe import NodeProc, next_domain_id, wait_until
+
+pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
+
+NODES = {  # console script -> one of its parameters
+    "soil_sim_node": "world_mode",
+    "anti_stall_controller": "target_depth_m",
+    "pinn_estimator": "checkpoint",
+    "soil_planner": "force_quantile",
+}
+
+
+def _run(script: str, args: list[str], tmp_path) -> tuple[int, str]:
+    node = NodeProc(script, args, next_domain_id(), tmp_path)
+    try:
+        code = node.wait(timeout=60)
+    finally:
+        node.stop()
+    return code, node.output
+
+
+@pytest.mark.parametrize("script", sorted(NODES))
+def test_help_lists_the_parameters_and_an_unknown_argument_is_refused(script, tmp_path):
+    code, out = _run(script, ["--help"], tmp_path)
+    assert code == 0, out
+    assert out.startswith(f"usage: {script} [--ros-args") and f"  {NODES[script]} (" in out, out
+    code, out = _run(script, ["--bogus-flag", "--ros-args", "-p", f"{NODES[script]}:=x"], tmp_path)
+    assert code == 2, out
+    assert f"{script}: error: unrecognised argument(s) --bogus-flag" in out and "Traceback" not in out, out
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--ros-args", "-p", "soil"], "Couldn't parse parameter override rule: '-p soil'"),
+    (["--ros-args", "--params-file", "/nonexistent/params.yaml"], "Couldn't parse params file"),
+    (["--ros-args", "--params-file", "BROKEN"], "Couldn't parse params file"),
+])
+def test_ros_arguments_rcl_cannot_parse_exit_2_in_one_line(args, needle, tmp_path):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("soil_sim_node: [\n")
+    args = [str(broken) if a == "BROKEN" else a for a in args]
+    for script in ("soil_sim_node", "soil_bag_record"):
+        code, out = _run(script, args, tmp_path)
+        assert code == 2, out
+        assert f"{script}: cannot start: " in out and needle in out and "Traceback" not in out, out
+        assert ", at /" not in out.split("cannot start: ")[1].splitlines()[0]  # rcl's C source locations cut
+
+
+def test_a_params_file_with_no_section_for_the_node_is_named(tmp_path):
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("soil_plannr:\n  ros__parameters:\n    margin: 0.5\n")
+    shared = tmp_path / "shared.yaml"
+    shared.write_text("/**:\n  ros__parameters:\n    log_period_s: 0.0\n")
+    node = NodeProc("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(shared)],
+                    next_domain_id(), tmp_path)
+    try:
+        wait_until(lambda: "nothing in it applies" in node.output, 30, "the params file's warning")
+    finally:
+        code = node.stop()
+    assert f"params file {typo} has no section for this node (/soil_planner; its sections: soil_plannr) " \
+           "(is soil_plannr a misspelling of soil_planner?): nothing in it applies" in node.output, node.output
+    assert str(shared) not in node.output  # '/**' applies to every node
+    assert code == 0 and "Traceback" not in node.output, node.output
