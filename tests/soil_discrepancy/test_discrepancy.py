@@ -29,6 +29,7 @@ from soil_discrepancy import (
 )
 from soil_discrepancy.cli import main as cli_main
 from soil_discrepancy.gap import depth_forecast_gap
+from soil_msgs_py import cli_numbers
 from soil_physics import force_terms, fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -206,8 +207,10 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
     assert cli_main([missing, "--out", str(tmp_path / "o"), "--accepted", "soil_inertia=1,soil_inertia=2"]) == 2
     err = capsys.readouterr().err
     assert "--accepted: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
-    for flag, value, said in (("--workers", "-1", "argument --workers: '-1' must be an integer >= 1"),
-                              ("--workers", "0", "argument --workers: '0' must be an integer >= 1"),
+    most = cli_numbers.local_limit()  # more processes than 8 per core only wait (and forked without bound)
+    for flag, value, said in (("--workers", "-1", f"argument --workers: '-1' must be an integer in [1, {most}]"),
+                              ("--workers", "0", f"argument --workers: '0' must be an integer in [1, {most}]"),
+                              ("--workers", str(most + 1), f"argument --workers: '{most + 1}' must be an integer in [1, {most}]"),
                               ("--seed", "-1", "argument --seed: '-1' must be an integer in [0, 2**32 - 1]")):
         with pytest.raises(SystemExit) as exit_:
             cli_main([missing, "--out", str(tmp_path / "o"), flag, value])

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from soil_msgs_py import cli_numbers
+from soil_sim_node import batch
 from soil_sim_node.batch import DatasetPlan, generate, parse_args, plan_from_args
 from soil_sim_node.effects import effects_for_mode
 from soil_sim_node.simulator import ENGINES, EpisodeSpec
@@ -25,3 +27,17 @@ def test_batch_unknown_engine_is_refused_before_anything_is_written(tmp_path):
     with pytest.raises(ValueError, match="engine='turbo'"):
         generate(DatasetPlan("fee", out, [spec], effects_for_mode("fee"), engine="turbo"), workers=1, progress=False)
     assert not out.exists()
+
+
+def test_more_workers_than_the_machine_can_use_are_refused_before_any_process_starts(tmp_path, capsys):
+    """--workers 100000 for one episode forked 100000 processes (the pool was not capped by the
+    work) until the machine stopped; now refused, naming the option, and a pool never has more
+    processes than chunks of work (16 workers for one episode: one process's work, done)."""
+    most = cli_numbers.local_limit()
+    args = ["--mode", "fee", "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2",
+            "--seeds", "1", "--duration", "0.5", "--quiet"]
+    assert batch.main([*args, "--workers", str(most + 1), "--out", str(tmp_path / "many")]) == 2
+    assert f"--workers={most + 1} is more than this machine can use: at most {most}" in capsys.readouterr().err
+    assert not (tmp_path / "many").exists()
+    assert batch.main([*args, "--workers", str(most), "--out", str(tmp_path / "one")]) == 0
+    assert len(list((tmp_path / "one").glob("*/metadata.yaml"))) == 1

@@ -73,6 +73,7 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name}={v!r} must be a positive integer")
+        cli_numbers.check_local_count("threads", self.threads)
         if not (isinstance(self.consistency, (int, float)) and np.isfinite(self.consistency) and self.consistency >= 0):
             raise ValueError(f"consistency={self.consistency!r} must be a number >= 0")
         if self.lr_schedule not in LR_SCHEDULES:

@@ -8,10 +8,28 @@ refuses it at once, naming the option and the value (exit 2), like ``cli_paths``
 from __future__ import annotations
 
 import argparse
+import os
 
 # numpy's legacy seeding (np.random.seed, which the PINN's training calls) takes [0, 2**32 - 1]
 # (a simulated episode's seed is wider: episode.MAX_SEED)
 MAX_NUMPY_SEED = 2**32 - 1
+# The most processes (or threads) a tool starts on this machine, per core: a CPU-bound worker
+# beyond the cores only waits, and a count far beyond them (``--workers 100000``) forks until the
+# machine stops, or makes torch's thread pool fail to map its memory (a segfault).
+PER_CORE = 8
+
+
+def local_limit() -> int:
+    """The most processes or threads of one tool on this machine: ``PER_CORE`` per core."""
+    return PER_CORE * (os.cpu_count() or 1)
+
+
+def check_local_count(name: str, value: int) -> int:
+    """``value`` if it is at most ``local_limit()``; else ValueError naming ``name`` and the value."""
+    if value > local_limit():
+        raise ValueError(f"{name}={value} is more than this machine can use: at most {local_limit()} "
+                         f"({PER_CORE} per core, {os.cpu_count() or 1} cores)")
+    return value
 
 
 def _integer(text: str) -> int:
@@ -22,10 +40,11 @@ def _integer(text: str) -> int:
 
 
 def workers(text: str) -> int:
-    """``--workers`` of a tool that starts that many processes: an integer >= 1."""
+    """``--workers`` of a tool that starts that many processes here: an integer in [1, local_limit()]."""
     value = _integer(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1 (processes)")
+    if not 1 <= value <= local_limit():
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [1, {local_limit()}] (processes: "
+                                         f"{PER_CORE} per core of this machine at the most)")
     return value
 
 

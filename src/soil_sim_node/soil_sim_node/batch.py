@@ -31,14 +31,14 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import write_episode
-from soil_msgs_py import strict_json
+from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.patches import check_patches
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
 from .effects import Effects, effects_for_mode
-from .ray_cluster import add_ray_option, cluster_cpus, ray_session, run_tasks
+from .ray_cluster import LOCAL as LOCAL_RAY, add_ray_option, cluster_cpus, ray_session, run_tasks
 from .rollout import episode_meta, run_episodes
 from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
@@ -168,7 +168,7 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
             results += done
             bar.update(len(done))
     else:
-        with mp.get_context("fork").Pool(workers) as pool:
+        with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
@@ -293,6 +293,8 @@ def main(argv=None) -> int:
         plan = plan_from_args(args)
         if args.workers < 0:
             raise ValueError(f"--workers={args.workers} must be >= 0 (0: all cores)")
+        if not args.ray or args.ray == LOCAL_RAY:  # processes of this machine (a cluster's --workers are its CPUs)
+            cli_numbers.check_local_count("--workers", args.workers)
         summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
