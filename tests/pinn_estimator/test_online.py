@@ -318,6 +318,10 @@ def test_assembler_rejects_bad_reorder_horizon():
 
 # ---------------------------------------------------------------------------------------- checkpoints
 
+class _Pickled:
+    """A Python object in a checkpoint (torch.save pickles it)."""
+
+
 def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(DEFAULT_CHECKPOINT.read_bytes()[:5000])
@@ -327,7 +331,10 @@ def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
     baseline = save_checkpoint(tmp_path / "free.pt", free, train_config={}, dataset={}, split={}, metrics={}, history={})
     short_window = save_checkpoint(tmp_path / "w30.pt", EstimatorNet(ModelConfig(window=30), torch.zeros(9), torch.ones(9)),
                                    train_config={}, dataset={}, split={}, metrics={}, history={})
+    pickled = tmp_path / "pickled.pt"  # an object torch would only load by unpickling it (running the file's code)
+    torch.save({"model": _Pickled()}, pickled)
     for path, needle in ((corrupt, "not a readable torch checkpoint"), (foreign, "not an insitu-soil estimator"),
+                         (pickled, "holds Python objects beyond tensors and plain containers, which are never unpickled"),
                          (baseline, "kind='physics_free'"), (short_window, "window=30 samples"), (tmp_path / "missing.pt", "does not exist")):
         with pytest.raises(ValueError, match=needle) as err:
             load_estimator_model(str(path))

@@ -65,6 +65,24 @@ def test_windows_never_cross_episodes_and_split_is_by_episode(tiny_ds):
     assert split == split_episodes(tiny_ds, seed=3)
 
 
+def test_a_grid_of_one_episode_per_cell_still_gets_validation_and_test_episodes():
+    """12 episodes, one per soil and density: every cell kept its one for training, so training
+    stopped at "the validation split is empty (use more episodes ...)". Now the splits it asks
+    for are drawn across cells (round(0.15 · 12) = 2 each), deterministic in the seed."""
+    from types import SimpleNamespace
+
+    cells = [(soil, i_d) for soil in ("Clay", "Loam", "Sand", "Gravel") for i_d in (20.0, 50.0, 80.0)]
+    ds = SimpleNamespace(names=[f"ep_{s}_{i:g}" for s, i in cells], root="grid",
+                         metas=[SimpleNamespace(world_mode="default", soil=s, relative_density_pct=i) for s, i in cells])
+    split = split_episodes(ds, seed=3)
+    assert [len(split[s]) for s in ("train", "val", "test")] == [8, 2, 2]
+    assert sorted(split["train"] + split["val"] + split["test"]) == sorted(ds.names)
+    assert split == split_episodes(ds, seed=3) and split != split_episodes(ds, seed=4)
+    two = SimpleNamespace(names=ds.names[:2], root="grid", metas=ds.metas[:2])  # one to train on is kept
+    assert [len(split_episodes(two, seed=0)[s]) for s in ("train", "val", "test")] == [1, 1, 0]
+    assert split_episodes(ds, seed=3, val_fraction=0.0)["val"] == []  # none asked for, none drawn
+
+
 def test_cache_is_used_and_keyed_by_content(tiny_bags, tmp_path):
     cache = tmp_path / "cache"
     a = load_dataset(tiny_bags, cache_dir=cache)
@@ -307,9 +325,9 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
     train = ["--data", str(tmp_path), "--out", str(tmp_path / "x.pt"), "--quiet"]
     for main, args, said in ((train_main, [*train, "--seed", "-1"], "argument --seed: '-1' must be an integer in [0, 2**32 - 1]"),
                              (train_main, [*train, "--seed", str(2**32)], "argument --seed:"),
-                             (train_main, [*train, "--workers", "-1"], "argument --workers: '-1' must be an integer >= 1"),
+                             (train_main, [*train, "--workers", "-1"], "argument --workers: '-1' must be an integer in [1, "),
                              (eval_main, ["--checkpoint", str(tmp_path / "x.pt"), "--workers", "-1"],
-                              "argument --workers: '-1' must be an integer >= 1")):
+                              "argument --workers: '-1' must be an integer in [1, ")):
         with pytest.raises(SystemExit) as exit_:
             main(args)
         err = capsys.readouterr().err
@@ -400,6 +418,8 @@ def test_bad_training_options_are_named(tiny_ds):
         TrainConfig(lr_schedule="step")
     with pytest.raises(ValueError, match=r"seed=4294967296 must be an integer in \[0, 2\*\*32 - 1\]"):
         TrainConfig(seed=2**32)  # numpy said it late, in its own words
+    with pytest.raises(ValueError, match="threads=100000 is more than this machine can use"):
+        TrainConfig(threads=100000)  # torch's thread pool failed to map its memory: a segfault
     with pytest.raises(ValueError, match="d_model=30 must be divisible by n_heads=4"):
         ModelConfig(d_model=30)
     with pytest.raises(ValueError, match="kind='bert'"):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from soil_bringup import cut_report, launch
+from soil_bringup import cut_report, demo, launch
 
 
 def test_a_tool_refuses_a_file_as_its_output_directory_before_it_runs(tmp_path, capsys):
@@ -20,3 +20,17 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
         launch.parse_args(["--controller-params-file", str(tmp_path / "nosuch.yaml")])
     assert exit_.value.code == 2
     assert f"--controller-params-file {tmp_path / 'nosuch.yaml'}: no such file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["4000", "nan", "0"])
+def test_the_demo_refuses_a_duration_the_simulator_would_refuse_before_the_graph_starts(value, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        demo.parse_args(["--duration", value])
+    assert exit_.value.code == 2
+    assert f"--duration {float(value)} must be in (0, 3600] s" in capsys.readouterr().err
+
+
+def test_the_cut_report_says_no_stall_in_words_not_as_an_infinite_ratio():
+    assert cut_report._less_stall(14.28, 0.3) == "47.6× less"
+    assert cut_report._less_stall(14.28, 0.0) == "none, against 14.28 s"
+    assert cut_report._less_stall(0.0, 0.0, "x") == "none, and none either"

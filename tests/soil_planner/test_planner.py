@@ -846,3 +846,16 @@ def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the
         finally:
             node.stop()
     assert node.proc.returncode in (0, -2), node.output
+
+
+def test_a_bad_schedule_is_refused_in_the_nodes_parameter_names():
+    """The node's min_target_m / max_target_m set the schedule's min_depth_m / max_depth_m: a refusal
+    named the latter, which the user never typed."""
+    from soil_planner.node import SCHEDULE_PARAMETERS, schedule_settings
+    from soil_planner.depth_schedule import ScheduleSettings
+
+    good = {p: getattr(ScheduleSettings(), f) for p, f in SCHEDULE_PARAMETERS.items()}
+    assert schedule_settings(good) == ScheduleSettings()
+    with pytest.raises(ValueError) as err:
+        schedule_settings({**good, "min_target_m": 0.3, "max_target_m": 0.1})
+    assert "min_target_m=0.3 and max_target_m=0.1 must satisfy" in str(err.value) and "depth_m" not in str(err.value)

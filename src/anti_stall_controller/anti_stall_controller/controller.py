@@ -82,7 +82,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ
+from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ
 
 __all__ = ["AntiStallGains", "ControlCommand", "AntiStallController", "limit_shares"]
 
@@ -196,17 +196,19 @@ def _as_batch(name: str, value, batch_size: Optional[int]) -> np.ndarray:
 
 
 def _check_targets(speed: np.ndarray, depth: np.ndarray) -> None:
-    bad = ~np.isfinite(speed) | (speed <= 0.0)
+    """The machine's reach (``params.MAX_TARGET_*``, the simulator's limits too)."""
+    bad = ~np.isfinite(speed) | (speed <= 0.0) | (speed > MAX_TARGET_SPEED_M_S)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(
-            f"target_speed_m_s must be finite and in (0, inf) m/s; got {float(speed[i])!r} at index {i}"
+            f"target_speed_m_s must be finite and in (0, {MAX_TARGET_SPEED_M_S:g}] m/s; got {float(speed[i])!r} at index {i}"
         )
-    bad = ~np.isfinite(depth) | (depth < 0.0)
+    bad = ~np.isfinite(depth) | (depth < 0.0) | (depth > MAX_TARGET_DEPTH_M)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(
-            f"target_depth_m must be finite and in [0, inf) m; got {float(depth[i])!r} at index {i}"
+            f"target_depth_m must be finite and in [0, {MAX_TARGET_DEPTH_M:g}] m (the blade's height); "
+            f"got {float(depth[i])!r} at index {i}"
         )
 
 

@@ -68,6 +68,10 @@ def read_checkpoint(path) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - torch raises many types for a foreign/corrupt file
+        if "unsupported global" in str(err).lower():  # a pickled object: not torch's advice to unpickle it anyway (runs its code)
+            raise ValueError(f"checkpoint {path} holds Python objects beyond tensors and plain containers, which are "
+                             "never unpickled here (unpickling runs code from the file): not a file pinn_train "
+                             "writes") from None
         raise ValueError(f"checkpoint {path} is not a readable torch checkpoint (a file pinn_train writes; damaged or "
                          f"another format?): {type(err).__name__}: {str(err)[:200]}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:

@@ -327,7 +327,10 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
 
     Every window of an episode lands in one split, so the test score measures episodes the
     model has never seen. Stratifying keeps every soil and density in every split when the
-    grid has at least three episodes per cell.
+    grid has at least three episodes per cell. A grid of one or two episodes per cell (each
+    cell keeps them for training) still gets a split it asks for and would otherwise lack:
+    ``round(fraction · episodes)`` (at least one) drawn from the training episodes, across cells,
+    validation first (training stops early on it), while one is left to train on.
     """
     for name, f in (("val_fraction", val_fraction), ("test_fraction", test_fraction)):
         if not 0.0 <= f < 1.0:
@@ -352,6 +355,12 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
         out["test"] += members[:n_test]
         out["val"] += members[n_test : n_test + n_val]
         out["train"] += members[n_test + n_val :]
+    for split, fraction in (("val", val_fraction), ("test", test_fraction)):  # validation first: training needs it
+        if fraction > 0 and not out[split] and len(out["train"]) > 1:
+            n = min(max(1, int(round(fraction * len(ds.names)))), len(out["train"]) - 1)
+            moved = sorted(rng.choice(sorted(out["train"]), size=n, replace=False).tolist())
+            out[split] = moved
+            out["train"] = [name for name in out["train"] if name not in set(moved)]
     for s in SPLITS:
         out[s].sort()
     if not out["train"]:

@@ -103,7 +103,7 @@ def load_bag(
         found = {c.topic: c.msgtype for c in conns}
         held = frozenset(c.topic for c in reader.connections)
         messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
-    if include is not None and (missing := sorted(include - found.keys())):
+    if include is not None and (missing := sorted(include - held)):  # absent from the bag (not merely excluded)
         log(f"{bag}: no topic(s) {missing}")
     return LoadedBag(path=bag, topics=found, messages=messages, meta=meta, held=held)
 

@@ -34,6 +34,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from soil_msgs_py.cli_paths import output_dir
+
 from .bag_io import PARTIAL_SUFFIX, is_bag
 from .bag_salvage import salvage_bag
 from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, journal_to_bag
@@ -84,7 +86,7 @@ def main(args: list[str] | None = None) -> int:
                    help="*.partial directory, its journal .mcap, a finished bag, or a directory to search")
     p.add_argument("--keep-partial-ticks", action="store_true",
                    help="keep ticks that lack some topics (the bag may then not read as an episode)")
-    p.add_argument("--out", type=Path, metavar="NEW_BAG",
+    p.add_argument("--out", type=output_dir, metavar="NEW_BAG",
                    help="where the repaired copy of a finished bag goes (default: <bag>_repaired beside it)")
     opts = p.parse_args(sys.argv[1:] if args is None else args)
     bags = [path for path in opts.paths if is_bag(path) and not path.name.endswith(PARTIAL_SUFFIX)]

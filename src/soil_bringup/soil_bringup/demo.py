@@ -40,7 +40,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag
 from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
 
 from . import launch as L
@@ -62,7 +62,7 @@ LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died", L.EXIT_TIMEOUT: "timeout",
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m soil_bringup.demo", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="soil_demo", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--soils", nargs="+", default=list(DEFAULT_SOILS), metavar="SOIL",
                    help="soils in the order run (default: %(default)s)")
@@ -98,8 +98,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error("--soils: no soil given")
     if not all(0.0 <= d <= 100.0 for d in args.densities):
         p.error(f"--densities {args.densities}: each must be in [0, 100] %")
-    if not (args.duration > 0 and math.isfinite(args.duration)):
-        p.error(f"--duration {args.duration} must be > 0 s")
+    if not (0 < args.duration <= MAX_EPISODE_S):  # the simulator's own limit, checked before the graph starts
+        p.error(f"--duration {args.duration} must be in (0, {MAX_EPISODE_S:g}] s")
     if args.duration * SAMPLE_RATE_HZ < WINDOW_SAMPLES + 1:
         p.error(f"--duration {args.duration} s is shorter than one estimator window "
                 f"({WINDOW_SAMPLES} samples = {WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s): no estimate could be made")

@@ -115,6 +115,10 @@ class Machine:
 
 
 MACHINE = Machine()
+# The targets an episode may set (simulator, controller): the chassis velocity command's reach
+# [m/s] (the simulator clips u_x to it) and a cut no deeper than the blade is high [m].
+MAX_TARGET_SPEED_M_S = 2.0
+MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
 # The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil

@@ -62,6 +62,8 @@ from soil_msgs_py.params import (
     GROUND_TRUTH_PARAMS,
     KNOWN_PARAMS,
     MACHINE,
+    MAX_TARGET_DEPTH_M,
+    MAX_TARGET_SPEED_M_S,
     SAMPLE_RATE_HZ,
     SOIL_TOOL_FRICTION_DEFAULT_RAD,
     SOIL_TOOL_FRICTION_FEE_RAD,
@@ -84,8 +86,6 @@ from .effects import (
     load_plugins,
 )
 
-MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
-MAX_TARGET_SPEED_M_S = 2.0
 ENGINES = ("compiled", "reference")
 
 
