@@ -30,8 +30,8 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments, publisher_qos, raise_interrupt, rcl_error_text,
-                                      wait_for_acks)
+from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments_or_refusal, publisher_qos, raise_interrupt,
+                                      rcl_error_text, wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -198,10 +198,8 @@ class Player:
 
 def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
-    try:
-        own = own_arguments(argv)
-    except RuntimeError as err:  # rcl cannot parse the ROS arguments
-        print(f"soil_bag_play: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+    own = own_arguments_or_refusal(argv)
+    if own is None:
         return 2
     opts = parse_args(own)
     try:

@@ -28,7 +28,7 @@ from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.graph import CONTROL_QOS, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
-from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_arguments, qos_profile, rcl_error_text, spin_node
+from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_arguments_or_refusal, qos_profile, spin_node
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
@@ -148,10 +148,8 @@ class RecordNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
-    try:
-        own = own_arguments(argv)
-    except RuntimeError as err:  # rcl cannot parse the ROS arguments
-        print(f"soil_bag_record: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+    own = own_arguments_or_refusal(argv)
+    if own is None:
         return 2
     opts = parse_args(own)
     return spin_node(lambda: RecordNode(opts), argv)

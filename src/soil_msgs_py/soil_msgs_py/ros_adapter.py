@@ -253,6 +253,16 @@ def own_arguments(argv: list[str]) -> list[str]:
     return list(remove_ros_args(argv)[1:])
 
 
+def own_arguments_or_refusal(argv: list[str]) -> list[str] | None:
+    """``own_arguments(argv)``, or None after printing rcl's refusal of the ROS arguments in one
+    line (the caller exits 2), for a tool that parses its own arguments beside the ROS ones."""
+    try:
+        return own_arguments(argv)
+    except RuntimeError as err:
+        print(f"{Path(argv[0]).name if argv else 'node'}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        return None
+
+
 def params_files(argv: list[str]) -> list[str]:
     """The ``--params-file`` paths among ``argv``'s ROS arguments (between ``--ros-args`` and ``--``)."""
     files, in_ros, it = [], False, iter(argv)
