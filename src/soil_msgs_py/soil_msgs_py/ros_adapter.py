@@ -253,13 +253,22 @@ def own_arguments(argv: list[str]) -> list[str]:
     return list(remove_ros_args(argv)[1:])
 
 
+def _program(argv: list[str]) -> str:
+    return Path(argv[0]).name if argv else "node"
+
+
+def _print_refusal(argv: list[str], err: Exception) -> None:
+    """rcl's refusal of the ROS arguments (its RCLError / RCLInvalidROSArgsError) in one line."""
+    print(f"{_program(argv)}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+
+
 def own_arguments_or_refusal(argv: list[str]) -> list[str] | None:
     """``own_arguments(argv)``, or None after printing rcl's refusal of the ROS arguments in one
     line (the caller exits 2), for a tool that parses its own arguments beside the ROS ones."""
     try:
         return own_arguments(argv)
     except RuntimeError as err:
-        print(f"{Path(argv[0]).name if argv else 'node'}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        _print_refusal(argv, err)
         return None
 
 
@@ -320,20 +329,21 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
     (default 0).
     """
     argv = list(sys.argv if args is None else args)
-    prog = Path(argv[0]).name if argv else "node"
+    own = own_arguments_or_refusal(argv)
+    if own is None:
+        return EXIT_BAD_CONFIG
+    if parameters is not None and any(a in HELP_FLAGS for a in own):
+        print(usage(_program(argv), parameters, summary))
+        return 0
+    if parameters is not None and own:
+        print(f"{_program(argv)}: error: unrecognised argument(s) {' '.join(own)}: a node takes its settings as "
+              "--ros-args -p NAME:=VALUE or --ros-args --params-file FILE (--help lists them)", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    stop: list[int] = []
     try:
-        own = own_arguments(argv)
-        if parameters is not None and any(a in HELP_FLAGS for a in own):
-            print(usage(prog, parameters, summary))
-            return 0
-        if parameters is not None and own:
-            print(f"{prog}: error: unrecognised argument(s) {' '.join(own)}: a node takes its settings as "
-                  "--ros-args -p NAME:=VALUE or --ros-args --params-file FILE (--help lists them)", file=sys.stderr)
-            return EXIT_BAD_CONFIG
-        stop: list[int] = []
         init_rclpy(argv, lambda signum, frame: stop.append(signum))
-    except RuntimeError as err:  # rcl's RCLError / RCLInvalidROSArgsError: the ROS arguments do not parse
-        print(f"{prog}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+    except RuntimeError as err:  # a --params-file rcl cannot read or parse
+        _print_refusal(argv, err)
         return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
