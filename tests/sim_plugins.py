@@ -348,3 +348,60 @@ def speed_depth_drag(state, k: float = 1.0):
     """Hidden effect linear in speed: F_x = k γ w d² (v_x / 1 m/s) [N] (a viscous drag on the wedge)."""
     d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
     return float(k) * state.gamma * state.w * d**2 * np.maximum(np.asarray(state.v_x, dtype=float), 0.0), np.zeros_like(d)
+
+
+# Eight more hidden effects no earlier run had tried (2026-12-02; docs/finding_missing_physics.md's table)
+def fast_gate_drag(state, k: float = 2.0, v_min: float = 0.6):
+    """Hidden effect with a hard speed gate: F_x = k γ w d² only while v_x > v_min [m/s]."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**2 * (np.asarray(state.v_x, dtype=float) > float(v_min)), np.zeros_like(d)
+
+
+def fee_time_drag(state, k: float = 0.3, tau0_s: float = 5.0):
+    """Hidden effect growing with time in soil on the FEE's own scale: F_x = k F_FEE,x (1 − exp(−τ / τ0))
+    (τ0 between the library's 3 and 10 s)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    tau = np.asarray(state.time_in_soil, dtype=float)
+    return float(k) * np.asarray(state.f_fee_x, dtype=float) * (1.0 - np.exp(-tau / float(tau0_s))) * (d > 0), np.zeros_like(d)
+
+
+def sqrt_speed_drag(state, k: float = 1.5, p_pa: float = 10e3):
+    """Hidden effect with a power law in speed the library lacks: F_x = k w d p · sqrt(v_x / 1 m/s)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.w * d * float(p_pa) * np.sqrt(np.maximum(np.asarray(state.v_x, dtype=float), 0.0)), np.zeros_like(d)
+
+
+def speed_tilt(state, k: float = 0.3):
+    """Hidden effect tilting the resultant down more the faster the cut: F_z = −k F_FEE,x (v_x / 1 m/s)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return np.zeros_like(d), -float(k) * np.asarray(state.f_fee_x, dtype=float) * v * (d > 0)
+
+
+def capped_travel_drag(state, k: float = 1.5, p_pa: float = 10e3, s_cap_m: float = 3.0):
+    """Hidden effect growing linearly with travel and capped: F_x = k w d p · min(s / s_cap, 1)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    s = np.asarray(state.distance_in_soil, dtype=float)
+    return float(k) * state.w * d * float(p_pa) * np.minimum(s / float(s_cap_m), 1.0) * (d > 0), np.zeros_like(d)
+
+
+def phi_drag(state, k: float = 3.0):
+    """Hidden effect on the soil's own friction angle: F_x = k γ w d² sin φ."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    return float(k) * state.gamma * state.w * d**2 * np.sin(np.asarray(state.phi, dtype=float)), np.zeros_like(d)
+
+
+def cohesive_suction(state, k: float = 1.0, v0: float = 1.0):
+    """Hidden effect in z in proportion to cohesion, growing with speed: F_z = +k c w d tanh(v_x / v0)
+    (on the soil, z up: the soil holding the blade down)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    v = np.maximum(np.asarray(state.v_x, dtype=float), 0.0)
+    return np.zeros_like(d), float(k) * state.c * state.w * d * np.tanh(v / float(v0))
+
+
+def log_time_drag(state, k: float = 1.5, p_pa: float = 10e3, t0_s: float = 1.0):
+    """Hidden effect growing with the logarithm of time in soil, without saturating (creep-like):
+    F_x = k w d p · ln(1 + τ / t0) / ln 11."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    tau = np.asarray(state.time_in_soil, dtype=float)
+    return float(k) * state.w * d * float(p_pa) * np.log1p(tau / float(t0_s)) / np.log(11.0) * (d > 0), np.zeros_like(d)

@@ -140,11 +140,44 @@ def test_report_files(reports, bag_dirs):
     assert saved["verdict"] == "explained" and saved["model"]["terms"][0][0] == "soil_inertia"
     md = (out / "discrepancy.md").read_text()
     assert "soil_physics.force_terms:plugin term=soil_inertia" in md and "Held-out test episodes" in md
+    # the soil per group with the named term, beside the baseline's (a term and θ can trade off)
+    assert [t["group"] for t in saved["model"]["theta"]] == [t["group"] for t in saved["baseline"]["theta"]]
+    assert set(saved["model"]["theta_shift"]) == {"phi_deg", "c_pa", "delta_deg"}
+    assert "| with the named terms: φ [°] / c [Pa] / δ [°] |" in md and "With the named terms the fitted soil moves by" in md
     # what it was computed from: the bags' content fingerprint and the software that ran it
     fingerprint = saved["data"]["fingerprint"]
     assert fingerprint == fingerprint_bags(find_episode_bags(bag_dirs["soil_inertia"]), bag_dirs["soil_inertia"])
     assert f"content fingerprint `{fingerprint[:16]}`" in md
     assert saved["environment"]["numpy"] == np.__version__ and f"numpy {np.__version__}" in md
+
+
+def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
+    """Beside a term that trades off with θ (a relief fading with speed fitted with φ 29° higher;
+    a rate law whose offset became a cohesion of 1.4 kPa in sand) the force fits with another soil:
+    the verdict says so, with the parameter, the move and the group, where a move is larger than a
+    soil test's interval would allow; smaller moves, and no named terms, say nothing."""
+    from soil_discrepancy.workflow import _theta_shift_text, theta_shift
+
+    before = [{"group": "Clay I_d=0%", "phi_deg": 16.5, "c_pa": 5000.0, "delta_deg": 14.9},
+              {"group": "Sand I_d=40%", "phi_deg": 35.0, "c_pa": 20.0, "delta_deg": 14.9}]
+    after = [{"group": "Clay I_d=0%", "phi_deg": 45.5, "c_pa": 4000.0, "delta_deg": 15.0},
+             {"group": "Sand I_d=40%", "phi_deg": 36.0, "c_pa": 1420.0, "delta_deg": 14.9}]
+    shift = theta_shift(before, after)
+    assert shift["phi_deg"]["largest"] == pytest.approx(29.0) and shift["phi_deg"]["group"] == "Clay I_d=0%"
+    assert shift["c_pa"]["largest"] == pytest.approx(1400.0) and shift["c_pa"]["group"] == "Sand I_d=40%"
+    text = _theta_shift_text(shift)
+    assert "φ +29.0° in Clay I_d=0%" in text and "c +1.40 kPa in Sand I_d=40%" in text and "δ" not in text, text
+    assert "--soil-tests" in text and "fit box" not in text
+    # where θ leaves its fit box with the terms (the baseline's θ took the effect in: soil inertia's dense
+    # loam at φ 5°), or reaches it (the terms take part of the soil), the group says so
+    reg = lambda *groups: {"misfit": {"rows": [{"kind": "group", "name": g, "theta_at_bound": ["φ at its lower bound"]}
+                                               for g in groups]}}
+    tagged = _theta_shift_text(shift, reg("Clay I_d=0%"), reg("Sand I_d=40%"))
+    assert "φ +29.0° in Clay I_d=0%, off its fit box with them" in tagged, tagged
+    assert "c +1.40 kPa in Sand I_d=40%, onto its fit box with them" in tagged, tagged
+    small = theta_shift(before, [{**r, "phi_deg": r["phi_deg"] + 2.0, "c_pa": r["c_pa"] + 500.0} for r in before])
+    assert _theta_shift_text(small) == "" and theta_shift(before, None) is None and _theta_shift_text(None) == ""
+
 
 
 def test_control_gives_no_effect_through_the_cli(bag_dirs, tmp_path, capsys):

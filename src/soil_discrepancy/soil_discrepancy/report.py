@@ -198,16 +198,30 @@ def markdown(report: dict, figures=()) -> str:
     if report.get("regimes_after"):
         lines += _regime_md(report["regimes_after"], "Remaining structure with the accepted terms (all episodes)", labels)
     tests = d.get("soil_tests") or {}
-    lines += ["## Baseline θ per group", "", "| group | φ [°] | c [Pa] | δ [°] | fit ok |" + (" soil test: φ [°] / c [Pa] / δ [°] |" if tests else ""),
-              "|---|---|---|---|---|" + ("---|" if tests else "")]
+    after = {t["group"]: t for t in (report["model"].get("theta") or [])}  # θ with the named terms
+    lines += ["## Baseline θ per group" + (" and θ per group with the named terms" if after else ""), "",
+              "| group | φ [°] | c [Pa] | δ [°] | fit ok |" + (" with the named terms: φ [°] / c [Pa] / δ [°] |" if after else "")
+              + (" soil test: φ [°] / c [Pa] / δ [°] |" if tests else ""),
+              "|---|---|---|---|---|" + ("---|" if after else "") + ("---|" if tests else "")]
     for t in report["baseline"]["theta"]:
         box = tests.get(t["group"])
         test_cell = ""
         if tests:
             test_cell = " " + (" / ".join("free" if b is None else f"{b[0]:.{1 if j != 1 else 0}f}–{b[1]:.{1 if j != 1 else 0}f}"
                                           for j, b in enumerate(box)) if box else "none") + " |"
+        a = after.get(t["group"])
+        after_cell = (f" {a['phi_deg']:.1f} / {a['c_pa']:.0f} / {a['delta_deg']:.1f} |" if a else " – |") if after else ""
         lines.append(f"| {t['group']} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |"
-                     + test_cell)
+                     + after_cell + test_cell)
+    shift = report["model"].get("theta_shift")
+    if shift:
+        lines += ["", "With the named terms the fitted soil moves by (largest, its group; mean over the groups): "
+                  + "; ".join(f"{name} {v['largest'] * scale:+.{nd}f}{unit} ({v['group']}; {v['mean_abs'] * scale:.{nd}f}{unit})"
+                              for key, (name, unit, scale, nd) in (("phi_deg", ("φ", "°", 1.0, 1)), ("c_pa", ("c", " kPa", 1e-3, 2)),
+                                                                   ("delta_deg", ("δ", "°", 1.0, 1)))
+                              if (v := shift.get(key)))
+                  + ". A term and θ that trade off fit the force with another soil: beside a named form that is not "
+                  "pinned down the verdict says so where a move is larger than a soil test's interval would allow."]
     lines += ["", "## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]

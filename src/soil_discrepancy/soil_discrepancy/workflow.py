@@ -289,9 +289,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
         _mark_confirmed(form_report, [s for s in kept if s.name.startswith(FORM_PREFIX)])
     # 4. the augmented model on every episode
-    reg1, r1, pins = None, None, {}
+    reg1, r1, pins, theta1 = None, None, {}, None
     if new_terms:
         fit1 = fit_fixed(frame, final, base.merged(sel["fit"]))
+        theta1 = fit1.table(frame)
         r1, _ = residuals(frame, final, fit1)
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
         reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=fit1.table(frame))
@@ -320,7 +321,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 else:
                     pb, pa = got
                     test["predictors"][str(label)] = compare_predictions(ftest, pb, pa, label=str(label), edges=edges)
-    verdict, summary = _verdict(new_terms, reg0, test, reg1, form_report, tentative, pins)
+    shift = theta_shift(base.table(frame), theta1)
+    verdict, summary = _verdict(new_terms, reg0, test, reg1, form_report, tentative, pins, shift)
     say(summary)
     report = {
         "version": REPORT_VERSION,
@@ -344,7 +346,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                       "accepted": [_term_row(s, pin=pins.get(s.name)) for s in new_terms],
                       "not_confirmed": tentative},
         "model": {"terms": [list(t) for t in final.terms], "plugin_specs": final.plugin_specs(),
-                  "extra_term_args": final.extra_term_args()},
+                  "extra_term_args": final.extra_term_args(), "theta": theta1, "theta_shift": shift},
         "forms": form_report,
         "regimes_after": reg1,
         "test": test,
@@ -406,6 +408,62 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         # soil tests holding θ: group -> [[lo, hi] per φ [°], c [Pa], δ [°]] (None: that parameter free)
         "soil_tests": {frame.group_names[g]: displayed_box(lo, hi) for g, (lo, hi) in sorted((frame.theta_boxes or {}).items())},
     }
+
+
+# How far the named terms may move a group's soil before the report says so: about what a soil
+# test's interval allows (± 2 standard deviations of a shear test's φ and c, soil_tests.py's examples)
+THETA_SHIFT_NOTE = {"phi_deg": 3.0, "c_pa": 1e3, "delta_deg": 3.0}
+
+
+def theta_shift(before: list[dict], after: list[dict] | None) -> dict | None:
+    """Per soil parameter, the largest move of a group's fitted θ once the named terms are in the
+    model (``after``) against the baseline's (``before``), with the group; None without named terms.
+
+    Why: a term and θ can trade off (a relief fading with speed wants a stronger soil, a rate law's
+    offset becomes a cohesion in sand): the force then fits, but the soil estimates, which a planner
+    forecasts from, are another soil's; nothing else in the report shows it."""
+    if after is None:
+        return None
+    old = {r["group"]: r for r in before}
+    out = {}
+    for key in THETA_SHIFT_NOTE:
+        moves = [(r[key] - old[r["group"]][key], r["group"]) for r in after if r["group"] in old]
+        if moves:
+            delta, group = max(moves, key=lambda m: abs(m[0]))
+            out[key] = {"largest": float(delta), "group": group,
+                        "mean_abs": float(np.mean([abs(m[0]) for m in moves])), "note_above": THETA_SHIFT_NOTE[key]}
+    return out
+
+
+def _at_bound(reg: dict | None) -> set[str]:
+    """The θ-groups whose fitted soil sits on its fit box (``regimes.group_misfit``'s rows)."""
+    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
+    return {r["name"] for r in rows if r["kind"] == "group" and r["theta_at_bound"]}
+
+
+def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
+    """The verdict's words (beside a named form that is not pinned down) where the named terms move a group's θ more than ``THETA_SHIFT_NOTE``,
+    each group tagged where its θ leaves or reaches the fit box (``reg0`` / ``reg1``: the baseline's
+    and the augmented model's regimes with their misfit rows). Leaving it is the sign of an effect the
+    baseline's θ took in (soil inertia: dense loam's φ 5° on the box, 32° with the term, for 33.6°);
+    reaching it, of a term that takes part of the soil. Neither proves it: a soil test does."""
+    units = {"phi_deg": ("φ", "°", 1.0, ".1f"), "c_pa": ("c", " kPa", 1e-3, ".2f"), "delta_deg": ("δ", "°", 1.0, ".1f")}
+    before, after = _at_bound(reg0), _at_bound(reg1)
+
+    def tag(group: str) -> str:
+        if group in before and group not in after:
+            return ", off its fit box with them"
+        if group in after and group not in before:
+            return ", onto its fit box with them"
+        return ""
+
+    moved = [f"{units[k][0]} {v['largest'] * units[k][2]:+{units[k][3]}}{units[k][1]} in {v['group']}{tag(v['group'])}"
+             for k, v in (shift or {}).items() if abs(v["largest"]) > v["note_above"]]
+    if not moved:
+        return ""
+    return (f"; the soil fitted beside them is another ({'; '.join(moved)}; the table \"θ per group\"): a form "
+            "that is not pinned down and θ trade off, so that soil is the form's as much as the data's; a soil test "
+            "tells (--soil-tests)")
 
 
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
@@ -573,7 +631,8 @@ def _fc_text(test: dict) -> str:
 
 
 def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
-             forms: dict | None = None, tentative: dict | None = None, pins: dict | None = None) -> tuple[str, str]:
+             forms: dict | None = None, tentative: dict | None = None, pins: dict | None = None,
+             shift: dict | None = None) -> tuple[str, str]:
     """(verdict, summary). Only confirmed terms are named (``new_terms``); ``tentative``: the
     terms the held-out test did not confirm, mentioned as such; ``pins``: {name: ``rival_forms``},
     whose caveat a term its data do not pin down carries."""
@@ -630,7 +689,11 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             text += (f"; with the soil tests θ stays on a test's bound in {held1} groups ({held0} without the named "
                      "terms): they do not take what pushes θ there, and may be STAND-INS for an effect whose own "
                      "form the library does not hold")
-        return "explained", text + _misfit_text(reg1) + _left_text(reg1) + not_named
+        # a form not pinned down and θ can trade off: the soil fitted beside it is the form's as much as
+        # the data's (beside a pinned-down term the move is what the baseline's θ had taken in)
+        hedged = any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") for s in new_terms)
+        moved = _theta_shift_text(shift, reg0, reg1) if hedged else ""
+        return "explained", text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
