@@ -295,7 +295,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         theta1 = fit1.table(frame)
         r1, _ = residuals(frame, final, fit1)
         reg1 = regime_analysis(frame, r1, edges=edges, alpha=alpha, min_effect=min_effect)
-        reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=fit1.table(frame))
+        reg1["misfit"] = group_misfit(frame, r1, alpha=alpha, theta_table=theta1)
         # 5a'''. a named term is a claim about the mechanism only if these data pin its form down: every
         # other form of the library, in its place, fits what it takes significantly worse, on the
         # held-out test part (where the term was confirmed, and which chose nothing) and on the
@@ -442,10 +442,10 @@ def _at_bound(reg: dict | None) -> set[str]:
 
 
 def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
-    """The verdict's words (beside a named form that is not pinned down) where the named terms move a group's θ more than ``THETA_SHIFT_NOTE``,
-    each group tagged where its θ leaves or reaches the fit box (``reg0`` / ``reg1``: the baseline's
-    and the augmented model's regimes with their misfit rows). Leaving it is the sign of an effect the
-    baseline's θ took in (soil inertia: dense loam's φ 5° on the box, 32° with the term, for 33.6°);
+    """The verdict's words (beside a named form that is not pinned down) where the named terms move a
+    group's θ more than ``THETA_SHIFT_NOTE``, each group tagged where its θ leaves or reaches the fit
+    box (``reg0`` / ``reg1``: the baseline's and the augmented model's regimes with their misfit
+    rows). Leaving it is the sign of an effect the baseline's θ took in (soil inertia: dense loam's φ 5° on the box, 32° with the term, for 33.6°);
     reaching it, of a term that takes part of the soil. Neither proves it: a soil test does."""
     units = {"phi_deg": ("φ", "°", 1.0, ".1f"), "c_pa": ("c", " kPa", 1e-3, ".2f"), "delta_deg": ("δ", "°", 1.0, ".1f")}
     before, after = _at_bound(reg0), _at_bound(reg1)

@@ -168,7 +168,7 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
             results += done
             bar.update(len(done))
     else:
-        with mp.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+        with mp.get_context("fork").Pool(max(1, min(workers, len(jobs)))) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
