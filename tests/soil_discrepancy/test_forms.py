@@ -194,6 +194,30 @@ def test_a_pile_that_pushes_less_than_the_model_says_is_a_relief_not_surcharge_d
     assert "acts against that term's physics" in md and "surcharge_drag in another form" not in md
 
 
+def test_a_pinned_form_leaving_structure_in_its_own_variable_is_called_the_nearest_shape():
+    """A drag growing linearly with travel up to a cap was named 1 − exp(−s / 2 m), "pinned down" (the
+    library's best), k 1.8 for 1.5, with structure left vs distance: now the verdict says its shape
+    there is the nearest one's. Not where the structure is elsewhere, nor beside a form not pinned
+    down (its caveat says more), a catalogue term, or no structure at all."""
+    from soil_discrepancy.regimes import variable_labels
+    from soil_discrepancy.workflow import _shape_caveat
+    from soil_physics.term_forms import FACTORS, factor_variable
+
+    assert [factor_variable(f) for f in ("sat2", "enter0.5", "s", "tsat10", "tau", "d", "below0.15", "fadevx0.3",
+                                         "vx2", "tanhvz0.05", "sinkv", "1", "xlim")] == \
+        ["distance", "distance", "distance", "t", "t", "d", "d", "v_x", "v_x", "v_z", "v_z", None, None]
+    assert all(factor_variable(f) in (None, "d", "v_x", "v_z", "distance", "t") for f in FACTORS)
+    labels = variable_labels()
+    pinned, loose = {"pinned": True, "rivals": []}, None
+    after = {"significant": True, "flagged_variables": ["d", "distance"]}
+    text = _shape_caveat("form:wd_x*sat2", pinned, after, labels)
+    assert text.startswith("; pinned down among the library's forms, but structure remains vs distance cut in soil"), text
+    assert _shape_caveat("form:wd_x*tsat10", pinned, after, labels) == ""  # its variable is time: clean there
+    assert _shape_caveat("form:wd_x*sat2", pinned, {"significant": False, "flagged_variables": []}, labels) == ""
+    assert _shape_caveat("form:wd_x*sat2", loose, after, labels) == ""
+    assert _shape_caveat("soil_inertia", pinned, after, labels) == ""
+
+
 def test_form_names_parse_and_act_like_catalogue_terms():
     names = term_forms.form_names()
     assert 100 < len(names) <= 500 and len(set(names)) == len(names)

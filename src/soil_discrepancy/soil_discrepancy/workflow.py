@@ -466,6 +466,21 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
             "tells (--soil-tests)")
 
 
+def _shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -> str:
+    """The words a pinned-down form carries when structure remains in the variable its factor is a
+    function of (``term_forms.factor_variable``) once it is in the model: the best shape of the
+    library there, not the effect's (a drag growing linearly with travel up to a cap, named as
+    1 − exp(−s / 2 m) with k 1.8 for 1.5, left structure vs distance; every form the library holds
+    exactly, found on the hidden-effect grid, left none)."""
+    if not name.startswith(FORM_PREFIX) or pin_kind(pin) != "pinned" or not reg1 or not reg1.get("significant"):
+        return ""
+    var = term_forms.factor_variable(term_forms.parse(name)[2].name)
+    if var is None or var not in (reg1.get("flagged_variables") or []):
+        return ""
+    return (f"; pinned down among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
+            "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
+
+
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
     label = ("no soil label (episodes grouped by their measured γ)" if frame.group_by == "gamma"
              else "the metadata soil name/I_d (a grouping label only)")
@@ -659,7 +674,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
             unit = "" if unit == "1" else f" {unit}"
             label = s.name
-            caveat = pinned_caveat((pins or {}).get(s.name))
+            caveat = pinned_caveat((pins or {}).get(s.name)) or _shape_caveat(s.name, (pins or {}).get(s.name), reg1, labels)
             if s.name.startswith(FORM_PREFIX):
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
             parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated "

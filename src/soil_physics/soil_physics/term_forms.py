@@ -189,6 +189,25 @@ DISTANCE_FACTORS = frozenset(n for n in FACTORS if n == "s" or n.startswith(("en
 TIME_FACTORS = frozenset(n for n in FACTORS if n == "tau" or n.startswith(("tenter", "tsat")))  # look at time τ
 
 
+def factor_variable(factor: str) -> str | None:
+    """The measured variable a factor's shape is a function of, as the discrepancy workflow's regime
+    analysis names it ('d', 'v_x', 'v_z', 'distance', 't' for time), None for a constant or a gate on
+    the model's force. Structure left in that variable once the form is in the model says the
+    library's shape is near the effect's, not it."""
+    shape = factor_shape(factor)
+    if factor in DISTANCE_FACTORS:
+        return "distance"
+    if factor in TIME_FACTORS:
+        return "t"
+    if factor == "d" or shape == "below":
+        return "d"
+    if factor in ("vx", "vx2") or shape in ("tanhvx", "fadevx"):
+        return "v_x"
+    if factor in ("sink", "rise", "still", "sinkv", "risev", "vz") or shape == "tanhvz":
+        return "v_z"
+    return None
+
+
 def uses_distance(name: str) -> bool:
     """True if the form looks at the blade's travel in soil (a model must be given it)."""
     return parse(name)[2].name in DISTANCE_FACTORS
