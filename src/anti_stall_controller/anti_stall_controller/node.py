@@ -43,7 +43,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.ros_adapter import (
     JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
@@ -54,8 +54,9 @@ from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWai
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
-    "target_speed_m_s": (0.5, "desired forward speed v̄_x [m/s], in (0, 2]"),
-    "target_depth_m": (0.2, "target cut depth d̄_z below the original surface [m], in [0, 0.66] (the blade height)"),
+    "target_speed_m_s": (0.5, f"desired forward speed v̄_x [m/s], in (0, {MAX_TARGET_SPEED_M_S:g}]"),
+    "target_depth_m": (0.2, f"target cut depth d̄_z below the original surface [m], in [0, {MAX_TARGET_DEPTH_M:g}] "
+                            "(the blade height)"),
     "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
     "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
     "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
