@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from anti_stall_controller.node import GAIN_FIELDS, TARGET_FIELDS
+from soil_msgs_py.params import MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S
 
 FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None)
 # What a ROS 2 parameter can hold: int64, double, string, bool, arrays.
@@ -39,4 +40,4 @@ def test_targets_are_accepted_in_range_or_named(speed, depth):
     except ValueError as err:
         assert any(f in str(err) for f in TARGET_FIELDS), str(err)
         return
-    assert ctrl.target_speed_m_s[0] > 0 and ctrl.target_depth_m[0] >= 0
+    assert 0 < ctrl.target_speed_m_s[0] <= MAX_TARGET_SPEED_M_S and 0 <= ctrl.target_depth_m[0] <= MAX_TARGET_DEPTH_M
