@@ -30,8 +30,8 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments_or_refusal, publisher_qos, raise_interrupt,
-                                      rcl_error_text, wait_for_acks)
+from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
+                                      raise_interrupt, wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -212,7 +212,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         init_rclpy(argv, raise_interrupt)
     except RuntimeError as err:  # rcl cannot read a --params-file
-        print(f"soil_bag_play: cannot start: {rcl_error_text(err)}", file=sys.stderr)
+        print_refusal(argv, err)
         return 2
     node = Node("soil_bag_play")
     code = 0

@@ -21,6 +21,7 @@ from soil_physics import term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
+from .workflow import THETA_SHIFT_DISPLAY, theta_move_text
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -216,10 +217,9 @@ def markdown(report: dict, figures=()) -> str:
     shift = report["model"].get("theta_shift")
     if shift:
         lines += ["", "With the named terms the fitted soil moves by (largest, its group; mean over the groups): "
-                  + "; ".join(f"{name} {v['largest'] * scale:+.{nd}f}{unit} ({v['group']}; {v['mean_abs'] * scale:.{nd}f}{unit})"
-                              for key, (name, unit, scale, nd) in (("phi_deg", ("φ", "°", 1.0, 1)), ("c_pa", ("c", " kPa", 1e-3, 2)),
-                                                                   ("delta_deg", ("δ", "°", 1.0, 1)))
-                              if (v := shift.get(key)))
+                  + "; ".join(f"{THETA_SHIFT_DISPLAY[key][0]} {theta_move_text(key, v['largest'])} ({v['group']}; "
+                              f"{theta_move_text(key, v['mean_abs'], signed=False)})"
+                              for key in THETA_SHIFT_DISPLAY if (v := shift.get(key)))
                   + ". A term and θ that trade off fit the force with another soil: beside a named form that is not "
                   "pinned down the verdict says so where a move is larger than a soil test's interval would allow."]
     lines += ["", "## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]

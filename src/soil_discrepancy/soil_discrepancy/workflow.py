@@ -321,7 +321,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 else:
                     pb, pa = got
                     test["predictors"][str(label)] = compare_predictions(ftest, pb, pa, label=str(label), edges=edges)
-    shift = theta_shift(base.table(frame), theta1)
+    theta0 = base.table(frame)
+    shift = theta_shift(theta0, theta1)
     verdict, summary = _verdict(new_terms, reg0, test, reg1, form_report, tentative, pins, shift)
     say(summary)
     report = {
@@ -339,7 +340,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                  # sha256 of the bags' bytes ('' for data given in memory): same fingerprint, same data
                  "fingerprint": getattr(dataset, "fingerprint", "") or ""},
         "environment": environment(),
-        "baseline": {"model": [list(t) for t in initial.terms], "theta": base.table(frame),
+        "baseline": {"model": [list(t) for t in initial.terms], "theta": theta0,
                      "failed_groups": failed, "rms_n": reg0["rms_n"]},
         "regimes": reg0,
         "selection": {"rounds": sel["rounds"],
@@ -413,6 +414,14 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
 # How far the named terms may move a group's soil before the report says so: about what a soil
 # test's interval allows (± 2 standard deviations of a shear test's φ and c, soil_tests.py's examples)
 THETA_SHIFT_NOTE = {"phi_deg": 3.0, "c_pa": 1e3, "delta_deg": 3.0}
+# How the verdict and the report show a move of θ: key -> (symbol, unit, per unit of the θ table, decimals)
+THETA_SHIFT_DISPLAY = {"phi_deg": ("φ", "°", 1.0, 1), "c_pa": ("c", " kPa", 1e-3, 2), "delta_deg": ("δ", "°", 1.0, 1)}
+
+
+def theta_move_text(key: str, value: float, signed: bool = True) -> str:
+    """A move (or its size) of θ's ``key`` in its display unit: '+27.0°', '-5.28 kPa', '1.63 kPa'."""
+    _, unit, scale, decimals = THETA_SHIFT_DISPLAY[key]
+    return f"{value * scale:{'+' if signed else ''}.{decimals}f}{unit}"
 
 
 def theta_shift(before: list[dict], after: list[dict] | None) -> dict | None:
@@ -435,10 +444,15 @@ def theta_shift(before: list[dict], after: list[dict] | None) -> dict | None:
     return out
 
 
-def _at_bound(reg: dict | None) -> set[str]:
-    """The θ-groups whose fitted soil sits on its fit box (``regimes.group_misfit``'s rows)."""
+def _bound_hits(reg: dict | None) -> dict[str, list[str]]:
+    """θ-group -> where its fitted soil sits on its fit box (``regimes.group_misfit``'s rows; {} without)."""
     rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    return {r["name"] for r in rows if r["kind"] == "group" and r["theta_at_bound"]}
+    return {r["name"]: r["theta_at_bound"] for r in rows if r["kind"] == "group"}
+
+
+def _at_bound(reg: dict | None) -> set[str]:
+    """The θ-groups whose fitted soil sits on its fit box."""
+    return {name for name, hits in _bound_hits(reg).items() if hits}
 
 
 def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
@@ -447,7 +461,6 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
     box (``reg0`` / ``reg1``: the baseline's and the augmented model's regimes with their misfit
     rows). Leaving it is the sign of an effect the baseline's θ took in (soil inertia: dense loam's φ 5° on the box, 32° with the term, for 33.6°);
     reaching it, of a term that takes part of the soil. Neither proves it: a soil test does."""
-    units = {"phi_deg": ("φ", "°", 1.0, ".1f"), "c_pa": ("c", " kPa", 1e-3, ".2f"), "delta_deg": ("δ", "°", 1.0, ".1f")}
     before, after = _at_bound(reg0), _at_bound(reg1)
 
     def tag(group: str) -> str:
@@ -457,7 +470,7 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
             return ", onto its fit box with them"
         return ""
 
-    moved = [f"{units[k][0]} {v['largest'] * units[k][2]:+{units[k][3]}}{units[k][1]} in {v['group']}{tag(v['group'])}"
+    moved = [f"{THETA_SHIFT_DISPLAY[k][0]} {theta_move_text(k, v['largest'])} in {v['group']}{tag(v['group'])}"
              for k, v in (shift or {}).items() if abs(v["largest"]) > v["note_above"]]
     if not moved:
         return ""
@@ -728,8 +741,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
 
 def _on_test_bounds(reg: dict | None) -> int:
     """How many θ-groups sit on a soil test's bound (``regimes.group_misfit``'s rows; 0 without soil tests)."""
-    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    return sum(1 for r in rows if r["kind"] == "group" and any(on_soil_test_bound(b) for b in r["theta_at_bound"]))
+    return sum(1 for hits in _bound_hits(reg).values() if any(on_soil_test_bound(b) for b in hits))
 
 
 def _left_text(reg: dict | None) -> str:

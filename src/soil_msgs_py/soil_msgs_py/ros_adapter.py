@@ -257,7 +257,7 @@ def _program(argv: list[str]) -> str:
     return Path(argv[0]).name if argv else "node"
 
 
-def _print_refusal(argv: list[str], err: Exception) -> None:
+def print_refusal(argv: list[str], err: Exception) -> None:
     """rcl's refusal of the ROS arguments (its RCLError / RCLInvalidROSArgsError) in one line."""
     print(f"{_program(argv)}: cannot start: {rcl_error_text(err)}", file=sys.stderr)
 
@@ -268,7 +268,7 @@ def own_arguments_or_refusal(argv: list[str]) -> list[str] | None:
     try:
         return own_arguments(argv)
     except RuntimeError as err:
-        _print_refusal(argv, err)
+        print_refusal(argv, err)
         return None
 
 
@@ -343,7 +343,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
     try:
         init_rclpy(argv, lambda signum, frame: stop.append(signum))
     except RuntimeError as err:  # a --params-file rcl cannot read or parse
-        _print_refusal(argv, err)
+        print_refusal(argv, err)
         return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
