@@ -19,6 +19,7 @@ from tests.ros_probe import call_service, RosProbe, next_domain_id
 pytestmark = pytest.mark.live
 
 PARAM_DEPTH = 0.2  # the episode's target: the fallback
+WAIT_S = 3.0  # the controller's planner_wait_s [s of wall time] in the lockstep test
 
 
 @pytest.mark.timeout(120)
@@ -26,7 +27,9 @@ def test_in_lockstep_a_tick_waits_for_its_plan_and_a_silent_planner_is_waited_fo
     domain = next_domain_id()
     meta = EpisodeMeta("Clay", 40.0, "default", 3, 0.5, PARAM_DEPTH, 30.0, source="test")
     with RosProbe(domain) as probe:
-        side = PlannerSide(probe, ["-p", "planner_timeout_s:=0.5", "-p", "planner_wait_s:=1.0",
+        # planner_wait_s is wall time: a plan sent right after its tick must reach the node within it
+        # on a loaded machine too (at 1 s a delivery slowed by load could release a held tick on the old target)
+        side = PlannerSide(probe, ["-p", "planner_timeout_s:=0.5", "-p", f"planner_wait_s:={WAIT_S}",
                                    "-p", "planner_lag_ticks:=2"], domain, tmp_path)
         try:
             side.start(meta, pacing=G.PACING_LOCKSTEP)
@@ -43,7 +46,8 @@ def test_in_lockstep_a_tick_waits_for_its_plan_and_a_silent_planner_is_waited_fo
             assert answer(4) == pytest.approx(-0.15)
             # the planner falls silent: tick 5 (whose plan, tick 3's, never comes) is answered after
             # planner_wait_s on the newest target before it, still fresh ...
-            assert tick(5) == pytest.approx(-0.15)
+            send(5)  # not tick(5): that would send it again while it is held
+            assert answer(5) == pytest.approx(-0.15)
             # ... and later ticks do not wait; 0.5 s of ticks after the last plan its target is stale
             assert [tick(k) for k in range(6, 9)] == pytest.approx([-0.15] * 3)
             assert tick(33) == pytest.approx(-PARAM_DEPTH)
