@@ -172,9 +172,19 @@ def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
     # loam at φ 5°), or reaches it (the terms take part of the soil), the group says so
     reg = lambda *groups: {"misfit": {"rows": [{"kind": "group", "name": g, "theta_at_bound": ["φ at its lower bound"]}
                                                for g in groups]}}
+    released = _theta_shift_text(shift, reg("Clay I_d=0%", "Loam I_d=80%"), reg("Sand I_d=40%"))
+    doubt, support = released.split("; the soil fitted beside them leaves the fit box the baseline's sat on")
+    assert "c +1.40 kPa in Sand I_d=40%, onto its fit box with them" in doubt and "φ" not in doubt, released
+    assert "φ +29.0° in Clay I_d=0%" in support and "speaks for them" in support and "c " not in support, released
+    # the terms leave θ on the box in more than half the groups it sat on (the default world: 11, then
+    # 9): a group leaving it is no sign, only tagged
     tagged = _theta_shift_text(shift, reg("Clay I_d=0%"), reg("Sand I_d=40%"))
-    assert "φ +29.0° in Clay I_d=0%, off its fit box with them" in tagged, tagged
+    assert "leaves the fit box" not in tagged and "φ +29.0° in Clay I_d=0%, off its fit box with them" in tagged, tagged
     assert "c +1.40 kPa in Sand I_d=40%, onto its fit box with them" in tagged, tagged
+    # every move leaving the box: no word of another soil (a tip penetration hidden on another grid
+    # was named with the baseline's θ on its box and the clay's φ back near the truth)
+    freed = _theta_shift_text(shift, reg("Clay I_d=0%", "Sand I_d=40%"), reg())
+    assert "is another" not in freed and "φ +29.0° in Clay I_d=0%; c +1.40 kPa in Sand I_d=40%" in freed, freed
     small = theta_shift(before, [{**r, "phi_deg": r["phi_deg"] + 2.0, "c_pa": r["c_pa"] + 500.0} for r in before])
     assert _theta_shift_text(small) == "" and theta_shift(before, None) is None and _theta_shift_text(None) == ""
 
@@ -232,6 +242,26 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     assert "/blade/force" in capsys.readouterr().err
 
 
+def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named():
+    """``--hidden A=K,B=K`` (test data only): correct when the first term named is one of them, each
+    said found (with its k) or not; one hidden effect keeps its one-line check."""
+    from soil_discrepancy.cli import hidden_check
+
+    def report(*named):
+        return {"selection": {"accepted": [{"name": n, "k": k} for n, k in named]},
+                "test": {"before": {"rmse": 1597.0}, "after": {"rmse": 578.0}}}
+
+    both = [("soil_inertia", 3.0), ("compaction_hardening", 0.05)]
+    check = hidden_check(report(("compaction_hardening", 0.068), ("soil_inertia", 2.88)), both)
+    assert check["correct"] and check["hidden_all"] == [list(h) for h in both] and check["hidden"] == ["soil_inertia", 3.0]
+    assert "soil_inertia (k = 3) hidden, named with k = 2.88; compaction_hardening (k = 0.05) hidden, named with k = 0.068" in check["text"]
+    mimic = hidden_check(report(("form:mom_x*tsat3", 5.73)), both)
+    assert not mimic["correct"] and mimic["text"].count("not named") == 2 and ": WRONG" in mimic["text"]
+    one = hidden_check(report(("soil_inertia", 2.88)), both[:1])
+    assert one["correct"] and one["text"].startswith("soil_inertia (k = 3) hidden; named ['soil_inertia'] with k = 2.88: correct")
+    assert hidden_check(report(), None)["text"].startswith("none hidden; none named: correct")
+
+
 def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):
     """--accepted soil_inertia=1,soil_inertia=2 summed silently to k = 3 (pinn_train refuses the
     same); --workers -1 was taken as 1 and --seed -1 failed in numpy's words ("expected non-negative
@@ -249,6 +279,9 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
             cli_main([missing, "--out", str(tmp_path / "o"), flag, value])
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and said in err, err
+    assert cli_main([missing, "--out", str(tmp_path / "o"), "--hidden", "soil_inertia=3,soil_inertia=2"]) == 2
+    err = capsys.readouterr().err
+    assert "--hidden: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
     # the top seed is one, but the retrained PINNs take one seed each from it: refused now, not after the analysis
     assert cli_main([missing, "--out", str(tmp_path / "o"), "--seed", str(2**32 - 1), "--pinn-epochs", "1",
                      "--pinn-seeds", "2"]) == 2

@@ -274,6 +274,30 @@ def test_a_form_is_a_pinn_extra_term_with_gradients_and_asks_for_the_travel_it_u
     assert torch.isfinite(phi.grad).all() and (phi.grad != 0).all()
 
 
+def test_two_catalogue_effects_at_once_are_named_not_the_one_form_that_mimics_both(tmp_path):
+    """Soil inertia and compaction hidden together: greedy selection took one form that mimics both
+    (inertia growing with time in soil, `form:mom_x*tsat3`: 83 % off the cross-validated error
+    against soil inertia's 74 %), after which neither catalogue term passed. A form is for what the
+    catalogue's mechanisms cannot explain together: their own path (here 88 % off with two terms)
+    is taken, both are named first, and the report keeps the path not taken."""
+    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+    generate(DatasetPlan("fee", tmp_path / "two", specs, effects_for_mode("fee"),
+                         plugins=("soil_physics.force_terms:plugin term=soil_inertia k=3",
+                                  "soil_physics.force_terms:plugin term=compaction_hardening k=0.05")),
+             workers=2, progress=False)
+    rep = run_discrepancy(dataset=blind(tmp_path / "two"), out_dir=tmp_path / "out", plots=False, **RUN)
+    path = rep["forms"]["catalogue_path"]
+    assert path["chosen"] == "catalogue" and path["forms_path"][0].startswith("form:"), path
+    assert path["catalogue_left"] <= path["forms_left"], path
+    names = [a["name"] for a in rep["selection"]["accepted"]]
+    assert set(names[:2]) == {"soil_inertia", "compaction_hardening"}, rep["summary"]
+    assert rep["test"]["after"]["rmse"] <= 0.5 * rep["test"]["before"]["rmse"], rep["test"]
+    stages = [r["stage"] for r in rep["selection"]["rounds"]]
+    assert stages[0].startswith("catalogue + forms: not taken") and "catalogue alone: taken" in stages, stages
+    md = (tmp_path / "out" / "discrepancy.md").read_text()
+    assert "the catalogue's path is taken" in md and path["forms_path"][0] in md
+
+
 def test_a_catalogue_term_the_heldout_episodes_refute_is_tentative_and_never_the_verdict(tmp_path):
     """A drag only below 0.2 m (tests/sim_plugins.deep_drag), at the full-size grid of `make
     discrepancy` (108 episodes): cross-validation on the selection groups picks the catalogue's
@@ -462,6 +486,27 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
     assert "stand-ins" not in summary(["soil_inertia", "compaction_hardening"], little), "catalogue terms are mechanisms"
     assert "stand-ins" not in summary(["form:-wd_x*enter0.5", "form:-mom_x*tau"], little,
                                       {"significant": False, "flagged_variables": []})
+
+
+def test_a_catalogue_term_named_with_a_k_its_mechanism_cannot_have_is_called_a_stand_in():
+    """Two effects hidden at once, the library's forms off: compaction and soil inertia were named,
+    and beside them base friction with k 2.29, a friction coefficient no soil has. The verdict and the
+    report say it is a stand-in; a plausible k says nothing."""
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.workflow import _verdict
+
+    def text(k):
+        named = [TermScore(name="soil_inertia", k=2.9, k_se=0.05, k_folds=[2.9] * 5, gain=0.67, p=1e-6),
+                 TermScore(name="base_friction", k=k, k_se=0.23, k_folds=[k] * 5, gain=0.11, p=1e-6)]
+        verdict, words = _verdict(named, {"significant": True, "flagged_variables": ["v_x"]},
+                                  {"before": {"rmse": 1597.0}, "after": {"rmse": 578.0}})
+        assert verdict == "explained"
+        return words
+
+    words = text(2.29)
+    assert "base_friction (k = 2.29" in words and "beyond what friction under the blade base can be" in words, words
+    assert words.count("STAND-IN") == 1 and "not that mechanism" in words, words
+    assert "STAND-IN" not in text(0.4) and "beyond" not in text(0.4)
 
 
 def test_a_term_is_pinned_down_only_where_every_part_of_the_data_pins_it():

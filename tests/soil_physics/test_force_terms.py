@@ -80,3 +80,16 @@ def test_simulator_switches_the_same_term_on_as_a_plugin():
     expected = 8000 * (3.164 * extra.column("d")[late] * np.maximum(extra.column("v_x")[late], 0)).mean()
     assert added == pytest.approx(expected, rel=0.35), "the measured force carries the switched-on term"
     assert math.isfinite(added) and added > 0
+
+
+def test_a_friction_term_beyond_tan_phi_is_called_implausible_and_other_terms_have_no_bound():
+    """A Coulomb friction coefficient is at most tan φ, Table 1's soils reach φ 45°: a base friction
+    or a pushed pile fitted with k > 1 is no friction (two effects hidden at once gave base friction
+    k 2.29 beside them). Terms without a physical bound, and library forms, are never called so."""
+    assert X.FRICTION_K_MAX == pytest.approx(1.0)
+    for name in ("base_friction", "surcharge_drag"):
+        assert X.implausible_k(name, 0.99) == "" and X.implausible_k(name, 0.0) == ""
+        words = X.implausible_k(name, 2.29)
+        assert words.startswith("k = 2.29 is beyond what") and "tan 45° = 1.00" in words, words
+    assert X.implausible_k("soil_inertia", 40.0) == "" and X.implausible_k("rate_strength", 1e6) == ""
+    assert X.implausible_k("form:wd_x*vx", 1e6) == ""

@@ -63,9 +63,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "selection episodes and compare them on the held-out ones (default 0: skip)")
     p.add_argument("--pinn-seeds", type=int, default=1,
                    help="PINNs per physics for that comparison, scored as an ensemble (default 1)")
-    p.add_argument("--hidden", default=None, metavar="NAME=K|none",
-                   help="for test data only: the effect hidden in the simulator; the report says whether the "
-                        "workflow named it (the analysis never sees this)")
+    p.add_argument("--hidden", default=None, metavar="NAME=K[,NAME=K]|none",
+                   help="for test data only: the effect(s) hidden in the simulator; the report says whether the "
+                        "workflow named one of them first and which it found (the analysis never sees this)")
     p.add_argument("--quiet", action="store_true", help="print only the verdict")
     return p.parse_args(argv)
 
@@ -91,7 +91,9 @@ def main(argv=None) -> int:
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         refuse_repeats(accepted, "--accepted")
-        hidden = None if args.hidden in (None, "none") else parse_terms([args.hidden])[0]
+        hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
+        if hidden is not None:
+            refuse_repeats(hidden, "--hidden")
         user_terms = [t["term"] for t in load_catalogue(args.catalogue)] if args.catalogue else ()
         soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()
         report = run_discrepancy(
@@ -133,20 +135,30 @@ def _pinn_predictor(epochs: int, log, seeds: int = 1):
 
 
 def hidden_check(report: dict, hidden) -> dict:
-    """Did the workflow name the effect hidden in the test data (or none, for a control)?"""
+    """Did the workflow name the effect hidden in the test data (or none, for a control)? ``hidden``:
+    None, or (name, k) pairs. With several hidden at once the answer is correct when the first term
+    named is one of them (the dominant one, as a rule) and every hidden one is said found or not."""
     named = [a["name"] for a in report["selection"]["accepted"]]
     k = {a["name"]: a.get("k") for a in report["selection"]["accepted"]}
     if hidden is None:
         ok = not named
         text = "none hidden; " + ("none named: correct" if ok else f"named {named}: WRONG")
     else:
-        ok = named[:1] == [hidden[0]]
-        text = (f"{hidden[0]} (k = {hidden[1]:g}) hidden; named {named or 'none'}"
-                + (f" with k = {k[hidden[0]]:.4g}" if hidden[0] in k else "") + (": correct" if ok else ": WRONG"))
+        hidden = [tuple(h) for h in hidden]
+        ok = bool(named) and named[0] in {name for name, _ in hidden}
+        if len(hidden) == 1:
+            (name, k_hidden), = hidden
+            text = (f"{name} (k = {k_hidden:g}) hidden; named {named or 'none'}"
+                    + (f" with k = {k[name]:.4g}" if name in k else "") + (": correct" if ok else ": WRONG"))
+        else:
+            found = "; ".join(f"{name} (k = {k_hidden:g}) hidden" + (f", named with k = {k[name]:.4g}" if name in k
+                                                                    else ", not named") for name, k_hidden in hidden)
+            text = f"{found}; named {named or 'none'}" + (": correct" if ok else ": WRONG")
     test = report.get("test") or {}
     before, after = (test.get("before") or {}).get("rmse"), (test.get("after") or {}).get("rmse")
     ratio = after / before if before and after is not None else None
-    return {"hidden": None if hidden is None else list(hidden), "named": named, "correct": ok,
+    return {"hidden": None if hidden is None else list(hidden[0]),
+            "hidden_all": None if hidden is None else [list(h) for h in hidden], "named": named, "correct": ok,
             "heldout_rmse_before_n": before, "heldout_rmse_after_n": after,
             "heldout_error_ratio": ratio, "text": text + (f"; held-out RMSE × {ratio:.2f}" if ratio else "")}
 

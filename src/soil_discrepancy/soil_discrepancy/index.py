@@ -22,7 +22,8 @@ def index_markdown(root: Path) -> str:
         before, after = (test.get("before") or {}).get("rmse"), (test.get("after") or {}).get("rmse")
         named = ", ".join(f"`{a['name']}` k = {a['k']:.4g} ± {a['k_se']:.2g}" for a in rep["selection"]["accepted"]) or "none"
         check = rep.get("hidden_check")
-        hidden = "–" if check is None else ("none" if check["hidden"] is None else f"`{check['hidden'][0]}` k = {check['hidden'][1]:g}")
+        hidden = "–" if check is None else ("none" if check["hidden"] is None else " + ".join(
+            f"`{name}` k = {k:g}" for name, k in check.get("hidden_all") or [check["hidden"]]))
         verdict = "–" if check is None else ("correct" if check["correct"] else "**wrong**")
         pinn = (test.get("predictors") or {}).get("PINN") or {}
         soil, force = (pinn.get("comparisons") or {}).get("soil"), (pinn.get("comparisons") or {}).get("force")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py import strict_json
-from soil_physics import term_forms
+from soil_physics import force_terms, term_forms
 
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
@@ -108,6 +108,10 @@ def markdown(report: dict, figures=()) -> str:
             lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} {_unit(a['k_unit'])} "
                          f"| {', '.join(_n(k, '.4g') for k in a['k_folds'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} "
                          f"| {a['improved_episodes']}/{a['n_heldout_episodes']} |")
+        for a in report["selection"]["accepted"]:
+            if implausible := force_terms.implausible_k(a["name"], a["k"]):
+                lines += ["", f"`{a['name']}`: {implausible}. It fits the force as a STAND-IN for another effect, "
+                          "not as that mechanism."]
         catalogue_pins = [(a["name"], a["pin"]) for a in report["selection"]["accepted"]
                           if a.get("pin") and not a["name"].startswith(term_forms.PREFIX)]
         for name, pin in catalogue_pins:  # a discovered form's is in its own section below
@@ -255,6 +259,14 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
               "the force at another depth from a fit at one depth (held-out section below). When the accepted set "
               "fails, each form is judged on its own beside the named catalogue terms, and the ones confirmed alone "
               "are refitted without the others and judged again as a set.", ""]
+    path = forms.get("catalogue_path")
+    if path:
+        lines += [f"A form won the first round, so the catalogue's terms alone were selected too: "
+                  f"{', '.join(f'`{n}`' for n in path['catalogue_path']) or 'none'} leave {100 * path['catalogue_left']:.0f} % "
+                  f"of the cross-validated error, the path through the forms ({', '.join(f'`{n}`' for n in path['forms_path'])}) "
+                  f"{100 * path['forms_left']:.0f} %: "
+                  + ("**the catalogue's path is taken** (a form is for what the mechanisms cannot explain together)."
+                     if path["chosen"] == "catalogue" else "the forms' path stays."), ""]
     if any(f.get("confirmed", True) for f in forms.get("discovered") or []):
         lines += [f"The confirmed forms are saved to `{CATALOGUE_FILE}` (rename them there); the next run tests them "
                   f"beside the catalogue: `soil_discrepancy BAGS --out DIR --catalogue {CATALOGUE_FILE}`.", ""]

@@ -32,7 +32,7 @@ from . import xp as _xp
 from .bearing import EDGE_WIDTH_M, bearing_factors
 from .fee import beta_star
 from .force_inputs import ForceInputs
-from soil_msgs_py.params import GRAVITY_M_S2
+from soil_msgs_py.params import GRAVITY_M_S2, TABLE1
 from soil_msgs_py.patches import short_repr
 
 
@@ -47,6 +47,8 @@ class Term:
     k_nominal: float  # a physically typical k (scale for reports and tests)
     physics: str  # why the FEE misses it
     basis_fn: Callable[[ForceInputs, Any], tuple[Any, Any]]
+    k_max: float = math.inf  # the largest k the mechanism can have (``implausible_k``)
+    k_max_why: str = ""  # that bound in words, for a report
 
     def basis(self, inputs: ForceInputs) -> tuple[Any, Any]:
         """(B_x, B_z) [N per unit k], NumPy or torch like the inputs (scalars broadcast)."""
@@ -117,6 +119,13 @@ def _base_friction(s: ForceInputs, xp):
     return _pos(xp, -s.f_fee_z) * (s.d > 0), _zeros(xp, s.d)
 
 
+# A Coulomb friction of soil on soil or on steel is at most tan φ (δ <= φ), and Table 1's soils reach
+# φ 45°: a friction-type term (base friction, a pile pushed along the ground) with a larger k is not that
+# mechanism but a stand-in taking another effect's force (two effects hidden at once: a base
+# friction of k 2.29 was named beside them).
+FRICTION_K_MAX = math.tan(TABLE1["phi"].norm[1])
+_FRICTION_WHY = f"a friction coefficient above tan {math.degrees(TABLE1['phi'].norm[1]):.0f}° = {FRICTION_K_MAX:.2f}, Table 1's steepest φ"
+
 CATALOGUE: dict[str, Term] = {
     t.name: t
     for t in (
@@ -136,7 +145,7 @@ CATALOGUE: dict[str, Term] = {
         Term("surcharge_drag", "surcharge contribution beyond the FEE's Q N_Q",
              "F_x = k Q  [N]", "1", 0.3,
              "the pile in front of the blade is pushed along the ground, not only lifted with the wedge",
-             _surcharge_drag),
+             _surcharge_drag, FRICTION_K_MAX, _FRICTION_WHY),
         Term("rate_strength", "rate-dependent (viscous) strength",
              "F_x = k w d v_x  [N]", "Pa·s/m", 5e3,
              "soil shear strength rises with the shear rate; the FEE's strength is rate-free",
@@ -148,7 +157,7 @@ CATALOGUE: dict[str, Term] = {
         Term("base_friction", "friction under the blade base",
              "F_x = k max(−F_z^FEE, 0)  [N]", "1", 0.3,
              "the downward push of the blade is carried by the cut floor under its base, which "
-             "slides with Coulomb friction μ = k", _base_friction),
+             "slides with Coulomb friction μ = k", _base_friction, FRICTION_K_MAX, _FRICTION_WHY),
     )
 }
 
@@ -224,6 +233,15 @@ def refuse_repeats(terms, where: str = "") -> None:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ValueError(f"{where}: " * bool(where) + f"effect term {twice[0]} is given more than once")
+
+
+def implausible_k(name: str, k: float) -> str:
+    """Words for a fitted k beyond what the term's mechanism can have ('' within it, and for a library
+    form, which has no such bound): such a term fits the force as a stand-in for another effect."""
+    term = get_term(name)
+    if not abs(float(k)) > term.k_max:
+        return ""
+    return f"k = {float(k):.3g} is beyond what {term.title} can be ({term.k_max_why})"
 
 
 def term_texts(terms) -> list[str]:
