@@ -33,4 +33,27 @@ def test_the_demo_refuses_a_duration_the_simulator_would_refuse_before_the_graph
 def test_the_cut_report_says_no_stall_in_words_not_as_an_infinite_ratio():
     assert cut_report._less_stall(14.28, 0.3) == "47.6× less"
     assert cut_report._less_stall(14.28, 0.0) == "none, against 14.28 s"
-    assert cut_report._less_stall(0.0, 0.0, "x") == "none, and none either"
+    assert cut_report._less_stall(0.0, 0.0, "x") == "neither stalled"
+    # the soil-aware policy stalling where the aggressive depth did not read "0.0× less"
+    assert cut_report._less_stall(0.0, 0.13) == "more: 0.13 s against 0.00 s"
+
+
+def test_the_cut_report_names_patches_the_blade_never_reached_and_a_path_without_a_change():
+    """A patch beyond the blade's travel had an empty row and the target line printed '-- s'; a
+    path of one soil printed an empty bold target ('****'); a plan never within 20 % reads 'never'."""
+    row = lambda soil, x, t, settle: {"soil": soil, "relative_density_pct": 90.0, "x_start_m": x, "time_s": t,
+                                      "settle_s": settle}
+    reached = [row("Sand", 0.0, 10.0, 1.9), row("Clay", 6.0, 4.0, None)]
+    assert cut_report._settle_text(reached) == "never"
+    assert cut_report._settle_text(reached[:1]) == "no soil change reached on this path"
+    beyond = reached[:1] + [row("Clay", 9.0, 0.0, None)]
+    assert cut_report._settle_text(beyond) == "no soil change reached on this path"
+    words = cut_report.unreached_text(beyond, 7.1)
+    assert words.startswith("not reached: Clay 90 % from 9 m") and "x = 7.1 m" in words, words
+    assert cut_report.unreached_text(reached, 7.1) == ""
+
+
+def test_the_cut_report_names_the_soils_as_the_catalogue_does():
+    """'--patch 0:sand:20' ran as Sand, and the header said 'sand' where the rows said 'Sand'."""
+    args = cut_report.parse_args(["--patch", "0:sand:20", "--patch", "8:clay:80"])
+    assert [p.soil for p in args.patches] == ["Sand", "Clay"] and args.spec.soil == "Sand"

@@ -133,6 +133,7 @@ def per_patch(cut, best: list[float | None]) -> list[dict]:
         inside = cut.patch == j
         rows.append({
             "patch": j, "soil": patch.soil if patch else cut.spec.soil,
+            "x_start_m": patch.x_start_m if patch else float(cut.x_b[0]),
             "relative_density_pct": patch.relative_density_pct if patch else cut.spec.relative_density_pct,
             "time_s": float(inside.sum() * dt),
             "mean_target_m": float(cut.target[inside].mean()) if inside.any() else None,

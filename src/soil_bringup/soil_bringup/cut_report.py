@@ -111,7 +111,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     try:
         args.spec = EpisodeSpec(first.soil, first.relative_density_pct, SPEED_M_S, 0.1, seed=args.seed,
                                 duration_s=args.duration, patches=args.patches)
-        args.spec.resolve(args.custom_soils)  # every patch's soil known, every field in range
+        # every patch's soil known, every field in range; the soils by their catalogue names ("sand" is Sand)
+        args.spec, _ = args.spec.resolve(args.custom_soils)
+        args.patches = list(args.spec.patches)
     except ValueError as err:
         p.error(str(err))
     return args
@@ -162,9 +164,11 @@ def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = No
             run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains, custom_soils)]
     rows = [CM.summary(c) for c in cuts]
     cons, agg, aware = rows
+    patches = CM.per_patch(cuts[2], best)
     return {
         "world": world, "best_fixed_depth_m": best, "policies": rows, "cuts": cuts,
-        "patches": CM.per_patch(cuts[2], best),
+        "patches": patches,
+        "unreached": unreached_text(patches, float(cuts[2].x_b[-1])),
         "ratios": {
             "volume_per_m_aware_over_conservative": _ratio(aware["volume_per_m_m3"], cons["volume_per_m_m3"]),
             "stall_aggressive_over_aware": _ratio(agg["stall_s"], aware["stall_s"]),
@@ -202,9 +206,31 @@ def _fmt(x, spec=".2f") -> str:
 def _less_stall(aggressive_s: float, aware_s: float, times: str = "×") -> str:
     """How much less the soil-aware policy stalled than the aggressive one, in words where a ratio
     has no meaning (no stall: "inf×" or "--×" said nothing a reader could use)."""
+    if aware_s > aggressive_s:  # "0.0× less" said the opposite of what happened
+        return f"more: {aware_s:.2f} s against {aggressive_s:.2f} s"
     if aware_s > 0:
         return f"{aggressive_s / aware_s:.1f}{times} less"
-    return f"none, against {aggressive_s:.2f} s" if aggressive_s > 0 else "none, and none either"
+    return f"none, against {aggressive_s:.2f} s" if aggressive_s > 0 else "neither stalled"
+
+
+def _settle_text(patches: list[dict]) -> str:
+    """The new patches' settle times for the target line: 'never' where the plan did not come
+    within 20 % of the best fixed depth; a path of one soil has no change to settle after."""
+    later = [p for p in patches[1:] if p["time_s"] > 0]  # the first patch is the start, not a change
+    if not later:
+        return "no soil change reached on this path"
+    return ", ".join(f"{p['settle_s']:.1f} s" if p["settle_s"] is not None else "never" for p in later)
+
+
+def unreached_text(patches: list[dict], x_end_m: float) -> str:
+    """Words for the patches the blade's edge never reached ('' if it reached every one): their
+    rows are empty, which a reader should not take for a result."""
+    missed = [p for p in patches if p["time_s"] <= 0]
+    if not missed:
+        return ""
+    return ("not reached: " + ", ".join(f"{p['soil']} {p['relative_density_pct']:g} % from {p['x_start_m']:g} m"
+                                        for p in missed)
+            + f" (the blade's edge ended at x = {x_end_m:.1f} m; a longer --duration reaches them)")
 
 
 def controller_text(gains: dict) -> str:
@@ -239,7 +265,8 @@ def markdown(report: dict) -> str:
             lines.append(f"| {p['soil']} {p['relative_density_pct']:.0f} % | {p['time_s']:.1f} | {_fmt(p['best_fixed_depth_m'], '.3f')} "
                          f"| {_fmt(p['mean_target_m'], '.3f')} | {_fmt(p['mean_depth_m'], '.3f')} | {p['stall_s']:.2f} "
                          f"| {_fmt(p['settle_s'], '.1f')} |")
-        settle = [p["settle_s"] for p in w["patches"][1:]]  # the first patch is the start, not a change
+        if w.get("unreached"):
+            lines += ["", f"Patches {w['unreached']}."]
         lines += ["", "Targets (soil-aware against the fixed depths, this world):", "",
                   f"- volume per metre ≥ {TARGET_VOLUME_RATIO}× conservative: **{_fmt(r['volume_per_m_aware_over_conservative'])}×** "
                   f"(each patch cut at its best fixed depth from its first centimetre: "
@@ -248,8 +275,8 @@ def markdown(report: dict) -> str:
                   f"{w['policies'][0]['stall_s']:.2f} s",
                   f"- ≥ {TARGET_STALL_RATIO:g}× less stall than aggressive: "
                   f"**{_less_stall(w['policies'][1]['stall_s'], w['policies'][2]['stall_s'])}**",
-                  f"- within 20 % of each new patch's best fixed depth within {TARGET_SETTLE_S:g} s: **"
-                  + ", ".join(f"{_fmt(s, '.1f')} s" for s in settle) + "**", "",
+                  f"- within 20 % of each new patch's best fixed depth within {TARGET_SETTLE_S:g} s: "
+                  f"**{_settle_text(w['patches'])}**", "",
                   f"![{w['world']}]({w['figure']})", ""]
     return "\n".join(lines)
 
@@ -265,9 +292,13 @@ def plot(world: dict, path: Path) -> None:
     aware = cuts[2]
     fig, axes = plt.subplots(3, 1, figsize=(11, 9), sharex=True, gridspec_kw={"height_ratios": [2.2, 1, 1]})
     ax = axes[0]
+    # the first patch holds everything before it too (a path starting at 5 m is that soil from the
+    # blade's start); a patch beyond the blade's travel has no span
     starts = [p.x_start_m for p in aware.spec.patches] or [aware.x_b[0]]
-    edges = [max(s, aware.x_b[0]) for s in starts] + [aware.x_b[-1]]
+    edges = [aware.x_b[0]] + [min(max(s, aware.x_b[0]), aware.x_b[-1]) for s in starts[1:]] + [aware.x_b[-1]]
     for j, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        if b <= a:
+            continue
         for axis in axes:
             axis.axvspan(a, b, color=f"C{j}", alpha=0.08, lw=0)
         name = aware.spec.patches[j] if aware.spec.patches else None
@@ -276,8 +307,8 @@ def plot(world: dict, path: Path) -> None:
         ax.text(0.5 * (a + b), 0.005, label, ha="center", va="bottom", fontsize=9)
         if best is not None:
             ax.hlines(best, a, b, colors="k", linestyles=":", lw=1.2, label="best fixed depth (hindsight)" if j == 0 else None)
-    for cut, color in zip(cuts, ("C2", "C3", "C0")):
-        ax.plot(cut.x_b, cut.depth, color=color, lw=1.2, label=f"{cut.policy.name}: cut depth")
+    for cut, color, lw in zip(cuts, ("C2", "C3", "C0"), (2.6, 1.2, 1.2)):  # conservative wide: seen under an equal aggressive
+        ax.plot(cut.x_b, cut.depth, color=color, lw=lw, alpha=0.6 if lw > 2 else 1.0, label=f"{cut.policy.name}: cut depth")
         stall = CM.stall_mask(cut)
         ax.plot(cut.x_b[stall], cut.depth[stall], "x", color=color, ms=3, alpha=0.6)
     ax.plot(aware.x_b, aware.target, color="C0", lw=1, ls="--", label="soil-aware: target (schedule)")
@@ -291,9 +322,9 @@ def plot(world: dict, path: Path) -> None:
         mean, sd = aware.fused[:, col] * k, aware.fused[:, std] * k
         valid = aware.fused[:, 4] == 1.0
         axis.plot(aware.x_b, np.where(valid, mean, np.nan), color="C0", lw=1, label=f"fused {name}")
-        low = mean - 2 * sd if name != "c" else np.maximum(mean - 2 * sd, 0.0)  # c ≥ 0: the posterior's support
+        low = np.maximum(mean - 2 * sd, 0.0)  # φ ≥ 0 and c ≥ 0: the soil's physical range (a band to −20° was drawn)
         axis.fill_between(aware.x_b, np.where(valid, low, np.nan), np.where(valid, mean + 2 * sd, np.nan),
-                          color="C0", alpha=0.2, lw=0, label="±2σ" if name != "c" else "±2σ (c ≥ 0)")
+                          color="C0", alpha=0.2, lw=0, label=f"±2σ ({name} ≥ 0)")
         axis.plot(aware.x_b, aware.truth[:, truth_col] * k, color="k", lw=1, label=f"true {name}")
         axis.set_ylabel(f"{name} [{unit}]")
         axis.legend(fontsize=7, loc="upper left")
@@ -324,6 +355,8 @@ def console(report: dict) -> str:
         for p in w["patches"]:
             out.append(f"    {p['soil']:<7}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
                        f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s")
+        if w.get("unreached"):
+            out.append(f"  patches {w['unreached']}")
     return "\n".join(out)
 
 
