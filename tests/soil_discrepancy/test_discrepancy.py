@@ -46,6 +46,12 @@ HIDDEN = {
 RUN = dict(holdout=0.3, folds=5, seed=0, stride=3, workers=2, log=None)
 
 
+def named_verdict(rep: dict) -> str:
+    """The verdict a report that names terms must carry: "partly explained" where the residual keeps
+    significant structure beside them, else "explained"."""
+    return "partly explained" if (rep.get("regimes_after") or {}).get("significant") else "explained"
+
+
 @pytest.fixture(scope="module")
 def bag_dirs(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("disc")

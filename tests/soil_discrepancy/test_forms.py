@@ -36,7 +36,7 @@ from soil_physics.soils import CATALOGUE as SOILS
 from soil_sim_node.batch import DatasetPlan, generate, grid_specs
 from soil_sim_node.effects import Effects, effects_for_mode, load_plugins
 
-from .test_discrepancy import RUN, blind
+from .test_discrepancy import RUN, blind, named_verdict
 
 HIDDEN = {
     "entry": ("tests.sim_plugins:entry_resistance k=2 s0=1",),
@@ -66,7 +66,7 @@ def form_reports(form_data, tmp_path_factory) -> dict[str, dict]:
 
 def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_reports):
     rep = form_reports["entry"]
-    assert rep["verdict"] == "explained", rep["summary"]
+    assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]
     accepted = rep["selection"]["accepted"]
     assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], "no catalogue name for a form it lacks"
     first = accepted[0]
@@ -108,7 +108,7 @@ def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_re
 
 def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form_reports):
     rep = form_reports["saturating"]
-    assert rep["verdict"] == "explained", rep["summary"]
+    assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]
     (acc,) = rep["selection"]["accepted"]
     info = term_forms.describe(acc["name"])
     # a drag growing with speed and saturating: tanh(v_x/v0), or minus a fading exp(−v_x/v0) beside
@@ -129,7 +129,7 @@ def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_re
     """Time in soil and travel differ by the speed (s = ∫ v_x dt): with two speeds the search takes
     time, and nothing on travel (a form or the catalogue's compaction hardening) is named for it."""
     rep = form_reports["time"]
-    assert rep["verdict"] == "explained", rep["summary"]
+    assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]
     (acc,) = rep["selection"]["accepted"]
     info = term_forms.describe(acc["name"])
     assert info["axis"] == "x" and info["sign"] > 0 and info["factor"] in term_forms.TIME_FACTORS, acc["name"]
@@ -182,7 +182,7 @@ def test_a_pile_that_pushes_less_than_the_model_says_is_a_relief_not_surcharge_d
              workers=2, progress=False)
     rep = run_discrepancy(dataset=blind(tmp_path / "pile"), out_dir=tmp_path / "out", plots=False,
                           **{**RUN, "stride": STRIDE})
-    assert rep["verdict"] == "explained", rep["summary"]
+    assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]
     accepted = rep["selection"]["accepted"]
     assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
     sign, scale, factor = term_forms.parse(accepted[0]["name"])
@@ -335,7 +335,7 @@ def _found_exactly(tmp_path, specs, plugin: str, form: tuple[str, str], k: float
              progress=False)
     rep = run_discrepancy(dataset=blind(tmp_path / "hidden"), out_dir=tmp_path / "out", plots=False,
                           **{**RUN, "stride": STRIDE})
-    assert rep["verdict"] == "explained", rep["summary"]
+    assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]
     accepted = rep["selection"]["accepted"]
     assert not [a for a in accepted if a["name"] in force_terms.CATALOGUE], accepted
     info = term_forms.describe(accepted[0]["name"])
@@ -476,7 +476,7 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
 
     def summary(names, after_rmse, reg1=remains):
         verdict, text = _verdict([score(n) for n in names], reg0, {"before": {"rmse": 4380.0}, "after": {"rmse": after_rmse}}, reg1)
-        assert verdict == "explained"
+        assert verdict == ("partly explained" if reg1["significant"] else "explained"), verdict  # structure left: part
         return text
 
     little = 4380.0 * (1 - STAND_IN_MAX_GAIN) + 100.0

@@ -41,7 +41,9 @@ from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, on_soil_test_bou
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, displayed_box, hold_theta
 
 REPORT_VERSION = 1
-VERDICTS = ("explained", "unexplained", "no significant discrepancy")
+# "partly explained": terms are named and the residual keeps significant structure beside them (a
+# verdict of "explained" there read as more than the summary's "the named terms explain part")
+VERDICTS = ("explained", "partly explained", "unexplained", "no significant discrepancy")
 # Several discovered forms that together take less than this share off the held-out force error
 # while the residual keeps its structure may be stand-ins, and the verdict says so: a patchwork
 # that follows part of an effect whose own form the library does not hold. A hard spot at one
@@ -779,7 +781,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         hedged = any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") or force_terms.implausible_k(s.name, s.k)
                      for s in new_terms)
         moved = _theta_shift_text(shift, reg0, reg1) if hedged else ""
-        return "explained", text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
+        verdict = "partly explained" if reg1 is not None and reg1["significant"] else "explained"
+        return verdict, text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
