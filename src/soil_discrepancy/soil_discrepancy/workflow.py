@@ -738,7 +738,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                      + (f"; term by term, removing {', '.join(idle)} leaves {NO_WORSE_WITHOUT}" if idle else "")
                      + ")")
     if new_terms:
-        parts = []
+        parts, stand_ins = [], []  # stand_ins: terms fitted with a k their mechanism cannot have
         for s in new_terms:
             unit = force_terms.get_term(s.name).k_unit
             se = f" ± {s.k_se:.2g}" if math.isfinite(s.k_se) else ""
@@ -747,6 +747,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             caveat = pinned_caveat((pins or {}).get(s.name)) or _shape_caveat(s.name, (pins or {}).get(s.name), reg1, labels)
             if implausible := force_terms.implausible_k(s.name, s.k):
                 caveat += f"; {implausible}: a STAND-IN taking another effect's force, not that mechanism"
+                stand_ins.append(s.name)
             if s.name.startswith(FORM_PREFIX):
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
             parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated "
@@ -759,7 +760,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             text += f"; held-out test RMSE {b:.0f} N -> {a:.0f} N ({100 * (a / b - 1):+.0f} %)"
             if (test.get("depth_forecast") or {}).get("before"):
                 text += f", force at another depth {_fc_text(test)}"
-        if reg1 is not None and reg1["significant"]:
+        remains = reg1 is not None and reg1["significant"]  # structure beside the named terms: "partly explained"
+        if remains:
             text += "; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
             forms_named = sum(s.name.startswith(FORM_PREFIX) for s in new_terms)
             if gain is not None and gain < STAND_IN_MAX_GAIN and forms_named >= 2:
@@ -778,11 +780,9 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                      "form the library does not hold")
         # a form not pinned down and θ can trade off: the soil fitted beside it is the form's as much as
         # the data's (beside a pinned-down term the move is what the baseline's θ had taken in)
-        hedged = any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") or force_terms.implausible_k(s.name, s.k)
-                     for s in new_terms)
+        hedged = bool(stand_ins) or any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") for s in new_terms)
         moved = _theta_shift_text(shift, reg0, reg1) if hedged else ""
-        verdict = "partly explained" if reg1 is not None and reg1["significant"] else "explained"
-        return verdict, text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
+        return "partly explained" if remains else "explained", text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
