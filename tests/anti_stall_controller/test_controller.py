@@ -269,6 +269,7 @@ def test_bad_targets_name_field_value_and_range(speed, depth, field, value, allo
         AntiStallController(AntiStallGains(), speed, depth)
     msg = str(exc.value)
     assert field in msg and value in msg and allowed in msg, msg
+    assert ("at index" in msg) == (np.size(speed) > 1 or np.size(depth) > 1), msg  # a scalar has no index
     c = AntiStallController(AntiStallGains(), 0.5, 0.1)
     with pytest.raises(ValueError, match=field):
         c.set_targets(np.atleast_1d(speed)[-1], np.atleast_1d(depth)[-1])

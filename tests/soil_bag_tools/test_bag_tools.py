@@ -131,6 +131,19 @@ def test_an_episode_whose_bag_cannot_be_made_is_not_recorded_and_the_recorder_go
     rec.on_status(replace(end, episode=1).to_json())
     assert [r.path.name for r in rec.finished] == [SAMPLE.name]
     assert_same_episode(bag_io.read_episode(rec.finished[0].path), bag_io.read_episode(SAMPLE), 5)
+    # an episode a Ctrl-C ended is recorded whole ("completed") and says how the episode ended
+    rec.on_status(replace(start, episode=2).to_json())
+    for _, topic, raw in msgs:
+        rec.on_message(topic, raw, 0)
+    rec.on_status(replace(end, episode=2, reason="shutdown").to_json())
+    done = [m for lvl, m in log.lines if m.startswith("finished (")]
+    assert done[1].endswith("; the episode ended: shutdown"), done
+    completed = recorder.Recorder(tmp_path / "c", loaded.topics, end_grace_s=0.5, log=ListLog(), clock=lambda: 0.0)
+    completed.on_status(start.to_json())
+    for _, topic, raw in msgs:
+        completed.on_message(topic, raw, 0)
+    completed.on_status(replace(end, reason="completed").to_json())
+    assert [m for _, m in completed.log.lines if m.startswith("finished (completed)") and "ended" not in m], completed.log.lines
 
 
 def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_writer(tmp_path):

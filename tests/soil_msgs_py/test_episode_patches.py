@@ -56,6 +56,14 @@ def test_bad_patches_in_metadata_are_named(patches, needle):
         meta(patches=patches).validate()
 
 
+def test_where_bad_patches_came_from_is_said_once():
+    with pytest.raises(ValueError) as err:
+        check_patches([PATH[1], PATH[0]], "/sim/command: patches")
+    text = str(err.value)
+    assert text.startswith("/sim/command: patches[1].x_start_m=0.0 must be greater than patches[0].x_start_m=5.0")
+    assert text.count("/sim/command") == 1
+
+
 def test_entry_forms_are_one_patch():
     want = SoilPatch(5.0, "Clay", 90.0)
     assert parse_patch(" 5 : Clay :90") == want

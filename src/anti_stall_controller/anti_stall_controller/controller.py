@@ -195,20 +195,25 @@ def _as_batch(name: str, value, batch_size: Optional[int]) -> np.ndarray:
     return np.array(arr, dtype=np.float64, copy=True)
 
 
+def _at(i: int, values: np.ndarray) -> str:
+    """Where a bad target is: nothing to say for one machine's (a node's scalar parameter)."""
+    return f" at index {i}" if np.size(values) > 1 else ""
+
+
 def _check_targets(speed: np.ndarray, depth: np.ndarray) -> None:
     """The machine's reach (``params.MAX_TARGET_*``, the simulator's limits too)."""
     bad = ~np.isfinite(speed) | (speed <= 0.0) | (speed > MAX_TARGET_SPEED_M_S)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(
-            f"target_speed_m_s must be finite and in (0, {MAX_TARGET_SPEED_M_S:g}] m/s; got {float(speed[i])!r} at index {i}"
+            f"target_speed_m_s must be finite and in (0, {MAX_TARGET_SPEED_M_S:g}] m/s; got {float(speed[i])!r}{_at(i, speed)}"
         )
     bad = ~np.isfinite(depth) | (depth < 0.0) | (depth > MAX_TARGET_DEPTH_M)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(
             f"target_depth_m must be finite and in [0, {MAX_TARGET_DEPTH_M:g}] m (the blade's height); "
-            f"got {float(depth[i])!r} at index {i}"
+            f"got {float(depth[i])!r}{_at(i, depth)}"
         )
 
 

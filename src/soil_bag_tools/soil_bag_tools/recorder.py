@@ -424,6 +424,10 @@ class Recorder:
             self.log.error(f"{s.name}: no bag written: {err}")
             return None
         extra = f", {s.duplicates} duplicates" if s.duplicates else ""
+        # "completed" is the recording's (every tick of the episode in); how the episode itself
+        # ended (a Ctrl-C is "shutdown") is said beside it where it did not simply run its course
+        if s.end_event is not None and s.end_event.reason != "completed":
+            extra += f"; the episode ended: {s.end_event.reason}"
         self.log.info(f"finished ({how}) {result.summary()}{extra}")
         if result.conflicts or s.off_grid:
             self.log.warning(

@@ -98,10 +98,11 @@ def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:
         if not finite_number(p.relative_density_pct) or not 0.0 <= p.relative_density_pct <= 100.0:
             raise ValueError(f"{where}.relative_density_pct={short_repr(p.relative_density_pct)} outside [0, 100] %")
         out.append(SoilPatch(float(p.x_start_m), p.soil.strip(), float(p.relative_density_pct)))
+    name = field.rsplit(": ", 1)[-1]  # the field without where it came from, said once
     for i in range(1, len(out)):
         if not out[i].x_start_m > out[i - 1].x_start_m:
             raise ValueError(f"{field}[{i}].x_start_m={out[i].x_start_m!r} must be greater than "
-                             f"{field}[{i - 1}].x_start_m={out[i - 1].x_start_m!r}: patches are ordered along x")
+                             f"{name}[{i - 1}].x_start_m={out[i - 1].x_start_m!r}: patches are ordered along x")
     return tuple(out)
 
 

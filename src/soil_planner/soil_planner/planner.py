@@ -544,7 +544,8 @@ def check_quantile(q) -> float:
     """The force quantile as a float; ValueError naming it unless 0.5 <= q < 1."""
     x = _number("force_quantile", q)
     if not 0.5 <= x < 1.0:
-        raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force)")
+        raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force), "
+                         "or 0 for the PINN's point plan where the node takes it")
     return x
 
 
