@@ -243,7 +243,8 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     """``--forecast-data``: a machine's own cuts of one soil at several depths are the pairs the
     forecast at another depth is judged on (the world's calibrated posterior; a soil-changing
     path is no source; pairs never cross worlds), and a folder with no pair is refused up front."""
-    from soil_bag_tools.bag_io import write_episode
+    from pinn_estimator.evaluate import evaluate, markdown
+    from soil_bag_tools.bag_io import find_episode_bags, read_episode, write_episode
     from soil_msgs_py.patches import SoilPatch
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import EpisodeSpec, SimConfig
@@ -298,6 +299,29 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert eval_main([*alone, "--forecast-data", str(cuts), "--out", str(out), "--name", "f"]) == 0
     only = json.loads((out / "f.json").read_text())
     assert only["forecast_only"] and only["forecast"]["pairs"] == 2 and "force" not in only
+    # judged on the bags it was trained on: said, in the log and the report
+    said, on_cuts = [], tmp_path / "on_cuts.pt"
+    assert train_main(["--data", str(cuts), "--out", str(on_cuts), "--quiet", "--no-cache", "--epochs", "1",
+                       "--stride", "8", *[f"--{k.replace('_', '-')}={v}" for k, v in SMALL.items()]]) == 0
+    seen = evaluate(on_cuts, forecast_data=cuts, forecast_only=True, classical=False, log=said.append)
+    assert seen["seen_in_training"] > 0 and any("trained or validated on" in m for m in said)
+    assert "trained or validated on" in markdown(seen)
+    assert only.get("seen_in_training") == 0
+    # a machine's cuts (no /soil/ground_truth): the same forecast, no soil scored, no true-parameter FEE
+    machine = tmp_path / "machine"
+    for bag in find_episode_bags(cuts):
+        write_episode(machine / bag.name, read_episode(bag), ground_truth=False)
+    assert eval_main([*alone, "--forecast-data", str(machine), "--out", str(out), "--name", "m"]) == 0
+    blind = json.loads((out / "m.json").read_text(), parse_constant=_not_strict)["forecast"]
+    assert blind["pairs"] == 2 and blind["forecast"]["fused"] == only["forecast"]["forecast"]["fused"]
+    assert blind["forecast"]["true_fee"]["x"]["all"]["pairs"] == 0 and blind["parameters"] == {"fused": {}}
+    assert "No ground truth in these bags" in (out / "m.md").read_text()
+    # the full report scores the soil against the ground truth: refused, saying so
+    trained_on = tmp_path / "machine_training_bags"
+    for bag in find_episode_bags(tiny_bags):
+        write_episode(trained_on / bag.name, read_episode(bag), ground_truth=False)
+    with pytest.raises(ValueError, match="have no /soil/ground_truth .*--forecast-only"):
+        evaluate(pinn, trained_on, classical=False, log=lambda *_: None)
     assert only["forecast"]["forecast"]["fused"]["x"]["all"]["mean_abs_pct"] < 5.0
     assert "the forecast alone" in (out / "f.md").read_text() and not (out / "f_params.png").exists()
     # another world's model is judged as asked, and said to be another world's
@@ -333,6 +357,23 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and said in err, err
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_a_trend_target_is_met_exactly_when_the_trend_says_it_rises():
+    """Three densities, ĉ 0.53 / 2.56 / 0.92 kPa: ρ = 0.5 (one of three orders wrong) is no rise,
+    in the targets table as in the JSON's "rises" (the table once said yes beside rises: false)."""
+    from pinn_estimator.evaluate import _trends, targets
+
+    rows = [{"soil": "Clay", "relative_density_pct": i_d,
+             "pinn": {"phi": {"mean": phi * DEG}, "c": {"mean": c * 1e3}}}
+            for i_d, phi, c in ((15.0, 20.0, 0.53), (45.0, 22.0, 2.56), (85.0, 25.0, 0.92))]
+    trends = {"pinn": _trends(rows)}
+    report = {"force": {"pinn": {"mae_mag_pct_measured": 5.0}}, "world_modes": ["default"],
+              "params": {"pinn": {"id_le_60": {}}}, "trends": trends, "training": {}}
+    got = {t["target"].split(" rises")[0]: t for t in targets(report) if "rises" in t["target"]}
+    c_hat, phi_hat = got["Clay: c\u0302"], got["Clay: phi\u0302"]
+    assert c_hat["value"] == pytest.approx(0.5) and not c_hat["met"] and c_hat["op"] == ">"
+    assert trends["pinn"]["Clay"]["c"]["rises"] is False and phi_hat["met"] is True
 
 
 def test_bag_missing_a_topic_is_named(tiny_bags, tmp_path):

@@ -75,6 +75,26 @@ def test_round_trip_is_bit_identical(bag: Path, ep: Episode) -> None:
     assert not (bag.parent / "ep.partial").exists()
 
 
+def test_a_machines_bag_has_no_ground_truth_and_reads_with_truth_nan(tmp_path: Path, ep: Episode) -> None:
+    """A real machine records no /soil/ground_truth: such a bag reads, every other array
+    bit-identical, truth NaN; a bag missing any other episode topic is refused, naming it."""
+    ep.truth[:] = np.nan  # a machine knows none: not written, so not checked
+    bag = write_episode(tmp_path / "machine", ep, ground_truth=False)
+    with AnyReader([bag]) as reader:
+        assert "/soil/ground_truth" not in {c.topic for c in reader.connections}
+        assert {c.topic for c in reader.connections} == {t.name for t in EPISODE_TOPICS} - {"/soil/ground_truth"}
+    back = read_episode(bag)
+    assert not back.has_ground_truth and np.isnan(back.truth).all() and back.truth.shape == ep.truth.shape
+    for name in set(ARRAYS) - {"truth"}:
+        assert getattr(back, name).tobytes() == getattr(ep, name).tobytes(), name
+    assert make_episode().has_ground_truth
+    with pytest.raises(ValueError, match="Episode.truth"):  # a simulator's bag must carry a finite truth
+        write_episode(tmp_path / "sim", ep)
+    no_force = write_raw(tmp_path / "no_force", make_episode(), skip=lambda topic, i: topic == "/blade/force")
+    with pytest.raises(bag_io.BagReadError, match="has no topic /blade/force"):
+        read_episode(no_force)
+
+
 def test_metadata_yaml(bag: Path, ep: Episode) -> None:
     doc = yaml.safe_load((bag / "metadata.yaml").read_text())
     info = doc["rosbag2_bagfile_information"]

@@ -207,6 +207,24 @@ def test_control_gives_no_effect_through_the_cli(bag_dirs, tmp_path, capsys):
     assert "verdict: no significant discrepancy" in capsys.readouterr().out
 
 
+def test_a_machines_bags_without_ground_truth_give_the_same_answer(bag_dirs, tmp_path):
+    """Bags recorded without /soil/ground_truth, as a machine records them, are read (the analysis
+    never uses it): the control's verdict and figures are the same as from the simulator's bags."""
+    from soil_bag_tools.bag_io import read_episode, write_episode
+
+    machine = tmp_path / "machine"
+    for bag in find_episode_bags(bag_dirs["control"]):
+        write_episode(machine / bag.name, read_episode(bag), ground_truth=False)
+    assert not read_episode(next(iter(find_episode_bags(machine)))).has_ground_truth
+    reps = {}
+    for name, bags in (("sim", bag_dirs["control"]), ("machine", machine)):
+        assert cli_main([str(bags), "--out", str(tmp_path / name), "--stride", "3", "--workers", "2", "--quiet",
+                         "--no-plots", "--no-cache"]) == 0
+        reps[name] = json.loads((tmp_path / name / "discrepancy.json").read_text())
+    assert reps["machine"]["verdict"] == reps["sim"]["verdict"] == "no significant discrepancy"
+    assert reps["machine"]["test"] == reps["sim"]["test"]
+
+
 # ------------------------------------------------------------------------------ bad input
 def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     empty = tmp_path / "empty"

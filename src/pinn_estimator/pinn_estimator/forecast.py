@@ -299,7 +299,11 @@ def parameter_coverage(parts: list[Steady | None], posteriors: list) -> dict:
     posterior holds a true 0 at any level, however sharp, and says nothing about calibration; a
     cohesionless soil's c counts in its error."""
     levels = (0.05, 0.25, 0.75, 0.95)  # symmetric: bound i and bound -1 - i make a central interval
-    scored = [(part, post) for part, post in zip(parts, posteriors) if part is not None and post.updates]
+    # a machine's bag has no ground truth (NaN): nothing to score its soil against
+    scored = [(part, post) for part, post in zip(parts, posteriors)
+              if part is not None and post.updates and all(np.isfinite(part.truth[n]) for n in ("phi", "c", "delta"))]
+    if not scored:
+        return {}
     summaries = [post.summary() for _, post in scored]
     bounds = [post.quantiles(levels) for _, post in scored]
     out = {}
@@ -400,7 +404,12 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
             cells = [f"{_pct(row[n]['x']['mean_abs_pct'])} ({_pct(row[n]['deeper_x']['bias_pct'], True)})"
                      for n in (*names, *REFERENCES)]
             lines.append(f"| {soil} | {row['pairs']} | " + " | ".join(cells) + " |")
+    if "parameters" in report and not any(report["parameters"].values()):
+        lines += ["", "No ground truth in these bags (no /soil/ground_truth, as from a machine): the soil's "
+                      "parameters are not scored, only the forces, and there is no FEE with the true parameters."]
     for name, params in report.get("parameters", {}).items():
+        if not params:
+            continue
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
                           f"({_coverage_text(v, p)})" for p, v in params.items())
         lines += ["", f"{label_of(report, name)}, soil at each episode's end vs the truth: {cells}."]

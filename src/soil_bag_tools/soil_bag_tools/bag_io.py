@@ -30,7 +30,7 @@ from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta
-from soil_msgs_py.topics import EPISODE_TOPICS
+from soil_msgs_py.topics import EPISODE_TOPICS, GROUND_TRUTH
 from .bag_writer import BagWriter, offered_qos
 from .integrity import scan_file
 
@@ -76,9 +76,12 @@ def reading(bag: str | os.PathLike) -> Iterator[None]:
         raise BagReadError(bag, problem) from err
 
 
-def _check_arrays(ep: Episode) -> None:
-    """Refuse what cannot round-trip: non-finite values, bad or unordered stamps."""
+def _check_arrays(ep: Episode, skip: tuple[str, ...] = ()) -> None:
+    """Refuse what cannot round-trip: non-finite values (of the arrays not in ``skip``), bad or
+    unordered stamps."""
     for name, fields in M.ARRAY_FIELDS.items():
+        if name in skip:
+            continue
         arr = getattr(ep, name)
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -104,11 +107,14 @@ def is_bag(path: Path) -> bool:
     return path.is_dir() and (path / "metadata.yaml").is_file()
 
 
-def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bool = False) -> Path:
-    """Write ``episode`` as the bag directory ``bag_dir``; returns its path."""
+def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bool = False,
+                  ground_truth: bool = True) -> Path:
+    """Write ``episode`` as the bag directory ``bag_dir``; returns its path. ``ground_truth``
+    False leaves out ``/soil/ground_truth`` (and ``episode.truth`` unchecked): the bag a real
+    machine records, which knows no soil parameters."""
     bag_dir = Path(bag_dir)
     episode.meta.validate()
-    _check_arrays(episode)
+    _check_arrays(episode, skip=() if ground_truth else ("truth",))
     if bag_dir.name.endswith(PARTIAL_SUFFIX):
         raise ValueError(f"bag name {bag_dir.name!r} must not end in {PARTIAL_SUFFIX}")
     if bag_dir.exists() or bag_dir.is_symlink():
@@ -129,9 +135,9 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
             conns = {
                 t.name: writer.add_connection(t.name, t.msgtype, typestore=M.TYPESTORE,
                                               offered_qos_profiles=offered_qos(t.name))
-                for t in EPISODE_TOPICS
+                for t in EPISODE_TOPICS if ground_truth or t.name != GROUND_TRUTH.name
             }
-            for topic, stamp, raw in M.serialize_episode(episode, M.TYPESTORE):
+            for topic, stamp, raw in M.serialize_episode(episode, M.TYPESTORE, topics=tuple(conns)):
                 writer.write(conns[topic], stamp, raw)
         if not is_bag(tmp_bag):
             raise RuntimeError(f"rosbags wrote no metadata.yaml in {tmp_bag}")
@@ -217,6 +223,10 @@ def _read_meta(path: Path) -> EpisodeMeta:
 def read_episode(bag_dir: str | os.PathLike) -> Episode:
     """Read a bag written by ``write_episode`` back into an Episode (bit-identical arrays).
 
+    ``/soil/ground_truth`` may be missing, as from a real machine, which knows no soil
+    parameters: the Episode's ``truth`` is then NaN (``has_ground_truth`` False), and what scores
+    against it says so; every other episode topic must be there.
+
     FileNotFoundError if ``bag_dir`` does not exist; BagReadError for anything wrong with the bag."""
     path = Path(bag_dir)
     if not path.exists():
@@ -231,6 +241,8 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
             conns, stores = [], {}
             for t in EPISODE_TOPICS:
                 mine = [c for c in reader.connections if c.topic == t.name]
+                if not mine and t.name == GROUND_TRUTH.name:
+                    continue  # a machine's bag: truth NaN below
                 if not mine:
                     raise BagReadError(path, f"has no topic {t.name} ({t.msgtype})")
                 if wrong := {c.msgtype for c in mine} - {t.msgtype}:
@@ -242,7 +254,10 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
             raws: dict[str, list[bytes]] = defaultdict(list)
             for conn, _, raw in reader.messages(connections=conns):
                 raws[conn.topic].append(raw)
-            decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS}
+            decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS if n in stores}
+            if GROUND_TRUTH.name not in decoded:
+                stamps = np.unique(np.concatenate([v[0] for v in decoded.values()]))
+                decoded[GROUND_TRUTH.name] = (stamps, np.full((len(stamps), M.FIELDS[GROUND_TRUTH.name].width), np.nan))
             return M.assemble_episode(meta, decoded)
 
 

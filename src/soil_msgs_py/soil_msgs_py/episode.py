@@ -137,6 +137,11 @@ class Episode:
     def __len__(self) -> int:
         return len(self.stamps_ns)
 
+    @property
+    def has_ground_truth(self) -> bool:
+        """False for a machine's bag, recorded without ``/soil/ground_truth`` (truth all NaN)."""
+        return bool(np.isfinite(self.truth).any())
+
     def column(self, name: str) -> np.ndarray:
         """Any named per-tick column, e.g. ``ep.column('p_z_b')`` or ``ep.column('q')``."""
         for fields, arr in (

@@ -333,11 +333,15 @@ def topic_rows(ep: Episode, topic: str) -> np.ndarray:
     return np.stack(cols, axis=1) if cols else np.empty((len(ep), 0))
 
 
-def serialize_episode(ep: Episode, typestore: Typestore = TYPESTORE) -> Iterator[tuple[str, int, memoryview]]:
-    """(topic, log time ns, CDR bytes) per tick, topics in EPISODE_TOPICS order within a tick."""
-    rows = {name: topic_rows(ep, name).tolist() for name in FIELDS}
+def serialize_episode(ep: Episode, typestore: Typestore = TYPESTORE,
+                      topics: tuple[str, ...] | None = None) -> Iterator[tuple[str, int, memoryview]]:
+    """(topic, log time ns, CDR bytes) per tick, topics in EPISODE_TOPICS order within a tick
+    (``topics``: only those; default every episode topic)."""
+    names = [n for n in FIELDS if topics is None or n in topics]
+    rows = {name: topic_rows(ep, name).tolist() for name in names}
     for i, stamp in enumerate(ep.stamps_ns.tolist()):
-        for name, f in FIELDS.items():
+        for name in names:
+            f = FIELDS[name]
             msg = build_message(typestore, name, stamp, rows[name][i])
             yield name, stamp, typestore.serialize_cdr(msg, f.topic.msgtype)
 
