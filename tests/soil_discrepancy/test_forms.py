@@ -106,6 +106,24 @@ def test_entry_drag_is_found_with_its_form_and_shrinks_the_heldout_error(form_re
     AugmentedFEE(rep["model"]["extra_term_args"])
 
 
+def test_a_term_of_the_users_catalogue_is_tested_and_said_under_the_users_name(form_data, form_reports, tmp_path):
+    """The saved catalogue says "rename 'name' as you like": the next run tests the term and its
+    report says it under that name (and records the catalogue's terms and names)."""
+    from soil_discrepancy.cli import main as cli_main
+
+    form = form_reports["entry"]["selection"]["accepted"][0]["name"]
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(f"terms:\n- term: {form}\n  name: my entry drag\n")
+    out = tmp_path / "o"
+    assert cli_main([str(form_data["entry"]), "--out", str(out), "--catalogue", str(mine), "--stride", "8",
+                     "--no-forms", "--no-plots", "--no-cache", "--quiet", "--workers", "2"]) == 0
+    rep = json.loads((out / "discrepancy.json").read_text())
+    assert rep["settings"]["user_terms"] == {form: "my entry drag"} and form in rep["settings"]["candidates"]
+    named = form in {a["name"] for a in rep["selection"]["accepted"]}
+    said = f"'my entry drag' (`{form}`): " + ("**named**" if named else "not named")
+    assert said in (out / "discrepancy.md").read_text()
+
+
 def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form_reports):
     rep = form_reports["saturating"]
     assert rep["selection"]["accepted"] and rep["verdict"] == named_verdict(rep), rep["summary"]

@@ -94,7 +94,7 @@ def main(argv=None) -> int:
         hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
         if hidden is not None:
             refuse_repeats(hidden, "--hidden")
-        user_terms = [t["term"] for t in load_catalogue(args.catalogue)] if args.catalogue else ()
+        user_terms = {t["term"]: t["name"] for t in load_catalogue(args.catalogue)} if args.catalogue else {}
         soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()
         report = run_discrepancy(
             args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,

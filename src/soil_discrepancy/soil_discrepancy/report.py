@@ -141,6 +141,12 @@ def markdown(report: dict, figures=()) -> str:
             lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} "
                          f"{_unit(a['k_unit'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} | `{a['plugin']}` |")
         lines.append("")
+    user = (report.get("settings") or {}).get("user_terms") or {}
+    if user:
+        named = {t["name"] for t in report["selection"]["accepted"]}
+        lines += ["Terms from your catalogue, tested as candidates beside the catalogue's: "
+                  + "; ".join(f"'{name}' (`{term}`): {'**named**' if term in named else 'not named'}"
+                              for term, name in user.items()) + ".", ""]
     lines += _forms_md(report.get("forms"), report.get("test"), labels)
     test = report.get("test")
     if test:

@@ -345,7 +345,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "min_gain": min_gain, "min_effect": min_effect, "group_by": frame.group_by,
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
                      "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
-                     "workers": workers},
+                     "workers": workers,
+                     # the user's catalogue: each term tested and the name they gave it (``forms.load_catalogue``)
+                     "user_terms": dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}},
         "data": {**_data_summary(frame, sel_groups, test_groups),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []],
                  # sha256 of the bags' bytes ('' for data given in memory): same fingerprint, same data
