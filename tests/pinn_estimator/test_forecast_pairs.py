@@ -31,3 +31,13 @@ def test_unlabelled_episodes_pair_only_within_one_unit_weight(tmp_path):
     assert len(pairs) == 4, "each soil's two depths, each way; never sand with clay"
     assert all(a == b and a.startswith("γ≈") and abs(ga / gb - 1) < 0.002 for a, b, ga, gb in pairs), pairs
     assert len({p.soil for p in parts}) == 2
+
+
+def test_the_forecast_report_says_when_episodes_were_paired_by_unit_weight():
+    from pinn_estimator.forecast import markdown
+
+    report = {"data": "bags/machine", "pairs": 4, "episodes": 4, "worlds": ["fee"], "forecast": {}}
+    labelled = markdown({**report, "unlabelled": 0})[0]
+    assert "same soil and density:" in labelled and "γ" not in labelled
+    blind = markdown({**report, "unlabelled": 4})[0]
+    assert "4 of the episodes carry no soil label" in blind and "measured unit weight γ" in blind

@@ -359,6 +359,24 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_training_on_bags_of_two_worlds_is_said(tiny_bags, tmp_path, capsys):
+    from dataclasses import replace
+
+    from soil_bag_tools.bag_io import read_episode, write_episode
+
+    bags = find_episode_bags(tiny_bags)
+    mixed = tmp_path / "mixed"
+    for k, bag in enumerate(bags):
+        ep = read_episode(bag)
+        if k == 0:
+            other = "default" if ep.meta.world_mode == "fee" else "fee"
+            ep = replace(ep, meta=replace(ep.meta, world_mode=other))
+        write_episode(mixed / bag.name, ep)
+    assert train_main(["--data", str(mixed), "--out", str(tmp_path / "m.pt"), "--quiet", "--no-cache", "--epochs", "1",
+                       "--stride", "20", *[f"--{k.replace('_', '-')}={v}" for k, v in SMALL.items()]]) == 0
+    assert "mix worlds ['default', 'fee']" in capsys.readouterr().err
+
+
 def test_a_trend_target_is_met_exactly_when_the_trend_says_it_rises():
     """Three densities, ĉ 0.53 / 2.56 / 0.92 kPa: ρ = 0.5 (one of three orders wrong) is no rise,
     in the targets table as in the JSON's "rises" (the table once said yes beside rises: false)."""
@@ -421,6 +439,13 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
         ck.load_model(tmp_path / "corrupt.pt")
     with pytest.raises(FileNotFoundError):
         ck.load_model(tmp_path / "missing.pt")
+    with pytest.raises(ValueError, match="is a directory, not a checkpoint file"):  # was "does not exist"
+        ck.load_model(tmp_path)
+    for text in (b"hello\n", b"PK\x03\x04" + b"\x00" * 40):  # a text file, a broken zip
+        (tmp_path / "text.pt").write_bytes(text)
+        with pytest.raises(ValueError, match="not a readable torch checkpoint") as err:
+            ck.load_model(tmp_path / "text.pt")
+        assert "weights_only" not in str(err.value) and "\n" not in str(err.value), err.value
     raw = torch.load(path, weights_only=True)
     del raw["split"]
     torch.save(raw, tmp_path / "no_split.pt")

@@ -63,6 +63,8 @@ CHECKPOINT_SECTIONS = ("model_config", "state_dict", "train_config", "dataset", 
 def read_checkpoint(path) -> dict:
     """The checkpoint's dict, validated; ValueError names what is wrong."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"checkpoint {path} is a directory, not a checkpoint file (the .pt pinn_train writes)")
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
     try:
@@ -72,8 +74,10 @@ def read_checkpoint(path) -> dict:
             raise ValueError(f"checkpoint {path} holds Python objects beyond tensors and plain containers, which are "
                              "never unpickled here (unpickling runs code from the file): not a file pinn_train "
                              "writes") from None
+        # torch's own words, without its advice to load the file with weights_only=False (that runs its code)
+        said = str(err).split("Re-running")[0].strip().splitlines()[0] if str(err).strip() else ""
         raise ValueError(f"checkpoint {path} is not a readable torch checkpoint (a file pinn_train writes; damaged or "
-                         f"another format?): {type(err).__name__}: {str(err)[:200]}") from None
+                         f"another format?): {type(err).__name__}: {said[:200]}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise ValueError(f"checkpoint {path} is not an insitu-soil estimator checkpoint (format {FORMAT!r} missing)")
     if ckpt.get("format_version") != FORMAT_VERSION:

@@ -331,8 +331,12 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     pairs = forecast_pairs(parts, thetas, posteriors, terms)
     names = [*estimates, *posteriors]
+    from soil_msgs_py.soil_labels import UNKNOWN_SOIL, soil_label
+
     return {
         "episodes": len(ds),
+        # episodes without a soil label, paired by their measured unit weight γ instead (``steady_parts``)
+        "unlabelled": sum(soil_label(m) == UNKNOWN_SOIL for m in ds.metas),
         "worlds": sorted({m.world_mode for m in ds.metas}),
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
@@ -375,7 +379,11 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
     """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and
     shallower. ``intro``: the sentence above the table (default: the held-out episodes')."""
     if intro is None and report.get("data"):
-        intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
+        blind = report.get("unlabelled", 0)
+        same = ("same soil and density" if not blind else
+                f"same soil and density ({blind} of the episodes carry no soil label: those are paired by their measured "
+                "unit weight γ, so two soils of one γ pair too, and the per-soil table groups them by γ)")
+        intro = (f"Forecast of the force at another depth, {same}: {report['pairs']} pairs of "
                  f"{report['episodes']} episodes of the bags at {report['data']} ({', '.join(report['worlds'])}). "
                  "Mean |error| and signed bias, % of the measured force.")
     elif intro is None:

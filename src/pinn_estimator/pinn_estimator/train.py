@@ -320,6 +320,11 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
     try:
         ds = _load(args, ranks)
+        worlds = sorted({m.world_mode for m in ds.metas})
+        if len(worlds) > 1 and ranks.main:  # allowed (one model for both), but rarely meant: said, as pinn_eval refuses it
+            print(f"pinn_train: warning: the bags under {args.data} mix worlds {worlds} (bag metadata world_mode): one "
+                  "model for both, where the shipped ones are one per world; pinn_eval and soil_discrepancy take "
+                  "one world's bags", file=sys.stderr)
         split = None
         if args.split_from:
             from .checkpoint import read_checkpoint
