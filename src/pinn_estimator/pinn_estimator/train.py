@@ -148,9 +148,13 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     pairs = cfg.consistency > 0 and model_cfg.kind == "pinn"
     val_ends = torch.as_tensor(ds.window_ends(idx["val"], cfg.eval_stride))
     physics = "".join(f" + {k:g}·{name}" for name, k in model_cfg.extra_terms)
+    n_eps = sum(len(v) for v in idx.values())
     log(f"{model_cfg.kind}{' (F_FEE' + physics + ')' if physics else ''}: {parameter_count(model)} parameters; "
         f"{len(train_ends)} training windows ({len(idx['train'])} episodes), {len(val_ends)} validation windows "
-        f"({len(idx['val'])} episodes)")
+        f"({len(idx['val'])} episodes); episodes train / val / test "
+        + " / ".join(f"{len(idx[s])} ({100 * len(idx[s]) / max(n_eps, 1):.0f} %)" for s in ("train", "val", "test"))
+        + f" for val_fraction {cfg.val_fraction:g}, test_fraction {cfg.test_fraction:g} (by episode, stratified by "
+          "world, soil and I_d: a cell of 3 or 4 episodes gives one to each)")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     if cfg.lr_schedule == "cosine":
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs, eta_min=cfg.lr / 200)
