@@ -357,6 +357,8 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and said in err, err
     assert not (tmp_path / "x.pt").exists()
+    assert eval_main(["--checkpoint", str(tmp_path / "x.pt"), "--stride", "100000"]) == 2
+    assert "--stride=100000 must be in [1, 600] samples" in capsys.readouterr().err
 
 
 def test_training_on_bags_of_two_worlds_is_said(tiny_bags, tmp_path, capsys):
@@ -478,6 +480,10 @@ def test_eval_refuses_a_report_name_outside_out_and_names_training_bags_not_here
 def test_bad_training_options_are_named(tiny_ds):
     with pytest.raises(ValueError, match="stride=0"):
         TrainConfig(stride=0)
+    for name in ("stride", "eval_stride"):  # one window per episode: trained on 24 windows, exit 0
+        with pytest.raises(ValueError, match=f"{name}=100000 must be at most 600 samples"):
+            TrainConfig(**{name: 100000})
+    assert TrainConfig(stride=600).stride == 600
     with pytest.raises(ValueError, match="lr=-1"):
         TrainConfig(lr=-1.0)
     with pytest.raises(ValueError, match="lr_schedule='step'"):

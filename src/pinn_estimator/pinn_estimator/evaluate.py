@@ -36,7 +36,7 @@ from soil_physics.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
 from . import forecast as fc
-from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset
+from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset
 from .fusion import FusionConfig, SoilPosterior, fuse_episode
 from .inference import WindowTensors, force_errors, predict
 
@@ -524,8 +524,9 @@ def main(argv=None) -> int:
     if args.forecast_only and not args.forecast_data and args.forecast_world not in WORLD_MODES:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     try:
-        if args.stride < 1:
-            raise ValueError(f"--stride={args.stride} must be >= 1")
+        if not 1 <= args.stride <= MAX_WINDOW_STRIDE:
+            raise ValueError(f"--stride={args.stride} must be in [1, {MAX_WINDOW_STRIDE}] samples (beyond it one window "
+                             "per episode)")
         report = evaluate(args.checkpoint, args.data, physics_free=args.physics_free, stride=args.stride,
                           classical=not args.no_classical, workers=args.workers, progress=not args.quiet,
                           skip_bad_bags=args.skip_bad_bags,

@@ -34,7 +34,7 @@ from soil_physics.force_terms import CATALOGUE, parse_terms
 from soil_sim_node.ray_cluster import add_ray_option
 
 from .checkpoint import save_checkpoint
-from .dataset import Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
+from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
 from .distributed import Ranks, gather, process_group, ranks_from_env, share
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
@@ -73,6 +73,10 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name}={v!r} must be a positive integer")
+        for name in ("stride", "eval_stride"):
+            if getattr(self, name) > MAX_WINDOW_STRIDE:
+                raise ValueError(f"{name}={getattr(self, name)!r} must be at most {MAX_WINDOW_STRIDE} samples "
+                                 "(10 s of samples): beyond it one window per episode")
         cli_numbers.check_local_count("threads", self.threads)
         if not (isinstance(self.consistency, (int, float)) and np.isfinite(self.consistency) and self.consistency >= 0):
             raise ValueError(f"consistency={self.consistency!r} must be a number >= 0")
