@@ -223,6 +223,7 @@ def test_a_machines_bags_without_ground_truth_give_the_same_answer(bag_dirs, tmp
         reps[name] = json.loads((tmp_path / name / "discrepancy.json").read_text())
     assert reps["machine"]["verdict"] == reps["sim"]["verdict"] == "no significant discrepancy"
     assert reps["machine"]["test"] == reps["sim"]["test"]
+    assert reps["machine"]["data"]["world"] == reps["sim"]["data"]["world"] == "fee"
 
 
 # ------------------------------------------------------------------------------ bad input
@@ -284,6 +285,13 @@ def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named(
     one = hidden_check(report(("soil_inertia", 2.88)), both[:1])
     assert one["correct"] and one["text"].startswith("soil_inertia (k = 3) hidden; named ['soil_inertia'] with k = 2.88: correct")
     assert hidden_check(report(), None)["text"].startswith("none hidden; none named: correct")
+    # the default world lacks physics of its own: a form named instead of the hidden effect is not called wrong
+    in_default = {**report(("form:q_z*sink", 0.89)), "data": {"world": "default"}}
+    sink = hidden_check(in_default, both[:1])
+    assert not sink["correct"] and "WRONG" not in sink["text"] and ": not named (the default world has effects" in sink["text"]
+    second = hidden_check({**report(("form:q_z*sink", 0.89), ("soil_inertia", 3.4)), "data": {"world": "default"}}, both[:1])
+    assert not second["correct"] and ": soil_inertia named, not first (the default world" in second["text"]
+    assert ": WRONG" in hidden_check({**report(("form:q_z*sink", 0.89)), "data": {"world": "fee"}}, both[:1])["text"]
 
 
 def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):

@@ -349,6 +349,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      # the user's catalogue: each term tested and the name they gave it (``forms.load_catalogue``)
                      "user_terms": dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}},
         "data": {**_data_summary(frame, sel_groups, test_groups),
+                 # the bags' world (metadata world_mode; "" for a machine's): the check against a hidden effect reads it
+                 "world": next(iter(sorted({str(getattr(m, "world_mode", "") or "") for m in getattr(dataset, "metas", ())}
+                                           - {"", "unknown"})), ""),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []],
                  # sha256 of the bags' bytes ('' for data given in memory): same fingerprint, same data
                  "fingerprint": getattr(dataset, "fingerprint", "") or ""},
