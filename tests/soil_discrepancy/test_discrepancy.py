@@ -196,20 +196,9 @@ def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
 
 
 
-def test_control_gives_no_effect_through_the_cli(bag_dirs, tmp_path, capsys):
-    out = tmp_path / "control"
-    assert cli_main([str(bag_dirs["control"]), "--out", str(out), "--stride", "3", "--workers", "2", "--quiet",
-                     "--no-plots", "--no-cache"]) == 0
-    rep = json.loads((out / "discrepancy.json").read_text())
-    assert rep["selection"]["accepted"] == [] and rep["model"]["terms"] == []
-    assert rep["verdict"] == "no significant discrepancy", rep["summary"]
-    assert all(not s["accepted"] and (s["gain"] is None or s["gain"] < 0.05) for s in rep["selection"]["rounds"][0]["scores"])
-    assert "verdict: no significant discrepancy" in capsys.readouterr().out
-
-
-def test_a_machines_bags_without_ground_truth_give_the_same_answer(bag_dirs, tmp_path):
-    """Bags recorded without /soil/ground_truth, as a machine records them, are read (the analysis
-    never uses it): the control's verdict and figures are the same as from the simulator's bags."""
+def test_control_gives_no_effect_through_the_cli_from_a_simulators_and_a_machines_bags(bag_dirs, tmp_path, capsys):
+    """The control's answer; and from the same bags recorded without /soil/ground_truth, as a
+    machine records them (the analysis never uses it), the same answer to the figure."""
     from soil_bag_tools.bag_io import read_episode, write_episode
 
     machine = tmp_path / "machine"
@@ -217,13 +206,17 @@ def test_a_machines_bags_without_ground_truth_give_the_same_answer(bag_dirs, tmp
         write_episode(machine / bag.name, read_episode(bag), ground_truth=False)
     assert not read_episode(next(iter(find_episode_bags(machine)))).has_ground_truth
     reps = {}
-    for name, bags in (("sim", bag_dirs["control"]), ("machine", machine)):
+    for name, bags in (("control", bag_dirs["control"]), ("machine", machine)):
         assert cli_main([str(bags), "--out", str(tmp_path / name), "--stride", "3", "--workers", "2", "--quiet",
                          "--no-plots", "--no-cache"]) == 0
         reps[name] = json.loads((tmp_path / name / "discrepancy.json").read_text())
-    assert reps["machine"]["verdict"] == reps["sim"]["verdict"] == "no significant discrepancy"
-    assert reps["machine"]["test"] == reps["sim"]["test"]
-    assert reps["machine"]["data"]["world"] == reps["sim"]["data"]["world"] == "fee"
+    rep = reps["control"]
+    assert rep["selection"]["accepted"] == [] and rep["model"]["terms"] == []
+    assert rep["verdict"] == "no significant discrepancy", rep["summary"]
+    assert all(not s["accepted"] and (s["gain"] is None or s["gain"] < 0.05) for s in rep["selection"]["rounds"][0]["scores"])
+    assert "verdict: no significant discrepancy" in capsys.readouterr().out
+    assert reps["machine"]["verdict"] == rep["verdict"] and reps["machine"]["test"] == rep["test"]
+    assert reps["machine"]["data"]["world"] == rep["data"]["world"] == "fee"
 
 
 # ------------------------------------------------------------------------------ bad input
