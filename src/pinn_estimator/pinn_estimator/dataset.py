@@ -34,8 +34,8 @@ from soil_msgs_py.params import (
 )
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
-# Samples between window ends at most: 10 windows of 1 s a minute of cut. A larger stride
-# leaves one window per episode of the project's 10 s, and a run on a handful of windows
+# Samples between window ends at most: 600, 10 s at 60 Hz, the length of this project's
+# episodes. A larger stride leaves one window per episode, and a run on a handful of windows
 # (pinn_train --stride 100000 trained on 24 of them, pinn_eval scored 12) is no run.
 MAX_WINDOW_STRIDE = 10 * WINDOW_SAMPLES
 CACHE_VERSION = 2  # 2: per-row stamp gaps (``Dataset.gap_before``)
