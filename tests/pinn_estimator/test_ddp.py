@@ -54,6 +54,10 @@ def test_shares_cover_a_batch_once_and_torchrun_variables_are_checked():
         ranks_from_env({"WORLD_SIZE": "two"})
     with pytest.raises(ValueError, match="RANK=2, WORLD_SIZE=2"):
         ranks_from_env({"RANK": "2", "WORLD_SIZE": "2"})
+    # more processes on this machine than its cores can take (17 ranks on 2 cores ran, exit 0)
+    with pytest.raises(ValueError, match=r"LOCAL_WORLD_SIZE \(torchrun --nproc-per-node\)=100000 is more than"):
+        ranks_from_env({"RANK": "0", "WORLD_SIZE": "100000", "LOCAL_WORLD_SIZE": "100000"})
+    assert ranks_from_env({"RANK": "0", "WORLD_SIZE": "100000", "LOCAL_WORLD_SIZE": "2"}).world == 100000  # a fleet
 
 
 def test_pinn_train_refuses_a_malformed_torchrun_variable(bags, tmp_path, monkeypatch, capsys):

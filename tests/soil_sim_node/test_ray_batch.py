@@ -133,3 +133,17 @@ def test_an_unreachable_ray_address_is_refused_at_once(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"cannot reach the Ray cluster at --ray={address!r}" in err, err
     assert not find_episode_bags(tmp_path / "ds")
+
+
+def test_auto_pointing_at_a_stopped_cluster_or_an_empty_address_is_refused_at_once(tmp_path, capsys, monkeypatch):
+    """``--ray auto`` is RAY_ADDRESS or the address the last ``ray start`` here left behind; a stale
+    one made Ray retry forever (a run ignored SIGTERM for 40 s). An empty address ran the local pool."""
+    address = f"127.0.0.1:{_free_port()}"
+    monkeypatch.setenv("RAY_ADDRESS", address)  # what a cluster stopped long ago leaves pointing nowhere
+    assert batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", "auto"]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot reach the Ray cluster at --ray='auto' (where --ray='auto' points" in err and address in err, err
+    with pytest.raises(SystemExit) as exit_:
+        batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", ""])
+    assert exit_.value.code == 2 and "argument --ray: '' is no address" in capsys.readouterr().err
+    assert not find_episode_bags(tmp_path / "ds")

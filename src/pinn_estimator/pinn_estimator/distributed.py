@@ -16,6 +16,8 @@ from datetime import timedelta
 
 import torch.distributed as dist
 
+from soil_msgs_py.cli_numbers import check_local_count
+
 # How long a rank waits in a collective: rank 0 reads the bags (possibly a fleet's worth) while
 # the others wait at a barrier, so the default 30 min could be too short. A rank that dies
 # does not make the others wait this long: torchrun stops the whole group.
@@ -53,6 +55,8 @@ def ranks_from_env(env=os.environ) -> Ranks:
     local = values["LOCAL_WORLD_SIZE"] or world
     if world < 1 or not 0 <= rank < world or not 1 <= local <= world:
         raise ValueError(f"RANK={rank}, WORLD_SIZE={world}, LOCAL_WORLD_SIZE={local} are inconsistent")
+    # processes on this machine, bounded like every tool's --workers (17 ranks on 2 cores ran, exit 0)
+    check_local_count("LOCAL_WORLD_SIZE (torchrun --nproc-per-node)", local)
     return Ranks(rank, world, local)
 
 

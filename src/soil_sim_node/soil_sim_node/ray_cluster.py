@@ -28,7 +28,19 @@ RAY_OPTION_HELP = (
 
 def add_ray_option(parser, what: str) -> None:
     """``--ray [ADDRESS]`` for every CLI that can fan out over Ray (one wording everywhere)."""
-    parser.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS", help=f"{what}: {RAY_OPTION_HELP}")
+    parser.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS", type=_ray_address,
+                        help=f"{what}: {RAY_OPTION_HELP}")
+
+
+def _ray_address(text: str) -> str:
+    """An ADDRESS given to --ray; an empty one (``--ray ''``, a shell variable left unset) had run
+    the local pool without a word."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is no address: give host:port, auto, or --ray alone for a "
+                                         "local instance")
+    return text.strip()
 
 
 @contextmanager
@@ -69,9 +81,11 @@ def ray_session(address: str, num_cpus: int | None = None):
                      logging_level="warning")
         else:
             ray.init(address=address, logging_level="warning")
-    except (ConnectionError, ValueError, ray.exceptions.AuthenticationError) as err:
+    except ray.exceptions.AuthenticationError as err:
         raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err} (a cluster started with "
                          "token authentication needs RAY_AUTH_MODE=token here, and its token)") from None
+    except (ConnectionError, ValueError) as err:
+        raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err}") from None
     try:
         yield ray
     finally:
@@ -79,14 +93,29 @@ def ray_session(address: str, num_cpus: int | None = None):
 
 
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
-    """ValueError if nothing listens at a host:port address: Ray itself would retry forever."""
-    host, sep, port = address.rpartition(":")
-    if address.startswith("ray://") or not sep or not port.isdigit():
-        return  # Ray's own forms (ray://, auto): Ray checks them
+    """ValueError if nothing listens at a host:port address, or at the one ``auto`` stands for:
+    Ray itself would retry forever (``auto`` read a stale address a cluster stopped long ago had
+    left in Ray's temp directory, and a run ignored SIGTERM for 40 s)."""
+    target = _auto_address() if address == "auto" else address
+    host, sep, port = target.rpartition(":")
+    if target.startswith("ray://") or not sep or not port.isdigit():
+        return  # Ray's client form (ray://): Ray checks it
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
     except OSError as err:
-        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}: {err}") from None
+        via = " (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine)" if target != address else ""
+        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}, {target}: {err}") from None
+
+
+def _auto_address() -> str:
+    """The host:port Ray connects to for ``auto``: RAY_ADDRESS, else the address the last
+    ``ray start`` on this machine wrote to Ray's temp directory. ValueError if there is none."""
+    from ray._private.services import get_ray_address_from_environment
+
+    try:
+        return str(get_ray_address_from_environment("auto", None))
+    except (ConnectionError, ValueError, OSError) as err:
+        raise ValueError(f"--ray='auto' finds no Ray cluster on this machine: {err}") from None
 
 
 def cluster_cpus() -> int:
