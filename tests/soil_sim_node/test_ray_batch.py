@@ -142,7 +142,7 @@ def test_auto_pointing_at_a_stopped_cluster_or_an_empty_address_is_refused_at_on
     monkeypatch.setenv("RAY_ADDRESS", address)  # what a cluster stopped long ago leaves pointing nowhere
     assert batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", "auto"]) == 2
     err = capsys.readouterr().err
-    assert f"cannot reach the Ray cluster at --ray='auto' (where --ray='auto' points" in err and address in err, err
+    assert "cannot reach the Ray cluster at --ray='auto' (where --ray='auto' points" in err and address in err, err
     with pytest.raises(SystemExit) as exit_:
         batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", ""])
     assert exit_.value.code == 2 and "argument --ray: '' is no address" in capsys.readouterr().err
