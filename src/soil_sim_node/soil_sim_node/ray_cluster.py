@@ -103,8 +103,9 @@ def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
     except OSError as err:
-        via = " (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine)" if target != address else ""
-        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}, {target}: {err}") from None
+        via = (f" (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine), {target}"
+               if target != address else "")
+        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}: {err}") from None
 
 
 def _auto_address() -> str:
