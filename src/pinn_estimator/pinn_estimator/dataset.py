@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, find_episode_bags, read_episode
-from soil_msgs_py.episode import EpisodeMeta
+from soil_msgs_py.episode import EpisodeMeta, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
@@ -374,7 +374,7 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
 
 def describe(ds: Dataset) -> dict:
     """Small JSON-able summary stored in checkpoints and reports."""
-    modes = sorted({m.world_mode for m in ds.metas})
+    modes = world_modes(ds.metas)
     soils = sorted({m.soil for m in ds.metas})
     return {
         "root": ds.root,

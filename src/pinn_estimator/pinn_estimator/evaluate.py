@@ -29,8 +29,8 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import file_stem, output_dir
-from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, UNKNOWN_SOIL, soil_label
+from soil_msgs_py.episode import WORLD_MODES, world_modes
+from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
@@ -179,7 +179,7 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
     one soil at several depths); ValueError naming what is wrong if they hold no forecast pair or
     several worlds (the fused posterior's calibration is a world's)."""
     ds = load_dataset(root, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
-    worlds = sorted({m.world_mode for m in ds.metas})
+    worlds = world_modes(ds.metas)
     if len(worlds) > 1:
         raise ValueError(f"--forecast-data {root}: bags of several worlds {worlds}; the fused posterior is calibrated "
                          "per world: give one world's bags")
@@ -212,7 +212,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, clas
     # read and checked before the test split's evaluation, so a bad directory costs nothing
     forecast_bags = None if forecast_data is None else load_forecast_bags(
         forecast_data, workers=workers, progress=progress, skip_bad_bags=skip_bad_bags)
-    unlabelled = 0 if forecast_bags is None else sum(soil_label(m) == UNKNOWN_SOIL for m in forecast_bags.metas)
+    unlabelled = 0 if forecast_bags is None else unlabelled_count(forecast_bags.metas)
     if unlabelled:
         log(f"--forecast-data: {unlabelled} of its {len(forecast_bags)} episodes carry no soil label; they are paired "
             "by their measured unit weight γ (two soils of one γ would pair)")

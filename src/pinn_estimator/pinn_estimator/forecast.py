@@ -22,7 +22,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
+from soil_msgs_py.episode import world_modes
+from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
@@ -331,13 +332,11 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     terms = {name: force_terms.parse_terms(t) for name, t in (terms or {}).items()}
     pairs = forecast_pairs(parts, thetas, posteriors, terms)
     names = [*estimates, *posteriors]
-    from soil_msgs_py.soil_labels import UNKNOWN_SOIL, soil_label
-
     return {
         "episodes": len(ds),
         # episodes without a soil label, paired by their measured unit weight γ instead (``steady_parts``)
-        "unlabelled": sum(soil_label(m) == UNKNOWN_SOIL for m in ds.metas),
-        "worlds": sorted({m.world_mode for m in ds.metas}),
+        "unlabelled": unlabelled_count(ds.metas),
+        "worlds": world_modes(ds.metas),
         "pairs": len(pairs),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, names),

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from soil_msgs_py import cli_numbers
+from soil_msgs_py.episode import world_modes
 from soil_msgs_py.cli_paths import output_file
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
@@ -328,7 +329,7 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
     try:
         ds = _load(args, ranks)
-        worlds = sorted({m.world_mode for m in ds.metas})
+        worlds = world_modes(ds.metas)
         if len(worlds) > 1 and ranks.main:  # allowed (one model for both), but rarely meant: said, as pinn_eval refuses it
             print(f"pinn_train: warning: the bags under {args.data} mix worlds {worlds} (bag metadata world_mode): one "
                   "model for both, where the shipped ones are one per world; pinn_eval and soil_discrepancy take "

@@ -146,22 +146,25 @@ def hidden_check(report: dict, hidden) -> dict:
     else:
         hidden = [tuple(h) for h in hidden]
         ok = bool(named) and named[0] in {name for name, _ in hidden}
-        if len(hidden) == 1:
-            (name, k_hidden), = hidden
-            text = (f"{name} (k = {k_hidden:g}) hidden; named {named or 'none'}"
-                    + (f" with k = {k[name]:.4g}" if name in k else "") + (": correct" if ok else ": WRONG"))
-        else:
-            found = "; ".join(f"{name} (k = {k_hidden:g}) hidden" + (f", named with k = {k[name]:.4g}" if name in k
-                                                                    else ", not named") for name, k_hidden in hidden)
-            text = f"{found}; named {named or 'none'}" + (": correct" if ok else ": WRONG")
-        if not ok and (report.get("data") or {}).get("world") == "default":
+        if ok:
+            answer = ": correct"
+        elif (report.get("data") or {}).get("world") == "default":
             # the default world has effects of its own the model lacks (soil_sim_node/effects.py): what is named
             # first there may be one of them, so "wrong" says too much; whether the hidden one was named says enough
             anywhere = [name for name, _ in hidden if name in named]
-            text = text.removesuffix(": WRONG") + (
-                f": {', '.join(anywhere)} named, not first" if anywhere else ": not named") + (
-                " (the default world has effects of its own that the model lacks, soil_sim_node/effects.py: "
-                "what is named before or instead of the hidden effect may be one of them)")
+            answer = ((f": {', '.join(anywhere)} named, not first" if anywhere else ": not named")
+                      + " (the default world has effects of its own that the model lacks, soil_sim_node/effects.py: "
+                        "what is named before or instead of the hidden effect may be one of them)")
+        else:
+            answer = ": WRONG"
+        if len(hidden) == 1:
+            (name, k_hidden), = hidden
+            text = (f"{name} (k = {k_hidden:g}) hidden; named {named or 'none'}"
+                    + (f" with k = {k[name]:.4g}" if name in k else "") + answer)
+        else:
+            found = "; ".join(f"{name} (k = {k_hidden:g}) hidden" + (f", named with k = {k[name]:.4g}" if name in k
+                                                                    else ", not named") for name, k_hidden in hidden)
+            text = f"{found}; named {named or 'none'}" + answer
     test = report.get("test") or {}
     before, after = (test.get("before") or {}).get("rmse"), (test.get("after") or {}).get("rmse")
     ratio = after / before if before and after is not None else None

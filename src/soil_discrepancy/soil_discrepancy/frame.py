@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pinn_estimator.forecast import one_soil
+from soil_msgs_py.episode import world_modes
 from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
@@ -169,7 +170,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     n_ep = len(ds.names)
     if n_ep == 0:
         raise ValueError("the dataset has no episodes")
-    worlds = sorted({str(getattr(m, "world_mode", "") or "") for m in ds.metas} - {"", "unknown"})
+    worlds = world_modes(ds.metas)
     if len(worlds) > 1:
         raise ValueError(f"the dataset mixes worlds {worlds} (bag metadata world_mode): a discrepancy is one "
                          "world's against the model; give one world's bags")

@@ -30,6 +30,7 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
 from pinn_estimator.classical import default_workers
+from soil_msgs_py.episode import world_modes
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
 from .forms import describe_form, pin_kind, pinned_caveat, rival_forms, search_forms, weaker_pin
@@ -350,8 +351,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "user_terms": dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}},
         "data": {**_data_summary(frame, sel_groups, test_groups),
                  # the bags' world (metadata world_mode; "" for a machine's): the check against a hidden effect reads it
-                 "world": next(iter(sorted({str(getattr(m, "world_mode", "") or "") for m in getattr(dataset, "metas", ())}
-                                           - {"", "unknown"})), ""),
+                 "world": next(iter(world_modes(getattr(dataset, "metas", ()))), ""),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []],
                  # sha256 of the bags' bytes ('' for data given in memory): same fingerprint, same data
                  "fingerprint": getattr(dataset, "fingerprint", "") or ""},

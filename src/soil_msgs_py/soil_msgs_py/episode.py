@@ -100,6 +100,12 @@ class EpisodeMeta:
         )
 
 
+def world_modes(metas) -> list[str]:
+    """The sorted world modes (``world_mode``) of episodes' metadata, leaving out an empty or
+    "unknown" one: which worlds a set of bags is from (the tools take one world's, or warn)."""
+    return sorted({str(getattr(m, "world_mode", "") or "") for m in metas} - {"", "unknown"})
+
+
 @dataclass
 class Episode:
     """Arrays of one episode, one row per 60 Hz tick.

@@ -25,6 +25,11 @@ def soil_label(meta) -> str:
     return UNKNOWN_SOIL if soil.lower() in UNKNOWN_SOILS else soil
 
 
+def unlabelled_count(metas) -> int:
+    """How many of the episodes' metadata carry no soil label (``soil_label``)."""
+    return sum(soil_label(m) == UNKNOWN_SOIL for m in metas)
+
+
 def gamma_group_names(gamma) -> list[str]:
     """Per value of ``gamma`` [N/m³], the name of its group: chains of sorted γ whose steps stay
     within GAMMA_GROUP_RTOL, named after the chain's smallest γ. ValueError on a non-finite γ."""

@@ -11,6 +11,7 @@ would meet the files its first attempt wrote).
 """
 from __future__ import annotations
 
+import argparse
 import os
 import socket
 import sys
@@ -35,8 +36,6 @@ def add_ray_option(parser, what: str) -> None:
 def _ray_address(text: str) -> str:
     """An ADDRESS given to --ray; an empty one (``--ray ''``, a shell variable left unset) had run
     the local pool without a word."""
-    import argparse
-
     if not text.strip():
         raise argparse.ArgumentTypeError(f"{text!r} is no address: give host:port, auto, or --ray alone for a "
                                          "local instance")
