@@ -359,6 +359,10 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
     assert not (tmp_path / "x.pt").exists()
     assert eval_main(["--checkpoint", str(tmp_path / "x.pt"), "--stride", "100000"]) == 2
     assert "--stride=100000 must be in [1, 600] samples" in capsys.readouterr().err
+    # The forecast averages windows of its own stride: a --stride there would be silently unused.
+    with pytest.raises(SystemExit) as exit_:
+        eval_main(["--checkpoint", str(tmp_path / "x.pt"), "--forecast-only", "--forecast-world", "fee", "--stride", "5"])
+    assert exit_.value.code == 2 and "--data, --physics-free and --stride do not apply" in capsys.readouterr().err
 
 
 def test_training_on_bags_of_two_worlds_is_said(tiny_bags, tmp_path, capsys):

@@ -46,6 +46,7 @@ TRUTH_COL = {p: GROUND_TRUTH_PARAMS.index(p) for p in PARAMS}
 FAILURE_DEPTH_M = 0.1  # §3.2: hypothetical failure force at d = 0.1 m, Q = 0
 FAILURE_SPEED_M_S = 0.5  # forward, blade level: full soil-tool friction (Eq. 10 scale ~ 1)
 ID_LIMIT_PCT = 60.0  # parameter targets hold for I_d <= 60 % (soil failure assumption, §3.2)
+TEST_STRIDE = 10  # samples between the test split's windows (1/6 s)
 
 
 def _windows(ends: np.ndarray, arr: np.ndarray) -> np.ndarray:
@@ -200,7 +201,7 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
     return ds
 
 
-def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = 10, classical: bool = True, workers: int = 2, progress: bool = False,
+def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STRIDE, classical: bool = True, workers: int = 2, progress: bool = False,
              skip_bad_bags: bool = False, forecast_world: str | None = "auto", forecast_data=None, forecast_only: bool = False,
              log=print) -> dict:
     """Build the report dict (see module docstring). ``forecast_data``: a bag directory the forecast
@@ -501,7 +502,7 @@ def main(argv=None) -> int:
     p.add_argument("--data", help="bag directory (default: the one the checkpoint was trained on)")
     p.add_argument("--out", type=output_dir, default="out/eval", help="report directory (default: out/eval)")
     p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
-    p.add_argument("--stride", type=int, default=10, help="samples between test windows (default: 10)")
+    p.add_argument("--stride", type=int, help=f"samples between test windows (default: {TEST_STRIDE})")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading")
     p.add_argument("--forecast-world", default="auto", choices=("auto", *WORLD_MODES, "none"),
@@ -519,8 +520,10 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.forecast_data and args.forecast_world == "none":
         p.error("--forecast-data asks for the forecast that --forecast-world none skips: give one of them")
-    if args.forecast_only and (args.physics_free or args.data):
-        p.error("--forecast-only evaluates no test split: --data and --physics-free do not apply")
+    if args.forecast_only and (args.physics_free or args.data or args.stride is not None):
+        p.error("--forecast-only evaluates no test split: --data, --physics-free and --stride do not apply")
+    if args.stride is None:
+        args.stride = TEST_STRIDE
     if args.forecast_only and not args.forecast_data and args.forecast_world not in WORLD_MODES:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     try:
