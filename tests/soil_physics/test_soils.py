@@ -378,3 +378,31 @@ def test_sectioned_file_has_soils_and_named_paths(tmp_path):
 def test_bad_paths_name_the_file_path_and_value(tmp_path, text, needle):
     with pytest.raises(ValueError, match=rf"soil file '.*': {needle}"):
         soils.load_soil_file(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("field,old,new,said", [
+    ("phi_deg", "[20, 30]", "[0.35, 0.52]", "looks like radians (20.1, 29.8 deg)"),
+    ("cohesion_pa", "[3000, 9000]", "[3, 9]", "kPa perhaps"),
+    ("unit_weight_n_m3", "[16000, 20000]", "[1630, 2040]", "kg/m^3 perhaps"),
+])
+def test_a_value_in_another_units_range_is_refused_naming_the_unit(tmp_path, field, old, new, said):
+    """φ in radians, c in kPa or γ in kg/m³ lie inside the wide numeric bounds and simulated a
+    soil nothing like the one meant (φ 0.45° cut with 11 kN), without a word."""
+    with pytest.raises(ValueError, match=f"{field}=") as exc:
+        load_soil_yaml(write(tmp_path, VALID_ONE.replace(f"{field}: {old}", f"{field}: {new}")))
+    assert said in str(exc.value)
+    # a small φ at one density, a cohesionless soil and a light peat stay soils
+    ok = VALID_ONE.replace("phi_deg: [20, 30]", "phi_deg: [1.2, 12]").replace(
+        "cohesion_pa: [3000, 9000]", "cohesion_pa: [0, 10]").replace("unit_weight_n_m3: [16000, 20000]",
+                                                                      "unit_weight_n_m3: [10000, 12000]")
+    assert list(load_soil_yaml(write(tmp_path, ok))) == ["SiltyClay"]
+
+
+def test_an_unknown_field_and_soils_keyed_by_name_are_refused_naming_them(tmp_path):
+    with pytest.raises(ValueError, match=r"unknown field\(s\) \['cohesion_kpa'\]; known: \['name', 'phi_deg'"):
+        load_soil_yaml(write(tmp_path, VALID_ONE + "cohesion_kpa: [3, 9]\n"))
+    keyed = "soils:\n  Silt: {phi_deg: [26, 34], cohesion_pa: [500, 4000], unit_weight_n_m3: [15500, 19000]}\n"
+    with pytest.raises(ValueError, match=r"soils are a mapping of names \['Silt'\]; give a list of soils, each with its name"):
+        load_soil_yaml(write(tmp_path, keyed))
+    with pytest.raises(ValueError, match="is empty"):
+        load_soil_yaml(write(tmp_path, ""))

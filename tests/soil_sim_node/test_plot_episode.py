@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from soil_bag_tools.bag_io import write_episode
+from soil_bag_tools.bag_io import read_episode, write_episode
 from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
@@ -55,3 +55,22 @@ def test_an_unwritable_figure_path_is_refused_before_the_bag_is_read(tmp_path, o
     assert out.returncode == 2
     assert f"argument -o/--out: {needle}" in out.stderr and "Traceback" not in out.stderr
     assert "no_such_bag" not in out.stderr and (out_arg != "fig.xyz" or " pdf, " in out.stderr)
+
+
+def test_a_machines_bag_is_drawn_without_a_truth_it_does_not_have(tmp_path, monkeypatch):
+    """A bag without /soil/ground_truth has no Θ: its figure drew two empty FEE(Θ) lines in the
+    legend. They are left out; the measured forces stay."""
+    import matplotlib.pyplot as plt
+
+    from soil_sim_node import plot as plot_module
+
+    ep = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Sand", 20.0, 0.5, 0.1, seed=0, duration_s=0.5)])[0]
+    labels = {}
+    closed = plt.close
+    monkeypatch.setattr(plot_module.plt, "close", lambda fig: (labels.setdefault(len(labels), [
+        t.get_text() for t in fig.axes[0].get_legend().get_texts()]), closed(fig)))
+    for truth in (True, False):
+        bag = write_episode(tmp_path / f"bag_{truth}", ep, ground_truth=truth)
+        plot_module.plot_episode(read_episode(bag), tmp_path / f"{truth}.png")
+    assert any("FEE" in t for t in labels[0]) and not any("FEE" in t for t in labels[1])
+    assert {"$f_x^b$ measured", "$f_z^b$ measured"} <= set(labels[1])

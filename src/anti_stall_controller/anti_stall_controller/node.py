@@ -43,7 +43,8 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.params import (FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ,
+                                 TICK_PERIOD_NS, beyond_lift_reach)
 from soil_msgs_py.ros_adapter import (
     JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
@@ -154,6 +155,8 @@ class ControllerNode(Node):
             get("inputs_wait_s"), lambda missing: self.get_logger().warning(
                 f"following the state without a publisher of {missing} yet (depth_source planner)"))
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
+        if note := beyond_lift_reach("target_depth_m", self.param_depth_m):
+            self.get_logger().warning(note)
         if self._force_lift:
             self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
         self.create_timer(0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
@@ -200,6 +203,8 @@ class ControllerNode(Node):
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
+            if note := beyond_lift_reach("target_depth_m", self.param_depth_m):
+                self.get_logger().warning(note)
         self.plan_wait.set_lag(lag, wait)
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
             self.core.set_targets(target_depth_m=self.param_depth_m)

@@ -102,6 +102,11 @@ def _check_arrays(ep: Episode, skip: tuple[str, ...] = ()) -> None:
         raise ValueError(f"Episode.stamps_ns not strictly increasing at row {i}: {s[i - 1]} -> {s[i]}")
 
 
+def journal_path(partial: Path) -> Path:
+    """``<name>.partial/<name>.mcap``: where ``soil_bag_record`` journals the bag ``<name>``."""
+    return partial / (partial.name[: -len(PARTIAL_SUFFIX)] + ".mcap")
+
+
 def is_bag(path: Path) -> bool:
     """A finished rosbag2 directory (the writer renames metadata.yaml in last)."""
     return path.is_dir() and (path / "metadata.yaml").is_file()
@@ -126,7 +131,10 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
             raise FileExistsError(f"{bag_dir} exists and is not a rosbag2 bag; not touching it")
 
     staging = bag_dir.with_name(bag_dir.name + PARTIAL_SUFFIX)
-    shutil.rmtree(staging, ignore_errors=True)  # left by a killed writer: never valid
+    if journal_path(staging).exists():  # a killed recorder's messages, which soil_bag_repair recovers
+        raise FileExistsError(f"{staging} holds a recorder's journal of a bag of this name; not touching it "
+                              f"(soil_bag_repair {staging} recovers it, or move it away)")
+    shutil.rmtree(staging, ignore_errors=True)  # left by a killed writer of this function: never valid
     staging.mkdir(parents=True)
     tmp_bag = staging / bag_dir.name  # mcap file is named after its directory
     try:

@@ -37,7 +37,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from mcap.records import Channel, DataEnd, Message, Metadata, Schema
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
@@ -48,7 +47,7 @@ import yaml
 from soil_msgs_py import messages as M
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import SEQUENCE_MASK, leading_chain, tick_index
-from .bag_io import META_KEY, PARTIAL_SUFFIX
+from .bag_io import META_KEY, PARTIAL_SUFFIX, journal_path
 from .bag_writer import BagWriter
 from .integrity import ChunkInfo, McapScan, read_records
 
@@ -62,10 +61,6 @@ _CHUNK_SIZE = 1 << 20  # chunks close at 1 MiB or at the next flush(), whichever
 def partial_dir(out_dir: Path, name: str) -> Path:
     return Path(out_dir) / f"{name}{PARTIAL_SUFFIX}"
 
-
-def journal_path(partial: Path) -> Path:
-    """``<name>.partial/<name>.mcap``."""
-    return partial / (partial.name[: -len(PARTIAL_SUFFIX)] + ".mcap")
 
 
 def claim_name(out_dir: Path, name: str) -> str:

@@ -119,6 +119,20 @@ MACHINE = Machine()
 # [m/s] (the simulator clips u_x to it) and a cut no deeper than the blade is high [m].
 MAX_TARGET_SPEED_M_S = 2.0
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
+# How far the lift holds the edge below the ground the chassis stands on [m]: the deepest cut at the
+# start of a pass on level ground. Deeper targets (up to the blade's height) are reached only once
+# the chassis rides on its own cut floor, which ``beyond_lift_reach`` says.
+LIFT_REACH_M = -MACHINE.blade_min_rel_m
+
+
+def beyond_lift_reach(name: str, depth_m: float) -> str | None:
+    """A warning naming ``name`` when a target depth [m] is deeper than the lift reaches from level
+    ground, else None."""
+    if depth_m > LIFT_REACH_M + 1e-9:
+        return (f"{name}={depth_m:g} m is beyond the lift's reach from level ground ({LIFT_REACH_M:g} m below the "
+                "chassis): the first metres of the pass are cut at about that depth, deeper only once the chassis "
+                "rides on its own cut floor")
+    return None
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
 # The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil

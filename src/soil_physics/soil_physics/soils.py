@@ -151,11 +151,37 @@ def soil_from_dict(data: dict) -> SoilType:
         raise ValueError(f"soil YAML name={name[:40]!r}{'...' if len(name) > 40 else ''} is {len(name.encode('utf-8'))} "
                          f"bytes long in UTF-8, more than {MAX_SOIL_NAME_BYTES} (a soil's name becomes part of its bags' "
                          "file names, which a file system holds to 255 bytes)")
+    unknown = sorted(str(k) for k in set(data) - set(SOIL_FIELDS))
+    if unknown:  # a misspelt or mis-unit key (cohesion_kpa) must not be dropped in silence
+        raise ValueError(f"soil YAML {name!r}: unknown field(s) {unknown}; known: {list(SOIL_FIELDS)}")
     phi_lim = TABLE1["phi"].limits
     phi = _pair(data, "phi_deg", phi_lim[0] / DEG, phi_lim[1] / DEG - 1e-9, "deg")
     c = _pair(data, "cohesion_pa", 0.0, 1e6, "Pa")
     gamma = _pair(data, "unit_weight_n_m3", 1.0, 40e3, "N/m^3")
+    _check_units(phi, c, gamma)
     return _soil(name, phi, c, gamma, str(data.get("source", "user YAML")))
+
+
+SOIL_FIELDS = ("name", "phi_deg", "cohesion_pa", "unit_weight_n_m3", "source")
+# Below these a value is another unit's, not a soil's: no soil a bulldozer cuts weighs less than
+# ~10 kN/m^3 (peat; kg/m^3 gives 1-2.5e3), a cohesion of a few Pa is nothing (kPa gives 0.5-50),
+# and a friction angle below pi/2 at both densities is a radian's (a small phi is a soil, so
+# only both values in radians' range are refused).
+MIN_UNIT_WEIGHT_N_M3 = 5e3
+MIN_COHESION_PA = 10.0
+
+
+def _check_units(phi_deg: tuple[float, float], c_pa: tuple[float, float], gamma_n_m3: tuple[float, float]) -> None:
+    """ValueError naming the field when its values look like another unit's (radians, kPa, kg/m^3)."""
+    if all(0.0 < v <= np.pi / 2 for v in phi_deg):
+        raise ValueError(f"phi_deg={list(phi_deg)} looks like radians ({', '.join(f'{v / DEG:.1f}' for v in phi_deg)} "
+                         "deg); give the friction angle in degrees")
+    if any(0.0 < v < MIN_COHESION_PA for v in c_pa):
+        raise ValueError(f"cohesion_pa={list(c_pa)}: a cohesion of a few Pa is nothing, kPa perhaps; give Pa "
+                         f"(0 for a cohesionless soil, else at least {MIN_COHESION_PA:g} Pa)")
+    if any(v < MIN_UNIT_WEIGHT_N_M3 for v in gamma_n_m3):
+        raise ValueError(f"unit_weight_n_m3={list(gamma_n_m3)}: below {MIN_UNIT_WEIGHT_N_M3:g} N/m^3, lighter than any "
+                         "soil (peat ~10 kN/m^3); kg/m^3 perhaps: give the unit weight in N/m^3 (density × 9.81)")
 
 
 @dataclass(frozen=True)
@@ -184,6 +210,9 @@ def load_soil_file(path: str | Path) -> SoilFile:
         raise ValueError(f"soil file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except yaml.YAMLError as exc:
         raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
+    if data is None:
+        raise ValueError(f"soil file {str(path)!r} is empty: give a soil (a mapping), a list of them, or "
+                         "the sections 'soils:' and 'paths:'")
     sectioned = isinstance(data, dict) and "name" not in data and bool(set(data) & set(SECTIONS))
     if sectioned:
         unknown = sorted(set(data) - set(SECTIONS))
@@ -192,6 +221,9 @@ def load_soil_file(path: str | Path) -> SoilFile:
         items, raw_paths = data.get("soils") or [], data.get("paths") or {}
     else:
         items, raw_paths = data, {}
+    if isinstance(items, dict) and "name" not in items and items and all(isinstance(v, dict) for v in items.values()):
+        raise ValueError(f"soil file {str(path)!r}: soils are a mapping of names {short_repr(sorted(map(str, items)))}; "
+                         "give a list of soils, each with its name: '- {name: Silt, phi_deg: [26, 34], ...}'")
     soils = []
     for index, item in enumerate(items if isinstance(items, list) else [items]):
         try:

@@ -20,7 +20,7 @@ Table 1's d' limits [0, 0.66 m] exactly as the PINN does (``model.py``; 0.66 m i
 height); Δd̂ is a depth-independent offset of the effective soil surface, so it carries over
 to every d. d' = 0 means no wedge and no force.
 
-Reach (``d_max_m``): the default 0.3 m is −MACHINE.blade_min_rel_m, how far the lift joint
+Reach (``d_max_m``): the default 0.3 m is ``params.LIFT_REACH_M``, how far the lift joint
 can put the edge below the chassis ground reference p_z^c (the mean soil height under the
 chassis). In d the machine reaches 0.3 m + (surface ahead − p_z^c): exactly 0.3 m with the
 chassis standing on level, uncut ground (the start of a pass), more once the chassis rides on
@@ -95,13 +95,13 @@ import numpy as np
 
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MACHINE, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
-DEFAULT_D_MAX_M = -MACHINE.blade_min_rel_m
+DEFAULT_D_MAX_M = LIFT_REACH_M
 # Table 1's d' limits, [0, 0.66] m, as the PINN clamps d' = d + Δd (0.66 m: the blade height,
 # where the FEE geometry ends; deeper, the blade is buried).
 D_PRIME_LIMITS_M: tuple[float, float] = TABLE1["d"].limits

@@ -15,11 +15,17 @@ With ``--ray`` the same chunks run as Ray tasks instead of pool processes and wr
 bags, byte for byte, and the same dataset.json (its timing fields aside) for the same --workers
 and seeds. A chunk that fails is named with its episodes after every other chunk has finished;
 the bags written are kept (never a partial one) and dataset.json is not written.
+
+A run refuses, before simulating anything, to write where a bag of the same name exists (unless
+--overwrite) or where a killed recorder's journal of that name waits for ``soil_bag_repair``. A
+run into a directory an earlier run wrote keeps that run's record in dataset.json's
+``earlier_runs``, so the file still says what the directory holds.
 """
 from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import math
 import multiprocessing as mp
 import os
@@ -30,10 +36,11 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from soil_bag_tools.bag_io import write_episode
+from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.params import beyond_lift_reach
 from soil_msgs_py.patches import check_patches
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
@@ -113,11 +120,13 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         raise ValueError(f"the plan for {plan.out} has no episode: nothing to generate")
     check_engine(plan.engine)
     # every soil one the FEE can cut: refused before any bag is written
-    resolved = [resolve_checked(plan.config(), spec, plan.custom_soils)[0] for spec in plan.specs]
+    pairs = [resolve_checked(plan.config(), spec, plan.custom_soils) for spec in plan.specs]
+    resolved = [spec for spec, _ in pairs]
     keys = [(str(s.soil).lower(), s.relative_density_pct, s.target_speed_m_s, s.target_depth_m, s.seed, s.patches)
             for s in resolved]
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
+    _check_names_free(plan, [episode_meta(plan.config(), spec, soil.name, []).name for spec, soil in pairs])
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
@@ -153,10 +162,44 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         **({"soil_paths": paths} if paths else {}),
         "episode_names": sorted(n for n, _ in results),
     }
+    earlier = _earlier_runs(plan.out / "dataset.json")
+    if earlier:
+        summary["earlier_runs"] = earlier
     tmp = plan.out / "dataset.json.partial"
     tmp.write_text(strict_json.dumps(summary, indent=1))
     os.replace(tmp, plan.out / "dataset.json")
     return summary
+
+
+def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
+    """FileExistsError, before anything is simulated, if a bag of the plan exists (without
+    ``overwrite``) or a recorder's journal of that name waits for ``soil_bag_repair``."""
+    taken = [n for n in names if not plan.overwrite and is_bag(plan.out / n)]
+    journals = [n for n in names if journal_path(plan.out / f"{n}{PARTIAL_SUFFIX}").exists()]
+    if journals:
+        raise FileExistsError(
+            f"{len(journals)} episode(s) would be written where a recorder's journal waits to be recovered, e.g. "
+            f"{plan.out / (journals[0] + PARTIAL_SUFFIX)}: soil_bag_repair recovers it (or move it away); nothing written")
+    if taken:
+        raise FileExistsError(f"{len(taken)} of the {len(names)} bags exist in {plan.out}, e.g. {taken[0]}; nothing "
+                              "written (--overwrite replaces them, or give another --out or --seed-base)")
+
+
+def _earlier_runs(path: Path) -> list[dict]:
+    """The records of the runs that wrote into this directory before (oldest first), so that a
+    second run's dataset.json still says what the directory holds; [] if there were none."""
+    try:
+        old = json.loads(path.read_text())
+    except FileNotFoundError:
+        return []
+    except (OSError, ValueError) as err:
+        print(f"soil_sim_batch: warning: {path} unreadable ({err}); its record of earlier runs is not kept",
+              file=sys.stderr)
+        return []
+    if not isinstance(old, dict):
+        return []
+    runs = old.pop("earlier_runs", [])
+    return [*(runs if isinstance(runs, list) else []), old]
 
 
 def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
@@ -295,6 +338,9 @@ def main(argv=None) -> int:
             raise ValueError(f"--workers={args.workers} must be >= 0 (0: all cores)")
         if not args.ray or args.ray == LOCAL_RAY:  # processes of this machine (a cluster's --workers are its CPUs)
             cli_numbers.check_local_count("--workers", args.workers)
+        for depth in sorted({spec.target_depth_m for spec in plan.specs}):
+            if note := beyond_lift_reach("--depths", depth):
+                print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)

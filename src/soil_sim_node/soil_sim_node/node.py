@@ -36,7 +36,7 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS, beyond_lift_reach
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
 from soil_physics.soils import load_soil_file
@@ -131,6 +131,7 @@ class SimNode(Node):
         self.config = SimConfig(world_mode=p["world_mode"], effects=effects, plugins=tuple(p["plugins"]),
                                 engine=p["engine"])
         load_plugins(self.config.plugins)  # a plugin that does not load is a bad parameter (exit 2), not a crash later
+        self._warn = WarnLimiter(self.get_logger())
         self.queue: collections.deque[EpisodeSpec] = collections.deque()
         base = self._spec_from_params({})
         self._enqueue(episode_plan(base, list(p["sequence_soils"]),
@@ -159,7 +160,6 @@ class SimNode(Node):
         self.first_stamp_ns = 0
         self.next_first_stamp_ns = 0
         self.shutdown_requested = False
-        self._warn = WarnLimiter(self.get_logger())
 
         self.timer = self.create_timer(self.pacer.period_s, self._on_timer)
         # Real time: how long a tick waits for late commands (pacing.COMMAND_GRACE).
@@ -233,7 +233,10 @@ class SimNode(Node):
                            float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
                            patches=patches)
         # ValueError naming the field and value, or a soil that resists nothing; with patches, the first one's soil
-        return resolve_checked(self.config, spec, self.custom_soils)[0]
+        resolved = resolve_checked(self.config, spec, self.custom_soils)[0]
+        if note := beyond_lift_reach("target_depth_m", resolved.target_depth_m):
+            self._warn("beyond_lift_reach", note)
+        return resolved
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:

@@ -1,7 +1,7 @@
 """`soil_plot_episode`: a paper-Fig.-3-style PNG of one episode, read from its bag.
 
-Measured forces x/z (with the FEE force of the pseudo-ground truth for reference), cut depth
-with its target, and surcharge, against time.
+Measured forces x/z (with the FEE force of the pseudo-ground truth for reference, where the bag
+has one), cut depth with its target, and surcharge, against time.
 
     soil_plot_episode bags/samples/default_loam_id060_v0.53_d0.175_s7 -o fig3.png
 """
@@ -34,14 +34,15 @@ def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
 def plot_episode(ep: Episode, out: Path) -> Path:
     """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG, or the format of its suffix)."""
     t = ep.time_s
-    fx_fee, fz_fee = truth_fee_force(ep)
     m = ep.meta
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, ep.column("f_x_b") / 1e3, lw=0.9, label="$f_x^b$ measured")
     ax.plot(t, ep.column("f_z_b") / 1e3, lw=0.9, label="$f_z^b$ measured")
-    ax.plot(t, fx_fee / 1e3, "k--", lw=0.8, label="FEE($\\Theta$) x")
-    ax.plot(t, fz_fee / 1e3, "k:", lw=0.8, label="FEE($\\Theta$) z")
+    if ep.has_ground_truth:  # a machine's bag has no Θ to draw the FEE of
+        fx_fee, fz_fee = truth_fee_force(ep)
+        ax.plot(t, fx_fee / 1e3, "k--", lw=0.8, label="FEE($\\Theta$) x")
+        ax.plot(t, fz_fee / 1e3, "k:", lw=0.8, label="FEE($\\Theta$) z")
     for lim in (MACHINE.horizontal_force_limit_n, -MACHINE.horizontal_force_limit_n):
         ax.axhline(lim / 1e3, color="grey", lw=0.5)
     ax.set_ylabel("force [kN]")

@@ -1,0 +1,61 @@
+"""soil_sim_batch into a directory that already holds something: a recorder's journal is never
+deleted, existing bags are refused before anything is simulated, a deeper target than the lift
+reaches is said, and dataset.json keeps the record of the runs before."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from soil_bag_tools.bag_io import find_episode_bags, journal_path, write_episode
+from soil_sim_node import batch
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+ONE = ["--mode", "fee", "--soils", "Sand", "--relative-densities", "50", "--speeds", "0.5", "--seeds", "1",
+       "--duration", "1.0", "--workers", "1", "--quiet"]
+
+
+def test_a_recorders_journal_of_the_same_name_is_kept_and_named(tmp_path, capsys):
+    """A killed recorder leaves <name>.partial/<name>.mcap; a batch episode of that name had
+    deleted it as a stale staging directory before soil_bag_repair could recover it."""
+    out = tmp_path / "site"
+    spec = EpisodeSpec("Sand", 50.0, 0.5, 0.1, seed=0, duration_s=1.0)
+    name = run_episodes(SimConfig(world_mode="fee"), [spec])[0].meta.name
+    journal = journal_path(out / f"{name}.partial")
+    journal.parent.mkdir(parents=True)
+    journal.write_bytes(b"\x89MCAP0\r\n recorded before the kill")
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "recorder's journal waits to be recovered" in err and "soil_bag_repair" in err, err
+    assert journal.read_bytes().endswith(b"recorded before the kill") and find_episode_bags(out) == []
+    ep = run_episodes(SimConfig(world_mode="fee"), [spec])[0]  # the writer itself refuses it too
+    with pytest.raises(FileExistsError, match="holds a recorder's journal"):
+        write_episode(out / name, ep)
+    assert journal.exists()
+
+
+def test_existing_bags_are_refused_before_anything_is_simulated_and_earlier_runs_are_kept(tmp_path, capsys):
+    out = tmp_path / "site"
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out)]) == 0
+    first = json.loads((out / "dataset.json").read_text())
+    # the same grid plus one new episode: refused whole, nothing new written
+    assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "1 of the 2 bags exist" in err and "--overwrite" in err, err
+    assert len(find_episode_bags(out)) == 1
+    # a second run of other episodes into the same directory keeps the first run's record
+    assert batch.main([*ONE, "--depths", "0.15", "--seed-base", "5", "--out", str(out)]) == 0
+    summary = json.loads((out / "dataset.json").read_text())
+    assert len(find_episode_bags(out)) == 2 and summary["episodes"] == 1
+    assert summary["earlier_runs"] == [first]
+    assert batch.main([*ONE, "--depths", "0.2", "--seed-base", "9", "--out", str(out)]) == 0
+    third = json.loads((out / "dataset.json").read_text())
+    assert [r["episode_names"] for r in third["earlier_runs"]] == [first["episode_names"], summary["episode_names"]]
+
+
+def test_a_target_deeper_than_the_lift_reaches_is_said(tmp_path, capsys):
+    assert batch.main([*ONE, "--depths", "0.2,0.45", "--out", str(tmp_path / "deep")]) == 0
+    err = capsys.readouterr().err
+    assert "--depths=0.45 m is beyond the lift's reach from level ground (0.3 m" in err, err
+    assert "--depths=0.2" not in err
