@@ -6,6 +6,7 @@ Reference numbers are the paper's Table 1 normalisation ranges, typed in here fr
 from __future__ import annotations
 
 import math
+import re
 import textwrap
 
 import numpy as np
@@ -406,3 +407,6 @@ def test_an_unknown_field_and_soils_keyed_by_name_are_refused_naming_them(tmp_pa
         load_soil_yaml(write(tmp_path, keyed))
     with pytest.raises(ValueError, match="is empty"):
         load_soil_yaml(write(tmp_path, ""))
+    for name in ("Unknown", "none"):  # the names a machine's bags carry for "no soil label"
+        with pytest.raises(ValueError, match=re.escape(f"name={name!r} says 'no soil label'")):
+            load_soil_yaml(write(tmp_path, VALID_ONE.replace("name: SiltyClay", f"name: '{name}'")))
