@@ -59,3 +59,13 @@ def test_a_target_deeper_than_the_lift_reaches_is_said(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--depths=0.45 m is beyond the lift's reach from level ground (0.3 m" in err, err
     assert "--depths=0.2" not in err
+
+
+def test_a_patch_the_blade_never_reaches_is_said(tmp_path, capsys):
+    """The edge starts at x = 2 m; at 0.5 m/s for 2 s it gets to about 3 m, short of a patch at 4 m."""
+    base = ["--mode", "fee", "--speeds", "0.5", "--depths", "0.1", "--seeds", "1", "--duration", "2", "--workers", "1",
+            "--quiet", "--patch", "0:Sand:20", "--patch", "2.5:Clay:80", "--patch", "4:Loam:50"]
+    assert batch.main([*base, "--out", str(tmp_path / "short")]) == 0
+    err = capsys.readouterr().err
+    assert "patch 2 (Loam from x = 4 m) starts beyond where the blade's edge gets in 2 s at 0.5 m/s (x ≈ 3.00 m)" in err
+    assert "patch 1" not in err

@@ -47,7 +47,7 @@ from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 from .effects import Effects, effects_for_mode
 from .ray_cluster import LOCAL as LOCAL_RAY, add_ray_option, cluster_cpus, ray_session, run_tasks
 from .rollout import episode_meta, run_episodes
-from .simulator import ENGINES, EpisodeSpec, SimConfig, check_engine, resolve_checked
+from .simulator import ENGINES, Dynamics, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
 # Paper §3.1 grids. 4 soils x 6 I_d x speeds x depths x 2 seeds = 576 (default) / 432 (fee).
 DEFAULT_RELATIVE_DENSITIES = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
@@ -169,6 +169,20 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     tmp.write_text(strict_json.dumps(summary, indent=1))
     os.replace(tmp, plan.out / "dataset.json")
     return summary
+
+
+def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
+    """A line for each patch that starts beyond where the blade's edge gets at the target speed
+    in the episode's duration: the episodes never cut it (too short, too slow)."""
+    notes = []
+    for speed, duration in sorted({(s.target_speed_m_s, s.duration_s) for s in specs if s.patches}):
+        reach = Dynamics().blade_offset_m + speed * duration
+        patches = next(s for s in specs if (s.target_speed_m_s, s.duration_s) == (speed, duration)).patches
+        for i, patch in enumerate(check_patches(patches)[1:], start=1):
+            if patch.x_start_m > reach:
+                notes.append(f"patch {i} ({patch.soil} from x = {patch.x_start_m:g} m) starts beyond where the blade's "
+                             f"edge gets in {duration:g} s at {speed:g} m/s (x ≈ {reach:.2f} m): never cut")
+    return notes
 
 
 def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
@@ -341,6 +355,8 @@ def main(argv=None) -> int:
         for depth in sorted({spec.target_depth_m for spec in plan.specs}):
             if note := beyond_lift_reach("--depths", depth):
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
+        for note in unreached_patches(plan.specs):
+            print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
