@@ -69,3 +69,15 @@ def test_a_patch_the_blade_never_reaches_is_said(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "patch 2 (Loam from x = 4 m) starts beyond where the blade's edge gets in 2 s at 0.5 m/s (x ≈ 3.00 m)" in err
     assert "patch 1" not in err
+
+
+def test_a_soil_file_without_soils_naming_its_soils_is_said(tmp_path, capsys):
+    soils = tmp_path / "site.yaml"
+    soils.write_text("soils:\n  - {name: Silt, phi_deg: [26, 34], cohesion_pa: [500, 4000], unit_weight_n_m3: [15500, 19000]}\n")
+    grid = ["--mode", "fee", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.1", "--seeds", "1",
+            "--duration", "1", "--workers", "1", "--quiet", "--soil-file", str(soils)]
+    assert batch.main([*grid, "--out", str(tmp_path / "a")]) == 0
+    assert "--soil-file's soils ['Silt'] are not simulated without --soils naming them" in capsys.readouterr().err
+    assert batch.main([*grid, "--soils", "Silt,Sand", "--out", str(tmp_path / "b")]) == 0
+    assert "not simulated" not in capsys.readouterr().err
+    assert sorted(b.name.split("_")[1] for b in find_episode_bags(tmp_path / "b")) == ["sand", "silt"]

@@ -357,6 +357,10 @@ def main(argv=None) -> int:
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         for note in unreached_patches(plan.specs):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
+        if plan.custom_soils and args.soils is None and not plan.specs[0].patches:
+            print(f"soil_sim_batch: warning: --soil-file's soils {sorted(plan.custom_soils)} are not simulated without "
+                  f"--soils naming them (e.g. --soils {','.join(sorted(plan.custom_soils))}); the catalogue's are",
+                  file=sys.stderr)
         summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
