@@ -27,7 +27,7 @@ from soil_bringup.launch import loopback_env
 
 from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, PROFILES_NAMESPACE
 
-EMPTY_PROFILE = Path(tempfile.gettempdir()) / "bench_acks_empty_profile.xml"
+EMPTY_PROFILE_NAME = "empty_profile.xml"  # written in main's scratch directory, removed with it
 CHILD = r"""
 import sys, time, rclpy
 from rclpy.duration import Duration
@@ -61,17 +61,17 @@ else:
 """
 
 
-def env_for(profile: bool, domain: int) -> dict[str, str]:
+def env_for(profile: bool, domain: int, scratch: Path) -> dict[str, str]:
     env = {k: v for k, v in loopback_env(domain).items() if k not in PROFILE_ENV_VARS}
     if profile:
         env.update({name: str(PROFILE_FILE) for name in PROFILE_ENV_VARS})
     else:  # a profile file that sets nothing: Fast DDS's defaults (and use_graph_profile leaves it alone)
-        env.update({name: str(EMPTY_PROFILE) for name in PROFILE_ENV_VARS})
+        env.update({name: str(scratch / EMPTY_PROFILE_NAME) for name in PROFILE_ENV_VARS})
     return env
 
 
-def ack_waits(profile: bool, samples: int, domain: int) -> list[tuple[float, bool]]:
-    env = env_for(profile, domain)
+def ack_waits(profile: bool, samples: int, domain: int, scratch: Path) -> list[tuple[float, bool]]:
+    env = env_for(profile, domain, scratch)
     sub = subprocess.Popen([sys.executable, "-c", CHILD, "sub", str(samples * 6 + 25)], env=env)
     try:
         out = subprocess.run([sys.executable, "-c", CHILD, "pub", str(samples)], env=env, capture_output=True,
@@ -87,13 +87,13 @@ def ack_waits(profile: bool, samples: int, domain: int) -> list[tuple[float, boo
     return [(float(r[0]), r[1] == "1") for r in rows if len(r) == 2 and r[1] in ("0", "1")]
 
 
-def launch_seconds(profile: bool, domain: int) -> float:
+def launch_seconds(profile: bool, domain: int, scratch: Path) -> float:
     """Wall time of a short lockstep launch; soil_launch's own --timeout stops its nodes on a hang."""
     t = time.perf_counter()
     res = subprocess.run([str(BIN / "soil_launch"), "--domain-id", str(domain), "--pacing", "lockstep",
                           "--sim-param", "duration_s:=1.0", "--sim-param", "episodes:=2",
                           "--sim-param", "sequence_soils:=['Clay','Sand']", "--timeout", "60"],
-                         env=env_for(profile, domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                         env=env_for(profile, domain, scratch), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if res.returncode != 0:
         raise SystemExit(f"soil_launch exited {res.returncode}:\n{res.stdout[-3000:]}")
     return time.perf_counter() - t
@@ -104,14 +104,19 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=6)
     p.add_argument("--domain-id", type=int, default=67)
     args = p.parse_args()
-    EMPTY_PROFILE.write_text(f'<?xml version="1.0" encoding="UTF-8"?>\n<profiles xmlns="{PROFILES_NAMESPACE}"/>\n')
     rows = []
-    for profile in (False, True):
-        waits = ack_waits(profile, args.samples, args.domain_id)
-        secs = [w for w, _ in waits]
-        rows.append(("the graph's profile (heartbeat 0.1 s)" if profile else "Fast DDS defaults (heartbeat 3 s)",
-                     statistics.median(secs) if secs else float("nan"), max(secs, default=float("nan")),
-                     sum(ok for _, ok in waits), len(waits), launch_seconds(profile, args.domain_id)))
+    print("(Fast DDS says 'Could not extract any profile' for the empty profile file that gives its defaults: expected)",
+          flush=True)
+    with tempfile.TemporaryDirectory(prefix="bench_acks_") as d:
+        scratch = Path(d)
+        (scratch / EMPTY_PROFILE_NAME).write_text(
+            f'<?xml version="1.0" encoding="UTF-8"?>\n<profiles xmlns="{PROFILES_NAMESPACE}"/>\n')
+        for profile in (False, True):
+            waits = ack_waits(profile, args.samples, args.domain_id, scratch)
+            secs = [w for w, _ in waits]
+            rows.append(("the graph's profile (heartbeat 0.1 s)" if profile else "Fast DDS defaults (heartbeat 3 s)",
+                         statistics.median(secs) if secs else float("nan"), max(secs, default=float("nan")),
+                         sum(ok for _, ok in waits), len(waits), launch_seconds(profile, args.domain_id, scratch)))
     print("| writer timing | wait_for_all_acked p50 [s] | max [s] | acknowledged | 4 lockstep episodes of 1 s [s] |")
     print("|---|---|---|---|---|")
     for name, p50, top, ok, n, launch in rows:

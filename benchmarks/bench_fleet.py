@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -116,50 +117,66 @@ def training_windows_per_s(data: Path, out: Path, processes: int, threads: int) 
         cmd = ["unshare", "-rn", "sh", "-c", 'ip link set lo up && exec "$0" -m torch.distributed.run '
                f'--nproc-per-node {processes} --master-addr 127.0.0.1 --master-port 29500 -m pinn_estimator.train "$@"',
                sys.executable]
-    env = {**os.environ, "GLOO_SOCKET_IFNAME": "lo", "MASTER_ADDR": "127.0.0.1"}
+    # TMPDIR: torchrun's own scratch directories go with the benchmark's, not into /tmp for good
+    env = {**os.environ, "GLOO_SOCKET_IFNAME": "lo", "MASTER_ADDR": "127.0.0.1", "TMPDIR": str(out)}
     subprocess.run([*cmd, "--data", str(data), "--out", str(ckpt), "--threads", str(threads), *TRAIN_ARGS], env=env, check=True,
                    capture_output=True)
     m = read_checkpoint(ckpt)["metrics"]
     return m["train_windows_per_epoch"] * m["epochs_run"] / m["train_seconds"]
 
 
+SCRATCH_ENV = "BENCH_FLEET_SCRATCH"
+
+
+def run_in_scratch() -> int:
+    """Run the benchmark in a child process with a scratch directory this process removes
+    however the child ends: Ray replaces the SIGTERM handler of the process it runs in, so a
+    stopped run (timeout, kill) could not clean up its ~130 MB of bags itself."""
+    with tempfile.TemporaryDirectory(prefix="bench_fleet_") as scratch:
+        child = subprocess.Popen([sys.executable, __file__], env={**os.environ, SCRATCH_ENV: scratch})
+        signal.signal(signal.SIGTERM, lambda signum, frame: child.terminate())
+        try:
+            return child.wait()
+        except KeyboardInterrupt:  # Ctrl-C reached the child too (same process group)
+            return child.wait()
+
+
 def main() -> None:
     print(f"cores: {os.cpu_count()}; {len(EPISODES)} fee episodes of 10 s per run; load average "
           f"{os.getloadavg()[0]:.1f} (a shared machine: compare ratios within this run)")
-    with tempfile.TemporaryDirectory(prefix="bench_fleet_") as d:
-        tmp = Path(d)
-        rows = {}
-        order = [(ray, workers) for ray in (False, True) for workers in (1, 2)]
-        for n_round, configs in enumerate((order, order[::-1])):
-            for ray, workers in configs:
-                key = ("Ray tasks" if ray else "local pool", workers)
-                rate, startup = episodes_per_s(tmp / str(n_round), workers, ray)
-                rows[key] = max(rows.get(key, (0.0, 0.0)), (rate, startup))
-        print(f"\n{'episodes/s':22s}{'1 worker':>12s}{'2 workers':>12s}{'2 vs 1':>9s}")
-        for how in ("local pool", "Ray tasks"):
-            one, two = rows[(how, 1)][0], rows[(how, 2)][0]
-            print(f"{how:22s}{one:12.2f}{two:12.2f}{two / one:8.2f}x")
-        print(f"{'Ray / pool':22s}{rows[('Ray tasks', 1)][0] / rows[('local pool', 1)][0]:11.2f}x"
-              f"{rows[('Ray tasks', 2)][0] / rows[('local pool', 2)][0]:11.2f}x")
-        startups = [rows[("Ray tasks", w)][1] for w in (1, 2)]
-        print(f"local Ray instance start-up: {min(startups):.1f}-{max(startups):.1f} s (once per run, not per episode)")
-        batch, one = ray_task_overhead()
-        print(f"\nRay cost per task: {batch * 1e3:.2f} ms with 400 no-op tasks in flight on 2 CPUs, "
-              f"{one * 1e3:.2f} ms one at a time (a 48-episode chunk of 10 s episodes takes tens of s)")
-        data = tmp / "train"
-        generate(_plan(data, TRAIN_DATA), workers=2, progress=False)
-        size = sum(f.stat().st_size for f in data.rglob("*") if f.is_file()) / len(TRAIN_DATA)
-        print(f"\nreading {len(TRAIN_DATA)} bags of 10 s ({size / 1e3:.0f} kB each) into training arrays, no cache:")
-        for how, rate in bags_per_s(data).items():
-            print(f"  {how:22s}{rate:7.1f} bags/s")
-        if not _netns():
-            print("\ntraining: skipped (needs `unshare -rn` to keep torchrun's store on loopback)")
-            return
-        rates = {(p, t): training_windows_per_s(data, tmp, p, t) for p, t in ((1, 2), (1, 1), (2, 2))}
-        print(f"\ntraining windows/s, PINN default model, {' '.join(TRAIN_ARGS[:6])}:")
-        for (p, t), rate in rates.items():
-            print(f"  {p} process{'es (DDP)' if p > 1 else '       '} --threads {t} ({t // p} per process): {rate:7.0f}"
-                  f"   {rate / rates[(1, 2)]:.2f}x of 1 process --threads 2")
+    tmp = Path(os.environ[SCRATCH_ENV])
+    rows = {}
+    order = [(ray, workers) for ray in (False, True) for workers in (1, 2)]
+    for n_round, configs in enumerate((order, order[::-1])):
+        for ray, workers in configs:
+            key = ("Ray tasks" if ray else "local pool", workers)
+            rate, startup = episodes_per_s(tmp / str(n_round), workers, ray)
+            rows[key] = max(rows.get(key, (0.0, 0.0)), (rate, startup))
+    print(f"\n{'episodes/s':22s}{'1 worker':>12s}{'2 workers':>12s}{'2 vs 1':>9s}")
+    for how in ("local pool", "Ray tasks"):
+        one, two = rows[(how, 1)][0], rows[(how, 2)][0]
+        print(f"{how:22s}{one:12.2f}{two:12.2f}{two / one:8.2f}x")
+    print(f"{'Ray / pool':22s}{rows[('Ray tasks', 1)][0] / rows[('local pool', 1)][0]:11.2f}x"
+          f"{rows[('Ray tasks', 2)][0] / rows[('local pool', 2)][0]:11.2f}x")
+    startups = [rows[("Ray tasks", w)][1] for w in (1, 2)]
+    print(f"local Ray instance start-up: {min(startups):.1f}-{max(startups):.1f} s (once per run, not per episode)")
+    batch, one = ray_task_overhead()
+    print(f"\nRay cost per task: {batch * 1e3:.2f} ms with 400 no-op tasks in flight on 2 CPUs, "
+          f"{one * 1e3:.2f} ms one at a time (a 48-episode chunk of 10 s episodes takes tens of s)")
+    data = tmp / "train"
+    generate(_plan(data, TRAIN_DATA), workers=2, progress=False)
+    size = sum(f.stat().st_size for f in data.rglob("*") if f.is_file()) / len(TRAIN_DATA)
+    print(f"\nreading {len(TRAIN_DATA)} bags of 10 s ({size / 1e3:.0f} kB each) into training arrays, no cache:")
+    for how, rate in bags_per_s(data).items():
+        print(f"  {how:22s}{rate:7.1f} bags/s")
+    if not _netns():
+        print("\ntraining: skipped (needs `unshare -rn` to keep torchrun's store on loopback)")
+        return
+    rates = {(p, t): training_windows_per_s(data, tmp, p, t) for p, t in ((1, 2), (1, 1), (2, 2))}
+    print(f"\ntraining windows/s, PINN default model, {' '.join(TRAIN_ARGS[:6])}:")
+    for (p, t), rate in rates.items():
+        print(f"  {p} process{'es (DDP)' if p > 1 else '       '} --threads {t} ({t // p} per process): {rate:7.0f}"
+              f"   {rate / rates[(1, 2)]:.2f}x of 1 process --threads 2")
 
 
 if __name__ == "__main__":
@@ -167,4 +184,8 @@ if __name__ == "__main__":
 
     # no options: --help prints what the benchmark measures instead of starting its run
     argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
-    main()
+    sys.stdout.reconfigure(line_buffering=True)  # a run stopped early still shows what it measured
+    if SCRATCH_ENV in os.environ:
+        main()
+    else:
+        sys.exit(run_in_scratch())

@@ -55,7 +55,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     if not (Path(args.bags) / "dataset.json").exists():
         exe = Path(sys.executable).with_name("soil_sim_batch")
-        subprocess.run([str(exe), *GRID, "--out", args.bags], check=True)
+        if subprocess.run([str(exe), *GRID, "--out", args.bags]).returncode != 0:  # soil_sim_batch said why
+            sys.exit(f"bench_floor_reaction: could not generate the bags in {args.bags}")
     ds = load_dataset(args.bags)
     K = {n: i for i, n in enumerate(KNOWN_PARAMS)}
     T = {n: i for i, n in enumerate(GROUND_TRUTH_PARAMS)}

@@ -81,7 +81,9 @@ def run_rate(rate: float, duration_s: float, domain: int, engine: str = "compile
     with tempfile.TemporaryDirectory() as tmp:
         listener = StatusListener(domain)
         try:
+            # the simulator waits for this listener too: on a short episode episode_end went out before it had matched
             with Graph(["--rate", str(rate), "--record", tmp, "--sim-param", f"duration_s:={duration_s}",
+                        "--wait-for", f"{G.SIM_STATUS_TOPIC}:1",
                         *engine_args(engine), "--timeout", str(duration_s / rate + 60)], domain) as graph:
                 rc = graph.wait(timeout=duration_s / rate + 90)
             end = next((e for e in listener.events if e.event == G.EVENT_EPISODE_END), None)
@@ -94,7 +96,7 @@ def run_rate(rate: float, duration_s: float, domain: int, engine: str = "compile
     return {"rate": rate, "rc": rc, "planned": planned, "recorded": ticks,
             "late": stats.get("late_commands"), "period": stats.get("period", {}), "jitter": stats.get("jitter", {}),
             "loop": stats.get("loop_latency", {}),
-            "clean": rc == 0 and ticks == planned and stats.get("late_commands") == 0}
+            "clean": rc == 0 and ticks == planned and stats.get("late_commands") == 0, "stats_received": end is not None}
 
 
 def figures(s: dict) -> str:
@@ -103,6 +105,9 @@ def figures(s: dict) -> str:
 
 
 def run_line(r: dict) -> str:
+    if not r["stats_received"]:
+        return (f"recorded {r['recorded']}/{r['planned']} ticks, episode_end (the timing figures) not received, "
+                f"launch exit {r['rc']}: not judged")
     return (f"recorded {r['recorded']}/{r['planned']} ticks, late commands {r['late']}, "
             f"period p50/p99/max {figures(r['period'])}, jitter p50/p99/max {figures(r['jitter'])}, "
             f"loop latency p50/p99/max {figures(r['loop'])}, {'clean' if r['clean'] else 'DROPS'}")

@@ -63,12 +63,15 @@ def line(name: str, r: dict) -> str:
         return f"  {name:<16} no episode_end timing (launch exit {r['rc']})"
     f = lambda k: f"{s[k]['p50_ms']:.1f}/{s[k]['p99_ms']:.1f}/{s[k]['max_ms']:.1f}"  # noqa: E731
     cpu = " ".join(f"{n.replace('soil_', '').replace('anti_stall_', '')}={v:.0f}%" for n, v in sorted(r["cpu"].items()))
-    return (f"  {name:<16} late commands {s['late_commands']:4d} of {s['period']['n'] + 1}, jitter p50/p99/max {f('jitter')} ms, "
+    return (f"  {name:<16} late commands {s['late_commands']:4d} of {s['period']['n'] + 1}, period p50/p99/max "
+            f"{f('period')} ms, jitter p50/p99/max {f('jitter')} ms, "
             f"loop latency {f('loop_latency')} ms | CPU {cpu}")
 
 
 def main() -> None:
-    from soil_bringup.cut_report import add_force_lift_option
+    import dataclasses
+
+    from soil_bringup.cut_report import add_force_lift_option, controller_text
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=30.0, help="simulated seconds per episode (real time)")
@@ -84,7 +87,7 @@ def main() -> None:
         "--controller-param", f"force_lift_share:={gains.force_lift_share}")
     print(f"bench_planner_loop: {args.repeats} x {args.duration:g} s real-time episodes each, default world, path "
           f"{PATCHES}, load {args.load}, {os.cpu_count()} cores"
-          + (f", controller force lift {gains.force_lift_m_s:g} m/s above {gains.force_lift_share:g}" if controller_args else ""))
+          + (f", controller {controller_text(dataclasses.asdict(gains))}" if controller_args else ""))
     late = {False: [], True: []}
     with Load(args.load, max_s=args.repeats * 2 * (args.duration + 120)):
         for i in range(args.repeats):

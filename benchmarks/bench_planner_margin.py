@@ -117,7 +117,8 @@ def main(argv=None) -> int:
                 if k == 0 or PATHS[p][0] != "fee"]
         rows = [r for rs in pool.map(run_path, jobs) for r in rs]
     lift = f", {controller_text(dataclasses.asdict(args.gains))}" if args.gains.force_lift_m_s > 0 else ""
-    print(f"## Planner margin × force quantile over {len(jobs)} paths ({DURATION_S:g} s cuts{lift})\n")
+    print(f"## Planner margin × force quantile over {len(jobs)} cuts: {len(args.paths)} paths × up to {args.seeds} "
+          f"seed(s) ({DURATION_S:g} s cuts{lift})\n")
     print("| path | margin | quantile | volume / m vs conservative | ceiling | stall [s] | conservative / aggressive stall [s] "
           f"| patches entered, within 20 % of their best depth within {SETTLE_WITHIN_S:g} s |")
     print("|---|---|---|---|---|---|---|---|")
@@ -130,8 +131,9 @@ def main(argv=None) -> int:
         mine = [r for r in rows if r["world"] == world]
         if not mine:
             continue
-        print(f"\n{world} world, per setting over its {len({r['path'] for r in mine})} paths:\n")
-        print("| margin | quantile | mean volume / m vs conservative | total stall [s] | paths without stall "
+        paths = len({r['path'].split(' (seed')[0] for r in mine})  # a further seed's label: "<path> (seed N)"
+        print(f"\n{world} world, per setting over its {len({r['path'] for r in mine})} cuts ({paths} path{'s' if paths != 1 else ''}):\n")
+        print("| margin | quantile | mean volume / m vs conservative | total stall [s] | cuts without stall "
               f"| patches entered, within 20 % of their best depth within {SETTLE_WITHIN_S:g} s |")
         print("|---|---|---|---|---|---|")
         for margin, quantile in args.settings:

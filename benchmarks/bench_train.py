@@ -75,7 +75,7 @@ def main() -> None:
     print(f"model step latency, batch 1, 1 thread: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
     for path in sorted(SHIPPED_MODELS_DIR.glob("*.pt")):
         m = read_checkpoint(path)["metrics"]
-        print(f"shipped {path.name}: trained in {m['train_seconds'] / 60:.1f} min ({m['epochs_run']} epochs, {m['stop_reason']}); budget 15 min")
+        print(f"shipped {path.name}: trained in {m['train_seconds'] / 60:.1f} min ({m['epochs_run']} epochs; stop: {m['stop_reason']}); budget 15 min")
 
 
 if __name__ == "__main__":

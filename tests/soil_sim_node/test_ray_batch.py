@@ -55,6 +55,10 @@ def test_ray_tasks_write_the_pools_bags_byte_for_byte_and_leave_no_ray_process(t
     for key in TIMING_FIELDS:
         summary_pool.pop(key), summary_ray.pop(key)
     assert summary_pool == summary_ray and summary_ray["episodes"] == 4
+    # the local pool again, in this process that has run Ray (whose threads make a fork unsafe)
+    assert batch.main([*SMALL, "--out", str(tmp_path / "pool_after_ray")]) == 0
+    after = _files(tmp_path / "pool_after_ray")
+    assert all(after[n] == pool[n] for n in pool) and sorted(after) == sorted([*pool, "dataset.json"])
 
 
 @pytest.mark.timeout(300)

@@ -225,12 +225,20 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
             results += done
             bar.update(len(done))
     else:
-        with mp.get_context("fork").Pool(max(1, min(workers, len(jobs)))) as pool:
+        with mp.get_context(_pool_start_method()).Pool(max(1, min(workers, len(jobs)))) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
     bar.close()
     return results
+
+
+def _pool_start_method() -> str:
+    """``fork`` (the workers start at once, the compiled kernel already loaded), unless this
+    process has run Ray: its threads may hold a lock at the fork that a child then waits on for
+    ever (seen as a pool that never finished after Ray sessions in one process). Then the workers
+    start from a fresh server process (``forkserver``), which writes the same bags."""
+    return "forkserver" if "ray" in sys.modules else "fork"
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
