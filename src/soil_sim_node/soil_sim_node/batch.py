@@ -175,10 +175,9 @@ def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
     """A line for each patch that starts beyond where the blade's edge gets at the target speed
     in the episode's duration: the episodes never cut it (too short, too slow)."""
     notes = []
-    for speed, duration in sorted({(s.target_speed_m_s, s.duration_s) for s in specs if s.patches}):
+    for speed, duration, patches in dict.fromkeys((s.target_speed_m_s, s.duration_s, tuple(s.patches)) for s in specs):
         reach = Dynamics().blade_offset_m + speed * duration
-        patches = next(s for s in specs if (s.target_speed_m_s, s.duration_s) == (speed, duration)).patches
-        for i, patch in enumerate(check_patches(patches)[1:], start=1):
+        for i, patch in enumerate(check_patches(list(patches))[1:], start=1):
             if patch.x_start_m > reach:
                 notes.append(f"patch {i} ({patch.soil} from x = {patch.x_start_m:g} m) starts beyond where the blade's "
                              f"edge gets in {duration:g} s at {speed:g} m/s (x ≈ {reach:.2f} m): never cut")
