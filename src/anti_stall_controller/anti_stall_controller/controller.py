@@ -82,7 +82,8 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from soil_msgs_py.params import FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ
+from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S,
+                                 SAMPLE_RATE_HZ)
 
 __all__ = ["AntiStallGains", "ControlCommand", "AntiStallController", "limit_shares"]
 
@@ -228,7 +229,7 @@ class AntiStallController:
     def __init__(
         self,
         gains: Optional[AntiStallGains] = None,
-        target_speed_m_s=0.5,
+        target_speed_m_s=DEFAULT_TARGET_SPEED_M_S,
         target_depth_m=0.1,
         batch_size: Optional[int] = None,
     ) -> None:

@@ -43,8 +43,9 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import (FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ,
-                                 TICK_PERIOD_NS, beyond_lift_reach)
+from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE,
+                                 MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
+                                 beyond_lift_reach)
 from soil_msgs_py.ros_adapter import (
     JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
 )
@@ -55,8 +56,8 @@ from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWai
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
-    "target_speed_m_s": (0.5, f"desired forward speed v̄_x [m/s], in (0, {MAX_TARGET_SPEED_M_S:g}]"),
-    "target_depth_m": (0.2, f"target cut depth d̄_z below the original surface [m], in [0, {MAX_TARGET_DEPTH_M:g}] "
+    "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, f"desired forward speed v̄_x [m/s], in (0, {MAX_TARGET_SPEED_M_S:g}]"),
+    "target_depth_m": (DEFAULT_TARGET_DEPTH_M, f"target cut depth d̄_z below the original surface [m], in [0, {MAX_TARGET_DEPTH_M:g}] "
                             "(the blade height)"),
     "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
     "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
@@ -74,7 +75,8 @@ PARAMETERS: dict[str, tuple] = {
                                              "within planner_timeout_s (0: never wait)"),
     "planner_wait_s": (DEFAULT_WAIT_S, "lockstep: the longest a tick waits for its planner target [s of wall time], "
                                        "(0, 60]; then it is answered with the target there is. Keep it below the "
-                                       "simulator's lockstep_timeout_s (10 s), which ends an episode whose tick "
+                                       f"simulator's lockstep_timeout_s ({G.LOCKSTEP_TIMEOUT_S:g} s), which ends an "
+                                       "episode whose tick "
                                        "is not answered"),
     "inputs_wait_s": (G.INPUTS_WAIT_S, "with depth_source planner at start: subscribe to the state once the "
                                        f"planner's target has a publisher, or after this long [s], [0, {G.MAX_WAIT_S:g}] "
@@ -91,7 +93,7 @@ DEPTH_SOURCES = ("parameter", "planner")
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s", "force_lift_m_s",
                "force_lift_share")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
-MAX_PENDING_STAMPS = 120  # 2 s of unpaired state samples
+MAX_PENDING_STAMPS = 2 * SAMPLE_RATE_HZ  # 2 s of unpaired state samples
 # How far past the last answered tick a state stamp is still plausible (ticks lost on the way),
 # and how many refused messages in a row (twist and pose of this many ticks) mean the
 # simulation time really jumped rather than one stray pair arrived.

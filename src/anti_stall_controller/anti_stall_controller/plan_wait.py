@@ -18,11 +18,11 @@ from __future__ import annotations
 import collections
 from typing import Any
 
-from soil_msgs_py.params import TICK_PERIOD_NS
+from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
 
-DEFAULT_LAG_TICKS = 2  # soil_bringup.cut_trial.DEFAULT_PLAN_DELAY_TICKS, the in-process loop's
+DEFAULT_LAG_TICKS = 2  # also soil_bringup.cut_trial.DEFAULT_PLAN_DELAY_TICKS, the in-process loop's
 DEFAULT_WAIT_S = 2.0
-MAX_LAG_TICKS = 120  # 2 s of ticks; a plan older than that is no plan for this tick
+MAX_LAG_TICKS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks; a plan older than that is no plan for this tick
 MAX_TARGETS = 2 * MAX_LAG_TICKS  # targets kept by stamp: the one tick k cuts to is always among them
 
 

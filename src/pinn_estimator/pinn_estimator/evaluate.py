@@ -31,7 +31,7 @@ from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import file_stem, output_dir
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, WINDOW_SAMPLES
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS
 
 from .checkpoint import load_model
@@ -136,7 +136,7 @@ def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, den
                                  root=f"(simulated, {label})")
 
 
-FORECAST_STRIDE = 30  # samples between the steady windows a forecast averages (0.5 s)
+FORECAST_STRIDE = SAMPLE_RATE_HZ // 2  # samples between the steady windows a forecast averages (0.5 s)
 
 
 def fused_posteriors(ds: Dataset, cfg: FusionConfig) -> list[SoilPosterior]:

@@ -24,7 +24,7 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from soil_msgs_py.graph import EVENT_EPISODE_END, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.graph import EVENT_EPISODE_END, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.patches import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
@@ -200,20 +200,20 @@ def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     own = own_arguments_or_refusal(argv)
     if own is None:
-        return 2
+        return EXIT_BAD_CONFIG
     opts = parse_args(own)
     try:
         paths = expand_bag_args(opts.bags)
     except BagPathError as err:
         print(f"soil_bag_play: {err}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_CONFIG
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
     try:
         init_rclpy(argv, raise_interrupt)
     except RuntimeError as err:  # rcl cannot read a --params-file
         print_refusal(argv, err)
-        return 2
+        return EXIT_BAD_CONFIG
     node = Node("soil_bag_play")
     code = 0
     player = None

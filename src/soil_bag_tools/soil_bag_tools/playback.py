@@ -21,8 +21,9 @@ from soil_msgs_py import messages as M
 from .bag_io import META_KEY, bag_custom_data, find_episode_bags, is_bag, reading
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.topics import CLOCK
 
-CLOCK_TOPIC = "/clock"
+CLOCK_TOPIC = CLOCK.name
 # Replay speed factors a player accepts: a 10 s episode takes between 10 ms and ~3 h. Beyond them a
 # rate is no timing at all: inf played every message at its first deadline (unpaced, what a
 # reliable reader's history may not hold), 1e-300 scheduled the second message past any wait.
@@ -36,7 +37,7 @@ def check_rate(rate: float) -> float:
         raise ValueError(f"rate {rate} must be a finite number in [{lo:g}, {hi:g}]")
     return rate
 
-CLOCK_MSGTYPE = "rosgraph_msgs/msg/Clock"
+CLOCK_MSGTYPE = CLOCK.msgtype
 
 
 class BagPathError(ValueError):

@@ -25,7 +25,8 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import output_dir
-from soil_msgs_py.graph import CONTROL_QOS, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC
+from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS,
+                                SIM_STATUS_TOPIC)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_arguments_or_refusal, qos_profile, spin_node
@@ -150,7 +151,7 @@ def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     own = own_arguments_or_refusal(argv)
     if own is None:
-        return 2
+        return EXIT_BAD_CONFIG
     opts = parse_args(own)
     return spin_node(lambda: RecordNode(opts), argv)
 

@@ -47,6 +47,7 @@ from rosbags.interfaces import Qos
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
+from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import WriterTracks, tick_index
 from .journal import (
@@ -66,7 +67,7 @@ _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a
 # episode waits this long: a complete one is finished once its ticks are in and its extra
 # topics were quiet for EXTRA_TOPIC_GRACE_S.
 END_GRACE_S = 4.0
-ONLINE_HORIZON_TICKS = 600  # 10 s: how far past a topic's newest stamp a message is judged on arrival
+ONLINE_HORIZON_TICKS = 10 * SAMPLE_RATE_HZ  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
 
 def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | None:

@@ -37,7 +37,7 @@ from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import DEG
+from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
 from soil_physics.soils import load_soil_file
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
@@ -50,7 +50,7 @@ DEFAULT_PATCHES = ("0:Sand:20", "10:Clay:80", "16:Loam:50")
 DEFAULT_DURATION_S = 45.0
 DEFAULT_SEED = 3
 SWEEP_DEPTHS_M = tuple(np.round(np.arange(0.05, 0.3001, 0.025), 4))
-SPEED_M_S = 0.5
+SPEED_M_S = DEFAULT_TARGET_SPEED_M_S  # every policy's, and the speed the planner plans at
 # The targets (figures, not tests)
 TARGET_VOLUME_RATIO = 1.5  # soil-aware / conservative volume per metre
 TARGET_STALL_RATIO = 5.0  # aggressive / soil-aware stall time

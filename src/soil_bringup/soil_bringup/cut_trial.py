@@ -24,18 +24,18 @@ import numpy as np
 import torch
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
+from anti_stall_controller.plan_wait import DEFAULT_LAG_TICKS
 from pinn_estimator.checkpoint import SHIPPED_MODELS_DIR, load_model
 from pinn_estimator.fusion_calibration import load_calibrated
 from pinn_estimator.online import INPUT_TOPICS, Estimate, OnlineEstimator
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_planner.depth_schedule import DepthSchedule, ScheduleSettings
 from soil_planner.planner import StretchPlanner, steady_cut_terms
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
 
-DEFAULT_PLAN_DELAY_TICKS = 2
-_EST = {name: i for i, name in enumerate(T.ESTIMATE_FIELDS)}
+DEFAULT_PLAN_DELAY_TICKS = DEFAULT_LAG_TICKS  # the live controller's planner_lag_ticks
 _PHI, _C = GROUND_TRUTH_PARAMS.index("phi"), GROUND_TRUTH_PARAMS.index("c")
 _D, _W = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("w")
 FUSED_TRACK = ("phi_fused", "phi_std", "c_fused", "c_std", "fused_valid")

@@ -35,6 +35,7 @@ from typing import Any
 from . import topics as T
 from .episode import MAX_SEED, EpisodeMeta
 from .messages import MAX_STAMP_NS
+from .params import SAMPLE_RATE_HZ
 from .patches import PATCH_SYNTAX, check_patches, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
@@ -80,7 +81,7 @@ class QosSpec:
 
 
 # Per-tick data: RELIABLE so a recorder loses nothing; 120 messages = 2 s of ticks queued.
-DATA_QOS = QosSpec("reliable", "volatile", 120)
+DATA_QOS = QosSpec("reliable", "volatile", 2 * SAMPLE_RATE_HZ)
 # What a recorder subscribes with: deeper, so a busy writer never makes DDS drop a sample.
 RECORDER_QOS = QosSpec("reliable", "volatile", 2000)
 # Episode control/status: rare, must not be lost.
@@ -131,6 +132,9 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
 INPUTS_WAIT_S = 5.0
 MAX_WAIT_S = 3600.0  # the longest any start-up or tick wait of the graph may be set to [s]
+# Lockstep: how long the simulator waits for a tick's commands before it ends the episode [s of
+# wall time] (its lockstep_timeout_s); a node that holds a tick must wait less.
+LOCKSTEP_TIMEOUT_S = 10.0
 
 
 # Bounds on /sim/command and /sim/status text, checked before decoding: a status event with

@@ -49,8 +49,30 @@ def _a(lo_deg: float, hi_deg: float) -> tuple[float, float]:
     return (lo_deg * DEG, hi_deg * DEG)
 
 
+@dataclass(frozen=True)
+class Machine:
+    """The simple bladed vehicle of §2.1.2 (SI)."""
+
+    chassis_mass_kg: float = 5000.0
+    chassis_length_m: float = 3.0
+    chassis_width_m: float = 2.0
+    chassis_height_m: float = 2.0
+    blade_mass_kg: float = 400.0
+    blade_width_m: float = 3.164
+    blade_height_m: float = 0.660
+    blade_angle_rad: float = 80.0 * DEG  # rho, fixed for all experiments (§3.1)
+    horizontal_force_limit_n: float = 20e3  # chassis velocity motor (tractive limit)
+    vertical_force_limit_n: float = 30e3  # blade lift joint (penetrative limit)
+    blade_min_rel_m: float = -0.3  # edge reach below the surface, chassis on level ground
+    blade_max_rel_m: float = 1.0  # edge reach above the surface
+
+
+MACHINE = Machine()
+
+
 # Paper Table 1. alpha's normalisation range is printed as [10, 10] deg, which is a
-# degenerate (zero-width) range; we keep it and guard the division in ParamSpec.
+# degenerate (zero-width) range; we keep it and guard the division in ParamSpec. w's range and
+# d's limit are the blade's width and height (3.164 m, 0.660 m in the table), taken from MACHINE.
 TABLE1: dict[str, ParamSpec] = {
     p.name: p
     for p in (
@@ -61,8 +83,8 @@ TABLE1: dict[str, ParamSpec] = {
         ParamSpec("gamma", "N/m^3", (14e3, 22e3), (0.0, INF), "soil moist unit weight"),
         ParamSpec("rho", "rad", _a(2, 178), _a(2, 178), "blade (soil-tool) angle to the surface"),
         ParamSpec("alpha", "rad", _a(10, 10), _a(-30, 30), "soil surface inclination"),
-        ParamSpec("w", "m", (0.0, 3.164), (0.0, 3.164), "tool width"),
-        ParamSpec("d", "m", (0.0, 0.3), (0.0, 0.660), "depth of cut d' = d + delta_d"),
+        ParamSpec("w", "m", (0.0, MACHINE.blade_width_m), (0.0, MACHINE.blade_width_m), "tool width"),
+        ParamSpec("d", "m", (0.0, 0.3), (0.0, MACHINE.blade_height_m), "depth of cut d' = d + delta_d"),
         ParamSpec("delta_d", "m", (-5e-2, 5e-2), (-5e-2, 5e-2), "residual depth of cut"),
         ParamSpec("q", "N", (0.0, 10e3), (0.0, INF), "surcharge force"),
         ParamSpec("v_x", "m/s", (0.0, 1.0), (-2.0, 2.0), "blade velocity, x"),
@@ -96,28 +118,13 @@ WINDOW_SAMPLES = 60  # T = 60 samples = 1 s (§2.2.1)
 VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
 
 
-@dataclass(frozen=True)
-class Machine:
-    """The simple bladed vehicle of §2.1.2 (SI)."""
-
-    chassis_mass_kg: float = 5000.0
-    chassis_length_m: float = 3.0
-    chassis_width_m: float = 2.0
-    chassis_height_m: float = 2.0
-    blade_mass_kg: float = 400.0
-    blade_width_m: float = 3.164
-    blade_height_m: float = 0.660
-    blade_angle_rad: float = 80.0 * DEG  # rho, fixed for all experiments (§3.1)
-    horizontal_force_limit_n: float = 20e3  # chassis velocity motor (tractive limit)
-    vertical_force_limit_n: float = 30e3  # blade lift joint (penetrative limit)
-    blade_min_rel_m: float = -0.3  # edge reach below the surface, chassis on level ground
-    blade_max_rel_m: float = 1.0  # edge reach above the surface
-
-
-MACHINE = Machine()
 # The targets an episode may set (simulator, controller): the chassis velocity command's reach
 # [m/s] (the simulator clips u_x to it) and a cut no deeper than the blade is high [m].
 MAX_TARGET_SPEED_M_S = 2.0
+# The graph's default targets (controller and simulator nodes): a cut at 0.5 m/s, 0.2 m deep. The
+# planner plans its steady cut at this speed, and the cut report drives every policy at it.
+DEFAULT_TARGET_SPEED_M_S = 0.5
+DEFAULT_TARGET_DEPTH_M = 0.2
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 # How far the lift holds the edge below the ground the chassis stands on [m]: the deepest cut at the
 # start of a pass on level ground. Deeper targets (up to the blade's height) are reached only once

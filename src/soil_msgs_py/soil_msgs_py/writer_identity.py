@@ -30,7 +30,7 @@ SEQUENCE_MASK = 0xFFFF_FFFF  # MCAP stores a uint32 sequence; DDS counts in int6
 # A command writer silent this many ticks is forgotten by those who follow the controller's
 # commands live (the simulator's gate, the planner): a restarted controller (a new sequence
 # counter) is followed once its predecessor has gone quiet for 2 s.
-FORGET_WRITER_AFTER_TICKS = 120
+FORGET_WRITER_AFTER_TICKS = 2 * SAMPLE_RATE_HZ
 
 
 def tick_index(stamp: int, first_stamp_ns: int) -> int | None:

@@ -30,7 +30,7 @@ import numpy as np
 from . import term_forms
 from . import xp as _xp
 from .bearing import EDGE_WIDTH_M, bearing_factors
-from .fee import beta_star
+from .fee import beta_star, force_xz
 from .force_inputs import ForceInputs
 from soil_msgs_py.params import GRAVITY_M_S2, TABLE1
 from soil_msgs_py.patches import short_repr
@@ -88,8 +88,7 @@ def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float =
     tau = c + k * gamma * depth / 3.0 * xp.tan(phi)
     eta = delta + rho + phi + beta
     force = xp.where(ok, walls * area * tau * xp.cos(phi) / xp.sin(eta), 0.0 * depth)
-    angle = 0.5 * math.pi - rho - delta + alpha
-    return force * xp.cos(angle), force * xp.sin(angle)
+    return force_xz(force, rho, delta, alpha)
 
 
 def _side_walls(s: ForceInputs, xp):  # noqa: ARG001 - side_wall_force picks its own namespace

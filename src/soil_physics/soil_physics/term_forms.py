@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from . import xp as _xp
 from .bearing import bearing_factors
-from soil_msgs_py.params import GRAVITY_M_S2
+from soil_msgs_py.params import FORCE_LIMITS_N, GRAVITY_M_S2
 
 PREFIX = "form:"
 P_REF_PA = 10e3  # reference pressure of the c-free geometric scale w d · P_REF [Pa]
@@ -33,7 +33,7 @@ V_REF_M_S = 1.0  # reference forward speed [m/s]
 VZ_REF_M_S = 0.05  # reference vertical speed [m/s] (the blade's lift/sink speeds are a few cm/s)
 D_REF_M = 0.1  # reference depth [m]
 VZ_GATE_M_S = 0.005  # |v_z| below this is "not moving vertically" (measurement jitter)
-FX_LIMIT_N, FZ_LIMIT_N = 20e3, 30e3  # the machine's horizontal / vertical force limits [N]
+FX_LIMIT_N, FZ_LIMIT_N = FORCE_LIMITS_N  # the machine's horizontal / vertical force limits [N]
 LIMIT_SHARE = 0.9  # "at a force limit": the model's force above this share of the limit
 LAYER_DEPTHS_M = (0.1, 0.15, 0.2)  # tops of the layers the library tries [m] (a cut reaches 0.3 m)
 T_REF_S = 10.0  # reference time in soil [s] (an episode of the datasets is 10 s)

@@ -19,9 +19,12 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from soil_msgs_py.graph import LOCKSTEP_TIMEOUT_S
+from soil_msgs_py.params import SAMPLE_RATE_HZ
+
 DEFAULT_COMMAND_WAIT_S = 0.5  # far beyond a DDS hop on loopback; well inside the controller's planner_timeout_s
-MAX_COMMAND_WAIT_S = 10.0  # the simulator's lockstep_timeout_s: a longer wait would end a lockstep episode
-MAX_WAITING_TICKS = 120  # 2 s of ticks at 60 Hz
+MAX_COMMAND_WAIT_S = LOCKSTEP_TIMEOUT_S  # the simulator's lockstep_timeout_s: a longer wait would end a lockstep episode
+MAX_WAITING_TICKS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks
 
 
 def check_command_wait(value) -> float:

@@ -49,7 +49,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import KNOWN_PARAMS
+from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
                                       spin_node, status_event, topic_qos)
@@ -119,7 +119,7 @@ PARAMETERS: dict[str, tuple] = {
     "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
-MAX_PENDING_STAMPS = 120  # 2 s of ticks waiting for their partner message
+MAX_PENDING_STAMPS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks waiting for their partner message
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms")  # StretchPlanner's
 
 

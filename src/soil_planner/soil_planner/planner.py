@@ -95,7 +95,8 @@ import numpy as np
 
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
-from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
+from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
+                                 STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
 
@@ -107,7 +108,7 @@ DEFAULT_D_MAX_M = LIFT_REACH_M
 D_PRIME_LIMITS_M: tuple[float, float] = TABLE1["d"].limits
 D_MAX_LIMIT_M = D_PRIME_LIMITS_M[1]
 # Blade speed of the planned steady cut: the anti-stall controller's default target speed.
-DEFAULT_CUT_SPEED_M_S = 0.5
+DEFAULT_CUT_SPEED_M_S = DEFAULT_TARGET_SPEED_M_S
 CUT_SPEED_LIMIT_M_S = TABLE1["v_x"].limits[1]
 # Share of the force limits a planned cut may use. Of 0.8 / 0.85 / 0.9 (force quantile 0.95) the one
 # that stalled least over the five default-world paths with three seeds each, with 5 % more volume

@@ -36,7 +36,8 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS, beyond_lift_reach
+from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
+                                 beyond_lift_reach)
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
 from soil_physics.soils import load_soil_file
@@ -67,8 +68,8 @@ PARAMETERS: dict[str, tuple] = {
                     "['0.0:Sand:20', '5.0:Clay:90'] (x: the blade's cutting edge in the world frame [m]; the first "
                     "also covers everything before the second; empty: 'soil' everywhere; set: 'soil' and "
                     "'relative_density_pct' are unused, the first patch's are the episode's)", _STR_ARRAY),
-    "target_speed_m_s": (0.5, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
-    "target_depth_m": (0.2, "target cut depth below the original surface [m]"),
+    "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
+    "target_depth_m": (DEFAULT_TARGET_DEPTH_M, "target cut depth below the original surface [m]"),
     "seed": (0, "seed of the first episode; episode k of the plan uses seed + k"),
     "duration_s": (10.0, "episode length [s] of simulation time"),
     "sequence_soils": ([], "plan: soils to run in a row (empty: just 'soil')", _STR_ARRAY),
@@ -84,7 +85,7 @@ PARAMETERS: dict[str, tuple] = {
                              f"[0, {G.MAX_WAIT_S:g}] (0: wait forever)"),
     "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], "
                        f"[0, {MAX_SETTLE_S:g}]"),
-    "lockstep_timeout_s": (10.0, "lockstep: end the episode (reason 'error') if a tick's commands do not come within "
+    "lockstep_timeout_s": (G.LOCKSTEP_TIMEOUT_S, "lockstep: end the episode (reason 'error') if a tick's commands do not come within "
                                  f"this [s], [0, {G.MAX_WAIT_S:g}]"),
     "soil_file": ("", "YAML of custom soils and named paths (soil_sim_batch --soil-file's format); its soils may be "
                       "named in soil, patches, sequence_soils and /sim/command starts; '': the catalogue only"),

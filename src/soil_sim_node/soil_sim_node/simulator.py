@@ -535,8 +535,7 @@ class SoilSimulator:
         if e.force_scaling:
             area = self.w * np.maximum(d, 0.0) / math.sin(self.rho)
             f_fail = np.minimum(f_fail * e.force_scale, e.area_pressure_limit_pa * area)
-        angle = 0.5 * math.pi - self.rho - delta_p + self.alpha
-        ex, ez = np.cos(angle), np.sin(angle)
+        ex, ez = fee.force_xz(1.0, self.rho, delta_p, self.alpha)  # Eq. 8's direction of the failure force
 
         # --- elastic-perfectly-plastic soil contact along the failure-force direction
         v_n = vx * ex + vz_b * ez
