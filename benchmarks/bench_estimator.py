@@ -72,19 +72,15 @@ from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py import messages as M  # noqa: E402
 from soil_msgs_py import topics as T  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
-from soil_msgs_py.params import WINDOW_SAMPLES  # noqa: E402
+from soil_msgs_py.params import SAMPLE_RATE_HZ as RATE_HZ, WINDOW_SAMPLES  # noqa: E402
+from soil_sim_node.simulator import stamp_ns as stamp_of  # noqa: E402
+from graph_procs import CLK_TCK, cpu_seconds  # noqa: E402
 from soil_bringup.launch import loopback_env  # noqa: E402
 from soil_discrepancy.provenance import cpu_model  # noqa: E402
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parent.parent
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-RATE_HZ = 60
 VALID = T.ESTIMATE_FIELDS.index("valid")
-
-
-def stamp_of(k: int) -> int:
-    return (k * 1_000_000_000) // RATE_HZ
 
 
 def stats_ms(samples_s) -> dict:
@@ -199,10 +195,6 @@ def bench_core(ep, steps: int, warmup: int, paced: int) -> dict[str, dict]:
 
 
 # ------------------------------------------------------------------ 2./3. through DDS, node in its own process
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
 
 
 def machine_cpu_seconds() -> float:

@@ -872,18 +872,8 @@ def main() -> None:
     print(f"Total {results['wall_s']:.0f} s; load average at the end {results['load_average_end']:.2f}.")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(strict_json.dumps(results, indent=1, default=_json_default) + "\n")
+        args.out.write_text(strict_json.dumps(results, indent=1, default=str) + "\n")  # numbers: json_safe
         print(f"wrote {args.out}")
-
-
-def _json_default(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.floating, np.bool_)):
-        return x.item()
-    return str(x)
 
 
 if __name__ == "__main__":

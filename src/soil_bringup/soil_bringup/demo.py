@@ -55,7 +55,6 @@ DEFAULT_SOILS = ("Clay", "Loam", "Sand", "Gravel")
 DEFAULT_DENSITIES_PCT = (20.0, 80.0)
 DEFAULT_DOMAIN_ID = 42
 EXIT_FAILED = 1
-EXIT_BAD_ARGS = 2
 EXIT_INTERRUPTED = 130
 LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died", L.EXIT_TIMEOUT: "timeout",
                    G.EXIT_EPISODE_FAILED: "an episode ended in error"}
@@ -195,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         cleared = prepare_bag_dir(args.bags)
     except (ValueError, OSError) as err:
         print(f"demo: {err}", file=sys.stderr)
-        return EXIT_BAD_ARGS
+        return L.EXIT_BAD_ARGS
     print(f"demo: {len(pairs)} episode(s): {', '.join(args.soils)} x I_d {', '.join(f'{d:g}' for d in args.densities)} %, "
           f"{args.duration:g} s each, pacing {args.pacing}" + (f" x{args.rate:g}" if args.pacing == "realtime" else "")
           + f", ROS_DOMAIN_ID {args.domain_id} (loopback only)")

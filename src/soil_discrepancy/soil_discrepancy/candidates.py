@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from soil_msgs_py.strict_json import finite_or_none as _f
 from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 
@@ -319,12 +320,6 @@ def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=N
             break
     return {"model": current, "fit": cur_fit, "rounds": rounds, "accepted": accepted}
 
-
-def _f(x):
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def _determined(score) -> bool:

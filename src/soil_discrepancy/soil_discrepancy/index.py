@@ -8,9 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-
-def _n(x, fmt=".0f"):
-    return "–" if x is None else format(x, fmt)
+from .report import _n  # the reports' way of printing a number that may be missing
 
 
 def index_markdown(root: Path) -> str:

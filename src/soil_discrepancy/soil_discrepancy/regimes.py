@@ -24,6 +24,7 @@ from scipy import stats
 
 from pinn_estimator.classical import denormalise_theta, normalised_bounds
 from soil_msgs_py.params import KNOWN_PARAMS
+from soil_msgs_py.strict_json import finite_or_none as _f
 
 from .frame import Frame
 
@@ -376,10 +377,3 @@ def binned_curve(frame: Frame, values: np.ndarray, key: str, edges: dict, min_ti
         out.append((float(np.median(x[mask])), float(means.mean()), lo, hi))
     return np.array(out) if out else None
 
-
-def _f(x):
-    """A JSON-ready float (None for NaN/inf/None)."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None

@@ -8,7 +8,6 @@
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -34,7 +33,7 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
         paths += _plots(report, out, arrays)
     report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
     # strict JSON (JSON.parse refuses bare NaN / Infinity): a non-finite number, e.g. an open bin edge, is null
-    paths.insert(0, _atomic(out / "discrepancy.json", strict_json.dumps(report, indent=1, default=_json_default)))
+    paths.insert(0, _atomic(out / "discrepancy.json", strict_json.dumps(report, indent=1, default=str)))
     paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
     found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
     if found is not None:
@@ -49,16 +48,6 @@ def _atomic(path: Path, text: str) -> Path:
     tmp.write_text(text)
     os.replace(tmp, path)
     return path
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 # ------------------------------------------------------------------------------------ markdown
@@ -188,7 +177,7 @@ def markdown(report: dict, figures=()) -> str:
                 lines += [f"### {label}", "", f"RMSE {_n(comp['before']['rmse'])} N → {_n(comp['after']['rmse'])} N, "
                           f"paired p = {_p(comp['p_paired'])}, {comp['improved_episodes']}/{comp['n_episodes']} episodes improved.", ""]
             else:
-                lines += [f"### {label}", "", "```json", json.dumps(comp, indent=1, default=_json_default)[:4000], "```", ""]
+                lines += [f"### {label}", "", "```json", strict_json.dumps(comp, indent=1, default=str)[:4000], "```", ""]
     lines += ["## Candidate terms (cross-validated across θ-groups, selection part only)", ""]
     for i, rnd in enumerate(report["selection"]["rounds"], 1):
         lines += [f"Round {i}{' (*' + rnd['stage'] + '*)' if rnd.get('stage') else ''} (model: {_terms(rnd['model_terms'])}) — winner: **{rnd['winner'] or 'none'}**"

@@ -26,6 +26,14 @@ def json_safe(x):
     return x
 
 
+def finite_or_none(x) -> float | None:
+    """A JSON-ready float: None for None, NaN and ±inf."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
 def dumps(obj, **kwargs) -> str:
     """``json.dumps`` of ``json_safe(obj)`` that refuses anything non-finite left (``allow_nan=False``)."""
     return json.dumps(json_safe(obj), allow_nan=False, **kwargs)

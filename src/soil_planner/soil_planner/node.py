@@ -49,7 +49,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
                                       spin_node, status_event, topic_qos)
@@ -58,8 +58,8 @@ from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks
 
 from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
 from .depth_schedule import DepthSchedule, ScheduleSettings
-from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, NO_PLAN_VALUES,
-                      StretchPlanner, describe, fields)
+from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
+                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, describe, fields)
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -88,11 +88,14 @@ TARGET_STEP_M = 1e-3
 TARGET_HEARTBEAT_NS = M.NS_PER_S // 5
 
 PARAMETERS: dict[str, tuple] = {
-    "margin": (DEFAULT_MARGIN, "fraction of the force limits (20 kN tractive x, 30 kN lift z) a cut may use, (0, 1]"),
-    "d_max_m": (DEFAULT_D_MAX_M, "deepest cut depth below the soil surface considered [m], (0, 0.66]; default: "
-                                 "the blade's reach with the chassis on level, uncut ground (0.3 m)"),
+    "margin": (DEFAULT_MARGIN, f"fraction of the force limits ({FORCE_LIMITS_N[0] / 1e3:g} kN tractive x, "
+                               f"{FORCE_LIMITS_N[1] / 1e3:g} kN lift z) a cut may use, (0, 1]"),
+    "d_max_m": (DEFAULT_D_MAX_M, f"deepest cut depth below the soil surface considered [m], (0, {D_MAX_LIMIT_M:g}]; "
+                                 "default: the blade's reach with the chassis on level, uncut ground "
+                                 f"({DEFAULT_D_MAX_M:g} m)"),
     "cut_speed_m_s": (DEFAULT_CUT_SPEED_M_S, "blade speed v_x of the planned steady, level cut (v_z = 0) [m/s], "
-                                             "(0, 2]; default: the anti-stall controller's default target speed"),
+                                             f"(0, {CUT_SPEED_LIMIT_M_S:g}]; default: the anti-stall controller's "
+                                             "default target speed"),
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
