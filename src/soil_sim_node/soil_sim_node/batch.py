@@ -236,8 +236,9 @@ def _pool_start_method() -> str:
     """``fork`` (the workers start at once, the compiled kernel already loaded), unless this
     process has run Ray: its threads may hold a lock at the fork that a child then waits on for
     ever (seen as a pool that never finished after Ray sessions in one process). Then the workers
-    start from a fresh server process (``forkserver``), which writes the same bags."""
-    return "forkserver" if "ray" in sys.modules else "fork"
+    are fresh interpreters (``spawn``), which write the same bags and end with the pool (a
+    ``forkserver`` would outlive it, carrying Ray's path in its command line)."""
+    return "spawn" if "ray" in sys.modules else "fork"
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
