@@ -121,11 +121,11 @@ VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
 # The targets an episode may set (simulator, controller): the chassis velocity command's reach
 # [m/s] (the simulator clips u_x to it) and a cut no deeper than the blade is high [m].
 MAX_TARGET_SPEED_M_S = 2.0
+MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 # The graph's default targets (controller and simulator nodes): a cut at 0.5 m/s, 0.2 m deep. The
 # planner plans its steady cut at this speed, and the cut report drives every policy at it.
 DEFAULT_TARGET_SPEED_M_S = 0.5
 DEFAULT_TARGET_DEPTH_M = 0.2
-MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 # How far the lift holds the edge below the ground the chassis stands on [m]: the deepest cut at the
 # start of a pass on level ground. Deeper targets (up to the blade's height) are reached only once
 # the chassis rides on its own cut floor, which ``beyond_lift_reach`` says.
@@ -140,6 +140,8 @@ def beyond_lift_reach(name: str, depth_m: float) -> str | None:
                 "chassis): the first metres of the pass are cut at about that depth, deeper only once the chassis "
                 "rides on its own cut floor")
     return None
+
+
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
 # The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil
