@@ -2,8 +2,8 @@
 "Running on a cluster" estimate.
 
 * Episodes/s of soil_sim_batch for the same 24 ten-second episodes: the local fork pool with 1
-  and 2 workers against Ray tasks on a local Ray instance of 1 and 2 CPUs (timed after a warm-up
-  in the same instance; the instance's start-up is printed apart). Two rounds, the second in
+  and 2 workers against Ray tasks on a local Ray instance of 1 and 2 CPUs (each in a fresh process,
+  timed after a warm-up in the same instance; the instance's start-up is printed apart). Two rounds, the second in
   reverse order, best of the two: the load of a shared machine drifts.
 * Ray's cost per task: many no-op tasks in flight at once (throughput), and one at a time
   (round trip).
@@ -21,6 +21,7 @@ Usage: .venv/bin/python benchmarks/bench_fleet.py
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -49,7 +50,17 @@ def _plan(out: Path, specs) -> DatasetPlan:
 
 
 def episodes_per_s(tmp: Path, workers: int, ray: bool) -> tuple[float, float]:
-    """(episodes/s over EPISODES, start-up s of the Ray instance or 0)."""
+    """(episodes/s over EPISODES, start-up s of the Ray instance or 0), measured in a fresh process:
+    one that has run Ray cannot fork safely, so a pool after Ray would spawn its workers (slower to
+    start) and the rounds would not compare like with like."""
+    out = subprocess.run([sys.executable, __file__], check=True, stdout=subprocess.PIPE, text=True,
+                         env={**os.environ, MEASURE_ENV: json.dumps([str(tmp), workers, ray])})
+    rate, startup = json.loads(out.stdout.strip().splitlines()[-1])
+    return rate, startup
+
+
+def _episodes_per_s(tmp: Path, workers: int, ray: bool) -> tuple[float, float]:
+    """``episodes_per_s`` in this process."""
     tag = f"{'ray' if ray else 'pool'}{workers}"
     address = LOCAL if ray else None
     t0 = time.perf_counter()
@@ -126,6 +137,7 @@ def training_windows_per_s(data: Path, out: Path, processes: int, threads: int) 
 
 
 SCRATCH_ENV = "BENCH_FLEET_SCRATCH"
+MEASURE_ENV = "BENCH_FLEET_MEASURE"  # a child measuring one configuration of episodes_per_s: [dir, workers, ray]
 
 
 def run_in_scratch() -> int:
@@ -136,9 +148,10 @@ def run_in_scratch() -> int:
         child = subprocess.Popen([sys.executable, __file__], env={**os.environ, SCRATCH_ENV: scratch})
         signal.signal(signal.SIGTERM, lambda signum, frame: child.terminate())
         try:
-            return child.wait()
+            code = child.wait()
         except KeyboardInterrupt:  # Ctrl-C reached the child too (same process group)
-            return child.wait()
+            code = child.wait()
+        return 128 - code if code < 0 else code  # killed by signal N: 128 + N, as a shell says
 
 
 def main() -> None:
@@ -160,15 +173,16 @@ def main() -> None:
           f"{rows[('Ray tasks', 2)][0] / rows[('local pool', 2)][0]:11.2f}x")
     startups = [rows[("Ray tasks", w)][1] for w in (1, 2)]
     print(f"local Ray instance start-up: {min(startups):.1f}-{max(startups):.1f} s (once per run, not per episode)")
-    batch, one = ray_task_overhead()
-    print(f"\nRay cost per task: {batch * 1e3:.2f} ms with 400 no-op tasks in flight on 2 CPUs, "
-          f"{one * 1e3:.2f} ms one at a time (a 48-episode chunk of 10 s episodes takes tens of s)")
+    # the local pools before Ray runs in this process (after it they would spawn, not fork)
     data = tmp / "train"
     generate(_plan(data, TRAIN_DATA), workers=2, progress=False)
     size = sum(f.stat().st_size for f in data.rglob("*") if f.is_file()) / len(TRAIN_DATA)
     print(f"\nreading {len(TRAIN_DATA)} bags of 10 s ({size / 1e3:.0f} kB each) into training arrays, no cache:")
     for how, rate in bags_per_s(data).items():
         print(f"  {how:22s}{rate:7.1f} bags/s")
+    batch, one = ray_task_overhead()
+    print(f"\nRay cost per task: {batch * 1e3:.2f} ms with 400 no-op tasks in flight on 2 CPUs, "
+          f"{one * 1e3:.2f} ms one at a time (a 48-episode chunk of 10 s episodes takes tens of s)")
     if not _netns():
         print("\ntraining: skipped (needs `unshare -rn` to keep torchrun's store on loopback)")
         return
@@ -185,7 +199,10 @@ if __name__ == "__main__":
     # no options: --help prints what the benchmark measures instead of starting its run
     argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     sys.stdout.reconfigure(line_buffering=True)  # a run stopped early still shows what it measured
-    if SCRATCH_ENV in os.environ:
+    if MEASURE_ENV in os.environ:
+        where, n_workers, on_ray = json.loads(os.environ[MEASURE_ENV])
+        print(json.dumps(_episodes_per_s(Path(where), n_workers, on_ray)))
+    elif SCRATCH_ENV in os.environ:
         main()
     else:
         sys.exit(run_in_scratch())

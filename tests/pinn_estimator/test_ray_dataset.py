@@ -52,3 +52,5 @@ def test_reading_bags_over_ray_equals_the_local_reader(tmp_path, monkeypatch):
     assert listening and all(is_loopback(ip) for _, ip in listening), listening
     assert len(local) == 6 and [Path(s["bag"]).name for s in local.skipped] == ["zz_truncated"]
     assert _same(local, over_ray)
+    # two local processes again, in this process that has run Ray (a fork there may hang): spawned
+    assert _same(local, load_dataset(root, cache=False, skip_bad_bags=True, log=lambda _: None, workers=2))

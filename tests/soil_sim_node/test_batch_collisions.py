@@ -67,8 +67,8 @@ def test_a_patch_the_blade_never_reaches_is_said(tmp_path, capsys):
             "--quiet", "--patch", "0:Sand:20", "--patch", "2.5:Clay:80", "--patch", "4:Loam:50"]
     assert batch.main([*base, "--out", str(tmp_path / "short")]) == 0
     err = capsys.readouterr().err
-    assert "patch 2 (Loam from x = 4 m) starts beyond where the blade's edge gets in 2 s at 0.5 m/s (x ≈ 3.00 m)" in err
-    assert "patch 1" not in err
+    assert "patches[2] (Loam from x = 4 m) starts beyond where the blade's edge gets in 2 s at 0.5 m/s (x ≈ 3.00 m)" in err
+    assert "patches[1]" not in err
 
 
 def test_a_soil_file_without_soils_naming_its_soils_is_said(tmp_path, capsys):
@@ -78,6 +78,11 @@ def test_a_soil_file_without_soils_naming_its_soils_is_said(tmp_path, capsys):
             "--duration", "1", "--workers", "1", "--quiet", "--soil-file", str(soils)]
     assert batch.main([*grid, "--out", str(tmp_path / "a")]) == 0
     assert "--soil-file's soils ['Silt'] are not simulated without --soils naming them" in capsys.readouterr().err
+    replaced = tmp_path / "sand.yaml"  # a soil named like a catalogue one replaces it: simulated, not said
+    replaced.write_text(soils.read_text().replace("name: Silt", "name: Sand"))
+    assert batch.main([*grid[:-1], str(replaced), "--soils", "Sand", "--out", str(tmp_path / "c")]) == 0
+    assert batch.main([*grid[:-1], str(replaced), "--out", str(tmp_path / "d")]) == 0
+    assert "not simulated" not in capsys.readouterr().err
     assert batch.main([*grid, "--soils", "Silt,Sand", "--out", str(tmp_path / "b")]) == 0
     assert "not simulated" not in capsys.readouterr().err
     assert sorted(b.name.split("_")[1] for b in find_episode_bags(tmp_path / "b")) == ["sand", "silt"]

@@ -205,8 +205,8 @@ class ControllerNode(Node):
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
-            if note := beyond_lift_reach("target_depth_m", self.param_depth_m):
-                self.get_logger().warning(note)
+            if note := beyond_lift_reach("target_depth_m", self.param_depth_m):  # each depth said once (its
+                self._warn(f"beyond_lift_reach {self.param_depth_m:g}", note)  # episodes set it again and again)
         self.plan_wait.set_lag(lag, wait)
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
             self.core.set_targets(target_depth_m=self.param_depth_m)

@@ -269,8 +269,9 @@ def fit_windows(known: np.ndarray, forces: np.ndarray, *, workers: int = 1, prog
         if workers > 1 and len(chunks) > 1:
             import multiprocessing as mp
 
-            method = "fork" if "fork" in mp.get_all_start_methods() else None
-            with mp.get_context(method).Pool(min(workers, len(chunks))) as pool:
+            from soil_msgs_py.process_pool import pool_start_method
+
+            with mp.get_context(pool_start_method()).Pool(min(workers, len(chunks))) as pool:
                 for out, (kc, _) in zip(pool.imap(_fit_chunk, chunks), chunks):
                     results.append(out)
                     if bar is not None:

@@ -262,7 +262,9 @@ def _read_all(bags, workers, progress):
     if workers > 1 and len(bags) > 1:
         import multiprocessing as mp
 
-        with mp.get_context("fork").Pool(min(workers, len(bags))) as pool:
+        from soil_msgs_py.process_pool import pool_start_method
+
+        with mp.get_context(pool_start_method()).Pool(min(workers, len(bags))) as pool:
             return list(shown(pool.imap(_read, bags, chunksize=4)))
     return [_read(b) for b in shown(bags)]
 

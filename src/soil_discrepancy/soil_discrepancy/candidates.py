@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from soil_msgs_py.process_pool import fork_is_safe
 from soil_msgs_py.strict_json import finite_or_none as _f
 from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
@@ -231,7 +232,7 @@ def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *
     tasks = [(n, f) for n in testable for f in range(len(fold_list))]
     _CTX.update(frame=frame, model=model, base=base, folds=fold_list, allow_negative_k=allow_negative_k)
     try:
-        if workers > 1 and len(tasks) > 1 and "fork" in mp.get_all_start_methods():
+        if workers > 1 and len(tasks) > 1 and fork_is_safe():  # the tasks read _CTX, which only a fork carries
             with mp.get_context("fork").Pool(min(workers, len(tasks)), initializer=limit_blas_threads) as pool:
                 results = pool.map(_cv_task, tasks, chunksize=1)
         else:

@@ -42,6 +42,7 @@ from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import beyond_lift_reach
 from soil_msgs_py.patches import check_patches
+from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
 
 from .effects import Effects, effects_for_mode
@@ -179,7 +180,7 @@ def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
         reach = Dynamics().blade_offset_m + speed * duration
         for i, patch in enumerate(check_patches(list(patches))[1:], start=1):
             if patch.x_start_m > reach:
-                notes.append(f"patch {i} ({patch.soil} from x = {patch.x_start_m:g} m) starts beyond where the blade's "
+                notes.append(f"patches[{i}] ({patch.soil} from x = {patch.x_start_m:g} m) starts beyond where the blade's "
                              f"edge gets in {duration:g} s at {speed:g} m/s (x ≈ {reach:.2f} m): never cut")
     return notes
 
@@ -216,7 +217,7 @@ def _earlier_runs(path: Path) -> list[dict]:
 
 
 def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
-    """The chunks in a local fork pool (in this process for one worker); (name, bytes) per bag."""
+    """The chunks in a local process pool (in this process for one worker); (name, bytes) per bag."""
     results: list[tuple[str, int]] = []
     if workers == 1:
         for job in jobs:
@@ -224,21 +225,14 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
             results += done
             bar.update(len(done))
     else:
-        with mp.get_context(_pool_start_method()).Pool(max(1, min(workers, len(jobs)))) as pool:
+        # after Ray, spawned workers (they write the same bags and end with the pool; a fork server
+        # would outlive it, with Ray's path in its command line)
+        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs)))) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
     bar.close()
     return results
-
-
-def _pool_start_method() -> str:
-    """``fork`` (the workers start at once, the compiled kernel already loaded), unless this
-    process has run Ray: its threads may hold a lock at the fork that a child then waits on for
-    ever (seen as a pool that never finished after Ray sessions in one process). Then the workers
-    are fresh interpreters (``spawn``), which write the same bags and end with the pool (a
-    ``forkserver`` would outlive it, carrying Ray's path in its command line)."""
-    return "spawn" if "ray" in sys.modules else "fork"
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
@@ -365,10 +359,11 @@ def main(argv=None) -> int:
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         for note in unreached_patches(plan.specs):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
-        if plan.custom_soils and args.soils is None and not plan.specs[0].patches:
-            print(f"soil_sim_batch: warning: --soil-file's soils {sorted(plan.custom_soils)} are not simulated without "
-                  f"--soils naming them (e.g. --soils {','.join(sorted(plan.custom_soils))}); the catalogue's are",
-                  file=sys.stderr)
+        # (a custom soil named like a catalogue soil replaces it: that one is simulated)
+        unused = sorted(n for n in plan.custom_soils if n.lower() not in {c.lower() for c in CATALOGUE})
+        if unused and args.soils is None and not plan.specs[0].patches:
+            print(f"soil_sim_batch: warning: --soil-file's soils {unused} are not simulated without --soils naming "
+                  f"them (e.g. --soils {','.join(unused)}); the catalogue's are", file=sys.stderr)
         summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)

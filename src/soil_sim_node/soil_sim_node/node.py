@@ -236,7 +236,7 @@ class SimNode(Node):
         # ValueError naming the field and value, or a soil that resists nothing; with patches, the first one's soil
         resolved = resolve_checked(self.config, spec, self.custom_soils)[0]
         if note := beyond_lift_reach("target_depth_m", resolved.target_depth_m):
-            self._warn("beyond_lift_reach", note)
+            self._warn(f"beyond_lift_reach {resolved.target_depth_m:g}", note)  # each depth said once
         return resolved
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
