@@ -157,11 +157,15 @@ class ControllerNode(Node):
             get("inputs_wait_s"), lambda missing: self.get_logger().warning(
                 f"following the state without a publisher of {missing} yet (depth_source planner)"))
         self.get_logger().info(f"targets v={get('target_speed_m_s')} m/s d={get('target_depth_m')} m, gains {gains}")
-        if note := beyond_lift_reach("target_depth_m", self.param_depth_m):
-            self.get_logger().warning(note)
+        self._say_if_beyond_reach()
         if self._force_lift:
             self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
         self.create_timer(0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
+
+    def _say_if_beyond_reach(self) -> None:
+        """Warn of a target deeper than the lift reaches, each depth once (episodes set it again and again)."""
+        if note := beyond_lift_reach("target_depth_m", self.param_depth_m):
+            self._warn(f"beyond_lift_reach {self.param_depth_m:g}", note)
 
     def _subscribe_state(self) -> None:
         for name in state_topics(True):  # the force reaches the join only with the force lift on
@@ -205,8 +209,7 @@ class ControllerNode(Node):
         if any(k in changes for k in TARGET_FIELDS):
             self.core.set_targets(speed, depth)
             self.param_depth_m = float(depth)
-            if note := beyond_lift_reach("target_depth_m", self.param_depth_m):  # each depth said once (its
-                self._warn(f"beyond_lift_reach {self.param_depth_m:g}", note)  # episodes set it again and again)
+            self._say_if_beyond_reach()
         self.plan_wait.set_lag(lag, wait)
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
             self.core.set_targets(target_depth_m=self.param_depth_m)

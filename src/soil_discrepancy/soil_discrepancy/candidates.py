@@ -322,7 +322,6 @@ def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=N
     return {"model": current, "fit": cur_fit, "rounds": rounds, "accepted": accepted}
 
 
-
 def _determined(score) -> bool:
     """The cross-validated k is consistent across folds: |mean k| > K_SIGMA · SE."""
     ks = [k for k in score.k_folds if k is not None and math.isfinite(k)]

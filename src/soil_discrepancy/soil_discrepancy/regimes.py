@@ -376,4 +376,3 @@ def binned_curve(frame: Frame, values: np.ndarray, key: str, edges: dict, min_ti
         lo, hi = _ci95(means)
         out.append((float(np.median(x[mask])), float(means.mean()), lo, hi))
     return np.array(out) if out else None
-

@@ -19,10 +19,15 @@ UNKNOWN_SOIL = "unknown"
 GAMMA_GROUP_RTOL = 0.002
 
 
+def says_unknown(name: str) -> bool:
+    """True if a soil name is one of those that say "not known" (UNKNOWN_SOILS, any case)."""
+    return name.strip().lower() in UNKNOWN_SOILS
+
+
 def soil_label(meta) -> str:
     """An episode's soil name from its metadata, or UNKNOWN_SOIL where it has none."""
     soil = str(getattr(meta, "soil", "") or "").strip()
-    return UNKNOWN_SOIL if soil.lower() in UNKNOWN_SOILS else soil
+    return UNKNOWN_SOIL if says_unknown(soil) else soil
 
 
 def unlabelled_count(metas) -> int:

@@ -46,7 +46,7 @@ import numpy as np
 
 from soil_msgs_py.params import DEG, TABLE1
 from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr
-from soil_msgs_py.soil_labels import UNKNOWN_SOILS
+from soil_msgs_py.soil_labels import UNKNOWN_SOILS, says_unknown
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ def soil_from_dict(data: dict) -> SoilType:
     if _UNSAFE_NAME.search(name) or name.startswith(".") or ".." in name or not name.isprintable():
         raise ValueError(f"soil YAML name={data.get('name')!r}: no path separators, '..', leading '.', control "
                          'characters or any of : * ? " < > | (a soil\'s name becomes part of its bags\' file names)')
-    if name.lower() in UNKNOWN_SOILS:  # its bags would read as a machine's, whose soil is not known
+    if says_unknown(name):  # its bags would read as a machine's, whose soil is not known
         raise ValueError(f"soil YAML name={name!r} says 'no soil label' ({', '.join(map(repr, UNKNOWN_SOILS[1:]))}); "
                          "give the soil a name")
     if len(name.encode("utf-8")) > MAX_SOIL_NAME_BYTES:

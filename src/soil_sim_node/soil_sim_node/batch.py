@@ -127,7 +127,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             for s in resolved]
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
-    _check_names_free(plan, [episode_meta(plan.config(), spec, soil.name, []).name for spec, soil in pairs])
+    _check_names_free(plan, _bag_names(plan.config(), pairs))
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
@@ -185,6 +185,12 @@ def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
     return notes
 
 
+def _bag_names(config: SimConfig, resolved) -> list[str]:
+    """The bag names the workers give the episodes of ``resolved`` ((spec, soil) pairs, as
+    ``EpisodeSpec.resolve`` returns them): their metadata's names."""
+    return [episode_meta(config, spec, soil.name, []).name for spec, soil in resolved]
+
+
 def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
     """FileExistsError, before anything is simulated, if a bag of the plan exists (without
     ``overwrite``) or a recorder's journal of that name waits for ``soil_bag_repair``."""
@@ -240,10 +246,9 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
     failed = [(c, r) for c, r in zip(chunks, done) if isinstance(r, Exception)]
     if not failed:
         return
-    config = plan.config()
     lines = []
     for chunk, err in failed:
-        names = [episode_meta(config, s, soil.name, []).name for s, soil in (x.resolve(plan.custom_soils) for x in chunk)]
+        names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
         lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
     kept = sum(len(r) for r in done if not isinstance(r, Exception))
     raise ChunksFailed(
