@@ -47,7 +47,7 @@ class Feed:
     """Hands messages to a Recorder the way record_node does: one sequence counter per writer
     and topic (the intruder's has published before, as any writer's counter may have)."""
 
-    FIRST_SEQ = {"sim": 1, "estimator": 1, "intruder": 1000}
+    FIRST_SEQ = {"sim": 1, "estimator": 1, "intruder": 1000, "restarted": 1}
 
     def __init__(self, rec: recorder.Recorder, with_sequence: bool = True):
         self.rec, self.with_sequence, self.seq = rec, with_sequence, {}
@@ -292,13 +292,42 @@ def test_an_intruder_filling_a_skipped_tick_with_a_fitting_counter_is_refused(tm
     assert recorder_info(bag)["conflicts"].get(T.ESTIMATE.name) == len(intrusions)
 
 
+def test_a_restarted_estimator_is_recorded_after_its_predecessor_but_an_intruder_among_it_is_not(tmp_path):
+    """The estimator dies after tick 99 and a new one (a new counter from 1) publishes from
+    tick 260, 2.7 s later: the bag keeps both. Judged as one chain the restarted counter, once
+    past 100, continues the dead one's, and the heaviest chain took the old estimator's
+    estimates with the new one's tail, refusing the rest of the new one's. An intruder's
+    plausible estimates at ticks the restarted estimator skips are still refused."""
+    from soil_msgs_py import topics as T
+
+    intrusions, restarted = [], {}
+
+    def intrude(feed, t, tick) -> bool:
+        if tick >= 260:
+            if tick % 7 == 3:  # the restarted estimator skips it; the intruder claims it
+                feed.send("intruder", T.ESTIMATE.name, _estimate(t, 5.0))
+                intrusions.append(t)
+            else:
+                feed.send("restarted", T.ESTIMATE.name, _estimate(t, float(tick)))
+                restarted[t] = float(tick)
+            return True
+        return tick >= 100  # dead from tick 100
+
+    bag, published = _record_estimates(tmp_path, 400, intrude)
+    stamps, values = bag_io.read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert len(published) == 100 and len(restarted) > 100 and intrusions
+    assert dict(zip(stamps.tolist(), values[:, 0].tolist())) == {**published, **restarted}
+    assert recorder_info(bag)["conflicts"] == {T.ESTIMATE.name: len(intrusions)}
+
+
 def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):
     """The episode's ticks are complete; the estimator's estimates keep coming (a loaded
-    machine): the bag waits while they flow and closes once they were quiet for the grace."""
+    machine), for longer than the end grace (5.8 s): the bag waits while they flow and closes
+    once they were quiet for the grace."""
     from soil_msgs_py import topics as T
 
     loaded, start_ev, end_ev = _events(SAMPLE)
-    n = 20
+    n = 30
     msgs = loaded.messages[: 10 * n]
     end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
     now = [0.0]
@@ -318,3 +347,37 @@ def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):
     (result,) = rec.poll()
     stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
     assert stamps.tolist() == clock_stamps[:-1]
+
+
+def test_extras_that_never_stop_are_cut_at_the_lag_limit_with_a_warning(tmp_path):
+    """An estimator so far behind that its estimates keep coming, each within the quiet grace of
+    the last, cannot hold the bag open for ever: it is finished at the lag limit, with what came
+    by then and a warning naming the short topic."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 150  # more ticks than arrive within the lag limit, one per 0.9 of the quiet grace
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    now, log = [0.0], ListLog()
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=log,
+                            end_grace_s=4.0, clock=lambda: now[0])
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for _, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+    rec.on_status(end_ev.to_json())
+    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    sent = 0
+    for k, t in enumerate(clock_stamps):
+        now[0] += recorder.EXTRA_TOPIC_GRACE_S * 0.9
+        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
+        rec.poll()
+        if rec.finished:
+            break
+        sent += 1
+    assert rec.finished and recorder.EXTRA_TOPIC_LAG_LIMIT_S <= now[0] < recorder.EXTRA_TOPIC_LAG_LIMIT_S + 1.0, now
+    assert sent < n - 1
+    stamps, _ = bag_io.read_labelled_topic(rec.finished[0].path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert stamps.tolist() == clock_stamps[:len(stamps)] and len(stamps) >= sent
+    assert any("still arriving" in m and T.ESTIMATE.name in m for lvl, m in log.lines if lvl == "warning"), log.lines

@@ -1,7 +1,7 @@
 """Writers told apart by publication sequence continuity (no ROS)."""
 from __future__ import annotations
 
-from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, leading_chain, tick_index, tick_number
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, leading_chain, succession, tick_index, tick_number
 
 
 def test_tick_index_is_the_grid_and_tick_number_counts_across_episodes():
@@ -86,3 +86,20 @@ def test_a_restarted_writer_is_led_by_its_longer_stretch_and_the_counter_may_wra
     top = SEQUENCE_MASK - 2
     wrapped = [(top + k) & SEQUENCE_MASK for k in range(6)]  # ..., 2^32 - 1, 0, 1, 2
     assert leading_chain(list(range(6)), wrapped) == set(range(6))
+
+
+def test_succession_keeps_a_restarted_writer_and_its_predecessor_but_no_interleaved_intruder():
+    """Writer A: ticks 0..9, sequence 1..10; silent 10 ticks (beyond the silence limit 5);
+    writer B (restarted, a new counter): ticks 20..39, sequence 1..20, whose numbers from 11 on
+    continue A's counter. An intruder (sequence 500..) claims ticks 25 and 30 among B's."""
+    ticks = list(range(10)) + list(range(20, 40)) + [25, 30]
+    seqs = list(range(1, 11)) + list(range(1, 21)) + [500, 501]
+    a, b, intruder = set(range(10)), set(range(10, 30)), {30, 31}
+    lead = leading_chain(ticks, seqs)
+    assert lead == a | set(range(20, 30))  # A with B's tail: B's first ten are refused
+    assert succession(ticks, seqs, lead, max_silence_ticks=5) == a | b
+    assert succession(ticks, seqs, b, max_silence_ticks=5) == a | b  # led by B: A before it
+    # only eligible messages are taken beside the chain given, and a writer silent for less is one writer
+    assert succession(ticks, seqs, b, [i not in a for i in range(len(ticks))], max_silence_ticks=5) == b
+    assert succession(ticks, seqs, lead, max_silence_ticks=25) == lead  # (A to B's tail: 21 ticks)
+    assert succession(ticks, seqs, set()) == set()

@@ -676,6 +676,44 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
 
 
 @pytest.mark.timeout(90)
+def test_soil_planner_node_plans_every_estimate_of_an_estimator_seconds_behind(tmp_path):
+    """Θ_k comes on time from the simulator, the estimates as late as the estimator is behind (a
+    loaded machine, a replay faster than it follows): 5 s of Θ_k first, then their estimates.
+    Every estimate is planned (before, estimates more than 2 s behind their Θ_k were dropped
+    for the rest of the cut)."""
+    domain = next_domain_id()
+    known = _known(d=0.15, q=1500.0, gamma=19e3)
+    good = _estimate(known, residual=(800.0, -1200.0), phi=27 * DEG, c=9e3, delta=14 * DEG, delta_d=0.01)
+    n = 5 * 60
+    s = [(k + 1) * 10**9 // 60 for k in range(n)]
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.PLAN.name, T.PLAN.msgtype)
+        est_pub = probe.publisher(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        known_pub = probe.publisher(T.KNOWN.name, T.KNOWN.msgtype)
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "log_period_s:=10.0"], domain, tmp_path)
+
+        def planned() -> list[int]:
+            return [M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name)[0] for m in probe.messages(T.PLAN.name)]
+
+        try:
+            probe.wait_for(lambda: est_pub.get_subscription_count() and known_pub.get_subscription_count()
+                           and probe.matched_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)
+            for stamp in s:  # paced: the reader keeps the last 2 s of a topic, as the graph's QoS says
+                known_pub.publish(M.make_labelled(CLASSES, stamp, KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+                time.sleep(0.002)
+            time.sleep(0.5)
+            for stamp in s:
+                est_pub.publish(M.make_labelled(CLASSES, stamp, T.ESTIMATE_FIELDS, _payload(good, T.ESTIMATE_FIELDS)))
+                time.sleep(0.004)
+            probe.wait_for(lambda: len(planned()) == n or None, 60, f"the plans of all {n} ticks")
+        finally:
+            node.stop()
+        assert planned() == s
+        assert re.search(rf"{n} plans published, 0 estimates unpaired", node.output), node.output[-3000:]
+
+
+@pytest.mark.timeout(90)
 def test_soil_planner_node_plans_a_tick_once_its_command_is_in_and_keeps_the_ticks_in_order(tmp_path):
     """/blade/cmd of tick k comes from the controller, the estimate of tick k from the estimator,
     and DDS does not order two writers: a tick whose command is not in yet waits for it (or for a

@@ -22,7 +22,8 @@ number of its writer (0: unknown), so the conversion can tell the writers apart
 (:func:`refused_claims`, with ``soil_msgs_py.writer_identity.leading_chain``): on a topic of
 the graph's tick grid the bag keeps only the writer that sent the most ticks, i.e. the
 publisher that has been recording every tick, whether another writer's stamp is also
-claimed or not, judged over the whole journal; of messages still claiming one (topic,
+claimed or not, judged over the whole journal, and the writers wholly before or after it (a
+publisher restarted with a new counter: ``writer_identity.succession``); of messages still claiming one (topic,
 stamp) it keeps the one with plausible values (finite, within ``messages.PLAUSIBLE_ABS_LIMIT``),
 then the first to arrive. The others are
 counted per topic in the bag's recorder info (``conflicts``).
@@ -46,7 +47,7 @@ import yaml
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
-from soil_msgs_py.writer_identity import SEQUENCE_MASK, leading_chain, tick_index
+from soil_msgs_py.writer_identity import SEQUENCE_MASK, leading_chain, succession, tick_index
 from .bag_io import META_KEY, PARTIAL_SUFFIX, journal_path
 from .bag_writer import BagWriter
 from .integrity import ChunkInfo, McapScan, read_records
@@ -250,7 +251,9 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
 
     On the tick grid a message's writer is told by sequence continuity, judged over the whole
     journal (``writer_identity.leading_chain``): every message off the leading writer's chain
-    is refused. Where several writers' messages could be that chain (an intruder's counter
+    is refused, but for the writers whose ticks lie wholly before or after it (a publisher that
+    died and was restarted, its new counter a chain of its own; ``writer_identity.succession``),
+    plausible values only. Where several writers' messages could be that chain (an intruder's counter
     that fits a tick the writer skipped, or meets it at a tick), the chain with the most
     messages with plausible values (``messages.plausible_values``: finite, no 1e30, no subnormal) wins, and once
     another writer showed up on the topic an implausible message is never taken for the chain's
@@ -284,6 +287,11 @@ def refused_claims(scan: JournalScan) -> dict[str, set[int]]:
             # claim on the chain is an intruder's whose counter fitted a tick the writer left
             # free with nothing after it to displace (a skipped last tick, a lost message).
             chain = None if chain is None else {i for i in chain if plausible.get((topic, i), True)}
+            if chain:  # a publisher restarted (a new counter) before or after the leader: its ticks are its own
+                js = judged[topic]
+                chain = {js[j] for j in succession(
+                    [tick_index(stamps[i], first) for i in js], [sequences[i] for i in js],
+                    {j for j, i in enumerate(js) if i in chain}, [plausible.get((topic, i), True) for i in js])}
         foreign: set[int] = set()
         if chain is not None:
             claims = {(stamps[i], sequences[i]) for i in chain}

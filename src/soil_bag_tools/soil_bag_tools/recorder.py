@@ -28,8 +28,9 @@ undecodable (a bag must stay readable). Every message is journaled with its writ
 publication sequence number, and a second claim on a stamp is warned about; the conversion
 keeps only the writer that has been recording every tick (``journal.refused_claims``, with
 ``soil_msgs_py.writer_identity``) and counts the refused messages per topic
-(``conflicts``), so a publisher that sends first, or alone at some stamp, never gets its
-data into the bag.
+(``conflicts``), so a publisher that sends first, or alone at some stamp among the
+recording writer's, never gets its data into the bag; a node restarted mid-episode (a new
+counter, its ticks after its predecessor's last) is recorded as the writer's successor.
 """
 from __future__ import annotations
 
@@ -57,6 +58,9 @@ from .journal import (
 
 _MAX_HELD = 20_000  # messages waiting for their episode_start (~30 s of ticks)
 EXTRA_TOPIC_GRACE_S = 0.3  # once the episode topics are complete, wait until the extras were quiet this long
+# ... but no longer than this while they keep coming: an estimator seconds behind a loaded
+# machine's simulator is still sending the episode's estimates (END_GRACE_S, 4 s, cut its tail off)
+EXTRA_TOPIC_LAG_LIMIT_S = 30.0
 _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
 # How long an ended episode waits for more of its data after the last message arrived. Longer
@@ -376,7 +380,8 @@ class Recorder:
         the session was quiet for ``EXTRA_TOPIC_GRACE_S`` since the ticks were complete (extras
         such as /soil/estimate follow the ticks but may run at other rates, skip the last stamp,
         or lag: an estimator on a loaded machine still streaming its last estimates is not cut
-        off), at most ``end_grace_s`` after the ticks were complete."""
+        off), at most ``EXTRA_TOPIC_LAG_LIMIT_S`` (or ``end_grace_s`` if longer) after the ticks
+        were complete."""
         tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
         if not all(s.topic_done(t) for t in tick_topics):
             return False
@@ -386,7 +391,17 @@ class Recorder:
         if s.ticks_done_since is None:
             s.ticks_done_since = now
         quiet_since = max(s.ticks_done_since, s.last_write or s.ticks_done_since)
-        return now - quiet_since >= EXTRA_TOPIC_GRACE_S or now - s.ticks_done_since >= self.end_grace_s
+        if now - quiet_since >= EXTRA_TOPIC_GRACE_S:
+            return True
+        limit = max(self.end_grace_s, EXTRA_TOPIC_LAG_LIMIT_S)
+        if now - s.ticks_done_since < limit:
+            return False
+        if ("lag_limit", "") not in s.warned:  # (_complete is asked more than once per poll)
+            short = {t: s.topic_max.get(t) for t in self.topics if not s.topic_done(t)}
+            self._warn(s, "lag_limit", "", f"extra topics still arriving {limit:g} s after the episode's ticks "
+                                           f"were complete; finished without the rest (last stamp received, want "
+                                           f"{s.last_stamp_ns}): {short}")
+        return True
 
     def _finish(self, s: Session, how: str) -> BagResult | None:
         """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""

@@ -175,6 +175,10 @@ class StampJoiner:
         out += self._release()
         return Offer(verdict, out)
 
+    def newest_stamp_ns(self) -> int | None:
+        """The newest stamp waiting (None: nothing waits)."""
+        return max(self._pending, default=None)
+
     def drain(self) -> list[Joined]:
         """Give up every pending set, oldest stamp first (the end of a stream)."""
         out = []

@@ -151,6 +151,42 @@ def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
     return chain
 
 
+def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
+               eligible: Sequence[bool] | None = None,
+               max_silence_ticks: int = FORGET_WRITER_AFTER_TICKS) -> set[int]:
+    """The writers of a recording one after another, from its leading ``chain``: a publisher that
+    died and was restarted (or replaced) starts a new counter, which no rule of continuity joins
+    to its predecessor's, so judged as a whole either it or its predecessor leads and the other's
+    messages would be refused; and once the new counter passes the old one's last number, its
+    tail continues the old chain. So the chain is cut where it is silent for more than
+    ``max_silence_ticks`` (a writer that long silent is gone, as those who follow writers live
+    take it: ``WriterTracks``), its longest stretch is kept, and each span of ticks before and
+    after that stretch is judged the same way on its own (its leading chain, cut, its longest
+    stretch, ...). A writer whose ticks interleave with a kept stretch's is an intruder and gets
+    nothing there. ``eligible`` (default: all) says which messages the spans may take (e.g.
+    plausible values only: graph nodes publish nothing else); a span whose writers tie
+    (``leading_chain`` None) keeps nothing. Returns indices into ``ticks``."""
+    n = len(ticks)
+    ok = [True] * n if eligible is None else [bool(e) for e in eligible]
+    kept: set[int] = set()
+    work: list[tuple[set[int], list[int]]] = [(set(chain), list(range(n)))] if chain else []
+    while work:
+        found, members = work.pop()
+        order = sorted(found, key=lambda i: ticks[i])
+        stretches = [[order[0]]]
+        for a, b in zip(order, order[1:]):
+            if ticks[b] - ticks[a] > max_silence_ticks:
+                stretches.append([])
+            stretches[-1].append(b)
+        best = max(stretches, key=len)
+        kept.update(best)
+        lo, hi = ticks[best[0]], ticks[best[-1]]
+        for span in ([i for i in members if ok[i] and ticks[i] < lo], [i for i in members if ok[i] and ticks[i] > hi]):
+            if span and (lead := leading_chain([ticks[i] for i in span], [sequences[i] for i in span])) is not None:
+                work.append(({span[j] for j in lead}, span))
+    return kept
+
+
 def _unwrapped(seq: list[int]) -> list[int]:
     """Sequence numbers stored as uint32 (MCAP) that straddle 2^32: the small ones continue."""
     quarter = (SEQUENCE_MASK + 1) // 4

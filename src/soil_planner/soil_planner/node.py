@@ -122,7 +122,12 @@ PARAMETERS: dict[str, tuple] = {
     "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
-MAX_PENDING_STAMPS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks waiting for their partner message
+# Ticks waiting for their partner message: 10 s of them. Θ_k comes on time from the simulator,
+# the estimate as late as the estimator is behind: on a loaded machine, or a bag replayed faster
+# than it can follow, seconds (with 2 s every estimate past that lag was dropped for good). The
+# controller takes a target only within its planner_timeout_s of the tick it answers, so a late
+# plan steers nothing live; it is still published and recorded.
+MAX_PENDING_STAMPS = 10 * SAMPLE_RATE_HZ
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms")  # StretchPlanner's
 
 
@@ -167,6 +172,7 @@ class PlannerNode(Node):
         self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
         self.last_log_ns: int | None = None
         self.published = 0
+        self.dropped = 0  # estimates given up for want of their Θ_k
         self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, publisher_qos(T.PLAN.name))
         self.target_pub = self.create_publisher(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
                                                 publisher_qos(T.TARGET_DEPTH.name))
@@ -283,8 +289,11 @@ class PlannerNode(Node):
                 item = (joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
                 self._answer(self.command_wait.offer(joined.stamp_ns, item, time.monotonic()))
             elif T.ESTIMATE.name in joined.parts:  # (Θ_k alone: no estimate or an invalid one, answered at once)
+                self.dropped += 1
+                newest = self.joiner.newest_stamp_ns()
+                behind = "" if newest is None else f" (estimates {(newest - joined.stamp_ns) / M.NS_PER_S:.1f} s behind it)"
                 self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {joined.stamp_ns} ns never got its "
-                                       f"{T.KNOWN.name}; dropped")
+                                       f"{T.KNOWN.name}{behind}; dropped")
 
     def _answer(self, ticks: list[Waiting]) -> None:
         """Plan the ticks ``command_wait`` released, in order (Θ_k None: an invalid estimate,
@@ -341,7 +350,7 @@ class PlannerNode(Node):
         self.target_pub.publish(M.make_labelled(self.classes, stamp, T.TARGET_DEPTH_FIELDS, values))
 
     def close(self) -> None:
-        unpaired = sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
+        unpaired = self.dropped + sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
         unanswered = len(self.command_wait.drain(planned=False))
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
                                f"{self.command_wait.waited} waited for their command, "
