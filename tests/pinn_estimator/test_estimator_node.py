@@ -254,3 +254,35 @@ def test_the_estimator_joins_sim_status_only_once_every_input_has_a_publisher(tm
         finally:
             alone.stop()
         assert "without a publisher of" in alone.output and T.BLADE_CMD.name in alone.output, alone.output
+
+
+def test_a_fee_checkpoint_takes_the_fee_worlds_calibration_and_a_default_world_episode_is_said(tmp_path):
+    """Without fusion_config the soil posterior takes the shipped calibration of the checkpoint's
+    training world (a fee model read through the default world's error laws fused a clay 7° off),
+    and an episode of another world is said once, naming the config to give."""
+    from std_msgs.msg import String
+
+    from pinn_estimator.fusion_calibration import config_path
+    from soil_msgs_py import graph as G
+    from soil_msgs_py.episode import EpisodeMeta
+
+    fee_ckpt = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        node = NodeProc("pinn_estimator", ["--ros-args", "-p", f"checkpoint:={fee_ckpt}", "-p", "inputs_wait_s:=0.0"],
+                        domain, tmp_path)
+        try:
+            wait_until(lambda: status.get_subscription_count() >= 1, 60, "the estimator's /sim/status reader")
+            time.sleep(0.3)
+            for episode, world in enumerate(("fee", "default", "default")):
+                meta = EpisodeMeta("Clay", 50.0, world, 1, 0.5, 0.15, 5.0)
+                event = G.EpisodeEvent(G.EVENT_EPISODE_START, episode, f"{world}_{episode}", meta, 10**9 * episode)
+                status.publish(String(data=event.to_json()))
+            wait_until(lambda: node.output.count("new window") >= 3, 30, "the three episode starts")
+        finally:
+            node.stop()
+        out = node.output
+        assert f"soil posterior {config_path('fee')} (the checkpoint's world)" in out, out[-3000:]
+        assert out.count("is the default world's") == 1 and str(config_path("default")) in out, out[-3000:]
+        assert "fee_0 is the" not in out

@@ -152,3 +152,23 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
     assert L.parse_args(["--planner", "--estimator-param", "stride:=2", "--require", "estimator"]).estimator
     with pytest.raises(ValueError, match="parameter 'duration_s:=' is not of the form name:=value"):
         L.build_nodes(L.parse_args(["--sim-param", "duration_s:="]))
+
+
+def test_the_planner_reads_the_posterior_through_the_physics_of_the_estimators_calibration():
+    """The terms the planner is given are those of the config the estimator takes: a given
+    fusion_config's, else the shipped calibration of the checkpoint's training world (the fee
+    world's has no term beside the FEE, the default world's one)."""
+    from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT
+    from pinn_estimator.fusion_calibration import checkpoint_world, config_path
+
+    fee_ckpt = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
+    default_terms = L.posterior_terms_param(None, [])
+    assert len(default_terms) == 1 and "form:" in default_terms[0]
+    assert L.posterior_terms_param(None, [f"checkpoint:={fee_ckpt}"]) == []
+    assert L.posterior_terms_param(None, [f"checkpoint:={fee_ckpt}", f"fusion_config:={config_path('default')}"]) \
+        == default_terms
+    assert L.posterior_terms_param(None, [f"checkpoint:={DEFAULT_CHECKPOINT}"]) == default_terms
+    assert checkpoint_world({"dataset": {"world_modes": ["fee"]}}) == "fee"
+    for worlds in (["fee", "default"], [], ["mars"], None):
+        assert checkpoint_world({"dataset": {"world_modes": worlds}}) == "default"
+    assert checkpoint_world(None) == "default"

@@ -98,12 +98,22 @@ def load_calibrated(world: str) -> FusionConfig:
 DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): the node's and replay's config
 
 
-def load_fusion_config(path: str) -> FusionConfig:
+def checkpoint_world(ckpt: dict | None) -> str:
+    """The world whose shipped calibration goes with a checkpoint: the one world its training data
+    came from (``dataset.world_modes``), where that world has a calibration; else DEFAULT_WORLD.
+    Why: the posterior's error laws are the world's (the fee world's 5 N against the default
+    world's 1 kN), and a fee model read through the default world's laws fused a clay 7° off."""
+    worlds = sorted(set(((ckpt or {}).get("dataset") or {}).get("world_modes") or ()))
+    return worlds[0] if len(worlds) == 1 and config_path(str(worlds[0])).exists() else DEFAULT_WORLD
+
+
+def load_fusion_config(path: str, world: str = DEFAULT_WORLD) -> FusionConfig:
     """The estimator node's ``fusion_config`` parameter: the config at ``path``, or the shipped
-    default world's where it is empty; ValueError naming the parameter if it cannot be used. (No
-    torch: ``soil_launch`` reads it too, to give the planner the posterior's physics.)"""
+    calibration of ``world`` (``checkpoint_world``) where it is empty; ValueError naming the
+    parameter if it cannot be used. (No torch: ``soil_launch`` reads it too, to give the planner
+    the posterior's physics.)"""
     try:
-        return FusionConfig.load(path) if path else load_calibrated(DEFAULT_WORLD)
+        return FusionConfig.load(path) if path else load_calibrated(world)
     except (OSError, ValueError, TypeError) as err:
         raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
 

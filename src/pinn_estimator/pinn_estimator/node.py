@@ -30,7 +30,7 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion_calibration import load_fusion_config
+from .fusion_calibration import checkpoint_world, config_path, load_fusion_config
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
@@ -38,7 +38,8 @@ PARAMETERS: dict[str, tuple] = {
     "stride": (1, "estimate every n-th tick once the window is full (1: every tick, 60 Hz)"),
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
-    "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_default.json"),
+    "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_<world>.json "
+                          "of the checkpoint's training world (fusion_default.json if several or none)"),
     "inputs_wait_s": (G.INPUTS_WAIT_S, "join /sim/status once every input topic has a publisher, or after this long "
                                        f"[s], [0, {G.MAX_WAIT_S:g}] (0: at once)"),
 }
@@ -71,8 +72,13 @@ class EstimatorNode(Node):
         torch.set_num_threads(threads)
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
+        # the shipped calibration of the checkpoint's world unless a config is given (its world unknown: None)
+        fusion_path = get("fusion_config")
+        self.fusion_world = None if fusion_path else checkpoint_world(ckpt)
+        self.fusion_source = fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
+        self._worlds_warned: set[str] = set()
         self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
-                                    warn=self._warn, fusion=load_fusion_config(get("fusion_config")),
+                                    warn=self._warn, fusion=load_fusion_config(fusion_path, checkpoint_world(ckpt)),
                                     publish_map=self._publish_map)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -97,7 +103,7 @@ class EstimatorNode(Node):
             lambda missing: self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet"))
         self.get_logger().info(
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
-            f"stride {self.core.stride}, {threads} thread(s), soil posterior model error rel "
+            f"stride {self.core.stride}, {threads} thread(s), soil posterior {self.fusion_source}, model error rel "
             f"{self.core.posterior.cfg.rel_std}; publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}")
 
     # ------------------------------------------------------------------ parameters
@@ -127,8 +133,22 @@ class EstimatorNode(Node):
         if event.event == G.EVENT_EPISODE_START:
             self.core.start_episode(event.first_stamp_ns)
             self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
+            self._say_if_other_world(event)
         elif event.last_stamp_ns >= 0:
             self.core.end_episode(event.last_stamp_ns)
+
+    def _say_if_other_world(self, event) -> None:
+        """Once per world: an episode of a world other than the one whose shipped calibration the
+        soil posterior took (its error laws are that world's; pinn_eval warns alike)."""
+        world = getattr(event.meta, "world_mode", "") if event.meta is not None else ""
+        if self.fusion_world is None or not world or world == self.fusion_world or world in self._worlds_warned:
+            return
+        self._worlds_warned.add(world)
+        self.get_logger().warning(
+            f"episode {event.name} is the {world} world's; the soil posterior uses the {self.fusion_world} world's "
+            f"calibration (the checkpoint's): its intervals are not calibrated here. Give fusion_config:="
+            f"{config_path(world)}" + (" (it exists)" if config_path(world).exists() else "")
+            + " or a checkpoint trained in that world")
 
     def _publish(self, est: Estimate) -> None:
         self.estimate_pub.publish(M.make_labelled(self.classes, est.stamp_ns, T.ESTIMATE_FIELDS, est.values))

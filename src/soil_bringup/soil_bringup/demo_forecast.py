@@ -53,13 +53,13 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     bias deeper / shallower, interval coverage) from the live episodes of ``scores`` to the
     simulator's episodes at ``depths_m``. ``world``: the live run's (default: its episodes'
     metadata); ``checkpoint``: the estimator's (default: the shipped one) and ``fusion_config``
-    its parameter of that name (default: the shipped calibration), as the live estimator read
+    its parameter of that name (default: the shipped calibration of the checkpoint's world), as the live estimator read
     them. ValueError if no pair can be formed."""
     from pinn_estimator import forecast as fc
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
     from pinn_estimator.dataset import Dataset
     from pinn_estimator.evaluate import fused_posteriors
-    from pinn_estimator.fusion_calibration import config_for_model, load_fusion_config
+    from pinn_estimator.fusion_calibration import checkpoint_world, config_for_model, load_fusion_config
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import SimConfig
 
@@ -77,8 +77,8 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     others = [ep for group in by_duration.values() for ep in run_episodes(SimConfig(world_mode=world), group)]
     ds = Dataset.from_episodes(live + others, root="(the demo's live episodes and the simulator at other depths)")
     live_ds = Dataset.from_episodes(live)
-    model, _ = load_model(str(checkpoint or DEFAULT_CHECKPOINT))
-    cfg = config_for_model(load_fusion_config(fusion_config), model)  # as the estimator node builds it
+    model, ckpt = load_model(str(checkpoint or DEFAULT_CHECKPOINT))
+    cfg = config_for_model(load_fusion_config(fusion_config, checkpoint_world(ckpt)), model)  # as the estimator node builds it
     pinn_terms = tuple(model.cfg.extra_terms)
     parts = fc.steady_parts(ds)
     n_live = len(live)

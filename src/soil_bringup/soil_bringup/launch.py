@@ -298,7 +298,8 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
 def posterior_terms_param(estimator_params_file, estimator_params: list[str]) -> list[str]:
     """``["terms:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
     posterior, from the ``fusion_config`` it is given (the last ``-p``, else its params file, else
-    the shipped one), so the plan reads θ through the model θ was fitted with; [] without terms or
+    the shipped one of its checkpoint's world, which only here needs torch to read), so the plan
+    reads θ through the model θ was fitted with; [] without terms or
     where the config cannot be read (the estimator then exits naming it). A term on the travel or
     time in soil, which a planned steady cut does not have, is left out with a line on stderr. A
     checkpoint's own terms are not seen here (reading it needs torch): give them with
@@ -307,26 +308,43 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
-    path = ""
+    given = {"fusion_config": "", "checkpoint": ""}
     if estimator_params_file:
         try:
             data = yaml.safe_load(Path(estimator_params_file).read_text()) or {}
             for node in data.values():
-                path = str(((node or {}).get("ros__parameters") or {}).get("fusion_config", path) or path)
+                for key in given:
+                    given[key] = str(((node or {}).get("ros__parameters") or {}).get(key, given[key]) or given[key])
         except (OSError, yaml.YAMLError, AttributeError):
             pass  # the estimator reports its own params file
     for pair in estimator_params:
         name, _, value = pair.partition(":=")
-        if name.strip() == "fusion_config":
-            path = value.strip().strip("'\"")
+        if name.strip() in given:
+            given[name.strip()] = value.strip().strip("'\"")
     try:
-        terms, left_out = steady_cut_terms(load_fusion_config(path).terms)
+        terms, left_out = steady_cut_terms(load_fusion_config(given["fusion_config"], _estimator_world(given)).terms)
     except ValueError:
         return []
     if left_out:
         print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
               "planned steady cut does not have)", file=sys.stderr)
     return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
+
+
+def _estimator_world(given: dict[str, str]) -> str:
+    """The world whose shipped calibration the estimator takes (``checkpoint_world``): needs the
+    checkpoint read (torch), so only for a checkpoint of the user's own without a fusion_config."""
+    from pinn_estimator.fusion_calibration import DEFAULT_WORLD
+
+    if given["fusion_config"] or not given["checkpoint"]:
+        return DEFAULT_WORLD  # (the shipped checkpoint is the default world's)
+    try:
+        from pinn_estimator.checkpoint import read_checkpoint
+        from pinn_estimator.fusion_calibration import checkpoint_world
+
+        return checkpoint_world(read_checkpoint(given["checkpoint"]))
+    except (OSError, ValueError, RuntimeError):
+        return DEFAULT_WORLD  # the estimator exits naming its checkpoint
 
 
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
