@@ -509,6 +509,39 @@ def test_train_function_keeps_best_validation_model(tiny_ds):
     assert metrics["best_epoch"] == 1 + int(np.argmin(history["val_loss"]))
 
 
+def _interrupt_in_epoch(monkeypatch, epoch: int) -> None:
+    """Ctrl-C while epoch ``epoch`` validates (as a SIGINT raises it in the main thread)."""
+    from pinn_estimator import train as train_module
+
+    real, calls = train_module._agree, [0]
+
+    def agree(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == epoch:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "_agree", agree)
+
+
+def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_bags, tmp_path, monkeypatch, capsys):
+    """Ctrl-C lost a whole training with a traceback; now, like the time budget, it keeps the
+    best validated model, and before the first epoch was validated it says so in one line."""
+    out = tmp_path / "m.pt"
+    args = ["--data", str(tiny_bags), "--out", str(out), "--epochs", "5", "--stride", "6", "--quiet", "--no-cache",
+            "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1"]
+    _interrupt_in_epoch(monkeypatch, 3)
+    assert train_main(args) == 0
+    raw = torch.load(out, weights_only=True)
+    assert raw["metrics"]["stop_reason"] == "interrupted (Ctrl-C) in epoch 3"
+    assert raw["metrics"]["epochs_run"] == 2 and len(raw["history"]["val_loss"]) == 2 and raw["metrics"]["best_epoch"] <= 2
+    assert out.with_name("m_curve.png").is_file()
+    first = tmp_path / "first.pt"
+    _interrupt_in_epoch(monkeypatch, 1)
+    assert train_main([*args[:3], str(first), *args[4:]]) == 130
+    assert not first.exists() and "interrupted before a model was validated; nothing written" in capsys.readouterr().err
+
+
 def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):
     cfg = TrainConfig(epochs=4, stride=6, eval_stride=6, threads=1, lr=2e-3, lr_schedule="cosine", patience=4)
     _, _, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)

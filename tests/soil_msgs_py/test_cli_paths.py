@@ -56,3 +56,15 @@ def test_the_tools_refuse_an_empty_out_and_write_nothing(tmp_path, tool, args):
     assert out.returncode == 2, out.stdout + out.stderr
     assert "argument --out: '' is empty" in out.stderr and "Traceback" not in out.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_place_nothing_can_be_written_is_refused_and_the_probe_leaves_nothing(tmp_path):
+    """An --out that cannot be written (here /proc, where no file can be made, root or not; a
+    read-only mount alike) failed only when the tool wrote, after minutes of work, with a
+    traceback. The check creates nothing: a new --out's directories are left to the tool."""
+    for kind, text in ((output_dir, "/proc/insitu_soil_eval"), (output_file, "/proc/insitu_soil.pt")):
+        with pytest.raises(argparse.ArgumentTypeError, match="cannot be written: nothing can be created in '/proc'"):
+            kind(text)
+    assert output_dir(str(tmp_path / "a" / "b")) == tmp_path / "a" / "b"
+    assert output_file(str(tmp_path / "c" / "model.pt")) == tmp_path / "c" / "model.pt"
+    assert list(tmp_path.iterdir()) == []

@@ -175,57 +175,65 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
 
         bar = tqdm(total=cfg.epochs, desc=f"training {model_cfg.kind}", unit="epoch")
     stop_reason = "epochs"
-    for epoch in range(1, cfg.epochs + 1):
-        net.train()
-        perm = torch.randperm(len(train_ends), generator=gen)
-        running, count = 0.0, 0
-        step = cfg.batch_size // 2 if pairs else cfg.batch_size
-        for i in range(0, len(perm), step):
-            pick = perm[i : i + step]
-            if pairs:  # a partner window from the same episode for each window (drawn for the global batch)
-                partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
-            mine = share(len(pick), ranks)
-            weight = (mine.stop - mine.start) * ranks.world / len(pick)
-            if weight == 0:  # fewer windows than ranks: join the gradient all-reduce with weight 0
-                mine = slice(0, 1)
-            ends = train_ends[pick[mine]]
-            if pairs:
-                ends = torch.cat([ends, partner[mine]])
-            n_pick = len(pick[mine])
-            obs, known, force = tensors.batch(ends)
-            out = net(obs, known, tensors.distance[ends], tensors.time_in_soil[ends])
-            loss, _ = _loss(model, out, force, known, weights)
-            if pairs:
-                loss = loss + cfg.consistency * consistency_loss(out["theta"][:n_pick], out["theta"][n_pick:])
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr")
-            opt.zero_grad(set_to_none=True)
-            (loss * weight).backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-            opt.step()
-            if weight:
-                running += float(loss.detach()) * len(obs)
-                count += len(obs)
-        val_loss, val_force, running, count, elapsed = _agree(model, tensors, val_ends, weights, ranks,
-                                                              running, count, start)
-        val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
-        if cfg.lr_schedule == "cosine":
-            sched.step()
-        else:
-            sched.step(val_loss)
-        for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
-            history[key].append(value)
-        if val_loss < best[0]:
-            best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch)
-        if bar is not None:
-            bar.set_postfix(train=f"{running / count:.4f}", val=f"{val_loss:.4f}", val_mae=f"{val_mae:.0f}N")
-            bar.update(1)
-        if epoch - best[2] >= cfg.patience:
-            stop_reason = f"early stop: no validation improvement for {cfg.patience} epochs"
-            break
-        if elapsed > 60 * cfg.max_minutes:
-            stop_reason = f"time budget of {cfg.max_minutes} min reached"
-            break
+    try:
+        for epoch in range(1, cfg.epochs + 1):
+            net.train()
+            perm = torch.randperm(len(train_ends), generator=gen)
+            running, count = 0.0, 0
+            step = cfg.batch_size // 2 if pairs else cfg.batch_size
+            for i in range(0, len(perm), step):
+                pick = perm[i : i + step]
+                if pairs:  # a partner window from the same episode for each window (drawn for the global batch)
+                    partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
+                mine = share(len(pick), ranks)
+                weight = (mine.stop - mine.start) * ranks.world / len(pick)
+                if weight == 0:  # fewer windows than ranks: join the gradient all-reduce with weight 0
+                    mine = slice(0, 1)
+                ends = train_ends[pick[mine]]
+                if pairs:
+                    ends = torch.cat([ends, partner[mine]])
+                n_pick = len(pick[mine])
+                obs, known, force = tensors.batch(ends)
+                out = net(obs, known, tensors.distance[ends], tensors.time_in_soil[ends])
+                loss, _ = _loss(model, out, force, known, weights)
+                if pairs:
+                    loss = loss + cfg.consistency * consistency_loss(out["theta"][:n_pick], out["theta"][n_pick:])
+                if not torch.isfinite(loss):
+                    raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr")
+                opt.zero_grad(set_to_none=True)
+                (loss * weight).backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+                opt.step()
+                if weight:
+                    running += float(loss.detach()) * len(obs)
+                    count += len(obs)
+            val_loss, val_force, running, count, elapsed = _agree(model, tensors, val_ends, weights, ranks,
+                                                                  running, count, start)
+            val_mae = force_errors(ds.forces[val_ends.numpy()], val_force)["mae_mag_n"]
+            if cfg.lr_schedule == "cosine":
+                sched.step()
+            else:
+                sched.step(val_loss)
+            for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
+                history[key].append(value)
+            if val_loss < best[0]:
+                best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch)
+            if bar is not None:
+                bar.set_postfix(train=f"{running / count:.4f}", val=f"{val_loss:.4f}", val_mae=f"{val_mae:.0f}N")
+                bar.update(1)
+            if epoch - best[2] >= cfg.patience:
+                stop_reason = f"early stop: no validation improvement for {cfg.patience} epochs"
+                break
+            if elapsed > 60 * cfg.max_minutes:
+                stop_reason = f"time budget of {cfg.max_minutes} min reached"
+                break
+    except KeyboardInterrupt:  # Ctrl-C: keep the best model so far, as the time budget does (one process)
+        if ranks.active or best[1] is None:
+            raise
+        stop_reason = f"interrupted (Ctrl-C) in epoch {epoch}"
+        rows = min(len(v) for v in history.values())  # an epoch whose history was half written
+        for values in history.values():
+            del values[rows:]
     if bar is not None:
         bar.close()
     model.load_state_dict(best[1])
@@ -242,7 +250,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         "val_force": force_errors(ds.forces[val_ends.numpy()], val_force),
         "parameters": parameter_count(model),
     }
-    log(f"{model_cfg.kind}: {stop_reason}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
+    said = f"all {cfg.epochs} epochs run" if stop_reason == "epochs" else stop_reason
+    log(f"{model_cfg.kind}: {said}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
         f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
     return model, split, history, metrics
 
@@ -345,6 +354,10 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if type(err) is RuntimeError else 2
+    except KeyboardInterrupt:  # before a first epoch was validated (later: train keeps the best so far)
+        if ranks.main:
+            print("pinn_train: interrupted before a model was validated; nothing written", file=sys.stderr)
+        return 130
     if not ranks.main:
         return 0
     out = Path(args.out)

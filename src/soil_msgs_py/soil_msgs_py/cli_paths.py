@@ -2,13 +2,15 @@
 
 Why here: every tool that writes a report, a checkpoint or bags takes an ``--out``; checked only
 when it writes, a path that cannot be written (an existing file where a directory is wanted, or
-a directory where a file is) ends a run of minutes with a traceback and loses its work. As an
+a directory where a file is, a read-only place) ends a run of minutes with a traceback and loses
+its work. As an
 argparse ``type`` the tool refuses it before it starts, naming the flag and the path (exit 2).
 ``~`` is expanded. Give defaults as strings: argparse passes a string default through ``type``.
 """
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
 
@@ -23,9 +25,25 @@ def _checked(text: str, want_dir: bool) -> Path:
             raise argparse.ArgumentTypeError(f"{text!r} is a directory; give the file to write")
         if any(parent.exists() and not parent.is_dir() for parent in path.parents):
             raise argparse.ArgumentTypeError(f"{text!r}: a parent of it is a file, not a directory")
+        _probe_writable(text, path if want_dir else path.parent)
     except OSError as err:  # e.g. a parent that cannot be searched
         raise argparse.ArgumentTypeError(f"{text!r}: {err.strerror or err}") from None
     return path
+
+
+def _probe_writable(text: str, directory: Path) -> None:
+    """Refuse ``text`` if nothing can be created in ``directory`` (or, where it does not exist
+    yet, in its nearest existing ancestor, where the tool will create it): a read-only mount, no
+    permission. A temporary file is made there and removed at once; nothing else is created."""
+    existing = directory
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        with tempfile.TemporaryFile(dir=existing, prefix=".write_probe_"):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be written: nothing can be created in {str(existing)!r} "
+                                         f"({err.strerror or err})") from None
 
 
 def output_dir(text: str) -> Path:
