@@ -285,6 +285,9 @@ def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named(
     second = hidden_check({**report(("form:q_z*sink", 0.89), ("soil_inertia", 3.4)), "data": {"world": "default"}}, both[:1])
     assert not second["correct"] and ": soil_inertia named, not first (the default world" in second["text"]
     assert ": WRONG" in hidden_check({**report(("form:q_z*sink", 0.89)), "data": {"world": "fee"}}, both[:1])["text"]
+    # nothing named (unexplained, or no discrepancy found) is a miss, not a wrong name
+    missed = hidden_check(report(), both[:1])
+    assert not missed["correct"] and "WRONG" not in missed["text"] and "named none: missed (nothing named)" in missed["text"]
 
 
 def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):
@@ -653,6 +656,21 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert "soil Clay" in text and "φ at its lower bound" in text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
     assert even["soils"] == [] and even["groups"] == [] and _misfit_text({"misfit": even}) == ""
+
+
+def test_a_gamma_group_that_fits_worse_is_said_to_be_possibly_two_soils():
+    """Bags without soil labels are grouped by γ; two soils of one γ share one θ and fit worse with
+    no effect missing, which the caution says (a user read it as an effect acting in that soil)."""
+    from soil_discrepancy.workflow import _misfit_text
+    from soil_msgs_py.soil_labels import gamma_group_names
+
+    name = gamma_group_names([18e3])[0]
+    mis = {"rows": [{"kind": "group", "name": name, "ratio": 96.6, "theta_at_bound": []}], "soils": [], "groups": [name]}
+    text = _misfit_text({"misfit": mis}, quiet=True)
+    assert text.startswith(f"; but the model fits worse in {name} (96.6×") and "is a group by unit weight" in text
+    labelled = {"rows": [{"kind": "group", "name": "Clay 80 %", "ratio": 5.0, "theta_at_bound": []}], "soils": [],
+                "groups": ["Clay 80 %"]}
+    assert "unit weight" not in _misfit_text({"misfit": labelled})
 
 
 def test_the_fast_part_of_a_residual_is_its_noise_floor(bag_dirs):

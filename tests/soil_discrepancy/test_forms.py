@@ -610,3 +610,19 @@ def test_a_selection_larger_than_the_search_takes_is_thinned_evenly(monkeypatch)
     model = AugmentedFEE()
     out = forms.search_forms(frame, model, fit_fixed(frame, model), folds=2)
     assert out["library_size"] == len(term_forms.form_names()) and out["candidates"]
+
+
+def test_a_users_catalogue_refuses_a_misspelt_field_and_a_term_given_twice(tmp_path):
+    """'kk: 0.3' was dropped in silence (k then free), and one term under two names was tested
+    once and said under one of them."""
+    good = tmp_path / "good.yaml"
+    good.write_text("terms:\n- term: soil_inertia\n  name: my inertia\n  k: 0.5\n  formula: anything, not read\n")
+    assert load_catalogue(good) == [{"term": "soil_inertia", "name": "my inertia", "k": 0.5}]
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("terms:\n- term: soil_inertia\n  kk: 0.3\n")
+    with pytest.raises(ValueError, match=r"terms\[0\]: unknown field\(s\) \['kk'\]; known: \['term', 'name', 'k'"):
+        load_catalogue(typo)
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("terms:\n- term: soil_inertia\n  name: a\n- term: soil_inertia\n  name: b\n")
+    with pytest.raises(ValueError, match=r"terms\[0\] and terms\[1\] are the same term 'soil_inertia'"):
+        load_catalogue(twice)

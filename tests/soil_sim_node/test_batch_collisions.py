@@ -45,7 +45,9 @@ def test_existing_bags_are_refused_before_anything_is_simulated_and_earlier_runs
     assert "1 of the 2 bags exist" in err and "--overwrite" in err, err
     assert len(find_episode_bags(out)) == 1
     # a second run of other episodes into the same directory keeps the first run's record
+    capsys.readouterr()
     assert batch.main([*ONE, "--depths", "0.15", "--seed-base", "5", "--out", str(out)]) == 0
+    assert "already holds 1 episode bag(s) of earlier runs; with these 1 it holds 2" in capsys.readouterr().err
     summary = json.loads((out / "dataset.json").read_text())
     assert len(find_episode_bags(out)) == 2 and summary["episodes"] == 1
     assert summary["earlier_runs"] == [first]

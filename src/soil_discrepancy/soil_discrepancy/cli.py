@@ -155,6 +155,8 @@ def hidden_check(report: dict, hidden) -> dict:
             answer = ((f": {', '.join(anywhere)} named, not first" if anywhere else ": not named")
                       + " (the default world has effects of its own that the model lacks, soil_sim_node/effects.py: "
                         "what is named before or instead of the hidden effect may be one of them)")
+        elif not named:  # an honest miss (unexplained, or no discrepancy), not a confident wrong name
+            answer = ": missed (nothing named)"
         else:
             answer = ": WRONG"
         if len(hidden) == 1:

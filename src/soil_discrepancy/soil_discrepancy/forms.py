@@ -503,8 +503,12 @@ def catalogue_yaml(discovered) -> str | None:
     head = ("# Forms found by soil_discrepancy (confirmed on held-out episodes). Rename 'name' as you like;\n"
             "# 'pinned: false': these data did not tell the form from its 'rivals' ('stand_in: true': one fits\n"
             "# much better, this form stands in for an effect it is not); the report says more\n"
-            "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n")
+            "# the next run tests 'term' as a candidate beside the catalogue: soil_discrepancy BAGS --catalogue THIS_FILE\n"
+            "# ('term' defines it; 'formula', 'plugin' and the rest describe it and are not read back)\n")
     return head + yaml.safe_dump({"terms": rows}, sort_keys=False, allow_unicode=True)
+
+
+CATALOGUE_FIELDS = ("term", "name", "k", "k_se", "formula", "plugin", "pinned", "stand_in", "rivals")  # catalogue_yaml's
 
 
 def load_catalogue(path) -> list[dict]:
@@ -517,11 +521,17 @@ def load_catalogue(path) -> list[dict]:
     rows = (data or {}).get("terms") if isinstance(data, dict) else None
     if not isinstance(rows, list) or not rows:
         raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'")
-    out = []
+    out, seen = [], {}
     for i, row in enumerate(rows):
         term = row.get("term") if isinstance(row, dict) else None
         if not isinstance(term, str):
             raise ValueError(f"catalogue {p}: terms[{i}] has no 'term' (a catalogue name or 'form:<scale>*<factor>')")
+        unknown = sorted(str(key) for key in set(row) - set(CATALOGUE_FIELDS))
+        if unknown:  # a misspelt key ('kk: 0.3') must not be dropped in silence
+            raise ValueError(f"catalogue {p}: terms[{i}]: unknown field(s) {unknown}; known: {list(CATALOGUE_FIELDS)}")
+        if term in seen:  # two names for one term: the report would show one of them
+            raise ValueError(f"catalogue {p}: terms[{seen[term]}] and terms[{i}] are the same term {term!r}; give it once")
+        seen[term] = i
         try:
             force_terms.get_term(term)
         except ValueError as exc:

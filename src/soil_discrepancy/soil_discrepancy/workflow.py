@@ -32,6 +32,7 @@ from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 from pinn_estimator.classical import default_workers
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
+from soil_msgs_py.soil_labels import GAMMA_GROUP_PREFIX
 from .candidates import MAX_TERMS, check_holdout, select_terms, split_holdout
 from .forms import describe_form, pin_kind, pinned_caveat, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
@@ -847,6 +848,10 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
     if parts:
         text += ("; " if not quiet else "; but ") + "the model fits worse in " + ", ".join(parts)
         text += " (an effect that acts there, or a form θ cannot follow there)" if not quiet else ""
+        by_gamma = [n for n in mis["groups"] if str(n).startswith(GAMMA_GROUP_PREFIX)]
+        if by_gamma:  # bags without soil labels: a γ group may be two soils, which one θ cannot fit
+            text += (f" ({', '.join(by_gamma)} is a group by unit weight: soils of one γ share one θ there and fit "
+                     "worse with no effect missing; soil labels in the bags' metadata tell them apart)")
     for tested, why in ((False, "the model needs a soil outside the physical range there"),
                         (True, "the forces want a soil outside the soil tests' intervals there: an effect θ "
                                "would take in without the tests, or a test that is off (by chance "

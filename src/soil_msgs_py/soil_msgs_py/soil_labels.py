@@ -35,6 +35,9 @@ def unlabelled_count(metas) -> int:
     return sum(soil_label(m) == UNKNOWN_SOIL for m in metas)
 
 
+GAMMA_GROUP_PREFIX = "γ≈"  # a γ group's name starts with it (bags without soil labels)
+
+
 def gamma_group_names(gamma) -> list[str]:
     """Per value of ``gamma`` [N/m³], the name of its group: chains of sorted γ whose steps stay
     within GAMMA_GROUP_RTOL, named after the chain's smallest γ. ValueError on a non-finite γ."""
@@ -47,5 +50,5 @@ def gamma_group_names(gamma) -> list[str]:
     for j, i in enumerate(order):
         if j and gamma[i] > gamma[order[j - 1]] * (1 + GAMMA_GROUP_RTOL):
             start = gamma[i]
-        out[i] = f"γ≈{start / 1e3:.4g} kN/m³"  # 4 digits: chain starts > 0.2 % apart never share a name
+        out[i] = f"{GAMMA_GROUP_PREFIX}{start / 1e3:.4g} kN/m³"  # 4 digits: chain starts > 0.2 % apart never share a name
     return out

@@ -127,7 +127,13 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             for s in resolved]
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
-    _check_names_free(plan, _bag_names(plan.config(), pairs))
+    names = _bag_names(plan.config(), pairs)
+    _check_names_free(plan, names)
+    others = _other_bags(plan.out, names)
+    if others:  # the readers (pinn_train, soil_discrepancy) take every bag of the directory
+        print(f"soil_sim_batch: note: {plan.out} already holds {others} episode bag(s) of earlier runs; with these "
+              f"{len(names)} it holds {others + len(names)}, and pinn_train and soil_discrepancy read them all "
+              "(dataset.json keeps the earlier runs' records under earlier_runs)", file=sys.stderr)
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
@@ -203,6 +209,14 @@ def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
     if taken:
         raise FileExistsError(f"{len(taken)} of the {len(names)} bags exist in {plan.out}, e.g. {taken[0]}; nothing "
                               "written (--overwrite replaces them, or give another --out or --seed-base)")
+
+
+def _other_bags(out: Path, names: list[str]) -> int:
+    """How many episode bags ``out`` holds that are not among ``names`` (0 if it does not exist)."""
+    if not out.is_dir():
+        return 0
+    mine = set(names)
+    return sum(1 for p in out.iterdir() if p.name not in mine and is_bag(p))
 
 
 def _earlier_runs(path: Path) -> list[dict]:
