@@ -43,7 +43,7 @@ from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import beyond_lift_reach
 from soil_msgs_py.patches import check_patches
 from soil_msgs_py.process_pool import pool_start_method
-from soil_physics.soils import CATALOGUE, get_soil, load_soil_file
+from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
 
 from .effects import Effects, effects_for_mode
 from .ray_cluster import LOCAL as LOCAL_RAY, add_ray_option, cluster_cpus, ray_session, run_tasks
@@ -376,7 +376,7 @@ def main(argv=None) -> int:
         for depth in sorted({spec.target_depth_m for spec in plan.specs}):
             if note := beyond_lift_reach("--depths", depth):
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
-        for note in unreached_patches(plan.specs):
+        for note in unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         # (a custom soil named like a catalogue soil replaces it: that one is simulated)
         unused = sorted(n for n in plan.custom_soils if n.lower() not in {c.lower() for c in CATALOGUE})

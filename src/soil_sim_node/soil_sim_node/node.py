@@ -40,7 +40,7 @@ from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_
                                  beyond_lift_reach)
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
-from soil_physics.soils import load_soil_file
+from soil_physics.soils import load_soil_file, soil_file_notes
 
 from .effects import PluginError, effects_for_mode, load_plugins
 from .live import CommandGate, command_writers, episode_plan
@@ -117,6 +117,8 @@ class SimNode(Node):
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
         self.custom_soils, self.named_path = self._load_soil_file(p["soil_file"], p["path"], p["patches"])
+        for note in soil_file_notes(self.custom_soils):
+            self.get_logger().warning(f"parameter soil_file={p['soil_file']!r}: {note}")
         if p["engine"] == "compiled":  # compile or load the kernel now, not at the first tick
             self.get_logger().info(f"simulator kernel ready in {warm_up():.1f} s")
         self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
