@@ -59,3 +59,28 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             out = side.stop()
     assert "following the planner's target depth" in out and "no planner target within 0.5 s" in out, out
     assert "target_depth_m=nan" in out and "target_depth_m=0.9" in out, out
+
+
+@pytest.mark.timeout(120)
+def test_controller_says_when_the_simulators_state_stops_mid_episode_and_when_it_comes_back(tmp_path):
+    """A killed simulator left the controller (and the estimator and planner) up and silent: now
+    it says, after 2 s without state in an episode, and again when the state comes back."""
+    import time
+
+    domain = next_domain_id()
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, PARAM_DEPTH, 30.0, source="test")
+    with RosProbe(domain) as probe:
+        side = PlannerSide(probe, [], domain, tmp_path)
+        try:
+            side.start(meta)
+            side.tick(0)
+            deadline = time.monotonic() + 30
+            while "no state from the simulator for" not in side.ctl.output and time.monotonic() < deadline:
+                time.sleep(0.2)
+            side.tick(1)
+            while "state from the simulator again after" not in side.ctl.output and time.monotonic() < deadline:
+                time.sleep(0.2)
+        finally:
+            out = side.stop()
+    assert f"in episode {meta.name}: has its publisher stopped?" in out, out[-3000:]
+    assert out.index("no state from the simulator for") < out.index("state from the simulator again after"), out[-3000:]

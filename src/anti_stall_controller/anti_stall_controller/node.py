@@ -47,7 +47,8 @@ from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_
                                  MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
                                  beyond_lift_reach)
 from soil_msgs_py.ros_adapter import (
-    JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event, topic_qos,
+    InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event,
+    topic_qos,
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
@@ -145,6 +146,7 @@ class ControllerNode(Node):
                                               self._on_planner_target, topic_qos(T.TARGET_DEPTH.name))
         self.joiner = state_joiner(self._force_lift)
         self._warn = WarnLimiter(self.get_logger())
+        self.silence = InputSilence(self, "state from the simulator")
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
@@ -234,7 +236,9 @@ class ControllerNode(Node):
         if event.event == G.EVENT_EPISODE_END:
             self.plan_wait.start_episode(event.first_stamp_ns, False)  # the episode is over: nothing waits
             self.held = []
+            self.silence.end()
             return
+        self.silence.start(event.name)
         if self.follow:
             result = self.set_parameters([
                 Parameter("target_speed_m_s", value=float(event.meta.target_speed_m_s)),
@@ -258,6 +262,7 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ control
     def _on_state(self, topic: str, msg) -> None:
+        self.silence.heard()
         if topic not in self.joiner.topics:  # the force, with the force lift off
             return
         if self.held is not None:

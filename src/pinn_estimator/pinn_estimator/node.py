@@ -25,7 +25,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.ros_adapter import (
-    WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
+    InputSilence, WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
     status_event,
 )
 
@@ -92,8 +92,9 @@ class EstimatorNode(Node):
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
+        self.silence = InputSilence(self, "samples (the simulator's state and the controller's commands)")
         inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
-                                                 lambda msg, n=name: self.core.add(n, msg), deep)
+                                                 lambda msg, n=name: self._on_input(n, msg), deep)
                   for name in INPUT_TOPICS}
         # /sim/status last, once every input has a publisher (at most inputs_wait_s): matched late
         # under load, the first second's ticks lacked the controller's commands. (A tick that
@@ -131,10 +132,12 @@ class EstimatorNode(Node):
         if event is None:
             return
         if event.event == G.EVENT_EPISODE_START:
+            self.silence.start(event.name)
             self.core.start_episode(event.first_stamp_ns)
             self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
             self._say_if_other_world(event)
         elif event.last_stamp_ns >= 0:
+            self.silence.end()
             self.core.end_episode(event.last_stamp_ns)
 
     def _say_if_other_world(self, event) -> None:
@@ -149,6 +152,10 @@ class EstimatorNode(Node):
             f"calibration (the checkpoint's): its intervals are not calibrated here. Give fusion_config:="
             f"{config_path(world)}" + (" (it exists)" if config_path(world).exists() else "")
             + " or a checkpoint trained in that world")
+
+    def _on_input(self, topic: str, msg) -> None:
+        self.silence.heard()
+        self.core.add(topic, msg)
 
     def _publish(self, est: Estimate) -> None:
         self.estimate_pub.publish(M.make_labelled(self.classes, est.stamp_ns, T.ESTIMATE_FIELDS, est.values))

@@ -123,6 +123,48 @@ class WarnLimiter:
             self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
 
 
+INPUT_SILENCE_S = 2.0  # wall time without an input mid-episode before a node says so
+
+
+class InputSilence:
+    """Says when a node's inputs stop mid-episode and when they come back.
+
+    Why: with the simulator killed mid-episode the controller, the estimator and the planner
+    stayed up, as they should, and said nothing for as long as it was gone, so a user could not
+    tell a dead simulator from a slow one. Armed by an episode_start (``start``), disarmed by its
+    episode_end (``end``): between episodes, or before a node's first episode, silence is normal.
+    ``heard`` is called on every input message (cheap: one clock read)."""
+
+    def __init__(self, node: Node, what: str, limit_s: float = INPUT_SILENCE_S):
+        self.logger, self.what, self.limit_s = node.get_logger(), what, limit_s
+        self.episode: str | None = None
+        self.last = 0.0
+        self.silent = False
+        node.create_timer(min(0.5, limit_s / 2), self._check)
+
+    def start(self, episode: str) -> None:
+        self.episode, self.last, self.silent = episode, time.monotonic(), False
+
+    def end(self) -> None:
+        self.episode = None
+
+    def heard(self) -> None:
+        now = time.monotonic()
+        if self.silent:
+            self.silent = False
+            self.logger.info(f"{self.what} again after {now - self.last:.1f} s")
+        self.last = now
+
+    def _check(self) -> None:
+        if self.episode is None or self.silent:
+            return
+        quiet = time.monotonic() - self.last
+        if quiet >= self.limit_s:
+            self.silent = True
+            self.logger.warning(f"no {self.what} for {quiet:.1f} s in episode {self.episode}: has its publisher "
+                                "stopped? (waiting for it; said again when it comes back)")
+
+
 def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
     """A ``/sim/status`` message's event, or None (warned, naming the problem) if malformed:
     a bad status message never stops a node."""

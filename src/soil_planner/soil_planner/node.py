@@ -51,7 +51,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_msgs_py import graph as G
-from soil_msgs_py.ros_adapter import (JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
+from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
                                       spin_node, status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
@@ -167,6 +167,7 @@ class PlannerNode(Node):
 
         self.classes = M.ros_message_classes()
         self._warn = WarnLimiter(self.get_logger())
+        self.silence = InputSilence(self, f"estimates ({T.ESTIMATE.name})")
         # Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order,
         # so older ticks still waiting are given up. A stamp that goes back is a new stream.
         self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
@@ -232,6 +233,9 @@ class PlannerNode(Node):
             self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
             self.lockstep = event.pacing == G.PACING_LOCKSTEP
             self._new_cut()
+            self.silence.start(event.name)
+        elif event is not None:
+            self.silence.end()
 
     def _new_cut(self) -> None:
         """A new cut: the schedule back to its start depth, no plan carried over."""
@@ -268,6 +272,7 @@ class PlannerNode(Node):
         self._join(T.KNOWN.name, stamp, fields(values, KNOWN_PARAMS))
 
     def _on_estimate(self, msg) -> None:
+        self.silence.heard()
         try:
             stamp, values = M.parse_labelled(msg, T.ESTIMATE_FIELDS, T.ESTIMATE.name)
         except ValueError as err:
