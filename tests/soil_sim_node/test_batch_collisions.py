@@ -88,3 +88,21 @@ def test_a_soil_file_without_soils_naming_its_soils_is_said(tmp_path, capsys):
     assert batch.main([*grid, "--soils", "Silt,Sand", "--out", str(tmp_path / "b")]) == 0
     assert "not simulated" not in capsys.readouterr().err
     assert sorted(b.name.split("_")[1] for b in find_episode_bags(tmp_path / "b")) == ["sand", "silt"]
+
+
+def test_an_interrupted_run_is_resumed_with_skip_existing(tmp_path, capsys):
+    """Ctrl-C on soil_sim_batch kept the bags finished, and the same command then refused them
+    all ("1 of the 2 bags exist"): --skip-existing keeps them and simulates the rest."""
+    out = tmp_path / "site"
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out)]) == 0
+    first = find_episode_bags(out)
+    stamp = first[0].stat().st_mtime_ns
+    capsys.readouterr()
+    assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0
+    err = capsys.readouterr().err
+    assert "1 of the 2 bags exist" in err and "simulating the other 1" in err, err
+    assert len(find_episode_bags(out)) == 2 and first[0].stat().st_mtime_ns == stamp
+    assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0  # nothing left
+    assert "simulating the other 0" in capsys.readouterr().err
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out), "--skip-existing", "--overwrite"]) == 2
+    assert "contradict" in capsys.readouterr().err

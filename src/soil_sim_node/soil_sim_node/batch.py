@@ -17,18 +17,22 @@ and seeds. A chunk that fails is named with its episodes after every other chunk
 the bags written are kept (never a partial one) and dataset.json is not written.
 
 A run refuses, before simulating anything, to write where a bag of the same name exists (unless
---overwrite) or where a killed recorder's journal of that name waits for ``soil_bag_repair``. A
+--overwrite, or --skip-existing, which keeps those bags and simulates the rest: an interrupted run
+resumed; Ctrl-C keeps the bags finished, never a partial one) or where a killed recorder's journal of that name waits for ``soil_bag_repair``. A
 run into a directory an earlier run wrote keeps that run's record in dataset.json's
 ``earlier_runs``, so the file still says what the directory holds.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import math
 import multiprocessing as mp
 import os
+import shutil
+import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -69,6 +73,7 @@ class DatasetPlan:
     custom_soils: dict = field(default_factory=dict)
     overwrite: bool = False
     engine: str = "compiled"  # one of simulator.ENGINES
+    skip_existing: bool = False  # keep the bags that exist, simulate the rest (an interrupted run resumed)
 
     def config(self) -> SimConfig:
         return SimConfig(world_mode=self.mode, effects=self.effects, plugins=self.plugins, engine=self.engine)
@@ -128,8 +133,18 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     if len(set(keys)) != len(keys):
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
     names = _bag_names(plan.config(), pairs)
-    _check_names_free(plan, names)
     others = _other_bags(plan.out, names)
+    if plan.skip_existing and not plan.overwrite:
+        todo = [i for i, n in enumerate(names) if not is_bag(plan.out / n)]
+        if len(todo) < len(names):
+            print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
+                  f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
+        if not todo:
+            return {"mode": plan.mode, "episodes": 0, "wall_time_s": 0.0, "bytes_total": 0, "bytes_per_episode": 0,
+                    "simulated_s_per_wall_s": 0.0, "episode_names": []}  # (dataset.json stays as it is)
+        plan = dataclasses.replace(plan, specs=[plan.specs[i] for i in todo])
+        pairs, resolved, names = [pairs[i] for i in todo], [resolved[i] for i in todo], [names[i] for i in todo]
+    _check_names_free(plan, names)
     if others:  # the readers (pinn_train, soil_discrepancy) take every bag of the directory
         print(f"soil_sim_batch: note: {plan.out} already holds {others} episode bag(s) of earlier runs; with these "
               f"{len(names)} it holds {others + len(names)}, and pinn_train and soil_discrepancy read them all "
@@ -247,12 +262,26 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     else:
         # after Ray, spawned workers (they write the same bags and end with the pool; a fork server
         # would outlive it, with Ray's path in its command line)
-        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs)))) as pool:
+        # the workers ignore Ctrl-C (no traceback from each): this process takes it and the pool's
+        # end stops them (a bag half written is staged apart, never in place)
+        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs))), initializer=_ignore_sigint) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
     bar.close()
     return results
+
+
+def _remove_staging(out: Path) -> None:
+    """The staging directories of bags the pool's end stopped mid-write (``write_episode``'s; a
+    recorder's journal, which soil_bag_repair recovers, is never one of them)."""
+    for staging in out.glob(f"*{PARTIAL_SUFFIX}") if out.is_dir() else ():
+        if staging.is_dir() and not journal_path(staging).exists():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
@@ -311,6 +340,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--plugin", action="append", default=[], help="extra force term package.module:function (repeatable)")
     p.add_argument("--effects-off", default="", help="default-world effects to switch off, comma-separated")
     p.add_argument("--overwrite", action="store_true", help="replace existing bags of the same name")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="keep existing bags of the same name and simulate the rest (resume an interrupted run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p.parse_args(argv)
 
@@ -362,7 +393,10 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     specs = grid_specs(soils, relative_densities, speeds, _floats(args.depths, "depths"), args.seeds, args.seed_base,
                        args.duration, patches)
     out = args.out or Path("bags") / f"d_{args.mode}"
-    return DatasetPlan(args.mode, out, specs, effects, tuple(args.plugin), custom, args.overwrite, args.engine)
+    if args.overwrite and args.skip_existing:
+        raise ValueError("--overwrite and --skip-existing contradict each other: give one")
+    return DatasetPlan(args.mode, out, specs, effects, tuple(args.plugin), custom, args.overwrite, args.engine,
+                       args.skip_existing)
 
 
 def main(argv=None) -> int:
@@ -390,6 +424,12 @@ def main(argv=None) -> int:
     except (ChunksFailed, RuntimeError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2 if getattr(exc, "bad_input", False) else 1
+    except KeyboardInterrupt:  # the bags finished are whole (write_episode renames a finished bag into place)
+        if args.out is not None:
+            _remove_staging(args.out)
+        print(f"soil_sim_batch: interrupted; the bags finished under {args.out or 'the --out directory'} are kept "
+              "(the same command with --skip-existing simulates the rest)", file=sys.stderr)
+        return 130
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
         f"({summary['simulated_s_per_wall_s']:.0f} simulated s per wall s, "
