@@ -329,9 +329,19 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     evaluate(ck.SHIPPED_MODELS_DIR / "pinn_default.pt", forecast_data=cuts, forecast_only=True, classical=False,
              workers=1, log=said.append)
     assert any("trained on default-world data" in line and "fee-world bags" in line for line in said), said
-    for bad in ([*alone], [*alone, "--forecast-data", str(cuts), "--data", str(tiny_bags)]):
+    for bad in ([*alone], [*alone, "--forecast-data", str(cuts), "--data", str(tiny_bags)],
+                [*alone, "--forecast-data", str(cuts), "--forecast-world", "default"]):  # the bags say their world
         with pytest.raises(SystemExit):
             eval_main(bad)
+    # a bag --skip-bad-bags leaves out is named in the report, not only on stdout
+    shutil.copytree(cuts, tmp_path / "with_bad")
+    (tmp_path / "with_bad" / "broken").mkdir()
+    (tmp_path / "with_bad" / "broken" / "metadata.yaml").write_text("not: a bag\n")
+    (tmp_path / "with_bad" / "broken" / "broken.mcap").write_bytes(b"\x89MCAP0\r\n torn")
+    assert eval_main([*alone, "--forecast-data", str(tmp_path / "with_bad"), "--skip-bad-bags", "--out", str(out),
+                      "--name", "s"]) == 0
+    assert json.loads((out / "s.json").read_text())["forecast_data"]["skipped_bags"]
+    assert "could not be read and were left out" in (out / "s.md").read_text()
 
 
 # ------------------------------------------------------------------------------ bad input
@@ -398,6 +408,10 @@ def test_a_trend_target_is_met_exactly_when_the_trend_says_it_rises():
     c_hat, phi_hat = got["Clay: c\u0302"], got["Clay: phi\u0302"]
     assert c_hat["value"] == pytest.approx(0.5) and not c_hat["met"] and c_hat["op"] == ">"
     assert trends["pinn"]["Clay"]["c"]["rises"] is False and phi_hat["met"] is True
+    # a cohesive soil of the user's own YAML has a trend too (the list of cohesive soils was the catalogue's)
+    mine = [{**r, "soil": soil, "truth": {"c": c_true}} for r in rows
+            for soil, c_true in (("SiltyClay", 3e3), ("Sand", 0.0), ("Clay", float("nan")))]
+    assert sorted(_trends(mine)) == ["Clay", "SiltyClay"]
 
 
 def test_bag_missing_a_topic_is_named(tiny_bags, tmp_path):
@@ -540,6 +554,17 @@ def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_b
     _interrupt_in_epoch(monkeypatch, 1)
     assert train_main([*args[:3], str(first), *args[4:]]) == 130
     assert not first.exists() and "interrupted before a model was validated; nothing written" in capsys.readouterr().err
+
+
+def test_episodes_a_reused_split_leaves_out_are_said(tiny_ds):
+    """--split-from with bags the stored split does not hold trained on fewer episodes in silence."""
+    split = split_episodes(tiny_ds, seed=0)
+    split = {**split, "train": split["train"][1:]}
+    lines = []
+    cfg = TrainConfig(epochs=1, stride=6, eval_stride=6, threads=1)
+    train(tiny_ds, cfg, ModelConfig(**SMALL), split=split, progress=False, log=lines.append)
+    assert any(f"1 of the {len(tiny_ds.names)} episodes are in none of the given split's parts" in line
+               for line in lines), lines
 
 
 def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):

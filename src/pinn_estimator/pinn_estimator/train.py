@@ -133,10 +133,19 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     torch.set_num_threads(max(1, cfg.threads // ranks.local_world))  # the machine's --threads, shared
+    given = split is not None
     split = split or split_episodes(ds, seed=cfg.seed, val_fraction=cfg.val_fraction, test_fraction=cfg.test_fraction)
     idx = {s: ds.index(split[s]) for s in split}
+    if given and (left := len(ds.names) - len({i for v in idx.values() for i in v})):
+        log(f"{left} of the {len(ds.names)} episodes are in none of the given split's parts: left out (the split "
+            "is the model's whose split was reused; train without it to use them)")
     if not idx["val"]:
-        raise ValueError("the validation split is empty: early stopping needs validation episodes (use more episodes or val_fraction > 0)")
+        why = ("val_fraction is 0" if cfg.val_fraction <= 0 and not given else
+               f"{len(ds.names)} episode(s) are too few to set any aside" if not given else "the given split has none")
+        raise ValueError(f"the validation split is empty ({why}): early stopping needs validation episodes")
+    if not idx["test"] and (given or cfg.test_fraction > 0):
+        log(f"warning: the test split is empty ({len(ds.names)} episodes): pinn_eval will have nothing to score; "
+            "use more episodes")
     mean, std = observation_statistics(ds, idx["train"])
     model = EstimatorNet(model_cfg, mean, std)
     net = model
