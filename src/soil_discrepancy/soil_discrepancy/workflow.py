@@ -767,6 +767,12 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             if (test.get("depth_forecast") or {}).get("before"):
                 text += f", force at another depth {_fc_text(test)}"
         remains = reg1 is not None and reg1["significant"]  # structure beside the named terms: "partly explained"
+        weak = weak_forms_only(new_terms, pins, gain)
+        if weak and not remains:  # nothing significant left, but what was named is a weak, unpinned fit
+            text += (f"; partly, at best: the named form{'s' if len(new_terms) > 1 else ''} take{'' if len(new_terms) > 1 else 's'} "
+                     f"only {100 * gain:.0f} % off the held-out error and {'are' if len(new_terms) > 1 else 'is'} not "
+                     "pinned down: a stand-in that follows part of an effect whose own form the library may not hold "
+                     "(a drift of the sensor, a law of another variable); the residual left says what is missing")
         if remains:
             text += "; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
             forms_named = sum(s.name.startswith(FORM_PREFIX) for s in new_terms)
@@ -788,7 +794,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         # the data's (beside a pinned-down term the move is what the baseline's θ had taken in)
         hedged = bool(stand_ins) or any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") for s in new_terms)
         moved = _theta_shift_text(shift, reg0, reg1) if hedged else ""
-        return "partly explained" if remains else "explained", text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named
+        return ("partly explained" if remains or weak else "explained",
+                text + moved + _misfit_text(reg1) + _left_text(reg1) + not_named)
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
@@ -804,6 +811,19 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
                                           + _misfit_text(reg0, quiet=True) + not_named)
+
+
+WEAK_PIN_KINDS = ("stand-in", "beaten", "form")  # pin_kind: the form itself is not pinned down
+
+
+def weak_forms_only(new_terms, pins: dict | None, gain: float | None) -> bool:
+    """Whether every named term is a discovered form its data do not pin down (``WEAK_PIN_KINDS``)
+    and together they take less than STAND_IN_MAX_GAIN off the held-out error: then the verdict
+    is "partly explained" even with no significant structure left (a sensor drift named as a form
+    scaled by the cut's area took 24 % off and was called explained)."""
+    return (bool(new_terms) and gain is not None and gain < STAND_IN_MAX_GAIN
+            and all(s.name.startswith(FORM_PREFIX) and pin_kind((pins or {}).get(s.name)) in WEAK_PIN_KINDS
+                    for s in new_terms))
 
 
 def _on_test_bounds(reg: dict | None) -> int:
