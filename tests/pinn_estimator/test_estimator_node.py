@@ -222,6 +222,8 @@ def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
             fee_model = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
             assert set_param("checkpoint", str(fee_model)).successful
             wait_until(lambda: f"model now {fee_model}" in node.output, 60, "model swap logged")
+            # the posterior's calibration, the checkpoint's world's, follows the new model's world
+            wait_until(lambda: "fusion_fee.json (the checkpoint's world)" in node.output, 10, "the fee world's calibration")
         finally:
             assert node.stop() == 0, node.output
 

@@ -509,7 +509,7 @@ def test_bad_inputs(tmp_path):
     # an --out it cannot make (under /proc): refused at start naming it, no traceback
     out = subprocess.run([BIN / "soil_bag_record", "--out", "/proc/nope"], env=ros_env(105),
                          capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "--out '/proc/nope': cannot create or use it" in out.stdout + out.stderr
+    assert out.returncode == 2 and "--out: '/proc/nope' cannot be written" in out.stdout + out.stderr  # refused when parsed
     assert "Traceback" not in out.stdout + out.stderr
 
 

@@ -293,17 +293,18 @@ def test_an_intruder_filling_a_skipped_tick_with_a_fitting_counter_is_refused(tm
 
 
 def test_a_restarted_estimator_is_recorded_after_its_predecessor_but_an_intruder_among_it_is_not(tmp_path):
-    """The estimator dies after tick 99 and a new one (a new counter from 1) publishes from
-    tick 260, 2.7 s later: the bag keeps both. Judged as one chain the restarted counter, once
-    past 100, continues the dead one's, and the heaviest chain took the old estimator's
-    estimates with the new one's tail, refusing the rest of the new one's. An intruder's
-    plausible estimates at ticks the restarted estimator skips are still refused."""
+    """The estimator dies after tick 39 and a new one (a new counter from 1) publishes from
+    tick 130, 1.5 s later: the bag keeps both. Judged as one chain the restarted counter, once
+    past 40, continues the dead one's, and the heaviest chain took the old estimator's
+    estimates with the new one's tail, refusing the rest of the new one's (or, cut there, the
+    old one's, tied with the new one's first 40). An intruder's plausible estimates at ticks the
+    restarted estimator skips are still refused."""
     from soil_msgs_py import topics as T
 
     intrusions, restarted = [], {}
 
     def intrude(feed, t, tick) -> bool:
-        if tick >= 260:
+        if tick >= 130:
             if tick % 7 == 3:  # the restarted estimator skips it; the intruder claims it
                 feed.send("intruder", T.ESTIMATE.name, _estimate(t, 5.0))
                 intrusions.append(t)
@@ -311,11 +312,11 @@ def test_a_restarted_estimator_is_recorded_after_its_predecessor_but_an_intruder
                 feed.send("restarted", T.ESTIMATE.name, _estimate(t, float(tick)))
                 restarted[t] = float(tick)
             return True
-        return tick >= 100  # dead from tick 100
+        return tick >= 40  # dead from tick 40
 
     bag, published = _record_estimates(tmp_path, 400, intrude)
     stamps, values = bag_io.read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
-    assert len(published) == 100 and len(restarted) > 100 and intrusions
+    assert len(published) == 40 and len(restarted) > 200 and intrusions
     assert dict(zip(stamps.tolist(), values[:, 0].tolist())) == {**published, **restarted}
     assert recorder_info(bag)["conflicts"] == {T.ESTIMATE.name: len(intrusions)}
 
@@ -344,6 +345,40 @@ def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):
         feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
         assert rec.poll() == [], f"closed while estimates still came, at tick {k}"
     now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # the last tick's estimate never comes
+    (result,) = rec.poll()
+    stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
+    assert stamps.tolist() == clock_stamps[:-1]
+
+
+def test_a_lagging_estimator_that_pauses_between_bursts_is_not_cut_off(tmp_path):
+    """An estimator seconds behind on a loaded machine sends its estimates in bursts: a pause of
+    more than the short quiet grace while it is still far behind the last tick does not end the
+    bag; once it is near the end, the short grace does."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 180
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    now = [0.0]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
+                            end_grace_s=4.0, clock=lambda: now[0])
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    for _, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+    for k, t in enumerate(clock_stamps[:10]):  # the estimator's first estimates came during the episode
+        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
+    rec.on_status(end_ev.to_json())
+    for k, t in enumerate(clock_stamps[:-1]):
+        if k < 10:
+            continue
+        now[0] += 1.5 if k in (10, 60, 100) else 0.01  # 1.5 s pauses while more than 1 s behind the last tick
+        rec.poll()
+        assert not rec.finished, f"closed at tick {k} while the estimator was {(n - k) / 60:.1f} s behind"
+        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
+    now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # near the end: the short grace
     (result,) = rec.poll()
     stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
     assert stamps.tolist() == clock_stamps[:-1]

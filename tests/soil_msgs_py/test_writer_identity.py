@@ -89,17 +89,43 @@ def test_a_restarted_writer_is_led_by_its_longer_stretch_and_the_counter_may_wra
 
 
 def test_succession_keeps_a_restarted_writer_and_its_predecessor_but_no_interleaved_intruder():
-    """Writer A: ticks 0..9, sequence 1..10; silent 10 ticks (beyond the silence limit 5);
-    writer B (restarted, a new counter): ticks 20..39, sequence 1..20, whose numbers from 11 on
-    continue A's counter. An intruder (sequence 500..) claims ticks 25 and 30 among B's."""
-    ticks = list(range(10)) + list(range(20, 40)) + [25, 30]
-    seqs = list(range(1, 11)) + list(range(1, 21)) + [500, 501]
-    a, b, intruder = set(range(10)), set(range(10, 30)), {30, 31}
+    """Writer A: ticks 0..39, sequence 1..40; silent 60 ticks (beyond the silence limit 5);
+    writer B (restarted, a new counter): ticks 100..199, sequence 1..100, whose numbers from 41
+    on continue A's counter. An intruder (sequence 500..) claims ticks 150 and 160 among B's."""
+    ticks = list(range(40)) + list(range(100, 200)) + [150, 160]
+    seqs = list(range(1, 41)) + list(range(1, 101)) + [500, 501]
+    a, b = set(range(40)), set(range(40, 140))
     lead = leading_chain(ticks, seqs)
-    assert lead == a | set(range(20, 30))  # A with B's tail: B's first ten are refused
+    assert lead == a | set(range(80, 140))  # A with B's tail (60): B's first 40 ("head") are off it
+    # cut at the silence, B's tail is the longest stretch; before it A and B's head tie (40 each),
+    # one after the other: both kept, and so the whole of B with its tail
     assert succession(ticks, seqs, lead, max_silence_ticks=5) == a | b
     assert succession(ticks, seqs, b, max_silence_ticks=5) == a | b  # led by B: A before it
-    # only eligible messages are taken beside the chain given, and a writer silent for less is one writer
+    # only eligible messages are taken beside the chain given; with no silence beyond the limit the
+    # restarted counter inside the chain's gap (numbers below A's last) still cuts it
     assert succession(ticks, seqs, b, [i not in a for i in range(len(ticks))], max_silence_ticks=5) == b
-    assert succession(ticks, seqs, lead, max_silence_ticks=25) == lead  # (A to B's tail: 21 ticks)
+    assert succession(ticks, seqs, lead, max_silence_ticks=200) == a | b
     assert succession(ticks, seqs, set()) == set()
+
+
+def test_succession_takes_no_stray_writer_beside_the_leader():
+    """A few plausible messages of an intruder's own counter in a silence of the writer (fewer than
+    a restarted node would send) stay out."""
+    ticks = list(range(40)) + [60, 61, 62] + list(range(100, 140))
+    seqs = list(range(1, 41)) + [700, 701, 702] + list(range(41, 81))  # the writer, silent 60 ticks, goes on
+    writer = set(range(40)) | set(range(43, 83))
+    assert leading_chain(ticks, seqs) == writer
+    assert succession(ticks, seqs, writer, max_silence_ticks=5) == writer  # its two stretches; not the stray three
+
+
+def test_succession_cuts_a_chain_where_a_restarted_counter_runs_inside_its_gap():
+    """A sent 40 messages and was restarted at once (20 ticks later): no silence beyond the limit
+    between A and the new counter's tail, but the new counter's first numbers lie inside that gap,
+    below A's last: a restart. Both writers are kept whole."""
+    ticks = list(range(40)) + list(range(60, 160))
+    seqs = list(range(1, 41)) + list(range(1, 101))
+    lead = leading_chain(ticks, seqs)
+    assert lead == set(range(40)) | set(range(80, 140))
+    assert succession(ticks, seqs, lead) == set(range(140))
+    # the same numbers from a writer not eligible (an intruder's garbage) cut nothing
+    assert succession(ticks, seqs, lead, [i < 40 or i >= 80 for i in range(140)]) == lead

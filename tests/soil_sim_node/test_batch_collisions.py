@@ -102,7 +102,32 @@ def test_an_interrupted_run_is_resumed_with_skip_existing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "1 of the 2 bags exist" in err and "simulating the other 1" in err, err
     assert len(find_episode_bags(out)) == 2 and first[0].stat().st_mtime_ns == stamp
+    assert json.loads((out / "dataset.json").read_text())["kept_existing"] == [first[0].name]
     assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0  # nothing left
     assert "simulating the other 0" in capsys.readouterr().err
     assert batch.main([*ONE, "--depths", "0.1", "--out", str(out), "--skip-existing", "--overwrite"]) == 2
     assert "contradict" in capsys.readouterr().err
+
+
+def test_ctrl_c_removes_only_this_runs_staging_and_says_it_in_one_line(tmp_path, capsys, monkeypatch):
+    """Ctrl-C (as the pool's end leaves it: a bag of the plan half written in its staging
+    directory) ends in one line, exit 130; another run's staging and a recorder's journal stay."""
+    out = tmp_path / "site"
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out)]) == 0
+    (name,) = [b.name for b in find_episode_bags(out)]
+    mine = out / f"{name}.partial" / name
+    theirs = out / "someone_elses.partial" / "someone_elses"
+    journal = journal_path(out / "recorded.partial")
+
+    def interrupted(plan, **_):
+        for d in (mine, theirs, journal.parent):
+            d.mkdir(parents=True)
+        journal.write_bytes(b"\x89MCAP0\r\n")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "generate", interrupted)
+    capsys.readouterr()
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(out), "--overwrite"]) == 130
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "interrupted; the bags finished under" in err and "--skip-existing" in err, err
+    assert not mine.parent.exists() and theirs.exists() and journal.exists()

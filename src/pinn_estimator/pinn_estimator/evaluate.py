@@ -306,7 +306,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         report["training"]["physics_free"] = free_ckpt["metrics"]
     if forecast_bags is None and forecast_world == "auto":
         forecast_world = report["world_modes"][0] if len(report["world_modes"]) == 1 else None
-        if forecast_world is None:  # the forecast's posterior is calibrated per world
+        if len(report["world_modes"]) > 1:  # the forecast's posterior is calibrated per world
             report["forecast_skipped"] = (f"the test split mixes worlds {report['world_modes']}; the forecast at "
                                           "another depth is judged in one world: give --forecast-world fee|default")
             log(f"warning: {report['forecast_skipped']}")

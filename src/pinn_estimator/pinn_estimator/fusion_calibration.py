@@ -118,6 +118,15 @@ def load_fusion_config(path: str, world: str = DEFAULT_WORLD) -> FusionConfig:
         raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
 
 
+def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
+    """The estimator's soil posterior config and the world it was calibrated for: the config at
+    ``path`` (the ``fusion_config`` parameter; its world not known: None), else the shipped
+    calibration of the checkpoint's world (``checkpoint_world``). The node, ``soil_launch`` (for
+    the planner's terms) and the demo's forecast all take it from here."""
+    world = None if path else checkpoint_world(ckpt)
+    return load_fusion_config(path, world or DEFAULT_WORLD), world
+
+
 def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
     """``fusion`` (None: the shipped calibration of the default world) with the physics of
     ``model`` (an ``EstimatorNet``): its catalogue terms are added to the FEE, as in its own physics

@@ -73,7 +73,7 @@ def force_errors(measured: np.ndarray, predicted: np.ndarray) -> dict[str, float
 def episode_estimates(model: EstimatorNet, bag, fusion: FusionConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The offline pipeline on one recorded episode bag: (stamps of the newest sample of every
     full window, ``/soil/estimate`` values of each, batched, with the fused fields of the
-    episode's posterior at each; ``fusion`` None: the node's default config). What the online
+    episode's posterior at each; ``fusion`` None: the shipped default world's config, the node's for the shipped model). What the online
     estimator must publish for the same episode (up to float32 rounding of batch 1 vs batched)."""
     from .fusion_calibration import config_for_model
 

@@ -30,7 +30,7 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion_calibration import checkpoint_world, config_path, load_fusion_config
+from .fusion_calibration import checkpoint_world, config_path, estimator_fusion
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
@@ -74,12 +74,11 @@ class EstimatorNode(Node):
         self._warn = WarnLimiter(self.get_logger())
         # the shipped calibration of the checkpoint's world unless a config is given (its world unknown: None)
         fusion_path = get("fusion_config")
-        self.fusion_world = None if fusion_path else checkpoint_world(ckpt)
+        fusion, self.fusion_world = estimator_fusion(fusion_path, ckpt)
         self.fusion_source = fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
         self._worlds_warned: set[str] = set()
         self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
-                                    warn=self._warn, fusion=load_fusion_config(fusion_path, checkpoint_world(ckpt)),
-                                    publish_map=self._publish_map)
+                                    warn=self._warn, fusion=fusion, publish_map=self._publish_map)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -119,9 +118,15 @@ class EstimatorNode(Node):
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         if model is not None:
-            self.core.set_model(model[0])
+            fusion = None  # a config chosen by the checkpoint's world follows the new checkpoint's
+            if self.fusion_world is not None and checkpoint_world(model[1]) != self.fusion_world:
+                fusion, self.fusion_world = estimator_fusion("", model[1])
+                self.fusion_source = f"{config_path(self.fusion_world)} (the checkpoint's world)"
+                self._worlds_warned.clear()
+            self.core.set_model(model[0], fusion)
             self.checkpoint_path = model[2]
-            self.get_logger().info(f"model now {self.checkpoint_path}")
+            self.get_logger().info(f"model now {self.checkpoint_path}"
+                                   + (f", soil posterior {self.fusion_source}" if fusion is not None else ""))
         if "stride" in changes:
             self.core.set_stride(changes["stride"])
         return SetParametersResult(successful=True)
@@ -136,9 +141,10 @@ class EstimatorNode(Node):
             self.core.start_episode(event.first_stamp_ns)
             self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
             self._say_if_other_world(event)
-        elif event.last_stamp_ns >= 0:
+        else:
             self.silence.end()
-            self.core.end_episode(event.last_stamp_ns)
+            if event.last_stamp_ns >= 0:
+                self.core.end_episode(event.last_stamp_ns)
 
     def _say_if_other_world(self, event) -> None:
         """Once per world: an episode of a world other than the one whose shipped calibration the

@@ -333,12 +333,15 @@ class OnlineEstimator:
     def set_stride(self, stride: int) -> None:
         self.stride = self._check_stride(stride)
 
-    def set_model(self, model: EstimatorNet) -> None:
+    def set_model(self, model: EstimatorNet, fusion: FusionConfig | None = None) -> None:
         """Swap the model (a retrained checkpoint); the window is kept: inputs mean the same.
         The posterior keeps what it learnt unless the new model's physics (its catalogue terms)
-        is another, which makes that evidence mean something else: then it starts over."""
+        is another, or ``fusion`` (a new posterior config, e.g. another world's calibration)
+        changes it, which makes that evidence mean something else: then it starts over."""
         check_compatible(model)
         self.model = model.eval()
+        if fusion is not None:
+            self._fusion_config = fusion
         cfg = config_for_model(self._fusion_config, model)
         if cfg != self.posterior.cfg:
             self.fusion = PathFusion(SoilPosterior(cfg))

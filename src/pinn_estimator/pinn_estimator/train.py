@@ -184,6 +184,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
 
         bar = tqdm(total=cfg.epochs, desc=f"training {model_cfg.kind}", unit="epoch")
     stop_reason = "epochs"
+    epoch_windows = 0
     try:
         for epoch in range(1, cfg.epochs + 1):
             net.train()
@@ -223,6 +224,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                 sched.step()
             else:
                 sched.step(val_loss)
+            epoch_windows = count
             for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
                 history[key].append(value)
             if val_loss < best[0]:
@@ -243,6 +245,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         rows = min(len(v) for v in history.values())  # an epoch whose history was half written
         for values in history.values():
             del values[rows:]
+        count = epoch_windows  # the last whole epoch's
     if bar is not None:
         bar.close()
     model.load_state_dict(best[1])
@@ -363,9 +366,9 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if type(err) is RuntimeError else 2
-    except KeyboardInterrupt:  # before a first epoch was validated (later: train keeps the best so far)
+    except KeyboardInterrupt:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
         if ranks.main:
-            print("pinn_train: interrupted before a model was validated; nothing written", file=sys.stderr)
+            print("pinn_train: interrupted; nothing written", file=sys.stderr)
         return 130
     if not ranks.main:
         return 0

@@ -30,7 +30,8 @@ keeps only the writer that has been recording every tick (``journal.refused_clai
 ``soil_msgs_py.writer_identity``) and counts the refused messages per topic
 (``conflicts``), so a publisher that sends first, or alone at some stamp among the
 recording writer's, never gets its data into the bag; a node restarted mid-episode (a new
-counter, its ticks after its predecessor's last) is recorded as the writer's successor.
+counter, its ticks after its predecessor's last) is recorded as the writer's successor
+(``writer_identity.succession``, which says what it cannot tell apart).
 """
 from __future__ import annotations
 
@@ -48,6 +49,7 @@ from rosbags.interfaces import Qos
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
+from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import WriterTracks, tick_index
@@ -61,6 +63,7 @@ EXTRA_TOPIC_GRACE_S = 0.3  # once the episode topics are complete, wait until th
 # ... but no longer than this while they keep coming: an estimator seconds behind a loaded
 # machine's simulator is still sending the episode's estimates (END_GRACE_S, 4 s, cut its tail off)
 EXTRA_TOPIC_LAG_LIMIT_S = 30.0
+EXTRA_TOPIC_BEHIND_NS = NS_PER_S  # an extra topic whose newest stamp is this far before the last tick is behind
 _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
 # How long an ended episode waits for more of its data after the last message arrived. Longer
@@ -377,7 +380,8 @@ class Recorder:
 
     def _complete(self, s: Session) -> bool:
         """Every episode topic reached the last stamp, and so did every extra ``--topics`` one, or
-        the session was quiet for ``EXTRA_TOPIC_GRACE_S`` since the ticks were complete (extras
+        the session was quiet for ``EXTRA_TOPIC_GRACE_S`` (``end_grace_s`` while an extra topic is
+        more than ``EXTRA_TOPIC_BEHIND_NS`` behind the last tick) since the ticks were complete (extras
         such as /soil/estimate follow the ticks but may run at other rates, skip the last stamp,
         or lag: an estimator on a loaded machine still streaming its last estimates is not cut
         off), at most ``EXTRA_TOPIC_LAG_LIMIT_S`` (or ``end_grace_s`` if longer) after the ticks
@@ -391,7 +395,11 @@ class Recorder:
         if s.ticks_done_since is None:
             s.ticks_done_since = now
         quiet_since = max(s.ticks_done_since, s.last_write or s.ticks_done_since)
-        if now - quiet_since >= EXTRA_TOPIC_GRACE_S:
+        # an extra topic seconds behind the last tick (a lagging estimator) may pause longer than the
+        # short grace between its bursts: it gets the end grace of quiet
+        behind = any(not s.topic_done(t) and s.topic_max.get(t) is not None
+                     and s.last_stamp_ns - s.topic_max[t] > EXTRA_TOPIC_BEHIND_NS for t in self.topics)
+        if now - quiet_since >= (self.end_grace_s if behind else EXTRA_TOPIC_GRACE_S):
             return True
         limit = max(self.end_grace_s, EXTRA_TOPIC_LAG_LIMIT_S)
         if now - s.ticks_done_since < limit:

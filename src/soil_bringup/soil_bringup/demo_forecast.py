@@ -59,7 +59,7 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
     from pinn_estimator.dataset import Dataset
     from pinn_estimator.evaluate import fused_posteriors
-    from pinn_estimator.fusion_calibration import checkpoint_world, config_for_model, load_fusion_config
+    from pinn_estimator.fusion_calibration import config_for_model, estimator_fusion
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import SimConfig
 
@@ -78,7 +78,7 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     ds = Dataset.from_episodes(live + others, root="(the demo's live episodes and the simulator at other depths)")
     live_ds = Dataset.from_episodes(live)
     model, ckpt = load_model(str(checkpoint or DEFAULT_CHECKPOINT))
-    cfg = config_for_model(load_fusion_config(fusion_config, checkpoint_world(ckpt)), model)  # as the estimator node builds it
+    cfg = config_for_model(estimator_fusion(fusion_config, ckpt)[0], model)  # as the estimator node builds it
     pinn_terms = tuple(model.cfg.extra_terms)
     parts = fc.steady_parts(ds)
     n_live = len(live)

@@ -297,14 +297,14 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
 
 def posterior_terms_param(estimator_params_file, estimator_params: list[str]) -> list[str]:
     """``["terms:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
-    posterior, from the ``fusion_config`` it is given (the last ``-p``, else its params file, else
-    the shipped one of its checkpoint's world, which only here needs torch to read), so the plan
-    reads θ through the model θ was fitted with; [] without terms or
+    posterior (``fusion_calibration.estimator_fusion``: the ``fusion_config`` it is given, the
+    last ``-p``, else its params file, else the shipped one of its checkpoint's world, read with
+    torch only for a checkpoint of the user's own), so the plan reads θ through the model θ was
+    fitted with; [] without terms or
     where the config cannot be read (the estimator then exits naming it). A term on the travel or
     time in soil, which a planned steady cut does not have, is left out with a line on stderr. A
-    checkpoint's own terms are not seen here (reading it needs torch): give them with
+    checkpoint's own terms (its ``extra_terms``) are not added here: give them with
     ``--planner-param terms:=[...]``."""
-    from pinn_estimator.fusion_calibration import load_fusion_config
     from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
@@ -322,7 +322,7 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
         if name.strip() in given:
             given[name.strip()] = value.strip().strip("'\"")
     try:
-        terms, left_out = steady_cut_terms(load_fusion_config(given["fusion_config"], _estimator_world(given)).terms)
+        terms, left_out = steady_cut_terms(_estimator_fusion(given).terms)
     except ValueError:
         return []
     if left_out:
@@ -331,20 +331,21 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
 
 
-def _estimator_world(given: dict[str, str]) -> str:
-    """The world whose shipped calibration the estimator takes (``checkpoint_world``): needs the
-    checkpoint read (torch), so only for a checkpoint of the user's own without a fusion_config."""
-    from pinn_estimator.fusion_calibration import DEFAULT_WORLD
+def _estimator_fusion(given: dict[str, str]):
+    """The estimator's posterior config (``estimator_fusion``) for its ``fusion_config`` and
+    ``checkpoint`` parameters; the checkpoint is read (torch) only when it matters: one of the
+    user's own without a config. ValueError where the config cannot be read."""
+    from pinn_estimator.fusion_calibration import estimator_fusion
 
-    if given["fusion_config"] or not given["checkpoint"]:
-        return DEFAULT_WORLD  # (the shipped checkpoint is the default world's)
-    try:
+    ckpt = None
+    if given["checkpoint"] and not given["fusion_config"]:
         from pinn_estimator.checkpoint import read_checkpoint
-        from pinn_estimator.fusion_calibration import checkpoint_world
 
-        return checkpoint_world(read_checkpoint(given["checkpoint"]))
-    except (OSError, ValueError, RuntimeError):
-        return DEFAULT_WORLD  # the estimator exits naming its checkpoint
+        try:
+            ckpt = read_checkpoint(given["checkpoint"])
+        except (OSError, ValueError, RuntimeError):
+            pass  # the estimator exits naming its checkpoint; the planner gets the default world's terms
+    return estimator_fusion(given["fusion_config"], ckpt)[0]
 
 
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:

@@ -123,7 +123,9 @@ class WarnLimiter:
             self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
 
 
-INPUT_SILENCE_S = 2.0  # wall time without an input mid-episode before a node says so
+# Wall time without an input mid-episode before a node says so: longer than a lockstep tick may
+# wait for a silent planner (the controller's planner_wait_s, 2 s), so a wait is not called a death.
+INPUT_SILENCE_S = 5.0
 
 
 class InputSilence:

@@ -116,6 +116,7 @@ class StampJoiner:
         self.restart_after_refused = restart_after_refused
         self._refused = 0  # refusals in a row (nothing taken since)
         self._pending: dict[int, Joined] = {}  # insertion order = how long a set has waited
+        self._complete_stamps: set[int] = set()  # of the pending sets (an estimator seconds behind: few of many)
         self.last_ns = -1  # the newest stamp that left in order (or reset's first stamp - 1)
         self._expecting = False  # a next stamp is defined (reset with a first stamp, or a set left)
 
@@ -126,6 +127,7 @@ class StampJoiner:
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget every pending set; stamps from ``first_stamp_ns`` on are expected (None: any)."""
         self._pending.clear()
+        self._complete_stamps.clear()
         self._refused = 0
         self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._expecting = first_stamp_ns is not None
@@ -171,6 +173,8 @@ class StampJoiner:
         else:
             joined.parts[topic] = payload
         joined.bad = joined.bad or bad
+        if self._complete(joined):
+            self._complete_stamps.add(stamp_ns)
         out = self._evict()
         out += self._release()
         return Offer(verdict, out)
@@ -195,6 +199,7 @@ class StampJoiner:
         while len(self._pending) > self.max_pending:
             waited = next(iter(self._pending))
             gone = self._pending.pop(waited)
+            self._complete_stamps.discard(waited)
             gone.missing, gone.why, gone.previous_ns = self._missing(gone), Why.EVICTED, self.last_ns
             out.append(gone)
         return out
@@ -204,7 +209,7 @@ class StampJoiner:
         while self._pending:
             oldest = min(self._pending)
             if not self._complete(self._pending[oldest]):
-                newest_complete = max((s for s, j in self._pending.items() if self._complete(j)), default=None)
+                newest_complete = max(self._complete_stamps, default=None)
                 if newest_complete is None or newest_complete - oldest < self.reorder_ns:
                     break
                 out.append(self._leave(oldest, Why.OVERTAKEN))
@@ -214,6 +219,7 @@ class StampJoiner:
 
     def _leave(self, stamp: int, why: Why) -> Joined:
         gone = self._pending.pop(stamp)
+        self._complete_stamps.discard(stamp)
         gone.missing, gone.why, gone.previous_ns = self._missing(gone), why, self.last_ns
         self.last_ns, self._expecting = stamp, True
         return gone

@@ -20,6 +20,7 @@ can be judged (``leader`` says the same of the writers tracked so far).
 """
 from __future__ import annotations
 
+import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -117,7 +118,7 @@ class WriterTracks:
 
 
 def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
-                  weights: Sequence[int] | None = None) -> set[int] | None:
+                  weights: Sequence[int] | None = None, *, apart_ties: bool = False) -> set[int] | None:
     """Indices of the messages the leading writer sent, judged over a whole recording; None if
     nothing can be judged or two writers tie.
 
@@ -132,7 +133,9 @@ def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
     that exchange. O(n log n): a Fenwick tree of the best chain over ``sequence - tick``.
 
     Ties: if the heaviest chain among the remaining messages weighs as much, the writers
-    cannot be told apart by their counters (None).
+    cannot be told apart by their counters (None); with ``apart_ties``, unless the two chains'
+    ticks do not interleave (one writer after the other: the heavier-first chain is returned,
+    the other is left for the caller to judge apart).
     """
     n = len(ticks)
     if n == 0:
@@ -147,8 +150,20 @@ def leading_chain(ticks: Sequence[int], sequences: Sequence[int],
     rest = [i for i in range(n) if i not in chain]
     runner_up = _heaviest_chain(ticks, seq, w, rest) if rest else None
     if runner_up is not None and runner_up[1] == weight:
-        return None
+        if not apart_ties or _interleave([ticks[i] for i in chain], [ticks[i] for i in runner_up[0]]):
+            return None
     return chain
+
+
+def _interleave(a: Sequence[int], b: Sequence[int]) -> bool:
+    """Whether two sets of ticks overlap in range (neither lies wholly before the other)."""
+    return not (max(a) < min(b) or max(b) < min(a))
+
+
+# A writer kept beside the leading one (``succession``) has sent at least this many messages:
+# a restarted node publishes on (0.5 s of ticks; 15 s of a 2 Hz map), a stray intruder's
+# plausible message in a silent stretch does not get in.
+SUCCESSOR_MIN_MESSAGES = SAMPLE_RATE_HZ // 2
 
 
 def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
@@ -160,29 +175,46 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
     messages would be refused; and once the new counter passes the old one's last number, its
     tail continues the old chain. So the chain is cut where it is silent for more than
     ``max_silence_ticks`` (a writer that long silent is gone, as those who follow writers live
-    take it: ``WriterTracks``), its longest stretch is kept, and each span of ticks before and
-    after that stretch is judged the same way on its own (its leading chain, cut, its longest
-    stretch, ...). A writer whose ticks interleave with a kept stretch's is an intruder and gets
-    nothing there. ``eligible`` (default: all) says which messages the spans may take (e.g.
-    plausible values only: graph nodes publish nothing else); a span whose writers tie
-    (``leading_chain`` None) keeps nothing. Returns indices into ``ticks``."""
+    take it: ``WriterTracks``) or where, within one of its gaps, messages carry numbers below its
+    own (a counter that started again), its longest stretch is kept, and each span of ticks before and
+    after that stretch is judged the same way on its own (its leading chain, where two tie only
+    if their ticks interleave, cut, its longest stretch, ...). A writer whose ticks interleave
+    with a kept stretch's is an intruder and gets nothing there; one beside it keeps its
+    messages only if it sent at least SUCCESSOR_MIN_MESSAGES and ``eligible`` (default: all)
+    allows them (e.g. plausible values only: graph nodes publish nothing else). What cannot be
+    told apart: an intruder that publishes plausible values, and enough of them, while no writer
+    of the topic does (before its first message, after its last, or in a silence of more than
+    ``max_silence_ticks``), is taken for a restarted writer. Returns indices into ``ticks``."""
     n = len(ticks)
     ok = [True] * n if eligible is None else [bool(e) for e in eligible]
+    seq = _unwrapped([int(x) & SEQUENCE_MASK for x in sequences])
     kept: set[int] = set()
     work: list[tuple[set[int], list[int]]] = [(set(chain), list(range(n)))] if chain else []
+    first = True
     while work:
         found, members = work.pop()
         order = sorted(found, key=lambda i: ticks[i])
+        others = sorted((ticks[i], seq[i]) for i in members if i not in found and ok[i])
+        other_ticks = [t for t, _ in others]
         stretches = [[order[0]]]
         for a, b in zip(order, order[1:]):
-            if ticks[b] - ticks[a] > max_silence_ticks:
+            # a silence, or a counter restarted inside the gap (messages behind the chain's number)
+            lo_i, hi_i = bisect.bisect_right(other_ticks, ticks[a]), bisect.bisect_left(other_ticks, ticks[b])
+            restarted = any(others[k][1] < seq[a] for k in range(lo_i, hi_i))
+            if ticks[b] - ticks[a] > max_silence_ticks or restarted:
                 stretches.append([])
             stretches[-1].append(b)
         best = max(stretches, key=len)
+        if not first and len(best) < SUCCESSOR_MIN_MESSAGES:
+            continue
+        first = False
         kept.update(best)
         lo, hi = ticks[best[0]], ticks[best[-1]]
         for span in ([i for i in members if ok[i] and ticks[i] < lo], [i for i in members if ok[i] and ticks[i] > hi]):
-            if span and (lead := leading_chain([ticks[i] for i in span], [sequences[i] for i in span])) is not None:
+            if len(span) < SUCCESSOR_MIN_MESSAGES:
+                continue
+            lead = leading_chain([ticks[i] for i in span], [sequences[i] for i in span], apart_ties=True)
+            if lead is not None:
                 work.append(({span[j] for j in lead}, span))
     return kept
 

@@ -20,7 +20,8 @@ A run refuses, before simulating anything, to write where a bag of the same name
 --overwrite, or --skip-existing, which keeps those bags and simulates the rest: an interrupted run
 resumed; Ctrl-C keeps the bags finished, never a partial one) or where a killed recorder's journal of that name waits for ``soil_bag_repair``. A
 run into a directory an earlier run wrote keeps that run's record in dataset.json's
-``earlier_runs``, so the file still says what the directory holds.
+``earlier_runs`` (and a resumed run's bags of an interrupted one under ``kept_existing``), so
+the file still says what the directory holds.
 """
 from __future__ import annotations
 
@@ -134,8 +135,10 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         raise ValueError("two episodes have the same soil, I_d, targets and seed (their bags would collide)")
     names = _bag_names(plan.config(), pairs)
     others = _other_bags(plan.out, names)
+    kept: list[str] = []  # bags of the plan that exist and are kept (--skip-existing)
     if plan.skip_existing and not plan.overwrite:
         todo = [i for i, n in enumerate(names) if not is_bag(plan.out / n)]
+        kept = sorted(set(names) - {names[i] for i in todo})
         if len(todo) < len(names):
             print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
                   f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
@@ -183,6 +186,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         "plugins": [str(p) for p in plan.plugins],
         **({"soil_paths": paths} if paths else {}),
         "episode_names": sorted(n for n, _ in results),
+        **({"kept_existing": kept} if kept else {}),  # the plan's bags an earlier, interrupted run wrote
     }
     earlier = _earlier_runs(plan.out / "dataset.json")
     if earlier:
@@ -272,11 +276,12 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     return results
 
 
-def _remove_staging(out: Path) -> None:
-    """The staging directories of bags the pool's end stopped mid-write (``write_episode``'s; a
-    recorder's journal, which soil_bag_repair recovers, is never one of them)."""
-    for staging in out.glob(f"*{PARTIAL_SUFFIX}") if out.is_dir() else ():
-        if staging.is_dir() and not journal_path(staging).exists():
+def _remove_staging(plan: DatasetPlan) -> None:
+    """The staging directories of this plan's bags that the pool's end stopped mid-write (another
+    run's, a recorder's journal and an old bag an --overwrite parked there are left alone)."""
+    for name in _bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs]):
+        staging = plan.out / f"{name}{PARTIAL_SUFFIX}"
+        if staging.is_dir() and not journal_path(staging).exists() and not (staging / "replaced").exists():
             shutil.rmtree(staging, ignore_errors=True)
 
 
@@ -401,6 +406,7 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    plan = None
     try:
         plan = plan_from_args(args)
         if args.workers < 0:
@@ -425,10 +431,12 @@ def main(argv=None) -> int:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2 if getattr(exc, "bad_input", False) else 1
     except KeyboardInterrupt:  # the bags finished are whole (write_episode renames a finished bag into place)
-        if args.out is not None:
-            _remove_staging(args.out)
-        print(f"soil_sim_batch: interrupted; the bags finished under {args.out or 'the --out directory'} are kept "
-              "(the same command with --skip-existing simulates the rest)", file=sys.stderr)
+        if plan is None:
+            print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
+            return 130
+        _remove_staging(plan)
+        print(f"soil_sim_batch: interrupted; the bags finished under {plan.out} are kept (the same command with "
+              "--skip-existing simulates the rest)", file=sys.stderr)
         return 130
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
