@@ -20,6 +20,7 @@ import yaml
 
 from soil_bag_tools import bag_io, journal, recorder
 from soil_msgs_py import messages as M
+from soil_msgs_py.topics import ESTIMATE_FIELDS
 from tests.soil_bag_tools.test_bag_tools import (  # noqa: F401 - listener is a fixture
     SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, next_domain_id, reap, start,
 )
@@ -321,98 +322,82 @@ def test_a_restarted_estimator_is_recorded_after_its_predecessor_but_an_intruder
     assert recorder_info(bag)["conflicts"] == {T.ESTIMATE.name: len(intrusions)}
 
 
+class EndedEpisode:
+    """The sample's first ``n`` ticks recorded with /soil/estimate as an extra topic on a fake
+    clock (``now``), the episode ended; ``early`` estimates (of its first ticks) came before its
+    end. ``estimate(k)`` sends tick k's estimate, ``stamps`` are the ticks' stamps."""
+
+    def __init__(self, tmp_path, n: int, early: int = 0):
+        from soil_msgs_py import topics as T
+
+        loaded, start_ev, end_ev = _events(SAMPLE)
+        msgs = loaded.messages[: 10 * n]
+        self.now, self.log, self.topic = [0.0], ListLog(), T.ESTIMATE.name
+        self.rec = recorder.Recorder(tmp_path, {**loaded.topics, self.topic: T.ESTIMATE.msgtype}, log=self.log,
+                                     end_grace_s=4.0, clock=lambda: self.now[0])
+        self.feed = Feed(self.rec)
+        self.stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+        self.rec.on_status(start_ev.to_json())
+        for _, topic, raw in msgs:
+            self.feed.send("sim", topic, raw)
+        for k in range(early):
+            self.estimate(k)
+        self.rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n).to_json())
+
+    def estimate(self, k: int) -> None:
+        self.feed.send("estimator", self.topic, _estimate(self.stamps[k], float(k)))
+
+    def recorded(self) -> list[int]:
+        (result,) = self.rec.finished
+        return bag_io.read_labelled_topic(result.path, self.topic, ESTIMATE_FIELDS)[0].tolist()
+
+
 def test_a_lagging_estimator_still_streaming_is_not_cut_off(tmp_path):
     """The episode's ticks are complete; the estimator's estimates keep coming (a loaded
     machine), for longer than the end grace (5.8 s): the bag waits while they flow and closes
     once they were quiet for the grace."""
-    from soil_msgs_py import topics as T
-
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    n = 30
-    msgs = loaded.messages[: 10 * n]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    now = [0.0]
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for _, topic, raw in msgs:
-        feed.send("sim", topic, raw)
-    rec.on_status(end_ev.to_json())
-    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
-    for k, t in enumerate(clock_stamps[:-1]):  # every tick but the last, each 0.2 s after the previous
-        now[0] += 0.2
-        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
-        assert rec.poll() == [], f"closed while estimates still came, at tick {k}"
-    now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # the last tick's estimate never comes
-    (result,) = rec.poll()
-    stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
-    assert stamps.tolist() == clock_stamps[:-1]
+    ep = EndedEpisode(tmp_path, 30)
+    for k in range(29):  # every tick but the last, each 0.2 s after the previous
+        ep.now[0] += 0.2
+        ep.estimate(k)
+        assert ep.rec.poll() == [], f"closed while estimates still came, at tick {k}"
+    ep.now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # the last tick's estimate never comes
+    ep.rec.poll()
+    assert ep.recorded() == ep.stamps[:-1]
 
 
 def test_a_lagging_estimator_that_pauses_between_bursts_is_not_cut_off(tmp_path):
     """An estimator seconds behind on a loaded machine sends its estimates in bursts: a pause of
     more than the short quiet grace while it is still far behind the last tick does not end the
     bag; once it is near the end, the short grace does."""
-    from soil_msgs_py import topics as T
-
-    loaded, start_ev, end_ev = _events(SAMPLE)
     n = 180
-    msgs = loaded.messages[: 10 * n]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    now = [0.0]
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
-    for _, topic, raw in msgs:
-        feed.send("sim", topic, raw)
-    for k, t in enumerate(clock_stamps[:10]):  # the estimator's first estimates came during the episode
-        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
-    rec.on_status(end_ev.to_json())
-    for k, t in enumerate(clock_stamps[:-1]):
-        if k < 10:
-            continue
-        now[0] += 1.5 if k in (10, 60, 100) else 0.01  # 1.5 s pauses while more than 1 s behind the last tick
-        rec.poll()
-        assert not rec.finished, f"closed at tick {k} while the estimator was {(n - k) / 60:.1f} s behind"
-        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
-    now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # near the end: the short grace
-    (result,) = rec.poll()
-    stamps, _ = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
-    assert stamps.tolist() == clock_stamps[:-1]
+    ep = EndedEpisode(tmp_path, n, early=10)  # its first estimates came during the episode
+    for k in range(10, n - 1):
+        ep.now[0] += 1.5 if k in (10, 60, 100) else 0.01  # 1.5 s pauses while more than 1 s behind the last tick
+        ep.rec.poll()
+        assert not ep.rec.finished, f"closed at tick {k} while the estimator was {(n - k) / 60:.1f} s behind"
+        ep.estimate(k)
+    ep.now[0] += recorder.EXTRA_TOPIC_GRACE_S + 0.01  # near the end: the short grace
+    ep.rec.poll()
+    assert ep.recorded() == ep.stamps[:-1]
 
 
 def test_extras_that_never_stop_are_cut_at_the_lag_limit_with_a_warning(tmp_path):
     """An estimator so far behind that its estimates keep coming, each within the quiet grace of
     the last, cannot hold the bag open for ever: it is finished at the lag limit, with what came
     by then and a warning naming the short topic."""
-    from soil_msgs_py import topics as T
-
-    loaded, start_ev, end_ev = _events(SAMPLE)
     n = 150  # more ticks than arrive within the lag limit, one per 0.9 of the quiet grace
-    msgs = loaded.messages[: 10 * n]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    now, log = [0.0], ListLog()
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=log,
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for _, topic, raw in msgs:
-        feed.send("sim", topic, raw)
-    rec.on_status(end_ev.to_json())
-    clock_stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    ep = EndedEpisode(tmp_path, n)
     sent = 0
-    for k, t in enumerate(clock_stamps):
-        now[0] += recorder.EXTRA_TOPIC_GRACE_S * 0.9
-        feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(k)))
-        rec.poll()
-        if rec.finished:
+    for k in range(n):
+        ep.now[0] += recorder.EXTRA_TOPIC_GRACE_S * 0.9
+        ep.estimate(k)
+        ep.rec.poll()
+        if ep.rec.finished:
             break
         sent += 1
-    assert rec.finished and recorder.EXTRA_TOPIC_LAG_LIMIT_S <= now[0] < recorder.EXTRA_TOPIC_LAG_LIMIT_S + 1.0, now
+    assert ep.rec.finished and recorder.EXTRA_TOPIC_LAG_LIMIT_S <= ep.now[0] < recorder.EXTRA_TOPIC_LAG_LIMIT_S + 1.0
     assert sent < n - 1
-    stamps, _ = bag_io.read_labelled_topic(rec.finished[0].path, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
-    assert stamps.tolist() == clock_stamps[:len(stamps)] and len(stamps) >= sent
-    assert any("still arriving" in m and T.ESTIMATE.name in m for lvl, m in log.lines if lvl == "warning"), log.lines
+    got = ep.recorded()
+    assert got == ep.stamps[:len(got)] and len(got) >= sent
+    assert any("still arriving" in m and ep.topic in m for lvl, m in ep.log.lines if lvl == "warning"), ep.log.lines
