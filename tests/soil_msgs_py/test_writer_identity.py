@@ -129,3 +129,15 @@ def test_succession_cuts_a_chain_where_a_restarted_counter_runs_inside_its_gap()
     assert succession(ticks, seqs, lead) == set(range(140))
     # the same numbers from a writer not eligible (an intruder's garbage) cut nothing
     assert succession(ticks, seqs, lead, [i < 40 or i >= 80 for i in range(140)]) == lead
+
+
+def test_a_second_publisher_in_the_ticks_a_writer_skips_does_not_cut_it_up():
+    """A writer that skips every 10th tick, and a second publisher (its own counter, lower numbers)
+    whose messages land in those skipped ticks: a few messages behind the writer's number in each
+    gap are no restarted counter, so the writer is kept whole and the second publisher's refused."""
+    writer = [k for k in range(300) if k % 10 != 5]
+    ticks = writer + [k for k in range(300) if k % 10 == 5]
+    seqs = list(range(1000, 1000 + len(writer))) + list(range(1, 31))
+    lead = leading_chain(ticks, seqs)
+    assert lead == set(range(len(writer)))
+    assert succession(ticks, seqs, lead) == lead

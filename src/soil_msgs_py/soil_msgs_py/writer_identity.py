@@ -175,8 +175,8 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
     messages would be refused; and once the new counter passes the old one's last number, its
     tail continues the old chain. So the chain is cut where it is silent for more than
     ``max_silence_ticks`` (a writer that long silent is gone, as those who follow writers live
-    take it: ``WriterTracks``) or where, within one of its gaps, messages carry numbers below its
-    own (a counter that started again), its longest stretch is kept, and each span of ticks before and
+    take it: ``WriterTracks``) or where, within one of its gaps, SUCCESSOR_MIN_MESSAGES or more
+    carry numbers below its own (a counter that started again), its longest stretch is kept, and each span of ticks before and
     after that stretch is judged the same way on its own (its leading chain, where two tie only
     if their ticks interleave, cut, its longest stretch, ...). A writer whose ticks interleave
     with a kept stretch's is an intruder and gets nothing there; one beside it keeps its
@@ -198,9 +198,11 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
         other_ticks = [t for t, _ in others]
         stretches = [[order[0]]]
         for a, b in zip(order, order[1:]):
-            # a silence, or a counter restarted inside the gap (messages behind the chain's number)
+            # a silence, or a counter restarted inside the gap: as many messages there as a successor
+            # needs, numbered behind the chain (fewer, e.g. a second publisher's in ticks the writer
+            # skipped, must not cut the writer into stretches too short to keep)
             lo_i, hi_i = bisect.bisect_right(other_ticks, ticks[a]), bisect.bisect_left(other_ticks, ticks[b])
-            restarted = any(others[k][1] < seq[a] for k in range(lo_i, hi_i))
+            restarted = sum(others[k][1] < seq[a] for k in range(lo_i, hi_i)) >= SUCCESSOR_MIN_MESSAGES
             if ticks[b] - ticks[a] > max_silence_ticks or restarted:
                 stretches.append([])
             stretches[-1].append(b)
