@@ -9,7 +9,6 @@ repair of truncated journals.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -10,7 +10,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, wait_until
+from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id
 from soil_physics import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
