@@ -73,9 +73,8 @@ class EstimatorNode(Node):
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
         # the shipped calibration of the checkpoint's world unless a config is given (its world unknown: None)
-        fusion_path = get("fusion_config")
-        fusion, self.fusion_world = estimator_fusion(fusion_path, ckpt)
-        self.fusion_source = fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
+        self.fusion_path = get("fusion_config")
+        fusion, self.fusion_world = estimator_fusion(self.fusion_path, ckpt)
         self._worlds_warned: set[str] = set()
         self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
                                     warn=self._warn, fusion=fusion, publish_map=self._publish_map)
@@ -121,7 +120,6 @@ class EstimatorNode(Node):
             fusion = None  # a config chosen by the checkpoint's world follows the new checkpoint's
             if self.fusion_world is not None and checkpoint_world(model[1]) != self.fusion_world:
                 fusion, self.fusion_world = estimator_fusion("", model[1])
-                self.fusion_source = f"{config_path(self.fusion_world)} (the checkpoint's world)"
                 self._worlds_warned.clear()
             self.core.set_model(model[0], fusion)
             self.checkpoint_path = model[2]
@@ -145,6 +143,11 @@ class EstimatorNode(Node):
             self.silence.end()
             if event.last_stamp_ns >= 0:
                 self.core.end_episode(event.last_stamp_ns)
+
+    @property
+    def fusion_source(self) -> str:
+        """Where the soil posterior's config came from, for the log."""
+        return self.fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
 
     def _say_if_other_world(self, event) -> None:
         """Once per world: an episode of a world other than the one whose shipped calibration the

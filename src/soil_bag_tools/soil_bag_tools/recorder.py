@@ -405,11 +405,14 @@ class Recorder:
         if now - s.ticks_done_since < limit:
             return False
         if ("lag_limit", "") not in s.warned:  # (_complete is asked more than once per poll)
-            short = {t: s.topic_max.get(t) for t in self.topics if not s.topic_done(t)}
             self._warn(s, "lag_limit", "", f"extra topics still arriving {limit:g} s after the episode's ticks "
                                            f"were complete; finished without the rest (last stamp received, want "
-                                           f"{s.last_stamp_ns}): {short}")
+                                           f"{s.last_stamp_ns}): {self._short_topics(s)}")
         return True
+
+    def _short_topics(self, s: Session) -> dict[str, int | None]:
+        """The topics that have not reached the episode's last stamp, with the last stamp received."""
+        return {t: s.topic_max.get(t) for t in self.topics if not s.topic_done(t)}
 
     def _finish(self, s: Session, how: str) -> BagResult | None:
         """Close the journal and convert it; on failure the journal stays for soil_bag_repair."""
@@ -421,9 +424,8 @@ class Recorder:
             self.log.error(f"{s.name}: closing the journal failed ({err!r}); run soil_bag_repair {partial}")
             return None
         if how == "grace_timeout":
-            short = {t: s.topic_max.get(t) for t in self.topics if not s.topic_done(t)}
             self.log.warning(f"{s.name}: end grace {self.end_grace_s} s expired; short topics "
-                             f"(last stamp received, want {s.last_stamp_ns}): {short}")
+                             f"(last stamp received, want {s.last_stamp_ns}): {self._short_topics(s)}")
         if s.total == 0:
             shutil.rmtree(partial, ignore_errors=True)
             self.log.warning(f"{s.name}: no message recorded; no bag written")

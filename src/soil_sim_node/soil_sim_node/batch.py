@@ -137,8 +137,9 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     others = _other_bags(plan.out, names)
     kept: list[str] = []  # bags of the plan that exist and are kept (--skip-existing)
     if plan.skip_existing and not plan.overwrite:
-        todo = [i for i, n in enumerate(names) if not is_bag(plan.out / n)]
-        kept = sorted(set(names) - {names[i] for i in todo})
+        exists = [is_bag(plan.out / n) for n in names]
+        todo = [i for i, e in enumerate(exists) if not e]
+        kept = sorted(n for n, e in zip(names, exists) if e)
         if len(todo) < len(names):
             print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
                   f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
