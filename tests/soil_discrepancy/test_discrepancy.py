@@ -88,8 +88,11 @@ class _Forbidden:
 
 
 def blind(bag_dir: Path):
-    """The dataset as a real machine would give it: no ground truth, no record of the simulator's effects."""
-    ds = load_dataset(bag_dir, cache=False, workers=2)
+    """The dataset as a real machine would give it: no ground truth, no record of the simulator's effects.
+
+    Read through the dataset cache (keyed by the bags' bytes, as the CLI reads them): a module's
+    tests read one directory many times, and reading its bags costs seconds each time."""
+    ds = load_dataset(bag_dir, workers=2)
     metas = [dataclasses.replace(m, plugins=[], effects=[]) for m in ds.metas]
     return dataclasses.replace(ds, truth=_Forbidden(), metas=metas)
 
