@@ -221,8 +221,8 @@ def test_control_gives_no_effect_through_the_cli_from_a_simulators_and_a_machine
     assert not read_episode(next(iter(find_episode_bags(machine)))).has_ground_truth
     reps = {}
     for name, bags in (("control", bag_dirs["control"]), ("machine", machine)):
-        assert cli_main([str(bags), "--out", str(tmp_path / name), "--stride", "3", "--workers", "2", "--quiet",
-                         "--no-plots", "--no-cache"]) == 0
+        assert cli_main([str(bags), "--out", str(tmp_path / name), "--stride", "6", "--workers", "2", "--quiet",
+                         "--no-plots"]) == 0
         reps[name] = json.loads((tmp_path / name / "discrepancy.json").read_text())
     rep = reps["control"]
     assert rep["selection"]["accepted"] == [] and rep["model"]["terms"] == []
@@ -564,7 +564,7 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
     has a better physics part (F̂ − F_r) on the held-out episodes; --hidden only checks the answer."""
     out = tmp_path / "inertia"
     assert cli_main([str(bag_dirs["soil_inertia"]), "--out", str(out), "--stride", "3", "--workers", "2", "--quiet",
-                     "--no-plots", "--no-cache", "--pinn-epochs", "4", "--hidden", "soil_inertia=4"]) == 0
+                     "--no-plots", "--pinn-epochs", "4", "--hidden", "soil_inertia=4"]) == 0
     rep = json.loads((out / "discrepancy.json").read_text())
     pinn = rep["test"]["predictors"]["PINN"]
     split, held = pinn["split"], set(rep["data"]["test_episodes"])
@@ -584,8 +584,8 @@ def test_cli_retrains_the_pinn_with_the_named_effect_and_checks_the_hidden_one(b
     md = (out / "discrepancy.md").read_text()
     assert "PINN retrained with the named effect" in md and "Check against the hidden effect" in md
     assert "named ['soil_inertia']" in capsys.readouterr().out
-    assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "c"), "--stride", "3", "--quiet", "--no-plots",
-                     "--no-cache", "--pinn-epochs", "4", "--hidden", "none"]) == 0
+    assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "c"), "--stride", "6", "--workers", "2", "--quiet",
+                     "--no-plots", "--pinn-epochs", "4", "--hidden", "none"]) == 0
     ctl = json.loads((tmp_path / "c" / "discrepancy.json").read_text(), parse_constant=_not_strict)  # with --hidden too
     assert ctl["hidden_check"]["correct"] and "skipped" in ctl["test"]["predictors"]["PINN"]
 

@@ -116,7 +116,7 @@ def test_a_term_of_the_users_catalogue_is_tested_and_said_under_the_users_name(f
     mine.write_text(f"terms:\n- term: {form}\n  name: my entry drag\n")
     out = tmp_path / "o"
     assert cli_main([str(form_data["entry"]), "--out", str(out), "--catalogue", str(mine), "--stride", "8",
-                     "--no-forms", "--no-plots", "--no-cache", "--quiet", "--workers", "2"]) == 0
+                     "--no-forms", "--no-plots", "--quiet", "--workers", "2"]) == 0
     rep = json.loads((out / "discrepancy.json").read_text())
     assert rep["settings"]["user_terms"] == {form: "my entry drag"} and form in rep["settings"]["candidates"]
     named = form in {a["name"] for a in rep["selection"]["accepted"]}
