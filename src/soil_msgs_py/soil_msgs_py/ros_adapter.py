@@ -26,6 +26,7 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -44,8 +45,13 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
     where the default alone cannot give the type (an empty list). ``get`` reads the current value:
     ``default`` where such a parameter was declared by its type and never given a value.
     """
+    doubles = {name for name, (default, *_) in table.items() if isinstance(default, float)}
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy's (no public API): what -p and params files gave it
+    for name in doubles & set(overrides):
+        overrides[name] = as_double(overrides[name])
     for name, (default, description, *typed) in table.items():
         node.declare_parameter(name, typed[0] if typed else default, ParameterDescriptor(description=description))
+    node.add_pre_set_parameters_callback(lambda params: [as_double(p) if p.name in doubles else p for p in params])
     for text in unknown_parameter_warnings(node):
         node.get_logger().warning(text)
 
@@ -56,6 +62,17 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
             return table[name][0]
 
     return get
+
+
+def as_double(parameter: Parameter) -> Parameter:
+    """An INTEGER parameter as the DOUBLE of the same value; any other unchanged.
+
+    Why: a parameter declared with a float default is typed DOUBLE, and rclpy refuses
+    ``-p margin:=1`` or a run-time set to 1 as "of type INTEGER, expecting type DOUBLE", though
+    1 is a valid margin. YAML and the command line write whole numbers without a point."""
+    if parameter.type_ == Parameter.Type.INTEGER:
+        return Parameter(parameter.name, Parameter.Type.DOUBLE, float(parameter.value))
+    return parameter
 
 
 def unknown_parameter_warnings(node: Node) -> list[str]:

@@ -202,7 +202,8 @@ class PlannerNode(Node):
         self.create_timer(0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
         p = self.planner
         self.get_logger().info(
-            f"margin {p.margin}, d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
+            f"margin {p.margin}, force quantile {p.force_quantile if p.force_quantile is not None else 'none (the point plan)'}, "
+            f"d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
             f"residual {'on' if p.include_residual else 'off'}, physics FEE"
             f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
