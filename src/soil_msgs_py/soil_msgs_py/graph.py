@@ -92,14 +92,25 @@ TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
 
 
+# Latched topics: the writer keeps what it sent for a reader that joins later (TRANSIENT_LOCAL,
+# like a map server's /map). Each /soil/map holds every cell learnt so far and is sent only after
+# a stretch of evidence, so a planner of a later pass started after the cut got no map at all.
+# Readers keep the graph's VOLATILE (a VOLATILE reader matches a TRANSIENT_LOCAL writer); one that
+# wants the newest map on joining subscribes TRANSIENT_LOCAL. A recorder stays VOLATILE: a
+# restarted one must not write a past episode's maps into the episode it joins.
+LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name,)
+
+
 def publisher_qos_spec(topic: str) -> QosSpec:
     """What a node publishes ``topic`` with (and so what a bag records as offered): the
-    graph's QoS with a writer history as deep as a recorder's reader (``RECORDER_QOS``). A
-    KEEP_LAST writer overwrites samples a reliable reader has not acknowledged yet, so with
-    the graph's depth a reader starved of CPU for a moment while a lockstep graph runs far
-    above 60 Hz would lose them; with this depth they are re-sent."""
+    graph's QoS with a writer history as deep as a recorder's reader (``RECORDER_QOS``), and
+    TRANSIENT_LOCAL for ``LATCHED_TOPICS``. A KEEP_LAST writer overwrites samples a reliable
+    reader has not acknowledged yet, so with the graph's depth a reader starved of CPU for a
+    moment while a lockstep graph runs far above 60 Hz would lose them; with this depth they
+    are re-sent."""
     spec = TOPIC_QOS.get(topic, DATA_QOS)
-    return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
+    spec = dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
+    return dataclasses.replace(spec, durability="transient_local") if topic in LATCHED_TOPICS else spec
 
 
 # Topics the simulator publishes each tick (state, force, Θ_k, Θ, /clock) and the commands it reads.
