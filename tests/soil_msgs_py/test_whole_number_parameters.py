@@ -25,6 +25,7 @@ def test_a_node_started_with_whole_numbers_for_float_parameters_runs_with_those_
     try:
         assert bad.wait(timeout=60) == 2, bad.output
         assert "d_max_m" in bad.output and "expecting type" not in bad.output, bad.output
+        assert "[soil_planner]: cannot start: " in bad.output, bad.output  # the refusal under the node's name
     finally:
         bad.stop()
 

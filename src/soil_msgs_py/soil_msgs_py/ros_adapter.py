@@ -426,7 +426,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
     except (ValueError, ParameterException) as err:  # a bad parameter value or type
         if node is not None:
             raise
-        rclpy.logging.get_logger("spin_node").error(f"cannot start: {err}")
+        rclpy.logging.get_logger(_program(argv)).error(f"cannot start: {err}")
         code = EXIT_BAD_CONFIG
     finally:
         try:
