@@ -523,8 +523,13 @@ def test_train_function_keeps_best_validation_model(tiny_ds):
     assert metrics["best_epoch"] == 1 + int(np.argmin(history["val_loss"]))
 
 
-def _interrupt_in_epoch(monkeypatch, epoch: int) -> None:
-    """Ctrl-C while epoch ``epoch`` validates (as a SIGINT raises it in the main thread)."""
+def _interrupt_in_epoch(monkeypatch, epoch: int, sigterm: bool = False) -> None:
+    """Ctrl-C while epoch ``epoch`` validates (as a SIGINT raises it in the main thread); with
+    ``sigterm`` a real SIGTERM to this process instead (pinn_train's handler raises it there)."""
+    import os
+    import signal
+    import time
+
     from pinn_estimator import train as train_module
 
     real, calls = train_module._agree, [0]
@@ -532,6 +537,9 @@ def _interrupt_in_epoch(monkeypatch, epoch: int) -> None:
     def agree(*args, **kwargs):
         calls[0] += 1
         if calls[0] == epoch:
+            if sigterm:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5.0)  # the handler raises within this
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
@@ -553,6 +561,21 @@ def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_b
     first = tmp_path / "first.pt"
     _interrupt_in_epoch(monkeypatch, 1)
     assert train_main([*args[:3], str(first), *args[4:]]) == 130
+    assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
+
+
+def test_sigterm_keeps_the_best_model_so_far_like_ctrl_c(tiny_bags, tmp_path, monkeypatch, capsys):
+    """SIGTERM (`timeout`, a scheduler, a container runtime) killed the training at once, losing
+    every epoch; now it takes the Ctrl-C path: the best model kept, before one exit 143."""
+    out = tmp_path / "m.pt"
+    args = ["--data", str(tiny_bags), "--out", str(out), "--epochs", "5", "--stride", "6", "--quiet", "--no-cache",
+            "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1"]
+    _interrupt_in_epoch(monkeypatch, 3, sigterm=True)
+    assert train_main(args) == 0
+    assert torch.load(out, weights_only=True)["metrics"]["stop_reason"] == "interrupted (SIGTERM) in epoch 3"
+    first = tmp_path / "first.pt"
+    _interrupt_in_epoch(monkeypatch, 1, sigterm=True)
+    assert train_main([*args[:3], str(first), *args[4:]]) == 143
     assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
 
 

@@ -131,3 +131,34 @@ def test_ctrl_c_removes_only_this_runs_staging_and_says_it_in_one_line(tmp_path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "interrupted; the bags finished under" in err and "--skip-existing" in err, err
     assert not mine.parent.exists() and theirs.exists() and journal.exists()
+
+
+def test_sigterm_ends_the_batch_like_ctrl_c_and_leaves_no_worker_writing(tmp_path):
+    """SIGTERM (what `timeout`, a scheduler or a container runtime sends) takes the Ctrl-C path:
+    one line, exit 143, the finished bags kept, no staging left, and the pool's workers stopped
+    with it (before, the batch died at once and silently, its orphaned workers writing bags on)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
+           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
+           "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not find_episode_bags(out) if out.exists() else True:
+            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert err.count("\n") == 1 and "interrupted (SIGTERM); the bags finished under" in err, err
+    kept = {b.name for b in find_episode_bags(out)}
+    assert 0 < len(kept) < 32 and not list(out.glob("*.partial")), (kept, list(out.iterdir()))
+    time.sleep(3.0)
+    assert {b.name for b in find_episode_bags(out)} == kept and not list(out.glob("*.partial"))  # nothing writes on

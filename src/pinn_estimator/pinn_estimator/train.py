@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from soil_msgs_py.interrupts import interrupt_exit_code, interrupt_name, terminate_as_interrupt
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.cli_paths import output_file
@@ -238,10 +239,10 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             if elapsed > 60 * cfg.max_minutes:
                 stop_reason = f"time budget of {cfg.max_minutes} min reached"
                 break
-    except KeyboardInterrupt:  # Ctrl-C: keep the best model so far, as the time budget does (one process)
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: keep the best model so far, as the time budget does (one process)
         if ranks.active or best[1] is None:
             raise
-        stop_reason = f"interrupted (Ctrl-C) in epoch {epoch}"
+        stop_reason = f"interrupted ({interrupt_name(exc)}) in epoch {epoch}"
         rows = min(len(v) for v in history.values())  # an epoch whose history was half written
         for values in history.values():
             del values[rows:]
@@ -360,16 +361,17 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             from .checkpoint import read_checkpoint
 
             split = read_checkpoint(args.split_from)["split"]
-        model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet and ranks.main,
-                                               log=print if ranks.main else _silent, ranks=ranks)
+        with terminate_as_interrupt():  # SIGTERM (timeout, a scheduler) as Ctrl-C: the best model so far is kept
+            model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet and ranks.main,
+                                                   log=print if ranks.main else _silent, ranks=ranks)
     except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if type(err) is RuntimeError else 2
-    except KeyboardInterrupt:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
+    except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
         if ranks.main:
             print("pinn_train: interrupted; nothing written", file=sys.stderr)
-        return 130
+        return interrupt_exit_code(exc)
     if not ranks.main:
         return 0
     out = Path(args.out)

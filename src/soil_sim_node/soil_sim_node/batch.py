@@ -42,6 +42,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
+from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, default_sigterm, interrupt_exit_code, interrupt_name,
+                                     terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
@@ -288,6 +290,7 @@ def _remove_staging(plan: DatasetPlan) -> None:
 
 def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    default_sigterm()
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
@@ -424,21 +427,23 @@ def main(argv=None) -> int:
         if unused and args.soils is None and not plan.specs[0].patches:
             print(f"soil_sim_batch: warning: --soil-file's soils {unused} are not simulated without --soils naming "
                   f"them (e.g. --soils {','.join(unused)}); the catalogue's are", file=sys.stderr)
-        summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
+        with terminate_as_interrupt():
+            summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2
     except (ChunksFailed, RuntimeError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2 if getattr(exc, "bad_input", False) else 1
-    except KeyboardInterrupt:  # the bags finished are whole (write_episode renames a finished bag into place)
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
+        how = "" if interrupt_exit_code(exc) == EXIT_INTERRUPTED else f" ({interrupt_name(exc)})"
         if plan is None:
-            print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
-            return 130
+            print(f"soil_sim_batch: interrupted{how} before anything was written", file=sys.stderr)
+            return interrupt_exit_code(exc)
         _remove_staging(plan)
-        print(f"soil_sim_batch: interrupted; the bags finished under {plan.out} are kept (the same command with "
+        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept (the same command with "
               "--skip-existing simulates the rest)", file=sys.stderr)
-        return 130
+        return interrupt_exit_code(exc)
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
         f"({summary['simulated_s_per_wall_s']:.0f} simulated s per wall s, "
