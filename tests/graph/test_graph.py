@@ -411,7 +411,7 @@ def test_a_force_plugin_that_fails_mid_episode_ends_it_in_error_and_the_node_goe
 
 
 @pytest.mark.parametrize("param, needle", [
-    ("duration_s:=5", "duration_s"),  # an integer for a double parameter
+    ("duration_s:=abc", "duration_s"),  # a string for a double parameter (a whole number is taken as the float)
     ("soil:=Mud", "Mud"),
     ("pacing:=sometimes", "pacing='sometimes'"),
     ("wait_for:=['/nowhere:1']", "wait_for entry '/nowhere:1'"),
