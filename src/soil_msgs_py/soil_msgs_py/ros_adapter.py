@@ -2,7 +2,8 @@
 
 * ``qos_profile(spec)`` / ``topic_qos(name)``: graph.QosSpec -> rclpy QoSProfile.
 * ``message_class(msgtype)``: "pkg/msg/Name" -> the installed Python message class.
-* ``declare_parameters(node, table)``: a node's parameter table declared, with descriptions.
+* ``declare_parameters(node, table)``: a node's parameter table declared, with descriptions (a whole
+  number given for a float parameter taken as that float).
 * ``spin_node(factory, args)``: the Jazzy entry-point pattern (init, spin, clean shutdown
   on Ctrl-C / SIGTERM / external shutdown) so every node's ``main`` is two lines; given the
   node's parameter table it also answers ``--help`` and refuses arguments that are not ROS ones.
