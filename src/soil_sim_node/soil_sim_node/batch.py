@@ -42,7 +42,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
-from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, default_sigterm, interrupt_exit_code, interrupt_name,
+from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import output_dir
@@ -271,7 +271,7 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
         # would outlive it, with Ray's path in its command line)
         # the workers ignore Ctrl-C (no traceback from each): this process takes it and the pool's
         # end stops them (a bag half written is staged apart, never in place)
-        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs))), initializer=_ignore_sigint) as pool:
+        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs))), initializer=_pool_worker_signals) as pool:
             for done in pool.imap_unordered(_run_chunk, jobs):
                 results += done
                 bar.update(len(done))
@@ -288,7 +288,9 @@ def _remove_staging(plan: DatasetPlan) -> None:
             shutil.rmtree(staging, ignore_errors=True)
 
 
-def _ignore_sigint() -> None:
+def _pool_worker_signals() -> None:
+    """A pool worker ignores Ctrl-C (the parent handles it and ends the pool) and dies on SIGTERM
+    (what ``Pool.terminate`` sends), whatever handler it inherited."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     default_sigterm()
 
@@ -436,10 +438,10 @@ def main(argv=None) -> int:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2 if getattr(exc, "bad_input", False) else 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
-        how = "" if interrupt_exit_code(exc) == EXIT_INTERRUPTED else f" ({interrupt_name(exc)})"
-        if plan is None:
-            print(f"soil_sim_batch: interrupted{how} before anything was written", file=sys.stderr)
-            return interrupt_exit_code(exc)
+        if plan is None:  # (a SIGTERM is taken as an interrupt only once the plan is made)
+            print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
         _remove_staging(plan)
         print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept (the same command with "
               "--skip-existing simulates the rest)", file=sys.stderr)
