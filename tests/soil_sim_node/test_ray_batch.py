@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -95,22 +96,28 @@ def _stop(pids: set[int]) -> None:
         pids = wait_gone(pids, 20.0)
 
 
-@pytest.mark.timeout(300)
-def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running(tmp_path):
+@pytest.mark.timeout(360)
+def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_lost_cluster_is_said(tmp_path):
+    """The user's cluster listens on loopback alone (started with RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0);
+    the driver is run without that variable, as a user would (Ray's driver had dialled the
+    machine's routable address for ever). Then a run whose cluster is stopped midway: Ray's
+    driver aborted the process after 60 s without a word and left a half-written bag."""
     port = _free_port()
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
-           "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}  # the user's cluster, on loopback
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token",
+           "RAY_AUTH_TOKEN": secrets.token_hex(32)}
+    env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)
     before = ray_processes()
-    started = subprocess.run([str(Path(sys.executable).with_name("ray")), "start", "--head", "--node-ip-address",
-                              "127.0.0.1", "--port", str(port), "--num-cpus", "2", "--include-dashboard", "false",
-                              "--disable-usage-stats"], env=env, capture_output=True, text=True, timeout=180)
+    started = subprocess.run([str(Path(sys.executable).with_name("ray")), "start", "--head", "--port", str(port),
+                              "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats"],
+                             env={**env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"},  # the user's cluster, on loopback
+                             capture_output=True, text=True, timeout=180)
     cluster = ray_processes() - before
     try:
         assert started.returncode == 0, started.stderr[-2000:]
         listening = listening_addresses(cluster)
         assert listening and all(is_loopback(ip) for _, ip in listening), listening
         run = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "ray"),
-                              "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=240)
+                              "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=120)
         assert run.returncode == 0, run.stderr[-2000:]
         local = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "pool")],
                                env=env, capture_output=True, text=True, timeout=240)
@@ -119,6 +126,26 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running(tmp_pa
         assert sorted(pool) == sorted(ray) and all(pool[n] == ray[n] for n in pool if n != "dataset.json")
         servers = {pid for pid in cluster if _name(pid) in ("gcs_server", "raylet")}
         assert len(servers) == 2 and servers <= ray_processes(), "the user's cluster was stopped"
+
+        out = tmp_path / "lost"
+        longer = [*SMALL, "--seeds", "16", "--duration", "10.0"]  # 64 episodes, 16 per task
+        lost = subprocess.Popen([sys.executable, "-m", "soil_sim_node.batch", *longer, "--out", str(out),
+                                 "--ray", f"127.0.0.1:{port}"], env=env, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            while not (out.is_dir() and find_episode_bags(out)) and lost.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert lost.poll() is None, "the run ended before its cluster was stopped"
+            _stop(cluster)
+            err = lost.communicate(timeout=120)[1]
+        finally:
+            lost.kill()
+        assert lost.returncode == 1, err[-2000:]
+        assert "has refused connections for 20 s" in err and "--skip-existing" in err, err[-2000:]
+        assert "soil_sim_batch: error:" in err and "Ray tasks failed" in err, err[-2000:]
+        written = find_episode_bags(out)
+        assert 0 < len(written) < 64 and not (out / "dataset.json").exists()
+        assert not [p for p in out.iterdir() if p.name.endswith(".partial")], sorted(p.name for p in out.iterdir())
     finally:
         _stop(cluster)
 

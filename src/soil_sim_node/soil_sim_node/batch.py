@@ -53,7 +53,7 @@ from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
 
 from .effects import Effects, effects_for_mode
-from .ray_cluster import LOCAL as LOCAL_RAY, add_ray_option, cluster_cpus, ray_session, run_tasks
+from .ray_cluster import LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus, ray_session, run_tasks
 from .rollout import episode_meta, run_episodes
 from .simulator import ENGINES, Dynamics, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
@@ -166,6 +166,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             done = run_tasks(_run_chunk, [(base, c) for c in chunks],
                              on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)))
         bar.close()
+        if any(isinstance(r, Exception) for r in done):
+            _remove_staging(plan)  # bags dead or given-up tasks were writing
         _raise_failed(plan, chunks, done)
         results = [r for chunk_result in done for r in chunk_result]
     else:
@@ -280,7 +282,7 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
 
 
 def _remove_staging(plan: DatasetPlan) -> None:
-    """The staging directories of this plan's bags that the pool's end stopped mid-write (another
+    """The staging directories of this plan's bags a stopped run left mid-write (another
     run's, a recorder's journal and an old bag an --overwrite parked there are left alone)."""
     for name in _bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs]):
         staging = plan.out / f"{name}{PARTIAL_SUFFIX}"
@@ -301,9 +303,14 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
     if not failed:
         return
     lines = []
+    lost = [(c, r) for c, r in failed if isinstance(r, ClusterLost)]
     for chunk, err in failed:
-        names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
-        lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
+        if not isinstance(err, ClusterLost):
+            names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
+            lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
+    if lost:  # one line, not every unfinished episode's name: the rerun finds them
+        lines.append(f"  {len(lost)} tasks ({sum(len(c) for c, _ in lost)} episodes) unfinished: {lost[0][1]}; the "
+                     "same command with --skip-existing simulates them once the cluster is back")
     kept = sum(len(r) for r in done if not isinstance(r, Exception))
     raise ChunksFailed(
         f"{len(failed)} of {len(chunks)} Ray tasks failed; the bags of the other {kept} episodes are written under "

@@ -7,17 +7,28 @@ Ray is imported here, on first use only: the rest of the project never pays its 
 
 Tasks run once (``max_retries=0``): a task that fails, or whose worker or node dies, is
 reported by ``run_tasks`` in its result slot and never re-run behind the caller's back (a re-run
-would meet the files its first attempt wrote).
+would meet the files its first attempt wrote). A cluster whose head stops answering is given up
+after CLUSTER_LOST_AFTER_S: Ray's driver neither fails nor finishes the tasks it was waiting for,
+and aborts the whole process after 60 s of it (a C++ abort: no Python ``finally`` runs, nothing
+is said about the work), so the caller gets its unfinished tasks as ``ClusterLost`` in time to
+say what was done.
 """
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import os
 import socket
 import sys
+import time
 from contextlib import contextmanager
 
 _NO_CLUSTER = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+# How long the cluster's head (its GCS port) may refuse connections before its unfinished tasks
+# are given up [s]: under Ray's own 60 s (gcs_rpc_server_reconnect_timeout_s), after which it
+# aborts the process, with room for the driver's shutdown (~5 s against a dead head)
+CLUSTER_LOST_AFTER_S = 20.0
+_WAIT_POLL_S = 2.0  # how often a wait with nothing finished checks the head [s]
 LOCAL = "local"  # the --ray value (and Ray's own address) for "start a local instance"
 RAY_OPTION_HELP = (
     "run on Ray: without ADDRESS on a local Ray instance of --workers CPUs bound to 127.0.0.1 (started and "
@@ -74,6 +85,11 @@ def ray_session(address: str, num_cpus: int | None = None):
     if local and ray_constants.ENABLE_RAY_CLUSTER:
         raise RuntimeError("ray was imported in this process before a local instance was asked for; it would "
                            "not be bound to loopback only: use --ray from a fresh process")
+    clusters = ray_constants.ENABLE_RAY_CLUSTER
+    if not local and _loopback_only(address):
+        # the driver is this process alone: the one place Ray reads the flag after import (the
+        # node's own address) is told what the cluster was started with
+        ray_constants.ENABLE_RAY_CLUSTER = False
     try:
         if local:
             ray.init(address=LOCAL, num_cpus=num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1",
@@ -85,26 +101,70 @@ def ray_session(address: str, num_cpus: int | None = None):
                          "token authentication needs RAY_AUTH_MODE=token here, and its token)") from None
     except (ConnectionError, ValueError) as err:
         raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err}") from None
+    finally:
+        if not ray.is_initialized():
+            ray_constants.ENABLE_RAY_CLUSTER = clusters
     try:
         yield ray
     finally:
         ray.shutdown()  # a local instance stops; a cluster only loses this driver
+        ray_constants.ENABLE_RAY_CLUSTER = clusters
 
 
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
     """ValueError if nothing listens at a host:port address, or at the one ``auto`` stands for:
     Ray itself would retry forever (``auto`` read a stale address a cluster stopped long ago had
     left in Ray's temp directory, and a run ignored SIGTERM for 40 s)."""
+    hp = _host_port(address)
+    if hp is None:
+        return  # Ray's client form (ray://): Ray checks it
+    target = f"{hp[0]}:{hp[1]}"
+    err = _connect_error(hp, timeout_s)
+    if err is not None:
+        via = (f" (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine), {target}"
+               if address == "auto" else "")
+        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}: {err}") from None
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a host:port address (``auto`` resolved); None for Ray's client form."""
     target = _auto_address() if address == "auto" else address
     host, sep, port = target.rpartition(":")
     if target.startswith("ray://") or not sep or not port.isdigit():
-        return  # Ray's client form (ray://): Ray checks it
+        return None
+    return host.strip("[]"), int(port)
+
+
+def _loopback_only(address: str, timeout_s: float = 2.0) -> bool:
+    """True if ``address`` is a loopback host:port whose port answers on loopback but not on
+    the address Ray would put in its place: a head started with RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0
+    (it listens on 127.0.0.1 alone). Ray's driver would dial the machine's routable address for
+    ever ("Failed to connect to GCS at 192.0.2.2"); it has to run with clusters off, like the head."""
+    hp = _host_port(address)
+    if hp is None or not _is_loopback(hp[0]):
+        return False
+    routable = _routable_ip()
+    if routable is None or _is_loopback(routable):
+        return False
+    return _connect_error((routable, hp[1]), timeout_s) is not None
+
+
+def _is_loopback(host: str) -> bool:
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
-    except OSError as err:
-        via = (f" (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine), {target}"
-               if target != address else "")
-        raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}: {err}") from None
+        return ipaddress.ip_address(socket.gethostbyname(host) if host == "localhost" else host).is_loopback
+    except (ValueError, OSError):
+        return False
+
+
+def _routable_ip() -> str | None:
+    """The address this machine's traffic leaves from, found the way Ray finds it (a UDP socket
+    "connected" to a public address: no packet is sent); None without a route."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(("8.8.8.8", 80))
+            return s.getsockname()[0]
+        except OSError:
+            return None
 
 
 def _auto_address() -> str:
@@ -125,11 +185,16 @@ def cluster_cpus() -> int:
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
 
-def run_tasks(fn, jobs: list, on_done=None) -> list:
+class ClusterLost(ConnectionError):
+    """The Ray cluster's head stopped answering while tasks were unfinished."""
+
+
+def run_tasks(fn, jobs: list, on_done=None, lost_after_s: float = CLUSTER_LOST_AFTER_S) -> list:
     """``fn(job)`` as one Ray task per job, inside a ``ray_session``; returns the results in
     job order. A task that raised gives its exception in its slot (the original one, not Ray's
-    wrapper); one whose worker or node died gives Ray's error. ``on_done(result)`` is called
-    as each task finishes (progress)."""
+    wrapper); one whose worker or node died gives Ray's error; every task unfinished when the
+    head has refused connections for ``lost_after_s`` gives ``ClusterLost``. ``on_done(result)``
+    is called as each task finishes (progress)."""
     import ray
 
     remote = ray.remote(max_retries=0)(fn)
@@ -137,8 +202,25 @@ def run_tasks(fn, jobs: list, on_done=None) -> list:
     slot = {ref: i for i, ref in enumerate(refs)}
     out: list = [None] * len(refs)
     pending = refs
+    try:
+        head = _host_port(ray.get_runtime_context().gcs_address)
+    except (AttributeError, RuntimeError, ValueError):  # a Ray client session (ray://) has no head to watch
+        head = None
+    silent_since: float | None = None  # when the head first refused a connection, of the current spell
     while pending:
-        done, pending = ray.wait(pending, num_returns=1)
+        done, pending = ray.wait(pending, num_returns=1, timeout=_WAIT_POLL_S)
+        if not done:
+            if head is None or _connect_error(head) is None:
+                silent_since = None
+                continue
+            silent_since = time.monotonic() if silent_since is None else silent_since
+            if time.monotonic() - silent_since >= lost_after_s:
+                lost = ClusterLost(f"the Ray cluster's head at {head[0]}:{head[1]} has refused connections for "
+                                   f"{lost_after_s:g} s")
+                for ref in pending:
+                    out[slot[ref]] = lost
+                break
+            continue
         for ref in done:
             try:
                 result = ray.get(ref)
@@ -150,3 +232,12 @@ def run_tasks(fn, jobs: list, on_done=None) -> list:
             if on_done is not None:
                 on_done(result)
     return out
+
+
+def _connect_error(host_port: tuple[str, int], timeout_s: float = 2.0) -> OSError | None:
+    """Why a TCP connection to ``host_port`` failed; None if something listens there."""
+    try:
+        socket.create_connection(host_port, timeout=timeout_s).close()
+    except OSError as err:
+        return err
+    return None
