@@ -11,11 +11,15 @@ changes them by percent). That the shares partition each batch is checked by the
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -30,6 +34,17 @@ pytestmark = pytest.mark.live
 
 TINY = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--dropout", "0", "--epochs", "3",
         "--batch-size", "64", "--threads", "2", "--quiet"]
+
+
+TORCHRUN_ENV = {**os.environ, "MASTER_ADDR": "127.0.0.1", "GLOO_SOCKET_IFNAME": "lo"}
+
+
+def _torchrun(*train_args: str) -> list[str]:
+    """``torchrun --nproc-per-node 2 -m pinn_estimator.train ARGS`` in a loopback-only network
+    namespace; the process started is torchrun's own (unshare and sh exec into it)."""
+    run = ("ip link set lo up && exec \"$0\" -m torch.distributed.run --nproc-per-node 2 --master-addr 127.0.0.1 "
+           "--master-port 29500 -m pinn_estimator.train \"$@\"")
+    return ["unshare", "-rn", "sh", "-c", run, sys.executable, *train_args]
 
 
 def _netns_works() -> bool:
@@ -74,11 +89,8 @@ def test_two_ddp_processes_reach_the_single_process_validation_loss(bags, tmp_pa
     assert train_main(["--data", str(data), "--out", str(tmp_path / "one.pt"), "--no-cache", *TINY]) == 0
     capsys.readouterr()
     out = tmp_path / "ddp" / "two.pt"
-    run = ("ip link set lo up && exec \"$0\" -m torch.distributed.run --nproc-per-node 2 --master-addr 127.0.0.1 "
-           "--master-port 29500 -m pinn_estimator.train \"$@\"")
-    env = {**os.environ, "MASTER_ADDR": "127.0.0.1", "GLOO_SOCKET_IFNAME": "lo"}
-    proc = subprocess.run(["unshare", "-rn", "sh", "-c", run, sys.executable, "--data", str(data), "--out", str(out),
-                           *TINY], env=env, capture_output=True, text=True, timeout=280)
+    proc = subprocess.run(_torchrun("--data", str(data), "--out", str(out), *TINY), env=TORCHRUN_ENV,
+                          capture_output=True, text=True, timeout=280)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.count('"checkpoint"') == 1, proc.stdout  # rank 0 alone reports
     assert json.loads(proc.stdout[proc.stdout.index("{"):])["checkpoint"] == str(out)
@@ -92,3 +104,71 @@ def test_two_ddp_processes_reach_the_single_process_validation_loss(bags, tmp_pa
     assert two["history"]["epoch"] == one["history"]["epoch"] == [1, 2, 3]
     assert two["history"]["val_loss"] == pytest.approx(one["history"]["val_loss"], rel=1e-3)
     assert two["history"]["train_loss"] == pytest.approx(one["history"]["train_loss"], rel=1e-3)
+
+
+def _ranks(agent: int) -> dict[int, int]:
+    """{rank: pid} of the processes torchrun ``agent`` started (RANK from their environment)."""
+    out = {}
+    for pid in Path(f"/proc/{agent}/task/{agent}/children").read_text().split():
+        with contextlib.suppress(OSError):
+            env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+            out.update({int(e[5:]): int(pid) for e in env if e.startswith(b"RANK=")})
+    return out
+
+
+def _train_until_epoch(bags: Path, out: Path, log: Path, epochs: int) -> subprocess.Popen:
+    """A 2-process training far longer than the test, returned once its progress bar shows
+    ``epochs`` validated epochs (a best model to keep); its stderr goes to ``log``."""
+    args = [*TINY, "--epochs", "100000", "--patience", "100000"]
+    args.remove("--quiet")
+    proc = subprocess.Popen(_torchrun("--data", str(bags), "--out", str(out), *args), env=TORCHRUN_ENV,
+                            stdout=subprocess.PIPE, stderr=log.open("w"), text=True, start_new_session=True)
+    deadline = time.monotonic() + 200
+    while proc.poll() is None and time.monotonic() < deadline:
+        if re.search(rf"training pinn:.*\| *{epochs}/100000", log.read_text(errors="replace")):
+            return proc
+        time.sleep(0.2)
+    proc.kill()
+    raise AssertionError(f"the training never showed {epochs} epochs: {log.read_text(errors='replace')[-2000:]}")
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.skipif(not _netns_works(), reason="needs `unshare -rn` (a private loopback-only network namespace)")
+def test_ctrl_c_or_a_killed_rank_under_torchrun_keeps_the_best_model(bags, tmp_path):
+    """Ctrl-C in a terminal reaches every process of torchrun's group, and torchrun forwards it
+    once more: rank 0 took the second as "stop harder" and wrote nothing (and gloo aborted).
+    Now every rank notes the signal and stops at one step, and rank 0 writes the best model. A
+    rank killed outright (OOM, a node lost) broke rank 0's collective with a RuntimeError that
+    lost the training: now rank 0 writes the best model it holds and says what happened."""
+    data = tmp_path / "data"
+    shutil.copytree(bags, data)
+    out = tmp_path / "ctrl_c" / "m.pt"
+    proc = _train_until_epoch(data, out, tmp_path / "ctrl_c.log", 3)
+    try:
+        os.killpg(proc.pid, signal.SIGINT)  # what the terminal does: every process of the foreground group
+        stdout = proc.communicate(timeout=120)[0]
+    finally:
+        proc.kill()
+    err = (tmp_path / "ctrl_c.log").read_text(errors="replace")
+    assert stdout.count('"checkpoint"') == 1, stdout + err[-3000:]
+    assert "nothing written" not in err and "terminate called" not in err, err[-3000:]
+    _, ckpt = load_model(out)
+    metrics = ckpt["metrics"]
+    assert re.fullmatch(r"interrupted \(Ctrl-C\) in epoch \d+", metrics["stop_reason"]), metrics["stop_reason"]
+    assert metrics["processes"] == 2 and metrics["epochs_run"] >= 3 and metrics["best_epoch"] <= metrics["epochs_run"]
+    assert len(ckpt["history"]["val_loss"]) == metrics["epochs_run"]
+
+    out = tmp_path / "killed" / "m.pt"
+    proc = _train_until_epoch(data, out, tmp_path / "killed.log", 3)
+    try:
+        os.kill(_ranks(proc.pid)[1], signal.SIGKILL)
+        stdout = proc.communicate(timeout=120)[0]
+    finally:
+        proc.kill()
+    err = (tmp_path / "killed.log").read_text(errors="replace")
+    assert proc.returncode != 0, "torchrun reports the job as failed"
+    assert "pinn_train: error: another process of the job failed in epoch" in err, err[-3000:]
+    assert f"the best model validated before it is written to {out}" in err, err[-3000:]
+    _, ckpt = load_model(out)
+    assert ckpt["metrics"]["stop_reason"].startswith("another process of the job failed in epoch")
+    assert stdout.count('"checkpoint"') == 1

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import timedelta
 
+import torch
 import torch.distributed as dist
 
 from soil_msgs_py.cli_numbers import check_local_count
@@ -85,3 +86,13 @@ def gather(obj, ranks: Ranks) -> list:
     out = [None] * ranks.world
     dist.all_gather_object(out, obj)
     return out
+
+
+def agreed_max(value: int, ranks: Ranks) -> int:
+    """The largest of every rank's ``value`` (``value`` for one process): a decision every rank
+    takes at the same step."""
+    if not ranks.active:
+        return value
+    t = torch.tensor([value], dtype=torch.int64)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return int(t)

@@ -26,8 +26,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.distributed as dist
 
-from soil_msgs_py.interrupts import interrupt_exit_code, interrupt_name, terminate_as_interrupt
+from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt_for, interrupt_name, stop_requests,
+                                     terminate_as_interrupt)
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.cli_paths import output_file
@@ -37,7 +39,7 @@ from soil_sim_node.ray_cluster import add_ray_option
 
 from .checkpoint import save_checkpoint
 from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
-from .distributed import Ranks, gather, process_group, ranks_from_env, share
+from .distributed import Ranks, agreed_max, gather, process_group, ranks_from_env, share
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
@@ -122,15 +124,30 @@ def _validate(model, tensors, ends, weights, batch_size=4096) -> tuple[float, np
     return total / max(len(ends), 1), (np.concatenate(forces) if forces else np.zeros((0, 2)))
 
 
+class JobFailed(RuntimeError):
+    """Another process of the torchrun job failed mid-training; ``result`` is what ``train``
+    returns, with the best model validated before it (rank 0 writes it)."""
+
+    def __init__(self, message: str, result: tuple):
+        super().__init__(message)
+        self.result = result
+
+
 def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(),
-          progress: bool = True, log=print, ranks: Ranks = Ranks()):
+          progress: bool = True, log=print, ranks: Ranks = Ranks(), stop: StopRequest | None = None):
     """Train on ``ds``; returns (best model, split, history, metrics).
 
     ``ranks``: this process's place in a torchrun job (inside ``distributed.process_group``);
     every rank returns the same model. Each rank trains on its share of every global batch, its
     loss weighted by its share of the windows, so DDP's averaged gradient is the batch mean's
     (exactly for the plain means; the masked means of the force and residual terms are weighted
-    by windows, not by masked windows)."""
+    by windows, not by masked windows).
+
+    Stopping early keeps the best validated model, as the time budget does: a Ctrl-C or SIGTERM
+    raised in one process, or, in a job, noted on ``stop`` (``interrupts.stop_requests``) by
+    any rank, which every rank then acts on at the same step. A job whose other process failed
+    (its collective broke) raises JobFailed carrying the best model. Before a first validated
+    epoch either is raised as it came."""
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     torch.set_num_threads(max(1, cfg.threads // ranks.local_world))  # the machine's --threads, shared
@@ -177,7 +194,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, cfg.patience // 3))
     gen = torch.Generator().manual_seed(cfg.seed)
     history = {"epoch": [], "train_loss": [], "val_loss": [], "val_force_mae_n": [], "lr": [], "seconds": []}
-    best = (float("inf"), None, 0)
+    best = (float("inf"), None, 0, None)  # (val loss, weights, epoch, val forces)
+    failed: BaseException | None = None  # a collective that broke: another process of the job failed
+    cut_short = False  # stopped inside an epoch (its history may be half written)
     start = time.monotonic()
     bar = None
     if progress:
@@ -193,6 +212,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             running, count = 0.0, 0
             step = cfg.batch_size // 2 if pairs else cfg.batch_size
             for i in range(0, len(perm), step):
+                if stop is not None and ranks.active and (signum := agreed_max(stop.signum or 0, ranks)):
+                    raise interrupt_for(signum)  # every rank, at this step
                 pick = perm[i : i + step]
                 if pairs:  # a partner window from the same episode for each window (drawn for the global batch)
                     partner = first_end[pick] + (torch.rand(len(pick), generator=gen) * n_ends[pick]).long()
@@ -229,7 +250,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             for key, value in zip(history, (epoch, running / count, val_loss, val_mae, opt.param_groups[0]["lr"], elapsed)):
                 history[key].append(value)
             if val_loss < best[0]:
-                best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch)
+                best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch, val_force)
             if bar is not None:
                 bar.set_postfix(train=f"{running / count:.4f}", val=f"{val_loss:.4f}", val_mae=f"{val_mae:.0f}N")
                 bar.update(1)
@@ -239,10 +260,18 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             if elapsed > 60 * cfg.max_minutes:
                 stop_reason = f"time budget of {cfg.max_minutes} min reached"
                 break
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: keep the best model so far, as the time budget does (one process)
-        if ranks.active or best[1] is None:
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: keep the best model so far
+        if best[1] is None or (ranks.active and stop is None):  # (raised in one rank alone: its peers are elsewhere)
             raise
         stop_reason = f"interrupted ({interrupt_name(exc)}) in epoch {epoch}"
+        cut_short = True
+    except (RuntimeError, dist.DistError) as exc:
+        if not ranks.active or best[1] is None or not _broken_collective(exc):
+            raise
+        failed = exc
+        stop_reason = f"another process of the job failed in epoch {epoch} ({_first_line(exc)})"
+        cut_short = True
+    if cut_short:
         rows = min(len(v) for v in history.values())  # an epoch whose history was half written
         for values in history.values():
             del values[rows:]
@@ -251,7 +280,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar.close()
     model.load_state_dict(best[1])
     model.eval()
-    _, val_force = _validate(model, tensors, val_ends, weights)
+    val_force = best[3]  # the best epoch's validation, agreed by every rank (no pass alone over all of it)
     metrics = {
         "processes": ranks.world,
         "train_windows_per_epoch": count,  # summed over the processes, partner windows included
@@ -266,7 +295,20 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     said = f"all {cfg.epochs} epochs run" if stop_reason == "epochs" else stop_reason
     log(f"{model_cfg.kind}: {said}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
         f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
+    if failed is not None:
+        raise JobFailed(stop_reason, (model, split, history, metrics))
     return model, split, history, metrics
+
+
+def _broken_collective(exc: BaseException) -> bool:
+    """A collective that failed, not this process's own computation: gloo raises a plain
+    RuntimeError naming its transport ("…/gloo/transport/tcp/pair.cc: Read error …: Connection
+    reset by peer" when another rank was killed)."""
+    return isinstance(exc, dist.DistError) or "gloo" in str(exc).lower()
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
 
 
 def _agree(model, tensors, val_ends, weights, ranks: Ranks, running: float, count: int, start: float):
@@ -361,9 +403,20 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             from .checkpoint import read_checkpoint
 
             split = read_checkpoint(args.split_from)["split"]
-        with terminate_as_interrupt():  # SIGTERM (timeout, a scheduler) as Ctrl-C: the best model so far is kept
-            model, split, history, metrics = train(ds, cfg, model_cfg, split=split, progress=not args.quiet and ranks.main,
-                                                   log=print if ranks.main else _silent, ranks=ranks)
+        # SIGTERM (timeout, a scheduler) as Ctrl-C: the best model so far is kept. A torchrun job's
+        # ranks note either signal and stop at one step, and rank 0 writes unhindered by the second
+        # Ctrl-C every rank gets (the terminal's, then torchrun's)
+        with stop_requests() if ranks.active else terminate_as_interrupt() as stop:
+            failed = None
+            try:
+                model, split, history, metrics = train(ds, cfg, model_cfg, split=split,
+                                                       progress=not args.quiet and ranks.main,
+                                                       log=print if ranks.main else _silent, ranks=ranks, stop=stop)
+            except JobFailed as err:
+                failed = err
+                model, split, history, metrics = err.result
+            if ranks.main:
+                _write(args, cfg, ds, model, split, history, metrics)
     except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
@@ -372,13 +425,20 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         if ranks.main:
             print("pinn_train: interrupted; nothing written", file=sys.stderr)
         return interrupt_exit_code(exc)
-    if not ranks.main:
-        return 0
+    if failed is not None:
+        if ranks.main:
+            print(f"pinn_train: error: {failed}; the best model validated before it is written to {args.out}",
+                  file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write(args, cfg: TrainConfig, ds: Dataset, model, split, history, metrics) -> None:
+    """The checkpoint, its training curve, and the run's summary on stdout (rank 0)."""
     out = Path(args.out)
     save_checkpoint(out, model, train_config=asdict(cfg), dataset=describe(ds), split=split, metrics=metrics, history=history)
     curve = plot_curve(history, out.with_name(out.stem + "_curve.png"), f"{args.kind} on {Path(args.data).name}")
     print(json.dumps({"checkpoint": str(out), "curve": str(curve), **{k: metrics[k] for k in ("best_epoch", "epochs_run", "stop_reason", "train_seconds")}, "val_force": metrics["val_force"]}, indent=1))
-    return 0
 
 
 def _silent(*_args, **_kwargs) -> None:

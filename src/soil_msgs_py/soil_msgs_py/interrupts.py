@@ -3,7 +3,12 @@
 Why: SIGTERM is what ``timeout``, a batch scheduler (SLURM) and a container runtime send. With
 its default action the tool died at once, silently, leaving its pool workers orphaned and still
 writing bags; handled as an interrupt it takes the Ctrl-C path: the finished work is kept, its
-own staging removed, one line said, exit 128 + 15."""
+own staging removed, one line said, exit 128 + 15.
+
+Processes that stop together (the ranks of a torchrun job) note the signal instead of raising it
+(``stop_requests``): raised, it would leave one rank inside a collective its peers have left, and
+under torchrun every rank gets Ctrl-C twice (from the terminal, then forwarded by torchrun), so a
+second interrupt cannot mean "stop harder" there."""
 from __future__ import annotations
 
 import contextlib
@@ -45,3 +50,31 @@ def default_sigterm() -> None:
     """For pool workers forked from a process inside ``terminate_as_interrupt``: SIGTERM (which
     ``Pool.terminate`` sends them) ends them, not an interrupt raised in the middle of a task."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+class StopRequest:
+    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def _note(self, signum, frame) -> None:  # noqa: ARG002
+        self.signum = self.signum or signum
+
+
+def interrupt_for(signum: int) -> KeyboardInterrupt:
+    """The exception the Ctrl-C paths take for a noted signal: Terminated for SIGTERM."""
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+@contextlib.contextmanager
+def stop_requests():
+    """Within: SIGINT and SIGTERM are noted on the yielded ``StopRequest``, never raised; the
+    previous handlers after."""
+    request = StopRequest()
+    previous = {sig: signal.signal(sig, request._note) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield request
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
