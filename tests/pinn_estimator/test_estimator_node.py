@@ -264,7 +264,7 @@ def test_a_fee_checkpoint_takes_the_fee_worlds_calibration_and_a_default_world_e
     and an episode of another world is said once, naming the config to give."""
     from std_msgs.msg import String
 
-    from pinn_estimator.fusion_calibration import config_path
+    from pinn_estimator.fusion_calibration import config_path, load_calibrated
     from soil_msgs_py import graph as G
     from soil_msgs_py.episode import EpisodeMeta
 
@@ -286,5 +286,9 @@ def test_a_fee_checkpoint_takes_the_fee_worlds_calibration_and_a_default_world_e
             node.stop()
         out = node.output
         assert f"soil posterior {config_path('fee')} (the checkpoint's world)" in out, out[-3000:]
+        # the start line gives the forecast law /soil/estimate publishes (it gave only the evidence law's rel)
+        law = load_calibrated("fee")
+        assert (f"forecast law x {law.forecast_abs_std_n[0]:g} N + {law.forecast_rel_std[0]:g}·|ΔF|, "
+                f"z {law.forecast_abs_std_n[1]:g} N + {law.forecast_rel_std[1]:g}·|ΔF|") in out, out[-3000:]
         assert out.count("is the default world's") == 1 and str(config_path("default")) in out, out[-3000:]
         assert "fee_0 is the" not in out

@@ -102,8 +102,9 @@ class EstimatorNode(Node):
             lambda missing: self.get_logger().warning(f"following /sim/status without a publisher of {missing} yet"))
         self.get_logger().info(
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
-            f"stride {self.core.stride}, {threads} thread(s), soil posterior {self.fusion_source}, model error rel "
-            f"{self.core.posterior.cfg.rel_std}; publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}")
+            f"stride {self.core.stride}, {threads} thread(s), soil posterior {self.fusion_source} (evidence law rel "
+            f"{self.core.posterior.cfg.rel_std}; forecast law {_law(self.core.posterior.cfg)}, published as "
+            f"{T.ESTIMATE.name}'s model_std_*); publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}")
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -189,3 +190,8 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def _law(cfg) -> str:
+    """The forecast's error law σ_j = abs_j + rel_j·|ΔF_j| per axis, as the start line says it."""
+    return ", ".join(f"{axis} {a:g} N + {r:g}·|ΔF|" for axis, a, r in zip("xz", cfg.forecast_abs_std_n, cfg.forecast_rel_std))
