@@ -234,13 +234,22 @@ def test_deterministic():
         (dict(force_lift_m_s=float("nan")), "force_lift_m_s", "nan"),
         (dict(force_lift_share=0.0), "force_lift_share", "0.0"),
         (dict(force_lift_share=float("inf")), "force_lift_share", "inf"),
+        # beyond sense: accepted before, and c_vx >= 1 silently switched Eq. 11 off
+        (dict(k_v_m_s=1e308), "k_v_m_s", "1e+308"),
+        (dict(c_vx=1.5), "c_vx", "1.5"),
+        (dict(c_vx=1.0), "c_vx", "1.0"),
+        (dict(delta_d_max_m=100.0), "delta_d_max_m", "100.0"),
+        (dict(dither_amplitude_m=1.0), "dither_amplitude_m", "1.0"),
+        (dict(force_lift_m_s=1e6), "force_lift_m_s", "1000000.0"),
     ],
 )
 def test_bad_gains_name_field_value_and_range(kwargs, field, value):
     with pytest.raises(ValueError) as exc:
         AntiStallGains(**kwargs)
     msg = str(exc.value)
-    allowed = "(0, inf)" if field in ("dt_s", "force_lift_share") else "[0, inf)"
+    allowed = {"dt_s": "(0, inf)", "force_lift_share": "(0, inf)", "dither_period_s": "(0, inf)", "c_vx": "[0, 1)",
+               "k_v_m_s": "[0, 10]", "force_lift_m_s": "[0, 10]", "delta_d_max_m": "[0, 0.66]",
+               "dither_amplitude_m": "[0, 0.1]"}[field]
     assert field in msg and value in msg and allowed in msg, msg
     # set_gains validates the same way and leaves the old gains in place.
     c = AntiStallController(AntiStallGains(), 0.5, 0.1)

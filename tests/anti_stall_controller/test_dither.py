@@ -56,8 +56,9 @@ def test_dither_sweeps_the_depth_target_and_restarts_with_each_episode():
 
 
 @pytest.mark.parametrize("field, value, allowed", [
-    ("dither_amplitude_m", -0.01, "[0, inf)"), ("dither_amplitude_m", math.nan, "[0, inf)"),
-    ("dither_amplitude_m", math.inf, "[0, inf)"), ("dither_amplitude_m", "x", "[0, inf)"),
+    ("dither_amplitude_m", -0.01, "[0, 0.1]"), ("dither_amplitude_m", math.nan, "[0, 0.1]"),
+    ("dither_amplitude_m", math.inf, "[0, 0.1]"), ("dither_amplitude_m", "x", "[0, 0.1]"),
+    ("dither_amplitude_m", 0.5, "[0, 0.1]"),  # a dither is a few cm: 0.5 m was taken
     ("dither_period_s", 0.0, "(0, inf)"), ("dither_period_s", -2.0, "(0, inf)"), ("dither_period_s", math.inf, "(0, inf)"),
 ])
 def test_bad_dither_parameters_are_refused_naming_them(field, value, allowed):

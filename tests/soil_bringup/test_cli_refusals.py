@@ -51,6 +51,13 @@ def test_the_cut_report_names_patches_the_blade_never_reached_and_a_path_without
     words = cut_report.unreached_text(beyond, 7.1)
     assert words.startswith("not reached: Clay 90 % from 9 m") and "x = 7.1 m" in words, words
     assert cut_report.unreached_text(reached, 7.1) == ""
+    # patches ending behind where the blade's edge starts: no duration reaches them (the hint said
+    # one would), and the first patch cut is the start, not a change scored for the 2 s target
+    behind = [row("Sand", 0.0, 0.0, None), row("Silt", 1.0, 0.0, None)] + reached
+    words = cut_report.unreached_text(behind, 7.1)
+    assert words.startswith("not reached: Sand 90 % from 0 m, Silt 90 % from 1 m (behind where the blade's edge "
+                            "starts") and "longer --duration" not in words, words
+    assert cut_report._settle_text(behind) == "never"  # Clay's alone, as on the path without them
 
 
 def test_the_cut_report_names_the_soils_as_the_catalogue_does():

@@ -127,6 +127,14 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     stalls_in_clay = [0.5] * 40 + [0.1] * 20
     sweep = [_cut(ok, [0.1] * 60, patch=patch, fixed=0.1), _cut(stalls_in_clay, [0.2] * 60, patch=patch, fixed=0.2)]
     assert CM.best_fixed_depths(sweep, 2) == [0.2, 0.1]
+    # a patch where every depth stalls: no best there, and the conservative depth is the shallowest
+    # swept (the smallest best of the others had stalled as long as the aggressive depth)
+    stall_everywhere = [_cut(stalls_in_clay, [0.1] * 60, patch=patch, fixed=0.1),
+                        _cut(stalls_in_clay, [0.2] * 60, patch=patch, fixed=0.2)]
+    best = CM.best_fixed_depths(stall_everywhere, 2)
+    assert best == [0.2, None] and cut_report.stalling_patches(stall_everywhere, best) == [1]
+    assert cut_report.stalling_patches(sweep, [0.2, 0.1]) == []
+    assert cut_report.stall_note({"stall_everywhere": ["Clay 90 %"]}).startswith("every swept depth (0.050-0.300 m) stalled in Clay 90 %")
     planner = _cut(ok, [0.1] * 60, patch=patch)
     planner.target = np.array([0.1] * 30 + [0.3] * 6 + [0.11] * 24)
     assert CM.settle_s(planner, 1, 0.1) == pytest.approx(0.1)  # 6 ticks after entering clay
@@ -155,7 +163,8 @@ def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp
         with pytest.raises(SystemExit) as exit_:
             cut_report.main([flag, value, "--out", str(out)])
         assert exit_.value.code == 2 and flag.strip("-").replace("-", "_") in capsys.readouterr().err
-    for value, says in (("-1", "force_lift_m_s"), ("1,0", "force_lift_share"), ("fast", "numbers"), ("1,1,1", "G,SHARE")):
+    for value, says in (("-1", "force_lift_m_s"), ("1e6", "force_lift_m_s"), ("1,0", "force_lift_share"), ("fast", "numbers"),
+                        ("1,1,1", "G,SHARE")):
         with pytest.raises(SystemExit) as exit_:
             cut_report.main(["--force-lift", value, "--out", str(out)])
         assert exit_.value.code == 2 and says in capsys.readouterr().err

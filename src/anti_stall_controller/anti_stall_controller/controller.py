@@ -94,15 +94,25 @@ def limit_shares(force_n) -> np.ndarray:
     return np.abs(np.asarray(force_n, dtype=np.float64)) / np.asarray(FORCE_LIMITS_N)
 
 
-def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str) -> float:
+def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str, hi: float = math.inf,
+                  hi_open: bool = False) -> float:
     """Return ``value`` as a float, or raise ValueError naming the field, value and range."""
     try:
         x = float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}") from None
-    if not math.isfinite(x) or x < lo or (lo_open and x == lo):
+    if not math.isfinite(x) or x < lo or (lo_open and x == lo) or x > hi or (hi_open and x == hi):
         raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}")
     return x
+
+
+# Upper ends of the gains: beyond them a value is a slip of the keyboard, not a tuning. A rise rate
+# [m/s] of 10 m/s per unit of error is far beyond any lift joint (the blade's whole travel in
+# a tick); c_vx >= 1 puts the threshold e_vmin at or above the target speed, where a forward
+# speed error never exceeds it and Eq. 11 never acts (k_v_m_s = 0 is the way to switch it off);
+# the blade cannot be raised more than its height above the surface; a dither is a few cm.
+MAX_RATE_GAIN_M_S = 10.0
+MAX_DITHER_AMPLITUDE_M = 0.1
 
 
 MIN_DITHER_TICKS = 10  # ticks per dither period at least: at most 2π/10 ≈ 0.63 A of depth change per tick
@@ -137,18 +147,19 @@ class AntiStallGains:
     force_lift_share: float = 1.0
 
     def __post_init__(self) -> None:
+        h = MACHINE.blade_height_m
         checks = (
-            ("k_v_m_s", 0.0, False, "[0, inf)"),
-            ("c_vx", 0.0, False, "[0, inf)"),
-            ("delta_d_max_m", 0.0, False, "[0, inf)"),
-            ("dt_s", 0.0, True, "(0, inf)"),
-            ("dither_amplitude_m", 0.0, False, "[0, inf)"),
-            ("dither_period_s", 0.0, True, "(0, inf)"),
-            ("force_lift_m_s", 0.0, False, "[0, inf)"),
-            ("force_lift_share", 0.0, True, "(0, inf)"),
+            ("k_v_m_s", 0.0, False, f"[0, {MAX_RATE_GAIN_M_S:g}]", MAX_RATE_GAIN_M_S, False),
+            ("c_vx", 0.0, False, "[0, 1)", 1.0, True),
+            ("delta_d_max_m", 0.0, False, f"[0, {h:g}] (the blade's height)", h, False),
+            ("dt_s", 0.0, True, "(0, inf)", math.inf, False),
+            ("dither_amplitude_m", 0.0, False, f"[0, {MAX_DITHER_AMPLITUDE_M:g}]", MAX_DITHER_AMPLITUDE_M, False),
+            ("dither_period_s", 0.0, True, "(0, inf)", math.inf, False),
+            ("force_lift_m_s", 0.0, False, f"[0, {MAX_RATE_GAIN_M_S:g}]", MAX_RATE_GAIN_M_S, False),
+            ("force_lift_share", 0.0, True, "(0, inf)", math.inf, False),
         )
-        for name, lo, lo_open, allowed in checks:
-            value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed)
+        for name, lo, lo_open, allowed, hi, hi_open in checks:
+            value = _check_scalar(name, getattr(self, name), lo, lo_open, allowed, hi, hi_open)
             object.__setattr__(self, name, value)
         # a sinusoid sampled fewer than MIN_DITHER_TICKS times a period jumps from tick to tick (at 2 ticks
         # it is 0 at every one, at 3 it steps 1.7 A): no sweep of the depth

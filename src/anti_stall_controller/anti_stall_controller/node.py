@@ -52,7 +52,7 @@ from soil_msgs_py.ros_adapter import (
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
-from .controller import MIN_DITHER_TICKS, AntiStallController, AntiStallGains
+from .controller import MAX_DITHER_AMPLITUDE_M, MAX_RATE_GAIN_M_S, MIN_DITHER_TICKS, AntiStallController, AntiStallGains
 from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
 
 _GAINS = AntiStallGains()
@@ -60,11 +60,13 @@ PARAMETERS: dict[str, tuple] = {
     "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, f"desired forward speed v̄_x [m/s], in (0, {MAX_TARGET_SPEED_M_S:g}]"),
     "target_depth_m": (DEFAULT_TARGET_DEPTH_M, f"target cut depth d̄_z below the original surface [m], in [0, {MAX_TARGET_DEPTH_M:g}] "
                             "(the blade height)"),
-    "k_v_m_s": (_GAINS.k_v_m_s, "K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11)"),
-    "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx)"),
-    "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m]"),
+    "k_v_m_s": (_GAINS.k_v_m_s, f"K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11), in [0, "
+                                f"{MAX_RATE_GAIN_M_S:g}]; 0 = no anti-stall action"),
+    "c_vx": (_GAINS.c_vx, "velocity-error threshold as a fraction of v̄_x (e_vmin = v̄_x c_vx), in [0, 1)"),
+    "delta_d_max_m": (_GAINS.delta_d_max_m, "Δd̄_max: how far above the surface the blade may rise [m], in [0, "
+                                            f"{MACHINE.blade_height_m:g}] (the blade height)"),
     "dither_amplitude_m": (_GAINS.dither_amplitude_m, "depth dither: amplitude A of a sinusoid added to the target "
-                                                      "depth [m], >= 0; 0 = off, a few cm when on"),
+                                                      f"depth [m], in [0, {MAX_DITHER_AMPLITUDE_M:g}]; 0 = off, a few cm when on"),
     "dither_period_s": (_GAINS.dither_period_s, "depth dither: period T of the sinusoid [s], at least "
                                                 f"{MIN_DITHER_TICKS} control periods ({MIN_DITHER_TICKS / SAMPLE_RATE_HZ:g} s)"),
     "follow_episode_targets": (True, "take v̄_x and d̄_z from each episode_start on /sim/status"),
@@ -84,7 +86,7 @@ PARAMETERS: dict[str, tuple] = {
                                        "(0: at once), so a simulator waiting for this node starts no episode before the "
                                        "controller can hear the planner"),
     "force_lift_m_s": (_GAINS.force_lift_m_s, "force lift: blade rise rate per unit of force share above "
-                                              "force_lift_share [m/s], >= 0; 0 = off (Eq. 11 alone), else "
+                                              f"force_lift_share [m/s], in [0, {MAX_RATE_GAIN_M_S:g}]; 0 = off (Eq. 11 alone), else "
                                               "/blade/force is joined with the state by stamp"),
     "force_lift_share": (_GAINS.force_lift_share, "force lift: the share of the machine's force limits "
                                                   f"({FORCE_LIMITS_N[0] / 1e3:g} kN x, {FORCE_LIMITS_N[1] / 1e3:g} kN z) "

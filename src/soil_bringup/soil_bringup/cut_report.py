@@ -5,7 +5,8 @@ For each world, one path of changing soil (patches along x), one seed, one run:
 * a sweep of fixed target depths finds each patch's **best fixed depth in hindsight** (the
   deepest with no stall while the edge was in that patch);
 * **conservative**: the deepest fixed depth that never stalls in the path's strongest soil
-  (the smallest of those bests), what a machine that must never stall would cut;
+  (the smallest of those bests), what a machine that must never stall would cut; where some
+  soil of the path stalls at every swept depth, the shallowest swept depth (said in the report);
 * **aggressive**: the best fixed depth of the path's weakest soil (the largest of them), what a
   planner that ignores the soil would keep after cutting where it is easy;
 * **soil-aware**: the estimator, the planner and its depth schedule in the loop (``cut_trial``).
@@ -150,7 +151,17 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
     best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
     known = [b for b in best if b is not None]
-    return sweep, best, min(known or SWEEP_DEPTHS_M), max(known or SWEEP_DEPTHS_M)
+    # a patch the edge reached where every depth stalled: no depth avoids a stall there, so the
+    # conservative depth is the one that stalls least, the shallowest (the smallest best of the
+    # others had stalled as long as the aggressive depth)
+    stall_everywhere = bool(stalling_patches(sweep, best))
+    conservative = min(SWEEP_DEPTHS_M) if stall_everywhere or not known else min(known)
+    return sweep, best, conservative, max(known or SWEEP_DEPTHS_M)
+
+
+def stalling_patches(sweep: list, best: list) -> list[int]:
+    """The patches the edge reached in the sweep where every fixed depth stalled."""
+    return [j for j, b in enumerate(best) if b is None and any((c.patch == j).any() for c in sweep)]
 
 
 def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None,
@@ -169,6 +180,8 @@ def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = No
         "world": world, "best_fixed_depth_m": best, "policies": rows, "cuts": cuts,
         "patches": patches,
         "unreached": unreached_text(patches, float(cuts[2].x_b[-1])),
+        "stall_everywhere": [f"{patches[j]['soil']} {patches[j]['relative_density_pct']:g} %"
+                             for j in stalling_patches(sweep, best)],
         "ratios": {
             "volume_per_m_aware_over_conservative": _ratio(aware["volume_per_m_m3"], cons["volume_per_m_m3"]),
             "stall_aggressive_over_aware": _ratio(agg["stall_s"], aware["stall_s"]),
@@ -216,7 +229,7 @@ def _less_stall(aggressive_s: float, aware_s: float, times: str = "×") -> str:
 def _settle_text(patches: list[dict]) -> str:
     """The new patches' settle times for the target line: 'never' where the plan did not come
     within 20 % of the best fixed depth; a path of one soil has no change to settle after."""
-    later = [p for p in patches[1:] if p["time_s"] > 0]  # the first patch is the start, not a change
+    later = [p for p in patches if p["time_s"] > 0][1:]  # the first patch cut is the start, not a change
     if not later:
         return "no soil change reached on this path"
     return ", ".join(f"{p['settle_s']:.1f} s" if p["settle_s"] is not None else "never" for p in later)
@@ -225,12 +238,17 @@ def _settle_text(patches: list[dict]) -> str:
 def unreached_text(patches: list[dict], x_end_m: float) -> str:
     """Words for the patches the blade's edge never reached ('' if it reached every one): their
     rows are empty, which a reader should not take for a result."""
-    missed = [p for p in patches if p["time_s"] <= 0]
-    if not missed:
-        return ""
-    return ("not reached: " + ", ".join(f"{p['soil']} {p['relative_density_pct']:g} % from {p['x_start_m']:g} m"
-                                        for p in missed)
-            + f" (the blade's edge ended at x = {x_end_m:.1f} m; a longer --duration reaches them)")
+    first_cut = next((j for j, p in enumerate(patches) if p["time_s"] > 0), len(patches))
+    behind = patches[:first_cut]  # ended before where the blade's edge starts: no duration reaches them
+    beyond = [p for p in patches[first_cut:] if p["time_s"] <= 0]
+    words = []
+    if behind:
+        words.append(", ".join(f"{p['soil']} {p['relative_density_pct']:g} % from {p['x_start_m']:g} m" for p in behind)
+                     + " (behind where the blade's edge starts: move the path's start to the blade)")
+    if beyond:
+        words.append(", ".join(f"{p['soil']} {p['relative_density_pct']:g} % from {p['x_start_m']:g} m" for p in beyond)
+                     + f" (the blade's edge ended at x = {x_end_m:.1f} m; a longer --duration reaches them)")
+    return "not reached: " + "; ".join(words) if words else ""
 
 
 def controller_text(gains: dict) -> str:
@@ -267,6 +285,8 @@ def markdown(report: dict) -> str:
                          f"| {_fmt(p['settle_s'], '.1f')} |")
         if w.get("unreached"):
             lines += ["", f"Patches {w['unreached']}."]
+        if w.get("stall_everywhere"):
+            lines += ["", stall_note(w)[0].upper() + stall_note(w)[1:] + "."]
         lines += ["", "Targets (soil-aware against the fixed depths, this world):", "",
                   f"- volume per metre ≥ {TARGET_VOLUME_RATIO}× conservative: **{_fmt(r['volume_per_m_aware_over_conservative'])}×** "
                   f"(each patch cut at its best fixed depth from its first centimetre: "
@@ -357,7 +377,16 @@ def console(report: dict) -> str:
                        f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s")
         if w.get("unreached"):
             out.append(f"  patches {w['unreached']}")
+        if w.get("stall_everywhere"):
+            out.append(f"  {stall_note(w)}")
     return "\n".join(out)
+
+
+def stall_note(world: dict) -> str:
+    """Why a patch has no best fixed depth ("--") and what the conservative depth is then."""
+    return (f"every swept depth ({SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m) stalled in "
+            f"{', '.join(world['stall_everywhere'])}: no best fixed depth there (--), the conservative depth is the "
+            "shallowest swept, and no ceiling of the soil-aware volume (each patch at its best depth) exists")
 
 
 def main(argv=None) -> int:
