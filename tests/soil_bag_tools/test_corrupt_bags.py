@@ -111,6 +111,18 @@ def test_reader_raises_one_error_naming_the_bag(damaged):
         playback.load_bag(damaged)
 
 
+def test_a_damaged_metadata_yaml_is_said_in_one_line(tmp_path):
+    """A YAML error was shown as its repr, a dump of the parser's Mark objects."""
+    bag = copy_bag(LOAM, tmp_path / LOAM.name)
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("rosbag2_bagfile_information:", "rosbag2_bagfile_information: [", 1))
+    with pytest.raises(bag_io.BagReadError) as err:
+        bag_io.read_episode(bag)
+    text = str(err.value)
+    assert "unreadable metadata.yaml: " in text and "Error: " in text and str(bag) in text, text
+    assert "\n" not in text and "object at 0x" not in text, text
+
+
 def test_bag_read_error_survives_pickling():
     """It crosses process boundaries (dataset and analysis workers) intact."""
     err = bag_io.BagReadError("/x/bag", "Truncated record at offset 5")

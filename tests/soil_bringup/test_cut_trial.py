@@ -209,7 +209,8 @@ def test_the_report_cuts_a_named_path_of_the_users_own_soils(tmp_path, capsys):
                        (["--soil-file", str(soils), "--path", "site_b"], "its paths: ['site_a']"),
                        (["--soil-file", str(soils), "--path", "site_a", "--patch", "0:Sand:20"], "both give the patches"),
                        (["--patch", "0:Silt:20"], "Silt"),
-                       (["--soil-file", str(tmp_path / "none.yaml")], "does not exist")):
+                       (["--soil-file", str(tmp_path / "none.yaml")], "does not exist"),
+                       (["--soil-file", str(tmp_path)], "is a directory: give the YAML file in it")):  # said "does not exist"
         with pytest.raises(SystemExit) as exit_:
             cut_report.parse_args(argv + ["--out", str(out)])
         assert exit_.value.code == 2 and says in capsys.readouterr().err, argv

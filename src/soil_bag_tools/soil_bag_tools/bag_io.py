@@ -170,7 +170,8 @@ def bag_info(bag: Path) -> dict:
         info = yaml.load((bag / "metadata.yaml").read_text(), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
         return dict(info)
     except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
-        raise BagReadError(bag, f"unreadable metadata.yaml: {err!r}") from None
+        # one line (a YAML error's repr dumped its parser's Mark objects)
+        raise BagReadError(bag, f"unreadable metadata.yaml: {type(err).__name__}: {' '.join(str(err).split())}") from None
 
 
 def bag_custom_data(bag: Path) -> dict[str, str]:

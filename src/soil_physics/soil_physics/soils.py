@@ -206,6 +206,8 @@ def load_soil_file(path: str | Path) -> SoilFile:
     import yaml
 
     path = Path(path)
+    if path.is_dir():
+        raise FileNotFoundError(f"soil file {str(path)!r} is a directory: give the YAML file in it")
     if not path.is_file():
         raise FileNotFoundError(f"soil file {str(path)!r} does not exist")
     try:
