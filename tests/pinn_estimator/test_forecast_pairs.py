@@ -33,6 +33,26 @@ def test_unlabelled_episodes_pair_only_within_one_unit_weight(tmp_path):
     assert len({p.soil for p in parts}) == 2
 
 
+def test_a_label_naming_two_soils_is_told_apart_by_the_ground_truth(tmp_path):
+    """A soil of the user's soil file named like a catalogue soil: its bags and the catalogue's
+    paired as one soil, a forecast 1061 % off. One soil at one density starts with one (φ, c)."""
+    from soil_physics.soils import load_soil_file
+
+    soils = tmp_path / "site.yaml"
+    soils.write_text("soils:\n  - {name: Sand, phi_deg: [10, 12], cohesion_pa: [8000, 12000], "
+                     "unit_weight_n_m3: [19000, 21000]}\n")
+    mine = load_soil_file(soils).soils
+    for custom, seed0 in ((None, 0), (mine, 10)):
+        specs = [EpisodeSpec("Sand", 50.0, 0.6, depth, seed=seed0 + k, duration_s=5.0) for k, depth in enumerate((0.06, 0.1))]
+        for ep in run_episodes(SimConfig(world_mode="fee"), specs, custom_soils=custom):
+            write_episode(tmp_path / "bags" / ep.meta.name, ep)
+    parts = steady_parts(load_dataset(tmp_path / "bags", cache=False))
+    labels = sorted({p.soil for p in parts if p is not None})
+    assert len(labels) == 2 and all(label.startswith("Sand (φ ") for label in labels), labels
+    pairs = [(parts[a].soil, parts[b].soil) for a, b in pair_indices(parts)]
+    assert len(pairs) == 4 and all(a == b for a, b in pairs), pairs  # each soil's two depths, each way
+
+
 def test_the_forecast_report_says_when_episodes_were_paired_by_unit_weight():
     from pinn_estimator.forecast import markdown
 

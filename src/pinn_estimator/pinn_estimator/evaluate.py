@@ -197,6 +197,7 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
         changing = sum(not fc.one_soil(meta) for meta in ds.metas)
         depths = sorted(f"{part.known['d']:.3f}" for part in parts if part is not None)
         shown = ", ".join(depths[:8]) + (", ..." if len(depths) > 8 else "")
+        split = sorted({part.soil for part in parts if part is not None and " (φ " in part.soil})
         raise ValueError(f"--forecast-data {root}: no two of its {len(ds)} episodes are one soil at one relative density "
                          f"(bags without a soil label: of one measured unit weight γ, within "
                          f"{100 * GAMMA_GROUP_RTOL:g} %) (and one soil along the path) cut at steady depths at least {fc.MIN_DEPTH_RATIO:g}x apart: "
@@ -204,7 +205,9 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
                          f"their second half in the soil with |v_z| <= {1e3 * fc.STEADY_MAX_ABS_V_Z_M_S:g} mm/s"
                          + (f"; {changing} change soil along the path (patches in their metadata): no one soil to "
                             "forecast from or to" if changing else "")
-                         + (f"; the steady depths [m]: {shown}" if depths else "") + ")")
+                         + (f"; the steady depths [m]: {shown}" if depths else "")
+                         + (f"; labels naming two soils, told apart by their ground truth: {', '.join(split)}" if split else "")
+                         + ")")
     return ds
 
 

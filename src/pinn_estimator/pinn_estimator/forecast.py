@@ -130,6 +130,7 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     (``soil_labels.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
     soil at one density has one γ, where "unknown" would pair every unlabelled soil with every other."""
     out = []
+    starts: dict[int, np.ndarray] = {}  # episode -> its true (φ, c) at its first row
     travel, in_soil_s = ds.distance_in_soil(), ds.time_in_soil()
     for e in range(len(ds)):
         rows = steady_rows(ds.known[ds.offsets[e]:ds.offsets[e + 1]], steady_from)
@@ -137,16 +138,36 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         if rows is None or not one_soil(meta):
             out.append(None)
             continue
+        start_truth = ds.truth[ds.offsets[e], :2]  # (φ, c) as the episode began: its soil's, at its I_d
         rows = rows + ds.offsets[e]
         known = {n: float(ds.known[rows, j].mean()) for j, n in enumerate(KNOWN_PARAMS)}
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
                           float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode,
                           mean_standard_error(ds.forces[rows])))
+        starts[e] = start_truth
+    _split_labels_of_two_soils(out, starts)
     unlabelled = [e for e, part in enumerate(out) if part is not None and soil_label(part) == UNKNOWN_SOIL]
     for e, name in zip(unlabelled, gamma_group_names([out[e].known["gamma"] for e in unlabelled])):
         out[e] = replace(out[e], soil=name)
     return out
+
+
+def _split_labels_of_two_soils(parts: list[Steady | None], starts: dict[int, np.ndarray]) -> None:
+    """Where one label at one density names soils whose true (φ, c) differ as their episodes began
+    (a soil of the user's soil file named like a catalogue soil, bags of two sites), each soil gets
+    its own label, "Sand (φ 11.0°, c 32.00 kPa)": pairs are of one soil. One soil at one density
+    starts with one (φ, c), whatever the depth, speed or seed. Bags without a ground truth or a
+    label (paired by their unit weight, as a machine's are) are left as they are."""
+    groups = defaultdict(list)
+    for e, start in starts.items():
+        if parts[e] is not None and np.isfinite(start).all() and soil_label(parts[e]) != UNKNOWN_SOIL:
+            groups[(parts[e].world, parts[e].soil, parts[e].relative_density_pct)].append(e)
+    for (_, soil, _), members in groups.items():
+        keys = {e: (round(float(starts[e][0]) / DEG, 1), round(float(starts[e][1]) / 1e3, 2)) for e in members}
+        if len(set(keys.values())) > 1:
+            for e, (phi_deg, c_kpa) in keys.items():
+                parts[e] = replace(parts[e], soil=f"{soil} (φ {phi_deg:.1f}°, c {c_kpa:.2f} kPa)")
 
 
 def one_soil(meta) -> bool:
