@@ -40,7 +40,7 @@ from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
-from soil_physics.soils import load_soil_file
+from soil_physics.soils import load_soil_file, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec
 
@@ -392,6 +392,8 @@ def stall_note(world: dict) -> str:
 def main(argv=None) -> int:
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    for note in soil_file_notes(args.custom_soils):  # what soil_sim_batch says of the same file
+        print(f"soil_cut_report: note: {note}", file=sys.stderr)
     t0 = time.monotonic()
     spec = args.spec
     path = " → ".join(f"{p.soil} {p.relative_density_pct:g} % from {p.x_start_m:g} m" for p in args.patches)

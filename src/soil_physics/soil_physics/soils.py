@@ -267,15 +267,15 @@ def load_soil_file(path: str | Path) -> SoilFile:
 def soil_file_notes(custom: dict[str, SoilType]) -> list[str]:
     """What a user may not have meant in their soils (accepted, said): a soil named like a
     catalogue soil replaces it, and its bags carry only that name, so nothing tells them from the
-    catalogue soil's (the forecast pairs them as one soil); a property that falls from loose to
-    dense ([loose, dense] given the other way round?)."""
+    catalogue soil's (only a ground truth in the bags tells them apart); a property that falls
+    from loose to dense ([loose, dense] given the other way round?)."""
     notes = []
     for soil in custom.values():
         same = next((c for c in CATALOGUE.values() if c.name.lower() == soil.name.lower()), None)
         if same is not None and (same.loose, same.dense) != (soil.loose, soil.dense):
             notes.append(f"soil {soil.name!r} replaces the catalogue's {same.name} (its bags say only "
                          f"'{same.name}', like the catalogue soil's): give it a name of its own to keep them apart")
-        for field, unit, scale in (("phi", "phi_deg", DEG), ("gamma", "unit_weight_n_m3", 1.0)):
+        for field, unit, scale in (("phi", "phi_deg", DEG), ("c", "cohesion_pa", 1.0), ("gamma", "unit_weight_n_m3", 1.0)):
             loose, dense = getattr(soil.loose, field), getattr(soil.dense, field)
             if dense < loose:
                 notes.append(f"soil {soil.name!r}: {unit}=[{loose / scale:g}, {dense / scale:g}] falls from loose to "
