@@ -35,6 +35,10 @@ def test_help_lists_the_parameters_and_an_unknown_argument_is_refused(script, tm
     code, out = _run(script, ["--bogus-flag", "--ros-args", "-p", f"{NODES[script]}:=x"], tmp_path)
     assert code == 2, out
     assert f"{script}: error: unrecognised argument(s) --bogus-flag" in out and "Traceback" not in out, out
+    # NAME:=VALUE without --ros-args: rcl took a word value as a remap rule and the node ran with the default
+    code, out = _run(script, [f"{NODES[script]}:=x"], tmp_path)
+    assert code == 2, out
+    assert f"{script}: error: unrecognised argument(s) {NODES[script]}:=x (outside --ros-args, NAME:=VALUE" in out, out
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -309,10 +309,24 @@ def rcl_error_text(err: Exception) -> str:
 
 def own_arguments(argv: list[str]) -> list[str]:
     """The arguments of ``argv`` (program name first) that are not ROS arguments. RuntimeError
-    (rcl's) where the ROS arguments do not parse (``-p soil`` without ``:=``)."""
+    (rcl's) where the ROS arguments do not parse (``-p soil`` without ``:=``).
+
+    ``NAME:=VALUE`` outside ``--ros-args`` counts as the node's own: rcl takes it as a remap rule
+    of the deprecated syntax (a warning, then nothing), so ``soil_sim_node pacing:=lockstep`` ran in
+    real time as if it had not been typed (a number, ``duration_s:=1.0``, is no valid remap and
+    was refused)."""
     from rclpy.utilities import remove_ros_args
 
-    return list(remove_ros_args(argv)[1:])
+    outside, in_ros = [], False
+    for arg in argv[1:]:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif not in_ros and ":=" in arg:
+            outside.append(arg)
+    kept = list(remove_ros_args(argv)[1:])
+    return kept + [a for a in outside if a not in kept]
 
 
 def _program(argv: list[str]) -> str:
@@ -398,7 +412,9 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         print(usage(_program(argv), parameters, summary))
         return 0
     if parameters is not None and own:
-        print(f"{_program(argv)}: error: unrecognised argument(s) {' '.join(own)}: a node takes its settings as "
+        hint = (" (outside --ros-args, NAME:=VALUE is an old-style remap rule to rcl, not a parameter)"
+                if any(":=" in a for a in own) else "")
+        print(f"{_program(argv)}: error: unrecognised argument(s) {' '.join(own)}{hint}: a node takes its settings as "
               "--ros-args -p NAME:=VALUE or --ros-args --params-file FILE (--help lists them)", file=sys.stderr)
         return EXIT_BAD_CONFIG
     stop: list[int] = []
