@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from soil_msgs_py.cli_paths import output_dir, output_file
+from soil_msgs_py.cli_paths import bags_dir, output_dir, output_file
 
 BIN = Path(sys.executable).parent
 
@@ -21,6 +21,23 @@ def test_an_output_directory_may_exist_or_not_but_is_no_file(tmp_path):
         output_dir(str(tmp_path / "report.md"))
     with pytest.raises(argparse.ArgumentTypeError, match="a parent of it is a file"):
         output_dir(str(tmp_path / "report.md" / "sub"))
+
+
+def test_bags_are_not_written_into_a_bag(tmp_path, capsys):
+    """--record given an existing bag: the recorder wrote the new bag inside it, where every reader
+    (which takes a bag directory as one bag) missed it without a word."""
+    bag = tmp_path / "bags" / "default_clay_id030_v0.50_d0.100_s10"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert bags_dir(str(tmp_path / "bags")) == tmp_path / "bags"
+    for out, says in ((bag, "is a bag"), (bag / "more", "is inside")):
+        with pytest.raises(argparse.ArgumentTypeError, match=says):
+            bags_dir(str(out))
+    from soil_sim_node import batch
+
+    with pytest.raises(SystemExit) as exit_:
+        batch.parse_args(["--out", str(bag)])
+    assert exit_.value.code == 2 and "holds metadata.yaml" in capsys.readouterr().err
 
 
 def test_an_output_file_may_exist_or_not_but_is_no_directory(tmp_path):

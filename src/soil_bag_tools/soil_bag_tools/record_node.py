@@ -24,7 +24,7 @@ from rclpy.qos import ReliabilityPolicy
 from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS,
                                 SIM_STATUS_TOPIC)
 from .bag_writer import offered_qos
@@ -40,7 +40,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         prog="soil_bag_record",
         description="Record the episode topics into one rosbag2 (MCAP) bag per /sim/status episode.",
     )
-    p.add_argument("--out", type=output_dir, required=True, help="directory that receives the bags")
+    p.add_argument("--out", type=bags_dir, required=True, help="directory that receives the bags")
     p.add_argument("--topics", nargs="+", default=[], metavar="T",
                    help="record these topics (types of non-episode topics are discovered on the graph)")
     p.add_argument("--all-episode-topics", action="store_true",

@@ -47,7 +47,7 @@ from pathlib import Path
 import yaml
 
 from soil_msgs_py import graph as G
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import bags_dir
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
@@ -415,7 +415,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--pacing", choices=("realtime", "lockstep"),
                    help="simulator pacing (default: the params file's, else realtime)")
     p.add_argument("--rate", type=float, help="real-time factor for pacing realtime (default: params file's, else 1)")
-    p.add_argument("--record", type=output_dir, help="record every episode as a bag under this directory")
+    p.add_argument("--record", type=bags_dir, help="record every episode as a bag under this directory")
     p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
                    help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
     p.add_argument("--sim-params-file", type=Path, help="YAML parameters for soil_sim_node")

@@ -51,6 +51,19 @@ def output_dir(text: str) -> Path:
     return _checked(text, want_dir=True)
 
 
+def bags_dir(text: str) -> Path:
+    """An ``--out`` directory that receives episode bags: ``output_dir``, and neither a bag nor
+    inside one (a ``metadata.yaml`` there or above): a reader takes a bag directory as one bag,
+    so bags written into it were on disk and read by no tool (``--record`` given an existing bag)."""
+    path = output_dir(text)
+    for d in (path, *path.parents):
+        if (d / "metadata.yaml").is_file():
+            where = "is" if d == path else f"is inside {str(d)!r}, which is"
+            raise argparse.ArgumentTypeError(f"{text!r} {where} a bag (it holds metadata.yaml): bags written there "
+                                             "would be read by no tool; give the directory that holds the bags")
+    return path
+
+
 def output_file(text: str) -> Path:
     """An ``--out`` file: may exist (as a file, to be replaced) or not yet; not a directory."""
     return _checked(text, want_dir=False)

@@ -45,7 +45,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_ep
 from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import beyond_lift_reach
 from soil_msgs_py.patches import check_patches
@@ -342,7 +342,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_sim_batch", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--mode", choices=WORLD_MODES, default="default", help="world mode (default: default)")
-    p.add_argument("--out", type=output_dir, help="output directory (default: bags/d_<mode>)")
+    p.add_argument("--out", type=bags_dir, help="output directory (default: bags/d_<mode>)")
     p.add_argument("--soils", help=f"comma-separated soil names (default: {','.join(CATALOGUE)})")
     p.add_argument("--soil-file", type=Path, help="YAML with custom soil(s), usable in --soils, and named paths (--path)")
     p.add_argument("--relative-densities",
