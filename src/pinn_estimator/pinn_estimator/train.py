@@ -197,6 +197,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     best = (float("inf"), None, 0, None)  # (val loss, weights, epoch, val forces)
     failed: BaseException | None = None  # a collective that broke: another process of the job failed
     cut_short = False  # stopped inside an epoch (its history may be half written)
+    interrupted = 0  # the exit code of the Ctrl-C or SIGTERM that stopped it (0: none did)
     start = time.monotonic()
     bar = None
     if progress:
@@ -264,6 +265,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         if best[1] is None or (ranks.active and stop is None):  # (raised in one rank alone: its peers are elsewhere)
             raise
         stop_reason = f"interrupted ({interrupt_name(exc)}) in epoch {epoch}"
+        interrupted = interrupt_exit_code(exc)
         cut_short = True
     except (RuntimeError, dist.DistError) as exc:
         if not ranks.active or best[1] is None or not _broken_collective(exc):
@@ -291,6 +293,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         "val_loss": best[0],
         "val_force": force_errors(ds.forces[val_ends.numpy()], val_force),
         "parameters": parameter_count(model),
+        "interrupted_exit_code": interrupted,  # 130 / 143: the model is kept, but the run did not end by itself
     }
     said = f"all {cfg.epochs} epochs run" if stop_reason == "epochs" else stop_reason
     log(f"{model_cfg.kind}: {said}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
@@ -430,6 +433,11 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             print(f"pinn_train: error: {failed}; the best model validated before it is written to {args.out}",
                   file=sys.stderr)
         return 1
+    if metrics["interrupted_exit_code"]:  # kept, and said; a script can still tell it from a finished run
+        if ranks.main:
+            print(f"pinn_train: {metrics['stop_reason']}; the best model (epoch {metrics['best_epoch']}) is written to "
+                  f"{args.out}", file=sys.stderr)
+        return metrics["interrupted_exit_code"]
     return 0
 
 
