@@ -267,15 +267,13 @@ def fit_windows(known: np.ndarray, forces: np.ndarray, *, workers: int = 1, prog
     results = []
     try:
         if workers > 1 and len(chunks) > 1:
-            import multiprocessing as mp
+            from soil_msgs_py.process_pool import map_in_processes
 
-            from soil_msgs_py.process_pool import pool_start_method
-
-            with mp.get_context(pool_start_method()).Pool(min(workers, len(chunks))) as pool:
-                for out, (kc, _) in zip(pool.imap(_fit_chunk, chunks), chunks):
-                    results.append(out)
-                    if bar is not None:
-                        bar.update(len(kc))
+            for out, (kc, _) in zip(map_in_processes(_fit_chunk, chunks, min(workers, len(chunks)),
+                                                     what="fitting the classical FEE"), chunks):
+                results.append(out)
+                if bar is not None:
+                    bar.update(len(kc))
         else:
             for chunk in chunks:
                 results.append(_fit_chunk(chunk))

@@ -260,12 +260,9 @@ def _read_all(bags, workers, progress):
         return tqdm(it, total=len(bags), desc="reading bags", unit="bag")
 
     if workers > 1 and len(bags) > 1:
-        import multiprocessing as mp
+        from soil_msgs_py.process_pool import map_in_processes
 
-        from soil_msgs_py.process_pool import pool_start_method
-
-        with mp.get_context(pool_start_method()).Pool(min(workers, len(bags))) as pool:
-            return list(shown(pool.imap(_read, bags, chunksize=4)))
+        return list(shown(map_in_processes(_read, bags, min(workers, len(bags)), what="reading bags", chunksize=4)))
     return [_read(b) for b in shown(bags)]
 
 

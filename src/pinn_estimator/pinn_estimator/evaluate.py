@@ -27,6 +27,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from soil_physics import fee
+from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import file_stem, output_dir
 from soil_msgs_py.episode import WORLD_MODES, world_modes
@@ -571,6 +572,9 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 2
+    except WorkerDied as err:  # a run that broke, not the input
+        print(f"pinn_eval: error: {err}", file=sys.stderr)
+        return 1
     paths = write_report(report, Path(args.out), args.name or f"{Path(args.checkpoint).stem}_report")
     print(markdown(report))
     print(json.dumps({k: str(v) for k, v in paths.items()}))

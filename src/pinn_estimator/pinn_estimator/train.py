@@ -423,7 +423,7 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
-        return 1 if type(err) is RuntimeError else 2
+        return 1 if isinstance(err, RuntimeError) else 2  # a run that broke (a worker died) / the input's fault
     except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
         if ranks.main:
             print("pinn_train: interrupted; nothing written", file=sys.stderr)

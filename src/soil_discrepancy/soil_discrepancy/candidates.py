@@ -26,13 +26,12 @@ from __future__ import annotations
 K_SIGMA = 3.0  # a named effect's k must exceed its jackknife SE this many times
 
 import math
-import multiprocessing as mp
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 
-from soil_msgs_py.process_pool import fork_is_safe
+from soil_msgs_py.process_pool import fork_is_safe, map_in_processes
 from soil_msgs_py.strict_json import finite_or_none as _f
 from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
@@ -233,8 +232,8 @@ def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *
     _CTX.update(frame=frame, model=model, base=base, folds=fold_list, allow_negative_k=allow_negative_k)
     try:
         if workers > 1 and len(tasks) > 1 and fork_is_safe():  # the tasks read _CTX, which only a fork carries
-            with mp.get_context("fork").Pool(min(workers, len(tasks)), initializer=limit_blas_threads) as pool:
-                results = pool.map(_cv_task, tasks, chunksize=1)
+            results = list(map_in_processes(_cv_task, tasks, min(workers, len(tasks)), what="cross-validating terms",
+                                            initializer=limit_blas_threads, start_method="fork"))
         else:
             results = [_cv_task(t) for t in tasks]
     finally:

@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.cli_paths import output_dir
 
@@ -106,6 +107,9 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
         return 2
+    except WorkerDied as exc:  # a run that broke, not the input
+        print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
+        return 1
     print(f"verdict: {report['summary']}")
     if args.hidden is not None:
         check = hidden_check(report, hidden)

@@ -1,4 +1,5 @@
-"""Which start method a local process pool may use in this process.
+"""Which start method a local process pool may use in this process, and a map over worker
+processes that fails when one of them dies.
 
 ``fork`` starts the workers at once with the parent's state (compiled kernels, module globals a
 task reads). A process that has imported Ray has Ray's threads, which may hold a lock at the fork
@@ -8,7 +9,10 @@ through their arguments, or the work runs in this process.
 """
 from __future__ import annotations
 
+import functools
+import signal
 import sys
+from typing import Callable, Iterable, Iterator
 
 
 def fork_is_safe() -> bool:
@@ -19,3 +23,40 @@ def fork_is_safe() -> bool:
 def pool_start_method() -> str:
     """``fork`` where it is safe, else ``spawn`` (the tasks and their arguments must pickle)."""
     return "fork" if fork_is_safe() else "spawn"
+
+
+class WorkerDied(RuntimeError):
+    """A worker process of ``map_in_processes`` died (killed: out of memory, a signal)."""
+
+
+def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, chunksize: int = 1,
+                     initializer: Callable | None = None, start_method: str | None = None) -> Iterator:
+    """``fn(item)`` for each item, in order, from ``workers`` processes; WorkerDied naming ``what``
+    (e.g. "reading bags") if one of them dies. Why not ``multiprocessing.Pool``: it replaces a
+    worker that was killed and waits for its lost task for ever (an out-of-memory kill of a
+    bag-reading worker left ``pinn_train`` idle with no end and no word)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    context = mp.get_context(start_method or pool_start_method())
+    executor = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                   initializer=functools.partial(_worker_start, initializer))
+    finished = False
+    try:
+        yield from executor.map(fn, items, chunksize=chunksize)
+        finished = True
+    except BrokenProcessPool:
+        raise WorkerDied(f"a worker process died while {what} (killed: out of memory, or a signal); nothing of it "
+                         "was kept: run again (with fewer --workers if memory was short)") from None
+    finally:  # an interrupt or an error: the queued tasks are dropped, not run to the end
+        executor.shutdown(wait=finished, cancel_futures=not finished)
+
+
+def _worker_start(initializer: Callable | None) -> None:
+    """A worker ignores Ctrl-C (the terminal sends it to the whole process group): the parent takes
+    it and ends the map, where each worker's traceback, and its death read as a broken pool, said
+    nothing of use."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if initializer is not None:
+        initializer()
