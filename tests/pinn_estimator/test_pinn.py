@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from pinn_estimator import checkpoint as ck
-from pinn_estimator.dataset import load_dataset, split_episodes
+from pinn_estimator.dataset import identical_episodes, load_dataset, split_episodes
+from soil_msgs_py.episode import EpisodeMeta
 from pinn_estimator.evaluate import main as eval_main
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.loss import LIMITED, consistency_loss, dn_gamma_dbeta_beta_only, pinn_loss, relu_limit
@@ -73,14 +74,41 @@ def test_a_grid_of_one_episode_per_cell_still_gets_validation_and_test_episodes(
 
     cells = [(soil, i_d) for soil in ("Clay", "Loam", "Sand", "Gravel") for i_d in (20.0, 50.0, 80.0)]
     ds = SimpleNamespace(names=[f"ep_{s}_{i:g}" for s, i in cells], root="grid",
-                         metas=[SimpleNamespace(world_mode="default", soil=s, relative_density_pct=i) for s, i in cells])
+                         metas=[EpisodeMeta(s, i, "default", 0, 0.5, 0.2, 10.0) for s, i in cells],
+                         forces=np.zeros((12, 2)), known=np.zeros((12, 9)), observations=np.zeros((12, 9)),
+                         episode_rows=lambda e: slice(e, e + 1))  # one sample each, alike: the metadata tells them apart
     split = split_episodes(ds, seed=3)
     assert [len(split[s]) for s in ("train", "val", "test")] == [8, 2, 2]
     assert sorted(split["train"] + split["val"] + split["test"]) == sorted(ds.names)
     assert split == split_episodes(ds, seed=3) and split != split_episodes(ds, seed=4)
-    two = SimpleNamespace(names=ds.names[:2], root="grid", metas=ds.metas[:2])  # one to train on is kept
+    two = SimpleNamespace(**{**vars(ds), "names": ds.names[:2], "metas": ds.metas[:2]})  # one to train on is kept
     assert [len(split_episodes(two, seed=0)[s]) for s in ("train", "val", "test")] == [1, 1, 0]
     assert split_episodes(ds, seed=3, val_fraction=0.0)["val"] == []  # none asked for, none drawn
+
+
+def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp_path, capsys):
+    """Two recorders on one graph (or a replay recorded again) wrote one episode under two names;
+    the split put one copy in training and the other in validation or test, which then held no
+    unseen episode, without a word. Other seeds of the noise-free fee world are other episodes."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_bags, data)
+    first = sorted(p.name for p in data.iterdir() if p.is_dir())
+    for name in first[:2]:
+        shutil.copytree(data / name, data / f"{name}_2")  # what the second recorder names it
+    ds = load_dataset(data, cache=False)
+    copies = identical_episodes(ds)
+    assert copies == [[first[0], f"{first[0]}_2"], [first[1], f"{first[1]}_2"]], copies
+    for seed in range(6):
+        split = split_episodes(ds, seed=seed)
+        for names in copies:
+            assert len({part for part in split for n in names if n in split[part]}) == 1, (seed, split)
+    args = ["--data", str(data), "--out", str(tmp_path / "m.pt"), "--epochs", "1", "--stride", "6", "--no-cache",
+            "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]
+    assert train_main(args) == 0
+    out = capsys.readouterr().out
+    assert "warning: 2 episodes are copies of others" in out and f"{first[0]} = {first[0]}_2" in out, out
 
 
 def test_cache_is_used_and_keyed_by_content(tiny_bags, tmp_path):

@@ -160,8 +160,8 @@ def test_bag_without_crcs_reads_and_says_so(old, caplog, episode):
 # ------------------------------------------------------------------------------ training
 @pytest.fixture(scope="module")
 def crc_dirs(tmp_path_factory):
-    """The three samples rewritten with CRCs plus two loam copies (every split non-empty),
-    and the same with a clay copy whose chunk 5 has flipped bytes."""
+    """The three samples rewritten with CRCs plus two loam copies (one episode under three names,
+    kept in one split), and the same with a clay copy whose chunk 5 has flipped bytes."""
     base = tmp_path_factory.mktemp("crc_bags")
     good = base / "good"
     for src in sorted(SAMPLES.iterdir()):

@@ -81,14 +81,21 @@ def assert_refused(out: subprocess.CompletedProcess, bag: Path) -> None:
 
 @pytest.fixture(scope="module")
 def dirs(tmp_path_factory):
-    """good/: the three samples plus two copies of the loam one (a soil group of three, so
-    every split is non-empty); with_bad/: the same plus a corrupt copy of the clay bag."""
+    """good/: the three samples plus two more episodes of the loam one's soil, density and targets
+    (other seeds: a soil group of three, so every split is non-empty; copies would be one episode,
+    kept in one split); with_bad/: the same plus a corrupt copy of the clay bag."""
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
     base = tmp_path_factory.mktemp("corrupt_bags")
     good = base / "good"
     for src in sorted(SAMPLES.iterdir()):
         copy_bag(src, good / src.name)
-    for i in (1, 2):
-        copy_bag(LOAM, good / f"{LOAM.name}_copy{i}")
+    meta = bag_io.read_episode(LOAM).meta
+    specs = [EpisodeSpec(meta.soil, meta.relative_density_pct, meta.target_speed_m_s, meta.target_depth_m, seed=seed,
+                         duration_s=meta.duration_s) for seed in (101, 102)]
+    for ep in run_episodes(SimConfig(world_mode=meta.world_mode), specs):
+        bag_io.write_episode(good / ep.meta.name, ep)
     with_bad = base / "with_bad"
     shutil.copytree(good, with_bad)
     bad = corrupt(copy_bag(CLAY, with_bad / f"{CLAY.name}_broken"))

@@ -13,6 +13,7 @@ estimator has when it publishes an estimate stamped with sample t.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import sys
@@ -325,6 +326,22 @@ def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
 
 
 # ---------------------------------------------------------------------------------- split
+def identical_episodes(ds: Dataset) -> list[list[str]]:
+    """Groups (sorted, of two or more) of one episode recorded more than once: two recorders on one
+    graph, a replay recorded again (``soil_bag_play --loop``) write it under other names. Judged by
+    the metadata (the bag name aside) and the samples (forces, Θ_k, observations). Episodes of
+    other seeds are other episodes even where their samples agree (the noise-free fee world)."""
+    by_content: dict[bytes, list[str]] = defaultdict(list)
+    for e, name in enumerate(ds.names):
+        rows = ds.episode_rows(e)
+        digest = hashlib.blake2b(digest_size=16)
+        digest.update(repr(dataclasses.astuple(ds.metas[e])).encode())
+        for array in (ds.forces[rows], ds.known[rows], ds.observations[rows]):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        by_content[digest.digest()].append(name)
+    return sorted(sorted(names) for names in by_content.values() if len(names) > 1)
+
+
 def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_fraction: float = 0.15) -> dict[str, list[str]]:
     """Split bag names into train/val/test **by episode**, stratified by (world, soil, I_d).
 
@@ -364,10 +381,20 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
             moved = sorted(rng.choice(sorted(out["train"]), size=n, replace=False).tolist())
             out[split] = moved
             out["train"] = [name for name in out["train"] if name not in set(moved)]
+    # identical episodes (copies under other names) go where the first of them went: a copy of a
+    # training episode in the test split is no held-out episode
+    copies = identical_episodes(ds)
+    where = {name: split for split in SPLITS for name in out[split]}
+    for names in copies:
+        for split in SPLITS:
+            out[split] = [n for n in out[split] if n not in names[1:]]
+        out[where[names[0]]] += names[1:]
     for s in SPLITS:
         out[s].sort()
     if not out["train"]:
-        raise ValueError(f"dataset at {ds.root} has too few episodes ({len(ds)}) for a train split")
+        distinct = len(ds) - sum(len(names) - 1 for names in copies)
+        raise ValueError(f"dataset at {ds.root} has too few episodes ({len(ds)}"
+                         + (f", {distinct} distinct: the others are copies" if copies else "") + ") for a train split")
     return out
 
 

@@ -38,7 +38,8 @@ from soil_physics.force_terms import CATALOGUE, parse_terms
 from soil_sim_node.ray_cluster import add_ray_option
 
 from .checkpoint import save_checkpoint
-from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset, split_episodes
+from .dataset import (MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, identical_episodes, load_dataset,
+                      split_episodes)
 from .distributed import Ranks, agreed_max, gather, process_group, ranks_from_env, share
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
@@ -154,6 +155,10 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     given = split is not None
     split = split or split_episodes(ds, seed=cfg.seed, val_fraction=cfg.val_fraction, test_fraction=cfg.test_fraction)
     idx = {s: ds.index(split[s]) for s in split}
+    if copies := identical_episodes(ds):
+        shown = "; ".join(" = ".join(names) for names in copies[:3]) + ("; ..." if len(copies) > 3 else "")
+        log(f"warning: {sum(len(c) - 1 for c in copies)} episodes are copies of others (the same samples under another "
+            f"name: two recorders, a replay recorded again): {shown}; each kept in one split, they weigh twice in it")
     if given and (left := len(ds.names) - len({i for v in idx.values() for i in v})):
         log(f"{left} of the {len(ds.names)} episodes are in none of the given split's parts: left out (the split "
             "is the model's whose split was reused; train without it to use them)")
