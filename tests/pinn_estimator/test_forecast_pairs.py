@@ -61,3 +61,18 @@ def test_the_forecast_report_says_when_episodes_were_paired_by_unit_weight():
     assert "same soil and density:" in labelled and "γ" not in labelled
     blind = markdown({**report, "unlabelled": 4})[0]
     assert "4 of the episodes carry no soil label" in blind and "measured unit weight γ" in blind
+
+
+def test_a_row_scored_on_fewer_pairs_than_the_header_says_so():
+    """The header said "44 pairs" for every row, where two rows were scored on 42 (their forecast
+    was undefined in two): the JSON alone told them apart."""
+    from pinn_estimator.forecast import markdown
+
+    def axes(pairs):
+        row = {"pairs": pairs, "mean_abs_pct": 1.0, "bias_pct": 0.0}
+        return {a: {"all": row, "deeper": row, "shallower": row} for a in ("x", "z")}
+
+    report = {"data": "bags/live", "pairs": 44, "episodes": 24, "worlds": ["default"],
+              "forecast": {"pinn": axes(42), "fused": axes(44)}}
+    rows = [line for line in markdown(report) if line.startswith("| ") and "pairs scored" in line]
+    assert len(rows) == 1 and "(42 of the 44 pairs scored)" in rows[0], rows

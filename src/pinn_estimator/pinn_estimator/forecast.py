@@ -417,6 +417,9 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
     for name, axes in report["forecast"].items():
         x, z = axes["x"], axes["z"]
         label = label_of(report, name)
+        scored = x["all"].get("pairs", report["pairs"])
+        if scored != report["pairs"]:  # no finite forecast (no failure wedge), or a measured force under 1 N
+            label += f" ({scored} of the {report['pairs']} pairs scored)"
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
         lines.append(f"| {label} | {_pct(x['all']['mean_abs_pct'])} | {_pct(x['deeper']['bias_pct'], True)} | "
