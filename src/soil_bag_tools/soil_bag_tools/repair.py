@@ -26,7 +26,8 @@ as ``<bag>_repaired``.
 PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, a finished bag
 directory, or a directory that is searched for ``*.partial`` directories. ``--out`` names
 the repaired copy of a finished bag (one PATH only). Exit code 1 if some path had nothing
-to recover (an undamaged bag, a bag without CRCs, an empty journal), 2 for bad arguments.
+to recover (an undamaged bag, a bag without CRCs, an empty journal), 2 for bad arguments (a PATH
+that does not exist among them).
 """
 from __future__ import annotations
 
@@ -95,6 +96,9 @@ def main(args: list[str] | None = None) -> int:
                 f"path(s), {len(bags)} finished bag(s))")
     if opts.out is not None and (opts.out.exists() or opts.out.is_symlink()):
         p.error(f"--out {opts.out} exists; the repaired copy never replaces anything")
+    missing = [str(path) for path in opts.paths if not path.exists()]
+    if missing:  # a mistyped path is a bad argument (exit 2), not a bag with nothing to recover (exit 1)
+        p.error(f"PATH {', '.join(missing)} does not exist")
     failed = 0
     for path in opts.paths:
         if path in bags:
