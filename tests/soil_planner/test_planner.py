@@ -16,8 +16,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, DEFAULT_MARGIN,
-                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth,
-                                  steady_cut_terms)
+                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, STALL_BACKOFF_M, STALL_MEMORY_TICKS, TOLERANCE_M,
+                                  StretchPlanner, describe, fused_upper_force, max_cut_depth, steady_cut_terms)
 
 pytestmark = pytest.mark.live
 
@@ -254,6 +254,28 @@ def test_d_prime_is_clamped_to_table1_like_the_pinn():
     # unclamped, d' = 0.71 m would give a larger force at the reach than F̂
     theta = {**known, "phi": est["phi"], "c": 0.0, "delta": est["delta"], "d": 0.71}
     assert fee.fee_xz(theta)[0] + r[0] * 0.71 / 0.69 > est["f_x_hat"] + 100.0
+
+
+def test_a_stall_caps_the_plan_below_where_it_began_until_it_is_forgotten():
+    """A posterior wrong about the soil (a stiff clay fused as a sand) kept planning 0.085 m where
+    every cut deeper than 0.06 m stalled: 10 s of stall in a 20 s cut. What the machine did
+    overrides what the model says, for a while."""
+    planner = StretchPlanner(force_quantile=None)
+    weak = _known(d=0.12)
+    est = _estimate(weak)
+    free = planner.plan(est, weak)[0].max_depth_m
+    assert free > 0.2  # a weak sand: the model allows a deep cut
+    stall = _known(d=0.12, v_x=0.1)
+    plan = planner.plan(est, stall)[0]  # the cut stalled at 0.12 m
+    assert plan.max_depth_m == pytest.approx(0.12 - STALL_BACKOFF_M) and plan.limited_by_x
+    assert plan.f_x_n == pytest.approx(plan.limit_x_n)
+    lifted = _known(d=0.08, v_x=0.2)  # the controller lifts; still slow: the same stall, not a shallower one
+    assert planner.plan(est, lifted)[0].max_depth_m == pytest.approx(0.12 - STALL_BACKOFF_M)
+    for _ in range(STALL_MEMORY_TICKS - 1):  # ticks 4 ... 602: within the memory of the stall begun at tick 2
+        assert planner.plan(est, weak)[0].max_depth_m == pytest.approx(0.12 - STALL_BACKOFF_M)
+    assert planner.plan(est, weak)[0].max_depth_m == pytest.approx(free)  # forgotten
+    planner.forget()  # a new cut: its start (from standstill) is no stall
+    assert planner.plan(est, _known(d=0.12, v_x=0.0))[0].max_depth_m == pytest.approx(free)
 
 
 def test_invalid_estimate_gives_no_plan():

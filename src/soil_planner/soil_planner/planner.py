@@ -87,6 +87,7 @@ F jump at d' = 0+; the search does not need continuity. If d = 0 is already inad
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -96,7 +97,7 @@ import numpy as np
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
-                                 STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
+                                 MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
 
@@ -161,6 +162,16 @@ ANCHOR_MAX_AGE_TICKS = 180
 HELD_GAP_M = 0.002
 # A fused plan is re-made at least this often [ticks] (StretchPlanner): 4 Hz at ~7 ms a plan.
 REPLAN_TICKS = 15
+# What the machine did overrides what the model says (``StallMemory``): after a stall that began
+# at depth d (forward speed below STALL_SPEED_SHARE of the cut speed, the anti-stall controller's
+# threshold at its default c_vx = 0.2, once the cut had reached speed), no plan is deeper than
+# d − STALL_BACKOFF_M for STALL_MEMORY_TICKS. Why: a posterior that is wrong about the soil (a
+# stiff clay far beyond the prior, fused as a sand) kept planning 0.085 m where every cut deeper
+# than 0.06 m stalled: 685 ticks at the limit and 10 s of stall in a 20 s cut, the controller's
+# lift the only thing between the plan and the stall.
+STALL_SPEED_SHARE = 0.8
+STALL_BACKOFF_M = 0.01
+STALL_MEMORY_TICKS = 10 * SAMPLE_RATE_HZ
 # x is scaled to F̂_x only where both forces exceed this [N] (a ratio of small forces is noise),
 # by a factor within these limits (a posterior that far off is left to its own spread).
 SCALE_FLOOR_N = 1e3
@@ -487,6 +498,38 @@ class SteadyAnchor:
 _KD = KNOWN_PARAMS.index("d")
 
 
+class StallMemory:
+    """Depths where the cut stalled recently (see STALL_MEMORY_TICKS); fed every tick's Θ_k,
+    ticks counted, not stamped (a replay or a lockstep graph remembers as real time does)."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.tick = 0
+        self.moving = False  # the cut has reached speed (its start is no stall)
+        self.stalled = False  # the newest tick was a stall's
+        self.onsets: collections.deque[tuple[int, float]] = collections.deque()  # (tick, depth [m]) of each stall's start
+
+    def add(self, known: Mapping[str, float], cut_speed_m_s: float) -> None:
+        self.tick += 1
+        v_x, d = known.get("v_x"), known.get("d")
+        if not (isinstance(v_x, float) and isinstance(d, float) and math.isfinite(v_x) and math.isfinite(d)):
+            return
+        slow = v_x < STALL_SPEED_SHARE * cut_speed_m_s
+        if not slow:
+            self.moving, self.stalled = True, False
+        elif self.moving and not self.stalled and d >= MIN_CUT_DEPTH_M:
+            self.stalled = True
+            self.onsets.append((self.tick, d))
+        while self.onsets and self.tick - self.onsets[0][0] > STALL_MEMORY_TICKS:
+            self.onsets.popleft()
+
+    def cap_m(self) -> float | None:
+        """The deepest depth a plan may keep [m], None without a recent stall."""
+        return max(min(d for _, d in self.onsets) - STALL_BACKOFF_M, 0.0) if self.onsets else None
+
+
 class StretchPlanner:
     """``max_cut_depth`` with fixed settings, as the planner node and the cut trial both run it.
 
@@ -505,11 +548,13 @@ class StretchPlanner:
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan, int] | None = None
         self.anchor = SteadyAnchor()
+        self.stalls = StallMemory()
 
     def forget(self) -> None:
-        """A new cut: the next fused plan is made afresh, from a fresh anchor."""
+        """A new cut: the next fused plan is made afresh, from a fresh anchor and no stall."""
         self._fused = None
         self.anchor.reset()
+        self.stalls.reset()
 
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
@@ -523,10 +568,11 @@ class StretchPlanner:
         /blade/cmd (``SteadyAnchor.add``)."""
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
         self.anchor.add(estimate, known, commanded_depth_m)
+        self.stalls.add(known, self.cut_speed_m_s)
         key = (estimate.get("fused_stretches"), self.anchor.restarts, self.margin, self.d_max_m, self.cut_speed_m_s,
                self.force_quantile)
         if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
-            return self._fused[1], False
+            return self._stall_capped(self._fused[1]), False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
                         include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms)
         steady = self.anchor.anchor() if fused else None
@@ -538,7 +584,15 @@ class StretchPlanner:
             if now is not None and now.max_depth_m < plan.max_depth_m:
                 plan = now
         self._fused = (key, plan, self.anchor.tick) if fused and plan is not None else None
-        return plan, True
+        return self._stall_capped(plan), True
+
+    def _stall_capped(self, plan: Plan | None) -> Plan | None:
+        """``plan`` no deeper than the stall memory allows; capped, it is bound by x (a stall is
+        the tractive limit reached) at that limit's force."""
+        cap = self.stalls.cap_m()
+        if plan is None or cap is None or plan.max_depth_m <= cap:
+            return plan
+        return dataclasses.replace(plan, max_depth_m=cap, limited_by_x=True, f_x_n=plan.limit_x_n)
 
 
 def check_quantile(q) -> float:
