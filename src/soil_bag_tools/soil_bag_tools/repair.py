@@ -27,7 +27,7 @@ PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, a finished 
 directory, or a directory that is searched for ``*.partial`` directories. ``--out`` names
 the repaired copy of a finished bag (one PATH only). Exit code 1 if some path had nothing
 to recover (an undamaged bag, a bag without CRCs, an empty journal), 2 for bad arguments (a PATH
-that does not exist among them).
+that does not exist among them: said, after the others are done).
 """
 from __future__ import annotations
 
@@ -96,9 +96,9 @@ def main(args: list[str] | None = None) -> int:
                 f"path(s), {len(bags)} finished bag(s))")
     if opts.out is not None and (opts.out.exists() or opts.out.is_symlink()):
         p.error(f"--out {opts.out} exists; the repaired copy never replaces anything")
-    missing = [str(path) for path in opts.paths if not path.exists()]
-    if missing:  # a mistyped path is a bad argument (exit 2), not a bag with nothing to recover (exit 1)
-        p.error(f"PATH {', '.join(missing)} does not exist")
+    # a mistyped path is a bad argument (exit 2 once every other path is done), not a bag with
+    # nothing to recover (exit 1)
+    missing = sum(not path.exists() and not path.is_symlink() for path in opts.paths)
     failed = 0
     for path in opts.paths:
         if path in bags:
@@ -124,7 +124,7 @@ def main(args: list[str] | None = None) -> int:
                 failed += 1
                 continue
             report(r, "complete journal" if r.journal_complete else f"truncated journal ({r.stop})")
-    return 1 if failed else 0
+    return 2 if missing else 1 if failed else 0
 
 
 if __name__ == "__main__":
