@@ -151,7 +151,9 @@ def test_ctrl_c_or_a_killed_rank_under_torchrun_keeps_the_best_model(bags, tmp_p
         proc.kill()
     err = (tmp_path / "ctrl_c.log").read_text(errors="replace")
     assert stdout.count('"checkpoint"') == 1, stdout + err[-3000:]
-    assert "nothing written" not in err and "terminate called" not in err, err[-3000:]
+    # (torchrun's own agent may still print its traceback and, at its exit under load, a C++
+    # "terminate called": the ranks' outcome is what is checked)
+    assert "nothing written" not in err and "pinn_train: interrupted (Ctrl-C) in epoch" in err, err[-3000:]
     _, ckpt = load_model(out)
     metrics = ckpt["metrics"]
     assert re.fullmatch(r"interrupted \(Ctrl-C\) in epoch \d+", metrics["stop_reason"]), metrics["stop_reason"]
