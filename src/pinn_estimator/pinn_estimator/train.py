@@ -201,7 +201,6 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     history = {"epoch": [], "train_loss": [], "val_loss": [], "val_force_mae_n": [], "lr": [], "seconds": []}
     best = (float("inf"), None, 0, None)  # (val loss, weights, epoch, val forces)
     failed: BaseException | None = None  # a collective that broke: another process of the job failed
-    cut_short = False  # stopped inside an epoch (its history may be half written)
     interrupted = 0  # the exit code of the Ctrl-C or SIGTERM that stopped it (0: none did)
     start = time.monotonic()
     bar = None
@@ -271,14 +270,12 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
             raise
         stop_reason = f"interrupted ({interrupt_name(exc)}) in epoch {epoch}"
         interrupted = interrupt_exit_code(exc)
-        cut_short = True
     except (RuntimeError, dist.DistError) as exc:
         if not ranks.active or best[1] is None or not _broken_collective(exc):
             raise
         failed = exc
         stop_reason = f"another process of the job failed in epoch {epoch} ({_first_line(exc)})"
-        cut_short = True
-    if cut_short:
+    if interrupted or failed is not None:  # stopped inside an epoch: its history may be half written
         rows = min(len(v) for v in history.values())  # an epoch whose history was half written
         for values in history.values():
             del values[rows:]

@@ -286,7 +286,8 @@ def markdown(report: dict) -> str:
         if w.get("unreached"):
             lines += ["", f"Patches {w['unreached']}."]
         if w.get("stall_everywhere"):
-            lines += ["", stall_note(w)[0].upper() + stall_note(w)[1:] + "."]
+            note = stall_note(w)
+            lines += ["", note[0].upper() + note[1:] + "."]
         lines += ["", "Targets (soil-aware against the fixed depths, this world):", "",
                   f"- volume per metre ≥ {TARGET_VOLUME_RATIO}× conservative: **{_fmt(r['volume_per_m_aware_over_conservative'])}×** "
                   f"(each patch cut at its best fixed depth from its first centimetre: "
