@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from soil_bag_tools.bag_io import find_episode_bags
+from pinn_estimator import train
 from soil_sim_node import batch
 from tests.ray_probe import is_loopback, listening_addresses, ray_processes, wait_gone
 
@@ -130,7 +131,8 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         out = tmp_path / "lost"
         longer = [*SMALL, "--seeds", "16", "--duration", "10.0"]  # 64 episodes, 16 per task
         lost = subprocess.Popen([sys.executable, "-m", "soil_sim_node.batch", *longer, "--out", str(out),
-                                 "--ray", f"127.0.0.1:{port}"], env=env, stderr=subprocess.PIPE, text=True)
+                                 "--ray", f"127.0.0.1:{port}", "--ray-give-up-after", "4"],
+                                env=env, stderr=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + 120
             while not (out.is_dir() and find_episode_bags(out)) and lost.poll() is None and time.monotonic() < deadline:
@@ -141,7 +143,7 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         finally:
             lost.kill()
         assert lost.returncode == 1, err[-2000:]
-        assert "has refused connections for 20 s" in err and "--skip-existing" in err, err[-2000:]
+        assert "has refused connections for 4 s" in err and "--skip-existing" in err, err[-2000:]
         assert "soil_sim_batch: error:" in err and "Ray tasks failed" in err, err[-2000:]
         written = find_episode_bags(out)
         assert 0 < len(written) < 64 and not (out / "dataset.json").exists()
@@ -178,3 +180,15 @@ def test_auto_pointing_at_a_stopped_cluster_or_an_empty_address_is_refused_at_on
         batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", ""])
     assert exit_.value.code == 2 and "argument --ray: '' is no address" in capsys.readouterr().err
     assert not find_episode_bags(tmp_path / "ds")
+
+
+@pytest.mark.parametrize("main", [batch.main, train.main], ids=["soil_sim_batch", "pinn_train"])
+@pytest.mark.parametrize("bad", ["0", "-3", "nan", "60", "soon"])
+def test_a_give_up_time_ray_cannot_honour_is_refused(main, bad, tmp_path, capsys):
+    """--ray-give-up-after: past 50 s Ray's driver aborts the process first (at 60 s); 0 or less
+    would give a cluster up at its first slow answer."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["--out", str(tmp_path / "x"), "--ray", "--ray-give-up-after", bad])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "argument --ray-give-up-after:" in err and bad in err, err
+    assert not (tmp_path / "x").exists()

@@ -195,7 +195,8 @@ def add_skip_bad_bags_option(parser) -> None:
 
 
 def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False,
-                 skip_bad_bags: bool = False, log=_warn, ray_address: str | None = None) -> Dataset:
+                 skip_bad_bags: bool = False, log=_warn, ray_address: str | None = None,
+                 ray_give_up_after_s: float | None = None) -> Dataset:
     """Read every episode bag under ``root`` (cached by content fingerprint).
 
     Raises ValueError naming the problem for an empty directory and BagReadError naming the
@@ -206,7 +207,8 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
 
     ``ray_address``: read the bags as Ray tasks (``soil_sim_node.ray_cluster``: ``LOCAL`` for a
     local instance of ``workers`` CPUs, or a cluster's address, whose nodes must see ``root`` at
-    the same path); the arrays are the same as the local reader's.
+    the same path); the arrays are the same as the local reader's. ``ray_give_up_after_s``: how
+    long its head may refuse connections (``run_tasks``; None: its default).
     """
     root = Path(root)
     bags = find_episode_bags(root)
@@ -218,7 +220,8 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
         cached = _from_npz(cache_path, fingerprint, root)
         if cached is not None:
             return cached
-    rows = _read_on_ray(bags, workers, progress, ray_address) if ray_address else _read_all(bags, workers, progress)
+    rows = (_read_on_ray(bags, workers, progress, ray_address, ray_give_up_after_s) if ray_address
+            else _read_all(bags, workers, progress))
     bad = [r for r in rows if isinstance(r, BagReadError)]
     if bad and not skip_bad_bags:
         first = bad[0]
@@ -275,7 +278,7 @@ def _read_bags(bags: list[Path]) -> list:
     return [_read(b) for b in bags]
 
 
-def _read_on_ray(bags, workers, progress, ray_address) -> list:
+def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s=None) -> list:
     """``_read`` of every bag, in bag order, as Ray tasks of ``RAY_BAGS_PER_TASK`` bags."""
     from soil_sim_node.ray_cluster import ray_session, run_tasks
 
@@ -286,7 +289,8 @@ def _read_on_ray(bags, workers, progress, ray_address) -> list:
 
         bar = tqdm(total=len(bags), desc="reading bags (Ray)", unit="bag")
     with ray_session(ray_address, num_cpus=max(1, workers)):
-        done = run_tasks(_read_bags, groups, on_done=lambda r: bar and bar.update(0 if isinstance(r, Exception) else len(r)))
+        done = run_tasks(_read_bags, groups, on_done=lambda r: bar and bar.update(0 if isinstance(r, Exception) else len(r)),
+                         **({} if give_up_after_s is None else {"lost_after_s": give_up_after_s}))
     if bar is not None:
         bar.close()
     for group, result in zip(groups, done):

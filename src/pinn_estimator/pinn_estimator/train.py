@@ -463,7 +463,8 @@ def _load(args, ranks: Ranks) -> Dataset:
     ds, problem = None, None
     if ranks.main:
         try:
-            ds = load_dataset(args.data, progress=not args.quiet, ray_address=args.ray, **options)
+            ds = load_dataset(args.data, progress=not args.quiet, ray_address=args.ray,
+                              ray_give_up_after_s=args.ray_give_up_after, **options)
         except (ValueError, FileNotFoundError, RuntimeError) as err:
             problem = err
     first = gather(None if problem is None else f"{type(problem).__name__}: {problem}", ranks)[0]

@@ -53,7 +53,8 @@ from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
 
 from .effects import Effects, effects_for_mode
-from .ray_cluster import LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus, ray_session, run_tasks
+from .ray_cluster import (CLUSTER_LOST_AFTER_S, LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus,
+                          ray_session, run_tasks)
 from .rollout import episode_meta, run_episodes
 from .simulator import ENGINES, Dynamics, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
@@ -119,11 +120,12 @@ class ChunksFailed(RuntimeError):
 
 
 def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress: bool = True,
-             ray_address: str | None = None) -> dict:
+             ray_address: str | None = None, ray_give_up_after_s: float = CLUSTER_LOST_AFTER_S) -> dict:
     """Generate the dataset of ``plan``; returns a summary (also written as dataset.json).
 
     ``ray_address``: run the chunks as Ray tasks (``ray_cluster.LOCAL`` or a cluster's address;
-    ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool."""
+    ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool;
+    ``ray_give_up_after_s``: how long its head may refuse connections (``run_tasks``)."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
     if not plan.specs:  # its dataset.json would replace the record of what the directory holds
         raise ValueError(f"the plan for {plan.out} has no episode: nothing to generate")
@@ -164,7 +166,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
             chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
             done = run_tasks(_run_chunk, [(base, c) for c in chunks],
-                             on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)))
+                             on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)),
+                             lost_after_s=ray_give_up_after_s)
         bar.close()
         if any(isinstance(r, Exception) for r in done):
             _remove_staging(plan)  # bags dead or given-up tasks were writing
@@ -445,7 +448,8 @@ def main(argv=None) -> int:
             print(f"soil_sim_batch: warning: --soil-file's soils {unused} are not simulated without --soils naming "
                   f"them (e.g. --soils {','.join(unused)}); the catalogue's are", file=sys.stderr)
         with terminate_as_interrupt():
-            summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray)
+            summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray,
+                               ray_give_up_after_s=args.ray_give_up_after)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         return 2

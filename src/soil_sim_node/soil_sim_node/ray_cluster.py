@@ -28,6 +28,8 @@ _NO_CLUSTER = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 # are given up [s]: under Ray's own 60 s (gcs_rpc_server_reconnect_timeout_s), after which it
 # aborts the process, with room for the driver's shutdown (~5 s against a dead head)
 CLUSTER_LOST_AFTER_S = 20.0
+# The most a user may give the head (``--ray-give-up-after``) [s]: Ray's driver aborts at 60 s
+CLUSTER_LOST_MAX_S = 50.0
 _WAIT_POLL_S = 2.0  # how often a wait with nothing finished checks the head [s]
 LOCAL = "local"  # the --ray value (and Ray's own address) for "start a local instance"
 RAY_OPTION_HELP = (
@@ -42,6 +44,22 @@ def add_ray_option(parser, what: str) -> None:
     """``--ray [ADDRESS]`` for every CLI that can fan out over Ray (one wording everywhere)."""
     parser.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS", type=_ray_address,
                         help=f"{what}: {RAY_OPTION_HELP}")
+    parser.add_argument("--ray-give-up-after", type=_give_up_after, default=CLUSTER_LOST_AFTER_S, metavar="S",
+                        help="with --ray: seconds the cluster's head may refuse connections before the unfinished "
+                             f"tasks are given up and said (default {CLUSTER_LOST_AFTER_S:g}; at most "
+                             f"{CLUSTER_LOST_MAX_S:g}: Ray's driver aborts the process at 60 s)")
+
+
+def _give_up_after(text: str) -> float:
+    """--ray-give-up-after S: a number of seconds in (0, CLUSTER_LOST_MAX_S]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not 0.0 < value <= CLUSTER_LOST_MAX_S:  # NaN fails too
+        raise argparse.ArgumentTypeError(f"{text} s is not in (0, {CLUSTER_LOST_MAX_S:g}] s: Ray's driver aborts "
+                                         "the process after 60 s without its head")
+    return value
 
 
 def _ray_address(text: str) -> str:
