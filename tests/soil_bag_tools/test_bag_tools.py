@@ -429,7 +429,8 @@ def test_replay_rate_2_topic_selection(listener):
 def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp_path):
     domain = next_domain_id()
     lst = listener(domain, topics=(), status_sub=False)  # only publishes /sim/status
-    rec = start("soil_bag_record", "--out", tmp_path, domain=domain)
+    # every episode topic, and one more whose name is misspelt: nothing publishes it
+    rec = start("soil_bag_record", "--out", tmp_path, "--all-episode-topics", "--topics", "/soil/estimat", domain=domain)
     player = None
     try:
         assert lst.wait_for(lambda: lst.status_pub.get_subscription_count() >= 1, 10), "recorder never subscribed"
@@ -448,6 +449,9 @@ def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp
     assert "ignoring bad /sim/status message: /sim/status: not JSON" in log
     assert "ignoring bad /sim/status message: /sim/status: episode=None must be a non-negative integer" in log
     assert f"finished (completed) {bag}: 600 ticks, 6000 messages (600 on each of 10 topics), 0 dropped" in log
+    # said while recording (the replay lasts 10 s) and again at the end, with the name it was meant as
+    assert "no publisher of /soil/estimat (did you mean /soil/estimate?) after 5 s: not recorded until one appears" in log, log
+    assert "never recorded (no publisher seen): /soil/estimat (did you mean /soil/estimate?)" in log, log
     assert_same_episode(bag_io.read_episode(bag), bag_io.read_episode(SAMPLE))
     assert sorted(p.name for p in tmp_path.iterdir()) == [SAMPLE.name]  # no journal left
 

@@ -15,6 +15,7 @@ whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import tempfile
 import time
@@ -33,6 +34,7 @@ from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_argumen
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
+_PENDING_SAY_AFTER_S = 5.0  # a --topics name with no publisher this long is said to the user
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -99,6 +101,8 @@ class RecordNode(Node):
         if self._pending:
             self.get_logger().info(f"waiting for publishers of {self._pending} to learn their types")
             self._discovery = self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
+            self._pending_since = time.monotonic()
+            self._pending_said = False
         mode = "one bag" if opts.no_split else "one bag per /sim/status episode"
         self.get_logger().info(f"recording {len(known) + len(self._pending)} topics to {opts.out} ({mode})")
 
@@ -124,6 +128,12 @@ class RecordNode(Node):
 
     def _discover(self) -> None:
         types = dict(self.get_topic_names_and_types())
+        if not self._pending_said and time.monotonic() - self._pending_since >= _PENDING_SAY_AFTER_S:
+            self._pending_said = True
+            waiting = [t for t in self._pending if not types.get(t)]
+            if waiting:  # a misspelt --topics name waits for ever: say so while the user is watching
+                self.get_logger().warning(f"no publisher of {_with_guesses(waiting, types)} after "
+                                          f"{_PENDING_SAY_AFTER_S:g} s: not recorded until one appears")
         for topic in [t for t in self._pending if types.get(t)]:
             self._pending.remove(topic)
             msgtype = types[topic][0]
@@ -145,6 +155,22 @@ class RecordNode(Node):
 
     def close(self) -> None:
         self.recorder.close()
+        if self._pending:
+            try:
+                graph = dict(self.get_topic_names_and_types())
+            except Exception:  # noqa: BLE001 - a context already shut down: the names alone are said
+                graph = {}
+            self.get_logger().warning(f"never recorded (no publisher seen): {_with_guesses(self._pending, graph)}")
+
+
+def _with_guesses(topics: list[str], graph_types: dict) -> str:
+    """The topics, each with the name it may have been meant as (the contract's and the graph's)."""
+    names = sorted(set(GRAPH_TOPICS_BY_NAME) | set(graph_types))
+    said = []
+    for topic in topics:
+        guess = difflib.get_close_matches(topic, [n for n in names if n != topic], n=1, cutoff=0.75)
+        said.append(f"{topic} (did you mean {guess[0]}?)" if guess else topic)
+    return ", ".join(said)
 
 
 def main(args: list[str] | None = None) -> int:
