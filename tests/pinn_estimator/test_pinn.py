@@ -381,6 +381,24 @@ def test_empty_bag_directory_is_named(tmp_path, capsys):
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_mcap_files_outside_a_bag_directory_are_said_not_passed_by(tmp_path):
+    """A bag's .mcap copied without its directory (metadata.yaml) is no bag the readers take: it
+    was passed by without a word, and a directory of only such files was "no episode bags"."""
+    sample = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
+    (mcap,) = sample.glob("*.mcap")
+    loose = tmp_path / "loose"
+    (loose / "run2").mkdir(parents=True)
+    shutil.copy(mcap, loose / "run1.mcap")
+    shutil.copy(mcap, loose / "run2" / "ep.mcap")
+    with pytest.raises(ValueError, match=r"no episode bags under .*; not read: 2 \.mcap file\(s\) outside a rosbag2 bag "
+                                         r"directory .*run1\.mcap, .*run2/ep\.mcap"):
+        load_dataset(loose, cache=False)
+    shutil.copytree(sample, loose / sample.name)  # beside a bag: read, and the others said
+    said = []
+    ds = load_dataset(loose, cache=False, log=said.append)
+    assert ds.names == [sample.name] and len(said) == 1 and "not read: 2 .mcap file(s)" in said[0], said
+
+
 def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsys):
     """--workers -1 was taken (as one process) and pinn_train --seed -1 failed in numpy's words
     ("Seed must be between 0 and 2**32 - 1"): both are refused as the arguments are read (exit 2)."""

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_bag_tools.bag_io import BagReadError, find_episode_bags, read_episode
+from soil_bag_tools.bag_io import BagReadError, find_episode_bags, read_episode, stray_mcap_files
 from soil_msgs_py.episode import EpisodeMeta, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
@@ -213,7 +213,11 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     root = Path(root)
     bags = find_episode_bags(root)
     if not bags:
-        raise ValueError(f"no episode bags under {root} (expected rosbag2 directories with metadata.yaml)")
+        note = _strays_note(root)
+        raise ValueError(f"no episode bags under {root} (expected rosbag2 directories with metadata.yaml)"
+                         + (f"; {note}" if note else ""))
+    if note := _strays_note(root):
+        log(f"{root}: {note}")
     fingerprint = fingerprint_bags(bags, root)
     cache_path = Path(cache_dir or root / CACHE_DIR_NAME) / f"dataset_{fingerprint[:24]}.npz"
     if cache and cache_path.is_file():
@@ -253,6 +257,16 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     if cache and not bad:
         _to_npz(ds, cache_path)
     return ds
+
+
+def _strays_note(root: Path) -> str:
+    """What the bag search passed by: .mcap files outside any rosbag2 directory ("" if none)."""
+    strays = stray_mcap_files(root)
+    if not strays:
+        return ""
+    shown = ", ".join(str(p) for p in strays[:3]) + (f" and {len(strays) - 3} more" if len(strays) > 3 else "")
+    return (f"not read: {len(strays)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml beside "
+            f"the .mcap): {shown}")
 
 
 def _read_all(bags, workers, progress):

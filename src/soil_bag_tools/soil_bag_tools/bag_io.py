@@ -274,10 +274,23 @@ def find_episode_bags(root: str | os.PathLike) -> list[Path]:
     """Sorted bag directories under ``root`` (or ``root`` itself); skips ``*.partial``. Symbolic
     links to directories are followed (a dataset assembled from links to recorded runs), each real
     directory once (a link back up the tree cannot loop)."""
+    return _scan_bags(root)[0]
+
+
+def stray_mcap_files(root: str | os.PathLike) -> list[Path]:
+    """Sorted ``.mcap`` files under ``root`` that no reader takes: outside any rosbag2 directory
+    (``metadata.yaml``) and any recorder journal (``*.partial``), e.g. a bag's file copied without
+    its directory. Said to the user, since ``find_episode_bags`` passes them by."""
+    return _scan_bags(root)[1]
+
+
+def _scan_bags(root) -> tuple[list[Path], list[Path]]:
+    """(bag directories, stray .mcap files) under ``root``: one walk for both."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset root {root} is not a directory")
     found: list[Path] = []
+    strays: list[Path] = []
     seen: set[str] = set()
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         d = Path(dirpath)
@@ -294,7 +307,8 @@ def find_episode_bags(root: str | os.PathLike) -> list[Path]:
             dirnames.clear()  # a bag holds no bags
         else:
             dirnames[:] = [n for n in dirnames if not n.endswith(PARTIAL_SUFFIX)]
-    return sorted(found)
+            strays.extend(d / f for f in filenames if f.endswith(".mcap"))
+    return sorted(found), sorted(strays)
 
 
 def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Episode]:
