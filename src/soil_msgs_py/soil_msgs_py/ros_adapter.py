@@ -317,16 +317,22 @@ def own_arguments(argv: list[str]) -> list[str]:
     was refused)."""
     from rclpy.utilities import remove_ros_args
 
-    outside, in_ros = [], False
-    for arg in argv[1:]:
+    outside = [arg for arg, in_ros, _ in _ros_scan(argv[1:]) if not in_ros and ":=" in arg]
+    kept = list(remove_ros_args(argv)[1:])
+    return kept + [a for a in outside if a not in kept]
+
+
+def _ros_scan(args: list[str]):
+    """(arg, inside --ros-args, the argument after it) for each argument but the markers
+    ``--ros-args`` and ``--`` themselves (rcl's rule: ROS arguments run from ``--ros-args`` to ``--``)."""
+    in_ros = False
+    for i, arg in enumerate(args):
         if arg == "--ros-args":
             in_ros = True
         elif arg == "--":
             in_ros = False
-        elif not in_ros and ":=" in arg:
-            outside.append(arg)
-    kept = list(remove_ros_args(argv)[1:])
-    return kept + [a for a in outside if a not in kept]
+        else:
+            yield arg, in_ros, args[i + 1] if i + 1 < len(args) else ""
 
 
 def _program(argv: list[str]) -> str:
@@ -350,15 +356,7 @@ def own_arguments_or_refusal(argv: list[str]) -> list[str] | None:
 
 def params_files(argv: list[str]) -> list[str]:
     """The ``--params-file`` paths among ``argv``'s ROS arguments (between ``--ros-args`` and ``--``)."""
-    files, in_ros, it = [], False, iter(argv)
-    for arg in it:
-        if arg == "--ros-args":
-            in_ros = True
-        elif arg == "--":
-            in_ros = False
-        elif in_ros and arg == "--params-file":
-            files.append(next(it, ""))
-    return files
+    return [after for arg, in_ros, after in _ros_scan(argv) if in_ros and arg == "--params-file"]
 
 
 def _section_matches(key: str, fully_qualified_name: str) -> bool:
