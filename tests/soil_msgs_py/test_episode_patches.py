@@ -70,3 +70,17 @@ def test_entry_forms_are_one_patch():
     for form in ("5:Clay:90", (5.0, "Clay", 90), {"x_start_m": 5, "soil": "Clay", "relative_density_pct": 90}, want):
         assert check_patches([form]) == (want,)
     assert check_patches(None) == () == check_patches([])
+
+
+def test_a_patch_from_behind_the_blade_start_is_taken_by_both_tools_written_as_a_separate_argument():
+    """``--patch -3:Sand:20`` (x < 0) was refused by argparse as "expected one argument": a value
+    starting with '-' that is no plain number reads as an option."""
+    from soil_bringup.cut_report import parse_args as cut_args
+    from soil_msgs_py.patches import glue_negative_patches
+    from soil_sim_node.batch import parse_args as batch_args
+
+    argv = ["--patch", "-3:Sand:20", "--patch", "-0.5:Loam:40", "--patch", "1.5:Clay:80"]
+    assert glue_negative_patches(argv) == ["--patch=-3:Sand:20", "--patch=-0.5:Loam:40", "--patch", "1.5:Clay:80"]
+    assert glue_negative_patches(["--patch", "--quiet", "-x"]) == ["--patch", "--quiet", "-x"]  # no value: argparse says so
+    assert batch_args(["--out", "b", *argv]).patch == ["-3:Sand:20", "-0.5:Loam:40", "1.5:Clay:80"]
+    assert check_patches(cut_args(argv).patch, "--patch")[0] == parse_patch("-3:Sand:20")

@@ -39,7 +39,7 @@ from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG
-from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, parse_patch
+from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec
@@ -79,7 +79,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
-    args = p.parse_args(argv)
+    args = p.parse_args(glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
     args.planner = {"margin": args.margin, "force_quantile": args.force_quantile}
     try:
         StretchPlanner(**args.planner)

@@ -50,6 +50,19 @@ def parse_patch(text: str, where: str = "patch") -> SoilPatch:
                          f"expected {PATCH_SYNTAX}") from None
 
 
+def glue_negative_patches(argv: list[str], option: str = "--patch") -> list[str]:
+    """``argv`` with ``--patch -3:Sand:20`` written ``--patch=-3:Sand:20``: argparse reads a value
+    that starts with '-' and is no plain number as an option, so a patch from x < 0 (behind the
+    blade's start) was refused as "expected one argument"."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] == option and arg[:2].startswith("-") and arg[1:2].isdigit():
+            out[-1] = f"{option}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def to_patch(item, where: str = "patch") -> SoilPatch:
     """One patch from any entry form: a SoilPatch, ``'X:SOIL:ID'``, a mapping of the field
     names (metadata JSON, YAML) or an (x_start_m, soil, relative_density_pct) sequence."""

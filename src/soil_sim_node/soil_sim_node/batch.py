@@ -48,7 +48,7 @@ from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import beyond_lift_reach
-from soil_msgs_py.patches import check_patches
+from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
 
@@ -372,7 +372,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--skip-existing", action="store_true",
                    help="keep existing bags of the same name and simulate the rest (resume an interrupted run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    return p.parse_args(argv)
+    return p.parse_args(glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
 
 
 def _patches_from_args(args: argparse.Namespace, paths: dict, custom: dict) -> tuple:
