@@ -143,7 +143,10 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         finally:
             lost.kill()
         assert lost.returncode == 1, err[-2000:]
-        assert "has refused connections for 4 s" in err and "--skip-existing" in err, err[-2000:]
+        # Ray's driver notices the stopped raylet at once in some runs (the tasks fail as
+        # LocalRayletDiedError), hangs on the head in others (given up after 4 s): either is said
+        assert "has refused connections for 4 s" in err or "LocalRayletDiedError" in err, err[-2000:]
+        assert "--skip-existing simulates the missing episodes once the cluster is back" in err, err[-2000:]
         assert "soil_sim_batch: error:" in err and "Ray tasks failed" in err, err[-2000:]
         written = find_episode_bags(out)
         assert 0 < len(written) < 64 and not (out / "dataset.json").exists()

@@ -320,14 +320,21 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
             names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
             lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
     if lost:  # one line, not every unfinished episode's name: the rerun finds them
-        lines.append(f"  {len(lost)} tasks ({sum(len(c) for c, _ in lost)} episodes) unfinished: {lost[0][1]}; the "
-                     "same command with --skip-existing simulates them once the cluster is back")
+        lines.append(f"  {len(lost)} tasks ({sum(len(c) for c, _ in lost)} episodes) unfinished: {lost[0][1]}")
+    bad_input = all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed)
+    if not bad_input:  # a lost cluster, a dead worker or raylet (Ray says either, whichever it notices first)
+        lines.append("  the same command with --skip-existing simulates the missing episodes"
+                     + (" once the cluster is back" if lost or any(_cluster_gone(e) for _, e in failed) else ""))
     kept = sum(len(r) for r in done if not isinstance(r, Exception))
     raise ChunksFailed(
         f"{len(failed)} of {len(chunks)} Ray tasks failed; the bags of the other {kept} episodes are written under "
         f"{plan.out} (plus any of the failed tasks' episodes finished before the failure, never a partial bag); "
-        "dataset.json is not written:\n" + "\n".join(lines),
-        bad_input=all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed))
+        "dataset.json is not written:\n" + "\n".join(lines), bad_input=bad_input)
+
+
+def _cluster_gone(err: Exception) -> bool:
+    """Whether Ray failed a task because its node's raylet died (a stopped cluster, a lost node)."""
+    return type(err).__name__ in ("LocalRayletDiedError", "NodeDiedError")
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
