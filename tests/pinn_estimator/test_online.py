@@ -311,6 +311,24 @@ def test_time_going_far_back_starts_a_new_stream(episode, model):
     assert len(valid(out)) == 2 * 41
 
 
+def test_ticks_arriving_twice_again_and_again_are_said_to_be_a_second_publisher(episode, model):
+    """A controller left running from another launch answers every tick too: each copy spoils its
+    tick (no window fills); after a few such ticks the warning says what it most likely is."""
+    said = []
+    est = OnlineEstimator(model, lambda e: None, warn=lambda kind, text: said.append(text))
+    for i in range(6):
+        messages = tick_messages(episode, i)
+        copy = [m for m in messages if m[0] == T.BLADE_CMD.name][0]
+        # both copies before the tick is complete (a duplicate), or one after it was released (stale)
+        for topic, msg in ([copy] + [m for m in messages if m[0] != T.BLADE_CMD.name] + [copy]) if i % 2 else \
+                ([copy, copy] + [m for m in messages if m[0] != T.BLADE_CMD.name]):
+            est.add(topic, msg)
+    repeats = [t for t in said if "two messages with stamp" in t or "(out of order)" in t]
+    assert (est.counters.duplicates, est.counters.out_of_order, len(repeats)) == (3, 3, 6)
+    assert all("second node publishing" not in t for t in repeats[:2])
+    assert all("is a second node publishing this topic on this ROS_DOMAIN_ID" in t for t in repeats[2:]), repeats
+
+
 def test_assembler_rejects_bad_reorder_horizon():
     with pytest.raises(ValueError, match="reorder_ticks=0"):
         SampleAssembler(print, reorder_ticks=0)

@@ -46,6 +46,12 @@ MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a la
 # A stamp more than a window behind the last sample is not a late message but a source that
 # started over (a bag replayed again, a simulator reset) without an episode_start.
 RESTART_BACK_TICKS = WINDOW_SAMPLES
+# Ticks arriving twice again and again (a second message of a tick, before or after the tick
+# was released) are most likely a second publisher of the topic on the domain (a node left
+# running from another launch): each copy spoils its tick or resets the window, none fills.
+REPEATS_BEFORE_HINT = 3
+REPEATS_HINT = ("; ticks keep arriving twice: is a second node publishing this topic on this ROS_DOMAIN_ID "
+                   "(e.g. a controller left running from another launch)?")
 # Input topics and, per topic, (field name, destination, column): destination "obs" -> o_t,
 # "known" -> Θ_k. Fields a topic carries that the model does not use (v_x^b, p_x^c) are
 # still checked for NaN/inf: a sample with a broken message is not trusted.
@@ -132,6 +138,7 @@ class SampleAssembler:
         self.joiner = StampJoiner(INPUT_TOPICS, max_pending=MAX_PENDING_TICKS, duplicates="spoil",
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   restart_back_ns=RESTART_BACK_TICKS * PERIOD_NS)
+        self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
 
     @property
     def last_released(self) -> int:
@@ -163,8 +170,9 @@ class SampleAssembler:
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
         if verdict is Verdict.STALE:
             self.counters.out_of_order += 1
+            self.repeats += stamp == last  # a copy of the tick just released
             self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
-                                               f"{last} ns (out of order); window reset")
+                                               f"{last} ns (out of order); window reset" + self._repeats_hint())
             self.on_sample(last, None)
             return
         if verdict is Verdict.RESTART:
@@ -175,13 +183,19 @@ class SampleAssembler:
             self.on_restart()
         if verdict is Verdict.DUPLICATE:
             self.counters.duplicates += 1
-            self.warn(f"{topic}:duplicate", f"{topic}: two messages with stamp {stamp} ns; that tick is dropped")
+            self.repeats += 1
+            self.warn(f"{topic}:duplicate", f"{topic}: two messages with stamp {stamp} ns; that tick is dropped"
+                      + self._repeats_hint())
         elif broken and not was_bad:
             self.counters.non_finite += 1
             self.warn(f"{topic}:non_finite", f"{topic}: field {broken[0]}={broken[1]} at stamp {stamp} ns is not "
                                              "finite; that tick is dropped and the window reset")
         for joined in out:
             self._released(joined)
+
+    def _repeats_hint(self) -> str:
+        """What ticks arriving twice again and again most likely are (``REPEATS_HINT``), once they do."""
+        return REPEATS_HINT if self.repeats >= REPEATS_BEFORE_HINT else ""
 
     def _released(self, joined) -> None:
         """One tick out of the joiner: a sample, a missing tick or a tick dropped to bound memory."""
