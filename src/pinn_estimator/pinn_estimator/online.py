@@ -51,7 +51,7 @@ RESTART_BACK_TICKS = WINDOW_SAMPLES
 # running from another launch): each copy spoils its tick or resets the window, none fills.
 REPEATS_BEFORE_HINT = 3
 REPEATS_HINT = ("; ticks keep arriving twice: is a second node publishing this topic on this ROS_DOMAIN_ID "
-                   "(e.g. a controller left running from another launch)?")
+                "(e.g. a controller left running from another launch)?")
 # Input topics and, per topic, (field name, destination, column): destination "obs" -> o_t,
 # "known" -> Θ_k. Fields a topic carries that the model does not use (v_x^b, p_x^c) are
 # still checked for NaN/inf: a sample with a broken message is not trusted.
