@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_bag_tools.bag_io import BagReadError, find_episode_bags, read_episode, stray_mcap_files
+from soil_bag_tools.bag_io import BagReadError, read_episode, scan_bags
 from soil_msgs_py.episode import EpisodeMeta, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
@@ -211,12 +211,12 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     long its head may refuse connections (``run_tasks``; None: its default).
     """
     root = Path(root)
-    bags = find_episode_bags(root)
+    bags, strays = scan_bags(root)
+    note = _strays_note(strays)
     if not bags:
-        note = _strays_note(root)
         raise ValueError(f"no episode bags under {root} (expected rosbag2 directories with metadata.yaml)"
                          + (f"; {note}" if note else ""))
-    if note := _strays_note(root):
+    if note:
         log(f"{root}: {note}")
     fingerprint = fingerprint_bags(bags, root)
     cache_path = Path(cache_dir or root / CACHE_DIR_NAME) / f"dataset_{fingerprint[:24]}.npz"
@@ -259,9 +259,8 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     return ds
 
 
-def _strays_note(root: Path) -> str:
+def _strays_note(strays: list[Path]) -> str:
     """What the bag search passed by: .mcap files outside any rosbag2 directory ("" if none)."""
-    strays = stray_mcap_files(root)
     if not strays:
         return ""
     shown = ", ".join(str(p) for p in strays[:3]) + (f" and {len(strays) - 3} more" if len(strays) > 3 else "")

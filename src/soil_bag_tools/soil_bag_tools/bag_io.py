@@ -274,18 +274,14 @@ def find_episode_bags(root: str | os.PathLike) -> list[Path]:
     """Sorted bag directories under ``root`` (or ``root`` itself); skips ``*.partial``. Symbolic
     links to directories are followed (a dataset assembled from links to recorded runs), each real
     directory once (a link back up the tree cannot loop)."""
-    return _scan_bags(root)[0]
+    return scan_bags(root)[0]
 
 
-def stray_mcap_files(root: str | os.PathLike) -> list[Path]:
-    """Sorted ``.mcap`` files under ``root`` that no reader takes: outside any rosbag2 directory
-    (``metadata.yaml``) and any recorder journal (``*.partial``), e.g. a bag's file copied without
-    its directory. Said to the user, since ``find_episode_bags`` passes them by."""
-    return _scan_bags(root)[1]
-
-
-def _scan_bags(root) -> tuple[list[Path], list[Path]]:
-    """(bag directories, stray .mcap files) under ``root``: one walk for both."""
+def scan_bags(root: str | os.PathLike) -> tuple[list[Path], list[Path]]:
+    """(``find_episode_bags(root)``, the sorted ``.mcap`` files under ``root`` that no reader takes)
+    in one walk: a stray ``.mcap`` lies outside any rosbag2 directory (``metadata.yaml``) and any
+    recorder journal (``*.partial``), e.g. a bag's file copied without its directory, and is said
+    to the user, since the bag search passes it by."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset root {root} is not a directory")
