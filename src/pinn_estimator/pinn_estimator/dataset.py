@@ -34,6 +34,7 @@ from soil_msgs_py.params import (
     WINDOW_SAMPLES,
 )
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
+from soil_sim_node.ray_cluster import CLUSTER_LOST_AFTER_S
 
 # Samples between window ends at most: 600, 10 s at 60 Hz, the length of this project's
 # episodes. A larger stride leaves one window per episode, and a run on a handful of windows
@@ -196,7 +197,7 @@ def add_skip_bad_bags_option(parser) -> None:
 
 def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, progress: bool = False,
                  skip_bad_bags: bool = False, log=_warn, ray_address: str | None = None,
-                 ray_give_up_after_s: float | None = None) -> Dataset:
+                 ray_give_up_after_s: float = CLUSTER_LOST_AFTER_S) -> Dataset:
     """Read every episode bag under ``root`` (cached by content fingerprint).
 
     Raises ValueError naming the problem for an empty directory and BagReadError naming the
@@ -208,7 +209,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     ``ray_address``: read the bags as Ray tasks (``soil_sim_node.ray_cluster``: ``LOCAL`` for a
     local instance of ``workers`` CPUs, or a cluster's address, whose nodes must see ``root`` at
     the same path); the arrays are the same as the local reader's. ``ray_give_up_after_s``: how
-    long its head may refuse connections (``run_tasks``; None: its default).
+    long its head may refuse connections (``run_tasks``).
     """
     root = Path(root)
     bags, strays = scan_bags(root)
@@ -291,7 +292,7 @@ def _read_bags(bags: list[Path]) -> list:
     return [_read(b) for b in bags]
 
 
-def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s=None) -> list:
+def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -> list:
     """``_read`` of every bag, in bag order, as Ray tasks of ``RAY_BAGS_PER_TASK`` bags."""
     from soil_sim_node.ray_cluster import ray_session, run_tasks
 
@@ -303,7 +304,7 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s=None) -> 
         bar = tqdm(total=len(bags), desc="reading bags (Ray)", unit="bag")
     with ray_session(ray_address, num_cpus=max(1, workers)):
         done = run_tasks(_read_bags, groups, on_done=lambda r: bar and bar.update(0 if isinstance(r, Exception) else len(r)),
-                         **({} if give_up_after_s is None else {"lost_after_s": give_up_after_s}))
+                         lost_after_s=give_up_after_s)
     if bar is not None:
         bar.close()
     for group, result in zip(groups, done):
