@@ -56,7 +56,7 @@ def glue_negative_patches(argv: list[str], option: str = "--patch") -> list[str]
     blade's start) was refused as "expected one argument"."""
     out: list[str] = []
     for arg in argv:
-        if out and out[-1] == option and arg[:2].startswith("-") and arg[1:2].isdigit():
+        if out and out[-1] == option and arg.startswith("-") and arg[1:2].isdigit():
             out[-1] = f"{option}={arg}"
         else:
             out.append(arg)
