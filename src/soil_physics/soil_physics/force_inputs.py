@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
+import numpy as np
+
 from soil_msgs_py.params import KNOWN_PARAMS
 
 from . import xp as _xp
@@ -72,6 +74,12 @@ class ForceInputs:
     def coerced(self) -> tuple[Any, "ForceInputs"]:
         """(xp, inputs with every given field an array of xp): with torch, scalars and NumPy
         arrays become tensors of the first tensor's dtype and device (absent fields stay None)."""
-        given = [f.name for f in fields(self) if getattr(self, f.name) is not None]
-        xp, *values = _xp.coerce(*(getattr(self, n) for n in given))
-        return xp, replace(self, **dict(zip(given, values)))
+        values = {n: getattr(self, n) for n in _FIELD_NAMES}
+        if not _xp.is_torch(_xp.namespace(*values.values())):
+            return np, self  # NumPy takes scalars and arrays as they are: nothing to convert
+        given = [n for n, v in values.items() if v is not None]
+        xp, *converted = _xp.coerce(*(values[n] for n in given))
+        return xp, replace(self, **dict(zip(given, converted)))
+
+
+_FIELD_NAMES = tuple(f.name for f in fields(ForceInputs))

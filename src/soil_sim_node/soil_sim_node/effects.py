@@ -169,11 +169,13 @@ class ForcePlugin:
             shape = np.shape(value)
             if len(shape) > 1 or (len(shape) == 1 and shape[0] not in (1, batch)):
                 raise PluginError(f"plugin={self.target!r} returned {name} of shape {shape}, expected ({batch},)")
-            arr = np.broadcast_to(np.asarray(value, dtype=float), (batch,))
-            if not np.all(np.isfinite(arr)):
-                bad = arr[~np.isfinite(arr)][0]
-                raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
-            if np.any(np.abs(arr) > MAX_PLAUSIBLE_FORCE_N):
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != (batch,):
+                arr = np.broadcast_to(arr, (batch,))
+            if not (np.abs(arr) <= MAX_PLAUSIBLE_FORCE_N).all():  # one check per substep; NaN fails it too
+                if not np.all(np.isfinite(arr)):
+                    bad = arr[~np.isfinite(arr)][0]
+                    raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
                 bad = arr[np.abs(arr) > MAX_PLAUSIBLE_FORCE_N][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLAUSIBLE_FORCE_N:.3g} N "
                                   "(300 times the machine's force limit: a plugin's unit or sign error?)")
