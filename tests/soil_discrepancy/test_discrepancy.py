@@ -29,6 +29,7 @@ from soil_discrepancy import (
 )
 from soil_discrepancy.cli import main as cli_main
 from soil_discrepancy.gap import depth_forecast_gap
+from soil_discrepancy.workflow import _grouping
 from soil_msgs_py import cli_numbers
 from soil_physics import force_terms, fee
 from soil_physics.augmented_fee import AugmentedFEE
@@ -505,6 +506,26 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
     assert three_gammas.group_by == "gamma" and len(three_gammas.groups) == 3
     with pytest.raises(ValueError, match="group_by='soil' must be one of"):
         build_frame(ds, stride=4, group_by="soil")
+
+
+def test_unlabelled_bags_beside_labelled_ones_share_theta_by_their_unit_weight(bag_dirs):
+    """A folder mixing a simulator's labelled bags with a machine's unlabelled ones: the unlabelled
+    episodes share θ by measured γ, as they would alone (one θ per episode had taken in a hidden soil
+    inertia, constant within an episode, and nothing was named), and the report's grouping says so."""
+    ds = load_dataset(bag_dirs["control"])
+    labelled = build_frame(ds, stride=4)
+    half = [m.soil in ("Sand", "Gravel") for m in ds.metas]
+    metas = [dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) if h else m
+             for m, h in zip(ds.metas, half)]
+    mixed = build_frame(dataclasses.replace(ds, metas=metas), stride=4)
+    assert mixed.group_by == "auto" and len(mixed.groups) == len(labelled.groups) == 8
+    assert sorted(mixed.unlabelled_by_gamma) == sorted(n for n, h in zip(ds.names, half) if h)
+    for e in mixed.episodes:  # the same episodes share θ as with every label read
+        same = mixed.episodes[labelled.group_of[mixed.episodes] == labelled.group_of[e]]
+        assert set(mixed.group_of[same]) == {mixed.group_of[e]}
+        assert mixed.group_names[mixed.group_of[e]].startswith("unknown γ≈") == half[e]
+    assert "measured γ for the episodes without a soil label" in _grouping(mixed)
+    assert build_frame(ds, stride=4).unlabelled_by_gamma == ()
 
 
 def test_prediction_hook_compares_any_models_predictions(bag_dirs):

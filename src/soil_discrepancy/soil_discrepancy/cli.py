@@ -39,8 +39,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
     p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
     p.add_argument("--group-by", choices=GROUP_BY, default="auto",
-                   help="θ shared by episodes of the same metadata soil + I_d (auto; bags without any soil label: by γ as "
-                        "below when that makes >= 3 groups, else per episode), one θ per episode, or shared by "
+                   help="θ shared by episodes of the same metadata soil + I_d (auto; bags without a soil label beside labelled "
+                        "ones: by γ; bags without any soil label: by γ as below when that makes >= 3 groups, else per "
+                        "episode), one θ per episode, or shared by "
                         "episodes of the same measured unit weight γ (gamma: no label read)")
     p.add_argument("--allow-negative-k", action="store_true",
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")

@@ -68,6 +68,8 @@ class Frame:
     group_by: str = "auto"
     source: str = ""
     changing_soil: tuple[str, ...] = ()  # episodes left out: their metadata says the soil changes along the path
+    # episodes without a soil label beside labelled ones, grouped by their measured γ (``build_frame``)
+    unlabelled_by_gamma: tuple[str, ...] = ()
     too_short: tuple[str, ...] = ()  # episodes left out: less than MIN_CUT_S of analysed cutting
     # θ-group -> (lo, hi) SI (φ [rad], c [Pa], δ [rad]; ±inf: free) where soil tests hold θ (``soil_tests``)
     theta_boxes: dict | None = None
@@ -153,7 +155,8 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
 
     group_by: 'auto' — episodes with the same metadata soil name and relative density share θ
-    (an episode whose soil is unknown is its own group); when no episode has a soil label, as
+    (episodes without a soil label beside labelled ones share θ by their measured γ, named in
+    ``unlabelled_by_gamma``; one whose γ is not finite is its own group); when no episode has a soil label, as
     'gamma' if measured γ makes at least ``MIN_GAMMA_GROUPS`` groups, fewer than the episodes
     (one θ per episode would hide every effect that is constant within an episode), else as
     'episode'; the frame's ``group_by`` says which was used. 'episode' — one θ per episode;
@@ -233,6 +236,15 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
             pass
         n_gamma = len({gamma_keys[e] for e in analysed}) if gamma_keys is not None else 0
         group_by = "gamma" if MIN_GAMMA_GROUPS <= n_gamma < len(analysed) else "episode"
+    unlabelled = sorted(e for e in analysed if soils[e] == UNKNOWN_SOIL)
+    if group_by == "auto" and unlabelled and len(unlabelled) < len(analysed):
+        # a folder mixing labelled bags with a machine's unlabelled ones: one θ per unlabelled
+        # episode would take in every effect constant within an episode (the hidden soil inertia
+        # of a test went unnamed so); grouped by measured γ as the forecast pairs them
+        try:
+            gamma_keys = _gamma_groups(ds, unlabelled)
+        except ValueError:  # a non-finite γ: one θ per such episode, as before
+            gamma_keys = None
     if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
         soils, dens = [UNKNOWN_SOIL] * n_ep, [math.nan] * n_ep
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
@@ -241,6 +253,8 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
             key = gamma_keys[e] or ds.names[e]  # (a left-out episode: a group of its own, with no ticks)
         elif group_by == "auto" and soils[e] != UNKNOWN_SOIL:
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
+        elif group_by == "auto" and gamma_keys is not None and gamma_keys[e]:
+            key = f"{UNKNOWN_SOIL} {gamma_keys[e]}"
         else:
             key = ds.names[e]
         if key not in keys:
@@ -253,4 +267,6 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
         changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
+        unlabelled_by_gamma=tuple(ds.names[e] for e in range(n_ep) if group_by == "auto" and gamma_keys is not None
+                                  and soils[e] == UNKNOWN_SOIL and gamma_keys[e]),
     )

@@ -446,6 +446,8 @@ def _grouping(frame: Frame) -> str:
     if frame.group_by == "gamma":
         return ("soil group (episodes of the same measured unit weight γ; no soil label read)" if _shared(frame)
                 else "episode (every episode has its own γ; no soil label read)")
+    if frame.unlabelled_by_gamma:
+        return "soil group (metadata soil + I_d; measured γ for the episodes without a soil label)"
     return "soil group (metadata soil + I_d)" if _shared(frame) else "episode"
 
 
@@ -560,6 +562,9 @@ def _shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) 
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
     label = ("no soil label (episodes grouped by their measured γ)" if frame.group_by == "gamma"
              else "the metadata soil name/I_d (a grouping label only)")
+    if frame.unlabelled_by_gamma:
+        label += (f"; the {len(frame.unlabelled_by_gamma)} episode(s) without a soil label grouped by their "
+                  "measured γ")
     notes = [
         "Ground truth (/soil/ground_truth, Dataset.truth) and the bag metadata's record of simulator "
         f"effects/plugins are never read; inputs are Θ_k, the measured force, time and {label}.",
