@@ -247,7 +247,8 @@ def test_cli_bad_input_exits_2_naming_the_problem(bag_dirs, tmp_path, capsys):
     assert cli_main([str(bag_dirs["control"]), "--out", str(tmp_path / "o"), "--pinn-epochs", "2", "--pinn-seeds", "0"]) == 2
     assert "--pinn-seeds 0 must be >= 1" in capsys.readouterr().err
     # the run's own settings are refused before any bag is read (a missing directory is not reached)
-    for flag, value, said in (("--holdout", "1.5", "holdout=1.5 must be in [0, 1)"),
+    for flag, value, said in (("--holdout", "1.5", "holdout=1.5 must be in (0, 1)"),
+                              ("--holdout", "0", "holdout=0.0 must be in (0, 1): the held-out soil groups are what confirms"),
                               ("--stride", "0", "stride=0 must be an integer in [1, 60] ticks"),
                               ("--stride", "100000", "stride=100000 must be an integer in [1, 60] ticks")):
         assert cli_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o"), flag, value]) == 2

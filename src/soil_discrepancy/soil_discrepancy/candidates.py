@@ -75,9 +75,12 @@ def limit_blas_threads(n: int = 1) -> bool:
 
 # ------------------------------------------------------------------------------------ splits
 def check_holdout(holdout: float) -> None:
-    """ValueError naming ``holdout`` (the share of θ-groups held out) unless it is in [0, 1)."""
-    if not 0.0 <= holdout < 1.0:
-        raise ValueError(f"holdout={holdout} must be in [0, 1)")
+    """ValueError naming ``holdout`` (the share of θ-groups held out) unless it is in (0, 1): a name is
+    one the held-out groups confirm (and a form one they pin down), so without them the verdict
+    would state a cross-validated guess as found (0 had been taken, and said "explained")."""
+    if not 0.0 < holdout < 1.0:
+        raise ValueError(f"holdout={holdout} must be in (0, 1): the held-out soil groups are what confirms a "
+                         "named term")
 
 
 def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], list[int]]:
@@ -88,20 +91,16 @@ def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], l
     label (bags of a real machine, ``group_by='gamma'``) the strata are as many contiguous bands
     of the groups' measured unit weight γ as there are test groups, so the test part still spans
     the soils' range instead of landing where chance puts it. At least two groups stay in the
-    selection part (cross-validation needs them) and, if holdout > 0, at least one goes to the
-    test part.
+    selection part (cross-validation needs them) and at least one goes to the test part.
     """
     check_holdout(holdout)
     groups = [int(g) for g in frame.groups]
     n = len(groups)
-    n_test = int(round(holdout * n))
-    if holdout > 0:
-        n_test = max(n_test, 1)
-    n_test = min(n_test, n - 2)
-    if n < 2 or (holdout > 0 and n_test < 1):
+    n_test = min(max(int(round(holdout * n)), 1), n - 2)
+    if n_test < 1:
         raise ValueError(
-            f"{n} θ-group(s) ({frame.group_by} grouping): need at least {3 if holdout > 0 else 2} "
-            f"(two to cross-validate the candidate terms{', one held out for the test' if holdout > 0 else ''}); "
+            f"{n} θ-group(s) ({frame.group_by} grouping): need at least 3 "
+            "(two to cross-validate the candidate terms, one held out for the test); "
             f"record more episodes or soils"
             + (", or fit θ per episode (--group-by episode)" if frame.group_by in ("auto", "gamma") and n < len(frame.episodes) else "")
         )

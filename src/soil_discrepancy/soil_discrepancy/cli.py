@@ -32,7 +32,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=output_dir, required=True, help="output directory for discrepancy.md/.json and PNGs")
     p.add_argument("--terms", default=None, help="candidate terms, comma-separated (default: the whole catalogue)")
     p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")
-    p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test (default 0.3)")
+    p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test, in (0, 1) (default 0.3)")
     p.add_argument("--folds", type=int, default=5, help="cross-validation folds over soil groups (default 5)")
     p.add_argument("--seed", type=cli_numbers.seed, default=0, help="seed of the held-out split and folds (default 0)")
     p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil, 1-60 (default 2)")
