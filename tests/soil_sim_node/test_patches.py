@@ -56,6 +56,15 @@ def test_resolve_takes_the_first_patch_as_the_episodes_soil_and_names_soils_as_t
     assert plain.resolve()[0] is plain and plain.patches == ()
 
 
+def test_a_negative_zero_density_is_the_same_grid_point_as_zero():
+    """'-0' (a CLI list, a patch) had named a bag id-00 beside the id000 of the same soil."""
+    negative = EpisodeSpec("Sand", -0.0, 0.5, 0.1, 0, 2.0, patches=("-0:Sand:-0", "5:Clay:50"))
+    resolved, _ = negative.resolve()
+    assert math.copysign(1.0, resolved.relative_density_pct) == 1.0
+    assert all(math.copysign(1.0, v) == 1.0 for v in (resolved.patches[0].x_start_m, resolved.patches[0].relative_density_pct))
+    assert run_episodes(SimConfig(world_mode="fee"), [negative])[0].meta.name.startswith("fee_sand_id000_")
+
+
 # ------------------------------------------------------------------ the physics
 def _step_at_boundary(ep):
     """Index of the first tick whose edge is past the boundary."""

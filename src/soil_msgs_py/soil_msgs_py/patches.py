@@ -31,11 +31,22 @@ class SoilPatch:
     soil: str
     relative_density_pct: float
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "x_start_m", plain_zero(self.x_start_m))
+        object.__setattr__(self, "relative_density_pct", plain_zero(self.relative_density_pct))
+
     def as_dict(self) -> dict:
         return asdict(self)
 
 
 FIELDS = tuple(f.name for f in fields(SoilPatch))
+
+
+def plain_zero(value):
+    """``value`` with a float −0.0 as 0.0 (anything else as it is, checked where it is used): a
+    user's "-0" had named a bag ``id-00`` beside the ``id000`` of the same grid point, and a
+    report "Sand -0 %"."""
+    return 0.0 if isinstance(value, float) and value == 0.0 else value
 
 
 def parse_patch(text: str, where: str = "patch") -> SoilPatch:

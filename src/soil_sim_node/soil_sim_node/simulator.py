@@ -54,7 +54,7 @@ import numpy as np
 
 from soil_physics import fee
 from soil_msgs_py.episode import MAX_EPISODE_S, MAX_SEED
-from soil_msgs_py.patches import SoilPatch, check_patches
+from soil_msgs_py.patches import SoilPatch, check_patches, plain_zero
 from soil_msgs_py.params import (
     ADHESION_PA,
     DEG,
@@ -116,6 +116,8 @@ class EpisodeSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "patches", tuple(self.patches or ()))
+        for name in ("relative_density_pct", "target_speed_m_s", "target_depth_m", "duration_s"):
+            object.__setattr__(self, name, plain_zero(getattr(self, name)))
 
     def soil_path(self, custom_soils: dict | None = None) -> tuple[tuple[float, SoilType, float], ...]:
         """The soil along x: ((x_start_m, SoilType, I_d [%]), ...) ordered by x; one entry
