@@ -135,6 +135,15 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     assert best == [0.2, None] and cut_report.stalling_patches(stall_everywhere, best) == [1]
     assert cut_report.stalling_patches(sweep, [0.2, 0.1]) == []
     assert cut_report.stall_note({"stall_everywhere": ["Clay 90 %"]}).startswith("every swept depth (0.050-0.300 m) stalled in Clay 90 %")
+    # a soil whose bearing capacity holds the edge on its surface at every target: nothing stalls
+    # there, and no target is best (a "best fixed depth 0.300 m" had been said of a cut 0.2 mm deep)
+    on_surface = [0.1] * 30 + [0.0002] * 30
+    held_up = [_cut(ok, on_surface, patch=patch, fixed=0.1), _cut(ok, [0.2] * 30 + [0.0002] * 30, patch=patch, fixed=0.2)]
+    best = CM.best_fixed_depths(held_up, 2)
+    assert best == [0.2, None] and cut_report.unentered_patches(held_up, 2) == [1]
+    assert cut_report.stalling_patches(held_up, best) == [] and cut_report.unentered_patches(sweep, 2) == []
+    assert cut_report.not_entered_note({"not_entered": ["HiAll 100 %"]}).startswith(
+        "at no swept depth (0.050-0.300 m) did the edge cut HiAll 100 %")
     planner = _cut(ok, [0.1] * 60, patch=patch)
     planner.target = np.array([0.1] * 30 + [0.3] * 6 + [0.11] * 24)
     assert CM.settle_s(planner, 1, 0.1) == pytest.approx(0.1)  # 6 ticks after entering clay

@@ -16,8 +16,8 @@
   "retreat" (``soil_planner.depth_schedule``) is a plan below the target, which starts a fall.
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
-  hindsight is the deepest of a sweep of fixed depths with no stall in that patch
-  (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
+  hindsight is the deepest of a sweep of fixed depths with no stall in that patch, among those
+  whose edge entered its soil (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
   came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from anti_stall_controller.controller import limit_shares
-from soil_msgs_py.params import SAMPLE_RATE_HZ
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
 
 AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
@@ -95,15 +95,24 @@ def summary(cut) -> dict:
     }
 
 
+def entered(cut, j: int) -> bool:
+    """Whether the edge cut patch ``j``'s soil in ``cut``: deeper than MIN_CUT_DEPTH_M there on
+    average. A soil whose bearing capacity holds the lift's push keeps the edge on its surface at
+    every target depth, and there a target says nothing of the depth cut."""
+    inside = cut.patch == j
+    return bool(inside.any() and cut.depth[inside].mean() > MIN_CUT_DEPTH_M)
+
+
 def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
     """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) with no stall while the
-    edge was in that patch and the edge reaching it; None if every depth stalled there."""
+    edge was in that patch and the edge cutting its soil (``entered``); None if every depth stalled
+    there or none entered it."""
     best: list[float | None] = [None] * n_patches
     for cut in sorted(sweep, key=lambda c: c.policy.fixed_depth_m):
         stalled = stall_mask(cut)
         for j in range(n_patches):
             inside = cut.patch == j
-            if inside.any() and not stalled[inside].any():
+            if entered(cut, j) and not stalled[inside].any():
                 best[j] = cut.policy.fixed_depth_m
     return best
 

@@ -38,7 +38,7 @@ from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG
+from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, MIN_CUT_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
@@ -160,8 +160,17 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
 
 
 def stalling_patches(sweep: list, best: list) -> list[int]:
-    """The patches the edge reached in the sweep where every fixed depth stalled."""
-    return [j for j, b in enumerate(best) if b is None and any((c.patch == j).any() for c in sweep)]
+    """The patches the edge reached in the sweep where every fixed depth stalled (and some entered
+    the soil: ``unentered_patches`` are the others without a best depth)."""
+    skip = set(unentered_patches(sweep, len(best)))
+    return [j for j, b in enumerate(best) if b is None and j not in skip and any((c.patch == j).any() for c in sweep)]
+
+
+def unentered_patches(sweep: list, n_patches: int) -> list[int]:
+    """The patches the edge reached in the sweep but cut at no swept depth (``cut_metrics.entered``):
+    their soil held the edge on its surface, so no target depth is best there."""
+    return [j for j in range(n_patches) if any((c.patch == j).any() for c in sweep)
+            and not any(CM.entered(c, j) for c in sweep)]
 
 
 def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None,
@@ -182,6 +191,8 @@ def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = No
         "unreached": unreached_text(patches, float(cuts[2].x_b[-1])),
         "stall_everywhere": [f"{patches[j]['soil']} {patches[j]['relative_density_pct']:g} %"
                              for j in stalling_patches(sweep, best)],
+        "not_entered": [f"{patches[j]['soil']} {patches[j]['relative_density_pct']:g} %"
+                        for j in unentered_patches(sweep, len(best))],
         "ratios": {
             "volume_per_m_aware_over_conservative": _ratio(aware["volume_per_m_m3"], cons["volume_per_m_m3"]),
             "stall_aggressive_over_aware": _ratio(agg["stall_s"], aware["stall_s"]),
@@ -288,6 +299,9 @@ def markdown(report: dict) -> str:
         if w.get("stall_everywhere"):
             note = stall_note(w)
             lines += ["", note[0].upper() + note[1:] + "."]
+        if w.get("not_entered"):
+            note = not_entered_note(w)
+            lines += ["", note[0].upper() + note[1:] + "."]
         lines += ["", "Targets (soil-aware against the fixed depths, this world):", "",
                   f"- volume per metre ≥ {TARGET_VOLUME_RATIO}× conservative: **{_fmt(r['volume_per_m_aware_over_conservative'])}×** "
                   f"(each patch cut at its best fixed depth from its first centimetre: "
@@ -380,6 +394,8 @@ def console(report: dict) -> str:
             out.append(f"  patches {w['unreached']}")
         if w.get("stall_everywhere"):
             out.append(f"  {stall_note(w)}")
+        if w.get("not_entered"):
+            out.append(f"  {not_entered_note(w)}")
     return "\n".join(out)
 
 
@@ -388,6 +404,14 @@ def stall_note(world: dict) -> str:
     return (f"every swept depth ({SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m) stalled in "
             f"{', '.join(world['stall_everywhere'])}: no best fixed depth there (--), the conservative depth is the "
             "shallowest swept, and no ceiling of the soil-aware volume (each patch at its best depth) exists")
+
+
+def not_entered_note(world: dict) -> str:
+    """Why a patch the edge reached has no best fixed depth although nothing stalled there."""
+    return (f"at no swept depth ({SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m) did the edge cut "
+            f"{', '.join(world['not_entered'])} (its mean depth there {MIN_CUT_DEPTH_M * 100:g} cm or less: the soil "
+            "bears the lift's push and holds the edge on its surface): no best fixed depth there (--), and a policy's "
+            "target depth is not the depth it cut (see the mean depth column)")
 
 
 def main(argv=None) -> int:
