@@ -59,7 +59,7 @@ from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks
 from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
-                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, describe, fields)
+                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, check_quantile, describe, fields)
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -138,6 +138,8 @@ def stretch_planner(settings: dict) -> StretchPlanner:
         raise ValueError(f"include_residual={settings['include_residual']!r} must be true or false")
     q = settings["force_quantile"]
     off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
+    if not off:
+        check_quantile(q, "or 0 for the PINN's point plan")
     return StretchPlanner(**{**settings, "force_quantile": None if off else q})
 
 

@@ -595,12 +595,13 @@ class StretchPlanner:
         return dataclasses.replace(plan, max_depth_m=cap, limited_by_x=True, f_x_n=plan.limit_x_n)
 
 
-def check_quantile(q) -> float:
-    """The force quantile as a float; ValueError naming it unless 0.5 <= q < 1."""
+def check_quantile(q, alternative: str = "") -> float:
+    """The force quantile as a float; ValueError naming it unless 0.5 <= q < 1 (``alternative``:
+    what else the caller takes, said after the range, e.g. the node's 0)."""
     x = _number("force_quantile", q)
     if not 0.5 <= x < 1.0:
-        raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force), "
-                         "or 0 for the PINN's point plan where the node takes it")
+        raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force)"
+                         + (f", {alternative}" if alternative else ""))
     return x
 
 
