@@ -168,3 +168,20 @@ def test_sigterm_ends_the_batch_like_ctrl_c_and_leaves_no_worker_writing(tmp_pat
     assert 0 < len(kept) < 32 and not list(out.glob("*.partial")), (kept, list(out.iterdir()))
     time.sleep(3.0)
     assert {b.name for b in find_episode_bags(out)} == kept and not list(out.glob("*.partial"))  # nothing writes on
+
+
+def test_bags_finished_before_a_plugin_failed_are_said_with_what_to_do(tmp_path, capsys):
+    """A plugin refused mid-run (a force beyond any machine's at the deeper target) ends the run with
+    exit 2; the bag finished before it stays, and the error now says so and that it was made with the
+    input that failed (a later --skip-existing would keep it)."""
+    out = tmp_path / "site"
+    argv = [*ONE, "--depths", "0.05,0.3", "--plugin", "tests.sim_plugins:deep_drag k=1e6", "--out", str(out)]
+    assert batch.main(argv) == 2
+    err = capsys.readouterr().err
+    kept = find_episode_bags(out)
+    assert len(kept) == 1 and "d0.050" in kept[0].name and not (out / "dataset.json").exists()
+    assert "returned f_x=" in err and f"1 episode bag(s) finished before the failure are kept under {out}" in err, err
+    assert "after mending it, run again with --overwrite" in err, err
+    assert batch.main([*ONE, "--depths", "0.1", "--plugin", "tests.sim_plugins:deep_drag k=1e6",
+                       "--out", str(tmp_path / "fine")]) == 0  # never below 0.2 m: nothing refused, nothing said
+    assert "finished before the failure" not in capsys.readouterr().err

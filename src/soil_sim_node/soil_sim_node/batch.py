@@ -254,6 +254,26 @@ def _other_bags(out: Path, names: list[str]) -> int:
     return sum(1 for p in out.iterdir() if p.name not in mine and is_bag(p))
 
 
+def _bags_in(out: Path) -> set[str]:
+    """The names of the episode bags ``out`` holds (none if it does not exist)."""
+    return {p.name for p in out.iterdir() if is_bag(p)} if out.is_dir() else set()
+
+
+def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "") -> str:
+    """Words for the bags a failed run finished before it failed ('' if none): they stay (each is
+    whole), without the dataset.json that a finished run writes, and a reader takes them. ``said``:
+    the error's own words (the resume hint is not said twice)."""
+    new = sorted(_bags_in(out) - before)
+    if not new:
+        return ""
+    if bad_input:
+        then = ", made with the input that failed: after mending it, run again with --overwrite"
+    else:
+        then = "" if "--skip-existing" in said else ": the same command with --skip-existing simulates the rest"
+    return (f"{len(new)} episode bag(s) finished before the failure are kept under {out} (e.g. {new[0]}; no "
+            f"dataset.json){then}")
+
+
 def _earlier_runs(path: Path) -> list[dict]:
     """The records of the runs that wrote into this directory before (oldest first), so that a
     second run's dataset.json still says what the directory holds; [] if there were none."""
@@ -437,7 +457,7 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    plan = None
+    plan = before = None  # (before: the bags the output held when the run began)
     try:
         plan = plan_from_args(args)
         if args.workers < 0:
@@ -454,15 +474,21 @@ def main(argv=None) -> int:
         if unused and args.soils is None and not plan.specs[0].patches:
             print(f"soil_sim_batch: warning: --soil-file's soils {unused} are not simulated without --soils naming "
                   f"them (e.g. --soils {','.join(unused)}); the catalogue's are", file=sys.stderr)
+        before = _bags_in(plan.out)
         with terminate_as_interrupt():
             summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray,
                                ray_give_up_after_s=args.ray_give_up_after)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=True)):
+            print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2
     except (ChunksFailed, RuntimeError) as exc:
+        bad_input = bool(getattr(exc, "bad_input", False))
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
-        return 2 if getattr(exc, "bad_input", False) else 1
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc))):
+            print(f"soil_sim_batch: {kept}", file=sys.stderr)
+        return 2 if bad_input else 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
         if plan is None:  # (a SIGTERM is taken as an interrupt only once the plan is made)
             print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
