@@ -185,3 +185,15 @@ def test_bags_finished_before_a_plugin_failed_are_said_with_what_to_do(tmp_path,
     assert batch.main([*ONE, "--depths", "0.1", "--plugin", "tests.sim_plugins:deep_drag k=1e6",
                        "--out", str(tmp_path / "fine")]) == 0  # never below 0.2 m: nothing refused, nothing said
     assert "finished before the failure" not in capsys.readouterr().err
+
+
+def test_a_grid_value_given_twice_is_said(tmp_path, capsys):
+    """'--speeds 0.5,0.5' or '--soils Sand,sand' ran the same grid point twice under other seeds, silently."""
+    assert batch.main([*ONE, "--depths", "0.1,0.10", "--speeds", "0.5", "--out", str(tmp_path / "a")]) == 0
+    assert "--depths lists 0.10 more than once: its episodes run again under other seeds" in capsys.readouterr().err
+    argv = ["--mode", "fee", "--soils", "Sand,sand", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.1",
+            "--seeds", "1", "--duration", "1.0", "--workers", "1", "--quiet", "--out", str(tmp_path / "b")]
+    assert batch.main(argv) == 0
+    assert "--soils lists sand more than once" in capsys.readouterr().err
+    assert batch.main([*ONE, "--depths", "0.1", "--out", str(tmp_path / "c")]) == 0
+    assert "more than once" not in capsys.readouterr().err

@@ -368,6 +368,22 @@ def _floats(text: str, name: str) -> tuple[float, ...]:
     return values
 
 
+def repeated_grid_values(args: argparse.Namespace) -> list[str]:
+    """Notes for a grid axis that lists one value twice (``--speeds 0.5,0.5``, ``--soils Sand,sand``):
+    its episodes run again under the next seeds, most likely not what was meant (more seeds is
+    --seeds). The lists are already checked by ``plan_from_args``."""
+    notes = []
+    for flag, text, key in (("--soils", args.soils, str.lower), ("--relative-densities", args.relative_densities, float),
+                            ("--speeds", args.speeds, float), ("--depths", args.depths, float)):
+        items = [x.strip() for x in (text or "").split(",") if x.strip()]
+        keys = [key(x) for x in items]
+        twice = [x for i, x in enumerate(items) if keys[i] in keys[:i]]
+        if twice:
+            notes.append(f"{flag} lists {twice[0]} more than once: its episodes run again under other seeds "
+                         "(for more seeds of each, --seeds N)")
+    return notes
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_sim_batch", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -467,7 +483,7 @@ def main(argv=None) -> int:
         for depth in sorted({spec.target_depth_m for spec in plan.specs}):
             if note := beyond_lift_reach("--depths", depth):
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
-        for note in unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils):
+        for note in repeated_grid_values(args) + unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         # (a custom soil named like a catalogue soil replaces it: that one is simulated)
         unused = sorted(n for n in plan.custom_soils if n.lower() not in {c.lower() for c in CATALOGUE})
