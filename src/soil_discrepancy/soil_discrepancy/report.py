@@ -260,7 +260,9 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"{', '.join(f'`{n}`' for n in path['catalogue_path']) or 'none'} leave {100 * path['catalogue_left']:.0f} % "
                   f"of the cross-validated error, the path through the forms ({', '.join(f'`{n}`' for n in path['forms_path'])}) "
                   f"{100 * path['forms_left']:.0f} %: "
-                  + ("**the catalogue's path is taken** (a form is for what the mechanisms cannot explain together)."
+                  + ("**the catalogue's path is taken** (a form is for what the mechanisms cannot explain together"
+                     + (f"; the forms' per-episode errors are not significantly below the catalogue's, p = "
+                        f"{path['p_forms_better']:.2g}" if path["catalogue_left"] > path["forms_left"] else "") + ")."
                      if path["chosen"] == "catalogue" else "the forms' path stays."), ""]
     if any(f.get("confirmed", True) for f in forms.get("discovered") or []):
         lines += [f"The confirmed forms are saved to `{CATALOGUE_FILE}` (rename them there); the next run tests them "
