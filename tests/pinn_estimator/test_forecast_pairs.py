@@ -76,3 +76,31 @@ def test_a_row_scored_on_fewer_pairs_than_the_header_says_so():
               "forecast": {"pinn": axes(42), "fused": axes(44)}}
     rows = [line for line in markdown(report) if line.startswith("| ") and "pairs scored" in line]
     assert len(rows) == 1 and "(42 of the 44 pairs scored)" in rows[0], rows
+
+
+def test_a_path_that_goes_on_past_the_cut_is_one_soil_and_one_begun_past_its_first_patch_is_not(tmp_path):
+    """A planned path longer than the cut (a second patch at 500 m): the episode is one soil where
+    its edge went, and pairs (it had been left out as a soil change); a path whose first patch ends
+    behind the edge's start is the second patch's soil, not its label's, and stays out."""
+    from types import SimpleNamespace
+
+    from pinn_estimator.forecast import episode_one_soil, one_soil
+
+    far = ({"x_start_m": 0.0, "soil": "Sand", "relative_density_pct": 20.0},
+           {"x_start_m": 500.0, "soil": "Clay", "relative_density_pct": 80.0})
+    meta = SimpleNamespace(patches=far)
+    assert one_soil(meta, [2.0, 4.5]) and not one_soil(meta, [2.0, 501.0]) and not one_soil(meta)
+    behind = SimpleNamespace(patches=({"x_start_m": -3.0, "soil": "Sand", "relative_density_pct": 20.0},
+                                      {"x_start_m": 1.0, "soil": "Clay", "relative_density_pct": 80.0}))
+    assert not one_soil(behind, [2.0, 4.5]) and one_soil(behind, [-1.0, 0.5])
+    alike = SimpleNamespace(patches=far[:1] + ({"x_start_m": 3.0, "soil": "Sand", "relative_density_pct": 20.0},) + far[1:])
+    assert one_soil(alike, [2.0, 4.5]) and one_soil(SimpleNamespace(patches=()), None)
+
+    specs = [EpisodeSpec("Sand", 20.0, 0.6, depth, seed=k, duration_s=5.0, patches=("0:Sand:20", "500:Clay:80"))
+             for k, depth in enumerate((0.1, 0.2))]
+    for ep in run_episodes(SimConfig(world_mode="fee"), specs):
+        write_episode(tmp_path / "long" / ep.meta.name, ep)
+    ds = load_dataset(tmp_path / "long", cache=False)
+    assert all(episode_one_soil(ds, e) for e in range(len(ds)))
+    parts = steady_parts(ds)
+    assert len(list(pair_indices(parts))) == 2 and {p.soil for p in parts} == {"Sand"}

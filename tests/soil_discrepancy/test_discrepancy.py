@@ -414,14 +414,17 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
     are one soil; a dataset of nothing else is refused with the reason."""
     ds = load_dataset(bag_dirs["control"])
     two = [{"x_start_m": 0.0, "soil": "Sand", "relative_density_pct": 20.0},
-           {"x_start_m": 5.0, "soil": "Clay", "relative_density_pct": 90.0}]
-    same = [dict(two[0]), {**two[0], "x_start_m": 5.0}]
+           {"x_start_m": 2.5, "soil": "Clay", "relative_density_pct": 90.0}]  # the edge starts at 2 m: every cut crosses 2.5 m
+    same = [dict(two[0]), {**two[0], "x_start_m": 2.5}]
     metas = [dataclasses.replace(m, patches=two if i < 3 else same if i == 3 else m.patches) for i, m in enumerate(ds.metas)]
     full = build_frame(ds, stride=4)
     frame = build_frame(dataclasses.replace(ds, metas=metas), stride=4)
     assert frame.changing_soil == tuple(ds.names[:3])
     assert set(frame.episodes) == set(full.episodes) - {0, 1, 2} and 3 in set(frame.episodes)
     assert not full.changing_soil
+    beyond = [dict(two[0]), {**two[1], "x_start_m": 500.0}]  # a path going on past every cut: one soil where the edge went
+    assert not build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=beyond) for m in ds.metas]),
+                           stride=4).changing_soil
     with pytest.raises(ValueError, match="changes soil along its path"):
         build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=two) for m in ds.metas]), stride=4)
     # nor across worlds: one world's bags against the model (a machine's bags, with no world, are one)

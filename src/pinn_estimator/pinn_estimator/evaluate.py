@@ -194,8 +194,8 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
                          "per world: give one world's bags")
     parts = fc.steady_parts(ds)
     if next(fc.pair_indices(parts), None) is None:
-        unsteady = sum(part is None and fc.one_soil(meta) for part, meta in zip(parts, ds.metas))
-        changing = sum(not fc.one_soil(meta) for meta in ds.metas)
+        unsteady = sum(part is None and fc.episode_one_soil(ds, e) for e, part in enumerate(parts))
+        changing = sum(not fc.episode_one_soil(ds, e) for e in range(len(ds)))
         depths = sorted(f"{part.known['d']:.3f}" for part in parts if part is not None)
         shown = ", ".join(depths[:8]) + (", ..." if len(depths) > 8 else "")
         split = sorted({part.soil for part in parts if part is not None and " (φ " in part.soil})

@@ -24,7 +24,8 @@ import numpy as np
 
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label, unlabelled_count
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
+from soil_msgs_py.params import (DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, OBSERVATION_FIELDS,
+                                 SAMPLE_RATE_HZ)
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 
@@ -51,6 +52,7 @@ STEADY_MAX_ABS_V_Z_M_S = 0.005
 # the fee world to 0.4 and 0.1 % (all rows of the second half: 0.8 and 0.7 %).
 MIN_STEADY_S = 0.25
 REFERENCES = ("true_fee", "naive_same_force")
+_X_EDGE = OBSERVATION_FIELDS.index("p_x_b")  # the blade edge's x [m] in a Dataset's observations
 _D, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_z")
 
 
@@ -123,8 +125,8 @@ def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.nd
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady part (``steady_rows``); None for an
-    episode without one, or whose soil changes along its path (its metadata's label is only its
-    first patch's: it is no one soil to forecast from or to).
+    episode without one, or whose soil changes where its edge went (``episode_one_soil``; its
+    metadata's label is only its first patch's: it is no one soil to forecast from or to).
 
     An episode without a soil label (a machine's bag) is labelled by its steady unit weight γ
     (``soil_labels.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
@@ -135,7 +137,7 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     for e in range(len(ds)):
         rows = steady_rows(ds.known[ds.offsets[e]:ds.offsets[e + 1]], steady_from)
         meta = ds.metas[e]
-        if rows is None or not one_soil(meta):
+        if rows is None or not episode_one_soil(ds, e):
             out.append(None)
             continue
         start_truth = ds.truth[ds.offsets[e], :2]  # (φ, c) as the episode began: its soil's, at its I_d
@@ -170,9 +172,32 @@ def _split_labels_of_two_soils(parts: list[Steady | None], starts: dict[int, np.
                 parts[e] = replace(parts[e], soil=f"{soil} (φ {phi_deg:.1f}°, c {c_kpa:.2f} kPa)")
 
 
-def one_soil(meta) -> bool:
-    """Whether an episode's path is one soil at one density (no patches, or all alike)."""
-    return len({(p.get("soil"), float(p.get("relative_density_pct", math.nan))) for p in meta.patches}) <= 1
+def _patch_key(patch: dict) -> tuple:
+    return patch.get("soil"), float(patch.get("relative_density_pct", math.nan))
+
+
+def one_soil(meta, x_edge_m=None) -> bool:
+    """Whether an episode's path is one soil at one density where its edge went: no patches, or all
+    alike, or, given ``x_edge_m`` (the edge's x over the episode [m]), the patches it crossed all
+    alike to the first, whose soil and I_d label the episode. A path that goes on past where the cut
+    ended is one soil (an episode of a long planned path had been left out as a soil change); a cut
+    that began beyond the first patch is not the soil its label says."""
+    patches = list(meta.patches)
+    if len({_patch_key(p) for p in patches}) <= 1:
+        return True
+    x = np.asarray([] if x_edge_m is None else x_edge_m, float)
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return False
+    lo, hi = float(x.min()), float(x.max())
+    starts = [-math.inf] + [float(p["x_start_m"]) for p in patches[1:]] + [math.inf]  # patch j: [starts[j], starts[j+1])
+    crossed = [j for j in range(len(patches)) if starts[j] <= hi and starts[j + 1] > lo]
+    return crossed == [0] or (0 in crossed and all(_patch_key(patches[j]) == _patch_key(patches[0]) for j in crossed))
+
+
+def episode_one_soil(ds, e: int) -> bool:
+    """``one_soil`` of episode ``e`` of a Dataset, over the x its edge went (its observations' p_x_b)."""
+    return one_soil(ds.metas[e], ds.observations[ds.episode_rows(e), _X_EDGE])
 
 
 def _in_steady_part(ds, ends: np.ndarray, steady_from: float) -> np.ndarray:

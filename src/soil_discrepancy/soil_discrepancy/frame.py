@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pinn_estimator.forecast import one_soil
+from pinn_estimator.forecast import episode_one_soil
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
 from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
@@ -164,9 +164,9 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     of one γ share a θ, which the report's regimes then show as a misfit).
 
     Episodes with less than ``MIN_CUT_S`` of analysed cutting are left out (``too_short``).
-    Episodes whose metadata lists soil patches of more than one soil or density are left out (named
-    in ``changing_soil``): one θ cannot hold across a soil change, and a fit across it reads the
-    change as missing physics (the forecast leaves them out alike, ``forecast.one_soil``). A bag
+    Episodes whose edge crossed soil patches (of their metadata) of more than one soil or density are
+    left out (named in ``changing_soil``): one θ cannot hold across a soil change, and a fit across it
+    reads the change as missing physics (the forecast leaves them out alike, ``forecast.one_soil``). A bag
     that does not record its path (a machine's) is taken as one soil.
     """
     check_frame_settings(stride, group_by)
@@ -177,7 +177,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     if len(worlds) > 1:
         raise ValueError(f"the dataset mixes worlds {worlds} (bag metadata world_mode): a discrepancy is one "
                          "world's against the model; give one world's bags")
-    changing = [e for e in range(n_ep) if not one_soil(ds.metas[e])]
+    changing = [e for e in range(n_ep) if not episode_one_soil(ds, e)]
     if len(changing) == n_ep:
         raise ValueError(f"every one of the {n_ep} episode(s) changes soil along its path (soil patches in its "
                          "metadata): one θ per soil cannot be fitted across a change; give episodes of one soil each")
