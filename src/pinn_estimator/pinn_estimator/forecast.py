@@ -192,7 +192,7 @@ def one_soil(meta, x_edge_m=None) -> bool:
     lo, hi = float(x.min()), float(x.max())
     starts = [-math.inf] + [float(p["x_start_m"]) for p in patches[1:]] + [math.inf]  # patch j: [starts[j], starts[j+1])
     crossed = [j for j in range(len(patches)) if starts[j] <= hi and starts[j + 1] > lo]
-    return crossed == [0] or (0 in crossed and all(_patch_key(patches[j]) == _patch_key(patches[0]) for j in crossed))
+    return 0 in crossed and all(_patch_key(patches[j]) == _patch_key(patches[0]) for j in crossed)
 
 
 def episode_one_soil(ds, e: int) -> bool:

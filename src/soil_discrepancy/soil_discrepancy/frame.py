@@ -248,6 +248,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
     if group_by == "gamma":  # as bags without a soil label: the metadata's soil and I_d are not read
         soils, dens = [UNKNOWN_SOIL] * n_ep, [math.nan] * n_ep
     keys, group_names, group_of = {}, [], np.zeros(n_ep, int)
+    by_gamma: list[str] = []  # unlabelled episodes beside labelled ones, grouped by γ
     for e in range(n_ep):
         if group_by == "gamma":
             key = gamma_keys[e] or ds.names[e]  # (a left-out episode: a group of its own, with no ticks)
@@ -255,6 +256,7 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
             key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
         elif group_by == "auto" and gamma_keys is not None and gamma_keys[e]:
             key = f"{UNKNOWN_SOIL} {gamma_keys[e]}"
+            by_gamma.append(ds.names[e])
         else:
             key = ds.names[e]
         if key not in keys:
@@ -267,6 +269,5 @@ def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
         changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
-        unlabelled_by_gamma=tuple(ds.names[e] for e in range(n_ep) if group_by == "auto" and gamma_keys is not None
-                                  and soils[e] == UNKNOWN_SOIL and gamma_keys[e]),
+        unlabelled_by_gamma=tuple(by_gamma),
     )

@@ -246,17 +246,14 @@ def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
                               "written (--overwrite replaces them, or give another --out or --seed-base)")
 
 
-def _other_bags(out: Path, names: list[str]) -> int:
-    """How many episode bags ``out`` holds that are not among ``names`` (0 if it does not exist)."""
-    if not out.is_dir():
-        return 0
-    mine = set(names)
-    return sum(1 for p in out.iterdir() if p.name not in mine and is_bag(p))
-
-
 def _bags_in(out: Path) -> set[str]:
     """The names of the episode bags ``out`` holds (none if it does not exist)."""
     return {p.name for p in out.iterdir() if is_bag(p)} if out.is_dir() else set()
+
+
+def _other_bags(out: Path, names: list[str]) -> int:
+    """How many episode bags ``out`` holds that are not among ``names`` (0 if it does not exist)."""
+    return len(_bags_in(out) - set(names))
 
 
 def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "") -> str:
