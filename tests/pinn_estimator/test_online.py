@@ -304,6 +304,44 @@ def test_no_window_spans_two_episodes_even_if_data_overtakes_episode_start(episo
         np.testing.assert_array_equal(e.values, first[e.stamp_ns - stamps2[0]])
 
 
+@pytest.mark.parametrize("overtaking", [1, 3])
+def test_a_fresh_estimator_keeps_the_first_ticks_that_overtook_episode_start(episode, model, overtaking):
+    """A replay into a fresh node: /sim/status and the data are separate topics, so the
+    episode's first ticks may be released before its episode_start. They are the episode's
+    (the stream began with them): every estimate, the fused soil and the path in soil equal
+    those of the event coming first (a model with a distance term too)."""
+    cfg = ModelConfig(**{**model.cfg.to_dict(), "extra_terms": [["compaction_hardening", 0.05]]})
+    augmented = EstimatorNet(cfg, model.backbone.obs_mean, model.backbone.obs_std)
+    augmented.load_state_dict(model.state_dict())
+    augmented.eval()
+    first = int(episode.stamps_ns[0])
+    runs = {}
+    for late in (False, True):
+        out = []
+        est = OnlineEstimator(augmented, out.append)
+        for i in range(N_TICKS):
+            if i == (overtaking if late else 0):
+                est.start_episode(first)
+            for t, m in tick_messages(episode, i):
+                est.add(t, m)
+        runs[late] = out
+    assert len(valid(runs[True])) == N_TICKS - 59
+    assert [e.stamp_ns for e in runs[True]] == [e.stamp_ns for e in runs[False]]
+    np.testing.assert_array_equal(np.stack([e.values for e in runs[True]]), np.stack([e.values for e in runs[False]]))
+
+
+def test_an_episode_start_after_an_older_episodes_ticks_still_restarts_a_fresh_stream(episode, model):
+    """The other side of keeping overtaking ticks: a fresh node that first hears the tail of an
+    earlier episode (stamps before the event's first) starts the window at the event."""
+    out = []
+    est = OnlineEstimator(model, out.append)
+    for t, m in in_order(episode, range(70)):
+        est.add(t, m)
+    est.start_episode(int(episode.stamps_ns[50]))  # "time went back" to a start the stream passed
+    assert est.buffer.count == 0
+    assert len(valid(out)) == 70 - 59
+
+
 def test_time_going_far_back_starts_a_new_stream(episode, model):
     """A replay looped without /sim/status: stamps restart at 0; estimation restarts too."""
     est, out = run(model, in_order(episode, range(100)) + in_order(episode, range(100)))

@@ -317,6 +317,7 @@ class OnlineEstimator:
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
+        self._stream_first_ns: int | None = None  # the first sample's stamp since the stream (re)started
         # Blade travel [m] and time [s] in soil since the episode's first tick, for models with
         # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
         # for an episode seen from its start.
@@ -367,6 +368,7 @@ class OnlineEstimator:
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
         self._boundary = None
+        self._stream_first_ns = None
         self._forget_path(known=False)
         self._reset_fusion()
 
@@ -391,6 +393,13 @@ class OnlineEstimator:
         if self.assembler.last_released < first:  # nothing of this episode released yet
             self._boundary, self._crossed = first - 1, False
             return
+        if self._boundary is None and self._stream_first_ns is not None and self._stream_first_ns >= first:
+            # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
+            # first tick): window, stride phase, path and posterior all started with the episode,
+            # as if the event had come first; restarting would lose those ticks (replay != live).
+            self._boundary, self._crossed = first - 1, True
+            self._path_known = True
+            return
         if self._boundary is not None and self._boundary < first <= self.window_first_stamp:
             return  # the window already started after the previous episode, at or after this one's start
         self.reset(first)
@@ -402,6 +411,7 @@ class OnlineEstimator:
 
     def _on_restart(self) -> None:
         self._boundary = None
+        self._stream_first_ns = None
         self._tick = 0
         self._forget_path(known=False)
         self._reset_fusion()
@@ -418,6 +428,8 @@ class OnlineEstimator:
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
             self._forget_path(known=True)
             self._reset_fusion()
+        if self._stream_first_ns is None:
+            self._stream_first_ns = stamp
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)
