@@ -222,8 +222,7 @@ def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *
     sse0 = episode_sse(frame, r0)
     theta = base.per_tick(frame)
     untestable = []
-    for n in candidates:
-        bx, bz = model.basis(n, theta, frame.known, frame.distance, frame.time_in_soil)
+    for n, (bx, bz) in zip(candidates, model.bases(candidates, theta, frame.known, frame.distance, frame.time_in_soil)):
         if not (np.any(bx != 0) or np.any(bz != 0)):
             untestable.append(n)  # e.g. surcharge_drag with Q = 0 throughout: k is not identifiable
     testable = [n for n in candidates if n not in untestable]

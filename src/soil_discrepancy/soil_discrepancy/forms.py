@@ -87,10 +87,8 @@ def theta_jacobian(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> np.ndarr
 def form_bases(frame: Frame, fit: ThetaFit, names) -> np.ndarray:
     """(N, 2, P) basis of each named term (form or catalogue) at the fitted θ, normalised by the force scales."""
     theta = fit.per_tick(frame)
-    model = AugmentedFEE()
     out = np.zeros((len(frame), 2, len(names)))
-    for i, n in enumerate(names):
-        bx, bz = model.basis(n, theta, frame.known, frame.distance, frame.time_in_soil)
+    for i, (bx, bz) in enumerate(AugmentedFEE().bases(names, theta, frame.known, frame.distance, frame.time_in_soil)):
         out[:, 0, i], out[:, 1, i] = bx, bz
     return out / FORCE_SCALE_N[None, :, None]
 

@@ -108,12 +108,21 @@ class AugmentedFEE:
 
     def basis(self, name: str, theta, known, distance, time_in_soil=None) -> tuple[np.ndarray, np.ndarray]:
         """(B_x, B_z) [N per unit k] of one catalogue term for this θ (0 where the FEE is undefined)."""
+        return self.bases([name], theta, known, distance, time_in_soil)[0]
+
+    def bases(self, names, theta, known, distance, time_in_soil=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``basis`` of each of ``names`` at one θ: the FEE and the terms' inputs are computed once
+        (a search over hundreds of forms spent most of its time recomputing them per form)."""
         fx, fz, ok = self.fee(theta, known)
-        with np.errstate(all="ignore"):
-            bx, bz = force_terms.get_term(name).basis(self.inputs(theta, known, distance, fx, fz, time_in_soil))
-        bx, bz = np.broadcast_arrays(np.asarray(bx, float), np.asarray(bz, float))
-        good = ok & np.isfinite(bx) & np.isfinite(bz)
-        return np.where(good, bx, 0.0), np.where(good, bz, 0.0)
+        inputs = self.inputs(theta, known, distance, fx, fz, time_in_soil)
+        out = []
+        for name in names:
+            with np.errstate(all="ignore"):
+                bx, bz = force_terms.get_term(name).basis(inputs)
+            bx, bz = np.broadcast_arrays(np.asarray(bx, float), np.asarray(bz, float))
+            good = ok & np.isfinite(bx) & np.isfinite(bz)
+            out.append((np.where(good, bx, 0.0), np.where(good, bz, 0.0)))
+        return out
 
     def force(self, theta, known, distance, with_defined: bool = False, time_in_soil=None):
         """Model force (F_x, F_z) [N, blade on soil] per tick; NaN where the FEE is undefined.
