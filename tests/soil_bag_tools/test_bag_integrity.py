@@ -260,6 +260,25 @@ def test_repair_skips_a_corrupt_journal_chunk_and_converts_the_rest(tmp_path):
     assert set(dropped["messages"]) == {t.name for t in EPISODE_TOPICS}
 
 
+def test_a_corrupt_journal_chunk_that_split_ticks_takes_only_whole_ticks_with_it(tmp_path):
+    """Chunks flushed mid-tick (a recorder flushes by time, not by tick): the ticks at the skipped
+    chunk's two edges keep some messages in the chunks beside it. Those ticks go too, so the
+    repaired bag reads as an episode (it had a tick without /clock and every reader refused it)."""
+    partial, w = _journal_from_sample(tmp_path, n_msgs=900, flush_every=155)  # 10 messages per tick
+    w.close()
+    flip_chunk(journal.journal_path(partial), 2)  # messages 310..464
+    out = run("soil_bag_repair", partial, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    messages = playback.load_bag(LOAM).messages[:900]  # as _journal_from_sample wrote them
+    lost = {t for t, _, _ in messages[310:465]}
+    want = sorted({t for t, _, _ in messages} - lost)
+    got = bag_io.read_episode(tmp_path / LOAM.name)
+    assert got.stamps_ns.tolist() == want and len(want) == 90 - 16  # ticks 31..45 and the split 46
+    full = bag_io.read_episode(LOAM)
+    keep = np.isin(full.stamps_ns, want)
+    np.testing.assert_array_equal(got.forces, full.forces[keep])
+
+
 def test_repair_names_a_journal_chunk_that_took_the_channel_table_with_it(tmp_path):
     """Chunk 0 of a journal also holds its schemas and channels: without them no later message
     can be attributed to a topic, so nothing is recoverable, and the journal is kept."""

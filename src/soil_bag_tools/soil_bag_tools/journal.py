@@ -338,21 +338,21 @@ def _plausible_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict
     return out
 
 
+def complete_ticks(stamps: Mapping[str, Sequence[int]]) -> set[int]:
+    """Stamps at which every topic with any message has one (a topic nobody published must
+    not wipe the bag)."""
+    sets = [set(v) for v in stamps.values() if len(v)]
+    return set.intersection(*sets) if sets else set()
+
+
 def whole_tick_cutoff(stamps: Mapping[str, Sequence[int]]) -> int | None:
     """Highest stamp at which every topic (with any message) has a message, else None.
 
     Messages after it belong to trailing ticks that were cut short (recorder stopped or
     killed mid-tick); dropping them leaves a bag ``bag_io.read_episode`` can read. Gaps in
-    the middle are not touched. Topics with no message at all do not count (a topic nobody
-    published must not wipe the bag).
+    the middle are not touched (``journal_to_bag`` drops the ticks a skipped chunk split).
     """
-    sets = [set(v) for v in stamps.values() if len(v)]
-    if not sets:
-        return None
-    for s in sorted(set().union(*sets), reverse=True):
-        if all(s in x for x in sets):
-            return s
-    return None
+    return max(complete_ticks(stamps), default=None)
 
 
 # --- conversion --------------------------------------------------------------------------
@@ -422,6 +422,7 @@ def journal_to_bag(
     meta_json = scan.metadata.get(META_KEY)
     refused = refused_claims(scan) if meta_json is not None else {}
     cutoff = None
+    split: dict[str, set[int]] = {}  # per episode topic, stamps of ticks a skipped chunk split
     if trim_partial_ticks and meta_json is not None:
         # Whole ticks are judged on the episode topics' kept messages; extra topics
         # (--topics) keep what is stamped up to the last whole tick.
@@ -434,10 +435,14 @@ def journal_to_bag(
                 f"{jpath}: {scan.messages} messages recovered but no tick has a message on every topic "
                 f"(use --keep-partial-ticks to keep them)"
             )
+        if scan.bad_chunks:  # a skipped chunk's edges split ticks: their other messages go too
+            whole = complete_ticks(tick_topics)
+            split = {t: {s for s in v if s not in whole} for t, v in tick_topics.items()}
     in_range = (lambda t: True) if cutoff is None else (lambda t: t <= cutoff)
 
     def keep(topic: str, i: int) -> bool:
-        return in_range(scan.stamps[topic][i]) and i not in refused.get(topic, ())
+        stamp = scan.stamps[topic][i]
+        return in_range(stamp) and i not in refused.get(topic, ()) and stamp not in split.get(topic, ())
 
     kept_by_topic = {t: [s for i, s in enumerate(v) if keep(t, i)] for t, v in scan.stamps.items()}
     kept = [s for v in kept_by_topic.values() for s in v]

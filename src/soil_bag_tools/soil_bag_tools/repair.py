@@ -11,7 +11,8 @@ Worst-case loss: the messages received after the last flush, i.e. at most
 ``--flush-period`` of data, plus one tick when episode bags are trimmed to whole ticks
 (the default, so ``bag_io.read_episode`` can read the result; ``--keep-partial-ticks``
 keeps every recovered message). Not covered: a power cut (journals are not fsync'ed).
-A journal chunk that fails its CRC (flipped bytes) is skipped, not the rest of the journal;
+A journal chunk that fails its CRC (flipped bytes) is skipped, not the rest of the journal
+(with the ticks its edges split, whose other messages lie in the chunks beside it);
 each skipped chunk is printed (index, byte offset, log time range, messages per topic) and
 recorded in the bag's custom_data ``insitu_soil.repair`` (``dropped_chunks``).
 
