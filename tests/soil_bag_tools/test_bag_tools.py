@@ -209,13 +209,20 @@ def _journal_from_sample(tmp_path: Path, n_msgs: int, flush_every: int):
     return partial, w
 
 
+def _killed(w: journal.JournalWriter) -> None:
+    """What a SIGKILL does to a writer: the kernel closes its file (dropping the journal's lock);
+    nothing is finished."""
+    w._file.close()
+
+
 def test_truncated_journal_repairs_to_last_flushed_chunk(tmp_path):
     partial, w = _journal_from_sample(tmp_path, n_msgs=900, flush_every=150)  # 6 chunks, 90 ticks
     jpath = journal.journal_path(partial)
     flushed = jpath.stat().st_size
     for t, topic, raw in sample_messages()[900:1005]:
         w.write(topic, t, raw)
-    w.flush()  # a 7th chunk; then the writer "dies" (no close) while the chunk is half on disk
+    w.flush()  # a 7th chunk; then the writer dies (no close) while the chunk is half on disk
+    _killed(w)
     with open(jpath, "r+b") as f:
         f.truncate((flushed + jpath.stat().st_size) // 2)
     r = journal.journal_to_bag(partial, info_key=journal.REPAIR_INFO_KEY)
@@ -230,6 +237,7 @@ def test_truncated_journal_repairs_to_last_flushed_chunk(tmp_path):
 
 def test_repair_cli_keep_partial_ticks_and_nothing_recoverable(tmp_path):
     partial, w = _journal_from_sample(tmp_path, n_msgs=205, flush_every=205)
+    _killed(w)
     out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path), "--keep-partial-ticks"],
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 0, out.stderr
@@ -581,3 +589,24 @@ def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
         assert reader.message_count == 3 * 6000
     assert bag_io.META_KEY not in yaml.safe_load((bag / "metadata.yaml").read_text())[
         "rosbag2_bagfile_information"]["custom_data"]
+
+
+def test_a_journal_still_being_written_is_skipped_by_repair_and_repaired_once_its_writer_is_gone(tmp_path):
+    """soil_bag_repair on a recorder's output directory mid-episode turned the live journal into
+    a bag of its first seconds and deleted it under the recorder (the rest of the episode lost),
+    or crashed reading a journal that grew between its two passes. A writer holds the journal's
+    lock until it closes (the kernel drops it when the writer dies): the repair skips it, says
+    why and exits 1, touching nothing; once the writer is gone it repairs the journal."""
+    partial, w = _journal_from_sample(tmp_path, n_msgs=300, flush_every=100)
+    before = journal.journal_path(partial).read_bytes()
+    out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path)], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
+    assert f"skipped {partial}" in out.stderr and "another process is writing" in out.stderr, out.stderr
+    assert journal.journal_path(partial).read_bytes() == before and not (tmp_path / SAMPLE.name).exists()
+    with pytest.raises(journal.JournalInUse):
+        journal.journal_to_bag(partial)
+    w.write(*[sample_messages()[300][k] for k in (1, 0, 2)])  # the writer goes on undisturbed
+    w.close()
+    out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path)], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert not partial.exists() and len(bag_io.read_episode(tmp_path / SAMPLE.name)) == 30

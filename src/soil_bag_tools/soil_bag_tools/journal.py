@@ -30,6 +30,7 @@ counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -99,6 +100,7 @@ class JournalWriter:
     def __init__(self, path: Path, metadata: Mapping[str, str]):
         self.path = Path(path)
         self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        _lock(self._file)  # until closed: no repair converts a journal still being written
         self._mcap = McapWriter(self._file, chunk_size=_CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._mcap.start(profile="ros2", library="insitu-soil soil_bag_record")
         # Written straight to the stream (not into a chunk) and flushed at once, so even a
@@ -140,6 +142,21 @@ class JournalWriter:
             self._mcap.finish()
         finally:
             self._file.close()
+
+
+class JournalInUse(ValueError):
+    """Another process holds the journal's lock: a recorder still writing it (or a repair
+    converting it). It is left alone; the recorder turns it into a bag itself."""
+
+
+def _lock(file) -> None:
+    """An exclusive advisory lock on an open journal (``flock``: the kernel drops it when the
+    holder exits, also on SIGKILL, so a dead recorder's journal is free to repair)."""
+    try:
+        fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise JournalInUse(f"{file.name}: another process is writing or converting it (a running recorder "
+                           "turns it into a bag itself when its episode ends); not touched") from None
 
 
 # --- reading -----------------------------------------------------------------------------
@@ -407,7 +424,8 @@ def journal_to_bag(
     named ``<name>_2`` etc. Episode metadata found in the journal goes to custom_data
     ``META_KEY``; ``info`` plus the conversion counts go to custom_data ``info_key``. For
     episode journals ``trim_partial_ticks`` drops trailing ticks not present on every topic.
-    Raises NothingRecoverable (journal kept) if no message would be written.
+    Raises NothingRecoverable (journal kept) if no message would be written, JournalInUse
+    (journal untouched) if another process holds its lock (a recorder still writing it).
     """
     partial = Path(partial)
     if not partial.name.endswith(PARTIAL_SUFFIX):
@@ -415,6 +433,13 @@ def journal_to_bag(
     jpath = journal_path(partial)
     if not jpath.is_file():
         raise NothingRecoverable(f"{partial}: no journal file {jpath.name} (not left by soil_bag_record?)")
+    with open(jpath, "rb") as held:
+        _lock(held)  # held until the journal is gone: nothing appends to it meanwhile
+        return _convert(partial, jpath, trim_partial_ticks, info_key, info)
+
+
+def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str, info: Mapping | None) -> BagResult:
+    """``journal_to_bag``'s work, on a journal nobody else holds."""
     scan = scan_journal(jpath)
     if scan.messages == 0:
         why = "; ".join([c.describe(scan.mcap.topics) for c in scan.bad_chunks] + ([scan.stop] if scan.stop else []))

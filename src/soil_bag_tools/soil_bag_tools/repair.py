@@ -27,7 +27,8 @@ as ``<bag>_repaired``.
 PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, a finished bag
 directory, or a directory that is searched for ``*.partial`` directories. ``--out`` names
 the repaired copy of a finished bag (one PATH only). Exit code 1 if some path had nothing
-to recover (an undamaged bag, a bag without CRCs, an empty journal), 2 for bad arguments (a PATH
+to recover (an undamaged bag, a bag without CRCs, an empty journal) or was skipped (a journal a
+running recorder is still writing: it holds the journal's lock), 2 for bad arguments (a PATH
 that does not exist among them: said, after the others are done).
 """
 from __future__ import annotations
@@ -40,7 +41,7 @@ from soil_msgs_py.cli_paths import output_dir
 
 from .bag_io import PARTIAL_SUFFIX, is_bag
 from .bag_salvage import salvage_bag
-from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, journal_to_bag
+from .journal import REPAIR_INFO_KEY, BagResult, JournalInUse, NothingRecoverable, journal_to_bag
 
 
 def find_partials(path: Path) -> list[Path]:
@@ -120,6 +121,10 @@ def main(args: list[str] | None = None) -> int:
         for partial in partials:
             try:
                 r = repair(partial, keep_partial_ticks=opts.keep_partial_ticks)
+            except JournalInUse as err:
+                print(f"soil_bag_repair: skipped {partial}: {err}", file=sys.stderr)
+                failed += 1
+                continue
             except (NothingRecoverable, ValueError, OSError) as err:
                 print(f"soil_bag_repair: nothing recoverable from {partial}: {err}", file=sys.stderr)
                 failed += 1
