@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from soil_msgs_py.cli_paths import bags_dir, output_dir, output_file
+from soil_msgs_py.cli_paths import bags_dir, input_path, input_text, output_dir, output_file
 
 BIN = Path(sys.executable).parent
 
@@ -72,6 +72,20 @@ def test_the_tools_refuse_an_empty_out_and_write_nothing(tmp_path, tool, args):
                          timeout=120)
     assert out.returncode == 2, out.stdout + out.stderr
     assert "argument --out: '' is empty" in out.stderr and "Traceback" not in out.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("tool, args", [
+    ("soil_bag_play", [""]), ("soil_bag_repair", [""]), ("soil_plot_episode", [""]), ("soil_discrepancy", [""]),
+    ("pinn_train", ["--data", "", "--out", "m.pt"]), ("pinn_eval", ["--checkpoint", ""]),
+])
+def test_the_tools_refuse_an_empty_path_to_read(tmp_path, tool, args):
+    """An empty path (an unset shell variable: ``soil_bag_play "$BAG"``) was the current
+    directory: every bag under it replayed into the live graph, repaired or trained on."""
+    assert input_text("bags") == "bags" and input_path("bags") == Path("bags")
+    out = subprocess.run([str(BIN / tool), *args], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert "'' is empty; give a path" in out.stderr and "Traceback" not in out.stderr
     assert list(tmp_path.iterdir()) == []
 
 

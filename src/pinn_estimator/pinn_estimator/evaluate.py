@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import file_stem, output_dir
+from soil_msgs_py.cli_paths import file_stem, input_text, output_dir
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -528,9 +528,9 @@ def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="pinn_eval", description=__doc__.splitlines()[0])
-    p.add_argument("--checkpoint", required=True, help="PINN checkpoint (.pt)")
+    p.add_argument("--checkpoint", required=True, type=input_text, help="PINN checkpoint (.pt)")
     p.add_argument("--physics-free", help="physics-free baseline checkpoint trained on the same split")
-    p.add_argument("--data", help="bag directory (default: the one the checkpoint was trained on)")
+    p.add_argument("--data", type=input_text, help="bag directory (default: the one the checkpoint was trained on)")
     p.add_argument("--out", type=output_dir, default="out/eval", help="report directory (default: out/eval)")
     p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
     p.add_argument("--stride", type=int, help=f"samples between test windows (default: {TEST_STRIDE})")
@@ -538,7 +538,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading")
     p.add_argument("--forecast-world", default="auto", choices=("auto", *WORLD_MODES, "none"),
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
-    p.add_argument("--forecast-data", metavar="DIR",
+    p.add_argument("--forecast-data", metavar="DIR", type=input_text,
                    help="judge the forecast at another depth on these bags instead (pairs of episodes of one soil and "
                         "relative density at different depths, or without a soil label of one measured unit weight "
                         "gamma, e.g. your machine's cuts; bags the model was trained "

@@ -32,7 +32,7 @@ from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
-from soil_msgs_py.cli_paths import output_file
+from soil_msgs_py.cli_paths import input_text, output_file
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from soil_sim_node.ray_cluster import add_ray_option
@@ -357,10 +357,10 @@ def plot_curve(history: dict, path: Path, title: str) -> Path:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pinn_train", description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, help="directory of episode bags (searched recursively)")
+    p.add_argument("--data", required=True, type=input_text, help="directory of episode bags (searched recursively)")
     p.add_argument("--out", type=output_file, required=True, help="checkpoint path to write (.pt); the curve PNG goes beside it")
     p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
-    p.add_argument("--split-from", help="reuse the train/val/test split of this checkpoint (same bags)")
+    p.add_argument("--split-from", type=input_text, help="reuse the train/val/test split of this checkpoint (same bags)")
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

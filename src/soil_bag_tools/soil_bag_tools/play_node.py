@@ -25,6 +25,7 @@ import rclpy
 from rclpy.node import Node
 
 from soil_msgs_py.graph import EVENT_EPISODE_END, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.patches import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
@@ -45,7 +46,7 @@ MAX_CLOCK_HZ = 1000.0
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_bag_play", description="Replay rosbag2 bags with their original timing.")
-    p.add_argument("bags", nargs="+", metavar="BAG",
+    p.add_argument("bags", nargs="+", metavar="BAG", type=input_text,
                    help="bag directory, or a directory of bags (played in path order)")
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor, in [%g, %g] (default 1.0)" % RATE_LIMITS)

@@ -37,7 +37,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import input_path, output_dir
 
 from .bag_io import PARTIAL_SUFFIX, is_bag
 from .bag_salvage import salvage_bag
@@ -85,7 +85,7 @@ def report(r: BagResult, state: str) -> None:
 
 def main(args: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="soil_bag_repair", description=__doc__.split("\n\n")[0])
-    p.add_argument("paths", nargs="+", type=Path, metavar="PATH",
+    p.add_argument("paths", nargs="+", type=input_path, metavar="PATH",
                    help="*.partial directory, its journal .mcap, a finished bag, or a directory to search")
     p.add_argument("--keep-partial-ticks", action="store_true",
                    help="keep ticks that lack some topics (the bag may then not read as an episode)")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import input_path, output_dir
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -28,7 +28,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("bag_dir", type=Path, help="directory of episode bags (rosbag2), simulated or measured")
+    p.add_argument("bag_dir", type=input_path, help="directory of episode bags (rosbag2), simulated or measured")
     p.add_argument("--out", type=output_dir, required=True, help="output directory for discrepancy.md/.json and PNGs")
     p.add_argument("--terms", default=None, help="candidate terms, comma-separated (default: the whole catalogue)")
     p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")

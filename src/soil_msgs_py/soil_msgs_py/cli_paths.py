@@ -46,6 +46,20 @@ def _probe_writable(text: str, directory: Path) -> None:
                                          f"({err.strerror or err})") from None
 
 
+def input_text(text: str) -> str:
+    """A path to read (a bag, a directory of bags, a checkpoint), as given: not empty. Path("")
+    is ".", so an unset shell variable (``soil_bag_play "$BAG"``) would take the whole current
+    directory: every bag under it replayed into a live graph, trained on or repaired."""
+    if not text:
+        raise argparse.ArgumentTypeError("'' is empty; give a path (. for the current directory)")
+    return text
+
+
+def input_path(text: str) -> Path:
+    """``input_text`` as a Path."""
+    return Path(input_text(text))
+
+
 def output_dir(text: str) -> Path:
     """An ``--out`` directory: may exist (as a directory) or not yet; not an existing file."""
     return _checked(text, want_dir=True)

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from soil_physics import fee  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
-from soil_msgs_py.cli_paths import output_file  # noqa: E402
+from soil_msgs_py.cli_paths import input_path, output_file  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
 
@@ -92,7 +92,7 @@ def figure_file(text: str) -> Path:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="soil_plot_episode", description=__doc__.split("\n\n")[0])
-    p.add_argument("bag", type=Path, help="episode bag directory")
+    p.add_argument("bag", type=input_path, help="episode bag directory")
     p.add_argument("-o", "--out", type=figure_file,
                    help="figure path, its format by its suffix (default: <bag>.png beside the bag)")
     args = p.parse_args(argv)
