@@ -399,6 +399,25 @@ def test_mcap_files_outside_a_bag_directory_are_said_not_passed_by(tmp_path):
     assert ds.names == [sample.name] and len(said) == 1 and "not read: 2 .mcap file(s)" in said[0], said
 
 
+def test_recorder_journals_are_said_with_the_repair_that_reads_them(tmp_path):
+    """A killed recorder's journal (``*.partial``) is no bag until soil_bag_repair converts it: a
+    directory of only journals was "no episode bags" with no word of them, and a journal beside
+    bags was passed by silently."""
+    sample = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
+    (mcap,) = sample.glob("*.mcap")
+    runs = tmp_path / "runs"
+    journal = runs / "default_clay_id030_v0.50_d0.100_s1.partial"
+    journal.mkdir(parents=True)
+    shutil.copy(mcap, journal / "default_clay_id030_v0.50_d0.100_s1.mcap")
+    with pytest.raises(ValueError, match=r"no episode bags under .*; not read: 1 recorder journal\(s\), a killed "
+                                         rf".*s1\.partial; soil_bag_repair {runs} turns"):
+        load_dataset(runs, cache=False)
+    shutil.copytree(sample, runs / sample.name)
+    said = []
+    ds = load_dataset(runs, cache=False, log=said.append)
+    assert ds.names == [sample.name] and len(said) == 1 and "1 recorder journal(s)" in said[0], said
+
+
 def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsys):
     """--workers -1 was taken (as one process) and pinn_train --seed -1 failed in numpy's words
     ("Seed must be between 0 and 2**32 - 1"): both are refused as the arguments are read (exit 2)."""

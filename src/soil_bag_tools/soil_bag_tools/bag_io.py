@@ -278,10 +278,11 @@ def find_episode_bags(root: str | os.PathLike) -> list[Path]:
 
 
 def scan_bags(root: str | os.PathLike) -> tuple[list[Path], list[Path]]:
-    """(``find_episode_bags(root)``, the sorted ``.mcap`` files under ``root`` that no reader takes)
-    in one walk: a stray ``.mcap`` lies outside any rosbag2 directory (``metadata.yaml``) and any
-    recorder journal (``*.partial``), e.g. a bag's file copied without its directory, and is said
-    to the user, since the bag search passes it by."""
+    """(``find_episode_bags(root)``, what under ``root`` no reader takes, sorted) in one walk, the
+    second said to the user, since the bag search passes it by: a stray ``.mcap`` lies outside
+    any rosbag2 directory (``metadata.yaml``) and any recorder journal, e.g. a bag's file copied
+    without its directory; a recorder journal (a ``*.partial`` directory) is a killed recorder's,
+    to be repaired (``soil_bag_repair``), or one still being written."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset root {root} is not a directory")
@@ -302,6 +303,7 @@ def scan_bags(root: str | os.PathLike) -> tuple[list[Path], list[Path]]:
             found.append(d)
             dirnames.clear()  # a bag holds no bags
         else:
+            strays.extend(d / n for n in dirnames if n.endswith(PARTIAL_SUFFIX))
             dirnames[:] = [n for n in dirnames if not n.endswith(PARTIAL_SUFFIX)]
             strays.extend(d / f for f in filenames if f.endswith(".mcap"))
     return sorted(found), sorted(strays)
