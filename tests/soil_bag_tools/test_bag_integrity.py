@@ -230,6 +230,8 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     assert out.returncode == 2 and "exists" in out.stderr and "Traceback" not in out.stderr
     out = run("soil_bag_repair", fresh, old, "--out", tmp_path / "new", timeout=60)
     assert out.returncode == 2 and "exactly one" in out.stderr
+    out = run("soil_bag_repair", fresh, "--out", fresh / "inner", timeout=60)  # where no bag search looks
+    assert out.returncode == 2 and "is inside the bag" in out.stderr and not (fresh / "inner").exists(), out.stderr
     out = run("soil_bag_repair", tmp_path / "mistyped", timeout=60)  # was exit 1, "nothing recoverable"
     assert out.returncode == 2 and f"{tmp_path / 'mistyped'} does not exist" in out.stderr, out.stderr
     out = run("soil_bag_repair", fresh, "--out", tmp_path / "new", timeout=60)

@@ -22,6 +22,23 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
     assert f"--controller-params-file {tmp_path / 'nosuch.yaml'}: no such file" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("args, said", [
+    (["--controller-params-file", "{tmp}"], "--controller-params-file {tmp}: a directory, not a YAML file"),
+    (["--record", "{tmp}/a", "--recorder-arg=--out={tmp}/b"], "the recorder writes where --record says"),
+    (["--record", "{tmp}/a", "--recorder-arg=--out", "--recorder-arg={tmp}/b"], "the recorder writes where --record says"),
+    (["--pacing", "lockstep", "--rate", "3"], "--rate 3.0 is the real-time factor of --pacing realtime"),
+])
+def test_soil_launch_refuses_options_it_would_not_follow(tmp_path, capsys, args, said):
+    """Each was taken without a word: a directory as a params file was "no such file", the
+    recorder's own --out won over --record (the bags went elsewhere, --record's directory never
+    made), a lockstep launch ignored --rate."""
+    with pytest.raises(SystemExit) as exit_:
+        launch.parse_args([a.format(tmp=tmp_path) for a in args])
+    assert exit_.value.code == 2
+    assert said.format(tmp=tmp_path) in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
 @pytest.mark.parametrize("value", ["4000", "nan", "0"])
 def test_the_demo_refuses_a_duration_the_simulator_would_refuse_before_the_graph_starts(value, capsys):
     with pytest.raises(SystemExit) as exit_:

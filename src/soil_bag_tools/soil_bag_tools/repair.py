@@ -98,6 +98,8 @@ def main(args: list[str] | None = None) -> int:
                 f"path(s), {len(bags)} finished bag(s))")
     if opts.out is not None and (opts.out.exists() or opts.out.is_symlink()):
         p.error(f"--out {opts.out} exists; the repaired copy never replaces anything")
+    if opts.out is not None and opts.out.resolve().is_relative_to(bags[0].resolve()):  # no search looks in a bag
+        p.error(f"--out {opts.out} is inside the bag {bags[0]}, where no reader would find the copy; put it beside it")
     # a mistyped path is a bad argument (exit 2 once every other path is done), not a bag with
     # nothing to recover (exit 1)
     missing = sum(not path.exists() and not path.is_symlink() for path in opts.paths)

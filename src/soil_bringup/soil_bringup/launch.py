@@ -11,7 +11,7 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
 * exits 0 when the simulator finished its episodes and everyone stopped cleanly, 4
   (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
-  non-zero when a node died (its name and exit code are printed) or ``--timeout`` hit. The
+  non-zero when a node died (its name and exit code are printed; 1) or ``--timeout`` hit (3). The
   simulator, controller and recorder are the run: one dying stops the others. The estimator
   and planner are advice: one dying mid-run is reported and the others go on (the controller
   falls back to its own target depth), and the launch exits 1 at the end (``--require NODE``
@@ -439,7 +439,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-controller", action="store_true", help="do not start the controller")
     p.add_argument("--keep-running", action="store_true",
                    help="keep the simulator up after its episodes (end with Ctrl-C); default: end with them")
-    p.add_argument("--timeout", type=float, default=0.0, help="stop everything after this many seconds (0: never)")
+    p.add_argument("--timeout", type=float, default=0.0,
+                   help="stop everything after this many seconds (0: never); the launch then exits 3")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before SIGTERM")
     args = p.parse_args(argv)
     if not 0 <= args.domain_id <= 232:
@@ -449,7 +450,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     for flag in ("sim", "controller", "estimator", "planner"):
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
-            p.error(f"--{flag}-params-file {path}: no such file")
+            p.error(f"--{flag}-params-file {path}: " + ("a directory, not a YAML file" if path.is_dir() else "no such file"))
     for flag, value in (("--timeout", args.timeout), ("--stop-timeout", args.stop_timeout)):
         if not math.isfinite(value) or value < 0 or (flag == "--stop-timeout" and value == 0):
             p.error(f"{flag} {value} must be a finite number of seconds, {'> 0' if flag == '--stop-timeout' else '>= 0 (0: never)'}")
@@ -466,6 +467,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     f"({'--no-controller' if node == 'controller' else f'add --{node}'})")
     if args.recorder_arg and not args.record:
         p.error("--recorder-arg given, but this launch starts no recorder (add --record DIR)")
+    if any(a == "--out" or a.startswith("--out=") for a in args.recorder_arg):  # the recorder's last --out won
+        p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
+    if args.rate is not None and args.pacing == "lockstep":  # a lockstep episode runs as fast as the graph answers
+        p.error(f"--rate {args.rate} is the real-time factor of --pacing realtime; lockstep has none")
     return args
 
 
