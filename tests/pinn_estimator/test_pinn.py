@@ -656,6 +656,17 @@ def test_episodes_a_reused_split_leaves_out_are_said(tiny_ds):
                for line in lines), lines
 
 
+def test_a_reused_split_with_missing_episodes_counts_them_all_and_says_what_to_train_on(tiny_ds):
+    """Two episodes missing, one from each part: the count was the first part's alone (1), and
+    the advice was to "evaluate" on another directory, in a training run."""
+    split = split_episodes(tiny_ds, seed=0)
+    split = {**split, "train": ["gone_a", *split["train"]], "val": [*split["val"], "gone_b"]}
+    cfg = TrainConfig(epochs=1, stride=6, eval_stride=6, threads=1)
+    with pytest.raises(ValueError, match=r"^2 episode\(s\) of the split are not in the dataset .*'gone_a': "
+                                         r"--split-from needs the bags its checkpoint was trained on"):
+        train(tiny_ds, cfg, ModelConfig(**SMALL), split=split, progress=False, log=lambda *_: None)
+
+
 def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):
     cfg = TrainConfig(epochs=4, stride=6, eval_stride=6, threads=1, lr=2e-3, lr_schedule="cosine", patience=4)
     _, _, history, metrics = train(tiny_ds, cfg, ModelConfig(**SMALL), progress=False, log=lambda *_: None)

@@ -130,14 +130,15 @@ class Dataset:
             out[rows] = of_known(self.known[rows])
         return out
 
-    def index(self, names) -> list[int]:
-        """Episode indices of bag names; raises naming the first name that is not here."""
+    def index(self, names, *, fix: str = "evaluate on the directory the model was trained from") -> list[int]:
+        """Episode indices of bag names; raises counting the names that are not here, naming the
+        first, and saying ``fix``."""
         where = {n: i for i, n in enumerate(self.names)}
         missing = [n for n in names if n not in where]
         if missing:
             raise ValueError(
                 f"{len(missing)} episode(s) of the split are not in the dataset at {self.root}, "
-                f"e.g. {missing[0]!r}: evaluate on the directory the model was trained from"
+                f"e.g. {missing[0]!r}: {fix}"
             )
         return [where[n] for n in names]
 

@@ -154,6 +154,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     torch.set_num_threads(max(1, cfg.threads // ranks.local_world))  # the machine's --threads, shared
     given = split is not None
     split = split or split_episodes(ds, seed=cfg.seed, val_fraction=cfg.val_fraction, test_fraction=cfg.test_fraction)
+    # all parts at once: a missing episode of any part is counted (the first part's alone were)
+    ds.index([n for s in split for n in split[s]], fix="--split-from needs the bags its checkpoint was trained on")
     idx = {s: ds.index(split[s]) for s in split}
     if copies := identical_episodes(ds):
         shown = "; ".join(" = ".join(names) for names in copies[:3]) + ("; ..." if len(copies) > 3 else "")
