@@ -9,6 +9,7 @@ repair of truncated journals.
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -517,6 +518,9 @@ def test_bad_inputs(tmp_path):
     assert out.returncode == 2 and "contains no bags" in out.stderr
     out = subprocess.run([BIN / "soil_bag_repair", tmp_path], capture_output=True, text=True, timeout=30)
     assert out.returncode == 1 and "no *.partial journal directory inside" in out.stderr
+    shutil.copytree(SAMPLE, tmp_path / "bags" / SAMPLE.name)  # finished bags, which it repairs one by one
+    out = subprocess.run([BIN / "soil_bag_repair", tmp_path / "bags"], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 1 and "of its 1 finished bag(s) give each damaged one as PATH" in out.stderr, out.stderr
     # an --out it cannot make (under /proc): refused at start naming it, no traceback
     out = subprocess.run([BIN / "soil_bag_record", "--out", "/proc/nope"], env=ros_env(105),
                          capture_output=True, text=True, timeout=60)

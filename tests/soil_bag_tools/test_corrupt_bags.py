@@ -112,6 +112,7 @@ def test_reader_raises_one_error_naming_the_bag(damaged):
     with pytest.raises(bag_io.BagReadError) as err:
         bag_io.read_episode(damaged)
     assert err.value.bag == str(damaged) and str(damaged) in str(err.value)
+    assert f"soil_bag_repair {damaged} --out NEW_BAG" in str(err.value)  # truncated or not, its good chunks copy
     with pytest.raises(bag_io.BagReadError, match=str(damaged)):
         bag_io.read_labelled_topic(damaged, T.BLADE_CMD.name, ("u_zr", "u_za"))
     with pytest.raises(bag_io.BagReadError, match=str(damaged)):

@@ -207,11 +207,13 @@ def check_integrity(bag: Path) -> None:
             raise BagReadError(bag, f"{name}: {bad[0].describe(scan.topics)}{others}; {len(bad)} of "
                                     f"{len(scan.chunks)} chunks are damaged, `soil_bag_repair {bag} "
                                     f"--out NEW_BAG` copies the others")
+        # what soil_bag_repair can copy: the complete chunks that pass their CRC
+        repair = f"; `soil_bag_repair {bag} --out NEW_BAG` copies its chunks" if scan.chunks and scan.has_crcs else ""
         if scan.stop:
-            raise BagReadError(bag, f"{name} is truncated or unreadable ({scan.stop})")
+            raise BagReadError(bag, f"{name} is truncated or unreadable ({scan.stop}){repair}")
         if scan.data_problem:
             raise BagReadError(bag, f"{name}: {scan.data_problem} (every chunk passes its CRC: "
-                                    f"the damage is outside the chunks)")
+                                    f"the damage is outside the chunks){repair}")
         if not scan.has_crcs and scan.chunks and str(bag) not in _warned_unchecked:
             _warned_unchecked.add(str(bag))
             log.warning("bag %s: written without chunk CRCs (before they were computed); "

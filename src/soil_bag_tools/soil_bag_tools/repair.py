@@ -39,7 +39,7 @@ from pathlib import Path
 
 from soil_msgs_py.cli_paths import input_path, output_dir
 
-from .bag_io import PARTIAL_SUFFIX, is_bag
+from .bag_io import PARTIAL_SUFFIX, find_episode_bags, is_bag
 from .bag_salvage import salvage_bag
 from .journal import REPAIR_INFO_KEY, BagResult, JournalInUse, NothingRecoverable, journal_to_bag
 
@@ -55,7 +55,10 @@ def find_partials(path: Path) -> list[Path]:
         found = sorted(p for p in path.rglob(f"*{PARTIAL_SUFFIX}") if p.is_dir())
         if found:
             return found
-        raise NothingRecoverable(f"{path}: no *{PARTIAL_SUFFIX} journal directory inside")
+        bags = find_episode_bags(path)
+        raise NothingRecoverable(f"{path}: no *{PARTIAL_SUFFIX} journal directory inside" + (
+            f"; of its {len(bags)} finished bag(s) give each damaged one as PATH (a reader names it) to copy its "
+            "good chunks" if bags else ""))
     if not path.exists():
         raise NothingRecoverable(f"{path} does not exist")
     raise NothingRecoverable(f"{path} is neither a *{PARTIAL_SUFFIX} directory, its journal .mcap, nor a directory")
