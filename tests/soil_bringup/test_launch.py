@@ -120,9 +120,9 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
 
     log = tmp_path / "launch.log"
     with log.open("w") as out:
-        ready = tmp_path / "other.ready"  # the other node stops cleanly on SIGINT once this exists
+        ready = tmp_path / "other.ready"  # the other node is up (has said so) and stops cleanly on SIGINT
         node = ("import pathlib, signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(0)); "
-                f"pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
+                f"print('up', flush=True); time.sleep(0.5); pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
         sim = (f"import pathlib, time; t = time.monotonic()\nwhile not pathlib.Path({str(ready)!r}).exists() "
                f"and time.monotonic() - t < 60: time.sleep(0.02)\nraise SystemExit({G.EXIT_EPISODE_FAILED})")
         launch = L.Launch([L.NodeProcess("other", [sys.executable, "-c", node], stop_order=1),
@@ -131,6 +131,29 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
         assert launch.run() == G.EXIT_EPISODE_FAILED
     text = log.read_text()
     assert "an episode ended in error" in text and "died" not in text, text
+
+
+def test_a_node_stopped_before_it_said_anything_gets_sigterm_not_a_traceback(tmp_path):
+    """A node refusing its parameters stops the others while they may still be importing: a
+    SIGINT there is a KeyboardInterrupt traceback (35 lines burying the refusal). One that has
+    said nothing is sent SIGTERM, which ends it quietly; one that is up still gets SIGINT."""
+    import sys
+
+    log = tmp_path / "launch.log"
+    importing = "import time; time.sleep(60)"  # still silent: as if importing rclpy and torch
+    up = ("import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: (print('got SIGINT', flush=True), "
+          "sys.exit(0))); print('up', flush=True); time.sleep(60)")
+    refusing = "import time, sys; time.sleep(1.5); print('cannot start: k=nan', flush=True); sys.exit(2)"
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("controller", [sys.executable, "-c", refusing], stop_order=1),
+                           L.NodeProcess("sim", [sys.executable, "-c", importing], stop_order=0),
+                           L.NodeProcess("recorder", [sys.executable, "-c", up], stop_order=2)],
+                          L.loopback_env(0), out=out, stop_timeout_s=5)
+        assert launch.run() == L.EXIT_NODE_DIED
+    text = log.read_text()
+    assert "controller refused its parameters" in text and "Traceback" not in text, text
+    assert "[recorder] got SIGINT" in text and "needed" not in text, text
+    assert {n.name: n.returncode for n in launch.nodes} == {"controller": 2, "sim": -signal.SIGTERM, "recorder": 0}
 
 
 def test_options_that_would_be_ignored_or_misread_are_refused(capsys):

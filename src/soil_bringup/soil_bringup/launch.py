@@ -106,12 +106,15 @@ class NodeProcess:
     proc: subprocess.Popen | None = None
     pump: threading.Thread | None = None
     returncode: int | None = field(default=None)
+    spoke: threading.Event = field(default_factory=threading.Event)  # a first line of output came
 
 
-def _pump(prefix: str, stream, out) -> None:
+def _pump(prefix: str, stream, out, spoke: threading.Event | None = None) -> None:
     """Copy a child's output line by line with its name; never dies on a closed terminal
     (a dead pump would leave the child blocked on a full pipe)."""
     for line in iter(stream.readline, ""):
+        if spoke is not None:
+            spoke.set()
         try:
             out.write(f"[{prefix}] {line}" if line.endswith("\n") else f"[{prefix}] {line}\n")
             out.flush()
@@ -153,7 +156,8 @@ class Launch:
                     os.setpriority(os.PRIO_PROCESS, node.proc.pid, node.niceness)
                 except OSError as err:
                     self.log(f"{node.name}: niceness {node.niceness} not set ({err}); it runs at normal priority")
-            node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out), daemon=True)
+            node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out, node.spoke),
+                                         daemon=True)
             node.pump.start()
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
 
@@ -233,14 +237,18 @@ class Launch:
                 node.pump.join(timeout=2.0)
 
     def _stop_one(self, node: NodeProcess) -> int:
-        for sig, wait in ((signal.SIGINT, self.stop_timeout_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        # A node that has said nothing yet may still be importing, where a SIGINT is a
+        # KeyboardInterrupt traceback burying the launch's real error; SIGTERM ends it quietly
+        # there, and a node that is up handles either alike (``ros_adapter``).
+        first = signal.SIGINT if node.spoke.is_set() else signal.SIGTERM
+        for sig, wait in ((first, self.stop_timeout_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
             try:
                 node.proc.send_signal(sig)
             except ProcessLookupError:
                 break
             try:
                 rc = node.proc.wait(timeout=wait)
-                if sig != signal.SIGINT:
+                if sig != first:
                     self.log(f"{node.name} needed {signal.Signals(sig).name}")
                 return rc
             except subprocess.TimeoutExpired:
