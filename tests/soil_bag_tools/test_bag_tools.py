@@ -9,6 +9,7 @@ repair of truncated journals.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -610,7 +611,35 @@ def test_a_journal_still_being_written_is_skipped_by_repair_and_repaired_once_it
     with pytest.raises(journal.JournalInUse):
         journal.journal_to_bag(partial)
     w.write(*[sample_messages()[300][k] for k in (1, 0, 2)])  # the writer goes on undisturbed
+    held = w.close(keep_lock=True)  # the recorder's hand-over: closed, its lock kept until it converts
+    try:
+        with pytest.raises(journal.JournalInUse):  # a repair between the close and the conversion
+            journal.journal_to_bag(partial)
+        r = journal.journal_to_bag(partial, locked=True)
+    finally:
+        os.close(held)
+    assert not partial.exists() and r.ticks == 30 and len(bag_io.read_episode(r.path)) == 30
+    partial, w = _journal_from_sample(tmp_path / "again", n_msgs=300, flush_every=100)
     w.close()
-    out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path)], capture_output=True, text=True, timeout=30)
+    out = subprocess.run([BIN / "soil_bag_repair", str(tmp_path / "again")], capture_output=True, text=True, timeout=30)
     assert out.returncode == 0, out.stderr
-    assert not partial.exists() and len(bag_io.read_episode(tmp_path / SAMPLE.name)) == 30
+    assert not partial.exists() and len(bag_io.read_episode(tmp_path / "again" / SAMPLE.name)) == 30
+
+
+def test_a_file_system_without_flock_records_and_repairs_unlocked_and_says_so_once(tmp_path, monkeypatch, caplog):
+    """Some shared file systems refuse flock (ENOSYS; NFS for a file open only for reading): the
+    recorder must still record and the repair still convert, unlocked, with one warning."""
+    import errno
+
+    def no_flock(fd, op):
+        raise OSError(errno.ENOSYS, "Function not implemented")
+
+    monkeypatch.setattr(journal.fcntl, "flock", no_flock)
+    monkeypatch.setattr(journal, "_unlocked_warned", set())
+    with caplog.at_level("WARNING", logger=journal.__name__):
+        partial, w = _journal_from_sample(tmp_path, n_msgs=300, flush_every=100)
+        _killed(w)
+        r = journal.journal_to_bag(partial)
+    assert r.ticks == 30 and not partial.exists()
+    said = [rec.getMessage() for rec in caplog.records if "refuses a lock" in rec.getMessage()]
+    assert len(said) == 1 and "Function not implemented" in said[0], said

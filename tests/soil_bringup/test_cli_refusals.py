@@ -26,6 +26,7 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
     (["--controller-params-file", "{tmp}"], "--controller-params-file {tmp}: a directory, not a YAML file"),
     (["--record", "{tmp}/a", "--recorder-arg=--out={tmp}/b"], "the recorder writes where --record says"),
     (["--record", "{tmp}/a", "--recorder-arg=--out", "--recorder-arg={tmp}/b"], "the recorder writes where --record says"),
+    (["--record", "{tmp}/a", "--recorder-arg=--ou={tmp}/b"], "the recorder writes where --record says"),
     (["--pacing", "lockstep", "--rate", "3"], "--rate 3.0 is the real-time factor of --pacing realtime"),
 ])
 def test_soil_launch_refuses_options_it_would_not_follow(tmp_path, capsys, args, said):

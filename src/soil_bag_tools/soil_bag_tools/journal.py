@@ -30,8 +30,10 @@ counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
+import logging
 import os
 import shutil
 from collections import defaultdict
@@ -100,7 +102,7 @@ class JournalWriter:
     def __init__(self, path: Path, metadata: Mapping[str, str]):
         self.path = Path(path)
         self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        _lock(self._file)  # until closed: no repair converts a journal still being written
+        _lock(self._file, wait=True)  # until closed: no repair converts a journal still being written
         self._mcap = McapWriter(self._file, chunk_size=_CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._mcap.start(profile="ros2", library="insitu-soil soil_bag_record")
         # Written straight to the stream (not into a chunk) and flushed at once, so even a
@@ -133,13 +135,17 @@ class JournalWriter:
         if not self.closed:
             self._mcap.flush()
 
-    def close(self) -> None:
-        """Write the summary and footer (a finished journal); idempotent."""
+    def close(self, keep_lock: bool = False) -> int | None:
+        """Write the summary and footer (a finished journal); idempotent. ``keep_lock``: returns a
+        descriptor that keeps the journal's lock after the close (an flock belongs to the open
+        file, which the duplicate keeps open), for ``journal_to_bag(locked=True)``: no repair takes
+        the journal between its writer's close and its conversion."""
         if self.closed:
-            return
+            return None
         self.closed = True
         try:
             self._mcap.finish()
+            return os.dup(self._file.fileno()) if keep_lock else None
         finally:
             self._file.close()
 
@@ -149,14 +155,29 @@ class JournalInUse(ValueError):
     converting it). It is left alone; the recorder turns it into a bag itself."""
 
 
-def _lock(file) -> None:
+_log = logging.getLogger(__name__)
+_unlocked_warned: set[int] = set()
+
+
+def _lock(file, wait: bool = False) -> None:
     """An exclusive advisory lock on an open journal (``flock``: the kernel drops it when the
-    holder exits, also on SIGKILL, so a dead recorder's journal is free to repair)."""
+    holder exits, also on SIGKILL, so a dead recorder's journal is free to repair); ``wait``:
+    block until it is free (a writer, behind a repair of its brand-new empty file).
+
+    Some shared file systems have no flock (ENOSYS, ENOLCK, EOPNOTSUPP; NFS emulates it only for
+    files open for writing, EBADF): there the journal goes on unlocked, said once per error."""
     try:
-        fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(file.fileno(), fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
     except BlockingIOError:
         raise JournalInUse(f"{file.name}: another process is writing or converting it (a running recorder "
                            "turns it into a bag itself when its episode ends); not touched") from None
+    except OSError as err:
+        if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise
+        if err.errno not in _unlocked_warned:
+            _unlocked_warned.add(err.errno)
+            _log.warning("journal %s: this file system refuses a lock (%s): journals go unlocked, so do not run "
+                         "soil_bag_repair on a directory a recorder is writing", file.name, err.strerror or err)
 
 
 # --- reading -----------------------------------------------------------------------------
@@ -415,7 +436,7 @@ class BagResult:
 
 def journal_to_bag(
     partial: Path, *, trim_partial_ticks: bool = True, info_key: str = RECORDER_INFO_KEY,
-    info: Mapping | None = None,
+    info: Mapping | None = None, locked: bool = False,
 ) -> BagResult:
     """Convert the journal in ``partial`` (a ``<name>.partial`` directory) to the bag ``<name>/``.
 
@@ -426,6 +447,7 @@ def journal_to_bag(
     episode journals ``trim_partial_ticks`` drops trailing ticks not present on every topic.
     Raises NothingRecoverable (journal kept) if no message would be written, JournalInUse
     (journal untouched) if another process holds its lock (a recorder still writing it).
+    ``locked``: the caller holds the journal's lock (``JournalWriter.close(keep_lock=True)``).
     """
     partial = Path(partial)
     if not partial.name.endswith(PARTIAL_SUFFIX):
@@ -433,9 +455,22 @@ def journal_to_bag(
     jpath = journal_path(partial)
     if not jpath.is_file():
         raise NothingRecoverable(f"{partial}: no journal file {jpath.name} (not left by soil_bag_record?)")
-    with open(jpath, "rb") as held:
-        _lock(held)  # held until the journal is gone: nothing appends to it meanwhile
+    if locked:
         return _convert(partial, jpath, trim_partial_ticks, info_key, info)
+    with _open_to_lock(jpath) as lock:
+        _lock(lock)  # held until the journal is gone: nothing appends to it meanwhile
+        if not jpath.is_file():  # another repair converted it while this one waited to open it
+            raise NothingRecoverable(f"{partial}: converted by another process meanwhile")
+        return _convert(partial, jpath, trim_partial_ticks, info_key, info)
+
+
+def _open_to_lock(jpath: Path):
+    """The journal opened for its lock: for writing where allowed (NFS's flock needs it), else
+    for reading (a read-only copy of a journal, whose directory can still be converted)."""
+    try:
+        return open(jpath, "r+b")  # noqa: SIM115 - closed by the caller's with
+    except PermissionError:
+        return open(jpath, "rb")  # noqa: SIM115
 
 
 def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str, info: Mapping | None) -> BagResult:

@@ -36,6 +36,7 @@ counter, its ticks after its predecessor's last) is recorded as the writer's suc
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import time
 from collections import deque
@@ -419,10 +420,18 @@ class Recorder:
         self.sessions.remove(s)
         partial = partial_dir(self.out_dir, s.name)
         try:
-            s.journal.close()
+            held = s.journal.close(keep_lock=True)  # its lock kept until converted: no repair takes it between
         except Exception as err:  # noqa: BLE001 - the flushed chunks are still repairable
             self.log.error(f"{s.name}: closing the journal failed ({err!r}); run soil_bag_repair {partial}")
             return None
+        try:
+            return self._convert(s, how, partial, locked=held is not None)
+        finally:
+            if held is not None:
+                os.close(held)
+
+    def _convert(self, s: Session, how: str, partial: Path, *, locked: bool) -> BagResult | None:
+        """The closed journal of ``s`` to its bag (``locked``: this recorder still holds its lock)."""
         if how == "grace_timeout":
             self.log.warning(f"{s.name}: end grace {self.end_grace_s} s expired; short topics "
                              f"(last stamp received, want {s.last_stamp_ns}): {self._short_topics(s)}")
@@ -445,7 +454,7 @@ class Recorder:
             info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks, stats=s.end_event.stats or {})
         try:
             result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
-                                    info_key=RECORDER_INFO_KEY, info=info)
+                                    info_key=RECORDER_INFO_KEY, info=info, locked=locked)
         except (NothingRecoverable, OSError, ValueError) as err:
             self.log.error(f"{s.name}: no bag written: {err}")
             return None
