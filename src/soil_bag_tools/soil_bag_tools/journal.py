@@ -30,7 +30,6 @@ counted per topic in the bag's recorder info (``conflicts``).
 """
 from __future__ import annotations
 
-import errno
 import fcntl
 import json
 import logging
@@ -168,12 +167,10 @@ def _lock(file, wait: bool = False) -> None:
     files open for writing, EBADF): there the journal goes on unlocked, said once per error."""
     try:
         fcntl.flock(file.fileno(), fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
-    except BlockingIOError:
+    except BlockingIOError:  # (EWOULDBLOCK / EAGAIN: held)
         raise JournalInUse(f"{file.name}: another process is writing or converting it (a running recorder "
                            "turns it into a bag itself when its episode ends); not touched") from None
     except OSError as err:
-        if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
-            raise
         if err.errno not in _unlocked_warned:
             _unlocked_warned.add(err.errno)
             _log.warning("journal %s: this file system refuses a lock (%s): journals go unlocked, so do not run "

@@ -475,8 +475,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     f"({'--no-controller' if node == 'controller' else f'add --{node}'})")
     if args.recorder_arg and not args.record:
         p.error("--recorder-arg given, but this launch starts no recorder (add --record DIR)")
-    if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):  # its last --out won
-        # (any prefix: argparse takes --o and --ou for --out)
+    # the recorder's last --out would win over --record's; any prefix of it too (argparse takes --o, --ou)
+    if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
     if args.rate is not None and args.pacing == "lockstep":  # a lockstep episode runs as fast as the graph answers
         p.error(f"--rate {args.rate} is the real-time factor of --pacing realtime; lockstep has none")
