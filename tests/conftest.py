@@ -6,11 +6,13 @@ folders sit here (``tests.ros_probe``, ``tests.bag_fixtures``, ``tests.sim_plugi
 folder is a package, so a test folder never shadows the project package it is named after.
 
 ``make test`` runs the suite in worker processes (pytest-xdist, ``-n``; the scheduler below):
-the tests of a module marked ``live`` (they start nodes over DDS, a Ray cluster or torchrun)
-run one after another in one worker, so two graphs never run at once and two clusters never
-race for one port (a graph still shares the cores with the other worker's tests); every other
-module goes to a worker whole, so its module fixtures (the discrepancy datasets) are made once. A test of a module that imports rclpy or the DDS /
-Ray test helpers, or runs torchrun, without the mark fails with that reason.
+the tests of a module marked ``live`` run one after another in one of two lanes: the graphs'
+(nodes over DDS) and the clusters' (a Ray cluster or torchrun), so two graphs never run at once
+and two clusters never race for one port, while a graph may run beside a cluster as it does
+beside the other worker's tests; every other module goes to a worker whole, so its module
+fixtures (the discrepancy datasets) are made once. A test of a module that imports rclpy or the
+DDS / Ray test helpers, or runs torchrun, without the mark fails with that reason, and so does
+one of a module that starts both a graph and a cluster (it belongs to neither lane: split it).
 
 DDS stays on loopback for every test: the test process itself (which hosts probe nodes)
 and every node it starts get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; the deprecated
@@ -33,12 +35,15 @@ def pytest_configure(config):
                                        "(make test runs these one at a time)")
 
 
-LIVE_SCOPE = "live"
-# What only a live module imports (at its top or in a test): rclpy, the DDS domain leases and
-# probe nodes, the Ray probe; or what it runs: a leased domain, a Ray session, torchrun
-# (python -m torch.distributed.run).
-LIVE_HELPERS = re.compile(r"^\s*(import rclpy|from rclpy[ .]|from tests(\.| import )(ros_domains|ros_probe|ray_probe|hostile)\b)"
-                          r"|next_domain_id\(|ray_session\(|ray\.init\(|-m torch\.distributed\.run\b", re.MULTILINE)
+LIVE_SCOPE = "live"  # the graphs' lane
+CLUSTER_SCOPE = "live-clusters"  # the clusters' lane
+# What only a live module imports (at its top or in a test) or runs. A graph: rclpy, the DDS
+# domain leases and probe nodes, a leased domain. A cluster: the Ray probe, a Ray session,
+# torchrun (python -m torch.distributed.run).
+DDS_HELPERS = re.compile(r"^\s*(import rclpy|from rclpy[ .]|from tests(\.| import )(ros_domains|ros_probe|hostile)\b)"
+                         r"|next_domain_id\(", re.MULTILINE)
+CLUSTER_HELPERS = re.compile(r"^\s*from tests(\.| import )ray_probe\b|ray_session\(|ray\.init\("
+                             r"|-m torch\.distributed\.run\b", re.MULTILINE)
 LIVE_MARK = re.compile(r"\bpytest\.mark\.live\b")
 
 
@@ -47,9 +52,19 @@ def _source(path: Path) -> str:
     return path.read_text(encoding="utf-8")
 
 
+def uses_dds_helpers(path: Path) -> bool:
+    """True if the test module at ``path`` imports rclpy or a DDS helper, or leases a domain."""
+    return DDS_HELPERS.search(_source(path)) is not None
+
+
+def uses_cluster_helpers(path: Path) -> bool:
+    """True if the test module at ``path`` starts a Ray session, reads the Ray probe or runs torchrun."""
+    return CLUSTER_HELPERS.search(_source(path)) is not None
+
+
 def uses_live_helpers(path: Path) -> bool:
     """True if the test module at ``path`` imports rclpy or a DDS / Ray helper, or runs torchrun."""
-    return LIVE_HELPERS.search(_source(path)) is not None
+    return uses_dds_helpers(path) or uses_cluster_helpers(path)
 
 
 def is_live_module(path: Path) -> bool:
@@ -59,34 +74,44 @@ def is_live_module(path: Path) -> bool:
     return LIVE_MARK.search(_source(path)) is not None or uses_live_helpers(path)
 
 
+def live_lane(path: Path) -> str:
+    """The lane of a live module: the clusters' if it starts only clusters, else the graphs' (a
+    module marked live that uses neither kind of helper, e.g. one that runs soil_launch, too)."""
+    return CLUSTER_SCOPE if uses_cluster_helpers(path) and not uses_dds_helpers(path) else LIVE_SCOPE
+
+
 def pytest_runtest_setup(item):
     """Fail a test of a module that uses the live helpers without the ``live`` mark (see above;
     a test failure, not a collection error, so that xdist's workers report it with its reason)."""
-    if item.get_closest_marker("live") is None and uses_live_helpers(Path(item.path)):
+    path = Path(item.path)
+    if item.get_closest_marker("live") is None and uses_live_helpers(path):
         pytest.fail(f"{item.module.__name__} imports rclpy or the DDS / Ray test helpers, or runs torchrun, but is not "
                     "marked 'live' (add pytestmark = pytest.mark.live): live tests run one at a time", pytrace=False)
+    if uses_dds_helpers(path) and uses_cluster_helpers(path):
+        pytest.fail(f"{item.module.__name__} starts both DDS graphs and a Ray cluster or torchrun: graphs and clusters "
+                    "each run one at a time in a lane of their own (tests/conftest.py); put its cluster tests in "
+                    "a module of their own", pytrace=False)
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    """pytest-xdist's scope scheduling with two kinds of scope: every live module is one scope
-    (``live``: its tests run one after another in one worker), every other module its own (its
-    module fixtures made once). (xdist's ``--dist loadgroup`` would say it with marks, but it renames
+    """pytest-xdist's scope scheduling with three kinds of scope: the graphs' live modules are one
+    scope and the clusters' another (each lane's tests run one after another in one worker), every
+    other module its own (its module fixtures made once). (xdist's ``--dist loadgroup`` would say it with marks, but it renames
     test ids through an attribute pytest 9 no longer reads: its groups are ignored.)"""
     if config.getvalue("dist") != "load":  # a --dist the user chose (load: -n's default)
         return None
     from xdist.scheduler import LoadScopeScheduling
 
-    def live(module: str) -> bool:
+    def scope(module: str) -> str:
         for base in (config.rootpath, config.invocation_params.dir):  # test ids are relative to one of them
             if (base / module).is_file():
-                return is_live_module(base / module)
-        return False
+                return live_lane(base / module) if is_live_module(base / module) else module
+        return module
 
     class LiveOneAtATime(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            module = nodeid.split("::", 1)[0]
-            return LIVE_SCOPE if live(module) else module
+            return scope(nodeid.split("::", 1)[0])
 
     return LiveOneAtATime(config, log)
 

@@ -529,6 +529,16 @@ def test_bad_inputs(tmp_path):
     assert "Traceback" not in out.stdout + out.stderr
 
 
+def test_play_refuses_a_corrupt_bag_naming_it(tmp_path):
+    """The player's side of test_corrupt_bags.py (the offline tools'): exit 2, the bag named, no traceback."""
+    from .test_corrupt_bags import assert_refused, copy_bag, corrupt
+
+    bad = corrupt(copy_bag(SAMPLE, tmp_path / f"{SAMPLE.name}_broken"))
+    out = subprocess.run([BIN / "soil_bag_play", bad], env=ros_env(next_domain_id()), capture_output=True, text=True,
+                         timeout=60)
+    assert_refused(out, bad)
+
+
 @pytest.mark.parametrize("option, value", [("--wait-timeout", "nan"), ("--wait-timeout", "-5"),
                                            ("--wait-timeout", "inf"), ("--clock", "inf"), ("--clock", "1e12"),
                                            ("--rate", "inf"), ("--rate", "nan"), ("--rate", "1e-300"),
