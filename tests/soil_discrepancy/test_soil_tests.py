@@ -23,11 +23,10 @@ from soil_discrepancy.soil_tests import WIDTH_SIGMA, hold_theta, load_soil_tests
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.soils import CATALOGUE as SOILS
 from soil_physics.soils import get_soil
-from soil_sim_node.batch import DatasetPlan, generate, grid_specs
-from soil_sim_node.effects import effects_for_mode
+from soil_sim_node.batch import grid_specs
 from soil_sim_node.simulator import soil_tool_friction_rad
 
-from .test_discrepancy import RUN, blind, named_verdict
+from .test_discrepancy import RUN, named_verdict, simulated
 
 DENSITIES = (20.0, 80.0)
 STRIDE = 4
@@ -49,16 +48,14 @@ def lab_results(densities=DENSITIES, phi_shift_deg: dict | None = None) -> dict:
 
 
 @pytest.fixture(scope="module")
-def adhesion_bags(tmp_path_factory):
-    root = tmp_path_factory.mktemp("adhesion")
+def adhesion():
+    """The adhesion's episodes, blind (simulated, as the soil tests' reading of bags is the CLI's)."""
     specs = grid_specs(list(SOILS), list(DENSITIES), [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
-    generate(DatasetPlan("fee", root, specs, effects_for_mode("fee"), plugins=("tests.sim_plugins:adhesion_pull k=0.5",)),
-             workers=2, progress=False)
-    return root
+    return simulated(specs, ("tests.sim_plugins:adhesion_pull k=0.5",))
 
 
-def test_an_effect_theta_absorbs_shows_only_with_soil_tests(adhesion_bags, tmp_path):
-    ds = blind(adhesion_bags)
+def test_an_effect_theta_absorbs_shows_only_with_soil_tests(adhesion, tmp_path):
+    ds = adhesion
     run = {**RUN, "stride": STRIDE}
     free = run_discrepancy(dataset=ds, out_dir=None, plots=False, **run)
     assert free["verdict"] == "no significant discrepancy", free["summary"]  # the forces alone: θ took it in
@@ -82,8 +79,8 @@ def test_an_effect_theta_absorbs_shows_only_with_soil_tests(adhesion_bags, tmp_p
     assert "Soil tests hold θ in 8 of 8 groups" in md and "| soil test: φ [°] / c [Pa] / δ [°] |" in md
 
 
-def test_soil_tests_bound_theta_and_a_soil_they_rule_out_is_named(adhesion_bags):
-    frame = build_frame(blind(adhesion_bags), stride=8)
+def test_soil_tests_bound_theta_and_a_soil_they_rule_out_is_named(adhesion):
+    frame = build_frame(adhesion, stride=8)
     # a wrong test: the clays' φ 6° too high; every other soil as it is
     held = hold_theta(frame, parse_soil_tests(lab_results(phi_shift_deg={"Clay": 6.0})))
     fit = fit_fixed(held, AugmentedFEE())
@@ -101,8 +98,8 @@ def test_soil_tests_bound_theta_and_a_soil_they_rule_out_is_named(adhesion_bags)
     assert np.any(theta_jacobian(frame, AugmentedFEE(), fit_fixed(frame, AugmentedFEE())) != 0.0)
 
 
-def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adhesion_bags):
-    frame = build_frame(blind(adhesion_bags), stride=8)
+def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adhesion):
+    frame = build_frame(adhesion, stride=8)
     tests = parse_soil_tests({"soil_tests": [
         {"soil": "clay", "phi_deg": 20.0, "phi_std_deg": 1.0},  # every density, case-insensitive
         {"soil": "Clay", "relative_density_pct": 80, "phi_deg": 26.0, "phi_std_deg": 1.0, "c_kpa": 8.4, "c_std_kpa": 0.5}]})
@@ -119,7 +116,7 @@ def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adh
     with pytest.raises(ValueError, match="no soil test matches a soil of the bags"):
         hold_theta(frame, parse_soil_tests({"soil_tests": [{"soil": "Peat", "phi_deg": 20.0, "phi_std_deg": 1.0}]}))
     with pytest.raises(ValueError, match="no soil test matches"):  # grouped by γ: no label is read
-        hold_theta(build_frame(blind(adhesion_bags), stride=8, group_by="gamma"), tests)
+        hold_theta(build_frame(adhesion, stride=8, group_by="gamma"), tests)
 
 
 @pytest.mark.parametrize("data, said", [
