@@ -27,6 +27,7 @@ from rosbags.highlevel import AnyReader
 from soil_bringup.launch import loopback_env
 from soil_bag_tools import bag_io, bag_writer, journal, playback, recorder
 from soil_msgs_py import graph
+from soil_msgs_py.graph import EXIT_BAG_NOT_WRITTEN
 from soil_msgs_py.topics import EPISODE_TOPICS
 
 from tests.ros_domains import next_domain_id
@@ -145,6 +146,29 @@ def test_an_episode_whose_bag_cannot_be_made_is_not_recorded_and_the_recorder_go
         completed.on_message(topic, raw, 0)
     completed.on_status(replace(end, reason="completed").to_json())
     assert [m for _, m in completed.log.lines if m.startswith("finished (completed)") and "ended" not in m], completed.log.lines
+
+
+def test_an_episode_recorded_but_not_written_is_counted_for_the_exit_code(tmp_path):
+    """Its journal gone before the episode ended (deleted, a disk that failed): no bag, said as an
+    error, and the episode listed in ``unwritten``, which record_node's exit code reads
+    (EXIT_BAG_NOT_WRITTEN: soil_launch then fails); the next episode records as before."""
+    loaded, start, end = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 5]
+    end = replace(end, last_stamp_ns=msgs[-1][0], ticks=5)
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: 0.0)
+    rec.on_status(start.to_json())
+    for _, topic, raw in msgs:
+        rec.on_message(topic, raw, 0)
+    shutil.rmtree(journal.partial_dir(tmp_path, SAMPLE.name))
+    rec.on_status(end.to_json())
+    assert rec.finished == [] and rec.unwritten == [SAMPLE.name]
+    assert any(lvl == "error" and f"{SAMPLE.name}: no bag written" in m for lvl, m in log.lines), log.lines
+    rec.on_status(replace(start, episode=1).to_json())
+    for _, topic, raw in msgs:
+        rec.on_message(topic, raw, 0)
+    rec.on_status(replace(end, episode=1).to_json())
+    assert [r.path.name for r in rec.finished] == [SAMPLE.name] and rec.unwritten == [SAMPLE.name]
 
 
 def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_writer(tmp_path):
@@ -467,25 +491,34 @@ def test_record_a_replay_equals_the_sample_and_survives_bad_status(listener, tmp
 
 
 def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
-    """Two recorders on one replay: SIGINT -> a trimmed, valid bag; SIGKILL -> .partial -> repair."""
+    """Three recorders on one replay: SIGINT -> a trimmed, valid bag; SIGKILL -> .partial -> repair;
+    SIGINT to one whose journal was deleted meanwhile -> no bag, said, and exit code
+    EXIT_BAG_NOT_WRITTEN (soil_launch then fails, where it exited 0)."""
     domain = next_domain_id()
     lst = listener(domain, topics=("/blade/cmd",))  # the last topic of each tick
-    a, b = tmp_path / "sigint", tmp_path / "sigkill"
+    a, b, c = tmp_path / "sigint", tmp_path / "sigkill", tmp_path / "lost"
     rec_int = start("soil_bag_record", "--out", a, domain=domain)
     rec_kill = start("soil_bag_record", "--out", b, domain=domain)
-    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 2, domain=domain)
+    rec_lost = start("soil_bag_record", "--out", c, domain=domain)
+    player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 3, domain=domain)
     try:
         assert lst.wait_for(lambda: lst.count("/blade/cmd") >= 240, 60), "replay did not reach 4 s"
         rec_kill.send_signal(signal.SIGKILL)
         rec_int.send_signal(signal.SIGINT)
         seen = lst.count("/blade/cmd")  # whole ticks this process had received by then
+        shutil.rmtree(c / f"{SAMPLE.name}.partial")
+        rec_lost.send_signal(signal.SIGINT)
         log = finish(rec_int)  # the player is still playing: the recorder stops mid-episode
+        lost_log = finish(rec_lost)
         player.send_signal(signal.SIGINT)
         play_log = finish(player)
     finally:
-        reap(rec_kill, rec_int, player)
+        reap(rec_kill, rec_int, rec_lost, player)
     assert player.returncode == 0, play_log
     assert rec_int.returncode == 0, log
+    assert rec_lost.returncode == EXIT_BAG_NOT_WRITTEN, lost_log
+    assert f"{SAMPLE.name}: no bag written" in lost_log and "1 episode(s) recorded but no bag written" in lost_log, lost_log
+    assert not bag_io.find_episode_bags(c)
     want = bag_io.read_episode(SAMPLE)
 
     (bag,) = bag_io.find_episode_bags(a)

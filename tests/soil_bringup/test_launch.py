@@ -133,6 +133,30 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
     assert "an episode ended in error" in text and "died" not in text, text
 
 
+def test_a_recorder_that_wrote_no_bag_of_an_episode_fails_the_launch_and_says_why(tmp_path):
+    """The episodes ran to their end, but the recorder recorded one it wrote no bag of (it exits
+    EXIT_BAG_NOT_WRITTEN when stopped): the launch exits 1 (was 0: the bag silently missing), naming
+    the recorder, its code and what the code means."""
+    import sys
+
+    from soil_msgs_py import graph as G
+
+    log = tmp_path / "launch.log"
+    with log.open("w") as out:
+        ready = tmp_path / "recorder.ready"
+        recorder = ("import pathlib, signal, sys, time; "
+                    f"signal.signal(signal.SIGINT, lambda *_: sys.exit({G.EXIT_BAG_NOT_WRITTEN})); "
+                    f"print('up', flush=True); pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
+        sim = (f"import pathlib, time; t = time.monotonic()\nwhile not pathlib.Path({str(ready)!r}).exists() "
+               "and time.monotonic() - t < 60: time.sleep(0.02)")
+        launch = L.Launch([L.NodeProcess("recorder", [sys.executable, "-c", recorder], stop_order=2),
+                           L.NodeProcess("sim", [sys.executable, "-c", sim], stop_order=0, ends_launch=True)],
+                          L.loopback_env(0), out=out, stop_timeout_s=5, drain_s=0.0)
+        assert launch.run() == L.EXIT_NODE_DIED
+    text = log.read_text()
+    assert f"recorder exited with code {G.EXIT_BAG_NOT_WRITTEN} (an episode's bag was not written" in text, text
+
+
 def test_a_node_stopped_before_it_said_anything_gets_sigterm_not_a_traceback(tmp_path):
     """A node refusing its parameters stops the others while they may still be importing: a
     SIGINT there is a KeyboardInterrupt traceback (35 lines burying the refusal). One that has

@@ -26,8 +26,8 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import bags_dir
-from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, INPUTS_WAIT_S, MAX_WAIT_S, RECORDER_QOS, SIM_STATE_TOPICS,
-                                SIM_STATUS_TOPIC)
+from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITTEN, INPUTS_WAIT_S, MAX_WAIT_S,
+                                RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_arguments_or_refusal, qos_profile, spin_node
@@ -41,6 +41,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="soil_bag_record",
         description="Record the episode topics into one rosbag2 (MCAP) bag per /sim/status episode.",
+        epilog=f"Exit code {EXIT_BAG_NOT_WRITTEN} if an episode's messages were recorded but no bag of them was written "
+               "(each said when it happened; a journal left behind: soil_bag_repair); 2 for refused arguments.",
     )
     p.add_argument("--out", type=bags_dir, required=True, help="directory that receives the bags")
     p.add_argument("--topics", nargs="+", default=[], metavar="T",
@@ -153,8 +155,17 @@ class RecordNode(Node):
         arriving is let in first (``Recorder.draining``; bounded by the end grace)."""
         return self.recorder.draining()
 
+    @property
+    def exit_code(self) -> int:
+        """``EXIT_BAG_NOT_WRITTEN`` once an episode recorded messages that no bag holds (each said
+        when it happened), else 0: a script or ``soil_launch`` must not take such a run for a good one."""
+        return EXIT_BAG_NOT_WRITTEN if self.recorder.unwritten else 0
+
     def close(self) -> None:
         self.recorder.close()
+        if self.recorder.unwritten:
+            self.get_logger().error(f"{len(self.recorder.unwritten)} episode(s) recorded but no bag written: "
+                                    f"{', '.join(self.recorder.unwritten)} (why: above); exit code {EXIT_BAG_NOT_WRITTEN}")
         if self._pending:
             try:
                 graph = dict(self.get_topic_names_and_types())

@@ -168,6 +168,9 @@ class Recorder:
         self.sessions: list[Session] = []  # oldest first
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
+        # episodes that recorded messages but whose bag was not written (the journal would not close
+        # or convert): the recorder's exit code says so (record_node), so a launch does not end in 0
+        self.unwritten: list[str] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
         # topics whose writer had not matched when the recorder joined the simulator's topics
         # (record_node's --inputs-wait ran out): their first messages may be missing from a bag
@@ -423,6 +426,7 @@ class Recorder:
             held = s.journal.close(keep_lock=True)  # its lock kept until converted: no repair takes it between
         except Exception as err:  # noqa: BLE001 - the flushed chunks are still repairable
             self.log.error(f"{s.name}: closing the journal failed ({err!r}); run soil_bag_repair {partial}")
+            self.unwritten.append(s.name)
             return None
         try:
             return self._convert(s, how, partial, locked=held is not None)
@@ -457,6 +461,7 @@ class Recorder:
                                     info_key=RECORDER_INFO_KEY, info=info, locked=locked)
         except (NothingRecoverable, OSError, ValueError) as err:
             self.log.error(f"{s.name}: no bag written: {err}")
+            self.unwritten.append(s.name)
             return None
         extra = f", {s.duplicates} duplicates" if s.duplicates else ""
         # "completed" is the recording's (every tick of the episode in); how the episode itself
