@@ -311,7 +311,7 @@ def test_two_catalogue_effects_at_once_are_named_not_the_one_form_that_mimics_bo
     two = simulated(specs, ("soil_physics.force_terms:plugin term=soil_inertia k=3",
                             "soil_physics.force_terms:plugin term=compaction_hardening k=0.05"))
     rep = run_discrepancy(dataset=two, out_dir=tmp_path / "out", plots=False,
-                          **{**RUN, "stride": 6})
+                          **{**RUN, "stride": STRIDE})
     path = rep["forms"]["catalogue_path"]
     assert path["chosen"] == "catalogue" and path["forms_path"][0].startswith("form:"), path
     assert path["catalogue_left"] <= path["forms_left"], path
