@@ -97,8 +97,9 @@ def pytest_runtest_setup(item):
 def pytest_xdist_make_scheduler(config, log):
     """pytest-xdist's scope scheduling with three kinds of scope: the graphs' live modules are one
     scope and the clusters' another (each lane's tests run one after another in one worker), every
-    other module its own (its module fixtures made once). (xdist's ``--dist loadgroup`` would say it with marks, but it renames
-    test ids through an attribute pytest 9 no longer reads: its groups are ignored.)"""
+    other module its own (its module fixtures made once). (xdist's ``--dist loadgroup`` would say
+    it with marks, but it renames test ids through an attribute pytest 9 no longer reads: its
+    groups are ignored.)"""
     if config.getvalue("dist") != "load":  # a --dist the user chose (load: -n's default)
         return None
     from xdist.scheduler import LoadScopeScheduling

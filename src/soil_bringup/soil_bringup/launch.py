@@ -179,7 +179,8 @@ class Launch:
                 signal.signal(s, handler)
         failed = [n for n in self.nodes if n.returncode not in (0, None)]
         for n in failed:
-            meaning = " (an episode's bag was not written: its log says why)" if n.returncode == G.EXIT_BAG_NOT_WRITTEN else ""
+            bag_lost = n.returncode == G.EXIT_BAG_NOT_WRITTEN
+            meaning = " (an episode's bag was not written: its log says why)" if bag_lost else ""
             self.log(f"{n.name} exited with code {n.returncode}{meaning}")
         # a node that died wins (1); else a simulator that says an episode failed (4) is that, not a death
         episode_failed = [n for n in failed if n.ends_launch and n.returncode == G.EXIT_EPISODE_FAILED]
