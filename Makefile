@@ -32,7 +32,7 @@ demo: venv
 planner: venv
 	$(BIN)/python -m soil_bringup.cut_report --out out/planner
 
-# Two worker processes (tests/conftest.py: the live tests one at a time in one of them); TEST_WORKERS=0: one process.
+# Two worker processes (tests/conftest.py: the live tests one at a time per lane, graphs and clusters); TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2
 test: venv
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests

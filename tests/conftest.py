@@ -32,7 +32,7 @@ os.environ.pop("ROS_LOCALHOST_ONLY", None)
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: long-running test (deselect with -m 'not slow')")
     config.addinivalue_line("markers", "live: starts ROS nodes over DDS, a Ray cluster or torchrun "
-                                       "(make test runs these one at a time)")
+                                       "(make test runs these one at a time per lane: graphs, clusters)")
 
 
 LIVE_SCOPE = "live"  # the graphs' lane

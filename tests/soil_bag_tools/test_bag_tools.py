@@ -127,6 +127,7 @@ def test_an_episode_whose_bag_cannot_be_made_is_not_recorded_and_the_recorder_go
     rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: 0.0)
     rec.on_status(replace(start, name="x" * 300).to_json())
     assert any(lvl == "error" and "cannot open its bag" in m and "not recorded" in m for lvl, m in log.lines), log.lines
+    assert rec.unwritten == ["x" * 300]  # the recorder's exit code then says so (EXIT_BAG_NOT_WRITTEN)
     rec.on_status(replace(start, episode=1).to_json())
     for _, topic, raw in msgs:
         rec.on_message(topic, raw, 0)
@@ -517,7 +518,7 @@ def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
     assert player.returncode == 0, play_log
     assert rec_int.returncode == 0, log
     assert rec_lost.returncode == EXIT_BAG_NOT_WRITTEN, lost_log
-    assert f"{SAMPLE.name}: no bag written" in lost_log and "1 episode(s) recorded but no bag written" in lost_log, lost_log
+    assert f"{SAMPLE.name}: no bag written" in lost_log and "1 episode(s) without a bag" in lost_log, lost_log
     assert not bag_io.find_episode_bags(c)
     want = bag_io.read_episode(SAMPLE)
 

@@ -134,7 +134,7 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
 
 
 def test_a_recorder_that_wrote_no_bag_of_an_episode_fails_the_launch_and_says_why(tmp_path):
-    """The episodes ran to their end, but the recorder recorded one it wrote no bag of (it exits
+    """The episodes ran to their end, but the recorder left one without its bag (it exits
     EXIT_BAG_NOT_WRITTEN when stopped): the launch exits 1 (was 0: the bag silently missing), naming
     the recorder, its code and what the code means."""
     import sys
@@ -146,7 +146,7 @@ def test_a_recorder_that_wrote_no_bag_of_an_episode_fails_the_launch_and_says_wh
         ready = tmp_path / "recorder.ready"
         recorder = ("import pathlib, signal, sys, time; "
                     f"signal.signal(signal.SIGINT, lambda *_: sys.exit({G.EXIT_BAG_NOT_WRITTEN})); "
-                    f"print('up', flush=True); pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
+                    f"print('up', flush=True); time.sleep(0.5); pathlib.Path({str(ready)!r}).touch(); time.sleep(60)")
         sim = (f"import pathlib, time; t = time.monotonic()\nwhile not pathlib.Path({str(ready)!r}).exists() "
                "and time.monotonic() - t < 60: time.sleep(0.02)")
         launch = L.Launch([L.NodeProcess("recorder", [sys.executable, "-c", recorder], stop_order=2),

@@ -178,7 +178,7 @@ def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_re
 
 def test_sinking_only_force_gets_its_gate_and_is_not_named_unless_the_test_confirms_it(form_data, tmp_path):
     """min_gain 0.2: the gated form removes ~1/3 of the cross-validated error but only ~11 % of the held-out
-    test episodes' (seed 0): a tentative form, not a name; the verdict stays 'unexplained' with its regimes."""
+    test episodes' (seed 0, measured on every 4th tick): a tentative form, not a name; the verdict stays 'unexplained' with its regimes."""
     rep = run_discrepancy(dataset=form_data["sinking"], out_dir=tmp_path, plots=False,
                           **{**RUN, "stride": STRIDE, "min_gain": 0.2})
     top = term_forms.describe(rep["forms"]["search"]["candidates"][0])
@@ -304,8 +304,8 @@ def test_a_form_is_a_pinn_extra_term_with_gradients_and_asks_for_the_travel_it_u
 def test_two_catalogue_effects_at_once_are_named_not_the_one_form_that_mimics_both(tmp_path):
     """Soil inertia and compaction hidden together: greedy selection took one form that mimics both
     (inertia growing with time in soil, `form:mom_x*tsat3`: 83 % off the cross-validated error
-    against soil inertia's 74 %), after which neither catalogue term passed. A form is for what the
-    catalogue's mechanisms cannot explain together: their own path (here 88 % off with two terms)
+    against soil inertia's 74 %; measured on every 6th tick), after which neither catalogue term passed. A
+    form is for what the catalogue's mechanisms cannot explain together: their own path (there 88 % off with two terms)
     is taken, both are named first, and the report keeps the path not taken."""
     specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
     two = simulated(specs, ("soil_physics.force_terms:plugin term=soil_inertia k=3",

@@ -41,8 +41,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="soil_bag_record",
         description="Record the episode topics into one rosbag2 (MCAP) bag per /sim/status episode.",
-        epilog=f"Exit code {EXIT_BAG_NOT_WRITTEN} if an episode's messages were recorded but no bag of them was written "
-               "(each said when it happened; a journal left behind: soil_bag_repair); 2 for refused arguments.",
+        epilog=f"Exit code {EXIT_BAG_NOT_WRITTEN} if an episode went without its bag (its journal could not be made, "
+               "closed or converted; each said when it happened; a journal left behind: soil_bag_repair); 2 for "
+               "refused arguments.",
     )
     p.add_argument("--out", type=bags_dir, required=True, help="directory that receives the bags")
     p.add_argument("--topics", nargs="+", default=[], metavar="T",
@@ -157,15 +158,18 @@ class RecordNode(Node):
 
     @property
     def exit_code(self) -> int:
-        """``EXIT_BAG_NOT_WRITTEN`` once an episode recorded messages that no bag holds (each said
-        when it happened), else 0: a script or ``soil_launch`` must not take such a run for a good one."""
+        """``EXIT_BAG_NOT_WRITTEN`` once an episode went without its bag (``Recorder.unwritten``, each
+        said when it happened), else 0: a script or ``soil_launch`` must not take such a run for a good one."""
         return EXIT_BAG_NOT_WRITTEN if self.recorder.unwritten else 0
 
     def close(self) -> None:
-        self.recorder.close()
-        if self.recorder.unwritten:
-            self.get_logger().error(f"{len(self.recorder.unwritten)} episode(s) recorded but no bag written: "
-                                    f"{', '.join(self.recorder.unwritten)} (why: above); exit code {EXIT_BAG_NOT_WRITTEN}")
+        try:
+            self.recorder.close()
+        finally:  # said even when finishing the open sessions failed
+            if self.recorder.unwritten:
+                self.get_logger().error(f"{len(self.recorder.unwritten)} episode(s) without a bag: "
+                                        f"{', '.join(self.recorder.unwritten)} (why: above); exit code "
+                                        f"{EXIT_BAG_NOT_WRITTEN}")
         if self._pending:
             try:
                 graph = dict(self.get_topic_names_and_types())

@@ -168,8 +168,8 @@ class Recorder:
         self.sessions: list[Session] = []  # oldest first
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
-        # episodes that recorded messages but whose bag was not written (the journal would not close
-        # or convert): the recorder's exit code says so (record_node), so a launch does not end in 0
+        # episodes without a bag: its journal could not be made, or would not close or convert (each
+        # said when it happened); the recorder's exit code says so (record_node), so a launch does not end in 0
         self.unwritten: list[str] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
         # topics whose writer had not matched when the recorder joined the simulator's topics
@@ -302,6 +302,7 @@ class Recorder:
         except OSError as err:  # the bag cannot be made (a name the file system refuses, a full or read-only disk):
             # this episode is not recorded, the others and the bags already written are kept
             self.log.error(f"episode {ev.name!r}: cannot open its bag under {self.out_dir}: {err}; not recorded")
+            self.unwritten.append(ev.name)
             return
         s.event, s.first_stamp_ns, s.flushed_stamp_ns = ev, ev.first_stamp_ns, ev.first_stamp_ns
         self.sessions.append(s)

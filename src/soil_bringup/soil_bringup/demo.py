@@ -55,7 +55,7 @@ DEFAULT_DENSITIES_PCT = (20.0, 80.0)
 DEFAULT_DOMAIN_ID = 42
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
-LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died", L.EXIT_TIMEOUT: "timeout",
+LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died or failed: see the log", L.EXIT_TIMEOUT: "timeout",
                    G.EXIT_EPISODE_FAILED: "an episode ended in error"}
 
 

@@ -11,7 +11,8 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
 * exits 0 when the simulator finished its episodes and everyone stopped cleanly, 4
   (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
-  non-zero when a node died (its name and exit code are printed; 1) or ``--timeout`` hit (3). The
+  non-zero when a node died or exited with an error, e.g. the recorder with 5 when an episode went
+  without its bag (its name and exit code are printed; 1), or ``--timeout`` hit (3). The
   simulator, controller and recorder are the run: one dying stops the others. The estimator
   and planner are advice: one dying mid-run is reported and the others go on (the controller
   falls back to its own target depth), and the launch exits 1 at the end (``--require NODE``

@@ -57,7 +57,7 @@ EXIT_BAD_CONFIG = 2
 # The simulator ran its episodes to the end, but at least one ended in error (a lockstep tick no
 # controller answered, a state that was not finite): a script can tell that run from a good one.
 EXIT_EPISODE_FAILED = 4
-# The recorder recorded an episode's messages but wrote no bag of them (its journal would not close or
+# The recorder left an episode without its bag (its journal could not be made, or would not close or
 # convert; said when it happened): ``soil_launch`` then ends in EXIT_NODE_DIED, not 0.
 EXIT_BAG_NOT_WRITTEN = 5
 
