@@ -507,7 +507,7 @@ def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
         rec_kill.send_signal(signal.SIGKILL)
         rec_int.send_signal(signal.SIGINT)
         seen = lst.count("/blade/cmd")  # whole ticks this process had received by then
-        shutil.rmtree(c / f"{SAMPLE.name}.partial")
+        shutil.rmtree(journal.partial_dir(c, SAMPLE.name))
         rec_lost.send_signal(signal.SIGINT)
         log = finish(rec_int)  # the player is still playing: the recorder stops mid-episode
         lost_log = finish(rec_lost)

@@ -48,6 +48,12 @@ HIDDEN = {
 RUN = dict(holdout=0.3, folds=5, seed=0, stride=6, workers=2, log=None)
 
 
+def small_grid() -> list:
+    """The hidden-effect tests' 32 fee-world episodes: 4 soils × I_d 20 / 80 % × 0.3 / 1 m/s ×
+    0.1 / 0.25 m, one 10 s episode each, seeds from 0."""
+    return grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+
+
 def named_verdict(rep: dict) -> str:
     """The verdict a report that names terms must carry: "partly explained" where the residual keeps
     significant structure beside them, or where every term named is a form its data do not pin down
@@ -70,8 +76,7 @@ def bag_dirs(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("disc")
     out = {}
     for name, plugins in HIDDEN.items():
-        specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
-        plan = DatasetPlan("fee", root / name, specs, effects_for_mode("fee"), plugins=plugins)
+        plan = DatasetPlan("fee", root / name, small_grid(), effects_for_mode("fee"), plugins=plugins)
         generate(plan, workers=2, progress=False)
         out[name] = root / name
     return out
@@ -135,8 +140,7 @@ def reports(bag_dirs, tmp_path_factory) -> dict[str, dict]:
 def test_simulated_equals_the_bags_read_back(bag_dirs, name):
     """The hidden-effect tests that do not test the bag path take their data from ``simulated``:
     it must be what the bags of ``generate`` read back give, episode for episode and to the bit."""
-    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
-    got, want = simulated(specs, HIDDEN[name]), blind(bag_dirs[name])
+    got, want = simulated(small_grid(), HIDDEN[name]), blind(bag_dirs[name])
     assert got.names == want.names and got.metas == want.metas
     np.testing.assert_array_equal(got.offsets, want.offsets)
     for field in ("observations", "forces", "known", "gap_before"):

@@ -36,7 +36,7 @@ from soil_physics.soils import CATALOGUE as SOILS
 from soil_sim_node.batch import DatasetPlan, generate, grid_specs
 from soil_sim_node.effects import Effects, effects_for_mode, load_plugins
 
-from .test_discrepancy import RUN, blind, named_verdict, simulated
+from .test_discrepancy import RUN, blind, named_verdict, simulated, small_grid
 
 HIDDEN = {
     "entry": ("tests.sim_plugins:entry_resistance k=2 s0=1",),
@@ -47,15 +47,11 @@ HIDDEN = {
 STRIDE = 8
 
 
-GRID = dict(soils=list(SOILS), relative_densities=[20.0, 80.0], speeds=[0.3, 1.0], depths=[0.1, 0.25], n_seeds=1,
-            seed_base=0, duration_s=10.0)
-
-
 @pytest.fixture(scope="module")
 def entry_bags(tmp_path_factory) -> Path:
     """The entry drag's episodes as bags (the CLI reads them)."""
     root = tmp_path_factory.mktemp("forms") / "entry"
-    generate(DatasetPlan("fee", root, grid_specs(**GRID), effects_for_mode("fee"), plugins=HIDDEN["entry"]), workers=2,
+    generate(DatasetPlan("fee", root, small_grid(), effects_for_mode("fee"), plugins=HIDDEN["entry"]), workers=2,
              progress=False)
     return root
 
@@ -63,7 +59,7 @@ def entry_bags(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def form_data(entry_bags) -> dict:
     """Each hidden form's episodes, blind: the entry drag's read from its bags, the others simulated."""
-    return {name: blind(entry_bags) if name == "entry" else simulated(grid_specs(**GRID), plugins)
+    return {name: blind(entry_bags) if name == "entry" else simulated(small_grid(), plugins)
             for name, plugins in HIDDEN.items()}
 
 
@@ -205,7 +201,7 @@ def test_a_pile_that_pushes_less_than_the_model_says_is_a_relief_not_surcharge_d
     4.2 kN · tanh(v_x / 0.3 m/s) and Q growing with time in soil; 1672 -> 497 N held out, structure
     left vs Q). Now the pile's weight as a relief, the catalogue term its opposite, never its name."""
     off = {name: False for name in Effects.names() if name != "surcharge"}
-    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+    specs = small_grid()
     pile = simulated(specs, mode="default", effects=effects_for_mode("default").with_switches(**off))
     rep = run_discrepancy(dataset=pile, out_dir=tmp_path / "out", plots=False,
                           **{**RUN, "stride": STRIDE})
@@ -307,7 +303,7 @@ def test_two_catalogue_effects_at_once_are_named_not_the_one_form_that_mimics_bo
     against soil inertia's 74 %; measured on every 6th tick), after which neither catalogue term passed. A
     form is for what the catalogue's mechanisms cannot explain together: their own path (there 88 % off with two terms)
     is taken, both are named first, and the report keeps the path not taken."""
-    specs = grid_specs(list(SOILS), [20.0, 80.0], [0.3, 1.0], [0.1, 0.25], 1, seed_base=0, duration_s=10.0)
+    specs = small_grid()
     two = simulated(specs, ("soil_physics.force_terms:plugin term=soil_inertia k=3",
                             "soil_physics.force_terms:plugin term=compaction_hardening k=0.05"))
     rep = run_discrepancy(dataset=two, out_dir=tmp_path / "out", plots=False,
