@@ -98,6 +98,28 @@ def test_a_cohesionless_soil_is_found_at_c_zero_not_at_the_end_of_the_ridge():
     assert inside(s, truth(loam), "c") and s.mean["c"] > 1500.0
 
 
+def test_a_stiff_soil_beyond_table_1_is_found_by_the_stiff_row_and_table_1_soils_do_not_move():
+    """A hardpan (c 30-40 kPa at φ 10-12°, beyond Table 1's cohesions) lay 4-5 prior standard
+    deviations out of the broad row: its posterior sat on the old 20 kPa bound with φ ~25° off and
+    intervals holding neither. The stiff row (``stiff_prior``) puts prior mass there; a Table 1
+    soil's posterior is the same with or without it (its data rule the row out)."""
+    from soil_physics.soils import soil_from_dict
+
+    hardpan = soil_from_dict({"name": "Hardpan", "phi_deg": [10, 12], "cohesion_pa": [30000, 40000],
+                              "unit_weight_n_m3": [19000, 21000]})
+    (stiff, loam) = episodes("fee", [(hardpan, 25.0, 0.1), ("Loam", 30.0, 0.15)])
+    true = truth(stiff)
+    with_row, without = (fuse(SoilPosterior(dataclasses.replace(SHAPE, stiff_prior=share)), stiff) for share in (0.02, 0.0))
+    q = with_row.quantiles((0.05, 0.95))
+    assert q["c"][0] <= true["c"] <= q["c"][1] and q["phi"][0] <= true["phi"] <= q["phi"][1], (q, true)
+    assert abs(with_row.summary().mean["c"] - true["c"]) < 4e3
+    q0 = without.quantiles((0.05, 0.95))
+    assert not q0["c"][0] <= true["c"] <= q0["c"][1] or not q0["phi"][0] <= true["phi"] <= q0["phi"][1], (q0, true)
+    a, b = (fuse(SoilPosterior(dataclasses.replace(SHAPE, stiff_prior=share)), loam).summary() for share in (0.02, 0.0))
+    assert abs(a.mean["phi"] - b.mean["phi"]) < 0.05 * DEG and abs(a.mean["c"] - b.mean["c"]) < 20.0
+    assert a.std["phi"] == pytest.approx(b.std["phi"], rel=0.02) and a.std["c"] == pytest.approx(b.std["c"], rel=0.02)
+
+
 def test_a_tick_is_quasi_static_unless_the_blade_rises_or_its_vertical_velocity_jumps():
     from pinn_estimator.fusion import QUASI_STATIC_MAX_DV_Z_M_S, QUASI_STATIC_MAX_RISE_M_S, quasi_static
 
@@ -450,7 +472,8 @@ def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
 
 
 @pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0), ("drift_per_sqrt_m", float("inf")),
-                                          ("cohesionless_prior", 1.5), ("shape_abs_std_n", (0.0, 2.0)), ("shape_rel_std", (0.1, -0.1)),
+                                          ("cohesionless_prior", 1.5), ("stiff_prior", -0.1), ("stiff_prior", 0.6),
+                                          ("shape_abs_std_n", (0.0, 2.0)), ("shape_rel_std", (0.1, -0.1)),
                                           ("shape_noise_gain", -1.0), ("shape_evidence", 1),
                                           ("update_ticks", 0), ("model_points", 7), ("prior_std", float("nan")),
                                           ("terms", ("no_such_term=1",))])

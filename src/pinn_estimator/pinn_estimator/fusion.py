@@ -33,7 +33,8 @@ physics), so each stretch's evidence can be tempered by ``evidence_weight`` κ �
 model's numbers are calibrated on episodes other than the ones the evaluation scores.
 
 Prior: broad over Table 1's ranges, plus (``cohesionless_prior``) a row of components at c = 0,
-the clean sands' and gravels' own state, at the end of c's coordinate (``SoilPosterior``).
+the clean sands' and gravels' own state, at the end of c's coordinate (``SoilPosterior``), and
+(``stiff_prior``) one at c = 30 kPa, stiff soils beyond Table 1's cohesions.
 
 Soil that changes: between stretches the covariance grows with the blade's travel (a random
 walk of the soil along the path, ``drift_per_sqrt_m``), and the soil may have jumped to a new
@@ -74,23 +75,29 @@ PRIOR_BOX: dict[str, tuple[float, float]] = {
     "phi": (TABLE1["phi"].norm[0] - 7 * DEG, TABLE1["phi"].norm[1] + 5 * DEG),
     "delta": (TABLE1["delta"].norm[0] - 6 * DEG, TABLE1["delta"].norm[1]),
 }
-# Internal coordinates u are kept within U_BOUNDS by every update: far outside the prior box is
-# not physical.
-U_BOUNDS = (-0.25, 1.25)
+# Internal coordinates u (φ, c, δ) are kept within [U_LOWER, U_UPPER] by every update: far outside
+# the prior box is not physical. c's reaches further, to the stiff row's soils (``stiff_prior``):
+# u = 3.25 is c = 60 kPa.
+U_LOWER = -0.25
+U_UPPER = np.array([1.25, 3.25, 1.25])
 # Internal coordinate of c (see SoilPosterior): c = C_SCALE_PA·(softplus(V_LO + u·V_SPAN) −
-# softplus(V_ZERO)), 0 at and below u = U_BOUNDS[0] (V_ZERO); u = 0 is c ≈ 7 Pa, u = 0.5
-# c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more).
+# softplus(V_ZERO)), 0 at and below u = U_LOWER (V_ZERO); u = 0 is c ≈ 7 Pa, u = 0.5
+# c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more), above that 20 kPa per unit of u.
 C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
-V_ZERO = V_LO + U_BOUNDS[0] * V_SPAN
+V_ZERO = V_LO + U_LOWER * V_SPAN
 SOFTPLUS_AT_ZERO = math.log1p(math.exp(V_ZERO))  # softplus(V_ZERO), what c's map subtracts
 # A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
 # times the machine's largest force limit, far beyond any soil it can cut.
 PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
-# A cohesionless prior component's c: u = U_BOUNDS[0] ± 0.05, where c is 0 (below) or under
+# A cohesionless prior component's c: u = U_LOWER ± 0.05, where c is 0 (below) or under
 # 0.3 Pa (within two standard deviations above): c = 0 in effect, with the same Gaussian algebra
 # as every other component.
-COHESIONLESS_U, COHESIONLESS_STD_U = U_BOUNDS[0], 0.05
+COHESIONLESS_U, COHESIONLESS_STD_U = U_LOWER, 0.05
+# A stiff prior component's c (``stiff_prior``): u = 1.75 ± 0.3, c = 30 ± 6 kPa, stiff clays and
+# hardpans beyond Table 1's cohesions (the broad row's c is 5 kPa ± 6 kPa per standard deviation
+# of u, so a 30 kPa soil lay 4-5 of them out and sat on the old 20 kPa bound).
+STIFF_U, STIFF_STD_U = 1.75, 0.3
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out of the soil carries no evidence
 
@@ -159,6 +166,14 @@ class FusionConfig:
     # kPa and φ 1-2° low, 2-6 % off at another depth. At c ≈ 7 Pa instead of 0 the row still
     # biased every sand's φ by −0.6 to −0.8 of its standard deviation (c 13 ± 18 Pa).
     cohesionless_prior: float = 0.5
+    # Prior probability that the soil is stiff beyond Table 1's cohesions (a third row of components
+    # at c = 30 ± 6 kPa, ``STIFF_U``; c reaches 60 kPa). Why: a hardpan of 32 kPa at φ 10° lay 4-5
+    # prior standard deviations out and its posterior sat on the broad row's bound at 20 kPa, φ
+    # 24° off with intervals holding neither (fee world); with the row it is found (c 30-34 kPa,
+    # φ within its interval). 0.02: the Table 1 soils' posteriors do not move (their data rule the
+    # row out); at 0.1 the default world's dense clays, whose effective soil is stiffer than their
+    # own, took some of it (F_x at another depth 4.1 → 5.4 % in clay), at 0.02 and 0.05 none.
+    stiff_prior: float = 0.02
     terms: tuple[tuple[str, float], ...] = ()  # catalogue terms of the physics model (AugmentedFEE)
 
     def __post_init__(self):
@@ -188,12 +203,16 @@ class FusionConfig:
             raise ValueError(f"fusion shape_evidence={self.shape_evidence!r} must be true or false")
         if not (finite_number(self.evidence_weight) and 0 < self.evidence_weight <= 1):
             raise ValueError(f"fusion evidence_weight={short_repr(self.evidence_weight)} must be in (0, 1]")
-        for name in ("drift_per_sqrt_m", "patch_length_m", "cohesionless_prior"):
+        for name in ("drift_per_sqrt_m", "patch_length_m", "cohesionless_prior", "stiff_prior"):
             v = getattr(self, name)
             if not (finite_number(v) and v >= 0):
                 raise ValueError(f"fusion {name}={short_repr(v)} must be finite and >= 0")
-        if self.cohesionless_prior > 1:
-            raise ValueError(f"fusion cohesionless_prior={self.cohesionless_prior!r} must be a probability in [0, 1]")
+        for name in ("cohesionless_prior", "stiff_prior"):
+            if getattr(self, name) > 1:
+                raise ValueError(f"fusion {name}={getattr(self, name)!r} must be a probability in [0, 1]")
+        if self.cohesionless_prior + self.stiff_prior > 1:
+            raise ValueError(f"fusion cohesionless_prior={self.cohesionless_prior!r} and stiff_prior={self.stiff_prior!r} "
+                             "are shares of one prior: their sum must be at most 1")
         for name in ("prior_std", "change_nis"):
             v = getattr(self, name)
             if not (finite_number(v) and v > 0):
@@ -419,7 +438,7 @@ class SoilPosterior:
 
     Inside, the state u is θ scaled so the three are comparable: φ and δ linearly onto their
     prior box (u = (θ − lo)/(hi − lo)), and c through a softplus, c = C_SCALE_PA·(softplus(v) −
-    softplus(V_ZERO)), v = V_LO + u·V_SPAN, 0 at and below u = U_BOUNDS[0]. Why: c ≥ 0, and a
+    softplus(V_ZERO)), v = V_LO + u·V_SPAN, 0 at and below u = U_LOWER. Why: c ≥ 0, and a
     cohesionless soil (c = 0) sits at the end of the φ-c ridge one depth leaves; linear and
     clipped at c = 0 the Gaussian broke the ridge there and its forecasts missed in 13 of 24 sand
     and gravel pairs; through the softplus the ridge runs on to c = 0 with φ where it belongs.
@@ -436,7 +455,8 @@ class SoilPosterior:
         """(means, covariances (·, 3, 3), log-weights) of the prior as a Gaussian sum: K components
         side by side along φ's box, each as wide as their spacing, weighted by the broad Gaussian
         prior (centre of the box, ``prior_std``) at their centre; with ``cohesionless_prior`` > 0
-        the same K again at c = 0 (u_c ``COHESIONLESS_U`` ± ``COHESIONLESS_STD_U``), that share of the weight."""
+        the same K again at c = 0 (u_c ``COHESIONLESS_U`` ± ``COHESIONLESS_STD_U``), that share of the
+        weight, and with ``stiff_prior`` > 0 the same K at a stiff c (``STIFF_U`` ± ``STIFF_STD_U``)."""
         k, sd = self.cfg.components, self.cfg.prior_std
         centres = np.linspace(0.0, 1.0, k) if k > 1 else np.array([0.5])  # the φ box, 10-50°
         u = np.tile(np.full(len(THETA), 0.5), (k, 1))
@@ -446,15 +466,17 @@ class SoilPosterior:
         p[:, THETA.index("phi"), THETA.index("phi")] = width ** 2
         log_w = -0.5 * ((centres - 0.5) / sd) ** 2
         log_w = log_w - np.logaddexp.reduce(log_w)
-        share = self.cfg.cohesionless_prior
-        if share > 0:
-            u0, p0 = u.copy(), p.copy()
-            u0[:, THETA.index("c")] = COHESIONLESS_U
-            p0[:, THETA.index("c"), THETA.index("c")] = COHESIONLESS_STD_U ** 2
-            u, p = np.concatenate([u, u0]), np.concatenate([p, p0])
-            with np.errstate(divide="ignore"):  # a share of 1: the broad row has no weight
-                log_w = np.concatenate([log_w + np.log1p(-share), log_w + math.log(share)])
-        return u, p, log_w
+        rows_u, rows_p = [u], [p]
+        with np.errstate(divide="ignore"):  # shares summing to 1: the broad row has no weight
+            rows_w = [log_w + np.log1p(-(self.cfg.cohesionless_prior + self.cfg.stiff_prior))]
+        ic = THETA.index("c")
+        for share, c_u, c_std_u in ((self.cfg.cohesionless_prior, COHESIONLESS_U, COHESIONLESS_STD_U),
+                                    (self.cfg.stiff_prior, STIFF_U, STIFF_STD_U)):
+            if share > 0:
+                row_u, row_p = u.copy(), p.copy()
+                row_u[:, ic], row_p[:, ic, ic] = c_u, c_std_u ** 2
+                rows_u.append(row_u), rows_p.append(row_p), rows_w.append(log_w + math.log(share))
+        return np.concatenate(rows_u), np.concatenate(rows_p), np.concatenate(rows_w)
 
     def reset(self) -> None:
         """Back to the prior."""
@@ -665,7 +687,7 @@ class SoilPosterior:
                 nis[a] = evidence.mean_nis(innovation, s_mat, s_inv)
                 whole = np.einsum("ai,aij,aj->a", innovation, s_inv, innovation)
                 log_lik[a] = kappa * -0.5 * (whole + np.linalg.slogdet(2 * math.pi * s_mat)[1])
-            u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), *U_BOUNDS)
+            u_next = np.clip(m[a] + np.einsum("aij,aj->ai", gain[a], innovation), U_LOWER, U_UPPER)
             moved = np.abs(u_next - u[a]).max(axis=1)
             previous[a] = u[a]
             u[a] = u_next
