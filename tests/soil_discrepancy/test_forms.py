@@ -241,6 +241,23 @@ def test_a_pinned_form_leaving_structure_in_its_own_variable_is_called_the_neare
     assert _shape_caveat("soil_inertia", pinned, after, labels) == ""
 
 
+def test_a_scale_and_a_factor_of_one_variable_are_not_pinned_down_apart():
+    """A speed step's drag (w d · 5 kPa above 0.75 m/s, an outside reader's hidden effect) was named
+    (γ/g) w d v_x² · (v_x / 1 m/s)² with "its scale is pinned down": every rival kept the momentum
+    flux because no other scale carries v_x, so what the data pinned was the steep speed law of
+    scale and factor together. Such a pair is not separable; γ d² w · v_x (a viscous wedge drag,
+    found so) is, and keeps its claim."""
+    from soil_physics.term_forms import FACTORS, SCALE_VARIABLES, SCALES, factor_variable, separable
+
+    assert set(SCALE_VARIABLES) == set(SCALES)
+    assert all(v in ("d", "v_x", "v_z", "distance", "t") for vs in SCALE_VARIABLES.values() for v in vs)
+    speed = [f for f in FACTORS if factor_variable(f) == "v_x"]
+    assert speed and not any(separable("mom_x", f) for f in speed)
+    assert all(separable("gd2w_x", f) for f in speed) and separable("one_x", "tanhvx0.3")
+    assert not separable("wd_x", "below0.15") and not separable("q_x", "sat2") and separable("q_x", "d")
+    assert not any(separable("feex", f) for f in FACTORS if factor_variable(f)) and separable("feex", "xlim")
+
+
 def test_form_names_parse_and_act_like_catalogue_terms():
     names = term_forms.form_names()
     assert 100 < len(names) <= 500 and len(set(names)) == len(names)

@@ -263,7 +263,8 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     'stand_in', 'same_column' / 'n_same_column' (forms that are the term's own column on these
     data, |cos| >= ``DUPLICATE_COS``, or ``CATALOGUE_COS`` for a catalogue term: the same
     statement, no rival), 'factor_pinned' / 'scale_pinned' (every rival shares the form's factor
-    / scale), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s /
+    / scale, and none of them, nor the form, has a factor of a variable its scale varies with:
+    ``term_forms.separable``), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s /
     0.5 m) for exp(−s / 2 m)), 'runner_up' (the best other form, rival or not)}; ``pin_kind``
     reads it.
     """
@@ -333,14 +334,16 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     why = ("no form of the library fits what it takes" if not rows or total <= 0 else
            f"{n_episodes} episodes, too few for a one-sided Wilcoxon to reach p < {alpha:g} with two of them "
            "against it" if wilcoxon_p_two_against(n_episodes) >= alpha else None)
+    # a scale and a factor of one variable make one law of it: neither is pinned down apart (SCALE_VARIABLES)
+    apart = factor is not None and all(term_forms.separable(a.name, f.name) for a, f in parts + [(scale, factor)])
     return {"pinned": None if why else not rivals, "why": why, "n_episodes": n_episodes,
             "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
             "stand_in": any(r["better"] and r["share"] >= STAND_IN_SHARE_RATIO * own_share for r in rivals),
-            "factor_pinned": factor is not None and all(f.name == factor.name for _, f in parts),
+            "factor_pinned": apart and all(f.name == factor.name for _, f in parts),
             "shape_pinned": factor is not None and all(
                 a.name == scale.name and term_forms.factor_shape(f.name) == term_forms.factor_shape(factor.name)
                 for a, f in parts),
-            "scale_pinned": scale is not None and all(a.name == scale.name for a, _ in parts),
+            "scale_pinned": apart and all(a.name == scale.name for a, _ in parts),
             "same_column": same[:RIVALS_SHOWN], "n_same_column": len(same),
             "rivals": [clean(r) for r in rivals[:RIVALS_SHOWN]], "runner_up": clean(rows[0]) if rows else None}
 

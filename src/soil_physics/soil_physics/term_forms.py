@@ -208,6 +208,27 @@ def factor_variable(factor: str) -> str | None:
     return None
 
 
+# The measured variables each scale varies with (beyond the soil's own γ, c, φ), in
+# ``factor_variable``'s names: the surcharge Q grows with travel and time in soil, the FEE's force
+# with all of them. Where a form's factor varies with one of its scale's variables, the two make
+# one law of that variable, and a set of rivals keeping one scale (or one factor) pins that law
+# down, not the scale (or the factor) apart from it: a speed step's drag was named
+# (γ/g) w d v_x² · (v_x / 1 m/s)², "its scale is pinned down", because no w d scale with a v_x⁴-like
+# factor is in the library, not because the drag was a momentum flux.
+_MOTION = ("d", "v_x", "v_z", "distance", "t")
+SCALE_VARIABLES: dict[str, tuple[str, ...]] = {
+    "fee": _MOTION, "feex": _MOTION, "feez": _MOTION, "qnq": _MOTION, "down_x": _MOTION,
+    "gd2w_x": ("d",), "gd2w_z": ("d",), "wd_x": ("d",), "wd_z": ("d",), "cwd_x": ("d",), "cwd_z": ("d",),
+    "bear_z": ("d",), "bear_x": ("d",), "mom_x": ("d", "v_x"),
+    "q_x": ("distance", "t"), "q_z": ("distance", "t"), "one_x": (), "one_z": ()}
+
+
+def separable(scale: str, factor: str) -> bool:
+    """True if the factor's shape is a function of none of the variables the scale varies with
+    (``SCALE_VARIABLES``): only then can data pin down the one without the other."""
+    return factor_variable(factor) not in SCALE_VARIABLES[scale]
+
+
 def uses_distance(name: str) -> bool:
     """True if the form looks at the blade's travel in soil (a model must be given it)."""
     return parse(name)[2].name in DISTANCE_FACTORS
