@@ -722,7 +722,13 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert clay_groups and all(r["theta_at_bound"] == ["φ at its lower bound"] for r in clay_groups)
     assert not [r for r in mis["rows"] if r["kind"] == "group" and not r["name"].startswith("Clay") and r["theta_at_bound"]]
     text = _misfit_text({"misfit": mis})
-    assert "soil Clay" in text and "φ at its lower bound" in text
+    assert "soil Clay" in text and "φ at its lower bound" in text and "the model needs a soil outside" in text
+    # three target depths per group: not one depth; cut at one depth, φ and c trade off and a θ on its
+    # box says nothing about the physics (an outside reader's pure-FEE control said it did)
+    assert all(r["depth_span_m"] > 0.05 for r in mis["rows"] if r["kind"] == "group")
+    one = {"misfit": {**mis, "rows": [{**r, "depth_span_m": 0.004} if r["kind"] == "group" else r for r in mis["rows"]]}}
+    text = _misfit_text(one)
+    assert "cut at one depth" in text and "says nothing about the physics" in text and "needs a soil outside" not in text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
     assert even["soils"] == [] and even["groups"] == [] and _misfit_text({"misfit": even}) == ""
 
@@ -808,6 +814,31 @@ def test_a_named_term_earns_its_place_only_where_the_effect_is(bag_dirs):
         base = fit_fixed(ftest, AugmentedFEE())
         place = _place(ftest, model, "soil_inertia", base, None, 0.05)
         assert place["judged"] and place["earns"] is where and (place["gain"] > 0) is where, (name, place)
+
+
+def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_form_says_its_forecast():
+    """An outside reader's hidden speed step was "explained" by a momentum flux times v_x², one of five
+    forms that fit as well: the headline now says the form is NOT pinned down. And a tentative form
+    whose held-out force error fell (1390 -> 901 N) read like a pass: what failed, the force at
+    another depth (38.7 -> 62.3 %), is said beside it."""
+    from soil_discrepancy.report import _unpinned_headline
+    from soil_discrepancy.workflow import _verdict
+
+    loose = {"pinned": False, "n_better": 0, "stand_in": False, "shape_pinned": False, "factor_pinned": False,
+             "scale_pinned": False, "rivals": [{"name": "form:mom_x*sat2", "share": 0.5}]}
+    scale = {**loose, "scale_pinned": True}
+    report = {"verdict": "explained", "selection": {"accepted": [{"name": "form:mom_x*vx2", "pin": loose}]}}
+    assert _unpinned_headline(report) == " by a form NOT pinned down"
+    two = {**report, "selection": {"accepted": [{"pin": loose}, {"pin": {"pinned": True}}]}}
+    assert _unpinned_headline(two) == "" and _unpinned_headline({**report, "verdict": "unexplained"}) == ""
+    assert _unpinned_headline({**report, "selection": {"accepted": [{"pin": scale}]}}) == ""  # a part of it is
+    reg = {"significant": True, "flagged_variables": ["d"], "misfit": None}
+    forms = {"not_confirmed": {"forms": ["form:-gd2w_x*below0.15"], "test_rmse_before": 1390.0, "test_rmse_after": 901.0,
+                               "forecast_pct_before": 38.7, "forecast_pct_after": 62.3}}
+    verdict, text = _verdict([], reg, None, forms=forms)
+    assert verdict == "unexplained" and "RMSE 1390 -> 901 N, force at another depth 38.7 -> 62.3 % of |F|)" in text
+    forms["not_confirmed"]["forecast_pct_after"] = None
+    assert "RMSE 1390 -> 901 N)" in _verdict([], reg, None, forms=forms)[1]
 
 
 def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():

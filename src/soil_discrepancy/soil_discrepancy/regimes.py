@@ -219,6 +219,11 @@ def fast_part(frame: Frame, resid: np.ndarray) -> dict:
 # ratio of spreads: θ is fitted per group, so an effect that acts in one soil only is absorbed in
 # that soil's mean residual (no bin is biased), but the model cannot bend to its form there.
 MISFIT_RATIO = 2.0
+# A θ-group whose ticks' depths (10th to 90th percentile) span less than this was cut at one depth,
+# where φ and c trade off along a ridge (γd²wN_γ + c·d·w·N_c is one number): its θ may slide to the
+# fit box's bound with nothing missing (an outside reader's pure-FEE control at one depth had φ on
+# its lower bound in 8 of 8 groups, and the verdict blamed the physics).
+ONE_DEPTH_SPAN_M = 0.02
 
 
 def episode_misfit(frame: Frame, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -241,7 +246,9 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
 
     ``theta_table``: ``ThetaFit.table`` rows; a group whose fitted θ sits on the fit's box
     (``pinn_estimator.classical`` bounds) is marked: the model needed a soil outside the
-    physical range there, another sign of a missing effect. Returns {'rows': [...], 'groups':
+    physical range there, another sign of a missing effect, unless the group was cut at one depth
+    (its 'depth_span_m' below ``ONE_DEPTH_SPAN_M``), where φ and c are not identifiable apart.
+    Returns {'rows': [...], 'groups':
     flagged group names, 'soils': flagged soil labels, 'ratio', 'alpha'}.
     """
     eps, mis = episode_misfit(frame, resid)
@@ -258,6 +265,9 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
     tested = {frame.group_names[g]: box for g, box in (frame.theta_boxes or {}).items()}
     bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]], tested.get(t["group"])) for t in (theta_table or [])
              if t["group"] in rho_max and t.get("success", True)}
+    d = frame.known[:, KNOWN_PARAMS.index("d")]
+    span = {frame.group_names[g]: float(np.subtract(*np.percentile(d[frame.group == g], [90, 10])))
+            for g in frame.groups}
     rows = []
     for kind, name, inside in units:
         a, b = mis[inside & np.isfinite(mis)], mis[~inside & np.isfinite(mis)]
@@ -267,7 +277,8 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
         rel = float(np.median(a) / np.median(b)) if len(a) and len(b) and np.median(b) > 0 else math.nan
         rows.append({"kind": kind, "name": str(name), "n_episodes": int(len(a)), "misfit": _f(np.median(a) if len(a) else None),
                      "misfit_others": _f(np.median(b) if len(b) else None), "ratio": _f(rel), "p": _f(p),
-                     "theta_at_bound": bound.get(name, []) if kind == "group" else []})
+                     "theta_at_bound": bound.get(name, []) if kind == "group" else [],
+                     "depth_span_m": _f(span.get(name)) if kind == "group" else None})
     for r, p in zip(rows, holm([np.nan if r["p"] is None else r["p"] for r in rows])):
         r["p_holm"] = _f(p)
         r["flagged"] = bool(np.isfinite(p) and p < alpha and r["ratio"] is not None and r["ratio"] >= ratio)

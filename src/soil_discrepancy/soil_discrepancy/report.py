@@ -20,7 +20,7 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .workflow import THETA_SHIFT_DISPLAY, theta_move_text
+from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -59,6 +59,18 @@ def _p(x) -> str:
     return "–" if x is None else (f"{x:.1e}" if x < 1e-3 else f"{x:.3f}")
 
 
+def _unpinned_headline(report: dict) -> str:
+    """Words the headline adds where every named term's form is not pinned down: the residual is
+    taken, but which form takes it the data do not say (an outside reader's hidden speed step was
+    "explained" by a momentum flux times v_x², one of five forms that fit as well)."""
+    accepted = (report.get("selection") or {}).get("accepted") or []
+    if report.get("verdict") not in ("explained", "partly explained") or not accepted:
+        return ""
+    if all(pin_kind(a.get("pin")) in WEAK_PIN_KINDS for a in accepted):
+        return f" by {'forms' if len(accepted) > 1 else 'a form'} NOT pinned down"
+    return ""
+
+
 def markdown(report: dict, figures=()) -> str:
     s = report["settings"]
     d = report["data"]
@@ -66,7 +78,7 @@ def markdown(report: dict, figures=()) -> str:
     lines = [
         "# Discrepancy report: simulation model vs measured episodes",
         "",
-        f"**Verdict: {report['verdict']}** — {report['summary']}",
+        f"**Verdict: {report['verdict']}{_unpinned_headline(report)}** — {report['summary']}",
         "",
         f"Data: `{report['source']}` — {d['episodes']} episodes, {d['ticks']} analysed ticks (blade deeper than "
         f"{s['min_depth_m'] * 100:g} cm, after the first {s['skip_s']:g} s, stride {s['stride']}); θ = (φ, c, δ) fitted per "

@@ -39,7 +39,8 @@ from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
-from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, on_soil_test_bound, regime_analysis, variable_labels
+from .regimes import (MIN_EFFECT, ONE_DEPTH_SPAN_M, bin_edges, group_misfit, holm, on_soil_test_bound, regime_analysis,
+                      variable_labels)
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, displayed_box, hold_theta
 
 REPORT_VERSION = 1
@@ -245,9 +246,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 f"{_fmt_n(test['before']['rmse'])} -> {_fmt_n(test['after']['rmse'])} N, force at another depth {_fc_text(test)})"
                 + (f"; not named: {', '.join(s.name for s in dropped)}" if dropped else "")
                 + (f"; confirmed on their own and refitted: {', '.join(s.name for s in kept)}" if kept else ""))
-            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], "test_rmse_before": test["before"]["rmse"],
-                                            "test_rmse_after": test["after"]["rmse"],
-                                            "sse_reduction": test["sse_reduction"], "each_form": marginal}
+            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], **_confirmation(test), "each_form": marginal}
             _mark_confirmed(form_report, kept)
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
             final = trial  # the catalogue terms and the kept forms, refitted
@@ -549,7 +548,8 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
                  "tells (--soil-tests)")
     if freed:
         text += (f"; the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
-                 "table \"θ per group\"): they take what the baseline's θ had taken in, which speaks for them")
+                 "table \"θ per group\"): they take what the baseline's θ had taken in, which speaks for them taking the "
+                 "effect's force, not for their form being its mechanism")
     return text
 
 
@@ -819,7 +819,11 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         if forms_tentative and forms_tentative["forms"]:
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
-                     f"{_fmt_n(forms_tentative['test_rmse_after'])} N)")
+                     f"{_fmt_n(forms_tentative['test_rmse_after'])} N"
+                     + (f", force at another depth {forms_tentative['forecast_pct_before']:.1f} -> "
+                        f"{forms_tentative['forecast_pct_after']:.1f} % of |F|"
+                        if forms_tentative.get("forecast_pct_before") is not None
+                        and forms_tentative.get("forecast_pct_after") is not None else "") + ")")
         return "unexplained", text + _misfit_text(reg0) + _left_text(reg0) + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
@@ -886,11 +890,17 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
         if by_gamma:  # bags without soil labels: a γ group may be two soils, which one θ cannot fit
             text += (f" ({', '.join(by_gamma)} is a group by unit weight: soils of one γ share one θ there and fit "
                      "worse with no effect missing; soil labels in the bags' metadata tell them apart)")
-    for tested, why in ((False, "the model needs a soil outside the physical range there"),
-                        (True, "the forces want a soil outside the soil tests' intervals there: an effect θ "
-                               "would take in without the tests, or a test that is off (by chance "
-                               f"{100 * OUTSIDE_BY_CHANCE:.0f} % of the parameters tested at ± {WIDTH_SIGMA:g} std are)")):
-        rows_b = [r for r in bound if any(on_soil_test_bound(b) == tested for b in r["theta_at_bound"])]
+    one_depth = [r for r in bound if r.get("depth_span_m") is not None and r["depth_span_m"] < ONE_DEPTH_SPAN_M]
+    for tested, one, why in (
+            (False, False, "the model needs a soil outside the physical range there"),
+            (False, True, f"each of them cut at one depth (its ticks within {100 * ONE_DEPTH_SPAN_M:g} cm), where φ and c "
+                          "trade off along a ridge and θ slides to its box with nothing missing: that says nothing about "
+                          "the physics; cuts at other depths (or soil tests) tell"),
+            (True, None, "the forces want a soil outside the soil tests' intervals there: an effect θ "
+                         "would take in without the tests, or a test that is off (by chance "
+                         f"{100 * OUTSIDE_BY_CHANCE:.0f} % of the parameters tested at ± {WIDTH_SIGMA:g} std are)")):
+        rows_b = [r for r in bound if any(on_soil_test_bound(b) == tested for b in r["theta_at_bound"])
+                  and (one is None or (r in one_depth) == one)]
         if rows_b:
             which = sorted({b for r in rows_b for b in r["theta_at_bound"] if on_soil_test_bound(b) == tested})
             text += (f"; θ on {'its soil test' if tested else 'its fit box'} in {len(rows_b)}/{n_groups} groups "
