@@ -29,6 +29,19 @@ def test_batch_unknown_engine_is_refused_before_anything_is_written(tmp_path):
     assert not out.exists()
 
 
+def test_a_plugin_parameter_its_function_does_not_take_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A misspelt plugin parameter ('fx' for 'f_x') was refused only when the first episode ran,
+    leaving an empty --out folder behind (an outside reader's run); now when the plugin loads."""
+    args = ["--mode", "fee", "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2",
+            "--seeds", "1", "--duration", "0.5", "--quiet"]
+    out = tmp_path / "never"
+    assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag fx=3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "plugin='tests.sim_plugins:in_soil_constant_drag' does not take the parameters ['fx']" in err, err
+    assert not out.exists()
+    assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag f_x=3", "--out", str(out)]) == 0
+
+
 def test_more_workers_than_the_machine_can_use_are_refused_before_any_process_starts(tmp_path, capsys):
     """--workers 100000 for one episode forked 100000 processes (the pool was not capped by the
     work) until the machine stopped; now refused, naming the option, and a pool never has more

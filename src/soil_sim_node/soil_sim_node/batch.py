@@ -52,7 +52,7 @@ from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
 
-from .effects import Effects, effects_for_mode
+from .effects import Effects, effects_for_mode, load_plugins
 from .ray_cluster import (CLUSTER_LOST_AFTER_S, LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus,
                           ray_session, run_tasks)
 from .rollout import episode_meta, run_episodes
@@ -127,6 +127,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     ``workers`` 0 then means every CPU of the cluster) instead of in a local process pool;
     ``ray_give_up_after_s``: how long its head may refuse connections (``run_tasks``)."""
     effects_for_mode(plan.mode)  # fail fast, before forking or writing anything
+    load_plugins(plan.plugins)  # a plugin that does not load or take its parameters (PluginError, a ValueError)
     if not plan.specs:  # its dataset.json would replace the record of what the directory holds
         raise ValueError(f"the plan for {plan.out} has no episode: nothing to generate")
     check_engine(plan.engine)

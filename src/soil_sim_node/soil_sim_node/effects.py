@@ -25,6 +25,7 @@ plugin, the field and the value. See ``soil_sim_node/plugins_example.py``.
 from __future__ import annotations
 
 import importlib
+import inspect
 import math
 from dataclasses import dataclass, field, fields, replace
 
@@ -154,6 +155,12 @@ class ForcePlugin:
         fn = getattr(module, func_name, None)
         if not callable(fn):
             raise PluginError(f"plugin={target!r}: {module_name!r} has no callable {func_name!r}")
+        try:  # a parameter the function does not take: refused here, before a batch makes its folder
+            inspect.signature(fn).bind(None, **params)
+        except TypeError as exc:
+            raise PluginError(f"plugin={target!r} does not take the parameters {sorted(params)}: {exc}") from None
+        except ValueError:  # no signature to read (a builtin): its call says what is wrong
+            pass
         return cls(target, params, fn)
 
     def __call__(self, state: ForceInputs, batch: int) -> tuple[np.ndarray, np.ndarray]:
