@@ -726,7 +726,9 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     # three target depths per group: not one depth; cut at one depth, φ and c trade off and a θ on its
     # box says nothing about the physics (an outside reader's pure-FEE control said it did)
     assert all(r["depth_span_m"] > 0.05 for r in mis["rows"] if r["kind"] == "group")
-    one = {"misfit": {**mis, "rows": [{**r, "depth_span_m": 0.004} if r["kind"] == "group" else r for r in mis["rows"]]}}
+    assert not any(r["one_depth"] for r in mis["rows"])
+    one = {"misfit": {**mis, "rows": [{**r, "depth_span_m": 0.004, "one_depth": True} if r["kind"] == "group" else r
+                                      for r in mis["rows"]]}}
     text = _misfit_text(one)
     assert "cut at one depth" in text and "says nothing about the physics" in text and "needs a soil outside" not in text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
@@ -821,17 +823,20 @@ def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_for
     forms that fit as well: the headline now says the form is NOT pinned down. And a tentative form
     whose held-out force error fell (1390 -> 901 N) read like a pass: what failed, the force at
     another depth (38.7 -> 62.3 %), is said beside it."""
-    from soil_discrepancy.report import _unpinned_headline
+    from soil_discrepancy.report import headline_verdict
     from soil_discrepancy.workflow import _verdict
 
     loose = {"pinned": False, "n_better": 0, "stand_in": False, "shape_pinned": False, "factor_pinned": False,
              "scale_pinned": False, "rivals": [{"name": "form:mom_x*sat2", "share": 0.5}]}
     scale = {**loose, "scale_pinned": True}
     report = {"verdict": "explained", "selection": {"accepted": [{"name": "form:mom_x*vx2", "pin": loose}]}}
-    assert _unpinned_headline(report) == " by a form NOT pinned down"
-    two = {**report, "selection": {"accepted": [{"pin": loose}, {"pin": {"pinned": True}}]}}
-    assert _unpinned_headline(two) == "" and _unpinned_headline({**report, "verdict": "unexplained"}) == ""
-    assert _unpinned_headline({**report, "selection": {"accepted": [{"pin": scale}]}}) == ""  # a part of it is
+    assert headline_verdict(report) == "explained by a form NOT pinned down"
+    two = {**report, "selection": {"accepted": [{"name": "form:mom_x*vx2", "pin": loose},
+                                                {"name": "form:gd2w_x*vx", "pin": {"pinned": True}}]}}
+    assert headline_verdict(two) == "explained" and headline_verdict({**report, "verdict": "unexplained"}) == "unexplained"
+    assert headline_verdict({**report, "selection": {"accepted": [{"name": "form:gd2w_x*vx", "pin": scale}]}}) == "explained"
+    # a catalogue term is a mechanism: its caveat says what is not pinned, the headline does not
+    assert headline_verdict({**report, "selection": {"accepted": [{"name": "soil_inertia", "pin": loose}]}}) == "explained"
     reg = {"significant": True, "flagged_variables": ["d"], "misfit": None}
     forms = {"not_confirmed": {"forms": ["form:-gd2w_x*below0.15"], "test_rmse_before": 1390.0, "test_rmse_after": 901.0,
                                "forecast_pct_before": 38.7, "forecast_pct_after": 62.3}}

@@ -263,9 +263,10 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
     'stand_in', 'same_column' / 'n_same_column' (forms that are the term's own column on these
     data, |cos| >= ``DUPLICATE_COS``, or ``CATALOGUE_COS`` for a catalogue term: the same
     statement, no rival), 'factor_pinned' / 'scale_pinned' (every rival shares the form's factor
-    / scale, and none of them, nor the form, has a factor of a variable its scale varies with:
-    ``term_forms.separable``), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s /
-    0.5 m) for exp(−s / 2 m)), 'runner_up' (the best other form, rival or not)}; ``pin_kind``
+    / scale), 'shape_pinned' (every rival is the form at another characteristic value: exp(−s /
+    0.5 m) for exp(−s / 2 m)), all three only where none of the rivals, nor the form, has a factor
+    of a variable its scale varies with (``term_forms.separable``), 'runner_up' (the best other
+    form, rival or not)}; ``pin_kind``
     reads it.
     """
     terms = dict(model.terms)
@@ -340,7 +341,7 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
             "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
             "stand_in": any(r["better"] and r["share"] >= STAND_IN_SHARE_RATIO * own_share for r in rivals),
             "factor_pinned": apart and all(f.name == factor.name for _, f in parts),
-            "shape_pinned": factor is not None and all(
+            "shape_pinned": apart and all(
                 a.name == scale.name and term_forms.factor_shape(f.name) == term_forms.factor_shape(factor.name)
                 for a, f in parts),
             "scale_pinned": apart and all(a.name == scale.name for a, _ in parts),

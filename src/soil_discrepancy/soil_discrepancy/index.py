@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from .report import _n  # the reports' way of printing a number that may be missing
+from .report import _n, headline_verdict  # the reports' way of printing a number that may be missing; their headline
 
 
 def index_markdown(root: Path) -> str:
@@ -29,7 +29,7 @@ def index_markdown(root: Path) -> str:
         f = "–" if force is None else f"{_n(force['before']['rmse'])} → {_n(force['after']['rmse'])}"
         ratio = f" (× {after / before:.2f})" if before and after is not None else ""
         rows.append(f"| [{case}]({case}/discrepancy.md) | {rep['data'].get('episodes', '–')} | {hidden} | {named} | {verdict} | "
-                    f"{_n(before)} → {_n(after)}{ratio} | {p} | {f} | {rep['verdict']} |")
+                    f"{_n(before)} → {_n(after)}{ratio} | {p} | {f} | {headline_verdict(rep)} |")
     head = ["# Discrepancy workflow: full-size run", "",
             "Made by `make discrepancy` (`scripts/discrepancy_full.sh`): 108 ten-second episodes per case "
             "(4 soils × I_d {0, 40, 80} % × 3 speeds × 3 depths), an effect hidden in the simulator (fee world) "

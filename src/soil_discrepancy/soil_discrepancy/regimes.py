@@ -247,7 +247,8 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
     ``theta_table``: ``ThetaFit.table`` rows; a group whose fitted θ sits on the fit's box
     (``pinn_estimator.classical`` bounds) is marked: the model needed a soil outside the
     physical range there, another sign of a missing effect, unless the group was cut at one depth
-    (its 'depth_span_m' below ``ONE_DEPTH_SPAN_M``), where φ and c are not identifiable apart.
+    ('one_depth': its 'depth_span_m' below ``ONE_DEPTH_SPAN_M``), where φ and c are not
+    identifiable apart.
     Returns {'rows': [...], 'groups':
     flagged group names, 'soils': flagged soil labels, 'ratio', 'alpha'}.
     """
@@ -278,7 +279,8 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
         rows.append({"kind": kind, "name": str(name), "n_episodes": int(len(a)), "misfit": _f(np.median(a) if len(a) else None),
                      "misfit_others": _f(np.median(b) if len(b) else None), "ratio": _f(rel), "p": _f(p),
                      "theta_at_bound": bound.get(name, []) if kind == "group" else [],
-                     "depth_span_m": _f(span.get(name)) if kind == "group" else None})
+                     "depth_span_m": _f(span.get(name)) if kind == "group" else None,
+                     "one_depth": kind == "group" and span.get(name, math.inf) < ONE_DEPTH_SPAN_M})
     for r, p in zip(rows, holm([np.nan if r["p"] is None else r["p"] for r in rows])):
         r["p_holm"] = _f(p)
         r["flagged"] = bool(np.isfinite(p) and p < alpha and r["ratio"] is not None and r["ratio"] >= ratio)

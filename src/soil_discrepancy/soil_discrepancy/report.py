@@ -20,7 +20,7 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text
+from .workflow import THETA_SHIFT_DISPLAY, theta_move_text, unpinned_forms_only
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -59,16 +59,16 @@ def _p(x) -> str:
     return "–" if x is None else (f"{x:.1e}" if x < 1e-3 else f"{x:.3f}")
 
 
-def _unpinned_headline(report: dict) -> str:
-    """Words the headline adds where every named term's form is not pinned down: the residual is
-    taken, but which form takes it the data do not say (an outside reader's hidden speed step was
-    "explained" by a momentum flux times v_x², one of five forms that fit as well)."""
+def headline_verdict(report: dict) -> str:
+    """The verdict as the headline says it: with "by a form NOT pinned down" where every named term
+    is a discovered form its data do not pin down (``workflow.unpinned_forms_only``; an outside
+    reader's hidden speed step was "explained" by a momentum flux times v_x², one of five forms
+    that fit as well). The report's JSON keeps the verdict's own word."""
+    verdict = report.get("verdict", "")
     accepted = (report.get("selection") or {}).get("accepted") or []
-    if report.get("verdict") not in ("explained", "partly explained") or not accepted:
-        return ""
-    if all(pin_kind(a.get("pin")) in WEAK_PIN_KINDS for a in accepted):
-        return f" by {'forms' if len(accepted) > 1 else 'a form'} NOT pinned down"
-    return ""
+    if verdict in ("explained", "partly explained") and unpinned_forms_only({a["name"]: a.get("pin") for a in accepted}):
+        return f"{verdict} by {'forms' if len(accepted) > 1 else 'a form'} NOT pinned down"
+    return verdict
 
 
 def markdown(report: dict, figures=()) -> str:
@@ -78,7 +78,7 @@ def markdown(report: dict, figures=()) -> str:
     lines = [
         "# Discrepancy report: simulation model vs measured episodes",
         "",
-        f"**Verdict: {report['verdict']}{_unpinned_headline(report)}** — {report['summary']}",
+        f"**Verdict: {headline_verdict(report)}** — {report['summary']}",
         "",
         f"Data: `{report['source']}` — {d['episodes']} episodes, {d['ticks']} analysed ticks (blade deeper than "
         f"{s['min_depth_m'] * 100:g} cm, after the first {s['skip_s']:g} s, stride {s['stride']}); θ = (φ, c, δ) fitted per "
@@ -448,7 +448,8 @@ def _misfit_md(mis: dict | None) -> list[str]:
         name = f"soil {r['name']}" if r["kind"] == "soil" else r["name"]
         lines.append(f"| {name} | {r['n_episodes']} | {_n(None if r['misfit'] is None else 100 * r['misfit'], '.1f')} % | "
                      f"{_n(None if r['misfit_others'] is None else 100 * r['misfit_others'], '.1f')} % | "
-                     f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {', '.join(r['theta_at_bound']) or ''} | "
+                     f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {', '.join(r['theta_at_bound']) or ''}"
+                     f"{' (cut at one depth: the φ-c ridge)' if r['theta_at_bound'] and r.get('one_depth') else ''} | "
                      f"{'**yes**' if r['flagged'] else ''} |")
     return lines + [""]
 

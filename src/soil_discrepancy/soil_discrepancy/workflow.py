@@ -514,8 +514,11 @@ def _bound_hits(reg: dict | None) -> dict[str, list[str]]:
 
 
 def _at_bound(reg: dict | None) -> set[str]:
-    """The θ-groups whose fitted soil sits on its fit box."""
-    return {name for name, hits in _bound_hits(reg).items() if hits}
+    """The θ-groups whose fitted soil sits on its fit box, but for groups cut at one depth, where θ
+    slides along the φ-c ridge to its box with nothing missing (``regimes.ONE_DEPTH_SPAN_M``)."""
+    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
+    one_depth = {r["name"] for r in rows if r["kind"] == "group" and r.get("one_depth")}
+    return {name for name, hits in _bound_hits(reg).items() if hits and name not in one_depth}
 
 
 def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
@@ -728,11 +731,16 @@ def _fmt_n(x) -> str:
     return "–" if x is None else f"{x:.0f}"
 
 
+def _pct_change(before: float, after: float) -> str:
+    """The force at another depth before -> after, as every verdict and log line says it."""
+    return f"{before:.1f} -> {after:.1f} % of |F|"
+
+
 def _fc_text(test: dict) -> str:
     fc = test.get("depth_forecast") or {}
     if not fc.get("before"):
         return "not measured (no two depths in a held-out group)"
-    return f"{fc['before']['vector_pct']:.1f} -> {fc['after']['vector_pct']:.1f} % of |F|"
+    return _pct_change(fc['before']['vector_pct'], fc['after']['vector_pct'])
 
 
 def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
@@ -753,8 +761,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                      f"{', '.join(t['name'] for t in tentative['terms'] if t.get('why') != 'idle')} passed cross-validation on the selection part, "
                      f"held-out RMSE with all named terms {_fmt_n(tentative['test_rmse_before'])} -> "
                      f"{_fmt_n(tentative['test_rmse_after'])} N"
-                     + (f", force at another depth {tentative['forecast_pct_before']:.1f} -> "
-                        f"{tentative['forecast_pct_after']:.1f} % of |F|" if tentative.get("forecast_pct_before") is not None else "")
+                     + (f", force at another depth {_pct_change(tentative['forecast_pct_before'], tentative['forecast_pct_after'])}"
+                        if tentative.get("forecast_pct_before") is not None else "")
                      + (f"; term by term, removing {', '.join(idle)} leaves {NO_WORSE_WITHOUT}" if idle else "")
                      + ")")
     if new_terms:
@@ -820,8 +828,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
                      f"{_fmt_n(forms_tentative['test_rmse_after'])} N"
-                     + (f", force at another depth {forms_tentative['forecast_pct_before']:.1f} -> "
-                        f"{forms_tentative['forecast_pct_after']:.1f} % of |F|"
+                     + (f", force at another depth "
+                        f"{_pct_change(forms_tentative['forecast_pct_before'], forms_tentative['forecast_pct_after'])}"
                         if forms_tentative.get("forecast_pct_before") is not None
                         and forms_tentative.get("forecast_pct_after") is not None else "") + ")")
         return "unexplained", text + _misfit_text(reg0) + _left_text(reg0) + not_named
@@ -834,14 +842,21 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
 WEAK_PIN_KINDS = ("stand-in", "beaten", "form")  # pin_kind: the form itself is not pinned down
 
 
+def unpinned_forms_only(named: dict[str, dict | None]) -> bool:
+    """Whether every named term (name -> its ``rival_forms`` result) is a discovered form its data
+    do not pin down (``WEAK_PIN_KINDS``): the residual is taken, but which form takes it the data
+    do not say. A catalogue term is a mechanism, never counted here."""
+    return bool(named) and all(name.startswith(FORM_PREFIX) and pin_kind(pin) in WEAK_PIN_KINDS
+                               for name, pin in named.items())
+
+
 def weak_forms_only(new_terms, pins: dict | None, gain: float | None) -> bool:
-    """Whether every named term is a discovered form its data do not pin down (``WEAK_PIN_KINDS``)
-    and together they take less than STAND_IN_MAX_GAIN off the held-out error: then the verdict
-    is "partly explained" even with no significant structure left (a sensor drift named as a form
-    scaled by the cut's area took 24 % off and was called explained)."""
+    """Whether every named term is a discovered form its data do not pin down
+    (``unpinned_forms_only``) and together they take less than STAND_IN_MAX_GAIN off the held-out
+    error: then the verdict is "partly explained" even with no significant structure left (a
+    sensor drift named as a form scaled by the cut's area took 24 % off and was called explained)."""
     return (bool(new_terms) and gain is not None and gain < STAND_IN_MAX_GAIN
-            and all(s.name.startswith(FORM_PREFIX) and pin_kind((pins or {}).get(s.name)) in WEAK_PIN_KINDS
-                    for s in new_terms))
+            and unpinned_forms_only({s.name: (pins or {}).get(s.name) for s in new_terms}))
 
 
 def _on_test_bounds(reg: dict | None) -> int:
@@ -890,7 +905,6 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
         if by_gamma:  # bags without soil labels: a γ group may be two soils, which one θ cannot fit
             text += (f" ({', '.join(by_gamma)} is a group by unit weight: soils of one γ share one θ there and fit "
                      "worse with no effect missing; soil labels in the bags' metadata tell them apart)")
-    one_depth = [r for r in bound if r.get("depth_span_m") is not None and r["depth_span_m"] < ONE_DEPTH_SPAN_M]
     for tested, one, why in (
             (False, False, "the model needs a soil outside the physical range there"),
             (False, True, f"each of them cut at one depth (its ticks within {100 * ONE_DEPTH_SPAN_M:g} cm), where φ and c "
@@ -900,7 +914,7 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
                          "would take in without the tests, or a test that is off (by chance "
                          f"{100 * OUTSIDE_BY_CHANCE:.0f} % of the parameters tested at ± {WIDTH_SIGMA:g} std are)")):
         rows_b = [r for r in bound if any(on_soil_test_bound(b) == tested for b in r["theta_at_bound"])
-                  and (one is None or (r in one_depth) == one)]
+                  and (one is None or bool(r.get("one_depth")) == one)]
         if rows_b:
             which = sorted({b for r in rows_b for b in r["theta_at_bound"] if on_soil_test_bound(b) == tested})
             text += (f"; θ on {'its soil test' if tested else 'its fit box'} in {len(rows_b)}/{n_groups} groups "
