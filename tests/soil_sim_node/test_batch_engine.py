@@ -37,7 +37,7 @@ def test_a_plugin_parameter_its_function_does_not_take_is_refused_before_anythin
     out = tmp_path / "never"
     assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag fx=3", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "plugin='tests.sim_plugins:in_soil_constant_drag' does not take the parameters ['fx']" in err, err
+    assert "plugin='tests.sim_plugins:in_soil_constant_drag' cannot be called with the parameters ['fx']" in err, err
     assert not out.exists()
     assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag f_x=3", "--out", str(out)]) == 0
 

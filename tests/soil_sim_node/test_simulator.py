@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -308,6 +309,32 @@ def test_bad_episode_specs_name_field_and_value(field_, value, kwargs):
 def test_plugin_module_that_does_not_import_is_named():
     with pytest.raises(PluginError, match=r"no_such_module"):
         SoilSimulator(SimConfig(plugins=("no_such_module:f",)), DET_SPECS[:1])
+
+
+def test_a_plugin_is_checked_against_its_parameters_when_it_loads():
+    """Parameters a plugin's function cannot be called with are refused at load, naming them; a
+    callable object, **kwargs, keyword-only parameters and a partial are taken as they are."""
+    import functools
+    import types
+
+    from soil_sim_node.effects import ForcePlugin
+
+    module = types.ModuleType("plugin_shapes")
+    module.kw_only = lambda state, *, f_x: (f_x, 0.0)
+    module.any_kw = lambda state, **params: (0.0, 0.0)
+    module.obj = type("Drag", (), {"__call__": lambda self, state, k=1.0: (k, 0.0)})()
+    module.part = functools.partial(lambda state, a, b=0.0: (a + b, 0.0), a=1.0)
+    sys.modules["plugin_shapes"] = module
+    try:
+        for spec in ("plugin_shapes:kw_only f_x=2", "plugin_shapes:any_kw anything=3", "plugin_shapes:obj k=2",
+                     "plugin_shapes:part b=1", "plugin_shapes:part"):
+            assert ForcePlugin.load(spec).target == spec.split()[0]
+        for spec, needle in (("plugin_shapes:kw_only", r"cannot be called with the parameters \[\]: missing a required"),
+                             ("plugin_shapes:obj kk=2", r"cannot be called with the parameters \['kk'\]")):
+            with pytest.raises(PluginError, match=needle):
+                ForcePlugin.load(spec)
+    finally:
+        del sys.modules["plugin_shapes"]
 
 
 def _step_into_soil(sim, ticks=3):

@@ -75,11 +75,16 @@ PRIOR_BOX: dict[str, tuple[float, float]] = {
     "phi": (TABLE1["phi"].norm[0] - 7 * DEG, TABLE1["phi"].norm[1] + 5 * DEG),
     "delta": (TABLE1["delta"].norm[0] - 6 * DEG, TABLE1["delta"].norm[1]),
 }
+# A stiff prior component's c (``stiff_prior``): u = 1.75 ± 0.3, c = 30 ± 6 kPa, stiff clays and
+# hardpans beyond Table 1's cohesions (the broad row's c is 5 kPa ± 6 kPa per standard deviation
+# of u, so a 30 kPa soil lay 4-5 of them out and sat on the old 20 kPa bound).
+STIFF_U, STIFF_STD_U = 1.75, 0.3
 # Internal coordinates u (φ, c, δ) are kept within [U_LOWER, U_UPPER] by every update: far outside
-# the prior box is not physical. c's reaches further, to the stiff row's soils (``stiff_prior``):
-# u = 3.25 is c = 60 kPa.
+# the prior box is not physical. c's reaches 5 standard deviations above the stiff row's centre
+# (u = 3.25, c = 60 kPa).
 U_LOWER = -0.25
-U_UPPER = np.array([1.25, 3.25, 1.25])
+U_UPPER = np.array([1.25, STIFF_U + 5 * STIFF_STD_U, 1.25])
+U_UPPER.setflags(write=False)
 # Internal coordinate of c (see SoilPosterior): c = C_SCALE_PA·(softplus(V_LO + u·V_SPAN) −
 # softplus(V_ZERO)), 0 at and below u = U_LOWER (V_ZERO); u = 0 is c ≈ 7 Pa, u = 0.5
 # c ≈ 5 kPa, u = 1 c ≈ 15 kPa (Table 1's 0-10 kPa and more), above that 20 kPa per unit of u.
@@ -94,10 +99,6 @@ PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
 # 0.3 Pa (within two standard deviations above): c = 0 in effect, with the same Gaussian algebra
 # as every other component.
 COHESIONLESS_U, COHESIONLESS_STD_U = U_LOWER, 0.05
-# A stiff prior component's c (``stiff_prior``): u = 1.75 ± 0.3, c = 30 ± 6 kPa, stiff clays and
-# hardpans beyond Table 1's cohesions (the broad row's c is 5 kPa ± 6 kPa per standard deviation
-# of u, so a 30 kPa soil lay 4-5 of them out and sat on the old 20 kPa bound).
-STIFF_U, STIFF_STD_U = 1.75, 0.3
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
 MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out of the soil carries no evidence
 

@@ -158,7 +158,7 @@ class ForcePlugin:
         try:  # a parameter the function does not take: refused here, before a batch makes its folder
             inspect.signature(fn).bind(None, **params)
         except TypeError as exc:
-            raise PluginError(f"plugin={target!r} does not take the parameters {sorted(params)}: {exc}") from None
+            raise PluginError(f"plugin={target!r} cannot be called with the parameters {sorted(params)}: {exc}") from None
         except ValueError:  # no signature to read (a builtin): its call says what is wrong
             pass
         return cls(target, params, fn)
