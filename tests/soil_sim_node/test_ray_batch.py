@@ -129,7 +129,7 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         assert len(servers) == 2 and servers <= ray_processes(), "the user's cluster was stopped"
 
         out = tmp_path / "lost"
-        longer = [*SMALL, "--seeds", "16", "--duration", "10.0"]  # 64 episodes, 16 per task
+        longer = [*SMALL, "--seeds", "16", "--duration", "30.0"]  # 64 episodes, 16 per task (~3 s each here)
         lost = subprocess.Popen([sys.executable, "-m", "soil_sim_node.batch", *longer, "--out", str(out),
                                  "--ray", f"127.0.0.1:{port}", "--ray-give-up-after", "4"],
                                 env=env, stderr=subprocess.PIPE, text=True)
@@ -148,8 +148,10 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         assert "has refused connections for 4 s" in err or "LocalRayletDiedError" in err, err[-2000:]
         assert "--skip-existing simulates the missing episodes once the cluster is back" in err, err[-2000:]
         assert "soil_sim_batch: error:" in err and "Ray tasks failed" in err, err[-2000:]
+        # every bag may have landed before the stop took effect, their tasks' answers lost with the
+        # cluster (a machine that simulates 16 ten-second episodes in a second did): whole, kept
         written = find_episode_bags(out)
-        assert 0 < len(written) < 64 and not (out / "dataset.json").exists()
+        assert 0 < len(written) <= 64 and not (out / "dataset.json").exists()
         assert not [p for p in out.iterdir() if p.name.endswith(".partial")], sorted(p.name for p in out.iterdir())
     finally:
         _stop(cluster)
