@@ -11,6 +11,9 @@ from soil_sim_node.effects import effects_for_mode
 from soil_sim_node.simulator import ENGINES, EpisodeSpec
 
 
+ONE_EPISODE = ["--mode", "fee", "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2",
+               "--seeds", "1", "--duration", "0.5", "--quiet"]  # soil_sim_batch arguments of one short episode
+
 def test_batch_plan_engine_defaults_to_compiled_and_reaches_the_sim_config(tmp_path):
     spec = EpisodeSpec("Loam", 60.0, 0.5, 0.2, seed=0, duration_s=1.0)
     assert DatasetPlan("fee", tmp_path, [spec], effects_for_mode("fee")).config().engine == "compiled"
@@ -32,14 +35,12 @@ def test_batch_unknown_engine_is_refused_before_anything_is_written(tmp_path):
 def test_a_plugin_parameter_its_function_does_not_take_is_refused_before_anything_is_written(tmp_path, capsys):
     """A misspelt plugin parameter ('fx' for 'f_x') was refused only when the first episode ran,
     leaving an empty --out folder behind (an outside reader's run); now when the plugin loads."""
-    args = ["--mode", "fee", "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2",
-            "--seeds", "1", "--duration", "0.5", "--quiet"]
     out = tmp_path / "never"
-    assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag fx=3", "--out", str(out)]) == 2
+    assert batch.main([*ONE_EPISODE, "--plugin", "tests.sim_plugins:in_soil_constant_drag fx=3", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "plugin='tests.sim_plugins:in_soil_constant_drag' cannot be called with the parameters ['fx']" in err, err
     assert not out.exists()
-    assert batch.main([*args, "--plugin", "tests.sim_plugins:in_soil_constant_drag f_x=3", "--out", str(out)]) == 0
+    assert batch.main([*ONE_EPISODE, "--plugin", "tests.sim_plugins:in_soil_constant_drag f_x=3", "--out", str(out)]) == 0
 
 
 def test_more_workers_than_the_machine_can_use_are_refused_before_any_process_starts(tmp_path, capsys):
@@ -47,10 +48,8 @@ def test_more_workers_than_the_machine_can_use_are_refused_before_any_process_st
     work) until the machine stopped; now refused, naming the option, and a pool never has more
     processes than chunks of work (16 workers for one episode: one process's work, done)."""
     most = cli_numbers.local_limit()
-    args = ["--mode", "fee", "--soils", "Clay", "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2",
-            "--seeds", "1", "--duration", "0.5", "--quiet"]
-    assert batch.main([*args, "--workers", str(most + 1), "--out", str(tmp_path / "many")]) == 2
+    assert batch.main([*ONE_EPISODE, "--workers", str(most + 1), "--out", str(tmp_path / "many")]) == 2
     assert f"--workers={most + 1} is more than this machine can use: at most {most}" in capsys.readouterr().err
     assert not (tmp_path / "many").exists()
-    assert batch.main([*args, "--workers", str(most), "--out", str(tmp_path / "one")]) == 0
+    assert batch.main([*ONE_EPISODE, "--workers", str(most), "--out", str(tmp_path / "one")]) == 0
     assert len(list((tmp_path / "one").glob("*/metadata.yaml"))) == 1

@@ -517,8 +517,7 @@ def _at_bound(reg: dict | None) -> set[str]:
     """The θ-groups whose fitted soil sits on its fit box, but for groups cut at one depth, where θ
     slides along the φ-c ridge to its box with nothing missing (``regimes.ONE_DEPTH_SPAN_M``)."""
     rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    one_depth = {r["name"] for r in rows if r["kind"] == "group" and r.get("one_depth")}
-    return {name for name, hits in _bound_hits(reg).items() if hits and name not in one_depth}
+    return {r["name"] for r in rows if r["kind"] == "group" and r["theta_at_bound"] and not r.get("one_depth")}
 
 
 def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
@@ -743,6 +742,12 @@ def _fc_text(test: dict) -> str:
     return _pct_change(fc['before']['vector_pct'], fc['after']['vector_pct'])
 
 
+def _forecast_clause(figures: dict) -> str:
+    """", force at another depth B -> A % of |F|" from ``_confirmation``'s figures ("" where not measured)."""
+    before, after = figures.get("forecast_pct_before"), figures.get("forecast_pct_after")
+    return "" if before is None or after is None else f", force at another depth {_pct_change(before, after)}"
+
+
 def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
              forms: dict | None = None, tentative: dict | None = None, pins: dict | None = None,
              shift: dict | None = None) -> tuple[str, str]:
@@ -761,8 +766,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                      f"{', '.join(t['name'] for t in tentative['terms'] if t.get('why') != 'idle')} passed cross-validation on the selection part, "
                      f"held-out RMSE with all named terms {_fmt_n(tentative['test_rmse_before'])} -> "
                      f"{_fmt_n(tentative['test_rmse_after'])} N"
-                     + (f", force at another depth {_pct_change(tentative['forecast_pct_before'], tentative['forecast_pct_after'])}"
-                        if tentative.get("forecast_pct_before") is not None else "")
+                     + _forecast_clause(tentative)
                      + (f"; term by term, removing {', '.join(idle)} leaves {NO_WORSE_WITHOUT}" if idle else "")
                      + ")")
     if new_terms:
@@ -827,11 +831,7 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
         if forms_tentative and forms_tentative["forms"]:
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {_fmt_n(forms_tentative['test_rmse_before'])} -> "
-                     f"{_fmt_n(forms_tentative['test_rmse_after'])} N"
-                     + (f", force at another depth "
-                        f"{_pct_change(forms_tentative['forecast_pct_before'], forms_tentative['forecast_pct_after'])}"
-                        if forms_tentative.get("forecast_pct_before") is not None
-                        and forms_tentative.get("forecast_pct_after") is not None else "") + ")")
+                     f"{_fmt_n(forms_tentative['test_rmse_after'])} N{_forecast_clause(forms_tentative)})")
         return "unexplained", text + _misfit_text(reg0) + _left_text(reg0) + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
