@@ -887,21 +887,3 @@ def test_the_evidence_law_is_the_sharpest_within_the_noise_of_the_most_accurate(
     # a law no better than the force now is never the choice, however close the best one is to it
     near_naive = [(0.005, scores(20.0, 1.0, 10.0, naive_z=10.0)), (0.05, scores(20.0, 1.0, 9.8, naive_z=10.0))]
     assert choose_evidence_law(near_naive)[1] == 0.05
-
-
-def test_a_steady_means_standard_error_is_taken_by_batch_means():
-    """The force a forecast is anchored to is a mean over a noisy steady part: its standard error by
-    batch means (blocks of a stretch) is σ/√n for white noise and larger where the errors persist
-    over several ticks (particle events, drift), which the rows' spread over √n would understate."""
-    rng = np.random.default_rng(3)
-    white = rng.normal(0.0, 300.0, size=(3000, 2))
-    se = fc.mean_standard_error(white)
-    assert se == pytest.approx(300.0 / np.sqrt(3000), rel=0.3)
-    slow = np.repeat(rng.normal(0.0, 300.0, size=(300, 2)), 10, axis=0)  # each error lasts 10 ticks
-    assert (fc.mean_standard_error(slow) > 2.0 * slow.std(axis=0) / np.sqrt(len(slow))).all()
-    short = white[:90]  # 3 batches: too few to trust their spread, one independent value per batch
-    assert fc.mean_standard_error(short) == pytest.approx(short.std(axis=0, ddof=1) / np.sqrt(90 / fc.SE_BLOCK_ROWS))
-    assert fc.mean_standard_error(white[:20]) == pytest.approx(white[:20].std(axis=0, ddof=1))  # less than a batch
-    steady = np.tile([[1.0, 2.0]], (600, 1)) + np.tile(np.r_[np.zeros(29), 1.0][:, None], (20, 2))  # equal batches
-    assert (fc.mean_standard_error(steady) >= steady.std(axis=0, ddof=1) / np.sqrt(600) - 1e-12).all()
-    assert (fc.mean_standard_error(white[:1]) == 0.0).all()

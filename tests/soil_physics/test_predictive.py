@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from soil_physics.predictive import extrapolated_part, mixture_cdf, mixture_quantiles, upper_magnitude, within_magnitude
+from soil_physics.predictive import (SE_BLOCK_ROWS, extrapolated_part, mean_standard_error, mixture_cdf, mixture_quantiles,
+                                     upper_magnitude, within_magnitude)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -34,3 +35,21 @@ def test_the_extrapolated_part_is_the_change_from_the_evidence_capped_by_the_for
     ref = np.array([10e3, 4e3, 2e3, np.nan, -20e3])  # at the evidence; NaN: no evidence there
     cap = np.array([10e3, 10e3, -4e3, 6e3, 3e3])
     np.testing.assert_allclose(extrapolated_part(force, ref, cap), [0.0, 6e3, 4e3, 6e3, 3e3])
+
+
+def test_a_steady_means_standard_error_is_taken_by_batch_means():
+    """The force a forecast is anchored to is a mean over a noisy steady part: its standard error by
+    batch means (blocks of a stretch) is σ/√n for white noise and larger where the errors persist
+    over several ticks (particle events, drift), which the rows' spread over √n would understate."""
+    rng = np.random.default_rng(3)
+    white = rng.normal(0.0, 300.0, size=(3000, 2))
+    se = mean_standard_error(white)
+    assert se == pytest.approx(300.0 / np.sqrt(3000), rel=0.3)
+    slow = np.repeat(rng.normal(0.0, 300.0, size=(300, 2)), 10, axis=0)  # each error lasts 10 ticks
+    assert (mean_standard_error(slow) > 2.0 * slow.std(axis=0) / np.sqrt(len(slow))).all()
+    short = white[:90]  # 3 batches: too few to trust their spread, one independent value per batch
+    assert mean_standard_error(short) == pytest.approx(short.std(axis=0, ddof=1) / np.sqrt(90 / SE_BLOCK_ROWS))
+    assert mean_standard_error(white[:20]) == pytest.approx(white[:20].std(axis=0, ddof=1))  # less than a batch
+    steady = np.tile([[1.0, 2.0]], (600, 1)) + np.tile(np.r_[np.zeros(29), 1.0][:, None], (20, 2))  # equal batches
+    assert (mean_standard_error(steady) >= steady.std(axis=0, ddof=1) / np.sqrt(600) - 1e-12).all()
+    assert (mean_standard_error(white[:1]) == 0.0).all()

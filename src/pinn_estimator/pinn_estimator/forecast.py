@@ -28,6 +28,7 @@ from soil_msgs_py.params import (DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT
                                  SAMPLE_RATE_HZ)
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
+from soil_physics.predictive import mean_standard_error
 
 # Off the training grid (densities 0..100 step 20; depths 0.05, 0.175, 0.3 m; speeds
 # 0.3..1.0): the held-out episodes the forecast is judged on.
@@ -97,30 +98,6 @@ def steady_rows(known: np.ndarray, steady_from: float = STEADY_FROM) -> np.ndarr
     rows = np.arange(len(known))[int(steady_from * len(known)):]
     steady = rows[steady_mask(known[rows])]
     return steady if len(steady) and len(steady) >= MIN_STEADY_S * SAMPLE_RATE_HZ else None
-
-
-# Rows per batch of ``mean_standard_error``: half a second, well beyond how long a force's errors
-# persist (a particle event drops the grip for up to 0.08 s).
-SE_BLOCK_ROWS = SAMPLE_RATE_HZ // 2
-SE_MIN_BATCHES = 5  # fewer batch means estimate their spread too poorly
-
-
-def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.ndarray:
-    """Standard error of the mean of ``values`` (n, ...) along axis 0 by batch means (blocks of
-    ``block`` consecutive rows: errors that persist over several ticks, which the rows' spread over
-    √n understates), never below that (a batch-means estimate from few batches can come out near 0).
-    With fewer than SE_MIN_BATCHES batches, the rows' spread over √(n / block): one independent
-    value per block, the cautious side."""
-    values = np.asarray(values, float)
-    n = len(values)
-    if n < 2:
-        return np.zeros(values.shape[1:])
-    spread = values.std(axis=0, ddof=1)
-    k = n // block
-    if k < SE_MIN_BATCHES:
-        return spread / np.sqrt(max(n / block, 1.0))
-    means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
-    return np.maximum(means.std(axis=0, ddof=1) / np.sqrt(k), spread / np.sqrt(n))
 
 
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:

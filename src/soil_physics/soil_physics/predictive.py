@@ -9,8 +9,33 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr
 
+from soil_msgs_py.params import SAMPLE_RATE_HZ
+
 BISECTIONS = 50  # halvings of the search interval: 16 sigma / 2^50, far below a newton
 TAIL = 1e-9  # components lighter than this share of the heaviest are left out
+
+# Rows per batch of ``mean_standard_error``: half a second, well beyond how long a force's errors
+# persist (a particle event drops the grip for up to 0.08 s).
+SE_BLOCK_ROWS = SAMPLE_RATE_HZ // 2
+SE_MIN_BATCHES = 5  # fewer batch means estimate their spread too poorly
+
+
+def mean_standard_error(values: np.ndarray, block: int = SE_BLOCK_ROWS) -> np.ndarray:
+    """Standard error of the mean of ``values`` (n, ...) along axis 0 by batch means (blocks of
+    ``block`` consecutive rows: errors that persist over several ticks, which the rows' spread over
+    √n understates), never below that (a batch-means estimate from few batches can come out near 0).
+    With fewer than SE_MIN_BATCHES batches, the rows' spread over √(n / block): one independent
+    value per block, the cautious side."""
+    values = np.asarray(values, float)
+    n = len(values)
+    if n < 2:
+        return np.zeros(values.shape[1:])
+    spread = values.std(axis=0, ddof=1)
+    k = n // block
+    if k < SE_MIN_BATCHES:
+        return spread / np.sqrt(max(n / block, 1.0))
+    means = values[: k * block].reshape(k, block, *values.shape[1:]).mean(axis=1)
+    return np.maximum(means.std(axis=0, ddof=1) / np.sqrt(k), spread / np.sqrt(n))
 
 
 def mixture_quantiles(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantiles) -> np.ndarray:
