@@ -260,7 +260,7 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     fused posterior at the source episode's end (``planner.fused_upper_force``, its physics the
     posterior's, at the target's steady Θ_k and speed), anchored as the planner is, to the
     force measured at the source's depth; the same with that force's batch-means standard error
-    carried in the bound (``forecast.mean_standard_error``; the planner's steady anchor gives none:
+    carried in the bound (``predictive.mean_standard_error``; the planner's steady anchor gives none:
     ``planner.SteadyAnchor.anchor``), which says how much of an exceedance is the anchor's noise;
     and unanchored. Per axis: the share exceeded, going
     deeper too (where exceeding it stalls a machine; split by reach at NEAR_REACH times the
