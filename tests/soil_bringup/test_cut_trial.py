@@ -94,6 +94,27 @@ def test_in_dense_gravel_the_loop_settles_deeper_when_the_lifts_push_does_not_an
     assert deep > shallow + 0.03, got  # seeing the commands: the push no longer drives the cut up
 
 
+def test_on_a_soil_far_outside_the_pinns_training_the_measured_force_keeps_the_cut_from_stalling(tmp_path):
+    """A hardpan (φ 10-12°, c 30-40 kPa; the PINN was trained on φ 17-45°, c 0-10 kPa): its F̂_x
+    is about two thirds of the force the blade measures, so a plan anchored to F̂ finds a cut
+    deeper than 5 cm admissible and stalls in it. With the sensor anchor (the default, as the node
+    reads /blade/force) the plan is anchored to the measured force and the cut does not stall
+    (fee world, no noise: one seed says it; same path, seed and cores; only the setting differs)."""
+    from soil_physics.soils import load_soil_file
+
+    soils = tmp_path / "hardpan.yaml"
+    soils.write_text("soils:\n  - {name: Hardpan, phi_deg: [10, 12], cohesion_pa: [30000, 40000], "
+                     "unit_weight_n_m3: [19000, 21000]}\n")
+    custom = load_soil_file(soils).soils
+    spec, _ = EpisodeSpec("Hardpan", 20, 0.5, 0.05, seed=3, duration_s=5.0).resolve(custom)
+    stall = {sensor: CM.stall_mask(run_cut("fee", spec, Policy("soil-aware"),
+                                           SoilAwareSetup("fee", planner={"sensor_anchor": sensor}),
+                                           custom_soils=custom)).sum() / 60
+             for sensor in (False, True)}
+    # (measured 0.38 s without, 0 s with; 10 s cuts: the same, default world 0.77 / 0 s)
+    assert stall[False] > 0.15 and stall[True] == 0.0, stall
+
+
 def test_a_fall_of_the_target_counts_once_and_the_next_needs_it_to_deepen_first():
     assert CM.target_falls([0.1, 0.2, 0.17, 0.25, 0.22, 0.23, 0.2]) == 3
     assert CM.target_falls([0.1, 0.2, 0.19, 0.185, 0.2, np.nan, 0.3]) == 0  # 1.5 cm: no fall

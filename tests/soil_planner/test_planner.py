@@ -16,8 +16,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, DEFAULT_MARGIN,
-                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, STALL_BACKOFF_M, STALL_MEMORY_TICKS, TOLERANCE_M,
-                                  StretchPlanner, describe, fused_upper_force, max_cut_depth, steady_cut_terms)
+                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, SENSOR_GAP_SHARE, SENSOR_MIN_TICKS, STALL_BACKOFF_M,
+                                  STALL_MEMORY_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth, steady_cut_terms)
 
 pytestmark = pytest.mark.live
 
@@ -528,6 +528,45 @@ def test_the_steady_anchor_follows_a_stronger_soil_at_once_and_a_weaker_one_as_i
     assert plan.max_depth_m == pytest.approx(max_cut_depth(dict(fused, f_x_hat=2 * fused["f_x_hat"]), sinking).max_depth_m, abs=1e-6)
 
 
+def test_a_measured_force_clearly_above_the_pinns_anchors_x_and_one_below_it_changes_nothing():
+    """A soil outside the PINN's training: the blade measures 1.5× the F̂_x it predicts at the cut
+    depth. The plan is then anchored to the measured force (shallower, as a plan from that force
+    is), from SENSOR_MIN_TICKS steady ticks on; z keeps F̂_z. A measured force below F̂, within
+    SENSOR_GAP_SHARE of it, or one that only wobbles about it never moves the plan; neither do
+    missing or non-finite readings, nor a planner with the sensor anchor off."""
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    fx, fz = fused["f_x_hat"], fused["f_z_hat"]
+    own = max_cut_depth(fused, known, anchor=((fx, fz), known)).max_depth_m
+    sensed = max_cut_depth(fused, known, anchor=((1.5 * fx, fz), known))
+    assert sensed.max_depth_m < own - 0.01
+
+    def run(measured, ticks=ANCHOR_WINDOW_TICKS, **settings):
+        planner = StretchPlanner(**settings)
+        for i in range(ticks):
+            plan, _ = planner.plan(dict(fused, fused_stretches=float(i)), known, 0.12, measured(i))
+        return plan, planner.anchor
+
+    plan, anchor = run(lambda i: (1.5 * fx * (1.02 if i % 2 else 0.98), 0.5 * fz))
+    assert plan.max_depth_m == pytest.approx(sensed.max_depth_m, abs=1e-3)
+    assert anchor.sensor_gap_n == pytest.approx(0.5 * fx, rel=1e-6)
+    assert anchor.anchor()[0] == pytest.approx((1.5 * fx, fz))  # z: F̂_z, not the measured one
+    assert "anchored to the measured F_x" in describe(plan, fused, known, anchor.sensor_gap_n)
+    assert run(lambda i: (1.5 * fx, fz), ticks=SENSOR_MIN_TICKS)[0].max_depth_m == pytest.approx(
+        sensed.max_depth_m, abs=1e-3)  # a plan at the start of a cut already
+    for measured in (lambda i: (0.5 * fx, fz),  # below F̂: never deeper
+                     lambda i: ((1 + 0.8 * SENSOR_GAP_SHARE) * fx, fz),  # within the PINN's own error
+                     lambda i: ((2.0 if i % 2 else 0.4) * fx, fz),  # 20 % above on average, but no signal
+                     lambda i: None, lambda i: (math.nan, fz), lambda i: (math.inf, fz)):
+        plan, anchor = run(measured)
+        assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and anchor.sensor_gap_n is None
+    plan, anchor = run(lambda i: (1.5 * fx, fz), sensor_anchor=False)
+    assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and anchor.sensor_gap_n is None
+    assert run(lambda i: (1.5 * fx, fz), ticks=SENSOR_MIN_TICKS - 1)[1].sensor_gap_n is None
+    assert StretchPlanner(sensor_anchor=False).settings()["sensor_anchor"] is False
+
+
 def test_an_edge_held_short_of_the_commanded_depth_does_not_anchor_z_with_the_lifts_push():
     """The lift presses the edge onto a floor that holds it 2 cm short of the commanded depth: F̂_z
     is then the push (here beyond the z bound), not the steady cut's. Given the commanded depth, the
@@ -695,6 +734,46 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
         out = node.output
         assert "deepest cut" in out and f"x limit binds: {LX / 1e3:.1f} kN" in out
         assert "estimate phi=nan" in out and "label mismatch" in out
+
+
+def test_soil_planner_node_anchors_to_the_blades_measured_force_where_it_is_clearly_above_f_hat(tmp_path):
+    """The node reads /blade/force: ticks whose measured F_x is 1.5× F̂_x plan as the measured force
+    does (and the log says so); an implausible reading is warned and that tick keeps F̂."""
+    domain = next_domain_id()
+    known = _known(d=0.12, q=1000.0)
+    fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                   std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
+    fx, fz = fused["f_x_hat"], fused["f_z_hat"]
+    sensed = max_cut_depth(fused, known, anchor=((1.5 * fx, fz), known)).max_depth_m
+    own = max_cut_depth(fused, known, anchor=((fx, fz), known)).max_depth_m
+    assert sensed < own - 0.01
+    s = [(k + 1) * 10**9 // 60 for k in range(2 * SENSOR_MIN_TICKS)]
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.PLAN.name, T.PLAN.msgtype)
+        pubs = {t.name: probe.publisher(t.name, t.msgtype) for t in (T.ESTIMATE, T.KNOWN, T.BLADE_FORCE)}
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "log_period_s:=0.0"], domain, tmp_path)
+
+        def plans():
+            return dict(M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name) for m in probe.messages(T.PLAN.name))
+
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() for p in pubs.values())
+                           and probe.matched_publishers(T.PLAN.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)
+            for i, stamp in enumerate(s):
+                force = (math.inf, fz) if i == 0 else (1.5 * fx, fz)
+                pubs[T.BLADE_FORCE.name].publish(M.build_message(CLASSES, T.BLADE_FORCE.name, stamp, force))
+                time.sleep(0.05)  # the measured force first, as the simulator sends it before the estimator answers
+                pubs[T.KNOWN.name].publish(M.make_labelled(CLASSES, stamp, KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+                est = dict(fused, fused_stretches=float(i))
+                pubs[T.ESTIMATE.name].publish(M.make_labelled(CLASSES, stamp, T.ESTIMATE_FIELDS,
+                                                              _payload(est, T.ESTIMATE_FIELDS)))
+            got = probe.wait_for(lambda: (lambda p: p if len(p) == len(s) else None)(plans()), 15, "every plan")
+        finally:
+            node.stop()
+        depth = T.PLAN_FIELDS.index("max_depth_m")
+        assert got[s[-1]][depth] == pytest.approx(sensed, abs=1e-3)
+        assert "anchored to the measured F_x" in node.output and "is not a force the blade can measure" in node.output
 
 
 @pytest.mark.timeout(90)

@@ -157,7 +157,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
                 fused[k] = [values[name] for name in FUSED_TRACK]
                 try:
                     plan, _ = planner.plan(values, dict(zip(KNOWN_PARAMS, out.known[0].tolist())),
-                                           -float(cmd.u_za[0]) if setup.sees_commands else None)
+                                           -float(cmd.u_za[0]) if setup.sees_commands else None, out.forces[0])
                 except ValueError:
                     plan = None  # a refused estimate: no plan for this tick (the node warns and skips it)
                 depth = plan.max_depth_m if plan is not None else None

@@ -139,7 +139,7 @@ ESTIMATOR_STATE_TOPICS: tuple[str, ...] = (
 ESTIMATOR_INPUTS: tuple[str, ...] = ESTIMATOR_STATE_TOPICS + COMMAND_TOPICS + (SIM_STATUS_TOPIC,)
 ESTIMATOR_OUTPUTS: tuple[str, ...] = (T.ESTIMATE.name, T.ESTIMATED_FORCE.name, T.SOIL_MAP.name)
 # What the soil-aware planner reads from the simulator and publishes (the controller reads the target).
-PLANNER_STATE_TOPICS: tuple[str, ...] = (T.KNOWN.name,)
+PLANNER_STATE_TOPICS: tuple[str, ...] = (T.KNOWN.name, T.BLADE_FORCE.name)
 PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # How long a node waits for the writers of other nodes' topics it reads before it joins the
 # simulator's topics anyway (``ros_adapter.JoinAfterInputs``): well inside the simulator's own

@@ -102,6 +102,10 @@ PARAMETERS: dict[str, tuple] = {
     "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
                   "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
+    "sensor_anchor": (True, "where the blade's measured F_x (/blade/force), averaged over the recent steady cut, "
+                            "is clearly above the PINN's F̂_x (by more than 15 % and 3 standard errors), the fused "
+                            "plan is anchored to the measured force (a model outside its training is trusted no "
+                            "further than the sensor); a measured force below F̂ never makes a plan deeper"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
@@ -128,14 +132,16 @@ PARAMETERS: dict[str, tuple] = {
 # controller takes a target only within its planner_timeout_s of the tick it answers, so a late
 # plan steers nothing live; it is still published and recorded.
 MAX_PENDING_STAMPS = 10 * SAMPLE_RATE_HZ
-PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms")  # StretchPlanner's
+PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms",
+                    "sensor_anchor")  # StretchPlanner's
 
 
 def stretch_planner(settings: dict) -> StretchPlanner:
     """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
     PINN's point plan); ValueError naming a bad one."""
-    if not isinstance(settings["include_residual"], bool):
-        raise ValueError(f"include_residual={settings['include_residual']!r} must be true or false")
+    for flag in ("include_residual", "sensor_anchor"):
+        if not isinstance(settings[flag], bool):
+            raise ValueError(f"{flag}={settings[flag]!r} must be true or false")
     q = settings["force_quantile"]
     off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
     if not off:
@@ -165,6 +171,9 @@ class PlannerNode(Node):
         self.commanded: collections.OrderedDict[int, float] = collections.OrderedDict()
         self.command_writer = WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS)  # the controller's
         self.command_wait = CommandWait(get("command_wait_s"))  # ValueError names the field
+        # the blade's measured (F_x, F_z) per tick stamp (/blade/force): where it is clearly above
+        # F̂, it anchors the plan (``planner.SENSOR_GAP_SHARE``)
+        self.measured: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -181,6 +190,10 @@ class PlannerNode(Node):
                                                 publisher_qos(T.TARGET_DEPTH.name))
         # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        # the tick's measured force comes from the simulator before the estimator can answer it;
+        # one that is lost leaves that tick anchored to F̂ alone
+        self.create_subscription(message_class(T.BLADE_FORCE.msgtype), T.BLADE_FORCE.name, self._on_blade_force,
+                                 topic_qos(T.BLADE_FORCE.name))
         # /blade/cmd before /soil/estimate: the executor serves ready subscriptions in the order they
         # were made, so a tick's command, sent before its estimate, is mostly taken first (command_wait
         # makes sure of it)
@@ -246,6 +259,7 @@ class PlannerNode(Node):
         self.planner.forget()
         self._target_sent = None
         self.commanded.clear()
+        self.measured.clear()
         self.command_wait.forget_commands()
 
     def _on_blade_cmd(self, msg, sequence: int | None = None) -> None:
@@ -265,6 +279,22 @@ class PlannerNode(Node):
         while len(self.commanded) > MAX_PENDING_STAMPS:
             self.commanded.popitem(last=False)
         self._answer(self.command_wait.command(stamp, time.monotonic()))
+
+    def _on_blade_force(self, msg) -> None:
+        """The blade's measured force of a tick, kept by stamp until its estimate is planned."""
+        try:
+            stamp, values = M.parse_message(T.BLADE_FORCE.name, msg)
+        except ValueError as err:
+            self._warn("blade_force:layout", f"{err}; ignored")
+            return
+        if not M.plausible_values(values):
+            self._warn("blade_force:implausible", f"{T.BLADE_FORCE.name} at stamp {stamp} ns: force="
+                                                  f"{values.tolist()} N is not a force the blade can measure; "
+                                                  "that tick is anchored to F̂ alone")
+            return
+        self.measured[stamp] = (float(values[0]), float(values[1]))
+        while len(self.measured) > MAX_PENDING_STAMPS:
+            self.measured.popitem(last=False)
 
     def _on_known(self, msg) -> None:
         try:
@@ -316,7 +346,7 @@ class PlannerNode(Node):
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         try:
-            plan, new = self.planner.plan(est, known, self.commanded.get(stamp))
+            plan, new = self.planner.plan(est, known, self.commanded.get(stamp), self.measured.get(stamp))
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)
@@ -331,7 +361,7 @@ class PlannerNode(Node):
             return
         if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
             self.last_log_ns = stamp
-            self.get_logger().info(describe(plan, est, known))
+            self.get_logger().info(describe(plan, est, known, self.planner.anchor.sensor_gap_n))
 
     def _publish(self, stamp: int, values) -> None:
         values = np.asarray(values, dtype=np.float64)

@@ -73,7 +73,9 @@ wedge at the actual velocity (no β*: soil-tool friction reversed by a fast lift
 δ̂ > φ̂, where F_FEE(d'_now) does not exist) or β* there is outside Table 1 (a strong transient:
 the difference to the PINN's own FEE, whose β̂ is clipped to Table 1, would pass for a
 residual), and with ``include_residual=False`` (pure FEE plan). Far from the current depth the extrapolation is less certain: re-plan with every
-estimate.
+estimate. The fused plan's anchor (``SteadyAnchor``) is F̂ averaged over the recent steady cut,
+raised to the blade's measured force where that is clearly higher (SENSOR_GAP_SHARE): the
+measured force, not the model, is the truth at the depth being cut.
 
 Search: a dense grid on [0, d_max] (one vectorised FEE call), then a search between the
 last admissible grid depth and the first inadmissible one, 8 depths per vectorised call (a
@@ -99,7 +101,8 @@ from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
                                  MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
-from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
+from soil_physics.predictive import (extrapolated_part, mean_standard_error, model_error_std, upper_magnitude,
+                                     within_magnitude)
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
@@ -160,6 +163,25 @@ ANCHOR_MAX_AGE_TICKS = 180
 # free carried half the push into the z force per metre the held ones took. A free edge
 # tracking its depth sits within about 2 mm of the command.
 HELD_GAP_M = 0.002
+# Where the blade's measured force says the PINN's F̂ is too low, the sensor anchors the plan
+# (``SteadyAnchor.anchor``): over the same steady ticks, when the measured F_x's mean exceeds F̂_x's
+# by more than SENSOR_GAP_SHARE of F̂_x and SENSOR_GAP_SIGMAS standard errors of that gap
+# (``predictive.mean_standard_error``) on at least SENSOR_MIN_TICKS ticks, the x anchor is F̂_x
+# plus that gap. Why: F̂ is a model's, and outside its training it can be far off (a hardpan,
+# φ 10-12° and c 30-40 kPa: F̂_x 11.6 kN where the blade measured 18 kN; the plan scaled from it
+# made 0.088 m look admissible and the cut stalled 0.8-1.0 s in 20 s). One-sided: a measured
+# force below F̂ never makes a plan deeper (the default world's particle events drop the grip
+# for a moment; anchored to the measured mean both ways its main path stalled 0.47 s instead of
+# 0.30 s). x only: the tractive limit is where a cut stalls, and the measured F_z of an edge the
+# lift holds short of its command is the lift's push, not the cut's (HELD_GAP_M). 15 %: more
+# than twice the PINN's force error at the cut depth on held-out episodes (6.3 % in the default
+# world; on soil_cut_report's main path the measured mean is more than 15 % above F̂_x in 1 % of
+# the default world's plans, and in 13 % of the fee world's, whose PINN misses the loam at
+# 0.26 m by 15-20 %); 4 ticks: a plan made at the start of a cut, before a full window, is the
+# one that plunged into the hardpan.
+SENSOR_GAP_SHARE = 0.15
+SENSOR_GAP_SIGMAS = 3.0
+SENSOR_MIN_TICKS = 4
 # A fused plan is re-made at least this often [ticks] (StretchPlanner): 4 Hz at ~7 ms a plan.
 REPLAN_TICKS = 15
 # What the machine did overrides what the model says (``StallMemory``): after a stall that began
@@ -418,18 +440,22 @@ class SteadyAnchor:
     ANCHOR_WINDOW_TICKS). Fed every tick's estimate; ticks are counted, not stamped, so a
     replay or a lockstep graph anchors as real time does."""
 
-    def __init__(self) -> None:
+    def __init__(self, sensor: bool = True) -> None:
+        self.sensor = bool(sensor)  # whether a measured F_x above F̂_x may anchor x (SENSOR_GAP_SHARE)
         self.reset()
 
     def reset(self) -> None:
         self.tick = 0
         self.restarts = 0  # times a stronger soil restarted the window
-        self.entries: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
+        # (tick, F̂_x, F̂_z [N], Θ_k row, measured F_x [N] or NaN)
+        self.entries: collections.deque[tuple[int, float, float, np.ndarray, float]] = \
+            collections.deque(maxlen=ANCHOR_WINDOW_TICKS)
+        self.sensor_gap_n: float | None = None  # what the newest anchor added to F̂_x from the sensor [N]
         self.free_z_per_m: float | None = None  # F̂_z / d [N/m] of the newest steady tick whose edge was free
         self.held = 0  # steady ticks whose edge was held short of the commanded depth (their F̂_z replaced)
 
     def add(self, estimate: Mapping[str, float], known: Mapping[str, float],
-            commanded_depth_m: float | None = None) -> None:
+            commanded_depth_m: float | None = None, measured_force_n=None) -> None:
         """One tick: kept if the PINN's estimate is valid and finite and the edge holds its depth
         (|v_z| <= ANCHOR_MAX_ABS_V_Z_M_S) at least MIN_FUSED_ANCHOR_DEPTH_M deep.
         ``commanded_depth_m``: the depth the controller commands for this tick [m], if known. An
@@ -437,7 +463,9 @@ class SteadyAnchor:
         newest free tick's F̂_z per metre of depth times its own depth (the z residual is carried
         in proportion to depth anyway; however long it is held, nothing new about the cut's z force
         can show meanwhile), or kept if no free tick was seen since the cut began or the window last
-        restarted for a stronger soil (the push is then the safe side)."""
+        restarted for a stronger soil (the push is then the safe side). ``measured_force_n``: the
+        blade's measured (F_x, F_z) [N] of this tick (/blade/force), if known; a value that is not
+        a finite number counts as not known."""
         self.tick += 1
         try:  # a tick the plan would refuse never enters the average
             fx, fz = (_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
@@ -455,7 +483,7 @@ class SteadyAnchor:
             elif self.free_z_per_m is not None:
                 fz = self.free_z_per_m * k["d"]
                 self.held += 1
-            self.entries.append((self.tick, fx, fz, row))
+            self.entries.append((self.tick, fx, fz, row, _measured_x(measured_force_n)))
             self._restart_on_a_stronger_soil()
 
     def _restart_on_a_stronger_soil(self) -> None:
@@ -476,18 +504,38 @@ class SteadyAnchor:
             self.free_z_per_m = None  # a stronger soil: the z force per metre of the one before says nothing
 
     def anchor(self) -> tuple[tuple[float, float], dict[str, float]] | None:
-        """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth; None
-        when no steady tick is recent enough. (Its standard error is not given to the plan: the
+        """(mean F̂ (x, z) [N], mean Θ_k) over the steady ticks near the newest one's depth, F̂_x
+        raised to the measured force where that is clearly higher (SENSOR_GAP_SHARE); None when
+        no steady tick is recent enough. (Its standard error is not given to the plan: the
         ticks' spread over √n_eff, n_eff the windows their span holds, made the default world's
         plans shallower, 1.30 → 1.24x the conservative volume over 15 paths and seeds, with no
         less stall: its forecast law's 1 kN floor already holds that noise.)"""
         while self.entries and self.tick - self.entries[0][0] > ANCHOR_MAX_AGE_TICKS:
             self.entries.popleft()
+        self.sensor_gap_n = None
         if not self.entries:
             return None
         near = [self.entries[i] for i in self._at_newest_depth()]
         force = (float(np.mean([e[1] for e in near])), float(np.mean([e[2] for e in near])))
+        gap = self._sensor_gap_n(near) if self.sensor else None
+        if gap is not None:
+            self.sensor_gap_n = gap
+            force = (force[0] + gap, force[1])
         return force, dict(zip(KNOWN_PARAMS, np.mean([e[3] for e in near], axis=0).tolist()))
+
+    @staticmethod
+    def _sensor_gap_n(near) -> float | None:
+        """Measured F_x − F̂_x [N] averaged over the ticks of ``near`` with a measured force, if
+        it is larger than SENSOR_GAP_SHARE of F̂_x and SENSOR_GAP_SIGMAS of its standard error
+        on at least SENSOR_MIN_TICKS of them; else None (F̂ anchors)."""
+        pairs = np.array([(e[1], e[4]) for e in near if math.isfinite(e[4])]).reshape(-1, 2)
+        if len(pairs) < SENSOR_MIN_TICKS:
+            return None
+        gaps = pairs[:, 1] - pairs[:, 0]
+        gap = float(gaps.mean())
+        if gap > SENSOR_GAP_SHARE * abs(float(pairs[:, 0].mean())) and gap > SENSOR_GAP_SIGMAS * float(mean_standard_error(gaps)):
+            return gap
+        return None
 
     def _at_newest_depth(self) -> list[int]:
         """Indices of the entries within ANCHOR_DEPTH_BAND_M of the newest one's depth."""
@@ -496,6 +544,15 @@ class SteadyAnchor:
 
 
 _KD = KNOWN_PARAMS.index("d")
+
+
+def _measured_x(measured_force_n) -> float:
+    """F_x [N] of a tick's measured (F_x, F_z), NaN when it is missing or not a finite number."""
+    try:
+        value = float(measured_force_n[0])
+    except (TypeError, ValueError, IndexError):
+        return math.nan
+    return value if math.isfinite(value) else math.nan
 
 
 class StallMemory:
@@ -541,13 +598,13 @@ class StretchPlanner:
 
     def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
                  cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S, include_residual: bool = True,
-                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=()):
+                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=(), sensor_anchor: bool = True):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
         self.terms = planning_terms(terms)  # the fused posterior's physics beside the FEE
         self.include_residual = bool(include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan, int] | None = None
-        self.anchor = SteadyAnchor()
+        self.anchor = SteadyAnchor(sensor_anchor)
         self.stalls = StallMemory()
 
     def forget(self) -> None:
@@ -559,15 +616,16 @@ class StretchPlanner:
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
                 "include_residual": self.include_residual, "force_quantile": self.force_quantile,
-                "terms": force_terms.term_texts(self.terms)}
+                "terms": force_terms.term_texts(self.terms), "sensor_anchor": self.anchor.sensor}
 
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float],
-             commanded_depth_m: float | None = None) -> tuple[Plan | None, bool]:
+             commanded_depth_m: float | None = None, measured_force_n=None) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch).
         ``commanded_depth_m``: the depth the controller commands for this tick [m], −u_za of
-        /blade/cmd (``SteadyAnchor.add``)."""
+        /blade/cmd; ``measured_force_n``: the blade's measured (F_x, F_z) [N] of this tick,
+        /blade/force (both ``SteadyAnchor.add``)."""
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
-        self.anchor.add(estimate, known, commanded_depth_m)
+        self.anchor.add(estimate, known, commanded_depth_m, measured_force_n)
         self.stalls.add(known, self.cut_speed_m_s)
         key = (estimate.get("fused_stretches"), self.anchor.restarts, self.margin, self.d_max_m, self.cut_speed_m_s,
                self.force_quantile)
@@ -829,8 +887,10 @@ class _ForceModel:
         return fx, fz
 
 
-def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, float]) -> str:
-    """One human log line: the depth, what binds, the operating point, the soil and the state now."""
+def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, float],
+             sensor_gap_n: float | None = None) -> str:
+    """One human log line: the depth, what binds, the operating point, the soil and the state now
+    (``sensor_gap_n``: what the measured force added to F̂_x in the plan's anchor [N], if any)."""
     if plan.binding == "reach":
         why = f"reach d_max={plan.d_max_m:.2f} m binds; F_x {plan.f_x_n / 1e3:.1f} of {plan.limit_x_n / 1e3:.1f} kN"
     else:
@@ -841,6 +901,8 @@ def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, floa
                 f"c={estimate['c_fused'] / 1e3:.1f}±{estimate['c_std'] / 1e3:.1f} kPa, "
                 f"δ={estimate['delta_fused'] / DEG:.1f}±{estimate['delta_std'] / DEG:.1f}°, "
                 f"{plan.force_quantile:.0%} upper force quantile")
+        if sensor_gap_n is not None:
+            soil += f", anchored to the measured F_x ({sensor_gap_n / 1e3:.1f} kN above F̂_x)"
     else:
         residual = (f"F_r now ({plan.residual_x_n / 1e3:+.1f}, {plan.residual_z_n / 1e3:+.1f}) kN"
                     if plan.residual_used else "FEE only")
