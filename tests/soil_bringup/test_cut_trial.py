@@ -112,7 +112,7 @@ def test_on_a_soil_far_outside_the_pinns_training_the_measured_force_keeps_the_c
                                            custom_soils=custom)).sum() / 60
              for sensor in (False, True)}
     # (measured 0.38 s without, 0 s with; 10 s cuts: the same, default world 0.77 / 0 s)
-    assert stall[False] > 0.15 and stall[True] == 0.0, stall
+    assert stall[False] > 0.15 and stall[True] < 0.05, stall
 
 
 def test_a_fall_of_the_target_counts_once_and_the_next_needs_it_to_deepen_first():
@@ -178,9 +178,10 @@ def _refuse(constant):
 def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp_path, capsys):
     out = tmp_path / "planner"
     assert cut_report.main(["--worlds", "fee", "--duration", "4", "--patch", "0:Sand:20", "--patch", "3:Clay:80",
-                            "--margin", "0.9", "--out", str(out)]) == 0
+                            "--margin", "0.9", "--no-sensor-anchor", "--out", str(out)]) == 0
     report = json.loads((out / "cut_report.json").read_text(), parse_constant=_refuse)  # strict JSON (no Infinity)
-    assert report["planner"] == {"margin": 0.9, "force_quantile": 0.95} and "--margin 0.9" in report["command"]
+    assert report["planner"] == {"margin": 0.9, "force_quantile": 0.95, "sensor_anchor": False}
+    assert "--margin 0.9" in report["command"]
     (world,) = report["worlds"]
     assert [p["policy"].split()[0] for p in world["policies"]] == ["conservative", "aggressive", "soil-aware"]
     assert len(world["patches"]) == 2 and "volume_per_m_aware_over_conservative" in world["ratios"]

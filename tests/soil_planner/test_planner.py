@@ -542,29 +542,42 @@ def test_a_measured_force_clearly_above_the_pinns_anchors_x_and_one_below_it_cha
     sensed = max_cut_depth(fused, known, anchor=((1.5 * fx, fz), known))
     assert sensed.max_depth_m < own - 0.01
 
-    def run(measured, ticks=ANCHOR_WINDOW_TICKS, **settings):
-        planner = StretchPlanner(**settings)
-        for i in range(ticks):
-            plan, _ = planner.plan(dict(fused, fused_stretches=float(i)), known, 0.12, measured(i))
-        return plan, planner.anchor
+    def run(measured, ticks=ANCHOR_WINDOW_TICKS, commanded=0.12, planner=None, **settings):
+        planner = planner or StretchPlanner(**settings)
+        for i in range(ticks):  # one stretch of evidence: a plan is repeated unless something re-plans it
+            plan, _ = planner.plan(fused, known, commanded, measured(i))
+        return plan, planner
 
-    plan, anchor = run(lambda i: (1.5 * fx * (1.02 if i % 2 else 0.98), 0.5 * fz))
+    plan, planner = run(lambda i: (1.5 * fx * (1.02 if i % 2 else 0.98), 0.5 * fz))
     assert plan.max_depth_m == pytest.approx(sensed.max_depth_m, abs=1e-3)
-    assert anchor.sensor_gap_n == pytest.approx(0.5 * fx, rel=1e-6)
-    assert anchor.anchor()[0] == pytest.approx((1.5 * fx, fz))  # z: F̂_z, not the measured one
-    assert "anchored to the measured F_x" in describe(plan, fused, known, anchor.sensor_gap_n)
+    assert planner.sensor_gap_n == pytest.approx(0.5 * fx, rel=0.01)  # (over the ticks of the newest re-plan)
+    assert planner.anchor.anchor()[0] == pytest.approx((1.5 * fx, fz))  # z: F̂_z, not the measured one
+    assert "anchored to the measured F_x" in describe(plan, fused, known, planner.sensor_gap_n)
+    # a plan at the start of a cut already: the sensor taking over re-plans within the stretch
     assert run(lambda i: (1.5 * fx, fz), ticks=SENSOR_MIN_TICKS)[0].max_depth_m == pytest.approx(
-        sensed.max_depth_m, abs=1e-3)  # a plan at the start of a cut already
+        sensed.max_depth_m, abs=1e-3)
+    # new settings (a ros2 param set) are no new cut: the evidence goes on, the plan is the new margin's
+    wider = StretchPlanner(margin=0.95)
+    wider.keep_evidence_of(planner)
+    plan, _ = run(lambda i: (1.5 * fx, fz), ticks=1, planner=wider)
+    assert plan.max_depth_m == pytest.approx(max_cut_depth(fused, known, margin=0.95, anchor=(
+        (1.5 * fx, fz), known)).max_depth_m, abs=1e-3) and len(wider.anchor.entries) == ANCHOR_WINDOW_TICKS
     for measured in (lambda i: (0.5 * fx, fz),  # below F̂: never deeper
                      lambda i: ((1 + 0.8 * SENSOR_GAP_SHARE) * fx, fz),  # within the PINN's own error
                      lambda i: ((2.0 if i % 2 else 0.4) * fx, fz),  # 20 % above on average, but no signal
                      lambda i: None, lambda i: (math.nan, fz), lambda i: (math.inf, fz)):
-        plan, anchor = run(measured)
-        assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and anchor.sensor_gap_n is None
-    plan, anchor = run(lambda i: (1.5 * fx, fz), sensor_anchor=False)
-    assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and anchor.sensor_gap_n is None
+        plan, planner = run(measured)
+        assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and planner.sensor_gap_n is None
+    plan, planner = run(lambda i: (1.5 * fx, fz), sensor_anchor=False)
+    assert plan.max_depth_m == pytest.approx(own, abs=1e-3) and planner.sensor_gap_n is None
     assert run(lambda i: (1.5 * fx, fz), ticks=SENSOR_MIN_TICKS - 1)[1].sensor_gap_n is None
+    # an edge held short of its command: its measured F_x counts as its F̂_x does (the safe side in x)
+    assert run(lambda i: (1.5 * fx, fz), commanded=0.14)[1].sensor_gap_n == pytest.approx(0.5 * fx)
     assert StretchPlanner(sensor_anchor=False).settings()["sensor_anchor"] is False
+    with pytest.raises(ValueError, match="sensor_anchor='false' must be true or false"):
+        StretchPlanner(sensor_anchor="false")
+    with pytest.raises(ValueError, match=r"measured_force_n='18000' must be \(F_x, F_z\) \[N\] or None"):
+        StretchPlanner().plan(fused, known, 0.12, "18000")
 
 
 def test_an_edge_held_short_of_the_commanded_depth_does_not_anchor_z_with_the_lifts_push():
@@ -768,11 +781,26 @@ def test_soil_planner_node_anchors_to_the_blades_measured_force_where_it_is_clea
                 est = dict(fused, fused_stretches=float(i))
                 pubs[T.ESTIMATE.name].publish(M.make_labelled(CLASSES, stamp, T.ESTIMATE_FIELDS,
                                                               _payload(est, T.ESTIMATE_FIELDS)))
+            # (the last tick needs SENSOR_MIN_TICKS of the 7 good ticks' forces in before their estimates)
             got = probe.wait_for(lambda: (lambda p: p if len(p) == len(s) else None)(plans()), 15, "every plan")
+            client = AsyncParameterClient(probe.node, "soil_planner")
+            assert client.wait_for_services(timeout_sec=20)
+            bad = call_service(lambda: client.set_parameters([Parameter("sensor_anchor", value=1)]))
+            assert not bad.results[0].successful
+            ok = call_service(lambda: client.set_parameters([Parameter("margin", value=0.95)]))
+            assert ok.results[0].successful
+            after = s[-1] + 10**9 // 60  # the next tick, planned with the new margin and the cut's evidence
+            pubs[T.KNOWN.name].publish(M.make_labelled(CLASSES, after, KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+            pubs[T.ESTIMATE.name].publish(M.make_labelled(CLASSES, after, T.ESTIMATE_FIELDS, _payload(
+                dict(fused, fused_stretches=99.0), T.ESTIMATE_FIELDS)))
+            changed = probe.wait_for(lambda: (lambda p: (p[after],) if after in p else None)(plans()), 15,
+                                     "the plan after the new margin")[0]
         finally:
             node.stop()
         depth = T.PLAN_FIELDS.index("max_depth_m")
         assert got[s[-1]][depth] == pytest.approx(sensed, abs=1e-3)
+        wider = max_cut_depth(fused, known, margin=0.95, anchor=((1.5 * fx, fz), known)).max_depth_m
+        assert wider > sensed + 0.005 and changed[depth] == pytest.approx(wider, abs=1e-3)
         assert "anchored to the measured F_x" in node.output and "is not a force the blade can measure" in node.output
 
 

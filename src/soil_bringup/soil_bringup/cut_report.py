@@ -79,8 +79,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
+    p.add_argument("--no-sensor-anchor", dest="sensor_anchor", action="store_false",
+                   help="the planner's plan anchored to the PINN's force alone, as before 2026-12-03 (default: the "
+                        "blade's measured force anchors it where it is clearly above the PINN's)")
     args = p.parse_args(glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
-    args.planner = {"margin": args.margin, "force_quantile": args.force_quantile}
+    args.planner = {"margin": args.margin, "force_quantile": args.force_quantile, "sensor_anchor": args.sensor_anchor}
     try:
         StretchPlanner(**args.planner)
     except ValueError as err:

@@ -11,7 +11,10 @@ WarnLimiter and nothing is published for it; the node never publishes NaN and ne
 on input. A log line at most once per ``log_period_s`` of simulation time says what the
 plan is and why. /blade/cmd gives the depth the controller commands per tick (−u_za): a steady
 edge held short of it shows the lift's push in F_z, which does not anchor the plan's z force
-(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before. While
+(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before.
+/blade/force gives the blade's measured force per tick: where it is clearly above the PINN's
+F̂_x, it anchors the fused plan (``planner.SENSOR_GAP_SHARE``, parameter ``sensor_anchor``);
+a tick without it keeps F̂. While
 commands come, a tick is planned once its own command is in (``command_wait.py``: another
 writer's message, which DDS does not order before the estimate), at most ``command_wait_s``
 of wall time after it was ready. It subscribes to /soil/known_params only once the estimator's
@@ -105,7 +108,8 @@ PARAMETERS: dict[str, tuple] = {
     "sensor_anchor": (True, "where the blade's measured F_x (/blade/force), averaged over the recent steady cut, "
                             "is clearly above the PINN's F̂_x (by more than 15 % and 3 standard errors), the fused "
                             "plan is anchored to the measured force (a model outside its training is trusted no "
-                            "further than the sensor); a measured force below F̂ never makes a plan deeper"),
+                            "further than the sensor); a measured force below F̂ never makes a plan deeper. Fused "
+                            "plans only (no effect with force_quantile 0)"),
     "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
@@ -139,9 +143,6 @@ PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "f
 def stretch_planner(settings: dict) -> StretchPlanner:
     """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
     PINN's point plan); ValueError naming a bad one."""
-    for flag in ("include_residual", "sensor_anchor"):
-        if not isinstance(settings[flag], bool):
-            raise ValueError(f"{flag}={settings[flag]!r} must be true or false")
     q = settings["force_quantile"]
     off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
     if not off:
@@ -174,6 +175,7 @@ class PlannerNode(Node):
         # the blade's measured (F_x, F_z) per tick stamp (/blade/force): where it is clearly above
         # F̂, it anchors the plan (``planner.SENSOR_GAP_SHARE``)
         self.measured: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
+        self.sensed = 0  # ticks planned with their measured force
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -219,7 +221,9 @@ class PlannerNode(Node):
         self.get_logger().info(
             f"margin {p.margin}, force quantile {p.force_quantile if p.force_quantile is not None else 'none (the point plan)'}, "
             f"d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
-            f"residual {'on' if p.include_residual else 'off'}, physics FEE"
+            f"residual {'on' if p.include_residual else 'off'}, "
+            f"sensor anchor {'on (' + T.BLADE_FORCE.name + ')' if p.anchor.sensor else 'off'}"
+            f"{' (no effect without a force quantile)' if p.anchor.sensor and p.force_quantile is None else ''}, physics FEE"
             f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
 
@@ -236,6 +240,7 @@ class PlannerNode(Node):
             schedule = schedule_settings({p: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
+        planner.keep_evidence_of(self.planner)  # new settings are no new cut
         self.planner = planner
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
@@ -253,13 +258,16 @@ class PlannerNode(Node):
         elif event is not None:
             self.silence.end()
 
-    def _new_cut(self) -> None:
-        """A new cut: the schedule back to its start depth, no plan carried over."""
+    def _new_cut(self, at_stamp_ns: int | None = None) -> None:
+        """A new cut: the schedule back to its start depth, no plan carried over. ``at_stamp_ns``:
+        the first stamp of the new cut when time jumped to it: the commands and forces of its ticks,
+        which come before their estimates, are kept (the old cut's are far from it)."""
         self.schedule.reset()
         self.planner.forget()
         self._target_sent = None
-        self.commanded.clear()
-        self.measured.clear()
+        for by_stamp in (self.commanded, self.measured):
+            for stamp in [s for s in by_stamp if at_stamp_ns is None or abs(s - at_stamp_ns) > NEW_CUT_GAP_NS]:
+                del by_stamp[stamp]
         self.command_wait.forget_commands()
 
     def _on_blade_cmd(self, msg, sequence: int | None = None) -> None:
@@ -291,6 +299,7 @@ class PlannerNode(Node):
             self._warn("blade_force:implausible", f"{T.BLADE_FORCE.name} at stamp {stamp} ns: force="
                                                   f"{values.tolist()} N is not a force the blade can measure; "
                                                   "that tick is anchored to F̂ alone")
+            self.measured.pop(stamp, None)
             return
         self.measured[stamp] = (float(values[0]), float(values[1]))
         while len(self.measured) > MAX_PENDING_STAMPS:
@@ -346,7 +355,9 @@ class PlannerNode(Node):
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         try:
-            plan, new = self.planner.plan(est, known, self.commanded.get(stamp), self.measured.get(stamp))
+            measured = self.measured.get(stamp)
+            plan, new = self.planner.plan(est, known, self.commanded.get(stamp), measured)
+            self.sensed += measured is not None
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)
@@ -361,7 +372,7 @@ class PlannerNode(Node):
             return
         if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
             self.last_log_ns = stamp
-            self.get_logger().info(describe(plan, est, known, self.planner.anchor.sensor_gap_n))
+            self.get_logger().info(describe(plan, est, known, self.planner.sensor_gap_n))
 
     def _publish(self, stamp: int, values) -> None:
         values = np.asarray(values, dtype=np.float64)
@@ -375,7 +386,7 @@ class PlannerNode(Node):
         """The controller's target for this tick through the depth schedule (a new cut restarts it)."""
         last = self.schedule.last_stamp_ns
         if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
-            self._new_cut()  # time jumped (a replay started over, a restarted simulator): a new cut
+            self._new_cut(stamp)  # time jumped (a replay started over, a restarted simulator): a new cut
         elif last is not None and stamp <= last:
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
         target = self.schedule.update(stamp, plan_depth_m)
@@ -392,7 +403,8 @@ class PlannerNode(Node):
         unanswered = len(self.command_wait.drain(planned=False))
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
                                f"{self.command_wait.waited} waited for their command, "
-                               f"{self.command_wait.timed_out} planned without it"
+                               f"{self.command_wait.timed_out} planned without it, "
+                               f"{self.sensed} with the blade's measured force"
                                f"{f', {unanswered} still waiting for it' if unanswered else ''}")
 
 

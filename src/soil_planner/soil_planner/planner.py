@@ -166,8 +166,10 @@ HELD_GAP_M = 0.002
 # Where the blade's measured force says the PINN's F̂ is too low, the sensor anchors the plan
 # (``SteadyAnchor.anchor``): over the same steady ticks, when the measured F_x's mean exceeds F̂_x's
 # by more than SENSOR_GAP_SHARE of F̂_x and SENSOR_GAP_SIGMAS standard errors of that gap
-# (``predictive.mean_standard_error``) on at least SENSOR_MIN_TICKS ticks, the x anchor is F̂_x
-# plus that gap. Why: F̂ is a model's, and outside its training it can be far off (a hardpan,
+# (``predictive.mean_standard_error``: over the anchor's at most 60 ticks, fewer than its five
+# half-second batches, the per-tick spread over √(ticks / 30), so at least 2.1 spreads: a gap the
+# default world's particle events cannot make) on at least SENSOR_MIN_TICKS ticks, the x anchor is
+# the measured mean. Why: F̂ is a model's, and outside its training it can be far off (a hardpan,
 # φ 10-12° and c 30-40 kPa: F̂_x 11.6 kN where the blade measured 18 kN; the plan scaled from it
 # made 0.088 m look admissible and the cut stalled 0.8-1.0 s in 20 s). One-sided: a measured
 # force below F̂ never makes a plan deeper (the default world's particle events drop the grip
@@ -464,8 +466,10 @@ class SteadyAnchor:
         in proportion to depth anyway; however long it is held, nothing new about the cut's z force
         can show meanwhile), or kept if no free tick was seen since the cut began or the window last
         restarted for a stronger soil (the push is then the safe side). ``measured_force_n``: the
-        blade's measured (F_x, F_z) [N] of this tick (/blade/force), if known; a value that is not
-        a finite number counts as not known."""
+        blade's measured (F_x, F_z) [N] of this tick (/blade/force), None if not known; a value
+        that is not a finite number counts as not known.
+        ValueError when ``measured_force_n`` is no pair of numbers."""
+        measured_x = _measured_x(measured_force_n)  # ValueError for what is no (F_x, F_z) pair
         self.tick += 1
         try:  # a tick the plan would refuse never enters the average
             fx, fz = (_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
@@ -483,7 +487,10 @@ class SteadyAnchor:
             elif self.free_z_per_m is not None:
                 fz = self.free_z_per_m * k["d"]
                 self.held += 1
-            self.entries.append((self.tick, fx, fz, row, _measured_x(measured_force_n)))
+            # a held tick's measured F_x is kept as its F̂_x is (base friction riding on the push makes
+            # it larger, never smaller: the safe side in x; dropped, the default world's hardpan, where
+            # the floor holds the edge short of nearly every command, kept its 1.0 s of stall)
+            self.entries.append((self.tick, fx, fz, row, measured_x))
             self._restart_on_a_stronger_soil()
 
     def _restart_on_a_stronger_soil(self) -> None:
@@ -517,24 +524,24 @@ class SteadyAnchor:
             return None
         near = [self.entries[i] for i in self._at_newest_depth()]
         force = (float(np.mean([e[1] for e in near])), float(np.mean([e[2] for e in near])))
-        gap = self._sensor_gap_n(near) if self.sensor else None
-        if gap is not None:
-            self.sensor_gap_n = gap
-            force = (force[0] + gap, force[1])
+        measured = self._measured_mean_x(near) if self.sensor else None
+        if measured is not None:
+            self.sensor_gap_n = measured - force[0]
+            force = (measured, force[1])
         return force, dict(zip(KNOWN_PARAMS, np.mean([e[3] for e in near], axis=0).tolist()))
 
     @staticmethod
-    def _sensor_gap_n(near) -> float | None:
-        """Measured F_x − F̂_x [N] averaged over the ticks of ``near`` with a measured force, if
-        it is larger than SENSOR_GAP_SHARE of F̂_x and SENSOR_GAP_SIGMAS of its standard error
-        on at least SENSOR_MIN_TICKS of them; else None (F̂ anchors)."""
+    def _measured_mean_x(near) -> float | None:
+        """The measured F_x's mean [N] over the ticks of ``near`` with a measured force, if it
+        exceeds their F̂_x's mean by more than SENSOR_GAP_SHARE of it and SENSOR_GAP_SIGMAS
+        standard errors of the gap, on at least SENSOR_MIN_TICKS of them; else None (F̂ anchors)."""
         pairs = np.array([(e[1], e[4]) for e in near if math.isfinite(e[4])]).reshape(-1, 2)
         if len(pairs) < SENSOR_MIN_TICKS:
             return None
         gaps = pairs[:, 1] - pairs[:, 0]
         gap = float(gaps.mean())
         if gap > SENSOR_GAP_SHARE * abs(float(pairs[:, 0].mean())) and gap > SENSOR_GAP_SIGMAS * float(mean_standard_error(gaps)):
-            return gap
+            return float(pairs[:, 1].mean())
         return None
 
     def _at_newest_depth(self) -> list[int]:
@@ -547,12 +554,17 @@ _KD = KNOWN_PARAMS.index("d")
 
 
 def _measured_x(measured_force_n) -> float:
-    """F_x [N] of a tick's measured (F_x, F_z), NaN when it is missing or not a finite number."""
-    try:
-        value = float(measured_force_n[0])
-    except (TypeError, ValueError, IndexError):
+    """F_x [N] of a tick's measured (F_x, F_z), NaN when it is None or not a finite number;
+    ValueError naming it when it is no pair of numbers."""
+    if measured_force_n is None:
         return math.nan
-    return value if math.isfinite(value) else math.nan
+    try:
+        pair = np.asarray(measured_force_n, dtype=float)
+    except (TypeError, ValueError):
+        pair = None
+    if pair is None or pair.shape != (2,):
+        raise ValueError(f"measured_force_n={measured_force_n!r} must be (F_x, F_z) [N] or None")
+    return float(pair[0]) if math.isfinite(pair[0]) else math.nan
 
 
 class StallMemory:
@@ -601,11 +613,20 @@ class StretchPlanner:
                  force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=(), sensor_anchor: bool = True):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
         self.terms = planning_terms(terms)  # the fused posterior's physics beside the FEE
-        self.include_residual = bool(include_residual)
+        self.include_residual = check_switch("include_residual", include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
-        self._fused: tuple[tuple, Plan, int] | None = None
-        self.anchor = SteadyAnchor(sensor_anchor)
+        self._fused: tuple[tuple, Plan, int, float | None] | None = None
+        self.anchor = SteadyAnchor(check_switch("sensor_anchor", sensor_anchor))
         self.stalls = StallMemory()
+        self.sensor_gap_n: float | None = None  # what the measured force added to the last plan's anchor [N]
+
+    def keep_evidence_of(self, other: "StretchPlanner") -> None:
+        """Go on with what ``other`` learnt of this cut, its steady anchor's ticks (and their
+        measured forces) and its stall memory, under these settings: new settings (a ``ros2
+        param set``) are no new cut. The next plan is made afresh."""
+        sensor = self.anchor.sensor
+        self.anchor, self.stalls = other.anchor, other.stalls
+        self.anchor.sensor = sensor
 
     def forget(self) -> None:
         """A new cut: the next fused plan is made afresh, from a fresh anchor and no stall."""
@@ -627,21 +648,25 @@ class StretchPlanner:
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
         self.anchor.add(estimate, known, commanded_depth_m, measured_force_n)
         self.stalls.add(known, self.cut_speed_m_s)
-        key = (estimate.get("fused_stretches"), self.anchor.restarts, self.margin, self.d_max_m, self.cut_speed_m_s,
-               self.force_quantile)
+        steady = self.anchor.anchor() if fused else None
+        sensed = steady is not None and self.anchor.sensor_gap_n is not None
+        # the sensor taking over the anchor (or letting go) re-plans at once, as a restart does
+        key = (estimate.get("fused_stretches"), self.anchor.restarts, sensed, self.margin, self.d_max_m,
+               self.cut_speed_m_s, self.force_quantile)
         if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
+            self.sensor_gap_n = self._fused[3]
             return self._stall_capped(self._fused[1]), False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
                         include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms)
-        steady = self.anchor.anchor() if fused else None
         plan = max_cut_depth(estimate, known, anchor=steady, **settings)
+        self.sensor_gap_n = self.anchor.sensor_gap_n if sensed and plan is not None else None
         if steady is not None and plan is not None and float(known["v_z"]) > ANCHOR_MAX_ABS_V_Z_M_S:
             # rising (the controller's anti-stall lift): the steady anchor may be from the weaker
             # soil before it, so this tick's F̂ may only make the plan shallower, never deeper
             now = max_cut_depth(estimate, known, **settings)
             if now is not None and now.max_depth_m < plan.max_depth_m:
-                plan = now
-        self._fused = (key, plan, self.anchor.tick) if fused and plan is not None else None
+                plan, self.sensor_gap_n = now, None
+        self._fused = (key, plan, self.anchor.tick, self.sensor_gap_n) if fused and plan is not None else None
         return self._stall_capped(plan), True
 
     def _stall_capped(self, plan: Plan | None) -> Plan | None:
@@ -651,6 +676,13 @@ class StretchPlanner:
         if plan is None or cap is None or plan.max_depth_m <= cap:
             return plan
         return dataclasses.replace(plan, max_depth_m=cap, limited_by_x=True, f_x_n=plan.limit_x_n)
+
+
+def check_switch(name: str, value) -> bool:
+    """A setting that is on or off; ValueError naming it unless it is a bool (``bool("false")`` is True)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}={value!r} must be true or false")
+    return value
 
 
 def check_quantile(q, alternative: str = "") -> float:
