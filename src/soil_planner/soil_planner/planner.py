@@ -443,7 +443,7 @@ class SteadyAnchor:
     replay or a lockstep graph anchors as real time does."""
 
     def __init__(self, sensor: bool = True) -> None:
-        self.sensor = bool(sensor)  # whether a measured F_x above F̂_x may anchor x (SENSOR_GAP_SHARE)
+        self.sensor = check_switch("sensor_anchor", sensor)  # whether a measured F_x above F̂_x may anchor x
         self.reset()
 
     def reset(self) -> None:
@@ -616,7 +616,7 @@ class StretchPlanner:
         self.include_residual = check_switch("include_residual", include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan, int, float | None] | None = None
-        self.anchor = SteadyAnchor(check_switch("sensor_anchor", sensor_anchor))
+        self.anchor = SteadyAnchor(sensor_anchor)
         self.stalls = StallMemory()
         self.sensor_gap_n: float | None = None  # what the measured force added to the last plan's anchor [N]
 
