@@ -16,8 +16,9 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, DEFAULT_MARGIN,
-                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, SENSOR_GAP_SHARE, SENSOR_MIN_TICKS, STALL_BACKOFF_M,
-                                  STALL_MEMORY_TICKS, TOLERANCE_M, StretchPlanner, describe, fused_upper_force, max_cut_depth, steady_cut_terms)
+                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, SENSOR_GAP_SHARE, SENSOR_MIN_TICKS, SENSOR_RELEASE_SHARE,
+                                  STALL_BACKOFF_M, STALL_MEMORY_TICKS, TOLERANCE_M, StretchPlanner, describe,
+                                  fused_upper_force, max_cut_depth, steady_cut_terms)
 
 pytestmark = pytest.mark.live
 
@@ -556,9 +557,20 @@ def test_a_measured_force_clearly_above_the_pinns_anchors_x_and_one_below_it_cha
     # a plan at the start of a cut already: the sensor taking over re-plans within the stretch
     assert run(lambda i: (1.5 * fx, fz), ticks=SENSOR_MIN_TICKS)[0].max_depth_m == pytest.approx(
         sensed.max_depth_m, abs=1e-3)
+    # taken over, the sensor keeps the anchor while it stays more than SENSOR_RELEASE_SHARE above F̂,
+    # however much the force spreads from tick to tick (a test of significance flipped it at every new depth)
+    above = 1 + 0.1 + 0.9 * SENSOR_RELEASE_SHARE  # between the release and the take-over share above F̂
+    noisy = lambda i: ((2 * above - 0.1 if i % 2 else 0.1) * fx, fz)  # that on average, 0.1x / 2.2x by turns
+    plan, planner = run(lambda i: (1.5 * fx, fz), ticks=ANCHOR_WINDOW_TICKS)
+    plan, _ = run(noisy, ticks=2 * ANCHOR_WINDOW_TICKS, planner=planner)  # (the last re-plan's window all of it)
+    assert planner.sensor_gap_n == pytest.approx((above - 1) * fx, rel=0.05)
+    plan, _ = run(lambda i: ((1 + 0.5 * SENSOR_RELEASE_SHARE) * fx, fz), ticks=ANCHOR_WINDOW_TICKS, planner=planner)
+    assert planner.sensor_gap_n is None and plan.max_depth_m == pytest.approx(own, abs=2e-3)
+    plan, _ = run(noisy, ticks=ANCHOR_WINDOW_TICKS, planner=planner)
+    assert planner.sensor_gap_n is None  # released: taking over again needs the test of significance
     # new settings (a ros2 param set) are no new cut: the evidence goes on, the plan is the new margin's
     wider = StretchPlanner(margin=0.95)
-    wider.keep_evidence_of(planner)
+    wider.keep_evidence_of(run(lambda i: (1.5 * fx, fz))[1])
     plan, _ = run(lambda i: (1.5 * fx, fz), ticks=1, planner=wider)
     assert plan.max_depth_m == pytest.approx(max_cut_depth(fused, known, margin=0.95, anchor=(
         (1.5 * fx, fz), known)).max_depth_m, abs=1e-3) and len(wider.anchor.entries) == ANCHOR_WINDOW_TICKS
