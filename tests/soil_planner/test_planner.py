@@ -571,6 +571,9 @@ def test_a_measured_force_clearly_above_the_pinns_anchors_x_and_one_below_it_cha
     # new settings (a ros2 param set) are no new cut: the evidence goes on, the plan is the new margin's
     wider = StretchPlanner(margin=0.95)
     wider.keep_evidence_of(run(lambda i: (1.5 * fx, fz))[1])
+    off = StretchPlanner(sensor_anchor=False)
+    off.keep_evidence_of(run(lambda i: (1.5 * fx, fz))[1])
+    assert not off.anchor.sensing and wider.anchor.sensing
     plan, _ = run(lambda i: (1.5 * fx, fz), ticks=1, planner=wider)
     assert plan.max_depth_m == pytest.approx(max_cut_depth(fused, known, margin=0.95, anchor=(
         (1.5 * fx, fz), known)).max_depth_m, abs=1e-3) and len(wider.anchor.entries) == ANCHOR_WINDOW_TICKS

@@ -639,6 +639,7 @@ class StretchPlanner:
         sensor = self.anchor.sensor
         self.anchor, self.stalls = other.anchor, other.stalls
         self.anchor.sensor = sensor
+        self.anchor.sensing = self.anchor.sensing and sensor  # switched off and on: taking over is tested afresh
 
     def forget(self) -> None:
         """A new cut: the next fused plan is made afresh, from a fresh anchor and no stall."""
