@@ -140,6 +140,13 @@ PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "f
                     "sensor_anchor")  # StretchPlanner's
 
 
+def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None:
+    """A tick's value kept until its estimate is planned: the newest MAX_PENDING_STAMPS ticks'."""
+    by_stamp[stamp] = value
+    while len(by_stamp) > MAX_PENDING_STAMPS:
+        by_stamp.popitem(last=False)
+
+
 def stretch_planner(settings: dict) -> StretchPlanner:
     """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
     PINN's point plan); ValueError naming a bad one."""
@@ -283,9 +290,7 @@ class PlannerNode(Node):
             return
         if not math.isfinite(u_za) or (stamp in self.commanded and sequence is None):
             return  # (without sequence numbers the first command of a stamp counts)
-        self.commanded[stamp] = -u_za
-        while len(self.commanded) > MAX_PENDING_STAMPS:
-            self.commanded.popitem(last=False)
+        _keep_by_stamp(self.commanded, stamp, -u_za)
         self._answer(self.command_wait.command(stamp, time.monotonic()))
 
     def _on_blade_force(self, msg) -> None:
@@ -301,9 +306,7 @@ class PlannerNode(Node):
                                                   "that tick is anchored to F̂ alone")
             self.measured.pop(stamp, None)
             return
-        self.measured[stamp] = (float(values[0]), float(values[1]))
-        while len(self.measured) > MAX_PENDING_STAMPS:
-            self.measured.popitem(last=False)
+        _keep_by_stamp(self.measured, stamp, (float(values[0]), float(values[1])))
 
     def _on_known(self, msg) -> None:
         try:
