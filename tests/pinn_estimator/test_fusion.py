@@ -628,11 +628,14 @@ def test_the_posteriors_physics_is_the_checkpoints_plus_the_terms_its_config_add
     assert config_for_model(FusionConfig(), with_inertia).terms == (("soil_inertia", 2.0),)
 
 
-def test_the_shipped_calibrations_load():
+def test_the_shipped_calibrations_load_and_name_every_setting():
+    """A setting added after a calibration (stiff_prior) applied its default unseen: a shipped
+    config names every field, so what the estimator runs with can be read in its file."""
     for world in ("fee", "default"):
-        assert (MODELS_DIR / f"fusion_{world}.json").exists()
+        path = MODELS_DIR / f"fusion_{world}.json"
         cfg = load_calibrated(world)
         assert cfg.rel_std[0] > 0 and min(cfg.forecast_rel_std) >= 0
+        assert set(json.loads(path.read_text())) == set(cfg.to_dict()), path
 
 
 def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage():
