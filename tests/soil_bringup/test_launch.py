@@ -3,8 +3,11 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
+
+import pytest
 
 from soil_bringup import launch as L
 
@@ -44,7 +47,20 @@ def test_the_first_interrupt_is_announced_once_and_the_launch_builds_from_its_ar
     assert launch.timeout_s == 7.0 and launch.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
     launch._on_signal(signal.SIGINT, None)
     launch._on_signal(signal.SIGTERM, None)
-    assert launch.interrupted and said == ["stopping"]
+    assert launch.interrupted and said == ["stopping"] and launch.signal == signal.SIGINT
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupted_launch_exits_128_plus_the_signal_not_0(tmp_path, signum, code):
+    """A cut stopped by Ctrl-C or SIGTERM midway exited 0 like one whose episodes were done: a
+    script could not tell them apart (soil_sim_batch and pinn_train give 130 / 143)."""
+    log = tmp_path / "launch.log"
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("sleeper", ["sleep", "60"], stop_order=0)], L.loopback_env(0), out=out)
+        threading.Timer(0.5, launch._on_signal, (signum, None)).start()
+        assert launch.run() == code
+    text = log.read_text()
+    assert "interrupted; stopping all nodes" in text and f"done, exit code {code}" in text, text
 
 
 def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tmp_path):

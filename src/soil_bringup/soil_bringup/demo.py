@@ -41,6 +41,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
+from soil_msgs_py.interrupts import EXIT_INTERRUPTED  # any stop of the demo: Ctrl-C's code
 
 from . import launch as L
 from .demo_forecast import depths_text, forecast_from_live
@@ -54,7 +55,6 @@ DEFAULT_SOILS = ("Clay", "Loam", "Sand", "Gravel")
 DEFAULT_DENSITIES_PCT = (20.0, 80.0)
 DEFAULT_DOMAIN_ID = 42
 EXIT_FAILED = 1
-EXIT_INTERRUPTED = 130
 LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died or failed: see the log", L.EXIT_TIMEOUT: "timeout",
                    G.EXIT_EPISODE_FAILED: "an episode ended in error"}
 

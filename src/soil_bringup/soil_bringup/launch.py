@@ -9,7 +9,9 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
 * prefixes each process's output with its name, like ``ros2 launch``;
 * forwards Ctrl-C / SIGTERM, stops the nodes in data-flow order (simulator first, recorder
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
-* exits 0 when the simulator finished its episodes and everyone stopped cleanly, 4
+* exits 0 when the simulator finished its episodes and everyone stopped cleanly, 130 / 143
+  when a Ctrl-C / SIGTERM stopped it first (as ``soil_sim_batch`` and ``pinn_train`` do: a script
+  tells an interrupted cut from a finished one; the bags of what ran are finished), 4
   (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
   non-zero when a node died or exited with an error, e.g. the recorder with 5 when an episode went
   without its bag (its name and exit code are printed; 1), or ``--timeout`` hit (3). The
@@ -49,6 +51,7 @@ import yaml
 
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import bags_dir
+from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
@@ -141,6 +144,7 @@ class Launch:
         self.out = out
         self.on_interrupt = on_interrupt
         self.interrupted = False
+        self.signal: int | None = None  # the first SIGINT / SIGTERM received
 
     def log(self, text: str) -> None:
         self.out.write(f"[launch] {text}\n")
@@ -165,6 +169,7 @@ class Launch:
     def _on_signal(self, signum, frame) -> None:  # noqa: ARG002
         first = not self.interrupted
         self.interrupted = True
+        self.signal = self.signal or signum
         if first and self.on_interrupt is not None:
             self.on_interrupt()
 
@@ -197,7 +202,7 @@ class Launch:
         while True:
             if self.interrupted:
                 self.log("interrupted; stopping all nodes")
-                return 0
+                return EXIT_TERMINATED if self.signal == signal.SIGTERM else EXIT_INTERRUPTED
             for node in self.nodes:
                 rc = node.proc.poll()
                 if rc is None or node.returncode is not None:
