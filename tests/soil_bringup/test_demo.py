@@ -42,7 +42,8 @@ def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):
 
 def test_bad_arguments_exit_2_with_the_reason():
     for argv, needle in ((["--soils", "Peat"], "Peat"), (["--duration", "0.5"], "window"),
-                         (["--densities", "120"], "[0, 100]")):
+                         (["--densities", "120"], "[0, 100]"),
+                         (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime")):
         res = subprocess.run([sys.executable, "-m", "soil_bringup.demo", *argv], capture_output=True, text=True,
                              timeout=60)
         assert res.returncode == 2 and needle in res.stderr, res.stderr

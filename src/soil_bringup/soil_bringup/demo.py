@@ -70,7 +70,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--pacing", choices=("realtime", "lockstep"), default="realtime",
                    help="realtime: 60 Hz ticks on the wall clock x --rate (the honest online demo, default); "
                         "lockstep: each tick waits for the controller, as fast as the machine goes")
-    p.add_argument("--rate", type=float, default=1.0, help="real-time factor for --pacing realtime (default 1)")
+    p.add_argument("--rate", type=float, default=None, help="real-time factor for --pacing realtime (default 1)")
     p.add_argument("--world-mode", choices=WORLD_MODES, default=None,
                    help="simulator world (default: the simulator's, 'default')")
     p.add_argument("--checkpoint", type=Path, help="PINN checkpoint for the estimator (default: the shipped one)")
@@ -101,6 +101,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.duration * SAMPLE_RATE_HZ < WINDOW_SAMPLES + 1:
         p.error(f"--duration {args.duration} s is shorter than one estimator window "
                 f"({WINDOW_SAMPLES} samples = {WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s): no estimate could be made")
+    if args.rate is not None and args.pacing == "lockstep":  # soil_launch's refusal: silently ignored, it misled
+        p.error(f"--rate {args.rate:g} is the real-time factor of --pacing realtime; lockstep has none")
+    args.rate = 1.0 if args.rate is None else args.rate
     if not (args.rate > 0 and math.isfinite(args.rate)):
         p.error(f"--rate {args.rate} must be > 0")
     if not 0 <= args.domain_id <= 232:
