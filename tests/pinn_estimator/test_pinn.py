@@ -343,7 +343,9 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     blind = json.loads((out / "m.json").read_text(), parse_constant=_not_strict)["forecast"]
     assert blind["pairs"] == 2 and blind["forecast"]["fused"] == only["forecast"]["forecast"]["fused"]
     assert blind["forecast"]["true_fee"]["x"]["all"]["pairs"] == 0 and blind["parameters"] == {"fused": {}}
-    assert "No ground truth in these bags" in (out / "m.md").read_text()
+    report_md = (out / "m.md").read_text()
+    assert "No ground truth in these bags" in report_md
+    assert "| FEE with the true parameters" not in report_md  # no row of dashes for what cannot be scored
     # the full report scores the soil against the ground truth: refused, saying so
     trained_on = tmp_path / "machine_training_bags"
     for bag in find_episode_bags(tiny_bags):
