@@ -406,7 +406,9 @@ def test_a_force_plugin_that_fails_mid_episode_ends_it_in_error_and_the_node_goe
         finally:
             sim.stop()
     assert [e.reason for e in ends] == ["error", "error"]
-    assert "plugin='soil_sim_node.plugins_example:side_wall_shear' raised TypeError" in sim.output
+    # the parameter and its value named, by the loader and by the plugin (not NumPy's words alone)
+    assert ("plugin='soil_sim_node.plugins_example:side_wall_shear' with walls='abc' raised ValueError: "
+            "walls='abc' must be a finite number >= 0") in sim.output, sim.output[-3000:]
     assert "Traceback" not in sim.output
 
 

@@ -134,8 +134,9 @@ LIFT_REACH_M = -MACHINE.blade_min_rel_m
 
 def beyond_lift_reach(name: str, depth_m: float) -> str | None:
     """A warning naming ``name`` when a target depth [m] is deeper than the lift reaches from level
-    ground, else None."""
-    if depth_m > LIFT_REACH_M + 1e-9:
+    ground, else None (also beyond the blade's height, which the depth's own range check refuses:
+    a warning about reaching it, then the refusal, said the same value twice)."""
+    if LIFT_REACH_M + 1e-9 < depth_m <= MAX_TARGET_DEPTH_M:
         return (f"{name}={depth_m:g} m is beyond the lift's reach from level ground ({LIFT_REACH_M:g} m below the "
                 "chassis): the first metres of the pass are cut at about that depth, deeper only once the chassis "
                 "rides on its own cut floor")

@@ -170,7 +170,9 @@ class ForcePlugin:
         except PluginError:
             raise
         except Exception as exc:
-            raise PluginError(f"plugin={self.target!r} raised {type(exc).__name__}: {exc}") from exc
+            # with its parameters: a bad one (k0='abc') failed inside NumPy's words, naming neither
+            given = f" with {', '.join(f'{k}={v!r}' for k, v in self.params.items())}" if self.params else ""
+            raise PluginError(f"plugin={self.target!r}{given} raised {type(exc).__name__}: {exc}") from exc
         result = []
         for name, value in (("f_x", fx), ("f_z", fz)):
             shape = np.shape(value)

@@ -48,7 +48,7 @@ Uses the nominal delta (no velocity correction) for beta, eta and the direction.
 """
 from __future__ import annotations
 
-import numpy as np
+import math
 
 # The formula lives in the catalogue of candidate effects (one implementation, NumPy and torch).
 from soil_physics.force_terms import side_wall_force  # noqa: F401 - re-exported
@@ -60,8 +60,9 @@ def side_wall_shear(state, k0: float | None = None, walls: float = 2.0):
     Parameters (``params`` in the plugin spec): ``k0`` lateral earth-pressure coefficient
     (default Jaky's 1 - sin phi), ``walls`` number of shearing side walls (default 2).
     """
-    if k0 is not None and not (np.isfinite(k0) and k0 >= 0):
-        raise ValueError(f"k0={k0!r} must be a finite number >= 0")
-    if not (np.isfinite(walls) and walls >= 0):
-        raise ValueError(f"walls={walls!r} must be a finite number >= 0")
+    for name, value in (("k0", k0), ("walls", walls)):
+        if name == "k0" and value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name}={value!r} must be a finite number >= 0")
     return side_wall_force(state.phi, state.c, state.gamma, state.delta, state.rho, state.alpha, state.d, k0, walls)
