@@ -61,7 +61,7 @@ MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a sche
 PARAMETERS: dict[str, tuple] = {
     "world_mode": ("default", "world: 'fee' (pure FEE, like D_FEE) or 'default' (extra effects, like D_default)"),
     "engine": ("compiled", "simulator engine: 'compiled' (Numba kernel, default) or 'reference' (the NumPy "
-                           "reference of the physics, ~1000x slower)"),
+                           "reference of the physics, ~400x slower)"),
     "soil": ("Loam", "soil type of the episodes (Clay, Loam, Sand, Gravel, or a soil of soil_file)"),
     "relative_density_pct": (60.0, "initial relative density I_d [%], 0..100"),
     "patches": ([], "soil along the path, 'x_start_m:soil:relative_density_pct' entries ordered by x, e.g. "
