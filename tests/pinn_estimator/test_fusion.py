@@ -18,7 +18,7 @@ from pinn_estimator.fusion import THETA, FusionConfig, SoilPosterior, StretchAcc
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, acceptable_shape_laws, calibrate, choose_evidence_law,
-                                              coverage_tolerance, forecast_scores, load_calibrated)
+                                              config_path, coverage_tolerance, forecast_scores, load_calibrated)
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_sim_node.rollout import run_episodes
@@ -530,7 +530,7 @@ def test_a_long_cut_at_one_depth_stays_on_the_soil():
         assert abs(s.mean["phi"] - true["phi"]) < 2 * DEG and s.std["phi"] < 4 * DEG
 
 
-def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys, tmp_path):
+def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys, tmp_path, monkeypatch):
     from pinn_estimator.fusion_calibration import main as calibrate_main
 
     assert FusionConfig.parse_field("drift_per_sqrt_m=0.005") == ("drift_per_sqrt_m", 0.005)
@@ -568,12 +568,25 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     bad = tmp_path / "bad.json"
     bad.write_text('{"rel_std": 3}')
     for args, needle in ((["--term", "soil_inertia=4"], "--term and --set change it"),
-                         (["--out", str(tmp_path / "none.json")], "no config file at"),
                          (["--out", str(tmp_path)], "is a directory; give the file to write"),
                          (["--out", str(bad)], f"{bad}: fusion rel_std=3")):
         with pytest.raises(SystemExit) as exit_:
             calibrate_main(["--world", "fee", "--forecast-law-only", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err
+    # a new --out keeps the shipped config's evidence law (it was refused, though the help said so):
+    # the run is stopped where it would start simulating, a minute of it
+    import pinn_estimator.evaluate as evaluate_module
+
+    class Started(Exception):
+        pass
+
+    def started(*_, **__):
+        raise Started
+
+    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    with pytest.raises(Started):
+        calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(tmp_path / "new.json")])
+    assert f"keeping the evidence law of {config_path('fee')}; writing {tmp_path / 'new.json'}" in capsys.readouterr().out
     # a calibration on a noisy sensor never replaces the shipped config of the world as it is
     with pytest.raises(SystemExit) as exit_:
         calibrate_main(["--world", "fee", "--force-noise"])

@@ -535,8 +535,9 @@ def main(argv=None) -> int:
                    help="a posterior config field the calibration does not choose, set before it (repeatable; VALUE "
                         "as JSON, e.g. cohesionless_prior=0); saved in the config")
     p.add_argument("--forecast-law-only", action="store_true",
-                   help="keep the evidence law of the config at --out (default: the shipped one) and choose only the "
-                        "forecast law (stage 2: about a minute, where the whole calibration takes 5-8 min)")
+                   help="keep the evidence law of the config at --out (if --out names no file yet: the shipped one's) "
+                        "and choose only the forecast law (stage 2: about a minute, where the whole calibration takes "
+                        "5-8 min)")
     p.add_argument("--force-noise", action="store_true",
                    help="calibrate on episodes with the measured force's noise on (in the fee world: the default "
                         "world's sensor noise, the truth still known); needs --out, since the shipped fee config is "
@@ -570,12 +571,16 @@ def main(argv=None) -> int:
     if args.forecast_law_only:
         if args.term or args.fields:
             p.error("--forecast-law-only keeps the config's posterior: --term and --set change it (run the whole calibration)")
-        if not out.is_file():
-            p.error(f"--forecast-law-only: no config file at {out} to keep the evidence law of")
+        # a new --out keeps the shipped config's evidence law (it was refused, though the help said so)
+        kept = out if out.is_file() else config_path(args.world)
+        if not kept.is_file():
+            p.error(f"--forecast-law-only: no config file at {out} or {kept} to keep the evidence law of")
         try:
-            base = FusionConfig.load(out)
+            base = FusionConfig.load(kept)
         except (OSError, ValueError) as err:
-            p.error(f"--forecast-law-only: {out}: {err}")
+            p.error(f"--forecast-law-only: {kept}: {err}")
+        if kept != out:
+            print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
     pairs = None
