@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test bench clean-venv dataset models discrepancy planner
+.PHONY: venv demo test bench clean-venv models discrepancy planner
 
 venv: $(STAMP)
 

@@ -397,10 +397,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "them; replaces --soils and --relative-densities")
     p.add_argument("--path", metavar="NAME", help="the patches of the path NAME in --soil-file's 'paths:' section (like --patch)")
     p.add_argument("--speeds", help="target speeds [m/s] (default: 4 values in 0.3-1.0 for default, 3 for fee)")
-    p.add_argument("--depths", default=",".join(f"{x:g}" for x in GRID_DEPTHS), help="target depths [m]")
-    p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="repetitions of each grid point")
-    p.add_argument("--seed-base", type=int, default=0, help="first episode seed")
-    p.add_argument("--duration", type=float, default=10.0, help="episode length [s]")
+    p.add_argument("--depths", default=",".join(f"{x:g}" for x in GRID_DEPTHS), help="target depths [m] (default: %(default)s)")
+    p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="repetitions of each grid point (default: %(default)s)")
+    p.add_argument("--seed-base", type=int, default=0, help="first episode seed (default: %(default)s)")
+    p.add_argument("--duration", type=float, default=10.0, help="episode length [s] (default: %(default)s)")
     p.add_argument("--workers", type=int, default=0,
                    help="processes (default: all cores; with --ray ADDRESS: all CPUs of the cluster); it also sets "
                         "the chunk size, so compare runs of the same --workers")
