@@ -49,6 +49,26 @@ def test_bad_arguments_exit_2_with_the_reason():
         assert res.returncode == 2 and needle in res.stderr, res.stderr
 
 
+def test_a_checkpoint_the_online_estimator_cannot_run_is_refused_before_the_graph_starts(tmp_path, capsys):
+    """A physics-free model (no soil parameters) failed the launch seconds after the graph started;
+    a file that is no checkpoint, the same. Both are refused while the arguments are read."""
+    import numpy as np
+
+    from pinn_estimator.checkpoint import save_checkpoint
+    from pinn_estimator.model import EstimatorNet, ModelConfig
+
+    free = tmp_path / "free.pt"
+    net = EstimatorNet(ModelConfig(kind="physics_free", d_model=16, n_heads=2, n_layers=1, ff_dim=32), np.zeros(9), np.ones(9))
+    save_checkpoint(free, net, train_config={}, dataset={}, split={}, metrics={}, history={})
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    for path, needle in ((free, "kind='physics_free'"), (junk, str(junk))):
+        with pytest.raises(SystemExit) as exit_:
+            D.parse_args(["--checkpoint", str(path)])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and f"--checkpoint {path}" in err and needle in err, err
+
+
 def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     from tests.ros_probe import next_domain_id
 

@@ -112,6 +112,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if not args.checkpoint.is_file():
             p.error(f"--checkpoint {args.checkpoint}: no such file")
         args.checkpoint = args.checkpoint.resolve()
+        # a model the online estimator cannot run (physics-free, another window) is refused here, not
+        # after the graph started (the estimator's refusal then failed the launch seconds later)
+        from pinn_estimator.checkpoint import load_model
+        from pinn_estimator.online import check_compatible
+
+        try:
+            check_compatible(load_model(args.checkpoint)[0])
+        except (OSError, ValueError, RuntimeError, KeyError) as err:
+            p.error(f"--checkpoint {args.checkpoint}: {err}")
     if args.bags.resolve() in (Path.cwd().resolve(), Path.home().resolve(), Path("/")):
         p.error(f"--bags {args.bags}: refusing to clear that directory")
     return args
