@@ -291,4 +291,5 @@ def test_a_fee_checkpoint_takes_the_fee_worlds_calibration_and_a_default_world_e
         assert (f"forecast law x {law.forecast_abs_std_n[0]:g} N + {law.forecast_rel_std[0]:g}·|ΔF|, "
                 f"z {law.forecast_abs_std_n[1]:g} N + {law.forecast_rel_std[1]:g}·|ΔF|") in out, out[-3000:]
         assert out.count("is the default world's") == 1 and str(config_path("default")) in out, out[-3000:]
+        assert f"its shipped checkpoint:={DEFAULT_CHECKPOINT}" in out, out[-3000:]  # the model to give, by name
         assert "fee_0 is the" not in out

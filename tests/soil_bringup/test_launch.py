@@ -235,3 +235,31 @@ def test_the_planner_reads_the_posterior_through_the_physics_of_the_estimators_c
     for worlds in (["fee", "default"], [], ["mars"], None):
         assert checkpoint_world({"dataset": {"world_modes": worlds}}) == "default"
     assert checkpoint_world(None) == "default"
+
+
+def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_otherwise(tmp_path, capsys):
+    """A launch in the fee world ran the default world's model (F̂_x ~40 % off there, an outside
+    tester found) and its calibration, and gave the planner that world's term: now the estimator
+    gets the world's shipped model, and with it the world's calibration and terms (none), unless
+    a checkpoint is given on the command line or in a params file."""
+    from pinn_estimator.fusion_calibration import MODELS_DIR
+
+    def argv(*args):
+        nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *args]))}
+        return nodes["estimator"].argv, nodes["planner"].argv
+
+    fee = f"checkpoint:={MODELS_DIR / 'pinn_fee.pt'}"
+    est, plan = argv("--sim-param", "world_mode:=fee")
+    assert fee in est and not any(a.startswith("terms:=") for a in plan), (est, plan)
+    assert "the fee world: the estimator runs its shipped model" in capsys.readouterr().err
+    sim_file = tmp_path / "sim.yaml"
+    sim_file.write_text("soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+    assert fee in argv("--sim-params-file", str(sim_file))[0]
+    for given in (["--sim-param", "world_mode:=default"], [],
+                  ["--sim-param", "world_mode:=fee", "--estimator-param", "checkpoint:=mine.pt"]):
+        est, plan = argv(*given)
+        assert not any(a.startswith("checkpoint:=") and "pinn_fee" in a for a in est), (given, est)
+        assert any(a.startswith("terms:=") for a in plan), (given, plan)  # the default world's (mine.pt unread)
+    est_file = tmp_path / "est.yaml"
+    est_file.write_text("pinn_estimator:\n  ros__parameters:\n    checkpoint: mine.pt\n")
+    assert fee not in argv("--sim-param", "world_mode:=fee", "--estimator-params-file", str(est_file))[0]

@@ -324,19 +324,7 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
-    given = {"fusion_config": "", "checkpoint": ""}
-    if estimator_params_file:
-        try:
-            data = yaml.safe_load(Path(estimator_params_file).read_text()) or {}
-            for node in data.values():
-                for key in given:
-                    given[key] = str(((node or {}).get("ros__parameters") or {}).get(key, given[key]) or given[key])
-        except (OSError, yaml.YAMLError, AttributeError):
-            pass  # the estimator reports its own params file
-    for pair in estimator_params:
-        name, _, value = pair.partition(":=")
-        if name.strip() in given:
-            given[name.strip()] = value.strip().strip("'\"")
+    given = given_params(estimator_params_file, estimator_params, ("fusion_config", "checkpoint"))
     try:
         terms, left_out = steady_cut_terms(_estimator_fusion(given).terms)
     except ValueError:
@@ -345,6 +333,44 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
         print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
               "planned steady cut does not have)", file=sys.stderr)
     return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
+
+
+def given_params(params_file, params: list[str], names) -> dict[str, str]:
+    """What a node is given for each of ``names`` as text ("" if nothing): the last ``-p`` of
+    ``params``, else its params file's value (any node's section), as the node would read them."""
+    given = {name: "" for name in names}
+    if params_file:
+        try:
+            data = yaml.safe_load(Path(params_file).read_text()) or {}
+            for node in data.values():
+                for key in given:
+                    given[key] = str(((node or {}).get("ros__parameters") or {}).get(key, given[key]) or given[key])
+        except (OSError, yaml.YAMLError, AttributeError):
+            pass  # the node reports its own params file
+    for pair in params:
+        name, _, value = pair.partition(":=")
+        if name.strip() in given:
+            given[name.strip()] = value.strip().strip("'\"")
+    return given
+
+
+def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
+    """``["checkpoint:=<models>/pinn_<world>.pt"]`` for an estimator given no checkpoint in a world
+    with a shipped model of its own other than the default (the fee world): the model, its
+    calibration and the planner's terms then follow the world, as ``soil_cut_report`` runs them.
+    Before, a fee-world launch estimated with the default world's model (its F̂_x ~40 % off there)."""
+    from pinn_estimator.fusion_calibration import DEFAULT_WORLD, MODELS_DIR
+
+    world = given_params(args.sim_params_file, args.sim_param, ("world_mode",))["world_mode"].strip()
+    if not world or world == DEFAULT_WORLD or given_params(args.estimator_params_file, args.estimator_param,
+                                                           ("checkpoint",))["checkpoint"]:
+        return []
+    path = MODELS_DIR / f"pinn_{world}.pt"
+    if not path.is_file():
+        return []
+    print(f"soil_launch: the {world} world: the estimator runs its shipped model {path} (give --estimator-param "
+          "checkpoint:=... for another)", file=sys.stderr)
+    return [f"checkpoint:={path}"]
 
 
 def _estimator_fusion(given: dict[str, str]):
@@ -380,18 +406,20 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               *extra, *args.recorder_arg], stop_order=3))
         _count(wait, RECORDER_ENDPOINTS)
+    # the world's shipped model unless one is given (the user's -p comes later and wins)
+    estimator_param = (world_checkpoint_param(args) if args.estimator else []) + list(args.estimator_param)
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
         # (the simulator steps on the controller's commands), and a planner without them sends no targets
         without = "no more estimates" + ("; the planner sends no targets and the controller cuts to its own "
                                          "target_depth_m" if args.planner else "")
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
-                                                        args.estimator_param), stop_order=2,
+                                                        estimator_param), stop_order=2,
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
         # the posterior's physics first, so a -p terms:=... of the user's wins
-        physics = posterior_terms_param(args.estimator_params_file, args.estimator_param)
+        physics = posterior_terms_param(args.estimator_params_file, estimator_param)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
