@@ -17,9 +17,9 @@ for w in ${*:-fee default}; do
     data=bags/d_$w
     [ -f "$data/dataset.json" ] || "$BIN/soil_sim_batch" --mode "$w" --out "$data" --quiet
     "$BIN/python" -c "from pinn_estimator.dataset import load_dataset; load_dataset('$data', workers=2)"  # fill the cache once
-    "$BIN/pinn_train" --data "$data" --out "$OUT/pinn_$w.pt" --kind pinn --seed "$SEED" --threads 1 --quiet $TRAIN_ARGS > "$OUT/pinn_$w.log" 2>&1 &
+    "$BIN/pinn_train" --data "$data" --out "$OUT/pinn_$w.pt" --kind pinn --seed "$SEED" --threads 1 --quiet --overwrite $TRAIN_ARGS > "$OUT/pinn_$w.log" 2>&1 &
     p1=$!
-    "$BIN/pinn_train" --data "$data" --out "$OUT/physics_free_$w.pt" --kind physics_free --seed "$SEED" --threads 1 --quiet $TRAIN_ARGS > "$OUT/physics_free_$w.log" 2>&1 &
+    "$BIN/pinn_train" --data "$data" --out "$OUT/physics_free_$w.pt" --kind physics_free --seed "$SEED" --threads 1 --quiet --overwrite $TRAIN_ARGS > "$OUT/physics_free_$w.log" 2>&1 &
     p2=$!
     wait $p1 || { cat "$OUT/pinn_$w.log"; exit 1; }
     wait $p2 || { cat "$OUT/physics_free_$w.log"; exit 1; }

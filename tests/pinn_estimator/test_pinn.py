@@ -383,6 +383,20 @@ def test_empty_bag_directory_is_named(tmp_path, capsys):
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_a_checkpoint_already_at_out_is_kept_unless_overwrite_is_given(tmp_path, capsys):
+    """--out over a trained model replaced it without a word (minutes to hours of training lost
+    to a typo); refused before anything is read, as soil_sim_batch refuses an existing dataset."""
+    data = tmp_path / "bags"
+    data.mkdir()
+    kept = tmp_path / "trained.pt"
+    kept.write_bytes(b"a trained model")
+    assert train_main(["--data", str(data), "--out", str(kept), "--quiet"]) == 2
+    assert f"--out {kept} exists" in capsys.readouterr().err and kept.read_bytes() == b"a trained model"
+    # with --overwrite the run goes on (here to the empty bag directory's refusal)
+    assert train_main(["--data", str(data), "--out", str(kept), "--quiet", "--overwrite"]) == 2
+    assert "no episode bags" in capsys.readouterr().err
+
+
 def test_mcap_files_outside_a_bag_directory_are_said_not_passed_by(tmp_path):
     """A bag's .mcap copied without its directory (metadata.yaml) is no bag the readers take: it
     was passed by without a word, and a directory of only such files was "no episode bags"."""

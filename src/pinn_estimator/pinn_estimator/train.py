@@ -361,6 +361,9 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pinn_train", description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True, type=input_text, help="directory of episode bags (searched recursively)")
     p.add_argument("--out", type=output_file, required=True, help="checkpoint path to write (.pt); the curve PNG goes beside it")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a checkpoint already at --out (default: refused, as soil_sim_batch refuses an "
+                        "existing dataset: a trained model costs minutes to hours)")
     p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
     p.add_argument("--split-from", type=input_text, help="reuse the train/val/test split of this checkpoint (same bags)")
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
@@ -384,6 +387,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if Path(args.out).exists() and not args.overwrite:  # every rank alike, before any joins a process group
+        print(f"pinn_train: error: --out {args.out} exists (a trained model, perhaps): give --overwrite to replace it, "
+              "or another path", file=sys.stderr)
+        return 2
     try:
         ranks = ranks_from_env()
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
