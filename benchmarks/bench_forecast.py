@@ -64,7 +64,8 @@ from pinn_estimator.checkpoint import load_model  # noqa: E402
 from pinn_estimator.dataset import Dataset  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
 from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode, fused_values  # noqa: E402
-from pinn_estimator.fusion_calibration import MODELS_DIR, config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
+from pinn_estimator.fusion_calibration import config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
+from pinn_estimator.shipped import shipped_checkpoint  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py.episode import WORLD_MODES  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
@@ -849,7 +850,7 @@ def main() -> None:
           flush=True)
     models = {}
     for world in WORLDS:
-        path = args.checkpoints.get(world, MODELS_DIR / f"pinn_{world}.pt")
+        path = args.checkpoints.get(world, shipped_checkpoint(world))
         models[world] = (load_model(path)[0], path)
     t_start = time.perf_counter()
     results: dict = {"quick": args.quick, "cores": os.cpu_count(), "load_average_start": load0,

@@ -280,7 +280,7 @@ def test_launch_exits_nonzero_when_a_node_dies_and_stops_the_rest(tmp_path, doma
     assert _children_gone(proc.pid)
 
 
-def test_launch_forwards_ctrl_c_and_exits_cleanly(tmp_path, domain):
+def test_launch_forwards_ctrl_c_and_exits_as_interrupted(tmp_path, domain):
     proc = _launch(["--sim-param", "duration_s:=60.0", "--timeout", "60"], domain, tmp_path)
     try:
         wait_until(lambda: "episode 0 start" in proc.log_path.read_text(), 30, "the episode to start")

@@ -587,6 +587,9 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     with pytest.raises(Started):
         calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(tmp_path / "new.json")])
     assert f"keeping the evidence law of {config_path('fee')}; writing {tmp_path / 'new.json'}" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:  # but not the noise-free law for a noisy sensor's forecasts
+        calibrate_main(["--world", "fee", "--forecast-law-only", "--force-noise", "--out", str(tmp_path / "noisy.json")])
+    assert exit_.value.code == 2 and "run the whole calibration with --force-noise first" in capsys.readouterr().err
     # a calibration on a noisy sensor never replaces the shipped config of the world as it is
     with pytest.raises(SystemExit) as exit_:
         calibrate_main(["--world", "fee", "--force-noise"])

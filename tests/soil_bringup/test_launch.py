@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -61,6 +62,23 @@ def test_an_interrupted_launch_exits_128_plus_the_signal_not_0(tmp_path, signum,
         assert launch.run() == code
     text = log.read_text()
     assert "interrupted; stopping all nodes" in text and f"done, exit code {code}" in text, text
+    # --keep-running: the simulator stays up after its episodes until Ctrl-C, which is then the run's end
+    # (a node that stops cleanly on SIGINT, as the graph's do, signalled once it said it is up)
+    node = [sys.executable, "-c", "import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(0)); "
+            "print('up', flush=True); time.sleep(60)"]
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("node", node, stop_order=0)], L.loopback_env(0), out=out,
+                          interrupt_ends_run=True)
+
+        def signal_once_up():
+            deadline = time.monotonic() + 60
+            while "[node] up" not in log.read_text() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            launch._on_signal(signum, None)
+
+        threading.Thread(target=signal_once_up, daemon=True).start()
+        assert launch.run() == 0, log.read_text()
+    assert L.launch_for(L.parse_args(["--keep-running"])).interrupt_ends_run
 
 
 def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tmp_path):
@@ -263,3 +281,21 @@ def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_othe
     est_file = tmp_path / "est.yaml"
     est_file.write_text("pinn_estimator:\n  ros__parameters:\n    checkpoint: mine.pt\n")
     assert fee not in argv("--sim-param", "world_mode:=fee", "--estimator-params-file", str(est_file))[0]
+    # an empty checkpoint given is the user's choice (the node's "shipped default"), not "none given"
+    assert fee not in argv("--sim-param", "world_mode:=fee", "--estimator-param", "checkpoint:=''")[0]
+
+
+def test_a_nodes_parameters_are_read_from_the_sections_of_a_params_file_that_apply_to_it(tmp_path):
+    """A section of another node named world_mode: default after the simulator's fee, and the
+    launch gave the estimator the default world's model; a namespaced file was not read at all."""
+    f = tmp_path / "p.yaml"
+    f.write_text("soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n"
+                 "other_node:\n  ros__parameters:\n    world_mode: default\n")
+    assert L.given_params("soil_sim_node", f, [], ("world_mode",)) == {"world_mode": "fee"}
+    f.write_text("ns:\n  soil_sim_node:\n    ros__parameters:\n      world_mode: fee\n"
+                 "/**:\n  ros__parameters:\n    seed: 3\n")
+    assert L.given_params("soil_sim_node", f, [], ("world_mode", "seed", "soil")) == \
+        {"world_mode": "fee", "seed": "3", "soil": None}
+    f.write_text("/robot/soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+    assert L.given_params("soil_sim_node", f, ["world_mode:=default"], ("world_mode",)) == {"world_mode": "default"}
+    assert L.given_params("pinn_estimator", f, [], ("world_mode",)) == {"world_mode": None}

@@ -15,11 +15,12 @@ import torch
 from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
 
 from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
+from .shipped import MODELS_DIR, shipped_checkpoint
 
 FORMAT = "insitu-soil-estimator"
 FORMAT_VERSION = 1
-SHIPPED_MODELS_DIR = Path(__file__).resolve().parent / "models"
-DEFAULT_CHECKPOINT = SHIPPED_MODELS_DIR / "pinn_default.pt"
+SHIPPED_MODELS_DIR = MODELS_DIR
+DEFAULT_CHECKPOINT = shipped_checkpoint("default")
 
 
 def interface() -> dict:

@@ -45,6 +45,7 @@ from soil_physics.predictive import mixture_cdf
 
 from . import forecast as fc
 from .fusion import FusionConfig, forecast_error_std
+from .shipped import DEFAULT_WORLD, MODELS_DIR, config_path  # noqa: F401 - their home is shipped; read from here too
 
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
 CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
@@ -81,12 +82,6 @@ TRUTH_GRIDS = ((DRIFT_FIELD, DRIFT_GRID),)
 FORECAST_GRID = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)  # share of the extrapolated force
 FLOOR_GRID = (5.0, 20.0, 300.0, 1000.0, 3000.0)  # forecast error floor [N]: F_z of the default world is ~0 in the FEE
 NOMINAL = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # central interval levels of the calibration curve
-MODELS_DIR = Path(__file__).resolve().parent / "models"
-
-
-def config_path(world: str) -> Path:
-    """Where the calibrated fusion config of a world lives (next to the shipped checkpoints)."""
-    return MODELS_DIR / f"fusion_{world}.json"
 
 
 def load_calibrated(world: str) -> FusionConfig:
@@ -95,7 +90,6 @@ def load_calibrated(world: str) -> FusionConfig:
     return FusionConfig.load(path) if path.exists() else FusionConfig()
 
 
-DEFAULT_WORLD = "default"  # the shipped estimator's world (pinn_default.pt): the node's and replay's config
 
 
 def checkpoint_world(ckpt: dict | None) -> str:
@@ -573,6 +567,9 @@ def main(argv=None) -> int:
             p.error("--forecast-law-only keeps the config's posterior: --term and --set change it (run the whole calibration)")
         # a new --out keeps the shipped config's evidence law (it was refused, though the help said so)
         kept = out if out.is_file() else config_path(args.world)
+        if args.force_noise and kept != out:  # the shipped evidence law is the noise-free world's
+            p.error(f"--forecast-law-only --force-noise: no config at {out} yet; the shipped one's evidence law is "
+                    "the world's as it is, not a noisy sensor's: run the whole calibration with --force-noise first")
         if not kept.is_file():
             p.error(f"--forecast-law-only: no config file at {out} or {kept} to keep the evidence law of")
         try:

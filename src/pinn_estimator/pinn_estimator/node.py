@@ -30,7 +30,8 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion_calibration import MODELS_DIR, checkpoint_world, config_path, estimator_fusion
+from .fusion_calibration import checkpoint_world, config_path, estimator_fusion
+from .shipped import shipped_checkpoint
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 
 PARAMETERS: dict[str, tuple] = {
@@ -162,8 +163,8 @@ class EstimatorNode(Node):
             f"calibration (the checkpoint's): its intervals are not calibrated here. Give fusion_config:="
             f"{config_path(world)}" + (" (it exists)" if config_path(world).exists() else "")
             + " or a checkpoint trained in that world"
-            + (f", e.g. its shipped checkpoint:={shipped}" if (shipped := MODELS_DIR / f"pinn_{world}.pt").is_file() else "")
-            + " (soil_launch gives the world's shipped model when no checkpoint is given)")
+            + (f", e.g. its shipped checkpoint:={shipped} (soil_launch gives it when no checkpoint is given)"
+               if (shipped := shipped_checkpoint(world)).is_file() else ""))
 
     def _on_input(self, topic: str, msg) -> None:
         self.silence.heard()

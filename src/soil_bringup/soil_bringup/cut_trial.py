@@ -25,7 +25,8 @@ import torch
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from anti_stall_controller.plan_wait import DEFAULT_LAG_TICKS
-from pinn_estimator.checkpoint import SHIPPED_MODELS_DIR, load_model
+from pinn_estimator.checkpoint import load_model
+from pinn_estimator.shipped import shipped_checkpoint
 from pinn_estimator.fusion_calibration import load_calibrated
 from pinn_estimator.online import INPUT_TOPICS, Estimate, OnlineEstimator
 from soil_msgs_py import messages as M
@@ -73,7 +74,7 @@ class SoilAwareSetup:
         StretchPlanner(**self.planner)  # ValueError naming a bad setting
 
     def estimator(self, publish) -> OnlineEstimator:
-        path = self.checkpoint or str(SHIPPED_MODELS_DIR / f"pinn_{self.world}.pt")
+        path = self.checkpoint or str(shipped_checkpoint(self.world))
         model, _ = load_model(path)
         return OnlineEstimator(model, publish, fusion=load_calibrated(self.world))
 

@@ -11,7 +11,8 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
   last, so the recorder finishes its bags) and escalates to SIGTERM/SIGKILL if one hangs;
 * exits 0 when the simulator finished its episodes and everyone stopped cleanly, 130 / 143
   when a Ctrl-C / SIGTERM stopped it first (as ``soil_sim_batch`` and ``pinn_train`` do: a script
-  tells an interrupted cut from a finished one; the bags of what ran are finished), 4
+  tells an interrupted cut from a finished one; the bags of what ran are finished; with
+  ``--keep-running`` an interrupt is how the run ends: 0), 4
   (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
   non-zero when a node died or exited with an error, e.g. the recorder with 5 when an episode went
   without its bag (its name and exit code are printed; 1), or ``--timeout`` hit (3). The
@@ -135,8 +136,11 @@ class Launch:
 
     def __init__(self, nodes: list[NodeProcess], env: dict[str, str], *, timeout_s: float = 0.0,
                  stop_timeout_s: float = 10.0, drain_s: float = 1.5, out=sys.stdout,
-                 on_interrupt: Callable[[], None] | None = None):
+                 on_interrupt: Callable[[], None] | None = None, interrupt_ends_run: bool = False):
         self.nodes = nodes
+        # --keep-running: a simulator kept up after its episodes is ended with Ctrl-C, so an
+        # interrupt is the run's end (exit 0), not a run cut short (130 / 143)
+        self.interrupt_ends_run = interrupt_ends_run
         self.env = env
         self.timeout_s = timeout_s
         self.stop_timeout_s = stop_timeout_s
@@ -202,6 +206,8 @@ class Launch:
         while True:
             if self.interrupted:
                 self.log("interrupted; stopping all nodes")
+                if self.interrupt_ends_run:
+                    return 0
                 return EXIT_TERMINATED if self.signal == signal.SIGTERM else EXIT_INTERRUPTED
             for node in self.nodes:
                 rc = node.proc.poll()
@@ -324,7 +330,7 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
-    given = given_params(estimator_params_file, estimator_params, ("fusion_config", "checkpoint"))
+    given = given_params("pinn_estimator", estimator_params_file, estimator_params, ("fusion_config", "checkpoint"))
     try:
         terms, left_out = steady_cut_terms(_estimator_fusion(given).terms)
     except ValueError:
@@ -335,17 +341,18 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
 
 
-def given_params(params_file, params: list[str], names) -> dict[str, str]:
-    """What a node is given for each of ``names`` as text ("" if nothing): the last ``-p`` of
-    ``params``, else its params file's value (any node's section), as the node would read them."""
-    given = {name: "" for name in names}
+def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:
+    """What the node ``node`` is given for each of ``names`` as text (None: not given): the last
+    ``-p`` of ``params``, else its params file's value in the sections that apply to it (``node``,
+    ``/node``, ``/**``, a namespace's ``ns/node``, nested or not; in file order), as it would read them."""
+    given: dict[str, str | None] = {name: None for name in names}
     if params_file:
         try:
-            data = yaml.safe_load(Path(params_file).read_text()) or {}
-            for node in data.values():
+            for section in _node_sections(yaml.safe_load(Path(params_file).read_text()) or {}, node):
                 for key in given:
-                    given[key] = str(((node or {}).get("ros__parameters") or {}).get(key, given[key]) or given[key])
-        except (OSError, yaml.YAMLError, AttributeError):
+                    if key in section:
+                        given[key] = "" if section[key] is None else str(section[key])
+        except (OSError, yaml.YAMLError, AttributeError, TypeError):
             pass  # the node reports its own params file
     for pair in params:
         name, _, value = pair.partition(":=")
@@ -354,40 +361,63 @@ def given_params(params_file, params: list[str], names) -> dict[str, str]:
     return given
 
 
+def _node_sections(data: dict, node: str, path: tuple[str, ...] = ()) -> list[dict]:
+    """The ``ros__parameters`` mappings of a params file that apply to ``node`` (its name, or the
+    wildcard ``**`` / ``*``, as the last part of a section's path)."""
+    out = []
+    for key, value in data.items():
+        if not isinstance(value, dict):
+            continue
+        parts = path + tuple(p for p in str(key).split("/") if p)
+        if "ros__parameters" in value:
+            if parts and parts[-1] in (node, "**", "*") and isinstance(value["ros__parameters"], dict):
+                out.append(value["ros__parameters"])
+        else:
+            out += _node_sections(value, node, parts)
+    return out
+
+
 def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     """``["checkpoint:=<models>/pinn_<world>.pt"]`` for an estimator given no checkpoint in a world
     with a shipped model of its own other than the default (the fee world): the model, its
     calibration and the planner's terms then follow the world, as ``soil_cut_report`` runs them.
-    Before, a fee-world launch estimated with the default world's model (its F̂_x ~40 % off there)."""
-    from pinn_estimator.fusion_calibration import DEFAULT_WORLD, MODELS_DIR
+    Before, a fee-world launch estimated with the default world's model (its F̂_x ~40 % off there).
+    A checkpoint given, even empty (the node's "the shipped default"), is the user's choice."""
+    from pinn_estimator.shipped import DEFAULT_WORLD, shipped_checkpoint
 
-    world = given_params(args.sim_params_file, args.sim_param, ("world_mode",))["world_mode"].strip()
-    if not world or world == DEFAULT_WORLD or given_params(args.estimator_params_file, args.estimator_param,
-                                                           ("checkpoint",))["checkpoint"]:
+    world = (given_params("soil_sim_node", args.sim_params_file, args.sim_param, ("world_mode",))["world_mode"]
+             or "").strip()
+    chosen = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("checkpoint",))
+    if not world or world == DEFAULT_WORLD or chosen["checkpoint"] is not None:
         return []
-    path = MODELS_DIR / f"pinn_{world}.pt"
+    path = shipped_checkpoint(world)
     if not path.is_file():
         return []
-    print(f"soil_launch: the {world} world: the estimator runs its shipped model {path} (give --estimator-param "
-          "checkpoint:=... for another)", file=sys.stderr)
+    print(f"soil_launch: the {world} world: the estimator runs its shipped model {path}", file=sys.stderr)
     return [f"checkpoint:={path}"]
 
 
-def _estimator_fusion(given: dict[str, str]):
+def _estimator_fusion(given: dict[str, str | None]):
     """The estimator's posterior config (``estimator_fusion``) for its ``fusion_config`` and
     ``checkpoint`` parameters; the checkpoint is read (torch) only when it matters: one of the
-    user's own without a config. ValueError where the config cannot be read."""
+    user's own without a config (a shipped one's world is its name's). ValueError where the
+    config cannot be read."""
     from pinn_estimator.fusion_calibration import estimator_fusion
+    from pinn_estimator.shipped import config_path, shipped_world
 
+    config, checkpoint = given["fusion_config"] or "", given["checkpoint"] or ""
     ckpt = None
-    if given["checkpoint"] and not given["fusion_config"]:
+    if checkpoint and not config:
+        world = shipped_world(checkpoint)
+        if world is not None and config_path(world).is_file():
+            return estimator_fusion(str(config_path(world)), None)[0]
         from pinn_estimator.checkpoint import read_checkpoint
 
         try:
-            ckpt = read_checkpoint(given["checkpoint"])
+            ckpt = read_checkpoint(checkpoint)
         except (OSError, ValueError, RuntimeError):
             pass  # the estimator exits naming its checkpoint; the planner gets the default world's terms
-    return estimator_fusion(given["fusion_config"], ckpt)[0]
+    return estimator_fusion(config, ckpt)[0]
 
 
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
@@ -524,7 +554,8 @@ def launch_for(args: argparse.Namespace, out=sys.stdout, on_interrupt: Callable[
 
     ValueError / FileNotFoundError if the graph cannot be built (bad parameter, missing node)."""
     return Launch(build_nodes(args), loopback_env(args.domain_id), timeout_s=args.timeout,
-                  stop_timeout_s=args.stop_timeout, out=out, on_interrupt=on_interrupt)
+                  stop_timeout_s=args.stop_timeout, out=out, on_interrupt=on_interrupt,
+                  interrupt_ends_run=args.keep_running)
 
 
 def main(argv: list[str] | None = None) -> int:
