@@ -104,3 +104,28 @@ def test_a_path_that_goes_on_past_the_cut_is_one_soil_and_one_begun_past_its_fir
     assert all(episode_one_soil(ds, e) for e in range(len(ds)))
     parts = steady_parts(ds)
     assert len(list(pair_indices(parts))) == 2 and {p.soil for p in parts} == {"Sand"}
+
+
+def test_bags_without_ground_truth_get_no_true_parameter_row_or_column():
+    """A machine's bags have no truth: the true-parameter FEE's row was all dashes ("0 of the 8
+    pairs scored") under a note saying there is none, and its per-soil column alike."""
+    from pinn_estimator.forecast import LABELS, markdown
+
+    def axes(pairs):
+        row = {"pairs": pairs, "mean_abs_pct": 1.0, "bias_pct": 0.0}
+        return {a: {"all": row, "deeper": row, "shallower": row} for a in ("x", "z")}
+
+    def soil(pairs):
+        cell = {"mean_abs_pct": 1.0, "bias_pct": 0.0}
+        return {"pairs": pairs, **{n: {"x": cell, "deeper_x": cell} for n in ("fused", "true_fee", "naive_same_force")}}
+
+    report = {"data": "bags/machine", "pairs": 8, "episodes": 8, "worlds": ["default"],
+              "forecast": {"fused": axes(8), "true_fee": axes(0), "naive_same_force": axes(8)},
+              "per_soil": {"Clay": soil(4), "Sand": soil(4)}, "parameters": {"fused": {}}}
+    text = "\n".join(markdown(report))
+    tables = "\n".join(line for line in text.splitlines() if line.startswith("|"))
+    assert LABELS["true_fee"] not in tables and "there is no FEE with the true parameters" in text, text
+    assert LABELS["naive_same_force"] in tables and "| Clay | 4 |" in tables
+    with_truth = markdown({**report, "parameters": {"fused": {"phi": {"mae": 0.01, "episodes": 8, "coverage_90": 0.9, "coverage_50": 0.5}}}})
+    # with truth its row is kept (0 pairs scored, said) and its per-soil column
+    assert sum(LABELS["true_fee"] in line for line in with_truth if line.startswith("|")) == 2

@@ -67,6 +67,12 @@ def test_a_checkpoint_the_online_estimator_cannot_run_is_refused_before_the_grap
             D.parse_args(["--checkpoint", str(path)])
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and f"--checkpoint {path}" in err and needle in err, err
+    # without one, the world's shipped model, named: the live estimates and the forecast beside them
+    # used the default world's label and model while the fee-world launch ran the fee world's
+    from pinn_estimator.shipped import shipped_checkpoint
+
+    assert D.parse_args(["--world-mode", "fee"]).checkpoint == shipped_checkpoint("fee")
+    assert D.parse_args([]).checkpoint == shipped_checkpoint("default")
 
 
 def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):

@@ -416,12 +416,14 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
              "|---|---|---|---|---|---|---|---|"]
-    for name, axes in report["forecast"].items():
+    # bags without ground truth (a machine's): no true-parameter FEE row or column, said below the table
+    no_truth = "parameters" in report and not any(report["parameters"].values())
+    shown = [n for n in report["forecast"] if not (no_truth and n == "true_fee")]
+    for name in shown:
+        axes = report["forecast"][name]
         x, z = axes["x"], axes["z"]
         label = label_of(report, name)
         scored = x["all"].get("pairs", report["pairs"])
-        if scored == 0 and name in REFERENCES:  # e.g. no ground truth (a machine's bags): said below the table
-            continue
         if scored != report["pairs"]:  # no finite forecast (no failure wedge), or a measured force under 1 N
             label += f" ({scored} of the {report['pairs']} pairs scored)"
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
@@ -431,15 +433,15 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
                      f"{_pct(z['deeper']['bias_pct'], True)} | {cover[0]} | {cover[1]} |")
     per_soil = report.get("per_soil") or {}
     if len(per_soil) > 1:
-        names = [n for n in report["forecast"] if n not in REFERENCES]
+        columns = [n for n in shown if n not in REFERENCES] + [n for n in REFERENCES if n in shown]
         lines += ["", "Per soil (all its densities), F_x at another depth: mean |error| (bias going deeper):", "",
-                  "| soil | pairs | " + " | ".join(label_of(report, n) for n in (*names, *REFERENCES)) + " |",
-                  "|---|---|" + "---|" * (len(names) + len(REFERENCES))]
+                  "| soil | pairs | " + " | ".join(label_of(report, n) for n in columns) + " |",
+                  "|---|---|" + "---|" * len(columns)]
         for soil, row in per_soil.items():
             cells = [f"{_pct(row[n]['x']['mean_abs_pct'])} ({_pct(row[n]['deeper_x']['bias_pct'], True)})"
-                     for n in (*names, *REFERENCES)]
+                     for n in columns]
             lines.append(f"| {soil} | {row['pairs']} | " + " | ".join(cells) + " |")
-    if "parameters" in report and not any(report["parameters"].values()):
+    if no_truth:
         lines += ["", "No ground truth in these bags (no /soil/ground_truth, as from a machine): the soil's "
                       "parameters are not scored, only the forces, and there is no FEE with the true parameters."]
     for name, params in report.get("parameters", {}).items():

@@ -387,10 +387,6 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    if Path(args.out).exists() and not args.overwrite:  # every rank alike, before any joins a process group
-        print(f"pinn_train: error: --out {args.out} exists (a trained model, perhaps): give --overwrite to replace it, "
-              "or another path", file=sys.stderr)
-        return 2
     try:
         ranks = ranks_from_env()
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
@@ -398,6 +394,13 @@ def main(argv=None) -> int:
                                 **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in MODEL_FIELDS_NOT_OPTIONS})
     except ValueError as err:
         print(f"pinn_train: error: {err}", file=sys.stderr)
+        return 2
+    # every rank alike, before any joins a process group (a torchrun job on one machine, or on
+    # several that share the output's filesystem, as rank 0's checkpoint is read back); said once
+    if Path(args.out).exists() and not args.overwrite:
+        if ranks.main:
+            print(f"pinn_train: error: --out {args.out} exists (a trained model, perhaps): give --overwrite to replace "
+                  "it, or another path", file=sys.stderr)
         return 2
     with process_group(ranks):
         return _run(args, cfg, model_cfg, ranks)

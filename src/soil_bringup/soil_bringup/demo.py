@@ -35,13 +35,14 @@ import sys
 import time
 from pathlib import Path
 
+from pinn_estimator.shipped import DEFAULT_WORLD, shipped_checkpoint
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag
 from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
+from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
 from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
-from soil_msgs_py.interrupts import EXIT_INTERRUPTED  # any stop of the demo: Ctrl-C's code
 
 from . import launch as L
 from .demo_forecast import depths_text, forecast_from_live
@@ -73,7 +74,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--rate", type=float, default=None, help="real-time factor for --pacing realtime (default 1)")
     p.add_argument("--world-mode", choices=WORLD_MODES, default=None,
                    help="simulator world (default: the simulator's, 'default')")
-    p.add_argument("--checkpoint", type=Path, help="PINN checkpoint for the estimator (default: the shipped one)")
+    p.add_argument("--checkpoint", type=Path,
+                   help="PINN checkpoint for the estimator (default: the world's shipped one, pinn_<world>.pt)")
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
     p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
                    help="episode bags; cleared at start (default bags/demo_online)")
@@ -121,6 +123,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             check_compatible(load_model(args.checkpoint)[0])
         except (OSError, ValueError, RuntimeError, KeyError) as err:
             p.error(f"--checkpoint {args.checkpoint}: {err}")
+    else:  # the world's shipped model, named: the live estimates and the forecast beside them use one model
+        args.checkpoint = shipped_checkpoint(args.world_mode or DEFAULT_WORLD)
     if args.bags.resolve() in (Path.cwd().resolve(), Path.home().resolve(), Path("/")):
         p.error(f"--bags {args.bags}: refusing to clear that directory")
     return args
@@ -237,8 +241,8 @@ def run(args: argparse.Namespace) -> int:
                 rc = launch.run()  # owns Ctrl-C / SIGTERM until its nodes are stopped
             except OSError as err:
                 print(f"demo: soil_launch could not start a node: {err}", file=sys.stderr)
-            if launch.interrupted:
-                rc = EXIT_INTERRUPTED
+            if launch.interrupted:  # Ctrl-C or SIGTERM, said as soil_launch says it (130 / 143)
+                rc = EXIT_TERMINATED if launch.signal == signal.SIGTERM else EXIT_INTERRUPTED
     except KeyboardInterrupt:  # before the launch took over the signals: no node runs yet
         _say_stopping()
         rc = EXIT_INTERRUPTED
@@ -253,9 +257,9 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGINT, old_int)
             signal.signal(signal.SIGTERM, old_term)
     launch_s = time.monotonic() - t_launch
-    if rc == EXIT_INTERRUPTED:
+    if rc in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         print(f"demo: interrupted after {launch_s:.0f} s; partial bags in {args.bags}/, node output in {log_path}")
-        return EXIT_INTERRUPTED
+        return rc
     if rc != 0:
         why = LAUNCH_FAILURES.get(rc, "see the log") if rc is not None else "it did not finish"
         print(f"demo: FAILED - soil_launch exit code {rc} ({why}) after {launch_s:.0f} s. "
@@ -305,7 +309,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     run_info = {
         "soils": args.soils, "densities_pct": [float(d) for d in args.densities], "duration_s": args.duration,
         "pacing": args.pacing, "rate": args.rate if args.pacing == "realtime" else None,
-        "world_mode": args.world_mode, "checkpoint": str(args.checkpoint or "shipped pinn_default.pt"),
+        "world_mode": args.world_mode, "checkpoint": str(args.checkpoint),
         "domain_id": args.domain_id, "bags": str(args.bags), "launch_log": str(log_path),
         "launch_s": launch_s, "wall_s": wall_s, "simulated_s": sim_s,
         "valid_estimates": total["valid_estimates"],

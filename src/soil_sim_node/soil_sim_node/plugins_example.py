@@ -49,6 +49,7 @@ Uses the nominal delta (no velocity correction) for beta, eta and the direction.
 from __future__ import annotations
 
 import math
+import numbers
 
 # The formula lives in the catalogue of candidate effects (one implementation, NumPy and torch).
 from soil_physics.force_terms import side_wall_force  # noqa: F401 - re-exported
@@ -63,6 +64,6 @@ def side_wall_shear(state, k0: float | None = None, walls: float = 2.0):
     for name, value in (("k0", k0), ("walls", walls)):
         if name == "k0" and value is None:
             continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{name}={value!r} must be a finite number >= 0")
     return side_wall_force(state.phi, state.c, state.gamma, state.delta, state.rho, state.alpha, state.d, k0, walls)
