@@ -17,7 +17,8 @@ from pinn_estimator.evaluate import forecast
 from pinn_estimator.fusion import THETA, FusionConfig, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
-from pinn_estimator.fusion_calibration import (MODELS_DIR, NOMINAL, acceptable_shape_laws, calibrate, choose_evidence_law,
+from pinn_estimator.shipped import MODELS_DIR
+from pinn_estimator.fusion_calibration import (NOMINAL, acceptable_shape_laws, calibrate, choose_evidence_law,
                                               config_path, coverage_tolerance, forecast_scores, load_calibrated)
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ

@@ -260,7 +260,7 @@ def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_othe
     tester found) and its calibration, and gave the planner that world's term: now the estimator
     gets the world's shipped model, and with it the world's calibration and terms (none), unless
     a checkpoint is given on the command line or in a params file."""
-    from pinn_estimator.fusion_calibration import MODELS_DIR
+    from pinn_estimator.shipped import MODELS_DIR
 
     def argv(*args):
         nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *args]))}

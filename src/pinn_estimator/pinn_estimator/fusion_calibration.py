@@ -45,7 +45,7 @@ from soil_physics.predictive import mixture_cdf
 
 from . import forecast as fc
 from .fusion import FusionConfig, forecast_error_std
-from .shipped import DEFAULT_WORLD, MODELS_DIR, config_path  # noqa: F401 - their home is shipped; read from here too
+from .shipped import DEFAULT_WORLD, config_path  # their home; callers of this module read them from here too
 
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
 CAL_DEPTHS_M = (0.05, 0.125, 0.175, 0.25, 0.3)
