@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from soil_bringup import launch as L
 
@@ -287,15 +288,22 @@ def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_othe
 
 def test_a_nodes_parameters_are_read_from_the_sections_of_a_params_file_that_apply_to_it(tmp_path):
     """A section of another node named world_mode: default after the simulator's fee, and the
-    launch gave the estimator the default world's model; a namespaced file was not read at all."""
+    launch gave the estimator the default world's model. The sections are rcl's (the node reads
+    them so): its name, a wildcard, not another namespace's node of the same name."""
+    from soil_msgs_py.params_files import node_parameters
+
     f = tmp_path / "p.yaml"
     f.write_text("soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n"
                  "other_node:\n  ros__parameters:\n    world_mode: default\n")
     assert L.given_params("soil_sim_node", f, [], ("world_mode",)) == {"world_mode": "fee"}
     f.write_text("ns:\n  soil_sim_node:\n    ros__parameters:\n      world_mode: fee\n"
                  "/**:\n  ros__parameters:\n    seed: 3\n")
+    # the launched simulator is /soil_sim_node: /ns/soil_sim_node's section is not its own
     assert L.given_params("soil_sim_node", f, [], ("world_mode", "seed", "soil")) == \
-        {"world_mode": "fee", "seed": "3", "soil": None}
-    f.write_text("/robot/soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+        {"world_mode": None, "seed": "3", "soil": None}
+    sections = yaml.safe_load(f.read_text())
+    assert node_parameters(sections, "/ns/soil_sim_node") == [{"world_mode": "fee"}, {"seed": 3}]  # nested maps
+    f.write_text("/soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+    assert L.given_params("soil_sim_node", f, [], ("world_mode",)) == {"world_mode": "fee"}
     assert L.given_params("soil_sim_node", f, ["world_mode:=default"], ("world_mode",)) == {"world_mode": "default"}
     assert L.given_params("pinn_estimator", f, [], ("world_mode",)) == {"world_mode": None}

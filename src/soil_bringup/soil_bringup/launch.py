@@ -53,6 +53,7 @@ import yaml
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
+from soil_msgs_py.params_files import node_parameters
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
@@ -342,39 +343,24 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
 
 
 def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:
-    """What the node ``node`` is given for each of ``names`` as text (None: not given): the last
-    ``-p`` of ``params``, else its params file's value in the sections that apply to it (``node``,
-    ``/node``, ``/**``, a namespace's ``ns/node``, nested or not; in file order), as it would read them."""
+    """What the node ``node`` (launched in the root namespace) is given for each of ``names`` as
+    text (None: not given): the last ``-p`` of ``params``, else the last value in its params file's
+    sections that apply to it by rcl's rules (``params_files.node_parameters``), as it reads them."""
     given: dict[str, str | None] = {name: None for name in names}
     if params_file:
         try:
-            for section in _node_sections(yaml.safe_load(Path(params_file).read_text()) or {}, node):
+            sections = yaml.safe_load(Path(params_file).read_text()) or {}
+            for section in node_parameters(sections if isinstance(sections, dict) else {}, f"/{node}"):
                 for key in given:
                     if key in section:
                         given[key] = "" if section[key] is None else str(section[key])
-        except (OSError, yaml.YAMLError, AttributeError, TypeError):
+        except (OSError, yaml.YAMLError):
             pass  # the node reports its own params file
     for pair in params:
         name, _, value = pair.partition(":=")
         if name.strip() in given:
             given[name.strip()] = value.strip().strip("'\"")
     return given
-
-
-def _node_sections(data: dict, node: str, path: tuple[str, ...] = ()) -> list[dict]:
-    """The ``ros__parameters`` mappings of a params file that apply to ``node`` (its name, or the
-    wildcard ``**`` / ``*``, as the last part of a section's path)."""
-    out = []
-    for key, value in data.items():
-        if not isinstance(value, dict):
-            continue
-        parts = path + tuple(p for p in str(key).split("/") if p)
-        if "ros__parameters" in value:
-            if parts and parts[-1] in (node, "**", "*") and isinstance(value["ros__parameters"], dict):
-                out.append(value["ros__parameters"])
-        else:
-            out += _node_sections(value, node, parts)
-    return out
 
 
 def world_checkpoint_param(args: argparse.Namespace) -> list[str]:

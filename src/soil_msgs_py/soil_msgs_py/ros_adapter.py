@@ -14,7 +14,6 @@ import collections
 import difflib
 import importlib
 import math
-import re
 import signal
 import sys
 import time
@@ -32,6 +31,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
+from .params_files import section_matches
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent,
                     QosSpec, publisher_qos_spec)
 
@@ -359,14 +359,6 @@ def params_files(argv: list[str]) -> list[str]:
     return [after for arg, in_ros, after in _ros_scan(argv) if in_ros and arg == "--params-file"]
 
 
-def _section_matches(key: str, fully_qualified_name: str) -> bool:
-    """Whether a params file's top-level key applies to the node (rcl's rules: a name, a
-    namespaced name, ``/**`` any number of tokens, ``*`` one token; a leading ``/`` optional)."""
-    pattern = "".join(".*" if part == "**" else "[^/]*" if part == "*" else re.escape(part)
-                      for part in re.split(r"(\*\*|\*)", key.strip("/")))
-    return re.fullmatch(pattern, fully_qualified_name.strip("/")) is not None
-
-
 def params_file_warnings(argv: list[str], node: Node) -> list[str]:
     """One warning per ``--params-file`` with no section for ``node``: rcl applies none of it, so a
     misspelt node name (``soil_sim_nod:``) would change nothing and say nothing."""
@@ -379,7 +371,7 @@ def params_file_warnings(argv: list[str], node: Node) -> list[str]:
         except (OSError, yaml.YAMLError):
             continue  # rcl read it already (it refuses a file it cannot read or parse)
         keys = [str(k) for k in sections] if isinstance(sections, dict) else []
-        if not any(_section_matches(k, node.get_fully_qualified_name()) for k in keys):
+        if not any(section_matches(k, node.get_fully_qualified_name()) for k in keys):
             close = difflib.get_close_matches(node.get_name(), [k.strip("/") for k in keys], n=1)
             hint = f" (is {close[0]} a misspelling of {node.get_name()}?)" if close else ""
             out.append(f"params file {path} has no section for this node ({node.get_fully_qualified_name()}; "

@@ -1,0 +1,39 @@
+"""Which sections of a ROS 2 params file apply to a node, by rcl's rules (no rclpy).
+
+A node reads them through rcl; the launcher, which starts the nodes, reads the same sections to
+know what a node was given (the simulator's world, the estimator's checkpoint), and a node
+warns when none of a file's sections is its own.
+"""
+from __future__ import annotations
+
+import re
+
+
+def section_matches(key: str, fully_qualified_name: str) -> bool:
+    """Whether a params file's section key applies to the node (rcl's rules: a name, a
+    namespaced name, ``/**`` any number of tokens, ``*`` one token; a leading ``/`` optional)."""
+    pattern = "".join(".*" if part == "**" else "[^/]*" if part == "*" else re.escape(part)
+                      for part in re.split(r"(\*\*|\*)", key.strip("/")))
+    return re.fullmatch(pattern, fully_qualified_name.strip("/")) is not None
+
+
+def node_parameters(sections: dict, fully_qualified_name: str) -> list[dict]:
+    """The ``ros__parameters`` mappings of a params file's parsed YAML that apply to the node, in
+    file order (a later one wins, as in rcl); nested namespace maps (``ns: {node: {...}}``) are
+    read as the key ``ns/node``."""
+    out = []
+
+    def walk(data: dict, prefix: str) -> None:
+        for key, value in data.items():
+            if not isinstance(value, dict):
+                continue
+            path = f"{prefix}/{str(key).strip('/')}" if prefix else str(key)
+            if "ros__parameters" in value:
+                params = value["ros__parameters"]
+                if isinstance(params, dict) and section_matches(path, fully_qualified_name):
+                    out.append(params)
+            else:
+                walk(value, path)
+
+    walk(sections, "")
+    return out
