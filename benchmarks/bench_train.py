@@ -16,9 +16,10 @@ import time
 import numpy as np
 import torch
 
-from pinn_estimator.checkpoint import SHIPPED_MODELS_DIR, read_checkpoint
+from pinn_estimator.checkpoint import read_checkpoint
 from pinn_estimator.loss import force_loss, pinn_loss
 from pinn_estimator.model import EstimatorNet, ModelConfig, parameter_count
+from pinn_estimator.shipped import MODELS_DIR
 from soil_msgs_py.params import KNOWN_PARAMS
 
 WINDOWS_PER_EPOCH_DEFAULT = 402 * (600 - 59) // 4  # ~70 % of 576 episodes, stride 4
@@ -73,7 +74,7 @@ def main() -> None:
     torch.set_num_threads(1)
     p50, p99 = latency()
     print(f"model step latency, batch 1, 1 thread: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
-    for path in sorted(SHIPPED_MODELS_DIR.glob("*.pt")):
+    for path in sorted(MODELS_DIR.glob("*.pt")):
         m = read_checkpoint(path)["metrics"]
         print(f"shipped {path.name}: trained in {m['train_seconds'] / 60:.1f} min ({m['epochs_run']} epochs; stop: {m['stop_reason']}); budget 15 min")
 

@@ -21,6 +21,7 @@ from pinn_estimator.evaluate import main as eval_main
 from pinn_estimator.inference import WindowTensors, predict
 from pinn_estimator.loss import LIMITED, consistency_loss, dn_gamma_dbeta_beta_only, pinn_loss, relu_limit
 from pinn_estimator.model import EstimatorNet, ModelConfig
+from pinn_estimator.shipped import MODELS_DIR, shipped_checkpoint
 from pinn_estimator.train import TrainConfig, main as train_main, train
 from soil_physics import fee
 from soil_bag_tools.bag_io import find_episode_bags
@@ -322,7 +323,7 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     with pytest.raises(SystemExit):
         eval_main([*common, "--forecast-data", str(cuts), "--forecast-world", "none"])
     # the forecast alone, with the shipped model, whose training bags are not here
-    shipped = ck.SHIPPED_MODELS_DIR / "pinn_fee.pt"
+    shipped = shipped_checkpoint("fee")
     alone = ["--checkpoint", str(shipped), "--forecast-only", "--no-classical", "--quiet", "--workers", "1"]
     assert eval_main([*alone, "--forecast-data", str(cuts), "--out", str(out), "--name", "f"]) == 0
     only = json.loads((out / "f.json").read_text())
@@ -356,7 +357,7 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert "the forecast alone" in (out / "f.md").read_text() and not (out / "f_params.png").exists()
     # another world's model is judged as asked, and said to be another world's
     said = []
-    evaluate(ck.SHIPPED_MODELS_DIR / "pinn_default.pt", forecast_data=cuts, forecast_only=True, classical=False,
+    evaluate(shipped_checkpoint("default"), forecast_data=cuts, forecast_only=True, classical=False,
              workers=1, log=said.append)
     assert any("trained on default-world data" in line and "fee-world bags" in line for line in said), said
     for bad in ([*alone], [*alone, "--forecast-data", str(cuts), "--data", str(tiny_bags)],
@@ -694,12 +695,12 @@ def test_cosine_schedule_anneals_the_learning_rate_over_the_budget(tiny_ds):
 # ------------------------------------------------------------------------------ shipped models
 @pytest.mark.parametrize("world", ["default", "fee"])
 def test_shipped_model_loads_and_estimates_on_a_sample_bag(world):
-    path = ck.SHIPPED_MODELS_DIR / f"pinn_{world}.pt"
+    path = shipped_checkpoint(world)
     assert path.stat().st_size < 1_000_000  # small enough for the package
     model, meta = ck.load_model(path)
     assert model.cfg.kind == "pinn" and meta["dataset"]["world_modes"] == [world]
     assert meta["dataset"]["episodes"] == {"default": 576, "fee": 432}[world]  # the paper's dataset sizes
-    report = json.loads((ck.SHIPPED_MODELS_DIR / f"pinn_{world}_report.json").read_text())
+    report = json.loads((MODELS_DIR / f"pinn_{world}_report.json").read_text())
     assert report["dataset"]["fingerprint"] == meta["dataset"]["fingerprint"]
     assert {"pinn", "physics_free", "classical"} <= set(report["force"])
     ds = load_dataset(Path(__file__).resolve().parents[2] / "bags" / "samples", cache=False)

@@ -15,12 +15,11 @@ import torch
 from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
 
 from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
-from .shipped import MODELS_DIR, shipped_checkpoint
+from .shipped import DEFAULT_WORLD, shipped_checkpoint
 
 FORMAT = "insitu-soil-estimator"
 FORMAT_VERSION = 1
-SHIPPED_MODELS_DIR = MODELS_DIR
-DEFAULT_CHECKPOINT = shipped_checkpoint("default")
+DEFAULT_CHECKPOINT = shipped_checkpoint(DEFAULT_WORLD)
 
 
 def interface() -> dict:

@@ -90,8 +90,6 @@ def load_calibrated(world: str) -> FusionConfig:
     return FusionConfig.load(path) if path.exists() else FusionConfig()
 
 
-
-
 def checkpoint_world(ckpt: dict | None) -> str:
     """The world whose shipped calibration goes with a checkpoint: the one world its training data
     came from (``dataset.world_modes``), where that world has a calibration; else DEFAULT_WORLD.

@@ -31,8 +31,8 @@ from soil_msgs_py.ros_adapter import (
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .fusion_calibration import checkpoint_world, config_path, estimator_fusion
-from .shipped import shipped_checkpoint
 from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
+from .shipped import shipped_checkpoint
 
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
