@@ -10,11 +10,13 @@ import re
 
 
 def section_matches(key: str, fully_qualified_name: str) -> bool:
-    """Whether a params file's section key applies to the node (rcl's rules: a name, a
-    namespaced name, ``/**`` any number of tokens, ``*`` one token; a leading ``/`` optional)."""
-    pattern = "".join(".*" if part == "**" else "[^/]*" if part == "*" else re.escape(part)
-                      for part in re.split(r"(\*\*|\*)", key.strip("/")))
-    return re.fullmatch(pattern, fully_qualified_name.strip("/")) is not None
+    """Whether a params file's section key applies to the node, by rcl's rule: the key (a
+    leading ``/`` optional) as a pattern in which ``/**`` stands for any number of namespace
+    tokens, none included (``/**/node`` applies to the root-namespace ``/node``), and ``/*``
+    for exactly one."""
+    pattern = re.escape("/" + key.strip().lstrip("/"))
+    pattern = pattern.replace(r"/\*\*", r"(?:/\w+)*").replace(r"/\*", r"(?:/\w+)")
+    return re.fullmatch(pattern, "/" + fully_qualified_name.strip().lstrip("/")) is not None
 
 
 def node_parameters(sections: dict, fully_qualified_name: str) -> list[dict]:
