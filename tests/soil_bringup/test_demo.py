@@ -43,7 +43,9 @@ def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):
 def test_bad_arguments_exit_2_with_the_reason():
     for argv, needle in ((["--soils", "Peat"], "Peat"), (["--duration", "0.5"], "window"),
                          (["--densities", "120"], "[0, 100]"),
-                         (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime")):
+                         (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime"),
+                         (["--depth", "0.7"], "--depth: target_depth_m=0.7 outside"),
+                         (["--speed", "0"], "--speed: target_speed_m_s=0.0 outside")):
         res = subprocess.run([sys.executable, "-m", "soil_bringup.demo", *argv], capture_output=True, text=True,
                              timeout=60)
         assert res.returncode == 2 and needle in res.stderr, res.stderr
@@ -75,13 +77,27 @@ def test_a_checkpoint_the_online_estimator_cannot_run_is_refused_before_the_grap
     assert D.parse_args([]).checkpoint == shipped_checkpoint("default")
 
 
+def test_the_depth_and_speed_go_to_the_simulator_and_the_forecast_goes_around_the_depth():
+    """Every episode cut at 0.2 m: a user could not see the estimator, or the planner's question,
+    at another depth without building the launch by hand."""
+    from soil_bringup.demo_forecast import OTHER_DEPTHS_M, other_depths
+
+    assert OTHER_DEPTHS_M == (0.1, 0.25) and other_depths(0.2) == OTHER_DEPTHS_M
+    assert other_depths(0.15) == (0.075, 0.188)
+    assert other_depths(0.3) == (0.15,)  # 0.375 m is beyond the lift's reach: kept at 0.3 m, the live depth
+    assert other_depths(0.06) == (0.05, 0.075)
+    args = D.parse_args(["--depth", "0.15", "--speed", "0.4"])
+    sim = D.launch_arguments(args, 100.0).sim_param
+    assert "target_depth_m:=0.15" in sim and "target_speed_m_s:=0.4" in sim, sim
+
+
 def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     from tests.ros_probe import next_domain_id
 
     out, bags = tmp_path / "out", tmp_path / "bags"
     argv = [sys.executable, "-m", "soil_bringup.demo", "--pacing", "lockstep", "--soils", "Clay",
             "--densities", "20", "--duration", "3.0", "--out", str(out), "--bags", str(bags),
-            "--domain-id", str(next_domain_id())]
+            "--domain-id", str(next_domain_id()), "--depth", "0.15"]
     res = subprocess.run(argv, capture_output=True, text=True, timeout=120)
     log = out / "launch.log"
     context = f"stdout:\n{res.stdout}\nstderr:\n{res.stderr}\nlaunch log tail:\n" + (
@@ -96,9 +112,11 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     errors = [*ep["force"].values(), *ep["params"].values()]
     assert all(math.isfinite(v) for v in errors), ep
     assert (out / "summary.md").read_text().count("| Clay |") == 3  # errors, mean estimates, the fused soil
-    # the planner's question: from the live episode to the simulator cutting the same soil at 0.1 and 0.25 m
+    # the planner's question: from the live episode (0.15 m) to the simulator cutting the same soil at half
+    # and 1.25 times that depth
     forecast = summary["forecast"]
     assert forecast["live_episodes"] == 1 and forecast["simulated_episodes"] == 2 and forecast["pairs"] >= 1, forecast
+    assert forecast["depths_m"] == [0.075, 0.188] and summary["run"]["target_depth_m"] == 0.15, forecast
     for name in ("fused", "pinn", "true_fee", "naive_same_force"):
         assert math.isfinite(forecast["forecast"][name]["x"]["all"]["mean_abs_pct"]), (name, forecast)
     assert forecast["physics"]["fused"] == [["form:-qnq*tanhvx0.1", 0.756]], "the live estimator's posterior physics"
@@ -109,7 +127,7 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     assert png.is_file() and png.stat().st_size > 10_000
 
     recorded = read_episode(Path(ep["bag"]))
-    assert len(recorded) == 180 and recorded.meta.soil == "Clay"
+    assert len(recorded) == 180 and recorded.meta.soil == "Clay" and recorded.meta.target_depth_m == 0.15
     # the live part: an episode header, the window filling, one line per simulated second, all <= 120 columns
     lines = res.stdout.splitlines()
     assert any(line.startswith("=== episode 1/1: Clay, I_d 20 %") for line in lines), context

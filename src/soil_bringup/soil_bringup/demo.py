@@ -18,6 +18,7 @@ and the order of things only.
     python -m soil_bringup.demo                                # real time, ~2 min
     python -m soil_bringup.demo --pacing lockstep              # as fast as the machine goes
     python -m soil_bringup.demo --soils Clay Sand --densities 40 --duration 5 --rate 2
+    python -m soil_bringup.demo --depth 0.15 --speed 0.4      # every episode's target cut
 
 Exit codes: 0 done; 1 the launch failed or a bag is missing / has no valid estimate; 2 bad
 arguments; 130 interrupted. Every wait is bounded; the launch (and its nodes) are stopped on
@@ -42,10 +43,11 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
-from soil_msgs_py.params import SAMPLE_RATE_HZ, WINDOW_SAMPLES
+from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, WINDOW_SAMPLES,
+                                  beyond_lift_reach)
 
 from . import launch as L
-from .demo_forecast import depths_text, forecast_from_live
+from .demo_forecast import OTHER_DEPTH_FACTORS, depths_text, forecast_from_live, other_depths
 from .demo_forecast import markdown_lines as forecast_lines
 from .monitor import MONITOR_DATA_TOPICS, LiveMonitor
 from .scoring import missing_episodes, overall, score_bag_dir
@@ -68,6 +70,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--densities", nargs="+", type=float, default=list(DEFAULT_DENSITIES_PCT), metavar="PCT",
                    help="relative densities I_d [%%] per soil (default: 20 80)")
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s] of simulation time (default 10)")
+    p.add_argument("--depth", type=float, default=DEFAULT_TARGET_DEPTH_M,
+                   help=f"target cut depth d̄_z [m] of every episode (default {DEFAULT_TARGET_DEPTH_M:g}); the forecast "
+                        f"then goes to {' and '.join(f'{f:g}' for f in OTHER_DEPTH_FACTORS)} times it")
+    p.add_argument("--speed", type=float, default=DEFAULT_TARGET_SPEED_M_S,
+                   help=f"target forward speed v̄_x [m/s] (default {DEFAULT_TARGET_SPEED_M_S:g})")
     p.add_argument("--pacing", choices=("realtime", "lockstep"), default="realtime",
                    help="realtime: 60 Hz ticks on the wall clock x --rate (the honest online demo, default); "
                         "lockstep: each tick waits for the controller, as fast as the machine goes")
@@ -84,7 +91,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help=f"ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else {DEFAULT_DOMAIN_ID})")
     p.add_argument("--no-forecast", action="store_true",
                    help="skip the forecast at other depths (the simulator cutting each episode's soil at "
-                        f"{depths_text()} m after the run)")
+                        f"{depths_text()} m after the run, for the default --depth)")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="give the launch at most this many seconds (default: from the plan)")
     args = p.parse_args(argv)
@@ -103,6 +110,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.duration * SAMPLE_RATE_HZ < WINDOW_SAMPLES + 1:
         p.error(f"--duration {args.duration} s is shorter than one estimator window "
                 f"({WINDOW_SAMPLES} samples = {WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s): no estimate could be made")
+    _check_episodes(p, args)
     if args.rate is not None and args.pacing == "lockstep":  # soil_launch's refusal: silently ignored, it misled
         p.error(f"--rate {args.rate:g} is the real-time factor of --pacing realtime; lockstep has none")
     args.rate = 1.0 if args.rate is None else args.rate
@@ -128,6 +136,23 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.bags.resolve() in (Path.cwd().resolve(), Path.home().resolve(), Path("/")):
         p.error(f"--bags {args.bags}: refusing to clear that directory")
     return args
+
+
+def _check_episodes(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Every planned episode through the simulator's own checks (ranges, a soil the blade can cut at
+    that depth in that world), before the graph starts: the node would refuse it seconds later."""
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
+
+    config = SimConfig(world_mode=args.world_mode or DEFAULT_WORLD)
+    for soil, density in itertools.product(args.soils, args.densities):
+        try:
+            resolve_checked(config, EpisodeSpec(soil, density, args.speed, args.depth, seed=0, duration_s=args.duration))
+        except ValueError as err:
+            option = "--depth" if "target_depth_m" in str(err) else "--speed" if "target_speed_m_s" in str(err) else \
+                f"--soils {soil} --densities {density:g}"
+            p.error(f"{option}: {err}")
+    if note := beyond_lift_reach("--depth", args.depth):
+        print(f"demo: {note}", file=sys.stderr)
 
 
 def planned_seconds(args: argparse.Namespace, episodes: int) -> float:
@@ -166,7 +191,9 @@ def launch_arguments(args: argparse.Namespace, launch_timeout_s: float) -> argpa
             "--domain-id", str(args.domain_id), "--timeout", f"{launch_timeout_s:.0f}",
             "--sim-param", f"sequence_soils:=[{','.join(args.soils)}]",
             "--sim-param", f"sequence_relative_densities_pct:={floats(args.densities)}",
-            "--sim-param", f"duration_s:={float(args.duration)!r}", "--sim-param", "episodes:=1"]
+            "--sim-param", f"duration_s:={float(args.duration)!r}", "--sim-param", "episodes:=1",
+            "--sim-param", f"target_depth_m:={float(args.depth)!r}",
+            "--sim-param", f"target_speed_m_s:={float(args.speed)!r}"]
     if args.pacing == "realtime":
         argv += ["--rate", repr(float(args.rate))]
     if args.world_mode:
@@ -211,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"demo: {err}", file=sys.stderr)
         return L.EXIT_BAD_ARGS
     print(f"demo: {len(pairs)} episode(s): {', '.join(args.soils)} x I_d {', '.join(f'{d:g}' for d in args.densities)} %, "
-          f"{args.duration:g} s each, pacing {args.pacing}" + (f" x{args.rate:g}" if args.pacing == "realtime" else "")
+          f"{args.duration:g} s each at {args.depth:g} m and {args.speed:g} m/s, pacing {args.pacing}" + (f" x{args.rate:g}" if args.pacing == "realtime" else "")
           + f", ROS_DOMAIN_ID {args.domain_id} (loopback only)")
     print(f"demo: bags -> {args.bags}/" + (" (cleared the previous demo's bags)" if cleared else "")
           + f"; node output -> {log_path}")
@@ -308,6 +335,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     wall_s = time.monotonic() - t_start
     run_info = {
         "soils": args.soils, "densities_pct": [float(d) for d in args.densities], "duration_s": args.duration,
+        "target_depth_m": args.depth, "target_speed_m_s": args.speed,
         "pacing": args.pacing, "rate": args.rate if args.pacing == "realtime" else None,
         "world_mode": args.world_mode, "checkpoint": str(args.checkpoint),
         "domain_id": args.domain_id, "bags": str(args.bags), "launch_log": str(log_path),
@@ -321,10 +349,11 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     }
     result = {"run": run_info, "episodes": rows, "overall": total}
     if not args.no_forecast:
+        depths = other_depths(args.depth)
         print("demo: the planner's question: the simulator cuts each episode's soil at "
-              f"{depths_text()} m ...", flush=True)
+              f"{depths_text(depths)} m ...", flush=True)
         try:
-            result["forecast"] = forecast_from_live(scores, args.world_mode, checkpoint=args.checkpoint)
+            result["forecast"] = forecast_from_live(scores, args.world_mode, depths, checkpoint=args.checkpoint)
         except Exception as err:  # noqa: BLE001 - the run's own summary is written whatever this does
             result["forecast"] = {"skipped": f"{type(err).__name__}: {err}"}
     paths = {"json": args.out / JSON_NAME, "markdown": args.out / MARKDOWN_NAME, "png": args.out / FIGURE_NAME}

@@ -16,8 +16,25 @@ import math
 
 import numpy as np
 
-OTHER_DEPTHS_M = (0.1, 0.25)  # the demo cuts at 0.2 m: one forecast shallower, one deeper
+from soil_msgs_py.params import DEFAULT_TARGET_DEPTH_M, LIFT_REACH_M
+
+# From a live cut at d, the forecasts go to d / 2 and 1.25 d (the default 0.2 m cut: 0.1 and 0.25 m):
+# one shallower, one deeper, within the forecast's calibrated reach (pairs at most ~2.5x apart; the
+# intervals are not to be trusted from cuts shallower than ~7 cm or far deeper than the evidence).
+OTHER_DEPTH_FACTORS = (0.5, 1.25)
+MIN_OTHER_DEPTH_M = 0.05  # the shallowest swept and planned cut (cut_report, depth_schedule)
 ESTIMATORS = ("fused", "pinn")
+
+
+def other_depths(live_depth_m: float) -> tuple[float, ...]:
+    """The depths [m] the demo forecasts to from live cuts at ``live_depth_m``: ``OTHER_DEPTH_FACTORS``
+    of it to the millimetre, within [MIN_OTHER_DEPTH_M, LIFT_REACH_M] (the lift's reach on level
+    ground: the simulator's cut there is the depth asked), the live depth itself left out."""
+    depths = sorted({round(min(max(f * live_depth_m, MIN_OTHER_DEPTH_M), LIFT_REACH_M), 3) for f in OTHER_DEPTH_FACTORS})
+    return tuple(d for d in depths if abs(d - live_depth_m) > 5e-4)
+
+
+OTHER_DEPTHS_M = other_depths(DEFAULT_TARGET_DEPTH_M)
 
 
 def depths_text(depths_m=OTHER_DEPTHS_M) -> str:
