@@ -818,6 +818,21 @@ def test_a_named_term_earns_its_place_only_where_the_effect_is(bag_dirs):
         assert place["judged"] and place["earns"] is where and (place["gain"] > 0) is where, (name, place)
 
 
+def test_a_pinned_form_with_structure_left_in_its_scales_variable_says_the_effect_may_not_scale_so():
+    """An outside reader's load-cell drift (150 N/s, the same at every depth) was named w d · τ,
+    "pinned down" (the library has no depth-free scale growing with time), with structure left vs
+    the cut depth, which the verdict did not tie to the form's scale."""
+    from soil_discrepancy.workflow import _shape_caveat
+
+    labels = {"d": "cut depth d", "t": "time in episode"}
+    reg = {"significant": True, "flagged_variables": ["d"]}
+    said = _shape_caveat("form:wd_x*tau", {"pinned": True}, reg, labels)
+    assert "structure remains vs cut depth d, which its scale w d" in said and "may not scale so" in said, said
+    assert "near the form's" in _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "flagged_variables": ["t"]}, labels)
+    assert _shape_caveat("form:one_x*tau", {"pinned": True}, reg, labels) == ""  # a constant scale varies with nothing
+    assert _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "significant": False}, labels) == ""
+
+
 def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_form_says_its_forecast():
     """An outside reader's hidden speed step was "explained" by a momentum flux times v_x², one of five
     forms that fit as well: the headline now says the form is NOT pinned down. And a tentative form
@@ -835,8 +850,14 @@ def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_for
                                                 {"name": "form:gd2w_x*vx", "pin": {"pinned": True}}]}}
     assert headline_verdict(two) == "explained" and headline_verdict({**report, "verdict": "unexplained"}) == "unexplained"
     assert headline_verdict({**report, "selection": {"accepted": [{"name": "form:gd2w_x*vx", "pin": scale}]}}) == "explained"
-    # a catalogue term is a mechanism: its caveat says what is not pinned, the headline does not
-    assert headline_verdict({**report, "selection": {"accepted": [{"name": "soil_inertia", "pin": loose}]}}) == "explained"
+    # a catalogue term whose form the data do not pin down: an outside reader's drag ∝ tan φ · v_x was
+    # "explained" by soil inertia (fifteen forms fit as well), by the rate strength with another split
+    assert headline_verdict({**report, "selection": {"accepted": [{"name": "soil_inertia", "pin": loose}]}}) == \
+        "explained by a term whose form is NOT pinned down"
+    assert headline_verdict({**report, "selection": {"accepted": [{"name": "soil_inertia", "pin": {"pinned": True}}]}}) == "explained"
+    assert headline_verdict({**report, "selection": {"accepted": [{"name": "soil_inertia", "pin": loose},
+                                                                  {"name": "form:mom_x*vx2", "pin": loose}]}}) == \
+        "explained by terms whose forms are NOT pinned down"
     reg = {"significant": True, "flagged_variables": ["d"], "misfit": None}
     forms = {"not_confirmed": {"forms": ["form:-gd2w_x*below0.15"], "test_rmse_before": 1390.0, "test_rmse_after": 901.0,
                                "forecast_pct_before": 38.7, "forecast_pct_after": 62.3}}

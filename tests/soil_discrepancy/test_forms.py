@@ -235,7 +235,9 @@ def test_a_pinned_form_leaving_structure_in_its_own_variable_is_called_the_neare
     after = {"significant": True, "flagged_variables": ["d", "distance"]}
     text = _shape_caveat("form:wd_x*sat2", pinned, after, labels)
     assert text.startswith("; pinned down among the library's forms, but structure remains vs distance cut in soil"), text
-    assert _shape_caveat("form:wd_x*tsat10", pinned, after, labels) == ""  # its variable is time: clean there
+    # its factor's variable is time, clean there; its scale w d varies with the depth, where structure is left
+    assert "vs cut depth d, which its scale" in _shape_caveat("form:wd_x*tsat10", pinned, after, labels)
+    assert _shape_caveat("form:wd_x*tsat10", pinned, {**after, "flagged_variables": ["v_x", "distance"]}, labels) == ""
     assert _shape_caveat("form:wd_x*sat2", pinned, {"significant": False, "flagged_variables": []}, labels) == ""
     assert _shape_caveat("form:wd_x*sat2", loose, after, labels) == ""
     assert _shape_caveat("soil_inertia", pinned, after, labels) == ""

@@ -20,7 +20,7 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .workflow import THETA_SHIFT_DISPLAY, theta_move_text, unpinned_forms_only
+from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 
@@ -63,11 +63,19 @@ def headline_verdict(report: dict) -> str:
     """The verdict as the headline says it: with "by a form NOT pinned down" where every named term
     is a discovered form its data do not pin down (``workflow.unpinned_forms_only``; an outside
     reader's hidden speed step was "explained" by a momentum flux times v_x², one of five forms
-    that fit as well). The report's JSON keeps the verdict's own word."""
+    that fit as well), "by a term whose form is NOT pinned down" where a catalogue term is among
+    them (a drag ∝ tan φ · v_x was "explained" by soil inertia, whose form fifteen others fit as
+    well, and by the rate strength with another held-out split). The report's JSON keeps the
+    verdict's own word."""
     verdict = report.get("verdict", "")
     accepted = (report.get("selection") or {}).get("accepted") or []
-    if verdict in ("explained", "partly explained") and unpinned_forms_only({a["name"]: a.get("pin") for a in accepted}):
-        return f"{verdict} by {'forms' if len(accepted) > 1 else 'a form'} NOT pinned down"
+    named = {a["name"]: a.get("pin") for a in accepted}
+    if verdict not in ("explained", "partly explained") or not named:
+        return verdict
+    if unpinned_forms_only(named):
+        return f"{verdict} by {'forms' if len(named) > 1 else 'a form'} NOT pinned down"
+    if all(pin_kind(pin) in WEAK_PIN_KINDS for pin in named.values()):
+        return f"{verdict} by {'terms whose forms are' if len(named) > 1 else 'a term whose form is'} NOT pinned down"
     return verdict
 
 

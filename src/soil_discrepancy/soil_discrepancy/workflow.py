@@ -556,18 +556,28 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
 
 
 def _shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -> str:
-    """The words a pinned-down form carries when structure remains in the variable its factor is a
-    function of (``term_forms.factor_variable``) once it is in the model: the best shape of the
-    library there, not the effect's (a drag growing linearly with travel up to a cap, named as
-    1 − exp(−s / 2 m) with k 1.8 for 1.5, left structure vs distance; every form the library holds
-    exactly, found on the hidden-effect grid, left none)."""
+    """The words a pinned-down form carries when structure remains, once it is in the model, in a
+    variable its factor is a function of (``term_forms.factor_variable``) or its scale varies with
+    (``term_forms.SCALE_VARIABLES``): the library's best law there, not the effect's. (A drag
+    growing linearly with travel up to a cap, named as 1 − exp(−s / 2 m) with k 1.8 for 1.5, left
+    structure vs distance; a load cell drifting with time, the same at every depth, named as
+    w d · τ, "pinned down" since the library has no depth-free scale growing with time, left
+    structure vs the cut depth; every form the library holds exactly, found on the hidden-effect
+    grid, left none.)"""
     if not name.startswith(FORM_PREFIX) or pin_kind(pin) != "pinned" or not reg1 or not reg1.get("significant"):
         return ""
-    var = term_forms.factor_variable(term_forms.parse(name)[2].name)
-    if var is None or var not in (reg1.get("flagged_variables") or []):
-        return ""
-    return (f"; pinned down among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
-            "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
+    _, scale, factor = term_forms.parse(name)
+    flagged = reg1.get("flagged_variables") or []
+    var = term_forms.factor_variable(factor.name)
+    if var is not None and var in flagged:
+        return (f"; pinned down among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
+                "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
+    scale_vars = [v for v in term_forms.SCALE_VARIABLES.get(scale.name, ()) if v in flagged]
+    if scale_vars:
+        said = " and ".join(labels.get(v, v) for v in scale_vars)
+        return (f"; pinned down among the library's forms, but structure remains vs {said}, which its scale "
+                f"{scale.formula} varies with: the effect may not scale so, and its k is the nearest law's")
+    return ""
 
 
 def _notes(frame: Frame, n_test_groups: int) -> list[str]:
