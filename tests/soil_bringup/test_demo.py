@@ -89,6 +89,10 @@ def test_the_depth_and_speed_go_to_the_simulator_and_the_forecast_goes_around_th
     args = D.parse_args(["--depth", "0.15", "--speed", "0.4"])
     sim = D.launch_arguments(args, 100.0).sim_param
     assert "target_depth_m:=0.15" in sim and "target_speed_m_s:=0.4" in sim, sim
+    assert not any(p.startswith("settle_s:=") for p in sim), sim  # real time: the simulator's own pause
+    # lockstep: each episode waits for the estimator, which trails the simulator, to show its last lines
+    sim = D.launch_arguments(D.parse_args(["--pacing", "lockstep"]), 100.0).sim_param
+    assert f"settle_s:={D.LOCKSTEP_SETTLE_S!r}" in sim, sim
 
 
 def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
