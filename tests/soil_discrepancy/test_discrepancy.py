@@ -830,6 +830,11 @@ def test_a_pinned_form_with_structure_left_in_its_scales_variable_says_the_effec
     assert "structure remains vs cut depth d, which its scale w d" in said and "may not scale so" in said, said
     assert "near the form's" in _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "flagged_variables": ["t"]}, labels)
     assert _shape_caveat("form:one_x*tau", {"pinned": True}, reg, labels) == ""  # a constant scale varies with nothing
+    # the model's own force and the pile vary with every motion variable: structure another effect leaves
+    # there says nothing of their law (0.15 F_FEE v_x² found in form; the pile's relief −k Q)
+    assert _shape_caveat("form:fee*vx2", {"pinned": True}, {**reg, "flagged_variables": ["v_z"]}, labels) == ""
+    assert _shape_caveat("form:-q_x*1", {"pinned": True}, {**reg, "flagged_variables": ["distance"]}, labels) == ""
+    assert "which its scale" in _shape_caveat("form:mom_x*1", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels)
     assert _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "significant": False}, labels) == ""
 
 

@@ -555,10 +555,15 @@ def _theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict |
     return text
 
 
+GEOMETRIC_SCALE_VARIABLES = frozenset({"d", "v_x"})  # _shape_caveat: the variables of a scale that is a law of the cut
+
+
 def _shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -> str:
     """The words a pinned-down form carries when structure remains, once it is in the model, in a
     variable its factor is a function of (``term_forms.factor_variable``) or its scale varies with
-    (``term_forms.SCALE_VARIABLES``): the library's best law there, not the effect's. (A drag
+    (``term_forms.SCALE_VARIABLES``; a scale that is a law of the cut's geometry, of d and v_x only:
+    the model's own force and the pile vary with every motion variable, and structure another
+    effect leaves there says nothing of their law): the library's best law there, not the effect's. (A drag
     growing linearly with travel up to a cap, named as 1 − exp(−s / 2 m) with k 1.8 for 1.5, left
     structure vs distance; a load cell drifting with time, the same at every depth, named as
     w d · τ, "pinned down" since the library has no depth-free scale growing with time, left
@@ -572,7 +577,8 @@ def _shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) 
     if var is not None and var in flagged:
         return (f"; pinned down among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
                 "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
-    scale_vars = [v for v in term_forms.SCALE_VARIABLES.get(scale.name, ()) if v in flagged]
+    law = term_forms.SCALE_VARIABLES.get(scale.name, ())
+    scale_vars = [v for v in law if v in flagged] if set(law) <= GEOMETRIC_SCALE_VARIABLES else []
     if scale_vars:
         said = " and ".join(labels.get(v, v) for v in scale_vars)
         return (f"; pinned down among the library's forms, but structure remains vs {said}, which its scale "
