@@ -45,6 +45,7 @@ def test_bad_arguments_exit_2_with_the_reason():
                          (["--densities", "120"], "[0, 100]"),
                          (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime"),
                          (["--depth", "0.7"], "--depth: target_depth_m=0.7 outside"),
+                         (["--depth", "0.005"], "--depth 0.005: the blade cuts from 0.01 m"),
                          (["--speed", "0"], "--speed: target_speed_m_s=0.0 outside")):
         res = subprocess.run([sys.executable, "-m", "soil_bringup.demo", *argv], capture_output=True, text=True,
                              timeout=60)
@@ -85,6 +86,7 @@ def test_the_depth_and_speed_go_to_the_simulator_and_the_forecast_goes_around_th
     assert OTHER_DEPTHS_M == (0.1, 0.25) and other_depths(0.2) == OTHER_DEPTHS_M
     assert other_depths(0.15) == (0.075, 0.188)
     assert other_depths(0.3) == (0.15,)  # 0.375 m is beyond the lift's reach: kept at 0.3 m, the live depth
+    assert other_depths(0.4) == (0.15,)  # a target beyond the reach is cut at about the reach first
     assert other_depths(0.06) == (0.05, 0.075)
     args = D.parse_args(["--depth", "0.15", "--speed", "0.4"])
     sim = D.launch_arguments(args, 100.0).sim_param
@@ -116,6 +118,7 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     errors = [*ep["force"].values(), *ep["params"].values()]
     assert all(math.isfinite(v) for v in errors), ep
     assert (out / "summary.md").read_text().count("| Clay |") == 3  # errors, mean estimates, the fused soil
+    assert "of 3 s at 0.15 m and 0.5 m/s" in (out / "summary.md").read_text()
     # the planner's question: from the live episode (0.15 m) to the simulator cutting the same soil at half
     # and 1.25 times that depth
     forecast = summary["forecast"]

@@ -41,3 +41,28 @@ def test_a_section_applies_to_a_node_exactly_where_rcl_applies_it(tmp_path, name
     ours = {i for i, key in enumerate(KEYS) if section_matches(key, name)}
     assert ours == given, {KEYS[i]: ("rcl" if i in given else "ours") for i in ours ^ given}
     assert given, name  # the file is one rcl read at all
+
+
+def test_the_nodes_no_section_warning_reads_nested_namespace_maps_as_rcl_does(tmp_path):
+    """``ns: {node: {ros__parameters: …}}`` is the node /ns/node's section for rcl; the node's
+    "no section for this node" warning looked at the file's top-level keys only and said so."""
+    import rclpy
+
+    from soil_msgs_py.ros_adapter import params_file_warnings
+
+    nested = tmp_path / "nested.yaml"
+    nested.write_text("ns:\n  n1:\n    ros__parameters:\n      p: 1\n")
+    other = tmp_path / "other.yaml"
+    other.write_text("elsewhere:\n  n1:\n    ros__parameters:\n      p: 1\n")
+    argv = ["--ros-args", "--params-file", str(nested), "--params-file", str(other)]
+    context = rclpy.Context()
+    rclpy.init(args=argv, context=context, domain_id=next_domain_id())
+    try:
+        node = rclpy.create_node("n1", namespace="/ns", context=context,
+                                 automatically_declare_parameters_from_overrides=True)
+        assert node.has_parameter("p")  # rcl applied the nested section
+        warnings = params_file_warnings(argv, node)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    assert len(warnings) == 1 and str(other) in warnings[0] and str(nested) not in warnings[0], warnings

@@ -38,7 +38,7 @@ from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, MIN_CUT_DEPTH_M
+from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
@@ -50,7 +50,7 @@ from .cut_trial import Cut, Policy, SoilAwareSetup, run_cut, sweep_fixed_depths
 DEFAULT_PATCHES = ("0:Sand:20", "10:Clay:80", "16:Loam:50")
 DEFAULT_DURATION_S = 45.0
 DEFAULT_SEED = 3
-SWEEP_DEPTHS_M = tuple(np.round(np.arange(0.05, 0.3001, 0.025), 4))
+SWEEP_DEPTHS_M = tuple(np.round(np.arange(MIN_PLANNED_DEPTH_M, LIFT_REACH_M + 1e-4, 0.025), 4))  # the planner's range
 SPEED_M_S = DEFAULT_TARGET_SPEED_M_S  # every policy's, and the speed the planner plans at
 # The targets (figures, not tests)
 TARGET_VOLUME_RATIO = 1.5  # soil-aware / conservative volume per metre

@@ -43,8 +43,8 @@ from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
-from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, WINDOW_SAMPLES,
-                                  beyond_lift_reach)
+from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, LIFT_REACH_M, MIN_CUT_DEPTH_M,
+                                  MIN_PLANNED_DEPTH_M, SAMPLE_RATE_HZ, WINDOW_SAMPLES, beyond_lift_reach)
 
 from . import launch as L
 from .demo_forecast import OTHER_DEPTH_FACTORS, depths_text, forecast_from_live, other_depths
@@ -75,8 +75,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="relative densities I_d [%%] per soil (default: 20 80)")
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s] of simulation time (default 10)")
     p.add_argument("--depth", type=float, default=DEFAULT_TARGET_DEPTH_M,
-                   help=f"target cut depth d̄_z [m] of every episode (default {DEFAULT_TARGET_DEPTH_M:g}); the forecast "
-                        f"then goes to {' and '.join(f'{f:g}' for f in OTHER_DEPTH_FACTORS)} times it")
+                   help=f"target cut depth d̄_z [m] of every episode (default {DEFAULT_TARGET_DEPTH_M:g}, at least "
+                        f"{MIN_CUT_DEPTH_M:g}); the forecast then goes to {' and '.join(f'{f:g}' for f in OTHER_DEPTH_FACTORS)} "
+                        f"times it, within {MIN_PLANNED_DEPTH_M:g}-{LIFT_REACH_M:g} m")
     p.add_argument("--speed", type=float, default=DEFAULT_TARGET_SPEED_M_S,
                    help=f"target forward speed v̄_x [m/s] (default {DEFAULT_TARGET_SPEED_M_S:g})")
     p.add_argument("--pacing", choices=("realtime", "lockstep"), default="realtime",
@@ -147,6 +148,9 @@ def _check_episodes(p: argparse.ArgumentParser, args: argparse.Namespace) -> Non
     that depth in that world), before the graph starts: the node would refuse it seconds later."""
     from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
 
+    if math.isfinite(args.depth) and 0.0 <= args.depth < MIN_CUT_DEPTH_M:
+        p.error(f"--depth {args.depth:g}: the blade cuts from {MIN_CUT_DEPTH_M:g} m (shallower it skims the surface: "
+                "no evidence about the soil)")
     config = SimConfig(world_mode=args.world_mode or DEFAULT_WORLD)
     for soil, density in itertools.product(args.soils, args.densities):
         try:

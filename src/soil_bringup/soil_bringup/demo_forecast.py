@@ -16,22 +16,23 @@ import math
 
 import numpy as np
 
-from soil_msgs_py.params import DEFAULT_TARGET_DEPTH_M, LIFT_REACH_M
+from soil_msgs_py.params import DEFAULT_TARGET_DEPTH_M, LIFT_REACH_M, MIN_PLANNED_DEPTH_M
 
 # From a live cut at d, the forecasts go to d / 2 and 1.25 d (the default 0.2 m cut: 0.1 and 0.25 m):
 # one shallower, one deeper, within the forecast's calibrated reach (pairs at most ~2.5x apart; the
 # intervals are not to be trusted from cuts shallower than ~7 cm or far deeper than the evidence).
 OTHER_DEPTH_FACTORS = (0.5, 1.25)
-MIN_OTHER_DEPTH_M = 0.05  # the shallowest swept and planned cut (cut_report, depth_schedule)
 ESTIMATORS = ("fused", "pinn")
 
 
 def other_depths(live_depth_m: float) -> tuple[float, ...]:
     """The depths [m] the demo forecasts to from live cuts at ``live_depth_m``: ``OTHER_DEPTH_FACTORS``
-    of it to the millimetre, within [MIN_OTHER_DEPTH_M, LIFT_REACH_M] (the lift's reach on level
-    ground: the simulator's cut there is the depth asked), the live depth itself left out."""
-    depths = sorted({round(min(max(f * live_depth_m, MIN_OTHER_DEPTH_M), LIFT_REACH_M), 3) for f in OTHER_DEPTH_FACTORS})
-    return tuple(d for d in depths if abs(d - live_depth_m) > 5e-4)
+    of the depth cut to the millimetre, within [MIN_PLANNED_DEPTH_M, LIFT_REACH_M], the depth cut
+    itself left out. Within the lift's reach on level ground the simulator cuts at the depth asked
+    there; a deeper target is cut at about the reach (its first metres), so the factors start from it."""
+    cut = min(live_depth_m, LIFT_REACH_M)
+    depths = sorted({round(min(max(f * cut, MIN_PLANNED_DEPTH_M), LIFT_REACH_M), 3) for f in OTHER_DEPTH_FACTORS})
+    return tuple(d for d in depths if abs(d - cut) > 5e-4)
 
 
 OTHER_DEPTHS_M = other_depths(DEFAULT_TARGET_DEPTH_M)

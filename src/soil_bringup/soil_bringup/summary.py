@@ -40,7 +40,9 @@ def markdown(report: dict) -> str:
     run, rows, total = report["run"], report["episodes"], report["overall"]
     lines = [
         "# Online estimation demo", "",
-        f"{len(rows)} episode(s) of {run['duration_s']:g} s, pacing {run['pacing']}"
+        f"{len(rows)} episode(s) of {run['duration_s']:g} s"
+        + (f" at {run['target_depth_m']:g} m and {run['target_speed_m_s']:g} m/s" if "target_depth_m" in run else "")
+        + f", pacing {run['pacing']}"
         + (f" x{run['rate']:g}" if run["pacing"] == "realtime" else "")
         + f", {run['world_mode'] or 'default'} world; checkpoint `{run['checkpoint']}`. "
         f"Run wall time {run['wall_s']:.1f} s (launch {run['launch_s']:.1f} s). Bags: `{run['bags']}`.", "",

@@ -155,6 +155,10 @@ STEADY_CUT_MAX_ABS_V_Z_M_S = 0.02
 # evidence about the soil (the posterior's stretches, the discrepancy workflow's ticks, a forecast's
 # steady part).
 MIN_CUT_DEPTH_M = 0.01
+# The shallowest cut a depth is planned or swept at [m]: at 2 cm a weak soil after a strong one
+# cannot show, and a cut would stay there (the planner's depth schedule, the cut report's sweep,
+# the demo's forecast depths).
+MIN_PLANNED_DEPTH_M = 0.05
 
 # Soil-tool constants of §3.1.
 ADHESION_PA = 200.0  # c_a, all soils

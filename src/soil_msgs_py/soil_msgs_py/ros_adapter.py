@@ -31,7 +31,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
-from .params_files import section_matches
+from .params_files import node_parameters
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent,
                     QosSpec, publisher_qos_spec)
 
@@ -371,7 +371,8 @@ def params_file_warnings(argv: list[str], node: Node) -> list[str]:
         except (OSError, yaml.YAMLError):
             continue  # rcl read it already (it refuses a file it cannot read or parse)
         keys = [str(k) for k in sections] if isinstance(sections, dict) else []
-        if not any(section_matches(k, node.get_fully_qualified_name()) for k in keys):
+        # (nested namespace maps too: rcl gives ``ns: {node: {ros__parameters: …}}`` to /ns/node)
+        if not (keys and node_parameters(sections, node.get_fully_qualified_name())):
             close = difflib.get_close_matches(node.get_name(), [k.strip("/") for k in keys], n=1)
             hint = f" (is {close[0]} a misspelling of {node.get_name()}?)" if close else ""
             out.append(f"params file {path} has no section for this node ({node.get_fully_qualified_name()}; "
