@@ -10,6 +10,7 @@ import math
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -294,6 +295,35 @@ def test_launch_forwards_ctrl_c_and_exits_as_interrupted(tmp_path, domain):
     assert rc == 130, log  # 128 + SIGINT: interrupted, not done
     assert "interrupted; stopping all nodes" in log and "episode 0 end (shutdown)" in log
     assert _children_gone(proc.pid)
+
+
+def test_a_launcher_killed_outright_takes_its_nodes_with_it_and_the_bag_is_finished(tmp_path, domain):
+    """SIGKILL leaves the launcher no chance to stop its nodes; they used to run on as orphans on
+    the domain (a second controller spoils every tick of the next launch). Each node now gets
+    SIGTERM from the kernel when the launcher dies, which it takes as an ordinary stop: the
+    recorder still finishes the episode's bag."""
+    from soil_bag_tools.bag_io import find_episode_bags, read_episode
+
+    proc = _launch(["--record", str(tmp_path / "bags"), "--sim-param", "duration_s:=60.0", "--timeout", "60"],
+                   domain, tmp_path)
+    nodes: list[str] = []
+    try:
+        wait_until(lambda: "episode 0 start" in proc.log_path.read_text(), 30, "the episode to start")
+        nodes = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        assert len(nodes) == 3, proc.log_path.read_text()  # recorder, controller, simulator
+        time.sleep(1.0)
+        proc.kill()
+        proc.wait(timeout=10)
+        wait_until(lambda: not any(Path(f"/proc/{pid}").exists() for pid in nodes), 30, "the nodes to stop")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for pid in nodes:  # a failure above leaves no orphan behind (a pid still running a node of ours)
+            cmdline = Path(f"/proc/{pid}/cmdline")
+            if cmdline.exists() and any(name in cmdline.read_bytes() for name in (b"soil", b"anti_stall")):
+                subprocess.run(["kill", "-9", pid], capture_output=True)
+    (bag,) = find_episode_bags(tmp_path / "bags")
+    assert len(read_episode(bag)) > 0  # a finished bag: metadata written, ticks readable
 
 
 # --- recorded runs (soil_launch with the recorder) --------------------------------------

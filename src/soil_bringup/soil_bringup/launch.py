@@ -53,6 +53,7 @@ import yaml
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
+from soil_msgs_py.launcher_death import LAUNCHER_PID_ENV
 from soil_msgs_py.params_files import node_parameters
 
 EXIT_NODE_DIED = 1
@@ -156,9 +157,10 @@ class Launch:
         self.out.flush()
 
     def start(self) -> None:
+        env = {**self.env, LAUNCHER_PID_ENV: str(os.getpid())}  # a node stops if we die (launcher_death)
         for node in self.nodes:
             node.proc = subprocess.Popen(
-                node.argv, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                node.argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
                 start_new_session=True,  # the terminal's Ctrl-C reaches us only; we forward it
             )
             if node.niceness:  # (after the fork: a preexec_fn is unsafe while the pump threads run)

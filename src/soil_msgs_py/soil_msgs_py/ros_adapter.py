@@ -32,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .dds_profile import use_graph_profile
 from .params_files import node_parameters
+from .launcher_death import stop_with_launcher
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent,
                     QosSpec, publisher_qos_spec)
 
@@ -264,6 +265,10 @@ def init_rclpy(args: list[str] | None, on_signal: Callable) -> None:
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    # started by soil_launch: a launcher killed outright stops this node too (a SIGTERM, above)
+    watch = stop_with_launcher()
+    if watch not in ("", "watching"):
+        rclpy.logging.get_logger(_program(sys.argv if args is None else args)).warning(watch)
 
 
 DRAIN_LIMIT_S = 10.0  # most a stopping node may spend letting in what is in flight
