@@ -98,3 +98,18 @@ def test_a_force_quantile_of_0_is_refused_by_the_cut_report_without_offering_it_
     assert set(settings) == set(PLANNER_SETTINGS) and stretch_planner(settings).force_quantile is None
     with pytest.raises(ValueError, match=r"force_quantile=1.5 must be in \[0.5, 1\) .*, or 0 for the PINN's point plan"):
         stretch_planner({**settings, "force_quantile": 1.5})
+
+
+def test_the_cut_report_refuses_a_soil_without_a_failure_wedge_even_where_the_blade_never_goes(tmp_path, capsys):
+    """φ = 0 (an undrained clay) gives the FEE no wedge: the sweep raised a traceback, even for a
+    patch 500 m along a 4 s path; now the argument check refuses it, naming the soil, as
+    soil_sim_batch does."""
+    soils = tmp_path / "soils.yaml"
+    soils.write_text("soils:\n  - {name: Undrained, phi_deg: [0, 0], cohesion_pa: [30000, 50000], "
+                     "unit_weight_n_m3: [16000, 20000]}\n")
+    with pytest.raises(SystemExit) as ended:
+        cut_report.parse_args(["--worlds", "fee", "--soil-file", str(soils), "--patch", "0:Sand:20",
+                               "--patch", "500:Undrained:50", "--out", str(tmp_path / "out")])
+    assert ended.value.code == 2
+    assert "soil 'Undrained' at I_d 50 %: phi=0° gives the FEE no failure wedge" in capsys.readouterr().err
+    assert cut_report.parse_args(["--worlds", "fee", "fee", "--out", str(tmp_path / "out")]).worlds == ["fee"]

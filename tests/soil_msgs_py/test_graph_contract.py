@@ -1,6 +1,7 @@
 """The graph contract without DDS: /sim/status and /sim/command JSON, the command gate, plans."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -87,6 +88,11 @@ def test_episode_plan_is_soils_by_densities_by_repeats_with_consecutive_seeds():
         ("Sand", 0.0, 14), ("Sand", 0.0, 15), ("Sand", 100.0, 16), ("Sand", 100.0, 17)]
     assert episode_plan(base, [], [], 1) == [base]
     assert episode_plan(base, [], [], 0) == []
+    last = dataclasses.replace(base, seed=2**63 - 1)  # the last seed there is: one episode, not two
+    assert [s.seed for s in episode_plan(last, [], [], 1)] == [2**63 - 1]
+    with pytest.raises(ValueError, match=r"seed=9223372036854775807 with 2 episodes in the plan reaches seed "
+                                         r"9223372036854775808, beyond 2\*\*63 - 1"):
+        episode_plan(last, [], [], 2)
 
 
 def test_tick_timing_summary():

@@ -42,7 +42,7 @@ from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
-from soil_sim_node.simulator import EpisodeSpec
+from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
 
 from . import cut_metrics as CM
 from .cut_trial import Cut, Policy, SoilAwareSetup, run_cut, sweep_fixed_depths
@@ -83,6 +83,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="the planner's plan anchored to the PINN's force alone, as before 2026-12-03 (default: the "
                         "blade's measured force anchors it where it is clearly above the PINN's)")
     args = p.parse_args(glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
+    args.worlds = list(dict.fromkeys(args.worlds))  # "--worlds fee fee" runs the fee world once
     args.planner = {"margin": args.margin, "force_quantile": args.force_quantile, "sensor_anchor": args.sensor_anchor}
     try:
         StretchPlanner(**args.planner)
@@ -115,7 +116,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     try:
         args.spec = EpisodeSpec(first.soil, first.relative_density_pct, SPEED_M_S, 0.1, seed=args.seed,
                                 duration_s=args.duration, patches=args.patches)
-        # every patch's soil known, every field in range; the soils by their catalogue names ("sand" is Sand)
+        # every patch's soil known, every field in range; the soils by their catalogue names ("sand" is Sand);
+        # in each world asked for, every soil of the path one the FEE gives a failure wedge (else a traceback
+        # came from the sweep, even for a patch the blade never reaches)
+        for world in args.worlds:
+            resolve_checked(SimConfig(world_mode=world), args.spec, args.custom_soils)
         args.spec, _ = args.spec.resolve(args.custom_soils)
         args.patches = list(args.spec.patches)
     except ValueError as err:

@@ -10,6 +10,7 @@ import math
 
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
+from soil_msgs_py.episode import MAX_SEED
 from soil_msgs_py.params import MACHINE
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
@@ -42,6 +43,10 @@ def episode_plan(base: EpisodeSpec, soils: list[str], densities_pct: list[float]
     every episode keeps the base's soil patches."""
     soils = soils or [str(base.soil)]
     densities_pct = densities_pct or [base.relative_density_pct]
+    count = len(soils) * len(densities_pct) * max(0, repeats)
+    if count and base.seed + count - 1 > MAX_SEED:  # the message names what the user set, not seed + k
+        raise ValueError(f"seed={base.seed} with {count} episodes in the plan reaches seed {base.seed + count - 1}, "
+                         f"beyond 2**63 - 1: episode k uses seed + k (lower the seed or the number of episodes)")
     combos = itertools.product(soils, densities_pct, range(max(0, repeats)))
     return [
         EpisodeSpec(soil, float(i_d), base.target_speed_m_s, base.target_depth_m,
