@@ -155,6 +155,13 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     best = CM.best_fixed_depths(stall_everywhere, 2)
     assert best == [0.2, None] and cut_report.stalling_patches(stall_everywhere, best) == [1]
     assert cut_report.stalling_patches(sweep, [0.2, 0.1]) == []
+    # a stall is the soil's where it began: one that began in the first patch and ran on past the
+    # boundary does not make the second patch's best depth shallower (seed 5 of the main path: the
+    # loam's best 0.150 m from dense clay's stall running 3 ticks into it, where it stalled nowhere above 0.225 m)
+    runs_on = [0.5] * 25 + [0.1] * 8 + [0.5] * 27
+    carried = [_cut(ok, [0.1] * 60, patch=patch, fixed=0.1), _cut(runs_on, [0.2] * 60, patch=patch, fixed=0.2)]
+    assert CM.stall_starts(carried[1]).tolist() == [25]
+    assert CM.best_fixed_depths(carried, 2) == [0.1, 0.2]
     assert cut_report.stall_note({"stall_everywhere": ["Clay 90 %"]}).startswith("every swept depth (0.050-0.300 m) stalled in Clay 90 %")
     # a soil whose bearing capacity holds the edge on its surface at every target: nothing stalls
     # there, and no target is best (a "best fixed depth 0.300 m" had been said of a cut 0.2 mm deep)

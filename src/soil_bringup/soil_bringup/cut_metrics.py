@@ -16,7 +16,7 @@
   "retreat" (``soil_planner.depth_schedule``) is a plan below the target, which starts a fall.
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
-  hindsight is the deepest of a sweep of fixed depths with no stall in that patch, among those
+  hindsight is the deepest of a sweep of fixed depths at which no stall began in that patch (a stall is the soil's where it began), among those
   whose edge entered its soil (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
   came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
 """
@@ -103,16 +103,24 @@ def entered(cut, j: int) -> bool:
     return bool(inside.any() and cut.depth[inside].mean() > MIN_CUT_DEPTH_M)
 
 
+def stall_starts(cut) -> np.ndarray:
+    """The ticks at which a stall began (``stall_mask``'s runs of slow ticks, their first ticks)."""
+    stalled = stall_mask(cut)
+    return np.flatnonzero(stalled & ~np.concatenate([[False], stalled[:-1]]))
+
+
 def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
-    """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) with no stall while the
-    edge was in that patch and the edge cutting its soil (``entered``); None if every depth stalled
-    there or none entered it."""
+    """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) at which no stall began
+    while the edge was in that patch, of those whose edge cut its soil (``entered``); None if a
+    stall began there at every depth or none entered it. A stall is its soil's where it began:
+    one that began in dense clay and ran on a few ticks past the boundary into the loam after it
+    says nothing about the loam (counted there, it made the loam's best depth 0.150 m where
+    nothing stalled in the loam above 0.225 m, seed 5 of the main path)."""
     best: list[float | None] = [None] * n_patches
     for cut in sorted(sweep, key=lambda c: c.policy.fixed_depth_m):
-        stalled = stall_mask(cut)
+        began_in = set(cut.patch[stall_starts(cut)].tolist())
         for j in range(n_patches):
-            inside = cut.patch == j
-            if entered(cut, j) and not stalled[inside].any():
+            if entered(cut, j) and j not in began_in:
                 best[j] = cut.policy.fixed_depth_m
     return best
 
