@@ -551,6 +551,21 @@ def test_bad_inputs(tmp_path):
     out = subprocess.run([BIN / "soil_bag_play", tmp_path], env=ros_env(105),
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 2 and "contains no bags" in out.stderr
+    # a killed recorder's journal: named with the repair, whether given itself, alone in a directory or beside bags
+    from soil_bag_tools.playback import expand_bag_args
+    journal = tmp_path / "run" / "ep.partial"
+    journal.mkdir(parents=True)
+    (journal / "ep.mcap").write_bytes(b"")
+    out = subprocess.run([BIN / "soil_bag_play", journal], env=ros_env(105), capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "a recorder journal, not a bag" in out.stderr and f"soil_bag_repair {journal}" in out.stderr
+    out = subprocess.run([BIN / "soil_bag_play", journal.parent], env=ros_env(105), capture_output=True, text=True,
+                         timeout=30)
+    assert out.returncode == 2 and "contains no bags; not read: 1 recorder journal(s)" in out.stderr, out.stderr
+    shutil.copytree(SAMPLE, journal.parent / SAMPLE.name)
+    notes: list[str] = []
+    assert expand_bag_args([journal.parent], notes) == [journal.parent / SAMPLE.name]
+    assert len(notes) == 1 and str(journal) in notes[0] and f"soil_bag_repair {journal.parent}" in notes[0]
+    shutil.rmtree(journal.parent)
     out = subprocess.run([BIN / "soil_bag_repair", tmp_path], capture_output=True, text=True, timeout=30)
     assert out.returncode == 1 and "no *.partial journal directory inside" in out.stderr
     shutil.copytree(SAMPLE, tmp_path / "bags" / SAMPLE.name)  # finished bags, which it repairs one by one

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_bag_tools.bag_io import PARTIAL_SUFFIX, BagReadError, read_episode, scan_bags
+from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, scan_bags
 from soil_msgs_py.episode import EpisodeMeta, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
@@ -214,7 +214,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     """
     root = Path(root)
     bags, strays = scan_bags(root)
-    note = _strays_note(strays, root)
+    note = passed_by_note(strays, root)
     if not bags:
         raise ValueError(f"no episode bags under {root} (expected rosbag2 directories with metadata.yaml)"
                          + (f"; {note}" if note else ""))
@@ -259,24 +259,6 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     if cache and not bad:
         _to_npz(ds, cache_path)
     return ds
-
-
-def _strays_note(strays: list[Path], root: Path) -> str:
-    """What the bag search passed by ("" if nothing): .mcap files outside any rosbag2 directory,
-    recorder journals (``*.partial``)."""
-    def shown(paths):
-        return ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
-
-    journals = [p for p in strays if p.name.endswith(PARTIAL_SUFFIX)]
-    files = [p for p in strays if p not in journals]
-    notes = []
-    if files:
-        notes.append(f"not read: {len(files)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml "
-                     f"beside the .mcap): {shown(files)}")
-    if journals:
-        notes.append(f"not read: {len(journals)} recorder journal(s), a killed recorder's or one still being "
-                     f"written: {shown(journals)}; soil_bag_repair {root} turns a killed recorder's into bags")
-    return "; ".join(notes)
 
 
 def _read_all(bags, workers, progress):

@@ -243,7 +243,8 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
     if not path.exists():
         raise FileNotFoundError(f"bag {path} does not exist")
     if path.name.endswith(PARTIAL_SUFFIX):
-        raise BagReadError(path, "is an unfinished bag (a write was interrupted)")
+        raise BagReadError(path, f"is an unfinished bag (a write was interrupted; a killed recorder's journal: "
+                                 f"soil_bag_repair {path} turns it into a bag)")
     if not is_bag(path):
         raise BagReadError(path, "is not a rosbag2 directory (no metadata.yaml)")
     meta = _read_meta(path)
@@ -309,6 +310,25 @@ def scan_bags(root: str | os.PathLike) -> tuple[list[Path], list[Path]]:
             dirnames[:] = [n for n in dirnames if not n.endswith(PARTIAL_SUFFIX)]
             strays.extend(d / f for f in filenames if f.endswith(".mcap"))
     return sorted(found), sorted(strays)
+
+
+def passed_by_note(strays: list[Path], root: Path) -> str:
+    """What the bag search passed by, for the user ("" if nothing): .mcap files outside any rosbag2
+    directory, recorder journals (``*.partial``) with the command that repairs them (``scan_bags``'s
+    second list under ``root``)."""
+    def shown(paths):
+        return ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+
+    journals = [p for p in strays if p.name.endswith(PARTIAL_SUFFIX)]
+    files = [p for p in strays if p not in journals]
+    notes = []
+    if files:
+        notes.append(f"not read: {len(files)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml "
+                     f"beside the .mcap): {shown(files)}")
+    if journals:
+        notes.append(f"not read: {len(journals)} recorder journal(s), a killed recorder's or one still being "
+                     f"written: {shown(journals)}; soil_bag_repair {root} turns a killed recorder's into bags")
+    return "; ".join(notes)
 
 
 def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Episode]:

@@ -203,11 +203,14 @@ def main(args: list[str] | None = None) -> int:
     if own is None:
         return EXIT_BAD_CONFIG
     opts = parse_args(own)
+    notes: list[str] = []
     try:
-        paths = expand_bag_args(opts.bags)
+        paths = expand_bag_args(opts.bags, notes)
     except BagPathError as err:
         print(f"soil_bag_play: {err}", file=sys.stderr)
         return EXIT_BAD_CONFIG
+    for note in notes:  # a killed recorder's journal beside the bags: played without it, said with its repair
+        print(f"soil_bag_play: {note}", file=sys.stderr)
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
     try:

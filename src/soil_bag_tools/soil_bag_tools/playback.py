@@ -18,7 +18,7 @@ from pathlib import Path
 from rosbags.highlevel import AnyReader
 
 from soil_msgs_py import messages as M
-from .bag_io import META_KEY, bag_custom_data, find_episode_bags, is_bag, reading
+from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.topics import CLOCK
@@ -44,17 +44,26 @@ class BagPathError(ValueError):
     """A BAG argument that is not a bag nor a directory of bags."""
 
 
-def expand_bag_args(paths: Sequence[str | os.PathLike]) -> list[Path]:
-    """Bag directories in play order: each argument is a bag, or a directory of bags (path order)."""
+def expand_bag_args(paths: Sequence[str | os.PathLike], notes: list[str] | None = None) -> list[Path]:
+    """Bag directories in play order: each argument is a bag, or a directory of bags (path order).
+    What a directory's search passed by (a killed recorder's journal, a stray .mcap) is appended to
+    ``notes`` for the user, and named in the error when it found no bag at all."""
     bags: list[Path] = []
     for arg in paths:
         path = Path(arg)
         if is_bag(path):
             bags.append(path)
+        elif path.name.endswith(PARTIAL_SUFFIX) and path.is_dir():
+            raise BagPathError(f"{path}: a recorder journal, not a bag (a killed recorder's or one still being "
+                               f"written): soil_bag_repair {path} turns a killed recorder's into a bag")
         elif path.is_dir():
-            found = find_episode_bags(path)
+            found, strays = scan_bags(path)
+            note = passed_by_note(strays, path)
             if not found:
-                raise BagPathError(f"{path}: not a rosbag2 bag (no metadata.yaml) and contains no bags")
+                raise BagPathError(f"{path}: not a rosbag2 bag (no metadata.yaml) and contains no bags"
+                                   + (f"; {note}" if note else ""))
+            if note and notes is not None:
+                notes.append(f"{path}: {note}")
             bags += found
         elif path.exists():
             raise BagPathError(f"{path}: not a rosbag2 bag directory")
