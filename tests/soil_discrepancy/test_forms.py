@@ -663,3 +663,19 @@ def test_a_form_not_significantly_better_than_the_catalogues_term_gives_way_to_i
     assert path["chosen"] == "catalogue", path
     if path["catalogue_left"] > path["forms_left"]:  # taken for the noise, and said so
         assert path["p_forms_better"] >= 0.01 and "not significantly below" in (tmp_path / "out" / "discrepancy.md").read_text()
+
+
+def test_the_report_says_a_rival_is_not_shown_worse_rather_than_worse():
+    """A rival is listed because the test that it fits worse than the named form did not pass; it
+    read "worse at p 0.212", which an outside reader took for a claim that it is worse (while it
+    took more of the residual)."""
+    from soil_discrepancy.report import _pinned_md
+
+    rival = {"name": "form:gd2w_x*enter0.5", "k": 0.5, "share": 0.152, "p_worse": 0.212, "better": False}
+    pin = {"pinned": False, "stand_in": False, "n_better": 0, "shape_pinned": False, "factor_pinned": False,
+           "scale_pinned": False, "share": 0.109, "n_episodes": 22, "n_rivals": 1, "rivals": [rival]}
+    text = "\n".join(_pinned_md(pin))
+    assert "fit it not significantly worse" in text and "takes 15.2 % (the test that it fits worse: p 0.212)" in text
+    assert "worse at p" not in text
+    pinned = {**pin, "pinned": True, "runner_up": {**rival, "p_worse": 0.001}, "rivals": []}
+    assert "(the best, `form:gd2w_x*enter0.5`, 15.2 %, worse: p 0.001)" in "\n".join(_pinned_md(pinned))

@@ -339,7 +339,7 @@ def _pinned_md(pin: dict | None) -> list[str]:
         r = pin.get("runner_up")
         also = [w for w in pin.get("judged_on", []) if w != pin.get("part", "selection")]
         return [head + "every other form of the library fits that significantly worse"
-                + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse at p {_p(r['p_worse'])})" if r else "")
+                + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse: p {_p(r['p_worse'])})" if r else "")
                 + (f", and so on the {' and '.join(also)} episodes" if also else "") + f": **yes**.{same}"
                 + _too_few(pin)]
     out = [head + f"**no**, {PIN_KINDS[kind]}: {pin['n_rivals']} form(s) fit it not significantly worse"
@@ -347,7 +347,8 @@ def _pinned_md(pin: dict | None) -> list[str]:
            + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "") + f"{same}:"]
     out[0] += _too_few(pin)
     out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
-            f"{100 * r['share']:.1f} % (worse at p {_p(r['p_worse'])}{'; significantly better' if r.get('better') else ''})"
+            f"{100 * r['share']:.1f} % (the test that it fits worse: p {_p(r['p_worse'])}"
+            f"{'; significantly better' if r.get('better') else ''})"
             for r in pin["rivals"]]
     return out
 
