@@ -38,6 +38,11 @@ def test_soil_launch_with_the_planner_closes_the_loop_and_records_it(tmp_path):
     plan_stamps, plans = read_labelled_topic(bag, T.PLAN.name, T.PLAN_FIELDS)
     assert len(plan_stamps) > 100 and len(stamps) >= 10 and np.isfinite(targets).all()
     assert targets[0, 0] == pytest.approx(0.08) and targets[:, 0].max() > 0.12  # started shallow, then deepened
+    # its figure draws the planner's targets, not the episode's 0.2 m the controller never cut to
+    from soil_sim_node.plot import planner_targets
+    drawn_t, drawn = planner_targets(bag, ep)
+    np.testing.assert_array_equal(drawn, targets[:, 0])
+    np.testing.assert_allclose(drawn_t, (stamps - ep.stamps_ns[0]) / 1e9)
     # The controller answers a tick before that tick's plan exists: a command follows some target
     # stamped within planner_timeout_s (1 s) before its tick, or the parameter's 0.2 m without
     # one; never deeper than the deepest of them (u_za = −(d̄ − Δd̄) >= −d̄: the anti-stall lift).

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from soil_bag_tools.bag_io import read_episode, write_episode
@@ -74,3 +75,22 @@ def test_a_machines_bag_is_drawn_without_a_truth_it_does_not_have(tmp_path, monk
         plot_module.plot_episode(read_episode(bag), tmp_path / f"{truth}.png")
     assert any("FEE" in t for t in labels[0]) and not any("FEE" in t for t in labels[1])
     assert {"$f_x^b$ measured", "$f_z^b$ measured"} <= set(labels[1])
+
+
+def test_a_bag_without_a_planner_draws_the_episodes_target_and_one_with_it_the_planners(tmp_path, monkeypatch):
+    """In a closed loop the controller cuts to /planner/target_depth: the figure drew the episode's
+    0.2 m target there, a depth nothing cut to (an outside tester's finding)."""
+    import matplotlib.pyplot as plt
+
+    from soil_sim_node import plot as plot_module
+
+    ep = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Sand", 20.0, 0.5, 0.1, seed=0, duration_s=0.5)])[0]
+    bag = write_episode(tmp_path / "bag", ep)
+    assert plot_module.planner_targets(bag, ep) is None  # no planner topic in the bag
+    labels = {}
+    closed = plt.close
+    monkeypatch.setattr(plot_module.plt, "close", lambda fig: (labels.setdefault(len(labels), [
+        t.get_text() for t in fig.axes[1].get_legend().get_texts()]), closed(fig)))
+    plot_module.plot_episode(ep, tmp_path / "fixed.png")
+    plot_module.plot_episode(ep, tmp_path / "loop.png", (np.array([0.0, 0.25]), np.array([0.08, 0.12])))
+    assert "target $\\bar d_z$" in labels[0] and "planner's target $\\bar d_z$" in labels[1]

@@ -20,10 +20,11 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from soil_physics import fee  # noqa: E402
-from soil_bag_tools.bag_io import read_episode  # noqa: E402
+from soil_bag_tools.bag_io import BagReadError, read_episode, read_labelled_topic  # noqa: E402
 from soil_msgs_py.cli_paths import input_path, output_file  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
+from soil_msgs_py.topics import TARGET_DEPTH  # noqa: E402
 
 
 def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
@@ -31,8 +32,22 @@ def truth_fee_force(ep: Episode) -> tuple[np.ndarray, np.ndarray]:
     return fee.fee_xz_of_truth(ep.truth)
 
 
-def plot_episode(ep: Episode, out: Path) -> Path:
-    """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG, or the format of its suffix)."""
+def planner_targets(bag: Path, ep: Episode) -> tuple[np.ndarray, np.ndarray] | None:
+    """(time [s] on ``ep``'s clock, target depth [m]) of the planner's /planner/target_depth in the
+    bag, None if it has none: in a closed loop the controller cut to these, not to the episode's
+    target, which the figure then drew as if it had."""
+    try:
+        stamps, values = read_labelled_topic(bag, TARGET_DEPTH.name, TARGET_DEPTH.labels)
+    except BagReadError:
+        return None
+    if not len(stamps):
+        return None
+    return (stamps - ep.stamps_ns[0]) / 1e9, values[:, TARGET_DEPTH.labels.index("target_depth_m")]
+
+
+def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+    """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG, or the format of its suffix);
+    ``planner``: the planner's targets (``planner_targets``), drawn in place of the episode's one."""
     t = ep.time_s
     m = ep.meta
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
@@ -53,7 +68,9 @@ def plot_episode(ep: Episode, out: Path) -> Path:
         f"{m.soil}, $I_d$ = {m.relative_density_pct:.0f} %, "
     ax.set_title(
         f"{soil}{m.world_mode} world, "
-        f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, $\\bar d_z$ = {m.target_depth_m:.3f} m, seed {m.seed}"
+        f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, "
+        + (f"$\\bar d_z$ = {m.target_depth_m:.3f} m" if planner is None else "$\\bar d_z$ from the planner")
+        + f", seed {m.seed}"
     )
     x_b = ep.column("p_x_b")
     for patch in patches[1:]:  # where the edge entered each further patch
@@ -62,7 +79,10 @@ def plot_episode(ep: Episode, out: Path) -> Path:
             axis.axvline(t[crossed[0]], color="tab:purple", lw=0.8, ls="-.")
     ax = axes[1]
     ax.plot(t, ep.column("d"), label="cut depth $d$")
-    ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
+    if planner is None:
+        ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
+    else:  # the loop closed: the controller's target was the planner's, step by step
+        ax.step(*planner, where="post", color="k", ls="--", lw=0.8, label="planner's target $\\bar d_z$")
     ax.plot(t, -ep.column("u_za"), lw=0.8, label="commanded depth $-u_{z_a}$")
     ax.set_ylabel("depth [m]")
     ax.legend(fontsize=8, loc="lower right")
@@ -103,7 +123,7 @@ def main(argv=None) -> int:
         return 2
     bag = Path(os.path.abspath(args.bag))  # "." or ".." have a usable name only once absolute
     # not bag.with_suffix: "..._v0.50_d0.100_s0" and "..._v0.50_d0.200_s1" both became "..._v0.50_d0.png"
-    out = plot_episode(ep, args.out or bag.parent / (bag.name + ".png"))
+    out = plot_episode(ep, args.out or bag.parent / (bag.name + ".png"), planner_targets(args.bag, ep))
     print(out)
     return 0
 
