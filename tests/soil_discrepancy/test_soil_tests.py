@@ -128,6 +128,11 @@ def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adh
     ({"soil_tests": [{"soil": "Clay", "phi_deg": float("nan"), "phi_std_deg": 1}]}, "phi_deg=nan is not a finite number"),
     ({"soil_tests": [{"soil": "Clay", "phi_deg": 120, "phi_std_deg": 1}]}, "phi_deg=120 outside [0, 90]"),
     ({"soil_tests": [{"soil": "Clay", "c_kpa": -1, "c_std_kpa": 1}]}, "c_kpa=-1 outside"),
+    # Pa given as kPa: said as the likely slip, naming the field (it was an error about the FEE's fit box)
+    ({"soil_tests": [{"soil": "Clay", "c_kpa": 6800, "c_std_kpa": 0.3}]},
+     "soil_tests[0].c_kpa=6800 kPa is beyond any soil (more than 1000 kPa, a weak rock's): a cohesion in Pa? "
+     "6800 Pa is 6.8 kPa"),
+    ({"soil_tests": [{"soil": "Clay", "c_kpa": 6.8, "c_std_kpa": 3000}]}, "c_std_kpa=3000 kPa is beyond any soil"),
     ({"soil_tests": [{"soil": "Clay", "relative_density_pct": 150, "phi_deg": 20, "phi_std_deg": 1}]},
      "relative_density_pct=150 outside [0, 100]"),
     ({"soil_tests": [{"soil": "Clay"}]}, "gives no parameter"),
