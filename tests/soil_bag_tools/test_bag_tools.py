@@ -194,6 +194,20 @@ def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_w
     assert info["first_tick"]["/blade/cmd"] == 3 and info["first_tick"]["/clock"] == 0
     late = [m for lvl, m in log.lines if lvl == "warning" and "starts at tick" in m]
     assert len(late) == 1 and "/blade/cmd starts at tick 3" in late[0] and "/chassis/cmd_vel" not in late[0], log.lines
+    # one bag of the whole run (--no-split): said in seconds after the first message (an outside tester's
+    # run lost a whole first episode's commands there without a word)
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path / "whole", loaded.topics, split=False, log=log, clock=lambda: 0.0)
+    rec.joined_without.update({"/blade/cmd", "/chassis/cmd_vel"})
+    for stamp, topic, raw in msgs:
+        if topic != "/blade/cmd" or stamp >= first + 3 * 10**9 // 60:
+            rec.on_message(topic, raw, 0)
+    (r,) = rec.close()
+    info = json.loads(yaml.safe_load((r.path / "metadata.yaml").read_text())
+                      ["rosbag2_bagfile_information"]["custom_data"][journal.RECORDER_INFO_KEY])
+    assert info["first_stamp_s"]["/blade/cmd"] == pytest.approx(0.05) and info["first_stamp_s"]["/clock"] == 0.0
+    late = [m for lvl, m in log.lines if lvl == "warning" and "after the first recorded message" in m]
+    assert len(late) == 1 and "/blade/cmd starts 0.050 s after" in late[0] and "/chassis/cmd_vel" not in late[0], log.lines
 
 
 def test_recorder_grace_timeout_trims_to_whole_ticks(tmp_path):

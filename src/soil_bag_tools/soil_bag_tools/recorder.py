@@ -445,14 +445,20 @@ class Recorder:
             self.log.warning(f"{s.name}: no message recorded; no bag written")
             return None
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
+        late: dict[str, str] = {}
         if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
             late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items() if t in self.joined_without and k}
-            late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})
-            if late:
-                self.log.warning(f"{s.name}: {', '.join(f'{t} {what}' for t, what in late.items())}: the recorder "
-                                 "joined before their writers had matched (--inputs-wait), so their first messages "
-                                 "may be missing from the bag")
+        else:  # one bag of the whole run (--no-split): when each topic's messages start after the first one's
+            first = min(s.topic_min.values())
+            info["first_stamp_s"] = {t: (v - first) / 1e9 for t, v in sorted(s.topic_min.items())}
+            late = {t: f"starts {v:.3f} s after the first recorded message" for t, v in info["first_stamp_s"].items()
+                    if t in self.joined_without and v > 0.0}
+        late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})
+        if late:  # (unsaid in a --no-split bag before 2026-12-04: a first episode's commands went missing)
+            self.log.warning(f"{s.name}: {', '.join(f'{t} {what}' for t, what in late.items())}: the recorder "
+                             "joined before their writers had matched (--inputs-wait), so their first messages "
+                             "may be missing from the bag")
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:
