@@ -63,6 +63,29 @@ def test_the_forecast_report_says_when_episodes_were_paired_by_unit_weight():
     assert "4 of the episodes carry no soil label" in blind and "measured unit weight γ" in blind
 
 
+def test_the_forecast_report_says_what_it_did_not_pair_and_how_loosely_few_pairs_know_a_coverage():
+    """An outside tester's 48 off-grid episodes gave 188 pairs where 192 were expected, the rest
+    unsaid; and 16 pairs' 81 / 25 % coverage read as a finding."""
+    from types import SimpleNamespace
+
+    from pinn_estimator.forecast import markdown, same_depth_pairs
+
+    def part(d):
+        return SimpleNamespace(world="fee", soil="Clay", relative_density_pct=30.0, known={"d": d})
+
+    # 0.10 and 0.11 m are one depth (less than 1.2x apart): 2 ordered pairs left out; 0.2 m pairs with both
+    parts = [part(0.10), part(0.11), part(0.20), None]
+    assert same_depth_pairs(parts) == 2
+    report = {"data": "bags/x", "pairs": 16, "episodes": 4, "worlds": ["fee"], "forecast": {}, "unlabelled": 0,
+              "no_steady_part": 1, "same_depth_pairs": 2}
+    intro = markdown(report)[0]
+    assert ("Not paired: 1 episode(s) without a steady cut in their second half; 2 ordered pair(s) of one soil and "
+            "density whose steady depths are less than 1.2× apart (not another depth).") in intro
+    assert "With 16 pairs a coverage is known to about ±12 points at 50 % (±8 at 90 %)." in intro
+    many = markdown({**report, "pairs": 72, "no_steady_part": 0, "same_depth_pairs": 0})[0]
+    assert "Not paired" not in many and "coverage is known" not in many
+
+
 def test_a_row_scored_on_fewer_pairs_than_the_header_says_so():
     """The header said "44 pairs" for every row, where two rows were scored on 42 (their forecast
     was undefined in two): the JSON alone told them apart."""

@@ -251,22 +251,36 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
     return pairs
 
 
+def _groups(parts: list[Steady | None]) -> list[list[int]]:
+    """Episodes with a steady part, by world, soil and density, in sorted order."""
+    groups = defaultdict(list)
+    for e, part in enumerate(parts):
+        if part is not None:
+            groups[(part.world, part.soil, part.relative_density_pct)].append(e)
+    return [members for _, members in sorted(groups.items())]
+
+
+def _another_depth(parts: list[Steady | None], a: int, b: int) -> bool:
+    da, db = parts[a].known["d"], parts[b].known["d"]
+    return max(da, db) >= MIN_DEPTH_RATIO * min(da, db)
+
+
+def same_depth_pairs(parts: list[Steady | None]) -> int:
+    """Ordered pairs of one world, soil and density not forecast: steady depths less than MIN_DEPTH_RATIO apart."""
+    return sum(a != b and not _another_depth(parts, a, b) for members in _groups(parts) for a in members for b in members)
+
+
 def pair_indices(parts: list[Steady | None], sources=None):
     """(a, b) of every ordered pair of episodes of one world, soil and density at another depth (steady
     depths at least MIN_DEPTH_RATIO apart), grouped by world, soil and density in sorted order; a only
     among ``sources`` if given."""
     sources = None if sources is None else set(sources)
-    groups = defaultdict(list)
-    for e, part in enumerate(parts):
-        if part is not None:
-            groups[(part.world, part.soil, part.relative_density_pct)].append(e)
-    for _, members in sorted(groups.items()):
+    for members in _groups(parts):
         for a in members:
             if sources is not None and a not in sources:
                 continue
             for b in members:
-                da, db = parts[a].known["d"], parts[b].known["d"]
-                if a != b and max(da, db) >= MIN_DEPTH_RATIO * min(da, db):
+                if a != b and _another_depth(parts, a, b):
                     yield a, b
 
 
@@ -361,6 +375,10 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "unlabelled": unlabelled_count(ds.metas),
         "worlds": world_modes(ds.metas),
         "pairs": len(pairs),
+        # what was not paired, said under the table: episodes without a steady part, and ordered pairs of one
+        # soil and density whose steady depths are less than MIN_DEPTH_RATIO apart (not "another depth")
+        "no_steady_part": sum(p is None for p in parts),
+        "same_depth_pairs": same_depth_pairs(parts),
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, names),
         "per_soil": per_soil(pairs, names),
@@ -397,6 +415,26 @@ def _pct(value: float, signed: bool = False) -> str:
     return f"{value:+.1f} %" if signed else f"{value:.1f} %"
 
 
+# Below this many pairs the report says how loosely its coverages are known.
+FEW_PAIRS = 50
+
+
+def _unpaired_text(report: dict) -> str:
+    """What the pairing left out, and how loosely few pairs pin a coverage down ('' if neither)."""
+    out = []
+    if report.get("no_steady_part"):
+        out.append(f"{report['no_steady_part']} episode(s) without a steady cut in their second half")
+    if report.get("same_depth_pairs"):
+        out.append(f"{report['same_depth_pairs']} ordered pair(s) of one soil and density whose steady depths are less "
+                   f"than {MIN_DEPTH_RATIO:g}× apart (not another depth)")
+    text = f" Not paired: {'; '.join(out)}." if out else ""
+    n = report.get("pairs", 0)
+    if 0 < n < FEW_PAIRS:  # a coverage of p over n pairs has a standard error √(p(1 − p)/n): ±12 points at 50 % for 16
+        text += (f" With {n} pairs a coverage is known to about ±{100 * math.sqrt(0.25 / n):.0f} points at 50 % "
+                 f"(±{100 * math.sqrt(0.09 / n):.0f} at 90 %).")
+    return text
+
+
 def markdown(report: dict, intro: str | None = None) -> list[str]:
     """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and
     shallower. ``intro``: the sentence above the table (default: the held-out episodes')."""
@@ -412,7 +450,7 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
                  f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
                  "training grid). Mean |error| and signed bias, % of the measured force.")
-    lines = [intro, "",
+    lines = [intro + _unpaired_text(report), "",
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
              "|---|---|---|---|---|---|---|---|"]
