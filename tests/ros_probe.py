@@ -41,7 +41,8 @@ def start_launch(args: list[str], domain: int, log_path: Path) -> subprocess.Pop
 @contextlib.contextmanager
 def launched(args: list[str], domain: int, log_path: Path):
     """``start_launch``; on leaving, the launch killed if it still runs and no node of it left
-    running (its nodes run in sessions of their own: killing the launch does not stop them)."""
+    running (its nodes run in sessions of their own: a launch stopped by this fixture's SIGKILL
+    stops them through ``launcher_death``, and this makes sure of it)."""
     proc = start_launch(args, domain, log_path)
     try:
         yield proc

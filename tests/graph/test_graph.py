@@ -19,6 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
+from soil_bringup.launch import stop_logged_nodes
 from tests.ros_probe import call_service, NodeProc, RosProbe, next_domain_id, start_launch, wait_until
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
@@ -239,6 +240,15 @@ def _launch(args: list[str], domain: int, tmp_path) -> subprocess.Popen:
     return start_launch(args, domain, tmp_path / f"launch_{time.monotonic_ns()}.log")
 
 
+def _running(pid: str) -> bool:
+    """The process exists and is no zombie (an orphan's new parent may be slow to reap it)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
 def _children_gone(pid: int) -> bool:
     res = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
     return res.stdout.strip() == ""
@@ -306,7 +316,6 @@ def test_a_launcher_killed_outright_takes_its_nodes_with_it_and_the_bag_is_finis
 
     proc = _launch(["--record", str(tmp_path / "bags"), "--sim-param", "duration_s:=60.0", "--timeout", "60"],
                    domain, tmp_path)
-    nodes: list[str] = []
     try:
         wait_until(lambda: "episode 0 start" in proc.log_path.read_text(), 30, "the episode to start")
         nodes = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
@@ -314,14 +323,11 @@ def test_a_launcher_killed_outright_takes_its_nodes_with_it_and_the_bag_is_finis
         time.sleep(1.0)
         proc.kill()
         proc.wait(timeout=10)
-        wait_until(lambda: not any(Path(f"/proc/{pid}").exists() for pid in nodes), 30, "the nodes to stop")
+        wait_until(lambda: not any(_running(pid) for pid in nodes), 30, "the nodes to stop")
     finally:
         if proc.poll() is None:
             proc.kill()
-        for pid in nodes:  # a failure above leaves no orphan behind (a pid still running a node of ours)
-            cmdline = Path(f"/proc/{pid}/cmdline")
-            if cmdline.exists() and any(name in cmdline.read_bytes() for name in (b"soil", b"anti_stall")):
-                subprocess.run(["kill", "-9", pid], capture_output=True)
+        stop_logged_nodes(proc.log_path)  # a failure above leaves no node of it behind
     (bag,) = find_episode_bags(tmp_path / "bags")
     assert len(read_episode(bag)) > 0  # a finished bag: metadata written, ticks readable
 

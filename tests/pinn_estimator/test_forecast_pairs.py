@@ -79,9 +79,9 @@ def test_the_forecast_report_says_what_it_did_not_pair_and_how_loosely_few_pairs
     report = {"data": "bags/x", "pairs": 16, "episodes": 4, "worlds": ["fee"], "forecast": {}, "unlabelled": 0,
               "no_steady_part": 1, "same_depth_pairs": 2}
     intro = markdown(report)[0]
-    assert ("Not paired: 1 episode(s) without a steady cut in their second half; 2 ordered pair(s) of one soil and "
+    assert ("Not paired: 1 episode(s) without a steady cut of one soil in their second half; 2 ordered pair(s) of one soil and "
             "density whose steady depths are less than 1.2× apart (not another depth).") in intro
-    assert "With 16 pairs a coverage is known to about ±12 points at 50 % (±8 at 90 %)." in intro
+    assert "With 16 pairs a coverage is known to at least ±12 points at 50 % (±8 at 90 %)." in intro
     many = markdown({**report, "pairs": 72, "no_steady_part": 0, "same_depth_pairs": 0})[0]
     assert "Not paired" not in many and "coverage is known" not in many
 

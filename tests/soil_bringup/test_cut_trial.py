@@ -157,7 +157,7 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     assert cut_report.stalling_patches(sweep, [0.2, 0.1]) == []
     # a stall is the soil's where it began: one that began in the first patch and ran on past the
     # boundary does not make the second patch's best depth shallower (seed 5 of the main path: the
-    # loam's best 0.150 m from dense clay's stall running 3 ticks into it, where it stalled nowhere above 0.225 m)
+    # loam's best 0.150 m from dense clay's stall running 3 ticks into it, where no stall began at any depth shallower than 0.225 m)
     runs_on = [0.5] * 25 + [0.1] * 8 + [0.5] * 27
     carried = [_cut(ok, [0.1] * 60, patch=patch, fixed=0.1), _cut(runs_on, [0.2] * 60, patch=patch, fixed=0.2)]
     assert CM.stall_starts(carried[1]).tolist() == [25]

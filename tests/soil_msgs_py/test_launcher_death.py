@@ -15,7 +15,9 @@ CHILD = ("import signal, sys; from soil_msgs_py.launcher_death import stop_with_
 
 def test_a_node_not_started_by_the_launcher_or_given_no_pid_is_left_alone():
     assert stop_with_launcher({}) == ""
-    assert "not a process id" in stop_with_launcher({LAUNCHER_PID_ENV: "soil"})
+    environ = {LAUNCHER_PID_ENV: "soil"}
+    assert "not a process id" in stop_with_launcher(environ)
+    assert environ == {}  # taken out: the node's own children are not the launcher's
 
 
 def test_a_node_whose_launcher_is_its_parent_watches_it_and_one_whose_launcher_is_gone_stops():
@@ -23,6 +25,12 @@ def test_a_node_whose_launcher_is_its_parent_watches_it_and_one_whose_launcher_i
     env[LAUNCHER_PID_ENV] = str(os.getpid())  # this test is the child's parent: the launcher
     out = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "watching []", out.stderr
-    env[LAUNCHER_PID_ENV] = "1"  # not the parent: the launcher died before the child could ask
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a launcher that died before the child could ask (its pid no process has now)
+    env[LAUNCHER_PID_ENV] = str(gone.pid)
     out = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "launcher gone ['SIGTERM']", out.stderr
+    # a live launcher that is not the parent (a wrapper between them): said, and no SIGTERM
+    env[LAUNCHER_PID_ENV] = str(os.getppid())
+    out = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=60)
+    assert "direct child" in out.stdout and out.stdout.strip().endswith("[]"), out.stdout

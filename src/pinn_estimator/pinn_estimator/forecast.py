@@ -375,7 +375,8 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "unlabelled": unlabelled_count(ds.metas),
         "worlds": world_modes(ds.metas),
         "pairs": len(pairs),
-        # what was not paired, said under the table: episodes without a steady part, and ordered pairs of one
+        # what was not paired, said under the table: episodes without a steady part (or of a soil that changes
+        # along the path: ``steady_parts``), and ordered pairs of one
         # soil and density whose steady depths are less than MIN_DEPTH_RATIO apart (not "another depth")
         "no_steady_part": sum(p is None for p in parts),
         "same_depth_pairs": same_depth_pairs(parts),
@@ -423,14 +424,15 @@ def _unpaired_text(report: dict) -> str:
     """What the pairing left out, and how loosely few pairs pin a coverage down ('' if neither)."""
     out = []
     if report.get("no_steady_part"):
-        out.append(f"{report['no_steady_part']} episode(s) without a steady cut in their second half")
+        out.append(f"{report['no_steady_part']} episode(s) without a steady cut of one soil in their second half")
     if report.get("same_depth_pairs"):
         out.append(f"{report['same_depth_pairs']} ordered pair(s) of one soil and density whose steady depths are less "
                    f"than {MIN_DEPTH_RATIO:g}× apart (not another depth)")
     text = f" Not paired: {'; '.join(out)}." if out else ""
     n = report.get("pairs", 0)
     if 0 < n < FEW_PAIRS:  # a coverage of p over n pairs has a standard error √(p(1 − p)/n): ±12 points at 50 % for 16
-        text += (f" With {n} pairs a coverage is known to about ±{100 * math.sqrt(0.25 / n):.0f} points at 50 % "
+        # (pairs share their source and their target: the true uncertainty is larger, hence "at least")
+        text += (f" With {n} pairs a coverage is known to at least ±{100 * math.sqrt(0.25 / n):.0f} points at 50 % "
                  f"(±{100 * math.sqrt(0.09 / n):.0f} at 90 %).")
     return text
 

@@ -450,8 +450,10 @@ class Recorder:
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
             late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items() if t in self.joined_without and k}
         else:  # one bag of the whole run (--no-split): when each topic's messages start after the first one's
-            first = min(s.topic_min.values())
-            info["first_stamp_s"] = {t: (v - first) / 1e9 for t, v in sorted(s.topic_min.items())}
+            # (the graph's topics, stamped in simulation time; an extra --topics one may carry wall-clock stamps)
+            sim = {t: v for t, v in s.topic_min.items() if t in GRAPH_TOPICS_BY_NAME}
+            first = min(sim.values(), default=0)
+            info["first_stamp_s"] = {t: (v - first) / 1e9 for t, v in sorted(sim.items())}
             late = {t: f"starts {v:.3f} s after the first recorded message" for t, v in info["first_stamp_s"].items()
                     if t in self.joined_without and v > 0.0}
         late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})

@@ -114,8 +114,8 @@ def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
     while the edge was in that patch, of those whose edge cut its soil (``entered``); None if a
     stall began there at every depth or none entered it. A stall is its soil's where it began:
     one that began in dense clay and ran on a few ticks past the boundary into the loam after it
-    says nothing about the loam (counted there, it made the loam's best depth 0.150 m where
-    nothing stalled in the loam above 0.225 m, seed 5 of the main path)."""
+    says nothing about the loam (counted there, it made the loam's best depth 0.150 m where no
+    stall began in the loam at any depth shallower than 0.225 m, seed 5 of the main path)."""
     best: list[float | None] = [None] * n_patches
     for cut in sorted(sweep, key=lambda c: c.policy.fixed_depth_m):
         began_in = set(cut.patch[stall_starts(cut)].tolist())
@@ -142,7 +142,9 @@ def settle_s(cut, j: int, best_m: float | None) -> float | None:
 
 
 def per_patch(cut, best: list[float | None]) -> list[dict]:
-    """Per patch of the path: time, mean target and cut depth, stall time, hindsight best, settle time."""
+    """Per patch of the path: time, mean target and cut depth, stall time, hindsight best, settle time.
+    The stall time is the ticks stalled while the edge was in the patch (where the machine stood
+    still); which depth is best counts a stall in the patch where it began (``best_fixed_depths``)."""
     dt = 1.0 / SAMPLE_RATE_HZ
     stalled = stall_mask(cut)
     rows = []

@@ -238,7 +238,8 @@ def run(args: argparse.Namespace) -> int:
     pairs = list(itertools.product(args.soils, args.densities))
     args.out.mkdir(parents=True, exist_ok=True)
     log_path = args.out / "launch.log"
-    # A previous run killed outright could not stop its nodes; on our domain they would join this run.
+    # A previous run killed outright could not stop its nodes (they stop with it where launcher_death can
+    # arrange it, not everywhere); on our domain they would join this run.
     left_behind = L.stop_logged_nodes(log_path)
     if left_behind:
         print(f"demo: killed nodes a previous run left behind: {', '.join(left_behind)}", flush=True)

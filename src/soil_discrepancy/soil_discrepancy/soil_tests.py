@@ -44,7 +44,8 @@ _FIELDS = (("phi", "phi_deg", "phi_std_deg", DEG), ("c", "c_kpa", "c_std_kpa", 1
            ("delta", "delta_deg", "delta_std_deg", DEG))
 _KEYS = {"soil", "relative_density_pct"} | {k for _, v, s, _ in _FIELDS for k in (v, s)}
 # A tested cohesion above this [kPa] is refused as a unit slip (Pa given as kPa): stiff clays reach a
-# few hundred kPa, the stiffest soil of this project's files 60 kPa; 1 MPa is a weak rock's.
+# few hundred kPa (this project's soils and tests at most 50 kPa, the fused posterior's prior 60 kPa);
+# 1 MPa is a weak rock's.
 MAX_COHESION_KPA = 1000.0
 # θ as reports and errors give it: (name, unit, per SI unit), in θ's order (φ, c, δ)
 DISPLAY_UNITS = (("phi", "°", math.degrees(1.0)), ("c", "Pa", 1.0), ("delta", "°", math.degrees(1.0)))
@@ -106,14 +107,14 @@ def parse_soil_tests(data, source: str = "soil tests") -> tuple[SoilTest, ...]:
         i_d = row.get("relative_density_pct")
         i_d = None if i_d is None else _number(where, "relative_density_pct", i_d, lo=0.0, hi=100.0)
         value, std = [math.nan] * 3, [math.nan] * 3
-        for j, (_, vkey, skey, unit) in enumerate(_FIELDS):
+        for j, (name, vkey, skey, unit) in enumerate(_FIELDS):
             if (vkey in row) != (skey in row):
                 raise ValueError(f"{where}: '{vkey}' and '{skey}' go together (a test result and its standard deviation)")
             if vkey in row:
-                for key in (vkey, skey) if unit != DEG else ():  # c [kPa]: a value beyond any soil is a unit slip
-                    if finite_number(row[key]) and float(row[key]) > MAX_COHESION_KPA:
+                for key, what in ((vkey, "cohesion"), (skey, "standard deviation")) if name == "c" else ():
+                    if finite_number(row[key]) and float(row[key]) > MAX_COHESION_KPA:  # beyond any soil: a unit slip
                         raise ValueError(f"{where}.{key}={short_repr(row[key])} kPa is beyond any soil (more than "
-                                         f"{MAX_COHESION_KPA:g} kPa, a weak rock's): a cohesion in Pa? "
+                                         f"{MAX_COHESION_KPA:g} kPa, a weak rock's): a {what} in Pa? "
                                          f"{float(row[key]):g} Pa is {float(row[key]) / 1e3:g} kPa")
                 value[j] = _number(where, vkey, row[vkey], lo=0.0, hi=90.0 if unit == DEG else None) * unit
                 std[j] = _number(where, skey, row[skey], positive=True) * unit

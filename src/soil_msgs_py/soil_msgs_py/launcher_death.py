@@ -22,10 +22,11 @@ PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def stop_with_launcher(environ=os.environ) -> str:
-    """Arrange SIGTERM for this process when the launcher named in ``environ`` dies. Returns
-    what was done: "" (not started by a launcher), "watching", "launcher gone" (SIGTERM sent to
-    this process now) or why nothing could be arranged (a bad variable, not Linux)."""
-    text = environ.get(LAUNCHER_PID_ENV, "")
+    """Arrange SIGTERM for this process when the launcher named in ``environ`` dies (the variable is
+    taken out of ``environ``: this node's own children are not the launcher's). Returns what was
+    done: "" (not started by a launcher), "watching", "launcher gone" (SIGTERM sent to this process
+    now) or why nothing could be arranged (a bad variable, not Linux, not the launcher's child)."""
+    text = environ.pop(LAUNCHER_PID_ENV, "")  # not passed on: a child of this node is not the launcher's
     if not text:
         return ""
     try:
@@ -40,7 +41,15 @@ def stop_with_launcher(environ=os.environ) -> str:
             return f"prctl(PR_SET_PDEATHSIG) failed ({os.strerror(ctypes.get_errno())}): not watching the launcher"
     except (OSError, AttributeError) as err:
         return f"prctl unavailable ({err}): not watching the launcher"
-    if os.getppid() != launcher:  # it died before the request took effect
-        os.kill(os.getpid(), signal.SIGTERM)
-        return "launcher gone"
+    if os.getppid() != launcher:
+        try:
+            os.kill(launcher, 0)
+        except ProcessLookupError:  # it died before the request took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+            return "launcher gone"
+        except PermissionError:
+            pass
+        # something between the launcher and this node (a wrapper that did not exec): its death is what
+        # the request watches, not the launcher's
+        return f"not the launcher's (pid {launcher}) direct child: a launcher killed outright leaves this node running"
     return "watching"

@@ -38,11 +38,14 @@ def planner_targets(bag: Path, ep: Episode) -> tuple[np.ndarray, np.ndarray] | N
     target, which the figure then drew as if it had."""
     try:
         stamps, values = read_labelled_topic(bag, TARGET_DEPTH.name, TARGET_DEPTH.labels)
-    except BagReadError:
+    except BagReadError as err:
+        if f"has no topic {TARGET_DEPTH.name}" not in str(err):  # there, but unreadable: said, not hidden
+            print(f"soil_plot_episode: warning: the planner's targets not drawn: {err}", file=sys.stderr)
         return None
     if not len(stamps):
         return None
-    return (stamps - ep.stamps_ns[0]) / 1e9, values[:, TARGET_DEPTH.labels.index("target_depth_m")]
+    order = np.argsort(stamps, kind="stable")  # log order is not always stamp order
+    return (stamps[order] - ep.stamps_ns[0]) / 1e9, values[order, TARGET_DEPTH.labels.index("target_depth_m")]
 
 
 def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
