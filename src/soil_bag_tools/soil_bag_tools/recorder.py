@@ -445,7 +445,6 @@ class Recorder:
             self.log.warning(f"{s.name}: no message recorded; no bag written")
             return None
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
-        late: dict[str, str] = {}
         if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
             late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items() if t in self.joined_without and k}

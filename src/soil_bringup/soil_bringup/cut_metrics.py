@@ -16,8 +16,9 @@
   "retreat" (``soil_planner.depth_schedule``) is a plan below the target, which starts a fall.
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
-  hindsight is the deepest of a sweep of fixed depths at which no stall began in that patch (a stall is the soil's where it began), among those
-  whose edge entered its soil (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
+  hindsight is the deepest of a sweep of fixed depths at which no stall began in that patch (a
+  stall is the soil's where it began), among those whose edge entered its soil
+  (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
   came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
 """
 from __future__ import annotations
@@ -52,9 +53,13 @@ def volume_m3(cut) -> float:
     return float(np.clip(-cut.terrain[crossed], 0.0, None).sum() * cut.cell_m * cut.width_m)
 
 
+def run_starts(mask: np.ndarray) -> np.ndarray:
+    """Indices where a run of True in ``mask`` (ticks) begins, a True first tick included."""
+    return np.flatnonzero(mask & ~np.concatenate([[False], mask[:-1]]))
+
+
 def backoff_events(cut) -> int:
-    lifting = cut.offset > BACKOFF_ON_M
-    return int(np.count_nonzero(lifting[1:] & ~lifting[:-1]) + int(lifting[0]))
+    return len(run_starts(cut.offset > BACKOFF_ON_M))
 
 
 def target_falls(target_m: np.ndarray, fall_m: float = FALL_M) -> int:
@@ -104,9 +109,8 @@ def entered(cut, j: int) -> bool:
 
 
 def stall_starts(cut) -> np.ndarray:
-    """The ticks at which a stall began (``stall_mask``'s runs of slow ticks, their first ticks)."""
-    stalled = stall_mask(cut)
-    return np.flatnonzero(stalled & ~np.concatenate([[False], stalled[:-1]]))
+    """The ticks at which a stall began (the first tick of each of ``stall_mask``'s runs)."""
+    return run_starts(stall_mask(cut))
 
 
 def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:

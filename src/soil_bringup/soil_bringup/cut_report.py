@@ -119,9 +119,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         # every patch's soil known, every field in range; the soils by their catalogue names ("sand" is Sand);
         # in each world asked for, every soil of the path one the FEE gives a failure wedge (else a traceback
         # came from the sweep, even for a patch the blade never reaches)
-        for world in args.worlds:
-            resolve_checked(SimConfig(world_mode=world), args.spec, args.custom_soils)
-        args.spec, _ = args.spec.resolve(args.custom_soils)
+        resolved = [resolve_checked(SimConfig(world_mode=world), args.spec, args.custom_soils)[0]
+                    for world in args.worlds]
+        args.spec = resolved[0]  # (resolved alike in every world; the world decides only the wedge check)
         args.patches = list(args.spec.patches)
     except ValueError as err:
         p.error(str(err))

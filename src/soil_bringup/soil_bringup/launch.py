@@ -286,8 +286,9 @@ def stop_logged_nodes(log_path: Path) -> list[str]:
     """SIGKILL the nodes a launch's log says it started that are still running: those of a
     launch that could not stop them (it was killed itself; its nodes run in their own sessions,
     and since 2026-12-04 stop when it dies, ``launcher_death``, except where that cannot be
-    arranged: not Linux, a wrapper between launcher and node, a node that ignores SIGTERM). Only a process whose command line is still the logged one is touched: a
-    recycled pid is left alone. Returns 'name (pid)' of each node killed."""
+    arranged: not Linux, a wrapper between launcher and node, a node that ignores SIGTERM). Only
+    a process whose command line is still the logged one is touched: a recycled pid is left
+    alone. Returns 'name (pid)' of each node killed."""
     killed = []
     for pid, (name, cmd) in started_nodes(log_path).items():
         try:
