@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -353,6 +354,14 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
         write_episode(trained_on / bag.name, read_episode(bag), ground_truth=False)
     with pytest.raises(ValueError, match="have no /soil/ground_truth .*--forecast-only"):
         evaluate(pinn, trained_on, classical=False, log=lambda *_: None)
+    # one test bag without it among bags with it: refused naming it (its soil scored NaN and the means
+    # were quietly taken over the others)
+    from pinn_estimator.checkpoint import read_checkpoint
+    one_blind, test_bags = tmp_path / "one_blind", read_checkpoint(pinn)["split"]["test"]
+    for bag in find_episode_bags(tiny_bags):
+        write_episode(one_blind / bag.name, read_episode(bag), ground_truth=bag.name != test_bags[0])
+    with pytest.raises(ValueError, match=rf"{re.escape(test_bags[0])}.*have no|have no /soil/ground_truth .*{re.escape(test_bags[0])}"):
+        evaluate(pinn, one_blind, classical=False, log=lambda *_: None)
     assert only["forecast"]["forecast"]["fused"]["x"]["all"]["mean_abs_pct"] < 5.0
     assert "the forecast alone" in (out / "f.md").read_text() and not (out / "f_params.png").exists()
     # another world's model is judged as asked, and said to be another world's

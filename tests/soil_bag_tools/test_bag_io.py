@@ -316,6 +316,28 @@ def test_missing_episode_metadata(tmp_path: Path, ep: Episode) -> None:
         read_episode(bag)
 
 
+@pytest.mark.parametrize("field, value, needle", [("relative_density_pct", "eighty", "relative_density_pct='eighty' must be a finite number"),
+                                                  ("relative_density_pct", 150, r"relative_density_pct=150 outside \[0, 100\]"),
+                                                  ("relative_density_pct", float("nan"), "relative_density_pct=nan must be a finite number"),
+                                                  ("world_mode", "moon", "world_mode='moon' is not one of")])
+def test_episode_metadata_a_bag_was_edited_to_is_refused_naming_the_field(tmp_path: Path, ep: Episode, field, value, needle) -> None:
+    """A bag's metadata is checked as it is read: a density of 150 % or of "eighty" and a world no
+    simulator has were read on (a wrong density in every report, a "could not convert string to
+    float" naming no bag). A machine's bag, whose world is "unknown", still reads."""
+    bag = write_episode(tmp_path / "edited", ep)
+    path = bag / "metadata.yaml"
+    doc = yaml.safe_load(path.read_text())
+    info = doc["rosbag2_bagfile_information"]
+    meta = json.loads(info["custom_data"][META_KEY])
+    info["custom_data"][META_KEY] = json.dumps({**meta, "world_mode": "unknown"})
+    path.write_text(yaml.safe_dump(doc))
+    assert read_episode(bag).meta.world_mode == "unknown"
+    info["custom_data"][META_KEY] = json.dumps({**meta, field: value})
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError, match=rf"edited.*bad episode metadata.*{needle}"):
+        read_episode(bag)
+
+
 def test_read_errors(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="does not exist"):
         read_episode(tmp_path / "nope")

@@ -173,6 +173,25 @@ def test_an_unreachable_ray_address_is_refused_at_once(tmp_path, capsys):
     assert not find_episode_bags(tmp_path / "ds")
 
 
+def test_a_port_where_another_service_listens_is_refused_at_once(tmp_path, capsys):
+    """An HTTP server where a Ray head was expected: Ray's driver retried "Failed to get cluster ID
+    from GCS server" for ever (an outside tester's run, killed after 150 s)."""
+    import http.server
+    import threading
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    address = f"127.0.0.1:{server.server_address[1]}"
+    try:
+        assert batch.main([*SMALL, "--out", str(tmp_path / "ds"), "--ray", address]) == 2
+    finally:
+        server.shutdown()
+        server.server_close()
+    err = capsys.readouterr().err
+    assert f"no Ray head answers at --ray={address!r}: something listens there but it did not answer as a gRPC" in err, err
+    assert not find_episode_bags(tmp_path / "ds")
+
+
 def test_auto_pointing_at_a_stopped_cluster_or_an_empty_address_is_refused_at_once(tmp_path, capsys, monkeypatch):
     """``--ray auto`` is RAY_ADDRESS or the address the last ``ray start`` here left behind; a stale
     one made Ray retry forever (a run ignored SIGTERM for 40 s). An empty address ran the local pool."""

@@ -301,7 +301,7 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -
         bar.close()
     for group, result in zip(groups, done):
         if isinstance(result, Exception):
-            raise RuntimeError(f"the Ray task reading {len(group)} bags from {group[0]} on failed: "
+            raise RuntimeError(f"the Ray task reading {len(group)} bags (from {group[0]} on) failed: "
                                f"{type(result).__name__}: {result}")
     return [row for result in done for row in result]
 

@@ -373,7 +373,9 @@ def _parser() -> argparse.ArgumentParser:
     add_ray_option(p, "read the bags as Ray tasks (rank 0 only under torchrun)")
     for f in fields(TrainConfig):
         kind = cli_numbers.seed if f.name == "seed" else type(f.default)
-        p.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=f.default, help=f"(default: {f.default})")
+        choices = {"choices": LR_SCHEDULES} if f.name == "lr_schedule" else {}
+        p.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=f.default, help=f"(default: {f.default})",
+                       **choices)
     p.add_argument("--extra-term", action="append", default=[], metavar="NAME=K",
                    help="add the force term NAME with coefficient K to the PINN's physics "
                         "(F_FEE + Σ K·B_NAME; repeatable): a catalogue effect, one of: " + ", ".join(sorted(CATALOGUE))

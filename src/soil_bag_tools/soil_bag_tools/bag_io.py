@@ -226,7 +226,9 @@ def _read_meta(path: Path) -> EpisodeMeta:
     if META_KEY not in custom:
         raise BagReadError(path, f"has no episode metadata (custom_data key {META_KEY!r})")
     try:
-        return EpisodeMeta.from_json(custom[META_KEY])
+        meta = EpisodeMeta.from_json(custom[META_KEY])
+        meta.validate(machine_world=True)  # a density of 150 % or "eighty", a world "moon": named, never read on
+        return meta
     except (TypeError, ValueError) as err:
         raise BagReadError(path, f"bad episode metadata {META_KEY!r}: {err}") from None
 

@@ -20,6 +20,8 @@ EPISODE_SCHEMA_VERSION = 1
 EXTRA_FIELDS: tuple[str, ...] = ("p_x_c", "v_x_b")
 
 
+# What a bag's metadata may say of a world no simulator made (a machine's bags)
+UNKNOWN_WORLDS = ("", "unknown")
 # The largest seed: a signed 64-bit integer (the nodes' integer parameter type, numpy, bag readers)
 MAX_SEED = 2**63 - 1
 # The longest episode [s]: an hour of cut, far beyond any use, whose arrays still fit in memory
@@ -51,10 +53,13 @@ class EpisodeMeta:
         """The path as SoilPatch values (validated); () for a one-soil episode."""
         return check_patches(self.patches)
 
-    def validate(self) -> None:
-        """Raise ValueError naming the field and value if the metadata is not usable."""
-        if self.world_mode not in WORLD_MODES:
-            raise ValueError(f"world_mode={self.world_mode!r} is not one of {WORLD_MODES}")
+    def validate(self, machine_world: bool = False) -> None:
+        """Raise ValueError naming the field and value if the metadata is not usable.
+        ``machine_world``: a bag read back may also say its world is not known ("" or "unknown":
+        a machine's, which no simulator world made)."""
+        worlds = WORLD_MODES + (UNKNOWN_WORLDS if machine_world else ())
+        if self.world_mode not in worlds:
+            raise ValueError(f"world_mode={short_repr(self.world_mode)} is not one of {worlds}")
         for name in ("relative_density_pct", "target_speed_m_s", "target_depth_m", "duration_s"):
             value = getattr(self, name)
             if not finite_number(value):
@@ -103,7 +108,7 @@ class EpisodeMeta:
 def world_modes(metas) -> list[str]:
     """The sorted world modes (``world_mode``) of episodes' metadata, leaving out an empty or
     "unknown" one: which worlds a set of bags is from (the tools take one world's, or warn)."""
-    return sorted({str(getattr(m, "world_mode", "") or "") for m in metas} - {"", "unknown"})
+    return sorted({str(getattr(m, "world_mode", "") or "") for m in metas} - set(UNKNOWN_WORLDS))
 
 
 @dataclass

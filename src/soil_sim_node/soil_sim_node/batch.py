@@ -338,7 +338,9 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
             names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
             lines.append(f"  episodes {', '.join(names)}: {type(err).__name__}: {err}")
     if lost:  # one line, not every unfinished episode's name: the rerun finds them
-        lines.append(f"  {len(lost)} tasks ({sum(len(c) for c, _ in lost)} episodes) unfinished: {lost[0][1]}")
+        # (a lost task's worker may still finish its bags: what is on disk is counted after this)
+        lines.append(f"  {len(lost)} tasks ({sum(len(c) for c, _ in lost)} episodes) not confirmed before the cluster was "
+                     f"lost (their workers may have written some of those bags all the same): {lost[0][1]}")
     bad_input = all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed)
     if not bad_input:  # a lost cluster, a dead worker or raylet (Ray says either, whichever it notices first)
         lines.append("  the same command with --skip-existing simulates the missing episodes"

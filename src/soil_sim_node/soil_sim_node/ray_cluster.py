@@ -137,11 +137,16 @@ def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
     if hp is None:
         return  # Ray's client form (ray://): Ray checks it
     target = f"{hp[0]}:{hp[1]}"
+    via = (f" (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine), {target}"
+           if address == "auto" else "")
     err = _connect_error(hp, timeout_s)
     if err is not None:
-        via = (f" (where --ray='auto' points: RAY_ADDRESS or the last cluster started on this machine), {target}"
-               if address == "auto" else "")
         raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}: {err}") from None
+    if os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", ""):  # (a TLS head answers in TLS first)
+        problem = _grpc_problem(hp, timeout_s)
+        if problem is not None:
+            raise ValueError(f"no Ray head answers at --ray={address!r}{via}: something listens there but {problem} "
+                             "(a Ray head's GCS port speaks gRPC; is it another service's port, e.g. the dashboard's?)")
 
 
 def _host_port(address: str) -> tuple[str, int] | None:
@@ -250,6 +255,31 @@ def run_tasks(fn, jobs: list, on_done=None, lost_after_s: float = CLUSTER_LOST_A
             if on_done is not None:
                 on_done(result)
     return out
+
+
+# HTTP/2's client connection preface and an empty SETTINGS frame: a gRPC server (a Ray head's GCS)
+# answers with a SETTINGS frame of its own (frame type 4 in the fourth byte)
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _grpc_problem(host_port: tuple[str, int], timeout_s: float) -> str | None:
+    """Why what listens at ``host_port`` is no gRPC server; None if it answers as one. Why: Ray's
+    driver pointed at a port where another service listens (an HTTP server, the dashboard) retried
+    "Failed to get cluster ID from GCS server" for ever."""
+    try:
+        with socket.create_connection(host_port, timeout=timeout_s) as sock:
+            sock.sendall(_H2_PREFACE)
+            answer = b""
+            while len(answer) < 9:
+                chunk = sock.recv(9 - len(answer))
+                if not chunk:
+                    break
+                answer += chunk
+    except OSError as err:
+        return f"it did not answer as a gRPC server ({err})"
+    if len(answer) < 9 or answer[3] != 4:
+        return f"it did not answer as a gRPC server (it sent {answer[:16]!r})"
+    return None
 
 
 def _connect_error(host_port: tuple[str, int], timeout_s: float = 2.0) -> OSError | None:
