@@ -269,6 +269,7 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
     parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
+    law = cfg.planner_bound_law()  # as soil_launch gives it to the planner (None: the published law)
     rows = {label: [] for label in BOUND_LABELS}
     for a, b in fc.pair_indices(parts):
         if not posts[a].updates:
@@ -280,11 +281,12 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
                               ("unanchored", None)):
             try:
                 ux, uz = fused_upper_force(est, dst.known, [dst.known["d"]], quantile=quantile,
-                                           cut_speed_m_s=dst.known["v_x"], anchor=anchor, terms=terms)
+                                           cut_speed_m_s=dst.known["v_x"], anchor=anchor, terms=terms,
+                                           bound_law=law)
             except ValueError:
                 continue  # no bound (no failure wedge): a plan would refuse this estimate
             rows[label].append((dst.known["d"] / src.known["d"], abs(dst.force[0]), abs(dst.force[1]), ux[0], uz[0]))
-    out = {"quantile": quantile, "terms": [list(t) for t in terms], "near_reach": NEAR_REACH}
+    out = {"quantile": quantile, "terms": [list(t) for t in terms], "near_reach": NEAR_REACH, "bound_law": law}
     for label, r in rows.items():
         if not r:
             out[label] = {"pairs": 0}
@@ -315,8 +317,11 @@ def bound_text(bound: dict) -> str:
                      f"{bound['near_reach']:g}× as deep, {_share(b['exceeded_x_deeper_far'])} of the "
                      f"{b['deeper_far_pairs']} farther), |F_z| in {b['exceeded_z']:.0%}; the bound is "
                      f"{b['bound_over_measured_x']:.2f}× the measured |F_x| on average")
+    law = bound.get("bound_law")
+    law_text = (f"its bound law x {law[0]:g} N + {law[2]:g}|ΔF|, z {law[1]:g} N + {law[3]:g}|ΔF|" if law
+                else "the published forecast law")
     return (f"The planner's bound at another depth (the {bound['quantile']:.0%} upper quantile of |F| from the published "
-            f"moments, which a plan keeps within the limits; nominally exceeded in {1 - bound['quantile']:.0%}): "
+            f"moments with {law_text}, which a plan keeps within the limits; nominally exceeded in {1 - bound['quantile']:.0%}): "
             + "; ".join(parts) + ". A planner re-plans every tick and deepens at a limited rate, so the bound it "
             "acts on reaches a little deeper than the evidence; a cut far deeper than any seen is the far pairs'.")
 

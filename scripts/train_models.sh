@@ -28,6 +28,8 @@ for w in ${*:-fee default}; do
     terms=()
     [ "$w" = default ] && terms=(--term "form:-qnq*tanhvx0.1=0.756")
     "$BIN/pinn_fusion_calibrate" --world "$w" "${terms[@]}" > "$OUT/fusion_$w.log"
+    # the planner's bound law, calibrated on the same posteriors, into the same config
+    "$BIN/soil_planner_calibrate" --world "$w" >> "$OUT/fusion_$w.log"
     "$BIN/pinn_eval" --checkpoint "$OUT/pinn_$w.pt" --physics-free "$OUT/physics_free_$w.pt" --data "$data" \
       --out "$OUT" --name "pinn_${w}_report" --quiet > /dev/null
     cp "$OUT/pinn_$w.pt" "$OUT/pinn_${w}_report.md" "$OUT/pinn_${w}_report.json" "$OUT/pinn_${w}_report_params.png" \

@@ -483,6 +483,28 @@ def test_a_bad_fusion_config_is_refused_naming_the_field(field, value):
         FusionConfig(**{field: value})
 
 
+@pytest.mark.parametrize("fields, needle", [({"bound_abs_std_n": (300.0, 1000.0)}, "give both"),
+                                            ({"bound_rel_std": (0.1, 0.1)}, "give both"),
+                                            ({"bound_abs_std_n": (0.0, 5.0), "bound_rel_std": (0.1, 0.1)}, "bound_abs_std_n"),
+                                            ({"bound_abs_std_n": (5.0, 5.0), "bound_rel_std": (0.1, -1.0)}, "bound_rel_std"),
+                                            ({"bound_abs_std_n": (5.0, 5.0), "bound_rel_std": "0.1"}, "bound_rel_std")])
+def test_the_planners_bound_law_is_both_fields_or_neither_and_checked_like_the_forecast_law(fields, needle):
+    with pytest.raises(ValueError, match=needle):
+        FusionConfig(**fields)
+
+
+def test_the_planners_bound_law_is_the_forecast_law_unless_calibrated_apart(tmp_path):
+    """A config without it (written before it existed) gives the planner no law of its own, which
+    then takes the published one; a config with it round-trips and gives it as the node takes it."""
+    assert FusionConfig().planner_bound_law() is None
+    assert FusionConfig.from_dict({"bound_abs_std_n": None, "bound_rel_std": None}).planner_bound_law() is None
+    cfg = FusionConfig(bound_abs_std_n=(20, 1000), bound_rel_std=[0.3, 0.8])
+    assert cfg.planner_bound_law() == (20.0, 1000.0, 0.3, 0.8)
+    assert all(type(v) is float for v in cfg.planner_bound_law())
+    cfg.save(tmp_path / "f.json")
+    assert FusionConfig.load(tmp_path / "f.json") == cfg
+
+
 HUGE = {"prior_std": 10**400, "evidence_weight": 10**400, "unsteady_gain": 10**400, "patch_length_m": -10**400,
         "rel_std": (0.01, 10**400)}
 
@@ -736,15 +758,16 @@ def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics(
 
 
 def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_until_they_hold():
-    ds = Dataset.from_episodes(episodes("fee", [("Clay", 60.0, 0.06), ("Clay", 60.0, 0.12), ("Clay", 60.0, 0.24)]))
+    ds = Dataset.from_episodes(episodes("fee", [("Clay", 60.0, d) for d in (0.05, 0.08, 0.12, 0.24)]))
     said = []
     cfg, rows = calibrate(ds, FusionConfig(), rel_grid=(0.01, 0.5), shape_grid=(None, (2.0, 0.002)),
                           truth_grids=(("drift_per_sqrt_m", (0.0, 0.02)),), truth=True, forecast_grid=(0.0, 1.0),
                           floor_grid=(20.0,), log=said.append)
     # stage 1: each shape law with each evidence law (with the truth: the parameters' coverage),
     # then its skill; the chosen law's own drift (the default 0.01) and each of the grid's, and the
-    # drift chosen; stage 2: each forecast law
-    assert len(said) == 2 * (2 + 1) + 4 + 2 and sum("rel_std" in line and "skill" in line for line in said) == 2
+    # drift chosen; stage 2: the pairs it calibrates on (both depths from 7 cm), each forecast law
+    assert said[10] == "forecast law: 6 of 12 pairs, both depths at least 0.07 m"
+    assert len(said) == 2 * (2 + 1) + 4 + 1 + 2 and sum("rel_std" in line and "skill" in line for line in said) == 2
     assert sum("intervals hold φ" in line for line in said) == 2 * 2 + 3
     assert [line.split(":")[0] for line in said[6:9]] == [f"drift_per_sqrt_m {d}" for d in ("0.01", "0", "0.02")]
     assert said[9] == f"  drift_per_sqrt_m {cfg.drift_per_sqrt_m:g}" and cfg.drift_per_sqrt_m in (0.0, 0.01, 0.02)
@@ -762,14 +785,16 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     # stage 2 alone on the chosen config's posteriors (``--forecast-law-only``) chooses the same law;
     # its coverages, from each pair's predictive CDF at the measured force, are those of the intervals
     from pinn_estimator.evaluate import fused_posteriors
-    from pinn_estimator.fusion_calibration import (choose_forecast_law, coverage_curve, coverages, forecast_table,
-                                                   interval_level, pair_forecasts, predictive_cdf, reach_strata)
+    from pinn_estimator.fusion_calibration import (calibrated_reach, choose_forecast_law, coverage_curve, coverages,
+                                                   forecast_table, interval_level, pair_forecasts, predictive_cdf,
+                                                   reach_strata)
 
     posts = fused_posteriors(ds, cfg)
     again, _ = choose_forecast_law(ds, dataclasses.replace(cfg, forecast_rel_std=(0.3, 0.3)), posts, forecast_grid=(0.0, 1.0),
                                    floor_grid=(20.0,), log=said.append)
     assert again == cfg
-    pairs = pair_forecasts(ds, posts)
+    pairs = calibrated_reach(pair_forecasts(ds, posts))
+    assert len(pairs) == 6 and min(p.shallower_m for p in pairs) >= 0.07
     # each law's coverage is also logged in the pairs that reach less far in depth than the median
     # pair and in the rest
     reach = np.array([p.reach_m for p in pairs])
@@ -787,6 +812,20 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     wide = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0)), pairs=pairs)
     narrow = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(0.0, 0.0)), pairs=pairs)
     assert wide["width_x"] > narrow["width_x"] > 0  # a wider law, wider intervals
+    # stage 3: the planner's bound law, per axis the sharpest whose anchored 95 % bound the measured
+    # force exceeds in at most 5 % of the pairs going deeper (from 5 cm on), else the least exceeded
+    from soil_planner.bound_calibration import anchored_bounds, choose_bound_law
+
+    bounded, law_rows = choose_bound_law(ds, cfg, posts, forecast_grid=(0.0, 0.3), floor_grid=(5.0, 3000.0), log=said.append)
+    assert (bounded.forecast_abs_std_n, bounded.forecast_rel_std) == (cfg.forecast_abs_std_n, cfg.forecast_rel_std)
+    assert len(law_rows) == 4 and said[-1].startswith("bound law: x ") and "of 6 pairs going deeper" in said[-1]
+    found = anchored_bounds(ds, cfg, posts, [(5.0, 5.0, 0.0, 0.0), (3000.0, 3000.0, 0.3, 0.3)])
+    assert found["measured"].shape == (6, 2) and (found["bounds"][1] > found["bounds"][0]).all()  # wider law, higher bound
+    for j in range(2):
+        held = [r for r in law_rows if r["exceeded"][j] <= 0.05]
+        want = min(held, key=lambda r: r["mean_bound"][j]) if held else min(law_rows, key=lambda r: (r["exceeded"][j], r["mean_bound"][j]))
+        assert (bounded.bound_abs_std_n[j], bounded.bound_rel_std[j]) == (want["floor"], want["rel"])
+    assert law_rows[-1]["exceeded"][0] == 0.0  # 3 kN + 0.3 of what is extrapolated holds every pair here
 
 
 def test_a_forecast_law_is_judged_by_the_predictive_cdf_at_the_measured_force():

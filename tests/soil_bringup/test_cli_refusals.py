@@ -94,7 +94,7 @@ def test_a_force_quantile_of_0_is_refused_by_the_cut_report_without_offering_it_
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "force_quantile=0.0 must be in [0.5, 1)" in err and "or 0" not in err, err
     settings = dict(margin=0.85, d_max_m=0.3, cut_speed_m_s=0.5, include_residual=False, terms=(), force_quantile=0.0,
-                    sensor_anchor=True)
+                    sensor_anchor=True, bound_law=[])
     assert set(settings) == set(PLANNER_SETTINGS) and stretch_planner(settings).force_quantile is None
     with pytest.raises(ValueError, match=r"force_quantile=1.5 must be in \[0.5, 1\) .*, or 0 for the PINN's point plan"):
         stretch_planner({**settings, "force_quantile": 1.5})

@@ -236,20 +236,26 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
         L.build_nodes(L.parse_args(["--sim-param", "duration_s:="]))
 
 
-def test_the_planner_reads_the_posterior_through_the_physics_of_the_estimators_calibration():
-    """The terms the planner is given are those of the config the estimator takes: a given
-    fusion_config's, else the shipped calibration of the checkpoint's training world (the fee
-    world's has no term beside the FEE, the default world's one)."""
+def test_the_planner_reads_the_posterior_through_the_physics_and_bound_law_of_the_estimators_calibration(tmp_path):
+    """The terms and the bound law the planner is given are those of the config the estimator
+    takes: a given fusion_config's, else the shipped calibration of the checkpoint's training world
+    (the fee world's has no term beside the FEE, the default world's one); a config without a
+    bound law gives none (the planner then takes the estimate's model_std_*)."""
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT
-    from pinn_estimator.fusion_calibration import checkpoint_world, config_path
+    from pinn_estimator.fusion_calibration import FusionConfig, checkpoint_world, config_path
 
     fee_ckpt = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
-    default_terms = L.posterior_terms_param(None, [])
-    assert len(default_terms) == 1 and "form:" in default_terms[0]
-    assert L.posterior_terms_param(None, [f"checkpoint:={fee_ckpt}"]) == []
-    assert L.posterior_terms_param(None, [f"checkpoint:={fee_ckpt}", f"fusion_config:={config_path('default')}"]) \
-        == default_terms
-    assert L.posterior_terms_param(None, [f"checkpoint:={DEFAULT_CHECKPOINT}"]) == default_terms
+    default_params = L.posterior_planner_params(None, [])
+    law = FusionConfig.load(config_path("default")).planner_bound_law()
+    assert [p.split(":=")[0] for p in default_params] == ["terms", "bound_law"] and "form:" in default_params[0]
+    assert default_params[1] == f"bound_law:=[{', '.join(map(repr, law))}]"
+    assert L.posterior_planner_params(None, [f"checkpoint:={fee_ckpt}"]) == \
+        [f"bound_law:=[{', '.join(map(repr, FusionConfig.load(config_path('fee')).planner_bound_law()))}]"]
+    assert L.posterior_planner_params(None, [f"checkpoint:={fee_ckpt}", f"fusion_config:={config_path('default')}"]) \
+        == default_params
+    assert L.posterior_planner_params(None, [f"checkpoint:={DEFAULT_CHECKPOINT}"]) == default_params
+    FusionConfig().save(tmp_path / "no_law.json")  # a config written before the bound law existed
+    assert L.posterior_planner_params(None, [f"fusion_config:={tmp_path / 'no_law.json'}"]) == []
     assert checkpoint_world({"dataset": {"world_modes": ["fee"]}}) == "fee"
     for worlds in (["fee", "default"], [], ["mars"], None):
         assert checkpoint_world({"dataset": {"world_modes": worlds}}) == "default"

@@ -418,6 +418,31 @@ def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper(
     assert err < depths["sharp"]
 
 
+def test_a_bound_law_of_its_own_replaces_the_estimates_and_a_bad_one_is_named():
+    """The plan's error law is its ``bound_law`` where given (calibrated on anchored bounds), the
+    estimate's ``model_std_*`` otherwise: a wider one bounds higher and plans shallower, the
+    estimate's own law given explicitly changes nothing."""
+    known = _known(d=0.12, q=1000.0)
+    est = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
+                 std=(1 * DEG, 100.0, 0.1 * DEG), rel=(0.05, 0.05))
+    own = (est["model_std_abs_x"], est["model_std_abs_z"], est["model_std_rel_x"], est["model_std_rel_z"])
+    plain = max_cut_depth(est, known)
+    assert max_cut_depth(est, known, bound_law=own) == plain
+    assert max_cut_depth(est, known, bound_law=[]) == plain
+    wide = (own[0], own[1], 0.4, 0.4)
+    assert max_cut_depth(est, known, bound_law=wide).max_depth_m < plain.max_depth_m
+    bound = fused_upper_force(est, known, [0.2])[0][0]
+    assert fused_upper_force(est, known, [0.2], bound_law=wide)[0][0] > bound
+    for law, needle in (((5.0, 5.0, 0.1), "four numbers"), ("5,5,0.1,0.1", "four numbers"),
+                        ((0.0, 5.0, 0.1, 0.1), "floors"), ((5.0, 5.0, -0.1, 0.1), ">= 0"),
+                        ((5.0, math.nan, 0.1, 0.1), "bound_law abs_z")):
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(est, known, bound_law=law)
+    planner = StretchPlanner(bound_law=wide)
+    assert planner.settings()["bound_law"] == list(wide)
+    assert StretchPlanner().settings()["bound_law"] == []
+
+
 def test_the_fused_posterior_plans_while_the_pinn_window_is_not_full_and_bad_fused_fields_are_named():
     known = _known(d=0.12)
     est = _fused(_estimate(known), 30 * DEG, 1e3, 15 * DEG, std=(1 * DEG, 100.0, 0.1 * DEG))
@@ -915,7 +940,7 @@ def test_soil_planner_node_plans_a_tick_once_its_command_is_in_and_keeps_the_tic
 
 
 @pytest.mark.timeout(30)
-@pytest.mark.parametrize("arg", ["margin:=1.5", "cut_speed_m_s:=2.5"])
+@pytest.mark.parametrize("arg", ["margin:=1.5", "cut_speed_m_s:=2.5", "bound_law:=[5.0, 5.0, 0.1]"])
 def test_soil_planner_refuses_a_bad_setting_with_exit_2(tmp_path, arg):
     node = NodeProc("soil_planner", ["--ros-args", "-p", arg], next_domain_id(), tmp_path)
     try:

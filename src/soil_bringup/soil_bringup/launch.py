@@ -29,7 +29,7 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
     soil_launch --planner --record bags/run3 --sim-param "patches:=['0:Sand:20','10:Clay:80']"
 
 ``--planner`` starts the soil-aware planner too (and the estimator it plans from, whose posterior
-physics it is given: ``posterior_terms_param``) and sets the controller's
+physics and bound law it is given: ``posterior_planner_params``) and sets the controller's
 ``depth_source:=planner``: the loop is closed, the cut depth follows the soil.
 """
 from __future__ import annotations
@@ -322,8 +322,8 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
     return argv + _params(params)
 
 
-def posterior_terms_param(estimator_params_file, estimator_params: list[str]) -> list[str]:
-    """``["terms:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
+def posterior_planner_params(estimator_params_file, estimator_params: list[str]) -> list[str]:
+    """``["terms:=[...]", "bound_law:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
     posterior (``fusion_calibration.estimator_fusion``: the ``fusion_config`` it is given, the
     last ``-p``, else its params file, else the shipped one of its checkpoint's world, read with
     torch only for a checkpoint of the user's own), so the plan reads θ through the model θ was
@@ -331,19 +331,24 @@ def posterior_terms_param(estimator_params_file, estimator_params: list[str]) ->
     where the config cannot be read (the estimator then exits naming it). A term on the travel or
     time in soil, which a planned steady cut does not have, is left out with a line on stderr. A
     checkpoint's own terms (its ``extra_terms``) are not added here: give them with
-    ``--planner-param terms:=[...]``."""
+    ``--planner-param terms:=[...]``. And the config's bound law (``FusionConfig.planner_bound_law``),
+    calibrated on the bounds a plan keeps, where the config has one (none: the planner takes the
+    estimate's ``model_std_*``)."""
     from soil_physics.force_terms import term_texts
     from soil_planner.planner import steady_cut_terms
 
     given = given_params("pinn_estimator", estimator_params_file, estimator_params, ("fusion_config", "checkpoint"))
     try:
-        terms, left_out = steady_cut_terms(_estimator_fusion(given).terms)
+        fusion = _estimator_fusion(given)
+        terms, left_out = steady_cut_terms(fusion.terms)
     except ValueError:
         return []
+    law = fusion.planner_bound_law()
     if left_out:
         print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
               "planned steady cut does not have)", file=sys.stderr)
-    return [f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else []
+    return (([f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else [])
+            + ([f"bound_law:=[{', '.join(f'{v!r}' for v in law)}]"] if law else []))
 
 
 def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:
@@ -438,8 +443,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
-        # the posterior's physics first, so a -p terms:=... of the user's wins
-        physics = posterior_terms_param(args.estimator_params_file, estimator_param)
+        # the posterior's physics and bound law first, so a -p terms:=... of the user's wins
+        physics = posterior_planner_params(args.estimator_params_file, estimator_param)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end

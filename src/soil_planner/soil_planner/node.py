@@ -105,6 +105,10 @@ PARAMETERS: dict[str, tuple] = {
     "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
                   "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
+    "bound_law": ([], "the error law of the fused bound a plan keeps within the limits, [abs_x N, abs_z N, rel_x, "
+                      "rel_z] (σ = abs + rel·|ΔF|, as the estimate's model_std_*), calibrated on anchored bounds "
+                      "(its fusion config's bound_*; soil_launch --planner passes the estimator's); empty: the "
+                      "estimate's model_std_*, the law calibrated for its forecast intervals", Parameter.Type.DOUBLE_ARRAY),
     "sensor_anchor": (True, "where the blade's measured F_x (/blade/force), averaged over the recent steady cut, "
                             "is clearly above the PINN's F̂_x (by more than 15 % and 3 standard errors), the fused "
                             "plan is anchored to the measured force (a model outside its training is trusted no "
@@ -137,7 +141,7 @@ PARAMETERS: dict[str, tuple] = {
 # plan steers nothing live; it is still published and recorded.
 MAX_PENDING_STAMPS = 10 * SAMPLE_RATE_HZ
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms",
-                    "sensor_anchor")  # StretchPlanner's
+                    "sensor_anchor", "bound_law")  # StretchPlanner's
 
 
 def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None:
@@ -231,7 +235,9 @@ class PlannerNode(Node):
             f"residual {'on' if p.include_residual else 'off'}, "
             f"sensor anchor {'on (' + T.BLADE_FORCE.name + ')' if p.anchor.sensor else 'off'}"
             f"{' (no effect without a force quantile)' if p.anchor.sensor and p.force_quantile is None else ''}, physics FEE"
-            f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, depth schedule {self.schedule.settings}; "
+            f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, bound law "
+            f"{'x %g N + %g|ΔF|, z %g N + %g|ΔF|' % (p.bound_law[0], p.bound_law[2], p.bound_law[1], p.bound_law[3]) if p.bound_law else 'model_std_* of the estimate'}, "
+            f"depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
 
     # ------------------------------------------------------------------ parameters

@@ -309,6 +309,7 @@ def max_cut_depth(
     grid_points: int | None = None,
     tol_m: float = TOLERANCE_M,
     terms=(),
+    bound_law=(),
 ) -> Plan | None:
     """Deepest admissible cut for ``estimate`` (ESTIMATE_FIELDS) with Θ_k ``known`` (KNOWN_PARAMS).
 
@@ -319,7 +320,8 @@ def max_cut_depth(
     plan is anchored to and the Θ_k it was predicted at (``SteadyAnchor``); None: this
     estimate's F̂ at ``known``. ``terms``: the fused posterior's physics beside the FEE, (name, k)
     pairs or 'name=k' texts (``planning_terms``): its θ means what it means in that physics (the
-    default world's calibrated posterior takes 76 % of the FEE's surcharge part away). None when
+    default world's calibrated posterior takes 76 % of the FEE's surcharge part away). ``bound_law``:
+    the error law of the fused bound (``check_bound_law``; empty: the estimate's ``model_std_*``). None when
     neither is valid (nothing to plan
     from). ValueError, naming the field and value, for a missing, non-finite or out-of-limits
     field, a bad setting, or parameters for which the FEE has no failure wedge at the planned
@@ -327,6 +329,7 @@ def max_cut_depth(
     """
     margin, d_max_m, cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
     terms = planning_terms(terms)
+    bound_law = check_bound_law(bound_law)
     if force_quantile is not None:
         force_quantile = check_quantile(force_quantile)
     valid = _flag(estimate, "valid")
@@ -349,7 +352,7 @@ def max_cut_depth(
             force_now, known_now, std_now = _checked_anchor(anchor)
         elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
             force_now = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
-        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now, terms, std_now)
+        model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now, terms, std_now, bound_law)
     else:
         est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
         model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
@@ -391,12 +394,12 @@ def max_cut_depth(
 def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float], depths_m, *,
                       quantile: float = DEFAULT_FORCE_QUANTILE, cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S,
                       anchor: tuple[tuple[float, float], Mapping[str, float]] | None = None,
-                      terms=()) -> tuple[np.ndarray, np.ndarray]:
+                      terms=(), bound_law=()) -> tuple[np.ndarray, np.ndarray]:
     """The ``quantile`` upper bound of |F_x| and |F_z| [N] the fused plan keeps within the limits, at
     each of ``depths_m`` (a steady, level cut at ``cut_speed_m_s`` with Θ_k ``known``): what
     ``max_cut_depth`` compares with the limits, for checking how often a measured force exceeds it.
-    ``anchor``: ((F_x, F_z) [N], Θ_k) as in ``max_cut_depth``. ValueError as there (no fused posterior
-    in ``estimate`` is one)."""
+    ``anchor``: ((F_x, F_z) [N], Θ_k) as in ``max_cut_depth``; ``bound_law`` as there. ValueError as
+    there (no fused posterior in ``estimate`` is one)."""
     check_settings(DEFAULT_MARGIN, DEFAULT_D_MAX_M, cut_speed_m_s)
     quantile = check_quantile(quantile)
     if _flag(estimate, "fused_valid") != 1.0:
@@ -404,7 +407,8 @@ def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float],
     est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
     kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
     force_now, known_now, std_now = _checked_anchor(anchor) if anchor is not None else (None, None, (0.0, 0.0))
-    model = _FusedForceModel(est, kn, cut_speed_m_s, quantile, force_now, known_now, planning_terms(terms), std_now)
+    model = _FusedForceModel(est, kn, cut_speed_m_s, quantile, force_now, known_now, planning_terms(terms), std_now,
+                             check_bound_law(bound_law))
     return model(np.atleast_1d(np.asarray(depths_m, dtype=float)))
 
 
@@ -422,6 +426,23 @@ def _checked_anchor(anchor) -> tuple[tuple[float, float], dict[str, float], tupl
     if min(std) < 0.0:
         raise ValueError(f"anchor force std={std!r} must be >= 0 N")
     return force_now, _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known"), std
+
+
+def check_bound_law(law) -> tuple[float, float, float, float] | None:
+    """The fused bound's error law (abs_x [N], abs_z [N], rel_x, rel_z), σ = abs + rel·|ΔF| as the
+    estimate's ``model_std_*``, or None for an empty one (the estimate's law is used). Why a law of
+    its own: the published law is calibrated for the posterior's forecast intervals, while the
+    bound a plan keeps is anchored to the force now (``_FusedForceModel``), a different forecast
+    whose errors the estimator's calibration measures apart (``fusion_calibration``, stage 3).
+    ValueError naming the value unless four finite numbers >= 0 with floors > 0."""
+    if law is None or (isinstance(law, (tuple, list, np.ndarray)) and len(law) == 0):
+        return None
+    if isinstance(law, (str, bytes)) or not isinstance(law, (tuple, list, np.ndarray)) or len(law) != 4:
+        raise ValueError(f"bound_law={law!r} must be empty or four numbers: abs_x [N], abs_z [N], rel_x, rel_z")
+    out = tuple(_number(f"bound_law {name}", v) for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), law))
+    if min(out) < 0.0 or min(out[:2]) <= 0.0:
+        raise ValueError(f"bound_law={law!r} must be >= 0 (its floors abs_x, abs_z > 0 N)")
+    return out
 
 
 def steady_cut_terms(terms) -> tuple[tuple[tuple[str, float], ...], tuple[str, ...]]:
@@ -622,9 +643,11 @@ class StretchPlanner:
 
     def __init__(self, *, margin: float = DEFAULT_MARGIN, d_max_m: float = DEFAULT_D_MAX_M,
                  cut_speed_m_s: float = DEFAULT_CUT_SPEED_M_S, include_residual: bool = True,
-                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=(), sensor_anchor: bool = True):
+                 force_quantile: float | None = DEFAULT_FORCE_QUANTILE, terms=(), sensor_anchor: bool = True,
+                 bound_law=()):
         self.margin, self.d_max_m, self.cut_speed_m_s = check_settings(margin, d_max_m, cut_speed_m_s)
         self.terms = planning_terms(terms)  # the fused posterior's physics beside the FEE
+        self.bound_law = check_bound_law(bound_law)  # None: the estimate's model_std_*
         self.include_residual = check_switch("include_residual", include_residual)
         self.force_quantile = None if force_quantile is None else check_quantile(force_quantile)
         self._fused: tuple[tuple, Plan, int, float | None] | None = None
@@ -650,7 +673,8 @@ class StretchPlanner:
     def settings(self) -> dict:
         return {"margin": self.margin, "d_max_m": self.d_max_m, "cut_speed_m_s": self.cut_speed_m_s,
                 "include_residual": self.include_residual, "force_quantile": self.force_quantile,
-                "terms": force_terms.term_texts(self.terms), "sensor_anchor": self.anchor.sensor}
+                "terms": force_terms.term_texts(self.terms), "sensor_anchor": self.anchor.sensor,
+                "bound_law": list(self.bound_law or ())}
 
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float],
              commanded_depth_m: float | None = None, measured_force_n=None) -> tuple[Plan | None, bool]:
@@ -670,7 +694,8 @@ class StretchPlanner:
             self.sensor_gap_n = self._fused[3]
             return self._stall_capped(self._fused[1]), False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
-                        include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms)
+                        include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms,
+                        bound_law=self.bound_law)
         plan = max_cut_depth(estimate, known, anchor=steady, **settings)
         self.sensor_gap_n = self.anchor.sensor_gap_n if sensed and plan is not None else None
         if steady is not None and plan is not None and float(known["v_z"]) > ANCHOR_MAX_ABS_V_Z_M_S:
@@ -742,7 +767,8 @@ class _FusedForceModel:
     measured now (a new, stronger soil is seen within the PINN's window, not after the
     posterior has moved), the posterior gives the shape and its spread. A sample without a
     wedge at the current velocity keeps r_s = 0.
-    The error law is the one calibrated for forecasts at other depths (``model_std_*``), its
+    The error law is ``bound_law`` (calibrated on anchored bounds), else the one calibrated for
+    forecasts at other depths (``model_std_*``), its
     relative part applied to what is extrapolated, ΔF = min(|F_s(d) − F̂|, |F_FEE,s(d)|)
     (``predictive.extrapolated_part``); unanchored, from each sample's own FEE force at the
     current depth instead of F̂, as the posterior counts from its newest stretch. Either way a
@@ -751,7 +777,8 @@ class _FusedForceModel:
 
     def __init__(self, est: dict[str, float], known: dict[str, float], cut_speed_m_s: float, quantile: float,
                  anchor: tuple[float, float] | None = None, anchor_known: dict[str, float] | None = None,
-                 terms: tuple[tuple[str, float], ...] = (), anchor_std: tuple[float, float] = (0.0, 0.0)):
+                 terms: tuple[tuple[str, float], ...] = (), anchor_std: tuple[float, float] = (0.0, 0.0),
+                 bound_law: tuple[float, float, float, float] | None = None):
         self.physics = AugmentedFEE(terms)
         self.anchor_std = tuple(float(v) for v in anchor_std)
         names = ("phi", "c", "delta")
@@ -768,7 +795,10 @@ class _FusedForceModel:
         x = np.clip(x, lo, hi)
         self.theta = {**known, "phi": x[:, 0], "c": x[:, 1], "delta": x[:, 2], "v_x": cut_speed_m_s, "v_z": 0.0}
         self.quantile = quantile
-        self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
+        if bound_law is None:
+            self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
+        else:
+            self.law = ((bound_law[0], bound_law[2]), (bound_law[1], bound_law[3]))
         delta_v, _ = fee.velocity_corrected(est["delta_fused"], known["c_a"], known["rho"], known["alpha"], cut_speed_m_s, 0.0)
         self.beta_rad = float(fee.beta_star(est["phi_fused"], delta_v, known["rho"], known["alpha"]))
         if not math.isfinite(self.beta_rad):
