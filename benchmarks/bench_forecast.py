@@ -73,6 +73,7 @@ from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
 from soil_physics.soils import CATALOGUE, SoilProperties, SoilType  # noqa: E402
 from soil_physics.travel import distance_in_soil_of_known  # noqa: E402
+from soil_physics.predictive import error_law_text  # noqa: E402
 from soil_sim_node.effects import effects_for_mode  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
 from soil_sim_node.simulator import EpisodeSpec, SimConfig  # noqa: E402
@@ -318,8 +319,7 @@ def bound_text(bound: dict) -> str:
                      f"{b['deeper_far_pairs']} farther), |F_z| in {b['exceeded_z']:.0%}; the bound is "
                      f"{b['bound_over_measured_x']:.2f}× the measured |F_x| on average")
     law = bound.get("bound_law")
-    law_text = (f"its bound law x {law[0]:g} N + {law[2]:g}|ΔF|, z {law[1]:g} N + {law[3]:g}|ΔF|" if law
-                else "the published forecast law")
+    law_text = f"its bound law {error_law_text(law)} where anchored" if law else "the published forecast law"
     return (f"The planner's bound at another depth (the {bound['quantile']:.0%} upper quantile of |F| from the published "
             f"moments with {law_text}, which a plan keeps within the limits; nominally exceeded in {1 - bound['quantile']:.0%}): "
             + "; ".join(parts) + ". A planner re-plans every tick and deepens at a limited rate, so the bound it "

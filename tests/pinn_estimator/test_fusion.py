@@ -812,8 +812,9 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     wide = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(1.0, 1.0)), pairs=pairs)
     narrow = coverage_curve(ds, dataclasses.replace(cfg, forecast_rel_std=(0.0, 0.0)), pairs=pairs)
     assert wide["width_x"] > narrow["width_x"] > 0  # a wider law, wider intervals
-    # stage 3: the planner's bound law, per axis the sharpest whose anchored 95 % bound the measured
-    # force exceeds in at most 5 % of the pairs going deeper (from 5 cm on), else the least exceeded
+    # the planner's bound law (soil_planner_calibrate), per axis the sharpest whose anchored 95 % bound
+    # the measured force exceeds in at most 5 % of the pairs going deeper (from 5 cm on), else the
+    # forecast law
     from soil_planner.bound_calibration import anchored_bounds, choose_bound_law
 
     bounded, law_rows = choose_bound_law(ds, cfg, posts, forecast_grid=(0.0, 0.3), floor_grid=(5.0, 3000.0), log=said.append)
@@ -823,9 +824,35 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     assert found["measured"].shape == (6, 2) and (found["bounds"][1] > found["bounds"][0]).all()  # wider law, higher bound
     for j in range(2):
         held = [r for r in law_rows if r["exceeded"][j] <= 0.05]
-        want = min(held, key=lambda r: r["mean_bound"][j]) if held else min(law_rows, key=lambda r: (r["exceeded"][j], r["mean_bound"][j]))
-        assert (bounded.bound_abs_std_n[j], bounded.bound_rel_std[j]) == (want["floor"], want["rel"])
+        want = ((lambda r: (r["floor"], r["rel"]))(min(held, key=lambda r: r["mean_bound"][j])) if held
+                else (cfg.forecast_abs_std_n[j], cfg.forecast_rel_std[j]))
+        assert (bounded.bound_abs_std_n[j], bounded.bound_rel_std[j]) == want
     assert law_rows[-1]["exceeded"][0] == 0.0  # 3 kN + 0.3 of what is extrapolated holds every pair here
+    # no pair going deeper: refused, nothing chosen
+    shallow_only = Dataset.from_episodes(episodes("fee", [("Clay", 60.0, 0.12)]))
+    with pytest.raises(ValueError, match="no calibration pair goes deeper"):
+        choose_bound_law(shallow_only, cfg, fused_posteriors(shallow_only, cfg), log=said.append)
+
+
+def test_an_axis_no_bound_law_holds_keeps_the_forecast_law(monkeypatch):
+    """The bound law's choice per axis on bounds given by hand: x, which the wider law holds in all
+    but 1 of 40 pairs, takes the sharpest law that holds 95 %; z, exceeded in 20 % and 10 % of
+    the pairs whatever the law (the default world's lift push), keeps the config's forecast law
+    rather than the least exceeded, and the log says so."""
+    import soil_planner.bound_calibration as bc
+
+    measured = np.full((40, 2), 10_000.0)
+    narrow = np.full((40, 2), 10_500.0)
+    narrow[:8] = 9_000.0  # x 20 %, z 20 % exceeded
+    wide = np.full((40, 2), 12_000.0)
+    wide[:1, 0], wide[:4, 1] = 9_000.0, 9_000.0  # x 2.5 %, z 10 %
+    monkeypatch.setattr(bc, "anchored_bounds", lambda *a, **k: {"measured": measured, "bounds": np.stack([narrow, wide])})
+    cfg = FusionConfig(forecast_abs_std_n=(300.0, 20.0), forecast_rel_std=(0.07, 1.2))
+    said = []
+    chosen, rows = bc.choose_bound_law(None, cfg, None, forecast_grid=(0.0, 0.5), floor_grid=(100.0,), log=said.append)
+    np.testing.assert_allclose(rows[1]["exceeded"], [0.025, 0.1])
+    assert chosen.planner_bound_law() == (100.0, 20.0, 0.5, 1.2)
+    assert "z the forecast law 20 N + 1.2|ΔF| (no law on the grid holds 5%: 10% at best)" in said[-1], said[-1]
 
 
 def test_a_forecast_law_is_judged_by_the_predictive_cdf_at_the_measured_force():

@@ -419,9 +419,13 @@ def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper(
 
 
 def test_a_bound_law_of_its_own_replaces_the_estimates_and_a_bad_one_is_named():
-    """The plan's error law is its ``bound_law`` where given (calibrated on anchored bounds), the
-    estimate's ``model_std_*`` otherwise: a wider one bounds higher and plans shallower, the
-    estimate's own law given explicitly changes nothing."""
+    """The anchored plan's error law is its ``bound_law`` where given (calibrated on anchored
+    bounds), the estimate's ``model_std_*`` otherwise: a wider one bounds higher and plans
+    shallower, the estimate's own law given explicitly changes nothing; an unanchored bound is the
+    posterior's own forecast and keeps the estimate's law. The parameter service hands the law over
+    as an ``array.array``."""
+    import array
+
     known = _known(d=0.12, q=1000.0)
     est = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
                  std=(1 * DEG, 100.0, 0.1 * DEG), rel=(0.05, 0.05))
@@ -431,8 +435,11 @@ def test_a_bound_law_of_its_own_replaces_the_estimates_and_a_bad_one_is_named():
     assert max_cut_depth(est, known, bound_law=[]) == plain
     wide = (own[0], own[1], 0.4, 0.4)
     assert max_cut_depth(est, known, bound_law=wide).max_depth_m < plain.max_depth_m
-    bound = fused_upper_force(est, known, [0.2])[0][0]
-    assert fused_upper_force(est, known, [0.2], bound_law=wide)[0][0] > bound
+    anchor = ((est["f_x_hat"], est["f_z_hat"]), known)
+    bound = fused_upper_force(est, known, [0.2], anchor=anchor)[0][0]
+    assert fused_upper_force(est, known, [0.2], anchor=anchor, bound_law=wide)[0][0] > bound
+    assert fused_upper_force(est, known, [0.2], bound_law=wide)[0][0] == fused_upper_force(est, known, [0.2])[0][0]
+    assert max_cut_depth(est, known, bound_law=array.array("d", wide)) == max_cut_depth(est, known, bound_law=wide)
     for law, needle in (((5.0, 5.0, 0.1), "four numbers"), ("5,5,0.1,0.1", "four numbers"),
                         ((0.0, 5.0, 0.1, 0.1), "floors"), ((5.0, 5.0, -0.1, 0.1), ">= 0"),
                         ((5.0, math.nan, 0.1, 0.1), "bound_law abs_z")):

@@ -262,8 +262,8 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     # every test episode must carry it: without, its soil scores NaN and the means quietly leave it out
     blind = [ds.names[e] for e in test_idx if not np.isfinite(ds.truth[ds.episode_rows(e)]).any()]
     if blind:
-        some = "" if len(blind) == len(test_idx) else f"{len(blind)} of the {len(test_idx)} bags of "
-        raise ValueError(f"{some}the test split's bags under {ds.root} have no /soil/ground_truth (as from a machine): "
+        some = "the " if len(blind) == len(test_idx) else f"{len(blind)} of the {len(test_idx)} "
+        raise ValueError(f"{some}test split bags under {ds.root} have no /soil/ground_truth (as from a machine): "
                          f"{', '.join(blind[:5])}{', ...' if len(blind) > 5 else ''}; this report scores the soil "
                          "parameters against it; --forecast-only --forecast-data DIR scores the forces, which need none")
     t0 = time.monotonic()

@@ -184,7 +184,9 @@ class FusionConfig:
     # own (its centre is the force now, not the posterior's force), so the law that makes the
     # posterior's intervals hold does not make the bound hold (default world: a law calibrated for
     # the intervals let the 95 % bound be exceeded in 28 % of the calibration pairs going deeper).
-    # ``fusion_calibration`` stage 3 calibrates it; ``planner_bound_law`` is what the planner gets.
+    # ``soil_planner_calibrate`` (soil_planner/bound_calibration.py) calibrates it, after
+    # ``fusion_calibration``; ``planner_bound_law`` is what the planner gets. An unanchored plan
+    # keeps the forecast law: its bound is the posterior's own forecast.
     bound_abs_std_n: tuple[float, float] | None = None
     bound_rel_std: tuple[float, float] | None = None
 

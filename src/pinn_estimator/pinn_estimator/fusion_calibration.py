@@ -45,7 +45,7 @@ import numpy as np
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
-from soil_physics.predictive import mixture_cdf
+from soil_physics.predictive import error_law_text, mixture_cdf
 
 from . import forecast as fc
 from .fusion import FusionConfig, forecast_error_std
@@ -60,7 +60,7 @@ CAL_SEED = 9000
 # enough for those pairs held 65 % of the held-out forecasts at its 50 % level (default world;
 # 40-60 % on three held-out sets from 7 cm up once they were left out). The published intervals
 # are therefore calibrated from 7 cm to the calibration's deepest cut; the planner's bound, which
-# plans from 5 cm, has its own law, calibrated on every pair (stage 3).
+# plans from 5 cm, has its own law, calibrated on every pair going deeper (soil_planner_calibrate).
 MIN_CALIBRATED_DEPTH_M = 0.07
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
 # which must hold at least one full window of the estimator; at most the simulator's longest episode.
@@ -171,7 +171,7 @@ def calibrated_reach(pairs: list[PairForecast]) -> list[PairForecast]:
     """The pairs the forecast law is calibrated on: both depths at least ``MIN_CALIBRATED_DEPTH_M``
     (all of them where none is)."""
     kept = [p for p in pairs if p.shallower_m >= MIN_CALIBRATED_DEPTH_M]
-    return kept or pairs
+    return kept or pairs  # (none from 7 cm: every pair, as before the reach was set)
 
 
 def pairs_of(ds, cfg: FusionConfig, posts=None, pairs=None) -> list[PairForecast]:
@@ -318,7 +318,8 @@ def coverage_tolerance(pairs: int, levels=NOMINAL) -> float:
 
 
 CALIBRATED_FIELDS = ("rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_evidence", "shape_abs_std_n",
-                     "shape_rel_std", "bound_abs_std_n", "bound_rel_std")  # what ``calibrate`` chooses; in the fee world also those of TRUTH_GRIDS
+                     "shape_rel_std", "bound_abs_std_n", "bound_rel_std")  # what ``calibrate`` (and, the bound_*,
+# soil_planner_calibrate) chooses, never set with --set; in the fee world also those of TRUTH_GRIDS
 
 
 def with_shape(cfg: FusionConfig, shape) -> FusionConfig:
@@ -480,7 +481,9 @@ def choose_forecast_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRI
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     every = pairs_of(ds, cfg, posts, pairs)  # the model's forces once; each law only changes the error around them
     pairs = calibrated_reach(every)
-    log(f"forecast law: {len(pairs)} of {len(every)} pairs, both depths at least {MIN_CALIBRATED_DEPTH_M:g} m")
+    log(f"forecast law: {len(pairs)} of {len(every)} pairs, both depths at least {MIN_CALIBRATED_DEPTH_M:g} m"
+        if len(pairs) < len(every) or all(p.shallower_m >= MIN_CALIBRATED_DEPTH_M for p in every) else
+        f"forecast law: every pair ({len(every)}; none has both depths at least {MIN_CALIBRATED_DEPTH_M:g} m)")
     strata = reach_strata([p.reach_m for p in pairs])
     for floor in floor_grid:
         for frel in forecast_grid:
@@ -626,9 +629,10 @@ def main(argv=None) -> int:
           f"intervals hold F_x {cx[i90]:.0%} / {cx[i50]:.0%}, F_z {cz[i90]:.0%} / {cz[i50]:.0%} of the pairs from "
           f"{MIN_CALIBRATED_DEPTH_M:g} m) and {out.with_suffix('.png')}")
     law = cfg.planner_bound_law()
-    print(f"the planner's bound law: {'kept, x %g N + %g|ΔF|, z %g N + %g|ΔF|' % (law[0], law[2], law[1], law[3]) if law else 'none'}"
-          f" (soil_planner_calibrate --world {args.world}{'' if out == config_path(args.world) else ' --config ' + str(out)} "
-          "calibrates it on these posteriors)")
+    again = (f"soil_planner_calibrate --world {args.world}" + ("" if out == config_path(args.world) else f" --config {out}")
+             + (f" --duration {args.duration:g}" if args.duration != 10.0 else "") + (" --force-noise" if args.force_noise else ""))
+    print(f"the planner's bound law: {'kept, ' + error_law_text(law) if law else 'none'}"
+          f" ({again} calibrates it on these posteriors)")
     return 0
 
 

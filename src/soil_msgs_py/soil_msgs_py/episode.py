@@ -12,6 +12,7 @@ import numpy as np
 
 from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
 from .patches import SoilPatch, check_patches, finite_number, patches_tag, short_repr
+from .soil_labels import UNKNOWN_SOILS
 
 WORLD_MODES = ("fee", "default")
 EPISODE_SCHEMA_VERSION = 1
@@ -20,8 +21,9 @@ EPISODE_SCHEMA_VERSION = 1
 EXTRA_FIELDS: tuple[str, ...] = ("p_x_c", "v_x_b")
 
 
-# What a bag's metadata may say of a world no simulator made (a machine's bags)
-UNKNOWN_WORLDS = ("", "unknown")
+# What a bag's metadata may say of a world no simulator made (a machine's bags): what it may say of
+# a soil nobody named
+UNKNOWN_WORLDS = UNKNOWN_SOILS
 # The largest seed: a signed 64-bit integer (the nodes' integer parameter type, numpy, bag readers)
 MAX_SEED = 2**63 - 1
 # The longest episode [s]: an hour of cut, far beyond any use, whose arrays still fit in memory
@@ -58,7 +60,7 @@ class EpisodeMeta:
         ``machine_world``: a bag read back may also say its world is not known ("" or "unknown":
         a machine's, which no simulator world made)."""
         worlds = WORLD_MODES + (UNKNOWN_WORLDS if machine_world else ())
-        if self.world_mode not in worlds:
+        if self.world_mode not in worlds and not (machine_world and self.world_mode is None):
             raise ValueError(f"world_mode={short_repr(self.world_mode)} is not one of {worlds}")
         for name in ("relative_density_pct", "target_speed_m_s", "target_depth_m", "duration_s"):
             value = getattr(self, name)

@@ -88,6 +88,12 @@ def model_error_std(force_n: np.ndarray, abs_std_n: float, rel_std: float) -> np
     return abs_std_n + rel_std * np.abs(force_n)
 
 
+def error_law_text(law) -> str:
+    """A per-axis error law (abs_x [N], abs_z [N], rel_x, rel_z), σ = abs + rel·|ΔF|, in words as
+    the tools print it (the order a planner's ``bound_law`` takes)."""
+    return f"x {law[0]:g} N + {law[2]:g}|ΔF|, z {law[1]:g} N + {law[3]:g}|ΔF|"
+
+
 def extrapolated_part(force_n: np.ndarray, reference_n, cap_n: np.ndarray) -> np.ndarray:
     """min(|F − F_ref|, |cap|) [N]: how much of a forecast is extrapolated from a force known at
     the conditions the evidence came from, the force a forecast error law's relative part

@@ -58,6 +58,7 @@ from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter
                                       spin_node, status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
+from soil_physics.predictive import error_law_text
 
 from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
 from .depth_schedule import DepthSchedule, ScheduleSettings
@@ -236,7 +237,7 @@ class PlannerNode(Node):
             f"sensor anchor {'on (' + T.BLADE_FORCE.name + ')' if p.anchor.sensor else 'off'}"
             f"{' (no effect without a force quantile)' if p.anchor.sensor and p.force_quantile is None else ''}, physics FEE"
             f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, bound law "
-            f"{'x %g N + %g|ΔF|, z %g N + %g|ΔF|' % (p.bound_law[0], p.bound_law[2], p.bound_law[1], p.bound_law[3]) if p.bound_law else 'model_std_* of the estimate'}, "
+            f"{error_law_text(p.bound_law) if p.bound_law else 'model_std_* of the estimate'}, "
             f"depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
 

@@ -429,17 +429,27 @@ def _checked_anchor(anchor) -> tuple[tuple[float, float], dict[str, float], tupl
 
 
 def check_bound_law(law) -> tuple[float, float, float, float] | None:
-    """The fused bound's error law (abs_x [N], abs_z [N], rel_x, rel_z), σ = abs + rel·|ΔF| as the
-    estimate's ``model_std_*``, or None for an empty one (the estimate's law is used). Why a law of
-    its own: the published law is calibrated for the posterior's forecast intervals, while the
-    bound a plan keeps is anchored to the force now (``_FusedForceModel``), a different forecast
-    whose errors the estimator's calibration measures apart (``fusion_calibration``, stage 3).
-    ValueError naming the value unless four finite numbers >= 0 with floors > 0."""
-    if law is None or (isinstance(law, (tuple, list, np.ndarray)) and len(law) == 0):
+    """The anchored bound's error law (abs_x [N], abs_z [N], rel_x, rel_z), σ = abs + rel·|ΔF| as
+    the estimate's ``model_std_*``, or None for an empty one (the estimate's law is used). Why a law
+    of its own: the published law is calibrated for the posterior's own forecast intervals, while
+    the bound a plan keeps is anchored to the force now (``_FusedForceModel``), a different forecast
+    whose errors ``bound_calibration`` (``soil_planner_calibrate``) measures apart. Any sequence of
+    numbers (the parameter service gives an ``array.array``). ValueError naming the value unless
+    four finite numbers >= 0 with floors > 0."""
+    wrong = ValueError(f"bound_law={law!r} must be empty or four numbers: abs_x [N], abs_z [N], rel_x, rel_z")
+    if law is None:
         return None
-    if isinstance(law, (str, bytes)) or not isinstance(law, (tuple, list, np.ndarray)) or len(law) != 4:
-        raise ValueError(f"bound_law={law!r} must be empty or four numbers: abs_x [N], abs_z [N], rel_x, rel_z")
-    out = tuple(_number(f"bound_law {name}", v) for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), law))
+    if isinstance(law, (str, bytes)):
+        raise wrong
+    try:
+        values = list(law)
+    except TypeError:
+        raise wrong from None
+    if not values:
+        return None
+    if len(values) != 4:
+        raise wrong
+    out = tuple(_number(f"bound_law {name}", v) for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), values))
     if min(out) < 0.0 or min(out[:2]) <= 0.0:
         raise ValueError(f"bound_law={law!r} must be >= 0 (its floors abs_x, abs_z > 0 N)")
     return out
@@ -767,8 +777,8 @@ class _FusedForceModel:
     measured now (a new, stronger soil is seen within the PINN's window, not after the
     posterior has moved), the posterior gives the shape and its spread. A sample without a
     wedge at the current velocity keeps r_s = 0.
-    The error law is ``bound_law`` (calibrated on anchored bounds), else the one calibrated for
-    forecasts at other depths (``model_std_*``), its
+    The error law is ``bound_law`` where anchored (it is calibrated on anchored bounds), else the
+    one calibrated for the posterior's forecasts at other depths (``model_std_*``), its
     relative part applied to what is extrapolated, ΔF = min(|F_s(d) − F̂|, |F_FEE,s(d)|)
     (``predictive.extrapolated_part``); unanchored, from each sample's own FEE force at the
     current depth instead of F̂, as the posterior counts from its newest stretch. Either way a
@@ -795,10 +805,7 @@ class _FusedForceModel:
         x = np.clip(x, lo, hi)
         self.theta = {**known, "phi": x[:, 0], "c": x[:, 1], "delta": x[:, 2], "v_x": cut_speed_m_s, "v_z": 0.0}
         self.quantile = quantile
-        if bound_law is None:
-            self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
-        else:
-            self.law = ((bound_law[0], bound_law[2]), (bound_law[1], bound_law[3]))
+        self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
         delta_v, _ = fee.velocity_corrected(est["delta_fused"], known["c_a"], known["rho"], known["alpha"], cut_speed_m_s, 0.0)
         self.beta_rad = float(fee.beta_star(est["phi_fused"], delta_v, known["rho"], known["alpha"]))
         if not math.isfinite(self.beta_rad):
@@ -832,6 +839,9 @@ class _FusedForceModel:
             consistent = ~usable | ((scale >= SCALE_LIMITS[0]) & (scale <= SCALE_LIMITS[1]))
             if consistent.any():
                 self.allowed = consistent
+        if bound_law is not None and self.residual_used:  # calibrated on anchored bounds; unanchored,
+            # the bound is the posterior's own forecast, whose law is the published one
+            self.law = ((bound_law[0], bound_law[2]), (bound_law[1], bound_law[3]))
         # what the error law's relative part counts from, per axis (S,): the force now when anchored,
         # else each sample's own force at the current depth (where the posterior's evidence is,
         # as ``SoilPosterior.forecast`` counts from its newest stretch)

@@ -130,9 +130,10 @@ def ray_session(address: str, num_cpus: int | None = None):
 
 
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
-    """ValueError if nothing listens at a host:port address, or at the one ``auto`` stands for:
-    Ray itself would retry forever (``auto`` read a stale address a cluster stopped long ago had
-    left in Ray's temp directory, and a run ignored SIGTERM for 40 s)."""
+    """ValueError if nothing listens at a host:port address, or at the one ``auto`` stands for, or
+    what listens there is no gRPC server (``_grpc_problem``): Ray itself would retry forever
+    (``auto`` read a stale address a cluster stopped long ago had left in Ray's temp directory,
+    and a run ignored SIGTERM for 40 s)."""
     hp = _host_port(address)
     if hp is None:
         return  # Ray's client form (ray://): Ray checks it
@@ -142,7 +143,7 @@ def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
     err = _connect_error(hp, timeout_s)
     if err is not None:
         raise ValueError(f"cannot reach the Ray cluster at --ray={address!r}{via}: {err}") from None
-    if os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", ""):  # (a TLS head answers in TLS first)
+    if os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", ""):  # (a TLS head waits for a TLS hello)
         problem = _grpc_problem(hp, timeout_s)
         if problem is not None:
             raise ValueError(f"no Ray head answers at --ray={address!r}{via}: something listens there but {problem} "
