@@ -108,8 +108,9 @@ PARAMETERS: dict[str, tuple] = {
                   "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
     "bound_law": ([], "the error law of the fused bound a plan keeps within the limits, [abs_x N, abs_z N, rel_x, "
                       "rel_z] (σ = abs + rel·|ΔF|, as the estimate's model_std_*), calibrated on anchored bounds "
-                      "(its fusion config's bound_*; soil_launch --planner passes the estimator's); empty: the "
-                      "estimate's model_std_*, the law calibrated for its forecast intervals", Parameter.Type.DOUBLE_ARRAY),
+                      "(its fusion config's bound_*; soil_launch --planner passes the estimator's), used where the "
+                      "bound is anchored to the force now; empty: the estimate's model_std_*, the law calibrated "
+                      "for its forecast intervals (which an unanchored bound always uses)", Parameter.Type.DOUBLE_ARRAY),
     "sensor_anchor": (True, "where the blade's measured F_x (/blade/force), averaged over the recent steady cut, "
                             "is clearly above the PINN's F̂_x (by more than 15 % and 3 standard errors), the fused "
                             "plan is anchored to the measured force (a model outside its training is trusted no "
