@@ -63,7 +63,7 @@ from pinn_estimator import forecast as fc  # noqa: E402
 from pinn_estimator.checkpoint import load_model  # noqa: E402
 from pinn_estimator.dataset import Dataset  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
-from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode, fused_values  # noqa: E402
+from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # noqa: E402
 from pinn_estimator.fusion_calibration import config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from pinn_estimator.shipped import shipped_checkpoint  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402
@@ -77,8 +77,8 @@ from soil_physics.predictive import error_law_text  # noqa: E402
 from soil_sim_node.effects import effects_for_mode  # noqa: E402
 from soil_sim_node.rollout import run_episodes  # noqa: E402
 from soil_sim_node.simulator import EpisodeSpec, SimConfig  # noqa: E402
-from soil_msgs_py.topics import FUSED_FIELDS  # noqa: E402
-from soil_planner.planner import DEFAULT_FORCE_QUANTILE, fused_upper_force, steady_cut_terms  # noqa: E402
+from soil_planner.bound_calibration import ANCHORS, anchored_bounds  # noqa: E402
+from soil_planner.planner import DEFAULT_FORCE_QUANTILE, steady_cut_terms  # noqa: E402
 
 WORLDS = WORLD_MODES
 SOILS = tuple(sorted(CATALOGUE))
@@ -253,7 +253,7 @@ NEAR_REACH = 1.6  # a pair going deeper at most this many times the source's dep
 
 
 BOUND_LABELS = {"anchored": "anchored as the planner plans", "anchored_with_se": "anchored with the anchor's standard error",
-                "unanchored": "unanchored"}  # planner_bound's three bounds, as bound_text names them
+                "unanchored": "unanchored"}  # planner_bound's three bounds (bound_calibration.ANCHORS), as bound_text names them
 
 
 def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_FORCE_QUANTILE) -> dict:
@@ -268,33 +268,17 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     deeper too (where exceeding it stalls a machine; split by reach at NEAR_REACH times the
     source's depth), and the bound's mean over the measured |F|.
     ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
-    parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
     law = cfg.planner_bound_law()  # as soil_launch gives it to the planner (None: the published law)
-    rows = {label: [] for label in BOUND_LABELS}
-    for a, b in fc.pair_indices(parts):
-        if not posts[a].updates:
-            continue
-        est = dict(zip(FUSED_FIELDS, fused_values(posts[a].summary(), cfg)))
-        src, dst = parts[a], parts[b]
-        for label, anchor in (("anchored", (tuple(src.force), src.known)),
-                              ("anchored_with_se", (tuple(src.force), src.known, tuple(src.force_se))),
-                              ("unanchored", None)):
-            try:
-                ux, uz = fused_upper_force(est, dst.known, [dst.known["d"]], quantile=quantile,
-                                           cut_speed_m_s=dst.known["v_x"], anchor=anchor, terms=terms,
-                                           bound_law=law)
-            except ValueError:
-                continue  # no bound (no failure wedge): a plan would refuse this estimate
-            rows[label].append((dst.known["d"] / src.known["d"], abs(dst.force[0]), abs(dst.force[1]), ux[0], uz[0]))
     out = {"quantile": quantile, "terms": [list(t) for t in terms], "near_reach": NEAR_REACH, "bound_law": law}
-    for label, r in rows.items():
-        if not r:
+    for label, anchor in zip(BOUND_LABELS, ANCHORS):
+        found = anchored_bounds(ds, cfg, posts, [law], quantile, anchor=anchor, deeper_only=False)
+        if not len(found["reach"]):
             out[label] = {"pairs": 0}
             continue
-        reach, fx, fz, ux, uz = (np.array(c, dtype=float) for c in zip(*r))
+        reach, (fx, fz), (ux, uz) = found["reach"], found["measured"].T, found["bounds"][0].T
         deeper = reach > 1.0
-        out[label] = {"pairs": len(r), "deeper_pairs": int(deeper.sum()),
+        out[label] = {"pairs": len(reach), "deeper_pairs": int(deeper.sum()),
                       "exceeded_x": float(np.mean(fx > ux)), "exceeded_z": float(np.mean(fz > uz)),
                       "exceeded_x_deeper": float(np.mean(fx[deeper] > ux[deeper])) if deeper.any() else float("nan"),
                       "bound_over_measured_x": float(np.mean(ux / np.maximum(fx, 1.0)))}

@@ -822,6 +822,11 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
     assert len(law_rows) == 4 and said[-1].startswith("bound law: x ") and "of 6 pairs going deeper" in said[-1]
     found = anchored_bounds(ds, cfg, posts, [(5.0, 5.0, 0.0, 0.0), (3000.0, 3000.0, 0.3, 0.3)])
     assert found["measured"].shape == (6, 2) and (found["bounds"][1] > found["bounds"][0]).all()  # wider law, higher bound
+    assert (found["reach"] > 1.0).all()
+    every = anchored_bounds(ds, cfg, posts, [None], anchor=None, deeper_only=False)  # as bench_forecast reports it
+    assert every["measured"].shape == (12, 2) and (every["reach"] < 1.0).sum() == 6
+    with pytest.raises(ValueError, match="anchor='sensor' must be one of"):
+        anchored_bounds(ds, cfg, posts, [None], anchor="sensor")
     for j in range(2):
         held = [r for r in law_rows if r["exceeded"][j] <= 0.05]
         want = ((lambda r: (r["floor"], r["rel"]))(min(held, key=lambda r: r["mean_bound"][j])) if held

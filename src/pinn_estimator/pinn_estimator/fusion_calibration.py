@@ -23,10 +23,10 @@ central intervals 10-90 %; a law fitted to the 90 % level alone over-covers the 
 whenever errors are not Gaussian; the log also gives each law's coverage over near and far
 forecasts, ``reach_strata``), and of the laws within the coverages' sampling error of that one,
 the sharpest (narrowest 90 % intervals): sharpness subject to calibration; on the pairs whose
-both depths are at least ``MIN_CALIBRATED_DEPTH_M``. Stage 3, the planner's bound law
-(``choose_bound_law``): the anchored upper bound a plan keeps within the limits is another
-forecast than the posterior's intervals, calibrated apart by ``soil_planner_calibrate`` (run it
-after this: a whole calibration here leaves the config without one, a ``--forecast-law-only`` keeps it).
+both depths are at least ``MIN_CALIBRATED_DEPTH_M``. The planner's bound law: the anchored upper
+bound a plan keeps within the limits is another forecast than the posterior's intervals,
+calibrated apart by ``soil_planner_calibrate`` (``soil_planner.bound_calibration``; run it after
+this: a whole calibration here leaves the config without one, a ``--forecast-law-only`` keeps it).
 ``pinn_fusion_calibrate --world fee`` writes the config the estimator and ``pinn_eval`` load
 (``models/fusion_<world>.json``) and the calibration curve (PNG).
 """
@@ -481,9 +481,9 @@ def choose_forecast_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRI
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     every = pairs_of(ds, cfg, posts, pairs)  # the model's forces once; each law only changes the error around them
     pairs = calibrated_reach(every)
-    log(f"forecast law: {len(pairs)} of {len(every)} pairs, both depths at least {MIN_CALIBRATED_DEPTH_M:g} m"
-        if len(pairs) < len(every) or all(p.shallower_m >= MIN_CALIBRATED_DEPTH_M for p in every) else
-        f"forecast law: every pair ({len(every)}; none has both depths at least {MIN_CALIBRATED_DEPTH_M:g} m)")
+    log(f"forecast law: every pair ({len(every)}; none has both depths at least {MIN_CALIBRATED_DEPTH_M:g} m)"
+        if pairs is every and every else
+        f"forecast law: {len(pairs)} of {len(every)} pairs, both depths at least {MIN_CALIBRATED_DEPTH_M:g} m")
     strata = reach_strata([p.reach_m for p in pairs])
     for floor in floor_grid:
         for frel in forecast_grid:
@@ -604,18 +604,18 @@ def main(argv=None) -> int:
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
     if args.forecast_law_only:
-        posts = fused_posteriors(ds, base)
-        cfg, rows = choose_forecast_law(ds, base, None, pairs=pair_forecasts(ds, posts))
+        pairs = pair_forecasts(ds, fused_posteriors(ds, base))
+        cfg, rows = choose_forecast_law(ds, base, None, pairs=pairs)
     else:
         # the drift is chosen where the episodes' θ is the truth, i.e. the FEE is the world
         truth = args.world == "fee"
         cfg, rows = calibrate(ds, base, truth_grids=TRUTH_GRIDS if truth else (), truth=truth)
         # new posteriors: the planner's bound law is to be calibrated on them again
         cfg = dataclasses.replace(cfg, bound_abs_std_n=None, bound_rel_std=None)
-        posts = fused_posteriors(ds, cfg)  # (the forecast law changes no posterior)
+        pairs = pair_forecasts(ds, fused_posteriors(ds, cfg))  # (the forecast law changes no posterior)
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std,
-             "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pair_forecasts(ds, posts)), width=False)}
+             "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
     plot_curve(rows, final, out.with_suffix(".png"),
                f"fused forecast at another depth, {args.world} world{' (noisy force)' if args.force_noise else ''}: "

@@ -348,7 +348,7 @@ def posterior_planner_params(estimator_params_file, estimator_params: list[str])
         print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
               "planned steady cut does not have)", file=sys.stderr)
     return (([f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else [])
-            + ([f"bound_law:=[{', '.join(f'{v!r}' for v in law)}]"] if law else []))
+            + ([f"bound_law:=[{', '.join(map(repr, law))}]"] if law else []))
 
 
 def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:

@@ -57,8 +57,8 @@ class EpisodeMeta:
 
     def validate(self, machine_world: bool = False) -> None:
         """Raise ValueError naming the field and value if the metadata is not usable.
-        ``machine_world``: a bag read back may also say its world is not known ("" or "unknown":
-        a machine's, which no simulator world made)."""
+        ``machine_world``: a bag read back may also say its world is not known (``UNKNOWN_WORLDS``
+        or null: a machine's, which no simulator world made)."""
         worlds = WORLD_MODES + (UNKNOWN_WORLDS if machine_world else ())
         if self.world_mode not in worlds and not (machine_world and self.world_mode is None):
             raise ValueError(f"world_mode={short_repr(self.world_mode)} is not one of {worlds}")

@@ -34,32 +34,45 @@ from soil_physics.predictive import error_law_text
 from .planner import DEFAULT_FORCE_QUANTILE, check_quantile, fused_upper_force, steady_cut_terms
 
 
-def anchored_bounds(ds, cfg: FusionConfig, posts, laws, quantile: float | None = None) -> dict:
-    """The planner's bound on every pair of ``ds`` going deeper (``planner.fused_upper_force``:
-    the ``quantile`` upper bound of |F| from the published moments of the source's posterior under
-    ``cfg``, anchored to the source's measured steady force, at the target's steady Θ_k and speed),
-    under each law of ``laws`` ((abs_x, abs_z, rel_x, rel_z) each). Returns ``measured`` (pairs, 2)
-    |F| [N] and ``bounds`` (laws, pairs, 2) [N]; a pair without a bound under some law (no failure
-    wedge) is left out."""
+ANCHORS = ("measured", "measured_with_se", None)  # what ``anchored_bounds`` may anchor the bound to
+
+
+def anchored_bounds(ds, cfg: FusionConfig, posts, laws, quantile: float | None = None, anchor: str | None = "measured",
+                    deeper_only: bool = True) -> dict:
+    """The planner's bound on the pairs of ``ds`` (``planner.fused_upper_force``: the ``quantile``
+    upper bound of |F| from the published moments of the source's posterior under ``cfg``, at the
+    target's steady Θ_k and speed) under each law of ``laws`` ((abs_x, abs_z, rel_x, rel_z) each,
+    or None: the published law), ``anchor``ed as the planner is to the source's measured steady
+    force ("measured"), the same with that force's standard error carried ("measured_with_se"), or
+    not (None); on the pairs going deeper only (``deeper_only``) or every pair. Returns
+    ``measured`` (pairs, 2) |F| [N], ``bounds`` (laws, pairs, 2) [N] and ``reach`` (pairs,), the
+    target's depth over the source's; a pair without a bound under some law (no failure wedge: a
+    plan would refuse the estimate) is left out."""
+    if anchor not in ANCHORS:
+        raise ValueError(f"anchor={anchor!r} must be one of {ANCHORS}")
     quantile = DEFAULT_FORCE_QUANTILE if quantile is None else quantile
     parts = fc.steady_parts(ds)
     terms = steady_cut_terms(cfg.terms)[0]
-    measured, bounds = [], []
+    measured, bounds, reach = [], [], []
     for a, b in fc.pair_indices(parts):
         src, dst = parts[a], parts[b]
-        if not posts[a].updates or dst.known["d"] <= src.known["d"]:
+        if not posts[a].updates or (deeper_only and dst.known["d"] <= src.known["d"]):
             continue
         est = dict(zip(FUSED_FIELDS, fused_values(posts[a].summary(), cfg)))
+        at = {"measured": (tuple(src.force), src.known),
+              "measured_with_se": (tuple(src.force), src.known, tuple(src.force_se)), None: None}[anchor]
         try:
             row = [np.concatenate(fused_upper_force(est, dst.known, [dst.known["d"]], quantile=quantile,
-                                                    cut_speed_m_s=dst.known["v_x"], anchor=(tuple(src.force), src.known),
-                                                    terms=terms, bound_law=law)) for law in laws]
+                                                    cut_speed_m_s=dst.known["v_x"], anchor=at, terms=terms,
+                                                    bound_law=law)) for law in laws]
         except ValueError:
-            continue  # no bound (no failure wedge): a plan would refuse this estimate
+            continue
         measured.append(np.abs(dst.force))
         bounds.append(row)
+        reach.append(dst.known["d"] / src.known["d"])
     return {"measured": np.array(measured, float).reshape(-1, 2),
-            "bounds": np.array(bounds, float).reshape(len(measured), len(laws), 2).transpose(1, 0, 2)}
+            "bounds": np.array(bounds, float).reshape(len(measured), len(laws), 2).transpose(1, 0, 2),
+            "reach": np.array(reach, float)}
 
 
 def choose_bound_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
