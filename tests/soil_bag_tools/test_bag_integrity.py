@@ -214,6 +214,35 @@ def test_repair_copies_the_good_chunks_of_a_damaged_bag(fresh, episode, k):
     assert info["source_bag"] == str(fresh)
 
 
+@pytest.mark.parametrize("k", [0, 2])  # chunk 0 also holds the schemas and channels
+def test_repair_keeps_the_whole_records_of_the_chunk_a_cut_file_ends_inside(fresh, episode, tmp_path, k):
+    """A file cut short (a copy or a disk that stopped) ends inside a chunk: the records of that
+    chunk written whole are kept, every whole tick up to the cut, and the torn chunk is named."""
+    with open(mcap_of(fresh), "rb") as f:
+        idx = make_reader(f).get_summary().chunk_indexes[k]
+    cut_at = idx.chunk_start_offset + CHUNK_RECORDS_AT + len(idx.compression) + 8 + idx.compressed_size // 2
+    with open(mcap_of(fresh), "r+b") as f:
+        f.truncate(cut_at)
+    refused = bag_io.BagReadError
+    with pytest.raises(refused, match=r"the file ends inside the record .* copies what it holds whole"):
+        bag_io.read_episode(fresh)
+    out = run("soil_bag_repair", fresh, "--out", tmp_path / "new", timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert f"kept the whole records of chunk {k} at byte {idx.chunk_start_offset}" in out.stdout, out.stdout
+    assert "not checked by its CRC" in out.stdout
+    got = bag_io.read_episode(tmp_path / "new")
+    s = episode.stamps_ns
+    whole = s < idx.message_end_time  # the ticks up to the cut (the chunk's second half is gone)
+    assert s[0] in got.stamps_ns and len(got) > (s < idx.message_start_time).sum() + 1
+    assert len(got) < whole.sum()
+    keep = np.isin(s, got.stamps_ns)
+    assert keep[:len(got)].all()  # every tick from the start, none skipped
+    np.testing.assert_array_equal(got.forces, episode.forces[keep])
+    info = json.loads(bag_io.bag_custom_data(tmp_path / "new")[journal.REPAIR_INFO_KEY])
+    assert info["torn_chunk"]["chunk"] == k and info["dropped_chunks"] == []
+    assert "the file ends inside it" in info["torn_chunk"]["problem"]
+
+
 def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_path):
     out = run("soil_bag_repair", fresh, timeout=60)
     assert out.returncode == 1 and "all " in out.stderr and "nothing to repair" in out.stderr, out.stderr
@@ -223,6 +252,10 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     shutil.copytree(fresh, cut)
     with open(mcap_of(cut), "r+b") as f:
         f.truncate(2000)
+    out = run("soil_bag_repair", cut, timeout=60)  # its channels whole, no message yet
+    assert out.returncode == 1 and "no message survives" in out.stderr and "CRC" not in out.stderr, out.stderr
+    with open(mcap_of(cut), "r+b") as f:  # cut before the first chunk's header is whole
+        f.truncate(40)
     out = run("soil_bag_repair", cut, timeout=60)
     assert out.returncode == 1 and "holds no complete chunk" in out.stderr and "CRC" not in out.stderr, out.stderr
     flip_chunk(mcap_of(fresh), 2)

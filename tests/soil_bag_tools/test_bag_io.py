@@ -22,6 +22,7 @@ from soil_bag_tools import bag_io
 
 from soil_msgs_py import messages
 from soil_bag_tools.bag_io import META_KEY, find_episode_bags, read_dataset, read_episode, write_episode
+from soil_bag_tools.playback import load_bag
 from soil_msgs_py.episode import Episode, EpisodeMeta
 from soil_msgs_py.messages import ARRAY_FIELDS, TYPESTORE, make_labelled, parse_labelled
 from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS
@@ -297,6 +298,18 @@ def test_missing_topic_named(tmp_path: Path, ep: Episode) -> None:
         read_episode(bag)
 
 
+def test_the_player_says_an_episode_bag_lacks_a_topic(tmp_path: Path, ep: Episode) -> None:
+    """Every bag reader refuses an episode bag without /blade/force; the player played it without a word."""
+    bag = write_raw(tmp_path / "noforce", ep, skip=lambda topic, i: topic == "/blade/force")
+    said: list[str] = []
+    played = load_bag(bag, log=said.append)
+    assert "/blade/force" not in played.topics and played.meta is not None
+    assert any("an episode bag without topic(s) ['/blade/force']" in line for line in said), said
+    said.clear()
+    load_bag(bag, exclude=("/blade/pose",), log=said.append)  # leaving one out on purpose is not a warning
+    assert said == [] or all("/blade/pose" not in line for line in said)
+
+
 def test_missing_tick_named(tmp_path: Path, ep: Episode) -> None:
     bag = write_raw(tmp_path / "gap", ep, skip=lambda topic, i: topic == "/blade/twist" and i == 7)
     with pytest.raises(ValueError, match=rf"/blade/twist has no message for tick stamp {ep.stamps_ns[7]} ns"):
@@ -332,6 +345,8 @@ def test_episode_metadata_a_bag_was_edited_to_is_refused_naming_the_field(tmp_pa
     info["custom_data"][META_KEY] = json.dumps({**meta, "world_mode": "unknown"})
     path.write_text(yaml.safe_dump(doc))
     assert read_episode(bag).meta.world_mode == "unknown"
+    played = load_bag(bag)  # the player frames its episode with /sim/status, as a simulated one's
+    assert played.meta is not None and played.meta.world_mode == "unknown"
     info["custom_data"][META_KEY] = json.dumps({**meta, field: value})
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ValueError, match=rf"edited.*bad episode metadata.*{needle}"):

@@ -43,6 +43,15 @@ def test_bad_status_events_are_named(change, needle):
         G.EpisodeEvent.from_json(json.dumps(data))
 
 
+@pytest.mark.parametrize("world", ["unknown", "", None])
+def test_a_machine_bags_episode_event_is_taken(world):
+    """A machine's bag replayed frames its episode like a simulated one: its world is not a
+    simulator's (the bag readers take it), and a recorder that refused its events recorded nothing."""
+    meta = dataclasses.replace(META, world_mode=world)
+    start = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, "machine_run", meta, 0, planned_ticks=120)
+    assert G.EpisodeEvent.from_json(start.to_json()).meta.world_mode == world
+
+
 @pytest.mark.parametrize("text, needle", [
     ("[1, 2]", "expected a JSON object"),
     ('{"action": "fly"}', "action='fly'"),

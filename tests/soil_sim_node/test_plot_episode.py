@@ -94,3 +94,25 @@ def test_a_bag_without_a_planner_draws_the_episodes_target_and_one_with_it_the_p
     plot_module.plot_episode(ep, tmp_path / "fixed.png")
     plot_module.plot_episode(ep, tmp_path / "loop.png", (np.array([0.0, 0.25]), np.array([0.08, 0.12])))
     assert "target $\\bar d_z$" in labels[0] and "planner's target $\\bar d_z$" in labels[1]
+
+
+def test_a_gap_or_a_non_finite_value_is_said_not_drawn_over_in_silence(bags, tmp_path):
+    """A repaired bag's dropped chunk is a gap the figure's lines cross; a NaN force a hole in them.
+    Both were drawn without a word (the trainer's windows do not span either)."""
+    import dataclasses
+
+    ep = read_episode(bags[0])
+    assert ep.problems() == []
+    keep = np.ones(len(ep), bool)
+    keep[10:16] = False
+    gapped = dataclasses.replace(ep, **{k: getattr(ep, k)[keep] for k in
+                                        ("stamps_ns", "observations", "forces", "known", "truth", "extras")})
+    bag = write_episode(tmp_path / "gapped", gapped)
+    out = plot(bag, "-o", tmp_path / "gap.png", cwd=tmp_path)
+    assert out.returncode == 0 and (tmp_path / "gap.png").is_file(), out.stderr
+    t = ep.time_s
+    assert f"warning: {bag}: 1 gap(s) in its ticks ({t[9]:.2f}-{t[16]:.2f} s)" in out.stderr, out.stderr
+    forces = ep.forces.copy()
+    forces[7, 0] = np.nan
+    said = dataclasses.replace(ep, forces=forces).problems()
+    assert said == ["'f_x_b' is nan at tick 7 (1 non-finite values)"], said

@@ -25,12 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, scan_bags
-from soil_msgs_py.episode import EpisodeMeta, world_modes
+from soil_msgs_py.episode import EpisodeMeta, stamp_gaps, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
     OBSERVATION_FIELDS,
-    TICK_PERIOD_NS,
     WINDOW_SAMPLES,
 )
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
@@ -157,11 +156,6 @@ def fingerprint_bags(bags: list[Path], root: Path) -> str:
     return h.hexdigest()
 
 
-def stamp_gaps(stamps_ns: np.ndarray) -> np.ndarray:
-    """(N,) bool: each stamp is more than 1.5 tick periods after the one before it."""
-    return np.concatenate([[False], np.diff(np.asarray(stamps_ns, np.int64)) > 1.5 * TICK_PERIOD_NS])
-
-
 def _read(bag: Path):
     """Worker: one bag's arrays, or its BagReadError *returned* (picklable), so a pool reading
     many bags keeps going and the parent decides whether to skip the bag or stop."""
@@ -183,7 +177,7 @@ def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
         row, col = np.argwhere(bad)[0]
         raise BagReadError(
             bag, f"{name} field {fields[col]!r} is {arr[row, col]} at tick {int(row)}; "
-            f"windows with NaN/inf cannot be trained on (re-record or drop the bag)"
+            f"a window with NaN/inf can be neither trained on nor scored (re-record or drop the bag)"
         )
 
 

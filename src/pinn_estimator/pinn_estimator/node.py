@@ -24,6 +24,7 @@ from soil_msgs_py import cli_numbers
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.ros_adapter import (
     InputSilence, WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
     status_event,
@@ -155,7 +156,8 @@ class EstimatorNode(Node):
         """Once per world: an episode of a world other than the one whose shipped calibration the
         soil posterior took (its error laws are that world's; pinn_eval warns alike)."""
         world = getattr(event.meta, "world_mode", "") if event.meta is not None else ""
-        if self.fusion_world is None or not world or world == self.fusion_world or world in self._worlds_warned:
+        if (self.fusion_world is None or not world or world not in WORLD_MODES  # a machine's: no simulator world's
+                or world == self.fusion_world or world in self._worlds_warned):
             return
         self._worlds_warned.add(world)
         self.get_logger().warning(

@@ -207,8 +207,9 @@ def check_integrity(bag: Path) -> None:
             raise BagReadError(bag, f"{name}: {bad[0].describe(scan.topics)}{others}; {len(bad)} of "
                                     f"{len(scan.chunks)} chunks are damaged, `soil_bag_repair {bag} "
                                     f"--out NEW_BAG` copies the others")
-        # what soil_bag_repair can copy: the complete chunks that pass their CRC
-        repair = f"; `soil_bag_repair {bag} --out NEW_BAG` copies its chunks" if scan.chunks and scan.has_crcs else ""
+        # what soil_bag_repair can copy: the chunks that pass their CRC and a torn last one's whole records
+        repair = (f"; `soil_bag_repair {bag} --out NEW_BAG` copies what it holds whole"
+                  if (scan.chunks or scan.torn) and scan.has_crcs else "")
         if scan.stop:
             raise BagReadError(bag, f"{name} is truncated or unreadable ({scan.stop}){repair}")
         if scan.data_problem:

@@ -2,7 +2,9 @@
 
 Every chunk that passes its CRC is copied into a new bag (``bag_writer.BagWriter``, same
 topics, types, offered QoS, type hashes and custom_data); the chunks that fail are dropped
-and reported (``integrity.ChunkInfo.describe``). Schemas and channels come from the chunks
+and reported (``integrity.ChunkInfo.describe``). A file cut short (a copy or a disk that
+stopped) ends inside a chunk; of an uncompressed one (this project's bags) the records
+written whole are kept and the chunk is reported as torn: what it still held is not lost. Schemas and channels come from the chunks
 that pass and from the file's summary, which repeats them, so a bad first chunk does not
 orphan the rest. Episode bags keep only ticks present on every episode topic (a tick split
 across a dropped chunk's boundary is incomplete), so ``bag_io.read_episode`` can read the
@@ -42,18 +44,20 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
     if len(files) != 1 or not files[0].endswith(".mcap"):
         raise NothingRecoverable(f"{bag}: expected one .mcap file in metadata.yaml, found {files}")
     mcap = bag / files[0]
+    if not mcap.is_file():  # (renamed or moved: as every reader says it)
+        raise NothingRecoverable(f"{bag}: metadata.yaml lists {files[0]}, which does not exist")
     scan = McapScan(mcap)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     messages: list[Message] = []
-    for record in read_records(mcap, scan):
+    for record in read_records(mcap, scan, torn_tail=True):
         if isinstance(record, Schema):
             schemas.setdefault(record.id, record)
         elif isinstance(record, Channel):
             channels.setdefault(record.id, record)
         elif isinstance(record, Message):
             messages.append(record)
-    if not scan.chunks:  # (a file cut inside its first chunk: no CRC could be read, and no message kept)
+    if not (scan.chunks or scan.torn):  # (cut inside a compressed first chunk, or before any)
         raise NothingRecoverable(f"{bag}: holds no complete chunk"
                                  + (f" ({scan.stop})" if scan.stop else "") + "; nothing to recover")
     if not scan.has_crcs:
@@ -83,9 +87,11 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
         recovered=len(messages), dropped=len(messages) - len(kept_msgs) - orphans,
         last_stamp_ns=max(m.log_time for m in kept_msgs), journal_complete=scan.complete, stop=scan.stop,
         dropped_chunks=[c.describe(scan.topics) for c in scan.bad], orphans=orphans,
+        torn_chunk=scan.torn.describe(scan.topics) if scan.torn else "",
     )
     details = {"source_bag": str(bag), "keep_partial_ticks": keep_partial_ticks,
                "dropped_chunks": chunk_details(scan.bad, scan.topics), "orphaned_messages": orphans,
+               "torn_chunk": chunk_details([scan.torn], scan.topics)[0] if scan.torn else None,
                "recovered_messages": result.recovered, "written_messages": len(kept_msgs),
                "dropped_messages": result.dropped, "ticks": result.ticks, "messages": result.messages}
     for key, text in (("stop", scan.stop), ("data_problem", scan.data_problem)):

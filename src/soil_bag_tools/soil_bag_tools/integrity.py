@@ -7,20 +7,25 @@ once with the ``mcap`` library's stream reader, checks every chunk itself instea
 the library stop at the first bad one, and notes each chunk's place (index, byte offset, log
 time range) and its message counts per channel (from the message index records that follow
 it, outside the chunk), so a reader can name the damage and a repair can skip exactly the
-bad chunks and say what they held.
+bad chunks and say what they held. A file cut inside an uncompressed chunk (a copy or a disk
+that stopped short) still holds that chunk's first records whole; ``torn_tail`` reads them too,
+unchecked, since the CRC covers records the file no longer has.
 """
 from __future__ import annotations
 
+import io
+import struct
 import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord
+from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk, get_chunk_data_stream
 
 _CHUNK_FIXED_BYTES = 1 + 8 + 8 + 8 + 8 + 4 + 4 + 8  # opcode, length, times, size, crc, string len, data len
+_CHUNK_HEAD_BYTES = 1 + 8 + 8 + 8 + 8 + 4 + 4  # opcode, length, times, size, crc, compression's length
 _FOOTER_BYTES = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, summary_crc
 
 
@@ -73,6 +78,9 @@ class McapScan:
     data_problem: str = ""  # data-section / summary CRC mismatch
     stop: str = ""  # why reading stopped before the footer ("" if it was reached)
     complete: bool = False  # the footer was reached: the writer finished the file
+    # the chunk the file ends inside, when its complete records were read (``torn_tail``); its
+    # ``messages`` count those records per channel, its ``problem`` says what was left out
+    torn: ChunkInfo | None = None
 
     @property
     def bad(self) -> list[ChunkInfo]:
@@ -81,7 +89,7 @@ class McapScan:
     @property
     def has_crcs(self) -> bool:
         """Whether the writer computed chunk CRCs (all 0: a bag from before CRCs were written)."""
-        return any(c.crc for c in self.chunks)
+        return any(c.crc for c in self.chunks) or bool(self.torn and self.torn.crc)
 
 
 def _crc_of_range(path: Path, start: int, stop: int) -> int:
@@ -110,15 +118,53 @@ def _check_chunk(chunk: Chunk, info: ChunkInfo, open_chunk: bool) -> list[McapRe
     return []
 
 
-def read_records(path: Path, scan: McapScan, *, open_chunks: bool = True) -> Iterator[McapRecord]:
+def _torn_chunk(path: Path, offset: int, index: int) -> tuple[ChunkInfo, list[McapRecord]] | None:
+    """The complete records of the chunk that starts at ``offset`` and that the file ends inside,
+    if it is uncompressed (a compressed stream cut short is not read), else None."""
+    with open(path, "rb") as f:
+        f.seek(offset)
+        head = f.read(_CHUNK_HEAD_BYTES)
+        if len(head) < _CHUNK_HEAD_BYTES or head[0] != Opcode.CHUNK:
+            return None
+        start_ns, end_ns, size, crc, name_len = struct.unpack_from("<QQQII", head, 9)
+        if name_len:  # compressed (or a header the cut left unreadable)
+            return None
+        length = f.read(8)
+        if len(length) < 8:
+            return None
+        (records_len,) = struct.unpack("<Q", length)
+        data = f.read(records_len)
+    info = ChunkInfo(index, offset, start_ns, end_ns, crc)
+    if len(data) >= records_len:  # whole, yet unread: not a cut this can read past
+        return None
+    records: list[McapRecord] = []
+    reader = StreamReader(io.BytesIO(data), skip_magic=True)
+    try:
+        for record in reader.records:
+            records.append(record)
+    except Exception:  # noqa: BLE001 - the record the cut went through, whatever the parser says
+        pass
+    used = sum(1 for r in records if isinstance(r, Message))
+    for r in records:
+        if isinstance(r, Message):
+            info.messages[r.channel_id] = info.messages.get(r.channel_id, 0) + 1
+    info.problem = (f"the file ends inside it ({len(data)} of its {records_len} bytes of records): its first "
+                    f"{used} messages read whole, not checked by its CRC")
+    return info, records
+
+
+def read_records(path: Path, scan: McapScan, *, open_chunks: bool = True, torn_tail: bool = False) -> Iterator[McapRecord]:
     """Every record of ``path`` in file order, each good chunk replaced by its records (if
     ``open_chunks``); a chunk failing its CRC is skipped and noted in ``scan.chunks``, a torn
-    or unparseable tail ends the iteration (noted in ``scan.stop``)."""
+    or unparseable tail ends the iteration (noted in ``scan.stop``). ``torn_tail``: where the
+    file ends inside an uncompressed chunk, that chunk's complete records end it (``scan.torn``)."""
     path = Path(path)
+    last_end = 0  # where the last whole top-level record ended
     with open(path, "rb") as f:
         reader = _CountingReader(f, emit_chunks=True)
         try:
             for record in reader.records:
+                last_end = f.tell()
                 if isinstance(record, Chunk):
                     size = _CHUNK_FIXED_BYTES + len(record.compression.encode()) + len(record.data)
                     info = ChunkInfo(len(scan.chunks), f.tell() - size, record.message_start_time,
@@ -148,12 +194,22 @@ def read_records(path: Path, scan: McapScan, *, open_chunks: bool = True) -> Ite
                                                  f"computed 0x{actual:08x}")
                 yield record
         except Exception as err:  # noqa: BLE001 - a torn tail is expected, whatever the parser says
-            scan.stop = f"stopped at byte {f.tell()} of {path.stat().st_size}: {type(err).__name__} {err}".strip()
+            size = path.stat().st_size
+            what = (f"the file ends inside the record that starts there, {size - last_end} bytes of it written"
+                    if f.tell() >= size else f"the record there does not parse ({type(err).__name__} {err})".strip())
+            scan.stop = f"its whole records end at byte {last_end} of {size}: {what}"
+    if scan.stop and torn_tail and (torn := _torn_chunk(path, last_end, len(scan.chunks))):
+        scan.torn, records = torn
+        for inner in records:
+            if isinstance(inner, Channel):
+                scan.topics[inner.id] = inner.topic
+            yield inner
 
 
 def scan_file(path: Path) -> McapScan:
-    """Check every chunk (and the data-section/summary CRCs) of ``path`` without decoding messages."""
+    """Check every chunk (and the data-section/summary CRCs) of ``path`` without decoding messages
+    (a torn uncompressed chunk at its end is read, to tell what a repair keeps of it)."""
     scan = McapScan(Path(path))
-    for _ in read_records(scan.path, scan, open_chunks=False):
+    for _ in read_records(scan.path, scan, open_chunks=False, torn_tail=True):
         pass
     return scan

@@ -416,6 +416,7 @@ class BagResult:
     conflicts: dict[str, int] = field(default_factory=dict)  # refused claims on a stamp, per topic
     dropped_chunks: list[str] = field(default_factory=list)  # chunks skipped (failed CRC), one line each
     orphans: int = 0  # messages dropped because their channel was defined in a skipped chunk
+    torn_chunk: str = ""  # the chunk the file ends inside, whose whole records were kept (one line)
 
     def summary(self) -> str:
         counts = set(self.messages.values())

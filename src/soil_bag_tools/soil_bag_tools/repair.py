@@ -84,6 +84,8 @@ def report(r: BagResult, state: str) -> None:
           f"last stamp {r.last_stamp_ns} ns")
     for line in r.dropped_chunks:
         print(f"  dropped {line}")
+    if r.torn_chunk:
+        print(f"  kept the whole records of {r.torn_chunk}")
 
 
 def main(args: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
+from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, TICK_PERIOD_NS
 from .patches import SoilPatch, check_patches, finite_number, patches_tag, short_repr
 from .soil_labels import UNKNOWN_SOILS
 
@@ -171,3 +171,26 @@ class Episode:
     @property
     def time_s(self) -> np.ndarray:
         return (self.stamps_ns - self.stamps_ns[0]) * 1e-9
+
+    def problems(self) -> list[str]:
+        """What a reader of this episode should be told before trusting a plot of it: gaps in its
+        stamps (a repaired bag's dropped chunks) and non-finite values (ground truth excepted: a
+        machine's bag has none)."""
+        out = []
+        gaps = np.flatnonzero(stamp_gaps(self.stamps_ns))
+        if len(gaps):
+            t = self.time_s
+            spans = ", ".join(f"{t[i - 1]:.2f}-{t[i]:.2f} s" for i in gaps[:3]) + (" ..." if len(gaps) > 3 else "")
+            out.append(f"{len(gaps)} gap(s) in its ticks ({spans})")
+        for fields, arr in ((OBSERVATION_FIELDS, self.observations), (FORCE_FIELDS, self.forces),
+                            (KNOWN_PARAMS, self.known)):
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                row, col = np.argwhere(bad)[0]
+                out.append(f"{fields[col]!r} is {arr[row, col]} at tick {int(row)} ({int(bad.sum())} non-finite values)")
+        return out
+
+
+def stamp_gaps(stamps_ns: np.ndarray) -> np.ndarray:
+    """(N,) bool: each stamp is more than 1.5 tick periods after the one before it."""
+    return np.concatenate([[False], np.diff(np.asarray(stamps_ns, np.int64)) > 1.5 * TICK_PERIOD_NS])

@@ -247,7 +247,7 @@ class EpisodeEvent:
             raise ValueError(f"{SIM_STATUS_TOPIC}: meta={d.get('meta')!r} must be an object")
         try:
             meta = EpisodeMeta.from_json(json.dumps(d["meta"]))
-            meta.validate()
+            meta.validate(machine_world=True)  # a machine's bag replayed: its world is not a simulator's
         except (TypeError, ValueError) as err:  # a missing, unknown, mistyped or out-of-range field
             raise ValueError(f"{SIM_STATUS_TOPIC}: bad meta: {err}") from None
         if d.get("stats") is not None and not isinstance(d["stats"], dict):

@@ -124,6 +124,8 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"soil_plot_episode: error: {exc}", file=sys.stderr)
         return 2
+    for problem in ep.problems():  # drawn all the same: a line across a gap or a NaN's hole is easy to miss
+        print(f"soil_plot_episode: warning: {args.bag}: {problem}", file=sys.stderr)
     bag = Path(os.path.abspath(args.bag))  # "." or ".." have a usable name only once absolute
     # not bag.with_suffix: "..._v0.50_d0.100_s0" and "..._v0.50_d0.200_s1" both became "..._v0.50_d0.png"
     out = plot_episode(ep, args.out or bag.parent / (bag.name + ".png"), planner_targets(args.bag, ep))
