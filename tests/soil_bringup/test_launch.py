@@ -142,7 +142,32 @@ def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, 
     FusionConfig().save(cfg)  # no terms: the FEE alone, nothing passed
     assert not any(a.startswith("terms:=") for a in planner_argv("--estimator-param", f"fusion_config:={cfg}"))
     argv = planner_argv("--planner-param", "terms:=[]")
-    assert argv.index(want) < argv.index("terms:=[]")  # the user's -p comes later and wins
+    assert want not in argv and "terms:=[]" in argv  # the user's alone (a -p of another type was dropped)
+
+
+def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_value(tmp_path):
+    """rcl drops a later -p of another type than an earlier one without a word, and a -p beats a
+    params file: a mistyped bound_law:=['a', ...] and exit_when_done:=maybe ran with the
+    launcher's values, and a params file's bound_law was never used (an outside tester found).
+    Now the launcher leaves out its own value of every name the user gives, so the node reads
+    the user's (and refuses it if it is bad)."""
+    def argv(node, *args):
+        return {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *args]))}[node].argv
+
+    launchers = [a for a in argv("planner") if a.startswith("bound_law:=")]
+    assert len(launchers) == 1, "the shipped default-world config has a bound law"
+    bad = "bound_law:=['a', 'b', 'c', 'd']"
+    assert [a for a in argv("planner", "--planner-param", bad) if a.startswith("bound_law:=")] == [bad]
+    params = tmp_path / "planner.yaml"
+    params.write_text("soil_planner:\n  ros__parameters:\n    margin: 0.6\n    bound_law: [500.0, 20.0, 0.1, 1.0]\n")
+    planner = argv("planner", "--planner-params-file", str(params))
+    assert not any(a.startswith("bound_law:=") for a in planner) and str(params) in planner
+    assert any(a.startswith("terms:=") for a in planner)  # what the user did not give stays the launcher's
+    sim = argv("sim", "--sim-param", "exit_when_done:=maybe")
+    assert [a for a in sim if a.startswith("exit_when_done:=")] == ["exit_when_done:=maybe"]
+    assert any(a.startswith("wait_for:=") for a in sim)
+    ctl = argv("controller", "--controller-param", "depth_source:=parameter")
+    assert [a for a in ctl if a.startswith("depth_source:=")] == ["depth_source:=parameter"]
 
 
 def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path):

@@ -30,7 +30,8 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
 
 ``--planner`` starts the soil-aware planner too (and the estimator it plans from, whose posterior
 physics and bound law it is given: ``posterior_planner_params``) and sets the controller's
-``depth_source:=planner``: the loop is closed, the cut depth follows the soil.
+``depth_source:=planner``: the loop is closed, the cut depth follows the soil. A value the
+launcher sets itself is left out wherever the user gives that name (``unless_given``).
 """
 from __future__ import annotations
 
@@ -322,6 +323,17 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
     return argv + _params(params)
 
 
+def unless_given(node: str, params_file, params: list[str], defaults: list[str]) -> list[str]:
+    """The launcher's own ``name:=value`` ``defaults`` for ``node`` less those whose name the user
+    gives (``params`` or the params file). Why not rcl's "the last -p wins": a later -p of
+    another type than an earlier one is dropped without a word (``bound_law:=['a']`` after the
+    launcher's law, ``exit_when_done:=maybe``: the node ran with the launcher's values), and a
+    -p beats the user's params file, whose ``bound_law`` was then never used."""
+    names = [d.partition(":=")[0] for d in defaults]
+    given = given_params(node, params_file, params, names)
+    return [d for d, name in zip(defaults, names) if given[name] is None]
+
+
 def posterior_planner_params(estimator_params_file, estimator_params: list[str]) -> list[str]:
     """``["terms:=[...]", "bound_law:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
     posterior (``fusion_calibration.estimator_fusion``: the ``fusion_config`` it is given, the
@@ -431,7 +443,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               *extra, *args.recorder_arg], stop_order=3))
         _count(wait, RECORDER_ENDPOINTS)
-    # the world's shipped model unless one is given (the user's -p comes later and wins)
+    # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     estimator_param = (world_checkpoint_param(args) if args.estimator else []) + list(args.estimator_param)
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
@@ -443,8 +455,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
-        # the posterior's physics and bound law first, so a -p terms:=... of the user's wins
-        physics = posterior_planner_params(args.estimator_params_file, estimator_param)
+        # the posterior's physics and bound law, unless the user gives them (-p or params file)
+        physics = unless_given("soil_planner", args.planner_params_file, args.planner_param,
+                               posterior_planner_params(args.estimator_params_file, estimator_param))
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
@@ -454,8 +467,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
-        # (later -p wins: the planner's loop unless the user set depth_source explicitly)
-        closed = ["depth_source:=planner"] if args.planner else []
+        # the planner's loop unless the user sets depth_source
+        closed = unless_given("anti_stall_controller", args.controller_params_file, args.controller_param,
+                              ["depth_source:=planner"] if args.planner else [])
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param), stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
@@ -470,10 +484,10 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # Only what was given on the command line overrides the params file (later -p wins).
     sim += [a for name in ("pacing", "rate") if getattr(args, name) is not None
             for a in ("-p", f"{name}:={getattr(args, name)}")]
-    sim += ["-p", f"exit_when_done:={'false' if args.keep_running else 'true'}"]
+    own = [f"exit_when_done:={'false' if args.keep_running else 'true'}"]
     if wait:
-        sim += ["-p", "wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]"]
-    sim += _params(args.sim_param)
+        own.append("wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]")
+    sim += _params(unless_given("soil_sim_node", args.sim_params_file, args.sim_param, own) + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))
     return nodes
 
