@@ -442,7 +442,8 @@ def test_a_bound_law_of_its_own_replaces_the_estimates_and_a_bad_one_is_named():
     assert max_cut_depth(est, known, bound_law=array.array("d", wide)) == max_cut_depth(est, known, bound_law=wide)
     for law, needle in (((5.0, 5.0, 0.1), "four numbers"), ("5,5,0.1,0.1", "four numbers"),
                         ((0.0, 5.0, 0.1, 0.1), "floors"), ((5.0, 5.0, -0.1, 0.1), ">= 0"),
-                        ((5.0, math.nan, 0.1, 0.1), "bound_law abs_z")):
+                        ((5.0, math.nan, 0.1, 0.1), "bound_law abs_z"),
+                        (array.array("d", (1.0, 2.0)), r"bound_law=\[1.0, 2.0\] must be")):  # not "array('d', ...)"
         with pytest.raises(ValueError, match=needle):
             max_cut_depth(est, known, bound_law=law)
     planner = StretchPlanner(bound_law=wide)
@@ -777,6 +778,9 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
             assert not bad.results[0].successful and "margin=1.5" in bad.results[0].reason
             bad = call_service(lambda: client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))
             assert not bad.results[0].successful and "cut_speed_m_s=0.0" in bad.results[0].reason
+            # read once at start: taken unchecked before (-5 s, NaN), changing nothing
+            bad = call_service(lambda: client.set_parameters([Parameter("inputs_wait_s", value=-5.0)]))
+            assert not bad.results[0].successful and "['inputs_wait_s'] can only be set at start-up" in bad.results[0].reason
             ok = call_service(lambda: client.set_parameters([Parameter("margin", value=1.0), Parameter("d_max_m", value=0.66),
                                               Parameter("cut_speed_m_s", value=0.3)]))
             assert all(r.successful for r in ok.results)

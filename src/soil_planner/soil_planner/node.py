@@ -144,6 +144,8 @@ PARAMETERS: dict[str, tuple] = {
 MAX_PENDING_STAMPS = 10 * SAMPLE_RATE_HZ
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms",
                     "sensor_anchor", "bound_law")  # StretchPlanner's
+# what is read once, at start: a change at run time is refused (it would change nothing)
+START_ONLY = frozenset(PARAMETERS) - {*PLANNER_SETTINGS, *SCHEDULE_PARAMETERS, "log_period_s", "command_wait_s"}
 
 
 def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None:
@@ -246,6 +248,8 @@ class PlannerNode(Node):
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply together (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
+        if fixed := sorted(set(changes) & START_ONLY):  # (they were taken, unchecked, and changed nothing)
+            return SetParametersResult(successful=False, reason=f"{fixed} can only be set at start-up")
         try:
             planner = stretch_planner({**self.planner.settings(),
                                        **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})

@@ -101,6 +101,7 @@ from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
                                  MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
+from soil_msgs_py.patches import short_repr
 from soil_physics.predictive import (extrapolated_part, mean_standard_error, model_error_std, upper_magnitude,
                                      within_magnitude)
 
@@ -436,22 +437,23 @@ def check_bound_law(law) -> tuple[float, float, float, float] | None:
     whose errors ``bound_calibration`` (``soil_planner_calibrate``) measures apart. Any sequence of
     numbers (the parameter service gives an ``array.array``). ValueError naming the value unless
     four finite numbers >= 0 with floors > 0."""
-    wrong = ValueError(f"bound_law={law!r} must be empty or four numbers: abs_x [N], abs_z [N], rel_x, rel_z")
     if law is None:
         return None
-    if isinstance(law, (str, bytes)):
-        raise wrong
     try:
-        values = list(law)
+        values = None if isinstance(law, (str, bytes)) else list(law)
     except TypeError:
-        raise wrong from None
+        values = None
+    shown = short_repr(values if values is not None else law)  # (a list, not "array('d', [...])")
+    wrong = ValueError(f"bound_law={shown} must be empty or four numbers: abs_x [N], abs_z [N], rel_x, rel_z")
+    if values is None:
+        raise wrong
     if not values:
         return None
     if len(values) != 4:
         raise wrong
     out = tuple(_number(f"bound_law {name}", v) for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), values))
     if min(out) < 0.0 or min(out[:2]) <= 0.0:
-        raise ValueError(f"bound_law={law!r} must be >= 0 (its floors abs_x, abs_z > 0 N)")
+        raise ValueError(f"bound_law={shown} must be >= 0 (its floors abs_x, abs_z > 0 N)")
     return out
 
 
