@@ -978,3 +978,51 @@ def test_the_evidence_law_is_the_sharpest_within_the_noise_of_the_most_accurate(
     # a law no better than the force now is never the choice, however close the best one is to it
     near_naive = [(0.005, scores(20.0, 1.0, 10.0, naive_z=10.0)), (0.05, scores(20.0, 1.0, 9.8, naive_z=10.0))]
     assert choose_evidence_law(near_naive)[1] == 0.05
+
+
+def test_a_config_records_its_world_and_is_not_recalibrated_for_another(tmp_path, capsys, monkeypatch):
+    """A copy of the default world's config given to ``soil_planner_calibrate --world fee`` took a
+    bound law 200× tighter without a word (an outside tester found): a config now records the world
+    that calibrated it, and neither calibration takes one of another world; a config that does
+    not record it (made before) still loads, and the estimator takes a given config's world."""
+    from pinn_estimator.fusion_calibration import config_path, estimator_fusion, load_calibrated
+    from pinn_estimator.fusion_calibration import main as calibrate_main
+    from soil_planner.bound_calibration import main as bound_main
+
+    assert (load_calibrated("default").world, load_calibrated("fee").world) == ("default", "fee")
+    with pytest.raises(ValueError, match="fusion world='moon' must be one of"):
+        FusionConfig(world="moon")
+    old = tmp_path / "old.json"
+    data = FusionConfig().to_dict()
+    del data["world"]
+    old.write_text(json.dumps(data))
+    assert FusionConfig.load(old).world == ""  # made before the field: not recorded
+    assert estimator_fusion(str(old), None)[1] is None and estimator_fusion(str(config_path("fee")), None)[1] == "fee"
+    copy = tmp_path / "default_copy.json"
+    copy.write_text(config_path("default").read_text())
+    with pytest.raises(SystemExit) as exit_:
+        bound_main(["--world", "fee", "--config", str(copy)])
+    assert exit_.value.code == 2 and "was calibrated in the default world" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(copy)])
+    assert exit_.value.code == 2 and "was calibrated in the default world, not the fee world" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--set", 'world="fee"'])
+    assert exit_.value.code == 2 and "world is set by --world" in capsys.readouterr().err
+    # a config without its world is taken for the world asked, and said; one of no law, said too
+    import pinn_estimator.evaluate as evaluate_module
+
+    class Started(Exception):
+        pass
+
+    def started(*_, **__):
+        raise Started
+
+    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    empty = tmp_path / "empty.json"
+    empty.write_text("{}")
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(empty)])
+    err = capsys.readouterr().err
+    assert "does not record the world it was calibrated in; taking it for the fee world's" in err
+    assert "it sets none of the laws pinn_fusion_calibrate chooses" in err

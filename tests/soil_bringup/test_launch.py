@@ -217,6 +217,24 @@ def test_a_recorder_that_wrote_no_bag_of_an_episode_fails_the_launch_and_says_wh
     assert f"recorder exited with code {G.EXIT_BAG_NOT_WRITTEN} (an episode's bag was not written" in text, text
 
 
+def test_a_recorder_killed_mid_run_is_said_with_where_its_journals_are(tmp_path):
+    """A SIGKILLed recorder leaves *.partial journals; the launch said only "recorder died (exit
+    code -9)" (an outside tester found). It now says where they are and the command that repairs them."""
+    args = L.parse_args(["--record", str(tmp_path / "bags")])
+    (recorder,) = [n for n in L.build_nodes(args) if n.name == "recorder"]
+    log = tmp_path / "launch.log"
+    with log.open("w") as out:
+        dying = "import os, signal, time; time.sleep(0.3); os.kill(os.getpid(), signal.SIGKILL)"
+        launch = L.Launch([L.NodeProcess("recorder", [sys.executable, "-c", dying], stop_order=2,
+                                         after_death=recorder.after_death),
+                           L.NodeProcess("sim", ["sleep", "60"], stop_order=0, ends_launch=True)],
+                          L.loopback_env(0), out=out, stop_timeout_s=5, drain_s=0.0)
+        assert launch.run() == L.EXIT_NODE_DIED
+    text = log.read_text()
+    assert "recorder died (exit code -9); stopping the others (what it had flushed is in the *.partial journals " \
+           f"under {tmp_path / 'bags'}: `soil_bag_repair {tmp_path / 'bags'}` makes bags of them)" in text, text
+
+
 def test_a_node_stopped_before_it_said_anything_gets_sigterm_not_a_traceback(tmp_path):
     """A node refusing its parameters stops the others while they may still be importing: a
     SIGINT there is a KeyboardInterrupt traceback (35 lines burying the refusal). One that has

@@ -59,6 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.patches import finite_number, short_repr
 from soil_physics import fee, force_terms
@@ -189,6 +190,12 @@ class FusionConfig:
     # keeps the forecast law: its bound is the posterior's own forecast.
     bound_abs_std_n: tuple[float, float] | None = None
     bound_rel_std: tuple[float, float] | None = None
+    # The world whose episodes calibrated the laws above ("": not recorded, as in configs made
+    # before it was). Why: the laws are one world's, and a config of one world recalibrated on
+    # another's episodes (a copy of the default world's, given to ``soil_planner_calibrate
+    # --world fee``) took a bound law 200× tighter without a word; the estimator says when its
+    # episodes are of another world.
+    world: str = ""
 
     def __post_init__(self):
         for name, (lo, hi) in INT_FIELD_RANGES.items():
@@ -237,6 +244,8 @@ class FusionConfig:
         if self.prior_std > STD_FIELD_MAX["prior_std"]:
             raise ValueError(f"fusion prior_std={short_repr(self.prior_std)} must be at most {STD_FIELD_MAX['prior_std']:g} "
                              "(a share of the prior box)")
+        if self.world not in ("", *WORLD_MODES):
+            raise ValueError(f"fusion world={short_repr(self.world)} must be one of {WORLD_MODES} or \"\" (not recorded)")
         terms = AugmentedFEE(self.terms).terms
         force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
         object.__setattr__(self, "terms", terms)

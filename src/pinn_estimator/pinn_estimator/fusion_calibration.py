@@ -124,11 +124,12 @@ def load_fusion_config(path: str, world: str = DEFAULT_WORLD) -> FusionConfig:
 
 def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
     """The estimator's soil posterior config and the world it was calibrated for: the config at
-    ``path`` (the ``fusion_config`` parameter; its world not known: None), else the shipped
+    ``path`` (the ``fusion_config`` parameter; its world as it records it, None where it does not), else the shipped
     calibration of the checkpoint's world (``checkpoint_world``). The node, ``soil_launch`` (for
     the planner's terms) and the demo's forecast all take it from here."""
     world = None if path else checkpoint_world(ckpt)
-    return load_fusion_config(path, world or DEFAULT_WORLD), world
+    cfg = load_fusion_config(path, world or DEFAULT_WORLD)
+    return cfg, (cfg.world or None) if path else world
 
 
 def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
@@ -579,6 +580,8 @@ def main(argv=None) -> int:
             raise ValueError(f"{chosen[0]} is chosen by the calibration")
         if "terms" in fields:
             raise ValueError("terms is set by --term")
+        if "world" in fields:
+            raise ValueError("world is set by --world")
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")
@@ -599,6 +602,9 @@ def main(argv=None) -> int:
             base = FusionConfig.load(kept)
         except (OSError, ValueError) as err:
             p.error(f"--forecast-law-only: {kept}: {err}")
+        if base.world and base.world != args.world:
+            p.error(f"--forecast-law-only: {kept} was calibrated in the {base.world} world, not the {args.world} "
+                    "world: its evidence law is that world's (run the whole calibration)")
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
@@ -613,6 +619,7 @@ def main(argv=None) -> int:
         # new posteriors: the planner's bound law is to be calibrated on them again
         cfg = dataclasses.replace(cfg, bound_abs_std_n=None, bound_rel_std=None)
         pairs = pair_forecasts(ds, fused_posteriors(ds, cfg))  # (the forecast law changes no posterior)
+    cfg = dataclasses.replace(cfg, world=args.world)
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std,
              "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}

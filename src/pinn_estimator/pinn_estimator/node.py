@@ -74,7 +74,8 @@ class EstimatorNode(Node):
         torch.set_num_threads(threads)
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
-        # the shipped calibration of the checkpoint's world unless a config is given (its world unknown: None)
+        # the shipped calibration of the checkpoint's world unless a config is given (its world as it
+        # records it: None where it does not)
         self.fusion_path = get("fusion_config")
         fusion, self.fusion_world = estimator_fusion(self.fusion_path, ckpt)
         self._worlds_warned: set[str] = set()
@@ -121,7 +122,7 @@ class EstimatorNode(Node):
             return SetParametersResult(successful=False, reason=str(err))
         if model is not None:
             fusion = None  # a config chosen by the checkpoint's world follows the new checkpoint's
-            if self.fusion_world is not None and checkpoint_world(model[1]) != self.fusion_world:
+            if not self.fusion_path and checkpoint_world(model[1]) != self.fusion_world:  # (a config given stays)
                 fusion, self.fusion_world = estimator_fusion("", model[1])
                 self._worlds_warned.clear()
             self.core.set_model(model[0], fusion)
@@ -162,7 +163,7 @@ class EstimatorNode(Node):
         self._worlds_warned.add(world)
         self.get_logger().warning(
             f"episode {event.name} is the {world} world's; the soil posterior uses the {self.fusion_world} world's "
-            f"calibration (the checkpoint's): its intervals are not calibrated here. Give fusion_config:="
+            f"calibration ({self.fusion_source}): its intervals are not calibrated here. Give fusion_config:="
             f"{config_path(world)}" + (" (it exists)" if config_path(world).exists() else "")
             + " or a checkpoint trained in that world"
             + (f", e.g. its shipped checkpoint:={shipped} (soil_launch gives it when no checkpoint is given)"

@@ -105,7 +105,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.patches = soil_file.paths[args.path]
     else:
         try:
-            args.patches = check_patches([parse_patch(t, f"--patch {t!r}") for t in (args.patch or DEFAULT_PATCHES)])
+            args.patches = check_patches([parse_patch(t, "--patch") for t in (args.patch or DEFAULT_PATCHES)])
         except ValueError as err:
             p.error(str(err))
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:

@@ -107,6 +107,7 @@ class NodeProcess:
     required: bool = True  # its death (any exit before shutdown) stops the launch (else: the exit code only)
     without: str = ""  # what the graph does without it, said when a node that is not required dies
     ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
+    after_death: str = ""  # what a user can do after it died (said with its death)
     # Scheduling niceness set at start (setpriority): the nodes that close the 60 Hz loop (the
     # simulator and the controller) keep 0; a node whose answer may come a tick later (the
     # planner) yields the CPU to them on a busy machine.
@@ -229,7 +230,8 @@ class Launch:
                     self.log(f"{node.name} refused its parameters (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED
                 if node.required:
-                    self.log(f"{node.name} died (exit code {rc}); stopping the others")
+                    self.log(f"{node.name} died (exit code {rc}); stopping the others"
+                             + (f" ({node.after_death})" if node.after_death else ""))
                     return EXIT_NODE_DIED
                 self.log(f"{node.name} {'exited' if rc == 0 else 'died'} (exit code {rc}); not required, the others go on "
                          f"({node.without})")
@@ -441,7 +443,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
-                                              *extra, *args.recorder_arg], stop_order=3))
+                                              *extra, *args.recorder_arg], stop_order=3,
+                                 after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
+                                             f"`soil_bag_repair {args.record}` makes bags of them"))
         _count(wait, RECORDER_ENDPOINTS)
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     estimator_param = (world_checkpoint_param(args) if args.estimator else []) + list(args.estimator_param)
@@ -502,16 +506,20 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
                    help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
     p.add_argument("--sim-params-file", type=Path, help="YAML parameters for soil_sim_node")
-    p.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a parameter of soil_sim_node (repeatable; `soil_sim_node --help` lists them)")
     p.add_argument("--controller-params-file", type=Path, help="YAML parameters for anti_stall_controller")
-    p.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a parameter of anti_stall_controller (repeatable; `anti_stall_controller --help` lists them)")
     p.add_argument("--estimator", action="store_true", help="also run the online PINN estimator (pinn_estimator)")
     p.add_argument("--estimator-params-file", type=Path, help="YAML parameters for pinn_estimator")
-    p.add_argument("--estimator-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--estimator-param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a parameter of pinn_estimator (repeatable; `pinn_estimator --help` lists them)")
     p.add_argument("--planner", action="store_true",
                    help="also run the soil-aware planner (implies --estimator) and let the controller follow it")
     p.add_argument("--planner-params-file", type=Path, help="YAML parameters for soil_planner")
-    p.add_argument("--planner-param", action="append", default=[], metavar="NAME:=VALUE")
+    p.add_argument("--planner-param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a parameter of soil_planner (repeatable; `soil_planner --help` lists them)")
     p.add_argument("--require", action="append", default=[], choices=ADVISORY_NODES,
                    help="stop the launch when this advisory node dies, as when the simulator, controller or recorder "
                         "does (repeatable; by default the cut goes on without it and the launch exits 1 at the end)")

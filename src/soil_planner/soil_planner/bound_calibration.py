@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import FusionConfig, fused_values
-from pinn_estimator.fusion_calibration import (CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S, CAL_SEED,
+from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S, CAL_SEED,
                                                FLOOR_GRID, FORECAST_GRID, config_path)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
@@ -120,6 +122,12 @@ def choose_bound_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRID, 
     return chosen, rows
 
 
+def calibrated_fields(path) -> list[str]:
+    """The fields of the config file at ``path`` that ``pinn_fusion_calibrate`` chooses."""
+    data = json.loads(Path(path).read_text())
+    return [f for f in CALIBRATED_FIELDS if f in data]
+
+
 def main(argv=None) -> int:
     from pinn_estimator.evaluate import forecast_dataset, fused_posteriors  # (the simulator and torch: here only)
 
@@ -151,6 +159,13 @@ def main(argv=None) -> int:
         cfg = FusionConfig.load(path)
     except (OSError, ValueError) as err:
         p.error(f"--config: {path}: {err}")
+    if cfg.world and cfg.world != args.world:
+        p.error(f"--config: {path} was calibrated in the {cfg.world} world (its 'world'): its posterior is that "
+                f"world's, and a bound law from the {args.world} world's episodes would not hold there")
+    if not cfg.world:
+        print(f"soil_planner_calibrate: {path} does not record the world it was calibrated in; taking it for the "
+              f"{args.world} world's" + ("" if calibrated_fields(path) else " (it sets none of the laws "
+              "pinn_fusion_calibrate chooses: every one is its default)"), file=sys.stderr)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
     try:
