@@ -797,6 +797,8 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
         assert changed.tolist() == pytest.approx(wide.values(), rel=1e-12, abs=1e-9)
         out = node.output
         assert "deepest cut" in out and f"x limit binds: {LX / 1e3:.1f} kN" in out
+        # an accepted change is said (set_parameters sets them one by one)
+        assert all(f"parameters now {p}" in out for p in ("margin=1.0", "d_max_m=0.66", "cut_speed_m_s=0.3")), out
         assert "estimate phi=nan" in out and "label mismatch" in out
 
 

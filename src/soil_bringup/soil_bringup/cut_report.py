@@ -395,8 +395,9 @@ def console(report: dict) -> str:
                    f"{_fmt(r['hindsight_depth_over_conservative'])}x), stall {w['policies'][2]['stall_s']:.2f} s vs conservative "
                    f"{w['policies'][0]['stall_s']:.2f} s, stall against aggressive: "
                    f"{_less_stall(w['policies'][1]['stall_s'], w['policies'][2]['stall_s'], 'x')} (target >= {TARGET_STALL_RATIO:g}x less)")
+        width = max([7, *(len(p["soil"]) + 1 for p in w["patches"])])  # (a soil of the user's, "SiltyClay")
         for p in w["patches"]:
-            out.append(f"    {p['soil']:<7}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
+            out.append(f"    {p['soil']:<{width}}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
                        f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s")
         if w.get("unreached"):
             out.append(f"  patches {w['unreached']}")

@@ -53,6 +53,7 @@ from std_msgs.msg import String
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.patches import short_repr
 from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
                                       spin_node, status_event, topic_qos)
@@ -264,6 +265,8 @@ class PlannerNode(Node):
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
         self.command_wait.max_wait_s = wait_s
+        shown = {name: list(v) if hasattr(v, "__len__") and not isinstance(v, str) else v for name, v in changes.items()}
+        self.get_logger().info("parameters now " + ", ".join(f"{name}={short_repr(v)}" for name, v in shown.items()))
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
