@@ -346,6 +346,9 @@ def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_op
     assert cli_main([missing, "--out", str(tmp_path / "o"), "--accepted", "soil_inertia=1,soil_inertia=2"]) == 2
     err = capsys.readouterr().err
     assert "--accepted: effect term soil_inertia is given more than once" in err and "not a directory" not in err, err
+    # a negative k is said (an outside tester's soil_inertia=-1 on clean data made the search name a stand-in undoing it)
+    assert cli_main([missing, "--out", str(tmp_path / "o"), "--accepted", "soil_inertia=-1"]) == 2  # (no bags)
+    assert "warning: --accepted soil_inertia=-1: a negative k turns the term against its mechanism" in capsys.readouterr().err
     most = cli_numbers.local_limit()  # more processes than 8 per core only wait (and forked without bound)
     for flag, value, said in (("--workers", "-1", f"argument --workers: '-1' must be an integer in [1, {most}]"),
                               ("--workers", "0", f"argument --workers: '0' must be an integer in [1, {most}]"),
@@ -745,6 +748,10 @@ def test_a_gamma_group_that_fits_worse_is_said_to_be_possibly_two_soils():
     mis = {"rows": [{"kind": "group", "name": name, "ratio": 96.6, "theta_at_bound": []}], "soils": [], "groups": [name]}
     text = _misfit_text({"misfit": mis}, quiet=True)
     assert text.startswith(f"; but the model fits worse in {name} (96.6×") and "is a group by unit weight" in text
+    # unlabelled bags beside labelled ones: their γ group is "unknown γ≈…" (the caution was left out there)
+    mixed = {"rows": [{"kind": "group", "name": f"unknown {name}", "ratio": 13.6, "theta_at_bound": []}], "soils": [],
+             "groups": [f"unknown {name}"]}
+    assert "is a group by unit weight" in _misfit_text({"misfit": mixed}, quiet=True)
     labelled = {"rows": [{"kind": "group", "name": "Clay 80 %", "ratio": 5.0, "theta_at_bound": []}], "soils": [],
                 "groups": ["Clay 80 %"]}
     assert "unit weight" not in _misfit_text({"misfit": labelled})
@@ -900,3 +907,19 @@ def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():
     assert verdict == "partly explained" and "partly, at best: the named form takes only 24 % off" in text, text
     verdict, text = _verdict(named, {"significant": True, "flagged_variables": ["t"]}, test, quiet, pins={form.name: pinned})
     assert verdict == "explained" and "at best" not in text, text
+
+
+def test_a_catalogue_term_given_with_accepted_is_not_said_to_be_tested():
+    """A term of the user's catalogue also given with --accepted is in the model from the start:
+    the report said it was "tested as a candidate ... not named" (an outside tester found)."""
+    import json
+    from pathlib import Path
+
+    from soil_discrepancy.report import markdown
+
+    report = json.loads((Path(__file__).parents[2] / "docs/discrepancy/control/discrepancy.json").read_text())
+    report["settings"]["user_terms"] = {"soil_inertia": "my inertia", "rate_strength": "mine"}
+    report["settings"]["accepted_initial"] = [["soil_inertia", 2.0]]
+    (line,) = [ln for ln in markdown(report).splitlines() if "your catalogue" in ln]
+    assert "'my inertia' (`soil_inertia`): in the model from the start (`--accepted`), not tested" in line
+    assert "'mine' (`rate_strength`): not named" in line

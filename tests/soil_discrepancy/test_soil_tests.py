@@ -19,7 +19,7 @@ from soil_discrepancy.cli import main as cli_main
 from soil_discrepancy.fee_fit import fit_fixed, residuals
 from soil_discrepancy.forms import theta_jacobian
 from soil_discrepancy.regimes import group_misfit
-from soil_discrepancy.soil_tests import WIDTH_SIGMA, hold_theta, load_soil_tests, parse_soil_tests
+from soil_discrepancy.soil_tests import WIDTH_SIGMA, hold_theta, load_soil_tests, parse_soil_tests, unmatched
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.soils import CATALOGUE as SOILS
 from soil_physics.soils import get_soil
@@ -115,6 +115,13 @@ def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adh
         fit_fixed(steep, AugmentedFEE())
     with pytest.raises(ValueError, match="no soil test matches a soil of the bags"):
         hold_theta(frame, parse_soil_tests({"soil_tests": [{"soil": "Peat", "phi_deg": 20.0, "phi_std_deg": 1.0}]}))
+    # some match, some not (a mistyped soil or density): those are named, not dropped in silence
+    some = parse_soil_tests({"soil_tests": [
+        {"soil": "Clay", "relative_density_pct": 80, "phi_deg": 26.0, "phi_std_deg": 1.0},
+        {"soil": "Peat", "phi_deg": 20.0, "phi_std_deg": 1.0},
+        {"soil": "Sand", "relative_density_pct": 55, "phi_deg": 33.0, "phi_std_deg": 1.0}]})
+    assert len(hold_theta(frame, some).theta_boxes) == 1
+    assert unmatched(frame, some) == ["Peat", "Sand I_d=55%"]
     with pytest.raises(ValueError, match="no soil test matches"):  # grouped by γ: no label is read
         hold_theta(build_frame(adhesion, stride=8, group_by="gamma"), tests)
 

@@ -56,6 +56,15 @@ def test_apply_sums_k_times_basis_and_parse_names_bad_specs():
                         ("soil_inertia=inf", "finite")):
         with pytest.raises(ValueError, match=needle):
             X.parse_terms([bad])
+    # a form's wrong part is named (both were listed as if both were wrong)
+    from soil_physics import term_forms
+
+    for bad, needle in (("form:gd2w_x*sat7", "factor 'sat7' is not one of .* \\(scale 'gd2w_x' is known\\)"),
+                        ("form:foo_x*sat6", "scale 'foo_x' is not one of [^;]*$"),
+                        ("form:foo_x*bar", "scale 'foo_x' is not one of .*; nor is factor 'bar'"),
+                        ("form:gd2w_x", "no '\\*'")):
+        with pytest.raises(ValueError, match=needle):
+            term_forms.parse(bad)
 
 
 def test_a_huge_integer_k_is_refused_naming_the_term():

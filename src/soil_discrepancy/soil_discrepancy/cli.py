@@ -79,6 +79,7 @@ def main(argv=None) -> int:
     from .forms import load_catalogue
     from .soil_tests import load_soil_tests
     from .workflow import run_discrepancy
+    from .report import headline_verdict
 
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
     if args.pinn_epochs < 0 or args.pinn_seeds < 1:
@@ -93,6 +94,11 @@ def main(argv=None) -> int:
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         refuse_repeats(accepted, "--accepted")
+        for name, k in accepted:
+            if k < 0 and not args.allow_negative_k:  # candidates are held to k >= 0 for the same reason
+                print(f"soil_discrepancy: warning: --accepted {name}={k:g}: a negative k turns the term against its "
+                      "mechanism; the search will name terms that undo it (candidates are held to k >= 0 unless "
+                      "--allow-negative-k)", file=sys.stderr)
         hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
         if hidden is not None:
             refuse_repeats(hidden, "--hidden")
@@ -111,7 +117,10 @@ def main(argv=None) -> int:
     except WorkerDied as exc:  # a run that broke, not the input
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
         return 1
-    print(f"verdict: {report['summary']}")
+    headline = headline_verdict(report)  # the class, as the report's headline says it ("partly explained", ...)
+    summary = report["summary"]
+    print(f"verdict: {summary}" if not headline or summary.startswith(report.get("verdict", "")) else
+          f"verdict: {headline} — {summary}")
     if args.hidden is not None:
         check = hidden_check(report, hidden)
         print(f"hidden effect: {check['text']}")

@@ -101,7 +101,9 @@ def markdown(report: dict, figures=()) -> str:
         lines += [f"Soil tests hold θ in {len(d['soil_tests'])} of {d['theta_groups']} groups: there θ moves only within "
                   f"each test's interval (± {WIDTH_SIGMA:g} standard deviations; the table \"Baseline θ per group\"), so an effect θ "
                   "would take in without them is left in the residual, and the form search keeps the held "
-                  "parameters' directions.", ""]
+                  "parameters' directions."
+                  + (f" **Tests that match no episode, holding nothing: {', '.join(d['soil_tests_unmatched'])}.**"
+                     if d.get("soil_tests_unmatched") else ""), ""]
     env = report.get("environment")
     if env:  # (reports written before it was recorded have none)
         libs = ", ".join(f"{k} {v}" for k, v in env.items() if k not in ("python", "machine", "cpu"))
@@ -153,9 +155,14 @@ def markdown(report: dict, figures=()) -> str:
     user = (report.get("settings") or {}).get("user_terms") or {}
     if user:
         named = {t["name"] for t in report["selection"]["accepted"]}
+        given = {t[0] for t in (report.get("settings") or {}).get("accepted_initial") or []}  # --accepted: not tested
+
+        def said(term: str) -> str:
+            return ("in the model from the start (`--accepted`), not tested" if term in given
+                    else "**named**" if term in named else "not named")
+
         lines += ["Terms from your catalogue, tested as candidates beside the catalogue's: "
-                  + "; ".join(f"'{name}' (`{term}`): {'**named**' if term in named else 'not named'}"
-                              for term, name in user.items()) + ".", ""]
+                  + "; ".join(f"'{name}' (`{term}`): {said(term)}" for term, name in user.items()) + ".", ""]
     lines += _forms_md(report.get("forms"), report.get("test"), labels)
     test = report.get("test")
     if test:

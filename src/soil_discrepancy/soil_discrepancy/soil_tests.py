@@ -156,6 +156,14 @@ def hold_theta(frame: Frame, tests) -> Frame:
     return replace(frame, theta_boxes=boxes)
 
 
+def unmatched(frame: Frame, tests) -> list[str]:
+    """The tests no episode of ``frame`` matches by its soil label and density, as the user wrote them
+    (a mistyped soil or density holds nothing: said, not dropped in silence)."""
+    labels = set(zip(frame.soils, frame.densities))
+    return [t.soil + (f" I_d={t.relative_density_pct:g}%" if t.relative_density_pct is not None else "")
+            for t in tests if not any(t.matches(soil, i_d) for soil, i_d in labels)]
+
+
 def displayed_box(lo: np.ndarray, hi: np.ndarray) -> list:
     """A test's interval (SI) per parameter in ``DISPLAY_UNITS`` ([lo, hi]); None where it holds nothing."""
     return [[float(a) * u, float(b) * u] if math.isfinite(a) or math.isfinite(b) else None

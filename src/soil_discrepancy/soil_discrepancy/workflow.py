@@ -41,7 +41,7 @@ from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_
 from .provenance import environment
 from .regimes import (MIN_EFFECT, ONE_DEPTH_SPAN_M, bin_edges, group_misfit, holm, on_soil_test_bound, regime_analysis,
                       variable_labels)
-from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, displayed_box, hold_theta
+from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA, displayed_box, hold_theta, unmatched
 
 REPORT_VERSION = 1
 # "partly explained": terms are named and the residual keeps significant structure beside them (a
@@ -146,6 +146,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     if soil_tests:
         frame = hold_theta(frame, soil_tests)
         say(f"soil tests hold θ in {len(frame.theta_boxes)} of {len(frame.groups)} θ-groups")
+        if idle := unmatched(frame, soil_tests):
+            say(f"warning: soil test(s) {', '.join(idle)} match no episode of the bags (a soil name or density "
+                "mistyped?): they hold nothing")
     n_ep = len(frame.episodes)
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")
@@ -349,7 +352,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "workers": workers,
                      # the user's catalogue: each term tested and the name they gave it (``forms.load_catalogue``)
                      "user_terms": dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}},
-        "data": {**_data_summary(frame, sel_groups, test_groups),
+        "data": {**_data_summary(frame, sel_groups, test_groups, soil_tests),
                  # the bags' world (metadata world_mode; "" for a machine's): the check against a hidden effect reads it
                  "world": next(iter(world_modes(getattr(dataset, "metas", ()))), ""),
                  "skipped_bags": [b["bag"] for b in getattr(dataset, "skipped", None) or []],
@@ -459,7 +462,7 @@ def _grouping(frame: Frame) -> str:
     return "soil group (metadata soil + I_d)" if _shared(frame) else "episode"
 
 
-def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
+def _data_summary(frame: Frame, sel_groups, test_groups, soil_tests=()) -> dict:
     return {
         "episodes": int(len(frame.episodes)), "ticks": int(len(frame)), "theta_groups": int(len(frame.groups)),
         "theta_per": _grouping(frame),
@@ -471,6 +474,7 @@ def _data_summary(frame: Frame, sel_groups, test_groups) -> dict:
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
         # soil tests holding θ: group -> [[lo, hi] per φ [°], c [Pa], δ [°]] (None: that parameter free)
         "soil_tests": {frame.group_names[g]: displayed_box(lo, hi) for g, (lo, hi) in sorted((frame.theta_boxes or {}).items())},
+        "soil_tests_unmatched": unmatched(frame, soil_tests) if soil_tests else [],
     }
 
 
@@ -917,7 +921,8 @@ def _misfit_text(reg: dict | None, quiet: bool = False) -> str:
     if parts:
         text += ("; " if not quiet else "; but ") + "the model fits worse in " + ", ".join(parts)
         text += " (an effect that acts there, or a form θ cannot follow there)" if not quiet else ""
-        by_gamma = [n for n in mis["groups"] if str(n).startswith(GAMMA_GROUP_PREFIX)]
+        # (all bags unlabelled: "γ≈16 kN/m³"; beside labelled ones: "unknown γ≈16 kN/m³")
+        by_gamma = [n for n in mis["groups"] if GAMMA_GROUP_PREFIX in str(n)]
         if by_gamma:  # bags without soil labels: a γ group may be two soils, which one θ cannot fit
             text += (f" ({', '.join(by_gamma)} is a group by unit weight: soils of one γ share one θ there and fit "
                      "worse with no effect missing; soil labels in the bags' metadata tell them apart)")

@@ -269,8 +269,13 @@ def parse(name: str) -> tuple[float, Piece, Piece]:
     body = name[len(PREFIX):]
     sign = -1.0 if body.startswith("-") else 1.0
     a, sep, b = body.lstrip("-").partition("*")
-    if not sep or a not in SCALES or b not in FACTORS:
-        raise ValueError(f"form {name!r}: scale must be one of {sorted(SCALES)} and factor one of {sorted(FACTORS)}")
+    if not sep:
+        raise ValueError(f"form {name!r} must look like '{PREFIX}<scale>*<factor>' (no '*')")
+    if a not in SCALES:  # the part that is wrong, named first
+        raise ValueError(f"form {name!r}: scale {a!r} is not one of {sorted(SCALES)}"
+                         + ("" if b in FACTORS else f"; nor is factor {b!r} one of {sorted(FACTORS)}"))
+    if b not in FACTORS:
+        raise ValueError(f"form {name!r}: factor {b!r} is not one of {sorted(FACTORS)} (scale {a!r} is known)")
     return sign, SCALES[a], FACTORS[b]
 
 
