@@ -75,7 +75,8 @@ def test_the_force_lift_joins_the_force_by_stamp_and_lifts_like_the_core(tmp_pat
             client = AsyncParameterClient(probe.node, "anti_stall_controller")
             assert client.wait_for_services(timeout_sec=20)
             for name, value, says in (("force_lift_share", 0.0, "force_lift_share"),
-                                      ("force_lift_m_s", 0.0, "would switch the force lift off")):
+                                      ("force_lift_m_s", 0.0, "would switch the force lift off"),
+                                      ("inputs_wait_s", -1.0, "['inputs_wait_s'] can only be set at start-up")):
                 bad = call_service(lambda: client.set_parameters([Parameter(name, value=value)]))
                 assert not bad.results[0].successful and says in bad.results[0].reason, bad.results[0].reason
             ok = call_service(lambda: client.set_parameters([Parameter("force_lift_m_s", value=3.0)]))

@@ -219,6 +219,8 @@ def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):
             refused = set_param("checkpoint", str(short))  # loads, but cannot run on 60-sample windows
             assert not refused.successful and "window=30" in refused.reason
             assert not set_param("stride", 0).successful
+            refused = set_param("inputs_wait_s", -1.0)  # read once, at start: it was taken unchecked
+            assert not refused.successful and "['inputs_wait_s'] can only be set at start-up" in refused.reason
             fee_model = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
             assert set_param("checkpoint", str(fee_model)).successful
             wait_until(lambda: f"model now {fee_model}" in node.output, 60, "model swap logged")

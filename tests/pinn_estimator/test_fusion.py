@@ -997,6 +997,8 @@ def test_a_config_records_its_world_and_is_not_recalibrated_for_another(tmp_path
     del data["world"]
     old.write_text(json.dumps(data))
     assert FusionConfig.load(old).world == ""  # made before the field: not recorded
+    with pytest.raises(ValueError, match="is a directory, not a config file"):
+        FusionConfig.load(tmp_path)
     assert estimator_fusion(str(old), None)[1] is None and estimator_fusion(str(config_path("fee")), None)[1] == "fee"
     copy = tmp_path / "default_copy.json"
     copy.write_text(config_path("default").read_text())

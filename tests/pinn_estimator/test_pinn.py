@@ -557,6 +557,13 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
         with pytest.raises(ValueError, match="not a readable torch checkpoint") as err:
             ck.load_model(tmp_path / "text.pt")
         assert "weights_only" not in str(err.value) and "\n" not in str(err.value), err.value
+    damaged = bytearray(path.read_bytes())  # bytes of the pickle overwritten: torch's text was its weights_only advice
+    at = damaged.index(b"data.pkl") + 200  # (into the pickle, past its zip entry's header)
+    damaged[at:at + 100] = b"x" * 100
+    (tmp_path / "damaged.pt").write_bytes(bytes(damaged))
+    with pytest.raises(ValueError, match="not a readable torch checkpoint") as err:
+        ck.load_model(tmp_path / "damaged.pt")
+    assert "weights_only" not in str(err.value) and "PyTorch 2.6" not in str(err.value), err.value
     raw = torch.load(path, weights_only=True)
     del raw["split"]
     torch.save(raw, tmp_path / "no_split.pt")

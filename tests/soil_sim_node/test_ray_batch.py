@@ -216,3 +216,31 @@ def test_a_give_up_time_ray_cannot_honour_is_refused(main, bad, tmp_path, capsys
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "argument --ray-give-up-after:" in err and bad in err, err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.timeout(300)
+def test_a_ray_session_leaves_sigterm_to_the_tool_and_a_sigterm_is_said_as_one():
+    """ray.init takes SIGTERM over (a handler that exits at once): soil_sim_batch --ray on SIGTERM
+    exited 15 with unfinished bags left, and its workers finished them after it died (an outside
+    tester found). The tool's handler is put back; and a SIGTERM whose exception a library's C code
+    turned into a plain KeyboardInterrupt (Ray's wait does) is still said as a SIGTERM, 143."""
+    from soil_msgs_py import interrupts
+    from soil_sim_node.ray_cluster import LOCAL, ray_session
+
+    before = ray_processes()
+    with interrupts.terminate_as_interrupt():
+        mine = signal.getsignal(signal.SIGTERM)
+        with ray_session(LOCAL, num_cpus=1):
+            assert signal.getsignal(signal.SIGTERM) is mine
+            assert not interrupts.was_terminated(KeyboardInterrupt())
+            with pytest.raises(interrupts.Terminated):  # (it was the process's death, exit 15)
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)  # (the handler raises at the next bytecode)
+        with pytest.raises(interrupts.Terminated):  # after the session too
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        plain = KeyboardInterrupt()  # as it comes out of ray.wait
+        assert interrupts.was_terminated(plain) and interrupts.interrupt_exit_code(plain) == 143
+    with interrupts.terminate_as_interrupt():  # a new run starts clean
+        assert not interrupts.was_terminated(KeyboardInterrupt())
+    assert not wait_gone(ray_processes() - before)

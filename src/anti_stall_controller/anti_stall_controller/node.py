@@ -188,6 +188,8 @@ class ControllerNode(Node):
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply atomically (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
+        if "inputs_wait_s" in changes:  # read once, at start (it was taken unchecked and changed nothing)
+            return SetParametersResult(successful=False, reason="['inputs_wait_s'] can only be set at start-up")
         try:
             source, timeout_ns = self._check_planner(
                 changes.get("depth_source", self.depth_source),

@@ -75,7 +75,11 @@ def read_checkpoint(path) -> dict:
                              "never unpickled here (unpickling runs code from the file): not a file pinn_train "
                              "writes") from None
         # torch's own words, without its advice to load the file with weights_only=False (that runs its code)
-        said = str(err).split("Re-running")[0].strip().splitlines()[0] if str(err).strip() else ""
+        text = str(err)
+        if "WeightsUnpickler error:" in text:  # (a damaged file: torch's lines before it are about the weights_only default)
+            text = text.split("WeightsUnpickler error:", 1)[1]
+            text = " ".join(line.strip() for line in text.split("Check the documentation")[0].splitlines() if line.strip())
+        said = text.split("Re-running")[0].strip().splitlines()[0] if text.strip() else ""
         raise ValueError(f"checkpoint {path} is not a readable torch checkpoint (a file pinn_train writes; damaged or "
                          f"another format?): {type(err).__name__}: {said[:200]}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:

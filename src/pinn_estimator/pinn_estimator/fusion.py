@@ -310,6 +310,8 @@ class FusionConfig:
 
     @classmethod
     def load(cls, path) -> "FusionConfig":
+        if Path(path).is_dir():  # (it was "[Errno 21] Is a directory")
+            raise ValueError(f"fusion config {path} is a directory, not a config file (a .json pinn_fusion_calibrate writes)")
         try:
             data = json.loads(Path(path).read_text())
         except json.JSONDecodeError as err:

@@ -79,6 +79,7 @@ class EstimatorNode(Node):
         self.fusion_path = get("fusion_config")
         fusion, self.fusion_world = estimator_fusion(self.fusion_path, ckpt)
         self._worlds_warned: set[str] = set()
+        self.episode = None  # the last episode started (``G.EpisodeEvent``)
         self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
                                     warn=self._warn, fusion=fusion, publish_map=self._publish_map)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -116,8 +117,8 @@ class EstimatorNode(Node):
             model = load_estimator_model(changes["checkpoint"]) if "checkpoint" in changes else None
             if "stride" in changes:
                 OnlineEstimator._check_stride(changes["stride"])
-            if {"reorder_ticks", "threads", "fusion_config"} & set(changes):
-                raise ValueError("reorder_ticks, threads and fusion_config are fixed at start; restart the node to change them")
+            if fixed := sorted({"reorder_ticks", "threads", "fusion_config", "inputs_wait_s"} & set(changes)):
+                raise ValueError(f"{fixed} can only be set at start-up; restart the node to change them")
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         if model is not None:
@@ -125,6 +126,8 @@ class EstimatorNode(Node):
             if not self.fusion_path and checkpoint_world(model[1]) != self.fusion_world:  # (a config given stays)
                 fusion, self.fusion_world = estimator_fusion("", model[1])
                 self._worlds_warned.clear()
+                if self.episode is not None:  # the episode under way may be of another world than the new model's
+                    self._say_if_other_world(self.episode)
             self.core.set_model(model[0], fusion)
             self.checkpoint_path = model[2]
             self.get_logger().info(f"model now {self.checkpoint_path}"
@@ -142,6 +145,7 @@ class EstimatorNode(Node):
             self.silence.start(event.name)
             self.core.start_episode(event.first_stamp_ns)
             self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
+            self.episode = event
             self._say_if_other_world(event)
         else:
             self.silence.end()

@@ -18,8 +18,10 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 from contextlib import contextmanager
 
@@ -108,17 +110,28 @@ def ray_session(address: str, num_cpus: int | None = None):
         # the driver is this process alone: the one place Ray reads the flag after import (the
         # node's own address) is told what the cluster was started with
         ray_constants.ENABLE_RAY_CLUSTER = False
+    # ray.init takes SIGTERM over (a handler that exits at once, and its core worker's crash
+    # reporter): a SIGTERM then left unfinished bags and workers finishing them after the driver
+    # died. The caller's handler (``interrupts.terminate_as_interrupt``: a clean stop) is put back.
+    main_thread = threading.current_thread() is threading.main_thread()
+    sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
     try:
         if local:
             ray.init(address=LOCAL, num_cpus=num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1",
                      logging_level="warning")
         else:
             ray.init(address=address, logging_level="warning")
+        if sigterm is not None:
+            signal.signal(signal.SIGTERM, sigterm)
     except ray.exceptions.AuthenticationError as err:
         raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err} (a cluster started with "
                          "token authentication needs RAY_AUTH_MODE=token here, and its token)") from None
     except (ConnectionError, ValueError) as err:
-        raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err}") from None
+        # (a cluster with token authentication refuses a driver without RAY_AUTH_MODE=token this way too:
+        # only Ray's own log lines said "InvalidAuthToken")
+        hint = ("" if local or os.environ.get("RAY_AUTH_MODE") == "token" else
+                "; if the cluster was started with token authentication, set RAY_AUTH_MODE=token and its token here")
+        raise ValueError(f"cannot connect to the Ray cluster at --ray={address!r}: {err}{hint}") from None
     finally:
         if not ray.is_initialized():
             ray_constants.ENABLE_RAY_CLUSTER = clusters
@@ -127,6 +140,8 @@ def ray_session(address: str, num_cpus: int | None = None):
     finally:
         ray.shutdown()  # a local instance stops; a cluster only loses this driver
         ray_constants.ENABLE_RAY_CLUSTER = clusters
+        if sigterm is not None:  # (the shutdown resets the process's SIGTERM action beneath Python's record)
+            signal.signal(signal.SIGTERM, sigterm)
 
 
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
