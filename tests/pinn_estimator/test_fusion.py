@@ -412,7 +412,8 @@ def test_each_component_is_weighted_by_the_stretchs_evidence_under_it():
 def test_a_sinking_stretch_the_soil_cannot_explain_is_left_out_not_taken_for_a_new_soil():
     """The default world's penetration reaction while the edge sinks is a transient the FEE
     lacks: a sinking stretch no component explains must neither restart the posterior nor
-    move it; the same stretch with the edge holding its depth is a new soil."""
+    move it; a rising one (the controller's lift) is no equilibrium and is left out whatever its
+    force; the same stretch with the edge holding its depth is a new soil."""
     (sand,) = episodes("fee", [("Sand", 20.0, 0.15)])
     post = fuse(SoilPosterior(CFG), sand)
     before = post.summary()
@@ -424,6 +425,10 @@ def test_a_sinking_stretch_the_soil_cannot_explain_is_left_out_not_taken_for_a_n
     assert not post.update(reaction, sinking)
     assert post.changes == 0 and post.rejected == 1
     assert post.summary().mean == before.mean and post.updates == before.updates
+    rising = known.copy()  # the controller's lift: no equilibrium, left out whatever the force
+    rising[vz] = +0.06
+    assert not post.update(reaction, rising) and not post.update(sand.forces[-30:].mean(axis=0), rising)
+    assert post.rising == 2 and post.changes == 0 and post.summary().mean == before.mean
     steady = known.copy()
     steady[vz] = 0.0
     assert post.update(reaction, steady) and post.changes == 1

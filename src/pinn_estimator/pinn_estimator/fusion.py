@@ -519,6 +519,7 @@ class SoilPosterior:
         self.updates = 0
         self.changes = 0
         self.rejected = 0  # sinking stretches no component could explain (left out, see update)
+        self.rising = 0  # stretches whose edge rose (left out, see update)
         self.last_known: np.ndarray | None = None
         self.log_no_jump = 0.0  # log of the probability that the soil is the same since the last stretch weighed it (``forget``)
 
@@ -598,15 +599,23 @@ class SoilPosterior:
         ``change_nis``) means a new soil: the posterior restarts from the prior for it, unless
         the edge was sinking (mean v_z below −``params.STEADY_CUT_MAX_ABS_V_Z_M_S``): then it is
         a transient the quasi-static model lacks (the penetration reaction while the edge
-        sinks), not a new soil, and the stretch is left out. False (nothing learnt) for such a
-        stretch, when the blade was not in the soil, a value is not finite or no component's
-        model has a failure wedge here."""
+        sinks), not a new soil, and the stretch is left out. A stretch whose edge rises (mean v_z
+        above ``params.STEADY_CUT_MAX_ABS_V_Z_M_S``) is left out too: no equilibrium. False
+        (nothing learnt) for such a stretch, when the blade was not in the soil, a value is not
+        finite or no component's model has a failure wedge here."""
         force_n, known, spread_n = np.asarray(force_n, float), np.asarray(known, float), np.asarray(spread_n, float)
         finite = np.isfinite(force_n).all() and np.isfinite(known).all() and np.isfinite(spread_n).all()
         if not finite or np.atleast_2d(known)[:, _D].mean() < MIN_STRETCH_DEPTH_M:
             return False
         evidence = _Evidence(self, force_n, known, spread_n, point_force_n, point_noise_n, point_unsteady, point_rate_n)
         if not len(evidence.y):
+            return False
+        if np.atleast_2d(known)[:, _VZ].mean() > STEADY_CUT_MAX_ABS_V_Z_M_S:
+            # the blade rising (the controller's anti-stall lift): no equilibrium of the FEE (the
+            # lift joint's motion reverses part of the Eq. 9-10 friction and the floor lets go of
+            # the held edge, F_z -13 -> -5 kN in one stretch), and taken as evidence it moved a
+            # loam's posterior by 8° or widened it as a new soil, the planner retreating to 0 m
+            self.rising += 1
             return False
         sinking = np.atleast_2d(known)[:, _VZ].mean() < -STEADY_CUT_MAX_ABS_V_Z_M_S
         # a new soil (restart or change point) is never weighed before the first stretch nor on a
