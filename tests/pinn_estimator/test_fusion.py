@@ -1033,3 +1033,10 @@ def test_a_config_records_its_world_and_is_not_recalibrated_for_another(tmp_path
     err = capsys.readouterr().err
     assert "does not record the world it was calibrated in; taking it for the fee world's" in err
     assert "it sets none of the laws pinn_fusion_calibrate chooses" in err
+    FusionConfig().save(empty)  # as saved: every field listed at its default, still no law chosen
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(empty)])
+    assert "it sets none of the laws pinn_fusion_calibrate chooses" in capsys.readouterr().err
+    with pytest.raises(Started):  # stage 2 alone on a config that records no world: said
+        calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(old)])
+    assert f"{old} does not record the world it was calibrated in" in capsys.readouterr().err

@@ -253,7 +253,7 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     with open(mcap_of(cut), "r+b") as f:
         f.truncate(2000)
     out = run("soil_bag_repair", cut, timeout=60)  # its channels whole, no message yet
-    assert out.returncode == 1 and "no message survives" in out.stderr and "CRC" not in out.stderr, out.stderr
+    assert out.returncode == 1 and "holds no complete chunk" in out.stderr and "CRC" not in out.stderr, out.stderr
     with open(mcap_of(cut), "r+b") as f:  # cut before the first chunk's header is whole
         f.truncate(40)
     out = run("soil_bag_repair", cut, timeout=60)

@@ -168,6 +168,19 @@ def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_val
     assert any(a.startswith("wait_for:=") for a in sim)
     ctl = argv("controller", "--controller-param", "depth_source:=parameter")
     assert [a for a in ctl if a.startswith("depth_source:=")] == ["depth_source:=parameter"]
+    # the shipped params files list every parameter at its default (bound_law: [], wait_for: [],
+    # depth_source: parameter): given as they are, the launcher's physics and wiring stay
+    config = Path(L.__file__).parents[2]
+    shipped = {flag: config / pkg / "config" / f"{pkg}.yaml" for flag, pkg in (
+        ("--sim-params-file", "soil_sim_node"), ("--controller-params-file", "anti_stall_controller"),
+        ("--planner-params-file", "soil_planner"))}
+    assert all(f.is_file() for f in shipped.values())
+    files = [a for flag, f in shipped.items() for a in (flag, str(f))]
+    nodes = {n.name: n.argv for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"), *files]))}
+    for node, names in (("planner", ("terms", "bound_law")), ("controller", ("depth_source",)),
+                        ("sim", ("wait_for", "exit_when_done"))):
+        for name in names:
+            assert any(a.startswith(f"{name}:=") for a in nodes[node]), (node, name, nodes[node])
 
 
 def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path):

@@ -122,6 +122,10 @@ def test_a_test_of_one_density_wins_and_tests_that_match_nothing_are_refused(adh
         {"soil": "Sand", "relative_density_pct": 55, "phi_deg": 33.0, "phi_std_deg": 1.0}]})
     assert len(hold_theta(frame, some).theta_boxes) == 1
     assert unmatched(frame, some) == ["Peat", "Sand I_d=55%"]
+    # a test of every density that one of each density beats wherever it matches holds nothing either
+    beaten = parse_soil_tests({"soil_tests": [{"soil": "Clay", "phi_deg": 20.0, "phi_std_deg": 1.0}] + [
+        {"soil": "Clay", "relative_density_pct": i_d, "phi_deg": 22.0, "phi_std_deg": 1.0} for i_d in DENSITIES]})
+    assert unmatched(frame, beaten) == ["Clay"]
     with pytest.raises(ValueError, match="no soil test matches"):  # grouped by γ: no label is read
         hold_theta(build_frame(adhesion, stride=8, group_by="gamma"), tests)
 

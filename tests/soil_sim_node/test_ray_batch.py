@@ -232,15 +232,21 @@ def test_a_ray_session_leaves_sigterm_to_the_tool_and_a_sigterm_is_said_as_one()
         mine = signal.getsignal(signal.SIGTERM)
         with ray_session(LOCAL, num_cpus=1):
             assert signal.getsignal(signal.SIGTERM) is mine
-            assert not interrupts.was_terminated(KeyboardInterrupt())
             with pytest.raises(interrupts.Terminated):  # (it was the process's death, exit 15)
                 os.kill(os.getpid(), signal.SIGTERM)
                 time.sleep(5)  # (the handler raises at the next bytecode)
         with pytest.raises(interrupts.Terminated):  # after the session too
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(5)
-        plain = KeyboardInterrupt()  # as it comes out of ray.wait
-        assert interrupts.was_terminated(plain) and interrupts.interrupt_exit_code(plain) == 143
-    with interrupts.terminate_as_interrupt():  # a new run starts clean
-        assert not interrupts.was_terminated(KeyboardInterrupt())
+    with pytest.raises(interrupts.Terminated) as got:  # a SIGTERM's interrupt that came out as a plain one
+        with interrupts.terminate_as_interrupt():
+            with contextlib.suppress(interrupts.Terminated):
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)
+            raise KeyboardInterrupt  # as it comes out of ray.wait
+    assert interrupts.interrupt_exit_code(got.value) == 143
+    with pytest.raises(KeyboardInterrupt) as got:  # the next run starts clean: a Ctrl-C is a Ctrl-C
+        with interrupts.terminate_as_interrupt():
+            raise KeyboardInterrupt
+    assert interrupts.interrupt_exit_code(got.value) == 130
     assert not wait_gone(ray_processes() - before)

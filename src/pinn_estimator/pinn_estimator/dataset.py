@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, scan_bags
-from soil_msgs_py.episode import EpisodeMeta, stamp_gaps, world_modes
+from soil_msgs_py.episode import EpisodeMeta, first_non_finite, stamp_gaps, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
@@ -172,13 +172,10 @@ def _read(bag: Path):
 
 
 def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        raise BagReadError(
-            bag, f"{name} field {fields[col]!r} is {arr[row, col]} at tick {int(row)}; "
-            f"a window with NaN/inf can be neither trained on nor scored (re-record or drop the bag)"
-        )
+    if (first := first_non_finite(arr, fields)) is not None:
+        field, value, row, _ = first
+        raise BagReadError(bag, f"{name} field {field!r} is {value} at tick {row}; a window with NaN/inf can be "
+                                "neither trained on nor scored (re-record or drop the bag)")
 
 
 def _warn(message: str) -> None:

@@ -605,6 +605,9 @@ def main(argv=None) -> int:
         if base.world and base.world != args.world:
             p.error(f"--forecast-law-only: {kept} was calibrated in the {base.world} world, not the {args.world} "
                     "world: its evidence law is that world's (run the whole calibration)")
+        if not base.world:  # (it is written with the world it is recalibrated in)
+            print(f"--forecast-law-only: {kept} does not record the world it was calibrated in; its evidence law "
+                  f"is taken for the {args.world} world's", file=sys.stderr, flush=True)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,

@@ -149,6 +149,7 @@ class EstimatorNode(Node):
             self._say_if_other_world(event)
         else:
             self.silence.end()
+            self.episode = None  # (a model swap between episodes has no episode under way to warn of)
             if event.last_stamp_ns >= 0:
                 self.core.end_episode(event.last_stamp_ns)
 
@@ -158,8 +159,9 @@ class EstimatorNode(Node):
         return self.fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
 
     def _say_if_other_world(self, event) -> None:
-        """Once per world: an episode of a world other than the one whose shipped calibration the
-        soil posterior took (its error laws are that world's; pinn_eval warns alike)."""
+        """Once per world: an episode of a world other than the one whose calibration the soil
+        posterior took (the checkpoint world's shipped one, or a given config's recorded world;
+        its error laws are that world's; pinn_eval warns alike)."""
         world = getattr(event.meta, "world_mode", "") if event.meta is not None else ""
         if (self.fusion_world is None or not world or world not in WORLD_MODES  # a machine's: no simulator world's
                 or world == self.fusion_world or world in self._worlds_warned):
@@ -169,9 +171,10 @@ class EstimatorNode(Node):
             f"episode {event.name} is the {world} world's; the soil posterior uses the {self.fusion_world} world's "
             f"calibration ({self.fusion_source}): its intervals are not calibrated here. Give fusion_config:="
             f"{config_path(world)}" + (" (it exists)" if config_path(world).exists() else "")
-            + " or a checkpoint trained in that world"
-            + (f", e.g. its shipped checkpoint:={shipped} (soil_launch gives it when no checkpoint is given)"
-               if (shipped := shipped_checkpoint(world)).is_file() else ""))
+            + ("" if self.fusion_path else  # (a given config stays whatever the checkpoint)
+               " or a checkpoint trained in that world"
+               + (f", e.g. its shipped checkpoint:={shipped} (soil_launch gives it when no checkpoint is given)"
+                  if (shipped := shipped_checkpoint(world)).is_file() else "")))
 
     def _on_input(self, topic: str, msg) -> None:
         self.silence.heard()

@@ -29,7 +29,7 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
-from soil_msgs_py.episode import Episode, EpisodeMeta
+from soil_msgs_py.episode import Episode, EpisodeMeta, first_non_finite
 from soil_msgs_py.topics import EPISODE_TOPICS, GROUND_TRUTH
 from .bag_writer import BagWriter, offered_qos
 from .integrity import scan_file
@@ -82,14 +82,10 @@ def _check_arrays(ep: Episode, skip: tuple[str, ...] = ()) -> None:
     for name, fields in M.ARRAY_FIELDS.items():
         if name in skip:
             continue
-        arr = getattr(ep, name)
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            row, col = (int(i) for i in np.argwhere(bad)[0])
-            raise ValueError(
-                f"Episode.{name} column {fields[col]!r} is {arr[row, col]} at row {row} "
-                f"(first non-finite value); bags must be finite"
-            )
+        if (first := first_non_finite(getattr(ep, name), fields)) is not None:
+            field, value, row, _ = first
+            raise ValueError(f"Episode.{name} column {field!r} is {value} at row {row} (first non-finite value); "
+                             "bags must be finite")
     s = ep.stamps_ns
     if len(s) == 0:
         raise ValueError("episode has no ticks")

@@ -120,7 +120,9 @@ def _check_chunk(chunk: Chunk, info: ChunkInfo, open_chunk: bool) -> list[McapRe
 
 def _torn_chunk(path: Path, offset: int, index: int) -> tuple[ChunkInfo, list[McapRecord]] | None:
     """The complete records of the chunk that starts at ``offset`` and that the file ends inside,
-    if it is uncompressed (a compressed stream cut short is not read), else None."""
+    if it is uncompressed (a compressed stream cut short is not read) and holds a whole message,
+    else None."""
+    left = Path(path).stat().st_size - offset
     with open(path, "rb") as f:
         f.seek(offset)
         head = f.read(_CHUNK_HEAD_BYTES)
@@ -133,7 +135,9 @@ def _torn_chunk(path: Path, offset: int, index: int) -> tuple[ChunkInfo, list[Mc
         if len(length) < 8:
             return None
         (records_len,) = struct.unpack("<Q", length)
-        data = f.read(records_len)
+        if records_len != size:  # an uncompressed chunk's two lengths agree: else a damaged header, not a cut
+            return None
+        data = f.read(min(records_len, max(left, 0)))  # (never more than the file holds)
     info = ChunkInfo(index, offset, start_ns, end_ns, crc)
     if len(data) >= records_len:  # whole, yet unread: not a cut this can read past
         return None
@@ -145,6 +149,8 @@ def _torn_chunk(path: Path, offset: int, index: int) -> tuple[ChunkInfo, list[Mc
     except Exception:  # noqa: BLE001 - the record the cut went through, whatever the parser says
         pass
     used = sum(1 for r in records if isinstance(r, Message))
+    if not used:  # (schemas and channels alone: no message to keep)
+        return None
     for r in records:
         if isinstance(r, Message):
             info.messages[r.channel_id] = info.messages.get(r.channel_id, 0) + 1
@@ -160,6 +166,7 @@ def read_records(path: Path, scan: McapScan, *, open_chunks: bool = True, torn_t
     file ends inside an uncompressed chunk, that chunk's complete records end it (``scan.torn``)."""
     path = Path(path)
     last_end = 0  # where the last whole top-level record ended
+    at_end = False  # reading stopped because the file ended
     with open(path, "rb") as f:
         reader = _CountingReader(f, emit_chunks=True)
         try:
@@ -195,10 +202,12 @@ def read_records(path: Path, scan: McapScan, *, open_chunks: bool = True, torn_t
                 yield record
         except Exception as err:  # noqa: BLE001 - a torn tail is expected, whatever the parser says
             size = path.stat().st_size
-            what = (f"the file ends inside the record that starts there, {size - last_end} bytes of it written"
-                    if f.tell() >= size else f"the record there does not parse ({type(err).__name__} {err})".strip())
+            at_end = f.tell() >= size
+            what = ("the file ends there, where a record should follow" if at_end and last_end >= size else
+                    f"the file ends inside the record that starts there, {size - last_end} bytes of it written"
+                    if at_end else f"the record there does not parse ({type(err).__name__}{f': {err}' if str(err) else ''})")
             scan.stop = f"its whole records end at byte {last_end} of {size}: {what}"
-    if scan.stop and torn_tail and (torn := _torn_chunk(path, last_end, len(scan.chunks))):
+    if scan.stop and torn_tail and at_end and (torn := _torn_chunk(path, last_end, len(scan.chunks))):
         scan.torn, records = torn
         for inner in records:
             if isinstance(inner, Channel):

@@ -21,7 +21,7 @@ from soil_msgs_py import messages as M
 from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
-from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS
+from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
 
 CLOCK_TOPIC = CLOCK.name
 # Replay speed factors a player accepts: a 10 s episode takes between 10 ms and ~3 h. Beyond them a
@@ -115,7 +115,8 @@ def load_bag(
         messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
     if include is not None and (missing := sorted(include - held)):  # absent from the bag (not merely excluded)
         log(f"{bag}: no topic(s) {missing}")
-    elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held]):
+    elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held
+                                           and t.name != GROUND_TRUTH.name]):  # (a machine's bag has no truth)
         # played all the same (a player sends what a bag holds), but every bag reader refuses it
         log(f"{bag}: an episode bag without topic(s) {missing}: its ticks are incomplete (the bag readers "
             "refuse it; what a replay feeds lacks them too)")

@@ -325,15 +325,21 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
     return argv + _params(params)
 
 
-def unless_given(node: str, params_file, params: list[str], defaults: list[str]) -> list[str]:
+def unless_given(node: str, params_file, params: list[str], defaults: list[str], *, from_file: bool = True) -> list[str]:
     """The launcher's own ``name:=value`` ``defaults`` for ``node`` less those whose name the user
-    gives (``params`` or the params file). Why not rcl's "the last -p wins": a later -p of
-    another type than an earlier one is dropped without a word (``bound_law:=['a']`` after the
-    launcher's law, ``exit_when_done:=maybe``: the node ran with the launcher's values), and a
-    -p beats the user's params file, whose ``bound_law`` was then never used."""
+    gives: by ``-p`` (``params``), and with ``from_file`` by a value in the params file that is not
+    empty (the shipped params files list every parameter at its default, ``bound_law: []``, which
+    is no choice). Why not rcl's "the last -p wins": a later -p of another type than an earlier
+    one is dropped without a word (``bound_law:=['a']`` after the launcher's law,
+    ``exit_when_done:=maybe``: the node ran with the launcher's values), and a -p beats a params
+    file, whose ``bound_law`` was then never used. The launch's wiring (``wait_for``,
+    ``exit_when_done``, ``depth_source``) is given ``from_file=False``: a params file copied with
+    its defaults must not open the loop or start the simulator before its readers."""
     names = [d.partition(":=")[0] for d in defaults]
-    given = given_params(node, params_file, params, names)
-    return [d for d, name in zip(defaults, names) if given[name] is None]
+    on_line = given_params(node, None, params, names)
+    in_file = given_params(node, params_file, [], names) if from_file and params_file else {}
+    return [d for d, name in zip(defaults, names)
+            if on_line[name] is None and in_file.get(name) in (None, "", "[]")]
 
 
 def posterior_planner_params(estimator_params_file, estimator_params: list[str]) -> list[str]:
@@ -473,7 +479,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
         closed = unless_given("anti_stall_controller", args.controller_params_file, args.controller_param,
-                              ["depth_source:=planner"] if args.planner else [])
+                              ["depth_source:=planner"] if args.planner else [], from_file=False)
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param), stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
@@ -491,7 +497,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     own = [f"exit_when_done:={'false' if args.keep_running else 'true'}"]
     if wait:
         own.append("wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]")
-    sim += _params(unless_given("soil_sim_node", args.sim_params_file, args.sim_param, own) + args.sim_param)
+    sim += _params(unless_given("soil_sim_node", args.sim_params_file, args.sim_param, own, from_file=False)
+                   + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))
     return nodes
 

@@ -102,7 +102,7 @@ def markdown(report: dict, figures=()) -> str:
                   f"each test's interval (± {WIDTH_SIGMA:g} standard deviations; the table \"Baseline θ per group\"), so an effect θ "
                   "would take in without them is left in the residual, and the form search keeps the held "
                   "parameters' directions."
-                  + (f" **Tests that match no episode, holding nothing: {', '.join(d['soil_tests_unmatched'])}.**"
+                  + (f" **Tests that hold no group: {', '.join(d['soil_tests_unmatched'])}.**"
                      if d.get("soil_tests_unmatched") else ""), ""]
     env = report.get("environment")
     if env:  # (reports written before it was recorded have none)

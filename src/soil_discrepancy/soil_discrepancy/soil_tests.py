@@ -138,7 +138,18 @@ def hold_theta(frame: Frame, tests) -> Frame:
     """The frame with ``theta_boxes`` set for every θ-group whose episodes' soil label (and relative
     density) a test matches: {group: (lo, hi)} SI. A test of one density wins over one of every density.
     ValueError if no group matches (the labels are named): tests that hold nothing are a mistake."""
-    boxes = {}
+    boxes = {g: t.box() for g, t in _chosen(frame, tests).items()}
+    if not boxes:
+        seen = sorted({f"{s} I_d={d:g}%" for s, d in zip(frame.soils, frame.densities)})
+        raise ValueError(f"no soil test matches a soil of the bags (their labels: {', '.join(seen[:12])}); "
+                         "soil tests need bags with a soil label in their metadata (not --group-by gamma or episode)")
+    return replace(frame, theta_boxes=boxes)
+
+
+def _chosen(frame: Frame, tests) -> dict[int, SoilTest]:
+    """{θ-group: the test that holds it}: a group of one soil label (and density) a test matches; a
+    test of one density wins over one of every density."""
+    out = {}
     for g in np.unique(frame.group_of):
         eps = np.flatnonzero(frame.group_of == g)
         labels = {(frame.soils[e], frame.densities[e]) for e in eps}
@@ -147,21 +158,17 @@ def hold_theta(frame: Frame, tests) -> Frame:
         soil, i_d = labels.pop()
         found = [t for t in tests if t.matches(soil, i_d)]
         if found:
-            best = min(found, key=lambda t: t.relative_density_pct is None)
-            boxes[int(g)] = best.box()
-    if not boxes:
-        seen = sorted({f"{s} I_d={d:g}%" for s, d in zip(frame.soils, frame.densities)})
-        raise ValueError(f"no soil test matches a soil of the bags (their labels: {', '.join(seen[:12])}); "
-                         "soil tests need bags with a soil label in their metadata (not --group-by gamma or episode)")
-    return replace(frame, theta_boxes=boxes)
+            out[int(g)] = min(found, key=lambda t: t.relative_density_pct is None)
+    return out
 
 
 def unmatched(frame: Frame, tests) -> list[str]:
-    """The tests no episode of ``frame`` matches by its soil label and density, as the user wrote them
-    (a mistyped soil or density holds nothing: said, not dropped in silence)."""
-    labels = set(zip(frame.soils, frame.densities))
+    """The tests that hold no θ-group of ``frame``, as the user wrote them: a mistyped soil or
+    density, a soil only in groups of several soils, a test of every density that one of a
+    density beats wherever it matches (said, not dropped in silence)."""
+    used = {id(t) for t in _chosen(frame, tests).values()}
     return [t.soil + (f" I_d={t.relative_density_pct:g}%" if t.relative_density_pct is not None else "")
-            for t in tests if not any(t.matches(soil, i_d) for soil, i_d in labels)]
+            for t in tests if id(t) not in used]
 
 
 def displayed_box(lo: np.ndarray, hi: np.ndarray) -> list:

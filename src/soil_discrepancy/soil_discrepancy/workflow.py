@@ -147,8 +147,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         frame = hold_theta(frame, soil_tests)
         say(f"soil tests hold θ in {len(frame.theta_boxes)} of {len(frame.groups)} θ-groups")
         if idle := unmatched(frame, soil_tests):
-            say(f"warning: soil test(s) {', '.join(idle)} match no episode of the bags (a soil name or density "
-                "mistyped?): they hold nothing")
+            say(f"warning: soil test(s) {', '.join(idle)} hold no θ-group: no episode of one soil label matches "
+                "them (a soil name or density mistyped?), or a test of its density wins there")
     n_ep = len(frame.episodes)
     say(f"{n_ep} episodes, {len(frame.groups)} θ-groups ({_grouping(frame)}), "
         f"{len(frame)} ticks (stride {frame.stride})")

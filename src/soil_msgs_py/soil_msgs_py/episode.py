@@ -184,11 +184,20 @@ class Episode:
             out.append(f"{len(gaps)} gap(s) in its ticks ({spans})")
         for fields, arr in ((OBSERVATION_FIELDS, self.observations), (FORCE_FIELDS, self.forces),
                             (KNOWN_PARAMS, self.known)):
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                row, col = np.argwhere(bad)[0]
-                out.append(f"{fields[col]!r} is {arr[row, col]} at tick {int(row)} ({int(bad.sum())} non-finite values)")
+            if (first := first_non_finite(arr, fields)) is not None:
+                field, value, row, count = first
+                out.append(f"{field!r} is {value} at tick {row} ({count} non-finite values)")
         return out
+
+
+def first_non_finite(arr: np.ndarray, fields) -> tuple[str, float, int, int] | None:
+    """(field, value, row, how many non-finite values in all) of the first non-finite value of a
+    (rows, fields) array in row order, or None if all are finite."""
+    bad = ~np.isfinite(arr)
+    if not bad.any():
+        return None
+    row, col = (int(i) for i in np.argwhere(bad)[0])
+    return fields[col], float(arr[row, col]), row, int(bad.sum())
 
 
 def stamp_gaps(stamps_ns: np.ndarray) -> np.ndarray:

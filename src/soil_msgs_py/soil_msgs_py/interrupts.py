@@ -22,9 +22,11 @@ class Terminated(KeyboardInterrupt):
     """A SIGTERM, raised where a KeyboardInterrupt would be (so every Ctrl-C path handles it)."""
 
 
-# Whether a SIGTERM came within the present ``terminate_as_interrupt``. Why not the exception's type
-# alone: a handler's exception raised inside a library's C code can come out as a plain
-# KeyboardInterrupt (Ray's wait turns any signal's into one), and the run then said "Ctrl-C", 130.
+# Whether a SIGTERM came within the present ``terminate_as_interrupt``: a handler's exception raised
+# inside a library's C code can come out as a plain KeyboardInterrupt (Ray's wait turns any
+# signal's into one), and the run then said "Ctrl-C", 130. Leaving the context turns such an
+# interrupt back into ``Terminated`` and clears the note, so the exception's type stays the one
+# thing that tells (nothing leaks into a later run in the same process).
 _received = {"sigterm": False}
 
 
@@ -40,23 +42,23 @@ def terminate_as_interrupt():
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         yield
+    except KeyboardInterrupt as exc:
+        if _received["sigterm"] and not isinstance(exc, Terminated):
+            raise Terminated() from exc
+        raise
     finally:
+        _received["sigterm"] = False
         signal.signal(signal.SIGTERM, previous)
-
-
-def was_terminated(exc: BaseException) -> bool:
-    """Whether the interrupt ``exc`` is a SIGTERM's (its type, or a SIGTERM received meanwhile)."""
-    return isinstance(exc, Terminated) or _received["sigterm"]
 
 
 def interrupt_exit_code(exc: BaseException) -> int:
     """143 for a SIGTERM, 130 for a Ctrl-C."""
-    return EXIT_TERMINATED if was_terminated(exc) else EXIT_INTERRUPTED
+    return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 def interrupt_name(exc: BaseException) -> str:
     """How the run was stopped, for a stop reason: 'SIGTERM' or 'Ctrl-C'."""
-    return "SIGTERM" if was_terminated(exc) else "Ctrl-C"
+    return "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
 
 
 def default_sigterm() -> None:

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -122,10 +120,11 @@ def choose_bound_law(ds, cfg: FusionConfig, posts, forecast_grid=FORECAST_GRID, 
     return chosen, rows
 
 
-def calibrated_fields(path) -> list[str]:
-    """The fields of the config file at ``path`` that ``pinn_fusion_calibrate`` chooses."""
-    data = json.loads(Path(path).read_text())
-    return [f for f in CALIBRATED_FIELDS if f in data]
+def calibrated_fields(cfg: FusionConfig) -> list[str]:
+    """The laws ``pinn_fusion_calibrate`` chooses that ``cfg`` sets away from their defaults (a file
+    ``FusionConfig.save`` writes lists every field, its defaults too)."""
+    default = FusionConfig()
+    return [f for f in CALIBRATED_FIELDS if not f.startswith("bound_") and getattr(cfg, f) != getattr(default, f)]
 
 
 def main(argv=None) -> int:
@@ -164,8 +163,8 @@ def main(argv=None) -> int:
                 f"world's, and a bound law from the {args.world} world's episodes would not hold there")
     if not cfg.world:
         print(f"soil_planner_calibrate: {path} does not record the world it was calibrated in; taking it for the "
-              f"{args.world} world's" + ("" if calibrated_fields(path) else " (it sets none of the laws "
-              "pinn_fusion_calibrate chooses: every one is its default)"), file=sys.stderr)
+              f"{args.world} world's" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
+              "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
     try:

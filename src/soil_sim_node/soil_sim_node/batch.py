@@ -42,7 +42,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
-from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, default_sigterm, interrupt_exit_code, was_terminated,
+from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir
@@ -509,7 +509,7 @@ def main(argv=None) -> int:
         if plan is None:  # (a SIGTERM is taken as an interrupt only once the plan is made)
             print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
             return EXIT_INTERRUPTED
-        how = " (SIGTERM)" if was_terminated(exc) else ""
+        how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
         _remove_staging(plan)
         print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept (the same command with "
               "--skip-existing simulates the rest)", file=sys.stderr)
