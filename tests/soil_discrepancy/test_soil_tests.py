@@ -165,6 +165,11 @@ def test_cli_refuses_a_bad_soil_test_file_before_reading_bags(tmp_path, capsys):
     assert f"soil tests {bad}: soil_tests[0].phi_std_deg=-1 must be > 0" in err and "not a directory" not in err, err
     assert cli_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--soil-tests", str(tmp_path / "none.yaml")]) == 2
     assert "cannot read it" in capsys.readouterr().err
+    broken = tmp_path / "broken.yaml"  # the parser's own words were 8 lines; one, with the place
+    broken.write_text("soil_tests:\n  - soil: Clay\n    phi_deg: [20\n")
+    assert cli_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--soil-tests", str(broken)]) == 2
+    (line,) = [ln for ln in capsys.readouterr().err.splitlines() if str(broken) in ln]
+    assert f"soil tests {broken} is not YAML: " in line and "at line 4, column 1" in line, line
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump(lab_results()))
     assert len(load_soil_tests(good)) == 8

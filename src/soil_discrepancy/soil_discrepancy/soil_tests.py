@@ -140,9 +140,10 @@ def hold_theta(frame: Frame, tests) -> Frame:
     ValueError if no group matches (the labels are named): tests that hold nothing are a mistake."""
     boxes = {g: t.box() for g, t in _chosen(frame, tests).items()}
     if not boxes:
-        seen = sorted({f"{s} I_d={d:g}%" for s, d in zip(frame.soils, frame.densities)})
+        seen = sorted({f"{s} I_d={d:g}%" if math.isfinite(d) else s for s, d in zip(frame.soils, frame.densities)})
         raise ValueError(f"no soil test matches a soil of the bags (their labels: {', '.join(seen[:12])}); "
-                         "soil tests need bags with a soil label in their metadata (not --group-by gamma or episode)")
+                         "soil tests need bags whose metadata gives a soil label (and a density, for a test of one "
+                         "density), grouped by it (not by --group-by gamma or episode)")
     return replace(frame, theta_boxes=boxes)
 
 

@@ -14,5 +14,10 @@ def read_yaml(path, what: str):
         return yaml.safe_load(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
         raise ValueError(f"{what} {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except (OSError, yaml.YAMLError) as exc:
+    except yaml.YAMLError as exc:  # one line: the parser's problem and where (its own text is 8 lines)
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ValueError(f"{what} {p} is not YAML: {problem}{where}") from None
+    except OSError as exc:
         raise ValueError(f"{what} {p}: cannot read it: {exc}") from None
