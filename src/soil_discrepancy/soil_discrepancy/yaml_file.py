@@ -17,7 +17,7 @@ def read_yaml(path, what: str):
     except yaml.YAMLError as exc:  # one line: the parser's problem and where (its own text is 8 lines)
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        problem = getattr(exc, "problem", None) or (str(exc).splitlines() or [type(exc).__name__])[0]
         raise ValueError(f"{what} {p} is not YAML: {problem}{where}") from None
     except OSError as exc:
         raise ValueError(f"{what} {p}: cannot read it: {exc}") from None
