@@ -122,6 +122,16 @@ def load_fusion_config(path: str, world: str = DEFAULT_WORLD) -> FusionConfig:
         raise ValueError(f"parameter fusion_config={path!r} refused: {err}") from None
 
 
+def world_note(cfg: FusionConfig, path, world: str) -> str:
+    """For recalibrating the config ``cfg`` (read from ``path``) on the ``world`` world's episodes:
+    ValueError if it records another world (its posterior is that world's), else a note ("" if it
+    records this one) that it records none and is taken for this world's."""
+    if cfg.world and cfg.world != world:
+        raise ValueError(f"{path} was calibrated in the {cfg.world} world, not the {world} world (its 'world'): "
+                         "its posterior is that world's")
+    return "" if cfg.world else f"{path} does not record the world it was calibrated in; taking it for the {world} world's"
+
+
 def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
     """The estimator's soil posterior config and the world it was calibrated for: the config at
     ``path`` (the ``fusion_config`` parameter; its world as it records it, None where it does not), else the shipped
@@ -602,12 +612,12 @@ def main(argv=None) -> int:
             base = FusionConfig.load(kept)
         except (OSError, ValueError) as err:
             p.error(f"--forecast-law-only: {kept}: {err}")
-        if base.world and base.world != args.world:
-            p.error(f"--forecast-law-only: {kept} was calibrated in the {base.world} world, not the {args.world} "
-                    "world: its evidence law is that world's (run the whole calibration)")
-        if not base.world:  # (it is written with the world it is recalibrated in)
-            print(f"--forecast-law-only: {kept} does not record the world it was calibrated in; its evidence law "
-                  f"is taken for the {args.world} world's", file=sys.stderr, flush=True)
+        try:
+            note = world_note(base, kept, args.world)
+        except ValueError as err:
+            p.error(f"--forecast-law-only: {err} (run the whole calibration)")
+        if note:  # (it is written with the world it is recalibrated in)
+            print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,

@@ -24,7 +24,7 @@ import numpy as np
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import FusionConfig, fused_values
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S, CAL_SEED,
-                                               FLOOR_GRID, FORECAST_GRID, config_path)
+                                               FLOOR_GRID, FORECAST_GRID, config_path, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -158,12 +158,12 @@ def main(argv=None) -> int:
         cfg = FusionConfig.load(path)
     except (OSError, ValueError) as err:
         p.error(f"--config: {path}: {err}")
-    if cfg.world and cfg.world != args.world:
-        p.error(f"--config: {path} was calibrated in the {cfg.world} world (its 'world'): its posterior is that "
-                f"world's, and a bound law from the {args.world} world's episodes would not hold there")
-    if not cfg.world:
-        print(f"soil_planner_calibrate: {path} does not record the world it was calibrated in; taking it for the "
-              f"{args.world} world's" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
+    try:
+        note = world_note(cfg, path, args.world)
+    except ValueError as err:
+        p.error(f"--config: {err}, and a bound law from the {args.world} world's episodes would not hold there")
+    if note:
+        print(f"soil_planner_calibrate: {note}" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
     ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
                           depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
