@@ -16,7 +16,7 @@ from soil_msgs_py.topics import EPISODE_TOPICS
 from soil_sim_node import batch
 from soil_sim_node.plot import main as plot_main
 from soil_sim_node.rollout import run_episodes
-from soil_sim_node.simulator import EpisodeSpec, SimConfig
+from soil_sim_node.simulator import SimConfig
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLES = REPO / "bags" / "samples"

@@ -24,7 +24,7 @@ from pinn_estimator.fusion_calibration import DEFAULT_WORLD, load_calibrated
 from pinn_estimator.inference import episode_estimates
 from pinn_estimator.model import EstimatorNet, ModelConfig
 from pinn_estimator.node import load_estimator_model
-from pinn_estimator.online import FUSED, INPUT_TOPICS, OnlineEstimator, SampleAssembler, estimate_values
+from pinn_estimator.online import FUSED, INPUT_TOPICS, OnlineEstimator, SampleAssembler
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
 N_TICKS = 200

@@ -302,8 +302,6 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     lone = tmp_path / "lone"
     write_episode(lone / "one", next(iter(run_episodes(SimConfig(world_mode="fee"), specs[:1]))))
     with pytest.raises(ValueError, match=f"--forecast-data {lone}: no two of its 1 episodes.*0 of them hold no steady cut"):
-        from pinn_estimator.evaluate import evaluate
-
         evaluate(pinn, tiny_bags, classical=False, forecast_data=lone, log=lambda *_: None)
     # beside a path whose soil changes, still no pair: the refusal says that episode changes soil
     for ep in run_episodes(SimConfig(world_mode="fee"), specs[2:]):
@@ -652,7 +650,7 @@ def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_b
             "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1"]
     _interrupt_in_epoch(monkeypatch, 3)
     assert train_main(args) == 130  # the model kept, and the run's end told from a finished one (it exited 0)
-    assert f"pinn_train: interrupted (Ctrl-C) in epoch 3; the best model (epoch " in capsys.readouterr().err
+    assert "pinn_train: interrupted (Ctrl-C) in epoch 3; the best model (epoch " in capsys.readouterr().err
     raw = torch.load(out, weights_only=True)
     assert raw["metrics"]["stop_reason"] == "interrupted (Ctrl-C) in epoch 3"
     assert raw["metrics"]["epochs_run"] == 2 and len(raw["history"]["val_loss"]) == 2 and raw["metrics"]["best_epoch"] <= 2

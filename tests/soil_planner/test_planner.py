@@ -641,7 +641,6 @@ def test_an_edge_held_short_of_the_commanded_depth_does_not_anchor_z_with_the_li
     free_plan = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], fused["f_z_hat"]), known)).max_depth_m
     pushed_plan = max_cut_depth(fused, known, anchor=((fused["f_x_hat"], -26e3), known))
     assert pushed_plan.limited_by_z and pushed_plan.max_depth_m < free_plan - 0.02
-    runs = {}
     def run(commanded, held_ticks=ANCHOR_WINDOW_TICKS, forget=False, stronger=1.0):
         planner = StretchPlanner()
         for i in range(ANCHOR_WINDOW_TICKS // 2):  # free: the edge holds the commanded depth

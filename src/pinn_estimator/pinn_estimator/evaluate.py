@@ -472,7 +472,7 @@ def markdown(report: dict) -> str:
     for name, m in tr.items():
         lines.append(f"- {name}: {m.get('parameters')} parameters, best epoch {m.get('best_epoch')} of {m.get('epochs_run')} "
                      f"({m.get('stop_reason')}), {m.get('train_seconds', 0) / 60:.1f} min")
-    lines.append(f"- evaluation time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report["timing_s"].items()))
+    lines.append("- evaluation time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report["timing_s"].items()))
     return "\n".join(lines) + "\n"
 
 
