@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from soil_discrepancy import run_discrepancy
-from soil_discrepancy.forms import CLOSE_COS, closest_index, load_catalogue
+from soil_discrepancy.forms import CLOSE_COS, closest_index, load_catalogue, pin_kind
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.force_inputs import ForceInputs
@@ -125,6 +125,9 @@ def test_a_term_of_the_users_catalogue_is_tested_and_said_under_the_users_name(e
                      "--no-forms", "--no-plots", "--quiet", "--workers", "2"]) == 0
     rep = json.loads((out / "discrepancy.json").read_text())
     assert rep["settings"]["user_terms"] == {form: "my entry drag"} and form in rep["settings"]["candidates"]
+    # the JSON keeps the headline's hedge beside the verdict's class, for scripts
+    from soil_discrepancy.report import headline_verdict
+    assert rep["headline"] == headline_verdict(rep) and rep["headline"].startswith(rep["verdict"])
     named = form in {a["name"] for a in rep["selection"]["accepted"]}
     said = f"'my entry drag' (`{form}`): " + ("**named**" if named else "not named")
     assert said in (out / "discrepancy.md").read_text()
@@ -147,6 +150,13 @@ def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form
     assert first["winner"] == acc["name"] and gains["rate_strength"] < gains[acc["name"]]
     test = rep["test"]
     assert test["after"]["rmse"] <= 0.75 * test["before"]["rmse"], (test["before"], test["after"])
+    # two speeds pin no factor of speed (k, θ and a characteristic value match any at two levels; an
+    # outside tester's 0.3 / v_x drag was "explained" as exp(−v_x / 0.3 m/s), "its shape pinned
+    # down"): never called pinned down, and the summary says why
+    pin = next(d["pin"] for d in rep["forms"]["discovered"] if d["name"] == acc["name"])
+    assert pin["few_levels"]["variable"] == "v_x" and len(pin["few_levels"]["levels"]) == 2, pin
+    assert not pin["pinned"] and not pin["shape_pinned"] and not pin["factor_pinned"], pin
+    assert pin_kind(pin) in ("levels", "form", "beaten", "stand-in") and "v_x is held at only 2 level(s)" in rep["summary"]
 
 
 def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_reports):
@@ -407,6 +417,7 @@ def test_a_strength_lost_with_speed_is_found_with_its_decay(tmp_path):
     disc = _found_exactly(tmp_path, specs, "tests.sim_plugins:speed_weakening k=2 v0=0.3", ("gd2w_x", "fadevx0.3"),
                           2.0, pinned=False)
     assert any(r["name"].endswith("*fadevx0.3") for r in disc["pin"]["rivals"]), disc["pin"]
+    assert disc["pin"]["few_levels"] is None  # three speeds: the factor's shape is judged by its rivals
 
 
 def test_a_vertical_damping_is_found_as_one_signed_form(tmp_path):

@@ -237,6 +237,35 @@ RIVALS_SHOWN = 5  # rivals the report lists (the count is kept)
 # entry relief 18 % against 27 %; a rate law's linear drag, the right mechanism, 91.0 % against a
 # concave form's 91.2 % (significant over 75 episodes, but the same story).
 STAND_IN_SHARE_RATIO = 1.2
+# A factor of a variable each episode holds at a set level (a grid's target depth or speed): over
+# fewer than MIN_SHAPE_LEVELS levels of it no factor of it can be told from another, k, θ and a
+# characteristic value matching any of them at two levels. An outside tester's drag ∝ 0.3 / v_x on
+# two speeds was "explained" as exp(−v_x / 0.3 m/s), "its shape pinned down"; on three speeds the
+# same workflow found rivals. A level holds the episodes whose medians lie within
+# LEVEL_WIDTH_OF_SPAN of the whole span (and LEVEL_WIDTH_OF_VALUE of the value) above its lowest,
+# and counts if it holds MIN_LEVEL_SHARE of the episodes (two at least): the three of 36 episodes
+# a dense soil slowed from 1 m/s to 0.8 m/s are no level of their own (confounded with their soil's
+# θ, they cannot pin a shape), depths spread over the span (cuts held short of their targets) count.
+LEVEL_VARIABLES = ("d", "v_x")
+MIN_SHAPE_LEVELS = 3
+LEVEL_WIDTH_OF_SPAN = 0.25
+LEVEL_WIDTH_OF_VALUE = 0.1
+MIN_LEVEL_SHARE = 0.1
+
+
+def held_levels(frame: Frame, variable: str) -> list[float]:
+    """The levels [SI] at which the episodes of ``frame`` hold ``variable`` (``MIN_LEVEL_SHARE``),
+    each its lowest median (of the episodes' analysed ticks), ascending."""
+    col = frame.column(variable)
+    medians = sorted(float(np.median(col[frame.episode == e])) for e in frame.episodes)
+    span = medians[-1] - medians[0] if medians else 0.0
+    buckets: list[list[float]] = []
+    for m in medians:
+        if not buckets or m - buckets[-1][0] > max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(buckets[-1][0])):
+            buckets.append([])
+        buckets[-1].append(m)
+    least = max(2, math.ceil(MIN_LEVEL_SHARE * len(medians)))
+    return [b[0] for b in buckets if len(b) >= least]
 
 
 def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, alpha: float, names=None) -> dict:
@@ -337,11 +366,17 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
            "against it" if wilcoxon_p_two_against(n_episodes) >= alpha else None)
     # a scale and a factor of one variable make one law of it: neither is pinned down apart (SCALE_VARIABLES)
     apart = factor is not None and all(term_forms.separable(a.name, f.name) for a, f in parts + [(scale, factor)])
-    return {"pinned": None if why else not rivals, "why": why, "n_episodes": n_episodes,
+    variable = term_forms.factor_variable(factor.name) if factor is not None else None
+    few = None
+    if variable in LEVEL_VARIABLES and len(episode):
+        levels = held_levels(frame, variable)
+        few = {"variable": variable, "levels": levels} if len(levels) < MIN_SHAPE_LEVELS else None
+    return {"pinned": None if why else not rivals and few is None, "why": why, "n_episodes": n_episodes,
+            "few_levels": few,
             "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
             "stand_in": any(r["better"] and r["share"] >= STAND_IN_SHARE_RATIO * own_share for r in rivals),
-            "factor_pinned": apart and all(f.name == factor.name for _, f in parts),
-            "shape_pinned": apart and all(
+            "factor_pinned": apart and few is None and all(f.name == factor.name for _, f in parts),
+            "shape_pinned": apart and few is None and all(
                 a.name == scale.name and term_forms.factor_shape(f.name) == term_forms.factor_shape(factor.name)
                 for a, f in parts),
             "scale_pinned": apart and all(a.name == scale.name for a, _ in parts),
@@ -365,6 +400,7 @@ PIN_KINDS = {  # pin_kind -> what is not pinned down, in words
     "stand-in": "a STAND-IN, its form not pinned down", "beaten": "its form is NOT pinned down",
     "value": "its shape is pinned down, not its characteristic value",
     "scale": "its factor is pinned down, its scale is not", "factor": "its scale is pinned down, its factor is not",
+    "levels": "its scale is pinned down, its factor is not (too few levels of its variable)",
     "form": "its form is NOT pinned down"}
 
 
@@ -381,6 +417,8 @@ def pin_kind(pin: dict | None) -> str | None:
         return "stand-in"
     if pin["n_better"]:
         return "beaten"
+    if pin.get("few_levels"):
+        return "levels" if pin["scale_pinned"] else "form"
     if pin.get("shape_pinned"):
         return "value"
     if pin["factor_pinned"]:
@@ -389,7 +427,7 @@ def pin_kind(pin: dict | None) -> str | None:
 
 
 # pin_kind, from the claim that says least about the mechanism to the one that says most
-PIN_ORDER = ("stand-in", "beaten", "form", "factor", "scale", "value", "unknown", "pinned")
+PIN_ORDER = ("stand-in", "beaten", "form", "levels", "factor", "scale", "value", "unknown", "pinned")
 
 
 def weaker_pin(*pins: dict | None) -> dict | None:
@@ -421,6 +459,14 @@ def pinned_caveat(pin: dict | None) -> str:
         return ""
     if kind == "unknown":
         return f"; {PIN_KINDS[kind]}: {pin['why']}"
+    if pin.get("few_levels"):
+        few = pin["few_levels"]
+        tail = f"; {levels_text(few)} over the {pin.get('part', 'selection')} episodes"
+        if kind == "levels" or not pin["n_rivals"]:
+            said = PIN_KINDS["factor" if kind == "levels" else "form"]
+            rivals = f"; {pin['n_rivals']} forms fit it not significantly worse" if pin["n_rivals"] else ""
+            return f"; {said}{tail}{rivals}"
+        return pinned_caveat({**pin, "few_levels": None}) + tail  # its best rival, as any form not pinned down
     best = next((r for r in pin["rivals"] if r.get("better")), pin["rivals"][0])
     formula = force_terms.get_term(best["name"]).formula
     others = (f"; {pin['n_rivals']} forms fit it not significantly worse, {pin['n_better']} significantly better"
@@ -430,6 +476,14 @@ def pinned_caveat(pin: dict | None) -> str:
     how = ("takes more" if kind == "stand-in" else "fits significantly better" if kind == "beaten" else
            "fits at least as well" if best["share"] > pin["share"] else "fits as well")
     return f"; {PIN_KINDS[kind]}: {formula} ({best['name']}) {how} {shares}{others}"
+
+
+def levels_text(few: dict) -> str:
+    """``rival_forms``' few_levels in words: the variable, its levels and why they pin no factor of it."""
+    unit = {"d": "m", "v_x": "m/s"}[few["variable"]]
+    values = ", ".join(f"{v:.3g}" for v in few["levels"])
+    return (f"{few['variable']} is held at only {len(few['levels'])} level(s) ({values} {unit}), too few to tell "
+            "one factor of it from another")
 
 
 # ------------------------------------------------------------------------------------ describing

@@ -17,7 +17,7 @@ import numpy as np
 from soil_msgs_py import strict_json
 from soil_physics import force_terms, term_forms
 
-from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, pin_kind
+from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
 from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
@@ -31,7 +31,9 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     paths = []
     if arrays is not None:
         paths += _plots(report, out, arrays)
-    report = {**report, "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
+    # "headline": the verdict with its hedge ("explained by a form NOT pinned down"), for scripts; "verdict" keeps its class
+    report = {**report, "headline": headline_verdict(report),
+              "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
     # strict JSON (JSON.parse refuses bare NaN / Infinity): a non-finite number, e.g. an open bin edge, is null
     paths.insert(0, _atomic(out / "discrepancy.json", strict_json.dumps(report, indent=1, default=str)))
     paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
@@ -349,7 +351,10 @@ def _pinned_md(pin: dict | None) -> list[str]:
                 + (f" (the best, `{r['name']}`, {100 * r['share']:.1f} %, worse: p {_p(r['p_worse'])})" if r else "")
                 + (f", and so on the {' and '.join(also)} episodes" if also else "") + f": **yes**.{same}"
                 + _too_few(pin)]
-    out = [head + f"**no**, {PIN_KINDS[kind]}: {pin['n_rivals']} form(s) fit it not significantly worse"
+    few = pin.get("few_levels")
+    out = [head + f"**no**, {PIN_KINDS[kind]}: "
+           + (f"{levels_text(few)} (k, θ and a characteristic value match any factor of it at two levels); " if few else "")
+           + f"{pin['n_rivals']} form(s) fit it not significantly worse"
            + (f", {pin['n_better']} of them significantly better (Holm)" if pin["n_better"] else "")
            + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "") + f"{same}:"]
     out[0] += _too_few(pin)

@@ -724,7 +724,7 @@ def _pin_down(parts: list[tuple[Frame, str]], model: AugmentedFEE, fit, named, f
         d["pin"] = pin
         kind = pin_kind(pin)
         if kind not in ("pinned", "unknown"):
-            what = {"value": "characteristic value", "scale": "scale", "factor": "factor"}.get(kind, "form")
+            what = {"value": "characteristic value", "scale": "scale", "factor": "factor", "levels": "factor"}.get(kind, "form")
             # a form not pinned down is no evidence of a catalogue mechanism "in another form" either
             base = d["proposed_name"] if kind in ("value", "scale") else term_forms.proposed_name(d["name"])
             d["proposed_name"] = f"{base} (its {what} not pinned down by these data)"
