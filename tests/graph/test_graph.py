@@ -165,6 +165,14 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
         try:
             probe.wait_for(lambda: cmd.get_subscription_count() > 0 and probe.matched_publishers(G.SIM_STATUS_TOPIC),
                            20, "the simulator's /sim/command subscription")
+            # every parameter reads back, the empty lists too (declared by type alone, they had no
+            # value, and rclpy's get_parameters then answered nothing for a request naming one)
+            client = AsyncParameterClient(probe.node, "soil_sim_node")
+            assert client.wait_for_services(timeout_sec=20)
+            names = call_service(lambda: client.list_parameters()).result.names
+            values = call_service(lambda: client.get_parameters(names)).values
+            assert {"patches", "plugins", "effects_off", "wait_for"} <= set(names) and len(values) == len(names)
+            assert [v.string_array_value for n, v in zip(names, values) if n == "patches"] == [[]]
             time.sleep(0.3)
             cmd.publish(String(data="{not json"))
             cmd.publish(String(data=json.dumps({"action": "start", "soil": "Sand", "seed": 7})))

@@ -773,6 +773,8 @@ def test_soil_planner_node_pairs_by_stamp_and_never_publishes_nan(tmp_path):
 
             client = AsyncParameterClient(probe.node, "soil_planner")
             assert client.wait_for_services(timeout_sec=20)
+            names = call_service(lambda: client.list_parameters()).result.names  # all read back, empty lists too
+            assert {"terms", "bound_law"} <= set(names) and len(call_service(lambda: client.get_parameters(names)).values) == len(names)
             bad = call_service(lambda: client.set_parameters([Parameter("margin", value=1.5)]))
             assert not bad.results[0].successful and "margin=1.5" in bad.results[0].reason
             bad = call_service(lambda: client.set_parameters([Parameter("cut_speed_m_s", value=0.0)]))

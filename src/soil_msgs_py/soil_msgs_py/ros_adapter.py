@@ -53,6 +53,14 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
         overrides[name] = as_double(overrides[name])
     for name, (default, description, *typed) in table.items():
         node.declare_parameter(name, typed[0] if typed else default, ParameterDescriptor(description=description))
+        if typed:
+            try:
+                node.get_parameter(name)
+            except ParameterUninitializedException:
+                # declared by its type alone a parameter has no value, and rclpy's get_parameters
+                # service then answers nothing for a request naming it (`ros2 param get`/`dump`
+                # fail): give it its default, typed (an empty list of that type)
+                node.set_parameters([Parameter(name, typed[0], list(default))])
     node.add_pre_set_parameters_callback(lambda params: [as_double(p) if p.name in doubles else p for p in params])
     for text in unknown_parameter_warnings(node):
         node.get_logger().warning(text)
