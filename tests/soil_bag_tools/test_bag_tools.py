@@ -28,6 +28,7 @@ from soil_bringup.launch import loopback_env
 from soil_bag_tools import bag_io, bag_writer, journal, playback, recorder
 from soil_msgs_py import graph
 from soil_msgs_py.graph import EXIT_BAG_NOT_WRITTEN
+from soil_msgs_py import topics as T
 from soil_msgs_py.topics import EPISODE_TOPICS
 
 from tests.ros_domains import next_domain_id
@@ -180,13 +181,19 @@ def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_w
     msgs = loaded.messages[: 10 * 6]
     end = replace(end, last_stamp_ns=msgs[-1][0], ticks=6)
     log = ListLog()
-    rec = recorder.Recorder(tmp_path, loaded.topics, end_grace_s=0.5, log=log, clock=lambda: 0.0)
-    rec.joined_without.update({"/blade/cmd", "/chassis/cmd_vel"})
+    # the estimator's force starts with its first valid estimate by design (a window later): its
+    # first tick says nothing of a late writer (an outside tester's false alarm)
+    estimated = T.ESTIMATED_FORCE.name
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, estimated: T.ESTIMATED_FORCE.msgtype}, end_grace_s=0.5,
+                            log=log, clock=lambda: 0.0)
+    rec.joined_without.update({"/blade/cmd", "/chassis/cmd_vel", estimated})
     rec.on_status(start.to_json())
     first = msgs[0][0]
     for stamp, topic, raw in msgs:
         if topic != "/blade/cmd" or stamp >= first + 3 * 10**9 // 60:  # its first 3 ticks never came
             rec.on_message(topic, raw, 0)
+        if topic == "/blade/force" and stamp >= first + 4 * 10**9 // 60:  # a WrenchStamped from tick 4 on
+            rec.on_message(estimated, raw, 0)
     rec.on_status(end.to_json())
     (r,) = rec.finished
     info = json.loads(yaml.safe_load((r.path / "metadata.yaml").read_text())
@@ -194,6 +201,7 @@ def test_a_bag_says_where_each_topic_starts_and_warns_of_a_head_lost_to_a_late_w
     assert info["first_tick"]["/blade/cmd"] == 3 and info["first_tick"]["/clock"] == 0
     late = [m for lvl, m in log.lines if lvl == "warning" and "starts at tick" in m]
     assert len(late) == 1 and "/blade/cmd starts at tick 3" in late[0] and "/chassis/cmd_vel" not in late[0], log.lines
+    assert info["first_tick"][estimated] == 4 and estimated not in late[0]
     # one bag of the whole run (--no-split): said in seconds after the first message (an outside tester's
     # run lost a whole first episode's commands there without a word)
     log = ListLog()

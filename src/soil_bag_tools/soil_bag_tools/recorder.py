@@ -78,6 +78,12 @@ END_GRACE_S = 4.0
 ONLINE_HORIZON_TICKS = 10 * SAMPLE_RATE_HZ  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
 
+def _from_first_tick(topic: str) -> bool:
+    """Whether ``topic`` is published from an episode's first tick on (an extra --topics one: taken so)."""
+    known = GRAPH_TOPICS_BY_NAME.get(topic)
+    return known is None or known.from_first_tick
+
+
 def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | None:
     """Simulation stamp [ns] of a raw CDR message, or None if it has none / does not decode.
 
@@ -447,14 +453,17 @@ class Recorder:
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
         if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
-            late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items() if t in self.joined_without and k}
+            # (a topic that starts when it has something to say, the first valid estimate's force at
+            # tick 59, says nothing by its first tick: only its having no message is said)
+            late = {t: f"starts at tick {k}" for t, k in info["first_tick"].items()
+                    if t in self.joined_without and k and _from_first_tick(t)}
         else:  # one bag of the whole run (--no-split): when each topic's messages start after the first one's
             # (the graph's topics, stamped in simulation time; an extra --topics one may carry wall-clock stamps)
             sim = {t: v for t, v in s.topic_min.items() if t in GRAPH_TOPICS_BY_NAME}
             first = min(sim.values(), default=0)
             info["first_stamp_s"] = {t: (v - first) / 1e9 for t, v in sorted(sim.items())}
             late = {t: f"starts {v:.3f} s after the first recorded message" for t, v in info["first_stamp_s"].items()
-                    if t in self.joined_without and v > 0.0}
+                    if t in self.joined_without and v > 0.0 and _from_first_tick(t)}
         late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})
         if late:  # (unsaid in a --no-split bag before 2026-12-04: a first episode's commands went missing)
             self.log.warning(f"{s.name}: {', '.join(f'{t} {what}' for t, what in late.items())}: the recorder "

@@ -22,6 +22,9 @@ class Topic:
     msgtype: str  # rosbags / ROS 2 interface name, e.g. "geometry_msgs/msg/PointStamped"
     description: str
     labels: tuple[str, ...] = ()  # Float64MultiArray payload fields after the stamp
+    # published from an episode's first tick on: a later first message in a bag means some were lost
+    # (False: it starts when there is something to say, a valid estimate or a stretch's map)
+    from_first_tick: bool = True
 
 
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", "simulation time, once per tick")
@@ -109,10 +112,12 @@ SOIL_MAP = Topic(
     "/soil/map", "sensor_msgs/msg/PointCloud2",
     "soil-property map along the path (frame world): per cell of blade travel x, y = 0, z = cut "
     "floor height [m], fused φ [rad], c [Pa], δ [rad] and their standard deviations (float32 fields)",
+    from_first_tick=False,
 )
 ESTIMATED_FORCE = Topic(
     "/soil/estimate/force", "geometry_msgs/msg/WrenchStamped",
     "predicted cutting force F̂ (valid estimates only): force.x, force.z [N], stamp = newest sample used",
+    from_first_tick=False,
 )
 # What the planner example publishes (soil_planner.node), one message per
 # /soil/estimate with a Θ_k of the same stamp, stamped like it. max_depth_m: deepest cut depth
