@@ -170,6 +170,11 @@ def test_soil_sim_batch_takes_a_named_path_of_the_soil_file(tmp_path):
     (["--path", "a"], "--path='a' needs --soil-file"),
     (["--relative-densities", "abc"], "--relative-densities='abc' must be a comma-separated list of numbers"),
     (["--depths", "0.1,x"], "--depths='0.1,x' must be a comma-separated list of numbers"),
+    # a value left out was dropped without a word; a depth that only skims the surface made an episode without a cut
+    (["--depths", "0.1,,0.2"], "--depths='0.1,,0.2': item 2 is empty"),
+    (["--speeds", "0.5,"], "--speeds='0.5,': item 2 is empty"),
+    (["--depths", "0.1,0.005"], "--depths 0.005: the blade cuts from 0.01 m"),
+    (["--depths", "0"], "--depths 0: the blade cuts from 0.01 m"),
 ])
 def test_soil_sim_batch_refuses_bad_patches_before_writing(tmp_path, capsys, argv, needle):
     out = tmp_path / "never"

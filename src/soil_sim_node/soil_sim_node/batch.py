@@ -47,7 +47,7 @@ from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigte
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import beyond_lift_reach
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, beyond_lift_reach
 from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
@@ -358,14 +358,29 @@ def _cluster_gone(err: Exception) -> bool:
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
-    """A grid axis; empty ('' or ',') is refused: it made a plan of no episodes."""
+    """A grid axis; empty ('' or ',') is refused: it made a plan of no episodes. An empty item
+    ('0.1,,0.2') is refused too: it was dropped without a word, most likely a value left out."""
+    items = text.split(",")
+    if not any(x.strip() for x in items):
+        raise ValueError(f"--{name}={text!r} gives no value; give a comma-separated list of numbers")
+    if not all(x.strip() for x in items):
+        raise ValueError(f"--{name}={text!r}: item {[x.strip() for x in items].index('') + 1} is empty; "
+                         "give a comma-separated list of numbers")
     try:
-        values = tuple(float(x) for x in text.split(",") if x.strip())
+        return tuple(float(x) for x in items)
     except ValueError:
         raise ValueError(f"--{name}={text!r} must be a comma-separated list of numbers") from None
-    if not values:
-        raise ValueError(f"--{name}={text!r} gives no value; give a comma-separated list of numbers")
-    return values
+
+
+def _depths(text: str) -> tuple[float, ...]:
+    """--depths: from ``MIN_CUT_DEPTH_M`` (shallower the blade skims the surface, an episode with no
+    cut in it; ``soil_demo`` refuses it alike); the simulator checks the rest of the range."""
+    depths = _floats(text, "depths")
+    for d in depths:
+        if 0.0 <= d < MIN_CUT_DEPTH_M:
+            raise ValueError(f"--depths {d:g}: the blade cuts from {MIN_CUT_DEPTH_M:g} m (shallower it skims the "
+                             "surface: an episode without a cut)")
+    return depths
 
 
 def repeated_grid_values(args: argparse.Namespace) -> list[str]:
@@ -462,7 +477,7 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     speeds = GRID_SPEEDS[args.mode] if args.speeds is None else _floats(args.speeds, "speeds")
     if args.seeds < 1:
         raise ValueError(f"seeds={args.seeds} must be >= 1")
-    specs = grid_specs(soils, relative_densities, speeds, _floats(args.depths, "depths"), args.seeds, args.seed_base,
+    specs = grid_specs(soils, relative_densities, speeds, _depths(args.depths), args.seeds, args.seed_base,
                        args.duration, patches)
     out = args.out or Path("bags") / f"d_{args.mode}"
     if args.overwrite and args.skip_existing:
