@@ -27,6 +27,8 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
+import numpy as np
+
 from . import xp as _xp
 
 # C_1 of Eq. 9-10 [s/m]. The paper gives no value. At 50 s/m the correction is 0.989 of
@@ -104,7 +106,8 @@ def beta_star(phi, delta, rho, alpha):
     x = b * xp.cos(p) - a * xp.cos(q)
     y = b * xp.sin(p) - a * xp.sin(q)
     m = xp.sqrt(x * x + y * y)
-    s = _xp.clip(xp, xp.sin(p - q) / m, -1.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):  # m = 0: no failure wedge, NaN as said above
+        s = _xp.clip(xp, xp.sin(p - q) / m, -1.0, 1.0)
     psi = xp.arctan2(y, x)
     root = xp.arcsin(s)
     upper = math.pi - b_
