@@ -106,7 +106,8 @@ def test_a_stamp_that_goes_back_is_a_new_cut():
 @pytest.mark.parametrize("field,value", [("deepen_rate_m_s", 0.0), ("shallow_rate_m_s", -1.0), ("hold_s", -0.1),
                                          ("start_depth_m", 0.5), ("max_depth_m", 0.9), ("min_depth_m", math.nan),
                                          ("hold_s", True), ("retreat_m", -0.01), ("retreat_memory_s", -1.0),
-                                         ("cautious_deepen_rate_m_s", 0.0)])
+                                         ("cautious_deepen_rate_m_s", 0.0),
+                                         ("cautious_deepen_rate_m_s", 0.5)])  # faster than deepen_rate_m_s 0.1: not cautious
 def test_bad_settings_are_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         ScheduleSettings(**{field: value})

@@ -1080,3 +1080,10 @@ def test_a_bad_schedule_is_refused_in_the_nodes_parameter_names():
     with pytest.raises(ValueError) as err:
         schedule_settings({**good, "min_target_m": 0.3, "max_target_m": 0.1})
     assert "min_target_m=0.3 and max_target_m=0.1 must satisfy" in str(err.value) and "depth_m" not in str(err.value)
+    # a target floor below which the planner admits no cut (d_max_m 0.02 m, min_target_m 0.05 m) cut 2.5x
+    # deeper than its own plan without a word (an outside tester's finding)
+    from soil_planner.node import check_target_floor
+    floor = ScheduleSettings()
+    check_target_floor(StretchPlanner(d_max_m=0.3), floor)
+    with pytest.raises(ValueError, match=r"min_target_m=0\.05 is deeper than d_max_m=0\.02"):
+        check_target_floor(StretchPlanner(d_max_m=0.02), floor)

@@ -71,8 +71,9 @@ class ScheduleSettings:
         for name in ("deepen_rate_m_s", "shallow_rate_m_s"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be > 0 m/s")
-        if not self.cautious_deepen_rate_m_s > 0.0:
-            raise ValueError(f"cautious_deepen_rate_m_s={self.cautious_deepen_rate_m_s!r} must be > 0 m/s")
+        if not 0.0 < self.cautious_deepen_rate_m_s <= self.deepen_rate_m_s:  # cautious: no faster than the rate it slows
+            raise ValueError(f"cautious_deepen_rate_m_s={self.cautious_deepen_rate_m_s!r} must be > 0 m/s and at most "
+                             f"deepen_rate_m_s={self.deepen_rate_m_s!r}")
         for name in ("hold_s", "retreat_memory_s"):
             if getattr(self, name) < 0.0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0 s")

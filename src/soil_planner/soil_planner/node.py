@@ -166,6 +166,16 @@ def stretch_planner(settings: dict) -> StretchPlanner:
     return StretchPlanner(**{**settings, "force_quantile": None if off else q})
 
 
+def check_target_floor(planner: StretchPlanner, schedule: ScheduleSettings) -> None:
+    """The target's floor within the planner's reach: a min_target_m above d_max_m kept the edge
+    deeper than the deepest cut the planner admits, without a word (an outside tester's 0.02 m plan
+    cut at 0.05 m)."""
+    d_max = planner.settings()["d_max_m"]
+    if schedule.min_depth_m > d_max:
+        raise ValueError(f"min_target_m={schedule.min_depth_m!r} is deeper than d_max_m={d_max!r}: the target "
+                         "would keep the edge deeper than the deepest cut the planner admits")
+
+
 def check_log_period(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0.0 or value == float("inf"):
         raise ValueError(f"log_period_s={value!r} must be a finite number >= 0 s")
@@ -178,6 +188,7 @@ class PlannerNode(Node):
         get = declare_parameters(self, PARAMETERS)
         self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
         self.schedule = DepthSchedule(schedule_settings({p: get(p) for p in SCHEDULE_PARAMETERS}))
+        check_target_floor(self.planner, self.schedule.settings)
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
         # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
@@ -258,6 +269,7 @@ class PlannerNode(Node):
             wait_s = check_command_wait(changes.get("command_wait_s", self.command_wait.max_wait_s))
             current = self.schedule.settings.to_dict()
             schedule = schedule_settings({p: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
+            check_target_floor(planner, schedule)
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         planner.keep_evidence_of(self.planner)  # new settings are no new cut
