@@ -235,6 +235,11 @@ def _fmt(x, spec=".2f") -> str:
     return "inf" if x == math.inf else format(x, spec)
 
 
+def _pct(share) -> str:
+    """A share as a whole percentage, '--' where there is none."""
+    return "--" if share is None else f"{100 * share:.0f} %"
+
+
 def _less_stall(aggressive_s: float, aware_s: float, times: str = "×") -> str:
     """How much less the soil-aware policy stalled than the aggressive one, in words where a ratio
     has no meaning (no stall: "inf×" or "--×" said nothing a reader could use)."""
@@ -297,11 +302,11 @@ def markdown(report: dict) -> str:
                          f"| {100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f} "
                          f"| {p['mean_depth_m']:.3f} |")
         lines += ["", "| patch | time [s] | best fixed depth [m] | planner's mean target [m] | mean cut depth [m] "
-                      "| stall [s] | settled within 20 % after [s] |", "|---|---|---|---|---|---|---|"]
+                      "| stall [s] | settled within 20 % after [s] | time within 20 % |", "|---|---|---|---|---|---|---|---|"]
         for p in w["patches"]:
             lines.append(f"| {p['soil']} {p['relative_density_pct']:.0f} % | {p['time_s']:.1f} | {_fmt(p['best_fixed_depth_m'], '.3f')} "
                          f"| {_fmt(p['mean_target_m'], '.3f')} | {_fmt(p['mean_depth_m'], '.3f')} | {p['stall_s']:.2f} "
-                         f"| {_fmt(p['settle_s'], '.1f')} |")
+                         f"| {_fmt(p['settle_s'], '.1f')} | {_pct(p.get('within_share'))} |")
         if w.get("unreached"):
             lines += ["", f"Patches {w['unreached']}."]
         if w.get("stall_everywhere"):
@@ -398,7 +403,8 @@ def console(report: dict) -> str:
         width = max([7, *(len(p["soil"]) + 1 for p in w["patches"])])  # (a soil of the user's, "SiltyClay")
         for p in w["patches"]:
             out.append(f"    {p['soil']:<{width}}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
-                       f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s")
+                       f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s, "
+                       f"within 20 % {_pct(p.get('within_share'))} of the time")
         if w.get("unreached"):
             out.append(f"  patches {w['unreached']}")
         if w.get("stall_everywhere"):
