@@ -16,9 +16,10 @@
   "retreat" (``soil_planner.depth_schedule``) is a plan below the target, which starts a fall.
 * **Force use**: mean and 95th percentile of |F_x| / 20 kN and |F_z| / 30 kN while cutting.
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
-  hindsight is the deepest of a sweep of fixed depths at which no stall began in that patch (a
-  stall is the soil's where it began), among those whose edge entered its soil
-  (``best_fixed_depths``), and ``settle_s`` how long after entering the patch the target
+  hindsight is, of a sweep of fixed depths at which no stall began in that patch (a stall is the
+  soil's where it began), among those whose edge entered its soil, the shallowest that cut it
+  within 5 mm as deep as any (``best_fixed_depths(same_cut=True)``), the share of its time the
+  target lay within ``SETTLE_TOLERANCE`` of it (``within_share``), and ``settle_s`` how long after entering the patch the target
   came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
 """
 from __future__ import annotations
@@ -114,17 +115,19 @@ def stall_starts(cut) -> np.ndarray:
     return run_starts(stall_mask(cut))
 
 
-def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
-    """Per patch, the best fixed depth of ``sweep`` (cuts of one path): of the depths at which no
-    stall began while the edge was in that patch, of those whose edge cut its soil (``entered``),
-    the shallowest whose edge cut there (mean depth) within ``SAME_CUT_M`` of the deepest cut of
-    them; None if a stall began there at every depth or none entered it. A stall is its soil's
-    where it began: one that began in dense clay and ran on a few ticks past the boundary into the
-    loam after it says nothing about the loam (counted there, it made the loam's best depth 0.150 m
-    where no stall began in the loam at any depth shallower than 0.225 m, seed 5 of the main path).
-    Why the shallowest of equal cuts: where the floor holds the edge short of its target (a dense
-    gravel in the default world), every target from 0.125 m to 0.300 m cut 0.12 m, and "best 0.300 m"
-    (an outside tester's) made a planner cutting 0.12 m there look 2.5× too shallow."""
+def best_fixed_depths(sweep: list, n_patches: int, *, same_cut: bool = False) -> list[float | None]:
+    """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) at which no stall began
+    while the edge was in that patch, of those whose edge cut its soil (``entered``); None if a
+    stall began there at every depth or none entered it. A stall is its soil's where it began:
+    one that began in dense clay and ran on a few ticks past the boundary into the loam after it
+    says nothing about the loam (counted there, it made the loam's best depth 0.150 m where no
+    stall began in the loam at any depth shallower than 0.225 m, seed 5 of the main path).
+    ``same_cut``: of those depths the shallowest whose edge cut the patch (mean depth) within
+    ``SAME_CUT_M`` of the deepest cut of them: the depth to be judged against. Where the floor
+    holds the edge short of its target (a dense gravel in the default world) every target from
+    0.125 m to 0.300 m cut 0.12 m, and "best 0.300 m" (an outside tester's) made a planner cutting
+    0.12 m there look 2.5x too shallow. (The conservative and aggressive depths stay the deepest
+    stall-free ones: "the deepest fixed depth that never stalls".)"""
     ok: list[list[tuple[float, float]]] = [[] for _ in range(n_patches)]  # (fixed depth, mean cut depth there)
     for cut in sweep:
         began_in = set(cut.patch[stall_starts(cut)].tolist())
@@ -133,9 +136,11 @@ def best_fixed_depths(sweep: list, n_patches: int) -> list[float | None]:
                 ok[j].append((cut.policy.fixed_depth_m, float(cut.depth[cut.patch == j].mean())))
     best: list[float | None] = [None] * n_patches
     for j, cuts in enumerate(ok):
-        if cuts:
+        if cuts and same_cut:
             deepest_cut = max(depth for _, depth in cuts)
             best[j] = min(fixed for fixed, depth in cuts if depth >= deepest_cut - SAME_CUT_M)
+        elif cuts:
+            best[j] = max(fixed for fixed, _ in cuts)
     return best
 
 

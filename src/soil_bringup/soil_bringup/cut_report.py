@@ -2,12 +2,13 @@
 
 For each world, one path of changing soil (patches along x), one seed, one run:
 
-* a sweep of fixed target depths finds each patch's **best fixed depth in hindsight** (the
-  deepest with no stall while the edge was in that patch);
+* a sweep of fixed target depths finds each patch's **best fixed depth in hindsight** (of the
+  depths with no stall while the edge was in that patch, the shallowest that cut it as deep as
+  any: where the floor holds the edge short, deeper targets cut no deeper);
 * **conservative**: the deepest fixed depth that never stalls in the path's strongest soil
-  (the smallest of those bests), what a machine that must never stall would cut; where some
+  (the smallest of the patches' deepest stall-free depths), what a machine that must never stall would cut; where some
   soil of the path stalls at every swept depth, the shallowest swept depth (said in the report);
-* **aggressive**: the best fixed depth of the path's weakest soil (the largest of them), what a
+* **aggressive**: the deepest stall-free fixed depth of the path's weakest soil (the largest of them), what a
   planner that ignores the soil would keep after cutting where it is easy;
 * **soil-aware**: the estimator, the planner and its depth schedule in the loop (``cut_trial``).
 
@@ -153,18 +154,20 @@ def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> No
 def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None,
                    custom_soils: dict | None = None) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
-    without a stall), the conservative depth (the shallowest of those) and the aggressive one
-    (the deepest) [m]; ``gains``: the controller's (default: its defaults); ``custom_soils``:
+    without a stall; ``cut_metrics.best_fixed_depths(same_cut=True)``), the conservative depth (the
+    shallowest of the patches' deepest stall-free depths) and the aggressive one (the deepest) [m]; ``gains``: the controller's (default: its defaults); ``custom_soils``:
     soils by name beside the catalogue."""
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
-    best = CM.best_fixed_depths(sweep, len(spec.patches) or 1)
-    known = [b for b in best if b is not None]
+    n = len(spec.patches) or 1
+    deepest = CM.best_fixed_depths(sweep, n)  # stall-free: what the fixed policies keep
+    known = [b for b in deepest if b is not None]
     # a patch the edge reached where every depth stalled: no depth avoids a stall there, so the
     # conservative depth is the one that stalls least, the shallowest (the smallest best of the
     # others had stalled as long as the aggressive depth)
-    stall_everywhere = bool(stalling_patches(sweep, best))
+    stall_everywhere = bool(stalling_patches(sweep, deepest))
     conservative = min(SWEEP_DEPTHS_M) if stall_everywhere or not known else min(known)
-    return sweep, best, conservative, max(known or SWEEP_DEPTHS_M)
+    # the depth each patch is judged against: of the stall-free ones the shallowest that cut it as deep
+    return sweep, CM.best_fixed_depths(sweep, n, same_cut=True), conservative, max(known or SWEEP_DEPTHS_M)
 
 
 def stalling_patches(sweep: list, best: list) -> list[int]:
