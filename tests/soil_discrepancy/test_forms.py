@@ -156,7 +156,7 @@ def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form
     pin = next(d["pin"] for d in rep["forms"]["discovered"] if d["name"] == acc["name"])
     assert pin["few_levels"]["variable"] == "v_x" and len(pin["few_levels"]["levels"]) == 2, pin
     assert not pin["pinned"] and not pin["shape_pinned"] and not pin["factor_pinned"], pin
-    assert pin_kind(pin) in ("levels", "form", "beaten", "stand-in") and "v_x is held at only 2 level(s)" in rep["summary"]
+    assert pin_kind(pin) in ("levels", "form", "beaten", "stand-in") and "v_x takes values in only 2 group(s)" in rep["summary"]
 
 
 def test_a_drag_growing_with_time_is_found_on_time_in_soil_not_on_travel(form_reports):
@@ -444,6 +444,14 @@ def test_a_form_in_the_place_of_another_effect_is_called_a_stand_in_not_its_mech
     from soil_discrepancy.frame import build_frame
 
     frame = build_frame(form_data["entry"], stride=STRIDE)
+    # the grid's two speeds are two groups of v_x (its slowed dense episodes none of their own);
+    # a cut ramping over the depths within one episode is several groups, not its one median
+    from soil_discrepancy.forms import held_levels
+    from soil_msgs_py.params import KNOWN_PARAMS
+    assert [round(v, 1) for v in held_levels(frame, "v_x")] == [0.3, 1.0]
+    ramp = frame.select(episodes=list(frame.episodes[:1]))
+    ramp.known[:, KNOWN_PARAMS.index("d")] = np.linspace(0.05, 0.3, len(ramp))  # a copy of the frame's ticks
+    assert len(held_levels(ramp, "d")) >= 3
 
     def pin(name, data=frame):
         model = AugmentedFEE([(name, 1.0)])

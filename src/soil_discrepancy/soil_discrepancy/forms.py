@@ -241,11 +241,12 @@ STAND_IN_SHARE_RATIO = 1.2
 # fewer than MIN_SHAPE_LEVELS levels of it no factor of it can be told from another, k, θ and a
 # characteristic value matching any of them at two levels. An outside tester's drag ∝ 0.3 / v_x on
 # two speeds was "explained" as exp(−v_x / 0.3 m/s), "its shape pinned down"; on three speeds the
-# same workflow found rivals. A level holds the episodes whose medians lie within
-# LEVEL_WIDTH_OF_SPAN of the whole span (and LEVEL_WIDTH_OF_VALUE of the value) above its lowest,
-# and counts if it holds MIN_LEVEL_SHARE of the episodes (two at least): the three of 36 episodes
-# a dense soil slowed from 1 m/s to 0.8 m/s are no level of their own (confounded with their soil's
-# θ, they cannot pin a shape), depths spread over the span (cuts held short of their targets) count.
+# same workflow found rivals. The analysed ticks' values are grouped from the lowest up, a group
+# spanning LEVEL_WIDTH_OF_SPAN of their whole span or LEVEL_WIDTH_OF_VALUE of its lowest value,
+# whichever is wider, and a group counts if it holds MIN_LEVEL_SHARE of the ticks: the three of 36
+# episodes a dense soil slowed from 1 m/s to 0.8 m/s are no level of their own (confounded with
+# their soil's θ, they cannot pin a shape); cuts held short of their targets, and depths or speeds
+# that vary within the episodes (a planner's, a machine's), make groups of their own.
 LEVEL_VARIABLES = ("d", "v_x")
 MIN_SHAPE_LEVELS = 3
 LEVEL_WIDTH_OF_SPAN = 0.25
@@ -254,18 +255,24 @@ MIN_LEVEL_SHARE = 0.1
 
 
 def held_levels(frame: Frame, variable: str) -> list[float]:
-    """The levels [SI] at which the episodes of ``frame`` hold ``variable`` (``MIN_LEVEL_SHARE``),
-    each its lowest median (of the episodes' analysed ticks), ascending."""
-    col = frame.column(variable)
-    medians = sorted(float(np.median(col[frame.episode == e])) for e in frame.episodes)
-    span = medians[-1] - medians[0] if medians else 0.0
-    buckets: list[list[float]] = []
-    for m in medians:
-        if not buckets or m - buckets[-1][0] > max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(buckets[-1][0])):
-            buckets.append([])
-        buckets[-1].append(m)
-    least = max(2, math.ceil(MIN_LEVEL_SHARE * len(medians)))
-    return [b[0] for b in buckets if len(b) >= least]
+    """The groups [SI] in which the analysed ticks of ``frame`` hold ``variable``, each its median,
+    ascending (groups of at least ``MIN_LEVEL_SHARE`` of the ticks)."""
+    values = np.sort(np.asarray(frame.column(variable), float))
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return []
+    span = float(values[-1] - values[0])
+    least = MIN_LEVEL_SHARE * len(values)
+    levels, i = [], 0
+    while i < len(values):
+        start = float(values[i])
+        end = int(np.searchsorted(values, start + max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start)),
+                                  side="right"))
+        end = max(end, i + 1)
+        if end - i >= least:
+            levels.append(float(np.median(values[i:end])))
+        i = end
+    return levels
 
 
 def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, alpha: float, names=None) -> dict:
@@ -482,8 +489,8 @@ def levels_text(few: dict) -> str:
     """``rival_forms``' few_levels in words: the variable, its levels and why they pin no factor of it."""
     unit = {"d": "m", "v_x": "m/s"}[few["variable"]]
     values = ", ".join(f"{v:.3g}" for v in few["levels"])
-    return (f"{few['variable']} is held at only {len(few['levels'])} level(s) ({values} {unit}), too few to tell "
-            "one factor of it from another")
+    return (f"{few['variable']} takes values in only {len(few['levels'])} group(s) (about {values} {unit}; values within a "
+            "quarter of their span make one group), too few to tell one factor of it from another")
 
 
 # ------------------------------------------------------------------------------------ describing

@@ -354,9 +354,10 @@ def _pinned_md(pin: dict | None) -> list[str]:
     few = pin.get("few_levels")
     out = [head + f"**no**, {PIN_KINDS[kind]}: "
            + (f"{levels_text(few)} (k, θ and a characteristic value match any factor of it at two levels); " if few else "")
-           + f"{pin['n_rivals']} form(s) fit it not significantly worse"
+           + (f"{pin['n_rivals']} form(s) fit it not significantly worse" if pin["n_rivals"] else "no form of the library fits it as well")
            + (f", {pin['n_better']} of them significantly better (Holm)" if pin["n_better"] else "")
-           + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "") + f"{same}:"]
+           + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "")
+           + f"{same}{':' if pin['rivals'] else '.'}"]
     out[0] += _too_few(pin)
     out += [f"  - `{r['name']}` ({term_forms.describe(r['name'])['formula']}), k = {r['k']:.4g}, takes "
             f"{100 * r['share']:.1f} % (the test that it fits worse: p {_p(r['p_worse'])}"

@@ -859,7 +859,8 @@ def _verdict(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                                           + _misfit_text(reg0, quiet=True) + not_named)
 
 
-WEAK_PIN_KINDS = ("stand-in", "beaten", "form")  # pin_kind: the form itself is not pinned down
+# pin_kind: the form itself is not pinned down ("levels": its factor cannot be, over too few depths or speeds)
+WEAK_PIN_KINDS = ("stand-in", "beaten", "form", "levels")
 
 
 def unpinned_forms_only(named: dict[str, dict | None]) -> bool:
