@@ -1087,3 +1087,5 @@ def test_a_bad_schedule_is_refused_in_the_nodes_parameter_names():
     check_target_floor(StretchPlanner(d_max_m=0.3), floor)
     with pytest.raises(ValueError, match=r"min_target_m=0\.05 is deeper than d_max_m=0\.02"):
         check_target_floor(StretchPlanner(d_max_m=0.02), floor)
+    with pytest.raises(ValueError, match=r"start_depth_m=0\.1 is deeper than d_max_m=0\.08"):
+        check_target_floor(StretchPlanner(d_max_m=0.08), floor)  # where the target starts and returns without a plan

@@ -171,9 +171,10 @@ def check_target_floor(planner: StretchPlanner, schedule: ScheduleSettings) -> N
     deeper than the deepest cut the planner admits, without a word (an outside tester's 0.02 m plan
     cut at 0.05 m)."""
     d_max = planner.settings()["d_max_m"]
-    if schedule.min_depth_m > d_max:
-        raise ValueError(f"min_target_m={schedule.min_depth_m!r} is deeper than d_max_m={d_max!r}: the target "
-                         "would keep the edge deeper than the deepest cut the planner admits")
+    for name, depth in (("min_target_m", schedule.min_depth_m), ("start_depth_m", schedule.start_depth_m)):
+        if depth > d_max:  # (the start depth is also where the target returns without a plan)
+            raise ValueError(f"{name}={depth!r} is deeper than d_max_m={d_max!r}: the target would keep the "
+                             "edge deeper than the deepest cut the planner admits")
 
 
 def check_log_period(value) -> float:
