@@ -46,7 +46,7 @@ CHASSIS_TWIST = Topic(
 )
 BLADE_FORCE = Topic(
     "/blade/force", "geometry_msgs/msg/WrenchStamped",
-    "measured cutting force, blade on soil, world frame: force.x = f_x^b [N], force.z = f_z^b [N]",
+    "measured cutting force, blade on soil, world frame: wrench.force.x = f_x^b [N], wrench.force.z = f_z^b [N]",
 )
 KNOWN = Topic(
     "/soil/known_params", "std_msgs/msg/Float64MultiArray",
@@ -116,7 +116,7 @@ SOIL_MAP = Topic(
 )
 ESTIMATED_FORCE = Topic(
     "/soil/estimate/force", "geometry_msgs/msg/WrenchStamped",
-    "predicted cutting force F̂ (valid estimates only): force.x, force.z [N], stamp = newest sample used",
+    "predicted cutting force F̂ (valid estimates only): wrench.force.x, wrench.force.z [N], stamp = newest sample used",
     from_first_tick=False,
 )
 # What the planner example publishes (soil_planner.node), one message per
