@@ -83,14 +83,24 @@ def test_pinn_train_refuses_a_malformed_torchrun_variable(bags, tmp_path, monkey
 
 @pytest.mark.timeout(300)
 @pytest.mark.skipif(not _netns_works(), reason="needs `unshare -rn` (a private loopback-only network namespace)")
+def _gloo_abort(stderr: str) -> bool:
+    """Whether a torchrun run failed because a rank died of SIGABRT in gloo's own threads (upstream:
+    pytorch/pytorch#188266, gloo's tcp pair aborting the process when the peer address cannot be
+    read; seen once in this namespace on a busy machine, "terminate called without an active
+    exception"), not by anything the trainer did: the trainer raises Python errors, never aborts."""
+    return "exitcode  : -6" in stderr and "terminate called" in stderr
+
+
 def test_two_ddp_processes_reach_the_single_process_validation_loss(bags, tmp_path, capsys):
-    data = tmp_path / "data"
-    shutil.copytree(bags, data)  # its own cache directory, written by rank 0 alone
-    assert train_main(["--data", str(data), "--out", str(tmp_path / "one.pt"), "--no-cache", *TINY]) == 0
+    assert train_main(["--data", str(bags), "--out", str(tmp_path / "one.pt"), "--no-cache", *TINY]) == 0
     capsys.readouterr()
-    out = tmp_path / "ddp" / "two.pt"
-    proc = subprocess.run(_torchrun("--data", str(data), "--out", str(out), *TINY), env=TORCHRUN_ENV,
-                          capture_output=True, text=True, timeout=280)
+    for attempt in (1, 2):  # once more after gloo's own abort (_gloo_abort), on fresh bags and output
+        data, out = tmp_path / f"data{attempt}", tmp_path / f"ddp{attempt}" / "two.pt"
+        shutil.copytree(bags, data)  # its own cache directory, written by rank 0 alone
+        proc = subprocess.run(_torchrun("--data", str(data), "--out", str(out), *TINY), env=TORCHRUN_ENV,
+                              capture_output=True, text=True, timeout=130)
+        if proc.returncode == 0 or not _gloo_abort(proc.stderr):
+            break
     # the ranks write to torchrun's stderr, before its own failure summary (~2.5 kB): keep both
     assert proc.returncode == 0, proc.stderr[-12000:]
     assert proc.stdout.count('"checkpoint"') == 1, proc.stdout  # rank 0 alone reports
