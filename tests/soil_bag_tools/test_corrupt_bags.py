@@ -126,6 +126,10 @@ def test_a_damaged_metadata_yaml_is_said_in_one_line(tmp_path):
     text = str(err.value)
     assert "unreadable metadata.yaml: " in text and "Error: " in text and str(bag) in text, text
     assert "\n" not in text and "object at 0x" not in text, text
+    # YAML that parses but is no rosbag2 metadata: said so, not as "TypeError: string indices must be integers"
+    meta.write_text("just a string\n")
+    with pytest.raises(bag_io.BagReadError, match="not a rosbag2 metadata file .*found 'just a string'"):
+        bag_io.read_episode(bag)
 
 
 def test_bag_read_error_survives_pickling():

@@ -30,6 +30,7 @@ from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta, first_non_finite
+from soil_msgs_py.patches import short_repr
 from soil_msgs_py.topics import EPISODE_TOPICS, GROUND_TRUTH
 from .bag_writer import BagWriter, offered_qos
 from .integrity import scan_file
@@ -163,11 +164,15 @@ _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 def bag_info(bag: Path) -> dict:
     """metadata.yaml's ``rosbag2_bagfile_information``."""
     try:
-        info = yaml.load((bag / "metadata.yaml").read_text(), Loader=_YAML_LOADER)["rosbag2_bagfile_information"]
-        return dict(info)
-    except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError, AttributeError) as err:
+        data = yaml.load((bag / "metadata.yaml").read_text(), Loader=_YAML_LOADER)
+    except (OSError, ValueError, yaml.YAMLError) as err:
         # one line (a YAML error's repr dumped its parser's Mark objects)
         raise BagReadError(bag, f"unreadable metadata.yaml: {type(err).__name__}: {' '.join(str(err).split())}") from None
+    info = data.get("rosbag2_bagfile_information") if isinstance(data, dict) else None
+    if not isinstance(info, dict):  # (a bare string or list read as "string indices must be integers")
+        raise BagReadError(bag, "unreadable metadata.yaml: not a rosbag2 metadata file (no mapping "
+                                f"'rosbag2_bagfile_information'; found {short_repr(data)})")
+    return dict(info)
 
 
 def bag_custom_data(bag: Path) -> dict[str, str]:
