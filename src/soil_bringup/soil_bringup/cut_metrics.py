@@ -18,7 +18,7 @@
 * **Per patch**: time in it, mean target and cut depth, stall time; the best fixed depth in
   hindsight is, of a sweep of fixed depths at which no stall began in that patch (a stall is the
   soil's where it began), among those whose edge entered its soil, the shallowest that cut it
-  within 5 mm as deep as any (``best_fixed_depths(same_cut=True)``), the share of its time the
+  within 5 mm as deep as any (``judged_depths``), the share of its time the
   target lay within ``SETTLE_TOLERANCE`` of it (``within_share``), and ``settle_s`` how long after entering the patch the target
   came within ``SETTLE_TOLERANCE`` of it and stayed there for ``SETTLE_HOLD_S``.
 """
@@ -34,7 +34,7 @@ BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
 SETTLE_TOLERANCE = 0.20  # relative to the patch's best fixed depth
 SETTLE_HOLD_S = 1.0
 FALL_M = 0.02  # a target falling this far from its deepest since it last rose is a fall
-SAME_CUT_M = 0.005  # fixed depths whose edge cut a patch this close to the deepest one's cut it alike (best_fixed_depths)
+SAME_CUT_M = 0.005  # fixed depths whose edge cut a patch this close to the deepest one's cut it alike (judged_depths)
 
 
 def stall_mask(cut) -> np.ndarray:
@@ -115,33 +115,47 @@ def stall_starts(cut) -> np.ndarray:
     return run_starts(stall_mask(cut))
 
 
-def best_fixed_depths(sweep: list, n_patches: int, *, same_cut: bool = False) -> list[float | None]:
-    """Per patch, the deepest fixed depth of ``sweep`` (cuts of one path) at which no stall began
-    while the edge was in that patch, of those whose edge cut its soil (``entered``); None if a
-    stall began there at every depth or none entered it. A stall is its soil's where it began:
-    one that began in dense clay and ran on a few ticks past the boundary into the loam after it
-    says nothing about the loam (counted there, it made the loam's best depth 0.150 m where no
-    stall began in the loam at any depth shallower than 0.225 m, seed 5 of the main path).
-    ``same_cut``: of those depths the shallowest whose edge cut the patch (mean depth) within
-    ``SAME_CUT_M`` of the deepest cut of them: the depth to be judged against. Where the floor
-    holds the edge short of its target (a dense gravel in the default world) every target from
-    0.125 m to 0.300 m cut 0.12 m, and "best 0.300 m" (an outside tester's) made a planner cutting
-    0.12 m there look 2.5x too shallow. (The conservative and aggressive depths stay the deepest
-    stall-free ones: "the deepest fixed depth that never stalls".)"""
-    ok: list[list[tuple[float, float]]] = [[] for _ in range(n_patches)]  # (fixed depth, mean cut depth there)
+def stall_free_cuts(sweep: list, n_patches: int) -> list[list[tuple[float, float]]]:
+    """Per patch, (fixed depth, mean depth the edge cut there) of the cuts of ``sweep`` (one path)
+    in which no stall began while the edge was in that patch, of those whose edge cut its soil
+    (``entered``). A stall is its soil's where it began: one that began in dense clay and ran on a
+    few ticks past the boundary into the loam after it says nothing about the loam (counted there,
+    it made the loam's best depth 0.150 m where no stall began in the loam at any depth shallower
+    than 0.225 m, seed 5 of the main path)."""
+    ok: list[list[tuple[float, float]]] = [[] for _ in range(n_patches)]
     for cut in sweep:
         began_in = set(cut.patch[stall_starts(cut)].tolist())
         for j in range(n_patches):
             if entered(cut, j) and j not in began_in:
                 ok[j].append((cut.policy.fixed_depth_m, float(cut.depth[cut.patch == j].mean())))
-    best: list[float | None] = [None] * n_patches
-    for j, cuts in enumerate(ok):
-        if cuts and same_cut:
-            deepest_cut = max(depth for _, depth in cuts)
-            best[j] = min(fixed for fixed, depth in cuts if depth >= deepest_cut - SAME_CUT_M)
-        elif cuts:
-            best[j] = max(fixed for fixed, _ in cuts)
+    return ok
+
+
+def deepest_stall_free(candidates: list[list[tuple[float, float]]]) -> list[float | None]:
+    """Per patch of ``stall_free_cuts``, the deepest fixed depth (None: a stall began there at every
+    depth, or none entered it): what the conservative and aggressive policies keep."""
+    return [max(fixed for fixed, _ in cuts) if cuts else None for cuts in candidates]
+
+
+def judged_depths(candidates: list[list[tuple[float, float]]]) -> list[float | None]:
+    """Per patch of ``stall_free_cuts``, the best fixed depth a planner is judged against: the
+    shallowest whose edge cut the patch within ``SAME_CUT_M`` of the deepest cut of them. Where the
+    floor holds the edge short of its target (a dense gravel in the default world) every target from
+    0.125 m to 0.300 m cut 0.12 m, and "best 0.300 m" (an outside tester's) made a planner cutting
+    0.12 m there look 2.5x too shallow."""
+    best: list[float | None] = []
+    for cuts in candidates:
+        deepest_cut = max((depth for _, depth in cuts), default=None)
+        best.append(None if deepest_cut is None else
+                    min(fixed for fixed, depth in cuts if depth >= deepest_cut - SAME_CUT_M))
     return best
+
+
+def best_fixed_depths(sweep: list, n_patches: int, *, same_cut: bool = False) -> list[float | None]:
+    """Per patch, the deepest stall-free fixed depth of ``sweep`` (``deepest_stall_free``), or with
+    ``same_cut`` the one a planner is judged against (``judged_depths``)."""
+    candidates = stall_free_cuts(sweep, n_patches)
+    return judged_depths(candidates) if same_cut else deepest_stall_free(candidates)
 
 
 def settle_s(cut, j: int, best_m: float | None) -> float | None:
@@ -174,12 +188,13 @@ def within_share(cut, j: int, best_m: float | None) -> float | None:
 def per_patch(cut, best: list[float | None]) -> list[dict]:
     """Per patch of the path: time, mean target and cut depth, stall time, hindsight best, settle time.
     The stall time is the ticks stalled while the edge was in the patch (where the machine stood
-    still); which depth is best counts a stall in the patch where it began (``best_fixed_depths``)."""
+    still); which depth is best counts a stall in the patch where it began (``stall_free_cuts``)."""
     dt = 1.0 / SAMPLE_RATE_HZ
     stalled = stall_mask(cut)
     rows = []
     for j, patch in enumerate(cut.spec.patches or (None,)):
         inside = cut.patch == j
+        best_m = best[j] if j < len(best) else None
         rows.append({
             "patch": j, "soil": patch.soil if patch else cut.spec.soil,
             "x_start_m": patch.x_start_m if patch else float(cut.x_b[0]),
@@ -188,8 +203,8 @@ def per_patch(cut, best: list[float | None]) -> list[dict]:
             "mean_target_m": float(cut.target[inside].mean()) if inside.any() else None,
             "mean_depth_m": float(cut.depth[inside].mean()) if inside.any() else None,
             "stall_s": float((stalled & inside).sum() * dt),
-            "best_fixed_depth_m": best[j] if j < len(best) else None,
-            "settle_s": settle_s(cut, j, best[j] if j < len(best) else None),
-            "within_share": within_share(cut, j, best[j] if j < len(best) else None),
+            "best_fixed_depth_m": best_m,
+            "settle_s": settle_s(cut, j, best_m),
+            "within_share": within_share(cut, j, best_m),
         })
     return rows

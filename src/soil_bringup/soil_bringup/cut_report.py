@@ -154,20 +154,19 @@ def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> No
 def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None,
                    custom_soils: dict | None = None) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
-    without a stall; ``cut_metrics.best_fixed_depths(same_cut=True)``), the conservative depth (the
+    without a stall; ``cut_metrics.judged_depths``), the conservative depth (the
     shallowest of the patches' deepest stall-free depths) and the aggressive one (the deepest) [m]; ``gains``: the controller's (default: its defaults); ``custom_soils``:
     soils by name beside the catalogue."""
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
-    n = len(spec.patches) or 1
-    deepest = CM.best_fixed_depths(sweep, n)  # stall-free: what the fixed policies keep
+    candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
+    deepest = CM.deepest_stall_free(candidates)  # what the fixed policies keep
     known = [b for b in deepest if b is not None]
     # a patch the edge reached where every depth stalled: no depth avoids a stall there, so the
     # conservative depth is the one that stalls least, the shallowest (the smallest best of the
     # others had stalled as long as the aggressive depth)
     stall_everywhere = bool(stalling_patches(sweep, deepest))
     conservative = min(SWEEP_DEPTHS_M) if stall_everywhere or not known else min(known)
-    # the depth each patch is judged against: of the stall-free ones the shallowest that cut it as deep
-    return sweep, CM.best_fixed_depths(sweep, n, same_cut=True), conservative, max(known or SWEEP_DEPTHS_M)
+    return sweep, CM.judged_depths(candidates), conservative, max(known or SWEEP_DEPTHS_M)
 
 
 def stalling_patches(sweep: list, best: list) -> list[int]:

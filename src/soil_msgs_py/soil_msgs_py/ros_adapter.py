@@ -44,8 +44,8 @@ def declare_parameters(node: Node, table: dict) -> Callable[[str], object]:
     """Declare ``{name: (default, description[, typed_default])}`` on ``node``; returns ``get(name)``.
 
     ``typed_default`` (e.g. ``Parameter.Type.STRING_ARRAY``) is declared instead of ``default``
-    where the default alone cannot give the type (an empty list). ``get`` reads the current value:
-    ``default`` where such a parameter was declared by its type and never given a value.
+    where the default alone cannot give the type (an empty list), then given ``default`` as that
+    type if nothing set it. ``get`` reads the current value (``default`` for one that has none).
     """
     doubles = {name for name, (default, *_) in table.items() if isinstance(default, float)}
     overrides = getattr(node, "_parameter_overrides", {})  # rclpy's (no public API): what -p and params files gave it
