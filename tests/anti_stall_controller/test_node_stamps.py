@@ -75,6 +75,7 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
     meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
     with RosProbe(domain) as probe:
         probe.subscribe(T.CMD_VEL.name, T.CMD_VEL.msgtype)
+        probe.subscribe(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
         status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
         twist = probe.publisher(TWIST, T.CHASSIS_TWIST.msgtype)
         pose = probe.publisher(POSE, T.CHASSIS_POSE.msgtype)
@@ -85,9 +86,9 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
             status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
                                                       planned_ticks=600).to_json()))
 
-            def send(stamp, nanosec=None):
+            def send(stamp, nanosec=None, p_z=-0.1):
                 t = M.build_message(classes, TWIST, stamp, [0.5, 0.0])
-                p = M.build_message(classes, POSE, stamp, [0.0, -0.1])
+                p = M.build_message(classes, POSE, stamp, [0.0, p_z])
                 if nanosec is not None:
                     t.header.stamp.nanosec = p.header.stamp.nanosec = nanosec
                 twist.publish(t)
@@ -110,11 +111,18 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
             send(LAST_SECOND)  # far in the future
             send(_tick(n), nanosec=1_500_000_000)  # nanosec of more than a second: invalid
             for k in range(n + 1, n + 5):
-                send(_tick(k))
+                send(_tick(k), p_z=-1e300 if k == n + 2 else -0.1)  # a finite but implausible pose
             probe.wait_for(lambda: {_tick(k) for k in range(n + 1, n + 5)} <= answered(), 20,
                            f"answers to the real ticks after the hostile pairs (got {sorted(answered())})")
+            probe.wait_for(lambda: _tick(n + 4) in {M.parse_message(T.BLADE_CMD.name, m)[0]
+                                                    for m in probe.messages(T.BLADE_CMD.name)}, 10, "blade commands")
         finally:
             ctl.stop()
         out = ctl.output
     assert LAST_SECOND not in answered()
     assert "future" in out and "nanosec=1500000000" in out, out
+    # the implausible pose's tick is answered as its neighbours are, the core holding its state
+    # (it had raised the blade to its stop, u_zr 1.0 m, without a word), and the warning names it
+    u_zr = {stamp: v[0] for stamp, v in (M.parse_message(T.BLADE_CMD.name, m) for m in probe.messages(T.BLADE_CMD.name))}
+    assert abs(u_zr[_tick(n + 2)] - u_zr[_tick(n + 1)]) < 0.01, u_zr
+    assert "p_z^c (point.z)=-1e+300" in out, out

@@ -99,7 +99,7 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     assert [s for _, s, _ in replay] == ep.stamps_ns.tolist()  # this probe waited for the estimator: every tick
     diff = np.abs(np.stack([v for _, _, v in replay[len(ep) - len(rec_stamps):]]) - rec_values)
     assert diff.max() <= 1e-6, _where_they_differ(diff, rec_stamps, launch.stdout + est.output)
-    assert "0 gaps, 0 out of order, 0 non-finite, 0 malformed" in est.output
+    assert "0 gaps, 0 out of order, 0 non-finite or implausible, 0 malformed" in est.output
 
 
 def _where_they_differ(diff: np.ndarray, stamps: np.ndarray, logs: str) -> str:
@@ -185,7 +185,7 @@ def test_bad_input_is_logged_never_published_as_nan_and_the_node_survives(tmp_pa
     log = node.output
     for needle in ("field d=nan", "tick(s) missing", "(out of order); window reset", "label mismatch"):
         assert needle in log, f"no warning with {needle!r} in\n{log}"
-    assert "1 out of order, 1 non-finite, 1 malformed, 0 duplicates, 0 evicted, 0 restarts" in log
+    assert "1 out of order, 1 non-finite or implausible, 1 malformed, 0 duplicates, 0 evicted, 0 restarts" in log
 
 
 def test_bad_checkpoint_exits_2_and_a_bad_runtime_swap_is_refused(tmp_path):

@@ -196,6 +196,26 @@ def test_nan_or_inf_field_drops_the_tick_and_is_never_published(episode, model):
     assert_never_nan(out)
 
 
+def test_an_implausible_finite_field_drops_the_tick_like_a_nan(episode, model):
+    """A blade pose at z = −1e300 m (an outside tester's, three ticks) had passed as finite: the
+    model's output went non-finite for a window, and the fused posterior took the samples and
+    stayed 8° off, with tighter intervals, for the rest of the episode; a 1e30 N force passed
+    without a word. Such a tick is dropped at the input, named, as a NaN is."""
+    msgs = in_order(episode, range(N_TICKS))
+    pose = M.topic_rows(episode, T.BLADE_POSE.name)[100].copy()
+    pose[1] = -1e300
+    bad_pose = M.build_message(M.TYPESTORE, T.BLADE_POSE.name, int(episode.stamps_ns[100]), pose)
+    msgs = [(t, bad_pose if (t == T.BLADE_POSE.name and M.parse_message(t, m)[0] == episode.stamps_ns[100]) else m)
+            for t, m in msgs]
+    warnings = []
+    est, out = run(model, msgs, warn=lambda kind, text: warnings.append(text))
+    assert est.counters.non_finite == 1 and est.counters.model_non_finite == 0
+    assert any("=-1e+300" in w and "beyond ±1e+09" in w for w in warnings), warnings
+    s = episode.stamps_ns
+    assert [e.stamp_ns for e in valid(out)] == s[59:100].tolist() + s[160:N_TICKS].tolist()
+    assert_never_nan(out)
+
+
 def test_out_of_order_stamp_invalidates_the_window(episode, model, offline):
     msgs = in_order(episode, range(0, 101)) + tick_messages(episode, 97)[:1] + in_order(episode, range(101, N_TICKS))
     warnings = []

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from soil_planner.node import check_log_period
+from soil_planner.node import MAX_LOG_PERIOD_S, check_log_period
 from soil_planner.planner import CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, check_settings
 
 FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None)
@@ -36,3 +38,12 @@ def test_log_period_accepts_finite_non_negative_or_names_it(period):
         assert str(err).startswith("log_period_s="), str(err)
         return
     assert math.isfinite(p) and p >= 0
+
+
+def test_a_log_period_too_long_for_the_nanosecond_count_is_refused():
+    """1e300 s had passed as finite and overflowed int(period · 1e9): the node died at start and on
+    a run-time set (an outside tester's finding)."""
+    for period in (1e300, MAX_LOG_PERIOD_S * 2, math.inf):
+        with pytest.raises(ValueError, match=r"log_period_s=.* must be a number in \[0, 86400\] s"):
+            check_log_period(period)
+    assert check_log_period(MAX_LOG_PERIOD_S) == MAX_LOG_PERIOD_S and check_log_period(0) == 0.0

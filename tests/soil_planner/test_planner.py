@@ -468,6 +468,32 @@ def test_the_fused_posterior_plans_while_the_pinn_window_is_not_full_and_bad_fus
             max_cut_depth(est, known, force_quantile=q)
 
 
+def test_a_plan_repeated_for_its_stretch_still_refuses_a_broken_tick_and_implausible_magnitudes_are_named():
+    """The fused plan is made once a stretch and repeated for the ticks between; an outside tester's
+    valid=0.5, Θ_k d=1e300 and v_x=NaN, and F̂_x=NaN got the repeated plan without a word, F̂_x=1e300
+    dragged the plans to 0 m (its steady anchor averaged it), and model_std_abs_x=1e300 overflowed the
+    plan to NaN. Each is refused naming the field, on a repeated tick as on a new one, and the tick
+    after it is planned as before."""
+    known = _known(d=0.12)
+    est = _fused(_estimate(known), 30 * DEG, 1e3, 15 * DEG, std=(1 * DEG, 100.0, 0.1 * DEG))
+    planner = StretchPlanner()
+    first, new = planner.plan(est, known)
+    assert new and first.max_depth_m > 0
+    for where, field, value, needle in (("est", "valid", 0.5, "estimate valid=0.5 must be 1.0 or 0.0"),
+                                        ("known", "d", 1e300, r"known d=1e\+300 is beyond ±1e\+09"),
+                                        ("known", "v_x", math.nan, "known v_x=nan"),
+                                        ("est", "f_x_hat", math.nan, "estimate f_x_hat=nan"),
+                                        ("est", "f_x_hat", 1e300, r"estimate f_x_hat=1e\+300 is beyond"),
+                                        ("est", "model_std_abs_x", 1e300, r"estimate model_std_abs_x=1e\+300 is beyond")):
+        bad_est, bad_known = (dict(est, **{field: value}), known) if where == "est" else (est, dict(known, **{field: value}))
+        with pytest.raises(ValueError, match=needle):
+            planner.plan(bad_est, bad_known)
+        with pytest.raises(ValueError, match=needle):
+            max_cut_depth(bad_est, bad_known)
+        again, new = planner.plan(est, known)
+        assert not new and again == first, (field, value)  # nothing of the broken tick was kept
+
+
 def test_unanchored_the_error_law_counts_from_each_samples_own_force_at_the_current_depth():
     """Without an anchor the law's relative part applies to what a sample extrapolates from the
     depth being cut (as the posterior's own forecasts count from its newest stretch): planning

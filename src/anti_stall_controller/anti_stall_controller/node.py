@@ -33,6 +33,7 @@ tick unanswered, and a lockstep simulator waiting).
 """
 from __future__ import annotations
 
+import math
 import time
 
 from rcl_interfaces.msg import SetParametersResult
@@ -287,6 +288,15 @@ class ControllerNode(Node):
             value = (float(values[0]), float(values[1]))
         else:
             value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
+        if not M.plausible_values(value):
+            # the tick is still answered (a lockstep simulator waits for it), the core holding its
+            # state for it: a finite 1e300 pose had raised the blade to its stop without a word
+            field = T.BLADE_FORCE.name + " (F_x, F_z)" if topic == T.BLADE_FORCE.name else (
+                "v_x^c (linear.x)" if topic == T.CHASSIS_TWIST.name else "p_z^c (point.z)")
+            self._warn(f"{topic}:implausible", f"{topic}: {field}={value!r} at stamp {stamp} ns is not finite or is "
+                                               f"beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}; that tick is answered with the "
+                                               "controller holding its state")
+            value = (math.nan, math.nan) if topic == T.BLADE_FORCE.name else math.nan
         last = self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, value)
         if verdict is Verdict.STALE:

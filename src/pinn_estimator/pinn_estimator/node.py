@@ -32,12 +32,12 @@ from soil_msgs_py.ros_adapter import (
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .fusion_calibration import checkpoint_world, config_path, estimator_fusion
-from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
+from .online import INPUT_TOPICS, MAX_STRIDE_TICKS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
 
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
-    "stride": (1, "estimate every n-th tick once the window is full (1: every tick, 60 Hz)"),
+    "stride": (1, f"estimate every n-th tick once the window is full (1: every tick, 60 Hz; at most {MAX_STRIDE_TICKS})"),
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_<world>.json "
@@ -193,7 +193,7 @@ class EstimatorNode(Node):
         c = self.core.counters
         self.get_logger().info(
             f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
-            f"{c.out_of_order} out of order, {c.non_finite} non-finite, {c.malformed} malformed, "
+            f"{c.out_of_order} out of order, {c.non_finite} non-finite or implausible, {c.malformed} malformed, "
             f"{c.duplicates} duplicates, {c.evicted} evicted, {c.restarts} restarts")
 
 

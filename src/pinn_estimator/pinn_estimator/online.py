@@ -15,7 +15,8 @@ Synchronisation by stamp
 Validity (never estimate across a gap, never publish NaN)
     The window is the last ``WINDOW_SAMPLES`` released samples *if they are consecutive
     ticks*. A missing tick, a message older than the last released sample (out of order), a
-    non-finite field or a message that does not parse resets the window: the next estimate
+    non-finite or implausible field (beyond ±1e9: a 1e300 pose sample had spoilt the soil
+    posterior for the rest of the episode) or a message that does not parse resets the window: the next estimate
     comes only after 60 new consecutive samples. The model's output is checked too; a
     non-finite output is reported and published as invalid.
 """
@@ -43,6 +44,7 @@ from .soil_map import SoilMap
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
+MAX_STRIDE_TICKS = 60 * SAMPLE_RATE_HZ  # the rarest estimates a node may be set to: one a minute
 # A stamp more than a window behind the last sample is not a late message but a source that
 # started over (a bag replayed again, a simulator reset) without an episode_start.
 RESTART_BACK_TICKS = WINDOW_SAMPLES
@@ -87,7 +89,7 @@ class Counters:
     invalid: int = 0  # invalid estimate messages
     gaps: int = 0  # missing ticks, wholly or some of their messages (window reset)
     out_of_order: int = 0  # messages older than the last released sample (window reset)
-    non_finite: int = 0  # messages with a NaN/inf field (window reset)
+    non_finite: int = 0  # messages with a NaN/inf or implausible field (``messages.plausible_values``; window reset)
     malformed: int = 0  # messages that did not parse (wrong layout/shape)
     duplicates: int = 0  # a second message of a topic for the same tick (tick dropped)
     evicted: int = 0  # incomplete ticks dropped to bound memory (a topic stopped, or bogus stamps)
@@ -165,7 +167,7 @@ class SampleAssembler:
             self.counters.malformed += 1
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
-        broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not np.isfinite(v)), None)
+        broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v)), None)
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
         if verdict is Verdict.STALE:
@@ -189,7 +191,8 @@ class SampleAssembler:
         elif broken and not was_bad:
             self.counters.non_finite += 1
             self.warn(f"{topic}:non_finite", f"{topic}: field {broken[0]}={broken[1]} at stamp {stamp} ns is not "
-                                             "finite; that tick is dropped and the window reset")
+                                             f"finite or is beyond ±{M.PLAUSIBLE_ABS_LIMIT:g} (or subnormal): no "
+                                             "value of the graph; that tick is dropped and the window reset")
         for joined in out:
             self._released(joined)
 
@@ -341,8 +344,9 @@ class OnlineEstimator:
 
     @staticmethod
     def _check_stride(stride) -> int:
-        if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
-            raise ValueError(f"stride={stride!r} must be an integer >= 1 tick")
+        if not isinstance(stride, int) or isinstance(stride, bool) or not 1 <= stride <= MAX_STRIDE_TICKS:
+            raise ValueError(f"stride={stride!r} must be an integer in [1, {MAX_STRIDE_TICKS}] ticks (at least one "
+                             "estimate a minute: a larger stride left the planner without any)")
         return stride
 
     def set_stride(self, stride: int) -> None:

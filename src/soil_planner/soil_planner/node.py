@@ -92,6 +92,7 @@ NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) b
 TARGET_STEP_M = 1e-3
 TARGET_HEARTBEAT_NS = M.NS_PER_S // 5
 
+MAX_LOG_PERIOD_S = 86400.0  # a day of simulation time: longer than any cut (1e300 s overflowed the ns count)
 PARAMETERS: dict[str, tuple] = {
     "margin": (DEFAULT_MARGIN, f"fraction of the force limits ({FORCE_LIMITS_N[0] / 1e3:g} kN tractive x, "
                                f"{FORCE_LIMITS_N[1] / 1e3:g} kN lift z) a cut may use, (0, 1]"),
@@ -117,7 +118,8 @@ PARAMETERS: dict[str, tuple] = {
                             "plan is anchored to the measured force (a model outside its training is trusted no "
                             "further than the sensor); a measured force below F̂ never makes a plan deeper. Fused "
                             "plans only (no effect with force_quantile 0)"),
-    "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], >= 0 (0: every plan)"),
+    "log_period_s": (1.0, "at most one plan log line per this much simulation time [s], "
+                     f"in [0, {MAX_LOG_PERIOD_S:g}] (0: every plan)"),
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
                                                f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
@@ -178,8 +180,8 @@ def check_target_floor(planner: StretchPlanner, schedule: ScheduleSettings) -> N
 
 
 def check_log_period(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0.0 or value == float("inf"):
-        raise ValueError(f"log_period_s={value!r} must be a finite number >= 0 s")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= MAX_LOG_PERIOD_S:
+        raise ValueError(f"log_period_s={value!r} must be a number in [0, {MAX_LOG_PERIOD_S:g}] s")
     return float(value)
 
 
@@ -397,21 +399,23 @@ class PlannerNode(Node):
             self._publish(stamp, NO_PLAN_VALUES)
             self._target(stamp, None)
             return
-        self._publish(stamp, plan.values())
-        self._target(stamp, plan.max_depth_m)
+        published = self._publish(stamp, plan.values())
+        self._target(stamp, plan.max_depth_m if published else None)  # a plan not published moves no target
         if not new:
             return
         if self.last_log_ns is None or stamp < self.last_log_ns or stamp - self.last_log_ns >= self.log_period_ns:
             self.last_log_ns = stamp
             self.get_logger().info(describe(plan, est, known, self.planner.sensor_gap_n))
 
-    def _publish(self, stamp: int, values) -> None:
+    def _publish(self, stamp: int, values) -> bool:
+        """Whether the plan ``values`` went out (never a non-finite one)."""
         values = np.asarray(values, dtype=np.float64)
-        if not np.isfinite(values).all():  # cannot happen (the core checks its forces); never let NaN out
-            self._warn("non_finite_plan", f"plan at stamp {stamp} ns is not finite; not published")
-            return
+        if not np.isfinite(values).all():  # should not happen (the core checks its inputs and forces); never let NaN out
+            self._warn("non_finite_plan", f"plan at stamp {stamp} ns is not finite ({values.tolist()}); not published")
+            return False
         self.plan_pub.publish(M.make_labelled(self.classes, stamp, T.PLAN_FIELDS, values))
         self.published += 1
+        return True
 
     def _target(self, stamp: int, plan_depth_m: float | None) -> None:
         """The controller's target for this tick through the depth schedule (a new cut restarts it)."""

@@ -100,6 +100,7 @@ from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
                                  MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
+from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_msgs_py.patches import short_repr
 from soil_physics.predictive import (extrapolated_part, mean_standard_error, model_error_std, upper_magnitude,
@@ -333,29 +334,24 @@ def max_cut_depth(
     bound_law = check_bound_law(bound_law)
     if force_quantile is not None:
         force_quantile = check_quantile(force_quantile)
-    valid = _flag(estimate, "valid")
-    # (an estimate without the fused fields, e.g. from an estimator without them: the point plan)
-    fused = force_quantile is not None and "fused_valid" in estimate and _flag(estimate, "fused_valid") == 1.0
-    if grid_points is None:
-        grid_points = FUSED_GRID_POINTS if fused else GRID_POINTS
-    if int(grid_points) != grid_points or grid_points < 2:
+    if grid_points is not None and (int(grid_points) != grid_points or grid_points < 2):
         raise ValueError(f"grid_points={grid_points!r} must be an integer >= 2")
     if not 0.0 < tol_m:
         raise ValueError(f"tol_m={tol_m!r} must be > 0 m")
-    if valid == 0.0 and not fused:
+    valid, fused, est, kn = checked_inputs(estimate, known, force_quantile)
+    if kn is None:
         return None
-    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    if grid_points is None:
+        grid_points = FUSED_GRID_POINTS if fused else GRID_POINTS
     limits = np.array([margin * FORCE_LIMITS_N[0], margin * FORCE_LIMITS_N[1]])
     if fused:
-        est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
         force_now, known_now, std_now = None, kn, (0.0, 0.0)
         if include_residual and anchor is not None:
             force_now, known_now, std_now = _checked_anchor(anchor)
         elif include_residual and valid == 1.0:  # the PINN's force now, where the plan is anchored
-            force_now = tuple(_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
+            force_now = (est["f_x_hat"], est["f_z_hat"])
         model = _FusedForceModel(est, kn, cut_speed_m_s, force_quantile, force_now, known_now, terms, std_now, bound_law)
     else:
-        est = _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS, "estimate")
         model = _ForceModel(est, kn, cut_speed_m_s, include_residual)
 
     grid = np.linspace(0.0, d_max_m, int(grid_points))
@@ -390,6 +386,28 @@ def max_cut_depth(
         residual_x_n=float(model.residual[0]), residual_z_n=float(model.residual[1]),
         residual_used=model.residual_used, force_quantile=float(force_quantile) if fused else 0.0,
     )
+
+
+def checked_inputs(estimate: Mapping[str, float], known: Mapping[str, float], force_quantile: float | None
+                   ) -> tuple[float, bool, dict[str, float] | None, dict[str, float] | None]:
+    """(the estimate's valid flag, whether it is planned from its fused posterior, the fields a plan
+    reads and Θ_k, both checked; both None where there is nothing to plan from). ValueError naming
+    the field and value for anything a plan may not use (missing, not finite, beyond a plausible
+    magnitude, outside Table 1): checked on every tick, also where a plan is repeated for its
+    stretch, so a broken message is refused whether or not a plan is made from it."""
+    valid = _flag(estimate, "valid")
+    # (an estimate without the fused fields, e.g. from an estimator without them: the point plan)
+    fused = force_quantile is not None and "fused_valid" in estimate and _flag(estimate, "fused_valid") == 1.0
+    if valid == 0.0 and not fused:
+        return valid, fused, None, None
+    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    if not fused:
+        return valid, fused, _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS,
+                                      "estimate"), kn
+    est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
+    if valid == 1.0:  # the PINN's force now: what the plan and its steady anchor are anchored to
+        est |= _checked(estimate, ("f_x_hat", "f_z_hat"), {}, "estimate")
+    return valid, fused, est, kn
 
 
 def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float], depths_m, *,
@@ -694,6 +712,7 @@ class StretchPlanner:
         ``commanded_depth_m``: the depth the controller commands for this tick [m], −u_za of
         /blade/cmd; ``measured_force_n``: the blade's measured (F_x, F_z) [N] of this tick,
         /blade/force (both ``SteadyAnchor.add``)."""
+        checked_inputs(estimate, known, self.force_quantile)  # before the anchor and a repeated plan take it
         fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
         self.anchor.add(estimate, known, commanded_depth_m, measured_force_n)
         self.stalls.add(known, self.cut_speed_m_s)
@@ -1014,6 +1033,8 @@ def _number(name: str, value) -> float:
         raise ValueError(f"{name}={value!r} must be a number") from None
     if not math.isfinite(x):
         raise ValueError(f"{name}={value!r} must be finite")
+    if abs(x) > PLAUSIBLE_ABS_LIMIT:  # (a 1e300 force or std overflowed the plan's squares)
+        raise ValueError(f"{name}={value!r} is beyond ±{PLAUSIBLE_ABS_LIMIT:g}, a value no part of the graph gives")
     return x
 
 
