@@ -235,6 +235,13 @@ def test_train_cli_writes_checkpoint_that_round_trips(tiny_bags, tmp_path):
     out2 = tmp_path / "m2.pt"
     assert train_main([*args[:3], str(out2), *args[4:]]) == 0
     assert torch.equal(torch.load(out2, weights_only=True)["state_dict"]["head.weight"], raw["state_dict"]["head.weight"])
+    # a learning rate far beyond any that trains is refused before training, the checkpoint there kept (an
+    # outside tester's --lr 1e4 had ended in a TypeError from load_state_dict(None), no epoch's validation
+    # loss being finite; 1e300 in torch's "cannot be converted to type float without overflow")
+    before = out2.read_bytes()
+    for lr in ("1e4", "1e300"):
+        assert train_main([*args[:3], str(out2), *args[4:], "--epochs", "1", "--lr", lr, "--overwrite"]) == 2
+    assert out2.read_bytes() == before
 
 
 def test_eval_reports_pinn_and_both_baselines_on_the_same_windows(tiny_bags, tmp_path):

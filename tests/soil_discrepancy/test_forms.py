@@ -623,6 +623,9 @@ def test_a_catalogue_with_a_huge_k_or_binary_content_is_refused_naming_it(tmp_pa
     huge.write_text(f"terms:\n- term: soil_inertia\n  k: {10**400}\n")
     with pytest.raises(ValueError, match=r"terms\[0\]\.k=1000.*\.\.\. \(\d+ characters\) is not a finite number"):
         load_catalogue(huge)
+    exponent = tmp_path / "exponent.yaml"  # PyYAML reads 1e0 as a string: it was refused as "not a finite number"
+    exponent.write_text("terms:\n- term: soil_inertia\n  k: 2e0\n")
+    assert load_catalogue(exponent)[0]["k"] == 2.0
     binary = tmp_path / "binary.yaml"
     binary.write_bytes(b"\xff\xfe\x00\x80terms: []\n")
     for path, said in ((huge, "terms[0].k="), (binary, "is not UTF-8 text")):

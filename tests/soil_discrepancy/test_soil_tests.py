@@ -173,3 +173,8 @@ def test_cli_refuses_a_bad_soil_test_file_before_reading_bags(tmp_path, capsys):
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump(lab_results()))
     assert len(load_soil_tests(good)) == 8
+    exponent = tmp_path / "exponent.yaml"  # PyYAML reads 1e0 as a string: "is not a finite number" before
+    exponent.write_text("soil_tests:\n  - {soil: Clay, phi_deg: 2e1, phi_std_deg: 1e0}\n")
+    assert len(load_soil_tests(exponent)) == 1
+    hidden_none = cli_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--hidden", ","])
+    assert hidden_none == 2 and "--hidden ',' names no term" in capsys.readouterr().err  # (an IndexError after the run)

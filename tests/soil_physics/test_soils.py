@@ -375,6 +375,8 @@ def test_sectioned_file_has_soils_and_named_paths(tmp_path):
     ("paths: {a: []}", r"paths\.a=\[\] must be a non-empty list"),
     ("paths: [a]", r"paths=\['a'\] must map a path name"),
     ("soils: []\nroads: {}", r"unknown section\(s\) \['roads'\]"),
+    # a misspelled section alone had read "name=None must be a non-empty string"
+    ("soilz:\n- {name: Silt, phi_deg: [26, 34]}", r"the keys \['soilz'\] are neither a soil's \(it needs a 'name'\) nor"),
 ])
 def test_bad_paths_name_the_file_path_and_value(tmp_path, text, needle):
     with pytest.raises(ValueError, match=rf"soil file '.*': {needle}"):

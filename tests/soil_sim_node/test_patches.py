@@ -175,6 +175,11 @@ def test_soil_sim_batch_takes_a_named_path_of_the_soil_file(tmp_path):
     (["--speeds", "0.5,"], "--speeds='0.5,': item 2 is empty"),
     (["--depths", "0.1,0.005"], "--depths 0.005: the blade cuts from 0.01 m"),
     (["--depths", "0"], "--depths 0: the blade cuts from 0.01 m"),
+    # an outside tester's: an empty soil was dropped where an empty speed is refused; a seed base whose
+    # last episode's seed overflowed was named as that seed, not as --seed-base; a plugin's k given twice
+    (["--soils", "Clay,,Sand"], "--soils='Clay,,Sand': item 2 is empty"),
+    (["--soils", "Clay", "--depths", "0.1,0.2", "--seed-base", str(2**63 - 1)], "--seed-base=9223372036854775807 must be in"),
+    (["--soils", "Clay", "--plugin", "soil_physics.force_terms:plugin term=soil_inertia k=1 k=2"], "parameter 'k' is given twice"),
 ])
 def test_soil_sim_batch_refuses_bad_patches_before_writing(tmp_path, capsys, argv, needle):
     out = tmp_path / "never"

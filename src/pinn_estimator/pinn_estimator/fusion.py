@@ -112,7 +112,7 @@ BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
 # runs components × forecast_samples models; a 400-digit count asked numpy for more memory than
 # exists) and a stretch longer than a minute, which could not follow a soil change along the path.
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
-                    "components": (1, 64)}
+                    "components": (1, 64), "seed": (0, 2**63 - 1)}  # (numpy's generator: a seed >= 0)
 # The standard deviations' upper bounds: beyond what the calibration tries (shares up to 2, floors up
 # to 3 kN: fusion_calibration's grids), below where their squares overflow (1e300 gave an
 # OverflowError or an inf variance and a posterior of NaN): a model error of ten times the force,
@@ -273,7 +273,8 @@ class FusionConfig:
         if "terms" in data:
             terms = data["terms"]
             if not isinstance(terms, (list, tuple)) or not all(
-                    isinstance(t, str) or (isinstance(t, (list, tuple)) and len(t) == 2) for t in terms):
+                    isinstance(t, str) or (isinstance(t, (list, tuple)) and len(t) == 2 and isinstance(t[0], str))
+                    for t in terms):
                 raise ValueError(f"fusion terms={terms!r} must be a list of [name, k] pairs (or 'name=k' texts)")
             data["terms"] = tuple(t if isinstance(t, str) else tuple(t) for t in terms)
         try:

@@ -50,6 +50,7 @@ MODEL_FIELDS_NOT_OPTIONS = ("kind", "window", "n_obs", "n_known", "extra_terms")
 
 
 LR_SCHEDULES = ("plateau", "cosine")
+MAX_LR = 10.0  # the largest learning rate taken: far beyond any that trains (2e-3 does), short of overflowing
 
 
 @dataclass
@@ -91,6 +92,8 @@ class TrainConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"{name}={v!r} must be a positive number")
+        if self.lr > MAX_LR:  # (1e300 ended in torch's "cannot be converted to type float without overflow")
+            raise ValueError(f"lr={self.lr!r} must be at most {MAX_LR:g} (Adam's steps are about lr in each weight)")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed <= cli_numbers.MAX_NUMPY_SEED:
             raise ValueError(f"seed={self.seed!r} must be an integer in [0, 2**32 - 1] (numpy's seeding)")
 
@@ -238,7 +241,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                 if pairs:
                     loss = loss + cfg.consistency * consistency_loss(out["theta"][:n_pick], out["theta"][n_pick:])
                 if not torch.isfinite(loss):
-                    raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr")
+                    raise FloatingPointError(f"training loss became {float(loss)} at epoch {epoch}; lower --lr "
+                                             "(or the k of an --extra-term)")
                 opt.zero_grad(set_to_none=True)
                 (loss * weight).backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -284,6 +288,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         count = epoch_windows  # the last whole epoch's
     if bar is not None:
         bar.close()
+    if best[1] is None:  # every epoch's validation loss NaN or inf: there is no model to keep (--lr 1e4 did this)
+        raise FloatingPointError(f"the validation loss was never finite in {len(history['epoch'])} epoch(s); lower --lr "
+                                 "(or the k of an --extra-term)")
     model.load_state_dict(best[1])
     model.eval()
     val_force = best[3]  # the best epoch's validation, agreed by every rank (no pass alone over all of it)

@@ -101,6 +101,8 @@ def main(argv=None) -> int:
                       "--allow-negative-k)", file=sys.stderr)
         hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
         if hidden is not None:
+            if not hidden:  # (it failed in hidden_check, after the whole run)
+                raise ValueError(f"--hidden {args.hidden!r} names no term: give NAME=K[,NAME=K], or none for a control")
             refuse_repeats(hidden, "--hidden")
         user_terms = {t["term"]: t["name"] for t in load_catalogue(args.catalogue)} if args.catalogue else {}
         soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()

@@ -40,7 +40,7 @@ import warnings
 
 import numpy as np
 
-from soil_msgs_py.patches import finite_number, short_repr
+from soil_msgs_py.patches import finite_number, short_repr, yaml_exponent
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 
@@ -599,7 +599,7 @@ def load_catalogue(path) -> list[dict]:
             force_terms.get_term(term)
         except ValueError as exc:
             raise ValueError(f"catalogue {p}: terms[{i}]: {exc}") from None
-        k = row.get("k")
+        k = yaml_exponent(row.get("k"))  # (PyYAML reads 1e0 as a string)
         if k is not None and not finite_number(k):  # a 400-digit integer too: no OverflowError
             raise ValueError(f"catalogue {p}: terms[{i}].k={short_repr(k)} is not a finite number")
         out.append({"term": term, "name": str(row.get("name") or term), "k": None if k is None else float(k)})

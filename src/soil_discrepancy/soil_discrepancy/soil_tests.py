@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG
-from soil_msgs_py.patches import finite_number, short_repr
+from soil_msgs_py.patches import finite_number, short_repr, yaml_exponent
 
 from .frame import Frame
 from .yaml_file import read_yaml
@@ -77,6 +77,7 @@ class SoilTest:
 
 
 def _number(where: str, key: str, value, *, positive: bool = False, lo: float | None = None, hi: float | None = None) -> float:
+    value = yaml_exponent(value)  # (PyYAML reads 1e0 as a string)
     if not finite_number(value):
         raise ValueError(f"{where}.{key}={short_repr(value)} is not a finite number")
     x = float(value)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 import numbers
 from dataclasses import asdict, dataclass, fields
 
@@ -96,6 +97,15 @@ def short_repr(value, most: int = 40) -> str:
     readable in the error that names it."""
     text = repr(value)
     return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
+def yaml_exponent(value):
+    """A YAML text such as ``16e3`` or ``1e0`` as the number it means (YAML 1.1, which PyYAML reads,
+    takes an exponent without a dot for a string); any other value unchanged."""
+    return float(value) if isinstance(value, str) and _EXPONENT_FLOAT.match(value) else value
 
 
 def finite_number(value) -> bool:

@@ -212,6 +212,8 @@ def parse_terms(specs) -> tuple[tuple[str, float], ...]:
                 raise ValueError(f"effect term {spec!r} must look like 'name=k', e.g. 'soil_inertia=2.0'")
         else:
             name, value = spec
+        if not isinstance(name, str):
+            raise ValueError(f"effect term {short_repr(spec)}: its name {short_repr(name)} must be a text, e.g. 'soil_inertia'")
         get_term(name.strip())
         try:
             k = float(value)

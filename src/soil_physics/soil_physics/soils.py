@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG, TABLE1
-from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr
+from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr, yaml_exponent
 from soil_msgs_py.soil_labels import UNKNOWN_SOILS, says_unknown
 
 
@@ -117,7 +117,6 @@ def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:
 
 _UNSAFE_NAME = re.compile(r'[/\\:*?"<>|]')  # path separators and what some file systems refuse
 MAX_SOIL_NAME_BYTES = 64  # a bag's directory name holds it, and a file name at most 255 bytes
-_EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
 def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float, float]:
@@ -128,8 +127,7 @@ def _pair(data: dict, key: str, lo: float, hi: float, unit: str) -> tuple[float,
         raise ValueError(f"{key}={short_repr(value)} must be a [loose, dense] pair in {unit}")
     out = []
     for v in value:
-        if isinstance(v, str) and _EXPONENT_FLOAT.match(v):  # YAML 1.1 reads 16e3 as a string
-            v = float(v)
+        v = yaml_exponent(v)  # YAML 1.1 reads 16e3 as a string
         # finite_number: a 400-digit integer in the YAML is refused here, not an OverflowError
         if not finite_number(v) or not lo <= v <= hi:
             raise ValueError(f"{key}={short_repr(value)}: each value must be a number in [{lo}, {hi}] {unit}")
@@ -230,6 +228,9 @@ def load_soil_file(path: str | Path) -> SoilFile:
     if isinstance(items, dict) and "name" not in items and items and all(isinstance(v, dict) for v in items.values()):
         raise ValueError(f"soil file {str(path)!r}: soils are a mapping of names {short_repr(sorted(map(str, items)))}; "
                          "give a list of soils, each with its name: '- {name: Silt, phi_deg: [26, 34], ...}'")
+    if isinstance(items, dict) and "name" not in items:  # ('soilz:' had read "name=None must be a non-empty string")
+        raise ValueError(f"soil file {str(path)!r}: the keys {short_repr(sorted(map(str, items)))} are neither a soil's "
+                         f"(it needs a 'name') nor the sections {list(SECTIONS)}")
     soils = []
     for index, item in enumerate(items if isinstance(items, list) else [items]):
         try:

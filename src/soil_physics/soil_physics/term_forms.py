@@ -268,7 +268,9 @@ def parse(name: str) -> tuple[float, Piece, Piece]:
         raise ValueError(f"form {name!r} must look like '{PREFIX}<scale>*<factor>'")
     body = name[len(PREFIX):]
     sign = -1.0 if body.startswith("-") else 1.0
-    a, sep, b = body.lstrip("-").partition("*")
+    if body.startswith("--"):  # ('--' read as one minus had been a second name of the same term, past every repeat check)
+        raise ValueError(f"form {name!r} must look like '{PREFIX}[-]<scale>*<factor>': one '-' at most")
+    a, sep, b = body.removeprefix("-").partition("*")
     if not sep:
         raise ValueError(f"form {name!r} must look like '{PREFIX}<scale>*<factor>' (no '*')")
     if a not in SCALES:  # the part that is wrong, named first

@@ -46,7 +46,7 @@ from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigte
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir
-from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, beyond_lift_reach
 from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
@@ -357,15 +357,21 @@ def _cluster_gone(err: Exception) -> bool:
     return type(err).__name__ in ("LocalRayletDiedError", "NodeDiedError")
 
 
+def _items(text: str, name: str, what: str = "numbers") -> list[str]:
+    """A comma-separated grid axis' items; empty ('' or ',') is refused: it made a plan of no
+    episodes. An empty item ('0.1,,0.2') is refused too: it was dropped without a word, most likely
+    a value left out."""
+    items = [x.strip() for x in text.split(",")]
+    if not any(items):
+        raise ValueError(f"--{name}={text!r} gives no value; give a comma-separated list of {what}")
+    if not all(items):
+        raise ValueError(f"--{name}={text!r}: item {items.index('') + 1} is empty; give a comma-separated list of {what}")
+    return items
+
+
 def _floats(text: str, name: str) -> tuple[float, ...]:
-    """A grid axis; empty ('' or ',') is refused: it made a plan of no episodes. An empty item
-    ('0.1,,0.2') is refused too: it was dropped without a word, most likely a value left out."""
-    items = text.split(",")
-    if not any(x.strip() for x in items):
-        raise ValueError(f"--{name}={text!r} gives no value; give a comma-separated list of numbers")
-    if not all(x.strip() for x in items):
-        raise ValueError(f"--{name}={text!r}: item {[x.strip() for x in items].index('') + 1} is empty; "
-                         "give a comma-separated list of numbers")
+    """A grid axis of numbers (``_items``)."""
+    items = _items(text, name)
     try:
         return tuple(float(x) for x in items)
     except ValueError:
@@ -465,9 +471,8 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     if patches:
         soils, relative_densities = [patches[0].soil], [patches[0].relative_density_pct]
     else:
-        soils = [s.strip() for s in (",".join(CATALOGUE) if args.soils is None else args.soils).split(",") if s.strip()]
-        if not soils:  # '--soils ""' meant all four soils, '--soils ,' none (and an empty dataset.json)
-            raise ValueError(f"--soils={args.soils!r} names no soil; give a comma-separated list, e.g. Sand,Clay")
+        # ('--soils ""' had meant all four soils, '--soils ,' none and an empty dataset.json)
+        soils = list(CATALOGUE) if args.soils is None else _items(args.soils, "soils", "soil names, e.g. Sand,Clay")
         relative_densities = (DEFAULT_RELATIVE_DENSITIES if args.relative_densities is None
                               else _floats(args.relative_densities, "relative-densities"))
     effects = effects_for_mode(args.mode)
@@ -477,6 +482,10 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     speeds = GRID_SPEEDS[args.mode] if args.speeds is None else _floats(args.speeds, "speeds")
     if args.seeds < 1:
         raise ValueError(f"seeds={args.seeds} must be >= 1")
+    n_episodes = len(soils) * len(relative_densities) * len(speeds) * len(_depths(args.depths)) * args.seeds
+    if not 0 <= args.seed_base <= MAX_SEED - (n_episodes - 1):  # each episode's seed is seed_base + its index
+        raise ValueError(f"--seed-base={args.seed_base} must be in [0, {MAX_SEED - (n_episodes - 1)}] for "
+                         f"{n_episodes} episode(s): episode i is seeded seed_base + i, at most {MAX_SEED}")
     specs = grid_specs(soils, relative_densities, speeds, _depths(args.depths), args.seeds, args.seed_base,
                        args.duration, patches)
     out = args.out or Path("bags") / f"d_{args.mode}"

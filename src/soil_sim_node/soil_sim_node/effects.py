@@ -201,6 +201,8 @@ def _parse_spec(spec: str) -> tuple[str, dict]:
         key, sep, value = pair.partition("=")
         if not sep or not key.isidentifier():
             raise PluginError(f"plugin={spec!r}: parameter {pair!r} must look like key=value")
+        if key in params:  # ('k=1 k=2' took the last, and the bag recorded both)
+            raise PluginError(f"plugin={spec!r}: parameter {key!r} is given twice")
         try:
             params[key] = float(value)
         except ValueError:

@@ -9,7 +9,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
+
+from soil_msgs_py import cli_numbers
+from soil_msgs_py.cli_paths import output_file
+from soil_msgs_py.episode import MAX_EPISODE_S
 
 from .phenomena import Settings, format_report, run_all
 
@@ -21,8 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "phenomena (depth vs I_d, surcharge growth, fee == FEE, default > fee, oscillations).",
     )
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s] (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="base seed; episode i uses seed + i (default 0)")
-    p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also save all numbers as JSON here")
+    p.add_argument("--seed", type=cli_numbers.seed, default=0, help="base seed; episode i uses seed + i (default 0)")
+    p.add_argument("--json", type=output_file, default=None, metavar="PATH", help="also save all numbers as JSON here")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     return p
 
@@ -30,8 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     tail = 5.0
-    if args.duration < 2.5:
-        print(f"soil_sim_report: --duration={args.duration} must be >= 2.5 s "
+    if not 2.5 <= args.duration <= MAX_EPISODE_S:  # (NaN too; checked before any episode runs)
+        print(f"soil_sim_report: --duration={args.duration} must be in [2.5, {MAX_EPISODE_S:g}] s "
               "(a 1 s detrend window and a tail to average over)", file=sys.stderr)
         return 2
     try:
