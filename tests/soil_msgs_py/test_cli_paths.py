@@ -99,3 +99,34 @@ def test_a_place_nothing_can_be_written_is_refused_and_the_probe_leaves_nothing(
     assert output_dir(str(tmp_path / "a" / "b")) == tmp_path / "a" / "b"
     assert output_file(str(tmp_path / "c" / "model.pt")) == tmp_path / "c" / "model.pt"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_directory_where_a_tool_writes_a_file_is_refused_before_the_work(tmp_path, capsys):
+    """An outside tester's: a directory named like a file a tool writes (m_curve.png beside a
+    checkpoint, discrepancy.json, dataset.json, ...) cost the whole run, an IsADirectoryError at the
+    end and a temporary file left behind. Each tool now refuses it first, naming it, exit 2."""
+    from pinn_estimator.evaluate import main as eval_main
+    from pinn_estimator.train import main as train_main
+    from soil_bringup.cut_report import main as cut_main
+    from soil_discrepancy.cli import main as discrepancy_main
+    from soil_sim_node.batch import main as batch_main
+    from soil_sim_node.plot import main as plot_main
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    cases = [
+        (batch_main, ["--out", str(tmp_path / "sb"), "--soils", "Clay", "--relative-densities", "40", "--speeds", "0.5",
+                      "--depths", "0.1", "--seeds", "1", "--duration", "2", "--quiet"], tmp_path / "sb" / "dataset.json"),
+        (train_main, ["--data", str(bag), "--out", str(tmp_path / "m.pt"), "--quiet"], tmp_path / "m_curve.png"),
+        (eval_main, ["--checkpoint", str(tmp_path / "m.pt"), "--out", str(tmp_path / "ev"), "--name", "r", "--quiet"],
+         tmp_path / "ev" / "r.md"),
+        (cut_main, ["--worlds", "fee", "--out", str(tmp_path / "cr")], tmp_path / "cr" / "cut_fee.png"),
+        (discrepancy_main, [str(bag), "--out", str(tmp_path / "dj"), "--quiet"], tmp_path / "dj" / "discrepancy.json"),
+        (plot_main, [str(bag)], tmp_path / "bag.png"),
+    ]
+    for main, argv, squatter in cases:
+        squatter.mkdir(parents=True)
+        assert main(argv) == 2, squatter
+        err = capsys.readouterr().err
+        assert f"{str(squatter)!r} is a directory where this run writes a file" in err, err
+        assert not (tmp_path / "sb" / "dataset.json.partial").exists() and not list(squatter.parent.glob("*.tmp"))

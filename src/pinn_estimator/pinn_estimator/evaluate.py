@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import file_stem, input_text, output_dir
+from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -516,9 +516,14 @@ def plot(report: dict, path: Path) -> Path:
     return path
 
 
+def report_paths(out_dir: Path, stem: str) -> dict[str, Path]:
+    """The report's files in ``out_dir``: JSON, markdown and the per-soil figure."""
+    return {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
+
+
 def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
+    paths = report_paths(out_dir, stem)
     # strict JSON: a figure with nothing to score (NaN) is null, which JSON.parse reads
     paths["json"].write_text(strict_json.dumps(report, indent=1, default=float) + "\n")
     paths["markdown"].write_text(markdown(report))
@@ -563,7 +568,9 @@ def main(argv=None) -> int:
         args.stride = TEST_STRIDE
     if args.forecast_only and not args.forecast_data and args.forecast_world not in WORLD_MODES:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
+    stem = args.name or f"{Path(args.checkpoint).stem}_report"
     try:
+        refuse_directories(report_paths(Path(args.out), stem).values(), "give another --out or --name")
         if not 1 <= args.stride <= MAX_WINDOW_STRIDE:
             raise ValueError(f"--stride={args.stride} must be in [1, {MAX_WINDOW_STRIDE}] samples (beyond it one window "
                              "per episode)")
@@ -578,7 +585,7 @@ def main(argv=None) -> int:
     except WorkerDied as err:  # a run that broke, not the input
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 1
-    paths = write_report(report, Path(args.out), args.name or f"{Path(args.checkpoint).stem}_report")
+    paths = write_report(report, Path(args.out), stem)
     print(markdown(report))
     print(json.dumps({k: str(v) for k, v in paths.items()}))
     return 0

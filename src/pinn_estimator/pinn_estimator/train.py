@@ -32,7 +32,7 @@ from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
-from soil_msgs_py.cli_paths import input_text, output_file
+from soil_msgs_py.cli_paths import input_text, output_file, refuse_directories
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from soil_sim_node.ray_cluster import add_ray_option
@@ -394,6 +394,11 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def curve_path(out: Path) -> Path:
+    """The training curve's figure beside the checkpoint ``out``."""
+    return out.with_name(out.stem + "_curve.png")
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -401,6 +406,7 @@ def main(argv=None) -> int:
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
         model_cfg = ModelConfig(kind=args.kind, extra_terms=parse_terms(args.extra_term),
                                 **{f.name: getattr(args, f.name) for f in fields(ModelConfig) if f.name not in MODEL_FIELDS_NOT_OPTIONS})
+        refuse_directories([curve_path(Path(args.out))])
     except ValueError as err:
         print(f"pinn_train: error: {err}", file=sys.stderr)
         return 2
@@ -468,7 +474,7 @@ def _write(args, cfg: TrainConfig, ds: Dataset, model, split, history, metrics) 
     """The checkpoint, its training curve, and the run's summary on stdout (rank 0)."""
     out = Path(args.out)
     save_checkpoint(out, model, train_config=asdict(cfg), dataset=describe(ds), split=split, metrics=metrics, history=history)
-    curve = plot_curve(history, out.with_name(out.stem + "_curve.png"), f"{args.kind} on {Path(args.data).name}")
+    curve = plot_curve(history, curve_path(out), f"{args.kind} on {Path(args.data).name}")
     print(json.dumps({"checkpoint": str(out), "curve": str(curve), **{k: metrics[k] for k in ("best_epoch", "epochs_run", "stop_reason", "train_seconds")}, "val_force": metrics["val_force"]}, indent=1))
 
 

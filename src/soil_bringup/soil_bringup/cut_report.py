@@ -37,7 +37,7 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
@@ -433,6 +433,12 @@ def not_entered_note(world: dict) -> str:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    try:
+        refuse_directories([args.out / "cut_report.md", args.out / "cut_report.json",
+                            *(args.out / f"cut_{world}.png" for world in args.worlds)])
+    except ValueError as err:
+        print(f"soil_cut_report: error: {err}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     for note in soil_file_notes(args.custom_soils):  # what soil_sim_batch says of the same file
         print(f"soil_cut_report: note: {note}", file=sys.stderr)
@@ -446,7 +452,7 @@ def main(argv=None) -> int:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
         w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains, args.custom_soils)
-        w["figure"] = f"cut_{world}.png"
+        w["figure"] = f"cut_{world}.png"  # (main checks these names first)
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)
     report["wall_s"] = time.monotonic() - t0

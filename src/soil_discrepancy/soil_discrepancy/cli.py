@@ -17,7 +17,7 @@ from pathlib import Path
 
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
-from soil_msgs_py.cli_paths import input_path, output_dir
+from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -99,6 +99,7 @@ def main(argv=None) -> int:
                 print(f"soil_discrepancy: warning: --accepted {name}={k:g}: a negative k turns the term against its "
                       "mechanism; the search will name terms that undo it (candidates are held to k >= 0 unless "
                       "--allow-negative-k)", file=sys.stderr)
+        refuse_directories([args.out / "discrepancy.json", args.out / "discrepancy.md"])
         hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
         if hidden is not None:
             if not hidden:  # (it failed in hidden_check, after the whole run)

@@ -89,3 +89,12 @@ def file_stem(text: str) -> str:
     if not text or text in (".", "..") or Path(text).name != text or "\\" in text:
         raise argparse.ArgumentTypeError(f"{text!r} must be a plain file name without a directory")
     return text
+
+
+def refuse_directories(paths, hint: str = "give another --out") -> None:
+    """ValueError naming the first of ``paths``, files a run is about to write, that is a
+    directory: checked before the run, since found while writing it cost the whole run (an
+    IsADirectoryError at the end, a temporary file left behind)."""
+    for path in paths:
+        if Path(path).is_dir():
+            raise ValueError(f"{str(path)!r} is a directory where this run writes a file: move it away or {hint}")

@@ -45,7 +45,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_ep
 from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import bags_dir
+from soil_msgs_py.cli_paths import bags_dir, refuse_directories
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, beyond_lift_reach
 from soil_msgs_py.patches import check_patches, glue_negative_patches
@@ -500,6 +500,7 @@ def main(argv=None) -> int:
     plan = before = None  # (before: the bags the output held when the run began)
     try:
         plan = plan_from_args(args)
+        refuse_directories([plan.out / "dataset.json"])
         if args.workers < 0:
             raise ValueError(f"--workers={args.workers} must be >= 0 (0: all cores)")
         if not args.ray or args.ray == LOCAL_RAY:  # processes of this machine (a cluster's --workers are its CPUs)

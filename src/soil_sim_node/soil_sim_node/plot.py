@@ -21,7 +21,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from soil_physics import fee  # noqa: E402
 from soil_bag_tools.bag_io import BagReadError, read_episode, read_labelled_topic  # noqa: E402
-from soil_msgs_py.cli_paths import input_path, output_file  # noqa: E402
+from soil_msgs_py.cli_paths import input_path, output_file, refuse_directories  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
 from soil_msgs_py.topics import TARGET_DEPTH  # noqa: E402
@@ -119,16 +119,18 @@ def main(argv=None) -> int:
     p.add_argument("-o", "--out", type=figure_file,
                    help="figure path, its format by its suffix (default: <bag>.png beside the bag)")
     args = p.parse_args(argv)
+    bag = Path(os.path.abspath(args.bag))  # "." or ".." have a usable name only once absolute
+    # not bag.with_suffix: "..._v0.50_d0.100_s0" and "..._v0.50_d0.200_s1" both became "..._v0.50_d0.png"
+    out = args.out or bag.parent / (bag.name + ".png")
     try:
+        refuse_directories([out], "give -o")
         ep = read_episode(args.bag)
     except (ValueError, FileNotFoundError) as exc:
         print(f"soil_plot_episode: error: {exc}", file=sys.stderr)
         return 2
     for problem in ep.problems():  # drawn all the same: a line across a gap or a NaN's hole is easy to miss
         print(f"soil_plot_episode: warning: {args.bag}: {problem}", file=sys.stderr)
-    bag = Path(os.path.abspath(args.bag))  # "." or ".." have a usable name only once absolute
-    # not bag.with_suffix: "..._v0.50_d0.100_s0" and "..._v0.50_d0.200_s1" both became "..._v0.50_d0.png"
-    out = plot_episode(ep, args.out or bag.parent / (bag.name + ".png"), planner_targets(args.bag, ep))
+    out = plot_episode(ep, out, planner_targets(args.bag, ep))
     print(out)
     return 0
 
