@@ -214,6 +214,11 @@ def test_an_implausible_finite_field_drops_the_tick_like_a_nan(episode, model):
     s = episode.stamps_ns
     assert [e.stamp_ns for e in valid(out)] == s[59:100].tolist() + s[160:N_TICKS].tolist()
     assert_never_nan(out)
+    # a subnormal is a value at rest (a quantity decaying to 0), not garbage: its tick is kept
+    pose[1] = 5e-324
+    tiny = M.build_message(M.TYPESTORE, T.BLADE_POSE.name, int(episode.stamps_ns[100]), pose)
+    est, out = run(model, [(t, tiny if m is bad_pose else m) for t, m in msgs])
+    assert est.counters.non_finite == 0 and [e.stamp_ns for e in valid(out)] == s[59:N_TICKS].tolist()
 
 
 def test_out_of_order_stamp_invalidates_the_window(episode, model, offline):

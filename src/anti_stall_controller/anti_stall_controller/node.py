@@ -288,7 +288,7 @@ class ControllerNode(Node):
             value = (float(values[0]), float(values[1]))
         else:
             value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
-        if not M.plausible_values(value):
+        if not M.plausible_values(value, subnormal=True):
             # the tick is still answered (a lockstep simulator waits for it), the core holding its
             # state for it: a finite 1e300 pose had raised the blade to its stop without a word
             field = T.BLADE_FORCE.name + " (F_x, F_z)" if topic == T.BLADE_FORCE.name else (

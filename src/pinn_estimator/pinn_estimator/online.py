@@ -167,7 +167,7 @@ class SampleAssembler:
             self.counters.malformed += 1
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
-        broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v)), None)
+        broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
         if verdict is Verdict.STALE:
@@ -191,7 +191,7 @@ class SampleAssembler:
         elif broken and not was_bad:
             self.counters.non_finite += 1
             self.warn(f"{topic}:non_finite", f"{topic}: field {broken[0]}={broken[1]} at stamp {stamp} ns is not "
-                                             f"finite or is beyond ±{M.PLAUSIBLE_ABS_LIMIT:g} (or subnormal): no "
+                                             f"finite or is beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}: no "
                                              "value of the graph; that tick is dropped and the window reset")
         for joined in out:
             self._released(joined)

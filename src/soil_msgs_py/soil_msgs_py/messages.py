@@ -316,13 +316,17 @@ def parse_message(topic: str, msg: Any) -> tuple[int, np.ndarray]:
 PLAUSIBLE_ABS_LIMIT = 1e9
 
 
-def plausible_values(values: Any) -> bool:
+def plausible_values(values: Any, subnormal: bool = False) -> bool:
     """Whether every value could be a graph node's: finite, within ±``PLAUSIBLE_ABS_LIMIT`` and
-    not subnormal. What tells two claims of one tick apart when their writers cannot be (same
-    stamp, same sequence number): a finite 1e30 is as much garbage as a NaN, and so is 5e-324:
-    no SI quantity of the graph comes within 300 orders of magnitude of a subnormal."""
+    (unless ``subnormal``) not subnormal. What tells two claims of one tick apart when their
+    writers cannot be (same stamp, same sequence number): a finite 1e30 is as much garbage as a
+    NaN, and so is 5e-324: no SI quantity of the graph comes within 300 orders of magnitude of a
+    subnormal. A node judging a measured state value alone takes a subnormal (``subnormal``): a
+    quantity decaying to rest (a surcharge shed, a velocity) may pass through one, and it is 0 to
+    any physics, where dropping its tick would reset a window."""
     a = np.abs(np.asarray(values, dtype=np.float64))
-    return bool(((a <= PLAUSIBLE_ABS_LIMIT) & ((a == 0.0) | (a >= np.finfo(np.float64).tiny))).all())  # NaN: False
+    tiny = 0.0 if subnormal else np.finfo(np.float64).tiny
+    return bool(((a <= PLAUSIBLE_ABS_LIMIT) & ((a == 0.0) | (a >= tiny))).all())  # NaN: False
 
 
 # --- whole episodes --------------------------------------------------------------------
