@@ -575,7 +575,12 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
                            ({"prior_std": 1e300}, r"prior_std=1e\+300 must be at most 10"),
                            ({"abs_std_n": [20, 1e300]}, r"abs_std_n=.* must be at most 1e\+06"),
                            ({"forecast_rel_std": [1e300, 0.1]}, r"forecast_rel_std=.* must be at most 10"),
-                           ({"terms": [["soil_inertia", 1], ["soil_inertia", 2]]}, "soil_inertia is given more than once")):
+                           ({"terms": [["soil_inertia", 1], ["soil_inertia", 2]]}, "soil_inertia is given more than once"),
+                           # an outside tester's: numpy's own TypeError or "expected non-negative integer", and
+                           # an AttributeError for a term named by a number
+                           ({"seed": "x"}, r"fusion seed='x' must be an integer"), ({"seed": -1}, "fusion seed=-1"),
+                           ({"seed": 1.5}, "fusion seed=1.5"), ({"terms": [[1, 2]]}, r"fusion terms=\[\[1, 2\]\]"),
+                           ({"terms": ["form:--q_x*fadevx1=1"]}, "one '-' at most")):
         with pytest.raises(ValueError, match=needle):
             FusionConfig().with_fields(fields)
         with pytest.raises(ValueError, match=needle):  # a config file: the same checks
@@ -760,6 +765,23 @@ def test_an_estimator_with_a_term_in_its_physics_forecasts_through_that_physics(
     table = "\n".join(fc.markdown(report))
     assert "PINN estimates (FEE + soil_inertia (k = 4) part, β*)" in table and "FEE part" not in table
     assert report["forecast"]["pinn"]["x"]["all"]["bias_pct"] > report["forecast"]["classical"]["x"]["all"]["bias_pct"] + 1.0
+
+
+def test_where_the_axes_evidence_laws_differ_each_is_chosen_again_with_the_other_held_at_its_choice():
+    """Stage 1 scores trials with one rel_std on both axes, so the pair it chooses per axis may be one
+    no trial fused: each axis is chosen again on trials holding the other at its choice (in the
+    default world x's 0.005 had been judged with z at 0.005, not at z's 0.2)."""
+    from pinn_estimator.fusion_calibration import jointly_chosen_rels
+
+    ds = Dataset.from_episodes(episodes("default", [("Loam", 50.0, d) for d in (0.08, 0.14)]))
+    said = []
+    assert jointly_chosen_rels(ds, FusionConfig(), (0.01, 0.01), rel_grid=(0.01, 0.3), log=said.append) == (0.01, 0.01)
+    assert said == [], "equal choices: nothing to fuse again"
+    rels = jointly_chosen_rels(ds, FusionConfig(), (0.01, 0.3), rel_grid=(0.01, 0.3), log=said.append)
+    tried = [line.split(":")[0].strip() for line in said if "median forecasts" in line]
+    x = rels[0]  # z is then chosen with x held at x's new choice
+    assert tried == ["rel_std 0.01 / 0.3", "rel_std 0.3 / 0.3", f"rel_std {x:g} / 0.01", f"rel_std {x:g} / 0.3"], said
+    assert set(rels) <= {0.01, 0.3} and said[2] == f"  x with the other axis at its choice: rel_std {x:g}", said
 
 
 def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_until_they_hold():

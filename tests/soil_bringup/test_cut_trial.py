@@ -84,9 +84,10 @@ def test_in_dense_gravel_the_loop_settles_deeper_when_the_lifts_push_does_not_an
         got[(sees, memory_s)] = (CM.target_falls(cut.target[late]), np.std(cut.target[late]),
                                     np.percentile(np.abs(cut.force[late, 1]), 95) / 30e3, np.mean(cut.depth[late]))
     (cycling, spread0, fz0, _), (settled, spread1, fz1, shallow), (seeing, spread2, _, deep) = got.values()
-    # (one seed of one soil, the planner's default margin 0.85 and the shipped calibration of 2026-12-04, its
-    # forecast law from 7 cm on and its bound law: measured 4 / 2 / 0 falls, std 2.4 / 1.5 / 0.3 cm, F_z p95
-    # 90 / 80 / 113 % of its limit, mean depth 0.108 / 0.099 / 0.166 m; before that calibration 7 / 1 / 0 falls,
+    # (one seed of one soil, the planner's default margin 0.85 and the shipped calibration of 2026-12-04 night,
+    # its z law 5 N + 2|ΔF| in the bound: measured 6 / 4 / 0 falls, std 2.4 / 1.5 / 0.5 cm, F_z p95 86 / 66 / 112 %
+    # of its limit, mean depth 0.088 / 0.069 / 0.160 m; with 20 N + 1.2|ΔF| 4 / 2 / 0 falls, 2.4 / 1.5 / 0.3 cm,
+    # 90 / 80 / 113 %, 0.108 / 0.099 / 0.166 m; before the forecast law from 7 cm on 7 / 1 / 0 falls,
     # 2.9 / 1.2 / 0.4 cm, 113 / 96 / 114 %, 0.126 / 0.114 / 0.161 m; a change of the default world's physics,
     # the calibration or the planner's settings may move these, not the contrasts: the memory takes falls
     # away, seeing the commands takes them all)

@@ -16,7 +16,8 @@ share of its limit): the smallest value (the evidence that teaches most) within 
 error of the most accurate (``choose_evidence_law``). An axis the model forecasts worse than
 "the force now" is scored as that naive forecast, and then the largest value wins: what the
 model cannot forecast should teach least (the default world's F_z, far from the FEE: the
-penetration reaction). Stage 2,
+penetration reaction). Where the axes' values differ, each is chosen again with the other held
+at its choice (``jointly_chosen_rels``: the trials have one value on both axes). Stage 2,
 with the posteriors of stage 1 kept: the forecast law per axis (share and floor on grids)
 whose calibration curves are closest to the diagonal (mean |coverage − nominal| over the
 central intervals 10-90 %; a law fitted to the 90 % level alone over-covers the 50 % one
@@ -415,6 +416,35 @@ def most_calibrated(candidates: list[Candidate]) -> Candidate:
     return min((c for c in acceptable if c.miscalibration <= least + tolerance), key=lambda c: (c.width, c.skill))
 
 
+def jointly_chosen_rels(ds, shaped: FusionConfig, rels: tuple[float, float], rel_grid=REL_GRID, log=print
+                        ) -> tuple[float, float]:
+    """``rel_std`` per axis again where stage 1's choice differs between the axes: x on trials that
+    hold z at its choice, then z holding x at that (``choose_evidence_law``), one pass. Why: stage 1
+    scores trials with one value on both axes, while both axes' evidence makes the one posterior
+    both forecasts come from. In the default world z forecasts no better than the force now and
+    takes the largest value (0.2); x's 0.005 had been judged with z at 0.005 too, whose z evidence
+    taught the posterior so hard that x's forecasts at another depth were 65 % off on the
+    calibration pairs, and x went to 0.02 (a pair no trial had fused). With z at 0.2, x's 0.005 is
+    14.7 ± 0.7 % off and 0.02 14.3 %: 0.005 again, the shipped law."""
+    if rels[0] == rels[1]:
+        return rels
+    from .evaluate import fused_posteriors
+
+    out = list(rels)
+    for j, axis in enumerate("xz"):
+        scored = []
+        for rel in rel_grid:
+            pair = (rel, out[1]) if j == 0 else (out[0], rel)  # (z with x at its choice of this pass)
+            trial = dataclasses.replace(shaped, rel_std=pair)
+            sc = forecast_scores(forecast_table(ds, trial, levels=(), posts=fused_posteriors(ds, trial)))
+            scored.append((rel, sc))
+            log(f"  rel_std {pair[0]:g} / {pair[1]:g}: median forecasts at another depth off by {sc['error'][0]:.2f} ± "
+                f"{sc['sem'][0]:.2f} % of |F_x| (x) / {sc['error'][1]:.2f} ± {sc['sem'][1]:.2f} % of the 30 kN limit (z)")
+        out[j] = choose_evidence_law(scored)[j]
+        log(f"  {axis} with the other axis at its choice: rel_std {out[j]:g}")
+    return out[0], out[1]
+
+
 def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_GRID, floor_grid=FLOOR_GRID,
               shape_grid=SHAPE_GRID, truth_grids=(), truth: bool = False, log=print) -> tuple[FusionConfig, list[dict]]:
     """Stage 1: the evidence law. Each shape law of ``shape_grid`` with each ``rel_std`` of
@@ -476,7 +506,8 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
         cfg, posts = chosen.config, chosen.posteriors
     else:
         simplest = acceptable_shape_laws(shapes)[0]
-        cfg = dataclasses.replace(with_shape(base, simplest[0]), rel_std=simplest[3])
+        shaped = with_shape(base, simplest[0])
+        cfg = dataclasses.replace(shaped, rel_std=jointly_chosen_rels(ds, shaped, simplest[3], rel_grid, log))
         posts = fused_posteriors(ds, cfg)  # the forecast law changes no posterior: fuse once
     return choose_forecast_law(ds, cfg, posts, forecast_grid, floor_grid, log)
 
