@@ -24,9 +24,12 @@ for w in ${*:-fee default}; do
     wait $p1 || { cat "$OUT/pinn_$w.log"; exit 1; }
     wait $p2 || { cat "$OUT/physics_free_$w.log"; exit 1; }
     # models/fusion_<world>.json, used by pinn_eval's forecast; the default world's posterior has the
-    # surcharge relief term soil_discrepancy proposed (docs/soil_posterior.md)
+    # surcharge relief term soil_discrepancy proposed, the fee world's prior gives soils without
+    # cohesion 0.1 of itself (a little cohesion was taken for none) and the stiff row 0.04
+    # (docs/soil_posterior.md, "Soils with a little cohesion")
     terms=()
     [ "$w" = default ] && terms=(--term "form:-qnq*tanhvx0.1=0.756")
+    [ "$w" = fee ] && terms=(--set cohesionless_prior=0.1 --set stiff_prior=0.04)
     "$BIN/pinn_fusion_calibrate" --world "$w" "${terms[@]}" > "$OUT/fusion_$w.log"
     # the planner's bound law, calibrated on the same posteriors, into the same config
     "$BIN/soil_planner_calibrate" --world "$w" >> "$OUT/fusion_$w.log"
