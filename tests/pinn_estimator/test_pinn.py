@@ -244,6 +244,21 @@ def test_train_cli_writes_checkpoint_that_round_trips(tiny_bags, tmp_path):
     assert out2.read_bytes() == before
 
 
+def test_a_training_whose_validation_loss_is_never_finite_keeps_nothing_and_says_so(tiny_bags, tmp_path, capsys,
+                                                                                   monkeypatch):
+    """No epoch's validation loss finite (what --lr 1e4 did before the bound): no model to keep, said
+    as such, exit 2 (it was a TypeError from load_state_dict(None)). The validation loss is made NaN
+    here (the training itself runs), since no learning rate in bounds does it on these bags."""
+    import pinn_estimator.train as tr
+
+    agree = tr._agree
+    monkeypatch.setattr(tr, "_agree", lambda *a, **k: (math.nan, *agree(*a, **k)[1:]))
+    out = tmp_path / "m.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), "--epochs", "2", "--stride", "6", "--quiet",
+                       "--no-cache", "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]) == 2
+    assert "the validation loss was never finite in 2 epoch(s)" in capsys.readouterr().err and not out.exists()
+
+
 def test_eval_reports_pinn_and_both_baselines_on_the_same_windows(tiny_bags, tmp_path):
     pinn, free = tmp_path / "p.pt", tmp_path / "f.pt"
     small = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--quiet", "--no-cache", "--epochs", "2", "--stride", "8"]

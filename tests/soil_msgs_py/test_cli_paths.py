@@ -122,6 +122,7 @@ def test_a_directory_where_a_tool_writes_a_file_is_refused_before_the_work(tmp_p
          tmp_path / "ev" / "r.md"),
         (cut_main, ["--worlds", "fee", "--out", str(tmp_path / "cr")], tmp_path / "cr" / "cut_fee.png"),
         (discrepancy_main, [str(bag), "--out", str(tmp_path / "dj"), "--quiet"], tmp_path / "dj" / "discrepancy.json"),
+        (discrepancy_main, [str(bag), "--out", str(tmp_path / "dk"), "--quiet"], tmp_path / "dk" / "candidates.png"),
         (plot_main, [str(bag)], tmp_path / "bag.png"),
     ]
     for main, argv, squatter in cases:

@@ -60,6 +60,9 @@ def test_a_machine_bags_episode_event_is_taken(world):
     ('{"action": "start", "seed": -1}', "seed=-1"),
     ('{"action": "start", "duration_s": NaN}', "duration_s=nan"),
     ('{"action": "start", "soil": 3}', "soil=3"),
+    # an outside tester's: the last of two actions was taken (a shutdown), and a bool seed was "no finite number"
+    ('{"action": "start", "action": "shutdown"}', "field 'action' is given twice"),
+    ('{"action": "start", "seed": true}', r"seed=True must be an integer in \[0, 2\*\*63 - 1\]"),
 ])
 def test_bad_sim_commands_are_named(text, needle):
     with pytest.raises(ValueError, match=needle):

@@ -366,6 +366,9 @@ def test_sectioned_file_has_soils_and_named_paths(tmp_path):
                             "as_mappings": (SoilPatch(-2.0, "gravel", 40.0),)}
     only_paths = soils.load_soil_file(write(tmp_path, 'paths: {a: ["0:Clay:10"]}'))
     assert only_paths.soils == {} and list(only_paths.paths) == ["a"]
+    # a patch mapping's 5e1 (a string to YAML 1.1) is the number, as in a soil's pairs
+    exponent = soils.load_soil_file(write(tmp_path, "paths: {a: [{x_start_m: 0, soil: Sand, relative_density_pct: 5e1}]}"))
+    assert exponent.paths == {"a": (SoilPatch(0.0, "Sand", 50.0),)}
 
 
 @pytest.mark.parametrize("text, needle", [

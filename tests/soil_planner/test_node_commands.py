@@ -62,3 +62,38 @@ def test_an_intruders_command_releases_no_tick_waiting_for_the_controllers():
     assert [w.item for w in n.command_wait.waiting] == ["tick 1"]
     send(n, 1, -0.12, 2)  # the controller's own: tick 1 is answered
     assert not n.command_wait.waiting and n.command_wait.newest_command_ns == stamp(1)
+
+
+def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_stays_starts_a_new_cut():
+    """An outside tester's: one invalid estimate stamped 0 (or an hour ahead) restarted the cut, its
+    schedule back at the start depth and the evidence forgotten, without a word. A far tick now moves
+    no target until the next one follows it there; a stream that really jumped (a replay started
+    over) is a new cut from its second tick."""
+    from soil_planner.depth_schedule import DepthSchedule
+
+    published, forgotten = [], []
+    n = SimpleNamespace(schedule=DepthSchedule(), planner=SimpleNamespace(forget=lambda: forgotten.append(1)),
+                        _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
+                        measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
+                        target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
+                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[])
+    n._warn = lambda kind, text: n.warned.append(kind)
+    n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
+
+    def target(k, depth):
+        PlannerNode._target(n, stamp(k), depth)
+
+    start = 3600 * 60
+    for k in range(start, start + 120):  # two seconds of a cut, the plan allowing 0.3 m
+        target(k, 0.3)
+    deep = published[-1][1][0]
+    assert deep > 0.15 and not forgotten
+    for stray in (0, start + 3600 * 60):  # stamped 0, an hour ahead
+        count = len(published)
+        target(stray, None)
+        assert len(published) == count and n.warned[-1] == "jump" and not forgotten
+    target(start + 120, 0.3)  # the cut goes on where it was
+    assert published[-1][0] == stamp(start + 120) and published[-1][1][0] >= deep and not forgotten
+    target(0, 0.3)  # the replay started over: its first tick ...
+    target(1, 0.3)  # ... and the next, which follows it: a new cut from the start depth
+    assert forgotten == [1] and published[-1][0] == stamp(1) and published[-1][1][0] < deep

@@ -492,6 +492,11 @@ def test_a_plan_repeated_for_its_stretch_still_refuses_a_broken_tick_and_implaus
             max_cut_depth(bad_est, bad_known)
         again, new = planner.plan(est, known)
         assert not new and again == first, (field, value)  # nothing of the broken tick was kept
+    # a measured force of 1e12 N is not known, as a NaN is (it entered the steady anchor, and the plans
+    # then refused "anchor force x=… is beyond ±1e+09" for a second of good ticks: a second reader's)
+    wild, calm = StretchPlanner(), StretchPlanner()
+    for _ in range(2 * 60):
+        assert wild.plan(est, known, measured_force_n=(1e12, 0.0)) == calm.plan(est, known, measured_force_n=None)
 
 
 def test_unanchored_the_error_law_counts_from_each_samples_own_force_at_the_current_depth():

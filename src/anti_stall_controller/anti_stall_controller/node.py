@@ -288,14 +288,11 @@ class ControllerNode(Node):
             value = (float(values[0]), float(values[1]))
         else:
             value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
-        if not M.plausible_values(value, subnormal=True):
-            # the tick is still answered (a lockstep simulator waits for it), the core holding its
-            # state for it: a finite 1e300 pose had raised the blade to its stop without a word
-            field = T.BLADE_FORCE.name + " (F_x, F_z)" if topic == T.BLADE_FORCE.name else (
-                "v_x^c (linear.x)" if topic == T.CHASSIS_TWIST.name else "p_z^c (point.z)")
-            self._warn(f"{topic}:implausible", f"{topic}: {field}={value!r} at stamp {stamp} ns is not finite or is "
-                                               f"beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}; that tick is answered with the "
-                                               "controller holding its state")
+        # a value that is not finite or implausible goes on as NaN: the tick is still answered (a
+        # lockstep simulator waits for it), the core holding its state for it (a NaN force: no force
+        # lift that tick); a finite 1e300 pose had raised the blade to its stop without a word
+        implausible = None if M.plausible_values(value, subnormal=True) else value
+        if implausible is not None:
             value = (math.nan, math.nan) if topic == T.BLADE_FORCE.name else math.nan
         last = self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, value)
@@ -310,6 +307,13 @@ class ControllerNode(Node):
         if verdict is Verdict.RESTART:
             self._warn("restart", f"{topic}: state stamps stayed away from the last answered tick {last} ns; "
                                   f"following the stream from stamp {stamp} ns")
+        if implausible is not None:  # (taken: a refused message said so above)
+            field = T.BLADE_FORCE.name + " (F_x, F_z)" if topic == T.BLADE_FORCE.name else (
+                "v_x^c (linear.x)" if topic == T.CHASSIS_TWIST.name else "p_z^c (point.z)")
+            self._warn(f"{topic}:implausible", f"{topic}: {field}={implausible!r} at stamp {stamp} ns is not finite or "
+                                               f"is beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}; that tick is answered "
+                                               + ("without the force lift" if topic == T.BLADE_FORCE.name else
+                                                  "with the controller holding its state"))
         for joined in out:
             if joined.complete:
                 self._tick((joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name],

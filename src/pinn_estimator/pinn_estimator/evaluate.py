@@ -570,7 +570,10 @@ def main(argv=None) -> int:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     stem = args.name or f"{Path(args.checkpoint).stem}_report"
     try:
-        refuse_directories(report_paths(Path(args.out), stem).values(), "give another --out or --name")
+        written = report_paths(Path(args.out), stem)
+        if args.forecast_only:  # (no test split: no per-soil figure)
+            del written["png"]
+        refuse_directories(written.values(), "give another --out or --name")
         if not 1 <= args.stride <= MAX_WINDOW_STRIDE:
             raise ValueError(f"--stride={args.stride} must be in [1, {MAX_WINDOW_STRIDE}] samples (beyond it one window "
                              "per episode)")

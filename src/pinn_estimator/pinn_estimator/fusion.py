@@ -59,7 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1
 from soil_msgs_py.patches import finite_number, short_repr
 from soil_physics import fee, force_terms
@@ -112,7 +112,7 @@ BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
 # runs components × forecast_samples models; a 400-digit count asked numpy for more memory than
 # exists) and a stretch longer than a minute, which could not follow a soil change along the path.
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
-                    "components": (1, 64), "seed": (0, 2**63 - 1)}  # (numpy's generator: a seed >= 0)
+                    "components": (1, 64), "seed": (0, MAX_SEED)}  # (numpy's generator: a seed >= 0)
 # The standard deviations' upper bounds: beyond what the calibration tries (shares up to 2, floors up
 # to 3 kN: fusion_calibration's grids), below where their squares overflow (1e300 gave an
 # OverflowError or an inf variance and a posterior of NaN): a model error of ten times the force,

@@ -45,9 +45,14 @@ from .soil_map import SoilMap
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
 MAX_STRIDE_TICKS = 60 * SAMPLE_RATE_HZ  # the rarest estimates a node may be set to: one a minute
-# A stamp more than a window behind the last sample is not a late message but a source that
-# started over (a bag replayed again, a simulator reset) without an episode_start.
+# A stamp more than a window behind the last sample is not a late message: a source that started
+# over (a bag replayed again, a simulator reset) without an episode_start, or a stray message; one
+# more than MAX_AHEAD_TICKS ahead is a stray or a stream that jumped on. Such messages are refused
+# (no window reset), and RESTART_AFTER_REFUSED of them in a row, nothing taken between (two whole
+# ticks of the input topics), start a new stream: one stray message, or one tick of them, stamped 0
+# or 5 s back had wiped the soil posterior learnt along the path (an outside tester's).
 RESTART_BACK_TICKS = WINDOW_SAMPLES
+MAX_AHEAD_TICKS = 10 * SAMPLE_RATE_HZ  # a hole of up to 10 s is a gap in the stream (the posterior kept)
 # Ticks arriving twice again and again (a second message of a tick, before or after the tick
 # was released) are most likely a second publisher of the topic on the domain (a node left
 # running from another launch): each copy spoils its tick or resets the window, none fills.
@@ -58,6 +63,7 @@ REPEATS_HINT = ("; ticks keep arriving twice: is a second node publishing this t
 # "known" -> Θ_k. Fields a topic carries that the model does not use (v_x^b, p_x^c) are
 # still checked for NaN/inf: a sample with a broken message is not trusted.
 INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
+RESTART_AFTER_REFUSED = 2 * len(INPUT_TOPICS)  # refusals in a row that start a new stream (see RESTART_BACK_TICKS)
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
 _P_X, _P_Z = OBSERVATION_FIELDS.index("p_x_b"), OBSERVATION_FIELDS.index("p_z_b")
@@ -135,11 +141,12 @@ class SampleAssembler:
         self.reorder_ticks = reorder_ticks
         self.warn = warn
         self.counters = counters or Counters()
-        # Far back (more than a window): the source restarted (a bag replayed again, a simulator
-        # reset) without an episode_start: start a new stream rather than wait for time to catch up.
+        # Far back or far ahead: refused; a stream that stays there (the source restarted without
+        # an episode_start) is followed after RESTART_AFTER_REFUSED refusals in a row, rather than
+        # waiting for time to catch up (RESTART_BACK_TICKS)
         self.joiner = StampJoiner(INPUT_TOPICS, max_pending=MAX_PENDING_TICKS, duplicates="spoil",
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
-                                  restart_back_ns=RESTART_BACK_TICKS * PERIOD_NS)
+                                  max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
 
     @property
@@ -170,6 +177,13 @@ class SampleAssembler:
         broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
+        if verdict is Verdict.FUTURE or (verdict is Verdict.STALE and last - stamp > RESTART_BACK_TICKS * PERIOD_NS):
+            self.counters.out_of_order += 1
+            self.warn(f"{topic}:far", f"{topic}: stamp {stamp} ns is {_seconds(abs(stamp - last))} s "
+                                      f"{'after' if stamp > last else 'before'} the last sample {last} ns; ignored "
+                                      f"(a new stream once {RESTART_AFTER_REFUSED // len(INPUT_TOPICS)} ticks of such "
+                                      "stamps come in a row)")
+            return
         if verdict is Verdict.STALE:
             self.counters.out_of_order += 1
             self.repeats += stamp == last  # a copy of the tick just released
@@ -179,8 +193,9 @@ class SampleAssembler:
             return
         if verdict is Verdict.RESTART:
             self.counters.restarts += 1
-            self.warn("restart", f"{topic}: stamp {stamp} ns is {_seconds(last - stamp)} s before "
-                                 f"the last sample; time went back, starting a new window")
+            self.warn("restart", f"{topic}: stamp {stamp} ns is {_seconds(abs(last - stamp))} s "
+                                 f"{'after' if stamp > last else 'before'} the last sample, as the messages before it; "
+                                 "a new stream: new window, the soil posterior and map start over")
             self.on_sample(last, None)
             self.on_restart()
         if verdict is Verdict.DUPLICATE:

@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     from .forms import load_catalogue
     from .soil_tests import load_soil_tests
     from .workflow import run_discrepancy
-    from .report import headline_verdict
+    from .report import OUTPUT_FILES, headline_verdict
 
     log = None if args.quiet else (lambda msg: print(msg, flush=True))
     if args.pinn_epochs < 0 or args.pinn_seeds < 1:
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
                 print(f"soil_discrepancy: warning: --accepted {name}={k:g}: a negative k turns the term against its "
                       "mechanism; the search will name terms that undo it (candidates are held to k >= 0 unless "
                       "--allow-negative-k)", file=sys.stderr)
-        refuse_directories([args.out / "discrepancy.json", args.out / "discrepancy.md"])
+        refuse_directories([args.out / name for name in OUTPUT_FILES])
         hidden = None if args.hidden in (None, "none") else parse_terms([t for t in args.hidden.split(",") if t.strip()])
         if hidden is not None:
             if not hidden:  # (it failed in hidden_check, after the whole run)
@@ -198,7 +198,9 @@ def _append_check(out: Path, check: dict) -> None:
 
     from soil_msgs_py import strict_json
 
-    md, js = out / "discrepancy.md", out / "discrepancy.json"
+    from .report import REPORT_JSON, REPORT_MD
+
+    md, js = out / REPORT_MD, out / REPORT_JSON
     if md.exists():
         md.write_text(md.read_text() + "\n## Check against the hidden effect (test data only)\n\n" + check["text"] + "\n")
     if js.exists():

@@ -23,6 +23,11 @@ from .soil_tests import WIDTH_SIGMA
 from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
 from .regimes import AXES, CONTINUOUS, binned_curve
 
+REPORT_JSON, REPORT_MD = "discrepancy.json", "discrepancy.md"
+FIG_RESIDUALS, FIG_HELDOUT, FIG_CANDIDATES = "residuals_by_regime.png", "heldout_gap.png", "candidates.png"
+# every file a run may write into its --out (the CLI refuses a directory of one of these names first)
+OUTPUT_FILES = (REPORT_JSON, REPORT_MD, CATALOGUE_FILE, FIG_RESIDUALS, FIG_HELDOUT, FIG_CANDIDATES)
+
 
 def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Path]:
     """Write discrepancy.json, discrepancy.md and (with ``arrays``) the PNGs; returns the paths."""
@@ -33,10 +38,10 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
         paths += _plots(report, out, arrays)
     # "headline": the verdict with its hedge ("explained by a form NOT pinned down"), for scripts; "verdict" keeps its class
     report = {**report, "headline": headline_verdict(report),
-              "outputs": [str(p) for p in [out / "discrepancy.json", out / "discrepancy.md"] + paths]}
+              "outputs": [str(p) for p in [out / REPORT_JSON, out / REPORT_MD] + paths]}
     # strict JSON (JSON.parse refuses bare NaN / Infinity): a non-finite number, e.g. an open bin edge, is null
-    paths.insert(0, _atomic(out / "discrepancy.json", strict_json.dumps(report, indent=1, default=str)))
-    paths.insert(1, _atomic(out / "discrepancy.md", markdown(report, [p.name for p in paths[1:]])))
+    paths.insert(0, _atomic(out / REPORT_JSON, strict_json.dumps(report, indent=1, default=str)))
+    paths.insert(1, _atomic(out / REPORT_MD, markdown(report, [p.name for p in paths[1:]])))
     found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
     if found is not None:
         paths.append(_atomic(out / CATALOGUE_FILE, found))
@@ -512,7 +517,7 @@ def _plots(report: dict, out: Path, arrays: dict) -> list[Path]:
         axs[0, 0].legend(fontsize=7)
         fig.suptitle(f"Residual F_meas − F_model by regime (episode-level bin means, 95 % CI) — {report['verdict']}", fontsize=10)
         fig.tight_layout()
-        paths.append(_save(fig, out / "residuals_by_regime.png"))
+        paths.append(_save(fig, out / FIG_RESIDUALS))
         plt.close(fig)
     test = report.get("test")
     if test and test["by_regime"]:
@@ -545,7 +550,7 @@ def _plots(report: dict, out: Path, arrays: dict) -> list[Path]:
             ax.set_title(labels.get(v, v), fontsize=8)
         fig.suptitle(f"Held-out test episodes ({test['n_episodes']}): RMS force error before/after", fontsize=10)
         fig.tight_layout()
-        paths.append(_save(fig, out / "heldout_gap.png"))
+        paths.append(_save(fig, out / FIG_HELDOUT))
         plt.close(fig)
     rounds = report["selection"]["rounds"]
     if rounds:
@@ -564,7 +569,7 @@ def _plots(report: dict, out: Path, arrays: dict) -> list[Path]:
             ax.invert_yaxis()
             ax.set_xlim(min(-5, min(gains) - 5) if gains else -5, 105)
         fig.tight_layout()
-        paths.append(_save(fig, out / "candidates.png"))
+        paths.append(_save(fig, out / FIG_CANDIDATES))
         plt.close(fig)
     return paths
 

@@ -171,6 +171,19 @@ def _nesting_depth(text: str) -> int:
     return deepest
 
 
+class _RepeatedKey(Exception):
+    """A JSON object with a field given twice (``json`` keeps the last silently)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _RepeatedKey(key)
+        out[key] = value
+    return out
+
+
 def _json_object(text: str, what: str) -> dict[str, Any]:
     """The JSON object in ``text``; every way it can fail is a ValueError naming ``what`` (the topic)."""
     if not isinstance(text, str):
@@ -180,9 +193,11 @@ def _json_object(text: str, what: str) -> dict[str, Any]:
     if (depth := _nesting_depth(text)) > MAX_JSON_DEPTH:
         raise ValueError(f"{what}: nested {depth} deep, more than {MAX_JSON_DEPTH}; not decoded")
     try:
-        data = json.loads(text)
+        data = json.loads(text, object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as err:
         raise ValueError(f"{what}: not JSON ({err.msg} at char {err.pos}): {text[:80]!r}") from None
+    except _RepeatedKey as err:  # ({"action": "start", "action": "shutdown"} shut the simulator down without a word)
+        raise ValueError(f"{what}: field {err.args[0]!r} is given twice; not decoded (which one is meant?)") from None
     except (ValueError, RecursionError) as err:  # e.g. an integer of more digits than Python converts
         raise ValueError(f"{what}: not decodable ({type(err).__name__}: {err}): {text[:80]!r}") from None
     if not isinstance(data, dict):
@@ -304,7 +319,8 @@ class SimCommand:
                 if isinstance(v, int) and not isinstance(v, bool) and abs(v) > MAX_SEED:
                     raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be at most 2**63 - 1 in magnitude")
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be a finite number")
+                    kind = "an integer in [0, 2**63 - 1]" if key == "seed" else "a finite number"
+                    raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be {kind}")
         if "seed" in d and (not float(d["seed"]).is_integer() or not 0 <= d["seed"] <= MAX_SEED):
             raise ValueError(f"{SIM_COMMAND_TOPIC}: seed={short_repr(d['seed'])} must be an integer in [0, 2**63 - 1]")
         return cls(action=action, overrides=d)

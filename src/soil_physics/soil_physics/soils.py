@@ -253,6 +253,8 @@ def load_soil_file(path: str | Path) -> SoilFile:
         try:
             if not isinstance(entries, list) or not entries:
                 raise ValueError(f"{where}={entries!r} must be a non-empty list of patches")
+            # (YAML 1.1 reads 5e1 as a string: a mapping's numbers as the soils' are)
+            entries = [{k: yaml_exponent(v) for k, v in e.items()} if isinstance(e, dict) else e for e in entries]
             patches = check_patches(entries, where)
             for i, p in enumerate(patches):
                 try:

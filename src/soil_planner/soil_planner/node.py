@@ -30,7 +30,8 @@ deepest cut through the depth schedule's rate limits, start depth and hold
 ``hold_s``, ``retreat_m``, ``retreat_memory_s``, ``cautious_deepen_rate_m_s``, ``min_target_m``,
 ``max_target_m``). A tick whose plan was refused, or an invalid
 estimate, moves the schedule without a plan (it holds, then backs off). Each new cut (an
-episode_start on /sim/status, or plan stamps more than a second apart either way) starts from
+episode_start on /sim/status, or two ticks in a row more than a second from the last one
+scheduled, either way: one such tick alone is a stray, warned and given no target) starts from
 the start depth with no plan carried over; a tick older than the last one planned is not
 scheduled again.
 
@@ -193,6 +194,7 @@ class PlannerNode(Node):
         self.schedule = DepthSchedule(schedule_settings({p: get(p) for p in SCHEDULE_PARAMETERS}))
         check_target_floor(self.planner, self.schedule.settings)
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
+        self._jumped_to: int | None = None  # a tick far from the last scheduled one, until the next follows it (``_target``)
         # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
         # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
         self.lockstep = False
@@ -302,6 +304,7 @@ class PlannerNode(Node):
         self.schedule.reset()
         self.planner.forget()
         self._target_sent = None
+        self._jumped_to = None
         for by_stamp in (self.commanded, self.measured):
             for stamp in [s for s in by_stamp if at_stamp_ns is None or abs(s - at_stamp_ns) > NEW_CUT_GAP_NS]:
                 del by_stamp[stamp]
@@ -330,7 +333,7 @@ class PlannerNode(Node):
         except ValueError as err:
             self._warn("blade_force:layout", f"{err}; ignored")
             return
-        if not M.plausible_values(values):
+        if not M.plausible_values(values, subnormal=True):
             self._warn("blade_force:implausible", f"{T.BLADE_FORCE.name} at stamp {stamp} ns: force="
                                                   f"{values.tolist()} N is not a force the blade can measure; "
                                                   "that tick is anchored to F̂ alone")
@@ -418,12 +421,22 @@ class PlannerNode(Node):
         return True
 
     def _target(self, stamp: int, plan_depth_m: float | None) -> None:
-        """The controller's target for this tick through the depth schedule (a new cut restarts it)."""
+        """The controller's target for this tick through the depth schedule (a new cut restarts it).
+        A tick more than NEW_CUT_GAP_NS from the last one scheduled starts a new cut only once the
+        next tick follows it there (time jumped: a replay started over, a restarted simulator); one
+        stray message stamped 0 or an hour ahead had restarted the cut, its schedule and evidence,
+        without a word (an outside tester's). Until then it moves no target."""
         last = self.schedule.last_stamp_ns
         if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
-            self._new_cut(stamp)  # time jumped (a replay started over, a restarted simulator): a new cut
+            if self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
+                self._jumped_to = stamp
+                self._warn("jump", f"stamp {stamp} ns is {(stamp - last) / M.NS_PER_S:+.3g} s from the last tick "
+                                   f"scheduled ({last} ns); no target for it (a new cut once the next tick follows it)")
+                return
+            self._new_cut(stamp)
         elif last is not None and stamp <= last:
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
+        self._jumped_to = None
         target = self.schedule.update(stamp, plan_depth_m)
         values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
         sent = self._target_sent

@@ -100,7 +100,7 @@ from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
                                  MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S, TABLE1)
-from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT
+from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT, plausible_values
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_msgs_py.patches import short_repr
 from soil_physics.predictive import (extrapolated_part, mean_standard_error, model_error_std, upper_magnitude,
@@ -617,8 +617,9 @@ _KD = KNOWN_PARAMS.index("d")
 
 
 def _measured_x(measured_force_n) -> float:
-    """F_x [N] of a tick's measured (F_x, F_z), NaN when it is None or not a finite number;
-    ValueError naming it when it is no pair of numbers."""
+    """F_x [N] of a tick's measured (F_x, F_z), NaN when it is None or not a plausible number
+    (``messages.plausible_values``: a measured 1e12 N had entered the steady anchor); ValueError
+    naming it when it is no pair of numbers."""
     if measured_force_n is None:
         return math.nan
     try:
@@ -627,7 +628,7 @@ def _measured_x(measured_force_n) -> float:
         pair = None
     if pair is None or pair.shape != (2,):
         raise ValueError(f"measured_force_n={measured_force_n!r} must be (F_x, F_z) [N] or None")
-    return float(pair[0]) if math.isfinite(pair[0]) else math.nan
+    return float(pair[0]) if plausible_values(pair[0], subnormal=True) else math.nan
 
 
 class StallMemory:
