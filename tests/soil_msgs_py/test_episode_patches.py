@@ -84,3 +84,22 @@ def test_a_patch_from_behind_the_blade_start_is_taken_by_both_tools_written_as_a
     assert glue_negative_patches(["--patch", "--quiet", "-x"]) == ["--patch", "--quiet", "-x"]  # no value: argparse says so
     assert batch_args(["--out", "b", *argv]).patch == ["-3:Sand:20", "-0.5:Loam:40", "1.5:Clay:80"]
     assert check_patches(cut_args(argv).patch, "--patch")[0] == parse_patch("-3:Sand:20")
+
+
+def test_episode_metadata_that_is_no_object_or_lacks_a_field_is_named():
+    """An outside tester's bag metadata: without "soil" it read "EpisodeMeta.__init__() missing 1
+    required positional argument", and a JSON list "unknown keys [1, 2]"."""
+    import json
+
+    import pytest
+
+    from soil_msgs_py.episode import EpisodeMeta
+
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
+    assert EpisodeMeta.from_json(meta.to_json()) == meta
+    data = json.loads(meta.to_json())
+    del data["soil"]
+    with pytest.raises(ValueError, match=r"episode metadata lacks the field\(s\) \['soil'\]"):
+        EpisodeMeta.from_json(json.dumps(data))
+    with pytest.raises(ValueError, match="must be a JSON object of its fields, not a list"):
+        EpisodeMeta.from_json("[1, 2]")

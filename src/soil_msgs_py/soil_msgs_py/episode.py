@@ -5,6 +5,7 @@ writes it, the bag reader returns it, the trainer consumes it. Rows are 60 Hz ti
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict, dataclass, field
 
@@ -91,10 +92,16 @@ class EpisodeMeta:
     @classmethod
     def from_json(cls, text: str) -> "EpisodeMeta":
         data = json.loads(text)
+        if not isinstance(data, dict):  # (a list had read "unknown keys [1, 2]")
+            raise ValueError(f"episode metadata must be a JSON object of its fields, not a {type(data).__name__}")
         known = {f for f in cls.__dataclass_fields__}
         unknown = set(data) - known
         if unknown:
-            raise ValueError(f"episode metadata has unknown keys {sorted(unknown)}")
+            raise ValueError(f"episode metadata has unknown keys {sorted(map(str, unknown))}")
+        required = [f.name for f in dataclasses.fields(cls)
+                    if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+        if missing := [name for name in required if name not in data]:  # (it was a TypeError of __init__)
+            raise ValueError(f"episode metadata lacks the field(s) {missing}")
         return cls(**data)
 
     @property
