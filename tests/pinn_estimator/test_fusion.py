@@ -687,6 +687,16 @@ def test_the_shipped_calibrations_load_and_name_every_setting():
         assert set(json.loads(path.read_text())) == set(cfg.to_dict()), path
 
 
+def test_a_config_lacking_a_field_is_said_to_run_on_its_default(tmp_path):
+    """An outside tester's config without abs_std_n loaded its default without a word."""
+    data = json.loads((MODELS_DIR / "fusion_default.json").read_text())
+    del data["abs_std_n"]
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps(data))
+    with pytest.warns(UserWarning, match=r"lacks \['abs_std_n'\]: their defaults are used"):
+        assert FusionConfig.load(partial).abs_std_n == FusionConfig().abs_std_n
+
+
 def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage():
     eps = episodes("fee", [("Loam", 45.0, 0.08), ("Loam", 45.0, 0.16), ("Sand", 30.0, 0.1), ("Sand", 30.0, 0.2)])
     ds = Dataset.from_episodes(eps)

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import NamedTuple
@@ -319,7 +320,12 @@ class FusionConfig:
             raise ValueError(f"fusion config {path}: not JSON ({err})") from None
         if not isinstance(data, dict):
             raise ValueError(f"fusion config {path}: expected an object, got {type(data).__name__}")
-        return cls.from_dict(data)
+        cfg = cls.from_dict(data)
+        # (a config written before a field existed, or edited by hand: its default was taken unseen)
+        if missing := sorted({f.name for f in fields(cls)} - set(data) - {"world"}):
+            warnings.warn(f"fusion config {path} lacks {missing}: their defaults are used, not calibrated values",
+                          stacklevel=2)
+        return cfg
 
 
 @dataclass
