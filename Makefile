@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: venv demo test bench clean-venv models discrepancy planner
+.PHONY: venv demo test bench clean-venv models discrepancy planner calibration-check
 
 venv: $(STAMP)
 
@@ -53,6 +53,10 @@ bench: venv
 # Regenerate the shipped PINN checkpoints and their reports (datasets, training, evaluation).
 models: venv
 	BIN=$(BIN) scripts/train_models.sh
+
+# Whether each shipped fused-posterior config is what the calibration gives with today's code (~19 min).
+calibration-check: venv
+	BIN=$(BIN) scripts/check_calibration.sh
 
 # Full-size discrepancy workflow run on hidden-effect and control data; report under docs/discrepancy/.
 discrepancy: venv

@@ -12,6 +12,7 @@ OUT=${OUT:-out/models}
 SHIP=src/pinn_estimator/pinn_estimator/models
 SEED=${SEED:-0}
 TRAIN_ARGS=${TRAIN_ARGS:---epochs 80 --stride 4 --patience 10 --max-minutes 7}
+source scripts/fusion_args.sh
 mkdir -p "$OUT" "$SHIP"
 for w in ${*:-fee default}; do
     data=bags/d_$w
@@ -23,14 +24,10 @@ for w in ${*:-fee default}; do
     p2=$!
     wait $p1 || { cat "$OUT/pinn_$w.log"; exit 1; }
     wait $p2 || { cat "$OUT/physics_free_$w.log"; exit 1; }
-    # models/fusion_<world>.json, used by pinn_eval's forecast; the default world's posterior has the
-    # surcharge relief term soil_discrepancy proposed, the fee world's prior gives soils without
-    # cohesion 0.1 of itself (a little cohesion was taken for none) and the stiff row 0.04
-    # (docs/soil_posterior.md, "Soils with a little cohesion")
-    terms=()
-    [ "$w" = default ] && terms=(--term "form:-qnq*tanhvx0.1=0.756")
-    [ "$w" = fee ] && terms=(--set cohesionless_prior=0.1 --set stiff_prior=0.04)
-    "$BIN/pinn_fusion_calibrate" --world "$w" "${terms[@]}" > "$OUT/fusion_$w.log"
+    # models/fusion_<world>.json, used by pinn_eval's forecast, with each world's arguments
+    # (scripts/fusion_args.sh; `make calibration-check` compares the shipped configs with them)
+    mapfile -t fargs < <(fusion_args "$w")
+    "$BIN/pinn_fusion_calibrate" --world "$w" "${fargs[@]}" > "$OUT/fusion_$w.log"
     # the planner's bound law, calibrated on the same posteriors, into the same config
     "$BIN/soil_planner_calibrate" --world "$w" >> "$OUT/fusion_$w.log"
     "$BIN/pinn_eval" --checkpoint "$OUT/pinn_$w.pt" --physics-free "$OUT/physics_free_$w.pt" --data "$data" \
