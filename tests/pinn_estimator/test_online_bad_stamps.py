@@ -8,7 +8,7 @@ import pytest
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import TICK_PERIOD_NS
-from pinn_estimator.online import INPUT_TOPICS, ROUTES, SampleAssembler
+from pinn_estimator.online import INPUT_TOPICS, RESTART_AFTER_REFUSED, ROUTES, SampleAssembler
 
 
 def _tick(stamp: int) -> list[tuple[str, object]]:
@@ -50,17 +50,20 @@ def test_a_labelled_stamp_beyond_the_graphs_range_is_malformed_not_a_crash(sec):
 
 
 def test_a_whole_tick_stamped_far_in_the_future_does_not_break_the_restart_warning():
-    """All inputs of one tick stamped at the graph's last second, then real ticks again: a
-    restart (time went back), reported in a log line that must format."""
+    """All inputs of one tick stamped at the graph's last second, then real ticks again: the first
+    real tick is refused as far back, the second with it a new stream (time went back), each
+    reported in a log line that must format."""
     got = Collect()
     asm = SampleAssembler(got.on_sample, warn=got.warn)
     far = M.MAX_STAMP_NS
     for topic, msg in _tick(far):
         asm.add(topic, msg)
-    for topic, msg in _tick(_stamp(1)):
-        asm.add(topic, msg)
+    for k in (1, 2):
+        for topic, msg in _tick(_stamp(k)):
+            asm.add(topic, msg)
     assert asm.counters.restarts == 1
     assert any(kind == "restart" for kind, _ in got.warnings)
+    assert any(kind.endswith(":far") and "s before the last sample" in text for kind, text in got.warnings)
 
 
 def test_the_restart_warning_formats_any_integer_distance():
@@ -68,6 +71,8 @@ def test_the_restart_warning_formats_any_integer_distance():
     asm = SampleAssembler(got.on_sample, warn=got.warn)
     values = np.full(len(ROUTES[T.KNOWN.name]), 0.1)
     asm.reset(10**400)  # stamps the assembler was handed directly, beyond any float
-    asm.add_values(T.KNOWN.name, 0, values)
+    for _ in range(RESTART_AFTER_REFUSED):  # refused as far back, then (with these) a new stream
+        asm.add_values(T.KNOWN.name, 0, values)
     (text,) = [text for kind, text in got.warnings if kind == "restart"]
     assert "s before the last sample" in text
+    assert any("s before the last sample" in text for kind, text in got.warnings if kind.endswith(":far"))
