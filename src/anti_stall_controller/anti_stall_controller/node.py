@@ -106,6 +106,16 @@ RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
 MAX_PLANNER_DEPTH_M = MACHINE.blade_height_m  # a planner target deeper than the blade is not a cut
 
 
+# What the controller reads of each state topic: (column(s) of its parsed values, the field as a
+# warning names it, how a tick whose value is not plausible is answered). /chassis/twist carries
+# (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c), /blade/force (F_x, F_z).
+STATE_VALUES = {
+    T.CHASSIS_TWIST.name: (0, "v_x^c (linear.x)", "with the controller holding its state"),
+    T.CHASSIS_POSE.name: (1, "p_z^c (point.z)", "with the controller holding its state"),
+    T.BLADE_FORCE.name: ((0, 1), "(F_x, F_z)", "without the force lift"),
+}
+
+
 def state_topics(force_lift: bool) -> tuple[str, ...]:
     """What one tick's answer waits for: twist and pose, and the blade force with the force lift on."""
     return G.CONTROLLER_STATE_TOPICS + ((T.BLADE_FORCE.name,) if force_lift else ())
@@ -283,17 +293,14 @@ class ControllerNode(Node):
         except ValueError as err:
             self._warn(f"{topic}:layout", f"{err}; ignored")
             return
-        # /chassis/twist carries (v_x^c, v_z^c), /chassis/pose (p_x^c, p_z^c), /blade/force (F_x, F_z)
-        if topic == T.BLADE_FORCE.name:
-            value = (float(values[0]), float(values[1]))
-        else:
-            value = float(values[0] if topic == T.CHASSIS_TWIST.name else values[1])
+        columns, field, answered = STATE_VALUES[topic]
+        value = float(values[columns]) if isinstance(columns, int) else tuple(float(values[c]) for c in columns)
         # a value that is not finite or implausible goes on as NaN: the tick is still answered (a
         # lockstep simulator waits for it), the core holding its state for it (a NaN force: no force
         # lift that tick); a finite 1e300 pose had raised the blade to its stop without a word
         implausible = None if M.plausible_values(value, subnormal=True) else value
         if implausible is not None:
-            value = (math.nan, math.nan) if topic == T.BLADE_FORCE.name else math.nan
+            value = math.nan if isinstance(columns, int) else (math.nan,) * len(columns)
         last = self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, value)
         if verdict is Verdict.STALE:
@@ -308,12 +315,9 @@ class ControllerNode(Node):
             self._warn("restart", f"{topic}: state stamps stayed away from the last answered tick {last} ns; "
                                   f"following the stream from stamp {stamp} ns")
         if implausible is not None:  # (taken: a refused message said so above)
-            field = T.BLADE_FORCE.name + " (F_x, F_z)" if topic == T.BLADE_FORCE.name else (
-                "v_x^c (linear.x)" if topic == T.CHASSIS_TWIST.name else "p_z^c (point.z)")
             self._warn(f"{topic}:implausible", f"{topic}: {field}={implausible!r} at stamp {stamp} ns is not finite or "
                                                f"is beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}; that tick is answered "
-                                               + ("without the force lift" if topic == T.BLADE_FORCE.name else
-                                                  "with the controller holding its state"))
+                                               f"{answered}")
         for joined in out:
             if joined.complete:
                 self._tick((joined.stamp_ns, joined.parts[T.CHASSIS_TWIST.name], joined.parts[T.CHASSIS_POSE.name],

@@ -516,20 +516,20 @@ def plot(report: dict, path: Path) -> Path:
     return path
 
 
-def report_paths(out_dir: Path, stem: str) -> dict[str, Path]:
-    """The report's files in ``out_dir``: JSON, markdown and the per-soil figure."""
-    return {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md", "png": out_dir / f"{stem}_params.png"}
+def report_paths(out_dir: Path, stem: str, forecast_only: bool) -> dict[str, Path]:
+    """The report's files in ``out_dir``: JSON, markdown and the per-soil figure (not with
+    ``forecast_only``: no test split, no figure)."""
+    paths = {"json": out_dir / f"{stem}.json", "markdown": out_dir / f"{stem}.md"}
+    return paths if forecast_only else paths | {"png": out_dir / f"{stem}_params.png"}
 
 
 def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = report_paths(out_dir, stem)
+    paths = report_paths(out_dir, stem, bool(report.get("forecast_only")))
     # strict JSON: a figure with nothing to score (NaN) is null, which JSON.parse reads
     paths["json"].write_text(strict_json.dumps(report, indent=1, default=float) + "\n")
     paths["markdown"].write_text(markdown(report))
-    if report.get("forecast_only"):  # no test split: no per-soil figure
-        del paths["png"]
-    else:
+    if "png" in paths:
         plot(report, paths["png"])
     return paths
 
@@ -570,10 +570,7 @@ def main(argv=None) -> int:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
     stem = args.name or f"{Path(args.checkpoint).stem}_report"
     try:
-        written = report_paths(Path(args.out), stem)
-        if args.forecast_only:  # (no test split: no per-soil figure)
-            del written["png"]
-        refuse_directories(written.values(), "give another --out or --name")
+        refuse_directories(report_paths(Path(args.out), stem, args.forecast_only).values(), "give another --out or --name")
         if not 1 <= args.stride <= MAX_WINDOW_STRIDE:
             raise ValueError(f"--stride={args.stride} must be in [1, {MAX_WINDOW_STRIDE}] samples (beyond it one window "
                              "per episode)")

@@ -431,12 +431,15 @@ def jointly_chosen_rels(ds, shaped: FusionConfig, rels: tuple[float, float], rel
     from .evaluate import fused_posteriors
 
     out = list(rels)
+    scores: dict[tuple[float, float], dict] = {}  # (z's pass meets the pair x's chose: fused once)
     for j, axis in enumerate("xz"):
         scored = []
         for rel in rel_grid:
             pair = (rel, out[1]) if j == 0 else (out[0], rel)  # (z with x at its choice of this pass)
-            trial = dataclasses.replace(shaped, rel_std=pair)
-            sc = forecast_scores(forecast_table(ds, trial, levels=(), posts=fused_posteriors(ds, trial)))
+            if pair not in scores:
+                trial = dataclasses.replace(shaped, rel_std=pair)
+                scores[pair] = forecast_scores(forecast_table(ds, trial, levels=(), posts=fused_posteriors(ds, trial)))
+            sc = scores[pair]
             scored.append((rel, sc))
             log(f"  rel_std {pair[0]:g} / {pair[1]:g}: median forecasts at another depth off by {sc['error'][0]:.2f} ± "
                 f"{sc['sem'][0]:.2f} % of |F_x| (x) / {sc['error'][1]:.2f} ± {sc['sem'][1]:.2f} % of the 30 kN limit (z)")

@@ -431,11 +431,16 @@ def not_entered_note(world: dict) -> str:
             "target depth is not the depth it cut (see the mean depth column)")
 
 
+def figure_name(world: str) -> str:
+    """The file of a world's figure in ``--out``."""
+    return f"cut_{world}.png"
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         refuse_directories([args.out / "cut_report.md", args.out / "cut_report.json",
-                            *(args.out / f"cut_{world}.png" for world in args.worlds)])
+                            *(args.out / figure_name(world) for world in args.worlds)])
     except ValueError as err:
         print(f"soil_cut_report: error: {err}", file=sys.stderr)
         return 2
@@ -452,7 +457,7 @@ def main(argv=None) -> int:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
         w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains, args.custom_soils)
-        w["figure"] = f"cut_{world}.png"  # (main checks these names first)
+        w["figure"] = figure_name(world)
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)
     report["wall_s"] = time.monotonic() - t0

@@ -482,13 +482,14 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
     speeds = GRID_SPEEDS[args.mode] if args.speeds is None else _floats(args.speeds, "speeds")
     if args.seeds < 1:
         raise ValueError(f"seeds={args.seeds} must be >= 1")
-    n_episodes = len(soils) * len(relative_densities) * len(speeds) * len(_depths(args.depths)) * args.seeds
+    depths = _depths(args.depths)
+    n_episodes = len(soils) * len(relative_densities) * len(speeds) * len(depths) * args.seeds
     if n_episodes - 1 > MAX_SEED:
         raise ValueError(f"seeds={args.seeds} makes {n_episodes} episodes, more than there are seeds ({MAX_SEED} + 1)")
     if not 0 <= args.seed_base <= MAX_SEED - (n_episodes - 1):  # each episode's seed is seed_base + its index
         raise ValueError(f"--seed-base={args.seed_base} must be in [0, {MAX_SEED - (n_episodes - 1)}] for "
                          f"{n_episodes} episode(s): episode i is seeded seed_base + i, at most {MAX_SEED}")
-    specs = grid_specs(soils, relative_densities, speeds, _depths(args.depths), args.seeds, args.seed_base,
+    specs = grid_specs(soils, relative_densities, speeds, depths, args.seeds, args.seed_base,
                        args.duration, patches)
     out = args.out or Path("bags") / f"d_{args.mode}"
     if args.overwrite and args.skip_existing:
