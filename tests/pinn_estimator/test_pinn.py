@@ -595,6 +595,11 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
     torch.save(raw, tmp_path / "diverged.pt")
     with pytest.raises(ValueError, match=f"weights {name} are not finite"):  # was a report of NaN, exit 0
         ck.load_model(tmp_path / "diverged.pt")
+    raw = torch.load(path, weights_only=True)
+    raw["state_dict"]["backbone.obs_std"][0] = 0.0  # a hand-edited scale: every estimate was NaN
+    torch.save(raw, tmp_path / "zero_scale.pt")
+    with pytest.raises(ValueError, match="obs_std hold values <= 0"):
+        ck.load_model(tmp_path / "zero_scale.pt")
 
 
 def test_eval_refuses_a_report_name_outside_out_and_names_training_bags_not_here(tiny_ds, tmp_path, capsys, monkeypatch):

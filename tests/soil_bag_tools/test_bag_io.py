@@ -332,7 +332,12 @@ def test_missing_episode_metadata(tmp_path: Path, ep: Episode) -> None:
 @pytest.mark.parametrize("field, value, needle", [("relative_density_pct", "eighty", "relative_density_pct='eighty' must be a finite number"),
                                                   ("relative_density_pct", 150, r"relative_density_pct=150 outside \[0, 100\]"),
                                                   ("relative_density_pct", float("nan"), "relative_density_pct=nan must be a finite number"),
-                                                  ("world_mode", "moon", "world_mode='moon' is not one of")])
+                                                  ("world_mode", "moon", "world_mode='moon' is not one of"),
+                                                  # (these three were read on: a bag of another metadata version,
+                                                  # a soil named by a number, which failed later naming no bag)
+                                                  ("schema_version", 2, "schema_version=2: this code reads"),
+                                                  ("soil", 5, "soil=5 must be a soil's name"),
+                                                  ("effects", "noise", "effects='noise' must be a list of names")])
 def test_episode_metadata_a_bag_was_edited_to_is_refused_naming_the_field(tmp_path: Path, ep: Episode, field, value, needle) -> None:
     """A bag's metadata is checked as it is read: a density of 150 % or of "eighty" and a world no
     simulator has were read on (a wrong density in every report, a "could not convert string to

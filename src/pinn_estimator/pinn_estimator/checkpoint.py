@@ -115,5 +115,8 @@ def load_model(path) -> tuple[EstimatorNet, dict]:
     bad = next((k for k, v in state.items() if torch.is_floating_point(v) and not torch.isfinite(v).all()), None)
     if bad is not None:  # a training that diverged: every estimate would be NaN
         raise ValueError(f"checkpoint {path}: its weights {bad} are not finite (NaN or inf); retrain it")
+    if not bool((model.backbone.obs_std > 0.0).all()):  # observations are divided by it: 0 gave inf inputs, NaN estimates
+        raise ValueError(f"checkpoint {path}: its observation scales backbone.obs_std hold values <= 0 "
+                         f"({model.backbone.obs_std.min().item():g}); pinn_train writes positive ones, retrain it")
     model.eval()
     return model, ckpt

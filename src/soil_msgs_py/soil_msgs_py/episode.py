@@ -60,6 +60,17 @@ class EpisodeMeta:
         """Raise ValueError naming the field and value if the metadata is not usable.
         ``machine_world``: a bag read back may also say its world is not known (``UNKNOWN_WORLDS``
         or null: a machine's, which no simulator world made)."""
+        if self.schema_version != EPISODE_SCHEMA_VERSION or isinstance(self.schema_version, bool):
+            raise ValueError(f"schema_version={short_repr(self.schema_version)}: this code reads episode metadata "
+                             f"of version {EPISODE_SCHEMA_VERSION}")
+        if not isinstance(self.soil, str):  # it names the bag and groups the training data ("" or "unknown": nobody's)
+            raise ValueError(f"soil={short_repr(self.soil)} must be a soil's name (a string)")
+        if not isinstance(self.source, str):
+            raise ValueError(f"source={short_repr(self.source)} must be a string (the program that made the episode)")
+        for name in ("effects", "plugins"):
+            value = getattr(self, name)
+            if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{name}={short_repr(value)} must be a list of names (strings)")
         worlds = WORLD_MODES + (UNKNOWN_WORLDS if machine_world else ())
         if self.world_mode not in worlds and not (machine_world and self.world_mode is None):
             raise ValueError(f"world_mode={short_repr(self.world_mode)} is not one of {worlds}")
