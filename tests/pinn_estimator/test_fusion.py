@@ -463,6 +463,26 @@ def test_the_parameters_quantiles_are_the_posteriors_own():
     assert exact["c"].min() >= 0.0
 
 
+def test_a_posterior_at_the_edge_of_its_box_publishes_angles_the_planner_takes():
+    """A posterior whose components sit at the lowest φ and δ the updates keep (U_LOWER, an
+    outside tester's stiff silt drove φ there) spills samples below 0°; their mean had been
+    published as φ = −0.2° and the planner refused every such estimate. Angles stop at 0."""
+    from pinn_estimator.fusion import U_LOWER, _level_cut, fused_values
+    from soil_msgs_py.topics import FUSED_FIELDS
+    from soil_planner.planner import fused_upper_force
+
+    post = SoilPosterior(CFG)
+    for name in ("phi", "delta"):
+        post.u[:, THETA.index(name)] = U_LOWER
+    post.p[:] = np.diag([0.05 ** 2] * len(THETA))
+    summary = post.summary()
+    assert summary.mean["phi"] >= 0.0 and summary.mean["delta"] >= 0.0
+    assert min(post.quantiles((0.05,))[n][0] for n in ("phi", "delta")) >= 0.0
+    estimate = dict(zip(FUSED_FIELDS, fused_values(summary, CFG)))
+    assert estimate["fused_valid"] == 1.0
+    fused_upper_force(estimate, dict(zip(KNOWN_PARAMS, _level_cut())), [0.1])  # no ValueError naming phi_fused
+
+
 def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
     q = mixture_quantiles(np.array([1.0]), np.array([10.0]), np.array([2.0]), (0.05, 0.5, 0.95))
     assert np.allclose(q, [10 + 2 * norm.ppf(0.05), 10.0, 10 + 2 * norm.ppf(0.95)], atol=1e-5)

@@ -549,9 +549,13 @@ class SoilPosterior:
     # -- the physics model
     @staticmethod
     def theta_of(u: np.ndarray) -> dict[str, np.ndarray]:
-        """SI θ of internal points u (..., 3)."""
+        """SI θ of internal points u (..., 3). φ and δ stop at Table 1's limits (0° at u = −0.25 and
+        below, where a component at U_LOWER spills its samples): a negative angle is no soil, and
+        a published φ of −0.2° (the mean of such samples) was refused by the planner; the model
+        has no wedge there either (its force is NaN, so forecasts leave such samples out alike)."""
         u = np.asarray(u, float)
-        out = {n: PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]) for j, n in enumerate(THETA) if n in PRIOR_BOX}
+        out = {n: np.clip(PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]), *TABLE1[n].limits)
+               for j, n in enumerate(THETA) if n in PRIOR_BOX}
         softplus = np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
         out["c"] = C_SCALE_PA * np.maximum(softplus - SOFTPLUS_AT_ZERO, 0.0)
         return {n: out[n] for n in THETA}
