@@ -580,6 +580,7 @@ def test_a_long_cut_at_one_depth_stays_on_the_soil():
 
 def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(capsys, tmp_path, monkeypatch):
     from pinn_estimator.fusion_calibration import main as calibrate_main
+    from soil_planner.bound_calibration import main as bound_main
 
     assert FusionConfig.parse_field("drift_per_sqrt_m=0.005") == ("drift_per_sqrt_m", 0.005)
     assert FusionConfig().with_fields({"rel_std": [0.01, 0.02]}).rel_std == (0.01, 0.02)
@@ -639,7 +640,16 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
     with pytest.raises(Started):
         calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(tmp_path / "new.json")])
-    assert f"keeping the evidence law of {config_path('fee')}; writing {tmp_path / 'new.json'}" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert f"keeping the evidence law of {config_path('fee')}; writing {tmp_path / 'new.json'}" in said.out
+    assert "shorter than" not in said.err
+    # episodes shorter than the shipped laws' are a quick check: their laws come out too sharp
+    # (2 s ones gave the planner a bound 50x tighter without a word, and 3x the stall live)
+    for calibrate in (calibrate_main, bound_main):
+        with pytest.raises(Started):
+            calibrate(["--world", "fee", "--duration", "2", *(["--out", str(tmp_path / "q.json")]
+                                                              if calibrate is calibrate_main else [])])
+        assert "--duration 2 s is shorter than the 10 s the shipped laws are calibrated on" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:  # but not the noise-free law for a noisy sensor's forecasts
         calibrate_main(["--world", "fee", "--forecast-law-only", "--force-noise", "--out", str(tmp_path / "noisy.json")])
     assert exit_.value.code == 2 and "run the whole calibration with --force-noise first" in capsys.readouterr().err

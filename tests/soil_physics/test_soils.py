@@ -427,9 +427,12 @@ def test_a_soil_replacing_a_catalogue_soil_or_falling_with_density_is_said(tmp_p
     f.write_text("- {name: Clay, phi_deg: [20, 30], cohesion_pa: [3000, 9000], unit_weight_n_m3: [16000, 20000]}\n"
                  "- {name: Silt, phi_deg: [30, 20], cohesion_pa: [0, 0], unit_weight_n_m3: [18000, 17000]}\n"
                  "- {name: sand, phi_deg: [28, 43], cohesion_pa: [0, 0], unit_weight_n_m3: [15500, 20500]}\n"
-                 "- {name: Marl, phi_deg: [20, 25], cohesion_pa: [9000, 1000], unit_weight_n_m3: [17000, 19000]}\n")
+                 "- {name: Marl, phi_deg: [20, 25], cohesion_pa: [9000, 1000], unit_weight_n_m3: [17000, 19000]}\n"
+                 # kPa written as Pa (an outside tester's slip): all but cohesionless, said
+                 "- {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12, 18], unit_weight_n_m3: [19000, 21500]}\n")
     notes = soil_file_notes(load_soil_yaml(f))
-    assert len(notes) == 4, notes  # the same values as the catalogue's Sand under its name: nothing to say
+    assert len(notes) == 5, notes  # the same values as the catalogue's Sand under its name: nothing to say
+    assert "soil 'StiffSilt': cohesion_pa=[12, 18] is under 1000 Pa at both densities" in notes[4]
     assert "soil 'Clay' replaces the catalogue's Clay" in notes[0]
     assert "phi_deg=[30, 20] falls from loose to dense" in notes[1] and "unit_weight_n_m3=[18000, 17000]" in notes[2]
     assert "soil 'Marl': cohesion_pa=[9000, 1000] falls from loose to dense" in notes[3]  # c was not checked

@@ -254,7 +254,8 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     test_names = ckpt["split"]["test"]
     if not test_names:
         raise ValueError(f"checkpoint {checkpoint} has an empty test split")
-    test_idx = ds.index(test_names)
+    test_idx = ds.index(test_names, fix="evaluate on the directory the model was trained from, or score its forecast "
+                                        "at another depth on these bags with --forecast-only --forecast-data DIR")
     ends = ds.window_ends(test_idx, stride)
     tensors = WindowTensors(ds)
     measured = ds.forces[ends]

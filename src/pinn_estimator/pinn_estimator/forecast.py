@@ -448,10 +448,13 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         intro = (f"Forecast of the force at another depth, {same}: {report['pairs']} pairs of "
                  f"{report['episodes']} episodes of the bags at {report['data']} ({', '.join(report['worlds'])}). "
                  "Mean |error| and signed bias, % of the measured force.")
-    elif intro is None:
+    elif intro is None:  # (an outside tester read these as a held-out part of their own checkpoint's soils)
+        soils = sorted(report.get("per_soil") or {})
         intro = (f"Forecast of the force at another depth, same soil and density: {report['pairs']} pairs of "
-                 f"{report['episodes']} held-out episodes ({', '.join(report['worlds'])}; densities and depths off the "
-                 "training grid). Mean |error| and signed bias, % of the measured force.")
+                 f"{report['episodes']} held-out episodes the simulator ran for this report ({', '.join(report['worlds'])}"
+                 f"{'; the catalogue soils ' + ', '.join(soils) if soils else ''}; densities and depths off the shipped "
+                 "models' training grid, whatever the checkpoint was trained on: `--forecast-data DIR` forecasts on "
+                 "bags of your own). Mean |error| and signed bias, % of the measured force.")
     lines = [intro + _unpaired_text(report), "",
              "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
              "90 % / 50 % intervals hold F_x | hold F_z |",
@@ -471,6 +474,10 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         lines.append(f"| {label} | {_pct(x['all']['mean_abs_pct'])} | {_pct(x['deeper']['bias_pct'], True)} | "
                      f"{_pct(x['shallower']['bias_pct'], True)} | {_pct(z['all']['mean_abs_pct'])} | "
                      f"{_pct(z['deeper']['bias_pct'], True)} | {cover[0]} | {cover[1]} |")
+    if "fused" in shown:
+        lines += ["", f"The {LABELS['fused'].split(' (')[0]} fits its physics (the FEE and the terms its label names) to "
+                      "the measured force: it uses the checkpoint's terms, not its network, and its row is the same for "
+                      "every checkpoint of that physics."]
     per_soil = report.get("per_soil") or {}
     if len(per_soil) > 1:
         columns = [n for n in shown if n not in REFERENCES] + [n for n in REFERENCES if n in shown]

@@ -66,6 +66,21 @@ MIN_CALIBRATED_DEPTH_M = 0.07
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
 # which must hold at least one full window of the estimator; at most the simulator's longest episode.
 CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, MAX_EPISODE_S)
+# The episode length [s] the shipped laws are calibrated on. A shorter one calibrates on posteriors
+# of a few stretches, wider than the live estimator's after a longer cut: their own spread covers
+# the forecasts' errors, so the laws come out sharper than live posteriors need (an outside tester:
+# 2 s episodes gave the planner's bound x 20 N + 0|ΔF| for 1000 N + 0.15|ΔF|, and the live planner
+# stalled 3x as long in a stiff soil).
+CAL_DURATION_S = 10.0
+
+
+def short_duration_warning(duration_s: float) -> str | None:
+    """What a calibration on episodes shorter than CAL_DURATION_S costs, or None."""
+    if duration_s >= CAL_DURATION_S:
+        return None
+    return (f"--duration {duration_s:g} s is shorter than the {CAL_DURATION_S:g} s the shipped laws are calibrated on: "
+            "the posteriors after so short a cut are wider than the live estimator's, so the laws come out "
+            "sharper than live forecasts need (a quick check, not a config to ship)")
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.
@@ -587,8 +602,9 @@ def main(argv=None) -> int:
     p.add_argument("--world", choices=WORLD_MODES, required=True)
     p.add_argument("--out", type=output_file, default=None,
                    help="config JSON to write (default: the shipped models/fusion_<world>.json in this package, replaced)")
-    p.add_argument("--duration", type=float, default=10.0,
-                   help="calibration episode length [s], in [%g, %g] (default 10)" % CAL_DURATION_RANGE_S)
+    p.add_argument("--duration", type=float, default=CAL_DURATION_S,
+                   help="calibration episode length [s], in [%g, %g] (default %g; shorter is a quick check: its "
+                        "laws come out too sharp)" % (*CAL_DURATION_RANGE_S, CAL_DURATION_S))
     p.add_argument("--term", action="append", default=[], metavar="NAME=K",
                    help="a force term in the posterior's physics beside the FEE (repeatable; a catalogue name or a "
                         "form soil_discrepancy named, e.g. form:-qnq*tanhvx0.1=0.756); saved in the config, so the "
@@ -608,6 +624,8 @@ def main(argv=None) -> int:
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
         p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
+    if warning := short_duration_warning(args.duration):
+        print(f"pinn_fusion_calibrate: warning: {warning}", file=sys.stderr, flush=True)
     from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .evaluate import forecast_dataset, fused_posteriors
@@ -684,7 +702,7 @@ def main(argv=None) -> int:
           f"{MIN_CALIBRATED_DEPTH_M:g} m) and {out.with_suffix('.png')}")
     law = cfg.planner_bound_law()
     again = (f"soil_planner_calibrate --world {args.world}" + ("" if out == config_path(args.world) else f" --config {out}")
-             + (f" --duration {args.duration:g}" if args.duration != 10.0 else "") + (" --force-noise" if args.force_noise else ""))
+             + (f" --duration {args.duration:g}" if args.duration != CAL_DURATION_S else "") + (" --force-noise" if args.force_noise else ""))
     print(f"the planner's bound law: {'kept, ' + error_law_text(law) if law else 'none'}"
           f" ({again} calibrates it on these posteriors)")
     return 0

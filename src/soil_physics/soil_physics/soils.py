@@ -171,6 +171,9 @@ SOIL_FIELDS = ("name", "phi_deg", "cohesion_pa", "unit_weight_n_m3", "source")
 # only both values in radians' range are refused).
 MIN_UNIT_WEIGHT_N_M3 = 5e3
 MIN_COHESION_PA = 10.0
+# A cohesion under this at both densities [Pa] is accepted but said: kPa written as Pa (12-18 "Pa",
+# an outside tester's slip) makes a soil all but cohesionless.
+KPA_SLIP_PA = 1000.0
 
 
 def _check_units(phi_deg: tuple[float, float], c_pa: tuple[float, float], gamma_n_m3: tuple[float, float]) -> None:
@@ -283,6 +286,10 @@ def soil_file_notes(custom: dict[str, SoilType]) -> list[str]:
             if dense < loose:
                 notes.append(f"soil {soil.name!r}: {unit}=[{loose / scale:g}, {dense / scale:g}] falls from loose to "
                              "dense (the pair is [loose, dense]: swapped?)")
+        cohesion = (soil.loose.c, soil.dense.c)
+        if 0.0 < max(cohesion) < KPA_SLIP_PA:  # (refused below MIN_COHESION_PA; here accepted, said)
+            notes.append(f"soil {soil.name!r}: cohesion_pa=[{cohesion[0]:g}, {cohesion[1]:g}] is under {KPA_SLIP_PA:g} Pa at "
+                         f"both densities, all but cohesionless: kPa perhaps (give Pa, e.g. {cohesion[1] * 1e3:g})")
     return notes
 
 

@@ -23,8 +23,9 @@ import numpy as np
 
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import FusionConfig, fused_values
-from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S, CAL_SEED,
-                                               FLOOR_GRID, FORECAST_GRID, config_path, world_note)
+from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S,
+                                               CAL_DURATION_S, CAL_SEED, FLOOR_GRID, FORECAST_GRID, config_path,
+                                               short_duration_warning, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -135,8 +136,9 @@ def main(argv=None) -> int:
     p.add_argument("--config", type=output_file, default=None,
                    help="the fusion config to calibrate the bound law for and write it into (default: the shipped "
                         "models/fusion_<world>.json of pinn_estimator, replaced)")
-    p.add_argument("--duration", type=float, default=10.0,
-                   help="calibration episode length [s], as pinn_fusion_calibrate's (default 10)")
+    p.add_argument("--duration", type=float, default=CAL_DURATION_S,
+                   help="calibration episode length [s], as pinn_fusion_calibrate's (default %g; shorter is a quick "
+                        "check: its law comes out too sharp)" % CAL_DURATION_S)
     p.add_argument("--force-noise", action="store_true",
                    help="calibration episodes with the measured force's noise on, as pinn_fusion_calibrate "
                         "--force-noise made the config's posterior; needs --config")
@@ -153,6 +155,8 @@ def main(argv=None) -> int:
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
         p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
+    if warning := short_duration_warning(args.duration):
+        print(f"soil_planner_calibrate: warning: {warning}", file=sys.stderr, flush=True)
     path = args.config or config_path(args.world)
     try:
         cfg = FusionConfig.load(path)
