@@ -645,10 +645,10 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     assert "shorter than" not in said.err
     # episodes shorter than the shipped laws' are a quick check: their laws come out too sharp
     # (2 s ones gave the planner a bound 50x tighter without a word, and 3x the stall live)
-    for calibrate in (calibrate_main, bound_main):
+    for tool in (calibrate_main, bound_main):
         with pytest.raises(Started):
-            calibrate(["--world", "fee", "--duration", "2", *(["--out", str(tmp_path / "q.json")]
-                                                              if calibrate is calibrate_main else [])])
+            tool(["--world", "fee", "--duration", "2", *(["--out", str(tmp_path / "q.json")]
+                                                              if tool is calibrate_main else [])])
         assert "--duration 2 s is shorter than the 10 s the shipped laws are calibrated on" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:  # but not the noise-free law for a noisy sensor's forecasts
         calibrate_main(["--world", "fee", "--forecast-law-only", "--force-noise", "--out", str(tmp_path / "noisy.json")])
