@@ -717,6 +717,26 @@ def test_the_shipped_calibrations_load_and_name_every_setting():
         assert set(json.loads(path.read_text())) == set(cfg.to_dict()), path
 
 
+def test_pinn_eval_scores_the_forecast_with_a_fusion_config_of_the_users(tmp_path, capsys, monkeypatch):
+    """``pinn_eval --fusion-config``: a config of one's own (an outside tester could not score theirs
+    offline: the shipped one was always used); one of another world is refused before anything runs."""
+    import pinn_estimator.evaluate as evaluate_module
+    from pinn_estimator.fusion_calibration import config_path
+
+    mine = tmp_path / "mine.json"
+    FusionConfig(world="fee", forecast_abs_std_n=(7.0, 7.0)).save(mine)
+    used = []
+    monkeypatch.setattr(evaluate_module, "forecast", lambda *a, fusion=None, **k: used.append(fusion) or {})
+    monkeypatch.setattr(evaluate_module, "forecast_dataset", lambda world: None)
+    out = evaluate_module.forecast_section(None, None, "fee", fusion_config=str(mine))
+    assert used[-1].forecast_abs_std_n == (7.0, 7.0) and out["fusion_config"] == str(mine)
+    assert evaluate_module.forecast_section(None, None, "fee")["fusion_config"] == "shipped (fee world)"
+    assert used[-1] == FusionConfig.load(config_path("fee"))
+    code = evaluate_module.main(["--checkpoint", str(MODELS_DIR / "pinn_fee.pt"), "--forecast-only", "--forecast-world",
+                                 "fee", "--fusion-config", str(config_path("default")), "--out", str(tmp_path / "o")])
+    assert code == 2 and "calibrated in the default world, not the fee world" in capsys.readouterr().err
+
+
 def test_a_config_lacking_a_field_is_said_to_run_on_its_default(tmp_path):
     """An outside tester's config without abs_std_n loaded its default without a word."""
     data = json.loads((MODELS_DIR / "fusion_default.json").read_text())

@@ -214,10 +214,11 @@ def load_forecast_bags(root, *, workers: int = 1, progress: bool = False, skip_b
 
 def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STRIDE, classical: bool = True, workers: int = 2, progress: bool = False,
              skip_bad_bags: bool = False, forecast_world: str | None = "auto", forecast_data=None, forecast_only: bool = False,
-             log=print) -> dict:
+             fusion_config: str | None = None, log=print) -> dict:
     """Build the report dict (see module docstring). ``forecast_data``: a bag directory the forecast
     at another depth is judged on instead of the simulated held-out episodes (``forecast_world``);
-    ``forecast_only``: that forecast alone, without the test split (whose bags need not be here)."""
+    ``forecast_only``: that forecast alone, without the test split (whose bags need not be here);
+    ``fusion_config``: the fused posterior's config (default: the forecast world's shipped one)."""
     model, ckpt = load_model(checkpoint)
     if model.cfg.kind != "pinn":
         raise ValueError(f"checkpoint {checkpoint} is a {model.cfg.kind!r} model; pinn_eval needs the PINN first (baseline via --physics-free)")
@@ -241,9 +242,11 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         log(f"warning: {checkpoint} was trained on {', '.join(trained)}-world data; its forecast is judged on "
             f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
             f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
+    if fusion_config is not None:  # checked before anything runs (a world "auto" leaves is checked once known)
+        given_fusion(fusion_config, judged if judged in WORLD_MODES else None)
     if forecast_only:
         return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
-                               progress=progress) | {"seen_in_training": len(seen)}
+                               progress=progress, fusion_config=fusion_config, log=log) | {"seen_in_training": len(seen)}
     if data is None and not Path(ckpt["dataset"]["root"]).is_dir():
         raise ValueError(f"{checkpoint} was trained on the bags at {ckpt['dataset']['root']!r} (as given then, relative "
                          f"to where it was trained), which is not a directory here: give their directory with --data "
@@ -323,33 +326,51 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     if forecast_bags is not None or forecast_world:
         t0 = time.monotonic()
         report["forecast"] = forecast_section(model, forecast_bags, forecast_world, classical=classical,
-                                              workers=workers, progress=progress)
+                                              workers=workers, progress=progress, fusion_config=fusion_config, log=log)
         timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
     return report
 
 
+def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
+    """The fusion config at ``path`` (``--fusion-config``) for forecasts in ``world`` (None: not
+    known yet); ValueError naming it if it cannot be read or was calibrated in another world; a
+    config that records no world is said to be taken for this one (to ``log``)."""
+    from .fusion_calibration import world_note
+
+    try:
+        cfg = FusionConfig.load(path)
+        note = world_note(cfg, path, world) if world is not None else ""
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"--fusion-config: {err}") from None
+    if note and log is not None:
+        log(f"--fusion-config: {note}")
+    return cfg
+
+
 def forecast_section(model, bags: Dataset | None, world: str | None, *, classical: bool = True, workers: int = 2,
-                     progress: bool = False) -> dict:
-    """The forecast at another depth: on ``bags`` with their world's calibrated posterior, or else on
-    the simulated held-out episodes of ``world``."""
+                     progress: bool = False, fusion_config: str | None = None, log=print) -> dict:
+    """The forecast at another depth: on ``bags`` with their world's calibrated posterior (or the
+    config at ``fusion_config``), or else on the simulated held-out episodes of ``world``."""
     from .fusion_calibration import load_calibrated
 
     if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
     world = bags.metas[0].world_mode if bags is not None else world
     out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,
-                   progress=progress, fusion=load_calibrated(world))
+                   progress=progress, fusion=given_fusion(fusion_config, world, log) if fusion_config else load_calibrated(world))
     if bags is not None:
         out["data"] = str(bags.root)
+    out["fusion_config"] = fusion_config or f"shipped ({world} world)"
     return out
 
 
 def forecast_report(model, checkpoint, bags: Dataset | None, world: str | None, *, classical: bool = True,
-                    workers: int = 2, progress: bool = False) -> dict:
+                    workers: int = 2, progress: bool = False, fusion_config: str | None = None, log=print) -> dict:
     """The report of ``forecast_section`` alone (no test split)."""
     t0 = time.monotonic()
-    section = forecast_section(model, bags, world, classical=classical, workers=workers, progress=progress)
+    section = forecast_section(model, bags, world, classical=classical, workers=workers, progress=progress,
+                               fusion_config=fusion_config, log=log)
     return {"checkpoint": str(checkpoint), "forecast_only": True, "world_modes": section["worlds"],
             **({"forecast_data": describe(bags)} if bags is not None else {}),
             "forecast": section, "targets": [], "timing_s": {"forecast_s": time.monotonic() - t0}}
@@ -555,6 +576,9 @@ def main(argv=None) -> int:
     p.add_argument("--forecast-only", action="store_true",
                    help="only the forecast at another depth (of --forecast-data, or of --forecast-world's simulated "
                         "episodes), without the test split: the bags the model was trained on need not be here")
+    p.add_argument("--fusion-config", metavar="FILE", type=input_text,
+                   help="the fused posterior's config for the forecast (e.g. one pinn_fusion_calibrate --out wrote; "
+                        "default: the shipped calibration of the forecast's world)")
     p.add_argument("--quiet", action="store_true")
     add_skip_bad_bags_option(p)
     args = p.parse_args(argv)
@@ -579,7 +603,8 @@ def main(argv=None) -> int:
                           classical=not args.no_classical, workers=args.workers, progress=not args.quiet,
                           skip_bad_bags=args.skip_bad_bags,
                           forecast_world=None if args.forecast_world == "none" else args.forecast_world,
-                          forecast_data=args.forecast_data, forecast_only=args.forecast_only)
+                          forecast_data=args.forecast_data, forecast_only=args.forecast_only,
+                          fusion_config=args.fusion_config)
     except (ValueError, FileNotFoundError) as err:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 2
