@@ -113,3 +113,29 @@ def test_the_cut_report_refuses_a_soil_without_a_failure_wedge_even_where_the_bl
     assert ended.value.code == 2
     assert "soil 'Undrained' at I_d 50 %: phi=0° gives the FEE no failure wedge" in capsys.readouterr().err
     assert cut_report.parse_args(["--worlds", "fee", "fee", "--out", str(tmp_path / "out")]).worlds == ["fee"]
+
+
+def test_the_cut_report_takes_a_checkpoint_and_fusion_config_of_ones_own_for_one_world(tmp_path, capsys):
+    """``--checkpoint`` / ``--fusion-config`` (an outside tester's own model could only be judged live):
+    one world's, read before the sweeps; the setup carries them to the soil-aware policy."""
+    import torch
+
+    from pinn_estimator.fusion import FusionConfig
+    from pinn_estimator.fusion_calibration import config_path
+    from pinn_estimator.shipped import shipped_checkpoint
+
+    fee_model, default_config = str(shipped_checkpoint("fee")), str(config_path("default"))
+    for args, said in ((["--checkpoint", fee_model], "one world's"),
+                       (["--worlds", "fee", "--checkpoint", str(tmp_path / "none.pt")], "does not exist"),
+                       (["--worlds", "fee", "--fusion-config", default_config], "calibrated in the default world")):
+        with pytest.raises(SystemExit) as exit_:
+            cut_report.parse_args(["--out", str(tmp_path / "o"), *args])
+        assert exit_.value.code == 2 and said in capsys.readouterr().err
+    mine = tmp_path / "mine.json"
+    FusionConfig(world="default", forecast_abs_std_n=(777.0, 7.0)).save(mine)
+    args = cut_report.parse_args(["--worlds", "default", "--checkpoint", fee_model, "--fusion-config", str(mine),
+                                  "--out", str(tmp_path / "o")])
+    setup = cut_report.SoilAwareSetup("default", checkpoint=args.checkpoint, fusion_config=args.fusion_config)
+    estimator = setup.estimator(lambda _: None)
+    assert torch.equal(next(estimator.model.parameters()), next(cut_report.load_model(fee_model)[0].parameters()))
+    assert estimator.posterior.cfg.forecast_abs_std_n == (777.0, 7.0)

@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
+from pinn_estimator.checkpoint import load_model
+from pinn_estimator.fusion_calibration import load_fusion_config, world_note
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
@@ -80,6 +82,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
+    p.add_argument("--checkpoint", metavar="FILE", help="the soil-aware policy's estimator model (default: the world's "
+                                                      "shipped models/pinn_<world>.pt); one world's: needs one --worlds")
+    p.add_argument("--fusion-config", metavar="FILE",
+                   help="its fused posterior's config, which also gives the planner its physics and bound law (default: "
+                        "the world's shipped calibration); one world's: needs one --worlds")
     p.add_argument("--no-sensor-anchor", dest="sensor_anchor", action="store_false",
                    help="the planner's plan anchored to the PINN's force alone, as before 2026-12-03 (default: the "
                         "blade's measured force anchors it where it is clearly above the PINN's)")
@@ -109,6 +116,17 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.patches = check_patches([parse_patch(t, "--patch") for t in (args.patch or DEFAULT_PATCHES)])
         except ValueError as err:
             p.error(str(err))
+    if (args.checkpoint or args.fusion_config) and len(args.worlds) != 1:
+        p.error("--checkpoint and --fusion-config are one world's: give that world alone (--worlds default or fee)")
+    try:  # read now, not after the sweeps: a file that is no model or config, or another world's config
+        if args.checkpoint:
+            load_model(args.checkpoint)
+        if args.fusion_config:
+            note = world_note(load_fusion_config(args.fusion_config, args.worlds[0]), args.fusion_config, args.worlds[0])
+            if note:
+                print(f"soil_cut_report: note: --fusion-config: {note}", file=sys.stderr)
+    except (FileNotFoundError, ValueError) as err:
+        p.error(f"--checkpoint/--fusion-config: {err}")
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
         p.error(f"--duration {args.duration} must be in [2, 600] s")
     if args.seed < 0:
@@ -452,11 +470,13 @@ def main(argv=None) -> int:
     path = " → ".join(f"{p.soil} {p.relative_density_pct:g} % from {p.x_start_m:g} m" for p in args.patches)
     report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
               "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner,
+              "checkpoint": args.checkpoint or "shipped", "fusion_config": args.fusion_config or "shipped",
               "controller": dataclasses.asdict(args.gains)}
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
-        w = world_trial(world, spec, SoilAwareSetup(world, planner=args.planner), args.gains, args.custom_soils)
+        setup = SoilAwareSetup(world, planner=args.planner, checkpoint=args.checkpoint, fusion_config=args.fusion_config)
+        w = world_trial(world, spec, setup, args.gains, args.custom_soils)
         w["figure"] = figure_name(world)
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)

@@ -27,7 +27,7 @@ from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from anti_stall_controller.plan_wait import DEFAULT_LAG_TICKS
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.shipped import shipped_checkpoint
-from pinn_estimator.fusion_calibration import load_calibrated
+from pinn_estimator.fusion_calibration import load_calibrated, load_fusion_config
 from pinn_estimator.online import INPUT_TOPICS, Estimate, OnlineEstimator
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -57,13 +57,14 @@ class Policy:
 @dataclass
 class SoilAwareSetup:
     """What the soil-aware policy runs: the world's shipped model and calibrated posterior by
-    default, the planner's settings and the depth schedule."""
+    default (or a checkpoint and fusion config of one's own), the planner's settings and the depth schedule."""
 
     world: str
     planner: dict = field(default_factory=dict)  # StretchPlanner keyword settings
     schedule: ScheduleSettings = field(default_factory=ScheduleSettings)
     plan_delay_ticks: int = DEFAULT_PLAN_DELAY_TICKS
     checkpoint: str | None = None  # None: models/pinn_<world>.pt
+    fusion_config: str | None = None  # None: the world's shipped calibration, models/fusion_<world>.json
     # the planner sees the depth the controller commands (−u_za), as the node does on /blade/cmd: an
     # edge held short of it does not anchor the plan's z force (False: as before it did)
     sees_commands: bool = True
@@ -76,7 +77,8 @@ class SoilAwareSetup:
     def estimator(self, publish) -> OnlineEstimator:
         path = self.checkpoint or str(shipped_checkpoint(self.world))
         model, _ = load_model(path)
-        return OnlineEstimator(model, publish, fusion=load_calibrated(self.world))
+        fusion = load_fusion_config(self.fusion_config, self.world) if self.fusion_config else load_calibrated(self.world)
+        return OnlineEstimator(model, publish, fusion=fusion)
 
 
 @dataclass
