@@ -401,3 +401,36 @@ def test_extras_that_never_stop_are_cut_at_the_lag_limit_with_a_warning(tmp_path
     got = ep.recorded()
     assert got == ep.stamps[:len(got)] and len(got) >= sent
     assert any("still arriving" in m and ep.topic in m for lvl, m in ep.log.lines if lvl == "warning"), ep.log.lines
+
+
+def test_a_sparse_topic_of_the_next_replayed_bag_goes_to_its_own_bag(tmp_path):
+    """Two bags played in a row (stamps restart at 0) with an extra topic that never reaches an
+    episode's last stamp (the planner's targets, the map): the first bag waits out its end grace
+    for it, and an outside tester found every message of the second episode filed into the first
+    bag, the second's own bag empty of it. A stamp going back is the newer episode's."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 30
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    now = [0.0]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
+                            end_grace_s=4.0, clock=lambda: now[0])
+    feed = Feed(rec)
+    stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    sparse = stamps[:-3:4]  # every 4th tick, never the last ones
+    for episode, value in ((0, 1.0), (1, 2.0)):
+        rec.on_status(replace(start_ev, episode=episode).to_json())
+        for t, topic, raw in msgs:
+            feed.send("sim", topic, raw)
+            if topic == "/clock" and t in sparse:
+                feed.send("estimator", T.ESTIMATE.name, _estimate(t, value))
+        rec.on_status(replace(end_ev, episode=episode).to_json())
+        now[0] += 1.0  # within the first bag's grace: it still waits for its extra topic
+    now[0] += recorder.END_GRACE_S + recorder.EXTRA_TOPIC_GRACE_S
+    rec.poll(), rec.poll(), rec.poll()
+    assert len(rec.finished) == 2
+    for result, value in zip(sorted(rec.finished, key=lambda r: r.path.name), (1.0, 2.0)):
+        got, values = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, ESTIMATE_FIELDS)
+        assert got.tolist() == sparse and set(values[:, 0].tolist()) == {value}, (result.path.name, values[:, 0])

@@ -127,6 +127,7 @@ class Session:
     counts: dict[str, int] = field(default_factory=dict)
     topic_max: dict[str, int] = field(default_factory=dict)
     topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
+    topic_seq: dict[str, int] = field(default_factory=dict)  # the highest publication sequence number written per topic
     claims: dict[tuple[str, int], int] = field(default_factory=dict)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
@@ -226,7 +227,7 @@ class Recorder:
                 self._undecodable_warned.add(topic)
                 self.log.warning(f"{topic}: message without a decodable stamp dropped (further ones only counted)")
             return
-        s = self._route(topic, stamp)
+        s = self._route(topic, stamp, seq)
         if s is None:
             self.held.append((self.clock(), topic, stamp, raw, recv_ns, seq))
             if len(self.held) > _MAX_HELD:
@@ -315,7 +316,7 @@ class Recorder:
         held, self.held = self.held, deque()
         for item in held:  # messages that arrived before their episode_start
             _, topic, stamp, raw, recv_ns, seq = item
-            target = self._route(topic, stamp)
+            target = self._route(topic, stamp, seq)
             if target is None:
                 self.held.append(item)
             else:
@@ -333,10 +334,20 @@ class Recorder:
         if self._complete(s) or ev.last_stamp_ns < s.first_stamp_ns:
             self._finish(s, "completed")
 
-    def _route(self, topic: str, stamp: int) -> Session | None:
-        for s in self.sessions:
-            if s.covers(stamp) and not s.topic_done(topic):
-                return s
+    def _route(self, topic: str, stamp: int, seq: int = 0) -> Session | None:
+        """The oldest session whose stamps cover ``stamp`` and whose ``topic`` is not done yet; but
+        where a newer session covers it too (a replay's stamps restart with each bag), a message
+        that has gone back in time against what the older one holds of its topic is the newer
+        episode's: stamped before its newest, or at it by a later publication of the writer (a
+        redelivery carries its old sequence number). A writer's stamps only grow within an
+        episode. (Sparse topics, the planner's targets and the map, never reach an episode's last
+        stamp: the next bag's were filed into the previous one while it waited out its end grace.)"""
+        covering = [s for s in self.sessions if s.covers(stamp) and not s.topic_done(topic)]
+        for i, s in enumerate(covering):
+            newest = s.topic_max.get(topic, -1)
+            if i + 1 < len(covering) and (stamp < newest or (stamp == newest and seq > s.topic_seq.get(topic, seq))):
+                continue
+            return s
         return None
 
     def _warn(self, s: Session, kind: str, topic: str, text: str) -> None:
@@ -366,6 +377,8 @@ class Recorder:
             s.journal.flush()
             s.flushed_stamp_ns = stamp
         s.counts[topic] = s.counts.get(topic, 0) + 1
+        if seq:
+            s.topic_seq[topic] = max(seq, s.topic_seq.get(topic, 0))
         recorded_writer = not episode or self._from_recorded_writer(s, topic, stamp, seq)
         if stamp > s.topic_max.get(topic, -1) and recorded_writer:
             s.topic_max[topic] = stamp
