@@ -50,7 +50,8 @@ def test_in_lockstep_a_tick_waits_for_its_plan_and_a_silent_planner_is_waited_fo
             assert answer(5) == pytest.approx(-0.15)
             # ... and later ticks do not wait; 0.5 s of ticks after the last plan its target is stale
             assert [tick(k) for k in range(6, 9)] == pytest.approx([-0.15] * 3)
-            assert tick(33) == pytest.approx(-PARAM_DEPTH)
+            # (the parameter's deeper depth, from the plan's at most 0.03 m/s: 25 ticks after tick 8)
+            assert tick(33) == pytest.approx(-(0.15 + 0.03 * 25 / 60), abs=1e-6)
             # it speaks again (plans of ticks 32-40): once its target is in, each tick cuts to the
             # plan of two ticks before (a tick that comes before the first target is not held: the
             # planner was silent) ...

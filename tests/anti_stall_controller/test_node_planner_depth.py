@@ -1,6 +1,7 @@
 """The controller node with ``depth_source:=planner``: its target depth follows
 /planner/target_depth over real DDS, falls back to its parameter when the planner's target is
-stale or absent, and ignores a target that is no depth."""
+stale or absent (a deeper one at the fallback's rate, a shallower one at once), and ignores a
+target that is no depth."""
 from __future__ import annotations
 
 import pytest
@@ -40,10 +41,15 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             plan(k, float("nan"))  # no depth: ignored, the last target holds
             plan(k, 0.9)  # deeper than the blade: ignored
             assert [tick(k + i) for i in (1, 2, 3)] == pytest.approx([-0.12] * 3)
-            # 0.5 s of ticks (30) after the plan's stamp it is stale: back to the parameter
-            assert tick(k + 31) == pytest.approx(-PARAM_DEPTH)
-            plan(k + 32, 0.25)
-            k = until(0.25, k + 32)
+            # 0.5 s of ticks (30) after the plan's stamp it is stale: on the way back to the parameter,
+            # deeper than the plan at most 0.03 m/s (it had plunged 8 cm in one tick into soil the
+            # planner had ruled out), 28 ticks after the last answered one
+            assert tick(k + 31) == pytest.approx(-(0.12 + 0.03 * 28 / 60), abs=1e-6)
+            assert tick(k + 91) == pytest.approx(-(0.12 + 0.03 * 88 / 60), abs=1e-6)
+            plan(k + 92, 0.25)
+            k = until(0.25, k + 92)
+            assert tick(k + 31) == pytest.approx(-PARAM_DEPTH)  # a shallower fallback: at once
+            k += 31
             # switched back to its parameter at run time: the next tick cuts to 0.2 m again, and
             # a changed target speed does not make the planner's depth the parameter's
             client = AsyncParameterClient(probe.node, "anti_stall_controller")

@@ -132,3 +132,15 @@ def test_episode_start_says_the_simulators_pacing_and_a_bad_one_is_refused():
     with pytest.raises(ValueError, match="pacing='sometimes' is not one of"):
         G.EpisodeEvent.from_json(event.to_json().replace('"lockstep"', '"sometimes"'))
     assert G.EpisodeEvent.from_json(event.to_json().replace(', "pacing": "lockstep"', "")).pacing == ""  # (a replay's)
+
+
+def test_a_silent_planners_fallback_is_taken_at_once_upward_and_at_its_rate_downward():
+    from anti_stall_controller.planner_fallback import check_rate, fallback_depth
+
+    assert fallback_depth(0.12, 0.2, 0.5, 0.03) == pytest.approx(0.135)
+    assert fallback_depth(0.19, 0.2, 1.0, 0.03) == 0.2  # never past it
+    assert fallback_depth(0.25, 0.2, 0.0, 0.03) == 0.2  # shallower: at once
+    assert fallback_depth(0.12, 0.2, -1.0, 0.03) == 0.12  # a stamp going back moves nothing
+    for bad in (0.0, -0.1, float("nan"), float("inf"), 11.0, True, "0.1"):
+        with pytest.raises(ValueError, match="fallback_deepen_rate_m_s="):
+            check_rate(bad)

@@ -13,7 +13,10 @@ With ``depth_source`` ``planner`` the target depth d̄_z comes from /planner/tar
 soil-aware planner's schedule) instead of the ``target_depth_m`` parameter: each answered tick
 uses the newest planner target stamped no later than the tick (half a tick of rounding) if it is
 within ``planner_timeout_s`` of it; without one (none yet this episode, the planner silent or its stamps far off) the
-parameter's depth is the fallback, and the switch is logged. Eq. 11's anti-stall lift acts on
+parameter's depth is the fallback, and the switch is logged. Once the planner has steered the
+cut, a silent planner's fallback is taken at once where it is shallower and at most
+``fallback_deepen_rate_m_s`` deeper per second (``planner_fallback``): a deeper one in one tick
+had plunged the blade into soil the planner had just ruled out. Eq. 11's anti-stall lift acts on
 top of whichever target is in effect: the planner chooses the depth, the controller still
 saves the machine from a stall. In a lockstep episode (the simulator's episode_start says its
 pacing) the controller keeps step with the planner (``plan_wait``): tick k is answered once the
@@ -55,6 +58,7 @@ from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import MAX_DITHER_AMPLITUDE_M, MAX_RATE_GAIN_M_S, MIN_DITHER_TICKS, AntiStallController, AntiStallGains
 from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
+from .planner_fallback import DEFAULT_FALLBACK_DEEPEN_RATE_M_S, MAX_FALLBACK_DEEPEN_RATE_M_S, check_rate, fallback_depth
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
@@ -74,6 +78,10 @@ PARAMETERS: dict[str, tuple] = {
     "depth_source": ("parameter", "where d̄_z comes from: 'parameter' (target_depth_m) or 'planner' "
                                   "(/planner/target_depth; target_depth_m the fallback)"),
     "planner_timeout_s": (1.0, "a planner target counts for ticks within this much simulation time of its stamp [s], > 0"),
+    "fallback_deepen_rate_m_s": (DEFAULT_FALLBACK_DEEPEN_RATE_M_S,
+                                 "when a planner that steered the cut falls silent, the target moves from its last "
+                                 "plan to target_depth_m: at once if that is shallower, else at most this much deeper "
+                                 f"per second of simulation time [m/s], in (0, {MAX_FALLBACK_DEEPEN_RATE_M_S:g}]"),
     "planner_lag_ticks": (DEFAULT_LAG_TICKS, "lockstep with depth_source planner: tick k is answered once the planner's "
                                              f"target for tick k - lag came, and cuts to it, [0, {MAX_LAG_TICKS}] and "
                                              "within planner_timeout_s (0: never wait)"),
@@ -147,6 +155,9 @@ class ControllerNode(Node):
         self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"),
                                   self.planner_timeout_ns / 1e9)  # ValueError names the field
         self.following_planner = False
+        self.fallback_rate_m_s = check_rate(get("fallback_deepen_rate_m_s"))
+        self.planned = False  # a planner target steered a tick of this episode (the fallback then ramps)
+        self.last_answer_ns: int | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -213,6 +224,7 @@ class ControllerNode(Node):
             lag = changes.get("planner_lag_ticks", self.plan_wait.lag_ticks)
             wait = changes.get("planner_wait_s", self.plan_wait.wait_s)
             PlanWait(lag, wait, timeout_ns / 1e9)  # validates them
+            rate = check_rate(changes.get("fallback_deepen_rate_m_s", self.fallback_rate_m_s))
             if (new_gains.force_lift_m_s > 0.0) != self._force_lift:
                 raise ValueError(
                     f"force_lift_m_s={new_gains.force_lift_m_s!r} would switch the force lift "
@@ -228,10 +240,11 @@ class ControllerNode(Node):
             self.param_depth_m = float(depth)
             self._say_if_beyond_reach()
         self.plan_wait.set_lag(lag, wait)
+        self.fallback_rate_m_s = rate
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
             self.core.set_targets(target_depth_m=self.param_depth_m)
             self.plan_wait.targets.clear()
-            self.following_planner = False
+            self.following_planner = self.planned = False
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
         if source != "planner":  # ticks held for the planner are answered now: in lockstep no next tick
             for held in self.plan_wait.drain():  # comes to release them until they are
@@ -265,7 +278,8 @@ class ControllerNode(Node):
         # the previous cut's plan does not carry over (nor its held ticks: the reset core must not step
         # on them); in lockstep the controller keeps step with the planner
         self.plan_wait.start_episode(event.first_stamp_ns, event.pacing == G.PACING_LOCKSTEP)
-        self.following_planner = False
+        self.following_planner = self.planned = False
+        self.last_answer_ns = None
         if self.depth_source == "planner":
             self.core.set_targets(target_depth_m=self.param_depth_m)
         self.joiner.reset(event.first_stamp_ns)
@@ -370,13 +384,23 @@ class ControllerNode(Node):
             return self.param_depth_m
         target = self.plan_wait.target_for(stamp)
         fresh = target is not None and abs(stamp - target[0]) <= self.planner_timeout_ns
+        current = float(self.core.target_depth_m[0])
         if fresh != self.following_planner:
             self.following_planner = fresh
+            ramp = (self.planned and self.param_depth_m > current)
             self.get_logger().info(f"tick {stamp} ns: " + (
                 "following the planner's target depth" if fresh else
                 f"no planner target within {self.planner_timeout_ns / 1e9:g} s; target_depth_m "
-                f"{self.param_depth_m} m until one comes"))
-        return target[1] if fresh else self.param_depth_m
+                f"{self.param_depth_m} m until one comes" + (
+                    f" (deepening from the planner's last {current:.3f} m at most {self.fallback_rate_m_s:g} m/s)"
+                    if ramp else "")))
+        if fresh:
+            self.planned = True
+            return target[1]
+        if not self.planned:  # no plan this episode yet: the parameter's depth, as without a planner
+            return self.param_depth_m
+        dt_s = 0.0 if self.last_answer_ns is None else (stamp - self.last_answer_ns) / 1e9
+        return fallback_depth(current, self.param_depth_m, dt_s, self.fallback_rate_m_s)
 
     def _answer(self, stamp: int, v_x_c: float, p_z_c: float, force_n=None) -> None:
         if self.depth_source == "planner":
@@ -384,6 +408,7 @@ class ControllerNode(Node):
             if depth != self.core.target_depth_m[0]:
                 self.core.set_targets(target_depth_m=depth)
         cmd = self.core.step(v_x_c, p_z_c, force_n)  # non-finite inputs: core holds its state
+        self.last_answer_ns = stamp
         self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
         self.blade_pub.publish(M.build_message(self.classes, T.BLADE_CMD.name, stamp, [cmd.u_zr[0], cmd.u_za[0]]))
 

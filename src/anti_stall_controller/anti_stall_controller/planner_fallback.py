@@ -1,0 +1,32 @@
+"""Where the target depth goes when the planner falls silent (``depth_source`` planner).
+
+The planner's last target is the deepest cut it judged within the machine's limits; the
+``target_depth_m`` parameter is the fallback the user set. Jumping to a deeper fallback in one
+tick plunged the blade 7 cm into a dense clay the planner had just ruled out (an outside tester:
+F_x 27.6 kN against the 20 kN limit, and the machine crawling until the planner came back). So a
+shallower fallback is taken at once (rising is always safe), a deeper one at most
+``deepen_rate_m_s`` of simulation time, the planner's own cautious deepening after a retreat.
+No ROS here.
+"""
+from __future__ import annotations
+
+import math
+
+DEFAULT_FALLBACK_DEEPEN_RATE_M_S = 0.03  # as soil_planner's cautious_deepen_rate_m_s: deepening where a stall threatened
+MAX_FALLBACK_DEEPEN_RATE_M_S = 10.0  # beyond it the fallback is reached within a tick: a jump
+
+
+def check_rate(rate_m_s) -> float:
+    """``fallback_deepen_rate_m_s`` as a float; ValueError naming it unless in (0, 10] m/s."""
+    if isinstance(rate_m_s, bool) or not isinstance(rate_m_s, (int, float)) or not math.isfinite(rate_m_s) \
+            or not 0.0 < rate_m_s <= MAX_FALLBACK_DEEPEN_RATE_M_S:
+        raise ValueError(f"fallback_deepen_rate_m_s={rate_m_s!r} must be in (0, {MAX_FALLBACK_DEEPEN_RATE_M_S:g}] m/s")
+    return float(rate_m_s)
+
+
+def fallback_depth(current_m: float, fallback_m: float, dt_s: float, deepen_rate_m_s: float) -> float:
+    """The target [m] one step of ``dt_s`` [s] after ``current_m`` on the way to ``fallback_m``:
+    the fallback itself if it is not deeper, else at most ``deepen_rate_m_s`` · dt deeper."""
+    if fallback_m <= current_m:
+        return fallback_m
+    return min(fallback_m, current_m + deepen_rate_m_s * max(dt_s, 0.0))
