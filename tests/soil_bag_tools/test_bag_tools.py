@@ -329,9 +329,16 @@ def test_with_clock_replaces_bag_clock():
     msgs = sample_messages()[:60]  # 6 ticks
     out = list(playback.with_clock(msgs, 120.0))
     clocks = [t for t, topic, _ in out if topic == "/clock"]
-    assert clocks == [round(k * 1e9 / 120) for k in range(len(clocks))] and len(clocks) == 11
+    assert clocks == [k * 10**9 // 120 for k in range(len(clocks))] and len(clocks) == 11
     assert [m for m in out if m[1] != "/clock"] == [m for m in msgs if m[1] != "/clock"]
     assert all(a[0] <= b[0] for a, b in zip(out, out[1:]))
+    # at 60 Hz on the ticks' own stamps, from a bag starting mid-run too (rounded from the first stamp,
+    # a third of them were off the tick grid, and a recorder of the replay dropped them)
+    ticks = sorted({t for t, topic, _ in sample_messages() if topic == "/clock"})
+    later = [(t + 10**9, topic, raw) for t, topic, raw in sample_messages()[:300]]
+    want = [k * 10**9 // 60 for k in range(60, 90)]
+    assert [t for t, topic, _ in playback.with_clock(later, 60.0) if topic == "/clock"] == want
+    assert [t for t, topic, _ in playback.with_clock(msgs, 60.0) if topic == "/clock"] == ticks[:6]
 
 
 # --- processes on the loopback DDS ---------------------------------------------------------
@@ -447,6 +454,24 @@ def assert_paced(received, bag_msgs, rate: float) -> None:
     bag_span_s = (bag_msgs[-1][0] - bag_msgs[0][0]) * 1e-9 / rate
     arrival_span_s = (received[-1][0] - received[0][0]) * 1e-9
     assert arrival_span_s >= 0.9 * bag_span_s, f"{arrival_span_s:.3f} s of arrivals for {bag_span_s:.3f} s of bag"
+
+
+def test_a_replay_into_a_domain_where_another_node_publishes_its_topics_is_stopped(listener):
+    """A replay into a live graph (a simulator on the domain) had a recorder cut the live bag short
+    and write one holding both robots' state; the player exits 6 naming the topic and the node, and
+    closes the episode it framed."""
+    from soil_msgs_py.ros_adapter import message_class, topic_qos
+
+    domain = next_domain_id()
+    lst = listener(domain, topics=())
+    lst.node.create_publisher(message_class("geometry_msgs/msg/WrenchStamped"), "/blade/force", topic_qos("/blade/force"))
+    player = start("soil_bag_play", SAMPLE, domain=domain)
+    out = finish(player)
+    assert player.returncode == graph.EXIT_ANOTHER_GRAPH, out
+    assert "other nodes publish topics this replay plays (/blade/force by /" in out, out
+    # found while playing (the episode_start may have gone out before this reader matched): its end follows
+    lst.wait_for(lambda: bool(lst.status), 2)
+    assert [(e["event"], e.get("reason")) for e in lst.status][-1:] in ([], [("episode_end", "shutdown")]), lst.status
 
 
 def test_replay_delivers_every_message_in_order_paced(listener):

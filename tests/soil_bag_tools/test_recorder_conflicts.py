@@ -190,7 +190,8 @@ def test_recorded_replay_holds_only_the_players_data_with_an_intruder(listener, 
                             and pub.get_subscription_count() >= 1, 20), "recorder never subscribed"
         for _ in range(50):  # the probe's writer has published before, as any writer may have
             pub.publish(M.build_message(M.ros_message_classes(), "/blade/force", 1, [0.0, 0.0]))
-        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, domain=domain)
+        # (--allow-other-publishers: the probe is the intruder the recorder must refuse, on purpose)
+        player = start("soil_bag_play", SAMPLE, "--wait-for-subscribers", 1, "--allow-other-publishers", domain=domain)
         out = finish(player, timeout=60)
         assert player.returncode == 0, out
         bag = tmp_path / SAMPLE.name
@@ -434,3 +435,23 @@ def test_a_sparse_topic_of_the_next_replayed_bag_goes_to_its_own_bag(tmp_path):
     for result, value in zip(sorted(rec.finished, key=lambda r: r.path.name), (1.0, 2.0)):
         got, values = bag_io.read_labelled_topic(result.path, T.ESTIMATE.name, ESTIMATE_FIELDS)
         assert got.tolist() == sparse and set(values[:, 0].tolist()) == {value}, (result.path.name, values[:, 0])
+
+
+def test_a_bag_cut_short_by_another_episode_start_says_so(tmp_path):
+    """A second graph's episode_start (or a restarted simulator's) before this episode's end
+    closes its bag where its ticks stop: it was marked "completed", as if the episode had run its
+    course (an outside tester: 173 of 600 ticks)."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 20]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for _, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+    other = replace(start_ev, episode=7, name="default_sand_id060_v0.50_d0.200_s5")
+    rec.on_status(other.to_json())
+    rec.poll()
+    cut = next(r for r in rec.finished if r.path.name == SAMPLE.name)
+    info = recorder_info(cut.path)
+    assert info["end"] == "cut_short" and info["cut_by"] == other.name, info
+    assert any("cut short (a restarted simulator, or a second graph" in m for _, m in log.lines), log.lines

@@ -24,7 +24,8 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from soil_msgs_py.graph import EVENT_EPISODE_END, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE,
+                                EpisodeEvent)
 from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.patches import finite_number
 from .playback import (
@@ -42,6 +43,13 @@ DRAIN_S = 1.0  # at most this long waiting for reliable subscribers to acknowled
 # The fastest /clock: far beyond the 60 Hz every node of the graph ticks at, and one /clock message
 # a millisecond of bag time is what a replay keeps in memory besides the bag.
 MAX_CLOCK_HZ = 1000.0
+# How often (wall time) a replay looks for another publisher of the topics it plays [s]: a live
+# simulator on the domain (a replay into a running graph recorded bags holding both robots' state).
+OTHERS_CHECK_PERIOD_S = 0.5
+
+
+class AnotherGraph(Exception):
+    """Another node publishes a topic the replay plays (``Player.others``)."""
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -54,12 +62,18 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
     p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
     p.add_argument("--clock", type=float, metavar="HZ",
-                   help="publish /clock at HZ (at most 1000) from bag time (and not the bag's own /clock)")
+                   help="publish /clock at HZ (at most 1000) from bag time, stamped floor(j·1e9/HZ) ns (at 60 Hz the "
+                        "ticks' own stamps), and not the bag's own /clock; a recorder of the replay needs one /clock "
+                        "per tick: at another HZ its bags lack it")
     p.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
                    help="before playing, wait until every publisher has N matched subscriptions (default 0)")
     p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
                    help="give up waiting for subscribers after S s and play anyway (default 10)")
     p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events")
+    p.add_argument("--allow-other-publishers", action="store_true",
+                   help="play even where another node publishes a played topic (default: refused, exit 6: a live "
+                        "simulator on the domain mixes two robots' data in every reader and bag; --exclude the topics "
+                        "a live node publishes, e.g. /soil/estimate beside a live estimator)")
     opts = p.parse_args(argv)
     try:
         check_rate(opts.rate)
@@ -88,6 +102,7 @@ class Player:
         self.pacer = Pacer(opts.rate)
         self.episode = 0
         self.published = 0
+        self.checked_at = -float("inf")  # time.monotonic() of the last look for other publishers
 
     def _publisher(self, topic: str, msgtype: str):
         if topic in self.pubs:
@@ -123,6 +138,30 @@ class Player:
             time.sleep(0.02)
         time.sleep(SETTLE_S)
 
+    def others(self) -> dict[str, list[str]]:
+        """{played data topic: the other nodes publishing it} (this player's own writer counts one;
+        /sim/status is left out: test harnesses and monitors publish it, a live graph's state topics
+        give it away anyway)."""
+        out = {}
+        for topic in self.pubs:
+            if topic != SIM_STATUS_TOPIC and self.node.count_publishers(topic) > 1:
+                out[topic] = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                                     for i in self.node.get_publishers_info_by_topic(topic)} - {"/soil_bag_play"})
+        return out
+
+    def check_others(self, force: bool = False) -> None:
+        """AnotherGraph naming the topics and nodes, unless --allow-other-publishers; at most every
+        OTHERS_CHECK_PERIOD_S of wall time unless ``force``."""
+        now = time.monotonic()
+        if self.opts.allow_other_publishers or (not force and now - self.checked_at < OTHERS_CHECK_PERIOD_S):
+            return
+        self.checked_at = now
+        if found := self.others():
+            named = "; ".join(f"{t} by {', '.join(n) or 'another soil_bag_play'}" for t, n in sorted(found.items()))
+            raise AnotherGraph(f"other nodes publish topics this replay plays ({named}): a live graph on this domain "
+                               "would mix two robots' data in every reader and bag. Stop them, give the replay its own "
+                               "ROS_DOMAIN_ID, --exclude the topics they publish, or --allow-other-publishers")
+
     def play_bag(self, bag: LoadedBag) -> None:
         messages = list(with_clock(bag.messages, self.opts.clock)) if self.opts.clock else bag.messages
         events = None if self.status is None else episode_events(bag, self.episode)
@@ -134,11 +173,12 @@ class Player:
         try:
             for i, (t, topic, raw) in enumerate(messages):
                 late[i] = self.pacer.wait(t)
+                self.check_others()
                 self.pubs[topic].publish(raw)
                 self.published += 1
                 if t != last_stamp and not (self.opts.clock and topic == CLOCK_TOPIC):  # synthetic clock
                     last_stamp, ticks = t, ticks + 1
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, AnotherGraph):
             if events:  # tell recorders/estimators the episode stopped here
                 ev = events[1]
                 end = EpisodeEvent(event=EVENT_EPISODE_END, episode=ev.episode, name=ev.name, meta=ev.meta,
@@ -174,6 +214,7 @@ class Player:
                     first = False
                     if self.opts.wait_for_subscribers > 0:
                         self.wait_for_subscribers()
+                    self.check_others(force=True)
                 self.play_bag(bag)
                 played = True
             if not played:
@@ -234,6 +275,9 @@ def main(args: list[str] | None = None) -> int:
     except ValueError as err:  # BagReadError (damaged bag), BagPathError, unknown message type, nothing to play
         node.get_logger().error(str(err))
         code = 2
+    except AnotherGraph as err:
+        node.get_logger().error(f"{err}; stopped")
+        code = EXIT_ANOTHER_GRAPH
     finally:
         node.get_logger().info(f"published {player.published if player else 0} messages")
         node.destroy_node()

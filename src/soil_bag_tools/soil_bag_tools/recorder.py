@@ -124,6 +124,7 @@ class Session:
     polled_write: float | None = None  # ``last_write`` the last poll saw
     ticks_done_since: float | None = None  # when every episode topic reached the last stamp
     end_event: EpisodeEvent | None = None
+    cut_by: str | None = None  # the episode whose episode_start came before this one's episode_end
     counts: dict[str, int] = field(default_factory=dict)
     topic_max: dict[str, int] = field(default_factory=dict)
     topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
@@ -302,8 +303,10 @@ class Recorder:
             if s.last_stamp_ns is None:  # its episode_end never came
                 s.last_stamp_ns = max(s.topic_max.values(), default=s.first_stamp_ns)
                 s.closing_since, s.polled_write = self.clock(), s.last_write
+                s.cut_by = ev.name
                 self.log.warning(f"episode_start of {ev.name} while {s.name} has not ended: closing {s.name} "
-                                 f"at its last stamp {s.last_stamp_ns} ns")
+                                 f"at its last stamp {s.last_stamp_ns} ns, cut short (a restarted simulator, or a "
+                                 "second graph or bag player on this domain, whose data would mix with it)")
         try:
             s = self._open(ev.name, ev.meta.to_json(), {FIRST_STAMP_KEY: str(ev.first_stamp_ns)})
         except OSError as err:  # the bag cannot be made (a name the file system refuses, a full or read-only disk):
@@ -463,7 +466,11 @@ class Recorder:
             shutil.rmtree(partial, ignore_errors=True)
             self.log.warning(f"{s.name}: no message recorded; no bag written")
             return None
+        if s.cut_by is not None:  # its ticks are complete up to where it was cut, not to its planned end
+            how = "cut_short"
         info = {"end": how, "received": dict(s.counts), "duplicates": s.duplicates, "off_grid": dict(s.off_grid)}
+        if s.cut_by is not None:
+            info["cut_by"] = s.cut_by
         if s.meta_json is not None:  # an episode: the tick each topic's recorded messages start at
             info["first_tick"] = {t: tick_index(v, s.first_stamp_ns) for t, v in sorted(s.topic_min.items())}
             # (a topic that starts when it has something to say, the first valid estimate's force at

@@ -229,6 +229,11 @@ class Launch:
                 if rc == G.EXIT_BAD_CONFIG:  # any node: the user's set-up is wrong, not the run
                     self.log(f"{node.name} refused its parameters (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED
+                if rc == G.EXIT_ANOTHER_GRAPH:
+                    self.log(f"{node.name} found another graph on domain {self.env.get('ROS_DOMAIN_ID', '?')} (exit "
+                             f"code {rc}; its log names the nodes); stopping the others: give this launch another "
+                             "--domain-id")
+                    return EXIT_NODE_DIED
                 if node.required:
                     self.log(f"{node.name} died (exit code {rc}); stopping the others"
                              + (f" ({node.after_death})" if node.after_death else ""))

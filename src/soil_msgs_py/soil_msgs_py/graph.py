@@ -60,6 +60,10 @@ EXIT_EPISODE_FAILED = 4
 # The recorder left an episode without its bag (its journal could not be made, or would not close or
 # convert; said when it happened): ``soil_launch`` then ends in EXIT_NODE_DIED, not 0.
 EXIT_BAG_NOT_WRITTEN = 5
+# The simulator found another publisher of /sim/status on its domain before its first episode (a
+# second launch, or a bag player): two graphs on one domain mix their topics, and every bag of
+# either holds both robots' data; it starts no episode (``soil_launch`` ends in EXIT_NODE_DIED).
+EXIT_ANOTHER_GRAPH = 6
 
 ACTION_START = "start"
 ACTION_RESET = "reset"

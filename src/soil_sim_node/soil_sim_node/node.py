@@ -331,8 +331,31 @@ class SimNode(Node):
             self.get_logger().warning(f"waiting for {missing} before the next episode for "
                                       f"{self.start_wait.waited_s():.0f} s (wait_timeout_s 0: no limit)",
                                       throttle_duration_sec=UNLIMITED_WAIT_LOG_S)
-        if poll.go:
+        if poll.go and not self._another_graph():
             self._start_episode(self.queue.popleft())
+
+    def _another_graph(self) -> bool:
+        """Whether another node publishes /sim/status on this domain (a second launch, a bag
+        player): before the first episode the node then starts none and ends (``EXIT_ANOTHER_GRAPH``);
+        later (a graph that came after this one) it says so at each episode and goes on, the other
+        simulator refusing itself. Two launches on one domain had cut each other's bags short and
+        mixed their state, both ending in 0."""
+        others = self.count_publishers(G.SIM_STATUS_TOPIC) - 1  # (this node's own writer counts)
+        if others <= 0:
+            return False
+        names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                        for i in self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)})
+        said = (f"{others} other publisher(s) of {G.SIM_STATUS_TOPIC} on ROS_DOMAIN_ID "
+                f"{self.context.get_domain_id()} (nodes {', '.join(names)}: a second simulator or a bag "
+                "player): two graphs on one domain mix their topics, and every bag of either would hold both")
+        if self.episode_index < 0:  # (no episode started yet)
+            self.get_logger().error(f"{said}; starting no episode: stop the other graph or give this one another "
+                                    "ROS_DOMAIN_ID (soil_launch --domain-id)")
+            self.queue.clear()
+            self.exit_code, self.finished = G.EXIT_ANOTHER_GRAPH, True
+            return True
+        self._warn("another_graph", f"{said}; going on (it came after this graph)")
+        return False
 
     def _start_episode(self, spec: EpisodeSpec) -> None:
         self.sim = SoilSimulator(self.config, [spec], self.custom_soils)
