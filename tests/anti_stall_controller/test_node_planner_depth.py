@@ -48,6 +48,7 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             assert tick(k + 91) == pytest.approx(-(0.12 + 0.03 * 88 / 60), abs=1e-6)
             plan(k + 92, 0.25)
             k = until(0.25, k + 92)
+            plan(k, 0.24)  # a second target for one stamp: a second planner on the domain, said
             assert tick(k + 31) == pytest.approx(-PARAM_DEPTH)  # a shallower fallback: at once
             k += 31
             # switched back to its parameter at run time: the next tick cuts to 0.2 m again, and
@@ -65,6 +66,7 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             out = side.stop()
     assert "following the planner's target depth" in out and "no planner target within 0.5 s" in out, out
     assert "target_depth_m=nan" in out and "target_depth_m=0.9" in out, out
+    assert "two targets for stamp" in out and "(0.2500 m, then 0.2400 m): is a second planner" in out, out
 
 
 @pytest.mark.timeout(120)

@@ -476,10 +476,10 @@ def test_a_posterior_at_the_edge_of_its_box_publishes_angles_the_planner_takes()
         post.u[:, THETA.index(name)] = U_LOWER
     post.p[:] = np.diag([0.05 ** 2] * len(THETA))
     summary = post.summary()
-    assert summary.mean["phi"] >= 0.0 and summary.mean["delta"] >= 0.0
-    assert min(post.quantiles((0.05,))[n][0] for n in ("phi", "delta")) >= 0.0
+    assert summary.mean["phi"] >= 0.0 and post.quantiles((0.05,))["phi"][0] >= 0.0
+    assert summary.mean["delta"] < 0.0  # (the model's δ runs on a little below 0°: its forecasts are calibrated so)
     estimate = dict(zip(FUSED_FIELDS, fused_values(summary, CFG)))
-    assert estimate["fused_valid"] == 1.0
+    assert estimate["fused_valid"] == 1.0 and estimate["delta_fused"] == 0.0 and estimate["phi_fused"] >= 0.0
     fused_upper_force(estimate, dict(zip(KNOWN_PARAMS, _level_cut())), [0.1])  # no ValueError naming phi_fused
 
 
@@ -735,6 +735,50 @@ def test_pinn_eval_scores_the_forecast_with_a_fusion_config_of_the_users(tmp_pat
     code = evaluate_module.main(["--checkpoint", str(MODELS_DIR / "pinn_fee.pt"), "--forecast-only", "--forecast-world",
                                  "fee", "--fusion-config", str(config_path("default")), "--out", str(tmp_path / "o")])
     assert code == 2 and "calibrated in the default world, not the fee world" in capsys.readouterr().err
+
+
+def test_both_calibrations_run_on_soils_of_ones_own(tmp_path, capsys, monkeypatch):
+    """``--soil-file`` / ``--soils``: an outside tester could calibrate only on the catalogue's soils.
+    Their episodes are the file's soils (or those named), into a config of one's own."""
+    import pinn_estimator.evaluate as evaluate_module
+    from pinn_estimator.fusion_calibration import main as calibrate_main
+    from soil_physics.soils import load_soil_file
+    from soil_planner.bound_calibration import main as bound_main
+
+    soils = tmp_path / "site.yaml"
+    soils.write_text("soils:\n  - {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12000, 18000], "
+                     "unit_weight_n_m3: [19000, 21500]}\n")
+    asked = []
+
+    class Started(Exception):
+        pass
+
+    def started(*_, **kw):
+        asked.append(kw)
+        raise Started
+
+    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    mine = tmp_path / "mine.json"
+    for tool, out in ((calibrate_main, "--out"), (bound_main, "--config")):
+        if tool is bound_main:
+            FusionConfig(world="fee").save(mine)
+        for args, needle in ((["--soil-file", str(soils)], f"give {out}"),
+                             (["--soils", "Clay,Peat", out, str(mine)], "Peat"),
+                             (["--soils", "Clay,,Sand", out, str(mine)], "an empty name"),
+                             (["--soils", "Clay,Clay", out, str(mine)], "names a soil twice")):
+            with pytest.raises(SystemExit) as exit_:
+                tool(["--world", "fee", *args])
+            assert exit_.value.code == 2 and needle in capsys.readouterr().err, needle
+        with pytest.raises(Started):
+            tool(["--world", "fee", "--soil-file", str(soils), out, str(mine)])
+        assert asked[-1]["soils"] == ["StiffSilt"] and set(asked[-1]["custom_soils"]) == {"StiffSilt"}
+        with pytest.raises(Started):
+            tool(["--world", "fee", "--soil-file", str(soils), "--soils", "StiffSilt,Sand", out, str(mine)])
+        assert asked[-1]["soils"] == ["StiffSilt", "Sand"]
+    monkeypatch.undo()  # the real one simulates the named soils
+    made = evaluate_module.forecast_dataset("fee", duration_s=1.0, densities_pct=(50.0,), depths_m=(0.1,),
+                                            soils=["StiffSilt"], custom_soils=load_soil_file(soils).soils)
+    assert [m.soil for m in made.metas] == ["StiffSilt"]
 
 
 def test_a_config_lacking_a_field_is_said_to_run_on_its_default(tmp_path):

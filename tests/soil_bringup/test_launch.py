@@ -79,6 +79,15 @@ def test_an_interrupted_launch_exits_128_plus_the_signal_not_0(tmp_path, signum,
 
         threading.Thread(target=signal_once_up, daemon=True).start()
         assert launch.run() == 0, log.read_text()
+    # ... but not mid-episode: that is a cut stopped short, as without --keep-running (it had been 0)
+    sim = [sys.executable, "-c", "import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(0)); "
+           "print('[INFO] [0.0] [soil_sim_node]: episode 0 start: x (600 ticks)', flush=True); print('up', flush=True); "
+           "time.sleep(60)"]
+    with log.open("w") as out:
+        launch = L.Launch([L.NodeProcess("node", sim, stop_order=0, ends_launch=True)], L.loopback_env(0), out=out,
+                          interrupt_ends_run=True)
+        threading.Thread(target=signal_once_up, daemon=True).start()
+        assert launch.run() == code, log.read_text()
     assert L.launch_for(L.parse_args(["--keep-running"])).interrupt_ends_run
 
 

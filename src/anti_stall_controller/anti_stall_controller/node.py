@@ -353,6 +353,11 @@ class ControllerNode(Node):
                        f"{T.TARGET_DEPTH.name}: target_depth_m={depth!r} outside "
                                         f"[0, {MAX_PLANNER_DEPTH_M}] m; ignored")
             return
+        before = self.plan_wait.targets.get(stamp)
+        if before is not None and before != depth:  # (a planner plans each stamp once)
+            self._warn("planner:twice", f"{T.TARGET_DEPTH.name}: two targets for stamp {stamp} ns ({before:.4f} m, "
+                                        f"then {depth:.4f} m): is a second planner publishing on this domain? The "
+                                        "controller follows whichever came last")
         if not self.plan_wait.note_target(stamp, depth):
             self._warn("planner:stale", f"{T.TARGET_DEPTH.name}: stamp {stamp} ns is before this episode's first "
                                         f"tick {self.plan_wait.first_stamp_ns} ns; ignored")

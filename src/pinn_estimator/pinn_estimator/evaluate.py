@@ -122,8 +122,10 @@ def _trends(rows, estimator="pinn") -> dict:
 
 
 def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, densities_pct=fc.FORECAST_DENSITIES_PCT,
-                     depths_m=fc.FORECAST_DEPTHS_M, force_noise: bool = False) -> Dataset:
-    """Held-out episodes for the forecast: every soil at ``densities_pct`` x ``depths_m`` at
+                     depths_m=fc.FORECAST_DEPTHS_M, force_noise: bool = False, soils=None,
+                     custom_soils: dict | None = None) -> Dataset:
+    """Held-out episodes for the forecast: every soil (``soils``: names, default the catalogue's; a
+    soil of ``custom_soils`` too, a soils YAML's) at ``densities_pct`` x ``depths_m`` at
     ``fc.FORECAST_SPEED_M_S`` (by default all off the training grid), simulated here.
     ``force_noise``: the world's effects with the measured force's noise on (the default world's
     sensor noise in the fee world, where the FEE is exact and the truth known: calibration against
@@ -135,12 +137,12 @@ def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, den
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
-    combos = itertools.product(sorted(CATALOGUE), densities_pct, depths_m)
+    combos = itertools.product(sorted(CATALOGUE) if soils is None else list(soils), densities_pct, depths_m)
     specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
              for k, (soil, i_d, d) in enumerate(combos)]
     label = f"{world} world" + (", noisy force" if force_noise else "")
     config = SimConfig(world_mode=world, effects=effects_for_mode(world, force_noise))
-    return Dataset.from_episodes(run_episodes(config, specs),
+    return Dataset.from_episodes(run_episodes(config, specs, custom_soils=custom_soils),
                                  root=f"(simulated, {label})")
 
 

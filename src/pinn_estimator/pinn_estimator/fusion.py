@@ -549,13 +549,15 @@ class SoilPosterior:
     # -- the physics model
     @staticmethod
     def theta_of(u: np.ndarray) -> dict[str, np.ndarray]:
-        """SI θ of internal points u (..., 3). φ and δ stop at Table 1's limits (0° at u = −0.25 and
-        below, where a component at U_LOWER spills its samples): a negative angle is no soil, and
-        a published φ of −0.2° (the mean of such samples) was refused by the planner; the model
-        has no wedge there either (its force is NaN, so forecasts leave such samples out alike)."""
+        """SI θ of internal points u (..., 3). φ stops at 0° (u = −0.25 and below, where a component
+        at U_LOWER spills its samples): a negative friction angle is no soil, and a published φ of
+        −0.2° (the mean of such samples) was refused by the planner; the model has no wedge there
+        either (its force is NaN, so forecasts leave those samples out alike). δ is not stopped here:
+        the model is defined a little below 0° and the posterior's forecasts are calibrated with it;
+        its published mean is (``fused_values``)."""
         u = np.asarray(u, float)
-        out = {n: np.clip(PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]), *TABLE1[n].limits)
-               for j, n in enumerate(THETA) if n in PRIOR_BOX}
+        out = {n: PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]) for j, n in enumerate(THETA) if n in PRIOR_BOX}
+        out["phi"] = np.maximum(out["phi"], TABLE1["phi"].limits[0])
         softplus = np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
         out["c"] = C_SCALE_PA * np.maximum(softplus - SOFTPLUS_AT_ZERO, 0.0)
         return {n: out[n] for n in THETA}
@@ -893,7 +895,10 @@ def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:
     out = np.zeros(len(FUSED_FIELDS))
     if summary is None:
         return out
-    values = {f"{n}_fused": summary.mean[n] for n in (*THETA, "beta")}
+    # the means within Table 1's limits, as the planner takes them (a posterior at the low edge of δ's
+    # box has samples a little below 0°: its mean is that edge, not a negative friction)
+    values = {f"{n}_fused": float(np.clip(summary.mean[n], *TABLE1[n].limits)) if n in ("phi", "delta") else summary.mean[n]
+              for n in (*THETA, "beta")}
     values.update({f"{n}_std": summary.std[n] for n in (*THETA, "beta")})
     values.update({f"corr_{k}": v for k, v in summary.corr.items()})
     values.update(model_std_abs_x=cfg.forecast_abs_std_n[0], model_std_abs_z=cfg.forecast_abs_std_n[1],

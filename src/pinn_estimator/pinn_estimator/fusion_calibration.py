@@ -74,6 +74,35 @@ CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, MAX_EPISODE_S)
 CAL_DURATION_S = 10.0
 
 
+def add_soil_options(p: argparse.ArgumentParser) -> None:
+    """``--soil-file`` / ``--soils``: calibrate on soils of one's own (``calibration_soils``)."""
+    p.add_argument("--soil-file", metavar="FILE", help="a soils YAML (soil_sim_batch --soil-file's format): calibrate "
+                                                      "on its soils (or those --soils names) instead of the catalogue's")
+    p.add_argument("--soils", metavar="A,B", help="the calibration soils, comma-separated: the catalogue's or "
+                                                  "--soil-file's (default: the catalogue's; with --soil-file, its own)")
+
+
+def calibration_soils(args: argparse.Namespace) -> tuple[list[str] | None, dict]:
+    """(the calibration soils' names or None for the catalogue's, the custom soils by name) from
+    ``add_soil_options``; ValueError naming the option and value."""
+    from soil_physics.soils import get_soil, load_soil_file
+
+    try:
+        custom = load_soil_file(args.soil_file).soils if args.soil_file else {}
+    except (OSError, ValueError) as err:
+        raise ValueError(f"--soil-file: {err}") from None
+    if args.soils is None:
+        return (sorted(custom) or None), custom
+    names = [n.strip() for n in args.soils.split(",")]
+    if not all(names):
+        raise ValueError(f"--soils {args.soils!r}: an empty name")
+    if len(set(names)) != len(names):
+        raise ValueError(f"--soils {args.soils!r} names a soil twice")
+    for name in names:
+        get_soil(name, custom)  # ValueError naming an unknown soil
+    return names, custom
+
+
 def short_duration_warning(duration_s: float) -> str | None:
     """What a calibration on episodes shorter than CAL_DURATION_S costs, or None."""
     if duration_s >= CAL_DURATION_S:
@@ -620,6 +649,7 @@ def main(argv=None) -> int:
                    help="calibrate on episodes with the measured force's noise on (in the fee world: the default "
                         "world's sensor noise, the truth still known); needs --out, since the shipped fee config is "
                         "the noise-free world's")
+    add_soil_options(p)
     args = p.parse_args(argv)
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
@@ -649,6 +679,12 @@ def main(argv=None) -> int:
         p.error(f"--set: {err}")
     if args.force_noise and args.out is None:
         p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
+    try:
+        soils, custom = calibration_soils(args)
+    except ValueError as err:
+        p.error(str(err))
+    if (args.soil_file or args.soils) and args.out is None:
+        p.error("--soil-file/--soils: give --out (the shipped config is calibrated on the catalogue's soils)")
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
         if args.term or args.fields:
@@ -672,8 +708,11 @@ def main(argv=None) -> int:
             print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
-    ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                          depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
+    try:
+        ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
+                              depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
+    except ValueError as err:  # a soil without a failure wedge in this world
+        p.error(f"--soils: {err}")
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
         cfg, rows = choose_forecast_law(ds, base, None, pairs=pairs)
@@ -702,7 +741,8 @@ def main(argv=None) -> int:
           f"{MIN_CALIBRATED_DEPTH_M:g} m) and {out.with_suffix('.png')}")
     law = cfg.planner_bound_law()
     again = (f"soil_planner_calibrate --world {args.world}" + ("" if out == config_path(args.world) else f" --config {out}")
-             + (f" --duration {args.duration:g}" if args.duration != CAL_DURATION_S else "") + (" --force-noise" if args.force_noise else ""))
+             + (f" --duration {args.duration:g}" if args.duration != CAL_DURATION_S else "") + (" --force-noise" if args.force_noise else "")
+             + (f" --soil-file {args.soil_file}" if args.soil_file else "") + (f" --soils {args.soils}" if args.soils else ""))
     print(f"the planner's bound law: {'kept, ' + error_law_text(law) if law else 'none'}"
           f" ({again} calibrates it on these posteriors)")
     return 0

@@ -484,11 +484,14 @@ class Recorder:
             info["first_stamp_s"] = {t: (v - first) / 1e9 for t, v in sorted(sim.items())}
             late = {t: f"starts {v:.3f} s after the first recorded message" for t, v in info["first_stamp_s"].items()
                     if t in self.joined_without and v > 0.0 and _from_first_tick(t)}
-        late.update({t: "has no message" for t in sorted(self.joined_without) if t not in s.topic_min})
+        silent = [t for t in sorted(self.joined_without) if t not in s.topic_min]
         if late:  # (unsaid in a --no-split bag before 2026-12-04: a first episode's commands went missing)
             self.log.warning(f"{s.name}: {', '.join(f'{t} {what}' for t, what in late.items())}: the recorder "
                              "joined before their writers had matched (--inputs-wait), so their first messages "
                              "may be missing from the bag")
+        if silent:  # (it was said as a late match too, where nothing had published them at all)
+            self.log.warning(f"{s.name}: {', '.join(silent)} has no message: no node published it during the "
+                             "episode (or its writer matched only after it)")
         if s.event is not None:
             info.update(episode=s.event.episode, planned_ticks=s.event.planned_ticks)
         if s.end_event is not None:

@@ -12,7 +12,7 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
 * exits 0 when the simulator finished its episodes and everyone stopped cleanly, 130 / 143
   when a Ctrl-C / SIGTERM stopped it first (as ``soil_sim_batch`` and ``pinn_train`` do: a script
   tells an interrupted cut from a finished one; the bags of what ran are finished; with
-  ``--keep-running`` an interrupt is how the run ends: 0), 4
+  ``--keep-running`` an interrupt between episodes is how the run ends: 0), 4
   (``graph.EXIT_EPISODE_FAILED``) when it finished them but one ended in error, and
   non-zero when a node died or exited with an error, e.g. the recorder with 5 when an episode went
   without its bag (its name and exit code are printed; 1), or ``--timeout`` hit (3). The
@@ -118,12 +118,18 @@ class NodeProcess:
     spoke: threading.Event = field(default_factory=threading.Event)  # a first line of output came
 
 
-def _pump(prefix: str, stream, out, spoke: threading.Event | None = None) -> None:
+# The simulator's log lines of an episode's start and end (its node.py): whether one is running.
+_EPISODE_LINE = re.compile(r"\]: episode \d+ (start|end)\b")
+
+
+def _pump(prefix: str, stream, out, spoke: threading.Event | None = None, on_line=None) -> None:
     """Copy a child's output line by line with its name; never dies on a closed terminal
-    (a dead pump would leave the child blocked on a full pipe)."""
+    (a dead pump would leave the child blocked on a full pipe). ``on_line``: also given each line."""
     for line in iter(stream.readline, ""):
         if spoke is not None:
             spoke.set()
+        if on_line is not None:
+            on_line(line)
         try:
             out.write(f"[{prefix}] {line}" if line.endswith("\n") else f"[{prefix}] {line}\n")
             out.flush()
@@ -143,7 +149,8 @@ class Launch:
                  on_interrupt: Callable[[], None] | None = None, interrupt_ends_run: bool = False):
         self.nodes = nodes
         # --keep-running: a simulator kept up after its episodes is ended with Ctrl-C, so an
-        # interrupt is the run's end (exit 0), not a run cut short (130 / 143)
+        # interrupt between episodes is the run's end (exit 0); one mid-episode is a cut stopped
+        # short (130 / 143), as without it (it had been 0 too)
         self.interrupt_ends_run = interrupt_ends_run
         self.env = env
         self.timeout_s = timeout_s
@@ -153,6 +160,7 @@ class Launch:
         self.on_interrupt = on_interrupt
         self.interrupted = False
         self.signal: int | None = None  # the first SIGINT / SIGTERM received
+        self.episode_running = False  # the simulator logged an episode's start and not yet its end
 
     def log(self, text: str) -> None:
         self.out.write(f"[launch] {text}\n")
@@ -170,10 +178,15 @@ class Launch:
                     os.setpriority(os.PRIO_PROCESS, node.proc.pid, node.niceness)
                 except OSError as err:
                     self.log(f"{node.name}: niceness {node.niceness} not set ({err}); it runs at normal priority")
-            node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out, node.spoke),
+            node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out, node.spoke,
+                                                             self._on_simulator_line if node.ends_launch else None),
                                          daemon=True)
             node.pump.start()
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
+
+    def _on_simulator_line(self, line: str) -> None:
+        if match := _EPISODE_LINE.search(line):
+            self.episode_running = match.group(1) == "start"
 
     def _on_signal(self, signum, frame) -> None:  # noqa: ARG002
         first = not self.interrupted
@@ -211,7 +224,7 @@ class Launch:
         while True:
             if self.interrupted:
                 self.log("interrupted; stopping all nodes")
-                if self.interrupt_ends_run:
+                if self.interrupt_ends_run and not self.episode_running:  # (mid-episode: a cut stopped short)
                     return 0
                 return EXIT_TERMINATED if self.signal == signal.SIGTERM else EXIT_INTERRUPTED
             for node in self.nodes:

@@ -24,8 +24,8 @@ import numpy as np
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import FusionConfig, fused_values
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S,
-                                               CAL_DURATION_S, CAL_SEED, FLOOR_GRID, FORECAST_GRID, config_path,
-                                               short_duration_warning, world_note)
+                                               CAL_DURATION_S, CAL_SEED, FLOOR_GRID, FORECAST_GRID, add_soil_options,
+                                               calibration_soils, config_path, short_duration_warning, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -142,6 +142,7 @@ def main(argv=None) -> int:
     p.add_argument("--force-noise", action="store_true",
                    help="calibration episodes with the measured force's noise on, as pinn_fusion_calibrate "
                         "--force-noise made the config's posterior; needs --config")
+    add_soil_options(p)
     p.add_argument("--quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the planner's force quantile the law is calibrated at, [0.5, 1) (default "
                         f"{DEFAULT_FORCE_QUANTILE:g}, the planner's default)")
@@ -152,6 +153,12 @@ def main(argv=None) -> int:
         p.error(f"--quantile: {err}")
     if args.force_noise and args.config is None:
         p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
+    try:
+        soils, custom = calibration_soils(args)
+    except ValueError as err:
+        p.error(str(err))
+    if (args.soil_file or args.soils) and args.config is None:
+        p.error("--soil-file/--soils: give --config (the shipped config is calibrated on the catalogue's soils)")
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
         p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
@@ -169,8 +176,11 @@ def main(argv=None) -> int:
     if note:
         print(f"soil_planner_calibrate: {note}" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
-    ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                          depths_m=CAL_DEPTHS_M, force_noise=args.force_noise)
+    try:
+        ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
+                              depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
+    except ValueError as err:  # a soil without a failure wedge in this world
+        p.error(f"--soils: {err}")
     try:
         cfg, _ = choose_bound_law(ds, cfg, fused_posteriors(ds, cfg), quantile=args.quantile)
     except ValueError as err:

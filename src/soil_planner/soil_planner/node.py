@@ -140,12 +140,16 @@ PARAMETERS: dict[str, tuple] = {
     "min_target_m": (_SCHEDULE.min_depth_m, "shallowest target depth [m] (the edge kept in the soil)"),
     "max_target_m": (_SCHEDULE.max_depth_m, "deepest target depth [m] (default: the lift joint's reach on level ground)"),
 }
-# Ticks waiting for their partner message: 10 s of them. Θ_k comes on time from the simulator,
+# Ticks waiting for their partner message: a minute of them. Θ_k comes on time from the simulator,
 # the estimate as late as the estimator is behind: on a loaded machine, or a bag replayed faster
-# than it can follow, seconds (with 2 s every estimate past that lag was dropped for good). The
-# controller takes a target only within its planner_timeout_s of the tick it answers, so a late
-# plan steers nothing live; it is still published and recorded.
-MAX_PENDING_STAMPS = 10 * SAMPLE_RATE_HZ
+# than it can follow, seconds (with 2 s every estimate past that lag was dropped for good); in a
+# lockstep run whose controller stopped waiting for a silent planner, the simulator outruns the
+# estimator by more (an outside tester's planner, started 2 s into such a run, found its estimates
+# 11.7 s, then 17.9 s behind their Θ_k with 10 s kept: it never planned; once it plans, the
+# controller waits for its targets again and the loop falls back into step). The controller takes
+# a target only within its planner_timeout_s of the tick it answers, so a late plan steers nothing
+# live; it is still published and recorded.
+MAX_PENDING_STAMPS = 60 * SAMPLE_RATE_HZ
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms",
                     "sensor_anchor", "bound_law")  # StretchPlanner's
 # what is read once, at start: a change at run time is refused (it would change nothing)
@@ -366,7 +370,8 @@ class PlannerNode(Node):
     def _join(self, topic: str, stamp: int, payload: dict[str, float]) -> None:
         verdict, out = self.joiner.offer(topic, stamp, payload)
         if verdict is Verdict.STALE and topic == T.ESTIMATE.name:
-            self._warn("unpaired", f"{topic} at stamp {stamp} ns came again after its plan; dropped")
+            self._warn("unpaired", f"{topic} at stamp {stamp} ns came again after its plan; dropped (again and again: "
+                                   "a second publisher of it on this domain, e.g. a bag played beside a live estimator)")
         for joined in out:
             if joined.complete:
                 item = (joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])

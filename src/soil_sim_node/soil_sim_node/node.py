@@ -24,6 +24,7 @@ Bad commands never stop the node and never reach the core: see live.CommandGate.
 from __future__ import annotations
 
 import collections
+import time
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +56,10 @@ from .warm_up import warm_up
 _STR_ARRAY = Parameter.Type.STRING_ARRAY
 _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 
+# Nodes of this project that publish /sim/status: another one on the domain is another graph.
+GRAPH_STATUS_WRITERS = ("soil_sim_node", "soil_bag_play")
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # what the graph says of a writer whose node is not discovered yet
+GRAPH_NAMES_WAIT_S = 2.0  # the longest a start waits for such a writer's node name [s]
 MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
 
 # name -> (default, description[, array type]); the YAML in config/ mirrors these.
@@ -157,6 +162,7 @@ class SimNode(Node):
         self.command_writers = command_writers()  # who answers the ticks, across episodes
         self.gate = CommandGate(self.command_writers)
         self.episode_index = -1
+        self._names_wait_since: float | None = None  # a /sim/status writer's node name awaited since (monotonic)
         self.meta = None
         self.tick = 0
         self.planned_ticks = 0
@@ -335,19 +341,32 @@ class SimNode(Node):
             self._start_episode(self.queue.popleft())
 
     def _another_graph(self) -> bool:
-        """Whether another node publishes /sim/status on this domain (a second launch, a bag
-        player): before the first episode the node then starts none and ends (``EXIT_ANOTHER_GRAPH``);
-        later (a graph that came after this one) it says so at each episode and goes on, the other
-        simulator refusing itself. Two launches on one domain had cut each other's bags short and
-        mixed their state, both ending in 0."""
-        others = self.count_publishers(G.SIM_STATUS_TOPIC) - 1  # (this node's own writer counts)
-        if others <= 0:
+        """Whether to hold this start because of another graph on the domain: another simulator or a
+        bag player publishing /sim/status (told by their node names; a writer whose node is not
+        discovered yet holds the start up to ``GRAPH_NAMES_WAIT_S``). Before the first episode the
+        node then starts none and ends (``EXIT_ANOTHER_GRAPH``); later (a graph that came after this
+        one) it says so at each episode and goes on, the other simulator refusing itself. Two
+        launches on one domain had cut each other's bags short and mixed their state, both ending in
+        0. A writer of another name (a monitor, a hostile node) is said and changes nothing."""
+        infos = self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)
+        names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
+        now = time.monotonic()
+        if any(i.node_name == UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
+            self._names_wait_since = self._names_wait_since or now
+            if now - self._names_wait_since < GRAPH_NAMES_WAIT_S:
+                return True
+        self._names_wait_since = None
+        ours = {self.get_name(), *GRAPH_STATUS_WRITERS}
+        rivals = sum(i.node_name in ours for i in infos) - 1  # (this node's own writer counts)
+        foreign = sorted({n for i, n in zip(infos, names) if i.node_name not in ours})
+        if foreign:
+            self._warn("foreign_status", f"{', '.join(foreign)} also publish {G.SIM_STATUS_TOPIC}: not a simulator or "
+                                         "bag player of this project; its messages are not this simulator's")
+        if rivals <= 0:
             return False
-        names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                        for i in self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)})
-        said = (f"{others} other publisher(s) of {G.SIM_STATUS_TOPIC} on ROS_DOMAIN_ID "
-                f"{self.context.get_domain_id()} (nodes {', '.join(names)}: a second simulator or a bag "
-                "player): two graphs on one domain mix their topics, and every bag of either would hold both")
+        said = (f"{rivals} other simulator(s) or bag player(s) publish {G.SIM_STATUS_TOPIC} on ROS_DOMAIN_ID "
+                f"{self.context.get_domain_id()} (nodes {', '.join(sorted(set(names)))}): two graphs on one domain mix "
+                "their topics, and every bag of either would hold both")
         if self.episode_index < 0:  # (no episode started yet)
             self.get_logger().error(f"{said}; starting no episode: stop the other graph or give this one another "
                                     "ROS_DOMAIN_ID (soil_launch --domain-id)")
@@ -476,7 +495,8 @@ class SimNode(Node):
             self._end_episode("error")
         elif what is Do.STALLED:
             self._warn("lockstep_stall", f"lockstep: waiting for the commands for stamp {self.gate.stamp_ns} ns "
-                                         f"(have {sorted(self.gate.arrived)}); is the controller running?")
+                                         f"(have {sorted(self.gate.arrived)}); is the controller running (and, if it "
+                                         "follows a planner, the planner: it waits planner_wait_s for its targets)?")
 
     def close(self) -> None:
         if self.sim is not None:
