@@ -463,23 +463,26 @@ def test_the_parameters_quantiles_are_the_posteriors_own():
     assert exact["c"].min() >= 0.0
 
 
-def test_a_posterior_at_the_edge_of_its_box_publishes_angles_the_planner_takes():
-    """A posterior whose components sit at the lowest φ and δ the updates keep (U_LOWER, an
-    outside tester's stiff silt drove φ there) spills samples below 0°; their mean had been
-    published as φ = −0.2° and the planner refused every such estimate. Published angles stop at 0."""
+def test_a_posterior_run_off_its_box_is_said_as_such_and_not_planned_from():
+    """A posterior whose components sit at the lowest φ and δ the updates keep (U_LOWER: an outside
+    tester's stiff silt, the default world's dense gravel) has its mean just below 0°. The planner
+    refused it as "outside the limits"; it now says why: planned from with φ held at 0°, the
+    gravel's high-c soil let the plan deepen into the z limit (test_cut_trial's dense gravel trial)."""
     from pinn_estimator.fusion import U_LOWER, _level_cut, fused_values
     from soil_msgs_py.topics import FUSED_FIELDS
-    from soil_planner.planner import fused_upper_force
+    from soil_planner.planner import checked_inputs
 
     post = SoilPosterior(CFG)
     for name in ("phi", "delta"):
         post.u[:, THETA.index(name)] = U_LOWER
     post.p[:] = np.diag([0.05 ** 2] * len(THETA))
-    summary = post.summary()
-    assert summary.mean["phi"] < 0.0 and summary.mean["delta"] < 0.0  # (the posterior's own samples, as calibrated)
-    estimate = dict(zip(FUSED_FIELDS, fused_values(summary, CFG)))
-    assert estimate["fused_valid"] == 1.0 and estimate["phi_fused"] == 0.0 and estimate["delta_fused"] == 0.0
-    fused_upper_force(estimate, dict(zip(KNOWN_PARAMS, _level_cut())), [0.1])  # no ValueError naming phi_fused
+    estimate = dict(zip(FUSED_FIELDS, fused_values(post.summary(), CFG)))
+    assert estimate["fused_valid"] == 1.0 and estimate["phi_fused"] < 0.0
+    known = dict(zip(KNOWN_PARAMS, _level_cut()))
+    with pytest.raises(ValueError, match=r"phi_fused=.* is below 0°: the fused posterior has run off the physical range"):
+        checked_inputs({**estimate, "valid": 0.0}, known, 0.95)
+    with pytest.raises(ValueError, match=r"outside the limits"):  # far below: a broken message, said as one
+        checked_inputs({**estimate, "valid": 0.0, "phi_fused": -1.0, "delta_fused": 0.1}, known, 0.95)
 
 
 def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():

@@ -549,10 +549,7 @@ class SoilPosterior:
     # -- the physics model
     @staticmethod
     def theta_of(u: np.ndarray) -> dict[str, np.ndarray]:
-        """SI θ of internal points u (..., 3). Samples of a component near U_LOWER spill a little
-        below 0° in φ or δ: the model has no wedge at such a φ (its force is NaN, so forecasts leave
-        them out) and is defined at such a δ; the posterior's laws are calibrated with them as they
-        are. What is published is held within Table 1 (``fused_values``)."""
+        """SI θ of internal points u (..., 3)."""
         u = np.asarray(u, float)
         out = {n: PRIOR_BOX[n][0] + u[..., j] * (PRIOR_BOX[n][1] - PRIOR_BOX[n][0]) for j, n in enumerate(THETA) if n in PRIOR_BOX}
         softplus = np.logaddexp(0.0, V_LO + u[..., THETA.index("c")] * V_SPAN)
@@ -892,12 +889,7 @@ def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:
     out = np.zeros(len(FUSED_FIELDS))
     if summary is None:
         return out
-    # the means within Table 1's limits, as the planner takes them: a posterior at the low edge of
-    # its box (an outside tester's stiff silt, default world) published φ = −0.2° for half a second,
-    # which the planner refused, planning nothing in the soil at its force limit; the mean of samples
-    # a little below 0° is that edge, not a negative friction angle
-    values = {f"{n}_fused": float(np.clip(summary.mean[n], *TABLE1[n].limits)) if n in ("phi", "delta") else summary.mean[n]
-              for n in (*THETA, "beta")}
+    values = {f"{n}_fused": summary.mean[n] for n in (*THETA, "beta")}
     values.update({f"{n}_std": summary.std[n] for n in (*THETA, "beta")})
     values.update({f"corr_{k}": v for k, v in summary.corr.items()})
     values.update(model_std_abs_x=cfg.forecast_abs_std_n[0], model_std_abs_z=cfg.forecast_abs_std_n[1],

@@ -388,6 +388,14 @@ def max_cut_depth(
     )
 
 
+# How far below 0° a fused angle is still the posterior's edge [rad] rather than a broken message.
+# Why such an estimate is not planned from: an outside tester's stiff silt and the default world's
+# dense gravel both drove the posterior to φ ≈ 0 for half a second; planned from, with φ held at 0,
+# its high-c soil let the gravel's plan deepen into the z limit (4 target falls in
+# tests/soil_bringup/test_cut_trial.py's dense gravel trial, none without).
+RAN_OFF_RAD = 5.0 * DEG
+
+
 def checked_inputs(estimate: Mapping[str, float], known: Mapping[str, float], force_quantile: float | None
                    ) -> tuple[float, bool, dict[str, float] | None, dict[str, float] | None]:
     """(the estimate's valid flag, whether it is planned from its fused posterior, the fields a plan
@@ -404,6 +412,12 @@ def checked_inputs(estimate: Mapping[str, float], known: Mapping[str, float], fo
     if not fused:
         return valid, fused, _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS,
                                       "estimate"), kn
+    for name in ("phi_fused", "delta_fused"):  # (a posterior at the low edge of its box: its mean just below 0°)
+        value = estimate.get(name)
+        if isinstance(value, float) and -RAN_OFF_RAD <= (value := float(value)) < -LIMIT_RTOL:
+            raise ValueError(f"estimate {name}={value!r} rad is below 0°: the fused posterior has run off the physical "
+                             "range (a soil its model cannot explain, e.g. far from Table 1's); not planned from, the "
+                             "target holds, then backs off")
     est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
     if valid == 1.0:  # the PINN's force now: what the plan and its steady anchor are anchored to
         est |= _checked(estimate, ("f_x_hat", "f_z_hat"), {}, "estimate")
