@@ -46,15 +46,19 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
             # planner had ruled out), 28 ticks after the last answered one
             assert tick(k + 31) == pytest.approx(-(0.12 + 0.03 * 28 / 60), abs=1e-6)
             assert tick(k + 91) == pytest.approx(-(0.12 + 0.03 * 88 / 60), abs=1e-6)
-            plan(k + 92, 0.25)
-            k = until(0.25, k + 92)
+            # a target set at run time on the way does not jump the ramp to the fallback (it had, a reviewer found)
+            client = AsyncParameterClient(probe.node, "anti_stall_controller")
+            assert client.wait_for_services(timeout_sec=20)
+            ok = call_service(lambda: client.set_parameters([Parameter("target_speed_m_s", value=0.5)]))
+            assert all(r.successful for r in ok.results)
+            assert tick(k + 92) == pytest.approx(-(0.12 + 0.03 * 89 / 60), abs=1e-6)
+            plan(k + 93, 0.25)
+            k = until(0.25, k + 93)
             plan(k, 0.24)  # a second target for one stamp: a second planner on the domain, said
             assert tick(k + 31) == pytest.approx(-PARAM_DEPTH)  # a shallower fallback: at once
             k += 31
             # switched back to its parameter at run time: the next tick cuts to 0.2 m again, and
             # a changed target speed does not make the planner's depth the parameter's
-            client = AsyncParameterClient(probe.node, "anti_stall_controller")
-            assert client.wait_for_services(timeout_sec=20)
             bad = call_service(lambda: client.set_parameters([Parameter("depth_source", value="map")]))
             assert not bad.results[0].successful and "depth_source='map'" in bad.results[0].reason
             ok = call_service(lambda: client.set_parameters([Parameter("depth_source", value="parameter"),

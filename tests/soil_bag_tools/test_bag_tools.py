@@ -326,19 +326,24 @@ def test_a_pacer_refuses_a_rate_that_is_no_timing(rate):
 
 
 def test_with_clock_replaces_bag_clock():
+    from soil_msgs_py.writer_identity import tick_index
+
     msgs = sample_messages()[:60]  # 6 ticks
     out = list(playback.with_clock(msgs, 120.0))
     clocks = [t for t, topic, _ in out if topic == "/clock"]
     assert clocks == [k * 10**9 // 120 for k in range(len(clocks))] and len(clocks) == 11
     assert [m for m in out if m[1] != "/clock"] == [m for m in msgs if m[1] != "/clock"]
     assert all(a[0] <= b[0] for a, b in zip(out, out[1:]))
-    # at 60 Hz on the ticks' own stamps, from a bag starting mid-run too (rounded from the first stamp,
-    # a third of them were off the tick grid, and a recorder of the replay dropped them)
+    # at 60 Hz on the ticks' own stamps, first + floor(k·1e9/60), also for an episode that starts off
+    # the absolute grid (after one of 100 ticks: 1666666667 ns); rounded, a third of them were off
+    # the tick grid, and a recorder of the replay dropped them
     ticks = sorted({t for t, topic, _ in sample_messages() if topic == "/clock"})
-    later = [(t + 10**9, topic, raw) for t, topic, raw in sample_messages()[:300]]
-    want = [k * 10**9 // 60 for k in range(60, 90)]
-    assert [t for t, topic, _ in playback.with_clock(later, 60.0) if topic == "/clock"] == want
     assert [t for t, topic, _ in playback.with_clock(msgs, 60.0) if topic == "/clock"] == ticks[:6]
+    first = 1666666667
+    later = [(t + first, topic, raw) for t, topic, raw in sample_messages()[:300]]
+    clocks = [t for t, topic, _ in playback.with_clock(later, 60.0) if topic == "/clock"]
+    assert clocks == [first + t for t in ticks[:30]]
+    assert [tick_index(t, first) for t in clocks] == list(range(30))  # as the recorder files them
 
 
 # --- processes on the loopback DDS ---------------------------------------------------------
@@ -458,8 +463,8 @@ def assert_paced(received, bag_msgs, rate: float) -> None:
 
 def test_a_replay_into_a_domain_where_another_node_publishes_its_topics_is_stopped(listener):
     """A replay into a live graph (a simulator on the domain) had a recorder cut the live bag short
-    and write one holding both robots' state; the player exits 6 naming the topic and the node, and
-    closes the episode it framed."""
+    and write one holding both robots' state; the player exits 6 naming the topic and the node,
+    before it published anything (or, found while playing, closing the episode it framed)."""
     from soil_msgs_py.ros_adapter import message_class, topic_qos
 
     domain = next_domain_id()
@@ -469,9 +474,14 @@ def test_a_replay_into_a_domain_where_another_node_publishes_its_topics_is_stopp
     out = finish(player)
     assert player.returncode == graph.EXIT_ANOTHER_GRAPH, out
     assert "other nodes publish topics this replay plays (/blade/force by /" in out, out
-    # found while playing (the episode_start may have gone out before this reader matched): its end follows
-    lst.wait_for(lambda: bool(lst.status), 2)
-    assert [(e["event"], e.get("reason")) for e in lst.status][-1:] in ([], [("episode_end", "shutdown")]), lst.status
+    # found before anything went out (it looks while DDS discovers the domain), or, on a machine too
+    # loaded for that, while playing: then the episode it framed is ended
+    time.sleep(1.0)
+    if any(e["event"] == "episode_start" for e in lst.status):
+        assert lst.wait_for(lambda: lst.status[-1]["event"] == "episode_end", 5), lst.status
+        assert lst.status[-1]["reason"] == "shutdown"
+    else:
+        assert "played " not in out, out
 
 
 def test_replay_delivers_every_message_in_order_paced(listener):

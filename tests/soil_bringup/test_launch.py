@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from soil_bringup import launch as L
+from soil_msgs_py import graph as G
 
 
 def started(proc: subprocess.Popen, limit_s: float = 10.0) -> subprocess.Popen:
@@ -81,7 +82,8 @@ def test_an_interrupted_launch_exits_128_plus_the_signal_not_0(tmp_path, signum,
         assert launch.run() == 0, log.read_text()
     # ... but not mid-episode: that is a cut stopped short, as without --keep-running (it had been 0)
     sim = [sys.executable, "-c", "import signal, sys, time; signal.signal(signal.SIGINT, lambda *_: sys.exit(0)); "
-           "print('[INFO] [0.0] [soil_sim_node]: episode 0 start: x (600 ticks)', flush=True); print('up', flush=True); "
+           f"print('[INFO] [0.0] [soil_sim_node]: {G.episode_log(0, 'start')}: x (600 ticks)', flush=True); "
+           "print('up', flush=True); "
            "time.sleep(60)"]
     with log.open("w") as out:
         launch = L.Launch([L.NodeProcess("node", sim, stop_order=0, ends_launch=True)], L.loopback_env(0), out=out,
@@ -198,8 +200,6 @@ def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path)
     and does not call the simulator dead."""
     import sys
 
-    from soil_msgs_py import graph as G
-
     log = tmp_path / "launch.log"
     with log.open("w") as out:
         ready = tmp_path / "other.ready"  # the other node is up (has said so) and stops cleanly on SIGINT
@@ -220,8 +220,6 @@ def test_a_recorder_that_wrote_no_bag_of_an_episode_fails_the_launch_and_says_wh
     EXIT_BAG_NOT_WRITTEN when stopped): the launch exits 1 (was 0: the bag silently missing), naming
     the recorder, its code and what the code means."""
     import sys
-
-    from soil_msgs_py import graph as G
 
     log = tmp_path / "launch.log"
     with log.open("w") as out:

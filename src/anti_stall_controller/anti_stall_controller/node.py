@@ -235,8 +235,9 @@ class ControllerNode(Node):
             return SetParametersResult(successful=False, reason=str(err))
         if gains:
             self.core.set_gains(new_gains)
-        if any(k in changes for k in TARGET_FIELDS):
-            self.core.set_targets(speed, depth)
+        if any(k in changes for k in TARGET_FIELDS):  # following a planner, the core's depth is its (or the
+            # fallback's on its way): a new target_depth_m is the fallback, reached as _depth_for moves there
+            self.core.set_targets(speed, None if source == "planner" else depth)
             self.param_depth_m = float(depth)
             self._say_if_beyond_reach()
         self.plan_wait.set_lag(lag, wait)

@@ -244,8 +244,9 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         log(f"warning: {checkpoint} was trained on {', '.join(trained)}-world data; its forecast is judged on "
             f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
             f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
-    if fusion_config is not None:  # checked before anything runs (a world "auto" leaves is checked once known)
-        given_fusion(fusion_config, judged if judged in WORLD_MODES else None)
+    if fusion_config is not None:  # checked before anything runs; "auto" is the test split's world, the checkpoint's
+        early = judged if judged in WORLD_MODES else (trained[0] if judged == "auto" and len(trained) == 1 else None)
+        given_fusion(fusion_config, early)
     if forecast_only:
         return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
                                progress=progress, fusion_config=fusion_config, log=log) | {"seen_in_training": len(seen)}

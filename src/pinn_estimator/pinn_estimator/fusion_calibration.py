@@ -43,7 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.cli_paths import output_file
+from soil_msgs_py.cli_paths import input_text, output_file
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.predictive import error_law_text, mixture_cdf
@@ -76,10 +76,35 @@ CAL_DURATION_S = 10.0
 
 def add_soil_options(p: argparse.ArgumentParser) -> None:
     """``--soil-file`` / ``--soils``: calibrate on soils of one's own (``calibration_soils``)."""
-    p.add_argument("--soil-file", metavar="FILE", help="a soils YAML (soil_sim_batch --soil-file's format): calibrate "
+    p.add_argument("--soil-file", metavar="FILE", type=input_text, help="a soils YAML (soil_sim_batch --soil-file's format): calibrate "
                                                       "on its soils (or those --soils names) instead of the catalogue's")
-    p.add_argument("--soils", metavar="A,B", help="the calibration soils, comma-separated: the catalogue's or "
+    p.add_argument("--soils", metavar="A,B", type=input_text, help="the calibration soils, comma-separated: the catalogue's or "
                                                   "--soil-file's (default: the catalogue's; with --soil-file, its own)")
+
+
+def checked_soils(p: argparse.ArgumentParser, args: argparse.Namespace, output_option: str, output: object) -> None:
+    """``calibration_soils`` of ``args`` into ``args.calibration_soils``, before any work; exit 2
+    (``p.error``) naming the option for soils that cannot be used, or given without ``output_option``
+    (``output`` None: the shipped config, calibrated on the catalogue's soils, would be replaced)."""
+    try:
+        args.calibration_soils = calibration_soils(args)
+    except ValueError as err:
+        p.error(str(err))
+    if (args.soil_file or args.soils) and output is None:
+        p.error(f"--soil-file/--soils: give {output_option} (the shipped config is calibrated on the catalogue's soils)")
+
+
+def calibration_episodes(p: argparse.ArgumentParser, args: argparse.Namespace):
+    """The calibration episodes (``evaluate.forecast_dataset``) of ``args``' world, duration, sensor
+    noise and ``checked_soils``; exit 2 naming the soils where one has no failure wedge in the world."""
+    from .evaluate import forecast_dataset
+
+    soils, custom = args.calibration_soils
+    try:
+        return forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
+                                depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
+    except ValueError as err:
+        p.error(f"{'--soils' if args.soils else '--soil-file' if args.soil_file else '--world'}: {err}")
 
 
 def calibration_soils(args: argparse.Namespace) -> tuple[list[str] | None, dict]:
@@ -658,7 +683,7 @@ def main(argv=None) -> int:
         print(f"pinn_fusion_calibrate: warning: {warning}", file=sys.stderr, flush=True)
     from soil_physics.force_terms import parse_terms, refuse_repeats
 
-    from .evaluate import forecast_dataset, fused_posteriors
+    from .evaluate import fused_posteriors
 
     try:
         terms = parse_terms(args.term)
@@ -679,12 +704,7 @@ def main(argv=None) -> int:
         p.error(f"--set: {err}")
     if args.force_noise and args.out is None:
         p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
-    try:
-        soils, custom = calibration_soils(args)
-    except ValueError as err:
-        p.error(str(err))
-    if (args.soil_file or args.soils) and args.out is None:
-        p.error("--soil-file/--soils: give --out (the shipped config is calibrated on the catalogue's soils)")
+    checked_soils(p, args, "--out", args.out)
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
         if args.term or args.fields:
@@ -708,11 +728,7 @@ def main(argv=None) -> int:
             print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
-    try:
-        ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                              depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
-    except ValueError as err:  # a soil without a failure wedge in this world
-        p.error(f"--soils: {err}")
+    ds = calibration_episodes(p, args)
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
         cfg, rows = choose_forecast_law(ds, base, None, pairs=pairs)

@@ -25,7 +25,7 @@ import rclpy
 from rclpy.node import Node
 
 from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE,
-                                EpisodeEvent)
+                                UNKNOWN_NODE_NAME, EpisodeEvent)
 from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.patches import finite_number
 from .playback import (
@@ -46,6 +46,11 @@ MAX_CLOCK_HZ = 1000.0
 # How often (wall time) a replay looks for another publisher of the topics it plays [s]: a live
 # simulator on the domain (a replay into a running graph recorded bags holding both robots' state).
 OTHERS_CHECK_PERIOD_S = 0.5
+# Before the first message: how long to look for them while DDS discovers the domain [s] (found at
+# once they stop the replay before anything went out; a reviewer's runs without it had sent 540 and
+# 1141 messages first, a live recorder taking the replay's episode_start).
+OTHERS_DISCOVERY_S = 1.0
+UNNAMED = "a node not discovered by name yet"
 
 
 class AnotherGraph(Exception):
@@ -62,8 +67,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
     p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
     p.add_argument("--clock", type=float, metavar="HZ",
-                   help="publish /clock at HZ (at most 1000) from bag time, stamped floor(j·1e9/HZ) ns (at 60 Hz the "
-                        "ticks' own stamps), and not the bag's own /clock; a recorder of the replay needs one /clock "
+                   help="publish /clock at HZ (at most 1000) from bag time, the first stamp + floor(k·1e9/HZ) ns (at "
+                        "60 Hz the ticks' own stamps), and not the bag's own /clock; a recorder of the replay needs one /clock "
                         "per tick: at another HZ its bags lack it")
     p.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
                    help="before playing, wait until every publisher has N matched subscriptions (default 0)")
@@ -145,22 +150,39 @@ class Player:
         out = {}
         for topic in self.pubs:
             if topic != SIM_STATUS_TOPIC and self.node.count_publishers(topic) > 1:
-                out[topic] = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                out[topic] = sorted({UNNAMED if i.node_name == UNKNOWN_NODE_NAME else
+                                     f"{i.node_namespace.rstrip('/')}/{i.node_name}"
                                      for i in self.node.get_publishers_info_by_topic(topic)} - {"/soil_bag_play"})
         return out
 
-    def check_others(self, force: bool = False) -> None:
+    def check_others(self, force: bool = False, named: bool = False) -> None:
         """AnotherGraph naming the topics and nodes, unless --allow-other-publishers; at most every
-        OTHERS_CHECK_PERIOD_S of wall time unless ``force``."""
+        OTHERS_CHECK_PERIOD_S of wall time unless ``force``; ``named``: only once every such node's
+        name is known (its name comes a moment after its writer is discovered)."""
         now = time.monotonic()
         if self.opts.allow_other_publishers or (not force and now - self.checked_at < OTHERS_CHECK_PERIOD_S):
             return
         self.checked_at = now
-        if found := self.others():
+        found = self.others()
+        if named and any(UNNAMED in n for n in found.values()):
+            return
+        if found:
             named = "; ".join(f"{t} by {', '.join(n) or 'another soil_bag_play'}" for t, n in sorted(found.items()))
             raise AnotherGraph(f"other nodes publish topics this replay plays ({named}): a live graph on this domain "
                                "would mix two robots' data in every reader and bag. Stop them, give the replay its own "
-                               "ROS_DOMAIN_ID, --exclude the topics they publish, or --allow-other-publishers")
+                               "ROS_DOMAIN_ID, --exclude the topics they publish, or --allow-other-publishers (a node "
+                               "killed in the last 20 s still shows until its DDS lease runs out)")
+
+    def discover_others(self) -> None:
+        """``check_others`` while DDS discovers the domain (``OTHERS_DISCOVERY_S``), before anything is
+        published."""
+        if self.opts.allow_other_publishers:
+            return
+        end = time.monotonic() + OTHERS_DISCOVERY_S
+        while time.monotonic() < end:
+            self.check_others(force=True, named=True)
+            time.sleep(0.05)
+        self.check_others(force=True)
 
     def play_bag(self, bag: LoadedBag) -> None:
         messages = list(with_clock(bag.messages, self.opts.clock)) if self.opts.clock else bag.messages
@@ -214,7 +236,7 @@ class Player:
                     first = False
                     if self.opts.wait_for_subscribers > 0:
                         self.wait_for_subscribers()
-                    self.check_others(force=True)
+                    self.discover_others()
                 self.play_bag(bag)
                 played = True
             if not played:
@@ -278,6 +300,8 @@ def main(args: list[str] | None = None) -> int:
     except AnotherGraph as err:
         node.get_logger().error(f"{err}; stopped")
         code = EXIT_ANOTHER_GRAPH
+        if player is not None:
+            player.drain()  # (the episode_end it published on the way out reaches its readers)
     finally:
         node.get_logger().info(f"published {player.published if player else 0} messages")
         node.destroy_node()

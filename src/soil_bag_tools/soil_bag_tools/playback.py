@@ -146,16 +146,11 @@ def episode_events(bag: LoadedBag, episode: int) -> tuple[EpisodeEvent, EpisodeE
     return start, end
 
 
-def clock_stamp_ns(j: int, hz: float) -> int:
-    """The j-th stamp [ns] of a /clock at ``hz``: floor(j·1e9/hz), the grid the simulator stamps its
-    ticks on at 60 Hz (``params.TICK_PERIOD_NS``), exact in integers for a whole ``hz``."""
-    return j * 10**9 // int(hz) if float(hz).is_integer() else math.floor(j * 1e9 / hz)
-
-
 def with_clock(messages: Sequence[tuple[int, str, bytes]], hz: float) -> Iterator[tuple[int, str, bytes]]:
     """``messages`` without their own /clock, merged with /clock at ``hz`` from the first to the last
-    stamp, on the absolute grid ``clock_stamp_ns`` (at 60 Hz the ticks' own stamps: a clock counted
-    from the first stamp and rounded had stamps a recorder refused as off the tick grid).
+    stamp: clock k at first + floor(k·1e9/hz) ns, at 60 Hz the ticks' own stamps (the simulator
+    stamps tick k of an episode first + floor(k·1e9/60); rounded, a third were off that grid and a
+    recorder of the replay dropped them).
 
     A clock tick at the same time as a message goes first (time advances, then data at it).
     """
@@ -164,17 +159,15 @@ def with_clock(messages: Sequence[tuple[int, str, bytes]], hz: float) -> Iterato
     data = [m for m in messages if m[1] != CLOCK_TOPIC]
     if not data:
         return
-    j = math.ceil(data[0][0] * hz / 1e9)
-    while j > 0 and clock_stamp_ns(j - 1, hz) >= data[0][0]:  # (float rounding of the start)
-        j -= 1
-    while clock_stamp_ns(j, hz) < data[0][0]:
-        j += 1
-    next_clock = clock_stamp_ns(j, hz)
+    t0 = data[0][0]
+    whole = float(hz).is_integer()
+    k = 0
+    next_clock = t0
     for m in data:
         while next_clock <= m[0]:
             yield next_clock, CLOCK_TOPIC, clock_cdr(next_clock)
-            j += 1
-            next_clock = clock_stamp_ns(j, hz)
+            k += 1
+            next_clock = t0 + (k * 10**9 // int(hz) if whole else math.floor(k * 1e9 / hz))
         yield m
 
 

@@ -37,9 +37,10 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
 from pinn_estimator.checkpoint import load_model
-from pinn_estimator.fusion_calibration import load_fusion_config, world_note
+from pinn_estimator.fusion import FusionConfig
+from pinn_estimator.fusion_calibration import world_note
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import output_dir, refuse_directories
+from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
@@ -82,9 +83,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--force-quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the upper force quantile the planner keeps within them, [0.5, 1) (default {DEFAULT_FORCE_QUANTILE}; "
                         "benchmarks/bench_planner_margin.py compares settings over several paths)")
-    p.add_argument("--checkpoint", metavar="FILE", help="the soil-aware policy's estimator model (default: the world's "
+    p.add_argument("--checkpoint", metavar="FILE", type=input_text, help="the soil-aware policy's estimator model (default: the world's "
                                                       "shipped models/pinn_<world>.pt); one world's: needs one --worlds")
-    p.add_argument("--fusion-config", metavar="FILE",
+    p.add_argument("--fusion-config", metavar="FILE", type=input_text,
                    help="its fused posterior's config, which also gives the planner its physics and bound law (default: "
                         "the world's shipped calibration); one world's: needs one --worlds")
     p.add_argument("--no-sensor-anchor", dest="sensor_anchor", action="store_false",
@@ -118,15 +119,18 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(str(err))
     if (args.checkpoint or args.fusion_config) and len(args.worlds) != 1:
         p.error("--checkpoint and --fusion-config are one world's: give that world alone (--worlds default or fee)")
-    try:  # read now, not after the sweeps: a file that is no model or config, or another world's config
+    try:  # read now, not after the sweeps: a file that is no model
         if args.checkpoint:
             load_model(args.checkpoint)
+    except (FileNotFoundError, ValueError) as err:
+        p.error(f"--checkpoint: {err}")
+    try:  # ... or no config, or another world's
         if args.fusion_config:
-            note = world_note(load_fusion_config(args.fusion_config, args.worlds[0]), args.fusion_config, args.worlds[0])
+            note = world_note(FusionConfig.load(args.fusion_config), args.fusion_config, args.worlds[0])
             if note:
                 print(f"soil_cut_report: note: --fusion-config: {note}", file=sys.stderr)
-    except (FileNotFoundError, ValueError) as err:
-        p.error(f"--checkpoint/--fusion-config: {err}")
+    except (OSError, ValueError) as err:
+        p.error(f"--fusion-config: {err}")
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
         p.error(f"--duration {args.duration} must be in [2, 600] s")
     if args.seed < 0:

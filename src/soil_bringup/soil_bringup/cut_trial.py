@@ -27,7 +27,7 @@ from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from anti_stall_controller.plan_wait import DEFAULT_LAG_TICKS
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.shipped import shipped_checkpoint
-from pinn_estimator.fusion_calibration import load_calibrated, load_fusion_config
+from pinn_estimator.fusion_calibration import load_fusion_config
 from pinn_estimator.online import INPUT_TOPICS, Estimate, OnlineEstimator
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
@@ -77,8 +77,7 @@ class SoilAwareSetup:
     def estimator(self, publish) -> OnlineEstimator:
         path = self.checkpoint or str(shipped_checkpoint(self.world))
         model, _ = load_model(path)
-        fusion = load_fusion_config(self.fusion_config, self.world) if self.fusion_config else load_calibrated(self.world)
-        return OnlineEstimator(model, publish, fusion=fusion)
+        return OnlineEstimator(model, publish, fusion=load_fusion_config(self.fusion_config or "", self.world))
 
 
 @dataclass

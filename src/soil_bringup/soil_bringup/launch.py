@@ -118,10 +118,6 @@ class NodeProcess:
     spoke: threading.Event = field(default_factory=threading.Event)  # a first line of output came
 
 
-# The simulator's log lines of an episode's start and end (its node.py): whether one is running.
-_EPISODE_LINE = re.compile(r"\]: episode \d+ (start|end)\b")
-
-
 def _pump(prefix: str, stream, out, spoke: threading.Event | None = None, on_line=None) -> None:
     """Copy a child's output line by line with its name; never dies on a closed terminal
     (a dead pump would leave the child blocked on a full pipe). ``on_line``: also given each line."""
@@ -185,7 +181,7 @@ class Launch:
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
 
     def _on_simulator_line(self, line: str) -> None:
-        if match := _EPISODE_LINE.search(line):
+        if match := G.EPISODE_LOG_PATTERN.search(line):  # (whether an episode is running)
             self.episode_running = match.group(1) == "start"
 
     def _on_signal(self, signum, frame) -> None:  # noqa: ARG002

@@ -64,6 +64,19 @@ EXIT_BAG_NOT_WRITTEN = 5
 # second launch, or a bag player): two graphs on one domain mix their topics, and every bag of
 # either holds both robots' data; it starts no episode (``soil_launch`` ends in EXIT_NODE_DIED).
 EXIT_ANOTHER_GRAPH = 6
+# The simulator's log line of an episode's start or end begins "episode N start" / "episode N end"
+# (``episode_log``); soil_launch reads them to tell a run stopped mid-episode from one between episodes.
+EPISODE_LOG_PATTERN = re.compile(r"\]: episode \d+ (start|end)\b")
+
+
+def episode_log(index: int, what: str) -> str:
+    """The head of the simulator's log line of episode ``index``'s ``what`` ("start" or "end")."""
+    return f"episode {index} {what}"
+
+
+# What the ROS graph says of an endpoint whose node is not discovered yet (its name comes a moment
+# after its writer): the simulator's and the player's checks for another graph wait for it.
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
 
 ACTION_START = "start"
 ACTION_RESET = "reset"

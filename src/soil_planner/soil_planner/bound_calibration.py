@@ -23,9 +23,9 @@ import numpy as np
 
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import FusionConfig, fused_values
-from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DENSITIES_PCT, CAL_DEPTHS_M, CAL_DURATION_RANGE_S,
-                                               CAL_DURATION_S, CAL_SEED, FLOOR_GRID, FORECAST_GRID, add_soil_options,
-                                               calibration_soils, config_path, short_duration_warning, world_note)
+from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_RANGE_S, CAL_DURATION_S, FLOOR_GRID,
+                                               FORECAST_GRID, add_soil_options, calibration_episodes, checked_soils,
+                                               config_path, short_duration_warning, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -129,7 +129,7 @@ def calibrated_fields(cfg: FusionConfig) -> list[str]:
 
 
 def main(argv=None) -> int:
-    from pinn_estimator.evaluate import forecast_dataset, fused_posteriors  # (the simulator and torch: here only)
+    from pinn_estimator.evaluate import fused_posteriors  # (the simulator and torch: here only)
 
     p = argparse.ArgumentParser(prog="soil_planner_calibrate", description=__doc__.split("\n\n")[0])
     p.add_argument("--world", choices=WORLD_MODES, required=True)
@@ -153,12 +153,7 @@ def main(argv=None) -> int:
         p.error(f"--quantile: {err}")
     if args.force_noise and args.config is None:
         p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
-    try:
-        soils, custom = calibration_soils(args)
-    except ValueError as err:
-        p.error(str(err))
-    if (args.soil_file or args.soils) and args.config is None:
-        p.error("--soil-file/--soils: give --config (the shipped config is calibrated on the catalogue's soils)")
+    checked_soils(p, args, "--config", args.config)
     lo, hi = CAL_DURATION_RANGE_S
     if not lo <= args.duration <= hi:  # NaN too
         p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
@@ -176,11 +171,7 @@ def main(argv=None) -> int:
     if note:
         print(f"soil_planner_calibrate: {note}" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
-    try:
-        ds = forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                              depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
-    except ValueError as err:  # a soil without a failure wedge in this world
-        p.error(f"--soils: {err}")
+    ds = calibration_episodes(p, args)
     try:
         cfg, _ = choose_bound_law(ds, cfg, fused_posteriors(ds, cfg), quantile=args.quantile)
     except ValueError as err:

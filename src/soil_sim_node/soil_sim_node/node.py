@@ -58,7 +58,6 @@ _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 
 # Nodes of this project that publish /sim/status: another one on the domain is another graph.
 GRAPH_STATUS_WRITERS = ("soil_sim_node", "soil_bag_play")
-UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # what the graph says of a writer whose node is not discovered yet
 GRAPH_NAMES_WAIT_S = 2.0  # the longest a start waits for such a writer's node name [s]
 MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
 
@@ -347,11 +346,13 @@ class SimNode(Node):
         node then starts none and ends (``EXIT_ANOTHER_GRAPH``); later (a graph that came after this
         one) it says so at each episode and goes on, the other simulator refusing itself. Two
         launches on one domain had cut each other's bags short and mixed their state, both ending in
-        0. A writer of another name (a monitor, a hostile node) is said and changes nothing."""
+        0. A writer of another name (a monitor, a hostile node) is said and changes nothing, but for
+        the wait for its name. (A simulator killed outright shows for its DDS lease, ~20 s: a run
+        started in that time is refused too, said so.)"""
         infos = self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)
         names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
         now = time.monotonic()
-        if any(i.node_name == UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
+        if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
             self._names_wait_since = self._names_wait_since or now
             if now - self._names_wait_since < GRAPH_NAMES_WAIT_S:
                 return True
@@ -369,7 +370,8 @@ class SimNode(Node):
                 "their topics, and every bag of either would hold both")
         if self.episode_index < 0:  # (no episode started yet)
             self.get_logger().error(f"{said}; starting no episode: stop the other graph or give this one another "
-                                    "ROS_DOMAIN_ID (soil_launch --domain-id)")
+                                    "ROS_DOMAIN_ID (soil_launch --domain-id); a node killed in the last 20 s still "
+                                    "shows until its DDS lease runs out: then start again in a moment")
             self.queue.clear()
             self.exit_code, self.finished = G.EXIT_ANOTHER_GRAPH, True
             return True
@@ -393,7 +395,7 @@ class SimNode(Node):
         # holds the start before tick 0 goes out (the controller resets on it).
         if not self.status_pub.wait_for_all_acked(Duration(seconds=2.0)):
             self.get_logger().warning("episode_start not acknowledged by every /sim/status subscriber within 2 s")
-        self.get_logger().info(f"episode {self.episode_index} start: {self.meta.name} ({self.planned_ticks} ticks)")
+        self.get_logger().info(f"{G.episode_log(self.episode_index, 'start')}: {self.meta.name} ({self.planned_ticks} ticks)")
         self._reset_timer()
         self._publish_tick(self.sim.reset())
 
@@ -407,7 +409,7 @@ class SimNode(Node):
         self.status_pub.publish(String(data=event.to_json()))
         if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
             self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
-        self.get_logger().info(f"episode {self.episode_index} end ({reason}): {self.tick + 1} ticks; timing {stats}")
+        self.get_logger().info(f"{G.episode_log(self.episode_index, 'end')} ({reason}): {self.tick + 1} ticks; timing {stats}")
         if reason == "error":
             self.exit_code = G.EXIT_EPISODE_FAILED  # the node goes on with its queue, and says so when it exits
         self.next_first_stamp_ns = last + int(round(TICK_PERIOD_NS))
