@@ -97,3 +97,20 @@ def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_st
     target(0, 0.3)  # the replay started over: its first tick ...
     target(1, 0.3)  # ... and the next, which follows it: a new cut from the start depth
     assert forgotten == [1] and published[-1][0] == stamp(1) and published[-1][1][0] < deep
+
+
+def test_a_new_cut_follows_the_controllers_writer_afresh_when_the_ticks_start_again():
+    """Bags replayed in a row: the second episode's ticks start at 0 again from the same writer
+    (the player's counter goes on). The first episode's track led and its commands were dropped
+    until they outnumbered it; the planner's plans of the second bag anchored otherwise."""
+    from soil_planner.depth_schedule import DepthSchedule, ScheduleSettings
+
+    n = node()
+    n.__dict__.update(measured=collections.OrderedDict(), schedule=DepthSchedule(ScheduleSettings()),
+                      planner=SimpleNamespace(forget=lambda: None), _target_sent=None, _jumped_to=None)
+    for k in range(300):
+        send(n, k, -0.10, 1 + k)
+    PlannerNode._new_cut(n)  # the next episode_start
+    for k in range(5):
+        send(n, k, -0.20, 301 + k)
+    assert [n.commanded.get(stamp(k)) for k in range(5)] == [0.20] * 5

@@ -64,8 +64,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor, in [%g, %g] (default 1.0)" % RATE_LIMITS)
     p.add_argument("--loop", action="store_true", help="start over after the last bag, until Ctrl-C")
-    p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
-    p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics")
+    p.add_argument("--topics", nargs="+", metavar="T", help="play only these topics (give the bags first: the option "
+                                                            "takes every name after it)")
+    p.add_argument("--exclude", nargs="+", default=[], metavar="T", help="do not play these topics (bags first, as for "
+                                                                         "--topics)")
     p.add_argument("--clock", type=float, metavar="HZ",
                    help="publish /clock at HZ (at most 1000) from bag time, the first stamp + floor(k·1e9/HZ) ns (at "
                         "60 Hz the ticks' own stamps), and not the bag's own /clock; a recorder of the replay needs one /clock "
@@ -178,9 +180,9 @@ class Player:
         published."""
         if self.opts.allow_other_publishers:
             return
-        end = time.monotonic() + OTHERS_DISCOVERY_S
-        while time.monotonic() < end:
-            self.check_others(force=True, named=True)
+        time.sleep(OTHERS_DISCOVERY_S)  # (all of it: found early, the list named only some of them)
+        named_by = time.monotonic() + OTHERS_DISCOVERY_S
+        while (found := self.others()) and any(UNNAMED in n for n in found.values()) and time.monotonic() < named_by:
             time.sleep(0.05)
         self.check_others(force=True)
 

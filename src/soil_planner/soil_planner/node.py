@@ -313,6 +313,11 @@ class PlannerNode(Node):
             for stamp in [s for s in by_stamp if at_stamp_ns is None or abs(s - at_stamp_ns) > NEW_CUT_GAP_NS]:
                 del by_stamp[stamp]
         self.command_wait.forget_commands()
+        # the controller's writer followed afresh: in a replay of bags in a row the ticks start again
+        # at 0, where its track (hundreds of ticks, never forgotten: its last tick lies ahead) led over
+        # the same writer's new messages, whose commands were dropped until they outnumbered the old
+        # ones (an outside tester: the second bag's plans anchored otherwise from 5 s on)
+        self.command_writer = WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS)
 
     def _on_blade_cmd(self, msg, sequence: int | None = None) -> None:
         """The depth the controller commands for a tick, −u_za: only its writer's, the one that

@@ -59,6 +59,12 @@ _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 # Nodes of this project that publish /sim/status: another one on the domain is another graph.
 GRAPH_STATUS_WRITERS = ("soil_sim_node", "soil_bag_play")
 GRAPH_NAMES_WAIT_S = 2.0  # the longest a start waits for such a writer's node name [s]
+# Before its first episode the node looks for another graph only once DDS has had time to discover
+# the domain: its nodes known unchanged for GRAPH_QUIET_S, at least GRAPH_DISCOVERY_S after start, at
+# most GRAPH_DISCOVERY_MAX_S [s]. (An outside tester's second launch met its wait_for on the first
+# launch's readers 0.4 s after start, before the first simulator's writer was discovered: it was
+# not refused, and its bags held both graphs' ticks.)
+GRAPH_DISCOVERY_S, GRAPH_QUIET_S, GRAPH_DISCOVERY_MAX_S = 1.0, 0.5, 5.0
 MAX_SETTLE_S = 60.0  # settle_s at most [s]: a pause for DDS matches, not a schedule
 
 # name -> (default, description[, array type]); the YAML in config/ mirrors these.
@@ -162,6 +168,8 @@ class SimNode(Node):
         self.gate = CommandGate(self.command_writers)
         self.episode_index = -1
         self._names_wait_since: float | None = None  # a /sim/status writer's node name awaited since (monotonic)
+        self._born = time.monotonic()
+        self._nodes_seen: tuple[set, float] = (set(), self._born)  # the domain's nodes, and since when unchanged
         self.meta = None
         self.tick = 0
         self.planned_ticks = 0
@@ -349,9 +357,15 @@ class SimNode(Node):
         0. A writer of another name (a monitor, a hostile node) is said and changes nothing, but for
         the wait for its name. (A simulator killed outright shows for its DDS lease, ~20 s: a run
         started in that time is refused too, said so.)"""
+        now = time.monotonic()
+        if self.episode_index < 0 and now - self._born < GRAPH_DISCOVERY_MAX_S:  # (discovery still under way?)
+            nodes = set(self.get_node_names_and_namespaces())
+            if nodes != self._nodes_seen[0]:
+                self._nodes_seen = (nodes, now)
+            if now - self._born < GRAPH_DISCOVERY_S or now - self._nodes_seen[1] < GRAPH_QUIET_S:
+                return True
         infos = self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)
         names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
-        now = time.monotonic()
         if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
             self._names_wait_since = self._names_wait_since or now
             if now - self._names_wait_since < GRAPH_NAMES_WAIT_S:
