@@ -355,8 +355,8 @@ class SimNode(Node):
         one) it says so at each episode and goes on, the other simulator refusing itself. Two
         launches on one domain had cut each other's bags short and mixed their state, both ending in
         0. A writer of another name (a monitor, a hostile node) is said and changes nothing, but for
-        the wait for its name. (A simulator killed outright shows for its DDS lease, ~20 s: a run
-        started in that time is refused too, said so.)"""
+        the wait for its name. (A simulator killed outright may show for its DDS lease, ~20 s: a run
+        started in that time may then be refused, and the message says so.)"""
         now = time.monotonic()
         if self.episode_index < 0 and now - self._born < GRAPH_DISCOVERY_MAX_S:  # (discovery still under way?)
             nodes = set(self.get_node_names_and_namespaces())
