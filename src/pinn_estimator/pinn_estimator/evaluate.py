@@ -245,6 +245,8 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
             f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
             f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
     if fusion_config is not None:  # checked before anything runs; "auto" is the test split's world, the checkpoint's
+        from .fusion_calibration import given_fusion
+
         early = judged if judged in WORLD_MODES else (trained[0] if judged == "auto" and len(trained) == 1 else None)
         given_fusion(fusion_config, early)
     if forecast_only:
@@ -335,27 +337,11 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     return report
 
 
-def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
-    """The fusion config at ``path`` (``--fusion-config``) for forecasts in ``world`` (None: not
-    known yet); ValueError naming it if it cannot be read or was calibrated in another world; a
-    config that records no world is said to be taken for this one (to ``log``)."""
-    from .fusion_calibration import world_note
-
-    try:
-        cfg = FusionConfig.load(path)
-        note = world_note(cfg, path, world) if world is not None else ""
-    except (OSError, ValueError, TypeError) as err:
-        raise ValueError(f"--fusion-config: {err}") from None
-    if note and log is not None:
-        log(f"--fusion-config: {note}")
-    return cfg
-
-
 def forecast_section(model, bags: Dataset | None, world: str | None, *, classical: bool = True, workers: int = 2,
                      progress: bool = False, fusion_config: str | None = None, log=print) -> dict:
     """The forecast at another depth: on ``bags`` with their world's calibrated posterior (or the
     config at ``fusion_config``), or else on the simulated held-out episodes of ``world``."""
-    from .fusion_calibration import load_calibrated
+    from .fusion_calibration import given_fusion, load_calibrated
 
     if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")

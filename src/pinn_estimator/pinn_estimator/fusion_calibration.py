@@ -202,6 +202,20 @@ def world_note(cfg: FusionConfig, path, world: str) -> str:
     return "" if cfg.world else f"{path} does not record the world it was calibrated in; taking it for the {world} world's"
 
 
+def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
+    """The fusion config at ``path`` (a tool's ``--fusion-config``) for forecasts in ``world`` (None:
+    not known yet); ValueError naming the option if it cannot be read or was calibrated in another
+    world; a config that records no world is said to be taken for this one (to ``log``)."""
+    try:
+        cfg = FusionConfig.load(path)
+        note = world_note(cfg, path, world) if world is not None else ""
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"--fusion-config: {err}") from None
+    if note and log is not None:
+        log(f"--fusion-config: {note}")
+    return cfg
+
+
 def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
     """The estimator's soil posterior config and the world it was calibrated for: the config at
     ``path`` (the ``fusion_config`` parameter; its world as it records it, None where it does not), else the shipped

@@ -157,18 +157,14 @@ class Player:
                                      for i in self.node.get_publishers_info_by_topic(topic)} - {"/soil_bag_play"})
         return out
 
-    def check_others(self, force: bool = False, named: bool = False) -> None:
+    def check_others(self, force: bool = False) -> None:
         """AnotherGraph naming the topics and nodes, unless --allow-other-publishers; at most every
-        OTHERS_CHECK_PERIOD_S of wall time unless ``force``; ``named``: only once every such node's
-        name is known (its name comes a moment after its writer is discovered)."""
+        OTHERS_CHECK_PERIOD_S of wall time unless ``force``."""
         now = time.monotonic()
         if self.opts.allow_other_publishers or (not force and now - self.checked_at < OTHERS_CHECK_PERIOD_S):
             return
         self.checked_at = now
-        found = self.others()
-        if named and any(UNNAMED in n for n in found.values()):
-            return
-        if found:
+        if found := self.others():
             named = "; ".join(f"{t} by {', '.join(n) or 'another soil_bag_play'}" for t, n in sorted(found.items()))
             raise AnotherGraph(f"other nodes publish topics this replay plays ({named}): a live graph on this domain "
                                "would mix two robots' data in every reader and bag. Stop them, give the replay its own "

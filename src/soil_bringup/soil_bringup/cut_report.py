@@ -37,8 +37,7 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
 from pinn_estimator.checkpoint import load_model
-from pinn_estimator.fusion import FusionConfig
-from pinn_estimator.fusion_calibration import world_note
+from pinn_estimator.fusion_calibration import given_fusion
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
@@ -126,11 +125,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error(f"--checkpoint: {err}")
     try:  # ... or no config, or another world's
         if args.fusion_config:
-            note = world_note(FusionConfig.load(args.fusion_config), args.fusion_config, args.worlds[0])
-            if note:
-                print(f"soil_cut_report: note: --fusion-config: {note}", file=sys.stderr)
-    except (OSError, ValueError) as err:
-        p.error(f"--fusion-config: {err}")
+            given_fusion(args.fusion_config, args.worlds[0], lambda note: print(f"soil_cut_report: note: {note}",
+                                                                                 file=sys.stderr))
+    except ValueError as err:
+        p.error(str(err))
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
         p.error(f"--duration {args.duration} must be in [2, 600] s")
     if args.seed < 0:
