@@ -97,12 +97,35 @@ def test_the_depth_and_speed_go_to_the_simulator_and_the_forecast_goes_around_th
     assert f"settle_s:={D.LOCKSTEP_SETTLE_S!r}" in sim, sim
 
 
+SILT_YAML = "name: Silt\nphi_deg: [24, 32]\ncohesion_pa: [2000, 6000]\nunit_weight_n_m3: [16500, 19500]\n"
+
+
+def test_a_soil_file_goes_to_the_simulator_and_its_soils_may_be_named(tmp_path, capsys):
+    """A user's own soils: before, the demo knew the catalogue's only (soil_launch and soil_cut_report
+    took a soils file, the main job did not)."""
+    soils = tmp_path / "soils.yaml"
+    soils.write_text(SILT_YAML)
+    with pytest.raises(SystemExit):
+        D.parse_args(["--soils", "Silt"])  # not a catalogue soil
+    assert "soil='Silt' is unknown" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        D.parse_args(["--soil-file", str(tmp_path / "none.yaml")])
+    assert "--soil-file" in capsys.readouterr().err
+    args = D.parse_args(["--soil-file", str(soils), "--soils", "silt,Clay"])
+    assert args.soils == ["Silt", "Clay"] and set(args.custom_soils) == {"Silt"}
+    assert f"soil_file:={soils.resolve()}" in D.launch_arguments(args, 100.0).sim_param
+    assert not any(p.startswith("soil_file:=") for p in D.launch_arguments(D.parse_args([]), 100.0).sim_param)
+
+
 def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
+    """One live episode of a soil of the user's own (simulated, scored and forecast from its file)."""
     from tests.ros_probe import next_domain_id
 
     out, bags = tmp_path / "out", tmp_path / "bags"
-    argv = [sys.executable, "-m", "soil_bringup.demo", "--pacing", "lockstep", "--soils", "Clay",
-            "--densities", "20", "--duration", "3.0", "--out", str(out), "--bags", str(bags),
+    soils = tmp_path / "soils.yaml"
+    soils.write_text(SILT_YAML)
+    argv = [sys.executable, "-m", "soil_bringup.demo", "--pacing", "lockstep", "--soils", "Silt",
+            "--soil-file", str(soils), "--densities", "20", "--duration", "3.0", "--out", str(out), "--bags", str(bags),
             "--domain-id", str(next_domain_id()), "--depth", "0.15"]
     res = subprocess.run(argv, capture_output=True, text=True, timeout=120)
     log = out / "launch.log"
@@ -113,11 +136,11 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     summary = json.loads((out / "summary.json").read_text(), parse_constant=_not_strict)  # strict JSON
     assert len(summary["episodes"]) == 1, context
     ep = summary["episodes"][0]
-    assert ep["soil"] == "Clay" and ep["relative_density_pct"] == 20.0 and ep["ticks"] == 180
+    assert ep["soil"] == "Silt" and ep["relative_density_pct"] == 20.0 and ep["ticks"] == 180
     assert ep["valid_estimates"] > 0 and summary["overall"]["valid_estimates"] == ep["valid_estimates"]
     errors = [*ep["force"].values(), *ep["params"].values()]
     assert all(math.isfinite(v) for v in errors), ep
-    assert (out / "summary.md").read_text().count("| Clay |") == 3  # errors, mean estimates, the fused soil
+    assert (out / "summary.md").read_text().count("| Silt |") == 3  # errors, mean estimates, the fused soil
     assert "of 3 s at 0.15 m and 0.5 m/s" in (out / "summary.md").read_text()
     # the planner's question: from the live episode (0.15 m) to the simulator cutting the same soil at half
     # and 1.25 times that depth
@@ -134,13 +157,13 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     assert png.is_file() and png.stat().st_size > 10_000
 
     recorded = read_episode(Path(ep["bag"]))
-    assert len(recorded) == 180 and recorded.meta.soil == "Clay" and recorded.meta.target_depth_m == 0.15
+    assert len(recorded) == 180 and recorded.meta.soil == "Silt" and recorded.meta.target_depth_m == 0.15
     # the live part: an episode header, the window filling, one line per simulated second, all <= 120 columns
     lines = res.stdout.splitlines()
-    assert any(line.startswith("=== episode 1/1: Clay, I_d 20 %") for line in lines), context
+    assert any(line.startswith("=== episode 1/1: Silt, I_d 20 %") for line in lines), context
     assert any("filling window" in line for line in lines), context
-    assert sum(line.startswith("Clay    20%") for line in lines) == 3, context
-    assert all(len(line) <= 120 for line in lines if line.startswith(("Clay", "soil", " "))), context
+    assert sum(line.startswith("Silt    20%") for line in lines) == 3, context
+    assert all(len(line) <= 120 for line in lines if line.startswith(("Silt", "soil", " "))), context
     assert "bags/" in res.stdout and "online_estimates.png" in res.stdout
 
 

@@ -19,6 +19,7 @@ and the order of things only.
     python -m soil_bringup.demo --pacing lockstep              # as fast as the machine goes
     python -m soil_bringup.demo --soils Clay Sand --densities 40 --duration 5 --rate 2
     python -m soil_bringup.demo --depth 0.15 --speed 0.4      # every episode's target cut
+    python -m soil_bringup.demo --soil-file my_soils.yaml --soils Silt Clay   # soils of one's own
 
 Exit codes: 0 done; 1 the launch failed or a bag is missing / has no valid estimate; 2 bad
 arguments; 130 interrupted. Every wait is bounded; the launch (and its nodes) are stopped on
@@ -70,7 +71,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_demo", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--soils", nargs="+", default=list(DEFAULT_SOILS), metavar="SOIL",
-                   help="soils in the order run (default: %(default)s)")
+                   help="soils in the order run: the catalogue's or --soil-file's (default: %(default)s)")
+    p.add_argument("--soil-file", type=Path, metavar="FILE",
+                   help="YAML of custom soils (soil_sim_batch --soil-file's format): its soils may be named in "
+                        "--soils; the simulator, the scoring and the forecast at other depths all use them")
     p.add_argument("--densities", nargs="+", type=float, default=list(DEFAULT_DENSITIES_PCT), metavar="PCT",
                    help="relative densities I_d [%%] per soil (default: 20 80)")
     p.add_argument("--duration", type=float, default=10.0, help="episode length [s] of simulation time (default 10)")
@@ -100,12 +104,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--timeout", type=float, default=0.0,
                    help="give the launch at most this many seconds (default: from the plan)")
     args = p.parse_args(argv)
-    from soil_physics.soils import get_soil
+    from soil_physics.soils import get_soil, load_soil_file, soil_file_notes
 
+    args.custom_soils = {}
+    if args.soil_file is not None:
+        try:
+            args.custom_soils = load_soil_file(args.soil_file.expanduser()).soils
+        except (OSError, ValueError) as err:
+            p.error(f"--soil-file: {err}")
+        args.soil_file = args.soil_file.expanduser().resolve()  # the simulator node reads it from its own cwd
+        for note in soil_file_notes(args.custom_soils):
+            print(f"demo: --soil-file {args.soil_file}: {note}", file=sys.stderr)
     try:
-        args.soils = [get_soil(s).name for s in itertools.chain.from_iterable(x.split(",") for x in args.soils) if s]
+        args.soils = [get_soil(s, args.custom_soils).name
+                      for s in itertools.chain.from_iterable(x.split(",") for x in args.soils) if s]
     except ValueError as err:
-        p.error(str(err))
+        p.error(f"--soils: {err}")
     if not args.soils:
         p.error("--soils: no soil given")
     if not all(0.0 <= d <= 100.0 for d in args.densities):
@@ -154,7 +168,8 @@ def _check_episodes(p: argparse.ArgumentParser, args: argparse.Namespace) -> Non
     config = SimConfig(world_mode=args.world_mode or DEFAULT_WORLD)
     for soil, density in itertools.product(args.soils, args.densities):
         try:
-            resolve_checked(config, EpisodeSpec(soil, density, args.speed, args.depth, seed=0, duration_s=args.duration))
+            resolve_checked(config, EpisodeSpec(soil, density, args.speed, args.depth, seed=0, duration_s=args.duration),
+                            args.custom_soils)
         except ValueError as err:
             option = "--depth" if "target_depth_m" in str(err) else "--speed" if "target_speed_m_s" in str(err) else \
                 f"--soils {soil} --densities {density:g}"
@@ -208,6 +223,8 @@ def launch_arguments(args: argparse.Namespace, launch_timeout_s: float) -> argpa
         argv += ["--sim-param", f"settle_s:={LOCKSTEP_SETTLE_S!r}"]
     if args.world_mode:
         argv += ["--sim-param", f"world_mode:={args.world_mode}"]
+    if args.soil_file is not None:
+        argv += ["--sim-param", f"soil_file:={args.soil_file}"]
     if args.checkpoint is not None:
         argv += ["--estimator-param", f"checkpoint:={args.checkpoint}"]
     # The simulator holds each episode until its 'wait_for' endpoints have matched (counts,
@@ -349,6 +366,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         "target_depth_m": args.depth, "target_speed_m_s": args.speed,
         "pacing": args.pacing, "rate": args.rate if args.pacing == "realtime" else None,
         "world_mode": args.world_mode, "checkpoint": str(args.checkpoint),
+        "soil_file": str(args.soil_file) if args.soil_file else None,
         "domain_id": args.domain_id, "bags": str(args.bags), "launch_log": str(log_path),
         "launch_s": launch_s, "wall_s": wall_s, "simulated_s": sim_s,
         "valid_estimates": total["valid_estimates"],
@@ -364,7 +382,8 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         print("demo: the planner's question: the simulator cuts each episode's soil at "
               f"{depths_text(depths)} m ...", flush=True)
         try:
-            result["forecast"] = forecast_from_live(scores, args.world_mode, depths, checkpoint=args.checkpoint)
+            result["forecast"] = forecast_from_live(scores, args.world_mode, depths, checkpoint=args.checkpoint,
+                                                    custom_soils=args.custom_soils)
         except Exception as err:  # noqa: BLE001 - the run's own summary is written whatever this does
             result["forecast"] = {"skipped": f"{type(err).__name__}: {err}"}
     paths = {"json": args.out / JSON_NAME, "markdown": args.out / MARKDOWN_NAME, "png": args.out / FIGURE_NAME}

@@ -66,13 +66,14 @@ def steady_pinn_estimates(live_ds, scores) -> list[dict[str, float]]:
 
 
 def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M, checkpoint=None,
-                       fusion_config: str = "") -> dict:
+                       fusion_config: str = "", custom_soils: dict | None = None) -> dict:
     """The forecast report (``pinn_estimator.forecast.summarise`` per estimator and axis: error,
     bias deeper / shallower, interval coverage) from the live episodes of ``scores`` to the
     simulator's episodes at ``depths_m``. ``world``: the live run's (default: its episodes'
     metadata); ``checkpoint``: the estimator's (default: the shipped one) and ``fusion_config``
     its parameter of that name (default: the shipped calibration of the checkpoint's world), as the live estimator read
-    them. ValueError if no pair can be formed."""
+    them; ``custom_soils``: the soils of the live run's soils file by name (``load_soil_file``), which its
+    episodes may name. ValueError if no pair can be formed."""
     from pinn_estimator import forecast as fc
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
     from pinn_estimator.dataset import Dataset
@@ -92,7 +93,8 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     by_duration: dict[float, list] = {}
     for spec in specs:  # the simulator batches episodes of one length
         by_duration.setdefault(spec.duration_s, []).append(spec)
-    others = [ep for group in by_duration.values() for ep in run_episodes(SimConfig(world_mode=world), group)]
+    others = [ep for group in by_duration.values() for ep in run_episodes(SimConfig(world_mode=world), group,
+                                                                                custom_soils=custom_soils)]
     ds = Dataset.from_episodes(live + others, root="(the demo's live episodes and the simulator at other depths)")
     live_ds = Dataset.from_episodes(live)
     model, ckpt = load_model(str(checkpoint or DEFAULT_CHECKPOINT))
