@@ -125,62 +125,26 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert {n.name for n in required if n.required} == {"sim", "controller", "estimator"}  # the demo's estimator
 
 
-def test_the_planner_is_given_the_physics_of_the_estimators_posterior(tmp_path, capsys):
-    """The planner reads the posterior's θ through the terms the estimator's fusion config adds:
-    the shipped default world's, or those of a config given by -p or in a params file; the user's
-    own -p terms:=... comes later and wins."""
-    from pinn_estimator.fusion import FusionConfig
-    from pinn_estimator.fusion_calibration import load_calibrated
-
-    def planner_argv(*argv):
-        nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *argv]))}
-        return nodes["planner"].argv
-
-    shipped = load_calibrated("default").terms
-    assert shipped, "the shipped default-world posterior has a term beside the FEE"
-    want = "terms:=[" + ", ".join(repr(f"{n}={k!r}") for n, k in shipped) + "]"
-    assert want in planner_argv()
-    cfg = tmp_path / "f.json"
-    FusionConfig(terms=(("soil_inertia", 2.5),)).save(cfg)
-    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-param", f"fusion_config:={cfg}")
-    params = tmp_path / "est.yaml"
-    params.write_text(f"pinn_estimator:\n  ros__parameters:\n    fusion_config: {cfg}\n")
-    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-params-file", str(params))
-    # a term on the travel in soil is left out (a planned steady cut has none), and said so
-    FusionConfig(terms=(("soil_inertia", 2.5), ("compaction_hardening", 0.1))).save(cfg)
-    assert "terms:=['soil_inertia=2.5']" in planner_argv("--estimator-param", f"fusion_config:={cfg}")
-    assert "without compaction_hardening" in capsys.readouterr().err
-    FusionConfig().save(cfg)  # no terms: the FEE alone, nothing passed
-    assert not any(a.startswith("terms:=") for a in planner_argv("--estimator-param", f"fusion_config:={cfg}"))
-    argv = planner_argv("--planner-param", "terms:=[]")
-    assert want not in argv and "terms:=[]" in argv  # the user's alone (a -p of another type was dropped)
-
-
 def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_value(tmp_path):
-    """rcl drops a later -p of another type than an earlier one without a word, and a -p beats a
-    params file: a mistyped bound_law:=['a', ...] and exit_when_done:=maybe ran with the
-    launcher's values, and a params file's bound_law was never used (an outside tester found).
-    Now the launcher leaves out its own value of every name the user gives, so the node reads
-    the user's (and refuses it if it is bad)."""
+    """rcl drops a later -p of another type than an earlier one without a word: a mistyped
+    exit_when_done:=maybe ran with the launcher's value (an outside tester found). Now the
+    launcher leaves out its own value of every name the user gives, so the node reads the
+    user's (and refuses it if it is bad)."""
     def argv(node, *args):
         return {n.name: n for n in L.build_nodes(L.parse_args(["--planner", *args]))}[node].argv
 
-    launchers = [a for a in argv("planner") if a.startswith("bound_law:=")]
-    assert len(launchers) == 1, "the shipped default-world config has a bound law"
+    # the planner's physics is the estimator's, heard from it (tests/soil_planner/test_estimator_physics.py):
+    # the launcher gives none, and a user's bound_law goes through as given
+    assert not any(a.startswith(("bound_law:=", "terms:=")) for a in argv("planner"))
     bad = "bound_law:=['a', 'b', 'c', 'd']"
     assert [a for a in argv("planner", "--planner-param", bad) if a.startswith("bound_law:=")] == [bad]
-    params = tmp_path / "planner.yaml"
-    params.write_text("soil_planner:\n  ros__parameters:\n    margin: 0.6\n    bound_law: [500.0, 20.0, 0.1, 1.0]\n")
-    planner = argv("planner", "--planner-params-file", str(params))
-    assert not any(a.startswith("bound_law:=") for a in planner) and str(params) in planner
-    assert any(a.startswith("terms:=") for a in planner)  # what the user did not give stays the launcher's
     sim = argv("sim", "--sim-param", "exit_when_done:=maybe")
     assert [a for a in sim if a.startswith("exit_when_done:=")] == ["exit_when_done:=maybe"]
     assert any(a.startswith("wait_for:=") for a in sim)
     ctl = argv("controller", "--controller-param", "depth_source:=parameter")
     assert [a for a in ctl if a.startswith("depth_source:=")] == ["depth_source:=parameter"]
-    # the shipped params files list every parameter at its default (bound_law: [], wait_for: [],
-    # depth_source: parameter): given as they are, the launcher's physics and wiring stay
+    # the shipped params files list every parameter at its default (wait_for: [], depth_source:
+    # parameter): given as they are, the launcher's wiring stays
     config = Path(L.__file__).parents[2]
     shipped = {flag: config / pkg / "config" / f"{pkg}.yaml" for flag, pkg in (
         ("--sim-params-file", "soil_sim_node"), ("--controller-params-file", "anti_stall_controller"),
@@ -188,8 +152,7 @@ def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_val
     assert all(f.is_file() for f in shipped.values())
     files = [a for flag, f in shipped.items() for a in (flag, str(f))]
     nodes = {n.name: n.argv for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"), *files]))}
-    for node, names in (("planner", ("terms", "bound_law")), ("controller", ("depth_source",)),
-                        ("sim", ("wait_for", "exit_when_done"))):
+    for node, names in (("controller", ("depth_source",)), ("sim", ("wait_for", "exit_when_done"))):
         for name in names:
             assert any(a.startswith(f"{name}:=") for a in nodes[node]), (node, name, nodes[node])
 
@@ -299,37 +262,11 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
         L.build_nodes(L.parse_args(["--sim-param", "duration_s:="]))
 
 
-def test_the_planner_reads_the_posterior_through_the_physics_and_bound_law_of_the_estimators_calibration(tmp_path):
-    """The terms and the bound law the planner is given are those of the config the estimator
-    takes: a given fusion_config's, else the shipped calibration of the checkpoint's training world
-    (the fee world's has no term beside the FEE, the default world's one); a config without a
-    bound law gives none (the planner then takes the estimate's model_std_*)."""
-    from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT
-    from pinn_estimator.fusion_calibration import FusionConfig, checkpoint_world, config_path
-
-    fee_ckpt = DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")
-    default_params = L.posterior_planner_params(None, [])
-    law = FusionConfig.load(config_path("default")).planner_bound_law()
-    assert [p.split(":=")[0] for p in default_params] == ["terms", "bound_law"] and "form:" in default_params[0]
-    assert default_params[1] == f"bound_law:=[{', '.join(map(repr, law))}]"
-    assert L.posterior_planner_params(None, [f"checkpoint:={fee_ckpt}"]) == \
-        [f"bound_law:=[{', '.join(map(repr, FusionConfig.load(config_path('fee')).planner_bound_law()))}]"]
-    assert L.posterior_planner_params(None, [f"checkpoint:={fee_ckpt}", f"fusion_config:={config_path('default')}"]) \
-        == default_params
-    assert L.posterior_planner_params(None, [f"checkpoint:={DEFAULT_CHECKPOINT}"]) == default_params
-    FusionConfig().save(tmp_path / "no_law.json")  # a config written before the bound law existed
-    assert L.posterior_planner_params(None, [f"fusion_config:={tmp_path / 'no_law.json'}"]) == []
-    assert checkpoint_world({"dataset": {"world_modes": ["fee"]}}) == "fee"
-    for worlds in (["fee", "default"], [], ["mars"], None):
-        assert checkpoint_world({"dataset": {"world_modes": worlds}}) == "default"
-    assert checkpoint_world(None) == "default"
-
-
 def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_otherwise(tmp_path, capsys):
     """A launch in the fee world ran the default world's model (F̂_x ~40 % off there, an outside
     tester found) and its calibration, and gave the planner that world's term: now the estimator
-    gets the world's shipped model, and with it the world's calibration and terms (none), unless
-    a checkpoint is given on the command line or in a params file."""
+    gets the world's shipped model, and with it the world's calibration and terms (none, which it
+    says to the planner), unless a checkpoint is given on the command line or in a params file."""
     from pinn_estimator.shipped import MODELS_DIR
 
     def argv(*args):
@@ -338,7 +275,7 @@ def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_othe
 
     fee = f"checkpoint:={MODELS_DIR / 'pinn_fee.pt'}"
     est, plan = argv("--sim-param", "world_mode:=fee")
-    assert fee in est and not any(a.startswith("terms:=") for a in plan), (est, plan)
+    assert fee in est, est
     assert "the fee world: the estimator runs its shipped model" in capsys.readouterr().err
     sim_file = tmp_path / "sim.yaml"
     sim_file.write_text("soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
@@ -347,7 +284,6 @@ def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_othe
                   ["--sim-param", "world_mode:=fee", "--estimator-param", "checkpoint:=mine.pt"]):
         est, plan = argv(*given)
         assert not any(a.startswith("checkpoint:=") and "pinn_fee" in a for a in est), (given, est)
-        assert any(a.startswith("terms:=") for a in plan), (given, plan)  # the default world's (mine.pt unread)
     est_file = tmp_path / "est.yaml"
     est_file.write_text("pinn_estimator:\n  ros__parameters:\n    checkpoint: mine.pt\n")
     assert fee not in argv("--sim-param", "world_mode:=fee", "--estimator-params-file", str(est_file))[0]

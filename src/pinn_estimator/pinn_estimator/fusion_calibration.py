@@ -44,8 +44,10 @@ from typing import NamedTuple
 import numpy as np
 
 from soil_msgs_py.cli_paths import input_text, output_file
+from soil_msgs_py.graph import EstimatorPhysics
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
+from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text, mixture_cdf
 
 from . import forecast as fc
@@ -219,8 +221,8 @@ def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
 def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
     """The estimator's soil posterior config and the world it was calibrated for: the config at
     ``path`` (the ``fusion_config`` parameter; its world as it records it, None where it does not), else the shipped
-    calibration of the checkpoint's world (``checkpoint_world``). The node, ``soil_launch`` (for
-    the planner's terms) and the demo's forecast all take it from here."""
+    calibration of the checkpoint's world (``checkpoint_world``). The node, ``soil_launch`` and the
+    demo's forecast all take it from here."""
     world = None if path else checkpoint_world(ckpt)
     cfg = load_fusion_config(path, world or DEFAULT_WORLD)
     return cfg, (cfg.world or None) if path else world
@@ -233,6 +235,14 @@ def config_for_model(fusion: FusionConfig | None, model) -> FusionConfig:
     discrepancy workflow named, before the PINN is retrained with it)."""
     fusion = fusion or load_calibrated(DEFAULT_WORLD)
     return dataclasses.replace(fusion, terms=merged_terms(model.cfg.extra_terms, fusion.terms))
+
+
+def announced_physics(cfg: FusionConfig, source: str) -> EstimatorPhysics:
+    """What the estimator says on /soil/estimator/physics of the posterior it runs (``cfg``, after
+    ``config_for_model``): its terms beside the FEE and the bound law calibrated with them, which a
+    planner must plan with (``soil_planner.estimator_physics``)."""
+    return EstimatorPhysics(terms=tuple(term_texts(cfg.terms)), bound_law=tuple(cfg.planner_bound_law() or ()),
+                            source=source)
 
 
 def merged_terms(first, then) -> tuple[tuple[str, float], ...]:

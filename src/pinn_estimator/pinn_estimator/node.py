@@ -4,7 +4,10 @@ Subscribes to the state, force, command and Θ_k topics (``online.INPUT_TOPICS``
 ``/sim/status``; publishes ``/soil/estimate`` (labelled Float64MultiArray, fields
 ``topics.ESTIMATE_FIELDS``: the PINN's window estimate and the soil fused along the path) and
 ``/soil/estimate/force`` (WrenchStamped, valid estimates only), each stamped with the newest
-sample of the window, and ``/soil/map`` (PointCloud2, after each stretch of evidence). Each
+sample of the window, and ``/soil/map`` (PointCloud2, after each stretch of evidence); and,
+latched, ``/soil/estimator/physics`` (String, JSON ``graph.EstimatorPhysics``): the terms beside
+the FEE its posterior is fitted with and the planner's bound law, at start and whenever a new
+checkpoint changes them, so a planner reads θ through the same physics. Each
 ``episode_start`` empties the window and restarts the soil posterior. It joins /sim/status
 only once every input topic has a publisher (at most ``inputs_wait_s``), so a simulator that
 waits for its status readers starts no episode before this node hears the whole tick.
@@ -31,7 +34,7 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion_calibration import checkpoint_world, config_path, estimator_fusion
+from .fusion_calibration import announced_physics, checkpoint_world, config_path, estimator_fusion
 from .online import INPUT_TOPICS, MAX_STRIDE_TICKS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
 
@@ -91,6 +94,10 @@ class EstimatorNode(Node):
             message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, publisher_qos(T.ESTIMATED_FORCE.name))
         self.map_pub = self.create_publisher(
             message_class(T.SOIL_MAP.msgtype), T.SOIL_MAP.name, publisher_qos(T.SOIL_MAP.name))
+        self.physics_pub = self.create_publisher(String, G.ESTIMATOR_PHYSICS_TOPIC,
+                                                 publisher_qos(G.ESTIMATOR_PHYSICS_TOPIC))
+        self._physics_said: tuple | None = None
+        self._say_physics()
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
@@ -108,7 +115,8 @@ class EstimatorNode(Node):
             f"model {self.checkpoint_path} ({ckpt.get('dataset', {}).get('world_modes')} data), "
             f"stride {self.core.stride}, {threads} thread(s), soil posterior {self.fusion_source} (evidence law rel "
             f"{self.core.posterior.cfg.rel_std}; forecast law {_law(self.core.posterior.cfg)}, published as "
-            f"{T.ESTIMATE.name}'s model_std_*); publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}")
+            f"{T.ESTIMATE.name}'s model_std_*); publishing {T.ESTIMATE.name}, {T.ESTIMATED_FORCE.name}, {T.SOIL_MAP.name}, "
+            f"{G.ESTIMATOR_PHYSICS_TOPIC}")
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -130,6 +138,7 @@ class EstimatorNode(Node):
                     self._say_if_other_world(self.episode)
             self.core.set_model(model[0], fusion)
             self.checkpoint_path = model[2]
+            self._say_physics()
             self.get_logger().info(f"model now {self.checkpoint_path}"
                                    + (f", soil posterior {self.fusion_source}" if fusion is not None else ""))
         if "stride" in changes:
@@ -157,6 +166,13 @@ class EstimatorNode(Node):
     def fusion_source(self) -> str:
         """Where the soil posterior's config came from, for the log."""
         return self.fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
+
+    def _say_physics(self) -> None:
+        """/soil/estimator/physics, latched, when what it says has changed (the source alone does not count)."""
+        said = announced_physics(self.core.posterior.cfg, f"{self.fusion_source}, model {self.checkpoint_path}")
+        if self._physics_said != (said.terms, said.bound_law):
+            self._physics_said = (said.terms, said.bound_law)
+            self.physics_pub.publish(String(data=said.to_json()))
 
     def _say_if_other_world(self, event) -> None:
         """Once per world: an episode of a world other than the one whose calibration the soil

@@ -29,7 +29,7 @@ There is no ``ros2 launch`` on these machines, so this is ours. It
     soil_launch --planner --record bags/run3 --sim-param "patches:=['0:Sand:20','10:Clay:80']"
 
 ``--planner`` starts the soil-aware planner too (and the estimator it plans from, whose posterior
-physics and bound law it is given: ``posterior_planner_params``) and sets the controller's
+physics and bound law the planner hears from it on /soil/estimator/physics) and sets the controller's
 ``depth_source:=planner``: the loop is closed, the cut depth follows the soil. A value the
 launcher sets itself is left out wherever the user gives that name (``unless_given``).
 """
@@ -339,50 +339,16 @@ def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
     return argv + _params(params)
 
 
-def unless_given(node: str, params_file, params: list[str], defaults: list[str], *, from_file: bool = True) -> list[str]:
+def unless_given(node: str, params: list[str], defaults: list[str]) -> list[str]:
     """The launcher's own ``name:=value`` ``defaults`` for ``node`` less those whose name the user
-    gives: by ``-p`` (``params``), and with ``from_file`` by a value in the params file that is not
-    empty (the shipped params files list every parameter at its default, ``bound_law: []``, which
-    is no choice). Why not rcl's "the last -p wins": a later -p of another type than an earlier
-    one is dropped without a word (``bound_law:=['a']`` after the launcher's law,
-    ``exit_when_done:=maybe``: the node ran with the launcher's values), and a -p beats a params
-    file, whose ``bound_law`` was then never used. The launch's wiring (``wait_for``,
-    ``exit_when_done``, ``depth_source``) is given ``from_file=False``: a params file copied with
-    its defaults must not open the loop or start the simulator before its readers."""
+    gives by ``-p`` (``params``). Why not rcl's "the last -p wins": a later -p of another type than
+    an earlier one is dropped without a word (``exit_when_done:=maybe`` after the launcher's: the
+    node ran with the launcher's value). A params file does not count: the launch's wiring
+    (``wait_for``, ``exit_when_done``, ``depth_source``) must not be undone by a params file copied
+    with its defaults, which would open the loop or start the simulator before its readers."""
     names = [d.partition(":=")[0] for d in defaults]
     on_line = given_params(node, None, params, names)
-    in_file = given_params(node, params_file, [], names) if from_file and params_file else {}
-    return [d for d, name in zip(defaults, names)
-            if on_line[name] is None and in_file.get(name) in (None, "", "[]")]
-
-
-def posterior_planner_params(estimator_params_file, estimator_params: list[str]) -> list[str]:
-    """``["terms:=[...]", "bound_law:=[...]"]`` for the planner: the terms beside the FEE in the estimator's fused
-    posterior (``fusion_calibration.estimator_fusion``: the ``fusion_config`` it is given, the
-    last ``-p``, else its params file, else the shipped one of its checkpoint's world, read with
-    torch only for a checkpoint of the user's own), so the plan reads θ through the model θ was
-    fitted with; [] without terms or
-    where the config cannot be read (the estimator then exits naming it). A term on the travel or
-    time in soil, which a planned steady cut does not have, is left out with a line on stderr. A
-    checkpoint's own terms (its ``extra_terms``) are not added here: give them with
-    ``--planner-param terms:=[...]``. And the config's bound law (``FusionConfig.planner_bound_law``),
-    calibrated on the bounds a plan keeps, where the config has one (none: the planner takes the
-    estimate's ``model_std_*``)."""
-    from soil_physics.force_terms import term_texts
-    from soil_planner.planner import steady_cut_terms
-
-    given = given_params("pinn_estimator", estimator_params_file, estimator_params, ("fusion_config", "checkpoint"))
-    try:
-        fusion = _estimator_fusion(given)
-        terms, left_out = steady_cut_terms(fusion.terms)
-    except ValueError:
-        return []
-    law = fusion.planner_bound_law()
-    if left_out:
-        print(f"soil_launch: the planner plans without {', '.join(left_out)} (on the travel or time in soil, which a "
-              "planned steady cut does not have)", file=sys.stderr)
-    return (([f"terms:=[{', '.join(map(repr, term_texts(terms)))}]"] if terms else [])
-            + ([f"bound_law:=[{', '.join(map(repr, law))}]"] if law else []))
+    return [d for d, name in zip(defaults, names) if on_line[name] is None]
 
 
 def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:
@@ -426,29 +392,6 @@ def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     return [f"checkpoint:={path}"]
 
 
-def _estimator_fusion(given: dict[str, str | None]):
-    """The estimator's posterior config (``estimator_fusion``) for its ``fusion_config`` and
-    ``checkpoint`` parameters; the checkpoint is read (torch) only when it matters: one of the
-    user's own without a config (a shipped one's world is its name's). ValueError where the
-    config cannot be read."""
-    from pinn_estimator.fusion_calibration import estimator_fusion
-    from pinn_estimator.shipped import config_path, shipped_world
-
-    config, checkpoint = given["fusion_config"] or "", given["checkpoint"] or ""
-    ckpt = None
-    if checkpoint and not config:
-        world = shipped_world(checkpoint)
-        if world is not None and config_path(world).is_file():
-            return estimator_fusion(str(config_path(world)), None)[0]
-        from pinn_estimator.checkpoint import read_checkpoint
-
-        try:
-            ckpt = read_checkpoint(checkpoint)
-        except (OSError, ValueError, RuntimeError):
-            pass  # the estimator exits naming its checkpoint; the planner gets the default world's terms
-    return estimator_fusion(config, ckpt)[0]
-
-
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
     for topic, n in endpoints.items():
         wait[topic] = wait.get(topic, 0) + n
@@ -479,21 +422,18 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
-        # the posterior's physics and bound law, unless the user gives them (-p or params file)
-        physics = unless_given("soil_planner", args.planner_params_file, args.planner_param,
-                               posterior_planner_params(args.estimator_params_file, estimator_param))
+        # (the posterior's physics and bound law: the planner hears them from the estimator, unless given)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
-        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
-                                                      physics + args.planner_param),
+        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
-        closed = unless_given("anti_stall_controller", args.controller_params_file, args.controller_param,
-                              ["depth_source:=planner"] if args.planner else [], from_file=False)
+        closed = unless_given("anti_stall_controller", args.controller_param,
+                              ["depth_source:=planner"] if args.planner else [])
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param), stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
@@ -511,7 +451,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     own = [f"exit_when_done:={'false' if args.keep_running else 'true'}"]
     if wait:
         own.append("wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]")
-    sim += _params(unless_given("soil_sim_node", args.sim_params_file, args.sim_param, own, from_file=False)
+    sim += _params(unless_given("soil_sim_node", args.sim_param, own)
                    + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))
     return nodes

@@ -40,6 +40,8 @@ from .patches import PATCH_SYNTAX, check_patches, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
+# The estimator's posterior physics (``EstimatorPhysics``), latched: what a planner reads θ through.
+ESTIMATOR_PHYSICS_TOPIC = "/soil/estimator/physics"
 STRING_MSGTYPE = "std_msgs/msg/String"
 
 EVENT_EPISODE_START = "episode_start"
@@ -110,6 +112,8 @@ CONTROL_QOS = QosSpec("reliable", "volatile", 50)
 TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.GRAPH_TOPICS_BY_NAME.values()}
 TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
+# Said once and again only when it changes: a reader wants the newest, and gets it on joining.
+TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = QosSpec("reliable", "transient_local", 1)
 
 
 # Latched topics: the writer keeps what it sent for a reader that joins later (TRANSIENT_LOCAL,
@@ -118,7 +122,9 @@ TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
 # Readers keep the graph's VOLATILE (a VOLATILE reader matches a TRANSIENT_LOCAL writer); one that
 # wants the newest map on joining subscribes TRANSIENT_LOCAL. A recorder stays VOLATILE: a
 # restarted one must not write a past episode's maps into the episode it joins.
-LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name,)
+# The estimator's physics is said once (and again when its model changes): a planner started after it
+# subscribes TRANSIENT_LOCAL and gets it on joining, like a robot_description.
+LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC)
 
 
 def publisher_qos_spec(topic: str) -> QosSpec:
@@ -341,3 +347,48 @@ class SimCommand:
         if "seed" in d and (not float(d["seed"]).is_integer() or not 0 <= d["seed"] <= MAX_SEED):
             raise ValueError(f"{SIM_COMMAND_TOPIC}: seed={short_repr(d['seed'])} must be an integer in [0, 2**63 - 1]")
         return cls(action=action, overrides=d)
+
+
+# --- /soil/estimator/physics ------------------------------------------------------------
+
+BOUND_LAW_FIELDS = ("abs_x_n", "abs_z_n", "rel_x", "rel_z")
+
+
+@dataclass(frozen=True)
+class EstimatorPhysics:
+    """One ``/soil/estimator/physics`` message: the physics the estimator's fused posterior is
+    fitted with, which a planner must read θ through (the same φ, c, δ mean another soil through
+    the FEE alone: the default world's 95 % F_x bound differed by 1.6× in an outside reader's
+    planner run by hand), and the error law of the bound a plan keeps, calibrated with it.
+
+    ``terms``: the terms beside the FEE, 'name=k' texts (``force_terms.term_texts``); ``bound_law``:
+    (abs_x [N], abs_z [N], rel_x, rel_z), or () where the config has none (the planner then takes
+    the estimate's ``model_std_*``); ``source``: where they came from (fusion config, checkpoint),
+    for the planner's log."""
+
+    terms: tuple[str, ...]
+    bound_law: tuple[float, ...]
+    source: str = ""
+
+    def to_json(self) -> str:
+        return json.dumps({"terms": list(self.terms), "bound_law": list(self.bound_law), "source": self.source},
+                          sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "EstimatorPhysics":
+        """Parse and check the layout; ValueError naming the field and value (the terms' names and
+        the law's values are the planner's to check, as for its own parameters)."""
+        d = _json_object(text, ESTIMATOR_PHYSICS_TOPIC)
+        if unknown := sorted(set(d) - {"terms", "bound_law", "source"}):
+            raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: unknown field(s) {unknown}")
+        terms, law, source = d.get("terms"), d.get("bound_law"), d.get("source", "")
+        if not isinstance(terms, list) or not all(isinstance(t, str) and "=" in t for t in terms):
+            raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: terms={short_repr(terms)} must be a list of 'name=k' texts")
+        if (not isinstance(law, list) or len(law) not in (0, len(BOUND_LAW_FIELDS))
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                           for v in law)):
+            raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: bound_law={short_repr(law)} must be [] or "
+                             f"{len(BOUND_LAW_FIELDS)} finite numbers >= 0 ({', '.join(BOUND_LAW_FIELDS)})")
+        if not isinstance(source, str):
+            raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: source={short_repr(source)} must be a string")
+        return cls(terms=tuple(terms), bound_law=tuple(float(v) for v in law), source=source)

@@ -35,6 +35,10 @@ scheduled, either way: one such tick alone is a stray, warned and given no targe
 the start depth with no plan carried over; a tick older than the last one planned is not
 scheduled again.
 
+The posterior's θ is read through the physics the estimator fitted it with, which the estimator
+says on /soil/estimator/physics (latched, heard on joining): the ``terms`` and ``bound_law`` the
+node is not given are taken from it (``estimator_physics.py``; ``follow_estimator_physics``).
+
 Parameters (also in ``config/soil_planner.yaml``) are validated at start (a bad one exits
 with code 2) and can be changed at run time (``ros2 param set``).
 """
@@ -60,12 +64,14 @@ from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter
                                       spin_node, status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
+from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text
 
 from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
 from .depth_schedule import DepthSchedule, ScheduleSettings
+from .estimator_physics import physics_text, planning_physics
 from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
-                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, check_quantile, describe, fields)
+                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, check_quantile, check_switch, describe, fields)
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -106,14 +112,19 @@ PARAMETERS: dict[str, tuple] = {
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
-    "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries (its fusion config's and its "
-                  "checkpoint's terms; soil_launch --planner passes the estimator's): the plan reads the posterior's θ "
-                  "through the model it was fitted with; empty: the FEE alone", Parameter.Type.STRING_ARRAY),
+    "terms": ([], "the fused posterior's physics beside the FEE, 'name=k' entries: the plan reads the posterior's θ "
+                  "through the model it was fitted with; empty: the estimator's, as it says it on "
+                  f"{G.ESTIMATOR_PHYSICS_TOPIC} (follow_estimator_physics), else the FEE alone; given: these "
+                  "(a difference from the estimator's is said)", Parameter.Type.STRING_ARRAY),
     "bound_law": ([], "the error law of the fused bound a plan keeps within the limits, [abs_x N, abs_z N, rel_x, "
                       "rel_z] (σ = abs + rel·|ΔF|, as the estimate's model_std_*), calibrated on anchored bounds "
-                      "(its fusion config's bound_*; soil_launch --planner passes the estimator's), used where the "
-                      "bound is anchored to the force now; empty: the estimate's model_std_*, the law calibrated "
-                      "for its forecast intervals (which an unanchored bound always uses)", Parameter.Type.DOUBLE_ARRAY),
+                      "(its fusion config's bound_*), used where the bound is anchored to the force now; empty: the "
+                      f"estimator's, as it says it on {G.ESTIMATOR_PHYSICS_TOPIC} (follow_estimator_physics), else "
+                      "the estimate's model_std_*, the law calibrated for its forecast intervals (which an unanchored "
+                      "bound always uses)", Parameter.Type.DOUBLE_ARRAY),
+    "follow_estimator_physics": (True, f"take terms and bound_law the node is not given from the estimator "
+                                       f"({G.ESTIMATOR_PHYSICS_TOPIC}, latched; what soil_launch --planner relies "
+                                       "on); false: the FEE alone and the estimate's model_std_* unless given"),
     "sensor_anchor": (True, "where the blade's measured F_x (/blade/force), averaged over the recent steady cut, "
                             "is clearly above the PINN's F̂_x (by more than 15 % and 3 standard errors), the fused "
                             "plan is anchored to the measured force (a model outside its training is trusted no "
@@ -153,7 +164,9 @@ MAX_PENDING_STAMPS = 60 * SAMPLE_RATE_HZ
 PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "force_quantile", "terms",
                     "sensor_anchor", "bound_law")  # StretchPlanner's
 # what is read once, at start: a change at run time is refused (it would change nothing)
-START_ONLY = frozenset(PARAMETERS) - {*PLANNER_SETTINGS, *SCHEDULE_PARAMETERS, "log_period_s", "command_wait_s"}
+START_ONLY = frozenset(PARAMETERS) - {*PLANNER_SETTINGS, *SCHEDULE_PARAMETERS, "log_period_s", "command_wait_s",
+                                      "follow_estimator_physics"}
+PHYSICS_SETTINGS = ("terms", "bound_law")  # the user's, or the estimator's where not given (``estimator_physics``)
 
 
 def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None:
@@ -195,6 +208,10 @@ class PlannerNode(Node):
         super().__init__("soil_planner")
         get = declare_parameters(self, PARAMETERS)
         self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
+        # what the user gave of the posterior's physics, and whether the estimator's fills what was not
+        self.own_physics = {name: self.planner.settings()[name] for name in PHYSICS_SETTINGS}
+        self.follow_physics = check_switch("follow_estimator_physics", get("follow_estimator_physics"))
+        self.announced: G.EstimatorPhysics | None = None
         self.schedule = DepthSchedule(schedule_settings({p: get(p) for p in SCHEDULE_PARAMETERS}))
         check_target_floor(self.planner, self.schedule.settings)
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
@@ -228,6 +245,9 @@ class PlannerNode(Node):
                                                 publisher_qos(T.TARGET_DEPTH.name))
         # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
         self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        # the estimator's physics, latched: heard on joining, whenever the estimator started
+        self.create_subscription(String, G.ESTIMATOR_PHYSICS_TOPIC, self._on_physics,
+                                 topic_qos(G.ESTIMATOR_PHYSICS_TOPIC))
         # the tick's measured force comes from the simulator before the estimator can answer it;
         # one that is lost leaves that tick anchored to F̂ alone
         self.create_subscription(message_class(T.BLADE_FORCE.msgtype), T.BLADE_FORCE.name, self._on_blade_force,
@@ -259,9 +279,9 @@ class PlannerNode(Node):
             f"d_max {p.d_max_m} m, cut speed {p.cut_speed_m_s} m/s, "
             f"residual {'on' if p.include_residual else 'off'}, "
             f"sensor anchor {'on (' + T.BLADE_FORCE.name + ')' if p.anchor.sensor else 'off'}"
-            f"{' (no effect without a force quantile)' if p.anchor.sensor and p.force_quantile is None else ''}, physics FEE"
-            f"{''.join(f' + {n} (k = {k:g})' for n, k in p.terms)}, bound law "
-            f"{error_law_text(p.bound_law) if p.bound_law else 'model_std_* of the estimate'}, "
+            f"{' (no effect without a force quantile)' if p.anchor.sensor and p.force_quantile is None else ''}, physics "
+            f"{physics_text(p.terms)}, bound law {error_law_text(p.bound_law) if p.bound_law else 'model_std_* of the estimate'}"
+            f"{self._physics_pending()}, "
             f"depth schedule {self.schedule.settings}; "
             f"{T.ESTIMATE.name} + {T.KNOWN.name} -> {T.PLAN.name}, {T.TARGET_DEPTH.name}")
 
@@ -279,16 +299,64 @@ class PlannerNode(Node):
             current = self.schedule.settings.to_dict()
             schedule = schedule_settings({p: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
             check_target_floor(planner, schedule)
+            follow = check_switch("follow_estimator_physics", changes.get("follow_estimator_physics", self.follow_physics))
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         planner.keep_evidence_of(self.planner)  # new settings are no new cut
         self.planner = planner
+        for name in PHYSICS_SETTINGS:
+            if name in changes:  # the user's choice now ([]: the estimator's again, where it is followed)
+                self.own_physics[name] = planner.settings()[name]
+        self.follow_physics = follow
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
         self.command_wait.max_wait_s = wait_s
         shown = {name: list(v) if hasattr(v, "__len__") and not isinstance(v, str) else v for name, v in changes.items()}
         self.get_logger().info("parameters now " + ", ".join(f"{name}={short_repr(v)}" for name, v in shown.items()))
+        if {*PHYSICS_SETTINGS, "follow_estimator_physics"} & set(changes):
+            self._take_physics()
         return SetParametersResult(successful=True)
+
+    def _physics_pending(self) -> str:
+        """What the start line adds while the estimator's physics may still fill what was not given."""
+        if not self.follow_physics or all(self.own_physics.values()):
+            return ""
+        return f" until the estimator says its own ({G.ESTIMATOR_PHYSICS_TOPIC})"
+
+    def _on_physics(self, msg) -> None:
+        """The estimator's posterior physics (latched): plan with it where the user gave none."""
+        try:
+            self.announced = G.EstimatorPhysics.from_json(msg.data)
+        except ValueError as err:
+            self._warn("physics:layout", f"{err}; ignored")
+            return
+        self._take_physics()
+
+    def _take_physics(self) -> None:
+        """The planner's terms and bound law from the user's and the estimator's (``planning_physics``);
+        a change is said, and the next plan is made with it (the cut's evidence kept)."""
+        choice = planning_physics(self.own_physics["terms"], self.own_physics["bound_law"], self.announced,
+                                  self.follow_physics)
+        for note in choice.notes:
+            self._warn(f"physics:{note[:40]}", note)
+        current = self.planner.settings()
+        wanted = {"terms": term_texts(choice.terms), "bound_law": list(choice.bound_law)}
+        if all(current[name] == wanted[name] for name in PHYSICS_SETTINGS):
+            return
+        try:
+            planner = stretch_planner({**current, **wanted})
+        except ValueError as err:  # (a law the planner refuses: the layout was checked, not its values)
+            self._warn("physics:refused", f"{G.ESTIMATOR_PHYSICS_TOPIC}: {err}; planning as before")
+            return
+        planner.keep_evidence_of(self.planner)
+        self.planner = planner
+        def whose(name: str) -> str:
+            return "given" if self.own_physics[name] else "the estimator's" if choice.adopted else "none given"
+
+        self.get_logger().info(
+            f"plans read the posterior through {physics_text(planner.terms)} ({whose('terms')}), bound law "
+            f"{error_law_text(planner.bound_law) if planner.bound_law else 'model_std_* of the estimate'} "
+            f"({whose('bound_law')})" + (f"; the estimator's from {self.announced.source}" if choice.adopted else ""))
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg) -> None:

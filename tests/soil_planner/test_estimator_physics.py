@@ -1,0 +1,75 @@
+"""The planner reads the fused posterior through the estimator's own physics, which the estimator
+says on /soil/estimator/physics: a planner run by hand had read it through the FEE alone (the
+default world's 95 % F_x bound 1.6× off in an outside reader's run), and soil_launch had worked
+out the estimator's physics on its own, without the checkpoint's terms."""
+from __future__ import annotations
+
+import pytest
+
+from soil_msgs_py import graph as G
+from soil_planner.estimator_physics import planning_physics
+
+FORM = "form:-qnq*tanhvx0.1=0.756"
+
+
+def said(terms=(FORM,), law=(300.0, 5.0, 0.07, 2.0)) -> G.EstimatorPhysics:
+    return G.EstimatorPhysics(terms=tuple(terms), bound_law=tuple(law), source="fusion_default.json")
+
+
+def test_what_the_estimator_says_is_what_its_posterior_runs():
+    """The shipped default world's posterior: its term and bound law; the fee world's: the FEE alone and
+    its own law; a config given wins over the checkpoint's world; one without a bound law says none;
+    a model's own catalogue terms come first."""
+    import dataclasses
+
+    from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
+    from pinn_estimator.fusion import FusionConfig
+    from pinn_estimator.fusion_calibration import (announced_physics, checkpoint_world, config_for_model, config_path,
+                                                   estimator_fusion)
+
+    model, ckpt = load_model(str(DEFAULT_CHECKPOINT))
+    fee_model, fee_ckpt = load_model(str(DEFAULT_CHECKPOINT.with_name("pinn_fee.pt")))
+
+    def announced(path, m, c):
+        return announced_physics(config_for_model(estimator_fusion(path, c)[0], m), "src")
+
+    default = announced("", model, ckpt)
+    law = FusionConfig.load(config_path("default")).planner_bound_law()
+    assert default.terms and default.terms[0].startswith("form:") and default.bound_law == law
+    fee = announced("", fee_model, fee_ckpt)
+    assert fee.terms == () and fee.bound_law == FusionConfig.load(config_path("fee")).planner_bound_law()
+    assert announced(str(config_path("default")), fee_model, fee_ckpt) == default
+    assert G.EstimatorPhysics.from_json(default.to_json()) == default
+    assert announced_physics(FusionConfig(), "").bound_law == ()  # a config from before the bound law
+    model.cfg = dataclasses.replace(model.cfg, extra_terms=(("soil_inertia", 2.0),))  # a model retrained with a term
+    assert announced("", model, ckpt).terms[0] == "soil_inertia=2.0"
+    assert checkpoint_world({"dataset": {"world_modes": ["fee"]}}) == "fee"
+    for worlds in (["fee", "default"], [], ["mars"], None):
+        assert checkpoint_world({"dataset": {"world_modes": worlds}}) == "default"
+
+
+def test_the_users_own_physics_stays_and_what_differs_is_said():
+    choice = planning_physics([], [], said(), follow=True)
+    assert choice.terms == (("form:-qnq*tanhvx0.1", 0.756),) and choice.bound_law == (300.0, 5.0, 0.07, 2.0)
+    assert choice.adopted and not choice.notes
+    assert planning_physics([], [], None, follow=True).terms == ()  # nothing said yet: the FEE alone
+    assert planning_physics([], [], said(), follow=False).terms == ()
+    mine = planning_physics(["soil_inertia=2.0"], [], said(), follow=True)
+    assert mine.terms == (("soil_inertia", 2.0),) and mine.bound_law == (300.0, 5.0, 0.07, 2.0) and mine.adopted
+    assert "not the estimator's" in mine.notes[0] and "form:-qnq*tanhvx0.1" in mine.notes[0]
+    both = planning_physics([FORM], [1.0, 2.0, 0.1, 0.2], said(), follow=True)
+    assert not both.adopted and both.bound_law == (1.0, 2.0, 0.1, 0.2) and len(both.notes) == 1
+    travel = planning_physics([], [], said((FORM, "compaction_hardening=0.1")), follow=True)
+    assert travel.terms == (("form:-qnq*tanhvx0.1", 0.756),) and "compaction_hardening" in travel.notes[0]
+    unknown = planning_physics([], [], said(("no_such_term=1.0",)), follow=True)
+    assert unknown.terms == () and not unknown.adopted and "not taken" in unknown.notes[0]
+
+
+@pytest.mark.parametrize("text, field", [
+    ("[]", "JSON object"), ('{"terms": "a=1", "bound_law": []}', "terms="),
+    ('{"terms": ["a"], "bound_law": []}', "terms="), ('{"terms": [], "bound_law": [1, 2]}', "bound_law="),
+    ('{"terms": [], "bound_law": [1, 2, 3, NaN]}', "bound_law="), ('{"terms": [], "bound_law": [1, 2, 3, -4]}', "bound_law="),
+    ('{"terms": [], "bound_law": [], "extra": 1}', "unknown field"), ('{"terms": [], "bound_law": [], "source": 3}', "source=")])
+def test_a_bad_announcement_is_refused_naming_the_field(text, field):
+    with pytest.raises(ValueError, match=field.replace("[", r"\[")):
+        G.EstimatorPhysics.from_json(text)
