@@ -27,12 +27,16 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
     (["--record", "{tmp}/a", "--recorder-arg=--out={tmp}/b"], "the recorder writes where --record says"),
     (["--record", "{tmp}/a", "--recorder-arg=--out", "--recorder-arg={tmp}/b"], "the recorder writes where --record says"),
     (["--record", "{tmp}/a", "--recorder-arg=--ou={tmp}/b"], "the recorder writes where --record says"),
-    (["--pacing", "lockstep", "--rate", "3"], "--rate 3.0 is the real-time factor of --pacing realtime"),
+    (["--pacing", "lockstep", "--rate", "3"], "--rate 3 is the real-time factor of --pacing realtime"),
+    (["--rate", "5000"], "--rate 5000 outside [0.01, 1000], the simulator's real-time factors"),
+    (["--rate", "inf"], "--rate inf outside [0.01, 1000]"),
+    (["--domain-id", "233"], "--domain-id 233 outside [0, 232]"),
 ])
 def test_soil_launch_refuses_options_it_would_not_follow(tmp_path, capsys, args, said):
     """Each was taken without a word: a directory as a params file was "no such file", the
     recorder's own --out won over --record (the bags went elsewhere, --record's directory never
-    made), a lockstep launch ignored --rate."""
+    made), a lockstep launch ignored --rate; a rate the simulator refuses was refused only once
+    the graph was up."""
     with pytest.raises(SystemExit) as exit_:
         launch.parse_args([a.format(tmp=tmp_path) for a in args])
     assert exit_.value.code == 2

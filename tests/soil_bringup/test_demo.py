@@ -44,6 +44,7 @@ def test_bad_arguments_exit_2_with_the_reason():
     for argv, needle in ((["--soils", "Peat"], "Peat"), (["--duration", "0.5"], "window"),
                          (["--densities", "120"], "[0, 100]"),
                          (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime"),
+                         (["--rate", "5000"], "--rate 5000 outside [0.01, 1000]"),
                          (["--depth", "0.7"], "--depth: target_depth_m=0.7 outside"),
                          (["--depth", "0.005"], "--depth 0.005: the blade cuts from 0.01 m"),
                          (["--speed", "0"], "--speed: target_speed_m_s=0.0 outside")):

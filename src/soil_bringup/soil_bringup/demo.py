@@ -130,13 +130,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error(f"--duration {args.duration} s is shorter than one estimator window "
                 f"({WINDOW_SAMPLES} samples = {WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s): no estimate could be made")
     _check_episodes(p, args)
-    if args.rate is not None and args.pacing == "lockstep":  # soil_launch's refusal: silently ignored, it misled
-        p.error(f"--rate {args.rate:g} is the real-time factor of --pacing realtime; lockstep has none")
+    L.check_graph_options(p, args)  # (soil_launch's: the graph would refuse them once up)
     args.rate = 1.0 if args.rate is None else args.rate
-    if not (args.rate > 0 and math.isfinite(args.rate)):
-        p.error(f"--rate {args.rate} must be > 0")
-    if not 0 <= args.domain_id <= 232:
-        p.error(f"--domain-id {args.domain_id} outside [0, 232]")
     if args.checkpoint is not None:
         if not args.checkpoint.is_file():
             p.error(f"--checkpoint {args.checkpoint}: no such file")

@@ -57,6 +57,8 @@ from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
 from soil_msgs_py.launcher_death import LAUNCHER_PID_ENV
 from soil_msgs_py.params_files import node_parameters
 
+MAX_DOMAIN_ID = 232  # the largest ROS_DOMAIN_ID DDS allows on Linux (its ports above stay below 65536)
+
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
 EXIT_BAD_ARGS = 2
@@ -495,10 +497,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="stop everything after this many seconds (0: never); the launch then exits 3")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before SIGTERM")
     args = p.parse_args(argv)
-    if not 0 <= args.domain_id <= 232:
-        p.error(f"--domain-id {args.domain_id} outside [0, 232]")
-    if args.rate is not None and not args.rate > 0:
-        p.error(f"--rate {args.rate} must be > 0")
+    check_graph_options(p, args)
     for flag in ("sim", "controller", "estimator", "planner"):
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
@@ -522,9 +521,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     # the recorder's last --out would win over --record's; any prefix of it too (argparse takes --o, --ou)
     if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
-    if args.rate is not None and args.pacing == "lockstep":  # a lockstep episode runs as fast as the graph answers
-        p.error(f"--rate {args.rate} is the real-time factor of --pacing realtime; lockstep has none")
     return args
+
+
+def check_graph_options(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--domain-id`` and ``--rate`` as soil_launch and soil_demo take them: the rate in the
+    simulator's own range, checked before the graph starts (a rate of 5000 or inf was taken, and
+    the simulator refused it once its node was up), and none with lockstep pacing (a lockstep
+    episode runs as fast as the graph answers: silently ignored, it misled)."""
+    from soil_sim_node.pacing import RATE_RANGE
+
+    if not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        p.error(f"--domain-id {args.domain_id} outside [0, {MAX_DOMAIN_ID}]")
+    if args.rate is None:
+        return
+    if args.pacing == "lockstep":
+        p.error(f"--rate {args.rate:g} is the real-time factor of --pacing realtime; lockstep has none")
+    if not RATE_RANGE[0] <= args.rate <= RATE_RANGE[1]:  # (NaN too)
+        p.error(f"--rate {args.rate:g} outside [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}], the simulator's real-time factors")
 
 
 def launch_for(args: argparse.Namespace, out=sys.stdout, on_interrupt: Callable[[], None] | None = None) -> Launch:
