@@ -452,7 +452,7 @@ def test_foreign_corrupt_and_physics_free_checkpoints_are_refused(tmp_path):
 
 @pytest.mark.parametrize("term", [["compaction_hardening", 0.05], ["form:feex*tau", 0.3]])
 def test_a_model_with_a_distance_term_gets_the_travel_since_the_episode_start(episode, model, term):
-    """A PINN with compaction_hardening (issue 6) needs the blade's travel in soil since the
+    """A PINN with compaction_hardening (a catalogue term on the travel) needs the blade's travel in soil since the
     episode began, one with a discovered form on time its time in soil: online each is summed
     tick by tick from episode_start and equals the offline pipeline's (the fused posterior's
     model has the term too); without an episode_start the node cannot know it and publishes invalid."""

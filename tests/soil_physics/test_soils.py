@@ -109,9 +109,12 @@ def test_relative_density_out_of_range(bad):
         CATALOGUE["Loam"].at(bad)
 
 
-def test_relative_density_edges_accepted():
-    for i_d in (0, 100, 0.0, 100.0, np.float32(100.0)):
-        CATALOGUE["Loam"].at(i_d)
+def test_relative_density_edges_accepted_and_at_the_loose_and_dense_ends():
+    loam = CATALOGUE["Loam"]
+    for i_d, end in ((0, loam.loose), (100, loam.dense), (0.0, loam.loose), (100.0, loam.dense),
+                     (np.float32(100.0), loam.dense)):
+        props = loam.at(i_d)
+        assert (props.phi, props.c, props.gamma) == pytest.approx((end.phi, end.c, end.gamma)), i_d
 
 
 # ----------------------------------------------------------------------------------------

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import math
 
-DEFAULT_FALLBACK_DEEPEN_RATE_M_S = 0.03  # as soil_planner's cautious_deepen_rate_m_s: deepening where a stall threatened
+from soil_msgs_py.params import CAUTIOUS_DEEPEN_RATE_M_S
+
+DEFAULT_FALLBACK_DEEPEN_RATE_M_S = CAUTIOUS_DEEPEN_RATE_M_S  # deepening where a stall threatened
 MAX_FALLBACK_DEEPEN_RATE_M_S = 10.0  # beyond it the fallback is reached within a tick: a jump
 
 

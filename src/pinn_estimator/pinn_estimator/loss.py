@@ -121,7 +121,7 @@ def consistency_loss(theta_a: torch.Tensor, theta_b: torch.Tensor) -> torch.Tens
     episode to agree makes φ and c identifiable from the depth dependence of the force
     (γ d² N_γ vs c d N_c); Δd is included so a per-window depth offset cannot absorb that
     dependence. It needs no ground truth, only which windows share a cut. Off by default: on
-    the validation split it lowered φ error but collapsed φ to a constant (README).
+    the validation split it lowered φ error but collapsed φ to a constant.
     """
     from soil_msgs_py.params import UNKNOWN_PARAMS
 

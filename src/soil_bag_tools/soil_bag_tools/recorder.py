@@ -202,7 +202,7 @@ class Recorder:
             return
         try:
             ev = EpisodeEvent.from_json(text)
-        except Exception as err:  # noqa: BLE001 - a bad message is logged, never fatal (DESIGN §5)
+        except Exception as err:  # noqa: BLE001 - a bad message is logged, never fatal: a recorder loses no episode to one
             self.log.warning(f"ignoring bad /sim/status message: {err}")
             return
         if ev.event == EVENT_EPISODE_START:

@@ -4,7 +4,7 @@ For each candidate term, K-fold cross-validation over θ-groups (GroupKFold: the
 share a soil stay together, so no held-out soil is seen in training):
 
 * training groups: k fitted **jointly** with their θ_g (one least-squares problem, see
-  ``fee_fit.fit_joint``; the brief's alternation converges to the same point, slower);
+  ``fee_fit.fit_joint``; alternating between k and the θ_g converges to the same point, slower);
 * held-out groups: θ_g refitted with that k fixed — how the augmented model would be used on a
   new soil — and the force error per held-out episode compared with the model without the
   term's (θ_g refitted without it, i.e. the initial fit of that group).

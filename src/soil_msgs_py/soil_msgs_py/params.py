@@ -14,11 +14,6 @@ GRAVITY_M_S2 = 9.81
 INF = math.inf
 
 
-def deg(x_deg: float) -> float:
-    """Degrees -> radians (edges only)."""
-    return x_deg * DEG
-
-
 @dataclass(frozen=True)
 class ParamSpec:
     """One entry of paper Table 1, converted to SI.
@@ -159,6 +154,9 @@ MIN_CUT_DEPTH_M = 0.01
 # cannot show, and a cut would stay there (the planner's depth schedule, the cut report's sweep,
 # the demo's forecast depths).
 MIN_PLANNED_DEPTH_M = 0.05
+# How fast a target deepens where a stall threatened [m/s]: the planner's schedule after a retreat,
+# and the controller's ramp to its own target when the planner falls silent.
+CAUTIOUS_DEEPEN_RATE_M_S = 0.03
 
 # Soil-tool constants of §3.1.
 ADHESION_PA = 200.0  # c_a, all soils

@@ -11,7 +11,7 @@ angle beta to the surface. eta = delta + rho + phi + beta.
 Sign convention: the force returned is the force the blade exerts ON the soil (x forward,
 z up), i.e. Eq. 8 literally. A resisting soil gives F_x > 0.
 
-Two corrections to the printed equations (both tested in tests/test_fee.py):
+Two corrections to the printed equations (both tested in tests/soil_physics/test_fee.py):
 * Eq. 2 prints the adhesion term as ``c_a w N_a``, which has units N/m, not N. The
   adhesion acts on the blade-soil contact of length d / sin(rho); N_a already carries the
   1/sin(rho), so the dimensionally right term is ``c_a d w N_a``. An independent wedge

@@ -43,17 +43,6 @@ def full_like(xp, x, value: float):
     return xp.full_like(x, value) if is_torch(xp) else np.full_like(np.asarray(x, dtype=float), value)
 
 
-def as_float_array(xp, x, like=None):
-    """Scalars and lists -> arrays of the namespace (and dtype/device of ``like``)."""
-    if is_torch(xp):
-        if isinstance(x, xp.Tensor):
-            return x
-        if like is not None:
-            return xp.as_tensor(x, dtype=like.dtype, device=like.device)
-        return xp.as_tensor(x, dtype=xp.get_default_dtype())
-    return np.asarray(x, dtype=float)
-
-
 def coerce(*arrays):
     """(xp, *arrays) with every argument an array of xp; with torch, python scalars and NumPy
     arrays become tensors of the first tensor's dtype and device (so float32 stays float32)."""

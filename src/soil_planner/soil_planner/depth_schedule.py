@@ -45,7 +45,7 @@ import math
 from dataclasses import asdict, dataclass, fields
 
 from soil_msgs_py.messages import NS_PER_S
-from soil_msgs_py.params import LIFT_REACH_M, MACHINE, MIN_PLANNED_DEPTH_M
+from soil_msgs_py.params import CAUTIOUS_DEEPEN_RATE_M_S, LIFT_REACH_M, MACHINE, MIN_PLANNED_DEPTH_M
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ class ScheduleSettings:
     hold_s: float = 1.0
     retreat_m: float = 0.01
     retreat_memory_s: float = 5.0
-    cautious_deepen_rate_m_s: float = 0.03
+    cautious_deepen_rate_m_s: float = CAUTIOUS_DEEPEN_RATE_M_S
     min_depth_m: float = MIN_PLANNED_DEPTH_M
     max_depth_m: float = LIFT_REACH_M
 

@@ -2,7 +2,7 @@
 
 Wagner et al. describe what their Vortex set-up does (§2.1.2, §3.1-3.2); this module runs small
 vectorised batches of episodes of our simulator and returns, for each phenomenon, plain
-dataclasses of numbers that ``tests/test_simulator.py`` asserts on and ``format_report``
+dataclasses of numbers that ``tests/soil_sim_node/test_simulator.py`` asserts on and ``format_report``
 prints (``soil_sim_report`` console script, ``soil_sim_node.report``):
 
 a. ``depth_vs_density``   deep targets in dense Clay/Loam hit the 20 kN tractive limit, the
