@@ -6,7 +6,7 @@ import pytest
 
 from anti_stall_controller.plan_wait import MAX_LAG_TICKS, PlanWait
 from soil_msgs_py import graph as G
-from soil_sim_node.simulator import stamp_ns
+from soil_msgs_py.params import tick_stamp_ns as stamp_ns
 
 
 def test_a_tick_waits_for_the_target_of_its_tick_minus_lag_and_ticks_leave_in_order():

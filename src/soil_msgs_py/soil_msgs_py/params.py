@@ -108,7 +108,13 @@ OBSERVATION_FIELDS: tuple[str, ...] = POSITION_FIELDS + VELOCITY_FIELDS + COMMAN
 FORCE_FIELDS: tuple[str, ...] = ("f_x_b", "f_z_b")
 
 SAMPLE_RATE_HZ = 60
-TICK_PERIOD_NS = 1e9 / SAMPLE_RATE_HZ  # exact tick period [ns]; tick k is stamped floor(k * 1e9 / 60) ns
+TICK_PERIOD_NS = 1e9 / SAMPLE_RATE_HZ  # exact tick period [ns]; tick k is stamped tick_stamp_ns(k)
+
+
+def tick_stamp_ns(tick: int) -> int:
+    """Stamp of tick k from its episode's first tick [ns]: floor(k · 1e9 / 60), the exact 60 Hz grid
+    in integers (no float drift) on which the simulator and the batch generator stamp every tick."""
+    return (int(tick) * 1_000_000_000) // SAMPLE_RATE_HZ
 WINDOW_SAMPLES = 60  # T = 60 samples = 1 s (§2.2.1)
 VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
 

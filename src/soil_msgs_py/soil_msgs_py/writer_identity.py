@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .messages import NS_PER_S
-from .params import SAMPLE_RATE_HZ
+from .params import SAMPLE_RATE_HZ, tick_stamp_ns
 
 SEQUENCE_MASK = 0xFFFF_FFFF  # MCAP stores a uint32 sequence; DDS counts in int64: compare modulo 2^32
 # A command writer silent this many ticks is forgotten by those who follow the controller's
@@ -35,13 +35,13 @@ FORGET_WRITER_AFTER_TICKS = 2 * SAMPLE_RATE_HZ
 
 
 def tick_index(stamp: int, first_stamp_ns: int) -> int | None:
-    """k if ``stamp`` is the episode's tick stamp ``first + floor(k * 1e9 / 60)`` (how the
-    simulator and the batch generator stamp), else None (off the 60 Hz grid)."""
+    """k if ``stamp`` is the episode's tick stamp ``first + tick_stamp_ns(k)`` (how the simulator and
+    the batch generator stamp), else None (off the 60 Hz grid)."""
     d = stamp - first_stamp_ns
     if d < 0:
         return None
     k = -(-d * SAMPLE_RATE_HZ // NS_PER_S)  # the only tick whose floored stamp can equal d
-    return k if k * NS_PER_S // SAMPLE_RATE_HZ == d else None
+    return k if tick_stamp_ns(k) == d else None
 
 
 def tick_number(stamp_ns: int) -> int:

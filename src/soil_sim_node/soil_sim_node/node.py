@@ -38,7 +38,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
-                                 beyond_lift_reach)
+                                 beyond_lift_reach, tick_stamp_ns)
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
 from soil_physics.soils import load_soil_file, soil_file_notes
@@ -47,7 +47,7 @@ from .effects import PluginError, effects_for_mode, load_plugins
 from .live import CommandGate, command_writers, episode_plan
 from .pacing import Do, Pacer, StartWait, check_pacing
 from .rollout import episode_meta
-from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, resolve_checked, stamp_ns
+from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, resolve_checked
 from .simulator import check_engine as check_sim_engine
 from .warm_up import warm_up
 
@@ -414,7 +414,7 @@ class SimNode(Node):
         self._publish_tick(self.sim.reset())
 
     def _end_episode(self, reason: str) -> None:
-        last = self.first_stamp_ns + stamp_ns(self.tick) if self.tick >= 0 else self.first_stamp_ns
+        last = self.first_stamp_ns + tick_stamp_ns(self.tick) if self.tick >= 0 else self.first_stamp_ns
         stats = self.pacer.end_episode()
         stats.update(commands_rejected=self.gate.rejected, commands_sanitised=self.gate.sanitised)
         event = G.EpisodeEvent(G.EVENT_EPISODE_END, self.episode_index, self.meta.name, self.meta,

@@ -11,11 +11,11 @@ import numpy as np
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from soil_msgs_py.episode import Episode, EpisodeMeta
 from soil_msgs_py.params import (FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ,
-                                 VELOCITY_AVERAGE_SAMPLES)
+                                 VELOCITY_AVERAGE_SAMPLES, tick_stamp_ns)
 
 from .effects import plugin_name
 from . import kernel
-from .simulator import EpisodeSpec, SimConfig, SoilSimulator, stamp_ns
+from .simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 
 def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: list[str]) -> EpisodeMeta:
@@ -107,6 +107,6 @@ def _compiled_episode(sim: SoilSimulator, i: int, gains: AntiStallGains, n_ticks
                        float(controller.target_depth_m[0]), VELOCITY_AVERAGE_SAMPLES, obs, forces, known, truth, extras)
     return Episode(
         meta=episode_meta(sim.config, spec, sim.soils[i].name, sim.effects.enabled()),
-        stamps_ns=np.array([stamp_ns(k) for k in range(n_ticks)], dtype=np.int64),
+        stamps_ns=np.array([tick_stamp_ns(k) for k in range(n_ticks)], dtype=np.int64),
         observations=obs, forces=forces, known=known, truth=truth, extras=extras,
     )

@@ -69,6 +69,7 @@ from soil_msgs_py.params import (
     SOIL_TOOL_FRICTION_FEE_RAD,
     VELOCITY_AVERAGE_SAMPLES,
     Machine,
+    tick_stamp_ns,
 )
 from soil_physics.bearing import EDGE_WIDTH_M, penetration_capacity
 from soil_physics.contact import BASE_FRICTION_V_REF_M_S, CONTACT_DAMPING_PA_S_M, base_friction_force
@@ -202,11 +203,6 @@ class TickOutput:
     truth: np.ndarray  # (B,13) pseudo-ground truth Θ
     extras: np.ndarray  # (B,2) p_x_c, v_x_b
     applied_u_zr: np.ndarray  # (B,) lift-joint target actually used (after reach clipping)
-
-
-def stamp_ns(tick: int) -> int:
-    """Simulation time of tick k in integer ns (exact 60 Hz grid, no float drift)."""
-    return (tick * 1_000_000_000) // SAMPLE_RATE_HZ
 
 
 SURFACE_INCLINATION_RAD = 0.0  # α of the simulated soil surface [rad]: level ground
@@ -658,7 +654,7 @@ class SoilSimulator:
         for i in range(b):
             kernel.output_row(self._state[i], self._episode[i], self.terrain[i], self._params, self._v_hist_rows[i],
                               self.v_hist_count, positions[i], velocities[i], known[i], truth[i], extras[i])
-        return TickOutput(stamp_ns=stamp_ns(self.tick), positions=positions, velocities=velocities, forces=forces,
+        return TickOutput(stamp_ns=tick_stamp_ns(self.tick), positions=positions, velocities=velocities, forces=forces,
                           known=known, truth=truth, extras=extras, applied_u_zr=self.last_applied_u_zr.copy())
 
     def _output(self, forces: np.ndarray) -> TickOutput:
@@ -677,7 +673,7 @@ class SoilSimulator:
         delta_p, _ = fee.velocity_corrected(self.delta, self.c_a, self.rho, self.alpha, v_x, v_z, self.dyn.fee_velocity_gain_s_m)
         truth["beta"] = fee.recorded_beta_star(phi0, delta_p, self.rho, self.alpha)
         return TickOutput(
-            stamp_ns=stamp_ns(self.tick),
+            stamp_ns=tick_stamp_ns(self.tick),
             positions=np.stack([x_b, z_b, self.z_c], axis=1),
             velocities=np.stack([vz_b, self.vx_c, self.vz_c], axis=1),
             forces=forces,
