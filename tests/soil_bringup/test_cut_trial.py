@@ -261,7 +261,7 @@ def test_the_report_cuts_a_named_path_of_the_users_own_soils(tmp_path, capsys):
     cut = cut_report.run_cut("fee", args.spec, cut_report.Policy("fixed", 0.1), custom_soils=args.custom_soils)
     silt = load_soil_file(soils).soils["Silt"].at(30.0)
     assert cut.truth[0] == pytest.approx([silt.phi, silt.c])
-    for argv, says in ((["--path", "site_a"], "--path 'site_a' needs --soil-file"),
+    for argv, says in ((["--path", "site_a"], "--path='site_a' needs --soil-file"),
                        (["--soil-file", str(soils), "--path", "site_b"], "its paths: ['site_a']"),
                        (["--soil-file", str(soils), "--path", "site_a", "--patch", "0:Sand:20"], "both give the patches"),
                        (["--patch", "0:Silt:20"], "Silt"),

@@ -43,7 +43,7 @@ def test_lockstep_run_on_a_named_path_of_a_soil_file_equals_the_batch(tmp_path, 
     (["soil:=Silt"], "soil='Silt' is unknown"),  # a custom soil without its file
     (["soil_file:=/nowhere/soils.yaml"], "parameter soil_file='/nowhere/soils.yaml': soil file '/nowhere/soils.yaml' does not exist"),
     (["path:=silt_then_clay"], "parameter path='silt_then_clay' needs parameter soil_file"),
-    (["soil_file:={file}", "path:=clay_then_silt"], "parameter path='clay_then_silt' is not a path of soil_file="),
+    (["soil_file:={file}", "path:=clay_then_silt"], "parameter path='clay_then_silt' is not a path of parameter soil_file="),
     (["soil_file:={file}", "path:=silt_then_clay", "patches:=['0:Sand:20']"], "both give the patches"),
 ])
 def test_bad_soil_file_parameters_are_refused_at_start_naming_them(tmp_path, soil_file, params, needle):

@@ -157,7 +157,7 @@ def test_soil_sim_batch_takes_a_named_path_of_the_soil_file(tmp_path):
     assert {s.patches for s in plan.specs} == {(SoilPatch(0.0, "Sand", 20.0), SoilPatch(4.0, "SiltyClay", 90.0))}
     for spec_ in plan.specs:
         spec_.resolve(plan.custom_soils)
-    with pytest.raises(ValueError, match=r"--path='site_b' is not a path of --soil-file .*; its paths: \['site_a'\]"):
+    with pytest.raises(ValueError, match=r"--path='site_b' is not a path of --soil-file=.*; its paths: \['site_a'\]"):
         batch.plan_from_args(batch.parse_args([*args, "--path", "site_b"]))
 
 

@@ -43,7 +43,7 @@ from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
-from soil_physics.soils import load_soil_file, soil_file_notes
+from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
 
@@ -103,14 +103,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error(f"--soil-file: {err}")
     args.custom_soils = soil_file.soils if soil_file else {}
     if args.path is not None:
-        if args.patch:
-            p.error(f"--patch {args.patch} and --path {args.path!r} both give the patches: use one")
-        if soil_file is None:
-            p.error(f"--path {args.path!r} needs --soil-file (a YAML with a 'paths:' section)")
-        if args.path not in soil_file.paths:
-            p.error(f"--path {args.path!r} is not a path of --soil-file {str(args.soil_file)!r}; its paths: "
-                    f"{sorted(soil_file.paths)}")
-        args.patches = soil_file.paths[args.path]
+        try:
+            args.patches = path_patches(soil_file, args.path, args.patch, file_shown=str(args.soil_file))
+        except ValueError as err:
+            p.error(str(err))
     else:
         try:
             args.patches = check_patches([parse_patch(t, "--patch") for t in (args.patch or DEFAULT_PATCHES)])

@@ -200,6 +200,22 @@ class SoilFile:
 SECTIONS = ("soils", "paths")
 
 
+def path_patches(loaded: SoilFile | None, path: str | None, patches, *, path_opt: str = "--path",
+                 file_opt: str = "--soil-file", patches_opt: str = "--patch", file_shown: str = "") -> tuple | None:
+    """The patches of the named ``path`` of the soils file ``loaded`` (None: no path named), as the
+    simulator node, soil_sim_batch and soil_cut_report take it beside given ``patches``; ValueError
+    naming the options (``path_opt`` etc., as the caller calls them) and the value."""
+    if not path:
+        return None
+    if patches:
+        raise ValueError(f"{patches_opt}={list(patches)} and {path_opt}={path!r} both give the patches: use one")
+    if loaded is None:
+        raise ValueError(f"{path_opt}={path!r} needs {file_opt} (a YAML with a 'paths:' section)")
+    if path not in loaded.paths:
+        raise ValueError(f"{path_opt}={path!r} is not a path of {file_opt}={file_shown!r}; its paths: {sorted(loaded.paths)}")
+    return loaded.paths[path]
+
+
 def load_soil_file(path: str | Path) -> SoilFile:
     """Load a soils YAML: one soil (a mapping), several (a list), or the sectioned form with
     ``soils:`` and/or ``paths:`` (module docstring). Every path's soils must be catalogue soils

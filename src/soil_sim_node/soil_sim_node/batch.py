@@ -50,7 +50,7 @@ from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, beyond_lift_reach
 from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
-from soil_physics.soils import CATALOGUE, get_soil, load_soil_file, soil_file_notes
+from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, path_patches, soil_file_notes
 
 from .effects import Effects, effects_for_mode, load_plugins
 from .ray_cluster import (CLUSTER_LOST_AFTER_S, LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus,
@@ -441,15 +441,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def _patches_from_args(args: argparse.Namespace, paths: dict, custom: dict) -> tuple:
     """The soil patches every episode cuts through (``--patch`` or ``--path``), () if none."""
-    if args.patch and args.path:
-        raise ValueError(f"--patch {args.patch} and --path={args.path!r} both give the patches: use one")
     if args.path:
-        if not args.soil_file:
-            raise ValueError(f"--path={args.path!r} needs --soil-file (the YAML whose 'paths:' section names it)")
-        if args.path not in paths:
-            raise ValueError(f"--path={args.path!r} is not a path of --soil-file {str(args.soil_file)!r}; its paths: "
-                             f"{sorted(paths)}")
-        patches = paths[args.path]
+        patches = path_patches(SoilFile(custom, paths) if args.soil_file else None, args.path, args.patch,
+                               file_shown=str(args.soil_file))
     else:
         patches = check_patches(args.patch, "--patch")
         for i, patch in enumerate(patches):

@@ -41,7 +41,7 @@ from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_
                                  beyond_lift_reach, tick_stamp_ns)
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
 
-from soil_physics.soils import load_soil_file, soil_file_notes
+from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 
 from .effects import PluginError, effects_for_mode, load_plugins
 from .live import CommandGate, command_writers, episode_plan
@@ -211,20 +211,15 @@ class SimNode(Node):
     def _load_soil_file(soil_file: str, path: str, patches) -> tuple[dict, tuple]:
         """(custom soils by name, the patches of the named ``path`` or ()) from parameter soil_file;
         ValueError naming the parameter, the file and the value."""
-        if path and not soil_file:
-            raise ValueError(f"parameter path={path!r} needs parameter soil_file (a YAML with a 'paths:' section)")
-        if path and patches:
-            raise ValueError(f"parameters path={path!r} and patches={list(patches)} both give the patches: use one")
-        if not soil_file:
-            return {}, ()
-        try:
-            loaded = load_soil_file(Path(soil_file).expanduser())
-        except (FileNotFoundError, ValueError) as err:
-            raise ValueError(f"parameter soil_file={soil_file!r}: {err}") from None
-        if path and path not in loaded.paths:
-            raise ValueError(f"parameter path={path!r} is not a path of soil_file={soil_file!r}; its paths: "
-                             f"{sorted(loaded.paths)}")
-        return loaded.soils, (loaded.paths[path] if path else ())
+        loaded = None
+        if soil_file:
+            try:
+                loaded = load_soil_file(Path(soil_file).expanduser())
+            except (FileNotFoundError, ValueError) as err:
+                raise ValueError(f"parameter soil_file={soil_file!r}: {err}") from None
+        named = path_patches(loaded, path, patches, path_opt="parameter path", file_opt="parameter soil_file",
+                             patches_opt="parameter patches", file_shown=soil_file)
+        return (loaded.soils if loaded else {}), (named or ())
 
     def _parse_wait_for(self, entries) -> list[tuple[str, int]]:
         known = set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS) | {G.SIM_STATUS_TOPIC}
