@@ -152,3 +152,29 @@ def test_bags_without_ground_truth_get_no_true_parameter_row_or_column():
     with_truth = markdown({**report, "parameters": {"fused": {"phi": {"mae": 0.01, "episodes": 8, "coverage_90": 0.9, "coverage_50": 0.5}}}})
     # with truth its row is kept (0 pairs scored, said) and its per-soil column
     assert sum(LABELS["true_fee"] in line for line in with_truth if line.startswith("|")) == 2
+
+
+def test_a_machines_bags_take_the_checkpoints_calibration_not_none(tmp_path, monkeypatch):
+    """Bags whose world_mode is "unknown" (a machine's) took no calibration in the offline forecast:
+    a posterior through the FEE alone, 41 % off with intervals holding 0 of the pairs, where the
+    live estimator on the same bags runs the checkpoint world's (an outside tester's)."""
+    from pinn_estimator.evaluate import forecast_section
+    from pinn_estimator.fusion_calibration import load_calibrated
+
+    specs = [EpisodeSpec("Clay", 20.0, 0.6, depth, seed=k, duration_s=5.0) for k, depth in enumerate((0.1, 0.2))]
+    for ep in run_episodes(SimConfig(world_mode="default"), specs):
+        write_episode(tmp_path / "machine" / ep.meta.name, ep)
+    bags = load_dataset(tmp_path / "machine", cache=False)
+    bags.metas = [replace(m, world_mode="unknown") for m in bags.metas]  # as a machine's bags say (the readers take it)
+    said = []
+    seen = {}
+
+    def forecast(model, bags, *, fusion, **_):
+        seen["fusion"] = fusion
+        return {}
+
+    monkeypatch.setattr("pinn_estimator.evaluate.forecast", forecast)  # (the forecast itself is tested elsewhere)
+    out = forecast_section(None, bags, None, log=said.append, model_world="default")
+    assert seen["fusion"] == load_calibrated("default") and seen["fusion"].terms, "the default world's, with its term"
+    assert "no simulator world" in said[0] and "default world's calibration" in said[0], said
+    assert "the checkpoint's" in out["fusion_config"] and "'unknown'" in out["fusion_config"], out

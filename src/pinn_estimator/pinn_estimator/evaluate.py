@@ -40,6 +40,7 @@ from . import forecast as fc
 from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset
 from .fusion import FusionConfig, SoilPosterior, fuse_episode
 from .inference import WindowTensors, force_errors, predict
+from .shipped import DEFAULT_WORLD
 
 PARAMS = ("phi", "c", "delta", "beta")
 UNITS = {"phi": ("deg", 1 / DEG), "c": ("kPa", 1e-3), "delta": ("deg", 1 / DEG), "beta": ("deg", 1 / DEG)}
@@ -244,14 +245,16 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         log(f"warning: {checkpoint} was trained on {', '.join(trained)}-world data; its forecast is judged on "
             f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
             f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
+    from .fusion_calibration import checkpoint_world, given_fusion
+
     if fusion_config is not None:  # checked before anything runs; "auto" is the test split's world, the checkpoint's
-        from .fusion_calibration import given_fusion
 
         early = judged if judged in WORLD_MODES else (trained[0] if judged == "auto" and len(trained) == 1 else None)
         given_fusion(fusion_config, early)
     if forecast_only:
         return forecast_report(model, checkpoint, forecast_bags, forecast_world, classical=classical, workers=workers,
-                               progress=progress, fusion_config=fusion_config, log=log) | {"seen_in_training": len(seen)}
+                               progress=progress, fusion_config=fusion_config, log=log,
+                               model_world=checkpoint_world(ckpt)) | {"seen_in_training": len(seen)}
     if data is None and not Path(ckpt["dataset"]["root"]).is_dir():
         raise ValueError(f"{checkpoint} was trained on the bags at {ckpt['dataset']['root']!r} (as given then, relative "
                          f"to where it was trained), which is not a directory here: give their directory with --data "
@@ -331,35 +334,48 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     if forecast_bags is not None or forecast_world:
         t0 = time.monotonic()
         report["forecast"] = forecast_section(model, forecast_bags, forecast_world, classical=classical,
-                                              workers=workers, progress=progress, fusion_config=fusion_config, log=log)
+                                              workers=workers, progress=progress, fusion_config=fusion_config, log=log,
+                                              model_world=checkpoint_world(ckpt))
         timing["forecast_s"] = time.monotonic() - t0
     report["targets"] = targets(report)
     return report
 
 
 def forecast_section(model, bags: Dataset | None, world: str | None, *, classical: bool = True, workers: int = 2,
-                     progress: bool = False, fusion_config: str | None = None, log=print) -> dict:
+                     progress: bool = False, fusion_config: str | None = None, log=print,
+                     model_world: str = DEFAULT_WORLD) -> dict:
     """The forecast at another depth: on ``bags`` with their world's calibrated posterior (or the
-    config at ``fusion_config``), or else on the simulated held-out episodes of ``world``."""
+    config at ``fusion_config``), or else on the simulated held-out episodes of ``world``. Bags of
+    no simulator world (a machine's, ``world_mode`` "unknown") take the calibration of
+    ``model_world``, the checkpoint's (``checkpoint_world``), as the live estimator does: before, they
+    took no calibration at all, a posterior through the FEE alone whose intervals held nothing."""
     from .fusion_calibration import given_fusion, load_calibrated
 
     if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
     world = bags.metas[0].world_mode if bags is not None else world
+    shipped = f"shipped ({world} world)"
+    if world not in WORLD_MODES and not fusion_config:
+        log(f"--forecast-data: its episodes' world {world!r} is no simulator world: the fused posterior takes the "
+            f"{model_world} world's calibration, the checkpoint's, as the live estimator does (--fusion-config: "
+            "one of your own)")
+        shipped = f"shipped ({model_world} world, the checkpoint's; the bags' world {world!r})"
+        world = model_world
     out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,
                    progress=progress, fusion=given_fusion(fusion_config, world, log) if fusion_config else load_calibrated(world))
     if bags is not None:
         out["data"] = str(bags.root)
-    out["fusion_config"] = fusion_config or f"shipped ({world} world)"
+    out["fusion_config"] = fusion_config or shipped
     return out
 
 
 def forecast_report(model, checkpoint, bags: Dataset | None, world: str | None, *, classical: bool = True,
-                    workers: int = 2, progress: bool = False, fusion_config: str | None = None, log=print) -> dict:
+                    workers: int = 2, progress: bool = False, fusion_config: str | None = None, log=print,
+                    model_world: str = DEFAULT_WORLD) -> dict:
     """The report of ``forecast_section`` alone (no test split)."""
     t0 = time.monotonic()
     section = forecast_section(model, bags, world, classical=classical, workers=workers, progress=progress,
-                               fusion_config=fusion_config, log=log)
+                               fusion_config=fusion_config, log=log, model_world=model_world)
     return {"checkpoint": str(checkpoint), "forecast_only": True, "world_modes": section["worlds"],
             **({"forecast_data": describe(bags)} if bags is not None else {}),
             "forecast": section, "targets": [], "timing_s": {"forecast_s": time.monotonic() - t0}}
@@ -417,7 +433,8 @@ def _skipped_lines(described: dict | None) -> list[str]:
 def markdown(report: dict) -> str:
     if report.get("forecast_only"):
         return "\n".join([
-            f"# PINN evaluation: the force at another depth, {', '.join(report['world_modes'])} world", "",
+            f"# PINN evaluation: the force at another depth, "
+            f"{', '.join(report['world_modes']) + ' world' if report['world_modes'] else 'bags of no simulator world'}", "",
             f"Checkpoint `{Path(report['checkpoint']).name}`; the forecast alone (no test split). Generated by `pinn_eval`.",
             *(["", f"**{report['seen_in_training']} of these episodes have the names of episodes the checkpoint was "
                     "trained or validated on**: if they are those bags, the PINN's row is no held-out score."]

@@ -446,7 +446,9 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
                 f"same soil and density ({blind} of the episodes carry no soil label: those are paired by their measured "
                 "unit weight γ, so two soils of one γ pair too, and the per-soil table groups them by γ)")
         intro = (f"Forecast of the force at another depth, {same}: {report['pairs']} pairs of "
-                 f"{report['episodes']} episodes of the bags at {report['data']} ({', '.join(report['worlds'])}). "
+                 f"{report['episodes']} episodes of the bags at {report['data']} "
+                 f"({', '.join(report['worlds']) + ' world' if report['worlds'] else 'no simulator world'}; the posterior "
+                 f"{report.get('fusion_config', 'shipped')}). "
                  "Mean |error| and signed bias, % of the measured force.")
     elif intro is None:  # (an outside tester read these as a held-out part of their own checkpoint's soils)
         soils = sorted(report.get("per_soil") or {})
