@@ -15,6 +15,7 @@ import torch
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
+from soil_msgs_py.episode import Episode
 from soil_bag_tools.bag_io import read_episode
 from soil_msgs_py.params import WINDOW_SAMPLES
 from soil_physics.travel import distance_in_soil_of_known
@@ -538,3 +539,25 @@ def test_a_model_with_other_physics_restarts_the_posterior_and_the_same_keeps_it
     assert est.posterior.updates == 0 and est.posterior.cfg.terms == (("soil_inertia", 4.0), *shipped)
     est.set_model(model)  # back: the new model's terms do not stay behind
     assert est.posterior.cfg.terms == shipped
+
+
+# ------------------------------------------------------------------------- a machine's streams
+def test_a_stream_at_another_rate_gives_no_estimate_and_says_its_rate(model, episode):
+    """A 50 Hz machine's ticks (stamps 20 ms apart) were estimated on as 60 Hz, windows of 1.2 s
+    (an outside tester's); a 60 Hz stream with millisecond stamps is still taken."""
+    warned = []
+    est, out = run(model, [m for i in range(N_TICKS) for m in tick_messages(episode, i, stamp=i * 20_000_000)],
+                   warn=lambda kind, text: warned.append((kind, text)))
+    assert not valid(out) and est.counters.off_rate > 0
+    assert any(kind == "rate" and "every 20 ms (50 Hz)" in text for kind, text in warned), warned[:3]
+    _, out = run(model, [m for i in range(N_TICKS) for m in tick_messages(episode, i, stamp=round(i * 1e3 / 60) * 10**6)])
+    assert len(valid(out)) == N_TICKS - WINDOW_SAMPLES + 1
+
+
+def test_a_force_of_the_other_sign_is_said_and_the_right_one_is_not(model, episode):
+    flipped = Episode(meta=episode.meta, stamps_ns=episode.stamps_ns, observations=episode.observations,
+                      forces=-episode.forces, extras=episode.extras, known=episode.known, truth=episode.truth)
+    for ep, said in ((episode, False), (flipped, True)):
+        warned = []
+        run(model, in_order(ep, range(N_TICKS)), warn=lambda kind, text: warned.append(kind))
+        assert ("force_sign" in warned) is said

@@ -170,6 +170,9 @@ def forecast(model, ds: Dataset, *, stride: int = FORECAST_STRIDE, classical: bo
     that config when already made). The PINN's θ̂ forecasts through its own physics (the FEE plus
     the terms it was trained with); the least-squares fit's through the FEE."""
     ends = fc.steady_window_ends(ds, stride)
+    if len(ends) == 0:  # (the PINN's output of no window has no θ: a KeyError, an outside tester's)
+        raise ValueError(f"no episode of the {len(ds)} holds a steady second of cutting in its second half (a window "
+                         "of 60 ticks in a row without a gap): nothing to forecast from")
     out = predict(model, WindowTensors(ds), ends)
     estimates = {"pinn": dict(zip(("phi", "c", "delta"), out["theta"][:, :3].T))}
     if classical:

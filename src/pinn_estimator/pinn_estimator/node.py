@@ -210,7 +210,8 @@ class EstimatorNode(Node):
         self.get_logger().info(
             f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
             f"{c.out_of_order} out of order, {c.non_finite} non-finite or implausible, {c.malformed} malformed, "
-            f"{c.duplicates} duplicates, {c.evicted} evicted, {c.restarts} restarts")
+            f"{c.duplicates} duplicates, {c.evicted} evicted, {c.restarts} restarts"
+            + (f", {c.off_rate} off the 60 Hz rate" if c.off_rate else ""))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -22,6 +22,7 @@ Validity (never estimate across a gap, never publish NaN)
 """
 from __future__ import annotations
 
+import collections
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +33,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
+from soil_msgs_py.stream_checks import RATE_STEPS, cutting_ticks, sign_problem, step_problem
 from soil_msgs_py.params import (
     FORCE_FIELDS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
@@ -66,6 +68,7 @@ INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SI
 RESTART_AFTER_REFUSED = 2 * len(INPUT_TOPICS)  # refusals in a row that start a new stream (see RESTART_BACK_TICKS)
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
+SIGN_JUDGE_TICKS = 60  # the force's sign is judged every this many forward-cutting ticks (warned as the node limits)
 _P_X, _P_Z = OBSERVATION_FIELDS.index("p_x_b"), OBSERVATION_FIELDS.index("p_z_b")
 _DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS), "forces": ("force", FORCE_FIELDS)}
 FUSED = slice(T.ESTIMATE_FIELDS.index(T.FUSED_FIELDS[0]), len(T.ESTIMATE_FIELDS))
@@ -101,6 +104,7 @@ class Counters:
     evicted: int = 0  # incomplete ticks dropped to bound memory (a topic stopped, or bogus stamps)
     restarts: int = 0  # time went back by more than the reorder horizon: a new stream
     model_non_finite: int = 0  # model outputs that were not finite (published invalid)
+    off_rate: int = 0  # ticks dropped because the stream's stamps do not step at 60 Hz (``stream_checks``)
 
 
 @dataclass
@@ -148,6 +152,7 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
+        self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
 
     @property
     def last_released(self) -> int:
@@ -157,6 +162,7 @@ class SampleAssembler:
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
         self.joiner.reset(first_stamp_ns)
+        self.steps.clear()
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -218,6 +224,14 @@ class SampleAssembler:
     def _released(self, joined) -> None:
         """One tick out of the joiner: a sample, a missing tick or a tick dropped to bound memory."""
         stamp = joined.stamp_ns
+        if joined.previous_ns >= 0 and joined.why is not Why.EVICTED:
+            self.steps.append(stamp - joined.previous_ns)
+            if len(self.steps) == RATE_STEPS and (problem := step_problem(self.steps)):
+                # (a 50 or 100 Hz machine's stream had windows of 1.2 or 0.6 s estimated on as one second)
+                self.counters.off_rate += 1
+                self.warn("rate", f"{problem}; no estimate from these ticks")
+                self.on_sample(stamp, None)
+                return
         if joined.why is Why.EVICTED:  # a topic that never comes must not grow memory
             self.counters.evicted += 1
             self.warn("evicted", f"tick {stamp} ns never got {sorted(joined.missing)} within {MAX_PENDING_TICKS} "
@@ -339,8 +353,7 @@ class OnlineEstimator:
         # Blade travel [m] and time [s] in soil since the episode's first tick, for models with
         # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
         # for an episode seen from its start.
-        self.distance_m = self.time_in_soil_s = 0.0
-        self._path_known = False
+        self._forget_path(known=False)
         self._fusion_config = fusion  # as given: a new model's physics is merged into it (set_model)
         self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
         self.soil_map = SoilMap()
@@ -392,9 +405,11 @@ class OnlineEstimator:
         self._reset_fusion()
 
     def _forget_path(self, known: bool) -> None:
-        """Travel and time in soil back to 0; ``known``: counted from an episode's start."""
+        """Travel and time in soil back to 0; ``known``: counted from an episode's start. (And the
+        forward-cutting ticks the force's sign is judged on, ``stream_checks.sign_problem``.)"""
         self.distance_m = self.time_in_soil_s = 0.0
         self._path_known = known
+        self._cutting = [0, 0]  # (forward-cutting ticks, those with f_x < 0)
 
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
@@ -452,6 +467,7 @@ class OnlineEstimator:
         if self.buffer.count == 0:
             self.window_first_stamp = stamp
         self.buffer.push(sample.obs, sample.known)
+        self._judge_sign(sample)
         self.distance_m += float(soil_advance(sample.known[_V_X], sample.known[_D]))
         self.time_in_soil_s += float(soil_time_step(sample.known[_D]))
         self._fuse(stamp, sample)
@@ -469,6 +485,15 @@ class OnlineEstimator:
         else:
             self.counters.invalid += 1
         self.publish(self._with_fused(est))
+
+    def _judge_sign(self, sample: Sample) -> None:
+        """Said once an episode: a measured force of the other sign than the contract's (a
+        machine's sensor; its estimates are not the soil's, and nothing else said so)."""
+        cutting, negative = cutting_ticks(sample.force[0], sample.known[_D], sample.known[_V_X])
+        self._cutting[0] += cutting
+        self._cutting[1] += negative
+        if self._cutting[0] % SIGN_JUDGE_TICKS == 0 and cutting and (problem := sign_problem(*self._cutting)):
+            self.warn("force_sign", problem)
 
     def _fuse(self, stamp: int, sample: Sample) -> None:
         """One sample into the stretch; a complete stretch into the posterior and the map."""

@@ -197,6 +197,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         + " / ".join(f"{len(idx[s])} ({100 * len(idx[s]) / max(n_eps, 1):.0f} %)" for s in ("train", "val", "test"))
         + f" for val_fraction {cfg.val_fraction:g}, test_fraction {cfg.test_fraction:g} (by episode, stratified by "
           "world, soil and I_d: a cell of 3 or 4 episodes gives one to each)")
+    if len(train_ends) == 0:  # (an epoch divided by its window count: a ZeroDivisionError, an outside tester's)
+        raise ValueError(f"no training window: none of its {len(idx['train'])} episodes holds {model_cfg.window} ticks "
+                         "in a row without a gap (a window of one second at 60 Hz): give longer or more episodes")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     if cfg.lr_schedule == "cosine":
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs, eta_min=cfg.lr / 200)

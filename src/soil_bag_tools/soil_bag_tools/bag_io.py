@@ -30,8 +30,10 @@ from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta, first_non_finite
+from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.patches import short_repr
-from soil_msgs_py.topics import EPISODE_TOPICS, GROUND_TRUTH
+from soil_msgs_py.stream_checks import cutting_ticks, rate_problem, sign_problem
+from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
 from .bag_writer import BagWriter, offered_qos
 from .integrity import scan_file
 
@@ -240,7 +242,11 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
 
     ``/soil/ground_truth`` may be missing, as from a real machine, which knows no soil
     parameters: the Episode's ``truth`` is then NaN (``has_ground_truth`` False), and what scores
-    against it says so; every other episode topic must be there.
+    against it says so; ``/clock`` may be missing too (a machine has no simulated clock: the
+    ticks are the other topics' stamps); every other episode topic must be there. A tick some
+    topic lacks is dropped, a gap as the live estimator makes of it, and said (``complete_ticks``);
+    ticks that do not come at 60 Hz are refused, a force of the other sign is said
+    (``soil_msgs_py.stream_checks``).
 
     FileNotFoundError if ``bag_dir`` does not exist; BagReadError for anything wrong with the bag."""
     path = Path(bag_dir)
@@ -257,8 +263,8 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
             conns, stores = [], {}
             for t in EPISODE_TOPICS:
                 mine = [c for c in reader.connections if c.topic == t.name]
-                if not mine and t.name == GROUND_TRUTH.name:
-                    continue  # a machine's bag: truth NaN below
+                if not mine and t.name in (GROUND_TRUTH.name, CLOCK.name):
+                    continue  # a machine's bag: truth NaN, the ticks the others' stamps (below)
                 if not mine:
                     raise BagReadError(path, f"has no topic {t.name} ({t.msgtype})")
                 if wrong := {c.msgtype for c in mine} - {t.msgtype}:
@@ -271,10 +277,59 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
             for conn, _, raw in reader.messages(connections=conns):
                 raws[conn.topic].append(raw)
             decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS if n in stores}
-            if GROUND_TRUTH.name not in decoded:
-                stamps = np.unique(np.concatenate([v[0] for v in decoded.values()]))
-                decoded[GROUND_TRUTH.name] = (stamps, np.full((len(stamps), M.FIELDS[GROUND_TRUTH.name].width), np.nan))
-            return M.assemble_episode(meta, decoded)
+        return _episode(path, meta, decoded)
+
+
+def _episode(path: Path, meta: EpisodeMeta, decoded: dict) -> Episode:
+    """The Episode of a bag's decoded topics (``read_episode``): complete ticks, a machine's missing
+    truth and clock filled in, its rate and force sign judged."""
+    if empty := [n for n, (s, _) in decoded.items() if len(s) == 0]:
+        raise BagReadError(path, f"topic {empty[0]} has no messages")
+    decoded = complete_ticks(path, decoded)
+    for name, fill in ((GROUND_TRUTH.name, np.nan), (CLOCK.name, 0.0)):
+        if name not in decoded:
+            stamps = next(iter(decoded.values()))[0]
+            decoded[name] = (stamps, np.full((len(stamps), M.FIELDS[name].width), fill))
+    episode = M.assemble_episode(meta, decoded)
+    if problem := rate_problem(episode.stamps_ns):
+        raise BagReadError(path, problem)
+    known = {n: episode.known[:, KNOWN_PARAMS.index(n)] for n in ("d", "v_x")}
+    if problem := sign_problem(*cutting_ticks(episode.forces[:, 0], known["d"], known["v_x"])):
+        log.warning("bag %s: %s", path, problem)
+    return episode
+
+
+# A bag whose ticks lack a topic in more than this share is not one stream of ticks (topics
+# stamped each by its own clock): refused, not thinned to nothing.
+MAX_INCOMPLETE_SHARE = 0.5
+
+
+def complete_ticks(path: Path, decoded: dict) -> dict:
+    """``decoded`` (topic -> (stamps, values)) at the ticks every topic has; a tick some topic lacks
+    is dropped with a warning naming the topic and stamp (before, one lost message refused the whole
+    bag, where the live estimator resets its window and goes on). Most ticks incomplete: BagReadError
+    saying the topics' stamps do not line up (a machine's sensors stamping each by its own clock)."""
+    stamps = {n: np.unique(s) for n, (s, _) in decoded.items()}
+    every = np.unique(np.concatenate(list(stamps.values())))
+    common = every
+    for s in stamps.values():
+        common = np.intersect1d(common, s, assume_unique=True)
+    if len(common) == len(every):
+        return decoded
+    lacking = {n: np.setdiff1d(every, s, assume_unique=True) for n, s in stamps.items()}
+    worst = max(lacking, key=lambda n: len(lacking[n]))
+    example = f"e.g. {worst} has no message at {int(lacking[worst][0])} ns"
+    if len(common) < (1.0 - MAX_INCOMPLETE_SHARE) * len(every):
+        raise BagReadError(path, f"its topics' stamps do not line up: {len(every) - len(common)} of {len(every)} stamps "
+                                 f"lack a topic ({example}); every topic of a tick must carry the tick's stamp (not "
+                                 "each sensor's own clock): stamp them alike, or resample to common 60 Hz ticks")
+    log.warning("bag %s: %d of %d ticks lack a topic (%s): dropped, a gap in the episode (the live estimator "
+                "resets its window at one alike)", path, len(every) - len(common), len(every), example)
+    out = {}
+    for name, (s, values) in decoded.items():
+        keep = np.isin(s, common)
+        out[name] = (s[keep], values[keep])
+    return out
 
 
 def find_episode_bags(root: str | os.PathLike) -> list[Path]:
