@@ -220,7 +220,8 @@ def check_integrity(bag: Path) -> None:
                                     f"the damage is outside the chunks){repair}")
         if not scan.has_crcs and scan.chunks and str(bag) not in _warned_unchecked:
             _warned_unchecked.add(str(bag))
-            log.warning("bag %s: written without chunk CRCs (before they were computed); "
+            log.warning("bag %s: written without chunk CRCs (by another tool, or by this project before it computed "
+                        "them); "
                         "damage inside a chunk cannot be detected", bag)
 
 

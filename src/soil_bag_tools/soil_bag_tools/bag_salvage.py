@@ -61,7 +61,10 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
         raise NothingRecoverable(f"{bag}: holds no complete chunk"
                                  + (f" ({scan.stop})" if scan.stop else "") + "; nothing to recover")
     if not scan.has_crcs:
-        raise NothingRecoverable(f"{bag}: carries no chunk CRCs, so damaged chunks cannot be told from good ones")
+        what = f"is {'truncated or unreadable (' + scan.stop + ')' if scan.stop else 'damaged'}, and "
+        raise NothingRecoverable(f"{bag}: {what if (scan.stop or scan.bad or scan.data_problem) else ''}carries no chunk "
+                                 "CRCs (written by another tool, or by this project before it computed them), so its "
+                                 "damaged chunks cannot be told from good ones: nothing is salvaged")
     if not (scan.bad or scan.stop or scan.data_problem):
         raise NothingRecoverable(f"{bag}: all {len(scan.chunks)} chunks pass their CRC; nothing to repair")
 
