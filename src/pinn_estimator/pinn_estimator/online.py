@@ -153,6 +153,7 @@ class SampleAssembler:
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
+        self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
 
     @property
     def last_released(self) -> int:
@@ -181,6 +182,7 @@ class SampleAssembler:
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
         broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
+        self.newest[topic] = max(stamp, self.newest.get(topic, stamp))
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
         if verdict is Verdict.FUTURE or (verdict is Verdict.STALE and last - stamp > RESTART_BACK_TICKS * PERIOD_NS):
@@ -234,8 +236,11 @@ class SampleAssembler:
                 return
         if joined.why is Why.EVICTED:  # a topic that never comes must not grow memory
             self.counters.evicted += 1
+            # (a machine's sensors, each stamping by its own clock: the topics came, never at one stamp)
+            coming = all(self.newest.get(t, -1) > stamp for t in joined.missing)
             self.warn("evicted", f"tick {stamp} ns never got {sorted(joined.missing)} within {MAX_PENDING_TICKS} "
-                                 "ticks; dropped")
+                                 "ticks; dropped" + (" (they come, stamped otherwise: every topic of a tick must carry "
+                                                     "the tick's stamp, not its sensor's own)" if coming else ""))
             return
         if joined.why is Why.OVERTAKEN:
             self.counters.gaps += 1
