@@ -50,7 +50,7 @@ from .fee_fit import ThetaFit
 from .regimes import holm
 from .frame import Frame
 from .soil_tests import held_parameters
-from .yaml_file import read_yaml
+from soil_msgs_py.yaml_file import read_yaml
 
 MAX_CANDIDATES = 3  # forms passed on to the held-out test
 MAX_PATH = 8  # longest greedy path the cross-validation considers

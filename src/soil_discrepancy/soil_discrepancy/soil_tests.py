@@ -34,7 +34,7 @@ from soil_msgs_py.params import DEG
 from soil_msgs_py.patches import finite_number, short_repr, yaml_exponent
 
 from .frame import Frame
-from .yaml_file import read_yaml
+from soil_msgs_py.yaml_file import read_yaml
 
 WIDTH_SIGMA = 2.0  # θ may move ± this many of a test's standard deviations (its ~95 % interval)
 # the share of tested parameters whose truth lies outside ± WIDTH_SIGMA std (a Gaussian test error)

@@ -47,6 +47,7 @@ import numpy as np
 from soil_msgs_py.params import DEG, TABLE1
 from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr, yaml_exponent
 from soil_msgs_py.soil_labels import UNKNOWN_SOILS, says_unknown
+from soil_msgs_py.yaml_file import read_yaml
 
 
 @dataclass(frozen=True)
@@ -220,19 +221,12 @@ def load_soil_file(path: str | Path) -> SoilFile:
     """Load a soils YAML: one soil (a mapping), several (a list), or the sectioned form with
     ``soils:`` and/or ``paths:`` (module docstring). Every path's soils must be catalogue soils
     or soils of the file; errors name the file, the entry and the value."""
-    import yaml
-
     path = Path(path)
     if path.is_dir():
         raise FileNotFoundError(f"soil file {str(path)!r} is a directory: give the YAML file in it")
     if not path.is_file():
         raise FileNotFoundError(f"soil file {str(path)!r} does not exist")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:  # a binary file: say which one
-        raise ValueError(f"soil file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"soil file {str(path)!r} is not valid YAML: {exc}") from exc
+    data = read_yaml(path, "soil file")
     if data is None:
         raise ValueError(f"soil file {str(path)!r} is empty: give a soil (a mapping), a list of them, or "
                          "the sections 'soils:' and 'paths:'")

@@ -1,4 +1,4 @@
-"""Reading a user's YAML file (a catalogue of terms, soil tests) with errors that name the file."""
+"""Reading a user's YAML file (soils, a catalogue of terms, soil tests) with errors that name the file."""
 from __future__ import annotations
 
 from pathlib import Path
