@@ -32,6 +32,8 @@ import dataclasses  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
+from soil_bringup.cut_report import TARGET_SETTLE_S, WITHIN  # noqa: E402
+
 # name: (world, patches 'x:soil:I_d', seed); 45 s cuts at the controller's default speed
 PATHS = {
     "main_default": ("default", ("0:Sand:20", "10:Clay:80", "16:Loam:50"), 3),
@@ -71,7 +73,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 SEED_STEP = 100  # --seeds: the seeds of one path are its own + k * SEED_STEP
-SETTLE_WITHIN_S = 2.0  # the "within 2 s of entering a new soil patch"
+SETTLE_WITHIN_S = TARGET_SETTLE_S  # the "within 2 s of entering a new soil patch" (soil_cut_report's)
 
 
 def run_path(job: tuple) -> list[dict]:
@@ -120,7 +122,7 @@ def main(argv=None) -> int:
     print(f"## Planner margin × force quantile over {len(jobs)} cuts: {len(args.paths)} paths × up to {args.seeds} "
           f"seed(s) ({DURATION_S:g} s cuts{lift})\n")
     print("| path | margin | quantile | volume / m vs conservative | ceiling | stall [s] | conservative / aggressive stall [s] "
-          f"| patches entered, within 20 % of their best depth within {SETTLE_WITHIN_S:g} s |")
+          f"| patches entered, {WITHIN} of their best depth within {SETTLE_WITHIN_S:g} s |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         ceiling = f"{r['ceiling']:.2f}×" if r["ceiling"] is not None else "–"
@@ -134,7 +136,7 @@ def main(argv=None) -> int:
         paths = len({r['path'].split(' (seed')[0] for r in mine})  # a further seed's label: "<path> (seed N)"
         print(f"\n{world} world, per setting over its {len({r['path'] for r in mine})} cuts ({paths} path{'s' if paths != 1 else ''}):\n")
         print("| margin | quantile | mean volume / m vs conservative | total stall [s] | cuts without stall "
-              f"| patches entered, within 20 % of their best depth within {SETTLE_WITHIN_S:g} s |")
+              f"| patches entered, {WITHIN} of their best depth within {SETTLE_WITHIN_S:g} s |")
         print("|---|---|---|---|---|---|")
         for margin, quantile in args.settings:
             sel = [r for r in mine if (r["margin"], r["quantile"]) == (margin, quantile)]

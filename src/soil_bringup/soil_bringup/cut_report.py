@@ -58,7 +58,8 @@ SPEED_M_S = DEFAULT_TARGET_SPEED_M_S  # every policy's, and the speed the planne
 # The issue's targets (figures, not tests)
 TARGET_VOLUME_RATIO = 1.5  # soil-aware / conservative volume per metre
 TARGET_STALL_RATIO = 5.0  # aggressive / soil-aware stall time
-TARGET_SETTLE_S = 2.0  # within 20 % of the patch's best fixed depth this soon after entering
+TARGET_SETTLE_S = 2.0  # within SETTLE_TOLERANCE of the patch's best fixed depth this soon after entering
+WITHIN = f"within {100 * CM.SETTLE_TOLERANCE:g} %"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -320,7 +321,7 @@ def markdown(report: dict) -> str:
                          f"| {100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f} "
                          f"| {p['mean_depth_m']:.3f} |")
         lines += ["", "| patch | time [s] | best fixed depth [m] | planner's mean target [m] | mean cut depth [m] "
-                      "| stall [s] | settled within 20 % after [s] | time within 20 % |", "|---|---|---|---|---|---|---|---|"]
+                      f"| stall [s] | settled {WITHIN} after [s] | time {WITHIN} |", "|---|---|---|---|---|---|---|---|"]
         for p in w["patches"]:
             lines.append(f"| {p['soil']} {p['relative_density_pct']:.0f} % | {p['time_s']:.1f} | {_fmt(p['best_fixed_depth_m'], '.3f')} "
                          f"| {_fmt(p['mean_target_m'], '.3f')} | {_fmt(p['mean_depth_m'], '.3f')} | {p['stall_s']:.2f} "
@@ -341,7 +342,7 @@ def markdown(report: dict) -> str:
                   f"{w['policies'][0]['stall_s']:.2f} s",
                   f"- ≥ {TARGET_STALL_RATIO:g}× less stall than aggressive: "
                   f"**{_less_stall(w['policies'][1]['stall_s'], w['policies'][2]['stall_s'])}**",
-                  f"- within 20 % of each new patch's best fixed depth within {TARGET_SETTLE_S:g} s: "
+                  f"- {WITHIN} of each new patch's best fixed depth within {TARGET_SETTLE_S:g} s: "
                   f"**{_settle_text(w['patches'])}**", "",
                   f"![{w['world']}]({w['figure']})", ""]
     return "\n".join(lines)
@@ -422,7 +423,7 @@ def console(report: dict) -> str:
         for p in w["patches"]:
             out.append(f"    {p['soil']:<{width}}{p['relative_density_pct']:3.0f} %: best fixed {_fmt(p['best_fixed_depth_m'], '.3f')} m, "
                        f"planner's mean target {_fmt(p['mean_target_m'], '.3f')} m, settled after {_fmt(p['settle_s'], '.1f')} s, "
-                       f"within 20 % {_pct(p.get('within_share'))} of the time")
+                       f"{WITHIN} {_pct(p.get('within_share'))} of the time")
         if w.get("unreached"):
             out.append(f"  patches {w['unreached']}")
         if w.get("stall_everywhere"):
