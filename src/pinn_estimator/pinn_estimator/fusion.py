@@ -94,9 +94,11 @@ C_SCALE_PA = 1e3
 V_LO, V_SPAN = -5.0, 20.0
 V_ZERO = V_LO + U_LOWER * V_SPAN
 SOFTPLUS_AT_ZERO = math.log1p(math.exp(V_ZERO))  # softplus(V_ZERO), what c's map subtracts
-# A model force beyond this [N] is taken as undefined (``SoilPosterior.model_point_forces``): 30
-# times the machine's largest force limit, far beyond any soil it can cut.
-PLAUSIBLE_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
+# A model force beyond this [N] is the FEE near its singularity (η → 180°), taken as undefined
+# (``SoilPosterior.model_point_forces``): 30 times the machine's largest force limit, far beyond any
+# soil it can cut. Not ``params.MAX_PLAUSIBLE_FORCE_N`` (10× more), which bounds what any soil,
+# effect or plugin may put on a blade at all.
+FEE_SINGULAR_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
 # A cohesionless prior component's c: u = U_LOWER ± 0.05, where c is 0 (below) or under
 # 0.3 Pa (within two standard deviations above): c = 0 in effect, with the same Gaussian algebra
 # as every other component.
@@ -570,7 +572,7 @@ class SoilPosterior:
         """(F_x, F_z) [N], each (K, G): the model at scaled points u (K, 3) for each row of Θ_k
         (G, 9) (or (9,), G = 1), at travel ``distance_m`` [m] and time ``time_s`` [s] in soil (for
         terms that look at them). NaN where the model is undefined: no failure wedge, or a force
-        beyond ``PLAUSIBLE_FORCE_N``, which is the FEE's singularity (η → 180°, paper §2.2.2)
+        beyond ``FEE_SINGULAR_FORCE_N``, which is the FEE's singularity (η → 180°, paper §2.2.2)
         rather than a soil, and whose derivatives (~1e15 N per unit of u) make a component's
         predictive covariance singular."""
         known = np.atleast_2d(np.asarray(known, float))
@@ -578,7 +580,7 @@ class SoilPosterior:
         fx, fz = self.model.force(theta, known[None, :, :], np.full(known.shape[0], distance_m),
                                   time_in_soil=np.full(known.shape[0], time_s))
         with np.errstate(invalid="ignore"):
-            wild = (np.abs(fx) > PLAUSIBLE_FORCE_N) | (np.abs(fz) > PLAUSIBLE_FORCE_N)
+            wild = (np.abs(fx) > FEE_SINGULAR_FORCE_N) | (np.abs(fz) > FEE_SINGULAR_FORCE_N)
         return np.where(wild, np.nan, fx), np.where(wild, np.nan, fz)
 
     def sigma(self, fx, fz, spread_n=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
