@@ -84,8 +84,9 @@ class DatasetPlan:
 
 
 def grid_specs(soils, relative_densities, speeds, depths, n_seeds, seed_base, duration_s, patches=()) -> list[EpisodeSpec]:
-    """Full factorial grid; every episode gets its own seed (seed_base + index) and ``patches``
-    (with patches, give the first patch's soil and I_d as the only soil and density)."""
+    """Full factorial grid of soils × relative densities I_d [%] × target speeds [m/s] × target
+    depths [m] × ``n_seeds``; every episode gets its own seed (seed_base + index), ``duration_s``
+    [s] and ``patches`` (with patches, give the first patch's soil and I_d as the only soil and density)."""
     combos = itertools.product(soils, relative_densities, speeds, depths, range(n_seeds))
     return [
         EpisodeSpec(soil, float(i_d), float(v), float(d), seed=seed_base + k, duration_s=duration_s, patches=patches)

@@ -64,6 +64,7 @@ class TickTiming:
     late_commands: int = 0
 
     def published(self, t: float) -> None:
+        """A tick went out at wall time ``t`` [s, monotonic]."""
         self.publish_times.append(t)
 
     def answered(self, t: float) -> None:
