@@ -688,6 +688,35 @@ def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_b
     assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
 
 
+def test_a_trainer_killed_outright_leaves_its_best_model_so_far(tiny_bags, tmp_path, monkeypatch):
+    """A torchrun job whose rank 0 was killed (kill -9), or whose stalled peer held a collective until
+    torchrun killed the group, lost every epoch (an outside tester's): the best model is now written
+    at each improvement, and says it was written while training."""
+    from pinn_estimator import train as train_module
+
+    class Killed(BaseException):  # nothing after it runs, as after a SIGKILL
+        pass
+
+    real, calls = train_module._agree, [0]
+
+    def agree(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 3:
+            raise Killed
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "_agree", agree)
+    out = tmp_path / "m.pt"
+    with pytest.raises(Killed):
+        train_main(["--data", str(tiny_bags), "--out", str(out), "--epochs", "5", "--stride", "6", "--quiet",
+                    "--no-cache", "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1"])
+    raw = torch.load(out, weights_only=True)
+    assert raw["metrics"]["stop_reason"].startswith("in progress: the best model so far (epoch ")
+    assert raw["metrics"]["best_epoch"] in (1, 2) and len(raw["history"]["val_loss"]) == raw["metrics"]["best_epoch"]
+    model, _ = ck.load_model(out)  # a checkpoint the tools read like any other
+    assert model.cfg.d_model == 16
+
+
 def test_sigterm_keeps_the_best_model_so_far_like_ctrl_c(tiny_bags, tmp_path, monkeypatch, capsys):
     """SIGTERM (`timeout`, a scheduler, a container runtime) killed the training at once, losing
     every epoch; now it takes the Ctrl-C path: the best model kept, before one exit 143."""

@@ -18,9 +18,11 @@ writes the cache) before the others, and alone writes the checkpoint, curve and 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -138,7 +140,8 @@ class JobFailed(RuntimeError):
 
 
 def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, weights: LossWeights = LossWeights(),
-          progress: bool = True, log=print, ranks: Ranks = Ranks(), stop: StopRequest | None = None):
+          progress: bool = True, log=print, ranks: Ranks = Ranks(), stop: StopRequest | None = None,
+          on_best: Callable[[EstimatorNet, dict, dict, dict], None] | None = None):
     """Train on ``ds``; returns (best model, split, history, metrics).
 
     ``ranks``: this process's place in a torchrun job (inside ``distributed.process_group``);
@@ -151,7 +154,11 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     raised in one process, or, in a job, noted on ``stop`` (``interrupts.stop_requests``) by
     any rank, which every rank then acts on at the same step. A job whose other process failed
     (its collective broke) raises JobFailed carrying the best model. Before a first validated
-    epoch either is raised as it came."""
+    epoch either is raised as it came. ``on_best(model, split, history, metrics)``: called at each
+    new best validation with that model (a copy) and provisional metrics (``stop_reason`` says so),
+    for rank 0 to write it at once: a job whose rank 0 is killed, or whose stalled peer holds a
+    collective until torchrun kills it, keeps its best model so far (an outside tester's lost five
+    epochs either way)."""
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     torch.set_num_threads(max(1, cfg.threads // ranks.local_world))  # the machine's --threads, shared
@@ -218,6 +225,23 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         bar = tqdm(total=cfg.epochs, desc=f"training {model_cfg.kind}", unit="epoch")
     stop_reason = "epochs"
     epoch_windows = 0
+
+    def metrics_of(best, stop_reason: str, interrupted: int) -> dict:
+        """The run's figures for the ``best`` (val loss, weights, epoch, val forces) model."""
+        return {
+            "processes": ranks.world,
+            "train_windows_per_epoch": count,  # summed over the processes, partner windows included
+            "best_epoch": best[2],
+            "epochs_run": len(history["epoch"]),
+            "stop_reason": stop_reason,
+            "train_seconds": history["seconds"][-1] if history["seconds"] else 0.0,
+            "val_loss": best[0],
+            # the best epoch's validation, agreed by every rank (no pass alone over all of it)
+            "val_force": force_errors(ds.forces[val_ends.numpy()], best[3]),
+            "parameters": parameter_count(model),
+            "interrupted_exit_code": interrupted,  # 130 / 143: the model is kept, but the run did not end by itself
+        }
+
     try:
         for epoch in range(1, cfg.epochs + 1):
             net.train()
@@ -265,6 +289,12 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                 history[key].append(value)
             if val_loss < best[0]:
                 best = (val_loss, {k: v.clone() for k, v in model.state_dict().items()}, epoch, val_force)
+                if on_best is not None:
+                    kept = copy.deepcopy(model).eval()
+                    kept.load_state_dict(best[1])
+                    on_best(kept, split, {k: list(v) for k, v in history.items()},
+                            metrics_of(best, f"in progress: the best model so far (epoch {epoch} of {cfg.epochs}), "
+                                             "written at each improvement; a run that ends writes its own", 0))
             if bar is not None:
                 bar.set_postfix(train=f"{running / count:.4f}", val=f"{val_loss:.4f}", val_mae=f"{val_mae:.0f}N")
                 bar.update(1)
@@ -296,19 +326,7 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
                                  "(or the k of an --extra-term)")
     model.load_state_dict(best[1])
     model.eval()
-    val_force = best[3]  # the best epoch's validation, agreed by every rank (no pass alone over all of it)
-    metrics = {
-        "processes": ranks.world,
-        "train_windows_per_epoch": count,  # summed over the processes, partner windows included
-        "best_epoch": best[2],
-        "epochs_run": len(history["epoch"]),
-        "stop_reason": stop_reason,
-        "train_seconds": history["seconds"][-1] if history["seconds"] else 0.0,
-        "val_loss": best[0],
-        "val_force": force_errors(ds.forces[val_ends.numpy()], val_force),
-        "parameters": parameter_count(model),
-        "interrupted_exit_code": interrupted,  # 130 / 143: the model is kept, but the run did not end by itself
-    }
+    metrics = metrics_of(best, stop_reason, interrupted)
     said = f"all {cfg.epochs} epochs run" if stop_reason == "epochs" else stop_reason
     log(f"{model_cfg.kind}: {said}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
         f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
@@ -426,6 +444,7 @@ def main(argv=None) -> int:
 
 def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
+    best_so_far = None
     try:
         ds = _load(args, ranks)
         worlds = world_modes(ds.metas)
@@ -441,12 +460,14 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         # SIGTERM (timeout, a scheduler) as Ctrl-C: the best model so far is kept. A torchrun job's
         # ranks note either signal and stop at one step, and rank 0 writes unhindered by the second
         # Ctrl-C every rank gets (the terminal's, then torchrun's)
+        best_so_far = _best_so_far(args, cfg, ds) if ranks.main else None
         with stop_requests() if ranks.active else terminate_as_interrupt() as stop:
             failed = None
             try:
                 model, split, history, metrics = train(ds, cfg, model_cfg, split=split,
                                                        progress=not args.quiet and ranks.main,
-                                                       log=print if ranks.main else _silent, ranks=ranks, stop=stop)
+                                                       log=print if ranks.main else _silent, ranks=ranks, stop=stop,
+                                                       on_best=best_so_far)
             except JobFailed as err:
                 failed = err
                 model, split, history, metrics = err.result
@@ -458,7 +479,10 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         return 1 if isinstance(err, RuntimeError) else 2  # a run that broke (a worker died) / the input's fault
     except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
         if ranks.main:
-            print("pinn_train: interrupted; nothing written", file=sys.stderr)
+            kept = best_so_far.written if best_so_far is not None else 0
+            print("pinn_train: interrupted; " + (f"the best model so far (epoch {kept}) is in {args.out}, as written "
+                                                  "while training (no curve)" if kept else "nothing written"),
+                  file=sys.stderr)
         return interrupt_exit_code(exc)
     if failed is not None:
         if ranks.main:
@@ -479,6 +503,18 @@ def _write(args, cfg: TrainConfig, ds: Dataset, model, split, history, metrics) 
     save_checkpoint(out, model, train_config=asdict(cfg), dataset=describe(ds), split=split, metrics=metrics, history=history)
     curve = plot_curve(history, curve_path(out), f"{args.kind} on {Path(args.data).name}")
     print(json.dumps({"checkpoint": str(out), "curve": str(curve), **{k: metrics[k] for k in ("best_epoch", "epochs_run", "stop_reason", "train_seconds")}, "val_force": metrics["val_force"]}, indent=1))
+
+
+def _best_so_far(args, cfg: TrainConfig, ds: Dataset):
+    """``train``'s ``on_best`` for rank 0: each new best model written to ``--out`` at once
+    (atomically; the finished run's checkpoint, curve and summary replace it). Its ``written``
+    says the epoch of the last one (0: none yet)."""
+    def write(model, split, history, metrics) -> None:
+        save_checkpoint(Path(args.out), model, train_config=asdict(cfg), dataset=describe(ds), split=split,
+                        metrics=metrics, history=history)
+        write.written = metrics["best_epoch"]
+    write.written = 0
+    return write
 
 
 def _silent(*_args, **_kwargs) -> None:
