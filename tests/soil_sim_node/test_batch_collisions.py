@@ -197,3 +197,25 @@ def test_a_grid_value_given_twice_is_said(tmp_path, capsys):
     assert "--soils lists sand more than once" in capsys.readouterr().err
     assert batch.main([*ONE, "--depths", "0.1", "--out", str(tmp_path / "c")]) == 0
     assert "more than once" not in capsys.readouterr().err
+
+
+def test_a_disk_filling_up_mid_run_is_said_in_one_line_and_leaves_no_staging(tmp_path, capsys, monkeypatch):
+    """A full disk in the local pool ended in a worker's raw traceback and left <bag>.partial
+    directories (an outside tester's; Ray's path said it cleanly): now one line, exit 1, the
+    bags finished kept and said, the staging of this run removed."""
+    out = tmp_path / "site"
+    real, calls = batch.write_episode, [0]
+
+    def filling(bag_dir, ep, **kw):
+        calls[0] += 1
+        if calls[0] == 1:
+            return real(bag_dir, ep, **kw)
+        (bag_dir.parent / f"{bag_dir.name}.partial").mkdir()
+        raise OSError(28, "No space left on device", str(bag_dir))
+
+    monkeypatch.setattr(batch, "write_episode", filling)
+    assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "soil_sim_batch: error: writing the bags failed: [Errno 28] No space left on device" in err, err
+    assert "1 episode bag(s) finished before the failure are kept" in err and "--skip-existing" in err, err
+    assert len(find_episode_bags(out)) == 1 and not list(out.glob("*.partial"))

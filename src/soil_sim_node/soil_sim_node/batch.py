@@ -245,7 +245,8 @@ def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
             f"{plan.out / (journals[0] + PARTIAL_SUFFIX)}: soil_bag_repair recovers it (or move it away); nothing written")
     if taken:
         raise FileExistsError(f"{len(taken)} of the {len(names)} bags exist in {plan.out}, e.g. {taken[0]}; nothing "
-                              "written (--overwrite replaces them, or give another --out or --seed-base)")
+                              "written (--skip-existing keeps them and simulates the rest, as after an interrupted "
+                              "run; --overwrite replaces them; or give another --out or --seed-base)")
 
 
 def _bags_in(out: Path) -> set[str]:
@@ -519,7 +520,14 @@ def main(argv=None) -> int:
                                ray_give_up_after_s=args.ray_give_up_after)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
-        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=True)):
+        # a bag that came into being after this run checked --out: another run writing into it
+        raced = isinstance(exc, FileExistsError) and "not replaced" in str(exc)
+        if raced:
+            print(f"soil_sim_batch: that bag was written after this run began: is another run writing into "
+                  f"{plan.out}? Let it finish, then the same command with --skip-existing simulates what is "
+                  "missing", file=sys.stderr)
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=not raced,
+                                                              said="--skip-existing" if raced else "")):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2
     except (ChunksFailed, RuntimeError) as exc:
@@ -528,6 +536,13 @@ def main(argv=None) -> int:
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2 if bad_input else 1
+    except OSError as exc:  # a disk full or a directory gone mid-run (a pool worker's: its traceback said no more)
+        print(f"soil_sim_batch: error: writing the bags failed: {exc}", file=sys.stderr)
+        if plan is not None:
+            _remove_staging(plan)
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=False)):
+            print(f"soil_sim_batch: {kept}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
         if plan is None:  # (a SIGTERM is taken as an interrupt only once the plan is made)
             print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
