@@ -161,3 +161,23 @@ def test_fig3_plot_renders_png(tmp_path):
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     assert plot_main([str(tmp_path / "missing_bag")]) == 2
+
+
+def test_the_readers_warnings_are_said_again_when_the_cache_answers(tmp_path):
+    """A flipped force sensor was said by the first reader of a folder only: the dataset cache then
+    answered without it, and pinn_train trained on the flipped bags in silence (an outside
+    tester's). The warnings are kept with the cache and said, each kind once, on every load."""
+    from dataclasses import replace
+
+    from pinn_estimator.dataset import load_dataset
+    from soil_bag_tools.bag_io import write_episode
+    from soil_sim_node.simulator import EpisodeSpec
+
+    specs = [EpisodeSpec("Clay", 40.0, 0.5, depth, seed=k, duration_s=3.0) for k, depth in enumerate((0.1, 0.15))]
+    for ep in run_episodes(SimConfig(world_mode="fee"), specs):
+        write_episode(tmp_path / "flipped" / ep.meta.name, replace(ep, forces=-ep.forces))
+    for _ in range(2):  # the bags, then the cache
+        said = []
+        load_dataset(tmp_path / "flipped", log=said.append)
+        (line,) = [s for s in said if "f_x < 0" in s]
+        assert "a sensor of the other sign?" in line and "(and 1 other bag(s) alike)" in line, said

@@ -185,3 +185,28 @@ def test_report_writes_the_summary_and_fails_on_a_missing_episode(tmp_path, epis
     assert summary["episodes"][0]["params"]["phi_mae_deg"] == pytest.approx(2.0)
     assert (out / "online_estimates.png").stat().st_size > 5_000 and "| **overall** |" in (out / "summary.md").read_text()
     assert "overall" in captured.out and "valid estimates" in captured.out
+
+
+def test_a_run_whose_commands_came_late_says_so(tmp_path, episode, capsys):
+    """--rate 1000: 119 of 120 ticks' commands came late, and the demo printed its usual table (an
+    outside tester's): the figures are a lagging controller's, and the run now says so."""
+    import time
+    from types import SimpleNamespace
+
+    from soil_bringup.monitor import LiveEpisode
+
+    out, root = tmp_path / "out", tmp_path / "bags"
+    args = D.parse_args(["--soils", "Clay", "--densities", "20", "--out", str(out), "--bags", str(root), "--rate", "50",
+                         "--no-forecast"])
+    root.mkdir()
+    estimates = [(int(s), estimate(episode, k, k >= 59, min(k + 1, 60))) for k, s in enumerate(episode.stamps_ns)]
+    write_bag_with_estimates(root / episode.meta.name, episode, estimates)
+    lagging = LiveEpisode(0, episode.meta.name, "Clay", 20.0, int(episode.stamps_ns[0]), len(episode), 0.0, wall_end=1.0,
+                          reason="completed", ticks=len(episode), late_commands=len(episode) - 1)
+    monitor = SimpleNamespace(episodes=[lagging], problems={})
+    assert D.report(args, [("Clay", 20.0)], monitor, time.monotonic(), 5.0, out / "launch.log") == 0
+    err = capsys.readouterr().err
+    assert f"the commands of {len(episode) - 1} of its {len(episode)} ticks came after their real-time deadline" in err
+    assert "--rate 50" in err
+    summary = json.loads((out / "summary.json").read_text(), parse_constant=lambda c: None)
+    assert summary["run"]["warnings"] and summary["episodes"][0]["live"]["late_commands"] == len(episode) - 1

@@ -61,8 +61,34 @@ def test_the_users_own_physics_stays_and_what_differs_is_said():
     assert not both.adopted and both.bound_law == (1.0, 2.0, 0.1, 0.2) and len(both.notes) == 1
     travel = planning_physics([], [], said((FORM, "compaction_hardening=0.1")), follow=True)
     assert travel.terms == (("form:-qnq*tanhvx0.1", 0.756),) and "compaction_hardening" in travel.notes[0]
-    unknown = planning_physics([], [], said(("no_such_term=1.0",)), follow=True)
-    assert unknown.terms == () and not unknown.adopted and "not taken" in unknown.notes[0]
+    with pytest.raises(ValueError, match="from fusion_default.json: .*no_such_term"):
+        planning_physics([], [], said(("no_such_term=1.0",)), follow=True)
+
+
+def test_an_announcement_the_planner_cannot_plan_with_keeps_the_physics_heard_before():
+    """A well-formed announcement with an unknown term dropped the estimator's physics for the rest
+    of the run, the plans then read through the FEE alone (an outside tester's)."""
+    from types import SimpleNamespace
+
+    from std_msgs.msg import String
+
+    from soil_planner.node import PlannerNode, stretch_planner
+
+    good = said()
+    taken, warned = [], []
+    node = SimpleNamespace(own_physics={"terms": [], "bound_law": []}, announced=good, _warn=lambda k, t: warned.append(t),
+                           planner=stretch_planner({"margin": 0.85, "d_max_m": 0.3, "cut_speed_m_s": 0.5,
+                                                    "include_residual": True, "force_quantile": 0.95, "terms": [],
+                                                    "sensor_anchor": True, "bound_law": []}),
+                           _take_physics=lambda: taken.append(node.announced))
+    for bad in (said(("no_such_term=1.0",)), said(law=(1e12, 5.0, 0.1, 0.2))):
+        PlannerNode._on_physics(node, String(data=bad.to_json()))
+        assert node.announced is good and not taken and "not taken, the plans' physics stays" in warned[-1], warned
+    PlannerNode._on_physics(node, String(data="not json {"))
+    assert node.announced is good and len(warned) == 3
+    fee = said((), (5.0, 5.0, 0.0, 0.0))
+    PlannerNode._on_physics(node, String(data=fee.to_json()))
+    assert node.announced == fee and taken == [fee]
 
 
 @pytest.mark.parametrize("text, field", [

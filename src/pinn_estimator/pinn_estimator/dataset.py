@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, scan_bags
+from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, reader_notes, scan_bags
 from soil_msgs_py.episode import EpisodeMeta, first_non_finite, stamp_gaps, world_modes
 from soil_msgs_py.params import (
     FORCE_FIELDS,
@@ -39,7 +39,7 @@ from soil_sim_node.ray_cluster import CLUSTER_LOST_AFTER_S
 # episodes. A larger stride leaves one window per episode, and a run on a handful of windows
 # (pinn_train --stride 100000 trained on 24 of them, pinn_eval scored 12) is no run.
 MAX_WINDOW_STRIDE = 10 * WINDOW_SAMPLES
-CACHE_VERSION = 2  # 2: per-row stamp gaps (``Dataset.gap_before``)
+CACHE_VERSION = 2  # 2: per-row stamp gaps (``Dataset.gap_before``) (it is in the fingerprint: checkpoints record it)
 CACHE_DIR_NAME = ".insitu_cache"
 SPLITS = ("train", "val", "test")
 SKIP_BAD_BAGS_HELP = ("skip bags that cannot be read (truncated, corrupt, NaN, shorter than a window) and "
@@ -63,6 +63,7 @@ class Dataset:
     fingerprint: str
     root: str
     skipped: list[dict] = field(default_factory=list)  # {"bag": path, "problem": why} per skipped bag
+    notes: list[str] = field(default_factory=list)  # the bag readers' warnings (``bag_io.reader_notes``)
     # (N,) bool: the row's stamp is more than one tick after the previous row of its episode (a
     # bag repaired by dropping damaged chunks); None: no gaps
     gap_before: np.ndarray | None = None
@@ -160,7 +161,8 @@ def _read(bag: Path):
     """Worker: one bag's arrays, or its BagReadError *returned* (picklable), so a pool reading
     many bags keeps going and the parent decides whether to skip the bag or stop."""
     try:
-        ep = read_episode(bag)
+        with reader_notes() as notes:
+            ep = read_episode(bag)
         if len(ep.observations) < WINDOW_SAMPLES:
             raise BagReadError(bag, f"has {len(ep.observations)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
         _check_finite("observation", ep.observations, OBSERVATION_FIELDS, bag)
@@ -168,7 +170,7 @@ def _read(bag: Path):
         _check_finite("known parameter", ep.known, KNOWN_PARAMS, bag)
     except BagReadError as err:
         return err
-    return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth, stamp_gaps(ep.stamps_ns)
+    return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth, stamp_gaps(ep.stamps_ns), notes
 
 
 def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
@@ -180,6 +182,18 @@ def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
 
 def _warn(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
+
+
+def say_notes(notes: list[str], log=_warn) -> None:
+    """The bag readers' warnings of a dataset (``bag_io.reader_notes``), each kind once with how
+    many bags it concerns: said whether the bags were read or their cache was."""
+    by_kind: dict[str, list[str]] = defaultdict(list)
+    for note in notes:
+        bag, sep, text = note.partition(": ")
+        by_kind[text if sep else note].append(bag if sep else "")
+    for text, bags in by_kind.items():
+        others = f" (and {len(bags) - 1} other bag(s) alike)" if len(bags) > 1 else ""
+        log(f"warning: {bags[0]}: {text}{others}" if bags[0] else f"warning: {text}")
 
 
 def add_skip_bad_bags_option(parser) -> None:
@@ -216,6 +230,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     if cache and cache_path.is_file():
         cached = _from_npz(cache_path, fingerprint, root)
         if cached is not None:
+            say_notes(cached.notes, log)
             return cached
     rows = (_read_on_ray(bags, workers, progress, ray_address, ray_give_up_after_s) if ray_address
             else _read_all(bags, workers, progress))
@@ -231,9 +246,10 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
             raise ValueError(f"every bag under {root} is unreadable; nothing left to load")
         bags = [b for b, r in zip(bags, rows) if not isinstance(r, BagReadError)]
         fingerprint = fingerprint_bags(bags, root)
-    names, metas, parts = [], [], defaultdict(list)
-    for name, meta_json, obs, forces, known, truth, gaps in (r for r in rows if not isinstance(r, BagReadError)):
+    names, metas, parts, notes = [], [], defaultdict(list), []
+    for name, meta_json, obs, forces, known, truth, gaps, said in (r for r in rows if not isinstance(r, BagReadError)):
         names.append(name)
+        notes += said
         metas.append(EpisodeMeta.from_json(meta_json))
         for key, arr in (("observations", obs), ("forces", forces), ("known", known), ("truth", truth),
                          ("gap_before", gaps)):
@@ -245,8 +261,9 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     ds = Dataset(
         names, metas, offsets, *(np.concatenate(parts[k]) for k in ("observations", "forces", "known", "truth")),
         fingerprint=fingerprint, root=str(root), skipped=[{"bag": e.bag, "problem": e.problem} for e in bad],
-        gap_before=np.concatenate(parts["gap_before"]),
+        gap_before=np.concatenate(parts["gap_before"]), notes=notes,
     )
+    say_notes(notes, log)
     if cache and not bad:
         _to_npz(ds, cache_path)
     return ds
@@ -305,6 +322,7 @@ def _to_npz(ds: Dataset, path: Path) -> None:
             tmp, version=CACHE_VERSION, fingerprint=ds.fingerprint, names=np.array(ds.names),
             metas=np.array([m.to_json() for m in ds.metas]), offsets=ds.offsets,
             observations=ds.observations, forces=ds.forces, known=ds.known, truth=ds.truth, gap_before=ds.gap_before,
+            notes=np.array(ds.notes, dtype=str),
         )
         os.replace(tmp, path)
     except OSError:
@@ -315,12 +333,12 @@ def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
     """The cached dataset, or None (read the bags again) if the cache file is damaged or stale."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint:
-                return None
+            if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint or "notes" not in z.files:
+                return None  # (a cache from before the readers' warnings were kept: read the bags again)
             return Dataset(
                 [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
                 z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),
-                gap_before=z["gap_before"],
+                gap_before=z["gap_before"], notes=[str(n) for n in z["notes"]],
             )
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None

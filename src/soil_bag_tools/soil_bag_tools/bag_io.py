@@ -225,6 +225,28 @@ def check_integrity(bag: Path) -> None:
                         "damage inside a chunk cannot be detected", bag)
 
 
+@contextmanager
+def reader_notes() -> Iterator[list[str]]:
+    """The readers' warnings while inside (what a bag holds that its user must know: a force of
+    the other sign, ticks dropped, no chunk CRCs), collected as lines instead of logged, for a
+    caller that keeps them with what it read: a dataset cache had read them once and then
+    answered without them (an outside tester's: a flipped sensor trained on in silence)."""
+    notes: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            notes.append(record.getMessage())
+
+    handler, propagate = Collect(logging.WARNING), log.propagate
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        yield notes
+    finally:
+        log.removeHandler(handler)
+        log.propagate = propagate
+
+
 def _read_meta(path: Path) -> EpisodeMeta:
     """Episode metadata from metadata.yaml custom_data."""
     custom = bag_custom_data(path)
@@ -318,7 +340,8 @@ def complete_ticks(path: Path, decoded: dict) -> dict:
     if len(common) == len(every):
         return decoded
     lacking = {n: np.setdiff1d(every, s, assume_unique=True) for n, s in stamps.items()}
-    worst = max(lacking, key=lambda n: len(lacking[n]))
+    # (the sensors' topics rather than /clock, which a machine's recorder stamps by its own tick)
+    worst = max(lacking, key=lambda n: (len(lacking[n]) > 0 and n != CLOCK.name, len(lacking[n])))
     example = f"e.g. {worst} has no message at {int(lacking[worst][0])} ns"
     if len(common) < (1.0 - MAX_INCOMPLETE_SHARE) * len(every):
         raise BagReadError(path, f"its topics' stamps do not line up: {len(every) - len(common)} of {len(every)} stamps "

@@ -116,8 +116,8 @@ def load_bag(
         messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
     if include is not None and (missing := sorted(include - held)):  # absent from the bag (not merely excluded)
         log(f"{bag}: no topic(s) {missing}")
-    elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held
-                                           and t.name != GROUND_TRUTH.name]):  # (a machine's bag has no truth)
+    elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held  # (a machine's bag
+                                           and t.name not in (GROUND_TRUTH.name, CLOCK.name)]):  # has no truth, no clock)
         # played all the same (a player sends what a bag holds), but every bag reader refuses it
         log(f"{bag}: an episode bag without topic(s) {missing}: its ticks are incomplete (the bag readers "
             "refuse it; what a replay feeds lacks them too)")

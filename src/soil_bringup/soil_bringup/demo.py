@@ -21,6 +21,9 @@ and the order of things only.
     python -m soil_bringup.demo --depth 0.15 --speed 0.4      # every episode's target cut
     python -m soil_bringup.demo --soil-file my_soils.yaml --soils Silt Clay   # soils of one's own
 
+A real-time run whose controller could not keep up (more than ``LATE_SHARE`` of its ticks'
+commands late) says so beside its table.
+
 Exit codes: 0 done; 1 the launch failed or a bag is missing / has no valid estimate; 2 bad
 arguments; 130 interrupted. Every wait is bounded; the launch (and its nodes) are stopped on
 the way out whatever happens.
@@ -63,6 +66,9 @@ DEFAULT_DOMAIN_ID = 42
 # before, so the live lines show an episode's last estimates before the next one's begin [s].
 LOCKSTEP_SETTLE_S = 1.5
 EXIT_FAILED = 1
+# A real-time run whose ticks' commands came late in more than this share said so (a graph that did
+# not keep up with its --rate: 119 of 120 late at --rate 1000, an outside tester's, with a normal table)
+LATE_SHARE = 0.1
 LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died or failed: see the log", L.EXIT_TIMEOUT: "timeout",
                    G.EXIT_EPISODE_FAILED: "an episode ended in error"}
 
@@ -343,7 +349,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     # Throughput from the monitor's wall clock: the span from each episode's first to its last
     # valid estimate (what the estimator sustains online; 60/s = every tick at 60 Hz).
     live = {ep.name: ep for ep in (monitor.episodes if monitor is not None else [])}
-    estimating = []
+    estimating, warnings = [], []
     for r in rows:
         ep = live.get(r["name"])
         if ep is None:
@@ -353,6 +359,10 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
             estimating.append((r["valid_estimates"], ep.estimating_s))
         if ep.reason and ep.reason != "completed":
             errors.append(f"episode {r['name']} ended with reason {ep.reason!r} (see {log_path})")
+        if ep.ticks and ep.late_commands > LATE_SHARE * ep.ticks:
+            warnings.append(f"episode {r['name']}: the commands of {ep.late_commands} of its {ep.ticks} ticks came after "
+                            f"their real-time deadline: the graph did not keep up with --rate {args.rate:g}, and its "
+                            "figures are the cut of a controller that lagged (a lower --rate, or --pacing lockstep)")
     per_wall = sum(n for n, _ in estimating) / sum(w for _, w in estimating) if estimating else None
     sim_s = total["ticks"] / SAMPLE_RATE_HZ
     wall_s = time.monotonic() - t_start
@@ -369,7 +379,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         "estimates_per_launch_s": total["valid_estimates"] / launch_s if launch_s > 0 else None,
         "estimates_per_sim_s": total["valid_estimates"] / sim_s if sim_s else 0.0,
         "valid_fraction": total["valid_estimates"] / total["ticks"] if total["ticks"] else 0.0,
-        "errors": errors,
+        "errors": errors, "warnings": warnings,
     }
     result = {"run": run_info, "episodes": rows, "overall": total}
     if not args.no_forecast:
@@ -402,6 +412,8 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
     print(f"demo: table   {paths['markdown']}  (+ {paths['json'].name})")
     print(f"demo: figure  {paths['png']}")
     print(f"demo: log     {log_path}")
+    for w in warnings:
+        print(f"demo: warning: {w}", file=sys.stderr)
     if errors:
         for e in errors:
             print(f"demo: ERROR: {e}", file=sys.stderr)

@@ -45,6 +45,7 @@ class LiveEpisode:
     wall_end: float | None = None
     reason: str = ""
     ticks: int = 0
+    late_commands: int = 0  # ticks whose commands came after their real-time deadline (the simulator's count)
     estimates: int = 0
     valid: int = 0
     latencies_s: list = field(default_factory=list)
@@ -68,6 +69,7 @@ class LiveEpisode:
         """The wall-clock figures of this episode for the summary (``valid_estimates``: from its bag)."""
         return {"wall_s": (self.wall_end - self.wall_start) if self.wall_end is not None else None,
                 "end_reason": self.reason, "estimates_seen": self.estimates, "valid_seen": self.valid,
+                "late_commands": self.late_commands,
                 "estimating_wall_s": self.estimating_s,
                 "valid_per_wall_s": valid_estimates / self.estimating_s if self.estimating_s > 0 else None,
                 "latency_ms_p50": self.latency_ms(50), "latency_ms_p99": self.latency_ms(99)}
@@ -233,6 +235,8 @@ class LiveMonitor:
             self.print(f"--- end of {event.name} ({event.reason}) [its start was not seen]")
         else:
             ep.wall_end, ep.reason, ep.ticks = now, event.reason, event.ticks
+            late = (event.stats or {}).get("late_commands", 0)
+            ep.late_commands = late if isinstance(late, int) and not isinstance(late, bool) else 0
             latency = (f"; estimate latency p50 {ep.latency_ms(50):.1f} ms, p99 {ep.latency_ms(99):.1f} ms"
                        if ep.latencies_s else "")
             self.print(f"--- end ({event.reason}): {event.ticks} ticks in {now - ep.wall_start:.1f} s wall; "

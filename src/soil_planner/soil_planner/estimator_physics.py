@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from soil_msgs_py.graph import ESTIMATOR_PHYSICS_TOPIC, EstimatorPhysics
+from soil_msgs_py.graph import EstimatorPhysics
 from soil_physics.force_terms import parse_terms
 
 from .planner import steady_cut_terms
@@ -33,8 +33,8 @@ def planning_physics(own_terms, own_bound_law, announced: EstimatorPhysics | Non
     """The physics to plan with: the user's ``own_terms`` / ``own_bound_law`` where given (not
     empty), else the estimator's ``announced`` ones (``follow``: the node's parameter
     ``follow_estimator_physics``). Terms on the blade's travel or time in soil, which a planned
-    steady cut does not have, are left out and said. An announced term the planner does not know
-    is said and nothing of that announcement is taken."""
+    steady cut does not have, are left out and said. ValueError naming an announced term the
+    planner does not know (the node then keeps what it heard before)."""
     own = parse_terms(own_terms)
     own_law = tuple(float(v) for v in own_bound_law or ())
     if not follow or announced is None:
@@ -42,8 +42,7 @@ def planning_physics(own_terms, own_bound_law, announced: EstimatorPhysics | Non
     try:
         theirs, left_out = steady_cut_terms(announced.terms)
     except ValueError as err:
-        return PlanningPhysics(own, own_law, adopted=False, notes=(
-            f"{ESTIMATOR_PHYSICS_TOPIC} from {announced.source or 'the estimator'} not taken: {err}",))
+        raise ValueError(f"from {announced.source or 'the estimator'}: {err}") from None
     notes = []
     if left_out:
         notes.append(f"the estimator's {', '.join(left_out)} left out (on the travel or time in soil, which a planned "

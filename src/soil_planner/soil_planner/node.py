@@ -324,12 +324,19 @@ class PlannerNode(Node):
         return f" until the estimator says its own ({G.ESTIMATOR_PHYSICS_TOPIC})"
 
     def _on_physics(self, msg) -> None:
-        """The estimator's posterior physics (latched): plan with it where the user gave none."""
+        """The estimator's posterior physics (latched): plan with it where the user gave none. One
+        the planner cannot plan with (a layout, a term or a law it refuses) is said and changes
+        nothing: the physics heard before stays (it had fallen back to the FEE alone)."""
         try:
-            self.announced = G.EstimatorPhysics.from_json(msg.data)
+            heard = G.EstimatorPhysics.from_json(msg.data)
+            choice = planning_physics(self.own_physics["terms"], self.own_physics["bound_law"], heard, True)
+            stretch_planner({**self.planner.settings(), "terms": term_texts(choice.terms),
+                             "bound_law": list(choice.bound_law)})
         except ValueError as err:
-            self._warn("physics:layout", f"{err}; ignored")
+            self._warn(f"physics:refused:{err}", f"{G.ESTIMATOR_PHYSICS_TOPIC}: {err}; not taken, the plans' physics "
+                                                 "stays as it was")
             return
+        self.announced = heard
         self._take_physics()
 
     def _take_physics(self) -> None:
@@ -338,16 +345,12 @@ class PlannerNode(Node):
         choice = planning_physics(self.own_physics["terms"], self.own_physics["bound_law"], self.announced,
                                   self.follow_physics)
         for note in choice.notes:
-            self._warn(f"physics:{note[:40]}", note)
+            self._warn(f"physics:{note}", note)
         current = self.planner.settings()
         wanted = {"terms": term_texts(choice.terms), "bound_law": list(choice.bound_law)}
         if all(current[name] == wanted[name] for name in PHYSICS_SETTINGS):
             return
-        try:
-            planner = stretch_planner({**current, **wanted})
-        except ValueError as err:  # (a law the planner refuses: the layout was checked, not its values)
-            self._warn("physics:refused", f"{G.ESTIMATOR_PHYSICS_TOPIC}: {err}; planning as before")
-            return
+        planner = stretch_planner({**current, **wanted})  # (checked as it was heard, ``_on_physics``)
         planner.keep_evidence_of(self.planner)
         self.planner = planner
         def whose(name: str) -> str:
