@@ -73,7 +73,7 @@ from soil_msgs_py import messages as M  # noqa: E402
 from soil_msgs_py import topics as T  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
 from soil_msgs_py.params import SAMPLE_RATE_HZ as RATE_HZ, WINDOW_SAMPLES  # noqa: E402
-from soil_sim_node.simulator import stamp_ns as stamp_of  # noqa: E402
+from soil_msgs_py.params import tick_stamp_ns as stamp_of  # noqa: E402
 from graph_procs import CLK_TCK, cpu_seconds  # noqa: E402
 from soil_bringup.launch import loopback_env  # noqa: E402
 from soil_discrepancy.provenance import cpu_model  # noqa: E402

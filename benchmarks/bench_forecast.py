@@ -269,7 +269,7 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     source's depth), and the bound's mean over the measured |F|.
     ``posts``: the episodes' posteriors under ``cfg`` (``fused_posteriors``)."""
     terms = steady_cut_terms(cfg.terms)[0]
-    law = cfg.planner_bound_law()  # as soil_launch gives it to the planner (None: the published law)
+    law = cfg.planner_bound_law()  # as the estimator says it to the planner (None: the published law)
     out = {"quantile": quantile, "terms": [list(t) for t in terms], "near_reach": NEAR_REACH, "bound_law": law}
     for label, anchor in zip(BOUND_LABELS, ANCHORS):
         found = anchored_bounds(ds, cfg, posts, [law], quantile, anchor=anchor, deeper_only=False)

@@ -88,6 +88,8 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     assert "answered without its planner target" not in out, out[-4000:]
     assert "no planner target" not in out and "estimates unpaired" in out and " 0 estimates unpaired" in out, out[-4000:]
     assert " 0 planned without it" in out, out[-4000:]  # (each tick's own command read, as the report's loop)
+    # the posterior read through the estimator's physics, heard from it (the launcher no longer passes it)
+    assert "plans read the posterior through FEE + form:-qnq*tanhvx0.1 (k = 0.756) (the estimator's)" in out, out[-4000:]
     (bag,) = find_episode_bags(bags)
     ep = read_episode(bag)
     stamps, _ = read_labelled_topic(bag, T.TARGET_DEPTH.name, T.TARGET_DEPTH_FIELDS)

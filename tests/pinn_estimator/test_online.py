@@ -30,6 +30,7 @@ from pinn_estimator.online import FUSED, INPUT_TOPICS, OnlineEstimator, SampleAs
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
 N_TICKS = 200
 VALID = T.ESTIMATE_FIELDS.index("valid")
+FUSED_VALID = T.ESTIMATE_FIELDS.index("fused_valid")
 FILL = T.ESTIMATE_FIELDS.index("window_samples")
 
 
@@ -549,6 +550,9 @@ def test_a_stream_at_another_rate_gives_no_estimate_and_says_its_rate(model, epi
     est, out = run(model, [m for i in range(N_TICKS) for m in tick_messages(episode, i, stamp=i * 20_000_000)],
                    warn=lambda kind, text: warned.append((kind, text)))
     assert not valid(out) and est.counters.off_rate > 0
+    # nor a soil learnt from its first ticks, before the rate was judged (the planner plans from fused_valid):
+    # forgotten once judged, the one stretch of them said at most on the tick before
+    assert est.posterior.updates == 0 and sum(e.values[FUSED_VALID] for e in out) <= 1, est.posterior.updates
     assert any(kind == "rate" and "every 20 ms (50 Hz)" in text for kind, text in warned), warned[:3]
     _, out = run(model, [m for i in range(N_TICKS) for m in tick_messages(episode, i, stamp=round(i * 1e3 / 60) * 10**6)])
     assert len(valid(out)) == N_TICKS - WINDOW_SAMPLES + 1

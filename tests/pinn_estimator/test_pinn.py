@@ -717,6 +717,25 @@ def test_a_trainer_killed_outright_leaves_its_best_model_so_far(tiny_bags, tmp_p
     assert model.cfg.d_model == 16
 
 
+def test_a_best_model_so_far_that_cannot_be_written_does_not_end_the_training(tiny_bags, tmp_path, monkeypatch, capsys):
+    from pinn_estimator import train as train_module
+
+    real, calls = train_module.save_checkpoint, [0]
+
+    def full_once(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 1:
+            raise OSError(28, "No space left on device")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "save_checkpoint", full_once)
+    out = tmp_path / "m.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), "--epochs", "2", "--stride", "6", "--quiet",
+                       "--no-cache", "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]) == 0
+    assert "the best model so far could not be written" in capsys.readouterr().err
+    assert torch.load(out, weights_only=True)["metrics"]["stop_reason"] == "epochs"
+
+
 def test_sigterm_keeps_the_best_model_so_far_like_ctrl_c(tiny_bags, tmp_path, monkeypatch, capsys):
     """SIGTERM (`timeout`, a scheduler, a container runtime) killed the training at once, losing
     every epoch; now it takes the Ctrl-C path: the best model kept, before one exit 143."""

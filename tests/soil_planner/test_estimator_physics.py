@@ -95,6 +95,7 @@ def test_an_announcement_the_planner_cannot_plan_with_keeps_the_physics_heard_be
     ("[]", "JSON object"), ('{"terms": "a=1", "bound_law": []}', "terms="),
     ('{"terms": ["a"], "bound_law": []}', "terms="), ('{"terms": [], "bound_law": [1, 2]}', "bound_law="),
     ('{"terms": [], "bound_law": [1, 2, 3, NaN]}', "bound_law="), ('{"terms": [], "bound_law": [1, 2, 3, -4]}', "bound_law="),
+    ('{"terms": [], "bound_law": [' + "9" * 400 + ', 1, 1, 1]}', "bound_law="),  # (no float: an OverflowError)
     ('{"terms": [], "bound_law": [], "extra": 1}', "unknown field"), ('{"terms": [], "bound_law": [], "source": 3}', "source=")])
 def test_a_bad_announcement_is_refused_naming_the_field(text, field):
     with pytest.raises(ValueError, match=field.replace("[", r"\[")):

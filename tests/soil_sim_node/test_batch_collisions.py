@@ -202,7 +202,8 @@ def test_a_grid_value_given_twice_is_said(tmp_path, capsys):
 def test_a_disk_filling_up_mid_run_is_said_in_one_line_and_leaves_no_staging(tmp_path, capsys, monkeypatch):
     """A full disk in the local pool ended in a worker's raw traceback and left <bag>.partial
     directories (an outside tester's; Ray's path said it cleanly): now one line, exit 1, the
-    bags finished kept and said, the staging of this run removed."""
+    bags finished kept and said, the staging of this run removed. (In this process, one worker:
+    a pool re-raises its worker's OSError alike.)"""
     out = tmp_path / "site"
     real, calls = batch.write_episode, [0]
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
+import re
 import sys
 import zipfile
 from collections import defaultdict
@@ -187,13 +188,14 @@ def _warn(message: str) -> None:
 def say_notes(notes: list[str], log=_warn) -> None:
     """The bag readers' warnings of a dataset (``bag_io.reader_notes``), each kind once with how
     many bags it concerns: said whether the bags were read or their cache was."""
-    by_kind: dict[str, list[str]] = defaultdict(list)
+    by_kind: dict[str, list[tuple[str, str]]] = defaultdict(list)
     for note in notes:
         bag, sep, text = note.partition(": ")
-        by_kind[text if sep else note].append(bag if sep else "")
-    for text, bags in by_kind.items():
-        others = f" (and {len(bags) - 1} other bag(s) alike)" if len(bags) > 1 else ""
-        log(f"warning: {bags[0]}: {text}{others}" if bags[0] else f"warning: {text}")
+        bag, text = (bag, text) if sep else ("", note)
+        by_kind[re.sub(r"\d+(\.\d+)?", "#", text)].append((bag, text))  # (its counts and stamps are the bag's)
+    for said in by_kind.values():
+        (bag, text), others = said[0], (f" (and {len(said) - 1} other bag(s) alike)" if len(said) > 1 else "")
+        log(f"warning: {bag}: {text}{others}" if bag else f"warning: {text}{others}")
 
 
 def add_skip_bad_bags_option(parser) -> None:

@@ -186,8 +186,7 @@ def checkpoint_world(ckpt: dict | None) -> str:
 def load_fusion_config(path: str, world: str = DEFAULT_WORLD) -> FusionConfig:
     """The estimator node's ``fusion_config`` parameter: the config at ``path``, or the shipped
     calibration of ``world`` (``checkpoint_world``) where it is empty; ValueError naming the
-    parameter if it cannot be used. (No torch: ``soil_launch`` reads it too, to give the planner
-    the posterior's physics.)"""
+    parameter if it cannot be used."""
     try:
         return FusionConfig.load(path) if path else load_calibrated(world)
     except (OSError, ValueError, TypeError) as err:
@@ -221,8 +220,8 @@ def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
 def estimator_fusion(path: str, ckpt: dict | None) -> tuple[FusionConfig, str | None]:
     """The estimator's soil posterior config and the world it was calibrated for: the config at
     ``path`` (the ``fusion_config`` parameter; its world as it records it, None where it does not), else the shipped
-    calibration of the checkpoint's world (``checkpoint_world``). The node, ``soil_launch`` and the
-    demo's forecast all take it from here."""
+    calibration of the checkpoint's world (``checkpoint_world``). The node and the demo's forecast
+    take it from here (the node says its physics to the planner, ``announced_physics``)."""
     world = None if path else checkpoint_world(ckpt)
     cfg = load_fusion_config(path, world or DEFAULT_WORLD)
     return cfg, (cfg.world or None) if path else world

@@ -154,6 +154,7 @@ class SampleAssembler:
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
+        self.off_rate = False  # the stream's stamps were last judged off the 60 Hz rate
 
     @property
     def last_released(self) -> int:
@@ -163,7 +164,14 @@ class SampleAssembler:
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
         self.joiner.reset(first_stamp_ns)
+        self._forget_stream()
+
+    def _forget_stream(self) -> None:
+        """The rate's steps and the topics' newest stamps belong to one stream (a new one, or time
+        gone back: the old stream's stamps would mislead both)."""
         self.steps.clear()
+        self.newest.clear()
+        self.off_rate = False
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -206,6 +214,8 @@ class SampleAssembler:
                                  "a new stream: new window, the soil posterior and map start over")
             self.on_sample(last, None)
             self.on_restart()
+            self._forget_stream()
+            self.newest[topic] = stamp
         if verdict is Verdict.DUPLICATE:
             self.counters.duplicates += 1
             self.repeats += 1
@@ -233,7 +243,11 @@ class SampleAssembler:
                 self.counters.off_rate += 1
                 self.warn("rate", f"{problem}; no estimate from these ticks")
                 self.on_sample(stamp, None)
+                if not self.off_rate:  # what the soil posterior learnt from them before it was judged goes too
+                    self.off_rate = True
+                    self.on_restart()
                 return
+            self.off_rate = False
         if joined.why is Why.EVICTED:  # a topic that never comes must not grow memory
             self.counters.evicted += 1
             # (a machine's sensors, each stamping by its own clock: the topics came, never at one stamp)
@@ -492,8 +506,9 @@ class OnlineEstimator:
         self.publish(self._with_fused(est))
 
     def _judge_sign(self, sample: Sample) -> None:
-        """Said once an episode: a measured force of the other sign than the contract's (a
-        machine's sensor; its estimates are not the soil's, and nothing else said so)."""
+        """Said (judged every 60 forward-cutting ticks, as the node's limiter lets it through): a
+        measured force of the other sign than the contract's (a machine's sensor; its estimates are
+        not the soil's, and nothing else said so)."""
         cutting, negative = cutting_ticks(sample.force[0], sample.known[_D], sample.known[_V_X])
         self._cutting[0] += cutting
         self._cutting[1] += negative

@@ -510,10 +510,17 @@ def _best_so_far(args, cfg: TrainConfig, ds: Dataset):
     (atomically; the finished run's checkpoint, curve and summary replace it). Its ``written``
     says the epoch of the last one (0: none yet)."""
     def write(model, split, history, metrics) -> None:
-        save_checkpoint(Path(args.out), model, train_config=asdict(cfg), dataset=describe(ds), split=split,
-                        metrics=metrics, history=history)
+        try:
+            save_checkpoint(Path(args.out), model, train_config=asdict(cfg), dataset=describe(ds), split=split,
+                            metrics=metrics, history=history)
+        except OSError as err:  # (a disk full for a moment must not end the training; the final write says its own)
+            if not write.failed:
+                print(f"pinn_train: warning: the best model so far could not be written to {args.out} ({err}); "
+                      "training goes on", file=sys.stderr)
+            write.failed = True
+            return
         write.written = metrics["best_epoch"]
-    write.written = 0
+    write.written, write.failed = 0, False
     return write
 
 

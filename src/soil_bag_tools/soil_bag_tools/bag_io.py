@@ -308,10 +308,13 @@ def _episode(path: Path, meta: EpisodeMeta, decoded: dict) -> Episode:
     truth and clock filled in, its rate and force sign judged."""
     if empty := [n for n, (s, _) in decoded.items() if len(s) == 0]:
         raise BagReadError(path, f"topic {empty[0]} has no messages")
+    # /clock carries no data: the ticks are the data topics' stamps (a machine's recorder may tick
+    # /clock at its own rate or offset; aligned with them it was, and stays, one of them)
+    decoded.pop(CLOCK.name, None)
     decoded = complete_ticks(path, decoded)
+    stamps = np.unique(np.concatenate([s for s, _ in decoded.values()]))  # (duplicates are the topics' own)
     for name, fill in ((GROUND_TRUTH.name, np.nan), (CLOCK.name, 0.0)):
         if name not in decoded:
-            stamps = next(iter(decoded.values()))[0]
             decoded[name] = (stamps, np.full((len(stamps), M.FIELDS[name].width), fill))
     episode = M.assemble_episode(meta, decoded)
     if problem := rate_problem(episode.stamps_ns):
@@ -340,8 +343,7 @@ def complete_ticks(path: Path, decoded: dict) -> dict:
     if len(common) == len(every):
         return decoded
     lacking = {n: np.setdiff1d(every, s, assume_unique=True) for n, s in stamps.items()}
-    # (the sensors' topics rather than /clock, which a machine's recorder stamps by its own tick)
-    worst = max(lacking, key=lambda n: (len(lacking[n]) > 0 and n != CLOCK.name, len(lacking[n])))
+    worst = max(lacking, key=lambda n: len(lacking[n]))
     example = f"e.g. {worst} has no message at {int(lacking[worst][0])} ns"
     if len(common) < (1.0 - MAX_INCOMPLETE_SHARE) * len(every):
         raise BagReadError(path, f"its topics' stamps do not line up: {len(every) - len(common)} of {len(every)} stamps "

@@ -93,7 +93,7 @@ def main(args: list[str] | None = None) -> int:
     p.add_argument("paths", nargs="+", type=input_path, metavar="PATH",
                    help="*.partial directory, its journal .mcap, a finished bag, or a directory to search")
     p.add_argument("--keep-partial-ticks", action="store_true",
-                   help="keep ticks that lack some topics (the bag may then not read as an episode)")
+                   help="keep ticks that lack some topics (the readers then drop them as gaps, and say so)")
     p.add_argument("--out", type=output_dir, metavar="NEW_BAG",
                    help="where the repaired copy of a finished bag goes (default: <bag>_repaired beside it)")
     opts = p.parse_args(sys.argv[1:] if args is None else args)

@@ -129,7 +129,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
         estimator = setup.estimator(published.append)
         # the plan reads the posterior's θ through the posterior's own physics (what of it a
         # steady cut can evaluate: a term on travel or time in soil is left out)
-        cfg = estimator.posterior.cfg  # the posterior's physics and the bound law calibrated for it, as soil_launch passes them
+        cfg = estimator.posterior.cfg  # the posterior's physics and the bound law calibrated for it, as the estimator says them to the planner
         planner = StretchPlanner(**{"terms": steady_cut_terms(cfg.terms)[0], "bound_law": cfg.planner_bound_law() or (),
                                     **setup.planner})
         estimator.start_episode(0)

@@ -351,6 +351,15 @@ class SimCommand:
 
 # --- /soil/estimator/physics ------------------------------------------------------------
 
+def _finite_float(v) -> bool:
+    """Whether a JSON number is a finite float (an integer of hundreds of digits has none:
+    ``math.isfinite`` raised OverflowError, out of a subscription's callback)."""
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
 BOUND_LAW_FIELDS = ("abs_x_n", "abs_z_n", "rel_x", "rel_z")
 
 
@@ -385,7 +394,7 @@ class EstimatorPhysics:
         if not isinstance(terms, list) or not all(isinstance(t, str) and "=" in t for t in terms):
             raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: terms={short_repr(terms)} must be a list of 'name=k' texts")
         if (not isinstance(law, list) or len(law) not in (0, len(BOUND_LAW_FIELDS))
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and _finite_float(v) and v >= 0
                            for v in law)):
             raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: bound_law={short_repr(law)} must be [] or "
                              f"{len(BOUND_LAW_FIELDS)} finite numbers >= 0 ({', '.join(BOUND_LAW_FIELDS)})")

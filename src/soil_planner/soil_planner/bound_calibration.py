@@ -10,8 +10,9 @@ calibrated here, apart, on the estimator's calibration episodes and posteriors: 
 laws on ``pinn_fusion_calibrate``'s grids, the sharpest whose bound at the planner's default
 quantile the measured force exceeds in at most 1 − q of the pairs going deeper (exceeding it there
 stalls a machine); where none does, the forecast law (``choose_bound_law`` says why). It is
-written into the fusion config (``bound_abs_std_n``, ``bound_rel_std``), which ``soil_launch
---planner`` and the cut trials read; the planner uses it where its bound is anchored.
+written into the fusion config (``bound_abs_std_n``, ``bound_rel_std``), which the estimator
+says to the planner (/soil/estimator/physics) and the cut trials read; the planner uses it where
+its bound is anchored.
 """
 from __future__ import annotations
 

@@ -470,7 +470,21 @@ class PlannerNode(Node):
             else:
                 self._plan(tick.stamp_ns, est, known)
 
+    def _awaiting_physics(self) -> bool:
+        """Whether the estimator's physics is on its way: followed, not all given, not heard yet, and
+        a writer of it on the graph (its latched sample comes on matching, a moment after its other
+        topics' may: a plan made meanwhile read θ through the FEE alone). Without a writer (a replay
+        with no estimator) the plan goes on with what it has."""
+        return (self.announced is None and self.follow_physics and not all(self.own_physics.values())
+                and self.count_publishers(G.ESTIMATOR_PHYSICS_TOPIC) > 0)
+
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
+        if self._awaiting_physics():
+            self._warn("physics:awaited", f"stamp {stamp} ns: the estimator's physics ({G.ESTIMATOR_PHYSICS_TOPIC}) is "
+                                          "on its way; no plan until it is heard")
+            self._publish(stamp, NO_PLAN_VALUES)
+            self._target(stamp, None)
+            return
         try:
             measured = self.measured.get(stamp)
             plan, new = self.planner.plan(est, known, self.commanded.get(stamp), measured)

@@ -536,7 +536,7 @@ def main(argv=None) -> int:
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2 if bad_input else 1
-    except OSError as exc:  # a disk full or a directory gone mid-run (a pool worker's: its traceback said no more)
+    except OSError as exc:  # a disk full mid-run (a pool worker's too: its traceback said no more)
         print(f"soil_sim_batch: error: writing the bags failed: {exc}", file=sys.stderr)
         if plan is not None:
             _remove_staging(plan)
