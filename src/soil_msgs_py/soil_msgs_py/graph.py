@@ -36,7 +36,7 @@ from . import topics as T
 from .episode import MAX_SEED, EpisodeMeta
 from .messages import MAX_STAMP_NS
 from .params import SAMPLE_RATE_HZ
-from .patches import PATCH_SYNTAX, check_patches, short_repr
+from .patches import PATCH_SYNTAX, check_patches, finite_number, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
@@ -351,15 +351,6 @@ class SimCommand:
 
 # --- /soil/estimator/physics ------------------------------------------------------------
 
-def _finite_float(v) -> bool:
-    """Whether a JSON number is a finite float (an integer of hundreds of digits has none:
-    ``math.isfinite`` raised OverflowError, out of a subscription's callback)."""
-    try:
-        return math.isfinite(float(v))
-    except OverflowError:
-        return False
-
-
 BOUND_LAW_FIELDS = ("abs_x_n", "abs_z_n", "rel_x", "rel_z")
 
 
@@ -394,8 +385,7 @@ class EstimatorPhysics:
         if not isinstance(terms, list) or not all(isinstance(t, str) and "=" in t for t in terms):
             raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: terms={short_repr(terms)} must be a list of 'name=k' texts")
         if (not isinstance(law, list) or len(law) not in (0, len(BOUND_LAW_FIELDS))
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and _finite_float(v) and v >= 0
-                           for v in law)):
+                or not all(finite_number(v) and v >= 0 for v in law)):
             raise ValueError(f"{ESTIMATOR_PHYSICS_TOPIC}: bound_law={short_repr(law)} must be [] or "
                              f"{len(BOUND_LAW_FIELDS)} finite numbers >= 0 ({', '.join(BOUND_LAW_FIELDS)})")
         if not isinstance(source, str):
