@@ -65,24 +65,37 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     planner's start depth as the report's loop starts there). Into dense gravel, where the lift
     holds the edge short of its commanded depth and the plan reads that command (``command_wait``):
     on a loaded machine (two or three CPU-bound processes beside it), planned without waiting for
-    it, 103 and 358 of the 480 ticks differed from the report's loop (up to 8 cm)."""
+    it, 103 and 358 of the 480 ticks differed from the report's loop (up to 8 cm).
+
+    The loop runs in a machine's namespace (``--namespace /dozer1``) beside another graph of its
+    own in the root namespace of the same domain, cutting clay: with absolute topic names, which
+    ignore a namespace, the two had crossed their data (a node that missed its namespace would
+    hear the other's ticks, and the cut would differ from the report's loop)."""
     from soil_bringup.cut_trial import Policy, SoilAwareSetup, run_cut
     from soil_msgs_py.params import KNOWN_PARAMS
     from soil_sim_node.simulator import EpisodeSpec
 
-    domain, bags = next_domain_id(), tmp_path / "bags"
+    domain, bags, other_bags = next_domain_id(), tmp_path / "bags", tmp_path / "other"
     patches = ["0:Sand:20", "1.5:Gravel:90"]
-    args = ["--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180",
+    args = ["--namespace", "/dozer1", "--planner", "--pacing", "lockstep", "--record", str(bags), "--timeout", "180",
             "--sim-param", "patches:=[" + ",".join(f"'{p}'" for p in patches) + "]", "--sim-param", "duration_s:=8.0",
             "--sim-param", "target_depth_m:=0.1", "--sim-param", "seed:=5",
             # the waits' bounds are for liveness, not the loop: here generous, so that a machine
             # loaded by other tests does not end a wait that a quiet one never reaches (the
             # simulator waits up to its lockstep_timeout_s, 10 s, for the controller)
             "--controller-param", "planner_wait_s:=8.0", "--planner-param", "command_wait_s:=5.0"]
-    log_path = tmp_path / "launch.log"
-    rc = run_launch(args, domain, log_path, 220)
+    log_path, other_log = tmp_path / "launch.log", tmp_path / "other.log"
+    with launched(["--pacing", "lockstep", "--record", str(other_bags), "--timeout", "180", "--sim-param", "soil:=Clay",
+                   "--sim-param", "duration_s:=4.0"], domain, other_log) as other:
+        rc = run_launch(args, domain, log_path, 220)
+        other_rc = other.wait(timeout=60)
     out = log_path.read_text()
     assert rc == 0, out[-4000:]
+    assert other_rc == 0, other_log.read_text()[-4000:]
+    (other_bag,) = find_episode_bags(other_bags)
+    other_ep = read_episode(other_bag)  # the root graph's own ticks, each once, its own soil
+    assert len(other_ep) == 240 and other_ep.meta.soil == "Clay", (len(other_ep), other_ep.meta)
+    assert "[sim]" in out and "dozer1.soil_sim_node" in out and "dozer1.soil_planner" in out, out[-4000:]
     # (a plan that did not come within planner_wait_s on a loaded machine would make the cut differ:
     # said here, by its cause, before the arrays below)
     assert "answered without its planner target" not in out, out[-4000:]

@@ -334,6 +334,15 @@ def test_a_machines_bag_without_a_clock_is_read_from_its_other_topics(tmp_path: 
     assert np.array_equal(half.stamps_ns, ep.stamps_ns)
 
 
+def test_a_bag_of_a_namespaced_graph_is_read_under_its_namespace(tmp_path: Path, ep: Episode) -> None:
+    """A machine's own recorder (``ros2 bag record`` of a graph launched in /dozer1) writes
+    /dozer1/blade/force: read as the contract's topics; two machines' in one bag are refused."""
+    back = read_episode(write_raw(tmp_path / "ns", ep, namespaces=("/site/dozer1",)))
+    assert np.array_equal(back.stamps_ns, ep.stamps_ns) and back.forces.tobytes() == ep.forces.tobytes()
+    with pytest.raises(ValueError, match=r"holds the episode topics of 2 namespaces \(/dozer1, /dozer2\): several"):
+        read_episode(write_raw(tmp_path / "two", ep, namespaces=("/dozer1", "/dozer2")))
+
+
 def test_ticks_at_another_rate_are_refused_and_a_flipped_force_is_said(tmp_path: Path, caplog) -> None:
     """A 30 Hz bag crashed pinn_eval and pinn_train, 50 and 100 Hz ones ran as 60 Hz; a force sensor
     of the other sign ran on (outside tester's): the rate is refused, the sign said."""

@@ -125,6 +125,21 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert {n.name for n in required if n.required} == {"sim", "controller", "estimator"}  # the demo's estimator
 
 
+def test_a_namespace_moves_every_node_and_reads_its_params_file_sections(tmp_path):
+    """``--namespace /dozer1`` puts each node of the graph, the recorder too, into the machine's
+    namespace (its topics follow: tests/graph/test_planner_loop.py runs one beside another graph);
+    the launcher's own reading of a params file takes that node's sections there."""
+    nodes = L.build_nodes(L.parse_args(["--planner", "--namespace", "/site_a/dozer1", "--record", str(tmp_path / "b")]))
+    for node in nodes:
+        args = node.argv[node.argv.index("--ros-args"):]
+        assert args[1:3] == ["-r", "__ns:=/site_a/dozer1"], (node.name, node.argv)
+    assert all("__ns:=" not in " ".join(n.argv) for n in L.build_nodes(L.parse_args(["--planner", "--namespace", "/"])))
+    f = tmp_path / "p.yaml"
+    f.write_text("site_a:\n  dozer1:\n    soil_sim_node:\n      ros__parameters:\n        world_mode: fee\n")
+    assert L.given_params("soil_sim_node", f, [], ("world_mode",), "/site_a/dozer1") == {"world_mode": "fee"}
+    assert L.given_params("soil_sim_node", f, [], ("world_mode",)) == {"world_mode": None}
+
+
 def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_value(tmp_path):
     """rcl drops a later -p of another type than an earlier one without a word: a mistyped
     exit_when_done:=maybe ran with the launcher's value (an outside tester found). Now the
@@ -253,7 +268,11 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
                          (["--no-controller", "--controller-param", "k_v_m_s:=1.0"], "starts no controller"),
                          (["--timeout", "-5"], "--timeout -5.0 must be a finite number"),
                          (["--timeout", "nan"], "--timeout nan must be a finite number"),
-                         (["--stop-timeout", "0"], "--stop-timeout 0.0 must be a finite number of seconds, > 0")):
+                         (["--stop-timeout", "0"], "--stop-timeout 0.0 must be a finite number of seconds, > 0"),
+                         (["--namespace", "dozer1"], "--namespace 'dozer1' is not a ROS namespace"),
+                         (["--namespace", "/dozer 1"], "is not a ROS namespace"),
+                         (["--namespace", "/1dozer"], "is not a ROS namespace"),
+                         (["--namespace", "/dozer1/"], "is not a ROS namespace")):
         with pytest.raises(SystemExit):
             L.parse_args(argv)
         assert needle in capsys.readouterr().err, argv

@@ -51,7 +51,7 @@ from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_
                                  MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
                                  beyond_lift_reach)
 from soil_msgs_py.ros_adapter import (
-    InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, status_event,
+    InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, status_event,
     topic_qos,
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
@@ -161,12 +161,12 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
-        self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), T.CMD_VEL.name, publisher_qos(T.CMD_VEL.name))
-        self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name, publisher_qos(T.BLADE_CMD.name))
+        self.cmd_vel_pub = self.create_publisher(message_class(T.CMD_VEL.msgtype), local(T.CMD_VEL.name), publisher_qos(T.CMD_VEL.name))
+        self.blade_pub = self.create_publisher(message_class(T.BLADE_CMD.msgtype), local(T.BLADE_CMD.name), publisher_qos(T.BLADE_CMD.name))
         # /sim/status first: the executor serves ready subscriptions in creation order, so an
         # episode_start that arrived with its tick 0 resets the controller before tick 0 is answered.
-        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
-        target_sub = self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
+        self.create_subscription(String, local(G.SIM_STATUS_TOPIC), self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        target_sub = self.create_subscription(message_class(T.TARGET_DEPTH.msgtype), local(T.TARGET_DEPTH.name),
                                               self._on_planner_target, topic_qos(T.TARGET_DEPTH.name))
         self.joiner = state_joiner(self._force_lift)
         self._warn = WarnLimiter(self.get_logger())
@@ -195,7 +195,7 @@ class ControllerNode(Node):
 
     def _subscribe_state(self) -> None:
         for name in state_topics(True):  # the force reaches the join only with the force lift on
-            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
 
     @staticmethod

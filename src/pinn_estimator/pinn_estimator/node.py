@@ -29,7 +29,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.ros_adapter import (
-    InputSilence, WarnLimiter, declare_parameters, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
+    InputSilence, WarnLimiter, declare_parameters, local, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
     status_event,
 )
 
@@ -89,12 +89,12 @@ class EstimatorNode(Node):
 
         self.classes = M.ros_message_classes()
         self.estimate_pub = self.create_publisher(
-            message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name, publisher_qos(T.ESTIMATE.name))
+            message_class(T.ESTIMATE.msgtype), local(T.ESTIMATE.name), publisher_qos(T.ESTIMATE.name))
         self.force_pub = self.create_publisher(
-            message_class(T.ESTIMATED_FORCE.msgtype), T.ESTIMATED_FORCE.name, publisher_qos(T.ESTIMATED_FORCE.name))
+            message_class(T.ESTIMATED_FORCE.msgtype), local(T.ESTIMATED_FORCE.name), publisher_qos(T.ESTIMATED_FORCE.name))
         self.map_pub = self.create_publisher(
-            message_class(T.SOIL_MAP.msgtype), T.SOIL_MAP.name, publisher_qos(T.SOIL_MAP.name))
-        self.physics_pub = self.create_publisher(String, G.ESTIMATOR_PHYSICS_TOPIC,
+            message_class(T.SOIL_MAP.msgtype), local(T.SOIL_MAP.name), publisher_qos(T.SOIL_MAP.name))
+        self.physics_pub = self.create_publisher(String, local(G.ESTIMATOR_PHYSICS_TOPIC),
                                                  publisher_qos(G.ESTIMATOR_PHYSICS_TOPIC))
         self._physics_said: tuple | None = None
         self._say_physics()
@@ -102,7 +102,7 @@ class EstimatorNode(Node):
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
         self.silence = InputSilence(self, "samples (the simulator's state and the controller's commands)")
-        inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+        inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                                  lambda msg, n=name: self._on_input(n, msg), deep)
                   for name in INPUT_TOPICS}
         # /sim/status last, once every input has a publisher (at most inputs_wait_s): matched late

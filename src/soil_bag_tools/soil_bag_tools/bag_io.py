@@ -283,9 +283,10 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
     meta = _read_meta(path)
     with reading(path):
         with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
+            ns = topics_namespace(path, {c.topic for c in reader.connections})
             conns, stores = [], {}
             for t in EPISODE_TOPICS:
-                mine = [c for c in reader.connections if c.topic == t.name]
+                mine = [c for c in reader.connections if c.topic == ns + t.name]
                 if not mine and t.name in (GROUND_TRUTH.name, CLOCK.name):
                     continue  # a machine's bag: truth NaN, the ticks the others' stamps (below)
                 if not mine:
@@ -298,9 +299,29 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
                 stores[t.name] = M.TYPESTORE if same else reader.typestore
             raws: dict[str, list[bytes]] = defaultdict(list)
             for conn, _, raw in reader.messages(connections=conns):
-                raws[conn.topic].append(raw)
+                raws[conn.topic[len(ns):]].append(raw)
             decoded = {n: M.decode_topic(n, raws[n], stores[n]) for n in M.FIELDS if n in stores}
         return _episode(path, meta, decoded)
+
+
+def topics_namespace(path: Path, topics: set[str]) -> str:
+    """The namespace a bag's episode topics are under: "" for the contract's own names (every bag
+    ``soil_bag_record`` writes, a namespaced graph's too), else the one namespace under which a
+    machine's own recorder (``ros2 bag record`` of a graph in ``/dozer1``) wrote them all, e.g.
+    ``/dozer1/blade/force``. BagReadError for a bag holding the episode topics of several
+    namespaces (several machines' data: one machine per bag)."""
+    required = [t.name for t in EPISODE_TOPICS if t.name not in (GROUND_TRUTH.name, CLOCK.name)]
+    if any(name in topics for name in required):
+        return ""
+    first = required[0]
+    under = {name[: -len(first)] for name in topics if name.endswith(first) and len(name) > len(first)}
+    whole = sorted(ns for ns in under if all(ns + name in topics for name in required))
+    if len(whole) > 1:
+        raise BagReadError(path, f"holds the episode topics of {len(whole)} namespaces ({', '.join(whole)}): "
+                                 "several machines' data; a bag must hold one machine's")
+    if whole:
+        log.info("%s: reading the episode topics under the namespace %s", path, whole[0])
+    return whole[0] if whole else ""
 
 
 def _episode(path: Path, meta: EpisodeMeta, decoded: dict) -> Episode:
@@ -436,9 +457,10 @@ def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[st
     path = Path(bag_dir)
     stamps, rows = [], []
     with reading(path), AnyReader([path], default_typestore=M.TYPESTORE) as reader:
-        conns = [c for c in reader.connections if c.topic == topic]
+        ns = topics_namespace(path, {c.topic for c in reader.connections})
+        conns = [c for c in reader.connections if c.topic == ns + topic]
         if not conns:
-            raise BagReadError(path, f"has no topic {topic}")
+            raise BagReadError(path, f"has no topic {ns + topic}")
         for conn, _, raw in reader.messages(connections=conns):
             stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
             stamps.append(stamp)

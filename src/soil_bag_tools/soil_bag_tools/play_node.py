@@ -32,7 +32,7 @@ from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import (init_rclpy, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
+from soil_msgs_py.ros_adapter import (init_rclpy, local, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
                                       raise_interrupt, wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
@@ -117,7 +117,7 @@ class Player:
                 raise BagPathError(f"topic {topic} has type {msgtype} here but {self.types[topic]} in an earlier bag")
             return self.pubs[topic]
         self.types[topic] = msgtype
-        self.pubs[topic] = self.node.create_publisher(message_class(msgtype), topic, publisher_qos(topic))
+        self.pubs[topic] = self.node.create_publisher(message_class(msgtype), local(topic), publisher_qos(topic))
         return self.pubs[topic]
 
     def _load(self, path) -> LoadedBag:
@@ -134,7 +134,7 @@ class Player:
             counts = {t: p.get_subscription_count() for t, p in self.pubs.items() if t != SIM_STATUS_TOPIC}
             # /sim/status: every status subscriber the graph knows of must be matched too.
             status_ok = self.status is None or (
-                self.status.get_subscription_count() >= self.node.count_subscribers(SIM_STATUS_TOPIC))
+                self.status.get_subscription_count() >= self.node.count_subscribers(local(SIM_STATUS_TOPIC)))
             if all(c >= n for c in counts.values()) and status_ok:
                 break
             if time.monotonic() > end:
@@ -151,10 +151,11 @@ class Player:
         give it away anyway)."""
         out = {}
         for topic in self.pubs:
-            if topic != SIM_STATUS_TOPIC and self.node.count_publishers(topic) > 1:
+            if topic != SIM_STATUS_TOPIC and self.node.count_publishers(local(topic)) > 1:
                 out[topic] = sorted({UNNAMED if i.node_name == UNKNOWN_NODE_NAME else
                                      f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                                     for i in self.node.get_publishers_info_by_topic(topic)} - {"/soil_bag_play"})
+                                     for i in self.node.get_publishers_info_by_topic(local(topic))}
+                                    - {self.node.get_fully_qualified_name()})
         return out
 
     def check_others(self, force: bool = False) -> None:

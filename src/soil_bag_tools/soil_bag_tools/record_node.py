@@ -30,7 +30,7 @@ from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITT
                                 RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
-from soil_msgs_py.ros_adapter import JoinAfterInputs, message_class, own_arguments_or_refusal, qos_profile, spin_node
+from soil_msgs_py.ros_adapter import JoinAfterInputs, local, message_class, own_arguments_or_refusal, qos_profile, spin_node
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
@@ -90,7 +90,7 @@ class RecordNode(Node):
         except OSError as err:  # a directory that cannot be made or written: refused at start (exit 2)
             raise ValueError(f"--out {str(opts.out)!r}: cannot create or use it: {err.strerror or err}") from None
         # Created first: when status and data are ready in the same wait, status is taken first.
-        self.create_subscription(String, SIM_STATUS_TOPIC, self._on_status, qos_profile(CONTROL_QOS))
+        self.create_subscription(String, local(SIM_STATUS_TOPIC), self._on_status, qos_profile(CONTROL_QOS))
         # The simulator's topics (which a simulator waits for) once the other nodes' writers of the
         # recorded topics have matched (at most --inputs-wait): matched late under load, a bag
         # lacked the controller's first commands. (``JoinAfterInputs``)
@@ -120,7 +120,7 @@ class RecordNode(Node):
         qos = qos_profile(RECORDER_QOS)
         if best_effort:  # a RELIABLE reader would never match a BEST_EFFORT writer
             qos.reliability = ReliabilityPolicy.BEST_EFFORT
-        return self.create_subscription(message_class(msgtype), topic, self._callback(topic), qos, raw=True)
+        return self.create_subscription(message_class(msgtype), local(topic), self._callback(topic), qos, raw=True)
 
     def _callback(self, topic: str):
         """Raw message plus its message info: the writer's publication sequence number is what

@@ -3,7 +3,8 @@
 There is no ``ros2 launch`` on these machines, so this is ours. It
 
 * starts every node as its own process (its console script, ``--ros-args`` as usual) with
-  loopback-only DDS (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on one ROS_DOMAIN_ID;
+  loopback-only DDS (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on one ROS_DOMAIN_ID, in one
+  namespace (``--namespace /dozer1``: several machines' graphs on one domain, each in its own);
 * tells the simulator which endpoints to wait for (the controller's, the estimator's, the
   recorder's) so no tick is published before its consumers have matched;
 * prefixes each process's output with its name, like ``ros2 launch``;
@@ -58,6 +59,8 @@ from soil_msgs_py.launcher_death import LAUNCHER_PID_ENV
 from soil_msgs_py.params_files import node_parameters
 
 MAX_DOMAIN_ID = 232  # the largest ROS_DOMAIN_ID DDS allows on Linux (its ports above stay below 65536)
+# A ROS 2 namespace as rcl validates one: absolute, tokens of letters, digits and '_' not starting with a digit
+NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
@@ -243,7 +246,7 @@ class Launch:
                 if rc == G.EXIT_ANOTHER_GRAPH:
                     self.log(f"{node.name} found another graph on domain {self.env.get('ROS_DOMAIN_ID', '?')} (exit "
                              f"code {rc}; its log names the nodes); stopping the others: give this launch another "
-                             "--domain-id")
+                             "--domain-id, or each machine's graph a --namespace of its own")
                     return EXIT_NODE_DIED
                 if node.required:
                     self.log(f"{node.name} died (exit code {rc}); stopping the others"
@@ -333,12 +336,18 @@ def _params(pairs: list[str]) -> list[str]:
     return out
 
 
-def _ros_node(script: str, params_file, params: list[str]) -> list[str]:
-    """argv of a node's console script with its --params-file and -p overrides."""
-    argv = [executable(script), "--ros-args"]
+def _ros_node(script: str, params_file, params: list[str], namespace: str = "") -> list[str]:
+    """argv of a node's console script in ``namespace`` ("": the root) with its --params-file and
+    -p overrides."""
+    argv = [executable(script), "--ros-args", *_namespace_args(namespace)]
     if params_file:
         argv += ["--params-file", str(params_file)]
     return argv + _params(params)
+
+
+def _namespace_args(namespace: str) -> list[str]:
+    """rcl's remap that puts a node into ``namespace`` (none for the root)."""
+    return ["-r", f"__ns:={namespace}"] if namespace else []
 
 
 def unless_given(node: str, params: list[str], defaults: list[str]) -> list[str]:
@@ -353,15 +362,15 @@ def unless_given(node: str, params: list[str], defaults: list[str]) -> list[str]
     return [d for d, name in zip(defaults, names) if on_line[name] is None]
 
 
-def given_params(node: str, params_file, params: list[str], names) -> dict[str, str | None]:
-    """What the node ``node`` (launched in the root namespace) is given for each of ``names`` as
-    text (None: not given): the last ``-p`` of ``params``, else the last value in its params file's
-    sections that apply to it by rcl's rules (``params_files.node_parameters``), as it reads them."""
+def given_params(node: str, params_file, params: list[str], names, namespace: str = "") -> dict[str, str | None]:
+    """What the node ``node`` (launched in ``namespace``, "" the root) is given for each of ``names``
+    as text (None: not given): the last ``-p`` of ``params``, else the last value in its params
+    file's sections that apply to it by rcl's rules (``params_files.node_parameters``), as it reads them."""
     given: dict[str, str | None] = {name: None for name in names}
     if params_file:
         try:
             sections = yaml.safe_load(Path(params_file).read_text()) or {}
-            for section in node_parameters(sections if isinstance(sections, dict) else {}, f"/{node}"):
+            for section in node_parameters(sections if isinstance(sections, dict) else {}, f"{namespace}/{node}"):
                 for key in given:
                     if key in section:
                         given[key] = "" if section[key] is None else str(section[key])
@@ -382,9 +391,10 @@ def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     A checkpoint given, even empty (the node's "the shipped default"), is the user's choice."""
     from pinn_estimator.shipped import DEFAULT_WORLD, shipped_checkpoint
 
-    world = (given_params("soil_sim_node", args.sim_params_file, args.sim_param, ("world_mode",))["world_mode"]
-             or "").strip()
-    chosen = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("checkpoint",))
+    world = (given_params("soil_sim_node", args.sim_params_file, args.sim_param, ("world_mode",),
+                          args.namespace)["world_mode"] or "").strip()
+    chosen = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("checkpoint",),
+                          args.namespace)
     if not world or world == DEFAULT_WORLD or chosen["checkpoint"] is not None:
         return []
     path = shipped_checkpoint(world)
@@ -408,7 +418,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
-                                              *extra, *args.recorder_arg], stop_order=3,
+                                              *extra, *args.recorder_arg,
+                                              *(["--ros-args", *_namespace_args(args.namespace)] if args.namespace
+                                                else [])], stop_order=3,
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
         _count(wait, RECORDER_ENDPOINTS)
@@ -420,7 +432,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         without = "no more estimates" + ("; the planner sends no targets and the controller cuts to its own "
                                          "target_depth_m" if args.planner else "")
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
-                                                        estimator_param), stop_order=2,
+                                                        estimator_param, args.namespace), stop_order=2,
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
     if args.planner:
@@ -428,7 +440,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
-        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param),
+        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param,
+                                                      args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
@@ -437,14 +450,15 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         closed = unless_given("anti_stall_controller", args.controller_param,
                               ["depth_source:=planner"] if args.planner else [])
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
-                                                         closed + args.controller_param), stop_order=1))
+                                                         closed + args.controller_param, args.namespace),
+                                 stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not count.isdigit():
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
         _count(wait, {topic: int(count)})
-    sim = [executable("soil_sim_node"), "--ros-args"]
+    sim = [executable("soil_sim_node"), "--ros-args", *_namespace_args(args.namespace)]
     if args.sim_params_file:
         sim += ["--params-file", str(args.sim_params_file)]
     # Only what was given on the command line overrides the params file (later -p wins).
@@ -468,6 +482,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--record", type=bags_dir, help="record every episode as a bag under this directory")
     p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
                    help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
+    p.add_argument("--namespace", default="", metavar="/NS",
+                   help="put every node, and so every topic of the graph, under this ROS namespace (e.g. /dozer1): "
+                        "graphs of several machines then share one domain without hearing each other; the bags "
+                        "keep the topics' own names (default: the root namespace)")
     p.add_argument("--sim-params-file", type=Path, help="YAML parameters for soil_sim_node")
     p.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
                    help="a parameter of soil_sim_node (repeatable; `soil_sim_node --help` lists them)")
@@ -498,6 +516,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before SIGTERM")
     args = p.parse_args(argv)
     check_graph_options(p, args)
+    if args.namespace == "/":
+        args.namespace = ""  # (the root)
+    if args.namespace and not NAMESPACE_RE.fullmatch(args.namespace):
+        p.error(f"--namespace {args.namespace!r} is not a ROS namespace: '/' then names of letters, digits and '_' "
+                "(not starting with a digit) joined by '/', e.g. /dozer1 or /site_a/dozer1")
     for flag in ("sim", "controller", "estimator", "planner"):
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback

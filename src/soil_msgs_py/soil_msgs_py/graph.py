@@ -43,6 +43,11 @@ SIM_STATUS_TOPIC = "/sim/status"
 # The estimator's posterior physics (``EstimatorPhysics``), latched: what a planner reads θ through.
 ESTIMATOR_PHYSICS_TOPIC = "/soil/estimator/physics"
 STRING_MSGTYPE = "std_msgs/msg/String"
+# Every topic the graph's own nodes make: the contract's data, estimates and plans and the control
+# topics. Nodes create them by relative names (``ros_adapter.local``), so one namespace moves a
+# machine's whole graph; any other name (a user's ``--topics /tf``) is used as given.
+GRAPH_OWN_TOPICS: frozenset[str] = frozenset((*T.GRAPH_TOPICS_BY_NAME, SIM_COMMAND_TOPIC, SIM_STATUS_TOPIC,
+                                              ESTIMATOR_PHYSICS_TOPIC))
 
 EVENT_EPISODE_START = "episode_start"
 EVENT_EPISODE_END = "episode_end"

@@ -33,8 +33,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from .dds_profile import use_graph_profile
 from .params_files import node_parameters
 from .launcher_death import stop_with_launcher
-from .graph import (DATA_QOS, EXIT_BAD_CONFIG, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent,
-                    QosSpec, publisher_qos_spec)
+from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE,
+                    TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -119,6 +119,17 @@ def publisher_qos(topic: str) -> QoSProfile:
     """What a node publishes ``topic`` with (``graph.publisher_qos_spec``); subscribers keep
     ``topic_qos``."""
     return qos_profile(publisher_qos_spec(topic))
+
+
+def local(topic: str) -> str:
+    """A topic of the graph's own (``graph.GRAPH_OWN_TOPICS``, by the contract's absolute name,
+    ``/blade/force``) as the relative name a node creates its endpoint by; any other name as given.
+    In the root namespace that is the same topic; under ``--ros-args -r __ns:=/dozer1``
+    (``soil_launch --namespace``) it is ``/dozer1/blade/force``, so a machine's whole graph moves
+    into its namespace and two machines share a DDS domain without hearing each other. Why: an
+    absolute name ignores the namespace, and two graphs given namespaces of their own had each
+    estimated, planned and recorded on both machines' data."""
+    return topic.lstrip("/") if topic in GRAPH_OWN_TOPICS else topic
 
 
 def message_class(msgtype: str):
@@ -245,7 +256,8 @@ def status_after_inputs(node: Node, inputs: dict, callback: Callable, wait_s: fl
                         on_missing: Callable[[list[str]], None] | None = None) -> JoinAfterInputs:
     """The node's /sim/status reader, created once ``inputs`` matched (``JoinAfterInputs``)."""
     return JoinAfterInputs(node, inputs, lambda: node.create_subscription(
-        message_class(STRING_MSGTYPE), SIM_STATUS_TOPIC, callback, topic_qos(SIM_STATUS_TOPIC)), wait_s, on_missing)
+        message_class(STRING_MSGTYPE), local(SIM_STATUS_TOPIC), callback, topic_qos(SIM_STATUS_TOPIC)), wait_s,
+        on_missing)
 
 
 def raise_interrupt(signum, frame):  # noqa: ARG001

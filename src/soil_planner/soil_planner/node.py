@@ -60,8 +60,8 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_msgs_py.patches import short_repr
 from soil_msgs_py import graph as G
-from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, message_class, publisher_qos,
-                                      spin_node, status_event, topic_qos)
+from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local,
+                                      message_class, publisher_qos, spin_node, status_event, topic_qos)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 from soil_physics.force_terms import term_texts
@@ -240,34 +240,34 @@ class PlannerNode(Node):
         self.last_log_ns: int | None = None
         self.published = 0
         self.dropped = 0  # estimates given up for want of their Θ_k
-        self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), T.PLAN.name, publisher_qos(T.PLAN.name))
-        self.target_pub = self.create_publisher(message_class(T.TARGET_DEPTH.msgtype), T.TARGET_DEPTH.name,
+        self.plan_pub = self.create_publisher(message_class(T.PLAN.msgtype), local(T.PLAN.name), publisher_qos(T.PLAN.name))
+        self.target_pub = self.create_publisher(message_class(T.TARGET_DEPTH.msgtype), local(T.TARGET_DEPTH.name),
                                                 publisher_qos(T.TARGET_DEPTH.name))
         # /sim/status first: a new episode starts a new cut (schedule, plan cache) before its ticks.
-        self.create_subscription(String, G.SIM_STATUS_TOPIC, self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
+        self.create_subscription(String, local(G.SIM_STATUS_TOPIC), self._on_status, topic_qos(G.SIM_STATUS_TOPIC))
         # the estimator's physics, latched: heard on joining, whenever the estimator started
-        self.create_subscription(String, G.ESTIMATOR_PHYSICS_TOPIC, self._on_physics,
+        self.create_subscription(String, local(G.ESTIMATOR_PHYSICS_TOPIC), self._on_physics,
                                  topic_qos(G.ESTIMATOR_PHYSICS_TOPIC))
         # the tick's measured force comes from the simulator before the estimator can answer it;
         # one that is lost leaves that tick anchored to F̂ alone
-        self.create_subscription(message_class(T.BLADE_FORCE.msgtype), T.BLADE_FORCE.name, self._on_blade_force,
+        self.create_subscription(message_class(T.BLADE_FORCE.msgtype), local(T.BLADE_FORCE.name), self._on_blade_force,
                                  topic_qos(T.BLADE_FORCE.name))
         # /blade/cmd before /soil/estimate: the executor serves ready subscriptions in the order they
         # were made, so a tick's command, sent before its estimate, is mostly taken first (command_wait
         # makes sure of it)
         inputs = {
             T.BLADE_CMD.name: self.create_subscription(
-                message_class(T.BLADE_CMD.msgtype), T.BLADE_CMD.name,
+                message_class(T.BLADE_CMD.msgtype), local(T.BLADE_CMD.name),
                 lambda msg, info: self._on_blade_cmd(msg, info.get("publication_sequence_number")),
                 topic_qos(T.BLADE_CMD.name)),
-            T.ESTIMATE.name: self.create_subscription(message_class(T.ESTIMATE.msgtype), T.ESTIMATE.name,
+            T.ESTIMATE.name: self.create_subscription(message_class(T.ESTIMATE.msgtype), local(T.ESTIMATE.name),
                                                       self._on_estimate, topic_qos(T.ESTIMATE.name)),
         }
         # Θ_k (which a simulator waits for) once the controller's and the estimator's writers have
         # matched (at most inputs_wait_s): matched late under load, the first estimates or commands
         # were lost, and a lockstep controller waited for their plans.
         self.known_join = JoinAfterInputs(
-            self, inputs, lambda: self.create_subscription(message_class(T.KNOWN.msgtype), T.KNOWN.name, self._on_known,
+            self, inputs, lambda: self.create_subscription(message_class(T.KNOWN.msgtype), local(T.KNOWN.name), self._on_known,
                                                            topic_qos(T.KNOWN.name)),
             get("inputs_wait_s"), lambda missing: self.get_logger().warning(
                 f"following {T.KNOWN.name} without a publisher of {missing} yet"))
@@ -476,7 +476,7 @@ class PlannerNode(Node):
         topics' may: a plan made meanwhile read θ through the FEE alone). Without a writer (a replay
         with no estimator) the plan goes on with what it has."""
         return (self.announced is None and self.follow_physics and not all(self.own_physics.values())
-                and self.count_publishers(G.ESTIMATOR_PHYSICS_TOPIC) > 0)
+                and self.count_publishers(local(G.ESTIMATOR_PHYSICS_TOPIC)) > 0)
 
     def _plan(self, stamp: int, est: dict[str, float], known: dict[str, float]) -> None:
         if self._awaiting_physics():

@@ -39,7 +39,7 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
                                  beyond_lift_reach, tick_stamp_ns)
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, message_class, publisher_qos, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, topic_qos
 
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 
@@ -152,15 +152,15 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
-        self.pubs = {name: self.create_publisher(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+        self.pubs = {name: self.create_publisher(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                                  publisher_qos(name)) for name in G.SIM_STATE_TOPICS}
-        self.status_pub = self.create_publisher(String, G.SIM_STATUS_TOPIC, topic_qos(G.SIM_STATUS_TOPIC))
+        self.status_pub = self.create_publisher(String, local(G.SIM_STATUS_TOPIC), topic_qos(G.SIM_STATUS_TOPIC))
         self.cmd_subs = [
-            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), name,
+            self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                      self._command_callback(name), topic_qos(name))
             for name in G.COMMAND_TOPICS
         ]
-        self.create_subscription(String, G.SIM_COMMAND_TOPIC, self._on_sim_command, topic_qos(G.SIM_COMMAND_TOPIC))
+        self.create_subscription(String, local(G.SIM_COMMAND_TOPIC), self._on_sim_command, topic_qos(G.SIM_COMMAND_TOPIC))
 
         # episode state
         self.sim: SoilSimulator | None = None
@@ -359,7 +359,7 @@ class SimNode(Node):
                 self._nodes_seen = (nodes, now)
             if now - self._born < GRAPH_DISCOVERY_S or now - self._nodes_seen[1] < GRAPH_QUIET_S:
                 return True
-        infos = self.get_publishers_info_by_topic(G.SIM_STATUS_TOPIC)
+        infos = self.get_publishers_info_by_topic(local(G.SIM_STATUS_TOPIC))
         names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
         if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
             self._names_wait_since = self._names_wait_since or now
