@@ -57,6 +57,17 @@ def test_ros_arguments_rcl_cannot_parse_exit_2_in_one_line(args, needle, tmp_pat
         assert ", at /" not in out.split("cannot start: ")[1].splitlines()[0]  # rcl's C source locations cut
 
 
+def test_a_namespace_too_long_for_the_nodes_names_exits_2_in_one_line(tmp_path):
+    """rcl refuses a namespace that leaves its names (the node's parameter services) too long: a
+    traceback before (rclpy's RCLError from the simulator, InvalidServiceNameException from the
+    controller, whose service names are longer)."""
+    for script, length in (("soil_sim_node", 300), ("anti_stall_controller", 230)):
+        code, out = _run(script, ["--ros-args", "-r", f"__ns:=/{'a' * length}"], tmp_path)
+        assert code == 2, out
+        assert f"{script}: cannot start: " in out and "is too long or not a ROS name" in out, out
+        assert "Traceback" not in out and ", at /" not in out, out
+
+
 def test_a_params_file_with_no_section_for_the_node_is_named(tmp_path):
     typo = tmp_path / "typo.yaml"
     typo.write_text("soil_plannr:\n  ros__parameters:\n    margin: 0.5\n")

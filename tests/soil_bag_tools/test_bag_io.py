@@ -341,6 +341,14 @@ def test_a_bag_of_a_namespaced_graph_is_read_under_its_namespace(tmp_path: Path,
     assert np.array_equal(back.stamps_ns, ep.stamps_ns) and back.forces.tobytes() == ep.forces.tobytes()
     with pytest.raises(ValueError, match=r"holds the episode topics of 2 namespaces \(/dozer1, /dozer2\): several"):
         read_episode(write_raw(tmp_path / "two", ep, namespaces=("/dozer1", "/dozer2")))
+    with pytest.raises(ValueError, match=r"2 namespaces \(the root namespace, /dozer2\): several machines' data"):
+        read_episode(write_raw(tmp_path / "root_and_two", ep, namespaces=("", "/dozer2")))
+    # a player takes its topics by the contract's names (selected so too) and sends them into its own namespace
+    from soil_bag_tools.playback import load_bag
+
+    loaded = load_bag(tmp_path / "ns", exclude=["/soil/ground_truth"])
+    assert set(loaded.topics) == {t.name for t in EPISODE_TOPICS} - {"/soil/ground_truth"}
+    assert {topic for _, topic, _ in loaded.messages} == set(loaded.topics)
 
 
 def test_ticks_at_another_rate_are_refused_and_a_flipped_force_is_said(tmp_path: Path, caplog) -> None:

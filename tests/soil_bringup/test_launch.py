@@ -93,6 +93,25 @@ def test_an_interrupted_launch_exits_128_plus_the_signal_not_0(tmp_path, signum,
     assert L.launch_for(L.parse_args(["--keep-running"])).interrupt_ends_run
 
 
+def test_after_another_graph_the_recorder_is_stopped_first(tmp_path):
+    """A simulator that found another graph in its namespace ran nothing; stopped last, as after a
+    run, the recorder had recorded the other graph's next episode into this launch's directory
+    (an outside tester's: a "completed" bag of the other machine's). Now it is stopped first."""
+    stops = tmp_path / "stops"
+
+    def node(name):  # says it is up, writes its name when asked to stop
+        return [sys.executable, "-c", "import signal, sys, time, pathlib\n"
+                f"def stop(*_):\n    pathlib.Path({str(stops)!r}).open('a').write('{name}\\n'); sys.exit(0)\n"
+                "signal.signal(signal.SIGINT, stop); print('up', flush=True); time.sleep(60)"]
+
+    sim = [sys.executable, "-c", f"import time; print('up', flush=True); time.sleep(1.0); raise SystemExit({G.EXIT_ANOTHER_GRAPH})"]
+    nodes = [L.NodeProcess("recorder", node("recorder"), stop_order=3), L.NodeProcess("controller", node("controller"), stop_order=1),
+             L.NodeProcess("sim", sim, stop_order=0, ends_launch=True)]
+    with (tmp_path / "launch.log").open("w") as out:
+        assert L.Launch(nodes, L.loopback_env(0), out=out).run() == L.EXIT_NODE_DIED
+    assert stops.read_text().split() == ["recorder", "controller"], (tmp_path / "launch.log").read_text()
+
+
 def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tmp_path):
     log = tmp_path / "launch.log"
     with log.open("w") as out:
@@ -272,7 +291,8 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
                          (["--namespace", "dozer1"], "--namespace 'dozer1' is not a ROS namespace"),
                          (["--namespace", "/dozer 1"], "is not a ROS namespace"),
                          (["--namespace", "/1dozer"], "is not a ROS namespace"),
-                         (["--namespace", "/dozer1/"], "is not a ROS namespace")):
+                         (["--namespace", "/dozer1/"], "is not a ROS namespace"),
+                         (["--namespace", "/" + "a" * 199], "--namespace of 200 characters: at most 199")):
         with pytest.raises(SystemExit):
             L.parse_args(argv)
         assert needle in capsys.readouterr().err, argv

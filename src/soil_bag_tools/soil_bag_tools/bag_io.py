@@ -311,15 +311,14 @@ def topics_namespace(path: Path, topics: set[str]) -> str:
     ``/dozer1/blade/force``. BagReadError for a bag holding the episode topics of several
     namespaces (several machines' data: one machine per bag)."""
     required = [t.name for t in EPISODE_TOPICS if t.name not in (GROUND_TRUTH.name, CLOCK.name)]
-    if any(name in topics for name in required):
-        return ""
     first = required[0]
-    under = {name[: -len(first)] for name in topics if name.endswith(first) and len(name) > len(first)}
+    under = {name[: -len(first)] for name in topics if name.endswith(first)}  # ("" for the contract's own)
     whole = sorted(ns for ns in under if all(ns + name in topics for name in required))
     if len(whole) > 1:
-        raise BagReadError(path, f"holds the episode topics of {len(whole)} namespaces ({', '.join(whole)}): "
-                                 "several machines' data; a bag must hold one machine's")
-    if whole:
+        shown = ", ".join(ns or "the root namespace" for ns in whole)
+        raise BagReadError(path, f"holds the episode topics of {len(whole)} namespaces ({shown}): several "
+                                 "machines' data; a bag must hold one machine's")
+    if whole and whole[0]:
         log.info("%s: reading the episode topics under the namespace %s", path, whole[0])
     return whole[0] if whole else ""
 

@@ -19,9 +19,10 @@ from pathlib import Path
 from rosbags.highlevel import AnyReader
 
 from soil_msgs_py import messages as M
-from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags
+from .bag_io import (META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags,
+                     topics_namespace)
 from soil_msgs_py.episode import EpisodeMeta
-from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, GRAPH_OWN_TOPICS, STRING_MSGTYPE, EpisodeEvent
 from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
 
 CLOCK_TOPIC = CLOCK.name
@@ -96,6 +97,11 @@ def load_bag(
 ) -> LoadedBag:
     """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude``, in log-time order.
 
+    A bag a machine's own recorder wrote under one namespace (``/dozer1/blade/force``, as the
+    readers take it: ``bag_io.topics_namespace``) gives the graph's topics by the contract's names,
+    which ``topics`` and ``exclude`` name too, so a player puts them into its own namespace; before,
+    it sent them to the recorded machine's (``/dozer1``) whatever its own.
+
     BagReadError (naming the bag) if it is truncated or corrupt."""
     include = None if topics is None else set(topics)
     skip = set(exclude)
@@ -109,11 +115,17 @@ def load_bag(
             log(f"{bag}: bad episode metadata ({err}); playing without /sim/status events")
             meta = None
     with reading(bag), AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
+        ns = topics_namespace(bag, {c.topic for c in reader.connections})
+
+        def named(topic: str) -> str:  # the contract's name of a graph topic under the bag's namespace
+            return topic[len(ns):] if ns and topic.startswith(ns + "/") and topic[len(ns):] in GRAPH_OWN_TOPICS else topic
+
         conns = [c for c in reader.connections
-                 if (include is None or c.topic in include) and c.topic not in skip]
-        found = {c.topic: c.msgtype for c in conns}
-        held = frozenset(c.topic for c in reader.connections)
-        messages = [(t, c.topic, bytes(raw)) for c, t, raw in reader.messages(connections=conns)] if conns else []
+                 if (include is None or named(c.topic) in include) and named(c.topic) not in skip]
+        found = {named(c.topic): c.msgtype for c in conns}
+        held = frozenset(named(c.topic) for c in reader.connections)
+        messages = ([(t, named(c.topic), bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
+                    if conns else [])
     if include is not None and (missing := sorted(include - held)):  # absent from the bag (not merely excluded)
         log(f"{bag}: no topic(s) {missing}")
     elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held  # (a machine's bag

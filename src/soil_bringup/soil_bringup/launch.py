@@ -61,6 +61,9 @@ from soil_msgs_py.params_files import node_parameters
 MAX_DOMAIN_ID = 232  # the largest ROS_DOMAIN_ID DDS allows on Linux (its ports above stay below 65536)
 # A ROS 2 namespace as rcl validates one: absolute, tokens of letters, digits and '_' not starting with a digit
 NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+# The longest namespace the graph fits under: rmw's longest topic or service name (255 − 8) less the
+# graph's longest name below its namespace, the controller's parameter service (a longer one: tracebacks)
+MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomically")
 
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
@@ -162,6 +165,9 @@ class Launch:
         self.interrupted = False
         self.signal: int | None = None  # the first SIGINT / SIGTERM received
         self.episode_running = False  # the simulator logged an episode's start and not yet its end
+        # the simulator found another graph and ran nothing: the recorder is stopped first, else it
+        # recorded the other graph's next episode into this launch's directory while the others stopped
+        self.none_of_its_own = False
 
     def log(self, text: str) -> None:
         self.out.write(f"[launch] {text}\n")
@@ -244,6 +250,7 @@ class Launch:
                     self.log(f"{node.name} refused its parameters (exit code {rc}); stopping the others")
                     return EXIT_NODE_DIED
                 if rc == G.EXIT_ANOTHER_GRAPH:
+                    self.none_of_its_own = True
                     self.log(f"{node.name} found another graph on domain {self.env.get('ROS_DOMAIN_ID', '?')} (exit "
                              f"code {rc}; its log names the nodes); stopping the others: give this launch another "
                              "--domain-id, or each machine's graph a --namespace of its own")
@@ -260,13 +267,15 @@ class Launch:
             time.sleep(0.05)
 
     def stop(self) -> None:
-        """SIGINT each running node in stop order, waiting for each; escalate if one hangs."""
+        """SIGINT each running node in stop order, waiting for each; escalate if one hangs (the
+        order reversed, the recorder first, when the graph ran nothing of its own)."""
         first = True
-        for node in sorted(self.nodes, key=lambda n: n.stop_order):
+        order = -1 if self.none_of_its_own else 1
+        for node in sorted(self.nodes, key=lambda n: order * n.stop_order):
             if node.proc is None:
                 continue
             if node.proc.poll() is None:
-                if not first and node.stop_order >= max(n.stop_order for n in self.nodes):
+                if not first and not self.none_of_its_own and node.stop_order >= max(n.stop_order for n in self.nodes):
                     time.sleep(self.drain_s)  # the last stage (recorder) gets the in-flight data
                 first = False
                 node.returncode = self._stop_one(node)
@@ -521,6 +530,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.namespace and not NAMESPACE_RE.fullmatch(args.namespace):
         p.error(f"--namespace {args.namespace!r} is not a ROS namespace: '/' then names of letters, digits and '_' "
                 "(not starting with a digit) joined by '/', e.g. /dozer1 or /site_a/dozer1")
+    if len(args.namespace) > MAX_NAMESPACE_LEN:
+        p.error(f"--namespace of {len(args.namespace)} characters: at most {MAX_NAMESPACE_LEN} leave room for the "
+                "graph's names under it (ROS names are at most 247 characters)")
     for flag in ("sim", "controller", "estimator", "planner"):
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback

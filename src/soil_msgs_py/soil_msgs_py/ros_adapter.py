@@ -17,13 +17,15 @@ import math
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
-from rclpy.exceptions import ParameterException, ParameterUninitializedException
+from rclpy.exceptions import NameValidationException, ParameterException, ParameterUninitializedException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -36,6 +38,7 @@ from .launcher_death import stop_with_launcher
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE,
                     TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
 
+RCLError = _rclpy.RCLError  # rcl's own refusal (e.g. of a node namespace it cannot validate)
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
 
@@ -441,6 +444,8 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
+    # (rclpy's own noise after rcl refused to make the node, which is said below in one line)
+    warnings.filterwarnings("ignore", message="Failed to fini rosout publisher", category=RuntimeWarning)
     try:
         node = factory()
         for text in params_file_warnings(argv, node):
@@ -460,6 +465,14 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         if node is not None:
             raise
         rclpy.logging.get_logger(_program(argv)).error(f"cannot start: {err}")
+        code = EXIT_BAD_CONFIG
+    except (NameValidationException, RCLError) as err:
+        # a namespace rcl cannot make the node's names under (``-r __ns:=`` too long: a traceback before)
+        if node is not None:
+            raise
+        first = rcl_error_text(err).strip().splitlines()[0].rstrip(": ")
+        print(f"{_program(argv)}: cannot start: {first} (its namespace or name, e.g. -r __ns:=, is too long or not "
+              "a ROS name)", file=sys.stderr)
         code = EXIT_BAD_CONFIG
     finally:
         try:

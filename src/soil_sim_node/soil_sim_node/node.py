@@ -326,7 +326,9 @@ class SimNode(Node):
                 have = self.status_pub.get_subscription_count()
             else:
                 have = self.pubs[topic].get_subscription_count()
-            counts[topic] = (have, max(count, counts.get(topic, (0, 0))[1]))  # given twice: each must hold
+            # by its name in this graph's namespace, as said when it is missing (/dozer1/blade/cmd)
+            shown = self.resolve_topic_name(local(topic))
+            counts[shown] = (have, max(count, counts.get(shown, (0, 0))[1]))  # given twice: each must hold
         return counts
 
     def _try_start(self) -> None:
@@ -374,13 +376,15 @@ class SimNode(Node):
                                          "bag player of this project; its messages are not this simulator's")
         if rivals <= 0:
             return False
-        said = (f"{rivals} other simulator(s) or bag player(s) publish {G.SIM_STATUS_TOPIC} on ROS_DOMAIN_ID "
-                f"{self.context.get_domain_id()} (nodes {', '.join(sorted(set(names)))}): two graphs on one domain mix "
-                "their topics, and every bag of either would hold both")
+        topic = self.resolve_topic_name(local(G.SIM_STATUS_TOPIC))  # (in this graph's namespace)
+        said = (f"{rivals} other simulator(s) or bag player(s) publish {topic} on ROS_DOMAIN_ID "
+                f"{self.context.get_domain_id()} (nodes {', '.join(sorted(set(names)))}): two graphs in one namespace "
+                "of one domain mix their topics, and every bag of either would hold both")
         if self.episode_index < 0:  # (no episode started yet)
             self.get_logger().error(f"{said}; starting no episode: stop the other graph or give this one another "
-                                    "ROS_DOMAIN_ID (soil_launch --domain-id); a node killed in the last 20 s still "
-                                    "shows until its DDS lease runs out: then start again in a moment")
+                                    "ROS_DOMAIN_ID (soil_launch --domain-id) or a namespace of its own (soil_launch "
+                                    "--namespace); a node killed in the last 20 s still shows until its DDS lease "
+                                    "runs out: then start again in a moment")
             self.queue.clear()
             self.exit_code, self.finished = G.EXIT_ANOTHER_GRAPH, True
             return True
