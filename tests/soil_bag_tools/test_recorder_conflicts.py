@@ -20,7 +20,7 @@ import yaml
 
 from soil_bag_tools import bag_io, journal, recorder
 from soil_msgs_py import messages as M
-from soil_msgs_py.topics import ESTIMATE_FIELDS
+from soil_msgs_py.topics import EPISODE_TOPICS, ESTIMATE_FIELDS
 from tests.soil_bag_tools.test_bag_tools import (  # noqa: F401 - listener is a fixture
     SAMPLE, TICK_NS, ListLog, _events, assert_same_episode, finish, listener, next_domain_id, reap, start,
 )
@@ -94,6 +94,37 @@ def test_intruder_claiming_real_stamps_first_is_not_recorded(tmp_path):
     warnings = [m for lvl, m in log.lines if lvl == "warning"]
     assert any(all(t in m for t in SPOOFED) for m in warnings), warnings  # one warning names every topic
     assert any("off the 60 Hz grid" in m and "/clock" in m for m in warnings), warnings
+
+
+def test_the_claims_of_an_hour_long_episode_take_a_byte_per_tick_and_topic():
+    """A mapping entry per message grew a recorder by 7 MB per minute of episode (an outside soak
+    test: +450 MB over an hour); the claims on the tick grid now take one byte each, and stamps off
+    it or past the longest episode (a foreign writer's) are still counted."""
+    from soil_msgs_py.params import tick_stamp_ns
+
+    claims, ticks = recorder.StampClaims(), int(3600 * 60)
+    topics = [t.name for t in EPISODE_TOPICS]
+    for k in range(0, ticks, 7):  # (every 7th tick: the arrays reach their full length all the same)
+        for topic in topics:
+            assert claims.add(topic, tick_stamp_ns(k), k) == 1
+    assert claims.add(topics[0], tick_stamp_ns(7), 7) == 2  # a second message for a stamp: counted
+    assert sum(len(a) for a in claims.per_tick.values()) <= 2 * ticks * len(topics) and not claims.other
+    assert claims.add("/x", 123, None) == 1 and claims.add("/x", 123, None) == 2  # off the grid
+    assert claims.add(topics[0], 10**18, 10**13) == 1 and max(len(a) for a in claims.per_tick.values()) <= 2 * ticks
+
+
+def test_a_long_conversion_says_how_far_it_is():
+    """What a stopping recorder says while it makes a big bag: soil_launch waits for it while it
+    reports (tests/soil_bringup/test_launch.py), where it had killed it mid-bag."""
+    said = []
+    progress = journal.Progress("written", lambda what, n: said.append((what, n)), period_s=0.0)
+    for _ in range(2 * journal.Progress.CHECK_EVERY + 5):
+        progress.step()
+    assert said == [("written", journal.Progress.CHECK_EVERY), ("written", 2 * journal.Progress.CHECK_EVERY)]
+    quiet = journal.Progress("written", lambda what, n: said.append(n), period_s=3600.0)
+    for _ in range(journal.Progress.CHECK_EVERY):
+        quiet.step()
+    assert len(said) == 2  # (not before its period)
 
 
 @pytest.mark.parametrize("values", [None, (1e30, -1e30), (5e9, 0.0), (5e-324, 0.0)],

@@ -112,6 +112,27 @@ def test_after_another_graph_the_recorder_is_stopped_first(tmp_path):
     assert stops.read_text().split() == ["recorder", "controller"], (tmp_path / "launch.log").read_text()
 
 
+def test_a_stopping_node_that_keeps_reporting_is_waited_for_and_a_silent_one_is_not(tmp_path):
+    """A recorder making an hour-long episode's bag at its stop (~30 s, saying how far it is) was
+    killed --stop-timeout + 5 s after the stop, its bag half written (an outside soak test)."""
+    busy = [sys.executable, "-c", "import signal, sys, time\n"
+            "def stop(*_):\n    for k in range(8):\n        print('making its bag', k, flush=True); time.sleep(0.25)\n"
+            "    sys.exit(0)\n"
+            "signal.signal(signal.SIGINT, stop); print('up', flush=True); time.sleep(60)"]
+    silent = [sys.executable, "-c", "import signal, time\n"
+              "signal.signal(signal.SIGINT, lambda *_: None); print('up', flush=True); time.sleep(60)"]
+    for argv, code in ((busy, 0), (silent, -signal.SIGTERM)):
+        node = L.NodeProcess("recorder", argv, stop_order=0)
+        with (tmp_path / "launch.log").open("w") as out:
+            launch = L.Launch([node], L.loopback_env(0), out=out, stop_timeout_s=0.6)
+            launch.start()
+            deadline = time.monotonic() + 30
+            while not node.spoke.is_set() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            launch.stop()
+        assert node.returncode == code, (tmp_path / "launch.log").read_text()
+
+
 def test_a_launch_log_names_the_nodes_it_started_so_they_can_be_stopped_later(tmp_path):
     log = tmp_path / "launch.log"
     with log.open("w") as out:

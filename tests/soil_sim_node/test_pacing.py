@@ -56,7 +56,7 @@ def test_realtime_commands_in_before_the_timer_are_stepped_by_the_timer(clock):
     assert pacer.on_commands(complete=False) is Do.NOTHING
     assert pacer.on_commands(complete=True) is Do.NOTHING, "early: the timer keeps the 60 Hz grid"
     assert pacer.on_timer(commands_complete=True) is Do.STEP
-    assert pacer.timing.loop_latencies == [pytest.approx(0.004)] and pacer.timing.late_commands == 0
+    assert list(pacer.timing.loop_latencies) == [pytest.approx(0.004)] and pacer.timing.late_commands == 0
 
 
 def test_realtime_commands_just_after_the_timer_are_waited_for(clock):
@@ -66,7 +66,7 @@ def test_realtime_commands_just_after_the_timer_are_waited_for(clock):
     clock.t += 0.018
     assert pacer.on_commands(complete=True) is Do.STEP
     assert pacer.on_grace() is Do.NOTHING, "answered in time: nothing is late"
-    assert pacer.timing.late_commands == 0 and pacer.timing.loop_latencies == [pytest.approx(0.018)]
+    assert pacer.timing.late_commands == 0 and list(pacer.timing.loop_latencies) == [pytest.approx(0.018)]
 
 
 def test_realtime_commands_later_than_the_grace_are_held_and_counted_late(clock):
@@ -78,7 +78,7 @@ def test_realtime_commands_later_than_the_grace_are_held_and_counted_late(clock)
     assert pacer.on_commands(complete=True) is Do.NOTHING  # tick 1's, early
     stats = pacer.end_episode()
     assert stats["late_commands"] == 1 and stats["loop_latency"]["n"] == 1, "each tick answered in time or late"
-    assert pacer.timing.loop_latencies == [pytest.approx(0.002)]
+    assert list(pacer.timing.loop_latencies) == [pytest.approx(0.002)]
 
 
 def test_restarted_timers_drop_a_pending_grace(clock):
@@ -106,7 +106,7 @@ def test_lockstep_steps_on_every_complete_command_set_and_the_timer_only_on_one_
     clock.t += 0.6 * HOLD_S
     assert pacer.on_timer(commands_complete=True) is Do.STEP
     pacer.published()
-    assert pacer.timing.loop_latencies == [pytest.approx(0.5)] * 3 + [pytest.approx(0.5 + HOLD_S)]
+    assert list(pacer.timing.loop_latencies) == [pytest.approx(0.5)] * 3 + [pytest.approx(0.5 + HOLD_S)]
     clock.t += 0.5  # the next tick holds nothing: the timer alone never steps it
     assert pacer.on_timer(commands_complete=False) is Do.NOTHING
     pacer.hold()

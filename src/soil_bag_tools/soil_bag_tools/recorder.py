@@ -49,6 +49,7 @@ from rosbags.interfaces import Qos
 
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
+from soil_msgs_py.episode import MAX_EPISODE_S
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
@@ -67,6 +68,7 @@ EXTRA_TOPIC_LAG_LIMIT_S = 30.0
 EXTRA_TOPIC_BEHIND_NS = NS_PER_S  # an extra topic whose newest stamp is this far before the last tick is behind
 _WARN_LIMIT = 5  # per session, kind and topic; the rest are only counted
 _MAX_CLAIMS = 4  # messages journaled per (topic, stamp): the recorded one and a few intruders
+_SAY_MAKING_FROM = 200_000  # messages (~4 min of episode): a bag this big takes seconds to make, said
 # How long an ended episode waits for more of its data after the last message arrived. Longer
 # than Fast DDS's default reliable heartbeat period (3 s): a sample a reader's transport
 # dropped while the reader was busy is re-sent after the next heartbeat, not before. The
@@ -108,6 +110,32 @@ def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | Non
     return None
 
 
+class StampClaims:
+    """How many messages were journaled per (topic, stamp) of one episode: for a stamp on the
+    episode's 60 Hz grid one byte per tick and topic (an hour's 216,000 ticks: 216 kB a topic),
+    a mapping for the others (stamps off the grid or past ``MAX_TICKS``, which only a foreign
+    writer sends). Why: a mapping entry per message (~140 B) grew a recorder by 7 MB per minute of
+    episode (an outside soak test: 89 → 212 MB over 15 min, +450 MB over an hour)."""
+
+    MAX_TICKS = int(MAX_EPISODE_S * SAMPLE_RATE_HZ) + 1  # the longest episode's; past it, the mapping
+
+    def __init__(self) -> None:
+        self.per_tick: dict[str, bytearray] = {}
+        self.other: dict[tuple[str, int], int] = {}
+
+    def add(self, topic: str, stamp: int, tick: int | None) -> int:
+        """Count one more message for ``(topic, stamp)`` (``tick``: its grid index or None); the
+        count so far (at most 255 kept per tick)."""
+        if tick is None or tick >= self.MAX_TICKS:
+            n = self.other[(topic, stamp)] = self.other.get((topic, stamp), 0) + 1
+            return n
+        counts = self.per_tick.setdefault(topic, bytearray())
+        if tick >= len(counts):
+            counts.extend(bytes(max(tick + 1 - len(counts), len(counts))))  # (doubling: amortised)
+        counts[tick] = min(counts[tick] + 1, 255)
+        return counts[tick]
+
+
 @dataclass
 class Session:
     """One bag being recorded: its journal, its stamp range and what arrived so far."""
@@ -129,7 +157,7 @@ class Session:
     topic_max: dict[str, int] = field(default_factory=dict)
     topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
     topic_seq: dict[str, int] = field(default_factory=dict)  # the highest publication sequence number written per topic
-    claims: dict[tuple[str, int], int] = field(default_factory=dict)  # messages per (topic, stamp)
+    claims: StampClaims = field(default_factory=StampClaims)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
     warned: dict[tuple[str, str], int] = field(default_factory=dict)  # (kind, topic) -> warnings
@@ -361,13 +389,13 @@ class Recorder:
     def _write(self, s: Session, topic: str, stamp: int, raw: bytes, recv_ns: int, seq: int,
                *, episode: bool = True) -> None:
         if episode:
-            if topic in GRAPH_TOPICS_BY_NAME and tick_index(stamp, s.first_stamp_ns) is None:
+            tick = tick_index(stamp, s.first_stamp_ns)
+            if topic in GRAPH_TOPICS_BY_NAME and tick is None:
                 s.off_grid[topic] = s.off_grid.get(topic, 0) + 1
                 self._warn(s, "off_grid", topic, f"{topic} message with stamp {stamp} ns is off the 60 Hz grid "
                            f"of the episode (first stamp {s.first_stamp_ns} ns); dropped")
                 return
-            key = (topic, stamp)
-            claims = s.claims[key] = s.claims.get(key, 0) + 1
+            claims = s.claims.add(topic, stamp, tick)
             if claims > 1:
                 s.duplicates += 1
                 self._warn(s, "duplicate", topic, f"duplicate {topic} stamp {stamp} ns (a second publisher or a "
@@ -497,8 +525,12 @@ class Recorder:
         if s.end_event is not None:
             info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks, stats=s.end_event.stats or {})
         try:
+            if s.total >= _SAY_MAKING_FROM:  # (a few seconds of work: said, and how far it is every few seconds)
+                self.log.info(f"{s.name}: making its bag of {s.total} messages")
             result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
-                                    info_key=RECORDER_INFO_KEY, info=info, locked=locked)
+                                    info_key=RECORDER_INFO_KEY, info=info, locked=locked,
+                                    progress=lambda what, n: self.log.info(f"{s.name}: making its bag: {n} messages "
+                                                                           f"{what}"))
         except (NothingRecoverable, OSError, ValueError) as err:
             self.log.error(f"{s.name}: no bag written: {err}")
             self.unwritten.append(s.name)

@@ -65,6 +65,9 @@ NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 # graph's longest name below its namespace, the controller's parameter service (a longer one: tracebacks)
 MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomically")
 
+# The longest a stopping node that keeps reporting its progress is waited for (a recorder making its bags)
+STOP_REPORTING_LIMIT_S = 600.0
+
 EXIT_NODE_DIED = 1
 EXIT_TIMEOUT = 3
 EXIT_BAD_ARGS = 2
@@ -124,14 +127,18 @@ class NodeProcess:
     pump: threading.Thread | None = None
     returncode: int | None = field(default=None)
     spoke: threading.Event = field(default_factory=threading.Event)  # a first line of output came
+    last_line: list[float] = field(default_factory=lambda: [0.0])  # time.monotonic() of its newest line
 
 
-def _pump(prefix: str, stream, out, spoke: threading.Event | None = None, on_line=None) -> None:
+def _pump(prefix: str, stream, out, spoke: threading.Event | None = None, on_line=None,
+          last_line: list[float] | None = None) -> None:
     """Copy a child's output line by line with its name; never dies on a closed terminal
     (a dead pump would leave the child blocked on a full pipe). ``on_line``: also given each line."""
     for line in iter(stream.readline, ""):
         if spoke is not None:
             spoke.set()
+        if last_line is not None:
+            last_line[0] = time.monotonic()
         if on_line is not None:
             on_line(line)
         try:
@@ -186,7 +193,8 @@ class Launch:
                 except OSError as err:
                     self.log(f"{node.name}: niceness {node.niceness} not set ({err}); it runs at normal priority")
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out, node.spoke,
-                                                             self._on_simulator_line if node.ends_launch else None),
+                                                             self._on_simulator_line if node.ends_launch else None,
+                                                             node.last_line),
                                          daemon=True)
             node.pump.start()
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
@@ -295,13 +303,28 @@ class Launch:
             except ProcessLookupError:
                 break
             try:
-                rc = node.proc.wait(timeout=wait)
+                rc = self._wait_while_it_reports(node, wait) if sig != signal.SIGKILL else node.proc.wait(timeout=wait)
                 if sig != first:
-                    self.log(f"{node.name} needed {signal.Signals(sig).name}")
+                    self.log(f"{node.name} needed {signal.Signals(sig).name}"
+                             + (f" ({node.after_death})" if node.after_death and sig == signal.SIGKILL else ""))
                 return rc
             except subprocess.TimeoutExpired:
                 continue
         return node.proc.wait(timeout=5.0)
+
+    def _wait_while_it_reports(self, node: NodeProcess, quiet_s: float) -> int:
+        """The node's exit code once it stops, waiting as long as it says something at least every
+        ``quiet_s`` (at most ``STOP_REPORTING_LIMIT_S``); TimeoutExpired once it falls silent that
+        long. Why: a recorder making an hour-long episode's bag (~30 s for 1.5 M messages, saying
+        how far it is every few seconds) was killed 15 s after the stop, its bag half written."""
+        start = time.monotonic()
+        while True:
+            try:
+                return node.proc.wait(timeout=0.2)
+            except subprocess.TimeoutExpired:
+                now = time.monotonic()
+                if now - max(start, node.last_line[0]) >= quiet_s or now - start >= STOP_REPORTING_LIMIT_S:
+                    raise
 
 
 def started_nodes(log_path: Path) -> dict[int, tuple[str, str]]:
@@ -522,7 +545,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="keep the simulator up after its episodes (end with Ctrl-C); default: end with them")
     p.add_argument("--timeout", type=float, default=0.0,
                    help="stop everything after this many seconds (0: never); the launch then exits 3")
-    p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before SIGTERM")
+    p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds of silence a stopping node gets before SIGTERM (one that keeps reporting, the "
+                        "recorder making its bags, is waited for up to 10 min)")
     args = p.parse_args(argv)
     check_graph_options(p, args)
     if args.namespace == "/":

@@ -130,18 +130,25 @@ TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = QosSpec("reliable", "transient_local", 1)
 # The estimator's physics is said once (and again when its model changes): a planner started after it
 # subscribes TRANSIENT_LOCAL and gets it on joining, like a robot_description.
 LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC)
+# A latched topic's writer history: each sample is the whole state (every map cell so far), so a
+# reader that misses one loses only a moment of it, and the writer keeps this many, not a
+# recorder's depth: 2000 maps (up to 144 kB each) had grown an estimator by ~25 MB in 15 min of an
+# episode (an outside soak test), and a latecomer was sent every one of them. 60 maps are 30 s of
+# stretches.
+LATCHED_WRITER_DEPTH = 60
 
 
 def publisher_qos_spec(topic: str) -> QosSpec:
     """What a node publishes ``topic`` with (and so what a bag records as offered): the
     graph's QoS with a writer history as deep as a recorder's reader (``RECORDER_QOS``), and
-    TRANSIENT_LOCAL for ``LATCHED_TOPICS``. A KEEP_LAST writer overwrites samples a reliable
-    reader has not acknowledged yet, so with the graph's depth a reader starved of CPU for a
-    moment while a lockstep graph runs far above 60 Hz would lose them; with this depth they
-    are re-sent."""
+    TRANSIENT_LOCAL for ``LATCHED_TOPICS`` (``LATCHED_WRITER_DEPTH`` deep). A KEEP_LAST writer
+    overwrites samples a reliable reader has not acknowledged yet, so with the graph's depth a
+    reader starved of CPU for a moment while a lockstep graph runs far above 60 Hz would lose
+    them; with this depth they are re-sent."""
     spec = TOPIC_QOS.get(topic, DATA_QOS)
-    spec = dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
-    return dataclasses.replace(spec, durability="transient_local") if topic in LATCHED_TOPICS else spec
+    if topic in LATCHED_TOPICS:
+        return dataclasses.replace(spec, durability="transient_local", depth=max(spec.depth, LATCHED_WRITER_DEPTH))
+    return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
 
 
 # Topics the simulator publishes each tick (state, force, Θ_k, Θ, /clock) and the commands it reads.

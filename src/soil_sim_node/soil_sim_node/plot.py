@@ -66,8 +66,11 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     ax.set_ylabel("force [kN]")
     ax.legend(ncol=4, fontsize=8, loc="lower right")
     patches = m.soil_patches()
-    soil = (" → ".join(f"{p.soil} {p.relative_density_pct:.0f} %" + (f" (x ≥ {p.x_start_m:g} m)" if i else "")
-                       for i, p in enumerate(patches)) + "\n") if patches else \
+    named = [f"{p.soil} {p.relative_density_pct:.0f} %" + (f" (x ≥ {p.x_start_m:g} m)" if i else "")
+             for i, p in enumerate(patches)]
+    # three patches a line: a long path's title ran off both edges of the figure
+    soil = ("\n".join(" → ".join(named[i:i + 3]) + (" →" if i + 3 < len(named) else "")
+                      for i in range(0, len(named), 3)) + "\n") if patches else \
         f"{m.soil}, $I_d$ = {m.relative_density_pct:.0f} %, "
     ax.set_title(
         f"{soil}{m.world_mode} world, "
