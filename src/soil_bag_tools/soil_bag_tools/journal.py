@@ -35,9 +35,8 @@ import json
 import logging
 import os
 import shutil
-import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -226,28 +225,8 @@ def _records(path: Path, scan: JournalScan) -> Iterator[object]:
     yield from read_records(path, scan.mcap)
 
 
-class Progress:
-    """Calls ``say(what, messages)`` at most every ``period_s`` while a long pass over a journal
-    runs (None: silent): a recorder making an hour-long episode's bag at its stop works ~30 s, and
-    what stops it must hear that it is at work (``soil_launch`` waits for a node while it reports)."""
-
-    CHECK_EVERY = 1 << 14  # messages between two looks at the clock
-
-    def __init__(self, what: str, say: Callable[[str, int], None] | None, period_s: float = 3.0):
-        self.what, self.say, self.period_s = what, say, period_s
-        self.count = 0
-        self.last = time.monotonic()
-
-    def step(self) -> None:
-        self.count += 1
-        if self.say is not None and not self.count % self.CHECK_EVERY and time.monotonic() - self.last >= self.period_s:
-            self.last = time.monotonic()
-            self.say(self.what, self.count)
-
-
-def scan_journal(path: Path, progress: Callable[[str, int], None] | None = None) -> JournalScan:
+def scan_journal(path: Path) -> JournalScan:
     scan = JournalScan(Path(path))
-    read = Progress("read", progress)
     schemas: dict[int, Schema] = {}
     summary = False  # past DataEnd: the summary's repeated schemas/channels come after their
     # messages, so a channel lost with a skipped chunk stays lost (every pass agrees on orphans)
@@ -272,7 +251,6 @@ def scan_journal(path: Path, progress: Callable[[str, int], None] | None = None)
             scan.stamps.setdefault(record.topic, [])
             scan.sequences.setdefault(record.topic, [])
         elif isinstance(record, Message):
-            read.step()
             if record.channel_id not in scan.channels:
                 scan.orphans += 1
                 continue
@@ -456,7 +434,7 @@ class BagResult:
 
 def journal_to_bag(
     partial: Path, *, trim_partial_ticks: bool = True, info_key: str = RECORDER_INFO_KEY,
-    info: Mapping | None = None, locked: bool = False, progress: Callable[[str, int], None] | None = None,
+    info: Mapping | None = None, locked: bool = False,
 ) -> BagResult:
     """Convert the journal in ``partial`` (a ``<name>.partial`` directory) to the bag ``<name>/``.
 
@@ -468,7 +446,6 @@ def journal_to_bag(
     Raises NothingRecoverable (journal kept) if no message would be written, JournalInUse
     (journal untouched) if another process holds its lock (a recorder still writing it).
     ``locked``: the caller holds the journal's lock (``JournalWriter.close(keep_lock=True)``).
-    ``progress(what, messages)``: told every few seconds how far a long conversion is (``Progress``).
     """
     partial = Path(partial)
     if not partial.name.endswith(PARTIAL_SUFFIX):
@@ -477,12 +454,12 @@ def journal_to_bag(
     if not jpath.is_file():
         raise NothingRecoverable(f"{partial}: no journal file {jpath.name} (not left by soil_bag_record?)")
     if locked:
-        return _convert(partial, jpath, trim_partial_ticks, info_key, info, progress)
+        return _convert(partial, jpath, trim_partial_ticks, info_key, info)
     with _open_to_lock(jpath) as lock:
         _lock(lock)  # held until the journal is gone: nothing appends to it meanwhile
         if not jpath.is_file():  # another repair converted it while this one waited to open it
             raise NothingRecoverable(f"{partial}: converted by another process meanwhile")
-        return _convert(partial, jpath, trim_partial_ticks, info_key, info, progress)
+        return _convert(partial, jpath, trim_partial_ticks, info_key, info)
 
 
 def _open_to_lock(jpath: Path):
@@ -494,10 +471,9 @@ def _open_to_lock(jpath: Path):
         return open(jpath, "rb")  # noqa: SIM115
 
 
-def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str, info: Mapping | None,
-             progress: Callable[[str, int], None] | None = None) -> BagResult:
+def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str, info: Mapping | None) -> BagResult:
     """``journal_to_bag``'s work, on a journal nobody else holds."""
-    scan = scan_journal(jpath, progress)
+    scan = scan_journal(jpath)
     if scan.messages == 0:
         why = "; ".join([c.describe(scan.mcap.topics) for c in scan.bad_chunks] + ([scan.stop] if scan.stop else []))
         raise NothingRecoverable(f"{jpath}: no complete chunk with a message" + (f" ({why})" if why else ""))
@@ -563,10 +539,8 @@ def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str
             for cid, ch in scan.channels.items()
         }
         index: dict[str, int] = defaultdict(int)  # per topic, as in scan.stamps
-        written = Progress(f"written (of {len(kept)})", progress)
         for record in _records(jpath, JournalScan(jpath)):
             if isinstance(record, Message) and record.channel_id in scan.channels:
-                written.step()
                 topic = scan.channels[record.channel_id].topic
                 i = index[topic]
                 index[topic] += 1

@@ -38,9 +38,11 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -108,6 +110,26 @@ def decode_stamp(topic: str, msgtype: str, raw: bytes | memoryview) -> int | Non
     except Exception:  # noqa: BLE001 - any undecodable message is counted, never fatal
         return None
     return None
+
+
+@contextmanager
+def reporting(say: Callable[[float], None], every_s: float = 2.0) -> Iterator[None]:
+    """``say(seconds spent)`` every ``every_s`` from a helper thread while the block runs. Why: a
+    recorder stopped after an hour-long episode works ~30 s making its bag, and what stops it
+    (``soil_launch``) waits for a node while it reports; silent, it had been killed half-way."""
+    done, start = threading.Event(), time.monotonic()
+
+    def run() -> None:
+        while not done.wait(every_s):
+            say(time.monotonic() - start)
+
+    helper = threading.Thread(target=run, name="reporting", daemon=True)
+    helper.start()
+    try:
+        yield
+    finally:
+        done.set()
+        helper.join()
 
 
 class StampClaims:
@@ -525,12 +547,12 @@ class Recorder:
         if s.end_event is not None:
             info.update(reason=s.end_event.reason, published_ticks=s.end_event.ticks, stats=s.end_event.stats or {})
         try:
-            if s.total >= _SAY_MAKING_FROM:  # (a few seconds of work: said, and how far it is every few seconds)
+            if s.total >= _SAY_MAKING_FROM:  # (seconds of work: said)
                 self.log.info(f"{s.name}: making its bag of {s.total} messages")
-            result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
-                                    info_key=RECORDER_INFO_KEY, info=info, locked=locked,
-                                    progress=lambda what, n: self.log.info(f"{s.name}: making its bag: {n} messages "
-                                                                           f"{what}"))
+            with reporting(lambda spent: self.log.info(f"{s.name}: making its bag of {s.total} messages: "
+                                                       f"{spent:.0f} s so far")):
+                result = journal_to_bag(partial, trim_partial_ticks=s.meta_json is not None,
+                                        info_key=RECORDER_INFO_KEY, info=info, locked=locked)
         except (NothingRecoverable, OSError, ValueError) as err:
             self.log.error(f"{s.name}: no bag written: {err}")
             self.unwritten.append(s.name)
