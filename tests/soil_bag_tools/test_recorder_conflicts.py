@@ -113,6 +113,28 @@ def test_the_claims_of_an_hour_long_episode_take_a_byte_per_tick_and_topic():
     assert claims.add(topics[0], 10**18, 10**13) == 1 and max(len(a) for a in claims.per_tick.values()) <= 2 * ticks
 
 
+def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_topics(tmp_path):
+    """Two launches in one namespace of one domain: the one refused had recorded the other's episode
+    into its directory (an outside tester's, 2 of 2). Each launch gives its simulator and recorder an
+    id; the recorder takes episodes of its own id or of none (a replay, a simulator by hand)."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 30]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=30)
+    for graph, recorded in (("launch-other", False), ("launch-mine", True), ("", True)):
+        log = ListLog()
+        rec = recorder.Recorder(tmp_path / (graph or "none"), loaded.topics, log=log, clock=lambda: 0.0,
+                                graph_id="launch-mine")
+        feed = Feed(rec)
+        rec.on_status(replace(start_ev, graph=graph).to_json())
+        for _, topic, raw in msgs:
+            feed.send("sim", topic, raw)
+        rec.on_status(replace(end_ev, graph=graph).to_json())
+        rec.close()
+        assert bool(rec.finished) == recorded and bool(list((tmp_path / (graph or "none")).iterdir())) == recorded
+        said = [m for lvl, m in log.lines if lvl == "warning" and "from another graph (id launch-other" in m]
+        assert len(said) == (0 if recorded else 1), log.lines  # said once per episode, not per event
+
+
 def test_a_long_conversion_says_it_is_at_work():
     """What a stopping recorder says while it makes a big bag: soil_launch waits for it while it
     reports (tests/soil_bringup/test_launch.py), where it had killed it mid-bag."""

@@ -23,6 +23,8 @@ def test_episode_events_round_trip():
                          ticks=120, reason="completed", stats={"late_commands": 0})
     assert G.EpisodeEvent.from_json(start.to_json()) == start
     assert G.EpisodeEvent.from_json(end.to_json()) == end
+    launched = dataclasses.replace(end, graph="launch-123-ab12cd34")  # (a launch's id of its graph)
+    assert G.EpisodeEvent.from_json(launched.to_json()) == launched and '"graph"' not in end.to_json()
 
 
 @pytest.mark.parametrize("change, needle", [
@@ -35,6 +37,8 @@ def test_episode_events_round_trip():
     ({"meta": {k: v for k, v in json.loads(META.to_json()).items() if k != "seed"}}, "bad meta: .*seed"),
     ({"meta": {**json.loads(META.to_json()), "relative_density_pct": "dense"}}, "relative_density_pct='dense'"),
     ({"stats": [1, 2]}, "stats=[1, 2]"),
+    ({"graph": 7}, "graph=7 must be a string"),
+    ({"graph": "a/b"}, "graph='a/b' must be a string of at most 64 letters"),
 ])
 def test_bad_status_events_are_named(change, needle):
     end = G.EpisodeEvent(G.EVENT_EPISODE_END, 0, META.name, META, 0, 120, 1, 120, "completed")

@@ -27,7 +27,7 @@ from std_msgs.msg import String
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITTEN, INPUTS_WAIT_S, MAX_WAIT_S,
-                                RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC)
+                                RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC, graph_id_problem)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import JoinAfterInputs, local, message_class, own_arguments_or_refusal, qos_profile, spin_node
@@ -61,7 +61,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="subscribe to the simulator's topics once the recorded topics other nodes publish (commands, "
                         "estimates, plans) have a publisher, or after this long [s] (default %(default)g; 0: at once), so a "
                         "simulator waiting for this recorder starts no episode before it can hear those nodes")
+    p.add_argument("--graph-id", default="", metavar="ID",
+                   help="record only episodes whose /sim/status events carry this graph id or none (soil_launch "
+                        "gives its simulator and recorder one: a second launch on the same topics is not recorded)")
     opts = p.parse_args(argv)
+    if problem := graph_id_problem(opts.graph_id):
+        p.error(f"--graph-id {opts.graph_id!r} {problem}")
     if not 0 <= opts.inputs_wait <= MAX_WAIT_S:
         p.error(f"--inputs-wait {opts.inputs_wait} must be a number of seconds in [0, {MAX_WAIT_S:g}]")
     if not opts.flush_period > 0:
@@ -84,7 +89,7 @@ class RecordNode(Node):
         try:
             self.recorder = Recorder(
                 opts.out, known, split=not opts.no_split, end_grace_s=opts.end_grace, flush_sim_s=opts.flush_period,
-                qos_for=offered_qos, log=self.get_logger(),
+                qos_for=offered_qos, log=self.get_logger(), graph_id=opts.graph_id,
             )
             tempfile.TemporaryFile(dir=opts.out).close()  # writable, or no episode could be recorded there
         except OSError as err:  # a directory that cannot be made or written: refused at start (exit 2)

@@ -207,7 +207,7 @@ class Recorder:
     def __init__(
         self, out_dir: str | Path, topics: Mapping[str, str], *, split: bool = True,
         end_grace_s: float = END_GRACE_S, hold_s: float = 1.0, flush_sim_s: float = 0.25, qos_for: Callable[[str], Sequence[Qos]] = lambda t: (),
-        log: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic,
+        log: logging.Logger | None = None, clock: Callable[[], float] = time.monotonic, graph_id: str = "",
     ):
         if end_grace_s < 0:
             raise ValueError(f"end_grace_s={end_grace_s} must be >= 0 s")
@@ -234,6 +234,9 @@ class Recorder:
         # (record_node's --inputs-wait ran out): their first messages may be missing from a bag
         self.joined_without: set[str] = set()
         self._undecodable_warned: set[str] = set()
+        # this launch's graph id (``EpisodeEvent.graph``): another graph's episodes are not recorded
+        self.graph_id = graph_id
+        self._others_said: set[str] = set()
         if not split:
             name = "record_" + datetime.now(timezone.utc).strftime("%Y%m%d_%H%M%S")
             self.sessions.append(self._open(name, None, {"insitu_soil.mode": "no_split"}))
@@ -254,6 +257,12 @@ class Recorder:
             ev = EpisodeEvent.from_json(text)
         except Exception as err:  # noqa: BLE001 - a bad message is logged, never fatal: a recorder loses no episode to one
             self.log.warning(f"ignoring bad /sim/status message: {err}")
+            return
+        if self.graph_id and ev.graph and ev.graph != self.graph_id:  # another launch's simulator on our topics
+            if ev.name not in self._others_said:
+                self._others_said.add(ev.name)
+                self.log.warning(f"{ev.event} of {ev.name} from another graph (id {ev.graph}, this recorder's "
+                                 f"{self.graph_id}) on this recorder's topics: none of its episodes is recorded")
             return
         if ev.event == EVENT_EPISODE_START:
             self._start(ev)

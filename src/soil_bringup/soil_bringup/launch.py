@@ -46,6 +46,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -445,12 +446,15 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     """The graph for these arguments, with the simulator told whom to wait for."""
     wait: dict[str, int] = {}
     nodes: list[NodeProcess] = []
+    # this launch's own id, in its simulator's /sim/status events: its recorder records no other
+    # launch's episodes (two graphs in one namespace of one domain)
+    graph_id = f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     if args.record:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
-                                              *extra, *args.recorder_arg,
+                                              "--graph-id", graph_id, *extra, *args.recorder_arg,
                                               *(["--ros-args", *_namespace_args(args.namespace)] if args.namespace
                                                 else [])], stop_order=3,
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
@@ -496,7 +500,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # Only what was given on the command line overrides the params file (later -p wins).
     sim += [a for name in ("pacing", "rate") if getattr(args, name) is not None
             for a in ("-p", f"{name}:={getattr(args, name)}")]
-    own = [f"exit_when_done:={'false' if args.keep_running else 'true'}"]
+    own = [f"exit_when_done:={'false' if args.keep_running else 'true'}", f"graph_id:={graph_id}"]
     if wait:
         own.append("wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]")
     sim += _params(unless_given("soil_sim_node", args.sim_param, own)

@@ -250,6 +250,9 @@ class EpisodeEvent:
                    (PACINGS; "" when not said, e.g. by a replay, which keeps recorded time).
     episode_end:   ``first_stamp_ns``, ``last_stamp_ns`` (last tick published), ``ticks``
                    published, ``reason`` (END_REASONS), ``stats`` (timing figures, free form).
+    both:          ``graph``: the launch's id of the publishing graph ("" not said: a simulator
+                   started by hand, a replay), so a recorder of another launch on the same topics
+                   (two graphs in one namespace of one domain) records none of its episodes.
     """
 
     event: str
@@ -263,6 +266,7 @@ class EpisodeEvent:
     reason: str = ""
     stats: dict | None = None
     pacing: str = ""
+    graph: str = ""
 
     def to_json(self) -> str:
         data = {
@@ -275,6 +279,8 @@ class EpisodeEvent:
                         stats=self.stats or {})
         if self.pacing:
             data["pacing"] = self.pacing
+        if self.graph:
+            data["graph"] = self.graph
         return json.dumps(data, sort_keys=True)
 
     @classmethod
@@ -311,10 +317,24 @@ class EpisodeEvent:
         pacing = d.get("pacing", "")
         if pacing not in ("", *PACINGS):
             raise ValueError(f"{SIM_STATUS_TOPIC}: pacing={pacing!r} is not one of {PACINGS}")
+        graph = d.get("graph", "")
+        if graph_id_problem(graph):
+            raise ValueError(f"{SIM_STATUS_TOPIC}: graph={short_repr(graph)} {graph_id_problem(graph)}")
         return cls(event=event, episode=d["episode"], name=name, meta=meta,
                    first_stamp_ns=d["first_stamp_ns"], planned_ticks=d["planned_ticks"],
                    last_stamp_ns=d.get("last_stamp_ns", -1), ticks=d.get("ticks", 0),
-                   reason=reason, stats=d.get("stats"), pacing=pacing)
+                   reason=reason, stats=d.get("stats"), pacing=pacing, graph=graph)
+
+
+GRAPH_ID_MAX_LEN = 64
+
+
+def graph_id_problem(graph: object) -> str:
+    """What is wrong with a graph id (``EpisodeEvent.graph``), "" if nothing: a string of at most
+    ``GRAPH_ID_MAX_LEN`` letters, digits, '-' and '_' ("" for none)."""
+    if not isinstance(graph, str) or len(graph) > GRAPH_ID_MAX_LEN or not re.fullmatch(r"[A-Za-z0-9_-]*", graph):
+        return f"must be a string of at most {GRAPH_ID_MAX_LEN} letters, digits, '-' and '_'"
+    return ""
 
 
 # --- /sim/command -----------------------------------------------------------------------

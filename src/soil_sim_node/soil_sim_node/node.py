@@ -102,6 +102,8 @@ PARAMETERS: dict[str, tuple] = {
     "path": ("", "the patches of the path of this name in soil_file's 'paths:' section (instead of patches); '': none"),
     "plugins": ([], "extra force terms 'package.module:function' (simulator effect plugins)", _STR_ARRAY),
     "effects_off": ([], "default-world effects to switch off by name", _STR_ARRAY),
+    "graph_id": ("", "this graph's id, said in every /sim/status event: a recorder given another (soil_launch gives "
+                     "each launch its own) records none of its episodes; '': none"),
 }
 
 
@@ -134,6 +136,9 @@ class SimNode(Node):
         self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
         self.start_wait = StartWait(p["wait_timeout_s"], p["settle_s"])
         self.exit_when_done = bool(p["exit_when_done"])
+        if problem := G.graph_id_problem(p["graph_id"]):
+            raise ValueError(f"parameter graph_id={p['graph_id']!r} {problem}")
+        self.graph_id = p["graph_id"]
         self.wait_for = self._parse_wait_for(p["wait_for"])
         if self.pacer.lockstep and not self.wait_for:
             # Lockstep cannot run without a controller: wait for one unless told otherwise.
@@ -402,7 +407,8 @@ class SimNode(Node):
         self.pacer.start_episode()
         self.gate = CommandGate(self.command_writers)
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
-                               self.first_stamp_ns, planned_ticks=self.planned_ticks, pacing=self.pacer.pacing)
+                               self.first_stamp_ns, planned_ticks=self.planned_ticks, pacing=self.pacer.pacing,
+                               graph=self.graph_id)
         self.status_pub.publish(String(data=event.to_json()))
         # Topics are not ordered with each other: make sure every subscriber's DDS reader
         # holds the start before tick 0 goes out (the controller resets on it).
@@ -418,7 +424,7 @@ class SimNode(Node):
         stats.update(commands_rejected=self.gate.rejected, commands_sanitised=self.gate.sanitised)
         event = G.EpisodeEvent(G.EVENT_EPISODE_END, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks, last_stamp_ns=last,
-                               ticks=self.tick + 1, reason=reason, stats=stats)
+                               ticks=self.tick + 1, reason=reason, stats=stats, graph=self.graph_id)
         self.status_pub.publish(String(data=event.to_json()))
         if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
             self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
