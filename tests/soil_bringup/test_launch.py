@@ -174,6 +174,12 @@ def test_a_namespace_moves_every_node_and_reads_its_params_file_sections(tmp_pat
         args = node.argv[node.argv.index("--ros-args"):]
         assert args[1:3] == ["-r", "__ns:=/site_a/dozer1"], (node.name, node.argv)
     assert all("__ns:=" not in " ".join(n.argv) for n in L.build_nodes(L.parse_args(["--planner", "--namespace", "/"])))
+    # the launch's own graph id, the same for its simulator and its recorder, another for the next launch
+    by_name = {n.name: n.argv for n in nodes}
+    graph = by_name["recorder"][by_name["recorder"].index("--graph-id") + 1]
+    assert f"graph_id:={graph}" in by_name["sim"] and graph.startswith("launch-")
+    again = {n.name: n.argv for n in L.build_nodes(L.parse_args(["--record", str(tmp_path / "b")]))}
+    assert f"graph_id:={graph}" not in again["sim"]
     f = tmp_path / "p.yaml"
     f.write_text("site_a:\n  dozer1:\n    soil_sim_node:\n      ros__parameters:\n        world_mode: fee\n")
     assert L.given_params("soil_sim_node", f, [], ("world_mode",), "/site_a/dozer1") == {"world_mode": "fee"}
