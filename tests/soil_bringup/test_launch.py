@@ -165,7 +165,7 @@ def test_the_planner_option_closes_the_loop_and_yields_the_cpu_to_the_60_hz_node
     assert {n.name for n in required if n.required} == {"sim", "controller", "estimator"}  # the demo's estimator
 
 
-def test_a_namespace_moves_every_node_and_reads_its_params_file_sections(tmp_path):
+def test_a_namespace_moves_every_node_and_reads_its_params_file_sections(tmp_path, capsys):
     """``--namespace /dozer1`` puts each node of the graph, the recorder too, into the machine's
     namespace (its topics follow: tests/graph/test_planner_loop.py runs one beside another graph);
     the launcher's own reading of a params file takes that node's sections there."""
@@ -180,7 +180,19 @@ def test_a_namespace_moves_every_node_and_reads_its_params_file_sections(tmp_pat
     assert f"graph_id:={graph}" in by_name["sim"] and graph.startswith("launch-")
     again = {n.name: n.argv for n in L.build_nodes(L.parse_args(["--record", str(tmp_path / "b")]))}
     assert f"graph_id:={graph}" not in again["sim"]
+    mine = {n.name: n.argv for n in L.build_nodes(L.parse_args(["--record", str(tmp_path / "b"),
+                                                                 "--sim-param", "graph_id:=mine"]))}
+    assert mine["recorder"][mine["recorder"].index("--graph-id") + 1] == "mine"  # one id for both, the user's
+    # a params file whose sections rcl would not apply in the namespace is refused, as is a second recorder id
     f = tmp_path / "p.yaml"
+    f.write_text("soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+    for argv, needle in ((["--namespace", "/dozer1", "--sim-params-file", str(f)], "its sections are for /soil_sim_node"),
+                         (["--record", str(tmp_path / "b"), "--recorder-arg=--graph-id=x"], "--recorder-arg --graph-id")):
+        with pytest.raises(SystemExit):
+            L.parse_args(argv)
+        assert needle in capsys.readouterr().err, argv
+    f.write_text("/**/soil_sim_node:\n  ros__parameters:\n    world_mode: fee\n")
+    assert L.parse_args(["--namespace", "/dozer1", "--sim-params-file", str(f)]).namespace == "/dozer1"
     f.write_text("site_a:\n  dozer1:\n    soil_sim_node:\n      ros__parameters:\n        world_mode: fee\n")
     assert L.given_params("soil_sim_node", f, [], ("world_mode",), "/site_a/dozer1") == {"world_mode": "fee"}
     assert L.given_params("soil_sim_node", f, [], ("world_mode",)) == {"world_mode": None}

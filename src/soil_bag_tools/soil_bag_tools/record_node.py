@@ -135,7 +135,9 @@ class RecordNode(Node):
         return callback
 
     def _discover(self) -> None:
-        types = dict(self.get_topic_names_and_types())
+        # (a topic of the graph's own, /soil/estimator/physics, by its name in this recorder's namespace)
+        graph = dict(self.get_topic_names_and_types())
+        types = {t: graph.get(self.resolve_topic_name(local(t))) for t in self._pending} | graph
         if not self._pending_said and time.monotonic() - self._pending_since >= _PENDING_SAY_AFTER_S:
             self._pending_said = True
             waiting = [t for t in self._pending if not types.get(t)]
@@ -148,7 +150,7 @@ class RecordNode(Node):
             if msgtype not in M.TYPESTORE.types:
                 self.get_logger().warning(f"{topic}: type {msgtype} unknown to the Jazzy typestore; not recorded")
                 continue
-            infos = self.get_publishers_info_by_topic(topic)
+            infos = self.get_publishers_info_by_topic(local(topic))
             best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
             self.recorder.add_topic(topic, msgtype)
             self._subscribe(topic, msgtype, best_effort=best_effort)

@@ -153,7 +153,8 @@ class StampClaims:
             return n
         counts = self.per_tick.setdefault(topic, bytearray())
         if tick >= len(counts):
-            counts.extend(bytes(max(tick + 1 - len(counts), len(counts))))  # (doubling: amortised)
+            grown = min(max(tick + 1, 2 * len(counts)), self.MAX_TICKS)  # (doubling: amortised; at most MAX_TICKS)
+            counts.extend(bytes(grown - len(counts)))
         counts[tick] = min(counts[tick] + 1, 255)
         return counts[tick]
 

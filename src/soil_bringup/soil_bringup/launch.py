@@ -298,13 +298,15 @@ class Launch:
         # KeyboardInterrupt traceback burying the launch's real error; SIGTERM ends it quietly
         # there, and a node that is up handles either alike (``ros_adapter``).
         first = signal.SIGINT if node.spoke.is_set() else signal.SIGTERM
+        limit_at = time.monotonic() + STOP_REPORTING_LIMIT_S  # (one limit for both stages that wait while it reports)
         for sig, wait in ((first, self.stop_timeout_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
             try:
                 node.proc.send_signal(sig)
             except ProcessLookupError:
                 break
             try:
-                rc = self._wait_while_it_reports(node, wait) if sig != signal.SIGKILL else node.proc.wait(timeout=wait)
+                rc = (self._wait_while_it_reports(node, wait, limit_at) if sig != signal.SIGKILL
+                      else node.proc.wait(timeout=wait))
                 if sig != first:
                     self.log(f"{node.name} needed {signal.Signals(sig).name}"
                              + (f" ({node.after_death})" if node.after_death and sig == signal.SIGKILL else ""))
@@ -313,18 +315,19 @@ class Launch:
                 continue
         return node.proc.wait(timeout=5.0)
 
-    def _wait_while_it_reports(self, node: NodeProcess, quiet_s: float) -> int:
+    @staticmethod
+    def _wait_while_it_reports(node: NodeProcess, quiet_s: float, limit_at: float) -> int:
         """The node's exit code once it stops, waiting as long as it says something at least every
-        ``quiet_s`` (at most ``STOP_REPORTING_LIMIT_S``); TimeoutExpired once it falls silent that
+        ``quiet_s`` (until ``limit_at``, time.monotonic()); TimeoutExpired once it falls silent that
         long. Why: a recorder making an hour-long episode's bag (~30 s for 1.5 M messages, saying
-        how far it is every few seconds) was killed 15 s after the stop, its bag half written."""
+        it is at work every 2 s) was killed 15 s after the stop, its bag half written."""
         start = time.monotonic()
         while True:
             try:
                 return node.proc.wait(timeout=0.2)
             except subprocess.TimeoutExpired:
                 now = time.monotonic()
-                if now - max(start, node.last_line[0]) >= quiet_s or now - start >= STOP_REPORTING_LIMIT_S:
+                if now - max(start, node.last_line[0]) >= quiet_s or now >= limit_at:
                     raise
 
 
@@ -395,20 +398,24 @@ def unless_given(node: str, params: list[str], defaults: list[str]) -> list[str]
     return [d for d, name in zip(defaults, names) if on_line[name] is None]
 
 
+def _sections_for(params_file, node_path: str) -> list[dict]:
+    """The sections of a params file rcl applies to the node ``node_path`` ([] if unreadable)."""
+    try:
+        sections = yaml.safe_load(Path(params_file).read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return []  # the node reports its own params file
+    return node_parameters(sections if isinstance(sections, dict) else {}, node_path)
+
+
 def given_params(node: str, params_file, params: list[str], names, namespace: str = "") -> dict[str, str | None]:
     """What the node ``node`` (launched in ``namespace``, "" the root) is given for each of ``names``
     as text (None: not given): the last ``-p`` of ``params``, else the last value in its params
     file's sections that apply to it by rcl's rules (``params_files.node_parameters``), as it reads them."""
     given: dict[str, str | None] = {name: None for name in names}
-    if params_file:
-        try:
-            sections = yaml.safe_load(Path(params_file).read_text()) or {}
-            for section in node_parameters(sections if isinstance(sections, dict) else {}, f"{namespace}/{node}"):
-                for key in given:
-                    if key in section:
-                        given[key] = "" if section[key] is None else str(section[key])
-        except (OSError, yaml.YAMLError):
-            pass  # the node reports its own params file
+    for section in _sections_for(params_file, f"{namespace}/{node}") if params_file else ():
+        for key in given:
+            if key in section:
+                given[key] = "" if section[key] is None else str(section[key])
     for pair in params:
         name, _, value = pair.partition(":=")
         if name.strip() in given:
@@ -447,8 +454,10 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     wait: dict[str, int] = {}
     nodes: list[NodeProcess] = []
     # this launch's own id, in its simulator's /sim/status events: its recorder records no other
-    # launch's episodes (two graphs in one namespace of one domain)
-    graph_id = f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    # launch's episodes (two graphs in one namespace of one domain); the user's -p graph_id if given,
+    # the same for both (a recorder given another would record nothing)
+    graph_id = ((given_params("soil_sim_node", None, args.sim_param, ("graph_id",))["graph_id"] or "").strip()
+                or f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     if args.record:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
@@ -584,6 +593,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     # the recorder's last --out would win over --record's; any prefix of it too (argparse takes --o, --ou)
     if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
+    if any(len(o := a.split("=", 1)[0]) > 4 and "--graph-id".startswith(o) for a in args.recorder_arg):
+        p.error("--recorder-arg --graph-id: the launch gives its simulator and recorder one id; give it as "
+                "--sim-param graph_id:=ID")
+    for flag, node in (("sim", "soil_sim_node"), ("controller", "anti_stall_controller"),
+                       ("estimator", "pinn_estimator"), ("planner", "soil_planner")):
+        if args.namespace and (path := getattr(args, f"{flag}_params_file")) is not None \
+                and not _sections_for(path, f"{args.namespace}/{node}") and _sections_for(path, f"/{node}"):
+            p.error(f"--{flag}-params-file {path}: its sections are for /{node}, not for {args.namespace}/{node} "
+                    f"where --namespace puts it (rcl would apply none of them): name the section /**/{node} or "
+                    f"nest it under the namespace")
     return args
 
 

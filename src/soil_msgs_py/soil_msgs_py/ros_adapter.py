@@ -444,10 +444,10 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
-    # (rclpy's own noise after rcl refused to make the node, which is said below in one line)
-    warnings.filterwarnings("ignore", message="Failed to fini rosout publisher", category=RuntimeWarning)
     try:
-        node = factory()
+        with warnings.catch_warnings():  # (rclpy's own noise after rcl refused to make the node, said below)
+            warnings.filterwarnings("ignore", message="Failed to fini rosout publisher", category=RuntimeWarning)
+            node = factory()
         for text in params_file_warnings(argv, node):
             node.get_logger().warning(text)
         executor = SingleThreadedExecutor()
@@ -471,8 +471,9 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         if node is not None:
             raise
         first = rcl_error_text(err).strip().splitlines()[0].rstrip(": ")
-        print(f"{_program(argv)}: cannot start: {first} (its namespace or name, e.g. -r __ns:=, is too long or not "
-              "a ROS name)", file=sys.stderr)
+        named = isinstance(err, NameValidationException) or "name" in first.lower()
+        hint = " (its namespace or name, e.g. -r __ns:=, is too long or not a ROS name)" if named else ""
+        print(f"{_program(argv)}: cannot start: {first}{hint}", file=sys.stderr)
         code = EXIT_BAD_CONFIG
     finally:
         try:

@@ -263,7 +263,7 @@ class SimNode(Node):
         """Episode parameters apply to episodes started later; rate applies at once."""
         changes = {p.name: p.value for p in params}
         fixed = {"world_mode", "engine", "pacing", "plugins", "effects_off", "wait_for", "sequence_soils",
-                 "sequence_relative_densities_pct", "episodes", "soil_file", "path"} & set(changes)
+                 "sequence_relative_densities_pct", "episodes", "soil_file", "path", "graph_id"} & set(changes)
         if fixed:
             return SetParametersResult(successful=False, reason=f"{sorted(fixed)} can only be set at start-up")
         try:
@@ -366,7 +366,8 @@ class SimNode(Node):
                 self._nodes_seen = (nodes, now)
             if now - self._born < GRAPH_DISCOVERY_S or now - self._nodes_seen[1] < GRAPH_QUIET_S:
                 return True
-        infos = self.get_publishers_info_by_topic(local(G.SIM_STATUS_TOPIC))
+        topic = self.resolve_topic_name(local(G.SIM_STATUS_TOPIC))  # (in this graph's namespace)
+        infos = self.get_publishers_info_by_topic(topic)
         names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
         if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
             self._names_wait_since = self._names_wait_since or now
@@ -377,11 +378,10 @@ class SimNode(Node):
         rivals = sum(i.node_name in ours for i in infos) - 1  # (this node's own writer counts)
         foreign = sorted({n for i, n in zip(infos, names) if i.node_name not in ours})
         if foreign:
-            self._warn("foreign_status", f"{', '.join(foreign)} also publish {G.SIM_STATUS_TOPIC}: not a simulator or "
+            self._warn("foreign_status", f"{', '.join(foreign)} also publish {topic}: not a simulator or "
                                          "bag player of this project; its messages are not this simulator's")
         if rivals <= 0:
             return False
-        topic = self.resolve_topic_name(local(G.SIM_STATUS_TOPIC))  # (in this graph's namespace)
         said = (f"{rivals} other simulator(s) or bag player(s) publish {topic} on ROS_DOMAIN_ID "
                 f"{self.context.get_domain_id()} (nodes {', '.join(sorted(set(names)))}): two graphs in one namespace "
                 "of one domain mix their topics, and every bag of either would hold both")
