@@ -10,7 +10,7 @@ in the middle of a journal write; the open bags are then finished cleanly (trunc
 whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``.
 
     soil_bag_record --out DIR [--topics T ...] [--all-episode-topics] [--no-split]
-                    [--flush-period S] [--end-grace S] [--inputs-wait S] [--ros-args ...]
+                    [--flush-period S] [--end-grace S] [--inputs-wait S] [--graph-id ID] [--ros-args ...]
 """
 from __future__ import annotations
 
