@@ -66,6 +66,9 @@ NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 # graph's longest name below its namespace, the controller's parameter service (a longer one: tracebacks)
 MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomically")
 
+# --NODE-params-file: the node each is for
+PARAMS_FILE_NODES = {"sim": "soil_sim_node", "controller": "anti_stall_controller", "estimator": "pinn_estimator",
+                     "planner": "soil_planner"}
 # The longest a stopping node that keeps reporting its progress is waited for (a recorder making its bags)
 STOP_REPORTING_LIMIT_S = 600.0
 
@@ -503,9 +506,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         if not topic.startswith("/") or not count.isdigit():
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
         _count(wait, {topic: int(count)})
-    sim = [executable("soil_sim_node"), "--ros-args", *_namespace_args(args.namespace)]
-    if args.sim_params_file:
-        sim += ["--params-file", str(args.sim_params_file)]
+    sim = _ros_node("soil_sim_node", args.sim_params_file, [], args.namespace)
     # Only what was given on the command line overrides the params file (later -p wins).
     sim += [a for name in ("pacing", "rate") if getattr(args, name) is not None
             for a in ("-p", f"{name}:={getattr(args, name)}")]
@@ -570,10 +571,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if len(args.namespace) > MAX_NAMESPACE_LEN:
         p.error(f"--namespace of {len(args.namespace)} characters: at most {MAX_NAMESPACE_LEN} leave room for the "
                 "graph's names under it (ROS names are at most 247 characters)")
-    for flag in ("sim", "controller", "estimator", "planner"):
+    for flag, node in PARAMS_FILE_NODES.items():
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
             p.error(f"--{flag}-params-file {path}: " + ("a directory, not a YAML file" if path.is_dir() else "no such file"))
+        if args.namespace and path is not None \
+                and not _sections_for(path, f"{args.namespace}/{node}") and _sections_for(path, f"/{node}"):
+            p.error(f"--{flag}-params-file {path}: its sections are for /{node}, not for {args.namespace}/{node} "
+                    f"where --namespace puts it (rcl would apply none of them): name the section /**/{node} or "
+                    f"nest it under the namespace")
     for flag, value in (("--timeout", args.timeout), ("--stop-timeout", args.stop_timeout)):
         if not math.isfinite(value) or value < 0 or (flag == "--stop-timeout" and value == 0):
             p.error(f"{flag} {value} must be a finite number of seconds, {'> 0' if flag == '--stop-timeout' else '>= 0 (0: never)'}")
@@ -596,13 +602,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if any(len(o := a.split("=", 1)[0]) > 4 and "--graph-id".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --graph-id: the launch gives its simulator and recorder one id; give it as "
                 "--sim-param graph_id:=ID")
-    for flag, node in (("sim", "soil_sim_node"), ("controller", "anti_stall_controller"),
-                       ("estimator", "pinn_estimator"), ("planner", "soil_planner")):
-        if args.namespace and (path := getattr(args, f"{flag}_params_file")) is not None \
-                and not _sections_for(path, f"{args.namespace}/{node}") and _sections_for(path, f"/{node}"):
-            p.error(f"--{flag}-params-file {path}: its sections are for /{node}, not for {args.namespace}/{node} "
-                    f"where --namespace puts it (rcl would apply none of them): name the section /**/{node} or "
-                    f"nest it under the namespace")
     return args
 
 

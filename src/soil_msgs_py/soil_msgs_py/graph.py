@@ -318,8 +318,8 @@ class EpisodeEvent:
         if pacing not in ("", *PACINGS):
             raise ValueError(f"{SIM_STATUS_TOPIC}: pacing={pacing!r} is not one of {PACINGS}")
         graph = d.get("graph", "")
-        if graph_id_problem(graph):
-            raise ValueError(f"{SIM_STATUS_TOPIC}: graph={short_repr(graph)} {graph_id_problem(graph)}")
+        if problem := graph_id_problem(graph):
+            raise ValueError(f"{SIM_STATUS_TOPIC}: graph={short_repr(graph)} {problem}")
         return cls(event=event, episode=d["episode"], name=name, meta=meta,
                    first_stamp_ns=d["first_stamp_ns"], planned_ticks=d["planned_ticks"],
                    last_stamp_ns=d.get("last_stamp_ns", -1), ticks=d.get("ticks", 0),

@@ -143,6 +143,8 @@ class SimNode(Node):
         if self.pacer.lockstep and not self.wait_for:
             # Lockstep cannot run without a controller: wait for one unless told otherwise.
             self.wait_for = [(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
+        # each by its name in this graph's namespace, as said when it is missing (/dozer1/blade/cmd)
+        self.wait_names = {t: self.resolve_topic_name(local(t)) for t, _ in self.wait_for}
         effects = effects_for_mode(p["world_mode"])
         if p["effects_off"]:
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
@@ -331,8 +333,7 @@ class SimNode(Node):
                 have = self.status_pub.get_subscription_count()
             else:
                 have = self.pubs[topic].get_subscription_count()
-            # by its name in this graph's namespace, as said when it is missing (/dozer1/blade/cmd)
-            shown = self.resolve_topic_name(local(topic))
+            shown = self.wait_names[topic]
             counts[shown] = (have, max(count, counts.get(shown, (0, 0))[1]))  # given twice: each must hold
         return counts
 
