@@ -40,17 +40,23 @@ def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):
     assert (root / "notes.txt").exists()
 
 
-def test_bad_arguments_exit_2_with_the_reason():
-    for argv, needle in ((["--soils", "Peat"], "Peat"), (["--duration", "0.5"], "window"),
+def test_bad_arguments_exit_2_with_the_reason(capsys):
+    """Every argument is checked while the arguments are read (``parse_args``), before a node
+    starts: the first case through the real command line, the others in this process."""
+    res = subprocess.run([sys.executable, "-m", "soil_bringup.demo", "--soils", "Peat"], capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 2 and "Peat" in res.stderr, res.stderr
+    for argv, needle in ((["--duration", "0.5"], "window"),
                          (["--densities", "120"], "[0, 100]"),
                          (["--pacing", "lockstep", "--rate", "2"], "--rate 2 is the real-time factor of --pacing realtime"),
                          (["--rate", "5000"], "--rate 5000 outside [0.01, 1000]"),
                          (["--depth", "0.7"], "--depth: target_depth_m=0.7 outside"),
                          (["--depth", "0.005"], "--depth 0.005: the blade cuts from 0.01 m"),
                          (["--speed", "0"], "--speed: target_speed_m_s=0.0 outside")):
-        res = subprocess.run([sys.executable, "-m", "soil_bringup.demo", *argv], capture_output=True, text=True,
-                             timeout=60)
-        assert res.returncode == 2 and needle in res.stderr, res.stderr
+        with pytest.raises(SystemExit) as exit_:
+            D.main(argv)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and needle in err, (argv, err)
 
 
 def test_a_checkpoint_the_online_estimator_cannot_run_is_refused_before_the_graph_starts(tmp_path, capsys):
