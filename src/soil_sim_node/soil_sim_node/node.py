@@ -367,7 +367,7 @@ class SimNode(Node):
                 self._nodes_seen = (nodes, now)
             if now - self._born < GRAPH_DISCOVERY_S or now - self._nodes_seen[1] < GRAPH_QUIET_S:
                 return True
-        topic = self.resolve_topic_name(local(G.SIM_STATUS_TOPIC))  # (in this graph's namespace)
+        topic = self.status_pub.topic_name  # (its name in this graph's namespace)
         infos = self.get_publishers_info_by_topic(topic)
         names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
         if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
