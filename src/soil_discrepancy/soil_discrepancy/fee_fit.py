@@ -302,12 +302,12 @@ def fit_joint(frame: Frame, model: AugmentedFEE, name: str, start: ThetaFit | No
         r0, (bx, bz) = cache["r"], cache["b"]
         x, k = unpack(p)
         h = forward_steps(x, prob.ub)  # (G, 3)
-        cols = []
+        xp = np.repeat(x[None], 3, axis=0)  # (3, G, 3): θ_j stepped in the j-th copy, every group at once
         for j in range(3):
-            xp = x.copy()
-            xp[:, j] += h[:, j]
-            r, _, _ = prob.residuals(xp[prob.local], k)
-            cols.append((r.reshape(-1) - r0) / h[col_group, j])
+            xp[j, :, j] += h[:, j]
+        r, _, _ = prob.residuals(xp[:, prob.local], k)  # one FEE evaluation for the three columns
+        r = r.reshape(3, -1)
+        cols = [(r[j] - r0) / h[col_group, j] for j in range(3)]
         kcol = np.stack((bx, bz), -1).reshape(-1) * scale_k
         if dense:
             J = np.zeros((2 * N, 3 * G + 1))
