@@ -370,6 +370,32 @@ def test_an_episode_start_after_an_older_episodes_ticks_still_restarts_a_fresh_s
     assert len(valid(out)) == 70 - 59
 
 
+@pytest.mark.parametrize("ended", [False, True])
+def test_an_episode_started_again_at_the_same_stamps_is_estimated_as_by_a_fresh_node(episode, model, ended):
+    """A simulator killed mid-episode (no episode_end) and started again: its new episode_start
+    comes with stamps from 0 again. Every tick of the new episode is taken and estimated as a
+    fresh node estimates it (live == replay): the first two had been refused as "far back"
+    until they counted as a new stream (an outside tester's). With an episode_end between, the same."""
+    first = int(episode.stamps_ns[0])
+    est_out, fresh_out = [], []
+    est = OnlineEstimator(model, est_out.append)
+    est.start_episode(first)
+    for t, m in in_order(episode, range(150)):
+        est.add(t, m)
+    if ended:
+        est.end_episode(int(episode.stamps_ns[149]))
+    del est_out[:]
+    est.start_episode(first)
+    fresh = OnlineEstimator(model, fresh_out.append)
+    fresh.start_episode(first)
+    for t, m in in_order(episode, range(N_TICKS)):
+        est.add(t, m)
+        fresh.add(t, m)
+    assert est.counters.out_of_order == 0 and est.counters.restarts == 0
+    assert [e.stamp_ns for e in est_out] == [e.stamp_ns for e in fresh_out] == episode.stamps_ns[:N_TICKS].tolist()
+    np.testing.assert_array_equal(np.stack([e.values for e in est_out]), np.stack([e.values for e in fresh_out]))
+
+
 def test_time_going_far_back_starts_a_new_stream(episode, model):
     """A replay looped without /sim/status: stamps restart at 0; estimation restarts too, once two
     ticks' messages in a row have been stamped far back (the first two ticks of the replay)."""

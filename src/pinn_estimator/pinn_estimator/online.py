@@ -369,6 +369,7 @@ class OnlineEstimator:
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
         self._stream_first_ns: int | None = None  # the first sample's stamp since the stream (re)started
+        self._open_episode = False  # an episode_start was taken and no episode_end has come since
         # Blade travel [m] and time [s] in soil since the episode's first tick, for models with
         # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
         # for an episode seen from its start.
@@ -420,6 +421,7 @@ class OnlineEstimator:
         self._tick = 0
         self._boundary = None
         self._stream_first_ns = None
+        self._open_episode = False
         self._forget_path(known=False)
         self._reset_fusion()
 
@@ -435,6 +437,7 @@ class OnlineEstimator:
         that are still queued complete this episode's windows normally (the executor serves
         /sim/status first, so the event can overtake the episode's last ticks)."""
         self._boundary, self._crossed = int(last_stamp_ns), False
+        self._open_episode = False
 
     def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
@@ -443,8 +446,16 @@ class OnlineEstimator:
         are kept; older ticks still queued finish the previous episode's windows; if time
         went back (a replay starting over), everything restarts at ``first_stamp_ns``."""
         first = int(first_stamp_ns)
+        was_open, self._open_episode = self._open_episode, True
         if self.assembler.last_released < first:  # nothing of this episode released yet
             self._boundary, self._crossed = first - 1, False
+            return
+        if was_open:
+            # The episode under way never ended and this one starts at or before a tick already
+            # taken: its source started over (a simulator killed and started again, a bag cut
+            # short replayed before the next). Its ticks, stamped from 0 again, were refused as
+            # far back until a restart, two ticks lost (replay != live; an outside tester's).
+            self._restart_at(first)
             return
         if self._boundary is None and self._stream_first_ns is not None and self._stream_first_ns >= first:
             # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
@@ -455,15 +466,21 @@ class OnlineEstimator:
             return
         if self._boundary is not None and self._boundary < first <= self.window_first_stamp:
             return  # the window already started after the previous episode, at or after this one's start
+        self._restart_at(first)
+
+    def _restart_at(self, first: int) -> None:
+        """Everything restarts with the episode that begins at ``first`` (its episode_start taken)."""
         self.reset(first)
         self._boundary, self._crossed = first - 1, False
         self._path_known = True
+        self._open_episode = True
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
 
     def _on_restart(self) -> None:
         self._boundary = None
+        self._open_episode = False
         self._stream_first_ns = None
         self._tick = 0
         self._forget_path(known=False)
