@@ -1,7 +1,10 @@
 """Writers told apart by publication sequence continuity (no ROS)."""
 from __future__ import annotations
 
-from soil_msgs_py.writer_identity import SEQUENCE_MASK, WriterTracks, leading_chain, succession, tick_index, tick_number
+from soil_msgs_py.writer_identity import (
+    SEQUENCE_MASK, SUCCESSOR_MIN_MESSAGES, WriterTracks, leading_chain, succession, successor_min_messages, tick_index,
+    tick_number,
+)
 
 
 def test_tick_index_is_the_grid_and_tick_number_counts_across_episodes():
@@ -106,6 +109,19 @@ def test_succession_keeps_a_restarted_writer_and_its_predecessor_but_no_interlea
     assert succession(ticks, seqs, b, [i not in a for i in range(len(ticks))], max_silence_ticks=5) == b
     assert succession(ticks, seqs, lead, max_silence_ticks=200) == a | b
     assert succession(ticks, seqs, set()) == set()
+
+
+def test_a_restarted_writer_of_a_sparse_topic_is_its_predecessors_successor():
+    """The estimator's map, one message every 30 ticks (2 Hz): killed after 21 maps, restarted with a
+    new counter 4 s later, 26 maps (13 s). Half a second of a 2 Hz topic's messages is not 30 of them:
+    both writers are kept (the restarted one's had been refused, an outside tester's); a stray
+    writer's one map in the silence between them is not."""
+    a_ticks, b_ticks = [30 * k for k in range(21)], [840 + 30 * k for k in range(26)]
+    ticks, seqs = a_ticks + [720] + b_ticks, list(range(1, 22)) + [900] + list(range(1, 27))
+    a, b = set(range(21)), set(range(22, 48))
+    assert successor_min_messages(a_ticks) == 2 and successor_min_messages(range(100)) == SUCCESSOR_MIN_MESSAGES == 30
+    for lead in (a, b, leading_chain(ticks, seqs)):
+        assert succession(ticks, seqs, lead) == a | b
 
 
 def test_succession_takes_no_stray_writer_beside_the_leader():

@@ -160,15 +160,26 @@ def _interleave(a: Sequence[int], b: Sequence[int]) -> bool:
     return not (max(a) < min(b) or max(b) < min(a))
 
 
-# A writer kept beside the leading one (``succession``) has sent at least this many messages:
-# a restarted node publishes on (0.5 s of ticks; 15 s of a 2 Hz map), a stray intruder's
-# plausible message in a silent stretch does not get in.
-SUCCESSOR_MIN_MESSAGES = SAMPLE_RATE_HZ // 2
+# A writer kept beside the leading one (``succession``) has sent at least half a second of the
+# topic's messages (30 ticks at 60 Hz), and at least two: a restarted node publishes on, a stray
+# intruder's plausible message in a silent stretch does not get in. Counted in the topic's own
+# messages, not ticks: a restarted estimator's 2 Hz map, 26 maps in 13 s, had been refused as
+# an intruder's under a rule of 30 messages (an outside tester's).
+SUCCESSOR_MIN_S = 0.5
+SUCCESSOR_MIN_MESSAGES = round(SUCCESSOR_MIN_S * SAMPLE_RATE_HZ)
+
+
+def successor_min_messages(ticks: Sequence[int]) -> int:
+    """Messages a successor must have sent on a topic whose writer sent at ``ticks``: half a second
+    of them at the topic's typical (median) spacing, at least 2 and at most SUCCESSOR_MIN_MESSAGES."""
+    steps = sorted(b - a for a, b in zip(sorted(set(ticks)), sorted(set(ticks))[1:]))
+    spacing = max(steps[len(steps) // 2], 1) if steps else 1
+    return max(2, min(SUCCESSOR_MIN_MESSAGES, -(-SUCCESSOR_MIN_MESSAGES // spacing)))
 
 
 def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
                eligible: Sequence[bool] | None = None,
-               max_silence_ticks: int = FORGET_WRITER_AFTER_TICKS) -> set[int]:
+               max_silence_ticks: int = FORGET_WRITER_AFTER_TICKS, min_messages: int | None = None) -> set[int]:
     """The writers of a recording one after another, from its leading ``chain``: a publisher that
     died and was restarted (or replaced) starts a new counter, which no rule of continuity joins
     to its predecessor's, so judged as a whole either it or its predecessor leads and the other's
@@ -184,8 +195,12 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
     allows them (e.g. plausible values only: graph nodes publish nothing else). What cannot be
     told apart: an intruder that publishes plausible values, and enough of them, while no writer
     of the topic does (before its first message, after its last, or in a silence of more than
-    ``max_silence_ticks``), is taken for a restarted writer. Returns indices into ``ticks``."""
+    ``max_silence_ticks``), is taken for a restarted writer. ``min_messages`` (default: half a
+    second of the topic's messages, ``successor_min_messages`` of the chain's ticks) stands for
+    SUCCESSOR_MIN_MESSAGES above. Returns indices into ``ticks``."""
     n = len(ticks)
+    if min_messages is None:
+        min_messages = successor_min_messages([ticks[i] for i in chain])
     ok = [True] * n if eligible is None else [bool(e) for e in eligible]
     seq = _unwrapped([int(x) & SEQUENCE_MASK for x in sequences])
     kept: set[int] = set()
@@ -202,18 +217,18 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
             # needs, numbered behind the chain (fewer, e.g. a second publisher's in ticks the writer
             # skipped, must not cut the writer into stretches too short to keep)
             lo_i, hi_i = bisect.bisect_right(other_ticks, ticks[a]), bisect.bisect_left(other_ticks, ticks[b])
-            restarted = sum(others[k][1] < seq[a] for k in range(lo_i, hi_i)) >= SUCCESSOR_MIN_MESSAGES
+            restarted = sum(others[k][1] < seq[a] for k in range(lo_i, hi_i)) >= min_messages
             if ticks[b] - ticks[a] > max_silence_ticks or restarted:
                 stretches.append([])
             stretches[-1].append(b)
         best = max(stretches, key=len)
-        if not first and len(best) < SUCCESSOR_MIN_MESSAGES:
+        if not first and len(best) < min_messages:
             continue
         first = False
         kept.update(best)
         lo, hi = ticks[best[0]], ticks[best[-1]]
         for span in ([i for i in members if ok[i] and ticks[i] < lo], [i for i in members if ok[i] and ticks[i] > hi]):
-            if len(span) < SUCCESSOR_MIN_MESSAGES:
+            if len(span) < min_messages:
                 continue
             lead = leading_chain([ticks[i] for i in span], [sequences[i] for i in span], apart_ties=True)
             if lead is not None:
