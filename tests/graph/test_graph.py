@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import signal
 import subprocess
 import time
@@ -311,6 +312,8 @@ def test_launch_forwards_ctrl_c_and_exits_as_interrupted(tmp_path, domain):
     log = proc.log_path.read_text()
     assert rc == 130, log  # 128 + SIGINT: interrupted, not done
     assert "interrupted; stopping all nodes" in log and "episode 0 end (shutdown)" in log
+    # each node says why it stops (an estimator that ended with code 0 and no word looked like a crash)
+    assert all(re.search(rf"\[{name}\].*stopping: SIGINT received", log) for name in ("sim", "controller")), log
     assert _children_gone(proc.pid)
 
 

@@ -576,6 +576,7 @@ class Recorder:
         if result.conflicts or s.off_grid:
             self.log.warning(
                 f"{s.name}: other publishers claimed stamps of the recorded data; refused per topic: "
-                f"{result.conflicts or {}} (same stamp, kept the recorded publisher's), {s.off_grid} (off the tick grid)")
+                f"{result.conflicts or {}} (another writer's: claims on the recorded publisher's stamps, or too few "
+                f"messages beside it for a restarted node's), {s.off_grid} (off the tick grid)")
         self.finished.append(result)
         return result

@@ -454,6 +454,9 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         executor.add_node(node)
         while rclpy.ok() and not stop and not getattr(node, "finished", False):
             executor.spin_once(timeout_sec=0.1)
+        if stop or not rclpy.ok():  # said: a node that stopped with exit code 0 and no reason looked like a crash
+            node.get_logger().info(f"stopping: {signal.Signals(stop[0]).name} received" if stop
+                                   else "stopping: the ROS context was shut down")
         # A node with data in flight that it must not lose (the recorder) says so through
         # ``draining()``; it gets up to DRAIN_LIMIT_S more spinning before ``close``.
         draining, deadline = getattr(node, "draining", None), time.monotonic() + DRAIN_LIMIT_S
