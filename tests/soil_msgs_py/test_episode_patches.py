@@ -10,7 +10,8 @@ import pytest
 from soil_bag_tools.bag_io import META_KEY, bag_custom_data, read_episode
 from soil_msgs_py import graph as G
 from soil_msgs_py.episode import EpisodeMeta
-from soil_msgs_py.patches import SoilPatch, check_patches, parse_patch
+from soil_msgs_py.patches import MAX_PATCHES, SoilPatch, check_patches, parse_patch
+from soil_physics.soils import MAX_SOIL_NAME_BYTES
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
 PATH = [SoilPatch(0.0, "Sand", 20.0).as_dict(), SoilPatch(5.0, "Clay", 90.0).as_dict()]
@@ -54,6 +55,20 @@ def test_episode_name_tells_paths_apart():
 def test_bad_patches_in_metadata_are_named(patches, needle):
     with pytest.raises(ValueError, match=needle):
         meta(patches=patches).validate()
+
+
+def test_the_longest_path_fits_its_episode_start_and_a_longer_one_is_refused_by_count():
+    """The episode_start carries the path: a path of 1200 patches made an event its readers refused (the
+    episode ran, no bag). The most patches allowed, each of a 64-byte soil name, still decode; one more is
+    refused before anything runs, naming the count."""
+    name = "S" * MAX_SOIL_NAME_BYTES
+    path = [SoilPatch(0.5 * i, name, 50.0).as_dict() for i in range(MAX_PATCHES)]
+    m = meta(patches=path)
+    m.validate()
+    event = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, m.name, m, 0, planned_ticks=120)
+    assert len(event.to_json()) < G.MAX_JSON_CHARS and G.EpisodeEvent.from_json(event.to_json()).meta == m
+    with pytest.raises(ValueError, match=rf"patches: {MAX_PATCHES + 1} patches, more than {MAX_PATCHES}"):
+        check_patches(path + [SoilPatch(0.5 * MAX_PATCHES, "Sand", 50.0).as_dict()])
 
 
 def test_where_bad_patches_came_from_is_said_once():

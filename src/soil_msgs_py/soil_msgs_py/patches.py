@@ -22,6 +22,11 @@ import numbers
 from dataclasses import asdict, dataclass, fields
 
 PATCH_SYNTAX = "'X:SOIL:ID' (x_start_m:soil:relative_density_pct, e.g. '5.0:Clay:90')"
+# The most patches one path may have: the episode_start event carries the path, and a /sim/status
+# text is bounded (``graph.MAX_JSON_CHARS``, 64 kB), which 256 patches of 64-byte soil names keep
+# well inside (~33 kB). A path of 1200 patches had made an event its readers refused: the episode
+# ran, the controller never took its targets and no bag was written (an outside tester's).
+MAX_PATCHES = 256
 
 
 @dataclass(frozen=True)
@@ -122,7 +127,11 @@ def finite_number(value) -> bool:
 def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:
     """Validate a path; ValueError naming ``field[i]``, the key and the value. () if empty."""
     out = []
-    for i, item in enumerate(patches or ()):
+    patches = list(patches or ())
+    if len(patches) > MAX_PATCHES:
+        raise ValueError(f"{field}: {len(patches)} patches, more than {MAX_PATCHES} (an episode's path travels with "
+                         "its episode_start event, whose size is bounded); split the path into episodes")
+    for i, item in enumerate(patches):
         where = f"{field}[{i}]"
         p = to_patch(item, where)
         if not finite_number(p.x_start_m):
