@@ -507,3 +507,57 @@ def test_a_bag_cut_short_by_another_episode_start_says_so(tmp_path):
     info = recorder_info(cut.path)
     assert info["end"] == "cut_short" and info["cut_by"] == other.name, info
     assert any("cut short (a restarted simulator, or a second graph" in m for _, m in log.lines), log.lines
+
+
+def test_a_planner_started_late_has_its_messages_counted_and_said(tmp_path, monkeypatch):
+    """A topic whose first message comes more than the online horizon into the episode (a planner
+    started 12 s late) was never judged on arrival: the bag held 1173 of its messages and said it
+    had none (an outside tester's). Its first message is judged against the episode's progress:
+    counted, its first tick recorded, nothing said. (The horizon scaled to the sample's 10 s.)"""
+    from soil_msgs_py import topics as T
+
+    monkeypatch.setattr(recorder, "ONLINE_HORIZON_TICKS", 60)
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n, late = 400, 300
+    msgs = loaded.messages[: 10 * n]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype},
+                            log=(log := ListLog()), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+        if topic == "/clock" and (tick := (t - msgs[0][0]) // TICK_NS) >= late:
+            feed.send("estimator", T.ESTIMATE.name, _estimate(t, float(tick)))
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n).to_json())
+    (result,) = rec.finished
+    assert recorder_info(result.path)["first_tick"][T.ESTIMATE.name] == late
+    assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines
+
+
+def test_a_controller_restarted_with_fewer_commands_left_than_it_sent_completes_the_episode(tmp_path):
+    """The controller dies at tick 400 and a new one (a new counter) answers from tick 550 to the
+    end: 50 commands against its predecessor's 400. On arrival the dead writer led the topic until
+    the new one had sent more, so the episode never looked complete and waited out its end grace,
+    the recorder saying the commands stopped at the old one's last (an outside tester's). A writer
+    silent for 2 s is gone: the restarted one leads at once, and the bag is completed at its end."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 600]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    sent = {"sim": 0, "restarted": 0}
+    for t, topic, raw in msgs:
+        tick = (t - msgs[0][0]) // TICK_NS
+        writer = "sim"
+        if topic == "/chassis/cmd_vel":
+            if 400 <= tick < 550:
+                continue
+            writer = "restarted" if tick >= 550 else "sim"
+            sent[writer] += 1
+        feed.send(writer, topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=600).to_json())
+    assert sent == {"sim": 400, "restarted": 50}
+    (result,) = rec.finished  # completed at the episode_end, not after the grace
+    info = recorder_info(result.path)
+    assert info["end"] == "completed" and info["received"]["/chassis/cmd_vel"] == 450, info
+    assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines

@@ -56,7 +56,7 @@ from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
-from soil_msgs_py.writer_identity import WriterTracks, tick_index
+from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_index
 from .journal import (
     RECORDER_INFO_KEY, BagResult, JournalWriter, NothingRecoverable, claim_name, journal_path,
     journal_to_bag, labelled_values, partial_dir, FIRST_STAMP_KEY,
@@ -455,14 +455,24 @@ class Recorder:
         look complete before the recorded publisher's message for it arrived. A stamp more
         than ``ONLINE_HORIZON_TICKS`` past the topic's newest cannot be judged in arrival
         order (any higher counter "continues" a writer across that many ticks): it is
-        journaled and judged when the bag is made, and never advances ``topic_max``."""
+        journaled and judged when the bag is made, and never advances ``topic_max``. A topic's
+        first message is judged against the episode's newest stamp of any topic: against tick 0,
+        a planner started 12 s into the episode never advanced its topic, and the bag said it had
+        no message while holding 1173 (an outside tester's). A writer silent for 2 s is gone, as
+        the bag's succession takes it (``FORGET_WRITER_AFTER_TICKS``): a controller restarted with
+        a new counter leads at once, not once it has sent as many commands as the dead one."""
         k = tick_index(stamp, s.first_stamp_ns)
         if k is None:
             return True
         newest = s.topic_max.get(topic)
-        if k > (0 if newest is None else tick_index(newest, s.first_stamp_ns) or 0) + ONLINE_HORIZON_TICKS:
+        if newest is not None:
+            reached = tick_index(newest, s.first_stamp_ns) or 0
+        else:  # (an extra topic stamped off the grid, e.g. by a wall clock, says nothing of the episode's progress)
+            reached = max((t for t in (tick_index(v, s.first_stamp_ns) for v in s.topic_max.values()) if t is not None),
+                          default=0)
+        if k > reached + ONLINE_HORIZON_TICKS:
             return False
-        writers = s.writers.setdefault(topic, WriterTracks())
+        writers = s.writers.setdefault(topic, WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS))
         return writers.leads(writers.observe(seq, k))
 
     def _complete(self, s: Session) -> bool:
