@@ -56,3 +56,14 @@ def test_a_late_transient_local_reader_gets_the_newest_map_and_a_volatile_one_on
         executor.shutdown()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_the_map_writer_keeps_the_latched_depth_not_the_data_topics():
+    """60 maps (30 s of stretches), as said: with the data topics' 120 taken as its floor, the
+    writer kept 120 (an outside tester's late reader got 60 s of maps)."""
+    from soil_msgs_py import topics as T
+    from soil_msgs_py.graph import ESTIMATOR_PHYSICS_TOPIC, LATCHED_WRITER_DEPTH, publisher_qos_spec
+
+    for topic in (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC):
+        spec = publisher_qos_spec(topic)
+        assert (spec.depth, spec.durability, spec.reliability) == (LATCHED_WRITER_DEPTH, "transient_local", "reliable")

@@ -147,7 +147,8 @@ def publisher_qos_spec(topic: str) -> QosSpec:
     them; with this depth they are re-sent."""
     spec = TOPIC_QOS.get(topic, DATA_QOS)
     if topic in LATCHED_TOPICS:
-        return dataclasses.replace(spec, durability="transient_local", depth=max(spec.depth, LATCHED_WRITER_DEPTH))
+        # (not max with the topic's depth: /soil/map's is the data topics' 120, and its writer had kept 120 maps)
+        return dataclasses.replace(spec, durability="transient_local", depth=LATCHED_WRITER_DEPTH)
     return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
 
 
