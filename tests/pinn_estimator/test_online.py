@@ -446,9 +446,12 @@ def test_ticks_arriving_twice_again_and_again_are_said_to_be_a_second_publisher(
     assert all("is a second node publishing this topic on this ROS_DOMAIN_ID" in t for t in repeats[2:]), repeats
 
 
-def test_assembler_rejects_bad_reorder_horizon():
-    with pytest.raises(ValueError, match="reorder_ticks=0"):
-        SampleAssembler(print, reorder_ticks=0)
+@pytest.mark.parametrize("bad", [0, 121, 100000, True, 2.0])
+def test_assembler_rejects_bad_reorder_horizon(bad):
+    """(100000 was taken: no tick waits that long, one incomplete after 120 newer ones is dropped.)"""
+    with pytest.raises(ValueError, match=rf"reorder_ticks={bad!r} must be an integer in \[1, 120\]"):
+        SampleAssembler(print, reorder_ticks=bad)
+    SampleAssembler(print, reorder_ticks=120)
 
 
 # ---------------------------------------------------------------------------------------- checkpoints

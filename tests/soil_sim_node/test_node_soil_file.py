@@ -45,6 +45,10 @@ def test_lockstep_run_on_a_named_path_of_a_soil_file_equals_the_batch(tmp_path, 
     (["path:=silt_then_clay"], "parameter path='silt_then_clay' needs parameter soil_file"),
     (["soil_file:={file}", "path:=clay_then_silt"], "parameter path='clay_then_silt' is not a path of parameter soil_file="),
     (["soil_file:={file}", "path:=silt_then_clay", "patches:=['0:Sand:20']"], "both give the patches"),
+    # a plan's entry is named with its list and index (the spec's error named only soil or relative_density_pct)
+    (["sequence_soils:=['Clay','Mud']"], "parameter sequence_soils[1]='Mud': soil='Mud' is unknown"),
+    (["sequence_relative_densities_pct:=[20.0, 200.0]"],
+     "parameter sequence_relative_densities_pct[1]=200.0: relative_density_pct=200.0 outside"),
 ])
 def test_bad_soil_file_parameters_are_refused_at_start_naming_them(tmp_path, soil_file, params, needle):
     args = ["--ros-args"]

@@ -41,7 +41,7 @@ from .shipped import shipped_checkpoint
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
     "stride": (1, f"estimate every n-th tick once the window is full (1: every tick, 60 Hz; at most {MAX_STRIDE_TICKS})"),
-    "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing"),
+    "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing (1-120)"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_<world>.json "
                           "of the checkpoint's training world (fusion_default.json if several or none)"),

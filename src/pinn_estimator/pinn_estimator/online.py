@@ -138,8 +138,9 @@ class SampleAssembler:
 
     def __init__(self, on_sample: Callable[[int, Sample | None], None], *, reorder_ticks: int = 3, warn: Warn = _no_warn,
                  counters: Counters | None = None, on_restart: Callable[[], None] = lambda: None):
-        if not isinstance(reorder_ticks, int) or reorder_ticks < 1:
-            raise ValueError(f"reorder_ticks={reorder_ticks!r} must be an integer >= 1")
+        if not isinstance(reorder_ticks, int) or isinstance(reorder_ticks, bool) or not 1 <= reorder_ticks <= MAX_PENDING_TICKS:
+            raise ValueError(f"reorder_ticks={reorder_ticks!r} must be an integer in [1, {MAX_PENDING_TICKS}] ticks (a tick "
+                             f"still incomplete after {MAX_PENDING_TICKS} newer ones is dropped whatever the horizon)")
         self.on_sample = on_sample  # (stamp, sample) for each released tick; sample None = missing/broken
         self.on_restart = on_restart  # time went back without an episode_start: a new stream
         self.reorder_ticks = reorder_ticks

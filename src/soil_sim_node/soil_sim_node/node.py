@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import collections
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -154,8 +155,11 @@ class SimNode(Node):
         self._warn = WarnLimiter(self.get_logger())
         self.queue: collections.deque[EpisodeSpec] = collections.deque()
         base = self._spec_from_params({})
-        self._enqueue(episode_plan(base, list(p["sequence_soils"]),
-                                   list(p["sequence_relative_densities_pct"]), int(p["episodes"])))
+        plan = {"sequence_soils": list(p["sequence_soils"]),
+                "sequence_relative_densities_pct": list(p["sequence_relative_densities_pct"])}
+        self._check_plan_entries(base, plan)
+        self._enqueue(episode_plan(base, plan["sequence_soils"], plan["sequence_relative_densities_pct"],
+                                   int(p["episodes"])))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -255,6 +259,17 @@ class SimNode(Node):
         if note := beyond_lift_reach("target_depth_m", resolved.target_depth_m):
             self._warn(f"beyond_lift_reach {resolved.target_depth_m:g}", note)  # each depth said once
         return resolved
+
+    def _check_plan_entries(self, base: EpisodeSpec, plan: dict[str, list]) -> None:
+        """ValueError naming the plan parameter and entry a spec of it is refused for (the spec's own
+        error named only 'soil' or 'relative_density_pct', not which list or entry)."""
+        fields = {"sequence_soils": "soil", "sequence_relative_densities_pct": "relative_density_pct"}
+        for name, values in plan.items():
+            for i, value in enumerate(values):
+                try:
+                    resolve_checked(self.config, replace(base, **{fields[name]: value}), self.custom_soils)
+                except ValueError as err:
+                    raise ValueError(f"parameter {name}[{i}]={value!r}: {err}") from None
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:
