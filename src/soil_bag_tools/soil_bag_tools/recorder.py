@@ -55,7 +55,7 @@ from soil_msgs_py.episode import MAX_EPISODE_S
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
-from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME
+from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_index
 from .journal import (
     RECORDER_INFO_KEY, BagResult, JournalWriter, NothingRecoverable, claim_name, journal_path,
@@ -583,6 +583,14 @@ class Recorder:
         if s.end_event is not None and s.end_event.reason != "completed":
             extra += f"; the episode ended: {s.end_event.reason}"
         self.log.info(f"finished ({how}) {result.summary()}{extra}")
+        if s.meta_json is not None and (lacking := {t: result.ticks - n for t, n in result.messages.items()
+                                                    if t in TOPICS_BY_NAME and n < result.ticks}):
+            # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
+            # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
+            self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {result.ticks})' for t, k in lacking.items())}: "
+                             "their messages never reached the recorder (a writer it matched late, e.g. a node restarted "
+                             "mid-episode, or one that skipped ticks); those ticks are incomplete in the bag, and a "
+                             "replay of it differs from the live run there")
         if result.conflicts or s.off_grid:
             self.log.warning(
                 f"{s.name}: other publishers claimed stamps of the recorded data; refused per topic: "
