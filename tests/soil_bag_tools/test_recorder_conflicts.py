@@ -534,12 +534,18 @@ def test_a_planner_started_late_has_its_messages_counted_and_said(tmp_path, monk
     assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines
 
 
-def test_a_controller_restarted_with_fewer_commands_left_than_it_sent_completes_the_episode(tmp_path):
-    """The controller dies at tick 400 and a new one (a new counter) answers from tick 550 to the
-    end: 50 commands against its predecessor's 400. On arrival the dead writer led the topic until
-    the new one had sent more, so the episode never looked complete and waited out its end grace,
-    the recorder saying the commands stopped at the old one's last (an outside tester's). A writer
-    silent for 2 s is gone: the restarted one leads at once, and the bag is completed at its end."""
+@pytest.mark.parametrize("dies, back, horizon", [(400, 550, None), (100, 450, 300)])
+def test_a_controller_restarted_with_fewer_commands_left_than_it_sent_completes_the_episode(tmp_path, monkeypatch,
+                                                                                          dies, back, horizon):
+    """The controller dies and a new one (a new counter) answers from ``back`` to the end: fewer
+    commands than its predecessor sent. On arrival the dead writer led the topic until the new one had
+    sent more, so the episode never looked complete and waited out its end grace, the recorder saying
+    the commands had stopped at the old one's last (an outside tester's). A writer silent for 2 s is
+    gone: the restarted one leads at once, and the bag is completed at its end. Also when it comes back
+    later than the online horizon after the dead one's last command (a horizon of 300 ticks standing
+    for 10 s): judged against its own topic's newest stamp, it was never judged at all."""
+    if horizon:
+        monkeypatch.setattr(recorder, "ONLINE_HORIZON_TICKS", horizon)
     loaded, start_ev, end_ev = _events(SAMPLE)
     msgs = loaded.messages[: 10 * 600]
     rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
@@ -550,16 +556,51 @@ def test_a_controller_restarted_with_fewer_commands_left_than_it_sent_completes_
         tick = (t - msgs[0][0]) // TICK_NS
         writer = "sim"
         if topic == "/chassis/cmd_vel":
-            if 400 <= tick < 550:
+            if dies <= tick < back:
                 continue
-            writer = "restarted" if tick >= 550 else "sim"
+            writer = "restarted" if tick >= back else "sim"
             sent[writer] += 1
         feed.send(writer, topic, raw)
     rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=600).to_json())
-    assert sent == {"sim": 400, "restarted": 50}
+    assert sent == {"sim": dies, "restarted": 600 - back}
     (result,) = rec.finished  # completed at the episode_end, not after the grace
     info = recorder_info(result.path)
-    assert info["end"] == "completed" and info["received"]["/chassis/cmd_vel"] == 450, info
+    assert info["end"] == "completed" and info["received"]["/chassis/cmd_vel"] == 600 - (back - dies), info
     # and the bag says which ticks it lacks (it reported "0 dropped" and nothing else)
     (warning,) = [m for lvl, m in log.lines if lvl == "warning"]
-    assert "the bag lacks ticks of /chassis/cmd_vel (150 of 600)" in warning, log.lines
+    assert f"the bag lacks ticks of /chassis/cmd_vel ({back - dies} of 600)" in warning, log.lines
+
+
+def test_a_message_stamped_seconds_ahead_makes_no_writer_look_silent(tmp_path):
+    """Another publisher's one command per topic, stamped at the episode's last tick, sent at tick
+    450 (2.5 s ahead, inside the online horizon): judged against its stamp, the controller looked
+    silent for 2 s and was forgotten, the stranger led, and the episode looked complete before the
+    controller's last commands (3 ticks behind the state) came in: the bag lost its last ticks
+    without a word (a reviewer's). Silences are judged against the episode's progress."""
+    commands = ("/chassis/cmd_vel", "/blade/cmd")
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 600]
+    last = msgs[-1][0]
+    final = {topic: raw for t, topic, raw in msgs if t == last and topic in commands}
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    lagging = []
+    for t, topic, raw in msgs:
+        tick = (t - msgs[0][0]) // TICK_NS
+        if topic in commands:
+            lagging.append((tick, topic, raw))
+            continue
+        feed.send("sim", topic, raw)
+        while lagging and lagging[0][0] <= tick - 3:
+            feed.send("sim", *lagging.pop(0)[1:])
+        if tick == 450 and topic == "/clock":
+            for c in commands:
+                feed.send("intruder", c, final[c])
+    rec.on_status(replace(end_ev, last_stamp_ns=last, ticks=600).to_json())
+    assert not rec.finished, "complete before the controller's last commands came"
+    for _, topic, raw in lagging:
+        feed.send("sim", topic, raw)
+    (result,) = rec.finished
+    assert result.ticks == 600 and set(result.messages.values()) == {600}, result.summary()
+    assert recorder_info(result.path)["conflicts"] == {c: 1 for c in commands}

@@ -122,6 +122,10 @@ def test_a_restarted_writer_of_a_sparse_topic_is_its_predecessors_successor():
     assert successor_min_messages(a_ticks) == 2 and successor_min_messages(range(100)) == SUCCESSOR_MIN_MESSAGES == 30
     for lead in (a, b, leading_chain(ticks, seqs)):
         assert succession(ticks, seqs, lead) == a | b
+    # two maps of a second writer (a fresh counter) between two of the writer's, 30 ticks apart: an
+    # intruder's, not a successor (two messages are enough only where the writer is not publishing)
+    ticks, seqs = a_ticks + [305, 310], list(range(1, 22)) + [1, 2]
+    assert succession(ticks, seqs, leading_chain(ticks, seqs)) == a
 
 
 def test_succession_takes_no_stray_writer_beside_the_leader():

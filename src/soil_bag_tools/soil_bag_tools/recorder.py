@@ -180,6 +180,7 @@ class Session:
     topic_max: dict[str, int] = field(default_factory=dict)
     topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
     topic_seq: dict[str, int] = field(default_factory=dict)  # the highest publication sequence number written per topic
+    reached_tick: int = 0  # the newest tick any topic's recorded writer has reached (the episode's progress)
     claims: StampClaims = field(default_factory=StampClaims)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
@@ -445,6 +446,8 @@ class Recorder:
         recorded_writer = not episode or self._from_recorded_writer(s, topic, stamp, seq)
         if stamp > s.topic_max.get(topic, -1) and recorded_writer:
             s.topic_max[topic] = stamp
+            if episode and (k := tick_index(stamp, s.first_stamp_ns)) is not None:
+                s.reached_tick = max(s.reached_tick, k)
         if recorded_writer and stamp < s.topic_min.get(topic, stamp + 1):
             s.topic_min[topic] = stamp
 
@@ -455,25 +458,22 @@ class Recorder:
         look complete before the recorded publisher's message for it arrived. A stamp more
         than ``ONLINE_HORIZON_TICKS`` past the topic's newest cannot be judged in arrival
         order (any higher counter "continues" a writer across that many ticks): it is
-        journaled and judged when the bag is made, and never advances ``topic_max``. A topic's
-        first message is judged against the episode's newest stamp of any topic: against tick 0,
-        a planner started 12 s into the episode never advanced its topic, and the bag said it had
-        no message while holding 1173 (an outside tester's). A writer silent for 2 s is gone, as
-        the bag's succession takes it (``FORGET_WRITER_AFTER_TICKS``): a controller restarted with
-        a new counter leads at once, not once it has sent as many commands as the dead one."""
+        journaled and judged when the bag is made, and never advances ``topic_max``. "Past the
+        newest" is judged against the episode's progress, the newest tick any topic's recorded
+        writer reached (``reached_tick``): against a topic's own newest, a planner started 12 s
+        into the episode never advanced its topic (the bag said it had no message while holding
+        1173, an outside tester's), nor a controller restarted more than 10 s after it died. A
+        writer silent for 2 s of that progress is gone, as the bag's succession takes it
+        (``FORGET_WRITER_AFTER_TICKS``): a controller restarted with a new counter leads at once,
+        not once it has sent as many commands as the dead one; judged against the progress, not
+        the arriving stamp, so a message stamped seconds ahead makes no writer look silent."""
         k = tick_index(stamp, s.first_stamp_ns)
         if k is None:
             return True
-        newest = s.topic_max.get(topic)
-        if newest is not None:
-            reached = tick_index(newest, s.first_stamp_ns) or 0
-        else:  # (an extra topic stamped off the grid, e.g. by a wall clock, says nothing of the episode's progress)
-            reached = max((t for t in (tick_index(v, s.first_stamp_ns) for v in s.topic_max.values()) if t is not None),
-                          default=0)
-        if k > reached + ONLINE_HORIZON_TICKS:
+        if k > s.reached_tick + ONLINE_HORIZON_TICKS:
             return False
         writers = s.writers.setdefault(topic, WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS))
-        return writers.leads(writers.observe(seq, k))
+        return writers.leads(writers.observe(seq, k, now_tick=min(k, s.reached_tick + 1)))
 
     def _complete(self, s: Session) -> bool:
         """Every episode topic reached the last stamp, and so did every extra ``--topics`` one, or

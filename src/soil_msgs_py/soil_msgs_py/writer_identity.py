@@ -75,15 +75,19 @@ class WriterTracks:
         self._writers: dict[int, _Writer] = {}
         self._next_ident = 0
 
-    def observe(self, sequence: int | None, tick: int) -> int | None:
+    def observe(self, sequence: int | None, tick: int, now_tick: int | None = None) -> int | None:
         """The writer (an id) of a message with publication ``sequence`` for ``tick``; None when
-        the sequence number is unknown (None or 0: the rmw gave none)."""
+        the sequence number is unknown (None or 0: the rmw gave none). ``now_tick``: how far the
+        stream has got, which silences are judged against (default ``tick``; a consumer that takes
+        messages stamped ahead of the stream must give it, else one message stamped 2 s ahead
+        makes every writer look silent and be forgotten)."""
         if not sequence:
             return None
         sequence &= SEQUENCE_MASK
         if self.forget_after_ticks is not None:
+            now = tick if now_tick is None else now_tick
             self._writers = {i: w for i, w in self._writers.items()
-                             if tick - w.last_tick <= self.forget_after_ticks}
+                             if now - w.last_tick <= self.forget_after_ticks}
         fits = [w for w in self._writers.values()
                 if 0 < (sequence - w.last_sequence) & SEQUENCE_MASK <= tick - w.last_tick]
         if fits:
@@ -169,12 +173,17 @@ SUCCESSOR_MIN_S = 0.5
 SUCCESSOR_MIN_MESSAGES = round(SUCCESSOR_MIN_S * SAMPLE_RATE_HZ)
 
 
+def typical_spacing(ticks: Sequence[int]) -> int:
+    """The median step [ticks] between a writer's messages at ``ticks`` (1 for fewer than two)."""
+    ordered = sorted(set(ticks))
+    steps = sorted(b - a for a, b in zip(ordered, ordered[1:]))
+    return max(steps[len(steps) // 2], 1) if steps else 1
+
+
 def successor_min_messages(ticks: Sequence[int]) -> int:
     """Messages a successor must have sent on a topic whose writer sent at ``ticks``: half a second
-    of them at the topic's typical (median) spacing, at least 2 and at most SUCCESSOR_MIN_MESSAGES."""
-    steps = sorted(b - a for a, b in zip(sorted(set(ticks)), sorted(set(ticks))[1:]))
-    spacing = max(steps[len(steps) // 2], 1) if steps else 1
-    return max(2, min(SUCCESSOR_MIN_MESSAGES, -(-SUCCESSOR_MIN_MESSAGES // spacing)))
+    of them at the topic's typical spacing, at least 2 and at most SUCCESSOR_MIN_MESSAGES."""
+    return max(2, min(SUCCESSOR_MIN_MESSAGES, -(-SUCCESSOR_MIN_MESSAGES // typical_spacing(ticks))))
 
 
 def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
@@ -186,19 +195,21 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
     messages would be refused; and once the new counter passes the old one's last number, its
     tail continues the old chain. So the chain is cut where it is silent for more than
     ``max_silence_ticks`` (a writer that long silent is gone, as those who follow writers live
-    take it: ``WriterTracks``) or where, within one of its gaps, SUCCESSOR_MIN_MESSAGES or more
-    carry numbers below its own (a counter that started again), its longest stretch is kept, and each span of ticks before and
+    take it: ``WriterTracks``) or where, within one of its gaps longer than twice its typical step,
+    SUCCESSOR_MIN_MESSAGES or more carry numbers below its own (a counter that started again), its longest stretch is kept, and each span of ticks before and
     after that stretch is judged the same way on its own (its leading chain, where two tie only
     if their ticks interleave, cut, its longest stretch, ...). A writer whose ticks interleave
     with a kept stretch's is an intruder and gets nothing there; one beside it keeps its
     messages only if it sent at least SUCCESSOR_MIN_MESSAGES and ``eligible`` (default: all)
     allows them (e.g. plausible values only: graph nodes publish nothing else). What cannot be
     told apart: an intruder that publishes plausible values, and enough of them, while no writer
-    of the topic does (before its first message, after its last, or in a silence of more than
-    ``max_silence_ticks``), is taken for a restarted writer. ``min_messages`` (default: half a
+    of the topic does (before its first message, after its last, in a silence of more than
+    ``max_silence_ticks``, or with a counter behind the writer's in a gap longer than twice the
+    writer's typical step: two maps in a pause of the 2 Hz map's writer), is taken for a restarted writer. ``min_messages`` (default: half a
     second of the topic's messages, ``successor_min_messages`` of the chain's ticks) stands for
     SUCCESSOR_MIN_MESSAGES above. Returns indices into ``ticks``."""
     n = len(ticks)
+    spacing = typical_spacing([ticks[i] for i in chain])
     if min_messages is None:
         min_messages = successor_min_messages([ticks[i] for i in chain])
     ok = [True] * n if eligible is None else [bool(e) for e in eligible]
@@ -215,9 +226,12 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
         for a, b in zip(order, order[1:]):
             # a silence, or a counter restarted inside the gap: as many messages there as a successor
             # needs, numbered behind the chain (fewer, e.g. a second publisher's in ticks the writer
-            # skipped, must not cut the writer into stretches too short to keep)
+            # skipped, must not cut the writer into stretches too short to keep), in a gap longer than
+            # the writer's own steps (two strays between two maps of a 2 Hz writer were cut out as a
+            # successor, a reviewer's)
             lo_i, hi_i = bisect.bisect_right(other_ticks, ticks[a]), bisect.bisect_left(other_ticks, ticks[b])
-            restarted = sum(others[k][1] < seq[a] for k in range(lo_i, hi_i)) >= min_messages
+            restarted = (ticks[b] - ticks[a] > 2 * spacing
+                         and sum(others[k][1] < seq[a] for k in range(lo_i, hi_i)) >= min_messages)
             if ticks[b] - ticks[a] > max_silence_ticks or restarted:
                 stretches.append([])
             stretches[-1].append(b)
