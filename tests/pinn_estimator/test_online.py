@@ -396,6 +396,40 @@ def test_an_episode_started_again_at_the_same_stamps_is_estimated_as_by_a_fresh_
     np.testing.assert_array_equal(np.stack([e.values for e in est_out]), np.stack([e.values for e in fresh_out]))
 
 
+def test_a_repeated_episode_start_changes_nothing_and_a_node_that_joined_midway_follows_a_restarted_source(
+        episode, model):
+    """The other side of the test above: the episode's start delivered again mid-episode is the same
+    episode (restarting at once had emptied the window and the posterior: 91 of 141 valid estimates,
+    a reviewer's), and a node that joined the episode midway (no start taken) and then hears a restarted
+    simulator's start takes its ticks from 0 as a fresh node does (they had been refused as far back)."""
+    first = int(episode.stamps_ns[0])
+    fresh_out = []
+    fresh = OnlineEstimator(model, fresh_out.append)
+    fresh.start_episode(first)
+    for t, m in in_order(episode, range(N_TICKS)):
+        fresh.add(t, m)
+    repeated_out = []
+    est = OnlineEstimator(model, repeated_out.append)
+    est.start_episode(first)
+    for t, m in in_order(episode, range(150)):
+        est.add(t, m)
+    est.start_episode(first)
+    for t, m in in_order(episode, range(150, N_TICKS)):
+        est.add(t, m)
+    midway_out = []
+    joined = OnlineEstimator(model, midway_out.append)
+    for t, m in in_order(episode, range(50, 150)):
+        joined.add(t, m)
+    del midway_out[:]
+    joined.start_episode(first)
+    for t, m in in_order(episode, range(N_TICKS)):
+        joined.add(t, m)
+    for out, node in ((repeated_out, est), (midway_out, joined)):
+        assert node.counters.out_of_order == 0 and node.counters.restarts == 0
+        assert [e.stamp_ns for e in out] == [e.stamp_ns for e in fresh_out]
+        np.testing.assert_array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in fresh_out]))
+
+
 def test_time_going_far_back_starts_a_new_stream(episode, model):
     """A replay looped without /sim/status: stamps restart at 0; estimation restarts too, once two
     ticks' messages in a row have been stamped far back (the first two ticks of the replay)."""

@@ -55,6 +55,10 @@ MAX_STRIDE_TICKS = 60 * SAMPLE_RATE_HZ  # the rarest estimates a node may be set
 # or 5 s back had wiped the soil posterior learnt along the path (an outside tester's).
 RESTART_BACK_TICKS = WINDOW_SAMPLES
 MAX_AHEAD_TICKS = 10 * SAMPLE_RATE_HZ  # a hole of up to 10 s is a gap in the stream (the posterior kept)
+# The most ticks of an episode that may be taken before its episode_start arrives and still count as
+# having begun the stream with it (they overtook the event: a replay's first ticks); a stream that began
+# later than this after the event's first stamp joined the episode midway.
+MAX_OVERTAKING_TICKS = SAMPLE_RATE_HZ // 4
 # Ticks arriving twice again and again (a second message of a tick, before or after the tick
 # was released) are most likely a second publisher of the topic on the domain (a node left
 # running from another launch): each copy spoils its tick or resets the window, none fills.
@@ -153,6 +157,10 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
+        # An episode_start that may be its source starting over (``OnlineEstimator.start_episode``):
+        # a message stamped back at its first stamp restarts the stream there (``on_expected_restart``)
+        self.expected_restart_ns: int | None = None
+        self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
         self.off_rate = False  # the stream's stamps were last judged off the 60 Hz rate
@@ -165,6 +173,7 @@ class SampleAssembler:
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
         self.joiner.reset(first_stamp_ns)
+        self.expected_restart_ns = None
         self._forget_stream()
 
     def _forget_stream(self) -> None:
@@ -190,6 +199,9 @@ class SampleAssembler:
             self.counters.malformed += 1
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
+        first = self.expected_restart_ns
+        if first is not None and first <= stamp <= min(self.joiner.last_ns, first + self.reorder_ticks * PERIOD_NS):
+            self.on_expected_restart(first)  # the source started over: this is its new stream's first tick
         broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
         self.newest[topic] = max(stamp, self.newest.get(topic, stamp))
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
@@ -365,12 +377,13 @@ class OnlineEstimator:
         self.buffer = WindowBuffer(WINDOW_SAMPLES)
         self.assembler = SampleAssembler(self._on_sample, reorder_ticks=reorder_ticks, warn=warn, counters=self.counters,
                                          on_restart=self._on_restart)
+        self.assembler.on_expected_restart = self._restart_at
         self._tick = 0  # released ticks since the last reset (stride phase)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
         self._stream_first_ns: int | None = None  # the first sample's stamp since the stream (re)started
-        self._open_episode = False  # an episode_start was taken and no episode_end has come since
+        self._open_first: int | None = None  # first stamp of the episode whose start was taken and whose end has not come
         # Blade travel [m] and time [s] in soil since the episode's first tick, for models with
         # terms on them (extra_terms compaction_hardening, a discovered form on time); known only
         # for an episode seen from its start.
@@ -422,7 +435,7 @@ class OnlineEstimator:
         self._tick = 0
         self._boundary = None
         self._stream_first_ns = None
-        self._open_episode = False
+        self._open_first = None
         self._forget_path(known=False)
         self._reset_fusion()
 
@@ -438,27 +451,39 @@ class OnlineEstimator:
         that are still queued complete this episode's windows normally (the executor serves
         /sim/status first, so the event can overtake the episode's last ticks)."""
         self._boundary, self._crossed = int(last_stamp_ns), False
-        self._open_episode = False
+        self._open_first = None
+        self.assembler.expected_restart_ns = None
 
     def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
 
         Ticks of this episode that overtook the event (status and data are separate topics)
         are kept; older ticks still queued finish the previous episode's windows; if time
-        went back (a replay starting over), everything restarts at ``first_stamp_ns``."""
+        went back (a replay starting over), everything restarts at ``first_stamp_ns``.
+
+        A start at or before one the stream is already past, whose ticks did not start the stream
+        (the episode under way never ended, or the node joined it midway), is either this
+        episode's event again (a late or repeated delivery: nothing changes) or its source
+        starting over (a simulator killed and started again, stamps from 0 again). The ticks tell
+        them apart: the first one stamped back at ``first_stamp_ns`` restarts everything there.
+        (Restarting at once reset a live episode on a repeated event; waiting for a stream restart
+        refused the new episode's first ticks as far back and lost them: the estimates differed
+        from a replay's, an outside tester's.)"""
         first = int(first_stamp_ns)
-        was_open, self._open_episode = self._open_episode, True
+        open_first, self._open_first = self._open_first, first
+        self.assembler.expected_restart_ns = None
         if self.assembler.last_released < first:  # nothing of this episode released yet
             self._boundary, self._crossed = first - 1, False
             return
-        if was_open:
-            # The episode under way never ended and this one starts at or before a tick already
-            # taken: its source started over (a simulator killed and started again, a bag cut
-            # short replayed before the next). Its ticks, stamped from 0 again, were refused as
-            # far back until a restart, two ticks lost (replay != live; an outside tester's).
-            self._restart_at(first)
+        stream_first = self._stream_first_ns
+        if open_first is not None and first <= open_first:  # (a later first: a new episode, its end lost)
+            self._open_first = open_first
+            self.assembler.expected_restart_ns = first
             return
-        if self._boundary is None and self._stream_first_ns is not None and self._stream_first_ns >= first:
+        if self._boundary is None and stream_first is not None and stream_first >= first:
+            if stream_first - first > MAX_OVERTAKING_TICKS * PERIOD_NS:  # joined midway, not overtaken
+                self.assembler.expected_restart_ns = first
+                return
             # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
             # first tick): window, stride phase, path and posterior all started with the episode,
             # as if the event had come first; restarting would lose those ticks (replay != live).
@@ -474,14 +499,14 @@ class OnlineEstimator:
         self.reset(first)
         self._boundary, self._crossed = first - 1, False
         self._path_known = True
-        self._open_episode = True
+        self._open_first = first
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
 
     def _on_restart(self) -> None:
         self._boundary = None
-        self._open_episode = False
+        self._open_first = None
         self._stream_first_ns = None
         self._tick = 0
         self._forget_path(known=False)
