@@ -61,8 +61,8 @@ def test_the_longest_path_fits_its_episode_start_and_a_longer_one_is_refused_by_
     """The episode_start carries the path: a path of 1200 patches made an event its readers refused (the
     episode ran, no bag). The most patches allowed, each of a 64-byte soil name, still decode; one more is
     refused before anything runs, naming the count."""
-    name = "S" * MAX_SOIL_NAME_BYTES
-    path = [SoilPatch(0.5 * i, name, 50.0).as_dict() for i in range(MAX_PATCHES)]
+    name = "é" * (MAX_SOIL_NAME_BYTES // 2)  # 64 bytes of a name JSON would escape to 192 characters
+    path = [SoilPatch(0.1 * i + 1e-9, name, 100.0 / 3).as_dict() for i in range(MAX_PATCHES)]  # numbers of 17 digits
     m = meta(patches=path)
     m.validate()
     event = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, m.name, m, 0, planned_ticks=120)

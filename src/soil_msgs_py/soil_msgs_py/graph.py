@@ -282,7 +282,9 @@ class EpisodeEvent:
             data["pacing"] = self.pacing
         if self.graph:
             data["graph"] = self.graph
-        return json.dumps(data, sort_keys=True)
+        # ensure_ascii=False: MAX_JSON_CHARS counts characters; escaped, a soil name of 64 bytes of "é"
+        # took 192 of them and a path of MAX_PATCHES such patches made an event its readers refused
+        return json.dumps(data, sort_keys=True, ensure_ascii=False)
 
     @classmethod
     def from_json(cls, text: str) -> "EpisodeEvent":

@@ -23,8 +23,8 @@ from dataclasses import asdict, dataclass, fields
 
 PATCH_SYNTAX = "'X:SOIL:ID' (x_start_m:soil:relative_density_pct, e.g. '5.0:Clay:90')"
 # The most patches one path may have: the episode_start event carries the path, and a /sim/status
-# text is bounded (``graph.MAX_JSON_CHARS``, 64 kB), which 256 patches of 64-byte soil names keep
-# well inside (~33 kB). A path of 1200 patches had made an event its readers refused: the episode
+# text is bounded (``graph.MAX_JSON_CHARS``, 64 k characters), which 256 patches of 64-byte soil names
+# and full-precision numbers keep inside (~43 k). A path of 1200 patches had made an event its readers refused: the episode
 # ran, the controller never took its targets and no bag was written (an outside tester's).
 MAX_PATCHES = 256
 
