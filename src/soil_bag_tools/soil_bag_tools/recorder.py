@@ -55,7 +55,7 @@ from soil_msgs_py.episode import MAX_EPISODE_S
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
-from soil_msgs_py.topics import GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
+from soil_msgs_py.topics import CLOCK, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_index
 from .journal import (
     RECORDER_INFO_KEY, BagResult, JournalWriter, NothingRecoverable, claim_name, journal_path,
@@ -80,6 +80,15 @@ _SAY_MAKING_FROM = 200_000  # messages (~4 min of episode): a bag this big takes
 # topics were quiet for EXTRA_TOPIC_GRACE_S.
 END_GRACE_S = 4.0
 ONLINE_HORIZON_TICKS = 10 * SAMPLE_RATE_HZ  # 10 s: how far past a topic's newest stamp a message is judged on arrival
+
+
+def _lacking_ticks(messages: Mapping[str, int]) -> tuple[int, dict[str, int]]:
+    """(ticks of the fullest episode topic, per episode topic with messages how many fewer it has) (not counting
+    /clock, which a replay's ``--clock`` may publish at another rate; extra topics do not count: they
+    may be sparse or carry other stamps). A topic without any message is said elsewhere (a machine's
+    bag has no /clock or ground truth)."""
+    ticks = max((n for t, n in messages.items() if t in TOPICS_BY_NAME and t != CLOCK.name), default=0)
+    return ticks, {t: ticks - n for t, n in messages.items() if t in TOPICS_BY_NAME and 0 < n < ticks}
 
 
 def _from_first_tick(topic: str) -> bool:
@@ -583,11 +592,11 @@ class Recorder:
         if s.end_event is not None and s.end_event.reason != "completed":
             extra += f"; the episode ended: {s.end_event.reason}"
         self.log.info(f"finished ({how}) {result.summary()}{extra}")
-        if s.meta_json is not None and (lacking := {t: result.ticks - n for t, n in result.messages.items()
-                                                    if t in TOPICS_BY_NAME and n < result.ticks}):
-            # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
-            # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
-            self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {result.ticks})' for t, k in lacking.items())}: "
+        # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
+        # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
+        ticks, lacking = _lacking_ticks(result.messages)
+        if s.meta_json is not None and lacking:
+            self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "
                              "their messages never reached the recorder (a writer it matched late, e.g. a node restarted "
                              "mid-episode, or one that skipped ticks); those ticks are incomplete in the bag, and a "
                              "replay of it differs from the live run there")
