@@ -462,8 +462,9 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         draining, deadline = getattr(node, "draining", None), time.monotonic() + DRAIN_LIMIT_S
         while draining is not None and rclpy.ok() and draining() and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
-    except ExternalShutdownException:
-        pass
+    except ExternalShutdownException:  # (the context shut down inside spin_once: said as above)
+        if node is not None:
+            node.get_logger().info("stopping: the ROS context was shut down")
     except (ValueError, ParameterException) as err:  # a bad parameter value or type
         if node is not None:
             raise

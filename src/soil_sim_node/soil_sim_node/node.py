@@ -24,6 +24,7 @@ Bad commands never stop the node and never reach the core: see live.CommandGate.
 from __future__ import annotations
 
 import collections
+import itertools
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -261,15 +262,19 @@ class SimNode(Node):
         return resolved
 
     def _check_plan_entries(self, base: EpisodeSpec, plan: dict[str, list]) -> None:
-        """ValueError naming the plan parameter and entry a spec of it is refused for (the spec's own
-        error named only 'soil' or 'relative_density_pct', not which list or entry)."""
-        fields = {"sequence_soils": "soil", "sequence_relative_densities_pct": "relative_density_pct"}
-        for name, values in plan.items():
-            for i, value in enumerate(values):
-                try:
-                    resolve_checked(self.config, replace(base, **{fields[name]: value}), self.custom_soils)
-                except ValueError as err:
-                    raise ValueError(f"parameter {name}[{i}]={value!r}: {err}") from None
+        """ValueError naming the plan's entries an episode of it is refused for (the spec's own error
+        named only 'soil' or 'relative_density_pct', not which list or entry). Each combination the
+        plan runs is checked, with the base's value where a list is empty, as ``episode_plan`` makes them."""
+        soils = list(enumerate(plan["sequence_soils"])) or [(None, base.soil)]
+        densities = list(enumerate(plan["sequence_relative_densities_pct"])) or [(None, base.relative_density_pct)]
+        for (i, soil), (j, density) in itertools.product(soils, densities):
+            try:
+                resolve_checked(self.config, replace(base, soil=soil, relative_density_pct=density), self.custom_soils)
+            except ValueError as err:
+                named = [f"parameter {n}[{k}]={v!r}" for n, k, v in (("sequence_soils", i, soil),
+                                                                       ("sequence_relative_densities_pct", j, density))
+                         if k is not None]
+                raise ValueError(f"{' with '.join(named)}: {err}") from None
 
     def _enqueue(self, specs: list[EpisodeSpec]) -> None:
         for spec in specs:
