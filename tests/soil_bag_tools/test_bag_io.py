@@ -480,3 +480,18 @@ def test_mapping_works_with_ros_message_classes(ep: Episode) -> None:
 def test_no_rclpy_import() -> None:
     code = "import sys, soil_bag_tools.bag_io; sys.exit('rclpy' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_a_bag_write_stopped_midway_is_said_as_such_not_as_a_recorder_journal(tmp_path):
+    """A writer killed mid-write (a lost Ray cluster's worker) leaves its staging directory, the bag
+    inside it unfinished: it was named a recorder journal to repair. A recorder's journal is still one."""
+    from soil_bag_tools.bag_io import passed_by_note, scan_bags
+
+    (tmp_path / "ep1.partial" / "ep1").mkdir(parents=True)  # write_episode's staging: the bag being written
+    (tmp_path / "ep1.partial" / "ep1" / "ep1.mcap").write_bytes(b"")
+    (tmp_path / "ep2.partial").mkdir()
+    (tmp_path / "ep2.partial" / "ep2.mcap").write_bytes(b"")  # a recorder's journal
+    found, strays = scan_bags(tmp_path)
+    note = passed_by_note(strays, tmp_path)
+    assert not found and "1 recorder journal(s)" in note and "ep2.partial" in note.split("unfinished")[0]
+    assert "1 unfinished bag write(s)" in note and "ep1.partial; nothing to recover" in note, note

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from soil_bag_tools.bag_io import find_episode_bags
+from soil_bag_tools.bag_io import find_episode_bags, journal_path
 from pinn_estimator import train
 from soil_sim_node import batch
 from tests.ray_probe import is_loopback, listening_addresses, ray_processes, wait_gone
@@ -140,8 +140,10 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
             assert lost.poll() is None, "the run ended before its cluster was stopped"
             _stop(cluster)
             err = lost.communicate(timeout=120)[1]
+            driver_done = time.time()
         finally:
             lost.kill()
+        _stop({pid for pid in ray_processes() - before if _parent(pid) in cluster})  # its workers, started by its raylet
         assert lost.returncode == 1, err[-2000:]
         # Ray's driver notices the stopped raylet at once in some runs (the tasks fail as
         # LocalRayletDiedError), hangs on the head in others (given up after 4 s): either is said
@@ -152,9 +154,21 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
         # cluster (a machine that simulates 16 ten-second episodes in a second did): whole, kept
         written = find_episode_bags(out)
         assert 0 < len(written) <= 64 and not (out / "dataset.json").exists()
-        assert not [p for p in out.iterdir() if p.name.endswith(".partial")], sorted(p.name for p in out.iterdir())
+        # no half-written bag the driver could see: a staging directory left is one a worker wrote to
+        # after the driver had finished (it outlived its cluster for a moment); no reader takes it
+        left = [p for p in out.iterdir() if p.name.endswith(".partial")]
+        assert all(batch._last_written(p) > driver_done for p in left), sorted(p.name for p in out.iterdir())
+        assert not [p for p in left if journal_path(p).exists()] and not set(left) & set(written)
     finally:
         _stop(cluster)
+
+
+def _parent(pid: int) -> int | None:
+    """The parent process id of ``pid`` (None once it is gone)."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _name(pid: int) -> str:

@@ -424,8 +424,12 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
     def shown(paths):
         return ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
 
-    journals = [p for p in strays if p.name.endswith(PARTIAL_SUFFIX)]
-    files = [p for p in strays if p not in journals]
+    partials = [p for p in strays if p.name.endswith(PARTIAL_SUFFIX)]
+    journals = [p for p in partials if journal_path(p).exists()]
+    # (a bag's staging directory without a journal, left by a writer killed mid-write, e.g. a lost Ray
+    # cluster's worker, had been named a recorder journal to repair)
+    unfinished = [p for p in partials if p not in journals]
+    files = [p for p in strays if p not in partials]
     notes = []
     if files:
         notes.append(f"not read: {len(files)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml "
@@ -433,6 +437,10 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
     if journals:
         notes.append(f"not read: {len(journals)} recorder journal(s), a killed recorder's or one still being "
                      f"written: {shown(journals)}; soil_bag_repair {root} turns a killed recorder's into bags")
+    if unfinished:
+        notes.append(f"not read: {len(unfinished)} unfinished bag write(s), a writer stopped mid-write or one still "
+                     f"writing: {shown(unfinished)}; nothing to recover (the next soil_sim_batch writing that bag "
+                     "removes it, or delete it)")
     return "; ".join(notes)
 
 

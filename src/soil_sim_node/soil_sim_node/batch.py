@@ -63,6 +63,11 @@ DEFAULT_RELATIVE_DENSITIES = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
 GRID_SPEEDS = {"default": (0.3, 0.5333, 0.7667, 1.0), "fee": (0.3, 0.65, 1.0)}
 GRID_DEPTHS = (0.05, 0.175, 0.3)
 DEFAULT_SEEDS = 2
+# A failed Ray run removes the staging directories of its bags once nothing was written to them for
+# STAGING_QUIET_S, waiting at most STAGING_WAIT_S: a lost cluster's worker that outlived the failure for
+# a moment had left one half-written when it died (seen once in a CI run beside a busy core).
+STAGING_QUIET_S = 1.0
+STAGING_WAIT_S = 10.0
 
 
 @dataclass
@@ -312,13 +317,37 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     return results
 
 
-def _remove_staging(plan: DatasetPlan) -> None:
+def _remove_staging(plan: DatasetPlan, quiet_s: float = STAGING_QUIET_S, limit_s: float = STAGING_WAIT_S) -> None:
     """The staging directories of this plan's bags a stopped run left mid-write (another
-    run's, a recorder's journal and an old bag an --overwrite parked there are left alone)."""
-    for name in _bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs]):
-        staging = plan.out / f"{name}{PARTIAL_SUFFIX}"
-        if staging.is_dir() and not journal_path(staging).exists() and not (staging / "replaced").exists():
-            shutil.rmtree(staging, ignore_errors=True)
+    run's, a recorder's journal and an old bag an --overwrite parked there are left alone).
+
+    One still written to within ``quiet_s`` is waited for (at most ``limit_s``): a worker of a lost
+    cluster may outlive the failure its driver saw for a moment, finishing its bag (the staging goes)
+    or dying mid-write (the staging stops changing, and is removed). A worker that outlives that
+    too can still leave one; the next run writing that bag removes it, and no reader takes it."""
+    names = _bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs])
+    candidates = [plan.out / f"{name}{PARTIAL_SUFFIX}" for name in names]
+    deadline = time.monotonic() + limit_s
+    while True:
+        busy = False
+        for staging in candidates:
+            if not staging.is_dir() or journal_path(staging).exists() or (staging / "replaced").exists():
+                continue
+            if time.time() - _last_written(staging) < quiet_s and time.monotonic() < deadline:
+                busy = True
+            else:
+                shutil.rmtree(staging, ignore_errors=True)
+        if not busy:
+            return
+        time.sleep(0.1)
+
+
+def _last_written(directory: Path) -> float:
+    """When anything in ``directory`` was last changed [s since the epoch] (0: gone meanwhile)."""
+    try:
+        return max([directory.stat().st_mtime] + [p.stat().st_mtime for p in directory.rglob("*")])
+    except OSError:
+        return 0.0
 
 
 def _pool_worker_signals() -> None:
