@@ -604,3 +604,36 @@ def test_a_message_stamped_seconds_ahead_makes_no_writer_look_silent(tmp_path):
     (result,) = rec.finished
     assert result.ticks == 600 and set(result.messages.values()) == {600}, result.summary()
     assert recorder_info(result.path)["conflicts"] == {c: 1 for c in commands}
+
+
+@pytest.mark.parametrize("restarted", [True, False])
+def test_a_simulator_started_again_on_the_same_episode_gets_a_bag_of_its_own(tmp_path, restarted):
+    """The simulator is killed at tick 300 and started again with the same episode: its episode_start is
+    the first one's to the letter, and was taken for the same event twice; its ticks, stamped from the
+    start again with new counters, were refused as another writer's claims on the first run's stamps
+    (3000 of them, a reviewer's). The ticks decide: stamped back at the episode's start, the first run's
+    bag is closed, cut short, and the new run recorded whole beside it. The same event heard again while
+    the episode's ticks go on changes nothing."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 600]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs[: 10 * 300]:
+        feed.send("sim", topic, raw)
+    rec.on_status(start_ev.to_json())  # the restarted simulator's, or the same event again
+    for t, topic, raw in (msgs if restarted else msgs[10 * 300:]):
+        feed.send("restarted" if restarted else "sim", topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=600).to_json())
+    rec.poll(), rec.close()
+    results = {r.path.name: r for r in rec.finished}
+    name = start_ev.name
+    if restarted:
+        assert sorted(results) == [name, f"{name}_2"]
+        assert (results[name].ticks, results[f"{name}_2"].ticks) == (300, 600)
+        assert recorder_info(results[name].path)["end"] == "cut_short"
+        assert not results[f"{name}_2"].conflicts and not results[name].conflicts
+        assert_same_episode(bag_io.read_episode(results[f"{name}_2"].path), bag_io.read_episode(SAMPLE), 600)
+    else:
+        assert list(results) == [name] and results[name].ticks == 600 and not results[name].conflicts
+        assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines

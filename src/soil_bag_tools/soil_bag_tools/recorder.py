@@ -190,6 +190,9 @@ class Session:
     topic_min: dict[str, int] = field(default_factory=dict)  # first stamp per topic (its recorded writer's)
     topic_seq: dict[str, int] = field(default_factory=dict)  # the highest publication sequence number written per topic
     reached_tick: int = 0  # the newest tick any topic's recorded writer has reached (the episode's progress)
+    # its episode_start heard again while it runs: the event again, or its source started over (``Recorder._restarted``)
+    start_again: EpisodeEvent | None = None
+    superseded: bool = False  # its source started over: the episode's events are the new session's
     claims: StampClaims = field(default_factory=StampClaims)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
@@ -209,7 +212,8 @@ class Session:
 
     def same_episode(self, ev: EpisodeEvent) -> bool:
         s = self.event
-        return s is not None and (s.name, s.episode, s.first_stamp_ns) == (ev.name, ev.episode, ev.first_stamp_ns)
+        return (s is not None and not self.superseded
+                and (s.name, s.episode, s.first_stamp_ns) == (ev.name, ev.episode, ev.first_stamp_ns))
 
 
 class Recorder:
@@ -298,6 +302,8 @@ class Recorder:
                 self._undecodable_warned.add(topic)
                 self.log.warning(f"{topic}: message without a decodable stamp dropped (further ones only counted)")
             return
+        if any(x.start_again is not None for x in self.sessions):
+            self._restarted(topic, stamp)
         s = self._route(topic, stamp, seq)
         if s is None:
             self.held.append((self.clock(), topic, stamp, raw, recv_ns, seq))
@@ -367,8 +373,29 @@ class Recorder:
         return Session(name=name, journal=journal, meta_json=meta_json)
 
     def _start(self, ev: EpisodeEvent) -> None:
-        if any(s.same_episode(ev) for s in self.sessions):
+        same = next((s for s in self.sessions if s.same_episode(ev)), None)
+        if same is not None:
+            if same.last_stamp_ns is None and same.topic_max:  # while it runs: the ticks will tell (``_restarted``)
+                same.start_again = ev
             return  # the same event twice
+        self._open_episode(ev)
+
+    def _restarted(self, topic: str, stamp: int) -> None:
+        """A session whose episode_start came again while it ran, and a message of it stamped back at
+        the episode's start, before what the session holds of that topic: its source started over
+        (a simulator killed and started again with the same episode, whose event is the same to the
+        letter). The session is closed, cut short, and the new run gets a bag of its own; before,
+        its event was taken for the same one twice and its ticks refused as another writer's
+        claims on the first run's stamps (3000 of them, a reviewer's)."""
+        for s in self.sessions:
+            ev = s.start_again
+            if (ev is not None and s.last_stamp_ns is None and ev.first_stamp_ns <= stamp
+                    < min(s.topic_max.get(topic, -1), ev.first_stamp_ns + NS_PER_S)):
+                s.start_again, s.superseded = None, True
+                self._open_episode(ev)
+                return
+
+    def _open_episode(self, ev: EpisodeEvent) -> None:
         for s in self.sessions:
             if s.last_stamp_ns is None:  # its episode_end never came
                 s.last_stamp_ns = max(s.topic_max.values(), default=s.first_stamp_ns)
