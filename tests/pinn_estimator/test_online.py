@@ -430,6 +430,23 @@ def test_a_repeated_episode_start_changes_nothing_and_a_node_that_joined_midway_
         np.testing.assert_array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in fresh_out]))
 
 
+def test_a_late_copy_of_a_taken_tick_restarts_nothing_while_a_restart_is_in_question(episode, model):
+    """A node that joined at tick 20 (a reorder horizon of 30 ticks) hears the episode's start at tick 40:
+    whether its source started over is left to the ticks. A late copy of tick 25, one of its own stream's,
+    is no new stream's first tick (it had restarted everything at the episode's start, a reviewer's)."""
+    est = OnlineEstimator(model, lambda e: None, reorder_ticks=30)
+    for t, m in in_order(episode, range(20, 40)):
+        est.add(t, m)
+    est.start_episode(int(episode.stamps_ns[0]))
+    for t, m in in_order(episode, range(40, 100)):
+        est.add(t, m)
+    distance = est.distance_m
+    for t, m in tick_messages(episode, 25):
+        est.add(t, m)
+    assert est.assembler.expected_restart_ns == int(episode.stamps_ns[0]) and not est._path_known
+    assert est.distance_m == distance and est.buffer.count == 60
+
+
 def test_time_going_far_back_starts_a_new_stream(episode, model):
     """A replay looped without /sim/status: stamps restart at 0; estimation restarts too, once two
     ticks' messages in a row have been stamped far back (the first two ticks of the replay)."""

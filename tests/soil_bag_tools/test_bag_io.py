@@ -495,3 +495,7 @@ def test_a_bag_write_stopped_midway_is_said_as_such_not_as_a_recorder_journal(tm
     note = passed_by_note(strays, tmp_path)
     assert not found and "1 recorder journal(s)" in note and "ep2.partial" in note.split("unfinished")[0]
     assert "1 unfinished bag write(s)" in note and "ep1.partial; nothing to recover" in note, note
+    (tmp_path / "ep3.partial" / "replaced").mkdir(parents=True)  # an --overwrite's old bag, parked mid-write
+    note = passed_by_note(scan_bags(tmp_path)[1], tmp_path)
+    assert "1 old bag(s) parked by an overwrite that stopped midway" in note and "ep3.partial" in note.split("parked")[1]
+    assert "1 unfinished bag write(s)" in note, note

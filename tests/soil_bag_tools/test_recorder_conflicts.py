@@ -48,7 +48,7 @@ class Feed:
     """Hands messages to a Recorder the way record_node does: one sequence counter per writer
     and topic (the intruder's has published before, as any writer's counter may have)."""
 
-    FIRST_SEQ = {"sim": 1, "estimator": 1, "intruder": 1000, "restarted": 1}
+    FIRST_SEQ = {"sim": 1, "estimator": 1, "intruder": 1000, "restarted": 1, "controller": 1}
 
     def __init__(self, rec: recorder.Recorder, with_sequence: bool = True):
         self.rec, self.with_sequence, self.seq = rec, with_sequence, {}
@@ -612,28 +612,68 @@ def test_a_simulator_started_again_on_the_same_episode_gets_a_bag_of_its_own(tmp
     the first one's to the letter, and was taken for the same event twice; its ticks, stamped from the
     start again with new counters, were refused as another writer's claims on the first run's stamps
     (3000 of them, a reviewer's). The ticks decide: stamped back at the episode's start, the first run's
-    bag is closed, cut short, and the new run recorded whole beside it. The same event heard again while
-    the episode's ticks go on changes nothing."""
+    bag is closed, cut short, and the new run recorded whole beside it, the controller's commands (one
+    writer through both runs, 3 ticks behind the state) each in its run's bag (its next commands had
+    gone into the first run's, a reviewer's). The same event heard again while the episode's ticks go
+    on changes nothing."""
     loaded, start_ev, end_ev = _events(SAMPLE)
     msgs = loaded.messages[: 10 * 600]
+    commands = ("/chassis/cmd_vel", "/blade/cmd")
     rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
     feed = Feed(rec)
+
+    def run(writer, part, lagging=()) -> list:
+        lagging = list(lagging)  # commands not sent yet, in tick order
+        for t, topic, raw in part:
+            tick = (t - msgs[0][0]) // TICK_NS
+            if topic in commands:
+                lagging.append((tick, topic, raw))
+                continue
+            feed.send(writer, topic, raw)
+            while lagging and lagging[0][0] <= tick - 3:
+                feed.send("controller", *lagging.pop(0)[1:])
+        return lagging
+
     rec.on_status(start_ev.to_json())
-    for t, topic, raw in msgs[: 10 * 300]:
-        feed.send("sim", topic, raw)
+    lagging = run("sim", msgs[: 10 * 300])  # the killed simulator's last three ticks are never answered
     rec.on_status(start_ev.to_json())  # the restarted simulator's, or the same event again
-    for t, topic, raw in (msgs if restarted else msgs[10 * 300:]):
-        feed.send("restarted" if restarted else "sim", topic, raw)
+    if restarted:
+        lagging = run("restarted", msgs)
+    else:
+        lagging = run("sim", msgs[10 * 300:], lagging)
     rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=600).to_json())
+    for _, topic, raw in lagging:
+        feed.send("controller", topic, raw)
     rec.poll(), rec.close()
     results = {r.path.name: r for r in rec.finished}
     name = start_ev.name
     if restarted:
         assert sorted(results) == [name, f"{name}_2"]
-        assert (results[name].ticks, results[f"{name}_2"].ticks) == (300, 600)
+        assert (results[name].ticks, results[f"{name}_2"].ticks) == (297, 600)
         assert recorder_info(results[name].path)["end"] == "cut_short"
         assert not results[f"{name}_2"].conflicts and not results[name].conflicts
         assert_same_episode(bag_io.read_episode(results[f"{name}_2"].path), bag_io.read_episode(SAMPLE), 600)
+        assert_same_episode(bag_io.read_episode(results[name].path), bag_io.read_episode(SAMPLE), 297)
     else:
         assert list(results) == [name] and results[name].ticks == 600 and not results[name].conflicts
         assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines
+
+
+def test_a_recorded_topic_whose_writer_sent_nothing_is_said_as_lacking_every_tick(tmp_path):
+    """The controller's writers had matched, but it died before the episode: no command at all. Counted
+    only among topics with messages, the bag said nothing of it (a reviewer's); a topic no writer had
+    matched is said as such instead (``joined_without``), not twice."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = [m for m in loaded.messages[: 10 * 120] if m[1] not in ("/chassis/cmd_vel", "/blade/cmd")]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0, end_grace_s=0.0)
+    rec.joined_without = {"/blade/cmd"}
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        feed.send("sim", topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
+    rec.poll(), rec.poll(), rec.close()
+    warnings = [m for lvl, m in log.lines if lvl == "warning"]
+    assert any("the bag lacks ticks of /chassis/cmd_vel (120 of 120):" in m for m in warnings), warnings
+    assert not any("lacks ticks of" in m and "/blade/cmd" in m for m in warnings), warnings
+    assert any("/blade/cmd has no message" in m for m in warnings), warnings

@@ -160,6 +160,7 @@ class SampleAssembler:
         # An episode_start that may be its source starting over (``OnlineEstimator.start_episode``):
         # a message stamped back at its first stamp restarts the stream there (``on_expected_restart``)
         self.expected_restart_ns: int | None = None
+        self.expected_before_ns: int | None = None  # and stamped before this (the stream's first sample)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
@@ -199,9 +200,12 @@ class SampleAssembler:
             self.counters.malformed += 1
             self.warn(f"{topic}:malformed", f"{topic}: {len(values)} values, expected {len(routes)}; ignored")
             return
-        first = self.expected_restart_ns
-        if first is not None and first <= stamp <= min(self.joiner.last_ns, first + self.reorder_ticks * PERIOD_NS):
-            self.on_expected_restart(first)  # the source started over: this is its new stream's first tick
+        first, horizon = self.expected_restart_ns, self.reorder_ticks * PERIOD_NS
+        # the source started over: its new stream's first ticks, older than anything of this stream that
+        # may still come late (a late copy of one of its own ticks had restarted it, a reviewer's)
+        if (first is not None and first <= stamp <= first + horizon and self.joiner.last_ns - stamp > horizon
+                and (self.expected_before_ns is None or stamp < self.expected_before_ns)):
+            self.on_expected_restart(first)
         broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
         self.newest[topic] = max(stamp, self.newest.get(topic, stamp))
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
@@ -478,11 +482,12 @@ class OnlineEstimator:
         stream_first = self._stream_first_ns
         if open_first is not None and first <= open_first:  # (a later first: a new episode, its end lost)
             self._open_first = open_first
-            self.assembler.expected_restart_ns = first
+            self.assembler.expected_restart_ns, self.assembler.expected_before_ns = first, None
             return
         if self._boundary is None and stream_first is not None and stream_first >= first:
             if stream_first - first > MAX_OVERTAKING_TICKS * PERIOD_NS:  # joined midway, not overtaken
-                self.assembler.expected_restart_ns = first
+                # (a tick stamped before the stream's first cannot be a late one of the ticks it took)
+                self.assembler.expected_restart_ns, self.assembler.expected_before_ns = first, stream_first
                 return
             # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
             # first tick): window, stride phase, path and posterior all started with the episode,
@@ -507,6 +512,7 @@ class OnlineEstimator:
     def _on_restart(self) -> None:
         self._boundary = None
         self._open_first = None
+        self.assembler.expected_restart_ns = None  # (an episode_start before this stream's is no longer in question)
         self._stream_first_ns = None
         self._tick = 0
         self._forget_path(known=False)

@@ -428,7 +428,8 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
     journals = [p for p in partials if journal_path(p).exists()]
     # (a bag's staging directory without a journal, left by a writer killed mid-write, e.g. a lost Ray
     # cluster's worker, had been named a recorder journal to repair)
-    unfinished = [p for p in partials if p not in journals]
+    parked = [p for p in partials if p not in journals and (p / "replaced").exists()]  # an --overwrite's old bag
+    unfinished = [p for p in partials if p not in journals and p not in parked]
     files = [p for p in strays if p not in partials]
     notes = []
     if files:
@@ -441,6 +442,9 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
         notes.append(f"not read: {len(unfinished)} unfinished bag write(s), a writer stopped mid-write or one still "
                      f"writing: {shown(unfinished)}; nothing to recover (the next soil_sim_batch writing that bag "
                      "removes it, or delete it)")
+    if parked:
+        notes.append(f"not read: {len(parked)} old bag(s) parked by an overwrite that stopped midway: {shown(parked)}; "
+                     "its 'replaced' directory is the old bag: move it back beside them under the bag's name to keep it")
     return "; ".join(notes)
 
 

@@ -82,13 +82,15 @@ END_GRACE_S = 4.0
 ONLINE_HORIZON_TICKS = 10 * SAMPLE_RATE_HZ  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
 
-def _lacking_ticks(messages: Mapping[str, int]) -> tuple[int, dict[str, int]]:
-    """(ticks of the fullest episode topic, per episode topic with messages how many fewer it has) (not counting
-    /clock, which a replay's ``--clock`` may publish at another rate; extra topics do not count: they
-    may be sparse or carry other stamps). A topic without any message is said elsewhere (a machine's
-    bag has no /clock or ground truth)."""
+def _lacking_ticks(messages: Mapping[str, int], recorded: Sequence[str], unmatched: set[str]) -> tuple[int, dict[str, int]]:
+    """(ticks of the fullest episode topic, per recorded episode topic how many fewer it has) (the
+    fullest not counting /clock, which a replay's ``--clock`` may publish at another rate; extra
+    topics do not count: they may be sparse or carry other stamps). A topic without any message whose
+    writer had not matched when the recorder joined (``unmatched``) is said as such elsewhere (a
+    machine's graph publishes no ground truth)."""
     ticks = max((n for t, n in messages.items() if t in TOPICS_BY_NAME and t != CLOCK.name), default=0)
-    return ticks, {t: ticks - n for t, n in messages.items() if t in TOPICS_BY_NAME and 0 < n < ticks}
+    counts = {t: messages.get(t, 0) for t in recorded if t in TOPICS_BY_NAME}
+    return ticks, {t: ticks - n for t, n in counts.items() if n < ticks and (n > 0 or t not in unmatched)}
 
 
 def _from_first_tick(topic: str) -> bool:
@@ -193,6 +195,7 @@ class Session:
     # its episode_start heard again while it runs: the event again, or its source started over (``Recorder._restarted``)
     start_again: EpisodeEvent | None = None
     superseded: bool = False  # its source started over: the episode's events are the new session's
+    moved_on: set[str] = field(default_factory=set)  # topics whose writer went back to a newer session's stamps
     claims: StampClaims = field(default_factory=StampClaims)  # messages per (topic, stamp)
     duplicates: int = 0  # messages claiming a stamp already claimed on their topic
     off_grid: dict[str, int] = field(default_factory=dict)  # episode-topic messages off the tick grid
@@ -441,11 +444,16 @@ class Recorder:
         episode's: stamped before its newest, or at it by a later publication of the writer (a
         redelivery carries its old sequence number). A writer's stamps only grow within an
         episode. (Sparse topics, the planner's targets and the map, never reach an episode's last
-        stamp: the next bag's were filed into the previous one while it waited out its end grace.)"""
-        covering = [s for s in self.sessions if s.covers(stamp) and not s.topic_done(topic)]
+        stamp: the next bag's were filed into the previous one while it waited out its end grace.)
+        Once a topic's message has gone back so, the older session takes no more of that topic: its
+        writer has moved on to the newer episode, whose later stamps may rise past the older one's
+        newest again (a simulator started again on the same episode: the controller's next commands
+        went into the first run's bag, a reviewer's)."""
+        covering = [s for s in self.sessions if s.covers(stamp) and not s.topic_done(topic) and topic not in s.moved_on]
         for i, s in enumerate(covering):
             newest = s.topic_max.get(topic, -1)
             if i + 1 < len(covering) and (stamp < newest or (stamp == newest and seq > s.topic_seq.get(topic, seq))):
+                s.moved_on.add(topic)
                 continue
             return s
         return None
@@ -621,7 +629,7 @@ class Recorder:
         self.log.info(f"finished ({how}) {result.summary()}{extra}")
         # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
         # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
-        ticks, lacking = _lacking_ticks(result.messages)
+        ticks, lacking = _lacking_ticks(result.messages, list(self.topics), self.joined_without)
         if s.meta_json is not None and lacking:
             self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "
                              "their messages never reached the recorder (a writer it matched late, e.g. a node restarted "
