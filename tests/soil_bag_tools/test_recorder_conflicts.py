@@ -582,7 +582,7 @@ def test_a_message_stamped_seconds_ahead_makes_no_writer_look_silent(tmp_path):
     msgs = loaded.messages[: 10 * 600]
     last = msgs[-1][0]
     final = {topic: raw for t, topic, raw in msgs if t == last and topic in commands}
-    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0)
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=ListLog(), clock=lambda: 0.0)
     feed = Feed(rec)
     rec.on_status(start_ev.to_json())
     lagging = []
