@@ -577,7 +577,10 @@ def test_sigint_finishes_and_sigkill_is_repaired(listener, tmp_path):
         play_log = finish(player)
     finally:
         reap(rec_kill, rec_int, rec_lost, player)
-    assert player.returncode == 0, play_log
+    # an interrupted replay says so and exits 128 + SIGINT (it exited 0 with no word, as a finished one does);
+    # a loaded machine may let it finish the 10 s bag first
+    finished = "played " in play_log
+    assert player.returncode == (0 if finished else 130) and ("stopping: SIGINT received" in play_log) != finished, play_log
     assert rec_int.returncode == 0, log
     assert rec_lost.returncode == EXIT_BAG_NOT_WRITTEN, lost_log
     assert f"{SAMPLE.name}: no bag written" in lost_log and "1 episode(s) without a bag" in lost_log, lost_log

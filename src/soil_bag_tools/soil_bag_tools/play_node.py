@@ -17,6 +17,7 @@ that leaves no message in any bag (a topic missing from only some bags is a warn
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
@@ -33,7 +34,7 @@ from .playback import (
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
 from soil_msgs_py.ros_adapter import (init_rclpy, local, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
-                                      raise_interrupt, wait_for_acks)
+                                      wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -277,8 +278,14 @@ def main(args: list[str] | None = None) -> int:
         print(f"soil_bag_play: {note}", file=sys.stderr)
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
+    signals: list[int] = []
+
+    def interrupt(signum, frame):  # noqa: ARG001 - SIGINT/SIGTERM stop the blocking play loop
+        signals.append(signum)
+        raise KeyboardInterrupt
+
     try:
-        init_rclpy(argv, raise_interrupt)
+        init_rclpy(argv, interrupt)
     except RuntimeError as err:  # rcl cannot read a --params-file
         print_refusal(argv, err)
         return EXIT_BAD_CONFIG
@@ -290,6 +297,11 @@ def main(args: list[str] | None = None) -> int:
         player.run(paths)
         player.drain()
     except KeyboardInterrupt:
+        # said, and 128 + the signal as a shell gives it: an interrupted replay exited 0 with no word, as a
+        # finished one does (an outside tester's)
+        signum = signals[0] if signals else signal.SIGINT
+        node.get_logger().info(f"stopping: {signal.Signals(signum).name} received")
+        code = 128 + int(signum)
         if player is not None:
             try:
                 player.drain()

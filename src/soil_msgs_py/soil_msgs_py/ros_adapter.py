@@ -263,11 +263,6 @@ def status_after_inputs(node: Node, inputs: dict, callback: Callable, wait_s: fl
         on_missing)
 
 
-def raise_interrupt(signum, frame):  # noqa: ARG001
-    """Signal handler for blocking loops (the player): SIGINT/SIGTERM -> KeyboardInterrupt."""
-    raise KeyboardInterrupt
-
-
 def init_context(domain_id: int, **init_kwargs) -> Context:
     """A fresh rclpy context on ``domain_id`` for an in-process participant beside the graph (a
     monitor, a probe), initialised as the graph's nodes are: with the graph's Fast DDS profile
