@@ -157,10 +157,7 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
-        # An episode_start that may be its source starting over (``OnlineEstimator.start_episode``):
-        # a message stamped back at its first stamp restarts the stream there (``on_expected_restart``)
-        self.expected_restart_ns: int | None = None
-        self.expected_before_ns: int | None = None  # and stamped before this (the stream's first sample)
+        self.expect_restart(None)  # (``expect_restart``: its fields)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
@@ -174,8 +171,14 @@ class SampleAssembler:
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything (a new stream); stamps from ``first_stamp_ns`` on are expected."""
         self.joiner.reset(first_stamp_ns)
-        self.expected_restart_ns = None
+        self.expect_restart(None)
         self._forget_stream()
+
+    def expect_restart(self, first_ns: int | None, before_ns: int | None = None) -> None:
+        """An episode_start that may be its source starting over (``OnlineEstimator.start_episode``): a
+        message stamped back at ``first_ns`` (and before ``before_ns``, the stream's first sample, if
+        given) restarts the stream there (``on_expected_restart``); None: nothing is in question."""
+        self.expected_restart_ns, self.expected_before_ns = first_ns, before_ns
 
     def _forget_stream(self) -> None:
         """The rate's steps and the topics' newest stamps belong to one stream (a new one, or time
@@ -456,7 +459,7 @@ class OnlineEstimator:
         /sim/status first, so the event can overtake the episode's last ticks)."""
         self._boundary, self._crossed = int(last_stamp_ns), False
         self._open_first = None
-        self.assembler.expected_restart_ns = None
+        self.assembler.expect_restart(None)
 
     def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
@@ -475,19 +478,19 @@ class OnlineEstimator:
         from a replay's, an outside tester's.)"""
         first = int(first_stamp_ns)
         open_first, self._open_first = self._open_first, first
-        self.assembler.expected_restart_ns = None
+        self.assembler.expect_restart(None)
         if self.assembler.last_released < first:  # nothing of this episode released yet
             self._boundary, self._crossed = first - 1, False
             return
         stream_first = self._stream_first_ns
         if open_first is not None and first <= open_first:  # (a later first: a new episode, its end lost)
             self._open_first = open_first
-            self.assembler.expected_restart_ns, self.assembler.expected_before_ns = first, None
+            self.assembler.expect_restart(first)
             return
         if self._boundary is None and stream_first is not None and stream_first >= first:
             if stream_first - first > MAX_OVERTAKING_TICKS * PERIOD_NS:  # joined midway, not overtaken
                 # (a tick stamped before the stream's first cannot be a late one of the ticks it took)
-                self.assembler.expected_restart_ns, self.assembler.expected_before_ns = first, stream_first
+                self.assembler.expect_restart(first, before_ns=stream_first)
                 return
             # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
             # first tick): window, stride phase, path and posterior all started with the episode,
@@ -512,7 +515,7 @@ class OnlineEstimator:
     def _on_restart(self) -> None:
         self._boundary = None
         self._open_first = None
-        self.assembler.expected_restart_ns = None  # (an episode_start before this stream's is no longer in question)
+        self.assembler.expect_restart(None)  # (an episode_start before this stream's is no longer in question)
         self._stream_first_ns = None
         self._tick = 0
         self._forget_path(known=False)

@@ -34,7 +34,7 @@ from .playback import (
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
 from soil_msgs_py.ros_adapter import (init_rclpy, local, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
-                                      wait_for_acks)
+                                      stopping_said, wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -300,7 +300,7 @@ def main(args: list[str] | None = None) -> int:
         # said, and 128 + the signal as a shell gives it: an interrupted replay exited 0 with no word, as a
         # finished one does (an outside tester's)
         signum = signals[0] if signals else signal.SIGINT
-        node.get_logger().info(f"stopping: {signal.Signals(signum).name} received")
+        node.get_logger().info(stopping_said(signum))
         code = 128 + int(signum)
         if player is not None:
             try:

@@ -263,6 +263,12 @@ def status_after_inputs(node: Node, inputs: dict, callback: Callable, wait_s: fl
         on_missing)
 
 
+def stopping_said(signum: int | None) -> str:
+    """What a node logs when it stops on a signal (None: its ROS context was shut down): a node that
+    stopped with exit code 0 and no reason looked like a crash (an outside tester's)."""
+    return "stopping: the ROS context was shut down" if signum is None else f"stopping: {signal.Signals(signum).name} received"
+
+
 def init_context(domain_id: int, **init_kwargs) -> Context:
     """A fresh rclpy context on ``domain_id`` for an in-process participant beside the graph (a
     monitor, a probe), initialised as the graph's nodes are: with the graph's Fast DDS profile
@@ -449,9 +455,8 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         executor.add_node(node)
         while rclpy.ok() and not stop and not getattr(node, "finished", False):
             executor.spin_once(timeout_sec=0.1)
-        if stop or not rclpy.ok():  # said: a node that stopped with exit code 0 and no reason looked like a crash
-            node.get_logger().info(f"stopping: {signal.Signals(stop[0]).name} received" if stop
-                                   else "stopping: the ROS context was shut down")
+        if stop or not rclpy.ok():
+            node.get_logger().info(stopping_said(stop[0] if stop else None))
         # A node with data in flight that it must not lose (the recorder) says so through
         # ``draining()``; it gets up to DRAIN_LIMIT_S more spinning before ``close``.
         draining, deadline = getattr(node, "draining", None), time.monotonic() + DRAIN_LIMIT_S
@@ -459,7 +464,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
             executor.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:  # (the context shut down inside spin_once: said as above)
         if node is not None:
-            node.get_logger().info("stopping: the ROS context was shut down")
+            node.get_logger().info(stopping_said(None))
     except (ValueError, ParameterException) as err:  # a bad parameter value or type
         if node is not None:
             raise

@@ -183,7 +183,12 @@ def typical_spacing(ticks: Sequence[int]) -> int:
 def successor_min_messages(ticks: Sequence[int]) -> int:
     """Messages a successor must have sent on a topic whose writer sent at ``ticks``: half a second
     of them at the topic's typical spacing, at least 2 and at most SUCCESSOR_MIN_MESSAGES."""
-    return max(2, min(SUCCESSOR_MIN_MESSAGES, -(-SUCCESSOR_MIN_MESSAGES // typical_spacing(ticks))))
+    return _min_messages_at(typical_spacing(ticks))
+
+
+def _min_messages_at(spacing: int) -> int:
+    """``successor_min_messages`` of a writer ``spacing`` ticks between its messages."""
+    return max(2, min(SUCCESSOR_MIN_MESSAGES, -(-SUCCESSOR_MIN_MESSAGES // spacing)))
 
 
 def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
@@ -211,7 +216,7 @@ def succession(ticks: Sequence[int], sequences: Sequence[int], chain: set[int],
     n = len(ticks)
     spacing = typical_spacing([ticks[i] for i in chain])
     if min_messages is None:
-        min_messages = successor_min_messages([ticks[i] for i in chain])
+        min_messages = _min_messages_at(spacing)
     ok = [True] * n if eligible is None else [bool(e) for e in eligible]
     seq = _unwrapped([int(x) & SEQUENCE_MASK for x in sequences])
     kept: set[int] = set()
