@@ -263,7 +263,7 @@ def planner_bound(ds, cfg: FusionConfig, posts: list, quantile: float = DEFAULT_
     posterior's, at the target's steady Θ_k and speed), anchored as the planner is, to the
     force measured at the source's depth; the same with that force's batch-means standard error
     carried in the bound (``predictive.mean_standard_error``; the planner's steady anchor gives none:
-    ``planner.SteadyAnchor.anchor``), which says how much of an exceedance is the anchor's noise;
+    ``stretch_planner.SteadyAnchor.anchor``), which says how much of an exceedance is the anchor's noise;
     and unanchored. Per axis: the share exceeded, going
     deeper too (where exceeding it stalls a machine; split by reach at NEAR_REACH times the
     source's depth), and the bound's mean over the measured |F|.

@@ -15,10 +15,11 @@ from soil_physics import fee
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
-from soil_planner.planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, DEFAULT_MARGIN,
-                                  MIN_ANCHOR_DEPTH_M, REPLAN_TICKS, SENSOR_GAP_SHARE, SENSOR_MIN_TICKS, SENSOR_RELEASE_SHARE,
-                                  STALL_BACKOFF_M, STALL_MEMORY_TICKS, TOLERANCE_M, StretchPlanner, describe,
-                                  fused_upper_force, max_cut_depth, steady_cut_terms)
+from soil_planner.planner import (DEFAULT_MARGIN, MIN_ANCHOR_DEPTH_M, TOLERANCE_M, describe, fused_upper_force,
+                                  max_cut_depth, steady_cut_terms)
+from soil_planner.stretch_planner import (ANCHOR_MAX_AGE_TICKS, ANCHOR_RECENT_TICKS, ANCHOR_WINDOW_TICKS, REPLAN_TICKS,
+                                          SENSOR_GAP_SHARE, SENSOR_MIN_TICKS, SENSOR_RELEASE_SHARE, STALL_BACKOFF_M,
+                                          STALL_MEMORY_TICKS, StretchPlanner)
 
 pytestmark = pytest.mark.live
 

@@ -44,7 +44,8 @@ from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
-from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, StretchPlanner
+from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN
+from soil_planner.stretch_planner import StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
 
 from . import cut_metrics as CM

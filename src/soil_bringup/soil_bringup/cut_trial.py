@@ -33,7 +33,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_planner.depth_schedule import DepthSchedule, ScheduleSettings
-from soil_planner.planner import StretchPlanner, steady_cut_terms
+from soil_planner.planner import steady_cut_terms
+from soil_planner.stretch_planner import StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 DEFAULT_PLAN_DELAY_TICKS = DEFAULT_LAG_TICKS  # the live controller's planner_lag_ticks

@@ -1,7 +1,7 @@
 """A tick is planned once the controller's command of that tick is in (no rclpy).
 
 The plan of tick k reads the depth the controller commands at tick k (−u_za of /blade/cmd): an
-edge held short of it does not anchor the plan's z force (``planner.SteadyAnchor``). The
+edge held short of it does not anchor the plan's z force (``stretch_planner.SteadyAnchor``). The
 estimator answers tick k only once it has /blade/cmd of tick k, so that command is sent before
 the estimate, but by another writer, and DDS does not order two writers' messages: a plan made
 before its command arrived would differ from one made after it, so the live loop would depend

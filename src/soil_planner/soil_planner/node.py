@@ -11,9 +11,9 @@ WarnLimiter and nothing is published for it; the node never publishes NaN and ne
 on input. A log line at most once per ``log_period_s`` of simulation time says what the
 plan is and why. /blade/cmd gives the depth the controller commands per tick (−u_za): a steady
 edge held short of it shows the lift's push in F_z, which does not anchor the plan's z force
-(``planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before.
+(``stretch_planner.HELD_GAP_M``); without commands (no controller) every tick anchors as before.
 /blade/force gives the blade's measured force per tick: where it is clearly above the PINN's
-F̂_x, it anchors the fused plan (``planner.SENSOR_GAP_SHARE``, parameter ``sensor_anchor``);
+F̂_x, it anchors the fused plan (``stretch_planner.SENSOR_GAP_SHARE``, parameter ``sensor_anchor``);
 a tick without it keeps F̂. While
 commands come, a tick is planned once its own command is in (``command_wait.py``: another
 writer's message, which DDS does not order before the estimate), at most ``command_wait_s``
@@ -71,7 +71,8 @@ from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWai
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .estimator_physics import physics_text, planning_physics
 from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
-                      DEFAULT_MARGIN, NO_PLAN_VALUES, StretchPlanner, check_quantile, check_switch, describe, fields)
+                      DEFAULT_MARGIN, NO_PLAN_VALUES, check_quantile, check_switch, describe, fields)
+from .stretch_planner import StretchPlanner
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -226,7 +227,7 @@ class PlannerNode(Node):
         self.command_writer = WriterTracks(forget_after_ticks=FORGET_WRITER_AFTER_TICKS)  # the controller's
         self.command_wait = CommandWait(get("command_wait_s"))  # ValueError names the field
         # the blade's measured (F_x, F_z) per tick stamp (/blade/force): where it is clearly above
-        # F̂, it anchors the plan (``planner.SENSOR_GAP_SHARE``)
+        # F̂, it anchors the plan (``stretch_planner.SENSOR_GAP_SHARE``)
         self.measured: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
         self.sensed = 0  # ticks planned with their measured force
         self.add_on_set_parameters_callback(self._on_set_parameters)
