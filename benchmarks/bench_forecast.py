@@ -63,7 +63,8 @@ from pinn_estimator import forecast as fc  # noqa: E402
 from pinn_estimator.checkpoint import load_model  # noqa: E402
 from pinn_estimator.dataset import Dataset  # noqa: E402
 from pinn_estimator.evaluate import forecast, forecast_dataset, fused_posteriors  # noqa: E402
-from pinn_estimator.fusion import FusionConfig, SoilPosterior, fuse_episode  # noqa: E402
+from pinn_estimator.fusion import SoilPosterior, fuse_episode  # noqa: E402
+from pinn_estimator.fusion_config import FusionConfig  # noqa: E402
 from pinn_estimator.fusion_calibration import config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from pinn_estimator.shipped import shipped_checkpoint  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402

@@ -14,7 +14,8 @@ from pinn_estimator import forecast as fc
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
-from pinn_estimator.fusion import THETA, FusionConfig, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
+from pinn_estimator.fusion import THETA, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
+from pinn_estimator.fusion_config import FusionConfig
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
 from pinn_estimator.shipped import MODELS_DIR

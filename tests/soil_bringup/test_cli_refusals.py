@@ -124,7 +124,7 @@ def test_the_cut_report_takes_a_checkpoint_and_fusion_config_of_ones_own_for_one
     one world's, read before the sweeps; the setup carries them to the soil-aware policy."""
     import torch
 
-    from pinn_estimator.fusion import FusionConfig
+    from pinn_estimator.fusion_config import FusionConfig
     from pinn_estimator.fusion_calibration import config_path
     from pinn_estimator.shipped import shipped_checkpoint
 

@@ -23,7 +23,7 @@ def test_what_the_estimator_says_is_what_its_posterior_runs():
     import dataclasses
 
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
-    from pinn_estimator.fusion import FusionConfig
+    from pinn_estimator.fusion_config import FusionConfig
     from pinn_estimator.fusion_calibration import (announced_physics, checkpoint_world, config_for_model, config_path,
                                                    estimator_fusion)
 

@@ -38,7 +38,8 @@ from soil_physics.soils import COHESIVE_SOILS
 from .checkpoint import load_model
 from . import forecast as fc
 from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset
-from .fusion import FusionConfig, SoilPosterior, fuse_episode
+from .fusion import SoilPosterior, fuse_episode
+from .fusion_config import FusionConfig
 from .inference import WindowTensors, force_errors, predict
 from .shipped import DEFAULT_WORLD
 

@@ -1,6 +1,6 @@
 """Calibrating the fused posterior's error laws on episodes the evaluation never scores.
 
-Per axis (``fusion.FusionConfig``): ``rel_std``, how far the physics model may be from a
+Per axis (``fusion_config.FusionConfig``): ``rel_std``, how far the physics model may be from a
 stretch's measured force (how hard each stretch teaches), and the forecast law
 ``forecast_abs_std_n`` + ``forecast_rel_std``·|ΔF|, the model error a forecast adds to the
 posterior's spread, ΔF the part of the force it extrapolates from the newest evidence
@@ -51,7 +51,8 @@ from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text, mixture_cdf
 
 from . import forecast as fc
-from .fusion import FusionConfig, forecast_error_std
+from .fusion import forecast_error_std
+from .fusion_config import FusionConfig
 from .shipped import DEFAULT_WORLD, config_path  # their home; callers of this module read them from here too
 
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)

@@ -16,7 +16,8 @@ from soil_msgs_py.params import FORCE_LIMITS_N as FORCE_LIMITS, WINDOW_SAMPLES
 
 from .dataset import Dataset, load_dataset
 from .model import EstimatorNet
-from .fusion import FusionConfig, fused_track
+from .fusion import fused_track
+from .fusion_config import FusionConfig
 from .online import FUSED, estimate_values
 
 FORCE_LIMITS_N = np.array(FORCE_LIMITS)

@@ -39,7 +39,8 @@ from soil_msgs_py.params import (
 )
 
 from soil_physics.travel import soil_advance, soil_time_step
-from .fusion import FusionConfig, PathFusion, SoilPosterior, fused_values
+from .fusion import PathFusion, SoilPosterior, fused_values
+from .fusion_config import FusionConfig
 from .fusion_calibration import config_for_model
 from .model import EstimatorNet
 from .soil_map import SoilMap

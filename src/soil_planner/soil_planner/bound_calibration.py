@@ -23,7 +23,8 @@ import sys
 import numpy as np
 
 from pinn_estimator import forecast as fc
-from pinn_estimator.fusion import FusionConfig, fused_values
+from pinn_estimator.fusion import fused_values
+from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_RANGE_S, CAL_DURATION_S, FLOOR_GRID,
                                                FORECAST_GRID, add_soil_options, calibration_episodes, checked_soils,
                                                config_path, short_duration_warning, world_note)
