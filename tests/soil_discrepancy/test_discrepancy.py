@@ -59,7 +59,7 @@ def named_verdict(rep: dict) -> str:
     significant structure beside them, or where every term named is a form its data do not pin down
     and together they take less than a quarter off the held-out error; else "explained"."""
     from soil_discrepancy.forms import pin_kind
-    from soil_discrepancy.workflow import STAND_IN_MAX_GAIN, WEAK_PIN_KINDS
+    from soil_discrepancy.verdict import STAND_IN_MAX_GAIN, WEAK_PIN_KINDS
 
     if (rep.get("regimes_after") or {}).get("significant"):
         return "partly explained"
@@ -209,7 +209,7 @@ def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
     a rate law whose offset became a cohesion of 1.4 kPa in sand) the force fits with another soil:
     the verdict says so, with the parameter, the move and the group, where a move is larger than a
     soil test's interval would allow; smaller moves, and no named terms, say nothing."""
-    from soil_discrepancy.workflow import _theta_shift_text, theta_shift
+    from soil_discrepancy.verdict import theta_shift_text, theta_shift
 
     before = [{"group": "Clay I_d=0%", "phi_deg": 16.5, "c_pa": 5000.0, "delta_deg": 14.9},
               {"group": "Sand I_d=40%", "phi_deg": 35.0, "c_pa": 20.0, "delta_deg": 14.9}]
@@ -218,28 +218,28 @@ def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
     shift = theta_shift(before, after)
     assert shift["phi_deg"]["largest"] == pytest.approx(29.0) and shift["phi_deg"]["group"] == "Clay I_d=0%"
     assert shift["c_pa"]["largest"] == pytest.approx(1400.0) and shift["c_pa"]["group"] == "Sand I_d=40%"
-    text = _theta_shift_text(shift)
+    text = theta_shift_text(shift)
     assert "φ +29.0° in Clay I_d=0%" in text and "c +1.40 kPa in Sand I_d=40%" in text and "δ" not in text, text
     assert "--soil-tests" in text and "fit box" not in text
     # where θ leaves its fit box with the terms (the baseline's θ took the effect in: soil inertia's dense
     # loam at φ 5°), or reaches it (the terms take part of the soil), the group says so
     reg = lambda *groups: {"misfit": {"rows": [{"kind": "group", "name": g, "theta_at_bound": ["φ at its lower bound"]}
                                                for g in groups]}}
-    released = _theta_shift_text(shift, reg("Clay I_d=0%", "Loam I_d=80%"), reg("Sand I_d=40%"))
+    released = theta_shift_text(shift, reg("Clay I_d=0%", "Loam I_d=80%"), reg("Sand I_d=40%"))
     doubt, support = released.split("; the soil fitted beside them leaves the fit box the baseline's sat on")
     assert "c +1.40 kPa in Sand I_d=40%, onto its fit box with them" in doubt and "φ" not in doubt, released
     assert "φ +29.0° in Clay I_d=0%" in support and "speaks for them" in support and "c " not in support, released
     # the terms leave θ on the box in more than half the groups it sat on (the default world: 11, then
     # 9): a group leaving it is no sign, only tagged
-    tagged = _theta_shift_text(shift, reg("Clay I_d=0%"), reg("Sand I_d=40%"))
+    tagged = theta_shift_text(shift, reg("Clay I_d=0%"), reg("Sand I_d=40%"))
     assert "leaves the fit box" not in tagged and "φ +29.0° in Clay I_d=0%, off its fit box with them" in tagged, tagged
     assert "c +1.40 kPa in Sand I_d=40%, onto its fit box with them" in tagged, tagged
     # every move leaving the box: no word of another soil (a tip penetration hidden on another grid
     # was named with the baseline's θ on its box and the clay's φ back near the truth)
-    freed = _theta_shift_text(shift, reg("Clay I_d=0%", "Sand I_d=40%"), reg())
+    freed = theta_shift_text(shift, reg("Clay I_d=0%", "Sand I_d=40%"), reg())
     assert "is another" not in freed and "φ +29.0° in Clay I_d=0%; c +1.40 kPa in Sand I_d=40%" in freed, freed
     small = theta_shift(before, [{**r, "phi_deg": r["phi_deg"] + 2.0, "c_pa": r["c_pa"] + 500.0} for r in before])
-    assert _theta_shift_text(small) == "" and theta_shift(before, None) is None and _theta_shift_text(None) == ""
+    assert theta_shift_text(small) == "" and theta_shift(before, None) is None and theta_shift_text(None) == ""
 
 
 
@@ -708,7 +708,7 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     noise of 3 % of its |F|, the clay episodes' 9 %; a second frame with no such soil flags none."""
     from soil_discrepancy.frame import build_frame
     from soil_discrepancy.regimes import group_misfit
-    from soil_discrepancy.workflow import _misfit_text
+    from soil_discrepancy.verdict import misfit_text
 
     frame = build_frame(blind(bag_dirs["control"]), stride=4)
     rng = np.random.default_rng(0)
@@ -724,7 +724,7 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     clay_groups = [r for r in mis["rows"] if r["kind"] == "group" and r["name"].startswith("Clay")]
     assert clay_groups and all(r["theta_at_bound"] == ["φ at its lower bound"] for r in clay_groups)
     assert not [r for r in mis["rows"] if r["kind"] == "group" and not r["name"].startswith("Clay") and r["theta_at_bound"]]
-    text = _misfit_text({"misfit": mis})
+    text = misfit_text({"misfit": mis})
     assert "soil Clay" in text and "φ at its lower bound" in text and "the model needs a soil outside" in text
     # three target depths per group: not one depth; cut at one depth, φ and c trade off and a θ on its
     # box says nothing about the physics (an outside reader's pure-FEE control said it did)
@@ -732,29 +732,29 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert not any(r["one_depth"] for r in mis["rows"])
     one = {"misfit": {**mis, "rows": [{**r, "depth_span_m": 0.004, "one_depth": True} if r["kind"] == "group" else r
                                       for r in mis["rows"]]}}
-    text = _misfit_text(one)
+    text = misfit_text(one)
     assert "cut at one depth" in text and "says nothing about the physics" in text and "needs a soil outside" not in text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
-    assert even["soils"] == [] and even["groups"] == [] and _misfit_text({"misfit": even}) == ""
+    assert even["soils"] == [] and even["groups"] == [] and misfit_text({"misfit": even}) == ""
 
 
 def test_a_gamma_group_that_fits_worse_is_said_to_be_possibly_two_soils():
     """Bags without soil labels are grouped by γ; two soils of one γ share one θ and fit worse with
     no effect missing, which the caution says (a user read it as an effect acting in that soil)."""
-    from soil_discrepancy.workflow import _misfit_text
+    from soil_discrepancy.verdict import misfit_text
     from soil_msgs_py.soil_labels import gamma_group_names
 
     name = gamma_group_names([18e3])[0]
     mis = {"rows": [{"kind": "group", "name": name, "ratio": 96.6, "theta_at_bound": []}], "soils": [], "groups": [name]}
-    text = _misfit_text({"misfit": mis}, quiet=True)
+    text = misfit_text({"misfit": mis}, quiet=True)
     assert text.startswith(f"; but the model fits worse in {name} (96.6×") and "is a group by unit weight" in text
     # unlabelled bags beside labelled ones: their γ group is "unknown γ≈…" (the caution was left out there)
     mixed = {"rows": [{"kind": "group", "name": f"unknown {name}", "ratio": 13.6, "theta_at_bound": []}], "soils": [],
              "groups": [f"unknown {name}"]}
-    assert "is a group by unit weight" in _misfit_text({"misfit": mixed}, quiet=True)
+    assert "is a group by unit weight" in misfit_text({"misfit": mixed}, quiet=True)
     labelled = {"rows": [{"kind": "group", "name": "Clay 80 %", "ratio": 5.0, "theta_at_bound": []}], "soils": [],
                 "groups": ["Clay 80 %"]}
-    assert "unit weight" not in _misfit_text({"misfit": labelled})
+    assert "unit weight" not in misfit_text({"misfit": labelled})
 
 
 def test_the_fast_part_of_a_residual_is_its_noise_floor(bag_dirs):
@@ -829,20 +829,20 @@ def test_a_pinned_form_with_structure_left_in_its_scales_variable_says_the_effec
     """An outside reader's load-cell drift (150 N/s, the same at every depth) was named w d · τ,
     "pinned down" (the library has no depth-free scale growing with time), with structure left vs
     the cut depth, which the verdict did not tie to the form's scale."""
-    from soil_discrepancy.workflow import _shape_caveat
+    from soil_discrepancy.verdict import shape_caveat
 
     labels = {"d": "cut depth d", "t": "time in episode"}
     reg = {"significant": True, "flagged_variables": ["d"]}
-    said = _shape_caveat("form:wd_x*tau", {"pinned": True}, reg, labels)
+    said = shape_caveat("form:wd_x*tau", {"pinned": True}, reg, labels)
     assert "structure remains vs cut depth d, which its scale w d" in said and "may not scale so" in said, said
-    assert "near the form's" in _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "flagged_variables": ["t"]}, labels)
-    assert _shape_caveat("form:one_x*tau", {"pinned": True}, reg, labels) == ""  # a constant scale varies with nothing
+    assert "near the form's" in shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "flagged_variables": ["t"]}, labels)
+    assert shape_caveat("form:one_x*tau", {"pinned": True}, reg, labels) == ""  # a constant scale varies with nothing
     # the model's own force and the pile vary with every motion variable: structure another effect leaves
     # there says nothing of their law (0.15 F_FEE v_x² found in form; the pile's relief −k Q)
-    assert _shape_caveat("form:fee*vx2", {"pinned": True}, {**reg, "flagged_variables": ["v_z"]}, labels) == ""
-    assert _shape_caveat("form:-q_x*1", {"pinned": True}, {**reg, "flagged_variables": ["distance"]}, labels) == ""
-    assert "which its scale" in _shape_caveat("form:mom_x*1", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels)
-    assert _shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "significant": False}, labels) == ""
+    assert shape_caveat("form:fee*vx2", {"pinned": True}, {**reg, "flagged_variables": ["v_z"]}, labels) == ""
+    assert shape_caveat("form:-q_x*1", {"pinned": True}, {**reg, "flagged_variables": ["distance"]}, labels) == ""
+    assert "which its scale" in shape_caveat("form:mom_x*1", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels)
+    assert shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "significant": False}, labels) == ""
 
 
 def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_form_says_its_forecast():
@@ -851,7 +851,7 @@ def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_for
     whose held-out force error fell (1390 -> 901 N) read like a pass: what failed, the force at
     another depth (38.7 -> 62.3 %), is said beside it."""
     from soil_discrepancy.report import headline_verdict
-    from soil_discrepancy.workflow import _verdict
+    from soil_discrepancy.verdict import verdict_of
 
     loose = {"pinned": False, "n_better": 0, "stand_in": False, "shape_pinned": False, "factor_pinned": False,
              "scale_pinned": False, "rivals": [{"name": "form:mom_x*sat2", "share": 0.5}]}
@@ -873,10 +873,10 @@ def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_for
     reg = {"significant": True, "flagged_variables": ["d"], "misfit": None}
     forms = {"not_confirmed": {"forms": ["form:-gd2w_x*below0.15"], "test_rmse_before": 1390.0, "test_rmse_after": 901.0,
                                "forecast_pct_before": 38.7, "forecast_pct_after": 62.3}}
-    verdict, text = _verdict([], reg, None, forms=forms)
+    verdict, text = verdict_of([], reg, None, forms=forms)
     assert verdict == "unexplained" and "RMSE 1390 -> 901 N, force at another depth 38.7 -> 62.3 % of |F|)" in text
     forms["not_confirmed"]["forecast_pct_after"] = None
-    assert "RMSE 1390 -> 901 N)" in _verdict([], reg, None, forms=forms)[1]
+    assert "RMSE 1390 -> 901 N)" in verdict_of([], reg, None, forms=forms)[1]
 
 
 def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():
@@ -885,7 +885,7 @@ def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():
     pinned down and under a quarter of the held-out error, make "partly explained"."""
     from types import SimpleNamespace
 
-    from soil_discrepancy.workflow import weak_forms_only
+    from soil_discrepancy.verdict import weak_forms_only
 
     form, other = SimpleNamespace(name="form:wd_x*tsat10"), SimpleNamespace(name="form:one_x*vx")
     beaten = {"pinned": False, "stand_in": False, "n_better": 3, "n_rivals": 9, "share": 0.045,
@@ -898,14 +898,14 @@ def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():
     assert not weak_forms_only([SimpleNamespace(name="soil_inertia")], {}, 0.1)  # a catalogue mechanism
     assert not weak_forms_only([form], {form.name: beaten}, None) and not weak_forms_only([], {}, 0.1)
     from soil_discrepancy.candidates import TermScore
-    from soil_discrepancy.workflow import _verdict
+    from soil_discrepancy.verdict import verdict_of
 
     named = [TermScore(name=form.name, k=0.42, k_se=0.001, k_folds=[0.42] * 5, gain=0.2, p=1e-6)]
     quiet = {"significant": False, "flagged_variables": []}
     test = {"before": {"rmse": 593.0}, "after": {"rmse": 453.0}}
-    verdict, text = _verdict(named, {"significant": True, "flagged_variables": ["t"]}, test, quiet, pins={form.name: beaten})
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, test, quiet, pins={form.name: beaten})
     assert verdict == "partly explained" and "partly, at best: the named form takes only 24 % off" in text, text
-    verdict, text = _verdict(named, {"significant": True, "flagged_variables": ["t"]}, test, quiet, pins={form.name: pinned})
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, test, quiet, pins={form.name: pinned})
     assert verdict == "explained" and "at best" not in text, text
 
 

@@ -233,7 +233,7 @@ def test_a_pinned_form_leaving_structure_in_its_own_variable_is_called_the_neare
     there is the nearest one's. Not where the structure is elsewhere, nor beside a form not pinned
     down (its caveat says more), a catalogue term, or no structure at all."""
     from soil_discrepancy.regimes import variable_labels
-    from soil_discrepancy.workflow import _shape_caveat
+    from soil_discrepancy.verdict import shape_caveat
     from soil_physics.term_forms import FACTORS, factor_variable
 
     assert [factor_variable(f) for f in ("sat2", "enter0.5", "s", "tsat10", "tau", "d", "below0.15", "fadevx0.3",
@@ -243,14 +243,14 @@ def test_a_pinned_form_leaving_structure_in_its_own_variable_is_called_the_neare
     labels = variable_labels()
     pinned, loose = {"pinned": True, "rivals": []}, None
     after = {"significant": True, "flagged_variables": ["d", "distance"]}
-    text = _shape_caveat("form:wd_x*sat2", pinned, after, labels)
+    text = shape_caveat("form:wd_x*sat2", pinned, after, labels)
     assert text.startswith("; pinned down among the library's forms, but structure remains vs distance cut in soil"), text
     # its factor's variable is time, clean there; its scale w d varies with the depth, where structure is left
-    assert "vs cut depth d, which its scale" in _shape_caveat("form:wd_x*tsat10", pinned, after, labels)
-    assert _shape_caveat("form:wd_x*tsat10", pinned, {**after, "flagged_variables": ["v_x", "distance"]}, labels) == ""
-    assert _shape_caveat("form:wd_x*sat2", pinned, {"significant": False, "flagged_variables": []}, labels) == ""
-    assert _shape_caveat("form:wd_x*sat2", loose, after, labels) == ""
-    assert _shape_caveat("soil_inertia", pinned, after, labels) == ""
+    assert "vs cut depth d, which its scale" in shape_caveat("form:wd_x*tsat10", pinned, after, labels)
+    assert shape_caveat("form:wd_x*tsat10", pinned, {**after, "flagged_variables": ["v_x", "distance"]}, labels) == ""
+    assert shape_caveat("form:wd_x*sat2", pinned, {"significant": False, "flagged_variables": []}, labels) == ""
+    assert shape_caveat("form:wd_x*sat2", loose, after, labels) == ""
+    assert shape_caveat("soil_inertia", pinned, after, labels) == ""
 
 
 def test_a_scale_and_a_factor_of_one_variable_are_not_pinned_down_apart():
@@ -522,7 +522,7 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
     effect no form explains), catalogue terms and a set after which no structure remains keep the
     plain wording."""
     from soil_discrepancy.candidates import TermScore
-    from soil_discrepancy.workflow import STAND_IN_MAX_GAIN, _verdict
+    from soil_discrepancy.verdict import STAND_IN_MAX_GAIN, verdict_of
 
     def score(name):
         return TermScore(name=name, k=2.3, k_se=0.14, k_folds=[2.3] * 5, gain=0.08, p=1e-6)
@@ -531,7 +531,7 @@ def test_forms_that_take_little_off_the_heldout_error_while_structure_remains_ar
     remains = {"significant": True, "flagged_variables": ["distance", "t"]}
 
     def summary(names, after_rmse, reg1=remains):
-        verdict, text = _verdict([score(n) for n in names], reg0, {"before": {"rmse": 4380.0}, "after": {"rmse": after_rmse}}, reg1)
+        verdict, text = verdict_of([score(n) for n in names], reg0, {"before": {"rmse": 4380.0}, "after": {"rmse": after_rmse}}, reg1)
         assert verdict == ("partly explained" if reg1["significant"] else "explained"), verdict  # structure left: part
         return text
 
@@ -550,12 +550,12 @@ def test_a_catalogue_term_named_with_a_k_its_mechanism_cannot_have_is_called_a_s
     and beside them base friction with k 2.29, a friction coefficient no soil has. The verdict and the
     report say it is a stand-in; a plausible k says nothing."""
     from soil_discrepancy.candidates import TermScore
-    from soil_discrepancy.workflow import _verdict
+    from soil_discrepancy.verdict import verdict_of
 
     def text(k):
         named = [TermScore(name="soil_inertia", k=2.9, k_se=0.05, k_folds=[2.9] * 5, gain=0.67, p=1e-6),
                  TermScore(name="base_friction", k=k, k_se=0.23, k_folds=[k] * 5, gain=0.11, p=1e-6)]
-        verdict, words = _verdict(named, {"significant": True, "flagged_variables": ["v_x"]},
+        verdict, words = verdict_of(named, {"significant": True, "flagged_variables": ["v_x"]},
                                   {"before": {"rmse": 1597.0}, "after": {"rmse": 578.0}})
         assert verdict == "explained"
         return words

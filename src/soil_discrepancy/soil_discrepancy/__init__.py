@@ -10,9 +10,9 @@ Modules: ``frame`` (the analysed ticks and their θ-groups), ``fee_fit`` (θ per
 without one term's k, and residuals), ``regimes`` (episode-level tests by regime), ``candidates``
 (cross-validated term scores, greedy selection), ``gap`` (held-out before/after, the hook for
 other models' predictions), ``soil_tests`` (φ, c, δ measured apart from the machine hold θ where
-the forces cannot), ``report`` (Markdown/JSON/PNG), ``workflow`` (run_discrepancy),
-``cli`` (soil_discrepancy). The model itself, the FEE plus named terms, is physics:
-``soil_physics.augmented_fee.AugmentedFEE``.
+the forces cannot), ``verdict`` (the verdict and its words), ``report`` (Markdown/JSON/PNG),
+``workflow`` (run_discrepancy), ``cli`` (soil_discrepancy). The model itself, the FEE plus named
+terms, is physics: ``soil_physics.augmented_fee.AugmentedFEE``.
 """
 from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 
@@ -23,7 +23,8 @@ from .gap import compare_predictions, error_metrics, fee_gap
 from .regimes import bin_edges, holm, regime_analysis, trend_tests
 from .report import markdown, write_outputs
 from .soil_tests import SoilTest, hold_theta, load_soil_tests
-from .workflow import VERDICTS, load_frame, run_discrepancy
+from .verdict import VERDICTS
+from .workflow import load_frame, run_discrepancy
 
 __all__ = [
     "AugmentedFEE", "Frame", "TermScore", "ThetaFit", "VERDICTS", "bin_edges", "build_frame", "compare_predictions",

@@ -20,7 +20,7 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .workflow import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
+from .verdict import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
 from .regimes import AXES, CONTINUOUS, binned_curve
 
 REPORT_JSON, REPORT_MD = "discrepancy.json", "discrepancy.md"
@@ -68,7 +68,7 @@ def _p(x) -> str:
 
 def headline_verdict(report: dict) -> str:
     """The verdict as the headline says it: with "by a form NOT pinned down" where every named term
-    is a discovered form its data do not pin down (``workflow.unpinned_forms_only``; an outside
+    is a discovered form its data do not pin down (``verdict.unpinned_forms_only``; an outside
     reader's hidden speed step was "explained" by a momentum flux times v_x², one of five forms
     that fit as well), "by a term whose form is NOT pinned down" where a catalogue term is among
     them (a drag ∝ tan φ · v_x was "explained" by soil inertia, whose form fifteen others fit as
