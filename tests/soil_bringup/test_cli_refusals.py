@@ -22,6 +22,22 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
     assert f"--controller-params-file {tmp_path / 'nosuch.yaml'}: no such file" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("content, said", [
+    (bytes(range(256)), "is not UTF-8 text (byte 128"),  # (a binary file: UnicodeDecodeError's traceback)
+    (b"a: [1, 2\n", "is not YAML"),
+])
+def test_soil_launch_refuses_a_params_file_it_cannot_read_before_starting_anything(tmp_path, capsys, content, said):
+    """A params file the nodes' rcl would refuse is refused by the launcher, naming the file."""
+    path = tmp_path / "params.yaml"
+    path.write_bytes(content)
+    for flag in ("--sim-params-file", "--estimator-params-file"):
+        with pytest.raises(SystemExit) as exit_:
+            launch.parse_args([flag, str(path), "--namespace", "/a", "--estimator"])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"{flag}: params file {path} {said}" in err, err
+
+
 @pytest.mark.parametrize("args, said", [
     (["--controller-params-file", "{tmp}"], "--controller-params-file {tmp}: a directory, not a YAML file"),
     (["--record", "{tmp}/a", "--recorder-arg=--out={tmp}/b"], "the recorder writes where --record says"),

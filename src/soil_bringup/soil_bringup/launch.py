@@ -51,13 +51,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import bags_dir
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
 from soil_msgs_py.launcher_death import LAUNCHER_PID_ENV
-from soil_msgs_py.params_files import node_parameters
+from soil_msgs_py.params_files import node_parameters, read_params_file
 
 MAX_DOMAIN_ID = 232  # the largest ROS_DOMAIN_ID DDS allows on Linux (its ports above stay below 65536)
 # A ROS 2 namespace as rcl validates one: absolute, tokens of letters, digits and '_' not starting with a digit
@@ -404,10 +402,10 @@ def unless_given(node: str, params: list[str], defaults: list[str]) -> list[str]
 def _sections_for(params_file, node_path: str) -> list[dict]:
     """The sections of a params file rcl applies to the node ``node_path`` ([] if unreadable)."""
     try:
-        sections = yaml.safe_load(Path(params_file).read_text()) or {}
-    except (OSError, yaml.YAMLError):
+        sections = read_params_file(params_file)
+    except ValueError:
         return []  # the node reports its own params file
-    return node_parameters(sections if isinstance(sections, dict) else {}, node_path)
+    return node_parameters(sections, node_path)
 
 
 def given_params(node: str, params_file, params: list[str], names, namespace: str = "") -> dict[str, str | None]:
@@ -575,6 +573,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         path = getattr(args, f"{flag}_params_file")
         if path is not None and not path.is_file():  # else the node dies at start with rclpy's traceback
             p.error(f"--{flag}-params-file {path}: " + ("a directory, not a YAML file" if path.is_dir() else "no such file"))
+        if path is not None:
+            try:  # (rcl would refuse it in the node, after the others had started)
+                read_params_file(path)
+            except ValueError as exc:
+                p.error(f"--{flag}-params-file: {exc}")
         if args.namespace and path is not None \
                 and not _sections_for(path, f"{args.namespace}/{node}") and _sections_for(path, f"/{node}"):
             p.error(f"--{flag}-params-file {path}: its sections are for /{node}, not for {args.namespace}/{node} "

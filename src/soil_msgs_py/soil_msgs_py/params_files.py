@@ -8,6 +8,16 @@ from __future__ import annotations
 
 import re
 
+from .yaml_file import read_yaml
+
+
+def read_params_file(path) -> dict:
+    """The sections of the ROS params file ``path``: its top-level mapping ({} if it holds none).
+    ValueError naming the file for one that is missing, unreadable, not UTF-8 (a binary file had
+    ended the launcher in a UnicodeDecodeError) or not YAML (``yaml_file.read_yaml``)."""
+    data = read_yaml(path, "params file")
+    return data if isinstance(data, dict) else {}
+
 
 def section_matches(key: str, fully_qualified_name: str) -> bool:
     """Whether a params file's section key applies to the node, by rcl's rule: the key (a

@@ -33,7 +33,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
-from .params_files import node_parameters
+from .params_files import node_parameters, read_params_file
 from .launcher_death import stop_with_launcher
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE,
                     TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
@@ -391,15 +391,13 @@ def params_files(argv: list[str]) -> list[str]:
 def params_file_warnings(argv: list[str], node: Node) -> list[str]:
     """One warning per ``--params-file`` with no section for ``node``: rcl applies none of it, so a
     misspelt node name (``soil_sim_nod:``) would change nothing and say nothing."""
-    import yaml
-
     out = []
     for path in params_files(argv):
         try:
-            sections = yaml.safe_load(Path(path).read_text())
-        except (OSError, yaml.YAMLError):
+            sections = read_params_file(path)
+        except ValueError:
             continue  # rcl read it already (it refuses a file it cannot read or parse)
-        keys = [str(k) for k in sections] if isinstance(sections, dict) else []
+        keys = [str(k) for k in sections]
         # (nested namespace maps too: rcl gives ``ns: {node: {ros__parameters: …}}`` to /ns/node)
         if not (keys and node_parameters(sections, node.get_fully_qualified_name())):
             close = difflib.get_close_matches(node.get_name(), [k.strip("/") for k in keys], n=1)
