@@ -261,15 +261,16 @@ def test_bad_gains_name_field_value_and_range(kwargs, field, value):
 @pytest.mark.parametrize(
     "speed, depth, field, value, allowed",
     [
-        (0.0, 0.1, "target_speed_m_s", "0.0", "(0, 2]"),
-        (-0.5, 0.1, "target_speed_m_s", "-0.5", "(0, 2]"),
-        (float("nan"), 0.1, "target_speed_m_s", "nan", "(0, 2]"),
-        (float("inf"), 0.1, "target_speed_m_s", "inf", "(0, 2]"),
-        (1000.0, 0.1, "target_speed_m_s", "1000.0", "(0, 2]"),  # beyond the chassis command's reach
+        (0.0005, 0.1, "target_speed_m_s", "0.0005", "[0.001, 2]"),  # slower than the simulator takes (it was taken)
+        (0.0, 0.1, "target_speed_m_s", "0.0", "[0.001, 2]"),
+        (-0.5, 0.1, "target_speed_m_s", "-0.5", "[0.001, 2]"),
+        (float("nan"), 0.1, "target_speed_m_s", "nan", "[0.001, 2]"),
+        (float("inf"), 0.1, "target_speed_m_s", "inf", "[0.001, 2]"),
+        (1000.0, 0.1, "target_speed_m_s", "1000.0", "[0.001, 2]"),  # beyond the chassis command's reach
         (0.5, -0.01, "target_depth_m", "-0.01", "[0, 0.66]"),
         (0.5, float("nan"), "target_depth_m", "nan", "[0, 0.66]"),
         (0.5, 1000.0, "target_depth_m", "1000.0", "[0, 0.66]"),  # deeper than the blade is high
-        (np.array([0.5, -1.0]), 0.1, "target_speed_m_s", "-1.0", "(0, 2]"),
+        (np.array([0.5, -1.0]), 0.1, "target_speed_m_s", "-1.0", "[0.001, 2]"),
         (0.5, np.array([0.1, 0.2, float("inf")]), "target_depth_m", "inf", "[0, 0.66]"),
     ],
 )

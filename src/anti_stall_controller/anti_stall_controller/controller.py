@@ -82,8 +82,8 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S,
-                                 SAMPLE_RATE_HZ)
+from soil_msgs_py.params import (DEFAULT_C_VX, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M,
+                                 MAX_TARGET_SPEED_M_S, MIN_TARGET_SPEED_M_S, SAMPLE_RATE_HZ)
 
 __all__ = ["AntiStallGains", "ControlCommand", "AntiStallController", "limit_shares"]
 
@@ -138,7 +138,7 @@ class AntiStallGains:
     """
 
     k_v_m_s: float = 0.5
-    c_vx: float = 0.2
+    c_vx: float = DEFAULT_C_VX
     delta_d_max_m: float = 0.05
     dt_s: float = 1.0 / SAMPLE_RATE_HZ
     dither_amplitude_m: float = 0.0
@@ -213,12 +213,12 @@ def _at(i: int, values: np.ndarray) -> str:
 
 
 def _check_targets(speed: np.ndarray, depth: np.ndarray) -> None:
-    """The machine's reach (``params.MAX_TARGET_*``, the simulator's limits too)."""
-    bad = ~np.isfinite(speed) | (speed <= 0.0) | (speed > MAX_TARGET_SPEED_M_S)
+    """The machine's reach (``params.MIN_TARGET_SPEED_M_S``, ``MAX_TARGET_*``: the simulator's limits too)."""
+    bad = ~np.isfinite(speed) | (speed < MIN_TARGET_SPEED_M_S) | (speed > MAX_TARGET_SPEED_M_S)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(
-            f"target_speed_m_s must be finite and in (0, {MAX_TARGET_SPEED_M_S:g}] m/s; got {float(speed[i])!r}{_at(i, speed)}"
+            f"target_speed_m_s must be finite and in [{MIN_TARGET_SPEED_M_S:g}, {MAX_TARGET_SPEED_M_S:g}] m/s; got {float(speed[i])!r}{_at(i, speed)}"
         )
     bad = ~np.isfinite(depth) | (depth < 0.0) | (depth > MAX_TARGET_DEPTH_M)
     if bad.any():

@@ -48,8 +48,8 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE,
-                                 MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
-                                 beyond_lift_reach)
+                                 MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, MIN_TARGET_SPEED_M_S, SAMPLE_RATE_HZ,
+                                 TICK_PERIOD_NS, beyond_lift_reach)
 from soil_msgs_py.ros_adapter import (
     InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, status_event,
     topic_qos,
@@ -62,7 +62,7 @@ from .planner_fallback import DEFAULT_FALLBACK_DEEPEN_RATE_M_S, MAX_FALLBACK_DEE
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
-    "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, f"desired forward speed v̄_x [m/s], in (0, {MAX_TARGET_SPEED_M_S:g}]"),
+    "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, f"desired forward speed v̄_x [m/s], in [{MIN_TARGET_SPEED_M_S:g}, {MAX_TARGET_SPEED_M_S:g}]"),
     "target_depth_m": (DEFAULT_TARGET_DEPTH_M, f"target cut depth d̄_z below the original surface [m], in [0, {MAX_TARGET_DEPTH_M:g}] "
                             "(the blade height)"),
     "k_v_m_s": (_GAINS.k_v_m_s, f"K_v: blade rise rate per unit relative velocity error [m/s] (Eq. 11), in [0, "

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from anti_stall_controller.controller import limit_shares
-from soil_msgs_py.params import MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, stall_speed_m_s
 
 AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
@@ -39,8 +39,7 @@ SAME_CUT_M = 0.005  # fixed depths whose edge cut a patch this close to the deep
 
 def stall_mask(cut) -> np.ndarray:
     """Ticks below the controller's threshold speed, from the first tick at that speed on."""
-    threshold = cut.target_speed_m_s * (1.0 - cut.gains.c_vx)
-    slow = cut.v_x < threshold
+    slow = cut.v_x < stall_speed_m_s(cut.target_speed_m_s, cut.gains.c_vx)
     reached = np.flatnonzero(~slow)
     if len(reached) == 0:
         return slow

@@ -11,7 +11,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, TICK_PERIOD_NS
+from .params import (FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_TARGET_SPEED_M_S, OBSERVATION_FIELDS,
+                     TICK_PERIOD_NS)
 from .patches import SoilPatch, check_patches, finite_number, patches_tag, short_repr
 from .soil_labels import UNKNOWN_SOILS
 
@@ -84,8 +85,8 @@ class EpisodeMeta:
             raise ValueError(f"relative_density_pct={self.relative_density_pct} outside [0, 100] %")
         if self.target_depth_m < 0.0:
             raise ValueError(f"target_depth_m={self.target_depth_m} must be >= 0 m")
-        if self.target_speed_m_s <= 0.0:
-            raise ValueError(f"target_speed_m_s={self.target_speed_m_s} must be > 0 m/s")
+        if self.target_speed_m_s < MIN_TARGET_SPEED_M_S:
+            raise ValueError(f"target_speed_m_s={self.target_speed_m_s} must be >= {MIN_TARGET_SPEED_M_S:g} m/s")
         if self.duration_s <= 0.0:
             raise ValueError(f"duration_s={self.duration_s} must be > 0 s")
         if not isinstance(self.patches, (list, tuple)):

@@ -122,11 +122,24 @@ VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
 # The targets an episode may set (simulator, controller): the chassis velocity command's reach
 # [m/s] (the simulator clips u_x to it) and a cut no deeper than the blade is high [m].
 MAX_TARGET_SPEED_M_S = 2.0
+# The slowest target speed [m/s]: below 1 mm/s a cut makes no progress in an episode, and the
+# controller's speed-scheduled gain K_v / v̄_x (Eq. 11) grows without bound.
+MIN_TARGET_SPEED_M_S = 1e-3
 MAX_TARGET_DEPTH_M = MACHINE.blade_height_m
 # The graph's default targets (controller and simulator nodes): a cut at 0.5 m/s, 0.2 m deep. The
 # planner plans its steady cut at this speed, and the cut report drives every policy at it.
 DEFAULT_TARGET_SPEED_M_S = 0.5
 DEFAULT_TARGET_DEPTH_M = 0.2
+# The anti-stall controller's default velocity-error threshold c_vx (Eq. 11: e_vmin = v̄_x c_vx):
+# a machine slower than (1 − c_vx) of its target speed is stalling, where the controller starts
+# to lift. The planner's stall memory and the cut report's stall time count stalls by it.
+DEFAULT_C_VX = 0.2
+
+
+def stall_speed_m_s(target_speed_m_s: float, c_vx: float = DEFAULT_C_VX) -> float:
+    """The forward speed [m/s] below which a cut at ``target_speed_m_s`` is stalling: the anti-stall
+    controller's threshold (Eq. 11), v̄_x (1 − c_vx)."""
+    return target_speed_m_s * (1.0 - c_vx)
 # How far the lift holds the edge below the ground the chassis stands on [m]: the deepest cut at the
 # start of a pass on level ground. Deeper targets (up to the blade's height) are reached only once
 # the chassis rides on its own cut floor, which ``beyond_lift_reach`` says.

@@ -18,7 +18,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from soil_msgs_py.messages import plausible_values
-from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S
+from soil_msgs_py.params import (KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S,
+                                 stall_speed_m_s)
 from soil_physics import force_terms
 from soil_physics.predictive import mean_standard_error
 
@@ -92,13 +93,12 @@ SENSOR_MIN_TICKS = 4
 # A fused plan is re-made at least this often [ticks] (StretchPlanner): 4 Hz at ~7 ms a plan.
 REPLAN_TICKS = 15
 # What the machine did overrides what the model says (``StallMemory``): after a stall that began
-# at depth d (forward speed below STALL_SPEED_SHARE of the cut speed, the anti-stall controller's
-# threshold at its default c_vx = 0.2, once the cut had reached speed), no plan is deeper than
+# at depth d (forward speed below ``params.stall_speed_m_s`` of the cut speed, the anti-stall
+# controller's threshold at its default c_vx, once the cut had reached speed), no plan is deeper than
 # d − STALL_BACKOFF_M for STALL_MEMORY_TICKS. Why: a posterior that is wrong about the soil (a
 # stiff clay far beyond the prior, fused as a sand) kept planning 0.085 m where every cut deeper
 # than 0.06 m stalled: 685 ticks at the limit and 10 s of stall in a 20 s cut, the controller's
 # lift the only thing between the plan and the stall.
-STALL_SPEED_SHARE = 0.8
 STALL_BACKOFF_M = 0.01
 STALL_MEMORY_TICKS = 10 * SAMPLE_RATE_HZ
 
@@ -257,7 +257,7 @@ class StallMemory:
         v_x, d = known.get("v_x"), known.get("d")
         if not (isinstance(v_x, float) and isinstance(d, float) and math.isfinite(v_x) and math.isfinite(d)):
             return
-        slow = v_x < STALL_SPEED_SHARE * cut_speed_m_s
+        slow = v_x < stall_speed_m_s(cut_speed_m_s)
         if not slow:
             self.moving, self.stalled = True, False
         elif self.moving and not self.stalled and d >= MIN_CUT_DEPTH_M:

@@ -64,6 +64,7 @@ from soil_msgs_py.params import (
     MACHINE,
     MAX_TARGET_DEPTH_M,
     MAX_TARGET_SPEED_M_S,
+    MIN_TARGET_SPEED_M_S,
     SAMPLE_RATE_HZ,
     SOIL_TOOL_FRICTION_DEFAULT_RAD,
     SOIL_TOOL_FRICTION_FEE_RAD,
@@ -147,7 +148,7 @@ class EpisodeSpec:
         soil = spec.soil if isinstance(spec.soil, SoilType) else get_soil(spec.soil, custom_soils)
         checks = (
             ("relative_density_pct", spec.relative_density_pct, 0.0, 100.0, "%"),
-            ("target_speed_m_s", spec.target_speed_m_s, 1e-3, MAX_TARGET_SPEED_M_S, "m/s"),
+            ("target_speed_m_s", spec.target_speed_m_s, MIN_TARGET_SPEED_M_S, MAX_TARGET_SPEED_M_S, "m/s"),
             ("target_depth_m", spec.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
             ("duration_s", spec.duration_s, 1.0 / SAMPLE_RATE_HZ, MAX_EPISODE_S, "s"),
         )
