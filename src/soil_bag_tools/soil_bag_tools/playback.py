@@ -22,14 +22,12 @@ from soil_msgs_py import messages as M
 from .bag_io import (META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags,
                      topics_namespace)
 from soil_msgs_py.episode import EpisodeMeta
-from soil_msgs_py.graph import EVENT_EPISODE_END, EVENT_EPISODE_START, GRAPH_OWN_TOPICS, STRING_MSGTYPE, EpisodeEvent
+from soil_msgs_py.graph import (EVENT_EPISODE_END, EVENT_EPISODE_START, GRAPH_OWN_TOPICS, REALTIME_FACTOR_RANGE,
+                                STRING_MSGTYPE, EpisodeEvent)
 from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
 
 CLOCK_TOPIC = CLOCK.name
-# Replay speed factors a player accepts: a 10 s episode takes between 10 ms and ~3 h. Beyond them a
-# rate is no timing at all: inf played every message at its first deadline (unpaced, what a
-# reliable reader's history may not hold), 1e-300 scheduled the second message past any wait.
-RATE_LIMITS = (1e-3, 1e3)
+RATE_LIMITS = REALTIME_FACTOR_RANGE  # replay speed factors a player accepts, the simulator's
 
 
 def check_rate(rate: float) -> float:

@@ -185,6 +185,11 @@ MAX_WAIT_S = 3600.0  # the longest any start-up or tick wait of the graph may be
 # Lockstep: how long the simulator waits for a tick's commands before it ends the episode [s of
 # wall time] (its lockstep_timeout_s); a node that holds a tick must wait less.
 LOCKSTEP_TIMEOUT_S = 10.0
+# Real-time factors the graph's clock may run at, the simulator's pacing (its ``rate``) and the
+# player's replay alike: a 10 s episode takes between 10 ms and ~17 min. Beyond them a rate is no
+# timing at all: inf played every message at its first deadline (unpaced, what a reliable reader's
+# history may not hold), 1e-300 scheduled the second message past any wait.
+REALTIME_FACTOR_RANGE = (0.01, 1000.0)
 
 
 # Bounds on /sim/command and /sim/status text, checked before decoding: a status event with

@@ -27,10 +27,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.graph import PACING_LOCKSTEP, PACINGS
+from soil_msgs_py.graph import PACING_LOCKSTEP, PACINGS, REALTIME_FACTOR_RANGE
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 
-RATE_RANGE = (0.01, 1000.0)  # real-time factors the node accepts
+RATE_RANGE = REALTIME_FACTOR_RANGE  # real-time factors the node accepts, the player's
 COMMAND_GRACE = 0.3  # fraction of a real-time period a tick waits for late commands
 HOUSEKEEPING_PERIOD_S = 0.01  # idle or lockstep: the timer only checks starts and stalls
 STALL_WARN_S = 1.0  # lockstep: report a wait for commands longer than this [s]
