@@ -39,7 +39,6 @@ from .integrity import scan_file
 
 META_KEY = "insitu_soil.episode"
 PARTIAL_SUFFIX = ".partial"
-_INT32_MAX_S = 2**31 - 1
 log = logging.getLogger(__name__)
 
 # What reading a damaged bag raises where no CRC caught it (bags without CRCs, damage outside
@@ -94,7 +93,7 @@ def _check_arrays(ep: Episode, skip: tuple[str, ...] = ()) -> None:
         raise ValueError("episode has no ticks")
     if not np.issubdtype(s.dtype, np.integer):
         raise ValueError(f"Episode.stamps_ns must be integer ns, got dtype {s.dtype}")
-    if s[0] < 0 or s[-1] // M.NS_PER_S > _INT32_MAX_S:
+    if s[0] < 0 or s[-1] // M.NS_PER_S > M.MAX_STAMP_SEC:
         raise ValueError(f"Episode.stamps_ns out of range [0, 2^31 s): {s[0]}..{s[-1]}")
     if len(s) > 1 and (back := np.flatnonzero(np.diff(s) <= 0)).size:
         i = int(back[0]) + 1

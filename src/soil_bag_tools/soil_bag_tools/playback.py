@@ -9,7 +9,6 @@ sleep until ~0.5 ms before, then spin), so lateness never accumulates.
 """
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -19,6 +18,7 @@ from pathlib import Path
 from rosbags.highlevel import AnyReader
 
 from soil_msgs_py import messages as M
+from soil_msgs_py.params import grid_stamp_ns
 from .bag_io import (META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_by_note, reading, scan_bags,
                      topics_namespace)
 from soil_msgs_py.episode import EpisodeMeta
@@ -170,14 +170,13 @@ def with_clock(messages: Sequence[tuple[int, str, bytes]], hz: float) -> Iterato
     if not data:
         return
     t0 = data[0][0]
-    whole = float(hz).is_integer()
     k = 0
     next_clock = t0
     for m in data:
         while next_clock <= m[0]:
             yield next_clock, CLOCK_TOPIC, clock_cdr(next_clock)
             k += 1
-            next_clock = t0 + (k * 10**9 // int(hz) if whole else math.floor(k * 1e9 / hz))
+            next_clock = t0 + grid_stamp_ns(k, hz)
         yield m
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -381,7 +380,7 @@ class SimCommand:
                 # (an integer of hundreds of digits has no float: math.isfinite would raise OverflowError)
                 if isinstance(v, int) and not isinstance(v, bool) and abs(v) > MAX_SEED:
                     raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be at most 2**63 - 1 in magnitude")
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                if not finite_number(v):
                     kind = "an integer in [0, 2**63 - 1]" if key == "seed" else "a finite number"
                     raise ValueError(f"{SIM_COMMAND_TOPIC}: {key}={short_repr(v)} must be {kind}")
         if "seed" in d and (not float(d["seed"]).is_integer() or not 0 <= d["seed"] <= MAX_SEED):

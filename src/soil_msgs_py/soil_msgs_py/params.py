@@ -114,7 +114,15 @@ TICK_PERIOD_NS = 1e9 / SAMPLE_RATE_HZ  # exact tick period [ns]; tick k is stamp
 def tick_stamp_ns(tick: int) -> int:
     """Stamp of tick k from its episode's first tick [ns]: floor(k · 1e9 / 60), the exact 60 Hz grid
     in integers (no float drift) on which the simulator and the batch generator stamp every tick."""
-    return (int(tick) * 1_000_000_000) // SAMPLE_RATE_HZ
+    return grid_stamp_ns(tick, SAMPLE_RATE_HZ)
+
+
+def grid_stamp_ns(k: int, hz: float) -> int:
+    """Stamp of the k-th point of a grid at ``hz`` from its first [ns]: floor(k · 1e9 / hz), in
+    integers for a whole rate (no float drift), as ticks are stamped (``tick_stamp_ns``)."""
+    if float(hz).is_integer():
+        return (int(k) * 1_000_000_000) // int(hz)
+    return math.floor(int(k) * 1e9 / hz)
 WINDOW_SAMPLES = 60  # T = 60 samples = 1 s (§2.2.1)
 VELOCITY_AVERAGE_SAMPLES = 10  # §3.1: v_t = avg([v_x^c, v_z^b]_{t-10:t})
 
