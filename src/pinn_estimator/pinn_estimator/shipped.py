@@ -20,11 +20,3 @@ def config_path(world: str) -> Path:
     """Where the calibrated fusion config of a world lives (next to the shipped checkpoints)."""
     return MODELS_DIR / f"fusion_{world}.json"
 
-
-def shipped_world(checkpoint) -> str | None:
-    """The world of a shipped checkpoint path (``pinn_<world>.pt`` in ``MODELS_DIR``), else None:
-    its calibration is then known without reading the file (torch)."""
-    path = Path(checkpoint).expanduser().resolve()
-    if path.parent != MODELS_DIR or not (path.name.startswith("pinn_") and path.suffix == ".pt"):
-        return None
-    return path.stem[len("pinn_"):]

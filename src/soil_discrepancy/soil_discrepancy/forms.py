@@ -124,8 +124,7 @@ def _normalised_residual(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> tu
     return frame, resid
 
 
-def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, seed: int = 0,
-                 names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
+def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
     """Sparse regression of ``model``'s residual (θ per group ``fit``) on the library of forms.
 
     Returns {'candidates': [signed form names, in the order they entered the greedy path],

@@ -21,7 +21,7 @@ from soil_physics.augmented_fee import AugmentedFEE
 from .candidates import paired_test
 from .fee_fit import ThetaFit, fit_fixed, residuals
 from .frame import Frame
-from .regimes import AXES, bin_edges, regime_bins
+from .regimes import bin_edges, regime_bins
 
 # What a named term that earns no place leaves when it is removed (the term-by-term held-out
 # test, ``workflow``): one wording for the log, the verdict and the report.
@@ -98,7 +98,7 @@ def fee_gap(frame: Frame, before: AugmentedFEE, after: AugmentedFEE, start: Thet
     return out, {"before": (rb, fit_b), "after": (ra, fit_a)}
 
 
-__all__ = ["AXES", "compare_predictions", "depth_forecast_gap", "error_metrics", "fee_gap"]
+__all__ = ["compare_predictions", "depth_forecast_gap", "error_metrics", "fee_gap"]
 
 
 # Two episodes of one θ-group are "another depth" for the forecast when their steady depths

@@ -164,7 +164,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     form_report = None
     pool = list(candidates)
     if forms and reg0["significant"]:
-        first = search_forms(fsel, initial, base, folds=folds, seed=seed, catalogue=candidates, log=say)
+        first = search_forms(fsel, initial, base, folds=folds, catalogue=candidates, log=say)
         form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "search": first}
         pool += [n for n in first["candidates"] if n not in pool]
     sel = select_terms(fsel, initial, base, pool, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
@@ -189,7 +189,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         form_report = {**(form_report or {}), "searched_after": bool(left["significant"]),
                        "residual_structure_after": left["flagged_variables"]}
         if left["significant"]:
-            found = search_forms(fsel, final, sel["fit"], folds=folds, seed=seed,
+            found = search_forms(fsel, final, sel["fit"], folds=folds,
                                  catalogue=[n for n in candidates if n not in final.names], log=say)
             form_report["search_after"] = found
             fresh = [n for n in found["candidates"] if n not in final.names]

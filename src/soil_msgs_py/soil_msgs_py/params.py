@@ -46,12 +46,11 @@ def _a(lo_deg: float, hi_deg: float) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class Machine:
-    """The simple bladed vehicle of §2.1.2 (SI)."""
+    """The simple bladed vehicle of §2.1.2 (SI). Its chassis is a 3 × 2 × 2 m box there; the planar
+    simulator needs only its mass and the four soil-height probes under it
+    (``soil_sim_node.simulator.Dynamics.probe_offsets_m``)."""
 
     chassis_mass_kg: float = 5000.0
-    chassis_length_m: float = 3.0
-    chassis_width_m: float = 2.0
-    chassis_height_m: float = 2.0
     blade_mass_kg: float = 400.0
     blade_width_m: float = 3.164
     blade_height_m: float = 0.660

@@ -66,7 +66,6 @@ N_FORCE_INPUTS = 14
 C_K_V, C_C_VX, C_DELTA_D_MAX, C_DT, C_DITHER_A, C_DITHER_T, C_FORCE_LIFT, C_FORCE_SHARE, C_LIMIT_X, C_LIMIT_Z = range(10)
 N_GAINS = 10
 
-# --- velocity history (paper §3.1: v averaged over this many samples)
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
 

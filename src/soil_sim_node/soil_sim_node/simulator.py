@@ -368,7 +368,6 @@ class SoilSimulator:
         self._v_hist_rows = np.zeros((b, VELOCITY_AVERAGE_SAMPLES, 2))  # the kernel's layout, newest first
         self.rngs = [np.random.default_rng(int(s.seed)) for s in self.specs]
         self.last_applied_u_zr = z()
-        self._forces_out = np.zeros((b, 2))
         # time with the edge in the soil [s] (``travel.time_in_soil``, per substep): what force
         # terms see as ``ForceInputs.time_in_soil``; kept where they are evaluated (the reference
         # engine's substep, the compiled engine's with plugins)
