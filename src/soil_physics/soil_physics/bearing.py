@@ -53,7 +53,23 @@ def penetration_capacity(state, edge_width_m: float | None = None):
     ``state``: a ``ForceInputs`` (NumPy).
     """
     t_e = state.blade_thickness if edge_width_m is None else edge_width_m
-    n_q, n_c, n_gamma = bearing_factors(state.phi)
-    depth = np.maximum(state.d, 0.0)
-    q_b = state.c * n_c + state.gamma * depth * n_q + 0.5 * state.gamma * t_e * n_gamma
+    q_b = edge_pressure_pa(state.phi, state.c, state.gamma, state.d, np, strip_width_m=t_e)
     return q_b * state.w * t_e * (state.d > 0)
+
+
+def edge_pressure_pa(phi, c, gamma, d, xp, strip_width_m=None):
+    """Bearing pressure of the edge [Pa] at depth d (counted from 0 above the surface):
+    q_b = c N_c + γ d N_q, plus ½ γ b N_γ of a strip of width b = ``strip_width_m`` where given
+    (Terzaghi's form with Vesic's N_γ). NumPy or torch (``xp``). The one formula: the simulator's
+    constraint (with N_γ) and the catalogue's and the form library's edge bearing (without)."""
+    n_q, n_c, n_gamma = bearing_factors(phi)
+    q_b = c * n_c + gamma * _xp.positive_part(xp, d) * n_q
+    if strip_width_m is not None:
+        q_b = q_b + 0.5 * gamma * strip_width_m * n_gamma
+    return q_b
+
+
+def edge_bearing_n(s, xp):
+    """w t_e (c N_c + γ d N_q) [N] of a ``ForceInputs`` ``s``, 0 out of the soil: the edge bearing
+    as the catalogue's ``tip_penetration`` and the form library's ``bear_*`` scales have it."""
+    return s.w * s.blade_thickness * edge_pressure_pa(s.phi, s.c, s.gamma, s.d, xp) * ((s.d > 0) * 1.0)

@@ -29,10 +29,10 @@ import numpy as np
 
 from . import term_forms
 from . import xp as _xp
-from .bearing import EDGE_WIDTH_M, bearing_factors
+from .bearing import EDGE_WIDTH_M, edge_bearing_n
 from .fee import beta_star, force_xz
 from .force_inputs import ForceInputs
-from soil_msgs_py.params import GRAVITY_M_S2, TABLE1
+from soil_msgs_py.params import TABLE1
 from soil_msgs_py.patches import short_repr
 
 
@@ -56,8 +56,7 @@ class Term:
         return self.basis_fn(inputs, xp)
 
 
-def _pos(xp, x):
-    return _xp.clip_min(xp, x, 0.0)
+_pos = _xp.positive_part
 
 
 def _zeros(xp, like):
@@ -65,8 +64,7 @@ def _zeros(xp, like):
 
 
 def _inertia(s: ForceInputs, xp):
-    # momentum given to the cut soil per second: (γ/g) w d v_x · v_x
-    return s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * _pos(xp, s.v_x) ** 2, _zeros(xp, s.d)
+    return term_forms.momentum_flux_n(s, xp), _zeros(xp, s.d)
 
 
 def side_wall_force(phi, c, gamma, delta, rho, alpha, d, k0=None, walls: float = 2.0):
@@ -96,10 +94,7 @@ def _side_walls(s: ForceInputs, xp):  # noqa: ARG001 - side_wall_force picks its
 
 
 def _tip_bearing(s: ForceInputs, xp):
-    n_q, n_c, _ = bearing_factors(s.phi)
-    in_soil = (s.d > 0) * 1.0
-    bearing = s.w * s.blade_thickness * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * in_soil
-    return _zeros(xp, s.d), -bearing  # the edge presses down on the floor
+    return _zeros(xp, s.d), -edge_bearing_n(s, xp)  # the edge presses down on the floor
 
 
 def _surcharge_drag(s: ForceInputs, xp):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from . import xp as _xp
-from .bearing import bearing_factors
+from .bearing import edge_bearing_n
 from soil_msgs_py.params import FORCE_LIMITS_N, GRAVITY_M_S2
 
 PREFIX = "form:"
@@ -49,8 +49,7 @@ class Piece:
     axis: str = ""  # scales only: 'x', 'z', 'fee' (F_FEE times fn) or 'vec' (fn gives (F_x, F_z))
 
 
-def _pos(xp, x):
-    return _xp.clip_min(xp, x, 0.0)
+_pos = _xp.positive_part
 
 
 def _in(s):
@@ -77,9 +76,11 @@ def _surcharge_part(s, xp):
     return xp.where(keep > 0, fx1 - fx0, 0.0 * s.d), xp.where(keep > 0, fz1 - fz0, 0.0 * s.d)
 
 
-def _bearing(s, xp):
-    n_q, n_c, _ = bearing_factors(s.phi)
-    return s.w * s.blade_thickness * (s.c * n_c + s.gamma * _pos(xp, s.d) * n_q) * _in(s)
+def momentum_flux_n(s, xp):
+    """(γ/g) w d v_x² [N]: the momentum the blade gives the soil it cuts per second, d and v_x
+    counted where positive (a blade backing up throws no soil forward). The catalogue's
+    ``soil_inertia`` and the form library's ``mom_x`` scale."""
+    return s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * _pos(xp, s.v_x) ** 2
 
 
 # Scales: (name, words, formula, fn, axis). z scales point down (blade pressing on the floor) where
@@ -100,15 +101,15 @@ SCALES: dict[str, Piece] = {p.name: p for p in (
     Piece("cwd_x", "cohesion area scale c w d, x", "c w d", lambda s, xp: s.c * s.w * _pos(xp, s.d), "x"),
     Piece("cwd_z", "cohesion area scale c w d, pressing down", "−c w d", lambda s, xp: -s.c * s.w * _pos(xp, s.d), "z"),
     Piece("mom_x", "momentum flux of the cut soil (γ/g) w d v_x², x", "(γ/g) w d v_x²",
-          lambda s, xp: s.gamma / GRAVITY_M_S2 * s.w * _pos(xp, s.d) * s.v_x ** 2, "x"),
+          momentum_flux_n, "x"),
     Piece("q_x", "surcharge weight Q, x", "Q", lambda s, xp: s.q * _in(s), "x"),
     Piece("q_z", "surcharge weight Q, pressing down", "−Q", lambda s, xp: -s.q * _in(s), "z"),
     Piece("qnq", "the FEE's surcharge part Q N_Q (along the FEE force)", "(F_FEE(Q) − F_FEE(Q = 0))",
           _surcharge_part, "vec"),
     Piece("bear_z", "bearing capacity of the cutting edge, pressing down",
-          "−w t_e (c N_c + γ d N_q)", lambda s, xp: -_bearing(s, xp), "z"),
+          "−w t_e (c N_c + γ d N_q)", lambda s, xp: -edge_bearing_n(s, xp), "z"),
     Piece("bear_x", "bearing capacity of the cutting edge, x (friction on it)",
-          "w t_e (c N_c + γ d N_q)", lambda s, xp: _bearing(s, xp), "x"),
+          "w t_e (c N_c + γ d N_q)", lambda s, xp: edge_bearing_n(s, xp), "x"),
     Piece("down_x", "the model's downward push max(−F_FEE,z, 0), x (friction on it)",
           "max(−F_FEE,z, 0)", lambda s, xp: _pos(xp, -s.f_fee_z) * _in(s), "x"),
     # a force that does not scale with the soil or the cut (the sparse regression's constant

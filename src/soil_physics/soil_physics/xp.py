@@ -32,6 +32,11 @@ def clip_min(xp, x, lo: float):
     return xp.clamp(x, min=lo) if is_torch(xp) else np.maximum(x, lo)
 
 
+def positive_part(xp, x):
+    """max(x, 0) elementwise: a depth or a speed that counts only where it is positive."""
+    return clip_min(xp, x, 0.0)
+
+
 def clip(xp, x, lo, hi):
     """Elementwise clip; lo/hi may be floats or arrays."""
     if is_torch(xp):
