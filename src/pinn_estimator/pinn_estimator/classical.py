@@ -298,8 +298,7 @@ def _finish(phi, c, delta, known, rms, ok) -> ClassicalFit:
     fx, fz, _ = fee_forces(phi, c, delta, last)
     theta = {n: last[:, i] for i, n in enumerate(KNOWN_PARAMS)}
     with np.errstate(all="ignore"):
-        d_corr, _ = fee.velocity_corrected(delta, theta["c_a"], theta["rho"], theta["alpha"], theta["v_x"], theta["v_z"])
-        beta = fee.beta_star(phi, d_corr, theta["rho"], theta["alpha"])
+        beta = fee.critical_beta(phi, delta, theta["c_a"], theta["rho"], theta["alpha"], theta["v_x"], theta["v_z"])
     ok = ok & np.isfinite(phi) & np.isfinite(c) & np.isfinite(delta) & np.isfinite(rms)
     return ClassicalFit(
         phi=np.asarray(phi, float), c=np.asarray(c, float), delta=np.asarray(delta, float),

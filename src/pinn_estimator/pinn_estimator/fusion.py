@@ -600,9 +600,8 @@ class SoilPosterior:
         known = self.last_known if self.last_known is not None else _level_cut()
         k = dict(zip(KNOWN_PARAMS, known))
         theta = self.theta_of(u)
-        delta, _ = fee.velocity_corrected(theta["delta"], k["c_a"], k["rho"], k["alpha"], k["v_x"], k["v_z"])
         with np.errstate(all="ignore"):
-            return fee.beta_star(theta["phi"], delta, k["rho"], k["alpha"])
+            return fee.critical_beta(theta["phi"], theta["delta"], k["c_a"], k["rho"], k["alpha"], k["v_x"], k["v_z"])
 
     def forecast(self, known: np.ndarray, quantiles=(0.05, 0.25, 0.5, 0.75, 0.95), distance_m: float = 0.0,
                  time_s: float = 0.0) -> dict:

@@ -177,6 +177,14 @@ def force_xz(force, rho, delta, alpha):
     return force * xp.cos(angle), force * xp.sin(angle)
 
 
+def critical_beta(phi, delta, c_a, rho, alpha, v_x, v_z, c1: float = FEE_VELOCITY_GAIN_S_M):
+    """β* [rad] (Eq. 7) at the δ' the blade's motion gives (Eq. 9-10): the failure angle ``fee_xz``
+    uses when given none. NaN where there is no failure wedge (e.g. the soil-tool friction
+    reversed by a fast lift in soil with δ > φ)."""
+    delta_v, _ = velocity_corrected(delta, c_a, rho, alpha, v_x, v_z, c1)
+    return beta_star(phi, delta_v, rho, alpha)
+
+
 def fee_xz_of_truth(truth_rows):
     """FEE (F_x, F_z) of pseudo-ground-truth rows (..., len(GROUND_TRUTH_PARAMS)), with their beta."""
     from soil_msgs_py.params import GROUND_TRUTH_PARAMS

@@ -511,8 +511,8 @@ class _FusedForceModel:
         self.theta = {**known, "phi": x[:, 0], "c": x[:, 1], "delta": x[:, 2], "v_x": cut_speed_m_s, "v_z": 0.0}
         self.quantile = quantile
         self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
-        delta_v, _ = fee.velocity_corrected(est["delta_fused"], known["c_a"], known["rho"], known["alpha"], cut_speed_m_s, 0.0)
-        self.beta_rad = float(fee.beta_star(est["phi_fused"], delta_v, known["rho"], known["alpha"]))
+        self.beta_rad = float(fee.critical_beta(est["phi_fused"], est["delta_fused"], known["c_a"], known["rho"],
+                                                known["alpha"], cut_speed_m_s, 0.0))
         if not math.isfinite(self.beta_rad):
             self.beta_rad = 0.0  # the mean has no wedge; the samples decide (reported only)
         self.residual_per_m = np.zeros((2, FUSED_SAMPLES))
@@ -630,9 +630,8 @@ class _ForceModel:
         self.theta = {**known, **soil, "v_x": cut_speed_m_s, "v_z": 0.0}  # the planned steady cut
         self.delta_d = est["delta_d"]
         # β* as fee_xz(beta=None) computes it, here only to report it and to fail clearly
-        delta_v, _ = fee.velocity_corrected(est["delta"], known["c_a"], known["rho"], known["alpha"],
-                                            cut_speed_m_s, 0.0)
-        self.beta_rad = float(fee.beta_star(est["phi"], delta_v, known["rho"], known["alpha"]))
+        self.beta_rad = float(fee.critical_beta(est["phi"], est["delta"], known["c_a"], known["rho"], known["alpha"],
+                                                cut_speed_m_s, 0.0))
         if not math.isfinite(self.beta_rad):
             raise ValueError(
                 f"no FEE failure wedge (no critical β) for phi={est['phi'] / DEG:.2f}°, "
@@ -646,9 +645,8 @@ class _ForceModel:
         # F̂ was predicted at Θ_k's actual velocity: the FEE it is compared with must be too. In a
         # strong transient (a fast lift) β* there leaves Table 1's range and the difference to the
         # PINN's own FEE (β̂, clipped to Table 1) would pass for a residual: no anchor, FEE only.
-        delta_now, _ = fee.velocity_corrected(est["delta"], known["c_a"], known["rho"], known["alpha"],
-                                              known["v_x"], known["v_z"])
-        beta_now = float(fee.beta_star(est["phi"], delta_now, known["rho"], known["alpha"]))
+        beta_now = float(fee.critical_beta(est["phi"], est["delta"], known["c_a"], known["rho"], known["alpha"],
+                                           known["v_x"], known["v_z"]))
         beta_lo, beta_hi = TABLE1["beta"].limits
         if include_residual and d_now >= MIN_ANCHOR_DEPTH_M and beta_lo <= beta_now <= beta_hi:
             fx_now, fz_now, _ = fee.fee_xz({**known, **soil, "d": np.array([d_now])})
