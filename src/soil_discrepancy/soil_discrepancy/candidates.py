@@ -39,9 +39,15 @@ from soil_physics.augmented_fee import AugmentedFEE
 from pinn_estimator.classical import FORCE_SCALE_N, UNDEFINED_RESIDUAL
 from .fee_fit import ThetaFit, fit_fixed, fit_joint, residuals
 from .frame import Frame
-from .regimes import holm
+from .regimes import ALPHA, holm
 
 MAX_TERMS = 3
+# The workflow's defaults (``run_discrepancy``, the command line): the share of soil groups held
+# out for the test, cross-validation folds over the selection's groups, and the least share of
+# the held-out error a term must remove to be named.
+HOLDOUT_SHARE = 0.3
+FOLDS = 5
+MIN_GAIN = 0.05
 CV_MAX_NFEV = 30  # joint fits inside the folds: a term that needs more is no clean fit anyway
 
 
@@ -214,7 +220,7 @@ def _cv_task(args):
         return name, fold, math.nan, None
 
 
-def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *, folds: int = 5,
+def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *, folds: int = FOLDS,
                 seed: int = 0, workers: int = 1, allow_negative_k: bool = False, log=None) -> list[TermScore]:
     """Cross-validated score of every candidate against ``model`` (whose θ per group is ``base``)."""
     fold_list = group_folds(frame.groups, folds, seed)
@@ -275,8 +281,8 @@ def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *
     return scores
 
 
-def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=None, *, folds: int = 5,
-                 seed: int = 0, alpha: float = 0.01, min_gain: float = 0.05, max_terms: int = MAX_TERMS,
+def select_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates=None, *, folds: int = FOLDS,
+                 seed: int = 0, alpha: float = ALPHA, min_gain: float = MIN_GAIN, max_terms: int = MAX_TERMS,
                  workers: int = 1, allow_negative_k: bool = False, log=None) -> dict:
     """Greedy forward selection on the selection part. Returns {'model', 'fit', 'rounds', 'accepted'}."""
     candidates = [n for n in (candidates or list(force_terms.CATALOGUE)) if n not in model.names]

@@ -23,7 +23,9 @@ from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories
 def parse_args(argv=None) -> argparse.Namespace:
     from pinn_estimator.dataset import add_skip_bad_bags_option
 
-    from .frame import GROUP_BY
+    from .candidates import FOLDS, HOLDOUT_SHARE, MIN_GAIN
+    from .frame import DEFAULT_STRIDE, GROUP_BY
+    from .regimes import ALPHA
     from .soil_tests import WIDTH_SIGMA
 
     p = argparse.ArgumentParser(prog="soil_discrepancy", description=__doc__.split("\n\n")[0],
@@ -32,12 +34,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=output_dir, required=True, help="output directory for discrepancy.md/.json and PNGs")
     p.add_argument("--terms", default=None, help="candidate terms, comma-separated (default: the whole catalogue)")
     p.add_argument("--accepted", default="", help="terms already in the model with fixed k, e.g. 'soil_inertia=4.0,...'")
-    p.add_argument("--holdout", type=float, default=0.3, help="share of soil groups held out for the test, in (0, 1) (default 0.3)")
-    p.add_argument("--folds", type=int, default=5, help="cross-validation folds over soil groups (default 5)")
+    p.add_argument("--holdout", type=float, default=HOLDOUT_SHARE,
+                   help="share of soil groups held out for the test, in (0, 1) (default %(default)s)")
+    p.add_argument("--folds", type=int, default=FOLDS, help="cross-validation folds over soil groups (default %(default)s)")
     p.add_argument("--seed", type=cli_numbers.seed, default=0, help="seed of the held-out split and folds (default 0)")
-    p.add_argument("--stride", type=int, default=2, help="use every n-th tick in the soil, 1-60 (default 2)")
-    p.add_argument("--alpha", type=float, default=0.01, help="significance level, Holm-corrected (default 0.01)")
-    p.add_argument("--min-gain", type=float, default=0.05, help="least share of held-out error a term must remove (default 0.05)")
+    p.add_argument("--stride", type=int, default=DEFAULT_STRIDE, help="use every n-th tick in the soil, 1-60 (default %(default)s)")
+    p.add_argument("--alpha", type=float, default=ALPHA, help="significance level, Holm-corrected (default %(default)s)")
+    p.add_argument("--min-gain", type=float, default=MIN_GAIN,
+                   help="least share of held-out error a term must remove (default %(default)s)")
     p.add_argument("--group-by", choices=GROUP_BY, default="auto",
                    help="θ shared by episodes of the same metadata soil + I_d (auto; bags without a soil label beside labelled "
                         "ones: by γ; bags without any soil label: by γ as below when that makes >= 3 groups, else per "

@@ -45,7 +45,7 @@ from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.classical import FORCE_SCALE_N
-from .candidates import paired_test
+from .candidates import FOLDS, paired_test
 from .fee_fit import ThetaFit
 from .regimes import holm
 from .frame import Frame
@@ -124,7 +124,8 @@ def _normalised_residual(frame: Frame, model: AugmentedFEE, fit: ThetaFit) -> tu
     return frame, resid
 
 
-def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = 5, names=None, max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
+def search_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, *, folds: int = FOLDS, names=None,
+                 max_candidates: int = MAX_CANDIDATES, catalogue=(), log=None) -> dict:
     """Sparse regression of ``model``'s residual (θ per group ``fit``) on the library of forms.
 
     Returns {'candidates': [signed form names, in the order they entered the greedy path],

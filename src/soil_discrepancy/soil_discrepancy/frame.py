@@ -30,6 +30,7 @@ from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
 MIN_DEPTH_M = MIN_CUT_DEPTH_M  # ticks with the blade in the soil deeper than this are analysed
 SKIP_S = 1.0  # the start transient (blade entering the soil) is left out
+DEFAULT_STRIDE = 2  # every second tick in the soil: neighbouring ticks at 60 Hz tell little new
 GROUP_BY = ("auto", "episode", "gamma")
 # An episode with less analysed cutting than this is left out: a fit of its soil to a few ticks (a
 # blade that barely entered a rock) says nothing, and a verdict drawn from such episodes would be
@@ -150,7 +151,7 @@ def check_frame_settings(stride, group_by: str) -> None:
         raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
 
 
-def build_frame(ds, *, stride: int = 2, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
+def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
                 group_by: str = "auto") -> Frame:
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
 

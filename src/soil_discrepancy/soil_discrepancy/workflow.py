@@ -32,20 +32,21 @@ from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
 from pinn_estimator.classical import default_workers
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.params import MAX_PLAUSIBLE_FORCE_N
-from .candidates import MAX_TERMS, check_holdout, paired_test, select_terms, split_holdout
+from .candidates import (FOLDS, HOLDOUT_SHARE, MAX_TERMS, MIN_GAIN, check_holdout, paired_test, select_terms,
+                         split_holdout)
 from .forms import describe_form, pin_kind, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
-from .frame import MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
+from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
-from .regimes import MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
+from .regimes import ALPHA, MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
 from .soil_tests import displayed_box, hold_theta, unmatched
 from .verdict import fmt_n, forecast_gap_text, theta_shift, verdict_of
 
 REPORT_VERSION = 1
 
 
-def load_frame(bag_dir, *, stride: int = 2, group_by: str = "auto", cache: bool = True, workers: int = 1,
+def load_frame(bag_dir, *, stride: int = DEFAULT_STRIDE, group_by: str = "auto", cache: bool = True, workers: int = 1,
                skip_bad_bags: bool = False) -> Frame:
     """Read a directory of episode bags (``load_dataset``) into the analysis frame."""
     from pinn_estimator.dataset import load_dataset
@@ -70,8 +71,9 @@ def _refuse_non_finite(r0: np.ndarray, model: AugmentedFEE) -> None:
 
 
 def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, dataset=None, terms=None,
-                    accepted=(), holdout: float = 0.3, folds: int = 5, seed: int = 0, stride: int = 2,
-                    alpha: float = 0.01, min_gain: float = 0.05, min_effect: float = MIN_EFFECT,
+                    accepted=(), holdout: float = HOLDOUT_SHARE, folds: int = FOLDS, seed: int = 0,
+                    stride: int = DEFAULT_STRIDE, alpha: float = ALPHA, min_gain: float = MIN_GAIN,
+                    min_effect: float = MIN_EFFECT,
                     group_by: str = "auto", allow_negative_k: bool = False, workers: int | None = None,
                     predictors=None, cache: bool = True, skip_bad_bags: bool = False,
                     plots: bool = True, forms: bool = True, user_terms=(), soil_tests=(), log=print) -> dict:
