@@ -33,7 +33,7 @@ from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_dir
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
-from soil_physics.soils import COHESIVE_SOILS
+from soil_physics.soils import COHESIVE_SOILS, ID_LIMIT_PCT
 
 from .checkpoint import load_model
 from . import forecast as fc
@@ -48,7 +48,6 @@ UNITS = {"phi": ("deg", 1 / DEG), "c": ("kPa", 1e-3), "delta": ("deg", 1 / DEG),
 TRUTH_COL = {p: GROUND_TRUTH_PARAMS.index(p) for p in PARAMS}
 FAILURE_DEPTH_M = 0.1  # §3.2: hypothetical failure force at d = 0.1 m, Q = 0
 FAILURE_SPEED_M_S = 0.5  # forward, blade level: full soil-tool friction (Eq. 10 scale ~ 1)
-ID_LIMIT_PCT = 60.0  # parameter targets hold for I_d <= 60 % (soil failure assumption, §3.2)
 TEST_STRIDE = 10  # samples between the test split's windows (1/6 s)
 
 

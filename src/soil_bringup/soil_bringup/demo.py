@@ -46,6 +46,7 @@ from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
 from soil_msgs_py.cli_paths import output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
+from soil_physics.soils import CATALOGUE
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, LIFT_REACH_M, MIN_CUT_DEPTH_M,
                                   MIN_PLANNED_DEPTH_M, SAMPLE_RATE_HZ, WINDOW_SAMPLES, beyond_lift_reach)
@@ -58,7 +59,7 @@ from .scoring import missing_episodes, overall, score_bag_dir
 from .summary import FIGURE_NAME, JSON_NAME, MARKDOWN_NAME, markdown, table_text, throughput_text
 from .summary_figure import plot
 
-DEFAULT_SOILS = ("Clay", "Loam", "Sand", "Gravel")
+DEFAULT_SOILS = tuple(CATALOGUE)
 DEFAULT_DENSITIES_PCT = (20.0, 80.0)
 DEFAULT_DOMAIN_ID = 42
 # In lockstep the simulator runs ~6x real time and the estimator trails it by up to ~1 s of wall

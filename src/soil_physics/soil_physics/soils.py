@@ -104,6 +104,9 @@ CATALOGUE: dict[str, SoilType] = {
     )
 }
 COHESIVE_SOILS = ("Clay", "Loam")
+# Parameter errors are also reported for soils no denser than this relative density [%] (the
+# paper's §3.2: its PINN follows φ well at lower compaction, less so in dense soils).
+ID_LIMIT_PCT = 60.0
 
 
 def get_soil(name: str, custom: dict[str, SoilType] | None = None) -> SoilType:

@@ -34,13 +34,15 @@ from soil_physics.blade_inertia import inertia_force_rows
 from soil_msgs_py.episode import WORLD_MODES, Episode
 from soil_msgs_py.strict_json import json_safe
 from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
-from soil_physics.soils import COHESIVE_SOILS
+from soil_physics.soils import CATALOGUE, COHESIVE_SOILS, ID_LIMIT_PCT
 
+from .batch import DEFAULT_RELATIVE_DENSITIES
+from .batch import grid_specs as factorial_specs
 from .rollout import run_episodes
 from .simulator import EpisodeSpec, SimConfig, SoilSimulator
 
-SOILS: tuple[str, ...] = ("Clay", "Loam", "Sand", "Gravel")
-DENSITIES: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
+SOILS: tuple[str, ...] = tuple(CATALOGUE)
+DENSITIES: tuple[float, ...] = DEFAULT_RELATIVE_DENSITIES
 WORLDS: tuple[str, ...] = WORLD_MODES
 LIMIT_FRACTION = 0.95  # |F_x| >= 0.95 * 20 kN counts as "at the tractive limit"
 PAPER_OSCILLATION_N = (5e3, 10e3)  # §2.1.2: "on the order of 5 kN and 10 kN in the x and z forces"
@@ -95,12 +97,8 @@ GridKey = tuple  # (soil, I_d)
 def grid_specs(settings: Settings, target_depth_m: float, densities: Sequence[float] | None = None) -> list[EpisodeSpec]:
     """One spec per soil x I_d; episode i gets seed ``settings.seed + i`` (stable order)."""
     densities = settings.densities if densities is None else densities
-    specs = []
-    for soil in settings.soils:
-        for i_d in densities:
-            specs.append(EpisodeSpec(soil, float(i_d), settings.speed_m_s, target_depth_m,
-                                     settings.seed + len(specs), settings.duration_s))
-    return specs
+    return factorial_specs(settings.soils, densities, [settings.speed_m_s], [target_depth_m], 1, settings.seed,
+                           settings.duration_s)
 
 
 def run_grid(world: str, settings: Settings, target_depth_m: float | None = None,
@@ -438,7 +436,7 @@ class ForceLevelRow:
 def closed_loop_force_levels(settings: Settings | None = None, episodes=None) -> list[ForceLevelRow]:
     settings = settings or Settings()
     groups = (("all I_d", lambda i: True),
-              ("I_d <= 60", lambda i: i <= 60.0),
+              (f"I_d <= {ID_LIMIT_PCT:g}", lambda i: i <= ID_LIMIT_PCT),
               (f"I_d >= {settings.dense_min_pct:g}", lambda i: i >= settings.dense_min_pct))
     rows = []
     for world in WORLDS:
