@@ -12,13 +12,18 @@ CONTACT_DAMPING_PA_S_M = 6e3  # contact damping pressure per unit normal speed [
 BASE_FRICTION_V_REF_M_S = 0.02  # base friction reaches tanh(1) of its Coulomb value at this speed [m/s]
 
 
+def submerged_area_m2(w, d, rho):
+    """Area of the blade face below the surface [m²]: w d / sin ρ (0 out of the soil)."""
+    return w * np.maximum(d, 0.0) / np.sin(rho)
+
+
 def contact_damping_force(state, damping_pa_s_m: float = CONTACT_DAMPING_PA_S_M):
     """Viscous contact damping on the submerged blade face [N] (Vortex contact damping).
 
     Pressure c_v · v_n [Pa] on the submerged area w d / sin ρ, along the blade normal,
     opposing the blade's normal velocity v_n (rate-dependent resistance).
     """
-    area = state.w * np.maximum(state.d, 0.0) / np.sin(state.rho)
+    area = submerged_area_m2(state.w, state.d, state.rho)
     n_x, n_z = np.sin(state.rho - state.alpha), np.cos(state.rho - state.alpha)
     v_n = state.v_x * n_x + state.v_z * n_z
     f_n = damping_pa_s_m * area * v_n

@@ -50,6 +50,13 @@ from soil_msgs_py.soil_labels import UNKNOWN_SOILS, says_unknown
 from soil_msgs_py.yaml_file import read_yaml
 
 
+def at_density(loose, dense, relative_density_pct):
+    """A soil property at relative density I_d [%]: linear from its loose (0 %) to its dense (100 %)
+    value, loose + (dense − loose) · I_d / 100 (NumPy broadcasting). The one rule of every soil,
+    a catalogue soil's (``SoilType.at``) and the simulator's per patch."""
+    return loose + (dense - loose) * (relative_density_pct / 100.0)
+
+
 @dataclass(frozen=True)
 class SoilProperties:
     """Soil parameters at one relative density (SI)."""
@@ -73,12 +80,10 @@ class SoilType:
         i_d = np.asarray(relative_density_pct, dtype=float)
         if not np.all(np.isfinite(i_d)) or np.any((i_d < 0.0) | (i_d > 100.0)):
             raise ValueError(f"relative_density_pct={relative_density_pct!r} outside [0, 100] %")
-        s = i_d / 100.0
-        lerp = lambda a, b: a + (b - a) * s  # noqa: E731
         out = SoilProperties(
-            lerp(self.loose.phi, self.dense.phi),
-            lerp(self.loose.c, self.dense.c),
-            lerp(self.loose.gamma, self.dense.gamma),
+            at_density(self.loose.phi, self.dense.phi, i_d),
+            at_density(self.loose.c, self.dense.c, i_d),
+            at_density(self.loose.gamma, self.dense.gamma, i_d),
         )
         if i_d.ndim == 0:
             return SoilProperties(float(out.phi), float(out.c), float(out.gamma))

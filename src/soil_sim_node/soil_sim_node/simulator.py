@@ -73,9 +73,9 @@ from soil_msgs_py.params import (
     tick_stamp_ns,
 )
 from soil_physics.bearing import EDGE_WIDTH_M, penetration_capacity
-from soil_physics.contact import BASE_FRICTION_V_REF_M_S, CONTACT_DAMPING_PA_S_M, base_friction_force
+from soil_physics.contact import BASE_FRICTION_V_REF_M_S, CONTACT_DAMPING_PA_S_M, base_friction_force, submerged_area_m2
 from soil_physics.force_inputs import ForceInputs
-from soil_physics.soils import SoilType, get_soil
+from soil_physics.soils import SoilType, at_density, get_soil
 from soil_physics.travel import soil_advance, soil_time_step
 
 from . import kernel
@@ -408,8 +408,8 @@ class SoilSimulator:
 
     @staticmethod
     def _soil_at(loose, dense, i_d):
-        """(..., 3) phi, c, gamma at relative density i_d [%] (...), linear as in SoilType.at."""
-        return loose + (dense - loose) * (i_d / 100.0)[..., None]
+        """(..., 3) phi, c, gamma at relative density i_d [%] (...), by SoilType.at's rule."""
+        return at_density(loose, dense, i_d[..., None])
 
     def patch_at(self, x):
         """Index (B,) of each episode's soil patch at edge x [m] (B,): the last whose start is
@@ -531,7 +531,7 @@ class SoilSimulator:
         f_fail = fee.failure_force(phi, c, delta_p, c_a_p, gamma, self.rho, self.alpha, self.w, d, q_fee, beta)
         f_fail = np.where(np.isfinite(f_fail), np.maximum(f_fail, 0.0), 0.0)
         if e.force_scaling:
-            area = self.w * np.maximum(d, 0.0) / math.sin(self.rho)
+            area = submerged_area_m2(self.w, d, self.rho)
             f_fail = np.minimum(f_fail * e.force_scale, e.area_pressure_limit_pa * area)
         ex, ez = fee.force_xz(1.0, self.rho, delta_p, self.alpha)  # Eq. 8's direction of the failure force
 
