@@ -138,6 +138,16 @@ def short_duration_warning(duration_s: float) -> str | None:
     return (f"--duration {duration_s:g} s is shorter than the {CAL_DURATION_S:g} s the shipped laws are calibrated on: "
             "the posteriors after so short a cut are wider than the live estimator's, so the laws come out "
             "sharper than live forecasts need (a quick check, not a config to ship)")
+
+
+def check_duration_option(p, duration_s: float) -> None:
+    """A calibration command's --duration: refused (``p.error``, exit 2) outside CAL_DURATION_RANGE_S,
+    warned about when shorter than the shipped laws' episodes (``short_duration_warning``)."""
+    lo, hi = CAL_DURATION_RANGE_S
+    if not lo <= duration_s <= hi:  # NaN too
+        p.error(f"--duration={duration_s} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
+    if warning := short_duration_warning(duration_s):
+        print(f"{p.prog}: warning: {warning}", file=sys.stderr, flush=True)
 REL_GRID = (0.005, 0.02, 0.05, 0.1, 0.2)
 # Shape evidence (``FusionConfig.shape_evidence``): off, or the error law (floor [N], share) of how
 # a stretch's sub-means depart from each other, from loose to sharp.
@@ -700,11 +710,7 @@ def main(argv=None) -> int:
                         "the noise-free world's")
     add_soil_options(p)
     args = p.parse_args(argv)
-    lo, hi = CAL_DURATION_RANGE_S
-    if not lo <= args.duration <= hi:  # NaN too
-        p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
-    if warning := short_duration_warning(args.duration):
-        print(f"pinn_fusion_calibrate: warning: {warning}", file=sys.stderr, flush=True)
+    check_duration_option(p, args.duration)
     from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .evaluate import fused_posteriors

@@ -40,6 +40,10 @@ FEE_VELOCITY_GAIN_S_M = 50.0
 # (paper §2.2.2, the reason lambda_eta = 10). Inside Table 1's limits this keeps every
 # output finite, so masked samples cannot poison gradients with inf * 0 = NaN.
 SIN_ETA_FLOOR = 1e-6
+# A root of Eq. 7 counts as a failure angle β* only this far [rad] inside (0, π − (δ + ρ + φ)): at the
+# ends the wedge degenerates (β → 0: a failure plane along the surface; the upper end: η → 180°, the
+# FEE's singularity).
+BETA_MARGIN_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,7 @@ def beta_star(phi, delta, rho, alpha):
     best_n = None
     for theta in (root - psi, math.pi - root - psi):
         beta = xp.remainder(theta / 2.0, math.pi)
-        valid = (beta > 1e-6) & (beta < upper - 1e-6)
+        valid = (beta > BETA_MARGIN_RAD) & (beta < upper - BETA_MARGIN_RAD)
         # N_gamma alone (the other coefficients are not needed to compare the roots), with the
         # arithmetic of ``coefficients``, so beta* is the same to the bit
         sin_eta = _safe_sin_eta(xp, delta + rho + phi + beta)

@@ -25,9 +25,9 @@ import numpy as np
 from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import fused_values
 from pinn_estimator.fusion_config import FusionConfig
-from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_RANGE_S, CAL_DURATION_S, FLOOR_GRID,
-                                               FORECAST_GRID, add_soil_options, calibration_episodes, checked_soils,
-                                               config_path, short_duration_warning, world_note)
+from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
+                                               add_soil_options, calibration_episodes, check_duration_option,
+                                               checked_soils, config_path, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -156,11 +156,7 @@ def main(argv=None) -> int:
     if args.force_noise and args.config is None:
         p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
     checked_soils(p, args, "--config", args.config)
-    lo, hi = CAL_DURATION_RANGE_S
-    if not lo <= args.duration <= hi:  # NaN too
-        p.error(f"--duration={args.duration} s must be in [{lo:g}, {hi:g}] s (its second half holds the steady cut)")
-    if warning := short_duration_warning(args.duration):
-        print(f"soil_planner_calibrate: warning: {warning}", file=sys.stderr, flush=True)
+    check_duration_option(p, args.duration)
     path = args.config or config_path(args.world)
     try:
         cfg = FusionConfig.load(path)

@@ -31,7 +31,7 @@ import numba
 import numpy as np
 
 from soil_physics.bearing import PHI_MIN_RAD
-from soil_physics.fee import SIN_ETA_FLOOR
+from soil_physics.fee import BETA_MARGIN_RAD, SIN_ETA_FLOOR
 
 # --- per-episode state (S_PATCH: the patch the soil half uses; S_DIST_ENTRY: S_DIST when the
 # edge entered it; S_PILE_GAMMA: the surcharge pile's mean unit weight [N/m^3])
@@ -129,7 +129,7 @@ def fee_beta_star(phi, delta, rho, alpha):
     for j in range(2):
         theta = root - psi if j == 0 else math.pi - root - psi
         beta = np.remainder(theta / 2.0, math.pi)
-        valid = (beta > 1e-6) and (beta < upper - 1e-6)
+        valid = (beta > BETA_MARGIN_RAD) and (beta < upper - BETA_MARGIN_RAD)
         n = fee_n_gamma(phi, delta, rho, alpha, beta)
         n = n if (valid and n > 0) else math.inf
         if j == 0 or n < best_n:
