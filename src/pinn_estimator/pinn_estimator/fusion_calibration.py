@@ -545,7 +545,8 @@ def jointly_chosen_rels(ds, shaped: FusionConfig, rels: tuple[float, float], rel
             sc = scores[pair]
             scored.append((rel, sc))
             log(f"  rel_std {pair[0]:g} / {pair[1]:g}: median forecasts at another depth off by {sc['error'][0]:.2f} ± "
-                f"{sc['sem'][0]:.2f} % of |F_x| (x) / {sc['error'][1]:.2f} ± {sc['sem'][1]:.2f} % of the 30 kN limit (z)")
+                f"{sc['sem'][0]:.2f} % of |F_x| (x) / {sc['error'][1]:.2f} ± {sc['sem'][1]:.2f} % of the "
+                f"{FORCE_LIMITS_N[1] / 1e3:g} kN limit (z)")
         out[j] = choose_evidence_law(scored)[j]
         log(f"  {axis} with the other axis at its choice: rel_std {out[j]:g}")
     return out[0], out[1]
@@ -582,7 +583,7 @@ def calibrate(ds, base: FusionConfig, rel_grid=REL_GRID, forecast_grid=FORECAST_
             scored.append((rel, sc))
             (ex, ez), (sx, sz) = sc["error"], sc["sem"]
             line = (f"shape {shape_text(shape)}, rel_std {rel:g}: median forecasts at another depth off by {ex:.2f} ± "
-                    f"{sx:.2f} % of |F_x| (x) / {ez:.2f} ± {sz:.2f} % of the 30 kN limit (z)")
+                    f"{sx:.2f} % of |F_x| (x) / {ez:.2f} ± {sz:.2f} % of the {FORCE_LIMITS_N[1] / 1e3:g} kN limit (z)")
             if truth:
                 candidates.append(judge(ds, sc, trial, posts))
                 line += f"; {cover_text(candidates[-1].cover)}"

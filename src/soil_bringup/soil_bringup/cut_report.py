@@ -41,7 +41,8 @@ from pinn_estimator.fusion_calibration import given_fusion
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
-from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, LIFT_REACH_M, MIN_CUT_DEPTH_M, MIN_PLANNED_DEPTH_M
+from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, LIFT_REACH_M, MIN_CUT_DEPTH_M,
+                                 MIN_PLANNED_DEPTH_M)
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN
@@ -313,7 +314,8 @@ def markdown(report: dict) -> str:
         r = w["ratios"]
         lines += [f"## {w['world']} world", "",
                   "| policy | volume / m [m³/m] | volume / s [m³/s] | stall [s] | ticks at a limit | back-offs "
-                  "| target falls | F_x mean / p95 [% of 20 kN] | F_z mean / p95 [% of 30 kN] | mean depth [m] |",
+                  f"| target falls | F_x mean / p95 [% of {FORCE_LIMITS_N[0] / 1e3:g} kN] "
+                  f"| F_z mean / p95 [% of {FORCE_LIMITS_N[1] / 1e3:g} kN] | mean depth [m] |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for p in w["policies"]:
             lines.append(f"| {p['policy']} | {p['volume_per_m_m3']:.3f} | {p['volume_per_s_m3']:.3f} | {p['stall_s']:.2f} "

@@ -609,7 +609,8 @@ def summarize(report: PhenomenaReport) -> list[tuple[str, bool, str]]:
                    and r.relative_density_pct >= s.dense_min_pct]
             if parts and lim:
                 ok &= min(lim) > 0.3
-                out.append((f"a: {world}: Clay/Loam mean depth falls as I_d rises, dense ones at the 20 kN limit", ok,
+                out.append((f"a: {world}: Clay/Loam mean depth falls as I_d rises, dense ones at the "
+                            f"{MACHINE.horizontal_force_limit_n / 1e3:g} kN limit", ok,
                             "; ".join(parts) + f"; dense at-limit fraction >= {min(lim):.2f}"))
             nc = [r for r in report.depth if r.world == world and r.soil not in COHESIVE_SOILS
                   and r.relative_density_pct >= s.dense_min_pct]
