@@ -26,7 +26,7 @@ from soil_msgs_py import messages as M
 from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_info, is_bag
 from .bag_writer import BagWriter
 from .integrity import McapScan, read_records
-from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_details, complete_ticks
+from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_details, stamps_in_every_topic
 
 
 def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> BagResult:
@@ -76,7 +76,7 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
         stamps: dict[str, list[int]] = defaultdict(list)
         for m in kept_msgs:
             stamps[usable[m.channel_id].topic].append(m.log_time)
-        ticks = complete_ticks({t: v for t, v in stamps.items() if t in M.FIELDS})
+        ticks = stamps_in_every_topic({t: v for t, v in stamps.items() if t in M.FIELDS})
         kept_msgs = [m for m in kept_msgs if usable[m.channel_id].topic not in M.FIELDS or m.log_time in ticks]
     if not kept_msgs:
         lines = "; ".join(c.describe(scan.topics) for c in scan.bad) or scan.stop or scan.data_problem

@@ -373,7 +373,7 @@ def _plausible_values(scan: JournalScan, wanted: Mapping[str, set[int]]) -> dict
     return out
 
 
-def complete_ticks(stamps: Mapping[str, Sequence[int]]) -> set[int]:
+def stamps_in_every_topic(stamps: Mapping[str, Sequence[int]]) -> set[int]:
     """Stamps at which every topic with any message has one (a topic nobody published must
     not wipe the bag)."""
     sets = [set(v) for v in stamps.values() if len(v)]
@@ -387,7 +387,7 @@ def whole_tick_cutoff(stamps: Mapping[str, Sequence[int]]) -> int | None:
     killed mid-tick); dropping them leaves a bag ``bag_io.read_episode`` can read. Gaps in
     the middle are not touched (``journal_to_bag`` drops the ticks a skipped chunk split).
     """
-    return max(complete_ticks(stamps), default=None)
+    return max(stamps_in_every_topic(stamps), default=None)
 
 
 # --- conversion --------------------------------------------------------------------------
@@ -494,7 +494,7 @@ def _convert(partial: Path, jpath: Path, trim_partial_ticks: bool, info_key: str
                 f"(use --keep-partial-ticks to keep them)"
             )
         if scan.bad_chunks:  # a skipped chunk's edges split ticks: their other messages go too
-            whole = complete_ticks(tick_topics)
+            whole = stamps_in_every_topic(tick_topics)
             split = {t: {s for s in v if s not in whole} for t, v in tick_topics.items()}
     in_range = (lambda t: True) if cutoff is None else (lambda t: t <= cutoff)
 
