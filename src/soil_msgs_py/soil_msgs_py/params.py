@@ -1,8 +1,9 @@
 """The FEE parameter vector Θ, its units, paper Table 1 ranges and limits, and machine constants.
 
 One source of truth: every other module (simulator, controller, PINN, bags) takes names,
-ranges and constants from here. SI inside (m, s, N, Pa, N/m^3, rad); degrees appear only
-in the ``*_deg`` helpers and in human-facing tables.
+ranges and constants from here. SI inside (m, s, N, Pa, N/m^3, rad); degrees only at the
+edges: what a user writes (soil files, node parameters and reports named ``*_deg``), converted
+with ``DEG`` where it is read or shown.
 """
 from __future__ import annotations
 
