@@ -69,7 +69,7 @@ from pinn_estimator.fusion_calibration import config_for_model, config_path, loa
 from pinn_estimator.shipped import shipped_checkpoint  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py.episode import WORLD_MODES  # noqa: E402
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS  # noqa: E402
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ  # noqa: E402
 from soil_physics.augmented_fee import AugmentedFEE  # noqa: E402
 from soil_physics.blade_inertia import soil_force_rows  # noqa: E402
 from soil_physics.soils import CATALOGUE, SoilProperties, SoilType  # noqa: E402
@@ -722,7 +722,7 @@ def section_cost(args, models, cache) -> dict:
             timed(lambda: post.forecast(known), fcs, fcs_cpu)
         ms = {k: 1e3 * np.array(v) for k, v in (("update", upd), ("update_cpu", upd_cpu), ("summary", summ),
                                                  ("summary_cpu", summ_cpu), ("forecast", fcs), ("forecast_cpu", fcs_cpu))}
-        stretch_s = cfg.update_ticks / 60.0
+        stretch_s = cfg.update_ticks / SAMPLE_RATE_HZ
         res = {"stretches": int(len(upd)), "stretch_s": stretch_s}
         for k, v in ms.items():
             res[f"{k}_ms_p50"], res[f"{k}_ms_p99"] = float(np.percentile(v, 50)), float(np.percentile(v, 99))

@@ -41,6 +41,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from soil_msgs_py import graph as G  # noqa: E402
 from soil_bag_tools.bag_io import find_episode_bags, read_episode  # noqa: E402
+from soil_msgs_py.params import ticks_in  # noqa: E402
 from soil_msgs_py.ros_adapter import init_context, topic_qos  # noqa: E402
 
 from soil_sim_node.simulator import ENGINES  # noqa: E402
@@ -91,7 +92,7 @@ def run_rate(rate: float, duration_s: float, domain: int, engine: str = "compile
             listener.close()
         bags = find_episode_bags(tmp)
         ticks = len(read_episode(bags[0])) if bags else 0
-    planned = int(round(duration_s * 60))
+    planned = ticks_in(duration_s)
     stats = end.stats if end else {}
     return {"rate": rate, "rc": rc, "planned": planned, "recorded": ticks,
             "late": stats.get("late_commands"), "period": stats.get("period", {}), "jitter": stats.get("jitter", {}),

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from anti_stall_controller.controller import limit_shares
-from soil_msgs_py.params import MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, stall_speed_m_s
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, stall_speed_m_s, ticks_in
 
 AT_LIMIT = 0.98
 BACKOFF_ON_M = 1e-3  # an offset above this counts as the controller lifting
@@ -165,7 +165,7 @@ def settle_s(cut, j: int, best_m: float | None) -> float | None:
         return None
     target = cut.target[inside]
     ok = np.abs(target - best_m) <= SETTLE_TOLERANCE * best_m
-    hold = int(round(SETTLE_HOLD_S * SAMPLE_RATE_HZ))
+    hold = ticks_in(SETTLE_HOLD_S)
     for i in range(len(ok)):
         window = ok[i: i + hold]
         if window.all() and (len(window) == hold or i + len(window) == len(ok)):

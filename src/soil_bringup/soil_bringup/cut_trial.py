@@ -31,7 +31,7 @@ from pinn_estimator.fusion_calibration import load_fusion_config
 from pinn_estimator.online import INPUT_TOPICS, Estimate, OnlineEstimator
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS, ticks_in
 from soil_planner.depth_schedule import DepthSchedule, ScheduleSettings
 from soil_planner.planner import steady_cut_terms
 from soil_planner.stretch_planner import StretchPlanner
@@ -119,7 +119,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
     gains = gains or AntiStallGains()
     sim = SoilSimulator(SimConfig(world_mode=world), [spec], custom_soils)
     spec = sim.specs[0]
-    n = int(round(spec.duration_s * SAMPLE_RATE_HZ))
+    n = ticks_in(spec.duration_s)
     start = policy.fixed_depth_m
     schedule = planner = estimator = None
     published: list[Estimate] = []

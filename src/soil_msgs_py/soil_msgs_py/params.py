@@ -111,6 +111,11 @@ SAMPLE_RATE_HZ = 60
 TICK_PERIOD_NS = 1e9 / SAMPLE_RATE_HZ  # exact tick period [ns]; tick k is stamped tick_stamp_ns(k)
 
 
+def ticks_in(seconds: float) -> int:
+    """The number of 60 Hz ticks in ``seconds`` (an episode's, a window's), rounded."""
+    return int(round(seconds * SAMPLE_RATE_HZ))
+
+
 def tick_stamp_ns(tick: int) -> int:
     """Stamp of tick k from its episode's first tick [ns]: floor(k · 1e9 / 60), the exact 60 Hz grid
     in integers (no float drift) on which the simulator and the batch generator stamp every tick."""

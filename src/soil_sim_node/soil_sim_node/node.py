@@ -39,8 +39,8 @@ from std_msgs.msg import String
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
-                                 beyond_lift_reach, tick_stamp_ns)
+from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, TICK_PERIOD_NS, beyond_lift_reach,
+                                 tick_stamp_ns, ticks_in)
 from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, topic_qos
 
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
@@ -423,7 +423,7 @@ class SimNode(Node):
         self.meta = episode_meta(self.config, self.sim.specs[0], self.sim.soils[0].name, self.sim.effects.enabled())
         self.meta.source = "soil_sim_node"
         self.tick = 0
-        self.planned_ticks = int(round(spec.duration_s * SAMPLE_RATE_HZ))
+        self.planned_ticks = ticks_in(spec.duration_s)
         self.first_stamp_ns = self.next_first_stamp_ns
         self.pacer.start_episode()
         self.gate = CommandGate(self.command_writers)

@@ -33,7 +33,7 @@ from soil_physics import fee
 from soil_physics.blade_inertia import inertia_force_rows
 from soil_msgs_py.episode import WORLD_MODES, Episode
 from soil_msgs_py.strict_json import json_safe
-from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ
+from soil_msgs_py.params import COMMAND_FIELDS, GROUND_TRUTH_PARAMS, MACHINE, SAMPLE_RATE_HZ, ticks_in
 from soil_physics.soils import CATALOGUE, COHESIVE_SOILS, ID_LIMIT_PCT
 
 from .batch import DEFAULT_RELATIVE_DENSITIES
@@ -74,8 +74,8 @@ class Settings:
 
     @property
     def tail_ticks(self) -> int:
-        n = int(round(self.duration_s * SAMPLE_RATE_HZ))
-        return max(1, min(n - 1, int(round(self.tail_s * SAMPLE_RATE_HZ))))
+        n = ticks_in(self.duration_s)
+        return max(1, min(n - 1, ticks_in(self.tail_s)))
 
 
 def _truth(ep: Episode, name: str) -> np.ndarray:
@@ -455,7 +455,7 @@ def closed_loop_force_levels(settings: Settings | None = None, episodes=None) ->
 def detrend(x: np.ndarray, window_s: float = 1.0) -> np.ndarray:
     """x minus its centred moving average over ``window_s``; only samples with a full window
     (the first and last window/2 samples are dropped)."""
-    w = int(round(window_s * SAMPLE_RATE_HZ)) | 1  # odd, centred
+    w = ticks_in(window_s) | 1  # odd, centred
     if len(x) < w:
         raise ValueError(f"series of {len(x)} samples is shorter than the {w}-sample detrend window")
     ma = np.convolve(x, np.ones(w) / w, mode="valid")

@@ -10,8 +10,8 @@ import numpy as np
 
 from anti_stall_controller.controller import AntiStallController, AntiStallGains
 from soil_msgs_py.episode import Episode, EpisodeMeta
-from soil_msgs_py.params import (FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ,
-                                 VELOCITY_AVERAGE_SAMPLES, tick_stamp_ns)
+from soil_msgs_py.params import (FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS,
+                                 VELOCITY_AVERAGE_SAMPLES, tick_stamp_ns, ticks_in)
 
 from .effects import plugin_name
 from . import kernel
@@ -42,7 +42,7 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
     durations = {s.duration_s for s in sim.specs}
     if len(durations) != 1:
         raise ValueError(f"duration_s differs across the batch ({sorted(durations)}); batch equal durations")
-    n_ticks = int(round(specs[0].duration_s * SAMPLE_RATE_HZ))
+    n_ticks = ticks_in(specs[0].duration_s)
     gains = gains or AntiStallGains()
     if sim.engine == "compiled" and not sim.plugins:  # plugins are Python: the loop below steps them
         return [_compiled_episode(sim, i, gains, n_ticks) for i in range(sim.batch)]

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import time
 
+from soil_msgs_py.params import SAMPLE_RATE_HZ
+
 from .rollout import run_episodes
 from .simulator import EpisodeSpec, SimConfig, SoilSimulator
 
@@ -22,7 +24,7 @@ def _no_force(state):  # noqa: ARG001 - a plugin, to compile the kernel's two ha
 def warm_up() -> float:
     """Run each compiled path once (whole episodes, the node's tick, the plugin halves); the wall s it took."""
     t0 = time.perf_counter()
-    spec = EpisodeSpec("Loam", 50.0, 0.5, 0.1, seed=0, duration_s=2 / 60)
+    spec = EpisodeSpec("Loam", 50.0, 0.5, 0.1, seed=0, duration_s=2 / SAMPLE_RATE_HZ)
     run_episodes(SimConfig(world_mode="fee"), [spec])
     SoilSimulator(SimConfig(world_mode="fee"), [spec]).step(0.0, 0.0, 0.5)
     SoilSimulator(SimConfig(world_mode="fee", plugins=(f"{__name__}:_no_force",)), [spec]).step(0.0, 0.0, 0.5)
