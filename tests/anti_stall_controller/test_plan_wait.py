@@ -144,3 +144,15 @@ def test_a_silent_planners_fallback_is_taken_at_once_upward_and_at_its_rate_down
     for bad in (0.0, -0.1, float("nan"), float("inf"), 11.0, True, "0.1"):
         with pytest.raises(ValueError, match="fallback_deepen_rate_m_s="):
             check_rate(bad)
+
+
+def test_the_depth_source_and_planner_timeout_are_checked_naming_the_parameter():
+    from anti_stall_controller.planner_fallback import check_depth_source
+
+    assert check_depth_source("planner", 1.0) == ("planner", 1_000_000_000)
+    assert check_depth_source("parameter", 3600) == ("parameter", 3_600_000_000_000)  # the graph's longest wait
+    with pytest.raises(ValueError, match="depth_source='estimator' must be one of"):
+        check_depth_source("estimator", 1.0)
+    for bad in (0.0, -1.0, 3600.5, float("nan"), float("inf"), True, "1"):
+        with pytest.raises(ValueError, match=r"planner_timeout_s=.* must be a number of seconds in \(0, 3600\]"):
+            check_depth_source("planner", bad)

@@ -107,7 +107,8 @@ def test_the_cut_report_names_the_soils_as_the_catalogue_does():
 def test_a_force_quantile_of_0_is_refused_by_the_cut_report_without_offering_it_and_taken_by_the_node(capsys):
     """0 means the PINN's point plan only in the planner node's parameter: the report, which plans
     from the posterior, had refused it while offering it ("or 0 for the PINN's point plan")."""
-    from soil_planner.node import PLANNER_SETTINGS, stretch_planner
+    from soil_planner.node import PLANNER_SETTINGS
+    from soil_planner.stretch_planner import from_parameters
 
     with pytest.raises(SystemExit) as exit_:
         cut_report.parse_args(["--force-quantile", "0"])
@@ -115,9 +116,9 @@ def test_a_force_quantile_of_0_is_refused_by_the_cut_report_without_offering_it_
     assert exit_.value.code == 2 and "force_quantile=0.0 must be in [0.5, 1)" in err and "or 0" not in err, err
     settings = dict(margin=0.85, d_max_m=0.3, cut_speed_m_s=0.5, include_residual=False, terms=(), force_quantile=0.0,
                     sensor_anchor=True, bound_law=[])
-    assert set(settings) == set(PLANNER_SETTINGS) and stretch_planner(settings).force_quantile is None
+    assert set(settings) == set(PLANNER_SETTINGS) and from_parameters(settings).force_quantile is None
     with pytest.raises(ValueError, match=r"force_quantile=1.5 must be in \[0.5, 1\) .*, or 0 for the PINN's point plan"):
-        stretch_planner({**settings, "force_quantile": 1.5})
+        from_parameters({**settings, "force_quantile": 1.5})
 
 
 def test_the_cut_report_refuses_a_soil_without_a_failure_wedge_even_where_the_blade_never_goes(tmp_path, capsys):

@@ -72,12 +72,13 @@ def test_an_announcement_the_planner_cannot_plan_with_keeps_the_physics_heard_be
 
     from std_msgs.msg import String
 
-    from soil_planner.node import PlannerNode, stretch_planner
+    from soil_planner.node import PlannerNode
+    from soil_planner.stretch_planner import from_parameters
 
     good = said()
     taken, warned = [], []
     node = SimpleNamespace(own_physics={"terms": [], "bound_law": []}, announced=good, _warn=lambda k, t: warned.append(t),
-                           planner=stretch_planner({"margin": 0.85, "d_max_m": 0.3, "cut_speed_m_s": 0.5,
+                           planner=from_parameters({"margin": 0.85, "d_max_m": 0.3, "cut_speed_m_s": 0.5,
                                                     "include_residual": True, "force_quantile": 0.95, "terms": [],
                                                     "sensor_anchor": True, "bound_law": []}),
                            _take_physics=lambda: taken.append(node.announced))

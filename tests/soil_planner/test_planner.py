@@ -1114,7 +1114,7 @@ def test_a_bad_schedule_is_refused_in_the_nodes_parameter_names():
     assert "min_target_m=0.3 and max_target_m=0.1 must satisfy" in str(err.value) and "depth_m" not in str(err.value)
     # a target floor below which the planner admits no cut (d_max_m 0.02 m, min_target_m 0.05 m) cut 2.5x
     # deeper than its own plan without a word (an outside tester's finding)
-    from soil_planner.node import check_target_floor
+    from soil_planner.stretch_planner import check_target_floor
     floor = ScheduleSettings()
     check_target_floor(StretchPlanner(d_max_m=0.3), floor)
     with pytest.raises(ValueError, match=r"min_target_m=0\.05 is deeper than d_max_m=0\.02"):

@@ -58,7 +58,8 @@ from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
 from .controller import MAX_DITHER_AMPLITUDE_M, MAX_RATE_GAIN_M_S, MIN_DITHER_TICKS, AntiStallController, AntiStallGains
 from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
-from .planner_fallback import DEFAULT_FALLBACK_DEEPEN_RATE_M_S, MAX_FALLBACK_DEEPEN_RATE_M_S, check_rate, fallback_depth
+from .planner_fallback import (DEFAULT_FALLBACK_DEEPEN_RATE_M_S, MAX_FALLBACK_DEEPEN_RATE_M_S, check_depth_source,
+                               check_rate, fallback_depth)
 
 _GAINS = AntiStallGains()
 PARAMETERS: dict[str, tuple] = {
@@ -101,7 +102,6 @@ PARAMETERS: dict[str, tuple] = {
                                                   f"({FORCE_LIMITS_N[0] / 1e3:g} kN x, {FORCE_LIMITS_N[1] / 1e3:g} kN z) "
                                                   "above which the blade rises, > 0"),
 }
-DEPTH_SOURCES = ("parameter", "planner")
 GAIN_FIELDS = ("k_v_m_s", "c_vx", "delta_d_max_m", "dither_amplitude_m", "dither_period_s", "force_lift_m_s",
                "force_lift_share")
 TARGET_FIELDS = ("target_speed_m_s", "target_depth_m")
@@ -150,7 +150,7 @@ class ControllerNode(Node):
         gains = AntiStallGains(**{k: get(k) for k in GAIN_FIELDS})  # ValueError names the field
         self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))
         self.follow = bool(get("follow_episode_targets"))
-        self.depth_source, self.planner_timeout_ns = self._check_planner(get("depth_source"), get("planner_timeout_s"))
+        self.depth_source, self.planner_timeout_ns = check_depth_source(get("depth_source"), get("planner_timeout_s"))
         self.param_depth_m = float(get("target_depth_m"))  # the parameter's d̄_z (the planner's fallback)
         self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"),
                                   self.planner_timeout_ns / 1e9)  # ValueError names the field
@@ -198,14 +198,6 @@ class ControllerNode(Node):
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                      lambda msg, n=name: self._on_state(n, msg), topic_qos(name))
 
-    @staticmethod
-    def _check_planner(source, timeout_s) -> tuple[str, int]:
-        if source not in DEPTH_SOURCES:
-            raise ValueError(f"depth_source={source!r} must be one of {DEPTH_SOURCES}")
-        if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not 0.0 < timeout_s < 3600.0:
-            raise ValueError(f"planner_timeout_s={timeout_s!r} must be a number of seconds in (0, 3600)")
-        return source, int(timeout_s * 1e9)
-
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply atomically (a rejected change alters nothing)."""
@@ -213,7 +205,7 @@ class ControllerNode(Node):
         if "inputs_wait_s" in changes:  # read once, at start (it was taken unchecked and changed nothing)
             return SetParametersResult(successful=False, reason="['inputs_wait_s'] can only be set at start-up")
         try:
-            source, timeout_ns = self._check_planner(
+            source, timeout_ns = check_depth_source(
                 changes.get("depth_source", self.depth_source),
                 changes.get("planner_timeout_s", self.planner_timeout_ns / 1e9))
             gains = {k: changes[k] for k in GAIN_FIELDS if k in changes}

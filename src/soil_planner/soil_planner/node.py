@@ -71,8 +71,8 @@ from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWai
 from .depth_schedule import DepthSchedule, ScheduleSettings
 from .estimator_physics import physics_text, planning_physics
 from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
-                      DEFAULT_MARGIN, NO_PLAN_VALUES, check_quantile, check_switch, describe, fields)
-from .stretch_planner import StretchPlanner
+                      DEFAULT_MARGIN, NO_PLAN_VALUES, check_switch, describe, fields)
+from .stretch_planner import check_target_floor, from_parameters
 
 _SCHEDULE = ScheduleSettings()
 # Node parameter -> ScheduleSettings field
@@ -177,27 +177,6 @@ def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None
         by_stamp.popitem(last=False)
 
 
-def stretch_planner(settings: dict) -> StretchPlanner:
-    """The planner for the node's parameters PLANNER_SETTINGS (``force_quantile`` 0 or None: the
-    PINN's point plan); ValueError naming a bad one."""
-    q = settings["force_quantile"]
-    off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
-    if not off:
-        check_quantile(q, "or 0 for the PINN's point plan")
-    return StretchPlanner(**{**settings, "force_quantile": None if off else q})
-
-
-def check_target_floor(planner: StretchPlanner, schedule: ScheduleSettings) -> None:
-    """The target's floor within the planner's reach: a min_target_m above d_max_m kept the edge
-    deeper than the deepest cut the planner admits, without a word (an outside tester's 0.02 m plan
-    cut at 0.05 m)."""
-    d_max = planner.settings()["d_max_m"]
-    for name, depth in (("min_target_m", schedule.min_depth_m), ("start_depth_m", schedule.start_depth_m)):
-        if depth > d_max:  # (the start depth is also where the target returns without a plan)
-            raise ValueError(f"{name}={depth!r} is deeper than d_max_m={d_max!r}: the target would keep the "
-                             "edge deeper than the deepest cut the planner admits")
-
-
 def check_log_period(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= MAX_LOG_PERIOD_S:
         raise ValueError(f"log_period_s={value!r} must be a number in [0, {MAX_LOG_PERIOD_S:g}] s")
@@ -208,7 +187,7 @@ class PlannerNode(Node):
     def __init__(self) -> None:
         super().__init__("soil_planner")
         get = declare_parameters(self, PARAMETERS)
-        self.planner = stretch_planner({name: get(name) for name in PLANNER_SETTINGS})
+        self.planner = from_parameters({name: get(name) for name in PLANNER_SETTINGS})
         # what the user gave of the posterior's physics, and whether the estimator's fills what was not
         self.own_physics = {name: self.planner.settings()[name] for name in PHYSICS_SETTINGS}
         self.follow_physics = check_switch("follow_estimator_physics", get("follow_estimator_physics"))
@@ -293,7 +272,7 @@ class PlannerNode(Node):
         if fixed := sorted(set(changes) & START_ONLY):  # (they were taken, unchecked, and changed nothing)
             return SetParametersResult(successful=False, reason=f"{fixed} can only be set at start-up")
         try:
-            planner = stretch_planner({**self.planner.settings(),
+            planner = from_parameters({**self.planner.settings(),
                                        **{name: changes[name] for name in PLANNER_SETTINGS if name in changes}})
             period = check_log_period(changes.get("log_period_s", self.log_period_ns / M.NS_PER_S))
             wait_s = check_command_wait(changes.get("command_wait_s", self.command_wait.max_wait_s))
@@ -331,7 +310,7 @@ class PlannerNode(Node):
         try:
             heard = G.EstimatorPhysics.from_json(msg.data)
             choice = planning_physics(self.own_physics["terms"], self.own_physics["bound_law"], heard, True)
-            stretch_planner({**self.planner.settings(), "terms": term_texts(choice.terms),
+            from_parameters({**self.planner.settings(), "terms": term_texts(choice.terms),
                              "bound_law": list(choice.bound_law)})
         except ValueError as err:
             self._warn(f"physics:refused:{err}", f"{G.ESTIMATOR_PHYSICS_TOPIC}: {err}; not taken, the plans' physics "
@@ -351,7 +330,7 @@ class PlannerNode(Node):
         wanted = {"terms": term_texts(choice.terms), "bound_law": list(choice.bound_law)}
         if all(current[name] == wanted[name] for name in PHYSICS_SETTINGS):
             return
-        planner = stretch_planner({**current, **wanted})  # (checked as it was heard, ``_on_physics``)
+        planner = from_parameters({**current, **wanted})  # (checked as it was heard, ``_on_physics``)
         planner.keep_evidence_of(self.planner)
         self.planner = planner
         def whose(name: str) -> str:

@@ -23,6 +23,7 @@ from soil_msgs_py.params import (KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, 
 from soil_physics import force_terms
 from soil_physics.predictive import mean_standard_error
 
+from .depth_schedule import ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, KNOWN_LIMITS,
                       MIN_FUSED_ANCHOR_DEPTH_M, Plan, _checked, _get, _number, check_bound_law, check_quantile,
                       check_settings, check_switch, checked_inputs, max_cut_depth, planning_terms)
@@ -354,3 +355,24 @@ class StretchPlanner:
         if plan is None or cap is None or plan.max_depth_m <= cap:
             return plan
         return dataclasses.replace(plan, max_depth_m=cap, limited_by_x=True, f_x_n=plan.limit_x_n)
+
+
+def from_parameters(settings: dict) -> StretchPlanner:
+    """The planner for the node's parameters ``node.PLANNER_SETTINGS`` (``force_quantile`` 0 or None:
+    the PINN's point plan); ValueError naming a bad one."""
+    q = settings["force_quantile"]
+    off = q is None or (isinstance(q, (int, float)) and not isinstance(q, bool) and q == 0)
+    if not off:
+        check_quantile(q, "or 0 for the PINN's point plan")
+    return StretchPlanner(**{**settings, "force_quantile": None if off else q})
+
+
+def check_target_floor(planner: StretchPlanner, schedule: ScheduleSettings) -> None:
+    """The target's floor within the planner's reach: a min_target_m above d_max_m kept the edge
+    deeper than the deepest cut the planner admits, without a word (an outside tester's 0.02 m plan
+    cut at 0.05 m)."""
+    d_max = planner.settings()["d_max_m"]
+    for name, depth in (("min_target_m", schedule.min_depth_m), ("start_depth_m", schedule.start_depth_m)):
+        if depth > d_max:  # (the start depth is also where the target returns without a plan)
+            raise ValueError(f"{name}={depth!r} is deeper than d_max_m={d_max!r}: the target would keep the "
+                             "edge deeper than the deepest cut the planner admits")
