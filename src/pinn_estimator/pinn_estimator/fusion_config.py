@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
-from soil_msgs_py.patches import finite_number, short_repr
+from soil_msgs_py.values import finite_number, short_repr
 from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 

@@ -31,7 +31,7 @@ from rosbags.serde import SerdeError
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta, first_non_finite
 from soil_msgs_py.params import KNOWN_PARAMS
-from soil_msgs_py.patches import short_repr
+from soil_msgs_py.values import short_repr
 from soil_msgs_py.stream_checks import cutting_ticks, rate_problem, sign_problem
 from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
 from .bag_writer import BagWriter, offered_qos

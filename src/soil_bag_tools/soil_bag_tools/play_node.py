@@ -28,7 +28,7 @@ from rclpy.node import Node
 from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE,
                                 UNKNOWN_NODE_NAME, EpisodeEvent)
 from soil_msgs_py.cli_paths import input_text
-from soil_msgs_py.patches import finite_number
+from soil_msgs_py.values import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,

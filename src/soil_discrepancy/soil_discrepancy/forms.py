@@ -40,7 +40,7 @@ import warnings
 
 import numpy as np
 
-from soil_msgs_py.patches import finite_number, short_repr, yaml_exponent
+from soil_msgs_py.values import finite_number, short_repr, yaml_exponent
 from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG
-from soil_msgs_py.patches import finite_number, short_repr, yaml_exponent
+from soil_msgs_py.values import finite_number, short_repr, yaml_exponent
 
 from .frame import Frame
 from soil_msgs_py.yaml_file import read_yaml

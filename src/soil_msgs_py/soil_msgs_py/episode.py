@@ -13,7 +13,8 @@ import numpy as np
 
 from .params import (FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_TARGET_SPEED_M_S, OBSERVATION_FIELDS,
                      TICK_PERIOD_NS)
-from .patches import SoilPatch, check_patches, finite_number, patches_tag, short_repr
+from .patches import SoilPatch, check_patches, patches_tag
+from .values import finite_number, short_repr
 from .soil_labels import UNKNOWN_SOILS
 
 WORLD_MODES = ("fee", "default")

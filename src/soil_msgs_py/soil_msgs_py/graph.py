@@ -35,7 +35,8 @@ from . import topics as T
 from .episode import MAX_SEED, EpisodeMeta
 from .messages import MAX_STAMP_NS
 from .params import SAMPLE_RATE_HZ
-from .patches import PATCH_SYNTAX, check_patches, finite_number, short_repr
+from .patches import PATCH_SYNTAX, check_patches
+from .values import finite_number, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"

@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
-import re
-import numbers
 from dataclasses import asdict, dataclass, fields
+
+from .values import finite_number, plain_zero, short_repr
 
 PATCH_SYNTAX = "'X:SOIL:ID' (x_start_m:soil:relative_density_pct, e.g. '5.0:Clay:90')"
 # The most patches one path may have: the episode_start event carries the path, and a /sim/status
@@ -46,13 +45,6 @@ class SoilPatch:
 
 
 FIELDS = tuple(f.name for f in fields(SoilPatch))
-
-
-def plain_zero(value):
-    """``value`` with a float −0.0 as 0.0 (anything else as it is, checked where it is used): a
-    user's "-0" had named a bag ``id-00`` beside the ``id000`` of the same grid point, and a
-    report "Sand -0 %"."""
-    return 0.0 if isinstance(value, float) and value == 0.0 else value
 
 
 def parse_patch(text: str, where: str = "patch") -> SoilPatch:
@@ -95,33 +87,6 @@ def to_patch(item, where: str = "patch") -> SoilPatch:
         return SoilPatch(*item)
     raise ValueError(f"{where}={item!r} must be {PATCH_SYNTAX}, a mapping of {list(FIELDS)} "
                      "or an (x_start_m, soil, relative_density_pct) triple")
-
-
-def short_repr(value, most: int = 40) -> str:
-    """``repr(value)`` cut to ``most`` characters: a 400-digit number from a JSON message stays
-    readable in the error that names it."""
-    text = repr(value)
-    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
-
-
-_EXPONENT_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
-
-
-def yaml_exponent(value):
-    """A YAML text such as ``16e3`` or ``1e0`` as the number it means (YAML 1.1, which PyYAML reads,
-    takes an exponent without a dot for a string); any other value unchanged."""
-    return float(value) if isinstance(value, str) and _EXPONENT_FLOAT.match(value) else value
-
-
-def finite_number(value) -> bool:
-    """A real number (not a bool) that is finite; False, not OverflowError, for an integer too
-    large for a float (JSON has no bound on integers)."""
-    if not isinstance(value, numbers.Real) or isinstance(value, bool):
-        return False
-    try:
-        return math.isfinite(value)
-    except OverflowError:  # an integer too large for a float (hundreds of digits in a JSON command)
-        return False
 
 
 def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:

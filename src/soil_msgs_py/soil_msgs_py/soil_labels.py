@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .patches import short_repr
+from .values import short_repr
 
 # Metadata soil names that say "not known": a machine's bags carry no soil label.
 UNKNOWN_SOILS = ("", "unknown", "none", "?")

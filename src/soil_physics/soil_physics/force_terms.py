@@ -33,7 +33,7 @@ from .bearing import EDGE_WIDTH_M, edge_bearing_n
 from .fee import beta_star, force_xz
 from .force_inputs import ForceInputs
 from soil_msgs_py.params import TABLE1
-from soil_msgs_py.patches import short_repr
+from soil_msgs_py.values import short_repr
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,8 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG, TABLE1
-from soil_msgs_py.patches import SoilPatch, check_patches, finite_number, short_repr, yaml_exponent
+from soil_msgs_py.patches import SoilPatch, check_patches
+from soil_msgs_py.values import finite_number, short_repr, yaml_exponent
 from soil_msgs_py.soil_labels import UNKNOWN_SOILS, says_unknown
 from soil_msgs_py.yaml_file import read_yaml
 

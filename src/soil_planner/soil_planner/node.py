@@ -58,7 +58,7 @@ from std_msgs.msg import String
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
-from soil_msgs_py.patches import short_repr
+from soil_msgs_py.values import short_repr
 from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local,
                                       message_class, publisher_qos, spin_node, status_event, topic_qos)

@@ -100,7 +100,7 @@ from soil_physics.augmented_fee import AugmentedFEE
 from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M, TABLE1
 from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
-from soil_msgs_py.patches import short_repr
+from soil_msgs_py.values import short_repr
 from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis

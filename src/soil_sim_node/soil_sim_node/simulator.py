@@ -54,7 +54,8 @@ import numpy as np
 
 from soil_physics import fee
 from soil_msgs_py.episode import MAX_EPISODE_S, MAX_SEED
-from soil_msgs_py.patches import SoilPatch, check_patches, plain_zero
+from soil_msgs_py.patches import SoilPatch, check_patches
+from soil_msgs_py.values import plain_zero
 from soil_msgs_py.params import (
     ADHESION_PA,
     DEG,
