@@ -19,10 +19,12 @@ import collections
 from typing import Any
 
 from soil_msgs_py.params import SAMPLE_RATE_HZ, TICK_PERIOD_NS
+from soil_msgs_py.values import number_in
 
 DEFAULT_LAG_TICKS = 2  # also soil_bringup.cut_trial.DEFAULT_PLAN_DELAY_TICKS, the in-process loop's
 DEFAULT_WAIT_S = 2.0
 MAX_LAG_TICKS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks; a plan older than that is no plan for this tick
+MAX_PLAN_WAIT_S = 60.0  # planner_wait_s: a lockstep tick held longer for a plan is a planner that is gone
 MAX_TARGETS = 2 * MAX_LAG_TICKS  # targets kept by stamp: the one tick k cuts to is always among them
 
 
@@ -31,8 +33,7 @@ def check_plan_wait(lag_ticks, wait_s, timeout_s: float | None = None) -> tuple[
     node's ``planner_timeout_s``: a lag longer than it would make every tick's plan too old to follow."""
     if isinstance(lag_ticks, bool) or not isinstance(lag_ticks, int) or not 0 <= lag_ticks <= MAX_LAG_TICKS:
         raise ValueError(f"planner_lag_ticks={lag_ticks!r} must be an integer in [0, {MAX_LAG_TICKS}] (0: never wait)")
-    if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 < wait_s <= 60.0:
-        raise ValueError(f"planner_wait_s={wait_s!r} must be a number of seconds in (0, 60]")
+    number_in("planner_wait_s", wait_s, 0.0, MAX_PLAN_WAIT_S, lo_open=True, what="a number of seconds")
     if timeout_s is not None and lag_ticks * TICK_PERIOD_NS > timeout_s * 1e9:
         raise ValueError(f"planner_lag_ticks={lag_ticks!r} ({lag_ticks * TICK_PERIOD_NS / 1e9:g} s) is longer than "
                          f"planner_timeout_s={timeout_s!r}: every tick's plan would be too old to follow")

@@ -10,11 +10,10 @@ No ROS here.
 """
 from __future__ import annotations
 
-import math
-
 from soil_msgs_py.graph import MAX_WAIT_S
 from soil_msgs_py.params import CAUTIOUS_DEEPEN_RATE_M_S
 from soil_msgs_py.messages import NS_PER_S
+from soil_msgs_py.values import number_in
 
 DEPTH_SOURCES = ("parameter", "planner")  # the controller's target depth: its parameter's, or the planner's
 
@@ -24,10 +23,7 @@ MAX_FALLBACK_DEEPEN_RATE_M_S = 10.0  # beyond it the fallback is reached within 
 
 def check_rate(rate_m_s) -> float:
     """``fallback_deepen_rate_m_s`` as a float; ValueError naming it unless in (0, 10] m/s."""
-    if isinstance(rate_m_s, bool) or not isinstance(rate_m_s, (int, float)) or not math.isfinite(rate_m_s) \
-            or not 0.0 < rate_m_s <= MAX_FALLBACK_DEEPEN_RATE_M_S:
-        raise ValueError(f"fallback_deepen_rate_m_s={rate_m_s!r} must be in (0, {MAX_FALLBACK_DEEPEN_RATE_M_S:g}] m/s")
-    return float(rate_m_s)
+    return number_in("fallback_deepen_rate_m_s", rate_m_s, 0.0, MAX_FALLBACK_DEEPEN_RATE_M_S, lo_open=True, unit=" m/s")
 
 
 def check_depth_source(source, timeout_s) -> tuple[str, int]:
@@ -35,8 +31,7 @@ def check_depth_source(source, timeout_s) -> tuple[str, int]:
     unless the source is one of DEPTH_SOURCES and the timeout a number of seconds in (0, MAX_WAIT_S]."""
     if source not in DEPTH_SOURCES:
         raise ValueError(f"depth_source={source!r} must be one of {DEPTH_SOURCES}")
-    if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not 0.0 < timeout_s <= MAX_WAIT_S:
-        raise ValueError(f"planner_timeout_s={timeout_s!r} must be a number of seconds in (0, {MAX_WAIT_S:g}]")
+    timeout_s = number_in("planner_timeout_s", timeout_s, 0.0, MAX_WAIT_S, lo_open=True, what="a number of seconds")
     return source, int(timeout_s * NS_PER_S)
 
 

@@ -34,6 +34,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .dds_profile import use_graph_profile
 from .params_files import node_parameters, read_params_file
+from .values import number_in
 from .launcher_death import stop_with_launcher
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE,
                     TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
@@ -234,8 +235,7 @@ class JoinAfterInputs:
 
     def __init__(self, node: Node, inputs: dict, join: Callable[[], object], wait_s: float,
                  on_missing: Callable[[list[str]], None] | None = None):
-        if isinstance(wait_s, bool) or not isinstance(wait_s, (int, float)) or not 0.0 <= wait_s <= MAX_WAIT_S:
-            raise ValueError(f"inputs_wait_s={wait_s!r} must be a number of seconds in [0, {MAX_WAIT_S:g}]")
+        number_in("inputs_wait_s", wait_s, 0.0, MAX_WAIT_S, what="a number of seconds")
         self.node, self.inputs, self.join, self.on_missing = node, dict(inputs), join, on_missing
         self.joined = False
         self._deadline = time.monotonic() + float(wait_s)

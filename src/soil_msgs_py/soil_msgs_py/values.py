@@ -44,3 +44,15 @@ def finite_number(value) -> bool:
         return math.isfinite(value)
     except OverflowError:  # an integer too large for a float (hundreds of digits in a JSON command)
         return False
+
+
+def number_in(name: str, value, lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False,
+              what: str = "a number", unit: str = "", note: str = "") -> float:
+    """``value`` as a float if it is a finite real number (not a bool) within [lo, hi] (an end
+    excluded where ``lo_open`` / ``hi_open``); else ValueError "<name>=<value> must be <what> in
+    (lo, hi]<unit><note>", naming the parameter as the user wrote it."""
+    inside = finite_number(value) and (lo < value if lo_open else lo <= value) and (value < hi if hi_open else value <= hi)
+    if not inside:
+        ends = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        raise ValueError(f"{name}={short_repr(value)} must be {what} in {ends}{unit}{note}")
+    return float(value)

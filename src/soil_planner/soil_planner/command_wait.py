@@ -15,12 +15,12 @@ Without commands (no controller, a replay of estimates alone) nothing waits.
 from __future__ import annotations
 
 import collections
-import math
 from dataclasses import dataclass
 from typing import Any
 
 from soil_msgs_py.graph import LOCKSTEP_TIMEOUT_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
+from soil_msgs_py.values import number_in
 
 DEFAULT_COMMAND_WAIT_S = 0.5  # far beyond a DDS hop on loopback; well inside the controller's planner_timeout_s
 MAX_COMMAND_WAIT_S = LOCKSTEP_TIMEOUT_S  # the simulator's lockstep_timeout_s: a longer wait would end a lockstep episode
@@ -29,11 +29,8 @@ MAX_WAITING_TICKS = 2 * SAMPLE_RATE_HZ  # 2 s of ticks
 
 def check_command_wait(value) -> float:
     """``command_wait_s`` [s of wall time] in [0, MAX_COMMAND_WAIT_S]; ValueError naming it."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0.0 <= value <= MAX_COMMAND_WAIT_S:
-        raise ValueError(f"command_wait_s={value!r} must be a number of seconds in [0, {MAX_COMMAND_WAIT_S:g}] "
-                         "(0: plan a tick without waiting for its command)")
-    return float(value)
+    return number_in("command_wait_s", value, 0.0, MAX_COMMAND_WAIT_S, what="a number of seconds",
+                     note=" (0: plan a tick without waiting for its command)")
 
 
 @dataclass

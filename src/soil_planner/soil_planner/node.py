@@ -58,7 +58,7 @@ from std_msgs.msg import String
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
-from soil_msgs_py.values import short_repr
+from soil_msgs_py.values import number_in, short_repr
 from soil_msgs_py import graph as G
 from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local,
                                       message_class, publisher_qos, spin_node, status_event, topic_qos)
@@ -178,9 +178,7 @@ def _keep_by_stamp(by_stamp: collections.OrderedDict, stamp: int, value) -> None
 
 
 def check_log_period(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= MAX_LOG_PERIOD_S:
-        raise ValueError(f"log_period_s={value!r} must be a number in [0, {MAX_LOG_PERIOD_S:g}] s")
-    return float(value)
+    return number_in("log_period_s", value, 0.0, MAX_LOG_PERIOD_S, unit=" s")
 
 
 class PlannerNode(Node):
