@@ -241,6 +241,9 @@ def test_deterministic():
         (dict(delta_d_max_m=100.0), "delta_d_max_m", "100.0"),
         (dict(dither_amplitude_m=1.0), "dither_amplitude_m", "1.0"),
         (dict(force_lift_m_s=1e6), "force_lift_m_s", "1000000.0"),
+        # no number: a text was taken as the number it spells
+        (dict(c_vx="0.3"), "c_vx", "'0.3'"),
+        (dict(k_v_m_s=True), "k_v_m_s", "True"),
     ],
 )
 def test_bad_gains_name_field_value_and_range(kwargs, field, value):

@@ -84,6 +84,7 @@ import numpy as np
 
 from soil_msgs_py.params import (DEFAULT_C_VX, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE, MAX_TARGET_DEPTH_M,
                                  MAX_TARGET_SPEED_M_S, MIN_TARGET_SPEED_M_S, SAMPLE_RATE_HZ)
+from soil_msgs_py.values import finite_number
 
 __all__ = ["AntiStallGains", "ControlCommand", "AntiStallController", "limit_shares"]
 
@@ -96,12 +97,12 @@ def limit_shares(force_n) -> np.ndarray:
 
 def _check_scalar(name: str, value, lo: float, lo_open: bool, allowed: str, hi: float = math.inf,
                   hi_open: bool = False) -> float:
-    """Return ``value`` as a float, or raise ValueError naming the field, value and range."""
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}") from None
-    if not math.isfinite(x) or x < lo or (lo_open and x == lo) or x > hi or (hi_open and x == hi):
+    """Return ``value`` as a float, or raise ValueError naming the field, value and range (a bool
+    or a text is no number: "0.3" had been taken as 0.3)."""
+    if not finite_number(value):
+        raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}")
+    x = float(value)
+    if x < lo or (lo_open and x == lo) or x > hi or (hi_open and x == hi):
         raise ValueError(f"{name} must be a finite number in {allowed}; got {value!r}")
     return x
 
