@@ -201,8 +201,8 @@ assert PLAN_FIELDS == ("max_depth_m", "f_x_n", "f_z_n", "limited_by_x", "limited
 
 def check_settings(margin: float, d_max_m: float, cut_speed_m_s: float) -> tuple[float, float, float]:
     """(margin, d_max_m, cut_speed_m_s) as floats; ValueError naming the setting and value if out of range."""
-    m, d = _number("margin", margin), _number("d_max_m", d_max_m)
-    v = _number("cut_speed_m_s", cut_speed_m_s)
+    m, d = plausible_number("margin", margin), plausible_number("d_max_m", d_max_m)
+    v = plausible_number("cut_speed_m_s", cut_speed_m_s)
     if not 0.0 < m <= 1.0:
         raise ValueError(f"margin={margin!r} must be in (0, 1] (fraction of the force limits)")
     if not 0.0 < d <= D_MAX_LIMIT_M:
@@ -330,9 +330,9 @@ def checked_inputs(estimate: Mapping[str, float], known: Mapping[str, float], fo
     fused = force_quantile is not None and "fused_valid" in estimate and _flag(estimate, "fused_valid") == 1.0
     if valid == 0.0 and not fused:
         return valid, fused, None, None
-    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    kn = checked_fields(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
     if not fused:
-        return valid, fused, _checked(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS,
+        return valid, fused, checked_fields(estimate, ESTIMATE_FIELDS[: ESTIMATE_FIELDS.index("valid")], ESTIMATE_LIMITS,
                                       "estimate"), kn
     for name in ("phi_fused", "delta_fused"):  # (a posterior at the low edge of its box: its mean just below 0°)
         value = estimate.get(name)
@@ -340,9 +340,9 @@ def checked_inputs(estimate: Mapping[str, float], known: Mapping[str, float], fo
             raise ValueError(f"estimate {name}={value!r} rad is below 0°: the fused posterior has run off the physical "
                              "range (a soil its model cannot explain, e.g. far from Table 1's); not planned from, the "
                              "target holds, then backs off")
-    est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
+    est = checked_fields(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
     if valid == 1.0:  # the PINN's force now: what the plan and its steady anchor are anchored to
-        est |= _checked(estimate, ("f_x_hat", "f_z_hat"), {}, "estimate")
+        est |= checked_fields(estimate, ("f_x_hat", "f_z_hat"), {}, "estimate")
     return valid, fused, est, kn
 
 
@@ -359,8 +359,8 @@ def fused_upper_force(estimate: Mapping[str, float], known: Mapping[str, float],
     quantile = check_quantile(quantile)
     if _flag(estimate, "fused_valid") != 1.0:
         raise ValueError("estimate: fused_valid is not 1 (no fused posterior to bound the force with)")
-    est = _checked(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
-    kn = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+    est = checked_fields(estimate, FUSED_FIELDS[:-2], FUSED_LIMITS, "estimate")
+    kn = checked_fields(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
     force_now, known_now, std_now = _checked_anchor(anchor) if anchor is not None else (None, None, (0.0, 0.0))
     model = _FusedForceModel(est, kn, cut_speed_m_s, quantile, force_now, known_now, planning_terms(terms), std_now,
                              check_bound_law(bound_law))
@@ -376,11 +376,12 @@ def _checked_anchor(anchor) -> tuple[tuple[float, float], dict[str, float], tupl
     if not isinstance(anchor, (tuple, list)) or len(anchor) not in (2, 3) or not pair(anchor[0]) \
             or (len(anchor) == 3 and not pair(anchor[2])):
         raise ValueError(f"anchor={anchor!r} must be ((F_x, F_z) [N], Θ_k) or ((F_x, F_z), Θ_k, (σ_x, σ_z) [N])")
-    force_now = tuple(_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
-    std = tuple(_number(f"anchor force std {a}", v) for a, v in zip("xz", anchor[2])) if len(anchor) == 3 else (0.0, 0.0)
+    force_now = tuple(plausible_number(f"anchor force {a}", v) for a, v in zip("xz", anchor[0]))
+    std = (tuple(plausible_number(f"anchor force std {a}", v) for a, v in zip("xz", anchor[2])) if len(anchor) == 3
+           else (0.0, 0.0))
     if min(std) < 0.0:
         raise ValueError(f"anchor force std={std!r} must be >= 0 N")
-    return force_now, _checked(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known"), std
+    return force_now, checked_fields(anchor[1], KNOWN_PARAMS, KNOWN_LIMITS, "anchor known"), std
 
 
 def check_bound_law(law) -> tuple[float, float, float, float] | None:
@@ -405,7 +406,8 @@ def check_bound_law(law) -> tuple[float, float, float, float] | None:
         return None
     if len(values) != 4:
         raise wrong
-    out = tuple(_number(f"bound_law {name}", v) for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), values))
+    out = tuple(plausible_number(f"bound_law {name}", v)
+                for name, v in zip(("abs_x", "abs_z", "rel_x", "rel_z"), values))
     if min(out) < 0.0 or min(out[:2]) <= 0.0:
         raise ValueError(f"bound_law={shown} must be >= 0 (its floors abs_x, abs_z > 0 N)")
     return out
@@ -441,7 +443,7 @@ def check_switch(name: str, value) -> bool:
 def check_quantile(q, alternative: str = "") -> float:
     """The force quantile as a float; ValueError naming it unless 0.5 <= q < 1 (``alternative``:
     what else the caller takes, said after the range, e.g. the node's 0)."""
-    x = _number("force_quantile", q)
+    x = plausible_number("force_quantile", q)
     if not 0.5 <= x < 1.0:
         raise ValueError(f"force_quantile={q!r} must be in [0.5, 1) (an upper quantile of the force)"
                          + (f", {alternative}" if alternative else ""))
@@ -449,7 +451,7 @@ def check_quantile(q, alternative: str = "") -> float:
 
 
 def _flag(estimate: Mapping[str, float], name: str) -> float:
-    value = _number(f"estimate {name}", _get(estimate, name, "estimate"))
+    value = plausible_number(f"estimate {name}", field_of(estimate, name, "estimate"))
     if value not in (0.0, 1.0):
         raise ValueError(f"estimate {name}={value!r} must be 1.0 or 0.0")
     return value
@@ -706,7 +708,9 @@ def describe(plan: Plan, estimate: Mapping[str, float], known: Mapping[str, floa
 
 # --- validation ----------------------------------------------------------------------------
 
-def _number(name: str, value) -> float:
+def plausible_number(name: str, value) -> float:
+    """``value`` as a float; ValueError naming ``name`` unless it is a finite number (not a bool)
+    within ±PLAUSIBLE_ABS_LIMIT, a magnitude some part of the graph can give."""
     if isinstance(value, bool):
         raise ValueError(f"{name}={value!r} must be a number")
     try:
@@ -720,19 +724,21 @@ def _number(name: str, value) -> float:
     return x
 
 
-def _get(data: Mapping[str, float], name: str, what: str):
+def field_of(data: Mapping[str, float], name: str, what: str):
+    """``data[name]``; ValueError "<what> has no field <name>" where it is missing."""
     try:
         return data[name]
     except KeyError:
         raise ValueError(f"{what} has no field {name!r}") from None
 
 
-def _checked(data: Mapping[str, float], names: Sequence[str], limits: Mapping[str, tuple[float, float]],
+def checked_fields(data: Mapping[str, float], names: Sequence[str], limits: Mapping[str, tuple[float, float]],
              what: str) -> dict[str, float]:
-    """Every field finite and inside its limits (snapped in within LIMIT_RTOL)."""
+    """``names`` of ``data`` as floats, every one finite and inside its ``limits`` (snapped in within
+    LIMIT_RTOL); ValueError naming ``what``, the field and its value otherwise."""
     out = {}
     for name in names:
-        x = _number(f"{what} {name}", _get(data, name, what))
+        x = plausible_number(f"{what} {name}", field_of(data, name, what))
         lo, hi = limits.get(name, (-math.inf, math.inf))
         slack = lambda b: LIMIT_RTOL * max(1.0, abs(b)) if math.isfinite(b) else 0.0  # noqa: E731
         if x < lo - slack(lo) or x > hi + slack(hi):

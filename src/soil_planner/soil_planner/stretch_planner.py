@@ -25,8 +25,8 @@ from soil_physics.predictive import mean_standard_error
 
 from .depth_schedule import ScheduleSettings
 from .planner import (DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, KNOWN_LIMITS,
-                      MIN_FUSED_ANCHOR_DEPTH_M, Plan, _checked, _get, _number, check_bound_law, check_quantile,
-                      check_settings, check_switch, checked_inputs, max_cut_depth, planning_terms)
+                      MIN_FUSED_ANCHOR_DEPTH_M, Plan, check_bound_law, check_quantile, check_settings, check_switch,
+                      checked_fields, checked_inputs, field_of, max_cut_depth, planning_terms, plausible_number)
 
 # The fused plan's anchor is F̂ averaged over the recent *steady* cut, not one tick's F̂: the
 # force of a cut fluctuates by ±20 % from half a second to the next (the default world's
@@ -140,8 +140,8 @@ class SteadyAnchor:
         measured_x = _measured_x(measured_force_n)  # ValueError for what is no (F_x, F_z) pair
         self.tick += 1
         try:  # a tick the plan would refuse never enters the average
-            fx, fz = (_number(f"estimate {n}", _get(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
-            k = _checked(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
+            fx, fz = (plausible_number(f"estimate {n}", field_of(estimate, n, "estimate")) for n in ("f_x_hat", "f_z_hat"))
+            k = checked_fields(known, KNOWN_PARAMS, KNOWN_LIMITS, "known")
         except ValueError:
             return
         if estimate.get("valid") != 1.0:
