@@ -909,6 +909,35 @@ def test_a_weak_unpinned_form_alone_is_at_best_a_partial_explanation():
     assert verdict == "explained" and "at best" not in text, text
 
 
+def test_a_pinned_form_that_leaves_theta_on_the_soil_tests_bounds_beyond_chance_is_a_possible_stand_in():
+    """With soil tests, the effect's mechanism releases θ from the tests' bounds to what chance leaves
+    there. An outside tester's drag ∝ √d was named as a constant force "pinned down" and the verdict
+    said "explained" while θ stayed on a test's bound in 6 of 12 groups (12 before): fewer than before,
+    so the old rule (as many as before) kept quiet. More groups on a bound than chance allows (each
+    tested parameter outside its ± 2 std interval 4.6 % of the time) is now a possible stand-in and
+    at best a partial explanation; as many as chance leaves is not."""
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.verdict import bound_hits_by_chance, verdict_of
+
+    def reg(on_bound: int, groups: int = 12, tested: int = 2) -> dict:
+        rows = [{"kind": "group", "name": f"g{i}", "tested_parameters": tested,
+                 "theta_at_bound": ["c at its soil test's upper bound"] if i < on_bound else []} for i in range(groups)]
+        return {"significant": False, "flagged_variables": [], "misfit": {"rows": rows, "alpha": 0.01, "groups": [], "soils": []}}
+
+    named = [TermScore(name="form:one_x*1", k=1.0, k_se=0.015, k_folds=[1.0] * 5, gain=0.68, p=1e-9)]
+    test = {"before": {"rmse": 613.0}, "after": {"rmse": 502.0}}
+    pins = {"form:one_x*1": {"pinned": True}}
+    verdict, text = verdict_of(named, {**reg(12), "significant": True, "flagged_variables": ["d"]}, test, reg(6), pins=pins)
+    assert verdict == "partly explained" and "θ stays on a test's bound in 6 groups (12 without the named terms" in text, text
+    assert "STAND-INS" in text
+    verdict, text = verdict_of(named, {**reg(12), "significant": True, "flagged_variables": ["d"]}, test, reg(1), pins=pins)
+    assert verdict == "explained" and "STAND-INS" not in text, text  # one group of twelve: chance
+    # the chance itself: none on a bound is certain, all twelve impossible, untested groups never land there
+    assert bound_hits_by_chance(reg(0)) == 1.0 and bound_hits_by_chance(reg(12)) < 1e-12
+    assert bound_hits_by_chance(reg(1)) == pytest.approx(1 - (1 - 0.0455) ** (2 * 12), rel=1e-3)  # 1 - P(none)
+    assert bound_hits_by_chance(reg(1, tested=0)) == 0.0
+
+
 def test_a_catalogue_term_given_with_accepted_is_not_said_to_be_tested():
     """A term of the user's catalogue also given with --accepted is in the model from the start:
     the report said it was "tested as a candidate ... not named" (an outside tester found)."""

@@ -266,6 +266,7 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
     tested = {frame.group_names[g]: box for g, box in (frame.theta_boxes or {}).items()}
     bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]], tested.get(t["group"])) for t in (theta_table or [])
              if t["group"] in rho_max and t.get("success", True)}
+    n_tested = {name: _tested_parameters(rho_max[name], tested.get(name)) for name in rho_max}
     d = frame.known[:, KNOWN_PARAMS.index("d")]
     span = {frame.group_names[g]: float(np.subtract(*np.percentile(d[frame.group == g], [90, 10])))
             for g in frame.groups}
@@ -279,6 +280,7 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
         rows.append({"kind": kind, "name": str(name), "n_episodes": int(len(a)), "misfit": _f(np.median(a) if len(a) else None),
                      "misfit_others": _f(np.median(b) if len(b) else None), "ratio": _f(rel), "p": _f(p),
                      "theta_at_bound": bound.get(name, []) if kind == "group" else [],
+                     "tested_parameters": n_tested.get(name, 0) if kind == "group" else 0,
                      "depth_span_m": _f(span.get(name)) if kind == "group" else None,
                      "one_depth": kind == "group" and span.get(name, math.inf) < ONE_DEPTH_SPAN_M})
     for r, p in zip(rows, holm([np.nan if r["p"] is None else r["p"] for r in rows])):
@@ -295,6 +297,16 @@ _TEST_BOUND = "its soil test's"  # how ``_theta_at_bound`` words a bound a soil 
 def on_soil_test_bound(hit: str) -> bool:
     """Whether one of ``_theta_at_bound``'s hits is on a soil test's bound (not the fit box's)."""
     return _TEST_BOUND in hit
+
+
+def _tested_parameters(rho_max_rad: float, tested=None) -> int:
+    """How many of φ, c, δ a soil test bounds inside the fit's box for a group (``tested``: its
+    ``Frame.theta_boxes`` entry, None for none): each may land on the test's bound by chance."""
+    box = normalised_bounds(rho_max_rad)
+    if box is None or tested is None:
+        return 0
+    lo_si, hi_si = (denormalise_theta(np.asarray(b, float)) for b in box)
+    return sum(1 for i in range(3) if float(tested[0][i]) > float(lo_si[i]) or float(tested[1][i]) < float(hi_si[i]))
 
 
 def _theta_at_bound(row: dict, rho_max_rad: float, tested=None) -> list[str]:

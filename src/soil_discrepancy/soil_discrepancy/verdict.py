@@ -229,19 +229,23 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
                          "does not hold, rather than its mechanism; look where the structure is)")
             else:
                 text += " (the named terms explain part of the discrepancy)"
-        # with soil tests, a term that is the effect's mechanism releases θ from the tests' bounds (an
-        # adhesion named as −k c w d: 6 groups on a bound → 0); one that leaves as many there takes force
-        # θ could not, not what pushed θ there (a drag with density named by two forms: 8 → 10)
+        # with soil tests, a term that is the effect's mechanism releases θ from the tests' bounds to what
+        # chance leaves there (an adhesion named as −k c w d: 6 groups on a bound → 0); one that leaves as
+        # many there, or more than chance would, takes force θ could not, not what pushed θ there (a drag
+        # with density named by two forms: 8 → 10; a drag ∝ √d named as a constant force, "pinned down":
+        # 12 → 6, a drag ∝ d^1.5 named as one ∝ d²: 12 → 11)
         held0, held1 = _on_test_bounds(reg0), _on_test_bounds(reg1)
-        if held1 and held1 >= held0:
+        chance = bound_hits_by_chance(reg1)
+        bound_stand_ins = bool(held1) and (held1 >= held0 or chance < reg1["misfit"]["alpha"])
+        if bound_stand_ins:
             text += (f"; with the soil tests θ stays on a test's bound in {held1} groups ({held0} without the named "
-                     "terms): they do not take what pushes θ there, and may be STAND-INS for an effect whose own "
-                     "form the library does not hold")
+                     f"terms; by chance as many or more in {100 * chance:.2g} % of cases): they do not take what "
+                     "pushes θ there, and may be STAND-INS for an effect whose own form the library does not hold")
         # a form not pinned down and θ can trade off: the soil fitted beside it is the form's as much as
         # the data's (beside a pinned-down term the move is what the baseline's θ had taken in)
         hedged = bool(stand_ins) or any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") for s in new_terms)
         moved = theta_shift_text(shift, reg0, reg1) if hedged else ""
-        return ("partly explained" if remains or weak else "explained",
+        return ("partly explained" if remains or weak or bound_stand_ins else "explained",
                 text + moved + misfit_text(reg1) + _left_text(reg1) + not_named)
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
@@ -284,6 +288,24 @@ def weak_forms_only(new_terms, pins: dict | None, gain: float | None) -> bool:
 def _on_test_bounds(reg: dict | None) -> int:
     """How many θ-groups sit on a soil test's bound (``regimes.group_misfit``'s rows; 0 without soil tests)."""
     return sum(1 for hits in _bound_hits(reg).values() if any(on_soil_test_bound(b) for b in hits))
+
+
+def bound_hits_by_chance(reg: dict | None) -> float:
+    """The chance that at least as many θ-groups as in ``reg`` sit on a soil test's bound with every
+    test right and nothing missing from the model: each group lands on a bound as often as one of
+    its n tested parameters' truth lies outside its interval, 1 − (1 − OUTSIDE_BY_CHANCE)^n, the
+    groups independently (a Poisson-binomial tail). 1.0 with none on a bound."""
+    rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
+    held = _on_test_bounds(reg)
+    if not held:
+        return 1.0
+    counts = np.zeros(len(rows) + 1)
+    counts[0] = 1.0
+    for r in rows:  # the distribution of the number of groups on a bound, one group at a time
+        p = 1.0 - (1.0 - OUTSIDE_BY_CHANCE) ** int(r.get("tested_parameters", 0))
+        counts[1:] = counts[1:] * (1.0 - p) + counts[:-1] * p
+        counts[0] *= 1.0 - p
+    return float(min(1.0, counts[held:].sum()))
 
 
 def _left_text(reg: dict | None) -> str:
