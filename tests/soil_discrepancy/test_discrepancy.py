@@ -843,6 +843,16 @@ def test_a_pinned_form_with_structure_left_in_its_scales_variable_says_the_effec
     assert shape_caveat("form:-q_x*1", {"pinned": True}, {**reg, "flagged_variables": ["distance"]}, labels) == ""
     assert "which its scale" in shape_caveat("form:mom_x*1", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels)
     assert shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "significant": False}, labels) == ""
+    # a form whose factor alone is pinned down: an outside tester's z force acting only above 0.8 m/s was
+    # named −γ d² w (v_x / 1 m/s)², "its factor is pinned down", with structure left vs v_x
+    factor_only = {"pinned": False, "stand_in": False, "n_better": 0, "few_levels": None, "shape_pinned": False,
+                   "factor_pinned": True, "scale_pinned": False}
+    labels["v_x"] = "forward speed v_x"
+    said = shape_caveat("form:gd2w_z*vx2", factor_only, {**reg, "flagged_variables": ["v_x"]}, labels)
+    assert said.startswith("; its factor among the library's forms, but structure remains vs forward speed v_x"), said
+    assert shape_caveat("form:gd2w_z*vx2", factor_only, reg, labels) == ""  # (structure elsewhere: its scale is not pinned)
+    assert shape_caveat("form:gd2w_z*vx2", {**factor_only, "factor_pinned": False}, {**reg, "flagged_variables": ["v_x"]},
+                        labels) == ""  # nothing pinned: its own words say so
 
 
 def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_form_says_its_forecast():
@@ -936,6 +946,26 @@ def test_a_pinned_form_that_leaves_theta_on_the_soil_tests_bounds_beyond_chance_
     assert bound_hits_by_chance(reg(0)) == 1.0 and bound_hits_by_chance(reg(12)) < 1e-12
     assert bound_hits_by_chance(reg(1)) == pytest.approx(1 - (1 - 0.0455) ** (2 * 12), rel=1e-3)  # 1 - P(none)
     assert bound_hits_by_chance(reg(1, tested=0)) == 0.0
+
+
+def test_a_named_term_that_makes_one_axis_worse_on_the_held_out_episodes_is_said_and_partial():
+    """An outside tester's compaction on x only was named as the catalogue's compaction hardening,
+    which acts on both axes, "explained": x's held-out mean |error| fell 906 -> 98 N while z's rose
+    41 -> 96 N, and nothing said so. Now the verdict says which axis got worse and is at best
+    "partly explained"; an axis that moves by a few % is left alone."""
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.verdict import verdict_of
+
+    named = [TermScore(name="compaction_hardening", k=0.0519, k_se=0.0003, k_folds=[0.0519] * 5, gain=0.88, p=1e-12)]
+    quiet = {"significant": False, "flagged_variables": []}
+    before = {"rmse": 1293.2, "rmse_x": 1274.1, "rmse_z": 221.4, "mae_x": 906.2, "mae_z": 41.4}
+    worse_z = {"before": before, "after": {"rmse": 513.6, "rmse_x": 457.4, "rmse_z": 233.6, "mae_x": 97.7, "mae_z": 96.2}}
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, worse_z, quiet)
+    assert verdict == "partly explained", text
+    assert "but the held-out z error rises (RMSE 221 -> 234 N, mean |error| 41 -> 96 N)" in text, text
+    same_z = {"before": before, "after": {**worse_z["after"], "rmse_z": 223.0, "mae_z": 42.5}}
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, same_z, quiet)
+    assert verdict == "explained" and "error rises" not in text, text
 
 
 def test_a_catalogue_term_given_with_accepted_is_not_said_to_be_tested():
