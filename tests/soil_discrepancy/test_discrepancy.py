@@ -738,6 +738,32 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert even["soils"] == [] and even["groups"] == [] and misfit_text({"misfit": even}) == ""
 
 
+def test_fitted_soils_outside_their_labels_textbook_ranges_are_said_beside_no_significant_discrepancy(bag_dirs):
+    """An outside tester's drag ∝ d^1.5 (47 % of the FEE force) read as "no significant discrepancy":
+    θ had taken it in, clays fitted at φ 35° where the textbook has 17-27°. The verdict now says where
+    the fitted soil lies outside its label's range (loose to dense, ``soils.CATALOGUE``, with a margin);
+    a label of no catalogue soil, and bags without labels, are not judged."""
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import group_misfit
+    from soil_discrepancy.verdict import verdict_of
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=4)
+    fmag = np.hypot(frame.forces[:, 0], frame.forces[:, 1])[:, None]
+    resid = np.random.default_rng(0).normal(size=frame.forces.shape) * fmag * 0.03
+    table = [{"group": n, "phi_deg": 35.0 if n.startswith("Clay") else 30.0, "c_pa": 5e3 if n.startswith(("Clay", "Loam")) else 0.0,
+              "delta_deg": 15.0} for n in frame.group_names]
+    mis = group_misfit(frame, resid, theta_table=table)
+    off = {r["name"]: r["theta_off_label"] for r in mis["rows"] if r["kind"] == "group" and r["theta_off_label"]}
+    assert off and all(n.startswith("Clay") for n in off) and all(v == ["φ 35.0° (Clay: 17–27°)"] for v in off.values()), off
+    quiet = {"significant": False, "flagged_variables": [], "min_effect": 0.02, "alpha": 0.01, "misfit": mis}
+    verdict, text = verdict_of([], quiet, None)
+    assert verdict == "no significant discrepancy" and f"outside its label's textbook range in {len(off)}/" in text, text
+    assert "soil tests (--soil-tests) tell" in text
+    inside = group_misfit(frame, resid, theta_table=[{**t, "phi_deg": 22.0 if t["group"].startswith("Clay") else 30.0}
+                                                    for t in table])
+    assert verdict_of([], {**quiet, "misfit": inside}, None)[1].endswith("reduces the held-out error"), "nothing said"
+
+
 def test_a_gamma_group_that_fits_worse_is_said_to_be_possibly_two_soils():
     """Bags without soil labels are grouped by γ; two soils of one γ share one θ and fit worse with
     no effect missing, which the caution says (a user read it as an effect acting in that soil)."""

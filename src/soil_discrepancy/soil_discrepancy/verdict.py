@@ -275,7 +275,7 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
-                                          + misfit_text(reg0, quiet=True) + not_named)
+                                          + misfit_text(reg0, quiet=True) + _off_label_text(reg0) + not_named)
 
 
 # pin_kind: the form itself is not pinned down ("levels": its factor cannot be, over too few depths or speeds)
@@ -324,6 +324,20 @@ def _worse_axes(test: dict) -> list[tuple[str, tuple[float, float, float, float]
         if ra > rb and ma > (1.0 + WORSE_AXIS_SHARE) * mb:
             out.append((axis, (rb, ra, mb, ma)))
     return out
+
+
+def _off_label_text(reg: dict | None) -> str:
+    """Where the fitted soils lie outside their labels' textbook ranges: with nothing else wrong in the
+    forces, θ may have taken an effect in (a drag ∝ d^1.5 of 47 % of the FEE force read as "no
+    significant discrepancy" with clays fitted at φ 35°)."""
+    rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
+    off = [r for r in rows if r.get("theta_off_label")]
+    if not off:
+        return ""
+    shown = "; ".join(f"{r['name']}: {', '.join(r['theta_off_label'])}" for r in off[:3]) + ("; …" if len(off) > 3 else "")
+    return (f"; but the fitted soil lies outside its label's textbook range in {len(off)}/{len(rows)} groups ({shown}): "
+            "θ may have taken in a missing effect, which the forces alone cannot tell from another soil, or the "
+            "soils are unlike the textbook's; soil tests (--soil-tests) tell")
 
 
 def _rarely(chance: float) -> str:
