@@ -60,7 +60,7 @@ class FusionConfig:
     drift_per_sqrt_m: float = 0.01  # soil drift within a patch: share of the prior box per √m of travel
     # Mean length of a soil patch along the path [m] (0: the soil never jumps). Between
     # stretches the soil is a new one with probability 1 − exp(−travel / patch_length_m): the
-    # posterior keeps that hypothesis beside the current one (``SoilPosterior.update``).
+    # posterior keeps that hypothesis beside the current one (``fusion.SoilPosterior.update``).
     patch_length_m: float = 5.0
     change_nis: float = 30.0  # normalised innovation (χ², 2 dof) beyond which a stretch is a new soil
     # Shape evidence: each stretch is observed as its ``model_points`` sub-means of force, not its
@@ -70,21 +70,22 @@ class FusionConfig:
     # force's tick noise over the sub-mean (``tick_noise_n``). Why: the force's change along the
     # entry ramp or a slow lift is what tells φ from c at one target depth (γd²wN_γ against
     # c·d·w·N_c), and a stretch mean, widened by that very change as if it were noise, threw it
-    # away (fee world: φ after 5 s 4.2° off). Only quasi-static sub-means count (``quasi_static``).
+    # away (fee world: φ after 5 s 4.2° off). Only quasi-static sub-means count (``fusion.quasi_static``).
     shape_evidence: bool = False
     shape_abs_std_n: tuple[float, float] = (20.0, 20.0)  # floor of a sub-mean's departure error (x, z) [N]
     shape_rel_std: tuple[float, float] = (0.05, 0.05)  # per unit of the model's departure (x, z)
-    shape_noise_gain: float = 1.0  # per unit of the sub-mean's noise and of its timing error (``SAMPLE_TIMING_TICKS``)
+    # per unit of the sub-mean's noise and of its timing error (``fusion.SAMPLE_TIMING_TICKS``)
+    shape_noise_gain: float = 1.0
     # Prior probability that the soil is cohesionless (clean sands and gravels: c = 0, a state of
     # its own, not the edge of a range): the prior holds a second row of components at c = 0
-    # beside the broad one (``SoilPosterior._prior``). Why: c = 0 is at the end of the softplus
+    # beside the broad one (``fusion.SoilPosterior._prior``). Why: c = 0 is at the end of the softplus
     # coordinate, where the broad prior has little mass and the data no say (a few tens of Pa
     # of c trade against a fraction of a degree of φ), so a sand's posterior sat at c ≈ 0.1-0.2
     # kPa and φ 1-2° low, 2-6 % off at another depth. At c ≈ 7 Pa instead of 0 the row still
     # biased every sand's φ by −0.6 to −0.8 of its standard deviation (c 13 ± 18 Pa).
     cohesionless_prior: float = 0.5
     # Prior probability that the soil is stiff beyond Table 1's cohesions (a third row of components
-    # at c = 30 ± 6 kPa, ``STIFF_U``; c reaches 60 kPa). Why: a hardpan of 32 kPa at φ 10° lay 4-5
+    # at c = 30 ± 6 kPa, ``fusion.STIFF_U``; c reaches 60 kPa). Why: a hardpan of 32 kPa at φ 10° lay 4-5
     # prior standard deviations out and its posterior sat on the broad row's bound at 20 kPa, φ
     # 24° off with intervals holding neither (fee world); with the row it is found (c 30-34 kPa,
     # φ within its interval). 0.02: the Table 1 soils' posteriors do not move (their data rule the

@@ -139,9 +139,9 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     flagged = reg1.get("flagged_variables") or []
     var = term_forms.factor_variable(factor.name)
     if var is not None and var in flagged:
-        return (f"; {'pinned down' if kind == 'pinned' else 'its factor'} among the library's forms, but structure "
-                f"remains vs {labels.get(var, var)} with it: the effect's shape there is near the form's, not the "
-                "form's, and its k is the nearest shape's")
+        pinned = "pinned down" if kind == "pinned" else "its factor is pinned down"
+        return (f"; {pinned} among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
+                "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
     if kind != "pinned":
         return ""
     law = term_forms.SCALE_VARIABLES.get(scale.name, ())
@@ -244,13 +244,14 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             else:
                 text += " (the named terms explain part of the discrepancy)"
         # with soil tests, a term that is the effect's mechanism releases θ from the tests' bounds to what
-        # chance leaves there (an adhesion named as −k c w d: 6 groups on a bound → 0); one that leaves as
-        # many there, or more than chance would, takes force θ could not, not what pushed θ there (a drag
-        # with density named by two forms: 8 → 10; a drag ∝ √d named as a constant force, "pinned down":
-        # 12 → 6, a drag ∝ d^1.5 named as one ∝ d²: 12 → 11)
+        # chance leaves there (an adhesion named as −k c w d: 6 groups on a bound → 0); one that leaves
+        # more there than chance would takes force θ could not, not what pushed θ there (a drag with
+        # density named by two forms: 8 → 10; a drag ∝ √d named as a constant force, "pinned down":
+        # 12 → 6; a drag ∝ d^1.5 named as one ∝ d²: 12 → 11). As many as before but within chance (one
+        # group of twelve, before and after) is no sign: the same tests bound both fits.
         held0, held1 = _on_test_bounds(reg0), _on_test_bounds(reg1)
         chance = bound_hits_by_chance(reg1)
-        bound_stand_ins = bool(held1) and (held1 >= held0 or chance < reg1["misfit"]["alpha"])
+        bound_stand_ins = bool(held1) and chance < reg1["misfit"]["alpha"]
         if bound_stand_ins:
             text += (f"; with the soil tests θ stays on a test's bound in {held1} groups ({held0} without the named "
                      f"terms; by chance as many or more {_rarely(chance)}): they do not take what "
@@ -342,17 +343,20 @@ def _off_label_text(reg: dict | None) -> str:
 
 def _rarely(chance: float) -> str:
     """How often something happens by chance, in words: "in 2.8 % of cases", "in under 0.01 % of cases"."""
-    return f"in {100 * chance:.2g} % of cases" if chance >= 1e-4 else "in under 0.01 % of cases"
+    if chance < 1e-4:
+        return "in under 0.01 % of cases"
+    return f"in {100 * chance:.2g} % of cases" if chance < 0.1 else f"in {100 * chance:.0f} % of cases"
 
 
 def bound_hits_by_chance(reg: dict | None) -> float:
     """The chance that at least as many θ-groups as in ``reg`` sit on a soil test's bound with every
     test right and nothing missing from the model: each group lands on a bound as often as one of
     its n tested parameters' truth lies outside its interval, 1 − (1 − OUTSIDE_BY_CHANCE)^n, the
-    groups independently (a Poisson-binomial tail). 1.0 with none on a bound."""
+    groups independently (a Poisson-binomial tail). 1.0 with none on a bound, and where a row does not
+    say how many parameters its tests bound (a report written before it did): nothing is claimed."""
     rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
     held = _on_test_bounds(reg)
-    if not held:
+    if not held or any("tested_parameters" not in r for r in rows):
         return 1.0
     counts = np.zeros(len(rows) + 1)
     counts[0] = 1.0
