@@ -339,13 +339,20 @@ def _off_label_range(frame: Frame, theta_table) -> dict[str, list[str]]:
     return out
 
 
+def _fit_box_si(rho_max_rad: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lower, upper) of φ, c, δ [SI] of the box ``fee_fit`` searches for a group whose steepest blade
+    angle is ``rho_max_rad``; None where the blade is so steep that no useful soil fits."""
+    box = normalised_bounds(rho_max_rad)
+    return None if box is None else tuple(denormalise_theta(np.asarray(b, float)) for b in box)
+
+
 def _tested_parameters(rho_max_rad: float, tested=None) -> int:
     """How many of φ, c, δ a soil test bounds inside the fit's box for a group (``tested``: its
     ``Frame.theta_boxes`` entry, None for none): each may land on the test's bound by chance."""
-    box = normalised_bounds(rho_max_rad)
+    box = _fit_box_si(rho_max_rad)
     if box is None or tested is None:
         return 0
-    lo_si, hi_si = (denormalise_theta(np.asarray(b, float)) for b in box)
+    lo_si, hi_si = box
     return sum(1 for i in range(3) if float(tested[0][i]) > float(lo_si[i]) or float(tested[1][i]) < float(hi_si[i]))
 
 
@@ -354,10 +361,10 @@ def _theta_at_bound(row: dict, rho_max_rad: float, tested=None) -> list[str]:
     ``fee_fit`` searches for a group whose steepest blade angle is ``rho_max_rad`` (narrowed so that β* exists),
     within a soil test's interval where ``tested`` ((lo, hi) SI, ``Frame.theta_boxes``) holds the group:
     there a bound hit says the forces want a soil the test rules out."""
-    box = normalised_bounds(rho_max_rad)
+    box = _fit_box_si(rho_max_rad)
     if box is None:
         return []
-    lo_si, hi_si = (denormalise_theta(np.asarray(b, float)) for b in box)
+    lo_si, hi_si = box
     out = []
     for i, (name, value) in enumerate((("φ", math.radians(row["phi_deg"])), ("c", row["c_pa"]),
                                        ("δ", math.radians(row["delta_deg"])))):
