@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .messages import NS_PER_S
-from .params import SAMPLE_RATE_HZ, tick_stamp_ns
+from .params import SAMPLE_RATE_HZ, tick_stamp_ns, ticks_in
 
 SEQUENCE_MASK = 0xFFFF_FFFF  # MCAP stores a uint32 sequence; DDS counts in int64: compare modulo 2^32
 # A command writer silent this many ticks is forgotten by those who follow the controller's
@@ -170,7 +170,7 @@ def _interleave(a: Sequence[int], b: Sequence[int]) -> bool:
 # messages, not ticks: a restarted estimator's 2 Hz map, 26 maps in 13 s, had been refused as
 # an intruder's under a rule of 30 messages (an outside tester's).
 SUCCESSOR_MIN_S = 0.5
-SUCCESSOR_MIN_MESSAGES = round(SUCCESSOR_MIN_S * SAMPLE_RATE_HZ)
+SUCCESSOR_MIN_MESSAGES = ticks_in(SUCCESSOR_MIN_S)
 
 
 def typical_spacing(ticks: Sequence[int]) -> int:
