@@ -306,14 +306,22 @@ def test_non_finite_model_output_is_published_invalid(episode, model):
 
 def test_no_window_spans_two_episodes_even_if_data_overtakes_episode_start(episode, model):
     """Episode k+1's stamps continue episode k's. Its first ticks may arrive before its
-    episode_start; they must not extend episode k's window, and must not be lost either."""
+    episode_start; they must not extend episode k's window, and must not be lost either. While an
+    ended episode's last ticks are still to come the estimator owes them (a node asked to stop
+    then takes them first); not once they came, nor once the next episode started."""
     out = []
     est = OnlineEstimator(model, out.append)
     for t, m in in_order(episode, range(98)):
         est.add(t, m)
+    assert not est.owes_ended_episode  # (mid-episode: a stop stops)
     est.end_episode(int(episode.stamps_ns[99]))  # the event overtakes the episode's last two ticks
-    for t, m in in_order(episode, range(98, 100)):
+    assert est.owes_ended_episode
+    for t, m in in_order(episode, range(98, 99)):
         est.add(t, m)
+    assert est.owes_ended_episode
+    for t, m in in_order(episode, range(99, 100)):
+        est.add(t, m)
+    assert not est.owes_ended_episode
     assert [e.stamp_ns for e in valid(out)] == episode.stamps_ns[59:100].tolist()
     # "episode 2" = the same rows again, stamped right after episode 1
     base = int(episode.stamps_ns[99]) + int(episode.stamps_ns[1])
@@ -325,6 +333,10 @@ def test_no_window_spans_two_episodes_even_if_data_overtakes_episode_start(episo
     for i in range(5, 100):
         for t, m in tick_messages(episode, i, stamps2[i]):
             est.add(t, m)
+    assert not est.owes_ended_episode
+    est.end_episode(stamps2[99] + 5 * int(episode.stamps_ns[1]))  # an end whose ticks never come
+    est.start_episode(stamps2[99] + 6 * int(episode.stamps_ns[1]))
+    assert not est.owes_ended_episode  # (the next episode is under way)
     second = [e for e in valid(out) if e.stamp_ns >= stamps2[0]]
     assert [e.stamp_ns for e in second] == stamps2[59:], "window restarts at the episode's tick 0, keeping it"
     first = {e.stamp_ns - int(episode.stamps_ns[0]): e.values for e in valid(out) if e.stamp_ns < stamps2[0]}

@@ -18,6 +18,8 @@ is refused with the reason and the running model stays.
 """
 from __future__ import annotations
 
+import time
+
 import torch
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -48,6 +50,8 @@ PARAMETERS: dict[str, tuple] = {
     "inputs_wait_s": (G.INPUTS_WAIT_S, "join /sim/status once every input topic has a publisher, or after this long "
                                        f"[s], [0, {G.MAX_WAIT_S:g}] (0: at once)"),
 }
+
+DRAIN_QUIET_S = 1.0  # asked to stop, an ended episode's queued ticks are taken while one comes at least this often
 
 
 def load_estimator_model(path: str):
@@ -97,6 +101,7 @@ class EstimatorNode(Node):
         self.physics_pub = self.create_publisher(String, local(G.ESTIMATOR_PHYSICS_TOPIC),
                                                  publisher_qos(G.ESTIMATOR_PHYSICS_TOPIC))
         self._physics_said: tuple | None = None
+        self._drain_said = False
         self._say_physics()
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
@@ -204,6 +209,18 @@ class EstimatorNode(Node):
 
     def _publish_map(self, stamp_ns: int, rows) -> None:
         self.map_pub.publish(M.make_point_cloud(self.classes, stamp_ns, T.MAP_FIELDS, rows))
+
+    def draining(self) -> bool:
+        """Asked to stop (``spin_node``): an episode that ended but whose last ticks are still
+        queued is estimated to its end first (``OnlineEstimator.owes_ended_episode``), while they
+        keep coming at least every ``DRAIN_QUIET_S`` (a tick that never completes does not hold
+        the stop; ``spin_node`` bounds the whole). A stop mid-episode is not delayed."""
+        owed = self.core.owes_ended_episode and time.monotonic() - self.silence.last < DRAIN_QUIET_S
+        if owed and not self._drain_said:
+            self._drain_said = True
+            self.get_logger().info(f"finishing the ended episode first: its ticks after stamp "
+                                   f"{self.core.assembler.last_released} ns are still queued")
+        return owed
 
     def close(self) -> None:
         c = self.core.counters

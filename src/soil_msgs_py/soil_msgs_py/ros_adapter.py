@@ -182,7 +182,7 @@ class InputSilence:
     def __init__(self, node: Node, what: str, limit_s: float = INPUT_SILENCE_S):
         self.logger, self.what, self.limit_s = node.get_logger(), what, limit_s
         self.episode: str | None = None
-        self.last = 0.0
+        self.last = 0.0  # time.monotonic() [s] of the last input heard (or of the episode's start)
         self.silent = False
         node.create_timer(min(0.5, limit_s / 2), self._check)
 
