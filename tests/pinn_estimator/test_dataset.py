@@ -182,3 +182,34 @@ def test_the_readers_warnings_are_said_again_when_the_cache_answers(tmp_path):
         load_dataset(tmp_path / "flipped", log=said.append)
         (line,) = [s for s in said if "f_x < 0" in s]
         assert "a sensor of the other sign?" in line and "(and 1 other bag(s) alike)" in line, said
+
+
+def test_a_bag_with_a_value_no_sensor_gives_is_refused_naming_it_or_skipped(tmp_path, monkeypatch):
+    """One tick of v_z = 1e12 in a training bag (finite: the readers took it) set that channel's
+    normalisation std to 1.7e10, erasing it from every window of the model (an outside tester's).
+    The readers refuse what the live nodes drop, beyond ±PLAUSIBLE_ABS_LIMIT, naming bag, field,
+    value and tick; ``skip_bad_bags`` leaves the bag out. (Our writer refuses to write such a bag:
+    it is written here past that check, as another tool might.)"""
+    from dataclasses import replace
+
+    from pinn_estimator.dataset import load_dataset
+    from soil_bag_tools import bag_io
+    from soil_bag_tools.bag_io import BagReadError, write_episode
+    from soil_msgs_py.params import OBSERVATION_FIELDS
+    from soil_sim_node.simulator import EpisodeSpec
+
+    good, bad = run_episodes(SimConfig(world_mode="fee"), [EpisodeSpec("Clay", 40.0, 0.5, d, seed=1, duration_s=2.0)
+                                                           for d in (0.1, 0.15)])
+    obs = bad.observations.copy()
+    col = OBSERVATION_FIELDS.index("v_z_b")
+    obs[70, col] = 1e12
+    write_episode(tmp_path / "d" / good.meta.name, good)
+    monkeypatch.setattr(bag_io, "_check_arrays", lambda ep, skip=(): None)
+    write_episode(tmp_path / "d" / bad.meta.name, replace(bad, observations=obs))
+    monkeypatch.undo()
+    with pytest.raises(BagReadError, match=rf"{bad.meta.name}.*'v_z_b' is 1000000000000.0 at tick 70; .* beyond ±1e\+09"):
+        load_dataset(tmp_path / "d", cache=False)
+    kept = load_dataset(tmp_path / "d", cache=False, skip_bad_bags=True, log=lambda s: None)
+    (skipped,) = kept.skipped
+    assert bad.meta.name in str(skipped) and "'v_z_b' is 1000000000000.0" in str(skipped), skipped
+    assert kept.names == [good.meta.name], kept.names

@@ -86,6 +86,19 @@ def test_a_grid_of_one_episode_per_cell_still_gets_validation_and_test_episodes(
     two = SimpleNamespace(**{**vars(ds), "names": ds.names[:2], "metas": ds.metas[:2]})  # one to train on is kept
     assert [len(split_episodes(two, seed=0)[s]) for s in ("train", "val", "test")] == [1, 1, 0]
     assert split_episodes(ds, seed=3, val_fraction=0.0)["val"] == []  # none asked for, none drawn
+    # Clay cells of four beside Sand cells of two: the Sand episodes had all gone to training, and the
+    # report said nothing of Sand (an outside tester's); the small cells are split as one more cell
+    mixed = [("Clay", i_d, k) for i_d in (20.0, 80.0) for k in range(4)] + [("Sand", i_d, k) for i_d in (20.0, 80.0)
+                                                                           for k in range(2)]
+    ds = SimpleNamespace(names=[f"ep_{s}_{i:g}_{k}" for s, i, k in mixed], root="mixed",
+                         metas=[EpisodeMeta(s, i, "fee", k, 0.5, 0.1 + 0.05 * k, 10.0) for s, i, k in mixed],
+                         forces=np.zeros((12, 2)), known=np.zeros((12, 9)), observations=np.arange(12.0)[:, None],
+                         episode_rows=lambda e: slice(e, e + 1))
+    for seed in range(4):
+        split = split_episodes(ds, seed=seed)
+        for part in ("val", "test"):
+            assert [n.split("_")[1] for n in split[part]].count("Sand") == 1, (seed, split)
+            assert {n.split("_")[1] + n.split("_")[2] for n in split[part] if "Clay" in n} == {"Clay20", "Clay80"}, split
 
 
 def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp_path, capsys):

@@ -203,9 +203,10 @@ def test_make_and_parse_labelled() -> None:
 
 @pytest.mark.parametrize(
     "array, col, bad",
-    [("forces", 1, np.nan), ("truth", 12, np.inf), ("observations", 0, -np.inf), ("extras", 0, np.nan)],
+    [("forces", 1, np.nan), ("truth", 12, np.inf), ("observations", 0, -np.inf), ("extras", 0, np.nan),
+     ("observations", 3, 1e12), ("forces", 0, -2e9)],  # (finite, but beyond what the live nodes take: no reader takes it)
 )
-def test_non_finite_rejected_naming_column(tmp_path: Path, ep: Episode, array, col, bad) -> None:
+def test_non_finite_or_implausible_rejected_naming_column(tmp_path: Path, ep: Episode, array, col, bad) -> None:
     getattr(ep, array)[17, col] = bad
     getattr(ep, array)[90, col] = bad
     name = ARRAY_FIELDS[array][col]

@@ -109,8 +109,15 @@ def test_an_interrupted_run_is_resumed_with_skip_existing(tmp_path, capsys):
     assert "1 of the 2 bags exist" in err and "simulating the other 1" in err, err
     assert len(find_episode_bags(out)) == 2 and first[0].stat().st_mtime_ns == stamp
     assert json.loads((out / "dataset.json").read_text())["kept_existing"] == [first[0].name]
+    record = (out / "dataset.json").read_text()
     assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0  # nothing left
     assert "simulating the other 0" in capsys.readouterr().err
+    assert (out / "dataset.json").read_text() == record  # the complete run's record stays
+    # every bag written but the record not (a run killed after its last bag, an outside tester's Ray head):
+    # with nothing left to simulate the record is written all the same, every bag kept
+    (out / "dataset.json").unlink()
+    assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0
+    assert json.loads((out / "dataset.json").read_text())["kept_existing"] == sorted(b.name for b in find_episode_bags(out))
     assert batch.main([*ONE, "--depths", "0.1", "--out", str(out), "--skip-existing", "--overwrite"]) == 2
     assert "contradict" in capsys.readouterr().err
 

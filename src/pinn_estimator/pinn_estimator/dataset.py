@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, reader_notes, scan_bags
-from soil_msgs_py.episode import EpisodeMeta, first_non_finite, stamp_gaps, world_modes
+from soil_msgs_py.episode import EpisodeMeta, first_implausible, stamp_gaps, world_modes
+from soil_msgs_py.values import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.params import (
     FORCE_FIELDS,
     KNOWN_PARAMS,
@@ -166,19 +167,20 @@ def _read(bag: Path):
             ep = read_episode(bag)
         if len(ep.observations) < WINDOW_SAMPLES:
             raise BagReadError(bag, f"has {len(ep.observations)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
-        _check_finite("observation", ep.observations, OBSERVATION_FIELDS, bag)
-        _check_finite("force", ep.forces, FORCE_FIELDS, bag)
-        _check_finite("known parameter", ep.known, KNOWN_PARAMS, bag)
+        _check_plausible("observation", ep.observations, OBSERVATION_FIELDS, bag)
+        _check_plausible("force", ep.forces, FORCE_FIELDS, bag)
+        _check_plausible("known parameter", ep.known, KNOWN_PARAMS, bag)
     except BagReadError as err:
         return err
     return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth, stamp_gaps(ep.stamps_ns), notes
 
 
-def _check_finite(name: str, arr: np.ndarray, fields, bag: Path) -> None:
-    if (first := first_non_finite(arr, fields)) is not None:
+def _check_plausible(name: str, arr: np.ndarray, fields, bag: Path) -> None:
+    if (first := first_implausible(arr, fields)) is not None:
         field, value, row, _ = first
-        raise BagReadError(bag, f"{name} field {field!r} is {value} at tick {row}; a window with NaN/inf can be "
-                                "neither trained on nor scored (re-record or drop the bag)")
+        raise BagReadError(bag, f"{name} field {field!r} is {value} at tick {row}; a window with NaN/inf or a value "
+                                f"beyond ±{PLAUSIBLE_ABS_LIMIT:g} (no sensor's in SI, a fault's) can be neither "
+                                "trained on nor scored (re-record, repair or drop the bag)")
 
 
 def _warn(message: str) -> None:
@@ -209,7 +211,7 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
     """Read every episode bag under ``root`` (cached by content fingerprint).
 
     Raises ValueError naming the problem for an empty directory and BagReadError naming the
-    first bad bag (truncated, corrupt, missing a topic, a NaN/inf input or force, shorter than
+    first bad bag (truncated, corrupt, missing a topic, a NaN/inf or implausible input or force, shorter than
     a window). With ``skip_bad_bags`` the bad bags are left out instead, listed in
     ``Dataset.skipped`` and reported through ``log`` (default: stderr); the fingerprint is
     then that of the bags kept, and the result is not cached.
@@ -368,10 +370,12 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
 
     Every window of an episode lands in one split, so the test score measures episodes the
     model has never seen. Stratifying keeps every soil and density in every split when the
-    grid has at least three episodes per cell. A grid of one or two episodes per cell (each
-    cell keeps them for training) still gets a split it asks for and would otherwise lack:
-    ``round(fraction · episodes)`` (at least one) drawn from the training episodes, across cells,
-    validation first (training stops early on it), while one is left to train on.
+    grid has at least three episodes per cell. The cells of one or two episodes are split
+    together, as one more cell: alone each would keep its episodes for training, and beside
+    larger cells those soils never reached validation or test, without a word (an outside
+    tester's: four Sand episodes beside Clay cells of four). A split asked for and still empty
+    gets ``round(fraction · episodes)`` (at least one) drawn from the training episodes, across
+    cells, validation first (training stops early on it), while one is left to train on.
     """
     for name, f in (("val_fraction", val_fraction), ("test_fraction", test_fraction)):
         if not 0.0 <= f < 1.0:
@@ -383,8 +387,9 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
         groups[(meta.world_mode, meta.soil, float(meta.relative_density_pct))].append(name)
     rng = np.random.default_rng(seed)
     out = {s: [] for s in SPLITS}
-    for key in sorted(groups):
-        members = sorted(groups[key])
+    small = sorted(name for key in groups if len(groups[key]) < 3 for name in groups[key])
+    cells = [sorted(groups[key]) for key in sorted(groups) if len(groups[key]) >= 3] + ([small] if small else [])
+    for members in cells:
         rng.shuffle(members)
         n = len(members)
         n_test = int(round(test_fraction * n))

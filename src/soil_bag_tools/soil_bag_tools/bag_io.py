@@ -29,7 +29,7 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
 
 from soil_msgs_py import messages as M
-from soil_msgs_py.episode import Episode, EpisodeMeta, first_non_finite
+from soil_msgs_py.episode import Episode, EpisodeMeta, first_implausible
 from soil_msgs_py.params import KNOWN_PARAMS
 from soil_msgs_py.values import short_repr
 from soil_msgs_py.stream_checks import cutting_ticks, rate_problem, sign_problem
@@ -79,15 +79,15 @@ def reading(bag: str | os.PathLike) -> Iterator[None]:
 
 
 def _check_arrays(ep: Episode, skip: tuple[str, ...] = ()) -> None:
-    """Refuse what cannot round-trip: non-finite values (of the arrays not in ``skip``), bad or
-    unordered stamps."""
+    """Refuse what cannot round-trip or no reader takes: non-finite or implausible values (of the
+    arrays not in ``skip``; ``episode.first_implausible``), bad or unordered stamps."""
     for name, fields in M.ARRAY_FIELDS.items():
         if name in skip:
             continue
-        if (first := first_non_finite(getattr(ep, name), fields)) is not None:
+        if (first := first_implausible(getattr(ep, name), fields)) is not None:
             field, value, row, _ = first
-            raise ValueError(f"Episode.{name} column {field!r} is {value} at row {row} (first non-finite value); "
-                             "bags must be finite")
+            raise ValueError(f"Episode.{name} column {field!r} is {value} at row {row} (first value non-finite or "
+                             f"beyond ±{M.PLAUSIBLE_ABS_LIMIT:g}); bags must be finite and plausible")
     s = ep.stamps_ns
     if len(s) == 0:
         raise ValueError("episode has no ticks")

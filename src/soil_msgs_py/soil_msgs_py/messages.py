@@ -24,6 +24,7 @@ from rosbags.typesys.store import Typestore
 from . import topics as T
 from .episode import EXTRA_FIELDS, Episode, EpisodeMeta
 from .params import FORCE_FIELDS, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS
+from .values import PLAUSIBLE_ABS_LIMIT  # noqa: F401 - the graph's nodes read it here (M.PLAUSIBLE_ABS_LIMIT)
 
 NS_PER_S = 1_000_000_000
 LABEL_SEP = "|"
@@ -309,11 +310,6 @@ def parse_message(topic: str, msg: Any) -> tuple[int, np.ndarray]:
         return stamp, np.empty(0)
     vals = get_values(msg)
     return stamp, np.array(vals if isinstance(vals, tuple) else (vals,), dtype=np.float64)
-
-
-# No value a graph node publishes comes near this in SI (forces ~1e5 N, cohesion ~1e5 Pa, unit
-# weight ~2e4 N/m³, positions ~1e3 m): one beyond it is a fault's or an intruder's.
-PLAUSIBLE_ABS_LIMIT = 1e9
 
 
 def plausible_values(values: Any, subnormal: bool = False) -> bool:

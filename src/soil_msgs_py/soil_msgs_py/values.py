@@ -12,6 +12,11 @@ import numbers
 import re
 
 
+# No value a graph node publishes or a bag holds comes near this in SI (forces ~1e5 N, cohesion
+# ~1e5 Pa, unit weight ~2e4 N/m³, positions ~1e3 m): one beyond it is a fault's or an intruder's.
+PLAUSIBLE_ABS_LIMIT = 1e9
+
+
 def plain_zero(value):
     """``value`` with a float −0.0 as 0.0 (anything else as it is, checked where it is used): a
     user's "-0" had named a bag ``id-00`` beside the ``id000`` of the same grid point, and a

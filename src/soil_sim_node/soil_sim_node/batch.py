@@ -154,9 +154,11 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         if len(todo) < len(names):
             print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
                   f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
-        if not todo:
+        if not todo and (plan.out / "dataset.json").is_file():
             return {"mode": plan.mode, "episodes": 0, "wall_time_s": 0.0, "bytes_total": 0, "bytes_per_episode": 0,
                     "simulated_s_per_wall_s": 0.0, "episode_names": []}  # (dataset.json stays as it is)
+        # (none left but no dataset.json: the interrupted run wrote every bag and died before its
+        # record, an outside tester's killed Ray head; the record is written below, all kept)
         plan = dataclasses.replace(plan, specs=[plan.specs[i] for i in todo])
         pairs, resolved, names = [pairs[i] for i in todo], [resolved[i] for i in todo], [names[i] for i in todo]
     _check_names_free(plan, names)
@@ -169,7 +171,9 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
     start = time.perf_counter()
     bar = tqdm(total=len(plan.specs), unit="ep", desc=f"{plan.mode} episodes", disable=not progress)
-    if ray_address:
+    if not plan.specs:  # (--skip-existing found every bag)
+        results = []
+    elif ray_address:
         with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
             chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
             done = run_tasks(_run_chunk, [(base, c) for c in chunks],
@@ -195,7 +199,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         "wall_time_s": round(wall, 3),
         "bytes_total": int(sum(b for _, b in results)),
         "bytes_per_episode": int(sum(b for _, b in results) / max(1, len(results))),
-        "simulated_s_per_wall_s": round(sum(s.duration_s for s in plan.specs) / wall, 1),
+        "simulated_s_per_wall_s": round(sum(s.duration_s for s in plan.specs) / max(wall, 1e-9), 1),
         "engine": plan.engine,
         "effects": plan.effects.enabled(),
         "plugins": [str(p) for p in plan.plugins],
