@@ -246,6 +246,20 @@ class MalformedMessages:
     def kind_sim_status_json(self, first_ns, now_ns):
         return [(G.SIM_STATUS_TOPIC, String(data=self.rng.choice(BAD_SIM_STATUS)))]
 
+    def kind_sim_status_stray_event(self, first_ns, now_ns):
+        """Well formed, but not this graph's: another episode's start (2 m/s, 0.6 m: it would
+        retarget the controller) or end (it would stop it answering), without a graph id or with
+        another's. Nothing may take it for the episode under way's."""
+        from soil_msgs_py.episode import EpisodeMeta
+
+        meta = EpisodeMeta(soil="Sand", relative_density_pct=20.0, world_mode="default", seed=99,
+                           target_speed_m_s=2.0, target_depth_m=0.6, duration_s=10.0)
+        event = self.rng.choice([G.EVENT_EPISODE_START, G.EVENT_EPISODE_END])
+        end = {"last_stamp_ns": now_ns, "ticks": 5, "reason": "completed"} if event == G.EVENT_EPISODE_END else {}
+        stray = G.EpisodeEvent(event, 7, f"stray_episode_{self.rng.randrange(1000)}", meta, first_ns,
+                               planned_ticks=600, graph=self.rng.choice(["", "launch-other"]), **end)
+        return [(G.SIM_STATUS_TOPIC, String(data=stray.to_json()))]
+
     def kind_corrupt_cdr(self, first_ns, now_ns):
         """Bytes no well-behaved writer produces: truncated, lying lengths, invalid UTF-8."""
         topic = self.rng.choice(HEADER_TOPICS + LABELLED_TOPICS + (G.SIM_COMMAND_TOPIC, G.SIM_STATUS_TOPIC))

@@ -135,6 +135,37 @@ def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_top
         assert len(said) == (0 if recorded else 1), log.lines  # said once per episode, not per event
 
 
+def test_a_stray_episode_event_mid_episode_neither_cuts_nor_ends_the_bag(tmp_path):
+    """One foreign episode_start mid-episode had closed the launch's bag cut short and recorded the
+    rest under the stranger's name, losing a third of its ticks as off its grid (an outside
+    tester's); another episode's episode_end must not end it either. Both are said and ignored."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n = 60
+    msgs = loaded.messages[: 10 * n]
+    start_ev, end_ev = replace(start_ev, graph="launch-mine"), replace(end_ev, graph="launch-mine")
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    stray_start = replace(start_ev, name="foreign_episode", episode=7, graph="",
+                          meta=replace(start_ev.meta, target_speed_m_s=2.0, target_depth_m=0.6))
+    stray_end = replace(end_ev, name="other_graph_episode", episode=7, graph="")
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=log, clock=lambda: 0.0, graph_id="launch-mine")
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for i, (_, topic, raw) in enumerate(msgs):
+        if i == len(msgs) // 2:
+            rec.on_status(stray_start.to_json())
+            rec.on_status(stray_end.to_json())
+        feed.send("sim", topic, raw)
+    rec.on_status(end_ev.to_json())
+    rec.close()
+    (result,) = rec.finished
+    assert result.path.name == start_ev.name and [p.name for p in tmp_path.iterdir()] == [start_ev.name]
+    assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
+    said = [m for lvl, m in log.lines if lvl == "warning"]
+    assert any("foreign_episode" in m and "not this graph's event" in m for m in said), said
+    assert any("other_graph_episode" in m and "ignored" in m for m in said), said
+
+
 def test_a_long_conversion_says_it_is_at_work():
     """What a stopping recorder says while it makes a big bag: soil_launch waits for it while it
     reports (tests/soil_bringup/test_launch.py), where it had killed it mid-bag."""

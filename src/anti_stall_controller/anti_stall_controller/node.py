@@ -50,9 +50,10 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE,
                                  MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, MIN_TARGET_SPEED_M_S, SAMPLE_RATE_HZ,
                                  TICK_PERIOD_NS, beyond_lift_reach)
+from soil_msgs_py.episode_follow import EpisodeFollower
 from soil_msgs_py.ros_adapter import (
-    InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, status_event,
-    topic_qos,
+    InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, followed_status_event, local, message_class,
+    publisher_qos, spin_node, topic_qos, wall_timer,
 )
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 
@@ -171,6 +172,7 @@ class ControllerNode(Node):
         self.joiner = state_joiner(self._force_lift)
         self._warn = WarnLimiter(self.get_logger())
         self.silence = InputSilence(self, "state from the simulator")
+        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event neither retargets nor stops it
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
@@ -186,7 +188,7 @@ class ControllerNode(Node):
         self._say_if_beyond_reach()
         if self._force_lift:
             self.get_logger().info(f"force lift on: each tick is answered once {', '.join(self.joiner.topics)} are in")
-        self.create_timer(0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
+        wall_timer(self, 0.05, self._on_wait_timer)  # a silent planner holds a lockstep tick at most planner_wait_s
 
     def _say_if_beyond_reach(self) -> None:
         """Warn of a target deeper than the lift reaches, each depth once (episodes set it again and again)."""
@@ -251,7 +253,7 @@ class ControllerNode(Node):
         return self.core.gains.force_lift_m_s > 0.0
 
     def _on_status(self, msg: String) -> None:
-        event = status_event(msg.data, self._warn)
+        event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is None:
             return
         if event.event == G.EVENT_EPISODE_END:

@@ -30,9 +30,10 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.episode import WORLD_MODES
+from soil_msgs_py.episode_follow import EpisodeFollower
 from soil_msgs_py.ros_adapter import (
     InputSilence, WarnLimiter, declare_parameters, local, message_class, publisher_qos, qos_profile, spin_node, status_after_inputs,
-    status_event,
+    followed_status_event,
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
@@ -107,6 +108,7 @@ class EstimatorNode(Node):
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
         self.silence = InputSilence(self, "samples (the simulator's state and the controller's commands)")
+        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event neither restarts nor ends it
         inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                                  lambda msg, n=name: self._on_input(n, msg), deep)
                   for name in INPUT_TOPICS}
@@ -152,7 +154,7 @@ class EstimatorNode(Node):
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg: String) -> None:
-        event = status_event(msg.data, self._warn)
+        event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is None:
             return
         if event.event == G.EVENT_EPISODE_START:

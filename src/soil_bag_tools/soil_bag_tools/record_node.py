@@ -30,7 +30,8 @@ from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITT
                                 RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC, graph_id_problem)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
-from soil_msgs_py.ros_adapter import JoinAfterInputs, local, message_class, own_arguments_or_refusal, qos_profile, spin_node
+from soil_msgs_py.ros_adapter import (JoinAfterInputs, local, message_class, own_arguments_or_refusal, qos_profile,
+                                      spin_node, wall_timer)
 from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
 
 _DISCOVERY_PERIOD_S = 0.5
@@ -105,10 +106,10 @@ class RecordNode(Node):
             self, inputs, lambda: [self._subscribe(t, m, best_effort=False) for t, m in known.items()
                                    if t not in from_others], opts.inputs_wait,
             self._joined_without)
-        self.create_timer(opts.flush_period, self.recorder.poll)
+        wall_timer(self, opts.flush_period, self.recorder.poll)
         if self._pending:
             self.get_logger().info(f"waiting for publishers of {self._pending} to learn their types")
-            self._discovery = self.create_timer(_DISCOVERY_PERIOD_S, self._discover)
+            self._discovery = wall_timer(self, _DISCOVERY_PERIOD_S, self._discover)
             self._pending_since = time.monotonic()
             self._pending_said = False
         mode = "one bag" if opts.no_split else "one bag per /sim/status episode"

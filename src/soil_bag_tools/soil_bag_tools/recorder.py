@@ -52,7 +52,8 @@ from rosbags.interfaces import Qos
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.episode import MAX_EPISODE_S
-from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
+from soil_msgs_py.episode_follow import EpisodeFollower, same_episode
+from soil_msgs_py.graph import EVENT_EPISODE_START, INPUT_SILENCE_S, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import CLOCK, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
@@ -214,9 +215,7 @@ class Session:
         return self.last_stamp_ns is not None and self.topic_max.get(topic, -1) >= self.last_stamp_ns
 
     def same_episode(self, ev: EpisodeEvent) -> bool:
-        s = self.event
-        return (s is not None and not self.superseded
-                and (s.name, s.episode, s.first_stamp_ns) == (ev.name, ev.episode, ev.first_stamp_ns))
+        return self.event is not None and not self.superseded and same_episode(self.event, ev)
 
 
 class Recorder:
@@ -254,6 +253,7 @@ class Recorder:
         self._undecodable_warned: set[str] = set()
         # this launch's graph id (``EpisodeEvent.graph``): another graph's episodes are not recorded
         self.graph_id = graph_id
+        self.follower = EpisodeFollower()  # a stray /sim/status event neither cuts nor ends the episode under way
         self._others_said: set[str] = set()
         if not split:
             name = "record_" + datetime.now(timezone.utc).strftime("%Y%m%d_%H%M%S")
@@ -281,6 +281,14 @@ class Recorder:
                 self._others_said.add(ev.name)
                 self.log.warning(f"{ev.event} of {ev.name} from another graph (id {ev.graph}, this recorder's "
                                  f"{self.graph_id}) on this recorder's topics: none of its episodes is recorded")
+            return
+        now = self.clock()
+        fed = any(x.end_event is None and x.last_write is not None and now - x.last_write < INPUT_SILENCE_S
+                  for x in self.sessions)  # an episode under way whose source still sends
+        if why := self.follower.refusal(ev, source_silent=not fed):
+            if ev.name not in self._others_said:
+                self._others_said.add(ev.name)
+                self.log.warning(f"/sim/status: {why}")
             return
         if ev.event == EVENT_EPISODE_START:
             self._start(ev)

@@ -182,6 +182,10 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
 INPUTS_WAIT_S = 5.0
 MAX_WAIT_S = 3600.0  # the longest any start-up or tick wait of the graph may be set to [s]
+# Wall time without an input mid-episode before a node says so, and takes the episode's source for
+# gone (``episode_follow``): longer than a lockstep tick may wait for a silent planner (the
+# controller's planner_wait_s, 2 s), so a wait is not called a death.
+INPUT_SILENCE_S = 5.0
 # Lockstep: how long the simulator waits for a tick's commands before it ends the episode [s of
 # wall time] (its lockstep_timeout_s); a node that holds a tick must wait less.
 LOCKSTEP_TIMEOUT_S = 10.0

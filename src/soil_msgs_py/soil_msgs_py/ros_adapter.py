@@ -23,6 +23,7 @@ from pathlib import Path
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.exceptions import NameValidationException, ParameterException, ParameterUninitializedException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -33,11 +34,12 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .dds_profile import use_graph_profile
+from .episode_follow import EpisodeFollower
 from .params_files import node_parameters, read_params_file
 from .values import number_in
 from .launcher_death import stop_with_launcher
-from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, MAX_WAIT_S, SIM_STATUS_TOPIC, STRING_MSGTYPE,
-                    TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
+from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, INPUT_SILENCE_S, MAX_WAIT_S, SIM_STATUS_TOPIC,
+                    STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
 
 RCLError = _rclpy.RCLError  # rcl's own refusal (e.g. of a node namespace it cannot validate)
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
@@ -165,9 +167,12 @@ class WarnLimiter:
             self.logger.warning(text + (f" ({n} so far)" if n > 1 else ""))
 
 
-# Wall time without an input mid-episode before a node says so: longer than a lockstep tick may
-# wait for a silent planner (the controller's planner_wait_s, 2 s), so a wait is not called a death.
-INPUT_SILENCE_S = 5.0
+def wall_timer(node: Node, period_s: float, callback: Callable, **kwargs):
+    """A timer on the steady clock: the graph's polls, waits and silences are wall-time matters.
+    Why: on a node given ``use_sim_time:=true`` a default timer runs on /clock, which does not move
+    before the first tick, while the simulator waits for readers those timers create (an outside
+    tester's lockstep graph waited 10 s and ended its episode at tick 1)."""
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME), **kwargs)
 
 
 class InputSilence:
@@ -184,13 +189,19 @@ class InputSilence:
         self.episode: str | None = None
         self.last = 0.0  # time.monotonic() [s] of the last input heard (or of the episode's start)
         self.silent = False
-        node.create_timer(min(0.5, limit_s / 2), self._check)
+        wall_timer(node, min(0.5, limit_s / 2), self._check)
 
     def start(self, episode: str) -> None:
         self.episode, self.last, self.silent = episode, time.monotonic(), False
 
     def end(self) -> None:
         self.episode = None
+
+    @property
+    def gone(self) -> bool:
+        """No input for ``limit_s``: the source of the episode under way is presumed gone
+        (``episode_follow.EpisodeFollower.refusal``'s ``source_silent``)."""
+        return time.monotonic() - self.last >= self.limit_s
 
     def heard(self) -> None:
         now = time.monotonic()
@@ -219,6 +230,20 @@ def status_event(text: str, warn: WarnLimiter) -> EpisodeEvent | None:
         return None
 
 
+def followed_status_event(text: str, warn: WarnLimiter, follower: EpisodeFollower,
+                          silence: InputSilence) -> EpisodeEvent | None:
+    """A ``/sim/status`` message's event if it is well formed and the node's to take (``episode_follow``:
+    the episode under way's own, a start of its graph), else None, warned: a stray writer of
+    /sim/status neither retargets nor stops a node mid-episode."""
+    event = status_event(text, warn)
+    if event is None:
+        return None
+    if why := follower.refusal(event, source_silent=silence.gone):
+        warn("foreign_status", f"{SIM_STATUS_TOPIC}: {why}")
+        return None
+    return event
+
+
 class JoinAfterInputs:
     """Calls ``join()`` (it creates the readers a simulator waits for before tick 0) only once
     every reader in ``inputs`` (topic -> subscription) has a matched publisher, or ``wait_s``
@@ -239,7 +264,7 @@ class JoinAfterInputs:
         self.node, self.inputs, self.join, self.on_missing = node, dict(inputs), join, on_missing
         self.joined = False
         self._deadline = time.monotonic() + float(wait_s)
-        self._timer = node.create_timer(self.POLL_S, self.poll)
+        self._timer = wall_timer(node, self.POLL_S, self.poll)
         self.poll()
 
     def poll(self) -> None:

@@ -60,8 +60,10 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
 from soil_msgs_py.values import number_in, short_repr
 from soil_msgs_py import graph as G
-from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, local,
-                                      message_class, publisher_qos, spin_node, status_event, topic_qos)
+from soil_msgs_py.episode_follow import EpisodeFollower
+from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters,
+                                      followed_status_event, local, message_class, publisher_qos, spin_node, topic_qos,
+                                      wall_timer)
 from soil_msgs_py.stamp_join import StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 from soil_physics.force_terms import term_texts
@@ -212,6 +214,7 @@ class PlannerNode(Node):
         self.classes = M.ros_message_classes()
         self._warn = WarnLimiter(self.get_logger())
         self.silence = InputSilence(self, f"estimates ({T.ESTIMATE.name})")
+        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event does not restart its cut
         # Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order,
         # so older ticks still waiting are given up. A stamp that goes back is a new stream.
         self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
@@ -250,7 +253,7 @@ class PlannerNode(Node):
             get("inputs_wait_s"), lambda missing: self.get_logger().warning(
                 f"following {T.KNOWN.name} without a publisher of {missing} yet"))
         # a tick whose command is lost, or a controller gone quiet: released after command_wait_s
-        self.create_timer(0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
+        wall_timer(self, 0.05, lambda: self._answer(self.command_wait.expire(time.monotonic())))
         p = self.planner
         self.get_logger().info(
             f"margin {p.margin}, force quantile {p.force_quantile if p.force_quantile is not None else 'none (the point plan)'}, "
@@ -341,7 +344,7 @@ class PlannerNode(Node):
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg) -> None:
-        event = status_event(msg.data, self._warn)
+        event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is not None and event.event == G.EVENT_EPISODE_START:
             self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
             self.lockstep = event.pacing == G.PACING_LOCKSTEP

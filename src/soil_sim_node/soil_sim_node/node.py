@@ -128,6 +128,10 @@ class SimNode(Node):
         self._value = declare_parameters(self, PARAMETERS)  # name -> current value
         self.finished = False
         self.exit_code = 0
+        if self.get_parameter("use_sim_time").value:
+            # (its timers would wait on the /clock only they publish: no episode, no word; an outside tester's)
+            raise ValueError("parameter use_sim_time=True: the simulator is the graph's clock, it publishes /clock "
+                             "from its own ticks; give use_sim_time to the nodes that follow it, not to it")
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
         self.custom_soils, self.named_path = self._load_soil_file(p["soil_file"], p["path"], p["patches"])

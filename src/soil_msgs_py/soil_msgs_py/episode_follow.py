@@ -1,0 +1,60 @@
+"""Which ``/sim/status`` events a node takes: the episode under way's own, and starts of its graph.
+
+Why: a node that took every well-formed event let any other writer of /sim/status steer it. In
+an outside tester's live runs one foreign ``episode_start`` (no graph id, 2 m/s, 0.6 m)
+retargeted the controller mid-episode at four times the set speed and split the recorder's bag,
+and one foreign ``episode_end`` (another episode's name) stopped the controller answering for
+the rest of its episode.
+
+The rule: while an episode is under way (its start taken, its end not), a node takes
+
+* that episode's ``episode_end`` (same name, episode index, first stamp and graph id) and no other;
+* if the episode is a launched graph's (a graph id), an ``episode_start`` of that graph only (the
+  same episode again, or its simulator started over): a launched simulator refuses to run beside
+  another graph's, so a start of another id, or of none, mid-episode is not this graph's. An
+  episode without a graph id (a simulator started by hand, a replay) yields to any start, as
+  before: nothing tells its next source from a stranger.
+
+Between episodes it takes any start. The episode under way is given up once the node's inputs
+have been silent for ``graph.INPUT_SILENCE_S`` (its source is gone: whatever starts next is followed).
+A writer that copies the episode's own name and graph id is not told apart: rclpy's message info
+names no writer. No rclpy here.
+"""
+from __future__ import annotations
+
+from .graph import EVENT_EPISODE_START, EpisodeEvent
+
+
+def _graph_said(graph: str) -> str:
+    return f"graph {graph}" if graph else "no graph id"
+
+
+def same_episode(a: EpisodeEvent, b: EpisodeEvent) -> bool:
+    """Whether two events are of one episode (its start and end carry the same identity)."""
+    return (a.name, a.episode, a.first_stamp_ns, a.graph) == (b.name, b.episode, b.first_stamp_ns, b.graph)
+
+
+class EpisodeFollower:
+    """The episode a node follows (module doc); ``refusal`` judges each event in arrival order."""
+
+    def __init__(self) -> None:
+        self.under_way: EpisodeEvent | None = None
+
+    def refusal(self, ev: EpisodeEvent, source_silent: bool = False) -> str:
+        """"" if the node takes ``ev`` (the follower then follows it), else why not, for a warning.
+        ``source_silent``: the node's inputs have been silent for ``INPUT_SILENCE_S``: the episode
+        under way is given up first."""
+        if source_silent:
+            self.under_way = None
+        cur = self.under_way
+        if cur is not None and cur.graph and ev.graph != cur.graph:
+            return (f"{ev.event} of {ev.name} ({_graph_said(ev.graph)}) while {cur.name} ({_graph_said(cur.graph)}) "
+                    "is under way: not this graph's event (another graph or a stray writer on /sim/status); ignored")
+        if ev.event == EVENT_EPISODE_START:
+            self.under_way = ev
+            return ""
+        if cur is not None and not same_episode(ev, cur):
+            return (f"episode_end of {ev.name} (episode {ev.episode}) while {cur.name} (episode {cur.episode}) is "
+                    "under way: not its end; ignored")
+        self.under_way = None
+        return ""
