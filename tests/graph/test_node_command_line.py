@@ -68,17 +68,21 @@ def test_a_namespace_too_long_for_the_nodes_names_exits_2_in_one_line(tmp_path):
         assert "Traceback" not in out and ", at /" not in out, out
 
 
-def test_a_params_file_with_no_section_for_the_node_is_named(tmp_path):
+def test_a_params_file_with_no_section_for_the_node_or_a_key_given_twice_is_named(tmp_path):
     typo = tmp_path / "typo.yaml"
     typo.write_text("soil_plannr:\n  ros__parameters:\n    margin: 0.5\n")
     shared = tmp_path / "shared.yaml"
     shared.write_text("/**:\n  ros__parameters:\n    log_period_s: 0.0\n")
-    node = NodeProc("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(shared)],
-                    next_domain_id(), tmp_path)
+    twice = tmp_path / "twice.yaml"  # (rcl keeps one of the two in silence; soil_launch refuses the file)
+    twice.write_text("soil_planner:\n  ros__parameters:\n    margin: 0.8\n    margin: 0.9\n")
+    node = NodeProc("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(shared),
+                                     "--params-file", str(twice)], next_domain_id(), tmp_path)
     try:
-        wait_until(lambda: "nothing in it applies" in node.output, 30, "the params file's warning")
+        wait_until(lambda: "nothing in it applies" in node.output and "appears twice" in node.output, 30,
+                   "the params files' warnings")
     finally:
         code = node.stop()
+    assert f"params file {twice}: key 'margin' appears twice in one mapping (lines 3 and 4)" in node.output, node.output
     assert f"params file {typo} has no section for this node (/soil_planner; its sections: soil_plannr) " \
            "(is soil_plannr a misspelling of soil_planner?): nothing in it applies" in node.output, node.output
     assert str(shared) not in node.output  # '/**' applies to every node

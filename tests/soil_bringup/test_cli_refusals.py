@@ -23,8 +23,12 @@ def test_soil_launch_refuses_a_params_file_that_does_not_exist(tmp_path, capsys)
 
 
 @pytest.mark.parametrize("content, said", [
-    (bytes(range(256)), "is not UTF-8 text (byte 128"),  # (a binary file: UnicodeDecodeError's traceback)
-    (b"a: [1, 2\n", "is not YAML"),
+    (bytes(range(256)), " is not UTF-8 text (byte 128"),  # (a binary file: UnicodeDecodeError's traceback)
+    (b"a: [1, 2\n", " is not YAML"),
+    # rcl (and PyYAML) keep the last of a key given twice, in silence: a user cannot tell which they meant
+    (b"soil_sim_node:\n  ros__parameters:\n    duration_s: 2.0\n    duration_s: 300.0\n",
+     ": key 'duration_s' appears twice in one mapping (lines 3 and 4)"),
+    (b"a: {k: 1, k: 2}\n", ": key 'k' appears twice in one mapping (lines 1 and 1)"),
 ])
 def test_soil_launch_refuses_a_params_file_it_cannot_read_before_starting_anything(tmp_path, capsys, content, said):
     """A params file the nodes' rcl would refuse is refused by the launcher, naming the file."""
@@ -35,7 +39,7 @@ def test_soil_launch_refuses_a_params_file_it_cannot_read_before_starting_anythi
             launch.parse_args([flag, str(path), "--namespace", "/a", "--estimator"])
         assert exit_.value.code == 2
         err = capsys.readouterr().err
-        assert f"{flag}: params file {path} {said}" in err, err
+        assert f"{flag}: params file {path}{said}" in err, err
 
 
 @pytest.mark.parametrize("args, said", [

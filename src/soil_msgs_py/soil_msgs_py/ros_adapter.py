@@ -37,6 +37,7 @@ from .dds_profile import use_graph_profile
 from .episode_follow import EpisodeFollower
 from .params_files import node_parameters, read_params_file
 from .values import number_in
+from .yaml_file import DuplicateKey
 from .launcher_death import stop_with_launcher
 from .graph import (DATA_QOS, EXIT_BAD_CONFIG, GRAPH_OWN_TOPICS, INPUT_SILENCE_S, MAX_WAIT_S, SIM_STATUS_TOPIC,
                     STRING_MSGTYPE, TOPIC_QOS, EpisodeEvent, QosSpec, publisher_qos_spec)
@@ -415,11 +416,15 @@ def params_files(argv: list[str]) -> list[str]:
 
 def params_file_warnings(argv: list[str], node: Node) -> list[str]:
     """One warning per ``--params-file`` with no section for ``node``: rcl applies none of it, so a
-    misspelt node name (``soil_sim_nod:``) would change nothing and say nothing."""
+    misspelt node name (``soil_sim_nod:``) would change nothing and say nothing; and one per file
+    giving a key twice in a mapping (``yaml_file.DuplicateKey``), of which rcl took one in silence."""
     out = []
     for path in params_files(argv):
         try:
             sections = read_params_file(path)
+        except DuplicateKey as err:  # (rcl took one of the values in silence; soil_launch refuses the file)
+            out.append(f"{err} (rcl took one of them)")
+            continue
         except ValueError:
             continue  # rcl read it already (it refuses a file it cannot read or parse)
         keys = [str(k) for k in sections]
