@@ -216,6 +216,20 @@ def test_pinn_eval_refuses_or_skips_a_corrupt_bag(trained, dirs, tmp_path):
     assert "skipped 1 " in out.stderr
 
 
+def test_an_episode_of_the_split_skipped_as_unreadable_is_said_so(dirs):
+    """A test-split bag damaged after training and skipped: pinn_eval said it was "not in the dataset"
+    and to evaluate on the directory the model was trained from, which it was (an outside tester's)."""
+    from pinn_estimator.dataset import load_dataset
+
+    ds = load_dataset(dirs["with_bad"], cache=False, skip_bad_bags=True, log=lambda s: None)
+    (skipped,) = ds.skipped
+    name = Path(skipped["bag"]).name
+    with pytest.raises(ValueError, match=rf"1 episode\(s\) of the split were skipped as unreadable .*'{name}': "):
+        ds.index([ds.names[0], name])
+    with pytest.raises(ValueError, match=r"\(1 more are not in the dataset at "):
+        ds.index([name, "elsewhere"])
+
+
 def test_soil_discrepancy_refuses_a_corrupt_bag_read_in_workers(dirs, tmp_path):
     out = run("soil_discrepancy", dirs["with_bad"], "--out", tmp_path / "disc", "--workers", "2",
               "--no-cache", "--no-plots", "--quiet")

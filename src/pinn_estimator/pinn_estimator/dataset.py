@@ -137,6 +137,14 @@ class Dataset:
         first, and saying ``fix``."""
         where = {n: i for i, n in enumerate(self.names)}
         missing = [n for n in names if n not in where]
+        unreadable = {Path(s["bag"]).name: s["problem"] for s in self.skipped}
+        if skipped := [n for n in missing if n in unreadable]:  # (here, but left out: "not in the dataset" misled)
+            raise ValueError(
+                f"{len(skipped)} episode(s) of the split were skipped as unreadable (--skip-bad-bags), e.g. "
+                f"{skipped[0]!r}: {unreadable[skipped[0]]}; repair it (soil_bag_repair) or evaluate without them"
+                + (f" ({len(missing) - len(skipped)} more are not in the dataset at {self.root}: {fix})"
+                   if len(missing) > len(skipped) else "")
+            )
         if missing:
             raise ValueError(
                 f"{len(missing)} episode(s) of the split are not in the dataset at {self.root}, "
