@@ -273,6 +273,39 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     assert len(bag_io.read_episode(tmp_path / "new")) < TICKS
 
 
+def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_record(fresh, episode, tmp_path):
+    """A bag whose metadata.yaml was deleted or garbled is read by no tool, though its .mcap holds
+    every message and its own record of the metadata (an outside tester's: soil_bag_repair said
+    "no *.partial journal directory inside" or "nothing repaired"). It is copied, the metadata.yaml
+    rebuilt from that record; the original stays as it is."""
+    for damage, given in (("lost", "dir"), ("garbled", "mcap")):
+        bag = tmp_path / damage
+        shutil.copytree(fresh, bag)
+        if damage == "lost":
+            (bag / "metadata.yaml").unlink()
+        else:
+            (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+        with pytest.raises(bag_io.BagReadError, match="metadata.yaml"):
+            bag_io.read_episode(bag)
+        out = run("soil_bag_repair", mcap_of(bag) if given == "mcap" else bag, timeout=60)
+        assert out.returncode == 0 and "its metadata.yaml rebuilt from the .mcap's own record" in out.stdout, \
+            out.stdout + out.stderr
+        copy = bag_io.read_episode(tmp_path / f"{damage}_repaired")
+        assert copy.meta == episode.meta and len(copy) == TICKS
+        for name in ("observations", "forces", "known", "truth", "stamps_ns"):
+            assert np.array_equal(getattr(copy, name), getattr(episode, name)), name
+        assert json.loads(bag_io.bag_custom_data(tmp_path / f"{damage}_repaired")[journal.REPAIR_INFO_KEY])[
+            "metadata_from_mcap"].startswith("unreadable metadata.yaml")
+        assert (bag / "metadata.yaml").exists() == (damage == "garbled")  # (the original untouched)
+    cut = tmp_path / "cut"  # no metadata.yaml, and the file cut before its end, where the record is
+    shutil.copytree(fresh, cut)
+    (cut / "metadata.yaml").unlink()
+    with open(mcap_of(cut), "r+b") as f:
+        f.truncate(mcap_of(cut).stat().st_size // 2)
+    out = run("soil_bag_repair", cut, timeout=60)
+    assert out.returncode == 1 and "carries no rosbag2 metadata record" in out.stderr, out.stderr
+
+
 def test_repair_skips_a_corrupt_journal_chunk_and_converts_the_rest(tmp_path):
     partial, w = _journal_from_sample(tmp_path, n_msgs=900, flush_every=150)  # 6 chunks of 15 ticks
     w.close()

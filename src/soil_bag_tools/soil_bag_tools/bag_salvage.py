@@ -10,6 +10,11 @@ orphan the rest. Episode bags keep only ticks present on every episode topic (a 
 across a dropped chunk's boundary is incomplete), so ``bag_io.read_episode`` can read the
 copy; the episode then has a gap in its stamps where the dropped chunks were. The original
 is never touched.
+
+A bag whose metadata.yaml is missing or unreadable (deleted, garbled) while its one .mcap is
+whole is copied the same way, its metadata taken from the file's own record of it (the
+``rosbag2`` Metadata record rosbag2 and this project's writer put in every bag): no reader takes
+the bag without it, and what was recorded is all there.
 """
 from __future__ import annotations
 
@@ -23,29 +28,73 @@ from mcap.records import Channel, Message, Schema
 from rosbags.rosbag2.metadata import parse_qos
 
 from soil_msgs_py import messages as M
-from .bag_io import META_KEY, PARTIAL_SUFFIX, bag_info, is_bag
+from .bag_io import META_KEY, PARTIAL_SUFFIX, BagReadError, bag_info
 from .bag_writer import BagWriter
 from .integrity import McapScan, read_records
 from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_details, stamps_in_every_topic
+
+
+def embedded_metadata(mcap: Path) -> str | None:
+    """The metadata.yaml text a bag's .mcap keeps in its ``rosbag2`` Metadata record, or None (a file
+    of another writer, or one cut short before its end, where the record is written)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(mcap, "rb") as f:
+            for record in make_reader(f).iter_metadata():
+                if record.name == "rosbag2" and "serialized_metadata" in record.metadata:
+                    return record.metadata["serialized_metadata"]
+    except Exception:  # noqa: BLE001 - any damage means there is no record to trust
+        return None
+    return None
+
+
+def embedded_info(bag: Path, problem: str) -> tuple[dict, Path]:
+    """(``rosbag2_bagfile_information``, the .mcap) of a bag directory whose metadata.yaml is
+    missing or unreadable (``problem``), from its one .mcap's own record; NothingRecoverable if
+    there is none to take."""
+    import yaml
+
+    mcaps = sorted(p for p in bag.glob("*.mcap") if p.is_file())
+    if len(mcaps) != 1:
+        raise NothingRecoverable(f"{bag}: {problem}, and it holds {len(mcaps)} .mcap files, not one whose own "
+                                 "record of its metadata could stand in")
+    text = embedded_metadata(mcaps[0])
+    try:
+        data = yaml.safe_load(text) if text is not None else None
+    except yaml.YAMLError:
+        data = None
+    # (rosbag2 keeps the inner mapping of metadata.yaml there, without its rosbag2_bagfile_information key)
+    info = data.get("rosbag2_bagfile_information", data) if isinstance(data, dict) else None
+    if not (isinstance(info, dict) and "topics_with_message_count" in info):
+        raise NothingRecoverable(f"{bag}: {problem}, and {mcaps[0].name} carries no rosbag2 metadata record (a file of "
+                                 "another writer, or cut short before its end): nothing to rebuild it from")
+    return dict(info), mcaps[0]
 
 
 def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> BagResult:
     """Write the chunks of ``bag`` that pass their CRC as the new bag ``out``.
 
     NothingRecoverable if ``bag`` is not a bag, carries no CRCs (damage cannot be located),
-    is undamaged, or no message survives; FileExistsError if ``out`` exists."""
+    is undamaged with its metadata.yaml, or no message survives; FileExistsError if ``out`` exists."""
     bag, out = Path(bag), Path(out)
-    if not is_bag(bag) or bag.name.endswith(PARTIAL_SUFFIX):
-        raise NothingRecoverable(f"{bag} is not a finished rosbag2 bag (no metadata.yaml)")
+    if not bag.is_dir() or bag.name.endswith(PARTIAL_SUFFIX):
+        raise NothingRecoverable(f"{bag} is not a finished rosbag2 bag directory")
     if out.exists():
         raise FileExistsError(f"--out {out} exists; the repaired copy never replaces anything")
-    info = bag_info(bag)
-    files = [str(f) for f in info.get("relative_file_paths") or []]
-    if len(files) != 1 or not files[0].endswith(".mcap"):
-        raise NothingRecoverable(f"{bag}: expected one .mcap file in metadata.yaml, found {files}")
-    mcap = bag / files[0]
-    if not mcap.is_file():  # (renamed or moved: as every reader says it)
-        raise NothingRecoverable(f"{bag}: metadata.yaml lists {files[0]}, which does not exist")
+    rebuilt = ""  # why metadata.yaml is taken from the .mcap's own record ("": it was read)
+    try:
+        info = bag_info(bag)
+    except BagReadError as err:
+        info, mcap = embedded_info(bag, err.problem)
+        rebuilt = err.problem
+    else:
+        files = [str(f) for f in info.get("relative_file_paths") or []]
+        if len(files) != 1 or not files[0].endswith(".mcap"):
+            raise NothingRecoverable(f"{bag}: expected one .mcap file in metadata.yaml, found {files}")
+        mcap = bag / files[0]
+        if not mcap.is_file():  # (renamed or moved: as every reader says it)
+            raise NothingRecoverable(f"{bag}: metadata.yaml lists {files[0]}, which does not exist")
     scan = McapScan(mcap)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
@@ -65,7 +114,7 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
         raise NothingRecoverable(f"{bag}: {what if (scan.stop or scan.bad or scan.data_problem) else ''}carries no chunk "
                                  "CRCs (written by another tool, or by this project before it computed them), so its "
                                  "damaged chunks cannot be told from good ones: nothing is salvaged")
-    if not (scan.bad or scan.stop or scan.data_problem):
+    if not (scan.bad or scan.stop or scan.data_problem or rebuilt):
         raise NothingRecoverable(f"{bag}: all {len(scan.chunks)} chunks pass their CRC; nothing to repair")
 
     usable = {cid: ch for cid, ch in channels.items() if ch.schema_id in schemas}
@@ -97,7 +146,7 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
                "torn_chunk": chunk_details([scan.torn], scan.topics)[0] if scan.torn else None,
                "recovered_messages": result.recovered, "written_messages": len(kept_msgs),
                "dropped_messages": result.dropped, "ticks": result.ticks, "messages": result.messages}
-    for key, text in (("stop", scan.stop), ("data_problem", scan.data_problem)):
+    for key, text in (("stop", scan.stop), ("data_problem", scan.data_problem), ("metadata_from_mcap", rebuilt)):
         if text:
             details[key] = text
     custom[REPAIR_INFO_KEY] = json.dumps(details, sort_keys=True)

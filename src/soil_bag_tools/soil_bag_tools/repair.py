@@ -24,8 +24,11 @@ as ``<bag>_repaired``.
 
     soil_bag_repair PATH [PATH ...] [--keep-partial-ticks] [--out NEW_BAG]
 
+A finished bag whose metadata.yaml is missing or unreadable is copied the same way, its
+metadata.yaml rebuilt from the record of it its .mcap carries.
+
 PATH is a ``*.partial`` directory, the journal ``.mcap`` inside one, a finished bag
-directory, or a directory that is searched for ``*.partial`` directories. ``--out`` names
+directory (or its .mcap), or a directory that is searched for ``*.partial`` directories. ``--out`` names
 the repaired copy of a finished bag (one PATH only). Exit code 1 if some path had nothing
 to recover (an undamaged bag, a bag without CRCs, an empty journal) or was skipped (a journal a
 running recorder is still writing: it holds the journal's lock), 2 for bad arguments (a PATH
@@ -39,9 +42,23 @@ from pathlib import Path
 
 from soil_msgs_py.cli_paths import input_path, output_dir
 
-from .bag_io import PARTIAL_SUFFIX, find_episode_bags, is_bag
+from .bag_io import PARTIAL_SUFFIX, BagReadError, bag_info, find_episode_bags, is_bag
 from .bag_salvage import salvage_bag
 from .journal import REPAIR_INFO_KEY, BagResult, JournalInUse, NothingRecoverable, journal_to_bag
+
+
+def finished_bag_dir(path: Path) -> bool:
+    """A finished bag's directory (not a journal's): one with its metadata.yaml, or with a .mcap
+    beside a metadata.yaml that is gone (``bag_salvage.embedded_info`` rebuilds it)."""
+    return (path.is_dir() and not path.name.endswith(PARTIAL_SUFFIX)
+            and (is_bag(path) or any(p.is_file() for p in path.glob("*.mcap"))))
+
+
+def _bag_of_file(path: Path) -> Path:
+    """A finished bag's .mcap given as PATH stands for its directory (a journal's stays itself)."""
+    if path.is_file() and path.suffix == ".mcap" and not path.parent.name.endswith(PARTIAL_SUFFIX):
+        return path.parent
+    return path
 
 
 def find_partials(path: Path) -> list[Path]:
@@ -97,7 +114,8 @@ def main(args: list[str] | None = None) -> int:
     p.add_argument("--out", type=output_dir, metavar="NEW_BAG",
                    help="where the repaired copy of a finished bag goes (default: <bag>_repaired beside it)")
     opts = p.parse_args(sys.argv[1:] if args is None else args)
-    bags = [path for path in opts.paths if is_bag(path) and not path.name.endswith(PARTIAL_SUFFIX)]
+    opts.paths = [_bag_of_file(path) for path in opts.paths]
+    bags = [path for path in opts.paths if finished_bag_dir(path)]
     if opts.out is not None and (len(opts.paths) != 1 or not bags):
         p.error(f"--out {opts.out}: give exactly one finished bag PATH with it (got {len(opts.paths)} "
                 f"path(s), {len(bags)} finished bag(s))")
@@ -117,7 +135,12 @@ def main(args: list[str] | None = None) -> int:
                 print(f"soil_bag_repair: nothing repaired: {err}", file=sys.stderr)
                 failed += 1
                 continue
-            report(r, f"chunks of {path} that pass their CRC")
+            try:
+                bag_info(path)
+                source = f"chunks of {path} that pass their CRC"
+            except BagReadError as err:
+                source = f"bag {path}, its metadata.yaml rebuilt from the .mcap's own record ({err.problem})"
+            report(r, source)
             continue
         try:
             partials = find_partials(path)
