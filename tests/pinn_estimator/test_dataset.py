@@ -213,3 +213,23 @@ def test_a_bag_with_a_value_no_sensor_gives_is_refused_naming_it_or_skipped(tmp_
     (skipped,) = kept.skipped
     assert bad.meta.name in str(skipped) and "'v_z_b' is 1000000000000.0" in str(skipped), skipped
     assert kept.names == [good.meta.name], kept.names
+
+
+def test_a_cache_that_answers_says_ray_was_not_contacted_and_too_short_episodes_are_warned_of(tmp_path, capsys):
+    """``--ray ADDRESS`` with a cached dataset trained and exited 0 whatever the address (a wrong one
+    surfaced only once the bags changed), and ``--duration 0.5`` wrote bags every reader refuses,
+    in silence (an outside tester's)."""
+    from pinn_estimator.dataset import load_dataset
+
+    assert batch.main(["--mode", "fee", "--soils", "Clay", "--relative-densities", "20", "--speeds", "0.5",
+                       "--depths", "0.1,0.15", "--seeds", "1", "--duration", "2", "--out", str(tmp_path / "d"),
+                       "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    load_dataset(tmp_path / "d")  # (the cache written)
+    said = []
+    ds = load_dataset(tmp_path / "d", ray_address="127.0.0.1:1", log=said.append)  # nothing listens there
+    assert len(ds) == 2 and any("--ray 127.0.0.1:1 not contacted" in s for s in said), said
+    assert batch.main(["--mode", "fee", "--soils", "Clay", "--relative-densities", "20", "--speeds", "0.5",
+                       "--depths", "0.1", "--seeds", "1", "--duration", "0.5", "--out", str(tmp_path / "short"),
+                       "--quiet"]) == 0
+    assert "fewer ticks than one 60-sample window" in capsys.readouterr().err

@@ -243,6 +243,9 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
         cached = _from_npz(cache_path, fingerprint, root)
         if cached is not None:
             say_notes(cached.notes, log)
+            if ray_address:  # (a wrong address would otherwise surface only once the bags change)
+                log(f"note: the dataset's cache answered for {root}; no bag was read, on Ray or otherwise "
+                    f"(--ray {ray_address} not contacted; --no-cache reads the bags there)")
             return cached
     rows = (_read_on_ray(bags, workers, progress, ray_address, ray_give_up_after_s) if ray_address
             else _read_all(bags, workers, progress))

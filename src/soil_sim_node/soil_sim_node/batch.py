@@ -47,7 +47,7 @@ from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigte
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir, refuse_directories
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
-from soil_msgs_py.params import MIN_CUT_DEPTH_M, beyond_lift_reach
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, ticks_in
 from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import pool_start_method
 from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, path_patches, soil_file_notes
@@ -520,6 +520,10 @@ def plan_from_args(args: argparse.Namespace) -> DatasetPlan:
                          f"{n_episodes} episode(s): episode i is seeded seed_base + i, at most {MAX_SEED}")
     specs = grid_specs(soils, relative_densities, speeds, depths, args.seeds, args.seed_base,
                        args.duration, patches)
+    if specs and ticks_in(specs[0].duration_s) < WINDOW_SAMPLES:  # (made all the same: a plot needs no window)
+        print(f"soil_sim_batch: warning: --duration {args.duration:g} s gives episodes of fewer ticks than one "
+              f"{WINDOW_SAMPLES}-sample window; pinn_train, pinn_eval and soil_discrepancy refuse such bags",
+              file=sys.stderr)
     out = args.out or Path("bags") / f"d_{args.mode}"
     if args.overwrite and args.skip_existing:
         raise ValueError("--overwrite and --skip-existing contradict each other: give one")
