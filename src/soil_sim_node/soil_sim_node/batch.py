@@ -166,27 +166,33 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         print(f"soil_sim_batch: note: {plan.out} already holds {others} episode bag(s) of earlier runs; with these "
               f"{len(names)} it holds {others + len(names)}, and pinn_train and soil_discrepancy read them all "
               "(dataset.json keeps the earlier runs' records under earlier_runs)", file=sys.stderr)
+    created = not plan.out.exists()
     plan.out.mkdir(parents=True, exist_ok=True)
     base = dict(mode=plan.mode, out=plan.out, effects=plan.effects, plugins=plan.plugins,
                 custom_soils=plan.custom_soils, overwrite=plan.overwrite, engine=plan.engine)
-    start = time.perf_counter()
-    bar = tqdm(total=len(plan.specs), unit="ep", desc=f"{plan.mode} episodes", disable=not progress)
-    if not plan.specs:  # (--skip-existing found every bag)
-        results = []
-    elif ray_address:
-        with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
-            chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
-            done = run_tasks(_run_chunk, [(base, c) for c in chunks],
-                             on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)),
-                             lost_after_s=ray_give_up_after_s)
-        bar.close()
-        if any(isinstance(r, Exception) for r in done):
-            _remove_staging(plan)  # bags dead or given-up tasks were writing
-        _raise_failed(plan, chunks, done)
-        results = [r for chunk_result in done for r in chunk_result]
-    else:
-        workers = workers or os.cpu_count() or 1
-        results = _run_in_pool([(base, c) for c in _chunks(plan.specs, workers, max_chunk)], workers, bar)
+    try:
+        start = time.perf_counter()
+        bar = tqdm(total=len(plan.specs), unit="ep", desc=f"{plan.mode} episodes", disable=not progress)
+        if not plan.specs:  # (--skip-existing found every bag)
+            results = []
+        elif ray_address:
+            with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
+                chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
+                done = run_tasks(_run_chunk, [(base, c) for c in chunks],
+                                 on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)),
+                                 lost_after_s=ray_give_up_after_s)
+            bar.close()
+            if any(isinstance(r, Exception) for r in done):
+                _remove_staging(plan)  # bags dead or given-up tasks were writing
+            _raise_failed(plan, chunks, done)
+            results = [r for chunk_result in done for r in chunk_result]
+        else:
+            workers = workers or os.cpu_count() or 1
+            results = _run_in_pool([(base, c) for c in _chunks(plan.specs, workers, max_chunk)], workers, bar)
+    except BaseException:
+        if created and not any(plan.out.iterdir()):  # (a run that wrote nothing leaves no empty --out behind)
+            plan.out.rmdir()
+        raise
     wall = time.perf_counter() - start
     paths = []  # the distinct soil paths (patches) of the episodes
     for spec in resolved:
