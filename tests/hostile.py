@@ -256,7 +256,9 @@ class MalformedMessages:
                            target_speed_m_s=2.0, target_depth_m=0.6, duration_s=10.0)
         event = self.rng.choice([G.EVENT_EPISODE_START, G.EVENT_EPISODE_END])
         end = {"last_stamp_ns": now_ns, "ticks": 5, "reason": "completed"} if event == G.EVENT_EPISODE_END else {}
-        stray = G.EpisodeEvent(event, 7, f"stray_episode_{self.rng.randrange(1000)}", meta, first_ns,
+        # (stamped as another episode's, a day on: ticks stamped back at a start are what would show a
+        # simulator started over there, ``recorder._held_start``)
+        stray = G.EpisodeEvent(event, 7, f"stray_episode_{self.rng.randrange(1000)}", meta, first_ns + 86_400 * NS,
                                planned_ticks=600, graph=self.rng.choice(["", "launch-other"]), **end)
         return [(G.SIM_STATUS_TOPIC, String(data=stray.to_json()))]
 

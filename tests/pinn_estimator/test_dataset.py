@@ -192,6 +192,7 @@ def test_a_bag_with_a_value_no_sensor_gives_is_refused_naming_it_or_skipped(tmp_
     it is written here past that check, as another tool might.)"""
     from dataclasses import replace
 
+    from pinn_estimator import dataset
     from pinn_estimator.dataset import load_dataset
     from soil_bag_tools import bag_io
     from soil_bag_tools.bag_io import BagReadError, write_episode
@@ -209,6 +210,12 @@ def test_a_bag_with_a_value_no_sensor_gives_is_refused_naming_it_or_skipped(tmp_
     monkeypatch.undo()
     with pytest.raises(BagReadError, match=rf"{bad.meta.name}.*'v_z_b' is 1000000000000.0 at tick 70; .* beyond ±1e\+09"):
         load_dataset(tmp_path / "d", cache=False)
+    # a cache written before the readers refused such values answers no more: the bags are read again
+    monkeypatch.setattr(dataset, "_check_plausible", lambda *a: None)
+    assert len(load_dataset(tmp_path / "d")) == 2  # (the cache written, the 1e12 in it)
+    monkeypatch.undo()
+    with pytest.raises(BagReadError, match="'v_z_b' is 1000000000000.0 at tick 70"):
+        load_dataset(tmp_path / "d")
     kept = load_dataset(tmp_path / "d", cache=False, skip_bad_bags=True, log=lambda s: None)
     (skipped,) = kept.skipped
     assert bad.meta.name in str(skipped) and "'v_z_b' is 1000000000000.0" in str(skipped), skipped

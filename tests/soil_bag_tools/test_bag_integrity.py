@@ -273,15 +273,15 @@ def test_repair_cli_refuses_what_it_cannot_or_need_not_repair(fresh, old, tmp_pa
     assert len(bag_io.read_episode(tmp_path / "new")) < TICKS
 
 
-def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_record(fresh, episode, tmp_path):
+def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_record(fresh, old, episode, tmp_path):
     """A bag whose metadata.yaml was deleted or garbled is read by no tool, though its .mcap holds
     every message and its own record of the metadata (an outside tester's: soil_bag_repair said
     "no *.partial journal directory inside" or "nothing repaired"). It is copied, the metadata.yaml
     rebuilt from that record; the original stays as it is."""
-    for damage, given in (("lost", "dir"), ("garbled", "mcap")):
-        bag = tmp_path / damage
-        shutil.copytree(fresh, bag)
-        if damage == "lost":
+    for damage, given, source in (("lost", "dir", fresh), ("garbled", "mcap", fresh), ("lost_old", "dir", old)):
+        bag = tmp_path / damage  # (old: a bag of before the CRCs, whole: copied as it was written)
+        shutil.copytree(source, bag)
+        if damage.startswith("lost"):
             (bag / "metadata.yaml").unlink()
         else:
             (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
@@ -297,6 +297,8 @@ def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_reco
         assert json.loads(bag_io.bag_custom_data(tmp_path / f"{damage}_repaired")[journal.REPAIR_INFO_KEY])[
             "metadata_from_mcap"].startswith("unreadable metadata.yaml")
         assert (bag / "metadata.yaml").exists() == (damage == "garbled")  # (the original untouched)
+        if damage == "lost_old":
+            assert "carries no chunk CRCs" not in out.stderr
     cut = tmp_path / "cut"  # no metadata.yaml, and the file cut before its end, where the record is
     shutil.copytree(fresh, cut)
     (cut / "metadata.yaml").unlink()
@@ -304,6 +306,18 @@ def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_reco
         f.truncate(mcap_of(cut).stat().st_size // 2)
     out = run("soil_bag_repair", cut, timeout=60)
     assert out.returncode == 1 and "carries no rosbag2 metadata record" in out.stderr, out.stderr
+    # a recordings directory holding a loose .mcap beside a killed recorder's journal is searched, as
+    # before: its journal becomes a bag, the loose file is no bag to copy (an outside reviewer's)
+    live = tmp_path / "live"
+    live.mkdir()
+    shutil.copy(mcap_of(fresh), live / "exported.mcap")
+    partial, writer = _journal_from_sample(live, 3000, 500)
+    writer.close()  # (a killed recorder's: flushed, not converted)
+    out = run("soil_bag_repair", live / "exported.mcap", timeout=60)  # a loose file: no bag, no journal
+    assert out.returncode == 1 and "neither" in out.stderr and not (tmp_path / "live_repaired").exists(), out.stderr
+    out = run("soil_bag_repair", live, timeout=60)
+    assert out.returncode == 0 and not (tmp_path / "live_repaired").exists(), out.stdout + out.stderr
+    assert bag_io.is_bag(live / partial.name.removesuffix(bag_io.PARTIAL_SUFFIX)), sorted(live.iterdir())
 
 
 def test_repair_skips_a_corrupt_journal_chunk_and_converts_the_rest(tmp_path):

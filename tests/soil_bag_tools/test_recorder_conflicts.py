@@ -138,7 +138,9 @@ def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_top
 def test_a_stray_episode_event_mid_episode_neither_cuts_nor_ends_the_bag(tmp_path):
     """One foreign episode_start mid-episode had closed the launch's bag cut short and recorded the
     rest under the stranger's name, losing a third of its ticks as off its grid (an outside
-    tester's); another episode's episode_end must not end it either. Both are said and ignored."""
+    tester's); another episode's episode_end must not end it either. The start is held (only ticks
+    stamped back at its start would open it: the launch's simulator started again by hand), the
+    end ignored, both said. Then that restart: the first run's bag cut short, the new one beside it."""
     loaded, start_ev, end_ev = _events(SAMPLE)
     n = 60
     msgs = loaded.messages[: 10 * n]
@@ -162,8 +164,26 @@ def test_a_stray_episode_event_mid_episode_neither_cuts_nor_ends_the_bag(tmp_pat
     assert result.path.name == start_ev.name and [p.name for p in tmp_path.iterdir()] == [start_ev.name]
     assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
     said = [m for lvl, m in log.lines if lvl == "warning"]
-    assert any("foreign_episode" in m and "not this graph's event" in m for m in said), said
+    assert any("foreign_episode" in m and "held until its ticks show a simulator started over" in m for m in said), said
     assert any("other_graph_episode" in m and "ignored" in m for m in said), said
+
+    # the launch's simulator killed at half its episode and started again by hand (no graph id): its
+    # ticks from the episode's start again open its bag
+    log = ListLog()
+    rec = recorder.Recorder(tmp_path / "restart", loaded.topics, log=log, clock=lambda: 0.0, graph_id="launch-mine")
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for _, topic, raw in msgs[: len(msgs) // 2]:
+        feed.send("sim", topic, raw)
+    rec.on_status(replace(start_ev, graph="").to_json())
+    for _, topic, raw in msgs:
+        feed.send("restarted", topic, raw)
+    rec.on_status(replace(end_ev, graph="").to_json())
+    rec.close()
+    first, second = sorted(rec.finished, key=lambda r: r.path.name)
+    assert (first.ticks, second.ticks) == (n // 2, n), (first, second)
+    assert recorder_info(first.path)["end"] == "cut_short"
+    assert_same_episode(bag_io.read_episode(second.path), bag_io.read_episode(SAMPLE), n)
 
 
 def test_a_long_conversion_says_it_is_at_work():

@@ -1,8 +1,11 @@
-"""Which /sim/status events a node takes (``soil_msgs_py.episode_follow``), no ROS: the episode
-under way's own end, starts of its graph, anything between episodes or once its source is gone."""
+"""Which /sim/status events a node takes (``soil_msgs_py.episode_follow``), no ROS: given its graph's
+id, none of another graph and, mid-episode, only the episode's own end and starts of its graph;
+given none, any start and only the episode's own end; anything once its source is gone."""
 from __future__ import annotations
 
 from dataclasses import replace
+
+import pytest
 
 from soil_msgs_py import graph as G
 from soil_msgs_py.episode import EpisodeMeta
@@ -12,39 +15,45 @@ META = EpisodeMeta(soil="Clay", relative_density_pct=50.0, world_mode="default",
                    target_depth_m=0.15, duration_s=10.0)
 START = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, META.name, META, 10**9, planned_ticks=600, graph="launch-a")
 END = replace(START, event=G.EVENT_EPISODE_END, last_stamp_ns=10**9 + 599 * 16_666_666, ticks=600, reason="completed")
-STRAY_META = replace(META, target_speed_m_s=2.0, target_depth_m=0.6)
+STRAY = G.EpisodeEvent(G.EVENT_EPISODE_START, 7, "foreign_episode",
+                       replace(META, target_speed_m_s=2.0, target_depth_m=0.6), 5 * 10**9, planned_ticks=60)
 
 
-def test_mid_episode_a_stray_start_or_another_episodes_end_is_refused_and_the_episode_goes_on():
-    follower = EpisodeFollower()
+def test_a_launched_node_refuses_strays_and_other_graphs_and_follows_its_own_episodes():
+    follower = EpisodeFollower("launch-a")
+    other = replace(STRAY, graph="launch-b")
+    assert "from another graph (id launch-b; this node follows launch-a)" in follower.refusal(other)  # before any
     assert follower.refusal(START) == ""
-    stray_start = G.EpisodeEvent(G.EVENT_EPISODE_START, 7, "foreign_episode", STRAY_META, 5 * 10**9, planned_ticks=60)
-    why = follower.refusal(stray_start)
+    why = follower.refusal(STRAY)
     assert "foreign_episode (no graph id)" in why and "(graph launch-a) is under way" in why and "ignored" in why
-    other_graph = replace(stray_start, graph="launch-b")
-    assert "graph launch-b" in follower.refusal(other_graph)
-    stray_end = replace(END, name="other_graph_episode", episode=7)
-    assert "not its end" in follower.refusal(stray_end)
-    assert "not this graph's" in follower.refusal(replace(END, graph=""))  # its name, another graph
+    assert "not its end" in follower.refusal(replace(END, name="other_graph_episode", episode=7))
+    assert "not this graph's" in follower.refusal(replace(END, graph=""))  # its name, no id
     assert follower.under_way == START  # still following the episode
     assert follower.refusal(START) == ""  # the same start again (a late or repeated delivery)
-    assert follower.refusal(END) == "" and follower.under_way is None
-    # between episodes any start is taken, of any graph
-    assert follower.refusal(other_graph) == "" and follower.under_way == other_graph
-
-
-def test_a_restart_of_the_same_graph_is_followed_and_a_gone_source_frees_the_follower():
-    follower = EpisodeFollower()
-    follower.refusal(START)
-    restarted = replace(START, episode=0, first_stamp_ns=0)  # its simulator started over (stamps from 0 again)
+    restarted = replace(START, first_stamp_ns=0)  # its simulator started over, stamps from 0 again
     assert follower.refusal(restarted) == "" and follower.under_way == restarted
-    stray = G.EpisodeEvent(G.EVENT_EPISODE_START, 0, "replayed", META, 0, planned_ticks=60)  # a player's (no id)
-    assert follower.refusal(stray) != ""
-    assert follower.refusal(stray, source_silent=True) == "" and follower.under_way == stray
-    # an episode without a graph id (a replay, a simulator by hand) yields to any start; its end
-    # is still its own
-    assert "not its end" in follower.refusal(replace(END, graph=""))
-    assert follower.refusal(START) == "" and follower.under_way == START
+    assert follower.refusal(replace(END, first_stamp_ns=0)) == "" and follower.under_way is None
+    # between episodes a start without an id is taken (a replay), and gives way to the graph's next
+    assert follower.refusal(STRAY) == "" and follower.refusal(START) == "" and follower.under_way == START
+    # a source gone silent frees the follower
+    assert follower.refusal(STRAY) != "" and follower.refusal(STRAY, source_silent=True) == ""
+
+
+def test_a_node_given_no_graph_id_takes_any_start_and_only_the_episodes_own_end():
+    """Started by hand: a simulator started again by hand (no id) after a launched one looks like a
+    stray, so every start is taken, as always; an end that is not the episode under way's is not."""
+    follower = EpisodeFollower()
+    assert follower.refusal(START) == ""
+    assert follower.refusal(STRAY) == "" and follower.under_way == STRAY
+    assert "not its end" in follower.refusal(END)
+    assert follower.refusal(replace(STRAY, event=G.EVENT_EPISODE_END, last_stamp_ns=6 * 10**9, ticks=60,
+                                    reason="completed")) == ""
+    assert follower.under_way is None and follower.refusal(END) == ""  # (nothing under way: taken)
+
+
+def test_a_bad_graph_id_is_refused_naming_the_parameter():
+    with pytest.raises(ValueError, match="parameter graph_id='a b' must be a string of at most 64 letters"):
+        EpisodeFollower("a b")
 
 
 def test_an_episode_is_its_start_and_end_alike():

@@ -92,6 +92,7 @@ PARAMETERS: dict[str, tuple] = {
                                        f"simulator's lockstep_timeout_s ({G.LOCKSTEP_TIMEOUT_S:g} s), which ends an "
                                        "episode whose tick "
                                        "is not answered"),
+    "graph_id": G.FOLLOWED_GRAPH_ID_PARAMETER,
     "inputs_wait_s": (G.INPUTS_WAIT_S, "with depth_source planner at start: subscribe to the state once the "
                                        f"planner's target has a publisher, or after this long [s], [0, {G.MAX_WAIT_S:g}] "
                                        "(0: at once), so a simulator waiting for this node starts no episode before the "
@@ -172,7 +173,7 @@ class ControllerNode(Node):
         self.joiner = state_joiner(self._force_lift)
         self._warn = WarnLimiter(self.get_logger())
         self.silence = InputSilence(self, "state from the simulator")
-        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event neither retargets nor stops it
+        self.follower = EpisodeFollower(get("graph_id"))  # a stray /sim/status event neither retargets nor stops it
         # Between an episode_end and the next episode_start, state is held (not answered), so
         # a tick 0 that overtook its episode_start is answered after the reset. None: not held.
         self.held: list[tuple[str, object]] | None = None
@@ -204,8 +205,9 @@ class ControllerNode(Node):
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validate everything first, then apply atomically (a rejected change alters nothing)."""
         changes = {p.name: p.value for p in params}
-        if "inputs_wait_s" in changes:  # read once, at start (it was taken unchecked and changed nothing)
-            return SetParametersResult(successful=False, reason="['inputs_wait_s'] can only be set at start-up")
+        if fixed := sorted({"inputs_wait_s", "graph_id"} & set(changes)):  # read once, at start (it was taken
+            # unchecked and changed nothing)
+            return SetParametersResult(successful=False, reason=f"{fixed} can only be set at start-up")
         try:
             source, timeout_ns = check_depth_source(
                 changes.get("depth_source", self.depth_source),

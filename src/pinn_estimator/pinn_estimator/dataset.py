@@ -141,7 +141,7 @@ class Dataset:
         if skipped := [n for n in missing if n in unreadable]:  # (here, but left out: "not in the dataset" misled)
             raise ValueError(
                 f"{len(skipped)} episode(s) of the split were skipped as unreadable (--skip-bad-bags), e.g. "
-                f"{skipped[0]!r}: {unreadable[skipped[0]]}; repair it (soil_bag_repair) or evaluate without them"
+                f"{skipped[0]!r}: {unreadable[skipped[0]]}; repair it (soil_bag_repair) and run again"
                 + (f" ({len(missing) - len(skipped)} more are not in the dataset at {self.root}: {fix})"
                    if len(missing) > len(skipped) else "")
             )
@@ -345,11 +345,16 @@ def _to_npz(ds: Dataset, path: Path) -> None:
 
 
 def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
-    """The cached dataset, or None (read the bags again) if the cache file is damaged or stale."""
+    """The cached dataset, or None (read the bags again) if the cache file is damaged or stale, or
+    holds a value the readers now refuse (a cache written before they refused values beyond
+    ±``PLAUSIBLE_ABS_LIMIT``: read again, the bag is named)."""
     try:
         with np.load(path, allow_pickle=False) as z:
             if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint or "notes" not in z.files:
                 return None  # (a cache from before the readers' warnings were kept: read the bags again)
+            if any(first_implausible(z[name], fields) is not None for name, fields in (
+                    ("observations", OBSERVATION_FIELDS), ("forces", FORCE_FIELDS), ("known", KNOWN_PARAMS))):
+                return None
             return Dataset(
                 [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],
                 z["observations"], z["forces"], z["known"], z["truth"], fingerprint=fingerprint, root=str(root),

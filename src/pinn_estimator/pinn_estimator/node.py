@@ -48,11 +48,14 @@ PARAMETERS: dict[str, tuple] = {
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_<world>.json "
                           "of the checkpoint's training world (fusion_default.json if several or none)"),
+    "graph_id": G.FOLLOWED_GRAPH_ID_PARAMETER,
     "inputs_wait_s": (G.INPUTS_WAIT_S, "join /sim/status once every input topic has a publisher, or after this long "
                                        f"[s], [0, {G.MAX_WAIT_S:g}] (0: at once)"),
 }
 
 DRAIN_QUIET_S = 1.0  # asked to stop, an ended episode's queued ticks are taken while one comes at least this often
+DRAIN_SAID_EVERY_S = 2.0  # and it says how far it got this often (soil_launch waits for a stopping node that reports)
+DRAIN_ENDED_EPISODE_LIMIT_S = 120.0  # the most it spends so: a lockstep run's backlog can be seconds of estimation
 
 
 def load_estimator_model(path: str):
@@ -102,13 +105,14 @@ class EstimatorNode(Node):
         self.physics_pub = self.create_publisher(String, local(G.ESTIMATOR_PHYSICS_TOPIC),
                                                  publisher_qos(G.ESTIMATOR_PHYSICS_TOPIC))
         self._physics_said: tuple | None = None
-        self._drain_said = False
+        self._drain_said = 0.0  # time.monotonic() it last said it is finishing an ended episode (0: not yet)
+        self.drain_limit_s = DRAIN_ENDED_EPISODE_LIMIT_S  # (``spin_node``'s bound on ``draining``)
         self._say_physics()
         # Deep input queues (like a recorder's): a model step that runs late must not make DDS
         # drop a sample, which would cost a whole window.
         deep = qos_profile(G.RECORDER_QOS)
         self.silence = InputSilence(self, "samples (the simulator's state and the controller's commands)")
-        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event neither restarts nor ends it
+        self.follower = EpisodeFollower(get("graph_id"))  # a stray /sim/status event neither restarts nor ends it
         inputs = {name: self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                                  lambda msg, n=name: self._on_input(n, msg), deep)
                   for name in INPUT_TOPICS}
@@ -132,7 +136,7 @@ class EstimatorNode(Node):
             model = load_estimator_model(changes["checkpoint"]) if "checkpoint" in changes else None
             if "stride" in changes:
                 OnlineEstimator._check_stride(changes["stride"])
-            if fixed := sorted({"reorder_ticks", "threads", "fusion_config", "inputs_wait_s"} & set(changes)):
+            if fixed := sorted({"reorder_ticks", "threads", "fusion_config", "inputs_wait_s", "graph_id"} & set(changes)):
                 raise ValueError(f"{fixed} can only be set at start-up; restart the node to change them")
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
@@ -216,12 +220,14 @@ class EstimatorNode(Node):
         """Asked to stop (``spin_node``): an episode that ended but whose last ticks are still
         queued is estimated to its end first (``OnlineEstimator.owes_ended_episode``), while they
         keep coming at least every ``DRAIN_QUIET_S`` (a tick that never completes does not hold
-        the stop; ``spin_node`` bounds the whole). A stop mid-episode is not delayed."""
-        owed = self.core.owes_ended_episode and time.monotonic() - self.silence.last < DRAIN_QUIET_S
-        if owed and not self._drain_said:
-            self._drain_said = True
-            self.get_logger().info(f"finishing the ended episode first: its ticks after stamp "
-                                   f"{self.core.assembler.last_released} ns are still queued")
+        the stop; ``spin_node`` bounds the whole by ``drain_limit_s``, a second signal ends it), and
+        says so every ``DRAIN_SAID_EVERY_S``. A stop mid-episode is not delayed."""
+        now = time.monotonic()
+        owed = self.core.owes_ended_episode and now - self.silence.last < DRAIN_QUIET_S
+        if owed and now - self._drain_said >= DRAIN_SAID_EVERY_S:
+            self._drain_said = now
+            self.get_logger().info(f"finishing the ended episode first: at stamp {self.core.assembler.last_released} "
+                                   f"ns of its last, {self.core.ended_at_ns} ns")
         return owed
 
     def close(self) -> None:

@@ -473,6 +473,11 @@ class OnlineEstimator:
         estimates (139 of 600 in an outside tester's demo beside a busy machine)."""
         return self._ended_at is not None and self.assembler.last_released < self._ended_at
 
+    @property
+    def ended_at_ns(self) -> int | None:
+        """The last stamp of the episode whose end was the last event taken (None: none, or a new one began)."""
+        return self._ended_at
+
     def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
 

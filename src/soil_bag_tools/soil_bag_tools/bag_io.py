@@ -433,8 +433,8 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
     notes = []
     if files:
         notes.append(f"not read: {len(files)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml "
-                     f"beside the .mcap): {shown(files)}; a bag's whose metadata.yaml is lost, soil_bag_repair DIR "
-                     "copies with one rebuilt from the file's own record")
+                     f"beside the .mcap): {shown(files)}; where that is a bag whose metadata.yaml was lost, "
+                     "soil_bag_repair DIR copies it with one rebuilt from the file's own record")
     if journals:
         notes.append(f"not read: {len(journals)} recorder journal(s), a killed recorder's or one still being "
                      f"written: {shown(journals)}; soil_bag_repair {root} turns a killed recorder's into bags")

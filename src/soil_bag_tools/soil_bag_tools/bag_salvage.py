@@ -109,7 +109,8 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
     if not (scan.chunks or scan.torn):  # (cut inside a compressed first chunk, or before any)
         raise NothingRecoverable(f"{bag}: holds no complete chunk"
                                  + (f" ({scan.stop})" if scan.stop else "") + "; nothing to recover")
-    if not scan.has_crcs:
+    # (a file without CRCs, whole, that only lost its metadata.yaml is copied as it was written)
+    if not scan.has_crcs and (scan.stop or scan.bad or scan.data_problem or not rebuilt):
         what = f"is {'truncated or unreadable (' + scan.stop + ')' if scan.stop else 'damaged'}, and "
         raise NothingRecoverable(f"{bag}: {what if (scan.stop or scan.bad or scan.data_problem) else ''}carries no chunk "
                                  "CRCs (written by another tool, or by this project before it computed them), so its "

@@ -52,8 +52,8 @@ from rosbags.interfaces import Qos
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.episode import MAX_EPISODE_S
-from soil_msgs_py.episode_follow import EpisodeFollower, same_episode
-from soil_msgs_py.graph import EVENT_EPISODE_START, INPUT_SILENCE_S, EpisodeEvent
+from soil_msgs_py.episode_follow import same_episode
+from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import CLOCK, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
@@ -253,7 +253,6 @@ class Recorder:
         self._undecodable_warned: set[str] = set()
         # this launch's graph id (``EpisodeEvent.graph``): another graph's episodes are not recorded
         self.graph_id = graph_id
-        self.follower = EpisodeFollower()  # a stray /sim/status event neither cuts nor ends the episode under way
         self._others_said: set[str] = set()
         if not split:
             name = "record_" + datetime.now(timezone.utc).strftime("%Y%m%d_%H%M%S")
@@ -282,13 +281,10 @@ class Recorder:
                 self.log.warning(f"{ev.event} of {ev.name} from another graph (id {ev.graph}, this recorder's "
                                  f"{self.graph_id}) on this recorder's topics: none of its episodes is recorded")
             return
-        now = self.clock()
-        fed = any(x.end_event is None and x.last_write is not None and now - x.last_write < INPUT_SILENCE_S
-                  for x in self.sessions)  # an episode under way whose source still sends
-        if why := self.follower.refusal(ev, source_silent=not fed):
+        if ev.event == EVENT_EPISODE_START and (held := self._held_start(ev)):
             if ev.name not in self._others_said:
                 self._others_said.add(ev.name)
-                self.log.warning(f"/sim/status: {why}")
+                self.log.warning(f"/sim/status: {held}")
             return
         if ev.event == EVENT_EPISODE_START:
             self._start(ev)
@@ -382,6 +378,24 @@ class Recorder:
             journal.add_channel(topic, msgtype, self.qos_for(topic))
         self.log.info(f"recording {self.out_dir / name} (journal {journal.path})")
         return Session(name=name, journal=journal, meta_json=meta_json)
+
+    def _held_start(self, ev: EpisodeEvent) -> str:
+        """Why the ``episode_start`` ``ev`` is held, not opened ("": it is opened): one without the graph
+        id of a launched graph's episode under way is a stray's or that graph's simulator started again
+        by hand, and only the ticks tell them apart. It waits as the episode's ``start_again`` (a
+        message stamped back at its start opens it, ``_restarted``). Opened at once, one stray start
+        had closed a launch's bag cut short and filed the rest under the stranger's name, losing a
+        third of its ticks as off its grid (an outside tester's)."""
+        under_way = [s for s in self.sessions if s.end_event is None and not s.superseded and s.event is not None
+                     and s.event.graph and s.event.graph != ev.graph]
+        for s in under_way:
+            s.start_again = ev
+        if not under_way:
+            return ""
+        cur = under_way[-1].event
+        return (f"episode_start of {ev.name} ({'graph ' + ev.graph if ev.graph else 'no graph id'}) while {cur.name} "
+                f"of graph {cur.graph} is under way: held until its ticks show a simulator started over there "
+                "(stamped back at its start), else never recorded")
 
     def _start(self, ev: EpisodeEvent) -> None:
         same = next((s for s in self.sessions if s.same_episode(ev)), None)

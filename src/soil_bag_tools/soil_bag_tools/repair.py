@@ -48,15 +48,21 @@ from .journal import REPAIR_INFO_KEY, BagResult, JournalInUse, NothingRecoverabl
 
 
 def finished_bag_dir(path: Path) -> bool:
-    """A finished bag's directory (not a journal's): one with its metadata.yaml, or with a .mcap
-    beside a metadata.yaml that is gone (``bag_salvage.embedded_info`` rebuilds it)."""
-    return (path.is_dir() and not path.name.endswith(PARTIAL_SUFFIX)
-            and (is_bag(path) or any(p.is_file() for p in path.glob("*.mcap"))))
+    """A finished bag's directory (not a journal's): one with its metadata.yaml, or one holding a
+    single .mcap and nothing else, its metadata.yaml gone (``bag_salvage.embedded_info`` rebuilds
+    it). A directory with more in it (journals, other bags, loose files) is one to search."""
+    if not path.is_dir() or path.name.endswith(PARTIAL_SUFFIX):
+        return False
+    if is_bag(path):
+        return True
+    entries = [p for p in path.iterdir() if not p.name.startswith(".")]
+    return len(entries) == 1 and entries[0].is_file() and entries[0].suffix == ".mcap"
 
 
 def _bag_of_file(path: Path) -> Path:
-    """A finished bag's .mcap given as PATH stands for its directory (a journal's stays itself)."""
-    if path.is_file() and path.suffix == ".mcap" and not path.parent.name.endswith(PARTIAL_SUFFIX):
+    """A finished bag's .mcap given as PATH stands for its directory (a journal's, or a loose file's
+    in a directory that is no bag, stays itself)."""
+    if path.is_file() and path.suffix == ".mcap" and finished_bag_dir(path.parent):
         return path.parent
     return path
 

@@ -455,8 +455,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     wait: dict[str, int] = {}
     nodes: list[NodeProcess] = []
     # this launch's own id, in its simulator's /sim/status events: its recorder records no other
-    # launch's episodes (two graphs in one namespace of one domain); the user's -p graph_id if given,
-    # the same for both (a recorder given another would record nothing)
+    # launch's episodes (two graphs in one namespace of one domain), and its controller, estimator and
+    # planner follow no other graph's events (``episode_follow``); the user's -p graph_id if given,
+    # the same for all (a recorder given another would record nothing)
     graph_id = ((given_params("soil_sim_node", None, args.sim_param, ("graph_id",))["graph_id"] or "").strip()
                 or f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     if args.record:
@@ -471,7 +472,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
         _count(wait, RECORDER_ENDPOINTS)
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
-    estimator_param = (world_checkpoint_param(args) if args.estimator else []) + list(args.estimator_param)
+    follow = [f"graph_id:={graph_id}"]
+    estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
+                       + unless_given("pinn_estimator", args.estimator_param, follow) + list(args.estimator_param))
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
         # (the simulator steps on the controller's commands), and a planner without them sends no targets
@@ -486,15 +489,16 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # advice, not the machine: a controller whose planner goes silent cuts to its own
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
-        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file, args.planner_param,
-                                                      args.namespace),
+        nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
+                                                      unless_given("soil_planner", args.planner_param, follow)
+                                                      + args.planner_param, args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
         closed = unless_given("anti_stall_controller", args.controller_param,
-                              ["depth_source:=planner"] if args.planner else [])
+                              (["depth_source:=planner"] if args.planner else []) + follow)
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))

@@ -6,23 +6,27 @@ retargeted the controller mid-episode at four times the set speed and split the 
 and one foreign ``episode_end`` (another episode's name) stopped the controller answering for
 the rest of its episode.
 
-The rule: while an episode is under way (its start taken, its end not), a node takes
+A node given its graph's id (``graph_id``, which ``soil_launch`` gives the controller, the
+estimator and the planner, as it gives its simulator and recorder) takes
 
-* that episode's ``episode_end`` (same name, episode index, first stamp and graph id) and no other;
-* if the episode is a launched graph's (a graph id), an ``episode_start`` of that graph only (the
-  same episode again, or its simulator started over): a launched simulator refuses to run beside
-  another graph's, so a start of another id, or of none, mid-episode is not this graph's. An
-  episode without a graph id (a simulator started by hand, a replay) yields to any start, as
-  before: nothing tells its next source from a stranger.
+* no event of another graph id (another launch's simulator on its topics, a stray);
+* while an episode is under way (its start taken, its end not), that episode's ``episode_end``
+  (same name, episode index, first stamp and graph id) and no other, and a start of its own graph
+  only (the same episode again; a launched simulator refuses to run beside another graph's, and
+  the launch stops when its simulator dies, so a start without an id mid-episode is a stray).
 
-Between episodes it takes any start. The episode under way is given up once the node's inputs
-have been silent for ``graph.INPUT_SILENCE_S`` (its source is gone: whatever starts next is followed).
-A writer that copies the episode's own name and graph id is not told apart: rclpy's message info
-names no writer. No rclpy here.
+Between episodes it takes a start without an id too (a replay). A node given no id (started by
+hand) takes any start whenever it comes, as it always did: a simulator started again by hand
+looks like a stray, and a stray start gives way to the next real one; it refuses only an end
+that is not the episode under way's. The episode under way is given up once the node's inputs
+have been silent for ``graph.INPUT_SILENCE_S`` (its source is gone). A writer that copies the
+episode's own name and graph id is not told apart: rclpy's message info names no writer. No
+rclpy here.
 """
 from __future__ import annotations
 
-from .graph import EVENT_EPISODE_START, EpisodeEvent
+from .graph import EVENT_EPISODE_START, EpisodeEvent, graph_id_problem
+from .values import short_repr
 
 
 def _graph_said(graph: str) -> str:
@@ -35,9 +39,13 @@ def same_episode(a: EpisodeEvent, b: EpisodeEvent) -> bool:
 
 
 class EpisodeFollower:
-    """The episode a node follows (module doc); ``refusal`` judges each event in arrival order."""
+    """The episode a node follows (module doc); ``refusal`` judges each event in arrival order.
+    ``graph_id``: the node's graph ("": none given)."""
 
-    def __init__(self) -> None:
+    def __init__(self, graph_id: str = "") -> None:
+        if problem := graph_id_problem(graph_id):
+            raise ValueError(f"parameter graph_id={short_repr(graph_id)} {problem}")
+        self.graph_id = graph_id
         self.under_way: EpisodeEvent | None = None
 
     def refusal(self, ev: EpisodeEvent, source_silent: bool = False) -> str:
@@ -46,8 +54,11 @@ class EpisodeFollower:
         under way is given up first."""
         if source_silent:
             self.under_way = None
+        if self.graph_id and ev.graph and ev.graph != self.graph_id:
+            return (f"{ev.event} of {ev.name} from another graph (id {ev.graph}; this node follows {self.graph_id}): "
+                    "ignored")
         cur = self.under_way
-        if cur is not None and cur.graph and ev.graph != cur.graph:
+        if self.graph_id and cur is not None and cur.graph and ev.graph != cur.graph:
             return (f"{ev.event} of {ev.name} ({_graph_said(ev.graph)}) while {cur.name} ({_graph_said(cur.graph)}) "
                     "is under way: not this graph's event (another graph or a stray writer on /sim/status); ignored")
         if ev.event == EVENT_EPISODE_START:

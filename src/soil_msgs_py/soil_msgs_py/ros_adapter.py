@@ -485,10 +485,13 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
             executor.spin_once(timeout_sec=0.1)
         if stop or not rclpy.ok():
             node.get_logger().info(stopping_said(stop[0] if stop else None))
-        # A node with data in flight that it must not lose (the recorder) says so through
-        # ``draining()``; it gets up to DRAIN_LIMIT_S more spinning before ``close``.
-        draining, deadline = getattr(node, "draining", None), time.monotonic() + DRAIN_LIMIT_S
-        while draining is not None and rclpy.ok() and draining() and time.monotonic() < deadline:
+        # A node with data in flight that it must not lose (the recorder, the estimator) says so
+        # through ``draining()``; it gets up to its ``drain_limit_s`` (DRAIN_LIMIT_S) more spinning
+        # before ``close``. A second signal (another Ctrl-C, soil_launch's SIGTERM) ends it at once.
+        draining = getattr(node, "draining", None)
+        deadline, signals = time.monotonic() + getattr(node, "drain_limit_s", DRAIN_LIMIT_S), len(stop)
+        while (draining is not None and rclpy.ok() and len(stop) <= signals and draining()
+               and time.monotonic() < deadline):
             executor.spin_once(timeout_sec=0.05)
     except ExternalShutdownException:  # (the context shut down inside spin_once: said as above)
         if node is not None:

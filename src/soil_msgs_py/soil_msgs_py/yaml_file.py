@@ -8,32 +8,44 @@ class DuplicateKey(ValueError):
     """A mapping of a user's YAML file gives one key twice."""
 
 
-def _unique_key_loader():
-    """PyYAML's safe loader, refusing a key given twice in one mapping: it keeps the last value in
-    silence, so a params file giving ``duration_s`` twice ran the episode the second one said
-    (an outside tester's), and the user cannot tell which value they meant."""
+def check_unique_keys(text: str) -> None:
+    """``DuplicateKey`` for a mapping of the YAML ``text`` that gives one key twice. PyYAML (and
+    rcl) keep the last value in silence, so a params file giving ``duration_s`` twice ran the
+    episode the second one said (an outside tester's), and the user cannot tell which was meant.
+    Judged on the composed nodes, before any ``<<`` merge is applied (a merge's keys are the merged
+    map's, overridden on purpose); YAML the parser refuses is left to it."""
     import yaml
 
-    class UniqueKeyLoader(yaml.SafeLoader):
-        def construct_mapping(self, node, deep=False):
-            if isinstance(node, yaml.MappingNode):
-                seen: dict = {}
-                for key_node, _ in node.value:
-                    if key_node.tag == "tag:yaml.org,2002:merge":  # (``<<:``: its keys are the merged map's)
-                        continue
-                    key = self.construct_object(key_node, deep=True)
-                    line = key_node.start_mark.line + 1
-                    try:
-                        first = seen.get(key)
-                    except TypeError:  # an unhashable key: PyYAML says so itself
-                        continue
-                    if first is not None:
-                        raise DuplicateKey(f"key {key!r} appears twice in one mapping (lines {first} and {line}): "
-                                           "which value is meant? Give it once")
-                    seen[key] = line
-            return super().construct_mapping(node, deep=deep)
-
-    return UniqueKeyLoader
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return
+    keys = yaml.SafeLoader("")  # (a constructor for the key scalars: 1 and 1.0, ~ and null are one key)
+    seen_nodes: set[int] = set()
+    stack = [root] if root is not None else []
+    while stack:
+        node = stack.pop()
+        if id(node) in seen_nodes:  # (an alias: the anchored node, judged once)
+            continue
+        seen_nodes.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            lines: dict = {}
+            for key_node, value_node in node.value:
+                stack += [key_node, value_node]
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                try:
+                    key = keys.construct_object(key_node, deep=True)
+                    first = lines.get(key)
+                except (yaml.YAMLError, TypeError, ValueError):
+                    continue  # (the loader says what is wrong with the key itself)
+                line = key_node.start_mark.line + 1
+                if first is not None:
+                    raise DuplicateKey(f"key {key!r} appears twice in one mapping (lines {first} and {line}): "
+                                       "which value is meant? Give it once")
+                lines[key] = line
+        elif isinstance(node, yaml.SequenceNode):
+            stack += list(node.value)
 
 
 def read_yaml(path, what: str):
@@ -44,7 +56,9 @@ def read_yaml(path, what: str):
 
     p = Path(path)
     try:
-        return yaml.load(p.read_text(encoding="utf-8"), Loader=_unique_key_loader())  # noqa: S506 - a safe loader
+        text = p.read_text(encoding="utf-8")
+        check_unique_keys(text)
+        return yaml.safe_load(text)
     except DuplicateKey as exc:
         raise DuplicateKey(f"{what} {p}: {exc}") from None
     except UnicodeDecodeError as exc:

@@ -138,6 +138,7 @@ PARAMETERS: dict[str, tuple] = {
     "command_wait_s": (DEFAULT_COMMAND_WAIT_S, "while the controller's /blade/cmd comes, a tick is planned once its "
                                                "command is in, waiting at most this long [s of wall time], "
                                                f"[0, {MAX_COMMAND_WAIT_S:g}] (0: never wait)"),
+    "graph_id": G.FOLLOWED_GRAPH_ID_PARAMETER,
     "inputs_wait_s": (G.INPUTS_WAIT_S, "subscribe to /soil/known_params once /soil/estimate and /blade/cmd have a "
                                        f"publisher, or after this long [s], [0, {G.MAX_WAIT_S:g}] (0: at once), so a "
                                        "simulator waiting for this node starts no episode before the planner can hear "
@@ -214,7 +215,7 @@ class PlannerNode(Node):
         self.classes = M.ros_message_classes()
         self._warn = WarnLimiter(self.get_logger())
         self.silence = InputSilence(self, f"estimates ({T.ESTIMATE.name})")
-        self.follower = EpisodeFollower()  # the episode under way: a stray /sim/status event does not restart its cut
+        self.follower = EpisodeFollower(get("graph_id"))  # a stray /sim/status event does not restart its cut
         # Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order,
         # so older ticks still waiting are given up. A stamp that goes back is a new stream.
         self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)

@@ -41,7 +41,8 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, TICK_PERIOD_NS, beyond_lift_reach,
                                  tick_stamp_ns, ticks_in)
-from soil_msgs_py.ros_adapter import WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node, topic_qos
+from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node,
+                                      topic_qos, wall_timer)
 
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 
@@ -129,9 +130,10 @@ class SimNode(Node):
         self.finished = False
         self.exit_code = 0
         if self.get_parameter("use_sim_time").value:
-            # (its timers would wait on the /clock only they publish: no episode, no word; an outside tester's)
-            raise ValueError("parameter use_sim_time=True: the simulator is the graph's clock, it publishes /clock "
-                             "from its own ticks; give use_sim_time to the nodes that follow it, not to it")
+            # (on the ROS clock its timers had waited for the /clock only they publish: no episode and no
+            # word, an outside tester's; a shared params file's `/**: use_sim_time: true` gives it to every node)
+            self.get_logger().warning("use_sim_time=True changes nothing here: the simulator is the graph's clock "
+                                      "(it publishes /clock from its ticks) and paces itself on the wall clock")
         p = {name: self._value(name) for name in PARAMETERS}
         self._validate_static(p)
         self.custom_soils, self.named_path = self._load_soil_file(p["soil_file"], p["path"], p["patches"])
@@ -193,9 +195,9 @@ class SimNode(Node):
         self.next_first_stamp_ns = 0
         self.shutdown_requested = False
 
-        self.timer = self.create_timer(self.pacer.period_s, self._on_timer)
+        self.timer = wall_timer(self, self.pacer.period_s, self._on_timer)
         # Real time: how long a tick waits for late commands (pacing.COMMAND_GRACE).
-        self.grace_timer = self.create_timer(1.0, self._on_grace)
+        self.grace_timer = wall_timer(self, 1.0, self._on_grace)
         self.grace_timer.cancel()
         self.get_logger().info(
             f"{p['world_mode']} world, engine={p['engine']}, pacing={self.pacer.pacing}"
@@ -317,11 +319,11 @@ class SimNode(Node):
     def _reset_timer(self) -> None:
         self.timer.cancel()
         self.destroy_timer(self.timer)
-        self.timer = self.create_timer(self.pacer.period_s, self._on_timer)
+        self.timer = wall_timer(self, self.pacer.period_s, self._on_timer)
         if getattr(self, "grace_timer", None) is not None:
             self.grace_timer.cancel()
             self.destroy_timer(self.grace_timer)
-            self.grace_timer = self.create_timer(self.pacer.grace_s, self._on_grace)
+            self.grace_timer = wall_timer(self, self.pacer.grace_s, self._on_grace)
             self.grace_timer.cancel()
             self.pacer.timers_restarted()
 
