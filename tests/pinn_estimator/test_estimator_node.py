@@ -36,6 +36,34 @@ def estimates(probe: RosProbe) -> list[tuple[float, int, np.ndarray]]:
     return [(t, *M.parse_labelled(m, T.ESTIMATE_FIELDS, T.ESTIMATE.name)) for t, m in got]
 
 
+def replay_fast_and_stop(bag, ticks: int, tmp_path) -> tuple[list, str]:
+    """(estimates, log) of a fresh estimator fed the bag's inputs 50 times faster than real time and
+    stopped (SIGINT) the moment the player is done: whatever is still queued is its to finish. Its
+    exit code must be 0, and ``ticks`` estimates must come."""
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        est = NodeProc("pinn_estimator", [], domain, tmp_path)
+        try:
+            # matched, not only discovered: a publisher the graph shows may not deliver yet, and on a
+            # loaded machine the first replayed ticks' estimates were then lost
+            wait_until(lambda: probe.matched_publishers(T.ESTIMATE.name) >= 1, 30, "the estimator's publisher matched")
+            time.sleep(0.5)  # and the other way round, the estimator's writer to this reader
+            player = subprocess.run(
+                [str(BIN / "soil_bag_play"), str(bag), "--topics", *INPUT_TOPICS, "--wait-for-subscribers", "1",
+                 "--wait-timeout", "30", "--rate", "50"], env=loopback_env(domain), capture_output=True, text=True,
+                timeout=90)
+            assert player.returncode == 0, player.stdout + player.stderr
+        finally:
+            code = est.stop(timeout=150.0)  # (its drain is bounded by DRAIN_ENDED_EPISODE_LIMIT_S)
+        assert code == 0, est.output
+        # (acknowledged before it exited; this probe's own thread may still be taking them)
+        wait_until(lambda: len(estimates(probe)) >= ticks, 20,
+                   f"estimates of the episode's {ticks} ticks (got {len(estimates(probe))}; estimator said "
+                   f"{est.output[-2000:]}; player said {player.stdout[-1000:]}{player.stderr[-1000:]})")
+        return estimates(probe), est.output
+
+
 def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
     """sim + controller + estimator + recorder in real time: once the window is full an
     estimate arrives every tick, stamped with the tick it used, equal to the offline model on
@@ -79,31 +107,11 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
         np.testing.assert_array_less(np.abs(v - offline[s]) / SCALE, 1e-5)
 
     # replay: the recorded inputs, a fresh estimator, the same estimates
-    domain2 = next_domain_id()
-    with RosProbe(domain2) as probe:
-        probe.subscribe(T.ESTIMATE.name, T.ESTIMATE.msgtype)
-        est = NodeProc("pinn_estimator", [], domain2, tmp_path)
-        try:
-            # matched, not only discovered: a publisher the graph shows may not deliver yet, and on a
-            # loaded machine the first replayed ticks' estimates were then lost
-            wait_until(lambda: probe.matched_publishers(T.ESTIMATE.name) >= 1, 30, "the estimator's publisher matched")
-            time.sleep(0.5)  # and the other way round, the estimator's writer to this reader
-            player = subprocess.run(
-                [str(BIN / "soil_bag_play"), str(bag), "--topics", *INPUT_TOPICS, "--wait-for-subscribers", "1",
-                 "--wait-timeout", "30", "--rate", "50"], env=loopback_env(domain2), capture_output=True, text=True,
-                timeout=90)
-            assert player.returncode == 0, player.stdout + player.stderr
-        finally:
-            assert est.stop() == 0, est.output  # at once: whatever is still queued is the estimator's to finish
-        # (acknowledged before it exited; this probe's own thread may still be taking them)
-        wait_until(lambda: len(estimates(probe)) >= len(ep), 20,
-                   f"replayed estimates (got {len(estimates(probe))} of {len(ep)}; estimator said {est.output[-2000:]}; "
-                   f"player said {player.stdout[-1000:]}{player.stderr[-1000:]}")
-        replay = estimates(probe)
+    replay, said = replay_fast_and_stop(bag, len(ep), tmp_path)
     assert [s for _, s, _ in replay] == ep.stamps_ns.tolist()  # this probe waited for the estimator: every tick
     diff = np.abs(np.stack([v for _, _, v in replay[len(ep) - len(rec_stamps):]]) - rec_values)
-    assert diff.max() <= 1e-6, _where_they_differ(diff, rec_stamps, launch.stdout + est.output)
-    assert "0 gaps, 0 out of order, 0 non-finite or implausible, 0 malformed" in est.output
+    assert diff.max() <= 1e-6, _where_they_differ(diff, rec_stamps, launch.stdout + said)
+    assert "0 gaps, 0 out of order, 0 non-finite or implausible, 0 malformed" in said
 
 
 def test_stopped_right_after_an_episode_ended_the_estimator_estimates_its_queued_last_ticks_first(tmp_path):
@@ -119,26 +127,8 @@ def test_stopped_right_after_an_episode_ended_the_estimator_estimates_its_queued
     generate(DatasetPlan("default", tmp_path / "bags", specs, effects_for_mode("default")), workers=1, progress=False)
     (bag,) = find_episode_bags(tmp_path / "bags")
     ep = read_episode(bag)
-    domain = next_domain_id()
-    with RosProbe(domain) as probe:
-        probe.subscribe(T.ESTIMATE.name, T.ESTIMATE.msgtype)
-        est = NodeProc("pinn_estimator", [], domain, tmp_path)
-        try:
-            wait_until(lambda: probe.matched_publishers(T.ESTIMATE.name) >= 1, 30, "the estimator's publisher matched")
-            time.sleep(0.5)  # and the other way round, the estimator's writer to this reader
-            player = subprocess.run(
-                [str(BIN / "soil_bag_play"), str(bag), "--topics", *INPUT_TOPICS, "--wait-for-subscribers", "1",
-                 "--wait-timeout", "30", "--rate", "50"], env=loopback_env(domain), capture_output=True, text=True,
-                timeout=90)
-            assert player.returncode == 0, player.stdout + player.stderr
-        finally:
-            code = est.stop()
-        assert code == 0, est.output
-        wait_until(lambda: len(estimates(probe)) >= len(ep), 20,
-                   f"estimates of the episode's {len(ep)} ticks (got {len(estimates(probe))}; estimator said "
-                   f"{est.output[-2000:]})")
-        got = estimates(probe)
-    print("drained after the stop" if "finishing the ended episode first" in est.output else "caught up before the stop")
+    got, said = replay_fast_and_stop(bag, len(ep), tmp_path)
+    print("drained after the stop" if "finishing the ended episode first" in said else "caught up before the stop")
     assert [s for _, s, _ in got] == ep.stamps_ns.tolist()
     offline = dict(zip(*episode_estimates(load_model(DEFAULT_CHECKPOINT)[0], bag)))
     good = [(s, v) for _, s, v in got if v[VALID] == 1.0]
