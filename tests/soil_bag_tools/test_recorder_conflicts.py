@@ -116,11 +116,12 @@ def test_the_claims_of_an_hour_long_episode_take_a_byte_per_tick_and_topic():
 def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_topics(tmp_path):
     """Two launches in one namespace of one domain: the one refused had recorded the other's episode
     into its directory (an outside tester's, 2 of 2). Each launch gives its simulator and recorder an
-    id; the recorder takes episodes of its own id or of none (a replay, a simulator by hand)."""
+    id; given one, the recorder takes episodes of that id only (a stray start without one, between
+    episodes, had opened a bag of its own: the hostile test's)."""
     loaded, start_ev, end_ev = _events(SAMPLE)
     msgs = loaded.messages[: 10 * 30]
     end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=30)
-    for graph, recorded in (("launch-other", False), ("launch-mine", True), ("", True)):
+    for graph, recorded in (("launch-other", False), ("launch-mine", True), ("", False)):
         log = ListLog()
         rec = recorder.Recorder(tmp_path / (graph or "none"), loaded.topics, log=log, clock=lambda: 0.0,
                                 graph_id="launch-mine")
@@ -131,16 +132,18 @@ def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_top
         rec.on_status(replace(end_ev, graph=graph).to_json())
         rec.close()
         assert bool(rec.finished) == recorded and bool(list((tmp_path / (graph or "none")).iterdir())) == recorded
-        said = [m for lvl, m in log.lines if lvl == "warning" and "from another graph (id launch-other" in m]
+        said = [m for lvl, m in log.lines if lvl == "warning" and "from another graph (" in m
+                and "none of its episodes is recorded" in m]
         assert len(said) == (0 if recorded else 1), log.lines  # said once per episode, not per event
 
 
 def test_a_stray_episode_event_mid_episode_neither_cuts_nor_ends_the_bag(tmp_path):
     """One foreign episode_start mid-episode had closed the launch's bag cut short and recorded the
     rest under the stranger's name, losing a third of its ticks as off its grid (an outside
-    tester's); another episode's episode_end must not end it either. The start is held (only ticks
-    stamped back at its start would open it: the launch's simulator started again by hand), the
-    end ignored, both said. Then that restart: the first run's bag cut short, the new one beside it."""
+    tester's); another episode's episode_end must not end it either. Given the launch's graph id the
+    recorder ignores both, saying so; given none (started by hand) it holds the start (only ticks
+    stamped back at its start would open it: the launch's simulator started again by hand) and
+    ignores the end. Then that restart: the first run's bag cut short, the new one beside it."""
     loaded, start_ev, end_ev = _events(SAMPLE)
     n = 60
     msgs = loaded.messages[: 10 * n]
@@ -149,28 +152,32 @@ def test_a_stray_episode_event_mid_episode_neither_cuts_nor_ends_the_bag(tmp_pat
     stray_start = replace(start_ev, name="foreign_episode", episode=7, graph="",
                           meta=replace(start_ev.meta, target_speed_m_s=2.0, target_depth_m=0.6))
     stray_end = replace(end_ev, name="other_graph_episode", episode=7, graph="")
-    log = ListLog()
-    rec = recorder.Recorder(tmp_path, loaded.topics, log=log, clock=lambda: 0.0, graph_id="launch-mine")
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for i, (_, topic, raw) in enumerate(msgs):
-        if i == len(msgs) // 2:
-            rec.on_status(stray_start.to_json())
-            rec.on_status(stray_end.to_json())
-        feed.send("sim", topic, raw)
-    rec.on_status(end_ev.to_json())
-    rec.close()
-    (result,) = rec.finished
-    assert result.path.name == start_ev.name and [p.name for p in tmp_path.iterdir()] == [start_ev.name]
-    assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
-    said = [m for lvl, m in log.lines if lvl == "warning"]
-    assert any("foreign_episode" in m and "held until its ticks show a simulator started over" in m for m in said), said
-    assert any("other_graph_episode" in m and "ignored" in m for m in said), said
+    for graph_id, held in (("launch-mine", "none of its episodes is recorded"),
+                           ("", "held until its ticks show a simulator started over")):
+        log = ListLog()
+        rec = recorder.Recorder(tmp_path / (graph_id or "none"), loaded.topics, log=log, clock=lambda: 0.0,
+                                graph_id=graph_id)
+        feed = Feed(rec)
+        rec.on_status(start_ev.to_json())
+        for i, (_, topic, raw) in enumerate(msgs):
+            if i == len(msgs) // 2:
+                rec.on_status(stray_start.to_json())
+                rec.on_status(stray_end.to_json())
+            feed.send("sim", topic, raw)
+        rec.on_status(end_ev.to_json())
+        rec.close()
+        (result,) = rec.finished
+        assert result.path.name == start_ev.name and [p.name for p in result.path.parent.iterdir()] == [start_ev.name]
+        assert_same_episode(bag_io.read_episode(result.path), bag_io.read_episode(SAMPLE), n)
+        said = [m for lvl, m in log.lines if lvl == "warning"]
+        assert any("foreign_episode" in m and held in m for m in said), said
+        assert any("other_graph_episode" in m and ("ignored" in m or "not recorded" in m or "none of its" in m)
+                   for m in said), said
 
     # the launch's simulator killed at half its episode and started again by hand (no graph id): its
     # ticks from the episode's start again open its bag
     log = ListLog()
-    rec = recorder.Recorder(tmp_path / "restart", loaded.topics, log=log, clock=lambda: 0.0, graph_id="launch-mine")
+    rec = recorder.Recorder(tmp_path / "restart", loaded.topics, log=log, clock=lambda: 0.0)  # (by hand: no id)
     feed = Feed(rec)
     rec.on_status(start_ev.to_json())
     for _, topic, raw in msgs[: len(msgs) // 2]:

@@ -1,6 +1,6 @@
 """Which /sim/status events a node takes (``soil_msgs_py.episode_follow``), no ROS: given its graph's
-id, none of another graph and, mid-episode, only the episode's own end and starts of its graph;
-given none, any start and only the episode's own end; anything once its source is gone."""
+id, none of another graph or of none and, mid-episode, only the episode's own end; given none, any
+start and only the episode's own end; any start once its source is gone."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -22,10 +22,11 @@ STRAY = G.EpisodeEvent(G.EVENT_EPISODE_START, 7, "foreign_episode",
 def test_a_launched_node_refuses_strays_and_other_graphs_and_follows_its_own_episodes():
     follower = EpisodeFollower("launch-a")
     other = replace(STRAY, graph="launch-b")
-    assert "from another graph (id launch-b; this node follows launch-a)" in follower.refusal(other)  # before any
-    assert follower.refusal(START) == ""
-    why = follower.refusal(STRAY)
-    assert "foreign_episode (no graph id)" in why and "(graph launch-a) is under way" in why and "ignored" in why
+    why = follower.refusal(other)  # before any episode: a stray start had taken the nodes over (the hostile test)
+    assert "foreign_episode (graph launch-b; this node follows graph launch-a): not this graph's event" in why, why
+    assert "foreign_episode (no graph id; this node follows graph launch-a)" in follower.refusal(STRAY)
+    assert follower.under_way is None and follower.refusal(START) == ""
+    assert "foreign_episode (no graph id" in follower.refusal(STRAY)  # mid-episode
     assert "not its end" in follower.refusal(replace(END, name="other_graph_episode", episode=7))
     assert "not this graph's" in follower.refusal(replace(END, graph=""))  # its name, no id
     assert follower.under_way == START  # still following the episode
@@ -33,10 +34,12 @@ def test_a_launched_node_refuses_strays_and_other_graphs_and_follows_its_own_epi
     restarted = replace(START, first_stamp_ns=0)  # its simulator started over, stamps from 0 again
     assert follower.refusal(restarted) == "" and follower.under_way == restarted
     assert follower.refusal(replace(END, first_stamp_ns=0)) == "" and follower.under_way is None
-    # between episodes a start without an id is taken (a replay), and gives way to the graph's next
-    assert follower.refusal(STRAY) == "" and follower.refusal(START) == "" and follower.under_way == START
-    # a source gone silent frees the follower
-    assert follower.refusal(STRAY) != "" and follower.refusal(STRAY, source_silent=True) == ""
+    assert follower.refusal(STRAY) != "" and follower.refusal(STRAY, source_silent=True) != ""  # never its graph's
+    # its own graph's next episode whose start was lost: its end is taken once the first's source is gone
+    follower.refusal(START)
+    next_end = replace(END, name="next", episode=1, first_stamp_ns=2 * 10**10)
+    assert "not its end" in follower.refusal(next_end)
+    assert follower.refusal(next_end, source_silent=True) == "" and follower.under_way is None
 
 
 def test_a_node_given_no_graph_id_takes_any_start_and_only_the_episodes_own_end():

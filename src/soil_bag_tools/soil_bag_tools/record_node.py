@@ -63,8 +63,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                         "estimates, plans) have a publisher, or after this long [s] (default %(default)g; 0: at once), so a "
                         "simulator waiting for this recorder starts no episode before it can hear those nodes")
     p.add_argument("--graph-id", default="", metavar="ID",
-                   help="record only episodes whose /sim/status events carry this graph id or none (soil_launch "
-                        "gives its simulator and recorder one: a second launch on the same topics is not recorded)")
+                   help="record only episodes whose /sim/status events carry this graph id (soil_launch gives its "
+                        "nodes one: a second launch, or a stray writer of /sim/status, on the same topics is not "
+                        "recorded)")
     opts = p.parse_args(argv)
     if problem := graph_id_problem(opts.graph_id):
         p.error(f"--graph-id {opts.graph_id!r} {problem}")

@@ -275,11 +275,12 @@ class Recorder:
         except Exception as err:  # noqa: BLE001 - a bad message is logged, never fatal: a recorder loses no episode to one
             self.log.warning(f"ignoring bad /sim/status message: {err}")
             return
-        if self.graph_id and ev.graph and ev.graph != self.graph_id:  # another launch's simulator on our topics
+        if self.graph_id and ev.graph != self.graph_id:  # another launch's simulator, or a stray, on our topics
             if ev.name not in self._others_said:
                 self._others_said.add(ev.name)
-                self.log.warning(f"{ev.event} of {ev.name} from another graph (id {ev.graph}, this recorder's "
-                                 f"{self.graph_id}) on this recorder's topics: none of its episodes is recorded")
+                self.log.warning(f"{ev.event} of {ev.name} from another graph ({'id ' + ev.graph if ev.graph else 'no id'}"
+                                 f", this recorder's {self.graph_id}) on this recorder's topics: none of its episodes "
+                                 "is recorded")
             return
         if ev.event == EVENT_EPISODE_START and (held := self._held_start(ev)):
             if ev.name not in self._others_said:

@@ -1,4 +1,4 @@
-"""Which ``/sim/status`` events a node takes: the episode under way's own, and starts of its graph.
+"""Which ``/sim/status`` events a node takes: its graph's, and of them the episode under way's end.
 
 Why: a node that took every well-formed event let any other writer of /sim/status steer it. In
 an outside tester's live runs one foreign ``episode_start`` (no graph id, 2 m/s, 0.6 m)
@@ -7,21 +7,17 @@ and one foreign ``episode_end`` (another episode's name) stopped the controller 
 the rest of its episode.
 
 A node given its graph's id (``graph_id``, which ``soil_launch`` gives the controller, the
-estimator and the planner, as it gives its simulator and recorder) takes
-
-* no event of another graph id (another launch's simulator on its topics, a stray);
-* while an episode is under way (its start taken, its end not), that episode's ``episode_end``
-  (same name, episode index, first stamp and graph id) and no other, and a start of its own graph
-  only (the same episode again; a launched simulator refuses to run beside another graph's, and
-  the launch stops when its simulator dies, so a start without an id mid-episode is a stray).
-
-Between episodes it takes a start without an id too (a replay). A node given no id (started by
-hand) takes any start whenever it comes, as it always did: a simulator started again by hand
-looks like a stray, and a stray start gives way to the next real one; it refuses only an end
-that is not the episode under way's. The episode under way is given up once the node's inputs
-have been silent for ``graph.INPUT_SILENCE_S`` (its source is gone). A writer that copies the
-episode's own name and graph id is not told apart: rclpy's message info names no writer. No
-rclpy here.
+estimator and the planner, as it gives its simulator and recorder) takes no event of another
+graph id or of none: its launch's simulator says its id in every event, refuses to run beside
+another graph's, and takes the launch down when it dies, so any other event is a stray's. Of its
+own graph's, while an episode is under way (its start taken, its end not) it takes only that
+episode's ``episode_end`` (same name, episode index, first stamp and graph id), and any start.
+A node given no id (started by hand) takes any start whenever it comes, as it always did (a
+simulator started again by hand looks like a stray), and refuses only an end that is not the
+episode under way's. The episode under way is given up once the node's inputs have been silent
+for ``graph.INPUT_SILENCE_S`` (its source is gone). A writer that copies the graph's id (random
+per launch, but said in every event) is taken for the graph's own: rclpy's message info names no
+writer. No rclpy here.
 """
 from __future__ import annotations
 
@@ -54,13 +50,10 @@ class EpisodeFollower:
         under way is given up first."""
         if source_silent:
             self.under_way = None
-        if self.graph_id and ev.graph and ev.graph != self.graph_id:
-            return (f"{ev.event} of {ev.name} from another graph (id {ev.graph}; this node follows {self.graph_id}): "
-                    "ignored")
+        if self.graph_id and ev.graph != self.graph_id:
+            return (f"{ev.event} of {ev.name} ({_graph_said(ev.graph)}; this node follows graph {self.graph_id}): not "
+                    "this graph's event (another graph or a stray writer on /sim/status); ignored")
         cur = self.under_way
-        if self.graph_id and cur is not None and cur.graph and ev.graph != cur.graph:
-            return (f"{ev.event} of {ev.name} ({_graph_said(ev.graph)}) while {cur.name} ({_graph_said(cur.graph)}) "
-                    "is under way: not this graph's event (another graph or a stray writer on /sim/status); ignored")
         if ev.event == EVENT_EPISODE_START:
             self.under_way = ev
             return ""

@@ -189,8 +189,8 @@ INPUT_SILENCE_S = 5.0
 # The parameter of the nodes that follow a simulator's episodes (controller, estimator, planner):
 # soil_launch gives them its graph's id, as to its simulator and recorder (``episode_follow``).
 FOLLOWED_GRAPH_ID_PARAMETER = ("", "the graph whose /sim/status episodes this node follows (soil_launch gives its "
-                                   "own): events of another graph id are ignored, and mid-episode a start without "
-                                   "one; \"\": any graph's, a start taken whenever it comes")
+                                   "own): events of another graph id or of none are ignored; \"\": any graph's, a "
+                                   "start taken whenever it comes")
 # Lockstep: how long the simulator waits for a tick's commands before it ends the episode [s of
 # wall time] (its lockstep_timeout_s); a node that holds a tick must wait less.
 LOCKSTEP_TIMEOUT_S = 10.0
