@@ -299,6 +299,9 @@ def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_reco
         assert (bag / "metadata.yaml").exists() == (damage == "garbled")  # (the original untouched)
         if damage == "lost_old":
             assert "carries no chunk CRCs" not in out.stderr
+    out = run("soil_bag_repair", tmp_path, timeout=60)  # a directory of bags: the ones without metadata.yaml named
+    assert out.returncode == 1 and "2 bag directories without a metadata.yaml" in out.stderr, out.stderr
+    assert str(tmp_path / "lost") in out.stderr and str(tmp_path / "lost_old") in out.stderr, out.stderr
     cut = tmp_path / "cut"  # no metadata.yaml, and the file cut before its end, where the record is
     shutil.copytree(fresh, cut)
     (cut / "metadata.yaml").unlink()

@@ -210,7 +210,7 @@ def test_non_finite_or_implausible_rejected_naming_column(tmp_path: Path, ep: Ep
     getattr(ep, array)[17, col] = bad
     getattr(ep, array)[90, col] = bad
     name = ARRAY_FIELDS[array][col]
-    with pytest.raises(ValueError, match=rf"{array} column '{name}' is .* at row 17 "):
+    with pytest.raises(ValueError, match=rf"^bag {tmp_path / 'ep'} not written: Episode.{array} column '{name}' is .* at row 17 "):
         write_episode(tmp_path / "ep", ep)
     assert list(tmp_path.iterdir()) == []
 

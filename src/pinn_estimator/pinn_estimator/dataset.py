@@ -188,7 +188,7 @@ def _check_plausible(name: str, arr: np.ndarray, fields, bag: Path) -> None:
         field, value, row, _ = first
         raise BagReadError(bag, f"{name} field {field!r} is {value} at tick {row}; a window with NaN/inf or a value "
                                 f"beyond ±{PLAUSIBLE_ABS_LIMIT:g} (no sensor's in SI, a fault's) can be neither "
-                                "trained on nor scored (re-record, repair or drop the bag)")
+                                "trained on nor scored (re-record or drop the bag)")
 
 
 def _warn(message: str) -> None:

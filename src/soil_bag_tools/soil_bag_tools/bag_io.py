@@ -117,7 +117,10 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
     machine records, which knows no soil parameters."""
     bag_dir = Path(bag_dir)
     episode.meta.validate()
-    _check_arrays(episode, skip=() if ground_truth else ("truth",))
+    try:
+        _check_arrays(episode, skip=() if ground_truth else ("truth",))
+    except ValueError as err:  # (which bag: a batch of them was refused without its name)
+        raise ValueError(f"bag {bag_dir} not written: {err}") from None
     if bag_dir.name.endswith(PARTIAL_SUFFIX):
         raise ValueError(f"bag name {bag_dir.name!r} must not end in {PARTIAL_SUFFIX}")
     if bag_dir.exists() or bag_dir.is_symlink():

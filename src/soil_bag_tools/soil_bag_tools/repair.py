@@ -79,9 +79,13 @@ def find_partials(path: Path) -> list[Path]:
         if found:
             return found
         bags = find_episode_bags(path)
+        lost = sorted(p for p in path.rglob("*") if finished_bag_dir(p) and not is_bag(p))
         raise NothingRecoverable(f"{path}: no *{PARTIAL_SUFFIX} journal directory inside" + (
             f"; of its {len(bags)} finished bag(s) give each damaged one as PATH (a reader names it) to copy its "
-            "good chunks" if bags else ""))
+            "good chunks" if bags else "") + (
+            f"; {len(lost)} bag director{'y' if len(lost) == 1 else 'ies'} without a metadata.yaml "
+            f"({', '.join(str(p) for p in lost[:3])}{' …' if len(lost) > 3 else ''}): give each as PATH to rebuild it"
+            if lost else ""))
     if not path.exists():
         raise NothingRecoverable(f"{path} does not exist")
     raise NothingRecoverable(f"{path} is neither a *{PARTIAL_SUFFIX} directory, its journal .mcap, nor a directory")
