@@ -381,9 +381,10 @@ class Recorder:
         return Session(name=name, journal=journal, meta_json=meta_json)
 
     def _held_start(self, ev: EpisodeEvent) -> str:
-        """Why the ``episode_start`` ``ev`` is held, not opened ("": it is opened): one without the graph
-        id of a launched graph's episode under way is a stray's or that graph's simulator started again
-        by hand, and only the ticks tell them apart. It waits as the episode's ``start_again`` (a
+        """Why the ``episode_start`` ``ev`` is held, not opened ("": it is opened), by a recorder given no
+        graph id (given one, it takes that graph's events only): one without the graph id of a launched
+        graph's episode under way is a stray's or that graph's simulator started again by hand, and
+        only the ticks tell them apart. It waits as the episode's ``start_again`` (a
         message stamped back at its start opens it, ``_restarted``). Opened at once, one stray start
         had closed a launch's bag cut short and filed the rest under the stranger's name, losing a
         third of its ticks as off its grid (an outside tester's)."""
