@@ -26,14 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, reader_notes, scan_bags
-from soil_msgs_py.episode import EpisodeMeta, first_implausible, stamp_gaps, world_modes
+from soil_msgs_py.episode import MODEL_INPUTS, EpisodeMeta, first_implausible, stamp_gaps, world_modes
 from soil_msgs_py.values import PLAUSIBLE_ABS_LIMIT
-from soil_msgs_py.params import (
-    FORCE_FIELDS,
-    KNOWN_PARAMS,
-    OBSERVATION_FIELDS,
-    WINDOW_SAMPLES,
-)
+from soil_msgs_py.params import WINDOW_SAMPLES
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 from soil_sim_node.ray_cluster import CLUSTER_LOST_AFTER_S
 
@@ -175,9 +170,8 @@ def _read(bag: Path):
             ep = read_episode(bag)
         if len(ep.observations) < WINDOW_SAMPLES:
             raise BagReadError(bag, f"has {len(ep.observations)} ticks, fewer than one {WINDOW_SAMPLES}-sample window")
-        _check_plausible("observation", ep.observations, OBSERVATION_FIELDS, bag)
-        _check_plausible("force", ep.forces, FORCE_FIELDS, bag)
-        _check_plausible("known parameter", ep.known, KNOWN_PARAMS, bag)
+        for name, attr, fields in MODEL_INPUTS:
+            _check_plausible(name, getattr(ep, attr), fields, bag)
     except BagReadError as err:
         return err
     return bag.name, ep.meta.to_json(), ep.observations, ep.forces, ep.known, ep.truth, stamp_gaps(ep.stamps_ns), notes
@@ -352,8 +346,7 @@ def _from_npz(path: Path, fingerprint: str, root: Path) -> Dataset | None:
         with np.load(path, allow_pickle=False) as z:
             if int(z["version"]) != CACHE_VERSION or str(z["fingerprint"]) != fingerprint or "notes" not in z.files:
                 return None  # (a cache from before the readers' warnings were kept: read the bags again)
-            if any(first_implausible(z[name], fields) is not None for name, fields in (
-                    ("observations", OBSERVATION_FIELDS), ("forces", FORCE_FIELDS), ("known", KNOWN_PARAMS))):
+            if any(first_implausible(z[attr], fields) is not None for _, attr, fields in MODEL_INPUTS):
                 return None
             return Dataset(
                 [str(n) for n in z["names"]], [EpisodeMeta.from_json(str(m)) for m in z["metas"]], z["offsets"],

@@ -140,7 +140,7 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
         recovered=len(messages), dropped=len(messages) - len(kept_msgs) - orphans,
         last_stamp_ns=max(m.log_time for m in kept_msgs), journal_complete=scan.complete, stop=scan.stop,
         dropped_chunks=[c.describe(scan.topics) for c in scan.bad], orphans=orphans,
-        torn_chunk=scan.torn.describe(scan.topics) if scan.torn else "",
+        torn_chunk=scan.torn.describe(scan.topics) if scan.torn else "", metadata_from_mcap=rebuilt,
     )
     details = {"source_bag": str(bag), "keep_partial_ticks": keep_partial_ticks,
                "dropped_chunks": chunk_details(scan.bad, scan.topics), "orphaned_messages": orphans,

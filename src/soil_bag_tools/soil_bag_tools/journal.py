@@ -417,6 +417,7 @@ class BagResult:
     dropped_chunks: list[str] = field(default_factory=list)  # chunks skipped (failed CRC), one line each
     orphans: int = 0  # messages dropped because their channel was defined in a skipped chunk
     torn_chunk: str = ""  # the chunk the file ends inside, whose whole records were kept (one line)
+    metadata_from_mcap: str = ""  # why metadata.yaml was rebuilt from the .mcap's own record ("": it was read)
 
     def summary(self) -> str:
         counts = set(self.messages.values())

@@ -52,7 +52,7 @@ from rosbags.interfaces import Qos
 from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.episode import MAX_EPISODE_S
-from soil_msgs_py.episode_follow import same_episode
+from soil_msgs_py.episode_follow import graph_said, same_episode
 from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
@@ -276,21 +276,21 @@ class Recorder:
             self.log.warning(f"ignoring bad /sim/status message: {err}")
             return
         if self.graph_id and ev.graph != self.graph_id:  # another launch's simulator, or a stray, on our topics
-            if ev.name not in self._others_said:
-                self._others_said.add(ev.name)
-                self.log.warning(f"{ev.event} of {ev.name} from another graph ({'id ' + ev.graph if ev.graph else 'no id'}"
-                                 f", this recorder's {self.graph_id}) on this recorder's topics: none of its episodes "
-                                 "is recorded")
-            return
-        if ev.event == EVENT_EPISODE_START and (held := self._held_start(ev)):
-            if ev.name not in self._others_said:
-                self._others_said.add(ev.name)
-                self.log.warning(f"/sim/status: {held}")
-            return
-        if ev.event == EVENT_EPISODE_START:
+            self._say_once(ev.name, f"{ev.event} of {ev.name} from another graph ({graph_said(ev.graph)}, this "
+                                    f"recorder's {self.graph_id}) on this recorder's topics: none of its episodes is "
+                                    "recorded")
+        elif ev.event == EVENT_EPISODE_START and (held := self._held_start(ev)):
+            self._say_once(ev.name, f"/sim/status: {held}")
+        elif ev.event == EVENT_EPISODE_START:
             self._start(ev)
         else:
             self._end(ev)
+
+    def _say_once(self, episode_name: str, text: str) -> None:
+        """A warning about another graph's or a stray's episode, once per episode name (its every event)."""
+        if episode_name not in self._others_said:
+            self._others_said.add(episode_name)
+            self.log.warning(text)
 
     def on_message(self, topic: str, raw: bytes, recv_ns: int, publication_seq: int | None = None) -> None:
         """``publication_seq``: the writer's DDS sequence number (message info), None if unknown;
@@ -395,7 +395,7 @@ class Recorder:
         if not under_way:
             return ""
         cur = under_way[-1].event
-        return (f"episode_start of {ev.name} ({'graph ' + ev.graph if ev.graph else 'no graph id'}) while {cur.name} "
+        return (f"episode_start of {ev.name} ({graph_said(ev.graph)}) while {cur.name} "
                 f"of graph {cur.graph} is under way: held until its ticks show a simulator started over there "
                 "(stamped back at its start), else never recorded")
 

@@ -42,7 +42,7 @@ from pathlib import Path
 
 from soil_msgs_py.cli_paths import input_path, output_dir
 
-from .bag_io import PARTIAL_SUFFIX, BagReadError, bag_info, find_episode_bags, is_bag
+from .bag_io import PARTIAL_SUFFIX, find_episode_bags, is_bag
 from .bag_salvage import salvage_bag
 from .journal import REPAIR_INFO_KEY, BagResult, JournalInUse, NothingRecoverable, journal_to_bag
 
@@ -145,12 +145,8 @@ def main(args: list[str] | None = None) -> int:
                 print(f"soil_bag_repair: nothing repaired: {err}", file=sys.stderr)
                 failed += 1
                 continue
-            try:
-                bag_info(path)
-                source = f"chunks of {path} that pass their CRC"
-            except BagReadError as err:
-                source = f"bag {path}, its metadata.yaml rebuilt from the .mcap's own record ({err.problem})"
-            report(r, source)
+            report(r, f"bag {path}, its metadata.yaml rebuilt from the .mcap's own record ({r.metadata_from_mcap})"
+                   if r.metadata_from_mcap else f"chunks of {path} that pass their CRC")
             continue
         try:
             partials = find_partials(path)

@@ -202,13 +202,18 @@ class Episode:
             t = self.time_s
             spans = ", ".join(f"{t[i - 1]:.2f}-{t[i]:.2f} s" for i in gaps[:3]) + (" ..." if len(gaps) > 3 else "")
             out.append(f"{len(gaps)} gap(s) in its ticks ({spans})")
-        for fields, arr in ((OBSERVATION_FIELDS, self.observations), (FORCE_FIELDS, self.forces),
-                            (KNOWN_PARAMS, self.known)):
-            if (first := first_implausible(arr, fields)) is not None:
+        for _, attr, fields in MODEL_INPUTS:
+            if (first := first_implausible(getattr(self, attr), fields)) is not None:
                 field, value, row, count = first
                 out.append(f"{field!r} is {value} at tick {row} ({count} non-finite values or beyond "
                            f"±{PLAUSIBLE_ABS_LIMIT:g})")
         return out
+
+
+# The arrays of an episode a model reads (ground truth and the simulator's extras aside): (what a
+# message calls one of its values, the ``Episode`` attribute and a dataset cache's key, its fields).
+MODEL_INPUTS = (("observation", "observations", OBSERVATION_FIELDS), ("force", "forces", FORCE_FIELDS),
+                ("known parameter", "known", KNOWN_PARAMS))
 
 
 def first_implausible(arr: np.ndarray, fields) -> tuple[str, float, int, int] | None:

@@ -25,7 +25,8 @@ from .graph import EVENT_EPISODE_START, EpisodeEvent, graph_id_problem
 from .values import short_repr
 
 
-def _graph_said(graph: str) -> str:
+def graph_said(graph: str) -> str:
+    """An event's graph id in words ("graph launch-…", or "no graph id")."""
     return f"graph {graph}" if graph else "no graph id"
 
 
@@ -51,7 +52,7 @@ class EpisodeFollower:
         if source_silent:
             self.under_way = None
         if self.graph_id and ev.graph != self.graph_id:
-            return (f"{ev.event} of {ev.name} ({_graph_said(ev.graph)}; this node follows graph {self.graph_id}): not "
+            return (f"{ev.event} of {ev.name} ({graph_said(ev.graph)}; this node follows graph {self.graph_id}): not "
                     "this graph's event (another graph or a stray writer on /sim/status); ignored")
         cur = self.under_way
         if ev.event == EVENT_EPISODE_START:
