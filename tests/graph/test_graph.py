@@ -262,6 +262,53 @@ def _children_gone(pid: int) -> bool:
     return res.stdout.strip() == ""
 
 
+def test_a_start_waits_for_the_named_nodes_own_endpoints_not_for_a_reader_outside(tmp_path, domain):
+    """wait_for 'topic@/node' (soil_launch names its own nodes so): a reader outside the graph on
+    every awaited topic (the probe) meets each count but starts nothing; the recorder named does,
+    and its bag holds the whole episode. (With counts alone an outside reader met them before the
+    launch's recorder listened: the first episode went unrecorded and the launch exited 0.)"""
+    from rosbags.highlevel import AnyReader
+
+    from soil_bag_tools.bag_io import find_episode_bags
+
+    recorder = "/" + G.NODE_NAMES["recorder"]
+    with RosProbe(domain) as probe:
+        probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        probe.subscribe(T.BLADE_FORCE.name, T.BLADE_FORCE.msgtype)
+        sim = NodeProc("soil_sim_node", _sim_args(
+            "duration_s:=1.0", "exit_when_done:=true", "wait_timeout_s:=0", "world_mode:=fee",
+            wait_for=("/sim/status:1", "/blade/force:1", f"/sim/status@{recorder}", f"/blade/force@{recorder}")),
+            domain, tmp_path)
+        rec = None
+        try:
+            wait_until(lambda: "queued" in sim.output, 60, "the simulator up")
+            time.sleep(3.0)  # (a window for a wrong start: the counts are met, the named reader is not there)
+            assert not _events(probe) and "episode 0 start" not in sim.output, sim.output
+            rec = NodeProc("soil_bag_record", ["--out", str(tmp_path / "bags")], domain, tmp_path)
+            assert sim.wait(timeout=60) == 0, sim.output
+            wait_until(lambda: find_episode_bags(tmp_path / "bags"), 30, "the recorder's bag")
+        finally:
+            for proc in (sim, rec):
+                if proc is not None:
+                    proc.stop()
+    (bag,) = find_episode_bags(tmp_path / "bags")
+    with AnyReader([bag]) as reader:  # (no controller: the state's ticks, not an episode to train on)
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts[T.BLADE_FORCE.name] == counts[T.CLOCK.name] == 60, (counts, rec.output)  # every tick of the 1 s
+
+
+def test_a_wait_for_entry_naming_a_node_is_checked():
+    from soil_sim_node.pacing import AwaitedEndpoint, parse_wait_for
+
+    known = {"/sim/status", "/blade/force"}
+    assert parse_wait_for(["/sim/status:2", "/blade/force@/dozer1/soil_bag_record"], known) == [
+        AwaitedEndpoint("/sim/status", 2), AwaitedEndpoint("/blade/force", 1, "/dozer1/soil_bag_record")]
+    for bad in ("/blade/force@soil_bag_record", "/blade/force@/1node", "/nowhere@/n", "/sim/status@/a//b",
+                "/sim/status@/n:1"):
+        with pytest.raises(ValueError, match=f"wait_for entry '{re.escape(bad)}'"):
+            parse_wait_for([bad], known)
+
+
 def test_launch_runs_episodes_in_a_row_and_exits_zero(tmp_path, domain):
     with RosProbe(domain) as probe:
         probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)

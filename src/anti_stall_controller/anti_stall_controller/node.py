@@ -147,7 +147,7 @@ def state_joiner(force_lift: bool = False) -> StampJoiner:
 
 class ControllerNode(Node):
     def __init__(self) -> None:
-        super().__init__("anti_stall_controller")
+        super().__init__(G.NODE_NAMES["controller"])
         get = declare_parameters(self, PARAMETERS)
         gains = AntiStallGains(**{k: get(k) for k in GAIN_FIELDS})  # ValueError names the field
         self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))

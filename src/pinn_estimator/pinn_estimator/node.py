@@ -76,7 +76,7 @@ def load_estimator_model(path: str):
 
 class EstimatorNode(Node):
     def __init__(self) -> None:
-        super().__init__("pinn_estimator")
+        super().__init__(G.NODE_NAMES["estimator"])
         get = declare_parameters(self, PARAMETERS)
         threads = get("threads")
         if not isinstance(threads, int) or not 1 <= threads <= cli_numbers.local_limit():

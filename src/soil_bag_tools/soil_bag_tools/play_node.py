@@ -25,16 +25,16 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, SIM_STATUS_TOPIC, STRING_MSGTYPE,
-                                UNKNOWN_NODE_NAME, EpisodeEvent)
+from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, NODE_NAMES, SIM_STATUS_TOPIC,
+                                STRING_MSGTYPE, UNKNOWN_NODE_NAME, EpisodeEvent)
 from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.values import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
     expand_bag_args, load_bag, string_cdr, with_clock,
 )
-from soil_msgs_py.ros_adapter import (init_rclpy, local, message_class, own_arguments_or_refusal, print_refusal, publisher_qos,
-                                      stopping_said, wait_for_acks)
+from soil_msgs_py.ros_adapter import (endpoint_node, init_rclpy, local, message_class, own_arguments_or_refusal,
+                                      print_refusal, publisher_qos, stopping_said, wait_for_acks)
 
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
@@ -156,7 +156,7 @@ class Player:
         for topic in self.pubs:
             if topic != SIM_STATUS_TOPIC and self.node.count_publishers(local(topic)) > 1:
                 out[topic] = sorted({UNNAMED if i.node_name == UNKNOWN_NODE_NAME else
-                                     f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                                     endpoint_node(i)
                                      for i in self.node.get_publishers_info_by_topic(local(topic))}
                                     - {self.node.get_fully_qualified_name()})
         return out
@@ -289,7 +289,7 @@ def main(args: list[str] | None = None) -> int:
     except RuntimeError as err:  # rcl cannot read a --params-file
         print_refusal(argv, err)
         return EXIT_BAD_CONFIG
-    node = Node("soil_bag_play")
+    node = Node(NODE_NAMES["player"])
     code = 0
     player = None
     try:

@@ -26,7 +26,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.cli_paths import bags_dir
-from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITTEN, INPUTS_WAIT_S, MAX_WAIT_S,
+from soil_msgs_py.graph import (CONTROL_QOS, EXIT_BAD_CONFIG, EXIT_BAG_NOT_WRITTEN, INPUTS_WAIT_S, MAX_WAIT_S, NODE_NAMES,
                                 RECORDER_QOS, SIM_STATE_TOPICS, SIM_STATUS_TOPIC, graph_id_problem)
 from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
@@ -82,7 +82,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 class RecordNode(Node):
     def __init__(self, opts: argparse.Namespace):
-        super().__init__("soil_bag_record")
+        super().__init__(NODE_NAMES["recorder"])
         wanted = list(dict.fromkeys(opts.topics))
         if opts.all_episode_topics or not wanted:
             wanted = [t.name for t in EPISODE_TOPICS] + [t for t in wanted if t not in TOPICS_BY_NAME]

@@ -65,8 +65,7 @@ NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomically")
 
 # --NODE-params-file: the node each is for
-PARAMS_FILE_NODES = {"sim": "soil_sim_node", "controller": "anti_stall_controller", "estimator": "pinn_estimator",
-                     "planner": "soil_planner"}
+PARAMS_FILE_NODES = {role: G.NODE_NAMES[role] for role in ("sim", "controller", "estimator", "planner")}
 # The longest a stopping node that keeps reporting its progress is waited for (a recorder making its bags)
 STOP_REPORTING_LIMIT_S = 600.0
 
@@ -450,9 +449,17 @@ def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
         wait[topic] = wait.get(topic, 0) + n
 
 
+def _own(named: list[str], role: str, endpoints: dict[str, int], namespace: str) -> None:
+    """The simulator's 'topic@/namespace/node' entries for one of the launch's own nodes: the
+    counts alone were met by readers outside the launch (a monitor, another recorder on the
+    domain) before its own recorder listened, and the first episode went unrecorded."""
+    named += [f"{topic}@{namespace or ''}/{G.NODE_NAMES[role]}" for topic in endpoints]
+
+
 def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     """The graph for these arguments, with the simulator told whom to wait for."""
     wait: dict[str, int] = {}
+    named: list[str] = []  # each of the launch's own nodes by its name too (``_own``)
     nodes: list[NodeProcess] = []
     # this launch's own id, in its simulator's /sim/status events: its recorder records no other
     # launch's episodes (two graphs in one namespace of one domain), and its controller, estimator and
@@ -471,6 +478,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
         _count(wait, RECORDER_ENDPOINTS)
+        _own(named, "recorder", RECORDER_ENDPOINTS, args.namespace)
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
@@ -484,6 +492,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                         estimator_param, args.namespace), stop_order=2,
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
+        _own(named, "estimator", ESTIMATOR_ENDPOINTS, args.namespace)
     if args.planner:
         # (the posterior's physics and bound law: the planner hears them from the estimator, unless given)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
@@ -495,6 +504,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
+        _own(named, "planner", PLANNER_ENDPOINTS, args.namespace)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
         closed = unless_given("anti_stall_controller", args.controller_param,
@@ -503,6 +513,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
+        _own(named, "controller", CONTROLLER_ENDPOINTS, args.namespace)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not count.isdigit():
@@ -514,7 +525,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
             for a in ("-p", f"{name}:={getattr(args, name)}")]
     own = [f"exit_when_done:={'false' if args.keep_running else 'true'}", f"graph_id:={graph_id}"]
     if wait:
-        own.append("wait_for:=[" + ",".join(f"'{t}:{n}'" for t, n in sorted(wait.items())) + "]")
+        own.append("wait_for:=[" + ",".join([f"'{t}:{n}'" for t, n in sorted(wait.items())]
+                                            + [f"'{entry}'" for entry in named]) + "]")
     sim += _params(unless_given("soil_sim_node", args.sim_param, own)
                    + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))

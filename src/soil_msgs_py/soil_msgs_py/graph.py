@@ -152,6 +152,13 @@ def publisher_qos_spec(topic: str) -> QosSpec:
     return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
 
 
+# Each node's name (a graph's namespace + '/' + it is the node's fully qualified name): soil_launch
+# tells its simulator to wait for its own nodes' endpoints by these, so readers outside the launch
+# (a monitor, another recorder) cannot start an episode before the launch's own recorder listens.
+NODE_NAMES: dict[str, str] = {"sim": "soil_sim_node", "controller": "anti_stall_controller",
+                              "estimator": "pinn_estimator", "planner": "soil_planner",
+                              "recorder": "soil_bag_record", "player": "soil_bag_play"}
+
 # Topics the simulator publishes each tick (state, force, Θ_k, Θ, /clock) and the commands it reads.
 SIM_STATE_TOPICS: tuple[str, ...] = (
     T.CLOCK.name, T.BLADE_POSE.name, T.BLADE_TWIST.name, T.CHASSIS_POSE.name,

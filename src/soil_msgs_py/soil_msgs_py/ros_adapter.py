@@ -139,6 +139,12 @@ def local(topic: str) -> str:
     return topic.lstrip("/") if topic in GRAPH_OWN_TOPICS else topic
 
 
+def endpoint_node(info) -> str:
+    """The fully qualified name of the node behind a topic endpoint (an rclpy
+    ``TopicEndpointInfo``): ``/dozer1/soil_bag_record``, ``/soil_bag_record`` in the root namespace."""
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+
+
 def message_class(msgtype: str):
     """Python class of a ROS 2 interface name like ``geometry_msgs/msg/WrenchStamped``."""
     parts = msgtype.split("/")

@@ -186,7 +186,7 @@ def check_log_period(value) -> float:
 
 class PlannerNode(Node):
     def __init__(self) -> None:
-        super().__init__("soil_planner")
+        super().__init__(G.NODE_NAMES["planner"])
         get = declare_parameters(self, PARAMETERS)
         self.planner = from_parameters({name: get(name) for name in PLANNER_SETTINGS})
         # what the user gave of the posterior's physics, and whether the estimator's fills what was not

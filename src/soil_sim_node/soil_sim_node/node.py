@@ -41,14 +41,14 @@ from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, TICK_PERIOD_NS, beyond_lift_reach,
                                  tick_stamp_ns, ticks_in)
-from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, local, message_class, publisher_qos, spin_node,
-                                      topic_qos, wall_timer)
+from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, endpoint_node, local, message_class,
+                                      publisher_qos, spin_node, topic_qos, wall_timer)
 
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 
 from .effects import PluginError, effects_for_mode, load_plugins
 from .live import CommandGate, command_writers, episode_plan
-from .pacing import Do, Pacer, StartWait, check_pacing
+from .pacing import AwaitedEndpoint, Do, Pacer, StartWait, check_pacing, parse_wait_for
 from .rollout import episode_meta
 from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, resolve_checked
 from .simulator import check_engine as check_sim_engine
@@ -60,7 +60,7 @@ _STR_ARRAY = Parameter.Type.STRING_ARRAY
 _DBL_ARRAY = Parameter.Type.DOUBLE_ARRAY
 
 # Nodes of this project that publish /sim/status: another one on the domain is another graph.
-GRAPH_STATUS_WRITERS = ("soil_sim_node", "soil_bag_play")
+GRAPH_STATUS_WRITERS = (G.NODE_NAMES["sim"], G.NODE_NAMES["player"])
 GRAPH_NAMES_WAIT_S = 2.0  # the longest a start waits for such a writer's node name [s]
 # Before its first episode the node looks for another graph only once DDS has had time to discover
 # the domain: its nodes known unchanged for GRAPH_QUIET_S, at least GRAPH_DISCOVERY_S after start, at
@@ -93,7 +93,8 @@ PARAMETERS: dict[str, tuple] = {
     "pacing": ("realtime", "'realtime' (wall clock 60 Hz x rate) or 'lockstep' (wait for each tick's commands)"),
     "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
-                     "subscriptions; command topics: matched publishers)", _STR_ARRAY),
+                     "subscriptions; command topics: matched publishers) or 'topic@/namespace/node' (that node's "
+                     "own endpoint there)", _STR_ARRAY),
     "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway [s], "
                              f"[0, {G.MAX_WAIT_S:g}] (0: wait forever)"),
     "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], "
@@ -125,7 +126,7 @@ UNLIMITED_WAIT_LOG_S = 10.0  # a start held without limit is named after this lo
 
 class SimNode(Node):
     def __init__(self) -> None:
-        super().__init__("soil_sim_node")
+        super().__init__(G.NODE_NAMES["sim"])
         self._value = declare_parameters(self, PARAMETERS)  # name -> current value
         self.finished = False
         self.exit_code = 0
@@ -147,12 +148,13 @@ class SimNode(Node):
         if problem := G.graph_id_problem(p["graph_id"]):
             raise ValueError(f"parameter graph_id={p['graph_id']!r} {problem}")
         self.graph_id = p["graph_id"]
-        self.wait_for = self._parse_wait_for(p["wait_for"])
+        self.wait_for = parse_wait_for(p["wait_for"], set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS)
+                                       | {G.SIM_STATUS_TOPIC})
         if self.pacer.lockstep and not self.wait_for:
             # Lockstep cannot run without a controller: wait for one unless told otherwise.
-            self.wait_for = [(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
+            self.wait_for = [AwaitedEndpoint(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
         # each by its name in this graph's namespace, as said when it is missing (/dozer1/blade/cmd)
-        self.wait_names = {t: self.resolve_topic_name(local(t)) for t, _ in self.wait_for}
+        self.wait_names = {w.topic: self.resolve_topic_name(local(w.topic)) for w in self.wait_for}
         effects = effects_for_mode(p["world_mode"])
         if p["effects_off"]:
             effects = effects.with_switches(**{name: False for name in p["effects_off"]})
@@ -238,17 +240,6 @@ class SimNode(Node):
         named = path_patches(loaded, path, patches, path_opt="parameter path", file_opt="parameter soil_file",
                              patches_opt="parameter patches", file_shown=soil_file)
         return (loaded.soils if loaded else {}), (named or ())
-
-    def _parse_wait_for(self, entries) -> list[tuple[str, int]]:
-        known = set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS) | {G.SIM_STATUS_TOPIC}
-        out = []
-        for entry in entries:
-            topic, _, count = entry.rpartition(":")
-            if topic not in known or not count.isdigit():
-                raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic:count' with a topic of "
-                                 f"{sorted(known)} and a count >= 0")
-            out.append((topic, int(count)))
-        return out
 
     def _spec_from_params(self, overrides: dict) -> EpisodeSpec:
         get = lambda name: overrides.get(name, self._value(name))  # noqa: E731
@@ -349,10 +340,15 @@ class SimNode(Node):
             self.get_logger().warning(f"{where}{err}; ignored")
 
     def _endpoint_counts(self) -> dict[str, tuple[int, int]]:
-        """{awaited topic: (matched endpoints now, how many are awaited)}."""
+        """{awaited topic, or 'topic of /node': (matched endpoints now, how many are awaited)}."""
         counts = {}
         subs = dict(zip(G.COMMAND_TOPICS, self.cmd_subs))
-        for topic, count in self.wait_for:
+        for topic, count, node in self.wait_for:
+            if node:  # that node's own endpoint (by its name, which DDS tells a moment after the endpoint)
+                infos = (self.get_publishers_info_by_topic if topic in subs
+                         else self.get_subscriptions_info_by_topic)(self.wait_names[topic])
+                counts[f"{self.wait_names[topic]} of {node}"] = (int(any(endpoint_node(i) == node for i in infos)), 1)
+                continue
             if topic in subs:
                 have = subs[topic].get_publisher_count()
             elif topic == G.SIM_STATUS_TOPIC:
@@ -395,7 +391,7 @@ class SimNode(Node):
                 return True
         topic = self.status_pub.topic_name  # (its name in this graph's namespace)
         infos = self.get_publishers_info_by_topic(topic)
-        names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
+        names = [endpoint_node(i) for i in infos]
         if any(i.node_name == G.UNKNOWN_NODE_NAME for i in infos):  # (its node's name comes a moment after its writer)
             self._names_wait_since = self._names_wait_since or now
             if now - self._names_wait_since < GRAPH_NAMES_WAIT_S:

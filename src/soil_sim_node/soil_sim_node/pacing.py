@@ -19,6 +19,7 @@ pause); ``TickTiming`` keeps the wall-clock figures each ``episode_end`` reports
 from __future__ import annotations
 
 import enum
+import re
 import time
 from array import array
 from collections.abc import Callable
@@ -215,6 +216,44 @@ class Pacer:
         self.due = False
         self.timing.late_commands += 1
         return Do.STEP
+
+
+class AwaitedEndpoint(NamedTuple):
+    """One ``wait_for`` entry: ``count`` matched endpoints on ``topic``, or, with ``node`` (its fully
+    qualified name), that node's own endpoint there (count 1)."""
+
+    topic: str
+    count: int
+    node: str = ""
+
+
+# A fully qualified node name as rcl makes one: namespace tokens and the name, each a ROS name token
+NODE_FQN_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+
+
+def parse_wait_for(entries, known_topics) -> list[AwaitedEndpoint]:
+    """The simulator's ``wait_for`` entries: 'topic:count' (that many matched endpoints, whoever
+    owns them) or 'topic@/namespace/node' (that node's). Why the second: soil_launch counted its
+    own readers, and readers outside the launch (a monitor, another recorder on the domain) met the
+    count before its recorder listened: the first episode went unrecorded and the launch exited 0.
+    ValueError naming the entry for anything else."""
+    known = sorted(known_topics)
+    out = []
+    for entry in entries:
+        entry = str(entry)
+        topic, at, node = entry.partition("@")
+        if at:
+            if topic not in known or not NODE_FQN_RE.fullmatch(node):
+                raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic@/namespace/node' with a "
+                                 f"topic of {known} and a fully qualified node name")
+            out.append(AwaitedEndpoint(topic, 1, node))
+            continue
+        topic, _, count = entry.rpartition(":")
+        if topic not in known or not count.isdigit():
+            raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic:count' with a topic of "
+                             f"{known} and a count >= 0, or 'topic@/namespace/node'")
+        out.append(AwaitedEndpoint(topic, int(count)))
+    return out
 
 
 class StartPoll(NamedTuple):
