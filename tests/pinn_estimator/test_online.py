@@ -509,6 +509,37 @@ def test_ticks_arriving_twice_again_and_again_are_said_to_be_a_second_publisher(
     assert all("is a second node publishing this topic on this ROS_DOMAIN_ID" in t for t in repeats[2:]), repeats
 
 
+@pytest.mark.parametrize("stride", [1, 3])
+def test_a_dropped_tick_still_gets_an_invalid_estimate_so_a_lockstep_planner_is_not_left_waiting(episode, model, stride):
+    """A duplicate /blade/force (a second writer's) spoils its tick, and a tick whose /blade/pose
+    never comes is dropped: each still gets its estimate, invalid, in the stride's phase (a lockstep
+    planner plans a tick once its estimate is in, and the controller waits for the plan: one
+    duplicate cost the loop 2 s). The window refills after each, as before; stamps are said once."""
+    clean_est, clean = run(model, in_order(episode, range(N_TICKS)), stride=stride)
+    messages = []
+    for i in range(N_TICKS):
+        tick = tick_messages(episode, i)
+        if i == 50:  # a second force first, then the tick's own
+            tick = [m for m in tick if m[0] == T.BLADE_FORCE.name] + tick
+        if i == 120:  # never gets its pose: overtaken by the ticks after it
+            tick = [m for m in tick if m[0] != T.BLADE_POSE.name]
+        messages += tick
+    est, out = run(model, messages, stride=stride)
+    assert est.counters.duplicates == 1 and est.counters.gaps >= 1
+    assert [e.stamp_ns for e in out] == [e.stamp_ns for e in clean]  # every tick's estimate, in order, once
+    got = {e.stamp_ns: e for e in out}
+    for i in (50, 120):
+        stamp = int(episode.stamps_ns[i])
+        assert stamp in got or stride > 1  # (with a stride: if in its phase)
+        if stamp in got:
+            assert not got[stamp].valid and got[stamp].values[FILL] == 0
+        # the window refills after each: invalid for the next 59 ticks, then valid as in the clean run
+        refill = [e for e in out if stamp < e.stamp_ns < int(episode.stamps_ns[i + WINDOW_SAMPLES])]
+        assert refill and not any(e.valid for e in refill)
+    assert out[-1].valid and clean[-1].valid
+    assert_never_nan(out)
+
+
 @pytest.mark.parametrize("bad", [0, 121, 100000, True, 2.0])
 def test_assembler_rejects_bad_reorder_horizon(bad):
     """(100000 was taken: no tick waits that long, one incomplete after 120 newer ones is dropped.)"""

@@ -263,10 +263,10 @@ class SampleAssembler:
                 # (a 50 or 100 Hz machine's stream had windows of 1.2 or 0.6 s estimated on as one second)
                 self.counters.off_rate += 1
                 self.warn("rate", f"{problem}; no estimate from these ticks")
-                self.on_sample(stamp, None)
                 if not self.off_rate:  # what the soil posterior learnt from them before it was judged goes too
-                    self.off_rate = True
+                    self.off_rate = True  # (first: the tick's own invalid estimate carries none of it)
                     self.on_restart()
+                self.on_sample(stamp, None)
                 return
             self.off_rate = False
         if joined.why is Why.EVICTED:  # a topic that never comes must not grow memory
@@ -387,6 +387,7 @@ class OnlineEstimator:
                                          on_restart=self._on_restart)
         self.assembler.on_expected_restart = self._restart_at
         self._tick = 0  # released ticks since the last reset (stride phase)
+        self._last_tick_ns = -1  # the newest tick through the stride phase, estimated or dropped (-1: none this stream)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
         self._crossed = False  # a sample after _boundary was released (the new window has begun)
@@ -442,6 +443,7 @@ class OnlineEstimator:
         self.buffer.clear()
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
+        self._last_tick_ns = -1
         self._boundary = None
         self._stream_first_ns = None
         self._open_first = None
@@ -538,6 +540,7 @@ class OnlineEstimator:
         self.assembler.expect_restart(None)  # (an episode_start before this stream's is no longer in question)
         self._stream_first_ns = None
         self._tick = 0
+        self._last_tick_ns = -1
         self._forget_path(known=False)
         self._reset_fusion()
 
@@ -545,6 +548,7 @@ class OnlineEstimator:
         if sample is None:  # missing, broken or out of order: nothing estimated across it
             self.buffer.clear()
             self.fusion.gap()  # nor fused: the stretch in progress is dropped, the posterior kept
+            self._dropped(stamp)
             return
         if self._boundary is not None and stamp > self._boundary and not self._crossed:
             self._crossed = True  # the first sample of a new episode: no window spans two,
@@ -562,6 +566,7 @@ class OnlineEstimator:
         self.distance_m += float(soil_advance(sample.known[_V_X], sample.known[_D]))
         self.time_in_soil_s += float(soil_time_step(sample.known[_D]))
         self._fuse(stamp, sample)
+        self._last_tick_ns = stamp
         tick, self._tick = self._tick, self._tick + 1
         if tick % self.stride:
             return
@@ -576,6 +581,22 @@ class OnlineEstimator:
         else:
             self.counters.invalid += 1
         self.publish(self._with_fused(est))
+
+    def _dropped(self, stamp: int) -> None:
+        """A tick dropped (two messages of a topic, a broken value, a topic missing, off the rate)
+        gets an invalid estimate in its stride phase, as a tick the window is still filling after.
+        Why: a lockstep planner plans a tick once its estimate is in, and the controller waits for
+        that plan; one duplicate /blade/force cost the loop the controller's ``planner_wait_s``
+        (2 s) and the cut differed from a clean run's. Not for a stamp already through the phase
+        (an out-of-order or gap report names the last tick), nor for a new episode's tick before
+        its first sample (the fused fields would be the last episode's)."""
+        if stamp <= self._last_tick_ns or (self._boundary is not None and stamp > self._boundary and not self._crossed):
+            return
+        self._last_tick_ns = stamp
+        tick, self._tick = self._tick, self._tick + 1
+        if tick % self.stride == 0:
+            self.counters.invalid += 1
+            self.publish(self._with_fused(invalid_estimate(stamp, self.buffer.count)))
 
     def _judge_sign(self, sample: Sample) -> None:
         """Said (judged every 60 forward-cutting ticks, as the node's limiter lets it through): a
