@@ -483,9 +483,9 @@ def test_a_negative_workers_or_seed_is_refused_naming_the_option(tmp_path, capsy
     train = ["--data", str(tmp_path), "--out", str(tmp_path / "x.pt"), "--quiet"]
     for main, args, said in ((train_main, [*train, "--seed", "-1"], "argument --seed: '-1' must be an integer in [0, 2**32 - 1]"),
                              (train_main, [*train, "--seed", str(2**32)], "argument --seed:"),
-                             (train_main, [*train, "--workers", "-1"], "argument --workers: '-1' must be an integer in [1, "),
+                             (train_main, [*train, "--workers", "-1"], "argument --workers: '-1' must be an integer in [0, "),
                              (eval_main, ["--checkpoint", str(tmp_path / "x.pt"), "--workers", "-1"],
-                              "argument --workers: '-1' must be an integer in [1, ")):
+                              "argument --workers: '-1' must be an integer in [0, ")):
         with pytest.raises(SystemExit) as exit_:
             main(args)
         err = capsys.readouterr().err

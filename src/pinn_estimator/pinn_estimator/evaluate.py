@@ -574,7 +574,7 @@ def main(argv=None) -> int:
     p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
     p.add_argument("--stride", type=int, help=f"samples between test windows (default: {TEST_STRIDE})")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
-    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading")
+    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading (0: one per core)")
     p.add_argument("--forecast-world", default="auto", choices=("auto", *WORLD_MODES, "none"),
                    help="world of the held-out forecast episodes (default: the test split's; none: skip)")
     p.add_argument("--forecast-data", metavar="DIR", type=input_text,

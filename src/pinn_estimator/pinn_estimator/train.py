@@ -394,7 +394,7 @@ def _parser() -> argparse.ArgumentParser:
                         "existing dataset: a trained model costs minutes to hours)")
     p.add_argument("--kind", choices=("pinn", "physics_free"), default="pinn", help="model (default: pinn)")
     p.add_argument("--split-from", type=input_text, help="reuse the train/val/test split of this checkpoint (same bags)")
-    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance)")
+    p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes reading bags on the first run (with --ray alone: CPUs of the local Ray instance; 0: one per core)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the dataset cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_skip_bad_bags_option(p)

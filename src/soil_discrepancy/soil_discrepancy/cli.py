@@ -49,7 +49,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "episodes of the same measured unit weight γ (gamma: no label read)")
     p.add_argument("--allow-negative-k", action="store_true",
                    help="let a term's k take the sign opposite to its physics (default: k >= 0)")
-    p.add_argument("--workers", type=cli_numbers.workers, default=None, help="processes for the cross-validation and the PINN retraining (default: all cores)")
+    p.add_argument("--workers", type=cli_numbers.workers, default=None, help="processes for the cross-validation and the PINN retraining (default and 0: one per core)")
     p.add_argument("--no-cache", action="store_true", help="do not read/write the dataset cache in the bag directory")
     add_skip_bad_bags_option(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")

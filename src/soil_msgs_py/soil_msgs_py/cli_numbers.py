@@ -40,12 +40,13 @@ def _integer(text: str) -> int:
 
 
 def workers(text: str) -> int:
-    """``--workers`` of a tool that starts that many processes here: an integer in [1, local_limit()]."""
+    """``--workers`` of a tool that starts that many processes here: an integer in [0, local_limit()],
+    0 meaning one per core (as ``soil_sim_batch --workers 0`` always did: the tools disagreed)."""
     value = _integer(text)
-    if not 1 <= value <= local_limit():
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [1, {local_limit()}] (processes: "
-                                         f"{PER_CORE} per core of this machine at the most)")
-    return value
+    if not 0 <= value <= local_limit():
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, {local_limit()}] (processes: "
+                                         f"{PER_CORE} per core of this machine at the most; 0: one per core)")
+    return value or (os.cpu_count() or 1)
 
 
 def seed(text: str) -> int:
