@@ -240,3 +240,21 @@ def test_a_cache_that_answers_says_ray_was_not_contacted_and_too_short_episodes_
                        "--depths", "0.1", "--seeds", "1", "--duration", "0.5", "--out", str(tmp_path / "short"),
                        "--quiet"]) == 0
     assert "fewer ticks than one 60-sample window" in capsys.readouterr().err
+
+
+def test_bags_written_again_are_said_to_hold_the_trained_episodes_not_to_differ(tmp_path):
+    """The fingerprint hashes the bags' bytes: bags written again from the same seeds by a later
+    recorder differ in bytes, not in data, and the shipped models' reports said their own
+    training bags "differ". The same episodes by name and ticks are said as such; others differ."""
+    from pinn_estimator.dataset import load_dataset
+    from pinn_estimator.evaluate import differ_from_training
+
+    ds = load_dataset(SAMPLES, workers=1, progress=False, cache_dir=tmp_path)
+    names = list(ds.names)
+    trained = {"dataset": {"fingerprint": "0" * 64, "episodes": len(ds), "ticks": int(ds.offsets[-1])},
+               "split": {"train": names[:1], "val": names[1:2], "test": names[2:]}}
+    said = differ_from_training(ds, trained)
+    assert "not byte for byte" in said and f"hold its {len(ds)} episodes by name" in said, said
+    for other in ({"dataset": {**trained["dataset"], "ticks": 1}},
+                  {"split": {**trained["split"], "test": ["another_episode"]}}):
+        assert "differ from those the model was trained on" in differ_from_training(ds, {**trained, **other})
