@@ -230,6 +230,40 @@ def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_val
             assert any(a.startswith(f"{name}:=") for a in nodes[node]), (node, name, nodes[node])
 
 
+def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a_name_of_its_own(tmp_path):
+    """Readers outside the launch met the simulator's counts before its recorder listened (its
+    first episodes went unrecorded, exit 0), and a recorder started by hand is named
+    soil_bag_record too: the launch's recorder gets a name of its own, and the simulator waits
+    for each of the launch's nodes by name on every topic it reads (or, the controller, writes)."""
+    def wait_for(*args):
+        nodes = {n.name: n for n in L.build_nodes(L.parse_args(["--record", str(tmp_path / "b"), *args]))}
+        (given,) = [a for a in nodes["sim"].argv if a.startswith("wait_for:=")]
+        return nodes["recorder"].argv, yaml.safe_load(given.split(":=", 1)[1])
+
+    argv, entries = wait_for("--estimator", "--planner", "--namespace", "/dozer1")
+    name = own_name(argv).removeprefix("__node:=")
+    assert name.startswith("soil_bag_record_") and "-" not in name
+    assert argv[-4:] == ["-r", "__ns:=/dozer1", "-r", f"__node:={name}"]
+    named = {}
+    for entry in entries:
+        if "@" in entry:
+            topic, node = entry.split("@")
+            named.setdefault(node, set()).add(topic)
+    assert named == {f"/dozer1/{name}": set(L.RECORDER_ENDPOINTS),
+                     "/dozer1/pinn_estimator": set(L.ESTIMATOR_ENDPOINTS),
+                     "/dozer1/soil_planner": set(L.PLANNER_ENDPOINTS),
+                     "/dozer1/anti_stall_controller": set(L.CONTROLLER_ENDPOINTS)}
+    assert own_name(wait_for()[0]) != own_name(wait_for()[0])  # each launch its own
+    # a name the user gives the recorder is the one waited for
+    argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", "--recorder-arg=__node:=rec2")
+    assert argv.count("__node:=rec2") == 1 and not any(a.startswith("__node:=soil_bag_record") for a in argv)
+    assert "/sim/status@/rec2" in entries
+
+
+def own_name(argv: list[str]) -> str:
+    return next(a for a in argv if a.startswith("__node:="))
+
+
 def test_a_run_whose_episode_ended_in_error_exits_non_zero_and_says_so(tmp_path):
     """The simulator finishes its queue but says an episode failed (its exit code): the launch
     stops the others and exits with that code, not 0 (a script tells that run from a good one),

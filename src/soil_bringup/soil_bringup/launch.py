@@ -449,11 +449,20 @@ def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
         wait[topic] = wait.get(topic, 0) + n
 
 
-def _own(named: list[str], role: str, endpoints: dict[str, int], namespace: str) -> None:
+def _own(named: list[str], node_name: str, endpoints: dict[str, int], namespace: str) -> None:
     """The simulator's 'topic@/namespace/node' entries for one of the launch's own nodes: the
     counts alone were met by readers outside the launch (a monitor, another recorder on the
     domain) before its own recorder listened, and the first episode went unrecorded."""
-    named += [f"{topic}@{namespace or ''}/{G.NODE_NAMES[role]}" for topic in endpoints]
+    named += [f"{topic}@{namespace or ''}/{node_name}" for topic in endpoints]
+
+
+def own_recorder_name(graph_id: str) -> str:
+    """The launch's recorder's node name, its own: a recorder started by hand beside the launch
+    is named ``soil_bag_record`` too, and by that name it met the simulator's wait for the
+    launch's recorder (whose first episodes then went unrecorded, the launch exiting 0). The
+    controller, estimator and planner keep their names: their params files' sections name them."""
+    token = re.sub(r"[^A-Za-z0-9]", "_", graph_id)[-24:].strip("_") or uuid.uuid4().hex[:8]
+    return f"{G.NODE_NAMES['recorder']}_{token}"
 
 
 def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
@@ -471,14 +480,17 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
+        # (a name the user gives it, --recorder-arg __node:=NAME after --ros-args, is waited for instead)
+        given = [m.group(2) for a in args.recorder_arg if (m := re.fullmatch(r"(__node|__name):=(\w+)", a))]
+        recorder_name = given[-1] if given else own_recorder_name(graph_id)
+        ros = _namespace_args(args.namespace) + ([] if given else ["-r", f"__node:={recorder_name}"])
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               "--graph-id", graph_id, *extra, *args.recorder_arg,
-                                              *(["--ros-args", *_namespace_args(args.namespace)] if args.namespace
-                                                else [])], stop_order=3,
+                                              *(["--ros-args", *ros] if ros else [])], stop_order=3,
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
         _count(wait, RECORDER_ENDPOINTS)
-        _own(named, "recorder", RECORDER_ENDPOINTS, args.namespace)
+        _own(named, recorder_name, RECORDER_ENDPOINTS, args.namespace)
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
@@ -492,7 +504,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                         estimator_param, args.namespace), stop_order=2,
                                  required="estimator" in args.require, without=without))
         _count(wait, ESTIMATOR_ENDPOINTS)
-        _own(named, "estimator", ESTIMATOR_ENDPOINTS, args.namespace)
+        _own(named, G.NODE_NAMES["estimator"], ESTIMATOR_ENDPOINTS, args.namespace)
     if args.planner:
         # (the posterior's physics and bound law: the planner hears them from the estimator, unless given)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
@@ -504,7 +516,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
         _count(wait, PLANNER_ENDPOINTS)
-        _own(named, "planner", PLANNER_ENDPOINTS, args.namespace)
+        _own(named, G.NODE_NAMES["planner"], PLANNER_ENDPOINTS, args.namespace)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
         closed = unless_given("anti_stall_controller", args.controller_param,
@@ -513,7 +525,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))
         _count(wait, CONTROLLER_ENDPOINTS)
-        _own(named, "controller", CONTROLLER_ENDPOINTS, args.namespace)
+        _own(named, G.NODE_NAMES["controller"], CONTROLLER_ENDPOINTS, args.namespace)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not count.isdigit():
