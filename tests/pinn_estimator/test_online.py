@@ -540,6 +540,32 @@ def test_a_dropped_tick_still_gets_an_invalid_estimate_so_a_lockstep_planner_is_
     assert_never_nan(out)
 
 
+def test_a_stray_stamped_off_the_streams_grid_is_refused_on_arrival_and_a_moved_phase_is_followed(episode, model):
+    """One /blade/pose stamped 8 ms after a real tick (a stray writer's) was held as a tick of its
+    own: the next real tick waited behind it for the reorder horizon, which in lockstep never
+    comes (the planner loop stalled 2 s, an outside tester's). It is refused on arrival, named,
+    and the estimates are the clean run's. A stream whose ticks all move to another phase (a bag
+    replayed at another offset) is followed after two ticks' worth of refusals."""
+    _, clean = run(model, in_order(episode, range(N_TICKS)))
+    pose = M.topic_rows(episode, T.BLADE_POSE.name)[100]
+    stray = [(T.BLADE_POSE.name, M.build_message(M.TYPESTORE, T.BLADE_POSE.name,
+                                                 int(episode.stamps_ns[100]) + 8_000_000, pose))]
+    said = []
+    est, out = run(model, in_order(episode, range(101)) + stray + in_order(episode, range(101, N_TICKS)),
+                   warn=lambda kind, text: said.append(text))
+    assert est.counters.out_of_order == 1 and est.counters.gaps == 0
+    assert any("8.0 ms off the stream's 60 Hz grid" in s for s in said), said
+    assert [e.stamp_ns for e in out] == [e.stamp_ns for e in clean]
+    assert np.array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in clean]))
+    # every tick from 120 on 5 ms later: two ticks refused, then the stream is followed at its new phase
+    moved = in_order(episode, range(120)) + [m for i in range(120, N_TICKS) for m in
+                                             tick_messages(episode, i, stamp=int(episode.stamps_ns[i]) + 5_000_000)]
+    est, out = run(model, moved)
+    taken = [e.stamp_ns for e in out if e.stamp_ns > int(episode.stamps_ns[119])]
+    assert taken and taken[0] == int(episode.stamps_ns[122]) + 5_000_000 and len(taken) == N_TICKS - 122
+    assert est.counters.restarts == 0
+
+
 @pytest.mark.parametrize("bad", [0, 121, 100000, True, 2.0])
 def test_assembler_rejects_bad_reorder_horizon(bad):
     """(100000 was taken: no tick waits that long, one incomplete after 120 newer ones is dropped.)"""

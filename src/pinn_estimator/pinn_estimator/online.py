@@ -71,6 +71,14 @@ REPEATS_HINT = ("; ticks keep arriving twice: is a second node publishing this t
 # still checked for NaN/inf: a sample with a broken message is not trusted.
 INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
 RESTART_AFTER_REFUSED = 2 * len(INPUT_TOPICS)  # refusals in a row that start a new stream (see RESTART_BACK_TICKS)
+# A stream judged at 60 Hz keeps its ticks' phase: a message stamped more than this off the grid
+# through the last tick taken is a stray (a second writer's, a clock jump), refused on arrival as
+# the recorder refuses it. Held as a tick of its own, it kept the next real tick waiting behind it
+# for the reorder horizon, which in lockstep never comes: the planner loop stalled 2 s (an outside
+# tester's). A quarter period: a machine's millisecond-rounded stamps are at most ~1 ms off. As
+# many refusals in a row as start a new stream (RESTART_AFTER_REFUSED) are a stream whose phase
+# moved (a bag replayed at another offset): its ticks are then taken.
+GRID_TOLERANCE_NS = PERIOD_NS / 4
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
 SIGN_JUDGE_TICKS = 60  # the force's sign is judged every this many forward-cutting ticks (warned as the node limits)
@@ -158,6 +166,7 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
+        self.off_grid_in_a_row = 0  # messages refused off the stream's grid, nothing taken since (GRID_TOLERANCE_NS)
         self.expect_restart(None)  # (``expect_restart``: its fields)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
@@ -210,6 +219,8 @@ class SampleAssembler:
         if (first is not None and first <= stamp <= first + horizon and self.joiner.last_ns - stamp > horizon
                 and (self.expected_before_ns is None or stamp < self.expected_before_ns)):
             self.on_expected_restart(first)
+        if self._off_grid(topic, stamp):
+            return
         broken = next(((name, v) for (name, _, _), v in zip(routes, values) if not M.plausible_values(v, subnormal=True)), None)
         self.newest[topic] = max(stamp, self.newest.get(topic, stamp))
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
@@ -249,6 +260,26 @@ class SampleAssembler:
                                              "value of the graph; that tick is dropped and the window reset")
         for joined in out:
             self._released(joined)
+
+    def _off_grid(self, topic: str, stamp: int) -> bool:
+        """Refuse (True) a message stamped off the grid of a stream judged at 60 Hz (``GRID_TOLERANCE_NS``)."""
+        last = self.joiner.last_ns
+        if len(self.steps) < RATE_STEPS or self.off_rate or last < 0 or stamp <= last:
+            return False
+        step = stamp - last
+        off = abs(step - round(step / PERIOD_NS) * PERIOD_NS)  # from the nearest tick of the grid
+        if off <= GRID_TOLERANCE_NS and step > PERIOD_NS / 2:  # (nearest the last tick itself: never another)
+            self.off_grid_in_a_row = 0
+            return False
+        self.off_grid_in_a_row += 1
+        if self.off_grid_in_a_row > RESTART_AFTER_REFUSED:  # the phase moved: taken, and the rate judged anew
+            self._forget_stream()
+            self.off_grid_in_a_row = 0
+            return False
+        self.counters.out_of_order += 1
+        self.warn(f"{topic}:off_grid", f"{topic}: stamp {stamp} ns is {off / 1e6:.1f} ms off the stream's 60 Hz grid "
+                                       f"(its last tick {last} ns); ignored")
+        return True
 
     def _repeats_hint(self) -> str:
         """What ticks arriving twice again and again most likely are (``REPEATS_HINT``), once they do."""
