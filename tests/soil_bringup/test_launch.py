@@ -260,6 +260,20 @@ def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a
     assert "/sim/status@/rec2" in entries
 
 
+def test_the_planner_in_lockstep_with_an_estimator_stride_above_1_is_refused_before_the_graph_starts(capsys):
+    """The controller keeps step with a plan per tick and the planner plans from estimates: at
+    stride 3 most ticks waited the controller's planner_wait_s (42 s for a 1 s episode)."""
+    for args in (["--pacing", "lockstep", "--estimator-param", "stride:=3"],
+                 ["--sim-param", "pacing:=lockstep", "--estimator-param", "stride:=2"]):
+        with pytest.raises(SystemExit) as exit_:
+            L.parse_args(["--planner", *args])
+        assert exit_.value.code == 2
+        assert "stride" in (err := capsys.readouterr().err) and "lockstep" in err, err
+    for args in (["--pacing", "realtime", "--estimator-param", "stride:=3"],
+                 ["--pacing", "lockstep", "--estimator-param", "stride:=1"], ["--pacing", "lockstep"]):
+        L.parse_args(["--planner", *args])
+
+
 def own_name(argv: list[str]) -> str:
     return next(a for a in argv if a.startswith("__node:="))
 

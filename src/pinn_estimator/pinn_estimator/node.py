@@ -43,7 +43,8 @@ from .shipped import shipped_checkpoint
 
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
-    "stride": (1, f"estimate every n-th tick once the window is full (1: every tick, 60 Hz; at most {MAX_STRIDE_TICKS})"),
+    "stride": (1, f"estimate every n-th tick once the window is full (1: every tick, 60 Hz; at most {MAX_STRIDE_TICKS}; "
+                  "1 with the planner in lockstep, whose controller waits for a plan of every tick)"),
     "reorder_ticks": (3, "a tick still incomplete when one this many ticks newer is complete counts as missing (1-120)"),
     "threads": (1, "torch CPU threads for the model (1 keeps the node to one core and deterministic)"),
     "fusion_config": ("", "soil posterior's config JSON (pinn_fusion_calibrate); empty: the shipped models/fusion_<world>.json "

@@ -616,6 +616,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             p.error(f"{flag} {value} must be a finite number of seconds, {'> 0' if flag == '--stop-timeout' else '>= 0 (0: never)'}")
     if args.planner:
         args.estimator = True
+        check_lockstep_stride(p, args)
     # options of a node this launch does not start would be ignored without a word
     runs = {"estimator": args.estimator, "planner": args.planner, "controller": not args.no_controller}
     for node, running in runs.items():
@@ -634,6 +635,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error("--recorder-arg --graph-id: the launch gives its simulator and recorder one id; give it as "
                 "--sim-param graph_id:=ID")
     return args
+
+
+def check_lockstep_stride(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The planner in lockstep needs an estimate every tick: the controller answers tick k once the
+    planner's target for tick k − 2 came, and the planner plans a tick when its estimate comes. With
+    the estimator's ``stride`` above 1 most ticks have none, and each waited the controller's
+    ``planner_wait_s`` (2 s): 42 s for a 1 s episode (an outside tester's). Refused before the graph starts."""
+    sim_given = given_params("soil_sim_node", None, args.sim_param, ("pacing",))["pacing"]
+    pacing = sim_given or args.pacing or given_params("soil_sim_node", args.sim_params_file, [], ("pacing",),
+                                                      args.namespace)["pacing"]
+    stride = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("stride",),
+                          args.namespace)["stride"]
+    if pacing == "lockstep" and stride is not None and stride.strip() != "1":
+        p.error(f"the estimator's stride {stride} with the planner in lockstep: the controller keeps step with a plan "
+                "for every tick, and the planner plans a tick from its estimate; give stride 1 (the default) or "
+                "--pacing realtime")
 
 
 def check_graph_options(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
