@@ -304,7 +304,7 @@ def test_a_wait_for_entry_naming_a_node_is_checked():
     assert parse_wait_for(["/sim/status:2", "/blade/force@/dozer1/soil_bag_record"], known) == [
         AwaitedEndpoint("/sim/status", 2), AwaitedEndpoint("/blade/force", 1, "/dozer1/soil_bag_record")]
     for bad in ("/blade/force@soil_bag_record", "/blade/force@/1node", "/nowhere@/n", "/sim/status@/a//b",
-                "/sim/status@/n:1"):
+                "/sim/status@/n:1", "/sim/status:²"):
         with pytest.raises(ValueError, match=f"wait_for entry '{re.escape(bad)}'"):
             parse_wait_for([bad], known)
 

@@ -735,3 +735,32 @@ def test_a_recorded_topic_whose_writer_sent_nothing_is_said_as_lacking_every_tic
     assert any("the bag lacks ticks of /chassis/cmd_vel (120 of 120):" in m for m in warnings), warnings
     assert not any("lacks ticks of" in m and "/blade/cmd" in m for m in warnings), warnings
     assert any("/blade/cmd has no message" in m for m in warnings), warnings
+
+
+def test_a_bag_without_any_message_of_a_simulator_state_topic_counts_as_no_bag(tmp_path):
+    """A launch's recorder that joined the state topics after the episode's ticks (an outside
+    recorder had met the simulator's wait for it) wrote bags of commands alone, which no reader
+    takes as an episode, and exited 0 (an outside tester's). Such an episode counts among those
+    without a bag (exit code 5); a topic whose writer never matched stays a warning."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = [m for m in loaded.messages[: 10 * 120] if m[1] in ("/chassis/cmd_vel", "/blade/cmd")]
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0, end_grace_s=0.0)
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        feed.send("controller", topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
+    rec.poll(), rec.poll(), rec.close()
+    assert rec.unwritten == [start_ev.name]
+    errors = [m for lvl, m in log.lines if lvl == "error"]
+    assert any("no message of /clock, /blade/pose" in m and "no episode any reader takes" in m for m in errors), log.lines
+    # the same with the state writers never matched (a recorder of a machine's commands): said, not counted
+    rec = recorder.Recorder(tmp_path / "unmatched", loaded.topics, log=ListLog(), clock=lambda: 0.0, end_grace_s=0.0)
+    rec.joined_without = {t for t in loaded.topics if t not in ("/chassis/cmd_vel", "/blade/cmd")}
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        feed.send("controller", topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
+    rec.poll(), rec.poll(), rec.close()
+    assert rec.unwritten == []

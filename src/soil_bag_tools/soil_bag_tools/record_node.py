@@ -176,7 +176,7 @@ class RecordNode(Node):
             self.recorder.close()
         finally:  # said even when finishing the open sessions failed
             if self.recorder.unwritten:
-                self.get_logger().error(f"{len(self.recorder.unwritten)} episode(s) without a bag: "
+                self.get_logger().error(f"{len(self.recorder.unwritten)} episode(s) without a bag a reader takes: "
                                         f"{', '.join(self.recorder.unwritten)} (why: above); exit code "
                                         f"{EXIT_BAG_NOT_WRITTEN}")
         if self._pending:

@@ -53,7 +53,7 @@ from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.episode import MAX_EPISODE_S
 from soil_msgs_py.episode_follow import graph_said, same_episode
-from soil_msgs_py.graph import EVENT_EPISODE_START, EpisodeEvent
+from soil_msgs_py.graph import EVENT_EPISODE_START, SIM_STATE_TOPICS, EpisodeEvent
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import CLOCK, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
@@ -243,8 +243,9 @@ class Recorder:
         self.sessions: list[Session] = []  # oldest first
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
-        # episodes without a bag: its journal could not be made, or would not close or convert (each
-        # said when it happened); the recorder's exit code says so (record_node), so a launch does not end in 0
+        # episodes without a bag: its journal could not be made, or would not close or convert, or its bag
+        # holds no message of a simulator state topic (each said when it happened); the recorder's exit
+        # code says so (record_node), so a launch does not end in 0
         self.unwritten: list[str] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
         # topics whose writer had not matched when the recorder joined the simulator's topics
@@ -654,7 +655,15 @@ class Recorder:
         # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
         # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
         ticks, lacking = _lacking_ticks(result.messages, list(self.topics), self.joined_without)
-        if s.meta_json is not None and lacking:
+        # a state topic of the simulator's that was matched and gave nothing: no reader takes the bag as
+        # an episode (a launch's recorder bypassed by an outside one had written such bags, exit 0)
+        empty = [t for t in SIM_STATE_TOPICS if t in self.topics and t not in self.joined_without
+                 and not result.messages.get(t, 0)]
+        if s.meta_json is not None and empty and any(result.messages.get(t, 0) for t in TOPICS_BY_NAME):
+            self.log.error(f"{s.name}: no message of {', '.join(empty)} reached the recorder: the bag is no "
+                           "episode any reader takes (the recorder joined after the episode's ticks?)")
+            self.unwritten.append(s.name)
+        elif s.meta_json is not None and lacking:
             self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "
                              "their messages never reached the recorder (a writer it matched late, e.g. a node restarted "
                              "mid-episode, or one that skipped ticks); those ticks are incomplete in the bag, and a "

@@ -528,7 +528,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         _own(named, G.NODE_NAMES["controller"], CONTROLLER_ENDPOINTS, args.namespace)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
-        if not topic.startswith("/") or not count.isdigit():
+        if not topic.startswith("/") or not re.fullmatch(r"[0-9]+", count):
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
         _count(wait, {topic: int(count)})
     sim = _ros_node("soil_sim_node", args.sim_params_file, [], args.namespace)

@@ -249,7 +249,7 @@ def parse_wait_for(entries, known_topics) -> list[AwaitedEndpoint]:
             out.append(AwaitedEndpoint(topic, 1, node))
             continue
         topic, _, count = entry.rpartition(":")
-        if topic not in known or not count.isdigit():
+        if topic not in known or not re.fullmatch(r"[0-9]+", count):  # (str.isdigit takes '²', int() does not)
             raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic:count' with a topic of "
                              f"{known} and a count >= 0, or 'topic@/namespace/node'")
         out.append(AwaitedEndpoint(topic, int(count)))
