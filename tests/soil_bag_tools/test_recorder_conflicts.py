@@ -717,20 +717,30 @@ def test_a_simulator_started_again_on_the_same_episode_gets_a_bag_of_its_own(tmp
         assert not [m for lvl, m in log.lines if lvl == "warning"], log.lines
 
 
+def record_120_ticks(out, keep, writer: str, joined_without: set[str]):
+    """The sample's first 120 ticks of the topics ``keep`` takes, sent by ``writer`` to a recorder
+    whose joined_without is given, as one episode; (recorder, log)."""
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = [m for m in loaded.messages[: 10 * 120] if keep(m[1])]
+    rec = recorder.Recorder(out, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0, end_grace_s=0.0)
+    rec.joined_without = joined_without
+    feed = Feed(rec)
+    rec.on_status(start_ev.to_json())
+    for t, topic, raw in msgs:
+        feed.send(writer, topic, raw)
+    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
+    rec.poll(), rec.poll(), rec.close()
+    return rec, log
+
+
+COMMANDS = ("/chassis/cmd_vel", "/blade/cmd")
+
+
 def test_a_recorded_topic_whose_writer_sent_nothing_is_said_as_lacking_every_tick(tmp_path):
     """The controller's writers had matched, but it died before the episode: no command at all. Counted
     only among topics with messages, the bag said nothing of it (a reviewer's); a topic no writer had
     matched is said as such instead (``joined_without``), not twice."""
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    msgs = [m for m in loaded.messages[: 10 * 120] if m[1] not in ("/chassis/cmd_vel", "/blade/cmd")]
-    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0, end_grace_s=0.0)
-    rec.joined_without = {"/blade/cmd"}
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for t, topic, raw in msgs:
-        feed.send("sim", topic, raw)
-    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
-    rec.poll(), rec.poll(), rec.close()
+    _, log = record_120_ticks(tmp_path, lambda topic: topic not in COMMANDS, "sim", {"/blade/cmd"})
     warnings = [m for lvl, m in log.lines if lvl == "warning"]
     assert any("the bag lacks ticks of /chassis/cmd_vel (120 of 120):" in m for m in warnings), warnings
     assert not any("lacks ticks of" in m and "/blade/cmd" in m for m in warnings), warnings
@@ -742,25 +752,12 @@ def test_a_bag_without_any_message_of_a_simulator_state_topic_counts_as_no_bag(t
     recorder had met the simulator's wait for it) wrote bags of commands alone, which no reader
     takes as an episode, and exited 0 (an outside tester's). Such an episode counts among those
     without a bag (exit code 5); a topic whose writer never matched stays a warning."""
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    msgs = [m for m in loaded.messages[: 10 * 120] if m[1] in ("/chassis/cmd_vel", "/blade/cmd")]
-    rec = recorder.Recorder(tmp_path, loaded.topics, log=(log := ListLog()), clock=lambda: 0.0, end_grace_s=0.0)
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for t, topic, raw in msgs:
-        feed.send("controller", topic, raw)
-    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
-    rec.poll(), rec.poll(), rec.close()
-    assert rec.unwritten == [start_ev.name]
+    rec, log = record_120_ticks(tmp_path, lambda topic: topic in COMMANDS, "controller", set())
+    assert len(rec.unwritten) == 1
     errors = [m for lvl, m in log.lines if lvl == "error"]
     assert any("no message of /clock, /blade/pose" in m and "no episode any reader takes" in m for m in errors), log.lines
     # the same with the state writers never matched (a recorder of a machine's commands): said, not counted
-    rec = recorder.Recorder(tmp_path / "unmatched", loaded.topics, log=ListLog(), clock=lambda: 0.0, end_grace_s=0.0)
-    rec.joined_without = {t for t in loaded.topics if t not in ("/chassis/cmd_vel", "/blade/cmd")}
-    feed = Feed(rec)
-    rec.on_status(start_ev.to_json())
-    for t, topic, raw in msgs:
-        feed.send("controller", topic, raw)
-    rec.on_status(replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=120).to_json())
-    rec.poll(), rec.poll(), rec.close()
+    loaded, _, _ = _events(SAMPLE)
+    rec, _ = record_120_ticks(tmp_path / "unmatched", lambda topic: topic in COMMANDS, "controller",
+                              {t for t in loaded.topics if t not in COMMANDS})
     assert rec.unwritten == []
