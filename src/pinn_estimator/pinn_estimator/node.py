@@ -168,11 +168,25 @@ class EstimatorNode(Node):
             self.get_logger().info(f"episode {event.name}: new window from stamp {event.first_stamp_ns} ns")
             self.episode = event
             self._say_if_other_world(event)
+            self._say_if_stride_holds_a_lockstep_planner(event)
         else:
             self.silence.end()
             self.episode = None  # (a model swap between episodes has no episode under way to warn of)
             if event.last_stamp_ns >= 0:
                 self.core.end_episode(event.last_stamp_ns)
+
+    def _say_if_stride_holds_a_lockstep_planner(self, event: G.EpisodeEvent) -> None:
+        """Warned at a lockstep episode's start when a planner reads the estimates and the stride is
+        above 1: its controller keeps step with a plan for every tick, the planner plans a tick from
+        its estimate, and each tick without one waits the controller's planner_wait_s (42 s for a 1 s
+        episode at stride 3). soil_launch refuses the combination; a graph started by hand, or a
+        stride set at run time, is told here."""
+        if event.pacing != G.PACING_LOCKSTEP or self.core.stride == 1:
+            return
+        readers = self.get_subscriptions_info_by_topic(self.resolve_topic_name(local(T.ESTIMATE.name)))
+        if any(i.node_name == G.NODE_NAMES["planner"] for i in readers):
+            self.get_logger().warning(f"episode {event.name}: stride {self.core.stride} with a planner in lockstep: its "
+                                      "controller waits planner_wait_s at each tick without an estimate; set stride 1")
 
     @property
     def fusion_source(self) -> str:
