@@ -747,17 +747,17 @@ def test_a_recorded_topic_whose_writer_sent_nothing_is_said_as_lacking_every_tic
     assert any("/blade/cmd has no message" in m for m in warnings), warnings
 
 
-def test_a_bag_without_any_message_of_a_simulator_state_topic_counts_as_no_bag(tmp_path):
+def test_a_bag_of_commands_alone_counts_as_no_bag_and_one_missing_state_topic_does_not(tmp_path):
     """A launch's recorder that joined the state topics after the episode's ticks (an outside
     recorder had met the simulator's wait for it) wrote bags of commands alone, which no reader
     takes as an episode, and exited 0 (an outside tester's). Such an episode counts among those
-    without a bag (exit code 5); a topic whose writer never matched stays a warning."""
+    without a bag (exit code 5). One state topic missing (a replay that leaves out the ground
+    truth, a machine's graph without one) stays a warning, as before."""
     rec, log = record_120_ticks(tmp_path, lambda topic: topic in COMMANDS, "controller", set())
     assert len(rec.unwritten) == 1
     errors = [m for lvl, m in log.lines if lvl == "error"]
-    assert any("no message of /clock, /blade/pose" in m and "no episode any reader takes" in m for m in errors), log.lines
-    # the same with the state writers never matched (a recorder of a machine's commands): said, not counted
-    loaded, _, _ = _events(SAMPLE)
-    rec, _ = record_120_ticks(tmp_path / "unmatched", lambda topic: topic in COMMANDS, "controller",
-                              {t for t in loaded.topics if t not in COMMANDS})
-    assert rec.unwritten == []
+    assert any("no message of the simulator's state (/clock, /blade/pose" in m and "only commands" in m
+               for m in errors), log.lines
+    rec, log = record_120_ticks(tmp_path / "no_truth", lambda topic: topic != "/soil/ground_truth", "sim", set())
+    assert rec.unwritten == [] and not [m for lvl, m in log.lines if lvl == "error"]
+    assert any("lacks ticks of /soil/ground_truth (120 of 120)" in m for lvl, m in log.lines), log.lines

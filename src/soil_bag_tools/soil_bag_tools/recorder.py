@@ -244,7 +244,7 @@ class Recorder:
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
         self.finished: list[BagResult] = []
         # episodes without a bag: its journal could not be made, or would not close or convert, or its bag
-        # holds no message of a simulator state topic (each said when it happened); the recorder's exit
+        # holds no message of the simulator's state at all (each said when it happened); the recorder's exit
         # code says so (record_node), so a launch does not end in 0
         self.unwritten: list[str] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
@@ -655,13 +655,15 @@ class Recorder:
         # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
         # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
         ticks, lacking = _lacking_ticks(result.messages, list(self.topics), self.joined_without)
-        # a state topic of the simulator's that was matched and gave nothing: no reader takes the bag as
-        # an episode (a launch's recorder bypassed by an outside one had written such bags, exit 0)
-        empty = [t for t in SIM_STATE_TOPICS if t in self.topics and t not in self.joined_without
-                 and not result.messages.get(t, 0)]
-        if s.meta_json is not None and empty and any(result.messages.get(t, 0) for t in TOPICS_BY_NAME):
-            self.log.error(f"{s.name}: no message of {', '.join(empty)} reached the recorder: the bag is no "
-                           "episode any reader takes (the recorder joined after the episode's ticks?)")
+        # not one message of the simulator's state, only commands: no reader takes the bag as an episode
+        # (a launch's recorder bypassed by an outside one had written such bags, exit 0). One state topic
+        # missing is a replay's selection or a machine's graph without ground truth: warned below.
+        state = [t for t in SIM_STATE_TOPICS if t in self.topics]
+        if (s.meta_json is not None and state and not any(result.messages.get(t, 0) for t in state)
+                and any(result.messages.get(t, 0) for t in TOPICS_BY_NAME)):
+            self.log.error(f"{s.name}: no message of the simulator's state ({', '.join(state)}) reached the "
+                           "recorder, only commands: the bag is no episode any reader takes (the recorder "
+                           "joined after the episode's ticks?)")
             self.unwritten.append(s.name)
         elif s.meta_json is not None and lacking:
             self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "
