@@ -71,14 +71,21 @@ REPEATS_HINT = ("; ticks keep arriving twice: is a second node publishing this t
 # still checked for NaN/inf: a sample with a broken message is not trusted.
 INPUT_TOPICS: tuple[str, ...] = tuple(t for t in G.ESTIMATOR_INPUTS if t != G.SIM_STATUS_TOPIC)
 RESTART_AFTER_REFUSED = 2 * len(INPUT_TOPICS)  # refusals in a row that start a new stream (see RESTART_BACK_TICKS)
-# A stream judged at 60 Hz keeps its ticks' phase: a message stamped more than this off the grid
-# through the last tick taken is a stray (a second writer's, a clock jump), refused on arrival as
-# the recorder refuses it. Held as a tick of its own, it kept the next real tick waiting behind it
-# for the reorder horizon, which in lockstep never comes: the planner loop stalled 2 s (an outside
-# tester's). A quarter period: a machine's millisecond-rounded stamps are at most ~1 ms off. As
-# many refusals in a row as start a new stream (RESTART_AFTER_REFUSED) are a stream whose phase
-# moved (a bag replayed at another offset): its ticks are then taken.
+# A stream keeps its ticks' phase within an episode: a message stamped off the grid through the
+# episode's last tick taken (at the stream's own mean step) is a stray (a second writer's, a clock
+# jump), refused on arrival as the recorder refuses it, and so is one stamped between two ticks
+# already taken (no window reset). Held as a tick of its own, it kept the next real tick waiting
+# behind it for the reorder horizon, which in lockstep never comes: the planner loop stalled 2 s
+# (an outside tester's; one stamped 33 ns after a tick too). Off means more than three times the
+# stream's own steps stray from their mean, plus GRID_SLACK_NS, and at most GRID_TOLERANCE_NS (the
+# simulator's stamps are exact to 1 ns: off by 12 ns; a machine's millisecond-rounded ones stray
+# ~0.7 ms: off by 2 ms); checked from GRID_MIN_STEPS steps on and up to GRID_CHECK_TICKS away
+# (farther: a gap, over which the mean step's error adds up). Refusals of at least two stamps, as
+# many in a row as start a new stream (RESTART_AFTER_REFUSED), are a stream whose phase moved.
 GRID_TOLERANCE_NS = PERIOD_NS / 4
+GRID_SLACK_NS = 10
+GRID_MIN_STEPS = 3
+GRID_CHECK_TICKS = 8
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
 SIGN_JUDGE_TICKS = 60  # the force's sign is judged every this many forward-cutting ticks (warned as the node limits)
@@ -166,7 +173,8 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
-        self.off_grid_in_a_row = 0  # messages refused off the stream's grid, nothing taken since (GRID_TOLERANCE_NS)
+        self.off_grid_in_a_row: list[int] = []  # stamps refused off the stream's grid, nothing taken since
+        self.grid_from_ns = -1  # the grid is checked through ticks from this stamp on (the episode's: ``regrid``)
         self.expect_restart(None)  # (``expect_restart``: its fields)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
@@ -196,6 +204,13 @@ class SampleAssembler:
         self.steps.clear()
         self.newest.clear()
         self.off_rate = False
+        self.off_grid_in_a_row = []
+
+    def regrid(self, from_ns: int) -> None:
+        """An episode boundary: the grid is checked again only through a tick stamped from ``from_ns``
+        on (a new episode, a machine's or a bag's, may keep another phase than the last one's)."""
+        self.grid_from_ns = int(from_ns)
+        self.off_grid_in_a_row = []
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -262,22 +277,31 @@ class SampleAssembler:
             self._released(joined)
 
     def _off_grid(self, topic: str, stamp: int) -> bool:
-        """Refuse (True) a message stamped off the grid of a stream judged at 60 Hz (``GRID_TOLERANCE_NS``)."""
+        """Refuse (True) a message stamped off the stream's grid (``GRID_TOLERANCE_NS``)."""
         last = self.joiner.last_ns
-        if len(self.steps) < RATE_STEPS or self.off_rate or last < 0 or stamp <= last:
+        if self.off_rate or last < max(0, self.grid_from_ns) or stamp == last:
             return False
-        step = stamp - last
-        off = abs(step - round(step / PERIOD_NS) * PERIOD_NS)  # from the nearest tick of the grid
-        if off <= GRID_TOLERANCE_NS and step > PERIOD_NS / 2:  # (nearest the last tick itself: never another)
-            self.off_grid_in_a_row = 0
+        steps = sorted(self.steps)
+        median = steps[len(steps) // 2] if steps else 0
+        steady = [s for s in steps if median / 2 < s < 1.5 * median]  # (a gap's step is no tick's)
+        if len(steady) < GRID_MIN_STEPS:
             return False
-        self.off_grid_in_a_row += 1
-        if self.off_grid_in_a_row > RESTART_AFTER_REFUSED:  # the phase moved: taken, and the rate judged anew
-            self._forget_stream()
-            self.off_grid_in_a_row = 0
+        period = sum(steady) / len(steady)
+        ticks = round(abs(stamp - last) / period)
+        if ticks > GRID_CHECK_TICKS:
+            return False
+        tolerance = min(GRID_TOLERANCE_NS, 3 * max(abs(s - period) for s in steady) + GRID_SLACK_NS)
+        off = abs(abs(stamp - last) - ticks * period)  # from the nearest tick of the grid
+        if ticks >= 1 and off <= tolerance:  # (nearest the last tick itself: never another tick)
+            self.off_grid_in_a_row = []
+            return False
+        self.off_grid_in_a_row.append(stamp)
+        if len(self.off_grid_in_a_row) > RESTART_AFTER_REFUSED and len(set(self.off_grid_in_a_row)) > 1:
+            self._forget_stream()  # the phase moved (not one stray sent again and again): taken
             return False
         self.counters.out_of_order += 1
-        self.warn(f"{topic}:off_grid", f"{topic}: stamp {stamp} ns is {off / 1e6:.1f} ms off the stream's 60 Hz grid "
+        ns = f"{off:.0f} ns" if off < 1e5 else f"{off / 1e6:.1f} ms"
+        self.warn(f"{topic}:off_grid", f"{topic}: stamp {stamp} ns is {ns} off the stream's grid of ticks "
                                        f"(its last tick {last} ns); ignored")
         return True
 
@@ -497,6 +521,7 @@ class OnlineEstimator:
         self._open_first = None
         self._ended_at = int(last_stamp_ns)
         self.assembler.expect_restart(None)
+        self.assembler.regrid(int(last_stamp_ns) + 1)
 
     @property
     def owes_ended_episode(self) -> bool:
@@ -527,6 +552,7 @@ class OnlineEstimator:
         refused the new episode's first ticks as far back and lost them: the estimates differed
         from a replay's, an outside tester's.)"""
         first = int(first_stamp_ns)
+        self.assembler.regrid(first)
         if self._ended_at is not None and first > self._ended_at:
             self._ended_at = None  # a new episode is under way: stopping now stops it midway
         open_first, self._open_first = self._open_first, first
@@ -576,18 +602,18 @@ class OnlineEstimator:
         self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
-        if sample is None:  # missing, broken or out of order: nothing estimated across it
-            self.buffer.clear()
-            self.fusion.gap()  # nor fused: the stretch in progress is dropped, the posterior kept
-            self._dropped(stamp)
-            return
         if self._boundary is not None and stamp > self._boundary and not self._crossed:
-            self._crossed = True  # the first sample of a new episode: no window spans two,
+            self._crossed = True  # the first tick of a new episode (a sample, or one dropped): no window spans two,
             if self.buffer.count and self.window_first_stamp <= self._boundary:
                 self.buffer.clear()
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
             self._forget_path(known=True)
             self._reset_fusion()
+        if sample is None:  # missing, broken or out of order: nothing estimated across it
+            self.buffer.clear()
+            self.fusion.gap()  # nor fused: the stretch in progress is dropped, the posterior kept
+            self._dropped(stamp)
+            return
         if self._stream_first_ns is None:
             self._stream_first_ns = stamp
         if self.buffer.count == 0:
@@ -619,9 +645,9 @@ class OnlineEstimator:
         Why: a lockstep planner plans a tick once its estimate is in, and the controller waits for
         that plan; one duplicate /blade/force cost the loop the controller's ``planner_wait_s``
         (2 s) and the cut differed from a clean run's. Not for a stamp already through the phase
-        (an out-of-order or gap report names the last tick), nor for a new episode's tick before
-        its first sample (the fused fields would be the last episode's)."""
-        if stamp <= self._last_tick_ns or (self._boundary is not None and stamp > self._boundary and not self._crossed):
+        (an out-of-order or gap report names the last tick). A new episode's first tick dropped has
+        begun the episode (``_on_sample``): its fused fields are the prior's."""
+        if stamp <= self._last_tick_ns:
             return
         self._last_tick_ns = stamp
         tick, self._tick = self._tick, self._tick + 1
