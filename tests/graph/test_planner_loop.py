@@ -92,7 +92,8 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     out = log_path.read_text()
     assert rc == 0, out[-4000:]
     assert other_rc == 0, other_log.read_text()[-4000:]
-    # each simulator waited for its own nodes by name (/dozer1/soil_bag_record, /soil_bag_record) and met them
+    # each simulator waited for its own nodes by name (/dozer1/soil_bag_record_<launch>, /soil_bag_record_<launch>)
+    # and met them
     assert "starting without" not in out and "starting without" not in other_log.read_text(), out[-4000:]
     (other_bag,) = find_episode_bags(other_bags)
     other_ep = read_episode(other_bag)  # the root graph's own ticks, each once, its own soil

@@ -254,10 +254,15 @@ def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a
                      "/dozer1/soil_planner": set(L.PLANNER_ENDPOINTS),
                      "/dozer1/anti_stall_controller": set(L.CONTROLLER_ENDPOINTS)}
     assert own_name(wait_for()[0]) != own_name(wait_for()[0])  # each launch its own
-    # a name the user gives the recorder is the one waited for
-    argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", "--recorder-arg=__node:=rec2")
-    assert argv.count("__node:=rec2") == 1 and not any(a.startswith("__node:=soil_bag_record") for a in argv)
-    assert "/sim/status@/rec2" in entries
+    # a name the user gives the recorder is the one waited for (for every node, or for the recorder alone)
+    for remap in ("__node:=rec2", "soil_bag_record:__node:=rec2"):
+        argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", f"--recorder-arg={remap}")
+        assert argv.count(remap) == 1 and not any(a.startswith("__node:=soil_bag_record") for a in argv)
+        assert "/sim/status@/rec2" in entries
+    # a namespace of its own would be waited for elsewhere: refused, --namespace is the way
+    with pytest.raises(SystemExit):
+        L.parse_args(["--record", str(tmp_path / "b"), "--recorder-arg=--ros-args", "--recorder-arg=-r",
+                      "--recorder-arg=__ns:=/x"])
 
 
 def test_the_planner_in_lockstep_with_an_estimator_stride_above_1_is_refused_before_the_graph_starts(capsys):

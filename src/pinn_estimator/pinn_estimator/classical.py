@@ -31,7 +31,6 @@ one step size suits phi, c and delta alike.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +38,7 @@ from scipy.optimize import least_squares
 
 from soil_physics import fee
 from soil_physics.augmented_fee import THETA_PARAMS, fee_forces
+from soil_msgs_py import cli_numbers
 from soil_msgs_py.params import DEG, FORCE_FIELDS, FORCE_LIMITS_N, KNOWN_PARAMS, TABLE1
 
 FIT_PARAMS: tuple[str, ...] = THETA_PARAMS  # the soil the fit estimates: phi, c, delta
@@ -308,7 +308,4 @@ def _finish(phi, c, delta, known, rms, ok) -> ClassicalFit:
 
 def default_workers() -> int:
     """Cores this process may use (for callers that want a sensible ``workers``)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    return cli_numbers.cores()

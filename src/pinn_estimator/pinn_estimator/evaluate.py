@@ -375,16 +375,18 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
 def differ_from_training(ds: Dataset, ckpt: dict) -> str:
     """What a fingerprint other than the checkpoint's means here. The fingerprint hashes the bags'
     bytes (and the reader's cache version): bags written again from the same seeds by a later
-    recorder differ in bytes and not in data, and the shipped models' reports said their own
-    training bags "differ". Same episodes by name and the same tick count: said as such."""
+    recorder differ in bytes, not necessarily in data, and the shipped models' reports said their
+    own training bags "differ". Same episodes by name and the same tick count: said as written
+    again, without claiming the data the same."""
     trained = ckpt["dataset"]
     split_names = [n for names in ckpt["split"].values() for n in names]
     same = (len(ds) == trained.get("episodes") and int(ds.offsets[-1]) == trained.get("ticks")
             and set(split_names) <= set(ds.names))
     if same:
         return (f"the bags at {ds.root} are not byte for byte those the model was trained on (fingerprint "
-                f"{ds.fingerprint[:12]}, trained on {trained['fingerprint'][:12]}: written or read by another version "
-                f"of this software), but hold its {len(ds)} episodes by name and {int(ds.offsets[-1])} ticks")
+                f"{ds.fingerprint[:12]}, trained on {trained['fingerprint'][:12]}), but hold its {len(ds)} episodes by "
+                f"name and {int(ds.offsets[-1])} ticks: written again (by another version of this software, or after "
+                "a change to the simulator, which names and counts cannot tell)")
     return f"the bags at {ds.root} differ from those the model was trained on"
 
 

@@ -58,11 +58,13 @@ from soil_msgs_py.launcher_death import LAUNCHER_PID_ENV
 from soil_msgs_py.params_files import node_parameters, read_params_file
 
 MAX_DOMAIN_ID = 232  # the largest ROS_DOMAIN_ID DDS allows on Linux (its ports above stay below 65536)
-# A ROS 2 namespace as rcl validates one: absolute, tokens of letters, digits and '_' not starting with a digit
-NAMESPACE_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 # The longest namespace the graph fits under: rmw's longest topic or service name (255 − 8) less the
 # graph's longest name below its namespace, the controller's parameter service (a longer one: tracebacks)
 MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomically")
+
+# A remap of the recorder's node name given through --recorder-arg (rcl's '__node:=NAME', also as
+# 'soil_bag_record:__node:=NAME' for that node alone): the launch's simulator waits for that name
+RECORDER_NAME_REMAP_RE = re.compile(r"(?:[A-Za-z_][A-Za-z0-9_]*:)?__(?:node|name):=([A-Za-z_][A-Za-z0-9_]*)")
 
 # --NODE-params-file: the node each is for
 PARAMS_FILE_NODES = {role: G.NODE_NAMES[role] for role in ("sim", "controller", "estimator", "planner")}
@@ -481,7 +483,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
         # (a name the user gives it, --recorder-arg __node:=NAME after --ros-args, is waited for instead)
-        given = [m.group(2) for a in args.recorder_arg if (m := re.fullmatch(r"(__node|__name):=(\w+)", a))]
+        given = [m.group(1) for a in args.recorder_arg if (m := RECORDER_NAME_REMAP_RE.fullmatch(a))]
         recorder_name = given[-1] if given else own_recorder_name(graph_id)
         ros = _namespace_args(args.namespace) + ([] if given else ["-r", f"__node:={recorder_name}"])
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
@@ -528,7 +530,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         _own(named, G.NODE_NAMES["controller"], CONTROLLER_ENDPOINTS, args.namespace)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
-        if not topic.startswith("/") or not re.fullmatch(r"[0-9]+", count):
+        if not topic.startswith("/") or not G.COUNT_RE.fullmatch(count):
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
         _count(wait, {topic: int(count)})
     sim = _ros_node("soil_sim_node", args.sim_params_file, [], args.namespace)
@@ -591,7 +593,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     check_graph_options(p, args)
     if args.namespace == "/":
         args.namespace = ""  # (the root)
-    if args.namespace and not NAMESPACE_RE.fullmatch(args.namespace):
+    if args.namespace and not G.ROS_PATH_RE.fullmatch(args.namespace):
         p.error(f"--namespace {args.namespace!r} is not a ROS namespace: '/' then names of letters, digits and '_' "
                 "(not starting with a digit) joined by '/', e.g. /dozer1 or /site_a/dozer1")
     if len(args.namespace) > MAX_NAMESPACE_LEN:
@@ -631,6 +633,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     # the recorder's last --out would win over --record's; any prefix of it too (argparse takes --o, --ou)
     if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
+    if any(re.search(r"(^|:)__ns:=", a) for a in args.recorder_arg):  # (the simulator would wait for it elsewhere)
+        p.error("--recorder-arg __ns:=: the launch puts every node, the recorder too, where --namespace says")
     if any(len(o := a.split("=", 1)[0]) > 4 and "--graph-id".startswith(o) for a in args.recorder_arg):
         p.error("--recorder-arg --graph-id: the launch gives its simulator and recorder one id; give it as "
                 "--sim-param graph_id:=ID")

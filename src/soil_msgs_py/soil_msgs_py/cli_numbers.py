@@ -19,6 +19,14 @@ MAX_NUMPY_SEED = 2**32 - 1
 PER_CORE = 8
 
 
+def cores() -> int:
+    """Cores this process may use (its CPU affinity where the system says it, e.g. in a cpuset)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def local_limit() -> int:
     """The most processes or threads of one tool on this machine: ``PER_CORE`` per core."""
     return PER_CORE * (os.cpu_count() or 1)
@@ -46,7 +54,7 @@ def workers(text: str) -> int:
     if not 0 <= value <= local_limit():
         raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, {local_limit()}] (processes: "
                                          f"{PER_CORE} per core of this machine at the most; 0: one per core)")
-    return value or (os.cpu_count() or 1)
+    return value or cores()
 
 
 def seed(text: str) -> int:

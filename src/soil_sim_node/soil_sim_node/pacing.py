@@ -19,7 +19,6 @@ pause); ``TickTiming`` keeps the wall-clock figures each ``episode_end`` reports
 from __future__ import annotations
 
 import enum
-import re
 import time
 from array import array
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.graph import PACING_LOCKSTEP, PACINGS, REALTIME_FACTOR_RANGE
+from soil_msgs_py.graph import COUNT_RE, PACING_LOCKSTEP, PACINGS, REALTIME_FACTOR_RANGE, ROS_PATH_RE
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 
 RATE_RANGE = REALTIME_FACTOR_RANGE  # real-time factors the node accepts, the player's
@@ -227,9 +226,6 @@ class AwaitedEndpoint(NamedTuple):
     node: str = ""
 
 
-# A fully qualified node name as rcl makes one: namespace tokens and the name, each a ROS name token
-NODE_FQN_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
-
 
 def parse_wait_for(entries, known_topics) -> list[AwaitedEndpoint]:
     """The simulator's ``wait_for`` entries: 'topic:count' (that many matched endpoints, whoever
@@ -243,13 +239,13 @@ def parse_wait_for(entries, known_topics) -> list[AwaitedEndpoint]:
         entry = str(entry)
         topic, at, node = entry.partition("@")
         if at:
-            if topic not in known or not NODE_FQN_RE.fullmatch(node):
+            if topic not in known or not ROS_PATH_RE.fullmatch(node):
                 raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic@/namespace/node' with a "
                                  f"topic of {known} and a fully qualified node name")
             out.append(AwaitedEndpoint(topic, 1, node))
             continue
         topic, _, count = entry.rpartition(":")
-        if topic not in known or not re.fullmatch(r"[0-9]+", count):  # (str.isdigit takes '²', int() does not)
+        if topic not in known or not COUNT_RE.fullmatch(count):
             raise ValueError(f"parameter wait_for entry {entry!r}: expected 'topic:count' with a topic of "
                              f"{known} and a count >= 0, or 'topic@/namespace/node'")
         out.append(AwaitedEndpoint(topic, int(count)))
