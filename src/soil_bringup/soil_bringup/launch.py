@@ -433,9 +433,9 @@ def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     A checkpoint given, even empty (the node's "the shipped default"), is the user's choice."""
     from pinn_estimator.shipped import DEFAULT_WORLD, shipped_checkpoint
 
-    world = (given_params("soil_sim_node", args.sim_params_file, args.sim_param, ("world_mode",),
+    world = (given_params(G.NODE_NAMES["sim"], args.sim_params_file, args.sim_param, ("world_mode",),
                           args.namespace)["world_mode"] or "").strip()
-    chosen = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("checkpoint",),
+    chosen = given_params(G.NODE_NAMES["estimator"], args.estimator_params_file, args.estimator_param, ("checkpoint",),
                           args.namespace)
     if not world or world == DEFAULT_WORLD or chosen["checkpoint"] is not None:
         return []
@@ -476,7 +476,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # launch's episodes (two graphs in one namespace of one domain), and its controller, estimator and
     # planner follow no other graph's events (``episode_follow``); the user's -p graph_id if given,
     # the same for all (a recorder given another would record nothing)
-    graph_id = ((given_params("soil_sim_node", None, args.sim_param, ("graph_id",))["graph_id"] or "").strip()
+    graph_id = ((given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("graph_id",))["graph_id"] or "").strip()
                 or f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     if args.record:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
@@ -496,7 +496,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
-                       + unless_given("pinn_estimator", args.estimator_param, follow) + list(args.estimator_param))
+                       + unless_given(G.NODE_NAMES["estimator"], args.estimator_param, follow) + list(args.estimator_param))
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
         # (the simulator steps on the controller's commands), and a planner without them sends no targets
@@ -513,7 +513,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
-                                                      unless_given("soil_planner", args.planner_param, follow)
+                                                      unless_given(G.NODE_NAMES["planner"], args.planner_param, follow)
                                                       + args.planner_param, args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
@@ -521,7 +521,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         _own(named, G.NODE_NAMES["planner"], PLANNER_ENDPOINTS, args.namespace)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
-        closed = unless_given("anti_stall_controller", args.controller_param,
+        closed = unless_given(G.NODE_NAMES["controller"], args.controller_param,
                               (["depth_source:=planner"] if args.planner else []) + follow)
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param, args.namespace),
@@ -541,7 +541,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if wait:
         own.append("wait_for:=[" + ",".join([f"'{t}:{n}'" for t, n in sorted(wait.items())]
                                             + [f"'{entry}'" for entry in named]) + "]")
-    sim += _params(unless_given("soil_sim_node", args.sim_param, own)
+    sim += _params(unless_given(G.NODE_NAMES["sim"], args.sim_param, own)
                    + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))
     return nodes
@@ -646,10 +646,10 @@ def check_lockstep_stride(p: argparse.ArgumentParser, args: argparse.Namespace) 
     planner's target for tick k − 2 came, and the planner plans a tick when its estimate comes. With
     the estimator's ``stride`` above 1 most ticks have none, and each waited the controller's
     ``planner_wait_s`` (2 s): 42 s for a 1 s episode (an outside tester's). Refused before the graph starts."""
-    sim_given = given_params("soil_sim_node", None, args.sim_param, ("pacing",))["pacing"]
-    pacing = sim_given or args.pacing or given_params("soil_sim_node", args.sim_params_file, [], ("pacing",),
+    sim_given = given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("pacing",))["pacing"]
+    pacing = sim_given or args.pacing or given_params(G.NODE_NAMES["sim"], args.sim_params_file, [], ("pacing",),
                                                       args.namespace)["pacing"]
-    stride = given_params("pinn_estimator", args.estimator_params_file, args.estimator_param, ("stride",),
+    stride = given_params(G.NODE_NAMES["estimator"], args.estimator_params_file, args.estimator_param, ("stride",),
                           args.namespace)["stride"]
     if pacing == "lockstep" and stride is not None and stride.strip() != "1":
         p.error(f"the estimator's stride {stride} with the planner in lockstep: the controller keeps step with a plan "
