@@ -178,6 +178,7 @@ class SampleAssembler:
         self.expect_restart(None)  # (``expect_restart``: its fields)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
         self.steps: collections.deque[int] = collections.deque(maxlen=RATE_STEPS)  # the last stamp steps [ns]
+        self._grid: tuple[float, float] | None = None  # (period, tolerance) [ns] of these steps (``_grid_of_steps``)
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
         self.off_rate = False  # the stream's stamps were last judged off the 60 Hz rate
 
@@ -202,6 +203,7 @@ class SampleAssembler:
         """The rate's steps and the topics' newest stamps belong to one stream (a new one, or time
         gone back: the old stream's stamps would mislead both)."""
         self.steps.clear()
+        self._grid = None
         self.newest.clear()
         self.off_rate = False
         self.off_grid_in_a_row = []
@@ -281,16 +283,14 @@ class SampleAssembler:
         last = self.joiner.last_ns
         if self.off_rate or last < max(0, self.grid_from_ns) or stamp == last:
             return False
-        steps = sorted(self.steps)
-        median = steps[len(steps) // 2] if steps else 0
-        steady = [s for s in steps if median / 2 < s < 1.5 * median]  # (a gap's step is no tick's)
-        if len(steady) < GRID_MIN_STEPS:
+        if self._grid is None:
+            self._grid = self._grid_of_steps()
+        period, tolerance = self._grid
+        if not period:
             return False
-        period = sum(steady) / len(steady)
         ticks = round(abs(stamp - last) / period)
         if ticks > GRID_CHECK_TICKS:
             return False
-        tolerance = min(GRID_TOLERANCE_NS, 3 * max(abs(s - period) for s in steady) + GRID_SLACK_NS)
         off = abs(abs(stamp - last) - ticks * period)  # from the nearest tick of the grid
         if ticks >= 1 and off <= tolerance:  # (nearest the last tick itself: never another tick)
             self.off_grid_in_a_row = []
@@ -305,6 +305,17 @@ class SampleAssembler:
                                        f"(its last tick {last} ns); ignored")
         return True
 
+    def _grid_of_steps(self) -> tuple[float, float]:
+        """(period, tolerance) [ns] of the grid the recent steps keep ((0, 0): too few to tell), kept
+        until the steps change: the check runs for every message, the steps change once a tick."""
+        steps = sorted(self.steps)
+        median = steps[len(steps) // 2] if steps else 0
+        steady = [s for s in steps if median / 2 < s < 1.5 * median]  # (a gap's step is no tick's)
+        if len(steady) < GRID_MIN_STEPS:
+            return 0.0, 0.0
+        period = sum(steady) / len(steady)
+        return period, min(GRID_TOLERANCE_NS, 3 * max(abs(s - period) for s in steady) + GRID_SLACK_NS)
+
     def _repeats_hint(self) -> str:
         """What ticks arriving twice again and again most likely are (``REPEATS_HINT``), once they do."""
         return REPEATS_HINT if self.repeats >= REPEATS_BEFORE_HINT else ""
@@ -314,6 +325,7 @@ class SampleAssembler:
         stamp = joined.stamp_ns
         if joined.previous_ns >= 0 and joined.why is not Why.EVICTED:
             self.steps.append(stamp - joined.previous_ns)
+            self._grid = None
             if len(self.steps) == RATE_STEPS and (problem := step_problem(self.steps)):
                 # (a 50 or 100 Hz machine's stream had windows of 1.2 or 0.6 s estimated on as one second)
                 self.counters.off_rate += 1
