@@ -758,6 +758,11 @@ def test_a_bag_of_commands_alone_counts_as_no_bag_and_one_missing_state_topic_do
     errors = [m for lvl, m in log.lines if lvl == "error"]
     assert any("no message of the simulator's state (/clock, /blade/pose" in m and "only commands" in m
                for m in errors), log.lines
+    # (the same with no state writer matched when the recorder joined, which was a warning: said so)
+    loaded, _, _ = _events(SAMPLE)
+    rec, log = record_120_ticks(tmp_path / "unmatched", lambda topic: topic in COMMANDS, "controller",
+                                {t for t in loaded.topics if t not in COMMANDS})
+    assert len(rec.unwritten) == 1 and any("no writer of them had matched" in m for lvl, m in log.lines), log.lines
     rec, log = record_120_ticks(tmp_path / "no_truth", lambda topic: topic != "/soil/ground_truth", "sim", set())
     assert rec.unwritten == [] and not [m for lvl, m in log.lines if lvl == "error"]
     assert any("lacks ticks of /soil/ground_truth (120 of 120)" in m for lvl, m in log.lines), log.lines

@@ -259,6 +259,9 @@ def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a
         argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", f"--recorder-arg={remap}")
         assert argv.count(remap) == 1 and not any(a.startswith("__node:=soil_bag_record") for a in argv)
         assert "/sim/status@/rec2" in entries
+    # a remap for another node is not the recorder's name
+    argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", "--recorder-arg=pinn_estimator:__node:=x")
+    assert own_name(argv).startswith("__node:=soil_bag_record_") and not any("@/x" in e for e in entries)
     # a namespace of its own would be waited for elsewhere: refused, --namespace is the way
     with pytest.raises(SystemExit):
         L.parse_args(["--record", str(tmp_path / "b"), "--recorder-arg=--ros-args", "--recorder-arg=-r",

@@ -76,14 +76,19 @@ RESTART_AFTER_REFUSED = 2 * len(INPUT_TOPICS)  # refusals in a row that start a 
 # jump), refused on arrival as the recorder refuses it, and so is one stamped between two ticks
 # already taken (no window reset). Held as a tick of its own, it kept the next real tick waiting
 # behind it for the reorder horizon, which in lockstep never comes: the planner loop stalled 2 s
-# (an outside tester's; one stamped 33 ns after a tick too). Off means more than three times the
-# stream's own steps stray from their mean, plus GRID_SLACK_NS, and at most GRID_TOLERANCE_NS (the
-# simulator's stamps are exact to 1 ns: off by 12 ns; a machine's millisecond-rounded ones stray
-# ~0.7 ms: off by 2 ms); checked from GRID_MIN_STEPS steps on and up to GRID_CHECK_TICKS away
-# (farther: a gap, over which the mean step's error adds up). Refusals of at least two stamps, as
-# many in a row as start a new stream (RESTART_AFTER_REFUSED), are a stream whose phase moved.
+# (an outside tester's; one stamped 33 ns after a tick too). A stream on the exact 60 Hz grid (the
+# simulator's and a bag's: steps within EXACT_GRID_NS of 1/60 s) is checked against that grid at
+# any distance, off meaning more than EXACT_GRID_TOLERANCE_NS; any other (a machine's clock, its
+# stamps rounded or jittery) against its own mean step up to GRID_CHECK_TICKS away (farther, the
+# mean's error adds up), off meaning more than three times its steps' spread and at least
+# GRID_JITTER_FLOOR_NS (a 1.5 ms late tick of a stream jittering by 50 us is no stray; one refused
+# never widens the spread it is judged by), at most GRID_TOLERANCE_NS. Checked from GRID_MIN_STEPS
+# steps on; a phase move within reach costs two ticks and a window. Refusals of at least two stamps,
+# as many in a row as start a new stream (RESTART_AFTER_REFUSED), are a stream whose phase moved.
 GRID_TOLERANCE_NS = PERIOD_NS / 4
-GRID_SLACK_NS = 10
+EXACT_GRID_NS = 2
+EXACT_GRID_TOLERANCE_NS = 12
+GRID_JITTER_FLOOR_NS = 2_000_000
 GRID_MIN_STEPS = 3
 GRID_CHECK_TICKS = 8
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
@@ -281,7 +286,8 @@ class SampleAssembler:
     def _off_grid(self, topic: str, stamp: int) -> bool:
         """Refuse (True) a message stamped off the stream's grid (``GRID_TOLERANCE_NS``)."""
         last = self.joiner.last_ns
-        if self.off_rate or last < max(0, self.grid_from_ns) or stamp == last:
+        # (a new episode's first ticks keep a phase of their own: the last episode's ticks still due are checked)
+        if self.off_rate or last < 0 or last < self.grid_from_ns <= stamp or stamp == last:
             return False
         if self._grid is None:
             self._grid = self._grid_of_steps()
@@ -289,7 +295,7 @@ class SampleAssembler:
         if not period:
             return False
         ticks = round(abs(stamp - last) / period)
-        if ticks > GRID_CHECK_TICKS:
+        if ticks > GRID_CHECK_TICKS and period != PERIOD_NS:
             return False
         off = abs(abs(stamp - last) - ticks * period)  # from the nearest tick of the grid
         if ticks >= 1 and off <= tolerance:  # (nearest the last tick itself: never another tick)
@@ -313,8 +319,10 @@ class SampleAssembler:
         steady = [s for s in steps if median / 2 < s < 1.5 * median]  # (a gap's step is no tick's)
         if len(steady) < GRID_MIN_STEPS:
             return 0.0, 0.0
+        if all(abs(s - PERIOD_NS) <= EXACT_GRID_NS for s in steady):  # the exact 60 Hz grid (its floor: ±1 ns)
+            return PERIOD_NS, EXACT_GRID_TOLERANCE_NS
         period = sum(steady) / len(steady)
-        return period, min(GRID_TOLERANCE_NS, 3 * max(abs(s - period) for s in steady) + GRID_SLACK_NS)
+        return period, min(GRID_TOLERANCE_NS, max(3 * max(abs(s - period) for s in steady), GRID_JITTER_FLOOR_NS))
 
     def _repeats_hint(self) -> str:
         """What ticks arriving twice again and again most likely are (``REPEATS_HINT``), once they do."""

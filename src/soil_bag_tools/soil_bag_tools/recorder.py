@@ -661,9 +661,10 @@ class Recorder:
         state = [t for t in SIM_STATE_TOPICS if t in self.topics]
         if (s.meta_json is not None and state and not any(result.messages.get(t, 0) for t in state)
                 and any(result.messages.get(t, 0) for t in TOPICS_BY_NAME)):
+            why = ("no writer of them had matched when the recorder joined" if set(state) <= self.joined_without
+                   else "the recorder joined after the episode's ticks?")
             self.log.error(f"{s.name}: no message of the simulator's state ({', '.join(state)}) reached the "
-                           "recorder, only commands: the bag is no episode any reader takes (the recorder "
-                           "joined after the episode's ticks?)")
+                           f"recorder, only commands: the bag is no episode any reader takes ({why})")
             self.unwritten.append(s.name)
         elif s.meta_json is not None and lacking:
             self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "

@@ -64,7 +64,7 @@ MAX_NAMESPACE_LEN = 255 - 8 - len("/anti_stall_controller/set_parameters_atomica
 
 # A remap of the recorder's node name given through --recorder-arg (rcl's '__node:=NAME', also as
 # 'soil_bag_record:__node:=NAME' for that node alone): the launch's simulator waits for that name
-RECORDER_NAME_REMAP_RE = re.compile(r"(?:[A-Za-z_][A-Za-z0-9_]*:)?__(?:node|name):=([A-Za-z_][A-Za-z0-9_]*)")
+RECORDER_NAME_REMAP_RE = re.compile(rf"(?:{re.escape(G.NODE_NAMES['recorder'])}:)?__(?:node|name):=([A-Za-z_][A-Za-z0-9_]*)")
 
 # --NODE-params-file: the node each is for
 PARAMS_FILE_NODES = {role: G.NODE_NAMES[role] for role in ("sim", "controller", "estimator", "planner")}

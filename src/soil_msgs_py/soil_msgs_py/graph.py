@@ -152,9 +152,6 @@ def publisher_qos_spec(topic: str) -> QosSpec:
     return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
 
 
-# Each node's name (a graph's namespace + '/' + it is the node's fully qualified name): soil_launch
-# tells its simulator to wait for its own nodes' endpoints by these, so readers outside the launch
-# (a monitor, another recorder) cannot start an episode before the launch's own recorder listens.
 # A fully qualified ROS name as rcl validates one (a namespace, a node's name with its namespace):
 # absolute, tokens of ASCII letters, digits and '_' not starting with a digit
 ROS_PATH_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
@@ -162,6 +159,9 @@ ROS_PATH_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 # takes '²', which int() refuses in words that name neither the entry nor the parameter)
 COUNT_RE = re.compile(r"[0-9]+")
 
+# Each node's name (a graph's namespace + '/' + it is the node's fully qualified name): soil_launch
+# tells its simulator to wait for its own nodes' endpoints by these, so readers outside the launch
+# (a monitor, another recorder) cannot start an episode before the launch's own recorder listens.
 NODE_NAMES: dict[str, str] = {"sim": "soil_sim_node", "controller": "anti_stall_controller",
                               "estimator": "pinn_estimator", "planner": "soil_planner",
                               "recorder": "soil_bag_record", "player": "soil_bag_play"}

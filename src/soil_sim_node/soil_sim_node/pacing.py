@@ -226,7 +226,6 @@ class AwaitedEndpoint(NamedTuple):
     node: str = ""
 
 
-
 def parse_wait_for(entries, known_topics) -> list[AwaitedEndpoint]:
     """The simulator's ``wait_for`` entries: 'topic:count' (that many matched endpoints, whoever
     owns them) or 'topic@/namespace/node' (that node's). Why the second: soil_launch counted its
