@@ -613,6 +613,25 @@ def test_legitimate_streams_keep_every_tick_under_the_grid_check(episode, model)
     assert not [s for s in said if "off the stream's grid" in s]
 
 
+def test_incomplete_copies_seconds_back_that_restart_the_stream_are_not_estimated_a_second_time(episode, model):
+    """A hostile node's copies of earlier ticks, stamped 2 s back and each missing a topic, restart
+    the stream (two ticks of them in a row); dropped, each got an invalid estimate at a stamp the
+    estimator had already published, with other values (the live hostile-node test caught it). No
+    stamp is published twice, and the real ticks after them are estimated."""
+    out = []
+    est = OnlineEstimator(model, out.append)
+    messages = in_order(episode, range(150))
+    for j in range(30, 36):
+        messages += [m for m in tick_messages(episode, j) if m[0] != T.BLADE_POSE.name]
+    messages += in_order(episode, range(150, N_TICKS))
+    for m in messages:
+        est.add(*m)
+    stamps = [e.stamp_ns for e in out]
+    assert est.counters.restarts >= 1
+    assert len(stamps) == len(set(stamps)), sorted(s for s in stamps if stamps.count(s) > 1)[:3]
+    assert stamps[-1] == int(episode.stamps_ns[N_TICKS - 1])
+
+
 def test_a_stray_before_an_ended_episodes_last_ticks_is_refused_and_a_dropped_first_tick_begins_the_next(
         episode, model):
     """The episode_end event overtakes the episode's last ticks: a stray 8 ms after tick 97 sent

@@ -518,7 +518,7 @@ class OnlineEstimator:
         self.buffer.clear()
         self.assembler.reset(first_stamp_ns)
         self._tick = 0
-        self._last_tick_ns = -1
+        self._last_tick_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._boundary = None
         self._stream_first_ns = None
         self._open_first = None
@@ -579,6 +579,7 @@ class OnlineEstimator:
         self.assembler.expect_restart(None)
         if self.assembler.last_released < first:  # nothing of this episode released yet
             self._boundary, self._crossed = first - 1, False
+            self._last_tick_ns = max(self._last_tick_ns, first - 1)  # (its ticks from ``first`` on are due)
             return
         stream_first = self._stream_first_ns
         if open_first is not None and first <= open_first:  # (a later first: a new episode, its end lost)
@@ -665,9 +666,12 @@ class OnlineEstimator:
         Why: a lockstep planner plans a tick once its estimate is in, and the controller waits for
         that plan; one duplicate /blade/force cost the loop the controller's ``planner_wait_s``
         (2 s) and the cut differed from a clean run's. Not for a stamp already through the phase
-        (an out-of-order or gap report names the last tick). A new episode's first tick dropped has
-        begun the episode (``_on_sample``): its fused fields are the prior's."""
-        if stamp <= self._last_tick_ns:
+        (an out-of-order or gap report names the last tick), nor in a stream that restarted without
+        an episode_start before a tick of it was taken (-1): a hostile node's copies stamped seconds
+        back had restarted the stream, and their incomplete ticks were estimated a second time at
+        stamps already published. A new episode's first tick dropped has begun the episode
+        (``_on_sample``): its fused fields are the prior's."""
+        if self._last_tick_ns < 0 or stamp <= self._last_tick_ns:
             return
         self._last_tick_ns = stamp
         tick, self._tick = self._tick, self._tick + 1
