@@ -178,7 +178,8 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
-        self.off_grid_in_a_row: list[int] = []  # stamps refused off the stream's grid, nothing taken since
+        # refusals off the stream's grid, nothing taken since, and the first stamp refused (``_off_grid``)
+        self.off_grid_in_a_row, self.off_grid_first_ns, self.off_grid_stamps_differ = 0, -1, False
         self.grid_from_ns = -1  # the grid is checked through ticks from this stamp on (the episode's: ``regrid``)
         self.expect_restart(None)  # (``expect_restart``: its fields)
         self.on_expected_restart: Callable[[int], None] = lambda first_ns: None
@@ -211,13 +212,13 @@ class SampleAssembler:
         self._grid = None
         self.newest.clear()
         self.off_rate = False
-        self.off_grid_in_a_row = []
+        self.off_grid_in_a_row = 0
 
     def regrid(self, from_ns: int) -> None:
         """An episode boundary: the grid is checked again only through a tick stamped from ``from_ns``
         on (a new episode, a machine's or a bag's, may keep another phase than the last one's)."""
         self.grid_from_ns = int(from_ns)
-        self.off_grid_in_a_row = []
+        self.off_grid_in_a_row = 0
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -299,10 +300,13 @@ class SampleAssembler:
             return False
         off = abs(abs(stamp - last) - ticks * period)  # from the nearest tick of the grid
         if ticks >= 1 and off <= tolerance:  # (nearest the last tick itself: never another tick)
-            self.off_grid_in_a_row = []
+            self.off_grid_in_a_row = 0
             return False
-        self.off_grid_in_a_row.append(stamp)
-        if len(self.off_grid_in_a_row) > RESTART_AFTER_REFUSED and len(set(self.off_grid_in_a_row)) > 1:
+        if not self.off_grid_in_a_row:
+            self.off_grid_first_ns, self.off_grid_stamps_differ = stamp, False
+        self.off_grid_in_a_row += 1
+        self.off_grid_stamps_differ |= stamp != self.off_grid_first_ns
+        if self.off_grid_in_a_row > RESTART_AFTER_REFUSED and self.off_grid_stamps_differ:
             self._forget_stream()  # the phase moved (not one stray sent again and again): taken
             return False
         self.counters.out_of_order += 1

@@ -451,10 +451,13 @@ def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
         wait[topic] = wait.get(topic, 0) + n
 
 
-def _own(named: list[str], node_name: str, endpoints: dict[str, int], namespace: str) -> None:
-    """The simulator's 'topic@/namespace/node' entries for one of the launch's own nodes: the
-    counts alone were met by readers outside the launch (a monitor, another recorder on the
-    domain) before its own recorder listened, and the first episode went unrecorded."""
+def _await(wait: dict[str, int], named: list[str], node_name: str, endpoints: dict[str, int],
+           namespace: str) -> None:
+    """One of the launch's own nodes for the simulator's wait: its endpoints counted, and named
+    ('topic@/namespace/node'): the counts alone were met by readers outside the launch (a monitor,
+    another recorder on the domain) before its own recorder listened, and the first episode went
+    unrecorded."""
+    _count(wait, endpoints)
     named += [f"{topic}@{namespace or ''}/{node_name}" for topic in endpoints]
 
 
@@ -470,7 +473,7 @@ def own_recorder_name(graph_id: str) -> str:
 def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     """The graph for these arguments, with the simulator told whom to wait for."""
     wait: dict[str, int] = {}
-    named: list[str] = []  # each of the launch's own nodes by its name too (``_own``)
+    named: list[str] = []  # each of the launch's own nodes by its name too (``_await``)
     nodes: list[NodeProcess] = []
     # this launch's own id, in its simulator's /sim/status events: its recorder records no other
     # launch's episodes (two graphs in one namespace of one domain), and its controller, estimator and
@@ -491,8 +494,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                               *(["--ros-args", *ros] if ros else [])], stop_order=3,
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
-        _count(wait, RECORDER_ENDPOINTS)
-        _own(named, recorder_name, RECORDER_ENDPOINTS, args.namespace)
+        _await(wait, named, recorder_name, RECORDER_ENDPOINTS, args.namespace)
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
@@ -505,8 +507,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("estimator", _ros_node("pinn_estimator", args.estimator_params_file,
                                                         estimator_param, args.namespace), stop_order=2,
                                  required="estimator" in args.require, without=without))
-        _count(wait, ESTIMATOR_ENDPOINTS)
-        _own(named, G.NODE_NAMES["estimator"], ESTIMATOR_ENDPOINTS, args.namespace)
+        _await(wait, named, G.NODE_NAMES["estimator"], ESTIMATOR_ENDPOINTS, args.namespace)
     if args.planner:
         # (the posterior's physics and bound law: the planner hears them from the estimator, unless given)
         # advice, not the machine: a controller whose planner goes silent cuts to its own
@@ -517,8 +518,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                                       + args.planner_param, args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
-        _count(wait, PLANNER_ENDPOINTS)
-        _own(named, G.NODE_NAMES["planner"], PLANNER_ENDPOINTS, args.namespace)
+        _await(wait, named, G.NODE_NAMES["planner"], PLANNER_ENDPOINTS, args.namespace)
     if not args.no_controller:
         # the planner's loop unless the user sets depth_source
         closed = unless_given(G.NODE_NAMES["controller"], args.controller_param,
@@ -526,8 +526,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))
-        _count(wait, CONTROLLER_ENDPOINTS)
-        _own(named, G.NODE_NAMES["controller"], CONTROLLER_ENDPOINTS, args.namespace)
+        _await(wait, named, G.NODE_NAMES["controller"], CONTROLLER_ENDPOINTS, args.namespace)
     for entry in args.wait_for:  # subscribers outside the launch (a monitor, a planner, a test probe)
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not G.COUNT_RE.fullmatch(count):

@@ -343,11 +343,14 @@ class SimNode(Node):
         """{awaited topic, or 'topic of /node': (matched endpoints now, how many are awaited)}."""
         counts = {}
         subs = dict(zip(G.COMMAND_TOPICS, self.cmd_subs))
+        nodes: dict[str, set[str]] = {}  # topic -> its endpoints' nodes, asked once per topic (soil_launch names 4 nodes)
         for topic, count, node in self.wait_for:
             if node:  # that node's own endpoint (by its name, which DDS tells a moment after the endpoint)
-                infos = (self.get_publishers_info_by_topic if topic in subs
-                         else self.get_subscriptions_info_by_topic)(self.wait_names[topic])
-                counts[f"{self.wait_names[topic]} of {node}"] = (int(any(endpoint_node(i) == node for i in infos)), 1)
+                if topic not in nodes:
+                    infos = (self.get_publishers_info_by_topic if topic in subs
+                             else self.get_subscriptions_info_by_topic)(self.wait_names[topic])
+                    nodes[topic] = {endpoint_node(i) for i in infos}
+                counts[f"{self.wait_names[topic]} of {node}"] = (int(node in nodes[topic]), 1)
                 continue
             if topic in subs:
                 have = subs[topic].get_publisher_count()
