@@ -230,7 +230,7 @@ def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_val
             assert any(a.startswith(f"{name}:=") for a in nodes[node]), (node, name, nodes[node])
 
 
-def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a_name_of_its_own(tmp_path):
+def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a_name_of_its_own(tmp_path, capsys):
     """Readers outside the launch met the simulator's counts before its recorder listened (its
     first episodes went unrecorded, exit 0), and a recorder started by hand is named
     soil_bag_record too: the launch's recorder gets a name of its own, and the simulator waits
@@ -262,6 +262,14 @@ def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a
     # a remap for another node is not the recorder's name
     argv, entries = wait_for("--recorder-arg=--ros-args", "--recorder-arg=-r", "--recorder-arg=pinn_estimator:__node:=x")
     assert own_name(argv).startswith("__node:=soil_bag_record_") and not any("@/x" in e for e in entries)
+    # a user's whole list replaces the launch's (as any -p they give): said, with the way to add to it
+    capsys.readouterr()
+    argv, entries = wait_for("--sim-param", "wait_for:=['/blade/force:1']")
+    assert entries == ["/blade/force:1"]
+    said = capsys.readouterr().err
+    assert "replaces the launch's own wait" in said and f"/sim/status@/{own_name(argv).removeprefix('__node:=')}" in said
+    wait_for("--wait-for", "/blade/force:1")
+    assert "replaces" not in capsys.readouterr().err
     # a namespace of its own would be waited for elsewhere: refused, --namespace is the way
     with pytest.raises(SystemExit):
         L.parse_args(["--record", str(tmp_path / "b"), "--recorder-arg=--ros-args", "--recorder-arg=-r",

@@ -540,6 +540,11 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     if wait:
         own.append("wait_for:=[" + ",".join([f"'{t}:{n}'" for t, n in sorted(wait.items())]
                                             + [f"'{entry}'" for entry in named]) + "]")
+        if given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("wait_for",))["wait_for"] is not None:
+            # the user's list is the simulator's whole list, as any -p the user gives
+            print("soil_launch: --sim-param wait_for replaces the launch's own wait for its nodes ("
+                  + ", ".join(named) + "): the first ticks may go out before they listen; "
+                  "--wait-for /TOPIC:N adds to it instead", file=sys.stderr)
     sim += _params(unless_given(G.NODE_NAMES["sim"], args.sim_param, own)
                    + args.sim_param)
     nodes.append(NodeProcess("sim", sim, stop_order=0, ends_launch=True))

@@ -28,15 +28,15 @@ def cores() -> int:
 
 
 def local_limit() -> int:
-    """The most processes or threads of one tool on this machine: ``PER_CORE`` per core."""
-    return PER_CORE * (os.cpu_count() or 1)
+    """The most processes or threads of one tool on this machine: ``PER_CORE`` per core it may use."""
+    return PER_CORE * cores()
 
 
 def check_local_count(name: str, value: int) -> int:
     """``value`` if it is at most ``local_limit()``; else ValueError naming ``name`` and the value."""
     if value > local_limit():
         raise ValueError(f"{name}={value} is more than this machine can use: at most {local_limit()} "
-                         f"({PER_CORE} per core, {os.cpu_count() or 1} cores)")
+                         f"({PER_CORE} per core, {cores()} cores)")
     return value
 
 

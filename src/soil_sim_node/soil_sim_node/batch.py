@@ -176,7 +176,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         if not plan.specs:  # (--skip-existing found every bag)
             results = []
         elif ray_address:
-            with ray_session(ray_address, num_cpus=workers or os.cpu_count()):
+            with ray_session(ray_address, num_cpus=workers or cli_numbers.cores()):
                 chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
                 done = run_tasks(_run_chunk, [(base, c) for c in chunks],
                                  on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)),
@@ -187,7 +187,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             _raise_failed(plan, chunks, done)
             results = [r for chunk_result in done for r in chunk_result]
         else:
-            workers = workers or os.cpu_count() or 1
+            workers = workers or cli_numbers.cores()
             results = _run_in_pool([(base, c) for c in _chunks(plan.specs, workers, max_chunk)], workers, bar)
     except BaseException:
         if created and not any(plan.out.iterdir()):  # (a run that wrote nothing leaves no empty --out behind)
