@@ -35,9 +35,12 @@ def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):
     (root / "x.partial").mkdir()
     assert D.prepare_bag_dir(root) is True and list(root.iterdir()) == []
     (root / "notes.txt").write_text("mine")
-    with pytest.raises(ValueError, match="not episode bags.*notes.txt"):
+    with pytest.raises(ValueError, match="holds 1 entry that is not an episode bag .*notes.txt"):
         D.prepare_bag_dir(root)
-    assert (root / "notes.txt").exists()
+    (root / "more.txt").write_text("mine")
+    with pytest.raises(ValueError, match="holds 2 entries that are not episode bags"):
+        D.prepare_bag_dir(root)
+    assert (root / "notes.txt").exists() and (root / "more.txt").exists()
 
 
 def test_bad_arguments_exit_2_with_the_reason(capsys):

@@ -114,7 +114,8 @@ class RecordNode(Node):
             self._pending_since = time.monotonic()
             self._pending_said = False
         mode = "one bag" if opts.no_split else "one bag per /sim/status episode"
-        self.get_logger().info(f"recording {len(known) + len(self._pending)} topics to {opts.out} ({mode})")
+        count = len(known) + len(self._pending)
+        self.get_logger().info(f"recording {count} topic{'' if count == 1 else 's'} to {opts.out} ({mode})")
 
     def _joined_without(self, missing: list[str]) -> None:
         self.recorder.joined_without.update(missing)  # the bags then say where those topics start

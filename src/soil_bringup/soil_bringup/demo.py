@@ -199,8 +199,9 @@ def prepare_bag_dir(root: Path) -> bool:
     entries = list(root.iterdir())
     foreign = [e for e in entries if not (e.is_dir() and (is_bag(e) or e.name.endswith(PARTIAL_SUFFIX)))]
     if foreign:
-        raise ValueError(f"--bags {root} holds {len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'} that "
-                         f"are not episode bags (e.g. {foreign[0].name}); not clearing it - choose another --bags")
+        what = "entry that is not an episode bag" if len(foreign) == 1 else "entries that are not episode bags"
+        raise ValueError(f"--bags {root} holds {len(foreign)} {what} (e.g. {foreign[0].name}); "
+                         "not clearing it - choose another --bags")
     for e in entries:
         shutil.rmtree(e)
     return bool(entries)
