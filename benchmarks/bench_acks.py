@@ -23,7 +23,7 @@ from pathlib import Path
 
 from graph_procs import BIN  # sets loopback-only DDS
 
-from soil_bringup.launch import loopback_env
+from soil_bringup.launch import add_domain_id_option, loopback_env
 
 from soil_msgs_py.dds_profile import PROFILE_ENV_VARS, PROFILE_FILE, PROFILES_NAMESPACE
 
@@ -102,7 +102,7 @@ def launch_seconds(profile: bool, domain: int, scratch: Path) -> float:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--samples", type=int, default=6)
-    p.add_argument("--domain-id", type=int, default=67)
+    add_domain_id_option(p, 67)
     args = p.parse_args()
     rows = []
     print("(Fast DDS says 'Could not extract any profile' for the empty profile file that gives its defaults: expected)",

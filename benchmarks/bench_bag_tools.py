@@ -11,7 +11,7 @@
    arrives, in order; these are the figures for how close to the bag's clock). The player's
    own publish lateness (from its log) separates pacing from DDS delivery.
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 63); every run is bounded by a timeout.
+Loopback DDS only, on its own ROS_DOMAIN_ID (--domain-id; default $ROS_DOMAIN_ID, else 63); every run is bounded by a timeout.
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from bench_graph import StatusListener  # noqa: E402 - sits next to this script
 
 from soil_bag_tools import playback  # noqa: E402
 from soil_bag_tools.bag_io import read_episode  # noqa: E402
-from soil_bringup.launch import loopback_env  # noqa: E402
+from soil_bringup.launch import add_domain_id_option, loopback_env  # noqa: E402
 from soil_msgs_py import graph as G  # noqa: E402
 from soil_msgs_py.ros_adapter import message_class, qos_profile  # noqa: E402
 from soil_msgs_py.topics import EPISODE_TOPICS  # noqa: E402
@@ -108,7 +108,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--rates", type=float, nargs="+", default=[1, 2])
     p.add_argument("--reads", type=int, default=10)
-    p.add_argument("--domain-id", type=int, default=63)
+    add_domain_id_option(p, 63)
     args = p.parse_args()
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; sample bag {SAMPLE.name}")
 

@@ -25,7 +25,7 @@
 
 ``--seconds`` is the length of the 60 Hz stream (warm-up included; the default gives 20 s
 of valid estimates after the warm-up); the whole run takes about ``--seconds`` + 12 s (micro benchmarks, node start-up, shutdown). Loopback DDS only,
-on its own ROS_DOMAIN_ID (default 61); the node process is always stopped.
+on its own ROS_DOMAIN_ID (--domain-id; default $ROS_DOMAIN_ID, else 61); the node process is always stopped.
 """
 from __future__ import annotations
 
@@ -40,6 +40,8 @@ import threading
 import time
 from pathlib import Path
 
+from soil_bringup.launch import add_domain_id_option  # (imports no ROS package: fine before the DDS settings below)
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -50,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--paced-ticks", type=int, default=300, help="core ticks timed at 60 Hz pacing (not back to back)")
     p.add_argument("--seconds", type=float, default=24.0, help="length of the 60 Hz DDS stream, warm-up included")
     p.add_argument("--warmup", type=float, default=2.0, help="stream seconds excluded from latency and CPU figures")
-    p.add_argument("--domain-id", type=int, default=61)
+    add_domain_id_option(p, 61)
     p.add_argument("--no-dds", action="store_true", help="micro benchmarks only")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
     return p

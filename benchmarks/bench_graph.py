@@ -22,7 +22,7 @@ and 3 once per engine, one after the other (reference first: before, then compil
 ``--sim-engine``). ``--load N`` keeps N busy-looping processes running during every run (a
 loaded machine; on 2 cores, 2 takes every core from the graph's share).
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 65); every run is bounded by a timeout
+Loopback DDS only, on its own ROS_DOMAIN_ID (--domain-id; default $ROS_DOMAIN_ID, else 65); every run is bounded by a timeout
 and every process it starts is stopped at the end (graph_procs.py).
 """
 from __future__ import annotations
@@ -34,6 +34,7 @@ import tempfile
 import threading
 
 from graph_procs import Graph, Load, cpu_per_node  # sets loopback-only DDS
+from soil_bringup.launch import add_domain_id_option  # noqa: E402
 
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -146,7 +147,7 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=10.0, help="simulated seconds per rate")
     p.add_argument("--long-seconds", type=float, default=60.0, help="simulated seconds of the real-time run (0: skip)")
     p.add_argument("--cpu-seconds", type=float, default=20.0, help="CPU window (0: skip)")
-    p.add_argument("--domain-id", type=int, default=65)
+    add_domain_id_option(p, 65)
     p.add_argument("--sim-engine", choices=ENGINES, default="compiled", help="simulator engine (default: compiled)")
     p.add_argument("--compare-engines", action="store_true",
                    help="run the real-time run and the CPU figures for both engines, side by side")

@@ -11,7 +11,7 @@ times each, and prints side by side the simulator's timing figures of each episo
 commands, publish period and jitter, loop latency) and the CPU of every node over the
 episode. ``--load N`` keeps N busy-looping processes running throughout (a loaded machine).
 
-Loopback DDS only, on its own ROS_DOMAIN_ID (default 66); every launch is bounded by a
+Loopback DDS only, on its own ROS_DOMAIN_ID (--domain-id; default $ROS_DOMAIN_ID, else 66); every launch is bounded by a
 timeout and cleaned up (graph_procs.py).
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ import tempfile
 import time
 
 from graph_procs import Graph, Load, children, cpu_seconds  # sets loopback-only DDS
+from soil_bringup.launch import add_domain_id_option  # noqa: E402
 
 PATCHES = "['0:Sand:20','10:Clay:80','16:Loam:50']"
 _TIMING = re.compile(r"episode \d+ end \(\w+\): \d+ ticks; timing (\{.*\})")
@@ -77,7 +78,7 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=30.0, help="simulated seconds per episode (real time)")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--load", type=int, default=0, help="busy-looping processes during the runs")
-    p.add_argument("--domain-id", type=int, default=66)
+    add_domain_id_option(p, 66)
     add_force_lift_option(p, "the controller's force lift in every run (soil_cut_report --force-lift); default off, "
                              "Eq. 11 alone")
     args = p.parse_args()

@@ -22,7 +22,7 @@ Sections (targets of the compiled engine in brackets; "new/old" is compiled / re
    arrive; no recorder): the node's user+system CPU time over a steady window, as % of one
    core [< 5 %]; the controller's for context.
 
-Loopback DDS only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on ROS_DOMAIN_ID 64 by default;
+Loopback DDS only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) on ROS_DOMAIN_ID $ROS_DOMAIN_ID, else 64, by default (--domain-id);
 every subprocess is bounded by a timeout and stopped at the end.
 """
 from __future__ import annotations
@@ -38,6 +38,7 @@ import time
 from pathlib import Path
 
 from graph_procs import cpu_per_node  # sets loopback-only DDS
+from soil_bringup.launch import add_domain_id_option  # noqa: E402
 
 from soil_sim_node import kernel  # noqa: E402
 from soil_sim_node.batch import (  # noqa: E402
@@ -256,7 +257,7 @@ def main() -> None:
     p.add_argument("--ref-dataset-episodes", type=int, default=0,
                    help="reference dataset: time this many episodes and extrapolate (0: the full dataset)")
     p.add_argument("--cpu-seconds", type=float, default=60.0, help="node CPU window per engine [s] (0: skip)")
-    p.add_argument("--domain-id", type=int, default=64)
+    add_domain_id_option(p, 64)
     args = p.parse_args()
     if args.quick:
         args.episode_s, args.repeats, args.ref_batch = 2.0, 2, 8

@@ -50,7 +50,7 @@ def test_soil_launch_refuses_a_params_file_it_cannot_read_before_starting_anythi
     (["--pacing", "lockstep", "--rate", "3"], "--rate 3 is the real-time factor of --pacing realtime"),
     (["--rate", "5000"], "--rate 5000 outside [0.01, 1000], the simulator's real-time factors"),
     (["--rate", "inf"], "--rate inf outside [0.01, 1000]"),
-    (["--domain-id", "233"], "--domain-id 233 outside [0, 232]"),
+    (["--domain-id", "233"], "--domain-id: '233' is not a ROS domain id, a whole number in [0, 232]"),
 ])
 def test_soil_launch_refuses_options_it_would_not_follow(tmp_path, capsys, args, said):
     """Each was taken without a word: a directory as a params file was "no such file", the
@@ -62,6 +62,23 @@ def test_soil_launch_refuses_options_it_would_not_follow(tmp_path, capsys, args,
     assert exit_.value.code == 2
     assert said.format(tmp=tmp_path) in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_the_graph_tools_take_their_domain_from_ros_domain_id_and_refuse_one_that_is_no_domain(monkeypatch, capsys):
+    """soil_launch failed with a traceback on a ROS_DOMAIN_ID that is no number and soil_demo took its
+    own domain without a word (the benchmarks, which share the option, ignored the variable)."""
+    for tool, own in ((launch, 0), (demo, demo.DEFAULT_DOMAIN_ID)):
+        monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+        assert tool.parse_args([]).domain_id == own
+        monkeypatch.setenv("ROS_DOMAIN_ID", " 7 ")
+        assert tool.parse_args([]).domain_id == 7 and tool.parse_args(["--domain-id", "9"]).domain_id == 9
+        for bad in ("abc", "-1", "233", "7.5"):
+            monkeypatch.setenv("ROS_DOMAIN_ID", bad)
+            with pytest.raises(SystemExit) as exit_:
+                tool.parse_args([])
+            assert exit_.value.code == 2
+            assert f"{bad!r} is not a ROS domain id" in capsys.readouterr().err
+            assert tool.parse_args(["--domain-id", "9"]).domain_id == 9  # the option given, the variable is not read
 
 
 @pytest.mark.parametrize("value", ["4000", "nan", "0"])

@@ -102,9 +102,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
     p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
                    help="episode bags; cleared at start (default bags/demo_online)")
-    env_id = os.environ.get("ROS_DOMAIN_ID", "").strip()
-    p.add_argument("--domain-id", type=int, default=int(env_id) if env_id.isdigit() else DEFAULT_DOMAIN_ID,
-                   help=f"ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else {DEFAULT_DOMAIN_ID})")
+    L.add_domain_id_option(p, DEFAULT_DOMAIN_ID)
     p.add_argument("--no-forecast", action="store_true",
                    help="skip the forecast at other depths (the simulator cutting each episode's soil at "
                         f"{depths_text()} m after the run, for the default --depth)")

@@ -101,6 +101,29 @@ def executable(name: str) -> str:
     return found
 
 
+def ros_domain_id(text: str) -> int:
+    """A ROS domain id for ``--domain-id`` (an argparse ``type``): a whole number in [0, MAX_DOMAIN_ID],
+    else an error naming the text, whether it came from the option or from $ROS_DOMAIN_ID (its default)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a ROS domain id, a whole number in [0, {MAX_DOMAIN_ID}] "
+                                         "(given by --domain-id, else by $ROS_DOMAIN_ID)")
+    return value
+
+
+def add_domain_id_option(p: argparse.ArgumentParser, fallback: int) -> None:
+    """``--domain-id`` of a tool that starts a graph: by default $ROS_DOMAIN_ID, as a node started by
+    hand reads it, else ``fallback``. (soil_launch failed with a traceback on a ROS_DOMAIN_ID that is
+    no number, soil_demo took its own id without a word, and the benchmarks ignored the variable.)"""
+    given = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    # (argparse passes a default given as text through ``type``, so a bad variable is said as a bad option)
+    p.add_argument("--domain-id", type=ros_domain_id, default=given or str(fallback), metavar="ID",
+                   help=f"ROS_DOMAIN_ID for every node, DDS on loopback only (default: $ROS_DOMAIN_ID, else {fallback})")
+
+
 def loopback_env(domain_id: int) -> dict[str, str]:
     """This environment with DDS confined to loopback on ``domain_id``."""
     env = dict(os.environ)
@@ -558,8 +581,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="simulator pacing (default: the params file's, else realtime)")
     p.add_argument("--rate", type=float, help="real-time factor for pacing realtime (default: params file's, else 1)")
     p.add_argument("--record", type=bags_dir, help="record every episode as a bag under this directory")
-    p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
-                   help="ROS_DOMAIN_ID for all nodes (default: $ROS_DOMAIN_ID or 0)")
+    add_domain_id_option(p, 0)
     p.add_argument("--namespace", default="", metavar="/NS",
                    help="put every node, and so every topic of the graph, under this ROS namespace (e.g. /dozer1): "
                         "graphs of several machines then share one domain without hearing each other; the bags "
@@ -662,14 +684,12 @@ def check_lockstep_stride(p: argparse.ArgumentParser, args: argparse.Namespace) 
 
 
 def check_graph_options(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """``--domain-id`` and ``--rate`` as soil_launch and soil_demo take them: the rate in the
+    """``--rate`` as soil_launch and soil_demo take it (their ``--domain-id``: ``add_domain_id_option``): the rate in the
     simulator's own range, checked before the graph starts (a rate of 5000 or inf was taken, and
     the simulator refused it once its node was up), and none with lockstep pacing (a lockstep
     episode runs as fast as the graph answers: silently ignored, it misled)."""
     from soil_sim_node.pacing import RATE_RANGE
 
-    if not 0 <= args.domain_id <= MAX_DOMAIN_ID:
-        p.error(f"--domain-id {args.domain_id} outside [0, {MAX_DOMAIN_ID}]")
     if args.rate is None:
         return
     if args.pacing == "lockstep":
