@@ -117,13 +117,13 @@ def test_live_estimates_at_60hz_equal_offline_and_replay(tmp_path):
 def test_stopped_right_after_an_episode_ended_the_estimator_estimates_its_queued_last_ticks_first(tmp_path):
     """A lockstep simulator ends seconds of simulated time ahead of the estimator, and soil_launch
     stops the estimator as soon as the simulator is done (an outside tester's demo lost 139 of an
-    episode's 600 estimates). Here a 10 s episode, as the demo's, is replayed 50 times faster than real time and
+    episode's 600 estimates). Here a 20 s episode is replayed 50 times faster than real time and
     the estimator stopped the moment the player is done: it still publishes one estimate per tick,
     each the offline model's on the same window, and exits 0."""
     from soil_sim_node.batch import DatasetPlan, generate, grid_specs
     from soil_sim_node.effects import effects_for_mode
 
-    specs = grid_specs(["Clay"], [40.0], [0.5], [0.15], 1, seed_base=7, duration_s=10.0)
+    specs = grid_specs(["Clay"], [40.0], [0.5], [0.15], 1, seed_base=7, duration_s=20.0)
     generate(DatasetPlan("default", tmp_path / "bags", specs, effects_for_mode("default")), workers=1, progress=False)
     (bag,) = find_episode_bags(tmp_path / "bags")
     ep = read_episode(bag)
