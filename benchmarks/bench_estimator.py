@@ -40,7 +40,7 @@ import threading
 import time
 from pathlib import Path
 
-from soil_bringup.launch import add_domain_id_option  # (imports no ROS package: fine before the DDS settings below)
+from soil_bringup.launch import add_domain_id_option  # (imports no rclpy: fine before the DDS settings below)
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -72,7 +72,7 @@ def test_the_graph_tools_take_their_domain_from_ros_domain_id_and_refuse_one_tha
         assert tool.parse_args([]).domain_id == own
         monkeypatch.setenv("ROS_DOMAIN_ID", " 7 ")
         assert tool.parse_args([]).domain_id == 7 and tool.parse_args(["--domain-id", "9"]).domain_id == 9
-        for bad in ("abc", "-1", "233", "7.5"):
+        for bad in ("abc", "-1", "233", "7.5", "010", "0x10", "1_0"):  # (rcl reads "010" as 8, "0x10" as 16)
             monkeypatch.setenv("ROS_DOMAIN_ID", bad)
             with pytest.raises(SystemExit) as exit_:
                 tool.parse_args([])

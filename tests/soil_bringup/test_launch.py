@@ -270,6 +270,9 @@ def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a
     assert "replaces the launch's own wait" in said and f"/sim/status@/{own_name(argv).removeprefix('__node:=')}" in said
     wait_for("--wait-for", "/blade/force:1")
     assert "replaces" not in capsys.readouterr().err
+    # beside --wait-for, whose entries it would drop too: refused, naming both
+    with pytest.raises(ValueError, match="replaces the whole list .*--wait-for /blade/force:2 with it"):
+        wait_for("--wait-for", "/blade/force:2", "--sim-param", "wait_for:=['/x:1']")
     # a namespace of its own would be waited for elsewhere: refused, --namespace is the way
     with pytest.raises(SystemExit):
         L.parse_args(["--record", str(tmp_path / "b"), "--recorder-arg=--ros-args", "--recorder-arg=-r",

@@ -104,10 +104,11 @@ def executable(name: str) -> str:
 def ros_domain_id(text: str) -> int:
     """A ROS domain id for ``--domain-id`` (an argparse ``type``): a whole number in [0, MAX_DOMAIN_ID],
     else an error naming the text, whether it came from the option or from $ROS_DOMAIN_ID (its default)."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
+    text = text.strip()
+    # decimal digits alone, no leading zero: rcl reads the variable with strtoul(..., 0), "010" as 8
+    # and "0x10" as 16, where int() read 10 and refused the second (nodes started by hand would
+    # have joined another domain than the launch's)
+    value = int(text) if re.fullmatch(r"0|[1-9][0-9]*", text, re.ASCII) else -1
     if not 0 <= value <= MAX_DOMAIN_ID:
         raise argparse.ArgumentTypeError(f"{text!r} is not a ROS domain id, a whole number in [0, {MAX_DOMAIN_ID}] "
                                          "(given by --domain-id, else by $ROS_DOMAIN_ID)")
@@ -565,6 +566,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
                                             + [f"'{entry}'" for entry in named]) + "]")
         if given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("wait_for",))["wait_for"] is not None:
             # the user's list is the simulator's whole list, as any -p the user gives
+            if args.wait_for:
+                raise ValueError(f"--sim-param wait_for replaces the whole list the simulator waits for, "
+                                 f"--wait-for {' '.join(args.wait_for)} with it: give one of them")
             print("soil_launch: --sim-param wait_for replaces the launch's own wait for its nodes ("
                   + ", ".join(named) + "): the first ticks may go out before they listen; "
                   "--wait-for /TOPIC:N adds to it instead", file=sys.stderr)
