@@ -67,6 +67,7 @@ from pinn_estimator.fusion import SoilPosterior, fuse_episode  # noqa: E402
 from pinn_estimator.fusion_config import FusionConfig  # noqa: E402
 from pinn_estimator.fusion_calibration import config_for_model, config_path, load_calibrated, merged_terms  # noqa: E402
 from pinn_estimator.shipped import shipped_checkpoint  # noqa: E402
+from soil_msgs_py import markdown_table as md  # noqa: E402
 from soil_msgs_py import strict_json  # noqa: E402
 from soil_msgs_py.episode import WORLD_MODES  # noqa: E402
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ  # noqa: E402
@@ -110,11 +111,7 @@ def met(value, limit) -> str:
 
 def table(head: list[str], rows: list[list]) -> None:
     """A Markdown table (a '|' inside a cell is escaped)."""
-    cell = lambda c: str(c).replace("|", "\\|")  # noqa: E731
-    print("| " + " | ".join(cell(h) for h in head) + " |")
-    print("|" + "---|" * len(head))
-    for r in rows:
-        print("| " + " | ".join(cell(c) for c in r) + " |")
+    print("\n".join([*md.header(head), *(md.row(r) for r in rows)]))
     print(flush=True)
 
 

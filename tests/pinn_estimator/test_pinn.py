@@ -813,3 +813,17 @@ def test_shipped_model_loads_and_estimates_on_a_sample_bag(world):
     hi = np.array([TABLE1[n].limits[1] for n in UNKNOWN_PARAMS])
     assert np.all(out["theta"] >= lo - 1e-6) and np.all(out["theta"] <= hi + 1e-6)
     assert ck.DEFAULT_CHECKPOINT.name == "pinn_default.pt"
+
+
+def test_the_evaluation_reports_tables_keep_their_columns_with_f_in_a_header_and_a_target():
+    """'|F| at d = 0.1 m' in the per-soil header and '% of measured |F|' in a target split their
+    cells: the per-soil table was not drawn at all and the target's value column read 'F'."""
+    from pinn_estimator.evaluate import markdown
+    from soil_msgs_py.markdown_table import cells_of, malformed_rows
+
+    for world in ("fee", "default"):
+        report = json.loads((MODELS_DIR / f"pinn_{world}_report.json").read_text())
+        text = markdown(report)
+        assert malformed_rows(text) == []
+        (target,) = [ln for ln in text.splitlines() if ln.startswith("| PINN force error, % of measured")]
+        assert float(cells_of(target)[1]) == pytest.approx(report["targets"][0]["value"], abs=0.005)

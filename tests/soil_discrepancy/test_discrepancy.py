@@ -1027,3 +1027,27 @@ def test_a_catalogue_term_given_with_accepted_is_not_said_to_be_tested():
     (line,) = [ln for ln in markdown(report).splitlines() if "your catalogue" in ln]
     assert "'my inertia' (`soil_inertia`): in the model from the start (`--accepted`), not tested" in line
     assert "'mine' (`rate_strength`): not named" in line
+
+
+def test_a_named_form_whose_formula_holds_pipes_keeps_the_reports_tables_whole():
+    """A discovered form's formula may hold |v_z| and a group name anything: each stays one cell
+    (a '|' unescaped split the row, and the reader showed the formula's tail as the k column)."""
+    import json
+    from pathlib import Path
+
+    from soil_discrepancy.index import index_markdown
+    from soil_discrepancy.report import markdown
+    from soil_msgs_py.markdown_table import malformed_rows
+    from soil_physics import term_forms
+
+    report = json.loads((Path(__file__).parents[2] / "docs/discrepancy/compaction/discrepancy.json").read_text())
+    name = "form:fee*still"
+    formula = term_forms.describe(name)["formula"]
+    assert "|" in formula
+    report["selection"]["accepted"][0].update(name=name, title="a still blade's grip", formula=formula)
+    report["selection"]["rounds"][0]["scores"][0]["name"] = name
+    report["baseline"]["theta"][0]["group"] = "Sand|wet"
+    text = markdown(report)
+    assert malformed_rows(text) == []
+    assert formula.replace("|", "\\|") in text and "Sand\\|wet" in text
+    assert malformed_rows(index_markdown(Path(__file__).parents[2] / "docs/discrepancy")) == []

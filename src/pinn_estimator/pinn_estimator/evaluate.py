@@ -29,6 +29,7 @@ from scipy.stats import spearmanr
 from soil_physics import fee
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
+from soil_msgs_py import markdown_table as md
 from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
@@ -475,25 +476,24 @@ def markdown(report: dict) -> str:
         "",
         "## Force error on the test split (mean |F - F̂|)",
         "",
-        "| estimator | x [N] | z [N] | magnitude [N] | % of measured (x / z / mag) | % of machine limits (x / z / mag) |",
-        "|---|---|---|---|---|---|",
+        *md.header(["estimator", "x [N]", "z [N]", "magnitude [N]", "% of measured (x / z / mag)",
+                    "% of machine limits (x / z / mag)"]),
     ]
     for name, f in report["force"].items():
-        lines.append(
-            f"| {name} | {f['mae_x_n']:.0f} | {f['mae_z_n']:.0f} | {f['mae_mag_n']:.0f} | "
-            f"{f['mae_x_pct_measured']:.1f} / {f['mae_z_pct_measured']:.1f} / {f['mae_mag_pct_measured']:.1f} | "
-            f"{f['mae_x_pct_limit']:.1f} / {f['mae_z_pct_limit']:.1f} / {f['mae_mag_pct_limit']:.1f} |"
-        )
+        lines.append(md.row([
+            name, f"{f['mae_x_n']:.0f}", f"{f['mae_z_n']:.0f}", f"{f['mae_mag_n']:.0f}",
+            f"{f['mae_x_pct_measured']:.1f} / {f['mae_z_pct_measured']:.1f} / {f['mae_mag_pct_measured']:.1f}",
+            f"{f['mae_x_pct_limit']:.1f} / {f['mae_z_pct_limit']:.1f} / {f['mae_mag_pct_limit']:.1f}"]))
     lines += ["", "`pinn_fee_part` is F_FEE alone (F̂ without the residual F_r); `classical` is the FEE of the fitted parameters.", ""]
     lines += ["## Parameter error against the pseudo-ground truth (mean absolute)", "",
-              "| estimator | windows | φ [deg] | c [kPa] | δ [deg] | β [deg] |", "|---|---|---|---|---|---|"]
+              *md.header(["estimator", "windows", "φ [deg]", "c [kPa]", "δ [deg]", "β [deg]"])]
     for name, per in report["params"].items():
         for subset, e in per.items():
-            lines.append(f"| {name} | {subset} | {_fmt(e.get('phi_mae_deg'))} | {_fmt(e.get('c_mae_kPa'), 2)} | "
-                         f"{_fmt(e.get('delta_mae_deg'))} | {_fmt(e.get('beta_mae_deg'))} |")
+            lines.append(md.row([name, subset, _fmt(e.get('phi_mae_deg')), _fmt(e.get('c_mae_kPa'), 2),
+                                 _fmt(e.get('delta_mae_deg')), _fmt(e.get('beta_mae_deg'))]))
     lines += ["", "## Per soil and relative density (mean ± std over test windows; truth in brackets)", "",
-              "| soil | I_d [%] | mean d [m] | φ̂ [deg] | ĉ [kPa] | δ̂ [deg] | β̂ [deg] | classical φ / c / δ | |F| at d = 0.1 m [kN]: truth / PINN / classical |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              *md.header(["soil", "I_d [%]", "mean d [m]", "φ̂ [deg]", "ĉ [kPa]", "δ̂ [deg]", "β̂ [deg]",
+                          "classical φ / c / δ", "|F| at d = 0.1 m [kN]: truth / PINN / classical"])]
     for r in report["per_soil_id"]:
         p, t = r["pinn"], r["truth"]
         cells = []
@@ -504,18 +504,19 @@ def markdown(report: dict) -> str:
         cls = f"{cl['phi']['mean'] / DEG:.1f} / {cl['c']['mean'] / 1e3:.2f} / {cl['delta']['mean'] / DEG:.1f}" if cl else "n/a"
         ff = r["failure_force_n"]
         ffs = " / ".join(_fmt(ff.get(k, float("nan")) / 1e3, 1) for k in ("truth", "pinn", "classical"))
-        lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | {r['mean_depth_m']:.3f} | " + " | ".join(cells) + f" | {cls} | {ffs} |")
+        lines.append(md.row([r['soil'], f"{r['relative_density_pct']:.0f}", f"{r['mean_depth_m']:.3f}", *cells, cls, ffs]))
     if report["trends"].get("pinn"):
         lines += ["", "## Trend with relative density, cohesive soils (paper Fig. 6)", "",
-                  "| soil | φ̂ slope [deg / 100 % I_d] | φ̂ Spearman | ĉ slope [kPa / 100 % I_d] | ĉ Spearman |", "|---|---|---|---|---|"]
+                  *md.header(["soil", "φ̂ slope [deg / 100 % I_d]", "φ̂ Spearman", "ĉ slope [kPa / 100 % I_d]", "ĉ Spearman"])]
         for s, t in report["trends"]["pinn"].items():
-            lines.append(f"| {s} | {t['phi']['slope_deg_per_100pct']:.2f} | {t['phi']['spearman']:.2f} | {t['c']['slope_kPa_per_100pct']:.2f} | {t['c']['spearman']:.2f} |")
+            lines.append(md.row([s, f"{t['phi']['slope_deg_per_100pct']:.2f}", f"{t['phi']['spearman']:.2f}",
+                                 f"{t['c']['slope_kPa_per_100pct']:.2f}", f"{t['c']['spearman']:.2f}"]))
     if report.get("forecast"):
         lines += ["", "## Forecast: the force at another depth (the planner's question)", ""]
         lines += fc.markdown(report["forecast"])
-    lines += ["", "## Targets", "", "| target | value | limit | met |", "|---|---|---|---|"]
+    lines += ["", "## Targets", "", *md.header(["target", "value", "limit", "met"])]
     for t in report["targets"]:
-        lines.append(f"| {t['target']} | {_fmt(t['value'], 2)} | {t['op']} {t['limit']} | {'yes' if t['met'] else '**no**'} |")
+        lines.append(md.row([t['target'], _fmt(t['value'], 2), f"{t['op']} {t['limit']}", 'yes' if t['met'] else '**no**']))
     tr = report["training"]
     lines += ["", "## Training", ""]
     for name, m in tr.items():

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from soil_msgs_py import markdown_table as md
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label, unlabelled_count
 from soil_msgs_py.params import (DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MIN_CUT_DEPTH_M, OBSERVATION_FIELDS,
@@ -458,9 +459,8 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
                  "models' training grid, whatever the checkpoint was trained on: `--forecast-data DIR` forecasts on "
                  "bags of your own). Mean |error| and signed bias, % of the measured force.")
     lines = [intro + _unpaired_text(report), "",
-             "| estimator | F_x error | F_x bias deeper | F_x bias shallower | F_z error | F_z bias deeper | "
-             "90 % / 50 % intervals hold F_x | hold F_z |",
-             "|---|---|---|---|---|---|---|---|"]
+             *md.header(["estimator", "F_x error", "F_x bias deeper", "F_x bias shallower", "F_z error", "F_z bias deeper",
+                         "90 % / 50 % intervals hold F_x", "hold F_z"])]
     # bags without ground truth (a machine's): no true-parameter FEE row or column, said below the table
     no_truth = "parameters" in report and not any(report["parameters"].values())
     shown = [n for n in report["forecast"] if not (no_truth and n == "true_fee")]
@@ -473,9 +473,9 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
             label += f" ({scored} of the {report['pairs']} pairs scored)"
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
-        lines.append(f"| {label} | {_pct(x['all']['mean_abs_pct'])} | {_pct(x['deeper']['bias_pct'], True)} | "
-                     f"{_pct(x['shallower']['bias_pct'], True)} | {_pct(z['all']['mean_abs_pct'])} | "
-                     f"{_pct(z['deeper']['bias_pct'], True)} | {cover[0]} | {cover[1]} |")
+        lines.append(md.row([label, _pct(x['all']['mean_abs_pct']), _pct(x['deeper']['bias_pct'], True),
+                             _pct(x['shallower']['bias_pct'], True), _pct(z['all']['mean_abs_pct']),
+                             _pct(z['deeper']['bias_pct'], True), *cover]))
     if "fused" in shown:
         lines += ["", f"The {LABELS['fused'].split(' (')[0]} fits its physics (the FEE and the terms its label names) to "
                       "the measured force: it uses the checkpoint's terms, not its network, and its row is the same for "
@@ -484,12 +484,11 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
     if len(per_soil) > 1:
         columns = [n for n in shown if n not in REFERENCES] + [n for n in REFERENCES if n in shown]
         lines += ["", "Per soil (all its densities), F_x at another depth: mean |error| (bias going deeper):", "",
-                  "| soil | pairs | " + " | ".join(label_of(report, n) for n in columns) + " |",
-                  "|---|---|" + "---|" * len(columns)]
+                  *md.header(["soil", "pairs", *(label_of(report, n) for n in columns)])]
         for soil, row in per_soil.items():
             cells = [f"{_pct(row[n]['x']['mean_abs_pct'])} ({_pct(row[n]['deeper_x']['bias_pct'], True)})"
                      for n in columns]
-            lines.append(f"| {soil} | {row['pairs']} | " + " | ".join(cells) + " |")
+            lines.append(md.row([soil, row['pairs'], *cells]))
     if no_truth:
         lines += ["", "No ground truth in these bags (no /soil/ground_truth, as from a machine): the soil's "
                       "parameters are not scored, only the forces, and there is no FEE with the true parameters."]

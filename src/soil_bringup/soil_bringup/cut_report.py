@@ -38,6 +38,7 @@ import numpy as np
 from anti_stall_controller.controller import AntiStallGains
 from pinn_estimator.checkpoint import load_model
 from pinn_estimator.fusion_calibration import given_fusion
+from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES
@@ -318,17 +319,18 @@ def markdown(report: dict) -> str:
                   f"| F_z mean / p95 [% of {FORCE_LIMITS_N[1] / 1e3:g} kN] | mean depth [m] |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for p in w["policies"]:
-            lines.append(f"| {p['policy']} | {p['volume_per_m_m3']:.3f} | {p['volume_per_s_m3']:.3f} | {p['stall_s']:.2f} "
-                         f"| {p['ticks_at_limit']} | {p['backoff_events']} | {p['target_falls']} "
-                         f"| {100 * p['force_x_mean_share']:.0f} / {100 * p['force_x_p95_share']:.0f} "
-                         f"| {100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f} "
-                         f"| {p['mean_depth_m']:.3f} |")
+            lines.append(md.row([p['policy'], f"{p['volume_per_m_m3']:.3f}", f"{p['volume_per_s_m3']:.3f}", f"{p['stall_s']:.2f}",
+                                 p['ticks_at_limit'], p['backoff_events'], p['target_falls'],
+                                 f"{100 * p['force_x_mean_share']:.0f} / {100 * p['force_x_p95_share']:.0f}",
+                                 f"{100 * p['force_z_mean_share']:.0f} / {100 * p['force_z_p95_share']:.0f}",
+                                 f"{p['mean_depth_m']:.3f}"]))
         lines += ["", "| patch | time [s] | best fixed depth [m] | planner's mean target [m] | mean cut depth [m] "
                       f"| stall [s] | settled {WITHIN} after [s] | time {WITHIN} |", "|---|---|---|---|---|---|---|---|"]
         for p in w["patches"]:
-            lines.append(f"| {p['soil']} {p['relative_density_pct']:.0f} % | {p['time_s']:.1f} | {_fmt(p['best_fixed_depth_m'], '.3f')} "
-                         f"| {_fmt(p['mean_target_m'], '.3f')} | {_fmt(p['mean_depth_m'], '.3f')} | {p['stall_s']:.2f} "
-                         f"| {_fmt(p['settle_s'], '.1f')} | {_pct(p.get('within_share'))} |")
+            lines.append(md.row([f"{p['soil']} {p['relative_density_pct']:.0f} %", f"{p['time_s']:.1f}",
+                                 _fmt(p['best_fixed_depth_m'], '.3f'), _fmt(p['mean_target_m'], '.3f'),
+                                 _fmt(p['mean_depth_m'], '.3f'), f"{p['stall_s']:.2f}", _fmt(p['settle_s'], '.1f'),
+                                 _pct(p.get('within_share'))]))
         if w.get("unreached"):
             lines += ["", f"Patches {w['unreached']}."]
         if w.get("stall_everywhere"):

@@ -5,6 +5,7 @@ estimates; forces in kN and % of the mean measured |F|, parameters in deg / kPa)
 """
 from __future__ import annotations
 
+from soil_msgs_py import markdown_table as md
 from soil_msgs_py.params import WINDOW_SAMPLES
 
 JSON_NAME = "summary.json"
@@ -57,13 +58,13 @@ def markdown(report: dict) -> str:
         cells = [get(r) for _, _, get in TABLE_COLUMNS]
         if r is total:
             cells[0] = "**overall**"
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(md.row(cells))
     lines += ["", "Mean estimate (truth) over the valid estimates:", "",
               "| episode | I_d [%] | φ [deg] | c [kPa] | δ [deg] | β [deg] |", "|---|---|---|---|---|---|"]
     for r in rows:
         e, t = r["estimate_mean"], r["truth_mean"]
-        lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | " + " | ".join(
-            f"{e[k]:.{2 if k.startswith('c_') else 1}f} ({t[k]:.{2 if k.startswith('c_') else 1}f})" for k in e) + " |")
+        lines.append(md.row([r['soil'], f"{r['relative_density_pct']:.0f}", *(
+            f"{e[k]:.{2 if k.startswith('c_') else 1}f} ({t[k]:.{2 if k.startswith('c_') else 1}f})" for k in e)]))
     fused = [r for r in rows if r.get("fused_end")]
     if fused:
         lines += ["", "The soil fused along each episode (the posterior its last estimate carried: mean ± std, truth in "
@@ -76,7 +77,7 @@ def markdown(report: dict) -> str:
                 v = f[p]
                 cells.append(f"{v[f'mean_{unit}']:.{digits}f} ± {v[f'std_{unit}']:.{digits}f} ({v[f'truth_{unit}']:.{digits}f})"
                              + (" ✓" if v["in_90"] else ""))
-            lines.append(f"| {r['soil']} | {r['relative_density_pct']:.0f} | {f['stretches']} | " + " | ".join(cells) + " |")
+            lines.append(md.row([r['soil'], f"{r['relative_density_pct']:.0f}", f['stretches'], *cells]))
     forecast = report.get("forecast")
     if forecast:
         from .demo_forecast import markdown_lines

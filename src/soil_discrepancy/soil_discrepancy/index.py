@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+from soil_msgs_py import markdown_table as md
+
 from .report import _n, headline_verdict  # the reports' way of printing a number that may be missing; their headline
 
 
@@ -28,8 +30,8 @@ def index_markdown(root: Path) -> str:
         p = "–" if soil is None else f"{_n(soil['before']['rmse'])} → {_n(soil['after']['rmse'])}"
         f = "–" if force is None else f"{_n(force['before']['rmse'])} → {_n(force['after']['rmse'])}"
         ratio = f" (× {after / before:.2f})" if before and after is not None else ""
-        rows.append(f"| [{case}]({case}/discrepancy.md) | {rep['data'].get('episodes', '–')} | {hidden} | {named} | {verdict} | "
-                    f"{_n(before)} → {_n(after)}{ratio} | {p} | {f} | {headline_verdict(rep)} |")
+        rows.append(md.row([f"[{case}]({case}/discrepancy.md)", rep['data'].get('episodes', '–'), hidden, named, verdict,
+                            f"{_n(before)} → {_n(after)}{ratio}", p, f, headline_verdict(rep)]))
     head = ["# Discrepancy workflow: full-size run", "",
             "Made by `make discrepancy` (`scripts/discrepancy_full.sh`): 108 ten-second episodes per case "
             "(4 soils × I_d {0, 40, 80} % × 3 speeds × 3 depths), an effect hidden in the simulator (fee world) "
@@ -38,9 +40,8 @@ def index_markdown(root: Path) -> str:
             "effect. PINN, retrained without/with the named effect (trained on the selection part plus a calibration half "
             "of each held-out group, scored on the other half): RMSE of its soil estimates pooled per soil group "
             "through the model (the physics test: one θ̂ per soil at every depth and speed) and of its output F̂.", "",
-            "| case | episodes | hidden | named (k ± SE) | check | held-out RMSE [N] before → after | "
-            "PINN soil-estimate RMSE [N] before → after | PINN F̂ RMSE [N] before → after | verdict |",
-            "|---|---|---|---|---|---|---|---|---|"]
+            *md.header(["case", "episodes", "hidden", "named (k ± SE)", "check", "held-out RMSE [N] before → after",
+                        "PINN soil-estimate RMSE [N] before → after", "PINN F̂ RMSE [N] before → after", "verdict"])]
     return "\n".join(head + rows) + "\n"
 
 

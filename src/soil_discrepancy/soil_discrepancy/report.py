@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
 from soil_physics import force_terms, term_forms
 
@@ -123,7 +124,7 @@ def markdown(report: dict, figures=()) -> str:
                   "| term | k ± SE | k per fold | held-out gain | p (Holm) | improved episodes |",
                   "|---|---|---|---|---|---|"]
         for a in report["selection"]["accepted"]:
-            lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} {_unit(a['k_unit'])} "
+            lines.append(f"| {md.cell(_term_text(a))} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} {_unit(a['k_unit'])} "
                          f"| {', '.join(_n(k, '.4g') for k in a['k_folds'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} "
                          f"| {a['improved_episodes']}/{a['n_heldout_episodes']} |")
         for a in report["selection"]["accepted"]:
@@ -156,7 +157,7 @@ def markdown(report: dict, figures=()) -> str:
                   "them; try them where it matters (`--accepted NAME=K`) and check on data of your own.", "",
                   "| term | k ± SE | held-out (cross-validated) gain | p (Holm) | plugin |", "|---|---|---|---|---|"]
         for a in tentative["terms"]:
-            lines.append(f"| `{a['name']}` — {a['title']}: {a['formula']} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} "
+            lines.append(f"| {md.cell(_term_text(a))} | {a['k']:.4g} ± {_n(a['k_se'], '.2g')} "
                          f"{_unit(a['k_unit'])} | {100 * a['gain']:.1f} % | {_p(a['p_holm'])} | `{a['plugin']}` |")
         lines.append("")
     user = (report.get("settings") or {}).get("user_terms") or {}
@@ -200,7 +201,7 @@ def markdown(report: dict, figures=()) -> str:
                   "| variable | bin | episodes | RMSE x before → after | RMSE z before → after | RMSE before → after |",
                   "|---|---|---|---|---|---|"]
         for r in test["by_regime"]:
-            lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['n_episodes']} | "
+            lines.append(f"| {md.cell(labels.get(r['variable'], r['variable']))} | {md.cell(r['bin'])} | {r['n_episodes']} | "
                          f"{_n(r['rmse_x_before'])} → {_n(r['rmse_x_after'])} | {_n(r['rmse_z_before'])} → {_n(r['rmse_z_after'])} | "
                          f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
         lines += ["", "</details>", ""]
@@ -224,9 +225,9 @@ def markdown(report: dict, figures=()) -> str:
             kbar = f"{np.mean(kf):.4g} ± {_n(sc['k_se'], '.2g')} {_unit(sc['k_unit'])}" if kf else "–"
             gain = "–" if sc["gain"] is None else f"{100 * sc['gain']:.1f} %"
             if sc.get("note"):
-                lines.append(f"| `{sc['name']}` | {sc['note']} | | | |")
+                lines.append(f"| {md.cell('`' + sc['name'] + '`')} | {md.cell(sc['note'])} | | | |")
                 continue
-            lines.append(f"| `{sc['name']}` | {gain} | {_p(sc['p_holm'])} | {sc['improved_episodes']}/{sc['n_heldout_episodes']} | {kbar} |")
+            lines.append(f"| {md.cell('`' + sc['name'] + '`')} | {gain} | {_p(sc['p_holm'])} | {sc['improved_episodes']}/{sc['n_heldout_episodes']} | {kbar} |")
         lines.append("")
     lines += _regime_md(report["regimes"], "Where the baseline model and the data disagree", labels)
     if report.get("regimes_after"):
@@ -245,7 +246,7 @@ def markdown(report: dict, figures=()) -> str:
                                           for j, b in enumerate(box)) if box else "none") + " |"
         a = after.get(t["group"])
         after_cell = (f" {a['phi_deg']:.1f} / {a['c_pa']:.0f} / {a['delta_deg']:.1f} |" if a else " – |") if after else ""
-        lines.append(f"| {t['group']} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |"
+        lines.append(f"| {md.cell(t['group'])} | {t['phi_deg']:.1f} | {t['c_pa']:.0f} | {t['delta_deg']:.1f} | {'yes' if t['success'] else 'NO'} |"
                      + after_cell + test_cell)
     shift = report["model"].get("theta_shift")
     if shift:
@@ -280,7 +281,7 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                   f"{_n(found.get('cv_r2'), '.2f')}.", "",
                   "| candidate (linear refit, θ profiled out) | k ± cluster-robust SE | t |", "|---|---|---|"]
         for o in found.get("ols", []):
-            lines.append(f"| `{o['name']}` | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
+            lines.append(f"| {md.cell('`' + o['name'] + '`')} | {o['k']:.4g} ± {o['k_se']:.2g} | {o['t']:.1f} |")
         lines.append("")
     lines += ["Each candidate then faced the held-out test beside the catalogue terms (rounds below); a form is "
               "accepted only if it beats them there, and named only if the held-out test episodes confirm it: it "
@@ -411,7 +412,7 @@ def _pinn_md(label: str, comp: dict, labels: dict) -> list[str]:
     lines += ["", "Pooled soil estimates (median of the scored windows) per held-out group:", "",
               "| group | φ̂ [°] before → after | ĉ [Pa] before → after | δ̂ [°] before → after |", "|---|---|---|---|"]
     for b, a in zip(comp["theta"]["before"], comp["theta"]["after"]):
-        lines.append(f"| {b['group']} | {_n(b['phi_deg'], '.1f')} → {_n(a['phi_deg'], '.1f')} | {_n(b['c_pa'])} → "
+        lines.append(f"| {md.cell(b['group'])} | {_n(b['phi_deg'], '.1f')} → {_n(a['phi_deg'], '.1f')} | {_n(b['c_pa'])} → "
                      f"{_n(a['c_pa'])} | {_n(b['delta_deg'], '.1f')} → {_n(a['delta_deg'], '.1f')} |")
     soil = rows["soil"]
     lines += ["", "<details><summary>PINN soil estimates: per regime bin</summary>", "",
@@ -421,6 +422,11 @@ def _pinn_md(label: str, comp: dict, labels: dict) -> list[str]:
                      f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
     lines += ["", "</details>", ""]
     return lines
+
+
+def _term_text(a: dict) -> str:
+    """A named term's first cell: its name, title and formula."""
+    return f"`{a['name']}` — {a['title']}: {a['formula']}"
 
 
 def _unit(u: str) -> str:
