@@ -392,6 +392,7 @@ class Listener:
         self.node = rclpy.create_node("test_listener", namespace=namespace, context=self.context)
         self.received: list[tuple[int, str, bytes]] = []  # (perf_counter_ns, topic, raw)
         self.status: list[dict] = []
+        self.episode: list[dict] = []  # /sim/episode, latched
         qos = qos_profile(graph.RECORDER_QOS)
         for topic in topics:
             mt = next(t.msgtype for t in EPISODE_TOPICS if t.name == topic)
@@ -402,6 +403,9 @@ class Listener:
             self.node.create_subscription(String, graph.SIM_STATUS_TOPIC.lstrip("/"),
                                           lambda m: self.status.append(json.loads(m.data)),
                                           qos_profile(graph.CONTROL_QOS))
+            self.node.create_subscription(String, graph.SIM_EPISODE_TOPIC.lstrip("/"),
+                                          lambda m: self.episode.append(json.loads(m.data)),
+                                          qos_profile(graph.TOPIC_QOS[graph.SIM_EPISODE_TOPIC]))
         self.status_pub = self.node.create_publisher(String, graph.SIM_STATUS_TOPIC.lstrip("/"), qos_profile(graph.CONTROL_QOS))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -503,6 +507,9 @@ def test_replay_delivers_every_message_in_order_paced(listener):
     assert [s["event"] for s in lst.status] == ["episode_start", "episode_end"]
     assert lst.status[0]["name"] == SAMPLE.name and lst.status[1]["reason"] == "end_of_bag"
     assert lst.status[1]["last_stamp_ns"] == bag_msgs[-1][0] and lst.status[1]["ticks"] == 600
+    # the same events latched on /sim/episode (a reader that matched late gets the newest alone)
+    assert lst.wait_for(lambda: lst.episode and lst.episode[-1] == lst.status[-1], 5), (lst.episode, out)
+    assert all(e in lst.status for e in lst.episode)
 
 
 def test_replay_rate_2_topic_selection(listener):

@@ -25,8 +25,8 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, NODE_NAMES, SIM_STATUS_TOPIC,
-                                STRING_MSGTYPE, UNKNOWN_NODE_NAME, EpisodeEvent)
+from soil_msgs_py.graph import (EVENT_EPISODE_END, EXIT_ANOTHER_GRAPH, EXIT_BAD_CONFIG, NODE_NAMES, SIM_EPISODE_TOPIC,
+                                SIM_STATUS_TOPIC, STRING_MSGTYPE, UNKNOWN_NODE_NAME, EpisodeEvent)
 from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.values import finite_number
 from .playback import (
@@ -79,7 +79,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="before playing, wait until every publisher has N matched subscriptions (default 0)")
     p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
                    help="give up waiting for subscribers after S s and play anyway (default 10)")
-    p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events")
+    p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events (nor /sim/episode)")
     p.add_argument("--allow-other-publishers", action="store_true",
                    help="play even where another node publishes a played topic (default: refused, exit 6: a live "
                         "simulator on the domain mixes two robots' data in every reader and bag; --exclude the topics "
@@ -107,12 +107,21 @@ class Player:
         self.pubs: dict[str, object] = {}
         self.types: dict[str, str] = {}
         self.status = None if opts.no_status else self._publisher(SIM_STATUS_TOPIC, STRING_MSGTYPE)
+        # latched, as the simulator's: not among ``pubs``, whose other publishers mean another graph
+        self.episode_pub = None if opts.no_status else node.create_publisher(
+            message_class(STRING_MSGTYPE), local(SIM_EPISODE_TOPIC), publisher_qos(SIM_EPISODE_TOPIC))
         if opts.clock:
             self._publisher(CLOCK_TOPIC, CLOCK_MSGTYPE)
         self.pacer = Pacer(opts.rate)
         self.episode = 0
         self.published = 0
         self.checked_at = -float("inf")  # time.monotonic() of the last look for other publishers
+
+    def _say(self, event: EpisodeEvent) -> None:
+        """An episode's event on /sim/status, and latched on /sim/episode, as the simulator says them."""
+        raw = string_cdr(event.to_json())
+        self.status.publish(raw)
+        self.episode_pub.publish(raw)
 
     def _publisher(self, topic: str, msgtype: str):
         if topic in self.pubs:
@@ -190,7 +199,7 @@ class Player:
         messages = list(with_clock(bag.messages, self.opts.clock)) if self.opts.clock else bag.messages
         events = None if self.status is None else episode_events(bag, self.episode)
         if events:
-            self.status.publish(string_cdr(events[0].to_json()))
+            self._say(events[0])
         self.pacer.begin(messages[0][0], time.perf_counter() + (STATUS_LEAD_S if events else 0.0))
         late = np.empty(len(messages))
         last_stamp, ticks = -1, 0
@@ -208,10 +217,10 @@ class Player:
                 end = EpisodeEvent(event=EVENT_EPISODE_END, episode=ev.episode, name=ev.name, meta=ev.meta,
                                    first_stamp_ns=ev.first_stamp_ns, planned_ticks=ev.planned_ticks,
                                    last_stamp_ns=last_stamp, ticks=ticks, reason="shutdown", stats=ev.stats)
-                self.status.publish(string_cdr(end.to_json()))
+                self._say(end)
             raise
         if events:
-            self.status.publish(string_cdr(events[1].to_json()))
+            self._say(events[1])
         self.episode += 1
         ms = late * 1e3
         self.log.info(f"played {bag.path}: {len(messages)} messages, {bag.ticks} ticks, "

@@ -40,6 +40,10 @@ from .values import finite_number, short_repr
 
 SIM_COMMAND_TOPIC = "/sim/command"
 SIM_STATUS_TOPIC = "/sim/status"
+# The newest /sim/status event (the episode running, or the one that last ended), latched: a node
+# that joins mid-cut learns the episode (its soil patches, targets, graph id, first stamp), which
+# /sim/status, VOLATILE, said before it joined.
+SIM_EPISODE_TOPIC = "/sim/episode"
 # The estimator's posterior physics (``EstimatorPhysics``), latched: what a planner reads θ through.
 ESTIMATOR_PHYSICS_TOPIC = "/soil/estimator/physics"
 STRING_MSGTYPE = "std_msgs/msg/String"
@@ -47,7 +51,7 @@ STRING_MSGTYPE = "std_msgs/msg/String"
 # topics. Nodes create them by relative names (``ros_adapter.local``), so one namespace moves a
 # machine's whole graph; any other name (a user's ``--topics /tf``) is used as given.
 GRAPH_OWN_TOPICS: frozenset[str] = frozenset((*T.GRAPH_TOPICS_BY_NAME, SIM_COMMAND_TOPIC, SIM_STATUS_TOPIC,
-                                              ESTIMATOR_PHYSICS_TOPIC))
+                                              SIM_EPISODE_TOPIC, ESTIMATOR_PHYSICS_TOPIC))
 
 EVENT_EPISODE_START = "episode_start"
 EVENT_EPISODE_END = "episode_end"
@@ -119,6 +123,7 @@ TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
 # Said once and again only when it changes: a reader wants the newest, and gets it on joining.
 TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = QosSpec("reliable", "transient_local", 1)
+TOPIC_QOS[SIM_EPISODE_TOPIC] = QosSpec("reliable", "transient_local", 1)
 
 
 # Latched topics: the writer keeps what it sent for a reader that joins later (TRANSIENT_LOCAL,
@@ -129,7 +134,10 @@ TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = QosSpec("reliable", "transient_local", 1)
 # restarted one must not write a past episode's maps into the episode it joins.
 # The estimator's physics is said once (and again when its model changes): a planner started after it
 # subscribes TRANSIENT_LOCAL and gets it on joining, like a robot_description.
-LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC)
+# The episode's event is a state, as a robot_description is: its writer keeps the newest alone
+# (``LATCHED_STATE_TOPICS``), so a latecomer is sent what holds now, not the episodes before it.
+LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC, SIM_EPISODE_TOPIC)
+LATCHED_STATE_TOPICS: tuple[str, ...] = (SIM_EPISODE_TOPIC,)
 # A latched topic's writer history: each sample is the whole state (every map cell so far), so a
 # reader that misses one loses only a moment of it, and the writer keeps this many, not a
 # recorder's depth: 2000 maps (up to 144 kB each) had grown an estimator by ~25 MB in 15 min of an
@@ -141,14 +149,15 @@ LATCHED_WRITER_DEPTH = 60
 def publisher_qos_spec(topic: str) -> QosSpec:
     """What a node publishes ``topic`` with (and so what a bag records as offered): the
     graph's QoS with a writer history as deep as a recorder's reader (``RECORDER_QOS``), and
-    TRANSIENT_LOCAL for ``LATCHED_TOPICS`` (``LATCHED_WRITER_DEPTH`` deep). A KEEP_LAST writer
+    TRANSIENT_LOCAL for ``LATCHED_TOPICS`` (``LATCHED_WRITER_DEPTH`` deep, a state's one). A KEEP_LAST writer
     overwrites samples a reliable reader has not acknowledged yet, so with the graph's depth a
     reader starved of CPU for a moment while a lockstep graph runs far above 60 Hz would lose
     them; with this depth they are re-sent."""
     spec = TOPIC_QOS.get(topic, DATA_QOS)
     if topic in LATCHED_TOPICS:
         # (not max with the topic's depth: /soil/map's is the data topics' 120, and its writer had kept 120 maps)
-        return dataclasses.replace(spec, durability="transient_local", depth=LATCHED_WRITER_DEPTH)
+        return dataclasses.replace(spec, durability="transient_local",
+                                   depth=1 if topic in LATCHED_STATE_TOPICS else LATCHED_WRITER_DEPTH)
     return dataclasses.replace(spec, depth=max(spec.depth, RECORDER_QOS.depth))
 
 

@@ -175,6 +175,7 @@ class SimNode(Node):
         self.pubs = {name: self.create_publisher(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                                  publisher_qos(name)) for name in G.SIM_STATE_TOPICS}
         self.status_pub = self.create_publisher(String, local(G.SIM_STATUS_TOPIC), topic_qos(G.SIM_STATUS_TOPIC))
+        self.episode_pub = self.create_publisher(String, local(G.SIM_EPISODE_TOPIC), publisher_qos(G.SIM_EPISODE_TOPIC))
         self.cmd_subs = [
             self.create_subscription(message_class(T.TOPICS_BY_NAME[name].msgtype), local(name),
                                      self._command_callback(name), topic_qos(name))
@@ -435,7 +436,7 @@ class SimNode(Node):
         event = G.EpisodeEvent(G.EVENT_EPISODE_START, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks, pacing=self.pacer.pacing,
                                graph=self.graph_id)
-        self.status_pub.publish(String(data=event.to_json()))
+        self._say(event)
         # Topics are not ordered with each other: make sure every subscriber's DDS reader
         # holds the start before tick 0 goes out (the controller resets on it).
         if not self.status_pub.wait_for_all_acked(Duration(seconds=2.0)):
@@ -444,6 +445,12 @@ class SimNode(Node):
         self._reset_timer()
         self._publish_tick(self.sim.reset())
 
+    def _say(self, event: G.EpisodeEvent) -> None:
+        """An episode's event on /sim/status, and latched on /sim/episode for a node that joins later."""
+        text = event.to_json()
+        self.status_pub.publish(String(data=text))
+        self.episode_pub.publish(String(data=text))
+
     def _end_episode(self, reason: str) -> None:
         last = self.first_stamp_ns + tick_stamp_ns(self.tick) if self.tick >= 0 else self.first_stamp_ns
         stats = self.pacer.end_episode()
@@ -451,7 +458,7 @@ class SimNode(Node):
         event = G.EpisodeEvent(G.EVENT_EPISODE_END, self.episode_index, self.meta.name, self.meta,
                                self.first_stamp_ns, planned_ticks=self.planned_ticks, last_stamp_ns=last,
                                ticks=self.tick + 1, reason=reason, stats=stats, graph=self.graph_id)
-        self.status_pub.publish(String(data=event.to_json()))
+        self._say(event)
         if not self.status_pub.wait_for_all_acked(Duration(seconds=1.0)):  # the node may exit next
             self.get_logger().warning("episode_end not acknowledged by every /sim/status subscriber within 1 s")
         self.get_logger().info(f"{G.episode_log(self.episode_index, 'end')} ({reason}): {self.tick + 1} ticks; timing {stats}")
