@@ -1,8 +1,9 @@
 """Markdown tables whose cells may hold any text. GitHub-flavoured markdown splits a row at every
 unescaped '|', inside code spans too, so a cell holding |F|, a formula's |v_z| or a user's soil
 name with a pipe becomes extra columns: the content after it is dropped, and a header row with
-more cells than its delimiter row is no table at all. Every table the tools write goes through
-``row`` (or ``cell`` for one value set into a row of fixed text)."""
+more cells than its delimiter row is no table at all. A table whose cells may hold text (names,
+labels, formulas, a user's soils and groups) is written with ``row`` (or ``cell`` for one value
+set into a row of fixed text)."""
 from __future__ import annotations
 
 import re
