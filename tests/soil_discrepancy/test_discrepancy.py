@@ -889,6 +889,12 @@ def test_a_pinned_form_with_structure_left_in_its_scales_variable_says_the_effec
     assert shape_caveat("form:gd2w_z*vx2", factor_only, reg, labels) == ""  # (structure elsewhere: its scale is not pinned)
     assert shape_caveat("form:gd2w_z*vx2", {**factor_only, "factor_pinned": False}, {**reg, "flagged_variables": ["v_x"]},
                         labels) == ""  # nothing pinned: its own words say so
+    # travel is seen through the speed: an outside tester's 2 kN drag over the first metre, the same at every
+    # depth, was named w d · exp(−s / 0.5 m), "pinned down", with structure left vs v_x alone
+    said = shape_caveat("form:wd_x*enter0.5", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels)
+    assert "structure remains vs forward speed v_x with it, through which travel is seen" in said, said
+    assert shape_caveat("form:wd_x*enter0.5", {"pinned": True}, {**reg, "flagged_variables": ["v_z"]}, labels) == ""
+    assert shape_caveat("form:wd_x*tau", {"pinned": True}, {**reg, "flagged_variables": ["v_x"]}, labels) == ""
 
 
 def test_the_headline_says_when_no_named_form_is_pinned_down_and_a_tentative_form_says_its_forecast():

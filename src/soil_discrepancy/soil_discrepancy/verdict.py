@@ -130,7 +130,7 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     structure vs the cut depth; every form the library holds exactly, found on the hidden-effect
     grid, left none. A form whose factor alone is pinned down says so of its factor: a z force acting
     only above 0.8 m/s, named with the factor (v_x / 1 m/s)², "its factor is pinned down", left
-    structure vs v_x.)"""
+    structure vs v_x.) A factor of travel is judged by v_x too, through which travel is seen."""
     kind = pin_kind(pin)
     if not name.startswith(FORM_PREFIX) or kind not in ("pinned", "scale", "value") or not reg1 \
             or not reg1.get("significant"):
@@ -138,10 +138,18 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     _, scale, factor = term_forms.parse(name)
     flagged = reg1.get("flagged_variables") or []
     var = term_forms.factor_variable(factor.name)
+    pinned = "pinned down" if kind == "pinned" else "its factor is pinned down"
     if var is not None and var in flagged:
-        pinned = "pinned down" if kind == "pinned" else "its factor is pinned down"
         return (f"; {pinned} among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
                 "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
+    if factor.name in term_forms.DISTANCE_FACTORS and "v_x" in flagged:
+        # travel is seen through the speed: an analysed stretch of t s holds s = v_x t, so a wrong
+        # shape in s leaves a residual that varies with v_x from one episode to the next (an outside
+        # tester's 2 kN drag over the first metre, the same at every depth, named w d · exp(−s / 0.5 m),
+        # "pinned down", left structure vs v_x alone)
+        return (f"; {pinned} among the library's forms, but structure remains vs {labels.get('v_x', 'v_x')} with "
+                f"it, through which travel is seen (s = v_x t): the effect's shape in travel, or its scale, is near "
+                "the form's, not the form's, and its k is the nearest form's")
     if kind != "pinned":
         return ""
     law = term_forms.SCALE_VARIABLES.get(scale.name, ())
