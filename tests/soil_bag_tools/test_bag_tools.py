@@ -512,6 +512,31 @@ def test_replay_delivers_every_message_in_order_paced(listener):
     assert all(e in lst.status for e in lst.episode)
 
 
+def test_a_bag_holding_sim_episode_plays_it_through_the_players_own_latched_writer(listener, tmp_path):
+    """A bag of everything on a live graph (``ros2 bag record -a``) holds /sim/episode: its replay
+    met its own second writer there and stopped as if another graph published it (exit 6)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from soil_msgs_py.messages import TYPESTORE
+
+    bag, played = playback.load_bag(SAMPLE), tmp_path / "everything"
+    event = playback.episode_events(bag, 0)[0].to_json()
+    String = TYPESTORE.types["std_msgs/msg/String"]
+    with Writer(played, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        w.set_custom_data(bag_io.META_KEY, bag_io.bag_custom_data(SAMPLE)[bag_io.META_KEY])
+        conns = {t: w.add_connection(t, mt, typestore=TYPESTORE) for t, mt in bag.topics.items()}
+        latched = w.add_connection(graph.SIM_EPISODE_TOPIC, graph.STRING_MSGTYPE, typestore=TYPESTORE)
+        w.write(latched, bag.messages[0][0], TYPESTORE.serialize_cdr(String(data=event), graph.STRING_MSGTYPE))
+        for t, topic, raw in bag.messages:
+            w.write(conns[topic], t, raw)
+    domain = next_domain_id()
+    lst = listener(domain, topics=("/blade/force",))
+    player = start("soil_bag_play", played, "--rate", 4, domain=domain)
+    out = finish(player)
+    assert player.returncode == 0 and "other nodes publish" not in out, out
+    assert lst.wait_for(lambda: lst.episode and lst.episode[-1]["event"] == "episode_end", 5), (lst.episode, out)
+
+
 def test_replay_rate_2_topic_selection(listener):
     """... into a machine's namespace (``--ros-args -r __ns:=/dozer1``): the graph there hears it."""
     domain = next_domain_id()

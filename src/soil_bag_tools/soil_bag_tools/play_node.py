@@ -36,6 +36,7 @@ from .playback import (
 from soil_msgs_py.ros_adapter import (endpoint_node, init_rclpy, local, message_class, own_arguments_or_refusal,
                                       print_refusal, publisher_qos, stopping_said, wait_for_acks)
 
+EPISODE_CONTROL_TOPICS = (SIM_STATUS_TOPIC, SIM_EPISODE_TOPIC)  # the episode's events, said as a simulator says them
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
 SETTLE_S = 0.2  # after --wait-for-subscribers succeeded: let the last matches settle
 DRAIN_S = 1.0  # at most this long waiting for reliable subscribers to acknowledge
@@ -107,9 +108,8 @@ class Player:
         self.pubs: dict[str, object] = {}
         self.types: dict[str, str] = {}
         self.status = None if opts.no_status else self._publisher(SIM_STATUS_TOPIC, STRING_MSGTYPE)
-        # latched, as the simulator's: not among ``pubs``, whose other publishers mean another graph
-        self.episode_pub = None if opts.no_status else node.create_publisher(
-            message_class(STRING_MSGTYPE), local(SIM_EPISODE_TOPIC), publisher_qos(SIM_EPISODE_TOPIC))
+        # latched, as the simulator's; a bag that holds the topic (``ros2 bag record -a``) plays through it
+        self.episode_pub = None if opts.no_status else self._publisher(SIM_EPISODE_TOPIC, STRING_MSGTYPE)
         if opts.clock:
             self._publisher(CLOCK_TOPIC, CLOCK_MSGTYPE)
         self.pacer = Pacer(opts.rate)
@@ -143,7 +143,8 @@ class Player:
         n, timeout = self.opts.wait_for_subscribers, self.opts.wait_timeout
         end = time.monotonic() + timeout
         while True:
-            counts = {t: p.get_subscription_count() for t, p in self.pubs.items() if t != SIM_STATUS_TOPIC}
+            # (/sim/episode is latched: a reader that comes later gets it all the same)
+            counts = {t: p.get_subscription_count() for t, p in self.pubs.items() if t not in EPISODE_CONTROL_TOPICS}
             # /sim/status: every status subscriber the graph knows of must be matched too.
             status_ok = self.status is None or (
                 self.status.get_subscription_count() >= self.node.count_subscribers(local(SIM_STATUS_TOPIC)))
@@ -159,11 +160,11 @@ class Player:
 
     def others(self) -> dict[str, list[str]]:
         """{played data topic: the other nodes publishing it} (this player's own writer counts one;
-        /sim/status is left out: test harnesses and monitors publish it, a live graph's state topics
-        give it away anyway)."""
+        /sim/status and /sim/episode are left out: test harnesses and monitors publish them, a live
+        graph's state topics give it away anyway)."""
         out = {}
         for topic in self.pubs:
-            if topic != SIM_STATUS_TOPIC and self.node.count_publishers(local(topic)) > 1:
+            if topic not in EPISODE_CONTROL_TOPICS and self.node.count_publishers(local(topic)) > 1:
                 out[topic] = sorted({UNNAMED if i.node_name == UNKNOWN_NODE_NAME else
                                      endpoint_node(i)
                                      for i in self.node.get_publishers_info_by_topic(local(topic))}
