@@ -418,7 +418,7 @@ def _pinn_md(label: str, comp: dict, labels: dict) -> list[str]:
     lines += ["", "<details><summary>PINN soil estimates: per regime bin</summary>", "",
               "| variable | bin | episodes | RMSE before → after [N] |", "|---|---|---|---|"]
     for r in soil["by_regime"]:
-        lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['n_episodes']} | "
+        lines.append(f"| {md.cell(labels.get(r['variable'], r['variable']))} | {md.cell(r['bin'])} | {r['n_episodes']} | "
                      f"{_n(r['rmse_before'])} → {_n(r['rmse_after'])} |")
     lines += ["", "</details>", ""]
     return lines
@@ -448,11 +448,11 @@ def _regime_md(reg: dict, title: str, labels: dict) -> list[str]:
     rows = [r for r in reg["bins"]]
     for r in rows:
         ci = r["ci95_n"]
-        lines.append(f"| {labels.get(r['variable'], r['variable'])} | {r['bin']} | {r['axis']} | {r['n_episodes']} | "
+        lines.append(f"| {md.cell(labels.get(r['variable'], r['variable']))} | {md.cell(r['bin'])} | {r['axis']} | {r['n_episodes']} | "
                      f"{_n(r['mean_n'])} ({_n(ci[0])}, {_n(ci[1])}) | {_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | "
                      f"{_p(r['p_holm'])} | {'**yes**' if r['flagged'] else ''} |")
     for r in reg["trends"]:
-        lines.append(f"| {labels.get(r['variable'], r['variable'])} | trend {r['kind']} episodes (ρ = {_n(r['stat'], '.2f')}) | "
+        lines.append(f"| {md.cell(labels.get(r['variable'], r['variable']))} | trend {r['kind']} episodes (ρ = {_n(r['stat'], '.2f')}) | "
                      f"{r['axis']} | {r['n_episodes']} | {_n(r['effect_n'])} over 10-90 % range | "
                      f"{_n(None if r['effect'] is None else 100 * r['effect'], '.1f')} % | {_p(r['p_holm'])} | "
                      f"{'**yes**' if r['flagged'] else ''} |")
@@ -479,9 +479,9 @@ def _misfit_md(mis: dict | None) -> list[str]:
              "|---|---|---|---|---|---|---|---|"]
     for r in mis["rows"]:
         name = f"soil {r['name']}" if r["kind"] == "soil" else r["name"]
-        lines.append(f"| {name} | {r['n_episodes']} | {_n(None if r['misfit'] is None else 100 * r['misfit'], '.1f')} % | "
+        lines.append(f"| {md.cell(name)} | {r['n_episodes']} | {_n(None if r['misfit'] is None else 100 * r['misfit'], '.1f')} % | "
                      f"{_n(None if r['misfit_others'] is None else 100 * r['misfit_others'], '.1f')} % | "
-                     f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {', '.join(r['theta_at_bound']) or ''}"
+                     f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {md.cell(', '.join(r['theta_at_bound']))}"
                      f"{' (cut at one depth: the φ-c ridge)' if r['theta_at_bound'] and r.get('one_depth') else ''} | "
                      f"{'**yes**' if r['flagged'] else ''} |")
     return lines + [""]

@@ -130,7 +130,8 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     structure vs the cut depth; every form the library holds exactly, found on the hidden-effect
     grid, left none. A form whose factor alone is pinned down says so of its factor: a z force acting
     only above 0.8 m/s, named with the factor (v_x / 1 m/s)², "its factor is pinned down", left
-    structure vs v_x.) A factor of travel is judged by v_x too, through which travel is seen."""
+    structure vs v_x.) A factor of travel on a scale of the cut's depth (or none) is judged by v_x too,
+    through which travel is seen."""
     kind = pin_kind(pin)
     if not name.startswith(FORM_PREFIX) or kind not in ("pinned", "scale", "value") or not reg1 \
             or not reg1.get("significant"):
@@ -142,17 +143,20 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     if var is not None and var in flagged:
         return (f"; {pinned} among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
                 "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
-    if factor.name in term_forms.DISTANCE_FACTORS and "v_x" in flagged:
+    law = term_forms.SCALE_VARIABLES.get(scale.name, ())
+    if factor.name in term_forms.DISTANCE_FACTORS and "v_x" in flagged and "v_x" not in law \
+            and set(law) <= GEOMETRIC_SCALE_VARIABLES:
         # travel is seen through the speed: an analysed stretch of t s holds s = v_x t, so a wrong
         # shape in s leaves a residual that varies with v_x from one episode to the next (an outside
         # tester's 2 kN drag over the first metre, the same at every depth, named w d · exp(−s / 0.5 m),
-        # "pinned down", left structure vs v_x alone)
+        # "pinned down", left structure vs v_x alone). Not on a scale that varies with v_x itself (the
+        # branch below says so of it) or with every motion (the model's force, the pile), where
+        # structure vs v_x may be another effect's.
         return (f"; {pinned} among the library's forms, but structure remains vs {labels.get('v_x', 'v_x')} with "
                 f"it, through which travel is seen (s = v_x t): the effect's shape in travel, or its scale, is near "
                 "the form's, not the form's, and its k is the nearest form's")
     if kind != "pinned":
         return ""
-    law = term_forms.SCALE_VARIABLES.get(scale.name, ())
     scale_vars = [v for v in law if v in flagged] if set(law) <= GEOMETRIC_SCALE_VARIABLES else []
     if scale_vars:
         said = " and ".join(labels.get(v, v) for v in scale_vars)
