@@ -33,6 +33,11 @@ def test_a_row_cut_by_a_pipe_and_a_header_wider_than_its_delimiter_are_found_out
         "```", "| a | b |", "|---|", "| c | d | e |", "```",   # code, not a table
     ])
     assert malformed_rows(text) == [(3, 5, 3), (7, 2, 4), (8, 2, 4)]
+    # as GitHub-flavoured markdown finds tables: in a block quote, without the outer pipes, up to a
+    # blank line; not inside a longer fence that holds a shorter one, nor in indented code
+    more = "\n".join(["> | a | b |", "> |---|---|", "> | c | d | e |", "", "a | b", "--|--", "c | d | e", "",
+                      "````", "```", "| x | y |", "|---|", "| p |", "````", "", "    | a | b |", "    |---|", "    | c |"])
+    assert malformed_rows(more) == [(3, 3, 2), (7, 3, 2)]
 
 
 def test_every_markdown_table_in_the_repository_keeps_its_columns():

@@ -13,8 +13,10 @@ _UNESCAPED_PIPE = re.compile(r"(?<!\\)\|")
 
 
 def cell(value) -> str:
-    """``value`` as one table cell: its pipes escaped (an escaped one left as it is), line breaks
-    as spaces (a row is one line)."""
+    """``value`` as one table cell: its pipes escaped (an escaped one left as it is, so a text's own
+    backslash before a pipe reads as the escape), line breaks as spaces (a row is one line). Set
+    into a row with a space before each delimiter, as ``row`` does: a cell ending in a backslash
+    would otherwise escape the delimiter after it."""
     text = " ".join(str(value).splitlines())
     return _UNESCAPED_PIPE.sub(r"\\|", text)
 
@@ -40,23 +42,42 @@ def cells_of(line: str) -> list[str]:
 
 
 _DELIMITER = re.compile(r"^\s*\|?\s*:?-+:?\s*(\|\s*:?-+:?\s*)*\|?\s*$")
+_FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
+_QUOTE = re.compile(r"^ {0,3}(> ?)+")
 
 
 def malformed_rows(text: str) -> list[tuple[int, int, int]]:
-    """(line number, cells, header's cells) of every table row in ``text`` (outside code fences)
-    whose cell count is not its header's: the rows a reader shows cut short or padded, or, for a
-    delimiter row that differs from its header, a table that is not drawn at all."""
-    lines, out, fenced, i = text.splitlines(), [], False, 0
+    """(line number, cells, header's cells) of every table row in ``text`` whose cell count is not
+    its header's: the rows a reader shows cut short or padded, or, for a delimiter row that differs
+    from its header, a table that is not drawn at all. As GitHub-flavoured markdown finds tables: a
+    line with a pipe over a delimiter row, the outer pipes optional, its rows every line up to a
+    blank one, inside a block quote too; not in fenced (``` or ~~~) or indented code."""
+    lines, out, fence, i = text.splitlines(), [], None, 0
     while i < len(lines):
-        if lines[i].lstrip().startswith("```"):
-            fenced = not fenced
-        elif (not fenced and lines[i].lstrip().startswith("|") and i + 1 < len(lines)
-              and _DELIMITER.match(lines[i + 1])):
-            width = len(cells_of(lines[i]))
+        line = lines[i]
+        if fence:
+            mark = _FENCE.match(line)
+            if mark and mark.group(1)[0] == fence[0] and len(mark.group(1)) >= len(fence) \
+                    and not line.strip().strip(fence[0]):
+                fence = None
             i += 1
-            while i < len(lines) and lines[i].lstrip().startswith("|"):
-                if len(cells_of(lines[i])) != width:
-                    out.append((i + 1, len(cells_of(lines[i])), width))
+            continue
+        if mark := _FENCE.match(line):
+            fence = mark.group(1)
+            i += 1
+            continue
+        quote = _QUOTE.match(line)
+        body = line[quote.end():] if quote else line
+        below = lines[i + 1][quote.end():] if quote and i + 1 < len(lines) else (lines[i + 1] if i + 1 < len(lines) else "")
+        if not body.startswith("    ") and "|" in body and _DELIMITER.match(below) and "-" in below:
+            width = len(cells_of(body))
+            i += 1
+            while i < len(lines):
+                row = lines[i][quote.end():] if quote and _QUOTE.match(lines[i]) else lines[i]
+                if not row.strip():
+                    break
+                if len(cells_of(row)) != width:
+                    out.append((i + 1, len(cells_of(row)), width))
                 i += 1
             continue
         i += 1
