@@ -67,3 +67,9 @@ def test_the_map_writer_keeps_the_latched_depth_not_the_data_topics():
     for topic in (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC):
         spec = publisher_qos_spec(topic)
         assert (spec.depth, spec.durability, spec.reliability) == (LATCHED_WRITER_DEPTH, "transient_local", "reliable")
+    # the episode's event is a state: its writer keeps the newest alone, so a latecomer is sent what holds now
+    from soil_msgs_py.graph import SIM_EPISODE_TOPIC, TOPIC_QOS
+
+    spec = publisher_qos_spec(SIM_EPISODE_TOPIC)
+    assert (spec.depth, spec.durability, spec.reliability) == (1, "transient_local", "reliable")
+    assert TOPIC_QOS[SIM_EPISODE_TOPIC] == spec  # and its readers ask for the same
