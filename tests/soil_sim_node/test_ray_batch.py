@@ -108,18 +108,28 @@ def test_ray_address_runs_the_tasks_on_that_cluster_and_leaves_it_running_and_a_
            "RAY_AUTH_TOKEN": secrets.token_hex(32)}
     env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)
     before = ray_processes()
+    elsewhere = tmp_path / "where_ray_started"  # its workers start there: relative paths are the driver's
+    elsewhere.mkdir()
     started = subprocess.run([str(Path(sys.executable).with_name("ray")), "start", "--head", "--port", str(port),
                               "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats"],
                              env={**env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"},  # the user's cluster, on loopback
-                             capture_output=True, text=True, timeout=180)
+                             capture_output=True, text=True, timeout=180, cwd=elsewhere)
     cluster = ray_processes() - before
     try:
         assert started.returncode == 0, started.stderr[-2000:]
         listening = listening_addresses(cluster)
         assert listening and all(is_loopback(ip) for _, ip in listening), listening
-        run = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "ray"),
-                              "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=120)
+        # a relative --out, as the README's example gives it: the bags had landed where `ray start` ran
+        run = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", "ray",
+                              "--ray", f"127.0.0.1:{port}"], env=env, capture_output=True, text=True, timeout=120,
+                             cwd=tmp_path)
         assert run.returncode == 0, run.stderr[-2000:]
+        assert not (elsewhere / "ray").exists()
+        read = subprocess.run([sys.executable, "-c", "from pinn_estimator.dataset import load_dataset; "
+                               f"print(len(load_dataset('ray', cache=False, ray_address='127.0.0.1:{port}').names))"],
+                              env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert read.returncode == 0 and read.stdout.split()[-1] == str(len(find_episode_bags(tmp_path / "ray"))), \
+            read.stderr[-2000:]
         local = subprocess.run([sys.executable, "-m", "soil_sim_node.batch", *SMALL, "--out", str(tmp_path / "pool")],
                                env=env, capture_output=True, text=True, timeout=240)
         assert local.returncode == 0, local.stderr[-2000:]

@@ -305,7 +305,10 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -
     """``_read`` of every bag, in bag order, as Ray tasks of ``RAY_BAGS_PER_TASK`` bags."""
     from soil_sim_node.ray_cluster import ray_session, run_tasks
 
-    groups = [bags[i : i + RAY_BAGS_PER_TASK] for i in range(0, len(bags), RAY_BAGS_PER_TASK)]
+    # a cluster's workers start where `ray start` ran: they read the bags by their absolute paths (on
+    # storage every machine mounts there); a bag that cannot be read is said by the path as given
+    given = [Path(b).absolute() for b in bags]
+    groups = [given[i : i + RAY_BAGS_PER_TASK] for i in range(0, len(given), RAY_BAGS_PER_TASK)]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -320,7 +323,8 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -
         if isinstance(result, Exception):
             raise RuntimeError(f"the Ray task reading {len(group)} bags (from {group[0]} on) failed: "
                                f"{type(result).__name__}: {result}")
-    return [row for result in done for row in result]
+    rows = [row for result in done for row in result]
+    return [BagReadError(bag, r.problem) if isinstance(r, BagReadError) else r for bag, r in zip(bags, rows)]
 
 
 def _to_npz(ds: Dataset, path: Path) -> None:

@@ -178,7 +178,9 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         elif ray_address:
             with ray_session(ray_address, num_cpus=workers or cli_numbers.cores()):
                 chunks = _chunks(plan.specs, workers or cluster_cpus(), max_chunk)
-                done = run_tasks(_run_chunk, [(base, c) for c in chunks],
+                # a cluster's workers start where `ray start` ran: they write to --out by its absolute
+                # path (on storage every machine mounts there), not to a relative one of their own
+                done = run_tasks(_run_chunk, [(dict(base, out=plan.out.absolute()), c) for c in chunks],
                                  on_done=lambda r: bar.update(0 if isinstance(r, Exception) else len(r)),
                                  lost_after_s=ray_give_up_after_s)
             bar.close()
