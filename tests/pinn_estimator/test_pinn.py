@@ -362,6 +362,13 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert eval_main([*alone, "--forecast-data", str(cuts), "--out", str(out), "--name", "f"]) == 0
     only = json.loads((out / "f.json").read_text())
     assert only["forecast_only"] and only["forecast"]["pairs"] == 2 and "force" not in only
+    assert "world_mismatch" not in only
+    # another world's checkpoint: said in the report too, not only on stderr (an outside tester's)
+    other = ["--checkpoint", str(shipped_checkpoint("default")), *alone[2:]]
+    assert eval_main([*other, "--forecast-data", str(cuts), "--out", str(out), "--name", "other"]) == 0
+    assert "trained on default-world data; its forecast is judged on fee-world bags" in \
+        json.loads((out / "other.json").read_text())["world_mismatch"]
+    assert "**Another world's checkpoint**: pinn_default.pt was trained on default-world data" in (out / "other.md").read_text()
     # judged on the bags it was trained on: said, in the log and the report
     said, on_cuts = [], tmp_path / "on_cuts.pt"
     assert train_main(["--data", str(cuts), "--out", str(on_cuts), "--quiet", "--no-cache", "--epochs", "1",
