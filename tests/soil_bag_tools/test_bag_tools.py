@@ -531,7 +531,7 @@ def test_a_bag_holding_sim_episode_plays_it_through_the_players_own_latched_writ
             w.write(conns[topic], t, raw)
     domain = next_domain_id()
     lst = listener(domain, topics=("/blade/force",))
-    player = start("soil_bag_play", played, "--rate", 4, domain=domain)
+    player = start("soil_bag_play", played, "--rate", 4, "--wait-for-subscribers", 1, domain=domain)
     out = finish(player)
     assert player.returncode == 0 and "other nodes publish" not in out, out
     assert lst.wait_for(lambda: lst.episode and lst.episode[-1]["event"] == "episode_end", 5), (lst.episode, out)
