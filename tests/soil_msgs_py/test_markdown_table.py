@@ -38,6 +38,12 @@ def test_a_row_cut_by_a_pipe_and_a_header_wider_than_its_delimiter_are_found_out
     more = "\n".join(["> | a | b |", "> |---|---|", "> | c | d | e |", "", "a | b", "--|--", "c | d | e", "",
                       "````", "```", "| x | y |", "|---|", "| p |", "````", "", "    | a | b |", "    |---|", "    | c |"])
     assert malformed_rows(more) == [(3, 3, 2), (7, 3, 2)]
+    # a fence, a heading or the end of a block quote right after a table ends it (a reviewer's: the fence
+    # had been read as a row and never opened, and its close hid the rest of the text)
+    after = "\n".join(["| a | b |", "|---|---|", "| c | d |", "```", "", "| not | a | row |", "```", "# next",
+                       "> | a | b |", "> |---|---|", "plain text after the quote", "",
+                       "| a | b |", "|---|---|", "| short |"])
+    assert malformed_rows(after) == [(15, 1, 2)]
 
 
 def test_every_markdown_table_in_the_repository_keeps_its_columns():

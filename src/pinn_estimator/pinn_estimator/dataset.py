@@ -319,9 +319,9 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -
                          lost_after_s=give_up_after_s)
     if bar is not None:
         bar.close()
-    for group, result in zip(groups, done):
+    for i, (group, result) in enumerate(zip(groups, done)):
         if isinstance(result, Exception):
-            raise RuntimeError(f"the Ray task reading {len(group)} bags (from {group[0]} on) failed: "
+            raise RuntimeError(f"the Ray task reading {len(group)} bags (from {bags[i * RAY_BAGS_PER_TASK]} on) failed: "
                                f"{type(result).__name__}: {result}")
     rows = [row for result in done for row in result]
     return [BagReadError(bag, r.problem) if isinstance(r, BagReadError) else r for bag, r in zip(bags, rows)]

@@ -80,7 +80,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="before playing, wait until every publisher has N matched subscriptions (default 0)")
     p.add_argument("--wait-timeout", type=float, default=10.0, metavar="S",
                    help="give up waiting for subscribers after S s and play anyway (default 10)")
-    p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events (nor /sim/episode)")
+    p.add_argument("--no-status", action="store_true", help="do not publish /sim/status episode events (nor /sim/episode; a bag's own recorded ones still play)")
     p.add_argument("--allow-other-publishers", action="store_true",
                    help="play even where another node publishes a played topic (default: refused, exit 6: a live "
                         "simulator on the domain mixes two robots' data in every reader and bag; --exclude the topics "

@@ -144,8 +144,7 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
         return (f"; {pinned} among the library's forms, but structure remains vs {labels.get(var, var)} with it: "
                 "the effect's shape there is near the form's, not the form's, and its k is the nearest shape's")
     law = term_forms.SCALE_VARIABLES.get(scale.name, ())
-    if factor.name in term_forms.DISTANCE_FACTORS and "v_x" in flagged and "v_x" not in law \
-            and set(law) <= GEOMETRIC_SCALE_VARIABLES:
+    if factor.name in term_forms.DISTANCE_FACTORS and "v_x" in flagged and set(law) <= {"d"}:
         # travel is seen through the speed: an analysed stretch of t s holds s = v_x t, so a wrong
         # shape in s leaves a residual that varies with v_x from one episode to the next (an outside
         # tester's 2 kN drag over the first metre, the same at every depth, named w d · exp(−s / 0.5 m),

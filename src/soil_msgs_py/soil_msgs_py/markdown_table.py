@@ -44,6 +44,7 @@ def cells_of(line: str) -> list[str]:
 _DELIMITER = re.compile(r"^\s*\|?\s*:?-+:?\s*(\|\s*:?-+:?\s*)*\|?\s*$")
 _FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
 _QUOTE = re.compile(r"^ {0,3}(> ?)+")
+_OTHER_BLOCK = re.compile(r"^ {0,3}(#{1,6}(\s|$)|(\*\s*){3,}$|(_\s*){3,}$|(-\s*){3,}$)")  # a heading, a break
 
 
 def malformed_rows(text: str) -> list[tuple[int, int, int]]:
@@ -51,7 +52,8 @@ def malformed_rows(text: str) -> list[tuple[int, int, int]]:
     its header's: the rows a reader shows cut short or padded, or, for a delimiter row that differs
     from its header, a table that is not drawn at all. As GitHub-flavoured markdown finds tables: a
     line with a pipe over a delimiter row, the outer pipes optional, its rows every line up to a
-    blank one, inside a block quote too; not in fenced (``` or ~~~) or indented code."""
+    blank one or another block (a fence, a heading, a break, the end of its block quote), inside a
+    block quote too; not in fenced (``` or ~~~) or indented code."""
     lines, out, fence, i = text.splitlines(), [], None, 0
     while i < len(lines):
         line = lines[i]
@@ -72,9 +74,13 @@ def malformed_rows(text: str) -> list[tuple[int, int, int]]:
         if not body.startswith("    ") and "|" in body and _DELIMITER.match(below) and "-" in below:
             width = len(cells_of(body))
             i += 1
+            prefix = quote.group(0) if quote else ""
             while i < len(lines):
-                row = lines[i][quote.end():] if quote and _QUOTE.match(lines[i]) else lines[i]
-                if not row.strip():
+                here = _QUOTE.match(lines[i])
+                if (here.group(0) if here else "") != prefix:  # the block quote ends, or one begins
+                    break
+                row = lines[i][len(prefix):]
+                if not row.strip() or _FENCE.match(row) or _OTHER_BLOCK.match(row):  # another block begins
                     break
                 if len(cells_of(row)) != width:
                     out.append((i + 1, len(cells_of(row)), width))
