@@ -122,8 +122,9 @@ TOPIC_QOS: dict[str, QosSpec] = {t.name: DATA_QOS for t in T.GRAPH_TOPICS_BY_NAM
 TOPIC_QOS[SIM_COMMAND_TOPIC] = CONTROL_QOS
 TOPIC_QOS[SIM_STATUS_TOPIC] = CONTROL_QOS
 # Said once and again only when it changes: a reader wants the newest, and gets it on joining.
-TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = QosSpec("reliable", "transient_local", 1)
-TOPIC_QOS[SIM_EPISODE_TOPIC] = QosSpec("reliable", "transient_local", 1)
+STATE_QOS = QosSpec("reliable", "transient_local", 1)
+TOPIC_QOS[ESTIMATOR_PHYSICS_TOPIC] = STATE_QOS
+TOPIC_QOS[SIM_EPISODE_TOPIC] = STATE_QOS
 
 
 # Latched topics: the writer keeps what it sent for a reader that joins later (TRANSIENT_LOCAL,
