@@ -230,6 +230,38 @@ def test_what_the_user_gives_a_node_is_never_overridden_by_the_launchers_own_val
             assert any(a.startswith(f"{name}:=") for a in nodes[node]), (node, name, nodes[node])
 
 
+def test_the_launchs_own_nodes_wait_for_each_other_half_as_long_as_its_simulator_waits_for_them(tmp_path):
+    """On a loaded 2-core machine the estimator's start (torch's import) took over 5 s, the nodes'
+    own inputs_wait_s: the planner joined without its writer, missed the first estimates, and a
+    lockstep controller waited planner_wait_s for the first targets. The launch's nodes are coming:
+    its simulator waits for them G.LAUNCH_START_WAIT_S, and they for each other half of it, or half
+    of what the user gives the simulator (0, for ever: as long as any wait may be); a node's or
+    the recorder's own value given on the command line stays, and a wait the simulator would
+    refuse leaves the nodes theirs."""
+    def argvs(*args):
+        return {n.name: n.argv for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"), *args]))}
+
+    def waits(nodes):
+        said = {name: [a for a in argv if a.startswith(("inputs_wait_s:=", "wait_timeout_s:="))] for name, argv in nodes.items()}
+        rec = nodes["recorder"]
+        said["recorder"] = [rec[i + 1] for i, a in enumerate(rec) if a == "--inputs-wait"]
+        return said
+
+    half = G.LAUNCH_START_WAIT_S / 2
+    assert waits(argvs()) == {"recorder": [str(half)], "estimator": [f"inputs_wait_s:={half}"],
+                              "planner": [f"inputs_wait_s:={half}"], "controller": [f"inputs_wait_s:={half}"],
+                              "sim": [f"wait_timeout_s:={G.LAUNCH_START_WAIT_S}"]}
+    assert G.INPUTS_WAIT_S < half  # longer than a node started by hand waits
+    given = waits(argvs("--sim-param", "wait_timeout_s:=8", "--planner-param", "inputs_wait_s:=1.0",
+                        "--recorder-arg=--inputs-wait=2"))
+    assert given == {"recorder": [], "estimator": ["inputs_wait_s:=4.0"], "planner": ["inputs_wait_s:=1.0"],
+                     "controller": ["inputs_wait_s:=4.0"], "sim": ["wait_timeout_s:=8"]}
+    forever = waits(argvs("--sim-param", "wait_timeout_s:=0"))
+    assert forever["planner"] == [f"inputs_wait_s:={G.MAX_WAIT_S}"] and forever["sim"] == ["wait_timeout_s:=0"]
+    refused = waits(argvs("--sim-param", "wait_timeout_s:=-1"))  # the simulator refuses it, and the launch stops
+    assert refused == {"recorder": [], "estimator": [], "planner": [], "controller": [], "sim": ["wait_timeout_s:=-1"]}
+
+
 def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a_name_of_its_own(tmp_path, capsys):
     """Readers outside the launch met the simulator's counts before its recorder listened (its
     first episodes went unrecorded, exit 0), and a recorder started by hand is named

@@ -470,6 +470,31 @@ def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     return [f"checkpoint:={path}"]
 
 
+def launch_waits(args: argparse.Namespace) -> tuple[list[str], float | None]:
+    """The simulator's start wait the launch gives it (``wait_timeout_s:=…``, [] if the user gave
+    one by -p) and how long the launch's own nodes wait for each other's writers (``inputs_wait_s``,
+    the recorder's ``--inputs-wait``): half the simulator's wait, so they join well before it gives
+    up on them, as nodes started by hand wait ``G.INPUTS_WAIT_S`` of its own default. Wiring, like
+    ``wait_for``: a params file does not count (the shipped ones list the hand-started defaults).
+    None: the user's wait is not a number the simulator takes (it refuses it, and the launch
+    stops), so the nodes keep theirs."""
+    given = given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("wait_timeout_s",))["wait_timeout_s"]
+    if given is None:
+        return [f"wait_timeout_s:={G.LAUNCH_START_WAIT_S}"], G.LAUNCH_START_WAIT_S / 2
+    try:
+        start_wait_s = float(given)
+    except ValueError:
+        return [], None
+    if not 0.0 <= start_wait_s <= G.MAX_WAIT_S:
+        return [], None
+    return [], (G.MAX_WAIT_S if start_wait_s == 0.0 else start_wait_s / 2)  # 0: the simulator waits for ever
+
+
+def _inputs_wait(node: str, params: list[str], wait_s: float | None) -> list[str]:
+    """``["inputs_wait_s:=…"]`` for a launched node given none by -p (``launch_waits``)."""
+    return [] if wait_s is None else unless_given(node, params, [f"inputs_wait_s:={wait_s}"])
+
+
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
     for topic, n in endpoints.items():
         wait[topic] = wait.get(topic, 0) + n
@@ -505,10 +530,15 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # the same for all (a recorder given another would record nothing)
     graph_id = ((given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("graph_id",))["graph_id"] or "").strip()
                 or f"launch-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    sim_wait, join_wait_s = launch_waits(args)
     if args.record:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
+        # (any prefix of --inputs-wait the user gives the recorder is theirs: argparse takes it)
+        if join_wait_s is not None and not any(len(o := a.split("=", 1)[0]) > 2 and "--inputs-wait".startswith(o)
+                                               for a in args.recorder_arg):
+            extra += ["--inputs-wait", str(join_wait_s)]
         # (a name the user gives it, --recorder-arg __node:=NAME after --ros-args, is waited for instead)
         given = [m.group(1) for a in args.recorder_arg if (m := RECORDER_NAME_REMAP_RE.fullmatch(a))]
         recorder_name = given[-1] if given else own_recorder_name(graph_id)
@@ -522,7 +552,9 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # the world's shipped model unless one is given (``world_checkpoint_param`` looks)
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
-                       + unless_given(G.NODE_NAMES["estimator"], args.estimator_param, follow) + list(args.estimator_param))
+                       + unless_given(G.NODE_NAMES["estimator"], args.estimator_param, follow)
+                       + _inputs_wait(G.NODE_NAMES["estimator"], args.estimator_param, join_wait_s)
+                       + list(args.estimator_param))
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
         # (the simulator steps on the controller's commands), and a planner without them sends no targets
@@ -539,6 +571,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
                                                       unless_given(G.NODE_NAMES["planner"], args.planner_param, follow)
+                                                      + _inputs_wait(G.NODE_NAMES["planner"], args.planner_param, join_wait_s)
                                                       + args.planner_param, args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
@@ -547,6 +580,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # the planner's loop unless the user sets depth_source
         closed = unless_given(G.NODE_NAMES["controller"], args.controller_param,
                               (["depth_source:=planner"] if args.planner else []) + follow)
+        closed += _inputs_wait(G.NODE_NAMES["controller"], args.controller_param, join_wait_s)
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))
@@ -560,7 +594,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     # Only what was given on the command line overrides the params file (later -p wins).
     sim += [a for name in ("pacing", "rate") if getattr(args, name) is not None
             for a in ("-p", f"{name}:={getattr(args, name)}")]
-    own = [f"exit_when_done:={'false' if args.keep_running else 'true'}", f"graph_id:={graph_id}"]
+    own = [f"exit_when_done:={'false' if args.keep_running else 'true'}", f"graph_id:={graph_id}", *sim_wait]
     if wait:
         own.append("wait_for:=[" + ",".join([f"'{t}:{n}'" for t, n in sorted(wait.items())]
                                             + [f"'{entry}'" for entry in named]) + "]")

@@ -205,6 +205,13 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # simulator's topics anyway (``ros_adapter.JoinAfterInputs``): well inside the simulator's own
 # start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
 INPUTS_WAIT_S = 5.0
+# soil_launch's simulator's start wait for the launch's own nodes (its ``wait_timeout_s`` unless
+# given; a node's ``inputs_wait_s`` then half of it, as above). Those nodes are coming, and the
+# estimator's start (torch's import and its model) took 5–7 s on a loaded 2-core machine: with the
+# nodes' own 5 s the planner joined without its estimates, missed the first ones, and a lockstep
+# controller waited planner_wait_s for the first targets. The cost: a launched node that dies
+# before the first episode delays it this long (the ones after a death mid-run too, once).
+LAUNCH_START_WAIT_S = 30.0
 MAX_WAIT_S = 3600.0  # the longest any start-up or tick wait of the graph may be set to [s]
 # Wall time without an input mid-episode before a node says so, and takes the episode's source for
 # gone (``episode_follow``): longer than a lockstep tick may wait for a silent planner (the
