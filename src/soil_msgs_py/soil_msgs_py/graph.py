@@ -207,7 +207,7 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 INPUTS_WAIT_S = 5.0
 # soil_launch's simulator's start wait for the launch's own nodes (its ``wait_timeout_s`` unless
 # given; a node's ``inputs_wait_s`` then half of it, as above). Those nodes are coming, and the
-# estimator's start (torch's import and its model) took 5–7 s on a loaded 2-core machine: with the
+# estimator's start (torch's import and its model) took 2–9 s on a loaded 2-core machine: with the
 # nodes' own 5 s the planner joined without its estimates, missed the first ones, and a lockstep
 # controller waited planner_wait_s for the first targets. The cost: a launched node that dies
 # before the first episode delays it this long (the ones after a death mid-run too, once).
