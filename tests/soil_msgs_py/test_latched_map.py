@@ -64,12 +64,13 @@ def test_the_map_writer_keeps_the_latched_depth_not_the_data_topics():
     from soil_msgs_py import topics as T
     from soil_msgs_py.graph import ESTIMATOR_PHYSICS_TOPIC, LATCHED_WRITER_DEPTH, publisher_qos_spec
 
-    for topic in (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC):
-        spec = publisher_qos_spec(topic)
-        assert (spec.depth, spec.durability, spec.reliability) == (LATCHED_WRITER_DEPTH, "transient_local", "reliable")
-    # the episode's event is a state: its writer keeps the newest alone, so a latecomer is sent what holds now
+    spec = publisher_qos_spec(T.SOIL_MAP.name)
+    assert (spec.depth, spec.durability, spec.reliability) == (LATCHED_WRITER_DEPTH, "transient_local", "reliable")
+    # the episode's event and the estimator's physics are states: their writers keep the newest alone,
+    # so a latecomer is sent what holds now
     from soil_msgs_py.graph import SIM_EPISODE_TOPIC, TOPIC_QOS
 
-    spec = publisher_qos_spec(SIM_EPISODE_TOPIC)
-    assert (spec.depth, spec.durability, spec.reliability) == (1, "transient_local", "reliable")
-    assert TOPIC_QOS[SIM_EPISODE_TOPIC] == spec  # and its readers ask for the same
+    for topic in (SIM_EPISODE_TOPIC, ESTIMATOR_PHYSICS_TOPIC):
+        spec = publisher_qos_spec(topic)
+        assert (spec.depth, spec.durability, spec.reliability) == (1, "transient_local", "reliable")
+        assert TOPIC_QOS[topic] == spec  # and its readers ask for the same

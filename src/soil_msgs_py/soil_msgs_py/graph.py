@@ -135,10 +135,11 @@ TOPIC_QOS[SIM_EPISODE_TOPIC] = STATE_QOS
 # restarted one must not write a past episode's maps into the episode it joins.
 # The estimator's physics is said once (and again when its model changes): a planner started after it
 # subscribes TRANSIENT_LOCAL and gets it on joining, like a robot_description.
-# The episode's event is a state, as a robot_description is: its writer keeps the newest alone
-# (``LATCHED_STATE_TOPICS``), so a latecomer is sent what holds now, not the episodes before it.
+# The episode's event and the estimator's physics are states, as a robot_description is: their
+# writers keep the newest alone (``LATCHED_STATE_TOPICS``), so a latecomer is sent what holds now,
+# not the episodes or models before it.
 LATCHED_TOPICS: tuple[str, ...] = (T.SOIL_MAP.name, ESTIMATOR_PHYSICS_TOPIC, SIM_EPISODE_TOPIC)
-LATCHED_STATE_TOPICS: tuple[str, ...] = (SIM_EPISODE_TOPIC,)
+LATCHED_STATE_TOPICS: tuple[str, ...] = (ESTIMATOR_PHYSICS_TOPIC, SIM_EPISODE_TOPIC)
 # A latched topic's writer history: each sample is the whole state (every map cell so far), so a
 # reader that misses one loses only a moment of it, and the writer keeps this many, not a
 # recorder's depth: 2000 maps (up to 144 kB each) had grown an estimator by ~25 MB in 15 min of an
