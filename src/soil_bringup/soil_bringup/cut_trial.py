@@ -131,8 +131,10 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
         # the plan reads the posterior's θ through the posterior's own physics (what of it a
         # steady cut can evaluate: a term on travel or time in soil is left out)
         cfg = estimator.posterior.cfg  # the posterior's physics and the bound law calibrated for it, as the estimator says them to the planner
+        # at the cut's own speed unless told otherwise, as the planner node follows each episode's
+        # target speed (its follow_episode_speed): the plans and the stall memory's threshold
         planner = StretchPlanner(**{"terms": steady_cut_terms(cfg.terms)[0], "bound_law": cfg.planner_bound_law() or (),
-                                    **setup.planner})
+                                    "cut_speed_m_s": float(spec.target_speed_m_s), **setup.planner})
         estimator.start_episode(0)
         start = schedule.target_m
     controller = AntiStallController(gains, spec.target_speed_m_s, start)

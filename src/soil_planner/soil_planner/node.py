@@ -112,6 +112,9 @@ PARAMETERS: dict[str, tuple] = {
     "cut_speed_m_s": (DEFAULT_CUT_SPEED_M_S, "blade speed v_x of the planned steady, level cut (v_z = 0) [m/s], "
                                              f"(0, {CUT_SPEED_LIMIT_M_S:g}]; default: the anti-stall controller's "
                                              "default target speed"),
+    "follow_episode_speed": (True, "take cut_speed_m_s from each episode_start on /sim/status: the target speed the "
+                                   "controller cuts at (its follow_episode_targets), so the plans and the stall memory's "
+                                   "threshold are the cut's; false: cut_speed_m_s as given"),
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),
@@ -169,7 +172,7 @@ PLANNER_SETTINGS = ("margin", "d_max_m", "cut_speed_m_s", "include_residual", "f
                     "sensor_anchor", "bound_law")  # StretchPlanner's
 # what is read once, at start: a change at run time is refused (it would change nothing)
 START_ONLY = frozenset(PARAMETERS) - {*PLANNER_SETTINGS, *SCHEDULE_PARAMETERS, "log_period_s", "command_wait_s",
-                                      "follow_estimator_physics"}
+                                      "follow_estimator_physics", "follow_episode_speed"}
 PHYSICS_SETTINGS = ("terms", "bound_law")  # the user's, or the estimator's where not given (``estimator_physics``)
 
 
@@ -192,6 +195,7 @@ class PlannerNode(Node):
         # what the user gave of the posterior's physics, and whether the estimator's fills what was not
         self.own_physics = {name: self.planner.settings()[name] for name in PHYSICS_SETTINGS}
         self.follow_physics = check_switch("follow_estimator_physics", get("follow_estimator_physics"))
+        self.follow_speed = check_switch("follow_episode_speed", get("follow_episode_speed"))
         self.announced: G.EstimatorPhysics | None = None
         self.schedule = DepthSchedule(schedule_settings({p: get(p) for p in SCHEDULE_PARAMETERS}))
         check_target_floor(self.planner, self.schedule.settings)
@@ -282,6 +286,7 @@ class PlannerNode(Node):
             schedule = schedule_settings({p: changes.get(p, current[f]) for p, f in SCHEDULE_PARAMETERS.items()})
             check_target_floor(planner, schedule)
             follow = check_switch("follow_estimator_physics", changes.get("follow_estimator_physics", self.follow_physics))
+            follow_speed = check_switch("follow_episode_speed", changes.get("follow_episode_speed", self.follow_speed))
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         planner.keep_evidence_of(self.planner)  # new settings are no new cut
@@ -290,6 +295,7 @@ class PlannerNode(Node):
             if name in changes:  # the user's choice now ([]: the estimator's again, where it is followed)
                 self.own_physics[name] = planner.settings()[name]
         self.follow_physics = follow
+        self.follow_speed = follow_speed
         self.schedule.settings = schedule
         self.log_period_ns = int(period * M.NS_PER_S)
         self.command_wait.max_wait_s = wait_s
@@ -349,6 +355,14 @@ class PlannerNode(Node):
         if event is not None and event.event == G.EVENT_EPISODE_START:
             self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
             self.lockstep = event.pacing == G.PACING_LOCKSTEP
+            if self.follow_speed and event.meta.target_speed_m_s != self.planner.cut_speed_m_s:
+                # the cut's speed (the controller's target): the stall memory counts a stall where v_x
+                # falls below 80 % of the planned speed, and planned at 0.5 m/s, a cut at 0.35 m/s,
+                # never reaching 0.4 m/s, counted none, and one at 0.45 m/s one at every dip below 0.4
+                result = self.set_parameters([Parameter("cut_speed_m_s", value=float(event.meta.target_speed_m_s))])
+                if not all(r.successful for r in result):
+                    self._warn("speed", f"episode {event.name}: its target speed is not planned at: "
+                                        f"{[r.reason for r in result]}")
             self._new_cut()
             self.silence.start(event.name)
         elif event is not None:
