@@ -139,6 +139,9 @@ def test_bag_read_error_survives_pickling():
     assert type(back) is bag_io.BagReadError
     assert (back.bag, back.problem, str(back)) == (err.bag, err.problem, str(err))
     assert isinstance(back, ValueError)
+    err = bag_io.MetadataUnreadable("/x/bag", "unreadable metadata.yaml: it lacks 'version'")
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is bag_io.MetadataUnreadable and (back.reason, str(back)) == (err.reason, str(err))
 
 
 @pytest.fixture(scope="module")

@@ -63,6 +63,19 @@ class BagReadError(ValueError):
         return type(self), (self.bag, self.problem)
 
 
+class MetadataUnreadable(BagReadError):
+    """A bag whose metadata.yaml no reader takes (missing, unparsable, or lacking a key rosbag2
+    needs): ``reason`` says what is wrong; the message adds the command that rebuilds it, since
+    rosbags' own words ("A metadata key is missing KeyError('version')") named neither."""
+
+    def __init__(self, bag: str | os.PathLike, reason: str):
+        self.reason = str(reason)
+        super().__init__(bag, f"{self.reason}; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap carries")
+
+    def __reduce__(self):
+        return type(self), (self.bag, self.reason)
+
+
 @contextmanager
 def reading(bag: str | os.PathLike) -> Iterator[None]:
     """Check ``bag``'s CRCs (:func:`check_integrity`), then turn any error of reading it into
@@ -165,17 +178,56 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
 _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+# What rosbag2 metadata must hold for rosbags' reader (0.11) to open a bag: the top-level keys (and
+# the one key of the two mappings) and each topic entry's. The writer puts ``version`` last, so a
+# metadata.yaml cut short loses it first, and still parses.
+REQUIRED_METADATA = {"version": int, "relative_file_paths": list, "storage_identifier": str,
+                     "topics_with_message_count": list, "duration": "nanoseconds",
+                     "starting_time": "nanoseconds_since_epoch", "message_count": int}
+REQUIRED_TOPIC_METADATA = ("name", "type", "serialization_format")
+
+
+def metadata_problem(info: dict) -> str:
+    """What ``rosbag2_bagfile_information`` lacks that a reader needs ("" if nothing): the one test of
+    a metadata.yaml (and of the .mcap's record of it) beyond parsing."""
+    lacking = []
+    for key, kind in REQUIRED_METADATA.items():
+        value = info.get(key)
+        if isinstance(kind, str):
+            if not (isinstance(value, dict) and isinstance(value.get(kind), int)):
+                lacking.append(f"{key}.{kind}")
+        elif not isinstance(value, kind) or isinstance(value, bool):
+            lacking.append(key)
+    lacking = [repr(k) for k in lacking]
+    for k, entry in enumerate(info.get("topics_with_message_count") or []):
+        topic = entry.get("topic_metadata") if isinstance(entry, dict) else None
+        if not (isinstance(topic, dict) and all(isinstance(topic.get(n), str) for n in REQUIRED_TOPIC_METADATA)
+                and isinstance(entry.get("message_count"), int)):
+            lacking.append(f"a whole topics_with_message_count entry (its entry {k}: topic_metadata's "
+                           f"{', '.join(REQUIRED_TOPIC_METADATA)} and message_count)")
+            break
+    if not lacking:
+        return ""
+    return (f"lacks {' and '.join(lacking)}, which rosbag2 requires (cut short or edited: it parses as YAML, but no "
+            "reader takes it)")
+
+
 def bag_info(bag: Path) -> dict:
-    """metadata.yaml's ``rosbag2_bagfile_information``."""
+    """metadata.yaml's ``rosbag2_bagfile_information``; MetadataUnreadable if it is missing, does not
+    parse, or lacks what a reader needs (``metadata_problem``): the one place that calls a
+    metadata.yaml garbled, for the readers and for ``soil_bag_repair``, which rebuilds such a one."""
     try:
         data = yaml.load((bag / "metadata.yaml").read_text(), Loader=_YAML_LOADER)
     except (OSError, ValueError, yaml.YAMLError) as err:
         # one line (a YAML error's repr dumped its parser's Mark objects)
-        raise BagReadError(bag, f"unreadable metadata.yaml: {type(err).__name__}: {' '.join(str(err).split())}") from None
+        raise MetadataUnreadable(bag, f"unreadable metadata.yaml: {type(err).__name__}: "
+                                      f"{' '.join(str(err).split())}") from None
     info = data.get("rosbag2_bagfile_information") if isinstance(data, dict) else None
     if not isinstance(info, dict):  # (a bare string or list read as "string indices must be integers")
-        raise BagReadError(bag, "unreadable metadata.yaml: not a rosbag2 metadata file (no mapping "
-                                f"'rosbag2_bagfile_information'; found {short_repr(data)})")
+        raise MetadataUnreadable(bag, "unreadable metadata.yaml: not a rosbag2 metadata file (no mapping "
+                                      f"'rosbag2_bagfile_information'; found {short_repr(data)})")
+    if problem := metadata_problem(info):
+        raise MetadataUnreadable(bag, f"unreadable metadata.yaml: it {problem}")
     return dict(info)
 
 

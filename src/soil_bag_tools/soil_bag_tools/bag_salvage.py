@@ -11,7 +11,8 @@ across a dropped chunk's boundary is incomplete), so ``bag_io.read_episode`` can
 copy; the episode then has a gap in its stamps where the dropped chunks were. The original
 is never touched.
 
-A bag whose metadata.yaml is missing or unreadable (deleted, garbled) while its one .mcap is
+A bag whose metadata.yaml is missing or unreadable (deleted, garbled, or cut short: parsing, but
+lacking a key rosbag2 requires, ``bag_io.metadata_problem``) while its one .mcap is
 whole is copied the same way, its metadata taken from the file's own record of it (the
 ``rosbag2`` Metadata record rosbag2 and this project's writer put in every bag): no reader takes
 the bag without it, and what was recorded is all there.
@@ -28,7 +29,7 @@ from mcap.records import Channel, Message, Schema
 from rosbags.rosbag2.metadata import parse_qos
 
 from soil_msgs_py import messages as M
-from .bag_io import META_KEY, PARTIAL_SUFFIX, BagReadError, bag_info
+from .bag_io import META_KEY, PARTIAL_SUFFIX, MetadataUnreadable, bag_info, metadata_problem
 from .bag_writer import BagWriter
 from .integrity import McapScan, read_records
 from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_details, stamps_in_every_topic
@@ -66,7 +67,7 @@ def embedded_info(bag: Path, problem: str) -> tuple[dict, Path]:
         data = None
     # (rosbag2 keeps the inner mapping of metadata.yaml there, without its rosbag2_bagfile_information key)
     info = data.get("rosbag2_bagfile_information", data) if isinstance(data, dict) else None
-    if not (isinstance(info, dict) and "topics_with_message_count" in info):
+    if not isinstance(info, dict) or metadata_problem(info):  # (the test a metadata.yaml passes)
         raise NothingRecoverable(f"{bag}: {problem}, and {mcaps[0].name} carries no rosbag2 metadata record (a file of "
                                  "another writer, or cut short before its end): nothing to rebuild it from")
     return dict(info), mcaps[0]
@@ -85,9 +86,9 @@ def salvage_bag(bag: Path, out: Path, *, keep_partial_ticks: bool = False) -> Ba
     rebuilt = ""  # why metadata.yaml is taken from the .mcap's own record ("": it was read)
     try:
         info = bag_info(bag)
-    except BagReadError as err:
-        info, mcap = embedded_info(bag, err.problem)
-        rebuilt = err.problem
+    except MetadataUnreadable as err:  # missing, unparsable, or lacking what a reader needs (cut short)
+        info, mcap = embedded_info(bag, err.reason)
+        rebuilt = err.reason
     else:
         files = [str(f) for f in info.get("relative_file_paths") or []]
         if len(files) != 1 or not files[0].endswith(".mcap"):
