@@ -715,7 +715,25 @@ def test_play_refuses_a_selection_that_leaves_nothing_to_play():
     out = subprocess.run([BIN / "soil_bag_play", SAMPLES, "--topics", "/nope", "/soil/known_params", "--rate", "50"],
                          env=ros_env(next_domain_id()), capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    assert f"{SAMPLE}: no topic(s) ['/nope']" in out.stderr and "published 1800 messages" in out.stderr
+    assert f"{SAMPLE}: no topic(s) /nope, named by --topics: not played" in out.stderr, out.stderr
+    assert "published 1800 messages" in out.stderr
+
+
+def test_play_says_an_excluded_topic_no_bag_holds_as_it_says_a_selected_one():
+    """--exclude /soil/estimat (a typo) played everything and exited 0 without a word, where --topics
+    of an unknown name warns: both go through playback.absent_topics, with the name meant."""
+    notes: list[str] = []
+    bag = playback.load_bag(SAMPLE, exclude=["/soil/estimat", "/blade/forc"], log=notes.append)
+    assert notes == [f"{SAMPLE}: no topic(s) /blade/forc (did you mean /blade/force?), /soil/estimat (did you mean "
+                     "/soil/estimate?), named by --exclude: nothing excluded for it"], notes
+    assert bag.topics.keys() == bag.held  # (nothing excluded)
+    notes.clear()
+    playback.load_bag(SAMPLE, exclude=["/blade/force"], drop=["/clock"], log=notes.append)
+    assert notes == []  # a topic the bag holds, and the player's own drop, are no news
+    out = subprocess.run([BIN / "soil_bag_play", SAMPLE, "--exclude", "/soil/estimat", "--rate", "50"],
+                         env=ros_env(next_domain_id()), capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "no topic(s) /soil/estimat (did you mean /soil/estimate?), named by --exclude" in out.stderr, out.stderr
 
 
 def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):

@@ -133,8 +133,8 @@ class Player:
         return self.pubs[topic]
 
     def _load(self, path) -> LoadedBag:
-        exclude = list(self.opts.exclude) + ([CLOCK_TOPIC] if self.opts.clock else [])
-        bag = load_bag(path, topics=self.opts.topics, exclude=exclude, log=self.log.warning)
+        bag = load_bag(path, topics=self.opts.topics, exclude=self.opts.exclude,
+                       drop=[CLOCK_TOPIC] if self.opts.clock else [], log=self.log.warning)
         for topic, msgtype in bag.topics.items():
             self._publisher(topic, msgtype)
         return bag

@@ -24,7 +24,7 @@ from .bag_io import (META_KEY, PARTIAL_SUFFIX, bag_custom_data, is_bag, passed_b
 from soil_msgs_py.episode import EpisodeMeta
 from soil_msgs_py.graph import (EVENT_EPISODE_END, EVENT_EPISODE_START, GRAPH_OWN_TOPICS, REALTIME_FACTOR_RANGE,
                                 STRING_MSGTYPE, EpisodeEvent)
-from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GROUND_TRUTH
+from soil_msgs_py.topics import CLOCK, EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, GROUND_TRUTH, with_guesses
 
 CLOCK_TOPIC = CLOCK.name
 RATE_LIMITS = REALTIME_FACTOR_RANGE  # replay speed factors a player accepts, the simulator's
@@ -89,11 +89,25 @@ class LoadedBag:
         return len({t for t, _, _ in self.messages})
 
 
+def absent_topics(bag: Path, option: str, asked: Iterable[str], held: Iterable[str]) -> str:
+    """The warning for the topics ``option`` (--topics, --exclude) names that ``bag`` does not hold,
+    each with the bag's or the contract's topic it may have been meant as ("" if it holds them all):
+    a mistyped ``--exclude /soil/estimat`` had played the estimate in silence."""
+    held = set(held)
+    missing = sorted(set(asked) - held)
+    if not missing:
+        return ""
+    effect = "not played" if option == "--topics" else "nothing excluded for it"
+    return f"{bag}: no topic(s) {with_guesses(missing, held | set(GRAPH_TOPICS_BY_NAME))}, named by {option}: {effect}"
+
+
 def load_bag(
-    bag: Path, *, topics: Iterable[str] | None = None, exclude: Iterable[str] = (),
+    bag: Path, *, topics: Iterable[str] | None = None, exclude: Iterable[str] = (), drop: Iterable[str] = (),
     log: Callable[[str], None] = lambda s: None,
 ) -> LoadedBag:
-    """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude``, in log-time order.
+    """Raw messages of ``bag`` (all topics, or ``topics``), minus ``exclude`` and ``drop``, in
+    log-time order; a topic of ``topics`` or ``exclude`` the bag lacks is said (``absent_topics``),
+    one of ``drop`` is not (the player's own: --clock's /clock).
 
     A bag a machine's own recorder wrote under one namespace (``/dozer1/blade/force``, as the
     readers take it: ``bag_io.topics_namespace``) gives the graph's topics by the contract's names,
@@ -102,7 +116,7 @@ def load_bag(
 
     BagReadError (naming the bag) if it is truncated or corrupt."""
     include = None if topics is None else set(topics)
-    skip = set(exclude)
+    skip = set(exclude) | set(drop)
     meta = None
     custom = bag_custom_data(bag)
     if META_KEY in custom:
@@ -124,9 +138,10 @@ def load_bag(
         held = frozenset(named(c.topic) for c in reader.connections)
         messages = ([(t, named(c.topic), bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
                     if conns else [])
-    if include is not None and (missing := sorted(include - held)):  # absent from the bag (not merely excluded)
-        log(f"{bag}: no topic(s) {missing}")
-    elif meta is not None and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held  # (a machine's bag
+    for option, asked in (("--topics", include or ()), ("--exclude", skip - set(drop))):
+        if note := absent_topics(bag, option, asked, held):  # absent from the bag (not merely excluded)
+            log(note)
+    if meta is not None and (include is None or include <= held) and (missing := [t.name for t in EPISODE_TOPICS if t.name not in held  # (a machine's bag
                                            and t.name not in (GROUND_TRUTH.name, CLOCK.name)]):  # has no truth, no clock)
         # played all the same (a player sends what a bag holds), but every bag reader refuses it
         log(f"{bag}: an episode bag without topic(s) {missing}: its ticks are incomplete (the bag readers "

@@ -15,7 +15,6 @@ whole ticks). A SIGKILL leaves ``<out>/<name>.partial/`` for ``soil_bag_repair``
 from __future__ import annotations
 
 import argparse
-import difflib
 import sys
 import tempfile
 import time
@@ -32,7 +31,7 @@ from .bag_writer import offered_qos
 from .recorder import END_GRACE_S, Recorder
 from soil_msgs_py.ros_adapter import (JoinAfterInputs, local, message_class, own_arguments_or_refusal, qos_profile,
                                       spin_node, wall_timer)
-from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
+from soil_msgs_py.topics import EPISODE_TOPICS, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME, with_guesses
 
 _DISCOVERY_PERIOD_S = 0.5
 _PENDING_SAY_AFTER_S = 5.0  # a --topics name with no publisher this long is said to the user
@@ -190,12 +189,7 @@ class RecordNode(Node):
 
 def _with_guesses(topics: list[str], graph_types: dict) -> str:
     """The topics, each with the name it may have been meant as (the contract's and the graph's)."""
-    names = sorted(set(GRAPH_TOPICS_BY_NAME) | set(graph_types))
-    said = []
-    for topic in topics:
-        guess = difflib.get_close_matches(topic, [n for n in names if n != topic], n=1, cutoff=0.75)
-        said.append(f"{topic} (did you mean {guess[0]}?)" if guess else topic)
-    return ", ".join(said)
+    return with_guesses(topics, set(GRAPH_TOPICS_BY_NAME) | set(graph_types))
 
 
 def main(args: list[str] | None = None) -> int:

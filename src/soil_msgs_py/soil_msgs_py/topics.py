@@ -8,6 +8,8 @@ self-describing (see ``messages.py``).
 """
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from .params import GROUND_TRUTH_PARAMS, KNOWN_PARAMS
@@ -154,3 +156,15 @@ TARGET_DEPTH = Topic(
 # Every topic this project defines, episode data or not (e.g. what a recorder can type without discovery).
 GRAPH_TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in (*EPISODE_TOPICS, ESTIMATE, ESTIMATED_FORCE, SOIL_MAP, PLAN,
                                                                   TARGET_DEPTH)}
+
+
+def with_guesses(topics: Iterable[str], candidates: Iterable[str]) -> str:
+    """The topics, each with the one of ``candidates`` it may have been meant as (a mistyped
+    ``/soil/estimat``: "/soil/estimat (did you mean /soil/estimate?)"), for every tool that says a
+    topic it was given is not there (the recorder of the graph's names, the player of a bag's)."""
+    names = sorted(set(candidates))
+    said = []
+    for topic in topics:
+        guess = difflib.get_close_matches(topic, [n for n in names if n != topic], n=1, cutoff=0.75)
+        said.append(f"{topic} (did you mean {guess[0]}?)" if guess else topic)
+    return ", ".join(said)
