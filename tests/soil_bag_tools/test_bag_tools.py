@@ -685,6 +685,27 @@ def test_play_refuses_a_corrupt_bag_naming_it(tmp_path):
     assert_refused(out, bad)
 
 
+def test_play_checks_every_bag_of_a_directory_before_playing_the_first(tmp_path):
+    """A directory whose later bags are damaged had its readable bags played and stopped, exit 2, at
+    the first damaged one: every bag is now checked first, each bad one named with its repair, and
+    nothing is played."""
+    from .test_corrupt_bags import copy_bag, truncate
+
+    good = copy_bag(SAMPLE, tmp_path / "a_good")
+    cut = truncate(copy_bag(SAMPLE, tmp_path / "b_truncated"))
+    short = copy_bag(SAMPLE, tmp_path / "c_metadata_cut")
+    (short / "metadata.yaml").write_bytes((SAMPLE / "metadata.yaml").read_bytes()[:3000])
+    assert playback.unreadable_bags([good]) == []
+    out = subprocess.run([BIN / "soil_bag_play", tmp_path, "--rate", "50"], env=ros_env(next_domain_id()),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert "2 of the 3 bag(s) cannot be read; nothing played" in out.stderr, out.stderr
+    assert f"bag {cut}: " in out.stderr and f"soil_bag_repair {cut} --out NEW_BAG" in out.stderr, out.stderr
+    assert f"bag {short}: unreadable metadata.yaml" in out.stderr and f"soil_bag_repair {short}" in out.stderr
+    assert f"bag {good}" not in out.stderr and "played" not in out.stdout + out.stderr.replace("nothing played", "")
+    assert "Traceback" not in out.stdout + out.stderr
+
+
 @pytest.mark.parametrize("option, value", [("--wait-timeout", "nan"), ("--wait-timeout", "-5"),
                                            ("--wait-timeout", "inf"), ("--clock", "inf"), ("--clock", "1e12"),
                                            ("--rate", "inf"), ("--rate", "nan"), ("--rate", "1e-300"),

@@ -11,8 +11,9 @@ so ``soil_bag_record`` splits a replay into the same bags and estimators reset i
                   [--ros-args ...]
 
 Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument, a truncated or
-corrupt bag (named; the bags before it have been played), or a --topics/--exclude selection
-that leaves no message in any bag (a topic missing from only some bags is a warning).
+corrupt bag (every bag is checked before the first is played: each bad one named, nothing
+played), or a --topics/--exclude selection that leaves no message in any bag (a topic missing
+from only some bags is a warning).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from soil_msgs_py.cli_paths import input_text
 from soil_msgs_py.values import finite_number
 from .playback import (
     CLOCK_MSGTYPE, CLOCK_TOPIC, RATE_LIMITS, BagPathError, LoadedBag, Pacer, check_rate, episode_events,
-    expand_bag_args, load_bag, string_cdr, with_clock,
+    expand_bag_args, load_bag, string_cdr, unreadable_bags, with_clock,
 )
 from soil_msgs_py.ros_adapter import (endpoint_node, init_rclpy, local, message_class, own_arguments_or_refusal,
                                       print_refusal, publisher_qos, stopping_said, wait_for_acks)
@@ -286,6 +287,17 @@ def main(args: list[str] | None = None) -> int:
         return EXIT_BAD_CONFIG
     for note in notes:  # a killed recorder's journal beside the bags: played without it, said with its repair
         print(f"soil_bag_play: {note}", file=sys.stderr)
+    try:
+        bad = unreadable_bags(paths)  # every bag checked before the first is played
+    except KeyboardInterrupt:  # (a large dataset's check takes seconds)
+        print(f"soil_bag_play: {stopping_said(signal.SIGINT)}", file=sys.stderr)
+        return 128 + int(signal.SIGINT)
+    if bad:
+        print(f"soil_bag_play: {len(bad)} of the {len(paths)} bag(s) cannot be read; nothing played (repair the ones "
+              "whose line names soil_bag_repair, or leave them out):", file=sys.stderr)
+        for problem in bad:
+            print(f"soil_bag_play:   {problem}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
     # Our own handlers (not rclpy's): the context stays valid after Ctrl-C, so the player can
     # still publish the episode_end of an interrupted bag.
     signals: list[int] = []

@@ -149,6 +149,28 @@ def load_bag(
     return LoadedBag(path=bag, topics=found, messages=messages, meta=meta, held=held)
 
 
+def check_readable(bag: Path) -> None:
+    """What ``load_bag`` checks of a bag before reading its messages (its metadata.yaml, every chunk's
+    CRC, rosbags opening it, one machine's namespace): BagReadError naming the bag and, where it
+    can mend it, ``soil_bag_repair``."""
+    bag_custom_data(bag)
+    with reading(bag), AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
+        topics_namespace(bag, {c.topic for c in reader.connections})
+
+
+def unreadable_bags(bags: Sequence[Path]) -> list[str]:
+    """Why each of ``bags`` that ``check_readable`` refuses cannot be played, in play order ([]: all
+    pass). The player asks before it plays the first: a directory with a truncated bag among its
+    bags had played those before it and stopped there, exit 2, half a dataset replayed."""
+    problems = []
+    for bag in bags:
+        try:
+            check_readable(bag)
+        except ValueError as err:  # BagReadError, and a metadata.yaml custom_data that is no mapping
+            problems.append(str(err))
+    return problems
+
+
 def string_cdr(text: str) -> bytes:
     return bytes(M.TYPESTORE.serialize_cdr(M.TYPESTORE.types[STRING_MSGTYPE](data=text), STRING_MSGTYPE))
 
