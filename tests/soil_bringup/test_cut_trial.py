@@ -197,6 +197,25 @@ def _refuse(constant):
     raise ValueError(f"not strict JSON: {constant}")
 
 
+def test_the_report_says_another_worlds_checkpoint_as_pinn_eval_does(tmp_path, capsys):
+    """--checkpoint of another world's model (an outside tester's fee checkpoint in the default world)
+    ran without a word: said at once, on the console and in cut_report.md, with pinn_eval's words
+    (checkpoint.world_mismatch); the world's own checkpoint is no news."""
+    from pinn_estimator.shipped import shipped_checkpoint
+
+    out = tmp_path / "other"
+    assert cut_report.main(["--worlds", "fee", "--duration", "2", "--patch", "0:Sand:20", "--checkpoint",
+                            str(shipped_checkpoint("default")), "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    sentence = "pinn_default.pt was trained on default-world data; the soil-aware policy's estimator and planner use it"
+    assert f"soil_cut_report: warning: {sentence}" in said.err and sentence in said.out, said
+    assert f"**Another world's checkpoint**: {sentence} in the fee world" in (out / "cut_report.md").read_text()
+    assert json.loads((out / "cut_report.json").read_text())["world_mismatch"].startswith(sentence)
+    args = cut_report.parse_args(["--worlds", "fee", "--checkpoint", str(shipped_checkpoint("fee")),
+                                  "--out", str(tmp_path / "own")])
+    assert args.world_mismatch == "" and "another world" not in capsys.readouterr().err.lower()
+
+
 def test_the_report_writes_its_table_json_and_figure_and_refuses_a_bad_patch(tmp_path, capsys):
     out = tmp_path / "planner"
     assert cut_report.main(["--worlds", "fee", "--duration", "4", "--patch", "0:Sand:20", "--patch", "3:Clay:80",

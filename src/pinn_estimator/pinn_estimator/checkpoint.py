@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
 
 from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
@@ -120,3 +121,21 @@ def load_model(path) -> tuple[EstimatorNet, dict]:
                          f"({model.backbone.obs_std.min().item():g}); pinn_train writes positive ones, retrain it")
     model.eval()
     return model, ckpt
+
+
+def world_mismatch(checkpoint, ckpt: dict, world: str, use: str) -> str:
+    """The sentence saying ``checkpoint`` was trained in another world than ``world``, where it is
+    used as ``use`` says ("" if its training worlds include ``world``, are not recorded, or ``world``
+    is no simulator world): one check for every tool that takes a --checkpoint and a world
+    (``pinn_eval``'s report, ``soil_cut_report``), which an outside tester's fee checkpoint in the
+    default world had passed in silence."""
+    trained = (ckpt.get("dataset") or {}).get("world_modes") or []
+    if not trained or world not in WORLD_MODES or world in trained:
+        return ""
+    return (f"{Path(checkpoint).name} was trained on {', '.join(trained)}-world data; {use}: give the {world} world's "
+            "checkpoint (--checkpoint) unless the mismatch is what you want to measure")
+
+
+def world_mismatch_lines(text: str) -> list[str]:
+    """Markdown lines of a report for ``world_mismatch``'s sentence (none if it is "")."""
+    return ["", f"**Another world's checkpoint**: {text}."] if text else []

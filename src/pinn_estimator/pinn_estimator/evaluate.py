@@ -36,7 +36,7 @@ from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS, ID_LIMIT_PCT
 
-from .checkpoint import load_model
+from .checkpoint import load_model, world_mismatch, world_mismatch_lines
 from . import forecast as fc
 from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset
 from .fusion import SoilPosterior, fuse_episode
@@ -246,12 +246,10 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
     trained = ckpt.get("dataset", {}).get("world_modes") or []
     judged = forecast_bags.metas[0].world_mode if forecast_bags is not None else forecast_world
     mismatch = {}  # said in the log and in the report, which outlives the log
-    if trained and judged in WORLD_MODES and judged not in trained:
-        mismatch["world_mismatch"] = (
-            f"{Path(checkpoint).name} was trained on {', '.join(trained)}-world data; its forecast is judged on "
-            f"{judged}-world {'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config): "
-            f"give the {judged} world's checkpoint (--checkpoint) unless the mismatch is what you want to measure")
-        log(f"warning: {mismatch['world_mismatch']}")
+    if text := world_mismatch(checkpoint, ckpt, judged, f"its forecast is judged on {judged}-world "
+                              f"{'bags' if forecast_bags is not None else 'episodes'} (with that world's fusion config)"):
+        mismatch["world_mismatch"] = text
+        log(f"warning: {text}")
     from .fusion_calibration import checkpoint_world, given_fusion
 
     if fusion_config is not None:  # checked before anything runs; "auto" is the test split's world, the checkpoint's
@@ -457,7 +455,7 @@ def _skipped_lines(described: dict | None) -> list[str]:
 
 def _mismatch_lines(report: dict) -> list[str]:
     """Markdown lines saying the checkpoint's world is not the forecast's (none: [])."""
-    return ["", f"**Another world's checkpoint**: {report['world_mismatch']}."] if report.get("world_mismatch") else []
+    return world_mismatch_lines(report.get("world_mismatch", ""))
 
 
 def markdown(report: dict) -> str:

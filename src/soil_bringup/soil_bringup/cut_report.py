@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from anti_stall_controller.controller import AntiStallGains
-from pinn_estimator.checkpoint import load_model
+from pinn_estimator.checkpoint import load_model, world_mismatch, world_mismatch_lines
 from pinn_estimator.fusion_calibration import given_fusion
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
@@ -118,11 +118,16 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(str(err))
     if (args.checkpoint or args.fusion_config) and len(args.worlds) != 1:
         p.error("--checkpoint and --fusion-config are one world's: give that world alone (--worlds default or fee)")
+    args.world_mismatch = ""  # another world's checkpoint: said at once and in the report (pinn_eval's check)
     try:  # read now, not after the sweeps: a file that is no model
         if args.checkpoint:
-            load_model(args.checkpoint)
+            args.world_mismatch = world_mismatch(args.checkpoint, load_model(args.checkpoint)[1], args.worlds[0],
+                                                 f"the soil-aware policy's estimator and planner use it in the "
+                                                 f"{args.worlds[0]} world")
     except (FileNotFoundError, ValueError) as err:
         p.error(f"--checkpoint: {err}")
+    if args.world_mismatch:
+        print(f"soil_cut_report: warning: {args.world_mismatch}", file=sys.stderr)
     try:  # ... or no config, or another world's
         if args.fusion_config:
             given_fusion(args.fusion_config, args.worlds[0], lambda note: print(f"soil_cut_report: note: {note}",
@@ -311,6 +316,8 @@ def markdown(report: dict) -> str:
              f"{report['duration_s']:g} s at {SPEED_M_S} m/s, seed {report['seed']}; best fixed depths from a sweep of "
              f"{SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m; controller: {controller_text(report['controller'])}. "
              f"Command: `{report['command']}`", ""]
+    if mismatch := world_mismatch_lines(report.get("world_mismatch", "")):
+        lines += [*mismatch[1:], ""]
     for w in report["worlds"]:
         r = w["ratios"]
         lines += [f"## {w['world']} world", "",
@@ -407,7 +414,7 @@ def plot(world: dict, path: Path) -> None:
 
 
 def console(report: dict) -> str:
-    out = []
+    out = [f"warning: another world's checkpoint: {report['world_mismatch']}"] if report.get("world_mismatch") else []
     for w in report["worlds"]:
         r = w["ratios"]
         out.append(f"{w['world']} world ({report['path']}, {report['duration_s']:g} s, seed {report['seed']}; "
@@ -475,7 +482,8 @@ def main(argv=None) -> int:
     report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
               "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner,
               "checkpoint": args.checkpoint or "shipped", "fusion_config": args.fusion_config or "shipped",
-              "controller": dataclasses.asdict(args.gains)}
+              "controller": dataclasses.asdict(args.gains), **({"world_mismatch": args.world_mismatch}
+                                                               if args.world_mismatch else {})}
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
