@@ -101,6 +101,31 @@ def test_a_row_scored_on_fewer_pairs_than_the_header_says_so():
     assert len(rows) == 1 and "(42 of the 44 pairs scored)" in rows[0], rows
 
 
+def test_the_report_says_why_pairs_were_left_out_of_a_rows_score():
+    """"(70 of the 72 pairs scored)" said how many, not why: under the table, each such row's left-out
+    pairs per axis and reason (no finite forecast, a measured force under 1 N); the figures unchanged."""
+    from pinn_estimator.forecast import MIN_MEASURED_N, markdown, summarise
+
+    def pair(measured, pinn):
+        return {"soil": "Clay", "from_depth_m": 0.1, "to_depth_m": 0.2, "measured": measured, "intervals": {},
+                "forecast": {"pinn": pinn, "true_fee": measured, "naive_same_force": measured}}
+
+    pairs = [pair((1000.0, 500.0), (1100.0, 450.0)), pair((1000.0, 0.5), (float("nan"), float("nan"))),
+             pair((800.0, 0.5 * MIN_MEASURED_N), (700.0, 10.0)), pair((900.0, 400.0), (990.0, 440.0))]
+    forecast = summarise(pairs, ["pinn"])
+    x = forecast["pinn"]["x"]["all"]
+    assert (x["pairs"], x["no_finite_forecast"], x["measured_under_1n"]) == (3, 1, 0)
+    assert x["mean_abs_pct"] == (10.0 + 12.5 + 10.0) / 3  # the score over the pairs kept, as before
+    z = forecast["pinn"]["z"]["all"]
+    assert (z["pairs"], z["no_finite_forecast"], z["measured_under_1n"]) == (2, 1, 1)
+    lines = markdown({"data": "bags/x", "pairs": 4, "episodes": 4, "worlds": ["fee"], "unlabelled": 0,
+                      "forecast": forecast})
+    (note,) = [line for line in lines if line.startswith("Pairs left out")]
+    assert ("PINN estimates (FEE part, β*): F_x: 1 with no finite forecast (no failure wedge); F_z: 1 with no finite "
+            "forecast (no failure wedge), 1 with a measured force under 1 N.") in note, note
+    assert "FEE with the true parameters: F_z: 2 with a measured force under 1 N." in note, note  # (F_x: every pair)
+
+
 def test_a_path_that_goes_on_past_the_cut_is_one_soil_and_one_begun_past_its_first_patch_is_not(tmp_path):
     """A planned path longer than the cut (a second patch at 500 m): the episode is one soil where
     its edge went, and pairs (it had been left out as a soil change); a path whose first patch ends

@@ -266,9 +266,12 @@ def _another_depth(parts: list[Steady | None], a: int, b: int) -> bool:
     return max(da, db) >= MIN_DEPTH_RATIO * min(da, db)
 
 
-def same_depth_pairs(parts: list[Steady | None]) -> int:
-    """Ordered pairs of one world, soil and density not forecast: steady depths less than MIN_DEPTH_RATIO apart."""
-    return sum(a != b and not _another_depth(parts, a, b) for members in _groups(parts) for a in members for b in members)
+def same_depth_pairs(parts: list[Steady | None], sources=None) -> int:
+    """Ordered pairs of one world, soil and density not forecast: steady depths less than MIN_DEPTH_RATIO
+    apart (from ``sources`` only if given, as ``pair_indices``)."""
+    sources = None if sources is None else set(sources)
+    return sum(a != b and not _another_depth(parts, a, b) for members in _groups(parts) for a in members
+               if sources is None or a in sources for b in members)
 
 
 def pair_indices(parts: list[Steady | None], sources=None):
@@ -285,15 +288,24 @@ def pair_indices(parts: list[Steady | None], sources=None):
                     yield a, b
 
 
+# A pair is scored where its forecast is finite and its measured force above this [N]: an error as a
+# share of a force near zero says nothing (a forecast of no failure wedge has no number at all).
+MIN_MEASURED_N = 1.0
+
+
 def _errors(pairs: list[dict], name: str, axis: int) -> dict[str, float]:
     measured = np.array([p["measured"][axis] for p in pairs])
     forecast = np.array([p["forecast"][name][axis] for p in pairs])
-    ok = np.isfinite(forecast) & (np.abs(measured) > 1.0)
+    finite = np.isfinite(forecast)
+    ok = finite & (np.abs(measured) > MIN_MEASURED_N)
+    # the pairs left out and why, said under the report's table (a row read "70 of the 72 pairs scored")
+    left_out = {"no_finite_forecast": int((~finite).sum()), "measured_under_1n": int((finite & ~ok).sum())}
     rel = 100.0 * (forecast[ok] - measured[ok]) / np.abs(measured[ok])
     if not len(rel):
-        return {"pairs": 0, "mean_abs_pct": float("nan"), "bias_pct": float("nan"), "low_pct_of_pairs": float("nan")}
+        return {"pairs": 0, "mean_abs_pct": float("nan"), "bias_pct": float("nan"), "low_pct_of_pairs": float("nan"),
+                **left_out}
     out = {"pairs": int(len(rel)), "mean_abs_pct": float(np.abs(rel).mean()), "bias_pct": float(rel.mean()),
-           "low_pct_of_pairs": float(100.0 * (rel < 0).mean())}
+           "low_pct_of_pairs": float(100.0 * (rel < 0).mean()), **left_out}
     for lo, hi in INTERVALS:
         if all(name in p["intervals"] for p in pairs):
             inside = [p["intervals"][name][(lo, hi)][0][axis] <= p["measured"][axis] <= p["intervals"][name][(lo, hi)][1][axis]
@@ -438,6 +450,24 @@ def _unpaired_text(report: dict) -> str:
     return text
 
 
+def _left_out_text(report: dict, shown) -> str:
+    """Under the table: of each row scored on fewer pairs than it has, how many each axis left out and
+    why (``_errors``: no finite forecast, a measured force under MIN_MEASURED_N); '' if none."""
+    reasons = (("no_finite_forecast", "no finite forecast (no failure wedge)"),
+               ("measured_under_1n", f"a measured force under {MIN_MEASURED_N:g} N"))
+    rows = []
+    for name in shown:
+        axes = []
+        for axis in ("x", "z"):
+            cell = report["forecast"][name][axis]["all"]
+            if (n := report["pairs"] - cell.get("pairs", report["pairs"])) > 0:
+                why = [f"{cell[key]} with {text}" for key, text in reasons if cell.get(key)]
+                axes.append(f"F_{axis}: {', '.join(why) or n}")  # (a report of before the reasons: the count)
+        if axes:
+            rows.append(f"{label_of(report, name)}: {'; '.join(axes)}")
+    return f"Pairs left out of a row's score: {'. '.join(rows)}." if rows else ""
+
+
 def markdown(report: dict, intro: str | None = None) -> list[str]:
     """Table lines: per estimator, F_x and F_z error at another depth, bias going deeper and
     shallower. ``intro``: the sentence above the table (default: the held-out episodes')."""
@@ -469,13 +499,15 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         x, z = axes["x"], axes["z"]
         label = label_of(report, name)
         scored = x["all"].get("pairs", report["pairs"])
-        if scored != report["pairs"]:  # no finite forecast (no failure wedge), or a measured force under 1 N
+        if scored != report["pairs"]:  # why: said under the table (``_left_out_text``)
             label += f" ({scored} of the {report['pairs']} pairs scored)"
         cover = [f"{a['all']['coverage_90']:.0%} / {a['all']['coverage_50']:.0%}" if "coverage_90" in a["all"] else "–"
                  for a in (x, z)]
         lines.append(md.row([label, _pct(x['all']['mean_abs_pct']), _pct(x['deeper']['bias_pct'], True),
                              _pct(x['shallower']['bias_pct'], True), _pct(z['all']['mean_abs_pct']),
                              _pct(z['deeper']['bias_pct'], True), *cover]))
+    if left := _left_out_text(report, shown):
+        lines += ["", left]
     if "fused" in shown:
         lines += ["", f"The {LABELS['fused'].split(' (')[0]} fits its physics (the FEE and the terms its label names) to "
                       "the measured force: it uses the checkpoint's terms, not its network, and its row is the same for "

@@ -109,8 +109,12 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     if not pairs:
         raise ValueError("no live episode has a steady part to forecast from, or no other depth differs enough")
     physics = {name: [[n, float(k)] for n, k in t] for name, t in (("fused", cfg.terms), ("pinn", pinn_terms)) if t}
+    # what was not paired, said under the table as pinn_eval says it (a summary read "10 forecasts" where 12 were
+    # possible): episodes (live or simulated) without a steady part, and live-to-other pairs at one depth
     return json_ready({"world": world, "depths_m": [float(d) for d in depths_m], "live_episodes": n_live,
                        "simulated_episodes": len(others), "pairs": len(pairs), "physics": physics,
+                       "no_steady_part": sum(p is None for p in parts),
+                       "same_depth_pairs": fc.same_depth_pairs(parts, sources=range(n_live)),
                        "forecast": fc.summarise(pairs, ESTIMATORS)})
 
 
