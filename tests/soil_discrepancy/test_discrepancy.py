@@ -59,8 +59,9 @@ def named_verdict(rep: dict) -> str:
     """The verdict a report that names terms must carry: "partly explained" where the residual keeps
     significant structure beside them, where every term named is a form its data do not pin down
     and together they take less than a quarter off the held-out error, where they make one axis
-    worse on the held-out episodes, or where they leave θ on the soil tests' bounds in more groups
-    than chance explains; else "explained"."""
+    worse on the held-out episodes, where they leave θ on the soil tests' bounds in more groups
+    than chance explains, or where the soil fitted beside them lies outside its label's textbook
+    range in a group cut at more than one depth; else "explained"."""
     from soil_discrepancy.forms import pin_kind
     from soil_discrepancy.verdict import STAND_IN_MAX_GAIN, WEAK_PIN_KINDS, _worse_axes, bound_hits_by_chance
 
@@ -70,6 +71,9 @@ def named_verdict(rep: dict) -> str:
     if rep.get("test") and rep["test"].get("after") and _worse_axes(rep["test"]):
         return "partly explained"
     if after_reg.get("misfit") and bound_hits_by_chance(after_reg) < after_reg["misfit"]["alpha"]:
+        return "partly explained"
+    if any(r["kind"] == "group" and r.get("theta_off_label") and not r.get("one_depth")
+           for r in (after_reg.get("misfit") or {}).get("rows", [])):
         return "partly explained"
     pins = {d["name"]: d.get("pin") for d in ((rep.get("forms") or {}).get("discovered") or [])}
     named = [a["name"] for a in rep["selection"]["accepted"]]
@@ -747,7 +751,7 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
     assert even["soils"] == [] and even["groups"] == [] and misfit_text({"misfit": even}) == ""
 
 
-def test_fitted_soils_outside_their_labels_textbook_ranges_are_said_beside_no_significant_discrepancy(bag_dirs):
+def test_fitted_soils_outside_their_labels_textbook_ranges_are_said_beside_no_discrepancy_or_named_terms(bag_dirs):
     """An outside tester's drag ∝ d^1.5 (47 % of the FEE force) read as "no significant discrepancy":
     θ had taken it in, clays fitted at φ 35° where the textbook has 17-27°. The verdict now says where
     the fitted soil lies outside its label's range (loose to dense, ``soils.CATALOGUE``, with a margin);
@@ -771,6 +775,23 @@ def test_fitted_soils_outside_their_labels_textbook_ranges_are_said_beside_no_si
     inside = group_misfit(frame, resid, theta_table=[{**t, "phi_deg": 22.0 if t["group"].startswith("Clay") else 30.0}
                                                     for t in table])
     assert verdict_of([], {**quiet, "misfit": inside}, None)[1].endswith("reduces the held-out error"), "nothing said"
+    # beside named terms too, pinned down or not: an outside reader's z force ∝ √d was named as a constant
+    # force, "pinned down" among the library's forms, and "explained", with loose sand fitted at φ 21° for 28°
+    from soil_discrepancy.candidates import TermScore
+
+    named = [TermScore(name="form:one_z*1", k=1.39, k_se=0.04, k_folds=[1.39] * 5, gain=0.4, p=1e-9)]
+    test = {"before": {"rmse": 712.0}, "after": {"rmse": 443.0}}
+    pins = {"form:one_z*1": {"pinned": True}}
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["d"]}, test, quiet, pins=pins)
+    assert verdict == "partly explained" and "the soil fitted beside them lies outside its label's textbook range" in text
+    assert "stand-ins" in text and "soil tests (--soil-tests) tell" in text, text
+    verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["d"]}, test, {**quiet, "misfit": inside},
+                               pins=pins)
+    assert verdict == "explained" and "textbook" not in text, text
+    # a run that had soil tests is not told to give them
+    tested = {**mis, "rows": [{**r, "tested_parameters": 2} for r in mis["rows"]]}
+    text = verdict_of(named, {"significant": True, "flagged_variables": ["d"]}, test, {**quiet, "misfit": tested}, pins=pins)[1]
+    assert "--soil-tests" not in text and "the soil tests given bound θ only where they test it" in text, text
 
 
 def test_a_gamma_group_that_fits_worse_is_said_to_be_possibly_two_soils():

@@ -106,8 +106,8 @@ def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | 
     text = ""
     if traded:
         text += (f"; the soil fitted beside them is another ({'; '.join(traded)}; the table \"θ per group\"): a form "
-                 "that is not pinned down and θ trade off, so that soil is the form's as much as the data's; a soil test "
-                 "tells (--soil-tests)")
+                 "that is not pinned down and θ trade off, so that soil is the form's as much as the data's"
+                 + _soil_test_hint(reg1, "; a soil test tells (--soil-tests)"))
     if freed:
         text += (f"; the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
                  "table \"θ per group\"): they take what the baseline's θ had taken in, which speaks for them taking the "
@@ -271,8 +271,10 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
         # the data's (beside a pinned-down term the move is what the baseline's θ had taken in)
         hedged = bool(stand_ins) or any(pin_kind((pins or {}).get(s.name)) not in (None, "pinned") for s in new_terms)
         moved = theta_shift_text(shift, reg0, reg1) if hedged else ""
-        return ("partly explained" if remains or weak or bound_stand_ins or worse_axes else "explained",
-                text + moved + misfit_text(reg1) + _left_text(reg1) + not_named)
+        # a soil beside them its label's textbook rules out: "explained" at most in part, pinned down or not
+        off_label = _off_label_text(reg1, beside_terms=True)
+        return ("partly explained" if remains or weak or bound_stand_ins or worse_axes or off_label else "explained",
+                text + moved + off_label + misfit_text(reg1) + _left_text(reg1) + not_named)
     if reg0["significant"]:
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
@@ -338,18 +340,38 @@ def _worse_axes(test: dict) -> list[tuple[str, tuple[float, float, float, float]
     return out
 
 
-def _off_label_text(reg: dict | None) -> str:
+def _soil_tests_given(reg: dict | None) -> bool:
+    """Whether the run had soil tests (a group with a tested parameter)."""
+    return any(r.get("tested_parameters") for r in ((reg or {}).get("misfit") or {}).get("rows", []))
+
+
+def _soil_test_hint(reg: dict | None, advice: str = "; soil tests (--soil-tests) tell") -> str:
+    """``advice`` to give soil tests, or, where the run had them, what they leave open (an outside
+    reader's run with --soil-tests was told to give them)."""
+    if _soil_tests_given(reg):
+        return "; the soil tests given bound θ only where they test it (a test of δ, or a narrower one, tells more)"
+    return advice
+
+
+def _off_label_text(reg: dict | None, beside_terms: bool = False) -> str:
     """Where the fitted soils lie outside their labels' textbook ranges: with nothing else wrong in the
     forces, θ may have taken an effect in (a drag ∝ d^1.5 of 47 % of the FEE force read as "no
-    significant discrepancy" with clays fitted at φ 35°)."""
+    significant discrepancy" with clays fitted at φ 35°). ``beside_terms``: the soils fitted beside
+    named terms, which then may be stand-ins whose θ took in the rest of an effect (an outside
+    reader's z force ∝ √d named as a constant, "pinned down" among the library's forms, "explained",
+    with loose sand fitted at φ 21° for 28°). Not a group cut at one depth (``one_depth``): there φ and
+    c trade off along a ridge, and its θ lies anywhere on it with nothing missing."""
     rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
-    off = [r for r in rows if r.get("theta_off_label")]
+    off = [r for r in rows if r.get("theta_off_label") and not r.get("one_depth")]
     if not off:
         return ""
     shown = "; ".join(f"{r['name']}: {', '.join(r['theta_off_label'])}" for r in off[:3]) + ("; …" if len(off) > 3 else "")
-    return (f"; but the fitted soil lies outside its label's textbook range in {len(off)}/{len(rows)} groups ({shown}): "
-            "θ may have taken in a missing effect, which the forces alone cannot tell from another soil, or the "
-            "soils are unlike the textbook's; soil tests (--soil-tests) tell")
+    what = ("the named terms may be stand-ins, θ taking in the rest of an effect whose own form the library does "
+            "not hold, which the forces alone cannot tell from another soil" if beside_terms else
+            "θ may have taken in a missing effect, which the forces alone cannot tell from another soil")
+    return (f"; but the {'soil fitted beside them' if beside_terms else 'fitted soil'} lies outside its label's textbook "
+            f"range in {len(off)}/{len(rows)} groups ({shown}): {what}, or the soils are unlike the textbook's"
+            + _soil_test_hint(reg))
 
 
 def _rarely(chance: float) -> str:

@@ -42,7 +42,10 @@ class ForceInputs:
     f_fee_z: Any  # the FEE soil force, z [N]
     c_a: Any = None  # adhesion [Pa] (Θ_k)
     blade_thickness: Any = EDGE_WIDTH_M  # effective cutting-edge width t_e [m]
-    t: Any = None  # simulation time [s] (simulator only)
+    # simulation time [s] (simulator only) of the tick, the same for each of its substeps (a plugin that
+    # needs the substep's adds up dt); it starts again at 0 with each episode, which is how a plugin
+    # that keeps state between calls tells a new one
+    t: Any = None
     dt: Any = None  # physics substep [s] (simulator only)
     x_b: Any = None  # blade edge x [m] (simulator only)
     z_b: Any = None  # blade edge z [m] (simulator only)

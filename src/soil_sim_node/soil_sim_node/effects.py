@@ -15,7 +15,8 @@ User plugins (no simulator edit needed)
 ``plugins=[{"target": "my_pkg.my_mod:my_force", "params": {"k": 1200.0}}]``.
 The function is called once per physics substep as ``fn(state, **params)`` with a
 ``soil_physics.force_inputs.ForceInputs`` (arrays of shape (B,) for a batch of B episodes,
-SI units; the simulator fills every field, its own soil in effect and FEE force) and
+SI units; the simulator fills every field, its own soil in effect and FEE force; its ``t`` is the
+tick's time, the same for every substep of a tick, and starts at 0 with each episode) and
 must return ``(f_x, f_z)``: arrays (or floats) broadcastable to (B,), the extra force the
 blade exerts on the soil [N]. A plugin that does not import, is not callable, returns the
 wrong shape, a non-finite value or a force beyond ``params.MAX_PLAUSIBLE_FORCE_N`` (the blade would
