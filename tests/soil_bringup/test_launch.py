@@ -235,9 +235,8 @@ def test_the_launchs_own_nodes_wait_for_each_other_half_as_long_as_its_simulator
     own inputs_wait_s: the planner joined without its writer, missed the first estimates, and a
     lockstep controller waited planner_wait_s for the first targets. The launch's nodes are coming:
     its simulator waits for them G.LAUNCH_START_WAIT_S, and they for each other half of it, or half
-    of what the user gives the simulator (0, for ever: as long as any wait may be); a node's or
-    the recorder's own value given on the command line stays, and a wait the simulator would
-    refuse leaves the nodes theirs."""
+    of what the user gives the simulator (0, for ever: half the launch's own); a node's or the
+    recorder's own value given stays, and a wait the simulator would refuse leaves the nodes theirs."""
     def argvs(*args):
         return {n.name: n.argv for n in L.build_nodes(L.parse_args(["--planner", "--record", str(tmp_path / "b"), *args]))}
 
@@ -256,10 +255,37 @@ def test_the_launchs_own_nodes_wait_for_each_other_half_as_long_as_its_simulator
                         "--recorder-arg=--inputs-wait=2"))
     assert given == {"recorder": [], "estimator": ["inputs_wait_s:=4.0"], "planner": ["inputs_wait_s:=1.0"],
                      "controller": ["inputs_wait_s:=4.0"], "sim": ["wait_timeout_s:=8"]}
+    # the simulator waiting for ever: the nodes half the launch's own (an input whose writer never comes held a node an hour)
     forever = waits(argvs("--sim-param", "wait_timeout_s:=0"))
-    assert forever["planner"] == [f"inputs_wait_s:={G.MAX_WAIT_S}"] and forever["sim"] == ["wait_timeout_s:=0"]
+    assert forever["planner"] == [f"inputs_wait_s:={half}"] and forever["sim"] == ["wait_timeout_s:=0"]
     refused = waits(argvs("--sim-param", "wait_timeout_s:=-1"))  # the simulator refuses it, and the launch stops
     assert refused == {"recorder": [], "estimator": [], "planner": [], "controller": [], "sim": ["wait_timeout_s:=-1"]}
+    # a params file's wait is the user's too, unless it is the hand-started default the shipped files list
+    sim_file, planner_file = tmp_path / "sim.yaml", tmp_path / "planner.yaml"
+    sim_file.write_text("soil_sim_node:\n  ros__parameters:\n    wait_timeout_s: 120.0\n")
+    planner_file.write_text(f"soil_planner:\n  ros__parameters:\n    inputs_wait_s: 2.5\n")
+    from_files = waits(argvs("--sim-params-file", str(sim_file), "--planner-params-file", str(planner_file)))
+    assert from_files == {"recorder": ["60.0"], "estimator": ["inputs_wait_s:=60.0"], "planner": [],
+                          "controller": ["inputs_wait_s:=60.0"], "sim": []}, from_files
+    config = Path(L.__file__).parents[2]
+    shipped = waits(argvs("--sim-params-file", str(config / "soil_sim_node" / "config" / "soil_sim_node.yaml"),
+                          "--planner-params-file", str(config / "soil_planner" / "config" / "soil_planner.yaml")))
+    assert shipped == waits(argvs())
+
+
+def test_the_launchs_planner_follows_the_episodes_speed_only_where_its_controller_follows_their_targets(tmp_path):
+    """A controller told not to follow the episodes (follow_episode_targets false) cuts at its own
+    target speed: its planner then keeps its cut_speed_m_s, not the episode's."""
+    def planner(*args):
+        return {n.name: n.argv for n in L.build_nodes(L.parse_args(["--planner", *args]))}["planner"]
+
+    assert not any(a.startswith("follow_episode_speed:=") for a in planner())
+    assert "follow_episode_speed:=false" in planner("--controller-param", "follow_episode_targets:=false")
+    ctl = tmp_path / "ctl.yaml"
+    ctl.write_text("anti_stall_controller:\n  ros__parameters:\n    follow_episode_targets: false\n")
+    assert "follow_episode_speed:=false" in planner("--controller-params-file", str(ctl))
+    given = planner("--controller-param", "follow_episode_targets:=false", "--planner-param", "follow_episode_speed:=true")
+    assert [a for a in given if a.startswith("follow_episode_speed:=")] == ["follow_episode_speed:=true"]
 
 
 def test_the_simulator_waits_for_the_launchs_own_nodes_by_name_its_recorder_by_a_name_of_its_own(tmp_path, capsys):

@@ -470,15 +470,30 @@ def world_checkpoint_param(args: argparse.Namespace) -> list[str]:
     return [f"checkpoint:={path}"]
 
 
+def _given_wait(node: str, params_file, params: list[str], name: str, hand_default: float, namespace: str) -> str | None:
+    """The ``name`` wait the user gives ``node``: by -p, or in its params file unless there it is the
+    hand-started default the shipped params files list (None: not given)."""
+    on_line = given_params(node, None, params, (name,))[name]
+    if on_line is not None:
+        return on_line
+    in_file = given_params(node, params_file, [], (name,), namespace)[name] if params_file else None
+    try:
+        return None if in_file is None or float(in_file) == hand_default else in_file
+    except ValueError:
+        return in_file  # (the node refuses it)
+
+
 def launch_waits(args: argparse.Namespace) -> tuple[list[str], float | None]:
     """The simulator's start wait the launch gives it (``wait_timeout_s:=…``, [] if the user gave
-    one by -p) and how long the launch's own nodes wait for each other's writers (``inputs_wait_s``,
-    the recorder's ``--inputs-wait``): half the simulator's wait, so they join well before it gives
-    up on them, as nodes started by hand wait ``G.INPUTS_WAIT_S`` of its own default. Wiring, like
-    ``wait_for``: a params file does not count (the shipped ones list the hand-started defaults).
-    None: the user's wait is not a number the simulator takes (it refuses it, and the launch
-    stops), so the nodes keep theirs."""
-    given = given_params(G.NODE_NAMES["sim"], None, args.sim_param, ("wait_timeout_s",))["wait_timeout_s"]
+    one) and how long the launch's own nodes wait for each other's writers (``inputs_wait_s``, the
+    recorder's ``--inputs-wait``): half the simulator's wait, so they join well before it gives up
+    on them, as nodes started by hand wait ``G.INPUTS_WAIT_S`` of its ``G.SIM_START_WAIT_S``; with
+    the simulator waiting for ever (0), half the launch's own (an input whose writer never comes
+    held a node an hour). A params file's value counts unless it is the hand-started default the
+    shipped params files list. None: the user's wait is not a number the simulator takes (it
+    refuses it, and the launch stops), so the nodes keep theirs."""
+    given = _given_wait(G.NODE_NAMES["sim"], args.sim_params_file, args.sim_param, "wait_timeout_s",
+                        G.SIM_START_WAIT_S, args.namespace)
     if given is None:
         return [f"wait_timeout_s:={G.LAUNCH_START_WAIT_S}"], G.LAUNCH_START_WAIT_S / 2
     try:
@@ -487,12 +502,23 @@ def launch_waits(args: argparse.Namespace) -> tuple[list[str], float | None]:
         return [], None
     if not 0.0 <= start_wait_s <= G.MAX_WAIT_S:
         return [], None
-    return [], (G.MAX_WAIT_S if start_wait_s == 0.0 else start_wait_s / 2)  # 0: the simulator waits for ever
+    return [], (G.LAUNCH_START_WAIT_S if start_wait_s == 0.0 else start_wait_s) / 2
 
 
-def _inputs_wait(node: str, params: list[str], wait_s: float | None) -> list[str]:
-    """``["inputs_wait_s:=…"]`` for a launched node given none by -p (``launch_waits``)."""
-    return [] if wait_s is None else unless_given(node, params, [f"inputs_wait_s:={wait_s}"])
+def _inputs_wait(node: str, params_file, params: list[str], namespace: str, wait_s: float | None) -> list[str]:
+    """``["inputs_wait_s:=…"]`` for a launched node given none (``launch_waits``, ``_given_wait``)."""
+    if wait_s is None or _given_wait(node, params_file, params, "inputs_wait_s", G.INPUTS_WAIT_S, namespace) is not None:
+        return []
+    return [f"inputs_wait_s:={wait_s}"]
+
+
+def _speed_follow(args: argparse.Namespace) -> list[str]:
+    """``["follow_episode_speed:=false"]`` for the planner when the controller is told not to follow
+    the episodes' targets (it cuts at its own target_speed_m_s, which the planner then cannot know:
+    its cut_speed_m_s stays the user's); [] otherwise."""
+    given = given_params(G.NODE_NAMES["controller"], args.controller_params_file, args.controller_param,
+                         ("follow_episode_targets",), args.namespace)["follow_episode_targets"]
+    return ["follow_episode_speed:=false"] if given is not None and given.strip().lower() == "false" else []
 
 
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
@@ -553,7 +579,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
     follow = [f"graph_id:={graph_id}"]
     estimator_param = ((world_checkpoint_param(args) if args.estimator else [])
                        + unless_given(G.NODE_NAMES["estimator"], args.estimator_param, follow)
-                       + _inputs_wait(G.NODE_NAMES["estimator"], args.estimator_param, join_wait_s)
+                       + _inputs_wait(G.NODE_NAMES["estimator"], args.estimator_params_file, args.estimator_param,
+                                      args.namespace, join_wait_s)
                        + list(args.estimator_param))
     if args.estimator:
         # advice too (unless --require estimator): nothing in the loop waits for its estimates
@@ -570,8 +597,10 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # target_depth_m (planner_timeout_s; in lockstep after waiting planner_wait_s once), so a
         # planner that dies does not stop the cut; the launch says so and exits non-zero at the end
         nodes.append(NodeProcess("planner", _ros_node("soil_planner", args.planner_params_file,
-                                                      unless_given(G.NODE_NAMES["planner"], args.planner_param, follow)
-                                                      + _inputs_wait(G.NODE_NAMES["planner"], args.planner_param, join_wait_s)
+                                                      unless_given(G.NODE_NAMES["planner"], args.planner_param,
+                                                                   follow + _speed_follow(args))
+                                                      + _inputs_wait(G.NODE_NAMES["planner"], args.planner_params_file,
+                                                                     args.planner_param, args.namespace, join_wait_s)
                                                       + args.planner_param, args.namespace),
                                  stop_order=2, niceness=PLANNER_NICENESS, required="planner" in args.require,
                                  without="the controller cuts to its own target_depth_m"))
@@ -580,7 +609,8 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # the planner's loop unless the user sets depth_source
         closed = unless_given(G.NODE_NAMES["controller"], args.controller_param,
                               (["depth_source:=planner"] if args.planner else []) + follow)
-        closed += _inputs_wait(G.NODE_NAMES["controller"], args.controller_param, join_wait_s)
+        closed += _inputs_wait(G.NODE_NAMES["controller"], args.controller_params_file, args.controller_param,
+                               args.namespace, join_wait_s)
         nodes.append(NodeProcess("controller", _ros_node("anti_stall_controller", args.controller_params_file,
                                                          closed + args.controller_param, args.namespace),
                                  stop_order=1))

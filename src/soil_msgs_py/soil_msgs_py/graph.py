@@ -206,6 +206,7 @@ PLANNER_OUTPUTS: tuple[str, ...] = (T.PLAN.name, T.TARGET_DEPTH.name)
 # simulator's topics anyway (``ros_adapter.JoinAfterInputs``): well inside the simulator's own
 # start wait (its ``wait_timeout_s``, 10 s), which would otherwise start without the node's readers.
 INPUTS_WAIT_S = 5.0
+SIM_START_WAIT_S = 10.0  # the simulator's own wait_timeout_s, for a simulator started by hand [s]
 # soil_launch's simulator's start wait for the launch's own nodes (its ``wait_timeout_s`` unless
 # given; a node's ``inputs_wait_s`` then half of it, as above). Those nodes are coming, and the
 # estimator's start (torch's import and its model) took 2–9 s on a loaded 2-core machine: with the

@@ -113,8 +113,10 @@ PARAMETERS: dict[str, tuple] = {
                                              f"(0, {CUT_SPEED_LIMIT_M_S:g}]; default: the anti-stall controller's "
                                              "default target speed"),
     "follow_episode_speed": (True, "take cut_speed_m_s from each episode_start on /sim/status: the target speed the "
-                                   "controller cuts at (its follow_episode_targets), so the plans and the stall memory's "
-                                   "threshold are the cut's; false: cut_speed_m_s as given"),
+                                   "controller cuts at when it follows the episodes (its follow_episode_targets), so "
+                                   "the plans and the stall memory's threshold are the cut's; a cut_speed_m_s given "
+                                   "holds until the next episode_start; false: cut_speed_m_s as given (soil_launch sets "
+                                   "it so when the controller does not follow)"),
     "include_residual": (True, "anchor the FEE to the estimated force F̂ at the current depth (residual ∝ depth in soil)"),
     "force_quantile": (DEFAULT_FORCE_QUANTILE, "plan from the fused soil posterior: the deepest cut whose this upper "
                                                "quantile of |F| stays within the limits, [0.5, 1); 0: the PINN's point estimate only"),

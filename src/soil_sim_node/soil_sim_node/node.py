@@ -95,7 +95,7 @@ PARAMETERS: dict[str, tuple] = {
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
                      "subscriptions; command topics: matched publishers) or 'topic@/namespace/node' (that node's "
                      "own endpoint there)", _STR_ARRAY),
-    "wait_timeout_s": (10.0, "give up waiting for 'wait_for' after this long and start anyway [s], "
+    "wait_timeout_s": (G.SIM_START_WAIT_S, "give up waiting for 'wait_for' after this long and start anyway [s], "
                              f"[0, {G.MAX_WAIT_S:g}] (0: wait forever)"),
     "settle_s": (0.3, "pause after 'wait_for' is met, so reverse-direction DDS matches complete too [s], "
                        f"[0, {MAX_SETTLE_S:g}]"),
