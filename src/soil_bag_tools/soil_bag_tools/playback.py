@@ -91,10 +91,13 @@ class LoadedBag:
 
 def absent_topics(bag: Path, option: str, asked: Iterable[str], held: Iterable[str]) -> str:
     """The warning for the topics ``option`` (--topics, --exclude) names that ``bag`` does not hold,
-    each with the bag's or the contract's topic it may have been meant as ("" if it holds them all):
-    a mistyped ``--exclude /soil/estimat`` had played the estimate in silence."""
+    each with the bag's or the contract's topic it may have been meant as ("" if it holds them all;
+    for --exclude, a topic of the graph's contract a bag lacks is no mistake and not said): a
+    mistyped ``--exclude /soil/estimat`` had played the estimate in silence."""
     held = set(held)
     missing = sorted(set(asked) - held)
+    if option == "--exclude":  # a graph topic a bag lacks is excluded all the same (the README's list of the
+        missing = [t for t in missing if t not in GRAPH_TOPICS_BY_NAME]  # estimator's outputs, on a batch's bags)
     if not missing:
         return ""
     effect = "not played" if option == "--topics" else "nothing excluded for it"
