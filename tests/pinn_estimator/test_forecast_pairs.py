@@ -114,10 +114,10 @@ def test_the_report_says_why_pairs_were_left_out_of_a_rows_score():
              pair((800.0, 0.5 * MIN_MEASURED_N), (700.0, 10.0)), pair((900.0, 400.0), (990.0, 440.0))]
     forecast = summarise(pairs, ["pinn"])
     x = forecast["pinn"]["x"]["all"]
-    assert (x["pairs"], x["no_finite_forecast"], x["measured_under_1n"]) == (3, 1, 0)
+    assert (x["pairs"], x["no_finite_forecast"], x["measured_below_min"]) == (3, 1, 0)
     assert x["mean_abs_pct"] == (10.0 + 12.5 + 10.0) / 3  # the score over the pairs kept, as before
     z = forecast["pinn"]["z"]["all"]
-    assert (z["pairs"], z["no_finite_forecast"], z["measured_under_1n"]) == (2, 1, 1)
+    assert (z["pairs"], z["no_finite_forecast"], z["measured_below_min"]) == (2, 1, 1)
     lines = markdown({"data": "bags/x", "pairs": 4, "episodes": 4, "worlds": ["fee"], "unlabelled": 0,
                       "forecast": forecast})
     (note,) = [line for line in lines if line.startswith("Pairs left out")]

@@ -263,7 +263,7 @@ def test_the_launchs_own_nodes_wait_for_each_other_half_as_long_as_its_simulator
     # a params file's wait is the user's too, unless it is the hand-started default the shipped files list
     sim_file, planner_file = tmp_path / "sim.yaml", tmp_path / "planner.yaml"
     sim_file.write_text("soil_sim_node:\n  ros__parameters:\n    wait_timeout_s: 120.0\n")
-    planner_file.write_text(f"soil_planner:\n  ros__parameters:\n    inputs_wait_s: 2.5\n")
+    planner_file.write_text("soil_planner:\n  ros__parameters:\n    inputs_wait_s: 2.5\n")
     from_files = waits(argvs("--sim-params-file", str(sim_file), "--planner-params-file", str(planner_file)))
     assert from_files == {"recorder": ["60.0"], "estimator": ["inputs_wait_s:=60.0"], "planner": [],
                           "controller": ["inputs_wait_s:=60.0"], "sim": []}, from_files

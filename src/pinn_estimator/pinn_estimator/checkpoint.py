@@ -123,13 +123,18 @@ def load_model(path) -> tuple[EstimatorNet, dict]:
     return model, ckpt
 
 
+def trained_worlds(ckpt: dict | None) -> list[str]:
+    """The simulator worlds a checkpoint's training data came from, sorted ([]: not recorded)."""
+    return sorted(set(((ckpt or {}).get("dataset") or {}).get("world_modes") or ()))
+
+
 def world_mismatch(checkpoint, ckpt: dict, world: str, use: str) -> str:
     """The sentence saying ``checkpoint`` was trained in another world than ``world``, where it is
     used as ``use`` says ("" if its training worlds include ``world``, are not recorded, or ``world``
     is no simulator world): one check for every tool that takes a --checkpoint and a world
     (``pinn_eval``'s report, ``soil_cut_report``), which an outside tester's fee checkpoint in the
     default world had passed in silence."""
-    trained = (ckpt.get("dataset") or {}).get("world_modes") or []
+    trained = trained_worlds(ckpt)
     if not trained or world not in WORLD_MODES or world in trained:
         return ""
     return (f"{Path(checkpoint).name} was trained on {', '.join(trained)}-world data; {use}: give the {world} world's "

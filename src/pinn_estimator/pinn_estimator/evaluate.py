@@ -36,7 +36,7 @@ from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS, ID_LIMIT_PCT
 
-from .checkpoint import load_model, world_mismatch, world_mismatch_lines
+from .checkpoint import load_model, trained_worlds, world_mismatch, world_mismatch_lines
 from . import forecast as fc
 from .dataset import MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, load_dataset
 from .fusion import SoilPosterior, fuse_episode
@@ -243,7 +243,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         log(f"warning: --forecast-data: {len(seen)} of its {len(forecast_bags)} episodes have the names of episodes "
             f"{checkpoint} was trained or validated on (e.g. {seen[0]!r}): if they are those bags, its PINN's row is "
             "no held-out score (the fused posterior's and the classical fit's, which it does not feed, still are)")
-    trained = ckpt.get("dataset", {}).get("world_modes") or []
+    trained = trained_worlds(ckpt)
     judged = forecast_bags.metas[0].world_mode if forecast_bags is not None else forecast_world
     mismatch = {}  # said in the log and in the report, which outlives the log
     if text := world_mismatch(checkpoint, ckpt, judged, f"its forecast is judged on {judged}-world "

@@ -299,7 +299,7 @@ def _errors(pairs: list[dict], name: str, axis: int) -> dict[str, float]:
     finite = np.isfinite(forecast)
     ok = finite & (np.abs(measured) > MIN_MEASURED_N)
     # the pairs left out and why, said under the report's table (a row read "70 of the 72 pairs scored")
-    left_out = {"no_finite_forecast": int((~finite).sum()), "measured_under_1n": int((finite & ~ok).sum())}
+    left_out = {"no_finite_forecast": int((~finite).sum()), "measured_below_min": int((finite & ~ok).sum())}
     rel = 100.0 * (forecast[ok] - measured[ok]) / np.abs(measured[ok])
     if not len(rel):
         return {"pairs": 0, "mean_abs_pct": float("nan"), "bias_pct": float("nan"), "low_pct_of_pairs": float("nan"),
@@ -454,7 +454,7 @@ def _left_out_text(report: dict, shown) -> str:
     """Under the table: of each row scored on fewer pairs than it has, how many each axis left out and
     why (``_errors``: no finite forecast, a measured force under MIN_MEASURED_N); '' if none."""
     reasons = (("no_finite_forecast", "no finite forecast (no failure wedge)"),
-               ("measured_under_1n", f"a measured force under {MIN_MEASURED_N:g} N"))
+               ("measured_below_min", f"a measured force under {MIN_MEASURED_N:g} N"))
     rows = []
     for name in shown:
         axes = []

@@ -190,7 +190,9 @@ def checkpoint_world(ckpt: dict | None) -> str:
     came from (``dataset.world_modes``), where that world has a calibration; else DEFAULT_WORLD.
     Why: the posterior's error laws are the world's (the fee world's 5 N against the default
     world's 1 kN), and a fee model read through the default world's laws fused a clay 7° off."""
-    worlds = sorted(set(((ckpt or {}).get("dataset") or {}).get("world_modes") or ()))
+    from .checkpoint import trained_worlds  # (here: the module is read without torch)
+
+    worlds = trained_worlds(ckpt)
     return worlds[0] if len(worlds) == 1 and config_path(str(worlds[0])).exists() else DEFAULT_WORLD
 
 

@@ -70,7 +70,10 @@ class MetadataUnreadable(BagReadError):
 
     def __init__(self, bag: str | os.PathLike, reason: str):
         self.reason = str(reason)
-        super().__init__(bag, f"{self.reason}; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap carries")
+        # the repair rebuilds it from a bag's one .mcap (not a .db3's, nor from several files)
+        one_mcap = len([p for p in Path(bag).glob("*.mcap") if p.is_file()]) == 1
+        super().__init__(bag, self.reason + (f"; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap "
+                                             "carries" if one_mcap else ""))
 
     def __reduce__(self):
         return type(self), (self.bag, self.reason)
@@ -179,8 +182,9 @@ _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 # What rosbag2 metadata must hold for rosbags' reader (0.11) to open a bag: the top-level keys (and
-# the one key of the two mappings) and each topic entry's. The writer puts ``version`` last, so a
-# metadata.yaml cut short loses it first, and still parses.
+# the one key of the two mappings) and each topic entry's. This project's writer puts ``version``
+# last (rosbag2's puts it first and ``relative_file_paths`` near the end), so a metadata.yaml cut
+# short loses one of them, and still parses.
 REQUIRED_METADATA = {"version": int, "relative_file_paths": list, "storage_identifier": str,
                      "topics_with_message_count": list, "duration": "nanoseconds",
                      "starting_time": "nanoseconds_since_epoch", "message_count": int}

@@ -36,18 +36,20 @@ from .journal import REPAIR_INFO_KEY, BagResult, NothingRecoverable, chunk_detai
 
 
 def embedded_metadata(mcap: Path) -> str | None:
-    """The metadata.yaml text a bag's .mcap keeps in its ``rosbag2`` Metadata record, or None (a file
-    of another writer, or one cut short before its end, where the record is written)."""
+    """The metadata.yaml text a bag's .mcap keeps in its last ``rosbag2`` Metadata record, or None (a
+    file of another writer, or one cut short before its end, where the record is written). The last:
+    rosbag2 writes one as it opens the bag (no messages counted) and the whole one as it closes it."""
     from mcap.reader import make_reader
 
+    found = None
     try:
         with open(mcap, "rb") as f:
             for record in make_reader(f).iter_metadata():
                 if record.name == "rosbag2" and "serialized_metadata" in record.metadata:
-                    return record.metadata["serialized_metadata"]
+                    found = record.metadata["serialized_metadata"]
     except Exception:  # noqa: BLE001 - any damage means there is no record to trust
         return None
-    return None
+    return found
 
 
 def embedded_info(bag: Path, problem: str) -> tuple[dict, Path]:

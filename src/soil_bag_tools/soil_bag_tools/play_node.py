@@ -10,10 +10,11 @@ so ``soil_bag_record`` splits a replay into the same bags and estimators reset i
                   [--clock HZ] [--wait-for-subscribers N] [--wait-timeout S] [--no-status]
                   [--ros-args ...]
 
-Exit codes: 0 at the end or on Ctrl-C/SIGTERM, 2 for a bad BAG argument, a truncated or
-corrupt bag (every bag is checked before the first is played: each bad one named, nothing
-played), or a --topics/--exclude selection that leaves no message in any bag (a topic missing
-from only some bags is a warning).
+Exit codes: 0 at the end, 130 / 143 on Ctrl-C / SIGTERM, 6 where another node publishes a played
+topic (unless --allow-other-publishers), 2 for a bad BAG argument, a truncated or corrupt bag
+(every bag's metadata.yaml, CRCs and namespace are checked before the first is played: each bad
+one named, nothing played), or a --topics/--exclude selection that leaves no message in any bag
+(a topic missing from only some bags is a warning).
 """
 from __future__ import annotations
 

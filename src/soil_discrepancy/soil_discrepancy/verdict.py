@@ -107,7 +107,8 @@ def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | 
     if traded:
         text += (f"; the soil fitted beside them is another ({'; '.join(traded)}; the table \"θ per group\"): a form "
                  "that is not pinned down and θ trade off, so that soil is the form's as much as the data's"
-                 + _soil_test_hint(reg1, "; a soil test tells (--soil-tests)"))
+                 + _soil_test_hint([r for r in _group_rows(reg1) if r["name"] in {v["group"] for v in (shift or {}).values()}],
+                                   "; a soil test tells (--soil-tests)"))
     if freed:
         text += (f"; the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
                  "table \"θ per group\"): they take what the baseline's θ had taken in, which speaks for them taking the "
@@ -340,17 +341,16 @@ def _worse_axes(test: dict) -> list[tuple[str, tuple[float, float, float, float]
     return out
 
 
-def _soil_tests_given(reg: dict | None) -> bool:
-    """Whether the run had soil tests (a group with a tested parameter)."""
-    return any(r.get("tested_parameters") for r in ((reg or {}).get("misfit") or {}).get("rows", []))
-
-
-def _soil_test_hint(reg: dict | None, advice: str = "; soil tests (--soil-tests) tell") -> str:
-    """``advice`` to give soil tests, or, where the run had them, what they leave open (an outside
-    reader's run with --soil-tests was told to give them)."""
-    if _soil_tests_given(reg):
+def _soil_test_hint(rows: list[dict], advice: str = "; soil tests (--soil-tests) tell") -> str:
+    """``advice`` to give soil tests, or, where each of the groups ``rows`` had them, what they leave
+    open (an outside reader's run with --soil-tests was told to give them)."""
+    if rows and all(r.get("tested_parameters") for r in rows):
         return "; the soil tests given bound θ only where they test it (a test of δ, or a narrower one, tells more)"
     return advice
+
+
+def _group_rows(reg: dict | None) -> list[dict]:
+    return [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
 
 
 def _off_label_text(reg: dict | None, beside_terms: bool = False) -> str:
@@ -361,7 +361,7 @@ def _off_label_text(reg: dict | None, beside_terms: bool = False) -> str:
     reader's z force ∝ √d named as a constant, "pinned down" among the library's forms, "explained",
     with loose sand fitted at φ 21° for 28°). Not a group cut at one depth (``one_depth``): there φ and
     c trade off along a ridge, and its θ lies anywhere on it with nothing missing."""
-    rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
+    rows = _group_rows(reg)
     off = [r for r in rows if r.get("theta_off_label") and not r.get("one_depth")]
     if not off:
         return ""
@@ -371,7 +371,7 @@ def _off_label_text(reg: dict | None, beside_terms: bool = False) -> str:
             "θ may have taken in a missing effect, which the forces alone cannot tell from another soil")
     return (f"; but the {'soil fitted beside them' if beside_terms else 'fitted soil'} lies outside its label's textbook "
             f"range in {len(off)}/{len(rows)} groups ({shown}): {what}, or the soils are unlike the textbook's"
-            + _soil_test_hint(reg))
+            + _soil_test_hint(off))
 
 
 def _rarely(chance: float) -> str:

@@ -164,7 +164,8 @@ def with_guesses(topics: Iterable[str], candidates: Iterable[str]) -> str:
     topic it was given is not there (the recorder of the graph's names, the player of a bag's)."""
     names = sorted(set(candidates))
     said = []
-    for topic in topics:  # (a name that is a candidate itself is no typo: no guess for it)
-        guess = [] if topic in names else difflib.get_close_matches(topic, names, n=1, cutoff=0.75)
+    for topic in topics:  # (a topic of the contract is no typo: no guess of another for it)
+        guess = [] if topic in GRAPH_TOPICS_BY_NAME else difflib.get_close_matches(
+            topic, [n for n in names if n != topic], n=1, cutoff=0.75)
         said.append(f"{topic} (did you mean {guess[0]}?)" if guess else topic)
     return ", ".join(said)
