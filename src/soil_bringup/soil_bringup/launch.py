@@ -521,6 +521,12 @@ def _speed_follow(args: argparse.Namespace) -> list[str]:
     return ["follow_episode_speed:=false"] if given is not None and given.strip().lower() == "false" else []
 
 
+def recorder_option_given(args: argparse.Namespace, option: str, shortest: int) -> bool:
+    """Whether ``--recorder-arg`` gives the recorder ``option``, or a prefix of it longer than
+    ``shortest`` characters (argparse takes an unambiguous prefix: --o for --out)."""
+    return any(len(o := a.split("=", 1)[0]) > shortest and option.startswith(o) for a in args.recorder_arg)
+
+
 def _count(wait: dict[str, int], endpoints: dict[str, int]) -> None:
     for topic, n in endpoints.items():
         wait[topic] = wait.get(topic, 0) + n
@@ -561,9 +567,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         # With the estimator, its outputs go into the episode bags too (compare live vs replay).
         extra = ["--all-episode-topics", "--topics", *G.ESTIMATOR_OUTPUTS] if args.estimator else []
         extra += list(G.PLANNER_OUTPUTS) if args.planner else []
-        # (any prefix of --inputs-wait the user gives the recorder is theirs: argparse takes it)
-        if join_wait_s is not None and not any(len(o := a.split("=", 1)[0]) > 2 and "--inputs-wait".startswith(o)
-                                               for a in args.recorder_arg):
+        if join_wait_s is not None and not recorder_option_given(args, "--inputs-wait", 2):
             extra += ["--inputs-wait", str(join_wait_s)]
         # (a name the user gives it, --recorder-arg __node:=NAME after --ros-args, is waited for instead)
         given = [m.group(1) for a in args.recorder_arg if (m := RECORDER_NAME_REMAP_RE.fullmatch(a))]
@@ -725,11 +729,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.recorder_arg and not args.record:
         p.error("--recorder-arg given, but this launch starts no recorder (add --record DIR)")
     # the recorder's last --out would win over --record's; any prefix of it too (argparse takes --o, --ou)
-    if any(len(o := a.split("=", 1)[0]) > 2 and "--out".startswith(o) for a in args.recorder_arg):
+    if recorder_option_given(args, "--out", 2):
         p.error("--recorder-arg --out: the recorder writes where --record says; give the directory there")
     if any(re.search(r"(^|:)__ns:=", a) for a in args.recorder_arg):  # (the simulator would wait for it elsewhere)
         p.error("--recorder-arg __ns:=: the launch puts every node, the recorder too, where --namespace says")
-    if any(len(o := a.split("=", 1)[0]) > 4 and "--graph-id".startswith(o) for a in args.recorder_arg):
+    if recorder_option_given(args, "--graph-id", 4):
         p.error("--recorder-arg --graph-id: the launch gives its simulator and recorder one id; give it as "
                 "--sim-param graph_id:=ID")
     return args

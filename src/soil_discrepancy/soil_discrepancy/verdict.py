@@ -93,6 +93,7 @@ def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | 
     sat on it, 9 with two forms). Neither proves it: a soil test does."""
     before, after = _at_bound(reg0), _at_bound(reg1)
     released = bool(before) and 2 * len(after) <= len(before)
+    moved_groups = {v["group"] for v in (shift or {}).values()}
     freed, traded = [], []
     for k, v in (shift or {}).items():
         if abs(v["largest"]) <= v["note_above"]:
@@ -107,7 +108,7 @@ def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | 
     if traded:
         text += (f"; the soil fitted beside them is another ({'; '.join(traded)}; the table \"θ per group\"): a form "
                  "that is not pinned down and θ trade off, so that soil is the form's as much as the data's"
-                 + _soil_test_hint([r for r in _group_rows(reg1) if r["name"] in {v["group"] for v in (shift or {}).values()}],
+                 + _soil_test_hint([r for r in _group_rows(reg1) if r["name"] in moved_groups],
                                    "; a soil test tells (--soil-tests)"))
     if freed:
         text += (f"; the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
