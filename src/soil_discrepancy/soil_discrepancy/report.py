@@ -273,7 +273,9 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
         found = forms.get(key)
         if not found:
             continue
-        lines += [f"On {when}, structure vs {', '.join(labels.get(v, v) for v in forms.get(struct) or []) or 'none'}: "
+        worse = forms.get("fits_worse_in") if key == "search" else None
+        lines += [f"On {when}, structure vs {', '.join(labels.get(v, v) for v in forms.get(struct) or []) or 'none'}"
+                  + (f", the model fitting worse in {', '.join(worse)}" if worse else "") + ": "
                   f"{found.get('library_size', 0)} forms, {found.get('identifiable', 0)} identifiable beside θ "
                   f"({found.get('dropped_absorbed', 0)} absorbed by θ, {len(found.get('same_as_catalogue') or [])} the same "
                   f"column as a catalogue term); orthogonal matching pursuit, its length chosen by cross-validation over "

@@ -19,7 +19,7 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 
 from .forms import pin_kind, pinned_caveat
 from .gap import NO_WORSE_WITHOUT
-from .regimes import ONE_DEPTH_SPAN_M, on_soil_test_bound, variable_labels
+from .regimes import ONE_DEPTH_SPAN_M, misfit_discrepancy, on_soil_test_bound, variable_labels
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA
 
 # "partly explained": terms are named and the residual keeps significant structure beside them (a
@@ -106,12 +106,13 @@ def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | 
             traded.append(move + (", onto its fit box with them" if group in after and group not in before else ""))
     text = ""
     if traded:
-        text += (f"; the soil fitted beside them is another ({'; '.join(traded)}; the table \"θ per group\"): a form "
+        # both kinds at once are of different groups: each sentence says which (a reader took the two for one)
+        text += (f"; {'in some groups ' if freed else ''}the soil fitted beside them is another ({'; '.join(traded)}; the table \"θ per group\"): a form "
                  "that is not pinned down and θ trade off, so that soil is the form's as much as the data's"
                  + _soil_test_hint([r for r in _group_rows(reg1) if r["name"] in moved_groups],
                                    "; a soil test tells (--soil-tests)"))
     if freed:
-        text += (f"; the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
+        text += (f"; {'in other groups ' if traded else ''}the soil fitted beside them leaves the fit box the baseline's sat on ({'; '.join(freed)}; the "
                  "table \"θ per group\"): they take what the baseline's θ had taken in, which speaks for them taking the "
                  "effect's force, not for their form being its mechanism")
     return text
@@ -240,7 +241,8 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
                 text += (f"; but the held-out {axis} error rises (RMSE {rb:.0f} -> {ra:.0f} N, mean |error| {mb:.0f} -> "
                          f"{ma:.0f} N): the named terms' {axis} part is not in the data (an effect on the other axis "
                          "only, or another form on this one)")
-        remains = reg1 is not None and reg1["significant"]  # structure beside the named terms: "partly explained"
+        # structure beside the named terms, in a regime or in some soils' fit: "partly explained"
+        remains = reg1 is not None and (reg1["significant"] or bool(misfit_discrepancy(reg1)))
         weak = weak_forms_only(new_terms, pins, gain)
         if weak and not remains:  # nothing significant left, but what was named is a weak, unpinned fit
             text += (f"; partly, at best: the named form{'s' if len(new_terms) > 1 else ''} take{'' if len(new_terms) > 1 else 's'} "
@@ -248,7 +250,8 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
                      "pinned down: a stand-in that follows part of an effect whose own form the library may not hold "
                      "(a drift of the sensor, a law of another variable); the residual left says what is missing")
         if remains:
-            text += "; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
+            text += ("; structure remains vs " + ", ".join(labels.get(v, v) for v in reg1["flagged_variables"])
+                     if reg1["significant"] else "; structure remains in some soils' fit, in no regime")
             forms_named = sum(s.name.startswith(FORM_PREFIX) for s in new_terms)
             if gain is not None and gain < STAND_IN_MAX_GAIN and forms_named >= 2:
                 text += (f" (the named terms take only {100 * gain:.0f} % off the held-out error with {forms_named} "
@@ -277,17 +280,19 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
         off_label = _off_label_text(reg1, beside_terms=True)
         return ("partly explained" if remains or weak or bound_stand_ins or worse_axes or off_label else "explained",
                 text + moved + off_label + misfit_text(reg1) + _left_text(reg1) + not_named)
-    if reg0["significant"]:
+    if reg0["significant"] or misfit_discrepancy(reg0):
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
+        where = (f"residual structure vs {names}" if reg0["significant"] else
+                 f"no regime bias, but some soils fit worse than the others, by at least {100 * reg0['min_effect']:.0f} % "
+                 "of |F|")
         what = "neither a catalogue term nor a form of the library explains" if forms else "no catalogue term explains"
-        text = (f"unexplained: the model and the data disagree systematically (residual structure vs {names}), but "
-                f"{what} it on held-out episodes")
+        text = f"unexplained: the model and the data disagree systematically ({where}), but {what} it on held-out episodes"
         forms_tentative = (forms or {}).get("not_confirmed")
         if forms_tentative and forms_tentative["forms"]:
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {fmt_n(forms_tentative['test_rmse_before'])} -> "
                      f"{fmt_n(forms_tentative['test_rmse_after'])} N{_forecast_clause(forms_tentative)})")
-        return "unexplained", text + misfit_text(reg0) + _left_text(reg0) + not_named
+        return "unexplained", text + misfit_text(reg0) + _off_label_text(reg0) + _left_text(reg0) + not_named
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"

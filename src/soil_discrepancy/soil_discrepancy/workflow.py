@@ -39,7 +39,8 @@ from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
-from .regimes import ALPHA, MIN_EFFECT, bin_edges, group_misfit, holm, regime_analysis, variable_labels
+from .regimes import (ALPHA, MIN_EFFECT, bin_edges, group_misfit, holm, misfit_discrepancy, regime_analysis,
+                      variable_labels)
 from .soil_tests import displayed_box, hold_theta, unmatched
 from .verdict import fmt_n, forecast_gap_text, theta_shift, verdict_of
 
@@ -161,13 +162,16 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # 3. name the missing effect, on the selection part only
     sel_groups, test_groups = split_holdout(frame, holdout, seed)
     fsel = frame.select(groups=sel_groups)
-    # the baseline's residual has structure: library forms join the catalogue from the first round, so a
-    # catalogue term is named only if no form beats it on held-out groups
+    # the baseline's residual has structure (or some soils fit worse by a form θ cannot follow there):
+    # library forms join the catalogue from the first round, so a catalogue term is named only if no
+    # form beats it on held-out groups
     form_report = None
     pool = list(candidates)
-    if forms and reg0["significant"]:
+    fits_worse = [r["name"] for r in misfit_discrepancy(reg0)]
+    if forms and (reg0["significant"] or fits_worse):
         first = search_forms(fsel, initial, base, folds=folds, catalogue=candidates, log=say)
-        form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "search": first}
+        form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "fits_worse_in": fits_worse,
+                       "search": first}
         pool += [n for n in first["candidates"] if n not in pool]
     sel = select_terms(fsel, initial, base, pool, folds=folds, seed=seed, alpha=alpha, min_gain=min_gain,
                        workers=workers, allow_negative_k=allow_negative_k, log=say)
