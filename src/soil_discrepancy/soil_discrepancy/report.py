@@ -21,8 +21,8 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .verdict import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unpinned_forms_only
-from .regimes import AXES, CONTINUOUS, binned_curve
+from .verdict import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unconfirmed_reason, unpinned_forms_only
+from .regimes import AXES, CONTINUOUS, binned_curve, flagged_units, misfit_unit_name
 
 REPORT_JSON, REPORT_MD = "discrepancy.json", "discrepancy.md"
 FIG_RESIDUALS, FIG_HELDOUT, FIG_CANDIDATES = "residuals_by_regime.png", "heldout_gap.png", "candidates.png"
@@ -144,7 +144,7 @@ def markdown(report: dict, figures=()) -> str:
         why = (f"with every term it named, the held-out test episodes' force RMSE goes {_n(tentative['test_rmse_before'])} N → "
                f"{_n(tentative['test_rmse_after'])} N and the force at another depth {_n(tentative['forecast_pct_before'], '.1f')} → "
                f"{_n(tentative['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(tentative['forecast_p'])}), short of what "
-               "confirms a name")
+               "confirms a name" + unconfirmed_reason(tentative))
         idle = [a["name"] for a in tentative["terms"] if a.get("why") == "idle"]
         if len(idle) == len(tentative["terms"]):
             why = ("the held-out test episodes confirmed the set it named, but removing each of these from it leaves "
@@ -329,7 +329,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                          f"{_n(alone['test_rmse_after'])} N, force at another depth {_n(alone['forecast_pct_before'], '.1f')} → "
                          f"{_n(alone['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(alone['forecast_p'])}, Holm "
                          f"over the forms judged alone: the held-out episodes chose among them): "
-                         + ("confirmed." if alone["confirmed"] else "not confirmed."))
+                         + ("confirmed." if alone["confirmed"] else
+                            f"not confirmed{unconfirmed_reason({**alone, 'min_gain': nc.get('min_gain')})}."))
         if nc:
             lines.append(f"- Held-out test RMSE with all the accepted form(s) {_n(nc['test_rmse_before'])} N → "
                          f"{_n(nc['test_rmse_after'])} N: the set is not confirmed, "
@@ -470,17 +471,17 @@ def _fast_text(reg: dict) -> str:
 
 
 def _misfit_md(mis: dict | None) -> list[str]:
-    """Per θ-group and soil: the episodes' relative misfit against the others' (``regimes.group_misfit``)."""
+    """Per θ-group, soil and density: the episodes' relative misfit against the others' (``regimes.group_misfit``)."""
     if not mis or not mis["rows"]:
         return []
     lines = ["Where the model fits worse: each episode's relative misfit (RMS of |F_meas − F_model| over its mean "
-             "|F|; θ per group absorbs a group's bias, not a form it cannot follow), a group's or soil's episodes "
+             "|F|; θ per group absorbs a group's bias, not a form it cannot follow), a group's, soil's or density's episodes "
              f"against all others (one-sided Mann-Whitney, Holm); flagged at p < {mis['alpha']:g} and at least "
-             f"{mis['ratio']:g}× the others' median. Flagged: **{', '.join(mis['soils'] + mis['groups']) or 'none'}**.", "",
-             "| group / soil | episodes | relative misfit | others | ratio | p (Holm) | θ on the fit box | flagged |",
+             f"{mis['ratio']:g}× the others' median. Flagged: **{', '.join(flagged_units(mis)) or 'none'}**.", "",
+             "| group / soil / density | episodes | relative misfit | others | ratio | p (Holm) | θ on the fit box | flagged |",
              "|---|---|---|---|---|---|---|---|"]
     for r in mis["rows"]:
-        name = f"soil {r['name']}" if r["kind"] == "soil" else r["name"]
+        name = misfit_unit_name(r)
         lines.append(f"| {md.cell(name)} | {r['n_episodes']} | {_n(None if r['misfit'] is None else 100 * r['misfit'], '.1f')} % | "
                      f"{_n(None if r['misfit_others'] is None else 100 * r['misfit_others'], '.1f')} % | "
                      f"{_n(r['ratio'], '.2f')} | {_p(r['p_holm'])} | {md.cell(', '.join(r['theta_at_bound']))}"

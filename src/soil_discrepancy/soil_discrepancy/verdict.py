@@ -19,7 +19,7 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 
 from .forms import pin_kind, pinned_caveat
 from .gap import NO_WORSE_WITHOUT
-from .regimes import ONE_DEPTH_SPAN_M, misfit_discrepancy, on_soil_test_bound, variable_labels
+from .regimes import ONE_DEPTH_SPAN_M, misfit_discrepancy, misfit_unit_name, on_soil_test_bound, variable_labels
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA
 
 # "partly explained": terms are named and the residual keeps significant structure beside them (a
@@ -184,6 +184,23 @@ def forecast_gap_text(test: dict) -> str:
     return _pct_change(fc['before']['vector_pct'], fc['after']['vector_pct'])
 
 
+def unconfirmed_reason(figures: dict) -> str:
+    """Why the held-out test did not confirm named terms (``workflow._confirmed`` on ``_confirmation``'s
+    figures with the run's ``min_gain``), in words: a force error that fell by more than a half beside
+    "not the held-out test" read as a contradiction when the forecast at another depth had failed it."""
+    least = figures.get("min_gain")
+    if least is None:
+        return ""
+    sse, red = figures.get("sse_reduction"), figures.get("forecast_reduction")
+    if red is not None and red < -least:
+        return (f": the force at another depth gets worse, its error up {-100 * red:.0f} %, more than the least gain "
+                f"({100 * least:.0f} %), which fails a name however much the force error falls")
+    if sse is None or sse < least:
+        return (f": the force error's squares fall by {100 * max(sse or 0.0, 0.0):.0f} %, less than the least gain "
+                f"({100 * least:.0f} %), and the force at another depth not by enough to stand for it")
+    return ""
+
+
 def _forecast_clause(figures: dict) -> str:
     """", force at another depth B -> A % of |F|" from ``_confirmation``'s figures ("" where not measured)."""
     before, after = figures.get("forecast_pct_before"), figures.get("forecast_pct_after")
@@ -208,7 +225,7 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
                      f"{', '.join(t['name'] for t in tentative['terms'] if t.get('why') != 'idle')} passed cross-validation on the selection part, "
                      f"held-out RMSE with all named terms {fmt_n(tentative['test_rmse_before'])} -> "
                      f"{fmt_n(tentative['test_rmse_after'])} N"
-                     + _forecast_clause(tentative)
+                     + _forecast_clause(tentative) + unconfirmed_reason(tentative)
                      + (f"; term by term, removing {', '.join(idle)} leaves {NO_WORSE_WITHOUT}" if idle else "")
                      + ")")
     if new_terms:
@@ -279,7 +296,7 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
         # a soil beside them its label's textbook rules out: "explained" at most in part, pinned down or not
         off_label = _off_label_text(reg1, beside_terms=True)
         return ("partly explained" if remains or weak or bound_stand_ins or worse_axes or off_label else "explained",
-                text + moved + off_label + misfit_text(reg1) + _left_text(reg1) + not_named)
+                text + _untested_text(test) + moved + off_label + misfit_text(reg1) + _left_text(reg1) + not_named)
     if reg0["significant"] or misfit_discrepancy(reg0):
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])
         where = (f"residual structure vs {names}" if reg0["significant"] else
@@ -291,8 +308,10 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
         if forms_tentative and forms_tentative["forms"]:
             text += (f" (tentative forms {', '.join(forms_tentative['forms'])} passed cross-validation on the selection part "
                      f"but not the held-out test: RMSE {fmt_n(forms_tentative['test_rmse_before'])} -> "
-                     f"{fmt_n(forms_tentative['test_rmse_after'])} N{_forecast_clause(forms_tentative)})")
-        return "unexplained", text + misfit_text(reg0) + _off_label_text(reg0) + _left_text(reg0) + not_named
+                     f"{fmt_n(forms_tentative['test_rmse_after'])} N{_forecast_clause(forms_tentative)}"
+                     f"{unconfirmed_reason(forms_tentative)})")
+        return "unexplained", (text + _untested_text(test) + misfit_text(reg0) + _off_label_text(reg0) + _left_text(reg0)
+                               + not_named)
     return "no significant discrepancy", ("no significant discrepancy: no regime bias or trend of at least "
                                           f"{100 * reg0['min_effect']:.0f} % of |F| at p < {reg0['alpha']:g} "
                                           "(Holm), and no catalogue term reduces the held-out error"
@@ -422,6 +441,16 @@ def _left_text(reg: dict | None) -> str:
     return "; left: residual RMS " + "; ".join(parts)
 
 
+def _untested_text(test: dict | None) -> str:
+    """Where the baseline fits worse (``regimes.misfit_discrepancy``) but the held-out test part holds
+    none of its episodes (``test['fits_worse_untested']``): the test's figures say nothing there."""
+    untested = (test or {}).get("fits_worse_untested") or []
+    if not untested:
+        return ""
+    return (f"; but the held-out test part holds no episode of {', '.join(untested)}, where the model fits worse: "
+            "its figures cannot judge an effect there (another --seed splits the groups otherwise)")
+
+
 def misfit_text(reg: dict | None, quiet: bool = False) -> str:
     """Where the model fits worse (``regimes.group_misfit``) and where θ sits on its box, for the verdict.
 
@@ -432,11 +461,9 @@ def misfit_text(reg: dict | None, quiet: bool = False) -> str:
     if not mis:
         return ""
     rows = {(r["kind"], r["name"]): r for r in mis["rows"]}
-    parts = []
-    for kind, names in (("soil", mis["soils"]), ("group", mis["groups"])):
-        for n in names:
-            r = rows[(kind, n)]
-            parts.append(f"{'soil ' if kind == 'soil' else ''}{n} ({r['ratio']:.1f}× the other episodes' relative misfit)")
+    parts = [f"{misfit_unit_name(rows[(kind, n)])} ({rows[(kind, n)]['ratio']:.1f}× the other episodes' relative misfit)"
+             for kind, names in (("soil", mis["soils"]), ("density", mis.get("densities", [])), ("group", mis["groups"]))
+             for n in names]
     bound = [r for r in mis["rows"] if r["kind"] == "group" and r["theta_at_bound"]]
     n_groups = sum(1 for r in mis["rows"] if r["kind"] == "group")
     text = ""

@@ -39,8 +39,8 @@ from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
 from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
 from .provenance import environment
-from .regimes import (ALPHA, MIN_EFFECT, bin_edges, group_misfit, holm, misfit_discrepancy, regime_analysis,
-                      variable_labels)
+from .regimes import (ALPHA, MIN_EFFECT, bin_edges, flagged_units, group_misfit, holm, misfit_discrepancy,
+                      misfit_unit_name, regime_analysis, unit_episodes, variable_labels)
 from .soil_tests import displayed_box, hold_theta, unmatched
 from .verdict import fmt_n, forecast_gap_text, theta_shift, verdict_of
 
@@ -158,7 +158,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     reg0["misfit"] = group_misfit(frame, r0, alpha=alpha, theta_table=base.table(frame))
     say(f"baseline residual RMS x {reg0['rms_n']['x']:.0f} N, z {reg0['rms_n']['z']:.0f} N; "
         f"flagged regimes: {', '.join(reg0['flagged_variables']) or 'none'}; fits worse in: "
-        f"{', '.join(reg0['misfit']['soils'] + reg0['misfit']['groups']) or 'no group'}")
+        f"{', '.join(flagged_units(reg0['misfit'])) or 'no group'}")
     # 3. name the missing effect, on the selection part only
     sel_groups, test_groups = split_holdout(frame, holdout, seed)
     fsel = frame.select(groups=sel_groups)
@@ -214,9 +214,15 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # 5a. the gap on the held-out test groups (never used above): the force error, and the
     # planner's question, the force at another depth from a fit at one depth
     test = test_arrays = ftest = None
+    untested: list[str] = []
     if test_groups:
         ftest = frame.select(groups=test_groups)
         test, test_arrays = _held_out(ftest, initial, final, base, edges)
+        # where the baseline fits worse but the held-out part holds no episode: its test cannot judge
+        # an effect there (an outside reader's drag in the loose soils, none of them held out: "neither
+        # ... explains it on held-out episodes", whose error was the control's to the newton)
+        held = {int(e) for e in ftest.episodes}
+        untested = [misfit_unit_name(r) for r in misfit_discrepancy(reg0) if not unit_episodes(frame, r) & held]
         forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
         if forms_in and not _confirmed(test, min_gain, alpha):
             # a form from a library of hundreds is a claim only if the test episodes confirm it: the
@@ -243,7 +249,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 f"{fmt_n(test['before']['rmse'])} -> {fmt_n(test['after']['rmse'])} N, force at another depth {forecast_gap_text(test)})"
                 + (f"; not named: {', '.join(s.name for s in dropped)}" if dropped else "")
                 + (f"; confirmed on their own and refitted: {', '.join(s.name for s in kept)}" if kept else ""))
-            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], **_confirmation(test), "each_form": marginal}
+            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], **_confirmation(test), "min_gain": min_gain,
+                                            "each_form": marginal}
             _mark_confirmed(form_report, kept)
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
             final = trial  # the catalogue terms and the kept forms, refitted
@@ -263,7 +270,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             alone, kept_forms, judged = _refitted_if_confirmed(fsel, ftest, initial, forms_named, sel["fit"], base,
                                                                edges, min_gain, alpha, allow_negative_k)
         demoted = [s for s in new_terms if s.name not in {f.name for f in kept_forms}]
-        tentative = {"terms": [_term_row(s) for s in demoted], **_confirmation(test)}
+        tentative = {"terms": [_term_row(s) for s in demoted], **_confirmation(test), "min_gain": min_gain}
         say(f"the named term(s) {', '.join(s.name for s in demoted)} are not confirmed on the held-out test episodes "
             f"(RMSE {fmt_n(test['before']['rmse'])} -> {fmt_n(test['after']['rmse'])} N, force at another depth "
             f"{forecast_gap_text(test)}): tentative, not named"
@@ -292,7 +299,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             + (f"; the rest, refitted without it, not confirmed: {', '.join(s.name for s in failed)}" if failed else ""))
         rows = [_term_row(worst, why="idle")] + [_term_row(s, why="set") for s in failed]
         if tentative is None:
-            tentative = {"terms": [], **_confirmation(test)}
+            tentative = {"terms": [], **_confirmation(test), "min_gain": min_gain}
         tentative["terms"] += rows
         new_terms, final = kept, trial
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
@@ -332,6 +339,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                     test["predictors"][str(label)] = compare_predictions(ftest, pb, pa, label=str(label), edges=edges)
     theta0 = base.table(frame)
     shift = theta_shift(theta0, theta1)
+    if test is not None:  # the final held-out figures' (``test`` is recomputed as terms are judged)
+        test["fits_worse_untested"] = untested
     verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift)
     say(summary)
     report = {
