@@ -804,6 +804,20 @@ def test_a_soil_that_fits_worse_by_more_than_the_least_effect_is_a_discrepancy_n
     assert row["n_episodes"] == int(np.sum(np.array(frame.densities)[frame.episodes] == 20.0)) and row["ratio"] > 2.5
     verdict, text = verdict_of([], {**worse, "misfit": mis}, None)
     assert verdict == "unexplained" and "the model fits worse in every soil at I_d=20% (" in text, text
+    # the held-out part holds none of the loose soils (split by soil, not density): the verdict says its
+    # figures cannot judge an effect there, and why a tentative form failed it (a force error that fell
+    # by half beside "not the held-out test" read as a contradiction: the forecast had failed it)
+    forms = {"not_confirmed": {"forms": ["form:-wd_x*enter2"], "test_rmse_before": 2330.0, "test_rmse_after": 1027.0,
+                               "sse_reduction": 0.81, "forecast_reduction": -0.118, "forecast_pct_before": 21.5,
+                               "forecast_pct_after": 24.0, "forecast_p": 0.6, "min_gain": 0.05}}
+    test = {"before": {"rmse": 489.0}, "after": {"rmse": 489.0}, "fits_worse_untested": ["every soil at I_d=20%"]}
+    text = verdict_of([], {**worse, "misfit": mis}, test, None, forms)[1]
+    assert "the held-out test part holds no episode of every soil at I_d=20%, where the model fits worse" in text, text
+    assert ("2330 -> 1027 N, force at another depth 21.5 -> 24.0 % of |F|: the force at another depth gets worse, its "
+            "error up 12 %, more than the least gain (5 %)") in text, text
+    short = {**forms["not_confirmed"], "sse_reduction": 0.03, "forecast_reduction": 0.01}
+    assert "the force error's squares fall by 3 %, less than the least gain (5 %)" in verdict_of(
+        [], {**worse, "misfit": mis}, None, None, {"not_confirmed": short})[1]
     # beside named terms that leave the clay's misfit: "partly explained", the structure in the soils' fit said
     named = [TermScore(name="soil_inertia", k=4.0, k_se=0.1, k_folds=[4.0] * 5, gain=0.4, p=1e-9)]
     test = {"before": {"rmse": 712.0}, "after": {"rmse": 443.0}}
