@@ -127,6 +127,11 @@ class Frame:
         return any(self.soils[e] != UNKNOWN_SOIL for e in self.episodes)
 
 
+def density_label(relative_density_pct: float) -> str:
+    """A relative density [%] as θ-groups, soil tests and the misfit test's rows name it: "I_d=0%"."""
+    return f"I_d={relative_density_pct:g}%"
+
+
 def _gamma_groups(ds, episodes) -> list[str]:
     """Per episode, the name of its γ-group (``soil_labels.gamma_group_names``) over the median γ of
     ``episodes`` (those analysed: a left-out episode's γ must not bridge two chains); "" for the rest."""
@@ -254,7 +259,7 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         if group_by == "gamma":
             key = gamma_keys[e] or ds.names[e]  # (a left-out episode: a group of its own, with no ticks)
         elif group_by == "auto" and soils[e] != UNKNOWN_SOIL:
-            key = f"{soils[e]} I_d={dens[e]:g}%" if math.isfinite(dens[e]) else soils[e]
+            key = f"{soils[e]} {density_label(dens[e])}" if math.isfinite(dens[e]) else soils[e]
         elif group_by == "auto" and gamma_keys is not None and gamma_keys[e]:
             key = f"{UNKNOWN_SOIL} {gamma_keys[e]}"
             by_gamma.append(ds.names[e])

@@ -24,10 +24,10 @@ from scipy import stats
 
 from pinn_estimator.classical import denormalise_theta, normalised_bounds
 from soil_msgs_py.params import KNOWN_PARAMS
-from soil_msgs_py.soil_labels import GAMMA_GROUP_PREFIX
+from soil_msgs_py.soil_labels import GAMMA_GROUP_PREFIX, UNKNOWN_SOIL
 from soil_msgs_py.strict_json import finite_or_none as _f
 
-from .frame import Frame
+from .frame import Frame, density_label
 
 # (key, label, unit) of the per-tick variables analysed.
 CONTINUOUS: tuple[tuple[str, str, str], ...] = (
@@ -267,10 +267,12 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
         # each soil, and each group against all the others, the other loose groups among them, was
         # flagged in none (an outside reader's drag in I_d 0 % only: 17-22× the others, Holm p 0.02-0.4)
         dens_of_ep = np.array(frame.densities, float)[eps]
+        label_of_ep = np.array([density_label(v) if np.isfinite(v) else "" for v in dens_of_ep])
         levels = sorted({float(v) for v in dens_of_ep if np.isfinite(v)})
-        if len(levels) > 1:
-            units += [("density", density_label(v), dens_of_ep == v) for v in levels
-                      if not any(np.array_equal(dens_of_ep == v, m) for _, _, m in units)]
+        names = list(dict.fromkeys(density_label(v) for v in levels))  # by name, as θ-groups are named
+        if len(names) > 1:
+            units += [("density", n, label_of_ep == n) for n in names
+                      if not any(np.array_equal(label_of_ep == n, m) for _, _, m in units)]
     rho = frame.known[:, KNOWN_PARAMS.index("rho")]
     rho_max = {frame.group_names[g]: float(rho[frame.group == g].max()) for g in frame.groups}
     tested = {frame.group_names[g]: box for g, box in (frame.theta_boxes or {}).items()}
@@ -304,25 +306,18 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
             "densities": [r["name"] for r in rows if r["kind"] == "density" and r["flagged"]]}
 
 
-def density_label(relative_density_pct: float) -> str:
-    """A density row's name (``group_misfit``): every soil at one relative density, "I_d=0%" as in a
-    θ-group's name."""
-    return f"I_d={relative_density_pct:g}%"
-
-
 def misfit_unit_name(row: dict) -> str:
     """How the report and the verdict name a row of ``group_misfit``: a θ-group by its name, a soil
-    label as "soil Clay", a density as "every soil at I_d=0%"."""
-    return {"soil": f"soil {row['name']}", "density": f"every soil at {row['name']}"}.get(row["kind"], row["name"])
+    label as "soil Clay", a density as "the soils at I_d=0%"."""
+    return {"soil": f"soil {row['name']}", "density": f"the soils at {row['name']}"}.get(row["kind"], row["name"])
 
 
 def unit_episodes(frame: Frame, row: dict) -> set[int]:
     """The episodes (indices) of one row of ``group_misfit``: its θ-group's, soil label's or density's."""
     if row["kind"] == "soil":
         return {int(e) for e in frame.episodes if frame.soils[e] == row["name"]}
-    if row["kind"] == "density":
-        return {int(e) for e in frame.episodes
-                if math.isfinite(frame.densities[e]) and density_label(frame.densities[e]) == row["name"]}
+    if row["kind"] == "density":  # the row's level (``group_misfit``: each finite density a row of its own)
+        return {int(e) for e in frame.episodes if density_label(frame.densities[e]) == row["name"]}
     return {int(e) for e in frame.episodes if frame.group_names[frame.group_of[e]] == row["name"]}
 
 
@@ -336,20 +331,23 @@ def flagged_units(mis: dict | None) -> list[str]:
 
 def misfit_discrepancy(reg: dict | None) -> list[dict]:
     """The rows of ``group_misfit`` (in ``reg['misfit']``) that are a discrepancy by themselves,
-    whatever the regime tests say: flagged, of a soil label or a θ-group of labelled bags, and
-    worse than the other episodes by at least the regime tests' least effect (the group's RMS
-    misfit beyond the others' in quadrature, ``reg['min_effect']`` of |F|).
+    whatever the regime tests say: flagged, of a soil label, a density or a θ-group of labelled bags,
+    and worse than the other episodes by at least the regime tests' least effect (the row's median
+    episode misfit, an RMS over |F|, beyond the others' median in quadrature, ``reg['min_effect']``
+    of |F|).
 
     Why: θ per group takes an effect that acts in some soils only as their bias, so no regime bin
     is biased, but the effect's form is left there (an outside reader's drag while the blade speeds
     up: the dense clay and loam 5.6 % and 5.5 % against 1.1 %, which the report headed "no
     significant discrepancy"). Not a γ-group's (bags without soil labels): two soils of one γ share
-    one θ there and fit worse with nothing missing, a caution only; nor a misfit of tenths of a
-    percent, significant only because the others fit so well."""
+    one θ there and fit worse with nothing missing, a caution only; nor the unlabelled episodes'
+    soil row ("unknown", beside labelled bags), whose groups are such γ-groups; nor a misfit of
+    tenths of a percent, significant only because the others fit so well."""
     min_effect = (reg or {}).get("min_effect", MIN_EFFECT)
     out = []
     for r in ((reg or {}).get("misfit") or {}).get("rows", []):
-        if not r.get("flagged") or (r["kind"] == "group" and GAMMA_GROUP_PREFIX in r["name"]):
+        if (not r.get("flagged") or (r["kind"] == "group" and GAMMA_GROUP_PREFIX in r["name"])
+                or (r["kind"] == "soil" and r["name"] == UNKNOWN_SOIL)):
             continue
         mine, others = r.get("misfit"), r.get("misfit_others")
         if mine is not None and others is not None and mine ** 2 - others ** 2 >= min_effect ** 2:

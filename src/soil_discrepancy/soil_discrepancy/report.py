@@ -330,7 +330,7 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                          f"{_n(alone['forecast_pct_after'], '.1f')} % of |F| (paired p {_p(alone['forecast_p'])}, Holm "
                          f"over the forms judged alone: the held-out episodes chose among them): "
                          + ("confirmed." if alone["confirmed"] else
-                            f"not confirmed{unconfirmed_reason({**alone, 'min_gain': nc.get('min_gain')})}."))
+                            f"not confirmed{unconfirmed_reason(alone)}."))
         if nc:
             lines.append(f"- Held-out test RMSE with all the accepted form(s) {_n(nc['test_rmse_before'])} N → "
                          f"{_n(nc['test_rmse_after'])} N: the set is not confirmed, "

@@ -33,7 +33,7 @@ import numpy as np
 from soil_msgs_py.params import DEG
 from soil_msgs_py.values import finite_number, short_repr, yaml_exponent
 
-from .frame import Frame
+from .frame import Frame, density_label
 from soil_msgs_py.yaml_file import read_yaml
 
 WIDTH_SIGMA = 2.0  # θ may move ± this many of a test's standard deviations (its ~95 % interval)
@@ -141,7 +141,7 @@ def hold_theta(frame: Frame, tests) -> Frame:
     ValueError if no group matches (the labels are named): tests that hold nothing are a mistake."""
     boxes = {g: t.box() for g, t in _chosen(frame, tests).items()}
     if not boxes:
-        seen = sorted({f"{s} I_d={d:g}%" if math.isfinite(d) else s for s, d in zip(frame.soils, frame.densities)})
+        seen = sorted({f"{s} {density_label(d)}" if math.isfinite(d) else s for s, d in zip(frame.soils, frame.densities)})
         raise ValueError(f"no soil test matches a soil of the bags (their labels: {', '.join(seen[:12])}); "
                          "soil tests need bags whose metadata gives a soil label (and a density, for a test of one "
                          "density), grouped by it (not by --group-by gamma or episode)")
@@ -169,7 +169,7 @@ def unmatched(frame: Frame, tests) -> list[str]:
     density, a soil only in groups of several soils, a test of every density that one of a
     density beats wherever it matches (said, not dropped in silence)."""
     used = {id(t) for t in _chosen(frame, tests).values()}
-    return [t.soil + (f" I_d={t.relative_density_pct:g}%" if t.relative_density_pct is not None else "")
+    return [t.soil + (f" {density_label(t.relative_density_pct)}" if t.relative_density_pct is not None else "")
             for t in tests if id(t) not in used]
 
 

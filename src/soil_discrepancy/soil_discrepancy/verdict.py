@@ -18,7 +18,7 @@ from soil_physics import force_terms, term_forms
 from soil_physics.term_forms import PREFIX as FORM_PREFIX
 
 from .forms import pin_kind, pinned_caveat
-from .gap import NO_WORSE_WITHOUT
+from .gap import NO_WORSE_WITHOUT, confirmation
 from .regimes import ONE_DEPTH_SPAN_M, misfit_discrepancy, misfit_unit_name, on_soil_test_bound, variable_labels
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA
 
@@ -185,20 +185,14 @@ def forecast_gap_text(test: dict) -> str:
 
 
 def unconfirmed_reason(figures: dict) -> str:
-    """Why the held-out test did not confirm named terms (``workflow._confirmed`` on ``_confirmation``'s
-    figures with the run's ``min_gain``), in words: a force error that fell by more than a half beside
-    "not the held-out test" read as a contradiction when the forecast at another depth had failed it."""
-    least = figures.get("min_gain")
-    if least is None:
+    """Why held-out figures (``workflow._confirmation``'s, with their rule's ``min_gain`` and ``alpha``)
+    did not confirm named terms, in words (``gap.confirmation``); "" where they did (a set the
+    held-out episodes confirmed, one of whose terms failed term by term) or the rule is not given."""
+    if figures.get("min_gain") is None or figures.get("alpha") is None:
         return ""
-    sse, red = figures.get("sse_reduction"), figures.get("forecast_reduction")
-    if red is not None and red < -least:
-        return (f": the force at another depth gets worse, its error up {-100 * red:.0f} %, more than the least gain "
-                f"({100 * least:.0f} %), which fails a name however much the force error falls")
-    if sse is None or sse < least:
-        return (f": the force error's squares fall by {100 * max(sse or 0.0, 0.0):.0f} %, less than the least gain "
-                f"({100 * least:.0f} %), and the force at another depth not by enough to stand for it")
-    return ""
+    ok, why = confirmation(figures.get("sse_reduction"), figures.get("forecast_reduction"), figures.get("forecast_p"),
+                           figures["min_gain"], figures["alpha"])
+    return "" if ok else why
 
 
 def _forecast_clause(figures: dict) -> str:
@@ -443,12 +437,18 @@ def _left_text(reg: dict | None) -> str:
 
 def _untested_text(test: dict | None) -> str:
     """Where the baseline fits worse (``regimes.misfit_discrepancy``) but the held-out test part holds
-    none of its episodes (``test['fits_worse_untested']``): the test's figures say nothing there."""
+    none of its episodes (``test['fits_worse_untested']``: the test's figures say nothing there), or
+    the selection part none (``'fits_worse_unselected'``: no term was chosen on them)."""
     untested = (test or {}).get("fits_worse_untested") or []
-    if not untested:
-        return ""
-    return (f"; but the held-out test part holds no episode of {', '.join(untested)}, where the model fits worse: "
-            "its figures cannot judge an effect there (another --seed splits the groups otherwise)")
+    unselected = (test or {}).get("fits_worse_unselected") or []
+    parts = []
+    if untested:
+        parts.append(f"the held-out test part holds no episode of {', '.join(untested)}, where the baseline fits worse: "
+                     "its figures cannot judge an effect there")
+    if unselected:
+        parts.append(f"the selection part holds no episode of {', '.join(unselected)}, where the baseline fits worse: "
+                     "no term was chosen on them")
+    return f"; but {'; and '.join(parts)} (another --seed splits the groups otherwise)" if parts else ""
 
 
 def misfit_text(reg: dict | None, quiet: bool = False) -> str:

@@ -37,7 +37,7 @@ from .candidates import (FOLDS, HOLDOUT_SHARE, MAX_TERMS, MIN_GAIN, check_holdou
 from .forms import describe_form, pin_kind, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
 from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
-from .gap import NO_WORSE_WITHOUT, compare_predictions, depth_forecast_gap, fee_gap
+from .gap import NO_WORSE_WITHOUT, compare_predictions, confirmation, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import (ALPHA, MIN_EFFECT, bin_edges, flagged_units, group_misfit, holm, misfit_discrepancy,
                       misfit_unit_name, regime_analysis, unit_episodes, variable_labels)
@@ -167,7 +167,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # form beats it on held-out groups
     form_report = None
     pool = list(candidates)
-    fits_worse = [r["name"] for r in misfit_discrepancy(reg0)]
+    fits_worse = [misfit_unit_name(r) for r in misfit_discrepancy(reg0)]
     if forms and (reg0["significant"] or fits_worse):
         first = search_forms(fsel, initial, base, folds=folds, catalogue=candidates, log=say)
         form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "fits_worse_in": fits_worse,
@@ -214,15 +214,19 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # 5a. the gap on the held-out test groups (never used above): the force error, and the
     # planner's question, the force at another depth from a fit at one depth
     test = test_arrays = ftest = None
-    untested: list[str] = []
+    blind: dict[str, list[str]] = {}
     if test_groups:
         ftest = frame.select(groups=test_groups)
         test, test_arrays = _held_out(ftest, initial, final, base, edges)
         # where the baseline fits worse but the held-out part holds no episode: its test cannot judge
         # an effect there (an outside reader's drag in the loose soils, none of them held out: "neither
-        # ... explains it on held-out episodes", whose error was the control's to the newton)
-        held = {int(e) for e in ftest.episodes}
-        untested = [misfit_unit_name(r) for r in misfit_discrepancy(reg0) if not unit_episodes(frame, r) & held]
+        # ... explains it on held-out episodes", whose error was the control's to the newton); or the
+        # selection part none: no term was chosen on them
+        held, chosen_on = {int(e) for e in ftest.episodes}, {int(e) for e in fsel.episodes}
+        blind = {"fits_worse_untested": [misfit_unit_name(r) for r in misfit_discrepancy(reg0)
+                                         if not unit_episodes(frame, r) & held],
+                 "fits_worse_unselected": [misfit_unit_name(r) for r in misfit_discrepancy(reg0)
+                                           if not unit_episodes(frame, r) & chosen_on]}
         forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
         if forms_in and not _confirmed(test, min_gain, alpha):
             # a form from a library of hundreds is a claim only if the test episodes confirm it: the
@@ -236,7 +240,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             p_fc = holm([(t["depth_forecast"] or {}).get("p_paired", 1.0) for t in marginal.values()])
             for (name, t1), p_h in zip(list(marginal.items()), p_fc):
                 t1["depth_forecast"] = {**t1["depth_forecast"], "p_paired": float(p_h)}
-                marginal[name] = {"confirmed": _confirmed(t1, min_gain, alpha), **_confirmation(t1)}
+                marginal[name] = {"confirmed": _confirmed(t1, min_gain, alpha), **_confirmation(t1, min_gain, alpha)}
             kept = [s for s in forms_in if marginal[s.name]["confirmed"]]
             trial = catalogue_model
             if kept:  # the forms confirmed on their own, their k refitted without the others (selection part),
@@ -249,7 +253,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                 f"{fmt_n(test['before']['rmse'])} -> {fmt_n(test['after']['rmse'])} N, force at another depth {forecast_gap_text(test)})"
                 + (f"; not named: {', '.join(s.name for s in dropped)}" if dropped else "")
                 + (f"; confirmed on their own and refitted: {', '.join(s.name for s in kept)}" if kept else ""))
-            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], **_confirmation(test), "min_gain": min_gain,
+            form_report["not_confirmed"] = {"forms": [s.name for s in dropped], **_confirmation(test, min_gain, alpha),
                                             "each_form": marginal}
             _mark_confirmed(form_report, kept)
             new_terms = [s for s in new_terms if not s.name.startswith(FORM_PREFIX)] + kept
@@ -270,7 +274,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             alone, kept_forms, judged = _refitted_if_confirmed(fsel, ftest, initial, forms_named, sel["fit"], base,
                                                                edges, min_gain, alpha, allow_negative_k)
         demoted = [s for s in new_terms if s.name not in {f.name for f in kept_forms}]
-        tentative = {"terms": [_term_row(s) for s in demoted], **_confirmation(test), "min_gain": min_gain}
+        tentative = {"terms": [_term_row(s) for s in demoted], **_confirmation(test, min_gain, alpha)}
         say(f"the named term(s) {', '.join(s.name for s in demoted)} are not confirmed on the held-out test episodes "
             f"(RMSE {fmt_n(test['before']['rmse'])} -> {fmt_n(test['after']['rmse'])} N, force at another depth "
             f"{forecast_gap_text(test)}): tentative, not named"
@@ -299,7 +303,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
             + (f"; the rest, refitted without it, not confirmed: {', '.join(s.name for s in failed)}" if failed else ""))
         rows = [_term_row(worst, why="idle")] + [_term_row(s, why="set") for s in failed]
         if tentative is None:
-            tentative = {"terms": [], **_confirmation(test), "min_gain": min_gain}
+            tentative = {"terms": [], **_confirmation(test, min_gain, alpha)}
         tentative["terms"] += rows
         new_terms, final = kept, trial
         test, test_arrays = judged or _held_out(ftest, initial, final, base, edges)
@@ -340,7 +344,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     theta0 = base.table(frame)
     shift = theta_shift(theta0, theta1)
     if test is not None:  # the final held-out figures' (``test`` is recomputed as terms are judged)
-        test["fits_worse_untested"] = untested
+        test.update(blind)
     verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift)
     say(summary)
     report = {
@@ -528,33 +532,20 @@ def _held_out(ftest: Frame, before: AugmentedFEE, after: AugmentedFEE, base, edg
     return test, arrays
 
 
-def _confirmation(test: dict) -> dict:
-    """The held-out figures a confirmation is judged on (``_confirmed``)."""
+def _confirmation(test: dict, min_gain: float, alpha: float) -> dict:
+    """The held-out figures a confirmation is judged on (``gap.confirmation``), with the rule's
+    ``min_gain`` and ``alpha``, so that a report says why they did not confirm."""
     fc = test.get("depth_forecast") or {}
     return {"sse_reduction": test["sse_reduction"], "test_rmse_before": test["before"]["rmse"],
             "test_rmse_after": test["after"]["rmse"], "forecast_reduction": fc.get("reduction"),
             "forecast_p": fc.get("p_paired"), "forecast_pct_before": (fc.get("before") or {}).get("vector_pct"),
-            "forecast_pct_after": (fc.get("after") or {}).get("vector_pct")}
+            "forecast_pct_after": (fc.get("after") or {}).get("vector_pct"), "min_gain": min_gain, "alpha": alpha}
 
 
 def _confirmed(test: dict, min_gain: float, alpha: float) -> bool:
-    """Held-out test episodes confirm the named terms: they remove >= ``min_gain`` of the force
-    error, or, without making it worse, of the error of the force at another depth from a fit at
-    one depth (``gap.depth_forecast_gap``, paired p < ``alpha``); and in neither case do they make
-    that forecast worse by more than ``min_gain``. Why both: a wrong depth profile (a force term
-    that does not scale with depth like the FEE) costs a joint fit over every depth of a group
-    little, because θ bends to it, but it is what a planner's forecast misses (a constant 1.5 kN
-    drag, which no form holds, was named as a relief below 0.1 m: the held-out force error −4 %,
-    the forecast at another depth 8.3 → 10.3 %)."""
+    """Held-out test episodes confirm the named terms (``gap.confirmation``)."""
     fc = test.get("depth_forecast") or {}
-    red = fc.get("reduction")
-    if red is not None and not (red >= -min_gain):  # worse by more than the least gain, or undefined after
-        return False
-    sse = test["sse_reduction"]
-    if sse is not None and sse >= min_gain:
-        return True
-    return (sse is not None and sse >= 0.0 and red is not None and red >= min_gain
-            and fc.get("p_paired", 1.0) < alpha)
+    return confirmation(test["sse_reduction"], fc.get("reduction"), fc.get("p_paired", 1.0), min_gain, alpha)[0]
 
 
 # A term whose force on the held-out ticks has an RMS below this share of their mean |F| cannot be
