@@ -873,6 +873,35 @@ def test_the_workflow_searches_forms_for_soils_that_fit_worse_and_says_the_held_
         assert rep["verdict"] != "no significant discrepancy", rep["summary"]
 
 
+def test_a_form_of_travel_says_that_at_one_speed_per_episode_travel_is_speed_times_time(bag_dirs):
+    """An outside reader's drag ∝ v_x τ (speed times time in soil) was named w d · s (travel),
+    "pinned down", beside compaction's travel as "the same mechanism": with one speed per episode the
+    two columns are one (s ≈ v_x τ within 3 % on the grids), which the verdict now says of a form of
+    travel or of time. Real frame: its cuts at one speed each; the same frame with travel doubled in
+    half its episodes (no longer speed × time) is not; a form of depth says nothing of it."""
+    from dataclasses import replace
+
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import travel_is_speed_times_time
+    from soil_discrepancy.verdict import verdict_of
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=4)
+    assert travel_is_speed_times_time(frame)
+    odd = np.isin(frame.episode, frame.episodes[::2])
+    assert not travel_is_speed_times_time(replace(frame, distance=np.where(odd, 2.0 * frame.distance, frame.distance)))
+    reg = {"significant": True, "flagged_variables": ["distance"], "travel_is_speed_times_time": True}
+    test = {"before": {"rmse": 1758.0}, "after": {"rmse": 505.0}}
+    said = "each episode was cut at one speed, so travel is speed × time in soil here (s = v_x τ): a law of time"
+    for name, caveat in (("form:wd_x*s", said), ("form:wd_x*tenter3", "a law of travel fits as well"),
+                         ("form:gd2w_x*vx", None)):
+        named = [TermScore(name=name, k=0.15, k_se=0.001, k_folds=[0.15] * 5, gain=0.97, p=1e-9)]
+        text = verdict_of(named, reg, test, None, pins={name: {"pinned": True}})[1]
+        assert (caveat in text) if caveat else "speed × time" not in text, text
+        assert "speed × time" not in verdict_of(named, {**reg, "travel_is_speed_times_time": False}, test, None,
+                                                 pins={name: {"pinned": True}})[1]
+
+
 @pytest.mark.parametrize("sse, red, p, ok, said", [
     (0.30, 0.00, 0.5, True, ""),  # the force error falls by more than the least gain
     (0.81, -0.118, 0.6, False, "the force at another depth gets worse, its error up 12 %"),

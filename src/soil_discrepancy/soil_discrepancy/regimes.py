@@ -227,6 +227,28 @@ MISFIT_RATIO = 2.0
 ONE_DEPTH_SPAN_M = 0.02
 
 
+# Travel "is" speed × time in soil when the analysed ticks' travel s differs from each episode's
+# median v_x times τ by at most this share, RMS over RMS (the 108-episode grids, one target speed
+# per episode with a stall's dips: 3.2-3.4 %).
+TRAVEL_AS_SPEED_TIME_TOL = 0.05
+
+
+def travel_is_speed_times_time(frame: Frame, tol: float = TRAVEL_AS_SPEED_TIME_TOL) -> bool:
+    """Whether the episodes were cut at one speed each, so that travel is speed × time in soil
+    (s ≈ v_x τ, each episode's median v_x): a law of one then reads as a law of the other (an outside
+    reader's drag ∝ v_x τ was named w d · s, "pinned down", and the report called compaction's travel
+    "the same mechanism"); only a cut whose speed changes tells them apart."""
+    v = frame.known[:, KNOWN_PARAMS.index("v_x")]
+    s, tau = frame.distance, frame.time_in_soil
+    pred = np.full(len(s), np.nan)
+    for e in frame.episodes:
+        m = frame.episode == e
+        pred[m] = np.nanmedian(v[m]) * tau[m]
+    ok = np.isfinite(s) & np.isfinite(pred)
+    scale = math.sqrt(float(np.mean(s[ok] ** 2))) if ok.any() else 0.0
+    return scale > 0 and math.sqrt(float(np.mean((s[ok] - pred[ok]) ** 2))) <= tol * scale
+
+
 def episode_misfit(frame: Frame, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(episodes, relative misfit per episode): RMS of the residual magnitude over the mean measured |F| (1)."""
     eps = frame.episodes

@@ -21,7 +21,8 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .verdict import THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, unconfirmed_reason, unpinned_forms_only
+from .verdict import (THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, travel_caveat, unconfirmed_reason,
+                      unpinned_forms_only)
 from .regimes import AXES, CONTINUOUS, binned_curve, flagged_units, misfit_unit_name
 
 REPORT_JSON, REPORT_MD = "discrepancy.json", "discrepancy.md"
@@ -171,7 +172,7 @@ def markdown(report: dict, figures=()) -> str:
 
         lines += ["Terms from your catalogue, tested as candidates beside the catalogue's: "
                   + "; ".join(f"'{name}' (`{term}`): {said(term)}" for term, name in user.items()) + ".", ""]
-    lines += _forms_md(report.get("forms"), report.get("test"), labels)
+    lines += _forms_md(report.get("forms"), report.get("test"), labels, report.get("regimes"))
     test = report.get("test")
     if test:
         lines += ["## Held-out test episodes: force error before/after", "",
@@ -262,7 +263,7 @@ def markdown(report: dict, figures=()) -> str:
     return "\n".join(lines)
 
 
-def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
+def _forms_md(forms: dict | None, test: dict | None, labels: dict, reg0: dict | None = None) -> list[str]:
     """Step 3b: the library search and each discovered form (formula, k ± SE, where it acts, closest catalogue term)."""
     if not forms:
         return []
@@ -319,7 +320,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict) -> list[str]:
                      if close["same_mechanism"] and pin_kind(f.get("pin")) not in (None, "pinned", "unknown", "value")
                      else "the same mechanism)" if close["same_mechanism"] else
                      "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
-                     if close.get("opposite") else "not the same: a new mechanism)"),
+                     if close.get("opposite") else "not the same: a new mechanism)")
+                  + (f" ({travel.lstrip('; ')})" if (travel := travel_caveat(f["name"], reg0)) else ""),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
         lines += _pinned_md(f.get("pin"))
         nc = forms.get("not_confirmed")

@@ -167,6 +167,20 @@ def shape_caveat(name: str, pin: dict | None, reg1: dict | None, labels: dict) -
     return ""
 
 
+def travel_caveat(name: str, reg0: dict | None) -> str:
+    """The words a discovered form of travel s or of time in soil τ carries where the episodes were cut
+    at one speed each (``regimes.travel_is_speed_times_time``): s = v_x τ there, so the form's law of
+    one is as much a law of the other at the episode's speed (an outside reader's drag ∝ v_x τ was
+    named w d · s, "pinned down", and the report called compaction's travel "the same mechanism")."""
+    if not name.startswith(FORM_PREFIX) or not (reg0 or {}).get("travel_is_speed_times_time"):
+        return ""
+    if not (term_forms.uses_distance(name) or term_forms.uses_time(name)):
+        return ""
+    return ("; each episode was cut at one speed, so travel is speed × time in soil here (s = v_x τ): a law of "
+            f"{'time at that speed' if term_forms.uses_distance(name) else 'travel'} fits as well, and only a cut "
+            "whose speed changes tells them apart")
+
+
 def fmt_n(x) -> str:
     """A force [N] for a message; '–' where a model was undefined on every tick (None)."""
     return "–" if x is None else f"{x:.0f}"
@@ -230,7 +244,7 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             unit = "" if unit == "1" else f" {unit}"
             label = s.name
             pin = (pins or {}).get(s.name)
-            caveat = pinned_caveat(pin) + shape_caveat(s.name, pin, reg1, labels)
+            caveat = pinned_caveat(pin) + shape_caveat(s.name, pin, reg1, labels) + travel_caveat(s.name, reg0)
             if implausible := force_terms.implausible_k(s.name, s.k):
                 caveat += f"; {implausible}: a STAND-IN taking another effect's force, not that mechanism"
                 stand_ins.append(s.name)
