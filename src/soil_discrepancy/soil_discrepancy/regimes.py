@@ -343,12 +343,18 @@ def unit_episodes(frame: Frame, row: dict) -> set[int]:
     return {int(e) for e in frame.episodes if frame.group_names[frame.group_of[e]] == row["name"]}
 
 
-def flagged_units(mis: dict | None) -> list[str]:
-    """The flagged rows of ``group_misfit`` by ``misfit_unit_name``: soils, densities, then θ-groups."""
+def flagged_rows(mis: dict | None) -> list[dict]:
+    """The flagged rows of ``group_misfit``'s result, in the order reports name them: soils, densities,
+    then θ-groups (a report written before the density rows has no 'densities')."""
     mis = mis or {}
-    return [misfit_unit_name({"kind": kind, "name": n})
-            for kind, names in (("soil", mis.get("soils", [])), ("density", mis.get("densities", [])),
-                                ("group", mis.get("groups", []))) for n in names]
+    rows = {(r["kind"], r["name"]): r for r in mis.get("rows", [])}
+    return [rows[(kind, n)] for kind, names in (("soil", mis.get("soils", [])), ("density", mis.get("densities", [])),
+                                                 ("group", mis.get("groups", []))) for n in names]
+
+
+def flagged_units(mis: dict | None) -> list[str]:
+    """The flagged rows of ``group_misfit`` by ``misfit_unit_name`` (``flagged_rows``' order)."""
+    return [misfit_unit_name(r) for r in flagged_rows(mis)]
 
 
 def misfit_discrepancy(reg: dict | None) -> list[dict]:

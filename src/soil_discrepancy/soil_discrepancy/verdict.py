@@ -19,7 +19,8 @@ from soil_physics.term_forms import PREFIX as FORM_PREFIX
 
 from .forms import pin_kind, pinned_caveat
 from .gap import NO_WORSE_WITHOUT, confirmation
-from .regimes import ONE_DEPTH_SPAN_M, misfit_discrepancy, misfit_unit_name, on_soil_test_bound, variable_labels
+from .regimes import (ONE_DEPTH_SPAN_M, flagged_rows, misfit_discrepancy, misfit_unit_name, on_soil_test_bound,
+                      variable_labels)
 from .soil_tests import OUTSIDE_BY_CHANCE, WIDTH_SIGMA
 
 # "partly explained": terms are named and the residual keeps significant structure beside them (a
@@ -69,15 +70,13 @@ def theta_shift(before: list[dict], after: list[dict] | None) -> dict | None:
 
 def _bound_hits(reg: dict | None) -> dict[str, list[str]]:
     """θ-group -> where its fitted soil sits on its fit box (``regimes.group_misfit``'s rows; {} without)."""
-    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    return {r["name"]: r["theta_at_bound"] for r in rows if r["kind"] == "group"}
+    return {r["name"]: r["theta_at_bound"] for r in _group_rows(reg)}
 
 
 def _at_bound(reg: dict | None) -> set[str]:
     """The θ-groups whose fitted soil sits on its fit box, but for groups cut at one depth, where θ
     slides along the φ-c ridge to its box with nothing missing (``regimes.ONE_DEPTH_SPAN_M``)."""
-    rows = ((reg or {}).get("misfit") or {}).get("rows", [])
-    return {r["name"] for r in rows if r["kind"] == "group" and r["theta_at_bound"] and not r.get("one_depth")}
+    return {r["name"] for r in _group_rows(reg) if r["theta_at_bound"] and not r.get("one_depth")}
 
 
 def theta_shift_text(shift: dict | None, reg0: dict | None = None, reg1: dict | None = None) -> str:
@@ -383,6 +382,7 @@ def _soil_test_hint(rows: list[dict], advice: str = "; soil tests (--soil-tests)
 
 
 def _group_rows(reg: dict | None) -> list[dict]:
+    """The θ-group rows of ``regimes.group_misfit`` in ``reg`` ([] without)."""
     return [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
 
 
@@ -420,7 +420,7 @@ def bound_hits_by_chance(reg: dict | None) -> float:
     its n tested parameters' truth lies outside its interval, 1 − (1 − OUTSIDE_BY_CHANCE)^n, the
     groups independently (a Poisson-binomial tail). 1.0 with none on a bound, and where a row does not
     say how many parameters its tests bound (a report written before it did): nothing is claimed."""
-    rows = [r for r in ((reg or {}).get("misfit") or {}).get("rows", []) if r["kind"] == "group"]
+    rows = _group_rows(reg)
     held = _on_test_bounds(reg)
     if not held or any("tested_parameters" not in r for r in rows):
         return 1.0
@@ -474,10 +474,7 @@ def misfit_text(reg: dict | None, quiet: bool = False) -> str:
     mis = (reg or {}).get("misfit")
     if not mis:
         return ""
-    rows = {(r["kind"], r["name"]): r for r in mis["rows"]}
-    parts = [f"{misfit_unit_name(rows[(kind, n)])} ({rows[(kind, n)]['ratio']:.1f}× the other episodes' relative misfit)"
-             for kind, names in (("soil", mis["soils"]), ("density", mis.get("densities", [])), ("group", mis["groups"]))
-             for n in names]
+    parts = [f"{misfit_unit_name(r)} ({r['ratio']:.1f}× the other episodes' relative misfit)" for r in flagged_rows(mis)]
     bound = [r for r in mis["rows"] if r["kind"] == "group" and r["theta_at_bound"]]
     n_groups = sum(1 for r in mis["rows"] if r["kind"] == "group")
     text = ""

@@ -168,7 +168,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     # form beats it on held-out groups
     form_report = None
     pool = list(candidates)
-    fits_worse = [misfit_unit_name(r) for r in misfit_discrepancy(reg0)]
+    worse_rows = misfit_discrepancy(reg0)
+    fits_worse = [misfit_unit_name(r) for r in worse_rows]
     if forms and (reg0["significant"] or fits_worse):
         first = search_forms(fsel, initial, base, folds=folds, catalogue=candidates, log=say)
         form_report = {"searched": True, "residual_structure": reg0["flagged_variables"], "fits_worse_in": fits_worse,
@@ -224,10 +225,9 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         # ... explains it on held-out episodes", whose error was the control's to the newton); or the
         # selection part none: no term was chosen on them
         held, chosen_on = {int(e) for e in ftest.episodes}, {int(e) for e in fsel.episodes}
-        blind = {"fits_worse_untested": [misfit_unit_name(r) for r in misfit_discrepancy(reg0)
-                                         if not unit_episodes(frame, r) & held],
-                 "fits_worse_unselected": [misfit_unit_name(r) for r in misfit_discrepancy(reg0)
-                                           if not unit_episodes(frame, r) & chosen_on]}
+        members = {misfit_unit_name(r): unit_episodes(frame, r) for r in worse_rows}
+        blind = {"fits_worse_untested": [n for n, eps in members.items() if not eps & held],
+                 "fits_worse_unselected": [n for n, eps in members.items() if not eps & chosen_on]}
         forms_in = [s for s in new_terms if s.name.startswith(FORM_PREFIX)]
         if forms_in and not _confirmed(test, min_gain, alpha):
             # a form from a library of hundreds is a claim only if the test episodes confirm it: the
