@@ -53,7 +53,7 @@ from soil_msgs_py import messages as M
 from .bag_io import META_KEY
 from soil_msgs_py.episode import MAX_EPISODE_S
 from soil_msgs_py.episode_follow import graph_said, same_episode
-from soil_msgs_py.graph import EVENT_EPISODE_START, SIM_STATE_TOPICS, EpisodeEvent
+from soil_msgs_py.graph import EVENT_EPISODE_START, SIM_STATE_TOPICS, EpisodeEvent, bag_finished_log
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 from soil_msgs_py.topics import CLOCK, GRAPH_TOPICS_BY_NAME, TOPICS_BY_NAME
@@ -651,7 +651,7 @@ class Recorder:
         # ended (a Ctrl-C is "shutdown") is said beside it where it did not simply run its course
         if s.end_event is not None and s.end_event.reason != "completed":
             extra += f"; the episode ended: {s.end_event.reason}"
-        self.log.info(f"finished ({how}) {result.summary()}{extra}")
+        self.log.info(f"{bag_finished_log(how)} {result.summary()}{extra}")
         # (said: a controller restarted mid-episode, matched by the recorder seconds after the simulator,
         # left 5 s of commands out of a bag that reported nothing dropped, and its replay differed there)
         ticks, lacking = _lacking_ticks(result.messages, list(self.topics), self.joined_without)

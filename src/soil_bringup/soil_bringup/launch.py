@@ -145,6 +145,7 @@ class NodeProcess:
     required: bool = True  # its death (any exit before shutdown) stops the launch (else: the exit code only)
     without: str = ""  # what the graph does without it, said when a node that is not required dies
     ends_launch: bool = False  # its clean exit (code 0) ends the launch successfully
+    records: bool = False  # the recorder: its finished bags are counted (``Launch.stop``'s drain)
     after_death: str = ""  # what a user can do after it died (said with its death)
     # Scheduling niceness set at start (setpriority): the nodes that close the 60 Hz loop (the
     # simulator and the controller) keep 0; a node whose answer may come a tick later (the
@@ -202,6 +203,9 @@ class Launch:
         # the simulator found another graph and ran nothing: the recorder is stopped first, else it
         # recorded the other graph's next episode into this launch's directory while the others stopped
         self.none_of_its_own = False
+        # episodes the simulator said it started, and bags the recorder said it finished (pumped lines)
+        self.episodes_started = 0
+        self.bags_finished = 0
 
     def log(self, text: str) -> None:
         self.out.write(f"[launch] {text}\n")
@@ -219,9 +223,9 @@ class Launch:
                     os.setpriority(os.PRIO_PROCESS, node.proc.pid, node.niceness)
                 except OSError as err:
                     self.log(f"{node.name}: niceness {node.niceness} not set ({err}); it runs at normal priority")
+            on_line = self._on_simulator_line if node.ends_launch else self._on_recorder_line if node.records else None
             node.pump = threading.Thread(target=_pump, args=(node.name, node.proc.stdout, self.out, node.spoke,
-                                                             self._on_simulator_line if node.ends_launch else None,
-                                                             node.last_line),
+                                                             on_line, node.last_line),
                                          daemon=True)
             node.pump.start()
             self.log(STARTED_LINE.format(name=node.name, pid=node.proc.pid, command=" ".join(node.argv)))
@@ -229,6 +233,17 @@ class Launch:
     def _on_simulator_line(self, line: str) -> None:
         if match := G.EPISODE_LOG_PATTERN.search(line):  # (whether an episode is running)
             self.episode_running = match.group(1) == "start"
+            self.episodes_started += self.episode_running
+
+    def _on_recorder_line(self, line: str) -> None:
+        if G.BAG_FINISHED_LOG_PATTERN.search(line):
+            self.bags_finished += 1
+
+    def _recorder_caught_up(self) -> bool:
+        """Whether the recorder said it finished a bag for every episode the simulator started (and
+        the simulator started one): then no message is in flight for it. Else (an episode it has not
+        finished, a bag of the whole run, a line not pumped yet) its stop waits ``drain_s``."""
+        return 0 < self.episodes_started <= self.bags_finished and not self.episode_running
 
     def _on_signal(self, signum, frame) -> None:  # noqa: ARG002
         first = not self.interrupted
@@ -310,7 +325,8 @@ class Launch:
             if node.proc is None:
                 continue
             if node.proc.poll() is None:
-                if not first and not self.none_of_its_own and node.stop_order >= max(n.stop_order for n in self.nodes):
+                last_stage = node.stop_order >= max(n.stop_order for n in self.nodes)
+                if not first and not self.none_of_its_own and last_stage and not (node.records and self._recorder_caught_up()):
                     time.sleep(self.drain_s)  # the last stage (recorder) gets the in-flight data
                 first = False
                 node.returncode = self._stop_one(node)
@@ -575,7 +591,7 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         ros = _namespace_args(args.namespace) + ([] if given else ["-r", f"__node:={recorder_name}"])
         nodes.append(NodeProcess("recorder", [executable("soil_bag_record"), "--out", str(args.record),
                                               "--graph-id", graph_id, *extra, *args.recorder_arg,
-                                              *(["--ros-args", *ros] if ros else [])], stop_order=3,
+                                              *(["--ros-args", *ros] if ros else [])], stop_order=3, records=True,
                                  after_death=f"what it had flushed is in the *.partial journals under {args.record}: "
                                              f"`soil_bag_repair {args.record}` makes bags of them"))
         _await(wait, named, recorder_name, RECORDER_ENDPOINTS, args.namespace)

@@ -85,6 +85,17 @@ def episode_log(index: int, what: str) -> str:
     return f"episode {index} {what}"
 
 
+# The recorder's log line of a bag it finished begins "finished (<how>)" (``bag_finished_log``);
+# soil_launch counts them: a recorder that finished a bag for every episode the simulator started
+# has nothing in flight, and its stop needs no drain.
+BAG_FINISHED_LOG_PATTERN = re.compile(r"\]: finished \(")
+
+
+def bag_finished_log(how: str) -> str:
+    """The head of the recorder's log line of a bag finished ``how`` ("completed", "stopped", ...)."""
+    return f"finished ({how})"
+
+
 # What the ROS graph says of an endpoint whose node is not discovered yet (its name comes a moment
 # after its writer): the simulator's and the player's checks for another graph wait for it.
 UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
