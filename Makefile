@@ -21,7 +21,7 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.txt
-	$(BIN)/python -m pip install --quiet --no-deps $(foreach p,$(PKGS),-e $(p))
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation $(foreach p,$(PKGS),-e $(p))
 	$(BIN)/python -m soil_sim_node.warm_up
 	@touch $(STAMP)
 
