@@ -12,6 +12,8 @@ import dataclasses
 import json
 import math
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -1278,3 +1280,30 @@ def test_a_named_form_whose_formula_holds_pipes_keeps_the_reports_tables_whole()
         text = markdown(wet)
         assert "Sand\\|wet" in text and malformed_rows(text) == [], (case, malformed_rows(text))
     assert malformed_rows(index_markdown(Path(__file__).parents[2] / "docs/discrepancy")) == []
+
+
+@pytest.mark.timeout(300)
+def test_pinn_workers_that_cannot_start_are_said_not_waited_for(tmp_path):
+    """A script calling pinn_gap with workers at its top level (no ``if __name__ == "__main__":``)
+    runs again in each spawned worker, which then fails as it starts. The parent wrote the dataset
+    down the worker's start pipe and waited there for ever (a user's script idle ten minutes). It
+    goes through a file now: the script ends at once with the dead worker said, and Python's
+    reason above it."""
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).resolve().parents[2])!r})\n"
+        "from soil_discrepancy.candidates import split_holdout\n"
+        "from soil_discrepancy.frame import build_frame\n"
+        "from soil_discrepancy.pinn_check import pinn_gap\n"
+        "from soil_physics.augmented_fee import AugmentedFEE\n"
+        "from tests.soil_discrepancy.test_discrepancy import simulated, small_grid\n"
+        "ds = simulated(small_grid()[::2])\n"
+        "frame = build_frame(ds, stride=8)\n"
+        "sel, held = split_holdout(frame, 0.3, 0)\n"
+        "pinn_gap(ds, frame.select(groups=held), frame.episode_names(sel), AugmentedFEE(), AugmentedFEE(),\n"
+        "         epochs=1, seed=0, seeds=1, stride=8, eval_stride=20, log=None, threads=1, workers=2)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=240, cwd=tmp_path)
+    assert out.returncode != 0, out.stdout[-2000:] + out.stderr[-2000:]
+    assert "WorkerDied: a worker process died while training PINNs" in out.stderr, out.stderr[-3000:]
+    assert "bootstrapping phase" in out.stderr, out.stderr[-3000:]  # (Python's own reason, from the worker)

@@ -32,11 +32,16 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
+import pickle
+import tempfile
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 import numpy as np
 
 from soil_msgs_py.params import WINDOW_SAMPLES
+from soil_msgs_py.process_pool import worker_died
 from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.dataset import Dataset
@@ -136,11 +141,20 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
     if workers > 1:
         # spawn, not fork: a forked child of a process whose torch threads already ran can hang;
         # the dataset goes once to each worker, without the ground truth (training never reads
-        # it, and a blind dataset has none)
+        # it, and a blind dataset has none), through a file: given as the workers' start argument, it
+        # went down each worker's start pipe, and a worker that died while it started (a script without
+        # `if __name__ == "__main__":`, run again in it) left this process writing into that pipe for ever
         payload = dataclasses.replace(ds, truth=np.zeros((len(ds.observations), 0)))
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
-                                 initargs=(payload,)) as pool:
-            results = list(pool.map(_train_member, tasks))
+        with tempfile.TemporaryDirectory(prefix="pinn_gap_") as tmp:
+            path = Path(tmp) / "dataset.pickle"
+            with path.open("wb") as f:
+                pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+            try:
+                with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
+                                         initargs=(str(path),)) as pool:
+                    results = list(pool.map(_train_member, tasks))
+            except BrokenProcessPool:
+                raise worker_died("training PINNs") from None
     else:
         results = [_train_member(task, log, ds) for task in tasks]
     preds: dict[str, dict[str, np.ndarray]] = {}
@@ -167,10 +181,12 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
 _WORKER_DATASET: Dataset | None = None  # a pinn_gap worker's dataset (``_worker_start``)
 
 
-def _worker_start(ds: Dataset) -> None:
-    """A spawned pinn_gap worker: the dataset, once; one BLAS thread (torch's are set per PINN)."""
+def _worker_start(dataset_path: str) -> None:
+    """A spawned pinn_gap worker: the dataset, once (a pickle ``pinn_gap`` wrote); one BLAS thread
+    (torch's are set per PINN)."""
     global _WORKER_DATASET
-    _WORKER_DATASET = ds
+    with open(dataset_path, "rb") as f:
+        _WORKER_DATASET = pickle.load(f)
     limit_blas_threads()
 
 

@@ -29,6 +29,12 @@ class WorkerDied(RuntimeError):
     """A worker process of ``map_in_processes`` died (killed: out of memory, a signal)."""
 
 
+def worker_died(what: str) -> WorkerDied:
+    """The error of a pool whose worker died while doing ``what`` (e.g. "reading bags")."""
+    return WorkerDied(f"a worker process died while {what} (killed: out of memory, or a signal; or it failed to start: "
+                      "its error is above); nothing of it was kept: run again (with fewer --workers if memory was short)")
+
+
 def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, chunksize: int = 1,
                      initializer: Callable | None = None, start_method: str | None = None) -> Iterator:
     """``fn(item)`` for each item, in order, from ``workers`` processes; WorkerDied naming ``what``
@@ -47,8 +53,7 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
         yield from executor.map(fn, items, chunksize=chunksize)
         finished = True
     except BrokenProcessPool:
-        raise WorkerDied(f"a worker process died while {what} (killed: out of memory, or a signal); nothing of it "
-                         "was kept: run again (with fewer --workers if memory was short)") from None
+        raise worker_died(what) from None
     finally:  # an interrupt or an error: the queued tasks are dropped, not run to the end
         executor.shutdown(wait=finished, cancel_futures=not finished)
 
