@@ -227,3 +227,39 @@ def test_a_disk_filling_up_mid_run_is_said_in_one_line_and_leaves_no_staging(tmp
     assert "soil_sim_batch: error: writing the bags failed: [Errno 28] No space left on device" in err, err
     assert "1 episode bag(s) finished before the failure are kept" in err and "--skip-existing" in err, err
     assert len(find_episode_bags(out)) == 1 and not list(out.glob("*.partial"))
+
+
+def test_a_worker_killed_mid_run_ends_the_batch_saying_so_and_keeps_the_finished_bags(tmp_path):
+    """A worker killed outright (what the out-of-memory killer does): multiprocessing.Pool replaced it
+    and waited for its chunk for ever, the batch idle with no end and no word. Now the run ends with
+    exit 1, the death said in one line, the bags finished before it kept and the resume said, the
+    other worker stopped and no staging left."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
+           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
+           "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not find_episode_bags(out) if out.exists() else True:  # the workers are at work
+            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
+            time.sleep(0.2)
+        workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        assert workers, "no worker process"  # (a fork start: the workers are the batch's only children)
+        os.kill(int(workers[0]), signal.SIGKILL)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, err
+    assert "soil_sim_batch: error: a worker process died while simulating episodes" in err, err
+    assert "finished before the failure are kept under" in err and "--skip-existing" in err, err
+    kept = {b.name for b in find_episode_bags(out)}
+    assert 0 < len(kept) < 32 and not list(out.glob("*.partial")), (kept, list(out.iterdir()))
+    time.sleep(3.0)
+    assert {b.name for b in find_episode_bags(out)} == kept  # the other worker writes nothing more

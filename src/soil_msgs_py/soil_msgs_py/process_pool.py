@@ -32,15 +32,19 @@ class WorkerDied(RuntimeError):
 def worker_died(what: str) -> WorkerDied:
     """The error of a pool whose worker died while doing ``what`` (e.g. "reading bags")."""
     return WorkerDied(f"a worker process died while {what} (killed: out of memory, or a signal; or it failed to start: "
-                      "its error is above); nothing of it was kept: run again (with fewer --workers if memory was short)")
+                      "its error is above): run again (with fewer --workers if memory was short)")
 
 
 def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, chunksize: int = 1,
-                     initializer: Callable | None = None, start_method: str | None = None) -> Iterator:
+                     initializer: Callable | None = None, start_method: str | None = None,
+                     stop_workers: bool = False) -> Iterator:
     """``fn(item)`` for each item, in order, from ``workers`` processes; WorkerDied naming ``what``
     (e.g. "reading bags") if one of them dies. Why not ``multiprocessing.Pool``: it replaces a
     worker that was killed and waits for its lost task for ever (an out-of-memory kill of a
-    bag-reading worker left ``pinn_train`` idle with no end and no word)."""
+    bag-reading worker left ``pinn_train`` idle with no end and no word, and one of
+    ``soil_sim_batch``'s workers left the batch waiting). ``stop_workers``: an error or an
+    interrupt also sends the running workers SIGTERM, for tasks too long to wait out (without it
+    they finish the task they hold)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
@@ -55,6 +59,11 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
     except BrokenProcessPool:
         raise worker_died(what) from None
     finally:  # an interrupt or an error: the queued tasks are dropped, not run to the end
+        if stop_workers and not finished:
+            # (CPython's own record of the workers; Python 3.14 says it as terminate_workers())
+            for process in list((getattr(executor, "_processes", None) or {}).values()):
+                if process.is_alive():
+                    process.terminate()
         executor.shutdown(wait=finished, cancel_futures=not finished)
 
 

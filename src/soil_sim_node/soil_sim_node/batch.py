@@ -30,7 +30,6 @@ import dataclasses
 import itertools
 import json
 import math
-import multiprocessing as mp
 import os
 import shutil
 import signal
@@ -49,7 +48,7 @@ from soil_msgs_py.cli_paths import bags_dir, refuse_directories
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, ticks_in
 from soil_msgs_py.patches import check_patches, glue_negative_patches
-from soil_msgs_py.process_pool import pool_start_method
+from soil_msgs_py.process_pool import WorkerDied, map_in_processes
 from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, path_patches, soil_file_notes
 
 from .effects import Effects, effects_for_mode, load_plugins
@@ -319,12 +318,13 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     else:
         # after Ray, spawned workers (they write the same bags and end with the pool; a fork server
         # would outlive it, with Ray's path in its command line)
-        # the workers ignore Ctrl-C (no traceback from each): this process takes it and the pool's
-        # end stops them (a bag half written is staged apart, never in place)
-        with mp.get_context(pool_start_method()).Pool(max(1, min(workers, len(jobs))), initializer=_pool_worker_signals) as pool:
-            for done in pool.imap_unordered(_run_chunk, jobs):
-                results += done
-                bar.update(len(done))
+        # the workers ignore Ctrl-C (no traceback from each): this process takes it and the map's
+        # end stops them (a bag half written is staged apart, never in place); a worker killed (out of
+        # memory) ends the run with WorkerDied, where multiprocessing.Pool waited for its chunk for ever
+        for done in map_in_processes(_run_chunk, jobs, max(1, min(workers, len(jobs))), what="simulating episodes",
+                                     initializer=_pool_worker_signals, stop_workers=True):
+            results += done
+            bar.update(len(done))
     bar.close()
     return results
 
@@ -578,6 +578,8 @@ def main(argv=None) -> int:
     except (ChunksFailed, RuntimeError) as exc:
         bad_input = bool(getattr(exc, "bad_input", False))
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
+        if plan is not None and isinstance(exc, WorkerDied):  # the dead worker's bag, and the others' stopped mid-write
+            _remove_staging(plan)
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2 if bad_input else 1
