@@ -151,20 +151,11 @@ def test_sigterm_ends_the_batch_like_ctrl_c_and_leaves_no_worker_writing(tmp_pat
     one line, exit 143, the finished bags kept, no staging left, and the pool's workers stopped
     with it (before, the batch died at once and silently, its orphaned workers writing bags on)."""
     import signal
-    import subprocess
-    import sys
     import time
 
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
-           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
-           "--quiet", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    proc = _two_workers_at_work(out)
     try:
-        deadline = time.monotonic() + 120
-        while not find_episode_bags(out) if out.exists() else True:
-            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
-            time.sleep(0.2)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -237,19 +228,11 @@ def test_a_worker_killed_mid_run_ends_the_batch_saying_so_and_keeps_the_finished
     import os
     import signal
     import subprocess
-    import sys
     import time
 
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
-           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
-           "--quiet", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    proc = _two_workers_at_work(out)
     try:
-        deadline = time.monotonic() + 120
-        while not find_episode_bags(out) if out.exists() else True:  # the workers are at work
-            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
-            time.sleep(0.2)
         workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
         assert workers, "no worker process"  # (a fork start: the workers are the batch's only children)
         os.kill(int(workers[0]), signal.SIGKILL)
@@ -263,3 +246,24 @@ def test_a_worker_killed_mid_run_ends_the_batch_saying_so_and_keeps_the_finished
     assert 0 < len(kept) < 32 and not list(out.glob("*.partial")), (kept, list(out.iterdir()))
     time.sleep(3.0)
     assert {b.name for b in find_episode_bags(out)} == kept  # the other worker writes nothing more
+
+
+def _two_workers_at_work(out):
+    """A 32-episode batch in two local workers writing into ``out``, once its first bag is in."""
+    import subprocess
+    import sys
+    import time
+
+    cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
+           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
+           "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    try:
+        while not find_episode_bags(out) if out.exists() else True:
+            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
+            time.sleep(0.2)
+    except BaseException:
+        proc.kill()
+        raise
+    return proc
