@@ -63,7 +63,8 @@ def interrupt_name(exc: BaseException) -> str:
 
 def default_sigterm() -> None:
     """For pool workers forked from a process inside ``terminate_as_interrupt``: SIGTERM (which
-    ``Pool.terminate`` sends them) ends them, not an interrupt raised in the middle of a task."""
+    ``map_in_processes(stop_workers=True)`` sends them) ends them, not an interrupt raised in the
+    middle of a task."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 

@@ -364,7 +364,8 @@ def _last_written(directory: Path) -> float:
 
 def _pool_worker_signals() -> None:
     """A pool worker ignores Ctrl-C (the parent handles it and ends the pool) and dies on SIGTERM
-    (what ``Pool.terminate`` sends), whatever handler it inherited."""
+    (what ``map_in_processes(stop_workers=True)`` sends them at an error or an interrupt), whatever
+    handler it inherited."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     default_sigterm()
 
