@@ -32,7 +32,6 @@ import json
 import math
 import os
 import shutil
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -318,11 +317,12 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     else:
         # after Ray, spawned workers (they write the same bags and end with the pool; a fork server
         # would outlive it, with Ray's path in its command line)
-        # the workers ignore Ctrl-C (no traceback from each): this process takes it and the map's
+        # the workers ignore Ctrl-C (no traceback from each; map_in_processes) and die on SIGTERM
+        # (default_sigterm, whatever handler they inherited): this process takes Ctrl-C and the map's
         # end stops them (a bag half written is staged apart, never in place); a worker killed (out of
         # memory) ends the run with WorkerDied, where multiprocessing.Pool waited for its chunk for ever
         for done in map_in_processes(_run_chunk, jobs, max(1, min(workers, len(jobs))), what="simulating episodes",
-                                     initializer=_pool_worker_signals, stop_workers=True):
+                                     initializer=default_sigterm, stop_workers=True):
             results += done
             bar.update(len(done))
     bar.close()
@@ -360,14 +360,6 @@ def _last_written(directory: Path) -> float:
         return max([directory.stat().st_mtime] + [p.stat().st_mtime for p in directory.rglob("*")])
     except OSError:
         return 0.0
-
-
-def _pool_worker_signals() -> None:
-    """A pool worker ignores Ctrl-C (the parent handles it and ends the pool) and dies on SIGTERM
-    (what ``map_in_processes(stop_workers=True)`` sends them at an error or an interrupt), whatever
-    handler it inherited."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    default_sigterm()
 
 
 def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list) -> None:
