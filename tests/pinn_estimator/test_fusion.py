@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -486,6 +487,47 @@ def test_a_posterior_run_off_its_box_is_said_as_such_and_not_planned_from():
         checked_inputs({**estimate, "valid": 0.0, "phi_fused": -1.0, "delta_fused": 0.1}, known, 0.95)
 
 
+# A gravel stronger than Table 1's (benchmarks/strong_gravels.yaml's DenseGravel)
+STRONG_GRAVEL = {"name": "DenseGravel", "phi_deg": [44, 48], "cohesion_pa": [0, 0], "unit_weight_n_m3": [21000, 23000]}
+
+
+def test_a_posterior_no_soil_can_be_is_said_and_a_soil_is_not():
+    """Where the model misses physics (the default world's floor reaction in F_z) a strong
+    gravel's posterior takes δ at its highest value, far above φ: an effective soil whose forces
+    are calibrated but which no soil can be (docs/soil_posterior.md, "δ above φ"); ``not_a_soil``
+    says so, with the bound it is held at. The fee world's soils, where the FEE is the world,
+    are never said to be none; a posterior held at φ's lowest value says that too."""
+    from pinn_estimator.fusion import U_LOWER, U_UPPER
+    from soil_physics.soils import soil_from_dict
+
+    gravels = episodes("default", [(soil_from_dict(STRONG_GRAVEL), 50.0, 0.12), (soil_from_dict(STRONG_GRAVEL), 50.0, 0.22)])
+    gravel = gravels[0]
+    post = fuse(SoilPosterior(load_calibrated("default")), gravel)
+    said = post.not_a_soil(post.summary())
+    assert said and re.search(r"no soil the model can be: delta 4\d\.\d° above phi \d+\.\d°, a wall friction no soil "
+                              r"has; delta at its highest value \(42\.5°\), the end of the range .*\. The force has "
+                              r"physics the model lacks", said), said
+    # the forecast report counts them (no ground truth needed: a machine's bags) and says what it means
+    report = forecast(load_model(MODELS_DIR / "pinn_default.pt")[0], Dataset.from_episodes(gravels), classical=False)
+    assert report["no_soil"]["fused"] == [ep.meta.name for ep in gravels], report["no_soil"]
+    assert "2 of the 2 episodes end with the fused posterior along the path (median, FEE + form:" in "\n".join(fc.markdown(report))
+    for ep in episodes("fee", [("Gravel", 70.0, 0.1), ("Loam", 30.0, 0.15), ("Sand", 20.0, 0.22), ("Clay", 80.0, 0.1)]):
+        post = fuse(SoilPosterior(load_calibrated("fee")), ep)
+        assert post.not_a_soil(post.summary()) is None, ep.meta.name
+    post = SoilPosterior(CFG)
+    post.u[:, THETA.index("phi")], post.u[:, THETA.index("delta")] = U_LOWER, U_UPPER[THETA.index("delta")]
+    post.p[:] = np.diag([1e-4 ** 2] * len(THETA))
+    said = post.not_a_soil(post.summary())
+    assert "phi at its lowest value (0.0°) and delta at its highest value (42.5°), the end of the range" in said, said
+    post.u[:, THETA.index("delta")] = 0.5  # δ 20°, still above φ: said, but not held at its bound
+    said = post.not_a_soil(post.summary())
+    assert said.startswith("the fused soil is no soil the model can be: delta 20.0° above phi 0.0°, a wall friction "
+                           "no soil has; phi at its lowest value (0.0°), the end") and "delta at" not in said, said
+    post.u[:, THETA.index("phi")] = U_UPPER[THETA.index("phi")]  # φ 60°, δ 20°: a soil, beyond the prior's range
+    said = post.not_a_soil(post.summary())
+    assert "above phi" not in said and "phi at its highest value (60.0°), the end of the range" in said, said
+
+
 def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
     q = mixture_quantiles(np.array([1.0]), np.array([10.0]), np.array([2.0]), (0.05, 0.5, 0.95))
     assert np.allclose(q, [10 + 2 * norm.ppf(0.05), 10.0, 10 + 2 * norm.ppf(0.95)], atol=1e-5)
@@ -811,6 +853,7 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     assert fused["mean_abs_pct"] < report["forecast"]["naive_same_force"]["x"]["all"]["mean_abs_pct"]
     assert report["parameters"]["fused"]["delta"]["episodes"] == 4
     assert "90 % / 50 % intervals" in "\n".join(fc.markdown(report))
+    assert report["no_soil"] == {"fused": []} and "no soil the model can be" not in "\n".join(fc.markdown(report))
     # soil by soil: the same pairs, split (where the forecast fails is what a user looks for)
     per = report["per_soil"]
     assert set(per) == {"Loam", "Sand"} and sum(r["pairs"] for r in per.values()) == report["pairs"]

@@ -748,6 +748,29 @@ def test_the_fused_soil_rides_on_every_estimate_and_the_map_grows_along_the_path
     assert_matches_offline(valid(out), offline)
 
 
+def test_a_fused_posterior_no_soil_can_be_is_said_once_not_every_stretch(model):
+    """A strong gravel in the default world, cut live: its fused δ climbs to its highest value
+    above φ (``SoilPosterior.not_a_soil``); the estimator says so through its warning limiter (the
+    node's: the 1st, 10th, 100th time), naming δ and φ, and publishes the fused soil all the same
+    (its forces at other depths are what is calibrated)."""
+    from soil_physics.soils import soil_from_dict
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    from .test_fusion import STRONG_GRAVEL
+
+    (ep,) = run_episodes(SimConfig(world_mode="default"),
+                         [EpisodeSpec(soil_from_dict(STRONG_GRAVEL), 50.0, 0.6, 0.12, seed=100, duration_s=6.0)])
+    said, out = [], []
+    est = OnlineEstimator(model, out.append, warn=lambda kind, text: said.append((kind, text)))
+    for topic, msg in in_order(ep, range(len(ep.stamps_ns))):
+        est.add(topic, msg)
+    no_soil = [text for kind, text in said if kind == "not_a_soil"]
+    assert no_soil and "above phi" in no_soil[0] and "soil_discrepancy" in no_soil[0], said
+    assert len(no_soil) <= est.posterior.updates  # at most once a stretch: the node's limiter thins them further
+    assert out[-1].values[FUSED_VALID] == 1.0 and np.isfinite(out[-1].values).all()
+
+
 def test_a_dropped_tick_fuses_the_same_online_and_offline(episode, model):
     """A tick missing mid-cut: online the stretch in progress is dropped and no blade
     acceleration spans the gap; the offline track of the same rows with ``gap_before`` there

@@ -398,6 +398,10 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "per_soil": per_soil(pairs, names),
         "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
+        # posteriors that end as no soil the model can be (``SoilPosterior.not_a_soil``): δ above φ, or φ / δ held at
+        # the end of their range; their θ is an effective soil (said without ground truth too: a machine's bags)
+        "no_soil": {name: [ds.names[e] for e, post in enumerate(posts) if post.not_a_soil(post.summary())]
+                    for name, posts in posteriors.items()},
     }
 
 
@@ -530,4 +534,11 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         cells = ", ".join(f"{p} error {v['mae'] / (DEG if p != 'c' else 1e3):.2f} {'kPa' if p == 'c' else '°'} "
                           f"({_coverage_text(v, p)})" for p, v in params.items())
         lines += ["", f"{label_of(report, name)}, soil at each episode's end vs the truth: {cells}."]
+    for name, episodes in report.get("no_soil", {}).items():
+        if episodes:
+            shown = ", ".join(episodes[:4]) + (", ..." if len(episodes) > 4 else "")
+            lines += ["", f"{len(episodes)} of the {report['episodes']} episodes end with the {label_of(report, name)} "
+                          f"as no soil the model can be (δ above φ, or φ or δ at the end of the range it is kept in: {shown}): the force "
+                          "has physics the model lacks, and their θ is an effective soil, whose forces at other depths are "
+                          "what the figures above judge."]
     return lines

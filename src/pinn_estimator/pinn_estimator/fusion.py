@@ -104,6 +104,14 @@ FEE_SINGULAR_FORCE_N = 30.0 * max(FORCE_LIMITS_N)
 # as every other component.
 COHESIONLESS_U, COHESIONLESS_STD_U = U_LOWER, 0.05
 _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("v_z")
+# A fused δ above φ by more than this [rad] is said (``SoilPosterior.not_a_soil``): a posterior
+# whose components sit on δ = φ has a sample mean a few tenths of a degree either side.
+NOT_A_SOIL_MARGIN_RAD = 1.0 * DEG
+# Share of the posterior's weight whose mean sits at the end of a coordinate's range
+# (U_LOWER / U_UPPER, within HELD_AT_BOUND_U: 0.2° of φ, 0.15° of δ) beyond which that parameter
+# is said to be held there (a strong gravel's φ component ended at u = -0.2497 ± 0.0002).
+HELD_AT_BOUND_SHARE = 0.5
+HELD_AT_BOUND_U = 0.005
 MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out of the soil carries no evidence
 
 
@@ -582,6 +590,33 @@ class SoilPosterior:
         else:
             mean["beta"] = std["beta"] = float("nan")
         return Summary(mean, std, corr, self.updates, self.changes)
+
+    def not_a_soil(self, summary: Summary) -> str | None:
+        """Why the posterior is no soil the model can be, or None: δ above φ (a blade's wall
+        friction cannot exceed the soil's own: the soil shears within itself first), or φ or δ
+        held at the end of the range the updates keep them in (most of the weight there: the std
+        is then the bound's, not the soil's). Why say it: where the model misses physics (the
+        default world's floor reaction in F_z) the posterior takes such an effective soil, whose
+        forces at other depths are calibrated but whose θ reads as a soil it cannot be (a strong
+        gravel's φ 0.0° ± 0.4° beside δ 42.5°, docs/soil_posterior.md)."""
+        def deg(rad: float) -> float:  # (+ 0.0: a mean a hair below 0° is said 0.0°, not -0.0°)
+            return round(float(rad) / DEG, 1) + 0.0
+
+        held = []
+        for name in ("phi", "delta"):
+            j = THETA.index(name)
+            for bound, end in ((U_LOWER, "lowest"), (U_UPPER[j], "highest")):
+                if self.weights @ (np.abs(self.u[:, j] - bound) <= HELD_AT_BOUND_U) >= HELD_AT_BOUND_SHARE:
+                    held.append(f"{name} at its {end} value ({deg(self.theta_of(np.full(len(THETA), bound))[name]):.1f}°)")
+        phi, delta = summary.mean["phi"], summary.mean["delta"]
+        parts = [f"delta {deg(delta):.1f}° above phi {deg(phi):.1f}°, a wall friction no soil has"] if delta > phi + NOT_A_SOIL_MARGIN_RAD else []
+        if held:
+            parts.append(f"{' and '.join(held)}, the end of the range it is kept in (its std there is the bound's, not the soil's)")
+        if not parts:
+            return None
+        return (f"the fused soil is no soil the model can be: {'; '.join(parts)}. The force has physics the model lacks "
+                "(or the soil lies beyond the prior); θ is then an effective soil, its forces at other depths what is "
+                "calibrated, not θ; soil_discrepancy looks for what is missing")
 
     def quantiles(self, levels) -> dict[str, np.ndarray]:
         """Quantiles of φ, c, δ [SI] at ``levels`` (probabilities), exact for the Gaussian sum:

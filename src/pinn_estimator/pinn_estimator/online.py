@@ -699,6 +699,8 @@ class OnlineEstimator:
             return
         summary = self.posterior.summary()
         self._fused = fused_values(summary, self.posterior.cfg)
+        if problem := self.posterior.not_a_soil(summary):
+            self.warn("not_a_soil", problem)
         if self.soil_map.add(float(sample.obs[_P_X]), float(sample.obs[_P_Z]), summary) and self.publish_map:
             self.publish_map(stamp, self.soil_map.rows())
 
