@@ -31,17 +31,15 @@ The FEE model is scored on the same episodes for reference (θ fitted per group,
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing as mp
+import functools
 import pickle
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
 
 from soil_msgs_py.params import WINDOW_SAMPLES
-from soil_msgs_py.process_pool import worker_died
+from soil_msgs_py.process_pool import map_in_processes
 from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.dataset import Dataset
@@ -143,18 +141,17 @@ def pinn_gap(ds: Dataset, test_frame: Frame, selection: list[str], model_before:
         # the dataset goes once to each worker, without the ground truth (training never reads
         # it, and a blind dataset has none), through a file: given as the workers' start argument, it
         # went down each worker's start pipe, and a worker that died while it started (a script without
-        # `if __name__ == "__main__":`, run again in it) left this process writing into that pipe for ever
+        # `if __name__ == "__main__":`, run again in it) left this process writing into that pipe for ever.
+        # The project's pool: a dead worker is WorkerDied; the workers ignore Ctrl-C (the terminal sends it to
+        # them too: each printed its traceback) and an interrupt or error stops them (SIGTERM), not after the
+        # minutes of training they hold
         payload = dataclasses.replace(ds, truth=np.zeros((len(ds.observations), 0)))
         with tempfile.TemporaryDirectory(prefix="pinn_gap_") as tmp:
             path = Path(tmp) / "dataset.pickle"
             with path.open("wb") as f:
                 pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
-            try:
-                with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_start,
-                                         initargs=(str(path),)) as pool:
-                    results = list(pool.map(_train_member, tasks))
-            except BrokenProcessPool:
-                raise worker_died("training PINNs") from None
+            results = list(map_in_processes(_train_member, tasks, workers, what="training PINNs", start_method="spawn",
+                                            initializer=functools.partial(_worker_start, str(path)), stop_workers=True))
     else:
         results = [_train_member(task, log, ds) for task in tasks]
     preds: dict[str, dict[str, np.ndarray]] = {}

@@ -9,9 +9,11 @@ through their arguments, or the work runs in this process.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import signal
 import sys
+import threading
 from typing import Callable, Iterable, Iterator
 
 
@@ -54,7 +56,9 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
                                    initializer=functools.partial(_worker_start, initializer))
     finished = False
     try:
-        yield from executor.map(fn, items, chunksize=chunksize)
+        with _ctrl_c_ignored_by_new_processes():  # executor.map submits every task: the workers start within
+            results = executor.map(fn, items, chunksize=chunksize)
+        yield from results
         finished = True
     except BrokenProcessPool:
         raise worker_died(what) from None
@@ -65,6 +69,23 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
                 if process.is_alive():
                     process.terminate()
         executor.shutdown(wait=finished, cancel_futures=not finished)
+
+
+@contextlib.contextmanager
+def _ctrl_c_ignored_by_new_processes():
+    """Within (main thread only): SIGINT ignored in this process, so that workers started here
+    ignore it from their first instruction: an ignored signal stays ignored through fork and exec,
+    and Python leaves an ignored SIGINT so. Why: a spawned worker imports for seconds before its
+    initializer (``_worker_start``) runs, and a Ctrl-C then printed a traceback from each. A Ctrl-C
+    within the few milliseconds the workers take to start is lost (press it again)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _worker_start(initializer: Callable | None) -> None:
