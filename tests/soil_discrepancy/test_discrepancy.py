@@ -259,6 +259,46 @@ def test_a_soil_the_named_terms_move_far_is_said_in_the_verdict():
 
 
 
+@pytest.mark.timeout(300)
+def test_ctrl_c_while_pinns_train_stops_every_worker_and_says_so_in_one_line(bag_dirs, tmp_path):
+    """Ctrl-C (the terminal's SIGINT, to the whole process group) as the PINNs' worker processes
+    start: each worker printed its KeyboardInterrupt traceback (a spawned worker imports for
+    seconds before it can ignore Ctrl-C), the parent its own, and it exited -2. Now the workers
+    ignore it from their start and are stopped, the run says one line, exits 130, and writes no
+    report."""
+    import signal
+    import time
+
+    log_path, out = tmp_path / "run.log", tmp_path / "out"
+    with log_path.open("w") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "soil_discrepancy.cli", str(bag_dirs["soil_inertia"]), "--out",
+                                 str(out), "--stride", "12", "--no-forms", "--no-plots", "--workers", "2",
+                                 "--pinn-epochs", "200"], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 240
+        while "PINN after" not in log_path.read_text() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert proc.poll() is None, log_path.read_text()[-3000:]
+        os.killpg(proc.pid, signal.SIGINT)
+        rc = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    text = log_path.read_text()
+    assert rc == 130, text[-3000:]
+    assert "soil_discrepancy: interrupted (Ctrl-C); no report written" in text and "Traceback" not in text, text[-3000:]
+    assert not (out / "discrepancy.json").exists()
+    deadline = time.monotonic() + 10  # no worker left running in its process group
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        raise AssertionError("a worker of the interrupted run is still running")
+
+
 def test_control_gives_no_effect_through_the_cli_from_a_simulators_and_a_machines_bags(bag_dirs, tmp_path, capsys):
     """The control's answer, with the PINN's retraining asked for (nothing named: skipped) and the
     hidden check (none hidden: correct); and from the same bags recorded without

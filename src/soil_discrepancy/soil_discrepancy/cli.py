@@ -4,7 +4,8 @@ Fits the FEE (plus any --accepted terms) to every episode's measured force, test
 by regime at the episode level, cross-validates each named candidate effect of
 ``soil_physics.force_terms`` across soil groups, adds the winner(s) to the model and shows the
 force error before/after on held-out episodes. Writes discrepancy.md, discrepancy.json and PNGs;
-prints the verdict. Exit 0 on success, 2 on bad input (the message names the problem).
+prints the verdict. Exit 0 on success, 2 on bad input (the message names the problem), 1 if a
+worker process died, 130 / 143 on Ctrl-C / SIGTERM (one line; the workers stopped).
 
     soil_discrepancy bags/disc/soil_inertia --out out/disc/soil_inertia
     soil_discrepancy bags/real --out out/disc/real --group-by episode --terms soil_inertia,rate_strength
@@ -13,8 +14,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
+from soil_msgs_py.interrupts import interrupt_exit_code, interrupt_name, terminate_as_interrupt
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories
@@ -95,6 +98,7 @@ def main(argv=None) -> int:
               "2**32 - 1", file=sys.stderr)
         return 2
     predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
+    started = time.time()
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         refuse_repeats(accepted, "--accepted")
@@ -111,13 +115,20 @@ def main(argv=None) -> int:
             refuse_repeats(hidden, "--hidden")
         user_terms = {t["term"]: t["name"] for t in load_catalogue(args.catalogue)} if args.catalogue else {}
         soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()
-        report = run_discrepancy(
-            args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
-            seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
-            allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
-            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms,
-            soil_tests=soil_tests, log=log,
-        )
+        with terminate_as_interrupt():
+            report = run_discrepancy(
+                args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
+                seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
+                allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
+                skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms,
+                soil_tests=soil_tests, log=log,
+            )
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (a scheduler's, timeout's): said in one line, no traceback
+        written = [name for name in OUTPUT_FILES if _written_since(args.out / name, started)]
+        print(f"soil_discrepancy: interrupted ({interrupt_name(exc)}); "
+              + (f"the report in {args.out} is incomplete (written before the stop: {', '.join(written)}): run again for "
+                 "all of it" if written else "no report written"), file=sys.stderr)
+        return interrupt_exit_code(exc)
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
         return 2
@@ -137,6 +148,13 @@ def main(argv=None) -> int:
     if not args.quiet:
         print(f"({report['run_time_s']:.1f} s; report in {args.out / 'discrepancy.md'})")
     return 0
+
+
+def _written_since(path: Path, started: float) -> bool:
+    try:
+        return path.stat().st_mtime >= started
+    except OSError:
+        return False
 
 
 def _pinn_predictor(epochs: int, log, seeds: int = 1):

@@ -54,8 +54,12 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
 
 def _atomic(path: Path, text: str) -> Path:
     tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except BaseException:  # (an interrupt mid-write too) no half-written temporary file left beside the report
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
