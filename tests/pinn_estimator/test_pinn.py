@@ -834,3 +834,31 @@ def test_the_evaluation_reports_tables_keep_their_columns_with_f_in_a_header_and
         assert malformed_rows(text) == []
         (target,) = [ln for ln in text.splitlines() if ln.startswith("| PINN force error, % of measured")]
         assert float(cells_of(target)[1]) == pytest.approx(report["targets"][0]["value"], abs=0.005)
+
+
+def test_eval_tables_each_window_under_the_soil_its_edge_is_in():
+    """An episode of Sand 20 % then Silty Clay 80 % (patches): its windows were tabled as "Sand 20"
+    with the clay's in it, the "truth" of that row a mean of both soils (a sand of c 4.3 kPa, an
+    outside tester's report). Each window now counts in the patch under the edge at its end."""
+    from pinn_estimator.dataset import Dataset
+    from pinn_estimator.evaluate import _group_table, window_soils
+    from soil_msgs_py.params import GROUND_TRUTH_PARAMS, OBSERVATION_FIELDS
+    from soil_sim_node.rollout import run_episodes
+    from soil_sim_node.simulator import EpisodeSpec, SimConfig
+
+    specs = [EpisodeSpec("Sand", 20.0, 0.5, 0.1, seed=3, duration_s=6.0, patches=["0:Sand:20", "3.5:Clay:80"]),
+             EpisodeSpec("Loam", 50.0, 0.5, 0.1, seed=4, duration_s=6.0)]
+    ds = Dataset.from_episodes(run_episodes(SimConfig(world_mode="fee"), specs))
+    ends = ds.window_ends(np.arange(len(ds)), 30)
+    soil, i_d, changing = window_soils(ds, ends)
+    x = ds.observations[ends, OBSERVATION_FIELDS.index("p_x_b")]
+    first = ds.episode_of_rows(ends) == 0
+    assert changing == 1 and set(soil[first]) == {"Sand", "Clay"} and set(soil[~first]) == {"Loam"}
+    np.testing.assert_array_equal(soil[first] == "Clay", x[first] >= 3.5)
+    assert set(i_d[first][soil[first] == "Clay"]) == {80.0} and set(i_d[first][soil[first] == "Sand"]) == {20.0}
+    truth = ds.truth[ends]
+    rows = {(r["soil"], r["relative_density_pct"]): r for r in _group_table(ds, ends, truth, {})}
+    assert set(rows) == {("Sand", 20.0), ("Clay", 80.0), ("Loam", 50.0)}
+    assert rows[("Sand", 20.0)]["truth"]["c"] == 0.0 and rows[("Clay", 80.0)]["truth"]["c"] > 1000.0
+    c = GROUND_TRUTH_PARAMS.index("c")
+    assert np.all(truth[first][soil[first] == "Sand", c] == 0.0)

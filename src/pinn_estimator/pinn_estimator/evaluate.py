@@ -33,7 +33,7 @@ from soil_msgs_py import markdown_table as md
 from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
+from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS, ID_LIMIT_PCT
 
 from .checkpoint import load_model, trained_worlds, world_mismatch, world_mismatch_lines
@@ -76,11 +76,31 @@ def failure_force(phi, c, delta, beta, known_mean: dict) -> float:
     return float(force)
 
 
-def _group_table(ds, ends, truth, estimates: dict[str, dict[str, np.ndarray]]):
-    """Per soil x I_d: truth and each estimator's mean ± std, and failure forces."""
+def window_soils(ds, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """(soil name, I_d [%]) of the windows ending at rows ``ends``, and how many of their episodes
+    change soil along the path: the soil under the edge at the window's end (an episode's patches),
+    else its metadata's. Why: an episode of Sand 20 % then Silty Clay 80 % was tabled as "Sand 20"
+    with the clay's windows in it, its "truth" the mean of both soils (a sand of c 4.3 kPa)."""
+    from soil_msgs_py.patches import patch_under
+
     episode = ds.episode_of_rows(ends)
-    soil = np.array([ds.metas[e].soil for e in episode])
+    soil = np.array([ds.metas[e].soil for e in episode], dtype=object)
     i_d = np.array([float(ds.metas[e].relative_density_pct) for e in episode])
+    changing = 0
+    for e in np.unique(episode):
+        patches = ds.metas[e].soil_patches()
+        if len({(p.soil, p.relative_density_pct) for p in patches}) > 1:
+            mine = episode == e
+            under = patch_under(patches, ds.observations[ends[mine], OBSERVATION_FIELDS.index("p_x_b")])
+            soil[mine] = [patches[j].soil for j in under]
+            i_d[mine] = [patches[j].relative_density_pct for j in under]
+            changing += 1
+    return soil, i_d, changing
+
+
+def _group_table(ds, ends, truth, estimates: dict[str, dict[str, np.ndarray]]):
+    """Per soil x I_d (``window_soils``): truth and each estimator's mean ± std, and failure forces."""
+    soil, i_d, _ = window_soils(ds, ends)
     rows = []
     for s in sorted(set(soil)):
         for level in sorted(set(i_d[soil == s])):
@@ -307,7 +327,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         estimates["classical"] = {"phi": fit.phi, "c": fit.c, "delta": fit.delta, "beta": fit.beta}
         forces["classical"] = force_errors(measured, np.nan_to_num(fit.f_fee))
         forces["classical"]["fit_success_pct"] = float(100 * fit.success.mean())
-    i_d = np.array([float(ds.metas[e].relative_density_pct) for e in ds.episode_of_rows(ends)])
+    _, i_d, changing_soil = window_soils(ds, ends)
     masks = {"all": np.ones(len(ends), bool), f"id_le_{ID_LIMIT_PCT:.0f}": i_d <= ID_LIMIT_PCT}
     params = {name: {k: parameter_errors(est, truth, m) for k, m in masks.items()} for name, est in estimates.items()}
     rows = _group_table(ds, ends, truth, estimates)
@@ -322,6 +342,7 @@ def evaluate(checkpoint, data=None, *, physics_free=None, stride: int = TEST_STR
         "force": forces,
         "params": params,
         "per_soil_id": rows,
+        "changing_soil_episodes": changing_soil,  # test episodes whose soil changes along the path (``window_soils``)
         "trends": {name: _trends(rows, name) for name in estimates},
         "training": {"pinn": ckpt["metrics"]},
         "timing_s": timing,
@@ -498,6 +519,9 @@ def markdown(report: dict) -> str:
             lines.append(md.row([name, subset, _fmt(e.get('phi_mae_deg')), _fmt(e.get('c_mae_kPa'), 2),
                                  _fmt(e.get('delta_mae_deg')), _fmt(e.get('beta_mae_deg'))]))
     lines += ["", "## Per soil and relative density (mean ± std over test windows; truth in brackets)", "",
+              *([f"{report['changing_soil_episodes']} test episode(s) change soil along the path: each window is "
+                 "counted in the soil and density under the blade's edge at its end (the patch of the episode's path).", ""]
+                if report.get("changing_soil_episodes") else []),
               *md.header(["soil", "I_d [%]", "mean d [m]", "φ̂ [deg]", "ĉ [kPa]", "δ̂ [deg]", "β̂ [deg]",
                           "classical φ / c / δ", "|F| at d = 0.1 m [kN]: truth / PINN / classical"])]
     for r in report["per_soil_id"]:

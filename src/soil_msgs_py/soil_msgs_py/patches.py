@@ -114,6 +114,16 @@ def check_patches(patches, field: str = "patches") -> tuple[SoilPatch, ...]:
     return tuple(out)
 
 
+def patch_under(patches, x_edge_m):
+    """Index into ``patches`` (ordered by x, as ``check_patches`` gives them) of the patch under the
+    edge at each x [m] (array-like): patch j holds from its start to the next patch's, the first
+    also before its own start."""
+    import numpy as np
+
+    starts = np.array([float(p.x_start_m) for p in patches[1:]])
+    return np.searchsorted(starts, np.asarray(x_edge_m, float), side="right")
+
+
 def patches_tag(patches) -> str:
     """A short, stable tag of a path for episode names: ``p<count>-<6 hex digits>``."""
     path = check_patches(patches)
