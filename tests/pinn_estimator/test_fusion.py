@@ -753,6 +753,25 @@ def test_the_posteriors_physics_is_the_checkpoints_plus_the_terms_its_config_add
     assert config_for_model(FusionConfig(), with_inertia).terms == (("soil_inertia", 2.0),)
 
 
+def test_the_calibration_a_checkpoint_takes_is_said_as_its_worlds_or_as_the_fallback():
+    """The estimator's log said "(the checkpoint's world)" for a checkpoint of both worlds' bags
+    and for one of a machine's (an outside tester's): the default world's calibration is then a
+    fallback, and said as one."""
+    from pinn_estimator.fusion_calibration import checkpoint_world, checkpoint_world_words
+
+    def ckpt(worlds):
+        return {"dataset": {"world_modes": worlds}}
+
+    assert checkpoint_world(ckpt(["fee"])) == "fee" and checkpoint_world_words(ckpt(["fee"])) == "the checkpoint's world"
+    assert checkpoint_world_words(ckpt(["default"])) == "the checkpoint's world"
+    assert checkpoint_world(ckpt(["default", "fee"])) == "default"
+    assert checkpoint_world_words(ckpt(["default", "fee"])) == "the default world's, as its bags mix worlds ['default', 'fee']"
+    assert checkpoint_world_words(ckpt([])) == "the default world's, as its bags are of no simulator world"
+    assert checkpoint_world_words(None) == "the default world's, as its bags are of no simulator world"
+    assert checkpoint_world_words(ckpt(["mars"])) == ("the default world's, as its bags are of the mars world, which has "
+                                                     "no shipped calibration")
+
+
 def test_the_shipped_calibrations_load_and_name_every_setting():
     """A setting added after a calibration (stiff_prior) applied its default unseen: a shipped
     config names every field, so what the estimator runs with can be read in its file."""
@@ -860,6 +879,30 @@ def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage()
     whole = sum(r["pairs"] * r["fused"]["x"]["mean_abs_pct"] for r in per.values()) / report["pairs"]
     assert whole == pytest.approx(fused["mean_abs_pct"])
     assert "| Loam | 2 |" in "\n".join(fc.markdown(report))
+
+
+def test_a_checkpoint_whose_physics_the_calibration_lacks_is_said_in_the_report_and_the_log():
+    """A PINN trained with a term the world's calibration was not made with: the posterior takes the
+    term (``config_for_model``) but its error laws are the calibration's physics's (an outside
+    tester's surcharge_drag model held 72 / 22 % at 90 / 50 %). pinn_eval's forecast says so, with
+    the command that calibrates it; a calibration made with the term says nothing."""
+    from pinn_estimator.evaluate import forecast_section
+    from pinn_estimator.fusion_calibration import uncalibrated_physics
+
+    eps = episodes("fee", [("Loam", 45.0, 0.08), ("Loam", 45.0, 0.16)])
+    model, _ = load_model(MODELS_DIR / "pinn_fee.pt")
+    shipped = load_calibrated("fee")
+    assert uncalibrated_physics(shipped, model) == ""
+    model.cfg = dataclasses.replace(model.cfg, extra_terms=(("soil_inertia", 4.0),))
+    said = uncalibrated_physics(shipped, model)
+    assert said.startswith("the checkpoint's physics adds soil_inertia (k = 4) to the FEE the soil posterior's error "
+                           "laws were calibrated for") and "pinn_fusion_calibrate --world fee --term soil_inertia=4 --out FILE" in said
+    assert uncalibrated_physics(dataclasses.replace(shipped, terms=(("soil_inertia", 4.0),)), model) == ""
+    assert uncalibrated_physics(dataclasses.replace(shipped, terms=(("soil_inertia", 2.0),)), model) != ""
+    logged = []
+    out = forecast_section(model, Dataset.from_episodes(eps), None, classical=False, log=logged.append)
+    assert out["uncalibrated_physics"] == said and any(said in line for line in logged), logged
+    assert f"**Not calibrated for this physics**: {said}." in "\n".join(fc.markdown(out))
 
 
 def test_a_steady_part_leaves_out_the_transients_of_its_second_half():

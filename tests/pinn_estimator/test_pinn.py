@@ -580,7 +580,19 @@ def test_checkpoint_of_another_architecture_or_foreign_file_is_refused(tiny_ds, 
     raw = torch.load(path, weights_only=True)
     raw["interface"]["unknown_params"] = ["phi", "c"]
     torch.save(raw, tmp_path / "iface.pt")
-    with pytest.raises(ValueError, match="different inputs/outputs.*unknown_params"):
+    with pytest.raises(ValueError, match="different inputs/outputs.*unknown_params differ"):
+        ck.load_model(tmp_path / "iface.pt")
+    # a key of another code's interface, or one missing, is named (an added key was said "( differ)")
+    raw = torch.load(path, weights_only=True)
+    raw["interface"]["rake_angle"] = 1.0
+    del raw["interface"]["unknown_params"]
+    torch.save(raw, tmp_path / "iface.pt")
+    with pytest.raises(ValueError, match=r"different inputs/outputs \('unknown_params' missing; 'rake_angle' not inputs "
+                                         r"or outputs this code knows\); retrain it"):
+        ck.load_model(tmp_path / "iface.pt")
+    raw["interface"] = ["phi"]
+    torch.save(raw, tmp_path / "iface.pt")
+    with pytest.raises(ValueError, match=r"has interface=\['phi'\], not the inputs/outputs pinn_train records"):
         ck.load_model(tmp_path / "iface.pt")
     torch.save({"weights": torch.zeros(3)}, tmp_path / "foreign.pt")
     with pytest.raises(ValueError, match="not an insitu-soil estimator checkpoint"):
@@ -780,6 +792,9 @@ def test_episodes_a_reused_split_leaves_out_are_said(tiny_ds):
     train(tiny_ds, cfg, ModelConfig(**SMALL), split=split, progress=False, log=lines.append)
     assert any(f"1 of the {len(tiny_ds.names)} episodes are in none of the given split's parts" in line
                for line in lines), lines
+    # the split's sizes are the given split's, not what the fractions would have made (it said so)
+    said = next(line for line in lines if "episodes train / val / test" in line)
+    assert said.endswith("as the given split has them (--split-from)") and "val_fraction" not in said, said
 
 
 def test_a_reused_split_with_missing_episodes_counts_them_all_and_says_what_to_train_on(tiny_ds):

@@ -6,6 +6,8 @@ with our own reader.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import subprocess
 import sys
@@ -90,6 +92,12 @@ def test_a_machines_bag_has_no_ground_truth_and_reads_with_truth_nan(tmp_path: P
     assert make_episode().has_ground_truth
     with pytest.raises(ValueError, match="Episode.truth"):  # a simulator's bag must carry a finite truth
         write_episode(tmp_path / "sim", ep)
+    # a machine's world is no simulator's: written as such (the README's recipe), read back as such;
+    # a simulator's bag (with its truth) must name its world
+    unknown = dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, soil="unknown", world_mode="unknown"))
+    assert read_episode(write_episode(tmp_path / "unknown", unknown, ground_truth=False)).meta.world_mode == "unknown"
+    with pytest.raises(ValueError, match="world_mode='unknown' is not one of"):
+        write_episode(tmp_path / "sim_unknown", dataclasses.replace(make_episode(), meta=unknown.meta))
     no_force = write_raw(tmp_path / "no_force", make_episode(), skip=lambda topic, i: topic == "/blade/force")
     with pytest.raises(bag_io.BagReadError, match="has no topic /blade/force"):
         read_episode(no_force)

@@ -14,6 +14,7 @@ import torch
 
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
+from soil_msgs_py.values import short_repr
 
 from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
 from .shipped import DEFAULT_WORLD, shipped_checkpoint
@@ -88,9 +89,16 @@ def read_checkpoint(path) -> dict:
     if ckpt.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"checkpoint {path} has format_version={ckpt.get('format_version')!r}; this code reads {FORMAT_VERSION}")
     if ckpt.get("interface") != interface():
-        theirs, ours = ckpt.get("interface") or {}, interface()
-        diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
-        raise ValueError(f"checkpoint {path} was trained with different inputs/outputs ({', '.join(diff)} differ); retrain it")
+        theirs, ours = ckpt.get("interface"), interface()
+        if not isinstance(theirs, dict):
+            raise ValueError(f"checkpoint {path} has interface={short_repr(theirs)}, not the inputs/outputs pinn_train "
+                             "records; retrain it")
+        changed = sorted(k for k in ours if k in theirs and theirs[k] != ours[k])
+        said = ([f"{', '.join(changed)} differ"] if changed else []) + [
+            f"{', '.join(repr(k) for k in sorted(keys, key=str))} {what}" for keys, what in (
+                ([k for k in ours if k not in theirs], "missing"),
+                ([k for k in theirs if k not in ours], "not inputs or outputs this code knows")) if keys]
+        raise ValueError(f"checkpoint {path} was trained with different inputs/outputs ({'; '.join(said)}); retrain it")
     missing = [k for k in CHECKPOINT_SECTIONS if not isinstance(ckpt.get(k), dict)]
     if missing:
         raise ValueError(f"checkpoint {path} lacks its section(s) {', '.join(missing)} (a file pinn_train writes has them)")

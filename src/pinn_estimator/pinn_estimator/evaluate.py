@@ -375,7 +375,7 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     no simulator world (a machine's, ``world_mode`` "unknown") take the calibration of
     ``model_world``, the checkpoint's (``checkpoint_world``), as the live estimator does: before, they
     took no calibration at all, a posterior through the FEE alone whose intervals held nothing."""
-    from .fusion_calibration import given_fusion, load_calibrated
+    from .fusion_calibration import given_fusion, load_calibrated, uncalibrated_physics
 
     if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
@@ -387,8 +387,13 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
             "one of your own)")
         shipped = f"shipped ({model_world} world, the checkpoint's; the bags' world {world!r})"
         world = model_world
+    fusion = given_fusion(fusion_config, world, log) if fusion_config else load_calibrated(world)
+    if uncalibrated := uncalibrated_physics(fusion, model):
+        log(f"warning: {uncalibrated}")
     out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,
-                   progress=progress, fusion=given_fusion(fusion_config, world, log) if fusion_config else load_calibrated(world))
+                   progress=progress, fusion=fusion)
+    if uncalibrated:
+        out["uncalibrated_physics"] = uncalibrated
     if bags is not None:
         out["data"] = str(bags.root)
     out["fusion_config"] = fusion_config or shipped

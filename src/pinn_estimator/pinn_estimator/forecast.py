@@ -512,6 +512,8 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
                              _pct(z['deeper']['bias_pct'], True), *cover]))
     if left := _left_out_text(report, shown):
         lines += ["", left]
+    if report.get("uncalibrated_physics"):
+        lines += ["", f"**Not calibrated for this physics**: {report['uncalibrated_physics']}."]
     if "fused" in shown:
         lines += ["", f"The {LABELS['fused'].split(' (')[0]} fits its physics (the FEE and the terms its label names) to "
                       "the measured force: it uses the checkpoint's terms, not its network, and its row is the same for "

@@ -37,7 +37,7 @@ from soil_msgs_py.ros_adapter import (
 )
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
-from .fusion_calibration import announced_physics, checkpoint_world, config_path, estimator_fusion
+from .fusion_calibration import announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion
 from .online import INPUT_TOPICS, MAX_STRIDE_TICKS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
 
@@ -90,6 +90,7 @@ class EstimatorNode(Node):
         # records it: None where it does not)
         self.fusion_path = get("fusion_config")
         fusion, self.fusion_world = estimator_fusion(self.fusion_path, ckpt)
+        self._fusion_world_words = checkpoint_world_words(ckpt)
         self._worlds_warned: set[str] = set()
         self.episode = None  # the last episode started (``G.EpisodeEvent``)
         self.core = OnlineEstimator(model, self._publish, stride=get("stride"), reorder_ticks=get("reorder_ticks"),
@@ -146,6 +147,8 @@ class EstimatorNode(Node):
             if not self.fusion_path and checkpoint_world(model[1]) != self.fusion_world:  # (a config given stays)
                 fusion, self.fusion_world = estimator_fusion("", model[1])
                 self._worlds_warned.clear()
+            if not self.fusion_path:
+                self._fusion_world_words = checkpoint_world_words(model[1])
                 if self.episode is not None:  # the episode under way may be of another world than the new model's
                     self._say_if_other_world(self.episode)
             self.core.set_model(model[0], fusion)
@@ -191,7 +194,7 @@ class EstimatorNode(Node):
     @property
     def fusion_source(self) -> str:
         """Where the soil posterior's config came from, for the log."""
-        return self.fusion_path or f"{config_path(self.fusion_world)} (the checkpoint's world)"
+        return self.fusion_path or f"{config_path(self.fusion_world)} ({self._fusion_world_words})"
 
     def _say_physics(self) -> None:
         """/soil/estimator/physics, latched, when what it says has changed (the source alone does not count)."""
@@ -199,6 +202,8 @@ class EstimatorNode(Node):
         if self._physics_said != (said.terms, said.bound_law):
             self._physics_said = (said.terms, said.bound_law)
             self.physics_pub.publish(String(data=said.to_json()))
+            if uncalibrated := self.core.uncalibrated_physics():
+                self.get_logger().warning(uncalibrated)
 
     def _say_if_other_world(self, event) -> None:
         """Once per world: an episode of a world other than the one whose calibration the soil

@@ -41,7 +41,7 @@ from soil_msgs_py.params import (
 from soil_physics.travel import soil_advance, soil_time_step
 from .fusion import PathFusion, SoilPosterior, fused_values
 from .fusion_config import FusionConfig
-from .fusion_calibration import config_for_model
+from .fusion_calibration import DEFAULT_WORLD, config_for_model, load_calibrated, uncalibrated_physics
 from .model import EstimatorNet
 from .soil_map import SoilMap
 
@@ -516,6 +516,10 @@ class OnlineEstimator:
         if cfg != self.posterior.cfg:
             self.fusion = PathFusion(SoilPosterior(cfg))
             self._reset_fusion()
+
+    def uncalibrated_physics(self) -> str:
+        """``fusion_calibration.uncalibrated_physics`` of the posterior's config as given and the model."""
+        return uncalibrated_physics(self._fusion_config or load_calibrated(DEFAULT_WORLD), self.model)
 
     def reset(self, first_stamp_ns: int | None = None) -> None:
         """Forget everything: empty window; stamps from ``first_stamp_ns`` on are expected."""

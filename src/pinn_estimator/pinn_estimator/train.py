@@ -202,8 +202,9 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
         f"{len(train_ends)} training windows ({len(idx['train'])} episodes), {len(val_ends)} validation windows "
         f"({len(idx['val'])} episodes); episodes train / val / test "
         + " / ".join(f"{len(idx[s])} ({100 * len(idx[s]) / max(n_eps, 1):.0f} %)" for s in ("train", "val", "test"))
-        + f" for val_fraction {cfg.val_fraction:g}, test_fraction {cfg.test_fraction:g} (by episode, stratified by "
-          "world, soil and I_d: a cell of 3 or 4 episodes gives one to each)")
+        + (" as the given split has them (--split-from)" if given else
+           f" for val_fraction {cfg.val_fraction:g}, test_fraction {cfg.test_fraction:g} (by episode, stratified by "
+           "world, soil and I_d: a cell of 3 or 4 episodes gives one to each)"))
     if len(train_ends) == 0:  # (an epoch divided by its window count: a ZeroDivisionError, an outside tester's)
         raise ValueError(f"no training window: none of its {len(idx['train'])} episodes holds {model_cfg.window} ticks "
                          "in a row without a gap (a window of one second at 60 Hz): give longer or more episodes")
@@ -448,10 +449,11 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     try:
         ds = _load(args, ranks)
         worlds = world_modes(ds.metas)
-        if len(worlds) > 1 and ranks.main:  # allowed (one model for both), but rarely meant: said, as pinn_eval refuses it
+        if len(worlds) > 1 and ranks.main:  # allowed (one model for both), but rarely meant: said
             print(f"pinn_train: warning: the bags under {args.data} mix worlds {worlds} (bag metadata world_mode): one "
-                  "model for both, where the shipped ones are one per world; pinn_eval and soil_discrepancy take "
-                  "one world's bags", file=sys.stderr)
+                  "model for both, where the shipped ones are one per world; pinn_eval scores its test split across "
+                  "both but judges the force at another depth in one world (--forecast-world, one world's "
+                  "--forecast-data), and soil_discrepancy takes one world's bags", file=sys.stderr)
         split = None
         if args.split_from:
             from .checkpoint import read_checkpoint

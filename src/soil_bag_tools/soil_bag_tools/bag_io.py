@@ -130,9 +130,11 @@ def write_episode(bag_dir: str | os.PathLike, episode: Episode, *, overwrite: bo
                   ground_truth: bool = True) -> Path:
     """Write ``episode`` as the bag directory ``bag_dir``; returns its path. ``ground_truth``
     False leaves out ``/soil/ground_truth`` (and ``episode.truth`` unchecked): the bag a real
-    machine records, which knows no soil parameters."""
+    machine records, which knows no soil parameters, and whose world may be no simulator's
+    (``world_mode`` "unknown", as the reader takes it: a user's converter of a machine's log had
+    it refused)."""
     bag_dir = Path(bag_dir)
-    episode.meta.validate()
+    episode.meta.validate(machine_world=not ground_truth)
     try:
         _check_arrays(episode, skip=() if ground_truth else ("truth",))
     except ValueError as err:  # (which bag: a batch of them was refused without its name)
