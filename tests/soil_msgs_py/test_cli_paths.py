@@ -130,4 +130,25 @@ def test_a_directory_where_a_tool_writes_a_file_is_refused_before_the_work(tmp_p
         assert main(argv) == 2, squatter
         err = capsys.readouterr().err
         assert f"{str(squatter)!r} is a directory where this run writes a file" in err, err
-        assert not (tmp_path / "sb" / "dataset.json.partial").exists() and not list(squatter.parent.glob("*.tmp"))
+        assert not list((tmp_path / "sb").glob("dataset.json.*")) and not list(squatter.parent.glob("*.tmp"))
+
+
+def test_a_file_replaced_atomically_is_whole_or_untouched(tmp_path):
+    """A report, checkpoint or config written in place and interrupted was left truncated
+    (``pinn_fusion_calibrate`` writes the shipped config by default): written beside and renamed."""
+    from soil_msgs_py.cli_paths import replace_atomically
+
+    path = tmp_path / "config.json"
+    path.write_text("old")
+    replace_atomically(path, lambda tmp: tmp.write_text("new"))
+    assert path.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["config.json"]
+
+    def interrupted(tmp):
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        replace_atomically(path, interrupted)
+    assert path.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["config.json"]
+    assert replace_atomically(tmp_path / "fig.png", lambda tmp: tmp.write_bytes(b"png") if tmp.suffix == ".png" else None,
+                              suffix=".tmp.png").read_bytes() == b"png"

@@ -7,13 +7,13 @@ Table 1 is refused rather than silently mis-scaled.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import KNOWN_PARAMS, OBSERVATION_FIELDS, TABLE1, UNKNOWN_PARAMS
+from soil_msgs_py.cli_paths import replace_atomically
 from soil_msgs_py.values import short_repr
 
 from .model import FORCE_SCALE_N, EstimatorNet, ModelConfig
@@ -52,10 +52,7 @@ def save_checkpoint(path, model: EstimatorNet, *, train_config: dict, dataset: d
         "history": history,
         "torch_version": str(torch.__version__),
     }
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
-    return path
+    return replace_atomically(path, lambda tmp: torch.save(payload, tmp))
 
 
 # The dict sections of a checkpoint (save_checkpoint) that its readers look into.

@@ -35,6 +35,7 @@ from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.soils import COHESIVE_SOILS, ID_LIMIT_PCT
+from soil_msgs_py.interrupts import interruptible
 
 from .checkpoint import load_model, trained_worlds, world_mismatch, world_mismatch_lines
 from . import forecast as fc
@@ -619,6 +620,7 @@ def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     return paths
 
 
+@interruptible("pinn_eval")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="pinn_eval", description=__doc__.splitlines()[0])
     p.add_argument("--checkpoint", required=True, type=input_text, help="PINN checkpoint (.pt)")

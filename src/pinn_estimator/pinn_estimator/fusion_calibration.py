@@ -49,6 +49,7 @@ from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text, mixture_cdf
+from soil_msgs_py.interrupts import interruptible
 
 from . import forecast as fc
 from .fusion import forecast_error_std
@@ -721,6 +722,7 @@ def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+@interruptible("pinn_fusion_calibrate")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="pinn_fusion_calibrate", description=__doc__.split("\n\n")[0])
     p.add_argument("--world", choices=WORLD_MODES, required=True)

@@ -46,6 +46,7 @@ from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, 
                                  MIN_PLANNED_DEPTH_M)
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
+from soil_msgs_py.interrupts import interruptible
 from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN
 from soil_planner.stretch_planner import StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
@@ -465,6 +466,7 @@ def figure_name(world: str) -> str:
     return f"cut_{world}.png"
 
 
+@interruptible("soil_cut_report")
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:

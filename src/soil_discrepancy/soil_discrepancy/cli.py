@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from soil_msgs_py.interrupts import interrupt_exit_code, interrupt_name, terminate_as_interrupt
+from soil_msgs_py.interrupts import said_interrupted, terminate_as_interrupt
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories
@@ -125,10 +125,8 @@ def main(argv=None) -> int:
             )
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (a scheduler's, timeout's): said in one line, no traceback
         written = [name for name in OUTPUT_FILES if _written_since(args.out / name, started)]
-        print(f"soil_discrepancy: interrupted ({interrupt_name(exc)}); "
-              + (f"the report in {args.out} is incomplete (written before the stop: {', '.join(written)}): run again for "
-                 "all of it" if written else "no report written"), file=sys.stderr)
-        return interrupt_exit_code(exc)
+        return said_interrupted("soil_discrepancy", exc, f"the report in {args.out} is incomplete (written before the "
+                                f"stop: {', '.join(written)}): run again for all of it" if written else "no report written")
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
         return 2

@@ -9,13 +9,13 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
+from soil_msgs_py.cli_paths import replace_atomically
 from soil_physics import force_terms, term_forms
 
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
@@ -53,14 +53,7 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
 
 
 def _atomic(path: Path, text: str) -> Path:
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except BaseException:  # (an interrupt mid-write too) no half-written temporary file left beside the report
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 
 # ------------------------------------------------------------------------------------ markdown
@@ -599,10 +592,7 @@ def _zoom(ax, r0, r1, a):
 
 
 def _save(fig, path: Path) -> Path:
-    tmp = path.with_name(path.stem + f".{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
-    return path
+    return replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110), suffix=".tmp.png")  # (savefig reads the format from it)
 
 
 __all__ = ["markdown", "write_outputs"]

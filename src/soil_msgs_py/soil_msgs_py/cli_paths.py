@@ -10,8 +10,10 @@ argparse ``type`` the tool refuses it before it starts, naming the flag and the 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 
 def _checked(text: str, want_dir: bool) -> Path:
@@ -98,3 +100,20 @@ def refuse_directories(paths, hint: str = "give another --out") -> None:
     for path in paths:
         if Path(path).is_dir():
             raise ValueError(f"{str(path)!r} is a directory where this run writes a file: move it away or {hint}")
+
+
+def replace_atomically(path, write: Callable[[Path], object], suffix: str = ".tmp") -> Path:
+    """``write(tmp)`` into a sibling of ``path`` (``suffix`` last, for writers that want theirs),
+    then renamed onto ``path`` at once; the sibling is removed if writing fails or is interrupted.
+    Why: a report, a checkpoint or a config written in place and interrupted (Ctrl-C, SIGTERM,
+    a full disk) left a truncated file, and ``pinn_fusion_calibrate`` writes the shipped config
+    the estimator reads at start by default."""
+    path = Path(path)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}{suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path

@@ -1,4 +1,5 @@
-"""SIGTERM handled like Ctrl-C by the offline tools (``soil_sim_batch``, ``pinn_train``).
+"""SIGTERM handled like Ctrl-C by the offline tools (``soil_sim_batch``, ``pinn_train``, and through
+``interruptible`` the others that write their output at their end).
 
 Why: SIGTERM is what ``timeout``, a batch scheduler (SLURM) and a container runtime send. With
 its default action the tool died at once, silently, leaving its pool workers orphaned and still
@@ -12,7 +13,9 @@ second interrupt cannot mean "stop harder" there."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import signal
+import sys
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
 EXIT_TERMINATED = 143  # 128 + SIGTERM
@@ -59,6 +62,30 @@ def interrupt_exit_code(exc: BaseException) -> int:
 def interrupt_name(exc: BaseException) -> str:
     """How the run was stopped, for a stop reason: 'SIGTERM' or 'Ctrl-C'."""
     return "SIGTERM" if isinstance(exc, Terminated) else "Ctrl-C"
+
+
+def said_interrupted(prog: str, exc: KeyboardInterrupt, outcome: str) -> int:
+    """One line on stderr for an offline tool stopped by Ctrl-C or SIGTERM (``outcome``: what is
+    left, e.g. "no report written"), and its exit code."""
+    print(f"{prog}: interrupted ({interrupt_name(exc)}); {outcome}", file=sys.stderr)
+    return interrupt_exit_code(exc)
+
+
+def interruptible(prog: str, outcome: str = "its output is not written: run it again"):
+    """Decorator for an offline tool's ``main(argv)`` that writes its output at its end: Ctrl-C or
+    SIGTERM within says one line (``said_interrupted``) and returns 130 / 143. Why: these tools
+    (minutes of calibration or evaluation) printed a KeyboardInterrupt traceback, and died
+    silently on SIGTERM, the signal of ``timeout`` and a batch scheduler."""
+    def wrap(main):
+        @functools.wraps(main)
+        def run(argv=None):
+            try:
+                with terminate_as_interrupt():
+                    return main(argv)
+            except KeyboardInterrupt as exc:
+                return said_interrupted(prog, exc, outcome)
+        return run
+    return wrap
 
 
 def default_sigterm() -> None:

@@ -33,6 +33,7 @@ from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
 
 from soil_physics.predictive import error_law_text
+from soil_msgs_py.interrupts import interruptible
 
 from .planner import DEFAULT_FORCE_QUANTILE, check_quantile, fused_upper_force, steady_cut_terms
 
@@ -130,6 +131,7 @@ def calibrated_fields(cfg: FusionConfig) -> list[str]:
     return [f for f in CALIBRATED_FIELDS if not f.startswith("bound_") and getattr(cfg, f) != getattr(default, f)]
 
 
+@interruptible("soil_planner_calibrate")
 def main(argv=None) -> int:
     from pinn_estimator.evaluate import fused_posteriors  # (the simulator and torch: here only)
 

@@ -30,7 +30,6 @@ import dataclasses
 import itertools
 import json
 import math
-import os
 import shutil
 import sys
 import time
@@ -43,7 +42,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_ep
 from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import bags_dir, refuse_directories
+from soil_msgs_py.cli_paths import bags_dir, refuse_directories, replace_atomically
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, ticks_in
 from soil_msgs_py.patches import check_patches, glue_negative_patches
@@ -216,9 +215,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     earlier = _earlier_runs(plan.out / "dataset.json")
     if earlier:
         summary["earlier_runs"] = earlier
-    tmp = plan.out / "dataset.json.partial"
-    tmp.write_text(strict_json.dumps(summary, indent=1))
-    os.replace(tmp, plan.out / "dataset.json")
+    text = strict_json.dumps(summary, indent=1)
+    replace_atomically(plan.out / "dataset.json", lambda tmp: tmp.write_text(text))
     return summary
 
 
