@@ -142,7 +142,9 @@ def test_ctrl_c_removes_only_this_runs_staging_and_says_it_in_one_line(tmp_path,
     capsys.readouterr()
     assert batch.main([*ONE, "--depths", "0.1", "--out", str(out), "--overwrite"]) == 130
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "interrupted; the bags finished under" in err and "--skip-existing" in err, err
+    # (an --overwrite run: the bags it had not reached are the earlier run's, so not --skip-existing)
+    assert err.count("\n") == 1 and "interrupted; the bags finished under" in err and "--skip-existing" not in err, err
+    assert "the earlier run's, not overwritten yet: the same command (with --overwrite) makes them all" in err, err
     assert not mine.parent.exists() and theirs.exists() and journal.exists()
 
 
@@ -267,3 +269,25 @@ def _two_workers_at_work(out):
         proc.kill()
         raise
     return proc
+
+
+def test_an_overwrite_run_that_stopped_is_told_to_run_again_not_to_skip_existing(tmp_path, capsys):
+    """An --overwrite run stopped midway was told "--skip-existing simulates the rest", which kept the
+    bags it had not reached, the earlier run's: a dataset of two runs without a word (an outside
+    tester's). Its bags are told apart by their time, and the hint is to run it again."""
+    import time
+
+    from soil_bag_tools.bag_io import read_episode
+
+    out = tmp_path / "site"
+    assert batch.main([*ONE, "--depths", "0.1,0.2", "--out", str(out)]) == 0
+    first, second = find_episode_bags(out)
+    since = time.time()
+    time.sleep(0.05)
+    write_episode(first, read_episode(first), overwrite=True)  # this run's, the other the earlier run's
+    kept = batch.kept_after_failure(out, {first.name, second.name}, bad_input=False, overwrite=True, since=since)
+    assert kept.startswith(f"1 episode bag(s) finished before the failure are kept under {out} (e.g. {first.name}")
+    assert kept.endswith("the others there are the earlier run's, not overwritten yet: the same command (with "
+                         "--overwrite) makes them all this run's"), kept
+    assert batch.kept_after_failure(out, {first.name, second.name}, bad_input=False) == ""  # not overwriting: none new
+    assert batch.resume_hint(False) == "the same command with --skip-existing simulates the rest"

@@ -272,17 +272,30 @@ def _other_bags(out: Path, names: list[str]) -> int:
     return len(_bags_in(out) - set(names))
 
 
-def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "") -> str:
+def resume_hint(overwrite: bool) -> str:
+    """How to finish a run that stopped: the rest simulated beside the bags it finished, or, for an
+    ``overwrite`` run, all again (the bags it had not reached yet are the earlier run's: a resume
+    with --skip-existing kept them, a dataset of two runs without a word, an outside tester's)."""
+    if overwrite:
+        return ("the others there are the earlier run's, not overwritten yet: the same command (with --overwrite) "
+                "makes them all this run's")
+    return "the same command with --skip-existing simulates the rest"
+
+
+def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "", *,
+                       overwrite: bool = False, since: float | None = None) -> str:
     """Words for the bags a failed run finished before it failed ('' if none): they stay (each is
     whole), without the dataset.json that a finished run writes, and a reader takes them. ``said``:
-    the error's own words (the resume hint is not said twice)."""
-    new = sorted(_bags_in(out) - before)
+    the error's own words (the resume hint is not said twice). ``overwrite``: the run replaced bags
+    of ``before``; those written since ``since`` (time.time()) count as its own too."""
+    new = sorted(n for n in _bags_in(out) if n not in before
+                 or (overwrite and since is not None and (out / n).stat().st_mtime >= since))
     if not new:
         return ""
     if bad_input:
         then = ", made with the input that failed: after mending it, run again with --overwrite"
     else:
-        then = "" if "--skip-existing" in said else ": the same command with --skip-existing simulates the rest"
+        then = "" if "--skip-existing" in said else f": {resume_hint(overwrite)}"
     return (f"{len(new)} episode bag(s) finished before the failure are kept under {out} (e.g. {new[0]}; no "
             f"dataset.json){then}")
 
@@ -377,8 +390,9 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
                      f"lost (their workers may have written some of those bags all the same): {lost[0][1]}")
     bad_input = all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed)
     if not bad_input:  # a lost cluster, a dead worker or raylet (Ray says either, whichever it notices first)
-        lines.append("  the same command with --skip-existing simulates the missing episodes"
-                     + (" once the cluster is back" if lost or any(_cluster_gone(e) for _, e in failed) else ""))
+        back = " once the cluster is back" if lost or any(_cluster_gone(e) for _, e in failed) else ""
+        lines.append(f"  {resume_hint(True)}{back}" if plan.overwrite else
+                     f"  the same command with --skip-existing simulates the missing episodes{back}")
     kept = sum(len(r) for r in done if not isinstance(r, Exception))
     raise ChunksFailed(
         f"{len(failed)} of {len(chunks)} Ray tasks failed; the bags of the other {kept} episodes are written under "
@@ -550,7 +564,7 @@ def main(argv=None) -> int:
         if unused and args.soils is None and not plan.specs[0].patches:
             print(f"soil_sim_batch: warning: --soil-file's soils {unused} are not simulated without --soils naming "
                   f"them (e.g. --soils {','.join(unused)}); the catalogue's are", file=sys.stderr)
-        before = _bags_in(plan.out)
+        before, started = _bags_in(plan.out), time.time()
         with terminate_as_interrupt():
             summary = generate(plan, workers=args.workers, progress=not args.quiet, ray_address=args.ray,
                                ray_give_up_after_s=args.ray_give_up_after)
@@ -563,7 +577,8 @@ def main(argv=None) -> int:
                   f"{plan.out}? Let it finish, then the same command with --skip-existing simulates what is "
                   "missing", file=sys.stderr)
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=not raced,
-                                                              said="--skip-existing" if raced else "")):
+                                                              said="--skip-existing" if raced else "",
+                                                              overwrite=plan.overwrite, since=started)):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2
     except (ChunksFailed, RuntimeError) as exc:
@@ -571,14 +586,16 @@ def main(argv=None) -> int:
         print(f"soil_sim_batch: error: {exc}", file=sys.stderr)
         if plan is not None and isinstance(exc, WorkerDied):  # the dead worker's bag, and the others' stopped mid-write
             _remove_staging(plan)
-        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc))):
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc), overwrite=plan.overwrite,
+                                                                         since=started)):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2 if bad_input else 1
     except OSError as exc:  # a disk full mid-run (a pool worker's too: its traceback said no more)
         print(f"soil_sim_batch: error: writing the bags failed: {exc}", file=sys.stderr)
         if plan is not None:
             _remove_staging(plan)
-        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=False)):
+        if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=False, overwrite=plan.overwrite,
+                                                                         since=started)):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
@@ -587,8 +604,8 @@ def main(argv=None) -> int:
             return EXIT_INTERRUPTED
         how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
         _remove_staging(plan)
-        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept (the same command with "
-              "--skip-existing simulates the rest)", file=sys.stderr)
+        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(plan.overwrite)})",
+              file=sys.stderr)
         return interrupt_exit_code(exc)
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
