@@ -122,8 +122,10 @@ def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp
     args = ["--data", str(data), "--out", str(tmp_path / "m.pt"), "--epochs", "1", "--stride", "6", "--no-cache",
             "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]
     assert train_main(args) == 0
-    out = capsys.readouterr().out
+    said = capsys.readouterr()
+    out = said.err  # (progress and warnings on stderr: stdout is the run's summary, JSON)
     assert "warning: 2 episodes are copies of others" in out and f"{first[0]} = {first[0]}_2" in out, out
+    assert json.loads(said.out)["checkpoint"] == str(tmp_path / "m.pt"), said.out
 
 
 def test_cache_is_used_and_keyed_by_content(tiny_bags, tmp_path):

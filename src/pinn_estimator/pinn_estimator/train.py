@@ -468,7 +468,7 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             try:
                 model, split, history, metrics = train(ds, cfg, model_cfg, split=split,
                                                        progress=not args.quiet and ranks.main,
-                                                       log=print if ranks.main else _silent, ranks=ranks, stop=stop,
+                                                       log=_say if ranks.main else _silent, ranks=ranks, stop=stop,
                                                        on_best=best_so_far)
             except JobFailed as err:
                 failed = err
@@ -524,6 +524,13 @@ def _best_so_far(args, cfg: TrainConfig, ds: Dataset):
         write.written = metrics["best_epoch"]
     write.written, write.failed = 0, False
     return write
+
+
+def _say(message: str) -> None:
+    """``log`` of rank 0: progress on stderr, so that stdout holds the run's summary alone (JSON, as
+    the README says; the progress lines before it made ``pinn_train ... > run.json`` unreadable, an
+    outside tester's)."""
+    print(message, file=sys.stderr, flush=True)
 
 
 def _silent(*_args, **_kwargs) -> None:
