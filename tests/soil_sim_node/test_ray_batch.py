@@ -41,6 +41,17 @@ def _files(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.parametrize("main", [batch.main, train.main], ids=["soil_sim_batch", "pinn_train"])
+def test_a_give_up_time_without_ray_is_refused_not_ignored(main, tmp_path, capsys):
+    """--ray-give-up-after is for a run on Ray: without --ray it was ignored in silence (an outside tester's)."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["--out", str(tmp_path / "x"), "--ray-give-up-after", "5"]
+             + (["--data", str(tmp_path)] if main is train.main else []))
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--ray-give-up-after 5 is for a run on Ray: give --ray too, or leave it out" in err, err
+    assert not (tmp_path / "x").exists()
+
+
 @pytest.mark.timeout(300)
 def test_ray_tasks_write_the_pools_bags_byte_for_byte_and_leave_no_ray_process(tmp_path):
     before = ray_processes()

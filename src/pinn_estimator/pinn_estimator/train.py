@@ -37,7 +37,7 @@ from soil_msgs_py.episode import world_modes
 from soil_msgs_py.cli_paths import input_text, output_file, refuse_directories
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
-from soil_sim_node.ray_cluster import add_ray_option
+from soil_sim_node.ray_cluster import add_ray_option, parse_ray_options
 
 from .checkpoint import save_checkpoint
 from .dataset import (MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, identical_episodes, load_dataset,
@@ -422,7 +422,7 @@ def curve_path(out: Path) -> Path:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    args = parse_ray_options(_parser(), argv)
     try:
         ranks = ranks_from_env()
         cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})

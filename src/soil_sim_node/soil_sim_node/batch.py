@@ -51,7 +51,7 @@ from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, pa
 
 from .effects import Effects, effects_for_mode, load_plugins
 from .ray_cluster import (CLUSTER_LOST_AFTER_S, LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus,
-                          ray_session, run_tasks)
+                          parse_ray_options, ray_session, run_tasks)
 from .rollout import episode_meta, run_episodes
 from .simulator import ENGINES, Dynamics, EpisodeSpec, SimConfig, check_engine, resolve_checked
 
@@ -484,7 +484,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--skip-existing", action="store_true",
                    help="keep existing bags of the same name and simulate the rest (resume an interrupted run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    return p.parse_args(glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
+    return parse_ray_options(p, glue_negative_patches(sys.argv[1:] if argv is None else list(argv)))
 
 
 def _patches_from_args(args: argparse.Namespace, paths: dict, custom: dict) -> tuple:

@@ -46,10 +46,22 @@ def add_ray_option(parser, what: str) -> None:
     """``--ray [ADDRESS]`` for every CLI that can fan out over Ray (one wording everywhere)."""
     parser.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS", type=_ray_address,
                         help=f"{what}: {RAY_OPTION_HELP}")
-    parser.add_argument("--ray-give-up-after", type=_give_up_after, default=CLUSTER_LOST_AFTER_S, metavar="S",
+    parser.add_argument("--ray-give-up-after", type=_give_up_after, default=None, metavar="S",
                         help="with --ray: seconds the cluster's head may refuse connections before the unfinished "
                              f"tasks are given up and said (default {CLUSTER_LOST_AFTER_S:g}; at most "
                              f"{CLUSTER_LOST_MAX_S:g}: Ray's driver aborts the process at 60 s)")
+
+
+def parse_ray_options(parser, argv) -> argparse.Namespace:
+    """``parser.parse_args(argv)`` with ``add_ray_option``'s options checked together:
+    --ray-give-up-after without --ray is refused (it was ignored in silence, an outside tester's),
+    and its default is filled in."""
+    args = parser.parse_args(argv)
+    if args.ray is None and args.ray_give_up_after is not None:
+        parser.error(f"--ray-give-up-after {args.ray_give_up_after:g} is for a run on Ray: give --ray too, or leave it out")
+    if args.ray_give_up_after is None:
+        args.ray_give_up_after = CLUSTER_LOST_AFTER_S
+    return args
 
 
 def _give_up_after(text: str) -> float:
