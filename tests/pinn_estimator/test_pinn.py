@@ -785,6 +785,56 @@ def test_sigterm_keeps_the_best_model_so_far_like_ctrl_c(tiny_bags, tmp_path, mo
     assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
 
 
+def test_sigterm_while_the_bags_are_read_is_said_not_a_silent_death(tiny_bags, tmp_path, monkeypatch, capsys):
+    """SIGTERM while pinn_train read its bags (before training) killed it in silence, exit -15."""
+    import os
+    import signal
+    import time
+
+    from pinn_estimator import train as train_module
+
+    real = train_module.load_dataset
+
+    def load_dataset(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5.0)  # the handler raises within this
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "load_dataset", load_dataset)
+    out = tmp_path / "m.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), "--quiet", "--no-cache"]) == 143
+    assert not out.exists() and "pinn_train: interrupted; nothing written" in capsys.readouterr().err
+
+
+def test_a_collective_that_fails_after_the_job_was_told_to_stop_is_said_as_the_stop(tiny_ds, tmp_path, monkeypatch, capsys):
+    """Ctrl-C on a torchrun job as its training began: torchrun stopped one rank first, and the
+    other's next collective failed, said as "error: ... Connection closed by peer" (an outside
+    tester's). A collective failing once the job noted a stop is that stop."""
+    import signal
+
+    from pinn_estimator import train as train_module
+    from pinn_estimator.distributed import Ranks
+
+    def train(*args, stop=None, **kwargs):
+        stop.signum = signal.SIGINT  # (noted, as stop_requests does, by both ranks: the terminal's Ctrl-C)
+        raise RuntimeError("[../gloo/transport/tcp/pair.cc:553] Connection closed by peer [127.0.0.1]:62162")
+
+    monkeypatch.setattr(train_module, "_load", lambda args, ranks: tiny_ds)
+    monkeypatch.setattr(train_module, "train", train)
+    args = train_module.parse_ray_options(train_module._parser(), ["--data", str(tmp_path), "--out", str(tmp_path / "m.pt")])
+    cfg = TrainConfig(epochs=1)
+    assert train_module._run(args, cfg, ModelConfig(**SMALL), Ranks(rank=0, world=2)) == 130
+    err = capsys.readouterr().err
+    assert "pinn_train: interrupted; nothing written" in err and "Connection closed" not in err, err
+
+    def broken(*args, stop=None, **kwargs):  # no stop noted: a fault, said as one
+        raise RuntimeError("[gloo] Connection closed by peer")
+
+    monkeypatch.setattr(train_module, "train", broken)
+    assert train_module._run(args, cfg, ModelConfig(**SMALL), Ranks(rank=0, world=2)) == 1
+    assert "pinn_train: error: [gloo] Connection closed by peer" in capsys.readouterr().err
+
+
 def test_episodes_a_reused_split_leaves_out_are_said(tiny_ds):
     """--split-from with bags the stored split does not hold trained on fewer episodes in silence."""
     split = split_episodes(tiny_ds, seed=0)

@@ -446,8 +446,10 @@ def main(argv=None) -> int:
 def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
     best_so_far = None
+    noted = None  # a job's stop request (``stop_requests``) once training began
     try:
-        ds = _load(args, ranks)
+        with terminate_as_interrupt():  # SIGTERM while the bags are read (no collective under way) as Ctrl-C: it had
+            ds = _load(args, ranks)  # killed the run in silence (timeout's, a scheduler's, torchrun's stopping a job)
         worlds = world_modes(ds.metas)
         if len(worlds) > 1 and ranks.main:  # allowed (one model for both), but rarely meant: said
             print(f"pinn_train: warning: the bags under {args.data} mix worlds {worlds} (bag metadata world_mode): one "
@@ -464,6 +466,7 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
         # Ctrl-C every rank gets (the terminal's, then torchrun's)
         best_so_far = _best_so_far(args, cfg, ds) if ranks.main else None
         with stop_requests() if ranks.active else terminate_as_interrupt() as stop:
+            noted = stop
             failed = None
             try:
                 model, split, history, metrics = train(ds, cfg, model_cfg, split=split,
@@ -476,16 +479,15 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             if ranks.main:
                 _write(args, cfg, ds, model, split, history, metrics)
     except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
+        if isinstance(err, RuntimeError) and noted is not None and noted.signum:
+            # a collective that failed after this job was told to stop: a peer that stopped first (torchrun ends
+            # the ranks it stops), not a fault; said as the interrupt it is (it read "Connection closed by peer")
+            return _said_interrupted(args, ranks, best_so_far, interrupt_for(noted.signum))
         if ranks.main:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if isinstance(err, RuntimeError) else 2  # a run that broke (a worker died) / the input's fault
     except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
-        if ranks.main:
-            kept = best_so_far.written if best_so_far is not None else 0
-            print("pinn_train: interrupted; " + (f"the best model so far (epoch {kept}) is in {args.out}, as written "
-                                                  "while training (no curve)" if kept else "nothing written"),
-                  file=sys.stderr)
-        return interrupt_exit_code(exc)
+        return _said_interrupted(args, ranks, best_so_far, exc)
     if failed is not None:
         if ranks.main:
             print(f"pinn_train: error: {failed}; the best model validated before it is written to {args.out}",
@@ -524,6 +526,17 @@ def _best_so_far(args, cfg: TrainConfig, ds: Dataset):
         write.written = metrics["best_epoch"]
     write.written, write.failed = 0, False
     return write
+
+
+def _said_interrupted(args, ranks: Ranks, best_so_far, exc: KeyboardInterrupt) -> int:
+    """Rank 0 says what an interrupt before the end left (the best model written while training, or
+    nothing); the exit code of the signal."""
+    if ranks.main:
+        kept = best_so_far.written if best_so_far is not None else 0
+        print("pinn_train: interrupted; " + (f"the best model so far (epoch {kept}) is in {args.out}, as written "
+                                              "while training (no curve)" if kept else "nothing written"),
+              file=sys.stderr)
+    return interrupt_exit_code(exc)
 
 
 def _say(message: str) -> None:
