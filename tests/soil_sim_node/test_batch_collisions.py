@@ -182,6 +182,7 @@ def test_bags_finished_before_a_plugin_failed_are_said_with_what_to_do(tmp_path,
     assert len(kept) == 1 and "d0.050" in kept[0].name and not (out / "dataset.json").exists()
     assert "returned f_x=" in err and f"1 episode bag(s) finished before the failure are kept under {out}" in err, err
     assert "after mending it, run again with --overwrite" in err, err
+    assert "(simulating episodes fee_sand_id050_v0.50_d0.300" in err, err  # which (Ray's tasks named them; the pool did not)
     assert batch.main([*ONE, "--depths", "0.1", "--plugin", "tests.sim_plugins:deep_drag k=1e6",
                        "--out", str(tmp_path / "fine")]) == 0  # never below 0.2 m: nothing refused, nothing said
     assert "finished before the failure" not in capsys.readouterr().err

@@ -49,7 +49,7 @@ from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import WorkerDied, map_in_processes
 from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, path_patches, soil_file_notes
 
-from .effects import Effects, effects_for_mode, load_plugins
+from .effects import Effects, PluginError, effects_for_mode, load_plugins
 from .ray_cluster import (CLUSTER_LOST_AFTER_S, LOCAL as LOCAL_RAY, ClusterLost, add_ray_option, cluster_cpus,
                           parse_ray_options, ray_session, run_tasks)
 from .rollout import episode_meta, run_episodes
@@ -100,7 +100,12 @@ def _run_chunk(args) -> list[tuple[str, int]]:
     """Worker: simulate one vectorised chunk and write its bags; returns (name, bytes)."""
     plan_dict, chunk = args
     plan = DatasetPlan(**plan_dict, specs=chunk)
-    episodes = run_episodes(plan.config(), chunk, custom_soils=plan.custom_soils)
+    try:
+        episodes = run_episodes(plan.config(), chunk, custom_soils=plan.custom_soils)
+    except PluginError as err:  # which episodes (simulated together): Ray's tasks named them, the local pool did not
+        names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
+        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        raise PluginError(f"{err} (simulating episodes {shown})") from None
     written = []
     for ep in episodes:
         path = write_episode(plan.out / ep.meta.name, ep, overwrite=plan.overwrite)
