@@ -504,9 +504,9 @@ def test_a_posterior_no_soil_can_be_is_said_and_a_soil_is_not():
     gravel = gravels[0]
     post = fuse(SoilPosterior(load_calibrated("default")), gravel)
     said = post.not_a_soil(post.summary())
-    assert said and re.search(r"no soil the model can be: delta 4\d\.\d° above phi \d+\.\d°, a wall friction no soil "
-                              r"has; delta at its highest value \(42\.5°\), the end of the range .*\. The force has "
-                              r"physics the model lacks", said), said
+    assert said and re.search(r"no soil the model can be: delta 4\d\.\d° above phi \d+\.\d°, a wall friction above "
+                              r"the soil's own, which a real soil does not have; delta at its highest value \(42\.5°\), "
+                              r"the end of the range .*\. The force likely has physics the model lacks", said), said
     # the forecast report counts them (no ground truth needed: a machine's bags) and says what it means
     report = forecast(load_model(MODELS_DIR / "pinn_default.pt")[0], Dataset.from_episodes(gravels), classical=False)
     assert report["no_soil"]["fused"] == [ep.meta.name for ep in gravels], report["no_soil"]
@@ -522,7 +522,8 @@ def test_a_posterior_no_soil_can_be_is_said_and_a_soil_is_not():
     post.u[:, THETA.index("delta")] = 0.5  # δ 20°, still above φ: said, but not held at its bound
     said = post.not_a_soil(post.summary())
     assert said.startswith("the fused soil is no soil the model can be: delta 20.0° above phi 0.0°, a wall friction "
-                           "no soil has; phi at its lowest value (0.0°), the end") and "delta at" not in said, said
+                           "above the soil's own, which a real soil does not have; phi at its lowest value (0.0°), the "
+                           "end") and "delta at" not in said, said
     post.u[:, THETA.index("phi")] = U_UPPER[THETA.index("phi")]  # φ 60°, δ 20°: a soil, beyond the prior's range
     said = post.not_a_soil(post.summary())
     assert "above phi" not in said and "phi at its highest value (60.0°), the end of the range" in said, said

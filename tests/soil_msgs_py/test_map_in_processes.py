@@ -40,3 +40,20 @@ def test_workers_run_the_initializer_and_ignore_ctrl_c(tmp_path):
 def _sigint_then_square(x: int) -> int:
     os.kill(os.getpid(), signal.SIGINT)
     return x * x
+
+
+def _signal_dispositions(_) -> tuple[bool, bool]:
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("start_method", ["fork", "spawn"])
+def test_workers_of_a_tool_taking_sigterm_as_ctrl_c_die_on_it_and_ignore_ctrl_c(start_method):
+    """A tool inside ``terminate_as_interrupt`` forked workers with its SIGTERM handler: a SIGTERM to
+    the process group (``timeout``'s) printed each worker's ``Terminated`` traceback. Every worker
+    ignores Ctrl-C and takes SIGTERM's default, from fork or spawn alike."""
+    from soil_msgs_py.interrupts import terminate_as_interrupt
+
+    with terminate_as_interrupt():
+        seen = list(map_in_processes(_signal_dispositions, [0, 1], 2, what="looking", start_method=start_method))
+    assert seen == [(True, True), (True, True)]

@@ -292,3 +292,12 @@ def test_an_overwrite_run_that_stopped_is_told_to_run_again_not_to_skip_existing
                          "--overwrite) makes them all this run's"), kept
     assert batch.kept_after_failure(out, {first.name, second.name}, bad_input=False) == ""  # not overwriting: none new
     assert batch.resume_hint(False) == "the same command with --skip-existing simulates the rest"
+    # every bag of the plan this run's (an --overwrite run into an empty folder, or all rewritten): nothing stale
+    kept = batch.kept_after_failure(out, {first.name}, bad_input=False, overwrite=True, since=since,
+                                    planned={first.name})
+    assert kept.endswith(": the same command with --skip-existing simulates the rest"), kept
+    # the hint is not said twice where the error said it (a Ray run's)
+    assert not batch.kept_after_failure(out, {first.name, second.name}, bad_input=False, overwrite=True, since=since,
+                                        said=f"  {batch.resume_hint(True)}").endswith("this run's")
+    # a bag gone meanwhile (renamed away by another run) is not this run's, not an error
+    assert not batch.written_since(out / "gone", since)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import os
 import re
 import sys
 import zipfile
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_bag_tools.bag_io import BagReadError, passed_by_note, read_episode, reader_notes, scan_bags
+from soil_msgs_py.cli_paths import replace_atomically
 from soil_msgs_py.episode import MODEL_INPUTS, EpisodeMeta, first_implausible, stamp_gaps, world_modes
 from soil_msgs_py.values import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.params import WINDOW_SAMPLES
@@ -330,14 +330,12 @@ def _read_on_ray(bags, workers, progress, ray_address, give_up_after_s: float) -
 def _to_npz(ds: Dataset, path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + f".{os.getpid()}.tmp.npz")
-        np.savez(
+        replace_atomically(path, lambda tmp: np.savez(  # (.npz last: savez adds it to a name without it)
             tmp, version=CACHE_VERSION, fingerprint=ds.fingerprint, names=np.array(ds.names),
             metas=np.array([m.to_json() for m in ds.metas]), offsets=ds.offsets,
             observations=ds.observations, forces=ds.forces, known=ds.known, truth=ds.truth, gap_before=ds.gap_before,
             notes=np.array(ds.notes, dtype=str),
-        )
-        os.replace(tmp, path)
+        ), suffix=".tmp.npz")
     except OSError:
         pass  # a read-only dataset directory just means no cache
 

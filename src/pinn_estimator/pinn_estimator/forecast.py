@@ -538,9 +538,9 @@ def markdown(report: dict, intro: str | None = None) -> list[str]:
         lines += ["", f"{label_of(report, name)}, soil at each episode's end vs the truth: {cells}."]
     for name, episodes in report.get("no_soil", {}).items():
         if episodes:
-            shown = ", ".join(episodes[:4]) + (", ..." if len(episodes) > 4 else "")
+            named = ", ".join(episodes[:4]) + (", ..." if len(episodes) > 4 else "")
             lines += ["", f"{len(episodes)} of the {report['episodes']} episodes end with the {label_of(report, name)} "
-                          f"as no soil the model can be (δ above φ, or φ or δ at the end of the range it is kept in: {shown}): the force "
+                          f"as no soil the model can be (δ above φ, or φ or δ at the end of the range it is kept in: {named}): the force "
                           "has physics the model lacks, and their θ is an effective soil, whose forces at other depths are "
                           "what the figures above judge."]
     return lines

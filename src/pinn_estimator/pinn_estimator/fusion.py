@@ -107,6 +107,10 @@ _D, _VX, _VZ = KNOWN_PARAMS.index("d"), KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.
 # A fused δ above φ by more than this [rad] is said (``SoilPosterior.not_a_soil``): a posterior
 # whose components sit on δ = φ has a sample mean a few tenths of a degree either side.
 NOT_A_SOIL_MARGIN_RAD = 1.0 * DEG
+# Stretches in a row (4 s) a posterior must be no soil before it is said (``online``): a catalogue
+# soil's early posteriors pass such corners for up to 5 stretches (the default world's held-out and
+# strong-gravel episodes), the posteriors that end as no soil hold it 15-19 stretches.
+NOT_A_SOIL_STRETCHES = 8
 # Share of the posterior's weight whose mean sits at the end of a coordinate's range
 # (U_LOWER / U_UPPER, within HELD_AT_BOUND_U: 0.2° of φ, 0.15° of δ) beyond which that parameter
 # is said to be held there (a strong gravel's φ component ended at u = -0.2497 ± 0.0002).
@@ -598,7 +602,9 @@ class SoilPosterior:
         is then the bound's, not the soil's). Why say it: where the model misses physics (the
         default world's floor reaction in F_z) the posterior takes such an effective soil, whose
         forces at other depths are calibrated but whose θ reads as a soil it cannot be (a strong
-        gravel's φ 0.0° ± 0.4° beside δ 42.5°, docs/soil_posterior.md)."""
+        gravel's φ 0.0° ± 0.4° beside δ 42.5°, docs/soil_posterior.md). The simulator's worlds fix δ
+        (10°, fee 15°) for every soil, so a simulated soil of φ below that is said too, rightly: no
+        real soil is so."""
         def deg(rad: float) -> float:  # (+ 0.0: a mean a hair below 0° is said 0.0°, not -0.0°)
             return round(float(rad) / DEG, 1) + 0.0
 
@@ -609,14 +615,15 @@ class SoilPosterior:
                 if self.weights @ (np.abs(self.u[:, j] - bound) <= HELD_AT_BOUND_U) >= HELD_AT_BOUND_SHARE:
                     held.append(f"{name} at its {end} value ({deg(self.theta_of(np.full(len(THETA), bound))[name]):.1f}°)")
         phi, delta = summary.mean["phi"], summary.mean["delta"]
-        parts = [f"delta {deg(delta):.1f}° above phi {deg(phi):.1f}°, a wall friction no soil has"] if delta > phi + NOT_A_SOIL_MARGIN_RAD else []
+        parts = ([f"delta {deg(delta):.1f}° above phi {deg(phi):.1f}°, a wall friction above the soil's own, which a real "
+                  "soil does not have"] if delta > phi + NOT_A_SOIL_MARGIN_RAD else [])
         if held:
             parts.append(f"{' and '.join(held)}, the end of the range it is kept in (its std there is the bound's, not the soil's)")
         if not parts:
             return None
-        return (f"the fused soil is no soil the model can be: {'; '.join(parts)}. The force has physics the model lacks "
-                "(or the soil lies beyond the prior); θ is then an effective soil, its forces at other depths what is "
-                "calibrated, not θ; soil_discrepancy looks for what is missing")
+        return (f"the fused soil is no soil the model can be: {'; '.join(parts)}. The force likely has physics the "
+                "model lacks (or the soil lies beyond the prior); θ is then an effective soil, its forces at other depths "
+                "what is calibrated, not θ; soil_discrepancy looks for what is missing")
 
     def quantiles(self, levels) -> dict[str, np.ndarray]:
         """Quantiles of φ, c, δ [SI] at ``levels`` (probabilities), exact for the Gaussian sum:

@@ -39,7 +39,7 @@ from soil_msgs_py.params import (
 )
 
 from soil_physics.travel import soil_advance, soil_time_step
-from .fusion import PathFusion, SoilPosterior, fused_values
+from .fusion import NOT_A_SOIL_STRETCHES, PathFusion, SoilPosterior, fused_values
 from .fusion_config import FusionConfig
 from .fusion_calibration import DEFAULT_WORLD, config_for_model, load_calibrated, uncalibrated_physics
 from .model import EstimatorNet
@@ -479,6 +479,7 @@ class OnlineEstimator:
         self._forget_path(known=False)
         self._fusion_config = fusion  # as given: a new model's physics is merged into it (set_model)
         self.fusion = PathFusion(SoilPosterior(config_for_model(fusion, model)))
+        self._not_a_soil_run = 0  # stretches in a row whose posterior was no soil (``SoilPosterior.not_a_soil``)
         self.soil_map = SoilMap()
         self.publish_map = publish_map
         self._fused = fused_values(None, self.posterior.cfg)
@@ -490,6 +491,7 @@ class OnlineEstimator:
     def _reset_fusion(self) -> None:
         """A new path: the posterior back to the prior, no stretch in progress, an empty map."""
         self.fusion.reset()
+        self._not_a_soil_run = 0
         self.soil_map.clear()
         self._fused = fused_values(None, self.posterior.cfg)
 
@@ -703,8 +705,10 @@ class OnlineEstimator:
             return
         summary = self.posterior.summary()
         self._fused = fused_values(summary, self.posterior.cfg)
-        if problem := self.posterior.not_a_soil(summary):
-            self.warn("not_a_soil", problem)
+        problem = self.posterior.not_a_soil(summary)
+        self._not_a_soil_run = self._not_a_soil_run + 1 if problem else 0
+        if self._not_a_soil_run == NOT_A_SOIL_STRETCHES:  # held that long (an early posterior passes such corners)
+            self.warn("not_a_soil", f"{problem} (for {NOT_A_SOIL_STRETCHES} stretches in a row)")
         if self.soil_map.add(float(sample.obs[_P_X]), float(sample.obs[_P_Z]), summary) and self.publish_map:
             self.publish_map(stamp, self.soil_map.rows())
 

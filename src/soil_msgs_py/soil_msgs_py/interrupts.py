@@ -88,13 +88,6 @@ def interruptible(prog: str, outcome: str = "its output is not written: run it a
     return wrap
 
 
-def default_sigterm() -> None:
-    """For pool workers forked from a process inside ``terminate_as_interrupt``: SIGTERM (which
-    ``map_in_processes(stop_workers=True)`` sends them) ends them, not an interrupt raised in the
-    middle of a task."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
 class StopRequest:
     """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet)."""
 

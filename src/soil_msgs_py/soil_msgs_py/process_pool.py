@@ -77,7 +77,9 @@ def _ctrl_c_ignored_by_new_processes():
     ignore it from their first instruction: an ignored signal stays ignored through fork and exec,
     and Python leaves an ignored SIGINT so. Why: a spawned worker imports for seconds before its
     initializer (``_worker_start``) runs, and a Ctrl-C then printed a traceback from each. A Ctrl-C
-    within the few milliseconds the workers take to start is lost (press it again)."""
+    within the few milliseconds the workers take to start is lost (press it again): a blocked
+    SIGINT would wait, but a spawned worker starts with none blocked, and the parent's other
+    threads would take it, ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -91,7 +93,10 @@ def _ctrl_c_ignored_by_new_processes():
 def _worker_start(initializer: Callable | None) -> None:
     """A worker ignores Ctrl-C (the terminal sends it to the whole process group): the parent takes
     it and ends the map, where each worker's traceback, and its death read as a broken pool, said
-    nothing of use."""
+    nothing of use. SIGTERM ends it: a worker forked from a tool inside
+    ``interrupts.terminate_as_interrupt`` had its handler, and a SIGTERM to the process group
+    (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if initializer is not None:
         initializer()

@@ -39,7 +39,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
-from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, default_sigterm, interrupt_exit_code,
+from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir, refuse_directories, replace_atomically
@@ -277,30 +277,49 @@ def _other_bags(out: Path, names: list[str]) -> int:
     return len(_bags_in(out) - set(names))
 
 
-def resume_hint(overwrite: bool) -> str:
-    """How to finish a run that stopped: the rest simulated beside the bags it finished, or, for an
-    ``overwrite`` run, all again (the bags it had not reached yet are the earlier run's: a resume
-    with --skip-existing kept them, a dataset of two runs without a word, an outside tester's)."""
-    if overwrite:
+def resume_hint(stale: bool) -> str:
+    """How to finish a run that stopped: the rest simulated beside the bags it finished, or, where an
+    ``overwrite`` run left ``stale`` bags (the earlier run's, not reached yet: a resume with
+    --skip-existing kept them, a dataset of two runs without a word, an outside tester's), all again."""
+    if stale:
         return ("the others there are the earlier run's, not overwritten yet: the same command (with --overwrite) "
                 "makes them all this run's")
     return "the same command with --skip-existing simulates the rest"
 
 
+def written_since(path: Path, since: float) -> bool:
+    """Whether ``path`` was written at or after ``since`` (time.time()); False if it is gone (a bag
+    renamed away meanwhile: a lost Ray cluster's worker, another run)."""
+    try:
+        return path.stat().st_mtime >= since
+    except OSError:
+        return False
+
+
+def planned_names(plan: DatasetPlan) -> set[str] | None:
+    """The bag names of the plan's episodes (None where a spec is refused: a run that failed on it)."""
+    try:
+        return set(_bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs]))
+    except ValueError:
+        return None
+
+
 def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "", *,
-                       overwrite: bool = False, since: float | None = None) -> str:
+                       overwrite: bool = False, since: float | None = None, planned: set[str] | None = None) -> str:
     """Words for the bags a failed run finished before it failed ('' if none): they stay (each is
     whole), without the dataset.json that a finished run writes, and a reader takes them. ``said``:
     the error's own words (the resume hint is not said twice). ``overwrite``: the run replaced bags
-    of ``before``; those written since ``since`` (time.time()) count as its own too."""
-    new = sorted(n for n in _bags_in(out) if n not in before
-                 or (overwrite and since is not None and (out / n).stat().st_mtime >= since))
+    of ``before``; those written since ``since`` (time.time()) count as its own too, and those of
+    ``planned`` (the plan's names; None: every bag of ``before``) it had not reached are stale."""
+    mine = {n for n in _bags_in(out) if n not in before or (overwrite and since is not None and written_since(out / n, since))}
+    new = sorted(mine)
     if not new:
         return ""
+    hint = resume_hint(overwrite and bool((before if planned is None else before & planned) - mine))
     if bad_input:
         then = ", made with the input that failed: after mending it, run again with --overwrite"
     else:
-        then = "" if "--skip-existing" in said else f": {resume_hint(overwrite)}"
+        then = "" if "--skip-existing" in said or hint in said else f": {hint}"
     return (f"{len(new)} episode bag(s) finished before the failure are kept under {out} (e.g. {new[0]}; no "
             f"dataset.json){then}")
 
@@ -333,12 +352,12 @@ def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
     else:
         # after Ray, spawned workers (they write the same bags and end with the pool; a fork server
         # would outlive it, with Ray's path in its command line)
-        # the workers ignore Ctrl-C (no traceback from each; map_in_processes) and die on SIGTERM
-        # (default_sigterm, whatever handler they inherited): this process takes Ctrl-C and the map's
-        # end stops them (a bag half written is staged apart, never in place); a worker killed (out of
-        # memory) ends the run with WorkerDied, where multiprocessing.Pool waited for its chunk for ever
+        # the workers ignore Ctrl-C (no traceback from each) and die on SIGTERM, whatever handler they
+        # inherited (map_in_processes): this process takes Ctrl-C and the map's end stops them (a bag
+        # half written is staged apart, never in place); a worker killed (out of memory) ends the run
+        # with WorkerDied, where multiprocessing.Pool waited for its chunk for ever
         for done in map_in_processes(_run_chunk, jobs, max(1, min(workers, len(jobs))), what="simulating episodes",
-                                     initializer=default_sigterm, stop_workers=True):
+                                     stop_workers=True):
             results += done
             bar.update(len(done))
     bar.close()
@@ -353,8 +372,7 @@ def _remove_staging(plan: DatasetPlan, quiet_s: float = STAGING_QUIET_S, limit_s
     cluster may outlive the failure its driver saw for a moment, finishing its bag (the staging goes)
     or dying mid-write (the staging stops changing, and is removed). A worker that outlives that
     too can still leave one; the next run writing that bag removes it, and no reader takes it."""
-    names = _bag_names(plan.config(), [s.resolve(plan.custom_soils) for s in plan.specs])
-    candidates = [plan.out / f"{name}{PARTIAL_SUFFIX}" for name in names]
+    candidates = [plan.out / f"{name}{PARTIAL_SUFFIX}" for name in sorted(planned_names(plan) or ())]
     deadline = time.monotonic() + limit_s
     while True:
         busy = False
@@ -396,7 +414,9 @@ def _raise_failed(plan: DatasetPlan, chunks: list[list[EpisodeSpec]], done: list
     bad_input = all(isinstance(err, (ValueError, FileNotFoundError, FileExistsError)) for _, err in failed)
     if not bad_input:  # a lost cluster, a dead worker or raylet (Ray says either, whichever it notices first)
         back = " once the cluster is back" if lost or any(_cluster_gone(e) for _, e in failed) else ""
-        lines.append(f"  {resume_hint(True)}{back}" if plan.overwrite else
+        stale = plan.overwrite and any(is_bag(plan.out / n) for n in _bag_names(plan.config(), [
+            x.resolve(plan.custom_soils) for c, _ in failed for x in c]))  # (not rewritten: their tasks failed)
+        lines.append(f"  {resume_hint(True)}{back}" if stale else
                      f"  the same command with --skip-existing simulates the missing episodes{back}")
     kept = sum(len(r) for r in done if not isinstance(r, Exception))
     raise ChunksFailed(
@@ -583,7 +603,8 @@ def main(argv=None) -> int:
                   "missing", file=sys.stderr)
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=not raced,
                                                               said="--skip-existing" if raced else "",
-                                                              overwrite=plan.overwrite, since=started)):
+                                                              overwrite=plan.overwrite, since=started,
+                                                              planned=planned_names(plan))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2
     except (ChunksFailed, RuntimeError) as exc:
@@ -592,7 +613,7 @@ def main(argv=None) -> int:
         if plan is not None and isinstance(exc, WorkerDied):  # the dead worker's bag, and the others' stopped mid-write
             _remove_staging(plan)
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input, str(exc), overwrite=plan.overwrite,
-                                                                         since=started)):
+                                                                         since=started, planned=planned_names(plan))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 2 if bad_input else 1
     except OSError as exc:  # a disk full mid-run (a pool worker's too: its traceback said no more)
@@ -600,7 +621,7 @@ def main(argv=None) -> int:
         if plan is not None:
             _remove_staging(plan)
         if before is not None and (kept := kept_after_failure(plan.out, before, bad_input=False, overwrite=plan.overwrite,
-                                                                         since=started)):
+                                                                         since=started, planned=planned_names(plan))):
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
@@ -609,7 +630,9 @@ def main(argv=None) -> int:
             return EXIT_INTERRUPTED
         how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
         _remove_staging(plan)
-        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(plan.overwrite)})",
+        stale = before is not None and plan.overwrite and any(
+            not written_since(plan.out / n, started) for n in before & (planned_names(plan) or before) & _bags_in(plan.out))
+        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(stale)})",
               file=sys.stderr)
         return interrupt_exit_code(exc)
     print(
