@@ -9,11 +9,9 @@ through their arguments, or the work runs in this process.
 """
 from __future__ import annotations
 
-import contextlib
 import functools
 import signal
 import sys
-import threading
 from typing import Callable, Iterable, Iterator
 
 
@@ -56,44 +54,38 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
                                    initializer=functools.partial(_worker_start, initializer))
     finished = False
     try:
-        with _ctrl_c_ignored_by_new_processes():  # executor.map submits every task: the workers start within
-            results = executor.map(fn, items, chunksize=chunksize)
-        yield from results
+        # the tasks' futures, not executor.map: its results' iterator cancels the queued futures when
+        # an interrupt leaves it, and Python 3.11's pool, finding the workers this map then stops,
+        # fails every pending future, cancelled ones too, and its manager thread died printing
+        # InvalidStateError (beside a busy core, a SIGTERM test's one line had a traceback above it)
+        items = list(items)
+        futures = [executor.submit(_apply, fn, items[i:i + chunksize]) for i in range(0, len(items), chunksize)]
+        for future in futures:
+            yield from future.result()
         finished = True
     except BrokenProcessPool:
         raise worker_died(what) from None
     finally:  # an interrupt or an error: the queued tasks are dropped, not run to the end
-        if stop_workers and not finished:
+        stopped = stop_workers and not finished
+        if stopped:
             # (CPython's own record of the workers; Python 3.14 says it as terminate_workers())
             for process in list((getattr(executor, "_processes", None) or {}).values()):
                 if process.is_alive():
                     process.terminate()
-        executor.shutdown(wait=finished, cancel_futures=not finished)
+        # (stopped: nothing cancelled, the pool fails what is left as broken)
+        executor.shutdown(wait=finished, cancel_futures=not finished and not stopped)
 
 
-@contextlib.contextmanager
-def _ctrl_c_ignored_by_new_processes():
-    """Within (main thread only): SIGINT ignored in this process, so that workers started here
-    ignore it from their first instruction: an ignored signal stays ignored through fork and exec,
-    and Python leaves an ignored SIGINT so. Why: a spawned worker imports for seconds before its
-    initializer (``_worker_start``) runs, and a Ctrl-C then printed a traceback from each. A Ctrl-C
-    within the few milliseconds the workers take to start is lost (press it again): a blocked
-    SIGINT would wait, but a spawned worker starts with none blocked, and the parent's other
-    threads would take it, ignored."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+def _apply(fn: Callable, chunk: list) -> list:
+    """One task of ``map_in_processes``: ``fn`` over a chunk of its items."""
+    return [fn(item) for item in chunk]
 
 
 def _worker_start(initializer: Callable | None) -> None:
     """A worker ignores Ctrl-C (the terminal sends it to the whole process group): the parent takes
     it and ends the map, where each worker's traceback, and its death read as a broken pool, said
-    nothing of use. SIGTERM ends it: a worker forked from a tool inside
+    nothing of use (a spawned worker takes it only from here: a Ctrl-C while it still imports is its
+    traceback, and the parent's interrupt all the same). SIGTERM ends it: a worker forked from a tool inside
     ``interrupts.terminate_as_interrupt`` had its handler, and a SIGTERM to the process group
     (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
