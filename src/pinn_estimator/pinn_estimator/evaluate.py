@@ -30,7 +30,7 @@ from soil_physics import fee
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py import markdown_table as md
-from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories, replace_atomically
+from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories, write_text_atomically
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -613,9 +613,8 @@ def write_report(report: dict, out_dir: Path, stem: str) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = report_paths(out_dir, stem, bool(report.get("forecast_only")))
     # strict JSON: a figure with nothing to score (NaN) is null, which JSON.parse reads
-    text = strict_json.dumps(report, indent=1, default=float) + "\n"
-    replace_atomically(paths["json"], lambda tmp: tmp.write_text(text))
-    replace_atomically(paths["markdown"], lambda tmp: tmp.write_text(markdown(report)))
+    write_text_atomically(paths["json"], strict_json.dumps(report, indent=1, default=float) + "\n")
+    write_text_atomically(paths["markdown"], markdown(report))
     if "png" in paths:
         plot(report, paths["png"])
     return paths

@@ -13,7 +13,7 @@ import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from soil_msgs_py.cli_paths import replace_atomically
+from soil_msgs_py.cli_paths import write_text_atomically
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.values import finite_number, short_repr
 from soil_physics import force_terms
@@ -223,8 +223,7 @@ class FusionConfig:
             raise ValueError(f"{text!r}: VALUE {value!r} is not JSON (a number or [x, z])") from None
 
     def save(self, path) -> None:
-        text = json.dumps(self.to_dict(), indent=2) + "\n"
-        replace_atomically(path, lambda tmp: tmp.write_text(text))
+        write_text_atomically(path, json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path) -> "FusionConfig":

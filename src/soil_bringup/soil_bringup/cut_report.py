@@ -40,7 +40,7 @@ from pinn_estimator.checkpoint import load_model, world_mismatch, world_mismatch
 from pinn_estimator.fusion_calibration import given_fusion
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories, replace_atomically
+from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories, write_text_atomically
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, LIFT_REACH_M, MIN_CUT_DEPTH_M,
                                  MIN_PLANNED_DEPTH_M)
@@ -496,11 +496,10 @@ def main(argv=None) -> int:
         report["worlds"].append(w)
     report["wall_s"] = time.monotonic() - t0
     print(console(report))
-    replace_atomically(args.out / "cut_report.md", lambda tmp: tmp.write_text(markdown(report) + "\n"))
+    write_text_atomically(args.out / "cut_report.md", markdown(report) + "\n")
     serial = {**report, "worlds": [{k: v for k, v in w.items() if k != "cuts"} for w in report["worlds"]]}
     # strict JSON: a ratio over no stall is inf on the console and null here
-    text = strict_json.dumps(serial, indent=1, default=float) + "\n"
-    replace_atomically(args.out / "cut_report.json", lambda tmp: tmp.write_text(text))
+    write_text_atomically(args.out / "cut_report.json", strict_json.dumps(serial, indent=1, default=float) + "\n")
     print(f"soil_cut_report: {report['wall_s']:.0f} s; table {args.out / 'cut_report.md'}, figures "
           + ", ".join(str(args.out / w["figure"]) for w in report["worlds"]))
     return 0

@@ -20,7 +20,7 @@ from pathlib import Path
 from soil_msgs_py.interrupts import said_interrupted, terminate_as_interrupt
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers
-from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories
+from soil_msgs_py.cli_paths import input_path, output_dir, refuse_directories, written_since
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
                 soil_tests=soil_tests, log=log,
             )
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (a scheduler's, timeout's): said in one line, no traceback
-        written = [name for name in OUTPUT_FILES if _written_since(args.out / name, started)]
+        written = [name for name in OUTPUT_FILES if written_since(args.out / name, started)]
         return said_interrupted("soil_discrepancy", exc, f"the report in {args.out} is incomplete (written before the "
                                 f"stop: {', '.join(written)}): run again for all of it" if written else "no report written")
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
@@ -146,13 +146,6 @@ def main(argv=None) -> int:
     if not args.quiet:
         print(f"({report['run_time_s']:.1f} s; report in {args.out / 'discrepancy.md'})")
     return 0
-
-
-def _written_since(path: Path, started: float) -> bool:
-    try:
-        return path.stat().st_mtime >= started
-    except OSError:
-        return False
 
 
 def _pinn_predictor(epochs: int, log, seeds: int = 1):

@@ -15,7 +15,7 @@ import numpy as np
 
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import replace_atomically
+from soil_msgs_py.cli_paths import replace_atomically, write_text_atomically
 from soil_physics import force_terms, term_forms
 
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
@@ -42,18 +42,14 @@ def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Pat
     report = {**report, "headline": headline_verdict(report),
               "outputs": [str(p) for p in [out / REPORT_JSON, out / REPORT_MD] + paths]}
     # strict JSON (JSON.parse refuses bare NaN / Infinity): a non-finite number, e.g. an open bin edge, is null
-    paths.insert(0, _atomic(out / REPORT_JSON, strict_json.dumps(report, indent=1, default=str)))
-    paths.insert(1, _atomic(out / REPORT_MD, markdown(report, [p.name for p in paths[1:]])))
+    paths.insert(0, write_text_atomically(out / REPORT_JSON, strict_json.dumps(report, indent=1, default=str)))
+    paths.insert(1, write_text_atomically(out / REPORT_MD, markdown(report, [p.name for p in paths[1:]])))
     found = catalogue_yaml((report.get("forms") or {}).get("discovered"))
     if found is not None:
-        paths.append(_atomic(out / CATALOGUE_FILE, found))
+        paths.append(write_text_atomically(out / CATALOGUE_FILE, found))
     elif (out / CATALOGUE_FILE).exists():  # an earlier run's in this directory: this report confirms none
         (out / CATALOGUE_FILE).unlink()
     return paths
-
-
-def _atomic(path: Path, text: str) -> Path:
-    return replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 
 # ------------------------------------------------------------------------------------ markdown

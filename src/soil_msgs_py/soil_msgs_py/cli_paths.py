@@ -117,3 +117,18 @@ def replace_atomically(path, write: Callable[[Path], object], suffix: str = ".tm
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_text_atomically(path, text: str) -> Path:
+    """``text`` written to ``path`` through ``replace_atomically``: whole, or the old file untouched."""
+    return replace_atomically(path, lambda tmp: tmp.write_text(text))
+
+
+def written_since(path, since: float) -> bool:
+    """Whether ``path`` was written at or after ``since`` (time.time()); False if it is gone (moved
+    away meanwhile: by another run, a lost Ray cluster's worker), so a caller's error path says
+    what is there and never fails on what is not."""
+    try:
+        return Path(path).stat().st_mtime >= since
+    except OSError:
+        return False

@@ -42,7 +42,7 @@ from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_ep
 from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, interrupt_exit_code,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
-from soil_msgs_py.cli_paths import bags_dir, refuse_directories, replace_atomically
+from soil_msgs_py.cli_paths import bags_dir, refuse_directories, write_text_atomically, written_since
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, ticks_in
 from soil_msgs_py.patches import check_patches, glue_negative_patches
@@ -220,8 +220,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
     earlier = _earlier_runs(plan.out / "dataset.json")
     if earlier:
         summary["earlier_runs"] = earlier
-    text = strict_json.dumps(summary, indent=1)
-    replace_atomically(plan.out / "dataset.json", lambda tmp: tmp.write_text(text))
+    write_text_atomically(plan.out / "dataset.json", strict_json.dumps(summary, indent=1))
     return summary
 
 
@@ -287,13 +286,11 @@ def resume_hint(stale: bool) -> str:
     return "the same command with --skip-existing simulates the rest"
 
 
-def written_since(path: Path, since: float) -> bool:
-    """Whether ``path`` was written at or after ``since`` (time.time()); False if it is gone (a bag
-    renamed away meanwhile: a lost Ray cluster's worker, another run)."""
-    try:
-        return path.stat().st_mtime >= since
-    except OSError:
-        return False
+def left_stale(out: Path, before: set[str], since: float, planned: set[str] | None) -> bool:
+    """Whether an ``overwrite`` run into ``out`` left bags of the earlier run there: bags of
+    ``before`` among ``planned`` (the plan's names; None: all of ``before``) not written since
+    ``since`` (time.time())."""
+    return any(not written_since(out / n, since) for n in before & (before if planned is None else planned) & _bags_in(out))
 
 
 def planned_names(plan: DatasetPlan) -> set[str] | None:
@@ -315,7 +312,7 @@ def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str =
     new = sorted(mine)
     if not new:
         return ""
-    hint = resume_hint(overwrite and bool((before if planned is None else before & planned) - mine))
+    hint = resume_hint(overwrite and since is not None and left_stale(out, before, since, planned))
     if bad_input:
         then = ", made with the input that failed: after mending it, run again with --overwrite"
     else:
@@ -630,8 +627,7 @@ def main(argv=None) -> int:
             return EXIT_INTERRUPTED
         how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
         _remove_staging(plan)
-        stale = before is not None and plan.overwrite and any(
-            not written_since(plan.out / n, started) for n in before & (planned_names(plan) or before) & _bags_in(plan.out))
+        stale = before is not None and plan.overwrite and left_stale(plan.out, before, started, planned_names(plan))
         print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(stale)})",
               file=sys.stderr)
         return interrupt_exit_code(exc)
