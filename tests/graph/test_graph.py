@@ -5,6 +5,8 @@ stopped (or killed) at the end; every wait is bounded.
 """
 from __future__ import annotations
 
+import collections
+
 import json
 import math
 import re
@@ -257,6 +259,22 @@ def _running(pid: str) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
+def _process_report(pid: str) -> str:
+    """What a process that should have stopped is doing, from /proc: its command, state, signals
+    (pending, blocked, caught, ignored: SIGTERM is bit 15) and where each thread waits in the kernel
+    (``wchan``: ``pipe_write`` would be a write to its dead launcher's pipe, ``futex`` a lock)."""
+    base = Path(f"/proc/{pid}")
+    try:
+        cmd = base.joinpath("cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+        status = dict(line.split(":", 1) for line in base.joinpath("status").read_text().splitlines() if ":" in line)
+        waits = collections.Counter(t.joinpath("wchan").read_text() or "-" for t in base.joinpath("task").iterdir())
+    except OSError as err:
+        return f"pid {pid}: gone while reported ({err})"
+    fields = ", ".join(f"{k} {status.get(k, '?').strip()}" for k in ("State", "SigPnd", "ShdPnd", "SigBlk", "SigCgt",
+                                                                      "SigIgn"))
+    return f"pid {pid} ({cmd[:160]}): {fields}; threads waiting in {dict(waits)}"
+
+
 def _children_gone(pid: int) -> bool:
     res = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
     return res.stdout.strip() == ""
@@ -371,7 +389,11 @@ def test_a_launcher_killed_outright_takes_its_nodes_with_it_and_the_bag_is_finis
     recorder still finishes the episode's bag."""
     from soil_bag_tools.bag_io import find_episode_bags, read_episode
 
-    proc = _launch(["--record", str(tmp_path / "bags"), "--sim-param", "duration_s:=60.0", "--timeout", "60"],
+    # The episode (300 s) outlasts the wait below: a node that stops in it stopped because its
+    # launcher died, not because the run ended. The wait bounds a hang, it times nothing (a node's
+    # stop is itself bounded by its drain, its readers' acknowledgements and the executor's end,
+    # which a machine under load stretches); a node still running after it is reported from /proc.
+    proc = _launch(["--record", str(tmp_path / "bags"), "--sim-param", "duration_s:=300.0", "--timeout", "300"],
                    domain, tmp_path)
     try:
         wait_until(lambda: "episode 0 start" in proc.log_path.read_text(), 30, "the episode to start")
@@ -380,7 +402,11 @@ def test_a_launcher_killed_outright_takes_its_nodes_with_it_and_the_bag_is_finis
         time.sleep(1.0)
         proc.kill()
         proc.wait(timeout=10)
-        wait_until(lambda: not any(_running(pid) for pid in nodes), 30, "the nodes to stop")
+        try:
+            wait_until(lambda: not any(_running(pid) for pid in nodes), 120, "the nodes to stop")
+        except AssertionError as err:
+            still = "\n".join(_process_report(pid) for pid in nodes if _running(pid))
+            raise AssertionError(f"{err}; still running:\n{still}") from None
     finally:
         if proc.poll() is None:
             proc.kill()
