@@ -29,7 +29,10 @@ class Terminated(KeyboardInterrupt):
 # inside a library's C code can come out as a plain KeyboardInterrupt (Ray's wait turns any
 # signal's into one), and the run then said "Ctrl-C", 130. Leaving the context turns such an
 # interrupt back into ``Terminated`` and clears the note, so the exception's type stays the one
-# thing that tells (nothing leaks into a later run in the same process).
+# thing that tells (nothing leaks into a later run in the same process). So does an error leaving
+# it after a SIGTERM: a handler's exception raised inside a callback Python calls from C (an
+# at-fork hook, ``__del__``) is printed as "Exception ignored" and lost, and what then failed (a
+# pool whose workers the same SIGTERM stopped) is the stop's consequence, not a fault to report.
 _received = {"sigterm": False}
 
 
@@ -47,6 +50,10 @@ def terminate_as_interrupt():
         yield
     except KeyboardInterrupt as exc:
         if _received["sigterm"] and not isinstance(exc, Terminated):
+            raise Terminated() from exc
+        raise
+    except Exception as exc:
+        if _received["sigterm"]:
             raise Terminated() from exc
         raise
     finally:
@@ -89,13 +96,23 @@ def interruptible(prog: str, outcome: str = "its output is not written: run it a
 
 
 class StopRequest:
-    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet)."""
+    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet), and every
+    signal noted (``noted``)."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self.noted: set[int] = set()
 
     def _note(self, signum, frame) -> None:  # noqa: ARG002
         self.signum = self.signum or signum
+        self.noted.add(signum)
+
+
+def noted_by(handler) -> set[int]:
+    """The signals a handler of ``stop_requests`` noted (a process forked inside it has the
+    parent's handler, with what it noted since); empty for any other handler."""
+    request = getattr(handler, "__self__", None)
+    return set(request.noted) if isinstance(request, StopRequest) else set()
 
 
 def interrupt_for(signum: int) -> KeyboardInterrupt:
@@ -114,3 +131,27 @@ def stop_requests():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Within: SIGINT and SIGTERM are noted, not handled; on leaving, the previous handlers are back
+    and the first signal noted is raised again, so it is handled as it would have been, a moment
+    later. For starting worker processes. Why: a fork runs Python's at-fork hooks (logging's lock,
+    in the parent and the child), and a KeyboardInterrupt or ``Terminated`` a handler raises inside
+    one is printed as "Exception ignored" and lost: a tool sent SIGTERM to its process group while
+    its pool started ran on, took its workers' death for a failure and exited 1 (not 143); Ctrl-C
+    could be lost the same way. Outside the main thread (no handler can be set there) nothing
+    changes."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield None
+        return
+    request = None
+    try:
+        with stop_requests() as request:
+            yield request
+    finally:
+        if request is not None and request.signum is not None:
+            signal.raise_signal(request.signum)

@@ -14,6 +14,8 @@ import signal
 import sys
 from typing import Callable, Iterable, Iterator
 
+from .interrupts import interrupts_deferred, noted_by
+
 
 def fork_is_safe() -> bool:
     """False once this process has imported Ray (its threads may hold locks at a fork)."""
@@ -59,7 +61,8 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
         # fails every pending future, cancelled ones too, and its manager thread died printing
         # InvalidStateError (beside a busy core, a SIGTERM test's one line had a traceback above it)
         items = list(items)
-        futures = [executor.submit(_apply, fn, items[i:i + chunksize]) for i in range(0, len(items), chunksize)]
+        with interrupts_deferred():  # the workers start (fork) here: a signal is handled after, not lost in a hook
+            futures = [executor.submit(_apply, fn, items[i:i + chunksize]) for i in range(0, len(items), chunksize)]
         for future in futures:
             yield from future.result()
         finished = True
@@ -87,8 +90,12 @@ def _worker_start(initializer: Callable | None) -> None:
     nothing of use (a spawned worker takes it only from here: a Ctrl-C while it still imports is its
     traceback, and the parent's interrupt all the same). SIGTERM ends it: a worker forked from a tool inside
     ``interrupts.terminate_as_interrupt`` had its handler, and a SIGTERM to the process group
-    (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback."""
+    (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback. A forked worker
+    starts with the parent's ``interrupts_deferred`` handler: a SIGTERM it noted ends it here."""
+    noted = noted_by(signal.getsignal(signal.SIGTERM))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if signal.SIGTERM in noted:
+        signal.raise_signal(signal.SIGTERM)
     if initializer is not None:
         initializer()
