@@ -152,3 +152,28 @@ def test_a_file_replaced_atomically_is_whole_or_untouched(tmp_path):
     assert path.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["config.json"]
     assert replace_atomically(tmp_path / "fig.png", lambda tmp: tmp.write_bytes(b"png") if tmp.suffix == ".png" else None,
                               suffix=".tmp.png").read_bytes() == b"png"
+
+
+def test_a_figure_is_saved_whole_in_its_suffixs_format_or_the_old_one_stays(tmp_path):
+    """Figures (calibration curves, reports' plots) were written in place: an interrupted save left
+    a truncated image. The format is the path's suffix's, not the temporary sibling's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from soil_msgs_py.cli_paths import save_figure_atomically
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    png, pdf = save_figure_atomically(fig, tmp_path / "a.png", dpi=50), save_figure_atomically(fig, tmp_path / "b.pdf", dpi=50)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and pdf.read_bytes()[:5] == b"%PDF-"
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    fig.savefig = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        save_figure_atomically(fig, png, dpi=50)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.pdf"]
+    plt.close(fig)

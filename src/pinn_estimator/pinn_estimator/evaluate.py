@@ -30,7 +30,8 @@ from soil_physics import fee
 from soil_msgs_py.process_pool import WorkerDied
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py import markdown_table as md
-from soil_msgs_py.cli_paths import file_stem, input_text, output_dir, refuse_directories, write_text_atomically
+from soil_msgs_py.cli_paths import (file_stem, input_text, output_dir, refuse_directories, save_figure_atomically,
+                                   write_text_atomically)
 from soil_msgs_py.episode import WORLD_MODES, world_modes
 from soil_msgs_py.soil_labels import GAMMA_GROUP_RTOL, unlabelled_count
 from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -597,7 +598,7 @@ def plot(report: dict, path: Path) -> Path:
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"{', '.join(report['world_modes'])} world, test split: estimates vs ground truth (mean ± std)")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    save_figure_atomically(fig, path, dpi=80)
     plt.close(fig)
     return path
 

@@ -43,7 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from soil_msgs_py.cli_paths import input_text, output_file
+from soil_msgs_py.cli_paths import input_text, output_file, save_figure_atomically
 from soil_msgs_py.graph import EstimatorPhysics
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, SAMPLE_RATE_HZ, WINDOW_SAMPLES
@@ -718,7 +718,7 @@ def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure_atomically(fig, path, dpi=110)
     plt.close(fig)
 
 

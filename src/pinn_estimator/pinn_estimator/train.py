@@ -34,7 +34,7 @@ from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
-from soil_msgs_py.cli_paths import input_text, output_file, refuse_directories
+from soil_msgs_py.cli_paths import input_text, output_file, refuse_directories, save_figure_atomically
 from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from soil_sim_node.ray_cluster import add_ray_option, parse_ray_options
@@ -381,7 +381,7 @@ def plot_curve(history: dict, path: Path, title: str) -> Path:
     b.set_ylabel("validation mean |F - F̂| [N]")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure_atomically(fig, path, dpi=90)
     plt.close(fig)
     return path
 

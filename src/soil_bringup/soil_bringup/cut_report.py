@@ -40,7 +40,8 @@ from pinn_estimator.checkpoint import load_model, world_mismatch, world_mismatch
 from pinn_estimator.fusion_calibration import given_fusion
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import input_text, output_dir, refuse_directories, write_text_atomically
+from soil_msgs_py.cli_paths import (input_text, output_dir, refuse_directories, save_figure_atomically,
+                                   write_text_atomically)
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, LIFT_REACH_M, MIN_CUT_DEPTH_M,
                                  MIN_PLANNED_DEPTH_M)
@@ -410,7 +411,7 @@ def plot(world: dict, path: Path) -> None:
         axis.legend(fontsize=7, loc="upper left")
     axes[-1].set_xlabel("blade edge x [m]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure_atomically(fig, path, dpi=110)
     plt.close(fig)
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from soil_msgs_py.cli_paths import save_figure_atomically
 from soil_msgs_py.params import DEG
 
 from .estimate_columns import ESTIMATE_COLUMN, TRUTH_COLUMN
@@ -63,6 +64,6 @@ def plot(scores: list[EpisodeScore], path: Path) -> Path:
     fig.suptitle("Online PINN estimates (valid only, dots) vs pseudo-ground truth / measured force", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
+    save_figure_atomically(fig, path, dpi=80)
     plt.close(fig)
     return path

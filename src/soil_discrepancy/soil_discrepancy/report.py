@@ -15,7 +15,7 @@ import numpy as np
 
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
-from soil_msgs_py.cli_paths import replace_atomically, write_text_atomically
+from soil_msgs_py.cli_paths import save_figure_atomically, write_text_atomically
 from soil_physics import force_terms, term_forms
 
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
@@ -588,7 +588,7 @@ def _zoom(ax, r0, r1, a):
 
 
 def _save(fig, path: Path) -> Path:
-    return replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110), suffix=".tmp.png")  # (savefig reads the format from it)
+    return save_figure_atomically(fig, path, dpi=110)
 
 
 __all__ = ["markdown", "write_outputs"]

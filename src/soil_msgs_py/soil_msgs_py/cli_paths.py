@@ -124,6 +124,15 @@ def write_text_atomically(path, text: str) -> Path:
     return replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 
+def save_figure_atomically(fig, path, dpi: int) -> Path:
+    """A matplotlib figure saved to ``path`` through ``replace_atomically``, in the format its suffix
+    names (none: PNG). Why: a figure written in place and interrupted left a truncated image, and
+    the temporary sibling's own suffix would otherwise choose the format."""
+    path = Path(path)
+    fmt = path.suffix[1:].lower() or "png"
+    return replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt), suffix=f".tmp.{fmt}")
+
+
 def written_since(path, since: float) -> bool:
     """Whether ``path`` was written at or after ``since`` (time.time()); False if it is gone (moved
     away meanwhile: by another run, a lost Ray cluster's worker), so a caller's error path says

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from soil_physics import fee  # noqa: E402
 from soil_bag_tools.bag_io import BagReadError, read_episode, read_labelled_topic  # noqa: E402
-from soil_msgs_py.cli_paths import input_path, output_file, refuse_directories  # noqa: E402
+from soil_msgs_py.cli_paths import input_path, output_file, refuse_directories, save_figure_atomically  # noqa: E402
 from soil_msgs_py.episode import Episode  # noqa: E402
 from soil_msgs_py.params import MACHINE  # noqa: E402
 from soil_msgs_py.topics import TARGET_DEPTH  # noqa: E402
@@ -98,7 +98,7 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     ax.set_xlabel("time [s]")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    save_figure_atomically(fig, out, dpi=110)
     plt.close(fig)
     return out
 
