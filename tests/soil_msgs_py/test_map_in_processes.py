@@ -43,7 +43,9 @@ def _sigint_then_square(x: int) -> int:
 
 
 def _signal_dispositions(_) -> tuple[bool, bool]:
-    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    unblocked = not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    return (signal.getsignal(signal.SIGINT) == signal.SIG_IGN and unblocked,
+            signal.getsignal(signal.SIGTERM) == signal.SIG_DFL and unblocked)
 
 
 @pytest.mark.timeout(60)
@@ -51,12 +53,15 @@ def _signal_dispositions(_) -> tuple[bool, bool]:
 def test_workers_of_a_tool_taking_sigterm_as_ctrl_c_die_on_it_and_ignore_ctrl_c(start_method):
     """A tool inside ``terminate_as_interrupt`` forked workers with its SIGTERM handler: a SIGTERM to
     the process group (``timeout``'s) printed each worker's ``Terminated`` traceback. Every worker
-    ignores Ctrl-C and takes SIGTERM's default, from fork or spawn alike."""
+    ignores Ctrl-C and takes SIGTERM's default, from fork or spawn alike, neither blocked once it
+    started; the parent's mask is as before."""
     from soil_msgs_py.interrupts import terminate_as_interrupt
 
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, [])
     with terminate_as_interrupt():
         seen = list(map_in_processes(_signal_dispositions, [0, 1], 2, what="looking", start_method=start_method))
     assert seen == [(True, True), (True, True)]
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
 
 
 # A signal that lands while the pool's workers fork: the at-fork hooks (logging's lock) run Python
@@ -138,3 +143,54 @@ def test_an_error_after_a_lost_sigterm_is_the_stop_not_a_fault():
     with pytest.raises(RuntimeError):  # no SIGTERM: the error is the error
         with terminate_as_interrupt():
             raise RuntimeError("the pool is broken")
+
+
+# A spawned worker is a fresh interpreter that imports the tool's main module before it runs
+# anything of ours: the terminal's Ctrl-C during that import printed each worker's
+# KeyboardInterrupt traceback above the tool's one line. The main module here says when a worker
+# is in that import and holds it there, so the Ctrl-C lands in it every time.
+_SPAWN_IMPORT_SCRIPT = """
+import os, sys, time
+from pathlib import Path
+if __name__ == "__mp_main__":  # a spawned worker importing this module
+    Path(sys.argv[1], str(os.getpid())).touch()
+    time.sleep(3.0)
+from soil_msgs_py.interrupts import interruptible
+from soil_msgs_py.process_pool import map_in_processes
+
+def square(x):
+    return x * x
+
+@interruptible("spawntool", "nothing written")
+def main(argv=None):
+    print("result", list(map_in_processes(square, range(4), 2, what="squaring", start_method="spawn")), flush=True)
+    return 0
+
+if __name__ == "__main__":
+    sys.exit(main())
+"""
+
+
+@pytest.mark.timeout(90)
+def test_ctrl_c_while_spawned_workers_import_is_one_line_not_their_tracebacks(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    script, marks = tmp_path / "spawntool.py", tmp_path / "marks"
+    script.write_text(_SPAWN_IMPORT_SCRIPT)
+    marks.mkdir()
+    proc = subprocess.Popen([sys.executable, str(script), str(marks)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(marks.iterdir())) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(marks.iterdir())) == 2, proc.communicate(timeout=30)
+        os.killpg(proc.pid, signal.SIGINT)  # as the terminal sends it: to the tool and both workers
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, out + err
+    assert "spawntool: interrupted (Ctrl-C); nothing written" in err and "Traceback" not in err, err

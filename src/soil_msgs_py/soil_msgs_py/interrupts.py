@@ -96,23 +96,13 @@ def interruptible(prog: str, outcome: str = "its output is not written: run it a
 
 
 class StopRequest:
-    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet), and every
-    signal noted (``noted``)."""
+    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet)."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
-        self.noted: set[int] = set()
 
     def _note(self, signum, frame) -> None:  # noqa: ARG002
         self.signum = self.signum or signum
-        self.noted.add(signum)
-
-
-def noted_by(handler) -> set[int]:
-    """The signals a handler of ``stop_requests`` noted (a process forked inside it has the
-    parent's handler, with what it noted since); empty for any other handler."""
-    request = getattr(handler, "__self__", None)
-    return set(request.noted) if isinstance(request, StopRequest) else set()
 
 
 def interrupt_for(signum: int) -> KeyboardInterrupt:
@@ -133,16 +123,23 @@ def stop_requests():
             signal.signal(sig, handler)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextlib.contextmanager
 def interrupts_deferred():
-    """Within: SIGINT and SIGTERM are noted, not handled; on leaving, the previous handlers are back
-    and the first signal noted is raised again, so it is handled as it would have been, a moment
-    later. For starting worker processes. Why: a fork runs Python's at-fork hooks (logging's lock,
-    in the parent and the child), and a KeyboardInterrupt or ``Terminated`` a handler raises inside
-    one is printed as "Exception ignored" and lost: a tool sent SIGTERM to its process group while
-    its pool started ran on, took its workers' death for a failure and exited 1 (not 143); Ctrl-C
-    could be lost the same way. Outside the main thread (no handler can be set there) nothing
-    changes."""
+    """Within: SIGINT and SIGTERM are noted, not handled, and blocked in this thread; on leaving,
+    the previous handlers are back and the first signal noted (or still pending) is handled as it
+    would have been, a moment later. For starting worker processes, which inherit the blocked
+    signals and unblock them once their own dispositions are set (``unblock_stop_signals``).
+
+    Why: a fork runs Python's at-fork hooks (logging's lock, in the parent and the child), and a
+    KeyboardInterrupt or ``Terminated`` a handler raises inside one is printed as "Exception
+    ignored" and lost: a tool sent SIGTERM to its process group while its pool started ran on, took
+    its workers' death for a failure and exited 1 (not 143), and a Ctrl-C could be lost alike. A
+    spawned worker (a fresh interpreter) took the terminal's Ctrl-C while it still imported, each
+    printing a KeyboardInterrupt traceback. Outside the main thread (no handler can be set there)
+    nothing changes."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
@@ -151,7 +148,17 @@ def interrupts_deferred():
     request = None
     try:
         with stop_requests() as request:
-            yield request
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+            try:
+                yield request
+            finally:  # (a signal pending on this thread is handled here: the noting handler takes it)
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
     finally:
         if request is not None and request.signum is not None:
             signal.raise_signal(request.signum)
+
+
+def unblock_stop_signals() -> None:
+    """SIGINT and SIGTERM unblocked in this thread: a worker started inside ``interrupts_deferred``
+    calls it once its dispositions are set, and a signal that came meanwhile is handled by them."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)

@@ -14,7 +14,7 @@ import signal
 import sys
 from typing import Callable, Iterable, Iterator
 
-from .interrupts import interrupts_deferred, noted_by
+from .interrupts import interrupts_deferred, unblock_stop_signals
 
 
 def fork_is_safe() -> bool:
@@ -87,15 +87,13 @@ def _apply(fn: Callable, chunk: list) -> list:
 def _worker_start(initializer: Callable | None) -> None:
     """A worker ignores Ctrl-C (the terminal sends it to the whole process group): the parent takes
     it and ends the map, where each worker's traceback, and its death read as a broken pool, said
-    nothing of use (a spawned worker takes it only from here: a Ctrl-C while it still imports is its
-    traceback, and the parent's interrupt all the same). SIGTERM ends it: a worker forked from a tool inside
+    nothing of use. SIGTERM ends it: a worker forked from a tool inside
     ``interrupts.terminate_as_interrupt`` had its handler, and a SIGTERM to the process group
-    (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback. A forked worker
-    starts with the parent's ``interrupts_deferred`` handler: a SIGTERM it noted ends it here."""
-    noted = noted_by(signal.getsignal(signal.SIGTERM))
+    (``timeout``'s, a scheduler's) printed each worker's ``Terminated`` traceback. A worker starts
+    with both signals blocked (``interrupts_deferred``, forked or spawned alike): one that came while
+    it started, or imported, is handled here, a Ctrl-C ignored, a SIGTERM its end."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if signal.SIGTERM in noted:
-        signal.raise_signal(signal.SIGTERM)
+    unblock_stop_signals()
     if initializer is not None:
         initializer()
