@@ -8,6 +8,7 @@ from soil_bag_tools.bag_io import write_episode
 from soil_msgs_py.params import DEG
 
 from soil_bringup import scoring as S
+from soil_bringup.estimate_columns import ESTIMATE_COLUMN as EST
 from soil_bringup.estimate_columns import TRUTH_COLUMN as TRUTH
 from soil_bringup.summary import table_text
 from tests.soil_bringup.estimate_bags import estimate, write_bag_with_estimates
@@ -59,3 +60,32 @@ def test_summarise_names_the_bag_without_estimates(tmp_path, episode):
     bag = write_bag_with_estimates(tmp_path / "never_valid", episode, only_invalid)
     with pytest.raises(ValueError, match=r"no valid estimate.*59/60"):
         S.summarise(bag)
+
+
+def test_the_demo_figure_draws_the_fused_soil_with_its_90_percent_band_where_it_is_valid(tmp_path, episode):
+    """The figure showed the PINN's window estimates alone; a planner reads the fused soil and its
+    std. φ's band is mean ± 1.645 std, c's not below 0, none before the first stretch."""
+    from matplotlib.collections import PolyCollection
+
+    from soil_bringup.scoring import score_episode
+    from soil_bringup.summary_figure import draw
+
+    rows = []
+    for k, stamp in enumerate(episode.stamps_ns):
+        values = estimate(episode, k, k >= 59, min(k + 1, 60))
+        if k >= 90:  # the posterior valid from tick 90 on: φ 30° ± 2°, c 1 ± 2 kPa
+            values[EST["fused_valid"]] = 1.0
+            values[EST["phi_fused"]], values[EST["phi_std"]] = 30 * DEG, 2 * DEG
+            values[EST["c_fused"]], values[EST["c_std"]] = 1000.0, 2000.0
+        rows.append((int(stamp), values))
+    score = score_episode(write_bag_with_estimates(tmp_path / episode.meta.name, episode, rows))
+    fig = draw([score])
+    ax_phi, ax_c = fig.axes[0], fig.axes[1]
+    (phi_band,), (c_band,) = ([c for c in ax.collections if isinstance(c, PolyCollection)] for ax in (ax_phi, ax_c))
+    phi_y, c_y = phi_band.get_paths()[0].vertices[:, 1], c_band.get_paths()[0].vertices[:, 1]
+    assert phi_y.min() == pytest.approx(30 - 1.645 * 2, abs=0.01) and phi_y.max() == pytest.approx(30 + 1.645 * 2, abs=0.01)
+    assert c_y.min() == 0.0 and c_y.max() == pytest.approx(1 + 1.645 * 2, abs=0.01)
+    t_band = phi_band.get_paths()[0].vertices[:, 0]
+    assert t_band.min() >= episode.time_s[90] - 1e-9  # nothing drawn before the posterior was valid
+    import matplotlib.pyplot as plt
+    plt.close(fig)
