@@ -719,7 +719,7 @@ def test_ctrl_c_keeps_the_best_model_so_far_and_before_one_writes_nothing(tiny_b
     first = tmp_path / "first.pt"
     _interrupt_in_epoch(monkeypatch, 1)
     assert train_main([*args[:3], str(first), *args[4:]]) == 130
-    assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
+    assert not first.exists() and "interrupted (Ctrl-C); nothing written" in capsys.readouterr().err
 
 
 def test_a_trainer_killed_outright_leaves_its_best_model_so_far(tiny_bags, tmp_path, monkeypatch):
@@ -782,7 +782,32 @@ def test_sigterm_keeps_the_best_model_so_far_like_ctrl_c(tiny_bags, tmp_path, mo
     first = tmp_path / "first.pt"
     _interrupt_in_epoch(monkeypatch, 1, sigterm=True)
     assert train_main([*args[:3], str(first), *args[4:]]) == 143
-    assert not first.exists() and "interrupted; nothing written" in capsys.readouterr().err
+    assert not first.exists() and "interrupted (SIGTERM); nothing written" in capsys.readouterr().err
+
+
+def test_a_stop_while_the_results_are_written_waits_for_them(tiny_bags, tmp_path, monkeypatch, capsys):
+    """SIGTERM as the finished run wrote its checkpoint, curve and summary (an outside tester's, at
+    the end of a 60-epoch run): the curve and the summary were missing and the line spoke of a best
+    model written while training. The write now finishes first, and the line says it did."""
+    import os
+    import signal
+
+    from pinn_estimator import train as train_module
+
+    real = train_module.plot_curve
+
+    def plot_curve(*a, **kw):
+        os.kill(os.getpid(), signal.SIGTERM)  # between the checkpoint and its curve
+        return real(*a, **kw)
+
+    monkeypatch.setattr(train_module, "plot_curve", plot_curve)
+    out = tmp_path / "m.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), "--epochs", "2", "--stride", "6", "--quiet",
+                       "--no-cache", "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]) == 143
+    captured = capsys.readouterr()
+    assert "pinn_train: interrupted (SIGTERM) as its results were written; they are complete" in captured.err
+    assert '"checkpoint"' in captured.out and out.with_name("m_curve.png").is_file()
+    assert torch.load(out, weights_only=True)["metrics"]["stop_reason"] == "epochs"
 
 
 def test_sigterm_while_the_bags_are_read_is_said_not_a_silent_death(tiny_bags, tmp_path, monkeypatch, capsys):
@@ -803,7 +828,7 @@ def test_sigterm_while_the_bags_are_read_is_said_not_a_silent_death(tiny_bags, t
     monkeypatch.setattr(train_module, "load_dataset", load_dataset)
     out = tmp_path / "m.pt"
     assert train_main(["--data", str(tiny_bags), "--out", str(out), "--quiet", "--no-cache"]) == 143
-    assert not out.exists() and "pinn_train: interrupted; nothing written" in capsys.readouterr().err
+    assert not out.exists() and "pinn_train: interrupted (SIGTERM); nothing written" in capsys.readouterr().err
 
 
 def test_a_collective_that_fails_after_the_job_was_told_to_stop_is_said_as_the_stop(tiny_ds, tmp_path, monkeypatch, capsys):
@@ -825,7 +850,7 @@ def test_a_collective_that_fails_after_the_job_was_told_to_stop_is_said_as_the_s
     cfg = TrainConfig(epochs=1)
     assert train_module._run(args, cfg, ModelConfig(**SMALL), Ranks(rank=0, world=2)) == 130
     err = capsys.readouterr().err
-    assert "pinn_train: interrupted; nothing written" in err and "Connection closed" not in err, err
+    assert "pinn_train: interrupted (Ctrl-C); nothing written" in err and "Connection closed" not in err, err
 
     def broken(*args, stop=None, **kwargs):  # no stop noted: a fault, said as one
         raise RuntimeError("[gloo] Connection closed by peer")

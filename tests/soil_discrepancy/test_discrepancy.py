@@ -280,6 +280,21 @@ def test_ctrl_c_or_sigterm_while_pinns_train_says_so_in_one_line_and_writes_no_r
     assert not (out / "discrepancy.json").exists()
 
 
+def test_a_stop_while_the_pinn_step_is_made_ready_is_said_too(bag_dirs, tmp_path, capsys, monkeypatch):
+    """Most of a short run is before the analysis (the PINN step's torch import, the arguments'
+    checks), where the stop handling did not reach: a Ctrl-C there was a traceback, a SIGTERM a
+    silent death (an outside tester's, 11 of 15). The whole run is covered now."""
+    from soil_discrepancy import cli
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt()
+
+    monkeypatch.setattr(cli, "_pinn_predictor", interrupted)
+    out = tmp_path / "out"
+    assert cli_main([str(bag_dirs["soil_inertia"]), "--out", str(out), "--pinn-epochs", "2", "--quiet"]) == 130
+    assert capsys.readouterr().err == "soil_discrepancy: interrupted (Ctrl-C); no report written\n"
+
+
 def test_control_gives_no_effect_through_the_cli_from_a_simulators_and_a_machines_bags(bag_dirs, tmp_path, capsys):
     """The control's answer, with the PINN's retraining asked for (nothing named: skipped) and the
     hidden check (none hidden: correct); and from the same bags recorded without

@@ -4,6 +4,7 @@ reaches is said, and dataset.json keeps the record of the runs before."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -168,6 +169,42 @@ def test_sigterm_ends_the_batch_like_ctrl_c_and_leaves_no_worker_writing(tmp_pat
     assert 0 < len(kept) < 32 and not list(out.glob("*.partial")), (kept, list(out.iterdir()))
     time.sleep(3.0)
     assert {b.name for b in find_episode_bags(out)} == kept and not list(out.glob("*.partial"))  # nothing writes on
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("second", ["SIGINT", "SIGTERM"])
+def test_a_second_signal_while_the_batch_cleans_up_waits_for_it(tmp_path, second):
+    """Ctrl-C, then a second signal 0.2 s later (an impatient Ctrl-C, timeout's SIGTERM after the
+    terminal's), to the console script's process group: the second had interrupted the staging's
+    removal (a traceback, exit −2 or a silent −15, half-written bags' folders left; an outside
+    tester's, 7 of 8). Now the clean-up finishes, the first signal's line and code stand."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    cmd = [str(Path(sys.executable).parent / "soil_sim_batch"), "--mode", "fee", "--soils", "Sand,Clay",
+           "--relative-densities", "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30",
+           "--workers", "2", "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out.exists() and find_episode_bags(out)):
+            assert proc.poll() is None and time.monotonic() < deadline, "no bag written"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.2)
+        if proc.poll() is None:
+            os.killpg(proc.pid, getattr(signal, second))
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted; the bags finished under" in err, err
+    assert find_episode_bags(out) and not list(out.glob("*.partial")), list(out.iterdir())
 
 
 def test_bags_finished_before_a_plugin_failed_are_said_with_what_to_do(tmp_path, capsys):

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
-from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt_for, interrupt_name, stop_requests,
-                                     terminate_as_interrupt)
+from soil_msgs_py.interrupts import (StopRequest, interrupt_exit_code, interrupt_for, interrupt_name, interrupts_deferred,
+                                     stop_requests, terminate_as_interrupt)
 from soil_msgs_py import cli_numbers
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.cli_paths import input_text, output_file, refuse_directories, save_figure_atomically
@@ -447,6 +447,7 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
     """Load, train, and (rank 0) write; an error is printed once, by rank 0."""
     best_so_far = None
     noted = None  # a job's stop request (``stop_requests``) once training began
+    written = False  # the finished run's checkpoint, curve and summary
     try:
         with terminate_as_interrupt():  # SIGTERM while the bags are read (no collective under way) as Ctrl-C: it had
             ds = _load(args, ranks)  # killed the run in silence (timeout's, a scheduler's, torchrun's stopping a job)
@@ -477,7 +478,11 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
                 failed = err
                 model, split, history, metrics = err.result
             if ranks.main:
-                _write(args, cfg, ds, model, split, history, metrics)
+                # a stop while they are written waits for them (a second or so): cut short, the checkpoint
+                # was the finished one but the curve and the summary were missing, and the line said less
+                with interrupts_deferred():  # (leaving it raises a signal that came meanwhile)
+                    _write(args, cfg, ds, model, split, history, metrics)
+                    written = True
     except (ValueError, FileNotFoundError, FloatingPointError, RuntimeError) as err:
         if isinstance(err, RuntimeError) and noted is not None and noted.signum:
             # a collective that failed after this job was told to stop: a peer that stopped first (torchrun ends
@@ -487,6 +492,10 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if isinstance(err, RuntimeError) else 2  # a run that broke (a worker died) / the input's fault
     except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
+        if written:
+            print(f"pinn_train: interrupted ({interrupt_name(exc)}) as its results were written; they are complete: "
+                  f"{args.out}, its curve and the summary", file=sys.stderr)
+            return interrupt_exit_code(exc)
         return _said_interrupted(args, ranks, best_so_far, exc)
     if failed is not None:
         if ranks.main:
@@ -533,9 +542,9 @@ def _said_interrupted(args, ranks: Ranks, best_so_far, exc: KeyboardInterrupt) -
     nothing); the exit code of the signal."""
     if ranks.main:
         kept = best_so_far.written if best_so_far is not None else 0
-        print("pinn_train: interrupted; " + (f"the best model so far (epoch {kept}) is in {args.out}, as written "
-                                              "while training (no curve)" if kept else "nothing written"),
-              file=sys.stderr)
+        print(f"pinn_train: interrupted ({interrupt_name(exc)}); "
+              + (f"the best model so far (epoch {kept}) is in {args.out}, as written while training (no curve)"
+                 if kept else "nothing written"), file=sys.stderr)
     return interrupt_exit_code(exc)
 
 

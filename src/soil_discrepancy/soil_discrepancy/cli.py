@@ -80,7 +80,23 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def main(argv=None) -> int:
+    """The command line; Ctrl-C or SIGTERM (a scheduler's, timeout's) anywhere in the run is said in
+    one line with what was written, exit 130 / 143 (no traceback). Anywhere: the run's own imports
+    (torch for the PINNs) take seconds, and a stop there had been a traceback or a silent death."""
     args = parse_args(argv)
+    started = time.time()
+    try:
+        with terminate_as_interrupt():
+            return _run(args)
+    except KeyboardInterrupt as exc:
+        from .report import OUTPUT_FILES
+
+        written = [name for name in OUTPUT_FILES if written_since(args.out / name, started)]
+        return said_interrupted("soil_discrepancy", exc, f"the report in {args.out} is incomplete (written before the "
+                                f"stop: {', '.join(written)}): run again for all of it" if written else "no report written")
+
+
+def _run(args) -> int:
     from soil_physics.force_terms import parse_terms, refuse_repeats
 
     from .forms import load_catalogue
@@ -98,7 +114,6 @@ def main(argv=None) -> int:
               "2**32 - 1", file=sys.stderr)
         return 2
     predictors = {"PINN": _pinn_predictor(args.pinn_epochs, log, args.pinn_seeds)} if args.pinn_epochs else None
-    started = time.time()
     try:
         accepted = parse_terms([s for s in args.accepted.split(",") if s.strip()])
         refuse_repeats(accepted, "--accepted")
@@ -115,18 +130,13 @@ def main(argv=None) -> int:
             refuse_repeats(hidden, "--hidden")
         user_terms = {t["term"]: t["name"] for t in load_catalogue(args.catalogue)} if args.catalogue else {}
         soil_tests = load_soil_tests(args.soil_tests) if args.soil_tests else ()
-        with terminate_as_interrupt():
-            report = run_discrepancy(
-                args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
-                seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
-                allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
-                skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms,
-                soil_tests=soil_tests, log=log,
-            )
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (a scheduler's, timeout's): said in one line, no traceback
-        written = [name for name in OUTPUT_FILES if written_since(args.out / name, started)]
-        return said_interrupted("soil_discrepancy", exc, f"the report in {args.out} is incomplete (written before the "
-                                f"stop: {', '.join(written)}): run again for all of it" if written else "no report written")
+        report = run_discrepancy(
+            args.bag_dir, args.out, predictors=predictors, terms=args.terms, accepted=accepted, holdout=args.holdout, folds=args.folds,
+            seed=args.seed, stride=args.stride, alpha=args.alpha, min_gain=args.min_gain, group_by=args.group_by,
+            allow_negative_k=args.allow_negative_k, workers=args.workers, cache=not args.no_cache,
+            skip_bad_bags=args.skip_bad_bags, plots=not args.no_plots, forms=not args.no_forms, user_terms=user_terms,
+            soil_tests=soil_tests, log=log,
+        )
     except (ValueError, FileNotFoundError, NotADirectoryError) as exc:
         print(f"soil_discrepancy: error: {exc}", file=sys.stderr)
         return 2

@@ -69,14 +69,18 @@ def map_in_processes(fn: Callable, items: Iterable, workers: int, *, what: str, 
     except BrokenProcessPool:
         raise worker_died(what) from None
     finally:  # an interrupt or an error: the queued tasks are dropped, not run to the end
-        stopped = stop_workers and not finished
-        if stopped:
-            # (CPython's own record of the workers; Python 3.14 says it as terminate_workers())
-            for process in list((getattr(executor, "_processes", None) or {}).values()):
-                if process.is_alive():
-                    process.terminate()
-        # (stopped: nothing cancelled, the pool fails what is left as broken)
-        executor.shutdown(wait=finished, cancel_futures=not finished and not stopped)
+        if finished:
+            executor.shutdown(wait=True)
+        else:
+            # a second signal (Ctrl-C twice) is handled once the workers are stopped, not in the midst of it
+            with interrupts_deferred():
+                if stop_workers:
+                    # (CPython's own record of the workers; Python 3.14 says it as terminate_workers())
+                    for process in list((getattr(executor, "_processes", None) or {}).values()):
+                        if process.is_alive():
+                            process.terminate()
+                # (workers stopped: nothing cancelled, the pool fails what is left as broken)
+                executor.shutdown(wait=False, cancel_futures=not stop_workers)
 
 
 def _apply(fn: Callable, chunk: list) -> list:

@@ -39,7 +39,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
-from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, interrupt_exit_code,
+from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, interrupt_exit_code, stop_requests,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir, refuse_directories, write_text_atomically, written_since
@@ -626,10 +626,13 @@ def main(argv=None) -> int:
             print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
             return EXIT_INTERRUPTED
         how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
-        _remove_staging(plan)
-        stale = before is not None and plan.overwrite and left_stale(plan.out, before, started, planned_names(plan))
-        print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(stale)})",
-              file=sys.stderr)
+        # a second signal (an impatient Ctrl-C, timeout's SIGTERM after the terminal's) waits for the clean-up:
+        # it had interrupted the staging's removal, leaving half-written bags' folders and a traceback
+        with stop_requests():
+            _remove_staging(plan)
+            stale = before is not None and plan.overwrite and left_stale(plan.out, before, started, planned_names(plan))
+            print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(stale)})",
+                  file=sys.stderr)
         return interrupt_exit_code(exc)
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
