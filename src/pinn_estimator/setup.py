@@ -24,9 +24,9 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "pinn_train = pinn_estimator.train:main",
-            "pinn_eval = pinn_estimator.evaluate:main",
-            "pinn_fusion_calibrate = pinn_estimator.fusion_calibration:main",
+            "pinn_train = pinn_estimator.entry_points:pinn_train",
+            "pinn_eval = pinn_estimator.entry_points:pinn_eval",
+            "pinn_fusion_calibrate = pinn_estimator.entry_points:pinn_fusion_calibrate",
             "pinn_estimator = pinn_estimator.node:main",
         ],
     },

@@ -26,7 +26,7 @@ setup(
         "console_scripts": [
             "soil_launch = soil_bringup.launch:main",
             "soil_demo = soil_bringup.demo:main",
-            "soil_cut_report = soil_bringup.cut_report:main",
+            "soil_cut_report = soil_bringup.entry_points:soil_cut_report",
         ],
     },
 )

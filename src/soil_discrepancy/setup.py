@@ -24,7 +24,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "soil_discrepancy = soil_discrepancy.cli:main",
+            "soil_discrepancy = soil_discrepancy.entry_points:soil_discrepancy",
         ],
     },
 )

@@ -25,7 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "soil_planner = soil_planner.node:main",
-            "soil_planner_calibrate = soil_planner.bound_calibration:main",
+            "soil_planner_calibrate = soil_planner.entry_points:soil_planner_calibrate",
         ],
     },
 )

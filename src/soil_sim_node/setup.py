@@ -24,7 +24,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "soil_sim_batch = soil_sim_node.batch:main",
+            "soil_sim_batch = soil_sim_node.entry_points:soil_sim_batch",
             "soil_plot_episode = soil_sim_node.plot:main",
             "soil_sim_report = soil_sim_node.report:main",
             "soil_sim_node = soil_sim_node.node:main",

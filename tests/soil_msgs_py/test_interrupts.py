@@ -54,3 +54,64 @@ def test_pinn_eval_stopped_by_sigterm_mid_run_says_so_and_writes_no_report(tmp_p
     assert rc == 143, text[-2000:]
     assert "pinn_eval: interrupted (SIGTERM); its output is not written: run it again" in text, text[-2000:]
     assert "Traceback" not in text and not (out.exists() and list(out.glob("*.md"))), text[-2000:]
+
+
+# --- the console scripts' first instant and last (interrupts.run_tool, soil_msgs_py.tool_entry) ---
+
+_SLOW_TOOL = """
+import atexit, os, sys, time
+from pathlib import Path
+MARKS = Path(os.environ["MARKS"])
+(MARKS / "importing").touch()
+if os.environ.get("SLOW_IMPORT"):
+    time.sleep(5.0)  # a heavy import (torch): where a stop had been a traceback or a silent death
+
+def main(argv=None):
+    print("done", flush=True)
+    def slow_exit():  # the interpreter's exit after the tool has ended
+        (MARKS / "exiting").touch()
+        time.sleep(5.0)
+    atexit.register(slow_exit)
+    return 3
+"""
+
+
+def _run_slow_tool(tmp_path, slow_import: bool, mark: str, sig: int):
+    (tmp_path / "slowtool.py").write_text(_SLOW_TOOL)
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    env = dict(os.environ, MARKS=str(marks), PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+               SLOW_IMPORT="1" if slow_import else "")
+    script = "import sys; from soil_msgs_py.interrupts import run_tool; sys.exit(run_tool('slowtool', 'slowtool'))"
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (marks / mark).exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert (marks / mark).exists(), proc.communicate(timeout=30)
+        time.sleep(0.2)  # into the sleep
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, out, err
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("sig, code, name", [(signal.SIGINT, 130, "Ctrl-C"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_stop_while_a_tool_still_imports_is_one_line(tmp_path, sig, code, name):
+    rc, out, err = _run_slow_tool(tmp_path, slow_import=True, mark="importing", sig=sig)
+    assert rc == code, err
+    assert err == f"slowtool: interrupted ({name}); it stopped as it started: nothing was done\n" and "done" not in out
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_after_a_tool_ended_ends_it_with_its_own_code(tmp_path, sig):
+    """The tool said how it ended (here: done, exit 3); a signal during the interpreter's exit ends
+    it at once with that code, not with −2 / −15 or a traceback from the exit."""
+    rc, out, err = _run_slow_tool(tmp_path, slow_import=False, mark="exiting", sig=sig)
+    assert rc == 3 and out == "done\n" and err == "", (rc, out, err)
+

@@ -14,22 +14,34 @@ the forces cannot), ``verdict`` (the verdict and its words), ``report`` (Markdow
 ``workflow`` (run_discrepancy), ``cli`` (soil_discrepancy). The model itself, the FEE plus named
 terms, is physics: ``soil_physics.augmented_fee.AugmentedFEE``.
 """
-from soil_physics.augmented_fee import AugmentedFEE, plugin_spec
+import importlib
 
-from .candidates import TermScore, group_folds, score_terms, select_terms, split_holdout
-from .fee_fit import ThetaFit, fit_fixed, fit_joint, linear_k, residuals, term_inputs
-from .frame import Frame, build_frame
-from .gap import compare_predictions, error_metrics, fee_gap
-from .regimes import bin_edges, holm, regime_analysis, trend_tests
-from .report import markdown, write_outputs
-from .soil_tests import SoilTest, hold_theta, load_soil_tests
-from .verdict import VERDICTS
-from .workflow import load_frame, run_discrepancy
+# name -> the module it lives in, imported on first use: the package itself imports nothing heavy,
+# so the soil_discrepancy console script (entry_points) handles Ctrl-C from its first instant
+_EXPORTS = {
+    "AugmentedFEE": "soil_physics.augmented_fee", "plugin_spec": "soil_physics.augmented_fee",
+    **dict.fromkeys(("TermScore", "group_folds", "score_terms", "select_terms", "split_holdout"), ".candidates"),
+    **dict.fromkeys(("ThetaFit", "fit_fixed", "fit_joint", "linear_k", "residuals", "term_inputs"), ".fee_fit"),
+    **dict.fromkeys(("Frame", "build_frame"), ".frame"),
+    **dict.fromkeys(("compare_predictions", "error_metrics", "fee_gap"), ".gap"),
+    **dict.fromkeys(("bin_edges", "holm", "regime_analysis", "trend_tests"), ".regimes"),
+    **dict.fromkeys(("markdown", "write_outputs"), ".report"),
+    **dict.fromkeys(("SoilTest", "hold_theta", "load_soil_tests"), ".soil_tests"),
+    "VERDICTS": ".verdict",
+    **dict.fromkeys(("load_frame", "run_discrepancy"), ".workflow"),
+}
+__all__ = sorted(_EXPORTS)
 
-__all__ = [
-    "AugmentedFEE", "Frame", "TermScore", "ThetaFit", "VERDICTS", "bin_edges", "build_frame", "compare_predictions",
-    "error_metrics", "fee_gap", "fit_fixed", "fit_joint", "group_folds", "holm", "linear_k",
-    "load_frame", "markdown", "plugin_spec", "regime_analysis", "residuals", "run_discrepancy", "score_terms",
-    "select_terms", "split_holdout", "term_inputs", "trend_tests", "write_outputs",
-    "SoilTest", "hold_theta", "load_soil_tests",
-]
+
+def __getattr__(name: str):
+    try:
+        module = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 import signal
 import sys
 
@@ -162,3 +163,54 @@ def unblock_stop_signals() -> None:
     """SIGINT and SIGTERM unblocked in this thread: a worker started inside ``interrupts_deferred``
     calls it once its dispositions are set, and a signal that came meanwhile is handled by them."""
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
+def run_tool(prog: str, module: str, argv=None):
+    """A console script's whole run with its stops handled from the first instant: ``module`` imported
+    and its ``main(argv)`` run inside ``terminate_as_interrupt``; a stop the tool does not say itself
+    is said here in one line (130 / 143); once the tool has ended, a further Ctrl-C or SIGTERM ends
+    the process at once with the tool's own exit code (``end_at_further_stops``).
+
+    Why: the tools' imports take up to 2 s (torch, scipy, matplotlib), and a Ctrl-C there printed
+    a traceback, a SIGTERM killed the tool in silence (exit −15); a second signal after the tool had
+    said how it stopped (an impatient Ctrl-C, ``timeout``'s SIGTERM after the terminal's) killed it
+    with −2 / −15, or printed a traceback from the interpreter's exit."""
+    import importlib
+
+    main, code = None, 1
+    try:
+        with terminate_as_interrupt():
+            main = importlib.import_module(module).main
+            code = main(argv)
+    except KeyboardInterrupt as exc:
+        code = interrupt_exit_code(exc)
+        end_at_further_stops(code)
+        said_interrupted(prog, exc, "it stopped as it started: nothing was done" if main is None else
+                         "it stopped before its end: run it again")
+    except SystemExit as exc:  # (argparse's --help and refusals)
+        code = exc.code
+        raise
+    finally:
+        end_at_further_stops(code)
+    return code
+
+
+def end_at_further_stops(code) -> None:
+    """From here on a SIGINT or SIGTERM ends this process at once, its streams flushed, with
+    ``code`` (an exit status; None is 0, anything else not an int 1): the tool has ended and said
+    how; what is left is the interpreter's exit."""
+    status = code if isinstance(code, int) else (0 if code is None else 1)
+
+    def end(signum, frame):  # noqa: ARG001
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # (a closed or broken stream: nothing more to say)
+                pass
+        os._exit(status)
+
+    try:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, end)
+    except ValueError:  # not the main thread: nothing to do there
+        pass
