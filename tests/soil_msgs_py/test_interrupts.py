@@ -64,14 +64,23 @@ from pathlib import Path
 MARKS = Path(os.environ["MARKS"])
 (MARKS / "importing").touch()
 if os.environ.get("SLOW_IMPORT"):
-    time.sleep(5.0)  # a heavy import (torch): where a stop had been a traceback or a silent death
+    time.sleep(2.0)  # a heavy import (torch): where a stop had been a traceback or a silent death
+
+class SlowTeardown:  # a module torn down slowly (torch's): Python's own signal handlers are gone by then
+    def __del__(self):
+        (MARKS / "tearing_down").touch()
+        time.sleep(2.0)
+
 
 def main(argv=None):
+    global kept
     print("done", flush=True)
     def slow_exit():  # the interpreter's exit after the tool has ended
         (MARKS / "exiting").touch()
-        time.sleep(5.0)
-    atexit.register(slow_exit)
+        time.sleep(2.0)
+    if os.environ.get("SLOW_EXIT"):
+        atexit.register(slow_exit)
+    kept = SlowTeardown()
     return 3
 """
 
@@ -81,7 +90,7 @@ def _run_slow_tool(tmp_path, slow_import: bool, mark: str, sig: int):
     marks = tmp_path / "marks"
     marks.mkdir()
     env = dict(os.environ, MARKS=str(marks), PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-               SLOW_IMPORT="1" if slow_import else "")
+               SLOW_IMPORT="1" if slow_import else "", SLOW_EXIT="1" if mark == "exiting" else "")
     script = "import sys; from soil_msgs_py.interrupts import run_tool; sys.exit(run_tool('slowtool', 'slowtool'))"
     proc = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
@@ -109,9 +118,11 @@ def test_a_stop_while_a_tool_still_imports_is_one_line(tmp_path, sig, code, name
 
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_a_stop_after_a_tool_ended_ends_it_with_its_own_code(tmp_path, sig):
-    """The tool said how it ended (here: done, exit 3); a signal during the interpreter's exit ends
-    it at once with that code, not with −2 / −15 or a traceback from the exit."""
-    rc, out, err = _run_slow_tool(tmp_path, slow_import=False, mark="exiting", sig=sig)
+@pytest.mark.parametrize("mark", ["exiting", "tearing_down"])
+def test_a_stop_after_a_tool_ended_ends_it_with_its_own_code(tmp_path, sig, mark):
+    """The tool said how it ended (here: done, exit 3); a signal during the interpreter's exit (its
+    exit hooks; its modules' teardown, where Python's own handlers are gone) does not change that
+    code, nor print a traceback: it had killed the tool, −2 / −15."""
+    rc, out, err = _run_slow_tool(tmp_path, slow_import=False, mark=mark, sig=sig)
     assert rc == 3 and out == "done\n" and err == "", (rc, out, err)
 

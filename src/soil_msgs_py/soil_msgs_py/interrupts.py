@@ -175,8 +175,13 @@ def run_tool(prog: str, module: str, argv=None):
     a traceback, a SIGTERM killed the tool in silence (exit −15); a second signal after the tool had
     said how it stopped (an impatient Ctrl-C, ``timeout``'s SIGTERM after the terminal's) killed it
     with −2 / −15, or printed a traceback from the interpreter's exit."""
+    import atexit
     import importlib
 
+    # the last exit hook to run (registered before the tool's own): from there on the interpreter
+    # tears its modules down with Python's handlers gone, and a signal then killed the tool (−2 / −15)
+    # however it had ended
+    atexit.register(_ignore_stops)
     main, code = None, 1
     try:
         with terminate_as_interrupt():
@@ -193,6 +198,16 @@ def run_tool(prog: str, module: str, argv=None):
     finally:
         end_at_further_stops(code)
     return code
+
+
+def _ignore_stops() -> None:
+    """SIGINT and SIGTERM ignored (``run_tool``'s last exit hook): Python keeps an ignored signal
+    ignored while it finalises, where it resets a handled one to the default action."""
+    try:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        pass
 
 
 def end_at_further_stops(code) -> None:
