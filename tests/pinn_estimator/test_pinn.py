@@ -808,6 +808,15 @@ def test_a_stop_while_the_results_are_written_waits_for_them(tiny_bags, tmp_path
     assert "pinn_train: interrupted (SIGTERM) as its results were written; they are complete" in captured.err
     assert '"checkpoint"' in captured.out and out.with_name("m_curve.png").is_file()
     assert torch.load(out, weights_only=True)["metrics"]["stop_reason"] == "epochs"
+    # a second Ctrl-C while an interrupted training's results are written: said as the first stop
+    again = tmp_path / "again.pt"
+    monkeypatch.setattr(train_module, "plot_curve", lambda *a, **kw: (os.kill(os.getpid(), signal.SIGINT), real(*a, **kw))[1])
+    _interrupt_in_epoch(monkeypatch, 2)
+    assert train_main(["--data", str(tiny_bags), "--out", str(again), "--epochs", "4", "--stride", "6", "--quiet",
+                       "--no-cache", "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"]) == 130
+    err = capsys.readouterr().err
+    assert "pinn_train: interrupted (Ctrl-C) in epoch 2; the best model (epoch 1) is written to" in err, err
+    assert "as its results were written" not in err and again.with_name("again_curve.png").is_file()
 
 
 def test_sigterm_while_the_bags_are_read_is_said_not_a_silent_death(tiny_bags, tmp_path, monkeypatch, capsys):

@@ -492,7 +492,9 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
             print(f"pinn_train: error: {err}", file=sys.stderr)
         return 1 if isinstance(err, RuntimeError) else 2  # a run that broke (a worker died) / the input's fault
     except KeyboardInterrupt as exc:  # before a first epoch was validated, or a second Ctrl-C (a first keeps the best)
-        if written:
+        if written:  # a signal while the results were written, which waited for them
+            if metrics["interrupted_exit_code"]:  # the training had already stopped on a first one: said as that
+                return _said_stopped(args, ranks, metrics)
             print(f"pinn_train: interrupted ({interrupt_name(exc)}) as its results were written; they are complete: "
                   f"{args.out}, its curve and the summary", file=sys.stderr)
             return interrupt_exit_code(exc)
@@ -503,11 +505,17 @@ def _run(args, cfg: TrainConfig, model_cfg: ModelConfig, ranks: Ranks) -> int:
                   file=sys.stderr)
         return 1
     if metrics["interrupted_exit_code"]:  # kept, and said; a script can still tell it from a finished run
-        if ranks.main:
-            print(f"pinn_train: {metrics['stop_reason']}; the best model (epoch {metrics['best_epoch']}) is written to "
-                  f"{args.out}", file=sys.stderr)
-        return metrics["interrupted_exit_code"]
+        return _said_stopped(args, ranks, metrics)
     return 0
+
+
+def _said_stopped(args, ranks: Ranks, metrics: dict) -> int:
+    """Rank 0 says how the training stopped early and where its best model is; the exit code of
+    that stop."""
+    if ranks.main:
+        print(f"pinn_train: {metrics['stop_reason']}; the best model (epoch {metrics['best_epoch']}) is written to "
+              f"{args.out}", file=sys.stderr)
+    return metrics["interrupted_exit_code"]
 
 
 def _write(args, cfg: TrainConfig, ds: Dataset, model, split, history, metrics) -> None:
