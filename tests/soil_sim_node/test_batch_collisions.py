@@ -338,3 +338,17 @@ def test_an_overwrite_run_that_stopped_is_told_to_run_again_not_to_skip_existing
                                         said=f"  {batch.resume_hint(True)}").endswith("this run's")
     # a bag gone meanwhile (renamed away by another run) is not this run's, not an error
     assert not batch.written_since(out / "gone", since)
+
+
+@pytest.mark.parametrize("exc_name, code, how", [("KeyboardInterrupt", 130, ""), ("Terminated", 143, " (SIGTERM)")])
+def test_a_stop_before_the_plan_is_made_says_which(tmp_path, capsys, monkeypatch, exc_name, code, how):
+    """Through the console script (run_tool) a SIGTERM reaches the batch before its plan is made too;
+    it was said as a Ctrl-C there, exit 130."""
+    from soil_msgs_py import interrupts
+
+    def stopped(args):
+        raise interrupts.Terminated() if exc_name == "Terminated" else KeyboardInterrupt()
+
+    monkeypatch.setattr(batch, "plan_from_args", stopped)
+    assert batch.main([*ONE, "--out", str(tmp_path / "out")]) == code
+    assert capsys.readouterr().err == f"soil_sim_batch: interrupted{how} before anything was written\n"

@@ -39,7 +39,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag, journal_path, write_episode
-from soil_msgs_py.interrupts import (EXIT_INTERRUPTED, Terminated, interrupt_exit_code, stop_requests,
+from soil_msgs_py.interrupts import (Terminated, interrupt_exit_code, stop_requests,
                                      terminate_as_interrupt)
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir, refuse_directories, write_text_atomically, written_since
@@ -622,10 +622,10 @@ def main(argv=None) -> int:
             print(f"soil_sim_batch: {kept}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM; the bags finished are whole (write_episode renames a finished bag into place)
-        if plan is None:  # (a SIGTERM is taken as an interrupt only once the plan is made)
-            print("soil_sim_batch: interrupted before anything was written", file=sys.stderr)
-            return EXIT_INTERRUPTED
         how = " (SIGTERM)" if isinstance(exc, Terminated) else ""
+        if plan is None:  # (a SIGTERM reaches here through the console script's run_tool)
+            print(f"soil_sim_batch: interrupted{how} before anything was written", file=sys.stderr)
+            return interrupt_exit_code(exc)
         # a second signal (an impatient Ctrl-C, timeout's SIGTERM after the terminal's) waits for the clean-up:
         # it had interrupted the staging's removal, leaving half-written bags' folders and a traceback
         with stop_requests():
