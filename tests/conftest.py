@@ -120,6 +120,6 @@ def pytest_xdist_make_scheduler(config, log):
 def pytest_sessionstart(session):
     """The simulator's compiled kernel in Numba's cache before any test starts a node: a node
     compiling it at its first tick (~10 s on a fresh clone) would miss its first deadlines."""
-    from soil_sim_node.warm_up import warm_up
+    from soil_sim_node.warm_up import ready
 
-    warm_up()
+    ready()

@@ -52,7 +52,7 @@ from .pacing import AwaitedEndpoint, Do, Pacer, StartWait, check_pacing, parse_w
 from .rollout import episode_meta
 from .simulator import ENGINES, EpisodeSpec, SimConfig, SoilSimulator, resolve_checked
 from .simulator import check_engine as check_sim_engine
-from .warm_up import warm_up
+from .warm_up import ready
 
 # Array parameters whose default is empty: rclpy cannot infer a type from [], so they are
 # declared by type and read through declare_parameters' getter (unset reads as the default []).
@@ -141,7 +141,7 @@ class SimNode(Node):
         for note in soil_file_notes(self.custom_soils):
             self.get_logger().warning(f"parameter soil_file={p['soil_file']!r}: {note}")
         if p["engine"] == "compiled":  # compile or load the kernel now, not at the first tick
-            self.get_logger().info(f"simulator kernel ready in {warm_up():.1f} s")
+            self.get_logger().info(f"simulator kernel ready in {ready():.1f} s")
         self.pacer = Pacer(p["pacing"], p["rate"], p["lockstep_timeout_s"])
         self.start_wait = StartWait(p["wait_timeout_s"], p["settle_s"])
         self.exit_when_done = bool(p["exit_when_done"])

@@ -255,6 +255,10 @@ class SoilSimulator:
         check_engine(config.engine)
         self.plugins: list[ForcePlugin] = load_plugins(config.plugins)
         self.engine = config.engine
+        if self.engine == "compiled":
+            from .warm_up import ready  # (it makes simulators itself)
+
+            ready()
         resolved = [resolve_checked(config, s, custom_soils) for s in specs]
         self.specs = [r[0] for r in resolved]
         self.soils = [r[1] for r in resolved]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 
+from soil_msgs_py.interrupts import interrupts_deferred
 from soil_msgs_py.params import SAMPLE_RATE_HZ
 
 from .rollout import run_episodes
@@ -31,8 +32,25 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
+_READY = {"done": False}
+
+
+def ready() -> float:
+    """``warm_up`` once per process (every compiled simulator calls it as it is made), with Ctrl-C
+    and SIGTERM deferred meanwhile; the wall s it took (0 once done). Why: Numba loads its cache
+    through ctypes callbacks, where the KeyboardInterrupt a handler raises is printed as "Exception
+    ignored" and lost, and a second Ctrl-C then met LLVM half-loaded: a tool stopped twice as its
+    first cut began crashed (SIGSEGV in libpython, an outside tester's, three times). A stop during
+    it waits for it: ~0.6 s with the cache, a first compile ~10 s (``make venv`` does that)."""
+    if _READY["done"]:
+        return 0.0
+    _READY["done"] = True  # (warm_up's own simulators call this again)
+    with interrupts_deferred():
+        return warm_up()
+
+
 def main() -> int:
-    print(f"soil_sim_node: simulator kernel ready in {warm_up():.1f} s")
+    print(f"soil_sim_node: simulator kernel ready in {ready():.1f} s")
     return 0
 
 
