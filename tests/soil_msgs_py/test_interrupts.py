@@ -126,3 +126,81 @@ def test_a_stop_after_a_tool_ended_ends_it_with_its_own_code(tmp_path, sig, mark
     rc, out, err = _run_slow_tool(tmp_path, slow_import=False, mark=mark, sig=sig)
     assert rc == 3 and out == "done\n" and err == "", (rc, out, err)
 
+
+
+_POOL_TOOL = """
+import os, time
+from pathlib import Path
+from soil_msgs_py.process_pool import map_in_processes
+
+def task(x):
+    Path(os.environ["MARKS"], str(os.getpid())).touch()
+    time.sleep(4.0)
+    return x
+
+def main(argv=None):
+    return sum(map_in_processes(task, range(4), 2, what="waiting", start_method="fork"))
+"""
+
+
+@pytest.mark.timeout(90)
+def test_a_second_ctrl_c_ends_the_tool_and_its_pool_workers_too(tmp_path):
+    """A map that lets its workers finish their task (``stop_workers`` off) after a first Ctrl-C: the
+    second ends the process at once (``end_at_further_stops``); its workers had been left behind,
+    waiting on their queue for ever, holding the tool's output open (an outside reviewer's)."""
+    (tmp_path / "pooltool.py").write_text(_POOL_TOOL)
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    env = dict(os.environ, MARKS=str(marks), PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    script = "import sys; from soil_msgs_py.interrupts import run_tool; sys.exit(run_tool('pooltool', 'pooltool'))"
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    workers = []
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(marks.iterdir())) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        workers = [int(p.name) for p in marks.iterdir()]
+        assert len(workers) == 2, proc.communicate(timeout=30)
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.3)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130 and "pooltool: interrupted (Ctrl-C)" in err, err
+        deadline = time.monotonic() + 10  # (well past the tasks' 4 s: a worker left behind waits for ever)
+        while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(Path(f"/proc/{pid}").exists() for pid in workers), workers
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        for pid in workers:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def test_run_tool_called_with_argv_gives_the_process_its_handlers_back(tmp_path, monkeypatch):
+    """In-process (a notebook) the handlers are the caller's again after the tool: only a console
+    script's process ends at once on a later signal."""
+    (tmp_path / "quicktool.py").write_text("def main(argv=None):\n    return len(argv)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from soil_msgs_py.interrupts import run_tool
+
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    assert run_tool("quicktool", "quicktool", ["a", "b"]) == 2
+    assert {sig: signal.getsignal(sig) for sig in before} == before
+
+
+def test_an_error_taken_for_the_stop_is_named_in_its_line(capsys):
+    from soil_msgs_py.interrupts import said_interrupted
+
+    try:
+        try:
+            raise OSError(28, "No space left on device")
+        except OSError as err:
+            raise Terminated() from err
+    except Terminated as exc:
+        assert said_interrupted("t", exc, "nothing written") == 143
+    assert capsys.readouterr().err == "t: interrupted (SIGTERM); nothing written (then: OSError: [Errno 28] No space left on device)\n"

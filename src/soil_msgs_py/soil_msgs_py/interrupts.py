@@ -44,7 +44,10 @@ def _raise_terminated(signum, frame):  # noqa: ARG001
 
 @contextlib.contextmanager
 def terminate_as_interrupt():
-    """Within: SIGTERM raises ``Terminated`` in the main thread; the previous handler after."""
+    """Within: SIGTERM raises ``Terminated`` in the main thread; the previous handler after (unless
+    a handler was put in place within, e.g. ``end_at_further_stops``: that one stays). A context
+    inside another leaves the outer one's note of a SIGTERM as it found it."""
+    outer = _received["sigterm"]
     _received["sigterm"] = False
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
@@ -58,8 +61,9 @@ def terminate_as_interrupt():
             raise Terminated() from exc
         raise
     finally:
-        _received["sigterm"] = False
-        signal.signal(signal.SIGTERM, previous)
+        _received["sigterm"] = outer
+        if signal.getsignal(signal.SIGTERM) is _raise_terminated:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def interrupt_exit_code(exc: BaseException) -> int:
@@ -74,8 +78,12 @@ def interrupt_name(exc: BaseException) -> str:
 
 def said_interrupted(prog: str, exc: KeyboardInterrupt, outcome: str) -> int:
     """One line on stderr for an offline tool stopped by Ctrl-C or SIGTERM (``outcome``: what is
-    left, e.g. "no report written"), and its exit code."""
-    print(f"{prog}: interrupted ({interrupt_name(exc)}); {outcome}", file=sys.stderr)
+    left, e.g. "no report written"), and its exit code; an error that came after the SIGTERM and was
+    taken for it (``terminate_as_interrupt``) is named in it. A second signal waits for the line."""
+    cause = exc.__cause__
+    after = (f" (then: {type(cause).__name__}: {cause})" if isinstance(cause, Exception) else "")
+    with stop_requests():
+        print(f"{prog}: interrupted ({interrupt_name(exc)}); {outcome}{after}", file=sys.stderr)
     return interrupt_exit_code(exc)
 
 
@@ -178,34 +186,48 @@ def run_tool(prog: str, module: str, argv=None):
     import atexit
     import importlib
 
-    # the last exit hook to run (registered before the tool's own): from there on the interpreter
-    # tears its modules down with Python's handlers gone, and a signal then killed the tool (−2 / −15)
-    # however it had ended
-    atexit.register(_ignore_stops)
+    script = argv is None  # a console script's process; called with argv (a notebook), handlers are given back
+    if script:
+        # the last exit hook to run (registered before the tool's own): from there on the interpreter
+        # tears its modules down with Python's handlers gone, and a signal then killed the tool
+        # (−2 / −15) however it had ended
+        atexit.register(_ignore_stops)
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     main, code = None, 1
     try:
         with terminate_as_interrupt():
             main = importlib.import_module(module).main
             code = main(argv)
+            if script:
+                end_at_further_stops(code)  # (within: no moment between the tool's end and this)
     except KeyboardInterrupt as exc:
-        code = interrupt_exit_code(exc)
-        end_at_further_stops(code)
-        said_interrupted(prog, exc, "it stopped as it started: nothing was done" if main is None else
-                         "it stopped before its end: run it again")
+        code = said_interrupted(prog, exc, "it stopped as it started: nothing was done" if main is None else
+                                "it stopped before its end: run it again")
     except SystemExit as exc:  # (argparse's --help and refusals)
         code = exc.code
         raise
     finally:
-        end_at_further_stops(code)
+        if script:
+            end_at_further_stops(code)
+        else:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
     return code
+
+
+TEARDOWN_LIMIT_S = 30  # most the interpreter's teardown may take once the stop signals are ignored
 
 
 def _ignore_stops() -> None:
     """SIGINT and SIGTERM ignored (``run_tool``'s last exit hook): Python keeps an ignored signal
-    ignored while it finalises, where it resets a handled one to the default action."""
+    ignored while it finalises, where it resets a handled one to the default action. A teardown that
+    hangs (a library's thread or destructor) cannot be stopped by them then, so an alarm ends it
+    after ``TEARDOWN_LIMIT_S`` (SIGALRM's default action), not only SIGKILL."""
     try:
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.alarm(TEARDOWN_LIMIT_S)
     except ValueError:  # not the main thread
         pass
 
@@ -222,6 +244,11 @@ def end_at_further_stops(code) -> None:
                 stream.flush()
             except (OSError, ValueError):  # (a closed or broken stream: nothing more to say)
                 pass
+        # pool workers the exit would have waited for (a map that lets its workers finish their task):
+        # left behind by os._exit they waited on their queue for ever, holding the tool's output open
+        if "multiprocessing" in sys.modules:
+            for child in sys.modules["multiprocessing"].active_children():
+                child.terminate()
         os._exit(status)
 
     try:
