@@ -104,10 +104,10 @@ def test_console_script_target_is_importable_callable(pkg, script, module, func)
     assert module.split(".")[0] == pkg, f"{script} = {module}:{func} is outside package {pkg}"
     mod = importlib.import_module(module)
     assert callable(getattr(mod, func)), f"{module}.{func} is not callable"
-    tools = getattr(mod, "TOOLS", {})  # an offline tool's entry point (entry_points.py): the module it runs
-    if script in tools:
-        assert tools[script].split(".")[0] == pkg, f"{script} runs {tools[script]}, outside package {pkg}"
-        assert callable(getattr(importlib.import_module(tools[script]), "main", None)), f"{tools[script]}.main"
+    runs = getattr(getattr(mod, func), "tool_module", None)  # an offline tool's entry (interrupts.tool_entry)
+    if runs:
+        assert runs.split(".")[0] == pkg, f"{script} runs {runs}, outside package {pkg}"
+        assert callable(getattr(importlib.import_module(runs), "main", None)), f"{runs}.main"
 
 
 # --- the layout: who imports whom ---------------------------------------------------------
@@ -243,10 +243,10 @@ def test_installed_console_scripts_import_from_install_space(colcon_build):
         "    try:\n"
         "        mod = importlib.import_module(m)\n"
         "        out[m + ':' + f] = [callable(getattr(mod, f, None)), mod.__file__]\n"
-        "        tools = getattr(mod, 'TOOLS', {})\n"  # soil_msgs_py.tool_entry: the module each entry runs
-        "        if f in tools:\n"
-        "            tool = importlib.import_module(tools[f])\n"
-        "            out[tools[f] + ':main'] = [callable(getattr(tool, 'main', None)), tool.__file__]\n"
+        "        runs = getattr(getattr(mod, f, None), 'tool_module', None)\n"  # interrupts.tool_entry: the module it runs
+        "        if runs:\n"
+        "            tool = importlib.import_module(runs)\n"
+        "            out[runs + ':main'] = [callable(getattr(tool, 'main', None)), tool.__file__]\n"
         "    except Exception as e:\n"
         "        out[m + ':' + f] = [False, repr(e)]\n"
         "print(json.dumps(out))\n"

@@ -1,16 +1,4 @@
-"""Console entry points of soil_bringup's offline tools: each runs its tool's ``main`` through
-``interrupts.run_tool``, so Ctrl-C and SIGTERM are handled from the script's first instant, not only
-once the tool's module (torch, scipy, matplotlib: up to 2 s) is imported. This module imports nothing
-heavy (nor does the package's ``__init__``); ``python -m MODULE`` runs the same ``main`` without it.
-"""
-from __future__ import annotations
+"""Console entry points of soil_bringup's offline tools (``interrupts.tool_entry``: stops handled from the first instant)."""
+from soil_msgs_py.interrupts import tool_entry
 
-from soil_msgs_py.interrupts import run_tool
-
-TOOLS = {  # console script -> the module whose main(argv) it runs
-    "soil_cut_report": "soil_bringup.cut_report",
-}
-
-
-def soil_cut_report(argv=None):
-    return run_tool("soil_cut_report", TOOLS["soil_cut_report"], argv)
+soil_cut_report = tool_entry("soil_cut_report", "soil_bringup.cut_report")

@@ -215,6 +215,18 @@ def run_tool(prog: str, module: str, argv=None):
     return code
 
 
+def tool_entry(prog: str, module: str):
+    """A console script's entry function, ``prog(argv=None)``, running ``module``'s ``main`` through
+    ``run_tool``; ``module`` is kept on it as ``tool_module``. Each package's ``entry_points.py``
+    names its tools so: that module and the package's ``__init__`` import nothing heavy."""
+    def entry(argv=None):
+        return run_tool(prog, module, argv)
+
+    entry.__name__ = entry.__qualname__ = prog
+    entry.tool_module = module
+    return entry
+
+
 TEARDOWN_LIMIT_S = 30  # most the interpreter's teardown may take once the stop signals are ignored
 
 
