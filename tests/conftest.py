@@ -21,6 +21,7 @@ ROS_LOCALHOST_ONLY, which would override it, is removed.
 import functools
 import os
 import re
+import signal
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,13 @@ os.environ.pop("ROS_LOCALHOST_ONLY", None)
 
 
 def pytest_configure(config):
+    # A suite started in the background (`make test &`, a CI runner's non-interactive shell) has
+    # Ctrl-C ignored, and every process it starts inherits that: Python keeps an ignored SIGINT, so
+    # the tests that send a tool Ctrl-C found it ignoring it (a tool "unanswered" by Ctrl-C in CI, the
+    # cause not found for two sessions). A foreground terminal's disposition: any handler here is
+    # reset to the default at each child's exec, where Python installs its own again.
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     config.addinivalue_line("markers", "slow: long-running test (deselect with -m 'not slow')")
     config.addinivalue_line("markers", "live: starts ROS nodes over DDS, a Ray cluster or torchrun "
                                        "(make test runs these one at a time per lane: graphs, clusters)")
