@@ -204,3 +204,12 @@ def test_an_error_taken_for_the_stop_is_named_in_its_line(capsys):
     except Terminated as exc:
         assert said_interrupted("t", exc, "nothing written") == 143
     assert capsys.readouterr().err == "t: interrupted (SIGTERM); nothing written (then: OSError: [Errno 28] No space left on device)\n"
+
+
+def test_a_signal_the_process_ignores_stays_ignored_after_the_tool():
+    """A background job (``tool &``) has Ctrl-C ignored: the tool's end does not make it fatal."""
+    script = ("import signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+              "from soil_msgs_py.interrupts import end_at_further_stops\nend_at_further_stops(0)\n"
+              "print(signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.getsignal(signal.SIGTERM) != signal.SIG_DFL)\n")
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert res.stdout.split() == ["True", "True"], res.stdout + res.stderr

@@ -247,7 +247,8 @@ def _ignore_stops() -> None:
 def end_at_further_stops(code) -> None:
     """From here on a SIGINT or SIGTERM ends this process at once, its streams flushed, with
     ``code`` (an exit status; None is 0, anything else not an int 1): the tool has ended and said
-    how; what is left is the interpreter's exit."""
+    how; what is left is the interpreter's exit. A signal the process ignores (Ctrl-C in a
+    background job) stays ignored."""
     status = code if isinstance(code, int) else (0 if code is None else 1)
 
     def end(signum, frame):  # noqa: ARG001
@@ -265,6 +266,7 @@ def end_at_further_stops(code) -> None:
 
     try:
         for sig in STOP_SIGNALS:
-            signal.signal(sig, end)
+            if signal.getsignal(sig) != signal.SIG_IGN:  # (a background job's Ctrl-C stays ignored)
+                signal.signal(sig, end)
     except ValueError:  # not the main thread: nothing to do there
         pass
