@@ -2,8 +2,9 @@
 
 On a fresh machine the kernel compiles in ~10 s (more on a busy one). A node that did that at
 its first tick would miss its first deadlines, so: ``make venv`` runs this module after
-installing, the simulator node calls ``warm_up`` before its first episode, and the test suite
-once per session. With the cache in place it takes ~0.6 s.
+installing, the simulator node calls ``ready`` before its first episode, as does every compiled
+simulator as it is made (once per process), and the test suite once per session. With the cache
+in place it takes ~0.6 s.
 
     python -m soil_sim_node.warm_up
 """
