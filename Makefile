@@ -26,11 +26,11 @@ $(STAMP): requirements.txt $(foreach p,$(PKGS),$(p)/setup.py $(p)/package.xml)
 	@touch $(STAMP)
 
 demo: venv
-	$(BIN)/python -m soil_bringup.demo
+	$(BIN)/soil_demo
 
 # The planner in the loop: three depth policies on one long cut across changing soil, both worlds.
 planner: venv
-	$(BIN)/python -m soil_bringup.cut_report --out out/planner
+	$(BIN)/soil_cut_report --out out/planner
 
 # Two worker processes (tests/conftest.py: the live tests one at a time per lane, graphs and clusters); TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2

@@ -26,7 +26,7 @@ setup(
         "console_scripts": [
             "soil_bag_record = soil_bag_tools.record_node:main",
             "soil_bag_play = soil_bag_tools.play_node:main",
-            "soil_bag_repair = soil_bag_tools.repair:main",
+            "soil_bag_repair = soil_bag_tools.entry_points:soil_bag_repair",
         ],
     },
 )

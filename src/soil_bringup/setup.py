@@ -24,8 +24,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "soil_launch = soil_bringup.launch:main",
-            "soil_demo = soil_bringup.demo:main",
+            "soil_launch = soil_bringup.entry_points:soil_launch",
+            "soil_demo = soil_bringup.entry_points:soil_demo",
             "soil_cut_report = soil_bringup.entry_points:soil_cut_report",
         ],
     },

@@ -25,8 +25,8 @@ setup(
     entry_points={
         "console_scripts": [
             "soil_sim_batch = soil_sim_node.entry_points:soil_sim_batch",
-            "soil_plot_episode = soil_sim_node.plot:main",
-            "soil_sim_report = soil_sim_node.report:main",
+            "soil_plot_episode = soil_sim_node.entry_points:soil_plot_episode",
+            "soil_sim_report = soil_sim_node.entry_points:soil_sim_report",
             "soil_sim_node = soil_sim_node.node:main",
         ],
     },

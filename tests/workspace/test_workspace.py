@@ -110,6 +110,20 @@ def test_console_script_target_is_importable_callable(pkg, script, module, func)
         assert callable(getattr(importlib.import_module(runs), "main", None)), f"{runs}.main"
 
 
+@pytest.mark.parametrize(
+    "pkg, script, module, func", ALL_SCRIPTS, ids=[f"{p}:{s}" for p, s, _, _ in ALL_SCRIPTS]
+)
+def test_every_console_script_is_a_node_or_stops_from_its_first_instant(pkg, script, module, func):
+    """A tool's Ctrl-C or SIGTERM while it still imports, or while the interpreter exits after it,
+    printed a traceback or killed it silently (−2 / −15): every console script but a node's runs
+    through ``interrupts.tool_entry``. A node (it spins rclpy) leaves its signals to rclpy."""
+    target = getattr(importlib.import_module(module), func)
+    runs = getattr(target, "tool_module", None)
+    node = "rclpy" in _imported_top_names(SRC / pkg / Path(*module.split(".")).with_suffix(".py"))
+    assert bool(runs) != node, (f"{script} = {module}:{func} " + ("is a node and a tool entry" if node else
+                                "is no node: give it an entry in its package's entry_points.py (interrupts.tool_entry)"))
+
+
 # --- the layout: who imports whom ---------------------------------------------------------
 
 def _imported_top_names(path: Path) -> set[str]:

@@ -2,3 +2,5 @@
 from soil_msgs_py.interrupts import tool_entry
 
 soil_cut_report = tool_entry("soil_cut_report", "soil_bringup.cut_report")
+soil_demo = tool_entry("soil_demo", "soil_bringup.demo")
+soil_launch = tool_entry("soil_launch", "soil_bringup.launch")
