@@ -45,6 +45,34 @@ def test_without_a_plan_the_target_holds_then_backs_off_to_the_start_depth():
     assert backing[-1] == pytest.approx(0.1) and backing[5] < 0.25
 
 
+def test_a_retreat_under_way_goes_on_to_the_newest_plan_when_plans_stop():
+    """A plan that found the target too deep, then none: the hold had kept the target half-way up
+    its retreat for the hold, and backed off only to the start depth, deeper than the plan (an
+    outside reviewer's)."""
+    cfg = ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=1.0, shallow_rate_m_s=1.0, hold_s=1.0)
+    s = DepthSchedule(cfg)
+    run(s, [0.25] * 30)
+    assert run(s, [0.05], first_tick=30)[0] == pytest.approx(0.25 - 1.0 / 60)  # one tick up the retreat
+    held = run(s, [None] * 120, first_tick=31)
+    assert max(held) <= 0.25 - 1.0 / 60 and held[15] == pytest.approx(0.05)  # on up to the plan within the hold
+    assert held[-1] == pytest.approx(0.05)  # backed off: never deeper than the newest plan (nor the start depth)
+
+
+def test_a_gap_in_the_plans_backs_off_as_its_ticks_would_have_and_earns_no_deepening():
+    """Estimates lost for 2 s mid-cut: the next plan had deepened the target by the whole gap's
+    worth of the ramp at once (0.1 m/s x 2 s = 20 cm in one tick). Now the target is where the
+    missing ticks would have left it, and the ramp resumes at its pace."""
+    cfg = ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.1, shallow_rate_m_s=1.0, hold_s=1.0)
+    s = DepthSchedule(cfg)
+    before = run(s, [0.3] * 60)[-1]  # ramping: 0.1 -> ~0.2 m
+    after = run(s, [0.3] * 2, first_tick=60 + 120)  # 2 s of ticks missing
+    assert after[0] == pytest.approx(0.1 + 0.1 / 60)  # backed off to the start depth, then one tick of the ramp
+    assert before > after[0] and after[1] - after[0] == pytest.approx(0.1 / 60)
+    slow = DepthSchedule(cfg)  # an estimator of one estimate every 1.5 s (stride 90): its pace, no gap
+    paced = [slow.update(k * 90 * TICK, 0.3) for k in range(3)]
+    assert paced == pytest.approx([0.1, 0.25, 0.3])
+
+
 def test_after_a_retreat_the_target_deepens_at_the_cautious_rate_for_the_memory_then_at_full_rate():
     cfg = ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.12, shallow_rate_m_s=6.0, retreat_m=0.01,
                            retreat_memory_s=1.0, cautious_deepen_rate_m_s=0.03)

@@ -30,6 +30,12 @@ forces). The schedule turns plans into a target d̄_z(t):
 * **Hold, then back off.** Without a valid plan (the estimator restarting its posterior after
   the soil changed, a planner with nothing to plan from) the last target is held for
   ``hold_s`` (default 1.0 s), then moves back towards ``start_depth_m`` at the shallow rate.
+  Held or backing off, the target never goes deeper than the newest plan: a plan that had just
+  found the target too deep, then fell silent, had left it held half-way up its retreat (an
+  outside reviewer's). Plans that stop coming for longer than the hold (estimates lost on a
+  loaded machine) are the same: the next plan finds the target backed off as the missing ticks
+  would have left it, and deepens from there by no more than one plan interval of the ramp
+  (the interval between the plans before the gap), not by the whole gap's worth in one step.
 * **Clamp.** The target stays in [``min_depth_m``, ``max_depth_m``] (default [0.05, 0.30] m).
   The deep end is the lift joint's reach on level ground. The shallow end is a cut deep
   enough to learn from: at 2 cm the forces are too small to tell a weak soil from a strong
@@ -46,6 +52,9 @@ from dataclasses import asdict, dataclass, fields
 
 from soil_msgs_py.messages import NS_PER_S
 from soil_msgs_py.params import CAUTIOUS_DEEPEN_RATE_M_S, LIFT_REACH_M, MACHINE, MIN_PLANNED_DEPTH_M
+
+
+GAP_PACES = 2.0  # an update more than this many of the plans' intervals after the one before follows a gap
 
 
 @dataclass(frozen=True)
@@ -104,6 +113,8 @@ class DepthSchedule:
         self.last_plan_ns: int | None = None  # stamp of the newest valid plan
         self.last_retreat_ns: int | None = None  # stamp of the newest plan that found the target too deep
         self.deepened = False  # plans took the target > retreat_m past the start depth (before: no plan's)
+        self.last_goal_m: float | None = None  # the newest valid plan's depth, clamped: no hold goes deeper
+        self.interval_s: float | None = None  # between the two updates before the newest: the plans' pace
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -113,14 +124,22 @@ class DepthSchedule:
             self.reset()
         dt = 0.0 if self.last_stamp_ns is None else (stamp_ns - self.last_stamp_ns) / NS_PER_S
         self.last_stamp_ns = stamp_ns
+        pace_s, self.interval_s = self.interval_s, (dt if dt > 0.0 else self.interval_s)
         planned = plan_depth_m is not None and math.isfinite(plan_depth_m)
+        unplanned_s = None if self.last_plan_ns is None else (stamp_ns - self.last_plan_ns) / NS_PER_S
+        if (planned and unplanned_s is not None and unplanned_s > s.hold_s and pace_s is not None
+                and dt > GAP_PACES * pace_s):
+            # plans missing for longer than the hold (a gap, not the estimator's pace: a stride of
+            # seconds is no gap): the back-off the missing ticks would have made, then the ramp resumes
+            self._back_off(unplanned_s - s.hold_s)
+            dt = pace_s
         if planned:
-            goal = float(plan_depth_m)
-            self.last_plan_ns = stamp_ns
-        elif self.last_plan_ns is not None and (stamp_ns - self.last_plan_ns) / NS_PER_S <= s.hold_s:
-            goal = self.target_m  # hold
+            goal = min(max(float(plan_depth_m), s.min_depth_m), s.max_depth_m)
+            self.last_plan_ns, self.last_goal_m = stamp_ns, goal
+        elif unplanned_s is not None and unplanned_s <= s.hold_s:
+            goal = min(self.target_m, self.last_goal_m)  # hold (a retreat under way goes on to the plan)
         else:
-            goal = s.start_depth_m if self.last_plan_ns is None else min(self.target_m, s.start_depth_m)
+            goal = self._back_off_goal()
             self.deepened = False  # backing off to the start depth: the target is no plan's again
         goal = min(max(goal, s.min_depth_m), s.max_depth_m)
         if planned and self.deepened and s.retreat_memory_s > 0.0 and goal < self.target_m - s.retreat_m:
@@ -136,6 +155,19 @@ class DepthSchedule:
         # on a plan below it is one (a few millimetres of the first ramp are no plan's depth)
         self.deepened = self.deepened or (planned and self.target_m > s.start_depth_m + s.retreat_m)
         return self.target_m
+
+    def _back_off_goal(self) -> float:
+        """Without a plan past the hold: the start depth, never deeper than the target or the newest plan."""
+        if self.last_plan_ns is None:
+            return self.settings.start_depth_m
+        return min(self.target_m, self.settings.start_depth_m, self.last_goal_m)
+
+    def _back_off(self, elapsed_s: float) -> None:
+        """``elapsed_s`` of backing off (at the shallow rate) without an update: a gap in the plans."""
+        s = self.settings
+        goal = min(max(self._back_off_goal(), s.min_depth_m), s.max_depth_m)
+        self.target_m = max(goal, self.target_m - s.shallow_rate_m_s * elapsed_s) if goal < self.target_m else self.target_m
+        self.deepened = False
 
     def cautious(self, stamp_ns: int) -> bool:
         """Within ``retreat_memory_s`` of the newest retreat: deepening at the cautious rate."""
