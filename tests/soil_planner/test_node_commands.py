@@ -76,7 +76,7 @@ def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_st
                         _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
-                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[])
+                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=None)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
 
@@ -114,3 +114,72 @@ def test_a_new_cut_follows_the_controllers_writer_afresh_when_the_ticks_start_ag
     for k in range(5):
         send(n, k, -0.20, 301 + k)
     assert [n.commanded.get(stamp(k)) for k in range(5)] == [0.20] * 5
+
+
+def _target_node(published: list, forgotten: list, cut_first_ns=None) -> SimpleNamespace:
+    from soil_planner.depth_schedule import DepthSchedule
+
+    n = SimpleNamespace(schedule=DepthSchedule(), planner=SimpleNamespace(forget=lambda: forgotten.append(1)),
+                        _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
+                        measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
+                        target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
+                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=cut_first_ns,
+                        previous_cut_ticks=0)
+    n._warn = lambda kind, text: n.warned.append(kind)
+    n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
+    return n
+
+
+def test_estimates_lost_mid_episode_are_a_gap_in_the_cut_not_a_new_cut():
+    """Within the episode followed, ticks more than a second ahead of the last scheduled are
+    estimates lost (a loaded machine's queue), not a new cut: the cut's evidence and stall memory
+    stay (a new cut had forgotten them and jumped the target to the start depth, an outside
+    reviewer's). Without an episode followed it stays a new cut, as a replay started over is."""
+    published, forgotten = [], []
+    n = _target_node(published, forgotten, cut_first_ns=stamp(0))
+    for k in range(120):
+        PlannerNode._target(n, stamp(k), 0.3)
+    deep = published[-1][1][0]
+    for k in (120 + 90, 120 + 91):  # 1.5 s of estimates lost, then the cut goes on
+        PlannerNode._target(n, stamp(k), 0.3)
+    assert not forgotten and n.warned == ["jump"]
+    assert published[-1][0] == stamp(211) and published[-1][1][0] <= deep  # backed off over the gap, no jump deeper
+    unfollowed = _target_node([], forgotten := [])
+    for k in (*range(120), 210, 211):
+        PlannerNode._target(unfollowed, stamp(k), 0.3)
+    assert forgotten == [1]
+
+
+def test_late_estimates_of_the_previous_episode_plan_nothing_in_the_next():
+    """An estimator seconds behind: the last ticks of episode A come after B began. Planned, they
+    had moved B's target (0.10 -> 0.17 m) and filled its evidence before B's first estimate."""
+    published, forgotten = [], []
+    n = _target_node(published, forgotten, cut_first_ns=stamp(600))
+    planned = []
+    n._plan = lambda stamp_ns, est, known: planned.append(stamp_ns)
+    n._publish = lambda stamp_ns, values: published.append(("plan", stamp_ns))
+    n._previous_cut = lambda stamp_ns: PlannerNode._previous_cut(n, stamp_ns)
+    tick = collections.namedtuple("tick", "stamp_ns item")
+    PlannerNode._answer(n, [tick(stamp(k), ({}, {})) for k in range(555, 600)] + [tick(stamp(555), ({}, None))])
+    assert planned == [] and published == [] and n.previous_cut_ticks == 46 and set(n.warned) == {"previous_cut"}
+    PlannerNode._answer(n, [tick(stamp(600), ({}, {}))])
+    assert planned == [stamp(600)]
+
+
+def test_one_stray_estimate_of_an_older_tick_drops_no_tick_waiting_for_its_known_params():
+    """One estimate stamped a few ticks behind the newest planned (a second publisher's) had
+    restarted the planner's join and dropped every Θ_k waiting: 60 ticks of plans lost."""
+    from soil_msgs_py.stamp_join import Verdict
+    from soil_planner.node import estimate_joiner
+
+    joiner = estimate_joiner()
+    for k in range(100):
+        joiner.offer(T.KNOWN.name, stamp(k))
+    done = sum(j.complete for k in range(40) for j in joiner.offer(T.ESTIMATE.name, stamp(k)).out)
+    assert joiner.offer(T.ESTIMATE.name, stamp(35)).verdict is Verdict.STALE
+    done += sum(j.complete for k in range(40, 100) for j in joiner.offer(T.ESTIMATE.name, stamp(k)).out)
+    assert done == 100
+    joiner.start_at(stamp(600))  # the next episode's start: older ticks refused, its own kept
+    assert joiner.offer(T.ESTIMATE.name, stamp(599)).verdict is Verdict.STALE
+    assert [j.stamp_ns for j in joiner.offer(T.KNOWN.name, stamp(600)).out + joiner.offer(
+        T.ESTIMATE.name, stamp(600)).out] == [stamp(600)]

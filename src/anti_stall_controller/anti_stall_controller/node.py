@@ -55,7 +55,7 @@ from soil_msgs_py.ros_adapter import (
     InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, followed_status_event, local, message_class,
     publisher_qos, spin_node, topic_qos, wall_timer,
 )
-from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
+from soil_msgs_py.stamp_join import RESTART_AFTER_REFUSED_TICKS, StampJoiner, Verdict, Why
 
 from .controller import MAX_DITHER_AMPLITUDE_M, MAX_RATE_GAIN_M_S, MIN_DITHER_TICKS, AntiStallController, AntiStallGains
 from .plan_wait import DEFAULT_LAG_TICKS, DEFAULT_WAIT_S, MAX_LAG_TICKS, PlanWait
@@ -112,7 +112,6 @@ MAX_PENDING_STAMPS = 2 * SAMPLE_RATE_HZ  # 2 s of unpaired state samples
 # and how many refused messages in a row (twist and pose of this many ticks) mean the
 # simulation time really jumped rather than one stray pair arrived.
 MAX_AHEAD_TICKS = SAMPLE_RATE_HZ
-RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
 MAX_PLANNER_DEPTH_M = MACHINE.blade_height_m  # a planner target deeper than the blade is not a cut
 
 

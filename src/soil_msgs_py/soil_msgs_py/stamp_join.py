@@ -38,7 +38,12 @@ import enum
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
+from .params import SAMPLE_RATE_HZ
+
 DUPLICATE_POLICIES = ("replace", "keep_first", "spoil")
+# Messages refused this many ticks in a row (each of a joiner's topics) mean the stream's time
+# really jumped, not that one stray message came: the nodes' ``restart_after_refused`` per topic.
+RESTART_AFTER_REFUSED_TICKS = SAMPLE_RATE_HZ // 2
 
 
 class Verdict(enum.Enum):
@@ -131,6 +136,18 @@ class StampJoiner:
         self._refused = 0
         self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._expecting = first_stamp_ns is not None
+
+    def start_at(self, first_stamp_ns: int) -> None:
+        """A stream that starts (again) at ``first_stamp_ns`` (an episode's first tick): pending sets
+        older than it are forgotten, sets of it and later keep waiting (their messages may come
+        before the news of the start), and older stamps are refused from now on."""
+        first = int(first_stamp_ns)
+        for stamp in [s for s in self._pending if s < first]:
+            del self._pending[stamp]
+            self._complete_stamps.discard(stamp)
+        self._refused = 0
+        self.last_ns = first - 1
+        self._expecting = True
 
     def bad(self, stamp_ns: int) -> str:
         """Why the pending set of ``stamp_ns`` is marked bad ('' if it is not, or none is pending)."""

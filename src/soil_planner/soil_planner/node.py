@@ -64,7 +64,7 @@ from soil_msgs_py.episode_follow import EpisodeFollower
 from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters,
                                       followed_status_event, local, message_class, publisher_qos, spin_node, topic_qos,
                                       wall_timer)
-from soil_msgs_py.stamp_join import StampJoiner, Verdict
+from soil_msgs_py.stamp_join import RESTART_AFTER_REFUSED_TICKS, StampJoiner, Verdict
 from soil_msgs_py.writer_identity import FORGET_WRITER_AFTER_TICKS, WriterTracks, tick_number
 from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text
@@ -94,6 +94,17 @@ def schedule_settings(by_parameter: dict) -> ScheduleSettings:
         for param, field_name in SCHEDULE_PARAMETERS.items():
             text = re.sub(rf"\b{field_name}\b", param, text)
         raise ValueError(text) from None
+
+
+def estimate_joiner() -> StampJoiner:
+    """Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order, so
+    older ticks still waiting are given up. A stamp older than the newest planned tick is refused:
+    an estimate of the previous episode that comes late, or one stray message, had restarted the
+    stream and dropped every tick waiting (an outside reviewer's). Refused for
+    RESTART_AFTER_REFUSED_TICKS ticks in a row, a stream that started over without a word (no
+    /sim/status) is followed; an episode_start starts it at its first tick at once (``start_at``)."""
+    return StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS,
+                       restart_after_refused=2 * RESTART_AFTER_REFUSED_TICKS)
 
 
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
@@ -222,9 +233,9 @@ class PlannerNode(Node):
         self._warn = WarnLimiter(self.get_logger())
         self.silence = InputSilence(self, f"estimates ({T.ESTIMATE.name})")
         self.follower = EpisodeFollower(get("graph_id"))  # a stray /sim/status event does not restart its cut
-        # Θ_k and the estimate of one tick, planned once both are in; Θ_k arrives in stamp order,
-        # so older ticks still waiting are given up. A stamp that goes back is a new stream.
-        self.joiner = StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS, restart_back_ns=0)
+        self.joiner = estimate_joiner()
+        self.cut_first_ns: int | None = None  # the first tick of the episode followed (None: none yet)
+        self.previous_cut_ticks = 0  # ticks of an episode before it, come after it began: not planned
         self.last_log_ns: int | None = None
         self.published = 0
         self.dropped = 0  # estimates given up for want of their Θ_k
@@ -366,6 +377,8 @@ class PlannerNode(Node):
                     self._warn("speed", f"episode {event.name}: its target speed is not planned at: "
                                         f"{[r.reason for r in result]}")
             self._new_cut()
+            self.cut_first_ns = event.first_stamp_ns
+            self.joiner.start_at(event.first_stamp_ns)
             self.silence.start(event.name)
         elif event is not None:
             self.silence.end()
@@ -442,10 +455,18 @@ class PlannerNode(Node):
         self._join(T.ESTIMATE.name, stamp, est)
 
     def _join(self, topic: str, stamp: int, payload: dict[str, float]) -> None:
+        newest = self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, payload)
         if verdict is Verdict.STALE and topic == T.ESTIMATE.name:
-            self._warn("unpaired", f"{topic} at stamp {stamp} ns came again after its plan; dropped (again and again: "
-                                   "a second publisher of it on this domain, e.g. a bag played beside a live estimator)")
+            if self.cut_first_ns is not None and stamp < self.cut_first_ns:
+                self._previous_cut(stamp)
+            else:
+                self._warn("unpaired", f"{topic} at stamp {stamp} ns came after the plan of a newer tick ({newest} ns); "
+                                       "dropped (again and again: a second publisher of it on this domain, e.g. a bag "
+                                       "played beside a live estimator)")
+        elif verdict is Verdict.RESTART:
+            self._warn("restart", f"{topic}: stamps stayed behind the newest planned tick {newest} ns; following the "
+                                  f"stream from stamp {stamp} ns")
         for joined in out:
             if joined.complete:
                 item = (joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
@@ -457,12 +478,21 @@ class PlannerNode(Node):
                 self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {joined.stamp_ns} ns never got its "
                                        f"{T.KNOWN.name}{behind}; dropped")
 
+    def _previous_cut(self, stamp: int) -> None:
+        """An estimate of a tick before the episode followed began: the previous episode's, come
+        late (an estimator seconds behind); planned, it had moved the new cut's target and evidence."""
+        self.previous_cut_ticks += 1
+        self._warn("previous_cut", f"{T.ESTIMATE.name} at stamp {stamp} ns is of a tick before the episode under way "
+                                   f"(its first tick {self.cut_first_ns} ns); not planned")
+
     def _answer(self, ticks: list[Waiting]) -> None:
         """Plan the ticks ``command_wait`` released, in order (Θ_k None: an invalid estimate,
         answered without a plan)."""
         for tick in ticks:
             est, known = tick.item
-            if known is None:
+            if self.cut_first_ns is not None and tick.stamp_ns < self.cut_first_ns:
+                self._previous_cut(tick.stamp_ns)  # (none of the episode followed: no plan, no target)
+            elif known is None:
                 self._publish(tick.stamp_ns, NO_PLAN_VALUES)
                 self._target(tick.stamp_ns, None)
             else:
@@ -521,12 +551,17 @@ class PlannerNode(Node):
         without a word (an outside tester's). Until then it moves no target."""
         last = self.schedule.last_stamp_ns
         if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
+            # ahead within the episode followed: ticks lost (a loaded machine), the same cut
+            gap = stamp > last and self.cut_first_ns is not None and last >= self.cut_first_ns
             if self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
                 self._jumped_to = stamp
                 self._warn("jump", f"stamp {stamp} ns is {(stamp - last) / M.NS_PER_S:+.3g} s from the last tick "
-                                   f"scheduled ({last} ns); no target for it (a new cut once the next tick follows it)")
+                                   f"scheduled ({last} ns); no target for it (" + (
+                                       "estimates lost? the cut goes on once the next tick follows it" if gap else
+                                       "a new cut once the next tick follows it") + ")")
                 return
-            self._new_cut(stamp)
+            if not gap:  # (a gap keeps the cut's evidence and stall memory; the schedule backs off over it)
+                self._new_cut(stamp)
         elif last is not None and stamp <= last:
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
         self._jumped_to = None
