@@ -55,6 +55,18 @@ def test_dither_sweeps_the_depth_target_and_restarts_with_each_episode():
     assert ctrl.step(0.5, 0.0).u_za[0] == -0.2
 
 
+def test_under_a_planners_ceiling_the_dither_sweeps_below_the_target_never_deeper():
+    """A planner's target is the deepest cut within the force limits: a dither around it had cut A
+    deeper than the plan (an outside reviewer's). Below it, the sweep keeps its 2A."""
+    amplitude, period = 0.05, 1.0
+    ctrl = AntiStallController(AntiStallGains(dither_amplitude_m=amplitude, dither_period_s=period), 0.5, 0.15)
+    ctrl.dither_below_target = True  # (the node's with depth_source planner, the cut trial's soil-aware policy)
+    n = 2 * SAMPLE_RATE_HZ
+    depth = -commands(ctrl, np.full(n, 0.5), np.zeros(n), n)[:, 1]
+    assert depth.max() <= 0.15 + 1e-12 and depth.max() == pytest.approx(0.15)
+    assert depth.max() - depth.min() == pytest.approx(2 * amplitude, rel=1e-3)
+
+
 @pytest.mark.parametrize("field, value, allowed", [
     ("dither_amplitude_m", -0.01, "[0, 0.1]"), ("dither_amplitude_m", math.nan, "[0, 0.1]"),
     ("dither_amplitude_m", math.inf, "[0, 0.1]"), ("dither_amplitude_m", "x", "[0, 0.1]"),

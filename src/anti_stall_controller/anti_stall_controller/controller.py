@@ -50,7 +50,9 @@ Interpretation choices of this implementation (the paper leaves these open):
    ``dither_period_s``: the cut depth then sweeps ±A around the target, so one episode shows
    the soil's force over a range of depths (richer data for estimating the soil), not at one
    depth only. Eq. 11's offset and its clip are unchanged; with A = 0 the commands are Eq. 12's
-   to the bit.
+   to the bit. A target that is a ceiling (a planner's deepest cut within the force limits,
+   ``dither_below_target``) is swept from below, d̄_z + A (sin − 1), over the same 2A: a sweep
+   around it had cut A deeper than the plan allowed (an outside reviewer's).
 
 5. Force lift (ours, off by default). Eq. 11 reacts to a stall's symptom, the chassis slowing
    down, which starts only once the blade force exceeds what the machine can push (its 20 kN
@@ -271,6 +273,8 @@ class AntiStallController:
         self._offset = np.zeros(self._batch_size)
         self._last_p_z_c = np.zeros(self._batch_size)
         self._steps = 0  # since reset: the dither's clock
+        # the depth target is a ceiling (a planner's): the dither sweeps below it (item 4)
+        self.dither_below_target = False
 
     # ------------------------------------------------------------------ properties
     @property
@@ -374,7 +378,8 @@ class AntiStallController:
 
         # Eq. 12 as an absolute target (item 2) with the dithered depth target (item 4), then
         # the joint command relative to p_z^c.
-        u_za = -((self._depth + g.dither_m(self._steps)) - self._offset)
+        dither = g.dither_m(self._steps) - (g.dither_amplitude_m if self.dither_below_target else 0.0)
+        u_za = -((self._depth + dither) - self._offset)
         self._steps += 1
         u_zr = np.clip(u_za - self._last_p_z_c, MACHINE.blade_min_rel_m, MACHINE.blade_max_rel_m)
         u_x = speed.copy()  # item 3

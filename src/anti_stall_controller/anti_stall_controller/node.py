@@ -152,6 +152,7 @@ class ControllerNode(Node):
         self.core = AntiStallController(gains, get("target_speed_m_s"), get("target_depth_m"))
         self.follow = bool(get("follow_episode_targets"))
         self.depth_source, self.planner_timeout_ns = check_depth_source(get("depth_source"), get("planner_timeout_s"))
+        self.core.dither_below_target = self.depth_source == "planner"  # the plan is the deepest cut allowed
         self.param_depth_m = float(get("target_depth_m"))  # the parameter's d̄_z (the planner's fallback)
         self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"),
                                   self.planner_timeout_ns / 1e9)  # ValueError names the field
@@ -242,6 +243,7 @@ class ControllerNode(Node):
             self.plan_wait.targets.clear()
             self.following_planner = self.planned = False
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
+        self.core.dither_below_target = source == "planner"
         if source != "planner":  # ticks held for the planner are answered now: in lockstep no next tick
             for held in self.plan_wait.drain():  # comes to release them until they are
                 self._answer(*held)

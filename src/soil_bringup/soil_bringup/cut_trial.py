@@ -138,6 +138,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
         estimator.start_episode(0)
         start = schedule.target_m
     controller = AntiStallController(gains, spec.target_speed_m_s, start)
+    controller.dither_below_target = policy.soil_aware  # (the plan is the deepest cut allowed)
     queue: collections.deque[float] = collections.deque()  # targets on their way to the controller
     rec = {k: np.full(n, np.nan) for k in ("x_b", "v_x", "depth", "target", "offset", "patch", "plan")}
     force, truth = np.zeros((n, 2)), np.zeros((n, 2))
