@@ -22,6 +22,20 @@ def test_within_magnitude_is_upper_magnitude_below_the_limit(seed):
             np.testing.assert_array_equal(within_magnitude(w, mu, sd, limit, q)[clear], (upper <= limit)[clear])
 
 
+def test_the_upper_magnitude_is_exceeded_with_one_minus_its_quantile_whatever_the_forces_sign():
+    """A force straddling zero: the bound of |F| at q = 0.95 had been exceeded with 10 % (5 % on
+    each side, an outside reviewer's); a force of one sign is bounded as by its one-sided quantile."""
+    from scipy.special import ndtr
+
+    w, sd = np.ones(1), np.array([[1000.0]])
+    bound = upper_magnitude(w, np.array([[0.0]]), sd, 0.95)[0]
+    assert 2 * (1 - ndtr(bound / 1000.0)) == pytest.approx(0.05, abs=1e-9)  # 1.96 sigma, not 1.645
+    assert not within_magnitude(w, np.array([[0.0]]), sd, 1.7 * 1000.0, 0.95)[0]
+    one_sign = upper_magnitude(w, np.array([[-10e3]]), sd, 0.95)[0]
+    assert one_sign == pytest.approx(10e3 + 1.6449 * 1000.0, abs=1.0)
+    assert upper_magnitude(np.ones(2), np.array([0.0, 0.0]), np.array([1.0, 1.0]), 0.5) == pytest.approx(0.6745, abs=1e-4)
+
+
 def test_mixture_cdf_inverts_the_quantiles():
     rng = np.random.default_rng(7)
     w, mu, sd = rng.random(16), rng.normal(0, 1e3, (3, 16)), rng.uniform(10, 500, (3, 16))
