@@ -92,8 +92,16 @@ def test_a_bag_without_a_planner_draws_the_episodes_target_and_one_with_it_the_p
     monkeypatch.setattr(plot_module.plt, "close", lambda fig: (labels.setdefault(len(labels), [
         t.get_text() for t in fig.axes[1].get_legend().get_texts()]), closed(fig)))
     plot_module.plot_episode(ep, tmp_path / "fixed.png")
-    plot_module.plot_episode(ep, tmp_path / "loop.png", (np.array([0.0, 0.25]), np.array([0.08, 0.12])))
+    followed = (ep.time_s[::5], -ep.column("u_za")[::5])  # the controller cut to these: the loop closed
+    assert plot_module.followed_planner(ep, followed)
+    plot_module.plot_episode(ep, tmp_path / "loop.png", followed)
     assert "target $\\bar d_z$" in labels[0] and "planner's target $\\bar d_z$" in labels[1]
+    # a planner beside an open loop (the controller cut to the episode's 0.1 m): its targets are advice,
+    # and the figure had said the depth came from it (an outside tester's)
+    advisory = (np.array([0.0, 0.25]), np.array([0.08, 0.12]))
+    assert not plot_module.followed_planner(ep, advisory)
+    plot_module.plot_episode(ep, tmp_path / "advisory.png", advisory)
+    assert labels[2][:2] == ["cut depth $d$", "target $\\bar d_z$"] and "planner's target (not followed)" in labels[2]
 
 
 def test_a_gap_or_a_non_finite_value_is_said_not_drawn_over_in_silence(bags, tmp_path):

@@ -48,11 +48,31 @@ def planner_targets(bag: Path, ep: Episode) -> tuple[np.ndarray, np.ndarray] | N
     return (stamps[order] - ep.stamps_ns[0]) / 1e9, values[order, TARGET_DEPTH.labels.index("target_depth_m")]
 
 
+FOLLOWED_WITHIN_M = 1e-3  # a command this close to a target followed it (the anti-stall offset at 0)
+
+
+def followed_planner(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether the controller cut to the planner's targets (``depth_source`` planner) rather than
+    the episode's: more ticks' commanded depth −u_za lies within FOLLOWED_WITHIN_M of the planner's
+    target in effect than of the episode's. A planner beside an open loop (its plans advisory)
+    records targets too, and the figure had said the depth came from it (an outside tester's)."""
+    times, targets = planner
+    at = np.searchsorted(times, ep.time_s, side="right") - 1  # the newest target at or before each tick
+    planned = np.where(at >= 0, targets[np.clip(at, 0, None)], np.nan)
+    commanded = -ep.column("u_za")
+    with np.errstate(invalid="ignore"):
+        by_planner = int(np.sum(np.abs(commanded - planned) <= FOLLOWED_WITHIN_M))
+        by_episode = int(np.sum(np.abs(commanded - ep.meta.target_depth_m) <= FOLLOWED_WITHIN_M))
+    return by_planner > by_episode
+
+
 def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write the Fig.-3-style figure of ``ep`` to ``out`` (PNG, or the format of its suffix);
-    ``planner``: the planner's targets (``planner_targets``), drawn in place of the episode's one."""
+    ``planner``: the planner's targets (``planner_targets``), drawn in place of the episode's one
+    where the controller followed them (``followed_planner``), else beside it as advice."""
     t = ep.time_s
     m = ep.meta
+    followed = planner is not None and followed_planner(ep, planner)
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, ep.column("f_x_b") / 1e3, lw=0.9, label="$f_x^b$ measured")
@@ -75,7 +95,7 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     ax.set_title(
         f"{soil}{m.world_mode} world, "
         f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, "
-        + (f"$\\bar d_z$ = {m.target_depth_m:.3f} m" if planner is None else "$\\bar d_z$ from the planner")
+        + ("$\\bar d_z$ from the planner" if followed else f"$\\bar d_z$ = {m.target_depth_m:.3f} m")
         + f", seed {m.seed}"
     )
     x_b = ep.column("p_x_b")
@@ -85,10 +105,12 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
             axis.axvline(t[crossed[0]], color="tab:purple", lw=0.8, ls="-.")
     ax = axes[1]
     ax.plot(t, ep.column("d"), label="cut depth $d$")
-    if planner is None:
-        ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
-    else:  # the loop closed: the controller's target was the planner's, step by step
+    if followed:  # the loop closed: the controller's target was the planner's, step by step
         ax.step(*planner, where="post", color="k", ls="--", lw=0.8, label="planner's target $\\bar d_z$")
+    else:
+        ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
+        if planner is not None:  # an advisory planner's: what it would have cut to
+            ax.step(*planner, where="post", color="grey", ls=":", lw=0.8, label="planner's target (not followed)")
     ax.plot(t, -ep.column("u_za"), lw=0.8, label="commanded depth $-u_{z_a}$")
     ax.set_ylabel("depth [m]")
     ax.legend(fontsize=8, loc="lower right")
