@@ -101,6 +101,18 @@ def test_a_machines_bag_has_no_ground_truth_and_reads_with_truth_nan(tmp_path: P
     no_force = write_raw(tmp_path / "no_force", make_episode(), skip=lambda topic, i: topic == "/blade/force")
     with pytest.raises(bag_io.BagReadError, match="has no topic /blade/force"):
         read_episode(no_force)
+    # the recorder of a replay that left the truth or the clock out: their channels there, empty
+    sim = make_episode()
+    for topic in ("/soil/ground_truth", "/clock"):
+        emptied = write_raw(tmp_path / topic.replace("/", "_"), sim, skip=lambda t, i: t == topic and i is not None)
+        with AnyReader([emptied]) as reader:
+            assert topic in {c.topic for c in reader.connections}
+        back = read_episode(emptied)
+        assert back.stamps_ns.tobytes() == sim.stamps_ns.tobytes() and back.forces.tobytes() == sim.forces.tobytes()
+        assert back.has_ground_truth == (topic != "/soil/ground_truth")
+    silent_force = write_raw(tmp_path / "silent_force", sim, skip=lambda t, i: t == "/blade/force" and i is not None)
+    with pytest.raises(bag_io.BagReadError, match="topic /blade/force has no messages"):
+        read_episode(silent_force)
 
 
 def test_metadata_yaml(bag: Path, ep: Episode) -> None:

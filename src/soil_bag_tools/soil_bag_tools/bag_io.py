@@ -385,7 +385,14 @@ def topics_namespace(path: Path, topics: set[str]) -> str:
 
 def _episode(path: Path, meta: EpisodeMeta, decoded: dict) -> Episode:
     """The Episode of a bag's decoded topics (``read_episode``): complete ticks, a machine's missing
-    truth and clock filled in, its rate and force sign judged."""
+    truth and clock filled in, its rate and force sign judged. A truth or clock channel without
+    messages is none: a recorder subscribed to every episode topic of a replay that left them out
+    (``soil_bag_play --exclude /soil/ground_truth``) writes their channels empty, and every reader
+    had refused its own recorder's bag (an outside tester's)."""
+    for name in (GROUND_TRUTH.name, CLOCK.name):
+        if name in decoded and len(decoded[name][0]) == 0:
+            decoded.pop(name)
+            log.info("%s: topic %s has no messages: read as a bag without it", path, name)
     if empty := [n for n, (s, _) in decoded.items() if len(s) == 0]:
         raise BagReadError(path, f"topic {empty[0]} has no messages")
     # /clock carries no data: the ticks are the data topics' stamps (a machine's recorder may tick
