@@ -547,6 +547,22 @@ def test_a_trend_target_is_met_exactly_when_the_trend_says_it_rises():
     assert sorted(_trends(mine)) == ["Clay", "SiltyClay"]
 
 
+def test_a_target_this_dataset_cannot_evaluate_is_n_a_not_failed():
+    """A test split without an episode at I_d <= 60 %: the ratio to the classical fit is NaN, and the
+    table had said the target was not met (an outside tester's)."""
+    from pinn_estimator.evaluate import markdown_targets, targets
+
+    nan = float("nan")
+    report = {"force": {"pinn": {"mae_mag_pct_measured": 3.0}}, "world_modes": ["fee"], "training": {},
+              "params": {"pinn": {"id_le_60": {"phi_mae_deg": nan, "c_mae_kPa": nan, "delta_mae_deg": nan}},
+                         "classical": {"id_le_60": {"phi_mae_deg": nan, "c_mae_kPa": nan, "delta_mae_deg": nan}}}}
+    got = {t["target"]: t["met"] for t in targets(report)}
+    assert got["PINN force error, % of measured |F|"] is True
+    assert got["PINN phi_mae_deg / classical fit's (I_d <= 60 %)"] is None
+    assert got["PINN φ MAE (I_d <= 60 %) [deg]"] is None
+    assert any(row.endswith("| n/a | <= 1.0 | n/a |") for row in markdown_targets(targets(report)))
+
+
 def test_bag_missing_a_topic_is_named(tiny_bags, tmp_path):
     from soil_bag_tools.bag_io import read_episode
 

@@ -437,9 +437,10 @@ def targets(report: dict) -> list[dict]:
     out = []
 
     def add(name, value, limit, op="<=", met=None):
-        if met is None:
-            met = bool(np.isfinite(value) and (value <= limit if op == "<=" else value >= limit))
-        out.append({"target": name, "value": value, "limit": limit, "op": op, "met": bool(met)})
+        if met is None and np.isfinite(value):
+            met = value <= limit if op == "<=" else value >= limit
+        # None: not evaluated on this dataset (e.g. no episode at I_d <= 60 %), no failure
+        out.append({"target": name, "value": value, "limit": limit, "op": op, "met": None if met is None else bool(met)})
 
     f = report["force"]
     fee_world = report["world_modes"] == ["fee"]
@@ -468,6 +469,13 @@ def targets(report: dict) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------------- output
+def markdown_targets(rows: list[dict]) -> list[str]:
+    """The targets table: met yes / **no**, or n/a where this dataset cannot evaluate it."""
+    return [*md.header(["target", "value", "limit", "met"]),
+            *(md.row([t["target"], _fmt(t["value"], 2), f"{t['op']} {t['limit']}",
+                      "n/a" if t["met"] is None else "yes" if t["met"] else "**no**"]) for t in rows)]
+
+
 def _fmt(x, nd=1):
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{nd}f}"
 
@@ -551,9 +559,7 @@ def markdown(report: dict) -> str:
     if report.get("forecast"):
         lines += ["", "## Forecast: the force at another depth (the planner's question)", ""]
         lines += fc.markdown(report["forecast"])
-    lines += ["", "## Targets", "", *md.header(["target", "value", "limit", "met"])]
-    for t in report["targets"]:
-        lines.append(md.row([t['target'], _fmt(t['value'], 2), f"{t['op']} {t['limit']}", 'yes' if t['met'] else '**no**']))
+    lines += ["", "## Targets", "", *markdown_targets(report["targets"])]
     tr = report["training"]
     lines += ["", "## Training", ""]
     for name, m in tr.items():
