@@ -202,6 +202,26 @@ def test_episodes_start_and_reset_over_sim_command(tmp_path, domain):
     assert "/sim/command: not JSON" in out and "relative_density_pct=250" in out
 
 
+def test_with_no_planned_episode_exit_when_done_waits_for_a_commanded_one(tmp_path, domain):
+    """episodes:=0 (episodes only via /sim/command) with exit_when_done:=true had exited at once,
+    before any command could come (an outside tester's): it exits once a commanded episode ran."""
+    with RosProbe(domain) as probe:
+        probe.subscribe(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        cmd = probe.publisher(G.SIM_COMMAND_TOPIC, G.STRING_MSGTYPE)
+        sim = NodeProc("soil_sim_node", _sim_args("episodes:=0", "exit_when_done:=true", "rate:=4.0", "duration_s:=1.0"),
+                       domain, tmp_path)
+        try:
+            probe.wait_for(lambda: cmd.get_subscription_count() > 0 and probe.matched_publishers(G.SIM_STATUS_TOPIC),
+                           20, "the simulator's /sim/command subscription")
+            time.sleep(1.0)  # (its timer runs every tick: it had finished within the first)
+            assert sim.proc.poll() is None, sim.output
+            cmd.publish(String(data=json.dumps({"action": "start", "soil": "Sand", "seed": 7})))
+            ended = probe.wait_for(_ended(probe), 20, "the commanded episode's end")[0]
+            assert sim.wait(timeout=20) == 0 and ended.reason == "completed"
+        finally:
+            sim.stop()
+
+
 def test_controller_parameters_files_overrides_and_runtime_changes(tmp_path, domain):
     params = tmp_path / "ctl.yaml"
     params.write_text("anti_stall_controller:\n  ros__parameters:\n    target_speed_m_s: 0.7\n    c_vx: 0.1\n")

@@ -89,7 +89,7 @@ PARAMETERS: dict[str, tuple] = {
     "sequence_relative_densities_pct": ([], "plan: I_d values [%] per soil (empty: just relative_density_pct)", _DBL_ARRAY),
     "episodes": (1, "repeats of the plan started at launch; 0: start episodes only via /sim/command"),
     "exit_when_done": (False, "exit when the plan and all requested episodes are done (code 0; 4 if one ended "
-                                "in error)"),
+                                "in error); with episodes 0, once at least one requested episode ran"),
     "pacing": ("realtime", "'realtime' (wall clock 60 Hz x rate) or 'lockstep' (wait for each tick's commands)"),
     "rate": (1.0, "real-time factor for pacing=realtime (2.0: twice as fast as real time)"),
     "wait_for": ([], "endpoints to wait for before an episode starts, 'topic:count' (publisher side: matched "
@@ -526,7 +526,8 @@ class SimNode(Node):
         if self.sim is None:
             if self.queue and not self.shutdown_requested:
                 self._try_start()
-            elif self.shutdown_requested or (self.exit_when_done and not self.queue):
+            elif self.shutdown_requested or (self.exit_when_done and not self.queue and self.episode_index >= 0):
+                # (with episodes 0 the plan is empty: done once a commanded episode ran, not at start-up)
                 self.finished = True
             return
         self._do(self.pacer.on_timer(self.gate.complete))
