@@ -667,10 +667,19 @@ class Recorder:
                            f"recorder, only commands: the bag is no episode any reader takes ({why})")
             self.unwritten.append(s.name)
         elif s.meta_json is not None and lacking:
-            self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in lacking.items())}: "
-                             "their messages never reached the recorder (a writer it matched late, e.g. a node restarted "
-                             "mid-episode, or one that skipped ticks); those ticks are incomplete in the bag, and a "
-                             "replay of it differs from the live run there")
+            # a topic with no message at all had no writer (a replay that left it out, a machine without
+            # ground truth), not a writer matched late: said apart (an outside tester's)
+            silent = [t for t, k in lacking.items() if k >= ticks]
+            partial = {t: k for t, k in lacking.items() if k < ticks}
+            if silent:
+                self.log.warning(f"{s.name}: no message of {', '.join(silent)} reached the recorder in this episode "
+                                 f"({ticks} ticks): nothing sent it (a replay that left it out, a node that died before "
+                                 "the episode or never joined it); the bag holds it empty")
+            if partial:
+                self.log.warning(f"{s.name}: the bag lacks ticks of {', '.join(f'{t} ({k} of {ticks})' for t, k in partial.items())}: "
+                                 "their messages never reached the recorder (a writer it matched late, e.g. a node "
+                                 "restarted mid-episode, or one that skipped ticks); those ticks are incomplete in the "
+                                 "bag, and a replay of it differs from the live run there")
         if result.conflicts or s.off_grid:
             self.log.warning(
                 f"{s.name}: other publishers claimed stamps of the recorded data; refused per topic: "
