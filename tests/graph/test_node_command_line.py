@@ -87,3 +87,19 @@ def test_a_params_file_with_no_section_for_the_node_or_a_key_given_twice_is_name
            "(is soil_plannr a misspelling of soil_planner?): nothing in it applies" in node.output, node.output
     assert str(shared) not in node.output  # '/**' applies to every node
     assert code == 0 and "Traceback" not in node.output, node.output
+
+
+def test_a_python_warning_at_start_up_is_a_line_of_the_nodes_log(tmp_path):
+    """A fusion config lacking keys: its warning had come as Python's, a source file, line and code
+    line on stderr beside the node's log (an outside tester's); now a [WARN] line of the node's."""
+    empty = tmp_path / "empty.json"
+    empty.write_text("{}\n")
+    node = NodeProc("pinn_estimator", ["--ros-args", "-p", f"fusion_config:={empty}"], next_domain_id(), tmp_path)
+    try:
+        wait_until(lambda: f"fusion config {empty} lacks" in node.output, 60, "the config's warning")
+    finally:
+        code = node.stop()
+    line = next(t for t in node.output.splitlines() if f"fusion config {empty} lacks" in t)
+    assert line.startswith("[WARN]") and "[pinn_estimator]" in line, node.output
+    assert "UserWarning" not in node.output and "FusionConfig.load" not in node.output, node.output
+    assert code == 0 and "Traceback" not in node.output, node.output

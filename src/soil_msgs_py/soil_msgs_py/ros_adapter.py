@@ -479,11 +479,15 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         return EXIT_BAD_CONFIG
     node = executor = None
     code = 0
+    shown = warnings.showwarning
     try:
-        with warnings.catch_warnings():  # (rclpy's own noise after rcl refused to make the node, said below)
+        with warnings.catch_warnings(record=True) as caught:  # said through the node's log, below
             warnings.filterwarnings("ignore", message="Failed to fini rosout publisher", category=RuntimeWarning)
             node = factory()
-        for text in params_file_warnings(argv, node):
+        # a Python warning (a fusion config lacking keys) is a log line of the node's, not a source
+        # line on stderr beside its log (an outside tester's)
+        warnings.showwarning = lambda message, *_, **__: node.get_logger().warning(str(message))
+        for text in [*(str(w.message) for w in caught), *params_file_warnings(argv, node)]:
             node.get_logger().warning(text)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
@@ -517,6 +521,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
         print(f"{_program(argv)}: cannot start: {first}{hint}", file=sys.stderr)
         code = EXIT_BAD_CONFIG
     finally:
+        warnings.showwarning = shown
         try:
             if node is not None:
                 close = getattr(node, "close", None)
