@@ -74,6 +74,30 @@ def test_controller_follows_the_planners_target_and_falls_back_when_it_is_stale(
 
 
 @pytest.mark.timeout(120)
+def test_switched_from_the_planner_to_its_parameter_a_deeper_depth_is_ramped_to(tmp_path):
+    """depth_source planner -> parameter at run time while the plan held the cut at 0.12 m: the
+    parameter's 0.2 m had been taken in one tick, 8 cm into soil the planner had ruled out (an
+    outside reviewer's); now the fallback's rate takes it there, as from a silent planner."""
+    domain = next_domain_id()
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, PARAM_DEPTH, 30.0, source="test")
+    with RosProbe(domain) as probe:
+        side = PlannerSide(probe, [], domain, tmp_path)
+        try:
+            side.start(meta)
+            tick, plan = side.tick, side.plan
+            plan(0, 0.12)
+            k = next(k for k in range(0, 10) if tick(k) == pytest.approx(-0.12))
+            client = AsyncParameterClient(probe.node, "anti_stall_controller")
+            assert client.wait_for_services(timeout_sec=20)
+            ok = call_service(lambda: client.set_parameters([Parameter("depth_source", value="parameter")]))
+            assert all(r.successful for r in ok.results)
+            assert tick(k + 1) == pytest.approx(-(0.12 + 0.03 / 60), abs=1e-9)  # one tick of 0.03 m/s deeper
+            assert tick(k + 61) == pytest.approx(-(0.12 + 0.03 * 61 / 60), abs=1e-9)
+        finally:
+            side.stop()
+
+
+@pytest.mark.timeout(120)
 def test_controller_says_when_the_simulators_state_stops_mid_episode_and_when_it_comes_back(tmp_path):
     """A killed simulator left the controller (and the estimator and planner) up and silent: now
     it says, after 5 s without state in an episode, and again when the state comes back."""

@@ -157,6 +157,9 @@ class ControllerNode(Node):
         self.plan_wait = PlanWait(get("planner_lag_ticks"), get("planner_wait_s"),
                                   self.planner_timeout_ns / 1e9)  # ValueError names the field
         self.following_planner = False
+        # switched from a planner that had steered the cut to the parameter's depth: a deeper one is
+        # reached at the fallback rate, as from a silent planner (``_answer``)
+        self.ramp_to_parameter = False
         self.fallback_rate_m_s = check_rate(get("fallback_deepen_rate_m_s"))
         self.planned = False  # a planner target steered a tick of this episode (the fallback then ramps)
         self.last_answer_ns: int | None = None
@@ -231,17 +234,22 @@ class ControllerNode(Node):
             return SetParametersResult(successful=False, reason=str(err))
         if gains:
             self.core.set_gains(new_gains)
+        # leaving a planner that had steered the cut: its target was the deepest the plan allowed, and
+        # the parameter's depth in one tick plunged the blade deeper (an outside reviewer's); ramped instead
+        ramp = source != "planner" and (self.ramp_to_parameter or (self.depth_source == "planner" and self.planned))
         if any(k in changes for k in TARGET_FIELDS):  # following a planner, the core's depth is its (or the
             # fallback's on its way): a new target_depth_m is the fallback, reached as _depth_for moves there
-            self.core.set_targets(speed, None if source == "planner" else depth)
+            self.core.set_targets(speed, None if source == "planner" or ramp else depth)
             self.param_depth_m = float(depth)
             self._say_if_beyond_reach()
         self.plan_wait.set_lag(lag, wait)
         self.fallback_rate_m_s = rate
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
-            self.core.set_targets(target_depth_m=self.param_depth_m)
+            if not ramp:  # (else from the planner's last target, towards it: ``_answer``)
+                self.core.set_targets(target_depth_m=self.param_depth_m)
             self.plan_wait.targets.clear()
             self.following_planner = self.planned = False
+        self.ramp_to_parameter = ramp
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
         self.core.dither_below_target = source == "planner"
         if source != "planner":  # ticks held for the planner are answered now: in lockstep no next tick
@@ -276,7 +284,7 @@ class ControllerNode(Node):
         # the previous cut's plan does not carry over (nor its held ticks: the reset core must not step
         # on them); in lockstep the controller keeps step with the planner
         self.plan_wait.start_episode(event.first_stamp_ns, event.pacing == G.PACING_LOCKSTEP)
-        self.following_planner = self.planned = False
+        self.following_planner = self.planned = self.ramp_to_parameter = False
         self.last_answer_ns = None
         if self.depth_source == "planner":
             self.core.set_targets(target_depth_m=self.param_depth_m)
@@ -410,6 +418,11 @@ class ControllerNode(Node):
             depth = self._depth_for(stamp)
             if depth != self.core.target_depth_m[0]:
                 self.core.set_targets(target_depth_m=depth)
+        elif self.ramp_to_parameter:
+            dt_s = 0.0 if self.last_answer_ns is None else (stamp - self.last_answer_ns) / 1e9
+            depth = fallback_depth(float(self.core.target_depth_m[0]), self.param_depth_m, dt_s, self.fallback_rate_m_s)
+            self.core.set_targets(target_depth_m=depth)
+            self.ramp_to_parameter = depth != self.param_depth_m
         cmd = self.core.step(v_x_c, p_z_c, force_n)  # non-finite inputs: core holds its state
         self.last_answer_ns = stamp
         self.cmd_vel_pub.publish(M.build_message(self.classes, T.CMD_VEL.name, stamp, [cmd.u_x[0]]))
