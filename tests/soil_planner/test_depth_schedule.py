@@ -139,3 +139,18 @@ def test_a_stamp_that_goes_back_is_a_new_cut():
 def test_bad_settings_are_refused_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         ScheduleSettings(**{field: value})
+
+
+def test_a_floor_raised_at_run_time_is_reached_at_the_deepening_rate_a_ceiling_lowered_at_once():
+    """``min_target_m`` raised by a parameter change while plans keep the target shallow: the clamp
+    had taken the target to the new floor in one tick (5 -> 25 cm, an outside reviewer's)."""
+    cfg = ScheduleSettings(start_depth_m=0.1, deepen_rate_m_s=0.1, shallow_rate_m_s=1.0, min_depth_m=0.05)
+    s = DepthSchedule(cfg)
+    run(s, [0.05] * 30)
+    assert s.target_m == pytest.approx(0.05)
+    s.settings = dataclasses.replace(cfg, min_depth_m=0.25, start_depth_m=0.25)
+    ramp = run(s, [0.05] * 121, first_tick=30)
+    assert ramp[0] == pytest.approx(0.05 + 0.1 / 60) and ramp[60] == pytest.approx(0.05 + 0.1 * 61 / 60)
+    assert ramp[-1] == pytest.approx(0.25)
+    s.settings = dataclasses.replace(cfg, max_depth_m=0.15)
+    assert run(s, [0.3], first_tick=151)[0] == pytest.approx(0.15)

@@ -150,7 +150,9 @@ class DepthSchedule:
         step = goal - self.target_m
         deepen = min(s.deepen_rate_m_s, s.cautious_deepen_rate_m_s) if self.cautious(stamp_ns) else s.deepen_rate_m_s
         step = min(step, deepen * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
-        self.target_m = min(max(self.target_m + step, s.min_depth_m), s.max_depth_m)
+        # the goal keeps the floor; the target reaches a floor raised at run time at the deepening rate
+        # (clamped, it had jumped there in one tick: an outside reviewer's); a lowered ceiling at once
+        self.target_m = min(self.target_m + step, s.max_depth_m)
         # plans took the target deeper than where the cut started by more than a retreat: from now
         # on a plan below it is one (a few millimetres of the first ramp are no plan's depth)
         self.deepened = self.deepened or (planned and self.target_m > s.start_depth_m + s.retreat_m)
