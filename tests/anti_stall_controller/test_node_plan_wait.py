@@ -73,8 +73,8 @@ def test_in_lockstep_a_tick_waits_for_its_plan_and_a_silent_planner_is_waited_fo
 @pytest.mark.timeout(120)
 def test_a_switch_away_from_the_planner_answers_the_tick_held_for_it_at_once(tmp_path):
     """In lockstep no next tick comes to release a held one: the switch itself must answer it, on
-    the parameter's depth (before, it waited out planner_wait_s, here 60 s, and was then warned
-    about as a silent planner's)."""
+    the way to the parameter's depth, a tick of the fallback rate deeper than the plan's (before,
+    it waited out planner_wait_s, here 60 s, and was then warned about as a silent planner's)."""
     domain = next_domain_id()
     meta = EpisodeMeta("Clay", 40.0, "default", 3, 0.5, PARAM_DEPTH, 30.0, source="test")
     with RosProbe(domain) as probe:
@@ -90,7 +90,8 @@ def test_a_switch_away_from_the_planner_answers_the_tick_held_for_it_at_once(tmp
             assert client.wait_for_services(timeout_sec=20)
             ok = call_service(lambda: client.set_parameters([Parameter("depth_source", value="parameter")]))
             assert all(r.successful for r in ok.results)
-            assert side.answer(3) == pytest.approx(-PARAM_DEPTH)  # within 20 s, not after planner_wait_s
+            # within 20 s, not after planner_wait_s; 0.03 m/s deeper than the plan, not the parameter's at once
+            assert side.answer(3) == pytest.approx(-(plan_depth + 0.03 / 60), abs=1e-9)
         finally:
             out = side.stop()
     assert "answered without its planner target" not in out, out

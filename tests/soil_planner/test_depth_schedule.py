@@ -68,6 +68,17 @@ def test_a_gap_in_the_plans_backs_off_as_its_ticks_would_have_and_earns_no_deepe
     after = run(s, [0.3] * 2, first_tick=60 + 120)  # 2 s of ticks missing
     assert after[0] == pytest.approx(0.1 + 0.1 / 60)  # backed off to the start depth, then one tick of the ramp
     assert before > after[0] and after[1] - after[0] == pytest.approx(0.1 / 60)
+    short = DepthSchedule(cfg)  # a gap within the hold: no back-off, and no deepening earned either
+    ramped = run(short, [0.3] * 60)[-1]
+    assert run(short, [0.3], first_tick=60 + 57)[0] == pytest.approx(ramped + 0.1 / 60)
+    shallower = DepthSchedule(cfg)  # a gap, then a plan far shallower: risen to at once (a reviewer's)
+    run(shallower, [0.3] * 200)
+    assert run(shallower, [0.05], first_tick=200 + 62)[0] == pytest.approx(0.05)
+    retreat = DepthSchedule(cfg)  # a gap, then a shallower plan: a retreat, deepened from cautiously after
+    run(retreat, [0.3] * 250)
+    run(retreat, [0.05] * 30, first_tick=250 + 63)
+    after = run(retreat, [0.3] * 60, first_tick=250 + 93)
+    assert retreat.cautious((250 + 93 + 59) * TICK) and after[-1] - after[0] == pytest.approx(0.03 * 59 / 60)
     slow = DepthSchedule(cfg)  # an estimator of one estimate every 1.5 s (stride 90): its pace, no gap
     paced = [slow.update(k * 90 * TICK, 0.3) for k in range(3)]
     assert paced == pytest.approx([0.1, 0.25, 0.3])

@@ -76,9 +76,11 @@ def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_st
                         _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
-                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=None)
+                            msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=None,
+                        cut_end_ns=None)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
+    n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)
 
     def target(k, depth):
         PlannerNode._target(n, stamp(k), depth)
@@ -124,9 +126,10 @@ def _target_node(published: list, forgotten: list, cut_first_ns=None) -> SimpleN
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
                             msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=cut_first_ns,
-                        previous_cut_ticks=0)
+                        cut_end_ns=None if cut_first_ns is None else cut_first_ns + stamp(599), previous_cut_ticks=0)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
+    n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)
     return n
 
 
@@ -148,6 +151,32 @@ def test_estimates_lost_mid_episode_are_a_gap_in_the_cut_not_a_new_cut():
     for k in (*range(120), 210, 211):
         PlannerNode._target(unfollowed, stamp(k), 0.3)
     assert forgotten == [1]
+    ended = _target_node([], forgotten := [], cut_first_ns=stamp(0))  # a stream 40 s after the episode's end
+    for k in (*range(600), 600 + 2400, 600 + 2401):
+        PlannerNode._target(ended, stamp(k), 0.3)
+    assert forgotten == [1] and ended.cut_first_ns is None  # a new cut, no episode of it followed
+
+
+def test_a_stream_started_over_without_sim_status_is_planned_again():
+    """A replay of an earlier bag with --topics (no /sim/status) after an episode was followed: its
+    ticks, all before that episode's first, had been dropped as the previous cut's for good (an
+    outside reviewer's). Refused a moment, the stream is followed once it stays there."""
+    from soil_planner.node import estimate_joiner
+
+    planned = []
+    n = SimpleNamespace(joiner=estimate_joiner(), command_wait=CommandWait(), cut_first_ns=stamp(1200),
+                        cut_end_ns=stamp(1799), previous_cut_ticks=0, warned=[], dropped=0, lockstep=True)
+    n._warn = lambda kind, text: n.warned.append(kind)
+    n._previous_cut = lambda s: PlannerNode._previous_cut(n, s)
+    n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)
+    n._answer = lambda ticks: PlannerNode._answer(n, ticks)
+    n._plan = lambda s, est, known: planned.append(s)
+    n.joiner.start_at(stamp(1200))
+    for k in range(600):  # the replay: ticks 0 .. 10 s, Θ_k and estimate each
+        PlannerNode._join(n, T.KNOWN.name, stamp(k), {})
+        PlannerNode._join(n, T.ESTIMATE.name, stamp(k), {})
+    assert n.cut_first_ns is None and "restart" in n.warned
+    assert len(planned) >= 600 - 31 and planned == sorted(planned)
 
 
 def test_late_estimates_of_the_previous_episode_plan_nothing_in_the_next():

@@ -244,14 +244,20 @@ class ControllerNode(Node):
             self._say_if_beyond_reach()
         self.plan_wait.set_lag(lag, wait)
         self.fallback_rate_m_s = rate
+        ramping = self.ramp_to_parameter
         if source != self.depth_source:  # a switch takes effect at the next tick, from the parameter's depth
-            if not ramp:  # (else from the planner's last target, towards it: ``_answer``)
+            if not ramp and not ramping:  # (else from where the blade is, towards it: ``_answer``, ``_depth_for``)
                 self.core.set_targets(target_depth_m=self.param_depth_m)
             self.plan_wait.targets.clear()
-            self.following_planner = self.planned = False
+            self.following_planner = False
+            # back to the planner mid-ramp: until its first target, on from the ramp's depth at the fallback
+            # rate (a planner that had steered), not the parameter's depth at once
+            self.planned = source == "planner" and ramping
         self.ramp_to_parameter = ramp
         self.depth_source, self.planner_timeout_ns = source, timeout_ns
-        self.core.dither_below_target = source == "planner"
+        # the dither stays below the target while a planner's ceiling (or the ramp from it) holds the cut;
+        # switched off there at once it had stepped the depth A deeper (an outside reviewer's)
+        self.core.dither_below_target = source == "planner" or ramp or self.core.dither_below_target
         if source != "planner":  # ticks held for the planner are answered now: in lockstep no next tick
             for held in self.plan_wait.drain():  # comes to release them until they are
                 self._answer(*held)
@@ -273,6 +279,10 @@ class ControllerNode(Node):
             self.silence.end()
             return
         self.silence.start(event.name)
+        # a new cut: no ramp from the last one's planner carries over (under way, it had kept the episode's
+        # own depth out of the core for the whole episode: an outside reviewer's)
+        self.ramp_to_parameter = self.planned = False
+        self.core.dither_below_target = self.depth_source == "planner"
         if self.follow:
             result = self.set_parameters([
                 Parameter("target_speed_m_s", value=float(event.meta.target_speed_m_s)),
@@ -286,8 +296,7 @@ class ControllerNode(Node):
         self.plan_wait.start_episode(event.first_stamp_ns, event.pacing == G.PACING_LOCKSTEP)
         self.following_planner = self.planned = self.ramp_to_parameter = False
         self.last_answer_ns = None
-        if self.depth_source == "planner":
-            self.core.set_targets(target_depth_m=self.param_depth_m)
+        self.core.set_targets(target_depth_m=self.param_depth_m)  # (the planner's fallback, or the depth itself)
         self.joiner.reset(event.first_stamp_ns)
         self.get_logger().info(f"episode {event.name}: reset, targets v={self.core.target_speed_m_s[0]} m/s "
                                f"d={self.core.target_depth_m[0]} m")

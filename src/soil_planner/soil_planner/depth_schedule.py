@@ -114,7 +114,7 @@ class DepthSchedule:
         self.last_retreat_ns: int | None = None  # stamp of the newest plan that found the target too deep
         self.deepened = False  # plans took the target > retreat_m past the start depth (before: no plan's)
         self.last_goal_m: float | None = None  # the newest valid plan's depth, clamped: no hold goes deeper
-        self.interval_s: float | None = None  # between the two updates before the newest: the plans' pace
+        self.interval_s: float | None = None  # between the newest two updates not across a gap: the plans' pace
 
     def update(self, stamp_ns: int, plan_depth_m: float | None) -> float:
         """The target at ``stamp_ns`` given this tick's plan (None or non-finite: no valid plan)."""
@@ -124,15 +124,18 @@ class DepthSchedule:
             self.reset()
         dt = 0.0 if self.last_stamp_ns is None else (stamp_ns - self.last_stamp_ns) / NS_PER_S
         self.last_stamp_ns = stamp_ns
-        pace_s, self.interval_s = self.interval_s, (dt if dt > 0.0 else self.interval_s)
         planned = plan_depth_m is not None and math.isfinite(plan_depth_m)
         unplanned_s = None if self.last_plan_ns is None else (stamp_ns - self.last_plan_ns) / NS_PER_S
-        if (planned and unplanned_s is not None and unplanned_s > s.hold_s and pace_s is not None
-                and dt > GAP_PACES * pace_s):
-            # plans missing for longer than the hold (a gap, not the estimator's pace: a stride of
-            # seconds is no gap): the back-off the missing ticks would have made, then the ramp resumes
-            self._back_off(unplanned_s - s.hold_s)
-            dt = pace_s
+        # updates missing (a gap, not the estimator's pace: a stride of seconds is no gap): the gap earns
+        # no deepening, the ramp resumes at the pace (rising keeps the whole gap: a retreat is never
+        # slowed); beyond the hold, first the back-off the missing ticks would have made
+        gap = self.interval_s is not None and dt > GAP_PACES * self.interval_s
+        deepen_dt = self.interval_s if gap else dt
+        if gap and planned and unplanned_s is not None and unplanned_s > s.hold_s:
+            self._back_off(unplanned_s - s.hold_s)  # (the cut's plans had deepened it: a shallower plan now
+            # is a retreat all the same, and the cautious re-deepening follows)
+        if dt > 0.0 and not gap:
+            self.interval_s = dt
         if planned:
             goal = min(max(float(plan_depth_m), s.min_depth_m), s.max_depth_m)
             self.last_plan_ns, self.last_goal_m = stamp_ns, goal
@@ -149,7 +152,7 @@ class DepthSchedule:
             return self.target_m
         step = goal - self.target_m
         deepen = min(s.deepen_rate_m_s, s.cautious_deepen_rate_m_s) if self.cautious(stamp_ns) else s.deepen_rate_m_s
-        step = min(step, deepen * dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
+        step = min(step, deepen * deepen_dt) if step > 0 else max(step, -s.shallow_rate_m_s * dt)
         # the goal keeps the floor; the target reaches a floor raised at run time at the deepening rate
         # (clamped, it had jumped there in one tick: an outside reviewer's); a lowered ceiling at once
         self.target_m = min(self.target_m + step, s.max_depth_m)
@@ -169,7 +172,6 @@ class DepthSchedule:
         s = self.settings
         goal = min(max(self._back_off_goal(), s.min_depth_m), s.max_depth_m)
         self.target_m = max(goal, self.target_m - s.shallow_rate_m_s * elapsed_s) if goal < self.target_m else self.target_m
-        self.deepened = False
 
     def cautious(self, stamp_ns: int) -> bool:
         """Within ``retreat_memory_s`` of the newest retreat: deepening at the cautious rate."""

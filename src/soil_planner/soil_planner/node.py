@@ -57,7 +57,7 @@ from std_msgs.msg import String
 
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
-from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ
+from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.values import number_in, short_repr
 from soil_msgs_py import graph as G
 from soil_msgs_py.episode_follow import EpisodeFollower
@@ -234,7 +234,8 @@ class PlannerNode(Node):
         self.silence = InputSilence(self, f"estimates ({T.ESTIMATE.name})")
         self.follower = EpisodeFollower(get("graph_id"))  # a stray /sim/status event does not restart its cut
         self.joiner = estimate_joiner()
-        self.cut_first_ns: int | None = None  # the first tick of the episode followed (None: none yet)
+        self.cut_first_ns: int | None = None  # the first tick of the episode followed (None: none now)
+        self.cut_end_ns: int | None = None  # its last tick as planned, then as it ended
         self.previous_cut_ticks = 0  # ticks of an episode before it, come after it began: not planned
         self.last_log_ns: int | None = None
         self.published = 0
@@ -378,9 +379,12 @@ class PlannerNode(Node):
                                         f"{[r.reason for r in result]}")
             self._new_cut()
             self.cut_first_ns = event.first_stamp_ns
+            self.cut_end_ns = event.first_stamp_ns + round(max(event.planned_ticks - 1, 0) * TICK_PERIOD_NS)
             self.joiner.start_at(event.first_stamp_ns)
             self.silence.start(event.name)
         elif event is not None:
+            if event.last_stamp_ns >= 0 and self.cut_first_ns is not None:  # (-1: it published no tick)
+                self.cut_end_ns = event.last_stamp_ns
             self.silence.end()
 
     def _new_cut(self, at_stamp_ns: int | None = None) -> None:
@@ -467,6 +471,7 @@ class PlannerNode(Node):
         elif verdict is Verdict.RESTART:
             self._warn("restart", f"{topic}: stamps stayed behind the newest planned tick {newest} ns; following the "
                                   f"stream from stamp {stamp} ns")
+            self._unfollow_episode()  # (time went back without a /sim/status: no episode of it is known)
         for joined in out:
             if joined.complete:
                 item = (joined.parts[T.ESTIMATE.name], joined.parts[T.KNOWN.name])
@@ -477,6 +482,12 @@ class PlannerNode(Node):
                 behind = "" if newest is None else f" (estimates {(newest - joined.stamp_ns) / M.NS_PER_S:.1f} s behind it)"
                 self._warn("unpaired", f"{T.ESTIMATE.name} at stamp {joined.stamp_ns} ns never got its "
                                        f"{T.KNOWN.name}{behind}; dropped")
+
+    def _unfollow_episode(self) -> None:
+        """The stream left the episode followed without a /sim/status (a replay of bags started over,
+        ``--topics`` without it): its first tick no longer marks earlier ticks as the previous cut's
+        (they had all been dropped from then on, an outside reviewer's)."""
+        self.cut_first_ns = self.cut_end_ns = None
 
     def _previous_cut(self, stamp: int) -> None:
         """An estimate of a tick before the episode followed began: the previous episode's, come
@@ -552,7 +563,8 @@ class PlannerNode(Node):
         last = self.schedule.last_stamp_ns
         if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
             # ahead within the episode followed: ticks lost (a loaded machine), the same cut
-            gap = stamp > last and self.cut_first_ns is not None and last >= self.cut_first_ns
+            gap = (stamp > last and self.cut_first_ns is not None and last >= self.cut_first_ns
+                   and (self.cut_end_ns is None or stamp <= self.cut_end_ns))
             if self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
                 self._jumped_to = stamp
                 self._warn("jump", f"stamp {stamp} ns is {(stamp - last) / M.NS_PER_S:+.3g} s from the last tick "
@@ -562,6 +574,7 @@ class PlannerNode(Node):
                 return
             if not gap:  # (a gap keeps the cut's evidence and stall memory; the schedule backs off over it)
                 self._new_cut(stamp)
+                self._unfollow_episode()  # (a cut no /sim/status announced: none of the episode followed)
         elif last is not None and stamp <= last:
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
         self._jumped_to = None

@@ -188,6 +188,7 @@ class SimNode(Node):
         self.command_writers = command_writers()  # who answers the ticks, across episodes
         self.gate = CommandGate(self.command_writers)
         self.episode_index = -1
+        self.planned_at_start = bool(self.queue)  # (a plan a reset cleared is done: exit_when_done exits)
         self._names_wait_since: float | None = None  # a /sim/status writer's node name awaited since (monotonic)
         self._born = time.monotonic()
         self._nodes_seen: tuple[set, float] = (set(), self._born)  # the domain's nodes, and since when unchanged
@@ -526,7 +527,8 @@ class SimNode(Node):
         if self.sim is None:
             if self.queue and not self.shutdown_requested:
                 self._try_start()
-            elif self.shutdown_requested or (self.exit_when_done and not self.queue and self.episode_index >= 0):
+            elif self.shutdown_requested or (self.exit_when_done and not self.queue
+                                             and (self.planned_at_start or self.episode_index >= 0)):
                 # (with episodes 0 the plan is empty: done once a commanded episode ran, not at start-up)
                 self.finished = True
             return
