@@ -105,13 +105,17 @@ def interruptible(prog: str, outcome: str = "its output is not written: run it a
 
 
 class StopRequest:
-    """The first SIGINT or SIGTERM received inside ``stop_requests`` (None: none yet)."""
+    """The SIGINT and SIGTERM received inside ``stop_requests``: ``signum`` the first (None: none
+    yet), ``signums`` each kind once, in the order they came."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self.signums: list[int] = []
 
     def _note(self, signum, frame) -> None:  # noqa: ARG002
         self.signum = self.signum or signum
+        if signum not in self.signums:
+            self.signums.append(signum)
 
 
 def interrupt_for(signum: int) -> KeyboardInterrupt:
@@ -138,8 +142,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 @contextlib.contextmanager
 def interrupts_deferred():
     """Within: SIGINT and SIGTERM are noted, not handled, and blocked in this thread; on leaving,
-    the previous handlers are back and the first signal noted (or still pending) is handled as it
-    would have been, a moment later. For starting worker processes, which inherit the blocked
+    the previous handlers are back and each signal noted (or still pending) is handled as it
+    would have been, a moment later, in the order they came. For starting worker processes, which inherit the blocked
     signals and unblock them once their own dispositions are set (``unblock_stop_signals``).
 
     Why: a fork runs Python's at-fork hooks (logging's lock, in the parent and the child), and a
@@ -163,8 +167,11 @@ def interrupts_deferred():
             finally:  # (a signal pending on this thread is handled here: the noting handler takes it)
                 signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
     finally:
-        if request is not None and request.signum is not None:
-            signal.raise_signal(request.signum)
+        # each kind noted, in order, as its handler takes it: a pool worker (Ctrl-C ignored) deferring
+        # its kernel's warm-up had noted the terminal's Ctrl-C first and its pool's SIGTERM after; only
+        # the Ctrl-C was raised again, ignored, and the worker ran the whole batch on after the stop
+        for signum in request.signums if request is not None else ():
+            signal.raise_signal(signum)
 
 
 def unblock_stop_signals() -> None:

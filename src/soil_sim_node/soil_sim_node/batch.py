@@ -631,8 +631,13 @@ def main(argv=None) -> int:
         with stop_requests():
             _remove_staging(plan)
             stale = before is not None and plan.overwrite and left_stale(plan.out, before, started, planned_names(plan))
-            print(f"soil_sim_batch: interrupted{how}; the bags finished under {plan.out} are kept ({resume_hint(stale)})",
-                  file=sys.stderr)
+            # (a stop before this run finished any bag said "the bags finished are kept" of none, an outside tester's)
+            finished = before is not None and bool(_bags_in(plan.out) - before or (
+                plan.overwrite and any(written_since(plan.out / name, started) for name in before)))
+            kept = (f"the bags finished under {plan.out} are kept ({resume_hint(stale)})" if finished else
+                    f"it had finished no bag under {plan.out} ("
+                    + (resume_hint(stale) if stale else "the same command runs it again") + ")")
+            print(f"soil_sim_batch: interrupted{how}; {kept}", file=sys.stderr)
         return interrupt_exit_code(exc)
     print(
         f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
