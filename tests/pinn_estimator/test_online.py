@@ -491,6 +491,17 @@ def test_a_stray_message_far_back_or_ahead_keeps_the_soil_posterior(episode, mod
         assert np.array_equal(out[-1].values, clean[-1].values), what  # the posterior and the window as without it
 
 
+def test_a_burst_of_copies_a_tick_back_resets_windows_but_never_the_soil_posterior(episode, model):
+    """A second publisher's 40 copies of one Θ_k stamped a tick behind the newest: each out of order
+    (its window reset), but 16 of them in a row had started a new stream, the soil posterior and map
+    wiped mid-episode (an outside tester's); only stamps far back or ahead count towards one."""
+    row = M.topic_rows(episode, T.KNOWN.name)[149]
+    copies = [(T.KNOWN.name, M.build_message(M.TYPESTORE, T.KNOWN.name, int(episode.stamps_ns[149]), row))] * 40
+    est, out = run(model, in_order(episode, range(151)) + copies + in_order(episode, range(151, N_TICKS)))
+    assert est.counters.restarts == 0 and est.counters.out_of_order == 40
+    assert [e for e in out if e.stamp_ns > episode.stamps_ns[150]], "estimates go on after the burst"
+
+
 def test_ticks_arriving_twice_again_and_again_are_said_to_be_a_second_publisher(episode, model):
     """A controller left running from another launch answers every tick too: each copy spoils its
     tick (no window fills); after a few such ticks the warning says what it most likely is."""

@@ -176,7 +176,8 @@ class SampleAssembler:
         # waiting for time to catch up (RESTART_BACK_TICKS)
         self.joiner = StampJoiner(INPUT_TOPICS, max_pending=MAX_PENDING_TICKS, duplicates="spoil",
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
-                                  max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED)
+                                  max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED,
+                                  restart_counts_back_beyond_ns=RESTART_BACK_TICKS * PERIOD_NS)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
         # refusals off the stream's grid, nothing taken since, and the first stamp refused (``_off_grid``)
         self.off_grid_in_a_row, self.off_grid_first_ns, self.off_grid_stamps_differ = 0, -1, False

@@ -101,7 +101,7 @@ class StampJoiner:
 
     def __init__(self, topics, *, max_pending: int, reorder_ns: float = 0, duplicates: str = "replace",
                  restart_back_ns: float | None = None, max_ahead_ns: float | None = None,
-                 restart_after_refused: int = 0):
+                 restart_after_refused: int = 0, restart_counts_back_beyond_ns: float = 0):
         self.topics = tuple(topics)
         if not self.topics or len(set(self.topics)) != len(self.topics):
             raise ValueError(f"topics={self.topics!r} must be distinct and at least one")
@@ -110,7 +110,7 @@ class StampJoiner:
         if duplicates not in DUPLICATE_POLICIES:
             raise ValueError(f"duplicates={duplicates!r} is not one of {DUPLICATE_POLICIES}")
         for name, value in (("reorder_ns", reorder_ns), ("restart_back_ns", restart_back_ns),
-                            ("max_ahead_ns", max_ahead_ns)):
+                            ("max_ahead_ns", max_ahead_ns), ("restart_counts_back_beyond_ns", restart_counts_back_beyond_ns)):
             if value is not None and not value >= 0:
                 raise ValueError(f"{name}={value!r} must be >= 0 ns")
         self.max_pending = max_pending
@@ -119,6 +119,9 @@ class StampJoiner:
         self.restart_back_ns = restart_back_ns
         self.max_ahead_ns = max_ahead_ns
         self.restart_after_refused = restart_after_refused
+        # a stale stamp this close behind is a late or repeated message (a second publisher's copies),
+        # refused without counting towards a restart: a burst of such copies had started a new stream
+        self.restart_counts_back_beyond_ns = restart_counts_back_beyond_ns
         self._refused = 0  # refusals in a row (nothing taken since)
         self._pending: dict[int, Joined] = {}  # insertion order = how long a set has waited
         self._complete_stamps: set[int] = set()  # of the pending sets (an estimator seconds behind: few of many)
@@ -171,6 +174,8 @@ class StampJoiner:
                 verdict = Verdict.RESTART
         elif self.max_ahead_ns is not None and self._expecting and stamp_ns - (self.last_ns + 1) > self.max_ahead_ns:
             refused = Verdict.FUTURE
+        if refused is Verdict.STALE and self.last_ns - stamp_ns <= self.restart_counts_back_beyond_ns:
+            return Offer(refused, [])  # (neither counted nor ending a count)
         if refused is not None:
             self._refused += 1
             if not self.restart_after_refused or self._refused < self.restart_after_refused:

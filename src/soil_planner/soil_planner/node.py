@@ -104,7 +104,8 @@ def estimate_joiner() -> StampJoiner:
     RESTART_AFTER_REFUSED_TICKS ticks in a row, a stream that started over without a word (no
     /sim/status) is followed; an episode_start starts it at its first tick at once (``start_at``)."""
     return StampJoiner((T.KNOWN.name, T.ESTIMATE.name), max_pending=MAX_PENDING_STAMPS,
-                       restart_after_refused=2 * RESTART_AFTER_REFUSED_TICKS)
+                       restart_after_refused=2 * RESTART_AFTER_REFUSED_TICKS,
+                       restart_counts_back_beyond_ns=NEW_CUT_GAP_NS)  # (copies a moment back: no restart)
 
 
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
