@@ -2,6 +2,7 @@
 before reading the bag (exit 2, naming -o)."""
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -102,6 +103,17 @@ def test_a_bag_without_a_planner_draws_the_episodes_target_and_one_with_it_the_p
     assert not plot_module.followed_planner(ep, advisory)
     plot_module.plot_episode(ep, tmp_path / "advisory.png", advisory)
     assert labels[2][:2] == ["cut depth $d$", "target $\\bar d_z$"] and "planner's target (not followed)" in labels[2]
+    # followed part-way (a planner that died at 3/4, the controller on the episode's 0.1 m after): its share
+    from soil_msgs_py.episode import OBSERVATION_FIELDS
+
+    n = len(ep.time_s)
+    observations = ep.observations.copy()
+    observations[:, OBSERVATION_FIELDS.index("u_za")] = np.where(np.arange(n) < 3 * n // 4, -0.15, -0.1)
+    died = dataclasses.replace(ep, observations=observations)
+    share = plot_module.followed_share(died, (ep.time_s[: 3 * n // 4], np.full(3 * n // 4, 0.15)))
+    assert share == pytest.approx(0.75, abs=0.02) and plot_module.followed_planner(died, (ep.time_s[:1], np.array([0.15])))
+    plot_module.plot_episode(died, tmp_path / "died.png", (ep.time_s[: 3 * n // 4], np.full(3 * n // 4, 0.15)))
+    assert "planner's target $\\bar d_z$" in labels[3] and "fallback $\\bar d_z$" in labels[3]
 
 
 def test_a_gap_or_a_non_finite_value_is_said_not_drawn_over_in_silence(bags, tmp_path):

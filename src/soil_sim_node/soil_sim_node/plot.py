@@ -51,19 +51,30 @@ def planner_targets(bag: Path, ep: Episode) -> tuple[np.ndarray, np.ndarray] | N
 FOLLOWED_WITHIN_M = 1e-3  # a command this close to a target followed it (the anti-stall offset at 0)
 
 
-def followed_planner(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether the controller cut to the planner's targets (``depth_source`` planner) rather than
-    the episode's: more ticks' commanded depth −u_za lies within FOLLOWED_WITHIN_M of the planner's
-    target in effect than of the episode's. A planner beside an open loop (its plans advisory)
-    records targets too, and the figure had said the depth came from it (an outside tester's)."""
+def followed_share(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> float:
+    """The share of the ticks whose commanded depth −u_za lies within FOLLOWED_WITHIN_M of the
+    planner's target in effect, of those within it of the planner's or the episode's (0 where none
+    is: an anti-stall offset all along). A planner beside an open loop records targets too, and a
+    controller whose planner died part-way fell back to the episode's depth for the rest."""
     times, targets = planner
     at = np.searchsorted(times, ep.time_s, side="right") - 1  # the newest target at or before each tick
     planned = np.where(at >= 0, targets[np.clip(at, 0, None)], np.nan)
     commanded = -ep.column("u_za")
     with np.errstate(invalid="ignore"):
-        by_planner = int(np.sum(np.abs(commanded - planned) <= FOLLOWED_WITHIN_M))
-        by_episode = int(np.sum(np.abs(commanded - ep.meta.target_depth_m) <= FOLLOWED_WITHIN_M))
-    return by_planner > by_episode
+        telling = np.abs(planned - ep.meta.target_depth_m) > FOLLOWED_WITHIN_M  # (where the two agree, no tick tells)
+        by_planner = int(np.sum(telling & (np.abs(commanded - planned) <= FOLLOWED_WITHIN_M)))
+        by_episode = int(np.sum(telling & (np.abs(commanded - ep.meta.target_depth_m) <= FOLLOWED_WITHIN_M)))
+    return by_planner / (by_planner + by_episode) if by_planner + by_episode else 0.0
+
+
+ALL_ALONG_SHARE = 0.95  # a loop this closed is said as the planner's (a fallback's few ticks aside)
+
+
+def followed_planner(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether the controller cut to the planner's targets (``depth_source`` planner) rather than
+    the episode's for most ticks (``followed_share`` above one half): the figure had said the depth
+    came from an advisory planner (an outside tester's)."""
+    return followed_share(ep, planner) > 0.5
 
 
 def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
@@ -72,7 +83,8 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     where the controller followed them (``followed_planner``), else beside it as advice."""
     t = ep.time_s
     m = ep.meta
-    followed = planner is not None and followed_planner(ep, planner)
+    share = followed_share(ep, planner) if planner is not None else 0.0
+    followed = share > 0.5
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, ep.column("f_x_b") / 1e3, lw=0.9, label="$f_x^b$ measured")
@@ -95,7 +107,9 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     ax.set_title(
         f"{soil}{m.world_mode} world, "
         f"$\\bar v_x$ = {m.target_speed_m_s:.2f} m/s, "
-        + ("$\\bar d_z$ from the planner" if followed else f"$\\bar d_z$ = {m.target_depth_m:.3f} m")
+        + ("$\\bar d_z$ from the planner" + (f" ({share:.0%} of the ticks, else {m.target_depth_m:.3f} m)"
+                                               if share < ALL_ALONG_SHARE else "")
+           if followed else f"$\\bar d_z$ = {m.target_depth_m:.3f} m")
         + f", seed {m.seed}"
     )
     x_b = ep.column("p_x_b")
@@ -107,6 +121,8 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     ax.plot(t, ep.column("d"), label="cut depth $d$")
     if followed:  # the loop closed: the controller's target was the planner's, step by step
         ax.step(*planner, where="post", color="k", ls="--", lw=0.8, label="planner's target $\\bar d_z$")
+        if share < ALL_ALONG_SHARE:  # part-way (a planner that died): the depth it fell back to
+            ax.axhline(m.target_depth_m, color="grey", ls="--", lw=0.6, label="fallback $\\bar d_z$")
     else:
         ax.axhline(m.target_depth_m, color="k", ls="--", lw=0.8, label="target $\\bar d_z$")
         if planner is not None:  # an advisory planner's: what it would have cut to
