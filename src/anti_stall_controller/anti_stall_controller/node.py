@@ -294,7 +294,7 @@ class ControllerNode(Node):
         # the previous cut's plan does not carry over (nor its held ticks: the reset core must not step
         # on them); in lockstep the controller keeps step with the planner
         self.plan_wait.start_episode(event.first_stamp_ns, event.pacing == G.PACING_LOCKSTEP)
-        self.following_planner = self.planned = self.ramp_to_parameter = False
+        self.following_planner = False  # (planned and ramp_to_parameter: cleared above, before the targets)
         self.last_answer_ns = None
         self.core.set_targets(target_depth_m=self.param_depth_m)  # (the planner's fallback, or the depth itself)
         self.joiner.reset(event.first_stamp_ns)
@@ -419,8 +419,13 @@ class ControllerNode(Node):
             return target[1]
         if not self.planned:  # no plan this episode yet: the parameter's depth, as without a planner
             return self.param_depth_m
+        return self._toward_parameter(stamp)
+
+    def _toward_parameter(self, stamp: int) -> float:
+        """d̄_z at ``stamp`` on the way from the core's to the parameter's: shallower at once, deeper
+        at the fallback rate since the last tick answered (``planner_fallback.fallback_depth``)."""
         dt_s = 0.0 if self.last_answer_ns is None else (stamp - self.last_answer_ns) / 1e9
-        return fallback_depth(current, self.param_depth_m, dt_s, self.fallback_rate_m_s)
+        return fallback_depth(float(self.core.target_depth_m[0]), self.param_depth_m, dt_s, self.fallback_rate_m_s)
 
     def _answer(self, stamp: int, v_x_c: float, p_z_c: float, force_n=None) -> None:
         if self.depth_source == "planner":
@@ -428,8 +433,7 @@ class ControllerNode(Node):
             if depth != self.core.target_depth_m[0]:
                 self.core.set_targets(target_depth_m=depth)
         elif self.ramp_to_parameter:
-            dt_s = 0.0 if self.last_answer_ns is None else (stamp - self.last_answer_ns) / 1e9
-            depth = fallback_depth(float(self.core.target_depth_m[0]), self.param_depth_m, dt_s, self.fallback_rate_m_s)
+            depth = self._toward_parameter(stamp)
             self.core.set_targets(target_depth_m=depth)
             self.ramp_to_parameter = depth != self.param_depth_m
         cmd = self.core.step(v_x_c, p_z_c, force_n)  # non-finite inputs: core holds its state

@@ -50,16 +50,17 @@ def mixture_quantiles(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantiles) 
     batched = mu.ndim == 2
     mu2, sd2 = (mu, sd) if batched else (mu[None], sd[None])
     lo0, hi0 = (mu2 - 8 * sd2).min(axis=1), (mu2 + 8 * sd2).max(axis=1)
-    out = []
-    for q in quantiles:
-        lo, hi = lo0.copy(), hi0.copy()
-        for _ in range(BISECTIONS):
-            mid = 0.5 * (lo + hi)
-            below = ndtr((mid[:, None] - mu2) / sd2) @ w < q
-            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-        out.append(0.5 * (lo + hi))
-    out = np.array(out)
+    out = np.array([_bisect(lambda x: ndtr((x[:, None] - mu2) / sd2) @ w, lo0, hi0, q) for q in quantiles])
     return out if batched else out[:, 0]
+
+
+def _bisect(cdf, lo: np.ndarray, hi: np.ndarray, level: float) -> np.ndarray:
+    """Where the non-decreasing ``cdf`` (D,) -> (D,) reaches ``level``, per entry in [lo, hi]."""
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        below = cdf(mid) < level
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
 
 
 def mixture_cdf(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -90,12 +91,8 @@ def upper_magnitude(w: np.ndarray, mu: np.ndarray, sd: np.ndarray, quantile: flo
     mu, sd = np.asarray(mu, float), np.asarray(sd, float)
     single = mu.ndim == 1
     mu2, sd2 = (mu[None], sd[None]) if single else (mu, sd)
-    lo, hi = np.zeros(mu2.shape[0]), (np.abs(mu2) + 8 * sd2).max(axis=1)
-    for _ in range(BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        below = magnitude_cdf(w, mu2, sd2, mid) < quantile
-        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-    out = 0.5 * (lo + hi)
+    out = _bisect(lambda x: magnitude_cdf(w, mu2, sd2, x), np.zeros(mu2.shape[0]), (np.abs(mu2) + 8 * sd2).max(axis=1),
+                  quantile)
     return out[0] if single else out
 
 

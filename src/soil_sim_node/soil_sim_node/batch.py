@@ -301,6 +301,12 @@ def planned_names(plan: DatasetPlan) -> set[str] | None:
         return None
 
 
+def bags_of_this_run(out: Path, before: set[str], overwrite: bool, since: float | None) -> set[str]:
+    """The bags under ``out`` a run finished: those not in ``before``, and with ``overwrite`` those of
+    ``before`` written since ``since`` (time.time(); None: none of them)."""
+    return {n for n in _bags_in(out) if n not in before or (overwrite and since is not None and written_since(out / n, since))}
+
+
 def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str = "", *,
                        overwrite: bool = False, since: float | None = None, planned: set[str] | None = None) -> str:
     """Words for the bags a failed run finished before it failed ('' if none): they stay (each is
@@ -308,8 +314,7 @@ def kept_after_failure(out: Path, before: set[str], bad_input: bool, said: str =
     the error's own words (the resume hint is not said twice). ``overwrite``: the run replaced bags
     of ``before``; those written since ``since`` (time.time()) count as its own too, and those of
     ``planned`` (the plan's names; None: every bag of ``before``) it had not reached are stale."""
-    mine = {n for n in _bags_in(out) if n not in before or (overwrite and since is not None and written_since(out / n, since))}
-    new = sorted(mine)
+    new = sorted(bags_of_this_run(out, before, overwrite, since))
     if not new:
         return ""
     hint = resume_hint(overwrite and since is not None and left_stale(out, before, since, planned))
@@ -632,8 +637,7 @@ def main(argv=None) -> int:
             _remove_staging(plan)
             stale = before is not None and plan.overwrite and left_stale(plan.out, before, started, planned_names(plan))
             # (a stop before this run finished any bag said "the bags finished are kept" of none, an outside tester's)
-            finished = before is not None and bool(_bags_in(plan.out) - before or (
-                plan.overwrite and any(written_since(plan.out / name, started) for name in before)))
+            finished = before is not None and bool(bags_of_this_run(plan.out, before, plan.overwrite, started))
             kept = (f"the bags finished under {plan.out} are kept ({resume_hint(stale)})" if finished else
                     f"it had finished no bag under {plan.out} ("
                     + (resume_hint(stale) if stale else "the same command runs it again") + ")")

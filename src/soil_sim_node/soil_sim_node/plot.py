@@ -67,6 +67,7 @@ def followed_share(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> float
     return by_planner / (by_planner + by_episode) if by_planner + by_episode else 0.0
 
 
+MOST = 0.5  # the controller followed the planner on more of the telling ticks than not
 ALL_ALONG_SHARE = 0.95  # a loop this closed is said as the planner's (a fallback's few ticks aside)
 
 
@@ -74,7 +75,7 @@ def followed_planner(ep: Episode, planner: tuple[np.ndarray, np.ndarray]) -> boo
     """Whether the controller cut to the planner's targets (``depth_source`` planner) rather than
     the episode's for most ticks (``followed_share`` above one half): the figure had said the depth
     came from an advisory planner (an outside tester's)."""
-    return followed_share(ep, planner) > 0.5
+    return followed_share(ep, planner) > MOST
 
 
 def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
@@ -84,7 +85,7 @@ def plot_episode(ep: Episode, out: Path, planner: tuple[np.ndarray, np.ndarray] 
     t = ep.time_s
     m = ep.meta
     share = followed_share(ep, planner) if planner is not None else 0.0
-    followed = share > 0.5
+    followed = share > MOST  # (``followed_planner``, the share kept for the title)
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
     ax = axes[0]
     ax.plot(t, ep.column("f_x_b") / 1e3, lw=0.9, label="$f_x^b$ measured")
