@@ -72,12 +72,15 @@ def test_a_patch_the_blade_never_reaches_is_said(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "patches[2] (Loam from x = 4 m) starts beyond where the blade's edge gets in 2 s at 0.5 m/s (x ≈ 3.00 m)" in err
     assert "patches[1]" not in err and "behind" not in err
-    # a patch that ends where the edge starts: never cut, though the episode was named after it, unsaid
+    # a patch that ends where the edge starts: never cut, said; the episode is named and labelled
+    # after the soil it starts in (it had been after the patch never cut: an outside reviewer's)
     behind = [*base[:-6], "--patch", "0:Sand:20", "--patch", "2:Clay:80"]
     assert batch.main([*behind, "--out", str(tmp_path / "behind")]) == 0
     err = capsys.readouterr().err
-    assert ("patches[0] (Sand from x = 0 m) ends at x = 2 m, behind where the blade's edge starts (x = 2 m): never cut, "
-            "though the episodes are named and labelled after it") in err, err
+    assert ("patches[0] (Sand from x = 0 m) ends at x = 2 m, behind where the blade's edge starts (x = 2 m): "
+            "never cut") in err, err
+    names = [p.name for p in (tmp_path / "behind").iterdir() if p.is_dir()]
+    assert names and all(n.startswith("fee_clay_id080_") for n in names), names
 
 
 def test_a_soil_file_without_soils_naming_its_soils_is_said(tmp_path, capsys):

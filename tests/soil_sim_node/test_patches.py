@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -54,6 +55,20 @@ def test_resolve_takes_the_first_patch_as_the_episodes_soil_and_names_soils_as_t
     assert resolved.patches == (SoilPatch(-1.0, "Sand", 20.0), SoilPatch(5.0, "Clay", 90.5))
     plain = EpisodeSpec("Loam", 60.0, 0.8, 0.2, 5, 2.5)
     assert plain.resolve()[0] is plain and plain.patches == ()
+
+
+def test_an_episode_is_named_after_the_patch_its_edge_starts_in_and_its_truth_is_that_soils():
+    """'0:Sand:20, 1.5:Clay:90': the edge starts at x = 2 m, in the clay; the sand is never cut,
+    yet it named and labelled the episode (an outside reviewer's)."""
+    behind = spec(("0:Sand:20", "1.5:Clay:90"))
+    resolved, soil = behind.resolve()
+    assert (resolved.soil, resolved.relative_density_pct, soil.name) == ("Clay", 90.0, "Clay")
+    assert resolved.patches == (SoilPatch(0.0, "Sand", 20.0), SoilPatch(1.5, "Clay", 90.0))
+    ep = run_episodes(SimConfig(world_mode="fee"), [replace(behind, duration_s=1.0)])[0]
+    assert (ep.meta.soil, ep.meta.relative_density_pct) == ("Clay", 90.0) and ep.meta.name.startswith("fee_clay_id090_")
+    assert np.allclose(ep.truth[:, 0], get_soil("Clay").at(90.0).phi)
+    for boundary, first in ((2.0, "Clay"), (2.5, "Sand")):  # at the edge's start: the later patch holds there
+        assert spec(("0:Sand:20", f"{boundary}:Clay:90")).resolve()[0].soil == first, boundary
 
 
 def test_a_negative_zero_density_is_the_same_grid_point_as_zero():

@@ -24,6 +24,7 @@ from soil_msgs_py.params import (
     DEG,
     GROUND_TRUTH_PARAMS,
     MACHINE,
+    MAX_TARGET_SPEED_M_S,
     SAMPLE_RATE_HZ,
     SOIL_TOOL_FRICTION_DEFAULT_RAD,
     SOIL_TOOL_FRICTION_FEE_RAD,
@@ -306,6 +307,48 @@ def test_bad_episode_specs_name_field_and_value(field_, value, kwargs):
         run_episodes(SimConfig(world_mode="fee"), [spec])
 
 
+@pytest.mark.parametrize("field_, value, needle", [
+    ("relative_density_pct", True, "relative_density_pct=True must be a number in [0, 100] %"),
+    ("target_speed_m_s", 10**400, "target_speed_m_s=1000000000000000000"),
+    ("seed", True, "seed=True must be an integer"),
+])
+def test_a_bool_or_an_integer_too_large_for_a_float_is_refused_naming_it(field_, value, needle):
+    """True had been simulated as 1 % or 1 m/s; 10**400 ended in an OverflowError traceback."""
+    base = dict(soil="Clay", relative_density_pct=50.0, target_speed_m_s=0.5, target_depth_m=0.1, seed=0, duration_s=1.0)
+    with pytest.raises(ValueError) as err:
+        EpisodeSpec(**{**base, field_: value}).resolve()
+    assert needle in str(err.value), str(err.value)
+
+
+def test_numpy_numbers_in_range_are_accepted():
+    """np.float32(50) had been refused as "relative_density_pct=50.0 outside [0.0, 100.0]"."""
+    spec = EpisodeSpec("Clay", np.float32(50), np.float64(0.5), np.float32(0.1), np.int64(3), np.int64(1))
+    assert spec.resolve()[0].relative_density_pct == 50.0
+
+
+def test_a_machine_driven_faster_than_its_spec_keeps_its_cut_in_the_heightfield():
+    """The heightfield was sized from the spec's own speed: a teleop (or a controller at another
+    speed) at 2 m/s in a 0.3 m/s episode drove past its end, where every cut was written into the
+    last cell and lost (an outside reviewer's 1 m/s lost a quarter of the volume per metre)."""
+    from anti_stall_controller.controller import AntiStallController
+
+    spec = EpisodeSpec("Sand", 20.0, 0.3, 0.1, seed=1, duration_s=4.0)
+    sim = SoilSimulator(SimConfig(world_mode="fee"), [spec])
+    ctl = AntiStallController(None, MAX_TARGET_SPEED_M_S, 0.1)
+    out, x_b, depth = sim.reset(), [], []
+    for _ in range(round(spec.duration_s * SAMPLE_RATE_HZ)):
+        cmd = ctl.step(out.velocities[:, 1], out.positions[:, 2], out.forces)
+        out = sim.step(cmd.u_zr, cmd.u_za, cmd.u_x)
+        x_b.append(out.positions[0, 0]), depth.append(out.known[0, 5])
+    assert x_b[-1] > 2.0 + 1.5 * 0.3 * spec.duration_s + 3.0 + 1.0, x_b[-1]  # beyond where the old heightfield ended
+    # over the second half of the travel the heightfield is as deep as the edge cut
+    half = len(x_b) // 2
+    x = sim.x_min + sim.dyn.terrain_cell_m * (np.arange(sim.n_cells) + 0.5)
+    cut = -sim.terrain[0][(x > x_b[half]) & (x < x_b[-1] - 0.05)]
+    assert len(cut) == pytest.approx((x_b[-1] - 0.05 - x_b[half]) / sim.dyn.terrain_cell_m, abs=2), len(cut)
+    assert np.mean(cut) == pytest.approx(np.mean(depth[half:]), rel=0.05), (np.mean(cut), np.mean(depth[half:]))
+
+
 def test_plugin_module_that_does_not_import_is_named():
     with pytest.raises(PluginError, match=r"no_such_module"):
         SoilSimulator(SimConfig(plugins=("no_such_module:f",)), DET_SPECS[:1])
@@ -531,7 +574,10 @@ def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simu
                 check_failure_wedges(SimConfig(world_mode=world), EpisodeSpec(
                     "Clay", 50.0, 0.5, 0.2, seed=0, patches=["0:Clay:50", f"5:{name}:50"]), custom)
         small = soil("Small", (2, 2))
-        ep = run_episodes(SimConfig(world_mode=world), [EpisodeSpec("Small", 50.0, 0.5, 0.05, seed=0, duration_s=2.0)], custom_soils=small)[0]
+        with pytest.warns(UserWarning, match=r"soil 'Small' at I_d 50 %: phi=2° is below the soil-tool friction .* while "
+                                             r"the blade rises .* the recorded truth's FEE"):
+            ep = run_episodes(SimConfig(world_mode=world), [EpisodeSpec("Small", 50.0, 0.5, 0.05, seed=0, duration_s=2.0)],
+                              custom_soils=small)[0]
         assert np.abs(ep.forces[60:, 0]).max() > 5e3  # a nearly frictionless cohesive soil resists (hard)
     # the batch refuses it before writing any bag, the good soils' included
     import yaml
@@ -545,6 +591,11 @@ def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simu
                        "--relative-densities", "50", "--speeds", "0.5", "--depths", "0.2", "--duration", "1",
                        "--workers", "2", "--quiet", "--out", str(out)]) == 2
     assert "soil 'Undrained' at I_d 50 %" in capsys.readouterr().err and not out.exists()
-    for name in ("Clay", "Loam", "Sand", "Gravel"):  # every catalogue soil has its wedge
-        SoilSimulator(SimConfig(world_mode="default"), [EpisodeSpec(name, 0.0, 0.5, 0.2, seed=0)])
-        SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec(name, 100.0, 0.5, 0.2, seed=0)])
+    import warnings
+
+    for name in ("Clay", "Loam", "Sand", "Gravel"):  # every catalogue soil has its wedge, rising too (φ ≥ 17° > δ)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            SoilSimulator(SimConfig(world_mode="default"), [EpisodeSpec(name, 0.0, 0.5, 0.2, seed=0)])
+            SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec(name, 0.0, 0.5, 0.2, seed=0)])
+            SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec(name, 100.0, 0.5, 0.2, seed=0)])

@@ -38,7 +38,8 @@ class EpisodeMeta:
 
     ``patches``: the soil along the path (``patches.py``), as ``SoilPatch.as_dict()`` mappings;
     empty (and then absent from the JSON, as in bags made before patches existed) when the
-    episode has one soil. With patches, ``soil`` and ``relative_density_pct`` are the first patch's.
+    episode has one soil. With patches, ``soil`` and ``relative_density_pct`` are those of the patch
+    under the blade's edge at the start (the first, unless the next starts at or behind it).
     """
 
     soil: str

@@ -140,8 +140,12 @@ def recorded_beta_star(phi, delta, rho, alpha):
 
     Why: a rising blade reverses the soil-tool friction (Eq. 9-10), and in a soil weaker than
     that friction (δ' < −φ, e.g. φ 12° under the fee world's δ 15°) N_γ has no minimum over wedges
-    of non-negative area (cot ρ + cot β ≥ 0): it falls to 0 at β = π − ρ. The soil then resists
-    nothing (the simulator's failure force is 0 there), and a bag's truth must stay finite."""
+    of non-negative area (cot ρ + cot β ≥ 0): it falls to 0 at β = π − ρ. The simulator's soil then
+    resists nothing (its failure force is 0), and a bag's truth must stay finite. The FEE at this β
+    is 0 only without cohesion: a cohesive soil's c·N_c and c_a·N_a remain (tens of kN: N_c grows as
+    φ + δ' → 0⁻), so on those ticks the truth's FEE is not the measured force. Only soils with φ
+    below the world's δ (none of the catalogue's: its least φ is 17°); ``check_failure_wedges``
+    warns of them."""
     xp, phi, delta, rho, alpha = _xp.coerce(phi, delta, rho, alpha)
     beta = beta_star(phi, delta, rho, alpha)
     return xp.where(xp.isfinite(beta), beta, math.pi - rho + xp.zeros_like(beta))

@@ -227,7 +227,8 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
 def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
     """A line for each patch that starts beyond where the blade's edge gets at the target speed
     in the episode's duration (too short, too slow), or ends behind where it starts: the
-    episodes never cut it. (Such a first patch still names the episode.)"""
+    episodes never cut it (nor names them: ``EpisodeSpec.resolve`` names an episode after the patch
+    under the edge at the start)."""
     notes = []
     start = Dynamics().blade_offset_m
     for speed, duration, patches in dict.fromkeys((s.target_speed_m_s, s.duration_s, tuple(s.patches)) for s in specs):
@@ -236,8 +237,7 @@ def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
         for i, (patch, following) in enumerate(zip(checked, checked[1:])):
             if following.x_start_m <= start:
                 notes.append(f"patches[{i}] ({patch.soil} from x = {patch.x_start_m:g} m) ends at x = "
-                             f"{following.x_start_m:g} m, behind where the blade's edge starts (x = {start:g} m): never cut"
-                             + (", though the episodes are named and labelled after it" if i == 0 else ""))
+                             f"{following.x_start_m:g} m, behind where the blade's edge starts (x = {start:g} m): never cut")
         for i, patch in enumerate(checked[1:], start=1):
             if patch.x_start_m > reach:
                 notes.append(f"patches[{i}] ({patch.soil} from x = {patch.x_start_m:g} m) starts beyond where the blade's "

@@ -80,7 +80,7 @@ PARAMETERS: dict[str, tuple] = {
     "patches": ([], "soil along the path, 'x_start_m:soil:relative_density_pct' entries ordered by x, e.g. "
                     "['0.0:Sand:20', '5.0:Clay:90'] (x: the blade's cutting edge in the world frame [m]; the first "
                     "also covers everything before the second; empty: 'soil' everywhere; set: 'soil' and "
-                    "'relative_density_pct' are unused, the first patch's are the episode's)", _STR_ARRAY),
+                    "'relative_density_pct' are unused, those of the patch under the edge at the start are the episode's)", _STR_ARRAY),
     "target_speed_m_s": (DEFAULT_TARGET_SPEED_M_S, "target forward speed of the episodes [m/s] (sent to the controller in /sim/status)"),
     "target_depth_m": (DEFAULT_TARGET_DEPTH_M, "target cut depth below the original surface [m]"),
     "seed": (0, "seed of the first episode; episode k of the plan uses seed + k"),

@@ -20,7 +20,7 @@ from .simulator import EpisodeSpec, SimConfig, SoilSimulator
 
 def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: list[str]) -> EpisodeMeta:
     """The metadata of ``spec`` as ``SoilSimulator`` resolved it (``sim.specs[i]``: with
-    patches, the first patch's soil and I_d and the patches with catalogue names)."""
+    patches, the soil and I_d of the patch the edge starts in and the patches with catalogue names)."""
     return EpisodeMeta(
         soil=soil_name,
         relative_density_pct=float(spec.relative_density_pct),

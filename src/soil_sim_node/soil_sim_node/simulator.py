@@ -48,6 +48,7 @@ plugins (the interpreter is back in every substep) but still much faster than th
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -55,7 +56,7 @@ import numpy as np
 from soil_physics import fee
 from soil_msgs_py.episode import MAX_EPISODE_S, MAX_SEED
 from soil_msgs_py.patches import SoilPatch, check_patches
-from soil_msgs_py.values import plain_zero
+from soil_msgs_py.values import finite_number, plain_zero, short_repr
 from soil_msgs_py.params import (
     ADHESION_PA,
     DEG,
@@ -106,7 +107,7 @@ class EpisodeSpec:
     ``patches``: ``soil_msgs_py.patches`` entries ordered by x (SoilPatch, ``'X:SOIL:ID'``
     strings or (x_start_m, soil, I_d) triples). With patches the soil under the cutting edge
     is the patch's, and ``soil`` / ``relative_density_pct`` are not used: ``resolve`` sets them
-    to the first patch's (what the metadata and the bag name show).
+    to those of the patch under the edge at the start (what the metadata and the bag name show).
     """
 
     soil: str | SoilType
@@ -139,13 +140,16 @@ class EpisodeSpec:
 
     def resolve(self, custom_soils: dict | None = None) -> tuple["EpisodeSpec", SoilType]:
         """Validate every field; return (the spec, the SoilType it starts in). Errors name the
-        field and value. With patches the returned spec has the first patch's soil and I_d
-        and the patches as SoilPatch with the soils' catalogue names."""
+        field and value. With patches the returned spec has the soil and I_d of the patch under
+        the blade's edge at the start (the first patch, unless the next starts at or behind the
+        edge: a patch never cut must not name and label the episode) and the patches as
+        SoilPatch with the soils' catalogue names."""
         spec = self
         if self.patches:
             path = self.soil_path(custom_soils)
             patches = tuple(SoilPatch(x, soil.name, i_d) for x, soil, i_d in path)
-            spec = replace(self, soil=path[0][1].name, relative_density_pct=path[0][2], patches=patches)
+            first = sum(Dynamics.blade_offset_m >= x for x, _, _ in path[1:])  # SoilSimulator.patch_at's rule
+            spec = replace(self, soil=path[first][1].name, relative_density_pct=path[first][2], patches=patches)
         soil = spec.soil if isinstance(spec.soil, SoilType) else get_soil(spec.soil, custom_soils)
         checks = (
             ("relative_density_pct", spec.relative_density_pct, 0.0, 100.0, "%"),
@@ -153,11 +157,13 @@ class EpisodeSpec:
             ("target_depth_m", spec.target_depth_m, 0.0, MAX_TARGET_DEPTH_M, "m"),
             ("duration_s", spec.duration_s, 1.0 / SAMPLE_RATE_HZ, MAX_EPISODE_S, "s"),
         )
-        for name, value, lo, hi, unit in checks:
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or not lo <= value <= hi:
-                raise ValueError(f"{name}={value!r} outside [{lo}, {hi}] {unit}")
-        if not isinstance(spec.seed, (int, np.integer)) or not 0 <= spec.seed <= MAX_SEED:
-            raise ValueError(f"seed={spec.seed!r} must be an integer in [0, 2**63 - 1]")
+        for name, value, lo, hi, unit in checks:  # (not a bool; an integer too large for a float is refused, not raised)
+            if not finite_number(value):
+                raise ValueError(f"{name}={short_repr(value)} must be a number in [{lo:g}, {hi:g}] {unit}")
+            if not lo <= value <= hi:
+                raise ValueError(f"{name}={short_repr(value)} outside [{lo:g}, {hi:g}] {unit}")
+        if isinstance(spec.seed, bool) or not isinstance(spec.seed, (int, np.integer)) or not 0 <= spec.seed <= MAX_SEED:
+            raise ValueError(f"seed={short_repr(spec.seed)} must be an integer in [0, 2**63 - 1]")
         return spec, soil
 
 
@@ -232,6 +238,13 @@ def check_failure_wedges(config: "SimConfig", spec: "EpisodeSpec", custom_soils:
                     f"blade (rho={rho / DEG:.3g}°, soil-tool friction delta={delta / DEG:.3g}°): the soil would resist "
                     f"nothing. The FEE needs 0° < phi < {180.0 - (rho + delta) / DEG:.3g}° (an undrained clay's "
                     "phi = 0 is outside it)")
+        phi = soil.at(i_d).phi  # (compaction only raises it)
+        if phi < delta and soil.at(i_d).c > 0.0:
+            warnings.warn(
+                f"soil {soil.name!r} at I_d {i_d:g} %: phi={phi / DEG:.3g}° is below the soil-tool friction "
+                f"delta={delta / DEG:.3g}°: while the blade rises (the friction reversed, Eq. 9-10) the FEE has no "
+                "failure wedge, the simulated soil resists nothing there, and the recorded truth's FEE (beta = "
+                "180° - rho) is not the measured force on those ticks", stacklevel=2)
 
 
 def resolve_checked(config: "SimConfig", spec: "EpisodeSpec",
@@ -276,10 +289,14 @@ class SoilSimulator:
         self.rho = m.blade_angle_rad
         self.alpha = SURFACE_INCLINATION_RAD
         self.w = m.blade_width_m
-        duration = max(s.duration_s for s in self.specs)
-        speed = max(s.target_speed_m_s for s in self.specs)
-        self.x_min = -3.0
-        x_max = self.dyn.blade_offset_m + 1.5 * speed * duration + 3.0
+        # the heightfield holds wherever the machine can drive in the longest episode at the
+        # fastest command ``step`` accepts (a teleop, or a controller at another speed than the
+        # spec's), either way; whole cells behind -3 m, so a cell's edges stay where they were
+        # when it was sized from the spec's own speed (clamped reads beyond it were silently wrong:
+        # an outside reviewer's 1 m/s in a 0.3 m/s episode lost a quarter of the cut volume)
+        reach_m = MAX_TARGET_SPEED_M_S * max(s.duration_s for s in self.specs) + 3.0
+        self.x_min = -3.0 - math.ceil(reach_m / self.dyn.terrain_cell_m) * self.dyn.terrain_cell_m
+        x_max = self.dyn.blade_offset_m + reach_m + 3.0
         self.n_cells = int(math.ceil((x_max - self.x_min) / self.dyn.terrain_cell_m)) + 2
         self._params, self._probes = self._kernel_params()
         self._episode = self._kernel_episodes()
