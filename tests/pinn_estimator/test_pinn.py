@@ -28,6 +28,8 @@ from soil_physics import fee
 from soil_bag_tools.bag_io import find_episode_bags
 from soil_msgs_py.params import DEG, KNOWN_PARAMS, TABLE1, UNKNOWN_PARAMS
 from tests.bag_fixtures import write_raw
+from soil_sim_node.rollout import run_episodes
+from soil_sim_node.simulator import EpisodeSpec, SimConfig
 from tests.tiny_data import write_tiny_bags
 
 SMALL = dict(d_model=16, n_heads=2, n_layers=1, ff_dim=32)
@@ -104,7 +106,7 @@ def test_a_grid_of_one_episode_per_cell_still_gets_validation_and_test_episodes(
 def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp_path, capsys):
     """Two recorders on one graph (or a replay recorded again) wrote one episode under two names;
     the split put one copy in training and the other in validation or test, which then held no
-    unseen episode, without a word. Other seeds of the noise-free fee world are other episodes."""
+    unseen episode, without a word."""
     import shutil
 
     data = tmp_path / "data"
@@ -126,6 +128,28 @@ def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp
     out = said.err  # (progress and warnings on stderr: stdout is the run's summary, JSON)
     assert "warning: 2 episodes are copies of others" in out and f"{first[0]} = {first[0]}_2" in out, out
     assert json.loads(said.out)["checkpoint"] == str(tmp_path / "m.pt"), said.out
+
+
+def test_seeds_of_one_fee_world_episode_are_one_episode_and_stay_in_one_split(tmp_path):
+    """The fee world has no noise: the seeds of one grid point make the same samples. The split
+    put one seed in training and its twin in test (50 of the fee model's 72 test episodes), which
+    scored them as held out. The default world's seeds are other episodes."""
+    from soil_bag_tools.bag_io import write_episode
+
+    specs = [EpisodeSpec(soil, i_d, 0.6, 0.15, seed=s, duration_s=1.0)
+             for soil in ("Loam", "Sand") for i_d in (20.0, 60.0) for s in (0, 1, 2)]
+    for world in ("fee", "default"):
+        for ep in run_episodes(SimConfig(world_mode=world), specs):
+            write_episode(tmp_path / world / ep.meta.name, ep)
+    fee = load_dataset(tmp_path / "fee", cache=False)
+    copies = identical_episodes(fee)
+    assert sorted(len(c) for c in copies) == [3, 3, 3, 3], copies
+    assert all(len({n.rsplit("_s", 1)[0] for n in names}) == 1 for names in copies), copies
+    for seed in range(4):
+        split = split_episodes(fee, seed=seed)
+        for names in copies:
+            assert len({part for part in split for n in names if n in split[part]}) == 1, (seed, split)
+    assert identical_episodes(load_dataset(tmp_path / "default", cache=False)) == []
 
 
 def test_cache_is_used_and_keyed_by_content(tiny_bags, tmp_path):

@@ -104,7 +104,7 @@ def steady_rows(known: np.ndarray, steady_from: float = STEADY_FROM) -> np.ndarr
 def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
     """Per episode of ``ds`` the means over its steady part (``steady_rows``); None for an
     episode without one, or whose soil changes where its edge went (``episode_one_soil``; its
-    metadata's label is only its first patch's: it is no one soil to forecast from or to).
+    metadata's label is only the patch it starts in: it is no one soil to forecast from or to).
 
     An episode without a soil label (a machine's bag) is labelled by its steady unit weight γ
     (``soil_labels.gamma_group_names`` over the unlabelled episodes): pairs are of one soil, and one
