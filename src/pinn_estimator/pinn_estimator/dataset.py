@@ -402,7 +402,7 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
     # follow their first into validation or test and leave nothing to train on
     copies = identical_episodes(ds)
     copy_names = {name for names in copies for name in names[1:]}
-    distinct = len(ds) - len(copy_names)
+    distinct = len(ds.names) - len(copy_names)
     groups: dict[tuple, list[str]] = defaultdict(list)
     for name, meta in zip(ds.names, ds.metas):
         if name not in copy_names:
