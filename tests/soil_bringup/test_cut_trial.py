@@ -193,6 +193,23 @@ def test_best_fixed_depth_per_patch_is_the_deepest_without_a_stall_there_and_set
     assert CM.within_share(planner, 1, None) is None
 
 
+def test_the_conservative_depth_is_the_deepest_that_never_stalls_between_the_swept_depths(tmp_path):
+    """The sweep's 2.5 cm steps had kept 0.150 m as "the deepest that never stalls" where 0.173 m
+    never stalls either (an outside reviewer's: the fee world's main path, its ratio 1.51x -> 1.36x):
+    the conservative depth is refined by bisection, within CONSERVATIVE_RESOLUTION_M of a depth
+    that stalls; the aggressive depth is never shallower."""
+    from soil_bringup.cut_trial import sweep_fixed_depths
+
+    spec = cut_report.parse_args(["--worlds", "fee", "--patch", "0:Clay:80", "--duration", "8",
+                                  "--out", str(tmp_path / "o")]).spec
+    sweep, best, conservative, aggressive = cut_report.fixed_policies("fee", spec)
+    assert conservative not in cut_report.SWEEP_DEPTHS_M and best == [0.15] and aggressive == conservative
+    by_depth = {c.policy.fixed_depth_m: c for c in sweep}
+    assert not CM.stall_mask(by_depth[conservative]).any() and CM.stall_mask(by_depth[0.175]).any()
+    deeper = sweep_fixed_depths("fee", spec, (conservative + cut_report.CONSERVATIVE_RESOLUTION_M,))[0]
+    assert CM.stall_mask(deeper).any(), conservative
+
+
 def _refuse(constant):
     raise ValueError(f"not strict JSON: {constant}")
 

@@ -383,7 +383,8 @@ def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_f
     """Split bag names into train/val/test **by episode**, stratified by (world, soil, I_d).
 
     Every window of an episode lands in one split, and so do episodes identical to it
-    (``identical_episodes``), so the test score measures episodes the model has never seen. Stratifying keeps every soil and density in every split when the
+    (``identical_episodes``), so the test score measures episodes the model has never seen.
+    Stratifying (over distinct episodes) keeps every soil and density in every split when the
     grid has at least three episodes per cell. The cells of one or two episodes are split
     together, as one more cell: alone each would keep its episodes for training, and beside
     larger cells those soils never reached validation or test, without a word (an outside
