@@ -206,7 +206,7 @@ def grid(densities, depth: float, seeds: int, duration_s: float = 10.0, offset: 
     """Every soil x ``densities`` x ``seeds`` at ``depth``; the seed depends on (soil, I_d, seed
     index) only, so the same soil and density has the same seed at every depth. Digits per index
     (100 i + 10 j + k) up to 10 densities and seeds; beyond, wider strides, so no two episodes share
-    a seed (10 seeds had given soil i's density j + 1 the seed of its density j's seed 10)."""
+    a seed (11 seeds had given soil i's density j + 1 the seed of its density j's seed 10)."""
     seed_stride = max(10, seeds)
     soil_stride = max(100, seed_stride * len(densities))
     specs = []

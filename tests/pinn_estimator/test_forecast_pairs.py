@@ -136,12 +136,18 @@ def test_a_path_that_goes_on_past_the_cut_is_one_soil_and_one_begun_past_its_fir
 
     far = ({"x_start_m": 0.0, "soil": "Sand", "relative_density_pct": 20.0},
            {"x_start_m": 500.0, "soil": "Clay", "relative_density_pct": 80.0})
-    meta = SimpleNamespace(patches=far)
+    meta = SimpleNamespace(patches=far, soil="Sand", relative_density_pct=20.0)
     assert one_soil(meta, [2.0, 4.5]) and not one_soil(meta, [2.0, 501.0]) and not one_soil(meta)
-    behind = SimpleNamespace(patches=({"x_start_m": -3.0, "soil": "Sand", "relative_density_pct": 20.0},
-                                      {"x_start_m": 1.0, "soil": "Clay", "relative_density_pct": 80.0}))
-    assert not one_soil(behind, [2.0, 4.5]) and one_soil(behind, [-1.0, 0.5])
-    alike = SimpleNamespace(patches=far[:1] + ({"x_start_m": 3.0, "soil": "Sand", "relative_density_pct": 20.0},) + far[1:])
+    # a bag of before 2026-12-06, labelled after a first patch behind the edge: not its label's soil
+    behind = ({"x_start_m": -3.0, "soil": "Sand", "relative_density_pct": 20.0},
+              {"x_start_m": 1.0, "soil": "Clay", "relative_density_pct": 80.0})
+    old_label = SimpleNamespace(patches=behind, soil="Sand", relative_density_pct=20.0)
+    assert not one_soil(old_label, [2.0, 4.5]) and one_soil(old_label, [-1.0, 0.5])
+    # labelled after the patch its edge starts in, as the simulator labels it now: one soil (a
+    # reviewer's: such an episode had still been left out as a soil change)
+    assert one_soil(SimpleNamespace(patches=behind, soil="Clay", relative_density_pct=80.0), [2.0, 4.5])
+    alike = SimpleNamespace(patches=far[:1] + ({"x_start_m": 3.0, "soil": "Sand", "relative_density_pct": 20.0},) + far[1:],
+                            soil="Sand", relative_density_pct=20.0)
     assert one_soil(alike, [2.0, 4.5]) and one_soil(SimpleNamespace(patches=()), None)
 
     specs = [EpisodeSpec("Sand", 20.0, 0.6, depth, seed=k, duration_s=5.0, patches=("0:Sand:20", "500:Clay:80"))
@@ -150,6 +156,10 @@ def test_a_path_that_goes_on_past_the_cut_is_one_soil_and_one_begun_past_its_fir
         write_episode(tmp_path / "long" / ep.meta.name, ep)
     ds = load_dataset(tmp_path / "long", cache=False)
     assert all(episode_one_soil(ds, e) for e in range(len(ds)))
+    start_beyond = EpisodeSpec("Loam", 50.0, 0.6, 0.15, seed=9, duration_s=5.0, patches=("0:Clay:80", "1:Sand:20"))
+    ep = run_episodes(SimConfig(world_mode="fee"), [start_beyond])[0]
+    write_episode(tmp_path / "beyond" / ep.meta.name, ep)
+    assert episode_one_soil(load_dataset(tmp_path / "beyond", cache=False), 0)  # all Sand, its label, where its edge went
     parts = steady_parts(ds)
     assert len(list(pair_indices(parts))) == 2 and {p.soil for p in parts} == {"Sand"}
 

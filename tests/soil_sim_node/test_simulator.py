@@ -593,6 +593,11 @@ def test_a_soil_the_fee_gives_no_failure_wedge_is_refused_with_its_name_not_simu
     assert "soil 'Undrained' at I_d 50 %" in capsys.readouterr().err and not out.exists()
     import warnings
 
+    # without cohesion too: the world's adhesion c_a keeps the truth's FEE off the simulated 0 (a reviewer's)
+    loose = {"Loose": soil_from_dict({"name": "Loose", "phi_deg": [12, 12], "cohesion_pa": [0, 0],
+                                      "unit_weight_n_m3": [17e3, 17e3]})}
+    with pytest.warns(UserWarning, match=r"soil 'Loose' at I_d 50 %: phi=12° is below the soil-tool friction delta=15°"):
+        SoilSimulator(SimConfig(world_mode="fee"), [EpisodeSpec("Loose", 50.0, 0.5, 0.1, seed=0, duration_s=1.0)], loose)
     for name in ("Clay", "Loam", "Sand", "Gravel"):  # every catalogue soil has its wedge, rising too (φ ≥ 17° > δ)
         with warnings.catch_warnings():
             warnings.simplefilter("error")

@@ -157,9 +157,11 @@ def _patch_key(patch: dict) -> tuple:
 def one_soil(meta, x_edge_m=None) -> bool:
     """Whether an episode's path is one soil at one density where its edge went: no patches, or all
     alike, or, given ``x_edge_m`` (the edge's x over the episode [m]), the patches it crossed all
-    alike to the first, whose soil and I_d label the episode. A path that goes on past where the cut
-    ended is one soil (an episode of a long planned path had been left out as a soil change); a cut
-    that began beyond the first patch is not the soil its label says."""
+    alike to the metadata's label (``soil``, ``relative_density_pct``). A path that goes on past where
+    the cut ended is one soil (an episode of a long planned path had been left out as a soil change);
+    a cut in patches other than its label's is not the soil its label says (a bag written before
+    2026-12-06 is labelled after its first patch even where the edge started beyond it; since, after
+    the patch the edge starts in, and a first patch behind the edge no longer makes it a change)."""
     patches = list(meta.patches)
     if len({_patch_key(p) for p in patches}) <= 1:
         return True
@@ -170,7 +172,8 @@ def one_soil(meta, x_edge_m=None) -> bool:
     lo, hi = float(x.min()), float(x.max())
     starts = [-math.inf] + [float(p["x_start_m"]) for p in patches[1:]] + [math.inf]  # patch j: [starts[j], starts[j+1])
     crossed = [j for j in range(len(patches)) if starts[j] <= hi and starts[j + 1] > lo]
-    return 0 in crossed and all(_patch_key(patches[j]) == _patch_key(patches[0]) for j in crossed)
+    label = (meta.soil, float(meta.relative_density_pct))
+    return bool(crossed) and all(_patch_key(patches[j]) == label for j in crossed)
 
 
 def episode_one_soil(ds, e: int) -> bool:

@@ -188,7 +188,7 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
     without a stall; ``cut_metrics.judged_depths``, on the sweep's grid), the conservative depth
     (the shallowest of the patches' deepest stall-free depths, then refined towards the next
     swept depth while the whole cut stays free of stalls, ``refined_conservative``; its cut is
-    added to the sweep) and the aggressive one (the deepest) [m]; ``gains``: the controller's
+    added to the sweep, and the best depths judged with it) and the aggressive one (the deepest) [m]; ``gains``: the controller's
     (default: its defaults); ``custom_soils``: soils by name beside the catalogue."""
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
     candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
@@ -202,11 +202,14 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
     if not stall_everywhere and known:
         refined = refined_conservative(world, spec, sweep, conservative, gains, custom_soils)
         if refined.policy.fixed_depth_m != conservative:
+            # a cut of the sweep like the others: no stall in any patch, so each patch's best depth
+            # is judged with it too (its strongest soil's had stayed on the grid, below the
+            # conservative depth: a reviewer's "each patch at its best depth: 0.87x" of one patch)
             sweep = sorted(sweep + [refined], key=lambda c: c.policy.fixed_depth_m)
             conservative = refined.policy.fixed_depth_m
-    # (one patch: the refined depth is deeper than the patch's deepest on the grid, and the
-    # aggressive depth never shallower than the conservative one)
-    return sweep, CM.judged_depths(candidates), conservative, max(*(known or SWEEP_DEPTHS_M), conservative)
+            candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
+            known = [b for b in CM.deepest_stall_free(candidates) if b is not None]
+    return sweep, CM.judged_depths(candidates), conservative, max(known or SWEEP_DEPTHS_M)
 
 
 def refined_conservative(world: str, spec: EpisodeSpec, sweep: list[Cut], depth_m: float,

@@ -142,10 +142,10 @@ def recorded_beta_star(phi, delta, rho, alpha):
     that friction (δ' < −φ, e.g. φ 12° under the fee world's δ 15°) N_γ has no minimum over wedges
     of non-negative area (cot ρ + cot β ≥ 0): it falls to 0 at β = π − ρ. The simulator's soil then
     resists nothing (its failure force is 0), and a bag's truth must stay finite. The FEE at this β
-    is 0 only without cohesion: a cohesive soil's c·N_c and c_a·N_a remain (tens of kN: N_c grows as
-    φ + δ' → 0⁻), so on those ticks the truth's FEE is not the measured force. Only soils with φ
-    below the world's δ (none of the catalogue's: its least φ is 17°); ``check_failure_wedges``
-    warns of them."""
+    is not 0: c·N_c and the adhesion's c_a·N_a remain (kN with the worlds' 200 Pa adhesion alone,
+    tens of kN with cohesion: N_c grows as φ + δ' → 0⁻), so on those ticks the truth's FEE is not
+    the measured force. Only soils with φ below the world's δ (none of the catalogue's: its least φ
+    is 17°); ``check_failure_wedges`` warns of them."""
     xp, phi, delta, rho, alpha = _xp.coerce(phi, delta, rho, alpha)
     beta = beta_star(phi, delta, rho, alpha)
     return xp.where(xp.isfinite(beta), beta, math.pi - rho + xp.zeros_like(beta))

@@ -254,7 +254,7 @@ class SimNode(Node):
         spec = EpisodeSpec(str(get("soil")), float(get("relative_density_pct")), float(get("target_speed_m_s")),
                            float(get("target_depth_m")), seed=int(get("seed")), duration_s=float(get("duration_s")),
                            patches=patches)
-        # ValueError naming the field and value, or a soil that resists nothing; with patches, the first one's soil
+        # ValueError naming the field and value, or a soil that resists nothing; with patches, the soil the edge starts in
         resolved = resolve_checked(self.config, spec, self.custom_soils)[0]
         if note := beyond_lift_reach("target_depth_m", resolved.target_depth_m):
             self._warn(f"beyond_lift_reach {resolved.target_depth_m:g}", note)  # each depth said once

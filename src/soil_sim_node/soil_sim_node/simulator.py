@@ -238,8 +238,8 @@ def check_failure_wedges(config: "SimConfig", spec: "EpisodeSpec", custom_soils:
                     f"blade (rho={rho / DEG:.3g}°, soil-tool friction delta={delta / DEG:.3g}°): the soil would resist "
                     f"nothing. The FEE needs 0° < phi < {180.0 - (rho + delta) / DEG:.3g}° (an undrained clay's "
                     "phi = 0 is outside it)")
-        phi = soil.at(i_d).phi  # (compaction only raises it)
-        if phi < delta and soil.at(i_d).c > 0.0:
+        phi = soil.at(i_d).phi  # (compaction only raises it; the world's adhesion c_a acts in every soil)
+        if phi < delta:
             warnings.warn(
                 f"soil {soil.name!r} at I_d {i_d:g} %: phi={phi / DEG:.3g}° is below the soil-tool friction "
                 f"delta={delta / DEG:.3g}°: while the blade rises (the friction reversed, Eq. 9-10) the FEE has no "
@@ -292,7 +292,7 @@ class SoilSimulator:
         # the heightfield holds wherever the machine can drive in the longest episode at the
         # fastest command ``step`` accepts (a teleop, or a controller at another speed than the
         # spec's), either way; whole cells behind -3 m, so a cell's edges stay where they were
-        # when it was sized from the spec's own speed (clamped reads beyond it were silently wrong:
+        # (to the rounding of x_min: bit-identical on every episode compared) when it was sized from the spec's own speed (clamped reads beyond it were silently wrong:
         # an outside reviewer's 1 m/s in a 0.3 m/s episode lost a quarter of the cut volume)
         reach_m = MAX_TARGET_SPEED_M_S * max(s.duration_s for s in self.specs) + 3.0
         self.x_min = -3.0 - math.ceil(reach_m / self.dyn.terrain_cell_m) * self.dyn.terrain_cell_m
