@@ -344,7 +344,7 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert train_main(["--data", str(tiny_bags), "--out", str(pinn), "--quiet", "--no-cache", "--epochs", "1",
                        "--stride", "8", *[f"--{k.replace('_', '-')}={v}" for k, v in SMALL.items()]]) == 0
     cuts = tmp_path / "cuts"
-    changing = (SoilPatch(0.0, "Loam", 45.0), SoilPatch(2.0, "Clay", 80.0))
+    changing = (SoilPatch(0.0, "Loam", 45.0), SoilPatch(2.5, "Clay", 80.0))  # (the edge starts at 2 m, in the loam)
     specs = [EpisodeSpec("Loam", 45.0, 0.6, d, seed=30 + k, duration_s=6.0) for k, d in enumerate((0.08, 0.16))]
     specs.append(EpisodeSpec("Loam", 45.0, 0.6, 0.24, seed=40, duration_s=6.0, patches=changing))
     for ep in run_episodes(SimConfig(world_mode="fee"), specs):

@@ -507,17 +507,21 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
     two = [{"x_start_m": 0.0, "soil": "Sand", "relative_density_pct": 20.0},
            {"x_start_m": 2.5, "soil": "Clay", "relative_density_pct": 90.0}]  # the edge starts at 2 m: every cut crosses 2.5 m
     same = [dict(two[0]), {**two[0], "x_start_m": 2.5}]
-    metas = [dataclasses.replace(m, patches=two if i < 3 else same if i == 3 else m.patches) for i, m in enumerate(ds.metas)]
+
+    def patched(m, patches):  # labelled after the patch its edge starts in, as the simulator labels it
+        return dataclasses.replace(m, patches=patches, soil=patches[0]["soil"],
+                                   relative_density_pct=patches[0]["relative_density_pct"])
+
+    metas = [patched(m, two) if i < 3 else patched(m, same) if i == 3 else m for i, m in enumerate(ds.metas)]
     full = build_frame(ds, stride=4)
     frame = build_frame(dataclasses.replace(ds, metas=metas), stride=4)
     assert frame.changing_soil == tuple(ds.names[:3])
     assert set(frame.episodes) == set(full.episodes) - {0, 1, 2} and 3 in set(frame.episodes)
     assert not full.changing_soil
     beyond = [dict(two[0]), {**two[1], "x_start_m": 500.0}]  # a path going on past every cut: one soil where the edge went
-    assert not build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=beyond) for m in ds.metas]),
-                           stride=4).changing_soil
+    assert not build_frame(dataclasses.replace(ds, metas=[patched(m, beyond) for m in ds.metas]), stride=4).changing_soil
     with pytest.raises(ValueError, match="changes soil along its path"):
-        build_frame(dataclasses.replace(ds, metas=[dataclasses.replace(m, patches=two) for m in ds.metas]), stride=4)
+        build_frame(dataclasses.replace(ds, metas=[patched(m, two) for m in ds.metas]), stride=4)
     # nor across worlds: one world's bags against the model (a machine's bags, with no world, are one)
     mixed = [dataclasses.replace(m, world_mode="default" if i == 0 else m.world_mode) for i, m in enumerate(ds.metas)]
     with pytest.raises(ValueError, match=r"mixes worlds \['default', 'fee'\]"):
@@ -527,7 +531,7 @@ def test_episodes_whose_soil_changes_along_the_path_are_left_out_and_named(bag_d
     # bags without a soil label are grouped by γ; a left-out labelled episode does not change that
     blind_metas = [dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) for m in ds.metas]
     by_gamma = build_frame(dataclasses.replace(ds, metas=blind_metas), stride=4)
-    blind_metas[0] = dataclasses.replace(ds.metas[0], patches=two)  # labelled, but its soil changes: left out
+    blind_metas[0] = patched(ds.metas[0], two)  # labelled, but its soil changes: left out
     with_one = build_frame(dataclasses.replace(ds, metas=blind_metas), stride=4)
     assert by_gamma.group_by == with_one.group_by == "gamma" and not with_one.has_metadata()
     assert with_one.changing_soil == (ds.names[0],) and len(with_one.groups) == len(by_gamma.groups)

@@ -163,7 +163,7 @@ class EpisodeSpec:
             if not lo <= value <= hi:
                 raise ValueError(f"{name}={short_repr(value)} outside [{lo:g}, {hi:g}] {unit}")
         if isinstance(spec.seed, bool) or not isinstance(spec.seed, (int, np.integer)) or not 0 <= spec.seed <= MAX_SEED:
-            raise ValueError(f"seed={short_repr(spec.seed)} must be an integer in [0, 2**63 - 1]")
+            raise ValueError(f"seed={spec.seed!r} must be an integer in [0, 2**63 - 1]")
         return spec, soil
 
 
