@@ -159,9 +159,9 @@ def one_soil(meta, x_edge_m=None) -> bool:
     alike, or, given ``x_edge_m`` (the edge's x over the episode [m]), the patches it crossed all
     alike to the metadata's label (``soil``, ``relative_density_pct``). A path that goes on past where
     the cut ended is one soil (an episode of a long planned path had been left out as a soil change);
-    a cut in patches other than its label's is not the soil its label says (a bag written before
-    2026-12-06 is labelled after its first patch even where the edge started beyond it; since, after
-    the patch the edge starts in, and a first patch behind the edge no longer makes it a change)."""
+    a cut in patches other than its label's is not the soil its label says. (The simulator labels an
+    episode after the patch its edge starts in since 2026-12-06; a bag written before is labelled
+    after its first patch even where the edge started beyond it, and such a bag stays out.)"""
     patches = list(meta.patches)
     if len({_patch_key(p) for p in patches}) <= 1:
         return True

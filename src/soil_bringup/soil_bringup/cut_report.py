@@ -185,10 +185,10 @@ def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> No
 def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None,
                    custom_soils: dict | None = None) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
-    without a stall; ``cut_metrics.judged_depths``, on the sweep's grid), the conservative depth
-    (the shallowest of the patches' deepest stall-free depths, then refined towards the next
-    swept depth while the whole cut stays free of stalls, ``refined_conservative``; its cut is
-    added to the sweep, and the best depths judged with it) and the aggressive one (the deepest) [m]; ``gains``: the controller's
+    without a stall; ``cut_metrics.judged_depths``), the conservative depth (the shallowest of the
+    patches' deepest stall-free depths, then refined towards the next swept depth while the whole
+    cut stays free of stalls, ``refined_conservative``: its cut joins the sweep, and the best depths
+    are judged with it) and the aggressive one (the deepest) [m]; ``gains``: the controller's
     (default: its defaults); ``custom_soils``: soils by name beside the catalogue."""
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
     candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
