@@ -890,7 +890,7 @@ def test_a_collective_that_fails_after_the_job_was_told_to_stop_is_said_as_the_s
     from pinn_estimator.distributed import Ranks
 
     def train(*args, stop=None, **kwargs):
-        stop.signum = signal.SIGINT  # (noted, as stop_requests does, by both ranks: the terminal's Ctrl-C)
+        stop.signums.append(signal.SIGINT)  # (noted, as stop_requests does, by both ranks: the terminal's Ctrl-C)
         raise RuntimeError("[../gloo/transport/tcp/pair.cc:553] Connection closed by peer [127.0.0.1]:62162")
 
     monkeypatch.setattr(train_module, "_load", lambda args, ranks: tiny_ds)

@@ -109,11 +109,13 @@ class StopRequest:
     yet), ``signums`` each kind once, in the order they came."""
 
     def __init__(self) -> None:
-        self.signum: int | None = None
         self.signums: list[int] = []
 
+    @property
+    def signum(self) -> int | None:
+        return self.signums[0] if self.signums else None
+
     def _note(self, signum, frame) -> None:  # noqa: ARG002
-        self.signum = self.signum or signum
         if signum not in self.signums:
             self.signums.append(signum)
 

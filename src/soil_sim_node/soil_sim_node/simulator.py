@@ -55,7 +55,7 @@ import numpy as np
 
 from soil_physics import fee
 from soil_msgs_py.episode import MAX_EPISODE_S, MAX_SEED
-from soil_msgs_py.patches import SoilPatch, check_patches
+from soil_msgs_py.patches import SoilPatch, check_patches, patch_under
 from soil_msgs_py.values import finite_number, plain_zero, short_repr
 from soil_msgs_py.params import (
     ADHESION_PA,
@@ -148,7 +148,7 @@ class EpisodeSpec:
         if self.patches:
             path = self.soil_path(custom_soils)
             patches = tuple(SoilPatch(x, soil.name, i_d) for x, soil, i_d in path)
-            first = sum(Dynamics.blade_offset_m >= x for x, _, _ in path[1:])  # SoilSimulator.patch_at's rule
+            first = int(patch_under(patches, Dynamics.blade_offset_m))  # (SoilSimulator.patch_at's rule)
             spec = replace(self, soil=path[first][1].name, relative_density_pct=path[first][2], patches=patches)
         soil = spec.soil if isinstance(spec.soil, SoilType) else get_soil(spec.soil, custom_soils)
         checks = (
