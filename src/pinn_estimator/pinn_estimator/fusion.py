@@ -117,6 +117,9 @@ NOT_A_SOIL_STRETCHES = 8
 HELD_AT_BOUND_SHARE = 0.5
 HELD_AT_BOUND_U = 0.005
 MIN_STRETCH_DEPTH_M = MIN_CUT_DEPTH_M  # a stretch with the blade (almost) out of the soil carries no evidence
+# Halvings of a Gauss-Newton step that landed where the model is undefined, back towards the last
+# iterate it was defined at (``SoilPosterior._update_components``): the step reaches 1/8 of its length.
+MAX_STEP_HALVINGS = 3
 
 
 @dataclass
@@ -493,18 +496,31 @@ class SoilPosterior:
         inflation = np.ones((k_n, dim))  # on σ_dev per sub-mean, from the prediction (``_Evidence.robust_inflation``)
         steps = np.concatenate([np.zeros((1, n)), np.eye(n) * eps])  # (n + 1, n)
         previous = u.copy()  # each component's last iterate its model was defined at
+        halvings = np.zeros(k_n, int)  # of the step from ``previous`` (each step its own MAX_STEP_HALVINGS)
+        retry = np.zeros(k_n, bool)  # at a halved step not yet tried
         for it in range(iterations):
             pts = (u[:, None, :] + steps[None]).reshape(-1, n)
             f = evidence.observe(*self.model_point_forces(pts, evidence.known, distance_m, time_s)).reshape(k_n, n + 1, dim)
             ok = np.isfinite(f).all(axis=(1, 2)) & active
             if it == 0:
                 defined = ok.copy()
-            lost = active & ~ok  # undefined here: back to the last good iterate
-            u[lost] = previous[lost]
-            active &= ok
-            if not active.any():
-                break
-            a = np.flatnonzero(active)
+            # A step that lands where the model is undefined (no failure wedge) is halved back
+            # towards the last good iterate, whose gain and Jacobian the covariance still holds, and
+            # tried again. Put straight back there instead, a component the first step took out of
+            # the model's domain kept its prior mean beside a covariance the step had already
+            # contracted, and its Laplace evidence, taken at that mean, all but dropped it.
+            lost = active & ~ok
+            retry = lost & (halvings < MAX_STEP_HALVINGS) if it else retry
+            u[retry] = 0.5 * (previous[retry] + u[retry])
+            halvings[retry] += 1
+            u[lost & ~retry] = previous[lost & ~retry]
+            halvings[ok] = 0
+            active = ok | retry
+            if not ok.any():
+                if not retry.any():
+                    break
+                continue
+            a = np.flatnonzero(ok)
             h = f[a, 0]  # (A, dim)
             j_a = np.transpose(f[a, 1:] - f[a, :1], (0, 2, 1)) / eps  # (A, dim, n)
             pj = p0[a] @ np.transpose(j_a, (0, 2, 1))  # (A, n, dim)
@@ -522,7 +538,9 @@ class SoilPosterior:
                 a, h, j_a, r_a, pj, innovation, s_mat, s_inv = (
                     v[invertible] for v in (a, h, j_a, r_a, pj, innovation, s_mat, s_inv))
                 if not len(a):
-                    break
+                    if not active.any():
+                        break
+                    continue  # (halved steps still to try)
             jac[a], r[a] = j_a, r_a
             gain[a] = pj @ s_inv
             if it == 0:  # at the prior mean: how well each component predicted the stretch
@@ -536,6 +554,7 @@ class SoilPosterior:
             active[a[moved < 1e-7]] = False
             if not active.any():
                 break
+        u[retry] = previous[retry]  # a halved step the iterations ran out before trying: the last good iterate
         k_h = np.eye(n)[None] - gain @ jac
         p = k_h @ p0 @ np.transpose(k_h, (0, 2, 1)) + gain @ r @ np.transpose(gain, (0, 2, 1))  # Joseph form: stays SPD
         # the stretch's evidence under each component, Laplace at its updated mean u*:
@@ -544,6 +563,12 @@ class SoilPosterior:
         # ridge by up to 2.5 nats per stretch, always against high φ (against a Monte Carlo
         # integral over the component: Laplace within 0.3), and the posterior drifted to low φ.
         h = evidence.observe(*self.model_point_forces(u, evidence.known, distance_m, time_s))
+        # the last step, made when the iterations ran out (or converged) and never tried, may have
+        # left the model's domain: the point it was made from, whose gain and Jacobian P holds
+        redo = defined & ~np.isfinite(h).all(axis=1)
+        if redo.any():
+            u[redo] = previous[redo]
+            h[redo] = evidence.observe(*self.model_point_forces(u[redo], evidence.known, distance_m, time_s))
         data = np.full(k_n, np.nan)
         fine = np.isfinite(h).all(axis=1)
         if fine.any():

@@ -2,7 +2,11 @@
 
 Shared by the estimator's fused posterior (``pinn_estimator.fusion``: its forecasts and
 calibration) and the planner (``soil_planner.planner``: the deepest cut whose upper force
-quantile stays within the limits), so a quantile means the same number in both. No ROS.
+quantile stays within the limits): one bisection of a Gaussian mixture's CDF, for the
+estimator's signed quantiles (``mixture_quantiles``) and the planner's quantile of |F|
+(``upper_magnitude``, ``within_magnitude``). Their mixtures differ: the estimator's holds its
+posterior's components, the planner's fixed draws from the one Gaussian of the moments
+``/soil/estimate`` publishes, all a node reading the topic has. No ROS.
 """
 from __future__ import annotations
 
