@@ -34,7 +34,8 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
 from soil_bringup.cut_report import TARGET_SETTLE_S, WITHIN  # noqa: E402
 
-# name: (world, patches 'x:soil:I_d', seed); 45 s cuts at the controller's default speed
+# name: (world, patches 'x:soil:I_d', seed); 45 s cuts at the controller's default speed. The
+# default world's five are four soil sequences: the main path's twice, at seeds 3 and 5.
 PATHS = {
     "main_default": ("default", ("0:Sand:20", "10:Clay:80", "16:Loam:50"), 3),
     "main_default_s5": ("default", ("0:Sand:20", "10:Clay:80", "16:Loam:50"), 5),
