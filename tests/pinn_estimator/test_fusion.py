@@ -16,7 +16,7 @@ from pinn_estimator.checkpoint import load_model
 from pinn_estimator.dataset import Dataset
 from pinn_estimator.evaluate import forecast
 from pinn_estimator.fusion import THETA, SoilPosterior, StretchAccumulator, _Evidence, fuse_episode
-from pinn_estimator.fusion import _level_cut as fusion_level_cut
+from pinn_estimator.fusion import U_LOWER, U_UPPER, _level_cut as fusion_level_cut
 from pinn_estimator.fusion_config import FusionConfig
 from soil_physics.blade_inertia import blade_velocity, inertia_force_rows, soil_force_rows
 from soil_physics.predictive import mixture_quantiles, upper_magnitude
@@ -432,7 +432,7 @@ def test_a_step_out_of_the_models_domain_is_halved_not_left_at_the_prior_mean(mo
     for _ in range(6):  # soils drawn from the prior, cut at one depth after another
         post = SoilPosterior(cfg)
         k = rng.choice(len(post.weights), p=post.weights)
-        soil = np.clip(post.u[k] + np.linalg.cholesky(post.p[k]) @ rng.standard_normal(3), -0.25, 1.25)[None]
+        soil = np.clip(post.u[k] + np.linalg.cholesky(post.p[k]) @ rng.standard_normal(3), U_LOWER, U_UPPER)[None]
         for depth in (0.05, 0.1, 0.2, 0.15, 0.25, 0.3):
             known = fusion_level_cut()
             known[KNOWN_PARAMS.index("d")] = depth
