@@ -580,7 +580,7 @@ class SoilPosterior:
         d = u - m
         prior = -0.5 * (np.einsum("ki,ki->k", d, np.linalg.solve(p0, d[..., None])[..., 0]) + np.linalg.slogdet(2 * math.pi * p0)[1])
         laplace = data + prior + 0.5 * np.linalg.slogdet(2 * math.pi * p)[1]
-        log_lik = np.where(np.isfinite(laplace), laplace, log_lik)  # undefined at u*: the linearised one
+        log_lik = np.where(np.isfinite(laplace), laplace, log_lik)  # not finite at u*: the linearised one
         u_out = np.where(defined[:, None], u, u0)
         p_out = np.where(defined[:, None, None], p, p0)
         return u_out, p_out, np.where(defined, log_w0 + log_lik, -np.inf), np.where(defined, nis, np.inf)

@@ -190,9 +190,12 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
     cut stays free of stalls, ``refined_conservative``: its cut joins the sweep, and the best depths
     are judged with it) and the aggressive one (the deepest) [m]; ``gains``: the controller's
     (default: its defaults); ``custom_soils``: soils by name beside the catalogue."""
+    def stall_free(cuts):  # (each patch's stall-free cuts, each patch's deepest of them), what the fixed policies keep
+        free = CM.stall_free_cuts(cuts, len(spec.patches) or 1)
+        return free, CM.deepest_stall_free(free)
+
     sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
-    candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
-    deepest = CM.deepest_stall_free(candidates)  # what the fixed policies keep
+    candidates, deepest = stall_free(sweep)
     known = [b for b in deepest if b is not None]
     # a patch the edge reached where every depth stalled: no depth avoids a stall there, so the
     # conservative depth is the one that stalls least, the shallowest (the smallest best of the
@@ -207,8 +210,8 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
             # conservative depth: a reviewer's "each patch at its best depth: 0.87x" of one patch)
             sweep = sorted(sweep + [refined], key=lambda c: c.policy.fixed_depth_m)
             conservative = refined.policy.fixed_depth_m
-            candidates = CM.stall_free_cuts(sweep, len(spec.patches) or 1)
-            known = [b for b in CM.deepest_stall_free(candidates) if b is not None]
+            candidates, deepest = stall_free(sweep)
+            known = [b for b in deepest if b is not None]
     return sweep, CM.judged_depths(candidates), conservative, max(known or SWEEP_DEPTHS_M)
 
 
