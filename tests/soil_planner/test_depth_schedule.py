@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from soil_planner.depth_schedule import NS_PER_S, DepthSchedule, ScheduleSettings
+from soil_planner.depth_schedule import NS_PER_S, DepthSchedule, ScheduleSettings, follows_at_its_pace
 
 TICK = NS_PER_S // 60
 
@@ -165,3 +165,12 @@ def test_a_floor_raised_at_run_time_is_reached_at_the_deepening_rate_a_ceiling_l
     assert ramp[-1] == pytest.approx(0.25)
     s.settings = dataclasses.replace(cfg, max_depth_m=0.15)
     assert run(s, [0.3], first_tick=151)[0] == pytest.approx(0.15)
+
+
+def test_a_tick_following_a_jump_at_its_spacing_is_the_estimators_pace_and_a_time_jump_is_not():
+    s = NS_PER_S
+    assert follows_at_its_pace(0, 2 * s, 4 * s)  # a stride of 2 s
+    assert follows_at_its_pace(0, 2 * s, 3 * s) and follows_at_its_pace(0, 2 * s, 6 * s)  # an estimate lost
+    assert not follows_at_its_pace(0, 10 * s, 10 * s + s // 60)  # time jumped ahead, ticks at 60 Hz from there
+    assert not follows_at_its_pace(10 * s, 2 * s, 4 * s)  # time went back: a new cut, not a pace
+    assert not follows_at_its_pace(0, 3600 * s, 7200 * s)  # two strays an hour apart: rarer than any stride

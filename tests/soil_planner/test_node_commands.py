@@ -73,7 +73,7 @@ def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_st
 
     published, forgotten = [], []
     n = SimpleNamespace(schedule=DepthSchedule(), planner=SimpleNamespace(forget=lambda: forgotten.append(1)),
-                        _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
+                        _target_sent=None, _jumped_to=None, _pace_ns=None, commanded=collections.OrderedDict(),
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
                             msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=None,
@@ -109,7 +109,7 @@ def test_a_new_cut_follows_the_controllers_writer_afresh_when_the_ticks_start_ag
 
     n = node()
     n.__dict__.update(measured=collections.OrderedDict(), schedule=DepthSchedule(ScheduleSettings()),
-                      planner=SimpleNamespace(forget=lambda: None), _target_sent=None, _jumped_to=None)
+                      planner=SimpleNamespace(forget=lambda: None), _target_sent=None, _jumped_to=None, _pace_ns=None)
     for k in range(300):
         send(n, k, -0.10, 1 + k)
     PlannerNode._new_cut(n)  # the next episode_start
@@ -122,7 +122,7 @@ def _target_node(published: list, forgotten: list, cut_first_ns=None) -> SimpleN
     from soil_planner.depth_schedule import DepthSchedule
 
     n = SimpleNamespace(schedule=DepthSchedule(), planner=SimpleNamespace(forget=lambda: forgotten.append(1)),
-                        _target_sent=None, _jumped_to=None, commanded=collections.OrderedDict(),
+                        _target_sent=None, _jumped_to=None, _pace_ns=None, commanded=collections.OrderedDict(),
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
                             msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=cut_first_ns,
@@ -155,6 +155,30 @@ def test_estimates_lost_mid_episode_are_a_gap_in_the_cut_not_a_new_cut():
     for k in (*range(600), 600 + 2400, 600 + 2401):
         PlannerNode._target(ended, stamp(k), 0.3)
     assert forgotten == [1] and ended.cut_first_ns is None  # a new cut, no episode of it followed
+
+
+def test_estimates_seconds_apart_without_an_episode_followed_are_one_cut_and_two_strays_are_no_pace():
+    """An estimator at stride 120 and no /sim/status (a replay of its estimates alone): one cut,
+    every estimate after the second moving the target (before: none did). The pace never takes
+    in two strays an hour apart, nor keeps a second-wide gap once estimates come at 60 Hz again."""
+    published, forgotten = [], []
+    n = _target_node(published, forgotten)
+    for k in range(0, 7 * 120, 120):
+        PlannerNode._target(n, stamp(k), 0.3)
+    assert not forgotten and [p[0] for p in published] == [stamp(k) for k in (0, *range(240, 7 * 120, 120))]
+    assert published[0][1][0] == 0.1 and all(p[1][0] == 0.3 for p in published[1:])  # deepened (to the reach), never back
+    for k in range(7 * 120, 7 * 120 + 60):  # the stride set back to 1: 60 Hz again
+        PlannerNode._target(n, stamp(k), 0.3)
+    assert n._pace_ns is None
+    count = len(published)
+    PlannerNode._target(n, stamp(7 * 120 + 60 + 90), 0.3)  # 1.5 s lost: held, as at 60 Hz before
+    assert len(published) == count and n.warned[-1] == "jump"
+    strays = _target_node([], forgotten := [])
+    for k in range(120):
+        PlannerNode._target(strays, stamp(k), 0.3)
+    for k in (120 + 3600 * 60, 120 + 7200 * 60):  # two stray ticks an hour apart: held both
+        PlannerNode._target(strays, stamp(k), None)
+    assert not forgotten and strays.warned == ["jump", "jump"] and strays._pace_ns is None
 
 
 def test_a_stream_started_over_without_sim_status_is_planned_again():

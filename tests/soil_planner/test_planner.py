@@ -1102,6 +1102,60 @@ def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the
 
 
 @pytest.mark.timeout(90)
+def test_soil_planner_node_schedules_estimates_seconds_apart_as_one_cut(tmp_path):
+    """An estimator at stride 120 (an estimate every 2 s of ticks): every estimate after the first
+    two moves the target, deeper at the deepening rate, one cut throughout (before, every estimate
+    waited for a tick within a second of it, which never came: no target at all). Without a
+    /sim/status: ``test_node_commands.py``."""
+    from std_msgs.msg import String
+
+    from soil_msgs_py import graph as G
+    from soil_msgs_py.episode import EpisodeMeta
+
+    domain = next_domain_id()
+    known = _known(d=0.1, q=0.0, gamma=15e3)
+    weak = _estimate(known, phi=35 * DEG, c=0.0, delta=15 * DEG)  # loose sand: the reach (0.3 m) is admissible
+    tick = lambda k: 10**9 + k * 10**9 // 60  # noqa: E731
+    meta = EpisodeMeta("Sand", 20.0, "fee", 1, 0.5, 0.2, 30.0, source="test")
+    stride, rate = 120, 0.015
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.TARGET_DEPTH.name, T.TARGET_DEPTH.msgtype)
+        est_pub = probe.publisher(T.ESTIMATE.name, T.ESTIMATE.msgtype)
+        known_pub = probe.publisher(T.KNOWN.name, T.KNOWN.msgtype)
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        node = NodeProc("soil_planner", ["--ros-args", "-p", "start_depth_m:=0.1", "-p", f"deepen_rate_m_s:={rate}",
+                                         "-p", "cautious_deepen_rate_m_s:=0.01"], domain, tmp_path)
+
+        def targets() -> dict[int, np.ndarray]:
+            return dict(M.parse_labelled(m, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name)
+                        for m in probe.messages(T.TARGET_DEPTH.name))
+
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() for p in (est_pub, known_pub, status))
+                           and probe.matched_publishers(T.TARGET_DEPTH.name), 20, "soil_planner's endpoints")
+            time.sleep(0.3)
+            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, tick(0),
+                                                      planned_ticks=30 * 60).to_json()))
+            time.sleep(0.2)
+            ks = [i * stride for i in range(7)]
+            for k in ks:
+                known_pub.publish(M.make_labelled(CLASSES, tick(k), KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+                est_pub.publish(M.make_labelled(CLASSES, tick(k), T.ESTIMATE_FIELDS, _payload(weak, T.ESTIMATE_FIELDS)))
+                if k != ks[1]:  # (the second waits for the third: a jump of 2 s, or the estimator's pace)
+                    probe.wait_for(lambda: tick(k) in targets(), 15, f"the target of tick {k}")
+                time.sleep(0.1)
+        finally:
+            node.stop()
+    got = targets()
+    assert tick(ks[1]) not in got and all(tick(k) in got for k in ks[2:])
+    depths = [got[tick(k)][0] for k in ks[2:]]
+    # one cut: from the start depth at the deepening rate over the whole 12 s, never back to it
+    assert depths == pytest.approx([0.1 + rate * (k - ks[0]) / 60 for k in ks[2:]])
+    assert all(got[tick(k)][2] == 1.0 for k in ks[2:])
+    assert node.proc.returncode in (0, -2), node.output
+
+
+@pytest.mark.timeout(90)
 def test_soil_planner_node_plans_at_each_episodes_target_speed_unless_told_not_to(tmp_path):
     """The stall memory counts a stall where v_x falls below 80 % of the planned speed: planned at
     the default 0.5 m/s, a cut the controller ran at 0.35 m/s counted none and one at 0.45 m/s one

@@ -29,6 +29,7 @@ from soil_msgs_py import cli_numbers
 from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
+from soil_msgs_py.params import MAX_STRIDE_TICKS
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.episode_follow import EpisodeFollower
 from soil_msgs_py.ros_adapter import (
@@ -38,7 +39,7 @@ from soil_msgs_py.ros_adapter import (
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .fusion_calibration import announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion
-from .online import INPUT_TOPICS, MAX_STRIDE_TICKS, Estimate, OnlineEstimator, check_compatible
+from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
 
 PARAMETERS: dict[str, tuple] = {

@@ -35,7 +35,8 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 from soil_msgs_py.stream_checks import RATE_STEPS, cutting_ticks, sign_problem, step_problem
 from soil_msgs_py.params import (
-    FORCE_FIELDS, KNOWN_PARAMS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS, WINDOW_SAMPLES,
+    FORCE_FIELDS, KNOWN_PARAMS, MAX_STRIDE_TICKS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS,
+    WINDOW_SAMPLES,
 )
 
 from soil_physics.travel import soil_advance, soil_time_step
@@ -47,7 +48,6 @@ from .soil_map import SoilMap
 
 PERIOD_NS = TICK_PERIOD_NS  # one tick [ns] (stamps are integer ns, floor of k/60 s)
 MAX_PENDING_TICKS = 2 * SAMPLE_RATE_HZ  # incomplete ticks kept waiting for a late topic (2 s)
-MAX_STRIDE_TICKS = 60 * SAMPLE_RATE_HZ  # the rarest estimates a node may be set to: one a minute
 # A stamp more than a window behind the last sample is not a late message: a source that started
 # over (a bag replayed again, a simulator reset) without an episode_start, or a stray message; one
 # more than MAX_AHEAD_TICKS ahead is a stray or a stream that jumped on. Such messages are refused

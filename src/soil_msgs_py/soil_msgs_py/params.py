@@ -109,6 +109,7 @@ FORCE_FIELDS: tuple[str, ...] = ("f_x_b", "f_z_b")
 
 SAMPLE_RATE_HZ = 60
 TICK_PERIOD_NS = 1e9 / SAMPLE_RATE_HZ  # exact tick period [ns]; tick k is stamped tick_stamp_ns(k)
+MAX_STRIDE_TICKS = 60 * SAMPLE_RATE_HZ  # the rarest estimates an estimator may be set to (its stride): one a minute
 
 
 def ticks_in(seconds: float) -> int:

@@ -51,10 +51,21 @@ import math
 from dataclasses import asdict, dataclass, fields
 
 from soil_msgs_py.messages import NS_PER_S
-from soil_msgs_py.params import CAUTIOUS_DEEPEN_RATE_M_S, LIFT_REACH_M, MACHINE, MIN_PLANNED_DEPTH_M
+from soil_msgs_py.params import (CAUTIOUS_DEEPEN_RATE_M_S, LIFT_REACH_M, MACHINE, MAX_STRIDE_TICKS, MIN_PLANNED_DEPTH_M,
+                                 TICK_PERIOD_NS)
 
 
 GAP_PACES = 2.0  # an update more than this many of the plans' intervals after the one before follows a gap
+
+
+def follows_at_its_pace(last_ns: int, jumped_ns: int, stamp_ns: int) -> bool:
+    """Whether ``stamp_ns`` follows a tick stamped ``jumped_ns``, itself far ahead of the last one
+    scheduled (``last_ns``), at about the same spacing (within a factor GAP_PACES either way): an
+    estimator that estimates that seldom (its stride of seconds), not time jumping ahead, whose
+    next tick follows the jump at the simulator's pace. A jump further than the rarest stride an
+    estimator takes (MAX_STRIDE_TICKS) is no pace: two stray messages an hour apart are not one."""
+    ahead, then = jumped_ns - last_ns, stamp_ns - jumped_ns
+    return 0 < ahead <= MAX_STRIDE_TICKS * TICK_PERIOD_NS and ahead / GAP_PACES <= then <= ahead * GAP_PACES
 
 
 @dataclass(frozen=True)

@@ -70,7 +70,7 @@ from soil_physics.force_terms import term_texts
 from soil_physics.predictive import error_law_text
 
 from .command_wait import DEFAULT_COMMAND_WAIT_S, MAX_COMMAND_WAIT_S, CommandWait, Waiting, check_command_wait
-from .depth_schedule import DepthSchedule, ScheduleSettings
+from .depth_schedule import GAP_PACES, DepthSchedule, ScheduleSettings, follows_at_its_pace
 from .estimator_physics import physics_text, planning_physics
 from .planner import (CUT_SPEED_LIMIT_M_S, D_MAX_LIMIT_M, DEFAULT_CUT_SPEED_M_S, DEFAULT_D_MAX_M, DEFAULT_FORCE_QUANTILE,
                       DEFAULT_MARGIN, NO_PLAN_VALUES, check_switch, describe, fields)
@@ -215,6 +215,7 @@ class PlannerNode(Node):
         check_target_floor(self.planner, self.schedule.settings)
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self._jumped_to: int | None = None  # a tick far from the last scheduled one, until the next follows it (``_target``)
+        self._pace_ns: int | None = None  # estimates further apart than NEW_CUT_GAP_NS: their spacing (``_target``)
         # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
         # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
         self.lockstep = False
@@ -560,24 +561,32 @@ class PlannerNode(Node):
         A tick more than NEW_CUT_GAP_NS from the last one scheduled starts a new cut only once the
         next tick follows it there (time jumped: a replay started over, a restarted simulator); one
         stray message stamped 0 or an hour ahead had restarted the cut, its schedule and evidence,
-        without a word (an outside tester's). Until then it moves no target."""
+        without a word (an outside tester's). Until then it moves no target. Estimates seconds apart
+        (the estimator's ``stride`` over a second of ticks) are its pace, not a new cut each: had
+        every one of them waited for a tick within a second of it, none would have come, and the
+        planner published no target at all (``follows_at_its_pace``)."""
         last = self.schedule.last_stamp_ns
-        if last is not None and abs(stamp - last) > NEW_CUT_GAP_NS:
+        new_cut_gap_ns = max(NEW_CUT_GAP_NS, GAP_PACES * self._pace_ns) if self._pace_ns else NEW_CUT_GAP_NS
+        if last is not None and abs(stamp - last) > new_cut_gap_ns:
             # ahead within the episode followed: ticks lost (a loaded machine), the same cut
             gap = (stamp > last and self.cut_first_ns is not None and last >= self.cut_first_ns
                    and (self.cut_end_ns is None or stamp <= self.cut_end_ns))
-            if self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
+            if self._jumped_to is not None and follows_at_its_pace(last, self._jumped_to, stamp):
+                self._pace_ns = stamp - self._jumped_to  # the same cut, estimated this seldom
+            elif self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
                 self._jumped_to = stamp
                 self._warn("jump", f"stamp {stamp} ns is {(stamp - last) / M.NS_PER_S:+.3g} s from the last tick "
                                    f"scheduled ({last} ns); no target for it (" + (
                                        "estimates lost? the cut goes on once the next tick follows it" if gap else
                                        "a new cut once the next tick follows it") + ")")
                 return
-            if not gap:  # (a gap keeps the cut's evidence and stall memory; the schedule backs off over it)
+            elif not gap:  # (a gap keeps the cut's evidence and stall memory; the schedule backs off over it)
                 self._new_cut(stamp)
                 self._unfollow_episode()  # (a cut no /sim/status announced: none of the episode followed)
         elif last is not None and stamp <= last:
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
+        elif last is not None and stamp - last <= NEW_CUT_GAP_NS:
+            self._pace_ns = None  # estimates within a second of each other again (the stride set lower)
         self._jumped_to = None
         target = self.schedule.update(stamp, plan_depth_m)
         values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
