@@ -432,10 +432,12 @@ def test_a_soil_replacing_a_catalogue_soil_or_falling_with_density_is_said(tmp_p
                  "- {name: sand, phi_deg: [28, 43], cohesion_pa: [0, 0], unit_weight_n_m3: [15500, 20500]}\n"
                  "- {name: Marl, phi_deg: [20, 25], cohesion_pa: [9000, 1000], unit_weight_n_m3: [17000, 19000]}\n"
                  # kPa written as Pa (an outside tester's slip): all but cohesionless, said
-                 "- {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12, 18], unit_weight_n_m3: [19000, 21500]}\n")
+                 "- {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12, 18], unit_weight_n_m3: [19000, 21500]}\n"
+                 # a weakly cohesive sand: its 500 Pa as kPa would be no soil's, nothing to say
+                 "- {name: SandyGravel, phi_deg: [34, 44], cohesion_pa: [0, 500], unit_weight_n_m3: [17000, 21500]}\n")
     notes = soil_file_notes(load_soil_yaml(f))
     assert len(notes) == 5, notes  # the same values as the catalogue's Sand under its name: nothing to say
-    assert "soil 'StiffSilt': cohesion_pa=[12, 18] is under 1000 Pa at both densities" in notes[4]
+    assert "soil 'StiffSilt': cohesion_pa=[12, 18] is under 100 Pa at both densities" in notes[4]
     assert "soil 'Clay' replaces the catalogue's Clay" in notes[0]
     assert "phi_deg=[30, 20] falls from loose to dense" in notes[1] and "unit_weight_n_m3=[18000, 17000]" in notes[2]
     assert "soil 'Marl': cohesion_pa=[9000, 1000] falls from loose to dense" in notes[3]  # c was not checked

@@ -64,6 +64,15 @@ def test_a_target_deeper_than_the_lift_reaches_is_said(tmp_path, capsys):
     assert "--depths=0.2" not in err
 
 
+def test_a_target_speed_faster_than_table_1s_is_said(tmp_path, capsys):
+    """An outside tester's: --speeds 1.5 ran without a word, where a depth beyond the reach is said."""
+    args = [a if a != "0.5" else "0.5,1.5" for a in ONE]
+    assert batch.main([*args, "--depths", "0.1", "--duration", "0.2", "--out", str(tmp_path / "fast")]) == 0
+    err = capsys.readouterr().err
+    assert "--speeds=1.5 m/s is faster than Table 1's v_x (at most 1 m/s)" in err, err
+    assert "--speeds=0.5" not in err
+
+
 def test_a_patch_the_blade_never_reaches_is_said(tmp_path, capsys):
     """The edge starts at x = 2 m; at 0.5 m/s for 2 s it gets to about 3 m, short of a patch at 4 m."""
     base = ["--mode", "fee", "--speeds", "0.5", "--depths", "0.1", "--seeds", "1", "--duration", "2", "--workers", "1",

@@ -171,6 +171,16 @@ def beyond_lift_reach(name: str, depth_m: float) -> str | None:
     return None
 
 
+def beyond_table1_speed(name: str, speed_m_s: float) -> str | None:
+    """A warning naming ``name`` when a target speed [m/s] is faster than Table 1's v_x, which the
+    simulator drives (up to MAX_TARGET_SPEED_M_S) but the shipped models never saw, else None."""
+    fastest = TABLE1["v_x"].norm[1]
+    if fastest + 1e-9 < speed_m_s:
+        return (f"{name}={speed_m_s:g} m/s is faster than Table 1's v_x (at most {fastest:g} m/s): simulated, but the "
+                "shipped models were trained within it and their forecasts calibrated at slower cuts")
+    return None
+
+
 # (x, z) force limits [N]: the scale forces are normalised by (PINN loss, classical fit, reports).
 FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE.vertical_force_limit_n)
 # The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil

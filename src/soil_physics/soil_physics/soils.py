@@ -182,8 +182,10 @@ SOIL_FIELDS = ("name", "phi_deg", "cohesion_pa", "unit_weight_n_m3", "source")
 MIN_UNIT_WEIGHT_N_M3 = 5e3
 MIN_COHESION_PA = 10.0
 # A cohesion under this at both densities [Pa] is accepted but said: kPa written as Pa (12-18 "Pa",
-# an outside tester's slip) makes a soil all but cohesionless.
-KPA_SLIP_PA = 1000.0
+# an outside tester's slip) makes a soil all but cohesionless. Only where the kPa would be a soil's
+# (under 100 kPa, a very stiff clay's): a few hundred Pa is a weakly cohesive sand's, and the note
+# had told its [0, 500] Pa to be 500 kPa (an outside tester's).
+KPA_SLIP_PA = 100.0
 
 
 def _check_units(phi_deg: tuple[float, float], c_pa: tuple[float, float], gamma_n_m3: tuple[float, float]) -> None:

@@ -44,7 +44,7 @@ from soil_msgs_py.interrupts import (Terminated, interrupt_exit_code, stop_reque
 from soil_msgs_py import cli_numbers, strict_json
 from soil_msgs_py.cli_paths import bags_dir, refuse_directories, write_text_atomically, written_since
 from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
-from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, ticks_in
+from soil_msgs_py.params import MIN_CUT_DEPTH_M, WINDOW_SAMPLES, beyond_lift_reach, beyond_table1_speed, ticks_in
 from soil_msgs_py.patches import check_patches, glue_negative_patches
 from soil_msgs_py.process_pool import WorkerDied, map_in_processes
 from soil_physics.soils import CATALOGUE, SoilFile, get_soil, load_soil_file, path_patches, soil_file_notes
@@ -583,6 +583,9 @@ def main(argv=None) -> int:
             cli_numbers.check_local_count("--workers", args.workers)
         for depth in sorted({spec.target_depth_m for spec in plan.specs}):
             if note := beyond_lift_reach("--depths", depth):
+                print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
+        for speed in sorted({spec.target_speed_m_s for spec in plan.specs}):
+            if note := beyond_table1_speed("--speeds", speed):
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         for note in repeated_grid_values(args) + unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)

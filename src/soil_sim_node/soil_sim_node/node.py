@@ -40,7 +40,7 @@ from soil_msgs_py import graph as G
 from soil_msgs_py import messages as M
 from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, TICK_PERIOD_NS, beyond_lift_reach,
-                                 tick_stamp_ns, ticks_in)
+                                 beyond_table1_speed, tick_stamp_ns, ticks_in)
 from soil_msgs_py.ros_adapter import (WarnLimiter, declare_parameters, endpoint_node, local, message_class,
                                       publisher_qos, spin_node, topic_qos, wall_timer)
 
@@ -258,6 +258,8 @@ class SimNode(Node):
         resolved = resolve_checked(self.config, spec, self.custom_soils)[0]
         if note := beyond_lift_reach("target_depth_m", resolved.target_depth_m):
             self._warn(f"beyond_lift_reach {resolved.target_depth_m:g}", note)  # each depth said once
+        if note := beyond_table1_speed("target_speed_m_s", resolved.target_speed_m_s):
+            self._warn(f"beyond_table1_speed {resolved.target_speed_m_s:g}", note)
         return resolved
 
     def _check_plan_entries(self, base: EpisodeSpec, plan: dict[str, list]) -> None:
