@@ -213,3 +213,40 @@ def test_a_machines_bags_take_the_checkpoints_calibration_not_none(tmp_path, mon
     assert seen["fusion"] == load_calibrated("default") and seen["fusion"].terms, "the default world's, with its term"
     assert "no simulator world" in said[0] and "default world's calibration" in said[0], said
     assert "the checkpoint's" in out["fusion_config"] and "'unknown'" in out["fusion_config"], out
+
+
+def test_the_fused_forecasts_outside_the_calibrated_depths_and_speed_are_scored_apart_and_said():
+    """An outside tester's: a headline of 85 / 48 % hid 93 / 52 % at one speed and 79 / 45 % across
+    speeds, and sources of 7 cm going deeper held 53 / 24 %; the report said neither."""
+    import numpy as np
+
+    from pinn_estimator.forecast import ANOTHER_SPEED_M_S, calibration_strata, markdown
+    from pinn_estimator.fusion_calibration import CAL_DEPTHS_M, MIN_CALIBRATED_DEPTH_M, calibrated_from_m
+
+    assert calibrated_from_m() == min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M) == 0.125
+
+    def pair(d_from, d_to, v_from, v_to, forecast):  # measured 10 kN; the 90 % interval ± 1 kN about the forecast
+        f = np.array([forecast, 0.0])
+        return {"from_depth_m": d_from, "to_depth_m": d_to, "from_speed_m_s": v_from, "to_speed_m_s": v_to,
+                "measured": np.array([10e3, 0.0]), "forecast": {"fused": f},
+                "intervals": {"fused": {(0.05, 0.95): (f - 1e3, f + 1e3), (0.25, 0.75): (f - 300.0, f + 300.0)}}}
+
+    same = 0.6 + ANOTHER_SPEED_M_S / 2  # within the tolerance: one speed
+    pairs = [pair(0.15, 0.25, 0.6, same, 10.2e3), pair(0.25, 0.15, 0.6, 0.6, 9.9e3),  # calibrated: held
+             pair(0.07, 0.2, 0.6, 0.6, 12e3),  # a shallow source: too high, missed
+             pair(0.15, 0.25, 0.3, 1.0, 8e3), pair(0.07, 0.25, 0.3, 1.0, 8e3)]  # another speed: missed
+    strata = calibration_strata(pairs, ["fused"], 0.125)["posteriors"]["fused"]
+    assert [strata[g]["pairs"] for g in ("calibrated", "shallower_source", "another_speed")] == [2, 2, 2]
+    assert strata["calibrated"]["coverage_90"] == 1.0 and strata["calibrated"]["coverage_50"] == 1.0
+    assert strata["shallower_source"]["coverage_90"] == 0.0 and strata["another_speed"]["coverage_90"] == 0.0
+    assert strata["shallower_source"]["deeper_bias_pct"] == 0.0  # +20 % and −20 %, both going deeper
+    row = {"pairs": 5, "mean_abs_pct": 1.0, "bias_pct": 0.0}
+    report = {"data": "bags/x", "pairs": 5, "episodes": 5, "worlds": ["default"], "unlabelled": 0,
+              "forecast": {"fused": {a: {"all": row, "deeper": row, "shallower": row} for a in ("x", "z")}},
+              "calibration_strata": calibration_strata(pairs, ["fused"], 0.125)}
+    text = "\n".join(markdown(report))
+    assert ("where its forecast law was calibrated (sources from 0.125 m, the calibration's shallowest scored cut, "
+            "and one speed): 2 pairs, 1.5 % off") in text
+    assert "to another speed (steady speeds more than 0.1 m/s apart): 2 pairs, 20.0 % off" in text
+    inside = calibration_strata(pairs[:2], ["fused"], 0.125)  # every pair within it: nothing to say apart
+    assert "shallowest scored cut" not in "\n".join(markdown({**report, "calibration_strata": inside}))

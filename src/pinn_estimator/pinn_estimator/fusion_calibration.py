@@ -64,9 +64,18 @@ CAL_SEED = 9000
 # soil fitted at 5 cm forecast the dense soils' force deeper 27-126 % too high, and a law wide
 # enough for those pairs held 65 % of the held-out forecasts at its 50 % level (default world;
 # 40-60 % on three held-out sets from 7 cm up once they were left out). The published intervals
-# are therefore calibrated from 7 cm to the calibration's deepest cut; the planner's bound, which
-# plans from 5 cm, has its own law, calibrated on every pair going deeper (soil_planner_calibrate).
+# are therefore calibrated from the shallowest cut of CAL_DEPTHS_M at least this deep
+# (``calibrated_from_m``, 0.125 m: the grid has none between 5 and 12.5 cm; sources of 7 cm going
+# deeper held 53 / 24 %, of 9-11.5 cm 91 / 55 %, an outside tester's) to the calibration's
+# deepest; the planner's bound, which plans from 5 cm, has its own law, calibrated on every pair
+# going deeper (soil_planner_calibrate).
 MIN_CALIBRATED_DEPTH_M = 0.07
+
+
+def calibrated_from_m() -> float:
+    """The shallowest calibration cut the forecast law is scored on [m]: the calibrated reach's
+    shallow end (CAL_DEPTHS_M has none between 5 cm and this, whatever MIN_CALIBRATED_DEPTH_M)."""
+    return min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M)
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
 # which must hold at least one full window of the estimator; at most the simulator's longest episode.
 CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, MAX_EPISODE_S)
