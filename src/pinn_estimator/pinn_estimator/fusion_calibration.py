@@ -76,6 +76,8 @@ def calibrated_from_m() -> float:
     """The shallowest calibration cut the forecast law is scored on [m]: the calibrated reach's
     shallow end (CAL_DEPTHS_M has none between 5 cm and this, whatever MIN_CALIBRATED_DEPTH_M)."""
     return min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M)
+
+
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),
 # which must hold at least one full window of the estimator; at most the simulator's longest episode.
 CAL_DURATION_RANGE_S = (2.0 * WINDOW_SAMPLES / SAMPLE_RATE_HZ, MAX_EPISODE_S)
