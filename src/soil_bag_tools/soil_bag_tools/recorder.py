@@ -203,6 +203,7 @@ class Session:
     warned: dict[tuple[str, str], int] = field(default_factory=dict)  # (kind, topic) -> warnings
     writers: dict[str, WriterTracks] = field(default_factory=dict)  # who publishes each topic
     flushed_stamp_ns: int = 0  # stamp at the last flush triggered by simulation time
+    order: int = 0  # the sessions opened before it (``Recorder._complete``: a writer still on an older one is behind)
 
     @property
     def total(self) -> int:
@@ -248,6 +249,9 @@ class Recorder:
         # code says so (record_node), so a launch does not end in 0
         self.unwritten: list[str] = []
         self.dropped = {"outside_episode": 0, "undecodable": 0}  # messages not recorded, by cause
+        self.opened = 0  # sessions opened so far
+        # per topic, the ``order`` of the session its newest message went into and when (``_complete``)
+        self.heard: dict[str, tuple[int, float]] = {}
         # topics whose writer had not matched when the recorder joined the simulator's topics
         # (record_node's --inputs-wait ran out): their first messages may be missing from a bag
         self.joined_without: set[str] = set()
@@ -351,7 +355,15 @@ class Recorder:
         """The end grace expired: nothing arrived for ``s`` for ``end_grace_s`` since its episode_end,
         and two polls in a row found nothing new (a recorder starved of CPU for a while has its
         messages waiting behind the timer, not lost: the poll after them must see them first)."""
-        return s.silent_polls >= 2 and now - max(s.closing_since, s.last_write or s.closing_since) >= self.end_grace_s
+        heard = max(self._still_on_older(s), default=s.closing_since)  # (its writer streaming an older episode's)
+        return (s.silent_polls >= 2
+                and now - max(s.closing_since, s.last_write or s.closing_since, heard) >= self.end_grace_s)
+
+    def _still_on_older(self, s: Session) -> list[float]:
+        """When each topic of ``s`` without a message of its episode yet, whose newest message went
+        into an older session (its writer more than an episode behind), was last heard."""
+        return [self.heard[t][1] for t in self.topics if t not in s.topic_max and t in self.heard
+                and self.heard[t][0] < s.order]
 
     def draining(self) -> bool:
         """Whether an ended episode still waits for messages in flight (finished by ``poll``)."""
@@ -379,7 +391,8 @@ class Recorder:
         for topic, msgtype in self.topics.items():
             journal.add_channel(topic, msgtype, self.qos_for(topic))
         self.log.info(f"recording {self.out_dir / name} (journal {journal.path})")
-        return Session(name=name, journal=journal, meta_json=meta_json)
+        self.opened += 1
+        return Session(name=name, journal=journal, meta_json=meta_json, order=self.opened)
 
     def _held_start(self, ev: EpisodeEvent) -> str:
         """Why the ``episode_start`` ``ev`` is held, not opened ("": it is opened), by a recorder given no
@@ -506,6 +519,7 @@ class Recorder:
                     return
         s.journal.write(topic, stamp, raw, recv_ns, seq)
         s.last_write = self.clock()
+        self.heard[topic] = (s.order, s.last_write)
         if stamp - s.flushed_stamp_ns >= self.flush_sim_ns and s.meta_json is not None:
             s.journal.flush()
             s.flushed_stamp_ns = stamp
@@ -551,7 +565,11 @@ class Recorder:
         such as /soil/estimate follow the ticks but may run at other rates, skip the last stamp,
         or lag: an estimator on a loaded machine still streaming its last estimates is not cut
         off), at most ``EXTRA_TOPIC_LAG_LIMIT_S`` (or ``end_grace_s`` if longer) after the ticks
-        were complete."""
+        were complete. An extra topic with no message of this episode yet whose newest message went
+        into an older session (an estimator more than an episode behind a lockstep simulator or a
+        fast replay) is behind too, and quiet only once that topic is: its episodes had been
+        finished 0.3 s after their ticks, before its first message, which was then dropped, and the
+        bag said it was complete (an outside tester's)."""
         tick_topics = [t for t in self.topics if t in M.FIELDS] or list(self.topics)
         if not all(s.topic_done(t) for t in tick_topics):
             return False
@@ -565,6 +583,8 @@ class Recorder:
         # short grace between its bursts: it gets the end grace of quiet
         behind = any(not s.topic_done(t) and s.topic_max.get(t) is not None
                      and s.last_stamp_ns - s.topic_max[t] > EXTRA_TOPIC_BEHIND_NS for t in self.topics)
+        if still_on_older := self._still_on_older(s):
+            behind, quiet_since = True, max(quiet_since, *still_on_older)
         if now - quiet_since >= (self.end_grace_s if behind else EXTRA_TOPIC_GRACE_S):
             return True
         limit = max(self.end_grace_s, EXTRA_TOPIC_LAG_LIMIT_S)
