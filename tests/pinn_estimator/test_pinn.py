@@ -403,6 +403,8 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     assert seen["seen_in_training"] > 0 and any("trained or validated on" in m for m in said)
     assert "trained or validated on" in markdown(seen)
     assert only.get("seen_in_training") == 0
+    whole = evaluate(on_cuts, forecast_data=cuts, classical=False, log=lambda *_: None)  # with its test split
+    assert whole["seen_in_training"] > 0 and "trained or validated on" in markdown(whole)  # (in its log alone before)
     # a machine's cuts (no /soil/ground_truth): the same forecast, no soil scored, no true-parameter FEE
     machine = tmp_path / "machine"
     for bag in find_episode_bags(cuts):

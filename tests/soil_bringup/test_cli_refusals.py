@@ -166,9 +166,18 @@ def test_the_cut_report_takes_a_checkpoint_and_fusion_config_of_ones_own_for_one
     from pinn_estimator.fusion_calibration import config_path
     from pinn_estimator.shipped import shipped_checkpoint
 
+    import numpy as np
+
+    from pinn_estimator.checkpoint import save_checkpoint
+    from pinn_estimator.model import EstimatorNet, ModelConfig
+
+    free = tmp_path / "free.pt"  # no soil parameters: it had failed with a traceback after the depth sweep
+    net = EstimatorNet(ModelConfig(kind="physics_free", d_model=16, n_heads=2, n_layers=1, ff_dim=32), np.zeros(9), np.ones(9))
+    save_checkpoint(free, net, train_config={}, dataset={}, split={}, metrics={}, history={})
     fee_model, default_config = str(shipped_checkpoint("fee")), str(config_path("default"))
     for args, said in ((["--checkpoint", fee_model], "one world's"),
                        (["--worlds", "fee", "--checkpoint", str(tmp_path / "none.pt")], "does not exist"),
+                       (["--worlds", "fee", "--checkpoint", str(free)], "--checkpoint: model kind='physics_free'"),
                        (["--worlds", "fee", "--fusion-config", default_config], "calibrated in the default world")):
         with pytest.raises(SystemExit) as exit_:
             cut_report.parse_args(["--out", str(tmp_path / "o"), *args])

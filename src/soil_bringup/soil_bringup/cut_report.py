@@ -38,6 +38,7 @@ import numpy as np
 from anti_stall_controller.controller import AntiStallGains
 from pinn_estimator.checkpoint import load_model, world_mismatch, world_mismatch_lines
 from pinn_estimator.fusion_calibration import given_fusion
+from pinn_estimator.online import check_compatible
 from soil_msgs_py import markdown_table as md
 from soil_msgs_py import strict_json
 from soil_msgs_py.cli_paths import (input_text, output_dir, refuse_directories, save_figure_atomically,
@@ -125,9 +126,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     if (args.checkpoint or args.fusion_config) and len(args.worlds) != 1:
         p.error("--checkpoint and --fusion-config are one world's: give that world alone (--worlds default or fee)")
     args.world_mismatch = ""  # another world's checkpoint: said at once and in the report (pinn_eval's check)
-    try:  # read now, not after the sweeps: a file that is no model
+    try:  # read now, not after the sweeps: a file that is no model, or none the online estimator runs
         if args.checkpoint:
-            args.world_mismatch = world_mismatch(args.checkpoint, load_model(args.checkpoint)[1], args.worlds[0],
+            model, ckpt = load_model(args.checkpoint)
+            check_compatible(model)  # (a physics-free one had failed with a traceback after the depth sweep)
+            args.world_mismatch = world_mismatch(args.checkpoint, ckpt, args.worlds[0],
                                                  f"the soil-aware policy's estimator and planner use it in the "
                                                  f"{args.worlds[0]} world")
     except (FileNotFoundError, ValueError) as err:
