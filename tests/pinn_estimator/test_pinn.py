@@ -109,14 +109,22 @@ def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp
     unseen episode, without a word."""
     import shutil
 
+    import dataclasses
+
+    from soil_bag_tools.bag_io import read_episode, write_episode
+
     data = tmp_path / "data"
     shutil.copytree(tiny_bags, data)
     first = sorted(p.name for p in data.iterdir() if p.is_dir())
     for name in first[:2]:
         shutil.copytree(data / name, data / f"{name}_2")  # what the second recorder names it
+    whole = read_episode(data / first[2])  # a replay stopped part-way, recorded again: its first ticks
+    head = len(whole) * 3 // 4
+    write_episode(data / f"{first[2]}_3", dataclasses.replace(whole, **{
+        f.name: getattr(whole, f.name)[:head] for f in dataclasses.fields(whole) if f.name != "meta"}))
     ds = load_dataset(data, cache=False)
     copies = identical_episodes(ds)
-    assert copies == [[first[0], f"{first[0]}_2"], [first[1], f"{first[1]}_2"]], copies
+    assert copies == [[first[0], f"{first[0]}_2"], [first[1], f"{first[1]}_2"], [first[2], f"{first[2]}_3"]], copies
     for seed in range(6):
         split = split_episodes(ds, seed=seed)
         for names in copies:
@@ -126,7 +134,7 @@ def test_an_episode_recorded_twice_stays_in_one_split_and_is_said(tiny_bags, tmp
     assert train_main(args) == 0
     said = capsys.readouterr()
     out = said.err  # (progress and warnings on stderr: stdout is the run's summary, JSON)
-    assert "warning: 2 episodes are copies of others" in out and f"{first[0]} = {first[0]}_2" in out, out
+    assert "warning: 3 episodes are copies of others" in out and f"{first[0]} = {first[0]}_2" in out, out
     assert json.loads(said.out)["checkpoint"] == str(tmp_path / "m.pt"), said.out
 
 

@@ -367,16 +367,32 @@ def identical_episodes(ds: Dataset) -> list[list[str]]:
     metadata (the bag name and the seed aside) and the samples (forces, Θ_k, observations): a
     test episode whose every sample a training episode holds is no held-out episode, whatever its
     seed (an outside reviewer's: 50 of the fee model's 72 test episodes had such a twin in
-    training, and scored 1.9 % where the 22 without one scored 3.4 %)."""
-    by_content: dict[bytes, list[str]] = defaultdict(list)
+    training, and scored 1.9 % where the 22 without one scored 3.4 %). A recording cut short (a
+    replay stopped part-way, recorded under another name) holds the first samples of its episode:
+    one whose samples all begin another of the same metadata is that episode too (an outside
+    tester's: such a prefix went to test with its whole episode in training)."""
+    by_meta: dict[str, list[int]] = defaultdict(list)
+    for e in range(len(ds.names)):
+        by_meta[repr(dataclasses.astuple(dataclasses.replace(ds.metas[e], seed=0)))].append(e)
+    same = list(range(len(ds.names)))  # union-find over the episodes: each one's representative
+
+    def find(e: int) -> int:
+        while same[e] != e:
+            same[e] = same[same[e]]
+            e = same[e]
+        return e
+
+    for members in by_meta.values():
+        samples = {e: [a[ds.episode_rows(e)] for a in (ds.forces, ds.known, ds.observations)] for e in members}
+        for i, a in enumerate(members):
+            for b in members[i + 1:]:
+                n = min(len(samples[a][0]), len(samples[b][0]))
+                if n and find(a) != find(b) and all(np.array_equal(x[:n], y[:n]) for x, y in zip(samples[a], samples[b])):
+                    same[find(a)] = find(b)
+    groups: dict[int, list[str]] = defaultdict(list)
     for e, name in enumerate(ds.names):
-        rows = ds.episode_rows(e)
-        digest = hashlib.blake2b(digest_size=16)
-        digest.update(repr(dataclasses.astuple(dataclasses.replace(ds.metas[e], seed=0))).encode())
-        for array in (ds.forces[rows], ds.known[rows], ds.observations[rows]):
-            digest.update(np.ascontiguousarray(array).tobytes())
-        by_content[digest.digest()].append(name)
-    return sorted(sorted(names) for names in by_content.values() if len(names) > 1)
+        groups[find(e)].append(name)
+    return sorted(sorted(names) for names in groups.values() if len(names) > 1)
 
 
 def split_episodes(ds: Dataset, *, seed: int, val_fraction: float = 0.15, test_fraction: float = 0.15) -> dict[str, list[str]]:

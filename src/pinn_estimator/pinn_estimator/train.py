@@ -170,7 +170,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     if copies := identical_episodes(ds):
         shown = "; ".join(" = ".join(names) for names in copies[:3]) + ("; ..." if len(copies) > 3 else "")
         log(f"warning: {sum(len(c) - 1 for c in copies)} episodes are copies of others (the same samples under another "
-            f"name: two recorders, a replay recorded again, the seeds of one noise-free fee-world episode): {shown}; each "
+            "name, or their first samples: two recorders, a replay recorded again or cut short, the seeds of one "
+            f"noise-free fee-world episode): {shown}; each "
             "group kept in one split, where every copy weighs as one more episode")
     if given and (left := len(ds.names) - len({i for v in idx.values() for i in v})):
         log(f"{left} of the {len(ds.names)} episodes are in none of the given split's parts: left out (the split "
