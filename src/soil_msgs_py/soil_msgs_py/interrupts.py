@@ -17,6 +17,7 @@ import functools
 import os
 import signal
 import sys
+import warnings
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
 EXIT_TERMINATED = 143  # 128 + SIGTERM
@@ -197,6 +198,9 @@ def run_tool(prog: str, module: str, argv=None):
 
     script = argv is None  # a console script's process; called with argv (a notebook), handlers are given back
     if script:
+        # a warning of the tool's own code (a soil the FEE resists nothing in while rising) in the tool's one-line
+        # form, as its other warnings: it printed Python's, the source file and line of the warning call beneath
+        warnings.showwarning = lambda message, *_, **__: print(f"{prog}: warning: {message}", file=sys.stderr)
         # the last exit hook to run (registered before the tool's own): from there on the interpreter
         # tears its modules down with Python's handlers gone, and a signal then killed the tool
         # (−2 / −15) however it had ended
