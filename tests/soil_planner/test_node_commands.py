@@ -159,13 +159,15 @@ def test_estimates_lost_mid_episode_are_a_gap_in_the_cut_not_a_new_cut():
 
 def test_estimates_seconds_apart_without_an_episode_followed_are_one_cut_and_two_strays_are_no_pace():
     """An estimator at stride 120 and no /sim/status (a replay of its estimates alone): one cut,
-    every estimate after the second moving the target (before: none did). The pace never takes
-    in two strays an hour apart, nor keeps a second-wide gap once estimates come at 60 Hz again."""
+    every estimate after the third moving the target (before: none did). The pace never takes
+    in two strays, an hour or 30 s apart, nor keeps a second-wide gap once estimates come at 60 Hz
+    again; lost estimates at stride 120 within the episode followed are a gap in the cut (a
+    reviewer's: every target had stopped for good after them)."""
     published, forgotten = [], []
     n = _target_node(published, forgotten)
     for k in range(0, 7 * 120, 120):
         PlannerNode._target(n, stamp(k), 0.3)
-    assert not forgotten and [p[0] for p in published] == [stamp(k) for k in (0, *range(240, 7 * 120, 120))]
+    assert not forgotten and [p[0] for p in published] == [stamp(k) for k in (0, *range(360, 7 * 120, 120))]
     assert published[0][1][0] == 0.1 and all(p[1][0] == 0.3 for p in published[1:])  # deepened (to the reach), never back
     for k in range(7 * 120, 7 * 120 + 60):  # the stride set back to 1: 60 Hz again
         PlannerNode._target(n, stamp(k), 0.3)
@@ -179,6 +181,16 @@ def test_estimates_seconds_apart_without_an_episode_followed_are_one_cut_and_two
     for k in (120 + 3600 * 60, 120 + 7200 * 60):  # two stray ticks an hour apart: held both
         PlannerNode._target(strays, stamp(k), None)
     assert not forgotten and strays.warned == ["jump", "jump"] and strays._pace_ns is None
+    near = _target_node(published := [], forgotten := [])
+    for k in (*range(120), 120 + 30 * 60, 120 + 60 * 60, *range(120, 240)):  # strays 30 s apart, then the stream
+        PlannerNode._target(near, stamp(k), 0.3)
+    assert not forgotten and near._pace_ns is None and [p[0] for p in published] == [stamp(k) for k in range(240)]
+    followed = _target_node(published := [], forgotten := [], cut_first_ns=stamp(0))
+    followed.cut_end_ns = stamp(60 * 60)  # a minute's episode
+    ks = [k for k in range(0, 30 * 120, 120) if k not in (10 * 120, 11 * 120)]  # two estimates lost
+    for k in ks:
+        PlannerNode._target(followed, stamp(k), 0.3)
+    assert not forgotten and stamp(ks[-1]) == published[-1][0] and len(published) == len(ks) - 3
 
 
 def test_a_stream_started_over_without_sim_status_is_planned_again():

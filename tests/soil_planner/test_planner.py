@@ -1104,9 +1104,9 @@ def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the
 @pytest.mark.timeout(90)
 def test_soil_planner_node_schedules_estimates_seconds_apart_as_one_cut(tmp_path):
     """An estimator at stride 120 (an estimate every 2 s of ticks): every estimate after the first
-    two moves the target, deeper at the deepening rate, one cut throughout (before, every estimate
-    waited for a tick within a second of it, which never came: no target at all). Without a
-    /sim/status: ``test_node_commands.py``."""
+    three (the second and third show the spacing twice) moves the target, deeper at the deepening
+    rate, one cut throughout (before, every estimate waited for a tick within a second of it, which
+    never came: no target at all). Without a /sim/status: ``test_node_commands.py``."""
     from std_msgs.msg import String
 
     from soil_msgs_py import graph as G
@@ -1141,17 +1141,17 @@ def test_soil_planner_node_schedules_estimates_seconds_apart_as_one_cut(tmp_path
             for k in ks:
                 known_pub.publish(M.make_labelled(CLASSES, tick(k), KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
                 est_pub.publish(M.make_labelled(CLASSES, tick(k), T.ESTIMATE_FIELDS, _payload(weak, T.ESTIMATE_FIELDS)))
-                if k != ks[1]:  # (the second waits for the third: a jump of 2 s, or the estimator's pace)
+                if k not in ks[1:3]:  # (held: a jump of 2 s, or the estimator's pace once seen twice)
                     probe.wait_for(lambda: tick(k) in targets(), 15, f"the target of tick {k}")
                 time.sleep(0.1)
         finally:
             node.stop()
     got = targets()
-    assert tick(ks[1]) not in got and all(tick(k) in got for k in ks[2:])
-    depths = [got[tick(k)][0] for k in ks[2:]]
+    assert not {tick(k) for k in ks[1:3]} & set(got) and all(tick(k) in got for k in ks[3:])
+    depths = [got[tick(k)][0] for k in ks[3:]]
     # one cut: from the start depth at the deepening rate over the whole 12 s, never back to it
-    assert depths == pytest.approx([0.1 + rate * (k - ks[0]) / 60 for k in ks[2:]])
-    assert all(got[tick(k)][2] == 1.0 for k in ks[2:])
+    assert depths == pytest.approx([0.1 + rate * (k - ks[0]) / 60 for k in ks[3:]])
+    assert all(got[tick(k)][2] == 1.0 for k in ks[3:])
     assert node.proc.returncode in (0, -2), node.output
 
 

@@ -64,8 +64,9 @@ def follows_at_its_pace(last_ns: int, jumped_ns: int, stamp_ns: int) -> bool:
     estimator that estimates that seldom (its stride of seconds), not time jumping ahead, whose
     next tick follows the jump at the simulator's pace. A jump further than the rarest stride an
     estimator takes (MAX_STRIDE_TICKS) is no pace: two stray messages an hour apart are not one."""
-    ahead, then = jumped_ns - last_ns, stamp_ns - jumped_ns
-    return 0 < ahead <= MAX_STRIDE_TICKS * TICK_PERIOD_NS and ahead / GAP_PACES <= then <= ahead * GAP_PACES
+    ahead, then = jumped_ns - last_ns, stamp_ns - jumped_ns  # (a tick's slack: stamps are whole ns of k/60 s)
+    return (0 < ahead <= MAX_STRIDE_TICKS * TICK_PERIOD_NS
+            and ahead / GAP_PACES - TICK_PERIOD_NS <= then <= ahead * GAP_PACES + TICK_PERIOD_NS)
 
 
 @dataclass(frozen=True)

@@ -216,6 +216,7 @@ class PlannerNode(Node):
         self._target_sent: tuple[int, float, float] | None = None  # (stamp, target, plan_valid) last published
         self._jumped_to: int | None = None  # a tick far from the last scheduled one, until the next follows it (``_target``)
         self._pace_ns: int | None = None  # estimates further apart than NEW_CUT_GAP_NS: their spacing (``_target``)
+        self._pace_seen_ns: int | None = None  # such a spacing seen once, taken as the pace when seen again
         # in a lockstep episode (its episode_start says so) every tick's target goes out: the controller
         # answers tick k once the target of tick k − lag came (anti_stall_controller.plan_wait)
         self.lockstep = False
@@ -564,21 +565,32 @@ class PlannerNode(Node):
         without a word (an outside tester's). Until then it moves no target. Estimates seconds apart
         (the estimator's ``stride`` over a second of ticks) are its pace, not a new cut each: had
         every one of them waited for a tick within a second of it, none would have come, and the
-        planner published no target at all (``follows_at_its_pace``)."""
+        planner published no target at all (``follows_at_its_pace``). The spacing is taken as the pace once
+        a third tick comes at it: two strays seconds apart would otherwise set it, and the stream's
+        own ticks, then behind the second, were dropped (a reviewer's)."""
         last = self.schedule.last_stamp_ns
-        new_cut_gap_ns = max(NEW_CUT_GAP_NS, GAP_PACES * self._pace_ns) if self._pace_ns else NEW_CUT_GAP_NS
+        # (a tick more: stamps are whole ns of k/60 s, and two strides of 125 ticks measured 1 ns over 2 paces)
+        new_cut_gap_ns = (max(NEW_CUT_GAP_NS, GAP_PACES * self._pace_ns + TICK_PERIOD_NS) if self._pace_ns
+                          else NEW_CUT_GAP_NS)
         if last is not None and abs(stamp - last) > new_cut_gap_ns:
             # ahead within the episode followed: ticks lost (a loaded machine), the same cut
             gap = (stamp > last and self.cut_first_ns is not None and last >= self.cut_first_ns
                    and (self.cut_end_ns is None or stamp <= self.cut_end_ns))
-            if self._jumped_to is not None and follows_at_its_pace(last, self._jumped_to, stamp):
-                self._pace_ns = stamp - self._jumped_to  # the same cut, estimated this seldom
-            elif self._jumped_to is None or abs(stamp - self._jumped_to) > NEW_CUT_GAP_NS:
+            paced = self._jumped_to is not None and follows_at_its_pace(last, self._jumped_to, stamp)
+            seen, self._pace_seen_ns = self._pace_seen_ns, (stamp - self._jumped_to) if paced else None
+            if paced and seen is not None and abs(self._pace_seen_ns - seen) <= TICK_PERIOD_NS:
+                self._pace_ns = self._pace_seen_ns  # the same cut, estimated this seldom
+            elif paced:
+                self._jumped_to = stamp  # (a spacing seen once: held, as the jump before it)
+                return
+            elif self._jumped_to is None or abs(stamp - self._jumped_to) > new_cut_gap_ns:
+                # (at the estimates' pace, not a second: at a stride over 60 the tick after a jump is a stride on)
                 self._jumped_to = stamp
                 self._warn("jump", f"stamp {stamp} ns is {(stamp - last) / M.NS_PER_S:+.3g} s from the last tick "
                                    f"scheduled ({last} ns); no target for it (" + (
                                        "estimates lost? the cut goes on once the next tick follows it" if gap else
-                                       "a new cut once the next tick follows it") + ")")
+                                       "a new cut once the next tick follows it") + "; or estimates this far apart, "
+                                   "an estimator stride over a second of ticks: its pace once the next one follows)")
                 return
             elif not gap:  # (a gap keeps the cut's evidence and stall memory; the schedule backs off over it)
                 self._new_cut(stamp)
@@ -587,7 +599,7 @@ class PlannerNode(Node):
             return  # a tick that came after a newer one (its estimate waited for Θ_k): the schedule has moved on
         elif last is not None and stamp - last <= NEW_CUT_GAP_NS:
             self._pace_ns = None  # estimates within a second of each other again (the stride set lower)
-        self._jumped_to = None
+        self._jumped_to = self._pace_seen_ns = None
         target = self.schedule.update(stamp, plan_depth_m)
         values = [target, plan_depth_m if plan_depth_m is not None else 0.0, float(self.schedule.plan_valid)]
         sent = self._target_sent
