@@ -586,6 +586,37 @@ def test_an_estimator_more_than_an_episode_behind_has_every_episodes_estimates_r
         assert got.tolist() == stamps and set(values[:, 0].tolist()) == {value}, (result.path.name, values[:, 0])
 
 
+def test_a_bag_without_a_topic_its_writer_sent_before_it_began_is_not_held_open_for_it(tmp_path):
+    """A replay (stamps start again with each bag) whose middle bag has no estimate: its bag waited
+    the end grace for the estimates an older bag had had, and the next bag's, arriving meanwhile,
+    were filed into it (a reviewer's). It finishes after the short grace, the next bag keeps its own."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * 30]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=30)
+    now = [0.0]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
+                            end_grace_s=4.0, clock=lambda: now[0])
+    feed = Feed(rec)
+    for episode, value in ((0, 1.0), (1, None), (2, 3.0)):
+        rec.on_status(replace(start_ev, episode=episode).to_json())
+        for t, topic, raw in msgs:
+            feed.send("sim", topic, raw)
+            if value is not None and topic == "/clock":
+                feed.send("estimator", T.ESTIMATE.name, _estimate(t, value))
+            now[0] += 0.001
+        rec.on_status(replace(end_ev, episode=episode).to_json())
+        ended = now[0]
+        while len(rec.finished) <= episode and now[0] - ended < 10.0:
+            now[0] += 0.05
+            rec.poll()
+        assert now[0] - ended < recorder.EXTRA_TOPIC_GRACE_S + 0.2, f"bag {episode} held {now[0] - ended:.2f} s"
+    named = sorted(rec.finished, key=lambda r: r.path.name)
+    assert [bag_io.read_labelled_topic(r.path, T.ESTIMATE.name, ESTIMATE_FIELDS)[1][:, 0].tolist()[:1]
+            for r in named] == [[1.0], [], [3.0]]
+
+
 def test_a_bag_cut_short_by_another_episode_start_says_so(tmp_path):
     """A second graph's episode_start (or a restarted simulator's) before this episode's end
     closes its bag where its ticks stop: it was marked "completed", as if the episode had run its

@@ -204,6 +204,7 @@ class Session:
     writers: dict[str, WriterTracks] = field(default_factory=dict)  # who publishes each topic
     flushed_stamp_ns: int = 0  # stamp at the last flush triggered by simulation time
     order: int = 0  # the sessions opened before it (``Recorder._complete``: a writer still on an older one is behind)
+    opened_at: float = 0.0  # clock() when it opened
 
     @property
     def total(self) -> int:
@@ -361,9 +362,12 @@ class Recorder:
 
     def _still_on_older(self, s: Session) -> list[float]:
         """When each topic of ``s`` without a message of its episode yet, whose newest message went
-        into an older session (its writer more than an episode behind), was last heard."""
+        into an older session since ``s`` opened (its writer more than an episode behind), was last
+        heard. Heard before it opened, the writer has stopped, or its episode has none of the topic:
+        waiting for it had held every later bag open for the end grace and, in a replay whose stamps
+        start again with each bag, filed the next bag's messages into the waiting one (a reviewer's)."""
         return [self.heard[t][1] for t in self.topics if t not in s.topic_max and t in self.heard
-                and self.heard[t][0] < s.order]
+                and self.heard[t][0] < s.order and self.heard[t][1] >= s.opened_at]
 
     def draining(self) -> bool:
         """Whether an ended episode still waits for messages in flight (finished by ``poll``)."""
@@ -392,7 +396,7 @@ class Recorder:
             journal.add_channel(topic, msgtype, self.qos_for(topic))
         self.log.info(f"recording {self.out_dir / name} (journal {journal.path})")
         self.opened += 1
-        return Session(name=name, journal=journal, meta_json=meta_json, order=self.opened)
+        return Session(name=name, journal=journal, meta_json=meta_json, order=self.opened, opened_at=self.clock())
 
     def _held_start(self, ev: EpisodeEvent) -> str:
         """Why the ``episode_start`` ``ev`` is held, not opened ("": it is opened), by a recorder given no
