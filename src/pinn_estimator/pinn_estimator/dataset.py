@@ -370,10 +370,15 @@ def identical_episodes(ds: Dataset) -> list[list[str]]:
     training, and scored 1.9 % where the 22 without one scored 3.4 %). A recording cut short (a
     replay stopped part-way, recorded under another name) holds the first samples of its episode:
     one whose samples all begin another of the same metadata is that episode too (an outside
-    tester's: such a prefix went to test with its whole episode in training)."""
-    by_meta: dict[str, list[int]] = defaultdict(list)
+    tester's: such a prefix went to test with its whole episode in training), if it holds at least a
+    window of them: the default world's seeds share their first sample. Compared within groups of
+    one metadata and first window, so the work grows with the copies, not the episodes squared."""
+    by_meta: dict[tuple, list[int]] = defaultdict(list)
     for e in range(len(ds.names)):
-        by_meta[repr(dataclasses.astuple(dataclasses.replace(ds.metas[e], seed=0)))].append(e)
+        rows = ds.episode_rows(e)
+        first = tuple(np.ascontiguousarray(a[rows][:WINDOW_SAMPLES]).tobytes()
+                      for a in (ds.forces, ds.known, ds.observations))
+        by_meta[(repr(dataclasses.astuple(dataclasses.replace(ds.metas[e], seed=0))), first)].append(e)
     same = list(range(len(ds.names)))  # union-find over the episodes: each one's representative
 
     def find(e: int) -> int:
@@ -386,8 +391,10 @@ def identical_episodes(ds: Dataset) -> list[list[str]]:
         samples = {e: [a[ds.episode_rows(e)] for a in (ds.forces, ds.known, ds.observations)] for e in members}
         for i, a in enumerate(members):
             for b in members[i + 1:]:
-                n = min(len(samples[a][0]), len(samples[b][0]))
-                if n and find(a) != find(b) and all(np.array_equal(x[:n], y[:n]) for x, y in zip(samples[a], samples[b])):
+                lengths = len(samples[a][0]), len(samples[b][0])
+                n = min(lengths)  # (of one length, a copy however short)
+                if ((n >= WINDOW_SAMPLES or lengths[0] == lengths[1]) and find(a) != find(b)
+                        and all(np.array_equal(x[:n], y[:n]) for x, y in zip(samples[a], samples[b]))):
                     same[find(a)] = find(b)
     groups: dict[int, list[str]] = defaultdict(list)
     for e, name in enumerate(ds.names):

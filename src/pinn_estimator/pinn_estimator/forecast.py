@@ -71,6 +71,7 @@ class Steady:
     time_s: float = 0.0  # mean time in soil over the steady rows [s] (likewise)
     world: str = ""  # the episode's world: a pair is one world's (bags of several worlds may share a folder)
     force_se: np.ndarray | None = None  # (2,) standard error of ``force`` [N] (``mean_standard_error``)
+    target_speed_m_s: float = math.nan  # the episode's target speed (its metadata's) [m/s]
 
     def known_row(self) -> np.ndarray:
         """The steady Θ_k as a row in KNOWN_PARAMS order (what a posterior forecasts at)."""
@@ -124,7 +125,7 @@ def steady_parts(ds, steady_from: float = STEADY_FROM) -> list[Steady]:
         truth = {n: float(ds.truth[rows, j].mean()) for j, n in enumerate(GROUND_TRUTH_PARAMS)}
         out.append(Steady(meta.soil, float(meta.relative_density_pct), known, ds.forces[rows].mean(axis=0), truth,
                           float(travel[rows].mean()), float(in_soil_s[rows].mean()), meta.world_mode,
-                          mean_standard_error(ds.forces[rows])))
+                          mean_standard_error(ds.forces[rows]), float(meta.target_speed_m_s)))
         starts[e] = start_truth
     _split_labels_of_two_soils(out, starts)
     unlabelled = [e for e, part in enumerate(out) if part is not None and soil_label(part) == UNKNOWN_SOIL]
@@ -252,34 +253,46 @@ def forecast_pairs(parts: list[Steady | None], thetas: dict[str, list[dict]], po
         pairs.append({"soil": parts[a].soil, "relative_density_pct": parts[a].relative_density_pct,
                       "from_depth_m": parts[a].known["d"], "to_depth_m": parts[b].known["d"],
                       "from_speed_m_s": parts[a].known["v_x"], "to_speed_m_s": parts[b].known["v_x"],
+                      "target_speeds_m_s": (parts[a].target_speed_m_s, parts[b].target_speed_m_s),
                       "measured": parts[b].force, "forecast": forecast, "intervals": intervals})
     return pairs
 
 
-# Steady speeds further apart than this [m/s] make a pair a forecast at another speed: the
-# forecast law is calibrated on pairs of one speed (``calibration_strata``).
+# Speeds further apart than this [m/s] are other speeds (``calibration_strata``).
 ANOTHER_SPEED_M_S = 0.1
+# Measured steady depths may lie this far [m] outside the calibration's target depths and be its.
+DEPTH_SLACK_M = 0.005
+STRATA = ("calibrated", "other_depths", "across_speeds", "other_speed")
 
 
-def calibration_strata(pairs: list[dict], names, calibrated_from_m: float) -> dict:
+def calibration_strata(pairs: list[dict], names, reach) -> dict:
     """Per posterior in ``names``, F_x (``_errors``) over the pairs where its forecast law was
-    calibrated and over those outside it: from a source shallower than ``calibrated_from_m`` (the
-    calibration's shallowest cut it scores), and to another speed (steady speeds more than
-    ANOTHER_SPEED_M_S apart; the calibration's cuts all run at one). An outside tester's: a
-    headline of 85 / 48 % hid 93 / 52 % at one speed and 79 / 45 % across speeds, and sources of
-    7 cm going deeper held 53 / 24 %, with no word of either."""
-    other_speed = [abs(p["to_speed_m_s"] - p["from_speed_m_s"]) > ANOTHER_SPEED_M_S for p in pairs]
-    shallow = [p["from_depth_m"] < calibrated_from_m for p in pairs]
-    groups = {"calibrated": [p for p, o, s in zip(pairs, other_speed, shallow) if not (o or s)],
-              "shallower_source": [p for p, s in zip(pairs, shallow) if s],
-              "another_speed": [p for p, o in zip(pairs, other_speed) if o]}
+    calibrated and over those outside it. ``reach``: (shallowest [m], deepest [m], speed [m/s]) of
+    the calibration (``fusion_calibration.calibration_bounds``). Calibrated: both steady depths within
+    its depths (DEPTH_SLACK_M's slack) and both episodes' target speeds its speed; else, in turn,
+    either depth outside them, steady speeds more than ANOTHER_SPEED_M_S apart, or one speed that
+    is not the calibration's. An outside tester's: a headline of 85 / 48 % hid 93 / 52 % at one
+    speed and 79 / 45 % across speeds, and sources of 7 cm going deeper held 53 / 24 %, with no
+    word of either."""
+    shallowest, deepest, speed = reach
+
+    def stratum(p: dict) -> str:
+        if not all(shallowest - DEPTH_SLACK_M <= p[k] <= deepest + DEPTH_SLACK_M for k in ("from_depth_m", "to_depth_m")):
+            return "other_depths"
+        if abs(p["to_speed_m_s"] - p["from_speed_m_s"]) > ANOTHER_SPEED_M_S:
+            return "across_speeds"
+        return "calibrated" if all(abs(v - speed) <= 1e-6 for v in p["target_speeds_m_s"]) else "other_speed"
+
+    groups = {name: [] for name in STRATA}
+    for p in pairs:
+        groups[stratum(p)].append(p)
     out = {}
     for name in names:
         out[name] = {}
         for group, members in groups.items():
             deeper = [p for p in members if p["to_depth_m"] > p["from_depth_m"]]
             out[name][group] = {**_errors(members, name, 0), "deeper_bias_pct": _errors(deeper, name, 0)["bias_pct"]}
-    return {"calibrated_from_m": calibrated_from_m, "another_speed_m_s": ANOTHER_SPEED_M_S, "posteriors": out}
+    return {"reach": list(reach), "another_speed_m_s": ANOTHER_SPEED_M_S, "posteriors": out}
 
 
 def _groups(parts: list[Steady | None]) -> list[list[int]]:
@@ -406,7 +419,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     (forecast through the FEE plus ``terms[name]``, the estimator's own physics, if given);
     ``posteriors[name]`` one fused posterior per episode (at its end; it forecasts through its own
     physics, and ``terms[name]`` only names that physics in the report)."""
-    from .fusion_calibration import calibrated_from_m  # (it builds on this module)
+    from .fusion_calibration import calibration_bounds  # (it builds on this module)
 
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
@@ -428,7 +441,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, names),
         "per_soil": per_soil(pairs, names),
-        "calibration_strata": calibration_strata(pairs, list(posteriors), calibrated_from_m()),
+        "calibration_strata": calibration_strata(pairs, list(posteriors), calibration_bounds()),
         "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
         # posteriors that end as no soil the model can be (``SoilPosterior.not_a_soil``): δ above φ, or φ / δ held at
@@ -512,22 +525,24 @@ def _strata_text(report: dict, name: str) -> str:
     if not strata or name not in strata["posteriors"]:
         return ""
     cells = strata["posteriors"][name]
-    if not (cells["shallower_source"]["pairs"] or cells["another_speed"]["pairs"]):
+    if not any(cells[g]["pairs"] for g in STRATA[1:]):
         return ""
+    shallowest, deepest, speed = strata["reach"]
 
     def said(v: dict) -> str:
         if not v["pairs"]:
             return "no pair"
         cover = f", 90 % / 50 % intervals hold {v['coverage_90']:.0%} / {v['coverage_50']:.0%}" if "coverage_90" in v else ""
-        return (f"{v['pairs']} pairs, {_pct(v['mean_abs_pct'])} off, bias deeper "
+        return (f"{v['pairs']} pair{'s' if v['pairs'] != 1 else ''}, {_pct(v['mean_abs_pct'])} off, bias deeper "
                 f"{_pct(v['deeper_bias_pct'], True)}{cover}")
 
-    return (f"Its F_x where its forecast law was calibrated (sources from {strata['calibrated_from_m']:g} m, the "
-            f"calibration's shallowest scored cut, and one speed): {said(cells['calibrated'])}; from a source shallower "
-            f"than that: {said(cells['shallower_source'])}; to another speed (steady speeds more than "
-            f"{strata['another_speed_m_s']:g} m/s apart): {said(cells['another_speed'])}. Outside the calibration the "
-            "intervals are not calibrated: the posterior's physics lacks the edge's own reaction, a large part of a "
-            "shallow cut's force, and (in the default world) the blade's contact damping, a drag that grows with speed.")
+    return (f"Its F_x where its forecast law was calibrated (both depths {shallowest:g}–{deepest:g} m, the cuts the "
+            f"calibration scores, both cut at its {speed:g} m/s): {said(cells['calibrated'])}; a depth outside them: "
+            f"{said(cells['other_depths'])}; across speeds (steady speeds more than {strata['another_speed_m_s']:g} m/s "
+            f"apart): {said(cells['across_speeds'])}; at one other speed: {said(cells['other_speed'])}. Outside the "
+            "calibration the intervals are not calibrated: the posterior's physics lacks the edge's own reaction, a "
+            "large part of a shallow cut's force, and (in the default world) the blade's contact damping, a drag that "
+            "grows with speed.")
 
 
 def markdown(report: dict, intro: str | None = None) -> list[str]:

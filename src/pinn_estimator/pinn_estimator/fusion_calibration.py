@@ -65,17 +65,18 @@ CAL_SEED = 9000
 # enough for those pairs held 65 % of the held-out forecasts at its 50 % level (default world;
 # 40-60 % on three held-out sets from 7 cm up once they were left out). The published intervals
 # are therefore calibrated from the shallowest cut of CAL_DEPTHS_M at least this deep
-# (``calibrated_from_m``, 0.125 m: the grid has none between 5 and 12.5 cm; sources of 7 cm going
+# (``calibration_bounds``, 0.125 m: the grid has none between 5 and 12.5 cm; sources of 7 cm going
 # deeper held 53 / 24 %, of 9-11.5 cm 91 / 55 %, an outside tester's) to the calibration's
 # deepest; the planner's bound, which plans from 5 cm, has its own law, calibrated on every pair
 # going deeper (soil_planner_calibrate).
 MIN_CALIBRATED_DEPTH_M = 0.07
 
 
-def calibrated_from_m() -> float:
-    """The shallowest calibration cut the forecast law is scored on [m]: the calibrated reach's
-    shallow end (CAL_DEPTHS_M has none between 5 cm and this, whatever MIN_CALIBRATED_DEPTH_M)."""
-    return min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M)
+def calibration_bounds() -> tuple[float, float, float]:
+    """(shallowest [m], deepest [m], speed [m/s]) of the calibration cuts the forecast law is scored
+    on: CAL_DEPTHS_M has none between 5 cm and its shallowest scored one, whatever
+    MIN_CALIBRATED_DEPTH_M, and every calibration episode runs at the forecast's one speed."""
+    return (min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M), max(CAL_DEPTHS_M), fc.FORECAST_SPEED_M_S)
 
 
 # A calibration episode's length [s]: its steady part is its second half (forecast.STEADY_FROM),

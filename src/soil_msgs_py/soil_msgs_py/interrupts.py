@@ -199,8 +199,17 @@ def run_tool(prog: str, module: str, argv=None):
     script = argv is None  # a console script's process; called with argv (a notebook), handlers are given back
     if script:
         # a warning of the tool's own code (a soil the FEE resists nothing in while rising) in the tool's one-line
-        # form, as its other warnings: it printed Python's, the source file and line of the warning call beneath
-        warnings.showwarning = lambda message, *_, **__: print(f"{prog}: warning: {message}", file=sys.stderr)
+        # form, as its other warnings: it printed Python's, the source file and line of the warning call beneath;
+        # the libraries' (numpy's RuntimeWarnings, deprecations) keep Python's form, which names their kind
+        shown = warnings.showwarning
+
+        def one_line(message, category, *args, **kwargs):
+            if category is UserWarning:
+                print(f"{prog}: warning: {message}", file=sys.stderr)
+            else:
+                shown(message, category, *args, **kwargs)
+
+        warnings.showwarning = one_line
         # the last exit hook to run (registered before the tool's own): from there on the interpreter
         # tears its modules down with Python's handlers gone, and a signal then killed the tool
         # (−2 / −15) however it had ended
