@@ -565,9 +565,9 @@ class PlannerNode(Node):
         without a word (an outside tester's). Until then it moves no target. Estimates seconds apart
         (the estimator's ``stride`` over a second of ticks) are its pace, not a new cut each: had
         every one of them waited for a tick within a second of it, none would have come, and the
-        planner published no target at all (``follows_at_its_pace``). The spacing is taken as the pace once
-        a third tick comes at it: two strays seconds apart would otherwise set it, and the stream's
-        own ticks, then behind the second, were dropped (a reviewer's)."""
+        planner published no target at all (``follows_at_its_pace``). The spacing is taken as the
+        pace once a third tick comes at it: two strays seconds apart would otherwise set it, and the
+        stream's own ticks, then behind the second, were dropped (a reviewer's)."""
         last = self.schedule.last_stamp_ns
         # (a tick more: stamps are whole ns of k/60 s, and two strides of 125 ticks measured 1 ns over 2 paces)
         new_cut_gap_ns = (max(NEW_CUT_GAP_NS, GAP_PACES * self._pace_ns + TICK_PERIOD_NS) if self._pace_ns
