@@ -163,6 +163,10 @@ def test_demo_runs_one_episode_over_dds_and_writes_the_summary(tmp_path):
     for name in ("fused", "pinn", "true_fee", "naive_same_force"):
         assert math.isfinite(forecast["forecast"][name]["x"]["all"]["mean_abs_pct"]), (name, forecast)
     assert forecast["physics"]["fused"] == [["form:-qnq*tanhvx0.1", 0.756]], "the live estimator's posterior physics"
+    # every pair in one group of where the forecast law was calibrated: a 7.5 cm cut and the live cut's 0.5 m/s are not
+    strata = forecast["calibration_strata"]["posteriors"]["fused"]
+    assert sum(group["pairs"] for group in strata.values()) == forecast["pairs"] and not strata["calibrated"]["pairs"]
+    assert "where its forecast law was calibrated" in (out / "summary.md").read_text()
     assert "The planner's question" in (out / "summary.md").read_text() and "The planner's question" in res.stdout
     fused = ep["fused_end"]
     assert fused["stretches"] >= 1 and all(math.isfinite(fused[p]["std_deg" if p != "c" else "std_kPa"]) for p in ("phi", "c", "delta"))
