@@ -514,6 +514,21 @@ def test_extras_that_never_stop_are_cut_at_the_lag_limit_with_a_warning(tmp_path
     assert any("still arriving" in m and ep.topic in m for lvl, m in ep.log.lines if lvl == "warning"), ep.log.lines
 
 
+def _replayed_with_estimates(tmp_path, n: int = 30):
+    """A recorder of the sample's topics and /soil/estimate on a fake clock (``now``), the sample's
+    first ``n`` ticks to replay (``msgs``, their /clock ``stamps``) and its events ended at tick n."""
+    from soil_msgs_py import topics as T
+
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    msgs = loaded.messages[: 10 * n]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
+    now = [0.0]
+    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
+                            end_grace_s=4.0, clock=lambda: now[0])
+    stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    return rec, Feed(rec), now, msgs, stamps, start_ev, end_ev
+
+
 def test_a_sparse_topic_of_the_next_replayed_bag_goes_to_its_own_bag(tmp_path):
     """Two bags played in a row (stamps restart at 0) with an extra topic that never reaches an
     episode's last stamp (the planner's targets, the map): the first bag waits out its end grace
@@ -521,15 +536,7 @@ def test_a_sparse_topic_of_the_next_replayed_bag_goes_to_its_own_bag(tmp_path):
     bag, the second's own bag empty of it. A stamp going back is the newer episode's."""
     from soil_msgs_py import topics as T
 
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    n = 30
-    msgs = loaded.messages[: 10 * n]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    now = [0.0]
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
-    stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    rec, feed, now, msgs, stamps, start_ev, end_ev = _replayed_with_estimates(tmp_path)
     sparse = stamps[:-3:4]  # every 4th tick, never the last ones
     for episode, value in ((0, 1.0), (1, 2.0)):
         rec.on_status(replace(start_ev, episode=episode).to_json())
@@ -555,15 +562,7 @@ def test_an_estimator_more_than_an_episode_behind_has_every_episodes_estimates_r
     the older episode's estimates, then takes its own."""
     from soil_msgs_py import topics as T
 
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    n = 30
-    msgs = loaded.messages[: 10 * n]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n)
-    now = [0.0]
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
-    stamps = [t for t, topic, _ in msgs if topic == "/clock"]
+    rec, feed, now, msgs, stamps, start_ev, end_ev = _replayed_with_estimates(tmp_path)
     for episode in (0, 1):  # the replay's stamps start again with each bag
         rec.on_status(replace(start_ev, episode=episode).to_json())
         for t, topic, raw in msgs:
@@ -592,13 +591,7 @@ def test_a_bag_without_a_topic_its_writer_sent_before_it_began_is_not_held_open_
     were filed into it (a reviewer's). It finishes after the short grace, the next bag keeps its own."""
     from soil_msgs_py import topics as T
 
-    loaded, start_ev, end_ev = _events(SAMPLE)
-    msgs = loaded.messages[: 10 * 30]
-    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=30)
-    now = [0.0]
-    rec = recorder.Recorder(tmp_path, {**loaded.topics, T.ESTIMATE.name: T.ESTIMATE.msgtype}, log=ListLog(),
-                            end_grace_s=4.0, clock=lambda: now[0])
-    feed = Feed(rec)
+    rec, feed, now, msgs, _, start_ev, end_ev = _replayed_with_estimates(tmp_path)
     for episode, value in ((0, 1.0), (1, None), (2, 3.0)):
         rec.on_status(replace(start_ev, episode=episode).to_json())
         for t, topic, raw in msgs:
