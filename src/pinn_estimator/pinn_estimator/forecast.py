@@ -265,15 +265,19 @@ DEPTH_SLACK_M = 0.005
 STRATA = ("calibrated", "other_depths", "across_speeds", "other_speed")
 
 
-def calibration_strata(pairs: list[dict], names, reach) -> dict:
+def calibration_strata(pairs: list[dict], names, reach=None) -> dict:
     """Per posterior in ``names``, F_x (``_errors``) over the pairs where its forecast law was
     calibrated and over those outside it. ``reach``: (shallowest [m], deepest [m], speed [m/s]) of
-    the calibration (``fusion_calibration.calibration_bounds``). Calibrated: both steady depths within
-    its depths (DEPTH_SLACK_M's slack) and both episodes' target speeds its speed; else, in turn,
+    the calibration (default ``fusion_calibration.calibration_bounds``). Calibrated: both steady
+    depths within its depths (DEPTH_SLACK_M's slack) and both episodes' target speeds its speed; else, in turn,
     either depth outside them, steady speeds more than ANOTHER_SPEED_M_S apart, or one speed that
     is not the calibration's. An outside tester's: a headline of 85 / 48 % hid 93 / 52 % at one
     speed and 79 / 45 % across speeds, and sources of 7 cm going deeper held 53 / 24 %, with no
     word of either."""
+    if reach is None:
+        from .fusion_calibration import calibration_bounds  # (it builds on this module)
+
+        reach = calibration_bounds()
     shallowest, deepest, speed = reach
 
     def stratum(p: dict) -> str:
@@ -419,8 +423,6 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
     (forecast through the FEE plus ``terms[name]``, the estimator's own physics, if given);
     ``posteriors[name]`` one fused posterior per episode (at its end; it forecasts through its own
     physics, and ``terms[name]`` only names that physics in the report)."""
-    from .fusion_calibration import calibration_bounds  # (it builds on this module)
-
     parts = steady_parts(ds)
     thetas = {name: steady_estimates(ds, ends, est) for name, est in estimates.items()}
     posteriors = posteriors or {}
@@ -441,7 +443,7 @@ def evaluate_forecast(ds, ends: np.ndarray, estimates: dict[str, dict[str, np.nd
         "steady_from": STEADY_FROM,
         "forecast": summarise(pairs, names),
         "per_soil": per_soil(pairs, names),
-        "calibration_strata": calibration_strata(pairs, list(posteriors), calibration_bounds()),
+        "calibration_strata": calibration_strata(pairs, list(posteriors)),
         "physics": {name: [[n, float(k)] for n, k in t] for name, t in terms.items() if t},
         "parameters": {name: parameter_coverage(parts, posts) for name, posts in posteriors.items()},
         # posteriors that end as no soil the model can be (``SoilPosterior.not_a_soil``): δ above φ, or φ / δ held at

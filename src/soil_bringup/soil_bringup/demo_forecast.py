@@ -78,7 +78,7 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
     from pinn_estimator.checkpoint import DEFAULT_CHECKPOINT, load_model
     from pinn_estimator.dataset import Dataset
     from pinn_estimator.evaluate import fused_posteriors
-    from pinn_estimator.fusion_calibration import calibration_bounds, config_for_model, estimator_fusion
+    from pinn_estimator.fusion_calibration import config_for_model, estimator_fusion
     from soil_sim_node.rollout import run_episodes
     from soil_sim_node.simulator import SimConfig
 
@@ -118,7 +118,7 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
                        "forecast": fc.summarise(pairs, ESTIMATORS),
                        # where the posterior's forecast law was calibrated and not (the live cut's speed and
                        # the other depths may lie outside it), as pinn_eval's report says it
-                       "calibration_strata": fc.calibration_strata(pairs, ["fused"], calibration_bounds())})
+                       "calibration_strata": fc.calibration_strata(pairs, ["fused"])})
 
 
 def json_ready(value):
