@@ -3,6 +3,8 @@ future (or with an invalid nanosec) is refused with a warning, and the real tick
 are still answered. The pairing policy is tested directly; the node once over real DDS."""
 from __future__ import annotations
 
+import time
+
 import pytest
 from std_msgs.msg import String
 
@@ -126,3 +128,55 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
     u_zr = {stamp: v[0] for stamp, v in (M.parse_message(T.BLADE_CMD.name, m) for m in probe.messages(T.BLADE_CMD.name))}
     assert abs(u_zr[_tick(n + 2)] - u_zr[_tick(n + 1)]) < 0.01, u_zr
     assert "p_z^c (point.z)=-1e+300" in out, out
+
+
+@pytest.mark.timeout(90)
+def test_an_episodes_last_ticks_that_come_after_its_end_are_answered(tmp_path):
+    """A controller a few ticks behind takes /sim/status first, so an episode's episode_end can
+    come before its last ticks: they are the ended episode's, answered, where they had been held
+    for the next episode and dropped there as stale (the bag without their commands). A tick
+    after the ended episode's last is still held for the next one."""
+    domain = next_domain_id()
+    classes = M.ros_message_classes()
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
+    last = 12
+    with RosProbe(domain) as probe:
+        probe.subscribe(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
+        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+        twist = probe.publisher(TWIST, T.CHASSIS_TWIST.msgtype)
+        pose = probe.publisher(POSE, T.CHASSIS_POSE.msgtype)
+        ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
+
+        def send(k):
+            twist.publish(M.build_message(classes, TWIST, _tick(k), [0.5, 0.0]))
+            pose.publish(M.build_message(classes, POSE, _tick(k), [0.0, -0.1]))
+
+        def answered():
+            return {M.parse_message(T.BLADE_CMD.name, m)[0] for m in probe.messages(T.BLADE_CMD.name)}
+
+        try:
+            probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose))
+                           and probe.matched_publishers(T.BLADE_CMD.name) >= 1, 30, "controller endpoints")
+            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
+                                                      planned_ticks=last + 1).to_json()))
+            sent = []
+
+            def first_answers():  # (a reader may match late on a busy core: send until answered)
+                send(len(sent))
+                sent.append(len(sent))
+                return answered()
+            probe.wait_for(first_answers, 20, "answers to the first ticks")
+            n = len(sent)
+            assert n < last - 2, f"{n} ticks before the first answer"
+            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_END, 0, meta.name, meta, FIRST,
+                                                      planned_ticks=last + 1, last_stamp_ns=_tick(last),
+                                                      ticks=last + 1, reason="completed").to_json()))
+            time.sleep(1.0)  # the end taken first, as by a controller behind its ticks
+            for k in range(n, last + 2):
+                send(k)
+            probe.wait_for(lambda: {_tick(k) for k in range(n, last + 1)} <= answered(), 20,
+                           f"answers to the ended episode's last ticks (got {len(answered())})")
+            time.sleep(1.0)
+        finally:
+            ctl.stop()
+    assert _tick(last + 1) not in answered()  # beyond the ended episode: held for the next one
