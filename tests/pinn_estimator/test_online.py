@@ -807,6 +807,36 @@ def test_a_dropped_tick_fuses_the_same_online_and_offline(episode, model):
     assert learnt_at == [29, 59, 105, 135, 165, 195]
 
 
+def test_events_that_overtake_the_ticks_of_more_than_one_episode_still_start_each_window_and_posterior(
+        episode, model):
+    """A replay of bags in a row, faster than the node: episode A's end, B's start and end and C's
+    start all come while A's ticks are still queued. Each episode's estimates are still those of
+    its own rows alone, window and soil posterior (as a fresh node's); one pending boundary, the
+    last event's, had let B's first ticks run on in A's window and posterior (an outside tester's:
+    the first sand estimate still held the clay's cohesion)."""
+    n, period = 100, int(episode.stamps_ns[1])
+    stamps = [[int(episode.stamps_ns[0]) + (k * n + i) * period for i in range(n)] for k in range(3)]
+    out = []
+    est = OnlineEstimator(model, out.append)
+    est.start_episode(stamps[0][0])
+    for k, ep_stamps in enumerate(stamps):
+        for i, stamp in enumerate(ep_stamps):
+            if (k, i) == (0, 40):
+                est.end_episode(stamps[0][-1])
+                est.start_episode(stamps[1][0])
+                est.end_episode(stamps[1][-1])
+                est.start_episode(stamps[2][0])
+            for t, m in tick_messages(episode, i, stamp):
+                est.add(t, m)
+    by_stamp = {e.stamp_ns: e for e in out}
+    assert len(by_stamp) == 3 * n
+    for k in (1, 2):
+        assert [by_stamp[s].values[FILL] for s in stamps[k][:3]] == [1.0, 2.0, 3.0]
+        assert by_stamp[stamps[k][0]].values[STRETCHES] == 0.0
+        for i in range(n):  # the same rows from the episode's start -> the same estimate as episode A's
+            np.testing.assert_array_equal(by_stamp[stamps[k][i]].values, by_stamp[stamps[0][i]].values)
+
+
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
     est, out = run(model, in_order(episode, range(120)))
     assert est.posterior.updates == 4

@@ -470,7 +470,10 @@ class OnlineEstimator:
         self._last_tick_ns = -1  # the newest tick through the stride phase, estimated or dropped (-1: none this stream)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
         self._boundary: int | None = None  # last stamp of the previous episode: later samples start a new window
-        self._crossed = False  # a sample after _boundary was released (the new window has begun)
+        # Every such boundary no sample has passed yet, oldest first: events can overtake the ticks of
+        # more than one episode (a replay of bags in a row, faster than this node), and one boundary,
+        # overwritten by the next episode's end, let a window and posterior run on across episodes.
+        self._pending: list[int] = []
         self._stream_first_ns: int | None = None  # the first sample's stamp since the stream (re)started
         self._open_first: int | None = None  # first stamp of the episode whose start was taken and whose end has not come
         self._ended_at: int | None = None  # last stamp of the episode whose end was the last event taken
@@ -531,6 +534,7 @@ class OnlineEstimator:
         self._tick = 0
         self._last_tick_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._boundary = None
+        self._pending = []
         self._stream_first_ns = None
         self._open_first = None
         self._ended_at = None
@@ -548,7 +552,7 @@ class OnlineEstimator:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
         that are still queued complete this episode's windows normally (the executor serves
         /sim/status first, so the event can overtake the episode's last ticks)."""
-        self._boundary, self._crossed = int(last_stamp_ns), False
+        self._set_boundary(int(last_stamp_ns))
         self._open_first = None
         self._ended_at = int(last_stamp_ns)
         self.assembler.expect_restart(None)
@@ -589,7 +593,7 @@ class OnlineEstimator:
         open_first, self._open_first = self._open_first, first
         self.assembler.expect_restart(None)
         if self.assembler.last_released < first:  # nothing of this episode released yet
-            self._boundary, self._crossed = first - 1, False
+            self._set_boundary(first - 1)
             self._last_tick_ns = max(self._last_tick_ns, first - 1)  # (its ticks from ``first`` on are due)
             return
         stream_first = self._stream_first_ns
@@ -605,7 +609,7 @@ class OnlineEstimator:
             # The stream began with this episode's ticks (they overtook the event, e.g. a replay's
             # first tick): window, stride phase, path and posterior all started with the episode,
             # as if the event had come first; restarting would lose those ticks (replay != live).
-            self._boundary, self._crossed = first - 1, True
+            self._boundary = first - 1  # (crossed already: not pending)
             self._path_known = True
             return
         if self._boundary is not None and self._boundary < first <= self.window_first_stamp:
@@ -615,15 +619,22 @@ class OnlineEstimator:
     def _restart_at(self, first: int) -> None:
         """Everything restarts with the episode that begins at ``first`` (its episode_start taken)."""
         self.reset(first)
-        self._boundary, self._crossed = first - 1, False
+        self._set_boundary(first - 1)
         self._path_known = True
         self._open_first = first
 
     def add(self, topic: str, msg) -> None:
         self.assembler.add(topic, msg)
 
+    def _set_boundary(self, last_ns: int) -> None:
+        """Samples after ``last_ns`` belong to a new episode: the first of them starts a new window."""
+        self._boundary = last_ns
+        if last_ns not in self._pending:
+            self._pending = sorted([*self._pending, last_ns])
+
     def _on_restart(self) -> None:
         self._boundary = None
+        self._pending = []
         self._open_first = None
         self._ended_at = None  # (a stream started over: the ended episode's ticks are not coming)
         self.assembler.expect_restart(None)  # (an episode_start before this stream's is no longer in question)
@@ -634,9 +645,11 @@ class OnlineEstimator:
         self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
-        if self._boundary is not None and stamp > self._boundary and not self._crossed:
-            self._crossed = True  # the first tick of a new episode (a sample, or one dropped): no window spans two,
-            if self.buffer.count and self.window_first_stamp <= self._boundary:
+        if self._pending and stamp > self._pending[0]:
+            # the first tick of a new episode (a sample, or one dropped): no window spans two,
+            crossed = max(b for b in self._pending if b < stamp)
+            self._pending = [b for b in self._pending if b >= stamp]
+            if self.buffer.count and self.window_first_stamp <= crossed:
                 self.buffer.clear()
             self._tick = 0  # and the stride phase starts with the episode (live == replay)
             self._forget_path(known=True)
