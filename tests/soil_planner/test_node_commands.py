@@ -77,7 +77,7 @@ def test_one_stray_tick_far_from_the_schedule_moves_no_target_and_a_jump_that_st
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
                             msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=None,
-                        cut_end_ns=None)
+                        cut_end_ns=None, starts_ahead=collections.deque(), cut_newest_ns=None)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
     n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)
@@ -126,7 +126,7 @@ def _target_node(published: list, forgotten: list, cut_first_ns=None) -> SimpleN
                         measured=collections.OrderedDict(), command_wait=CommandWait(), lockstep=True, classes=CLASSES,
                         target_pub=SimpleNamespace(publish=lambda msg: published.append(M.parse_labelled(
                             msg, T.TARGET_DEPTH_FIELDS, T.TARGET_DEPTH.name))), warned=[], cut_first_ns=cut_first_ns,
-                        cut_end_ns=None if cut_first_ns is None else cut_first_ns + stamp(599), previous_cut_ticks=0)
+                        cut_end_ns=None if cut_first_ns is None else cut_first_ns + stamp(599), previous_cut_ticks=0, starts_ahead=collections.deque(), cut_newest_ns=None)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._new_cut = lambda at_stamp_ns=None: PlannerNode._new_cut(n, at_stamp_ns)
     n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)
@@ -201,7 +201,8 @@ def test_a_stream_started_over_without_sim_status_is_planned_again():
 
     planned = []
     n = SimpleNamespace(joiner=estimate_joiner(), command_wait=CommandWait(), cut_first_ns=stamp(1200),
-                        cut_end_ns=stamp(1799), previous_cut_ticks=0, warned=[], dropped=0, lockstep=True)
+                        cut_end_ns=stamp(1799), previous_cut_ticks=0, warned=[], dropped=0, lockstep=True,
+                        starts_ahead=collections.deque(), cut_newest_ns=None)
     n._warn = lambda kind, text: n.warned.append(kind)
     n._previous_cut = lambda s: PlannerNode._previous_cut(n, s)
     n._unfollow_episode = lambda: PlannerNode._unfollow_episode(n)

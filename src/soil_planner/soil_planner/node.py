@@ -109,6 +109,7 @@ def estimate_joiner() -> StampJoiner:
 
 
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
+MAX_STARTS_AHEAD = 16  # episode_starts held for the estimates of an earlier episode still coming (``_on_status``)
 # /planner/target_depth goes out when the target moved by TARGET_STEP_M, its validity changed,
 # or TARGET_HEARTBEAT_NS passed (well inside the controller's planner_timeout_s).
 TARGET_STEP_M = 1e-3
@@ -239,6 +240,10 @@ class PlannerNode(Node):
         self.joiner = estimate_joiner()
         self.cut_first_ns: int | None = None  # the first tick of the episode followed (None: none now)
         self.cut_end_ns: int | None = None  # its last tick as planned, then as it ended
+        # episode_starts taken while the estimates of an earlier episode still come, each with its
+        # episode_end's last stamp once heard: the cut starts when its first estimate does (``_on_estimate``)
+        self.starts_ahead: collections.deque[list] = collections.deque()
+        self.cut_newest_ns: int | None = None  # the newest estimate's stamp of the cut under way
         self.previous_cut_ticks = 0  # ticks of an episode before it, come after it began: not planned
         self.last_log_ns: int | None = None
         self.published = 0
@@ -368,40 +373,81 @@ class PlannerNode(Node):
 
     # ------------------------------------------------------------------ callbacks
     def _on_status(self, msg) -> None:
+        """A new episode is a new cut from its first estimate on, not from its episode_start: an
+        estimator behind (a replay of bags in a row faster than it) still sends the last episode's
+        estimates, which are planned and published as that episode's; had the cut started at the
+        event, they were dropped as the previous cut's, and a replay at 8x published no plan after
+        its first episode (an outside tester's). A start at or before the cut under way (time went
+        back: a replay started over) starts the cut at once, as does one with no cut under way or
+        none of whose estimates came (an estimator not there: nothing of it is due)."""
         event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is not None and event.event == G.EVENT_EPISODE_START:
-            self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
-            self.lockstep = event.pacing == G.PACING_LOCKSTEP
-            if self.follow_speed and event.meta.target_speed_m_s != self.planner.cut_speed_m_s:
-                # the cut's speed (the controller's target): the stall memory counts a stall where v_x
-                # falls below 80 % of the planned speed, and planned at 0.5 m/s, a cut at 0.35 m/s,
-                # never reaching 0.4 m/s, counted none, and one at 0.45 m/s one at every dip below 0.4
-                result = self.set_parameters([Parameter("cut_speed_m_s", value=float(event.meta.target_speed_m_s))])
-                if not all(r.successful for r in result):
-                    self._warn("speed", f"episode {event.name}: its target speed is not planned at: "
-                                        f"{[r.reason for r in result]}")
-            self._new_cut()
-            self.cut_first_ns = event.first_stamp_ns
-            self.cut_end_ns = event.first_stamp_ns + round(max(event.planned_ticks - 1, 0) * TICK_PERIOD_NS)
-            self.joiner.start_at(event.first_stamp_ns)
             self.silence.start(event.name)
+            ahead = self.starts_ahead[-1][0].first_stamp_ns if self.starts_ahead else None
+            if self.starts_ahead and event.first_stamp_ns in {self.cut_first_ns, *(e.first_stamp_ns for e, _ in self.starts_ahead)}:
+                return  # (a start taken already, come again: the cuts held for their estimates stay)
+            if (event.first_stamp_ns > ahead if ahead is not None else self._estimates_still_due(event.first_stamp_ns)):
+                self.starts_ahead.append([event, None])
+                while len(self.starts_ahead) > MAX_STARTS_AHEAD:  # (an estimator this far behind: start the oldest)
+                    self._start_cut(*self.starts_ahead.popleft(), ahead=True)
+            else:
+                self.starts_ahead.clear()
+                self._start_cut(event, None, ahead=False)
         elif event is not None:
-            if event.last_stamp_ns >= 0 and self.cut_first_ns is not None:  # (-1: it published no tick)
+            if self.starts_ahead and event.first_stamp_ns == self.starts_ahead[-1][0].first_stamp_ns:
+                self.starts_ahead[-1][1] = event.last_stamp_ns  # (its cut has not started: said when it does)
+            elif event.last_stamp_ns >= 0 and self.cut_first_ns is not None:  # (-1: it published no tick)
                 self.cut_end_ns = event.last_stamp_ns
             self.silence.end()
 
-    def _new_cut(self, at_stamp_ns: int | None = None) -> None:
+    def _estimates_still_due(self, first_stamp_ns: int) -> bool:
+        """Whether the cut under way has estimates still to come before a new episode's first tick
+        ``first_stamp_ns``: some of its ticks were estimated, not its last, and time goes forward."""
+        newest, first, end = self.cut_newest_ns, self.cut_first_ns, self.cut_end_ns
+        return (first is not None and newest is not None and first <= newest < first_stamp_ns
+                and (end is None or newest < end))
+
+    def _start_ahead(self, stamp: int) -> None:
+        """Start the cuts of the episodes taken ahead whose first tick ``stamp`` has reached."""
+        while self.starts_ahead and stamp >= self.starts_ahead[0][0].first_stamp_ns:
+            self._start_cut(*self.starts_ahead.popleft(), ahead=True)
+
+    def _start_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None, ahead: bool) -> None:
+        """The cut of the episode ``event`` starts (``last_stamp_ns``: its end's last tick, if heard;
+        ``ahead``: taken ahead of its estimates, so its ticks' commands and forces may be in already)."""
+        self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
+        self.lockstep = event.pacing == G.PACING_LOCKSTEP
+        if self.follow_speed and event.meta.target_speed_m_s != self.planner.cut_speed_m_s:
+            # the cut's speed (the controller's target): the stall memory counts a stall where v_x
+            # falls below 80 % of the planned speed, and planned at 0.5 m/s, a cut at 0.35 m/s,
+            # never reaching 0.4 m/s, counted none, and one at 0.45 m/s one at every dip below 0.4
+            result = self.set_parameters([Parameter("cut_speed_m_s", value=float(event.meta.target_speed_m_s))])
+            if not all(r.successful for r in result):
+                self._warn("speed", f"episode {event.name}: its target speed is not planned at: "
+                                    f"{[r.reason for r in result]}")
+        self._new_cut(keep_from_ns=event.first_stamp_ns if ahead else None)
+        self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
+        self.cut_end_ns = (last_stamp_ns if last_stamp_ns is not None and last_stamp_ns >= 0 else
+                           event.first_stamp_ns + round(max(event.planned_ticks - 1, 0) * TICK_PERIOD_NS))
+        self.joiner.start_at(event.first_stamp_ns)
+
+    def _new_cut(self, at_stamp_ns: int | None = None, keep_from_ns: int | None = None) -> None:
         """A new cut: the schedule back to its start depth, no plan carried over. ``at_stamp_ns``:
         the first stamp of the new cut when time jumped to it: the commands and forces of its ticks,
-        which come before their estimates, are kept (the old cut's are far from it)."""
+        which come before their estimates, are kept (the old cut's are far from it). ``keep_from_ns``:
+        the first stamp of a cut started ahead of its estimates: its ticks' commands and forces, in
+        already, are kept (those of the cut before are older)."""
         self.schedule.reset()
         self.planner.forget()
         self._target_sent = None
         self._jumped_to = None
         for by_stamp in (self.commanded, self.measured):
-            for stamp in [s for s in by_stamp if at_stamp_ns is None or abs(s - at_stamp_ns) > NEW_CUT_GAP_NS]:
+            for stamp in [s for s in by_stamp if (s < keep_from_ns if keep_from_ns is not None else
+                                                  at_stamp_ns is None or abs(s - at_stamp_ns) > NEW_CUT_GAP_NS)]:
                 del by_stamp[stamp]
-        self.command_wait.forget_commands()
+        newest = self.command_wait.newest_command_ns
+        if keep_from_ns is None or newest is None or newest < keep_from_ns:
+            self.command_wait.forget_commands()
         # the controller's writer followed afresh: in a replay of bags in a row the ticks start again
         # at 0, where its track (hundreds of ticks, never forgotten: its last tick lies ahead) led over
         # the same writer's new messages, whose commands were dropped until they outnumbered the old
@@ -454,6 +500,9 @@ class PlannerNode(Node):
         except ValueError as err:
             self._warn("estimate:layout", f"{err}; ignored")
             return
+        self._start_ahead(stamp)
+        if self.cut_first_ns is not None and stamp >= self.cut_first_ns:
+            self.cut_newest_ns = max(stamp, self.cut_newest_ns or stamp)
         est = fields(values, T.ESTIMATE_FIELDS)
         fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
@@ -490,7 +539,8 @@ class PlannerNode(Node):
         """The stream left the episode followed without a /sim/status (a replay of bags started over,
         ``--topics`` without it): its first tick no longer marks earlier ticks as the previous cut's
         (they had all been dropped from then on, an outside reviewer's)."""
-        self.cut_first_ns = self.cut_end_ns = None
+        self.cut_first_ns = self.cut_end_ns = self.cut_newest_ns = None
+        self.starts_ahead.clear()  # (episodes of the timeline left)
 
     def _previous_cut(self, stamp: int) -> None:
         """An estimate of a tick before the episode followed began: the previous episode's, come
