@@ -227,7 +227,7 @@ def test_the_fused_forecasts_outside_the_calibrated_depths_and_speed_are_scored_
 
     reach = calibration_bounds()
     assert reach == (min(d for d in CAL_DEPTHS_M if d >= MIN_CALIBRATED_DEPTH_M), max(CAL_DEPTHS_M), FORECAST_SPEED_M_S)
-    assert reach[:2] == (0.125, 0.3)
+    assert reach[:2] == (0.09, 0.3)
 
     def pair(d_from, d_to, v_from, v_to, forecast):  # measured 10 kN; the 90 % interval ± 1 kN about the forecast
         f = np.array([forecast, 0.0])
@@ -237,19 +237,19 @@ def test_the_fused_forecasts_outside_the_calibrated_depths_and_speed_are_scored_
 
     v = FORECAST_SPEED_M_S
     pairs = [pair(0.15, 0.25, v, v, 10.2e3), pair(0.3 + DEPTH_SLACK_M / 2, 0.15, v, v, 9.9e3),  # calibrated: held
-             pair(0.07, 0.2, v, v, 12e3), pair(0.15, 0.1, v, v, 12e3), pair(0.3, 0.4, v, v, 8e3),  # other depths
+             pair(0.07, 0.2, v, v, 12e3), pair(0.15, 0.08, v, v, 12e3), pair(0.3, 0.4, v, v, 8e3),  # other depths
              pair(0.15, 0.25, 0.3, 1.0, 8e3), pair(0.15, 0.25, 1.0, 1.0, 8e3)]  # across speeds; one other speed
     strata = calibration_strata(pairs, ["fused"], reach)["posteriors"]["fused"]
     assert [strata[g]["pairs"] for g in ("calibrated", "other_depths", "across_speeds", "other_speed")] == [2, 3, 1, 1]
     assert strata["calibrated"]["coverage_90"] == 1.0 and strata["calibrated"]["coverage_50"] == 1.0
     assert strata["other_depths"]["coverage_90"] == 0.0 and strata["across_speeds"]["coverage_90"] == 0.0
-    assert strata["other_depths"]["deeper_bias_pct"] == 0.0  # +20 % and −20 % going deeper (0.15 → 0.1 is not)
+    assert strata["other_depths"]["deeper_bias_pct"] == 0.0  # +20 % and −20 % going deeper (0.15 → 0.08 is not)
     row = {"pairs": 7, "mean_abs_pct": 1.0, "bias_pct": 0.0}
     report = {"data": "bags/x", "pairs": 7, "episodes": 7, "worlds": ["default"], "unlabelled": 0,
               "forecast": {"fused": {a: {"all": row, "deeper": row, "shallower": row} for a in ("x", "z")}},
               "calibration_strata": calibration_strata(pairs, ["fused"], reach)}
     text = "\n".join(markdown(report))
-    assert (f"where its forecast law was calibrated (both depths 0.125–0.3 m, the cuts the calibration scores, both "
+    assert (f"where its forecast law was calibrated (both depths 0.09–0.3 m, the cuts the calibration scores, both "
             f"cut at its {v:g} m/s): 2 pairs, 1.5 % off") in text
     assert "across speeds (steady speeds more than 0.1 m/s apart): 1 pair, 20.0 % off" in text
     inside = calibration_strata(pairs[:2], ["fused"], reach)  # every pair within it: nothing to say apart
