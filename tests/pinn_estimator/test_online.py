@@ -837,6 +837,36 @@ def test_events_that_overtake_the_ticks_of_more_than_one_episode_still_start_eac
             np.testing.assert_array_equal(by_stamp[stamps[k][i]].values, by_stamp[stamps[0][i]].values)
 
 
+@pytest.mark.parametrize("stray", ["start", "end"])
+def test_a_stray_event_far_ahead_leaves_no_boundary_that_resets_a_later_episode(episode, model, stray):
+    """A stray episode_start mid-episode stamped a later episode's tick 50 (a node without a graph id
+    takes any start), or a stray episode_end between episodes with such a last stamp: the real
+    events after it, in stamp order, drop its boundary. Kept, it had cleared that later episode's
+    window and soil posterior midway (a reviewer's)."""
+    n, period = 100, int(episode.stamps_ns[1])
+    stamps = [[int(episode.stamps_ns[0]) + (k * n + i) * period for i in range(n)] for k in range(3)]
+
+    def run(with_stray):
+        out = []
+        est = OnlineEstimator(model, out.append)
+        for k, ep_stamps in enumerate(stamps):
+            est.start_episode(ep_stamps[0])
+            for i, stamp in enumerate(ep_stamps):
+                if with_stray and stray == "start" and (k, i) == (0, 40):
+                    est.start_episode(stamps[2][50])
+                for t, m in tick_messages(episode, i, stamp):
+                    est.add(t, m)
+            est.end_episode(ep_stamps[-1])
+            if with_stray and stray == "end" and k == 0:
+                est.end_episode(stamps[2][49])
+        return {e.stamp_ns: e.values for e in out}
+
+    clean, got = run(False), run(True)
+    assert [got[s][FILL] for s in stamps[2][48:53]] == [49.0, 50.0, 51.0, 52.0, 53.0]
+    for s in stamps[1] + stamps[2]:
+        np.testing.assert_array_equal(got[s], clean[s])
+
+
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
     est, out = run(model, in_order(episode, range(120)))
     assert est.posterior.updates == 4

@@ -627,10 +627,11 @@ class OnlineEstimator:
         self.assembler.add(topic, msg)
 
     def _set_boundary(self, last_ns: int) -> None:
-        """Samples after ``last_ns`` belong to a new episode: the first of them starts a new window."""
+        """Samples after ``last_ns`` belong to a new episode: the first of them starts a new window.
+        Pending boundaries beyond it go: a graph's events come in stamp order, so they were a stray
+        event's (a start or end far ahead, which had lingered and reset a later episode midway)."""
         self._boundary = last_ns
-        if last_ns not in self._pending:
-            self._pending = sorted([*self._pending, last_ns])
+        self._pending = [b for b in self._pending if b < last_ns] + [last_ns]
 
     def _on_restart(self) -> None:
         self._boundary = None
