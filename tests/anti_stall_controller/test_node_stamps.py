@@ -130,53 +130,105 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
     assert "p_z^c (point.z)=-1e+300" in out, out
 
 
-@pytest.mark.timeout(90)
-def test_an_episodes_last_ticks_that_come_after_its_end_are_answered(tmp_path):
-    """A controller a few ticks behind takes /sim/status first, so an episode's episode_end can
-    come before its last ticks: they are the ended episode's, answered, where they had been held
-    for the next episode and dropped there as stale (the bag without their commands). A tick
-    after the ended episode's last is still held for the next one."""
-    domain = next_domain_id()
+def _controller_side(probe, domain, tmp_path):
+    """The probe as the simulator of a controller node: (status, send(stamp), commands(), controller)."""
     classes = M.ros_message_classes()
+    probe.subscribe(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
+    status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
+    twist = probe.publisher(TWIST, T.CHASSIS_TWIST.msgtype)
+    pose = probe.publisher(POSE, T.CHASSIS_POSE.msgtype)
+    ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
+
+    def send(stamp):
+        twist.publish(M.build_message(classes, TWIST, stamp, [0.5, 0.0]))
+        pose.publish(M.build_message(classes, POSE, stamp, [0.0, -0.1]))
+        time.sleep(0.005)
+
+    def commands():
+        return [M.parse_message(T.BLADE_CMD.name, m)[0] for m in probe.messages(T.BLADE_CMD.name)]
+
+    probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose))
+                   and probe.matched_publishers(T.BLADE_CMD.name) >= 1, 30, "controller endpoints")
+    return status, send, commands, ctl
+
+
+def _event(kind, i, meta, first, last=None):
+    extra = {} if last is None else dict(last_stamp_ns=last, ticks=13, reason="completed")
+    return String(data=G.EpisodeEvent(kind, i, meta.name, meta, first, planned_ticks=13, **extra).to_json())
+
+
+def _first_answers(probe, send, commands):
+    """Tick k sent, k = 0, 1, ..., until answered (a reader may match late on a busy core): how many were sent."""
+    sent = []
+
+    def answered():
+        send(_tick(len(sent)))
+        sent.append(len(sent))
+        return commands()
+    probe.wait_for(answered, 20, "answers to the first ticks")
+    return len(sent)
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("next_start", [False, True], ids=["end", "end_and_next_start"])
+def test_an_episodes_last_ticks_that_come_after_its_end_are_answered(tmp_path, next_start):
+    """A controller a few ticks behind takes /sim/status first, so an episode's episode_end, and the
+    next episode's start too, can come before its last ticks: they are the ended episode's,
+    answered, where they had been held for the next episode or refused after its start as stale
+    (the bag without their commands). The next episode then starts at its first tick. Without a
+    next start, a tick after the ended episode's last is held for the next one."""
     meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
     last = 12
+    domain = next_domain_id()
     with RosProbe(domain) as probe:
-        probe.subscribe(T.BLADE_CMD.name, T.BLADE_CMD.msgtype)
-        status = probe.publisher(G.SIM_STATUS_TOPIC, G.STRING_MSGTYPE)
-        twist = probe.publisher(TWIST, T.CHASSIS_TWIST.msgtype)
-        pose = probe.publisher(POSE, T.CHASSIS_POSE.msgtype)
-        ctl = NodeProc("anti_stall_controller", [], domain, tmp_path)
-
-        def send(k):
-            twist.publish(M.build_message(classes, TWIST, _tick(k), [0.5, 0.0]))
-            pose.publish(M.build_message(classes, POSE, _tick(k), [0.0, -0.1]))
-
-        def answered():
-            return {M.parse_message(T.BLADE_CMD.name, m)[0] for m in probe.messages(T.BLADE_CMD.name)}
-
+        status, send, commands, ctl = _controller_side(probe, domain, tmp_path)
         try:
-            probe.wait_for(lambda: all(p.get_subscription_count() >= 1 for p in (status, twist, pose))
-                           and probe.matched_publishers(T.BLADE_CMD.name) >= 1, 30, "controller endpoints")
-            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_START, 0, meta.name, meta, FIRST,
-                                                      planned_ticks=last + 1).to_json()))
-            sent = []
-
-            def first_answers():  # (a reader may match late on a busy core: send until answered)
-                send(len(sent))
-                sent.append(len(sent))
-                return answered()
-            probe.wait_for(first_answers, 20, "answers to the first ticks")
-            n = len(sent)
+            status.publish(_event(G.EVENT_EPISODE_START, 0, meta, FIRST))
+            n = _first_answers(probe, send, commands)
             assert n < last - 2, f"{n} ticks before the first answer"
-            status.publish(String(data=G.EpisodeEvent(G.EVENT_EPISODE_END, 0, meta.name, meta, FIRST,
-                                                      planned_ticks=last + 1, last_stamp_ns=_tick(last),
-                                                      ticks=last + 1, reason="completed").to_json()))
-            time.sleep(1.0)  # the end taken first, as by a controller behind its ticks
-            for k in range(n, last + 2):
-                send(k)
-            probe.wait_for(lambda: {_tick(k) for k in range(n, last + 1)} <= answered(), 20,
-                           f"answers to the ended episode's last ticks (got {len(answered())})")
+            status.publish(_event(G.EVENT_EPISODE_END, 0, meta, FIRST, _tick(last)))
+            if next_start:
+                status.publish(_event(G.EVENT_EPISODE_START, 1, meta, _tick(last + 1)))
+            time.sleep(1.0)  # the events taken first, as by a controller behind its ticks
+            for k in range(n, last + 4):
+                send(_tick(k))
+            want = range(n, last + 4) if next_start else range(n, last + 1)
+            probe.wait_for(lambda: {_tick(k) for k in want} <= set(commands()), 20,
+                           f"answers to the ended episode's last ticks (got {len(commands())})")
             time.sleep(1.0)
         finally:
             ctl.stop()
-    assert _tick(last + 1) not in answered()  # beyond the ended episode: held for the next one
+    assert next_start or _tick(last + 1) not in commands()  # beyond the ended episode: held for the next one
+    assert "stale" not in ctl.output, ctl.output
+
+
+@pytest.mark.timeout(90)
+def test_the_next_bags_first_ticks_at_the_same_stamps_are_still_held_for_its_start(tmp_path):
+    """Bags whose stamps restart (each starting at the same first stamp): the next bag's first ticks,
+    come before its episode_start, have stamps of the ended episode but are not its ticks (it had
+    answered them already); held, they are answered once the start comes (a reviewer's)."""
+    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
+    last = 12
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status, send, commands, ctl = _controller_side(probe, domain, tmp_path)
+        try:
+            status.publish(_event(G.EVENT_EPISODE_START, 0, meta, FIRST))
+            n = _first_answers(probe, send, commands)
+            for k in range(n, last + 1):
+                send(_tick(k))
+            probe.wait_for(lambda: _tick(last) in commands(), 20, "the first bag answered")
+            first_bag = len(commands())
+            status.publish(_event(G.EVENT_EPISODE_END, 0, meta, FIRST, _tick(last)))
+            time.sleep(1.0)
+            for k in range(3):  # the second bag's first ticks, before its start
+                send(_tick(k))
+            time.sleep(1.0)
+            status.publish(_event(G.EVENT_EPISODE_START, 1, meta, FIRST))
+            time.sleep(1.0)
+            for k in range(3, 6):
+                send(_tick(k))
+            probe.wait_for(lambda: len(commands()) - first_bag == 6, 20,
+                           f"the second bag's six ticks answered (got {commands()[first_bag:]})")
+        finally:
+            ctl.stop()

@@ -183,6 +183,9 @@ class ControllerNode(Node):
         # (first, last) stamp [ns] of the episode that ended: its own ticks that come after its
         # episode_end are answered, not held (``_on_state``). None: no episode ended since the last start.
         self.ended_ns: tuple[int, int] | None = None
+        # an episode_start taken while the ended episode's last ticks were still to come: the episode
+        # starts with its first tick (``_on_state``), the ended one's answered until then
+        self.start_held: G.EpisodeEvent | None = None
         # The state readers (which a simulator waits for) once the planner's writer has matched
         # when following it (at most inputs_wait_s): matched late under load, a lockstep tick
         # waited planner_wait_s for the first targets, which had gone out before the match.
@@ -276,6 +279,8 @@ class ControllerNode(Node):
         event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is None:
             return
+        if self.start_held is not None:  # (an event more before any tick of the held episode: it starts now)
+            self._start_episode(self.start_held)
         if event.event == G.EVENT_EPISODE_END:
             self.plan_wait.start_episode(event.first_stamp_ns, False)  # the episode is over: nothing waits
             self.held = []
@@ -283,6 +288,16 @@ class ControllerNode(Node):
             self.silence.end()
             return
         self.silence.start(event.name)
+        if self.ended_ns is not None and self.joiner.last_ns < self.ended_ns[1] < event.first_stamp_ns:
+            # the ended episode's last ticks are still to come (taken after both events: the executor
+            # serves /sim/status first): answered with its state, this episode starting at its first tick
+            self.start_held = event
+            return
+        self._start_episode(event)
+
+    def _start_episode(self, event: G.EpisodeEvent) -> None:
+        """Targets, core, plan wait and state join start afresh with the episode ``event``."""
+        self.start_held = None
         # a new cut: no ramp from the last one's planner carries over (under way, it had kept the episode's
         # own depth out of the core for the whole episode: an outside reviewer's)
         self.ramp_to_parameter = self.planned = False
@@ -310,22 +325,31 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ control
     def _of_ended_episode(self, topic: str, msg) -> bool:
-        """Whether ``msg`` is a tick of the episode that just ended. The executor serves /sim/status
-        before the state topics, so a controller a few ticks behind took the episode_end before the
-        episode's last ticks; held for the next episode, they were then dropped as stale, and the bag
-        lacked their commands (an outside tester's: 350 of 360 at --rate 4 under load)."""
-        if self.ended_ns is None:
-            return False
+        """Whether ``msg`` is a tick of the episode that just ended not answered yet. The executor
+        serves /sim/status before the state topics, so a controller a few ticks behind took the
+        episode_end before the episode's last ticks; held for the next episode, they were then
+        dropped as stale, and the bag lacked their commands (an outside tester's: 350 of 360 at
+        --rate 4 under load). Ticks at or before the last answered are not: in bags whose stamps
+        restart, the next bag's first ticks, come before its start (a reviewer's)."""
+        stamp = self._stamp_of(topic, msg)
+        return (self.ended_ns is not None and stamp is not None
+                and max(self.ended_ns[0], self.joiner.last_ns + 1) <= stamp <= self.ended_ns[1])
+
+    def _stamp_of(self, topic: str, msg) -> int | None:
+        """``msg``'s stamp [ns] (None: a layout or stamp the graph cannot mean, said once it is handled)."""
         try:
-            stamp = M.parse_message(topic, msg)[0]
+            return M.parse_message(topic, msg)[0]
         except ValueError:
-            return False  # (held: its layout is said once it is handled)
-        return self.ended_ns[0] <= stamp <= self.ended_ns[1]
+            return None
 
     def _on_state(self, topic: str, msg) -> None:
         self.silence.heard()
         if topic not in self.joiner.topics:  # the force, with the force lift off
             return
+        if self.start_held is not None and not self._of_ended_episode(topic, msg):
+            stamp = self._stamp_of(topic, msg)
+            if stamp is not None and stamp >= self.start_held.first_stamp_ns:
+                self._start_episode(self.start_held)  # its first tick: the held episode starts
         if self.held is not None and not self._of_ended_episode(topic, msg):
             most = len(self.joiner.topics) * MAX_PENDING_STAMPS
             if len(self.held) < most:
