@@ -60,7 +60,7 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import FORCE_LIMITS_N, KNOWN_PARAMS, SAMPLE_RATE_HZ, TICK_PERIOD_NS
 from soil_msgs_py.values import number_in, short_repr
 from soil_msgs_py import graph as G
-from soil_msgs_py.episode_follow import EpisodeFollower
+from soil_msgs_py.episode_follow import EpisodeFollower, same_episode
 from soil_msgs_py.ros_adapter import (InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters,
                                       followed_status_event, local, message_class, publisher_qos, spin_node, topic_qos,
                                       wall_timer)
@@ -110,6 +110,16 @@ def estimate_joiner() -> StampJoiner:
 
 NEW_CUT_GAP_NS = M.NS_PER_S  # plans further apart than this (simulation time) belong to a new cut
 MAX_STARTS_AHEAD = 16  # episode_starts held for the estimates of an earlier episode still coming (``_on_status``)
+
+
+def episode_end_ns(event: G.EpisodeEvent, last_stamp_ns: int | None) -> int:
+    """The last tick's stamp [ns] of the episode ``event`` starts: its end's (``last_stamp_ns``, if
+    heard and it published a tick), else as planned."""
+    if last_stamp_ns is not None and last_stamp_ns >= 0:
+        return last_stamp_ns
+    return event.first_stamp_ns + round(max(event.planned_ticks - 1, 0) * TICK_PERIOD_NS)
+
+
 # /planner/target_depth goes out when the target moved by TARGET_STEP_M, its validity changed,
 # or TARGET_HEARTBEAT_NS passed (well inside the controller's planner_timeout_s).
 TARGET_STEP_M = 1e-3
@@ -377,21 +387,22 @@ class PlannerNode(Node):
         estimator behind (a replay of bags in a row faster than it) still sends the last episode's
         estimates, which are planned and published as that episode's; had the cut started at the
         event, they were dropped as the previous cut's, and a replay at 8x published no plan after
-        its first episode (an outside tester's). A start at or before the cut under way (time went
-        back: a replay started over) starts the cut at once, as does one with no cut under way or
-        none of whose estimates came (an estimator not there: nothing of it is due)."""
+        its first episode (an outside tester's). A start with no cut under way, or none of whose
+        estimates came (an estimator not there: nothing of it is due), or at or before the cut under
+        way (time went back: a replay started over) starts the cut at once; while other starts are
+        held, it is held behind them (``_start_ahead``)."""
         event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is not None and event.event == G.EVENT_EPISODE_START:
             self.silence.start(event.name)
-            ahead = self.starts_ahead[-1][0].first_stamp_ns if self.starts_ahead else None
-            if self.starts_ahead and event.first_stamp_ns in {self.cut_first_ns, *(e.first_stamp_ns for e, _ in self.starts_ahead)}:
-                return  # (a start taken already, come again: the cuts held for their estimates stay)
-            if (event.first_stamp_ns > ahead if ahead is not None else self._estimates_still_due(event.first_stamp_ns)):
+            if self.starts_ahead and same_episode(event, self.starts_ahead[-1][0]):
+                return  # (the start held last, come again)
+            if self.starts_ahead or self._estimates_still_due(event.first_stamp_ns):
+                # held behind the others, in order: one at or before the cut under way (a replay started
+                # over) starts once an estimate goes back to it (``_start_ahead``)
                 self.starts_ahead.append([event, None])
                 while len(self.starts_ahead) > MAX_STARTS_AHEAD:  # (an estimator this far behind: start the oldest)
                     self._start_cut(*self.starts_ahead.popleft(), ahead=True)
             else:
-                self.starts_ahead.clear()
                 self._start_cut(event, None, ahead=False)
         elif event is not None:
             if self.starts_ahead and event.first_stamp_ns == self.starts_ahead[-1][0].first_stamp_ns:
@@ -408,9 +419,19 @@ class PlannerNode(Node):
                 and (end is None or newest < end))
 
     def _start_ahead(self, stamp: int) -> None:
-        """Start the cuts of the episodes taken ahead whose first tick ``stamp`` has reached."""
-        while self.starts_ahead and stamp >= self.starts_ahead[0][0].first_stamp_ns:
-            self._start_cut(*self.starts_ahead.popleft(), ahead=True)
+        """Start the held cut whose episode the estimate at ``stamp`` is of, and those held before it.
+        An estimate beyond every held episode is a stray's (one an hour ahead had started them all, and
+        the late estimates of the cut under way were dropped again, a reviewer's); one held at or
+        before the cut under way (a replay started over) starts once an estimate goes back to it."""
+        for i, (event, last) in enumerate(self.starts_ahead):
+            first, end = event.first_stamp_ns, episode_end_ns(event, last)
+            back = self.cut_first_ns is not None and first <= self.cut_first_ns
+            if first <= stamp <= end and (not back or (self.cut_newest_ns is not None and stamp < self.cut_newest_ns)):
+                for _ in range(i + 1):  # (those before it: episodes none of whose estimates came)
+                    held, held_last = self.starts_ahead.popleft()
+                    self._start_cut(held, held_last, ahead=self.cut_first_ns is not None
+                                    and held.first_stamp_ns > self.cut_first_ns)
+                return
 
     def _start_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None, ahead: bool) -> None:
         """The cut of the episode ``event`` starts (``last_stamp_ns``: its end's last tick, if heard;
@@ -427,8 +448,7 @@ class PlannerNode(Node):
                                     f"{[r.reason for r in result]}")
         self._new_cut(keep_from_ns=event.first_stamp_ns if ahead else None)
         self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
-        self.cut_end_ns = (last_stamp_ns if last_stamp_ns is not None and last_stamp_ns >= 0 else
-                           event.first_stamp_ns + round(max(event.planned_ticks - 1, 0) * TICK_PERIOD_NS))
+        self.cut_end_ns = episode_end_ns(event, last_stamp_ns)
         self.joiner.start_at(event.first_stamp_ns)
 
     def _new_cut(self, at_stamp_ns: int | None = None, keep_from_ns: int | None = None) -> None:
@@ -501,8 +521,8 @@ class PlannerNode(Node):
             self._warn("estimate:layout", f"{err}; ignored")
             return
         self._start_ahead(stamp)
-        if self.cut_first_ns is not None and stamp >= self.cut_first_ns:
-            self.cut_newest_ns = max(stamp, self.cut_newest_ns or stamp)
+        if self.cut_first_ns is not None and self.cut_first_ns <= stamp <= (self.cut_end_ns or stamp):
+            self.cut_newest_ns = max(stamp, self.cut_newest_ns or stamp)  # (a stray beyond the cut is not of it)
         est = fields(values, T.ESTIMATE_FIELDS)
         fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
