@@ -813,7 +813,8 @@ def test_events_that_overtake_the_ticks_of_more_than_one_episode_still_start_eac
     start all come while A's ticks are still queued. Each episode's estimates are still those of
     its own rows alone, window and soil posterior (as a fresh node's); one pending boundary, the
     last event's, had let B's first ticks run on in A's window and posterior (an outside tester's:
-    the first sand estimate still held the clay's cohesion)."""
+    the first sand estimate still held the clay's cohesion). A late copy of B's start among them
+    changes nothing."""
     n, period = 100, int(episode.stamps_ns[1])
     stamps = [[int(episode.stamps_ns[0]) + (k * n + i) * period for i in range(n)] for k in range(3)]
     out = []
@@ -825,6 +826,7 @@ def test_events_that_overtake_the_ticks_of_more_than_one_episode_still_start_eac
                 est.end_episode(stamps[0][-1])
                 est.start_episode(stamps[1][0])
                 est.end_episode(stamps[1][-1])
+                est.start_episode(stamps[1][0])  # a late copy of B's start (it drops no boundary)
                 est.start_episode(stamps[2][0])
             for t, m in tick_messages(episode, i, stamp):
                 est.add(t, m)

@@ -631,7 +631,8 @@ class OnlineEstimator:
         Pending boundaries beyond it go: a graph's events come in stamp order, so they were a stray
         event's (a start or end far ahead, which had lingered and reset a later episode midway)."""
         self._boundary = last_ns
-        self._pending = [b for b in self._pending if b < last_ns] + [last_ns]
+        if last_ns not in self._pending:  # (the same boundary again, a repeated event, drops none)
+            self._pending = [b for b in self._pending if b < last_ns] + [last_ns]
 
     def _on_restart(self) -> None:
         self._boundary = None
