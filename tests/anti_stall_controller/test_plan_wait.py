@@ -108,6 +108,27 @@ def test_a_new_episode_forgets_held_ticks_and_targets():
     assert not wait.pending and wait.target_for(stamp_ns(700)) is None
 
 
+def test_an_ended_episode_keeps_its_targets_for_its_last_ticks_and_the_next_keeps_only_its_own():
+    """After an episode_end, the episode's last ticks still to come (a controller behind) cut to its
+    planner's targets, not the fallback depth (they had been cleared, a reviewer's); nothing waits.
+    A target of the next episode come before its start is kept there; where time goes back (a
+    replay started over) none is."""
+    wait = PlanWait()
+    wait.start_episode(stamp_ns(0), lockstep=True)
+    wait.offer(stamp_ns(10), "held", 0.0)
+    for k in range(8):
+        wait.note_target(stamp_ns(k), 0.05)
+    assert wait.end_episode() == ["held"] and not wait.active
+    assert wait.note_target(stamp_ns(11), 0.06)  # a late target of the ended episode
+    assert wait.target_for(stamp_ns(12)) == (stamp_ns(11), 0.06)
+    assert wait.offer(stamp_ns(12), "late", 0.0)[0] == ["late"]  # nothing waits
+    wait.note_target(stamp_ns(600), 0.2)  # the next episode's, come before its start
+    wait.start_episode(stamp_ns(600), lockstep=True)
+    assert list(wait.targets) == [stamp_ns(600)]
+    wait.start_episode(stamp_ns(0), lockstep=True)  # time went back
+    assert not wait.targets
+
+
 @pytest.mark.parametrize("lag, wait_s, needle", [(-1, 1.0, "planner_lag_ticks"), (1.5, 1.0, "planner_lag_ticks"),
                                                  (True, 1.0, "planner_lag_ticks"), (2, 0.0, "planner_wait_s"),
                                                  (2, float("nan"), "planner_wait_s"),

@@ -50,7 +50,7 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.params import (DEFAULT_TARGET_DEPTH_M, DEFAULT_TARGET_SPEED_M_S, FORCE_LIMITS_N, MACHINE,
                                  MAX_TARGET_DEPTH_M, MAX_TARGET_SPEED_M_S, MIN_TARGET_SPEED_M_S, SAMPLE_RATE_HZ,
                                  TICK_PERIOD_NS, beyond_lift_reach)
-from soil_msgs_py.episode_follow import EpisodeFollower
+from soil_msgs_py.episode_follow import EpisodeFollower, same_episode
 from soil_msgs_py.ros_adapter import (
     InputSilence, JoinAfterInputs, WarnLimiter, declare_parameters, followed_status_event, local, message_class,
     publisher_qos, spin_node, topic_qos, wall_timer,
@@ -279,18 +279,23 @@ class ControllerNode(Node):
         event = followed_status_event(msg.data, self._warn, self.follower, self.silence)
         if event is None:
             return
+        if self.start_held is not None and same_episode(event, self.start_held):
+            return  # (the held start again)
         if self.start_held is not None:  # (an event more before any tick of the held episode: it starts now)
             self._start_episode(self.start_held)
         if event.event == G.EVENT_EPISODE_END:
-            self.plan_wait.start_episode(event.first_stamp_ns, False)  # the episode is over: nothing waits
+            for held in self.plan_wait.end_episode():  # the episode is over: nothing waits
+                self._answer(*held)
             self.held = []
             self.ended_ns = (event.first_stamp_ns, event.last_stamp_ns)
             self.silence.end()
             return
         self.silence.start(event.name)
-        if self.ended_ns is not None and self.joiner.last_ns < self.ended_ns[1] < event.first_stamp_ns:
+        if (self.ended_ns is not None and self.joiner.last_ns < self.ended_ns[1] < event.first_stamp_ns
+                and not any((s := self._stamp_of(*m)) is not None and s >= event.first_stamp_ns for m in self.held or ())):
             # the ended episode's last ticks are still to come (taken after both events: the executor
-            # serves /sim/status first): answered with its state, this episode starting at its first tick
+            # serves /sim/status first): answered with its state, this episode starting at its first
+            # tick (or once the ended one is answered to its last)
             self.start_held = event
             return
         self._start_episode(event)
@@ -343,6 +348,11 @@ class ControllerNode(Node):
             return None
 
     def _on_state(self, topic: str, msg) -> None:
+        self._take_state(topic, msg)
+        if self.start_held is not None and self.ended_ns is not None and self.joiner.last_ns >= self.ended_ns[1]:
+            self._start_episode(self.start_held)  # the ended episode answered to its last tick
+
+    def _take_state(self, topic: str, msg) -> None:
         self.silence.heard()
         if topic not in self.joiner.topics:  # the force, with the force lift off
             return

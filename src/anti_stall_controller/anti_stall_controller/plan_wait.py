@@ -55,14 +55,26 @@ class PlanWait:
         self.targets: collections.OrderedDict[int, float] = collections.OrderedDict()  # stamp -> depth [m]
 
     def start_episode(self, first_stamp_ns: int, lockstep: bool) -> list:
-        """A new episode: targets forgotten, and the held ticks of the last one returned (the node
+        """A new episode: the targets of earlier ones forgotten (those of this one, come before its
+        start, kept where time goes forward), and the held ticks of the last one returned (the node
         drops them: its reset core must not step on the old episode's state)."""
         left = [item for _, _, item in self.pending]
         self.pending.clear()
-        self.targets.clear()
-        self.first_stamp_ns = int(first_stamp_ns)
+        first = int(first_stamp_ns)
+        ahead = [(s, d) for s, d in self.targets.items() if s >= first] if first > self.first_stamp_ns else []
+        self.targets = collections.OrderedDict(ahead)
+        self.first_stamp_ns = first
         self.active = bool(lockstep) and self.lag_ticks > 0
         self.silent = False
+        return left
+
+    def end_episode(self) -> list:
+        """The episode is over: nothing waits any more (the held ticks returned, to answer now); its
+        targets are kept for its last ticks still to come (cleared, those had been cut to the
+        fallback depth, a reviewer's)."""
+        left = [item for _, _, item in self.pending]
+        self.pending.clear()
+        self.active = self.silent = False
         return left
 
     def set_lag(self, lag_ticks: int, wait_s: float) -> None:
