@@ -427,15 +427,17 @@ class PlannerNode(Node):
             first, end = event.first_stamp_ns, episode_end_ns(event, last)
             back = self.cut_first_ns is not None and first <= self.cut_first_ns
             if first <= stamp <= end and (not back or (self.cut_newest_ns is not None and stamp < self.cut_newest_ns)):
-                for _ in range(i + 1):  # (those before it: episodes none of whose estimates came)
-                    held, held_last = self.starts_ahead.popleft()
-                    self._start_cut(held, held_last, ahead=self.cut_first_ns is not None
-                                    and held.first_stamp_ns > self.cut_first_ns)
+                for _ in range(i):  # (held before it: episodes none of whose estimates came, or strays: dropped,
+                    self.starts_ahead.popleft()  # started they had cleared this one's commands and forces)
+                self.starts_ahead.popleft()
+                self._start_cut(event, last, ahead=not back, back=back)
                 return
 
-    def _start_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None, ahead: bool) -> None:
+    def _start_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None, ahead: bool, back: bool = False) -> None:
         """The cut of the episode ``event`` starts (``last_stamp_ns``: its end's last tick, if heard;
-        ``ahead``: taken ahead of its estimates, so its ticks' commands and forces may be in already)."""
+        ``ahead``: taken ahead of its estimates, so its ticks' commands and forces may be in already;
+        ``back``: held, at or before the cut before it (a replay started over): those near its first
+        tick are kept, as where time jumps (all had been cleared, a reviewer's))."""
         self._answer(self.command_wait.drain())  # the last episode's ticks, before its cut ends
         self.lockstep = event.pacing == G.PACING_LOCKSTEP
         if self.follow_speed and event.meta.target_speed_m_s != self.planner.cut_speed_m_s:
@@ -446,7 +448,10 @@ class PlannerNode(Node):
             if not all(r.successful for r in result):
                 self._warn("speed", f"episode {event.name}: its target speed is not planned at: "
                                     f"{[r.reason for r in result]}")
-        self._new_cut(keep_from_ns=event.first_stamp_ns if ahead else None)
+        if back:
+            self._new_cut(event.first_stamp_ns)
+        else:
+            self._new_cut(keep_from_ns=event.first_stamp_ns if ahead else None)
         self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
         self.cut_end_ns = episode_end_ns(event, last_stamp_ns)
         self.joiner.start_at(event.first_stamp_ns)
