@@ -249,3 +249,34 @@ def test_one_stray_estimate_of_an_older_tick_drops_no_tick_waiting_for_its_known
     assert joiner.offer(T.ESTIMATE.name, stamp(599)).verdict is Verdict.STALE
     assert [j.stamp_ns for j in joiner.offer(T.KNOWN.name, stamp(600)).out + joiner.offer(
         T.ESTIMATE.name, stamp(600)).out] == [stamp(600)]
+
+
+def test_an_estimate_starts_only_the_held_episode_that_holds_it_and_drops_those_held_before():
+    """Starts held while the cut under way still had estimates due: an estimate of a held episode
+    starts that one; those held before it (a stray start, or an episode none of whose estimates
+    came) are dropped, not started: started, a stray had cleared the next cut's commands and forces
+    (a reviewer's). An estimate beyond every held episode (a stray) starts none, and one held at or
+    before the cut under way (a replay started over) starts once an estimate goes back to it."""
+    from soil_msgs_py import graph as G
+    from soil_msgs_py.episode import EpisodeMeta
+
+    def start(first_k, name):
+        meta = EpisodeMeta("Clay", 40.0, "default", 0, 0.5, 0.1, 1.5, source="test")
+        return G.EpisodeEvent(G.EVENT_EPISODE_START, 0, name, meta, stamp(first_k), planned_ticks=90)
+
+    started = []
+    n = SimpleNamespace(cut_first_ns=stamp(0), cut_newest_ns=stamp(40), starts_ahead=collections.deque())
+    n._start_cut = lambda event, last, ahead, back=False: started.append((event.name, ahead, back))
+    n.starts_ahead.extend([[start(10**6, "stray"), None], [start(90, "B"), None], [start(180, "C"), None]])
+    PlannerNode._start_ahead(n, stamp(60))  # the cut under way's own late estimate
+    PlannerNode._start_ahead(n, stamp(10**7))  # a stray beyond every held episode
+    assert started == [] and len(n.starts_ahead) == 3
+    PlannerNode._start_ahead(n, stamp(180))  # C's first estimate (B's never came)
+    assert started == [("C", True, False)] and not n.starts_ahead
+    started.clear()
+    n.cut_first_ns, n.cut_newest_ns = stamp(180), stamp(200)
+    n.starts_ahead.append([start(0, "A again"), None])  # a replay started over
+    PlannerNode._start_ahead(n, stamp(210))  # C's estimates go on: not it yet
+    assert started == []
+    PlannerNode._start_ahead(n, stamp(0))  # an estimate back at its first tick
+    assert started == [("A again", False, True)]
