@@ -3,6 +3,7 @@ future (or with an invalid nanosec) is refused with a warning, and the real tick
 are still answered. The pairing policy is tested directly; the node once over real DDS."""
 from __future__ import annotations
 
+import contextlib
 import time
 
 import pytest
@@ -130,6 +131,26 @@ def test_controller_node_answers_real_ticks_after_a_hostile_pair(tmp_path):
     assert "p_z^c (point.z)=-1e+300" in out, out
 
 
+LAST = 12  # the first episode's last tick
+META = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
+
+
+@contextlib.contextmanager
+def _answering_first_episode(tmp_path):
+    """A controller node answering the first episode's ticks: (status, send(stamp), commands(),
+    ticks sent before the first answer, the node), stopped afterwards."""
+    domain = next_domain_id()
+    with RosProbe(domain) as probe:
+        status, send, commands, ctl = _controller_side(probe, domain, tmp_path)
+        try:
+            status.publish(_event(G.EVENT_EPISODE_START, 0, META, FIRST))
+            n = _first_answers(probe, send, commands)
+            assert n < LAST - 2, f"{n} ticks before the first answer"
+            yield probe, status, send, commands, n, ctl
+        finally:
+            ctl.stop()
+
+
 def _controller_side(probe, domain, tmp_path):
     """The probe as the simulator of a controller node: (status, send(stamp), commands(), controller)."""
     classes = M.ros_message_classes()
@@ -177,27 +198,18 @@ def test_an_episodes_last_ticks_that_come_after_its_end_are_answered(tmp_path, n
     answered, where they had been held for the next episode or refused after its start as stale
     (the bag without their commands). The next episode then starts at its first tick. Without a
     next start, a tick after the ended episode's last is held for the next one."""
-    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
-    last = 12
-    domain = next_domain_id()
-    with RosProbe(domain) as probe:
-        status, send, commands, ctl = _controller_side(probe, domain, tmp_path)
-        try:
-            status.publish(_event(G.EVENT_EPISODE_START, 0, meta, FIRST))
-            n = _first_answers(probe, send, commands)
-            assert n < last - 2, f"{n} ticks before the first answer"
-            status.publish(_event(G.EVENT_EPISODE_END, 0, meta, FIRST, _tick(last)))
-            for _ in range(next_start):  # (a copy of the start held changes nothing)
-                status.publish(_event(G.EVENT_EPISODE_START, 1, meta, _tick(last + 1)))
-            time.sleep(1.0)  # the events taken first, as by a controller behind its ticks
-            for k in range(n, last + 4):
-                send(_tick(k))
-            want = range(n, last + 4) if next_start else range(n, last + 1)
-            probe.wait_for(lambda: {_tick(k) for k in want} <= set(commands()), 20,
-                           f"answers to the ended episode's last ticks (got {len(commands())})")
-            time.sleep(1.0)
-        finally:
-            ctl.stop()
+    last = LAST
+    with _answering_first_episode(tmp_path) as (probe, status, send, commands, n, ctl):
+        status.publish(_event(G.EVENT_EPISODE_END, 0, META, FIRST, _tick(last)))
+        for _ in range(next_start):  # (a copy of the start held changes nothing)
+            status.publish(_event(G.EVENT_EPISODE_START, 1, META, _tick(last + 1)))
+        time.sleep(1.0)  # the events taken first, as by a controller behind its ticks
+        for k in range(n, last + 4):
+            send(_tick(k))
+        want = range(n, last + 4) if next_start else range(n, last + 1)
+        probe.wait_for(lambda: {_tick(k) for k in want} <= set(commands()), 20,
+                       f"answers to the ended episode's last ticks (got {len(commands())})")
+        time.sleep(1.0)
     assert next_start or _tick(last + 1) not in commands()  # beyond the ended episode: held for the next one
     assert "stale" not in ctl.output, ctl.output
 
@@ -207,28 +219,19 @@ def test_the_next_bags_first_ticks_at_the_same_stamps_are_still_held_for_its_sta
     """Bags whose stamps restart (each starting at the same first stamp): the next bag's first ticks,
     come before its episode_start, have stamps of the ended episode but are not its ticks (it had
     answered them already); held, they are answered once the start comes (a reviewer's)."""
-    meta = EpisodeMeta("Clay", 40.0, "fee", 3, 0.5, 0.1, 2.0, source="test")
-    last = 12
-    domain = next_domain_id()
-    with RosProbe(domain) as probe:
-        status, send, commands, ctl = _controller_side(probe, domain, tmp_path)
-        try:
-            status.publish(_event(G.EVENT_EPISODE_START, 0, meta, FIRST))
-            n = _first_answers(probe, send, commands)
-            for k in range(n, last + 1):
-                send(_tick(k))
-            probe.wait_for(lambda: _tick(last) in commands(), 20, "the first bag answered")
-            first_bag = len(commands())
-            status.publish(_event(G.EVENT_EPISODE_END, 0, meta, FIRST, _tick(last)))
-            time.sleep(1.0)
-            for k in range(3):  # the second bag's first ticks, before its start
-                send(_tick(k))
-            time.sleep(1.0)
-            status.publish(_event(G.EVENT_EPISODE_START, 1, meta, FIRST))
-            time.sleep(1.0)
-            for k in range(3, 6):
-                send(_tick(k))
-            probe.wait_for(lambda: len(commands()) - first_bag == 6, 20,
-                           f"the second bag's six ticks answered (got {commands()[first_bag:]})")
-        finally:
-            ctl.stop()
+    with _answering_first_episode(tmp_path) as (probe, status, send, commands, n, ctl):
+        for k in range(n, LAST + 1):
+            send(_tick(k))
+        probe.wait_for(lambda: _tick(LAST) in commands(), 20, "the first bag answered")
+        first_bag = len(commands())
+        status.publish(_event(G.EVENT_EPISODE_END, 0, META, FIRST, _tick(LAST)))
+        time.sleep(1.0)
+        for k in range(3):  # the second bag's first ticks, before its start
+            send(_tick(k))
+        time.sleep(1.0)
+        status.publish(_event(G.EVENT_EPISODE_START, 1, META, FIRST))
+        time.sleep(1.0)
+        for k in range(3, 6):
+            send(_tick(k))
+        probe.wait_for(lambda: len(commands()) - first_bag == 6, 20,
+                       f"the second bag's six ticks answered (got {commands()[first_bag:]})")
