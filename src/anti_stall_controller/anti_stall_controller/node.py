@@ -329,14 +329,13 @@ class ControllerNode(Node):
             self._on_state(topic, msg)
 
     # ------------------------------------------------------------------ control
-    def _of_ended_episode(self, topic: str, msg) -> bool:
-        """Whether ``msg`` is a tick of the episode that just ended not answered yet. The executor
+    def _of_ended_episode(self, stamp: int | None) -> bool:
+        """Whether the tick stamped ``stamp`` is of the episode that just ended, not answered yet. The executor
         serves /sim/status before the state topics, so a controller a few ticks behind took the
         episode_end before the episode's last ticks; held for the next episode, they were then
         dropped as stale, and the bag lacked their commands (an outside tester's: 350 of 360 at
         --rate 4 under load). Ticks at or before the last answered are not: in bags whose stamps
         restart, the next bag's first ticks, come before its start (a reviewer's)."""
-        stamp = self._stamp_of(topic, msg)
         return (self.ended_ns is not None and stamp is not None
                 and max(self.ended_ns[0], self.joiner.last_ns + 1) <= stamp <= self.ended_ns[1])
 
@@ -356,11 +355,12 @@ class ControllerNode(Node):
         self.silence.heard()
         if topic not in self.joiner.topics:  # the force, with the force lift off
             return
-        if self.start_held is not None and not self._of_ended_episode(topic, msg):
-            stamp = self._stamp_of(topic, msg)
-            if stamp is not None and stamp >= self.start_held.first_stamp_ns:
-                self._start_episode(self.start_held)  # its first tick: the held episode starts
-        if self.held is not None and not self._of_ended_episode(topic, msg):
+        # between episodes only (mid-episode neither is set, and nothing more is parsed here)
+        stamp = self._stamp_of(topic, msg) if self.start_held is not None or self.held is not None else None
+        ended = self._of_ended_episode(stamp)
+        if self.start_held is not None and not ended and stamp is not None and stamp >= self.start_held.first_stamp_ns:
+            self._start_episode(self.start_held)  # its first tick: the held episode starts
+        if self.held is not None and not ended:
             most = len(self.joiner.topics) * MAX_PENDING_STAMPS
             if len(self.held) < most:
                 self.held.append((topic, msg))
