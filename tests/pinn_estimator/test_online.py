@@ -869,6 +869,35 @@ def test_a_stray_event_far_ahead_leaves_no_boundary_that_resets_a_later_episode(
         np.testing.assert_array_equal(got[s], clean[s])
 
 
+def test_a_repeated_episode_end_after_the_next_episode_began_changes_nothing(episode, model):
+    """An episode's end delivered again once the next episode's ticks have crossed its boundary (a
+    late copy, or a node that hears /sim/status twice) is that boundary again, crossed already: it
+    had been pending once more, and the next tick restarted the episode under way's stride phase,
+    path and soil posterior midway (a reviewer's)."""
+    n, period = 100, int(episode.stamps_ns[1])
+    stamps = [[int(episode.stamps_ns[0]) + (k * n + i) * period for i in range(n)] for k in range(2)]
+
+    def run(repeat):
+        out = []
+        est = OnlineEstimator(model, out.append, stride=3)
+        for k, ep_stamps in enumerate(stamps):
+            est.start_episode(ep_stamps[0])
+            for i, stamp in enumerate(ep_stamps):
+                if repeat and (k, i) == (1, 70):
+                    est.end_episode(stamps[0][-1])
+                for t, m in tick_messages(episode, i, stamp):
+                    est.add(t, m)
+            est.end_episode(ep_stamps[-1])
+        return {e.stamp_ns: e.values for e in out}
+
+    clean, got = run(False), run(True)
+    assert got.keys() == clean.keys()  # (the stride phase kept)
+    second = [s for s in stamps[1] if s in clean]
+    assert clean[second[-1]][STRETCHES] > clean[second[len(second) // 2]][STRETCHES]
+    for s in second:
+        np.testing.assert_array_equal(got[s], clean[s])
+
+
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
     est, out = run(model, in_order(episode, range(120)))
     assert est.posterior.updates == 4

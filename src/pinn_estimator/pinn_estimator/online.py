@@ -551,12 +551,20 @@ class OnlineEstimator:
     def end_episode(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
         that are still queued complete this episode's windows normally (the executor serves
-        /sim/status first, so the event can overtake the episode's last ticks)."""
-        self._set_boundary(int(last_stamp_ns))
+        /sim/status first, so the event can overtake the episode's last ticks).
+
+        The end of an episode whose boundary ticks after it have crossed already (a late copy of the
+        event) changes nothing: pending again, it had restarted the next episode's stride phase, path
+        and soil posterior at its next tick (a reviewer's)."""
+        last = int(last_stamp_ns)
+        if self._boundary is not None and last <= self._boundary and last not in self._pending \
+                and self.assembler.last_released > last:
+            return
+        self._set_boundary(last)
         self._open_first = None
-        self._ended_at = int(last_stamp_ns)
+        self._ended_at = last
         self.assembler.expect_restart(None)
-        self.assembler.regrid(int(last_stamp_ns) + 1)
+        self.assembler.regrid(last + 1)
 
     @property
     def owes_ended_episode(self) -> bool:
