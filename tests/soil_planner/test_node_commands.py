@@ -256,7 +256,9 @@ def test_an_estimate_starts_only_the_held_episode_that_holds_it_and_drops_those_
     starts that one; those held before it (a stray start, or an episode none of whose estimates
     came) are dropped, not started: started, a stray had cleared the next cut's commands and forces
     (a reviewer's). An estimate beyond every held episode (a stray) starts none, and one held at or
-    before the cut under way (a replay started over) starts once an estimate goes back to it."""
+    before the cut under way (a replay started over) starts once an estimate goes back to it, or
+    comes at the newest of the cut under way's (one estimate only, at its first tick: it never
+    started, a reviewer's), or comes where that cut had none."""
     from soil_msgs_py import graph as G
     from soil_msgs_py.episode import EpisodeMeta
 
@@ -280,3 +282,9 @@ def test_an_estimate_starts_only_the_held_episode_that_holds_it_and_drops_those_
     assert started == []
     PlannerNode._start_ahead(n, stamp(0))  # an estimate back at its first tick
     assert started == [("A again", False, True)]
+    for newest in (stamp(0), None):  # the cut under way had one estimate only, at its first tick, or none
+        started.clear()
+        n.cut_first_ns, n.cut_newest_ns = stamp(0), newest
+        n.starts_ahead.append([start(0, "A a third time"), None])
+        PlannerNode._start_ahead(n, stamp(0))  # the replay's estimate at that tick: the cut's own came already
+        assert started == [("A a third time", False, True)] and not n.starts_ahead

@@ -422,11 +422,13 @@ class PlannerNode(Node):
         """Start the held cut whose episode the estimate at ``stamp`` is of, and those held before it.
         An estimate beyond every held episode is a stray's (one an hour ahead had started them all, and
         the late estimates of the cut under way were dropped again, a reviewer's); one held at or
-        before the cut under way (a replay started over) starts once an estimate goes back to it."""
+        before the cut under way (a replay started over) starts once an estimate goes back to it or
+        comes again at the cut's newest stamp (whose estimate came already: a cut of one estimate, at
+        its first tick, had never let it start), or comes where that cut had none."""
         for i, (event, last) in enumerate(self.starts_ahead):
             first, end = event.first_stamp_ns, episode_end_ns(event, last)
             back = self.cut_first_ns is not None and first <= self.cut_first_ns
-            if first <= stamp <= end and (not back or (self.cut_newest_ns is not None and stamp < self.cut_newest_ns)):
+            if first <= stamp <= end and (not back or self.cut_newest_ns is None or stamp <= self.cut_newest_ns):
                 for _ in range(i):  # (held before it: episodes none of whose estimates came, or strays: dropped,
                     self.starts_ahead.popleft()  # started they had cleared this one's commands and forces)
                 self.starts_ahead.popleft()
