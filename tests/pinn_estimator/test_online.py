@@ -898,6 +898,44 @@ def test_a_repeated_episode_end_after_the_next_episode_began_changes_nothing(epi
         np.testing.assert_array_equal(got[s], clean[s])
 
 
+def test_a_replay_started_over_whose_first_end_overtakes_its_ticks_is_estimated_as_by_a_fresh_node(episode, model):
+    """A replay started over while the node is midway through its second episode, the first
+    episode's start and end both overtaking that episode's ticks: the end is of the new stream,
+    not a copy of the old one's, and the node estimates the replay as a fresh node does (its end
+    taken as a copy had kept ticks of the new stream from restarting it: 100 of 200 estimates
+    differed, a reviewer's)."""
+    n, period = 100, int(episode.stamps_ns[1])
+    a = [int(episode.stamps_ns[0]) + i * period for i in range(n)]
+    b = [a[-1] + (i + 1) * period for i in range(n)]
+
+    def feed(est, ep_stamps, count=n):
+        for i, stamp in enumerate(ep_stamps[:count]):
+            for t, m in tick_messages(episode, i, stamp):
+                est.add(t, m)
+
+    def replay(est):
+        est.start_episode(a[0])
+        est.end_episode(a[-1])
+        feed(est, a)
+        est.start_episode(b[0])
+        feed(est, b)
+        est.end_episode(b[-1])
+
+    fresh_out = []
+    replay(OnlineEstimator(model, fresh_out.append))
+    out = []
+    est = OnlineEstimator(model, out.append)
+    est.start_episode(a[0])
+    feed(est, a)
+    est.end_episode(a[-1])
+    est.start_episode(b[0])
+    feed(est, b, 50)
+    del out[:]
+    replay(est)
+    assert [e.stamp_ns for e in out] == [e.stamp_ns for e in fresh_out] == a + b
+    np.testing.assert_array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in fresh_out]))
+
+
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
     est, out = run(model, in_order(episode, range(120)))
     assert est.posterior.updates == 4

@@ -251,40 +251,102 @@ def test_one_stray_estimate_of_an_older_tick_drops_no_tick_waiting_for_its_known
         T.ESTIMATE.name, stamp(600)).out] == [stamp(600)]
 
 
-def test_an_estimate_starts_only_the_held_episode_that_holds_it_and_drops_those_held_before():
-    """Starts held while the cut under way still had estimates due: an estimate of a held episode
-    starts that one; those held before it (a stray start, or an episode none of whose estimates
-    came) are dropped, not started: started, a stray had cleared the next cut's commands and forces
-    (a reviewer's). An estimate beyond every held episode (a stray) starts none, and one held at or
-    before the cut under way (a replay started over) starts once an estimate goes back to it, or
-    comes at the newest of the cut under way's (one estimate only, at its first tick: it never
-    started, a reviewer's), or comes where that cut had none."""
+def _held_starts_node(monkeypatch):
+    """A stand-in planner node for its held starts: the real ``_on_status``, ``_start_ahead``,
+    ``_follow_cut`` and ``_note_estimate``; ``started`` lists each cut started (name, ahead, back)."""
+    import soil_planner.node as PN
+
+    n = SimpleNamespace(cut_first_ns=None, cut_end_ns=None, cut_newest_ns=None, timeline_newest_ns=None,
+                        starts_ahead=collections.deque(), started=[], _warn=None, follower=None,
+                        silence=SimpleNamespace(start=lambda name: None, end=lambda: None))
+
+    def start_cut(event, last, ahead, back=False):
+        n.started.append((event.name, ahead, back))
+        PlannerNode._follow_cut(n, event, last)
+
+    n._start_cut = start_cut
+    n._estimates_still_due = lambda first: PlannerNode._estimates_still_due(n, first)
+    n._start_ahead = lambda stamp_ns: PlannerNode._start_ahead(n, stamp_ns)
+    monkeypatch.setattr(PN, "followed_status_event", lambda event, *args: event)
+    n.status = lambda event: PlannerNode._on_status(n, SimpleNamespace(data=event))
+    n.estimate = lambda k: PlannerNode._note_estimate(n, stamp(k))
+    return n
+
+
+def _start(first_k, name, ticks=90):
     from soil_msgs_py import graph as G
     from soil_msgs_py.episode import EpisodeMeta
 
-    def start(first_k, name):
-        meta = EpisodeMeta("Clay", 40.0, "default", 0, 0.5, 0.1, 1.5, source="test")
-        return G.EpisodeEvent(G.EVENT_EPISODE_START, 0, name, meta, stamp(first_k), planned_ticks=90)
+    meta = EpisodeMeta("Clay", 40.0, "default", 0, 0.5, 0.1, 1.5, source="test")
+    return G.EpisodeEvent(G.EVENT_EPISODE_START, 0, name, meta, stamp(first_k), planned_ticks=ticks)
 
-    started = []
-    n = SimpleNamespace(cut_first_ns=stamp(0), cut_newest_ns=stamp(40), starts_ahead=collections.deque())
-    n._start_cut = lambda event, last, ahead, back=False: started.append((event.name, ahead, back))
-    n.starts_ahead.extend([[start(10**6, "stray"), None], [start(90, "B"), None], [start(180, "C"), None]])
-    PlannerNode._start_ahead(n, stamp(60))  # the cut under way's own late estimate
-    PlannerNode._start_ahead(n, stamp(10**7))  # a stray beyond every held episode
-    assert started == [] and len(n.starts_ahead) == 3
-    PlannerNode._start_ahead(n, stamp(180))  # C's first estimate (B's never came)
-    assert started == [("C", True, False)] and not n.starts_ahead
-    started.clear()
-    n.cut_first_ns, n.cut_newest_ns = stamp(180), stamp(200)
-    n.starts_ahead.append([start(0, "A again"), None])  # a replay started over
-    PlannerNode._start_ahead(n, stamp(210))  # C's estimates go on: not it yet
-    assert started == []
-    PlannerNode._start_ahead(n, stamp(0))  # an estimate back at its first tick
-    assert started == [("A again", False, True)]
-    for newest in (stamp(0), None):  # the cut under way had one estimate only, at its first tick, or none
-        started.clear()
-        n.cut_first_ns, n.cut_newest_ns = stamp(0), newest
-        n.starts_ahead.append([start(0, "A a third time"), None])
-        PlannerNode._start_ahead(n, stamp(0))  # the replay's estimate at that tick: the cut's own came already
-        assert started == [("A a third time", False, True)] and not n.starts_ahead
+
+def test_an_estimate_starts_only_the_held_episode_that_holds_it_and_drops_those_held_before(monkeypatch):
+    """Starts held while the cut under way still had estimates due: an estimate of a held episode
+    starts that one; those held before it (a stray start, or an episode none of whose estimates
+    came) are dropped, not started: started, a stray had cleared the next cut's commands and forces
+    (a reviewer's). An estimate beyond every held episode (a stray) starts none."""
+    n = _held_starts_node(monkeypatch)
+    n.status(_start(0, "A"))
+    for k in range(41):
+        n.estimate(k)
+    for held in (_start(10**6, "stray"), _start(90, "B"), _start(180, "C")):
+        n.status(held)
+    assert n.started == [("A", False, False)] and len(n.starts_ahead) == 3
+    n.estimate(60)  # the cut under way's own late estimate
+    n.estimate(10**7)  # a stray beyond every held episode
+    assert n.started == [("A", False, False)] and len(n.starts_ahead) == 3
+    n.estimate(180)  # C's first estimate (B's never came)
+    assert n.started[1:] == [("C", True, False)] and not n.starts_ahead
+
+
+def test_a_replay_started_over_starts_once_an_estimate_goes_back_to_it(monkeypatch):
+    """A start held at or before the cut under way (a replay started over, behind other held starts)
+    starts at an estimate at or before the newest so far: time went back. The late estimates of the
+    cut under way, in its range too, start nothing; nor do those owed a cut started early, with none
+    of its estimates yet, when more than ``MAX_STARTS_AHEAD`` starts were held (they had started the
+    replay's cut and dropped every held start, a reviewer's). A cut of one estimate, at its first
+    tick, lets the replay start at that tick's (it had never started). Once time went back, the
+    newest is the new pass's."""
+    from soil_planner.node import MAX_STARTS_AHEAD
+
+    n = _held_starts_node(monkeypatch)
+    n.status(_start(0, "A"))
+    for k in range(41):
+        n.estimate(k)
+    n.status(_start(90, "B"))
+    n.status(_start(0, "A again"))  # held behind B
+    n.estimate(60)  # A's own late estimate, in the replay's range too
+    assert n.started == [("A", False, False)] and len(n.starts_ahead) == 2
+    n.estimate(30)  # back: the replay's
+    assert n.started[1:] == [("A again", False, True)] and not n.starts_ahead
+    for k in range(31, 39):  # the replay's newest (38) is time's newest now, not the first pass's (40)
+        n.estimate(k)
+    n.status(_start(90, "B again"))
+    n.status(_start(0, "A a third time"))
+    n.estimate(39)  # the second pass's own late estimate
+    assert n.started[2:] == [] and len(n.starts_ahead) == 2
+
+    n = _held_starts_node(monkeypatch)  # one estimate only, at the cut's first tick
+    n.status(_start(0, "A"))
+    n.estimate(0)
+    n.status(_start(90, "B"))
+    n.status(_start(0, "A again"))
+    n.estimate(0)
+    assert n.started[1:] == [("A again", False, True)] and not n.starts_ahead
+
+    n = _held_starts_node(monkeypatch)  # the estimator more than MAX_STARTS_AHEAD episodes behind
+    ticks = 30
+    n.status(_start(0, "E0", ticks))
+    for k in range(5):
+        n.estimate(k)
+    for e in range(1, MAX_STARTS_AHEAD + 1):
+        n.status(_start(e * ticks, f"E{e}", ticks))
+    n.status(_start(0, "E0 again", ticks))  # one too many held: E1 starts early
+    assert n.started == [("E0", False, False), ("E1", True, False)]
+    for k in range(5, 4 * ticks):  # E0's late estimates (none of a replay), then E1's to E3's
+        n.estimate(k)
+    assert n.started[2:] == [("E2", True, False), ("E3", True, False)]
+    assert len(n.starts_ahead) == MAX_STARTS_AHEAD - 2 and n.starts_ahead[-1][0].name == "E0 again"
+    n.estimate(0)  # the replay's first estimate: the held episodes before it never came, dropped
+    assert n.started[4:] == [("E0 again", False, True)] and not n.starts_ahead

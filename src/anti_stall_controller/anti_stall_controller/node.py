@@ -427,8 +427,9 @@ class ControllerNode(Node):
         if not self.plan_wait.note_target(stamp, depth):
             self._warn("planner:stale", f"{T.TARGET_DEPTH.name}: stamp {stamp} ns is before this episode's first "
                                         f"tick {self.plan_wait.first_stamp_ns} ns: a late target of an earlier "
-                                        "episode, whose ticks are answered already (a planner behind at an "
-                                        "episode's boundary is harmless); ignored")
+                                        "episode, whose ticks are answered already, harmless at an episode's "
+                                        "boundary (a planner behind); if it goes on, the planner's stamps are "
+                                        "not this episode's; ignored")
             return
         self._answer_released(*self.plan_wait.release(time.monotonic()))
 

@@ -254,6 +254,9 @@ class PlannerNode(Node):
         # episode_end's last stamp once heard: the cut starts when its first estimate does (``_on_estimate``)
         self.starts_ahead: collections.deque[list] = collections.deque()
         self.cut_newest_ns: int | None = None  # the newest estimate's stamp of the cut under way
+        # the newest estimate's stamp of any cut since time last went back: a held start at or before the
+        # cut under way (a replay started over) starts once an estimate comes at or before it (``_start_ahead``)
+        self.timeline_newest_ns: int | None = None
         self.previous_cut_ticks = 0  # ticks of an episode before it, come after it began: not planned
         self.last_log_ns: int | None = None
         self.published = 0
@@ -422,13 +425,16 @@ class PlannerNode(Node):
         """Start the held cut whose episode the estimate at ``stamp`` is of, and those held before it.
         An estimate beyond every held episode is a stray's (one an hour ahead had started them all, and
         the late estimates of the cut under way were dropped again, a reviewer's); one held at or
-        before the cut under way (a replay started over) starts once an estimate goes back to it or
-        comes again at the cut's newest stamp (whose estimate came already: a cut of one estimate, at
-        its first tick, had never let it start), or comes where that cut had none."""
+        before the cut under way (a replay started over) starts once an estimate comes at or before the
+        newest of the cuts so far (``timeline_newest_ns``): time went back. (Before the cut under way's
+        newest: a cut of one estimate, at its first tick, never let it start; and a cut started early
+        with none yet, at ``MAX_STARTS_AHEAD``, is still owed the previous cut's late estimates, which
+        are no replay's, a reviewer's.)"""
         for i, (event, last) in enumerate(self.starts_ahead):
             first, end = event.first_stamp_ns, episode_end_ns(event, last)
             back = self.cut_first_ns is not None and first <= self.cut_first_ns
-            if first <= stamp <= end and (not back or self.cut_newest_ns is None or stamp <= self.cut_newest_ns):
+            if first <= stamp <= end and (not back or (self.timeline_newest_ns is not None
+                                                       and stamp <= self.timeline_newest_ns)):
                 for _ in range(i):  # (held before it: episodes none of whose estimates came, or strays: dropped,
                     self.starts_ahead.popleft()  # started they had cleared this one's commands and forces)
                 self.starts_ahead.popleft()
@@ -454,9 +460,15 @@ class PlannerNode(Node):
             self._new_cut(event.first_stamp_ns)
         else:
             self._new_cut(keep_from_ns=event.first_stamp_ns if ahead else None)
-        self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
-        self.cut_end_ns = episode_end_ns(event, last_stamp_ns)
+        self._follow_cut(event, last_stamp_ns)
         self.joiner.start_at(event.first_stamp_ns)
+
+    def _follow_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None) -> None:
+        """The episode whose estimates the cut under way plans: its range, none of its estimates yet."""
+        self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
+        if self.timeline_newest_ns is not None and event.first_stamp_ns <= self.timeline_newest_ns:
+            self.timeline_newest_ns = None  # (time went back: the newest is the new timeline's)
+        self.cut_end_ns = episode_end_ns(event, last_stamp_ns)
 
     def _new_cut(self, at_stamp_ns: int | None = None, keep_from_ns: int | None = None) -> None:
         """A new cut: the schedule back to its start depth, no plan carried over. ``at_stamp_ns``:
@@ -527,15 +539,20 @@ class PlannerNode(Node):
         except ValueError as err:
             self._warn("estimate:layout", f"{err}; ignored")
             return
-        self._start_ahead(stamp)
-        if self.cut_first_ns is not None and self.cut_first_ns <= stamp <= (self.cut_end_ns or stamp):
-            self.cut_newest_ns = max(stamp, self.cut_newest_ns or stamp)  # (a stray beyond the cut is not of it)
+        self._note_estimate(stamp)
         est = fields(values, T.ESTIMATE_FIELDS)
         fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
             self._answer(self.command_wait.offer(stamp, (est, None), time.monotonic()))
             return
         self._join(T.ESTIMATE.name, stamp, est)
+
+    def _note_estimate(self, stamp: int) -> None:
+        """An estimate at ``stamp`` came: it may start a held cut, and counts as its cut's newest."""
+        self._start_ahead(stamp)
+        if self.cut_first_ns is not None and self.cut_first_ns <= stamp <= (self.cut_end_ns or stamp):
+            self.cut_newest_ns = max(stamp, self.cut_newest_ns or stamp)  # (a stray beyond the cut is not of it)
+            self.timeline_newest_ns = max(stamp, self.timeline_newest_ns or stamp)
 
     def _join(self, topic: str, stamp: int, payload: dict[str, float]) -> None:
         newest = self.joiner.last_ns
@@ -566,7 +583,7 @@ class PlannerNode(Node):
         """The stream left the episode followed without a /sim/status (a replay of bags started over,
         ``--topics`` without it): its first tick no longer marks earlier ticks as the previous cut's
         (they had all been dropped from then on, an outside reviewer's)."""
-        self.cut_first_ns = self.cut_end_ns = self.cut_newest_ns = None
+        self.cut_first_ns = self.cut_end_ns = self.cut_newest_ns = self.timeline_newest_ns = None
         self.starts_ahead.clear()  # (episodes of the timeline left)
 
     def _previous_cut(self, stamp: int) -> None:
