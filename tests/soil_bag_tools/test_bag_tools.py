@@ -165,7 +165,7 @@ def test_an_episode_recorded_but_not_written_is_counted_for_the_exit_code(tmp_pa
         rec.on_message(topic, raw, 0)
     shutil.rmtree(journal.partial_dir(tmp_path, SAMPLE.name))
     rec.on_status(end.to_json())
-    assert rec.finished == [] and rec.unwritten == [SAMPLE.name]
+    assert not rec.finished and rec.unwritten == [SAMPLE.name]
     assert any(lvl == "error" and f"{SAMPLE.name}: no bag written" in m for lvl, m in log.lines), log.lines
     rec.on_status(replace(start, episode=1).to_json())
     for _, topic, raw in msgs:

@@ -113,6 +113,30 @@ def test_the_claims_of_an_hour_long_episode_take_a_byte_per_tick_and_topic():
     assert claims.add(topics[0], 10**18, 10**13) == 1 and max(len(a) for a in claims.per_tick.values()) <= ticks + 1
 
 
+def test_a_recorder_keeps_the_newest_results_only_and_every_bag(tmp_path, monkeypatch):
+    """Three passes of a replay started over, a bag each: the recorder keeps the newest
+    ``FINISHED_KEPT`` results for its caller (it kept every one: a shift's worth grew without end,
+    an outside tester's long run), and every bag is on disk."""
+    monkeypatch.setattr(recorder, "FINISHED_KEPT", 2)
+    loaded, start_ev, end_ev = _events(SAMPLE)
+    n_ticks = 10
+    msgs = loaded.messages[: 10 * n_ticks]
+    end_ev = replace(end_ev, last_stamp_ns=msgs[-1][0], ticks=n_ticks)
+    rec = recorder.Recorder(tmp_path, loaded.topics, log=ListLog(), clock=lambda: 0.0)
+    feed = Feed(rec)
+    for _ in range(3):
+        rec.on_status(start_ev.to_json())
+        for _, topic, raw in msgs:
+            feed.send("sim", topic, raw)
+        rec.on_status(end_ev.to_json())
+    bags = sorted(p for p in tmp_path.iterdir() if p.is_dir())
+    names = [start_ev.name, f"{start_ev.name}_2", f"{start_ev.name}_3"]
+    assert [b.name for b in bags] == names
+    assert [r.path.name for r in rec.finished] == names[1:]
+    for bag in bags:
+        assert len(bag_io.read_episode(bag).stamps_ns) == n_ticks
+
+
 def test_a_recorder_of_one_launch_records_no_episode_of_another_graph_on_its_topics(tmp_path):
     """Two launches in one namespace of one domain: the one refused had recorded the other's episode
     into its directory (an outside tester's, 2 of 2). Each launch gives its simulator and recorder an

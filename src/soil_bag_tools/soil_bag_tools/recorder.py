@@ -80,6 +80,10 @@ _SAY_MAKING_FROM = 200_000  # messages (~4 min of episode): a bag this big takes
 # episode waits this long: a complete one is finished once its ticks are in and its extra
 # topics were quiet for EXTRA_TOPIC_GRACE_S.
 END_GRACE_S = 4.0
+# The results of the bags finished that a recorder keeps for its caller (the newest): a recorder runs
+# for a shift, one bag per episode, and each result holds its topics' counts (an outside tester's
+# long run: ~2.5 kB a bag, never read back by the node).
+FINISHED_KEPT = 64
 ONLINE_HORIZON_TICKS = 10 * SAMPLE_RATE_HZ  # 10 s: how far past a topic's newest stamp a message is judged on arrival
 
 
@@ -244,7 +248,7 @@ class Recorder:
         self.clock = clock
         self.sessions: list[Session] = []  # oldest first
         self.held: deque[tuple[float, str, int, bytes, int, int]] = deque()
-        self.finished: list[BagResult] = []
+        self.finished: deque[BagResult] = deque(maxlen=FINISHED_KEPT)  # the newest bags finished, for a caller
         # episodes without a bag: its journal could not be made, or would not close or convert, or its bag
         # holds no message of the simulator's state at all (each said when it happened); the recorder's exit
         # code says so (record_node), so a launch does not end in 0
