@@ -254,3 +254,43 @@ def test_the_fused_forecasts_outside_the_calibrated_depths_and_speed_are_scored_
     assert "across speeds (steady speeds more than 0.1 m/s apart): 1 pair, 20.0 % off" in text
     inside = calibration_strata(pairs[:2], ["fused"], reach)  # every pair within it: nothing to say apart
     assert "the cuts the calibration scores" not in "\n".join(markdown({**report, "calibration_strata": inside}))
+
+
+def test_the_fused_forecasts_within_the_planners_margin_and_beyond_it_are_scored_apart_and_said():
+    """At the F_x limit the anti-stall controller lifts the blade, and the lift's push is in no soil
+    model's F_z: held out, the F_z intervals held 87 / 56 % of the pairs within the planner's margin
+    and 64 / 9 % beyond it, one figure of 83 / 49 % over both. A pair is judged by its forecast F_x
+    (the median), which a user has without the measured force."""
+    import numpy as np
+
+    from pinn_estimator.forecast import margin_strata, markdown
+    from soil_msgs_py.params import FORCE_LIMITS_N, PLANNER_FORCE_MARGIN
+    from soil_planner.planner import DEFAULT_MARGIN
+
+    assert DEFAULT_MARGIN == PLANNER_FORCE_MARGIN
+    limit = PLANNER_FORCE_MARGIN * FORCE_LIMITS_N[0]
+
+    def pair(fx, measured_fz, forecast_fz):  # F_x held; F_z's 90 % interval ± 1 kN, 50 % ± 300 N about its forecast
+        f = np.array([fx, forecast_fz])
+        return {"from_depth_m": 0.1, "to_depth_m": 0.2, "measured": np.array([fx * 1.01, measured_fz]),
+                "forecast": {"fused": f},
+                "intervals": {"fused": {(0.05, 0.95): (f - 1e3, f + 1e3), (0.25, 0.75): (f - 300.0, f + 300.0)}}}
+
+    pairs = [pair(8e3, -500.0, -400.0), pair(limit - 1.0, 200.0, 0.0), pair(12e3, -900.0, -200.0),  # within: z held 3 / 2
+             pair(limit, -6e3, 0.0), pair(19e3, -300.0, -200.0),  # beyond: z held 1 / 1 (the push is missed)
+             {**pair(5e3, 0.0, 0.0), "forecast": {"fused": np.array([np.nan, np.nan])}}]  # no forecast: in neither
+    strata = margin_strata(pairs, ["fused"])
+    cells = strata["posteriors"]["fused"]
+    assert strata["limit_n"] == limit and [cells[g]["x"]["pairs"] for g in ("within", "beyond")] == [3, 2]
+    assert (cells["within"]["z"]["coverage_90"], cells["within"]["z"]["coverage_50"]) == (1.0, 2 / 3)
+    assert (cells["beyond"]["z"]["coverage_90"], cells["beyond"]["z"]["coverage_50"]) == (0.5, 0.5)
+    row = {"pairs": 5, "mean_abs_pct": 1.0, "bias_pct": 0.0}
+    report = {"data": "bags/x", "pairs": 5, "episodes": 5, "worlds": ["default"], "unlabelled": 0,
+              "forecast": {"fused": {a: {"all": row, "deeper": row, "shallower": row} for a in ("x", "z")}},
+              "margin_strata": strata}
+    text = "\n".join(markdown(report))
+    assert (f"within the planner's margin ({PLANNER_FORCE_MARGIN:g} of the limit, below {limit / 1e3:g} kN: the cuts a "
+            "planner plans): 3 pairs, F_x held in 100% / 100%, F_z in 100% / 67%; beyond it: 2 pairs, F_x held in "
+            "100% / 100%, F_z in 50% / 50%") in text
+    within_only = margin_strata(pairs[:3], ["fused"])  # none beyond: nothing to say apart
+    assert "the planner's margin" not in "\n".join(markdown({**report, "margin_strata": within_only}))

@@ -186,6 +186,12 @@ FORCE_LIMITS_N: tuple[float, float] = (MACHINE.horizontal_force_limit_n, MACHINE
 # The largest force any soil puts on the blade [N]: 300 times the larger limit. Beyond it no soil
 # acts on a 5.4 t machine; it is a bug (units, a sign of an exponent) or a coefficient far too large.
 MAX_PLAUSIBLE_FORCE_N = 300.0 * max(FORCE_LIMITS_N)
+# Share of the force limits a planned cut may use by default (``soil_planner``'s margin). Of 0.8 / 0.85 /
+# 0.9 (force quantile 0.95) the one that stalled least over the five default-world paths with three
+# seeds each, with 5 % more volume per metre than 0.8 (benchmarks/bench_planner_margin.py --seeds 3;
+# docs/planner_in_the_loop.md). A forecast beyond it is of a cut the planner does not plan: the
+# forecast report scores those apart (``pinn_estimator.forecast.margin_strata``).
+PLANNER_FORCE_MARGIN = 0.85
 # A steady cut: the edge moves vertically slower than this [m/s] (a 1:25 slope at 0.5 m/s). Faster,
 # the force carries transients a quasi-static model lacks (sinking: the penetration reaction).
 STEADY_CUT_MAX_ABS_V_Z_M_S = 0.02

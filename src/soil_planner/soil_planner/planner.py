@@ -97,7 +97,8 @@ import numpy as np
 
 from soil_physics import fee, force_terms
 from soil_physics.augmented_fee import AugmentedFEE
-from soil_msgs_py.params import DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M, TABLE1
+from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, KNOWN_PARAMS, LIFT_REACH_M,
+                                 PLANNER_FORCE_MARGIN, TABLE1)
 from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_msgs_py.values import short_repr
@@ -113,10 +114,7 @@ D_MAX_LIMIT_M = D_PRIME_LIMITS_M[1]
 # Blade speed of the planned steady cut: the anti-stall controller's default target speed.
 DEFAULT_CUT_SPEED_M_S = DEFAULT_TARGET_SPEED_M_S
 CUT_SPEED_LIMIT_M_S = TABLE1["v_x"].limits[1]
-# Share of the force limits a planned cut may use. Of 0.8 / 0.85 / 0.9 (force quantile 0.95) the one
-# that stalled least over the five default-world paths with three seeds each, with 5 % more volume
-# per metre than 0.8 (benchmarks/bench_planner_margin.py --seeds 3; docs/planner_in_the_loop.md).
-DEFAULT_MARGIN = 0.85
+DEFAULT_MARGIN = PLANNER_FORCE_MARGIN  # share of the force limits a planned cut may use (params: why 0.85)
 GRID_POINTS = 257
 TOLERANCE_M = 1e-5
 SEARCH_PROBES = 8  # depths per step of the search between the last admissible and first inadmissible grid depth
