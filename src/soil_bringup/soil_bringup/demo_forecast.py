@@ -118,7 +118,9 @@ def forecast_from_live(scores, world: str | None = None, depths_m=OTHER_DEPTHS_M
                        "forecast": fc.summarise(pairs, ESTIMATORS),
                        # where the posterior's forecast law was calibrated and not (the live cut's speed and
                        # the other depths may lie outside it), as pinn_eval's report says it
-                       "calibration_strata": fc.calibration_strata(pairs, ["fused"])})
+                       "calibration_strata": fc.calibration_strata(pairs, ["fused"]),
+                       # within the planner's margin and beyond it, where the controller's lift at the limit sets F_z
+                       "margin_strata": fc.margin_strata(pairs, ["fused"])})
 
 
 def json_ready(value):
