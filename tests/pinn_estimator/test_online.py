@@ -898,12 +898,18 @@ def test_a_repeated_episode_end_after_the_next_episode_began_changes_nothing(epi
         np.testing.assert_array_equal(got[s], clean[s])
 
 
-def test_a_replay_started_over_whose_first_end_overtakes_its_ticks_is_estimated_as_by_a_fresh_node(episode, model):
+@pytest.mark.parametrize("b_start_overtakes", [False, True])
+def test_a_replay_started_over_whose_first_end_overtakes_its_ticks_is_estimated_as_by_a_fresh_node(
+        episode, model, b_start_overtakes):
     """A replay started over while the node is midway through its second episode, the first
-    episode's start and end both overtaking that episode's ticks: the end is of the new stream,
-    not a copy of the old one's, and the node estimates the replay as a fresh node does (its end
-    taken as a copy had kept ticks of the new stream from restarting it: 100 of 200 estimates
-    differed, a reviewer's)."""
+    episode's start and end (and the second's start) overtaking that episode's ticks: the node
+    estimates the replay as a fresh node does. The end is of the new stream, not a copy of the
+    old one's (taken as a copy it had kept ticks of the new stream from restarting it: 100 of 200
+    estimates differed, a reviewer's); the second start, which the old stream is past as well,
+    leaves the restart at the first in question, and the events after it are taken again once
+    the new stream's first tick restarts it (it had put the question at the second start, and
+    the new stream was taken only after its ticks had been refused as far back: 196 of 200
+    estimates, all of them different)."""
     n, period = 100, int(episode.stamps_ns[1])
     a = [int(episode.stamps_ns[0]) + i * period for i in range(n)]
     b = [a[-1] + (i + 1) * period for i in range(n)]
@@ -916,8 +922,11 @@ def test_a_replay_started_over_whose_first_end_overtakes_its_ticks_is_estimated_
     def replay(est):
         est.start_episode(a[0])
         est.end_episode(a[-1])
+        if b_start_overtakes:
+            est.start_episode(b[0])
         feed(est, a)
-        est.start_episode(b[0])
+        if not b_start_overtakes:
+            est.start_episode(b[0])
         feed(est, b)
         est.end_episode(b[-1])
 
@@ -934,6 +943,31 @@ def test_a_replay_started_over_whose_first_end_overtakes_its_ticks_is_estimated_
     replay(est)
     assert [e.stamp_ns for e in out] == [e.stamp_ns for e in fresh_out] == a + b
     np.testing.assert_array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in fresh_out]))
+
+
+def test_a_repeated_start_leaves_no_question_open_past_the_old_streams_queued_ticks(episode, model):
+    """A late copy of the episode under way's start puts a restart at its first stamp in question.
+    Events taken within the old stream's next ``MAX_PENDING_TICKS`` leave it open (they may be a
+    replay's, started over, whose events overtook its ticks); one taken later decides as before:
+    the episode's end, 200 ticks on, closes the question, and a copy of the episode's first tick
+    after it (a stray's) restarts nothing."""
+    from pinn_estimator.online import MAX_PENDING_TICKS
+
+    first = int(episode.stamps_ns[0])
+    est = OnlineEstimator(model, lambda e: None)
+    est.start_episode(first)
+    for t, m in in_order(episode, range(100)):
+        est.add(t, m)
+    est.start_episode(first)  # a late copy
+    assert est.assembler.expected_restart_ns == first
+    for t, m in in_order(episode, range(100, 100 + MAX_PENDING_TICKS + 80)):
+        est.add(t, m)
+    est.end_episode(int(episode.stamps_ns[100 + MAX_PENDING_TICKS + 79]))
+    assert est.assembler.expected_restart_ns is None and not est._in_question
+    stretches = est.posterior.updates
+    for t, m in tick_messages(episode, 0):
+        est.add(t, m)
+    assert est.counters.restarts == 0 and est.posterior.updates == stretches and stretches > 0
 
 
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
