@@ -429,7 +429,8 @@ class PlannerNode(Node):
         newest of the cuts so far (``timeline_newest_ns``): time went back. (Before the cut under way's
         newest: a cut of one estimate, at its first tick, never let it start; and a cut started early
         with none yet, at ``MAX_STARTS_AHEAD``, is still owed the previous cut's late estimates, which
-        are no replay's, a reviewer's.)"""
+        are no replay's, a reviewer's. A replay the estimator skipped into then, its stamps those of
+        cuts still owed theirs, is planned in the cuts of those stamps: nothing tells them apart.)"""
         for i, (event, last) in enumerate(self.starts_ahead):
             first, end = event.first_stamp_ns, episode_end_ns(event, last)
             back = self.cut_first_ns is not None and first <= self.cut_first_ns
