@@ -970,6 +970,81 @@ def test_a_repeated_start_leaves_no_question_open_past_the_old_streams_queued_ti
     assert est.counters.restarts == 0 and est.posterior.updates == stretches and stretches > 0
 
 
+@pytest.mark.parametrize("stray", ["message", "tick"])
+def test_a_question_left_open_by_a_repeated_start_closes_with_the_old_streams_queued_ticks(episode, model, stray):
+    """A late copy of the episode's start, then its end and the next start within the old stream's
+    queued ticks: the restart stays in question only until the stream has gone on for them. A stray
+    copy of the first tick (one message, or a whole tick) in the next episode then restarts nothing
+    (it had replayed the end and start taken in question, resetting the next episode's window and
+    posterior midway, and with a whole tick a stamp was estimated twice: a reviewer's)."""
+    n, period = 200, int(episode.stamps_ns[1])
+    a = [int(episode.stamps_ns[0]) + i * period for i in range(n)]
+    b = [a[-1] + (i + 1) * period for i in range(n)]
+
+    def feed(est, stamps, rows):
+        for stamp, i in zip(stamps, rows):
+            for t, m in tick_messages(episode, i, stamp):
+                est.add(t, m)
+
+    def run(perturbed):
+        out = []
+        est = OnlineEstimator(model, out.append)
+        est.start_episode(a[0])
+        feed(est, a[:150], range(150))
+        if perturbed:
+            est.start_episode(a[0])
+        feed(est, a[150:], range(150, n))
+        est.end_episode(a[-1])
+        est.start_episode(b[0])
+        feed(est, b[:100], range(100))
+        if perturbed:
+            for t, m in tick_messages(episode, 0, a[0])[: 1 if stray == "message" else None]:
+                est.add(t, m)
+        feed(est, b[100:], range(100, n))
+        return est, out
+
+    (_, clean), (est, got) = run(False), run(True)
+    assert est.counters.restarts == 0 and est.assembler.expected_restart_ns is None
+    assert [e.stamp_ns for e in got] == [e.stamp_ns for e in clean]
+    np.testing.assert_array_equal(np.stack([e.values for e in got]), np.stack([e.values for e in clean]))
+
+
+def test_a_source_started_over_after_events_taken_in_question_takes_none_of_them(episode, model):
+    """A late copy of the episode's start, its end and the next start taken in question, then the
+    source starts over at the first stamp with a longer episode: the events taken in question came
+    before that start and are not the new stream's (replayed, the old end had reset the new
+    episode's window and posterior midway: 100 estimates different from a fresh node's, a
+    reviewer's)."""
+    n, period = 200, int(episode.stamps_ns[1])
+    a = [int(episode.stamps_ns[0]) + i * period for i in range(n)]
+    b = [a[-1] + (i + 1) * period for i in range(n)]
+    c = [a[0] + i * period for i in range(300)]
+
+    def feed(est, stamps, first_row=0):
+        for i, stamp in enumerate(stamps, first_row):
+            for t, m in tick_messages(episode, i, stamp):
+                est.add(t, m)
+
+    fresh_out = []
+    fresh = OnlineEstimator(model, fresh_out.append)
+    fresh.start_episode(c[0])
+    feed(fresh, c)
+    out = []
+    est = OnlineEstimator(model, out.append)
+    est.start_episode(a[0])
+    feed(est, a[:150])
+    est.start_episode(a[0])
+    feed(est, a[150:], 150)
+    est.end_episode(a[-1])
+    est.start_episode(b[0])
+    feed(est, b[:50])
+    del out[:]
+    est.start_episode(c[0])
+    feed(est, c)
+    assert [e.stamp_ns for e in out] == [e.stamp_ns for e in fresh_out]
+    np.testing.assert_array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in fresh_out]))
+
+
 def test_a_new_episode_restarts_the_soil_posterior(episode, model):
     est, out = run(model, in_order(episode, range(120)))
     assert est.posterior.updates == 4

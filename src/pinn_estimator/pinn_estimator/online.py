@@ -472,6 +472,7 @@ class OnlineEstimator:
         # that question was opened: if the restart comes, they were of the new stream (``_take_event``)
         self._in_question: list[tuple[bool, int]] = []
         self._question_opened_ns = -1
+        self._question_after: tuple[int | None, int | None] = (None, None)  # what the last of them left in question
         self._tick = 0  # released ticks since the last reset (stride phase)
         self._last_tick_ns = -1  # the newest tick through the stride phase, estimated or dropped (-1: none this stream)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
@@ -570,17 +571,24 @@ class OnlineEstimator:
         events overtook its ticks, the next start had put the question at its own stamp, and the
         new stream was taken only once its ticks had been refused as far back (a reviewer's). Open
         only while the stream has gone on less than ``MAX_PENDING_TICKS`` since (the old stream's
-        ticks still queued); after that an event decides as it did."""
+        ticks still queued; ``_on_sample`` closes it then, as the last event had left it); the start
+        in question come again drops the events taken since (they came before it: a source started
+        over once more, whose old stream's events had been taken again in its new one, a reviewer's)."""
         held = (self.assembler.expected_restart_ns, self.assembler.expected_before_ns)
         released = self.assembler.last_released
-        restarted = self.counters.restarts, self._event_restarts
+        restarted = self._event_restarts
         (self._take_start if start else self._take_end)(stamp)
-        if (self.counters.restarts, self._event_restarts) != restarted:  # (this event started the stream afresh)
+        if self._event_restarts != restarted:  # (this event started the stream afresh)
             self._in_question = []
+            return
+        if start and held[0] is not None and stamp == held[0] and self._in_question:
+            self._in_question = []
+            self._question_opened_ns = released
             return
         if (held[0] is not None and stamp > held[0]
                 and released - self._question_opened_ns <= MAX_PENDING_TICKS * PERIOD_NS):
             now = self.assembler.expected_restart_ns
+            self._question_after = (now, self.assembler.expected_before_ns)
             if now is None or now > held[0]:
                 self.assembler.expect_restart(*held)
             if len(self._in_question) < MAX_EVENTS_IN_QUESTION:
@@ -707,6 +715,9 @@ class OnlineEstimator:
         self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
+        if self._in_question and stamp - self._question_opened_ns > MAX_PENDING_TICKS * PERIOD_NS:
+            self._in_question = []  # (the old stream went on: no restart came; as the last event left it)
+            self.assembler.expect_restart(*self._question_after)
         if self._pending and stamp > self._pending[0]:
             # the first tick of a new episode (a sample, or one dropped): no window spans two,
             crossed = max(b for b in self._pending if b < stamp)
