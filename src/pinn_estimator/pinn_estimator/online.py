@@ -60,7 +60,6 @@ MAX_AHEAD_TICKS = 10 * SAMPLE_RATE_HZ  # a hole of up to 10 s is a gap in the st
 # having begun the stream with it (they overtook the event: a replay's first ticks); a stream that began
 # later than this after the event's first stamp joined the episode midway.
 MAX_OVERTAKING_TICKS = SAMPLE_RATE_HZ // 4
-MAX_EVENTS_IN_QUESTION = 16  # episode events kept while a restart is in question (``OnlineEstimator._take_event``)
 # Ticks arriving twice again and again (a second message of a tick, before or after the tick
 # was released) are most likely a second publisher of the topic on the domain (a node left
 # running from another launch): each copy spoils its tick or resets the window, none fills.
@@ -466,13 +465,7 @@ class OnlineEstimator:
         self.buffer = WindowBuffer(WINDOW_SAMPLES)
         self.assembler = SampleAssembler(self._on_sample, reorder_ticks=reorder_ticks, warn=warn, counters=self.counters,
                                          on_restart=self._on_restart)
-        self.assembler.on_expected_restart = self._on_expected_restart
-        self._event_restarts = 0  # restarts at an episode_start (``_restart_at``)
-        # Events taken while a restart at an earlier stamp was in question, and the newest tick released when
-        # that question was opened: if the restart comes, they were of the new stream (``_take_event``)
-        self._in_question: list[tuple[bool, int]] = []
-        self._question_opened_ns = -1
-        self._question_after: tuple[int | None, int | None] = (None, None)  # what the last of them left in question
+        self.assembler.on_expected_restart = self._restart_at
         self._tick = 0  # released ticks since the last reset (stride phase)
         self._last_tick_ns = -1  # the newest tick through the stride phase, estimated or dropped (-1: none this stream)
         self.window_first_stamp = -1  # stamp of the oldest sample since the window was last emptied
@@ -542,7 +535,6 @@ class OnlineEstimator:
         self._last_tick_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._boundary = None
         self._pending = []
-        self._in_question = []
         self._stream_first_ns = None
         self._open_first = None
         self._ended_at = None
@@ -556,57 +548,7 @@ class OnlineEstimator:
         self._path_known = known
         self._cutting = [0, 0]  # (forward-cutting ticks, those with f_x < 0)
 
-    def start_episode(self, first_stamp_ns: int) -> None:
-        """``episode_start`` (``_take_start``)."""
-        self._take_event(True, int(first_stamp_ns))
-
     def end_episode(self, last_stamp_ns: int) -> None:
-        """``episode_end`` (``_take_end``)."""
-        self._take_event(False, int(last_stamp_ns))
-
-    def _take_event(self, start: bool, stamp: int) -> None:
-        """Take an episode event. While a start the stream is past is in question (a repeat, or its
-        source starting over: ``_take_start``), a later event (its end, the next start) leaves that
-        question open, and is taken again if the restart comes: in a replay started over whose
-        events overtook its ticks, the next start had put the question at its own stamp, and the
-        new stream was taken only once its ticks had been refused as far back (a reviewer's). Open
-        only while the stream has gone on less than ``MAX_PENDING_TICKS`` since (the old stream's
-        ticks still queued; ``_on_sample`` closes it then, as the last event had left it); the start
-        in question come again drops the events taken since (they came before it: a source started
-        over once more, whose old stream's events had been taken again in its new one, a reviewer's)."""
-        held = (self.assembler.expected_restart_ns, self.assembler.expected_before_ns)
-        released = self.assembler.last_released
-        restarted = self._event_restarts
-        (self._take_start if start else self._take_end)(stamp)
-        if self._event_restarts != restarted:  # (this event started the stream afresh)
-            self._in_question = []
-            return
-        if start and held[0] is not None and stamp == held[0] and self._in_question:
-            self._in_question = []
-            self._question_opened_ns = released
-            return
-        if (held[0] is not None and stamp > held[0]
-                and released - self._question_opened_ns <= MAX_PENDING_TICKS * PERIOD_NS):
-            now = self.assembler.expected_restart_ns
-            self._question_after = (now, self.assembler.expected_before_ns)
-            if now is None or now > held[0]:
-                self.assembler.expect_restart(*held)
-            if len(self._in_question) < MAX_EVENTS_IN_QUESTION:
-                self._in_question.append((start, stamp))
-            return
-        if self.assembler.expected_restart_ns != held[0]:  # a new question, or none: the old one's events go
-            self._in_question = []
-            self._question_opened_ns = released
-
-    def _on_expected_restart(self, first: int) -> None:
-        """The source started over at ``first`` (``SampleAssembler.add_values``): everything restarts
-        there, and the events taken since the question was opened are the new stream's."""
-        events, self._in_question = self._in_question, []
-        self._restart_at(first)
-        for start, stamp in events:
-            (self._take_start if start else self._take_end)(stamp)
-
-    def _take_end(self, last_stamp_ns: int) -> None:
         """``episode_end``: samples after ``last_stamp_ns`` start a fresh window. Ticks up to it
         that are still queued complete this episode's windows normally (the executor serves
         /sim/status first, so the event can overtake the episode's last ticks).
@@ -637,7 +579,7 @@ class OnlineEstimator:
         """The last stamp of the episode whose end was the last event taken (None: none, or a new one began)."""
         return self._ended_at
 
-    def _take_start(self, first_stamp_ns: int) -> None:
+    def start_episode(self, first_stamp_ns: int) -> None:
         """``episode_start``: the window holds only samples from ``first_stamp_ns`` on.
 
         Ticks of this episode that overtook the event (status and data are separate topics)
@@ -684,7 +626,6 @@ class OnlineEstimator:
 
     def _restart_at(self, first: int) -> None:
         """Everything restarts with the episode that begins at ``first`` (its episode_start taken)."""
-        self._event_restarts += 1
         self.reset(first)
         self._set_boundary(first - 1)
         self._path_known = True
@@ -704,7 +645,6 @@ class OnlineEstimator:
     def _on_restart(self) -> None:
         self._boundary = None
         self._pending = []
-        self._in_question = []
         self._open_first = None
         self._ended_at = None  # (a stream started over: the ended episode's ticks are not coming)
         self.assembler.expect_restart(None)  # (an episode_start before this stream's is no longer in question)
@@ -715,9 +655,6 @@ class OnlineEstimator:
         self._reset_fusion()
 
     def _on_sample(self, stamp: int, sample: Sample | None) -> None:
-        if self._in_question and stamp - self._question_opened_ns > MAX_PENDING_TICKS * PERIOD_NS:
-            self._in_question = []  # (the old stream went on: no restart came; as the last event left it)
-            self.assembler.expect_restart(*self._question_after)
         if self._pending and stamp > self._pending[0]:
             # the first tick of a new episode (a sample, or one dropped): no window spans two,
             crossed = max(b for b in self._pending if b < stamp)
