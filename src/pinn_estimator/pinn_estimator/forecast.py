@@ -302,11 +302,11 @@ def calibration_strata(pairs: list[dict], names, reach=None) -> dict:
 def margin_strata(pairs: list[dict], names, margin: float = PLANNER_FORCE_MARGIN) -> dict:
     """Per posterior in ``names``, F_x and F_z (``_errors``) over the pairs whose forecast F_x (its
     median) is within ``margin`` of the F_x limit, about the cuts a planner plans (it keeps the 95 %
-    bound of both axes within it, so a few fewer), and over the rest. Why:
-    at the limit the anti-stall controller lifts the blade, and in the default world F_z is then the
-    lift's push on the floor, which no soil model forecasts; one figure over every pair hid where the
-    F_z intervals hold (held out, 2026-12-07: 87 / 56 % of the 61 pairs within the planner's margin,
-    64 / 9 % of the 11 beyond it)."""
+    bound of both axes within it, so a few fewer), and over the rest. Why: at the limit the anti-stall
+    controller lifts the blade, and in the default world F_z is then the lift's push on the floor,
+    which no soil model forecasts; one figure over every pair hid where the F_z intervals hold (held
+    out, 2026-12-07: 87 / 56 % of the 61 pairs within the planner's margin, 64 / 9 % of the 11
+    beyond it)."""
     limit = margin * FORCE_LIMITS_N[0]
     out = {}
     for name in names:

@@ -189,8 +189,8 @@ MAX_PLAUSIBLE_FORCE_N = 300.0 * max(FORCE_LIMITS_N)
 # Share of the force limits a planned cut may use by default (``soil_planner``'s margin). Of 0.8 / 0.85 /
 # 0.9 (force quantile 0.95) the one that stalled least over the five default-world paths with three
 # seeds each, with 5 % more volume per metre than 0.8 (benchmarks/bench_planner_margin.py --seeds 3;
-# docs/planner_in_the_loop.md). A forecast beyond it is of a cut the planner does not plan: the
-# forecast report scores those apart (``pinn_estimator.forecast.margin_strata``).
+# docs/planner_in_the_loop.md). A cut whose forecast force lies beyond it the planner does not plan:
+# the forecast report scores those apart (``pinn_estimator.forecast.margin_strata``).
 PLANNER_FORCE_MARGIN = 0.85
 # A steady cut: the edge moves vertically slower than this [m/s] (a 1:25 slope at 0.5 m/s). Faster,
 # the force carries transients a quasi-static model lacks (sinking: the penetration reaction).
