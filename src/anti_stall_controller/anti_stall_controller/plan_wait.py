@@ -58,8 +58,7 @@ class PlanWait:
         """A new episode: the targets of earlier ones forgotten (those of this one, come before its
         start, kept where time goes forward), and the held ticks of the last one returned (the node
         drops them: its reset core must not step on the old episode's state)."""
-        left = [item for _, _, item in self.pending]
-        self.pending.clear()
+        left = self.drain()
         first = int(first_stamp_ns)
         ahead = [(s, d) for s, d in self.targets.items() if s >= first] if first > self.first_stamp_ns else []
         self.targets = collections.OrderedDict(ahead)
@@ -72,8 +71,7 @@ class PlanWait:
         """The episode is over: nothing waits any more (the held ticks returned, to answer now); its
         targets are kept for its last ticks still to come (cleared, those had been cut to the
         fallback depth, a reviewer's)."""
-        left = [item for _, _, item in self.pending]
-        self.pending.clear()
+        left = self.drain()
         self.active = self.silent = False
         return left
 
