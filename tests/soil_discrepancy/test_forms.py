@@ -614,6 +614,25 @@ def test_the_closest_catalogue_term_is_one_the_form_runs_with_before_one_it_runs
     assert closest_index([0.2, -0.5, 0.3]) == 1
 
 
+def test_a_catalogue_naming_two_terms_alike_or_with_a_misspelt_key_is_refused_naming_it(tmp_path):
+    """Two entries of one name were taken, and the report said "'a' (…): not named; 'a' (…): not
+    named"; a number as a name was taken; a misspelt 'terms' was refused without naming the key
+    (an outside tester's)."""
+    cases = (("terms:\n- {term: soil_inertia, name: a}\n- {term: rate_strength, name: a}\n",
+              r"terms\[0\] and terms\[1\] are both named 'a'"),
+             ("terms:\n- {term: soil_inertia, name: 123}\n", r"terms\[0\]\.name=123 must be a non-empty text"),
+             ("trems:\n- {term: soil_inertia}\n", r"non-empty list 'terms' \(it has \['trems'\]: a misspelt key\?\)"),
+             ("terms:\n- {term: soil_inertia}\nnotes: x\n", r"unknown top-level key\(s\) \['notes'\]"))
+    for i, (text, said) in enumerate(cases):
+        path = tmp_path / f"c{i}.yaml"
+        path.write_text(text)
+        with pytest.raises(ValueError, match=said):
+            load_catalogue(path)
+    path = tmp_path / "fine.yaml"  # a name of one term and a term named by itself stay apart
+    path.write_text("terms:\n- {term: soil_inertia, name: soil_inertia}\n- {term: rate_strength}\n")
+    assert [r["name"] for r in load_catalogue(path)] == ["soil_inertia", "rate_strength"]
+
+
 def test_a_catalogue_with_a_huge_k_or_binary_content_is_refused_naming_it(tmp_path, capsys):
     """YAML has no bound on integers: a 400-digit k overflowed math.isfinite (a traceback); a binary
     file gave the codec's words without the file. Both are exit 2 naming the entry or the file."""

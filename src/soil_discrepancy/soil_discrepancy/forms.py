@@ -583,8 +583,12 @@ def load_catalogue(path) -> list[dict]:
     data = read_yaml(p, "catalogue")
     rows = (data or {}).get("terms") if isinstance(data, dict) else None
     if not isinstance(rows, list) or not rows:
-        raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'")
-    out, seen = [], {}
+        others = sorted(map(str, set(data) - {"terms"})) if isinstance(data, dict) else []
+        raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'"
+                         + (f" (it has {others}: a misspelt key?)" if others else ""))
+    if isinstance(data, dict) and (unknown := sorted(map(str, set(data) - {"terms"}))):
+        raise ValueError(f"catalogue {p}: unknown top-level key(s) {unknown}; a catalogue holds 'terms' only")
+    out, seen, names = [], {}, {}
     for i, row in enumerate(rows):
         term = row.get("term") if isinstance(row, dict) else None
         if not isinstance(term, str):
@@ -602,5 +606,12 @@ def load_catalogue(path) -> list[dict]:
         k = yaml_exponent(row.get("k"))  # (PyYAML reads 1e0 as a string)
         if k is not None and not finite_number(k):  # a 400-digit integer too: no OverflowError
             raise ValueError(f"catalogue {p}: terms[{i}].k={short_repr(k)} is not a finite number")
-        out.append({"term": term, "name": str(row.get("name") or term), "k": None if k is None else float(k)})
+        name = row.get("name")
+        if name is not None and (not isinstance(name, str) or not name.strip()):
+            raise ValueError(f"catalogue {p}: terms[{i}].name={short_repr(name)} must be a non-empty text (quote it)")
+        name = name or term
+        if name in names:  # one name for two terms: the report could not say which it found
+            raise ValueError(f"catalogue {p}: terms[{names[name]}] and terms[{i}] are both named {name!r}; name each once")
+        names[name] = i
+        out.append({"term": term, "name": name, "k": None if k is None else float(k)})
     return out
