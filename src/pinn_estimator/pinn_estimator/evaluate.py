@@ -147,13 +147,15 @@ def _trends(rows, estimator="pinn") -> dict:
 
 def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, densities_pct=fc.FORECAST_DENSITIES_PCT,
                      depths_m=fc.FORECAST_DEPTHS_M, force_noise: bool = False, soils=None,
-                     custom_soils: dict | None = None) -> Dataset:
+                     custom_soils: dict | None = None, plugins=()) -> Dataset:
     """Held-out episodes for the forecast: every soil (``soils``: names, default the catalogue's; a
     soil of ``custom_soils`` too, a soils YAML's) at ``densities_pct`` x ``depths_m`` at
     ``fc.FORECAST_SPEED_M_S`` (by default all off the training grid), simulated here.
     ``force_noise``: the world's effects with the measured force's noise on (the default world's
     sensor noise in the fee world, where the FEE is exact and the truth known: calibration against
-    truth with a noisy sensor, as a machine's is)."""
+    truth with a noisy sensor, as a machine's is). ``plugins``: force plugins switched on in the
+    simulator (``soil_sim_batch --plugin``'s specs): an effect the world lacks, e.g. one found in a
+    machine's bags, for calibrating a posterior whose physics has its term."""
     import itertools
 
     from soil_physics.soils import CATALOGUE
@@ -164,8 +166,8 @@ def forecast_dataset(world: str, seed: int = 7000, duration_s: float = 10.0, den
     combos = itertools.product(sorted(CATALOGUE) if soils is None else list(soils), densities_pct, depths_m)
     specs = [EpisodeSpec(soil, i_d, fc.FORECAST_SPEED_M_S, d, seed=seed + k, duration_s=duration_s)
              for k, (soil, i_d, d) in enumerate(combos)]
-    label = f"{world} world" + (", noisy force" if force_noise else "")
-    config = SimConfig(world_mode=world, effects=effects_for_mode(world, force_noise))
+    label = f"{world} world" + (", noisy force" if force_noise else "") + "".join(f", plugin {p}" for p in plugins)
+    config = SimConfig(world_mode=world, effects=effects_for_mode(world, force_noise), plugins=tuple(plugins))
     return Dataset.from_episodes(run_episodes(config, specs, custom_soils=custom_soils),
                                  root=f"(simulated, {label})")
 

@@ -113,15 +113,48 @@ def checked_soils(p: argparse.ArgumentParser, args: argparse.Namespace, output_o
         p.error(f"--soil-file/--soils: give {output_option} (the shipped config is calibrated on the catalogue's soils)")
 
 
+def add_plugin_option(p: argparse.ArgumentParser, output_option: str) -> None:
+    """``--plugin``: a force plugin switched on in the calibration episodes (``checked_plugins``)."""
+    p.add_argument("--plugin", action="append", default=[], metavar="SPEC", type=input_text,
+                   help="switch on a force plugin in the calibration episodes, as soil_sim_batch --plugin (repeatable; "
+                        "e.g. 'soil_physics.force_terms:plugin term=NAME k=K' for a term soil_discrepancy found in "
+                        f"your own bags, which the simulated world lacks); needs {output_option}")
+
+
+def checked_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, output_option: str, output: object) -> None:
+    """``--plugin`` specs loaded (their module, function and parameters) before any work; exit 2
+    (``p.error``) naming the option for one that does not load, or given without ``output_option``
+    (``output`` None: the shipped config, calibrated on the world as it is, would be replaced)."""
+    from soil_sim_node.effects import PluginError, load_plugins
+
+    if args.plugin and output is None:
+        p.error(f"--plugin: give {output_option} (the shipped config is calibrated on the world as it is)")
+    try:
+        load_plugins(args.plugin)
+    except PluginError as err:
+        p.error(f"--plugin: {err}")
+
+
+def plugin_words(plugins) -> str:
+    """The plugin options of a calibration command line ("" without any)."""
+    return "".join(f" --plugin '{spec}'" for spec in plugins)
+
+
 def calibration_episodes(p: argparse.ArgumentParser, args: argparse.Namespace):
     """The calibration episodes (``evaluate.forecast_dataset``) of ``args``' world, duration, sensor
-    noise and ``checked_soils``; exit 2 naming the soils where one has no failure wedge in the world."""
+    noise, plugins (``checked_plugins``) and ``checked_soils``; exit 2 naming the plugin where one
+    fails on the episodes' first call, or the soils where one has no failure wedge in the world."""
+    from soil_sim_node.effects import PluginError
+
     from .evaluate import forecast_dataset
 
     soils, custom = args.calibration_soils
     try:
         return forecast_dataset(args.world, seed=CAL_SEED, duration_s=args.duration, densities_pct=CAL_DENSITIES_PCT,
-                                depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom)
+                                depths_m=CAL_DEPTHS_M, force_noise=args.force_noise, soils=soils, custom_soils=custom,
+                                plugins=tuple(args.plugin))
+    except PluginError as err:  # (a parameter its function takes but refuses, e.g. k=nan)
+        p.error(f"--plugin: {err}")
     except ValueError as err:
         p.error(f"{'--soils' if args.soils else '--soil-file' if args.soil_file else '--world'}: {err}")
 
@@ -302,7 +335,8 @@ def uncalibrated_physics(fusion: FusionConfig, model) -> str:
     terms = " ".join(f"--term {n}={k:g}" for n, k in merged_terms(own, fusion.terms))
     return (f"the checkpoint's physics adds {', '.join(f'{n} (k = {k:g})' for n, k in added)} to the {physics} the soil "
             f"posterior's error laws were calibrated for: its intervals are not calibrated for this physics "
-            f"(pinn_fusion_calibrate --world {fusion.world or DEFAULT_WORLD} {terms} --out FILE calibrates them: give "
+            f"(pinn_fusion_calibrate --world {fusion.world or DEFAULT_WORLD} {terms} --out FILE calibrates them, with "
+            "--plugin 'soil_physics.force_terms:plugin term=NAME k=K' for each term whose effect that world lacks: give "
             "FILE as the estimator's fusion_config, pinn_eval's --fusion-config)")
 
 
@@ -761,6 +795,7 @@ def main(argv=None) -> int:
                    help="calibrate on episodes with the measured force's noise on (in the fee world: the default "
                         "world's sensor noise, the truth still known); needs --out, since the shipped fee config is "
                         "the noise-free world's")
+    add_plugin_option(p, "--out")
     add_soil_options(p)
     args = p.parse_args(argv)
     check_duration_option(p, args.duration)
@@ -787,6 +822,7 @@ def main(argv=None) -> int:
         p.error(f"--set: {err}")
     if args.force_noise and args.out is None:
         p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
+    checked_plugins(p, args, "--out", args.out)
     checked_soils(p, args, "--out", args.out)
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
@@ -797,6 +833,9 @@ def main(argv=None) -> int:
         if args.force_noise and kept != out:  # the shipped evidence law is the noise-free world's
             p.error(f"--forecast-law-only --force-noise: no config at {out} yet; the shipped one's evidence law is "
                     "the world's as it is, not a noisy sensor's: run the whole calibration with --force-noise first")
+        if args.plugin and kept != out:  # (the shipped evidence law is the world's without the plugins' force)
+            p.error(f"--forecast-law-only --plugin: no config at {out} yet; the shipped one's evidence law is the world's "
+                    "as it is, without the plugins' force: run the whole calibration with --plugin first")
         if not kept.is_file():
             p.error(f"--forecast-law-only: no config file at {out} or {kept} to keep the evidence law of")
         try:
@@ -811,6 +850,12 @@ def main(argv=None) -> int:
             print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
+    if terms and not args.plugin:
+        print(f"pinn_fusion_calibrate: note: the calibration episodes are the {args.world} world's as simulated. A --term "
+              "for an effect that world lacks (one soil_discrepancy found in your own bags) needs it switched on there "
+              f"too,{plugin_words(f'soil_physics.force_terms:plugin term={n} k={k:g}' for n, k in terms)}: else the laws "
+              "are calibrated for a force the episodes do not have (their intervals come out too wide)",
+              file=sys.stderr, flush=True)
     ds = calibration_episodes(p, args)
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
@@ -828,8 +873,8 @@ def main(argv=None) -> int:
              "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}
     final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
     plot_curve(rows, final, out.with_suffix(".png"),
-               f"fused forecast at another depth, {args.world} world{' (noisy force)' if args.force_noise else ''}: "
-               "calibration episodes")
+               f"fused forecast at another depth, {args.world} world{' (noisy force)' if args.force_noise else ''}"
+               f"{' with plugins' if args.plugin else ''}: calibration episodes")
     i90, i50 = NOMINAL.index(0.9), NOMINAL.index(0.5)
     cx, cz = final["curve"]["x"], final["curve"]["z"]
     shape = (f"shape evidence {shape_text((cfg.shape_abs_std_n[0], cfg.shape_rel_std[0]))}" if cfg.shape_evidence
@@ -841,7 +886,8 @@ def main(argv=None) -> int:
     law = cfg.planner_bound_law()
     again = (f"soil_planner_calibrate --world {args.world}" + ("" if out == config_path(args.world) else f" --config {out}")
              + (f" --duration {args.duration:g}" if args.duration != CAL_DURATION_S else "") + (" --force-noise" if args.force_noise else "")
-             + (f" --soil-file {args.soil_file}" if args.soil_file else "") + (f" --soils {args.soils}" if args.soils else ""))
+             + (f" --soil-file {args.soil_file}" if args.soil_file else "") + (f" --soils {args.soils}" if args.soils else "")
+             + plugin_words(args.plugin))
     print(f"the planner's bound law: {'kept, ' + error_law_text(law) if law else 'none'}"
           f" ({again} calibrates it on these posteriors)")
     return 0

@@ -26,7 +26,8 @@ from pinn_estimator import forecast as fc
 from pinn_estimator.fusion import fused_values
 from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
-                                               add_soil_options, calibration_episodes, check_duration_option,
+                                               add_plugin_option, add_soil_options, calibration_episodes,
+                                               check_duration_option, checked_plugins,
                                                checked_soils, config_path, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
@@ -146,6 +147,7 @@ def main(argv=None) -> int:
     p.add_argument("--force-noise", action="store_true",
                    help="calibration episodes with the measured force's noise on, as pinn_fusion_calibrate "
                         "--force-noise made the config's posterior; needs --config")
+    add_plugin_option(p, "--config")
     add_soil_options(p)
     p.add_argument("--quantile", type=float, default=DEFAULT_FORCE_QUANTILE,
                    help=f"the planner's force quantile the law is calibrated at, [0.5, 1) (default "
@@ -157,6 +159,7 @@ def main(argv=None) -> int:
         p.error(f"--quantile: {err}")
     if args.force_noise and args.config is None:
         p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
+    checked_plugins(p, args, "--config", args.config)
     checked_soils(p, args, "--config", args.config)
     check_duration_option(p, args.duration)
     path = args.config or config_path(args.world)
