@@ -302,6 +302,28 @@ def test_non_finite_model_output_is_published_invalid(episode, model):
     assert_never_nan(out)
 
 
+def test_a_model_whose_force_is_far_beyond_the_machines_limits_is_published_invalid(episode, model):
+    """A model whose training diverged (``pinn_train --lr 1``: F̂ 185-280 times the force limits)
+    ran live without a word, and the planner anchored its cut to it (an outside tester's). An F̂
+    beyond IMPLAUSIBLE_ESTIMATE_FACTOR times the limits is published invalid, counted and warned;
+    the soil fused along the path, from the measured force, still goes out with it."""
+    from pinn_estimator.online import IMPLAUSIBLE_ESTIMATE_FACTOR
+
+    broken, _ = load_model(DEFAULT_CHECKPOINT)
+    with torch.no_grad():
+        broken.head.bias[5] += 1e4  # the F_r output, far beyond any force
+    said = []
+    est, out = run(broken, in_order(episode, range(200)), warn=lambda key, text: said.append((key, text)))
+    assert len(out) == 200 and not valid(out) and est.counters.model_implausible == 200 - 59
+    assert est.counters.model_non_finite == 0 and est.counters.invalid == 200
+    assert said and said[0][0] == "model_implausible" and f"more than {IMPLAUSIBLE_ESTIMATE_FACTOR:g} times" in said[0][1]
+    assert out[-1].values[FUSED][T.FUSED_FIELDS.index("fused_valid")] == 1.0  # the posterior: the measured force's
+    assert_never_nan(out)
+    # the model as shipped: every estimate of a full window valid, none refused
+    est, out = run(model, in_order(episode, range(200)))
+    assert est.counters.model_implausible == 0 and len(valid(out)) == 200 - 59
+
+
 # ---------------------------------------------------------------------------------------- episodes
 
 def test_no_window_spans_two_episodes_even_if_data_overtakes_episode_start(episode, model):

@@ -291,6 +291,23 @@ def test_train_cli_writes_checkpoint_that_round_trips(tiny_bags, tmp_path):
     assert out2.read_bytes() == before
 
 
+def test_a_training_that_has_not_learnt_is_said_when_its_model_is_saved(tiny_bags, tmp_path, capsys):
+    """``pinn_train --lr 1`` saved a model 103 389 % off the measured force and exited 0 without a
+    word (an outside tester's). A best validation error beyond a model that says 0 N is said; the
+    model is still written (the user asked for it; the estimator refuses its wildest F̂)."""
+    out = tmp_path / "m.pt"
+    small = ["--data", str(tiny_bags), "--out", str(out), "--epochs", "2", "--stride", "6", "--quiet", "--no-cache",
+             "--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32", "--seed", "1"]
+    assert train_main([*small, "--lr", "10"]) == 0 and out.is_file()
+    said = capsys.readouterr().err
+    pct = torch.load(out, weights_only=True)["metrics"]["val_force"]["mae_mag_pct_measured"]
+    assert pct > 100.0 and f"off by {pct:.0f} % of the measured force" in said and "lower --lr, now 10" in said
+    assert train_main([*small, "--overwrite", "--epochs", "12"]) == 0
+    said = capsys.readouterr().err
+    pct = torch.load(out, weights_only=True)["metrics"]["val_force"]["mae_mag_pct_measured"]
+    assert pct < 100.0 and "val |F-F̂|" in said and "has not learnt" not in said, pct
+
+
 def test_a_training_whose_validation_loss_is_never_finite_keeps_nothing_and_says_so(tiny_bags, tmp_path, capsys,
                                                                                    monkeypatch):
     """No epoch's validation loss finite (what --lr 1e4 did before the bound): no model to keep, said

@@ -39,7 +39,7 @@ from soil_msgs_py.ros_adapter import (
 
 from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .fusion_calibration import announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion
-from .online import INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
+from .online import IMPLAUSIBLE_ESTIMATE_FACTOR, INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
 
 PARAMETERS: dict[str, tuple] = {
@@ -257,7 +257,10 @@ class EstimatorNode(Node):
             f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
             f"{c.out_of_order} out of order, {c.non_finite} non-finite or implausible, {c.malformed} malformed, "
             f"{c.duplicates} duplicates, {c.evicted} evicted, {c.restarts} restarts"
-            + (f", {c.off_rate} off the 60 Hz rate" if c.off_rate else ""))
+            + (f", {c.off_rate} off the 60 Hz rate" if c.off_rate else "")
+            + (f"; model outputs: {c.model_non_finite} not finite, {c.model_implausible} beyond "
+               f"{IMPLAUSIBLE_ESTIMATE_FACTOR:g} times the force limits (published invalid)"
+               if c.model_non_finite or c.model_implausible else ""))
 
 
 def main(args: list[str] | None = None) -> int:

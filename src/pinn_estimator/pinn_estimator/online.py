@@ -35,8 +35,8 @@ from soil_msgs_py import topics as T
 from soil_msgs_py.stamp_join import StampJoiner, Verdict, Why
 from soil_msgs_py.stream_checks import RATE_STEPS, cutting_ticks, sign_problem, step_problem
 from soil_msgs_py.params import (
-    FORCE_FIELDS, KNOWN_PARAMS, MAX_STRIDE_TICKS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS, UNKNOWN_PARAMS,
-    WINDOW_SAMPLES,
+    FORCE_FIELDS, FORCE_LIMITS_N, KNOWN_PARAMS, MAX_STRIDE_TICKS, OBSERVATION_FIELDS, SAMPLE_RATE_HZ, TICK_PERIOD_NS,
+    UNKNOWN_PARAMS, WINDOW_SAMPLES,
 )
 
 from soil_physics.travel import soil_advance, soil_time_step
@@ -94,9 +94,17 @@ GRID_CHECK_TICKS = 8
 assert T.ESTIMATE_FIELDS[: len(UNKNOWN_PARAMS)] == UNKNOWN_PARAMS, "estimate fields start with Θ_u"
 _V_X, _D = KNOWN_PARAMS.index("v_x"), KNOWN_PARAMS.index("d")
 SIGN_JUDGE_TICKS = 60  # the force's sign is judged every this many forward-cutting ticks (warned as the node limits)
+# A model's F̂ beyond this many times the machine's force limits (x, z) is no estimate of a cut of
+# this machine: it stalls at its 20 kN tractive limit, and the largest force the simulated worlds
+# put on the blade is a plunge into dense clay's 46 kN for a tick. Published as invalid. Why: a
+# model whose training diverged (pinn_train --lr 1: 103 389 % of the measured force) ran live
+# without a word, its F̂ 185-280 times the limits, and the planner anchored its cut to it
+# (held at 0.05 m where 0.2 m was asked; an outside tester's).
+IMPLAUSIBLE_ESTIMATE_FACTOR = 10.0
 _P_X, _P_Z = OBSERVATION_FIELDS.index("p_x_b"), OBSERVATION_FIELDS.index("p_z_b")
 _DEST = {"observations": ("obs", OBSERVATION_FIELDS), "known": ("known", KNOWN_PARAMS), "forces": ("force", FORCE_FIELDS)}
 FUSED = slice(T.ESTIMATE_FIELDS.index(T.FUSED_FIELDS[0]), len(T.ESTIMATE_FIELDS))
+_F_X_HAT, _F_Z_HAT = T.ESTIMATE_FIELDS.index("f_x_hat"), T.ESTIMATE_FIELDS.index("f_z_hat")
 
 
 def _routes(topic: str) -> tuple[tuple[str, str, int], ...]:
@@ -129,6 +137,7 @@ class Counters:
     evicted: int = 0  # incomplete ticks dropped to bound memory (a topic stopped, or bogus stamps)
     restarts: int = 0  # time went back by more than the reorder horizon: a new stream
     model_non_finite: int = 0  # model outputs that were not finite (published invalid)
+    model_implausible: int = 0  # model F̂ beyond IMPLAUSIBLE_ESTIMATE_FACTOR times the force limits (published invalid)
     off_rate: int = 0  # ticks dropped because the stream's stamps do not step at 60 Hz (``stream_checks``)
 
 
@@ -753,6 +762,14 @@ class OnlineEstimator:
             self.counters.model_non_finite += 1
             bad = T.ESTIMATE_FIELDS[int(np.flatnonzero(~np.isfinite(values))[0])]
             self.warn("model_non_finite", f"model output {bad} is not finite at stamp {stamp} ns; published as invalid")
+            return invalid_estimate(stamp, self.buffer.count)
+        force = values[[_F_X_HAT, _F_Z_HAT]]
+        if (np.abs(force) > IMPLAUSIBLE_ESTIMATE_FACTOR * np.asarray(FORCE_LIMITS_N)).any():
+            self.counters.model_implausible += 1
+            self.warn("model_implausible", f"model output F̂ = ({force[0]:.3g}, {force[1]:.3g}) N at stamp {stamp} ns is "
+                      f"more than {IMPLAUSIBLE_ESTIMATE_FACTOR:g} times the machine's force limits ({FORCE_LIMITS_N[0] / 1e3:g} / "
+                      f"{FORCE_LIMITS_N[1] / 1e3:g} kN): no cut of this machine meets it (a model whose training diverged, "
+                      "or of another machine?); published as invalid")
             return invalid_estimate(stamp, self.buffer.count)
         return Estimate(int(stamp), values)
 

@@ -53,6 +53,10 @@ MODEL_FIELDS_NOT_OPTIONS = ("kind", "window", "n_obs", "n_known", "extra_terms")
 
 LR_SCHEDULES = ("plateau", "cosine")
 MAX_LR = 10.0  # the largest learning rate taken: far beyond any that trains (2e-3 does), short of overflowing
+# A best validation force error beyond this share of the measured force [%] is a training that has
+# not learnt: a model saying 0 N is off by 100 %. Said when the model is saved (--lr 1 gave 103 389 %
+# and was saved without a word; an outside tester's).
+NOT_LEARNT_PCT = 100.0
 
 
 @dataclass
@@ -333,6 +337,11 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     said = f"all {cfg.epochs} epochs run" if stop_reason == "epochs" else stop_reason
     log(f"{model_cfg.kind}: {said}; best epoch {best[2]}, val |F-F̂| = {metrics['val_force']['mae_mag_n']:.0f} N "
         f"({metrics['val_force']['mae_mag_pct_measured']:.1f} % of measured) in {metrics['train_seconds']:.0f} s")
+    if (pct := metrics['val_force']['mae_mag_pct_measured']) > NOT_LEARNT_PCT:
+        log(f"warning: the best epoch's force is off by {pct:.0f} % of the measured force on the validation episodes, "
+            f"worse than a model that says 0 N ({NOT_LEARNT_PCT:g} %): this training has not learnt (too few epochs, now "
+            f"{len(history['epoch'])}, or diverged: lower --lr, now {cfg.lr:g}); the estimator publishes an F̂ beyond ten "
+            "times the force limits as invalid")
     if failed is not None:
         raise JobFailed(stop_reason, (model, split, history, metrics))
     return model, split, history, metrics
