@@ -75,7 +75,29 @@ def test_the_restart_warning_formats_any_integer_distance():
         asm.add_values(T.KNOWN.name, 0, values)
     (text,) = [text for kind, text in got.warnings if kind == "restart"]
     assert "s before the last sample" in text
-    assert any("s before the last sample" in text for kind, text in got.warnings if kind.endswith(":far"))
+    # (nothing had left since the reset: refused before the stamp the stream is expected from)
+    assert any(f"s before the stream's expected start {10**400} ns" in text
+               for kind, text in got.warnings if kind.endswith(":far"))
+
+
+def test_a_stamp_far_ahead_of_a_stream_with_no_tick_yet_names_its_expected_start_not_minus_one():
+    """A fresh stream expected from stamp 0 refused a tick 15.75 s ahead "after the last sample -1
+    ns" (an outside tester's): it names the start it is expected from; after a tick, that tick."""
+    got = Collect()
+    asm = SampleAssembler(got.on_sample, warn=got.warn)
+    asm.reset(0)
+    for topic, msg in _tick(_stamp(945)):  # 15.75 s
+        asm.add(topic, msg)
+    far = [text for kind, text in got.warnings if kind.endswith(":far")]
+    assert far and "s after the stream's expected start 0 ns" in far[0] and "-1 ns" not in far[0]
+    got.warnings.clear()
+    for k in (0, 1):
+        for topic, msg in _tick(_stamp(k)):
+            asm.add(topic, msg)
+    for topic, msg in _tick(_stamp(2000)):
+        asm.add(topic, msg)
+    far = [text for kind, text in got.warnings if kind.endswith(":far")]
+    assert far and f"s after the last sample {_stamp(1)} ns" in far[0]
 
 
 def test_topics_stamped_each_by_its_own_sensor_are_said_to_be_so():

@@ -197,6 +197,9 @@ class SampleAssembler:
         self._grid: tuple[float, float] | None = None  # (period, tolerance) [ns] of these steps (``_grid_of_steps``)
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
         self.off_rate = False  # the stream's stamps were last judged off the 60 Hz rate
+        # (last tick of an ended episode, first tick of the next) [ns]: no tick is due between them
+        # (``no_ticks_between``), the newest few
+        self.between: collections.deque[tuple[int, int]] = collections.deque(maxlen=4)
 
     @property
     def last_released(self) -> int:
@@ -223,6 +226,19 @@ class SampleAssembler:
         self.newest.clear()
         self.off_rate = False
         self.off_grid_in_a_row = 0
+        self.between.clear()
+
+    def no_ticks_between(self, last_ns: int, first_ns: int) -> None:
+        """An episode ended with its tick at ``last_ns`` and the next begins at ``first_ns``: the
+        stamps between them are no missing ticks. Why: a replay of bags that do not follow each
+        other (episodes 0 and 2 of a recording) was said to have lost the 240 ticks of episode 1,
+        and counted a gap (an outside tester's)."""
+        if first_ns > last_ns + PERIOD_NS:
+            self.between.append((int(last_ns), int(first_ns)))
+
+    def _between_episodes(self, previous_ns: int, stamp: int) -> bool:
+        """Whether every stamp between two released ticks lies between an ended episode and the next."""
+        return any(last <= previous_ns and stamp <= first for last, first in self.between)
 
     def regrid(self, from_ns: int) -> None:
         """An episode boundary: the grid is checked again only through a tick stamped from ``from_ns``
@@ -260,8 +276,10 @@ class SampleAssembler:
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
         if verdict is Verdict.FUTURE or (verdict is Verdict.STALE and last - stamp > RESTART_BACK_TICKS * PERIOD_NS):
             self.counters.out_of_order += 1
+            # (nothing released since the stream (re)started: the stamp it is expected from, not "-1 ns")
+            ref = f"the last sample {last} ns" if self.joiner.left_since_reset else f"the stream's expected start {last + 1} ns"
             self.warn(f"{topic}:far", f"{topic}: stamp {stamp} ns is {_seconds(abs(stamp - last))} s "
-                                      f"{'after' if stamp > last else 'before'} the last sample {last} ns; ignored "
+                                      f"{'after' if stamp > last else 'before'} {ref}; ignored "
                                       f"(a new stream once {RESTART_AFTER_REFUSED // len(INPUT_TOPICS)} ticks of such "
                                       "stamps come in a row)")
             return
@@ -345,7 +363,8 @@ class SampleAssembler:
     def _released(self, joined) -> None:
         """One tick out of the joiner: a sample, a missing tick or a tick dropped to bound memory."""
         stamp = joined.stamp_ns
-        if joined.previous_ns >= 0 and joined.why is not Why.EVICTED:
+        between = joined.previous_ns >= 0 and self._between_episodes(joined.previous_ns, stamp)
+        if joined.previous_ns >= 0 and joined.why is not Why.EVICTED and not between:
             self.steps.append(stamp - joined.previous_ns)
             self._grid = None
             if len(self.steps) == RATE_STEPS and (problem := step_problem(self.steps)):
@@ -370,7 +389,7 @@ class SampleAssembler:
             self.counters.gaps += 1
             self.warn("incomplete", f"tick {stamp} ns never got {sorted(joined.missing)}; window reset")
         step = stamp - joined.previous_ns
-        if joined.previous_ns >= 0 and step > 1.5 * PERIOD_NS:
+        if joined.previous_ns >= 0 and step > 1.5 * PERIOD_NS and not between:
             self.counters.gaps += 1
             self.warn("gap", f"{round(step / PERIOD_NS) - 1} tick(s) missing before stamp {stamp} ns; window reset")
             self.on_sample(joined.previous_ns, None)
@@ -606,6 +625,7 @@ class OnlineEstimator:
         first = int(first_stamp_ns)
         self.assembler.regrid(first)
         if self._ended_at is not None and first > self._ended_at:
+            self.assembler.no_ticks_between(self._ended_at, first)
             self._ended_at = None  # a new episode is under way: stopping now stops it midway
         open_first, self._open_first = self._open_first, first
         self.assembler.expect_restart(None)

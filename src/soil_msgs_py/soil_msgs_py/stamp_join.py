@@ -127,6 +127,7 @@ class StampJoiner:
         self._complete_stamps: set[int] = set()  # of the pending sets (an estimator seconds behind: few of many)
         self.last_ns = -1  # the newest stamp that left in order (or reset's first stamp - 1)
         self._expecting = False  # a next stamp is defined (reset with a first stamp, or a set left)
+        self.left_since_reset = False  # a set left since the last reset (else last_ns is the first stamp - 1, or -1)
 
     def __len__(self) -> int:
         """Sets waiting."""
@@ -139,6 +140,7 @@ class StampJoiner:
         self._refused = 0
         self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._expecting = first_stamp_ns is not None
+        self.left_since_reset = False
 
     def start_at(self, first_stamp_ns: int) -> None:
         """A stream that starts (again) at ``first_stamp_ns`` (an episode's first tick): pending sets
@@ -243,7 +245,7 @@ class StampJoiner:
         gone = self._pending.pop(stamp)
         self._complete_stamps.discard(stamp)
         gone.missing, gone.why, gone.previous_ns = self._missing(gone), why, self.last_ns
-        self.last_ns, self._expecting = stamp, True
+        self.last_ns, self._expecting, self.left_since_reset = stamp, True, True
         return gone
 
     def _missing(self, joined: Joined) -> tuple[str, ...]:
