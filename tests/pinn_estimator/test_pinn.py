@@ -291,6 +291,30 @@ def test_train_cli_writes_checkpoint_that_round_trips(tiny_bags, tmp_path):
     assert out2.read_bytes() == before
 
 
+def test_overwrite_replaces_only_a_checkpoint_and_two_bags_of_one_name_are_both_named(tiny_bags, tmp_path, capsys):
+    """``--out <bag>/<bag>.mcap --overwrite`` replaced a recorded bag's file with a checkpoint, and
+    two bags of one name were refused without their paths (an outside tester's)."""
+    import shutil
+
+    small = ["--epochs", "1", "--stride", "6", "--quiet", "--no-cache", "--d-model", "16", "--n-heads", "2",
+             "--n-layers", "1", "--ff-dim", "32", "--overwrite"]
+    data = tmp_path / "data"
+    shutil.copytree(tiny_bags, data)
+    bag = sorted(p for p in data.iterdir() if p.is_dir())[0]
+    for victim in (next(bag.glob("*.mcap")), bag / "metadata.yaml"):
+        before = victim.read_bytes()
+        assert train_main(["--data", str(tiny_bags), "--out", str(victim), *small]) == 2
+        assert "is not a checkpoint pinn_train wrote" in capsys.readouterr().err and victim.read_bytes() == before
+    out = tmp_path / "m.pt"
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), *small]) == 0
+    assert train_main(["--data", str(tiny_bags), "--out", str(out), *small]) == 0  # a checkpoint: replaced
+    (data / "again").mkdir()
+    shutil.copytree(bag, data / "again" / bag.name)
+    assert train_main(["--data", str(data), "--out", str(tmp_path / "n.pt"), *small]) == 2
+    err = capsys.readouterr().err
+    assert f"are named {bag.name!r}" in err and str(bag) in err and str(data / "again" / bag.name) in err
+
+
 def test_a_training_that_has_not_learnt_is_said_when_its_model_is_saved(tiny_bags, tmp_path, capsys):
     """``pinn_train --lr 1`` saved a model 103 389 % off the measured force and exited 0 without a
     word (an outside tester's). A best validation error beyond a model that says 0 N is said; the

@@ -59,6 +59,16 @@ def save_checkpoint(path, model: EstimatorNet, *, train_config: dict, dataset: d
 CHECKPOINT_SECTIONS = ("model_config", "state_dict", "train_config", "dataset", "split", "metrics", "history")
 
 
+def is_checkpoint_file(path) -> bool:
+    """Whether ``path`` is a file pinn_train wrote (any format version: an old model may be
+    replaced), read without running code; what ``pinn_train --overwrite`` may replace."""
+    try:
+        ckpt = torch.load(Path(path), map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001 - not a torch file, damaged, or a pickle of objects
+        return False
+    return isinstance(ckpt, dict) and ckpt.get("format") == FORMAT
+
+
 def read_checkpoint(path) -> dict:
     """The checkpoint's dict, validated; ValueError names what is wrong."""
     path = Path(path)

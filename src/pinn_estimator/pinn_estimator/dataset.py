@@ -265,7 +265,9 @@ def load_dataset(root, *, cache: bool = True, cache_dir=None, workers: int = 1, 
             parts[key].append(arr)
     if len(set(names)) != len(names):
         dup = sorted(n for n in set(names) if names.count(n) > 1)[0]
-        raise ValueError(f"two bags under {root} are named {dup!r}; splits are by bag name, so names must be unique")
+        where = ", ".join(str(b) for b, n in zip(bags, names) if n == dup)
+        raise ValueError(f"two bags under {root} are named {dup!r} ({where}); splits are by bag name, so names must be "
+                         "unique")
     offsets = np.concatenate([[0], np.cumsum([len(a) for a in parts["observations"]])]).astype(np.int64)
     ds = Dataset(
         names, metas, offsets, *(np.concatenate(parts[k]) for k in ("observations", "forces", "known", "truth")),

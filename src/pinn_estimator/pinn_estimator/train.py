@@ -39,7 +39,7 @@ from soil_physics.force_terms import CATALOGUE, parse_terms
 
 from soil_sim_node.ray_cluster import add_ray_option, parse_ray_options
 
-from .checkpoint import save_checkpoint
+from .checkpoint import is_checkpoint_file, save_checkpoint
 from .dataset import (MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, identical_episodes, load_dataset,
                       split_episodes)
 from .distributed import Ranks, agreed_max, gather, process_group, ranks_from_env, share
@@ -449,6 +449,12 @@ def main(argv=None) -> int:
         if ranks.main:
             print(f"pinn_train: error: --out {args.out} exists (a trained model, perhaps): give --overwrite to replace "
                   "it, or another path", file=sys.stderr)
+        return 2
+    if Path(args.out).exists() and not is_checkpoint_file(args.out):
+        # (a bag's .mcap or metadata.yaml given as --out was replaced by a checkpoint, an outside tester's)
+        if ranks.main:
+            print(f"pinn_train: error: --out {args.out} exists and is not a checkpoint pinn_train wrote: --overwrite "
+                  "replaces only a checkpoint; give another path (or remove the file yourself)", file=sys.stderr)
         return 2
     with process_group(ranks):
         return _run(args, cfg, model_cfg, ranks)
