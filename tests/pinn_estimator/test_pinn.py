@@ -519,7 +519,11 @@ def test_a_checkpoint_already_at_out_is_kept_unless_overwrite_is_given(tmp_path,
     kept.write_bytes(b"a trained model")
     assert train_main(["--data", str(data), "--out", str(kept), "--quiet"]) == 2
     assert f"--out {kept} exists" in capsys.readouterr().err and kept.read_bytes() == b"a trained model"
-    # with --overwrite the run goes on (here to the empty bag directory's refusal)
+    # with --overwrite a file that is no checkpoint is still kept
+    assert train_main(["--data", str(data), "--out", str(kept), "--quiet", "--overwrite"]) == 2
+    assert "is not a checkpoint pinn_train wrote" in capsys.readouterr().err and kept.read_bytes() == b"a trained model"
+    # a checkpoint (of any format version): the run goes on (here to the empty bag directory's refusal)
+    torch.save({"format": ck.FORMAT, "format_version": -1}, kept)
     assert train_main(["--data", str(data), "--out", str(kept), "--quiet", "--overwrite"]) == 2
     assert "no episode bags" in capsys.readouterr().err
 
