@@ -516,16 +516,20 @@ def test_a_checkpoint_already_at_out_is_kept_unless_overwrite_is_given(tmp_path,
     data = tmp_path / "bags"
     data.mkdir()
     kept = tmp_path / "trained.pt"
-    kept.write_bytes(b"a trained model")
+    torch.save({"format": ck.FORMAT, "format_version": -1}, kept)  # a checkpoint (of any format version)
     assert train_main(["--data", str(data), "--out", str(kept), "--quiet"]) == 2
-    assert f"--out {kept} exists" in capsys.readouterr().err and kept.read_bytes() == b"a trained model"
-    # with --overwrite a file that is no checkpoint is still kept
-    assert train_main(["--data", str(data), "--out", str(kept), "--quiet", "--overwrite"]) == 2
-    assert "is not a checkpoint pinn_train wrote" in capsys.readouterr().err and kept.read_bytes() == b"a trained model"
-    # a checkpoint (of any format version): the run goes on (here to the empty bag directory's refusal)
-    torch.save({"format": ck.FORMAT, "format_version": -1}, kept)
+    assert f"--out {kept} exists (a trained model): give --overwrite" in capsys.readouterr().err
+    # with --overwrite the run goes on (here to the empty bag directory's refusal)
     assert train_main(["--data", str(data), "--out", str(kept), "--quiet", "--overwrite"]) == 2
     assert "no episode bags" in capsys.readouterr().err
+    # a file that is no checkpoint is kept, --overwrite or not, and --overwrite is not proposed for it
+    other = tmp_path / "notes.txt"
+    other.write_bytes(b"a trained model")
+    for extra in ([], ["--overwrite"]):
+        assert train_main(["--data", str(data), "--out", str(other), "--quiet", *extra]) == 2
+        err = capsys.readouterr().err
+        assert "is not a checkpoint pinn_train wrote" in err and "give --overwrite" not in err
+    assert other.read_bytes() == b"a trained model"
 
 
 def test_mcap_files_outside_a_bag_directory_are_said_not_passed_by(tmp_path):

@@ -197,9 +197,10 @@ class SampleAssembler:
         self._grid: tuple[float, float] | None = None  # (period, tolerance) [ns] of these steps (``_grid_of_steps``)
         self.newest: dict[str, int] = {}  # each topic's newest stamp offered [ns]
         self.off_rate = False  # the stream's stamps were last judged off the 60 Hz rate
-        # (last tick of an ended episode, first tick of the next) [ns]: no tick is due between them
-        # (``no_ticks_between``), the newest few
-        self.between: collections.deque[tuple[int, int]] = collections.deque(maxlen=4)
+        # the last tick of the announced episode end the stream has not crossed yet, and the first tick
+        # of the episode announced after it (None: none) [ns]: no tick is due between them (``_hole_ticks``)
+        self.ended_ns: int | None = None
+        self.next_first_ns: int | None = None
 
     @property
     def last_released(self) -> int:
@@ -226,19 +227,40 @@ class SampleAssembler:
         self.newest.clear()
         self.off_rate = False
         self.off_grid_in_a_row = 0
-        self.between.clear()
+        self.ended_ns = self.next_first_ns = None
 
-    def no_ticks_between(self, last_ns: int, first_ns: int) -> None:
-        """An episode ended with its tick at ``last_ns`` and the next begins at ``first_ns``: the
-        stamps between them are no missing ticks. Why: a replay of bags that do not follow each
-        other (episodes 0 and 2 of a recording) was said to have lost the 240 ticks of episode 1,
-        and counted a gap (an outside tester's)."""
-        if first_ns > last_ns + PERIOD_NS:
-            self.between.append((int(last_ns), int(first_ns)))
+    def episode_ended(self, last_ns: int) -> None:
+        """An episode ended with its tick at ``last_ns``: the stamps after it up to the next episode's
+        first tick are no missing ticks (``_hole_ticks``). Why: a replay of bags that do not follow
+        each other (episodes 0 and 2 of a recording) was said to have lost episode 1's 240 ticks,
+        and counted a gap (an outside tester's). Of two ends the stream has not crossed, the
+        earlier (a stray end far ahead must not hide the real one)."""
+        last = int(last_ns)
+        if self.ended_ns is None or self.ended_ns <= self.last_released or last < self.ended_ns:
+            self.ended_ns, self.next_first_ns = last, None
 
-    def _between_episodes(self, previous_ns: int, stamp: int) -> bool:
-        """Whether every stamp between two released ticks lies between an ended episode and the next."""
-        return any(last <= previous_ns and stamp <= first for last, first in self.between)
+    def episode_started(self, first_ns: int) -> None:
+        """An episode begins at ``first_ns``: after an announced end, the next episode's first tick
+        (of two starts the earlier: a stray start far ahead must not hide ticks the real one lost),
+        and stamps up to ``MAX_AHEAD_TICKS`` past it are the stream's, however far the end lies
+        behind (episodes 0 and 4 of a recording, 12 s apart: refused as far ahead, the stream then
+        restarted and lost the episode's first ticks, a reviewer's)."""
+        first = int(first_ns)
+        if self.ended_ns is not None and first > self.ended_ns:
+            self.next_first_ns = first if self.next_first_ns is None else min(self.next_first_ns, first)
+            self.joiner.announce(self.next_first_ns)
+
+    def _hole_ticks(self, previous_ns: int, stamp: int) -> tuple[int, bool]:
+        """(ticks missing between two released ticks, whether the step crosses an announced episode
+        end). Across an end only the ended episode's last ticks and the next one's first ticks count
+        (those before its first tick, if its start is announced yet: its ticks may overtake it)."""
+        missing = round((stamp - previous_ns) / PERIOD_NS) - 1
+        end, first = self.ended_ns, self.next_first_ns
+        if end is None or not previous_ns <= end < stamp:
+            return missing, False
+        self.ended_ns = self.next_first_ns = None  # (crossed)
+        head = round((stamp - first) / PERIOD_NS) if first is not None and first <= stamp else 0
+        return round((end - previous_ns) / PERIOD_NS) + head, True
 
     def regrid(self, from_ns: int) -> None:
         """An episode boundary: the grid is checked again only through a tick stamped from ``from_ns``
@@ -274,10 +296,10 @@ class SampleAssembler:
         self.newest[topic] = max(stamp, self.newest.get(topic, stamp))
         was_bad, last = self.joiner.bad(stamp), self.joiner.last_ns
         verdict, out = self.joiner.offer(topic, stamp, values, bad=f"{topic} {broken[0]}={broken[1]}" if broken else "")
+        # (nothing released since the stream (re)started: the stamp it is expected from, not "-1 ns")
+        ref = f"the last sample {last} ns" if self.joiner.left_since_reset else f"the stream's expected start {last + 1} ns"
         if verdict is Verdict.FUTURE or (verdict is Verdict.STALE and last - stamp > RESTART_BACK_TICKS * PERIOD_NS):
             self.counters.out_of_order += 1
-            # (nothing released since the stream (re)started: the stamp it is expected from, not "-1 ns")
-            ref = f"the last sample {last} ns" if self.joiner.left_since_reset else f"the stream's expected start {last + 1} ns"
             self.warn(f"{topic}:far", f"{topic}: stamp {stamp} ns is {_seconds(abs(stamp - last))} s "
                                       f"{'after' if stamp > last else 'before'} {ref}; ignored "
                                       f"(a new stream once {RESTART_AFTER_REFUSED // len(INPUT_TOPICS)} ticks of such "
@@ -286,8 +308,8 @@ class SampleAssembler:
         if verdict is Verdict.STALE:
             self.counters.out_of_order += 1
             self.repeats += stamp == last  # a copy of the tick just released
-            self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than the last sample "
-                                               f"{last} ns (out of order); window reset" + self._repeats_hint())
+            self.warn(f"{topic}:out_of_order", f"{topic}: stamp {stamp} ns is not newer than {ref} (out of order); "
+                                               "window reset" + self._repeats_hint())
             self.on_sample(last, None)
             return
         if verdict is Verdict.RESTART:
@@ -363,8 +385,8 @@ class SampleAssembler:
     def _released(self, joined) -> None:
         """One tick out of the joiner: a sample, a missing tick or a tick dropped to bound memory."""
         stamp = joined.stamp_ns
-        between = joined.previous_ns >= 0 and self._between_episodes(joined.previous_ns, stamp)
-        if joined.previous_ns >= 0 and joined.why is not Why.EVICTED and not between:
+        missing, crossed = self._hole_ticks(joined.previous_ns, stamp) if joined.previous_ns >= 0 else (0, False)
+        if joined.previous_ns >= 0 and joined.why is not Why.EVICTED and not crossed:  # (a new episode's phase: ``regrid``)
             self.steps.append(stamp - joined.previous_ns)
             self._grid = None
             if len(self.steps) == RATE_STEPS and (problem := step_problem(self.steps)):
@@ -388,10 +410,10 @@ class SampleAssembler:
         if joined.why is Why.OVERTAKEN:
             self.counters.gaps += 1
             self.warn("incomplete", f"tick {stamp} ns never got {sorted(joined.missing)}; window reset")
-        step = stamp - joined.previous_ns
-        if joined.previous_ns >= 0 and step > 1.5 * PERIOD_NS and not between:
+        if missing > 0:
             self.counters.gaps += 1
-            self.warn("gap", f"{round(step / PERIOD_NS) - 1} tick(s) missing before stamp {stamp} ns; window reset")
+            self.warn("gap", f"{missing} tick(s) missing before stamp {stamp} ns" + (" (at an episode boundary)" if crossed
+                                                                                    else "") + "; window reset")
             self.on_sample(joined.previous_ns, None)
         if joined.usable:
             self.counters.samples += 1
@@ -589,6 +611,7 @@ class OnlineEstimator:
                 and self.assembler.last_released > last:
             return
         self._set_boundary(last)
+        self.assembler.episode_ended(last)
         self._open_first = None
         self._ended_at = last
         self.assembler.expect_restart(None)
@@ -624,8 +647,8 @@ class OnlineEstimator:
         from a replay's, an outside tester's.)"""
         first = int(first_stamp_ns)
         self.assembler.regrid(first)
+        self.assembler.episode_started(first)
         if self._ended_at is not None and first > self._ended_at:
-            self.assembler.no_ticks_between(self._ended_at, first)
             self._ended_at = None  # a new episode is under way: stopping now stops it midway
         open_first, self._open_first = self._open_first, first
         self.assembler.expect_restart(None)

@@ -340,8 +340,8 @@ def train(ds: Dataset, cfg: TrainConfig, model_cfg: ModelConfig, *, split=None, 
     if (pct := metrics['val_force']['mae_mag_pct_measured']) > NOT_LEARNT_PCT:
         log(f"warning: the best epoch's force is off by {pct:.0f} % of the measured force on the validation episodes, "
             f"worse than a model that says 0 N ({NOT_LEARNT_PCT:g} %): this training has not learnt (too few epochs, now "
-            f"{len(history['epoch'])}, or diverged: lower --lr, now {cfg.lr:g}); the estimator publishes an F̂ beyond ten "
-            "times the force limits as invalid")
+            f"{len(history['epoch'])}, or diverged: lower --lr, now {cfg.lr:g}); do not run it live (the estimator "
+            "refuses only an F̂ beyond ten times the force limits, not one merely wrong)")
     if failed is not None:
         raise JobFailed(stop_reason, (model, split, history, metrics))
     return model, split, history, metrics
@@ -445,16 +445,16 @@ def main(argv=None) -> int:
         return 2
     # every rank alike, before any joins a process group (a torchrun job on one machine, or on
     # several that share the output's filesystem, as rank 0's checkpoint is read back); said once
-    if Path(args.out).exists() and not args.overwrite:
-        if ranks.main:
-            print(f"pinn_train: error: --out {args.out} exists (a trained model, perhaps): give --overwrite to replace "
-                  "it, or another path", file=sys.stderr)
-        return 2
     if Path(args.out).exists() and not is_checkpoint_file(args.out):
         # (a bag's .mcap or metadata.yaml given as --out was replaced by a checkpoint, an outside tester's)
         if ranks.main:
             print(f"pinn_train: error: --out {args.out} exists and is not a checkpoint pinn_train wrote: --overwrite "
                   "replaces only a checkpoint; give another path (or remove the file yourself)", file=sys.stderr)
+        return 2
+    if Path(args.out).exists() and not args.overwrite:
+        if ranks.main:
+            print(f"pinn_train: error: --out {args.out} exists (a trained model): give --overwrite to replace it, or "
+                  "another path", file=sys.stderr)
         return 2
     with process_group(ranks):
         return _run(args, cfg, model_cfg, ranks)

@@ -128,6 +128,7 @@ class StampJoiner:
         self.last_ns = -1  # the newest stamp that left in order (or reset's first stamp - 1)
         self._expecting = False  # a next stamp is defined (reset with a first stamp, or a set left)
         self.left_since_reset = False  # a set left since the last reset (else last_ns is the first stamp - 1, or -1)
+        self.announced_ns = -1  # a stream's next start, announced ahead (``announce``; -1: none)
 
     def __len__(self) -> int:
         """Sets waiting."""
@@ -141,6 +142,7 @@ class StampJoiner:
         self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._expecting = first_stamp_ns is not None
         self.left_since_reset = False
+        self.announced_ns = -1
 
     def start_at(self, first_stamp_ns: int) -> None:
         """A stream that starts (again) at ``first_stamp_ns`` (an episode's first tick): pending sets
@@ -153,6 +155,12 @@ class StampJoiner:
         self._refused = 0
         self.last_ns = first - 1
         self._expecting = True
+
+    def announce(self, first_stamp_ns: int) -> None:
+        """The stream goes on at ``first_stamp_ns`` (an episode announced after the last one ended):
+        ``max_ahead_ns`` counts from there too, not only from the last set that left, so a hole
+        between two episodes longer than it is no jump of the stream. Sets before it still come."""
+        self.announced_ns = int(first_stamp_ns)
 
     def bad(self, stamp_ns: int) -> str:
         """Why the pending set of ``stamp_ns`` is marked bad ('' if it is not, or none is pending)."""
@@ -174,7 +182,8 @@ class StampJoiner:
             else:
                 self.reset(stamp_ns)
                 verdict = Verdict.RESTART
-        elif self.max_ahead_ns is not None and self._expecting and stamp_ns - (self.last_ns + 1) > self.max_ahead_ns:
+        elif (self.max_ahead_ns is not None and self._expecting
+              and stamp_ns - max(self.last_ns + 1, self.announced_ns) > self.max_ahead_ns):
             refused = Verdict.FUTURE
         if refused is Verdict.STALE and self.last_ns - stamp_ns <= self.restart_counts_back_beyond_ns:
             return Offer(refused, [])  # (neither counted nor ending a count)
