@@ -798,7 +798,7 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
             (calibrate_main, ["--plugin", "no_such_module:f", "--out", str(tmp_path / "a.json")],
              "--plugin: plugin='no_such_module:f': cannot import"),
             (calibrate_main, ["--plugin", spec, "--forecast-law-only", "--out", str(tmp_path / "b.json")],
-             "run the whole calibration with --plugin first")):
+             "was calibrated on episodes with no plugin, not ['soil_physics.force_terms:plugin")):
         with pytest.raises(SystemExit) as exit_:
             tool(["--world", "fee", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err, needle
@@ -820,13 +820,36 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
     with pytest.raises(Started):
         calibrate_main(["--world", "fee", "--out", str(tmp_path / "d.json"), "--term", "form:wd_x*tanhvx0.3=1"])
     said = capsys.readouterr().err
-    assert "--plugin 'soil_physics.force_terms:plugin term=form:wd_x*tanhvx0.3 k=1'" in said and "too wide" in said
-    FusionConfig(world="fee").save(tmp_path / "e.json")  # (the bound tool writes into a config there is)
-    for tool, out in ((calibrate_main, ["--out", str(tmp_path / "d.json")]), (bound_main, ["--config", str(tmp_path / "e.json")])):
+    assert "--plugin 'soil_physics.force_terms:plugin term=form:wd_x*tanhvx0.3 k=1.0'" in said and "too wide" in said
+    # a config records the plugins that calibrated it; what calibrates more of it switches them on again
+    recorded = FusionConfig(world="fee", calibration_plugins=(spec,))
+    recorded.save(tmp_path / "e.json")
+    assert FusionConfig.load(tmp_path / "e.json") == recorded
+    for tool, out in ((calibrate_main, ["--out", str(tmp_path / "d.json"), "--plugin", spec]),
+                      (bound_main, ["--config", str(tmp_path / "e.json"), "--plugin", spec]),
+                      (bound_main, ["--config", str(tmp_path / "e.json")]),
+                      (calibrate_main, ["--out", str(tmp_path / "e.json"), "--forecast-law-only"])):
         with pytest.raises(Started):
-            tool(["--world", "fee", *out, "--plugin", spec])
-    assert seen == [(), (spec,), (spec,)]
-    assert not (tmp_path / "d.json").exists() and FusionConfig.load(tmp_path / "e.json") == FusionConfig(world="fee")
+            tool(["--world", "fee", *out])
+    assert seen == [(), (spec,), (spec,), (spec,), (spec,)]
+    assert capsys.readouterr().err.count("was calibrated on episodes with --plugin '" + spec + "': switched on again") == 2
+    for tool, out in ((bound_main, "--config"), (calibrate_main, "--out")):  # another plugin: another world's laws
+        with pytest.raises(SystemExit) as exit_:
+            tool(["--world", "fee", out, str(tmp_path / "e.json"), "--plugin", spec.replace("k=1", "k=2"),
+                  *(["--forecast-law-only"] if tool is calibrate_main else [])])
+        assert exit_.value.code == 2 and f"was calibrated on episodes with ['{spec}']" in capsys.readouterr().err
+    assert not (tmp_path / "d.json").exists() and FusionConfig.load(tmp_path / "e.json") == recorded
+    for bad in ("x", [""], [3]):
+        with pytest.raises(ValueError, match="calibration_plugins="):
+            FusionConfig(calibration_plugins=bad)
+    # pinn_eval with such a config, on the simulated held-out episodes: simulated with its plugins
+    from pinn_estimator.evaluate import forecast_section
+
+    said = []
+    with pytest.raises(Started):
+        forecast_section(load_model(MODELS_DIR / "pinn_fee.pt")[0], None, "fee", fusion_config=str(tmp_path / "e.json"),
+                         log=said.append)
+    assert seen[-1] == (spec,) and any("the held-out episodes are simulated with them too" in s for s in said)
 
 
 def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):

@@ -394,8 +394,11 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     fusion = given_fusion(fusion_config, world, log) if fusion_config else load_calibrated(world)
     if uncalibrated := uncalibrated_physics(fusion, model):
         log(f"warning: {uncalibrated}")
-    out = forecast(model, forecast_dataset(world) if bags is None else bags, classical=classical, workers=workers,
-                   progress=progress, fusion=fusion)
+    if bags is None and fusion.calibration_plugins:  # (its laws are those of the world with the plugins' force)
+        log(f"--fusion-config: calibrated on episodes with {', '.join(fusion.calibration_plugins)}: the held-out "
+            "episodes are simulated with them too")
+    out = forecast(model, forecast_dataset(world, plugins=fusion.calibration_plugins) if bags is None else bags,
+                   classical=classical, workers=workers, progress=progress, fusion=fusion)
     if uncalibrated:
         out["uncalibrated_physics"] = uncalibrated
     if bags is not None:

@@ -135,6 +135,31 @@ def checked_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, output
         p.error(f"--plugin: {err}")
 
 
+def kept_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, cfg: FusionConfig, path) -> None:
+    """For calibrating more of the config ``cfg`` (read from ``path``) on new episodes: the plugins
+    its laws were calibrated with (``FusionConfig.calibration_plugins``) are switched on again
+    (said); a ``--plugin`` given must be them (exit 2: the config is the laws of another world)."""
+    recorded = list(cfg.calibration_plugins)
+    if args.plugin and args.plugin != recorded:
+        p.error(f"--plugin: {path} was calibrated on episodes with {recorded or 'no plugin'}, not {args.plugin}: its "
+                "posterior is that world's (run the whole calibration with --plugin into another --out)")
+    if recorded and not args.plugin:
+        print(f"{p.prog}: {path} was calibrated on episodes with{plugin_words(recorded)}: switched on again",
+              file=sys.stderr, flush=True)
+    args.plugin = recorded
+
+
+def term_note(prog: str, world: str, terms, plugins) -> None:
+    """Said (stderr) where the posterior has terms and the calibration episodes no plugin: a term for
+    an effect the world lacks needs its force there too."""
+    if terms and not plugins:
+        print(f"{prog}: note: the calibration episodes are the {world} world's as simulated. A term for an effect that "
+              "world lacks (one soil_discrepancy found in your own bags) needs it switched on there too,"
+              f"{plugin_words(f'soil_physics.force_terms:plugin term={n} k={k!r}' for n, k in terms)}: else the laws "
+              "are calibrated for a force the episodes do not have (their intervals come out too wide)",
+              file=sys.stderr, flush=True)
+
+
 def plugin_words(plugins) -> str:
     """The plugin options of a calibration command line ("" without any)."""
     return "".join(f" --plugin '{spec}'" for spec in plugins)
@@ -833,9 +858,6 @@ def main(argv=None) -> int:
         if args.force_noise and kept != out:  # the shipped evidence law is the noise-free world's
             p.error(f"--forecast-law-only --force-noise: no config at {out} yet; the shipped one's evidence law is "
                     "the world's as it is, not a noisy sensor's: run the whole calibration with --force-noise first")
-        if args.plugin and kept != out:  # (the shipped evidence law is the world's without the plugins' force)
-            p.error(f"--forecast-law-only --plugin: no config at {out} yet; the shipped one's evidence law is the world's "
-                    "as it is, without the plugins' force: run the whole calibration with --plugin first")
         if not kept.is_file():
             p.error(f"--forecast-law-only: no config file at {out} or {kept} to keep the evidence law of")
         try:
@@ -848,14 +870,10 @@ def main(argv=None) -> int:
             p.error(f"--forecast-law-only: {err} (run the whole calibration)")
         if note:  # (it is written with the world it is recalibrated in)
             print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
+        kept_plugins(p, args, base, kept)  # (the evidence law kept is that of the world with its plugins)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
-    if terms and not args.plugin:
-        print(f"pinn_fusion_calibrate: note: the calibration episodes are the {args.world} world's as simulated. A --term "
-              "for an effect that world lacks (one soil_discrepancy found in your own bags) needs it switched on there "
-              f"too,{plugin_words(f'soil_physics.force_terms:plugin term={n} k={k:g}' for n, k in terms)}: else the laws "
-              "are calibrated for a force the episodes do not have (their intervals come out too wide)",
-              file=sys.stderr, flush=True)
+    term_note(p.prog, args.world, base.terms, args.plugin)
     ds = calibration_episodes(p, args)
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
@@ -867,7 +885,7 @@ def main(argv=None) -> int:
         # new posteriors: the planner's bound law is to be calibrated on them again
         cfg = dataclasses.replace(cfg, bound_abs_std_n=None, bound_rel_std=None)
         pairs = pair_forecasts(ds, fused_posteriors(ds, cfg))  # (the forecast law changes no posterior)
-    cfg = dataclasses.replace(cfg, world=args.world)
+    cfg = dataclasses.replace(cfg, world=args.world, calibration_plugins=tuple(args.plugin))
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std,
              "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}

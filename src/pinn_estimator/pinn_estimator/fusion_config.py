@@ -112,6 +112,11 @@ class FusionConfig:
     # --world fee``) took a bound law 200× tighter without a word; the estimator says when its
     # episodes are of another world.
     world: str = ""
+    # The force plugins switched on in those episodes (``pinn_fusion_calibrate --plugin``, specs as
+    # ``soil_sim_batch --plugin`` takes them): an effect the world lacks, found in a machine's
+    # bags. Recorded so that what calibrates or judges this config again simulates the same world
+    # (the planner's bound law had been calibrated on episodes without the force; a reviewer's).
+    calibration_plugins: tuple[str, ...] = ()
 
     def __post_init__(self):
         for name, (lo, hi) in INT_FIELD_RANGES.items():
@@ -162,6 +167,12 @@ class FusionConfig:
                              "(a share of the prior box)")
         if self.world not in ("", *WORLD_MODES):
             raise ValueError(f"fusion world={short_repr(self.world)} must be one of {WORLD_MODES} or \"\" (not recorded)")
+        plugins = self.calibration_plugins
+        if isinstance(plugins, (str, bytes)) or not isinstance(plugins, (list, tuple)) \
+                or not all(isinstance(p, str) and p.strip() for p in plugins):
+            raise ValueError(f"fusion calibration_plugins={short_repr(plugins)} must be a list of plugin specs "
+                             "('package.module:function key=value ...')")
+        object.__setattr__(self, "calibration_plugins", tuple(plugins))
         terms = AugmentedFEE(self.terms).terms
         force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
         object.__setattr__(self, "terms", terms)
@@ -237,7 +248,8 @@ class FusionConfig:
             raise ValueError(f"fusion config {path}: expected an object, got {type(data).__name__}")
         cfg = cls.from_dict(data)
         # (a config written before a field existed, or edited by hand: its default was taken unseen)
-        if missing := sorted({f.name for f in fields(cls)} - set(data) - {"world"}):
+        # (nor the world or the plugins, not recorded before they were: their defaults are no law)
+        if missing := sorted({f.name for f in fields(cls)} - set(data) - {"world", "calibration_plugins"}):
             warnings.warn(f"fusion config {path} lacks {missing}: their defaults are used, not calibrated values",
                           stacklevel=2)
         return cfg

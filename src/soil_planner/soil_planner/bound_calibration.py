@@ -27,7 +27,7 @@ from pinn_estimator.fusion import fused_values
 from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
                                                add_plugin_option, add_soil_options, calibration_episodes,
-                                               check_duration_option, checked_plugins,
+                                               check_duration_option, checked_plugins, kept_plugins, term_note,
                                                checked_soils, config_path, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
@@ -174,6 +174,8 @@ def main(argv=None) -> int:
     if note:
         print(f"soil_planner_calibrate: {note}" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
+    kept_plugins(p, args, cfg, path)  # (the bound is calibrated on the world the posterior's laws are of)
+    term_note(p.prog, args.world, cfg.terms, args.plugin)
     ds = calibration_episodes(p, args)
     try:
         cfg, _ = choose_bound_law(ds, cfg, fused_posteriors(ds, cfg), quantile=args.quantile)
