@@ -919,7 +919,7 @@ def test_pinn_eval_scores_the_forecast_with_a_fusion_config_of_the_users(tmp_pat
     FusionConfig(world="fee", forecast_abs_std_n=(7.0, 7.0)).save(mine)
     used = []
     monkeypatch.setattr(evaluate_module, "forecast", lambda *a, fusion=None, **k: used.append(fusion) or {})
-    monkeypatch.setattr(evaluate_module, "forecast_dataset", lambda world: None)
+    monkeypatch.setattr(evaluate_module, "forecast_dataset", lambda world, **kw: None)
     out = evaluate_module.forecast_section(None, None, "fee", fusion_config=str(mine))
     assert used[-1].forecast_abs_std_n == (7.0, 7.0) and out["fusion_config"] == str(mine)
     assert evaluate_module.forecast_section(None, None, "fee")["fusion_config"] == "shipped (fee world)"
