@@ -798,7 +798,10 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
             (calibrate_main, ["--plugin", "no_such_module:f", "--out", str(tmp_path / "a.json")],
              "--plugin: plugin='no_such_module:f': cannot import"),
             (calibrate_main, ["--plugin", spec, "--forecast-law-only", "--out", str(tmp_path / "b.json")],
-             "was calibrated on episodes with no plugin, not ['soil_physics.force_terms:plugin")):
+             "was calibrated on episodes with no plugin, not ['soil_physics.force_terms:plugin"),
+            # the shipped config named as --out or --config is the shipped config (a reviewer's)
+            (calibrate_main, ["--plugin", spec, "--out", str(config_path("fee"))], "--plugin: give --out"),
+            (bound_main, ["--force-noise", "--config", str(config_path("default"))], "--force-noise: give --config")):
         with pytest.raises(SystemExit) as exit_:
             tool(["--world", "fee", *args])
         assert exit_.value.code == 2 and needle in capsys.readouterr().err, needle

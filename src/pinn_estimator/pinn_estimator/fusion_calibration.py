@@ -160,6 +160,15 @@ def term_note(prog: str, world: str, terms, plugins) -> None:
               file=sys.stderr, flush=True)
 
 
+def own_output(path):
+    """``path`` (a tool's --out or --config), or None where it names a shipped config (or is None):
+    what the calibration's own-world options refuse to replace is the shipped file, however it is
+    named (the shipped path given as --out had let --plugin and --force-noise replace it; a reviewer's)."""
+    if path is None or any(Path(path).resolve() == config_path(w).resolve() for w in WORLD_MODES):
+        return None
+    return path
+
+
 def plugin_words(plugins) -> str:
     """The plugin options of a calibration command line ("" without any)."""
     return "".join(f" --plugin '{spec}'" for spec in plugins)
@@ -845,10 +854,11 @@ def main(argv=None) -> int:
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")
-    if args.force_noise and args.out is None:
+    own = own_output(args.out)
+    if args.force_noise and own is None:
         p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
-    checked_plugins(p, args, "--out", args.out)
-    checked_soils(p, args, "--out", args.out)
+    checked_plugins(p, args, "--out", own)
+    checked_soils(p, args, "--out", own)
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
         if args.term or args.fields:

@@ -27,7 +27,8 @@ from pinn_estimator.fusion import fused_values
 from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
                                                add_plugin_option, add_soil_options, calibration_episodes,
-                                               check_duration_option, checked_plugins, kept_plugins, term_note,
+                                               check_duration_option, checked_plugins, kept_plugins, own_output,
+                                               term_note,
                                                checked_soils, config_path, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
@@ -157,10 +158,11 @@ def main(argv=None) -> int:
         check_quantile(args.quantile)
     except ValueError as err:
         p.error(f"--quantile: {err}")
-    if args.force_noise and args.config is None:
+    own = own_output(args.config)
+    if args.force_noise and own is None:
         p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
-    checked_plugins(p, args, "--config", args.config)
-    checked_soils(p, args, "--config", args.config)
+    checked_plugins(p, args, "--config", own)
+    checked_soils(p, args, "--config", own)
     check_duration_option(p, args.duration)
     path = args.config or config_path(args.world)
     try:
