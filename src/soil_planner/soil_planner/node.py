@@ -240,7 +240,9 @@ class PlannerNode(Node):
         # the blade's measured (F_x, F_z) per tick stamp (/blade/force): where it is clearly above
         # F̂, it anchors the plan (``stretch_planner.SENSOR_GAP_SHARE``)
         self.measured: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
-        self.sensed = 0  # ticks planned with their measured force
+        self.sensed = 0  # fused plans made with their tick's measured force (the point plan takes none)
+        # ticks of the cut under way whose Θ_k never came (``_note_known``), and the newest Θ_k stamp heard
+        self.missed, self.known_newest_ns = 0, -1
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -531,7 +533,26 @@ class PlannerNode(Node):
         except ValueError as err:
             self._warn("known:layout", f"{err}; ignored")
             return
+        self._note_known(stamp)
         self._join(T.KNOWN.name, stamp, fields(values, KNOWN_PARAMS))
+
+    def _note_known(self, stamp: int) -> None:
+        """Θ_k comes every tick: a hole between two of the cut under way's is ticks this node never
+        heard, counted and said. Why: a planner behind its inputs (a replay at 8x into a planner
+        started by hand) lost hundreds of ticks from its reader's history of 2 s, and its summary
+        said 4 estimates unpaired (an outside tester's). Not across episodes (a replay of bags that
+        do not follow each other), nor where time goes back."""
+        last, self.known_newest_ns = self.known_newest_ns, max(self.known_newest_ns, stamp)
+        first, end = self.cut_first_ns, self.cut_end_ns
+        if first is None or last < first or stamp <= last or (end is not None and stamp > end):
+            return
+        missed = round((stamp - last) / TICK_PERIOD_NS) - 1
+        if missed > 0:
+            self.missed += missed
+            depth = G.TOPIC_QOS.get(T.KNOWN.name, G.DATA_QOS).depth
+            self._warn("known:missed", f"{missed} tick(s) of {T.KNOWN.name} never heard before stamp {stamp} ns: they get "
+                                       "no plan (a planner behind its inputs, e.g. a replay faster than it plans, loses "
+                                       f"what its reader's history of {depth} messages no longer holds)")
 
     def _on_estimate(self, msg) -> None:
         self.silence.heard()
@@ -625,7 +646,7 @@ class PlannerNode(Node):
         try:
             measured = self.measured.get(stamp)
             plan, new = self.planner.plan(est, known, self.commanded.get(stamp), measured)
-            self.sensed += measured is not None
+            self.sensed += measured is not None and self.planner.force_quantile is not None and est.get("fused_valid") == 1.0
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)
@@ -710,8 +731,9 @@ class PlannerNode(Node):
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
                                f"{self.command_wait.waited} waited for their command, "
                                f"{self.command_wait.timed_out} planned without it, "
-                               f"{self.sensed} with the blade's measured force"
-                               f"{f', {unanswered} still waiting for it' if unanswered else ''}")
+                               f"{self.sensed} fused with the blade's measured force"
+                               f"{f', {unanswered} still waiting for it' if unanswered else ''}, "
+                               f"{self.missed} ticks never heard")
 
 
 def main(args: list[str] | None = None) -> int:
