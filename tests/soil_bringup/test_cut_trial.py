@@ -114,9 +114,8 @@ def test_on_a_soil_far_outside_the_pinns_training_the_measured_force_keeps_the_c
                                            SoilAwareSetup("fee", planner={"sensor_anchor": sensor}),
                                            custom_soils=custom)).sum() / 60
              for sensor in (False, True)}
-    # (measured 0.13 s without since the stall memory keeps a stall where it began, 0.38 s before it;
-    # 0 s with; 10 s cuts: the same, default world 0.77 / 0 s)
-    assert stall[False] > 0.1 and stall[True] < 0.05, stall
+    # (measured 0.38 s without, 0 s with; 10 s cuts: the same, default world 0.77 / 0 s)
+    assert stall[False] > 0.15 and stall[True] < 0.05, stall
 
 
 def test_a_fall_of_the_target_counts_once_and_the_next_needs_it_to_deepen_first():
