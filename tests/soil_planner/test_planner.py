@@ -306,28 +306,6 @@ def test_an_edge_sinking_where_the_force_is_past_the_limit_is_planned_no_deeper_
             assert plan.max_depth_m > 0.08 * deep.limit_x_n / f_x + 0.05, (f_x, v_z, plan)
 
 
-def test_a_stall_seen_through_the_averaged_speed_is_remembered_where_it_began():
-    """Θ_k's speed is a mean over the last VELOCITY_AVERAGE_SAMPLES ticks, so a stall is seen a few
-    ticks after it began, the edge still sinking: its cap had come a centimetre too deep (0.0906 m
-    for a stall begun at 0.0899 m, an outside tester's). The shallowest depth of those ticks in the
-    soil counts; the surface ticks before a cut do not."""
-    from soil_planner.stretch_planner import StallMemory
-    from soil_msgs_py.params import VELOCITY_AVERAGE_SAMPLES
-
-    memory = StallMemory()
-    memory.add(_known(d=0.08, v_x=0.5), 0.5)  # cutting at speed
-    for k in range(VELOCITY_AVERAGE_SAMPLES - 1):  # sinking, the mean speed not yet below the threshold
-        memory.add(_known(d=0.09 + 0.002 * k, v_x=0.45), 0.5)
-    memory.add(_known(d=0.11, v_x=0.3), 0.5)  # seen stalled
-    assert memory.cap_m() == pytest.approx(0.09 - STALL_BACKOFF_M)
-    fresh = StallMemory()
-    fresh.add(_known(d=0.05, v_x=0.5), 0.5)
-    for d in (-0.01, 0.0, 0.005):  # (out of the soil: not where a stall began)
-        fresh.add(_known(d=d, v_x=0.5), 0.5)
-    fresh.add(_known(d=0.06, v_x=0.3), 0.5)
-    assert fresh.cap_m() == pytest.approx(0.05 - STALL_BACKOFF_M)
-
-
 def test_invalid_estimate_gives_no_plan():
     zeros = {name: 0.0 for name in T.ESTIMATE_FIELDS}  # what the estimator publishes while filling
     assert max_cut_depth(zeros, _known()) is None

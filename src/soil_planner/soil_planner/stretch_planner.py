@@ -19,7 +19,7 @@ import numpy as np
 
 from soil_msgs_py.messages import plausible_values
 from soil_msgs_py.params import (KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ, STEADY_CUT_MAX_ABS_V_Z_M_S,
-                                 VELOCITY_AVERAGE_SAMPLES, stall_speed_m_s)
+                                 stall_speed_m_s)
 from soil_physics import force_terms
 from soil_physics.predictive import mean_standard_error
 
@@ -252,23 +252,18 @@ class StallMemory:
         self.moving = False  # the cut has reached speed (its start is no stall)
         self.stalled = False  # the newest tick was a stall's
         self.onsets: collections.deque[tuple[int, float]] = collections.deque()  # (tick, depth [m]) of each stall's start
-        # the depths of the ticks Θ_k's speed averages over (``VELOCITY_AVERAGE_SAMPLES``): a stall is seen
-        # that late, and began at the shallowest of them (the edge was still sinking: the cap came a
-        # centimetre deep, 0.0906 m for a stall begun at 0.0899 m, an outside tester's)
-        self.recent_depths: collections.deque[float] = collections.deque(maxlen=VELOCITY_AVERAGE_SAMPLES)
 
     def add(self, known: Mapping[str, float], cut_speed_m_s: float) -> None:
         self.tick += 1
         v_x, d = known.get("v_x"), known.get("d")
         if not (isinstance(v_x, float) and isinstance(d, float) and math.isfinite(v_x) and math.isfinite(d)):
             return
-        self.recent_depths.append(d)
         slow = v_x < stall_speed_m_s(cut_speed_m_s)
         if not slow:
             self.moving, self.stalled = True, False
         elif self.moving and not self.stalled and d >= MIN_CUT_DEPTH_M:
             self.stalled = True
-            self.onsets.append((self.tick, min(x for x in self.recent_depths if x >= MIN_CUT_DEPTH_M)))
+            self.onsets.append((self.tick, d))
         while self.onsets and self.tick - self.onsets[0][0] > STALL_MEMORY_TICKS:
             self.onsets.popleft()
 
