@@ -280,32 +280,6 @@ def test_a_stall_caps_the_plan_below_where_it_began_until_it_is_forgotten():
     assert planner.plan(est, _known(d=0.12, v_x=0.0))[0].max_depth_m == pytest.approx(free)
 
 
-def test_an_edge_sinking_where_the_force_is_past_the_limit_is_planned_no_deeper_than_that_force_allows():
-    """An edge entering a stronger soil again after the controller lifted it out sinks: no steady
-    tick anchors the new soil, and the plan stayed with the weaker soil's steady anchor, 0.275 m
-    while F̂_x was 22.5 kN at 0.096 m (an outside tester's hard clay after sand). Where this tick's
-    F̂_x is past the tractive limit itself, the plan is capped at d · margin·L_x / F̂_x; a force
-    within the limit leaves the plan as it was. (A steady edge's anchor has the force now.)"""
-    sand = _known(d=0.2)
-    planner = StretchPlanner()
-    for _ in range(ANCHOR_WINDOW_TICKS):  # a steady cut in a weak sand: a deep plan
-        deep = planner.plan(_fused(_estimate(sand), 35 * DEG, 0.0, 15 * DEG, std=(0.01, 1.0, 0.01)), sand)[0]
-    assert deep.max_depth_m > 0.25
-    limit_x = deep.limit_x_n / DEFAULT_MARGIN
-    for f_x, v_z, capped in ((1.25 * limit_x, -0.05, True), (0.95 * limit_x, -0.05, False), (1.25 * limit_x, 0.05, True)):
-        trial = StretchPlanner()
-        trial.keep_evidence_of(planner)
-        here = _known(d=0.08, v_z=v_z)
-        est = _fused(_estimate(here, residual=(0.0, 0.0)), 35 * DEG, 0.0, 15 * DEG, std=(0.01, 1.0, 0.01))
-        est["f_x_hat"] = f_x
-        plan = trial.plan(est, here)[0]
-        if capped:
-            assert plan.max_depth_m == pytest.approx(0.08 * deep.limit_x_n / f_x) and plan.limited_by_x, (v_z, plan)
-            assert plan.f_x_n == pytest.approx(deep.limit_x_n)
-        else:
-            assert plan.max_depth_m > 0.08 * deep.limit_x_n / f_x + 0.05, (f_x, v_z, plan)
-
-
 def test_invalid_estimate_gives_no_plan():
     zeros = {name: 0.0 for name in T.ESTIMATE_FIELDS}  # what the estimator publishes while filling
     assert max_cut_depth(zeros, _known()) is None
@@ -562,8 +536,7 @@ def _planner_run(planner: StretchPlanner, fused: dict, known: dict, forces_x) ->
 def test_the_fused_plan_is_anchored_to_the_steady_cuts_mean_force_not_one_ticks():
     """A cut whose force fluctuates by ±25 % from tick to tick: the stretch planner's plan is the
     plan of the mean force, steady however the fluctuation falls; ticks while the edge sinks
-    (the penetration reaction, a transient) do not move it, as long as this tick's F̂_x stays within
-    the tractive limit (beyond it, the next test); a new cut starts afresh."""
+    (the penetration reaction, a transient) do not move it; a new cut starts afresh."""
     known = _known(d=0.12, q=1000.0)
     fused = _fused(_estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG), 32 * DEG, 2e3, 15 * DEG,
                    std=(2 * DEG, 300.0, 0.5 * DEG), rel=(0.2, 0.3), abs_n=(1e3, 3e3))
@@ -577,8 +550,7 @@ def test_the_fused_plan_is_anchored_to_the_steady_cuts_mean_force_not_one_ticks(
     assert depths[-1] == pytest.approx(mean_plan, abs=1e-3)
     assert max(depths[-10:]) - min(depths[-10:]) < 2e-3
     sinking = _known(d=0.12, q=1000.0, v_z=-0.08)
-    heavy = dict(fused, f_x_hat=2.5 * fused["f_x_hat"], f_z_hat=2.5 * fused["f_z_hat"], fused_stretches=1e3)
-    assert heavy["f_x_hat"] < FORCE_LIMITS_N[0]  # (within the tractive limit)
+    heavy = dict(fused, f_x_hat=3 * fused["f_x_hat"], f_z_hat=3 * fused["f_z_hat"], fused_stretches=1e3)
     assert planner.plan(heavy, sinking)[0].max_depth_m == pytest.approx(mean_plan, abs=1e-3)
     # rising (the controller's anti-stall lift): this tick's F̂ can make the plan shallower, not deeper
     rising = _known(d=0.12, q=1000.0, v_z=0.08)

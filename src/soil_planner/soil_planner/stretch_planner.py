@@ -333,7 +333,7 @@ class StretchPlanner:
                self.cut_speed_m_s, self.force_quantile)
         if fused and self._fused is not None and self._fused[0] == key and self.anchor.tick - self._fused[2] < REPLAN_TICKS:
             self.sensor_gap_n = self._fused[3]
-            return self._force_capped(self._stall_capped(self._fused[1]), estimate, known), False
+            return self._stall_capped(self._fused[1]), False
         settings = dict(margin=self.margin, d_max_m=self.d_max_m, cut_speed_m_s=self.cut_speed_m_s,
                         include_residual=self.include_residual, force_quantile=self.force_quantile, terms=self.terms,
                         bound_law=self.bound_law)
@@ -346,26 +346,7 @@ class StretchPlanner:
             if now is not None and now.max_depth_m < plan.max_depth_m:
                 plan, self.sensor_gap_n = now, None
         self._fused = (key, plan, self.anchor.tick, self.sensor_gap_n) if fused and plan is not None else None
-        return self._force_capped(self._stall_capped(plan), estimate, known), True
-
-    def _force_capped(self, plan: Plan | None, estimate: Mapping[str, float], known: Mapping[str, float]) -> Plan | None:
-        """``plan`` no deeper than this tick's F̂_x allows while the edge does not hold its depth:
-        where F̂_x at the edge's depth d already exceeds the margin's share of the x limit, no plan
-        is deeper than d · margin·L_x / F̂_x (the force grows at least in proportion to depth: the
-        cautious scaling); capped, it is bound by x at that force. Why: an edge entering a stronger
-        soil again after the controller lifted it out sinks, so no steady tick anchors the new
-        soil, and the plan stayed with the weaker soil before it: 0.275 m planned while F̂_x was
-        22.5 kN at 0.096 m against a 15 kN margin, and the cut stalled again (an outside tester's:
-        a hard clay after sand). While the edge holds its depth the steady anchor has the force now."""
-        if plan is None or estimate.get("valid") != 1.0 or abs(float(known["v_z"])) <= ANCHOR_MAX_ABS_V_Z_M_S:
-            return plan
-        f_x, d, allowed = float(estimate["f_x_hat"]), float(known["d"]), plan.limit_x_n  # (margin · L_x)
-        if not (math.isfinite(f_x) and f_x > allowed / self.margin and d >= MIN_CUT_DEPTH_M):
-            return plan
-        cap = d * allowed / f_x
-        if plan.max_depth_m <= cap:
-            return plan
-        return dataclasses.replace(plan, max_depth_m=cap, limited_by_x=True, f_x_n=allowed)
+        return self._stall_capped(plan), True
 
     def _stall_capped(self, plan: Plan | None) -> Plan | None:
         """``plan`` no deeper than the stall memory allows; capped, it is bound by x (a stall is
