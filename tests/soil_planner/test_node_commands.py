@@ -257,6 +257,7 @@ def _held_starts_node(monkeypatch):
     import soil_planner.node as PN
 
     n = SimpleNamespace(cut_first_ns=None, cut_end_ns=None, cut_newest_ns=None, timeline_newest_ns=None,
+                        cut_known_ns=None, known_jump=None,
                         starts_ahead=collections.deque(), started=[], _warn=None, follower=None,
                         silence=SimpleNamespace(start=lambda name: None, end=lambda: None))
 

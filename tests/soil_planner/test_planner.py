@@ -280,6 +280,33 @@ def test_a_stall_caps_the_plan_below_where_it_began_until_it_is_forgotten():
     assert planner.plan(est, _known(d=0.12, v_x=0.0))[0].max_depth_m == pytest.approx(free)
 
 
+def test_ticks_never_heard_are_counted_within_a_cut_confirmed_by_the_next_stamp():
+    """The planner node's count of Θ_k ticks it never heard (``PlannerNode._note_known``, run here
+    on a stand-in of the node's state): a hole is counted once the stamp after it follows; a stray
+    stamp far ahead, the stream going on from before it, counts nothing and hides no later hole;
+    a new cut whose stamps restart counts its own holes (a reviewer's: a running maximum had hidden
+    every hole of a replay started over)."""
+    from types import SimpleNamespace
+
+    from soil_planner.node import PlannerNode
+
+    said = []
+    node = SimpleNamespace(cut_first_ns=0, cut_end_ns=None, cut_known_ns=None, known_jump=None, missed=0,
+                           _warn=lambda key, text: said.append(text))
+    node._count_missed = lambda before, after: PlannerNode._count_missed(node, before, after)
+    tick = lambda k: k * 10**9 // 60  # noqa: E731
+    for k in [*range(0, 10), 800, *range(10, 20), *range(30, 40)]:  # a stray at 800, then 10 lost (20-29)
+        PlannerNode._note_known(node, tick(k))
+    assert node.missed == 10 and len(said) == 1 and f"never heard before stamp {tick(30)} ns" in said[0]
+    node.cut_known_ns = node.known_jump = None  # a new cut (``_follow_cut``), its stamps from 0 again
+    for k in [*range(0, 5), *range(8, 12)]:
+        PlannerNode._note_known(node, tick(k))
+    assert node.missed == 13
+    node.cut_end_ns = tick(20)
+    PlannerNode._note_known(node, tick(25))  # (beyond the cut: another episode's)
+    assert node.missed == 13 and node.known_jump is None
+
+
 def test_invalid_estimate_gives_no_plan():
     zeros = {name: 0.0 for name in T.ESTIMATE_FIELDS}  # what the estimator publishes while filling
     assert max_cut_depth(zeros, _known()) is None
@@ -1101,10 +1128,11 @@ def test_soil_planner_node_schedules_the_target_and_starts_each_episode_from_the
             probe.subscribe(T.PLAN.name, T.PLAN.msgtype)
             probe.wait_for(lambda: probe.matched_publishers(T.PLAN.name), 20, "soil_planner's plans")
             time.sleep(0.3)
-            known_pub.publish(M.make_labelled(CLASSES, tick(19), KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
-            est_pub.publish(M.make_labelled(CLASSES, tick(19), T.ESTIMATE_FIELDS, _payload(invalid, T.ESTIMATE_FIELDS)))
-            probe.wait_for(lambda: any(M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name)[0] == tick(19)
-                                       for m in probe.messages(T.PLAN.name)), 15, "the plan of tick 19")
+            for k in (19, 20):
+                known_pub.publish(M.make_labelled(CLASSES, tick(k), KNOWN_PARAMS, _payload(known, KNOWN_PARAMS)))
+                est_pub.publish(M.make_labelled(CLASSES, tick(k), T.ESTIMATE_FIELDS, _payload(invalid, T.ESTIMATE_FIELDS)))
+            probe.wait_for(lambda: any(M.parse_labelled(m, T.PLAN_FIELDS, T.PLAN.name)[0] == tick(20)
+                                       for m in probe.messages(T.PLAN.name)), 15, "the plan of tick 20")
         finally:
             node.stop()
     assert node.proc.returncode in (0, -2), node.output

@@ -241,8 +241,9 @@ class PlannerNode(Node):
         # F̂, it anchors the plan (``stretch_planner.SENSOR_GAP_SHARE``)
         self.measured: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
         self.sensed = 0  # fused plans made with their tick's measured force (the point plan takes none)
-        # ticks of the cut under way whose Θ_k never came (``_note_known``), and the newest Θ_k stamp heard
-        self.missed, self.known_newest_ns = 0, -1
+        # ticks of the cut under way whose Θ_k never came (``_note_known``); the newest Θ_k stamp of the cut
+        # under way, and a hole after it not yet confirmed by the stamp after it ((before, after) [ns])
+        self.missed, self.cut_known_ns, self.known_jump = 0, None, None
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.classes = M.ros_message_classes()
@@ -468,10 +469,18 @@ class PlannerNode(Node):
 
     def _follow_cut(self, event: G.EpisodeEvent, last_stamp_ns: int | None) -> None:
         """The episode whose estimates the cut under way plans: its range, none of its estimates yet."""
+        before = self.cut_first_ns
         self.cut_first_ns, self.cut_newest_ns = event.first_stamp_ns, None
         if self.timeline_newest_ns is not None and event.first_stamp_ns <= self.timeline_newest_ns:
             self.timeline_newest_ns = None  # (time went back: the newest is the new timeline's)
         self.cut_end_ns = episode_end_ns(event, last_stamp_ns)
+        # the Θ_k stamps heard so far go on counting where they are the new cut's (its ticks come before
+        # the estimate that starts it, time going forward), else the count starts afresh with it
+        ahead = before is None or before < self.cut_first_ns
+        if self.cut_known_ns is not None and not (ahead and self.cut_first_ns <= self.cut_known_ns <= self.cut_end_ns):
+            if self.known_jump is not None:  # (the last cut's hole, the stamp after it never heard: counted)
+                self._count_missed(*self.known_jump)
+            self.cut_known_ns, self.known_jump = None, None
 
     def _new_cut(self, at_stamp_ns: int | None = None, keep_from_ns: int | None = None) -> None:
         """A new cut: the schedule back to its start depth, no plan carried over. ``at_stamp_ns``:
@@ -540,19 +549,37 @@ class PlannerNode(Node):
         """Θ_k comes every tick: a hole between two of the cut under way's is ticks this node never
         heard, counted and said. Why: a planner behind its inputs (a replay at 8x into a planner
         started by hand) lost hundreds of ticks from its reader's history of 2 s, and its summary
-        said 4 estimates unpaired (an outside tester's). Not across episodes (a replay of bags that
-        do not follow each other), nor where time goes back."""
-        last, self.known_newest_ns = self.known_newest_ns, max(self.known_newest_ns, stamp)
+        said 4 estimates unpaired (an outside tester's). Counted once the stamp after the hole
+        follows it: a single stray stamp far ahead, the stream then going on from before it, is no
+        hole (and hides none, a reviewer's); not across cuts (bags whose stamps restart, a replay
+        started over), nor for ticks of a cut held behind the one under way (they are counted by
+        no cut: a known gap)."""
         first, end = self.cut_first_ns, self.cut_end_ns
-        if first is None or last < first or stamp <= last or (end is not None and stamp > end):
+        if first is None or stamp < first or (end is not None and stamp > end):
             return
-        missed = round((stamp - last) / TICK_PERIOD_NS) - 1
-        if missed > 0:
-            self.missed += missed
-            depth = G.TOPIC_QOS.get(T.KNOWN.name, G.DATA_QOS).depth
-            self._warn("known:missed", f"{missed} tick(s) of {T.KNOWN.name} never heard before stamp {stamp} ns: they get "
-                                       "no plan (a planner behind its inputs, e.g. a replay faster than it plans, loses "
-                                       f"what its reader's history of {depth} messages no longer holds)")
+        if self.known_jump is not None:
+            before, after = self.known_jump
+            if stamp <= before:
+                return  # (late, or a copy)
+            self.known_jump = None
+            if stamp > after:  # the stream goes on past the hole: it was one
+                self._count_missed(before, after)
+            elif stamp < after:  # it goes on from before the stamp that jumped: that one was a stray's
+                self.cut_known_ns = before
+        last = self.cut_known_ns
+        if last is None or stamp > last:
+            if last is not None and round((stamp - last) / TICK_PERIOD_NS) > 1:
+                self.known_jump = (last, stamp)
+            self.cut_known_ns = stamp
+
+    def _count_missed(self, before: int, after: int) -> None:
+        """The ticks between Θ_k stamps ``before`` and ``after`` never came: counted and said."""
+        missed = round((after - before) / TICK_PERIOD_NS) - 1
+        self.missed += missed
+        depth = G.TOPIC_QOS.get(T.KNOWN.name, G.DATA_QOS).depth
+        self._warn("known:missed", f"{missed} tick(s) of {T.KNOWN.name} never heard before stamp {after} ns: they get "
+                                   "no plan (a planner behind its inputs, e.g. a replay faster than it plans, loses "
+                                   f"what its reader's history of {depth} messages no longer holds)")
 
     def _on_estimate(self, msg) -> None:
         self.silence.heard()
@@ -726,6 +753,9 @@ class PlannerNode(Node):
         self.target_pub.publish(M.make_labelled(self.classes, stamp, T.TARGET_DEPTH_FIELDS, values))
 
     def close(self) -> None:
+        if self.known_jump is not None:
+            self._count_missed(*self.known_jump)
+            self.known_jump = None
         unpaired = self.dropped + sum(T.ESTIMATE.name in joined.parts for joined in self.joiner.drain())
         unanswered = len(self.command_wait.drain(planned=False))
         self.get_logger().info(f"{self.published} plans published, {unpaired} estimates unpaired, "
