@@ -842,6 +842,23 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
                   *(["--forecast-law-only"] if tool is calibrate_main else [])])
         assert exit_.value.code == 2 and f"was calibrated on episodes with ['{spec}']" in capsys.readouterr().err
     assert not (tmp_path / "d.json").exists() and FusionConfig.load(tmp_path / "e.json") == recorded
+    # the same plugin written otherwise is the same plugin
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(tmp_path / "e.json"), "--plugin",
+                    "soil_physics.force_terms:plugin  k=1.000 term=form:wd_x*tanhvx0.3"])
+    assert seen[-1] == (spec,)
+    # a config that does not record them (written before it was): the plugins given, said (it was refused
+    # as calibrated with none, a reviewer's); --set cannot write them
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({k: v for k, v in json.loads((tmp_path / "e.json").read_text()).items()
+                               if k != "calibration_plugins"}))
+    assert FusionConfig.load(old).calibration_plugins is None
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(old), "--plugin", spec])
+    assert seen[-1] == (spec,) and "does not record the plugins" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--out", str(tmp_path / "f.json"), "--set", "calibration_plugins=[]"])
+    assert exit_.value.code == 2 and "calibration_plugins is set by --plugin" in capsys.readouterr().err
     for bad in ("x", [""], [3]):
         with pytest.raises(ValueError, match="calibration_plugins="):
             FusionConfig(calibration_plugins=bad)

@@ -397,7 +397,7 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     if bags is None and fusion.calibration_plugins:  # (its laws are those of the world with the plugins' force)
         log(f"--fusion-config: calibrated on episodes with {', '.join(fusion.calibration_plugins)}: the held-out "
             "episodes are simulated with them too")
-    out = forecast(model, forecast_dataset(world, plugins=fusion.calibration_plugins) if bags is None else bags,
+    out = forecast(model, forecast_dataset(world, plugins=fusion.calibration_plugins or ()) if bags is None else bags,
                    classical=classical, workers=workers, progress=progress, fusion=fusion)
     if uncalibrated:
         out["uncalibrated_physics"] = uncalibrated

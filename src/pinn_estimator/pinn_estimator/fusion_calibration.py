@@ -138,15 +138,30 @@ def checked_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, output
 def kept_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, cfg: FusionConfig, path) -> None:
     """For calibrating more of the config ``cfg`` (read from ``path``) on new episodes: the plugins
     its laws were calibrated with (``FusionConfig.calibration_plugins``) are switched on again
-    (said); a ``--plugin`` given must be them (exit 2: the config is the laws of another world)."""
-    recorded = list(cfg.calibration_plugins)
-    if args.plugin and args.plugin != recorded:
-        p.error(f"--plugin: {path} was calibrated on episodes with {recorded or 'no plugin'}, not {args.plugin}: its "
+    (said); a ``--plugin`` given must be them, whatever the spacing, order or number format (exit 2:
+    the config is the laws of another world). A config that does not record them (one written
+    before it was) takes the ``--plugin`` given, said."""
+    recorded = cfg.calibration_plugins
+    if recorded is None:
+        print(f"{p.prog}: {path} does not record the plugins its laws were calibrated with: the episodes have "
+              + (f"those given,{plugin_words(args.plugin)}" if args.plugin else "none (give --plugin if its had any)"),
+              file=sys.stderr, flush=True)
+        return
+    if args.plugin and plugin_key(args.plugin) != plugin_key(recorded):
+        p.error(f"--plugin: {path} was calibrated on episodes with {list(recorded) or 'no plugin'}, not {args.plugin}: its "
                 "posterior is that world's (run the whole calibration with --plugin into another --out)")
     if recorded and not args.plugin:
         print(f"{p.prog}: {path} was calibrated on episodes with{plugin_words(recorded)}: switched on again",
               file=sys.stderr, flush=True)
-    args.plugin = recorded
+    args.plugin = list(recorded)
+
+
+def plugin_key(specs) -> list:
+    """Plugin specs as what they switch on, (target, sorted parameters) each, sorted: two lists of
+    specs that differ in spacing, order or the writing of a number are the same plugins."""
+    from soil_sim_node.effects import load_plugins
+
+    return sorted((p.target, sorted(p.params.items())) for p in load_plugins(specs))
 
 
 def term_note(prog: str, world: str, terms, plugins) -> None:
@@ -851,6 +866,8 @@ def main(argv=None) -> int:
             raise ValueError("terms is set by --term")
         if "world" in fields:
             raise ValueError("world is set by --world")
+        if "calibration_plugins" in fields:
+            raise ValueError("calibration_plugins is set by --plugin")
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")

@@ -116,7 +116,8 @@ class FusionConfig:
     # ``soil_sim_batch --plugin`` takes them): an effect the world lacks, found in a machine's
     # bags. Recorded so that what calibrates or judges this config again simulates the same world
     # (the planner's bound law had been calibrated on episodes without the force; a reviewer's).
-    calibration_plugins: tuple[str, ...] = ()
+    # None: not recorded (a config written before it was, or made in code), () none.
+    calibration_plugins: tuple[str, ...] | None = None
 
     def __post_init__(self):
         for name, (lo, hi) in INT_FIELD_RANGES.items():
@@ -168,11 +169,12 @@ class FusionConfig:
         if self.world not in ("", *WORLD_MODES):
             raise ValueError(f"fusion world={short_repr(self.world)} must be one of {WORLD_MODES} or \"\" (not recorded)")
         plugins = self.calibration_plugins
-        if isinstance(plugins, (str, bytes)) or not isinstance(plugins, (list, tuple)) \
-                or not all(isinstance(p, str) and p.strip() for p in plugins):
-            raise ValueError(f"fusion calibration_plugins={short_repr(plugins)} must be a list of plugin specs "
-                             "('package.module:function key=value ...')")
-        object.__setattr__(self, "calibration_plugins", tuple(plugins))
+        if plugins is not None:
+            if isinstance(plugins, (str, bytes)) or not isinstance(plugins, (list, tuple)) \
+                    or not all(isinstance(p, str) and p.strip() for p in plugins):
+                raise ValueError(f"fusion calibration_plugins={short_repr(plugins)} must be a list of plugin specs "
+                                 "('package.module:function key=value ...') or null (not recorded)")
+            object.__setattr__(self, "calibration_plugins", tuple(plugins))
         terms = AugmentedFEE(self.terms).terms
         force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
         object.__setattr__(self, "terms", terms)
