@@ -559,7 +559,7 @@ class PlannerNode(Node):
             return
         if self.known_jump is not None:
             before, after = self.known_jump
-            if stamp <= before:
+            if stamp <= before or stamp == after:
                 return  # (late, or a copy)
             self.known_jump = None
             if stamp > after:  # the stream goes on past the hole: it was one
