@@ -175,6 +175,17 @@ def term_note(prog: str, world: str, terms, plugins) -> None:
               file=sys.stderr, flush=True)
 
 
+def checked_world_options(p: argparse.ArgumentParser, args: argparse.Namespace, output_option: str, output) -> None:
+    """The options that calibrate on another world than the shipped one (``--force-noise``,
+    ``--plugin``, own soils) refused without ``output_option`` naming a file of one's own
+    (``own_output``), and the plugins and soils checked, before any work (exit 2)."""
+    own = own_output(output)
+    if args.force_noise and own is None:
+        p.error(f"--force-noise: give {output_option} (the shipped config is calibrated on the world as it is)")
+    checked_plugins(p, args, output_option, own)
+    checked_soils(p, args, output_option, own)
+
+
 def own_output(path):
     """``path`` (a tool's --out or --config), or None where it names a shipped config (or is None):
     what the calibration's own-world options refuse to replace is the shipped file, however it is
@@ -871,11 +882,7 @@ def main(argv=None) -> int:
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")
-    own = own_output(args.out)
-    if args.force_noise and own is None:
-        p.error("--force-noise: give --out (the shipped config is calibrated on the world as it is)")
-    checked_plugins(p, args, "--out", own)
-    checked_soils(p, args, "--out", own)
+    checked_world_options(p, args, "--out", args.out)
     out = args.out or config_path(args.world)
     if args.forecast_law_only:
         if args.term or args.fields:

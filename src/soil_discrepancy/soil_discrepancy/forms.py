@@ -582,12 +582,12 @@ def load_catalogue(path) -> list[dict]:
     p = Path(path)
     data = read_yaml(p, "catalogue")
     rows = (data or {}).get("terms") if isinstance(data, dict) else None
+    others = sorted(map(str, set(data) - {"terms"})) if isinstance(data, dict) else []
     if not isinstance(rows, list) or not rows:
-        others = sorted(map(str, set(data) - {"terms"})) if isinstance(data, dict) else []
         raise ValueError(f"catalogue {p}: expected a mapping with a non-empty list 'terms'"
                          + (f" (it has {others}: a misspelt key?)" if others else ""))
-    if isinstance(data, dict) and (unknown := sorted(map(str, set(data) - {"terms"}))):
-        raise ValueError(f"catalogue {p}: unknown top-level key(s) {unknown}; a catalogue holds 'terms' only")
+    if others:
+        raise ValueError(f"catalogue {p}: unknown top-level key(s) {others}; a catalogue holds 'terms' only")
     out, seen, names = [], {}, {}
     for i, row in enumerate(rows):
         term = row.get("term") if isinstance(row, dict) else None

@@ -27,9 +27,8 @@ from pinn_estimator.fusion import fused_values
 from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
                                                add_plugin_option, add_soil_options, calibration_episodes,
-                                               check_duration_option, checked_plugins, kept_plugins, own_output,
-                                               term_note,
-                                               checked_soils, config_path, world_note)
+                                               check_duration_option, checked_world_options, config_path,
+                                               kept_plugins, term_note, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -158,11 +157,7 @@ def main(argv=None) -> int:
         check_quantile(args.quantile)
     except ValueError as err:
         p.error(f"--quantile: {err}")
-    own = own_output(args.config)
-    if args.force_noise and own is None:
-        p.error("--force-noise: give --config (the shipped config is calibrated on the world as it is)")
-    checked_plugins(p, args, "--config", own)
-    checked_soils(p, args, "--config", own)
+    checked_world_options(p, args, "--config", args.config)
     check_duration_option(p, args.duration)
     path = args.config or config_path(args.world)
     try:
