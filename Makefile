@@ -43,7 +43,7 @@ bench: venv
 	$(BIN)/python benchmarks/bench_bag_tools.py
 	$(BIN)/python benchmarks/bench_bag_integrity.py
 	$(BIN)/python benchmarks/bench_graph.py
-	$(BIN)/python benchmarks/bench_acks.py
+	$(BIN)/python benchmarks/bench_dds_profile.py
 	$(BIN)/python benchmarks/bench_estimator.py
 	$(BIN)/python benchmarks/bench_planner_loop.py
 	$(BIN)/python benchmarks/bench_forecast.py

@@ -1,5 +1,6 @@
 """The graph's Fast DDS profile: every node process loads it unless its user chose their own,
-and it is a profile Fast DDS reads (a reliable writer's acknowledgements come back)."""
+and it is a profile Fast DDS reads (a reliable writer's acknowledgements come back, a node
+started late is matched). How fast: benchmarks/bench_dds_profile.py."""
 from __future__ import annotations
 
 import subprocess
@@ -17,12 +18,25 @@ pytestmark = pytest.mark.live
 NS = {"f": PROFILES_NAMESPACE}
 
 
-def test_the_profile_sets_only_a_default_writers_heartbeat_of_a_tenth_of_a_second():
+def _seconds(period) -> float:
+    return int(period.find("f:sec", NS).text) + int(period.find("f:nanosec", NS).text) * 1e-9
+
+
+def test_the_profile_sets_only_a_writers_heartbeat_and_a_participants_announcements():
+    """A default writer's heartbeat every 0.1 s; a default participant's announcements every 0.5 s
+    after its first five 0.1 s apart; nothing else (lease durations stay Fast DDS's 20 s)."""
     root = ET.parse(PROFILE_FILE).getroot()
     (writer,) = root.findall("f:data_writer", NS)
-    assert writer.get("is_default_profile") == "true" and len(root) == 1 and len(writer) == 1
-    period = writer.find("f:times/f:heartbeatPeriod", NS)
-    assert int(period.find("f:sec", NS).text) + int(period.find("f:nanosec", NS).text) * 1e-9 == 0.1
+    (participant,) = root.findall("f:participant", NS)
+    assert len(root) == 2 and all(p.get("is_default_profile") == "true" for p in (writer, participant))
+    assert len(writer) == 1 and _seconds(writer.find("f:times/f:heartbeatPeriod", NS)) == 0.1
+    (rtps,) = participant
+    (builtin,) = rtps
+    (discovery,) = builtin
+    assert rtps.tag.endswith("rtps") and builtin.tag.endswith("builtin") and len(discovery) == 2
+    assert _seconds(discovery.find("f:leaseAnnouncement", NS)) == 0.5
+    initial = discovery.find("f:initialAnnouncements", NS)
+    assert int(initial.find("f:count", NS).text) == 5 and _seconds(initial.find("f:period", NS)) == 0.1
 
 
 def test_use_graph_profile_sets_both_names_and_leaves_a_users_own_profiles_alone():
@@ -73,7 +87,7 @@ def test_a_node_process_loads_the_profile_and_its_writer_is_acknowledged(tmp_pat
     """Two processes as nodes start (``init_rclpy``), nothing set by the caller: both run with the
     graph's profile, Fast DDS parses it without an error (it would print one and run on with its
     own 3 s timing), and each of the publisher's samples is acknowledged by the subscriber. (How
-    fast: benchmarks/bench_acks.py.)"""
+    fast: benchmarks/bench_dds_profile.py.)"""
     domain = next_domain_id()
     env = {k: v for k, v in loopback_env(domain).items() if k not in PROFILE_ENV_VARS}
     sub = subprocess.Popen([sys.executable, "-c", CHILD, "sub"], env=env, stdout=subprocess.PIPE,

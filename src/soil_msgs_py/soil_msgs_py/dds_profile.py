@@ -1,4 +1,5 @@
-"""The graph's Fast DDS profile: a reliable writer's acknowledgements in a tenth of a second, not three.
+"""The graph's Fast DDS profile: a reliable writer's acknowledgements in a tenth of a second, not
+three, and a node that starts late matched in half a second, not three.
 
 Fast DDS (rmw_fastrtps, Jazzy's default RMW) sends a reliable writer's heartbeat, which the
 readers answer with their acknowledgement, every 3 s by default, and a small sample carries
@@ -6,9 +7,19 @@ none: ``Publisher.wait_for_all_acked`` then waits up to 3 s for a sample every r
 once. The graph waits for acknowledgements where order matters (an episode's start before its
 first tick, every sample before a node exits): the simulator's ``episode_start`` waited its
 whole 2 s bound before every episode, its ``episode_end`` 1 s. Newer Fast DDS releases send a
-heartbeat from ``wait_for_all_acked`` itself; the 2.14.5 of the Jazzy wheels does not. So
-every process of the graph loads ``fastdds_profile.xml`` (a heartbeat every 0.1 s; nothing else
-changed) unless its user chose profiles of their own. Other RMWs never read the file.
+heartbeat from ``wait_for_all_acked`` itself; the 2.14.5 of the Jazzy wheels does not.
+
+A participant announces itself every 3 s by default. Nodes start at different times (the
+estimator loads torch and its model for about 2 s after the others are up), and one that came
+after the others' first announcements was, measured on loopback, heard by some of them only at
+their next periodic announcement: each launch's first episode waited 2–3 s for it (a lockstep
+launch with the estimator and the planner: first episode 5.9–6.1 s after the start, 3.5–4.0 s
+with announcements every 0.5 s; ``benchmarks/bench_dds_profile.py``). Lease durations, after
+which a silent participant is taken as gone, stay Fast DDS's 20 s.
+
+So every process of the graph loads ``fastdds_profile.xml`` (a writer's heartbeat every 0.1 s, a
+participant's announcement every 0.5 s; nothing else changed) unless its user chose profiles of
+their own. Other RMWs never read the file.
 """
 from __future__ import annotations
 
