@@ -1,5 +1,5 @@
 """The graph's Fast DDS profile: a reliable writer's acknowledgements in a tenth of a second, not
-three, and a node that starts late matched in half a second, not three.
+three, and a node that starts late matched within about a second, not three.
 
 Fast DDS (rmw_fastrtps, Jazzy's default RMW) sends a reliable writer's heartbeat, which the
 readers answer with their acknowledgement, every 3 s by default, and a small sample carries
