@@ -590,7 +590,7 @@ class PlannerNode(Node):
             return
         self._note_estimate(stamp)
         est = fields(values, T.ESTIMATE_FIELDS)
-        fused = self.planner.force_quantile is not None and est["fused_valid"] == 1.0
+        fused = self.planner.plans_fused(est)
         if est["valid"] == 0.0 and not fused:  # nothing to plan from yet: say so for this tick, no Θ_k needed
             self._answer(self.command_wait.offer(stamp, (est, None), time.monotonic()))
             return
@@ -673,7 +673,7 @@ class PlannerNode(Node):
         try:
             measured = self.measured.get(stamp)
             plan, new = self.planner.plan(est, known, self.commanded.get(stamp), measured)
-            self.sensed += measured is not None and self.planner.force_quantile is not None and est.get("fused_valid") == 1.0
+            self.sensed += measured is not None and self.planner.plans_fused(est)
         except ValueError as err:
             self._warn(f"bad:{str(err).split('=')[0]}", f"stamp {stamp} ns: {err}; no plan published")
             self._target(stamp, None)

@@ -316,6 +316,11 @@ class StretchPlanner:
                 "terms": force_terms.term_texts(self.terms), "sensor_anchor": self.anchor.sensor,
                 "bound_law": list(self.bound_law or ())}
 
+    def plans_fused(self, estimate: Mapping[str, float]) -> bool:
+        """Whether a tick with this (checked) estimate is planned from its fused posterior: this
+        planner plans at a force quantile and the estimator's fused posterior is valid."""
+        return self.force_quantile is not None and estimate.get("fused_valid") == 1.0
+
     def plan(self, estimate: Mapping[str, float], known: Mapping[str, float],
              commanded_depth_m: float | None = None, measured_force_n=None) -> tuple[Plan | None, bool]:
         """(the plan or None, whether it was newly made rather than repeated for this stretch).
@@ -323,7 +328,7 @@ class StretchPlanner:
         /blade/cmd; ``measured_force_n``: the blade's measured (F_x, F_z) [N] of this tick,
         /blade/force (both ``SteadyAnchor.add``)."""
         checked_inputs(estimate, known, self.force_quantile)  # before the anchor and a repeated plan take it
-        fused = self.force_quantile is not None and estimate.get("fused_valid") == 1.0
+        fused = self.plans_fused(estimate)
         self.anchor.add(estimate, known, commanded_depth_m, measured_force_n)
         self.stalls.add(known, self.cut_speed_m_s)
         steady = self.anchor.anchor() if fused else None
