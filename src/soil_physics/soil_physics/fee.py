@@ -57,6 +57,8 @@ class FeeCoefficients:
 
 def _safe_sin_eta(xp, eta):
     s = xp.sin(eta)
+    if not _xp.is_torch(xp):  # the same values; "+ 0.0 * s" only carries torch's gradient through
+        return np.where(np.abs(s) < SIN_ETA_FLOOR, np.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR), s)
     return xp.where(xp.abs(s) < SIN_ETA_FLOOR, xp.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR) + 0.0 * s, s)
 
 
@@ -107,7 +109,7 @@ def beta_star(phi, delta, rho, alpha):
     p = rho + a_
     b = xp.cos(b_)
     q = b_
-    x = b * xp.cos(p) - a * xp.cos(q)
+    x = b * xp.cos(p) - a * b  # b = cos(q)
     y = b * xp.sin(p) - a * xp.sin(q)
     m = xp.sqrt(x * x + y * y)
     with np.errstate(divide="ignore", invalid="ignore"):  # m = 0: no failure wedge, NaN as said above
@@ -118,7 +120,7 @@ def beta_star(phi, delta, rho, alpha):
     best = None
     best_n = None
     for theta in (root - psi, math.pi - root - psi):
-        beta = xp.remainder(theta / 2.0, math.pi)
+        beta = _xp.remainder(xp, theta / 2.0, math.pi)
         valid = (beta > BETA_MARGIN_RAD) & (beta < upper - BETA_MARGIN_RAD)
         # N_gamma alone (the other coefficients are not needed to compare the roots), with the
         # arithmetic of ``coefficients``, so beta* is the same to the bit
