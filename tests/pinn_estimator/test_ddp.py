@@ -36,7 +36,10 @@ TINY = ["--d-model", "16", "--n-heads", "2", "--n-layers", "1", "--ff-dim", "32"
         "--batch-size", "64", "--threads", "2", "--quiet"]
 
 
-TORCHRUN_ENV = {**os.environ, "MASTER_ADDR": "127.0.0.1", "GLOO_SOCKET_IFNAME": "lo"}
+def torchrun_env(scratch: Path) -> dict:
+    """torchrun's environment: loopback, and TMPDIR in the test's own directory (torchrun makes a
+    ``torchelastic_*`` directory in TMPDIR at every start and leaves it: /tmp held 112 of them)."""
+    return {**os.environ, "MASTER_ADDR": "127.0.0.1", "GLOO_SOCKET_IFNAME": "lo", "TMPDIR": str(scratch)}
 
 
 def _torchrun(*train_args: str) -> list[str]:
@@ -97,7 +100,7 @@ def test_two_ddp_processes_reach_the_single_process_validation_loss(bags, tmp_pa
     for attempt in (1, 2):  # once more after gloo's own abort (_gloo_abort), on fresh bags and output
         data, out = tmp_path / f"data{attempt}", tmp_path / f"ddp{attempt}" / "two.pt"
         shutil.copytree(bags, data)  # its own cache directory, written by rank 0 alone
-        proc = subprocess.run(_torchrun("--data", str(data), "--out", str(out), *TINY), env=TORCHRUN_ENV,
+        proc = subprocess.run(_torchrun("--data", str(data), "--out", str(out), *TINY), env=torchrun_env(tmp_path),
                               capture_output=True, text=True, timeout=130)
         if proc.returncode == 0 or not _gloo_abort(proc.stderr):
             break
@@ -132,7 +135,7 @@ def _train_until_epoch(bags: Path, out: Path, log: Path, epochs: int) -> subproc
     ``epochs`` validated epochs (a best model to keep); its stderr goes to ``log``."""
     args = [*TINY, "--epochs", "100000", "--patience", "100000"]
     args.remove("--quiet")
-    proc = subprocess.Popen(_torchrun("--data", str(bags), "--out", str(out), *args), env=TORCHRUN_ENV,
+    proc = subprocess.Popen(_torchrun("--data", str(bags), "--out", str(out), *args), env=torchrun_env(log.parent),
                             stdout=subprocess.PIPE, stderr=log.open("w"), text=True, start_new_session=True)
     deadline = time.monotonic() + 200
     while proc.poll() is None and time.monotonic() < deadline:
