@@ -172,6 +172,27 @@ def paired_test(before: np.ndarray, after: np.ndarray) -> float:
         return 1.0
 
 
+def paired_tests(before, after) -> np.ndarray:
+    """``paired_test`` of each row of ``before`` against the same row of ``after`` (rows broadcast),
+    the same p to the bit. Why: a report tests hundreds of library forms against a term, and
+    scipy's per-call overhead (about 1 ms) was a tenth of a report's time. Rows whose differences
+    are all finite, non-zero and distinct in size go to scipy in one call along the rows (it then
+    takes the test each would get alone: exact up to 50 episodes, else the normal approximation,
+    as each row's ties and zeros are what make it choose otherwise); the rest one by one."""
+    before, after = np.broadcast_arrays(np.atleast_2d(np.asarray(before, float)), np.atleast_2d(np.asarray(after, float)))
+    d = before - after
+    p = np.ones(len(d))
+    if d.shape[1] < 2:
+        return p
+    magnitudes = np.sort(np.abs(d), axis=1)
+    clean = np.isfinite(d).all(1) & (d != 0).all(1) & (np.diff(magnitudes, axis=1) != 0).all(1)
+    if clean.any():
+        p[clean] = stats.wilcoxon(d[clean], alternative="greater", axis=1).pvalue
+    for i in np.flatnonzero(~clean):
+        p[i] = paired_test(before[i], after[i])
+    return p
+
+
 @dataclass
 class TermScore:
     name: str

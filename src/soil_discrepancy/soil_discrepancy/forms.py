@@ -45,7 +45,7 @@ from soil_physics import force_terms, term_forms
 from soil_physics.augmented_fee import AugmentedFEE
 
 from pinn_estimator.classical import FORCE_SCALE_N
-from .candidates import FOLDS, paired_test
+from .candidates import FOLDS, paired_tests
 from .fee_fit import ThetaFit
 from .regimes import holm
 from .frame import Frame
@@ -340,7 +340,7 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
         return 1.0 - float(sse.sum()) / total if total > 0 else 0.0
 
     _, own_sse = fitted(c0)
-    rows = []
+    rows, sses = [], []
     for j, n in enumerate(names):
         k, sse = fitted(X[:, j])
         if k == 0.0:
@@ -349,8 +349,13 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
         if cos[j] >= same_cos:
             rows.append({"name": signed, "same": True})
             continue
-        rows.append({"name": signed, "k": abs(k), "share": share(sse), "p_worse": paired_test(sse, own_sse),
-                     "p_better": paired_test(own_sse, sse), "same": False})
+        rows.append({"name": signed, "k": abs(k), "share": share(sse), "p_worse": None, "p_better": None, "same": False})
+        sses.append(sse)
+    if sses:  # every form's two tests against the term at once
+        sses = np.array(sses)
+        tested = [r for r in rows if not r["same"]]
+        for r, p_worse, p_better in zip(tested, paired_tests(sses, own_sse), paired_tests(own_sse, sses)):
+            r["p_worse"], r["p_better"] = float(p_worse), float(p_better)
     same = [r["name"] for r in rows if r["same"]]
     rows = sorted((r for r in rows if not r["same"]), key=lambda r: -r["share"])
     for r, p_better in zip(rows, holm([r["p_better"] for r in rows])):
