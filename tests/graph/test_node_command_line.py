@@ -41,6 +41,18 @@ def test_help_lists_the_parameters_and_an_unknown_argument_is_refused(script, tm
     assert f"{script}: error: unrecognised argument(s) {NODES[script]}:=x (outside --ros-args, NAME:=VALUE" in out, out
 
 
+def test_the_estimators_help_and_refusals_answer_without_loading_torch():
+    """torch takes about 2 s to import: the estimator's --help and a refused argument answer without it."""
+    import subprocess
+    import sys
+
+    check = ("import sys; from pinn_estimator.node import main; codes = (main(['pinn_estimator', '--help']), "
+             "main(['pinn_estimator', '--bogus-flag'])); assert codes == (0, 2), codes; "
+             "assert 'torch' not in sys.modules, 'torch was imported'")
+    run = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+
+
 @pytest.mark.parametrize("args, needle", [
     (["--ros-args", "-p", "soil"], "Couldn't parse parameter override rule: '-p soil'"),
     (["--ros-args", "--params-file", "/nonexistent/params.yaml"], "Couldn't parse params file"),

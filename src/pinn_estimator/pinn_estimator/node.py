@@ -19,8 +19,8 @@ is refused with the reason and the running model stays.
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
-import torch
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -37,10 +37,13 @@ from soil_msgs_py.ros_adapter import (
     followed_status_event,
 )
 
-from .checkpoint import DEFAULT_CHECKPOINT, load_model
 from .fusion_calibration import announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion
-from .online import IMPLAUSIBLE_ESTIMATE_FACTOR, INPUT_TOPICS, Estimate, OnlineEstimator, check_compatible
 from .shipped import shipped_checkpoint
+
+# The model's modules import torch (about 2 s): imported once a node is made, so that --help and a
+# refused argument answer at once (spin_node handles both before it makes the node).
+if TYPE_CHECKING:
+    from .online import Estimate
 
 PARAMETERS: dict[str, tuple] = {
     "checkpoint": ("", "PINN checkpoint (.pt) to load; empty: the shipped pinn_default.pt"),
@@ -62,6 +65,9 @@ DRAIN_ENDED_EPISODE_LIMIT_S = 120.0  # the most it spends so: a lockstep run's b
 
 def load_estimator_model(path: str):
     """(model, checkpoint dict, resolved path); ValueError with the reason if it cannot be used."""
+    from .checkpoint import DEFAULT_CHECKPOINT, load_model
+    from .online import check_compatible
+
     resolved = str(path) if path else str(DEFAULT_CHECKPOINT)
     try:
         model, ckpt = load_model(resolved)
@@ -84,6 +90,10 @@ class EstimatorNode(Node):
         if not isinstance(threads, int) or not 1 <= threads <= cli_numbers.local_limit():
             raise ValueError(f"parameter threads={threads!r} must be an integer in [1, {cli_numbers.local_limit()}] "
                              f"({cli_numbers.PER_CORE} per core of this machine at the most)")
+        import torch
+
+        from .online import INPUT_TOPICS, OnlineEstimator
+
         torch.set_num_threads(threads)
         model, ckpt, self.checkpoint_path = load_estimator_model(get("checkpoint"))
         self._warn = WarnLimiter(self.get_logger())
@@ -138,7 +148,7 @@ class EstimatorNode(Node):
         try:
             model = load_estimator_model(changes["checkpoint"]) if "checkpoint" in changes else None
             if "stride" in changes:
-                OnlineEstimator._check_stride(changes["stride"])
+                type(self.core)._check_stride(changes["stride"])
             if fixed := sorted({"reorder_ticks", "threads", "fusion_config", "inputs_wait_s", "graph_id"} & set(changes)):
                 raise ValueError(f"{fixed} can only be set at start-up; restart the node to change them")
         except ValueError as err:
@@ -252,6 +262,8 @@ class EstimatorNode(Node):
         return owed
 
     def close(self) -> None:
+        from .online import IMPLAUSIBLE_ESTIMATE_FACTOR
+
         c = self.core.counters
         self.get_logger().info(
             f"{c.estimates} estimates, {c.invalid} invalid; {c.samples} samples, {c.gaps} gaps, "
