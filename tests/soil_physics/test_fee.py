@@ -687,15 +687,18 @@ def test_recorded_beta_star_is_beta_star_or_the_vanishing_wedge():
 
 def test_the_fees_remainder_is_numpys_to_the_bit():
     """beta_star folds its roots into [0, pi) with a remainder written from fmod (NumPy's own costs
-    3-4x as much): it must give NumPy's value to the bit, signed zeros aside, which fold alike."""
+    3-4x as much): it must give NumPy's value to the bit, signed zeros, dtype and scalars too."""
     from soil_physics import xp as _xp
 
     rng = np.random.default_rng(11)
     x = np.concatenate([rng.uniform(-10, 10, 100_000), rng.uniform(-1e6, 1e6, 1000), np.arange(-8, 9) * math.pi,
-                        np.arange(-8, 9) * math.pi / 2, [0.0, 1e-300, -1e-300, math.pi - 1e-16, -math.pi + 1e-16]])
-    got, want = _xp.remainder(np, x, math.pi), np.remainder(x, math.pi)
-    assert np.array_equal(got, want)  # values (−0.0 == 0.0)
-    nonzero = want != 0
-    assert np.array_equal(got[nonzero].view(np.int64), want[nonzero].view(np.int64))
-    assert ((got >= 0) & (got <= math.pi)).all()  # −1e-300 folds to π itself, in NumPy's too
-    assert np.isnan(_xp.remainder(np, np.array([np.nan, np.inf]), math.pi)).all()
+                        np.arange(-8, 9) * math.pi / 2, [0.0, -0.0, 1e-300, -1e-300, math.pi - 1e-16, -math.pi + 1e-16,
+                                                         np.nan, np.inf, -np.inf]])
+    for values in (x, x.astype(np.float32)):
+        with np.errstate(invalid="ignore"):
+            got, want = _xp.remainder(np, values, math.pi), np.remainder(values, math.pi)
+        assert got.dtype == want.dtype
+        assert np.array_equal(got.view(f"i{got.itemsize}"), want.view(f"i{want.itemsize}"))
+    for scalar in (-2.0 * math.pi, 7.5, np.float32(-1.25)):
+        got, want = _xp.remainder(np, scalar, math.pi), np.remainder(scalar, math.pi)
+        assert type(got) is type(want) and np.asarray(got).tobytes() == np.asarray(want).tobytes()

@@ -109,7 +109,9 @@ def beta_star(phi, delta, rho, alpha):
     p = rho + a_
     b = xp.cos(b_)
     q = b_
-    x = b * xp.cos(p) - a * b  # b = cos(q)
+    # b is cos(q): taken once with NumPy (the same bits); torch computes it again, so that its
+    # gradients keep their rounding (autograd sums a reused node's gradients in another order)
+    x = b * xp.cos(p) - a * (xp.cos(q) if _xp.is_torch(xp) else b)
     y = b * xp.sin(p) - a * xp.sin(q)
     m = xp.sqrt(x * x + y * y)
     with np.errstate(divide="ignore", invalid="ignore"):  # m = 0: no failure wedge, NaN as said above

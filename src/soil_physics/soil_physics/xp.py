@@ -45,14 +45,15 @@ def clip(xp, x, lo, hi):
 
 
 def remainder(xp, x, period: float):
-    """x mod ``period`` (> 0) in [0, period], as ``xp.remainder`` to the bit (a negative x a hair
-    below 0 rounds to ``period`` itself, as there). With NumPy
-    from ``fmod``, which is exact, and the same one addition where it is negative: NumPy's own
-    remainder costs 3-4x as much (a quarter of the FEE's beta* where a fit evaluates it)."""
+    """x mod ``period`` (> 0) in [0, period], as ``xp.remainder`` to the bit, signed zeros, dtype
+    and a scalar's type too (a negative x a hair below 0 rounds to ``period`` itself, as there).
+    With NumPy from ``fmod``, which is exact, and the same one addition where it is negative:
+    NumPy's own remainder costs 3-4x as much (a quarter of the FEE's beta* where a fit evaluates it)."""
     if is_torch(xp):
         return xp.remainder(x, period)
     r = np.fmod(x, period)
-    return np.where(r < 0, r + period, r)
+    out = np.where(r < 0, r + period, r + 0.0)  # + 0.0: fmod's −0.0 is NumPy's +0.0 (NaNs kept as they are)
+    return out[()] if out.ndim == 0 else out
 
 
 def full_like(xp, x, value: float):
