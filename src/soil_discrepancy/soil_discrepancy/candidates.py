@@ -175,7 +175,7 @@ def paired_test(before: np.ndarray, after: np.ndarray) -> float:
 def paired_tests(before, after) -> np.ndarray:
     """``paired_test`` of each row of ``before`` against the same row of ``after`` (rows broadcast),
     the same p to the bit. Why: a report tests hundreds of library forms against a term, and
-    scipy's per-call overhead (about 1 ms) was a tenth of a report's time. Rows whose differences
+    scipy's per-call overhead (about 1 ms) was a seventh of a report's time. Rows whose differences
     are all finite, non-zero and distinct in size go to scipy in one call along the rows (it then
     takes the test each would get alone: exact up to 50 episodes, else the normal approximation,
     as each row's ties and zeros are what make it choose otherwise); the rest one by one."""

@@ -48,7 +48,7 @@ def remainder(xp, x, period: float):
     """x mod ``period`` (> 0) in [0, period], as ``xp.remainder`` to the bit, signed zeros, dtype
     and a scalar's type too (a negative x a hair below 0 rounds to ``period`` itself, as there).
     With NumPy from ``fmod``, which is exact, and the same one addition where it is negative:
-    NumPy's own remainder costs 3-4x as much (a quarter of the FEE's beta* where a fit evaluates it)."""
+    NumPy's own remainder costs 3-4x as much (a sixth of the FEE's beta* where a fit evaluates it)."""
     if is_torch(xp):
         return xp.remainder(x, period)
     r = np.fmod(x, period)
