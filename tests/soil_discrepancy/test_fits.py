@@ -1,8 +1,8 @@
 """The discrepancy fits' numerical choices give the answers of the plain ones they replace.
 
 A joint fit of θ per group with a term's k solves each step exactly (dense) up to a size and
-iteratively (sparse) above it: both must find the hidden k and fit the data alike. The one-sided Wilcoxon of
-hundreds of forms at once must give each the p it gets alone, to the bit.
+iteratively (sparse) above it: both must find the hidden k and fit the data alike. The one-sided
+Wilcoxon of hundreds of forms at once must give each the p it gets alone, to the bit.
 """
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ def test_the_joint_fit_finds_the_hidden_k_solving_exactly_or_iteratively(monkeyp
     assert dense.k == pytest.approx(sparse.k, rel=2e-3)
     assert dense_cost == pytest.approx(sparse_cost, rel=1e-3)
     assert all(dense.success.values()) and all(sparse.success.values())
+
 
 def test_the_wilcoxon_of_many_rows_at_once_is_each_rows_own_to_the_bit():
     rng = np.random.default_rng(5)
