@@ -57,9 +57,10 @@ class FeeCoefficients:
 
 def _safe_sin_eta(xp, eta):
     s = xp.sin(eta)
-    if not _xp.is_torch(xp):  # the same values; "+ 0.0 * s" only carries torch's gradient through
-        return np.where(np.abs(s) < SIN_ETA_FLOOR, np.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR), s)
-    return xp.where(xp.abs(s) < SIN_ETA_FLOOR, xp.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR) + 0.0 * s, s)
+    floor = xp.where(s < 0, -SIN_ETA_FLOOR, SIN_ETA_FLOOR)
+    if _xp.is_torch(xp):
+        floor = floor + 0.0 * s  # carries torch's gradient through; NumPy's values are the same without it
+    return xp.where(xp.abs(s) < SIN_ETA_FLOOR, floor, s)
 
 
 def _n_gamma(xp, rho, beta, s_wedge, sin_eta):
