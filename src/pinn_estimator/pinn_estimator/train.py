@@ -575,7 +575,7 @@ def _said_interrupted(args, ranks: Ranks, best_so_far, exc: KeyboardInterrupt) -
 
 def _say(message: str) -> None:
     """``log`` of rank 0: progress on stderr, so that stdout holds the run's summary alone (JSON, as
-    the README says; the progress lines before it made ``pinn_train ... > run.json`` unreadable, an
+    docs/cluster.md says; the progress lines before it made ``pinn_train ... > run.json`` unreadable, an
     outside tester's)."""
     print(message, file=sys.stderr, flush=True)
 

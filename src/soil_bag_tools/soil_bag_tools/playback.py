@@ -96,7 +96,7 @@ def absent_topics(bag: Path, option: str, asked: Iterable[str], held: Iterable[s
     mistyped ``--exclude /soil/estimat`` had played the estimate in silence."""
     held = set(held)
     missing = sorted(set(asked) - held)
-    if option == "--exclude":  # a graph topic a bag lacks is excluded all the same (the README's list of the
+    if option == "--exclude":  # a graph topic a bag lacks is excluded all the same (docs/bags.md's list of the
         missing = [t for t in missing if t not in GRAPH_TOPICS_BY_NAME]  # estimator's outputs, on a batch's bags)
     if not missing:
         return ""
