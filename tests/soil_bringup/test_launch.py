@@ -463,6 +463,11 @@ def test_options_that_would_be_ignored_or_misread_are_refused(capsys):
     assert L.parse_args(["--planner", "--estimator-param", "stride:=2", "--require", "estimator"]).estimator
     with pytest.raises(ValueError, match="parameter 'duration_s:=' is not of the form name:=value"):
         L.build_nodes(L.parse_args(["--sim-param", "duration_s:="]))
+    # a topic the simulator does not own: its node refused it only once every node was up (exit 1)
+    with pytest.raises(ValueError, match="'/soil/estimate:1': the simulator waits only for endpoints of its own "
+                                         "topics, one of /clock, .*/sim/status"):
+        L.build_nodes(L.parse_args(["--estimator", "--wait-for", "/soil/estimate:1"]))
+    assert "'/blade/force:2'" in " ".join(L.build_nodes(L.parse_args(["--wait-for", "/blade/force:1"]))[-1].argv)
 
 
 def test_a_fee_world_launch_estimates_with_the_fee_worlds_model_unless_told_otherwise(tmp_path, capsys):

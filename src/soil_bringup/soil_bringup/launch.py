@@ -639,6 +639,11 @@ def build_nodes(args: argparse.Namespace) -> list[NodeProcess]:
         topic, _, count = entry.rpartition(":")
         if not topic.startswith("/") or not G.COUNT_RE.fullmatch(count):
             raise ValueError(f"--wait-for {entry!r} is not of the form /topic:count")
+        if topic not in G.SIM_WAITABLE_TOPICS:
+            # the simulator would refuse it only once every node was up, and the launch exit 1
+            raise ValueError(f"--wait-for {entry!r}: the simulator waits only for endpoints of its own topics, "
+                             f"one of {', '.join(G.SIM_WAITABLE_TOPICS)} (for a planner, the ones it reads: "
+                             f"/soil/known_params, /blade/force, /sim/status)")
         _count(wait, {topic: int(count)})
     sim = _ros_node("soil_sim_node", args.sim_params_file, [], args.namespace)
     # Only what was given on the command line overrides the params file (later -p wins).

@@ -194,6 +194,9 @@ SIM_STATE_TOPICS: tuple[str, ...] = (
     T.CHASSIS_TWIST.name, T.BLADE_FORCE.name, T.KNOWN.name, T.GROUND_TRUTH.name,
 )
 COMMAND_TOPICS: tuple[str, ...] = (T.CMD_VEL.name, T.BLADE_CMD.name)
+# What the simulator's 'wait_for' may name: the endpoints of its own topics (those it publishes and
+# the commands it reads). soil_launch refuses any other before it starts a node.
+SIM_WAITABLE_TOPICS: tuple[str, ...] = (*SIM_STATE_TOPICS, *COMMAND_TOPICS, SIM_STATUS_TOPIC)
 assert set(SIM_STATE_TOPICS) | set(COMMAND_TOPICS) == {t.name for t in T.EPISODE_TOPICS}
 # What the controller node reads (it answers on COMMAND_TOPICS) and what a recorder reads:
 # the launcher tells the simulator to wait for these endpoints before an episode starts.

@@ -148,8 +148,7 @@ class SimNode(Node):
         if problem := G.graph_id_problem(p["graph_id"]):
             raise ValueError(f"parameter graph_id={p['graph_id']!r} {problem}")
         self.graph_id = p["graph_id"]
-        self.wait_for = parse_wait_for(p["wait_for"], set(G.SIM_STATE_TOPICS) | set(G.COMMAND_TOPICS)
-                                       | {G.SIM_STATUS_TOPIC})
+        self.wait_for = parse_wait_for(p["wait_for"], set(G.SIM_WAITABLE_TOPICS))
         if self.pacer.lockstep and not self.wait_for:
             # Lockstep cannot run without a controller: wait for one unless told otherwise.
             self.wait_for = [AwaitedEndpoint(t, 1) for t in G.COMMAND_TOPICS + G.CONTROLLER_INPUTS]
