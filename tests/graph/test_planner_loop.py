@@ -3,7 +3,10 @@ estimator, planner and recorder as separate processes on a loopback domain, alon
 soil changes. The planner's targets are in the bag and the controller cut to them."""
 from __future__ import annotations
 
+import contextlib
+import io
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +21,19 @@ from tests.ros_probe import launched, next_domain_id, run_launch, wait_until
 pytestmark = pytest.mark.live
 
 U_ZA = OBSERVATION_FIELDS.index("u_za")
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def run_readme_planner_example(bag) -> dict:
+    """The README's "Your own planner from the topics" example, run on ``bag`` (its namespace)."""
+    text = README.read_text(encoding="utf-8")
+    start = text.index("```python\n", text.index("**Your own planner from the topics.**")) + len("```python\n")
+    code = text[start:text.index("```", start)]
+    assert code.count('"bags/live/<episode>"') == 1, "the example no longer names its bag as it did"
+    namespace: dict = {}
+    with contextlib.redirect_stdout(io.StringIO()):
+        exec(compile(code.replace("bags/live/<episode>", str(bag)), str(README), "exec"), namespace)
+    return namespace
 
 
 @pytest.mark.timeout(180)
@@ -116,6 +132,14 @@ def test_in_lockstep_the_live_loop_keeps_step_with_the_planner_and_equals_the_cu
     assert ep.meta.soil_patches() == cut.spec.patches
     np.testing.assert_array_equal(ep.known[:, KNOWN_PARAMS.index("d")], cut.depth)
     assert np.ptp(cut.target) > 0.05  # the plan moved the cut (deeper in the sand, then held in the gravel)
+
+    # The README's example of a planner of one's own, run on this bag, plans what the node planned:
+    # its last plan is the node's last, which depends on every tick's estimate, command and force before
+    plan_stamps, plans = read_labelled_topic(bag, T.PLAN.name, T.PLAN_FIELDS)
+    example = run_readme_planner_example(bag)
+    assert example["stamp"] == plan_stamps[-1]
+    assert (example["plan"].max_depth_m, example["plan"].f_x_n) == pytest.approx(
+        tuple(plans[-1, [T.PLAN_FIELDS.index("max_depth_m"), T.PLAN_FIELDS.index("f_x_n")]]), rel=1e-9)
 
 
 @pytest.mark.timeout(180)
