@@ -1403,3 +1403,36 @@ def test_a_config_records_its_world_and_is_not_recalibrated_for_another(tmp_path
     with pytest.raises(Started):  # stage 2 alone on a config that records no world: said
         calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(old)])
     assert f"{old} does not record the world it was calibrated in" in capsys.readouterr().err
+
+
+def test_a_calibration_over_the_shipped_config_without_its_arguments_says_what_it_would_change(
+        capsys, tmp_path, monkeypatch):
+    """``pinn_fusion_calibrate --world fee`` without ``--out`` rewrites the shipped config; run without
+    the arguments it is made with, it had replaced the fee world's cohesionless and stiff rows with
+    the defaults without a word. Said before the calibration's minutes, not after; with the shipped
+    arguments nothing is said. (The shipped file is a copy here; no calibration runs.)"""
+    import pinn_estimator.fusion_calibration as fcal
+
+    shipped = tmp_path / "fusion_fee.json"
+    original = fcal.config_path("fee").read_bytes()
+    shipped.write_bytes(original)
+    monkeypatch.setattr(fcal, "config_path", lambda world: shipped)
+
+    class CalibrationStarted(Exception):
+        pass
+
+    def started(*_, **__):
+        raise CalibrationStarted
+
+    monkeypatch.setattr(fcal, "calibration_episodes", started)
+    for argv, warned in ((["--world", "fee"], True),
+                         (["--world", "fee", "--set", "cohesionless_prior=0.1", "--set", "stiff_prior=0.04"], False),
+                         (["--world", "fee", "--out", str(tmp_path / "mine.json")], False)):
+        with pytest.raises(CalibrationStarted):
+            fcal.main(argv)
+        err = capsys.readouterr().err
+        assert ("rewrites the shipped" in err) == warned, (argv, err)
+        if warned:
+            assert "cohesionless_prior 0.5 (shipped: 0.1); stiff_prior 0.02 (shipped: 0.04)" in err, err
+            assert "scripts/fusion_args.sh" in err and "--out FILE" in err, err
+    assert shipped.read_bytes() == original

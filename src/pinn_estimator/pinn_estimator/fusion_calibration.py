@@ -340,6 +340,22 @@ def world_note(cfg: FusionConfig, path, world: str) -> str:
     return "" if cfg.world else f"{path} does not record the world it was calibrated in; taking it for the {world} world's"
 
 
+def shipped_settings_note(cfg: FusionConfig, path, world: str) -> str:
+    """For a whole calibration of ``cfg`` written over the shipped config at ``path``: the settings it
+    would change there that the calibration does not choose ("" if none, or nothing is there). Run
+    without the shipped arguments (scripts/fusion_args.sh), the tool had replaced the shipped fee
+    world's cohesionless and stiff rows with the defaults without a word."""
+    try:
+        shipped = FusionConfig.load(path)
+    except (OSError, ValueError):
+        return ""
+    chosen = {*CALIBRATED_FIELDS, "world", "calibration_plugins", *((f for f, _ in TRUTH_GRIDS) if world == "fee" else ())}
+    changed = [f"{f.name} {getattr(cfg, f.name)!r} (shipped: {getattr(shipped, f.name)!r})"
+               for f in dataclasses.fields(FusionConfig)
+               if f.name not in chosen and getattr(cfg, f.name) != getattr(shipped, f.name)]
+    return "; ".join(changed)
+
+
 def given_fusion(path: str, world: str | None, log=None) -> FusionConfig:
     """The fusion config at ``path`` (a tool's ``--fusion-config``) for forecasts in ``world`` (None:
     not known yet); ValueError naming the option if it cannot be read or was calibrated in another
@@ -908,6 +924,10 @@ def main(argv=None) -> int:
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     term_note(p.prog, args.world, base.terms, args.plugin)
+    if not args.forecast_law_only and out == config_path(args.world) and (changed := shipped_settings_note(base, out, args.world)):
+        print(f"{p.prog}: warning: this run rewrites the shipped {out} with settings other than its own: {changed}. "
+              f"The shipped config is made with the arguments of scripts/fusion_args.sh (make models); --out FILE "
+              "writes elsewhere", file=sys.stderr, flush=True)
     ds = calibration_episodes(p, args)
     if args.forecast_law_only:
         pairs = pair_forecasts(ds, fused_posteriors(ds, base))
