@@ -688,6 +688,37 @@ def test_a_stray_stamped_off_the_streams_grid_is_refused_on_arrival_and_a_moved_
     assert est.counters.restarts == 0
 
 
+def test_a_second_stamp_one_ns_off_a_tick_is_a_stray_of_that_tick_not_a_tick_of_its_own(episode, model):
+    """A writer stamping 1 ns off the grid (its stamps rounded, not floored: within the grid check's
+    ±12 ns) sent a tick's force and Θ_k two ticks ahead: held as a tick of its own, it held the
+    real tick back, reset the window and its invalid estimate went out 1 ns beside the real tick's,
+    two estimates in one tick, which the recorder took for two writers and dropped 273 of 600 (an
+    outside tester's). Now it is a stray of that tick: named, counted, and every estimate is the
+    clean run's, whether the stray comes before its tick, amid it, or after it left. (A whole tick
+    sent ahead under a near stamp is a tick like any other until its real one comes: no stamp tells.)"""
+    _, clean = run(model, in_order(episode, range(N_TICKS)))
+
+    def stray(i, offset_ns, topics=(T.BLADE_FORCE.name, T.KNOWN.name)):
+        return [(t, M.build_message(M.TYPESTORE, t, int(episode.stamps_ns[i]) + offset_ns, M.topic_rows(episode, t)[i]))
+                for t in topics]
+
+    real = in_order(episode, range(N_TICKS))
+    per_tick = len(INPUT_TOPICS)
+    stray_words = "within half a tick of tick"
+    cases = {"2 ticks ahead, 1 ns early": (101 * per_tick, stray(102, -1), 1, stray_words),
+             "amid its tick, 1 ns late": (101 * per_tick + 1, stray(101, 1), 1, stray_words),
+             "Θ_k alone 2 ns early": (101 * per_tick, stray(102, -2, (T.KNOWN.name,)), 1, stray_words),
+             # (the tick it belongs to is the stream's last: the grid check refuses it on arrival)
+             "after its tick left, 1 ns late": (102 * per_tick, stray(101, 1), 2, "1 ns off the stream's grid")}
+    for what, (at, messages, refused, words) in cases.items():
+        said = []
+        est, out = run(model, real[:at] + messages + real[at:], warn=lambda kind, text: said.append(text))
+        assert est.counters.gaps == 0 and est.counters.out_of_order == refused, (what, est.counters)
+        assert any(words in s for s in said), (what, said)
+        assert [e.stamp_ns for e in out] == [e.stamp_ns for e in clean], what
+        assert np.array_equal(np.stack([e.values for e in out]), np.stack([e.values for e in clean])), what
+
+
 def test_legitimate_streams_keep_every_tick_under_the_grid_check(episode, model):
     """What the grid check must not refuse (a reviewer's cases): a new episode at another phase
     (a machine's, a bag's: its stamps 105 ms on), and a millisecond-rounded 61.8 Hz stream with

@@ -150,6 +150,7 @@ def test_drain_gives_up_everything_oldest_first():
     ({"duplicates": "merge"}, "duplicates='merge'"),
     ({"reorder_ns": -1}, "reorder_ns=-1"),
     ({"max_ahead_ns": float("nan")}, "max_ahead_ns=nan"),
+    ({"slot_ns": -1}, "slot_ns=-1"),
 ])
 def test_bad_settings_are_named(kwargs, needle):
     args = {"topics": (A, B), "max_pending": 10, **kwargs}
@@ -157,3 +158,47 @@ def test_bad_settings_are_named(kwargs, needle):
         StampJoiner(args.pop("topics"), **args)
     with pytest.raises(ValueError, match="'/z' is not one of"):
         StampJoiner((A,), max_pending=1).offer("/z", 0)
+
+
+def test_a_second_stamp_of_a_tick_is_a_stray_whichever_comes_first_and_the_tick_leaves_once():
+    """A writer stamping 1 ns off a tick (the grid check lets ±12 ns through) made a set of its own:
+    it held the real tick back, left incomplete beside it, and a consumer gave out two results in
+    one tick. With ``slot_ns`` it leaves as STRAY, never delaying or replacing the real tick."""
+    # ahead of the real tick (another writer's, sent early): the real one leaves at once, complete
+    j = StampJoiner((A, B, C), max_pending=10, reorder_ns=3 * P, slot_ns=P / 2)
+    j.offer(A, P - 1, "stray")
+    j.offer(B, P - 1, "stray")
+    j.offer(A, P)
+    j.offer(B, P)
+    out = j.offer(C, P).out
+    assert stamps(out) == [(P - 1, Why.STRAY), (P, Why.COMPLETE)]
+    assert out[0].twin_ns == P and out[0].parts == {A: "stray", B: "stray"} and out[1].previous_ns == -1
+    assert j.last_ns == P
+    # after the real tick's first message: it waits for its own, then the stray goes
+    j.offer(A, 2 * P)
+    j.offer(B, 2 * P + 1, "stray")
+    j.offer(B, 2 * P)
+    out = j.offer(C, 2 * P).out
+    assert stamps(out) == [(2 * P, Why.COMPLETE), (2 * P + 1, Why.STRAY)] and out[1].twin_ns == 2 * P
+    # a whole tick's stray beside a tick that left: each message a stray of it, no tick given out
+    for t in (A, B):
+        j.offer(t, 3 * P)
+    j.offer(C, 3 * P)
+    out = [x for t in (A, B, C) for x in j.offer(t, 3 * P + 2).out]
+    assert stamps(out) == [(3 * P + 2, Why.STRAY)] * 3 and len(j) == 0
+    # both incomplete: given up once, the tick said missing by one of them
+    j.offer(A, 4 * P - 1)
+    j.offer(B, 4 * P)
+    out = [x for k in (5, 6, 7) for t in (A, B, C) for x in j.offer(t, k * P).out]
+    assert stamps(out)[:2] == [(4 * P - 1, Why.STRAY), (4 * P, Why.OVERTAKEN)]
+    assert [s for s, why in stamps(out) if why is not Why.STRAY] == [4 * P, 5 * P, 6 * P, 7 * P]
+
+
+def test_without_a_slot_two_stamps_of_a_tick_are_two_ticks():
+    j = StampJoiner((A, B), max_pending=10, reorder_ns=P)
+    j.offer(A, P - 1)
+    j.offer(A, P)
+    out = j.offer(B, P).out
+    assert stamps(out) == []  # the incomplete older one holds the real tick for the reorder horizon
+    out = [x for t in (A, B) for x in j.offer(t, 2 * P).out]
+    assert stamps(out) == [(P - 1, Why.OVERTAKEN), (P, Why.COMPLETE), (2 * P, Why.COMPLETE)]

@@ -28,6 +28,11 @@ Policy (stamps are integer ns):
 * A second message of a topic for a pending stamp is ``DUPLICATE``; ``duplicates`` says what
   happens to it: ``"replace"`` (the newest counts), ``"keep_first"`` (it is dropped) or
   ``"spoil"`` (the set is marked bad: the tick is not to be trusted).
+* ``slot_ns`` (0: off): stamps closer than this are one tick's. A set within ``slot_ns`` of the
+  set that left last, or an incomplete one within it of a complete pending set (or of another
+  pending set, once it would be given up), is the same tick under a second stamp (another
+  writer's, 1 ns off the grid): it leaves as ``STRAY``, without moving the order on, so a tick
+  is never given out twice and a stray never makes the real tick wait or leave incomplete.
 * At most ``max_pending`` sets wait; beyond that the one that has waited longest leaves
   (``EVICTED``, out of stamp order and without moving the order on). Longest waiting, not
   lowest stamp, so a burst of bogus future stamps ages out instead of pushing out real ticks.
@@ -62,6 +67,7 @@ class Why(enum.Enum):
     COMPLETE = "complete"
     OVERTAKEN = "overtaken"  # a complete set ``reorder_ns`` newer exists: given up
     EVICTED = "evicted"  # ``max_pending`` sets were waiting: the longest waiting was dropped
+    STRAY = "stray"  # within ``slot_ns`` of another set of the same tick (see ``slot_ns``): dropped
     DRAINED = "drained"  # ``drain`` gave up every pending set
 
 
@@ -75,6 +81,7 @@ class Joined:
     bad: str = ""  # why the set must not be used ('' when it may): the first reason given
     why: Why = Why.COMPLETE
     previous_ns: int = -1  # the stamp that left in order before this one (-1: none since reset)
+    twin_ns: int = -1  # STRAY: the stamp of the set of the same tick it was dropped beside
 
     @property
     def complete(self) -> bool:
@@ -101,7 +108,7 @@ class StampJoiner:
 
     def __init__(self, topics, *, max_pending: int, reorder_ns: float = 0, duplicates: str = "replace",
                  restart_back_ns: float | None = None, max_ahead_ns: float | None = None,
-                 restart_after_refused: int = 0, restart_counts_back_beyond_ns: float = 0):
+                 restart_after_refused: int = 0, restart_counts_back_beyond_ns: float = 0, slot_ns: float = 0):
         self.topics = tuple(topics)
         if not self.topics or len(set(self.topics)) != len(self.topics):
             raise ValueError(f"topics={self.topics!r} must be distinct and at least one")
@@ -110,7 +117,8 @@ class StampJoiner:
         if duplicates not in DUPLICATE_POLICIES:
             raise ValueError(f"duplicates={duplicates!r} is not one of {DUPLICATE_POLICIES}")
         for name, value in (("reorder_ns", reorder_ns), ("restart_back_ns", restart_back_ns),
-                            ("max_ahead_ns", max_ahead_ns), ("restart_counts_back_beyond_ns", restart_counts_back_beyond_ns)):
+                            ("max_ahead_ns", max_ahead_ns), ("restart_counts_back_beyond_ns", restart_counts_back_beyond_ns),
+                            ("slot_ns", slot_ns)):
             if value is not None and not value >= 0:
                 raise ValueError(f"{name}={value!r} must be >= 0 ns")
         self.max_pending = max_pending
@@ -122,6 +130,8 @@ class StampJoiner:
         # a stale stamp this close behind is a late or repeated message (a second publisher's copies),
         # refused without counting towards a restart: a burst of such copies had started a new stream
         self.restart_counts_back_beyond_ns = restart_counts_back_beyond_ns
+        self.slot_ns = slot_ns
+        self._left_ns = -1  # the stamp of the set that left last in order (``slot_ns``; -1: none since reset)
         self._refused = 0  # refusals in a row (nothing taken since)
         self._pending: dict[int, Joined] = {}  # insertion order = how long a set has waited
         self._complete_stamps: set[int] = set()  # of the pending sets (an estimator seconds behind: few of many)
@@ -139,6 +149,7 @@ class StampJoiner:
         self._pending.clear()
         self._complete_stamps.clear()
         self._refused = 0
+        self._left_ns = -1
         self.last_ns = -1 if first_stamp_ns is None else int(first_stamp_ns) - 1
         self._expecting = first_stamp_ns is not None
         self.left_since_reset = False
@@ -241,20 +252,44 @@ class StampJoiner:
         out = []
         while self._pending:
             oldest = min(self._pending)
-            if not self._complete(self._pending[oldest]):
+            if self.slot_ns and (twin := self._twin(oldest)) is not None:
+                out.append(self._stray(oldest, twin))
+            elif not self._complete(self._pending[oldest]):
                 newest_complete = max(self._complete_stamps, default=None)
                 if newest_complete is None or newest_complete - oldest < self.reorder_ns:
                     break
-                out.append(self._leave(oldest, Why.OVERTAKEN))
+                if self.slot_ns and (twin := self._twin(oldest, incomplete_too=True)) is not None:
+                    out.append(self._stray(oldest, twin))  # (its twin, given up next, speaks for the tick)
+                else:
+                    out.append(self._leave(oldest, Why.OVERTAKEN))
             else:
                 out.append(self._leave(oldest, Why.COMPLETE))
         return out
+
+    def _twin(self, stamp: int, incomplete_too: bool = False) -> int | None:
+        """The stamp of another set of the tick of the pending set ``stamp`` (``slot_ns``) that makes
+        it a stray: the set that left last, a complete pending one if it is incomplete, or (once it
+        would be given up) any pending one. None: it is its tick's only set."""
+        if self._left_ns >= 0 and abs(stamp - self._left_ns) < self.slot_ns:
+            return self._left_ns
+        if self._complete(self._pending[stamp]):
+            return None
+        near = [s for s in (self._pending if incomplete_too else self._complete_stamps)
+                if s != stamp and abs(s - stamp) < self.slot_ns]
+        return min(near, default=None)
+
+    def _stray(self, stamp: int, twin: int) -> Joined:
+        gone = self._pending.pop(stamp)
+        self._complete_stamps.discard(stamp)
+        gone.missing, gone.why, gone.previous_ns, gone.twin_ns = self._missing(gone), Why.STRAY, self.last_ns, twin
+        return gone
 
     def _leave(self, stamp: int, why: Why) -> Joined:
         gone = self._pending.pop(stamp)
         self._complete_stamps.discard(stamp)
         gone.missing, gone.why, gone.previous_ns = self._missing(gone), why, self.last_ns
         self.last_ns, self._expecting, self.left_since_reset = stamp, True, True
+        self._left_ns = stamp
         return gone
 
     def _missing(self, joined: Joined) -> tuple[str, ...]:
