@@ -22,3 +22,10 @@ def test_live_lines_fit_120_columns_and_say_when_the_window_fills(episode):
     assert all(len(line) <= 120 for line in lines), [len(x) for x in lines]
     assert "filling window 30/60" in lines[3] and "--/" in lines[3]
     assert f"{truth[TRUTH['phi']] / DEG:.1f}" in lines[2]
+
+
+def test_a_soil_name_longer_than_its_column_is_cut_visibly_not_into_another_soils_name():
+    """A user's "GravellySand" cut to six characters read "Gravel", a catalogue soil of its own."""
+    prefixes = [live_lines.line_prefix(name, 50.0, 1.0) for name in ("GravellySand", "Gravel", "SiltyClay")]
+    assert prefixes[0].startswith("Grave… ") and prefixes[1].startswith("Gravel ") and prefixes[2].startswith("Silty… ")
+    assert {len(p) for p in prefixes} == {live_lines.PREFIX_WIDTH}

@@ -32,7 +32,10 @@ def _col_width(col) -> int:
 
 
 def line_prefix(soil: str, i_d_pct: float, t_s: float) -> str:
-    return f"{soil[:6]:<6} {i_d_pct:>3.0f}% {t_s:>4.1f}s"
+    """Soil (a longer name cut with an ellipsis: "GravellySand" cut to six read "Gravel", another
+    soil), I_d and time, in PREFIX_WIDTH characters."""
+    name = soil if len(soil) <= 6 else soil[:5] + "…"
+    return f"{name:<6} {i_d_pct:>3.0f}% {t_s:>4.1f}s"
 
 
 def header_lines() -> list[str]:
