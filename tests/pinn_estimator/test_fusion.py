@@ -1436,3 +1436,35 @@ def test_a_calibration_over_the_shipped_config_without_its_arguments_says_what_i
             assert "cohesionless_prior 0.5 (shipped: 0.1); stiff_prior 0.02 (shipped: 0.04)" in err, err
             assert "scripts/fusion_args.sh" in err and "--out FILE" in err, err
     assert shipped.read_bytes() == original
+
+
+def test_a_calibration_without_the_worlds_shipped_terms_is_warned_and_with_them_not_sent_to_a_plugin(
+        capsys, tmp_path, monkeypatch):
+    """The README's own-soils recipe lacked the default world's shipped term (the surcharge relief):
+    the config came out with the F_x forecast 37 % off instead of 8.6 % (an outside tester's), and
+    nothing said so. Now it is said, with the --term that keeps it. Given, the term is the world's
+    own: the note that would send it to the calibration episodes as a plugin (where the world
+    already has the effect) is not printed. (No calibration runs here.)"""
+    import pinn_estimator.fusion_calibration as fcal
+
+    class CalibrationStarted(Exception):
+        pass
+
+    def started(*_, **__):
+        raise CalibrationStarted
+
+    monkeypatch.setattr(fcal, "calibration_episodes", started)
+    mine = str(tmp_path / "mine.json")
+    term = "form:-qnq*tanhvx0.1=0.756"
+    for argv, lacking in ((["--world", "default", "--out", mine], True),
+                          (["--world", "default", "--out", mine, "--term", term], False),
+                          (["--world", "fee", "--out", mine], False)):
+        with pytest.raises(CalibrationStarted):
+            fcal.main(argv)
+        err = capsys.readouterr().err
+        assert ("form:-qnq*tanhvx0.1 beside the FEE, this one not" in err) == lacking, (argv, err)
+        assert (f'--term "{term}" keeps it' in err) == lacking, (argv, err)
+        assert "needs it switched on there too" not in err, (argv, err)
+    with pytest.raises(CalibrationStarted):  # a term of one's own, without its plugin: still noted
+        fcal.main(["--world", "default", "--out", mine, "--term", term, "--term", "soil_inertia=4"])
+    assert "needs it switched on there too" in capsys.readouterr().err
