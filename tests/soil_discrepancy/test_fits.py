@@ -58,3 +58,13 @@ def test_the_wilcoxon_of_many_rows_at_once_is_each_rows_own_to_the_bit():
         assert got.shape == want.shape
         assert np.array_equal(got.view(np.int64), want.view(np.int64))
     assert paired_tests(rows, own)[0] == 1.0 and paired_tests(rows, own)[3] < 1.0
+
+
+def test_the_reports_header_says_the_folds_that_ran_and_counts_groups_in_words():
+    """Cross-validation runs at most one fold per selection group: with 3 groups and --folds 5 the
+    header said "5 folds" (an outside tester's), and "1 groups" for a single held-out group."""
+    from soil_discrepancy.report import _folds_used, _groups
+
+    assert _folds_used(5, 3) == "3 folds (5 asked: at most one per selection group)"
+    assert _folds_used(5, 8) == "5 folds" and _folds_used(3, 3) == "3 folds"
+    assert (_groups(1), _groups(4)) == ("1 group", "4 groups")

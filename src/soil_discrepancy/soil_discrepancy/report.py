@@ -31,6 +31,17 @@ FIG_RESIDUALS, FIG_HELDOUT, FIG_CANDIDATES = "residuals_by_regime.png", "heldout
 OUTPUT_FILES = (REPORT_JSON, REPORT_MD, CATALOGUE_FILE, FIG_RESIDUALS, FIG_HELDOUT, FIG_CANDIDATES)
 
 
+def _groups(n: int) -> str:
+    return f"{n} group{'' if n == 1 else 's'}"
+
+
+def _folds_used(asked: int, selection_groups: int) -> str:
+    """The cross-validation's folds as run: one per selection group at most (``group_folds``; the
+    header said "5 folds" where 3 ran, an outside tester's)."""
+    used = min(int(asked), int(selection_groups))
+    return f"{used} folds" if used == asked else f"{used} folds ({asked} asked: at most one per selection group)"
+
+
 def write_outputs(report: dict, out_dir, arrays: dict | None = None) -> list[Path]:
     """Write discrepancy.json, discrepancy.md and (with ``arrays``) the PNGs; returns the paths."""
     out = Path(out_dir)
@@ -92,11 +103,12 @@ def markdown(report: dict, figures=()) -> str:
         "",
         f"Data: `{report['source']}` — {d['episodes']} episodes, {d['ticks']} analysed ticks (blade deeper than "
         f"{s['min_depth_m'] * 100:g} cm, after the first {s['skip_s']:g} s, stride {s['stride']}); θ = (φ, c, δ) fitted per "
-        f"{d['theta_per']} ({d['theta_groups']} groups). Selection part: {len(d['selection_episodes'])} episodes / "
-        f"{len(d['selection_groups'])} groups; held-out test part: {len(d['test_episodes'])} episodes / "
-        f"{len(d['test_groups'])} groups ({', '.join(d['test_groups']) or 'none'}). alpha = {s['alpha']:g} (Holm), "
+        f"{d['theta_per']} ({_groups(d['theta_groups'])}). Selection part: {len(d['selection_episodes'])} episodes / "
+        f"{_groups(len(d['selection_groups']))}; held-out test part: {len(d['test_episodes'])} episodes / "
+        f"{_groups(len(d['test_groups']))} ({', '.join(d['test_groups']) or 'none'}). alpha = {s['alpha']:g} (Holm), "
         f"min gain {100 * s['min_gain']:.0f} %, min regime effect {100 * s['min_effect']:.0f} % of |F|, "
-        f"{s['folds']} folds, seed {s['seed']}. Run time {report.get('run_time_s', 0):.1f} s.",
+        f"{_folds_used(s['folds'], len(d['selection_groups']))}, seed {s['seed']}. "
+        f"Run time {report.get('run_time_s', 0):.1f} s.",
         "",
     ]
     if d.get("soil_tests"):
