@@ -107,6 +107,28 @@ def test_the_depth_and_speed_go_to_the_simulator_and_the_forecast_goes_around_th
     assert f"settle_s:={D.LOCKSTEP_SETTLE_S!r}" in sim, sim
 
 
+def test_a_fusion_config_of_ones_own_goes_to_the_estimator_and_another_worlds_is_refused(tmp_path, capsys):
+    """The main job ran only the shipped posterior config: a user's own (pinn_fusion_calibrate --out)
+    could go into soil_launch and soil_cut_report but not here (an outside tester's). It goes to the
+    live estimator (and the forecast beside it); another world's, or no file, is refused while the
+    arguments are read."""
+    from pinn_estimator.fusion_calibration import config_path
+    from pinn_estimator.fusion_config import FusionConfig
+
+    mine = tmp_path / "mine.json"
+    FusionConfig.load(config_path("default")).save(mine)
+    args = D.parse_args(["--fusion-config", str(mine)])
+    assert args.fusion_config == str(mine.resolve())
+    assert f"fusion_config:={mine.resolve()}" in D.launch_arguments(args, 100.0).estimator_param
+    assert "fusion_config:=" not in " ".join(D.launch_arguments(D.parse_args([]), 100.0).estimator_param)
+    for argv, needle in ((["--fusion-config", str(config_path("fee"))], "calibrated in the fee world, not the default"),
+                         (["--fusion-config", str(tmp_path / "none.json")], "none.json")):
+        with pytest.raises(SystemExit) as exit_:
+            D.parse_args(argv)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and "--fusion-config" in err and needle in err, err
+
+
 SILT_YAML = "name: Silt\nphi_deg: [24, 32]\ncohesion_pa: [2000, 6000]\nunit_weight_n_m3: [16500, 19500]\n"
 
 

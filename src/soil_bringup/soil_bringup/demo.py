@@ -44,7 +44,7 @@ from pinn_estimator.shipped import DEFAULT_WORLD, shipped_checkpoint
 from soil_bag_tools.bag_io import PARTIAL_SUFFIX, is_bag
 from soil_msgs_py import strict_json
 from soil_msgs_py import graph as G
-from soil_msgs_py.cli_paths import output_dir
+from soil_msgs_py.cli_paths import input_text, output_dir
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_physics.soils import CATALOGUE
 from soil_msgs_py.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED
@@ -99,6 +99,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="simulator world (default: the simulator's, 'default')")
     p.add_argument("--checkpoint", type=Path,
                    help="PINN checkpoint for the estimator (default: the world's shipped one, pinn_<world>.pt)")
+    p.add_argument("--fusion-config", metavar="FILE", type=input_text,
+                   help="the estimator's fused-posterior config, for the live run and the forecast at other depths "
+                        "(default: the shipped calibration of the checkpoint's world; pinn_fusion_calibrate --out makes one)")
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
     p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
                    help="episode bags; cleared at start (default bags/demo_online)")
@@ -152,6 +155,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             p.error(f"--checkpoint {args.checkpoint}: {err}")
     else:  # the world's shipped model, named: the live estimates and the forecast beside them use one model
         args.checkpoint = shipped_checkpoint(args.world_mode or DEFAULT_WORLD)
+    if args.fusion_config:  # unreadable, or another world's: refused before the graph starts (as soil_cut_report)
+        from pinn_estimator.fusion_calibration import given_fusion
+
+        try:
+            given_fusion(args.fusion_config, args.world_mode or DEFAULT_WORLD,
+                         lambda note: print(f"demo: note: {note}", file=sys.stderr))
+        except ValueError as err:
+            p.error(str(err))
+        args.fusion_config = str(Path(args.fusion_config).expanduser().resolve())  # (the estimator's cwd is its own)
     if args.bags.resolve() in (Path.cwd().resolve(), Path.home().resolve(), Path("/")):
         p.error(f"--bags {args.bags}: refusing to clear that directory")
     return args
@@ -228,6 +240,8 @@ def launch_arguments(args: argparse.Namespace, launch_timeout_s: float) -> argpa
         argv += ["--sim-param", f"soil_file:={args.soil_file}"]
     if args.checkpoint is not None:
         argv += ["--estimator-param", f"checkpoint:={args.checkpoint}"]
+    if args.fusion_config:
+        argv += ["--estimator-param", f"fusion_config:={args.fusion_config}"]
     # The simulator holds each episode until its 'wait_for' endpoints have matched (counts,
     # '>='). The monitor's subscriptions would count towards the recorder's and estimator's:
     # add them, so every node and the monitor have matched before tick 0.
@@ -370,7 +384,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
         "soils": args.soils, "densities_pct": [float(d) for d in args.densities], "duration_s": args.duration,
         "target_depth_m": args.depth, "target_speed_m_s": args.speed,
         "pacing": args.pacing, "rate": args.rate if args.pacing == "realtime" else None,
-        "world_mode": args.world_mode, "checkpoint": str(args.checkpoint),
+        "world_mode": args.world_mode, "checkpoint": str(args.checkpoint), "fusion_config": args.fusion_config or None,
         "soil_file": str(args.soil_file) if args.soil_file else None,
         "domain_id": args.domain_id, "bags": str(args.bags), "launch_log": str(log_path),
         "launch_s": launch_s, "wall_s": wall_s, "simulated_s": sim_s,
@@ -388,7 +402,7 @@ def report(args, pairs, monitor, t_start: float, launch_s: float, log_path: Path
               f"{depths_text(depths)} m ...", flush=True)
         try:
             result["forecast"] = forecast_from_live(scores, args.world_mode, depths, checkpoint=args.checkpoint,
-                                                    custom_soils=args.custom_soils)
+                                                    fusion_config=args.fusion_config or "", custom_soils=args.custom_soils)
         except Exception as err:  # noqa: BLE001 - the run's own summary is written whatever this does
             result["forecast"] = {"skipped": f"{type(err).__name__}: {err}"}
     paths = {"json": args.out / JSON_NAME, "markdown": args.out / MARKDOWN_NAME, "png": args.out / FIGURE_NAME}
