@@ -1425,7 +1425,9 @@ def test_a_calibration_over_the_shipped_config_without_its_arguments_says_what_i
         raise CalibrationStarted
 
     monkeypatch.setattr(fcal, "calibration_episodes", started)
+    (tmp_path / "sub").mkdir()
     for argv, warned in ((["--world", "fee"], True),
+                         (["--world", "fee", "--out", str(tmp_path / "sub" / ".." / "fusion_fee.json")], True),  # its path too
                          (["--world", "fee", "--set", "cohesionless_prior=0.1", "--set", "stiff_prior=0.04"], False),
                          (["--world", "fee", "--out", str(tmp_path / "mine.json")], False)):
         with pytest.raises(CalibrationStarted):
@@ -1467,4 +1469,6 @@ def test_a_calibration_without_the_worlds_shipped_terms_is_warned_and_with_them_
         assert "needs it switched on there too" not in err, (argv, err)
     with pytest.raises(CalibrationStarted):  # a term of one's own, without its plugin: still noted
         fcal.main(["--world", "default", "--out", mine, "--term", term, "--term", "soil_inertia=4"])
-    assert "needs it switched on there too" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "needs it switched on there too" in err and "term=soil_inertia k=4.0" in err, err
+    assert "term=form:-qnq*tanhvx0.1" not in err, err  # (the shipped term is the world's own: not as a plugin)

@@ -170,10 +170,11 @@ def term_note(prog: str, world: str, terms, plugins) -> None:
     config (the default world's surcharge relief was found in that world's own data: switched on
     again, the calibration episodes would have the effect twice)."""
     shipped = {name for name, _ in load_calibrated(world).terms}
-    if terms and not plugins and not {name for name, _ in terms} <= shipped:
+    own = [(n, k) for n, k in terms if n not in shipped]
+    if own and not plugins:
         print(f"{prog}: note: the calibration episodes are the {world} world's as simulated. A term for an effect that "
               "world lacks (one soil_discrepancy found in your own bags) needs it switched on there too,"
-              f"{plugin_words(f'soil_physics.force_terms:plugin term={n} k={k!r}' for n, k in terms)}: else the laws "
+              f"{plugin_words(f'soil_physics.force_terms:plugin term={n} k={k!r}' for n, k in own)}: else the laws "
               "are calibrated for a force the episodes do not have (their intervals come out too wide)",
               file=sys.stderr, flush=True)
 
@@ -911,6 +912,7 @@ def main(argv=None) -> int:
         p.error(f"--set: {err}")
     checked_world_options(p, args, "--out", args.out)
     out = args.out or config_path(args.world)
+    shipped_out = Path(out).resolve() == config_path(args.world).resolve()  # (--out naming it by another path too)
     if args.forecast_law_only:
         if args.term or args.fields:
             p.error("--forecast-law-only keeps the config's posterior: --term and --set change it (run the whole calibration)")
@@ -941,7 +943,7 @@ def main(argv=None) -> int:
               f"{', '.join(name for name, _ in lacking)} beside the FEE, this one not: its forecasts at other depths "
               f"will be far worse unless that is what you want to find out; {given} keeps it",
               file=sys.stderr, flush=True)
-    if not args.forecast_law_only and out == config_path(args.world) and (changed := shipped_settings_note(base, out, args.world)):
+    if not args.forecast_law_only and shipped_out and (changed := shipped_settings_note(base, out, args.world)):
         print(f"{p.prog}: warning: this run rewrites the shipped {out} with settings other than its own: {changed}. "
               f"The shipped config is made with the arguments of scripts/fusion_args.sh (make models); --out FILE "
               "writes elsewhere", file=sys.stderr, flush=True)
@@ -973,7 +975,7 @@ def main(argv=None) -> int:
           f"intervals hold F_x {cx[i90]:.0%} / {cx[i50]:.0%}, F_z {cz[i90]:.0%} / {cz[i50]:.0%} of the pairs from "
           f"{MIN_CALIBRATED_DEPTH_M:g} m) and {out.with_suffix('.png')}")
     law = cfg.planner_bound_law()
-    again = (f"soil_planner_calibrate --world {args.world}" + ("" if out == config_path(args.world) else f" --config {out}")
+    again = (f"soil_planner_calibrate --world {args.world}" + ("" if shipped_out else f" --config {out}")
              + (f" --duration {args.duration:g}" if args.duration != CAL_DURATION_S else "") + (" --force-noise" if args.force_noise else "")
              + (f" --soil-file {args.soil_file}" if args.soil_file else "") + (f" --soils {args.soils}" if args.soils else "")
              + plugin_words(args.plugin))

@@ -187,11 +187,13 @@ class SampleAssembler:
                                   reorder_ns=reorder_ticks * PERIOD_NS - PERIOD_NS / 2,
                                   max_ahead_ns=MAX_AHEAD_TICKS * PERIOD_NS, restart_after_refused=RESTART_AFTER_REFUSED,
                                   restart_counts_back_beyond_ns=RESTART_BACK_TICKS * PERIOD_NS,
-                                  # a second stamp within half a tick of one (on the grid to the ns the check
-                                  # allows, another writer's) is a stray: held as a tick of its own it reset the
-                                  # window and its invalid estimate went out beside the real tick's, two in one
-                                  # tick, which the recorder took for two writers (it dropped 273 of 600)
-                                  slot_ns=PERIOD_NS / 2)
+                                  # a second stamp within the grid check's widest tolerance of one (another
+                                  # writer's, 1 ns off the grid) is a stray: held as a tick of its own it reset
+                                  # the window and its invalid estimate went out beside the real tick's, two in
+                                  # one tick, which the recorder took for two writers (it dropped 273 of 600).
+                                  # Not wider: a 120 Hz stream's every other tick would be a stray, and its
+                                  # rate no longer said
+                                  slot_ns=GRID_TOLERANCE_NS)
         self.repeats = 0  # second messages of a tick so far (duplicates and copies of the last one)
         # refusals off the stream's grid, nothing taken since, and the first stamp refused (``_off_grid``)
         self.off_grid_in_a_row, self.off_grid_first_ns, self.off_grid_stamps_differ = 0, -1, False
@@ -272,6 +274,7 @@ class SampleAssembler:
         on (a new episode, a machine's or a bag's, may keep another phase than the last one's)."""
         self.grid_from_ns = int(from_ns)
         self.off_grid_in_a_row = 0
+        self.joiner.new_phase(from_ns)  # (nor is its first tick a stray of the last one's)
 
     def add(self, topic: str, msg) -> None:
         """One received message of an ``INPUT_TOPICS`` topic (rclpy or rosbags object)."""
@@ -392,7 +395,7 @@ class SampleAssembler:
         stamp = joined.stamp_ns
         if joined.why is Why.STRAY:  # the same tick as joined.twin_ns under another stamp: no tick of its own
             self.counters.out_of_order += 1
-            self.warn("stray", f"stamp {stamp} ns lies within half a tick of tick {joined.twin_ns} ns: the same tick "
+            self.warn("stray", f"stamp {stamp} ns lies within a quarter tick of tick {joined.twin_ns} ns: the same tick "
                                f"under a second stamp (another writer's); its messages ({', '.join(sorted(joined.parts))}) "
                                "ignored")
             return

@@ -32,7 +32,10 @@ Policy (stamps are integer ns):
   set that left last, or an incomplete one within it of a complete pending set (or of another
   pending set, once it would be given up), is the same tick under a second stamp (another
   writer's, 1 ns off the grid): it leaves as ``STRAY``, without moving the order on, so a tick
-  is never given out twice and a stray never makes the real tick wait or leave incomplete.
+  is never given out twice and a stray never makes the real tick wait or leave incomplete. Of
+  two incomplete sets of one tick the one with fewer messages is the stray. A stream that starts
+  a new phase (``new_phase``: an episode whose ticks may keep another phase) is no stray of the
+  set that left before it.
 * At most ``max_pending`` sets wait; beyond that the one that has waited longest leaves
   (``EVICTED``, out of stamp order and without moving the order on). Longest waiting, not
   lowest stamp, so a burst of bogus future stamps ages out instead of pushing out real ticks.
@@ -132,6 +135,7 @@ class StampJoiner:
         self.restart_counts_back_beyond_ns = restart_counts_back_beyond_ns
         self.slot_ns = slot_ns
         self._left_ns = -1  # the stamp of the set that left last in order (``slot_ns``; -1: none since reset)
+        self._phase_from_ns = -1  # stamps from here on keep a phase of their own (``new_phase``)
         self._refused = 0  # refusals in a row (nothing taken since)
         self._pending: dict[int, Joined] = {}  # insertion order = how long a set has waited
         self._complete_stamps: set[int] = set()  # of the pending sets (an estimator seconds behind: few of many)
@@ -164,8 +168,14 @@ class StampJoiner:
             del self._pending[stamp]
             self._complete_stamps.discard(stamp)
         self._refused = 0
+        self._left_ns = -1  # (what left before the start is no tick of this stream)
         self.last_ns = first - 1
         self._expecting = True
+
+    def new_phase(self, from_ns: int) -> None:
+        """Sets stamped from ``from_ns`` on may keep another phase than those before (a new episode of
+        a machine or a bag): one within ``slot_ns`` of the set that left before it is no stray of it."""
+        self._phase_from_ns = int(from_ns)
 
     def announce(self, first_stamp_ns: int) -> None:
         """The stream goes on at ``first_stamp_ns`` (an episode announced after the last one ended):
@@ -231,6 +241,12 @@ class StampJoiner:
         """Give up every pending set, oldest stamp first (the end of a stream)."""
         out = []
         for stamp in sorted(self._pending):
+            if stamp not in self._pending:
+                continue  # (given up as the stray of an older set of its tick)
+            if self.slot_ns and (twin := self._twin(stamp, incomplete_too=True)) is not None:
+                out.append(self._stray(*self._weaker(stamp, twin)) if twin in self._pending else self._stray(stamp, twin))
+                if stamp not in self._pending:
+                    continue
             out.append(self._leave(stamp, Why.DRAINED))
         return out
 
@@ -259,7 +275,9 @@ class StampJoiner:
                 if newest_complete is None or newest_complete - oldest < self.reorder_ns:
                     break
                 if self.slot_ns and (twin := self._twin(oldest, incomplete_too=True)) is not None:
-                    out.append(self._stray(oldest, twin))  # (its twin, given up next, speaks for the tick)
+                    # two incomplete sets of one tick: the one with fewer messages is the stray, the
+                    # other speaks for the tick (given up as it comes next, or now)
+                    out.append(self._stray(*self._weaker(oldest, twin)))
                 else:
                     out.append(self._leave(oldest, Why.OVERTAKEN))
             else:
@@ -270,13 +288,20 @@ class StampJoiner:
         """The stamp of another set of the tick of the pending set ``stamp`` (``slot_ns``) that makes
         it a stray: the set that left last, a complete pending one if it is incomplete, or (once it
         would be given up) any pending one. None: it is its tick's only set."""
-        if self._left_ns >= 0 and abs(stamp - self._left_ns) < self.slot_ns:
+        if (self._left_ns >= 0 and abs(stamp - self._left_ns) < self.slot_ns
+                and not self._left_ns < self._phase_from_ns <= stamp):
             return self._left_ns
         if self._complete(self._pending[stamp]):
             return None
         near = [s for s in (self._pending if incomplete_too else self._complete_stamps)
                 if s != stamp and abs(s - stamp) < self.slot_ns]
         return min(near, default=None)
+
+    def _weaker(self, stamp: int, twin: int) -> tuple[int, int]:
+        """(stray, the set it lies beside) of two pending sets of one tick: the one with fewer
+        messages is the stray; of two alike, the newer (its stamp farther from the order's)."""
+        a, b = len(self._pending[stamp].parts), len(self._pending[twin].parts)
+        return (stamp, twin) if a < b or (a == b and stamp > twin) else (twin, stamp)
 
     def _stray(self, stamp: int, twin: int) -> Joined:
         gone = self._pending.pop(stamp)
