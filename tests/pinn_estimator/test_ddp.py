@@ -188,3 +188,36 @@ def test_ctrl_c_or_a_killed_rank_under_torchrun_keeps_the_best_model(bags, tmp_p
     _, ckpt = load_model(out)
     assert ckpt["metrics"]["stop_reason"].startswith("another process of the job failed in epoch")
     assert stdout.count('"checkpoint"') == 1
+
+    # torchrun itself killed outright (kill -9, the OOM killer): its ranks, each in a session of its
+    # own, had trained on to the end (hours under a cluster's --max-minutes, an outside tester's); now
+    # each notes its parent gone and stops as on SIGTERM, rank 0 writing the best model
+    out = tmp_path / "orphaned" / "m.pt"
+    proc = _train_until_epoch(data, out, tmp_path / "orphaned.log", 3)
+    ranks = _ranks(proc.pid)
+    try:
+        proc.kill()
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 120  # (a bound for a hung rank, not a figure: it is killed after it)
+        while any(Path(f"/proc/{pid}").exists() and "zombie" not in _state(pid) for pid in ranks.values()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = [pid for pid in ranks.values() if Path(f"/proc/{pid}").exists() and "zombie" not in _state(pid)]
+    finally:
+        for pid in ranks.values():
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+    err = (tmp_path / "orphaned.log").read_text(errors="replace")
+    assert not left, f"ranks {left} trained on after their torchrun was killed: {err[-3000:]}"
+    assert "its torchrun (pid" in err and "is gone; stopping as on SIGTERM" in err, err[-3000:]
+    _, ckpt = load_model(out)
+    assert re.fullmatch(r"interrupted \(SIGTERM\) in epoch \d+", ckpt["metrics"]["stop_reason"]), ckpt["metrics"]
+    assert ckpt["metrics"]["epochs_run"] >= 3
+
+
+def _state(pid: int) -> str:
+    """A process's state as /proc says it ('' once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/status").read_text().split("State:")[1].split("\n")[0]
+    except (OSError, IndexError):
+        return ""

@@ -10,6 +10,9 @@ tensors on the CPU (nccl only moves CUDA tensors).
 from __future__ import annotations
 
 import os
+import signal
+import sys
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import timedelta
@@ -23,6 +26,7 @@ from soil_msgs_py.cli_numbers import check_local_count
 # the others wait at a barrier, so the default 30 min could be too short. A rank that dies
 # does not make the others wait this long: torchrun stops the whole group.
 GROUP_TIMEOUT = timedelta(hours=4)
+ORPHAN_POLL_S = 1.0  # how often a rank looks whether torchrun, its parent, is still there [s]
 
 
 @dataclass(frozen=True)
@@ -72,6 +76,32 @@ def process_group(ranks: Ranks):
         yield
     finally:
         dist.destroy_process_group()
+
+
+@contextmanager
+def stop_when_orphaned(ranks: Ranks, poll_s: float = ORPHAN_POLL_S):
+    """Within: a rank whose parent (torchrun) goes away sends itself SIGTERM, so the job stops as on
+    torchrun's own stop, rank 0 keeping the best model. torchrun starts each rank in a session of
+    its own, and killed outright (kill -9, the OOM killer) it left its ranks training on to the
+    end, hours under a cluster's --max-minutes (an outside tester's). Nothing for one process."""
+    if not ranks.active:
+        yield
+        return
+    parent, done = os.getppid(), threading.Event()
+
+    def watch() -> None:
+        while not done.wait(poll_s):
+            if os.getppid() != parent:
+                print(f"pinn_train: rank {ranks.rank}: its torchrun (pid {parent}) is gone; stopping as on SIGTERM",
+                      file=sys.stderr, flush=True)
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+
+    threading.Thread(target=watch, name="torchrun-watch", daemon=True).start()
+    try:
+        yield
+    finally:
+        done.set()
 
 
 def share(n: int, ranks: Ranks) -> slice:

@@ -42,7 +42,7 @@ from soil_sim_node.ray_cluster import add_ray_option, parse_ray_options
 from .checkpoint import is_checkpoint_file, save_checkpoint
 from .dataset import (MAX_WINDOW_STRIDE, Dataset, add_skip_bad_bags_option, describe, identical_episodes, load_dataset,
                       split_episodes)
-from .distributed import Ranks, agreed_max, gather, process_group, ranks_from_env, share
+from .distributed import Ranks, agreed_max, gather, process_group, ranks_from_env, share, stop_when_orphaned
 from .inference import WindowTensors, force_errors
 from .loss import LossWeights, consistency_loss, force_loss, pinn_loss
 from .model import EstimatorNet, ModelConfig, parameter_count
@@ -456,7 +456,7 @@ def main(argv=None) -> int:
             print(f"pinn_train: error: --out {args.out} exists (a trained model): give --overwrite to replace it, or "
                   "another path", file=sys.stderr)
         return 2
-    with process_group(ranks):
+    with stop_when_orphaned(ranks), process_group(ranks):
         return _run(args, cfg, model_cfg, ranks)
 
 
