@@ -49,9 +49,10 @@ from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, 
 from soil_msgs_py.patches import PATCH_SYNTAX, check_patches, glue_negative_patches, parse_patch
 from soil_physics.soils import load_soil_file, path_patches, soil_file_notes
 from soil_msgs_py.interrupts import interruptible
-from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN
+from soil_planner.planner import DEFAULT_FORCE_QUANTILE, DEFAULT_MARGIN, steady_cut_terms
 from soil_planner.stretch_planner import StretchPlanner
 from soil_sim_node.simulator import EpisodeSpec, SimConfig, resolve_checked
+from soil_sim_node.effects import load_plugins
 
 from . import cut_metrics as CM
 from .cut_trial import Cut, Policy, SoilAwareSetup, run_cut, sweep_fixed_depths
@@ -137,10 +138,22 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error(f"--checkpoint: {err}")
     if args.world_mismatch:
         print(f"soil_cut_report: warning: {args.world_mismatch}", file=sys.stderr)
+    args.plugins = ()
     try:  # ... or no config, or another world's
         if args.fusion_config:
-            given_fusion(args.fusion_config, args.worlds[0], lambda note: print(f"soil_cut_report: note: {note}",
-                                                                                 file=sys.stderr))
+            cfg = given_fusion(args.fusion_config, args.worlds[0], lambda note: print(f"soil_cut_report: note: {note}",
+                                                                                       file=sys.stderr))
+            # the world it was calibrated in has these forces: every policy cuts that world (the plan had
+            # read a term the simulated world lacked, and said nothing: 0.45 -> 2.03 s of stall, an outside tester's)
+            args.plugins = tuple(cfg.calibration_plugins or ())
+            load_plugins(args.plugins)  # (one that does not load: refused here)
+            if args.plugins:
+                print(f"soil_cut_report: note: every policy cuts the {args.worlds[0]} world with the force terms "
+                      f"--fusion-config was calibrated with: {', '.join(args.plugins)}", file=sys.stderr)
+            if left_out := steady_cut_terms(cfg.terms)[1]:
+                print(f"soil_cut_report: note: the planner plans without {', '.join(left_out)} (on the travel or time "
+                      "in soil, which a planned steady cut does not have); the posterior is still fitted with it",
+                      file=sys.stderr)
     except ValueError as err:
         p.error(str(err))
     if not math.isfinite(args.duration) or not 2.0 <= args.duration <= 600.0:
@@ -186,7 +199,7 @@ def add_force_lift_option(parser: argparse.ArgumentParser, help_text: str) -> No
 
 
 def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None = None,
-                   custom_soils: dict | None = None) -> tuple[list[Cut], list, float, float]:
+                   custom_soils: dict | None = None, plugins=()) -> tuple[list[Cut], list, float, float]:
     """The fixed-depth sweep of ``spec``, each patch's best fixed depth in hindsight (None: none
     without a stall; ``cut_metrics.judged_depths``), the conservative depth (the shallowest of the
     patches' deepest stall-free depths, then refined towards the next swept depth while the whole
@@ -197,7 +210,7 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
         free = CM.stall_free_cuts(cuts, len(spec.patches) or 1)
         return free, CM.deepest_stall_free(free)
 
-    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils)
+    sweep = sweep_fixed_depths(world, spec, SWEEP_DEPTHS_M, gains, custom_soils, plugins)
     candidates, deepest = stall_free(sweep)
     known = [b for b in deepest if b is not None]
     # a patch the edge reached where every depth stalled: no depth avoids a stall there, so the
@@ -206,7 +219,7 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
     stall_everywhere = bool(stalling_patches(sweep, deepest))
     conservative = min(SWEEP_DEPTHS_M) if stall_everywhere or not known else min(known)
     if not stall_everywhere and known:
-        refined = refined_conservative(world, spec, sweep, conservative, gains, custom_soils)
+        refined = refined_conservative(world, spec, sweep, conservative, gains, custom_soils, plugins)
         if refined.policy.fixed_depth_m != conservative:
             # a cut of the sweep like the others: no stall in any patch, so each patch's best depth
             # is judged with it too (its strongest soil's had stayed on the grid, below the
@@ -219,7 +232,7 @@ def fixed_policies(world: str, spec: EpisodeSpec, gains: AntiStallGains | None =
 
 
 def refined_conservative(world: str, spec: EpisodeSpec, sweep: list[Cut], depth_m: float,
-                         gains: AntiStallGains | None = None, custom_soils: dict | None = None) -> Cut:
+                         gains: AntiStallGains | None = None, custom_soils: dict | None = None, plugins=()) -> Cut:
     """The deepest fixed depth between ``depth_m`` (a swept depth) and the next one swept that cuts
     the whole path without a stall, by bisection to ``CONSERVATIVE_RESOLUTION_M``: the sweep's cut at
     ``depth_m`` if none deeper is found (or it stalled, or none deeper was swept)."""
@@ -231,7 +244,7 @@ def refined_conservative(world: str, spec: EpisodeSpec, sweep: list[Cut], depth_
     lo, hi = depth_m, deeper[0]
     while hi - lo > CONSERVATIVE_RESOLUTION_M:
         mid = round(0.5 * (lo + hi), 4)
-        cut = sweep_fixed_depths(world, spec, (mid,), gains, custom_soils)[0]
+        cut = sweep_fixed_depths(world, spec, (mid,), gains, custom_soils, plugins)[0]
         if CM.stall_mask(cut).any():
             hi = mid
         else:
@@ -254,14 +267,15 @@ def unentered_patches(sweep: list, n_patches: int) -> list[int]:
 
 
 def world_trial(world: str, spec: EpisodeSpec, setup: SoilAwareSetup | None = None,
-                gains: AntiStallGains | None = None, custom_soils: dict | None = None) -> dict:
+                gains: AntiStallGains | None = None, custom_soils: dict | None = None, plugins=()) -> dict:
     """The sweep, the three policies and their figures for one world (``cuts`` kept for the
-    figure), every policy under the controller ``gains`` (default: its defaults)."""
-    sweep, best, conservative, aggressive = fixed_policies(world, spec, gains, custom_soils)
+    figure), every policy under the controller ``gains`` (default: its defaults) in the world with
+    ``plugins`` beside its own effects."""
+    sweep, best, conservative, aggressive = fixed_policies(world, spec, gains, custom_soils, plugins)
     by_depth = {c.policy.fixed_depth_m: c for c in sweep}
     cuts = [_renamed(by_depth[conservative], f"conservative {conservative:.3f} m"),
             _renamed(by_depth[aggressive], f"aggressive {aggressive:.3f} m"),
-            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains, custom_soils)]
+            run_cut(world, spec, Policy("soil-aware"), setup or SoilAwareSetup(world), gains, custom_soils, plugins)]
     rows = [CM.summary(c) for c in cuts]
     cons, agg, aware = rows
     patches = CM.per_patch(cuts[2], best)
@@ -361,7 +375,9 @@ def markdown(report: dict) -> str:
              f"{report['duration_s']:g} s at {SPEED_M_S} m/s, seed {report['seed']}; best fixed depths from a sweep of "
              f"{SWEEP_DEPTHS_M[0]:.3f}-{SWEEP_DEPTHS_M[-1]:.3f} m in steps of {SWEEP_DEPTHS_M[1] - SWEEP_DEPTHS_M[0]:.3f} m, "
              f"the conservative depth refined to {CONSERVATIVE_RESOLUTION_M * 1000:g} mm; controller: {controller_text(report['controller'])}. "
-             f"Command: `{report['command']}`", ""]
+             f"Command: `{report['command']}`"
+             + (f" The world has the force terms its fusion config was calibrated with: {', '.join(report['plugins'])}."
+                if report.get("plugins") else ""), ""]
     if mismatch := world_mismatch_lines(report.get("world_mismatch", "")):
         lines += [*mismatch[1:], ""]
     for w in report["worlds"]:
@@ -529,13 +545,14 @@ def main(argv=None) -> int:
     report = {"path": path, "duration_s": args.duration, "seed": args.seed, "worlds": [],
               "command": "soil_cut_report " + " ".join(argv if argv is not None else sys.argv[1:]), "planner": args.planner,
               "checkpoint": args.checkpoint or "shipped", "fusion_config": args.fusion_config or "shipped",
+              "plugins": list(args.plugins),
               "controller": dataclasses.asdict(args.gains), **({"world_mismatch": args.world_mismatch}
                                                                if args.world_mismatch else {})}
     for world in args.worlds:
         print(f"soil_cut_report: {world} world: sweeping {len(SWEEP_DEPTHS_M)} fixed depths, then the soil-aware loop ...",
               flush=True)
         setup = SoilAwareSetup(world, planner=args.planner, checkpoint=args.checkpoint, fusion_config=args.fusion_config)
-        w = world_trial(world, spec, setup, args.gains, args.custom_soils)
+        w = world_trial(world, spec, setup, args.gains, args.custom_soils, args.plugins)
         w["figure"] = figure_name(world)
         plot(w, args.out / w["figure"])
         report["worlds"].append(w)

@@ -112,12 +112,13 @@ class Cut:
 
 
 def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup | None = None,
-            gains: AntiStallGains | None = None, custom_soils: dict | None = None) -> Cut:
+            gains: AntiStallGains | None = None, custom_soils: dict | None = None, plugins=()) -> Cut:
     """Simulate ``spec`` (its patches, seed, speed and duration; its target depth unused) under
-    ``policy``; ``custom_soils``: soils by name beside the catalogue (``load_soil_file``).
-    ValueError naming the field for a bad spec or setting."""
+    ``policy``; ``custom_soils``: soils by name beside the catalogue (``load_soil_file``);
+    ``plugins``: force terms the world has beside its own effects (a fusion config's
+    ``calibration_plugins``). ValueError naming the field for a bad spec or setting."""
     gains = gains or AntiStallGains()
-    sim = SoilSimulator(SimConfig(world_mode=world), [spec], custom_soils)
+    sim = SoilSimulator(SimConfig(world_mode=world, plugins=tuple(plugins)), [spec], custom_soils)
     spec = sim.specs[0]
     n = ticks_in(spec.duration_s)
     start = policy.fixed_depth_m
@@ -182,7 +183,7 @@ def run_cut(world: str, spec: EpisodeSpec, policy: Policy, setup: SoilAwareSetup
 
 
 def sweep_fixed_depths(world: str, spec: EpisodeSpec, depths_m, gains: AntiStallGains | None = None,
-                       custom_soils: dict | None = None) -> list[Cut]:
+                       custom_soils: dict | None = None, plugins=()) -> list[Cut]:
     """Fixed-depth cuts of ``spec`` at each of ``depths_m`` (the hindsight sweep)."""
-    return [run_cut(world, spec, Policy(f"fixed {d:.3f} m", float(d)), gains=gains, custom_soils=custom_soils)
-            for d in depths_m]
+    return [run_cut(world, spec, Policy(f"fixed {d:.3f} m", float(d)), gains=gains, custom_soils=custom_soils,
+                    plugins=plugins) for d in depths_m]
