@@ -1472,3 +1472,22 @@ def test_a_calibration_without_the_worlds_shipped_terms_is_warned_and_with_them_
     err = capsys.readouterr().err
     assert "needs it switched on there too" in err and "term=soil_inertia k=4.0" in err, err
     assert "term=form:-qnq*tanhvx0.1" not in err, err  # (the shipped term is the world's own: not as a plugin)
+
+
+def test_the_bound_calibration_says_a_term_it_leaves_out(tmp_path, capsys, monkeypatch):
+    """A posterior with a term on time in soil: the planner plans without it, and the bound is
+    calibrated without it too; that was done without a word (an outside tester's). (No calibration runs.)"""
+    import soil_planner.bound_calibration as bc
+
+    class CalibrationStarted(Exception):
+        pass
+
+    def started(*_, **__):
+        raise CalibrationStarted
+
+    monkeypatch.setattr(bc, "calibration_episodes", started)
+    mine = tmp_path / "mine.json"
+    FusionConfig(world="fee", terms=(("form:gd2w_x*tsat3", 1.5),)).save(mine)
+    with pytest.raises(CalibrationStarted):
+        bc.main(["--world", "fee", "--config", str(mine)])
+    assert "the bound is calibrated without form:gd2w_x*tsat3" in capsys.readouterr().err

@@ -173,6 +173,9 @@ def main(argv=None) -> int:
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
     kept_plugins(p, args, cfg, path)  # (the bound is calibrated on the world the posterior's laws are of)
     term_note(p.prog, args.world, cfg.terms, args.plugin)
+    if left_out := steady_cut_terms(cfg.terms)[1]:  # (as the planner node and soil_cut_report say it)
+        print(f"soil_planner_calibrate: note: the bound is calibrated without {', '.join(left_out)} (on the travel or "
+              "time in soil, which a planned steady cut does not have), as the planner plans", file=sys.stderr)
     ds = calibration_episodes(p, args)
     try:
         cfg, _ = choose_bound_law(ds, cfg, fused_posteriors(ds, cfg), quantile=args.quantile)
