@@ -84,8 +84,6 @@ def test_pinn_train_refuses_a_malformed_torchrun_variable(bags, tmp_path, monkey
     assert "WORLD_SIZE='many'" in capsys.readouterr().err and not (tmp_path / "m.pt").exists()
 
 
-@pytest.mark.timeout(300)
-@pytest.mark.skipif(not _netns_works(), reason="needs `unshare -rn` (a private loopback-only network namespace)")
 def _gloo_abort(stderr: str) -> bool:
     """Whether a torchrun run failed because a rank died of SIGABRT in gloo's own threads (upstream:
     pytorch/pytorch#188266, gloo's tcp pair aborting the process when the peer address cannot be
@@ -94,6 +92,8 @@ def _gloo_abort(stderr: str) -> bool:
     return "exitcode  : -6" in stderr and "terminate called" in stderr
 
 
+@pytest.mark.timeout(300)
+@pytest.mark.skipif(not _netns_works(), reason="needs `unshare -rn` (a private loopback-only network namespace)")
 def test_two_ddp_processes_reach_the_single_process_validation_loss(bags, tmp_path, capsys):
     assert train_main(["--data", str(bags), "--out", str(tmp_path / "one.pt"), "--no-cache", *TINY]) == 0
     capsys.readouterr()
@@ -133,7 +133,8 @@ def _ranks(agent: int) -> dict[int, int]:
 def _train_until_epoch(bags: Path, out: Path, log: Path, epochs: int) -> subprocess.Popen:
     """A 2-process training far longer than the test, returned once its progress bar shows
     ``epochs`` validated epochs (a best model to keep); its stderr goes to ``log``."""
-    args = [*TINY, "--epochs", "100000", "--patience", "100000"]
+    # (--max-minutes: a test that fails before it stops the job leaves no training running for long)
+    args = [*TINY, "--epochs", "100000", "--patience", "100000", "--max-minutes", "3"]
     args.remove("--quiet")
     proc = subprocess.Popen(_torchrun("--data", str(bags), "--out", str(out), *args), env=torchrun_env(log.parent),
                             stdout=subprocess.PIPE, stderr=log.open("w"), text=True, start_new_session=True)
@@ -194,8 +195,9 @@ def test_ctrl_c_or_a_killed_rank_under_torchrun_keeps_the_best_model(bags, tmp_p
     # each notes its parent gone and stops as on SIGTERM, rank 0 writing the best model
     out = tmp_path / "orphaned" / "m.pt"
     proc = _train_until_epoch(data, out, tmp_path / "orphaned.log", 3)
-    ranks = _ranks(proc.pid)
+    ranks = {}
     try:
+        ranks = _ranks(proc.pid)
         proc.kill()
         proc.wait(timeout=30)
         deadline = time.monotonic() + 120  # (a bound for a hung rank, not a figure: it is killed after it)

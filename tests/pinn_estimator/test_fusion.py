@@ -1491,3 +1491,7 @@ def test_the_bound_calibration_says_a_term_it_leaves_out(tmp_path, capsys, monke
     with pytest.raises(CalibrationStarted):
         bc.main(["--world", "fee", "--config", str(mine)])
     assert "the bound is calibrated without form:gd2w_x*tsat3" in capsys.readouterr().err
+    FusionConfig(world="fee", terms=(("soil_inertia", 4.0),)).save(mine)  # a term a steady cut evaluates
+    with pytest.raises(CalibrationStarted):
+        bc.main(["--world", "fee", "--config", str(mine)])
+    assert "the bound is calibrated without" not in capsys.readouterr().err

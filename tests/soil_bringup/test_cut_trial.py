@@ -330,3 +330,38 @@ def test_a_fusion_config_calibrated_with_plugins_puts_them_in_the_cut_world_and_
     with_it = cut_report.run_cut("fee", args.spec, cut_report.Policy("fixed", 0.1), plugins=args.plugins)
     assert not np.allclose(plain.force, with_it.force)  # the world has the effect
     assert cut_report.parse_args(["--worlds", "fee", "--duration", "2"]).plugins == ()
+    broken = tmp_path / "broken.json"
+    FusionConfig(world="fee", calibration_plugins=("no_such_module:plugin",)).save(broken)
+    with pytest.raises(SystemExit) as exit_:
+        cut_report.parse_args(["--worlds", "fee", "--duration", "2", "--fusion-config", str(broken)])
+    assert exit_.value.code == 2 and "its calibration_plugins: plugin='no_such_module:plugin'" in capsys.readouterr().err
+
+
+def test_every_policy_of_the_report_cuts_the_world_of_its_fusion_config(tmp_path, monkeypatch, capsys):
+    """The sweep, the refined conservative depth and the soil-aware loop all cut the world with the
+    config's plugins (a reviewer's: dropping them from one path would not fail the test above), and
+    the report records them; without a config nothing changes."""
+    from pinn_estimator.fusion_config import FusionConfig
+    from soil_bringup import cut_trial
+
+    made = []
+    real = cut_trial.SoilSimulator
+
+    def recording(config, *args, **kwargs):
+        made.append(tuple(config.plugins))
+        return real(config, *args, **kwargs)
+
+    monkeypatch.setattr(cut_trial, "SoilSimulator", recording)
+    spec = ("soil_physics.force_terms:plugin term=soil_inertia k=4",)
+    mine = tmp_path / "mine.json"
+    FusionConfig(world="fee", terms=(("soil_inertia", 4.0),), calibration_plugins=spec).save(mine)
+    for config, plugins in ((["--fusion-config", str(mine)], spec), ([], ())):
+        made.clear()
+        out = tmp_path / ("with" if config else "without")
+        assert cut_report.main(["--worlds", "fee", "--duration", "2", "--out", str(out), *config]) == 0
+        report = json.loads((out / "cut_report.json").read_text())
+        assert len(made) > len(cut_report.SWEEP_DEPTHS_M) and set(made) == {plugins}, made
+        assert report["plugins"] == list(plugins)
+        assert ("the force terms its fusion config was calibrated with" in (out / "cut_report.md").read_text()) \
+            == bool(plugins)
+    capsys.readouterr()

@@ -9,6 +9,7 @@ tensors on the CPU (nccl only moves CUDA tensors).
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -83,8 +84,11 @@ def stop_when_orphaned(ranks: Ranks, poll_s: float = ORPHAN_POLL_S):
     """Within: a rank whose parent (torchrun) goes away sends itself SIGTERM, so the job stops as on
     torchrun's own stop, rank 0 keeping the best model. torchrun starts each rank in a session of
     its own, and killed outright (kill -9, the OOM killer) it left its ranks training on to the
-    end, hours under a cluster's --max-minutes (an outside tester's). Nothing for one process."""
-    if not ranks.active:
+    end, hours under a cluster's --max-minutes (an outside tester's). On under torchrun only (it sets
+    TORCHELASTIC_RUN_ID in every worker, one process of one too); nothing otherwise, where the
+    parent may be a shell that ends while the job goes on. A wrapper between torchrun and the
+    trainer must exec into it: the parent watched is the trainer's own."""
+    if "TORCHELASTIC_RUN_ID" not in os.environ:
         yield
         return
     parent, done = os.getppid(), threading.Event()
@@ -92,9 +96,10 @@ def stop_when_orphaned(ranks: Ranks, poll_s: float = ORPHAN_POLL_S):
     def watch() -> None:
         while not done.wait(poll_s):
             if os.getppid() != parent:
-                print(f"pinn_train: rank {ranks.rank}: its torchrun (pid {parent}) is gone; stopping as on SIGTERM",
-                      file=sys.stderr, flush=True)
-                os.kill(os.getpid(), signal.SIGTERM)
+                os.kill(os.getpid(), signal.SIGTERM)  # first: a stderr gone with torchrun must not keep it training
+                with contextlib.suppress(OSError):
+                    print(f"pinn_train: rank {ranks.rank}: its torchrun (pid {parent}) is gone; stopping as on SIGTERM",
+                          file=sys.stderr, flush=True)
                 return
 
     threading.Thread(target=watch, name="torchrun-watch", daemon=True).start()

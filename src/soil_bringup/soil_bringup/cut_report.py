@@ -146,7 +146,10 @@ def parse_args(argv=None) -> argparse.Namespace:
             # the world it was calibrated in has these forces: every policy cuts that world (the plan had
             # read a term the simulated world lacked, and said nothing: 0.45 -> 2.03 s of stall, an outside tester's)
             args.plugins = tuple(cfg.calibration_plugins or ())
-            load_plugins(args.plugins)  # (one that does not load: refused here)
+            try:  # (one that does not load: refused here)
+                load_plugins(args.plugins)
+            except ValueError as err:
+                raise ValueError(f"--fusion-config {args.fusion_config}: its calibration_plugins: {err}") from None
             if args.plugins:
                 print(f"soil_cut_report: note: every policy cuts the {args.worlds[0]} world with the force terms "
                       f"--fusion-config was calibrated with: {', '.join(args.plugins)}", file=sys.stderr)
