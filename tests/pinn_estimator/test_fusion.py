@@ -34,6 +34,21 @@ CFG = FusionConfig(rel_std=(0.01, 0.01))
 SHAPE = dataclasses.replace(CFG, shape_evidence=True, shape_abs_std_n=(2.0, 2.0), shape_rel_std=(0.002, 0.002))
 
 
+
+class Started(Exception):
+    """Raised where a tool's long work (simulating, calibrating) would begin: ``stop_before``."""
+
+
+def stop_before(monkeypatch, module, name: str, calls: list | None = None) -> None:
+    """``module.name`` raises Started, each call's keyword arguments appended to ``calls`` if given:
+    a tool is checked up to its long work, which never runs."""
+    def started(*_, **kw):
+        if calls is not None:
+            calls.append(kw)
+        raise Started
+
+    monkeypatch.setattr(module, name, started)
+
 def episodes(world: str, specs: list[tuple]):
     return run_episodes(SimConfig(world_mode=world), [EpisodeSpec(s, i_d, 0.6, d, seed=100 + k, duration_s=6.0)
                                                       for k, (s, i_d, d) in enumerate(specs)])
@@ -716,13 +731,7 @@ def test_a_field_set_on_a_command_line_is_parsed_validated_and_named_when_bad(ca
     # the run is stopped where it would start simulating, a minute of it
     import pinn_estimator.evaluate as evaluate_module
 
-    class Started(Exception):
-        pass
-
-    def started(*_, **__):
-        raise Started
-
-    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    stop_before(monkeypatch, evaluate_module, "forecast_dataset")
     with pytest.raises(Started):
         calibrate_main(["--world", "fee", "--forecast-law-only", "--out", str(tmp_path / "new.json")])
     said = capsys.readouterr()
@@ -810,16 +819,9 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
         calibrate_main(["--world", "fee", "--out", str(tmp_path / "c.json"), "--duration", "2", "--soils", "Sand",
                         "--plugin", spec.replace("k=1", "k=nan")])
     assert exit_.value.code == 2 and "--plugin: plugin='soil_physics.force_terms:plugin'" in capsys.readouterr().err
-    seen = []
-
-    class Started(Exception):
-        pass
-
-    def started(*_, **kw):
-        seen.append(kw.get("plugins"))
-        raise Started
-
-    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)  # (stopped where minutes of simulation begin)
+    seen = []  # the keyword arguments of each call
+    # (stopped where minutes of simulation begin)
+    stop_before(monkeypatch, evaluate_module, "forecast_dataset", calls=seen)
     with pytest.raises(Started):
         calibrate_main(["--world", "fee", "--out", str(tmp_path / "d.json"), "--term", "form:wd_x*tanhvx0.3=1"])
     said = capsys.readouterr().err
@@ -834,7 +836,7 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
                       (calibrate_main, ["--out", str(tmp_path / "e.json"), "--forecast-law-only"])):
         with pytest.raises(Started):
             tool(["--world", "fee", *out])
-    assert seen == [(), (spec,), (spec,), (spec,), (spec,)]
+    assert [kw.get("plugins") for kw in seen] == [(), (spec,), (spec,), (spec,), (spec,)]
     assert capsys.readouterr().err.count("was calibrated on episodes with --plugin '" + spec + "': switched on again") == 2
     for tool, out in ((bound_main, "--config"), (calibrate_main, "--out")):  # another plugin: another world's laws
         with pytest.raises(SystemExit) as exit_:
@@ -846,7 +848,7 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
     with pytest.raises(Started):
         bound_main(["--world", "fee", "--config", str(tmp_path / "e.json"), "--plugin",
                     "soil_physics.force_terms:plugin  k=1.000 term=form:wd_x*tanhvx0.3"])
-    assert seen[-1] == (spec,)
+    assert seen[-1].get("plugins") == (spec,)
     # a config that does not record them (written before it was): the plugins given, said (it was refused
     # as calibrated with none, a reviewer's); --set cannot write them
     old = tmp_path / "old.json"
@@ -855,7 +857,7 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
     assert FusionConfig.load(old).calibration_plugins is None
     with pytest.raises(Started):
         bound_main(["--world", "fee", "--config", str(old), "--plugin", spec])
-    assert seen[-1] == (spec,) and "does not record the plugins" in capsys.readouterr().err
+    assert seen[-1].get("plugins") == (spec,) and "does not record the plugins" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:
         calibrate_main(["--world", "fee", "--out", str(tmp_path / "f.json"), "--set", "calibration_plugins=[]"])
     assert exit_.value.code == 2 and "calibration_plugins is set by --plugin" in capsys.readouterr().err
@@ -869,7 +871,7 @@ def test_a_calibration_for_a_term_the_world_lacks_takes_its_plugin_and_says_so(t
     with pytest.raises(Started):
         forecast_section(load_model(MODELS_DIR / "pinn_fee.pt")[0], None, "fee", fusion_config=str(tmp_path / "e.json"),
                          log=said.append)
-    assert seen[-1] == (spec,) and any("the held-out episodes are simulated with them too" in s for s in said)
+    assert seen[-1].get("plugins") == (spec,) and any("the held-out episodes are simulated with them too" in s for s in said)
 
 
 def test_a_fusion_config_round_trips_and_unknown_fields_are_refused(tmp_path):
@@ -961,15 +963,7 @@ def test_both_calibrations_run_on_soils_of_ones_own(tmp_path, capsys, monkeypatc
     soils.write_text("soils:\n  - {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12000, 18000], "
                      "unit_weight_n_m3: [19000, 21500]}\n")
     asked = []
-
-    class Started(Exception):
-        pass
-
-    def started(*_, **kw):
-        asked.append(kw)
-        raise Started
-
-    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    stop_before(monkeypatch, evaluate_module, "forecast_dataset", calls=asked)
     mine = tmp_path / "mine.json"
     for tool, out in ((calibrate_main, "--out"), (bound_main, "--config")):
         if tool is bound_main:
@@ -1382,13 +1376,7 @@ def test_a_config_records_its_world_and_is_not_recalibrated_for_another(tmp_path
     # a config without its world is taken for the world asked, and said; one of no law, said too
     import pinn_estimator.evaluate as evaluate_module
 
-    class Started(Exception):
-        pass
-
-    def started(*_, **__):
-        raise Started
-
-    monkeypatch.setattr(evaluate_module, "forecast_dataset", started)
+    stop_before(monkeypatch, evaluate_module, "forecast_dataset")
     empty = tmp_path / "empty.json"
     empty.write_text("{}")
     with pytest.raises(Started):
@@ -1418,19 +1406,13 @@ def test_a_calibration_over_the_shipped_config_without_its_arguments_says_what_i
     shipped.write_bytes(original)
     monkeypatch.setattr(fcal, "config_path", lambda world: shipped)
 
-    class CalibrationStarted(Exception):
-        pass
-
-    def started(*_, **__):
-        raise CalibrationStarted
-
-    monkeypatch.setattr(fcal, "calibration_episodes", started)
+    stop_before(monkeypatch, fcal, "calibration_episodes")
     (tmp_path / "sub").mkdir()
     for argv, warned in ((["--world", "fee"], True),
                          (["--world", "fee", "--out", str(tmp_path / "sub" / ".." / "fusion_fee.json")], True),  # its path too
                          (["--world", "fee", "--set", "cohesionless_prior=0.1", "--set", "stiff_prior=0.04"], False),
                          (["--world", "fee", "--out", str(tmp_path / "mine.json")], False)):
-        with pytest.raises(CalibrationStarted):
+        with pytest.raises(Started):
             fcal.main(argv)
         err = capsys.readouterr().err
         assert ("rewrites the shipped" in err) == warned, (argv, err)
@@ -1449,25 +1431,19 @@ def test_a_calibration_without_the_worlds_shipped_terms_is_warned_and_with_them_
     already has the effect) is not printed. (No calibration runs here.)"""
     import pinn_estimator.fusion_calibration as fcal
 
-    class CalibrationStarted(Exception):
-        pass
-
-    def started(*_, **__):
-        raise CalibrationStarted
-
-    monkeypatch.setattr(fcal, "calibration_episodes", started)
+    stop_before(monkeypatch, fcal, "calibration_episodes")
     mine = str(tmp_path / "mine.json")
     term = "form:-qnq*tanhvx0.1=0.756"
     for argv, lacking in ((["--world", "default", "--out", mine], True),
                           (["--world", "default", "--out", mine, "--term", term], False),
                           (["--world", "fee", "--out", mine], False)):
-        with pytest.raises(CalibrationStarted):
+        with pytest.raises(Started):
             fcal.main(argv)
         err = capsys.readouterr().err
         assert ("form:-qnq*tanhvx0.1 beside the FEE, this one not" in err) == lacking, (argv, err)
         assert (f'--term "{term}" keeps it' in err) == lacking, (argv, err)
         assert "needs it switched on there too" not in err, (argv, err)
-    with pytest.raises(CalibrationStarted):  # a term of one's own, without its plugin: still noted
+    with pytest.raises(Started):  # a term of one's own, without its plugin: still noted
         fcal.main(["--world", "default", "--out", mine, "--term", term, "--term", "soil_inertia=4"])
     err = capsys.readouterr().err
     assert "needs it switched on there too" in err and "term=soil_inertia k=4.0" in err, err
@@ -1479,19 +1455,13 @@ def test_the_bound_calibration_says_a_term_it_leaves_out(tmp_path, capsys, monke
     calibrated without it too; that was done without a word (an outside tester's). (No calibration runs.)"""
     import soil_planner.bound_calibration as bc
 
-    class CalibrationStarted(Exception):
-        pass
-
-    def started(*_, **__):
-        raise CalibrationStarted
-
-    monkeypatch.setattr(bc, "calibration_episodes", started)
+    stop_before(monkeypatch, bc, "calibration_episodes")
     mine = tmp_path / "mine.json"
     FusionConfig(world="fee", terms=(("form:gd2w_x*tsat3", 1.5),)).save(mine)
-    with pytest.raises(CalibrationStarted):
+    with pytest.raises(Started):
         bc.main(["--world", "fee", "--config", str(mine)])
     assert "the bound is calibrated without form:gd2w_x*tsat3" in capsys.readouterr().err
     FusionConfig(world="fee", terms=(("soil_inertia", 4.0),)).save(mine)  # a term a steady cut evaluates
-    with pytest.raises(CalibrationStarted):
+    with pytest.raises(Started):
         bc.main(["--world", "fee", "--config", str(mine)])
     assert "the bound is calibrated without" not in capsys.readouterr().err
