@@ -174,9 +174,15 @@ def test_hidden_effect_is_named_fitted_and_halves_the_heldout_error(reports, nam
     a = accepted[0]
     assert a["k"] == pytest.approx(k_true, rel=0.25)
     assert a["p_holm"] < 0.01 and a["gain"] >= 0.5 and a["k_se"] < 0.1 * a["k"]
-    # pinned down: no form of the library fits what it takes as well, but those that are its own
-    # column here ((γ/g) w d v_x² is soil inertia), which say the same thing
-    assert a["pin"]["pinned"] and "pinned down" not in rep["summary"], a["pin"]
+    if term == "soil_inertia":
+        # its v_x² is not pinned down on two speeds, where any factor of speed matches it (k and θ
+        # take the rest): it was called "pinned down", the forms that were its own column here
+        # (v_x, v_x², tanh(v_x / 1 m/s)) listed as saying the same thing
+        few = a["pin"]["few_levels"]
+        assert not a["pin"]["pinned"] and few["variable"] == "v_x" and len(few["levels"]) == 2, a["pin"]
+        assert "its form is NOT pinned down" in rep["summary"] and "v_x takes values in only 2 group(s)" in rep["summary"]
+    else:  # pinned down: no form of the library fits what it takes as well
+        assert a["pin"]["pinned"] and "pinned down" not in rep["summary"], a["pin"]
     # asked on both parts: the held-out one (8 episodes, where two against the term would keep a
     # one-sided Wilcoxon above α) is too small to judge, and the report says so
     assert a["pin"]["judged_on"] == ["selection"] and a["pin"]["part"] == "selection", a["pin"]
@@ -391,6 +397,17 @@ def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named(
     # nothing named (unexplained, or no discrepancy found) is a miss, not a wrong name
     missed = hidden_check(report(), both[:1])
     assert not missed["correct"] and "WRONG" not in missed["text"] and "named none: missed (nothing named)" in missed["text"]
+    # a hidden term that never acted (surcharge_drag where Q = 0: its basis 0 on every tick, the
+    # workflow's first round says so) hides nothing: the data are a control, not a miss
+    idle = {**report(), "selection": {"accepted": [], "rounds": [{"scores": [
+        {"name": "surcharge_drag", "note": "not testable: its basis is 0 on every analysed tick (e.g. no surcharge Q)"}]}]}}
+    none_there = hidden_check(idle, [("surcharge_drag", 0.3)])
+    assert none_there["correct"] and "missed" not in none_there["text"], none_there
+    assert "surcharge_drag (k = 0.3) hidden, but it never acted on these data" in none_there["text"]
+    assert none_there["text"].split("; held-out")[0].endswith("named none: correct")
+    idle["selection"]["accepted"] = [{"name": "soil_inertia", "k": 2.0}]
+    assert ": WRONG" in hidden_check(idle, [("surcharge_drag", 0.3)])["text"]
+    assert ", never acted on these data" in hidden_check(idle, [("surcharge_drag", 0.3), ("soil_inertia", 2.0)])["text"]
 
 
 def test_repeated_accepted_terms_bad_workers_and_seeds_are_refused_naming_the_option(tmp_path, capsys):
@@ -590,6 +607,14 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
         same.setdefault(int(labelled.group_of[e]), set()).add(int(by_gamma.group_of[e]))
     assert all(len(v) == 1 for v in same.values()) and len(set().union(*same.values())) == len(labelled.groups) == 8
     assert build_frame(ds, stride=4, group_by="gamma").group_names == by_gamma.group_names  # labels ignored
+    # a soil test matches a soil label: γ groups have none, and the verdict's words do not ask for
+    # --soil-tests there (the unlabelled run was told "a soil test tells (--soil-tests)", which it refuses)
+    from soil_discrepancy.regimes import group_misfit
+    from soil_discrepancy.verdict import _soil_test_hint
+    for frame, testable in ((by_gamma, False), (labelled, True)):
+        rows = [r for r in group_misfit(frame, 0.1 * frame.forces)["rows"] if r["kind"] == "group"]
+        assert rows and all(r["testable"] is testable for r in rows), rows
+        assert ("--soil-tests needs bags whose metadata names their soil" in _soil_test_hint(rows)) is not testable
     unlabelled = dataclasses.replace(ds, metas=metas)
     auto = build_frame(unlabelled, stride=4)  # the default on bags without any label: γ groups
     assert auto.group_by == "gamma" and auto.group_names == by_gamma.group_names

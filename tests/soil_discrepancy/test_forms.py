@@ -131,6 +131,8 @@ def test_a_term_of_the_users_catalogue_is_tested_and_said_under_the_users_name(e
     named = form in {a["name"] for a in rep["selection"]["accepted"]}
     said = f"'my entry drag' (`{form}`): " + ("**named**" if named else "not named")
     assert said in (out / "discrepancy.md").read_text()
+    if named:  # the verdict calls it by the user's name too (it had said only the formula)
+        assert f"'my entry drag', the form {force_terms.get_term(form).formula} ({form})" in rep["summary"]
 
 
 def test_speed_saturating_drag_is_found_and_beats_the_linear_catalogue_drag(form_reports):
@@ -431,6 +433,57 @@ def test_a_vertical_damping_is_found_as_one_signed_form(tmp_path):
     specs = grid_specs(list(SOILS), [20.0, 80.0], [0.65], [0.1, 0.175, 0.25], 1, seed_base=0, duration_s=10.0)
     _found_exactly(tmp_path, specs, "tests.sim_plugins:vertical_damping k=40 v0=1", ("wd_z", "vz"), 2.0,
                    pinned=False, sign=-1.0)
+
+
+def test_a_level_of_a_held_variable_is_not_split_where_a_window_began(form_data):
+    """How many levels of a speed the ticks sit at decides whether a factor of it can be pinned
+    down. A two-speed grid whose dense soils slowed (0.27 m/s, 0.72 m/s for a tenth of the ticks,
+    0.86-0.89 m/s) is two levels: windows of a quarter of the span, begun at the slowed episodes,
+    had split the upper level and counted three on a held-out part. Three speeds are three, a
+    middle speed held by a fifth of the ticks too (by a twentieth not); one speed with a few slowed
+    episodes is one; a speed varying over a range is three or more."""
+    from soil_discrepancy.forms import held_levels
+    from soil_discrepancy.frame import build_frame
+    from soil_msgs_py.params import KNOWN_PARAMS
+
+    frame = build_frame(form_data["saturating"], stride=STRIDE)
+    rng = np.random.default_rng(0)
+
+    def levels(*parts):
+        """held_levels of the frame's ticks with v_x drawn from (share, low, high) uniform parts."""
+        data = frame.select(episodes=list(frame.episodes))  # a copy of the frame's ticks
+        n = len(data)
+        counts = [int(round(share * n)) for share, _, _ in parts]
+        counts[-1] = n - sum(counts[:-1])
+        v = np.concatenate([rng.uniform(lo, hi, k) for k, (_, lo, hi) in zip(counts, parts)])
+        data.known[:, KNOWN_PARAMS.index("v_x")] = rng.permutation(v)
+        return held_levels(data, "v_x")
+
+    slowed = levels((0.45, 0.24, 0.29), (0.11, 0.71, 0.73), (0.44, 0.86, 0.89))
+    assert len(slowed) == 2 and slowed[0] < 0.3 and slowed[1] > 0.8, slowed
+    assert len(levels((1 / 3, 0.29, 0.31), (1 / 3, 0.64, 0.66), (1 / 3, 0.99, 1.01))) == 3
+    assert len(levels((0.4, 0.29, 0.31), (0.2, 0.64, 0.66), (0.4, 0.99, 1.01))) == 3
+    assert len(levels((0.45, 0.29, 0.31), (0.05, 0.64, 0.66), (0.5, 0.99, 1.01))) == 2  # too few ticks at 0.65
+    assert len(levels((0.92, 0.64, 0.66), (0.08, 0.5, 0.52))) == 1
+    assert len(levels((1.0, 0.05, 1.0))) >= 3  # a speed varying within the episodes
+
+
+def test_a_catalogue_term_of_speed_is_not_pinned_down_on_two_speeds(form_data):
+    """rate_strength claims a drag linear in v_x; on two speeds any factor of speed matches it (k and
+    θ take the rest). A drag ∝ √v_x on a two-speed grid was named rate_strength, "pinned down", with
+    v_x and v_x² listed as the same statement: the check on held levels read library forms only."""
+    from soil_discrepancy.fee_fit import fit_fixed
+    from soil_discrepancy.forms import pinned_caveat, rival_forms
+    from soil_discrepancy.frame import build_frame
+
+    frame = build_frame(form_data["saturating"], stride=STRIDE)
+    for name in ("rate_strength", "soil_inertia"):
+        assert force_terms.get_term(name).factor_variable == "v_x"
+        model = AugmentedFEE([(name, 1.0)])
+        pin = rival_forms(frame, model, fit_fixed(frame, model), name, alpha=0.01)
+        assert pin["few_levels"] and pin["few_levels"]["variable"] == "v_x", pin
+        assert len(pin["few_levels"]["levels"]) == 2 and not pin["pinned"], pin
+        assert pin_kind(pin) != "pinned" and "v_x takes values in only 2 group(s)" in pinned_caveat(pin)
 
 
 def test_a_form_in_the_place_of_another_effect_is_called_a_stand_in_not_its_mechanism(form_data):

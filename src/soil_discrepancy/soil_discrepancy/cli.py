@@ -174,13 +174,29 @@ def _pinn_predictor(epochs: int, log, seeds: int = 1):
     return run
 
 
+_DEFAULT_WORLD_OWN = (" (the default world has effects of its own that the model lacks, soil_sim_node/effects.py: "
+                      "what is named before or instead of the hidden effect may be one of them)")
+
+
 def hidden_check(report: dict, hidden) -> dict:
     """Did the workflow name the effect hidden in the test data (or none, for a control)? ``hidden``:
     None, or (name, k) pairs. With several hidden at once the answer is correct when the first term
     named is one of them (the dominant one, as a rule) and every hidden one is said found or not."""
     named = [a["name"] for a in report["selection"]["accepted"]]
     k = {a["name"]: a.get("k") for a in report["selection"]["accepted"]}
-    if hidden is None:
+    idle = _never_acted(report)
+    if hidden is not None and all(name in idle for name, _ in hidden):
+        # a plugin that can never act here (surcharge_drag where no pile stands before the blade, Q = 0 in
+        # the fee world) hides nothing: "missed" blamed the workflow for an effect the data do not hold
+        hidden = [tuple(h) for h in hidden]
+        ok = not named
+        said = ", ".join(f"{name} (k = {k_hidden:g})" for name, k_hidden in hidden)
+        answer = (": correct" if ok else _DEFAULT_WORLD_OWN if (report.get("data") or {}).get("world") == "default"
+                  else ": WRONG")
+        text = (f"{said} hidden, but {'it' if len(hidden) == 1 else 'none of them'} never acted on these data (its "
+                "basis, and so its force, is 0 on every analysed tick: e.g. surcharge_drag where no pile stands before "
+                f"the blade, Q = 0, as in the fee world), so the data are a control; named {named or 'none'}{answer}")
+    elif hidden is None:
         ok = not named
         text = "none hidden; " + ("none named: correct" if ok else f"named {named}: WRONG")
     else:
@@ -192,9 +208,7 @@ def hidden_check(report: dict, hidden) -> dict:
             # the default world has effects of its own the model lacks (soil_sim_node/effects.py): what is named
             # first there may be one of them, so "wrong" says too much; whether the hidden one was named says enough
             anywhere = [name for name, _ in hidden if name in named]
-            answer = ((f": {', '.join(anywhere)} named, not first" if anywhere else ": not named")
-                      + " (the default world has effects of its own that the model lacks, soil_sim_node/effects.py: "
-                        "what is named before or instead of the hidden effect may be one of them)")
+            answer = (f": {', '.join(anywhere)} named, not first" if anywhere else ": not named") + _DEFAULT_WORLD_OWN
         elif not named:  # an honest miss (unexplained, or no discrepancy), not a confident wrong name
             answer = ": missed (nothing named)"
         else:
@@ -205,6 +219,7 @@ def hidden_check(report: dict, hidden) -> dict:
                     + (f" with k = {k[name]:.4g}" if name in k else "") + answer)
         else:
             found = "; ".join(f"{name} (k = {k_hidden:g}) hidden" + (f", named with k = {k[name]:.4g}" if name in k
+                                                                    else ", never acted on these data" if name in idle
                                                                     else ", not named") for name, k_hidden in hidden)
             text = f"{found}; named {named or 'none'}" + answer
     test = report.get("test") or {}
@@ -214,6 +229,14 @@ def hidden_check(report: dict, hidden) -> dict:
             "hidden_all": None if hidden is None else [list(h) for h in hidden], "named": named, "correct": ok,
             "heldout_rmse_before_n": before, "heldout_rmse_after_n": after,
             "heldout_error_ratio": ratio, "text": text + (f"; held-out RMSE × {ratio:.2f}" if ratio else "")}
+
+
+def _never_acted(report: dict) -> set[str]:
+    """The candidate terms the workflow found with a basis of 0 on every analysed tick (its first
+    round's scores say "not testable: its basis is 0"): they act nowhere in these data."""
+    rounds = (report.get("selection") or {}).get("rounds") or []
+    scores = rounds[0].get("scores", []) if rounds else []
+    return {s["name"] for s in scores if str(s.get("note", "")).startswith("not testable: its basis is 0")}
 
 
 def _append_check(out: Path, check: dict) -> None:

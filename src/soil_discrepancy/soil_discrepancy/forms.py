@@ -241,12 +241,18 @@ STAND_IN_SHARE_RATIO = 1.2
 # fewer than MIN_SHAPE_LEVELS levels of it no factor of it can be told from another, k, θ and a
 # characteristic value matching any of them at two levels. An outside tester's drag ∝ 0.3 / v_x on
 # two speeds was "explained" as exp(−v_x / 0.3 m/s), "its shape pinned down"; on three speeds the
-# same workflow found rivals. The analysed ticks' values are grouped from the lowest up, a group
-# spanning LEVEL_WIDTH_OF_SPAN of their whole span or LEVEL_WIDTH_OF_VALUE of its lowest value,
-# whichever is wider, and a group counts if it holds MIN_LEVEL_SHARE of the ticks: the three of 36
-# episodes a dense soil slowed from 1 m/s to 0.8 m/s are no level of their own (confounded with
-# their soil's θ, they cannot pin a shape); cuts held short of their targets, and depths or speeds
-# that vary within the episodes (a planner's, a machine's), make groups of their own.
+# same workflow found rivals. A catalogue term's form claims such a factor too (its
+# ``factor_variable``: rate_strength's v_x): a √v_x drag on two speeds was named rate_strength,
+# "pinned down", before the check read it.
+# The analysed ticks' values are grouped from the lowest up, a window spanning
+# LEVEL_WIDTH_OF_SPAN of their whole span or LEVEL_WIDTH_OF_VALUE of its lowest value, whichever
+# is wider; windows whose medians lie within half a window's width of each other are one level (a
+# window begun by a few slowed episodes, 0.72 m/s beside a two-speed grid's 0.86-0.89 m/s, had
+# split the upper speed in two, and a held-out part counted three speeds); a level counts if it
+# holds MIN_LEVEL_SHARE of the ticks: the three of 36 episodes a dense soil slowed from 1 m/s to
+# 0.8 m/s are no level of their own (confounded with their soil's θ, they cannot pin a shape);
+# cuts held short of their targets, and depths or speeds that vary within the episodes (a
+# planner's, a machine's), make levels of their own.
 LEVEL_VARIABLES = ("d", "v_x")
 MIN_SHAPE_LEVELS = 3
 LEVEL_WIDTH_OF_SPAN = 0.25
@@ -255,24 +261,26 @@ MIN_LEVEL_SHARE = 0.1
 
 
 def held_levels(frame: Frame, variable: str) -> list[float]:
-    """The groups [SI] in which the analysed ticks of ``frame`` hold ``variable``, each its median,
-    ascending (groups of at least ``MIN_LEVEL_SHARE`` of the ticks)."""
+    """The levels [SI] at which the analysed ticks of ``frame`` hold ``variable``, each its median,
+    ascending (levels of at least ``MIN_LEVEL_SHARE`` of the ticks)."""
     values = np.sort(np.asarray(frame.column(variable), float))
     values = values[np.isfinite(values)]
     if not len(values):
         return []
     span = float(values[-1] - values[0])
-    least = MIN_LEVEL_SHARE * len(values)
-    levels, i = [], 0
+    windows, i = [], 0  # [start, end) of each window, and the width it spans
     while i < len(values):
         start = float(values[i])
-        end = int(np.searchsorted(values, start + max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start)),
-                                  side="right"))
-        end = max(end, i + 1)
-        if end - i >= least:
-            levels.append(float(np.median(values[i:end])))
+        width = max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start))
+        end = max(int(np.searchsorted(values, start + width, side="right")), i + 1)
+        if windows and abs(float(np.median(values[i:end])) - float(np.median(values[slice(*windows[-1][:2])]))) < \
+                max(width, windows[-1][2]) / 2:  # one level split where a window began (a ramp's are a width apart)
+            windows[-1] = (windows[-1][0], end, max(width, windows[-1][2]))
+        else:
+            windows.append((i, end, width))
         i = end
-    return levels
+    least = MIN_LEVEL_SHARE * len(values)
+    return [float(np.median(values[a:b])) for a, b, _ in windows if b - a >= least]
 
 
 def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, alpha: float, names=None) -> dict:
@@ -378,7 +386,8 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
            "against it" if wilcoxon_p_two_against(n_episodes) >= alpha else None)
     # a scale and a factor of one variable make one law of it: neither is pinned down apart (SCALE_VARIABLES)
     apart = factor is not None and all(term_forms.separable(a.name, f.name) for a, f in parts + [(scale, factor)])
-    variable = term_forms.factor_variable(factor.name) if factor is not None else None
+    variable = (term_forms.factor_variable(factor.name) if factor is not None
+                else force_terms.get_term(name).factor_variable)
     few = None
     if variable in LEVEL_VARIABLES and len(episode):
         levels = held_levels(frame, variable)

@@ -28,6 +28,7 @@ from soil_msgs_py.soil_labels import GAMMA_GROUP_PREFIX, UNKNOWN_SOIL
 from soil_msgs_py.strict_json import finite_or_none as _f
 
 from .frame import Frame, density_label
+from .soil_tests import group_label
 
 # (key, label, unit) of the per-tick variables analysed.
 CONTINUOUS: tuple[tuple[str, str, str], ...] = (
@@ -301,6 +302,7 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
     bound = {t["group"]: _theta_at_bound(t, rho_max[t["group"]], tested.get(t["group"])) for t in (theta_table or [])
              if t["group"] in rho_max and t.get("success", True)}
     n_tested = {name: _tested_parameters(rho_max[name], tested.get(name)) for name in rho_max}
+    testable = {frame.group_names[g]: group_label(frame, int(g)) is not None for g in frame.groups}
     off_label = _off_label_range(frame, theta_table or [])
     d = frame.known[:, KNOWN_PARAMS.index("d")]
     span = {frame.group_names[g]: float(np.subtract(*np.percentile(d[frame.group == g], [90, 10])))
@@ -316,6 +318,7 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
                      "misfit_others": _f(np.median(b) if len(b) else None), "ratio": _f(rel), "p": _f(p),
                      "theta_at_bound": bound.get(name, []) if kind == "group" else [],
                      "tested_parameters": n_tested.get(name, 0) if kind == "group" else 0,
+                     "testable": testable.get(name, False) if kind == "group" else False,  # by a soil test
                      "theta_off_label": off_label.get(name, []) if kind == "group" else [],
                      "depth_span_m": _f(span.get(name)) if kind == "group" else None,
                      "one_depth": kind == "group" and span.get(name, math.inf) < ONE_DEPTH_SPAN_M})

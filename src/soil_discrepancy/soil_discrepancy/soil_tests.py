@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from soil_msgs_py.params import DEG
+from soil_msgs_py.soil_labels import UNKNOWN_SOIL
 from soil_msgs_py.values import finite_number, short_repr, yaml_exponent
 
 from .frame import Frame, density_label
@@ -153,15 +154,24 @@ def _chosen(frame: Frame, tests) -> dict[int, SoilTest]:
     test of one density wins over one of every density."""
     out = {}
     for g in np.unique(frame.group_of):
-        eps = np.flatnonzero(frame.group_of == g)
-        labels = {(frame.soils[e], frame.densities[e]) for e in eps}
-        if len(labels) != 1:
-            continue  # a group of several soils (no label, or grouped by γ): no test is its soil
-        soil, i_d = labels.pop()
+        label = group_label(frame, int(g))
+        if label is None:
+            continue
+        soil, i_d = label
         found = [t for t in tests if t.matches(soil, i_d)]
         if found:
             out[int(g)] = min(found, key=lambda t: t.relative_density_pct is None)
     return out
+
+
+def group_label(frame: Frame, group: int) -> tuple[str, float] | None:
+    """The one (soil label, relative density [%]) of θ-group ``group``'s episodes, which a soil test
+    can match; None where they have none (bags without a soil label) or several (grouped by γ)."""
+    labels = {(frame.soils[e], frame.densities[e]) for e in np.flatnonzero(frame.group_of == group)}
+    if len(labels) != 1:
+        return None
+    (soil, i_d), = labels
+    return None if soil == UNKNOWN_SOIL else (soil, i_d)
 
 
 def unmatched(frame: Frame, tests) -> list[str]:

@@ -216,10 +216,11 @@ def _forecast_clause(figures: dict) -> str:
 
 def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = None,
                forms: dict | None = None, tentative: dict | None = None, pins: dict | None = None,
-               shift: dict | None = None) -> tuple[str, str]:
+               shift: dict | None = None, user_names: dict | None = None) -> tuple[str, str]:
     """(verdict, summary). Only confirmed terms are named (``new_terms``); ``tentative``: the
     terms the held-out test did not confirm, mentioned as such; ``pins``: {name: ``rival_forms``},
-    whose caveat a term its data do not pin down carries."""
+    whose caveat a term its data do not pin down carries; ``user_names``: {term: the name a user's
+    catalogue gave it}, which the summary says first."""
     labels = variable_labels()
     not_named = ""
     idle = [t["name"] for t in (tentative or {}).get("terms", []) if t.get("why") == "idle"]
@@ -247,7 +248,11 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             if implausible := force_terms.implausible_k(s.name, s.k):
                 caveat += f"; {implausible}: a STAND-IN taking another effect's force, not that mechanism"
                 stand_ins.append(s.name)
-            if s.name.startswith(FORM_PREFIX):
+            given = (user_names or {}).get(s.name)
+            if given and given != s.name:  # the user's name first (the summary had said only the formula)
+                label = (f"'{given}', the form {force_terms.get_term(s.name).formula} ({s.name})"
+                         if s.name.startswith(FORM_PREFIX) else f"'{given}' ({s.name})")
+            elif s.name.startswith(FORM_PREFIX):
                 label = f"discovered form {force_terms.get_term(s.name).formula} ({s.name})"
             parts.append(f"{label} (k = {s.k:.4g}{se}{unit}, removes {100 * s.gain:.0f} % of the cross-validated "
                          f"error{caveat})")
@@ -375,9 +380,14 @@ def _worse_axes(test: dict) -> list[tuple[str, tuple[float, float, float, float]
 
 def _soil_test_hint(rows: list[dict], advice: str = "; soil tests (--soil-tests) tell") -> str:
     """``advice`` to give soil tests, or, where each of the groups ``rows`` had them, what they leave
-    open (an outside reader's run with --soil-tests was told to give them)."""
+    open (an outside reader's run with --soil-tests was told to give them), or, where none of them
+    has a soil label a test could match (bags without one, grouped by γ), that (such a run was told
+    to give --soil-tests, which it refuses)."""
     if rows and all(r.get("tested_parameters") for r in rows):
         return "; the soil tests given bound θ only where they test it (a test of δ, or a narrower one, tells more)"
+    if rows and not any(r.get("testable", True) for r in rows):
+        return ("; a soil test would tell, but these groups have no soil label for one to match (--soil-tests needs "
+                "bags whose metadata names their soil)")
     return advice
 
 

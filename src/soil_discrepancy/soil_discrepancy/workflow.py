@@ -346,7 +346,8 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     shift = theta_shift(theta0, theta1)
     if test is not None:  # the final held-out figures' (``test`` is recomputed as terms are judged)
         test.update(blind)
-    verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift)
+    verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift,
+                                  user_names=user_terms if isinstance(user_terms, dict) else None)
     say(summary)
     report = {
         "version": REPORT_VERSION,

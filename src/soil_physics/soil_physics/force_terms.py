@@ -49,6 +49,9 @@ class Term:
     basis_fn: Callable[[ForceInputs, Any], tuple[Any, Any]]
     k_max: float = math.inf  # the largest k the mechanism can have (``implausible_k``)
     k_max_why: str = ""  # that bound in words, for a report
+    # the measured variable ('v_x', 'd') whose factor the form claims beyond what the FEE's θ can take:
+    # data holding it at too few levels cannot tell that factor from another (the discrepancy workflow)
+    factor_variable: str | None = None
 
     def basis(self, inputs: ForceInputs) -> tuple[Any, Any]:
         """(B_x, B_z) [N per unit k], NumPy or torch like the inputs (scalars broadcast)."""
@@ -126,7 +129,7 @@ CATALOGUE: dict[str, Term] = {
         Term("soil_inertia", "inertial acceleration of the cut soil",
              "F_x = k (γ/g) w d v_x²  [N]", "1", 1.0,
              "the FEE is quasi-static: the soil entering the wedge is accelerated to blade speed, "
-             "a momentum flux that grows with v_x²", _inertia),
+             "a momentum flux that grows with v_x²", _inertia, factor_variable="v_x"),
         Term("side_wall_shear", "side-wall shear of a finite-width blade",
              "F = k · 2 A_side τ cos φ / sin η along the FEE force, A_side = d²(cot ρ + cot β*)/2, "
              "τ = c + (1 − sin φ) γ d/3 tan φ  [N]", "1", 1.0,
@@ -143,7 +146,7 @@ CATALOGUE: dict[str, Term] = {
         Term("rate_strength", "rate-dependent (viscous) strength",
              "F_x = k w d v_x  [N]", "Pa·s/m", 5e3,
              "soil shear strength rises with the shear rate; the FEE's strength is rate-free",
-             _rate_strength),
+             _rate_strength, factor_variable="v_x"),
         Term("compaction_hardening", "compaction hardening with distance travelled",
              "F = k s F_FEE, s = blade travel in soil since the start  [N]", "1/m", 0.05,
              "the soil ahead is compacted by the pass, so its strength grows with distance cut",
