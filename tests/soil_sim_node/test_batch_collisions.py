@@ -118,10 +118,16 @@ def test_an_interrupted_run_is_resumed_with_skip_existing(tmp_path, capsys):
     stamp = first[0].stat().st_mtime_ns
     capsys.readouterr()
     assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0
-    err = capsys.readouterr().err
+    said = capsys.readouterr()
+    err = said.err
     assert "1 of the 2 bags exist" in err and "simulating the other 1" in err, err
     assert len(find_episode_bags(out)) == 2 and first[0].stat().st_mtime_ns == stamp
-    assert json.loads((out / "dataset.json").read_text())["kept_existing"] == [first[0].name]
+    resumed = json.loads((out / "dataset.json").read_text())
+    assert resumed["kept_existing"] == [first[0].name]
+    # the record counts every bag of the plan (it had said "episodes": 1 of the two), and says which were simulated
+    assert resumed["episodes"] == 2 and resumed["simulated_episodes"] == 1
+    assert resumed["episode_names"] == sorted(b.name for b in find_episode_bags(out))
+    assert "2 fee episodes (1 simulated, 1 kept from the run before) ->" in said.out, said.out
     record = (out / "dataset.json").read_text()
     assert batch.main([*ONE, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0  # nothing left
     assert "simulating the other 0" in capsys.readouterr().err

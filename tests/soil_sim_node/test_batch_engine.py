@@ -53,3 +53,20 @@ def test_more_workers_than_the_machine_can_use_are_refused_before_any_process_st
     assert not (tmp_path / "many").exists()
     assert batch.main([*ONE_EPISODE, "--workers", str(most), "--out", str(tmp_path / "one")]) == 0
     assert len(list((tmp_path / "one").glob("*/metadata.yaml"))) == 1
+
+
+def test_a_plugin_that_never_acts_is_said_and_its_peak_force_recorded(tmp_path, capsys):
+    """surcharge_drag (F_x = k Q) in the fee world, where no pile stands before the blade (Q = 0),
+    was accepted without a word, and the discrepancy workflow's check then called the effect
+    "missed". The batch records each plugin's largest force and warns of one that never acted."""
+    import json
+
+    idle = "soil_physics.force_terms:plugin term=surcharge_drag k=0.3"
+    acting = "tests.sim_plugins:in_soil_constant_drag f_x=300"
+    out = tmp_path / "fee"
+    assert batch.main([*ONE_EPISODE, "--workers", "1", "--plugin", idle, "--plugin", acting, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"plugin {idle!r} returned 0 N in every substep of every episode: it never acted" in err, err
+    assert acting not in err, err
+    peaks = json.loads((out / "dataset.json").read_text())["plugin_peak_force_n"]
+    assert peaks[idle] == 0.0 and peaks[acting] == 300.0, peaks

@@ -96,12 +96,14 @@ def grid_specs(soils, relative_densities, speeds, depths, n_seeds, seed_base, du
     ]
 
 
-def _run_chunk(args) -> list[tuple[str, int]]:
-    """Worker: simulate one vectorised chunk and write its bags; returns (name, bytes)."""
+def _run_chunk(args) -> list[tuple[str, int, dict]]:
+    """Worker: simulate one vectorised chunk and write its bags; returns (name, bytes, the chunk's
+    plugin peaks: {plugin spec: largest |force| [N]}) per bag."""
     plan_dict, chunk = args
     plan = DatasetPlan(**plan_dict, specs=chunk)
+    peaks: dict = {}
     try:
-        episodes = run_episodes(plan.config(), chunk, custom_soils=plan.custom_soils)
+        episodes = run_episodes(plan.config(), chunk, custom_soils=plan.custom_soils, plugin_peaks=peaks)
     except PluginError as err:  # which episodes (simulated together): Ray's tasks named them, the local pool did not
         names = _bag_names(plan.config(), [x.resolve(plan.custom_soils) for x in chunk])
         shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
@@ -109,7 +111,7 @@ def _run_chunk(args) -> list[tuple[str, int]]:
     written = []
     for ep in episodes:
         path = write_episode(plan.out / ep.meta.name, ep, overwrite=plan.overwrite)
-        written.append((ep.meta.name, sum(f.stat().st_size for f in path.iterdir())))
+        written.append((ep.meta.name, sum(f.stat().st_size for f in path.iterdir()), peaks))
     return written
 
 
@@ -157,8 +159,9 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
                   f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
         if not todo and (plan.out / "dataset.json").is_file():
-            return {"mode": plan.mode, "episodes": 0, "wall_time_s": 0.0, "bytes_total": 0, "bytes_per_episode": 0,
-                    "simulated_s_per_wall_s": 0.0, "episode_names": []}  # (dataset.json stays as it is)
+            return {"mode": plan.mode, "episodes": len(kept), "wall_time_s": 0.0, "bytes_total": 0,
+                    "bytes_per_episode": 0, "simulated_s_per_wall_s": 0.0, "episode_names": kept,
+                    "kept_existing": kept, "simulated_episodes": 0}  # (dataset.json stays as it is)
         # (none left but no dataset.json: the interrupted run wrote every bag and died before its
         # record, an outside tester's killed Ray head; the record is written below, all kept)
         plan = dataclasses.replace(plan, specs=[plan.specs[i] for i in todo])
@@ -205,23 +208,38 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
             paths.append(path)
     summary = {
         "mode": plan.mode,
-        "episodes": len(results),
+        # every bag of the plan, those an interrupted run had written and this one kept too (a resumed
+        # run's record said "episodes: 0" of a complete dataset, an outside tester's)
+        "episodes": len(results) + len(kept),
         "wall_time_s": round(wall, 3),
-        "bytes_total": int(sum(b for _, b in results)),
-        "bytes_per_episode": int(sum(b for _, b in results) / max(1, len(results))),
+        "bytes_total": int(sum(r[1] for r in results)),
+        "bytes_per_episode": int(sum(r[1] for r in results) / max(1, len(results))),
         "simulated_s_per_wall_s": round(sum(s.duration_s for s in plan.specs) / max(wall, 1e-9), 1),
         "engine": plan.engine,
         "effects": plan.effects.enabled(),
         "plugins": [str(p) for p in plan.plugins],
+        # the largest |force| each plugin gave in any substep of the episodes simulated (0: it never acted)
+        **({"plugin_peak_force_n": _plugin_peaks(plan, results)} if plan.plugins and results else {}),
         **({"soil_paths": paths} if paths else {}),
-        "episode_names": sorted(n for n, _ in results),
-        **({"kept_existing": kept} if kept else {}),  # the plan's bags an earlier, interrupted run wrote
+        "episode_names": sorted([r[0] for r in results] + kept),
+        # the plan's bags an earlier, interrupted run wrote; the bytes and speed above are of those simulated
+        **({"kept_existing": kept, "simulated_episodes": len(results)} if kept else {}),
     }
     earlier = _earlier_runs(plan.out / "dataset.json")
     if earlier:
         summary["earlier_runs"] = earlier
     write_text_atomically(plan.out / "dataset.json", strict_json.dumps(summary, indent=1))
     return summary
+
+
+def _plugin_peaks(plan: DatasetPlan, results: list) -> dict[str, float]:
+    """{plugin spec: the largest |force| [N] it returned over every chunk of ``results``}."""
+    return {str(p): max(float(r[2].get(str(p), 0.0)) for r in results) for p in plan.plugins}
+
+
+def idle_plugins(summary: dict) -> list[str]:
+    """The plugins of a batch's ``summary`` that returned 0 N in every substep of every episode."""
+    return [spec for spec, peak in (summary.get("plugin_peak_force_n") or {}).items() if peak == 0.0]
 
 
 def unreached_patches(specs: list[EpisodeSpec]) -> list[str]:
@@ -343,9 +361,9 @@ def _earlier_runs(path: Path) -> list[dict]:
     return [*(runs if isinstance(runs, list) else []), old]
 
 
-def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int]]:
-    """The chunks in a local process pool (in this process for one worker); (name, bytes) per bag."""
-    results: list[tuple[str, int]] = []
+def _run_in_pool(jobs: list, workers: int, bar) -> list[tuple[str, int, dict]]:
+    """The chunks in a local process pool (in this process for one worker); ``_run_chunk``'s tuple per bag."""
+    results: list[tuple[str, int, dict]] = []
     if workers == 1:
         for job in jobs:
             done = _run_chunk(job)
@@ -646,8 +664,14 @@ def main(argv=None) -> int:
                     + (resume_hint(stale) if stale else "the same command runs it again") + ")")
             print(f"soil_sim_batch: interrupted{how}; {kept}", file=sys.stderr)
         return interrupt_exit_code(exc)
+    for spec in idle_plugins(summary):
+        print(f"soil_sim_batch: warning: plugin {spec!r} returned 0 N in every substep of every episode: it never "
+              f"acted in these {plan.mode}-world episodes (e.g. surcharge_drag where no pile stands before the blade, "
+              "Q = 0, as in the fee world), so the bags hold no such effect", file=sys.stderr)
+    kept = (f" ({summary['simulated_episodes']} simulated, {len(summary['kept_existing'])} kept from the run before)"
+            if summary.get("kept_existing") else "")
     print(
-        f"{summary['episodes']} {summary['mode']} episodes -> {plan.out} in {summary['wall_time_s']:.1f} s "
+        f"{summary['episodes']} {summary['mode']} episodes{kept} -> {plan.out} in {summary['wall_time_s']:.1f} s "
         f"({summary['simulated_s_per_wall_s']:.0f} simulated s per wall s, "
         f"{summary['bytes_per_episode'] / 1e3:.0f} kB per episode)"
     )

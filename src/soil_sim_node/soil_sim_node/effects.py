@@ -137,6 +137,9 @@ class ForcePlugin:
     target: str
     params: dict = field(default_factory=dict)
     fn: object = None
+    # the largest |f_x| or |f_z| [N] it has returned: 0 after a whole run says it never acted there
+    # (surcharge_drag in the fee world, where no pile stands before the blade), which a batch says
+    peak_n: float = 0.0
 
     @classmethod
     def load(cls, spec) -> "ForcePlugin":
@@ -182,13 +185,15 @@ class ForcePlugin:
             arr = np.asarray(value, dtype=float)
             if arr.shape != (batch,):
                 arr = np.broadcast_to(arr, (batch,))
-            if not (np.abs(arr) <= MAX_PLAUSIBLE_FORCE_N).all():  # one check per substep; NaN fails it too
+            magnitude = np.abs(arr)
+            if not (magnitude <= MAX_PLAUSIBLE_FORCE_N).all():  # one check per substep; NaN fails it too
                 if not np.all(np.isfinite(arr)):
                     bad = arr[~np.isfinite(arr)][0]
                     raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
                 bad = arr[np.abs(arr) > MAX_PLAUSIBLE_FORCE_N][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLAUSIBLE_FORCE_N:.3g} N "
                                   "(300 times the machine's force limit: a plugin's unit or sign error?)")
+            self.peak_n = max(self.peak_n, float(magnitude.max(initial=0.0)))
             result.append(arr)
         return result[0], result[1]
 

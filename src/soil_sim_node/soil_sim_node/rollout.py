@@ -36,8 +36,9 @@ def episode_meta(config: SimConfig, spec: EpisodeSpec, soil_name: str, effects: 
 
 
 def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGains | None = None,
-                 custom_soils: dict | None = None) -> list[Episode]:
-    """Simulate ``specs`` together (vectorised) in closed loop; one Episode per spec."""
+                 custom_soils: dict | None = None, plugin_peaks: dict | None = None) -> list[Episode]:
+    """Simulate ``specs`` together (vectorised) in closed loop; one Episode per spec.
+    ``plugin_peaks``: filled with {str(plugin spec): the largest |force| [N] it returned in any substep}."""
     sim = SoilSimulator(config, specs, custom_soils)
     durations = {s.duration_s for s in sim.specs}
     if len(durations) != 1:
@@ -70,6 +71,9 @@ def run_episodes(config: SimConfig, specs: list[EpisodeSpec], gains: AntiStallGa
         forces[k], known[k], truth[k], extras[k] = out.forces, out.known, out.truth, out.extras
         out = sim.step(cmd.u_zr, cmd.u_za, cmd.u_x)
     effects = sim.effects.enabled()
+    if plugin_peaks is not None:
+        for spec, plugin in zip(config.plugins, sim.plugins):
+            plugin_peaks[str(spec)] = max(plugin_peaks.get(str(spec), 0.0), plugin.peak_n)
     return [
         Episode(
             meta=episode_meta(config, spec, soil.name, effects),
