@@ -482,6 +482,22 @@ def _depths(text: str) -> tuple[float, ...]:
     return depths
 
 
+# the effects that draw on an episode's seed: without them an episode is the same under any seed
+SEEDED_EFFECTS = ("noise", "particles")
+
+
+def identical_seeds_note(plan: "DatasetPlan", n_seeds: int) -> str:
+    """A note where ``n_seeds`` seeds of each grid point give identical episodes ('' where they do
+    not): without noise and particles (the fee world, or --effects-off both) nothing draws on the
+    seed, and a user asking for 3 seeds had three copies of each episode without a word."""
+    if n_seeds < 2 or any(getattr(plan.effects, name) for name in SEEDED_EFFECTS):
+        return ""
+    return (f"--seeds {n_seeds}: without noise or particles (the {plan.mode} world"
+            + (" with --effects-off" if plan.mode != "fee" else "") + ") nothing draws on an episode's seed, so the "
+            f"{n_seeds} seeds of each grid point give identical episodes (pinn_train splits such twins as one); more "
+            "grid points give more data")
+
+
 def repeated_grid_values(args: argparse.Namespace) -> list[str]:
     """Notes for a grid axis that lists one value twice (``--speeds 0.5,0.5``, ``--soils Sand,sand``):
     its episodes run again under the next seeds, most likely not what was meant (more seeds is
@@ -605,7 +621,8 @@ def main(argv=None) -> int:
         for speed in sorted({spec.target_speed_m_s for spec in plan.specs}):
             if note := beyond_table1_speed("--speeds", speed):
                 print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
-        for note in repeated_grid_values(args) + unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils):
+        notes = repeated_grid_values(args) + [identical_seeds_note(plan, args.seeds)]
+        for note in filter(None, notes + unreached_patches(plan.specs) + soil_file_notes(plan.custom_soils)):
             print(f"soil_sim_batch: warning: {note}", file=sys.stderr)
         # (a custom soil named like a catalogue soil replaces it: that one is simulated)
         unused = sorted(n for n in plan.custom_soils if n.lower() not in {c.lower() for c in CATALOGUE})
