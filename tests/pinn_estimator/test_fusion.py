@@ -987,6 +987,66 @@ def test_both_calibrations_run_on_soils_of_ones_own(tmp_path, capsys, monkeypatc
     assert [m.soil for m in made.metas] == ["StiffSilt"]
 
 
+def test_a_config_records_its_soils_and_what_calibrates_more_of_it_simulates_them_again(tmp_path, capsys,
+                                                                                        monkeypatch):
+    """A site's config (pinn_fusion_calibrate --soil-file) did not record its soils: the planner's
+    bound law calibrated on it without --soil-file again was the catalogue soils' without a word.
+    The config records them; soil_planner_calibrate and --forecast-law-only simulate them again,
+    refuse others, and say where a config records none."""
+    import pinn_estimator.evaluate as evaluate_module
+    from pinn_estimator.fusion_calibration import main as calibrate_main, soil_records
+    from soil_physics.soils import CATALOGUE, load_soil_file
+    from soil_planner.bound_calibration import main as bound_main
+
+    soils = tmp_path / "site.yaml"
+    soils.write_text("soils:\n  - {name: StiffSilt, phi_deg: [19, 25], cohesion_pa: [12000, 18000], "
+                     "unit_weight_n_m3: [19000, 21500]}\n")
+    site = soil_records(["StiffSilt", "Sand"], load_soil_file(soils).soils)
+    assert [r["name"] for r in soil_records(None, {})] == sorted(CATALOGUE)
+    mine = tmp_path / "mine.json"
+    FusionConfig(world="fee", calibration_soils=site).save(mine)
+    assert FusionConfig.load(mine).calibration_soils == site  # read back as written
+    asked = []
+    stop_before(monkeypatch, evaluate_module, "forecast_dataset", calls=asked)
+    for tool, args in ((bound_main, ["--config", str(mine)]),
+                       (calibrate_main, ["--out", str(mine), "--forecast-law-only"])):
+        with pytest.raises(Started):
+            tool(["--world", "fee", *args])
+        assert asked[-1]["soils"] == ["StiffSilt", "Sand"] and set(asked[-1]["custom_soils"]) == {"StiffSilt", "Sand"}
+        assert asked[-1]["custom_soils"]["StiffSilt"] == load_soil_file(soils).soils["StiffSilt"]
+        assert "was calibrated on the soils ['StiffSilt', 'Sand'] (not the catalogue's): simulated again" in \
+            capsys.readouterr().err
+        with pytest.raises(Started):  # the same soils given: taken
+            tool(["--world", "fee", *args, "--soil-file", str(soils), "--soils", "StiffSilt,Sand"])
+        with pytest.raises(SystemExit) as exit_:  # other soils: another site's laws
+            tool(["--world", "fee", *args, "--soils", "Sand"])
+        assert exit_.value.code == 2
+        assert "was calibrated on the soils ['StiffSilt', 'Sand'], not these ['Sand']" in capsys.readouterr().err
+    # pinn_eval --fusion-config judges a site's laws on its soils (at densities and depths held out)
+    from pinn_estimator.evaluate import forecast_section
+
+    said = []
+    with pytest.raises(Started):
+        forecast_section(load_model(MODELS_DIR / "pinn_fee.pt")[0], None, "fee", fusion_config=str(mine), log=said.append)
+    assert asked[-1]["soils"] == ["StiffSilt", "Sand"] and "StiffSilt" in asked[-1]["custom_soils"]
+    assert any("calibrated on the soils ['StiffSilt', 'Sand']: the held-out episodes are of them too" in s for s in said)
+    # the catalogue's soils recorded: nothing said; none recorded (a config written before): said
+    FusionConfig(world="fee", calibration_soils=soil_records(None, {})).save(mine)
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(mine)])
+    assert asked[-1]["soils"] is None and "soils" not in capsys.readouterr().err
+    FusionConfig(world="fee").save(mine)
+    with pytest.raises(Started):
+        bound_main(["--world", "fee", "--config", str(mine)])
+    assert "does not record the soils its laws were calibrated on" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        calibrate_main(["--world", "fee", "--out", str(tmp_path / "f.json"), "--set", "calibration_soils=[]"])
+    assert exit_.value.code == 2 and "calibration_soils is set by --soil-file/--soils" in capsys.readouterr().err
+    for bad in ("Sand", [], [{"name": "Mud"}], {"name": "Mud"}):
+        with pytest.raises(ValueError, match="calibration_soils"):
+            FusionConfig(calibration_soils=bad)
+
+
 def test_a_config_lacking_a_field_is_said_to_run_on_its_default(tmp_path):
     """An outside tester's config without abs_std_n loaded its default without a word."""
     data = json.loads((MODELS_DIR / "fusion_default.json").read_text())

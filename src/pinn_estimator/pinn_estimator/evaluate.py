@@ -379,7 +379,7 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     no simulator world (a machine's, ``world_mode`` "unknown") take the calibration of
     ``model_world``, the checkpoint's (``checkpoint_world``), as the live estimator does: before, they
     took no calibration at all, a posterior through the FEE alone whose intervals held nothing."""
-    from .fusion_calibration import given_fusion, load_calibrated, uncalibrated_physics
+    from .fusion_calibration import given_fusion, load_calibrated, recorded_soils, uncalibrated_physics
 
     if bags is None and world not in WORLD_MODES:
         raise ValueError(f"the forecast needs bags (--forecast-data) or a world, fee or default (got {world!r})")
@@ -397,7 +397,11 @@ def forecast_section(model, bags: Dataset | None, world: str | None, *, classica
     if bags is None and fusion.calibration_plugins:  # (its laws are those of the world with the plugins' force)
         log(f"--fusion-config: calibrated on episodes with {', '.join(fusion.calibration_plugins)}: the held-out "
             "episodes are simulated with them too")
-    out = forecast(model, forecast_dataset(world, plugins=fusion.calibration_plugins or ()) if bags is None else bags,
+    soils, custom = recorded_soils(fusion)
+    if bags is None and soils is not None:  # (a site's laws: judged on its soils, at densities and depths held out)
+        log(f"--fusion-config: calibrated on the soils {soils}: the held-out episodes are of them too")
+    out = forecast(model, forecast_dataset(world, plugins=fusion.calibration_plugins or (), soils=soils,
+                                           custom_soils=custom) if bags is None else bags,
                    classical=classical, workers=workers, progress=progress, fusion=fusion)
     if uncalibrated:
         out["uncalibrated_physics"] = uncalibrated

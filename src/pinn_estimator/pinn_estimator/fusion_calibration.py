@@ -53,7 +53,7 @@ from soil_msgs_py.interrupts import interruptible
 
 from . import forecast as fc
 from .fusion import forecast_error_std
-from .fusion_config import FusionConfig
+from .fusion_config import PROVENANCE_FIELDS, FusionConfig
 from .shipped import DEFAULT_WORLD, config_path  # their home; callers of this module read them from here too
 
 CAL_DENSITIES_PCT = (20.0, 40.0, 60.0, 80.0)
@@ -154,6 +154,52 @@ def kept_plugins(p: argparse.ArgumentParser, args: argparse.Namespace, cfg: Fusi
         print(f"{p.prog}: {path} was calibrated on episodes with{plugin_words(recorded)}: switched on again",
               file=sys.stderr, flush=True)
     args.plugin = list(recorded)
+
+
+def soil_records(names, custom: dict) -> tuple[dict, ...]:
+    """The calibration soils (``calibration_soils``' names, None for the catalogue's, and the custom
+    soils by name) as a config records them (``FusionConfig.calibration_soils``)."""
+    from soil_physics.soils import CATALOGUE, get_soil, soil_to_dict
+
+    return tuple(soil_to_dict(get_soil(name, custom)) for name in (sorted(CATALOGUE) if names is None else names))
+
+
+def recorded_soils(cfg: FusionConfig) -> tuple[list[str] | None, dict]:
+    """(names, custom soils by name) of the soils ``cfg`` records it was calibrated on, as
+    ``calibration_soils`` gives them to the episodes; (None, {}) for the catalogue's or none recorded."""
+    from soil_physics.soils import soil_from_dict
+
+    recorded = cfg.calibration_soils
+    if recorded is None or recorded == soil_records(None, {}):
+        return None, {}
+    return [r["name"] for r in recorded], {r["name"]: soil_from_dict(r) for r in recorded}
+
+
+def kept_soils(p: argparse.ArgumentParser, args: argparse.Namespace, cfg: FusionConfig, path) -> None:
+    """For calibrating more of ``cfg`` (read from ``path``) on new episodes: the soils its laws were
+    calibrated on (``FusionConfig.calibration_soils``) are simulated again (said, where not the
+    catalogue's); --soil-file/--soils given must give them (exit 2: the config is of other soils).
+    A config that does not record them (one written before it was) takes the soils given, said
+    where they are the catalogue's by default and the config is not the shipped one (whose
+    calibration is the catalogue's: pinn_fusion_calibrate refuses other soils for it)."""
+    recorded = cfg.calibration_soils
+    given = bool(args.soil_file or args.soils)
+    if recorded is None:
+        if not given and own_output(path) is not None:
+            print(f"{p.prog}: {path} does not record the soils its laws were calibrated on: the episodes have the "
+                  "catalogue's (give --soil-file/--soils if its were others)", file=sys.stderr, flush=True)
+        return
+    names = [r["name"] for r in recorded]
+    if given:
+        if soil_records(*args.calibration_soils) != recorded:
+            p.error(f"--soil-file/--soils: {path} was calibrated on the soils {names}, not these "
+                    f"{[r['name'] for r in soil_records(*args.calibration_soils)]}: its posterior is of those soils "
+                    "(run the whole calibration with these into another --out)")
+        return
+    if (kept := recorded_soils(cfg))[0] is not None:
+        print(f"{p.prog}: {path} was calibrated on the soils {names} (not the catalogue's): simulated again",
+              file=sys.stderr, flush=True)
+        args.calibration_soils = kept
 
 
 def plugin_key(specs) -> list:
@@ -361,7 +407,7 @@ def shipped_settings_note(cfg: FusionConfig, path, world: str) -> str:
         shipped = FusionConfig.load(path)
     except (OSError, ValueError):
         return ""
-    chosen = {*CALIBRATED_FIELDS, "world", "calibration_plugins", *((f for f, _ in TRUTH_GRIDS) if world == "fee" else ())}
+    chosen = {*CALIBRATED_FIELDS, *PROVENANCE_FIELDS, *((f for f, _ in TRUTH_GRIDS) if world == "fee" else ())}
     changed = [f"{f.name} {getattr(cfg, f.name)!r} (shipped: {getattr(shipped, f.name)!r})"
                for f in dataclasses.fields(FusionConfig)
                if f.name not in chosen and getattr(cfg, f.name) != getattr(shipped, f.name)]
@@ -907,6 +953,8 @@ def main(argv=None) -> int:
             raise ValueError("world is set by --world")
         if "calibration_plugins" in fields:
             raise ValueError("calibration_plugins is set by --plugin")
+        if "calibration_soils" in fields:
+            raise ValueError("calibration_soils is set by --soil-file/--soils")
         base = FusionConfig(terms=terms).with_fields(fields)
     except ValueError as err:
         p.error(f"--set: {err}")
@@ -934,6 +982,7 @@ def main(argv=None) -> int:
         if note:  # (it is written with the world it is recalibrated in)
             print(f"--forecast-law-only: {note}", file=sys.stderr, flush=True)
         kept_plugins(p, args, base, kept)  # (the evidence law kept is that of the world with its plugins)
+        kept_soils(p, args, base, kept)  # (and of its soils)
         if kept != out:
             print(f"--forecast-law-only: keeping the evidence law of {kept}; writing {out}", flush=True)
     term_note(p.prog, args.world, base.terms, args.plugin)
@@ -958,7 +1007,8 @@ def main(argv=None) -> int:
         # new posteriors: the planner's bound law is to be calibrated on them again
         cfg = dataclasses.replace(cfg, bound_abs_std_n=None, bound_rel_std=None)
         pairs = pair_forecasts(ds, fused_posteriors(ds, cfg))  # (the forecast law changes no posterior)
-    cfg = dataclasses.replace(cfg, world=args.world, calibration_plugins=tuple(args.plugin))
+    cfg = dataclasses.replace(cfg, world=args.world, calibration_plugins=tuple(args.plugin),
+                              calibration_soils=soil_records(*args.calibration_soils))
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std,
              "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}

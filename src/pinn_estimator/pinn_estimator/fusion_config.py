@@ -18,6 +18,7 @@ from soil_msgs_py.episode import MAX_SEED, WORLD_MODES
 from soil_msgs_py.values import finite_number, short_repr
 from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
+from soil_physics.soils import soil_from_dict, soil_to_dict
 
 PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_abs_std_n", "shape_rel_std")  # (x, z) each
 BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
@@ -26,6 +27,9 @@ BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
 # The integer fields' bounds. Above: more than an offline check of the quantiles needs (a forecast
 # runs components × forecast_samples models; a 400-digit count asked numpy for more memory than
 # exists) and a stretch longer than a minute, which could not follow a soil change along the path.
+# What a config records of the episodes that calibrated it, not a law: set by pinn_fusion_calibrate's
+# --world, --plugin and --soil-file/--soils, never by --set, and absent from configs written before
+PROVENANCE_FIELDS = ("world", "calibration_plugins", "calibration_soils")
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
                     "components": (1, 64), "seed": (0, MAX_SEED)}  # (numpy's generator: a seed >= 0)
 # The standard deviations' upper bounds: beyond what the calibration tries (shares up to 2, floors up
@@ -118,6 +122,12 @@ class FusionConfig:
     # (the planner's bound law had been calibrated on episodes without the force; a reviewer's).
     # None: not recorded (a config written before it was, or made in code), () none.
     calibration_plugins: tuple[str, ...] | None = None
+    # The soils of those episodes, each as a soils YAML's entry (``soils.soil_to_dict``): the
+    # catalogue's or a site's (``pinn_fusion_calibrate --soil-file/--soils``). Recorded so that what
+    # calibrates more of this config simulates them again (the planner's bound law of a site's config
+    # had been calibrated on the catalogue's soils when --soil-file was not given again).
+    # None: not recorded (a config written before it was, or made in code).
+    calibration_soils: tuple[dict, ...] | None = None
 
     def __post_init__(self):
         for name, (lo, hi) in INT_FIELD_RANGES.items():
@@ -175,6 +185,18 @@ class FusionConfig:
                 raise ValueError(f"fusion calibration_plugins={short_repr(plugins)} must be a list of plugin specs "
                                  "('package.module:function key=value ...') or null (not recorded)")
             object.__setattr__(self, "calibration_plugins", tuple(plugins))
+        soils = self.calibration_soils
+        if soils is not None:
+            if isinstance(soils, (str, bytes, dict)) or not isinstance(soils, (list, tuple)) or not soils:
+                raise ValueError(f"fusion calibration_soils={short_repr(soils)} must be a non-empty list of soils (a "
+                                 "soils YAML's entries) or null (not recorded)")
+            records = []
+            for i, soil in enumerate(soils):
+                try:
+                    records.append(soil_to_dict(soil_from_dict(soil)))
+                except ValueError as err:
+                    raise ValueError(f"fusion calibration_soils[{i}]: {err}") from None
+            object.__setattr__(self, "calibration_soils", tuple(records))
         terms = AugmentedFEE(self.terms).terms
         force_terms.refuse_repeats(terms, "fusion terms")  # a model sums them: twice would be k1 + k2
         object.__setattr__(self, "terms", terms)
@@ -250,8 +272,8 @@ class FusionConfig:
             raise ValueError(f"fusion config {path}: expected an object, got {type(data).__name__}")
         cfg = cls.from_dict(data)
         # (a config written before a field existed, or edited by hand: its default was taken unseen)
-        # (nor the world or the plugins, not recorded before they were: their defaults are no law)
-        if missing := sorted({f.name for f in fields(cls)} - set(data) - {"world", "calibration_plugins"}):
+        # (nor the world, the plugins or the soils, not recorded before they were: their defaults are no law)
+        if missing := sorted({f.name for f in fields(cls)} - set(data) - set(PROVENANCE_FIELDS)):
             warnings.warn(f"fusion config {path} lacks {missing}: their defaults are used, not calibrated values",
                           stacklevel=2)
         return cfg

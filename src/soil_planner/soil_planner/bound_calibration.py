@@ -28,7 +28,7 @@ from pinn_estimator.fusion_config import FusionConfig
 from pinn_estimator.fusion_calibration import (CALIBRATED_FIELDS, CAL_DURATION_S, FLOOR_GRID, FORECAST_GRID,
                                                add_plugin_option, add_soil_options, calibration_episodes,
                                                check_duration_option, checked_world_options, config_path,
-                                               kept_plugins, term_note, world_note)
+                                               kept_plugins, kept_soils, term_note, world_note)
 from soil_msgs_py.cli_paths import output_file
 from soil_msgs_py.episode import WORLD_MODES
 from soil_msgs_py.topics import FUSED_FIELDS
@@ -172,6 +172,7 @@ def main(argv=None) -> int:
         print(f"soil_planner_calibrate: {note}" + ("" if calibrated_fields(cfg) else " (it sets none of the laws "
               "pinn_fusion_calibrate chooses away from its default)"), file=sys.stderr)
     kept_plugins(p, args, cfg, path)  # (the bound is calibrated on the world the posterior's laws are of)
+    kept_soils(p, args, cfg, path)  # (and on its soils)
     term_note(p.prog, args.world, cfg.terms, args.plugin)
     if left_out := steady_cut_terms(cfg.terms)[1]:  # (as the planner node and soil_cut_report say it)
         print(f"soil_planner_calibrate: note: the bound is calibrated without {', '.join(left_out)} (on the travel or "
