@@ -399,8 +399,10 @@ def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named(
     assert not missed["correct"] and "WRONG" not in missed["text"] and "named none: missed (nothing named)" in missed["text"]
     # a hidden term that never acted (surcharge_drag where Q = 0: its basis 0 on every tick, the
     # workflow's first round says so) hides nothing: the data are a control, not a miss
+    from soil_discrepancy.candidates import ZERO_BASIS_NOTE
+
     idle = {**report(), "selection": {"accepted": [], "rounds": [{"scores": [
-        {"name": "surcharge_drag", "note": "not testable: its basis is 0 on every analysed tick (e.g. no surcharge Q)"}]}]}}
+        {"name": "surcharge_drag", "note": ZERO_BASIS_NOTE}]}]}}
     none_there = hidden_check(idle, [("surcharge_drag", 0.3)])
     assert none_there["correct"] and "missed" not in none_there["text"], none_there
     assert "surcharge_drag (k = 0.3) hidden, but it never acted on these data" in none_there["text"]
@@ -614,7 +616,7 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
     for frame, testable in ((by_gamma, False), (labelled, True)):
         rows = [r for r in group_misfit(frame, 0.1 * frame.forces)["rows"] if r["kind"] == "group"]
         assert rows and all(r["testable"] is testable for r in rows), rows
-        assert ("--soil-tests needs bags whose metadata names their soil" in _soil_test_hint(rows)) is not testable
+        assert ("--soil-tests holds a group by its one soil label, which these groups lack" in _soil_test_hint(rows)) is not testable
     unlabelled = dataclasses.replace(ds, metas=metas)
     auto = build_frame(unlabelled, stride=4)  # the default on bags without any label: γ groups
     assert auto.group_by == "gamma" and auto.group_names == by_gamma.group_names

@@ -205,7 +205,7 @@ def test_a_second_signal_while_the_batch_cleans_up_waits_for_it(tmp_path, second
 
     out = tmp_path / "run"
     cmd = [str(Path(sys.executable).parent / "soil_sim_batch"), "--mode", "fee", "--soils", "Sand,Clay",
-           "--relative-densities", "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30",
+           "--relative-densities", "20,80", "--speeds", "0.4,0.5,0.6,0.7", "--depths", "0.1,0.2", "--seeds", "1", "--duration", "30",
            "--workers", "2", "--quiet", "--out", str(out)]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -314,7 +314,7 @@ def _two_workers_at_work(out):
     import time
 
     cmd = [sys.executable, "-m", "soil_sim_node.batch", "--mode", "fee", "--soils", "Sand,Clay", "--relative-densities",
-           "20,80", "--speeds", "0.5", "--depths", "0.1,0.2", "--seeds", "4", "--duration", "30", "--workers", "2",
+           "20,80", "--speeds", "0.4,0.5,0.6,0.7", "--depths", "0.1,0.2", "--seeds", "1", "--duration", "30", "--workers", "2",
            "--quiet", "--out", str(out)]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
@@ -371,3 +371,19 @@ def test_a_stop_before_the_plan_is_made_says_which(tmp_path, capsys, monkeypatch
     monkeypatch.setattr(batch, "plan_from_args", stopped)
     assert batch.main([*ONE, "--out", str(tmp_path / "out")]) == code
     assert capsys.readouterr().err == f"soil_sim_batch: interrupted{how} before anything was written\n"
+
+
+def test_a_plugin_idle_in_the_episodes_a_resumed_run_simulates_is_said_of_those_only(tmp_path, capsys):
+    """A plugin that acts only in deep cuts, its deep episode written by an interrupted run and kept:
+    the resumed run simulated only the shallow one, where it never acted, and the warning said "every
+    episode ... the bags hold no such effect" of a folder whose kept bag holds it (a reviewer's)."""
+    out = tmp_path / "site"
+    plugin = ["--plugin", "tests.sim_plugins:deep_drag k=1 d0=0.1"]
+    argv = [*ONE, "--duration", "3", *plugin, "--out", str(out)]
+    assert batch.main([*argv, "--depths", "0.2", "--seed-base", "1"]) == 0  # the seed it has in the whole grid
+    assert "never acted" not in capsys.readouterr().err
+    (out / "dataset.json").unlink()  # as an interrupted run leaves its bags: no record
+    assert batch.main([*argv, "--depths", "0.05,0.2", "--skip-existing"]) == 0
+    err = capsys.readouterr().err
+    assert "returned 0 N in every substep of the 1 episodes simulated now (the 1 kept from the run before are not " \
+           "known)" in err, err

@@ -89,6 +89,12 @@ def check_holdout(holdout: float) -> None:
                          "named term")
 
 
+# A candidate whose basis is 0 on every analysed tick: never tested (``--hidden`` reads it: such a
+# hidden term never acted on the data)
+ZERO_BASIS_NOTE = ("not testable: its basis is 0 on every analysed tick (e.g. no surcharge Q), so the data say "
+                   "nothing about k")
+
+
 def split_holdout(frame: Frame, holdout: float, seed: int) -> tuple[list[int], list[int]]:
     """(selection groups, test groups): ~``holdout`` of the θ-groups held out, by group.
 
@@ -290,8 +296,7 @@ def score_terms(frame: Frame, model: AugmentedFEE, base: ThetaFit, candidates, *
     for s, ph in zip(scores, holm([s.p for s in scores])):
         s.p_holm = float(ph)
     for name in untestable:
-        scores.append(TermScore(name, math.nan, math.nan, [], math.nan, math.nan, note="not testable: its basis is 0 on "
-                                "every analysed tick (e.g. no surcharge Q), so the data say nothing about k"))
+        scores.append(TermScore(name, math.nan, math.nan, [], math.nan, math.nan, note=ZERO_BASIS_NOTE))
     if log:
         for s in sorted(scores, key=lambda s: -s.gain if math.isfinite(s.gain) else math.inf):
             if s.note:

@@ -194,8 +194,9 @@ def hidden_check(report: dict, hidden) -> dict:
         answer = (": correct" if ok else _DEFAULT_WORLD_OWN if (report.get("data") or {}).get("world") == "default"
                   else ": WRONG")
         text = (f"{said} hidden, but {'it' if len(hidden) == 1 else 'none of them'} never acted on these data (its "
-                "basis, and so its force, is 0 on every analysed tick: e.g. surcharge_drag where no pile stands before "
-                f"the blade, Q = 0, as in the fee world), so the data are a control; named {named or 'none'}{answer}")
+                "basis, and so its force, is 0 on every analysed tick the workflow tested it on: e.g. surcharge_drag "
+                "where no pile stands before the blade, Q = 0, as in the fee world), so the data are a control; named "
+                f"{named or 'none'}{answer}")
     elif hidden is None:
         ok = not named
         text = "none hidden; " + ("none named: correct" if ok else f"named {named}: WRONG")
@@ -232,11 +233,13 @@ def hidden_check(report: dict, hidden) -> dict:
 
 
 def _never_acted(report: dict) -> set[str]:
-    """The candidate terms the workflow found with a basis of 0 on every analysed tick (its first
-    round's scores say "not testable: its basis is 0"): they act nowhere in these data."""
+    """The candidate terms the workflow found with a basis of 0 on every analysed tick it tested them
+    on (its first round's scores carry ``ZERO_BASIS_NOTE``): they act nowhere in these data."""
     rounds = (report.get("selection") or {}).get("rounds") or []
     scores = rounds[0].get("scores", []) if rounds else []
-    return {s["name"] for s in scores if str(s.get("note", "")).startswith("not testable: its basis is 0")}
+    from .candidates import ZERO_BASIS_NOTE
+
+    return {s["name"] for s in scores if s.get("note") == ZERO_BASIS_NOTE}
 
 
 def _append_check(out: Path, check: dict) -> None:

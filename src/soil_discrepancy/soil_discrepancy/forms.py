@@ -244,15 +244,16 @@ STAND_IN_SHARE_RATIO = 1.2
 # same workflow found rivals. A catalogue term's form claims such a factor too (its
 # ``factor_variable``: rate_strength's v_x): a √v_x drag on two speeds was named rate_strength,
 # "pinned down", before the check read it.
-# The analysed ticks' values are grouped from the lowest up, a window spanning
-# LEVEL_WIDTH_OF_SPAN of their whole span or LEVEL_WIDTH_OF_VALUE of its lowest value, whichever
-# is wider; windows whose medians lie within half a window's width of each other are one level (a
-# window begun by a few slowed episodes, 0.72 m/s beside a two-speed grid's 0.86-0.89 m/s, had
-# split the upper speed in two, and a held-out part counted three speeds); a level counts if it
-# holds MIN_LEVEL_SHARE of the ticks: the three of 36 episodes a dense soil slowed from 1 m/s to
-# 0.8 m/s are no level of their own (confounded with their soil's θ, they cannot pin a shape);
-# cuts held short of their targets, and depths or speeds that vary within the episodes (a
-# planner's, a machine's), make levels of their own.
+# The analysed ticks' values are split where the gap to the next value exceeds half a window's
+# width, and each part grouped from its lowest value up, a window spanning LEVEL_WIDTH_OF_SPAN of
+# the whole span or LEVEL_WIDTH_OF_VALUE of its lowest value, whichever is wider; a window counts
+# as a level if it holds MIN_LEVEL_SHARE of the ticks: the three of 36 episodes a dense soil slowed
+# from 1 m/s to 0.8 m/s are no level of their own (confounded with their soil's θ, they cannot pin
+# a shape); cuts held short of their targets, and depths or speeds that vary within the episodes
+# (a planner's, a machine's), make levels of their own. Why the gaps: a window begun by a few
+# slowed episodes (0.72 m/s) reached across the gap into a two-speed grid's 0.86-0.89 m/s, took
+# part of that level, and made a level of episodes that were too few to be one (a held-out part
+# counted three speeds; an outside reviewer's 8 % of slowed ticks, 0.727 m/s, did too).
 LEVEL_VARIABLES = ("d", "v_x")
 MIN_SHAPE_LEVELS = 3
 LEVEL_WIDTH_OF_SPAN = 0.25
@@ -261,26 +262,27 @@ MIN_LEVEL_SHARE = 0.1
 
 
 def held_levels(frame: Frame, variable: str) -> list[float]:
-    """The levels [SI] at which the analysed ticks of ``frame`` hold ``variable``, each its median,
-    ascending (levels of at least ``MIN_LEVEL_SHARE`` of the ticks)."""
+    """The levels [SI] at which the analysed ticks of ``frame`` hold ``variable``, each its window's
+    median, ascending (windows of at least ``MIN_LEVEL_SHARE`` of the ticks)."""
     values = np.sort(np.asarray(frame.column(variable), float))
     values = values[np.isfinite(values)]
     if not len(values):
         return []
     span = float(values[-1] - values[0])
-    windows, i = [], 0  # [start, end) of each window, and the width it spans
-    while i < len(values):
-        start = float(values[i])
-        width = max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start))
-        end = max(int(np.searchsorted(values, start + width, side="right")), i + 1)
-        if windows and abs(float(np.median(values[i:end])) - float(np.median(values[slice(*windows[-1][:2])]))) < \
-                max(width, windows[-1][2]) / 2:  # one level split where a window began (a ramp's are a width apart)
-            windows[-1] = (windows[-1][0], end, max(width, windows[-1][2]))
-        else:
-            windows.append((i, end, width))
-        i = end
+    widths = np.maximum(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * np.abs(values))  # of a window from each
+    cuts = np.flatnonzero(np.diff(values) > widths[:-1] / 2) + 1
     least = MIN_LEVEL_SHARE * len(values)
-    return [float(np.median(values[a:b])) for a, b, _ in windows if b - a >= least]
+    levels = []
+    for part in np.split(values, cuts):
+        i = 0
+        while i < len(part):
+            start = float(part[i])
+            width = max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start))
+            end = max(int(np.searchsorted(part, start + width, side="right")), i + 1)
+            if end - i >= least:
+                levels.append(float(np.median(part[i:end])))
+            i = end
+    return levels
 
 
 def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, alpha: float, names=None) -> dict:
@@ -386,12 +388,13 @@ def rival_forms(frame: Frame, model: AugmentedFEE, fit: ThetaFit, name: str, *, 
            "against it" if wilcoxon_p_two_against(n_episodes) >= alpha else None)
     # a scale and a factor of one variable make one law of it: neither is pinned down apart (SCALE_VARIABLES)
     apart = factor is not None and all(term_forms.separable(a.name, f.name) for a, f in parts + [(scale, factor)])
-    variable = (term_forms.factor_variable(factor.name) if factor is not None
-                else force_terms.get_term(name).factor_variable)
+    variable = force_terms.get_term(name).factor_variable
     few = None
     if variable in LEVEL_VARIABLES and len(episode):
         levels = held_levels(frame, variable)
-        few = {"variable": variable, "levels": levels} if len(levels) < MIN_SHAPE_LEVELS else None
+        # ('form': a library form's, whose characteristic value matches too; a catalogue term has none)
+        few = ({"variable": variable, "levels": levels, "form": name.startswith(term_forms.PREFIX)}
+               if len(levels) < MIN_SHAPE_LEVELS else None)
     return {"pinned": None if why else not rivals and few is None, "why": why, "n_episodes": n_episodes,
             "few_levels": few,
             "share": own_share, "n_rivals": len(rivals), "n_better": sum(r["better"] for r in rivals),
@@ -503,8 +506,9 @@ def levels_text(few: dict) -> str:
     """``rival_forms``' few_levels in words: the variable, its levels and why they pin no factor of it."""
     unit = {"d": "m", "v_x": "m/s"}[few["variable"]]
     values = ", ".join(f"{v:.3g}" for v in few["levels"])
-    return (f"{few['variable']} takes values in only {len(few['levels'])} group(s) (about {values} {unit}; values within a "
-            "quarter of their span make one group), too few to tell one factor of it from another")
+    return (f"{few['variable']} takes values in only {len(few['levels'])} group(s) (about {values} {unit}; a group holds "
+            f"at least {100 * MIN_LEVEL_SHARE:g} % of the ticks, its values within a quarter of their span or a tenth of its "
+            "value), too few to tell one factor of it from another")
 
 
 # ------------------------------------------------------------------------------------ describing

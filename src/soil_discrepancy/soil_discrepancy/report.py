@@ -369,7 +369,8 @@ def _pinned_md(pin: dict | None) -> list[str]:
                 + _too_few(pin)]
     few = pin.get("few_levels")
     out = [head + f"**no**, {PIN_KINDS[kind]}: "
-           + (f"{levels_text(few)} (k, θ and a characteristic value match any factor of it at two levels); " if few else "")
+           + (f"{levels_text(few)} (k, θ{' and a characteristic value' if few.get('form', True) else ''} match any "
+              "factor of it at two levels); " if few else "")
            + (f"{pin['n_rivals']} form(s) fit it not significantly worse" if pin["n_rivals"] else "no form of the library fits it as well")
            + (f", {pin['n_better']} of them significantly better (Holm)" if pin["n_better"] else "")
            + (", one taking much more: it stands in for an effect it is not" if kind == "stand-in" else "")

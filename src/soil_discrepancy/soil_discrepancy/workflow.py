@@ -346,8 +346,10 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     shift = theta_shift(theta0, theta1)
     if test is not None:  # the final held-out figures' (``test`` is recomputed as terms are judged)
         test.update(blind)
+    # the user's catalogue: each term tested and the name they gave it (``forms.load_catalogue``)
+    names_given = dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}
     verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift,
-                                  user_names=user_terms if isinstance(user_terms, dict) else None)
+                                  user_names=names_given)
     say(summary)
     report = {
         "version": REPORT_VERSION,
@@ -359,8 +361,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
                      "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
                      "workers": workers,
-                     # the user's catalogue: each term tested and the name they gave it (``forms.load_catalogue``)
-                     "user_terms": dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}},
+                     "user_terms": names_given},
         "data": {**_data_summary(frame, sel_groups, test_groups, soil_tests),
                  # the bags' world (metadata world_mode; "" for a machine's): the check against a hidden effect reads it
                  "world": next(iter(world_modes(getattr(dataset, "metas", ()))), ""),

@@ -49,8 +49,9 @@ class Term:
     basis_fn: Callable[[ForceInputs, Any], tuple[Any, Any]]
     k_max: float = math.inf  # the largest k the mechanism can have (``implausible_k``)
     k_max_why: str = ""  # that bound in words, for a report
-    # the measured variable ('v_x', 'd') whose factor the form claims beyond what the FEE's θ can take:
-    # data holding it at too few levels cannot tell that factor from another (the discrepancy workflow)
+    # the measured variable ('v_x', 'd', ...: ``term_forms.factor_variable``) whose factor the form claims
+    # beyond what the FEE's θ can take: data holding it at too few levels cannot tell that factor from
+    # another (the discrepancy workflow); a library form's is its factor's
     factor_variable: str | None = None
 
     def basis(self, inputs: ForceInputs) -> tuple[Any, Any]:
@@ -175,7 +176,7 @@ def _form_term(name: str) -> Term:
     info = term_forms.describe(name)  # ValueError naming the bad scale/factor
     return Term(name, info["title"], info["formula"], "1", 1.0,
                 "a form found by sparse regression over the library of candidate forms (soil_discrepancy.forms)",
-                functools.partial(_form_basis, name))
+                functools.partial(_form_basis, name), factor_variable=term_forms.factor_variable(info["factor"]))
 
 
 def _form_basis(name: str, s: ForceInputs, xp):

@@ -682,9 +682,12 @@ def main(argv=None) -> int:
             print(f"soil_sim_batch: interrupted{how}; {kept}", file=sys.stderr)
         return interrupt_exit_code(exc)
     for spec in idle_plugins(summary):
-        print(f"soil_sim_batch: warning: plugin {spec!r} returned 0 N in every substep of every episode: it never "
-              f"acted in these {plan.mode}-world episodes (e.g. surcharge_drag where no pile stands before the blade, "
-              "Q = 0, as in the fee world), so the bags hold no such effect", file=sys.stderr)
+        # (of the episodes this run simulated: those an interrupted run left are not known, an outside reviewer's)
+        which = (f"of the {summary['simulated_episodes']} episodes simulated now (the {len(summary['kept_existing'])} "
+                 "kept from the run before are not known)" if summary.get("kept_existing") else "of every episode")
+        print(f"soil_sim_batch: warning: plugin {spec!r} returned 0 N in every substep {which}: it never acted in "
+              f"these {plan.mode}-world episodes (e.g. surcharge_drag where no pile stands before the blade, Q = 0, "
+              "as in the fee world), so their bags hold no such effect", file=sys.stderr)
     kept = (f" ({summary['simulated_episodes']} simulated, {len(summary['kept_existing'])} kept from the run before)"
             if summary.get("kept_existing") else "")
     print(
