@@ -387,7 +387,7 @@ def _soil_test_hint(rows: list[dict], advice: str = "; soil tests (--soil-tests)
         return "; the soil tests given bound θ only where they test it (a test of δ, or a narrower one, tells more)"
     if rows and not any(r.get("testable", True) for r in rows):
         return ("; a soil test would tell, but --soil-tests holds a group by its one soil label, which these groups "
-                "lack (bags without a label, or grouped by γ: --group-by auto groups labelled bags by it)")
+                "lack (bags without a label, or grouped by γ; --group-by auto groups labelled bags by their label)")
     return advice
 
 
