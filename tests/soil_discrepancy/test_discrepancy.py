@@ -407,6 +407,14 @@ def test_the_hidden_check_with_two_effects_hidden_at_once_says_which_were_named(
     assert none_there["correct"] and "missed" not in none_there["text"], none_there
     assert "surcharge_drag (k = 0.3) hidden, but it never acted on these data" in none_there["text"]
     assert none_there["text"].split("; held-out")[0].endswith("named none: correct")
+    # a named term whose own column on these data the hidden one is (two speeds: w d tanh(v_x / 1 m/s) is
+    # rate strength's w d v_x there) was "WRONG" though the report listed it as the same statement
+    same = {**report(("rate_strength", 7000.0)), "data": {"world": "fee"}}
+    same["selection"]["accepted"][0]["pin"] = {"same_column": ["form:wd_x*vx2", "form:wd_x*tanhvx1"]}
+    check = hidden_check(same, [("form:wd_x*tanhvx1", 1.5)])
+    assert check["correct"] and "WRONG" not in check["text"], check
+    assert "correct, rate_strength being form:wd_x*tanhvx1's own column on these data" in check["text"]
+    assert ": WRONG" in hidden_check(same, [("form:wd_x*fadevx1", 1.5)])["text"]
     idle["selection"]["accepted"] = [{"name": "soil_inertia", "k": 2.0}]
     assert ": WRONG" in hidden_check(idle, [("surcharge_drag", 0.3)])["text"]
     assert ", never acted on these data" in hidden_check(idle, [("surcharge_drag", 0.3), ("soil_inertia", 2.0)])["text"]
@@ -1374,3 +1382,21 @@ def test_pinn_workers_that_cannot_start_are_said_not_waited_for(tmp_path):
     assert out.returncode != 0, out.stdout[-2000:] + out.stderr[-2000:]
     assert "WorkerDied: a worker process died while training PINNs" in out.stderr, out.stderr[-3000:]
     assert "bootstrapping phase" in out.stderr, out.stderr[-3000:]  # (Python's own reason, from the worker)
+
+
+def test_copies_of_an_episode_are_analysed_once():
+    """The noise-free fee world's seeds of one grid point are one episode: analysed as many, their
+    evidence counted as many times (an outside tester's grid of two seeds named a speed effect on one
+    target speed, its paired test over 16 episodes of 8). Left out but one, and said; a world whose
+    seeds differ (its noise) keeps them all."""
+    from soil_discrepancy.workflow import _left_out
+
+    specs = grid_specs(["Sand", "Clay"], [50.0], [0.5], [0.1, 0.2], 2, seed_base=0, duration_s=4.0)
+    frame = build_frame(simulated(specs), stride=8)
+    assert len(frame.copies) == 4 and len(frame.episodes) == 4, frame.copies
+    analysed = {frame.names[e] for e in frame.episodes}
+    assert not analysed & set(frame.copies) and {n.rsplit("_s", 1)[0] for n in analysed} == \
+        {n.rsplit("_s", 1)[0] for n in frame.copies}  # one of each grid point stays
+    assert any(names == frame.copies and "a copy of another episode" in why for names, why in _left_out(frame))
+    noisy = build_frame(simulated(specs, mode="default"), stride=8)
+    assert noisy.copies == () and len(noisy.episodes) == 8

@@ -131,6 +131,11 @@ def test_a_term_of_the_users_catalogue_is_tested_and_said_under_the_users_name(e
     named = form in {a["name"] for a in rep["selection"]["accepted"]}
     said = f"'my entry drag' (`{form}`): " + ("**named**" if named else "not named")
     assert said in (out / "discrepancy.md").read_text()
+    # re-simulated in the bags' world (the report said --mode fee whatever the world)
+    from soil_discrepancy.report import markdown
+
+    assert "soil_sim_batch --mode fee --out bags/with_effect" in (out / "discrepancy.md").read_text()
+    assert "soil_sim_batch --mode default --out bags/with_effect" in markdown({**rep, "data": {**rep["data"], "world": ""}})
     if named:  # the verdict calls it by the user's name too (it had said only the formula)
         assert f"'my entry drag', the form {force_terms.get_term(form).formula} ({form})" in rep["summary"]
 

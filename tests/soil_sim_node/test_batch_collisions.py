@@ -387,3 +387,20 @@ def test_a_plugin_idle_in_the_episodes_a_resumed_run_simulates_is_said_of_those_
     err = capsys.readouterr().err
     assert "returned 0 N in every substep of the 1 episodes simulated now (the 1 kept from the run before are not " \
            "known)" in err, err
+
+
+def test_a_resume_with_other_settings_is_refused_not_mixed(tmp_path, capsys):
+    """--skip-existing with another --plugin or --duration than the bags it would keep had mixed two
+    datasets under one dataset.json, without a word (an outside tester's): refused before anything
+    is simulated, naming the bag and the setting; the same settings resume as before."""
+    out = tmp_path / "site"
+    plugin = ["--plugin", "tests.sim_plugins:in_soil_constant_drag f_x=300"]
+    assert batch.main([*ONE, *plugin, "--depths", "0.1", "--out", str(out)]) == 0
+    capsys.readouterr()
+    for other in (["--plugin", "tests.sim_plugins:constant_force f_x=300"], [*plugin, "--duration", "2"], []):
+        assert batch.main([*ONE, *other, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 2
+        err = capsys.readouterr().err
+        assert "which --skip-existing would keep, was made with" in err and "keeping it would mix two datasets" in err, err
+        assert len(find_episode_bags(out)) == 1
+    assert batch.main([*ONE, *plugin, "--depths", "0.1,0.15", "--out", str(out), "--skip-existing"]) == 0
+    assert len(find_episode_bags(out)) == 2

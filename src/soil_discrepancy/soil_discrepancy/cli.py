@@ -203,8 +203,15 @@ def hidden_check(report: dict, hidden) -> dict:
     else:
         hidden = [tuple(h) for h in hidden]
         ok = bool(named) and named[0] in {name for name, _ in hidden}
+        # a first term named whose own column on these data a hidden one is (its rival check lists it as the
+        # same statement: w d tanh(v_x / 1 m/s) on two speeds is rate strength's w d v_x) is that effect here
+        same = next((name for name, _ in hidden if named and name in _same_column(report, named[0])), None)
         if ok:
             answer = ": correct"
+        elif same:
+            ok = True
+            answer = (f": correct, {named[0]} being {same}'s own column on these data (the same statement: its rival "
+                      "check lists it so); which of the two is the mechanism these data cannot tell")
         elif (report.get("data") or {}).get("world") == "default":
             # the default world has effects of its own the model lacks (soil_sim_node/effects.py): what is named
             # first there may be one of them, so "wrong" says too much; whether the hidden one was named says enough
@@ -230,6 +237,16 @@ def hidden_check(report: dict, hidden) -> dict:
             "hidden_all": None if hidden is None else [list(h) for h in hidden], "named": named, "correct": ok,
             "heldout_rmse_before_n": before, "heldout_rmse_after_n": after,
             "heldout_error_ratio": ratio, "text": text + (f"; held-out RMSE × {ratio:.2f}" if ratio else "")}
+
+
+def _same_column(report: dict, name: str) -> list[str]:
+    """The forms the named term ``name``'s rival check found to be its own column on these data (both
+    signs of a form's name: the hidden one may be written either way)."""
+    from .forms import _unsigned
+
+    term = next((a for a in report["selection"]["accepted"] if a["name"] == name), {})
+    listed = (term.get("pin") or {}).get("same_column") or []
+    return [*listed, *(_unsigned(n) for n in listed)]
 
 
 def _never_acted(report: dict) -> set[str]:

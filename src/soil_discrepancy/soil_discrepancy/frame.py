@@ -72,6 +72,9 @@ class Frame:
     # episodes without a soil label beside labelled ones, grouped by their measured γ (``build_frame``)
     unlabelled_by_gamma: tuple[str, ...] = ()
     too_short: tuple[str, ...] = ()  # episodes left out: less than MIN_CUT_S of analysed cutting
+    # episodes left out: each a copy of another analysed one (the noise-free fee world's seeds, a replay
+    # recorded again), which would count one episode's evidence twice (``copies_of``)
+    copies: tuple[str, ...] = ()
     # θ-group -> (lo, hi) SI (φ [rad], c [Pa], δ [rad]; ±inf: free) where soil tests hold θ (``soil_tests``)
     theta_boxes: dict | None = None
 
@@ -156,6 +159,26 @@ def check_frame_settings(stride, group_by: str) -> None:
         raise ValueError(f"group_by={group_by!r} must be one of {GROUP_BY}")
 
 
+def copies_of(ds) -> set[int]:
+    """The episodes of ``ds`` that are copies of another (``pinn_estimator.dataset.identical_episodes``:
+    the same metadata but the seed, the same samples), all but the longest of each set (the first
+    by name of equals). Why: in the noise-free fee world the seeds of one grid point are one
+    episode, and analysed as many they counted its evidence as many times (an outside tester's
+    grid of two seeds named a speed effect on one target speed, its p over 16 episodes of 8)."""
+    from pinn_estimator.dataset import identical_episodes
+
+    index = {name: e for e, name in enumerate(ds.names)}
+    out = set()
+    for names in identical_episodes(ds):
+        def length(e: int) -> int:
+            rows = ds.episode_rows(e)
+            return rows.stop - rows.start
+
+        members = sorted((index[n] for n in names), key=lambda e: (-length(e), ds.names[e]))
+        out.update(members[1:])
+    return out
+
+
 def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DEPTH_M, skip_s: float = SKIP_S,
                 group_by: str = "auto") -> Frame:
     """Analysis ticks of a ``pinn_estimator.dataset.Dataset`` (never touches ``ds.truth``).
@@ -184,6 +207,7 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         raise ValueError(f"the dataset mixes worlds {worlds} (bag metadata world_mode): a discrepancy is one "
                          "world's against the model; give one world's bags")
     changing = [e for e in range(n_ep) if not episode_one_soil(ds, e)]
+    copies = copies_of(ds)
     if len(changing) == n_ep:
         raise ValueError(f"every one of the {n_ep} episode(s) changes soil along its path (soil patches in its "
                          "metadata): one θ per soil cannot be fitted across a change; give episodes of one soil each")
@@ -209,7 +233,7 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         in_soil_s = time_in_soil_of_known(known, dt)
         cutting = np.nonzero((known[:, _KI["d"]] > min_depth_m) & (t >= skip_s - 1e-9))[0]
         keep = cutting[::stride]
-        if e in changing:
+        if e in changing or e in copies:
             keep = keep[:0]
         elif len(cutting) < MIN_CUT_S * SAMPLE_RATE_HZ:
             short.append(e)
@@ -275,5 +299,6 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         known=cat["known"].reshape(-1, len(KNOWN_PARAMS)), forces=cat["forces"].reshape(-1, 2), inertia=cat["inertia"].reshape(-1, 2),
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
         changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
+        copies=tuple(ds.names[e] for e in sorted(copies)),
         unlabelled_by_gamma=tuple(by_gamma),
     )

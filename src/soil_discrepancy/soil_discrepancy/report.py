@@ -142,7 +142,11 @@ def markdown(report: dict, figures=()) -> str:
         for name, pin in catalogue_pins:  # a discovered form's is in its own section below
             lines += ["", f"`{name}` against the library's forms:"] + _pinned_md(pin)
         lines += ["", "Re-simulate with the effect switched on:", "", "```"]
-        lines.append("soil_sim_batch --mode fee --out bags/with_effect " + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
+        # in the world of the bags it was found in ("fee" whatever the world, an outside tester's: the default
+        # world's surcharge term re-simulated in the fee world, where Q = 0, never acted); a machine's: default
+        world = (report.get("data") or {}).get("world") or "default"
+        lines.append(f"soil_sim_batch --mode {world} --out bags/with_effect "
+                     + " ".join(f'--plugin "{p}"' for p in model["plugin_specs"]))
         lines += ["```", "", "In Python: `AugmentedFEE(" + repr(tuple(tuple(t) for t in model["terms"])) + ")`; "
                   "for the PINN: `pinn_train " + " ".join(f"--extra-term {t}" for t in model["extra_term_args"]) + "`.", ""]
     tentative = report["selection"].get("not_confirmed")

@@ -479,6 +479,7 @@ def _data_summary(frame: Frame, sel_groups, test_groups, soil_tests=()) -> dict:
         "metadata_soils": frame.has_metadata(),
         "left_out_changing_soil": list(frame.changing_soil),
         "left_out_too_short": list(frame.too_short),
+        "left_out_copies": list(frame.copies),
         "selection_groups": [frame.group_names[g] for g in sel_groups],
         "test_groups": [frame.group_names[g] for g in test_groups],
         "selection_episodes": frame.episode_names(sel_groups), "test_episodes": frame.episode_names(test_groups),
@@ -523,7 +524,10 @@ def _left_out(frame: Frame) -> list[tuple[tuple[str, ...], str]]:
     kinds = ((frame.changing_soil, "their soil changes along the path (soil patches in the metadata), and one θ "
                                    "cannot hold across a change"),
              (frame.too_short, f"less than {MIN_CUT_S:g} s of the blade in the soil after the start transient, too "
-                               "little to fit their soil to"))
+                               "little to fit their soil to"),
+             (frame.copies, "each is a copy of another episode analysed (the same metadata but the seed, the same "
+                            "samples: the noise-free fee world's seeds, a replay recorded again), whose evidence it "
+                            "would count twice"))
     return [(names, why) for names, why in kinds if names]
 
 

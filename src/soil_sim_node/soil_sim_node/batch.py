@@ -155,6 +155,7 @@ def generate(plan: DatasetPlan, workers: int = 0, max_chunk: int = 48, progress:
         exists = [is_bag(plan.out / n) for n in names]
         todo = [i for i, e in enumerate(exists) if not e]
         kept = sorted(n for n, e in zip(names, exists) if e)
+        _check_kept_alike(plan, [pair for pair, e in zip(pairs, exists) if e])
         if len(todo) < len(names):
             print(f"soil_sim_batch: {len(names) - len(todo)} of the {len(names)} bags exist in {plan.out} and are kept "
                   f"(--skip-existing); simulating the other {len(todo)}", file=sys.stderr)
@@ -267,6 +268,37 @@ def _bag_names(config: SimConfig, resolved) -> list[str]:
     """The bag names the workers give the episodes of ``resolved`` ((spec, soil) pairs, as
     ``EpisodeSpec.resolve`` returns them): their metadata's names."""
     return [episode_meta(config, spec, soil.name, []).name for spec, soil in resolved]
+
+
+# What a kept bag's metadata must share with the episode this run would write in its place
+KEPT_FIELDS = ("duration_s", "effects", "plugins", "patches")
+
+
+def _check_kept_alike(plan: DatasetPlan, resolved) -> None:
+    """FileExistsError, before anything is simulated, if a bag ``--skip-existing`` would keep (of
+    ``resolved``, (spec, soil) pairs) was made with other settings than this run's (its duration,
+    effects, plugins or patches: a bag's name says its soil, density, targets, seed and world only).
+    A resume with another --plugin or --duration had mixed two datasets under one dataset.json
+    without a word (an outside tester's). A plugin's parameters are not in a bag's metadata: a
+    resume with another k of the same plugin is not caught."""
+    from soil_msgs_py.episode import EpisodeMeta
+    from soil_bag_tools.bag_io import META_KEY, bag_custom_data
+
+    config = plan.config()
+    for spec, soil in resolved:
+        mine = episode_meta(config, spec, soil.name, plan.effects.enabled())
+        path = plan.out / mine.name
+        try:
+            theirs = EpisodeMeta.from_json(bag_custom_data(path)[META_KEY])
+        except (KeyError, TypeError, ValueError, OSError) as err:
+            raise FileExistsError(f"{path} exists but its metadata cannot be read ({err}); nothing written "
+                                  "(--overwrite replaces it)") from None
+        for name in KEPT_FIELDS:
+            if getattr(theirs, name) != getattr(mine, name):
+                raise FileExistsError(
+                    f"{path}, which --skip-existing would keep, was made with {name} {getattr(theirs, name)!r}, this run "
+                    f"with {getattr(mine, name)!r}: keeping it would mix two datasets; nothing written (--overwrite "
+                    "replaces such bags, or give another --out)")
 
 
 def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
