@@ -782,3 +782,17 @@ def test_the_report_says_a_rival_is_not_shown_worse_rather_than_worse():
     assert "worse at p" not in text
     pinned = {**pin, "pinned": True, "runner_up": {**rival, "p_worse": 0.001}, "rivals": []}
     assert "(the best, `form:gd2w_x*enter0.5`, 15.2 %, worse: p 0.001)" in "\n".join(_pinned_md(pinned))
+
+
+def test_without_soil_labels_an_unpinned_verdict_says_what_it_could_not_check(form_data, form_reports, tmp_path):
+    """Labelled, a soil fitted beside a form not pinned down is checked against its label's textbook
+    range, and one outside makes the verdict "partly explained"; without labels nothing is, and an
+    outside tester's drags read "explained" there without a word of what was not checked."""
+    import dataclasses
+
+    blind_labels = dataclasses.replace(form_data["saturating"], metas=[
+        dataclasses.replace(m, soil="unknown", relative_density_pct=float("nan")) for m in form_data["saturating"].metas])
+    rep = run_discrepancy(dataset=blind_labels, out_dir=tmp_path, plots=False, **{**RUN, "stride": STRIDE})
+    assert rep["settings"]["group_by"] == "gamma" and rep["verdict"] == "explained", rep["summary"]
+    assert "without soil labels the soil fitted beside them is checked against no label's textbook range" in rep["summary"]
+    assert "without soil labels" not in form_reports["saturating"]["summary"]
