@@ -971,7 +971,8 @@ def test_both_calibrations_run_on_soils_of_ones_own(tmp_path, capsys, monkeypatc
         for args, needle in ((["--soil-file", str(soils)], f"give {out}"),
                              (["--soils", "Clay,Peat", out, str(mine)], "Peat"),
                              (["--soils", "Clay,,Sand", out, str(mine)], "an empty name"),
-                             (["--soils", "Clay,Clay", out, str(mine)], "names a soil twice")):
+                             (["--soils", "Clay,Clay", out, str(mine)], "names a soil twice"),
+                             (["--soils", "Clay,clay", out, str(mine)], "names a soil twice")):
             with pytest.raises(SystemExit) as exit_:
                 tool(["--world", "fee", *args])
             assert exit_.value.code == 2 and needle in capsys.readouterr().err, needle
@@ -1021,7 +1022,15 @@ def test_a_config_records_its_soils_and_what_calibrates_more_of_it_simulates_the
         with pytest.raises(SystemExit) as exit_:  # other soils: another site's laws
             tool(["--world", "fee", *args, "--soils", "Sand"])
         assert exit_.value.code == 2
-        assert "was calibrated on the soils ['StiffSilt', 'Sand'], not these ['Sand']" in capsys.readouterr().err
+        assert "was calibrated on the soils ['StiffSilt', 'Sand']; these are ['Sand']" in capsys.readouterr().err
+    # the same soils in another order (the seeds follow it), another φ of a soil: said which; a note is no soil
+    from pinn_estimator.fusion_calibration import soils_differ
+
+    assert "the same soils in another order (['Sand', 'StiffSilt'])" in soils_differ(site, site[::-1])
+    stiffer = [{**site[0], "phi_deg": [30.0, 40.0]}, site[1]]
+    assert soils_differ(site, stiffer) == "these are ['StiffSilt', 'Sand'], with other properties for ['StiffSilt']"
+    assert soils_differ(site, [{**site[0], "source": "site survey"}, site[1]]) == ""
+    assert hash(FusionConfig(calibration_soils=site)) == hash(FusionConfig())  # hashable as before (dicts aside)
     # pinn_eval --fusion-config judges a site's laws on its soils (at densities and depths held out)
     from pinn_estimator.evaluate import forecast_section
 

@@ -623,7 +623,7 @@ def test_bags_without_a_soil_label_are_grouped_by_their_measured_unit_weight(bag
     from soil_discrepancy.verdict import _soil_test_hint
     for frame, testable in ((by_gamma, False), (labelled, True)):
         rows = [r for r in group_misfit(frame, 0.1 * frame.forces)["rows"] if r["kind"] == "group"]
-        assert rows and all(r["testable"] is testable for r in rows), rows
+        assert rows and all(r["testable"] is testable and r["range_checked"] is testable for r in rows), rows
         assert ("--soil-tests holds a group by its one soil label, which these groups lack" in _soil_test_hint(rows)) is not testable
     unlabelled = dataclasses.replace(ds, metas=metas)
     auto = build_frame(unlabelled, stride=4)  # the default on bags without any label: γ groups

@@ -164,6 +164,24 @@ def soil_records(names, custom: dict) -> tuple[dict, ...]:
     return tuple(soil_to_dict(get_soil(name, custom)) for name in (sorted(CATALOGUE) if names is None else names))
 
 
+def soils_differ(recorded, given) -> str:
+    """How the ``given`` calibration soils differ from the ``recorded`` ones, in words ('' if they are
+    the same soils in the same order: the episodes' seeds follow it). A soil's ``source``, free text,
+    is not compared (a note added to a soils YAML made the same soil another, an outside reviewer's)."""
+    def key(r):
+        return r["name"].lower(), tuple(r["phi_deg"]), tuple(r["cohesion_pa"]), tuple(r["unit_weight_n_m3"])
+
+    mine, theirs = [key(r) for r in recorded], [key(r) for r in given]
+    if mine == theirs:
+        return ""
+    if sorted(mine) == sorted(theirs):
+        return (f"these are the same soils in another order ({[r['name'] for r in given]}), which the episodes' seeds "
+                "follow: give them in the recorded order")
+    changed = [r["name"] for r, k in zip(given, theirs) if k[0] in {m[0] for m in mine} and k not in mine]
+    return (f"these are {[r['name'] for r in given]}"
+            + (f", with other properties for {changed}" if changed else ""))
+
+
 def recorded_soils(cfg: FusionConfig) -> tuple[list[str] | None, dict]:
     """(names, custom soils by name) of the soils ``cfg`` records it was calibrated on, as
     ``calibration_soils`` gives them to the episodes; (None, {}) for the catalogue's or none recorded."""
@@ -191,10 +209,9 @@ def kept_soils(p: argparse.ArgumentParser, args: argparse.Namespace, cfg: Fusion
         return
     names = [r["name"] for r in recorded]
     if given:
-        if soil_records(*args.calibration_soils) != recorded:
-            p.error(f"--soil-file/--soils: {path} was calibrated on the soils {names}, not these "
-                    f"{[r['name'] for r in soil_records(*args.calibration_soils)]}: its posterior is of those soils "
-                    "(run the whole calibration with these into another --out)")
+        if why := soils_differ(recorded, soil_records(*args.calibration_soils)):
+            p.error(f"--soil-file/--soils: {path} was calibrated on the soils {names}; {why}: its posterior is of "
+                    "those soils (run the whole calibration with these into another --out)")
         return
     if (kept := recorded_soils(cfg))[0] is not None:
         print(f"{p.prog}: {path} was calibrated on the soils {names} (not the catalogue's): simulated again",
@@ -283,7 +300,7 @@ def calibration_soils(args: argparse.Namespace) -> tuple[list[str] | None, dict]
     names = [n.strip() for n in args.soils.split(",")]
     if not all(names):
         raise ValueError(f"--soils {args.soils!r}: an empty name")
-    if len(set(names)) != len(names):
+    if len({n.lower() for n in names}) != len(names):  # (a soil is looked up whatever the case: Clay,clay is one)
         raise ValueError(f"--soils {args.soils!r} names a soil twice")
     for name in names:
         get_soil(name, custom)  # ValueError naming an unknown soil

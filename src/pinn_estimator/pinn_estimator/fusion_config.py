@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from soil_msgs_py.cli_paths import write_text_atomically
@@ -127,7 +127,7 @@ class FusionConfig:
     # calibrates more of this config simulates them again (the planner's bound law of a site's config
     # had been calibrated on the catalogue's soils when --soil-file was not given again).
     # None: not recorded (a config written before it was, or made in code).
-    calibration_soils: tuple[dict, ...] | None = None
+    calibration_soils: tuple[dict, ...] | None = field(default=None, hash=False)  # (dicts: not hashable)
 
     def __post_init__(self):
         for name, (lo, hi) in INT_FIELD_RANGES.items():

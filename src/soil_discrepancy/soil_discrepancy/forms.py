@@ -253,7 +253,10 @@ STAND_IN_SHARE_RATIO = 1.2
 # (a planner's, a machine's), make levels of their own. Why the gaps: a window begun by a few
 # slowed episodes (0.72 m/s) reached across the gap into a two-speed grid's 0.86-0.89 m/s, took
 # part of that level, and made a level of episodes that were too few to be one (a held-out part
-# counted three speeds; an outside reviewer's 8 % of slowed ticks, 0.727 m/s, did too).
+# counted three speeds; an outside reviewer's 8 % of slowed ticks, 0.727 m/s, did too). Within a
+# part, windows whose medians lie within half a width of each other are one level: slowed ticks
+# nearer a level than half a window (0.70 m/s beside 0.73-0.79 m/s) began a window that cut that
+# level in two (another reviewer's).
 LEVEL_VARIABLES = ("d", "v_x")
 MIN_SHAPE_LEVELS = 3
 LEVEL_WIDTH_OF_SPAN = 0.25
@@ -274,14 +277,18 @@ def held_levels(frame: Frame, variable: str) -> list[float]:
     least = MIN_LEVEL_SHARE * len(values)
     levels = []
     for part in np.split(values, cuts):
-        i = 0
+        windows, i = [], 0  # [start, end) in ``part`` and the width of each
         while i < len(part):
             start = float(part[i])
             width = max(LEVEL_WIDTH_OF_SPAN * span, LEVEL_WIDTH_OF_VALUE * abs(start))
             end = max(int(np.searchsorted(part, start + width, side="right")), i + 1)
-            if end - i >= least:
-                levels.append(float(np.median(part[i:end])))
+            if windows and abs(float(np.median(part[i:end])) - float(np.median(part[slice(*windows[-1][:2])]))) < \
+                    max(width, windows[-1][2]) / 2:  # one level cut where a window began (a ramp's are a width apart)
+                windows[-1] = (windows[-1][0], end, max(width, windows[-1][2]))
+            else:
+                windows.append((i, end, width))
             i = end
+        levels += [float(np.median(part[a:b])) for a, b, _ in windows if b - a >= least]
     return levels
 
 

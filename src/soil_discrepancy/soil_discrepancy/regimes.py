@@ -303,6 +303,7 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
              if t["group"] in rho_max and t.get("success", True)}
     n_tested = {name: _tested_parameters(rho_max[name], tested.get(name)) for name in rho_max}
     testable = {frame.group_names[g]: group_label(frame, int(g)) is not None for g in frame.groups}
+    ranged = {frame.group_names[g]: label_soil(frame, int(g)) is not None for g in frame.groups}
     off_label = _off_label_range(frame, theta_table or [])
     d = frame.known[:, KNOWN_PARAMS.index("d")]
     span = {frame.group_names[g]: float(np.subtract(*np.percentile(d[frame.group == g], [90, 10])))
@@ -319,6 +320,8 @@ def group_misfit(frame: Frame, resid: np.ndarray, *, alpha: float = ALPHA, ratio
                      "theta_at_bound": bound.get(name, []) if kind == "group" else [],
                      "tested_parameters": n_tested.get(name, 0) if kind == "group" else 0,
                      "testable": testable.get(name, False) if kind == "group" else False,  # by a soil test
+                     # its fitted soil checked against a catalogue soil's textbook range (``label_soil``)
+                     "range_checked": ranged.get(name, False) if kind == "group" else False,
                      "theta_off_label": off_label.get(name, []) if kind == "group" else [],
                      "depth_span_m": _f(span.get(name)) if kind == "group" else None,
                      "one_depth": kind == "group" and span.get(name, math.inf) < ONE_DEPTH_SPAN_M})
@@ -401,21 +404,29 @@ def on_soil_test_bound(hit: str) -> bool:
 LABEL_RANGE_MARGIN = {"phi": 3.0, "c": 1e3}
 
 
-def _off_label_range(frame: Frame, theta_table) -> dict[str, list[str]]:
-    """θ-group -> its fitted φ or c outside the textbook range of its soil label, in words ({} for
-    bags without labels or labels of no catalogue soil, whose range is not known here)."""
+def label_soil(frame: Frame, group: int):
+    """The catalogue soil whose textbook range θ-group ``group``'s fitted soil is checked against: its
+    episodes' one soil label, if a catalogue soil's (None for bags without labels, a group of several,
+    or a soil of one's own, whose range is not known here)."""
     from soil_physics.soils import CATALOGUE
 
     if not frame.has_metadata():
-        return {}
+        return None
+    labels = set(np.asarray(frame.soils)[frame.group_of == group])
+    if len(labels) != 1:
+        return None
     by_name = {name.lower(): soil for name, soil in CATALOGUE.items()}
-    soils = np.asarray(frame.soils)
+    return by_name.get(str(next(iter(labels))).lower())
+
+
+def _off_label_range(frame: Frame, theta_table) -> dict[str, list[str]]:
+    """θ-group -> its fitted φ or c outside the textbook range of its soil label, in words ({} for
+    bags without labels or labels of no catalogue soil, whose range is not known here)."""
     out: dict[str, list[str]] = {}
     for t in theta_table:
         if t["group"] not in frame.group_names or not t.get("success", True):
             continue
-        labels = set(soils[frame.group_of == frame.group_names.index(t["group"])])
-        soil = by_name.get(str(next(iter(labels))).lower()) if len(labels) == 1 else None
+        soil = label_soil(frame, frame.group_names.index(t["group"]))
         if soil is None:
             continue
         hits = []

@@ -308,13 +308,13 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
         # a soil beside them its label's textbook rules out: "explained" at most in part, pinned down or not
         off_label = _off_label_text(reg1, beside_terms=True)
         verdict = "partly explained" if remains or weak or bound_stand_ins or worse_axes or off_label else "explained"
-        # without soil labels the soil fitted beside a form not pinned down is checked against no label's
-        # range: the same bags labelled read "partly explained" where it falls outside (an outside tester's
-        # d^1.5 and √v_x drags: "explained" unlabelled, "partly explained" labelled)
+        # without a catalogue soil's label the soil fitted beside a form not pinned down is checked against
+        # no textbook range: the same bags labelled read "partly explained" where it falls outside (an outside
+        # tester's d^1.5 and √v_x drags: "explained" unlabelled, "partly explained" labelled)
         rows = _group_rows(reg1)
-        if verdict == "explained" and hedged and rows and not any(r.get("testable", True) for r in rows):
-            moved += ("; without soil labels the soil fitted beside them is checked against no label's textbook range "
-                      "(labelled, a soil fitted outside its label's range makes the verdict \"partly explained\")")
+        if verdict == "explained" and hedged and rows and not any(r.get("range_checked", True) for r in rows):
+            moved += ("; no group has a catalogue soil's label, so the soil fitted beside them is checked against no "
+                      "textbook range (with one, a soil fitted outside it makes the verdict \"partly explained\")")
         return (verdict, text + _untested_text(test) + moved + off_label + misfit_text(reg1) + _left_text(reg1) + not_named)
     if reg0["significant"] or misfit_discrepancy(reg0):
         names = ", ".join(labels.get(v, v) for v in reg0["flagged_variables"])

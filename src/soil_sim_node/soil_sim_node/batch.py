@@ -272,6 +272,7 @@ def _bag_names(config: SimConfig, resolved) -> list[str]:
 
 # What a kept bag's metadata must share with the episode this run would write in its place
 KEPT_FIELDS = ("duration_s", "effects", "plugins", "patches")
+OVERWRITE_ALL = "--overwrite instead of --skip-existing simulates every bag of the plan again"
 
 
 def _check_kept_alike(plan: DatasetPlan, resolved) -> None:
@@ -289,16 +290,19 @@ def _check_kept_alike(plan: DatasetPlan, resolved) -> None:
         mine = episode_meta(config, spec, soil.name, plan.effects.enabled())
         path = plan.out / mine.name
         try:
-            theirs = EpisodeMeta.from_json(bag_custom_data(path)[META_KEY])
-        except (KeyError, TypeError, ValueError, OSError) as err:
-            raise FileExistsError(f"{path} exists but its metadata cannot be read ({err}); nothing written "
-                                  "(--overwrite replaces it)") from None
+            custom = bag_custom_data(path)
+            if META_KEY not in custom:
+                raise ValueError(f"it has no episode metadata (custom_data key {META_KEY!r})")
+            theirs = EpisodeMeta.from_json(custom[META_KEY])
+        except (TypeError, ValueError, OSError) as err:
+            raise FileExistsError(f"{path}, which --skip-existing would keep, cannot be read: {err}; nothing written "
+                                  f"({OVERWRITE_ALL})") from None
         for name in KEPT_FIELDS:
             if getattr(theirs, name) != getattr(mine, name):
                 raise FileExistsError(
                     f"{path}, which --skip-existing would keep, was made with {name} {getattr(theirs, name)!r}, this run "
-                    f"with {getattr(mine, name)!r}: keeping it would mix two datasets; nothing written (--overwrite "
-                    "replaces such bags, or give another --out)")
+                    f"with {getattr(mine, name)!r}: keeping it would mix two datasets; nothing written ({OVERWRITE_ALL}, "
+                    "or give another --out)")
 
 
 def _check_names_free(plan: DatasetPlan, names: list[str]) -> None:
