@@ -188,7 +188,7 @@ def recorded_soils(cfg: FusionConfig) -> tuple[list[str] | None, dict]:
     from soil_physics.soils import soil_from_dict
 
     recorded = cfg.calibration_soils
-    if recorded is None or recorded == soil_records(None, {}):
+    if recorded is None or not soils_differ(soil_records(None, {}), recorded):  # (a source note aside)
         return None, {}
     return [r["name"] for r in recorded], {r["name"]: soil_from_dict(r) for r in recorded}
 

@@ -280,8 +280,9 @@ def _check_kept_alike(plan: DatasetPlan, resolved) -> None:
     ``resolved``, (spec, soil) pairs) was made with other settings than this run's (its duration,
     effects, plugins or patches: a bag's name says its soil, density, targets, seed and world only).
     A resume with another --plugin or --duration had mixed two datasets under one dataset.json
-    without a word (an outside tester's). A plugin's parameters are not in a bag's metadata: a
-    resume with another k of the same plugin is not caught."""
+    without a word (an outside tester's). A plugin's parameters and a custom soil's properties are
+    not in a bag's metadata: a resume with another k of the same plugin, or another φ of a soil of
+    the same name, is not caught."""
     from soil_msgs_py.episode import EpisodeMeta
     from soil_bag_tools.bag_io import META_KEY, bag_custom_data
 
