@@ -307,8 +307,8 @@ def reader_notes() -> Iterator[list[str]]:
         log.propagate = propagate
 
 
-def _read_meta(path: Path) -> EpisodeMeta:
-    """Episode metadata from metadata.yaml custom_data."""
+def read_meta(path: Path) -> EpisodeMeta:
+    """Episode metadata from metadata.yaml custom_data (BagReadError, a ValueError, naming what is wrong)."""
     custom = bag_custom_data(path)
     if META_KEY not in custom:
         raise BagReadError(path, f"has no episode metadata (custom_data key {META_KEY!r})")
@@ -340,7 +340,7 @@ def read_episode(bag_dir: str | os.PathLike) -> Episode:
                                  f"soil_bag_repair {path} turns it into a bag)")
     if not is_bag(path):
         raise BagReadError(path, "is not a rosbag2 directory (no metadata.yaml)")
-    meta = _read_meta(path)
+    meta = read_meta(path)
     with reading(path):
         with AnyReader([path], default_typestore=M.TYPESTORE) as reader:
             ns = topics_namespace(path, {c.topic for c in reader.connections})

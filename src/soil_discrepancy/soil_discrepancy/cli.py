@@ -178,12 +178,6 @@ _DEFAULT_WORLD_OWN = (" (the default world has effects of its own that the model
                       "what is named before or instead of the hidden effect may be one of them)")
 
 
-def _unsigned(name: str) -> str:
-    from .forms import _unsigned as unsigned
-
-    return unsigned(name)
-
-
 def hidden_check(report: dict, hidden) -> dict:
     """Did the workflow name the effect hidden in the test data (or none, for a control)? ``hidden``:
     None, or (name, k) pairs. With several hidden at once the answer is correct when the first term
@@ -211,7 +205,7 @@ def hidden_check(report: dict, hidden) -> dict:
         ok = bool(named) and named[0] in {name for name, _ in hidden}
         # a first term named whose own column on these data a hidden one is (its rival check lists it as the
         # same statement: w d tanh(v_x / 1 m/s) on two speeds is rate strength's w d v_x) is that effect here
-        same = next((name for name, _ in hidden if named and _unsigned(name) in _same_column(report, named[0])), None)
+        same = next((name for name, _ in hidden if named and _own_column(report, named[0], name)), None)
         if ok:
             answer = ": correct"
         elif same:
@@ -245,12 +239,14 @@ def hidden_check(report: dict, hidden) -> dict:
             "heldout_error_ratio": ratio, "text": text + (f"; held-out RMSE × {ratio:.2f}" if ratio else "")}
 
 
-def _same_column(report: dict, name: str) -> list[str]:
-    """The forms the named term ``name``'s rival check found to be its own column on these data,
-    unsigned (the hidden one may be written with either sign), of those the report lists (at most
-    ``forms.RIVALS_SHOWN`` of them: a form beyond them is not found here)."""
+def _own_column(report: dict, name: str, form: str) -> bool:
+    """Whether the named term ``name``'s rival check found ``form`` to be its own column on these
+    data, whatever the sign either is written with, of the forms the report lists (at most
+    ``forms.RIVALS_SHOWN``: a form beyond them is not found here)."""
+    from .forms import _unsigned
+
     term = next((a for a in report["selection"]["accepted"] if a["name"] == name), {})
-    return [_unsigned(n) for n in (term.get("pin") or {}).get("same_column") or []]
+    return _unsigned(form) in {_unsigned(n) for n in (term.get("pin") or {}).get("same_column") or []}
 
 
 def _never_acted(report: dict) -> set[str]:

@@ -168,13 +168,10 @@ def copies_of(ds) -> set[int]:
     from pinn_estimator.dataset import identical_episodes
 
     index = {name: e for e, name in enumerate(ds.names)}
+    length = np.diff(ds.offsets)  # ticks per episode
     out = set()
     for names in identical_episodes(ds):
-        def length(e: int) -> int:
-            rows = ds.episode_rows(e)
-            return rows.stop - rows.start
-
-        members = sorted((index[n] for n in names), key=lambda e: (-length(e), ds.names[e]))
+        members = sorted((index[n] for n in names), key=lambda e: (-length[e], ds.names[e]))
         out.update(members[1:])
     return out
 

@@ -174,9 +174,6 @@ def soil_from_dict(data: dict) -> SoilType:
     return _soil(name, phi, c, gamma, str(data.get("source", "user YAML")))
 
 
-SOIL_FIELDS = ("name", "phi_deg", "cohesion_pa", "unit_weight_n_m3", "source")
-
-
 def soil_to_dict(soil: SoilType) -> dict:
     """``soil`` in a soils YAML's form, which ``soil_from_dict`` reads back (a calibrated config
     records the soils of its episodes so)."""
@@ -184,6 +181,10 @@ def soil_to_dict(soil: SoilType) -> dict:
             "phi_deg": [round(soil.loose.phi / DEG, 12), round(soil.dense.phi / DEG, 12)],
             "cohesion_pa": [soil.loose.c, soil.dense.c], "unit_weight_n_m3": [soil.loose.gamma, soil.dense.gamma],
             "source": soil.source}
+
+
+SOIL_FIELDS = ("name", "phi_deg", "cohesion_pa", "unit_weight_n_m3", "source")
+
 # Below these a value is another unit's, not a soil's: no soil a bulldozer cuts weighs less than
 # ~10 kN/m^3 (peat; kg/m^3 gives 1-2.5e3), a cohesion of a few Pa is nothing (kPa gives 0.5-50),
 # and a friction angle below pi/2 at both densities is a radian's (a small phi is a soil, so

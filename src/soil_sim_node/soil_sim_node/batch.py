@@ -283,19 +283,15 @@ def _check_kept_alike(plan: DatasetPlan, resolved) -> None:
     without a word (an outside tester's). A plugin's parameters and a custom soil's properties are
     not in a bag's metadata: a resume with another k of the same plugin, or another φ of a soil of
     the same name, is not caught."""
-    from soil_msgs_py.episode import EpisodeMeta
-    from soil_bag_tools.bag_io import META_KEY, bag_custom_data
+    from soil_bag_tools.bag_io import read_meta
 
     config = plan.config()
     for spec, soil in resolved:
         mine = episode_meta(config, spec, soil.name, plan.effects.enabled())
         path = plan.out / mine.name
         try:
-            custom = bag_custom_data(path)
-            if META_KEY not in custom:
-                raise ValueError(f"it has no episode metadata (custom_data key {META_KEY!r})")
-            theirs = EpisodeMeta.from_json(custom[META_KEY])
-        except (TypeError, ValueError, OSError) as err:
+            theirs = read_meta(path)
+        except (ValueError, OSError) as err:
             raise FileExistsError(f"{path}, which --skip-existing would keep, cannot be read: {err}; nothing written "
                                   f"({OVERWRITE_ALL})") from None
         for name in KEPT_FIELDS:

@@ -190,7 +190,7 @@ class ForcePlugin:
                 if not np.all(np.isfinite(arr)):
                     bad = arr[~np.isfinite(arr)][0]
                     raise PluginError(f"plugin={self.target!r} returned {name}={bad} (not finite)")
-                bad = arr[np.abs(arr) > MAX_PLAUSIBLE_FORCE_N][0]
+                bad = arr[magnitude > MAX_PLAUSIBLE_FORCE_N][0]
                 raise PluginError(f"plugin={self.target!r} returned {name}={bad:.3g} N, beyond ±{MAX_PLAUSIBLE_FORCE_N:.3g} N "
                                   "(300 times the machine's force limit: a plugin's unit or sign error?)")
             self.peak_n = max(self.peak_n, float(magnitude.max(initial=0.0)))
