@@ -24,7 +24,7 @@ from pinn_estimator.shipped import MODELS_DIR
 from pinn_estimator.fusion_calibration import (NOMINAL, acceptable_shape_laws, calibrate, choose_evidence_law,
                                               config_path, coverage_tolerance, forecast_scores, load_calibrated)
 from anti_stall_controller.controller import AntiStallGains
-from soil_msgs_py.params import DEG, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ
+from soil_msgs_py.params import DEG, FORCE_LIMITS_N, GROUND_TRUTH_PARAMS, KNOWN_PARAMS, MACHINE, SAMPLE_RATE_HZ
 from soil_sim_node.rollout import run_episodes
 from soil_sim_node.simulator import EpisodeSpec, SimConfig
 
@@ -596,7 +596,7 @@ def test_mixture_quantiles_are_the_normal_ones_for_one_component_and_ordered():
     assert upper_magnitude(np.array([1.0]), np.array([[-10.0]]), np.array([[1.0]]), 0.95)[0] > 11.0
 
 
-@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0), ("drift_per_sqrt_m", float("inf")),
+@pytest.mark.parametrize("field, value", [("rel_std", (0.01, -1.0)), ("forecast_rel_std", (0.1,)), ("forecast_abs_std_n", (0.0, 5.0)), ("forecast_limit_std", (0.1, -0.1)), ("forecast_limit_std", (0.0, 11.0)), ("abs_std_n", (0.0, 10.0)), ("evidence_weight", 0.0), ("patch_length_m", -1.0), ("drift_per_sqrt_m", float("inf")),
                                           ("cohesionless_prior", 1.5), ("stiff_prior", -0.1), ("stiff_prior", 0.6),
                                           ("shape_abs_std_n", (0.0, 2.0)), ("shape_rel_std", (0.1, -0.1)),
                                           ("shape_noise_gain", -1.0), ("shape_evidence", 1),
@@ -1196,9 +1196,11 @@ def test_calibration_picks_the_evidence_law_by_accuracy_and_widens_forecasts_unt
                           floor_grid=(20.0,), log=said.append)
     # stage 1: each shape law with each evidence law (with the truth: the parameters' coverage),
     # then its skill; the chosen law's own drift (the default 0.01) and each of the grid's, and the
-    # drift chosen; stage 2: the pairs it calibrates on (both depths from 7 cm), each forecast law
+    # drift chosen; stage 2: the pairs it calibrates on (both depths from 7 cm), each forecast law,
+    # its part near the F_x limit (none: too few of these clay cuts' pairs are beyond the margin)
     assert said[10] == "forecast law: 6 of 12 pairs, both depths at least 0.07 m"
-    assert len(said) == 2 * (2 + 1) + 4 + 1 + 2 and sum("rel_std" in line and "skill" in line for line in said) == 2
+    assert len(said) == 2 * (2 + 1) + 4 + 1 + 2 + 1 and sum("rel_std" in line and "skill" in line for line in said) == 2
+    assert re.match(r"forecast law near the F_x limit: none \(\d pairs? beyond", said[-1]) and cfg.forecast_limit_std == (0, 0)
     assert sum("intervals hold φ" in line for line in said) == 2 * 2 + 3
     assert [line.split(":")[0] for line in said[6:9]] == [f"drift_per_sqrt_m {d}" for d in ("0.01", "0", "0.02")]
     assert said[9] == f"  drift_per_sqrt_m {cfg.drift_per_sqrt_m:g}" and cfg.drift_per_sqrt_m in (0.0, 0.01, 0.02)
@@ -1318,6 +1320,47 @@ def test_a_forecast_law_is_judged_by_the_predictive_cdf_at_the_measured_force():
     assert [m.tolist() for m in reach_strata([0.1, 0.1, 0.1])] == [[True, True, True]]
     assert [m.tolist() for m in reach_strata([0.1, 0.1, 0.1, 0.2])] == [[True, True, True, False], [False, False, False, True]]
     assert [m.tolist() for m in reach_strata([])] == [[]]
+
+
+def test_the_forecast_laws_part_near_the_x_limit_is_calibrated_on_the_pairs_beyond_the_margin_alone():
+    """``forecast_limit_std``: a share of each axis's limit the forecast's model error adds as a
+    sample's F_x goes from the planner's margin to the F_x limit (``near_limit_error_std``), where
+    the anti-stall controller's lift sets the force. ``choose_limit_shares`` keeps the base law and
+    chooses the share on the pairs beyond the margin alone: F_z missing there by ~4 kN (the lift's
+    push) takes ~0.2 of the 30 kN limit at 2/3 of the ramp, F_x holding there takes none, and the
+    pairs within the margin are forecast exactly as before; too few pairs beyond it: none."""
+    from pinn_estimator.fusion import Predictive
+    from pinn_estimator.fusion_calibration import PairForecast, choose_limit_shares, interval_level, predictive_cdf
+    from soil_physics.predictive import near_limit_error_std
+
+    ramp = np.array([0.0, 0.0, 0.5, 1.0, 1.0])
+    fx = np.array([0.0, 0.85, 0.925, 1.0, 1.5]) * FORCE_LIMITS_N[0]
+    np.testing.assert_allclose(near_limit_error_std(fx, 0.2, 1), 0.2 * FORCE_LIMITS_N[1] * ramp)
+    np.testing.assert_allclose(near_limit_error_std(-fx, 0.1, 0), 0.1 * FORCE_LIMITS_N[0] * ramp)  # |F_x|
+    assert not near_limit_error_std(fx, 0.0, 1).any()
+
+    rng = np.random.default_rng(3)
+    post = SoilPosterior()
+    law = FusionConfig(forecast_abs_std_n=(200.0, 20.0), forecast_rel_std=(0.0, 0.0))
+
+    def pair(fx_n, x_error_n, z_error_n):
+        pred = Predictive(np.ones(1), np.array([[fx_n], [0.0]]), np.zeros((2, 1)))
+        return PairForecast(np.array([fx_n + x_error_n, z_error_n]), np.zeros(2), post, pred, 0.1)
+
+    within = [pair(10e3, x, z) for x, z in zip(rng.normal(0, 200, 60), rng.normal(0, 20, 60))]
+    beyond = [pair(19e3, x, z) for x, z in zip(rng.normal(0, 200, 40), rng.normal(0, 4e3, 40))]
+    said = []
+    chosen = choose_limit_shares(within + beyond, law, log=said.append)
+    assert "on the 40 pairs of 100" in said[0] and said[-1].startswith("  chosen: x 0, z ")
+    assert chosen.forecast_limit_std[0] == 0.0 and 0.1 <= chosen.forecast_limit_std[1] <= 0.3
+    np.testing.assert_array_equal(predictive_cdf(within, chosen), predictive_cdf(within, law))
+    held = interval_level(predictive_cdf(beyond, chosen))[:, 1]
+    assert np.mean(interval_level(predictive_cdf(beyond, law))[:, 1] <= 0.9) < 0.1 < 0.8 <= np.mean(held <= 0.9)
+    # a config that has a part already: the base law is judged without it
+    assert choose_limit_shares(within + beyond, dataclasses.replace(law, forecast_limit_std=(0.5, 0.5)),
+                               log=said.append) == chosen
+    assert choose_limit_shares(within + beyond[:9], law, log=said.append).forecast_limit_std == (0.0, 0.0)
+    assert "none (9 pairs beyond" in said[-1]
 
 
 def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():

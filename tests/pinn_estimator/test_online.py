@@ -71,11 +71,11 @@ def in_order(ep, ticks):
 
 
 # Typical size of each field (rad, Pa, rad, rad, m, 6 forces N, flag, count; then the fused
-# means and stds (rad, Pa, rad, rad), 3 correlations, model error (N, N, 1, 1), flag, count):
+# means and stds (rad, Pa, rad, rad), 3 correlations, model error (N, N, 1, 1, 1, 1), flag, count):
 # float32 rounding differs between batch sizes by ~1e-7 of the network's output scale, not of
 # the value (the fused fields are float64 and the same ops online and offline: equal).
 SCALE = np.array([1.0, 1e4, 1.0, 1.0, 0.1] + [2e4] * 6 + [1.0, 60.0]
-                 + [1.0, 1e4, 1.0, 1.0] * 2 + [1.0] * 3 + [1e3, 1e3, 1.0, 1.0, 1.0, 100.0])
+                 + [1.0, 1e4, 1.0, 1.0] * 2 + [1.0] * 3 + [1e3, 1e3, 1.0, 1.0, 1.0, 1.0, 1.0, 100.0])
 assert len(SCALE) == len(T.ESTIMATE_FIELDS)
 
 

@@ -28,8 +28,9 @@ def estimate(ep, row: int, valid: bool, window: int, offsets=(2 * DEG, 500.0, -1
     return values
 
 
-def write_bag_with_estimates(path: Path, ep, estimates: list[tuple[int, np.ndarray]]) -> Path:
-    """An episode bag like the recorder's: the episode topics plus /soil/estimate."""
+def write_bag_with_estimates(path: Path, ep, estimates: list[tuple[int, np.ndarray]], labels=T.ESTIMATE_FIELDS) -> Path:
+    """An episode bag like the recorder's: the episode topics plus /soil/estimate (in the layout of
+    ``labels``: an older one's, each estimate's values of those fields)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -39,6 +40,7 @@ def write_bag_with_estimates(path: Path, ep, estimates: list[tuple[int, np.ndarr
         for topic, stamp, raw in M.serialize_episode(ep, M.TYPESTORE):
             writer.write(conns[topic], stamp, raw)
         for stamp, values in estimates:
-            msg = M.make_labelled(M.TYPESTORE, stamp, T.ESTIMATE_FIELDS, values)
+            values = [values[T.ESTIMATE_FIELDS.index(name)] for name in labels]
+            msg = M.make_labelled(M.TYPESTORE, stamp, labels, values)
             writer.write(conns[T.ESTIMATE.name], stamp, M.TYPESTORE.serialize_cdr(msg, T.ESTIMATE.msgtype))
     return path

@@ -360,12 +360,14 @@ def test_missing_fields_and_bad_settings_are_named():
 
 # ---------------------------------------------------------------------------- the fused posterior
 
-def _fused(est: dict, phi, c, delta, std=(0.0, 0.0, 0.0), corr=(0.0, 0.0, 0.0), rel=(0.0, 0.0), abs_n=(1.0, 1.0)) -> dict:
+def _fused(est: dict, phi, c, delta, std=(0.0, 0.0, 0.0), corr=(0.0, 0.0, 0.0), rel=(0.0, 0.0), abs_n=(1.0, 1.0),
+           limit=(0.0, 0.0)) -> dict:
     """``est`` with a valid fused posterior of these moments and error law."""
     out = dict(est, phi_fused=phi, c_fused=c, delta_fused=delta, beta_fused=25 * DEG, beta_std=0.0,
                phi_std=std[0], c_std=std[1], delta_std=std[2], corr_phi_c=corr[0], corr_phi_delta=corr[1],
                corr_c_delta=corr[2], model_std_rel_x=rel[0], model_std_rel_z=rel[1], model_std_abs_x=abs_n[0],
-               model_std_abs_z=abs_n[1], fused_valid=1.0, fused_stretches=4.0)
+               model_std_abs_z=abs_n[1], model_std_limit_x=limit[0], model_std_limit_z=limit[1], fused_valid=1.0,
+               fused_stretches=4.0)
     return out
 
 
@@ -444,6 +446,30 @@ def test_uncertainty_and_a_higher_quantile_make_the_plan_shallower_never_deeper(
     # a model error law widens it too
     err = max_cut_depth(_fused(point, 32 * DEG, 2e3, 15 * DEG, rel=(0.2, 0.2)), known).max_depth_m
     assert err < depths["sharp"]
+
+
+def test_the_published_laws_part_near_the_x_limit_widens_an_unanchored_bound_there_only():
+    """``model_std_limit_*``: the forecast law's part near the F_x limit, from each sample's own
+    F_x (``predictive.near_limit_error_std``). An unanchored bound is the posterior's own forecast
+    and takes it: near the F_x limit the F_z bound rises, at a shallow cut (F_x far below the
+    planner's margin of the limit) nothing changes. An anchored bound with a bound law of its own
+    (calibrated on anchored bounds, without such a part) ignores it."""
+    known = _known(d=0.12, q=1000.0)
+    point = _estimate(known, phi=32 * DEG, c=2e3, delta=15 * DEG)
+    plain = _fused(point, 32 * DEG, 2e3, 15 * DEG, std=(1 * DEG, 100.0, 0.1 * DEG), rel=(0.05, 0.05))
+    near = dict(plain, model_std_limit_z=0.2)
+    fx, fz = fused_upper_force(plain, known, DEPTHS := np.array([0.02, 0.6]))
+    assert fx[0] < 0.5 * DEFAULT_MARGIN * FORCE_LIMITS_N[0] < FORCE_LIMITS_N[0] < fx[1]  # shallow; far past the limit
+    wx, wz = fused_upper_force(near, known, DEPTHS)
+    assert wz[0] == fz[0] and wx.tolist() == fx.tolist()
+    assert wz[1] > fz[1] + 0.2 * FORCE_LIMITS_N[1]  # the whole share there (beyond the limit), at the 95 % quantile
+    assert max_cut_depth(near, known).max_depth_m <= max_cut_depth(plain, known).max_depth_m
+    law = (1.0, 1.0, 0.05, 0.05)
+    anchor = ((plain["f_x_hat"], plain["f_z_hat"]), known)
+    assert (fused_upper_force(near, known, DEPTHS, anchor=anchor, bound_law=law)[1].tolist()
+            == fused_upper_force(plain, known, DEPTHS, anchor=anchor, bound_law=law)[1].tolist())
+    with pytest.raises(ValueError, match="model_std_limit_z"):
+        max_cut_depth(dict(plain, model_std_limit_z=-0.1), known)
 
 
 def test_a_bound_law_of_its_own_replaces_the_estimates_and_a_bad_one_is_named():
@@ -1054,7 +1080,8 @@ def test_posterior_samples_the_force_now_rules_out_do_not_forbid_every_depth():
                 'phi_std': 0.096851, 'c_std': 2123.63348, 'delta_std': 0.118275, 'beta_std': 0.074076,
                 'corr_phi_c': -0.678454, 'corr_phi_delta': 0.327828, 'corr_c_delta': -0.83562,
                 'model_std_abs_x': 1000.0, 'model_std_abs_z': 1000.0, 'model_std_rel_x': 0.01,
-                'model_std_rel_z': 0.8, 'fused_valid': 1.0, 'fused_stretches': 37.0, 'valid': 1.0,
+                'model_std_rel_z': 0.8, 'model_std_limit_x': 0.0, 'model_std_limit_z': 0.0, 'fused_valid': 1.0,
+                'fused_stretches': 37.0, 'valid': 1.0,
                 'f_x_hat': 16442.154297, 'f_z_hat': -10159.532227}
     known = {'c_a': 200.0, 'gamma': 19200.0, 'rho': 1.396263, 'alpha': 0.0, 'w': 3.164, 'd': 0.105778,
              'q': 5780.893017, 'v_x': 0.471351, 'v_z': -0.024062}

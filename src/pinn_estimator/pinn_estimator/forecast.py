@@ -588,7 +588,8 @@ def _margin_text(report: dict, name: str) -> str:
             f"({strata['margin']:g} of the limit, below {strata['limit_n'] / 1e3:g} kN: about the cuts a planner plans, "
             f"which keeps the 95 % bound within it): {said(cells['within'])}; "
             f"beyond it: {said(cells['beyond'])}. At the limit the anti-stall controller lifts the blade, and its push "
-            "(in the default world the floor carries it) is in no soil model's F_z.")
+            "(in the default world the floor carries it) is in no soil model's F_z: where the calibration pairs beyond "
+            "the margin say so, the forecast law widens toward the limit (its part near it, forecast_limit_std).")
 
 
 def markdown(report: dict, intro: str | None = None) -> list[str]:

@@ -64,7 +64,7 @@ from soil_msgs_py.params import DEG, FORCE_LIMITS_N, KNOWN_PARAMS, MIN_CUT_DEPTH
 from soil_physics import fee
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.blade_inertia import blade_position, blade_velocity, inertia_force_n
-from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std
+from soil_physics.predictive import extrapolated_part, mixture_quantiles, model_error_std, near_limit_error_std
 from soil_physics.travel import soil_advance, time_in_soil_of_known
 
 from .fusion_config import FusionConfig
@@ -722,8 +722,10 @@ class Predictive(NamedTuple):
 
 def forecast_error_std(pred: Predictive, cfg: FusionConfig, axis: int) -> np.ndarray:
     """(S,) the forecast law's model error [N] around each sample's force on ``axis`` (0 x, 1 z):
-    ``cfg``'s floor + share of what the sample extrapolates."""
-    return model_error_std(pred.extrapolated_n[axis], cfg.forecast_abs_std_n[axis], cfg.forecast_rel_std[axis])
+    ``cfg``'s floor + share of what the sample extrapolates + its part near the F_x limit (from
+    the sample's own forecast F_x, ``near_limit_error_std``)."""
+    return (model_error_std(pred.extrapolated_n[axis], cfg.forecast_abs_std_n[axis], cfg.forecast_rel_std[axis])
+            + near_limit_error_std(pred.force_n[0], cfg.forecast_limit_std[axis], axis))
 
 
 def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:
@@ -739,6 +741,7 @@ def fused_values(summary: Summary | None, cfg: FusionConfig) -> np.ndarray:
     values.update({f"corr_{k}": v for k, v in summary.corr.items()})
     values.update(model_std_abs_x=cfg.forecast_abs_std_n[0], model_std_abs_z=cfg.forecast_abs_std_n[1],
                   model_std_rel_x=cfg.forecast_rel_std[0], model_std_rel_z=cfg.forecast_rel_std[1],
+                  model_std_limit_x=cfg.forecast_limit_std[0], model_std_limit_z=cfg.forecast_limit_std[1],
                   fused_valid=1.0, fused_stretches=float(summary.updates))
     out[:] = [values[n] for n in FUSED_FIELDS]
     if not np.isfinite(out).all():

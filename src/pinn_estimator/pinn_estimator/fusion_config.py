@@ -20,7 +20,8 @@ from soil_physics import force_terms
 from soil_physics.augmented_fee import AugmentedFEE
 from soil_physics.soils import soil_from_dict, soil_to_dict
 
-PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "shape_abs_std_n", "shape_rel_std")  # (x, z) each
+PAIR_FIELDS = ("abs_std_n", "rel_std", "forecast_rel_std", "forecast_abs_std_n", "forecast_limit_std", "shape_abs_std_n",
+               "shape_rel_std")  # (x, z) each
 BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
 
 
@@ -37,6 +38,7 @@ INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600)
 # OverflowError or an inf variance and a posterior of NaN): a model error of ten times the force,
 # a floor of a meganewton.
 STD_FIELD_MAX = {"prior_std": 10.0, "rel_std": 10.0, "forecast_rel_std": 10.0, "shape_rel_std": 10.0, "bound_rel_std": 10.0,
+                 "forecast_limit_std": 10.0,
                  "abs_std_n": 1e6, "forecast_abs_std_n": 1e6, "shape_abs_std_n": 1e6, "bound_abs_std_n": 1e6}
 
 
@@ -60,6 +62,11 @@ class FusionConfig:
     # themselves, while rel_std stays what lets stretches at two depths pin φ and c down.
     forecast_rel_std: tuple[float, float] = (0.05, 0.05)
     forecast_abs_std_n: tuple[float, float] = (20.0, 20.0)  # its floor (x, z) [N]: a force near 0 is not known to 0
+    # What the forecast's model error adds (x, z) as a sample's forecast F_x goes from the planner's
+    # margin to the F_x limit, a share of the axis's force limit (``predictive.near_limit_error_std``):
+    # there the anti-stall controller's lift sets the force as much as the soil does. 0: nothing
+    # (configs written before it had none; the fee world's calibration keeps 0).
+    forecast_limit_std: tuple[float, float] = (0.0, 0.0)
     unsteady_gain: float = 1.0  # model error per unit of the force's spread within the stretch (transients)
     evidence_weight: float = 1.0  # κ: tempering of each stretch's log-likelihood
     drift_per_sqrt_m: float = 0.01  # soil drift within a patch: share of the prior box per √m of travel

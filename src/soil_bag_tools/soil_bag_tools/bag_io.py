@@ -528,9 +528,11 @@ def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Epi
     return [read_episode(b) for b in bags]
 
 
-def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...],
+                        older: tuple[tuple[str, ...], ...] = ()) -> tuple[np.ndarray, np.ndarray]:
     """(stamps int64 (n,), values float64 (n, len(labels))) of a labelled-array topic in a bag,
-    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode).
+    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode);
+    ``older``: its layouts of before (``messages.parse_labelled``), read with the fields they lack 0.
 
     BagReadError if the bag lacks the topic, a message has another layout or the bag is damaged."""
     path = Path(bag_dir)
@@ -541,7 +543,7 @@ def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[st
         if not conns:
             raise BagReadError(path, f"has no topic {ns + topic}")
         for conn, _, raw in reader.messages(connections=conns):
-            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
+            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic, older)
             stamps.append(stamp)
             rows.append(values)
     values = np.stack(rows) if rows else np.empty((0, len(labels)))

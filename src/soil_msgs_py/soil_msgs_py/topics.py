@@ -84,15 +84,17 @@ TOPICS_BY_NAME: dict[str, Topic] = {t.name: t for t in EPISODE_TOPICS}
 # from every stretch of cutting since the episode began: means [rad, Pa, rad], β* over the
 # posterior [rad], standard deviations and correlations (a Gaussian with these moments is what
 # a planner can sample; the posterior itself is a Gaussian sum), the calibrated forecast error
-# law σ_j = abs_j + rel_j·|ΔF_j| [N, 1] (what a forecast adds to the spread of θ's force; ΔF the
-# part of the force extrapolated from where the evidence was measured, ``predictive.extrapolated_part``),
+# law σ_j = abs_j + rel_j·|ΔF_j| + limit_j·L_j·ramp [N, 1, 1] (what a forecast adds to the spread
+# of θ's force; ΔF the part of the force extrapolated from where the evidence was measured,
+# ``predictive.extrapolated_part``; ramp grows from 0 where a sample's |F_x| is the planner's
+# margin of the F_x limit to 1 at that limit, L_j is axis j's force limit: ``predictive.near_limit_error_std``),
 # fused_valid (1.0 once a stretch was learnt from; independent of ``valid``, which is the PINN
 # window's) and the stretches learnt from.
 FUSED_FIELDS: tuple[str, ...] = (
     "phi_fused", "c_fused", "delta_fused", "beta_fused",
     "phi_std", "c_std", "delta_std", "beta_std",
     "corr_phi_c", "corr_phi_delta", "corr_c_delta",
-    "model_std_abs_x", "model_std_abs_z", "model_std_rel_x", "model_std_rel_z",
+    "model_std_abs_x", "model_std_abs_z", "model_std_rel_x", "model_std_rel_z", "model_std_limit_x", "model_std_limit_z",
     "fused_valid", "fused_stretches",
 )
 ESTIMATE_FIELDS: tuple[str, ...] = (
@@ -100,12 +102,18 @@ ESTIMATE_FIELDS: tuple[str, ...] = (
     "f_x_hat", "f_z_hat", "f_x_fee", "f_z_fee", "f_x_r", "f_z_r",
     "valid", "window_samples",
 ) + FUSED_FIELDS
+# /soil/estimate's layouts before fields were added (``messages.parse_labelled``'s ``older``): a bag
+# recorded then is read with the fields a layout lacks 0.0, what they meant then (2026-12-07: the
+# forecast law's part near the F_x limit, none before).
+ESTIMATE_LAYOUTS_BEFORE: tuple[tuple[str, ...], ...] = (
+    tuple(n for n in ESTIMATE_FIELDS if n not in ("model_std_limit_x", "model_std_limit_z")),
+)
 ESTIMATE = Topic(
     "/soil/estimate", "std_msgs/msg/Float64MultiArray",
     "PINN estimate from the window ending at the stamped sample: φ [rad], c [Pa], δ [rad], "
     "β [rad], Δd [m], F̂ = F_FEE + F_r [N] (x, z each), validity flag, window fill; then the soil "
     "fused along the path: means, standard deviations and correlations of φ, c, δ (β*), the "
-    "model-error law [N, 1], its validity flag and stretch count",
+    "model-error law [N, 1, 1], its validity flag and stretch count",
     ESTIMATE_FIELDS,
 )
 # The fused soil along the path, one point per cell of blade travel (``pinn_estimator.soil_map``).

@@ -102,7 +102,8 @@ from soil_msgs_py.params import (DEFAULT_TARGET_SPEED_M_S, DEG, FORCE_LIMITS_N, 
 from soil_msgs_py.messages import PLAUSIBLE_ABS_LIMIT
 from soil_msgs_py.topics import ESTIMATE_FIELDS, FUSED_FIELDS, PLAN_FIELDS
 from soil_msgs_py.values import short_repr
-from soil_physics.predictive import extrapolated_part, model_error_std, upper_magnitude, within_magnitude
+from soil_physics.predictive import (extrapolated_part, model_error_std, near_limit_error_std, upper_magnitude,
+                                     within_magnitude)
 
 # The edge reaches 0.30 m below the chassis ground reference p_z^c: d = 0.3 m with the chassis
 # on level, uncut ground; deeper in d once the chassis rides on its own cut (module docstring).
@@ -144,7 +145,7 @@ FUSED_LIMITS: dict[str, tuple[float, float]] = {
     **{f"{n}_fused": TABLE1[n].limits for n in ("phi", "c", "delta")},
     **{f"{n}_std": (0.0, math.inf) for n in ("phi", "c", "delta")},
     **{f"corr_{k}": (-1.0, 1.0) for k in ("phi_c", "phi_delta", "c_delta")},
-    **{f"model_std_{k}": (0.0, math.inf) for k in ("abs_x", "abs_z", "rel_x", "rel_z")},
+    **{f"model_std_{k}": (0.0, math.inf) for k in ("abs_x", "abs_z", "rel_x", "rel_z", "limit_x", "limit_z")},
 }
 # Estimate fields the plan reads (all are checked: a broken estimate is not trusted at all).
 ESTIMATE_LIMITS: dict[str, tuple[float, float]] = {
@@ -510,7 +511,8 @@ class _FusedForceModel:
         x = np.clip(x, lo, hi)
         self.theta = {**known, "phi": x[:, 0], "c": x[:, 1], "delta": x[:, 2], "v_x": cut_speed_m_s, "v_z": 0.0}
         self.quantile = quantile
-        self.law = ((est["model_std_abs_x"], est["model_std_rel_x"]), (est["model_std_abs_z"], est["model_std_rel_z"]))
+        self.law = ((est["model_std_abs_x"], est["model_std_rel_x"], est["model_std_limit_x"]),
+                    (est["model_std_abs_z"], est["model_std_rel_z"], est["model_std_limit_z"]))
         self.beta_rad = float(fee.critical_beta(est["phi_fused"], est["delta_fused"], known["c_a"], known["rho"],
                                                 known["alpha"], cut_speed_m_s, 0.0))
         if not math.isfinite(self.beta_rad):
@@ -546,7 +548,7 @@ class _FusedForceModel:
                 self.allowed = consistent
         if bound_law is not None and self.residual_used:  # calibrated on anchored bounds; unanchored,
             # the bound is the posterior's own forecast, whose law is the published one
-            self.law = ((bound_law[0], bound_law[2]), (bound_law[1], bound_law[3]))
+            self.law = ((bound_law[0], bound_law[2], 0.0), (bound_law[1], bound_law[3], 0.0))  # (no part near the limit)
         # what the error law's relative part counts from, per axis (S,): the force now when anchored,
         # else each sample's own force at the current depth (where the posterior's evidence is,
         # as ``SoilPosterior.forecast`` counts from its newest stretch)
@@ -581,12 +583,14 @@ class _FusedForceModel:
         w = ok.astype(float)
         carried = self._anchor_error(fx, d)
         out = []
-        for f, raw, (a, r), now, extra in ((fx, raw_x, self.law[0], self.reference[0], carried[0]),
-                                           (fz, raw_z, self.law[1], self.reference[1], carried[1])):
+        for axis, (f, raw, (a, r, near), now, extra) in enumerate(((fx, raw_x, self.law[0], self.reference[0], carried[0]),
+                                                                   (fz, raw_z, self.law[1], self.reference[1], carried[1]))):
             f, raw = np.where(ok, f, 0.0), np.where(ok, raw, 0.0)
             # the relative error applies to what is extrapolated from the reference, and never
-            # exceeds the sample's own force's share (an anchor adds knowledge, never doubt)
-            law = model_error_std(extrapolated_part(f, now, raw), a, r)
+            # exceeds the sample's own force's share (an anchor adds knowledge, never doubt); the
+            # published law's part near the F_x limit, from each sample's own F_x, as the posterior's
+            law = (model_error_std(extrapolated_part(f, now, raw), a, r)
+                   + near_limit_error_std(np.where(ok, fx, 0.0), near, axis))
             out.append((w, f, np.sqrt(law ** 2 + np.where(ok, extra, 0.0) ** 2) + 1e-9))
         return out
 
