@@ -966,7 +966,7 @@ def limit_text(cfg: FusionConfig, axis: int) -> str:
 
 def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
     """Calibration curve: nominal central interval vs the share of forecasts it holds, the sweep
-    dotted, the chosen config solid (x) and dashed (z)."""
+    dotted (each a base law, before its part near the F_x limit), the chosen config solid (x) and dashed (z)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -976,8 +976,10 @@ def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
     ax.plot([0, 1], [0, 1], "k:", lw=1, label="perfect calibration")
     for r in rows:
         ax.plot(NOMINAL, r["curve"]["x"], color="0.8", lw=0.8)
-    ax.plot(NOMINAL, final["curve"]["x"], "-o", ms=3, label=f"F_x (forecast rel {final['forecast_rel_std'][0]:g})")
-    ax.plot(NOMINAL, final["curve"]["z"], "--s", ms=3, label=f"F_z (forecast rel {final['forecast_rel_std'][1]:g})")
+    near = final.get("forecast_limit_std", (0.0, 0.0))
+    for j, (axis, style) in enumerate((("x", "-o"), ("z", "--s"))):
+        part = f", {near[j]:g} of its limit near the F_x limit" if near[j] else ""
+        ax.plot(NOMINAL, final["curve"][axis], style, ms=3, label=f"F_{axis} (forecast rel {final['forecast_rel_std'][j]:g}{part})")
     ax.set_xlabel("nominal central interval")
     ax.set_ylabel("share of forecasts holding the measured force")
     ax.set_title(title, fontsize=9)
@@ -1094,7 +1096,7 @@ def main(argv=None) -> int:
     cfg.save(out)
     final = {"forecast_rel_std": cfg.forecast_rel_std,
              "curve": coverage_curve(ds, cfg, pairs=calibrated_reach(pairs), width=False)}
-    final["forecast_abs_std_n"] = cfg.forecast_abs_std_n
+    final["forecast_abs_std_n"], final["forecast_limit_std"] = cfg.forecast_abs_std_n, cfg.forecast_limit_std
     plot_curve(rows, final, out.with_suffix(".png"),
                f"fused forecast at another depth, {args.world} world{' (noisy force)' if args.force_noise else ''}"
                f"{' with plugins' if args.plugin else ''}: calibration episodes")
