@@ -309,6 +309,16 @@ def test_repair_rebuilds_a_lost_or_garbled_metadata_yaml_from_the_mcaps_own_reco
         f.truncate(mcap_of(cut).stat().st_size // 2)
     out = run("soil_bag_repair", cut, timeout=60)
     assert out.returncode == 1 and "carries no rosbag2 metadata record" in out.stderr, out.stderr
+    # and the readers do not send such a bag to the repair (an outside tester's: a bag `ros2 bag record`
+    # was killed in, sent to soil_bag_repair, which then found nothing to rebuild it from)
+    (cut / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    with pytest.raises(bag_io.BagReadError) as err:
+        bag_io.read_episode(cut)
+    assert "soil_bag_repair" not in str(err.value) and f"`ros2 bag reindex {cut}`" in str(err.value), str(err.value)
+    (cut / "metadata.yaml").unlink()
+    note = bag_io.passed_by_note([mcap_of(cut)], tmp_path)
+    assert "`ros2 bag reindex DIR`" in note and "soil_bag_repair" not in note, note
+    assert "soil_bag_repair DIR copies it with one rebuilt" in bag_io.passed_by_note([mcap_of(fresh)], tmp_path)
     # a recordings directory holding a loose .mcap beside a killed recorder's journal is searched, as
     # before: its journal becomes a bag, the loose file is no bag to copy (an outside reviewer's)
     live = tmp_path / "live"

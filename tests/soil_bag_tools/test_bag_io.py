@@ -406,6 +406,38 @@ def test_missing_episode_metadata(tmp_path: Path, ep: Episode) -> None:
     bag = write_raw(tmp_path / "nometa", ep, meta=False)
     with pytest.raises(ValueError, match="no episode metadata"):
         read_episode(bag)
+    # written into metadata.yaml by hand as a YAML mapping, not the JSON text rosbag2 keeps there
+    import yaml
+
+    meta = bag / "metadata.yaml"
+    info = yaml.safe_load(meta.read_text())
+    info["rosbag2_bagfile_information"]["custom_data"] = {"insitu_soil.episode": json.loads(ep.meta.to_json())}
+    meta.write_text(yaml.safe_dump(info))
+    with pytest.raises(ValueError, match="must be one JSON text .* not a dict: write it as json.dumps"):
+        read_episode(bag)
+
+
+def test_the_readmes_recipe_adds_the_episode_metadata_to_a_bag_ros2_bag_record_wrote(tmp_path: Path) -> None:
+    """The README's snippet for a machine's bag whose ``custom_data`` is null (as ``ros2 bag record``
+    writes it): run as printed on such a copy of a sample bag, the bag is then read as a machine's."""
+    import shutil
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "README.md").read_text()
+    start = text.index("import json, yaml   # add the episode metadata")
+    code = text[start:text.index("```", start)]
+    bag = shutil.copytree(root / "bags/samples/default_loam_id060_v0.50_d0.200_s7", tmp_path / "run_0001")
+    meta = bag / "metadata.yaml"
+    info = yaml.safe_load(meta.read_text())
+    info["rosbag2_bagfile_information"]["custom_data"] = None
+    meta.write_text(yaml.safe_dump(info))
+    with pytest.raises(ValueError, match="no episode metadata"):
+        read_episode(bag)
+    exec(compile(code.replace("bags/site/run_0001/metadata.yaml", str(meta)), "README.md", "exec"), {})
+    ep = read_episode(bag)
+    assert ep.meta.soil == "unknown" and ep.meta.world_mode == "unknown" and len(ep) > 0
 
 
 @pytest.mark.parametrize("field, value, needle", [("relative_density_pct", "eighty", "relative_density_pct='eighty' must be a finite number"),

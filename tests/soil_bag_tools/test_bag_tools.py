@@ -766,6 +766,53 @@ def test_play_says_an_excluded_topic_no_bag_holds_as_it_says_a_selected_one():
     assert "no topic(s) /soil/estimat (did you mean /soil/estimate?), named by --exclude" in out.stderr, out.stderr
 
 
+def test_a_robots_bag_plays_without_topics_of_types_not_installed_and_a_contract_topic_of_another_type_is_refused(
+        listener, tmp_path):
+    """A real robot's bag holds /tf (tf2_msgs, not installed here): the player had refused the whole
+    bag (exit 2, naming neither topic nor way out); now it plays the rest and names what it leaves
+    out. A topic of the contract's name but another type (/blade/force recorded as a Wrench) had
+    been played where no node of the graph hears it, with only "fewer than 1 subscribers" said: now
+    refused, naming the topic, both types and --exclude (an outside tester's)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)  # (it has tf2_msgs, which this machine's ROS lacks)
+    bag = playback.load_bag(SAMPLE)
+
+    def robot_bag(path, force_type):
+        with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+            w.set_custom_data(bag_io.META_KEY, bag_io.bag_custom_data(SAMPLE)[bag_io.META_KEY])
+            conns = {t: w.add_connection(t, mt if t != "/blade/force" else force_type, typestore=store)
+                     for t, mt in bag.topics.items()}
+            tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=store)
+            empty = store.serialize_cdr(store.types["tf2_msgs/msg/TFMessage"](transforms=[]), "tf2_msgs/msg/TFMessage")
+            Wrench, Vector3 = store.types["geometry_msgs/msg/Wrench"], store.types["geometry_msgs/msg/Vector3"]
+            for t, topic, raw in bag.messages:
+                if topic == "/blade/force" and force_type != T.BLADE_FORCE.msgtype:
+                    raw = store.serialize_cdr(Wrench(force=Vector3(x=1.0, y=0.0, z=2.0), torque=Vector3(x=0.0, y=0.0, z=0.0)),
+                                              force_type)
+                w.write(conns[topic], t, raw)
+                if topic == "/clock":
+                    w.write(tf, t, empty)
+        return path
+
+    with_tf = robot_bag(tmp_path / "with_tf", T.BLADE_FORCE.msgtype)
+    domain = next_domain_id()
+    lst = listener(domain, topics=("/blade/force",))
+    player = start("soil_bag_play", with_tf, "--rate", 4, "--wait-for-subscribers", 1, domain=domain)
+    out = finish(player)
+    assert player.returncode == 0, out
+    assert "not played, their message types not installed here: /tf (tf2_msgs/msg/TFMessage) (--exclude /tf" in out, out
+    assert lst.wait_for(lambda: len([m for m in lst.received if m[1] == "/blade/force"]) == 600, 5), out
+    wrench = robot_bag(tmp_path / "wrench", "geometry_msgs/msg/Wrench")
+    with pytest.raises(playback.BagPathError, match="topic /blade/force is geometry_msgs/msg/Wrench in it, but the "
+                       "graph's contract is geometry_msgs/msg/WrenchStamped: .* --exclude /blade/force plays the rest"):
+        playback.load_bag(wrench)
+    out = subprocess.run([BIN / "soil_bag_play", wrench, "--rate", "50"], env=ros_env(next_domain_id()),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--exclude /blade/force plays the rest" in out.stderr and "Traceback" not in out.stderr
+
+
 def test_replay_of_a_dataset_is_split_into_its_episodes(listener, tmp_path):
     """Three bags whose stamps all start at 0, played back to back at rate 2: the episode
     recorder writes the same three bags; a --no-split recorder writes one bag of everything.

@@ -22,11 +22,17 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import apsw
 import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
+
+try:  # the zstd rosbags decompresses with (a bag recorded with rosbag2's --compression-format zstd)
+    from compression import zstd
+except ImportError:  # (Python before 3.14)
+    from backports import zstd
 
 from soil_msgs_py import messages as M
 from soil_msgs_py.episode import Episode, EpisodeMeta, first_implausible
@@ -42,9 +48,12 @@ PARTIAL_SUFFIX = ".partial"
 log = logging.getLogger(__name__)
 
 # What reading a damaged bag raises where no CRC caught it (bags without CRCs, damage outside
-# the chunks): whatever rosbags' MCAP reader, struct, the CDR decoder or our checks trip over.
+# the chunks): whatever rosbags' MCAP reader, its sqlite3 reader (apsw) and zstd decompression
+# (rosbag2's .db3 and compressed bags: their errors had escaped every tool as a traceback, and
+# --skip-bad-bags did not skip the bag), struct, the CDR decoder or our checks trip over; and a
+# MemoryError, where a corrupt record length asks for more memory than exists.
 DAMAGE_ERRORS = (AnyReaderError, ReaderError, SerdeError, struct.error, OverflowError, ValueError,
-                 IndexError, KeyError, EOFError, OSError)
+                 IndexError, KeyError, EOFError, OSError, zstd.ZstdError, apsw.Error, MemoryError)
 
 
 class BagReadError(ValueError):
@@ -69,11 +78,21 @@ class MetadataUnreadable(BagReadError):
     rosbags' own words ("A metadata key is missing KeyError('version')") named neither."""
 
     def __init__(self, bag: str | os.PathLike, reason: str):
+        from .bag_salvage import embedded_metadata  # (it reads bags through this module)
+
         self.reason = str(reason)
-        # the repair rebuilds it from a bag's one .mcap (not a .db3's, nor from several files)
-        one_mcap = len([p for p in Path(bag).glob("*.mcap") if p.is_file()]) == 1
-        super().__init__(bag, self.reason + (f"; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap "
-                                             "carries" if one_mcap else ""))
+        # the repair rebuilds it from a bag's one .mcap (not a .db3's, nor from several files) that
+        # carries rosbag2's record of it: one rosbag2 itself was killed writing has none (it had been
+        # sent to the repair, which then found nothing to rebuild it from: an outside tester's)
+        mcaps = [p for p in Path(bag).glob("*.mcap") if p.is_file()]
+        if len(mcaps) == 1 and embedded_metadata(mcaps[0]) is not None:
+            hint = f"; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap carries"
+        elif mcaps or any(Path(bag).glob("*.db3")):
+            hint = ("; its storage carries no record of it to rebuild it from (a bag `ros2 bag record` was stopped "
+                    f"before it wrote it: `ros2 bag reindex {bag}`, on a ROS install, rebuilds it from the messages)")
+        else:
+            hint = ""
+        super().__init__(bag, self.reason + hint)
 
     def __reduce__(self):
         return type(self), (self.bag, self.reason)
@@ -90,7 +109,9 @@ def reading(bag: str | os.PathLike) -> Iterator[None]:
         raise
     except DAMAGE_ERRORS as err:
         # our own ValueErrors are worded for the user; rosbags' need their type to make sense
-        problem = str(err) if type(err) is ValueError else f"corrupt or truncated ({type(err).__name__}: {err})"
+        problem = (str(err) if type(err) is ValueError else
+                   "corrupt or truncated (MemoryError: a length in it asks for more memory than this machine has)"
+                   if isinstance(err, MemoryError) else f"corrupt or truncated ({type(err).__name__}: {err})")
         raise BagReadError(bag, problem) from err
 
 
@@ -261,7 +282,16 @@ def check_integrity(bag: Path) -> None:
     for name in files:
         mcap = bag / str(name)
         if mcap.suffix != ".mcap":
-            continue  # not a storage this project writes; rosbags reports what it cannot read
+            # a storage this project does not write (rosbag2's sqlite3 .db3, a whole file compressed
+            # .mcap.zstd): rosbags reports what it cannot read, but a flipped byte it decodes is
+            # read as data (an outside tester's: a position 0.09 m off, without a word)
+            if str(bag) not in _warned_unchecked:
+                _warned_unchecked.add(str(bag))
+                kind = ("compressed as a whole (zstd)" if str(name).endswith(".zstd") else
+                        "a sqlite3 file" if str(name).endswith(".db3") else f"a file of suffix {Path(str(name)).suffix!r}")
+                log.warning("bag %s: %s is %s, which carries no CRCs this project checks; damage inside it cannot be "
+                            "detected", bag, name, kind)
+            continue
         if not mcap.is_file():
             raise BagReadError(bag, f"metadata.yaml lists {name}, which does not exist")
         scan = scan_file(mcap)
@@ -500,9 +530,20 @@ def passed_by_note(strays: list[Path], root: Path) -> str:
     files = [p for p in strays if p not in partials]
     notes = []
     if files:
+        from .bag_salvage import embedded_metadata  # (it reads bags through this module)
+
+        # the repair rebuilds a lost metadata.yaml from the file's own rosbag2 record; a bag rosbag2
+        # itself was stopped in has none (it had been sent to the repair all the same, which then found
+        # nothing to rebuild from: an outside tester's). Judged by the files shown (a stopped writer's
+        # file has no index: reading its records is a scan of the whole file).
+        own = [embedded_metadata(f) is not None for f in files[:3]]
+        reindex = "`ros2 bag reindex DIR`, on a ROS install, rebuilds it from the messages"
+        hint = ("soil_bag_repair DIR copies it with one rebuilt from the file's own record" if all(own) else
+                f"the file(s) shown carry no record of it (a bag `ros2 bag record` was stopped before writing it): {reindex}"
+                if not any(own) else f"soil_bag_repair DIR copies one whose file carries its own record (of those shown "
+                f"{', '.join(str(f) for f, o in zip(files, own) if o)}) with one rebuilt from it; for the others {reindex}")
         notes.append(f"not read: {len(files)} .mcap file(s) outside a rosbag2 bag directory (its metadata.yaml "
-                     f"beside the .mcap): {shown(files)}; where that is a bag whose metadata.yaml was lost, "
-                     "soil_bag_repair DIR copies it with one rebuilt from the file's own record")
+                     f"beside the .mcap): {shown(files)}; where that is a bag whose metadata.yaml was lost, {hint}")
     if journals:
         notes.append(f"not read: {len(journals)} recorder journal(s), a killed recorder's or one still being "
                      f"written: {shown(journals)}; soil_bag_repair {root} turns a killed recorder's into bags")

@@ -19,6 +19,7 @@ one named, nothing played), or a --topics/--exclude selection that leaves no mes
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 import time
@@ -102,6 +103,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return opts
 
 
+def installed(msgtype: str) -> bool:
+    """Whether this machine has the Python message class of ``msgtype`` (a player can publish it)."""
+    try:
+        message_class(msgtype)
+    except ValueError:
+        return False
+    return True
+
+
 class Player:
     """Publishers plus the play loop; the node is only used to create publishers and log."""
 
@@ -137,6 +147,14 @@ class Player:
     def _load(self, path) -> LoadedBag:
         bag = load_bag(path, topics=self.opts.topics, exclude=self.opts.exclude,
                        drop=[CLOCK_TOPIC] if self.opts.clock else [], log=self.log.warning)
+        # a topic whose message package this machine lacks (a robot's /tf: tf2_msgs) is not played,
+        # and said; the rest is (it had refused the whole bag, exit 2, naming neither topic nor way out)
+        if lacking := {t: m for t, m in bag.topics.items() if t not in self.pubs and not installed(m)}:
+            self.log.warning(f"{bag.path}: not played, their message types not installed here: "
+                             + ", ".join(f"{t} ({m})" for t, m in sorted(lacking.items()))
+                             + f" (--exclude {' '.join(sorted(lacking))} says so without this warning)")
+            bag = dataclasses.replace(bag, topics={t: m for t, m in bag.topics.items() if t not in lacking},
+                                      messages=[m for m in bag.messages if m[1] not in lacking])
         for topic, msgtype in bag.topics.items():
             self._publisher(topic, msgtype)
         return bag

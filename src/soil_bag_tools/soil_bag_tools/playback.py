@@ -141,6 +141,14 @@ def load_bag(
         held = frozenset(named(c.topic) for c in reader.connections)
         messages = ([(t, named(c.topic), bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
                     if conns else [])
+    # a topic of the contract's name but another type: the graph's nodes would not hear it (DDS
+    # matches name and type) and the player said only that it had too few subscribers (an
+    # outside tester's /blade/force recorded as a Wrench; the bag readers refuse it too)
+    if wrong := sorted((t, m) for t, m in found.items() if t in GRAPH_TOPICS_BY_NAME and m != GRAPH_TOPICS_BY_NAME[t].msgtype):
+        topic, msgtype = wrong[0]
+        raise BagPathError(f"{bag}: topic {topic} is {msgtype} in it, but the graph's contract is "
+                           f"{GRAPH_TOPICS_BY_NAME[topic].msgtype}: no node of the graph would hear it; "
+                           f"--exclude {topic} plays the rest")
     for option, asked in (("--topics", include or ()), ("--exclude", skip - set(drop))):
         if note := absent_topics(bag, option, asked, held):  # absent from the bag (not merely excluded)
             log(note)

@@ -105,6 +105,10 @@ class EpisodeMeta:
 
     @classmethod
     def from_json(cls, text: str) -> "EpisodeMeta":
+        if not isinstance(text, (str, bytes)):  # (a metadata.yaml's custom_data written as a YAML mapping: "the
+            # JSON object must be str, bytes or bytearray, not dict", naming neither what nor how)
+            raise ValueError(f"episode metadata must be one JSON text (custom_data values are strings in rosbag2), "
+                             f"not a {type(text).__name__}: write it as json.dumps of its fields")
         data = json.loads(text)
         if not isinstance(data, dict):  # (a list had read "unknown keys [1, 2]")
             raise ValueError(f"episode metadata must be a JSON object of its fields, not a {type(data).__name__}")
