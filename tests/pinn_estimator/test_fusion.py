@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -1064,6 +1065,13 @@ def test_a_config_lacking_a_field_is_said_to_run_on_its_default(tmp_path):
     partial.write_text(json.dumps(data))
     with pytest.warns(UserWarning, match=r"lacks \['abs_std_n'\]: their defaults are used"):
         assert FusionConfig.load(partial).abs_std_n == FusionConfig().abs_std_n
+    # a config of before the forecast law's part near the F_x limit had none: its default 0 is that law
+    data = json.loads((MODELS_DIR / "fusion_default.json").read_text())
+    del data["forecast_limit_std"]
+    partial.write_text(json.dumps(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert FusionConfig.load(partial).forecast_limit_std == (0.0, 0.0)
 
 
 def test_the_forecast_report_scores_the_fused_posterior_with_interval_coverage():
@@ -1353,7 +1361,7 @@ def test_the_forecast_laws_part_near_the_x_limit_is_calibrated_on_the_pairs_beyo
     chosen = choose_limit_shares(within + beyond, law, log=said.append)
     assert "on the 40 pairs of 100" in said[0] and said[-1].startswith("  chosen: x 0, z ")
     assert chosen.forecast_limit_std[0] == 0.0 and 0.1 <= chosen.forecast_limit_std[1] <= 0.3
-    np.testing.assert_array_equal(predictive_cdf(within, chosen), predictive_cdf(within, law))
+    np.testing.assert_array_equal(predictive_cdf(within, chosen), predictive_cdf(within, law))  # (all within)
     held = interval_level(predictive_cdf(beyond, chosen))[:, 1]
     assert np.mean(interval_level(predictive_cdf(beyond, law))[:, 1] <= 0.9) < 0.1 < 0.8 <= np.mean(held <= 0.9)
     # a config that has a part already: the base law is judged without it
@@ -1361,6 +1369,13 @@ def test_the_forecast_laws_part_near_the_x_limit_is_calibrated_on_the_pairs_beyo
                                log=said.append) == chosen
     assert choose_limit_shares(within + beyond[:9], law, log=said.append).forecast_limit_std == (0.0, 0.0)
     assert "none (9 pairs beyond" in said[-1]
+    # a part calibrated beyond the margin that would spoil the curve over all the pairs is not kept:
+    # many pairs whose median is within the margin but whose samples reach beyond it, held already
+    reach = Predictive(np.full(2, 0.5), np.array([[14e3, 19e3], [0.0, 0.0]]), np.zeros((2, 2)))
+    near = [PairForecast(np.array([16.5e3 + x, z]), np.zeros(2), post, reach, 0.1)
+            for x, z in zip(rng.normal(0, 200, 300), rng.normal(0, 20, 300))]
+    assert choose_limit_shares(near + beyond, law, log=said.append).forecast_limit_std[1] == 0.0
+    assert said[-2].startswith("  z: ") and "less calibrated" in said[-2] and said[-1] == "  chosen: x 0, z 0 of the axis's limit"
 
 
 def test_where_the_truth_is_known_the_law_is_the_sharpest_of_the_equally_skilful_and_calibrated():

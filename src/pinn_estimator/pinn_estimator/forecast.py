@@ -299,6 +299,12 @@ def calibration_strata(pairs: list[dict], names, reach=None) -> dict:
     return {"reach": list(reach), "another_speed_m_s": ANOTHER_SPEED_M_S, "posteriors": out}
 
 
+def beyond_planner_margin(force_x_n: float, margin: float = PLANNER_FORCE_MARGIN) -> bool:
+    """Whether a forecast F_x [N] lies at or beyond ``margin`` of the F_x limit (False where it is
+    not finite): the split of ``margin_strata`` and of the forecast law's part near the limit."""
+    return bool(np.isfinite(force_x_n) and abs(force_x_n) >= margin * FORCE_LIMITS_N[0])
+
+
 def margin_strata(pairs: list[dict], names, margin: float = PLANNER_FORCE_MARGIN) -> dict:
     """Per posterior in ``names``, F_x and F_z (``_errors``) over the pairs whose forecast F_x (its
     median) is within ``margin`` of the F_x limit, about the cuts a planner plans (it keeps the 95 %
@@ -314,7 +320,7 @@ def margin_strata(pairs: list[dict], names, margin: float = PLANNER_FORCE_MARGIN
         for p in pairs:
             f = p["forecast"][name][0]
             if np.isfinite(f):
-                groups["within" if abs(f) < limit else "beyond"].append(p)
+                groups["beyond" if beyond_planner_margin(f, margin) else "within"].append(p)
         out[name] = {g: {axis_name: _errors(members, name, axis) for axis, axis_name in enumerate(("x", "z"))}
                      for g, members in groups.items()}
     return {"margin": margin, "limit_n": float(limit), "posteriors": out}

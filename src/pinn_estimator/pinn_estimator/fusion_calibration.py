@@ -52,7 +52,7 @@ from soil_msgs_py.graph import EstimatorPhysics
 from soil_msgs_py.episode import MAX_EPISODE_S, WORLD_MODES
 from soil_msgs_py.params import FORCE_LIMITS_N, PLANNER_FORCE_MARGIN, SAMPLE_RATE_HZ, WINDOW_SAMPLES
 from soil_physics.force_terms import term_texts
-from soil_physics.predictive import error_law_text, mixture_cdf
+from soil_physics.predictive import error_law_text, mixture_cdf, near_limit_text
 from soil_msgs_py.interrupts import interruptible
 
 from . import forecast as fc
@@ -914,14 +914,10 @@ MIN_BEYOND_MARGIN_PAIRS = 10
 
 
 def beyond_margin(pairs: list[PairForecast], law: FusionConfig) -> np.ndarray:
-    """Mask of the pairs whose forecast F_x (its median under ``law``) is at least the planner's
-    margin of the F_x limit, as ``forecast.margin_strata`` splits a report's pairs."""
-    limit = PLANNER_FORCE_MARGIN * FORCE_LIMITS_N[0]
-    out = np.zeros(len(pairs), bool)
-    for i, p in enumerate(pairs):
-        median = p.posterior.forecast_from(p.predictive, (0.5,), law)["quantiles"][0.5][0]
-        out[i] = bool(np.isfinite(median) and abs(median) >= limit)
-    return out
+    """Mask of the pairs whose forecast F_x (its median under ``law``) is beyond the planner's margin
+    of the F_x limit (``forecast.beyond_planner_margin``, as ``forecast.margin_strata`` splits a report's pairs)."""
+    return np.array([bool(fc.beyond_planner_margin(p.posterior.forecast_from(p.predictive, (0.5,), law)["quantiles"][0.5][0]))
+                     for p in pairs], bool)
 
 
 def choose_limit_shares(pairs: list[PairForecast], law: FusionConfig, grid=LIMIT_GRID, log=print) -> FusionConfig:
@@ -932,7 +928,10 @@ def choose_limit_shares(pairs: list[PairForecast], law: FusionConfig, grid=LIMIT
     world's F_z in 89 / 60 % of the calibration pairs within the margin and 47 / 24 % beyond it,
     where the lift's push on the floor sets F_z; a share of |ΔF| wide enough there is too wide
     within (and a part near the limit calibrated jointly with it took the share down, worse held
-    out). The base law is kept, so the forecasts within the margin are as before."""
+    out). The base law is kept, so a forecast whose samples all lie within the margin is as before
+    (one with some samples beyond it widens a little there, its median may move); and an axis whose
+    curve over all the pairs would come out less calibrated than without the part, beyond the
+    coverages' sampling error, keeps none."""
     law = dataclasses.replace(law, forecast_limit_std=(0.0, 0.0))
     beyond = beyond_margin(pairs, law)
     far = [p for p, b in zip(pairs, beyond) if b]
@@ -954,14 +953,16 @@ def choose_limit_shares(pairs: list[PairForecast], law: FusionConfig, grid=LIMIT
         mis = [miscalibration(c[axis]) for c in curves]
         # the smallest share (the sharpest: each share widens every interval) as calibrated as the best
         chosen.append(min(share for share, m in zip(grid, mis) if m <= min(mis) + coverage_tolerance(len(far))))
+    if any(chosen):  # over all the pairs, not worse than without it
+        every = [curve_of(interval_level(predictive_cdf(pairs, cfg))) for cfg in
+                 (law, dataclasses.replace(law, forecast_limit_std=tuple(chosen)))]
+        for j, axis in enumerate("xz"):
+            if chosen[j] and miscalibration(every[1][axis]) > miscalibration(every[0][axis]) + coverage_tolerance(len(pairs)):
+                log(f"  {axis}: {chosen[j]:g} would leave the curve over all {len(pairs)} pairs less calibrated "
+                    f"({miscalibration(every[1][axis]):.3f} against {miscalibration(every[0][axis]):.3f}): none")
+                chosen[j] = 0.0
     log(f"  chosen: x {chosen[0]:g}, z {chosen[1]:g} of the axis's limit")
     return dataclasses.replace(law, forecast_limit_std=tuple(chosen))
-
-
-def limit_text(cfg: FusionConfig, axis: int) -> str:
-    """The forecast law's part near the F_x limit on ``axis`` in words ("" where it has none)."""
-    share = cfg.forecast_limit_std[axis]
-    return f" + {share:g} of its limit near the F_x limit" if share else ""
 
 
 def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
@@ -978,8 +979,8 @@ def plot_curve(rows: list[dict], final: dict, path: Path, title: str) -> None:
         ax.plot(NOMINAL, r["curve"]["x"], color="0.8", lw=0.8)
     near = final.get("forecast_limit_std", (0.0, 0.0))
     for j, (axis, style) in enumerate((("x", "-o"), ("z", "--s"))):
-        part = f", {near[j]:g} of its limit near the F_x limit" if near[j] else ""
-        ax.plot(NOMINAL, final["curve"][axis], style, ms=3, label=f"F_{axis} (forecast rel {final['forecast_rel_std'][j]:g}{part})")
+        ax.plot(NOMINAL, final["curve"][axis], style, ms=3,
+                label=f"F_{axis} (forecast rel {final['forecast_rel_std'][j]:g}{near_limit_text(near[j])})")
     ax.set_xlabel("nominal central interval")
     ax.set_ylabel("share of forecasts holding the measured force")
     ax.set_title(title, fontsize=9)
@@ -1105,8 +1106,8 @@ def main(argv=None) -> int:
     shape = (f"shape evidence {shape_text((cfg.shape_abs_std_n[0], cfg.shape_rel_std[0]))}" if cfg.shape_evidence
              else "no shape evidence")
     print(f"wrote {out} ({shape}, rel_std x {cfg.rel_std[0]:g} / z {cfg.rel_std[1]:g}, forecast law x {cfg.forecast_abs_std_n[0]:g} N + "
-          f"{cfg.forecast_rel_std[0]:g}|ΔF|{limit_text(cfg, 0)}, z {cfg.forecast_abs_std_n[1]:g} N + {cfg.forecast_rel_std[1]:g}|ΔF|"
-          f"{limit_text(cfg, 1)}: 90 % / 50 % "
+          f"{cfg.forecast_rel_std[0]:g}|ΔF|{near_limit_text(cfg.forecast_limit_std[0])}, z {cfg.forecast_abs_std_n[1]:g} N + "
+          f"{cfg.forecast_rel_std[1]:g}|ΔF|{near_limit_text(cfg.forecast_limit_std[1])}: 90 % / 50 % "
           f"intervals hold F_x {cx[i90]:.0%} / {cx[i50]:.0%}, F_z {cz[i90]:.0%} / {cz[i50]:.0%} of the pairs from "
           f"{MIN_CALIBRATED_DEPTH_M:g} m) and {out.with_suffix('.png')}")
     law = cfg.planner_bound_law()

@@ -31,6 +31,9 @@ BOUND_FIELDS = ("bound_abs_std_n", "bound_rel_std")  # (x, z) each, or both None
 # What a config records of the episodes that calibrated it, not a law: set by pinn_fusion_calibrate's
 # --world, --plugin and --soil-file/--soils, never by --set, and absent from configs written before
 PROVENANCE_FIELDS = ("world", "calibration_plugins", "calibration_soils")
+# Fields whose default is the law a config written before them had (none of the forecast law's part
+# near the F_x limit): a config without one is what it was, not a default taken unseen (no warning).
+OLD_LAW_DEFAULTS = ("forecast_limit_std",)
 INT_FIELD_RANGES = {"forecast_samples": (16, 100_000), "update_ticks": (1, 3600), "model_points": (1, 3600),
                     "components": (1, 64), "seed": (0, MAX_SEED)}  # (numpy's generator: a seed >= 0)
 # The standard deviations' upper bounds: beyond what the calibration tries (shares up to 2, floors up
@@ -280,7 +283,7 @@ class FusionConfig:
         cfg = cls.from_dict(data)
         # (a config written before a field existed, or edited by hand: its default was taken unseen)
         # (nor the world, the plugins or the soils, not recorded before they were: their defaults are no law)
-        if missing := sorted({f.name for f in fields(cls)} - set(data) - set(PROVENANCE_FIELDS)):
+        if missing := sorted({f.name for f in fields(cls)} - set(data) - set(PROVENANCE_FIELDS) - set(OLD_LAW_DEFAULTS)):
             warnings.warn(f"fusion config {path} lacks {missing}: their defaults are used, not calibrated values",
                           stacklevel=2)
         return cfg

@@ -37,8 +37,9 @@ from soil_msgs_py.ros_adapter import (
     followed_status_event,
 )
 
-from .fusion_calibration import (announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion,
-                                 limit_text)
+from soil_physics.predictive import near_limit_text
+
+from .fusion_calibration import announced_physics, checkpoint_world, checkpoint_world_words, config_path, estimator_fusion
 from .shipped import shipped_checkpoint
 
 # The model's modules import torch (about 2 s): imported once a node is made, so that --help and a
@@ -287,5 +288,5 @@ if __name__ == "__main__":
 def _law(cfg) -> str:
     """The forecast's error law σ_j = abs_j + rel_j·|ΔF_j| (+ its part near the F_x limit) per axis, as
     the start line says it."""
-    return ", ".join(f"{axis} {a:g} N + {r:g}·|ΔF|{limit_text(cfg, j)}"
-                     for j, (axis, a, r) in enumerate(zip("xz", cfg.forecast_abs_std_n, cfg.forecast_rel_std)))
+    return ", ".join(f"{axis} {a:g} N + {r:g}·|ΔF|{near_limit_text(s)}"
+                     for axis, a, r, s in zip("xz", cfg.forecast_abs_std_n, cfg.forecast_rel_std, cfg.forecast_limit_std))

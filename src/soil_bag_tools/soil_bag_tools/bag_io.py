@@ -77,25 +77,30 @@ class MetadataUnreadable(BagReadError):
     needs): ``reason`` says what is wrong; the message adds the command that rebuilds it, since
     rosbags' own words ("A metadata key is missing KeyError('version')") named neither."""
 
-    def __init__(self, bag: str | os.PathLike, reason: str):
+    def __init__(self, bag: str | os.PathLike, reason: str, hint: str | None = None):
+        self.reason = str(reason)
+        self.hint = self._hint(Path(bag)) if hint is None else hint  # (given again when unpickled: no second scan)
+        super().__init__(bag, self.reason + self.hint)
+
+    @staticmethod
+    def _hint(bag: Path) -> str:
+        """What rebuilds the metadata.yaml: the repair, from a bag's one .mcap (not a .db3's, nor from
+        several files) that carries rosbag2's record of it; for a bag rosbag2 itself was stopped in,
+        which has none (it had been sent to the repair, which then found nothing to rebuild it from:
+        an outside tester's), rosbag2's reindex, after which the episode metadata is to be added again."""
         from .bag_salvage import embedded_metadata  # (it reads bags through this module)
 
-        self.reason = str(reason)
-        # the repair rebuilds it from a bag's one .mcap (not a .db3's, nor from several files) that
-        # carries rosbag2's record of it: one rosbag2 itself was killed writing has none (it had been
-        # sent to the repair, which then found nothing to rebuild it from: an outside tester's)
-        mcaps = [p for p in Path(bag).glob("*.mcap") if p.is_file()]
+        mcaps = [p for p in bag.glob("*.mcap") if p.is_file()]
         if len(mcaps) == 1 and embedded_metadata(mcaps[0]) is not None:
-            hint = f"; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap carries"
-        elif mcaps or any(Path(bag).glob("*.db3")):
-            hint = ("; its storage carries no record of it to rebuild it from (a bag `ros2 bag record` was stopped "
-                    f"before it wrote it: `ros2 bag reindex {bag}`, on a ROS install, rebuilds it from the messages)")
-        else:
-            hint = ""
-        super().__init__(bag, self.reason + hint)
+            return f"; `soil_bag_repair {bag}` rebuilds it from the record of it the .mcap carries"
+        if mcaps or any(bag.glob("*.db3")):
+            return ("; its storage carries no record of it to rebuild it from (a bag `ros2 bag record` was stopped "
+                    f"before it wrote it): `ros2 bag reindex {bag}`, on a ROS install, rebuilds it from the messages, "
+                    "without the episode metadata (add it again, README \"A machine's bags\")")
+        return ""
 
     def __reduce__(self):
-        return type(self), (self.bag, self.reason)
+        return type(self), (self.bag, self.reason, self.hint)
 
 
 @contextmanager
@@ -110,7 +115,8 @@ def reading(bag: str | os.PathLike) -> Iterator[None]:
     except DAMAGE_ERRORS as err:
         # our own ValueErrors are worded for the user; rosbags' need their type to make sense
         problem = (str(err) if type(err) is ValueError else
-                   "corrupt or truncated (MemoryError: a length in it asks for more memory than this machine has)"
+                   "unreadable (MemoryError: a corrupt length in it asks for more memory than exists, or it is too large "
+                   "for this machine's memory)"
                    if isinstance(err, MemoryError) else f"corrupt or truncated ({type(err).__name__}: {err})")
         raise BagReadError(bag, problem) from err
 
@@ -569,11 +575,10 @@ def read_dataset(root: str | os.PathLike, *, progress: bool = False) -> list[Epi
     return [read_episode(b) for b in bags]
 
 
-def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...],
-                        older: tuple[tuple[str, ...], ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(stamps int64 (n,), values float64 (n, len(labels))) of a labelled-array topic in a bag,
-    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode);
-    ``older``: its layouts of before (``messages.parse_labelled``), read with the fields they lack 0.
+    in log order (e.g. the ``/soil/estimate`` a live estimator published during the episode); a
+    layout of before fields were added is read with the fields it lacks 0 (``messages.parse_labelled``).
 
     BagReadError if the bag lacks the topic, a message has another layout or the bag is damaged."""
     path = Path(bag_dir)
@@ -584,7 +589,7 @@ def read_labelled_topic(bag_dir: str | os.PathLike, topic: str, labels: tuple[st
         if not conns:
             raise BagReadError(path, f"has no topic {ns + topic}")
         for conn, _, raw in reader.messages(connections=conns):
-            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic, older)
+            stamp, values = M.parse_labelled(reader.deserialize(raw, conn.msgtype), labels, topic)
             stamps.append(stamp)
             rows.append(values)
     values = np.stack(rows) if rows else np.empty((0, len(labels)))

@@ -307,7 +307,7 @@ def main(args: list[str] | None = None) -> int:
     for note in notes:  # a killed recorder's journal beside the bags: played without it, said with its repair
         print(f"soil_bag_play: {note}", file=sys.stderr)
     try:
-        bad = unreadable_bags(paths)  # every bag checked before the first is played
+        bad = unreadable_bags(paths, opts.topics, opts.exclude)  # every bag checked before the first is played
     except KeyboardInterrupt:  # (a large dataset's check takes seconds)
         print(f"soil_bag_play: {stopping_said(signal.SIGINT)}", file=sys.stderr)
         return 128 + int(signal.SIGINT)

@@ -104,6 +104,18 @@ def absent_topics(bag: Path, option: str, asked: Iterable[str], held: Iterable[s
     return f"{bag}: no topic(s) {with_guesses(missing, held | set(GRAPH_TOPICS_BY_NAME))}, named by {option}: {effect}"
 
 
+def refuse_contract_types(bag: Path, topics: dict[str, str]) -> None:
+    """BagPathError for a topic of ``topics`` (name -> type, the contract's names) that has the
+    contract's name but another type: the graph's nodes would not hear it (DDS matches name and
+    type) and the player had said only that it had too few subscribers (an outside tester's
+    /blade/force recorded as a Wrench; the bag readers refuse it too)."""
+    if wrong := sorted((t, m) for t, m in topics.items() if t in GRAPH_TOPICS_BY_NAME and m != GRAPH_TOPICS_BY_NAME[t].msgtype):
+        topic, msgtype = wrong[0]
+        raise BagPathError(f"{bag}: topic {topic} is {msgtype} in it, but the graph's contract is "
+                           f"{GRAPH_TOPICS_BY_NAME[topic].msgtype}: no node of the graph would hear it; "
+                           f"--exclude {topic} plays the rest")
+
+
 def load_bag(
     bag: Path, *, topics: Iterable[str] | None = None, exclude: Iterable[str] = (), drop: Iterable[str] = (),
     log: Callable[[str], None] = lambda s: None,
@@ -141,14 +153,7 @@ def load_bag(
         held = frozenset(named(c.topic) for c in reader.connections)
         messages = ([(t, named(c.topic), bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
                     if conns else [])
-    # a topic of the contract's name but another type: the graph's nodes would not hear it (DDS
-    # matches name and type) and the player said only that it had too few subscribers (an
-    # outside tester's /blade/force recorded as a Wrench; the bag readers refuse it too)
-    if wrong := sorted((t, m) for t, m in found.items() if t in GRAPH_TOPICS_BY_NAME and m != GRAPH_TOPICS_BY_NAME[t].msgtype):
-        topic, msgtype = wrong[0]
-        raise BagPathError(f"{bag}: topic {topic} is {msgtype} in it, but the graph's contract is "
-                           f"{GRAPH_TOPICS_BY_NAME[topic].msgtype}: no node of the graph would hear it; "
-                           f"--exclude {topic} plays the rest")
+    refuse_contract_types(bag, found)
     for option, asked in (("--topics", include or ()), ("--exclude", skip - set(drop))):
         if note := absent_topics(bag, option, asked, held):  # absent from the bag (not merely excluded)
             log(note)
@@ -160,23 +165,27 @@ def load_bag(
     return LoadedBag(path=bag, topics=found, messages=messages, meta=meta, held=held)
 
 
-def check_readable(bag: Path) -> None:
+def check_readable(bag: Path, topics: Iterable[str] | None = None, exclude: Iterable[str] = ()) -> None:
     """What ``load_bag`` checks of a bag before reading its messages (its metadata.yaml, every chunk's
-    CRC, rosbags opening it, one machine's namespace): BagReadError naming the bag and, where it
-    can mend it, ``soil_bag_repair``."""
+    CRC, rosbags opening it, one machine's namespace, the types of the contract's topics it would
+    play, ``topics`` (None: all) but ``exclude``): BagReadError naming the bag and, where it can mend it, ``soil_bag_repair``;
+    BagPathError for a contract topic of another type (``refuse_contract_types``)."""
     bag_custom_data(bag)
     with reading(bag), AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
-        topics_namespace(bag, {c.topic for c in reader.connections})
+        ns = topics_namespace(bag, {c.topic for c in reader.connections})
+        types = {c.topic[len(ns):] if ns and c.topic.startswith(ns + "/") else c.topic: c.msgtype for c in reader.connections}
+    played = {t: m for t, m in types.items() if (topics is None or t in set(topics)) and t not in set(exclude)}
+    refuse_contract_types(bag, played)
 
 
-def unreadable_bags(bags: Sequence[Path]) -> list[str]:
+def unreadable_bags(bags: Sequence[Path], topics: Iterable[str] | None = None, exclude: Iterable[str] = ()) -> list[str]:
     """Why each of ``bags`` that ``check_readable`` refuses cannot be played, in play order ([]: all
     pass). The player asks before it plays the first: a directory with a truncated bag among its
     bags had played those before it and stopped there, exit 2, half a dataset replayed."""
     problems = []
     for bag in bags:
         try:
-            check_readable(bag)
+            check_readable(bag, topics, exclude)
         except ValueError as err:  # BagReadError, and a metadata.yaml custom_data that is no mapping
             problems.append(str(err))
     return problems

@@ -42,7 +42,7 @@ def score_episode(bag_dir: str | os.PathLike) -> EpisodeScore:
     bag = Path(bag_dir)
     ep = read_episode(bag)
     try:
-        stamps, values = read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS, T.ESTIMATE_LAYOUTS_BEFORE)
+        stamps, values = read_labelled_topic(bag, T.ESTIMATE.name, T.ESTIMATE_FIELDS)
     except ValueError as err:
         raise ValueError(f"{err} (was the estimator running and recorded?)") from None
     if len(stamps) == 0:

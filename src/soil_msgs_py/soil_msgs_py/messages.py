@@ -181,20 +181,20 @@ def make_labelled(ns: Any, stamp_ns: int, labels: Sequence[str], values: Sequenc
 
 
 def parse_labelled(msg: Any, expected_labels: Sequence[str], topic: str = "",
-                   older: Sequence[Sequence[str]] = ()) -> tuple[int, np.ndarray]:
+                   older: Sequence[Sequence[str]] | None = None) -> tuple[int, np.ndarray]:
     """Inverse of make_labelled; ValueError (naming ``topic``) if the layout is not the expected one.
-    ``older``: the topic's layouts before fields were added (``topics.ESTIMATE_LAYOUTS_BEFORE``): a
-    message in one of them is read into ``expected_labels``' order, the fields it lacks 0.0 (a bag
-    recorded then stays readable)."""
+    ``older``: the layouts of before fields were added (default: ``topics.OLDER_LAYOUTS``): a message
+    in one of them is read into ``expected_labels``' order, the fields it lacks 0.0 (a bag recorded
+    then, an estimator of before heard live)."""
     where = f"{topic}: " if topic else ""
     want = _label(tuple(expected_labels))
     dims = msg.layout.dim
     if len(dims) != 1:
         raise ValueError(f"{where}labelled array needs exactly 1 layout dim, got {len(dims)}")
     if dims[0].label != want:
-        for labels in older:
+        for labels in T.OLDER_LAYOUTS.get(tuple(expected_labels), ()) if older is None else older:
             if dims[0].label == _label(tuple(labels)):
-                stamp, values = parse_labelled(msg, labels, topic)
+                stamp, values = parse_labelled(msg, labels, topic, ())
                 out = np.zeros(len(expected_labels))
                 at = {name: i for i, name in enumerate(expected_labels)}
                 out[[at[name] for name in labels]] = values

@@ -102,12 +102,14 @@ ESTIMATE_FIELDS: tuple[str, ...] = (
     "f_x_hat", "f_z_hat", "f_x_fee", "f_z_fee", "f_x_r", "f_z_r",
     "valid", "window_samples",
 ) + FUSED_FIELDS
-# /soil/estimate's layouts before fields were added (``messages.parse_labelled``'s ``older``): a bag
-# recorded then is read with the fields a layout lacks 0.0, what they meant then (2026-12-07: the
-# forecast law's part near the F_x limit, none before).
+# /soil/estimate's layouts before fields were added: a bag recorded then, or an estimator of before
+# heard live, is read with the fields a layout lacks 0.0, what they meant then (2026-12-07: the
+# forecast law's part near the F_x limit, none before). Every parser of a labelled array consults
+# ``OLDER_LAYOUTS`` (``messages.parse_labelled``): the recorder, the planner, the readers.
 ESTIMATE_LAYOUTS_BEFORE: tuple[tuple[str, ...], ...] = (
     tuple(n for n in ESTIMATE_FIELDS if n not in ("model_std_limit_x", "model_std_limit_z")),
 )
+OLDER_LAYOUTS: dict[tuple[str, ...], tuple[tuple[str, ...], ...]] = {ESTIMATE_FIELDS: ESTIMATE_LAYOUTS_BEFORE}
 ESTIMATE = Topic(
     "/soil/estimate", "std_msgs/msg/Float64MultiArray",
     "PINN estimate from the window ending at the stamped sample: φ [rad], c [Pa], δ [rad], "

@@ -123,6 +123,12 @@ def near_limit_error_std(force_x_n: np.ndarray, share: float, axis: int) -> np.n
     return share * FORCE_LIMITS_N[axis] * ramp
 
 
+def near_limit_text(share: float) -> str:
+    """A forecast law's part near the F_x limit (``near_limit_error_std``) in words, as the tools add
+    it after the law's floor and share ("" where it has none)."""
+    return f" + {share:g} of its limit near the F_x limit" if share else ""
+
+
 def error_law_text(law) -> str:
     """A per-axis error law (abs_x [N], abs_z [N], rel_x, rel_z), σ = abs + rel·|ΔF|, in words as
     the tools print it (the order a planner's ``bound_law`` takes)."""

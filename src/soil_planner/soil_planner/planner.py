@@ -465,7 +465,8 @@ class _FusedForceModel:
     what it means in the model it was fitted with; below, "FEE" is that model), at d (no Δd: the
     posterior's stretches were fitted at Θ_k's d), the planned steady cut (v_x = cut speed,
     v_z = 0) and β* per sample; the
-    published error law σ = abs + rel·|ΔF| around each (ΔF below). Samples without a failure wedge there
+    published error law σ = abs + rel·|ΔF| (+ its part near the F_x limit, from the sample's F_x,
+    ``predictive.near_limit_error_std``; not with a bound law of its own) around each (ΔF below). Samples without a failure wedge there
     are left out; none left is a ValueError.
 
     Anchored (``anchor`` = the PINN's force F̂ now, (x, z) [N], or its average over the recent
