@@ -979,6 +979,36 @@ def test_a_form_of_travel_says_that_at_one_speed_per_episode_travel_is_speed_tim
                                                  pins={name: {"pinned": True}})[1]
 
 
+def test_a_term_of_travel_says_that_where_every_cut_entered_the_soil_at_one_place_travel_is_position(bag_dirs):
+    """An outside tester's soil strengthening along the path from x = 3 m on (0.08 (x_b − 3 m)+ F_FEE)
+    was named compaction by travel, "explained", "pinned down: yes": every episode of a batch grid
+    enters the soil at x = 2 m, so travel in soil is position along the path, and a law of one fits as
+    a law of the other. Real frame: its entries at one place; the same frame with half its episodes
+    entering 3 m farther on is not; the verdict says it of a catalogue term and a form of travel, not of
+    one of depth."""
+    from dataclasses import replace
+
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import travel_is_position
+    from soil_discrepancy.verdict import verdict_of
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=4)
+    x = travel_is_position(frame)
+    assert x is not None and 1.9 < x < 2.3, x
+    moved = frame.entry_x_m.copy()
+    moved[frame.episodes[::2]] += 3.0
+    assert travel_is_position(replace(frame, entry_x_m=moved)) is None
+    test = {"before": {"rmse": 1832.0}, "after": {"rmse": 565.0}}
+    said = "every episode entered the soil at one place along the path (x ≈ 2.0 m), so travel in soil is position"
+    for name, says in (("compaction_hardening", True), ("form:wd_x*s", True), ("form:gd2w_x*vx", False)):
+        named = [TermScore(name=name, k=0.08, k_se=0.001, k_folds=[0.08] * 5, gain=0.93, p=1e-9)]
+        for where, expect in ((2.0, says), (None, False)):
+            reg = {"significant": False, "flagged_variables": [], "travel_is_position_m": where}
+            text = verdict_of(named, reg, test, None, pins={name: {"pinned": True}})[1]
+            assert (said in text) == expect, text
+
+
 @pytest.mark.parametrize("sse, red, p, ok, said", [
     (0.30, 0.00, 0.5, True, ""),  # the force error falls by more than the least gain
     (0.81, -0.118, 0.6, False, "the force at another depth gets worse, its error up 12 %"),

@@ -24,7 +24,7 @@ import numpy as np
 from pinn_estimator.forecast import episode_one_soil
 from soil_msgs_py.episode import world_modes
 from soil_msgs_py.soil_labels import UNKNOWN_SOIL, gamma_group_names, soil_label
-from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, SAMPLE_RATE_HZ
+from soil_msgs_py.params import KNOWN_PARAMS, MIN_CUT_DEPTH_M, OBSERVATION_FIELDS, SAMPLE_RATE_HZ
 from soil_physics.blade_inertia import inertia_rows
 from soil_physics.travel import distance_in_soil_of_known, time_in_soil_of_known
 
@@ -77,6 +77,9 @@ class Frame:
     copies: tuple[str, ...] = ()
     # θ-group -> (lo, hi) SI (φ [rad], c [Pa], δ [rad]; ±inf: free) where soil tests hold θ (``soil_tests``)
     theta_boxes: dict | None = None
+    # (E,) where along the path each episode's travel in soil began [m]: the median of x_b − s over its
+    # analysed ticks (NaN: none analysed); ``regimes.travel_is_position``
+    entry_x_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.episode)
@@ -219,10 +222,12 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         dens.append(v if math.isfinite(v) else math.nan)
     parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil", "inertia")}
     short: list[int] = []
+    entry_x = np.full(n_ep, np.nan)
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
-        inertia = inertia_rows(np.asarray(ds.observations[r], float), ds.gap_before[r])
+        observations = np.asarray(ds.observations[r], float)
+        inertia = inertia_rows(observations, ds.gap_before[r])
         forces = np.asarray(ds.forces[r], float) - inertia
         n = len(known)
         t = np.arange(n) * dt
@@ -235,6 +240,8 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         elif len(cutting) < MIN_CUT_S * SAMPLE_RATE_HZ:
             short.append(e)
             keep = keep[:0]
+        if len(keep):
+            entry_x[e] = float(np.median(observations[keep, OBSERVATION_FIELDS.index("p_x_b")] - dist[keep]))
         parts["episode"].append(np.full(len(keep), e))
         parts["rows"].append(r.start + keep)
         parts["t"].append(t[keep])
@@ -297,5 +304,5 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
         changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
         copies=tuple(ds.names[e] for e in sorted(copies)),
-        unlabelled_by_gamma=tuple(by_gamma),
+        unlabelled_by_gamma=tuple(by_gamma), entry_x_m=entry_x,
     )

@@ -250,6 +250,26 @@ def travel_is_speed_times_time(frame: Frame, tol: float = TRAVEL_AS_SPEED_TIME_T
     return scale > 0 and math.sqrt(float(np.mean((s[ok] - pred[ok]) ** 2))) <= tol * scale
 
 
+# Travel in soil "is" position along the path when the episodes entered the soil at one place: their
+# entry positions spread over at most this share of how far they travel in it (95th percentile). The
+# batch grids start every cut at x = 2 m (a spread of ~0.01 m against 3-10 m of travel).
+TRAVEL_AS_POSITION_TOL = 0.1
+
+
+def travel_is_position(frame: Frame, tol: float = TRAVEL_AS_POSITION_TOL) -> float | None:
+    """Where along the path [m] every analysed episode entered the soil (the entries' median), if
+    they all entered at one place: travel in soil is then position along the path (s = x − x_entry),
+    so a law of one reads as a law of the other (an outside tester's soil strengthening along the
+    path from 3 m on was named compaction by travel, "pinned down"); only cuts that enter the soil at
+    different places tell them apart. None where they did not, or the positions are not known."""
+    x = np.asarray(frame.entry_x_m, float)[frame.episodes] if frame.entry_x_m is not None else np.zeros(0)
+    x = x[np.isfinite(x)]
+    reach = float(np.percentile(frame.distance, 95)) if len(frame) else 0.0
+    if len(x) < 2 or not reach > 0:
+        return None
+    return float(np.median(x)) if float(np.ptp(x)) <= tol * reach else None
+
+
 def episode_misfit(frame: Frame, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(episodes, relative misfit per episode): RMS of the residual magnitude over the mean measured |F| (1)."""
     eps = frame.episodes

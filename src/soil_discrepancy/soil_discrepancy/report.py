@@ -21,8 +21,8 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .verdict import (THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, theta_move_text, travel_caveat, unconfirmed_reason,
-                      unpinned_forms_only)
+from .verdict import (THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, position_caveat, theta_move_text, travel_caveat,
+                      unconfirmed_reason, unpinned_forms_only)
 from .regimes import AXES, CONTINUOUS, binned_curve, flagged_units, misfit_unit_name
 
 REPORT_JSON, REPORT_MD = "discrepancy.json", "discrepancy.md"
@@ -141,6 +141,8 @@ def markdown(report: dict, figures=()) -> str:
                           if a.get("pin") and not a["name"].startswith(term_forms.PREFIX)]
         for name, pin in catalogue_pins:  # a discovered form's is in its own section below
             lines += ["", f"`{name}` against the library's forms:"] + _pinned_md(pin)
+            if place := position_caveat(name, report.get("regimes")).lstrip("; "):
+                lines.append(f"- Travel or place? {place[0].upper()}{place[1:]}.")
         lines += ["", "Re-simulate with the effect switched on:", "", "```"]
         # in the world of the bags it was found in ("fee" whatever the world, an outside tester's: the default
         # world's surcharge term re-simulated in the fee world, where Q = 0, never acted); a machine's: default
@@ -330,7 +332,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict, reg0: dict | 
                      else "the same mechanism)" if close["same_mechanism"] else
                      "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
                      if close.get("opposite") else "not the same: a new mechanism)")
-                  + (f" ({travel.lstrip('; ')})" if (travel := travel_caveat(f["name"], reg0)) else ""),
+                  + (f" ({travel.lstrip('; ')})" if (travel := travel_caveat(f["name"], reg0)) else "")
+                  + (f" ({where_.lstrip('; ')})" if (where_ := position_caveat(f["name"], reg0)) else ""),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
         lines += _pinned_md(f.get("pin"))
         nc = forms.get("not_confirmed")

@@ -180,6 +180,19 @@ def travel_caveat(name: str, reg0: dict | None) -> str:
             "whose speed changes tells them apart")
 
 
+def position_caveat(name: str, reg0: dict | None) -> str:
+    """The words a named term of travel in soil (a catalogue term or a form) carries where every episode
+    entered the soil at one place along the path (``regimes.travel_is_position``): travel is position
+    there, so a soil that changes along the path fits as well (an outside tester's soil strengthening
+    from 3 m on was named compaction by travel, "explained", "pinned down")."""
+    x = (reg0 or {}).get("travel_is_position_m")
+    if x is None or not force_terms.uses_distance(name):
+        return ""
+    return (f"; every episode entered the soil at one place along the path (x ≈ {x:.1f} m), so travel in soil is "
+            "position along the path here: a soil that changes along the path fits as well, and only cuts that enter "
+            "the soil at different places tell them apart")
+
+
 def fmt_n(x) -> str:
     """A force [N] for a message; '–' where a model was undefined on every tick (None)."""
     return "–" if x is None else f"{x:.0f}"
@@ -244,7 +257,8 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             unit = "" if unit == "1" else f" {unit}"
             label = s.name
             pin = (pins or {}).get(s.name)
-            caveat = pinned_caveat(pin) + shape_caveat(s.name, pin, reg1, labels) + travel_caveat(s.name, reg0)
+            caveat = (pinned_caveat(pin) + shape_caveat(s.name, pin, reg1, labels) + travel_caveat(s.name, reg0)
+                      + position_caveat(s.name, reg0))
             if implausible := force_terms.implausible_k(s.name, s.k):
                 caveat += f"; {implausible}: a STAND-IN taking another effect's force, not that mechanism"
                 stand_ins.append(s.name)
