@@ -168,8 +168,9 @@ def load_bag(
 def check_readable(bag: Path, topics: Iterable[str] | None = None, exclude: Iterable[str] = ()) -> None:
     """What ``load_bag`` checks of a bag before reading its messages (its metadata.yaml, every chunk's
     CRC, rosbags opening it, one machine's namespace, the types of the contract's topics it would
-    play, ``topics`` (None: all) but ``exclude``): BagReadError naming the bag and, where it can mend it, ``soil_bag_repair``;
-    BagPathError for a contract topic of another type (``refuse_contract_types``)."""
+    play, ``topics`` (None: all) but ``exclude``): BagReadError naming the bag and, where it can
+    mend it, ``soil_bag_repair``; BagPathError for a contract topic of another type
+    (``refuse_contract_types``)."""
     bag_custom_data(bag)
     with reading(bag), AnyReader([bag], default_typestore=M.TYPESTORE) as reader:
         ns = topics_namespace(bag, {c.topic for c in reader.connections})
