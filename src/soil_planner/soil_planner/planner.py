@@ -583,6 +583,7 @@ class _FusedForceModel:
             raise ValueError("no sample of the fused posterior has an FEE failure wedge at the planned steady cut")
         w = ok.astype(float)
         carried = self._anchor_error(fx, d)
+        fx_ok = np.where(ok, fx, 0.0)  # each sample's own F_x: where the law's part near the F_x limit counts from
         out = []
         for axis, (f, raw, (a, r, near), now, extra) in enumerate(((fx, raw_x, self.law[0], self.reference[0], carried[0]),
                                                                    (fz, raw_z, self.law[1], self.reference[1], carried[1]))):
@@ -591,7 +592,7 @@ class _FusedForceModel:
             # exceeds the sample's own force's share (an anchor adds knowledge, never doubt); the
             # published law's part near the F_x limit, from each sample's own F_x, as the posterior's
             law = (model_error_std(extrapolated_part(f, now, raw), a, r)
-                   + near_limit_error_std(np.where(ok, fx, 0.0), near, axis))
+                   + near_limit_error_std(fx_ok, near, axis))
             out.append((w, f, np.sqrt(law ** 2 + np.where(ok, extra, 0.0) ** 2) + 1e-9))
         return out
 
