@@ -4,6 +4,8 @@ with exit 2 and one line naming them (no traceback, no node left running), and a
 no section for the node says so. Each node is its own process, as ``ros2 run`` starts it."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from tests.ros_probe import NodeProc, next_domain_id, wait_until
@@ -80,21 +82,26 @@ def test_a_namespace_too_long_for_the_nodes_names_exits_2_in_one_line(tmp_path):
         assert "Traceback" not in out and ", at /" not in out, out
 
 
-def test_a_params_file_with_no_section_for_the_node_or_a_key_given_twice_is_named(tmp_path):
+def test_a_params_file_with_no_section_for_the_node_is_named_and_one_giving_a_key_twice_refused(tmp_path):
     typo = tmp_path / "typo.yaml"
     typo.write_text("soil_plannr:\n  ros__parameters:\n    margin: 0.5\n")
     shared = tmp_path / "shared.yaml"
     shared.write_text("/**:\n  ros__parameters:\n    log_period_s: 0.0\n")
-    twice = tmp_path / "twice.yaml"  # (rcl keeps one of the two in silence; soil_launch refuses the file)
+    twice = tmp_path / "twice.yaml"  # rcl would keep one of the two in silence: refused, as soil_launch refuses it
     twice.write_text("soil_planner:\n  ros__parameters:\n    margin: 0.8\n    margin: 0.9\n")
-    node = NodeProc("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(shared),
-                                     "--params-file", str(twice)], next_domain_id(), tmp_path)
+    code, out = _run("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(twice)], tmp_path)
+    assert code == 2, out
+    assert f"soil_planner: cannot start: params file {twice}: key 'margin' appears twice in one mapping (lines 3 and 4)" \
+        in out and "Traceback" not in out, out
+    sample = Path(__file__).resolve().parents[2] / "bags" / "samples" / "default_loam_id060_v0.50_d0.200_s7"
+    code, out = _run("soil_bag_play", [str(sample), "--ros-args", "--params-file", str(twice)], tmp_path)
+    assert code == 2 and f"soil_bag_play: cannot start: params file {twice}: key 'margin' appears twice" in out, out
+    node = NodeProc("soil_planner", ["--ros-args", "--params-file", str(typo), "--params-file", str(shared)],
+                    next_domain_id(), tmp_path)
     try:
-        wait_until(lambda: "nothing in it applies" in node.output and "appears twice" in node.output, 30,
-                   "the params files' warnings")
+        wait_until(lambda: "nothing in it applies" in node.output, 30, "the params files' warnings")
     finally:
         code = node.stop()
-    assert f"params file {twice}: key 'margin' appears twice in one mapping (lines 3 and 4)" in node.output, node.output
     assert f"params file {typo} has no section for this node (/soil_planner; its sections: soil_plannr) " \
            "(is soil_plannr a misspelling of soil_planner?): nothing in it applies" in node.output, node.output
     assert str(shared) not in node.output  # '/**' applies to every node

@@ -379,7 +379,7 @@ def _not_strict(constant):
     raise ValueError(f"not strict JSON: {constant}")
 
 
-def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
+def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path, capsys):
     """``--forecast-data``: a machine's own cuts of one soil at several depths are the pairs the
     forecast at another depth is judged on (the world's calibrated posterior; a soil-changing
     path is no source; pairs never cross worlds), and a folder with no pair is refused up front."""
@@ -408,6 +408,18 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path):
     fused, naive = report["forecast"]["fused"]["x"]["all"], report["forecast"]["naive_same_force"]["x"]["all"]
     assert fused["mean_abs_pct"] < 5.0 < naive["mean_abs_pct"], (fused, naive)  # the fee world: the FEE is exact
     assert f"episodes of the bags at {cuts}" in (out / "r.md").read_text()
+    # without --name the whole report and the forecast alone lie side by side (the README's retraining
+    # commands, one after the other, had replaced the whole report with the forecast's); a replaced one is said
+    assert eval_main([*common, "--out", str(out)]) == 0
+    whole = (out / f"{pinn.stem}_report.md").read_text()
+    capsys.readouterr()
+    alone_own = ["--checkpoint", str(pinn), "--forecast-only", "--no-classical", "--quiet", "--workers", "1",
+                 "--forecast-data", str(cuts), "--out", str(out)]
+    assert eval_main(alone_own) == 0 and "replaced" not in capsys.readouterr().err
+    assert json.loads((out / f"{pinn.stem}_forecast.json").read_text())["forecast_only"]
+    assert (out / f"{pinn.stem}_report.md").read_text() == whole
+    assert eval_main(alone_own) == 0
+    assert f"pinn_eval: replaced {pinn.stem}_forecast.json, {pinn.stem}_forecast.md in {out}" in capsys.readouterr().err
     # one cut alone is no pair: refused, naming the folder, before the test split is evaluated
     lone = tmp_path / "lone"
     write_episode(lone / "one", next(iter(run_episodes(SimConfig(world_mode="fee"), specs[:1]))))

@@ -28,12 +28,21 @@ pytestmark = [pytest.mark.live, pytest.mark.timeout(180)]
 def _not_strict(constant):
     raise ValueError(f"not strict JSON: {constant}")
 
-def test_bag_dir_is_cleared_only_if_it_holds_just_bags(tmp_path, episode):
+def test_bag_dir_is_cleared_only_if_it_is_the_demos_and_holds_just_bags(tmp_path, episode):
     root = tmp_path / "bags"
     assert D.prepare_bag_dir(root) is False and root.is_dir()
     write_episode(root / "old", episode)
     (root / "x.partial").mkdir()
-    assert D.prepare_bag_dir(root) is True and list(root.iterdir()) == []
+    assert D.prepare_bag_dir(root) is True and [e.name for e in root.iterdir()] == [D.OWNER_MARK]
+    # bags another tool recorded (no mark: soil_launch --record, soil_sim_batch) are never deleted
+    other = tmp_path / "recorded"
+    write_episode(other / "mine", episode)
+    with pytest.raises(ValueError, match=r"holds 1 episode bag the demo did not record \(e.g. mine; no \.soil_demo_bags"):
+        D.prepare_bag_dir(other)
+    assert [e.name for e in other.iterdir()] == ["mine"]
+    # an empty directory becomes the demo's
+    (tmp_path / "empty").mkdir()
+    assert D.prepare_bag_dir(tmp_path / "empty") is False and (tmp_path / "empty" / D.OWNER_MARK).is_file()
     (root / "notes.txt").write_text("mine")
     with pytest.raises(ValueError, match="holds 1 entry that is not an episode bag .*notes.txt"):
         D.prepare_bag_dir(root)

@@ -626,6 +626,12 @@ def plot(report: dict, path: Path) -> Path:
     return path
 
 
+def default_stem(checkpoint, forecast_only: bool) -> str:
+    """The report's file stem without ``--name``: the forecast alone and the whole evaluation are
+    two reports, in one ``--out`` side by side (the forecast alone had replaced the whole one)."""
+    return f"{Path(checkpoint).stem}_{'forecast' if forecast_only else 'report'}"
+
+
 def report_paths(out_dir: Path, stem: str, forecast_only: bool) -> dict[str, Path]:
     """The report's files in ``out_dir``: JSON, markdown and the per-soil figure (not with
     ``forecast_only``: no test split, no figure)."""
@@ -651,7 +657,8 @@ def main(argv=None) -> int:
     p.add_argument("--physics-free", help="physics-free baseline checkpoint trained on the same split")
     p.add_argument("--data", type=input_text, help="bag directory (default: the one the checkpoint was trained on)")
     p.add_argument("--out", type=output_dir, default="out/eval", help="report directory (default: out/eval)")
-    p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report)")
+    p.add_argument("--name", type=file_stem, help="report file stem (default: <checkpoint stem>_report, with "
+                   "--forecast-only <checkpoint stem>_forecast: the two never replace each other)")
     p.add_argument("--stride", type=int, help=f"samples between test windows (default: {TEST_STRIDE})")
     p.add_argument("--no-classical", action="store_true", help="skip the classical least-squares baseline")
     p.add_argument("--workers", type=cli_numbers.workers, default=2, help="processes for the classical fit and bag reading (0: one per core)")
@@ -682,7 +689,7 @@ def main(argv=None) -> int:
         args.stride = TEST_STRIDE
     if args.forecast_only and not args.forecast_data and args.forecast_world not in WORLD_MODES:
         p.error("--forecast-only needs --forecast-data DIR or --forecast-world fee|default")
-    stem = args.name or f"{Path(args.checkpoint).stem}_report"
+    stem = args.name or default_stem(args.checkpoint, args.forecast_only)
     try:
         refuse_directories(report_paths(Path(args.out), stem, args.forecast_only).values(), "give another --out or --name")
         if not 1 <= args.stride <= MAX_WINDOW_STRIDE:
@@ -700,8 +707,12 @@ def main(argv=None) -> int:
     except WorkerDied as err:  # a run that broke, not the input
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 1
+    replaced = [p.name for p in report_paths(Path(args.out), stem, args.forecast_only).values() if p.exists()]
     paths = write_report(report, Path(args.out), stem)
     print(markdown(report))
+    if replaced:  # a report of before is gone: said, since a user may have meant to keep it (--name, --out)
+        print(f"pinn_eval: replaced {', '.join(replaced)} in {args.out} (give --name or --out to keep a report)",
+              file=sys.stderr)
     print(json.dumps({k: str(v) for k, v in paths.items()}))
     return 0
 

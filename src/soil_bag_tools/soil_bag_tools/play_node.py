@@ -37,7 +37,7 @@ from .playback import (
     expand_bag_args, load_bag, string_cdr, unreadable_bags, with_clock,
 )
 from soil_msgs_py.ros_adapter import (endpoint_node, init_rclpy, local, message_class, own_arguments_or_refusal,
-                                      print_refusal, publisher_qos, stopping_said, wait_for_acks)
+                                      params_file_refusal, print_refusal, publisher_qos, stopping_said, wait_for_acks)
 
 EPISODE_CONTROL_TOPICS = (SIM_STATUS_TOPIC, SIM_EPISODE_TOPIC)  # the episode's events, said as a simulator says them
 STATUS_LEAD_S = 0.1  # episode_start goes out this long before the bag's first message
@@ -325,6 +325,10 @@ def main(args: list[str] | None = None) -> int:
         signals.append(signum)
         raise KeyboardInterrupt
 
+    refusal = params_file_refusal(argv)
+    if refusal:
+        print(f"soil_bag_play: cannot start: {refusal}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
     try:
         init_rclpy(argv, interrupt)
     except RuntimeError as err:  # rcl cannot read a --params-file

@@ -104,7 +104,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "(default: the shipped calibration of the checkpoint's world; pinn_fusion_calibrate --out makes one)")
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
     p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
-                   help="episode bags; cleared at start (default bags/demo_online)")
+                   help="episode bags; cleared at start, if the demo made the directory (its .soil_demo_bags file; "
+                        "default bags/demo_online)")
     L.add_domain_id_option(p, DEFAULT_DOMAIN_ID)
     p.add_argument("--no-forecast", action="store_true",
                    help="skip the forecast at other depths (the simulator cutting each episode's soil at "
@@ -196,24 +197,40 @@ def planned_seconds(args: argparse.Namespace, episodes: int) -> float:
     return 60.0 + episodes * (per_episode + 12.0)
 
 
+OWNER_MARK = ".soil_demo_bags"  # a file the demo writes into its --bags directory: only such a directory it clears
+OWNER_MARK_TEXT = ("The episode bags in this directory are soil_demo's: each demo run deletes them before it records its own.\n"
+                   "Record bags you want to keep elsewhere.\n")
+
+
 def prepare_bag_dir(root: Path) -> bool:
     """Empty ``root`` of a previous demo's bags; True if something was removed.
 
-    Refuses (ValueError) a directory holding anything but episode bags: never deletes data
-    that is not ours."""
+    Never deletes data that is not ours: it clears only a directory the demo marked as its own
+    (``OWNER_MARK``, written where it made the directory or found it empty), and there only
+    episode bags and recorder journals. A directory holding anything else, or bags another tool
+    recorded (``soil_launch --record``, ``soil_sim_batch``: a directory without the mark), is
+    refused (ValueError) and left as it is."""
     if not root.exists():
         root.mkdir(parents=True)
+        (root / OWNER_MARK).write_text(OWNER_MARK_TEXT, encoding="utf-8")
         return False
     if not root.is_dir():
         raise ValueError(f"--bags {root} exists and is not a directory")
-    entries = list(root.iterdir())
+    entries = sorted(e for e in root.iterdir() if e.name != OWNER_MARK)
     foreign = [e for e in entries if not (e.is_dir() and (is_bag(e) or e.name.endswith(PARTIAL_SUFFIX)))]
     if foreign:
         what = "entry that is not an episode bag" if len(foreign) == 1 else "entries that are not episode bags"
         raise ValueError(f"--bags {root} holds {len(foreign)} {what} (e.g. {foreign[0].name}); "
                          "not clearing it - choose another --bags")
+    if entries and not (root / OWNER_MARK).is_file():
+        what = "episode bag" if len(entries) == 1 else "episode bags"
+        raise ValueError(f"--bags {root} holds {len(entries)} {what} the demo did not record (e.g. {entries[0].name}; "
+                         f"no {OWNER_MARK} file beside them, which the demo writes into its own directory, since "
+                         "2026-12-08); not clearing it - choose another --bags, or delete them yourself if they are "
+                         "an older demo's")
     for e in entries:
         shutil.rmtree(e)
+    (root / OWNER_MARK).write_text(OWNER_MARK_TEXT, encoding="utf-8")
     return bool(entries)
 
 

@@ -707,7 +707,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--timeout", type=float, default=0.0,
                    help="stop everything after this many seconds (0: never); the launch then exits 3")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds of silence a stopping node gets before SIGTERM (one that keeps reporting, the "
-                        "recorder making its bags, is waited for up to 10 min)")
+                        "recorder making its bags, is waited for up to 10 min; default 10)")
     args = p.parse_args(argv)
     check_graph_options(p, args)
     if args.namespace == "/":

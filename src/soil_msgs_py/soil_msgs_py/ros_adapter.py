@@ -420,19 +420,29 @@ def params_files(argv: list[str]) -> list[str]:
     return [after for arg, in_ros, after in _ros_scan(argv) if in_ros and arg == "--params-file"]
 
 
+def params_file_refusal(argv: list[str]) -> str | None:
+    """Why a ``--params-file`` of ``argv`` is refused before the node starts, or None: one that
+    gives a key twice in a mapping (``yaml_file.DuplicateKey``), of which rcl would take one in
+    silence (the node had started with it and a warning; soil_launch refuses such a file too)."""
+    for path in params_files(argv):
+        try:
+            read_params_file(path)
+        except DuplicateKey as err:
+            return str(err)
+        except ValueError:
+            continue  # rcl refuses a file it cannot read or parse, in its own words
+    return None
+
+
 def params_file_warnings(argv: list[str], node: Node) -> list[str]:
     """One warning per ``--params-file`` with no section for ``node``: rcl applies none of it, so a
-    misspelt node name (``soil_sim_nod:``) would change nothing and say nothing; and one per file
-    giving a key twice in a mapping (``yaml_file.DuplicateKey``), of which rcl took one in silence."""
+    misspelt node name (``soil_sim_nod:``) would change nothing and say nothing."""
     out = []
     for path in params_files(argv):
         try:
             sections = read_params_file(path)
-        except DuplicateKey as err:  # (rcl took one of the values in silence; soil_launch refuses the file)
-            out.append(f"{err} (rcl took one of them)")
-            continue
         except ValueError:
-            continue  # rcl read it already (it refuses a file it cannot read or parse)
+            continue  # rcl read it already (it refuses a file it cannot read or parse); a key given twice: refused
         keys = [str(k) for k in sections]
         # (nested namespace maps too: rcl gives ``ns: {node: {ros__parameters: …}}`` to /ns/node)
         if not (keys and node_parameters(sections, node.get_fully_qualified_name())):
@@ -452,7 +462,7 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
     still valid in ``node.close()``: a node can publish its last status or finish a bag on
     the way out. A factory that raises ValueError or a ParameterException (a bad parameter)
     logs the message and exits with code 2, as do ROS arguments rcl cannot parse (a params file
-    that is missing or not YAML, ``-p NAME`` without a value). Given the node's ``parameters``
+    that is missing, not YAML or gives a key twice, ``-p NAME`` without a value). Given the node's ``parameters``
     table (a node whose command line holds nothing but ROS arguments), ``--help`` prints
     ``usage`` (exit 0) and any other argument that is not a ROS one is refused (exit 2): the
     node would otherwise start and ignore it. Otherwise the exit code is ``node.exit_code``
@@ -470,6 +480,10 @@ def spin_node(factory: Callable[[], Node], args: list[str] | None = None, parame
                 if any(":=" in a for a in own) else "")
         print(f"{_program(argv)}: error: unrecognised argument(s) {' '.join(own)}{hint}: a node takes its settings as "
               "--ros-args -p NAME:=VALUE or --ros-args --params-file FILE (--help lists them)", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    refusal = params_file_refusal(argv)
+    if refusal:
+        print(f"{_program(argv)}: cannot start: {refusal}", file=sys.stderr)
         return EXIT_BAD_CONFIG
     stop: list[int] = []
     try:
