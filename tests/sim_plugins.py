@@ -122,6 +122,15 @@ def speed_squared_drag(state, k: float = 1.0, p_pa: float = 10e3):
     return float(k) * state.w * d * float(p_pa) * np.asarray(state.v_x, dtype=float) ** 2, np.zeros_like(d)
 
 
+def chatter(state, k: float = 0.5, f_hz: float = 29.9, p_pa: float = 10e3):
+    """A zero-mean blade chatter, F_x = k w d p · sin(2π f t) [N], the same phase in every episode:
+    near a multiple of 60 Hz / stride, one analysed tick in ``stride`` sees it as a slow signal (an
+    outside reader's)."""
+    d = np.maximum(np.asarray(state.d, dtype=float), 0.0)
+    wave = np.sin(2.0 * np.pi * float(f_hz) * np.asarray(state.t, dtype=float)) * np.ones_like(d)
+    return float(k) * state.w * d * float(p_pa) * wave, np.zeros_like(d)
+
+
 def time_drag(state, k: float = 1.0, t0: float = 10.0, p_pa: float = 10e3):
     """Hidden effect on a variable no model input carries: F_x = k w d p · min(t / t0, 1) [N], a
     drag that grows with time in the episode (t the simulation time [s]), not with travel."""

@@ -80,6 +80,10 @@ class Frame:
     # (E,) where along the path each episode's travel in soil began [m]: the median of x_b − s over its
     # analysed ticks (NaN: none analysed); ``regimes.travel_is_position``
     entry_x_m: np.ndarray | None = None
+    # at stride > 1, per axis: RMS [N] of the soil's force about the mean of each block of ``stride``
+    # ticks ("within"), of its change from one analysed tick to the next as white noise would give it
+    # ("between", ``regimes.fast_part``'s measure), and of |F| ("force"): ``folded_vibration``
+    fast_force: dict | None = None
 
     def __len__(self) -> int:
         return len(self.episode)
@@ -223,6 +227,7 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
     parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil", "inertia")}
     short: list[int] = []
     entry_x = np.full(n_ep, np.nan)
+    fast = _FastForce()
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
@@ -240,6 +245,8 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         elif len(cutting) < MIN_CUT_S * SAMPLE_RATE_HZ:
             short.append(e)
             keep = keep[:0]
+        elif stride > 1:
+            fast.add(forces, cutting, stride)
         if len(keep):
             entry_x[e] = float(np.median(observations[keep, OBSERVATION_FIELDS.index("p_x_b")] - dist[keep]))
         parts["episode"].append(np.full(len(keep), e))
@@ -304,5 +311,50 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
         distance=cat["distance"], time_in_soil=cat["time_in_soil"], stride=stride, group_by=group_by, source=str(getattr(ds, "root", "")),
         changing_soil=tuple(ds.names[e] for e in changing), too_short=tuple(ds.names[e] for e in short),
         copies=tuple(ds.names[e] for e in sorted(copies)),
-        unlabelled_by_gamma=tuple(by_gamma), entry_x_m=entry_x,
+        unlabelled_by_gamma=tuple(by_gamma), entry_x_m=entry_x, fast_force=fast.result(),
     )
+
+
+class _FastForce:
+    """Sums for ``Frame.fast_force`` over the analysed episodes' cutting ticks."""
+
+    def __init__(self):
+        self.within, self.between, self.force = np.zeros(2), np.zeros(2), 0.0
+        self.n_within = self.n_between = 0
+
+    def add(self, forces: np.ndarray, cutting: np.ndarray, stride: int) -> None:
+        f = forces[cutting]
+        blocks = len(f) // stride  # whole blocks: the tick kept and the stride - 1 after it
+        if blocks < 2:
+            return
+        b = f[:blocks * stride].reshape(blocks, stride, 2)
+        self.within += np.nansum((b - b.mean(axis=1, keepdims=True)) ** 2, axis=(0, 1))
+        self.n_within += blocks * stride
+        kept = b[:, 0]
+        self.between += np.nansum(np.diff(kept, axis=0) ** 2, axis=0) / 2.0
+        self.n_between += blocks - 1
+        self.force += float(np.nansum(f ** 2))
+
+    def result(self) -> dict | None:
+        if not self.n_within or not self.n_between:
+            return None
+        within, between = np.sqrt(self.within / self.n_within), np.sqrt(self.between / self.n_between)
+        return {"within": {"x": float(within[0]), "z": float(within[1])},
+                "between": {"x": float(between[0]), "z": float(between[1])},
+                "force": math.sqrt(self.force / self.n_within)}
+
+
+def folded_vibration(frame: Frame, min_share: float) -> list[str]:
+    """The axes on which analysing every ``frame.stride``-th tick folds a vibration into a slow signal.
+
+    The force varies within the blocks of ``stride`` ticks by at least ``min_share`` of |F| and more
+    than it changes from one analysed tick to the next: fast content the decimation does not see as
+    fast (white noise is the other way round: sqrt((s - 1) / s) of its RMS within, all of it between).
+    An outside reader's 29.9 Hz chatter, analysed every 2nd tick, was a 0.1 Hz signal, named as a
+    slow relief growing with time in soil and "pinned down"; analysed every tick it is "alternating
+    from tick to tick"."""
+    fast = frame.fast_force
+    if frame.stride <= 1 or not fast or not fast["force"]:
+        return []
+    return [a for a in ("x", "z")
+            if fast["within"][a] >= min_share * fast["force"] and fast["within"][a] > fast["between"][a]]

@@ -36,7 +36,7 @@ from .candidates import (FOLDS, HOLDOUT_SHARE, MAX_TERMS, MIN_GAIN, check_holdou
                          split_holdout)
 from .forms import describe_form, pin_kind, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
-from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings
+from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings, folded_vibration
 from .gap import NO_WORSE_WITHOUT, compare_predictions, confirmation, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import (ALPHA, MIN_EFFECT, bin_edges, flagged_units, group_misfit, holm, misfit_discrepancy,
@@ -118,6 +118,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(f"min_gain={min_gain} must be in [0, 1)")
     check_holdout(holdout)  # (the split and the frame check these too, but only after the bags are read)
+    folded_note = ""  # the frame analyses every tick, where every stride-th would fold a vibration (``folded_vibration``)
     if frame is None:
         check_frame_settings(stride, group_by)
     initial = AugmentedFEE(accepted)
@@ -132,6 +133,14 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
 
             dataset = load_dataset(bag_dir, cache=cache, workers=workers, skip_bad_bags=skip_bad_bags)
         frame = build_frame(dataset, stride=stride, group_by=group_by)
+        if folded := folded_vibration(frame, min_effect):
+            folded_note = (f"analysed every tick, not one in {stride}: within each {stride} ticks the force varies "
+                           f"more than from one analysed tick to the next in {' and '.join(folded)} (RMS "
+                           + ", ".join(f"{a} {frame.fast_force['within'][a]:.0f} against {frame.fast_force['between'][a]:.0f} N"
+                                       for a in folded)
+                           + f"), a vibration that one tick in {stride} would fold into a slow signal")
+            say(folded_note)
+            frame = build_frame(dataset, stride=1, group_by=group_by)
         source = str(bag_dir if bag_dir is not None else getattr(dataset, "root", ""))
     else:
         source = frame.source
@@ -352,13 +361,15 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     names_given = dict(user_terms) if isinstance(user_terms, dict) else {t: t for t in user_terms or ()}
     verdict, summary = verdict_of(new_terms, reg0, test, reg1, form_report, tentative, pins, shift,
                                   user_names=names_given)
+    summary += f"; {folded_note}" if folded_note else ""
     say(summary)
     report = {
         "version": REPORT_VERSION,
         "source": source,
         "verdict": verdict,
         "summary": summary,
-        "settings": {"holdout": holdout, "folds": folds, "seed": seed, "stride": frame.stride, "alpha": alpha,
+        "settings": {"holdout": holdout, "folds": folds, "seed": seed, "stride": frame.stride, "stride_asked": stride,
+                     "folded_vibration": folded_note, "alpha": alpha,
                      "min_gain": min_gain, "min_effect": min_effect, "group_by": frame.group_by,
                      "candidates": candidates, "accepted_initial": [list(t) for t in initial.terms],
                      "allow_negative_k": allow_negative_k, "forms": forms, "min_depth_m": MIN_DEPTH_M, "skip_s": SKIP_S,
