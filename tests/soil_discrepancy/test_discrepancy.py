@@ -1009,6 +1009,33 @@ def test_a_term_of_travel_says_that_where_every_cut_entered_the_soil_at_one_plac
             assert (said in text) == expect, text
 
 
+def test_a_term_of_time_in_soil_says_that_where_every_cut_began_at_one_moment_time_in_soil_is_the_clock(bag_dirs):
+    """An outside reader's load cell whose gain drifts with the recording's clock (0.2 F_FEE t / 10 s)
+    was named "time in soil × the FEE force" and nothing said that every episode of a batch grid cuts
+    from its first tick, so τ is the clock. Real frame: its cuts begin at one moment; the same frame
+    with half its recordings started 4 s earlier is not; the verdict says it of a form of τ only."""
+    from dataclasses import replace
+
+    from soil_discrepancy.candidates import TermScore
+    from soil_discrepancy.frame import build_frame
+    from soil_discrepancy.regimes import time_in_soil_is_clock
+    from soil_discrepancy.verdict import verdict_of
+
+    frame = build_frame(blind(bag_dirs["control"]), stride=4)
+    t0 = time_in_soil_is_clock(frame)
+    assert t0 is not None and 0.0 <= t0 < 1.0, t0
+    later = frame.t + np.where(np.isin(frame.episode, frame.episodes[::2]), 4.0, 0.0)
+    assert time_in_soil_is_clock(replace(frame, t=later)) is None
+    test = {"before": {"rmse": 832.0}, "after": {"rmse": 512.0}}
+    said = "every recording's cut began at one moment of it (t ≈ 0.0 s), so time in soil is the recording's clock"
+    for name, says in (("form:fee*tau", True), ("form:wd_x*s", False), ("soil_inertia", False)):
+        named = [TermScore(name=name, k=0.2, k_se=0.003, k_folds=[0.2] * 5, gain=0.6, p=1e-9)]
+        for when, expect in ((0.0, says), (None, False)):
+            reg = {"significant": False, "flagged_variables": [], "time_in_soil_is_clock_s": when}
+            text = verdict_of(named, reg, test, None, pins={name: {"pinned": True}})[1]
+            assert (said in text) == expect, text
+
+
 @pytest.mark.parametrize("sse, red, p, ok, said", [
     (0.30, 0.00, 0.5, True, ""),  # the force error falls by more than the least gain
     (0.81, -0.118, 0.6, False, "the force at another depth gets worse, its error up 12 %"),
@@ -1320,7 +1347,8 @@ def test_a_named_term_that_makes_one_axis_worse_on_the_held_out_episodes_is_said
     """An outside tester's compaction on x only was named as the catalogue's compaction hardening,
     which acts on both axes, "explained": x's held-out mean |error| fell 906 -> 98 N while z's rose
     41 -> 96 N, and nothing said so. Now the verdict says which axis got worse and is at best
-    "partly explained"; an axis that moves by a few % is left alone."""
+    "partly explained" (why: a part of the terms on that axis, or, for terms of the other axis alone,
+    the soil refitted beside them); an axis that moves by a few % is left alone."""
     from soil_discrepancy.candidates import TermScore
     from soil_discrepancy.verdict import verdict_of
 
@@ -1330,7 +1358,12 @@ def test_a_named_term_that_makes_one_axis_worse_on_the_held_out_episodes_is_said
     worse_z = {"before": before, "after": {"rmse": 513.6, "rmse_x": 457.4, "rmse_z": 233.6, "mae_x": 97.7, "mae_z": 96.2}}
     verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, worse_z, quiet)
     assert verdict == "partly explained", text
-    assert "but the held-out z error rises (RMSE 221 -> 234 N, mean |error| 41 -> 96 N)" in text, text
+    assert "but the held-out z error rises (RMSE 221 -> 234 N, mean |error| 41 -> 96 N): the named terms' z part is " \
+           "not in the data" in text, text
+    # a form of x alone has no z part to blame (an eighth reader's): the soil refitted beside it moved z
+    x_only = [TermScore(name="form:gd2w_x*vx2", k=0.49, k_se=0.06, k_folds=[0.49] * 5, gain=0.5, p=1e-9)]
+    text = verdict_of(x_only, {"significant": True, "flagged_variables": ["t"]}, worse_z, quiet)[1]
+    assert "the named terms have no z part, so the soil refitted beside them moved z" in text, text
     same_z = {"before": before, "after": {**worse_z["after"], "rmse_z": 223.0, "mae_z": 42.5}}
     verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, same_z, quiet)
     assert verdict == "explained" and "error rises" not in text, text

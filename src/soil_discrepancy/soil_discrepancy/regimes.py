@@ -270,6 +270,27 @@ def travel_is_position(frame: Frame, tol: float = TRAVEL_AS_POSITION_TOL) -> flo
     return float(np.median(x)) if float(np.ptp(x)) <= tol * reach else None
 
 
+# Time in soil "is" the episode's clock when every analysed episode entered the soil at one moment of
+# its recording: the moments (t − τ) spread over at most this share of how long the blade was in the
+# soil (95th percentile of τ). The batch grids' episodes enter within ~0.1 s of each other.
+TIME_AS_CLOCK_TOL = 0.1
+
+
+def time_in_soil_is_clock(frame: Frame, tol: float = TIME_AS_CLOCK_TOL) -> float | None:
+    """The moment [s] after each recording's start at which every analysed episode entered the soil
+    (the median of t − τ), if they all did at one moment: time in soil τ is then the recording's clock
+    less a constant, so a law of one reads as a law of the other (an outside reader's sensor gain
+    drifting with the clock was named "time in soil × the FEE force" and nothing said so); only
+    recordings that start at different moments before the cut tell them apart. None otherwise."""
+    if not len(frame):
+        return None
+    reach = float(np.percentile(frame.time_in_soil, 95))
+    offsets = [float(np.median((frame.t - frame.time_in_soil)[frame.episode == e])) for e in frame.episodes]
+    if len(offsets) < 2 or not reach > 0:
+        return None
+    return float(np.median(offsets)) if float(np.ptp(offsets)) <= tol * reach else None
+
+
 def episode_misfit(frame: Frame, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(episodes, relative misfit per episode): RMS of the residual magnitude over the mean measured |F| (1)."""
     eps = frame.episodes

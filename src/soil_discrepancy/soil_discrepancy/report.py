@@ -21,7 +21,7 @@ from soil_physics import force_terms, term_forms
 from .forms import CATALOGUE_FILE, PIN_KINDS, catalogue_yaml, levels_text, pin_kind
 from .gap import NO_WORSE_WITHOUT
 from .soil_tests import WIDTH_SIGMA
-from .verdict import (THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, position_caveat, theta_move_text, travel_caveat,
+from .verdict import (THETA_SHIFT_DISPLAY, WEAK_PIN_KINDS, clock_caveat, position_caveat, theta_move_text, travel_caveat,
                       unconfirmed_reason, unpinned_forms_only)
 from .regimes import AXES, CONTINUOUS, binned_curve, flagged_units, misfit_unit_name
 
@@ -333,7 +333,8 @@ def _forms_md(forms: dict | None, test: dict | None, labels: dict, reg0: dict | 
                      "it acts against that term's physics: not that effect but its opposite, less of it where the model has it)"
                      if close.get("opposite") else "not the same: a new mechanism)")
                   + (f" ({travel.lstrip('; ')})" if (travel := travel_caveat(f["name"], reg0)) else "")
-                  + (f" ({where_.lstrip('; ')})" if (where_ := position_caveat(f["name"], reg0)) else ""),
+                  + (f" ({where_.lstrip('; ')})" if (where_ := position_caveat(f["name"], reg0)) else "")
+                  + (f" ({when.lstrip('; ')})" if (when := clock_caveat(f["name"], reg0)) else ""),
                   f"- Held-out cross-validated gain {100 * f['gain']:.1f} %, p (Holm) {_p(f['p_holm'])}."]
         lines += _pinned_md(f.get("pin"))
         nc = forms.get("not_confirmed")

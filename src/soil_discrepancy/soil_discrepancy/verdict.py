@@ -193,6 +193,27 @@ def position_caveat(name: str, reg0: dict | None) -> str:
             "the soil at different places tell them apart")
 
 
+def clock_caveat(name: str, reg0: dict | None) -> str:
+    """The words a named term of time in soil carries where every recording began at one moment before
+    its cut (``regimes.time_in_soil_is_clock``): time in soil is the recording's clock less a constant
+    there, so a drift with the clock (a sensor's gain, a machine warming up) fits as well."""
+    t0 = (reg0 or {}).get("time_in_soil_is_clock_s")
+    if t0 is None or not force_terms.uses_time(name):
+        return ""
+    return (f"; every recording's cut began at one moment of it (t ≈ {t0:.1f} s), so time in soil is the recording's "
+            "clock less a constant here: a drift with the clock (a sensor's gain, a machine warming up) fits as well, "
+            "and only recordings that start at different moments before the cut tell them apart")
+
+
+def _acts_on(name: str, axis: str) -> bool:
+    """Whether term ``name`` has a part on ``axis`` ('x' or 'z'): a form of one axis has none on the
+    other (an outside reader's x-only forms were said to have a z part "not in the data"); a
+    catalogue term is taken to act on both."""
+    if not name.startswith(FORM_PREFIX):
+        return True
+    return term_forms.describe(name)["axis"] in (axis, "fee", "vec")
+
+
 def fmt_n(x) -> str:
     """A force [N] for a message; '–' where a model was undefined on every tick (None)."""
     return "–" if x is None else f"{x:.0f}"
@@ -258,7 +279,7 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             label = s.name
             pin = (pins or {}).get(s.name)
             caveat = (pinned_caveat(pin) + shape_caveat(s.name, pin, reg1, labels) + travel_caveat(s.name, reg0)
-                      + position_caveat(s.name, reg0))
+                      + position_caveat(s.name, reg0) + clock_caveat(s.name, reg0))
             if implausible := force_terms.implausible_k(s.name, s.k):
                 caveat += f"; {implausible}: a STAND-IN taking another effect's force, not that mechanism"
                 stand_ins.append(s.name)
@@ -282,8 +303,11 @@ def verdict_of(new_terms, reg0: dict, test: dict | None, reg1: dict | None = Non
             worse_axes = _worse_axes(test)
             for axis, (rb, ra, mb, ma) in worse_axes:
                 text += (f"; but the held-out {axis} error rises (RMSE {rb:.0f} -> {ra:.0f} N, mean |error| {mb:.0f} -> "
-                         f"{ma:.0f} N): the named terms' {axis} part is not in the data (an effect on the other axis "
-                         "only, or another form on this one)")
+                         f"{ma:.0f} N): " + (f"the named terms' {axis} part is not in the data (an effect on the other "
+                                              "axis only, or another form on this one)"
+                                              if any(_acts_on(s.name, axis) for s in new_terms) else
+                                              f"the named terms have no {axis} part, so the soil refitted beside them "
+                                              f"moved {axis}: they take in more than the effect on the other axis"))
         # structure beside the named terms, in a regime or in some soils' fit: "partly explained"
         remains = reg1 is not None and (reg1["significant"] or bool(misfit_discrepancy(reg1)))
         weak = weak_forms_only(new_terms, pins, gain)

@@ -40,8 +40,8 @@ from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_
 from .gap import NO_WORSE_WITHOUT, compare_predictions, confirmation, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import (ALPHA, MIN_EFFECT, bin_edges, flagged_units, group_misfit, holm, misfit_discrepancy,
-                      misfit_unit_name, regime_analysis, travel_is_position, travel_is_speed_times_time, unit_episodes,
-                      variable_labels)
+                      misfit_unit_name, regime_analysis, time_in_soil_is_clock, travel_is_position,
+                      travel_is_speed_times_time, unit_episodes, variable_labels)
 from .soil_tests import displayed_box, hold_theta, unmatched
 from .verdict import fmt_n, forecast_gap_text, theta_shift, verdict_of
 
@@ -168,6 +168,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
     reg0["misfit"] = group_misfit(frame, r0, alpha=alpha, theta_table=base.table(frame))
     reg0["travel_is_speed_times_time"] = travel_is_speed_times_time(frame)
     reg0["travel_is_position_m"] = travel_is_position(frame)
+    reg0["time_in_soil_is_clock_s"] = time_in_soil_is_clock(frame)
     say(f"baseline residual RMS x {reg0['rms_n']['x']:.0f} N, z {reg0['rms_n']['z']:.0f} N; "
         f"flagged regimes: {', '.join(reg0['flagged_variables']) or 'none'}; fits worse in: "
         f"{', '.join(flagged_units(reg0['misfit'])) or 'no group'}")
