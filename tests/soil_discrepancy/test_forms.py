@@ -814,7 +814,7 @@ def test_a_chatter_one_tick_in_two_would_fold_into_a_slow_signal_is_analysed_at_
     # (on these 32 episodes "no significant discrepancy" beside the note; on the reader's 108 "unexplained",
     # the residual "alternating from tick to tick")
     assert rep["selection"]["accepted"] == [] and rep["verdict"] in ("unexplained", "no significant discrepancy")
-    assert "analysed every tick, not one in 2: within each 2 ticks the force varies more than from one analysed " \
+    assert "analysed every tick, not one in 2: within each 2 ticks the force varies far more than from one analysed " \
            "tick to the next in x" in rep["summary"], rep["summary"]
     quiet = simulated(small_grid())
     noisy = replace(quiet, forces=quiet.forces + np.random.default_rng(3).normal(size=quiet.forces.shape) * 2000.0)

@@ -135,7 +135,7 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
         frame = build_frame(dataset, stride=stride, group_by=group_by)
         if folded := folded_vibration(frame, min_effect):
             folded_note = (f"analysed every tick, not one in {stride}: within each {stride} ticks the force varies "
-                           f"more than from one analysed tick to the next in {' and '.join(folded)} (RMS "
+                           f"far more than from one analysed tick to the next in {' and '.join(folded)} (RMS "
                            + ", ".join(f"{a} {frame.fast_force['within'][a]:.0f} against {frame.fast_force['between'][a]:.0f} N"
                                        for a in folded)
                            + f"), a vibration that one tick in {stride} would fold into a slow signal")
