@@ -40,6 +40,12 @@ def test_bag_dir_is_cleared_only_if_it_is_the_demos_and_holds_just_bags(tmp_path
     with pytest.raises(ValueError, match=r"holds 1 episode bag the demo did not record \(e.g. mine; no \.soil_demo_bags"):
         D.prepare_bag_dir(other)
     assert [e.name for e in other.iterdir()] == ["mine"]
+    # the default directory, which each run has always cleared, is cleared without the mark (an older
+    # demo's); a link to a bag is removed, not what it links to
+    (root / "linked").symlink_to(other / "mine", target_is_directory=True)
+    (root / D.OWNER_MARK).unlink()
+    assert D.prepare_bag_dir(root, adopt_unmarked=True) is True and (other / "mine").is_dir()
+    assert [e.name for e in root.iterdir()] == [D.OWNER_MARK]
     # an empty directory becomes the demo's
     (tmp_path / "empty").mkdir()
     assert D.prepare_bag_dir(tmp_path / "empty") is False and (tmp_path / "empty" / D.OWNER_MARK).is_file()

@@ -1361,9 +1361,10 @@ def test_a_named_term_that_makes_one_axis_worse_on_the_held_out_episodes_is_said
     assert "but the held-out z error rises (RMSE 221 -> 234 N, mean |error| 41 -> 96 N): the named terms' z part is " \
            "not in the data" in text, text
     # a form of x alone has no z part to blame (an eighth reader's): the soil refitted beside it moved z
-    x_only = [TermScore(name="form:gd2w_x*vx2", k=0.49, k_se=0.06, k_folds=[0.49] * 5, gain=0.5, p=1e-9)]
-    text = verdict_of(x_only, {"significant": True, "flagged_variables": ["t"]}, worse_z, quiet)[1]
-    assert "the named terms have no z part, so the soil refitted beside them moved z" in text, text
+    for name in ("form:gd2w_x*vx2", "soil_inertia"):  # a form and a catalogue term of x alone
+        x_only = [TermScore(name=name, k=0.49, k_se=0.06, k_folds=[0.49] * 5, gain=0.5, p=1e-9)]
+        text = verdict_of(x_only, {"significant": True, "flagged_variables": ["t"]}, worse_z, quiet)[1]
+        assert "the named terms have no z part, so the soil refitted beside them moved z" in text, text
     same_z = {"before": before, "after": {**worse_z["after"], "rmse_z": 223.0, "mae_z": 42.5}}
     verdict, text = verdict_of(named, {"significant": True, "flagged_variables": ["t"]}, same_z, quiet)
     assert verdict == "explained" and "error rises" not in text, text

@@ -33,6 +33,8 @@ def test_every_term_is_documented_zero_out_of_soil_and_same_in_torch(name):
     assert np.isfinite(bx).all() and np.isfinite(bz).all()
     assert bx[2] == 0.0 and bz[2] == 0.0, "no soil, no force"
     assert abs(bx[0]) + abs(bz[0]) > 0, "a blade 0.2 m deep feels every effect"
+    # the axes it says it acts on are those its basis has a part on (a report blames an axis's part by them)
+    assert term.axes == "x" * bool(np.any(bx[:2])) + "z" * bool(np.any(bz[:2])), (term.axes, bx, bz)
     t = {k: (torch.tensor(v, dtype=torch.float64) if isinstance(v, np.ndarray) else v) for k, v in inputs().__dict__.items()}
     tx, tz = term.basis(ForceInputs(**t))
     np.testing.assert_allclose(tx.numpy(), bx, rtol=1e-12)

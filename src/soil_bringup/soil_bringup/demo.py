@@ -103,7 +103,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="the estimator's fused-posterior config, for the live run and the forecast at other depths "
                         "(default: the shipped calibration of the checkpoint's world; pinn_fusion_calibrate --out makes one)")
     p.add_argument("--out", type=output_dir, default="out/demo", help="summary, PNG and launch log (default out/demo)")
-    p.add_argument("--bags", type=Path, default=Path("bags/demo_online"),
+    p.add_argument("--bags", type=Path, default=DEFAULT_BAGS,
                    help="episode bags; cleared at start, if the demo made the directory (its .soil_demo_bags file; "
                         "default bags/demo_online)")
     L.add_domain_id_option(p, DEFAULT_DOMAIN_ID)
@@ -202,14 +202,19 @@ OWNER_MARK_TEXT = ("The episode bags in this directory are soil_demo's: each dem
                    "Record bags you want to keep elsewhere.\n")
 
 
-def prepare_bag_dir(root: Path) -> bool:
+DEFAULT_BAGS = Path("bags/demo_online")
+
+
+def prepare_bag_dir(root: Path, *, adopt_unmarked: bool = False) -> bool:
     """Empty ``root`` of a previous demo's bags; True if something was removed.
 
     Never deletes data that is not ours: it clears only a directory the demo marked as its own
     (``OWNER_MARK``, written where it made the directory or found it empty), and there only
-    episode bags and recorder journals. A directory holding anything else, or bags another tool
-    recorded (``soil_launch --record``, ``soil_sim_batch``: a directory without the mark), is
-    refused (ValueError) and left as it is."""
+    episode bags (a link to one: the link) and recorder journals. A directory holding anything
+    else, or bags another tool recorded (``soil_launch --record``, ``soil_sim_batch``: a directory
+    without the mark), is refused (ValueError) and left as it is. ``adopt_unmarked``: the default
+    directory, which the README has always said each run clears, is cleared without the mark too
+    (a demo of before the mark left none there)."""
     if not root.exists():
         root.mkdir(parents=True)
         (root / OWNER_MARK).write_text(OWNER_MARK_TEXT, encoding="utf-8")
@@ -222,14 +227,14 @@ def prepare_bag_dir(root: Path) -> bool:
         what = "entry that is not an episode bag" if len(foreign) == 1 else "entries that are not episode bags"
         raise ValueError(f"--bags {root} holds {len(foreign)} {what} (e.g. {foreign[0].name}); "
                          "not clearing it - choose another --bags")
-    if entries and not (root / OWNER_MARK).is_file():
+    if entries and not adopt_unmarked and not (root / OWNER_MARK).is_file():
         what = "episode bag" if len(entries) == 1 else "episode bags"
         raise ValueError(f"--bags {root} holds {len(entries)} {what} the demo did not record (e.g. {entries[0].name}; "
                          f"no {OWNER_MARK} file beside them, which the demo writes into its own directory, since "
                          "2026-12-08); not clearing it - choose another --bags, or delete them yourself if they are "
                          "an older demo's")
     for e in entries:
-        shutil.rmtree(e)
+        e.unlink() if e.is_symlink() else shutil.rmtree(e)
     (root / OWNER_MARK).write_text(OWNER_MARK_TEXT, encoding="utf-8")
     return bool(entries)
 
@@ -293,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
     if left_behind:
         print(f"demo: killed nodes a previous run left behind: {', '.join(left_behind)}", flush=True)
     try:
-        cleared = prepare_bag_dir(args.bags)
+        cleared = prepare_bag_dir(args.bags, adopt_unmarked=args.bags.resolve() == DEFAULT_BAGS.resolve())
     except (ValueError, OSError) as err:
         print(f"demo: {err}", file=sys.stderr)
         return L.EXIT_BAD_ARGS

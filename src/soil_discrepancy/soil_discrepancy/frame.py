@@ -227,7 +227,7 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
     parts = {k: [] for k in ("episode", "rows", "t", "known", "forces", "distance", "time_in_soil", "inertia")}
     short: list[int] = []
     entry_x = np.full(n_ep, np.nan)
-    fast = _FastForce()
+    fast = _FastForce(stride)
     for e in range(n_ep):
         r = ds.episode_rows(e)
         known = np.asarray(ds.known[r], float)
@@ -318,9 +318,10 @@ def build_frame(ds, *, stride: int = DEFAULT_STRIDE, min_depth_m: float = MIN_DE
 class _FastForce:
     """Sums for ``Frame.fast_force`` over the analysed episodes' cutting ticks."""
 
-    def __init__(self):
+    def __init__(self, stride: int):
         self.within, self.between, self.force = np.zeros(2), np.zeros(2), 0.0
         self.n_within = self.n_between = 0
+        self.stride = stride
 
     def add(self, forces: np.ndarray, cutting: np.ndarray, stride: int) -> None:
         f = forces[cutting]
@@ -328,12 +329,14 @@ class _FastForce:
         if blocks < 2:
             return
         b = f[:blocks * stride].reshape(blocks, stride, 2)
-        self.within += np.nansum((b - b.mean(axis=1, keepdims=True)) ** 2, axis=(0, 1))
+        if not np.isfinite(b).all():
+            return  # (a NaN force: the episode adds nothing rather than counting blocks it cannot sum)
+        self.within += ((b - b.mean(axis=1, keepdims=True)) ** 2).sum(axis=(0, 1))
         self.n_within += blocks * stride
         kept = b[:, 0]
-        self.between += np.nansum(np.diff(kept, axis=0) ** 2, axis=0) / 2.0
+        self.between += (np.diff(kept, axis=0) ** 2).sum(axis=0) / 2.0
         self.n_between += blocks - 1
-        self.force += float(np.nansum(f ** 2))
+        self.force += float((b ** 2).sum())
 
     def result(self) -> dict | None:
         if not self.n_within or not self.n_between:
@@ -341,24 +344,34 @@ class _FastForce:
         within, between = np.sqrt(self.within / self.n_within), np.sqrt(self.between / self.n_between)
         return {"within": {"x": float(within[0]), "z": float(within[1])},
                 "between": {"x": float(between[0]), "z": float(between[1])},
-                "force": math.sqrt(self.force / self.n_within)}
+                "force": math.sqrt(self.force / self.n_within), "stride": self.stride, "pairs": self.n_between}
 
 
-# The force's RMS within the blocks of ``stride`` ticks must exceed this many times its change between
-# analysed ticks to count as folded: white noise gives sqrt((s - 1) / s) < 1, slow physics far less
-# (0.35-0.8 on the 108-episode grids, fee and default world, strides 2-8; the default world reaches
-# 0.97 at stride 30, where a block spans half a second of its particle events); the 29.9 Hz chatter
-# 15 at stride 2, 4 at stride 16.
-FOLD_RATIO = 1.5
+# White noise's share is estimated from the pairs of analysed ticks: what varies within the blocks
+# must exceed it by this many of that estimate's standard errors (sqrt(2 / pairs) of it) to count
+# (2000 N of white noise on the 32-episode grid left 400 N "beyond noise" at stride 8 without it).
+FOLD_SIGMAS = 3.0
+
+
+def folded_rms(fast: dict, axis: str) -> float:
+    """The RMS [N] of what varies within the blocks beyond white noise's share (``Frame.fast_force``):
+    sqrt(within² − (s − 1)/s · between² − its sampling margin), 0 if none. White noise gives
+    (s − 1)/s of its variance within and all of it between, so it cancels; slow physics changes more
+    between analysed ticks than within a block, so it gives none; a vibration near a multiple of
+    60 Hz / s varies within the blocks and folds to a slow signal between them. (A plain ratio of the
+    two missed an outside reviewer's chatter in the default world, whose noise and particle events
+    fill "between".)"""
+    s = fast["stride"]
+    noise = (s - 1) / s * fast["between"][axis] ** 2
+    margin = FOLD_SIGMAS * noise * math.sqrt(2.0 / max(fast["pairs"], 1))
+    return math.sqrt(max(fast["within"][axis] ** 2 - noise - margin, 0.0))
 
 
 def folded_vibration(frame: Frame, min_share: float) -> list[str]:
     """The axes on which analysing every ``frame.stride``-th tick folds a vibration into a slow signal.
 
-    The force varies within the blocks of ``stride`` ticks by at least ``min_share`` of |F| and more
-    (``FOLD_RATIO``) than it changes from one analysed tick to the next: fast content the decimation
-    does not see as fast (white noise is the other way round: sqrt((s - 1) / s) of its RMS within,
-    all of it between).
+    The force varies within the blocks of ``stride`` ticks, beyond what white noise does, by at least
+    ``min_share`` of |F| (``folded_rms``): fast content the decimation does not see as fast.
     An outside reader's 29.9 Hz chatter, analysed every 2nd tick, was a 0.1 Hz signal, named as a
     slow relief growing with time in soil and "pinned down"; analysed every tick it is "alternating
     from tick to tick"."""
@@ -366,4 +379,4 @@ def folded_vibration(frame: Frame, min_share: float) -> list[str]:
     if frame.stride <= 1 or not fast or not fast["force"]:
         return []
     return [a for a in ("x", "z")
-            if fast["within"][a] >= min_share * fast["force"] and fast["within"][a] > FOLD_RATIO * fast["between"][a]]
+            if folded_rms(fast, a) >= min_share * fast["force"]]

@@ -206,12 +206,10 @@ def clock_caveat(name: str, reg0: dict | None) -> str:
 
 
 def _acts_on(name: str, axis: str) -> bool:
-    """Whether term ``name`` has a part on ``axis`` ('x' or 'z'): a form of one axis has none on the
-    other (an outside reader's x-only forms were said to have a z part "not in the data"); a
-    catalogue term is taken to act on both."""
-    if not name.startswith(FORM_PREFIX):
-        return True
-    return term_forms.describe(name)["axis"] in (axis, "fee", "vec")
+    """Whether term ``name`` has a part on ``axis`` ('x' or 'z', ``force_terms.Term.axes``): a term of
+    one axis has none on the other (an outside reader's x-only forms were said to have a z part "not
+    in the data")."""
+    return axis in force_terms.get_term(name).axes
 
 
 def fmt_n(x) -> str:

@@ -36,7 +36,8 @@ from .candidates import (FOLDS, HOLDOUT_SHARE, MAX_TERMS, MIN_GAIN, check_holdou
                          split_holdout)
 from .forms import describe_form, pin_kind, rival_forms, search_forms, weaker_pin
 from .fee_fit import fit_fixed, fit_joint, residuals
-from .frame import DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings, folded_vibration
+from .frame import (DEFAULT_STRIDE, MIN_CUT_S, MIN_DEPTH_M, SKIP_S, Frame, build_frame, check_frame_settings, folded_rms,
+                    folded_vibration)
 from .gap import NO_WORSE_WITHOUT, compare_predictions, confirmation, depth_forecast_gap, fee_gap
 from .provenance import environment
 from .regimes import (ALPHA, MIN_EFFECT, bin_edges, flagged_units, group_misfit, holm, misfit_discrepancy,
@@ -55,6 +56,23 @@ def load_frame(bag_dir, *, stride: int = DEFAULT_STRIDE, group_by: str = "auto",
 
     ds = load_dataset(bag_dir, cache=cache, workers=workers, skip_bad_bags=skip_bad_bags)
     return build_frame(ds, stride=stride, group_by=group_by)
+
+
+def fold_text(frame: Frame, min_effect: float, *, rebuilt: bool) -> str:
+    """What the verdict says where one analysed tick in ``frame.stride`` folds a vibration into a slow
+    signal (``frame.folded_vibration``): the frame is built again at every tick (``rebuilt``), or, for
+    a frame given ready-made, the user is told to; "" where nothing folds."""
+    folded = folded_vibration(frame, min_effect)
+    if not folded:
+        return ""
+    n, fast = frame.stride, frame.fast_force
+    what = ", ".join(f"{a} {folded_rms(fast, a):.0f} N" for a in folded)
+    measured = ", ".join(f"{a} {fast['within'][a]:.0f} within, {fast['between'][a]:.0f} between" for a in folded)
+    head = (f"analysed every tick, not one in {n}" if rebuilt else
+            f"the frame given analyses one tick in {n}, which may fold a vibration into a slow signal: build it with "
+            "stride 1")
+    return (f"{head}: within each {n} ticks the force varies beyond noise by RMS {what} (RMS {measured} analysed ticks), "
+            f"a vibration that one tick in {n} would fold into a slow signal")
 
 
 def _refuse_non_finite(r0: np.ndarray, model: AugmentedFEE) -> None:
@@ -133,17 +151,15 @@ def run_discrepancy(bag_dir=None, out_dir=None, *, frame: Frame | None = None, d
 
             dataset = load_dataset(bag_dir, cache=cache, workers=workers, skip_bad_bags=skip_bad_bags)
         frame = build_frame(dataset, stride=stride, group_by=group_by)
-        if folded := folded_vibration(frame, min_effect):
-            folded_note = (f"analysed every tick, not one in {stride}: within each {stride} ticks the force varies "
-                           f"far more than from one analysed tick to the next in {' and '.join(folded)} (RMS "
-                           + ", ".join(f"{a} {frame.fast_force['within'][a]:.0f} against {frame.fast_force['between'][a]:.0f} N"
-                                       for a in folded)
-                           + f"), a vibration that one tick in {stride} would fold into a slow signal")
+        if folded_note := fold_text(frame, min_effect, rebuilt=True):
             say(folded_note)
             frame = build_frame(dataset, stride=1, group_by=group_by)
         source = str(bag_dir if bag_dir is not None else getattr(dataset, "root", ""))
     else:
         source = frame.source
+        stride = frame.stride  # (the frame given is analysed as it was built)
+        if folded_note := fold_text(frame, min_effect, rebuilt=False):
+            say(f"warning: {folded_note}")
     if soil_tests:
         frame = hold_theta(frame, soil_tests)
         say(f"soil tests hold θ in {len(frame.theta_boxes)} of {len(frame.groups)} θ-groups")

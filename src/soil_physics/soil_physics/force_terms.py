@@ -53,6 +53,9 @@ class Term:
     # beyond what the FEE's θ can take: data holding it at too few levels cannot tell that factor from
     # another (the discrepancy workflow); a library form's is its factor's
     factor_variable: str | None = None
+    # the force's axes the term acts on ("x", "z" or "xz"; the others' part is identically zero): a
+    # report says of a term of x alone that it has no z part to blame
+    axes: str = "xz"
 
     def basis(self, inputs: ForceInputs) -> tuple[Any, Any]:
         """(B_x, B_z) [N per unit k], NumPy or torch like the inputs (scalars broadcast)."""
@@ -130,7 +133,7 @@ CATALOGUE: dict[str, Term] = {
         Term("soil_inertia", "inertial acceleration of the cut soil",
              "F_x = k (γ/g) w d v_x²  [N]", "1", 1.0,
              "the FEE is quasi-static: the soil entering the wedge is accelerated to blade speed, "
-             "a momentum flux that grows with v_x²", _inertia, factor_variable="v_x"),
+             "a momentum flux that grows with v_x²", _inertia, factor_variable="v_x", axes="x"),
         Term("side_wall_shear", "side-wall shear of a finite-width blade",
              "F = k · 2 A_side τ cos φ / sin η along the FEE force, A_side = d²(cot ρ + cot β*)/2, "
              "τ = c + (1 − sin φ) γ d/3 tan φ  [N]", "1", 1.0,
@@ -139,15 +142,15 @@ CATALOGUE: dict[str, Term] = {
         Term("tip_penetration", "blade-tip penetration (bearing) resistance",
              "F_z = −k w t_e (c N_c + γ d N_q), N_q = e^{π tan φ} tan²(45° + φ/2), N_c = (N_q − 1) cot φ, "
              f"t_e = {EDGE_WIDTH_M:g} m  [N]", "1", 1.0,
-             "the FEE's blade has no thickness; a real edge bears on the floor it cuts", _tip_bearing),
+             "the FEE's blade has no thickness; a real edge bears on the floor it cuts", _tip_bearing, axes="z"),
         Term("surcharge_drag", "surcharge contribution beyond the FEE's Q N_Q",
              "F_x = k Q  [N]", "1", 0.3,
              "the pile in front of the blade is pushed along the ground, not only lifted with the wedge",
-             _surcharge_drag, FRICTION_K_MAX, _FRICTION_WHY),
+             _surcharge_drag, FRICTION_K_MAX, _FRICTION_WHY, axes="x"),
         Term("rate_strength", "rate-dependent (viscous) strength",
              "F_x = k w d v_x  [N]", "Pa·s/m", 5e3,
              "soil shear strength rises with the shear rate; the FEE's strength is rate-free",
-             _rate_strength, factor_variable="v_x"),
+             _rate_strength, factor_variable="v_x", axes="x"),
         Term("compaction_hardening", "compaction hardening with distance travelled",
              "F = k s F_FEE, s = blade travel in soil since the start  [N]", "1/m", 0.05,
              "the soil ahead is compacted by the pass, so its strength grows with distance cut",
@@ -155,7 +158,7 @@ CATALOGUE: dict[str, Term] = {
         Term("base_friction", "friction under the blade base",
              "F_x = k max(−F_z^FEE, 0)  [N]", "1", 0.3,
              "the downward push of the blade is carried by the cut floor under its base, which "
-             "slides with Coulomb friction μ = k", _base_friction, FRICTION_K_MAX, _FRICTION_WHY),
+             "slides with Coulomb friction μ = k", _base_friction, FRICTION_K_MAX, _FRICTION_WHY, axes="x"),
     )
 }
 
@@ -176,7 +179,8 @@ def _form_term(name: str) -> Term:
     info = term_forms.describe(name)  # ValueError naming the bad scale/factor
     return Term(name, info["title"], info["formula"], "1", 1.0,
                 "a form found by sparse regression over the library of candidate forms (soil_discrepancy.forms)",
-                functools.partial(_form_basis, name), factor_variable=term_forms.factor_variable(info["factor"]))
+                functools.partial(_form_basis, name), factor_variable=term_forms.factor_variable(info["factor"]),
+                axes=info["axis"] if info["axis"] in ("x", "z") else "xz")
 
 
 def _form_basis(name: str, s: ForceInputs, xp):
