@@ -74,6 +74,12 @@ LAUNCH_FAILURES = {L.EXIT_NODE_DIED: "a node died or failed: see the log", L.EXI
                    G.EXIT_EPISODE_FAILED: "an episode ended in error"}
 
 
+DEFAULT_BAGS = Path("bags/demo_online")
+OWNER_MARK = ".soil_demo_bags"  # a file the demo writes into its --bags directory: only such a directory it clears
+OWNER_MARK_TEXT = ("The episode bags in this directory are soil_demo's: each demo run deletes them before it records its own.\n"
+                   "Record bags you want to keep elsewhere.\n")
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="soil_demo", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -195,14 +201,6 @@ def planned_seconds(args: argparse.Namespace, episodes: int) -> float:
     """A generous bound on the launch's run time (the launch's own --timeout)."""
     per_episode = args.duration / args.rate if args.pacing == "realtime" else args.duration
     return 60.0 + episodes * (per_episode + 12.0)
-
-
-OWNER_MARK = ".soil_demo_bags"  # a file the demo writes into its --bags directory: only such a directory it clears
-OWNER_MARK_TEXT = ("The episode bags in this directory are soil_demo's: each demo run deletes them before it records its own.\n"
-                   "Record bags you want to keep elsewhere.\n")
-
-
-DEFAULT_BAGS = Path("bags/demo_online")
 
 
 def prepare_bag_dir(root: Path, *, adopt_unmarked: bool = False) -> bool:

@@ -42,7 +42,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--folds", type=int, default=FOLDS, help="cross-validation folds over soil groups (default %(default)s)")
     p.add_argument("--seed", type=cli_numbers.seed, default=0, help="seed of the held-out split and folds (default 0)")
     p.add_argument("--stride", type=int, default=DEFAULT_STRIDE, help="use every n-th tick in the soil, 1-60 (default %(default)s; every tick where "
-                   "the force varies far more between them than from one n-th tick to the next: a vibration n would fold)")
+                   "the force varies within n ticks, beyond noise, by 2 %% of |F|: a vibration n would fold)")
     p.add_argument("--alpha", type=float, default=ALPHA, help="significance level, Holm-corrected (default %(default)s)")
     p.add_argument("--min-gain", type=float, default=MIN_GAIN,
                    help="least share of held-out error a term must remove (default %(default)s)")

@@ -82,7 +82,8 @@ class Frame:
     entry_x_m: np.ndarray | None = None
     # at stride > 1, per axis: RMS [N] of the soil's force about the mean of each block of ``stride``
     # ticks ("within"), of its change from one analysed tick to the next as white noise would give it
-    # ("between", ``regimes.fast_part``'s measure), and of |F| ("force"): ``folded_vibration``
+    # ("between", ``regimes.fast_part``'s measure); the RMS of |F| ("force"), the "stride" and the
+    # number of analysed-tick "pairs" behind "between": ``folded_rms``, ``folded_vibration``
     fast_force: dict | None = None
 
     def __len__(self) -> int:
