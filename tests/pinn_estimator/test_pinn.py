@@ -420,6 +420,9 @@ def test_eval_judges_the_forecast_on_the_users_own_bags(tiny_bags, tmp_path, cap
     assert (out / f"{pinn.stem}_report.md").read_text() == whole
     assert eval_main(alone_own) == 0
     assert f"pinn_eval: replaced {pinn.stem}_forecast.json, {pinn.stem}_forecast.md in {out}" in capsys.readouterr().err
+    # the forecast alone named as an earlier whole report: its figure left beside it is said to be that report's
+    assert eval_main([*alone_own, "--name", f"{pinn.stem}_report"]) == 0
+    assert f"; {pinn.stem}_report_params.png beside them is the earlier whole report's figure" in capsys.readouterr().err
     # one cut alone is no pair: refused, naming the folder, before the test split is evaluated
     lone = tmp_path / "lone"
     write_episode(lone / "one", next(iter(run_episodes(SimConfig(world_mode="fee"), specs[:1]))))

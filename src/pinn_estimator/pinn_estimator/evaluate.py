@@ -708,11 +708,14 @@ def main(argv=None) -> int:
         print(f"pinn_eval: error: {err}", file=sys.stderr)
         return 1
     replaced = [p.name for p in report_paths(Path(args.out), stem, args.forecast_only).values() if p.exists()]
+    # a whole report's figure beside the forecast's files of its name is not the forecast's (an outside reviewer's)
+    figure = report_paths(Path(args.out), stem, False)["png"]
+    stale = args.forecast_only and figure.exists()
     paths = write_report(report, Path(args.out), stem)
     print(markdown(report))
     if replaced:  # a report of before is gone: said, since a user may have meant to keep it (--name, --out)
-        print(f"pinn_eval: replaced {', '.join(replaced)} in {args.out} (give --name or --out to keep a report)",
-              file=sys.stderr)
+        print(f"pinn_eval: replaced {', '.join(replaced)} in {args.out} (give --name or --out to keep a report)"
+              + (f"; {figure.name} beside them is the earlier whole report's figure" if stale else ""), file=sys.stderr)
     print(json.dumps({k: str(v) for k, v in paths.items()}))
     return 0
 
