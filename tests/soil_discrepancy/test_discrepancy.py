@@ -826,6 +826,18 @@ def test_a_soil_the_model_cannot_follow_is_located_by_its_misfit(bag_dirs):
                                       for r in mis["rows"]]}}
     text = misfit_text(one)
     assert "cut at one depth" in text and "says nothing about the physics" in text and "needs a soil outside" not in text
+    # with no regime flagged and no soil fitting worse, θ on the physical box where cuts of several depths pin
+    # it is a discrepancy by itself (an outside reader's φ falling with depth had been "no significant
+    # discrepancy"); cut at one depth it is not
+    from soil_discrepancy.verdict import verdict_of
+
+    quiet_bound = {"misfit": {**mis, "rows": [{**r, "flagged": False} for r in mis["rows"]], "soils": [], "groups": []},
+                   "significant": False, "flagged_variables": [], "min_effect": 0.02, "alpha": 0.01}
+    verdict, text = verdict_of([], quiet_bound, None)
+    assert verdict == "unexplained" and "only with a soil outside the physical range in 2 group(s)" in text, text
+    verdict, text = verdict_of([], {**quiet_bound, "misfit": {**quiet_bound["misfit"], "rows": [
+        {**r, "one_depth": True} for r in quiet_bound["misfit"]["rows"]]}}, None)
+    assert verdict == "no significant discrepancy", text
     even = group_misfit(frame, rng.normal(size=frame.forces.shape) * fmag * 0.03)
     assert even["soils"] == [] and even["groups"] == [] and misfit_text({"misfit": even}) == ""
 
